@@ -1,0 +1,1 @@
+"""Running generated filters the way firmware does: scenarios, log readers, harnesses."""

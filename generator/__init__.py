@@ -1,0 +1,1 @@
+"""ahrsgen: attitude filters as CasADi equations, emitted as fixed-size C."""
