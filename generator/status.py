@@ -1,0 +1,36 @@
+"""Status bits returned by every generated `<prefix>_step` (and by every reference).
+
+A status is a bit mask; 0 is OK. Refusals leave the state untouched. Skips mean one aiding
+correction was not applied (the gyro propagation still ran). Filters may add their own bits
+from FILTER_BASE upward (listed in their model and manifest).
+"""
+from __future__ import annotations
+
+OK = 0
+# step refused, state unchanged
+DT_INVALID = 1 << 0        # dt not finite or <= 0
+DT_TOO_LARGE = 1 << 1      # dt above the configured maximum
+GYRO_MISSING = 1 << 2      # gyro valid bit clear
+GYRO_NONFINITE = 1 << 3    # NaN/Inf in the gyro sample
+# aiding correction skipped, state propagated
+ACCEL_NONFINITE = 1 << 4
+ACCEL_ZERO = 1 << 5        # |accel| below the configured minimum
+MAG_NONFINITE = 1 << 6
+MAG_ZERO = 1 << 7          # |mag| below the configured minimum
+GPS_NONFINITE = 1 << 8
+FILTER_BASE = 1 << 12      # first bit a filter may define for itself
+
+REFUSED_MASK = DT_INVALID | DT_TOO_LARGE | GYRO_MISSING | GYRO_NONFINITE
+
+COMMON = [
+    ("OK", OK, "step completed with every available correction"),
+    ("DT_INVALID", DT_INVALID, "refused: dt is not finite or not positive; state unchanged"),
+    ("DT_TOO_LARGE", DT_TOO_LARGE, "refused: dt above the configured maximum; state unchanged"),
+    ("GYRO_MISSING", GYRO_MISSING, "refused: gyro valid bit clear; state unchanged"),
+    ("GYRO_NONFINITE", GYRO_NONFINITE, "refused: gyro sample not finite; state unchanged"),
+    ("ACCEL_NONFINITE", ACCEL_NONFINITE, "accelerometer sample not finite; its correction skipped"),
+    ("ACCEL_ZERO", ACCEL_ZERO, "accelerometer norm below minimum; its correction skipped"),
+    ("MAG_NONFINITE", MAG_NONFINITE, "magnetometer sample not finite; its correction skipped"),
+    ("MAG_ZERO", MAG_ZERO, "magnetometer norm below minimum; its correction skipped"),
+    ("GPS_NONFINITE", GPS_NONFINITE, "GPS velocity not finite; its correction skipped"),
+]
