@@ -1,0 +1,138 @@
+"""Fixed-size linear algebra as fully unrolled CasADi expressions (no loops, no inverse).
+
+Every function takes small dense matrices (casadi SX, or DM/NumPy for evaluation) whose
+sizes are known when the model is built, and returns expressions made only of +, -, *, /,
+sqrt, fmax/fmin and if_else, so the emitter turns them into straight-line C.
+
+Safety (the generated C must never produce NaN from a bad covariance):
+
+- `cholesky` never takes the square root of a non-positive number. A pivot at or below
+  `tol` is replaced by 1 (the factor is then garbage, but finite), and the smallest pivot
+  is returned so the caller can test `min_pivot > tol` and skip or repair the update.
+- The triangular solves divide only by the diagonal of such a factor, which is either
+  sqrt(pivot > tol) or 1, so they stay finite for finite input.
+
+Cost for n x n (m right-hand sides), counted in the unrolled expression:
+  cholesky:      n sqrt, n(n-1)/2 div, ~n^3/6 mul
+  solve_lower:   n*m div, ~n^2 m / 2 mul  (same for solve_upper)
+  spd_solve:     cholesky + two triangular solves.
+"""
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+
+
+def _as_casadi(A):
+    """Return (matrix, constructor) keeping SX/MX/DM as they are, NumPy/lists -> DM."""
+    if isinstance(A, (ca.SX, ca.MX, ca.DM)):
+        return A, type(A)
+    return ca.DM(np.asarray(A, dtype=float)), ca.DM
+
+
+def _zeros(kind, n, m):
+    return kind.zeros(n, m)
+
+
+def cholesky(A, tol: float = 0.0):
+    """Lower Cholesky factor L (A = L Lᵀ) of a symmetric n x n matrix, and the smallest pivot.
+
+    Only the lower triangle of A is read. Returns (L, min_pivot): min_pivot is the
+    smallest value d_j = A_jj - sum_k L_jk² met during the factorisation; A is
+    numerically positive definite (to `tol`) iff min_pivot > tol. Where a pivot is
+    <= tol, L_jj = 1 is used instead of sqrt(d_j) so that the result stays finite.
+    """
+    A, kind = _as_casadi(A)
+    n = A.shape[0]
+    if A.shape[1] != n:
+        raise ValueError(f"cholesky needs a square matrix, got {A.shape}")
+    L = [[None] * n for _ in range(n)]
+    min_pivot = None
+    for j in range(n):
+        d = A[j, j]
+        for k in range(j):
+            d = d - L[j][k] * L[j][k]
+        ok = d > tol
+        ljj = ca.sqrt(ca.if_else(ok, d, 1.0))   # sqrt argument always positive
+        L[j][j] = ljj
+        min_pivot = d if min_pivot is None else ca.fmin(min_pivot, d)
+        for i in range(j + 1, n):
+            s = A[i, j]
+            for k in range(j):
+                s = s - L[i][k] * L[j][k]
+            L[i][j] = s / ljj
+    out = _zeros(kind, n, n)
+    for i in range(n):
+        for j in range(i + 1):
+            out[i, j] = L[i][j]
+    return out, min_pivot
+
+
+def solve_lower(L, B):
+    """X with L X = B by forward substitution (L lower triangular n x n, B n x m)."""
+    L, kind = _as_casadi(L)
+    B, _ = _as_casadi(B)
+    n = L.shape[0]
+    if B.shape[0] != n:
+        raise ValueError(f"solve_lower: L is {L.shape}, B is {B.shape}")
+    m = B.shape[1]
+    X = [[None] * m for _ in range(n)]
+    for c in range(m):
+        for i in range(n):
+            s = B[i, c]
+            for k in range(i):
+                s = s - L[i, k] * X[k][c]
+            X[i][c] = s / L[i, i]
+    out = _zeros(kind, n, m)
+    for i in range(n):
+        for c in range(m):
+            out[i, c] = X[i][c]
+    return out
+
+
+def solve_upper(U, B):
+    """X with U X = B by back substitution (U upper triangular n x n, B n x m)."""
+    U, kind = _as_casadi(U)
+    B, _ = _as_casadi(B)
+    n = U.shape[0]
+    if B.shape[0] != n:
+        raise ValueError(f"solve_upper: U is {U.shape}, B is {B.shape}")
+    m = B.shape[1]
+    X = [[None] * m for _ in range(n)]
+    for c in range(m):
+        for i in reversed(range(n)):
+            s = B[i, c]
+            for k in range(i + 1, n):
+                s = s - U[i, k] * X[k][c]
+            X[i][c] = s / U[i, i]
+    out = _zeros(kind, n, m)
+    for i in range(n):
+        for c in range(m):
+            out[i, c] = X[i][c]
+    return out
+
+
+def spd_solve(A, B, tol: float = 0.0):
+    """X = A⁻¹ B for symmetric positive definite A, through its Cholesky factor.
+
+    Returns (X, min_pivot); X is meaningful only when min_pivot > tol (it is finite
+    either way for finite input).
+    """
+    L, min_pivot = cholesky(A, tol)
+    Y = solve_lower(L, B)
+    X = solve_upper(L.T, Y)
+    return X, min_pivot
+
+
+def symmetrize(P):
+    """(P + Pᵀ) / 2."""
+    P, _ = _as_casadi(P)
+    return 0.5 * (P + P.T)
+
+
+def joseph_update(P, K, H, R):
+    """Joseph-form covariance update (I - K H) P (I - K H)ᵀ + K R Kᵀ, symmetrised."""
+    P, kind = _as_casadi(P)
+    n = P.shape[0]
+    IKH = kind.eye(n) - ca.mtimes(K, H)
+    return symmetrize(ca.mtimes([IKH, P, IKH.T]) + ca.mtimes([K, R, K.T]))
