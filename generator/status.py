@@ -18,9 +18,12 @@ ACCEL_ZERO = 1 << 5        # |accel| below the configured minimum
 MAG_NONFINITE = 1 << 6
 MAG_ZERO = 1 << 7          # |mag| below the configured minimum
 GPS_NONFINITE = 1 << 8
+GYRO_RANGE = 1 << 9        # refused: a gyro component beyond gyro_max
+ACCEL_RANGE = 1 << 10      # a component beyond accel_max: correction skipped
+MAG_RANGE = 1 << 11        # a component beyond mag_max: correction skipped
 FILTER_BASE = 1 << 12      # first bit a filter may define for itself
 
-REFUSED_MASK = DT_INVALID | DT_TOO_LARGE | GYRO_MISSING | GYRO_NONFINITE
+REFUSED_MASK = DT_INVALID | DT_TOO_LARGE | GYRO_MISSING | GYRO_NONFINITE | GYRO_RANGE
 
 COMMON = [
     ("OK", OK, "step completed with every available correction"),
@@ -33,4 +36,7 @@ COMMON = [
     ("MAG_NONFINITE", MAG_NONFINITE, "magnetometer sample not finite; its correction skipped"),
     ("MAG_ZERO", MAG_ZERO, "magnetometer norm below minimum; its correction skipped"),
     ("GPS_NONFINITE", GPS_NONFINITE, "GPS velocity not finite; its correction skipped"),
+    ("GYRO_RANGE", GYRO_RANGE, "refused: a gyro component beyond gyro_max; state unchanged"),
+    ("ACCEL_RANGE", ACCEL_RANGE, "an accelerometer component beyond accel_max; its correction skipped"),
+    ("MAG_RANGE", MAG_RANGE, "a magnetometer component beyond mag_max; its correction skipped"),
 ]
