@@ -208,6 +208,25 @@ class Truth:
         return q / np.linalg.norm(q, axis=1, keepdims=True), v, a
 
 
+def static_truth(q, duration: float, period: float) -> Truth:
+    """A vehicle at rest at attitude q, on the IMU grid itself (one period before t = 0 to
+    one period after the end)."""
+    k1 = int(np.ceil(duration / period)) + 2
+    m = k1 + 2
+    qs = np.tile(np.asarray(q, dtype=float), (m, 1))
+    return Truth(-period, period, qs, np.zeros((m, 3)), np.zeros((m, 3)))
+
+
+def offsets(intervals, t):
+    """Sum of constant offsets: intervals = [(t0, t1, (3,)), ...], applied for t0 <= t < t1."""
+    t = np.asarray(t, dtype=float)
+    out = np.zeros((len(t), 3))
+    for t0, t1, off in intervals:
+        on = (t >= t0 - 1e-9) & (t < t1 - 1e-9)
+        out[on] += np.asarray(off, dtype=float)
+    return out
+
+
 def mag_ref(inclination_deg: float, declination_deg: float) -> np.ndarray:
     """Unit Earth-field direction in NED (inclination positive down, declination east of north)."""
     inc, dec = inclination_deg * DEG, declination_deg * DEG
@@ -282,11 +301,11 @@ def simulate(name: str, truth: Truth, *, rate_hz: float, duration: float, seed: 
 
     accel_rate / mag_rate: None = every IMU step; gps_rate: None = no GPS (bit never set).
     dropout: {"gyro"|"accel"|"mag"|"gps": probability of losing each sample}.
-    *_disturbance: callable(t (N,), rng_for_scenario) -> (N,3) body-frame additive term, evaluated
-    at each sensor's sample times (t[k] for the gyro); `random_disturbances=False` (or noise=False)
-    drops those tagged as sensor errors (vibration) - pass deterministic offsets through
-    `accel_disturbance`/`mag_disturbance` with `random_disturbances` ignored by wrapping them in
-    `Deterministic(...)`.
+    *_disturbance: callable(t (J,), rng) -> (J,3) body-frame additive term, evaluated at that
+    sensor's sample times (t[k] for the gyro), rng a scenario stream of the seed. A callable
+    wrapped in `Deterministic(...)` is part of the scenario (static offsets) and is always applied;
+    a plain callable is a random sensor error (vibration) and is dropped with noise=False or
+    random_disturbances=False.
     """
     T = 1.0 / rate_hz
     n = int(round(duration * rate_hz))
