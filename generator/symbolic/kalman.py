@@ -1,0 +1,72 @@
+"""Kalman-filter building blocks as unrolled CasADi SX expressions (no filter imports here).
+
+Error-state Jacobians are taken with CasADi's `jacobian` of the caller's propagation or
+measurement function and evaluated at the linearisation point (error state and noise = 0),
+so no Jacobian is typed by hand. The gain uses the fixed-size Cholesky solve of
+`linalg.py` (no general inverse); the covariance update is the Joseph form, symmetrised.
+
+Rows that are not measured this step are handled by a *mask* instead of separate kernels:
+a masked row has H row = 0, innovation = 0 and R = 1, which makes its gain column exactly
+zero and leaves P, the state and the other rows untouched (S is block-diagonal in that row,
+so the Cholesky solve decouples it). One kernel then serves every subset of rows.
+"""
+from __future__ import annotations
+
+import casadi as ca
+
+from . import linalg
+
+
+def jacobian_at(expr, wrt, point, zero_vars):
+    """d expr / d wrt evaluated with every symbol in `zero_vars` set to 0.
+
+    `wrt` and the members of `zero_vars` are SX symbol vectors; `point` is unused except for
+    documentation symmetry (the linearisation point is X = 0, noise = 0).
+    """
+    del point
+    J = ca.jacobian(expr, wrt)
+    syms = ca.vertcat(*zero_vars)
+    return ca.substitute(J, syms, ca.SX.zeros(syms.shape[0], 1))
+
+
+def predict_covariance(P, F, G, Q):
+    """P⁻ = F P Fᵀ + G Q Gᵀ, symmetrised (patent step 2)."""
+    return linalg.symmetrize(ca.mtimes([F, P, F.T]) + ca.mtimes([G, Q, G.T]))
+
+
+def mask_rows(H, z, r, mask):
+    """Masked measurement: rows with mask 0 get H row 0, z 0, R 1 (mask entries are 0/1 symbols).
+
+    H (m x n), z (m), r (m, variances), mask (m). Returns (H_m, z_m, R_m).
+    """
+    m = H.shape[0]
+    Hm = ca.SX(H)
+    zm = ca.SX.zeros(m, 1)
+    R = ca.SX.zeros(m, m)
+    for i in range(m):
+        Hm[i, :] = mask[i] * H[i, :]
+        zm[i] = mask[i] * z[i]
+        R[i, i] = mask[i] * r[i] + (1 - mask[i])
+    return Hm, zm, R
+
+
+def gain(P, H, R, tol: float = 0.0):
+    """K = P Hᵀ (H P Hᵀ + R)⁻¹ through a Cholesky solve; returns (K, S, min_pivot).
+
+    K is meaningful only where min_pivot > tol (it is finite either way for finite input).
+    """
+    PHt = ca.mtimes(P, H.T)
+    S = linalg.symmetrize(ca.mtimes(H, PHt) + R)
+    KT, min_pivot = linalg.spd_solve(S, PHt.T, tol)     # S Kᵀ = H P  (P, S symmetric)
+    return KT.T, S, min_pivot
+
+
+def joseph(P, K, H, R):
+    """P⁺ = (I − K H) P (I − K H)ᵀ + K R Kᵀ, symmetrised (patent step 6)."""
+    return linalg.joseph_update(P, K, H, R)
+
+
+def update(P, H, z, R, tol: float = 0.0):
+    """Full Kalman correction: returns (dx = K z, P⁺ (Joseph, symmetric), min_pivot of S)."""
+    K, _, min_pivot = gain(P, H, R, tol)
+    return ca.mtimes(K, z), joseph(P, K, H, R), min_pivot
