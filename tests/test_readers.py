@@ -1,0 +1,217 @@
+"""Log readers: BROAD CSV and PX4 ULog excerpts (tests/data/) mapped into SensorLog.
+
+The checks are physical, not copies of the reader's output: at rest the reference attitude
+must rotate the specific force onto [0, 0, -g] and (BROAD: magnetic north) the field into the
+north-down plane; integrating the gyro from the reference must land on the later reference
+(gyro frame, sign and timing); mag/GPS valid bits must match the topic message counts.
+"""
+from __future__ import annotations
+
+import gzip
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from firmware_sim import readers
+from firmware_sim.log import G0, VALID_ACCEL, VALID_GPS, VALID_GYRO, VALID_MAG
+from generator.npquat import qconj, qexp, qmul, rotmat
+
+DATA = Path(__file__).parent / "data"
+BROAD_X = DATA / "broad_01_excerpt.csv.gz"
+ULOG_X = DATA / "px4_small_excerpt.ulg"          # CubeOrange on the bench: mag, GPS, attitude
+ULOG_MOVING = DATA / "px4_handheld_excerpt.ulg"  # AUAV-X21 hand-held: first 12 s, old mag layout
+
+
+def _angle_deg(qa, qb):
+    qe = qmul(qconj(qa), qb)
+    return np.degrees(2 * np.arctan2(np.linalg.norm(qe[1:]), abs(qe[0])))
+
+
+def _integrate(log, k0, k1):
+    """Propagate q_true[k0] with the gyro of steps k0+1..k1 (rate over (t[k-1], t[k]])."""
+    q = log.q_true[k0].copy()
+    for k in range(k0 + 1, k1 + 1):
+        q = qmul(q, qexp(0.5 * log.gyro[k] * log.dt[k]))
+    return q
+
+
+# --------------------------------------------------------------------------- BROAD
+
+@pytest.fixture(scope="module")
+def broad():
+    return readers.read_log(BROAD_X)
+
+
+def test_broad_shape_timing_and_bits(broad):
+    with gzip.open(BROAD_X, "rt") as f:
+        n_rows = sum(1 for _ in f) - 1
+    assert len(broad) == n_rows
+    assert np.allclose(broad.dt[1:], 0.0035, atol=2e-6)        # 285.714 Hz
+    assert broad.dt[0] == pytest.approx(0.0035, abs=2e-6)
+    assert np.all(broad.valid == (VALID_GYRO | VALID_ACCEL | VALID_MAG))
+    assert np.all(np.isnan(broad.gps_vel))
+    mv = broad.meta["movement"]
+    assert mv.dtype == bool and len(mv) == len(broad) and 0 < mv.sum() < len(broad)
+    first = np.flatnonzero(mv)[0]
+    assert broad.settle_time == pytest.approx(broad.t[first] - broad.t[0])
+    assert "Laidig" in broad.meta["citation"]
+
+
+def test_broad_rest_reference_matches_gravity_and_magnetic_north(broad):
+    rest = np.flatnonzero(~broad.meta["movement"] & np.all(np.isfinite(broad.q_true), axis=1))
+    rest = rest[rest < np.flatnonzero(broad.meta["movement"])[0]][::50]
+    f_n = np.array([rotmat(broad.q_true[k]) @ broad.accel[k] for k in rest])
+    m_n = np.array([rotmat(broad.q_true[k]) @ broad.mag[k] for k in rest])
+    # specific force at rest, rotated to NED, points up: [0, 0, -g]
+    tilt = np.degrees(np.arccos(-f_n[:, 2] / np.linalg.norm(f_n, axis=1)))
+    assert np.median(tilt) < 2.0
+    assert np.median(np.linalg.norm(f_n, axis=1)) == pytest.approx(G0, rel=0.03)
+    # heading reference is magnetic north: horizontal field has no east component
+    decl = np.degrees(np.arctan2(m_n[:, 1], m_n[:, 0]))
+    assert abs(np.median(decl)) < 3.0
+    assert np.median(m_n[:, 2]) > 0          # northern hemisphere (Berlin): field points down
+
+
+def test_broad_gyro_integrates_onto_reference(broad):
+    mv = np.flatnonzero(broad.meta["movement"] & np.all(np.isfinite(broad.q_true), axis=1))
+    k0 = mv[len(mv) // 3]
+    k1 = k0 + 143                       # 0.5 s of hand-held rotation
+    assert np.all(np.isfinite(broad.q_true[k0:k1 + 1]))
+    travelled = _angle_deg(broad.q_true[k0], broad.q_true[k1])
+    err = _angle_deg(_integrate(broad, k0, k1), broad.q_true[k1])
+    assert travelled > 5.0              # the window really moves
+    assert err < 0.1 * travelled        # gyro frame/sign/timing agree with the reference
+    # a wrong body frame (sensor axes instead of FRD) would not integrate onto it
+    wrong = broad.gyro.copy()
+    broad.gyro[:] = wrong * np.array([1.0, -1.0, -1.0])
+    try:
+        err_wrong = _angle_deg(_integrate(broad, k0, k1), broad.q_true[k1])
+    finally:
+        broad.gyro[:] = wrong
+    assert err_wrong > 3 * err
+
+
+def test_broad_rejects_other_layout(tmp_path):
+    p = tmp_path / "x.csv"
+    p.write_text("t,gx,gy\n0,0,0\n")
+    with pytest.raises(ValueError, match="BROAD CSV layout"):
+        readers.read_log(p)
+    with pytest.raises(ValueError, match="unknown log format"):
+        (tmp_path / "a.bin").write_bytes(b"x")
+        readers.read_log(tmp_path / "a.bin")
+    with pytest.raises(FileNotFoundError):
+        readers.read_log(tmp_path / "missing.ulg")
+
+
+# --------------------------------------------------------------------------- ULog
+
+@pytest.fixture(scope="module")
+def ulog():
+    return readers.read_log(ULOG_X)
+
+
+@pytest.fixture(scope="module")
+def raw_ulog():
+    from pyulog import ULog
+    return ULog(str(ULOG_X))
+
+
+def test_ulog_steps_and_timing(ulog, raw_ulog):
+    sc = raw_ulog.get_dataset("sensor_combined").data
+    ts = np.unique(sc["timestamp"])
+    assert len(ulog) == len(ts)
+    assert np.allclose(ulog.t, (ts - ts[0]) * 1e-6)
+    assert np.allclose(ulog.dt[1:], np.diff(ts) * 1e-6)
+    assert np.all(ulog.valid & VALID_GYRO) and np.all(ulog.valid & VALID_ACCEL)
+    assert np.allclose(ulog.gyro[:, 0], sc["gyro_rad[0]"][np.searchsorted(sc["timestamp"], ts)])
+
+
+def test_ulog_mag_and_gps_bits_once_per_sample(ulog, raw_ulog):
+    ts = np.unique(raw_ulog.get_dataset("sensor_combined").data["timestamp"])
+    m = raw_ulog.get_dataset("vehicle_magnetometer").data
+    in_range = (m["timestamp"] <= ts[-1])
+    # one valid step per magnetometer message in the IMU time span (none shares a step here)
+    assert ((ulog.valid & VALID_MAG) != 0).sum() == in_range.sum()
+    g = raw_ulog.get_dataset("vehicle_gps_position").data
+    ok = (g["timestamp"] <= ts[-1]) & g["vel_ned_valid"].astype(bool)
+    assert ((ulog.valid & VALID_GPS) != 0).sum() == ok.sum()
+    # valid rows carry the message value, the rows after hold it until the next sample
+    kg = np.flatnonzero(ulog.valid & VALID_GPS)
+    assert np.allclose(ulog.gps_vel[kg, 0], g["vel_n_m_s"][ok])
+    assert np.allclose(ulog.gps_vel[kg[0]:kg[1], 2], g["vel_d_m_s"][ok][0])
+    # each sample lands on the first IMU step at or after its timestamp
+    km = np.flatnonzero(ulog.valid & VALID_MAG)
+    t_us = ts
+    assert np.all(t_us[km] >= m["timestamp"][in_range])
+    assert np.all(t_us[km - 1] < m["timestamp"][in_range]) if km[0] > 0 else True
+    assert ulog.meta["gps_rate_hz"] == pytest.approx(5.0, rel=0.1)
+    assert ulog.meta["declination_deg"] == pytest.approx(3.99, abs=0.01)
+
+
+def test_ulog_reference_matches_gravity(ulog):
+    ok = np.flatnonzero(np.all(np.isfinite(ulog.q_true), axis=1))
+    assert len(ok) > 0.95 * len(ulog)
+    f_n = np.array([rotmat(ulog.q_true[k]) @ ulog.accel[k] for k in ok[::20]])
+    tilt = np.degrees(np.arccos(-f_n[:, 2] / np.linalg.norm(f_n, axis=1)))
+    assert np.median(tilt) < 3.0        # PX4's q is body FRD -> NED, accel is specific force
+
+
+def test_ulog_handheld_gyro_integrates_onto_px4_attitude():
+    log = readers.read_log(ULOG_MOVING)
+    assert log.meta["mag_source"] == "sensor_combined.magnetometer_ga"
+    assert log.meta["rate_hz"] == pytest.approx(250, rel=0.02)
+    worst, moved = 0.0, 0.0
+    for k0 in range(0, 1875, 125):       # 0.5 s windows over the hand-held part
+        k1 = k0 + 125
+        if not np.all(np.isfinite(log.q_true[[k0, k1]])):
+            continue
+        moved = max(moved, _angle_deg(log.q_true[k0], log.q_true[k1]))
+        worst = max(worst, _angle_deg(_integrate(log, k0, k1), log.q_true[k1]))
+    assert moved > 20.0                  # it really rotates
+    assert worst < 2.0                   # gyro frame, sign and step timing agree with PX4
+
+
+def test_ulog_old_sensor_combined_mag(tmp_path):
+    """Old logs carry the magnetometer inside sensor_combined with a relative timestamp."""
+    from pyulog import ULog
+    d = readers.shared_data_dir()
+    if d is None or not (d / "px4" / "sample.ulg").exists():
+        pytest.skip("full PX4 sample.ulg not found (../shared/data or $AHRSGEN_DATA)")
+    log = readers.read_ulog(d / "px4" / "sample.ulg")
+    raw = ULog(str(d / "px4" / "sample.ulg"), message_name_filter_list=["sensor_combined"])
+    sc = raw.get_dataset("sensor_combined").data
+    abs_t = sc["timestamp"].astype(np.int64) + sc["magnetometer_timestamp_relative"]
+    n_samples = len(np.unique(abs_t))
+    assert log.meta["mag_source"] == "sensor_combined.magnetometer_ga"
+    n_valid = ((log.valid & VALID_MAG) != 0).sum()
+    # two samples only share a step across the log's few IMU dropouts
+    assert 0.99 * n_samples <= n_valid <= n_samples
+    # a valid row holds a sample taken in (t[k-1], t[k]]
+    t_us = np.unique(sc["timestamp"]).astype(np.int64)
+    km = np.flatnonzero(log.valid & VALID_MAG)[1:]
+    lo, hi = t_us[km - 1], t_us[km]
+    for k, a, b in zip(km[::97], lo[::97], hi[::97]):
+        cand = (abs_t > a) & (abs_t <= b)
+        assert cand.any()
+        assert np.any(np.all(np.isclose(np.column_stack(
+            [sc[f"magnetometer_ga[{i}]"][cand] for i in range(3)]), log.mag[k]), axis=1))
+    assert log.meta["mag_rate_hz"] == pytest.approx(100, rel=0.05)
+
+
+def test_shared_data_dir_env(tmp_path, monkeypatch):
+    (tmp_path / "broad").mkdir()
+    (tmp_path / "broad" / "99_x.csv.gz").write_bytes(b"")
+    (tmp_path / "broad" / "notes.txt").write_text("not a trial")
+    monkeypatch.setenv(readers.DATA_ENV, str(tmp_path))
+    assert readers.shared_data_dir() == tmp_path
+    assert [p.name for p in readers.broad_trials()] == ["99_x.csv.gz"]
+    assert readers.shared_data_dir(tmp_path / "nope") == tmp_path
+
+
+def test_full_broad_subset_reads():
+    trials = readers.broad_trials()
+    if not trials:
+        pytest.skip("BROAD subset not found (../shared/data/broad or $AHRSGEN_DATA)")
+    log = readers.read_broad(trials[0])
+    assert len(log) > 40000 and log.meta["movement"].any()
