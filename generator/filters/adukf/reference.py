@@ -1,0 +1,273 @@
+"""NumPy reference of the adaptive derivative UKF (A-DUKF), written from the equations.
+
+Source: seeds/003_876a2b6ece1f51db.txt (the paper's formulas were lost; SPEC.md fixes the
+reading below). Independent of the CasADi model: plain loops and numpy.linalg.
+
+State q (4, body->NED, unit), P (4x4). One step, after the common input checks:
+
+1. Time update (linear): A = I4 + dt/2 Ω(ω), q⁻ = A q, P⁻ = A P Aᵀ + Q.
+   Product choice (documented): A is divided by |A q| = sqrt(1 + |ω|² dt²/4), which makes it
+   orthogonal (AᵀA = (1 + |ω|² dt²/4) I for the first-order A), so q⁻ stays unit and the
+   covariance of the unobservable norm direction does not grow without bound. faithful
+   mode keeps the paper's A. Q = gyro_noise² dt/4 (I4 - q qᵀ) + q_floor dt I4 (the
+   quaternion-rate noise of white gyro noise, plus a small isotropic floor).
+2. Unscented measurement update (n = 4, 9 sigma points): L = chol(P⁻),
+   χ0 = q⁻, χi = q⁻ + a L[:, i], χ(i+4) = q⁻ - a L[:, i], a = sqrt(n + λ),
+   λ = α²(n + κ) - n; weights Wm0 = λ/(n+λ), Wc0 = Wm0 + 1 - α² + β, Wi = 1/(2(n+λ)).
+   Each sigma point is normalised before h(q) = [R(q)ᵀ(-ĝ), R(q)ᵀ m̂], ĝ = [0,0,1].
+   z = [f/|f|; m/|m|], ẑ = Σ Wm z_i, ε = z - ẑ,
+   R = diag(σa² + k_a ε1..3², σm² + k_m ε4..6²),
+   P_zz = Σ Wc (z_i - ẑ)(z_i - ẑ)ᵀ + R, P_xz = Σ Wc (χ_i - q⁻)(z_i - ẑ)ᵀ,
+   K = P_xz P_zz⁻¹ (Cholesky solve), q⁺ = normalise(q⁻ + K ε), P⁺ = sym(P⁻ - K P_zz Kᵀ).
+   A sensor that is not usable this step is masked out exactly: its rows/columns of P_zz
+   become those of the identity, its columns of P_xz and its residual become 0, so K has
+   zero columns for it.
+3. Numerical safety: P⁻ not positive definite (smallest Cholesky pivot <= pivot_min):
+   P reset to P0 = p0 I4, q = q⁻ normalised, update skipped (COV_RESET). P_zz not positive
+   definite: update skipped, P = P⁻ (UPDATE_SKIPPED). A non-finite result: the state is
+   left as it was before the step (NUMERIC_FAULT).
+
+Reference field m̂ (NED unit): [cos I cos D, cos I sin D, sin I] from the configured
+inclination I and declination D, or (mag_ref = "learn") I learned from the mean of
+sin I = (-f̂)·m̂_b over the first `learn_samples` samples at rest; the magnetometer
+correction waits until then (MAG_LEARNING).
+
+Initialisation: faithful: q = [1,0,0,0] (the paper). Otherwise the first step with usable
+accelerometer and magnetometer sets q from tilt and tilt-compensated heading (SPEC.md
+formulas) and does nothing else.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from firmware_sim.log import G0, VALID_ACCEL, VALID_GYRO, VALID_MAG
+from generator import status as st
+from generator.npquat import q_from_euler, rotmat
+
+# filter-specific status bits (same values in the model and the generated C)
+COV_RESET = st.FILTER_BASE << 0        # P⁻ not positive definite: P reset to P0, update skipped
+UPDATE_SKIPPED = st.FILTER_BASE << 1   # P_zz not positive definite: update skipped
+NUMERIC_FAULT = st.FILTER_BASE << 2    # non-finite result: state left as before the step
+MAG_LEARNING = st.FILTER_BASE << 3     # reference field still being learned: no mag correction
+
+STATUS_BITS = [
+    ("COV_RESET", COV_RESET, "P⁻ was not positive definite: P reset to P0, measurement update skipped"),
+    ("UPDATE_SKIPPED", UPDATE_SKIPPED, "P_zz not positive definite: measurement update skipped"),
+    ("NUMERIC_FAULT", NUMERIC_FAULT, "non-finite result: state left as it was before the step"),
+    ("MAG_LEARNING", MAG_LEARNING, "reference field still being learned: magnetometer correction not applied"),
+]
+
+N = 4
+
+
+def omega_matrix(w):
+    wx, wy, wz = w
+    return np.array([
+        [0.0, -wx, -wy, -wz],
+        [wx, 0.0, wz, -wy],
+        [wy, -wz, 0.0, wx],
+        [wz, wy, -wx, 0.0],
+    ])
+
+
+def ut_weights(alpha, beta, kappa, n=N):
+    lam = alpha * alpha * (n + kappa) - n
+    a = math.sqrt(n + lam)
+    wm = np.full(2 * n + 1, 1.0 / (2.0 * (n + lam)))
+    wc = wm.copy()
+    wm[0] = lam / (n + lam)
+    wc[0] = lam / (n + lam) + 1.0 - alpha * alpha + beta
+    return a, wm, wc
+
+
+def mag_ref_from_angles(incl, decl):
+    return np.array([math.cos(incl) * math.cos(decl), math.cos(incl) * math.sin(decl), math.sin(incl)])
+
+
+def h_meas(q, m_ref):
+    """[R(q)ᵀ(-ĝ); R(q)ᵀ m̂] for unit q."""
+    Rt = rotmat(q).T
+    return np.concatenate([Rt @ np.array([0.0, 0.0, -1.0]), Rt @ m_ref])
+
+
+def q_from_accel_mag(f, m, decl):
+    """Tilt (SPEC formulas) + tilt-compensated heading -> body->NED quaternion."""
+    roll = math.atan2(-f[1], -f[2])
+    pitch = math.atan2(f[0], math.hypot(f[1], f[2]))
+    sr, cr, sp, cp = math.sin(roll), math.cos(roll), math.sin(pitch), math.cos(pitch)
+    xh = m[0] * cp + m[1] * sp * sr + m[2] * sp * cr
+    yh = m[1] * cr - m[2] * sr
+    yaw = math.atan2(-yh, xh) + decl
+    return np.asarray(q_from_euler(roll, pitch, yaw), dtype=float)
+
+
+def _chol(A):
+    """(L, min pivot) with numpy; min pivot <= 0 reported as -inf when numpy refuses."""
+    try:
+        L = np.linalg.cholesky(A)
+    except np.linalg.LinAlgError:
+        return None, -np.inf
+    return L, float(np.min(np.diag(L)) ** 2)
+
+
+class Reference:
+    def __init__(self, params: dict):
+        self.p = dict(params)
+        p = self.p
+        self.a, self.wm, self.wc = ut_weights(p["ut_alpha"], p["ut_beta"], p["ut_kappa"])
+        self.decl = math.radians(p["declination_deg"])
+        self.learn = p["mag_ref"] == "learn"
+        self.m_ref = (np.zeros(3) if self.learn
+                      else mag_ref_from_angles(math.radians(p["inclination_deg"]), self.decl))
+        self.learn_count = 0
+        self.learn_sum = 0.0
+        self.q = np.array([1.0, 0.0, 0.0, 0.0])
+        self.P = p["p0"] * np.eye(N)
+        self.initialized = bool(p["faithful"])
+        self.r_diag = np.zeros(6)       # R used by the last step (0 = sensor not used)
+
+    # ------------------------------------------------------------------ input checks
+    def _check(self, v, bit_valid, valid, nonfinite, rng_bit, vmax, zero_bit, nmin):
+        if not (valid & bit_valid):
+            return False, 0
+        v = np.asarray(v, dtype=float)
+        if not np.all(np.isfinite(v)):
+            return False, nonfinite
+        if np.any(np.abs(v) > vmax):
+            return False, rng_bit
+        if np.linalg.norm(v) < nmin:
+            return False, zero_bit
+        return True, 0
+
+    def step(self, gyro, accel, mag, gps_vel, valid: int, dt: float) -> int:
+        p = self.p
+        valid = int(valid)
+        if not math.isfinite(dt) or dt <= 0.0:
+            return st.DT_INVALID
+        if dt > p["dt_max"]:
+            return st.DT_TOO_LARGE
+        if not (valid & VALID_GYRO):
+            return st.GYRO_MISSING
+        w = np.asarray(gyro, dtype=float)
+        if not np.all(np.isfinite(w)):
+            return st.GYRO_NONFINITE
+        if np.any(np.abs(w) > p["gyro_max"]):
+            return st.GYRO_RANGE
+        status = 0
+        use_a, s = self._check(accel, VALID_ACCEL, valid, st.ACCEL_NONFINITE, st.ACCEL_RANGE,
+                               p["accel_max"], st.ACCEL_ZERO, p["accel_min_norm"])
+        status |= s
+        use_m, s = self._check(mag, VALID_MAG, valid, st.MAG_NONFINITE, st.MAG_RANGE,
+                               p["mag_max"], st.MAG_ZERO, p["mag_min_norm"])
+        status |= s
+        f = np.asarray(accel, dtype=float)
+        m = np.asarray(mag, dtype=float)
+        mag_ok = use_m
+
+        # learning the reference field (dip angle) from samples at rest
+        if self.learn and self.learn_count < p["learn_samples"]:
+            if use_a and use_m:
+                fn = np.linalg.norm(f)
+                at_rest = (np.linalg.norm(w) < p["rest_gyro_max"]
+                           and abs(fn - G0) < p["rest_accel_tol"])
+                if at_rest:
+                    self.learn_sum += float(np.dot(-f / fn, m / np.linalg.norm(m)))
+                    self.learn_count += 1
+                    if self.learn_count >= p["learn_samples"]:
+                        s_incl = min(max(self.learn_sum / self.learn_count, -1.0), 1.0)
+                        c_incl = math.sqrt(1.0 - s_incl * s_incl)
+                        self.m_ref = np.array([c_incl * math.cos(self.decl),
+                                               c_incl * math.sin(self.decl), s_incl])
+            if self.learn_count < p["learn_samples"]:
+                if use_m:
+                    status |= MAG_LEARNING
+                use_m = False
+
+        # initialisation from the first accelerometer + magnetometer sample
+        if not self.initialized:
+            if use_a and mag_ok:
+                self.q = q_from_accel_mag(f, m, self.decl)
+                self.P = p["p0"] * np.eye(N)
+                self.initialized = True
+                self.r_diag = np.zeros(6)
+                return status & ~MAG_LEARNING
+
+        q_old, P_old = self.q.copy(), self.P.copy()
+
+        # 1. time update
+        A = np.eye(N) + 0.5 * dt * omega_matrix(w)
+        if not p["faithful"]:
+            A = A / math.sqrt(1.0 + 0.25 * dt * dt * float(np.dot(w, w)))
+        q = self.q
+        Q = (p["gyro_noise"] ** 2 * dt / 4.0) * (np.eye(N) - np.outer(q, q)) + p["q_floor"] * dt * np.eye(N)
+        qm = A @ q
+        Pm = A @ self.P @ A.T + Q
+        Pm = 0.5 * (Pm + Pm.T)
+        r_diag = np.zeros(6)
+
+        q_new, P_new = qm / np.linalg.norm(qm), Pm
+        if use_a or use_m:
+            L, piv = _chol(Pm)
+            if not piv > p["pivot_min"]:
+                status |= COV_RESET
+                P_new = p["p0"] * np.eye(N)
+            else:
+                chis = [qm] + [qm + self.a * L[:, i] for i in range(N)] + \
+                       [qm - self.a * L[:, i] for i in range(N)]
+                Z = np.array([h_meas(c / np.linalg.norm(c), self.m_ref) for c in chis])
+                zhat = self.wm @ Z
+                z = np.concatenate([f / np.linalg.norm(f) if use_a else np.zeros(3),
+                                    m / np.linalg.norm(m) if use_m else np.zeros(3)])
+                eps = z - zhat
+                R = np.concatenate([p["sigma_acc"] ** 2 + p["k_a"] * eps[:3] ** 2,
+                                    p["sigma_mag"] ** 2 + p["k_m"] * eps[3:] ** 2])
+                dZ = Z - zhat
+                dX = np.array(chis) - qm
+                Pzz = (self.wc[:, None] * dZ).T @ dZ + np.diag(R)
+                Pxz = (self.wc[:, None] * dX).T @ dZ
+                mask = np.array([use_a] * 3 + [use_m] * 3)
+                eps = np.where(mask, eps, 0.0)
+                Pxz[:, ~mask] = 0.0
+                Pzz[~mask, :] = 0.0
+                Pzz[:, ~mask] = 0.0
+                Pzz[~mask, ~mask] = 1.0
+                _, piv_zz = _chol(Pzz)
+                if not piv_zz > p["pivot_min"]:
+                    status |= UPDATE_SKIPPED
+                else:
+                    K = np.linalg.solve(Pzz, Pxz.T).T
+                    qp = qm + K @ eps
+                    q_new = qp / np.linalg.norm(qp)
+                    P_new = Pm - K @ Pzz @ K.T
+                    P_new = 0.5 * (P_new + P_new.T)
+                    r_diag = np.where(mask, R, 0.0)
+
+        if not (np.all(np.isfinite(q_new)) and np.all(np.isfinite(P_new))):
+            self.q, self.P = q_old, P_old
+            self.r_diag = np.zeros(6)
+            return status | NUMERIC_FAULT
+        self.q, self.P, self.r_diag = q_new, P_new, r_diag
+        return status
+
+
+def run(log, params, record_r=False):
+    """Run the reference over a SensorLog; returns q (N,4) (and R diagonals (N,6))."""
+    ref = Reference(params)
+    qs = np.empty((len(log), 4))
+    rs = np.empty((len(log), 6)) if record_r else None
+    for k in range(len(log)):
+        ref.step(log.gyro[k], log.accel[k], log.mag[k], log.gps_vel[k], int(log.valid[k]), float(log.dt[k]))
+        qs[k] = ref.q
+        if record_r:
+            rs[k] = ref.r_diag
+    return (qs, rs) if record_r else qs
+
+
+def default_params() -> dict:
+    """Defaults from defaults.toml (for scripts and tests)."""
+    import pathlib
+    import tomllib
+    d = tomllib.loads((pathlib.Path(__file__).with_name("defaults.toml")).read_text())
+    return {k: v["default"] for k, v in d["params"].items()}

@@ -1,0 +1,210 @@
+"""Symbolic model of the MEKF (patent CN102692225B): CasADi kernels for the generated C.
+
+Error state X = [δq (3), δb (3)], nominal q̂ (body->NED) and b̂; true attitude
+normalise(q̂ ⊗ [1, δq]), true bias b̂ + δb. The Jacobians F, G (discrete error-state
+propagation) and H (Euler angles of q̂ ⊗ [1, δq] at δq = 0) are taken by CasADi's
+`jacobian` of the functions written out below - nothing is typed by hand here (the NumPy
+reference derives them by hand, independently).
+
+Kernels:
+  <p>_predict  patent steps 1-2: q̂ ← normalise(q̂ ⊗ exp(½ (ω − b̂) dt)), P ← F P Fᵀ + G Q Gᵀ
+  <p>_update   steps 3-8 with a row mask: measured angles (accelerometer tilt after the
+               optional centripetal compensation, GPS course or magnetic heading), wrapped
+               innovations, Cholesky gain, Joseph update, error injection and reset
+  <p>_init     first attitude from the accelerometer tilt and the heading (if any)
+
+P is stored full (36 values, column-major = row-major since symmetric) but each kernel
+reads only its lower triangle and writes the lower triangle mirrored, so the stored P is
+exactly symmetric; the Joseph form keeps it positive semi-definite.
+"""
+from __future__ import annotations
+
+import casadi as ca
+
+from generator import emit
+from generator.model import FilterModel, KernelSpec, StateField
+from generator.symbolic import attitude, kalman, quat
+from generator.symbolic import linalg
+
+N = 6           # error-state size
+S_PIVOT_MIN = 1e-12   # innovation covariance must have Cholesky pivots above this
+
+EXTRA_STATUS = [
+    ("COURSE_SLOW", "GPS sample present but ground speed below gps_min_speed: yaw row dropped"),
+    ("ACCEL_GATED", "| |accel| - g | above accel_gate: roll/pitch rows dropped"),
+    ("UPDATE_SKIPPED", "innovation covariance not positive definite: correction skipped"),
+]
+
+
+# ------------------------------------------------------------------------------------
+# helpers
+def sym_lower(v, n=N):
+    """n x n symmetric SX matrix from a flat (n*n) vector, reading only its lower triangle."""
+    M = ca.SX.zeros(n, n)
+    for j in range(n):
+        for i in range(j, n):
+            M[i, j] = v[i + n * j]
+            M[j, i] = v[i + n * j]
+    return M
+
+
+def flat_mirrored(M, n=N):
+    """Flat column-major (n*n) vector of the lower triangle of M mirrored (exactly symmetric)."""
+    out = []
+    for j in range(n):
+        for i in range(n):
+            out.append(M[max(i, j), min(i, j)])
+    return ca.vertcat(*out)
+
+
+def error_propagation(dq, db, ng, nb, omega_hat, dt):
+    """One-step error propagation (what F and G linearise).
+
+    Nominal: q̂' = q̂ ⊗ a, a = exp(½ ω̂ dt). Truth: q' = q ⊗ exp(½ (ω̂ − δb − n_g) dt) with
+    q = q̂ ⊗ [1, δq] (unnormalised; the Jacobian at 0 does not depend on the norm), so
+    [1, δq'] ∝ a* ⊗ [1, δq] ⊗ exp(½ (ω̂ − δb − n_g) dt); δb' = δb + n_b.
+    """
+    a = quat.qexp(0.5 * dt * omega_hat)
+    e = quat.qmul(quat.qmul(quat.qconj(a), quat.vec(1, dq[0], dq[1], dq[2])),
+                  quat.qexp(0.5 * dt * (omega_hat - db - ng)))
+    return ca.vertcat(e[1] / e[0], e[2] / e[0], e[3] / e[0], db + nb)
+
+
+def measurement(q, dq):
+    """Euler angles of normalise(q̂ ⊗ [1, δq]) (what H linearises)."""
+    return quat.euler(quat.qnormalize(quat.qmul(q, quat.vec(1, dq[0], dq[1], dq[2]))))
+
+
+def jacobians_FG(omega_hat, dt):
+    """(F, G) by CasADi jacobian of error_propagation at X = 0, noise = 0."""
+    dq, db, ng, nb = (ca.SX.sym(n, 3) for n in ("dq", "db", "ng", "nb"))
+    f = error_propagation(dq, db, ng, nb, omega_hat, dt)
+    zeros = [dq, db, ng, nb]
+    F = kalman.jacobian_at(f, ca.vertcat(dq, db), 0, zeros)
+    G = kalman.jacobian_at(f, ca.vertcat(ng, nb), 0, zeros)
+    return F, G
+
+
+def jacobian_H(q):
+    """H (3 x 6) by CasADi jacobian of measurement at δq = 0 (zero columns for δb)."""
+    dq = ca.SX.sym("dq", 3)
+    Hq = kalman.jacobian_at(measurement(q, dq), dq, 0, [dq])
+    return ca.horzcat(Hq, ca.SX.zeros(3, 3))
+
+
+# ------------------------------------------------------------------------------------
+# kernels
+def predict_function(p: dict, name="predict") -> ca.Function:
+    q = ca.SX.sym("q", 4)
+    b = ca.SX.sym("b", 3)
+    Pv = ca.SX.sym("P", N * N)
+    gyro = ca.SX.sym("gyro", 3)
+    dt = ca.SX.sym("dt")
+    omega_hat = gyro - b
+    q_new = quat.integrate(q, omega_hat, dt)
+    F, G = jacobians_FG(omega_hat, dt)
+    Q = ca.diag(ca.vertcat(*([p["gyro_noise"] ** 2 / dt] * 3 + [p["gyro_bias_rw"] ** 2 * dt] * 3)))
+    P = sym_lower(Pv)
+    P_new = ca.mtimes([F, P, F.T]) + ca.mtimes([G, Q, G.T])
+    return emit.function(name, {"q": q, "b": b, "P": Pv, "gyro": gyro, "dt": dt},
+                         {"q_out": q_new, "P_out": flat_mirrored(P_new)})
+
+
+def measured_angles(p: dict, q, b, gyro, accel, mag, vel, m_comp):
+    """Step 3: [φ₂, θ₂, ψ₂] from the (compensated) accelerometer and the heading source."""
+    f = accel
+    if p["centripetal_comp"]:
+        w = gyro - b
+        vb = quat.rotate_inv(q, vel)
+        f = accel - m_comp * ca.cross(w, vb)
+    roll_a, pitch_a = attitude.tilt_angles(f)
+    if p["heading_source"] == "mag":
+        est = quat.euler(q)
+        yaw_m = attitude.tilt_compensated_heading(mag, est[0], est[1], p["mag_declination"])
+    else:
+        yaw_m = ca.atan2(vel[1], vel[0])
+    return roll_a, pitch_a, yaw_m
+
+
+def update_function(p: dict, name="update") -> ca.Function:
+    q = ca.SX.sym("q", 4)
+    b = ca.SX.sym("b", 3)
+    Pv = ca.SX.sym("P", N * N)
+    gyro = ca.SX.sym("gyro", 3)
+    accel = ca.SX.sym("accel", 3)
+    mag = ca.SX.sym("mag", 3)
+    vel = ca.SX.sym("vel", 3)
+    mask = ca.SX.sym("mask", 3)     # [tilt rows, heading row, centripetal compensation] as 0/1
+    roll_a, pitch_a, yaw_m = measured_angles(p, q, b, gyro, accel, mag, vel, mask[2])
+    est = quat.euler(q)
+    z = quat.wrap(ca.vertcat(roll_a, pitch_a, yaw_m) - est)                       # step 4
+    H = jacobian_H(q)
+    r_head = p["mag_heading_noise"] if p["heading_source"] == "mag" else p["course_noise"]
+    r = [p["accel_angle_noise"] ** 2] * 2 + [r_head ** 2]
+    Hm, zm, R = kalman.mask_rows(H, z, r, [mask[0], mask[0], mask[1]])
+    P = sym_lower(Pv)
+    K, _, min_pivot = kalman.gain(P, Hm, R, S_PIVOT_MIN)                          # step 5
+    I_KH = ca.SX.eye(N) - ca.mtimes(K, Hm)
+    P_new = ca.mtimes([I_KH, P, I_KH.T]) + ca.mtimes([K, R, K.T])                 # step 6 (Joseph)
+    X = ca.mtimes(K, zm)                                                          # step 7
+    q_new = quat.qnormalize(quat.qmul(q, quat.vec(1, X[0], X[1], X[2])))         # step 8
+    b_new = b + X[3:6]
+    return emit.function(name, {"q": q, "b": b, "P": Pv, "gyro": gyro, "accel": accel, "mag": mag,
+                                "vel": vel, "mask": mask},
+                         {"q_out": q_new, "b_out": b_new, "P_out": flat_mirrored(P_new),
+                          "min_pivot": min_pivot})
+
+
+def init_function(p: dict, name="init_attitude") -> ca.Function:
+    accel = ca.SX.sym("accel", 3)
+    mag = ca.SX.sym("mag", 3)
+    vel = ca.SX.sym("vel", 3)
+    use_head = ca.SX.sym("use_head")
+    roll, pitch = attitude.tilt_angles(accel)
+    if p["heading_source"] == "mag":
+        yaw = attitude.tilt_compensated_heading(mag, roll, pitch, p["mag_declination"])
+    else:
+        yaw = ca.atan2(vel[1], vel[0])
+    yaw = use_head * yaw
+    return emit.function(name, {"accel": accel, "mag": mag, "vel": vel, "use_head": use_head},
+                         {"q_out": quat.from_euler(roll, pitch, yaw)})
+
+
+def initial_P(p: dict) -> list:
+    d = [(0.5 * p["p0_att"]) ** 2] * 3 + [p["p0_bias"] ** 2] * 3
+    return [d[i] if i == j else 0.0 for j in range(N) for i in range(N)]
+
+
+class Model(FilterModel):
+    def __post_init__(self):
+        self.extra_status = list(EXTRA_STATUS)
+        uses = ["accel", "gps"]
+        if self.params["heading_source"] == "mag":
+            uses.append("mag")
+        self.sensors = tuple(uses)
+
+    def state_fields(self) -> list[StateField]:
+        return [
+            StateField("q", 4, "attitude quaternion body->NED [w x y z]", [1.0, 0.0, 0.0, 0.0]),
+            StateField("gyro_bias", 3, "gyro bias estimate, rad/s", 0.0),
+            StateField("P", N * N, "error-state covariance [dq, db] (6x6, symmetric)", initial_P(self.params)),
+            StateField("v_gps", 3, "last valid GPS velocity NED, m/s", 0.0),
+            StateField("v_age", 1, "age of v_gps, s", 1e30),
+            StateField("initialised", 1, "1 once the attitude has been initialised", 0, "uint32"),
+        ]
+
+    def kernels(self) -> list[KernelSpec]:
+        p = self.params
+        return [
+            KernelSpec("predict", predict_function(p), "time update (patent steps 1-2)"),
+            KernelSpec("update", update_function(p), "measurement update with row mask (steps 3-8)"),
+            KernelSpec("init_attitude", init_function(p), "first attitude from tilt and heading"),
+        ]
+
+    def step_paths(self) -> dict[str, list[str]]:
+        return {"gyro only": ["predict"], "with corrections": ["predict", "update"]}
+
+    def template_context(self) -> dict:
+        p = self.params
+        return {"n": N, "heading_source": p["heading_source"], "centripetal_comp": p["centripetal_comp"],
+                "init_from_sensors": p["init_from_sensors"]}

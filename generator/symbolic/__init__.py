@@ -1,0 +1,1 @@
+"""CasADi SX building blocks shared by the filters (no filter imports here)."""

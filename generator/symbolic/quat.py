@@ -1,0 +1,125 @@
+"""Quaternion algebra, rotations, Euler angles and angle wrapping as CasADi SX expressions.
+
+Conventions (SPEC.md): Hamilton product, scalar first q = [w, x, y, z], q rotates body to
+NED (v_n = q ⊗ v_b ⊗ q*), Z-Y-X Euler angles [roll, pitch, yaw], yaw in (-pi, pi].
+All functions take and return casadi.SX column vectors.
+"""
+from __future__ import annotations
+
+import math
+
+import casadi as ca
+
+
+def vec(*items) -> ca.SX:
+    return ca.vertcat(*items)
+
+
+def qmul(p, q) -> ca.SX:
+    """Hamilton product p ⊗ q."""
+    pw, px, py, pz = p[0], p[1], p[2], p[3]
+    qw, qx, qy, qz = q[0], q[1], q[2], q[3]
+    return vec(
+        pw * qw - px * qx - py * qy - pz * qz,
+        pw * qx + px * qw + py * qz - pz * qy,
+        pw * qy - px * qz + py * qw + pz * qx,
+        pw * qz + px * qy - py * qx + pz * qw,
+    )
+
+
+def qconj(q) -> ca.SX:
+    return vec(q[0], -q[1], -q[2], -q[3])
+
+
+def qnormalize(q) -> ca.SX:
+    return q / ca.sqrt(ca.sumsqr(q))
+
+
+def pure(v) -> ca.SX:
+    return vec(0, v[0], v[1], v[2])
+
+
+def rotmat(q) -> ca.SX:
+    """R(q) with v_n = R v_b (q assumed unit)."""
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    return ca.vertcat(
+        ca.horzcat(1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)),
+        ca.horzcat(2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)),
+        ca.horzcat(2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)),
+    )
+
+
+def rotate(q, v) -> ca.SX:
+    """Body -> NED: R(q) v."""
+    return ca.mtimes(rotmat(q), v)
+
+
+def rotate_inv(q, v) -> ca.SX:
+    """NED -> body: R(q)^T v."""
+    return ca.mtimes(rotmat(q).T, v)
+
+
+# Below this rotation-vector half-angle the exponential uses its Taylor series; the
+# series' first neglected term (x^4/120 relative) is then far below double round-off.
+SMALL_ANGLE = 1e-4
+
+
+def qexp(v) -> ca.SX:
+    """exp([0, v]) = [cos|v|, sin|v| v/|v|], safe at |v| = 0 (Taylor series below SMALL_ANGLE)."""
+    n2 = ca.sumsqr(v)
+    n = ca.sqrt(n2)
+    small = n < SMALL_ANGLE
+    n_safe = ca.fmax(n, SMALL_ANGLE)
+    sinc = ca.if_else(small, 1 - n2 / 6, ca.sin(n_safe) / n_safe)
+    cos_n = ca.if_else(small, 1 - n2 / 2, ca.cos(n_safe))
+    return vec(cos_n, sinc * v[0], sinc * v[1], sinc * v[2])
+
+
+def integrate(q, omega, dt) -> ca.SX:
+    """q ⊗ exp(½ ω dt), normalised: exact for a constant body rate over dt."""
+    return qnormalize(qmul(q, qexp(0.5 * dt * omega)))
+
+
+def wrap(a) -> ca.SX:
+    """Wrap an angle to (-pi, pi]."""
+    two_pi = 2 * math.pi
+    return a + two_pi * ca.floor((math.pi - a) / two_pi)
+
+
+def euler(q) -> ca.SX:
+    """Z-Y-X Euler angles [roll, pitch, yaw] of a unit body->NED quaternion."""
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    roll = ca.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
+    pitch = ca.asin(ca.fmin(ca.fmax(2 * (w * y - x * z), -1), 1))
+    yaw = ca.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+    return vec(roll, pitch, yaw)
+
+
+def from_euler(roll, pitch, yaw) -> ca.SX:
+    """qz(yaw) ⊗ qy(pitch) ⊗ qx(roll)."""
+    cr, sr = ca.cos(roll / 2), ca.sin(roll / 2)
+    cp, sp = ca.cos(pitch / 2), ca.sin(pitch / 2)
+    cy, sy = ca.cos(yaw / 2), ca.sin(yaw / 2)
+    return vec(
+        cy * cp * cr + sy * sp * sr,
+        cy * cp * sr - sy * sp * cr,
+        cy * sp * cr + sy * cp * sr,
+        sy * cp * cr - cy * sp * sr,
+    )
+
+
+def axis_quat(axis: int, c_half, s_half) -> ca.SX:
+    """Quaternion of a rotation about body axis 0/1/2 from cos and sin of the half angle."""
+    comps = [0, 0, 0]
+    comps[axis] = s_half
+    return vec(c_half, *comps)
+
+
+def half_angle(c, s):
+    """(cos(a/2), sin(a/2)) from cos a and sin a, with a in (-pi, pi] (FQA's eqs. 23-24)."""
+    c = ca.fmin(ca.fmax(c, -1), 1)
+    c_half = ca.sqrt((1 + c) / 2)
+    # sign(s) with sign(0) taken as +1, so a = pi gives sin(a/2) = 1 (not 0)
+    sgn = ca.if_else(s < 0, -1, 1)
+    s_half = sgn * ca.sqrt((1 - c) / 2)
+    return c_half, s_half
