@@ -1,0 +1,785 @@
+"""Cortex-M4F target checks: cross build, run in QEMU, compare with the host, footprint.
+
+What a flight-controller engineer asks of generated code: does it give the same answers
+on my MCU as on my PC, and how much flash, RAM, stack and time does it take?  This
+module answers both with real tools:
+
+* **Cross build** with ``arm-none-eabi-gcc`` for a Cortex-M4F (``-mcpu=cortex-m4 -mthumb
+  -mfpu=fpv4-sp-d16 -mfloat-abi=hard``) at ``-O2`` and ``-Os``, linked with the product's
+  own startup code and linker script (``firmware_sim/target/``) into a bare-metal image.
+* **Run** under ``qemu-system-arm -M mps2-an386`` (a Cortex-M4 with FPU).  The image reads
+  the sensor log from a host file and writes, for every sample, the status and the raw
+  bytes of the state struct back through semihosting; nothing is printed as decimal text,
+  so the comparison with the host build is exact to the bit.
+* **Footprint** per filter and build: flash (text + rodata + .data image) and static RAM
+  (state struct, .data, .bss) as the *increase* over a baseline image that does not call
+  the filter, so everything the filter drags in from newlib's libm counts; worst-case
+  stack of ``step`` from ``-fstack-usage`` plus the call graph of the linked image
+  (objdump), checked against the stack actually touched (stack painting); instructions
+  per ``step`` measured exactly by running the ELF's own code in the ``unicorn`` emulator
+  (instructions, not cycles: QEMU does not model the M4 pipeline and has no DWT
+  CYCCNT).  QEMU's ``-icount`` with SysTick gives a second, coarser count.
+
+Both builds use ``-ffp-contract=off`` (the M4 FPU has VFMA; a fused multiply-add rounds
+once and would make the target differ from x86-64 without it) and ``-fno-math-errno``
+(``sqrtf`` becomes one ``vsqrt.f32``; without it GCC adds a compare and a call to the
+library ``sqrtf`` for the errno case).  Basic arithmetic and ``sqrtf`` are correctly
+rounded IEEE-754 on both sides, so a filter that uses only those is bit-identical; the
+transcendental functions (``sinf``, ``atan2f``, ...) come from newlib on the target and
+glibc on the host and may differ in the last ulp, which is why the comparison reports a
+bound instead of assuming identity.
+"""
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import subprocess
+import tempfile
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+TARGET_DIR = Path(__file__).resolve().parent / "target"
+
+CPUS = {
+    "cortex-m4f": ["-mcpu=cortex-m4", "-mthumb", "-mfpu=fpv4-sp-d16", "-mfloat-abi=hard"],
+}
+OPT_LEVELS = ("-O2", "-Os")
+# Flags every figure in the report assumes (docs/target.md says so too).
+MATH_FLAGS = ["-ffp-contract=off", "-fno-math-errno"]
+WARN_FLAGS = ["-std=c99", "-Wall", "-Wextra", "-Wpedantic", "-Wconversion",
+              "-Wdouble-promotion", "-Wshadow", "-Werror"]
+SECTION_FLAGS = ["-ffunction-sections", "-fdata-sections"]
+LINK_FLAGS = ["-nostartfiles", "-specs=nano.specs", "-Wl,--gc-sections"]
+
+QEMU_MACHINE = "mps2-an386"
+ICOUNT_SHIFT = 7            # 2**7 ns of virtual time per instruction under -icount
+SYSTICK_HZ = 25_000_000     # mps2 SYSCLK, which drives SysTick in QEMU
+
+APT_PACKAGES = ["gcc-arm-none-eabi", "libnewlib-arm-none-eabi", "qemu-system-arm"]
+PIP_PACKAGES = ["unicorn", "pyelftools"]
+
+# Record layout shared with firmware_sim/target/ahrs_record.h (56 bytes, little-endian).
+RECORD_DTYPE = np.dtype([
+    ("gyro", "<f4", (3,)), ("accel", "<f4", (3,)), ("mag", "<f4", (3,)),
+    ("gps_vel", "<f4", (3,)), ("valid", "<u4"), ("dt", "<f4"),
+])
+assert RECORD_DTYPE.itemsize == 56
+
+
+class ToolchainMissing(RuntimeError):
+    """The cross toolchain, QEMU or the Python emulator packages are not installed."""
+
+
+def _which(name: str) -> str | None:
+    return shutil.which(name)
+
+
+def missing_tools(need_unicorn: bool = True) -> list[str]:
+    """Names of what is missing for the target checks (empty list: all present)."""
+    missing = []
+    for tool in ("arm-none-eabi-gcc", "arm-none-eabi-objdump", "arm-none-eabi-size",
+                 "qemu-system-arm"):
+        if _which(tool) is None:
+            missing.append(tool)
+    if _which("arm-none-eabi-gcc") is not None:
+        # newlib: the headers and libm the image links against
+        probe = subprocess.run(["arm-none-eabi-gcc", *CPUS["cortex-m4f"], "-print-file-name=libm.a"],
+                               capture_output=True, text=True)
+        if probe.returncode != 0 or not os.path.isabs(probe.stdout.strip()):
+            missing.append("newlib (libm.a for thumb/v7e-m+fp/hard)")
+    if need_unicorn:
+        for mod in ("unicorn", "elftools"):
+            try:
+                __import__(mod)
+            except ImportError:
+                missing.append(f"python module {mod}")
+    return missing
+
+
+def require_tools(need_unicorn: bool = True) -> None:
+    missing = missing_tools(need_unicorn)
+    if missing:
+        raise ToolchainMissing(
+            "target checks need: " + ", ".join(missing) + ". Install with `apt-get install "
+            + " ".join(APT_PACKAGES) + "` and `pip install " + " ".join(PIP_PACKAGES) + "`.")
+
+
+def _run(cmd: list[str], cwd: Path | None = None, timeout: float = 120) -> subprocess.CompletedProcess:
+    p = subprocess.run(cmd, cwd=cwd, capture_output=True, text=True, timeout=timeout)
+    if p.returncode != 0:
+        raise RuntimeError(f"command failed ({p.returncode}): {' '.join(map(str, cmd))}\n{p.stdout}{p.stderr}")
+    return p
+
+
+# --------------------------------------------------------------------------------------
+# Binding a filter to the harness
+# --------------------------------------------------------------------------------------
+
+@dataclass
+class FilterBinding:
+    """How the harness calls one filter's C API.
+
+    ``input_fields`` maps the record's roles (gyro, accel, mag, gps_vel, valid) to the
+    field names of the filter's input struct; a role the filter's input struct lacks is
+    left out.  ``state_fields`` (name -> (byte offset, count)) lets Python decode the
+    raw state bytes (at least ``q``).
+    """
+    name: str
+    prefix: str
+    sources: list[Path]
+    include_dirs: list[Path]
+    header: str
+    state_type: str
+    input_type: str
+    input_fields: dict[str, str]
+    state_size: int | None = None
+    state_fields: dict[str, tuple[int, int]] = field(default_factory=dict)
+    scalar: str = "float"
+
+    @property
+    def init_fn(self) -> str:
+        return f"{self.prefix}_init"
+
+    @property
+    def step_fn(self) -> str:
+        return f"{self.prefix}_step"
+
+
+def toy_binding() -> FilterBinding:
+    """The toolchain bring-up filter in firmware_sim/target/toy.c (float; uses libm)."""
+    return FilterBinding(
+        name="toy", prefix="toy", sources=[TARGET_DIR / "toy.c"], include_dirs=[TARGET_DIR],
+        header="toy.h", state_type="toy_state", input_type="toy_input",
+        input_fields={"gyro": "gyro", "accel": "accel", "mag": "mag",
+                      "gps_vel": "gps_vel_ned", "valid": "valid"},
+        state_size=24, state_fields={"q": (0, 4), "tilt": (16, 2)},
+    )
+
+
+def write_glue(b: FilterBinding, out_dir: Path) -> None:
+    """filter_glue.h / filter_glue.c: the harness's only filter-specific code.
+
+    The glue functions are out of line (own translation unit, no LTO) so that the
+    emulator can call them and count the filter's own step from its entry to its return.
+    """
+    out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / "filter_glue.h").write_text(
+        "/* generated by firmware_sim/target.py: binds the harness to one filter */\n"
+        "#ifndef FILTER_GLUE_H\n#define FILTER_GLUE_H\n"
+        "#include <stdint.h>\n"
+        f'#include "{b.header}"\n'
+        '#include "ahrs_record.h"\n'
+        f"typedef {b.state_type} glue_state;\n"
+        "void glue_init(glue_state *s);\n"
+        "uint32_t glue_step(glue_state *s, const ahrs_record *r);\n"
+        "#endif\n")
+    lines = []
+    for role in ("gyro", "accel", "mag", "gps_vel"):
+        fld = b.input_fields.get(role)
+        if fld:
+            lines.append(f"    for (int i = 0; i < 3; i++) {{ in.{fld}[i] = r->{role}[i]; }}")
+    if b.input_fields.get("valid"):
+        lines.append(f"    in.{b.input_fields['valid']} = r->valid;")
+    dt = "r->dt" if b.scalar == "float" else "(double)r->dt"
+    if b.scalar != "float":
+        lines = [ln.replace("= r->", "= (double)r->") if "valid" not in ln else ln for ln in lines]
+    (out_dir / "filter_glue.c").write_text(
+        "/* generated by firmware_sim/target.py */\n"
+        "#include <string.h>\n"
+        '#include "filter_glue.h"\n\n'
+        "__attribute__((noinline)) void glue_init(glue_state *s)\n"
+        f"{{\n    {b.init_fn}(s);\n}}\n\n"
+        "__attribute__((noinline)) uint32_t glue_step(glue_state *s, const ahrs_record *r)\n"
+        f"{{\n    {b.input_type} in;\n    memset(&in, 0, sizeof in);\n"
+        + "\n".join(lines) + "\n"
+        f"    return (uint32_t){b.step_fn}(s, &in, {dt});\n}}\n")
+
+
+# --------------------------------------------------------------------------------------
+# Building
+# --------------------------------------------------------------------------------------
+
+@dataclass
+class Build:
+    name: str
+    opt: str
+    cpu: str
+    workdir: Path
+    elf: Path                   # the test image (harness + filter)
+    filter_objects: list[Path]  # the filter's own objects
+    stack_usage_files: list[Path]
+    cflags: list[str]
+
+
+def cflags_for(cpu: str, opt: str) -> list[str]:
+    if cpu not in CPUS:
+        raise ValueError(f"unknown cpu {cpu!r}; known: {', '.join(CPUS)}")
+    if opt not in OPT_LEVELS:
+        raise ValueError(f"unknown optimisation {opt!r}; known: {', '.join(OPT_LEVELS)}")
+    return [*CPUS[cpu], opt, *MATH_FLAGS, *WARN_FLAGS, *SECTION_FLAGS]
+
+
+def build(b: FilterBinding, workdir: Path, opt: str = "-O2", cpu: str = "cortex-m4f",
+          extra_main: str | None = None) -> Build:
+    """Compile the filter and the harness for the target and link the test image.
+
+    The filter's sources compile with the same strict warnings as on the host (-Werror).
+    ``extra_main`` replaces harness_main.c (used for the footprint images).
+    """
+    workdir = Path(workdir)
+    workdir.mkdir(parents=True, exist_ok=True)
+    write_glue(b, workdir)
+    flags = cflags_for(cpu, opt)
+    incs = [f"-I{workdir}", f"-I{TARGET_DIR}", *[f"-I{d}" for d in b.include_dirs]]
+    objs, filt_objs, sus = [], [], []
+    for src in b.sources:
+        obj = workdir / (Path(src).stem + ".o")
+        _run(["arm-none-eabi-gcc", *flags, *incs, "-fstack-usage", "-c", str(src), "-o", str(obj)],
+             cwd=workdir)
+        objs.append(obj)
+        filt_objs.append(obj)
+        sus.append(obj.with_suffix(".su"))
+    main_src = extra_main or str(TARGET_DIR / "harness_main.c")
+    for src in [str(TARGET_DIR / "startup.c"), str(TARGET_DIR / "semihost.c"),
+                str(workdir / "filter_glue.c"), main_src]:
+        obj = workdir / ("h_" + Path(src).stem + ".o")
+        _run(["arm-none-eabi-gcc", *flags, *incs, "-fstack-usage", "-c", src, "-o", str(obj)],
+             cwd=workdir)
+        objs.append(obj)
+        sus.append(obj.with_suffix(".su"))
+    elf = workdir / "image.elf"
+    _run(["arm-none-eabi-gcc", *CPUS[cpu], opt, *LINK_FLAGS, "-T", str(TARGET_DIR / "mps2_an386.ld"),
+          *map(str, objs), "-lm", "-Wl,-Map=" + str(workdir / "image.map"), "-o", str(elf)], cwd=workdir)
+    return Build(b.name, opt, cpu, workdir, elf, filt_objs, sus, flags)
+
+
+# --------------------------------------------------------------------------------------
+# Running in QEMU
+# --------------------------------------------------------------------------------------
+
+def records_from_log(log) -> np.ndarray:
+    """A SensorLog as the harness's 56-byte records (float32; NaN rows kept as NaN)."""
+    n = len(log)
+    rec = np.zeros(n, dtype=RECORD_DTYPE)
+    rec["gyro"] = log.gyro
+    rec["accel"] = log.accel
+    rec["mag"] = log.mag
+    rec["gps_vel"] = log.gps_vel
+    rec["valid"] = log.valid
+    rec["dt"] = log.dt
+    return rec
+
+
+@dataclass
+class TargetRun:
+    status: np.ndarray        # (N,) uint32
+    state: np.ndarray         # (N, state_bytes) uint8, raw state after each step
+    state_bytes: int
+    ticks: int                # SysTick ticks spent in glue_step (whole run)
+    icount_shift: int | None
+    console: str
+
+    @property
+    def instructions_per_step_icount(self) -> float | None:
+        """Mean instructions per glue_step from SysTick under -icount (includes the glue
+        and the SysTick reads, ~20 instructions; resolution 40/2**shift per step)."""
+        if self.icount_shift is None or len(self.status) == 0:
+            return None
+        ns = self.ticks * (1e9 / SYSTICK_HZ)
+        return ns / (2 ** self.icount_shift) / len(self.status)
+
+    def field(self, b: FilterBinding, name: str) -> np.ndarray:
+        off, count = b.state_fields[name]
+        dt = np.dtype("<f4") if b.scalar == "float" else np.dtype("<f8")
+        raw = np.ascontiguousarray(self.state[:, off:off + count * dt.itemsize])
+        return raw.view(dt).reshape(len(self.state), count)
+
+
+def run_qemu(elf: Path, records: np.ndarray, workdir: Path, icount_shift: int | None = ICOUNT_SHIFT,
+             timeout: float = 120) -> TargetRun:
+    """Run the test image on the emulated Cortex-M4F and read back what it wrote."""
+    require_tools(need_unicorn=False)
+    workdir = Path(workdir)
+    workdir.mkdir(parents=True, exist_ok=True)
+    np.ascontiguousarray(records, dtype=RECORD_DTYPE).tofile(workdir / "ahrs_in.bin")
+    out = workdir / "ahrs_out.bin"
+    if out.exists():
+        out.unlink()
+    cmd = ["qemu-system-arm", "-M", QEMU_MACHINE, "-nographic", "-monitor", "none", "-serial", "none",
+           "-semihosting-config", "enable=on,target=native"]
+    if icount_shift is not None:
+        cmd += ["-icount", f"shift={icount_shift}"]
+    cmd += ["-kernel", str(Path(elf).resolve())]
+    p = subprocess.run(cmd, cwd=workdir, capture_output=True, text=True, timeout=timeout)
+    console = p.stdout + p.stderr
+    if p.returncode != 0:
+        raise RuntimeError(f"target image exited with {p.returncode}: {console.strip()}")
+    m = re.search(r"AHRS_DONE n=0x([0-9a-f]+) ticks=0x([0-9a-f]{8})0x([0-9a-f]{8}) state_bytes=0x([0-9a-f]+)",
+                  console)
+    if not m:
+        raise RuntimeError(f"target image did not report completion: {console.strip()!r}")
+    n = int(m.group(1), 16)
+    ticks = (int(m.group(2), 16) << 32) | int(m.group(3), 16)
+    sbytes = int(m.group(4), 16)
+    words = 1 + (sbytes + 3) // 4
+    raw = np.fromfile(out, dtype="<u4")
+    if raw.size != n * words or n != len(records):
+        raise RuntimeError(f"target output has {raw.size} words, expected {len(records)} x {words}")
+    raw = raw.reshape(n, words)
+    state = raw[:, 1:].copy().view(np.uint8)[:, :sbytes]
+    return TargetRun(raw[:, 0].copy(), state, sbytes, ticks, icount_shift, console)
+
+
+# --------------------------------------------------------------------------------------
+# Instruction counting and stack measurement in unicorn
+# --------------------------------------------------------------------------------------
+
+FLASH_BASE, FLASH_SIZE = 0x00000000, 4 << 20
+RAM_BASE, RAM_SIZE = 0x20000000, 4 << 20
+_RET_MAGIC = FLASH_BASE + FLASH_SIZE - 0x100     # a mapped, never-executed address
+_PAINT = 0xA5
+_PAINT_BYTES = 64 * 1024
+
+
+def thumb_instruction_count(code: bytes) -> int:
+    """Instructions in a straight run of Thumb-2 code (16- and 32-bit encodings)."""
+    n, i = 0, 0
+    while i + 1 < len(code):
+        hw = code[i] | (code[i + 1] << 8)
+        i += 4 if (hw >> 11) in (0b11101, 0b11110, 0b11111) else 2
+        n += 1
+    return n
+
+
+@dataclass
+class StepCounts:
+    instructions: np.ndarray   # (N,) instructions executed inside <prefix>_step per call
+    glue_instructions: np.ndarray  # (N,) whole glue_step call (record copy + step)
+    status: np.ndarray         # (N,) uint32 returned
+    state: np.ndarray          # (N, state_bytes) uint8
+    stack_bytes: int           # deepest stack use below step's entry SP over all calls
+
+
+class Emulator:
+    """Runs functions of a linked test image in unicorn (Cortex-M4 with FPU).
+
+    The ELF's allocated sections are loaded at their run addresses (so .data starts
+    initialised); RAM above .bss is used for the state and the record.  Instructions are
+    counted per translation block with the Thumb-2 length rule, only while the filter's
+    step (and whatever it calls) runs.
+    """
+
+    def __init__(self, elf: Path):
+        require_tools()
+        from elftools.elf.elffile import ELFFile
+        from unicorn import UC_ARCH_ARM, UC_HOOK_BLOCK, UC_MODE_MCLASS, UC_MODE_THUMB, Uc
+        from unicorn.arm_const import UC_CPU_ARM_CORTEX_M4
+
+        self.uc = Uc(UC_ARCH_ARM, UC_MODE_THUMB | UC_MODE_MCLASS)
+        self.uc.ctl_set_cpu_model(UC_CPU_ARM_CORTEX_M4)
+        self.uc.mem_map(FLASH_BASE, FLASH_SIZE)
+        self.uc.mem_map(RAM_BASE, RAM_SIZE)
+        self.symbols: dict[str, tuple[int, int]] = {}
+        with open(elf, "rb") as f:
+            e = ELFFile(f)
+            for s in e.iter_sections():
+                if (s["sh_flags"] & 2) and s["sh_type"] == "SHT_PROGBITS" and s["sh_size"]:
+                    self.uc.mem_write(s["sh_addr"], s.data())
+            for sym in e.get_section_by_name(".symtab").iter_symbols():
+                if sym["st_info"]["type"] in ("STT_FUNC", "STT_OBJECT") and sym.name:
+                    self.symbols[sym.name] = (sym["st_value"] & ~1, sym["st_size"])
+        self.scratch = RAM_BASE + RAM_SIZE - 0x20000   # state + record live here
+        self.stack_top = RAM_BASE + RAM_SIZE - 0x100
+        self.uc.mem_write(_RET_MAGIC, b"\x00\xbf" * 8)  # nops, never reached (until=)
+        self._counting = False
+        self._ret = None
+        self._count = 0
+        self._total = 0          # every instruction of the current call (glue included)
+        self._entry_sp = None
+        self._step_addr = None
+        self._ninsn_cache: dict[tuple[int, int], int] = {}
+        self.uc.hook_add(UC_HOOK_BLOCK, self._on_block)
+
+    def _ninsn(self, address: int, size: int) -> int:
+        key = (address, size)
+        n = self._ninsn_cache.get(key)
+        if n is None:
+            n = thumb_instruction_count(bytes(self.uc.mem_read(address, size)))
+            self._ninsn_cache[key] = n
+        return n
+
+    def _on_block(self, uc, address, size, _user):
+        from unicorn.arm_const import UC_ARM_REG_LR, UC_ARM_REG_SP
+        if address != _RET_MAGIC:
+            self._total += self._ninsn(address, size)
+        if not self._counting:
+            if address == self._step_addr:
+                self._counting = True
+                self._ret = uc.reg_read(UC_ARM_REG_LR) & ~1
+                self._entry_sp = uc.reg_read(UC_ARM_REG_SP)
+            else:
+                return
+        elif address == self._ret:
+            self._counting = False
+            return
+        self._count += self._ninsn(address, size)
+
+    def call(self, fn: str, *args: int) -> int:
+        from unicorn.arm_const import (UC_ARM_REG_LR, UC_ARM_REG_PC, UC_ARM_REG_R0, UC_ARM_REG_R1,
+                                       UC_ARM_REG_R2, UC_ARM_REG_R3, UC_ARM_REG_SP)
+        regs = [UC_ARM_REG_R0, UC_ARM_REG_R1, UC_ARM_REG_R2, UC_ARM_REG_R3]
+        self._count = 0
+        self._total = 0
+        self._counting = False
+        for r, v in zip(regs, args):
+            self.uc.reg_write(r, v)
+        self.uc.reg_write(UC_ARM_REG_SP, self.stack_top)
+        self.uc.reg_write(UC_ARM_REG_LR, _RET_MAGIC | 1)
+        addr = self.symbols[fn][0]
+        self.uc.emu_start(addr | 1, _RET_MAGIC, timeout=0, count=50_000_000)
+        if self.uc.reg_read(UC_ARM_REG_PC) != _RET_MAGIC:
+            raise RuntimeError(f"{fn} did not return within the instruction budget")
+        return self.uc.reg_read(UC_ARM_REG_R0)
+
+    def count_call_per_instruction(self, fn: str, *args: int) -> int:
+        """Instructions of one whole call counted one by one (UC_HOOK_CODE).
+
+        Slow; exists to check the per-block counting of ``call`` (``self._total``)."""
+        from unicorn import UC_HOOK_CODE
+        n = [0]
+
+        def on_code(uc, address, size, _user):
+            if address != _RET_MAGIC:
+                n[0] += 1
+        h = self.uc.hook_add(UC_HOOK_CODE, on_code)
+        try:
+            self.call(fn, *args)
+        finally:
+            self.uc.hook_del(h)
+        return n[0]
+
+    def count_steps(self, step_fn: str, records: np.ndarray, state_bytes: int) -> StepCounts:
+        """glue_init, then glue_step for every record; instructions counted in step_fn."""
+        self._step_addr = self.symbols[step_fn][0]
+        rec_bytes = np.ascontiguousarray(records, dtype=RECORD_DTYPE)
+        st, rp = self.scratch, self.scratch + 0x1000
+        assert state_bytes <= 0x1000
+        self.uc.mem_write(st, b"\x00" * state_bytes)
+        self.call("glue_init", st)
+        paint_lo = self.stack_top - _PAINT_BYTES
+        self.uc.mem_write(paint_lo, bytes([_PAINT]) * _PAINT_BYTES)
+        n = len(rec_bytes)
+        counts = np.zeros(n, dtype=np.int64)
+        totals = np.zeros(n, dtype=np.int64)
+        status = np.zeros(n, dtype=np.uint32)
+        state = np.zeros((n, state_bytes), dtype=np.uint8)
+        entry_sp = None
+        for k in range(n):
+            self.uc.mem_write(rp, rec_bytes[k:k + 1].tobytes())
+            status[k] = self.call("glue_step", st, rp)
+            counts[k] = self._count
+            totals[k] = self._total
+            if self._entry_sp is not None:
+                entry_sp = self._entry_sp
+            state[k] = np.frombuffer(bytes(self.uc.mem_read(st, state_bytes)), dtype=np.uint8)
+        painted = bytes(self.uc.mem_read(paint_lo, _PAINT_BYTES))
+        lowest = next((i for i, c in enumerate(painted) if c != _PAINT), _PAINT_BYTES)
+        lowest_addr = paint_lo + lowest
+        depth = (entry_sp - lowest_addr) if entry_sp is not None else 0
+        return StepCounts(counts, totals, status, state, int(depth))
+
+
+# --------------------------------------------------------------------------------------
+# Footprint: sizes, static stack bound, call graph
+# --------------------------------------------------------------------------------------
+
+FOOTPRINT_MAIN = r"""
+/* footprint image: the filter's API reached through volatile data so nothing folds */
+#include <string.h>
+#include "filter_glue.h"
+#include "semihost.h"
+static glue_state g_s;
+static volatile uint32_t g_sink;
+int main(void)
+{
+    ahrs_record r;
+    memset(&r, 0, sizeof r);
+    r.valid = g_sink;
+#ifndef FP_BASELINE
+    glue_init(&g_s);
+    g_sink = glue_step(&g_s, &r);
+#else
+    g_sink = r.valid + (uint32_t)sizeof(g_s) * 0u;
+#endif
+    return (int)g_sink;
+}
+"""
+
+_FLASH_SECTIONS = (".isr_vector", ".text", ".rodata", ".ARM.extab", ".ARM.exidx",
+                   ".init_array", ".fini_array")
+
+
+def section_sizes(path: Path) -> dict[str, int]:
+    """``arm-none-eabi-size -A`` as a dict (sections of an ELF or object)."""
+    out = _run(["arm-none-eabi-size", "-A", str(path)]).stdout
+    sizes: dict[str, int] = {}
+    for line in out.splitlines():
+        parts = line.split()
+        if len(parts) >= 2 and parts[0].startswith(".") and parts[1].isdigit():
+            sizes[parts[0]] = sizes.get(parts[0], 0) + int(parts[1])
+    return sizes
+
+
+def image_flash_ram(elf: Path) -> tuple[int, int]:
+    s = section_sizes(elf)
+    flash = sum(v for k, v in s.items() if k in _FLASH_SECTIONS) + s.get(".data", 0)
+    ram = s.get(".data", 0) + s.get(".bss", 0)
+    return flash, ram
+
+
+def object_sections(obj: Path) -> dict[str, int]:
+    """text / rodata / data / bss of one object (function/data sections summed)."""
+    s = section_sizes(obj)
+    out = {"text": 0, "rodata": 0, "data": 0, "bss": 0}
+    for k, v in s.items():
+        for kind in out:
+            if k == f".{kind}" or k.startswith(f".{kind}."):
+                out[kind] += v
+    return out
+
+
+def parse_stack_usage(paths: list[Path]) -> dict[str, tuple[int, str]]:
+    """GCC .su files -> {function: (bytes, qualifier)}."""
+    frames: dict[str, tuple[int, str]] = {}
+    for p in paths:
+        if not Path(p).exists():
+            continue
+        for line in Path(p).read_text().splitlines():
+            parts = line.split("\t")
+            if len(parts) >= 3:
+                fn = parts[0].rsplit(":", 1)[-1]
+                frames[fn] = (int(parts[1]), parts[2].strip())
+    return frames
+
+
+_FN_HDR = re.compile(r"^([0-9a-f]+) <([^>]+)>:$")
+_INSN = re.compile(r"^\s*([0-9a-f]+):\s+(\S+)\s*(.*)$")
+_REGLIST = re.compile(r"\{([^}]*)\}")
+
+
+def _reglist_bytes(text: str) -> int:
+    m = _REGLIST.search(text)
+    if not m:
+        return 0
+    total = 0
+    for item in m.group(1).split(","):
+        item = item.strip()
+        if "-" in item:
+            a, b_ = item.split("-")
+            n = int(b_[1:]) - int(a[1:]) + 1
+            total += n * (8 if a.startswith("d") else 4)
+        elif item:
+            total += 8 if item.startswith("d") else 4
+    return total
+
+
+def disassemble_functions(elf: Path) -> dict[str, dict]:
+    """Per function of the linked image: its call edges and a stack frame estimate.
+
+    Frame estimate = every push/stmdb sp!/vpush plus every ``sub sp, #imm`` in the body
+    (an upper bound when a function has several prologue paths).  Calls are ``bl``/``blx
+    <sym>`` and tail calls (``b``/``b.w`` to another function's entry); ``blx rN`` is an
+    indirect call and is flagged.
+    """
+    out = _run(["arm-none-eabi-objdump", "-d", "--no-show-raw-insn", str(elf)], timeout=120).stdout
+    funcs: dict[str, dict] = {}
+    cur = None
+    for line in out.splitlines():
+        m = _FN_HDR.match(line)
+        if m:
+            cur = {"addr": int(m.group(1), 16), "calls": set(), "frame": 0, "indirect": False, "n": 0}
+            funcs[m.group(2)] = cur
+            continue
+        if cur is None:
+            continue
+        mi = _INSN.match(line)
+        if not mi:
+            continue
+        op, args = mi.group(2), mi.group(3)
+        cur["n"] += 1
+        if op in ("push", "push.w", "vpush") or (op.startswith("stmdb") and args.startswith("sp!")):
+            cur["frame"] += _reglist_bytes(args)
+        elif op in ("sub", "sub.w", "subw", "subs") and re.match(r"sp,\s*(sp,\s*)?#", args):
+            cur["frame"] += int(re.search(r"#(\d+)", args).group(1))
+        elif op in ("bl", "blx") and "<" in args:
+            tgt = re.search(r"<([^>+]+)>", args)
+            if tgt:
+                cur["calls"].add(tgt.group(1))
+        elif op == "blx":
+            cur["indirect"] = True
+        elif op in ("b", "b.w", "b.n") and "<" in args:
+            tgt = re.search(r"<([^>]+)>", args)
+            if tgt and "+" not in tgt.group(1):
+                cur["calls"].add(tgt.group(1))   # tail call to another function's entry
+    return funcs
+
+
+def worst_stack(root: str, funcs: dict[str, dict], su: dict[str, tuple[int, str]]) -> dict:
+    """Worst-case stack from ``root`` over the call graph (no recursion allowed)."""
+    memo: dict[str, tuple[int, list[str]]] = {}
+    unknown: set[str] = set()
+    indirect: set[str] = set()
+
+    def frame(fn: str) -> int:
+        if fn in su:
+            return su[fn][0]
+        if fn in funcs:
+            return funcs[fn]["frame"]
+        unknown.add(fn)
+        return 0
+
+    def visit(fn: str, stack: tuple[str, ...]) -> tuple[int, list[str]]:
+        if fn in stack:
+            raise RuntimeError(f"recursion in call graph: {' -> '.join(stack + (fn,))}")
+        if fn in memo:
+            return memo[fn]
+        info = funcs.get(fn, {"calls": set(), "indirect": False})
+        if info.get("indirect"):
+            indirect.add(fn)
+        best, path = 0, []
+        for c in sorted(info["calls"]):
+            if c == fn:
+                continue
+            d, p = visit(c, stack + (fn,))
+            if d > best:
+                best, path = d, p
+        memo[fn] = (frame(fn) + best, [fn] + path)
+        return memo[fn]
+
+    total, path = visit(root, ())
+    reach = sorted(memo)
+    return {"bytes": total, "path": path,
+            "frames": {f: frame(f) for f in path},
+            "frame_source": {f: ("stack-usage" if f in su else "disassembly") for f in path},
+            "reachable": reach, "unknown": sorted(unknown), "indirect_calls": sorted(indirect)}
+
+
+# Soft-float helpers that betray a hidden double (or 64-bit division) in a float build.
+_DOUBLE_HELPER = re.compile(r"^__aeabi_(d\w+|[fil]2d|d2\w+|ldivmod|uldivmod)$|^__(adddf3|muldf3|divdf3|subdf3)$")
+
+
+@dataclass
+class Footprint:
+    filter: str
+    opt: str
+    cpu: str
+    flash_bytes: int             # increase of (text + rodata + .data image) over the baseline image
+    ram_static_bytes: int        # increase of (.data + .bss) over the baseline image, state included
+    state_bytes: int             # sizeof(state struct)
+    object_sections: dict        # the filter's own objects: text / rodata / data / bss
+    stack_bytes: int             # static worst case of step (frames x call graph)
+    stack_path: list[str]
+    stack_measured_bytes: int    # deepest stack touched by step over the scenario (unicorn)
+    instructions_mean: float     # per step, over the steps of the scenario run in unicorn
+    instructions_min: int
+    instructions_max: int
+    instructions_icount: float | None   # QEMU -icount + SysTick, glue included (cross-check)
+    library_calls: list[str]     # functions outside the filter's objects reached from step
+    double_helpers: list[str]    # soft-double helpers reachable from step (should be empty)
+    flags: list[str]
+
+
+def footprint(b: FilterBinding, build_: Build, counts: StepCounts | None = None,
+              icount: float | None = None) -> Footprint:
+    """Sizes of the filter in one build (links a footprint image and a baseline)."""
+    wd = build_.workdir / "footprint"
+    wd.mkdir(exist_ok=True)
+    main_c = wd / "fp_main.c"
+    main_c.write_text(FOOTPRINT_MAIN)
+    with_f = build(b, wd / "with", build_.opt, build_.cpu, extra_main=str(main_c))
+    base_main = wd / "fp_base.c"
+    base_main.write_text("#define FP_BASELINE 1\n" + FOOTPRINT_MAIN)
+    base = build(b, wd / "base", build_.opt, build_.cpu, extra_main=str(base_main))
+    f1, r1 = image_flash_ram(with_f.elf)
+    f0, r0 = image_flash_ram(base.elf)
+
+    objsec = {"text": 0, "rodata": 0, "data": 0, "bss": 0}
+    own_funcs: set[str] = set()
+    for o in build_.filter_objects:
+        for k, v in object_sections(o).items():
+            objsec[k] += v
+        nm = _run(["arm-none-eabi-nm", "--defined-only", str(o)]).stdout
+        own_funcs |= {ln.split()[-1] for ln in nm.splitlines() if ln.split()[1:2] and ln.split()[1] in "tT"}
+
+    funcs = disassemble_functions(build_.elf)
+    su = parse_stack_usage(build_.stack_usage_files)
+    ws = worst_stack(b.step_fn, funcs, su)
+    lib = [f for f in ws["reachable"] if f not in own_funcs]
+    dbl = [f for f in ws["reachable"] if _DOUBLE_HELPER.match(f)]
+    state_bytes = b.state_size if b.state_size is not None else 0
+    return Footprint(
+        filter=b.name, opt=build_.opt, cpu=build_.cpu,
+        flash_bytes=f1 - f0, ram_static_bytes=r1 - r0, state_bytes=state_bytes,
+        object_sections=objsec, stack_bytes=ws["bytes"], stack_path=ws["path"],
+        stack_measured_bytes=counts.stack_bytes if counts is not None else -1,
+        instructions_mean=float(counts.instructions.mean()) if counts is not None else float("nan"),
+        instructions_min=int(counts.instructions.min()) if counts is not None else -1,
+        instructions_max=int(counts.instructions.max()) if counts is not None else -1,
+        instructions_icount=icount, library_calls=lib, double_helpers=dbl, flags=build_.cflags,
+    )
+
+
+def format_table(rows: list[Footprint]) -> str:
+    hdr = ("| filter | build | flash B | static RAM B | state B | stack B (static / measured) "
+           "| instr/step mean (min-max) | QEMU icount | libm & helpers |")
+    sep = "|" + "---|" * 9
+    lines = [hdr, sep]
+    for r in rows:
+        ic = f"{r.instructions_icount:.0f}" if r.instructions_icount is not None else "-"
+        lines.append(
+            f"| {r.filter} | {r.opt} | {r.flash_bytes} | {r.ram_static_bytes} | {r.state_bytes} "
+            f"| {r.stack_bytes} / {r.stack_measured_bytes} | {r.instructions_mean:.0f} "
+            f"({r.instructions_min}-{r.instructions_max}) | {ic} | {', '.join(r.library_calls) or '-'} |")
+    return "\n".join(lines)
+
+
+def to_json(rows: list[Footprint]) -> str:
+    return json.dumps([asdict(r) for r in rows], indent=2, sort_keys=True)
+
+
+# --------------------------------------------------------------------------------------
+# One filter, end to end
+# --------------------------------------------------------------------------------------
+
+@dataclass
+class TargetResult:
+    build: Build
+    run: TargetRun
+    counts: StepCounts
+    footprint: Footprint
+
+
+def check_filter(b: FilterBinding, records: np.ndarray, workdir: Path | None = None,
+                 opt: str = "-O2", cpu: str = "cortex-m4f",
+                 count_steps: int | None = 400) -> TargetResult:
+    """Build for the target, run in QEMU, count in unicorn, measure the footprint.
+
+    ``count_steps`` limits the unicorn run (exact per-step counts for the first steps;
+    None = all).  The QEMU run always covers every record.
+    """
+    require_tools()
+    workdir = Path(workdir or tempfile.mkdtemp(prefix=f"ahrsgen-target-{b.name}-"))
+    tag = opt.lstrip("-")
+    bld = build(b, workdir / f"{b.name}-{tag}", opt, cpu)
+    run = run_qemu(bld.elf, records, bld.workdir)
+    if b.state_size is None:
+        b.state_size = run.state_bytes
+    sub = records if count_steps is None else records[:count_steps]
+    emu = Emulator(bld.elf)
+    counts = emu.count_steps(b.step_fn, sub, run.state_bytes)
+    fp = footprint(b, bld, counts, run.instructions_per_step_icount)
+    return TargetResult(bld, run, counts, fp)
