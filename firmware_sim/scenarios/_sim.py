@@ -30,10 +30,11 @@ sets its valid bit on that step only. Rows without a sample hold the last delive
 Options: timestamp jitter (std, s, clipped to ±0.4 period so time stays monotonic), random
 dropouts per sensor (the sample is lost: valid bit cleared, row held). All randomness comes
 from `numpy.random.default_rng([seed, stream])` with one fixed stream per purpose, so a given
-seed and option set always gives the same arrays. `noise=False` makes every sensor exact: no
-white noise, bias, bias walk, jitter, dropouts or random/vibration disturbance; scenario
-disturbances that are the point of a scenario (static offsets) have their own switch in the
-scenario module.
+seed and option set always gives the same arrays. `noise=False` makes every sensor value
+exact: no white noise, bias, bias walk or random/vibration disturbance (jitter and dropouts
+are separate options, off by default, that change only when and whether exact samples
+arrive); disturbances that are the point of a scenario (static offsets) have their own switch
+in the scenario module.
 """
 from __future__ import annotations
 
@@ -312,8 +313,6 @@ def simulate(name: str, truth: Truth, *, rate_hz: float, duration: float, seed: 
     if n < 2:
         raise ValueError("duration too short for one step")
     dropout = dict(dropout or {})
-    if not noise:
-        jitter, dropout = 0.0, {}
     t = np.arange(n) * T
     if jitter > 0:
         j = rng(seed, _S_JITTER).normal(0.0, jitter, n)
