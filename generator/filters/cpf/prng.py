@@ -99,3 +99,28 @@ class Xoshiro128ss:
 
     def u32_block(self, n: int) -> list[int]:
         return [self.next_u32() for _ in range(n)]
+
+    def normals(self, n_pairs: int) -> list[float]:
+        """2*n_pairs normals, the same as n_pairs calls of gauss_pair() (inlined for speed)."""
+        s0, s1, s2, s3 = self.s
+        out = []
+        log, sqrt, cos, sin = math.log, math.sqrt, math.cos, math.sin
+        for _ in range(n_pairs):
+            u = []
+            for _ in range(2):
+                x = (s1 * 5) & M32
+                r = ((((x << 7) | (x >> 25)) & M32) * 9) & M32
+                t = (s1 << 9) & M32
+                s2 ^= s0
+                s3 ^= s1
+                s1 ^= s2
+                s0 ^= s3
+                s2 ^= t
+                s3 = ((s3 << 11) | (s3 >> 21)) & M32
+                u.append(((r >> 8) + 1) * U24)
+            rad = sqrt(-2.0 * log(u[0]))
+            a = TWO_PI * u[1]
+            out.append(rad * cos(a))
+            out.append(rad * sin(a))
+        self.s = [s0, s1, s2, s3]
+        return out

@@ -54,7 +54,6 @@ from __future__ import annotations
 import math
 import tomllib
 from pathlib import Path
-
 import numpy as np
 
 from firmware_sim.log import VALID_ACCEL, VALID_GYRO, VALID_MAG
@@ -77,10 +76,16 @@ TWO_PI = 2.0 * math.pi
 
 
 def default_params() -> dict:
-    """Defaults from defaults.toml (name -> value)."""
-    with open(Path(__file__).with_name("defaults.toml"), "rb") as f:
-        d = tomllib.load(f)
-    return {k: v["default"] for k, v in d["params"].items()}
+    """Every parameter's default: the common input-check parameters, then defaults.toml."""
+    from generator.model import COMMON_PARAMS
+    with open(Path(__file__).with_name("defaults.toml"), "rb") as fh:
+        data = tomllib.load(fh)
+    out = {}
+    for key in [None, *data["filter"].get("sensors", [])]:
+        out.update({p.name: p.default for p in COMMON_PARAMS.get(key, [])})
+    for name, spec in data["params"].items():
+        out[name] = spec.get("default", out.get(name))
+    return out
 
 
 # ---- scalar helpers (the same formulas as the SPEC; plain floats, no CasADi) -----------------
@@ -159,8 +164,7 @@ class Reference:
     # -- helpers ------------------------------------------------------------------------------
     def _normals(self, n: int) -> np.ndarray:
         """n particles' noise, (n, 4), drawn particle by particle as the C does."""
-        g = self.rng.gauss4
-        return np.array([g() for _ in range(n)]).reshape(n, 4)
+        return np.array(self.rng.normals(2 * n)).reshape(n, 4)
 
     def _check(self, v, bit_valid, valid, vmax, vmin_norm, b_nonfinite, b_range, b_zero):
         """(usable, status bits) for an aiding sensor (accelerometer or magnetometer)."""
