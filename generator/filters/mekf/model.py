@@ -22,12 +22,14 @@ from __future__ import annotations
 import casadi as ca
 
 from generator import emit
+from generator.constants import G0
 from generator.model import FilterModel, KernelSpec, StateField
 from generator.symbolic import attitude, kalman, quat
 from generator.symbolic import linalg
 
 N = 6           # error-state size
 S_PIVOT_MIN = 1e-12   # innovation covariance must have Cholesky pivots above this
+AGE_MAX = 1e3         # the GPS-velocity age stops counting here (s)
 
 EXTRA_STATUS = [
     ("COURSE_SLOW", "GPS sample present but ground speed below gps_min_speed: yaw row dropped"),
@@ -176,12 +178,14 @@ def initial_P(p: dict) -> list:
 
 
 class Model(FilterModel):
-    def __post_init__(self):
-        self.extra_status = list(EXTRA_STATUS)
-        uses = ["accel", "gps"]
-        if self.params["heading_source"] == "mag":
+    def __init__(self, params: dict):
+        p = params
+        uses = ["accel"]
+        if p["heading_source"] == "mag":
             uses.append("mag")
-        self.sensors = tuple(uses)
+        if p["heading_source"] == "gps_course" or p["centripetal_comp"]:
+            uses.append("gps")
+        super().__init__(params, sensors=tuple(uses), extra_status=list(EXTRA_STATUS))
 
     def state_fields(self) -> list[StateField]:
         return [
@@ -189,8 +193,8 @@ class Model(FilterModel):
             StateField("gyro_bias", 3, "gyro bias estimate, rad/s", 0.0),
             StateField("P", N * N, "error-state covariance [dq, db] (6x6, symmetric)", initial_P(self.params)),
             StateField("v_gps", 3, "last valid GPS velocity NED, m/s", 0.0),
-            StateField("v_age", 1, "age of v_gps, s", 1e30),
-            StateField("initialised", 1, "1 once the attitude has been initialised", 0, "uint32"),
+            StateField("v_age", 1, "age of v_gps, s (stops counting at 1e3)", AGE_MAX),
+            StateField("initialised", 1, "1 once the attitude has been initialised", 0 if self.params["init_from_sensors"] else 1, "uint32"),
         ]
 
     def kernels(self) -> list[KernelSpec]:
@@ -207,4 +211,4 @@ class Model(FilterModel):
     def template_context(self) -> dict:
         p = self.params
         return {"n": N, "heading_source": p["heading_source"], "centripetal_comp": p["centripetal_comp"],
-                "init_from_sensors": p["init_from_sensors"]}
+                "s_pivot_min": S_PIVOT_MIN, "age_max": AGE_MAX, "g0": G0}

@@ -40,6 +40,8 @@ COURSE_SLOW = st.FILTER_BASE          # GPS sample present but ground speed < gp
 ACCEL_GATED = st.FILTER_BASE << 1     # | |f| - g | > accel_gate: roll/pitch rows dropped
 UPDATE_SKIPPED = st.FILTER_BASE << 2  # innovation covariance not positive definite: no correction
 
+AGE_MAX = 1e3   # the GPS-velocity age stops counting here (s)
+
 # The innovation covariance must have Cholesky pivots above this to be used.
 S_PIVOT_MIN = 1e-12
 
@@ -121,13 +123,18 @@ class Reference:
         self.gps_vel_timeout = float(p["gps_vel_timeout"])
         self.p0_att = float(p["p0_att"])
         self.p0_bias = float(p["p0_bias"])
+        self.gyro_max = float(p["gyro_max"])
+        self.accel_max = float(p["accel_max"])
+        self.mag_max = float(p["mag_max"])
+        # the step reads GPS only when something uses it (heading or compensation)
+        self.uses_gps = self.heading_source == "gps_course" or self.centripetal_comp
 
         self.q = np.array([1.0, 0.0, 0.0, 0.0])
         self.gyro_bias = np.zeros(3)
         self.P = np.diag([(0.5 * self.p0_att) ** 2] * 3 + [self.p0_bias ** 2] * 3)
         self.initialised = not self.init_from_sensors
         self.v_gps = np.zeros(3)          # last valid GPS velocity (NED) for the motion compensation
-        self.v_age = np.inf               # its age, s (inf: none yet)
+        self.v_age = AGE_MAX              # its age, s (AGE_MAX: none yet)
 
     # ------------------------------------------------------------------------------
     def step(self, gyro, accel, mag, gps_vel, valid: int, dt: float) -> int:
@@ -142,31 +149,35 @@ class Reference:
         gyro = np.asarray(gyro, dtype=float)
         if not np.all(np.isfinite(gyro)):
             return st.GYRO_NONFINITE
+        if np.any(np.abs(gyro) > self.gyro_max):
+            return st.GYRO_RANGE
         status = st.OK
 
-        # --- which corrections are usable --------------------------------------------
+        # --- which corrections are usable (same order of checks as the generated C) ----
         use_tilt = False
         if valid & VALID_ACCEL:
             f = np.asarray(accel, dtype=float)
             if not np.all(np.isfinite(f)):
                 status |= st.ACCEL_NONFINITE
-            elif np.linalg.norm(f) < self.accel_min_norm:
+            elif np.any(np.abs(f) > self.accel_max):
+                status |= st.ACCEL_RANGE
+            elif f @ f < self.accel_min_norm ** 2:
                 status |= st.ACCEL_ZERO
-            elif self.accel_gate > 0.0 and abs(np.linalg.norm(f) - G0) > self.accel_gate:
+            elif self.accel_gate > 0.0 and abs(np.sqrt(f @ f) - G0) > self.accel_gate:
                 status |= ACCEL_GATED
             else:
                 use_tilt = True
         course_ok = False
         gps_fresh = False
-        if (self.heading_source == "gps_course" or self.centripetal_comp) and valid & VALID_GPS:
+        if self.uses_gps and valid & VALID_GPS:
             v = np.asarray(gps_vel, dtype=float)
             if not np.all(np.isfinite(v)):
                 status |= st.GPS_NONFINITE
             else:
                 gps_fresh = True
-                speed = np.hypot(v[0], v[1])
+                speed2 = v[0] * v[0] + v[1] * v[1]
                 if self.heading_source == "gps_course":
-                    if speed >= self.gps_min_speed and speed > 0.0:
+                    if speed2 >= self.gps_min_speed ** 2 and speed2 > 0.0:
                         course_ok = True
                     else:
                         status |= COURSE_SLOW
@@ -175,17 +186,21 @@ class Reference:
             m = np.asarray(mag, dtype=float)
             if not np.all(np.isfinite(m)):
                 status |= st.MAG_NONFINITE
-            elif np.linalg.norm(m) < self.mag_min_norm:
+            elif np.any(np.abs(m) > self.mag_max):
+                status |= st.MAG_RANGE
+            elif m @ m < self.mag_min_norm ** 2:
                 status |= st.MAG_ZERO
             else:
                 mag_ok = True
 
-        # --- last GPS velocity, for the centripetal compensation -------------------------
-        v_age = self.v_age + dt
+        # --- last GPS velocity, for the centripetal compensation (age saturates at 1e3 s) -
+        v_age = self.v_age
         v_gps = self.v_gps
         if gps_fresh:
             v_gps = v.copy()
             v_age = 0.0
+        elif v_age < AGE_MAX:
+            v_age = v_age + dt
 
         # --- initialisation from the first usable accelerometer sample ------------------
         if not self.initialised:
