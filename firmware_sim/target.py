@@ -783,3 +783,232 @@ def check_filter(b: FilterBinding, records: np.ndarray, workdir: Path | None = N
     counts = emu.count_steps(b.step_fn, sub, run.state_bytes)
     fp = footprint(b, bld, counts, run.instructions_per_step_icount)
     return TargetResult(bld, run, counts, fp)
+
+
+# --------------------------------------------------------------------------------------
+# Generated filters (generated/<name>/ with <prefix>.h/.c and manifest.json)
+# --------------------------------------------------------------------------------------
+
+def binding_from_generated(gen_dir: str | Path) -> FilterBinding:
+    """Bind the harness to a generated filter through its manifest (no layout typed here)."""
+    gen_dir = Path(gen_dir)
+    man = json.loads((gen_dir / "manifest.json").read_text())
+    prefix, real = man["prefix"], man["precision"]
+    st = man["structs"]["state"]
+    in_names = {f["name"] for f in man["structs"]["input"]["fields"]}
+    roles = {"gyro": "gyro", "accel": "accel", "mag": "mag", "gps_vel": "gps_vel_ned", "valid": "valid"}
+    return FilterBinding(
+        name=man["filter"], prefix=prefix, sources=[gen_dir / man["files"]["source"]],
+        include_dirs=[gen_dir], header=man["files"]["header"],
+        state_type=f"{prefix}_state", input_type=f"{prefix}_input",
+        input_fields={r: f for r, f in roles.items() if f in in_names},
+        state_size=st["size"],
+        state_fields={f["name"]: (f["offset"], f["count"]) for f in st["fields"] if f["type"] == "real"},
+        scalar=real,
+    )
+
+
+def generate(filter_name: str, out_dir: Path, config_file=None, sets=None, prefix=None) -> Path:
+    """Render a float build of a filter configuration into out_dir (the target is float)."""
+    from generator import config, render
+    cfg = config.resolve(filter_name, config_file, sets, precision="float", prefix=prefix)
+    render.write(render.render(cfg), out_dir)
+    return Path(out_dir)
+
+
+@dataclass
+class HostComparison:
+    steps: int
+    status_equal: bool
+    identical_steps: int          # steps whose whole state struct is bit-identical
+    first_difference: int | None  # first step with any differing state byte (None: none)
+    max_abs_q: float              # max |q_target - q_host| over all steps and components
+    max_angle_deg: float          # max rotation angle between the two attitudes, degrees
+    max_abs_state: float          # max |difference| over every real state field
+    final_state_identical: bool
+
+
+def compare_with_host(gen_dir: Path, b: FilterBinding, log, run: TargetRun) -> HostComparison:
+    """Step the host float build (firmware_sim/host.py, ctypes) through the same float32
+    inputs and compare status and the whole state struct after every step."""
+    from firmware_sim.host import HostFilter
+    host = HostFilter(gen_dir)
+    if host.real != "float":
+        raise ValueError("the target comparison needs the float build")
+    rec = records_from_log(log)     # the exact float32 values the target saw
+    s = host.new_state()
+    n = len(rec)
+    h_state = np.zeros((n, run.state_bytes), np.uint8)
+    h_status = np.zeros(n, np.uint32)
+    for k in range(n):
+        r = rec[k]
+        h_status[k] = host.step(s, r["gyro"], r["accel"], r["mag"], r["gps_vel"], int(r["valid"]),
+                                np.float32(r["dt"]))
+        h_state[k] = np.frombuffer(host.state_bytes(s), np.uint8)
+    same = (h_state == run.state).all(axis=1)
+    t = TargetRun(h_status, h_state, run.state_bytes, 0, None, "")
+    q_t, q_h = run.field(b, "q").astype(float), t.field(b, "q").astype(float)
+    # rotation angle between unit quaternions: |q1 - q2| = 2 sin(theta/4) (sign-aligned);
+    # exactly 0 for identical attitudes, well conditioned for tiny differences
+    chord = np.minimum(np.linalg.norm(q_t - q_h, axis=1), np.linalg.norm(q_t + q_h, axis=1))
+    ang = np.degrees(4.0 * np.arcsin(np.clip(chord / 2.0, 0.0, 1.0)))
+    max_state = 0.0
+    for name in b.state_fields:
+        d = np.abs(run.field(b, name).astype(float) - t.field(b, name).astype(float))
+        d = d[np.isfinite(d)]
+        if d.size:
+            max_state = max(max_state, float(d.max()))
+    return HostComparison(
+        steps=n, status_equal=bool(np.array_equal(h_status, run.status)),
+        identical_steps=int(same.sum()),
+        first_difference=None if same.all() else int(np.argmin(same)),
+        max_abs_q=float(np.max(np.abs(q_t - q_h))) if n else 0.0,
+        max_angle_deg=float(ang.max()) if n else 0.0,
+        max_abs_state=max_state,
+        final_state_identical=bool(same[-1]) if n else True,
+    )
+
+
+# --------------------------------------------------------------------------------------
+# `ahrsgen target`
+# --------------------------------------------------------------------------------------
+
+# The scenario each filter's source experiment is about (SPEC.md); --scenario overrides.
+DEFAULT_SCENARIO = {"qcf": "fixedwing_gps", "mekf": "fixedwing_gps",
+                    "adukf": "static_mag_disturbance", "cpf": "turntable"}
+DEFAULT_TOLERANCE_DEG = 1e-3
+
+
+def toolchain_versions() -> dict:
+    out = {}
+    for tool, args in (("arm-none-eabi-gcc", ["--version"]), ("qemu-system-arm", ["--version"])):
+        try:
+            out[tool] = subprocess.run([tool, *args], capture_output=True, text=True).stdout.splitlines()[0]
+        except (OSError, IndexError):
+            out[tool] = None
+    try:
+        import unicorn
+        out["unicorn"] = unicorn.__version__
+    except ImportError:
+        out["unicorn"] = None
+    return out
+
+
+def check_generated(filter_name: str, opts=OPT_LEVELS, cpu: str = "cortex-m4f", scenario: str | None = None,
+                    seed: int = 0, scenario_options: dict | None = None, config_file=None, sets=None,
+                    prefix=None, workdir: Path | None = None, count_steps: int | None = 20000,
+                    log=None) -> list[dict]:
+    """Generate (float), cross-build at each optimisation level, run on the target, compare
+    with the host float build, measure the footprint.  One dict per build."""
+    from firmware_sim import scenarios
+    require_tools()
+    workdir = Path(workdir or tempfile.mkdtemp(prefix=f"ahrsgen-target-{filter_name}-"))
+    gen_dir = generate(filter_name, workdir / "generated", config_file, sets, prefix)
+    b = binding_from_generated(gen_dir)
+    scen = scenario or DEFAULT_SCENARIO.get(filter_name, "fixedwing_gps")
+    if log is None:
+        log = scenarios.make(scen, seed=seed, **(scenario_options or {}))
+    rec = records_from_log(log)
+    results = []
+    host_cmp = None
+    for opt in opts:
+        r = check_filter(b, rec, workdir, opt=opt, cpu=cpu, count_steps=count_steps)
+        cmp_ = compare_with_host(gen_dir, b, log, r.run)
+        host_cmp = cmp_
+        results.append({"filter": filter_name, "opt": opt, "cpu": cpu, "scenario": log.name, "seed": seed,
+                        "steps": len(rec), "counted_steps": int(len(r.counts.instructions)),
+                        "footprint": asdict(r.footprint), "host_comparison": asdict(cmp_),
+                        "workdir": str(r.build.workdir)})
+    del host_cmp
+    return results
+
+
+def _print_results(results: list[dict], tolerance_deg: float) -> bool:
+    ok = True
+    rows = [Footprint(**r["footprint"]) for r in results]
+    print(format_table(rows))
+    print()
+    for r in results:
+        c = r["host_comparison"]
+        same = c["identical_steps"] == c["steps"]
+        good = c["status_equal"] and c["max_angle_deg"] <= tolerance_deg
+        ok &= good
+        verdict = ("bit-identical in every step" if same else
+                   f"bit-identical in {c['identical_steps']}/{c['steps']} steps (first difference at step "
+                   f"{c['first_difference']}); max attitude difference {c['max_angle_deg']:.3g} deg, "
+                   f"max |state difference| {c['max_abs_state']:.3g}")
+        print(f"{r['filter']} {r['opt']}: target vs host float build on {r['scenario']} "
+              f"({r['steps']} steps): {verdict}; status codes {'identical' if c['status_equal'] else 'DIFFER'}"
+              f" -> {'PASS' if good else 'FAIL'} (bound {tolerance_deg:g} deg)")
+        fp = r["footprint"]
+        if fp["double_helpers"]:
+            print(f"  WARNING: soft-double helpers reachable from step: {', '.join(fp['double_helpers'])}")
+    return ok
+
+
+def cmd_target(args) -> int:
+    from generator import filters
+    from generator.model import ConfigError
+    missing = missing_tools()
+    if missing:
+        raise ConfigError("target checks need " + ", ".join(missing) + " (apt-get install "
+                          + " ".join(APT_PACKAGES) + "; pip install " + " ".join(PIP_PACKAGES) + ")")
+    names = filters.names() if args.filter == "all" else [args.filter]
+    if args.filter == "all" and (args.config or args.set):
+        raise ConfigError("--config/--set apply to one filter, not 'all'")
+    for n in names:
+        filters.load(n)   # unknown filter -> ConfigError
+    opts = args.opt or list(OPT_LEVELS)
+    sopts = {}
+    for item in args.scenario_opt:
+        k, _, v = item.partition("=")
+        try:
+            sopts[k] = float(v) if any(c in v for c in ".e") else int(v)
+        except ValueError:
+            sopts[k] = v
+    results = []
+    for n in names:
+        try:
+            results += check_generated(n, opts, args.cpu, args.scenario, args.seed, sopts, args.config, args.set,
+                                       args.prefix, Path(args.workdir) / n if args.workdir else None,
+                                       None if args.count_steps == 0 else args.count_steps)
+        except KeyError as e:
+            raise ConfigError(str(e.args[0])) from None
+    print(f"target {args.cpu}: {' '.join(CPUS[args.cpu])} {' '.join(MATH_FLAGS)}; "
+          f"QEMU {QEMU_MACHINE}; instructions counted in unicorn (not cycles)")
+    ok = _print_results(results, args.tolerance)
+    doc = {"cpu": args.cpu, "cpu_flags": CPUS[args.cpu], "math_flags": MATH_FLAGS, "qemu_machine": QEMU_MACHINE,
+           "tools": toolchain_versions(), "tolerance_deg": args.tolerance, "results": results}
+    out = Path(args.json)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(doc, indent=2, sort_keys=True) + "\n")
+    print(f"wrote {out}")
+    return 0 if ok else 1
+
+
+def register_cli(sub) -> None:
+    p = sub.add_parser(
+        "target", help="cross-build for a Cortex-M4F, run in QEMU, compare with the host, report footprint",
+        description="Generate the float C of a filter, build it with arm-none-eabi-gcc at -O2 and -Os, run a "
+                    "scenario through it on an emulated Cortex-M4F (QEMU mps2-an386), check the outputs against "
+                    "the host float build, and report flash, static RAM, worst-case stack and instructions per "
+                    "step (table on stdout, JSON file). Exit 1 if target and host disagree beyond the bound.")
+    p.add_argument("filter", help="filter name (see 'ahrsgen list'), or 'all'")
+    p.add_argument("--config", metavar="FILE.toml", help="TOML config (its precision is ignored: the target build is float)")
+    p.add_argument("--set", metavar="NAME=VALUE", action="append", default=[], help="override one parameter (repeatable)")
+    p.add_argument("--prefix", help="C identifier prefix (default: the filter name)")
+    p.add_argument("--cpu", choices=sorted(CPUS), default="cortex-m4f", help="target CPU (default cortex-m4f)")
+    p.add_argument("--opt", action="append", choices=list(OPT_LEVELS),
+                   help="optimisation level (repeatable; default both -O2 and -Os)")
+    p.add_argument("--scenario", help="scenario (default: the filter's source experiment, e.g. fixedwing_gps for qcf)")
+    p.add_argument("--seed", type=int, default=0, help="scenario seed (default 0)")
+    p.add_argument("--scenario-opt", metavar="NAME=VALUE", action="append", default=[],
+                   help="scenario option, e.g. duration=30 (repeatable)")
+    p.add_argument("--count-steps", type=int, default=20000, metavar="N",
+                   help="count instructions over the first N steps in the emulator (0 = all; default 20000)")
+    p.add_argument("--tolerance", type=float, default=DEFAULT_TOLERANCE_DEG, metavar="DEG",
+                   help=f"largest allowed target-vs-host attitude difference (default {DEFAULT_TOLERANCE_DEG:g} deg)")
+    p.add_argument("--json", default="build/target/target.json", metavar="FILE",
+                   help="where to write the JSON report (default build/target/target.json)")
+    p.add_argument("--workdir", metavar="DIR", help="keep build products here (default: a temporary directory)")
+    p.set_defaults(func=cmd_target)
