@@ -142,6 +142,7 @@ def render(cfg: BuildConfig) -> Generated:
         kernels=kctx, sensors=model.sensors, state_bytes=state_bytes,
         step_partial="step.c.j2",
         init_partial="init.c.j2" if (spec.folder / "init.c.j2").exists() else None,
+        helpers_partial="helpers.c.j2" if (spec.folder / "helpers.c.j2").exists() else None,
         cfg=cfg.params, **model.template_context())
     header = env.get_template("filter.h.j2").render(ctx)
     source = env.get_template("filter.c.j2").render(ctx)
