@@ -7,14 +7,15 @@ with exact truth:
 
 Trajectory (deterministic, independent of the seed; 600 s by default, the schedule repeats
 every 600 s if longer, a shorter run is its first part):
-- airspeed V 18-30 m/s (never below 18 m/s, so the GPS course is a heading), changed 11 times
-  by smooth quintic ramps of 3-8 s: longitudinal accelerations ±1.2-2.0 m/s² on average,
+- airspeed V 18-30 m/s (never below 18 m/s, so the GPS course is a heading), changed 10 times
+  by smooth quintic ramps of 2-8 s: longitudinal accelerations 1.25-1.6 m/s² on average,
   peaks 2.3-3.0 m/s²;
 - coordinated turns: bank φ ramps (3-4 s) to ±20-35° and holds 15-30 s, turn rate
   χ̇ = g tan φ / V, so the roll is exactly φ = atan(V χ̇ / g) (sustained centripetal
-  acceleration 3.6-7 m/s², 3-8 times the accelerometer's gravity-only assumption error
-  threshold - the case the GPS-derived motion acceleration of the paper's section 3.2 is for);
-  one 50° bank reversal;
+  acceleration 3.6-6.9 m/s², the case the GPS-derived motion acceleration of the paper's
+  section 3.2 is for: | |f| - g | exceeds 0.5 m/s² on more than 30 % of the samples);
+  one 50° bank reversal. Near-coordinated: the lateral specific force is 0.03 m/s² on
+  average, up to 1.4 m/s² during bank ramps combined with climbs or speed changes;
 - climbs and glides: flight-path angle γ ramps (3 s) to ±5-8° and holds 25-40 s;
 - attitude: roll φ, pitch θ = γ + α cos φ with the angle of attack
   α = 3° (22 m/s / V)² / cos φ, yaw ψ = air-relative course χ (zero sideslip). The run
