@@ -274,9 +274,9 @@ class Reference:
         # estimate, eq. 15, sign-aligned with the previous estimate
         sgn = np.where(x @ self.q < 0.0, -1.0, 1.0)
         acc = (self.weights * sgn) @ x
-        n = float(np.linalg.norm(acc))
-        if n > 1e-30:
-            self.q = acc / n
+        n2 = float(acc @ acc)
+        if n2 > 1e-30:
+            self.q = acc / math.sqrt(n2)
         self.ess = 1.0 / float(np.sum(self.weights * self.weights))
         if have_obs and (p["faithful"] or self.ess < p["ess_threshold"] * N):
             self._resample()

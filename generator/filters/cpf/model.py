@@ -1,0 +1,158 @@
+"""CPF: complementary + particle filter (Xu, Zhao, Luo 2021), symbolic model.
+
+Per step (SPEC.md, CPF; reference.py spells out every equation):
+  am angles      φ_a = atan2(−f_y, −f_z), θ_a = atan2(f_x, √(f_y²+f_z²)), ψ_m tilt-compensated
+  gyro predict   q_g = normalise((I + dt/2 Ω(ω)) q_cf)                          (eq. 11)
+  complementary  a = wrap(a_g + (1−k) wrap(a_am − a_g)), k = τ/(τ+dt)           (eqs. 7, 8)
+  particles      x_i = normalise((I + dt/2 Ω(ω)) x_i + σ_p√dt/2 n_i)            (eqs. 9, 11)
+  likelihood     w_i ← w_i exp(4(|⟨Y,x_i⟩| − c_max)/σ_o²), Y = q_cf (q ≡ −q)     (eqs. 12, 13)
+  estimate       q = normalise(Σ w_i sign⟨x_i, q_prev⟩ x_i)                      (eqs. 14, 15)
+The loops over particles, the weight normalisation, systematic resampling and the PRNG
+(xoshiro128**, Box-Muller; prng.py documents the exact semantics) are written in the
+filter's templates (helpers.c.j2, step.c.j2) around these kernels.
+"""
+from __future__ import annotations
+
+import casadi as ca
+
+from generator.emit import function
+from generator.filters.cpf.prng import seed_state
+from generator.model import FilterModel, KernelSpec, StateField
+from generator.symbolic import attitude, quat
+
+FILTER_STATUS = [
+    ("WEIGHTS_RESET", "particle weights summed to zero (underflow or corrupted state): reset to 1/N"),
+    ("NOT_INITIALISED", "no usable accelerometer sample yet to initialise from; state unchanged"),
+]
+
+
+def transition(q, w, dt):
+    """Eq. 11: (I + dt/2 Ω(ω)) q, the first-order quaternion update q + dt/2 q ⊗ [0, ω]."""
+    return q + 0.5 * dt * quat.qmul(q, quat.vec(0, w[0], w[1], w[2]))
+
+
+class Model(FilterModel):
+    def __init__(self, params: dict):
+        super().__init__(params, sensors=("accel", "mag"), extra_status=list(FILTER_STATUS))
+
+    @property
+    def n(self) -> int:
+        return int(self.params["n_particles"])
+
+    @property
+    def mode(self) -> str:
+        return self.params["mode"]
+
+    def state_fields(self):
+        n = self.n
+        pf = self.mode != "complementary"
+        fields = [
+            StateField("q", 4, "attitude estimate, body->NED, [w x y z]", [1.0, 0.0, 0.0, 0.0]),
+            StateField("q_cf", 4, "complementary filter output (the particle filter's observation)",
+                       [1.0, 0.0, 0.0, 0.0]),
+        ]
+        if pf:
+            fields += [
+                StateField("particles", 4 * n, f"{n} particles, quaternions [w x y z] one after another",
+                           [1.0, 0.0, 0.0, 0.0] * n),
+                StateField("weights", n, "normalised particle weights", 1.0 / n),
+                StateField("ess", 1, "effective sample size 1/sum(w^2) after the last update", float(n)),
+                StateField("rng", 4, f"xoshiro128** state (seeded from {self.params['seed']})",
+                           seed_state(int(self.params["seed"])), "uint32"),
+                StateField("counts", n, "resampling scratch: copies of each particle", 0, "uint32"),
+                StateField("resample_count", 1, "number of resamplings so far (wraps)", 0, "uint32"),
+            ]
+        fields.append(StateField("initialised", 1, "1 once initialised from the accelerometer/magnetometer",
+                                 0, "uint32"))
+        return fields
+
+    def kernels(self):
+        p = self.params
+        q = ca.SX.sym("q", 4)
+        x = ca.SX.sym("x", 4)
+        y = ca.SX.sym("y", 4)
+        gyro = ca.SX.sym("gyro", 3)
+        dt = ca.SX.sym("dt")
+        f = ca.SX.sym("accel", 3)
+        m = ca.SX.sym("mag", 3)
+        roll = ca.SX.sym("roll")
+        pitch = ca.SX.sym("pitch")
+        rpy = ca.SX.sym("rpy", 3)
+        am = ca.SX.sym("am", 3)
+        noise = ca.SX.sym("noise", 4)
+        use_accel = ca.SX.sym("use_accel")
+        use_mag = ca.SX.sym("use_mag")
+        w = ca.SX.sym("w")
+        cmax = ca.SX.sym("cmax")
+        acc = ca.SX.sym("acc", 4)
+        ref = ca.SX.sym("ref", 4)
+
+        r_a, p_a = attitude.tilt_angles(f)
+        ks = [
+            KernelSpec("tilt", function("tilt", {"accel": f}, {"roll": r_a, "pitch": p_a}),
+                       "accelerometer roll and pitch (eqs. 1-2 in FRD/NED)"),
+            KernelSpec("heading", function("heading", {"mag": m, "roll": roll, "pitch": pitch},
+                                           {"yaw": attitude.tilt_compensated_heading(m, roll, pitch, p["declination"])}),
+                       "tilt-compensated magnetic heading plus declination (eq. 3 in FRD/NED)"),
+            KernelSpec("from_euler", function("from_euler", {"rpy": rpy},
+                                              {"q": quat.from_euler(rpy[0], rpy[1], rpy[2])}),
+                       "quaternion of Z-Y-X Euler angles [roll, pitch, yaw]"),
+        ]
+        if self.mode != "particle":
+            g = dt / (p["tau"] + dt)                 # 1 - k, k = tau / (tau + dt)  (eq. 8)
+            gains = [use_accel * g, use_accel * g, use_mag * g]
+            mixed = [quat.wrap(rpy[i] + gains[i] * quat.wrap(am[i] - rpy[i])) for i in range(3)]
+            ks += [
+                KernelSpec("predict", function("predict", {"q": q, "gyro": gyro, "dt": dt},
+                                               {"q_new": quat.qnormalize(transition(q, gyro, dt))}),
+                           "gyro prediction by eq. 11, normalised"),
+                KernelSpec("cf_mix", function("cf_mix", {"rpy": rpy, "am": am, "dt": dt, "use_accel": use_accel,
+                                                         "use_mag": use_mag},
+                                              {"q_cf": quat.from_euler(*mixed)}),
+                           "complementary mix of gyro and accel/mag angles through wrapped differences (eqs. 7-8)"),
+            ]
+        if self.mode != "complementary":
+            s_p = 0.5 * p["process_noise"] * ca.sqrt(dt)
+            s_0 = 0.5 * p["init_spread"]
+            c = ca.fabs(ca.dot(x, y))
+            gain = 4.0 / (p["obs_noise"] * p["obs_noise"])
+            sgn = ca.if_else(ca.dot(x, ref) < 0, -1, 1)
+            ks += [
+                KernelSpec("init_particle", function("init_particle", {"q": q, "noise": noise},
+                                                     {"x": quat.qnormalize(q + s_0 * noise)}),
+                           "initial particle: the first attitude plus quaternion noise, normalised"),
+                KernelSpec("particle_predict",
+                           function("particle_predict", {"x": x, "gyro": gyro, "dt": dt, "noise": noise},
+                                    {"x_new": quat.qnormalize(transition(x, gyro, dt) + s_p * noise)}),
+                           "particle prediction: eq. 11 plus the additive process noise of eq. 9, normalised"),
+                KernelSpec("obs_dot", function("obs_dot", {"x": x, "y": y}, {"c": c}),
+                           "|<x, Y>|: cosine of half the angle between particle and observation (q = -q)"),
+                KernelSpec("reweight", function("reweight", {"w": w, "x": x, "y": y, "cmax": cmax},
+                                                {"w_new": w * ca.exp(gain * (c - cmax))}),
+                           "weight times the Gaussian likelihood exp(-4(1-|<x,Y>|)/obs_noise^2), scaled by its maximum (eq. 13)"),
+                KernelSpec("accumulate", function("accumulate", {"acc": acc, "w": w, "x": x, "ref": ref},
+                                                  {"acc_new": acc + w * sgn * x}),
+                           "sign-aligned weighted sum of the particles (eq. 15, q = -q)"),
+                KernelSpec("normalize", function("normalize", {"acc": acc},
+                                                 {"q": acc / ca.sqrt(ca.sumsqr(acc))}),
+                           "normalised quaternion"),
+            ]
+        return ks
+
+    def template_context(self):
+        return {"n_particles": self.n, "mode": self.mode, "faithful": bool(self.params["faithful"]),
+                "ess_threshold": float(self.params["ess_threshold"])}
+
+    def step_paths(self):
+        n = self.n
+        cf = ["predict", "euler", "tilt", "heading", "cf_mix"]
+        if self.mode == "complementary":
+            return {"accel+mag": cf, "gyro only": ["predict"]}
+        pf_pred = ["particle_predict"] * n
+        pf_upd = ["obs_dot"] * n + ["reweight"] * n
+        est = ["accumulate"] * n + ["normalize"]
+        if self.mode == "particle":
+            return {"accel+mag (kernels)": ["tilt", "heading", "from_euler"] + pf_pred + pf_upd + est,
+                    "gyro only (kernels)": pf_pred + est}
+        return {"accel+mag (kernels)": cf + pf_pred + pf_upd + est,
+                "gyro only (kernels)": ["predict"] + pf_pred + est}
