@@ -53,3 +53,8 @@ def max_angle_diff_rad(q_a, q_b):
     ang = 2 * np.arctan2(np.linalg.norm(qe[..., 1:], axis=-1), np.abs(qe[..., 0]))
     del d
     return float(np.max(ang)) if len(ang) else 0.0
+
+
+def wrap_deg_diff(a_rad, b_rad):
+    """Element-wise a - b wrapped to (-pi, pi], radians."""
+    return wrap(np.asarray(a_rad) - np.asarray(b_rad))

@@ -1,0 +1,195 @@
+"""The `ahrsgen` command: list, generate, validate (and more subcommands registered below).
+
+Exit status: 0 success, 1 a check failed (validation disagreement), 2 bad usage or
+configuration (one line naming the problem).
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+from generator.model import ConfigError
+
+EPILOG = "Run 'ahrsgen COMMAND --help' for the options of each command."
+
+
+def _add_build_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("filter", help="filter name (see 'ahrsgen list')")
+    p.add_argument("--config", metavar="FILE.toml", help="TOML file: prefix, precision and a [params] table")
+    p.add_argument("--set", metavar="NAME=VALUE", action="append", default=[],
+                   help="override one parameter (repeatable); wins over --config")
+    p.add_argument("--precision", choices=["float", "double"], help="C floating-point type (default float)")
+    p.add_argument("--prefix", help="C identifier prefix of the generated API (default: the filter name)")
+
+
+def _resolve(args):
+    from generator import config
+    return config.resolve(args.filter, args.config, args.set, args.precision, args.prefix)
+
+
+def cmd_list(args) -> int:
+    from generator import filters
+    from firmware_sim import scenarios
+    names = [args.filter] if args.filter else filters.names()
+    for name in names:
+        spec = filters.load(name)
+        print(f"{name}: {spec.title}")
+        print(f"  source: {spec.source}")
+        width = max(len(n) for n in spec.params)
+        for pname, p in spec.params.items():
+            unit = f" [{p.unit}]" if p.unit else ""
+            print(f"  {pname:<{width}}  default {p.default!r:<10} allowed {p.range_text()}{unit}")
+            print(f"  {'':<{width}}  {p.doc}")
+        print()
+    if not args.filter:
+        print("scenarios:")
+        for s in scenarios.names():
+            print(f"  {s:<26} {getattr(scenarios.module(s), 'DESCRIPTION', '')}")
+    return 0
+
+
+def cmd_generate(args) -> int:
+    from generator import render
+    cfg = _resolve(args)
+    gen = render.render(cfg)
+    out = Path(args.output)
+    paths = render.write(gen, out)
+    for p in paths:
+        print(p)
+    paths_ops = gen.manifest["step_paths"]
+    for name, info in paths_ops.items():
+        print(f"  step path '{name}': {info['total']} ops ({', '.join(f'{k} {v}' for k, v in info['ops'].items() if v)})")
+    print(f"  state struct: {gen.manifest['structs']['state']['size']} bytes")
+    return 0
+
+
+def cmd_validate(args) -> int:
+    import numpy as np
+    from firmware_sim import host, metrics, scenarios
+    cfg = _resolve(args)
+    opts = {}
+    for item in args.scenario_opt:
+        k, _, v = item.partition("=")
+        opts[k] = float(v) if v.replace(".", "", 1).replace("-", "", 1).isdigit() else v
+    try:
+        log = scenarios.make(args.scenario, seed=args.seed, **opts)
+    except KeyError as e:
+        raise ConfigError(str(e.args[0])) from None
+    site = scenario_site_params(cfg, log)
+    if site:
+        from generator import config as _config
+        cfg = _config.resolve(args.filter, args.config, args.set + [f"{k}={v!r}" for k, v in site.items()],
+                              args.precision, args.prefix)
+        print("  site parameters from the scenario (override with --set): "
+              + ", ".join(f"{k}={v:.6g}" for k, v in site.items()))
+    bound = args.tolerance if args.tolerance is not None else (1e-9 if cfg.precision == "double" else 1e-3)
+    print(f"validate {cfg.filter} ({cfg.precision}) on {args.scenario} seed {args.seed}: "
+          f"{len(log)} steps, {log.t[-1] - log.t[0]:.1f} s")
+    t0 = time.perf_counter()
+    hf = host.build(cfg)
+    t1 = time.perf_counter()
+    c = hf.run(log)
+    t2 = time.perf_counter()
+    ref = cfg.spec.reference(cfg.params)
+    r = host.run_reference(ref, log)
+    t3 = time.perf_counter()
+    print(f"  compiled in {t1 - t0:.2f} s, C run {t2 - t1:.3f} s, NumPy reference {t3 - t2:.2f} s")
+    diff = np.degrees(np.abs(metrics.wrap_deg_diff(c.rpy, r.rpy)))
+    qdiff = metrics.max_angle_diff_rad(c.q, r.q)
+    print(f"  C vs reference: max |d roll| {diff[:, 0].max():.3g} deg, |d pitch| {diff[:, 1].max():.3g} deg, "
+          f"|d yaw| {diff[:, 2].max():.3g} deg; max attitude difference {qdiff:.3g} rad (bound {bound:g} rad)")
+    same_status = bool(np.array_equal(c.status, r.status))
+    print(f"  status codes identical: {'yes' if same_status else 'NO'}"
+          f" (non-zero in {int(np.count_nonzero(c.status))} steps)")
+    ok = qdiff <= bound and same_status
+    if log.q_true is not None:
+        s = metrics.euler_stats(c.q, log.q_true, log.t, log.settle_time)
+        print(f"  accuracy vs truth after {log.settle_time:g} s (C {cfg.precision}), degrees:")
+        print("           RMS   mean|e|   max|e|")
+        for a in ("roll", "pitch", "yaw"):
+            print(f"    {a:<5} {s[a]['rms']:7.3f} {s[a]['mean_abs']:8.3f} {s[a]['max_abs']:8.3f}")
+    print("PASS" if ok else "FAIL: generated C disagrees with the reference")
+    return 0 if ok else 1
+
+
+def scenario_site_params(cfg, log) -> dict:
+    """Site parameters a scenario knows (magnetic declination) that the user did not set."""
+    import math
+    out = {}
+    if "declination" in cfg.params and "declination" not in cfg.overrides and "declination_deg" in log.meta:
+        out["declination"] = math.radians(float(log.meta["declination_deg"]))
+    return out
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="ahrsgen", epilog=EPILOG,
+        description="Generate fixed-size C for UAV attitude filters from CasADi equations, and check it.")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+
+    p = sub.add_parser("list", help="filters, their parameters (defaults, allowed ranges, meaning) and scenarios")
+    p.add_argument("filter", nargs="?", help="only this filter")
+    p.set_defaults(func=cmd_list)
+
+    p = sub.add_parser("generate", help="write <prefix>.h, <prefix>.c and manifest.json for a filter",
+                       description="Generate C for a filter with its parameters baked in.")
+    _add_build_options(p)
+    p.add_argument("-o", "--output", required=True, metavar="DIR", help="output directory (created if needed)")
+    p.set_defaults(func=cmd_generate)
+
+    p = sub.add_parser("validate", help="generate, compile, run C and the NumPy reference on a scenario, compare",
+                       description="Generate and compile a filter for the host, run it and its independent NumPy "
+                                   "reference over a simulated scenario, print the largest difference and the "
+                                   "accuracy against the truth. Exit 1 if C and reference disagree.")
+    _add_build_options(p)
+    p.add_argument("--scenario", default="fixedwing_gps", help="scenario name (see 'ahrsgen list')")
+    p.add_argument("--seed", type=int, default=0, help="scenario seed (default 0)")
+    p.add_argument("--scenario-opt", metavar="NAME=VALUE", action="append", default=[],
+                   help="scenario option, e.g. rate_hz=100 or duration=60 (repeatable)")
+    p.add_argument("--tolerance", type=float, metavar="RAD",
+                   help="largest allowed attitude difference (default 1e-9 rad double, 1e-3 rad float)")
+    p.set_defaults(func=cmd_validate)
+
+    for register in _EXTRA_COMMANDS:
+        register(sub)
+    return parser
+
+
+# Subcommands defined elsewhere (bench, run, target) register themselves here:
+# each entry is a function taking the subparsers object.
+_EXTRA_COMMANDS: list = []
+
+
+def _load_extra_commands() -> None:
+    import importlib
+    for mod in ("firmware_sim.bench", "firmware_sim.target"):
+        try:
+            m = importlib.import_module(mod)
+        except ImportError:
+            continue
+        reg = getattr(m, "register_cli", None)
+        if reg is not None and reg not in _EXTRA_COMMANDS:
+            _EXTRA_COMMANDS.append(reg)
+
+
+def main(argv=None) -> int:
+    _load_extra_commands()
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    try:
+        return args.func(args)
+    except ConfigError as e:
+        print(f"ahrsgen: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("ahrsgen: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,129 @@
+"""The emitter on its own: every supported CasADi operation, emitted, compiled and run in C,
+equals CasADi's own numeric evaluation; unsupported operations fail with their name."""
+from __future__ import annotations
+
+import ctypes
+import subprocess
+
+import casadi as ca
+import numpy as np
+import pytest
+
+from firmware_sim.host import STRICT, cc
+from generator import emit
+
+x = ca.SX.sym("x")
+y = ca.SX.sym("y")
+
+# (name, expression, domain of x, domain of y)
+CASES = [
+    ("add", x + y, (-3, 3), (-3, 3)), ("sub", x - y, (-3, 3), (-3, 3)),
+    ("mul", x * y, (-3, 3), (-3, 3)), ("div", x / y, (-3, 3), (0.5, 3)),
+    ("neg", -x, (-3, 3), None), ("sq", x * x, (-3, 3), None), ("twice", 2 * x, (-3, 3), None),
+    ("inv", 1 / x, (0.5, 3), None), ("sqrt", ca.sqrt(x), (0.1, 9), None),
+    ("fabs", ca.fabs(x), (-3, 3), None), ("floor", ca.floor(x), (-3, 3), None), ("ceil", ca.ceil(x), (-3, 3), None),
+    ("sign", ca.sign(x), (-3, 3), None), ("sin", ca.sin(x), (-3, 3), None), ("cos", ca.cos(x), (-3, 3), None),
+    ("tan", ca.tan(x), (-1.2, 1.2), None), ("asin", ca.asin(x), (-0.99, 0.99), None),
+    ("acos", ca.acos(x), (-0.99, 0.99), None), ("atan", ca.atan(x), (-3, 3), None),
+    ("exp", ca.exp(x), (-3, 3), None), ("log", ca.log(x), (0.1, 9), None),
+    ("sinh", ca.sinh(x), (-2, 2), None), ("cosh", ca.cosh(x), (-2, 2), None), ("tanh", ca.tanh(x), (-2, 2), None),
+    ("asinh", ca.asinh(x), (-3, 3), None), ("acosh", ca.acosh(x), (1.1, 4), None),
+    ("atanh", ca.atanh(x), (-0.9, 0.9), None), ("erf", ca.erf(x), (-2, 2), None),
+    ("atan2", ca.atan2(x, y), (-3, 3), (-3, 3)), ("pow", x ** y, (0.5, 3), (-2, 2)),
+    ("constpow", x ** 2.5, (0.5, 3), None), ("constpow2", x ** 3, (-3, 3), None),
+    ("fmod", ca.fmod(x, y), (-3, 3), (0.5, 2)), ("copysign", ca.copysign(x, y), (-3, 3), (-3, 3)),
+    ("hypot", ca.hypot(x, y), (-3, 3), (-3, 3)),
+    ("fmin", ca.fmin(x, y), (-3, 3), (-3, 3)), ("fmax", ca.fmax(x, y), (-3, 3), (-3, 3)),
+    ("lt", x < y, (-3, 3), (-3, 3)), ("le", x <= y, (-3, 3), (-3, 3)),
+    ("eq", x == ca.floor(y), (-1, 1), (-1, 1)), ("ne", x != y, (-3, 3), (-3, 3)),
+    ("not", ca.logic_not(x < y), (-3, 3), (-3, 3)), ("and", ca.logic_and(x < 0, y < 0), (-3, 3), (-3, 3)),
+    ("or", ca.logic_or(x < 0, y < 0), (-3, 3), (-3, 3)),
+    ("if_else", ca.if_else(x < y, ca.sin(x), ca.cos(y)), (-3, 3), (-3, 3)),
+    ("if_else_zero", ca.if_else(x < 0, x * y, 0), (-3, 3), (-3, 3)),
+    ("shared", ca.sin(x * y) * ca.cos(x * y) + (x * y) ** 2, (-2, 2), (-2, 2)),
+]
+
+
+def _build(kernels, precision, tmp_path):
+    src = tmp_path / f"k_{precision}.c"
+    body = "#include <math.h>\n\n" + "\n\n".join(k.source(storage="") for k in kernels) + "\n"
+    src.write_text(body)
+    lib = tmp_path / f"k_{precision}.so"
+    # -Wno-missing-prototypes style noise does not apply: these are plain external functions.
+    cmd = [cc(), *STRICT, "-O2", "-fPIC", "-shared", "-ffp-contract=off", "-o", str(lib), str(src), "-lm"]
+    r = subprocess.run(cmd, capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    return ctypes.CDLL(str(lib))
+
+
+@pytest.mark.parametrize("precision", ["double", "float"])
+def test_every_supported_operation_matches_casadi(precision, tmp_path):
+    rng = np.random.default_rng(42)
+    kernels, fns = [], []
+    for name, expr, dx, dy in CASES:
+        ins = {"x": x, "y": y} if dy is not None else {"x": x}
+        f = emit.function(f"op_{name}", ins, {"out": expr})
+        kernels.append(emit.emit(f, precision))
+        fns.append((name, f, dx, dy))
+    lib = _build(kernels, precision, tmp_path)
+    ct = ctypes.c_double if precision == "double" else ctypes.c_float
+    np_t = np.float64 if precision == "double" else np.float32
+    for name, f, dx, dy in fns:
+        cfun = getattr(lib, f"op_{name}")
+        cfun.restype = None
+        cfun.argtypes = [ct] * (2 if dy is not None else 1) + [ctypes.POINTER(ct)]
+        for _ in range(50):
+            xv = float(np_t(rng.uniform(*dx)))
+            yv = float(np_t(rng.uniform(*dy))) if dy is not None else None
+            args = [xv] + ([yv] if dy is not None else [])
+            expected = float(f(*args))
+            out = ct()
+            cfun(*args, ctypes.byref(out))
+            if precision == "double":
+                assert out.value == pytest.approx(expected, rel=1e-13, abs=1e-13), (name, args)
+            else:
+                assert out.value == pytest.approx(expected, rel=2e-6, abs=2e-6), (name, args)
+
+
+def test_unsupported_operation_is_named():
+    f = emit.function("bad", {"x": x}, {"out": ca.erfinv(x)})
+    with pytest.raises(emit.EmitError, match="OP_ERFINV"):
+        emit.emit(f, "float")
+
+
+def test_float_source_has_no_double_math():
+    exprs = ca.vertcat(*[e for _, e, _, _ in CASES])
+    k = emit.emit(emit.function("all_ops", {"x": x, "y": y}, {"out": exprs}), "float")
+    src = k.source()
+    import re
+    doubles = re.findall(r"\b(sqrt|sin|cos|tan|asin|acos|atan|atan2|exp|log|pow|floor|ceil|fabs|fmod|hypot|"
+                         r"sinh|cosh|tanh|asinh|acosh|atanh|erf|copysign)\(", src)
+    assert doubles == []
+    # every literal in a float build carries the f suffix
+    assert not re.search(r"(?<![\w.])\d+\.\d*(e[-+]?\d+)?(?![\w.])(?!f)", src)
+
+
+def test_literals_round_trip():
+    for v in [0.1, 1.0 / 3.0, 1e-30, 6.02e23, -2.5, 0.0, 9.80665]:
+        t = emit.literal(v, "float").strip("()")
+        assert t.endswith("f")
+        assert np.float32(float(t[:-1])) == np.float32(v)
+        d = emit.literal(v, "double").strip("()")
+        assert float(d) == v
+
+
+def test_outputs_may_alias_inputs(tmp_path):
+    # q_new written into the same array as q: all temporaries are computed first.
+    q = ca.SX.sym("q", 2)
+    k = emit.emit(emit.function("swap", {"q": q}, {"q_new": ca.vertcat(q[1], q[0] + q[1])}), "double")
+    lib = _build([k], "double", tmp_path)
+    arr = (ctypes.c_double * 2)(1.0, 2.0)
+    lib.swap(arr, arr)
+    assert list(arr) == [2.0, 3.0]
+
+
+def test_sparse_input_rejected():
+    s = ca.SX.sym("s", ca.Sparsity.diag(3))
+    f = ca.Function("sp", [s], [ca.sum1(s)], ["s"], ["o"])
+    with pytest.raises(emit.EmitError, match="sparse"):
+        emit.emit(f, "float")
