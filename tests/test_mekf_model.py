@@ -3,9 +3,6 @@
 The finite differences are taken of propagation / measurement functions written here in
 plain NumPy (npquat), not of the CasADi expressions, so the check is independent.
 """
-import tomllib
-from pathlib import Path
-
 import casadi as ca
 import numpy as np
 import pytest
@@ -13,16 +10,15 @@ import pytest
 from firmware_sim.log import VALID_GPS
 from firmware_sim.metrics import max_angle_diff_rad
 from firmware_sim.scenarios import make
+from generator import filters
 from generator.filters.mekf import model as M
 from generator.filters.mekf import reference as R
 from generator.npquat import euler_from_q, q_from_euler, qconj, qexp, qmul, wrap
 
-DEFAULTS = Path(__file__).resolve().parents[1] / "generator/filters/mekf/defaults.toml"
 
 
 def defaults():
-    with open(DEFAULTS, "rb") as fh:
-        return {k: v["default"] for k, v in tomllib.load(fh)["params"].items()}
+    return filters.load("mekf").defaults()
 
 
 # --- independent NumPy versions of the functions the Jacobians linearise ---------------
