@@ -92,6 +92,23 @@ def h_meas(q, m_ref):
     return np.concatenate([Rt @ np.array([0.0, 0.0, -1.0]), Rt @ m_ref])
 
 
+def h_meas_batch(qs, m_ref):
+    """h of each row of qs (k,4), unit quaternions: (k,6)."""
+    w, x, y, z = qs.T
+    R = np.empty((len(qs), 3, 3))
+    R[:, 0, 0] = 1 - 2 * (y * y + z * z)
+    R[:, 0, 1] = 2 * (x * y - w * z)
+    R[:, 0, 2] = 2 * (x * z + w * y)
+    R[:, 1, 0] = 2 * (x * y + w * z)
+    R[:, 1, 1] = 1 - 2 * (x * x + z * z)
+    R[:, 1, 2] = 2 * (y * z - w * x)
+    R[:, 2, 0] = 2 * (x * z - w * y)
+    R[:, 2, 1] = 2 * (y * z + w * x)
+    R[:, 2, 2] = 1 - 2 * (x * x + y * y)
+    # R^T v = rows of v^T R
+    return np.concatenate([-R[:, 2, :], np.einsum("j,kji->ki", m_ref, R)], axis=1)
+
+
 def q_from_accel_mag(f, m, decl):
     """Tilt (SPEC formulas) + tilt-compensated heading -> body->NED quaternion."""
     roll = math.atan2(-f[1], -f[2])
@@ -214,9 +231,8 @@ class Reference:
                 status |= COV_RESET
                 P_new = p["p0"] * np.eye(N)
             else:
-                chis = [qm] + [qm + self.a * L[:, i] for i in range(N)] + \
-                       [qm - self.a * L[:, i] for i in range(N)]
-                Z = np.array([h_meas(c / np.linalg.norm(c), self.m_ref) for c in chis])
+                chis = np.vstack([qm, qm + self.a * L.T, qm - self.a * L.T])
+                Z = h_meas_batch(chis / np.linalg.norm(chis, axis=1, keepdims=True), self.m_ref)
                 zhat = self.wm @ Z
                 z = np.concatenate([f / np.linalg.norm(f) if use_a else np.zeros(3),
                                     m / np.linalg.norm(m) if use_m else np.zeros(3)])
@@ -224,7 +240,7 @@ class Reference:
                 R = np.concatenate([p["sigma_acc"] ** 2 + p["k_a"] * eps[:3] ** 2,
                                     p["sigma_mag"] ** 2 + p["k_m"] * eps[3:] ** 2])
                 dZ = Z - zhat
-                dX = np.array(chis) - qm
+                dX = chis - qm
                 Pzz = (self.wc[:, None] * dZ).T @ dZ + np.diag(R)
                 Pxz = (self.wc[:, None] * dX).T @ dZ
                 mask = np.array([use_a] * 3 + [use_m] * 3)
@@ -266,8 +282,6 @@ def run(log, params, record_r=False):
 
 
 def default_params() -> dict:
-    """Defaults from defaults.toml (for scripts and tests)."""
-    import pathlib
-    import tomllib
-    d = tomllib.loads((pathlib.Path(__file__).with_name("defaults.toml")).read_text())
-    return {k: v["default"] for k, v in d["params"].items()}
+    """Every parameter's default (defaults.toml plus the common input checks)."""
+    from generator import filters
+    return filters.load("adukf").defaults()

@@ -1,0 +1,193 @@
+"""A-DUKF: adaptive derivative unscented Kalman filter (seeds/003, SPEC.md), symbolic model.
+
+State q (4, body->NED), P (4x4). The equations are those of reference.py's docstring:
+
+  predict   A = (I4 + dt/2 Ω(ω)) [/ sqrt(1 + |ω|² dt²/4) unless faithful], q⁻ = A q,
+            P⁻ = A P Aᵀ + gyro_noise² dt/4 (I4 - q qᵀ) + q_floor dt I4, symmetrised
+  update    L = chol(P⁻) (fixed-size, guarded), 9 sigma points q⁻, q⁻ ± a L[:, i],
+            each normalised before h(q) = [R(q)ᵀ(-ĝ); R(q)ᵀ m̂]; ẑ, ε = z - ẑ,
+            R = diag(σa² + k_a ε², σm² + k_m ε²) per axis, P_zz, P_xz,
+            K = P_xz P_zz⁻¹ by a Cholesky solve, q⁺ = normalise(q⁻ + K ε),
+            P⁺ = sym(P⁻ - K P_zz Kᵀ). Unusable sensors are masked out exactly.
+
+The two smallest Cholesky pivots (of P⁻ and of P_zz) are outputs; the step partial uses
+them to reset P or skip the update with a status bit, so the state never becomes NaN.
+"""
+from __future__ import annotations
+
+import math
+
+import casadi as ca
+
+from generator.constants import G0
+from generator.emit import function
+from generator.model import FilterModel, KernelSpec, StateField
+from generator.symbolic import attitude, linalg, quat
+
+N = 4
+EXTRA_STATUS = [
+    ("COV_RESET", "P- was not positive definite: P reset to P0, measurement update skipped"),
+    ("UPDATE_SKIPPED", "P_zz was not positive definite: measurement update skipped"),
+    ("NUMERIC_FAULT", "non-finite result: state left as it was before the step"),
+    ("MAG_LEARNING", "reference field still being learned: magnetometer correction not applied"),
+]
+
+
+def omega_matrix(w):
+    wx, wy, wz = w[0], w[1], w[2]
+    return ca.vertcat(
+        ca.horzcat(0, -wx, -wy, -wz),
+        ca.horzcat(wx, 0, wz, -wy),
+        ca.horzcat(wy, -wz, 0, wx),
+        ca.horzcat(wz, wy, -wx, 0),
+    )
+
+
+def ut_parameters(alpha, beta, kappa, n=N):
+    """Spread a and weights (Wm0, Wc0, Wi) of the scaled unscented transform."""
+    lam = alpha * alpha * (n + kappa) - n
+    return math.sqrt(n + lam), lam / (n + lam), lam / (n + lam) + 1 - alpha * alpha + beta, 1 / (2 * (n + lam))
+
+
+def measurement(q, m_ref):
+    """h(q) = [R(q)ᵀ(-ĝ); R(q)ᵀ m̂] with ĝ = [0, 0, 1] (NED down)."""
+    return ca.vertcat(quat.rotate_inv(q, ca.DM([0.0, 0.0, -1.0])), quat.rotate_inv(q, m_ref))
+
+
+class Model(FilterModel):
+    def __init__(self, params: dict):
+        super().__init__(params, sensors=("accel", "mag"), extra_status=list(EXTRA_STATUS))
+
+    def m_ref_configured(self):
+        p = self.params
+        i, d = math.radians(p["inclination_deg"]), math.radians(p["declination_deg"])
+        return [math.cos(i) * math.cos(d), math.cos(i) * math.sin(d), math.sin(i)]
+
+    def state_fields(self):
+        p = self.params
+        p0 = [p["p0"] if r == c else 0.0 for c in range(N) for r in range(N)]
+        learn = p["mag_ref"] == "learn"
+        return [
+            StateField("q", 4, "attitude estimate, body->NED, [w x y z]", [1.0, 0.0, 0.0, 0.0]),
+            StateField("P", 16, "covariance of q, 4x4 (symmetric; column-major)", p0),
+            StateField("m_ref", 3, "reference field direction, NED unit vector", [0.0] * 3 if learn else self.m_ref_configured()),
+            StateField("r_diag", 6, "diagonal of the adaptive R used by the last update (0: sensor not used)", 0.0),
+            StateField("learn_sum", 1, "mag_ref = learn: sum of sin(inclination) over rest samples", 0.0),
+            StateField("learn_count", 1, "mag_ref = learn: rest samples summed so far", 0, "uint32"),
+            StateField("initialised", 1, "1 once the attitude has been initialised", 1 if p["faithful"] else 0, "uint32"),
+        ]
+
+    # ------------------------------------------------------------------ kernels
+    def predict_expr(self, q, P, w, dt):
+        p = self.params
+        A = ca.SX.eye(N) + 0.5 * dt * omega_matrix(w)
+        if not p["faithful"]:
+            A = A / ca.sqrt(1 + 0.25 * dt * dt * ca.sumsqr(w))
+        Q = (p["gyro_noise"] ** 2 * dt / 4) * (ca.SX.eye(N) - ca.mtimes(q, q.T)) + p["q_floor"] * dt * ca.SX.eye(N)
+        qm = ca.mtimes(A, q)
+        Pm = linalg.symmetrize(ca.mtimes([A, P, A.T]) + Q)
+        return qm, quat.qnormalize(qm), Pm
+
+    def update_expr(self, qm, Pm, f, m, m_ref, use_a, use_m):
+        p = self.params
+        a, wm0, wc0, wi = ut_parameters(p["ut_alpha"], p["ut_beta"], p["ut_kappa"])
+        L, piv_p = linalg.cholesky(Pm, p["pivot_min"])
+        chis = [qm] + [qm + a * L[:, i] for i in range(N)] + [qm - a * L[:, i] for i in range(N)]
+        wm = [wm0] + [wi] * (2 * N)
+        wc = [wc0] + [wi] * (2 * N)
+        Z = [measurement(quat.qnormalize(c), m_ref) for c in chis]
+        zhat = sum((wm[i] * Z[i] for i in range(1, 2 * N + 1)), wm[0] * Z[0])
+        z = ca.vertcat(f / ca.sqrt(ca.sumsqr(f)), m / ca.sqrt(ca.sumsqr(m)))
+        eps = z - zhat
+        sa2, sm2 = p["sigma_acc"] ** 2, p["sigma_mag"] ** 2
+        R = [sa2 + p["k_a"] * eps[i] ** 2 for i in range(3)] + [sm2 + p["k_m"] * eps[i] ** 2 for i in range(3, 6)]
+        Pzz = ca.SX.zeros(6, 6)
+        Pxz = ca.SX.zeros(N, 6)
+        for i in range(2 * N + 1):
+            dz = Z[i] - zhat
+            Pzz = Pzz + wc[i] * ca.mtimes(dz, dz.T)
+            Pxz = Pxz + wc[i] * ca.mtimes(chis[i] - qm, dz.T)
+        Pzz = Pzz + ca.diag(ca.vertcat(*R))
+        # exact masking of an unusable sensor: identity block in P_zz, zero cross-covariance
+        # and residual, so its columns of K are exactly zero
+        use = [use_a] * 3 + [use_m] * 3
+        Pzz_m = ca.SX.zeros(6, 6)
+        for r in range(6):
+            for c in range(6):
+                Pzz_m[r, c] = ca.if_else(ca.logic_and(use[r], use[c]), Pzz[r, c], 1.0 if r == c else 0.0)
+        Pxz_m = ca.SX.zeros(N, 6)
+        eps_m = ca.SX.zeros(6)
+        r_used = ca.SX.zeros(6)
+        for c in range(6):
+            for r in range(N):
+                Pxz_m[r, c] = ca.if_else(use[c], Pxz[r, c], 0.0)
+            eps_m[c] = ca.if_else(use[c], eps[c], 0.0)
+            r_used[c] = ca.if_else(use[c], R[c], 0.0)
+        Kt, piv_zz = linalg.spd_solve(Pzz_m, Pxz_m.T, p["pivot_min"])
+        K = Kt.T
+        q_new = quat.qnormalize(qm + ca.mtimes(K, eps_m))
+        P_new = linalg.symmetrize(Pm - ca.mtimes([K, Pzz_m, K.T]))
+        return q_new, P_new, r_used, ca.vertcat(piv_p, piv_zz)
+
+    def kernels(self):
+        p = self.params
+        q = ca.SX.sym("q", N)
+        P = ca.SX.sym("P", N, N)
+        w = ca.SX.sym("gyro", 3)
+        dt = ca.SX.sym("dt")
+        f = ca.SX.sym("accel", 3)
+        m = ca.SX.sym("mag", 3)
+        m_ref = ca.SX.sym("m_ref", 3)
+        use_a = ca.SX.sym("use_accel")
+        use_m = ca.SX.sym("use_mag")
+        qm = ca.SX.sym("q_pred", N)
+        Pm = ca.SX.sym("P_pred", N, N)
+
+        qm_e, qn_e, Pm_e = self.predict_expr(q, P, w, dt)
+        q_new, P_new, r_used, piv = self.update_expr(qm, Pm, f, m, m_ref, use_a, use_m)
+
+        decl = math.radians(p["declination_deg"])
+        roll, pitch = attitude.tilt_angles(f)
+        yaw = attitude.tilt_compensated_heading(m, roll, pitch, decl)
+        q_init = quat.from_euler(roll, pitch, yaw)
+
+        specs = [
+            KernelSpec("predict", function("predict", {"q": q, "P": P, "gyro": w, "dt": dt},
+                                           {"q_pred": qm_e, "q_pred_unit": qn_e, "P_pred": Pm_e}),
+                       "linear Kalman time update: q- = A q, P- = A P A^T + Q"),
+            KernelSpec("update", function("update", {"q_pred": qm, "P_pred": Pm, "accel": f, "mag": m, "m_ref": m_ref,
+                                                     "use_accel": use_a, "use_mag": use_m},
+                                          {"q_new": q_new, "P_new": P_new, "r_diag": r_used, "pivots": piv}),
+                       "unscented measurement update (9 sigma points, Cholesky of P-), adaptive per-axis R, "
+                       "K by a Cholesky solve of P_zz; pivots = smallest pivots of P- and P_zz"),
+            KernelSpec("init_q", function("init_q", {"accel": f, "mag": m}, {"q": q_init}),
+                       "initial attitude: accelerometer tilt and tilt-compensated heading (+ declination)"),
+        ]
+        if p["mag_ref"] == "learn":
+            g = ca.SX.sym("gyro", 3)
+            fn = ca.sqrt(ca.sumsqr(f))
+            rest = ca.logic_and(ca.sumsqr(g) < p["rest_gyro_max"] ** 2, ca.fabs(fn - G0) < p["rest_accel_tol"])
+            sin_dip = -ca.dot(f, m) / (fn * ca.sqrt(ca.sumsqr(m)))
+            ssum = ca.SX.sym("learn_sum")
+            cnt = ca.SX.sym("count")
+            s_i = ca.fmin(ca.fmax(ssum / cnt, -1.0), 1.0)
+            c_i = ca.sqrt(ca.fmax(1 - s_i * s_i, 0.0))
+            m_learn = ca.vertcat(c_i * math.cos(decl), c_i * math.sin(decl), s_i)
+            specs += [
+                KernelSpec("learn_sample", function("learn_sample", {"gyro": g, "accel": f, "mag": m},
+                                                    {"rest": rest, "sin_dip": sin_dip}),
+                           "rest test and sin(inclination) = -f.m/(|f||m|) of one sample"),
+                KernelSpec("learn_finish", function("learn_finish", {"learn_sum": ssum, "count": cnt},
+                                                    {"m_ref": m_learn}),
+                           "reference field from the mean sin(inclination) and the declination"),
+            ]
+        return specs
+
+    def step_paths(self):
+        return {
+            "accel+mag update": ["predict", "update"],
+            "gyro only": ["predict"],
+        }
+
+    def template_context(self):
+        return {"learn": self.params["mag_ref"] == "learn"}
