@@ -273,7 +273,7 @@ def read_ulog(path: str | os.PathLike, name: str | None = None) -> SensorLog:
         "description": f"PX4 log {path.name} ({duration:.1f} s, sensor_combined at "
                        f"{1.0 / np.median(dt[1:]):.0f} Hz)",
         "rate_hz": float(1.0 / np.median(dt[1:])),
-        "settle_time": min(10.0, 0.2 * duration),
+        "settle_time": min(2.0, 0.2 * duration),   # PX4 logs start with the EKF running
         "start_timestamp_us": int(t0),
     })
     return SensorLog(name or path.stem, t, dt, gyro, accel, mag, gps, valid, q_true, meta)

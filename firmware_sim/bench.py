@@ -1,0 +1,799 @@
+"""`ahrsgen run` and `ahrsgen bench`: which filter to fly, with which gains, at what cost.
+
+- The firmware-like harness: every generated filter runs as float C through
+  firmware_sim/c/batch.c (ctypes, host.py) or through the standalone executable built from
+  firmware_sim/c/main_log.c (reads a harness log, takes dt from the timestamps, sets a valid
+  bit only for the sensors that delivered a sample). Both give the same numbers.
+- Scoring: per-angle RMS and mean |error| (roll, pitch, yaw, wrapped) and BROAD's
+  total / heading / inclination RMS, over the scored rows: meta['movement'] where the log
+  has it (BROAD's method), else after meta['settle_time']; rows without a finite reference
+  are left out. Heading: filters whose heading comes from the magnetometer (and the peers)
+  are compared in magnetic north (the estimate is rotated by the log's declination,
+  meta['declination_deg'], 0 for BROAD); GPS-course filters in true north; filters with no
+  heading source have one constant heading offset removed (BROAD's rule for 6D filters).
+- Peers (firmware_sim/peers.py) run on the same logs.
+- Cost: op counts per step from each filter's manifest, state size, ns per step measured
+  inside C (median of repeats) beside the hand-written QCF (firmware_sim/c/baseline_qcf.c).
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from firmware_sim import host, peers, readers
+from firmware_sim.log import VALID_ACCEL, VALID_GPS, VALID_GYRO, VALID_MAG, SensorLog
+from firmware_sim.metrics import broad_errors_deg, euler_errors_deg
+from generator.npquat import euler_from_q, qmul
+
+HERE = Path(__file__).resolve().parent
+C_DIR = HERE / "c"
+REPO = HERE.parent
+TEST_DATA = REPO / "tests" / "data"
+
+PEER_NAMES = ("vqf", "fusion", "madgwick", "mahony")
+ANGLES = ("roll", "pitch", "yaw")
+BROAD_METRICS = ("total", "heading", "inclination")
+
+
+# =========================================================================================
+# Harness: the standalone executable and the hand-written baseline
+
+HARNESS_COLUMNS = "t,gx,gy,gz,ax,ay,az,mx,my,mz,vn,ve,vd"
+
+
+def write_harness_log(log: SensorLog, path: str | Path) -> Path:
+    """Write a SensorLog as the text log main_log.c reads (empty fields: no sample)."""
+    path = Path(path)
+    groups = ((VALID_GYRO, log.gyro), (VALID_ACCEL, log.accel), (VALID_MAG, log.mag), (VALID_GPS, log.gps_vel))
+    with open(path, "w") as f:
+        f.write("# ahrsgen harness log v1\n")
+        f.write(f"# dt0 {float(log.dt[0])!r}\n")
+        f.write(HARNESS_COLUMNS + "\n")
+        for k in range(len(log)):
+            v = int(log.valid[k])
+            parts = [repr(float(log.t[k]))]
+            for bit, arr in groups:
+                if v & bit:
+                    parts.extend(repr(float(x)) for x in arr[k])
+                else:
+                    parts.extend(("", "", ""))
+            f.write(",".join(parts) + "\n")
+    return path
+
+
+def build_log_runner(gen_dir: str | Path) -> Path:
+    """Compile main_log.c with a generated filter into a cached executable."""
+    gen_dir = Path(gen_dir)
+    man = json.loads((gen_dir / "manifest.json").read_text())
+    prefix, real = man["prefix"], man["precision"]
+    sources = [C_DIR / "main_log.c", gen_dir / man["files"]["source"]]
+    defines = [f"-DAHRS_PREFIX={prefix}", f'-DAHRS_HEADER="{man["files"]["header"]}"', f"-DAHRS_REAL={real}"]
+    flags = host.STRICT + ["-O2", "-ffp-contract=off", "-fno-math-errno"]
+    h = hashlib.sha256()
+    for p in sources + [gen_dir / man["files"]["header"]]:
+        h.update(p.read_bytes())
+    h.update(" ".join(flags + defines).encode())
+    h.update(host._compiler_id().encode())
+    out_dir = host.CACHE / ("exe-" + h.hexdigest()[:20])
+    exe = out_dir / f"{prefix}_log"
+    if exe.exists():
+        return exe
+    out_dir.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(dir=out_dir))
+    cmd = [host.cc(), *flags, *defines, f"-I{gen_dir}", "-o", str(tmp / exe.name), *map(str, sources), "-lm"]
+    r = subprocess.run(cmd, capture_output=True, text=True)
+    if r.returncode != 0:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise host.BuildError(f"building the log runner failed:\n{' '.join(cmd)}\n{r.stderr}")
+    os.replace(tmp / exe.name, exe)
+    shutil.rmtree(tmp, ignore_errors=True)
+    return exe
+
+
+def run_log_exe(exe: str | Path, log: SensorLog) -> tuple[host.RunResult, str]:
+    """Run the standalone executable over a log; (result, its stderr summary)."""
+    with tempfile.TemporaryDirectory() as d:
+        lp = write_harness_log(log, Path(d) / "log.csv")
+        op = Path(d) / "out.csv"
+        r = subprocess.run([str(exe), str(lp), str(op)], capture_output=True, text=True)
+        if r.returncode != 0:
+            raise RuntimeError(f"{exe} failed ({r.returncode}): {r.stderr}")
+        data = np.loadtxt(op, delimiter=",", skiprows=1, ndmin=2)
+    return host.RunResult(data[:, 1:5], data[:, 5:8], data[:, 8].astype(np.uint32)), r.stderr.strip()
+
+
+BASELINE_STATE = [("q", "real", 4), ("gyro_bias", "real", 3), ("gps_vel_hist", "real", 21),
+                  ("motion_accel", "real", 3), ("gps_age", "real", 1), ("gps_count", "uint32", 1),
+                  ("initialised", "uint32", 1)]
+BASELINE_INPUT = [("gyro", "real", 3), ("accel", "real", 3), ("mag", "real", 3),
+                  ("gps_vel_ned", "real", 3), ("valid", "uint32", 1)]
+
+
+def _layout(fields):
+    out, off = [], 0
+    for name, typ, count in fields:
+        out.append({"name": name, "type": typ, "count": count, "offset": off})
+        off += 4 * count
+    return {"size": off, "fields": out}
+
+
+def baseline_filter() -> host.HostFilter:
+    """The hand-written QCF (float) loaded through the same batch harness as generated code."""
+    src = [C_DIR / "baseline_qcf.c", C_DIR / "baseline_qcf.h"]
+    h = hashlib.sha256(b"".join(p.read_bytes() for p in src)).hexdigest()[:16]
+    d = host.CACHE / f"baseline-{h}"
+    if not (d / "manifest.json").exists():
+        d.mkdir(parents=True, exist_ok=True)
+        for p in src:
+            shutil.copy(p, d / p.name)
+        man = {"prefix": "baseline_qcf", "precision": "float", "filter": "baseline_qcf",
+               "files": {"header": "baseline_qcf.h", "source": "baseline_qcf.c"},
+               "structs": {"state": _layout(BASELINE_STATE), "input": _layout(BASELINE_INPUT)}}
+        tmp = d / "manifest.json.tmp"
+        tmp.write_text(json.dumps(man, indent=1))
+        os.replace(tmp, d / "manifest.json")
+    return host.HostFilter(d)
+
+
+# =========================================================================================
+# Estimators (generated filters, the hand-written QCF, peers) and scoring
+
+@dataclass
+class Estimator:
+    name: str
+    kind: str                 # "filter" | "baseline" | "peer"
+    heading: str              # "mag" (magnetic north) | "true" (GPS course) | "none"
+    title: str = ""
+    filter: str = ""          # product filter name
+    sets: list = field(default_factory=list)
+    config: str | None = None
+    _hf: object = None
+
+    def host_filter(self):
+        if self._hf is None:
+            if self.kind == "baseline":
+                self._hf = baseline_filter()
+            else:
+                from generator import config
+                cfg = config.resolve(self.filter, self.config, list(self.sets), "float", None)
+                self._hf = host.build(cfg)
+        return self._hf
+
+    def run(self, log: SensorLog) -> np.ndarray:
+        if self.kind == "peer":
+            return peers.run(self.name, log)
+        return self.host_filter().run(log).q
+
+
+def filter_heading(filter_name: str, sets=(), config_file=None) -> str:
+    from generator import config
+    cfg = config.resolve(filter_name, config_file, list(sets), "float", None)
+    sensors = cfg.spec.model(cfg.params).sensors
+    if "mag" in sensors:
+        return "mag"
+    if "gps" in sensors:
+        return "true"
+    return "none"
+
+
+def product_filters() -> list[str]:
+    from generator import filters
+    return filters.names()
+
+
+def filter_estimator(name: str, sets=(), config_file=None, label: str | None = None) -> Estimator:
+    from generator import filters
+    return Estimator(label or name, "filter", filter_heading(name, sets, config_file),
+                     filters.load(name).title, name, list(sets), config_file)
+
+
+def peer_estimator(name: str) -> Estimator:
+    cls = peers.PEERS[name]
+    return Estimator(name, "peer", "mag" if cls.uses_mag else "none", cls.title)
+
+
+def _rotz(angle_rad):
+    return np.array([math.cos(angle_rad / 2), 0.0, 0.0, math.sin(angle_rad / 2)])
+
+
+def score_mask(log: SensorLog) -> np.ndarray:
+    """Rows that count: BROAD's movement phase where given, else after settle time; finite reference."""
+    mv = log.meta.get("movement")
+    mask = np.asarray(mv, dtype=bool).copy() if mv is not None else (log.t >= log.t[0] + log.settle_time)
+    return mask & np.all(np.isfinite(log.q_true), axis=1)
+
+
+def compare_frame(q_est: np.ndarray, log: SensorLog, heading: str, mask=None) -> np.ndarray:
+    """The estimate in the reference's heading frame (see module docstring)."""
+    q_est = np.asarray(q_est, dtype=float)
+    if heading == "mag":
+        decl = math.radians(float(log.meta.get("declination_deg", 0.0) or 0.0))
+        return qmul(_rotz(decl), q_est) if decl else q_est
+    if heading == "none":
+        return peers.remove_heading_offset(q_est, log.q_true, score_mask(log) if mask is None else mask)
+    return q_est
+
+
+def score(q_est: np.ndarray, log: SensorLog, heading: str) -> dict:
+    """RMS / mean |e| per Euler angle and BROAD's total / heading / inclination RMS (degrees)."""
+    mask = score_mask(log)
+    if not mask.any():
+        raise ValueError(f"log {log.name!r}: no rows to score")
+    q = compare_frame(q_est, log, heading, mask)[mask]
+    ref = log.q_true[mask]
+    ok = np.all(np.isfinite(q), axis=1)
+    out = {"n": int(mask.sum()), "nonfinite": int((~ok).sum())}
+    if not ok.all():          # a diverged estimate scores as 180° rather than silently vanishing
+        q = q.copy()
+        q[~ok] = qmul(ref[~ok], np.array([0.0, 1.0, 0.0, 0.0]))
+    e = euler_errors_deg(q, ref)
+    for i, a in enumerate(ANGLES):
+        out[f"{a}_rms"] = float(np.sqrt(np.mean(e[:, i] ** 2)))
+        out[f"{a}_mean_abs"] = float(np.mean(np.abs(e[:, i])))
+    tot, head, incl = broad_errors_deg(q, ref)
+    for name, v in zip(BROAD_METRICS, (tot, head, incl)):
+        out[f"{name}_rms"] = float(np.sqrt(np.mean(v ** 2)))
+    return out
+
+
+def total_error_series(q_est, log, heading, max_points=2000):
+    """(t, total error in degrees) downsampled for plots; NaN where no reference."""
+    q = compare_frame(q_est, log, heading)
+    tot = np.full(len(log), np.nan)
+    ok = np.all(np.isfinite(log.q_true), axis=1) & np.all(np.isfinite(q), axis=1)
+    tot[ok] = broad_errors_deg(q[ok], log.q_true[ok])[0]
+    step = max(1, len(log) // max_points)
+    return log.t[::step] - log.t[0], tot[::step]
+
+
+# =========================================================================================
+# ahrsgen run
+
+def run_on_log(filter_name: str, log_path: str, config_file=None, sets=(), precision="float",
+               plot=None, csv=None, exe=False, out=sys.stdout) -> dict:
+    """Run one generated filter over a log file; score it where the log has a reference."""
+    from generator import config
+    log = readers.read_log(log_path)
+    cfg = config.resolve(filter_name, config_file, list(sets), precision, None)
+    hf = host.build(cfg)
+    heading = filter_heading(filter_name, sets, config_file)
+    t0 = time.perf_counter()
+    if exe:
+        res, summary = run_log_exe(build_log_runner(hf.dir), log)
+    else:
+        res = hf.run(log)
+        summary = ""
+    wall = time.perf_counter() - t0
+    print(f"run {filter_name} ({cfg.precision} C) on {Path(log_path).name}: {len(log)} steps, "
+          f"{log.t[-1] - log.t[0]:.1f} s of data, {log.meta.get('rate_hz', 0):.0f} Hz IMU, "
+          f"{'standalone executable' if exe else 'ctypes batch'} {wall:.2f} s", file=out)
+    if summary:
+        print(f"  {summary}", file=out)
+    refused = int(np.count_nonzero(res.status & 0x20F))
+    print(f"  steps with a non-zero status: {int(np.count_nonzero(res.status))}, refused: {refused}", file=out)
+    result = {"filter": filter_name, "log": str(log_path), "steps": len(log), "heading": heading,
+              "precision": cfg.precision, "overrides": cfg.overrides}
+    if log.q_true is not None and score_mask(log).any():
+        s = score(res.q, log, heading)
+        result["score"] = s
+        ref_name = {"broad": "BROAD optical reference (movement phase)",
+                    "px4": "PX4 vehicle_attitude (onboard EKF, not ground truth)"}.get(
+            log.meta.get("scoring"), "reference")
+        decl = log.meta.get("declination_deg")
+        head_note = {"mag": "magnetic heading" + (f", rotated by declination {decl:.2f}°" if decl else ""),
+                     "true": "GPS-course heading (true north)",
+                     "none": "no heading source: one constant heading offset removed"}[heading]
+        print(f"  error vs {ref_name}, {s['n']} samples ({head_note}), degrees:", file=out)
+        print("           RMS   mean|e|", file=out)
+        for a in ANGLES:
+            print(f"    {a:<5} {s[a + '_rms']:7.3f} {s[a + '_mean_abs']:8.3f}", file=out)
+        print(f"  BROAD decomposition RMS: total {s['total_rms']:.3f}, heading {s['heading_rms']:.3f}, "
+              f"inclination {s['inclination_rms']:.3f}", file=out)
+    else:
+        print("  (no reference attitude in this log: nothing to score)", file=out)
+    if csv:
+        _write_run_csv(csv, log, res, heading)
+        print(f"  wrote {csv}", file=out)
+    if plot:
+        _plot_run(plot, log, res.q, heading, filter_name)
+        print(f"  wrote {plot}", file=out)
+    return result
+
+
+def _write_run_csv(path, log, res, heading):
+    rpy = np.degrees(res.rpy)
+    cols = [log.t, res.q[:, 0], res.q[:, 1], res.q[:, 2], res.q[:, 3], rpy[:, 0], rpy[:, 1], rpy[:, 2],
+            res.status.astype(float)]
+    names = "t,qw,qx,qy,qz,roll_deg,pitch_deg,yaw_deg,status"
+    if log.q_true is not None:
+        ref = np.degrees(euler_from_q(np.where(np.isfinite(log.q_true), log.q_true, np.nan)))
+        cols += [ref[:, 0], ref[:, 1], ref[:, 2]]
+        names += ",ref_roll_deg,ref_pitch_deg,ref_yaw_deg"
+    np.savetxt(path, np.column_stack(cols), delimiter=",", header=names, comments="", fmt="%.9g")
+
+
+def _plot_run(path, log, q_est, heading, label):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    q_cmp = compare_frame(q_est, log, heading) if log.q_true is not None else q_est
+    est = np.degrees(euler_from_q(q_cmp))
+    t = log.t - log.t[0]
+    fig, axs = plt.subplots(3, 1, figsize=(10, 7), sharex=True)
+    ref_label = {"px4": "PX4 onboard estimate (vehicle_attitude)", "broad": "BROAD optical reference"}.get(
+        log.meta.get("scoring"), "reference")
+    decl = log.meta.get("declination_deg")
+    est_label = f"{label} (generated C)" + (f", yaw + declination {decl:.2f}°" if heading == "mag" and decl else "")
+    for i, a in enumerate(ANGLES):
+        axs[i].plot(t, est[:, i], lw=0.9, label=est_label)
+        if log.q_true is not None:
+            ref = np.full(len(log), np.nan)
+            ok = np.all(np.isfinite(log.q_true), axis=1)
+            ref[ok] = np.degrees(euler_from_q(log.q_true[ok]))[:, i]
+            axs[i].plot(t, ref, lw=0.9, ls="--", label=ref_label)
+        axs[i].set_ylabel(f"{a} [deg]")
+        axs[i].grid(alpha=0.3)
+    axs[0].legend(loc="upper right", fontsize=8)
+    axs[0].set_title(f"{label} on {log.name}")
+    axs[-1].set_xlabel("time [s]")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+# =========================================================================================
+# ahrsgen bench
+
+def scenario_configs(quick: bool) -> list[tuple[str, str, dict]]:
+    """(label, scenario, options) of the benchmark grid."""
+    from firmware_sim import scenarios
+    known = scenarios.names()
+    if quick:
+        grid = [("fixedwing_gps", "fixedwing_gps", {"duration": 120.0}),
+                ("multirotor", "multirotor", {"duration": 30.0}),
+                ("static_accel_disturbance", "static_accel_disturbance", {"duration": 60.0}),
+                ("static_mag_disturbance", "static_mag_disturbance", {"duration": 60.0}),
+                ("turntable", "turntable", {})]
+    else:
+        grid = [("fixedwing_gps", "fixedwing_gps", {}),
+                ("fixedwing_gps_100hz", "fixedwing_gps", {"rate_hz": 100.0}),
+                ("multirotor", "multirotor", {}),
+                ("multirotor_jitter_dropouts", "multirotor",
+                 {"jitter": 0.0004, "dropout": {"gyro": 0.005, "accel": 0.01, "mag": 0.05, "gps": 0.1}}),
+                ("static_accel_disturbance", "static_accel_disturbance", {}),
+                ("static_mag_disturbance", "static_mag_disturbance", {}),
+                ("turntable", "turntable", {})]
+    return [g for g in grid if g[1] in known]
+
+
+def _estimators(filter_names, peer_names, with_baseline=True):
+    ests, errors = [], {}
+    for f in filter_names:
+        try:
+            ests.append(filter_estimator(f))
+        except Exception as e:   # a filter still being written must not stop the bench
+            errors[f] = f"{type(e).__name__}: {e}"
+    if with_baseline and "qcf" in filter_names:
+        ests.append(Estimator("qcf_hand", "baseline", "mag", "hand-written QCF (firmware_sim/c/baseline_qcf.c)"))
+    ests += [peer_estimator(p) for p in peer_names]
+    return ests, errors
+
+
+def _run_task(task):
+    """One log (scenario seed or real file) through every estimator. Runs in a worker."""
+    kind, label, arg, opts, seed, est_specs, want_series = task
+    from firmware_sim import scenarios
+    t0 = time.perf_counter()
+    if kind == "scenario":
+        log = scenarios.make(arg, seed=seed, **opts)
+    else:
+        log = readers.read_log(arg)
+    out = {"kind": kind, "label": label, "seed": seed, "log": log.name, "steps": len(log),
+           "scores": {}, "errors": {}, "series": {}, "seconds": {}}
+    for spec in est_specs:
+        est = Estimator(**spec)
+        t1 = time.perf_counter()
+        try:
+            q = est.run(log)
+            out["scores"][est.name] = score(q, log, est.heading)
+            if want_series:
+                t, e = total_error_series(q, log, est.heading)
+                out["series"][est.name] = (t.tolist(), e.tolist())
+        except Exception as e:
+            out["errors"][est.name] = f"{type(e).__name__}: {e}"
+        out["seconds"][est.name] = time.perf_counter() - t1
+    out["wall"] = time.perf_counter() - t0
+    return out
+
+
+def _spec(e: Estimator) -> dict:
+    return {"name": e.name, "kind": e.kind, "heading": e.heading, "title": e.title, "filter": e.filter,
+            "sets": list(e.sets), "config": e.config}
+
+
+class Progress:
+    def __init__(self, total, stream=sys.stderr):
+        self.total, self.done, self.stream, self.t0 = total, 0, stream, time.time()
+
+    def update(self, what):
+        self.done += 1
+        frac = self.done / max(self.total, 1)
+        bar = "#" * int(30 * frac) + "." * (30 - int(30 * frac))
+        el = time.time() - self.t0
+        self.stream.write(f"\r[{bar}] {self.done}/{self.total} {el:5.0f} s  {what[:50]:<50}")
+        self.stream.flush()
+        if self.done == self.total:
+            self.stream.write("\n")
+
+
+def _agg(values):
+    a = np.asarray(values, dtype=float)
+    return {"mean": float(np.mean(a)), "sd": float(np.std(a, ddof=1)) if len(a) > 1 else 0.0, "n": int(len(a))}
+
+
+def _aggregate(results, group_key):
+    groups = {}
+    for r in results:
+        for est, s in r["scores"].items():
+            groups.setdefault(r[group_key], {}).setdefault(est, []).append(s)
+    out = {}
+    for g, ests in groups.items():
+        out[g] = {}
+        for est, lst in ests.items():
+            out[g][est] = {k: _agg([s[k] for s in lst]) for k in lst[0] if k not in ("n", "nonfinite")}
+            out[g][est]["nonfinite"] = int(sum(s["nonfinite"] for s in lst))
+    return out
+
+
+def measure_cost(filter_names, log: SensorLog, repeats=7, passes=3) -> dict:
+    """Ops per step (manifest), state bytes, host ns/step inside C (median), vs the hand QCF."""
+    from generator import config
+    cost = {}
+    for f in list(filter_names) + ["qcf_hand"]:
+        try:
+            if f == "qcf_hand":
+                if "qcf" not in filter_names:
+                    continue
+                hf = baseline_filter()
+                paths = {}
+            else:
+                hf = host.build(config.resolve(f, None, [], "float", None))
+                paths = hf.manifest.get("step_paths", {})
+            worst = max(paths.items(), key=lambda kv: kv[1]["total"]) if paths else None
+            cost[f] = {
+                "ns_per_step": hf.time_ns_per_step(log, repeats=repeats, passes=passes),
+                "state_bytes": int(hf.manifest["structs"]["state"]["size"]),
+                "ops_worst_path": worst[0] if worst else None,
+                "ops_total": int(worst[1]["total"]) if worst else None,
+                "ops": worst[1]["ops"] if worst else None,
+                "paths": {k: v["total"] for k, v in paths.items()},
+            }
+        except Exception as e:
+            cost[f] = {"error": f"{type(e).__name__}: {e}"}
+    if "qcf" in cost and "qcf_hand" in cost and "ns_per_step" in cost["qcf"] and "ns_per_step" in cost["qcf_hand"]:
+        cost["qcf"]["ratio_to_hand_qcf"] = cost["qcf"]["ns_per_step"] / cost["qcf_hand"]["ns_per_step"]
+    return cost
+
+
+def bench(quick=False, seeds=None, filters=None, peer_names=PEER_NAMES, data_dir=None, out_dir="bench_out",
+          jobs=2, scenarios_only=False, real_only=False, command="") -> dict:
+    """Run the whole benchmark; writes bench.json, bench.md and img/*.png under out_dir."""
+    t_start = time.time()
+    out_dir = Path(out_dir)
+    (out_dir / "img").mkdir(parents=True, exist_ok=True)
+    filter_names = list(filters) if filters else product_filters()
+    ests, build_errors = _estimators(filter_names, peer_names)
+    filter_names = [f for f in filter_names if f not in build_errors]
+    # compile everything once in the main process (workers then hit the cache)
+    for e in ests:
+        if e.kind != "peer":
+            try:
+                e.host_filter()
+            except Exception as ex:
+                build_errors[e.name] = f"{type(ex).__name__}: {ex}"
+    ests = [e for e in ests if e.name not in build_errors]
+    specs = [_spec(e) for e in ests]
+    n_seeds = seeds if seeds is not None else (1 if quick else 3)
+
+    ddir = readers.shared_data_dir(data_dir)
+    notes = []
+    tasks = []
+    if not real_only:
+        for label, scen, opts in scenario_configs(quick):
+            for seed in range(n_seeds):
+                tasks.append(("scenario", label, scen, opts, seed, specs, seed == 0))
+    real = {"broad": [], "px4": []}
+    if not scenarios_only:
+        trials = readers.broad_trials(ddir) if ddir else []
+        if quick or not trials:
+            if not trials:
+                notes.append("BROAD subset not found (looked in --data, $AHRSGEN_DATA, <repo>/../shared/data): "
+                             "used the committed excerpt tests/data/broad_01_excerpt.csv.gz only.")
+            else:
+                notes.append("--quick: BROAD scored on the committed excerpt only (tests/data/broad_01_excerpt.csv.gz).")
+            trials = [TEST_DATA / "broad_01_excerpt.csv.gz"]
+        # BROAD: product filters with a magnetometer heading, plus MEKF with its mag option
+        broad_specs = [s for s in specs if s["heading"] == "mag" or s["kind"] == "peer"]
+        if "mekf" in filter_names:
+            try:
+                broad_specs.append(_spec(filter_estimator("mekf", ["heading_source=mag"], label="mekf_mag")))
+            except Exception as ex:
+                build_errors["mekf_mag"] = f"{type(ex).__name__}: {ex}"
+        for i, p in enumerate(trials):
+            tasks.append(("broad", "BROAD", str(p), {}, 0, broad_specs, i == 0))
+        ulogs = []
+        if ddir and (ddir / "px4").is_dir():
+            ulogs = sorted((ddir / "px4").glob("*.ulg"))
+        if quick or not ulogs:
+            if not ulogs:
+                notes.append("PX4 logs not found: used the committed excerpts tests/data/*.ulg.")
+            ulogs = sorted(TEST_DATA.glob("*.ulg"))
+        for p in ulogs:
+            tasks.append(("px4", p.stem, str(p), {}, 0, broad_specs, True))
+        real["broad"] = [str(p) for p in trials]
+        real["px4"] = [str(p) for p in ulogs]
+
+    prog = Progress(len(tasks))
+    results = []
+    if jobs > 1 and len(tasks) > 1:
+        import multiprocessing as mp
+        # longest first so the two workers finish together
+        order = sorted(tasks, key=lambda t: 0 if t[0] == "broad" else 1)
+        with mp.get_context("fork").Pool(jobs) as pool:
+            for r in pool.imap_unordered(_run_task, order):
+                results.append(r)
+                prog.update(f"{r['label']} {r['log']} seed {r['seed']}")
+    else:
+        for t in tasks:
+            r = _run_task(t)
+            results.append(r)
+            prog.update(f"{r['label']} {r['log']} seed {r['seed']}")
+
+    # cost: timed on the multirotor scenario (250 Hz, every sensor), seed 0
+    from firmware_sim import scenarios as sc
+    cost_log = sc.make("multirotor", seed=0, duration=30.0 if quick else 60.0)
+    cost = measure_cost(filter_names, cost_log, repeats=5 if quick else 9)
+
+    scen = [r for r in results if r["kind"] == "scenario"]
+    broad = [r for r in results if r["kind"] == "broad"]
+    px4 = [r for r in results if r["kind"] == "px4"]
+    report = {
+        "command": command,
+        "quick": quick,
+        "seeds": n_seeds,
+        "date_utc": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+        "host": _host_info(),
+        "estimators": {e.name: {"kind": e.kind, "heading": e.heading, "title": e.title, "sets": e.sets}
+                       for e in ests},
+        "build_errors": build_errors,
+        "notes": notes,
+        "scenarios": _aggregate(scen, "label"),
+        "scenario_options": {lbl: opts for lbl, _, opts in scenario_configs(quick)},
+        "broad": {"trials": {r["log"]: r["scores"] for r in broad},
+                  "mean": _aggregate(broad, "label").get("BROAD", {}), "files": real["broad"]},
+        "px4": {r["label"]: r["scores"] for r in px4},
+        "run_errors": {f"{r['label']}/{r['log']}/{r['seed']}": r["errors"] for r in results if r["errors"]},
+        "cost": cost,
+        "cost_log": f"multirotor seed 0, {len(cost_log)} steps (250 Hz, accel+mag+GPS)",
+        "seconds": time.time() - t_start,
+    }
+    report["plots"] = _plots(results, out_dir / "img")
+    (out_dir / "bench.json").write_text(json.dumps(report, indent=1))
+    (out_dir / "bench.md").write_text(markdown(report))
+    return report
+
+
+def _host_info():
+    import platform
+    info = {"machine": platform.machine(), "python": platform.python_version()}
+    try:
+        info["cc"] = host._compiler_id().splitlines()[0]
+    except Exception:
+        pass
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    info["cpu"] = line.split(":", 1)[1].strip()
+                    break
+    except OSError:
+        pass
+    return info
+
+
+def _plots(results, img_dir):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    files = {}
+    for r in results:
+        if not r["series"]:
+            continue
+        key = r["label"] if r["kind"] != "broad" else f"broad_{r['log']}"
+        fig, ax = plt.subplots(figsize=(10, 4))
+        for est, (t, e) in sorted(r["series"].items()):
+            ax.plot(t, e, lw=0.8, label=est, ls="-" if est not in PEER_NAMES else "--")
+        ax.set_yscale("log")
+        ax.set_ylim(1e-2, 180)
+        ax.set_xlabel("time [s]")
+        ax.set_ylabel("total attitude error [deg]")
+        ax.set_title(f"{r['label']}: {r['log']} (seed {r['seed']})")
+        ax.grid(alpha=0.3, which="both")
+        ax.legend(fontsize=7, ncol=4, loc="upper right")
+        fig.tight_layout()
+        p = Path(img_dir) / f"err_{key}.png"
+        fig.savefig(p, dpi=100)
+        plt.close(fig)
+        files[key] = str(p)
+    return files
+
+
+def _pm(a, digits=2):
+    if a["n"] > 1:
+        return f"{a['mean']:.{digits}f} ± {a['sd']:.{digits}f}"
+    return f"{a['mean']:.{digits}f}"
+
+
+def markdown(rep: dict) -> str:
+    L = []
+    L.append("# ahrsgen bench results\n")
+    if rep.get("command"):
+        L.append(f"Command: `{rep['command']}`  ")
+    L.append(f"Date: {rep['date_utc']}; host: {rep['host'].get('cpu', rep['host'].get('machine'))}; "
+             f"{rep['host'].get('cc', '')}; run time {rep['seconds']:.0f} s.\n")
+    for n in rep["notes"]:
+        L.append(f"> {n}\n")
+    if rep["build_errors"]:
+        L.append("Filters left out (did not build): " +
+                 "; ".join(f"`{k}`: {v.splitlines()[0][:160]}" for k, v in rep["build_errors"].items()) + "\n")
+    L.append("Errors in degrees. Generated filters run as float C through the firmware harness; peers "
+             "through their Python packages (PEERS.md conventions). Heading: magnetometer filters and "
+             "peers in magnetic north, GPS-course filters in true north, filters without a heading "
+             "source after removing one constant heading offset. "
+             "`total / heading / incl.` is BROAD's decomposition of the earth-frame error.\n")
+    # cost
+    L.append("## Cost per step\n")
+    L.append(f"ns/step: host C (`{rep['host'].get('cc', 'cc')}`, -O2), measured inside C over "
+             f"{rep['cost_log']}, median of repeats. Ops: the most expensive step path in the manifest.\n")
+    L.append("| filter | ns/step | vs hand-written QCF | ops/step (worst path) | add / mul / div / sqrt / trig | state bytes |")
+    L.append("|---|---|---|---|---|---|")
+    for f, c in rep["cost"].items():
+        if "error" in c:
+            L.append(f"| {f} | error: {c['error'][:80]} | | | | |")
+            continue
+        ratio = c.get("ratio_to_hand_qcf")
+        rtxt = f"{ratio:.2f}×" if ratio else ("1 (baseline)" if f == "qcf_hand" else "")
+        ops = c["ops"]
+        optxt = " / ".join(str(ops.get(k, 0)) for k in ("add", "mul", "div", "sqrt", "trig")) if ops else "hand-written"
+        L.append(f"| {f} | {c['ns_per_step']:.0f} | {rtxt} | {c['ops_total'] or ''}"
+                 f"{' (' + c['ops_worst_path'] + ')' if c['ops_worst_path'] else ''} | {optxt} | {c['state_bytes']} |")
+    L.append("")
+    # scenarios
+    if rep["scenarios"]:
+        L.append(f"## Simulated scenarios (mean ± sd over {rep['seeds']} seed(s))\n")
+        for scen, ests in rep["scenarios"].items():
+            opts = rep["scenario_options"].get(scen) or {}
+            L.append(f"### {scen}" + (f" ({', '.join(f'{k}={v}' for k, v in opts.items())})" if opts else "") + "\n")
+            L.append("| estimator | roll RMS | pitch RMS | yaw RMS | roll mean\\|e\\| | pitch mean\\|e\\| | yaw mean\\|e\\| "
+                     "| total RMS | heading RMS | incl. RMS |")
+            L.append("|---|---|---|---|---|---|---|---|---|---|")
+            for est, m in sorted(ests.items(), key=lambda kv: kv[1]["total_rms"]["mean"]):
+                row = [est] + [_pm(m[f"{a}_rms"]) for a in ANGLES] + [_pm(m[f"{a}_mean_abs"]) for a in ANGLES]
+                row += [_pm(m[f"{b}_rms"]) for b in BROAD_METRICS]
+                flag = " (diverged rows)" if m.get("nonfinite") else ""
+                L.append("| " + " | ".join(row) + flag + " |")
+            img = rep.get("plots", {}).get(scen)
+            if img:
+                L.append(f"\nError over time (seed 0): `{img}`")
+            L.append("")
+    # BROAD
+    if rep["broad"]["mean"]:
+        nt = len(rep["broad"]["trials"])
+        L.append(f"## BROAD (BROAD's method, {nt} trial(s))\n")
+        L.append("RMSE over the movement phase with a finite optical reference; one parameter set for all "
+                 "trials (filter defaults; Madgwick β 0.12, Mahony Kp 0.74 / Ki 0.0012, Fusion and VQF "
+                 "defaults). Data: Laidig et al., *Data* 2021, 6(7), 72 (CC BY 4.0).\n")
+        L.append("| estimator | total RMSE | heading RMSE | inclination RMSE |")
+        L.append("|---|---|---|---|")
+        for est, m in sorted(rep["broad"]["mean"].items(), key=lambda kv: kv[1]["total_rms"]["mean"]):
+            L.append(f"| {est} | {m['total_rms']['mean']:.2f} | {m['heading_rms']['mean']:.2f} | "
+                     f"{m['inclination_rms']['mean']:.2f} |")
+        L.append("")
+        if nt > 1:
+            ests = sorted(rep["broad"]["mean"])
+            L.append("Total RMSE per trial:\n")
+            L.append("| trial | " + " | ".join(ests) + " |")
+            L.append("|---|" + "---|" * len(ests))
+            for trial, sc in sorted(rep["broad"]["trials"].items()):
+                L.append(f"| {trial} | " + " | ".join(
+                    f"{sc[e]['total_rms']:.2f}" if e in sc else "–" for e in ests) + " |")
+            L.append("")
+    # PX4
+    if rep["px4"]:
+        L.append("## PX4 logs (reference: PX4's onboard estimate `vehicle_attitude`, not ground truth)\n")
+        for logname, sc in rep["px4"].items():
+            L.append(f"### {logname}\n")
+            L.append("| estimator | roll RMS | pitch RMS | yaw RMS | total RMS |")
+            L.append("|---|---|---|---|---|")
+            for est, m in sorted(sc.items(), key=lambda kv: kv[1]["total_rms"]):
+                L.append(f"| {est} | {m['roll_rms']:.2f} | {m['pitch_rms']:.2f} | {m['yaw_rms']:.2f} | "
+                         f"{m['total_rms']:.2f} |")
+            L.append("")
+    if rep["run_errors"]:
+        L.append("## Failures\n")
+        for k, v in rep["run_errors"].items():
+            for est, msg in v.items():
+                L.append(f"- {k} {est}: {msg[:200]}")
+        L.append("")
+    return "\n".join(L) + "\n"
+
+
+# =========================================================================================
+# CLI registration (generator/cli.py calls register_cli(subparsers))
+
+def _cmd_run(args) -> int:
+    from generator.model import ConfigError
+    if not Path(args.log).exists():
+        raise ConfigError(f"log file {args.log} does not exist")
+    run_on_log(args.filter, args.log, args.config, args.set, args.precision or "float",
+               plot=args.plot, csv=args.csv, exe=args.exe)
+    return 0
+
+
+def _cmd_bench(args) -> int:
+    cmd = "ahrsgen bench " + " ".join(sys.argv[2:]) if len(sys.argv) > 1 and sys.argv[1] == "bench" else "ahrsgen bench"
+    rep = bench(quick=args.quick, seeds=args.seeds, filters=args.filters or None,
+                peer_names=tuple(args.peers) if args.peers is not None else PEER_NAMES,
+                data_dir=args.data, out_dir=args.output, jobs=args.jobs,
+                scenarios_only=args.scenarios_only, real_only=args.real_only, command=cmd)
+    md = Path(args.output) / "bench.md"
+    print(md.read_text())
+    print(f"wrote {Path(args.output) / 'bench.json'}, {md} and {len(rep['plots'])} plot(s) in "
+          f"{Path(args.output) / 'img'} ({rep['seconds']:.0f} s)", file=sys.stderr)
+    return 0
+
+
+def register_cli(sub) -> None:
+    p = sub.add_parser("run", help="run a generated filter over a real log (BROAD CSV or PX4 ULog) and score it",
+                       description="Generate and compile a filter for the host, run it over a log file through "
+                                   "the firmware harness, and where the log has a reference attitude score it "
+                                   "(BROAD's method for BROAD data; PX4's vehicle_attitude for ULog).")
+    p.add_argument("filter", help="filter name (see 'ahrsgen list')")
+    p.add_argument("--log", required=True, metavar="FILE", help="BROAD .csv/.csv.gz or PX4 .ulg")
+    p.add_argument("--config", metavar="FILE.toml", help="TOML config (prefix, precision, [params])")
+    p.add_argument("--set", metavar="NAME=VALUE", action="append", default=[], help="override a parameter")
+    p.add_argument("--precision", choices=["float", "double"], help="C floating-point type (default float)")
+    p.add_argument("--plot", metavar="OUT.png", help="plot roll/pitch/yaw beside the log's reference")
+    p.add_argument("--csv", metavar="OUT.csv", help="write t, q, Euler angles (deg), status (and the reference)")
+    p.add_argument("--exe", action="store_true",
+                   help="run through the standalone executable (firmware_sim/c/main_log.c) instead of ctypes")
+    p.set_defaults(func=_cmd_run)
+
+    p = sub.add_parser("bench", help="filters x scenarios x seeds, real logs and peers: accuracy and cost tables",
+                       description="Benchmark every product filter (float C through the firmware harness) and "
+                                   "the peers (VQF, Fusion, Madgwick, Mahony) on the simulated scenarios, the "
+                                   "BROAD subset and the PX4 logs; measure ns/step against a hand-written QCF. "
+                                   "Writes bench.json, bench.md and plots.")
+    p.add_argument("--quick", action="store_true", help="short CI run (1 seed, shorter scenarios, data excerpts)")
+    p.add_argument("--seeds", type=int, help="seeds per scenario (default 3, --quick 1)")
+    p.add_argument("--filters", nargs="*", help="only these product filters (default: all)")
+    p.add_argument("--peers", nargs="*", choices=list(peers.PEERS), help=f"peers to include (default: {' '.join(PEER_NAMES)})")
+    p.add_argument("--data", metavar="DIR", help="folder holding broad/ and px4/ (default: $AHRSGEN_DATA, "
+                                                 "else <repo>/../shared/data)")
+    p.add_argument("-o", "--output", default="bench_out", metavar="DIR", help="output folder (default bench_out)")
+    p.add_argument("-j", "--jobs", type=int, default=2, help="worker processes (default 2)")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--scenarios-only", action="store_true", help="skip the real logs")
+    g.add_argument("--real-only", action="store_true", help="only the real logs (BROAD, PX4)")
+    p.set_defaults(func=_cmd_bench)
