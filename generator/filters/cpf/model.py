@@ -53,8 +53,8 @@ class Model(FilterModel):
         ]
         if pf:
             fields += [
-                StateField("particles", 4 * n, f"{n} particles, quaternions [w x y z] one after another",
-                           [1.0, 0.0, 0.0, 0.0] * n),
+                StateField("particles", 4 * n, f"{n} particles, quaternions [w x y z] one after another "
+                           "(drawn at initialisation)", 0.0),
                 StateField("weights", n, "normalised particle weights", 1.0 / n),
                 StateField("ess", 1, "effective sample size 1/sum(w^2) after the last update", float(n)),
                 StateField("rng", 4, f"xoshiro128** state (seeded from {self.params['seed']})",

@@ -155,7 +155,7 @@ class Reference:
         self.rng = Xoshiro128ss(int(p["seed"]))
         self.q = np.array([1.0, 0.0, 0.0, 0.0])
         self.q_cf = np.array([1.0, 0.0, 0.0, 0.0])
-        self.particles = np.tile(self.q, (self.N, 1))
+        self.particles = np.zeros((self.N, 4))          # drawn at initialisation
         self.weights = np.full(self.N, 1.0 / self.N)
         self.ess = float(self.N)
         self.initialised = False
@@ -174,7 +174,7 @@ class Reference:
             return False, b_nonfinite
         if any(abs(x) > vmax for x in v):
             return False, b_range
-        if math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]) < vmin_norm:
+        if v[0] * v[0] + v[1] * v[1] + v[2] * v[2] < vmin_norm * vmin_norm:
             return False, b_zero
         return True, 0
 
