@@ -131,3 +131,13 @@ def test_sym_lower_mirrors_exactly():
     y = np.array(f(x)).reshape(6, 6)
     assert np.array_equal(y, y.T)
     assert np.array_equal(np.tril(y), np.tril(2 * x.reshape(6, 6).T))  # lower triangle, column-major
+
+
+def test_update_refuses_at_vertical_pitch():
+    """At pitch exactly 90 deg the Euler Jacobian is infinite: the kernel flags it (pivot < 0)."""
+    p = defaults()
+    fu = M.update_function(p)
+    P = np.array(M.initial_P(p))
+    for q, usable in (([np.sqrt(0.5), 0, np.sqrt(0.5), 0], False), (list(q_from_euler(0.1, 1.5, 0.3)), True)):
+        r = fu(q, np.zeros(3), P, np.zeros(3), [-9.8, 0, 0], np.zeros(3), [20.0, 0, 0], [1.0, 1.0, 0.0])
+        assert (float(r[3]) > M.S_PIVOT_MIN) == usable

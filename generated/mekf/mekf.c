@@ -722,7 +722,7 @@ static void mekf_k_predict(const float q[4], const float b[3], const float P[36]
 }
 
 /* measurement update with row mask (steps 3-8)
- * ops: add 505, mul 576, div 66, sqrt 7, trig 6, cmp 16 (total 1176) */
+ * ops: add 506, mul 577, div 66, sqrt 7, trig 6, cmp 17 (total 1179) */
 static void mekf_k_update(const float q[4], const float b[3], const float P[36], const float gyro[3], const float accel[3], const float mag[3], const float vel[3], const float mask[3], float q_out[4], float b_out[3], float P_out[36], float *min_pivot)
 {
     (void)mag;
@@ -1900,8 +1900,11 @@ static void mekf_k_update(const float q[4], const float b[3], const float P[36],
     const float tmp1171 = tmp963 * tmp676;
     const float tmp1172 = tmp1170 + tmp1171;
     const float tmp1173 = tmp1167 + tmp1172;
-    const float tmp1174 = (tmp156 < tmp251) ? tmp156 : tmp251;
-    const float tmp1175 = (tmp1174 < tmp373) ? tmp1174 : tmp373;
+    const float tmp1174 = tmp466 * tmp466;
+    const float tmp1175 = 1.0f - tmp1174;
+    const float tmp1176 = (tmp156 < tmp251) ? tmp156 : tmp251;
+    const float tmp1177 = (tmp1176 < tmp373) ? tmp1176 : tmp373;
+    const float tmp1178 = (1e-04f < tmp1175) ? tmp1177 : (-1.0f);
     q_out[0] = tmp570;
     q_out[1] = tmp571;
     q_out[2] = tmp572;
@@ -1945,7 +1948,7 @@ static void mekf_k_update(const float q[4], const float b[3], const float P[36],
     P_out[33] = tmp1119;
     P_out[34] = tmp1155;
     P_out[35] = tmp1173;
-    *min_pivot = tmp1175;
+    *min_pivot = tmp1178;
 }
 
 /* first attitude from tilt and heading

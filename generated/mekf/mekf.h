@@ -69,7 +69,7 @@ typedef uint32_t mekf_status;
 #define MEKF_MAG_RANGE       (1u << 11) /* a magnetometer component beyond mag_max; its correction skipped */
 #define MEKF_COURSE_SLOW     (1u << 12) /* GPS sample present but ground speed below gps_min_speed: yaw row dropped */
 #define MEKF_ACCEL_GATED     (1u << 13) /* | |accel| - g | above accel_gate: roll/pitch rows dropped */
-#define MEKF_UPDATE_SKIPPED  (1u << 14) /* innovation covariance not positive definite: correction skipped */
+#define MEKF_UPDATE_SKIPPED  (1u << 14) /* correction skipped: innovation covariance not positive definite, or pitch within 0.57 deg of +-90 deg (Euler angles singular) */
 #define MEKF_REFUSED_MASK (MEKF_DT_INVALID | MEKF_DT_TOO_LARGE | MEKF_GYRO_MISSING | MEKF_GYRO_NONFINITE | MEKF_GYRO_RANGE)
 
 typedef struct {

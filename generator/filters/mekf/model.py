@@ -29,12 +29,13 @@ from generator.symbolic import linalg
 
 N = 6           # error-state size
 S_PIVOT_MIN = 1e-12   # innovation covariance must have Cholesky pivots above this
+COS2_PITCH_MIN = 1e-4  # no correction while cos²(pitch) <= this (pitch within 0.57° of ±90°)
 AGE_MAX = 1e3         # the GPS-velocity age stops counting here (s)
 
 EXTRA_STATUS = [
     ("COURSE_SLOW", "GPS sample present but ground speed below gps_min_speed: yaw row dropped"),
     ("ACCEL_GATED", "| |accel| - g | above accel_gate: roll/pitch rows dropped"),
-    ("UPDATE_SKIPPED", "innovation covariance not positive definite: correction skipped"),
+    ("UPDATE_SKIPPED", "correction skipped: innovation covariance not positive definite, or pitch within 0.57 deg of +-90 deg (Euler angles singular)"),
 ]
 
 
@@ -151,10 +152,14 @@ def update_function(p: dict, name="update") -> ca.Function:
     X = ca.mtimes(K, zm)                                                          # step 7
     q_new = quat.qnormalize(quat.qmul(q, quat.vec(1, X[0], X[1], X[2])))         # step 8
     b_new = b + X[3:6]
+    # Euler angles are singular at pitch ±90°: there H has 1/cos(pitch) and the asin's
+    # derivative is infinite. Report a negative pivot so the step skips the correction.
+    sin_pitch = 2 * (q[0] * q[2] - q[1] * q[3])
+    usable = ca.if_else(1 - sin_pitch * sin_pitch > COS2_PITCH_MIN, min_pivot, -1.0)
     return emit.function(name, {"q": q, "b": b, "P": Pv, "gyro": gyro, "accel": accel, "mag": mag,
                                 "vel": vel, "mask": mask},
                          {"q_out": q_new, "b_out": b_new, "P_out": flat_mirrored(P_new),
-                          "min_pivot": min_pivot})
+                          "min_pivot": usable})
 
 
 def init_function(p: dict, name="init_attitude") -> ca.Function:

@@ -38,8 +38,9 @@ from generator.npquat import euler_from_q, q_from_euler, qexp, qmul, rotmat, wra
 # Filter-specific status bits (informational; the step ran).
 COURSE_SLOW = st.FILTER_BASE          # GPS sample present but ground speed < gps_min_speed: yaw row dropped
 ACCEL_GATED = st.FILTER_BASE << 1     # | |f| - g | > accel_gate: roll/pitch rows dropped
-UPDATE_SKIPPED = st.FILTER_BASE << 2  # innovation covariance not positive definite: no correction
+UPDATE_SKIPPED = st.FILTER_BASE << 2  # S not positive definite, or pitch at ±90°: no correction
 
+COS2_PITCH_MIN = 1e-4   # no correction while cos²(pitch) <= this (pitch within 0.57° of ±90°)
 AGE_MAX = 1e3   # the GPS-velocity age stops counting here (s)
 
 # The innovation covariance must have Cholesky pivots above this to be used.
@@ -251,6 +252,12 @@ class Reference:
 
         if rows:
             # --- steps 5-8: gain, Joseph update, error state, reset ------------------------
+            sin_pitch = 2 * (q[0] * q[2] - q[1] * q[3])
+            if 1 - sin_pitch * sin_pitch <= COS2_PITCH_MIN:
+                # Euler angles singular at pitch ±90° (H has 1/cos(pitch)): no correction
+                self.q, self.P = q, P
+                self.v_gps, self.v_age = v_gps, v_age
+                return status | UPDATE_SKIPPED
             H = measurement_jacobian(q)[rows]
             R = np.diag(r)
             S = H @ P @ H.T + R
