@@ -82,7 +82,7 @@ class Model(FilterModel):
         p = self.params
         A = ca.SX.eye(N) + 0.5 * dt * omega_matrix(w)
         if not p["faithful"]:
-            A = A / ca.sqrt(1 + 0.25 * dt * dt * ca.sumsqr(w))
+            A = A * (1 / ca.sqrt(1 + 0.25 * dt * dt * ca.sumsqr(w)))
         Q = (p["gyro_noise"] ** 2 * dt / 4) * (ca.SX.eye(N) - ca.mtimes(q, q.T)) + p["q_floor"] * dt * ca.SX.eye(N)
         qm = ca.mtimes(A, q)
         Pm = linalg.symmetrize(ca.mtimes([A, P, A.T]) + Q)
