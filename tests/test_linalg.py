@@ -171,3 +171,94 @@ def test_works_on_dm_and_numpy():
     np.testing.assert_allclose(np.array(L), np.linalg.cholesky(A))
     X, _ = linalg.spd_solve(A, np.array([[1.0], [2.0]]))
     np.testing.assert_allclose(np.array(X).ravel(), np.linalg.solve(A, [1.0, 2.0]))
+
+
+# ---- the same expressions emitted as C (float and double), compiled, called through ctypes --
+
+import ctypes  # noqa: E402
+import subprocess  # noqa: E402
+
+from generator import emit  # noqa: E402
+
+C_SIZES = (3, 4, 6)
+C_NRHS = 4
+
+
+@functools.lru_cache(maxsize=None)
+def c_lib(precision):
+    """Shared library with chol<n> and spd_solve<n> kernels for n in C_SIZES."""
+    from firmware_sim.host import CACHE, STRICT, cc
+    parts = ["#include <math.h>", ""]
+    for n in C_SIZES:
+        A = ca.SX.sym("A", n, n)
+        B = ca.SX.sym("B", n, C_NRHS)
+        L, mp = linalg.cholesky(A)
+        X, mp2 = linalg.spd_solve(A, B)
+        for fn in (emit.function(f"chol{n}", {"A": A}, {"L": L, "min_pivot": mp}),
+                   emit.function(f"spd_solve{n}", {"A": A, "B": B}, {"X": X, "min_pivot": mp2})):
+            parts.append(emit.emit(fn, precision).source(storage=""))
+            parts.append("")
+    src = "\n".join(parts)
+    d = CACHE / "linalg_test"
+    d.mkdir(parents=True, exist_ok=True)
+    import hashlib
+    h = hashlib.sha256((src + precision).encode()).hexdigest()[:16]
+    c_file, so = d / f"linalg_{h}.c", d / f"linalg_{h}.so"
+    if not so.exists():
+        c_file.write_text(src)
+        r = subprocess.run([cc(), *STRICT, "-Wno-missing-prototypes", "-O2", "-fPIC", "-shared",
+                            "-ffp-contract=off", str(c_file), "-o", str(so), "-lm"],
+                           capture_output=True, text=True)
+        assert r.returncode == 0 and r.stderr == "", r.stderr
+    return ctypes.CDLL(str(so))
+
+
+def c_call(precision, name, *arrays, outs):
+    """Call a kernel: matrices passed column-major; outs = list of (rows, cols)."""
+    dt = np.float32 if precision == "float" else np.float64
+    args = [np.ascontiguousarray(np.asarray(a, dtype=dt).ravel(order="F")) for a in arrays]
+    res = [np.zeros(r * c, dtype=dt) for r, c in outs]
+    fn = getattr(c_lib(precision), name)
+    fn.restype = None
+    fn(*[a.ctypes.data_as(ctypes.c_void_p) for a in args + res])
+    return [x.reshape((c, r)).T.astype(float) for x, (r, c) in zip(res, outs)]
+
+
+# float: condition numbers up to 1e5 (eps_f * 1e5 ~ 1e-2 relative); double up to 1e10
+C_CASES = [("double", c) for c in (1.0, 1e3, 1e6, 1e10)] + [("float", c) for c in (1.0, 1e2, 1e4, 1e5)]
+
+
+@pytest.mark.parametrize("precision, cond", C_CASES)
+@pytest.mark.parametrize("n", C_SIZES)
+def test_c_cholesky_and_solve_match_numpy(precision, cond, n):
+    eps = np.finfo(np.float32 if precision == "float" else np.float64).eps
+    rng = np.random.default_rng(99 + n + int(np.log10(cond)))
+    for _ in range(20):
+        A = random_spd(rng, n, cond)
+        B = rng.standard_normal((n, C_NRHS))
+        if precision == "float":   # compare against the exact answer for the rounded input
+            A = A.astype(np.float32).astype(float)
+            B = B.astype(np.float32).astype(float)
+        L, mp = c_call(precision, f"chol{n}", A, outs=[(n, n), (1, 1)])
+        L_np = np.linalg.cholesky(A)
+        assert np.all(np.isfinite(L)) and mp.item() > 0
+        assert np.linalg.norm(A - L @ L.T) <= 10 * n * eps * np.linalg.norm(A)
+        assert np.linalg.norm(L - L_np) / np.linalg.norm(L_np) <= 10 * n * cond * eps
+        X, mp2 = c_call(precision, f"spd_solve{n}", A, B, outs=[(n, C_NRHS), (1, 1)])
+        X_np = np.linalg.solve(A, B)
+        assert np.linalg.norm(X - X_np) / np.linalg.norm(X_np) <= 10 * n * cond * eps
+        assert mp2.item() == mp.item()
+
+
+@pytest.mark.parametrize("precision", ["float", "double"])
+def test_c_not_positive_definite_is_flagged_and_finite(precision):
+    rng = np.random.default_rng(11)
+    for n in C_SIZES:
+        A = random_spd(rng, n, 10.0)
+        w, V = np.linalg.eigh(A)
+        w[0] = -abs(w[0])
+        for bad in ((V * w) @ V.T, -np.eye(n), np.zeros((n, n))):
+            L, mp = c_call(precision, f"chol{n}", bad, outs=[(n, n), (1, 1)])
+            X, _ = c_call(precision, f"spd_solve{n}", bad, np.ones((n, C_NRHS)), outs=[(n, C_NRHS), (1, 1)])
+            assert np.all(np.isfinite(L)) and np.all(np.isfinite(X))
+            assert mp.item() <= 0.0
