@@ -11,6 +11,72 @@
 #include <math.h>
 #include <stdbool.h>
 
+/* centripetal acceleration now: R(q)(w - b) x v_gps (NED, m/s^2)
+ * ops: add 33, mul 24 (total 57) */
+static void qcf_k_motion_accel(const float q[4], const float gyro[3], const float gyro_bias[3], const float gps_vel_hist[21], float motion_accel_now[3])
+{
+    const float tmp0 = q[1] * q[2];
+    const float tmp1 = q[0] * q[3];
+    const float tmp2 = tmp0 + tmp1;
+    const float tmp3 = tmp2 + tmp2;
+    const float tmp4 = gyro[0] - gyro_bias[0];
+    const float tmp5 = tmp3 * tmp4;
+    const float tmp6 = q[1] * q[1];
+    const float tmp7 = q[3] * q[3];
+    const float tmp8 = tmp6 + tmp7;
+    const float tmp9 = tmp8 + tmp8;
+    const float tmp10 = 1.0f - tmp9;
+    const float tmp11 = gyro[1] - gyro_bias[1];
+    const float tmp12 = tmp10 * tmp11;
+    const float tmp13 = tmp5 + tmp12;
+    const float tmp14 = q[2] * q[3];
+    const float tmp15 = q[0] * q[1];
+    const float tmp16 = tmp14 - tmp15;
+    const float tmp17 = tmp16 + tmp16;
+    const float tmp18 = gyro[2] - gyro_bias[2];
+    const float tmp19 = tmp17 * tmp18;
+    const float tmp20 = tmp13 + tmp19;
+    const float tmp21 = tmp20 * gps_vel_hist[20];
+    const float tmp22 = q[1] * q[3];
+    const float tmp23 = q[0] * q[2];
+    const float tmp24 = tmp22 - tmp23;
+    const float tmp25 = tmp24 + tmp24;
+    const float tmp26 = tmp25 * tmp4;
+    const float tmp27 = tmp14 + tmp15;
+    const float tmp28 = tmp27 + tmp27;
+    const float tmp29 = tmp28 * tmp11;
+    const float tmp30 = tmp26 + tmp29;
+    const float tmp31 = q[2] * q[2];
+    const float tmp32 = tmp6 + tmp31;
+    const float tmp33 = tmp32 + tmp32;
+    const float tmp34 = 1.0f - tmp33;
+    const float tmp35 = tmp34 * tmp18;
+    const float tmp36 = tmp30 + tmp35;
+    const float tmp37 = tmp36 * gps_vel_hist[19];
+    const float tmp38 = tmp21 - tmp37;
+    const float tmp39 = tmp36 * gps_vel_hist[18];
+    const float tmp40 = tmp31 + tmp7;
+    const float tmp41 = tmp40 + tmp40;
+    const float tmp42 = 1.0f - tmp41;
+    const float tmp43 = tmp42 * tmp4;
+    const float tmp44 = tmp0 - tmp1;
+    const float tmp45 = tmp44 + tmp44;
+    const float tmp46 = tmp45 * tmp11;
+    const float tmp47 = tmp43 + tmp46;
+    const float tmp48 = tmp22 + tmp23;
+    const float tmp49 = tmp48 + tmp48;
+    const float tmp50 = tmp49 * tmp18;
+    const float tmp51 = tmp47 + tmp50;
+    const float tmp52 = tmp51 * gps_vel_hist[20];
+    const float tmp53 = tmp39 - tmp52;
+    const float tmp54 = tmp51 * gps_vel_hist[19];
+    const float tmp55 = tmp20 * gps_vel_hist[18];
+    const float tmp56 = tmp54 - tmp55;
+    motion_accel_now[0] = tmp38;
+    motion_accel_now[1] = tmp53;
+    motion_accel_now[2] = tmp56;
+}
+
 /* accelerometer minus the GPS motion acceleration when ||f| - g| exceeds the threshold
  * ops: add 33, mul 21, sqrt 1, cmp 4 (total 59) */
 static void qcf_k_gravity_part(const float accel[3], const float q[4], const float motion_accel[3], float accel_gravity[3])
@@ -486,42 +552,6 @@ static void qcf_k_propagate(const float q[4], const float gyro_bias[3], const fl
     q_new[3] = tmp65;
 }
 
-/* lagged differentiator of GPS velocity (eq. 29): NED acceleration 3 samples back
- * ops: add 15, mul 9, div 3 (total 27) */
-static void qcf_k_gps_accel(const float gps_vel_hist[21], float motion_accel[3])
-{
-    const float tmp0 = gps_vel_hist[12] - gps_vel_hist[6];
-    const float tmp1 = 0.09853867f * tmp0;
-    const float tmp2 = gps_vel_hist[15] - gps_vel_hist[3];
-    const float tmp3 = 0.16866247f * tmp2;
-    const float tmp4 = tmp1 + tmp3;
-    const float tmp5 = gps_vel_hist[18] - gps_vel_hist[0];
-    const float tmp6 = 0.18804546f * tmp5;
-    const float tmp7 = tmp4 + tmp6;
-    const float tmp8 = tmp7 / 0.4f;
-    const float tmp9 = gps_vel_hist[13] - gps_vel_hist[7];
-    const float tmp10 = 0.09853867f * tmp9;
-    const float tmp11 = gps_vel_hist[16] - gps_vel_hist[4];
-    const float tmp12 = 0.16866247f * tmp11;
-    const float tmp13 = tmp10 + tmp12;
-    const float tmp14 = gps_vel_hist[19] - gps_vel_hist[1];
-    const float tmp15 = 0.18804546f * tmp14;
-    const float tmp16 = tmp13 + tmp15;
-    const float tmp17 = tmp16 / 0.4f;
-    const float tmp18 = gps_vel_hist[14] - gps_vel_hist[8];
-    const float tmp19 = 0.09853867f * tmp18;
-    const float tmp20 = gps_vel_hist[17] - gps_vel_hist[5];
-    const float tmp21 = 0.16866247f * tmp20;
-    const float tmp22 = tmp19 + tmp21;
-    const float tmp23 = gps_vel_hist[20] - gps_vel_hist[2];
-    const float tmp24 = 0.18804546f * tmp23;
-    const float tmp25 = tmp22 + tmp24;
-    const float tmp26 = tmp25 / 0.4f;
-    motion_accel[0] = tmp8;
-    motion_accel[1] = tmp17;
-    motion_accel[2] = tmp26;
-}
-
 /* Z-Y-X Euler angles [roll, pitch, yaw] of a unit body->NED quaternion
  * ops: add 12, mul 9, trig 3, cmp 2 (total 26) */
 static void qcf_k_euler(const float q[4], float rpy[3])
@@ -647,8 +677,7 @@ qcf_status qcf_step(qcf_state *s, const qcf_input *in, float dt)
         }
     }
 
-    /* GPS velocity: restart the differentiator after a gap, shift the sample in, and refresh
-     * the motion acceleration once 7 samples are in (eq. 29). */
+    /* GPS velocity: restart the history after a gap and shift the sample in. */
     if (use_gps) {
         if (s->gps_age > QCF_GPS_TIMEOUT) {
             s->gps_count = 0u;
@@ -663,9 +692,6 @@ qcf_status qcf_step(qcf_state *s, const qcf_input *in, float dt)
             s->gps_count++;
         }
         s->gps_age = 0.0f;
-        if (s->gps_count == 7u) {
-            qcf_k_gps_accel(s->gps_vel_hist, s->motion_accel);
-        }
     } else if (s->gps_age < 1000.0f) {
         s->gps_age += dt;
     }
@@ -674,8 +700,11 @@ qcf_status qcf_step(qcf_state *s, const qcf_input *in, float dt)
         /* Reference attitude from the gravity part of the specific force. */
         float accel_g[3] = { in->accel[0], in->accel[1], in->accel[2] };
         float q_ref[4];
-        if (QCF_GPS_COMPENSATION && s->gps_count == 7u && s->gps_age <= QCF_GPS_TIMEOUT) {
-            qcf_k_gravity_part(in->accel, s->q, s->motion_accel, accel_g);
+        /* centripetal acceleration of the latest GPS velocity turning with the body */
+        if (QCF_GPS_COMPENSATION && s->gps_count >= 1u && s->gps_age <= QCF_GPS_TIMEOUT) {
+            float accel_now[3];
+            qcf_k_motion_accel(s->q, in->gyro, s->gyro_bias, s->gps_vel_hist, accel_now);
+            qcf_k_gravity_part(in->accel, s->q, accel_now, accel_g);
         }
         if (use_mag) {
             qcf_k_reference(accel_g, in->mag, q_ref);

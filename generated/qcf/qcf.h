@@ -25,20 +25,21 @@ extern "C" {
 #endif
 
 /* Parameters baked into this build (already folded into the code; listed for reference). */
-#define QCF_DT_MAX 0.5f                 /* largest dt a step accepts; larger is refused (DT_TOO_LARGE) [s] */
-#define QCF_GYRO_MAX 70.0f              /* largest gyro component accepted; larger is refused (GYRO_RANGE) [rad/s] */
-#define QCF_ACCEL_MIN_NORM 0.5f         /* accelerometer norm below this skips its correction (ACCEL_ZERO) [m/s^2] */
-#define QCF_ACCEL_MAX 2000.0f           /* accelerometer component above this skips its correction (ACCEL_RANGE) [m/s^2] */
-#define QCF_MAG_MIN_NORM 1e-06f         /* magnetometer norm below this skips its correction (MAG_ZERO) [field unit] */
-#define QCF_MAG_MAX 1e+06f              /* magnetometer component above this skips its correction (MAG_RANGE) [field unit] */
-#define QCF_KP 0.3f                     /* proportional gain on the quaternion error q~ (eq. 14) [rad/s] */
-#define QCF_KI 0.002f                   /* integral gain of the gyro-bias estimate (eq. 14) [rad/s^2] */
-#define QCF_GPS_COMPENSATION 1          /* remove the GPS-derived motion acceleration from the accelerometer (section 3.2) */
-#define QCF_GPS_PERIOD 0.2f             /* GPS sample period T of the lagged differentiator (eq. 29) [s] */
-#define QCF_GPS_TIMEOUT 1.0f            /* no GPS sample for longer than this: stop compensating and restart the differentiator history [s] */
-#define QCF_MOTION_ACCEL_THRESHOLD 0.3f /* compensate only when ||f| - g| exceeds this (section 3.2) [m/s^2] */
-#define QCF_DECLINATION 0.0f            /* magnetic declination added to the FQA heading (true north = magnetic north + declination) [rad] */
-#define QCF_FAITHFUL 0                  /* paper exactly: start at q = [1,0,0,0] and use eq. 29's coefficients as printed (ramp gain 0.985); off: start from the first FQA attitude, coefficients scaled to unit ramp gain */
+#define QCF_DT_MAX 0.5f                    /* largest dt a step accepts; larger is refused (DT_TOO_LARGE) [s] */
+#define QCF_GYRO_MAX 70.0f                 /* largest gyro component accepted; larger is refused (GYRO_RANGE) [rad/s] */
+#define QCF_ACCEL_MIN_NORM 0.5f            /* accelerometer norm below this skips its correction (ACCEL_ZERO) [m/s^2] */
+#define QCF_ACCEL_MAX 2000.0f              /* accelerometer component above this skips its correction (ACCEL_RANGE) [m/s^2] */
+#define QCF_MAG_MIN_NORM 1e-06f            /* magnetometer norm below this skips its correction (MAG_ZERO) [field unit] */
+#define QCF_MAG_MAX 1e+06f                 /* magnetometer component above this skips its correction (MAG_RANGE) [field unit] */
+#define QCF_KP 0.3f                        /* proportional gain on the quaternion error q~ (eq. 14) [rad/s] */
+#define QCF_KI 0.002f                      /* integral gain of the gyro-bias estimate (eq. 14) [rad/s^2] */
+#define QCF_GPS_COMPENSATION 1             /* remove the GPS-derived motion acceleration from the accelerometer (section 3.2) */
+#define QCF_GPS_PERIOD 0.2f                /* GPS sample period T of the lagged differentiator (eq. 29) [s] */
+#define QCF_GPS_TIMEOUT 1.0f               /* no GPS sample for longer than this: stop compensating and restart the differentiator history [s] */
+#define QCF_MOTION_ACCEL_THRESHOLD 0.3f    /* compensate only when ||f| - g| exceeds this (section 3.2) [m/s^2] */
+/* QCF_MOTION_ACCEL_MODEL = centripetal motion acceleration removed from the accelerometer: 'differentiator' = the paper's eq. 29 (lags 3 GPS samples, 0.6 s at 5 Hz); 'centripetal' = R(q)(w - b) x v_gps, known at once from the gyro and the latest GPS velocity */
+#define QCF_DECLINATION 0.0f               /* magnetic declination added to the FQA heading (true north = magnetic north + declination) [rad] */
+#define QCF_FAITHFUL 0                     /* paper exactly: start at q = [1,0,0,0] and use eq. 29's coefficients as printed (ramp gain 0.985); off: start from the first FQA attitude, coefficients scaled to unit ramp gain */
 
 /* Input validity bits: set a bit only when that sensor delivered a new sample this step. */
 #define QCF_VALID_GYRO (1u << 0)

@@ -9,6 +9,13 @@ Per step (SPEC.md, QCF):
   PI feedback    β = ω - b̂ + kp q~ ;  b̂ <- b̂ - ki q~ dt (eq. 14, b̂ of the previous step in β)
   integration    q̂ <- normalise(q̂ ⊗ exp(½ β dt)) (eq. 9 with the Picard/exact step, eq. 7)
   GPS accel      a_{k-3} = (c1 d1 + c2 d2 + c3 d3) / (2 T), d_i = V_{k-3+i} - V_{k-3-i} (eq. 29)
+
+Product option (motion_accel_model): eq. 29 estimates the acceleration 3 GPS samples
+(0.6 s at 5 Hz) in the past; in a turn the centripetal part changes faster than that. The
+centripetal acceleration of a velocity vector turning with the body, a_c = ω_n × v_n with
+ω_n = R(q̂)(ω − b̂), is known at once from the gyro and the latest GPS velocity. (Adding
+eq. 29's along-track part was tried and made things worse: the stale centripetal part of
+the lagged estimate leaks into the projection while the velocity turns.)
 """
 from __future__ import annotations
 
@@ -74,7 +81,16 @@ class Model(FilterModel):
         V = [hist[3 * i:3 * i + 3] for i in range(GPS_TAPS)]
         acc = sum(c[i - 1] * (V[3 + i] - V[3 - i]) for i in (1, 2, 3)) / (2 * p["gps_period"])
 
-        return [
+        kernels = []
+        if p["motion_accel_model"] != "differentiator":
+            v = hist[3 * (GPS_TAPS - 1):]                       # latest GPS velocity
+            a_c = ca.cross(quat.rotate(q, gyro - bias), v)
+            kernels.append(KernelSpec(
+                "motion_accel", function("motion_accel", {"q": q, "gyro": gyro, "gyro_bias": bias,
+                                                          "gps_vel_hist": hist},
+                                         {"motion_accel_now": a_c}),
+                "centripetal acceleration now: R(q)(w - b) x v_gps (NED, m/s^2)"))
+        return kernels + [
             KernelSpec("gravity_part", function("gravity_part", {"accel": f, "q": q, "motion_accel": a_n},
                                                 {"accel_gravity": f_g}),
                        "accelerometer minus the GPS motion acceleration when ||f| - g| exceeds the threshold"),
@@ -90,14 +106,18 @@ class Model(FilterModel):
             KernelSpec("propagate", function("propagate", {"q": q, "gyro_bias": bias, "gyro": gyro, "dt": dt},
                                              {"q_new": quat.integrate(q, gyro - bias, dt)}),
                        "gyro-only integration with the bias removed (no aiding this step)"),
-            KernelSpec("gps_accel", function("gps_accel", {"gps_vel_hist": hist}, {"motion_accel": acc}),
-                       "lagged differentiator of GPS velocity (eq. 29): NED acceleration 3 samples back"),
-        ]
+        ] + ([KernelSpec("gps_accel", function("gps_accel", {"gps_vel_hist": hist}, {"motion_accel": acc}),
+                         "lagged differentiator of GPS velocity (eq. 29): NED acceleration 3 samples back")]
+             if p["motion_accel_model"] == "differentiator" else [])
+
+    def template_context(self):
+        return {"motion_model": self.params["motion_accel_model"]}
 
     def step_paths(self):
+        comp = ["gravity_part"] if self.params["motion_accel_model"] == "differentiator" else ["motion_accel", "gravity_part"]
         return {
-            "full (accel+mag+GPS comp.)": ["gravity_part", "reference", "update"],
+            "full (accel+mag+GPS comp.)": comp + ["reference", "update"],
             "accel+mag": ["reference", "update"],
             "gyro only": ["propagate"],
-            "GPS sample (extra)": ["gps_accel"],
+            **({"GPS sample (extra)": ["gps_accel"]} if self.params["motion_accel_model"] == "differentiator" else {}),
         }

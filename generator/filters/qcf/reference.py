@@ -128,9 +128,16 @@ class Reference:
 
         if use_accel:
             f = np.asarray(accel, float)
-            if p["gps_compensation"] and len(self.hist) == 7 and self.gps_age <= p["gps_timeout"]:
+            model = p["motion_accel_model"]
+            need = 7 if model == "differentiator" else 1
+            if p["gps_compensation"] and len(self.hist) >= need and self.gps_age <= p["gps_timeout"]:
+                a_n = self.motion_accel
+                if model != "differentiator":
+                    # centripetal acceleration of the GPS velocity turning with the body
+                    v = self.hist[-1]
+                    a_n = np.cross(nq.rotmat(self.q) @ (gyro - self.bias), v)
                 if abs(np.linalg.norm(f) - G0) > p["motion_accel_threshold"]:
-                    f = f - nq.rotmat(self.q).T @ self.motion_accel
+                    f = f - nq.rotmat(self.q).T @ a_n
             if use_mag:
                 q_ref = fqa(f, mag, p["declination"])
                 if not self.initialised:
