@@ -234,15 +234,16 @@ def score(q_est: np.ndarray, log: SensorLog, heading: str) -> dict:
     ref = log.q_true[mask]
     ok = np.all(np.isfinite(q), axis=1)
     out = {"n": int(mask.sum()), "nonfinite": int((~ok).sum())}
-    if not ok.all():          # a diverged estimate scores as 180° rather than silently vanishing
-        q = q.copy()
-        q[~ok] = qmul(ref[~ok], np.array([0.0, 1.0, 0.0, 0.0]))
-    e = euler_errors_deg(q, ref)
+    # a diverged (non-finite) estimate scores 180° on every measure rather than vanishing
+    e = np.full((len(q), 3), 180.0)
+    e[ok] = euler_errors_deg(q[ok], ref[ok])
     for i, a in enumerate(ANGLES):
         out[f"{a}_rms"] = float(np.sqrt(np.mean(e[:, i] ** 2)))
         out[f"{a}_mean_abs"] = float(np.mean(np.abs(e[:, i])))
-    tot, head, incl = broad_errors_deg(q, ref)
-    for name, v in zip(BROAD_METRICS, (tot, head, incl)):
+    dec = np.full((3, len(q)), 180.0)
+    if ok.any():
+        dec[:, ok] = np.array(broad_errors_deg(q[ok], ref[ok]))
+    for name, v in zip(BROAD_METRICS, dec):
         out[f"{name}_rms"] = float(np.sqrt(np.mean(v ** 2)))
     return out
 
@@ -261,9 +262,10 @@ def total_error_series(q_est, log, heading, max_points=2000):
 # ahrsgen run
 
 def run_on_log(filter_name: str, log_path: str, config_file=None, sets=(), precision="float",
-               plot=None, csv=None, exe=False, out=sys.stdout) -> dict:
+               plot=None, csv=None, exe=False, out=None) -> dict:
     """Run one generated filter over a log file; score it where the log has a reference."""
     from generator import config
+    out = out or sys.stdout
     log = readers.read_log(log_path)
     cfg = config.resolve(filter_name, config_file, list(sets), precision, None)
     hf = host.build(cfg)
@@ -456,22 +458,29 @@ def _aggregate(results, group_key):
     return out
 
 
+# the hand-written baseline implements SPEC.md's QCF: eq. 29's differentiator for the motion
+# acceleration; the generated QCF is timed with that option too, so the ratio compares like with like
+HAND_QCF_SETS = ["motion_accel_model=differentiator"]
+
+
 def measure_cost(filter_names, log: SensorLog, repeats=7, passes=3) -> dict:
     """Ops per step (manifest), state bytes, host ns/step inside C (median), vs the hand QCF."""
     from generator import config
     cost = {}
-    for f in list(filter_names) + ["qcf_hand"]:
+    entries = [(f, f, []) for f in filter_names]
+    if "qcf" in filter_names:
+        entries += [("qcf_eq29", "qcf", HAND_QCF_SETS), ("qcf_hand", None, [])]
+    for label, f, sets in entries:
         try:
-            if f == "qcf_hand":
-                if "qcf" not in filter_names:
-                    continue
+            if f is None:
                 hf = baseline_filter()
                 paths = {}
             else:
-                hf = host.build(config.resolve(f, None, [], "float", None))
+                hf = host.build(config.resolve(f, None, sets, "float", None))
                 paths = hf.manifest.get("step_paths", {})
             worst = max(paths.items(), key=lambda kv: kv[1]["total"]) if paths else None
-            cost[f] = {
+            cost[label] = {
+                "settings": sets,
                 "ns_per_step": hf.time_ns_per_step(log, repeats=repeats, passes=passes),
                 "state_bytes": int(hf.manifest["structs"]["state"]["size"]),
                 "ops_worst_path": worst[0] if worst else None,
@@ -480,20 +489,23 @@ def measure_cost(filter_names, log: SensorLog, repeats=7, passes=3) -> dict:
                 "paths": {k: v["total"] for k, v in paths.items()},
             }
         except Exception as e:
-            cost[f] = {"error": f"{type(e).__name__}: {e}"}
-    if "qcf" in cost and "qcf_hand" in cost and "ns_per_step" in cost["qcf"] and "ns_per_step" in cost["qcf_hand"]:
-        cost["qcf"]["ratio_to_hand_qcf"] = cost["qcf"]["ns_per_step"] / cost["qcf_hand"]["ns_per_step"]
+            cost[label] = {"error": f"{type(e).__name__}: {e}"}
+    hand = cost.get("qcf_hand", {}).get("ns_per_step")
+    if hand:
+        for label in ("qcf", "qcf_eq29"):
+            if "ns_per_step" in cost.get(label, {}):
+                cost[label]["ratio_to_hand_qcf"] = cost[label]["ns_per_step"] / hand
     return cost
 
 
 def bench(quick=False, seeds=None, filters=None, peer_names=PEER_NAMES, data_dir=None, out_dir="bench_out",
-          jobs=2, scenarios_only=False, real_only=False, command="") -> dict:
+          jobs=2, scenarios_only=False, real_only=False, scenario_labels=None, command="") -> dict:
     """Run the whole benchmark; writes bench.json, bench.md and img/*.png under out_dir."""
     t_start = time.time()
     out_dir = Path(out_dir)
     (out_dir / "img").mkdir(parents=True, exist_ok=True)
     filter_names = list(filters) if filters else product_filters()
-    ests, build_errors = _estimators(filter_names, peer_names)
+    ests, build_errors = _estimators(filter_names, peer_names, with_baseline=False)
     filter_names = [f for f in filter_names if f not in build_errors]
     # compile everything once in the main process (workers then hit the cache)
     for e in ests:
@@ -511,6 +523,8 @@ def bench(quick=False, seeds=None, filters=None, peer_names=PEER_NAMES, data_dir
     tasks = []
     if not real_only:
         for label, scen, opts in scenario_configs(quick):
+            if scenario_labels and label not in scenario_labels:
+                continue
             for seed in range(n_seeds):
                 tasks.append(("scenario", label, scen, opts, seed, specs, seed == 0))
     real = {"broad": [], "px4": []}
@@ -579,7 +593,7 @@ def bench(quick=False, seeds=None, filters=None, peer_names=PEER_NAMES, data_dir
         "build_errors": build_errors,
         "notes": notes,
         "scenarios": _aggregate(scen, "label"),
-        "scenario_options": {lbl: opts for lbl, _, opts in scenario_configs(quick)},
+        "scenario_options": {lbl: {"scenario": sc_name, **opts} for lbl, sc_name, opts in scenario_configs(quick)},
         "broad": {"trials": {r["log"]: r["scores"] for r in broad},
                   "mean": _aggregate(broad, "label").get("BROAD", {}), "files": real["broad"]},
         "px4": {r["label"]: r["scores"] for r in px4},
@@ -665,7 +679,11 @@ def markdown(rep: dict) -> str:
     # cost
     L.append("## Cost per step\n")
     L.append(f"ns/step: host C (`{rep['host'].get('cc', 'cc')}`, -O2), measured inside C over "
-             f"{rep['cost_log']}, median of repeats. Ops: the most expensive step path in the manifest.\n")
+             f"{rep['cost_log']}, median of repeats. Ops: the most expensive step path in the manifest. "
+             "`qcf_hand` is `firmware_sim/c/baseline_qcf.c`, SPEC.md's QCF written by hand (eq. 29 "
+             "differentiator); `qcf_eq29` is the generated QCF with the same option "
+             "(`motion_accel_model=differentiator`), the like-for-like comparison; `qcf` is the "
+             "generated default (centripetal model).\n")
     L.append("| filter | ns/step | vs hand-written QCF | ops/step (worst path) | add / mul / div / sqrt / trig | state bytes |")
     L.append("|---|---|---|---|---|---|")
     for f, c in rep["cost"].items():
@@ -756,7 +774,8 @@ def _cmd_bench(args) -> int:
     rep = bench(quick=args.quick, seeds=args.seeds, filters=args.filters or None,
                 peer_names=tuple(args.peers) if args.peers is not None else PEER_NAMES,
                 data_dir=args.data, out_dir=args.output, jobs=args.jobs,
-                scenarios_only=args.scenarios_only, real_only=args.real_only, command=cmd)
+                scenarios_only=args.scenarios_only, real_only=args.real_only,
+                scenario_labels=args.scenarios, command=cmd)
     md = Path(args.output) / "bench.md"
     print(md.read_text())
     print(f"wrote {Path(args.output) / 'bench.json'}, {md} and {len(rep['plots'])} plot(s) in "
@@ -788,6 +807,8 @@ def register_cli(sub) -> None:
     p.add_argument("--quick", action="store_true", help="short CI run (1 seed, shorter scenarios, data excerpts)")
     p.add_argument("--seeds", type=int, help="seeds per scenario (default 3, --quick 1)")
     p.add_argument("--filters", nargs="*", help="only these product filters (default: all)")
+    p.add_argument("--scenarios", nargs="*", metavar="LABEL",
+                   help="only these scenario rows of the grid (e.g. multirotor turntable; default: all)")
     p.add_argument("--peers", nargs="*", choices=list(peers.PEERS), help=f"peers to include (default: {' '.join(PEER_NAMES)})")
     p.add_argument("--data", metavar="DIR", help="folder holding broad/ and px4/ (default: $AHRSGEN_DATA, "
                                                  "else <repo>/../shared/data)")
