@@ -464,32 +464,40 @@ HAND_QCF_SETS = ["motion_accel_model=differentiator"]
 
 
 def measure_cost(filter_names, log: SensorLog, repeats=7, passes=3) -> dict:
-    """Ops per step (manifest), state bytes, host ns/step inside C (median), vs the hand QCF."""
+    """Ops per step (manifest), state bytes, host ns/step inside C, vs the hand-written QCF.
+
+    The filters are timed in interleaved rounds (one pass of each per round) and the median
+    over rounds is kept, so a change in machine load hits every filter alike.
+    """
     from generator import config
-    cost = {}
+    cost, built = {}, {}
     entries = [(f, f, []) for f in filter_names]
     if "qcf" in filter_names:
         entries += [("qcf_eq29", "qcf", HAND_QCF_SETS), ("qcf_hand", None, [])]
     for label, f, sets in entries:
         try:
-            if f is None:
-                hf = baseline_filter()
-                paths = {}
-            else:
-                hf = host.build(config.resolve(f, None, sets, "float", None))
-                paths = hf.manifest.get("step_paths", {})
+            hf = baseline_filter() if f is None else host.build(config.resolve(f, None, sets, "float", None))
+            paths = hf.manifest.get("step_paths", {}) if f is not None else {}
             worst = max(paths.items(), key=lambda kv: kv[1]["total"]) if paths else None
             cost[label] = {
                 "settings": sets,
-                "ns_per_step": hf.time_ns_per_step(log, repeats=repeats, passes=passes),
                 "state_bytes": int(hf.manifest["structs"]["state"]["size"]),
                 "ops_worst_path": worst[0] if worst else None,
                 "ops_total": int(worst[1]["total"]) if worst else None,
                 "ops": worst[1]["ops"] if worst else None,
                 "paths": {k: v["total"] for k, v in paths.items()},
             }
+            built[label] = hf
         except Exception as e:
             cost[label] = {"error": f"{type(e).__name__}: {e}"}
+    samples = {label: [] for label in built}
+    for _ in range(repeats):
+        for label, hf in built.items():
+            samples[label].append(hf.time_ns_per_step(log, repeats=1, passes=passes))
+    for label, v in samples.items():
+        cost[label]["ns_per_step"] = float(np.median(v))
+        cost[label]["ns_per_step_spread"] = [float(np.min(v)), float(np.max(v))]
+        cost[label]["timing_rounds"] = len(v)
     hand = cost.get("qcf_hand", {}).get("ns_per_step")
     if hand:
         for label in ("qcf", "qcf_eq29"):
