@@ -164,7 +164,7 @@ _EXTRA_COMMANDS: list = []
 
 def _load_extra_commands() -> None:
     import importlib
-    for mod in ("firmware_sim.bench", "firmware_sim.target"):
+    for mod in ("firmware_sim.bench", "firmware_sim.target", "firmware_sim.harden"):
         try:
             m = importlib.import_module(mod)
         except ImportError:
