@@ -272,3 +272,26 @@ def test_ten_minute_float_run_keeps_P_spd_and_q_unit():
     eig = np.linalg.eigvalsh(Ps)
     assert eig.min() > 0, eig.min()
     assert np.max(np.abs(np.linalg.norm(qs, axis=1) - 1)) < 1e-6
+
+
+@pytest.mark.parametrize("precision", ["float", "double"])
+def test_random_garbage_inputs_never_break_the_state(precision):
+    """5000 steps of random rates (up to ~60 rad/s), vectors of any size, random valid bits and
+    dt: the state stays finite, |q| = 1 and P positive definite after every step."""
+    hf = host_build("adukf", precision)
+    rng = np.random.default_rng(1)
+    s = hf.new_state()
+    for _ in range(5000):
+        gyro = rng.standard_normal(3) * 10.0 ** rng.uniform(-6, 1.5)
+        accel = rng.standard_normal(3) * 10.0 ** rng.uniform(-3, 3)
+        mag = rng.standard_normal(3) * 10.0 ** rng.uniform(-7, 5)
+        hf.step(s, gyro, accel, mag, (0, 0, 0), int(rng.integers(0, 16)), float(10.0 ** rng.uniform(-5, -0.9)))
+        q, P = _check_state(hf, s)
+        assert np.linalg.eigvalsh(0.5 * (P + P.T)).min() > 0
+
+
+def test_cli_validate_passes():
+    from generator import cli
+    rc = cli.main(["validate", "adukf", "--precision", "double", "--scenario", "static_mag_disturbance",
+                   "--scenario-opt", "duration=5"])
+    assert rc in (0, None)
