@@ -7,9 +7,11 @@
 - Scoring: per-angle RMS and mean |error| (roll, pitch, yaw, wrapped) and BROAD's
   total / heading / inclination RMS, over the scored rows: meta['movement'] where the log
   has it (BROAD's method), else after meta['settle_time']; rows without a finite reference
-  are left out. Heading: filters whose heading comes from the magnetometer (and the peers)
-  are compared in magnetic north (the estimate is rotated by the log's declination,
-  meta['declination_deg'], 0 for BROAD); GPS-course filters in true north; filters with no
+  are left out. Heading: the site parameters of each generated filter (declination, and
+  inclination or learning it at rest where the filter has them) are set from the log, as a
+  user sets them for where they fly (`site_sets`), so its heading is in the reference's north;
+  a peer (no declination setting) has its estimate rotated by the log's declination
+  (meta['declination_deg']; BROAD's reference is magnetic north, so 0); filters with no
   heading source have one constant heading offset removed (BROAD's rule for 6D filters).
 - Peers (firmware_sim/peers.py) run on the same logs.
 - Cost: op counts per step from each filter's manifest, state size, ns per step measured
@@ -149,6 +151,38 @@ def baseline_filter() -> host.HostFilter:
 # =========================================================================================
 # Estimators (generated filters, the hand-written QCF, peers) and scoring
 
+# Site parameters (where the vehicle flies) that a user sets and the bench fills from the log:
+# the filter's declination (so its heading is in the reference's north) and, for filters with a
+# configured field direction, the inclination (or learning it at rest when the log has none).
+DECLINATION_PARAMS = (("declination_deg", "deg"), ("declination", "rad"), ("mag_declination", "rad"))
+_HF_CACHE: dict = {}
+
+
+def site_sets(filter_name: str, meta: dict, user_keys=()) -> tuple[list[str], bool]:
+    """--set strings for the site of a log, and whether a declination parameter was set.
+
+    A log's meta['declination_deg'] is the offset from its reference's north to magnetic
+    north (absent: the reference is magnetic north, as BROAD's). Parameters the user set
+    (user_keys) are left alone.
+    """
+    from generator import filters
+    names = filters.load(filter_name).params
+    out, applied = [], False
+    decl = float(meta.get("declination_deg", 0.0) or 0.0)
+    for pname, unit in DECLINATION_PARAMS:
+        if pname in names and pname not in user_keys:
+            out.append(f"{pname}={decl if unit == 'deg' else math.radians(decl)!r}")
+            applied = True
+        elif pname in names:
+            applied = True
+    if "inclination_deg" in names and "inclination_deg" not in user_keys:
+        if meta.get("inclination_deg") is not None:
+            out.append(f"inclination_deg={float(meta['inclination_deg'])!r}")
+        elif "mag_ref" in names and "mag_ref" not in user_keys:
+            out.append("mag_ref=learn")
+    return out, applied
+
+
 @dataclass
 class Estimator:
     name: str
@@ -158,22 +192,30 @@ class Estimator:
     filter: str = ""          # product filter name
     sets: list = field(default_factory=list)
     config: str | None = None
-    _hf: object = None
+    site: bool = True         # fill site parameters (declination, inclination) from the log
 
-    def host_filter(self):
-        if self._hf is None:
+    def host_filter(self, extra_sets=()):
+        key = (self.kind, self.filter, self.config, tuple(self.sets) + tuple(extra_sets))
+        if key not in _HF_CACHE:
             if self.kind == "baseline":
-                self._hf = baseline_filter()
+                _HF_CACHE[key] = baseline_filter()
             else:
                 from generator import config
-                cfg = config.resolve(self.filter, self.config, list(self.sets), "float", None)
-                self._hf = host.build(cfg)
-        return self._hf
+                cfg = config.resolve(self.filter, self.config, list(self.sets) + list(extra_sets), "float", None)
+                _HF_CACHE[key] = host.build(cfg)
+        return _HF_CACHE[key]
 
-    def run(self, log: SensorLog) -> np.ndarray:
+    def run(self, log: SensorLog) -> tuple[np.ndarray, str, list]:
+        """(q, heading frame of q for scoring, site --set strings used)."""
         if self.kind == "peer":
-            return peers.run(self.name, log)
-        return self.host_filter().run(log).q
+            return peers.run(self.name, log), self.heading, []
+        extra, applied = [], False
+        if self.kind == "filter" and self.site:
+            from generator import config
+            user = config.resolve(self.filter, self.config, list(self.sets), "float", None).overrides
+            extra, applied = site_sets(self.filter, log.meta, set(user))
+        heading = "true" if (self.heading == "mag" and applied) else self.heading
+        return self.host_filter(extra).run(log).q, heading, extra
 
 
 def filter_heading(filter_name: str, sets=(), config_file=None) -> str:
@@ -267,9 +309,15 @@ def run_on_log(filter_name: str, log_path: str, config_file=None, sets=(), preci
     from generator import config
     out = out or sys.stdout
     log = readers.read_log(log_path)
-    cfg = config.resolve(filter_name, config_file, list(sets), precision, None)
+    user = config.resolve(filter_name, config_file, list(sets), precision, None).overrides
+    extra, applied = site_sets(filter_name, log.meta, set(user))
+    cfg = config.resolve(filter_name, config_file, list(sets) + extra, precision, None)
     hf = host.build(cfg)
     heading = filter_heading(filter_name, sets, config_file)
+    if heading == "mag" and applied:
+        heading = "true"
+    if extra:
+        print(f"site parameters from the log (override with --set): {', '.join(extra)}", file=out)
     t0 = time.perf_counter()
     if exe:
         res, summary = run_log_exe(build_log_runner(hf.dir), log)
@@ -285,7 +333,7 @@ def run_on_log(filter_name: str, log_path: str, config_file=None, sets=(), preci
     refused = int(np.count_nonzero(res.status & 0x20F))
     print(f"  steps with a non-zero status: {int(np.count_nonzero(res.status))}, refused: {refused}", file=out)
     result = {"filter": filter_name, "log": str(log_path), "steps": len(log), "heading": heading,
-              "precision": cfg.precision, "overrides": cfg.overrides}
+              "precision": cfg.precision, "overrides": cfg.overrides, "site_sets": extra}
     if log.q_true is not None and score_mask(log).any():
         s = score(res.q, log, heading)
         result["score"] = s
@@ -294,7 +342,7 @@ def run_on_log(filter_name: str, log_path: str, config_file=None, sets=(), preci
             log.meta.get("scoring"), "reference")
         decl = log.meta.get("declination_deg")
         head_note = {"mag": "magnetic heading" + (f", rotated by declination {decl:.2f}°" if decl else ""),
-                     "true": "GPS-course heading (true north)",
+                     "true": "heading in the reference's north" + (f" (declination {decl:.2f}° set)" if decl else ""),
                      "none": "no heading source: one constant heading offset removed"}[heading]
         print(f"  error vs {ref_name}, {s['n']} samples ({head_note}), degrees:", file=out)
         print("           RMS   mean|e|", file=out)
@@ -407,10 +455,12 @@ def _run_task(task):
         est = Estimator(**spec)
         t1 = time.perf_counter()
         try:
-            q = est.run(log)
-            out["scores"][est.name] = score(q, log, est.heading)
+            q, heading, extra = est.run(log)
+            out["scores"][est.name] = score(q, log, heading)
+            if extra:
+                out.setdefault("site", {})[est.name] = extra
             if want_series:
-                t, e = total_error_series(q, log, est.heading)
+                t, e = total_error_series(q, log, heading)
                 out["series"][est.name] = (t.tolist(), e.tolist())
         except Exception as e:
             out["errors"][est.name] = f"{type(e).__name__}: {e}"
@@ -421,7 +471,7 @@ def _run_task(task):
 
 def _spec(e: Estimator) -> dict:
     return {"name": e.name, "kind": e.kind, "heading": e.heading, "title": e.title, "filter": e.filter,
-            "sets": list(e.sets), "config": e.config}
+            "sets": list(e.sets), "config": e.config, "site": e.site}
 
 
 class Progress:
@@ -606,6 +656,7 @@ def bench(quick=False, seeds=None, filters=None, peer_names=PEER_NAMES, data_dir
                   "mean": _aggregate(broad, "label").get("BROAD", {}), "files": real["broad"]},
         "px4": {r["label"]: r["scores"] for r in px4},
         "run_errors": {f"{r['label']}/{r['log']}/{r['seed']}": r["errors"] for r in results if r["errors"]},
+        "site_sets": {f"{r['label']}/{r['log']}": r["site"] for r in results if r.get("site") and r["seed"] == 0},
         "cost": cost,
         "cost_log": f"multirotor seed 0, {len(cost_log)} steps (250 Hz, accel+mag+GPS)",
         "seconds": time.time() - t_start,
@@ -679,10 +730,12 @@ def markdown(rep: dict) -> str:
     if rep["build_errors"]:
         L.append("Filters left out (did not build): " +
                  "; ".join(f"`{k}`: {v.splitlines()[0][:160]}" for k, v in rep["build_errors"].items()) + "\n")
-    L.append("Errors in degrees. Generated filters run as float C through the firmware harness; peers "
-             "through their Python packages (PEERS.md conventions). Heading: magnetometer filters and "
-             "peers in magnetic north, GPS-course filters in true north, filters without a heading "
-             "source after removing one constant heading offset. "
+    L.append("Errors in degrees. Generated filters run as float C through the firmware harness with their "
+             "default gains; the site parameters (declination; inclination, or learning it at rest when "
+             "the log gives none) are set from each log as a user would for where they fly. Peers run "
+             "through their Python packages (PEERS.md conventions) and their magnetic heading is "
+             "rotated by the log's declination. Filters without a heading source are scored after "
+             "removing one constant heading offset. "
              "`total / heading / incl.` is BROAD's decomposition of the earth-frame error.\n")
     # cost
     L.append("## Cost per step\n")
