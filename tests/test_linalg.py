@@ -34,10 +34,17 @@ def chol_fun(n, tol=0.0):
 
 
 @functools.lru_cache(maxsize=None)
-def solve_fun(n, m):
+def chol_inv_fun(n, tol=0.0):
+    A = ca.SX.sym("A", n, n)
+    L, inv, mp = linalg.cholesky_with_inverse(A, tol)
+    return ca.Function("chol_inv", [A], [L, inv, mp])
+
+
+@functools.lru_cache(maxsize=None)
+def solve_fun(n, m, reciprocal=False):
     A = ca.SX.sym("A", n, n)
     B = ca.SX.sym("B", n, m)
-    X, mp = linalg.spd_solve(A, B)
+    X, mp = linalg.spd_solve(A, B, 0.0, reciprocal)
     return ca.Function("spd_solve", [A, B], [X, mp])
 
 
@@ -71,14 +78,20 @@ def test_cholesky_matches_numpy(n, cond):
         assert mp.item() > 0.0
         # the smallest pivot is the smallest squared diagonal of the factor
         assert mp.item() == pytest.approx(np.min(np.diag(L_np) ** 2), rel=10 * n * cond * EPS + 1e-13)
+        Lr, inv, mpr = (np.array(x) for x in chol_inv_fun(n)(A))
+        assert np.linalg.norm(A - Lr @ Lr.T) <= 10 * n * EPS * np.linalg.norm(A)
+        assert np.linalg.norm(Lr - L_np) / np.linalg.norm(L_np) <= 10 * n * cond * EPS
+        np.testing.assert_allclose(inv.ravel(), 1.0 / np.diag(L_np), rtol=10 * n * cond * EPS)
+        assert mpr.item() == pytest.approx(mp.item(), rel=10 * n * cond * EPS, abs=1e-300)
 
 
 @pytest.mark.parametrize("n", SIZES)
 @pytest.mark.parametrize("cond", CONDS)
 @pytest.mark.parametrize("m", [1, 4])
-def test_spd_solve_matches_numpy(n, cond, m):
+@pytest.mark.parametrize("reciprocal", [False, True])
+def test_spd_solve_matches_numpy(n, cond, m, reciprocal):
     rng = np.random.default_rng(7 + 100 * n + m + int(np.log10(cond)))
-    f = solve_fun(n, m)
+    f = solve_fun(n, m, reciprocal)
     for _ in range(20):
         A = random_spd(rng, n, cond)
         B = rng.standard_normal((n, m))
@@ -111,6 +124,7 @@ def test_not_positive_definite_is_flagged_and_finite(n):
     rng = np.random.default_rng(42 + n)
     f = chol_fun(n)
     g = solve_fun(n, 1)
+    gr = solve_fun(n, 1, True)
     cases = []
     A = random_spd(rng, n, 10.0)
     w, V = np.linalg.eigh(A)
@@ -126,8 +140,10 @@ def test_not_positive_definite_is_flagged_and_finite(n):
     for A in cases:
         L, mp = (np.array(x) for x in f(A))
         X, mp2 = (np.array(x) for x in g(A, np.ones((n, 1))))
-        assert np.all(np.isfinite(L)) and np.all(np.isfinite(X))
+        Xr, mp3 = (np.array(x) for x in gr(A, np.ones((n, 1))))
+        assert np.all(np.isfinite(L)) and np.all(np.isfinite(X)) and np.all(np.isfinite(Xr))
         assert mp.item() == mp2.item()
+        assert mp3.item() <= 1e-12 * max(1.0, np.abs(A).max())
         # flagged: the smallest pivot is not safely positive (a PSD singular matrix may
         # leave a round-off sized pivot of either sign)
         assert mp.item() <= 1e-12 * max(1.0, np.abs(A).max()), (A, mp.item())
@@ -194,8 +210,10 @@ def c_lib(precision):
         B = ca.SX.sym("B", n, C_NRHS)
         L, mp = linalg.cholesky(A)
         X, mp2 = linalg.spd_solve(A, B)
+        Xr, mp3 = linalg.spd_solve(A, B, 0.0, reciprocal=True)
         for fn in (emit.function(f"chol{n}", {"A": A}, {"L": L, "min_pivot": mp}),
-                   emit.function(f"spd_solve{n}", {"A": A, "B": B}, {"X": X, "min_pivot": mp2})):
+                   emit.function(f"spd_solve{n}", {"A": A, "B": B}, {"X": X, "min_pivot": mp2}),
+                   emit.function(f"spd_solve_r{n}", {"A": A, "B": B}, {"X": Xr, "min_pivot": mp3})):
             parts.append(emit.emit(fn, precision).source(storage=""))
             parts.append("")
     src = "\n".join(parts)
@@ -231,7 +249,7 @@ C_CASES = [("double", c) for c in (1.0, 1e3, 1e6, 1e10)] + [("float", c) for c i
 @pytest.mark.parametrize("precision, cond", C_CASES)
 @pytest.mark.parametrize("n", C_SIZES)
 def test_c_cholesky_and_solve_match_numpy(precision, cond, n):
-    eps = np.finfo(np.float32 if precision == "float" else np.float64).eps
+    eps = float(np.finfo(np.float32 if precision == "float" else np.float64).eps)
     rng = np.random.default_rng(99 + n + int(np.log10(cond)))
     for _ in range(20):
         A = random_spd(rng, n, cond)
@@ -244,10 +262,11 @@ def test_c_cholesky_and_solve_match_numpy(precision, cond, n):
         assert np.all(np.isfinite(L)) and mp.item() > 0
         assert np.linalg.norm(A - L @ L.T) <= 10 * n * eps * np.linalg.norm(A)
         assert np.linalg.norm(L - L_np) / np.linalg.norm(L_np) <= 10 * n * cond * eps
-        X, mp2 = c_call(precision, f"spd_solve{n}", A, B, outs=[(n, C_NRHS), (1, 1)])
         X_np = np.linalg.solve(A, B)
-        assert np.linalg.norm(X - X_np) / np.linalg.norm(X_np) <= 10 * n * cond * eps
-        assert mp2.item() == mp.item()
+        for name in ("spd_solve", "spd_solve_r"):
+            X, mp2 = c_call(precision, f"{name}{n}", A, B, outs=[(n, C_NRHS), (1, 1)])
+            assert np.linalg.norm(X - X_np) / np.linalg.norm(X_np) <= 10 * n * cond * eps, name
+            assert mp2.item() == pytest.approx(mp.item(), rel=float(10 * n * cond * eps))
 
 
 @pytest.mark.parametrize("precision", ["float", "double"])
@@ -260,5 +279,6 @@ def test_c_not_positive_definite_is_flagged_and_finite(precision):
         for bad in ((V * w) @ V.T, -np.eye(n), np.zeros((n, n))):
             L, mp = c_call(precision, f"chol{n}", bad, outs=[(n, n), (1, 1)])
             X, _ = c_call(precision, f"spd_solve{n}", bad, np.ones((n, C_NRHS)), outs=[(n, C_NRHS), (1, 1)])
-            assert np.all(np.isfinite(L)) and np.all(np.isfinite(X))
+            Xr, _ = c_call(precision, f"spd_solve_r{n}", bad, np.ones((n, C_NRHS)), outs=[(n, C_NRHS), (1, 1)])
+            assert np.all(np.isfinite(L)) and np.all(np.isfinite(X)) and np.all(np.isfinite(Xr))
             assert mp.item() <= 0.0
