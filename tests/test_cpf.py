@@ -446,3 +446,13 @@ def test_float_build_compiles_for_cortex_m4f(tmp_path):
     assert r.returncode == 0, r.stderr
     nm = subprocess.run(["arm-none-eabi-nm", str(tmp_path / "cpf.o")], capture_output=True, text=True).stdout
     assert " U sqrt\n" not in nm and " U log\n" not in nm and " U cos\n" not in nm   # float libm only
+
+
+@pytest.mark.parametrize("precision", ["double", "float"])
+def test_cli_validate_on_turntable(precision, capsys):
+    from generator import cli
+    code = cli.main(["validate", "cpf", "--precision", precision, "--scenario", "turntable"])
+    out = capsys.readouterr().out
+    assert code == 0, out
+    if precision == "float":
+        assert "judged by accuracy" in out
