@@ -456,3 +456,31 @@ def test_cli_validate_on_turntable(precision, capsys):
     assert code == 0, out
     if precision == "float":
         assert "judged by accuracy" in out
+
+
+@pytest.mark.parametrize("precision", ["double", "float"])
+def test_genuine_weight_underflow_is_reset_not_divided(precision):
+    """Never resampling (ess_threshold 0) with a sharp likelihood, the weights degenerate: all
+    but one or two particles' weights underflow to exactly zero, and when the surviving ones
+    random-walk away from the observation (or the heading jumps 40°) their likelihood factors
+    underflow too. The weights then sum to zero, and the step resets them to 1/N with
+    WEIGHTS_RESET instead of dividing by zero."""
+    params = {"ess_threshold": 0.0, "obs_noise": 0.005, "process_noise": 0.1}
+    _, hf = built(precision, **params)
+    rows, _ = _static_inputs(math.radians(30.0), 60)
+    jump, _ = _static_inputs(math.radians(70.0), 5)
+    s = hf.new_state()
+    ref = R.Reference(config.resolve("cpf", sets=_sets(params), precision="double").params)
+    codes_c, codes_r = [], []
+    for g, f, m in rows + jump:
+        codes_c.append(hf.step(s, g, f, m, (0, 0, 0), VALID_IMU, 0.1))
+        codes_r.append(ref.step(g, f, m, (0, 0, 0), VALID_IMU, 0.1))
+        w = np.array(s.weights[:])
+        assert np.all(np.isfinite(w)) and abs(w.sum() - 1) < 1e-5
+        assert np.all(np.isfinite(s.q[:]))
+    reset_c = [k for k, c in enumerate(codes_c) if c & R.WEIGHTS_RESET]
+    assert reset_c, codes_c
+    assert all(c & ~R.WEIGHTS_RESET == 0 for c in codes_c)
+    if precision == "double":
+        assert codes_c == codes_r
+        assert max_angle_diff_rad(np.array([s.q[:]]), np.array([ref.q])) < 1e-9
