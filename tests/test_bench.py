@@ -85,9 +85,12 @@ def test_hand_written_qcf_is_the_specified_algorithm(scen, opts):
     assert np.array_equal(hand.status, ref.status)
     # float hand code vs the double NumPy reference: float rounding only
     assert np.degrees(metrics.max_angle_diff_rad(hand.q, ref.q)) < 0.01
-    # and the default centripetal model is measurably a different algorithm on this flight
-    gen_default = host.build(config.resolve("qcf", None, [], "double", None)).run(log)
-    assert np.degrees(metrics.max_angle_diff_rad(gen_default.q, ref.q)) > 0.05
+    # the product default (centripetal model) is a different algorithm on this flight, which is
+    # why the cost ratio is taken against the generated QCF built with eq. 29
+    default = config.resolve("qcf", None, [], "double", None)
+    if default.params.get("motion_accel_model") != "differentiator":
+        gen_default = host.build(default).run(log)
+        assert np.degrees(metrics.max_angle_diff_rad(gen_default.q, ref.q)) > 0.05
 
 
 def test_hand_written_qcf_bad_inputs_like_reference():
