@@ -31,6 +31,7 @@ bound instead of assuming identity.
 """
 from __future__ import annotations
 
+import ctypes
 import json
 import os
 import re
@@ -43,6 +44,7 @@ from pathlib import Path
 import numpy as np
 
 TARGET_DIR = Path(__file__).resolve().parent / "target"
+PINNED_LIBM_H = TARGET_DIR / "libm_pinned.h"
 
 CPUS = {
     "cortex-m4f": ["-mcpu=cortex-m4", "-mthumb", "-mfpu=fpv4-sp-d16", "-mfloat-abi=hard"],
@@ -139,6 +141,7 @@ class FilterBinding:
     state_size: int | None = None
     state_fields: dict[str, tuple[int, int]] = field(default_factory=dict)
     scalar: str = "float"
+    has_euler: bool = False      # <prefix>_euler(const state *, real rpy[3]) exists
 
     @property
     def init_fn(self) -> str:
@@ -176,7 +179,8 @@ def write_glue(b: FilterBinding, out_dir: Path) -> None:
         f"typedef {b.state_type} glue_state;\n"
         "void glue_init(glue_state *s);\n"
         "uint32_t glue_step(glue_state *s, const ahrs_record *r);\n"
-        "#endif\n")
+        + ("#define GLUE_HAS_EULER 1\nvoid glue_euler(const glue_state *s, float rpy[3]);\n" if b.has_euler else "")
+        + "#endif\n")
     lines = []
     for role in ("gyro", "accel", "mag", "gps_vel"):
         fld = b.input_fields.get(role)
@@ -196,7 +200,10 @@ def write_glue(b: FilterBinding, out_dir: Path) -> None:
         "__attribute__((noinline)) uint32_t glue_step(glue_state *s, const ahrs_record *r)\n"
         f"{{\n    {b.input_type} in;\n    memset(&in, 0, sizeof in);\n"
         + "\n".join(lines) + "\n"
-        f"    return (uint32_t){b.step_fn}(s, &in, {dt});\n}}\n")
+        f"    return (uint32_t){b.step_fn}(s, &in, {dt});\n}}\n"
+        + ("\n__attribute__((noinline)) void glue_euler(const glue_state *s, float rpy[3])\n"
+           f"{{\n    {b.scalar} out[3];\n    {b.prefix}_euler(s, out);\n"
+           "    for (int i = 0; i < 3; i++) { rpy[i] = (float)out[i]; }\n}\n" if b.has_euler else ""))
 
 
 # --------------------------------------------------------------------------------------
@@ -224,11 +231,13 @@ def cflags_for(cpu: str, opt: str) -> list[str]:
 
 
 def build(b: FilterBinding, workdir: Path, opt: str = "-O2", cpu: str = "cortex-m4f",
-          extra_main: str | None = None) -> Build:
+          extra_main: str | None = None, pinned_libm: bool = False, reuse: Build | None = None) -> Build:
     """Compile the filter and the harness for the target and link the test image.
 
     The filter's sources compile with the same strict warnings as on the host (-Werror).
     ``extra_main`` replaces harness_main.c (used for the footprint images).
+    ``pinned_libm`` force-includes target/libm_pinned.h into the filter (identity check only).
+    ``reuse``: link the filter objects of an earlier build instead of compiling them again.
     """
     workdir = Path(workdir)
     workdir.mkdir(parents=True, exist_ok=True)
@@ -236,13 +245,18 @@ def build(b: FilterBinding, workdir: Path, opt: str = "-O2", cpu: str = "cortex-
     flags = cflags_for(cpu, opt)
     incs = [f"-I{workdir}", f"-I{TARGET_DIR}", *[f"-I{d}" for d in b.include_dirs]]
     objs, filt_objs, sus = [], [], []
-    for src in b.sources:
+    for src in ([] if reuse is not None else b.sources):
         obj = workdir / (Path(src).stem + ".o")
-        _run(["arm-none-eabi-gcc", *flags, *incs, "-fstack-usage", "-c", str(src), "-o", str(obj)],
+        pin = ["-include", str(PINNED_LIBM_H)] if pinned_libm else []
+        _run(["arm-none-eabi-gcc", *flags, *incs, *pin, "-fstack-usage", "-c", str(src), "-o", str(obj)],
              cwd=workdir)
         objs.append(obj)
         filt_objs.append(obj)
         sus.append(obj.with_suffix(".su"))
+    if reuse is not None:
+        objs += reuse.filter_objects
+        filt_objs += reuse.filter_objects
+        sus += reuse.stack_usage_files[:len(reuse.filter_objects)]
     main_src = extra_main or str(TARGET_DIR / "harness_main.c")
     for src in [str(TARGET_DIR / "startup.c"), str(TARGET_DIR / "semihost.c"),
                 str(workdir / "filter_glue.c"), main_src]:
@@ -282,6 +296,18 @@ class TargetRun:
     ticks: int                # SysTick ticks spent in glue_step (whole run)
     icount_shift: int | None
     console: str
+    step_ticks: np.ndarray | None = None   # (N,) SysTick ticks around each glue_step call
+    stack_below_main: int | None = None    # deepest stack use of glue_step (+ filter) over the run
+
+    def glue_instructions_icount(self) -> np.ndarray | None:
+        """Per step: instructions between the two SysTick reads (the glue_step call and a
+        few harness instructions), exact under -icount when there are more than 2 ticks
+        per instruction (shift >= 7 with the 25 MHz SysTick): each count is the nearest
+        integer to ticks * 40 ns / 2**shift."""
+        if self.icount_shift is None or self.step_ticks is None:
+            return None
+        per_insn = (2 ** self.icount_shift) * SYSTICK_HZ / 1e9       # ticks per instruction
+        return np.rint(self.step_ticks / per_insn).astype(np.int64)
 
     @property
     def instructions_per_step_icount(self) -> float | None:
@@ -318,20 +344,21 @@ def run_qemu(elf: Path, records: np.ndarray, workdir: Path, icount_shift: int | 
     console = p.stdout + p.stderr
     if p.returncode != 0:
         raise RuntimeError(f"target image exited with {p.returncode}: {console.strip()}")
-    m = re.search(r"AHRS_DONE n=0x([0-9a-f]+) ticks=0x([0-9a-f]{8})0x([0-9a-f]{8}) state_bytes=0x([0-9a-f]+)",
-                  console)
+    m = re.search(r"AHRS_DONE n=0x([0-9a-f]+) ticks=0x([0-9a-f]{8})0x([0-9a-f]{8}) state_bytes=0x([0-9a-f]+)"
+                  r" stack=0x([0-9a-f]+)", console)
     if not m:
         raise RuntimeError(f"target image did not report completion: {console.strip()!r}")
     n = int(m.group(1), 16)
     ticks = (int(m.group(2), 16) << 32) | int(m.group(3), 16)
     sbytes = int(m.group(4), 16)
-    words = 1 + (sbytes + 3) // 4
+    words = 2 + (sbytes + 3) // 4
     raw = np.fromfile(out, dtype="<u4")
     if raw.size != n * words or n != len(records):
         raise RuntimeError(f"target output has {raw.size} words, expected {len(records)} x {words}")
     raw = raw.reshape(n, words)
-    state = raw[:, 1:].copy().view(np.uint8)[:, :sbytes]
-    return TargetRun(raw[:, 0].copy(), state, sbytes, ticks, icount_shift, console)
+    state = raw[:, 2:].copy().view(np.uint8)[:, :sbytes]
+    return TargetRun(raw[:, 0].copy(), state, sbytes, ticks, icount_shift, console, raw[:, 1].copy(),
+                     int(m.group(5), 16))
 
 
 # --------------------------------------------------------------------------------------
@@ -512,6 +539,12 @@ int main(void)
 #ifndef FP_BASELINE
     glue_init(&g_s);
     g_sink = glue_step(&g_s, &r);
+#ifdef GLUE_HAS_EULER
+    float rpy[3];
+    glue_euler(&g_s, rpy);
+    memcpy((void *)&r, rpy, sizeof rpy);
+    g_sink += r.valid;
+#endif
 #else
     g_sink = r.valid + (uint32_t)sizeof(g_s) * 0u;
 #endif
@@ -678,32 +711,66 @@ class Footprint:
     opt: str
     cpu: str
     flash_bytes: int             # increase of (text + rodata + .data image) over the baseline image
+    own_code_bytes: int          # of which the filter's own functions and constants (init, step, euler)
     ram_static_bytes: int        # increase of (.data + .bss) over the baseline image, state included
     state_bytes: int             # sizeof(state struct)
     object_sections: dict        # the filter's own objects: text / rodata / data / bss
     stack_bytes: int             # static worst case of step (frames x call graph)
     stack_path: list[str]
-    stack_measured_bytes: int    # deepest stack touched by step over the scenario (unicorn)
-    instructions_mean: float     # per step, over the steps of the scenario run in unicorn
+    stack_measured_bytes: int    # deepest stack touched by step over the scenario (stack painting)
+    instructions_mean: float     # per step of <prefix>_step (callees included), whole scenario
     instructions_min: int
     instructions_max: int
-    instructions_icount: float | None   # QEMU -icount + SysTick, glue included (cross-check)
+    instructions_steps: int      # steps the figures cover
+    instructions_source: str     # "qemu-icount (checked against unicorn on N steps)" or "unicorn"
+    instructions_crosscheck_exact: bool | None  # QEMU and unicorn agree on every common step
     library_calls: list[str]     # functions outside the filter's objects reached from step
     double_helpers: list[str]    # soft-double helpers reachable from step (should be empty)
     flags: list[str]
 
 
+def step_instructions(counts: StepCounts | None, run: TargetRun | None) -> dict:
+    """Instructions per step for the whole run.
+
+    unicorn counts <prefix>_step exactly (entry to return) on the first steps; QEMU under
+    -icount counts, for every step, glue_step plus the few harness instructions between the
+    two SysTick reads (2 at -O2, 7 at -Os with gcc 12).  The glue's share and the harness
+    window are data-independent, so step = QEMU count - window - share, both taken from the
+    steps the two emulators ran in common, where the difference must be one constant while
+    the step counts themselves vary; otherwise only the unicorn figures are reported."""
+    out = {"instructions_mean": float("nan"), "instructions_min": -1, "instructions_max": -1,
+           "instructions_steps": 0, "instructions_source": "none", "instructions_crosscheck_exact": None}
+    if counts is not None and len(counts.instructions):
+        u = counts.instructions
+        out.update(instructions_mean=float(u.mean()), instructions_min=int(u.min()), instructions_max=int(u.max()),
+                   instructions_steps=int(len(u)), instructions_source="unicorn")
+    q = run.glue_instructions_icount() if run is not None else None
+    if q is None or counts is None or not len(counts.instructions):
+        return out
+    k = len(counts.instructions)
+    share = counts.glue_instructions - counts.instructions
+    window = np.unique(q[:k] - counts.glue_instructions)   # harness code between the SysTick reads
+    exact = len(window) == 1 and 0 <= int(window[0]) <= 16 and len(np.unique(share)) == 1
+    out["instructions_crosscheck_exact"] = exact
+    if exact:
+        steps = q - int(window[0]) - int(share[0])
+        out.update(instructions_mean=float(steps.mean()), instructions_min=int(steps.min()),
+                   instructions_max=int(steps.max()), instructions_steps=int(len(steps)),
+                   instructions_source=f"qemu-icount, equal to unicorn on the first {k} steps")
+    return out
+
+
 def footprint(b: FilterBinding, build_: Build, counts: StepCounts | None = None,
-              icount: float | None = None) -> Footprint:
+              run: TargetRun | None = None) -> Footprint:
     """Sizes of the filter in one build (links a footprint image and a baseline)."""
     wd = build_.workdir / "footprint"
     wd.mkdir(exist_ok=True)
     main_c = wd / "fp_main.c"
     main_c.write_text(FOOTPRINT_MAIN)
-    with_f = build(b, wd / "with", build_.opt, build_.cpu, extra_main=str(main_c))
+    with_f = build(b, wd / "with", build_.opt, build_.cpu, extra_main=str(main_c), reuse=build_)
     base_main = wd / "fp_base.c"
     base_main.write_text("#define FP_BASELINE 1\n" + FOOTPRINT_MAIN)
-    base = build(b, wd / "base", build_.opt, build_.cpu, extra_main=str(base_main))
+    base = build(b, wd / "base", build_.opt, build_.cpu, extra_main=str(base_main), reuse=build_)
     f1, r1 = image_flash_ram(with_f.elf)
     f0, r0 = image_flash_ram(base.elf)
 
@@ -713,37 +780,47 @@ def footprint(b: FilterBinding, build_: Build, counts: StepCounts | None = None,
         for k, v in object_sections(o).items():
             objsec[k] += v
         nm = _run(["arm-none-eabi-nm", "--defined-only", str(o)]).stdout
-        own_funcs |= {ln.split()[-1] for ln in nm.splitlines() if ln.split()[1:2] and ln.split()[1] in "tT"}
+        own_funcs |= {ln.split()[-1] for ln in nm.splitlines() if ln.split()[1:2] and ln.split()[1] in "tTrR"}
+
+    own_code = 0   # the filter's own functions and constants that the linked image keeps
+    for ln in _run(["arm-none-eabi-nm", "-S", "--defined-only", str(with_f.elf)]).stdout.splitlines():
+        parts = ln.split()
+        if len(parts) == 4 and parts[2] in "tTrR" and parts[3] in own_funcs:
+            own_code += int(parts[1], 16)
 
     funcs = disassemble_functions(build_.elf)
     su = parse_stack_usage(build_.stack_usage_files)
     ws = worst_stack(b.step_fn, funcs, su)
+    # Measured stack of step: deepest painted word in QEMU over the whole run, less the
+    # glue's own frame (GCC's figure), and unicorn's painting over its steps; the larger.
+    measured_stack = counts.stack_bytes if counts is not None else -1
+    if run is not None and run.stack_below_main is not None and "glue_step" in su:
+        measured_stack = max(measured_stack, run.stack_below_main - su["glue_step"][0])
     lib = [f for f in ws["reachable"] if f not in own_funcs]
     dbl = [f for f in ws["reachable"] if _DOUBLE_HELPER.match(f)]
     state_bytes = b.state_size if b.state_size is not None else 0
     return Footprint(
         filter=b.name, opt=build_.opt, cpu=build_.cpu,
-        flash_bytes=f1 - f0, ram_static_bytes=r1 - r0, state_bytes=state_bytes,
+        flash_bytes=f1 - f0, own_code_bytes=own_code, ram_static_bytes=r1 - r0, state_bytes=state_bytes,
         object_sections=objsec, stack_bytes=ws["bytes"], stack_path=ws["path"],
-        stack_measured_bytes=counts.stack_bytes if counts is not None else -1,
-        instructions_mean=float(counts.instructions.mean()) if counts is not None else float("nan"),
-        instructions_min=int(counts.instructions.min()) if counts is not None else -1,
-        instructions_max=int(counts.instructions.max()) if counts is not None else -1,
-        instructions_icount=icount, library_calls=lib, double_helpers=dbl, flags=build_.cflags,
+        stack_measured_bytes=measured_stack,
+        **step_instructions(counts, run), library_calls=lib, double_helpers=dbl, flags=build_.cflags,
     )
 
 
 def format_table(rows: list[Footprint]) -> str:
-    hdr = ("| filter | build | flash B | static RAM B | state B | stack B (static / measured) "
-           "| instr/step mean (min-max) | QEMU icount | libm & helpers |")
-    sep = "|" + "---|" * 9
+    """Markdown table of footprints (library column: entry points only, no __internals)."""
+    hdr = ("| filter | build | flash B (own code) | static RAM B (state) | stack B static / measured "
+           "| instructions/step mean (min-max) | library functions |")
+    sep = "|" + "---|" * 7
     lines = [hdr, sep]
     for r in rows:
-        ic = f"{r.instructions_icount:.0f}" if r.instructions_icount is not None else "-"
+        own = r.own_code_bytes
+        libs = [f for f in r.library_calls if not f.startswith("__")]
         lines.append(
-            f"| {r.filter} | {r.opt} | {r.flash_bytes} | {r.ram_static_bytes} | {r.state_bytes} "
+            f"| {r.filter} | {r.opt} | {r.flash_bytes} ({own}) | {r.ram_static_bytes} ({r.state_bytes}) "
             f"| {r.stack_bytes} / {r.stack_measured_bytes} | {r.instructions_mean:.0f} "
-            f"({r.instructions_min}-{r.instructions_max}) | {ic} | {', '.join(r.library_calls) or '-'} |")
+            f"({r.instructions_min}-{r.instructions_max}) | {', '.join(libs) or '-'} |")
     return "\n".join(lines)
 
 
@@ -765,11 +842,12 @@ class TargetResult:
 
 def check_filter(b: FilterBinding, records: np.ndarray, workdir: Path | None = None,
                  opt: str = "-O2", cpu: str = "cortex-m4f",
-                 count_steps: int | None = 400) -> TargetResult:
+                 count_steps: int | None = 50) -> TargetResult:
     """Build for the target, run in QEMU, count in unicorn, measure the footprint.
 
-    ``count_steps`` limits the unicorn run (exact per-step counts for the first steps;
-    None = all).  The QEMU run always covers every record.
+    ``count_steps`` limits the unicorn run (exact counts and stack painting on the first
+    steps; None = all).  The QEMU run always covers every record and gives the per-step
+    counts of the whole run once it agrees with unicorn on the common steps.
     """
     require_tools()
     workdir = Path(workdir or tempfile.mkdtemp(prefix=f"ahrsgen-target-{b.name}-"))
@@ -781,7 +859,7 @@ def check_filter(b: FilterBinding, records: np.ndarray, workdir: Path | None = N
     sub = records if count_steps is None else records[:count_steps]
     emu = Emulator(bld.elf)
     counts = emu.count_steps(b.step_fn, sub, run.state_bytes)
-    fp = footprint(b, bld, counts, run.instructions_per_step_icount)
+    fp = footprint(b, bld, counts, run)
     return TargetResult(bld, run, counts, fp)
 
 
@@ -804,7 +882,7 @@ def binding_from_generated(gen_dir: str | Path) -> FilterBinding:
         input_fields={r: f for r, f in roles.items() if f in in_names},
         state_size=st["size"],
         state_fields={f["name"]: (f["offset"], f["count"]) for f in st["fields"] if f["type"] == "real"},
-        scalar=real,
+        scalar=real, has_euler=True,
     )
 
 
@@ -820,31 +898,84 @@ def generate(filter_name: str, out_dir: Path, config_file=None, sets=None, prefi
 class HostComparison:
     steps: int
     status_equal: bool
+    status_common_equal: bool     # the shared input-check bits (below FILTER_BASE) agree
     identical_steps: int          # steps whose whole state struct is bit-identical
     first_difference: int | None  # first step with any differing state byte (None: none)
     max_abs_q: float              # max |q_target - q_host| over all steps and components
     max_angle_deg: float          # max rotation angle between the two attitudes, degrees
     max_abs_state: float          # max |difference| over every real state field
     final_state_identical: bool
+    pinned_libm: bool = False
+    rms_target_deg: dict | None = None   # accuracy vs truth (roll/pitch/yaw RMS after settling)
+    rms_host_deg: dict | None = None
+    max_rms_difference_deg: float | None = None
 
 
-def compare_with_host(gen_dir: Path, b: FilterBinding, log, run: TargetRun) -> HostComparison:
-    """Step the host float build (firmware_sim/host.py, ctypes) through the same float32
-    inputs and compare status and the whole state struct after every step."""
-    from firmware_sim.host import HostFilter
-    host = HostFilter(gen_dir)
-    if host.real != "float":
-        raise ValueError("the target comparison needs the float build")
+class _HostStepper:
+    """The host float build of a generated filter (firmware_sim/host.py's compile_shared and
+    ctypes structs from the manifest), stepped one sample at a time so that the whole state
+    struct can be read after every step."""
+
+    def __init__(self, gen_dir: Path, pinned_libm: bool = False):
+        from firmware_sim import host
+        man = json.loads((Path(gen_dir) / "manifest.json").read_text())
+        if man["precision"] != "float":
+            raise ValueError("the target comparison needs the float build")
+        if pinned_libm:
+            self._tmp = tempfile.TemporaryDirectory(prefix="ahrsgen-pinned-")
+            lib = self._compile_pinned(host, Path(gen_dir), man, Path(self._tmp.name))
+        else:
+            lib = host.compile_shared(Path(gen_dir))   # the product's host build, as is
+        self.lib = ctypes.CDLL(str(lib))
+        st = man["structs"]
+        self.State = host.ctypes_struct("State", st["state"], "float")
+        self.input_dtype = host.numpy_dtype(st["input"], "float")
+        self.lib.ahrs_step.restype = ctypes.c_uint32
+        self.lib.ahrs_step.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_float]
+        self.lib.ahrs_init.argtypes = [ctypes.c_void_p]
+
+    @staticmethod
+    def _compile_pinned(host, gen_dir: Path, man: dict, out: Path) -> Path:
+        """Host build with the pinned libm forced into the filter's translation unit only
+        (batch.c sets _POSIX_C_SOURCE before its own includes and must not get it)."""
+        defines = [f"-DAHRS_PREFIX={man['prefix']}", f'-DAHRS_HEADER="{man["files"]["header"]}"',
+                   "-DAHRS_REAL=float"]
+        flags = [*host.STRICT, *host.HOST_FLAGS, f"-I{gen_dir}", *defines]
+        objs = []
+        for src, pin in ((gen_dir / man["files"]["source"], True), (host.C_DIR / "batch.c", False)):
+            obj = out / (src.stem + ".o")
+            extra = ["-include", str(PINNED_LIBM_H)] if pin else []
+            _run([host.cc(), *flags, *extra, "-c", str(src), "-o", str(obj)])
+            objs.append(str(obj))
+        lib = out / f"lib{man['prefix']}_pinned.so"
+        _run([host.cc(), "-shared", "-o", str(lib), *objs, "-lm"])
+        return lib
+
+    def run(self, rec: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        n = len(rec)
+        inp = np.zeros(n, dtype=self.input_dtype)
+        inp["gyro"], inp["accel"], inp["mag"] = rec["gyro"], rec["accel"], rec["mag"]
+        inp["gps_vel_ned"], inp["valid"] = rec["gps_vel"], rec["valid"]
+        s = self.State()
+        self.lib.ahrs_init(ctypes.addressof(s))
+        size = ctypes.sizeof(self.State)
+        states = np.zeros((n, size), np.uint8)
+        status = np.zeros(n, np.uint32)
+        base, isz = inp.ctypes.data, self.input_dtype.itemsize
+        for k in range(n):
+            status[k] = self.lib.ahrs_step(ctypes.addressof(s), base + k * isz, float(rec["dt"][k]))
+            states[k] = np.frombuffer(ctypes.string_at(ctypes.addressof(s), size), np.uint8)
+        return status, states
+
+
+def compare_with_host(gen_dir: Path, b: FilterBinding, log, run: TargetRun,
+                      pinned_libm: bool = False) -> HostComparison:
+    """Step the host float build through the same float32 inputs the target saw and
+    compare status and the whole state struct after every step.  ``pinned_libm`` must
+    match the target build's."""
     rec = records_from_log(log)     # the exact float32 values the target saw
-    s = host.new_state()
+    h_status, h_state = _HostStepper(gen_dir, pinned_libm).run(rec)
     n = len(rec)
-    h_state = np.zeros((n, run.state_bytes), np.uint8)
-    h_status = np.zeros(n, np.uint32)
-    for k in range(n):
-        r = rec[k]
-        h_status[k] = host.step(s, r["gyro"], r["accel"], r["mag"], r["gps_vel"], int(r["valid"]),
-                                np.float32(r["dt"]))
-        h_state[k] = np.frombuffer(host.state_bytes(s), np.uint8)
     same = (h_state == run.state).all(axis=1)
     t = TargetRun(h_status, h_state, run.state_bytes, 0, None, "")
     q_t, q_h = run.field(b, "q").astype(float), t.field(b, "q").astype(float)
@@ -860,13 +991,31 @@ def compare_with_host(gen_dir: Path, b: FilterBinding, log, run: TargetRun) -> H
             max_state = max(max_state, float(d.max()))
     return HostComparison(
         steps=n, status_equal=bool(np.array_equal(h_status, run.status)),
+        status_common_equal=bool(np.array_equal(h_status & _COMMON_STATUS_MASK, run.status & _COMMON_STATUS_MASK)),
         identical_steps=int(same.sum()),
         first_difference=None if same.all() else int(np.argmin(same)),
         max_abs_q=float(np.max(np.abs(q_t - q_h))) if n else 0.0,
         max_angle_deg=float(ang.max()) if n else 0.0,
         max_abs_state=max_state,
         final_state_identical=bool(same[-1]) if n else True,
+        pinned_libm=pinned_libm, **_accuracy(log, q_t, q_h),
     )
+
+
+def _accuracy(log, q_t: np.ndarray, q_h: np.ndarray) -> dict:
+    """RMS attitude error vs the log's truth for target and host (what a user judges)."""
+    if getattr(log, "q_true", None) is None:
+        return {}
+    from firmware_sim import metrics
+    try:
+        st = metrics.euler_stats(q_t, log.q_true, log.t, log.settle_time)
+        sh = metrics.euler_stats(q_h, log.q_true, log.t, log.settle_time)
+    except ValueError:
+        return {}
+    rt = {a: st[a]["rms"] for a in ("roll", "pitch", "yaw")}
+    rh = {a: sh[a]["rms"] for a in ("roll", "pitch", "yaw")}
+    return {"rms_target_deg": rt, "rms_host_deg": rh,
+            "max_rms_difference_deg": max(abs(rt[a] - rh[a]) for a in rt)}
 
 
 # --------------------------------------------------------------------------------------
@@ -877,6 +1026,47 @@ def compare_with_host(gen_dir: Path, b: FilterBinding, log, run: TargetRun) -> H
 DEFAULT_SCENARIO = {"qcf": "fixedwing_gps", "mekf": "fixedwing_gps",
                     "adukf": "static_mag_disturbance", "cpf": "turntable"}
 DEFAULT_TOLERANCE_DEG = 1e-3
+# Filters whose run is a random process by design: the particle filter resamples, so a
+# 1-ulp difference between newlib's and glibc's logf/cosf/expf picks different particles and
+# the trajectories part (by tenths of a degree) while both stay equally accurate.  For them
+# the real-libm check compares accuracy against the truth instead of trajectories; the
+# pinned-libm run must still be bit-identical.
+STOCHASTIC_FILTERS = {"cpf": "particle resampling amplifies 1-ulp libm differences"}
+ACCURACY_TOLERANCE_DEG = 0.1
+_COMMON_STATUS_MASK = (1 << 12) - 1    # generator/status.py: bits below FILTER_BASE
+
+
+def judge(filter_name: str, real: dict, pinned: dict | None, tolerance_deg: float = DEFAULT_TOLERANCE_DEG
+          ) -> tuple[bool, str]:
+    """PASS/FAIL of one build's comparison with the host, with the reason in words."""
+    parts, ok = [], True
+    if pinned is not None:
+        same = pinned["identical_steps"] == pinned["steps"] and pinned["status_equal"]
+        ok &= same
+        parts.append("pinned libm: bit-identical in every step" if same else
+                     f"pinned libm: DIFFERS from step {pinned['first_difference']} "
+                     f"(max {pinned['max_angle_deg']:.3g} deg)")
+    if real["identical_steps"] == real["steps"]:
+        parts.append("real libm: bit-identical in every step")
+        ok &= real["status_equal"]
+    elif filter_name in STOCHASTIC_FILTERS:
+        d = real.get("max_rms_difference_deg")
+        good = d is not None and d <= ACCURACY_TOLERANCE_DEG and real["status_common_equal"]
+        ok &= good
+        parts.append(f"real libm: trajectories part from step {real['first_difference']} "
+                     f"(max {real['max_angle_deg']:.3g} deg; {STOCHASTIC_FILTERS[filter_name]}); "
+                     f"RMS error vs truth differs by {d if d is None else f'{d:.3g}'} deg "
+                     f"(bound {ACCURACY_TOLERANCE_DEG:g} deg)")
+    else:
+        good = real["status_equal"] and real["max_angle_deg"] <= tolerance_deg
+        ok &= good
+        parts.append(f"real libm: bit-identical in {real['identical_steps']}/{real['steps']} steps, first "
+                     f"difference at step {real['first_difference']}, max attitude difference "
+                     f"{real['max_angle_deg']:.3g} deg (bound {tolerance_deg:g} deg)")
+    if not real["status_equal"]:
+        parts.append("status codes DIFFER" if not real["status_common_equal"] else
+                     "filter-specific status bits differ")
+    return ok, "; ".join(parts)
 
 
 def toolchain_versions() -> dict:
@@ -896,8 +1086,8 @@ def toolchain_versions() -> dict:
 
 def check_generated(filter_name: str, opts=OPT_LEVELS, cpu: str = "cortex-m4f", scenario: str | None = None,
                     seed: int = 0, scenario_options: dict | None = None, config_file=None, sets=None,
-                    prefix=None, workdir: Path | None = None, count_steps: int | None = 20000,
-                    log=None) -> list[dict]:
+                    prefix=None, workdir: Path | None = None, count_steps: int | None = 50,
+                    log=None, pinned: bool = True, tolerance_deg: float = DEFAULT_TOLERANCE_DEG) -> list[dict]:
     """Generate (float), cross-build at each optimisation level, run on the target, compare
     with the host float build, measure the footprint.  One dict per build."""
     from firmware_sim import scenarios
@@ -910,40 +1100,34 @@ def check_generated(filter_name: str, opts=OPT_LEVELS, cpu: str = "cortex-m4f", 
         log = scenarios.make(scen, seed=seed, **(scenario_options or {}))
     rec = records_from_log(log)
     results = []
-    host_cmp = None
-    for opt in opts:
+    for i, opt in enumerate(opts):
         r = check_filter(b, rec, workdir, opt=opt, cpu=cpu, count_steps=count_steps)
-        cmp_ = compare_with_host(gen_dir, b, log, r.run)
-        host_cmp = cmp_
+        cmp_ = asdict(compare_with_host(gen_dir, b, log, r.run))
+        pin = None
+        if pinned and i == 0:
+            pb = build(b, workdir / f"{b.name}-{opt.lstrip('-')}-pinned", opt, cpu, pinned_libm=True)
+            prun = run_qemu(pb.elf, rec, pb.workdir, icount_shift=None)
+            pin = asdict(compare_with_host(gen_dir, b, log, prun, pinned_libm=True))
+        ok, verdict = judge(filter_name, cmp_, pin, tolerance_deg)
         results.append({"filter": filter_name, "opt": opt, "cpu": cpu, "scenario": log.name, "seed": seed,
                         "steps": len(rec), "counted_steps": int(len(r.counts.instructions)),
-                        "footprint": asdict(r.footprint), "host_comparison": asdict(cmp_),
+                        "footprint": asdict(r.footprint), "host_comparison": cmp_,
+                        "pinned_libm_comparison": pin, "pass": ok, "verdict": verdict,
                         "workdir": str(r.build.workdir)})
-    del host_cmp
     return results
 
 
-def _print_results(results: list[dict], tolerance_deg: float) -> bool:
-    ok = True
+def _print_results(results: list[dict]) -> bool:
     rows = [Footprint(**r["footprint"]) for r in results]
     print(format_table(rows))
     print()
     for r in results:
-        c = r["host_comparison"]
-        same = c["identical_steps"] == c["steps"]
-        good = c["status_equal"] and c["max_angle_deg"] <= tolerance_deg
-        ok &= good
-        verdict = ("bit-identical in every step" if same else
-                   f"bit-identical in {c['identical_steps']}/{c['steps']} steps (first difference at step "
-                   f"{c['first_difference']}); max attitude difference {c['max_angle_deg']:.3g} deg, "
-                   f"max |state difference| {c['max_abs_state']:.3g}")
-        print(f"{r['filter']} {r['opt']}: target vs host float build on {r['scenario']} "
-              f"({r['steps']} steps): {verdict}; status codes {'identical' if c['status_equal'] else 'DIFFER'}"
-              f" -> {'PASS' if good else 'FAIL'} (bound {tolerance_deg:g} deg)")
+        print(f"{r['filter']} {r['opt']}: target vs host float build on {r['scenario']} ({r['steps']} steps): "
+              f"{r['verdict']} -> {'PASS' if r['pass'] else 'FAIL'}")
         fp = r["footprint"]
         if fp["double_helpers"]:
             print(f"  WARNING: soft-double helpers reachable from step: {', '.join(fp['double_helpers'])}")
-    return ok
+    return all(r["pass"] for r in results)
 
 
 def cmd_target(args) -> int:
@@ -967,16 +1151,22 @@ def cmd_target(args) -> int:
         except ValueError:
             sopts[k] = v
     results = []
-    for n in names:
-        try:
-            results += check_generated(n, opts, args.cpu, args.scenario, args.seed, sopts, args.config, args.set,
-                                       args.prefix, Path(args.workdir) / n if args.workdir else None,
-                                       None if args.count_steps == 0 else args.count_steps)
-        except KeyError as e:
-            raise ConfigError(str(e.args[0])) from None
+    with tempfile.TemporaryDirectory(prefix="ahrsgen-target-") as tmp:
+        root = Path(args.workdir) if args.workdir else Path(tmp)
+        for n in names:
+            try:
+                results += check_generated(n, opts, args.cpu, args.scenario, args.seed, sopts, args.config,
+                                           args.set, args.prefix, root / n,
+                                           None if args.count_steps == 0 else args.count_steps,
+                                           pinned=not args.no_pinned, tolerance_deg=args.tolerance)
+            except KeyError as e:
+                raise ConfigError(str(e.args[0])) from None
+    if not args.workdir:
+        for r in results:
+            r.pop("workdir", None)
     print(f"target {args.cpu}: {' '.join(CPUS[args.cpu])} {' '.join(MATH_FLAGS)}; "
           f"QEMU {QEMU_MACHINE}; instructions counted in unicorn (not cycles)")
-    ok = _print_results(results, args.tolerance)
+    ok = _print_results(results)
     doc = {"cpu": args.cpu, "cpu_flags": CPUS[args.cpu], "math_flags": MATH_FLAGS, "qemu_machine": QEMU_MACHINE,
            "tools": toolchain_versions(), "tolerance_deg": args.tolerance, "results": results}
     out = Path(args.json)
@@ -1004,10 +1194,13 @@ def register_cli(sub) -> None:
     p.add_argument("--seed", type=int, default=0, help="scenario seed (default 0)")
     p.add_argument("--scenario-opt", metavar="NAME=VALUE", action="append", default=[],
                    help="scenario option, e.g. duration=30 (repeatable)")
-    p.add_argument("--count-steps", type=int, default=20000, metavar="N",
-                   help="count instructions over the first N steps in the emulator (0 = all; default 20000)")
+    p.add_argument("--count-steps", type=int, default=50, metavar="N",
+                   help="steps also run in unicorn (exact instruction count cross-check); 0 = all; "
+                        "default 50. QEMU counts instructions and paints the stack over every step.")
     p.add_argument("--tolerance", type=float, default=DEFAULT_TOLERANCE_DEG, metavar="DEG",
                    help=f"largest allowed target-vs-host attitude difference (default {DEFAULT_TOLERANCE_DEG:g} deg)")
+    p.add_argument("--no-pinned", action="store_true",
+                   help="skip the pinned-libm identity run (float libm evaluated through double on both sides)")
     p.add_argument("--json", default="build/target/target.json", metavar="FILE",
                    help="where to write the JSON report (default build/target/target.json)")
     p.add_argument("--workdir", metavar="DIR", help="keep build products here (default: a temporary directory)")

@@ -4,9 +4,11 @@
  *
  * Input (host file "ahrs_in.bin", read through semihosting): records of
  *   float gyro[3], accel[3], mag[3], gps_vel[3]; uint32_t valid; float dt   (56 bytes, LE)
- * Output (host file "ahrs_out.bin"): per record, uint32_t status then the raw bytes of the
- * filter's state struct after the step (padded to 4 bytes).
- * Console (semihosting): one line "AHRS_DONE n=<records> ticks=<SysTick ticks in step>".
+ * Output (host file "ahrs_out.bin"): per record, uint32_t status, uint32_t SysTick ticks
+ * spent in the step call, then the raw bytes of the filter's state struct after the step
+ * (padded to 4 bytes).
+ * Console (semihosting): one line "AHRS_DONE n=<records> ticks=<SysTick ticks in step>
+ * state_bytes=<sizeof state> stack=<deepest stack use below main's frame, bytes>".
  *
  * The filter is bound through "filter_glue.h", written by firmware_sim/target.py from the
  * generated filter's manifest: it defines glue_state, glue_init() and glue_step().
@@ -27,8 +29,11 @@
 #define SYST_RVR (*(volatile uint32_t *)0xE000E014u)
 #define SYST_CVR (*(volatile uint32_t *)0xE000E018u)
 
+#define STACK_PAINT 0xA5A5A5A5u
+extern uint32_t _sstack[]; /* lowest address of the stack (mps2_an386.ld) */
+
 static ahrs_record g_in[CHUNK];
-static uint32_t g_out[CHUNK * (1u + STATE_WORDS)];
+static uint32_t g_out[CHUNK * (2u + STATE_WORDS)];
 static glue_state g_state;
 
 int main(void)
@@ -42,6 +47,15 @@ int main(void)
     SYST_RVR = 0x00FFFFFFu;
     SYST_CVR = 0u;
     SYST_CSR = 0x5u; /* enable, core clock, no interrupt */
+
+    /* Paint the free stack below main's frame; after the run, the lowest overwritten word
+     * gives the deepest stack use of anything main called (glue_step and the filter, and
+     * the much shallower semihosting calls). */
+    uintptr_t sp;
+    __asm__ volatile("mov %0, sp" : "=r"(sp));
+    for (uint32_t *p = _sstack; (uintptr_t)p < sp - 64u; p++) {
+        *p = STACK_PAINT;
+    }
 
     glue_init(&g_state);
     uint32_t n_total = 0u;
@@ -66,8 +80,10 @@ int main(void)
             uint32_t t0 = SYST_CVR;
             uint32_t status = glue_step(&g_state, &g_in[i]);
             uint32_t t1 = SYST_CVR;
-            ticks += (uint64_t)((t0 - t1) & 0x00FFFFFFu); /* counts down */
+            uint32_t dt_ticks = (t0 - t1) & 0x00FFFFFFu; /* counts down */
+            ticks += (uint64_t)dt_ticks;
             *o++ = status;
+            *o++ = dt_ticks;
             memcpy(o, &g_state, sizeof g_state);
             o += STATE_WORDS;
         }
@@ -78,6 +94,12 @@ int main(void)
         }
         n_total += n;
     }
+    const uint32_t *low = _sstack;
+    while ((uintptr_t)low < sp && *low == STACK_PAINT) {
+        low++;
+    }
+    uint32_t stack_depth = (uint32_t)(sp - (uintptr_t)low);
+
     sh_close(fin);
     sh_close(fout);
     sh_puts("AHRS_DONE n=");
@@ -87,6 +109,8 @@ int main(void)
     sh_put_hex((uint32_t)ticks);
     sh_puts(" state_bytes=");
     sh_put_hex((uint32_t)sizeof g_state);
+    sh_puts(" stack=");
+    sh_put_hex(stack_depth);
     sh_puts("\n");
     return 0;
 }
