@@ -49,6 +49,11 @@ def ut_parameters(alpha, beta, kappa, n=N):
     return math.sqrt(n + lam), lam / (n + lam), lam / (n + lam) + 1 - alpha * alpha + beta, 1 / (2 * (n + lam))
 
 
+def normalize(v):
+    """v/|v| with one division: v * sqrt(1/|v|²) (CasADi keeps this a multiplication)."""
+    return v * ca.sqrt(1 / ca.sumsqr(v))
+
+
 def measurement(q, m_ref):
     """h(q) = [R(q)ᵀ(-ĝ); R(q)ᵀ m̂] with ĝ = [0, 0, 1] (NED down)."""
     return ca.vertcat(quat.rotate_inv(q, ca.DM([0.0, 0.0, -1.0])), quat.rotate_inv(q, m_ref))
@@ -82,22 +87,23 @@ class Model(FilterModel):
         p = self.params
         A = ca.SX.eye(N) + 0.5 * dt * omega_matrix(w)
         if not p["faithful"]:
-            A = A * (1 / ca.sqrt(1 + 0.25 * dt * dt * ca.sumsqr(w)))
-        Q = (p["gyro_noise"] ** 2 * dt / 4) * (ca.SX.eye(N) - ca.mtimes(q, q.T)) + p["q_floor"] * dt * ca.SX.eye(N)
+            # A / sqrt(1 + |ω|²dt²/4), written as a product with sqrt(1/x): one division
+            A = A * ca.sqrt(1 / (1 + 0.25 * dt * dt * ca.sumsqr(w)))
         qm = ca.mtimes(A, q)
+        Q = (p["gyro_noise"] ** 2 * 0.25 * dt) * (ca.SX.eye(N) - ca.mtimes(q, q.T)) + p["q_floor"] * dt * ca.SX.eye(N)
         Pm = linalg.symmetrize(ca.mtimes([A, P, A.T]) + Q)
-        return qm, quat.qnormalize(qm), Pm
+        return qm, normalize(qm), Pm
 
     def update_expr(self, qm, Pm, f, m, m_ref, use_a, use_m):
         p = self.params
         a, wm0, wc0, wi = ut_parameters(p["ut_alpha"], p["ut_beta"], p["ut_kappa"])
-        L, piv_p = linalg.cholesky(Pm, p["pivot_min"])
+        L, _, piv_p = linalg.cholesky_with_inverse(Pm, p["pivot_min"])
         chis = [qm] + [qm + a * L[:, i] for i in range(N)] + [qm - a * L[:, i] for i in range(N)]
         wm = [wm0] + [wi] * (2 * N)
         wc = [wc0] + [wi] * (2 * N)
-        Z = [measurement(quat.qnormalize(c), m_ref) for c in chis]
+        Z = [measurement(normalize(c), m_ref) for c in chis]
         zhat = sum((wm[i] * Z[i] for i in range(1, 2 * N + 1)), wm[0] * Z[0])
-        z = ca.vertcat(f / ca.sqrt(ca.sumsqr(f)), m / ca.sqrt(ca.sumsqr(m)))
+        z = ca.vertcat(normalize(f), normalize(m))
         eps = z - zhat
         sa2, sm2 = p["sigma_acc"] ** 2, p["sigma_mag"] ** 2
         R = [sa2 + p["k_a"] * eps[i] ** 2 for i in range(3)] + [sm2 + p["k_m"] * eps[i] ** 2 for i in range(3, 6)]
@@ -123,9 +129,9 @@ class Model(FilterModel):
                 Pxz_m[r, c] = ca.if_else(use[c], Pxz[r, c], 0.0)
             eps_m[c] = ca.if_else(use[c], eps[c], 0.0)
             r_used[c] = ca.if_else(use[c], R[c], 0.0)
-        Kt, piv_zz = linalg.spd_solve(Pzz_m, Pxz_m.T, p["pivot_min"])
+        Kt, piv_zz = linalg.spd_solve(Pzz_m, Pxz_m.T, p["pivot_min"], reciprocal=True)
         K = Kt.T
-        q_new = quat.qnormalize(qm + ca.mtimes(K, eps_m))
+        q_new = normalize(qm + ca.mtimes(K, eps_m))
         P_new = linalg.symmetrize(Pm - ca.mtimes([K, Pzz_m, K.T]))
         return q_new, P_new, r_used, ca.vertcat(piv_p, piv_zz)
 

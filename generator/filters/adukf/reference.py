@@ -60,6 +60,7 @@ STATUS_BITS = [
 ]
 
 N = 4
+_I4 = np.eye(N)
 
 
 def omega_matrix(w):
@@ -149,12 +150,12 @@ class Reference:
     def _check(self, v, bit_valid, valid, nonfinite, rng_bit, vmax, zero_bit, nmin):
         if not (valid & bit_valid):
             return False, 0
-        v = np.asarray(v, dtype=float)
-        if not np.all(np.isfinite(v)):
+        x, y, z = (float(c) for c in v)
+        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
             return False, nonfinite
-        if np.any(np.abs(v) > vmax):
+        if max(abs(x), abs(y), abs(z)) > vmax:
             return False, rng_bit
-        if np.linalg.norm(v) < nmin:
+        if math.sqrt(x * x + y * y + z * z) < nmin:
             return False, zero_bit
         return True, 0
 
@@ -168,9 +169,10 @@ class Reference:
         if not (valid & VALID_GYRO):
             return st.GYRO_MISSING
         w = np.asarray(gyro, dtype=float)
-        if not np.all(np.isfinite(w)):
+        wl = [float(c) for c in w]
+        if not all(math.isfinite(c) for c in wl):
             return st.GYRO_NONFINITE
-        if np.any(np.abs(w) > p["gyro_max"]):
+        if max(abs(c) for c in wl) > p["gyro_max"]:
             return st.GYRO_RANGE
         status = 0
         use_a, s = self._check(accel, VALID_ACCEL, valid, st.ACCEL_NONFINITE, st.ACCEL_RANGE,
@@ -214,28 +216,28 @@ class Reference:
         q_old, P_old = self.q.copy(), self.P.copy()
 
         # 1. time update
-        A = np.eye(N) + 0.5 * dt * omega_matrix(w)
+        A = _I4 + 0.5 * dt * omega_matrix(wl)
         if not p["faithful"]:
-            A = A / math.sqrt(1.0 + 0.25 * dt * dt * float(np.dot(w, w)))
+            A = A / math.sqrt(1.0 + 0.25 * dt * dt * (wl[0] ** 2 + wl[1] ** 2 + wl[2] ** 2))
         q = self.q
-        Q = (p["gyro_noise"] ** 2 * dt / 4.0) * (np.eye(N) - np.outer(q, q)) + p["q_floor"] * dt * np.eye(N)
+        Q = (p["gyro_noise"] ** 2 * dt / 4.0) * (_I4 - np.outer(q, q)) + p["q_floor"] * dt * _I4
         qm = A @ q
         Pm = A @ self.P @ A.T + Q
         Pm = 0.5 * (Pm + Pm.T)
         r_diag = np.zeros(6)
 
-        q_new, P_new = qm / np.linalg.norm(qm), Pm
+        q_new, P_new = qm / math.sqrt(float(qm @ qm)), Pm
         if use_a or use_m:
             L, piv = _chol(Pm)
             if not piv > p["pivot_min"]:
                 status |= COV_RESET
-                P_new = p["p0"] * np.eye(N)
+                P_new = p["p0"] * _I4
             else:
                 chis = np.vstack([qm, qm + self.a * L.T, qm - self.a * L.T])
                 Z = h_meas_batch(chis / np.linalg.norm(chis, axis=1, keepdims=True), self.m_ref)
                 zhat = self.wm @ Z
-                z = np.concatenate([f / np.linalg.norm(f) if use_a else np.zeros(3),
-                                    m / np.linalg.norm(m) if use_m else np.zeros(3)])
+                z = np.concatenate([f / math.sqrt(float(f @ f)) if use_a else np.zeros(3),
+                                    m / math.sqrt(float(m @ m)) if use_m else np.zeros(3)])
                 eps = z - zhat
                 R = np.concatenate([p["sigma_acc"] ** 2 + p["k_a"] * eps[:3] ** 2,
                                     p["sigma_mag"] ** 2 + p["k_m"] * eps[3:] ** 2])
@@ -255,12 +257,12 @@ class Reference:
                 else:
                     K = np.linalg.solve(Pzz, Pxz.T).T
                     qp = qm + K @ eps
-                    q_new = qp / np.linalg.norm(qp)
+                    q_new = qp / math.sqrt(float(qp @ qp))
                     P_new = Pm - K @ Pzz @ K.T
                     P_new = 0.5 * (P_new + P_new.T)
                     r_diag = np.where(mask, R, 0.0)
 
-        if not (np.all(np.isfinite(q_new)) and np.all(np.isfinite(P_new))):
+        if not (np.isfinite(q_new).all() and np.isfinite(P_new).all()):
             self.q, self.P = q_old, P_old
             self.r_diag = np.zeros(6)
             return status | NUMERIC_FAULT
