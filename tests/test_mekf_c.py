@@ -78,7 +78,8 @@ def test_float_c_close_to_double_without_drift(c_double, c_float, fw_log):
 
 
 @pytest.mark.parametrize("sets", [
-    ["centripetal_comp=false"],                                  # the patent as written
+    ["motion_comp=none"],                                        # the patent as written
+    ["motion_comp=gps_accel"],
     ["heading_source=mag", f"mag_declination={-4 * DEG!r}"],     # magnetometer heading
     ["accel_gate=1.0", "init_from_sensors=false"],
 ])

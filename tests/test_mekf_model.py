@@ -110,7 +110,7 @@ def _kernel_run(p, log):
             r = fp(q, b, P, g, dt)
             q, P = np.array(r[0]).ravel(), np.array(r[1]).ravel()
             mask = [1.0, float(course), float(age <= p["gps_vel_timeout"])]
-            r = fu(q, b, P, g, a, np.zeros(3), v, mask)
+            r = fu(q, b, P, g, a, np.zeros(3), v, np.zeros(3), mask)
             assert float(r[3]) > M.S_PIVOT_MIN
             q, b, P = (np.array(r[i]).ravel() for i in range(3))
         out[k] = q
@@ -139,5 +139,5 @@ def test_update_refuses_at_vertical_pitch():
     fu = M.update_function(p)
     P = np.array(M.initial_P(p))
     for q, usable in (([np.sqrt(0.5), 0, np.sqrt(0.5), 0], False), (list(q_from_euler(0.1, 1.5, 0.3)), True)):
-        r = fu(q, np.zeros(3), P, np.zeros(3), [-9.8, 0, 0], np.zeros(3), [20.0, 0, 0], [1.0, 1.0, 0.0])
+        r = fu(q, np.zeros(3), P, np.zeros(3), [-9.8, 0, 0], np.zeros(3), [20.0, 0, 0], np.zeros(3), [1.0, 1.0, 0.0])
         assert (float(r[3]) > M.S_PIVOT_MIN) == usable

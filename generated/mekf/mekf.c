@@ -723,9 +723,10 @@ static void mekf_k_predict(const float q[4], const float b[3], const float P[36]
 
 /* measurement update with row mask (steps 3-8)
  * ops: add 506, mul 577, div 66, sqrt 7, trig 6, cmp 17 (total 1179) */
-static void mekf_k_update(const float q[4], const float b[3], const float P[36], const float gyro[3], const float accel[3], const float mag[3], const float vel[3], const float mask[3], float q_out[4], float b_out[3], float P_out[36], float *min_pivot)
+static void mekf_k_update(const float q[4], const float b[3], const float P[36], const float gyro[3], const float accel[3], const float mag[3], const float vel[3], const float acc_n[3], const float mask[3], float q_out[4], float b_out[3], float P_out[36], float *min_pivot)
 {
     (void)mag;
+    (void)acc_n;
     const float tmp0 = q[0] * q[0];
     const float tmp1 = q[1] * q[1];
     const float tmp2 = tmp0 + tmp1;
@@ -2096,6 +2097,10 @@ void mekf_init(mekf_state *s)
     s->v_gps[1] = 0.0f;
     s->v_gps[2] = 0.0f;
     s->v_age = 1000.0f;
+    s->a_gps[0] = 0.0f;
+    s->a_gps[1] = 0.0f;
+    s->a_gps[2] = 0.0f;
+    s->a_ok = 0u;
     s->initialised = 0u;
 }
 
@@ -2143,7 +2148,7 @@ mekf_status mekf_step(mekf_state *s, const mekf_input *in, float dt)
     }
 
     /* MEKF step (patent CN102692225B). Masks select the measured rows: tilt (roll, pitch),
-     * heading (yaw) and the centripetal compensation; a masked row has no effect at all. */
+     * heading (yaw) and the motion compensation; a masked row has no effect at all. */
     float m_tilt = 0.0f;
     float m_head = 0.0f;
     float m_comp = 0.0f;
@@ -2206,7 +2211,7 @@ mekf_status mekf_step(mekf_state *s, const mekf_input *in, float dt)
             float P_upd[36];
             float min_pivot;
             mekf_k_update(q_pred, s->gyro_bias, P_pred, in->gyro, accel_in, mag_in,
-                                  s->v_gps, mask, q_upd, b_upd, P_upd, &min_pivot);
+                                  s->v_gps, s->a_gps, mask, q_upd, b_upd, P_upd, &min_pivot);
             if (min_pivot > 1e-12f) {
                 for (uint32_t i = 0u; i < 4u; i++) {
                     s->q[i] = q_upd[i];

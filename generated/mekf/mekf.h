@@ -13,7 +13,7 @@
  *     every IMU sample: fill a mekf_input (set a VALID bit only for sensors that
  *     delivered a new sample), then mekf_status s = mekf_step(&st, &in, dt);
  *     mekf_euler(&st, rpy);
- * No heap, no recursion; RAM is the state struct (192 bytes with the usual ABI).
+ * No heap, no recursion; RAM is the state struct (208 bytes with the usual ABI).
  */
 #ifndef MEKF_H
 #define MEKF_H
@@ -40,8 +40,8 @@ extern "C" {
 #define MEKF_COURSE_NOISE 0.05f        /* standard deviation of the GPS course as a heading (covers sideslip and wind crab) [rad] */
 #define MEKF_MAG_HEADING_NOISE 0.05f   /* standard deviation of the tilt-compensated magnetometer heading [rad] */
 #define MEKF_ACCEL_GATE 0.0f           /* if > 0, the roll/pitch rows are dropped while | |accel| - g | exceeds this (ACCEL_GATED); 0 = off, as the patent [m/s^2] */
-#define MEKF_CENTRIPETAL_COMP 1        /* remove the turn acceleration ω × v_b (GPS velocity in body axes) from the specific force before taking roll/pitch from it; false = the patent (gravity-only accelerometer) */
-#define MEKF_GPS_VEL_TIMEOUT 1.0f      /* the last GPS velocity is used for the centripetal compensation for at most this long [s] */
+/* MEKF_MOTION_COMP = centripetal   motion acceleration removed from the specific force before roll/pitch are taken from it: 'centripetal' = ω × v_b (gyro and GPS velocity in body axes; fixed-wing turns), 'gps_accel' = R(q)ᵀ a_n with a_n the difference of the last two GPS velocities (any motion, noisier, lagged by half a GPS period; multirotors), 'none' = the patent (gravity-only accelerometer) */
+#define MEKF_GPS_VEL_TIMEOUT 1.0f      /* the last GPS velocity (and GPS acceleration) is used for the motion compensation for at most this long; two GPS samples further apart than this give no acceleration [s] */
 #define MEKF_INIT_FROM_SENSORS 1       /* start from the first usable accelerometer sample (roll, pitch) and heading (yaw, or 0 if none); false: identity attitude at the first step, as the patent leaves the initial condition open */
 #define MEKF_P0_ATT 0.5f               /* initial attitude-error standard deviation per axis (P0 of δq is (p0_att/2)^2) [rad] */
 #define MEKF_P0_BIAS 0.01f             /* initial gyro-bias standard deviation per axis [rad/s] */
@@ -78,6 +78,8 @@ typedef struct {
     float P[36];          /* error-state covariance [dq, db] (6x6, symmetric) */
     float v_gps[3];       /* last valid GPS velocity NED, m/s */
     float v_age;          /* age of v_gps, s (stops counting at 1e3) */
+    float a_gps[3];       /* NED acceleration from the last two GPS velocities, m/s^2 (motion_comp = gps_accel) */
+    uint32_t a_ok;        /* 1 when a_gps comes from two samples at most gps_vel_timeout apart */
     uint32_t initialised; /* 1 once the attitude has been initialised */
 } mekf_state;
 

@@ -9,7 +9,7 @@ reference derives them by hand, independently).
 Kernels:
   <p>_predict  patent steps 1-2: q̂ ← normalise(q̂ ⊗ exp(½ (ω − b̂) dt)), P ← F P Fᵀ + G Q Gᵀ
   <p>_update   steps 3-8 with a row mask: measured angles (accelerometer tilt after the
-               optional centripetal compensation, GPS course or magnetic heading), wrapped
+               optional motion compensation, GPS course or magnetic heading), wrapped
                innovations, Cholesky gain, Joseph update, error injection and reset
   <p>_init     first attitude from the accelerometer tilt and the heading (if any)
 
@@ -113,13 +113,19 @@ def predict_function(p: dict, name="predict") -> ca.Function:
                          {"q_out": q_new, "P_out": flat_mirrored(P_new)})
 
 
-def measured_angles(p: dict, q, b, gyro, accel, mag, vel, m_comp):
-    """Step 3: [φ₂, θ₂, ψ₂] from the (compensated) accelerometer and the heading source."""
+def measured_angles(p: dict, q, b, gyro, accel, mag, vel, acc_n, m_comp):
+    """Step 3: [φ₂, θ₂, ψ₂] from the (compensated) accelerometer and the heading source.
+
+    f_b = dv_b/dt + ω × v_b − R(q)ᵀ g_n = R(q)ᵀ (a_n − g_n). 'centripetal' removes ω × v_b
+    (v_b = R(q)ᵀ v_gps), 'gps_accel' removes R(q)ᵀ a_n with a_n from GPS differences.
+    """
     f = accel
-    if p["centripetal_comp"]:
+    if p["motion_comp"] == "centripetal":
         w = gyro - b
         vb = quat.rotate_inv(q, vel)
         f = accel - m_comp * ca.cross(w, vb)
+    elif p["motion_comp"] == "gps_accel":
+        f = accel - m_comp * quat.rotate_inv(q, acc_n)
     roll_a, pitch_a = attitude.tilt_angles(f)
     if p["heading_source"] == "mag":
         est = quat.euler(q)
@@ -137,8 +143,9 @@ def update_function(p: dict, name="update") -> ca.Function:
     accel = ca.SX.sym("accel", 3)
     mag = ca.SX.sym("mag", 3)
     vel = ca.SX.sym("vel", 3)
-    mask = ca.SX.sym("mask", 3)     # [tilt rows, heading row, centripetal compensation] as 0/1
-    roll_a, pitch_a, yaw_m = measured_angles(p, q, b, gyro, accel, mag, vel, mask[2])
+    acc_n = ca.SX.sym("acc_n", 3)
+    mask = ca.SX.sym("mask", 3)     # [tilt rows, heading row, motion compensation] as 0/1
+    roll_a, pitch_a, yaw_m = measured_angles(p, q, b, gyro, accel, mag, vel, acc_n, mask[2])
     est = quat.euler(q)
     z = quat.wrap(ca.vertcat(roll_a, pitch_a, yaw_m) - est)                       # step 4
     H = jacobian_H(q)
@@ -157,7 +164,7 @@ def update_function(p: dict, name="update") -> ca.Function:
     sin_pitch = 2 * (q[0] * q[2] - q[1] * q[3])
     usable = ca.if_else(1 - sin_pitch * sin_pitch > COS2_PITCH_MIN, min_pivot, -1.0)
     return emit.function(name, {"q": q, "b": b, "P": Pv, "gyro": gyro, "accel": accel, "mag": mag,
-                                "vel": vel, "mask": mask},
+                                "vel": vel, "acc_n": acc_n, "mask": mask},
                          {"q_out": q_new, "b_out": b_new, "P_out": flat_mirrored(P_new),
                           "min_pivot": usable})
 
@@ -188,7 +195,7 @@ class Model(FilterModel):
         uses = ["accel"]
         if p["heading_source"] == "mag":
             uses.append("mag")
-        if p["heading_source"] == "gps_course" or p["centripetal_comp"]:
+        if p["heading_source"] == "gps_course" or p["motion_comp"] != "none":
             uses.append("gps")
         super().__init__(params, sensors=tuple(uses), extra_status=list(EXTRA_STATUS))
 
@@ -199,6 +206,8 @@ class Model(FilterModel):
             StateField("P", N * N, "error-state covariance [dq, db] (6x6, symmetric)", initial_P(self.params)),
             StateField("v_gps", 3, "last valid GPS velocity NED, m/s", 0.0),
             StateField("v_age", 1, "age of v_gps, s (stops counting at 1e3)", AGE_MAX),
+            StateField("a_gps", 3, "NED acceleration from the last two GPS velocities, m/s^2 (motion_comp = gps_accel)", 0.0),
+            StateField("a_ok", 1, "1 when a_gps comes from two samples at most gps_vel_timeout apart", 0, "uint32"),
             StateField("initialised", 1, "1 once the attitude has been initialised", 0 if self.params["init_from_sensors"] else 1, "uint32"),
         ]
 
@@ -215,5 +224,5 @@ class Model(FilterModel):
 
     def template_context(self) -> dict:
         p = self.params
-        return {"n": N, "heading_source": p["heading_source"], "centripetal_comp": p["centripetal_comp"],
+        return {"n": N, "heading_source": p["heading_source"], "motion_comp": p["motion_comp"],
                 "s_pivot_min": S_PIVOT_MIN, "age_max": AGE_MAX, "g0": G0}

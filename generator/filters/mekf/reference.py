@@ -120,7 +120,7 @@ class Reference:
         self.mag_heading_noise = float(p["mag_heading_noise"])
         self.accel_gate = float(p["accel_gate"])
         self.init_from_sensors = bool(p["init_from_sensors"])
-        self.centripetal_comp = bool(p["centripetal_comp"])
+        self.motion_comp = str(p["motion_comp"])
         self.gps_vel_timeout = float(p["gps_vel_timeout"])
         self.p0_att = float(p["p0_att"])
         self.p0_bias = float(p["p0_bias"])
@@ -128,7 +128,7 @@ class Reference:
         self.accel_max = float(p["accel_max"])
         self.mag_max = float(p["mag_max"])
         # the step reads GPS only when something uses it (heading or compensation)
-        self.uses_gps = self.heading_source == "gps_course" or self.centripetal_comp
+        self.uses_gps = self.heading_source == "gps_course" or self.motion_comp != "none"
 
         self.q = np.array([1.0, 0.0, 0.0, 0.0])
         self.gyro_bias = np.zeros(3)
@@ -136,6 +136,8 @@ class Reference:
         self.initialised = not self.init_from_sensors
         self.v_gps = np.zeros(3)          # last valid GPS velocity (NED) for the motion compensation
         self.v_age = AGE_MAX              # its age, s (AGE_MAX: none yet)
+        self.a_gps = np.zeros(3)          # NED acceleration from the last two GPS velocities
+        self.a_ok = False                 # ... when they were at most gps_vel_timeout apart
 
     # ------------------------------------------------------------------------------
     def step(self, gyro, accel, mag, gps_vel, valid: int, dt: float) -> int:
@@ -194,16 +196,24 @@ class Reference:
             else:
                 mag_ok = True
 
-        # --- last GPS velocity, for the centripetal compensation (age saturates at 1e3 s) -
-        v_age = self.v_age
+        # --- last GPS velocity and GPS acceleration, for the motion compensation ----------
+        v_age = self.v_age                # (age saturates at AGE_MAX)
         v_gps = self.v_gps
+        a_gps, a_ok = self.a_gps, self.a_ok
         if gps_fresh:
+            if self.motion_comp == "gps_accel":
+                tau = v_age + dt          # time since the previous GPS sample
+                if tau <= self.gps_vel_timeout:
+                    a_gps, a_ok = (v - v_gps) / tau, True
+                else:
+                    a_ok = False
             v_gps = v.copy()
             v_age = 0.0
         elif v_age < AGE_MAX:
             v_age = v_age + dt
 
         # --- initialisation from the first usable accelerometer sample ------------------
+        self.a_gps, self.a_ok = a_gps, a_ok
         if not self.initialised:
             self.v_gps, self.v_age = v_gps, v_age
             if not use_tilt:
@@ -232,11 +242,14 @@ class Reference:
         est = euler_from_q(q)
         rows, z, r = [], [], []
         if use_tilt:
-            if self.centripetal_comp and v_age <= self.gps_vel_timeout:
+            if self.motion_comp == "centripetal" and v_age <= self.gps_vel_timeout:
                 # f = dv_b/dt + ω × v_b − R(q)ᵀ g_n: remove the turn term ω × v_b (v_b from the
                 # GPS velocity and the predicted attitude); dv_b/dt is left in (not observable
                 # from the rate gyro) and covered by accel_angle_noise.
                 f = f - np.cross(gyro - self.gyro_bias, rotmat(q).T @ v_gps)
+            elif self.motion_comp == "gps_accel" and a_ok and v_age <= self.gps_vel_timeout:
+                # f = R(q)ᵀ (a_n − g_n): remove the GPS-differenced NED acceleration
+                f = f - rotmat(q).T @ a_gps
             roll_a, pitch_a = tilt(f)
             rows += [0, 1]
             z += [wrap(roll_a - est[0]), wrap(pitch_a - est[1])]
