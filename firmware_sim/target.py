@@ -163,6 +163,24 @@ def toy_binding() -> FilterBinding:
     )
 
 
+PEERS_DIR = TARGET_DIR / "peers"
+PEER_NAMES = ("madgwick", "mahony")
+
+
+def peer_binding(name: str) -> FilterBinding:
+    """Calibration peers (firmware_sim/target/peers): Madgwick's and Mahony's 9-axis updates,
+    written from their papers, to put the instruction counts next to known figures."""
+    if name not in PEER_NAMES:
+        raise ValueError(f"unknown peer {name!r}; known: {', '.join(PEER_NAMES)}")
+    fields = {"madgwick": {"q": (0, 4)}, "mahony": {"q": (0, 4), "integral": (16, 3)}}[name]
+    return FilterBinding(
+        name=f"peer:{name}", prefix=name, sources=[PEERS_DIR / f"{name}.c"], include_dirs=[PEERS_DIR],
+        header="peers.h", state_type=f"{name}_state", input_type=f"{name}_input",
+        input_fields={"gyro": "gyro", "accel": "accel", "mag": "mag", "gps_vel": "gps_vel_ned", "valid": "valid"},
+        state_size=16 if name == "madgwick" else 28, state_fields=fields,
+    )
+
+
 def write_glue(b: FilterBinding, out_dir: Path) -> None:
     """filter_glue.h / filter_glue.c: the harness's only filter-specific code.
 
@@ -710,9 +728,12 @@ class Footprint:
     filter: str
     opt: str
     cpu: str
-    flash_bytes: int             # increase of (text + rodata + .data image) over the baseline image
+    flash_bytes: int             # increase of (text + rodata + .data image) over the baseline image,
+                                 # less the harness glue: the filter's API plus what it pulls from libm/libc
     own_code_bytes: int          # of which the filter's own functions and constants (init, step, euler)
     ram_static_bytes: int        # increase of (.data + .bss) over the baseline image, state included
+    ram_data_bytes: int          # of which .data (newlib's errno/reent block when a wrapper needs it)
+    ram_bss_bytes: int           # of which .bss (the footprint image keeps the state struct there)
     state_bytes: int             # sizeof(state struct)
     object_sections: dict        # the filter's own objects: text / rodata / data / bss
     stack_bytes: int             # static worst case of step (frames x call graph)
@@ -773,6 +794,9 @@ def footprint(b: FilterBinding, build_: Build, counts: StepCounts | None = None,
     base = build(b, wd / "base", build_.opt, build_.cpu, extra_main=str(base_main), reuse=build_)
     f1, r1 = image_flash_ram(with_f.elf)
     f0, r0 = image_flash_ram(base.elf)
+    s1, s0 = section_sizes(with_f.elf), section_sizes(base.elf)
+    d_data = s1.get(".data", 0) - s0.get(".data", 0)
+    d_bss = s1.get(".bss", 0) - s0.get(".bss", 0)
 
     objsec = {"text": 0, "rodata": 0, "data": 0, "bss": 0}
     own_funcs: set[str] = set()
@@ -783,10 +807,13 @@ def footprint(b: FilterBinding, build_: Build, counts: StepCounts | None = None,
         own_funcs |= {ln.split()[-1] for ln in nm.splitlines() if ln.split()[1:2] and ln.split()[1] in "tTrR"}
 
     own_code = 0   # the filter's own functions and constants that the linked image keeps
+    glue_code = 0  # the harness glue (record copy) is in the footprint image only: not the filter's
     for ln in _run(["arm-none-eabi-nm", "-S", "--defined-only", str(with_f.elf)]).stdout.splitlines():
         parts = ln.split()
         if len(parts) == 4 and parts[2] in "tTrR" and parts[3] in own_funcs:
             own_code += int(parts[1], 16)
+        elif len(parts) == 4 and parts[3] in ("glue_init", "glue_step", "glue_euler"):
+            glue_code += int(parts[1], 16)
 
     funcs = disassemble_functions(build_.elf)
     su = parse_stack_usage(build_.stack_usage_files)
@@ -801,7 +828,8 @@ def footprint(b: FilterBinding, build_: Build, counts: StepCounts | None = None,
     state_bytes = b.state_size if b.state_size is not None else 0
     return Footprint(
         filter=b.name, opt=build_.opt, cpu=build_.cpu,
-        flash_bytes=f1 - f0, own_code_bytes=own_code, ram_static_bytes=r1 - r0, state_bytes=state_bytes,
+        flash_bytes=f1 - f0 - glue_code, own_code_bytes=own_code, ram_static_bytes=r1 - r0, ram_data_bytes=d_data, ram_bss_bytes=d_bss,
+        state_bytes=state_bytes,
         object_sections=objsec, stack_bytes=ws["bytes"], stack_path=ws["path"],
         stack_measured_bytes=measured_stack,
         **step_instructions(counts, run), library_calls=lib, double_helpers=dbl, flags=build_.cflags,
@@ -1164,11 +1192,25 @@ def cmd_target(args) -> int:
     if not args.workdir:
         for r in results:
             r.pop("workdir", None)
-    print(f"target {args.cpu}: {' '.join(CPUS[args.cpu])} {' '.join(MATH_FLAGS)}; "
-          f"QEMU {QEMU_MACHINE}; instructions counted in unicorn (not cycles)")
+    peer_rows = []
+    if args.peers:
+        from firmware_sim import scenarios
+        log = scenarios.make("fixedwing_gps", seed=args.seed)
+        with tempfile.TemporaryDirectory(prefix="ahrsgen-peers-") as tmp:
+            for pn in PEER_NAMES:
+                for opt in opts:
+                    r = check_filter(peer_binding(pn), records_from_log(log), Path(tmp), opt=opt, cpu=args.cpu,
+                                     count_steps=None if args.count_steps == 0 else args.count_steps)
+                    peer_rows.append(r.footprint)
+    print(f"target {args.cpu}: {' '.join(CPUS[args.cpu])} {' '.join(MATH_FLAGS)}; QEMU {QEMU_MACHINE}; "
+          f"instructions (not cycles) per step under QEMU -icount, checked step by step against unicorn")
     ok = _print_results(results)
+    if peer_rows:
+        print("\ncalibration peers (firmware_sim/target/peers, fixedwing_gps; counts only):")
+        print(format_table(peer_rows))
     doc = {"cpu": args.cpu, "cpu_flags": CPUS[args.cpu], "math_flags": MATH_FLAGS, "qemu_machine": QEMU_MACHINE,
-           "tools": toolchain_versions(), "tolerance_deg": args.tolerance, "results": results}
+           "tools": toolchain_versions(), "tolerance_deg": args.tolerance, "results": results,
+           "peers": [asdict(r) for r in peer_rows]}
     out = Path(args.json)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(doc, indent=2, sort_keys=True) + "\n")
@@ -1199,6 +1241,8 @@ def register_cli(sub) -> None:
                         "default 50. QEMU counts instructions and paints the stack over every step.")
     p.add_argument("--tolerance", type=float, default=DEFAULT_TOLERANCE_DEG, metavar="DEG",
                    help=f"largest allowed target-vs-host attitude difference (default {DEFAULT_TOLERANCE_DEG:g} deg)")
+    p.add_argument("--peers", action="store_true",
+                   help="also measure the calibration peers (Madgwick, Mahony with integral) for scale")
     p.add_argument("--no-pinned", action="store_true",
                    help="skip the pinned-libm identity run (float libm evaluated through double on both sides)")
     p.add_argument("--json", default="build/target/target.json", metavar="FILE",
