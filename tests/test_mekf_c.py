@@ -84,7 +84,7 @@ def test_float_c_close_to_double_without_drift(c_double, c_float, fw_log):
     ["accel_gate=1.0", "init_from_sensors=false"],
 ])
 def test_double_c_matches_reference_other_configs(sets):
-    log = make("fixedwing_gps", 1, duration=200.0)
+    log = make("fixedwing_gps", 1, duration=100.0)
     r = build("double", sets).run(log)
     rr = host.run_reference(reference(sets), log)
     assert np.array_equal(r.status, rr.status)
@@ -178,7 +178,7 @@ REFUSALS = [
 ]
 
 
-def _warm(hf, log, n=300):
+def _warm(hf, log, n=100):
     s = hf.new_state()
     ref = reference() if hf.real == "double" else None
     for k in range(n):
@@ -192,7 +192,7 @@ def _warm(hf, log, n=300):
 @pytest.mark.parametrize("name,change,expected", REFUSALS, ids=[r[0] for r in REFUSALS])
 def test_refusals_leave_state_unchanged(c_double, fw_log, name, change, expected):
     s, ref = _warm(c_double, fw_log)
-    k = 300
+    k = 100
     args = dict(gyro=fw_log.gyro[k], accel=fw_log.accel[k], mag=fw_log.mag[k], gps_vel=fw_log.gps_vel[k],
                 valid=int(fw_log.valid[k]) | VALID_GYRO | VALID_ACCEL | VALID_GPS, dt=fw_log.dt[k])
     args.update(change)
@@ -219,7 +219,7 @@ SKIPS = [
 def test_bad_aiding_sample_skips_its_rows(c_double, c_float, fw_log, precision, name, change, expected):
     hf = c_double if precision == "double" else c_float
     s, ref = _warm(hf, fw_log)
-    k = 300
+    k = 100
     args = dict(gyro=fw_log.gyro[k], accel=fw_log.accel[k], mag=fw_log.mag[k], gps_vel=fw_log.gps_vel[k],
                 valid=VALID_GYRO | VALID_ACCEL | VALID_GPS, dt=fw_log.dt[k])
     args.update(change)
