@@ -197,12 +197,21 @@ class Estimator:
     def host_filter(self, extra_sets=()):
         key = (self.kind, self.filter, self.config, tuple(self.sets) + tuple(extra_sets))
         if key not in _HF_CACHE:
-            if self.kind == "baseline":
-                _HF_CACHE[key] = baseline_filter()
-            else:
-                from generator import config
-                cfg = config.resolve(self.filter, self.config, list(self.sets) + list(extra_sets), "float", None)
-                _HF_CACHE[key] = host.build(cfg)
+            import fcntl
+            host.CACHE.mkdir(parents=True, exist_ok=True)
+            # bench workers may build the same configuration at once: one at a time
+            with open(host.CACHE / ".bench-build.lock", "w") as lock:
+                fcntl.flock(lock, fcntl.LOCK_EX)
+                try:
+                    if self.kind == "baseline":
+                        _HF_CACHE[key] = baseline_filter()
+                    else:
+                        from generator import config
+                        cfg = config.resolve(self.filter, self.config, list(self.sets) + list(extra_sets),
+                                             "float", None)
+                        _HF_CACHE[key] = host.build(cfg)
+                finally:
+                    fcntl.flock(lock, fcntl.LOCK_UN)
         return _HF_CACHE[key]
 
     def run(self, log: SensorLog) -> tuple[np.ndarray, str, list]:
