@@ -454,6 +454,7 @@ def _run_task(task):
     kind, label, arg, opts, seed, est_specs, want_series = task
     from firmware_sim import scenarios
     t0 = time.perf_counter()
+    c0 = time.process_time()
     if kind == "scenario":
         log = scenarios.make(arg, seed=seed, **opts)
     else:
@@ -475,6 +476,7 @@ def _run_task(task):
             out["errors"][est.name] = f"{type(e).__name__}: {e}"
         out["seconds"][est.name] = time.perf_counter() - t1
     out["wall"] = time.perf_counter() - t0
+    out["cpu"] = time.process_time() - c0
     return out
 
 
@@ -670,6 +672,8 @@ def bench(quick=False, seeds=None, filters=None, peer_names=PEER_NAMES, data_dir
         "cost": cost,
         "cost_log": f"multirotor seed 0, {len(cost_log)} steps (250 Hz, accel+mag+GPS)",
         "seconds": time.time() - t_start,
+        "task_cpu_seconds": float(sum(r.get("cpu", 0.0) for r in results)),
+        "task_wall_seconds": {f"{r['label']}/{r['log']}/{r['seed']}": round(r["wall"], 1) for r in results},
     }
     report["plots"] = _plots(results, out_dir / "img")
     (out_dir / "bench.json").write_text(json.dumps(report, indent=1))
@@ -734,7 +738,8 @@ def markdown(rep: dict) -> str:
     if rep.get("command"):
         L.append(f"Command: `{rep['command']}`  ")
     L.append(f"Date: {rep['date_utc']}; host: {rep['host'].get('cpu', rep['host'].get('machine'))}; "
-             f"{rep['host'].get('cc', '')}; run time {rep['seconds']:.0f} s.\n")
+             f"{rep['host'].get('cc', '')}; run time {rep['seconds']:.0f} s wall "
+             f"({rep.get('task_cpu_seconds', 0):.0f} s CPU in the workers).\n")
     for n in rep["notes"]:
         L.append(f"> {n}\n")
     if rep["build_errors"]:
