@@ -32,6 +32,7 @@ bound instead of assuming identity.
 from __future__ import annotations
 
 import ctypes
+import ctypes.util
 import json
 import os
 import re
@@ -536,6 +537,61 @@ class Emulator:
         lowest_addr = paint_lo + lowest
         depth = (entry_sp - lowest_addr) if entry_sp is not None else 0
         return StepCounts(counts, totals, status, state, int(depth))
+
+
+# --------------------------------------------------------------------------------------
+# newlib vs glibc: the float libm functions, argument by argument
+# --------------------------------------------------------------------------------------
+
+# function -> (number of arguments, argument sampler); ranges the filters use
+_SURVEY = {
+    "sinf": (1, lambda r, n: r.uniform(-4.0, 4.0, n)),
+    "cosf": (1, lambda r, n: r.uniform(-4.0, 4.0, n)),
+    "asinf": (1, lambda r, n: r.uniform(-1.0, 1.0, n)),
+    "atanf": (1, lambda r, n: r.normal(0.0, 3.0, n)),
+    "expf": (1, lambda r, n: r.uniform(-20.0, 5.0, n)),
+    "logf": (1, lambda r, n: r.uniform(1e-6, 1.0, n)),
+    "atan2f": (2, lambda r, n: r.normal(0.0, 1.0, (n, 2))),
+}
+
+
+def libm_survey(workdir: Path, n: int = 2000, seed: int = 0, cpu: str = "cortex-m4f") -> dict:
+    """Call newlib's float functions (linked for the target, run in unicorn) and the host's
+    libm (ctypes) on the same float32 arguments; count differing results and the largest
+    difference in ulps.  Explains why a target run and a host run can part in the last bit."""
+    import struct
+    require_tools()
+    from unicorn.arm_const import UC_ARM_REG_S0, UC_ARM_REG_S1
+    workdir = Path(workdir)
+    workdir.mkdir(parents=True, exist_ok=True)
+    flags = cflags_for(cpu, "-O2")
+    objs = []
+    for src in ("startup.c", "semihost.c", "libm_probe.c"):
+        obj = workdir / (Path(src).stem + ".o")
+        _run(["arm-none-eabi-gcc", *flags, f"-I{TARGET_DIR}", "-c", str(TARGET_DIR / src), "-o", str(obj)])
+        objs.append(str(obj))
+    elf = workdir / "libm_probe.elf"
+    _run(["arm-none-eabi-gcc", *CPUS[cpu], "-O2", *LINK_FLAGS, "-T", str(TARGET_DIR / "mps2_an386.ld"),
+          *objs, "-lm", "-o", str(elf)])
+    emu = Emulator(elf)
+    host = ctypes.CDLL(ctypes.util.find_library("m") or "libm.so.6")
+    rng = np.random.default_rng(seed)
+    out = {}
+    for fn, (nargs, sample) in _SURVEY.items():
+        x = np.asarray(sample(rng, n), np.float32).reshape(n, nargs)
+        hf = getattr(host, fn)
+        hf.restype, hf.argtypes = ctypes.c_float, [ctypes.c_float] * nargs
+        t = np.zeros(n, np.float32)
+        h = np.zeros(n, np.float32)
+        for k in range(n):
+            for reg, v in zip((UC_ARM_REG_S0, UC_ARM_REG_S1), x[k]):
+                emu.uc.reg_write(reg, struct.unpack("<I", struct.pack("<f", float(v)))[0])
+            emu.call(fn)
+            t[k] = struct.unpack("<f", struct.pack("<I", emu.uc.reg_read(UC_ARM_REG_S0)))[0]
+            h[k] = hf(*[float(v) for v in x[k]])
+        ulp = np.abs(t.view(np.int32).astype(np.int64) - h.view(np.int32).astype(np.int64))
+        out[fn] = {"arguments": n, "differ": int(np.count_nonzero(ulp)), "max_ulp": int(ulp.max())}
+    return out
 
 
 # --------------------------------------------------------------------------------------
@@ -1205,12 +1261,19 @@ def cmd_target(args) -> int:
     print(f"target {args.cpu}: {' '.join(CPUS[args.cpu])} {' '.join(MATH_FLAGS)}; QEMU {QEMU_MACHINE}; "
           f"instructions (not cycles) per step under QEMU -icount, checked step by step against unicorn")
     ok = _print_results(results)
+    survey = None
+    if args.libm_survey:
+        with tempfile.TemporaryDirectory(prefix="ahrsgen-libm-") as tmp:
+            survey = libm_survey(Path(tmp), cpu=args.cpu)
+        print("\nnewlib (target) vs host libm, float functions on the same float32 arguments:")
+        for fn, v in survey.items():
+            print(f"  {fn:<7} differs in {v['differ']}/{v['arguments']} arguments, by at most {v['max_ulp']} ulp")
     if peer_rows:
         print("\ncalibration peers (firmware_sim/target/peers, fixedwing_gps; counts only):")
         print(format_table(peer_rows))
     doc = {"cpu": args.cpu, "cpu_flags": CPUS[args.cpu], "math_flags": MATH_FLAGS, "qemu_machine": QEMU_MACHINE,
            "tools": toolchain_versions(), "tolerance_deg": args.tolerance, "results": results,
-           "peers": [asdict(r) for r in peer_rows]}
+           "peers": [asdict(r) for r in peer_rows], "libm_survey": survey}
     out = Path(args.json)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(doc, indent=2, sort_keys=True) + "\n")
@@ -1243,6 +1306,8 @@ def register_cli(sub) -> None:
                    help=f"largest allowed target-vs-host attitude difference (default {DEFAULT_TOLERANCE_DEG:g} deg)")
     p.add_argument("--peers", action="store_true",
                    help="also measure the calibration peers (Madgwick, Mahony with integral) for scale")
+    p.add_argument("--libm-survey", action="store_true",
+                   help="also compare newlib's float sinf/cosf/asinf/atanf/expf/logf/atan2f with the host's, in ulps")
     p.add_argument("--no-pinned", action="store_true",
                    help="skip the pinned-libm identity run (float libm evaluated through double on both sides)")
     p.add_argument("--json", default="build/target/target.json", metavar="FILE",

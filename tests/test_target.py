@@ -320,3 +320,13 @@ def test_counter_calibration_against_published_peer_figures(peer, tmp_path):
     q = r.run.field(b, "q").astype(float)
     st = metrics.euler_stats(q[-300:], log.q_true[-300:])
     assert st["roll"]["max_abs"] < 1.0 and st["pitch"]["max_abs"] < 1.0
+
+
+def test_newlib_and_host_libm_differ_by_at_most_one_ulp(tmp_path):
+    """Why real-libm runs can part in the last bit: newlib's float functions and the host's
+    disagree on some arguments, never by more than 1 ulp (basic arithmetic and sqrtf are
+    correctly rounded on both, see the pinned-libm runs above)."""
+    survey = T.libm_survey(tmp_path, n=300)
+    assert set(survey) >= {"sinf", "cosf", "atan2f", "asinf", "expf", "logf"}
+    for fn, v in survey.items():
+        assert v["max_ulp"] <= 1, (fn, v)
