@@ -29,9 +29,11 @@ def jacobian_at(expr, wrt, point, zero_vars):
     return ca.substitute(J, syms, ca.SX.zeros(syms.shape[0], 1))
 
 
-def predict_covariance(P, F, G, Q):
-    """P⁻ = F P Fᵀ + G Q Gᵀ, symmetrised (patent step 2)."""
-    return linalg.symmetrize(ca.mtimes([F, P, F.T]) + ca.mtimes([G, Q, G.T]))
+def predict_covariance(P, F, G, Q, symmetrize: bool = True):
+    """P⁻ = F P Fᵀ + G Q Gᵀ (patent step 2), symmetrised by averaging unless told not to
+    (a caller that keeps only one triangle saves the averaging)."""
+    Pn = ca.mtimes([F, P, F.T]) + ca.mtimes([G, Q, G.T])
+    return linalg.symmetrize(Pn) if symmetrize else Pn
 
 
 def mask_rows(H, z, r, mask):
@@ -61,12 +63,16 @@ def gain(P, H, R, tol: float = 0.0):
     return KT.T, S, min_pivot
 
 
-def joseph(P, K, H, R):
-    """P⁺ = (I − K H) P (I − K H)ᵀ + K R Kᵀ, symmetrised (patent step 6)."""
-    return linalg.joseph_update(P, K, H, R)
+def joseph(P, K, H, R, symmetrize: bool = True):
+    """P⁺ = (I − K H) P (I − K H)ᵀ + K R Kᵀ (patent step 6), symmetrised unless told not to."""
+    if symmetrize:
+        return linalg.joseph_update(P, K, H, R)
+    n = P.shape[0]
+    I_KH = ca.SX.eye(n) - ca.mtimes(K, H)
+    return ca.mtimes([I_KH, P, I_KH.T]) + ca.mtimes([K, R, K.T])
 
 
-def update(P, H, z, R, tol: float = 0.0):
-    """Full Kalman correction: returns (dx = K z, P⁺ (Joseph, symmetric), min_pivot of S)."""
+def update(P, H, z, R, tol: float = 0.0, symmetrize: bool = True):
+    """Full Kalman correction: returns (dx = K z, P⁺ (Joseph), min_pivot of S)."""
     K, _, min_pivot = gain(P, H, R, tol)
-    return ca.mtimes(K, z), joseph(P, K, H, R), min_pivot
+    return ca.mtimes(K, z), joseph(P, K, H, R, symmetrize), min_pivot

@@ -25,7 +25,6 @@ from generator import emit
 from generator.constants import G0
 from generator.model import FilterModel, KernelSpec, StateField
 from generator.symbolic import attitude, kalman, quat
-from generator.symbolic import linalg
 
 N = 6           # error-state size
 S_PIVOT_MIN = 1e-12   # innovation covariance must have Cholesky pivots above this
@@ -107,8 +106,7 @@ def predict_function(p: dict, name="predict") -> ca.Function:
     q_new = quat.integrate(q, omega_hat, dt)
     F, G = jacobians_FG(omega_hat, dt)
     Q = ca.diag(ca.vertcat(*([p["gyro_noise"] ** 2 / dt] * 3 + [p["gyro_bias_rw"] ** 2 * dt] * 3)))
-    P = sym_lower(Pv)
-    P_new = ca.mtimes([F, P, F.T]) + ca.mtimes([G, Q, G.T])
+    P_new = kalman.predict_covariance(sym_lower(Pv), F, G, Q, symmetrize=False)   # mirrored below
     return emit.function(name, {"q": q, "b": b, "P": Pv, "gyro": gyro, "dt": dt},
                          {"q_out": q_new, "P_out": flat_mirrored(P_new)})
 
@@ -152,11 +150,8 @@ def update_function(p: dict, name="update") -> ca.Function:
     r_head = p["mag_heading_noise"] if p["heading_source"] == "mag" else p["course_noise"]
     r = [p["accel_angle_noise"] ** 2] * 2 + [r_head ** 2]
     Hm, zm, R = kalman.mask_rows(H, z, r, [mask[0], mask[0], mask[1]])
-    P = sym_lower(Pv)
-    K, _, min_pivot = kalman.gain(P, Hm, R, S_PIVOT_MIN)                          # step 5
-    I_KH = ca.SX.eye(N) - ca.mtimes(K, Hm)
-    P_new = ca.mtimes([I_KH, P, I_KH.T]) + ca.mtimes([K, R, K.T])                 # step 6 (Joseph)
-    X = ca.mtimes(K, zm)                                                          # step 7
+    # steps 5-7: Cholesky gain, Joseph form (mirrored below), X = K Z
+    X, P_new, min_pivot = kalman.update(sym_lower(Pv), Hm, zm, R, S_PIVOT_MIN, symmetrize=False)
     q_new = quat.qnormalize(quat.qmul(q, quat.vec(1, X[0], X[1], X[2])))         # step 8
     b_new = b + X[3:6]
     # Euler angles are singular at pitch ±90°: there H has 1/cos(pitch) and the asin's
