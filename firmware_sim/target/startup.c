@@ -45,7 +45,9 @@ __attribute__((section(".isr_vector"), used)) const uintptr_t g_vector_table[16]
     (uintptr_t)Default_Handler,    /* SysTick (the harness polls it, no interrupt) */
 };
 
-__attribute__((noreturn, noinline)) void Reset_Handler(void)
+/* no-tree-loop-distribute-patterns: keep the copy/zero loops as loops (GCC would call
+ * newlib's memcpy/memset), so that the baseline image of the footprint holds no libc. */
+__attribute__((noreturn, noinline, optimize("no-tree-loop-distribute-patterns"))) void Reset_Handler(void)
 {
     /* 1. FPU on: CP10 and CP11 full access, then barriers so the next instruction sees it. */
     SCB_CPACR |= (0xFu << 20);
