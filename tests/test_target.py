@@ -330,3 +330,23 @@ def test_newlib_and_host_libm_differ_by_at_most_one_ulp(tmp_path):
     assert set(survey) >= {"sinf", "cosf", "atan2f", "asinf", "expf", "logf"}
     for fn, v in survey.items():
         assert v["max_ulp"] <= 1, (fn, v)
+
+
+def test_cli_target_writes_table_and_json(tmp_path, capsys):
+    if "qcf" not in _generated_filters():
+        pytest.skip("qcf not available")
+    import json
+
+    from generator import cli
+    out = tmp_path / "t.json"
+    rc = cli.main(["target", "qcf", "--opt=-Os", "--prefix", "att", "--scenario-opt", "duration=16",
+                   "--count-steps", "10", "--no-pinned", "--json", str(out)])
+    text = capsys.readouterr().out
+    assert rc == 0, text
+    assert "| qcf | -Os |" in text and "PASS" in text
+    doc = json.loads(out.read_text())
+    (r,) = doc["results"]
+    assert r["opt"] == "-Os" and r["steps"] == 200 and r["pass"] is True
+    assert r["footprint"]["stack_path"][0] == "att_step"      # the prefix reached the C
+    assert doc["math_flags"] == ["-ffp-contract=off", "-fno-math-errno"]
+    assert cli.main(["target", "nosuch"]) == 2
