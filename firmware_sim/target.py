@@ -802,6 +802,7 @@ class Footprint:
     library_calls: list[str]     # functions outside the filter's objects reached from step
     double_helpers: list[str]    # soft-double helpers reachable from step (should be empty)
     flags: list[str]
+    precision: str = "float"
 
 
 def step_instructions(counts: StepCounts | None, run: TargetRun | None) -> dict:
@@ -887,6 +888,7 @@ def footprint(b: FilterBinding, build_: Build, counts: StepCounts | None = None,
         object_sections=objsec, stack_bytes=ws["bytes"], stack_path=ws["path"],
         stack_measured_bytes=measured_stack,
         **step_instructions(counts, run), library_calls=lib, double_helpers=dbl, flags=build_.cflags,
+        precision=b.scalar,
     )
 
 
@@ -900,7 +902,7 @@ def format_table(rows: list[Footprint]) -> str:
         own = r.own_code_bytes
         libs = [f for f in r.library_calls if not f.startswith("__")]
         lines.append(
-            f"| {r.filter} | {r.opt} | {r.flash_bytes} ({own}) | {r.ram_static_bytes} ({r.state_bytes}) "
+            f"| {r.filter} | {r.opt}{' double' if r.precision == 'double' else ''} | {r.flash_bytes} ({own}) | {r.ram_static_bytes} ({r.state_bytes}) "
             f"| {r.stack_bytes} / {r.stack_measured_bytes} | {r.instructions_mean:.0f} "
             f"({r.instructions_min}-{r.instructions_max}) | {', '.join(libs) or '-'} |")
     return "\n".join(lines)
@@ -968,10 +970,12 @@ def binding_from_generated(gen_dir: str | Path) -> FilterBinding:
     )
 
 
-def generate(filter_name: str, out_dir: Path, config_file=None, sets=None, prefix=None) -> Path:
-    """Render a float build of a filter configuration into out_dir (the target is float)."""
+def generate(filter_name: str, out_dir: Path, config_file=None, sets=None, prefix=None,
+             precision: str = "float") -> Path:
+    """Render a filter configuration into out_dir (float unless asked: the M4F FPU is
+    single precision, a double build runs on soft-float helpers)."""
     from generator import config, render
-    cfg = config.resolve(filter_name, config_file, sets, precision="float", prefix=prefix)
+    cfg = config.resolve(filter_name, config_file, sets, precision=precision, prefix=prefix)
     render.write(render.render(cfg), out_dir)
     return Path(out_dir)
 
@@ -1001,8 +1005,9 @@ class _HostStepper:
     def __init__(self, gen_dir: Path, pinned_libm: bool = False):
         from firmware_sim import host
         man = json.loads((Path(gen_dir) / "manifest.json").read_text())
-        if man["precision"] != "float":
-            raise ValueError("the target comparison needs the float build")
+        self.real = man["precision"]
+        if pinned_libm and self.real != "float":
+            raise ValueError("the pinned-libm run is for float builds")
         if pinned_libm:
             self._tmp = tempfile.TemporaryDirectory(prefix="ahrsgen-pinned-")
             lib = self._compile_pinned(host, Path(gen_dir), man, Path(self._tmp.name))
@@ -1010,10 +1015,11 @@ class _HostStepper:
             lib = host.compile_shared(Path(gen_dir))   # the product's host build, as is
         self.lib = ctypes.CDLL(str(lib))
         st = man["structs"]
-        self.State = host.ctypes_struct("State", st["state"], "float")
-        self.input_dtype = host.numpy_dtype(st["input"], "float")
+        self.State = host.ctypes_struct("State", st["state"], self.real)
+        self.input_dtype = host.numpy_dtype(st["input"], self.real)
         self.lib.ahrs_step.restype = ctypes.c_uint32
-        self.lib.ahrs_step.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_float]
+        self.lib.ahrs_step.argtypes = [ctypes.c_void_p, ctypes.c_void_p,
+                                       ctypes.c_float if self.real == "float" else ctypes.c_double]
         self.lib.ahrs_init.argtypes = [ctypes.c_void_p]
 
     @staticmethod
@@ -1169,13 +1175,14 @@ def toolchain_versions() -> dict:
 def check_generated(filter_name: str, opts=OPT_LEVELS, cpu: str = "cortex-m4f", scenario: str | None = None,
                     seed: int = 0, scenario_options: dict | None = None, config_file=None, sets=None,
                     prefix=None, workdir: Path | None = None, count_steps: int | None = 50,
-                    log=None, pinned: bool = True, tolerance_deg: float = DEFAULT_TOLERANCE_DEG) -> list[dict]:
+                    log=None, pinned: bool = True, tolerance_deg: float = DEFAULT_TOLERANCE_DEG,
+                    precision: str = "float") -> list[dict]:
     """Generate (float), cross-build at each optimisation level, run on the target, compare
     with the host float build, measure the footprint.  One dict per build."""
     from firmware_sim import scenarios
     require_tools()
     workdir = Path(workdir or tempfile.mkdtemp(prefix=f"ahrsgen-target-{filter_name}-"))
-    gen_dir = generate(filter_name, workdir / "generated", config_file, sets, prefix)
+    gen_dir = generate(filter_name, workdir / "generated", config_file, sets, prefix, precision)
     b = binding_from_generated(gen_dir)
     scen = scenario or DEFAULT_SCENARIO.get(filter_name, "fixedwing_gps")
     if log is None:
@@ -1186,12 +1193,13 @@ def check_generated(filter_name: str, opts=OPT_LEVELS, cpu: str = "cortex-m4f", 
         r = check_filter(b, rec, workdir, opt=opt, cpu=cpu, count_steps=count_steps)
         cmp_ = asdict(compare_with_host(gen_dir, b, log, r.run))
         pin = None
-        if pinned and i == 0:
+        if pinned and i == 0 and precision == "float":
             pb = build(b, workdir / f"{b.name}-{opt.lstrip('-')}-pinned", opt, cpu, pinned_libm=True)
             prun = run_qemu(pb.elf, rec, pb.workdir, icount_shift=None)
             pin = asdict(compare_with_host(gen_dir, b, log, prun, pinned_libm=True))
         ok, verdict = judge(filter_name, cmp_, pin, tolerance_deg)
-        results.append({"filter": filter_name, "opt": opt, "cpu": cpu, "scenario": log.name, "seed": seed,
+        results.append({"filter": filter_name, "precision": precision, "opt": opt, "cpu": cpu,
+                        "scenario": log.name, "seed": seed,
                         "steps": len(rec), "counted_steps": int(len(r.counts.instructions)),
                         "footprint": asdict(r.footprint), "host_comparison": cmp_,
                         "pinned_libm_comparison": pin, "pass": ok, "verdict": verdict,
@@ -1204,10 +1212,11 @@ def _print_results(results: list[dict]) -> bool:
     print(format_table(rows))
     print()
     for r in results:
-        print(f"{r['filter']} {r['opt']}: target vs host float build on {r['scenario']} ({r['steps']} steps): "
+        print(f"{r['filter']} {r['opt']}: target vs host {r.get('precision', 'float')} build on {r['scenario']} "
+              f"({r['steps']} steps): "
               f"{r['verdict']} -> {'PASS' if r['pass'] else 'FAIL'}")
         fp = r["footprint"]
-        if fp["double_helpers"]:
+        if fp["double_helpers"] and r.get("precision", "float") == "float":
             print(f"  WARNING: soft-double helpers reachable from step: {', '.join(fp['double_helpers'])}")
     return all(r["pass"] for r in results)
 
@@ -1240,7 +1249,8 @@ def cmd_target(args) -> int:
                 results += check_generated(n, opts, args.cpu, args.scenario, args.seed, sopts, args.config,
                                            args.set, args.prefix, root / n,
                                            None if args.count_steps == 0 else args.count_steps,
-                                           pinned=not args.no_pinned, tolerance_deg=args.tolerance)
+                                           pinned=not args.no_pinned, tolerance_deg=args.tolerance,
+                                           precision=args.precision)
             except KeyError as e:
                 raise ConfigError(str(e.args[0])) from None
     if not args.workdir:
@@ -1287,10 +1297,13 @@ def register_cli(sub) -> None:
                     "the host float build, and report flash, static RAM, worst-case stack and instructions per "
                     "step (table on stdout, JSON file). Exit 1 if target and host disagree beyond the bound.")
     p.add_argument("filter", help="filter name (see 'ahrsgen list'), or 'all'")
-    p.add_argument("--config", metavar="FILE.toml", help="TOML config (its precision is ignored: the target build is float)")
+    p.add_argument("--config", metavar="FILE.toml", help="TOML config (its precision is ignored: see --precision)")
     p.add_argument("--set", metavar="NAME=VALUE", action="append", default=[], help="override one parameter (repeatable)")
     p.add_argument("--prefix", help="C identifier prefix (default: the filter name)")
     p.add_argument("--cpu", choices=sorted(CPUS), default="cortex-m4f", help="target CPU (default cortex-m4f)")
+    p.add_argument("--precision", choices=["float", "double"], default="float",
+                   help="float (default; the M4F FPU) or double (soft-float: shows what a double build costs, "
+                        "compared with the host double build)")
     p.add_argument("--opt", action="append", choices=list(OPT_LEVELS),
                    help="optimisation level (repeatable; default both -O2 and -Os)")
     p.add_argument("--scenario", help="scenario (default: the filter's source experiment, e.g. fixedwing_gps for qcf)")

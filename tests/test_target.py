@@ -350,3 +350,20 @@ def test_cli_target_writes_table_and_json(tmp_path, capsys):
     assert r["footprint"]["stack_path"][0] == "att_step"      # the prefix reached the C
     assert doc["math_flags"] == ["-ffp-contract=off", "-fno-math-errno"]
     assert cli.main(["target", "nosuch"]) == 2
+
+
+def test_double_build_runs_on_soft_float_and_costs_what_it_should(tmp_path):
+    """--precision double: the M4F FPU is single precision, so a double build runs on
+    newlib's soft-float helpers. It must still agree with the host double build (to double
+    round-off: newlib vs glibc double libm), and the counter must show the cost at once."""
+    if "qcf" not in _generated_filters():
+        pytest.skip("qcf not available")
+    from firmware_sim import scenarios
+    log = scenarios.make("fixedwing_gps", seed=2, duration=16.0)
+    (d,) = T.check_generated("qcf", ("-O2",), log=log, workdir=tmp_path / "d", count_steps=5, precision="double")
+    (f,) = T.check_generated("qcf", ("-O2",), log=log, workdir=tmp_path / "f", count_steps=5, pinned=False)
+    assert d["pass"] and d["pinned_libm_comparison"] is None
+    assert d["host_comparison"]["status_equal"] and d["host_comparison"]["max_angle_deg"] < 1e-9
+    assert d["footprint"]["double_helpers"] and not f["footprint"]["double_helpers"]
+    assert d["footprint"]["state_bytes"] > f["footprint"]["state_bytes"]   # real fields double in size
+    assert d["footprint"]["instructions_mean"] > 10 * f["footprint"]["instructions_mean"]
