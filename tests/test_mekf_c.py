@@ -211,6 +211,7 @@ SKIPS = [
     ("accel range", dict(accel=(0, 0, -1e5)), st.ACCEL_RANGE),
     ("gps nan", dict(gps_vel=(np.inf, 0, 0)), st.GPS_NONFINITE),
     ("gps slow", dict(gps_vel=(0.5, 0.5, 0)), R.COURSE_SLOW),
+    ("gps huge", dict(gps_vel=(3e38, 3e38, 3e38)), R.GPS_VEL_RANGE),
 ]
 
 
@@ -322,3 +323,56 @@ def test_course_across_plus_minus_180_deg(c_double, c_float):
     assert max_angle_diff_rad(r.q, rr.q) <= 1e-9
     for res in (r, c_float.run(log)):
         assert _yaw_err(res.q, log).max() < 1.0
+
+
+def test_huge_gps_velocity_with_accel_out_of_range_stays_finite(c_float, c_double, fw_log):
+    """The hardening fuzzer's reproducer, in words: finite but huge GPS velocity (3e38 m/s) with
+    the accelerometer out of range, several steps in a row. The GPS sample is ignored
+    (GPS_VEL_RANGE) and nothing becomes NaN."""
+    for hf in (c_float, c_double):
+        s, _ = _warm(hf, fw_log)
+        for _ in range(5):
+            got = hf.step(s, (2.99, -0.014, -0.014), (6e-41, 3e38, 3e38), (3e38, 6e-41, 3e38),
+                          (3e38, 3e38, 3e38), 0x7F, 0.01)
+            assert got & R.GPS_VEL_RANGE and got & st.ACCEL_RANGE
+            d = hf.state_dict(s)
+            assert all(np.all(np.isfinite(v)) for v in d.values())
+            assert abs(np.linalg.norm(d["q"]) - 1) < 1e-6
+
+
+@pytest.mark.parametrize("sets", [[], ["motion_comp=gps_accel"]])
+def test_denormal_dt_keeps_state_finite(c_float, fw_log, sets):
+    """dt = the smallest positive float is accepted (dt > 0) and must not overflow anything
+    (the hardening fuzzer found gyro_noise^2/dt = inf in an earlier version)."""
+    hf = c_float if not sets else build("float", sets)
+    s, _ = _warm(hf, fw_log)
+    k = 100
+    for dt in (1.4e-45, 1e-40, 1.4e-45):
+        got = hf.step(s, fw_log.gyro[k], fw_log.accel[k], fw_log.mag[k], fw_log.gps_vel[k],
+                      VALID_GYRO | VALID_ACCEL | VALID_GPS, dt)
+        assert not got & st.REFUSED_MASK
+        d = hf.state_dict(s)
+        assert all(np.all(np.isfinite(v)) for v in d.values()), d
+    for j in range(k + 1, k + 30):
+        hf.step(s, fw_log.gyro[j], fw_log.accel[j], fw_log.mag[j], fw_log.gps_vel[j], int(fw_log.valid[j]), fw_log.dt[j])
+    assert all(np.all(np.isfinite(v)) for v in hf.state_dict(s).values())
+    assert np.all(np.linalg.eigvalsh(np.array(s.P[:], float).reshape(6, 6)) > 0)
+
+
+def test_exactly_zero_rate_keeps_covariance_finite(c_float, c_double):
+    """Gyro reading exactly the bias estimate (a bench at rest with integer samples): the
+    propagation Jacobians sit on the small-angle branch at 0, where a reverse-mode Jacobian
+    gave 0 * inf = NaN in an intermediate version."""
+    ref = reference()
+    for hf in (c_float, c_double):
+        s = hf.new_state()
+        for _ in range(50):
+            got = hf.step(s, (0.0, 0.0, 0.0), (0.0, 0.0, -9.80665), (0, 0, 0), (0, 0, 0),
+                          VALID_GYRO | VALID_ACCEL, 0.01)
+            assert got == 0
+        d = hf.state_dict(s)
+        assert all(np.all(np.isfinite(v)) for v in d.values())
+        assert np.all(np.linalg.eigvalsh(d["P"].reshape(6, 6)) > 0)
+    for _ in range(50):
+        ref.step((0.0, 0.0, 0.0), (0.0, 0.0, -9.80665), (0, 0, 0), (0, 0, 0), VALID_GYRO | VALID_ACCEL, 0.01)
+    assert np.allclose(c_double.state_dict(s)["P"].reshape(6, 6), ref.P, rtol=1e-12, atol=1e-18)

@@ -22,9 +22,15 @@ def jacobian_at(expr, wrt, point, zero_vars):
 
     `wrt` and the members of `zero_vars` are SX symbol vectors; `point` is unused except for
     documentation symmetry (the linearisation point is X = 0, noise = 0).
+
+    Forward mode (one directional derivative per column of `wrt`), always: reverse mode
+    accumulates adjoints through shared nodes without the branch masks, so a branch that is
+    not taken (the sqrt of a squared norm at 0 inside a small-angle switch, for instance)
+    gives 0 * inf = NaN; forward mode keeps every such term behind its if_else.
     """
     del point
-    J = ca.jacobian(expr, wrt)
+    n = wrt.shape[0]
+    J = ca.jtimes(expr, wrt, ca.SX.eye(n))
     syms = ca.vertcat(*zero_vars)
     return ca.substitute(J, syms, ca.SX.zeros(syms.shape[0], 1))
 
@@ -39,16 +45,18 @@ def predict_covariance(P, F, G, Q, symmetrize: bool = True):
 def mask_rows(H, z, r, mask):
     """Masked measurement: rows with mask 0 get H row 0, z 0, R 1 (mask entries are 0/1 symbols).
 
-    H (m x n), z (m), r (m, variances), mask (m). Returns (H_m, z_m, R_m).
+    H (m x n), z (m), r (m, variances), mask (m). Returns (H_m, z_m, R_m). The masking is a
+    select, not a product, so a masked row's z or H may be inf/NaN without effect.
     """
     m = H.shape[0]
     Hm = ca.SX(H)
     zm = ca.SX.zeros(m, 1)
     R = ca.SX.zeros(m, m)
     for i in range(m):
-        Hm[i, :] = mask[i] * H[i, :]
-        zm[i] = mask[i] * z[i]
-        R[i, i] = mask[i] * r[i] + (1 - mask[i])
+        for j in range(H.shape[1]):
+            Hm[i, j] = ca.if_else(mask[i], H[i, j], 0.0)
+        zm[i] = ca.if_else(mask[i], z[i], 0.0)
+        R[i, i] = ca.if_else(mask[i], r[i], 1.0)
     return Hm, zm, R
 
 

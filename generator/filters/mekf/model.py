@@ -30,11 +30,14 @@ N = 6           # error-state size
 S_PIVOT_MIN = 1e-12   # innovation covariance must have Cholesky pivots above this
 COS2_PITCH_MIN = 1e-4  # no correction while cos²(pitch) <= this (pitch within 0.57° of ±90°)
 AGE_MAX = 1e3         # the GPS-velocity age stops counting here (s)
+GPS_DT_MIN = 1e-3     # two GPS samples closer than this (s) give no new acceleration
+DT_Q_MIN = 1e-9       # s: floor of dt in the gyro-noise variance σ_g²/dt
 
 EXTRA_STATUS = [
     ("COURSE_SLOW", "GPS sample present but ground speed below gps_min_speed: yaw row dropped"),
     ("ACCEL_GATED", "| |accel| - g | above accel_gate: roll/pitch rows dropped"),
     ("UPDATE_SKIPPED", "correction skipped: innovation covariance not positive definite, or pitch within 0.57 deg of +-90 deg (Euler angles singular)"),
+    ("GPS_VEL_RANGE", "a GPS velocity component beyond gps_vel_max: sample ignored"),
 ]
 
 
@@ -64,7 +67,10 @@ def error_propagation(dq, db, ng, nb, omega_hat, dt):
 
     Nominal: q̂' = q̂ ⊗ a, a = exp(½ ω̂ dt). Truth: q' = q ⊗ exp(½ (ω̂ − δb − n_g) dt) with
     q = q̂ ⊗ [1, δq] (unnormalised; the Jacobian at 0 does not depend on the norm), so
-    [1, δq'] ∝ a* ⊗ [1, δq] ⊗ exp(½ (ω̂ − δb − n_g) dt); δb' = δb + n_b.
+    [1, δq'] ∝ a* ⊗ [1, δq] ⊗ exp(½ (ω̂ − δb − n_g) dt); δb' = δb + n_b. n_g is the gyro
+    rate noise averaged over the step (variance σ_g²/dt), n_b the bias random-walk
+    increment (σ_bw² dt). Written this way ∂/∂δb and ∂/∂n_g are the same expression, which
+    the emitter computes once.
     """
     a = quat.qexp(0.5 * dt * omega_hat)
     e = quat.qmul(quat.qmul(quat.qconj(a), quat.vec(1, dq[0], dq[1], dq[2])),
@@ -105,7 +111,10 @@ def predict_function(p: dict, name="predict") -> ca.Function:
     omega_hat = gyro - b
     q_new = quat.integrate(q, omega_hat, dt)
     F, G = jacobians_FG(omega_hat, dt)
-    Q = ca.diag(ca.vertcat(*([p["gyro_noise"] ** 2 / dt] * 3 + [p["gyro_bias_rw"] ** 2 * dt] * 3)))
+    # σ_g²/dt with dt floored at DT_Q_MIN: a vanishing (even denormal) dt gives a vanishing
+    # G Q Gᵀ = ¼ σ_g² dt² / max(dt, DT_Q_MIN) J Jᵀ instead of inf * 0 = NaN.
+    q_g = p["gyro_noise"] ** 2 / ca.fmax(dt, DT_Q_MIN)
+    Q = ca.diag(ca.vertcat(*([q_g] * 3 + [p["gyro_bias_rw"] ** 2 * dt] * 3)))
     P_new = kalman.predict_covariance(sym_lower(Pv), F, G, Q, symmetrize=False)   # mirrored below
     return emit.function(name, {"q": q, "b": b, "P": Pv, "gyro": gyro, "dt": dt},
                          {"q_out": q_new, "P_out": flat_mirrored(P_new)})
@@ -121,9 +130,9 @@ def measured_angles(p: dict, q, b, gyro, accel, mag, vel, acc_n, m_comp):
     if p["motion_comp"] == "centripetal":
         w = gyro - b
         vb = quat.rotate_inv(q, vel)
-        f = accel - m_comp * ca.cross(w, vb)
+        f = accel - ca.if_else(m_comp, ca.cross(w, vb), ca.DM.zeros(3))
     elif p["motion_comp"] == "gps_accel":
-        f = accel - m_comp * quat.rotate_inv(q, acc_n)
+        f = accel - ca.if_else(m_comp, quat.rotate_inv(q, acc_n), ca.DM.zeros(3))
     roll_a, pitch_a = attitude.tilt_angles(f)
     if p["heading_source"] == "mag":
         est = quat.euler(q)
@@ -220,4 +229,4 @@ class Model(FilterModel):
     def template_context(self) -> dict:
         p = self.params
         return {"n": N, "heading_source": p["heading_source"], "motion_comp": p["motion_comp"],
-                "s_pivot_min": S_PIVOT_MIN, "age_max": AGE_MAX, "g0": G0}
+                "s_pivot_min": S_PIVOT_MIN, "age_max": AGE_MAX, "g0": G0, "gps_dt_min": GPS_DT_MIN}

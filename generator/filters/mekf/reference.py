@@ -15,7 +15,8 @@ Step 2:  P⁻ = F P Fᵀ + G Q Gᵀ with the Jacobians of the discrete error pro
   by hand at X = 0:  ∂δq'/∂δq = R(a)ᵀ  (a* ⊗ v ⊗ a rotates v by a⁻¹),
   ∂δq'/∂δb = ∂δq'/∂n_g = −½ dt J_r(u)  (exp(u + du) = exp(u) exp(J_r(u) du), J_r the right
   Jacobian of SO(3)),  ∂δb'/∂δb = ∂δb'/∂n_b = I.
-  Q = diag(σ_g²/dt · I, σ_bw² dt · I)  (rate noise over the step, bias random-walk increment).
+  Q = diag(σ_g²/max(dt, 1e-9 s) · I, σ_bw² dt · I)  (rate noise over the step, bias
+  random-walk increment; the floor keeps a vanishing dt from giving inf * 0).
 Step 3:  φ₂ = atan2(−f_y, −f_z),  θ₂ = atan2(f_x, √(f_y² + f_z²)),  ψ₂ = atan2(v_E, v_N)
   (or the tilt-compensated magnetic heading computed with the predicted roll and pitch).
 Step 4:  Z = wrap([φ₂, θ₂, ψ₂] − euler(q̂)).
@@ -39,9 +40,12 @@ from generator.npquat import euler_from_q, q_from_euler, qexp, qmul, rotmat, wra
 COURSE_SLOW = st.FILTER_BASE          # GPS sample present but ground speed < gps_min_speed: yaw row dropped
 ACCEL_GATED = st.FILTER_BASE << 1     # | |f| - g | > accel_gate: roll/pitch rows dropped
 UPDATE_SKIPPED = st.FILTER_BASE << 2  # S not positive definite, or pitch at ±90°: no correction
+GPS_VEL_RANGE = st.FILTER_BASE << 3   # a GPS velocity component beyond gps_vel_max: sample ignored
 
 COS2_PITCH_MIN = 1e-4   # no correction while cos²(pitch) <= this (pitch within 0.57° of ±90°)
 AGE_MAX = 1e3   # the GPS-velocity age stops counting here (s)
+GPS_DT_MIN = 1e-3   # two GPS samples closer than this (s) give no new acceleration
+DT_Q_MIN = 1e-9     # s: floor of dt in the gyro-noise variance σ_g²/dt
 
 # The innovation covariance must have Cholesky pivots above this to be used.
 S_PIVOT_MIN = 1e-12
@@ -122,6 +126,7 @@ class Reference:
         self.init_from_sensors = bool(p["init_from_sensors"])
         self.motion_comp = str(p["motion_comp"])
         self.gps_vel_timeout = float(p["gps_vel_timeout"])
+        self.gps_vel_max = float(p["gps_vel_max"])
         self.p0_att = float(p["p0_att"])
         self.p0_bias = float(p["p0_bias"])
         self.gyro_max = float(p["gyro_max"])
@@ -176,6 +181,8 @@ class Reference:
             v = np.asarray(gps_vel, dtype=float)
             if not np.all(np.isfinite(v)):
                 status |= st.GPS_NONFINITE
+            elif np.any(np.abs(v) > self.gps_vel_max):
+                status |= GPS_VEL_RANGE
             else:
                 gps_fresh = True
                 speed2 = v[0] * v[0] + v[1] * v[1]
@@ -203,10 +210,10 @@ class Reference:
         if gps_fresh:
             if self.motion_comp == "gps_accel":
                 tau = v_age + dt          # time since the previous GPS sample
-                if tau <= self.gps_vel_timeout:
-                    a_gps, a_ok = (v - v_gps) / tau, True
-                else:
+                if tau > self.gps_vel_timeout:
                     a_ok = False
+                elif tau >= GPS_DT_MIN:   # (closer samples leave the acceleration as it was)
+                    a_gps, a_ok = (v - v_gps) / tau, True
             v_gps = v.copy()
             v_age = 0.0
         elif v_age < AGE_MAX:
@@ -234,7 +241,7 @@ class Reference:
         q = qmul(self.q, qexp(0.5 * u))
         q = q / np.linalg.norm(q)
         F, G = propagation_jacobians(u, dt)
-        Q = np.diag([self.gyro_noise ** 2 / dt] * 3 + [self.gyro_bias_rw ** 2 * dt] * 3)
+        Q = np.diag([self.gyro_noise ** 2 / max(dt, DT_Q_MIN)] * 3 + [self.gyro_bias_rw ** 2 * dt] * 3)
         P = F @ self.P @ F.T + G @ Q @ G.T
         P = 0.5 * (P + P.T)
 
