@@ -45,16 +45,16 @@ def predict_covariance(P, F, G, Q, symmetrize: bool = True):
 def mask_rows(H, z, r, mask):
     """Masked measurement: rows with mask 0 get H row 0, z 0, R 1 (mask entries are 0/1 symbols).
 
-    H (m x n), z (m), r (m, variances), mask (m). Returns (H_m, z_m, R_m). The masking is a
-    select, not a product, so a masked row's z or H may be inf/NaN without effect.
+    H (m x n), z (m), r (m, variances), mask (m). Returns (H_m, z_m, R_m). The innovation
+    is masked by a select, not a product, so a masked row's z may be inf/NaN without effect;
+    H is masked by a product (cheaper) and must be finite.
     """
     m = H.shape[0]
     Hm = ca.SX(H)
     zm = ca.SX.zeros(m, 1)
     R = ca.SX.zeros(m, m)
     for i in range(m):
-        for j in range(H.shape[1]):
-            Hm[i, j] = ca.if_else(mask[i], H[i, j], 0.0)
+        Hm[i, :] = mask[i] * H[i, :]
         zm[i] = ca.if_else(mask[i], z[i], 0.0)
         R[i, i] = ca.if_else(mask[i], r[i], 1.0)
     return Hm, zm, R
