@@ -71,7 +71,7 @@ def test_jacobian_at_matches_finite_differences():
     x = ca.SX.sym("x", 3)
     w = ca.SX.sym("w", 2)
     expr = ca.vertcat(ca.sin(x[0] + w[0]) * ca.exp(x[1]), x[2] ** 3 + w[1] * x[0] + ca.cos(w[1]))
-    J = kalman.jacobian_at(expr, x, 0, [x])
+    J = kalman.jacobian_at(expr, x, [x])
     f = ca.Function("J", [w], [J])
     g = ca.Function("g", [x, w], [expr])
     wv = np.array([0.3, -0.7])

@@ -17,18 +17,17 @@ import casadi as ca
 from . import linalg
 
 
-def jacobian_at(expr, wrt, point, zero_vars):
+def jacobian_at(expr, wrt, zero_vars):
     """d expr / d wrt evaluated with every symbol in `zero_vars` set to 0.
 
-    `wrt` and the members of `zero_vars` are SX symbol vectors; `point` is unused except for
-    documentation symmetry (the linearisation point is X = 0, noise = 0).
+    `wrt` and the members of `zero_vars` are SX symbol vectors (the linearisation point of an
+    error-state filter: error state and noise = 0).
 
     Forward mode (one directional derivative per column of `wrt`), always: reverse mode
     accumulates adjoints through shared nodes without the branch masks, so a branch that is
     not taken (the sqrt of a squared norm at 0 inside a small-angle switch, for instance)
     gives 0 * inf = NaN; forward mode keeps every such term behind its if_else.
     """
-    del point
     n = wrt.shape[0]
     J = ca.jtimes(expr, wrt, ca.SX.eye(n))
     syms = ca.vertcat(*zero_vars)

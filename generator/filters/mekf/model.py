@@ -88,15 +88,15 @@ def jacobians_FG(omega_hat, dt):
     dq, db, ng, nb = (ca.SX.sym(n, 3) for n in ("dq", "db", "ng", "nb"))
     f = error_propagation(dq, db, ng, nb, omega_hat, dt)
     zeros = [dq, db, ng, nb]
-    F = kalman.jacobian_at(f, ca.vertcat(dq, db), 0, zeros)
-    G = kalman.jacobian_at(f, ca.vertcat(ng, nb), 0, zeros)
+    F = kalman.jacobian_at(f, ca.vertcat(dq, db), zeros)
+    G = kalman.jacobian_at(f, ca.vertcat(ng, nb), zeros)
     return F, G
 
 
 def jacobian_H(q):
     """H (3 x 6) by CasADi jacobian of measurement at δq = 0 (zero columns for δb)."""
     dq = ca.SX.sym("dq", 3)
-    Hq = kalman.jacobian_at(measurement(q, dq), dq, 0, [dq])
+    Hq = kalman.jacobian_at(measurement(q, dq), dq, [dq])
     return ca.horzcat(Hq, ca.SX.zeros(3, 3))
 
 
