@@ -2222,7 +2222,7 @@ mekf_status mekf_step(mekf_state *s, const mekf_input *in, float dt)
             float P_upd[36];
             float min_pivot;
             mekf_k_update(q_pred, s->gyro_bias, P_pred, in->gyro, accel_in, mag_in,
-                                  s->v_gps, s->a_gps, mask, q_upd, b_upd, P_upd, &min_pivot);
+                s->v_gps, s->a_gps, mask, q_upd, b_upd, P_upd, &min_pivot);
             if (min_pivot > 1e-12f) {
                 for (uint32_t i = 0u; i < 4u; i++) {
                     s->q[i] = q_upd[i];
