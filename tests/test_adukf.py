@@ -49,11 +49,12 @@ def test_float_c_within_bound(name):
 
 
 @pytest.mark.parametrize("name", SCENARIOS)
-def test_plain_dukf_matches_reference(name):
-    """k_a = k_m = 0 (the DUKF baseline) through the same C and reference."""
+@pytest.mark.parametrize("sets", [PLAIN, ("adapt_max=1.0",)], ids=["plain", "adapt_max"])
+def test_variants_match_reference(name, sets):
+    """k_a = k_m = 0 (the DUKF baseline), and the bounded adaptation, through C and reference."""
     log = scenario(name, 0, duration=40.0)
-    c = host_build("adukf", "double", PLAIN).run(log)
-    r = reference_run("adukf", name, PLAIN, 0, duration=40.0)
+    c = host_build("adukf", "double", sets).run(log)
+    r = reference_run("adukf", name, sets, 0, duration=40.0)
     assert metrics.max_angle_diff_rad(c.q, r.q) <= 1e-9
 
 

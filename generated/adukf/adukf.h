@@ -37,6 +37,7 @@ extern "C" {
 #define ADUKF_SIGMA_MAG 0.05f         /* base std of the normalised magnetometer measurement (sigma_m in R) [1 (unit vector)] */
 #define ADUKF_K_A 300.0f              /* adaptive weight of the accelerometer residual: R_i = sigma_acc^2 + k_a eps_i^2 (0: plain DUKF) [1] */
 #define ADUKF_K_M 300.0f              /* adaptive weight of the magnetometer residual: R_i = sigma_mag^2 + k_m eps_i^2 (0: plain DUKF) [1] */
+#define ADUKF_ADAPT_MAX 0.0f          /* upper bound of each adaptive term k eps_i^2 in R (0: unbounded, as the paper); a bound keeps some trust in the sensors so a large attitude error can still be corrected [1] */
 #define ADUKF_UT_ALPHA 1.0f           /* unscented transform spread: lambda = alpha^2 (n + kappa) - n, a = sqrt(n + lambda) [1] */
 #define ADUKF_UT_BETA 2.0f            /* unscented transform beta (2 for a Gaussian prior) [1] */
 #define ADUKF_UT_KAPPA 0.0f           /* unscented transform kappa [1] */
@@ -71,10 +72,11 @@ typedef uint32_t adukf_status;
 #define ADUKF_GYRO_RANGE      (1u << 9) /* refused: a gyro component beyond gyro_max; state unchanged */
 #define ADUKF_ACCEL_RANGE     (1u << 10) /* an accelerometer component beyond accel_max; its correction skipped */
 #define ADUKF_MAG_RANGE       (1u << 11) /* a magnetometer component beyond mag_max; its correction skipped */
-#define ADUKF_COV_RESET       (1u << 12) /* P- was not positive definite: P reset to P0, measurement update skipped */
-#define ADUKF_UPDATE_SKIPPED  (1u << 13) /* P_zz was not positive definite: measurement update skipped */
-#define ADUKF_NUMERIC_FAULT   (1u << 14) /* non-finite result: state left as it was before the step */
-#define ADUKF_MAG_LEARNING    (1u << 15) /* reference field still being learned: magnetometer correction not applied */
+#define ADUKF_GPS_RANGE       (1u << 12) /* a GPS velocity component beyond gps_vel_max; the sample is ignored */
+#define ADUKF_COV_RESET       (1u << 16) /* P- was not positive definite: P reset to P0, measurement update skipped */
+#define ADUKF_UPDATE_SKIPPED  (1u << 17) /* P_zz was not positive definite: measurement update skipped */
+#define ADUKF_NUMERIC_FAULT   (1u << 18) /* non-finite result: state left as it was before the step */
+#define ADUKF_MAG_LEARNING    (1u << 19) /* reference field still being learned: magnetometer correction not applied */
 #define ADUKF_REFUSED_MASK (ADUKF_DT_INVALID | ADUKF_DT_TOO_LARGE | ADUKF_GYRO_MISSING | ADUKF_GYRO_NONFINITE | ADUKF_GYRO_RANGE)
 
 typedef struct {

@@ -106,7 +106,10 @@ class Model(FilterModel):
         z = ca.vertcat(normalize(f), normalize(m))
         eps = z - zhat
         sa2, sm2 = p["sigma_acc"] ** 2, p["sigma_mag"] ** 2
-        R = [sa2 + p["k_a"] * eps[i] ** 2 for i in range(3)] + [sm2 + p["k_m"] * eps[i] ** 2 for i in range(3, 6)]
+        adapt = [p["k_a"] * eps[i] ** 2 for i in range(3)] + [p["k_m"] * eps[i] ** 2 for i in range(3, 6)]
+        if p["adapt_max"] > 0:        # product option: bound the inflation (0 = as the paper, unbounded)
+            adapt = [ca.fmin(x, p["adapt_max"]) for x in adapt]
+        R = [sa2 + adapt[i] for i in range(3)] + [sm2 + adapt[i] for i in range(3, 6)]
         Pzz = ca.SX.zeros(6, 6)
         Pxz = ca.SX.zeros(N, 6)
         for i in range(2 * N + 1):

@@ -239,8 +239,10 @@ class Reference:
                 z = np.concatenate([f / math.sqrt(float(f @ f)) if use_a else np.zeros(3),
                                     m / math.sqrt(float(m @ m)) if use_m else np.zeros(3)])
                 eps = z - zhat
-                R = np.concatenate([p["sigma_acc"] ** 2 + p["k_a"] * eps[:3] ** 2,
-                                    p["sigma_mag"] ** 2 + p["k_m"] * eps[3:] ** 2])
+                adapt = np.concatenate([p["k_a"] * eps[:3] ** 2, p["k_m"] * eps[3:] ** 2])
+                if p["adapt_max"] > 0:
+                    adapt = np.minimum(adapt, p["adapt_max"])
+                R = np.concatenate([np.full(3, p["sigma_acc"] ** 2), np.full(3, p["sigma_mag"] ** 2)]) + adapt
                 dZ = Z - zhat
                 dX = chis - qm
                 Pzz = (self.wc[:, None] * dZ).T @ dZ + np.diag(R)
