@@ -25,7 +25,7 @@ extern "C" {
 #endif
 
 /* Parameters baked into this build (already folded into the code; listed for reference). */
-#define ADUKF_DT_MAX 0.1f             /* largest dt accepted; a larger step is refused (DT_TOO_LARGE) [s] */
+#define ADUKF_DT_MAX 0.5f             /* largest dt a step accepts; larger is refused (DT_TOO_LARGE) [s] */
 #define ADUKF_GYRO_MAX 70.0f          /* largest gyro component accepted; larger is refused (GYRO_RANGE) [rad/s] */
 #define ADUKF_ACCEL_MIN_NORM 0.5f     /* accelerometer norm below this skips its correction (ACCEL_ZERO) [m/s^2] */
 #define ADUKF_ACCEL_MAX 2000.0f       /* accelerometer component above this skips its correction (ACCEL_RANGE) [m/s^2] */
