@@ -120,6 +120,9 @@ COMMON_PARAMS = {
         Param("mag_min_norm", 1e-6, "magnetometer norm below this skips its correction (MAG_ZERO)", "field unit", 0.0, 1e6),
         Param("mag_max", 1e6, "magnetometer component above this skips its correction (MAG_RANGE)", "field unit", 0.0, 1e12, True),
     ],
+    "gps": [
+        Param("gps_vel_max", 500.0, "GPS velocity component above this: the sample is ignored (GPS_RANGE)", "m/s", 0.0, 1e4, True),
+    ],
 }
 
 

@@ -21,7 +21,8 @@ GPS_NONFINITE = 1 << 8
 GYRO_RANGE = 1 << 9        # refused: a gyro component beyond gyro_max
 ACCEL_RANGE = 1 << 10      # a component beyond accel_max: correction skipped
 MAG_RANGE = 1 << 11        # a component beyond mag_max: correction skipped
-FILTER_BASE = 1 << 12      # first bit a filter may define for itself
+GPS_RANGE = 1 << 12        # a GPS velocity component beyond gps_vel_max: sample ignored
+FILTER_BASE = 1 << 16      # first bit a filter may define for itself
 
 REFUSED_MASK = DT_INVALID | DT_TOO_LARGE | GYRO_MISSING | GYRO_NONFINITE | GYRO_RANGE
 
@@ -39,4 +40,5 @@ COMMON = [
     ("GYRO_RANGE", GYRO_RANGE, "refused: a gyro component beyond gyro_max; state unchanged"),
     ("ACCEL_RANGE", ACCEL_RANGE, "an accelerometer component beyond accel_max; its correction skipped"),
     ("MAG_RANGE", MAG_RANGE, "a magnetometer component beyond mag_max; its correction skipped"),
+    ("GPS_RANGE", GPS_RANGE, "a GPS velocity component beyond gps_vel_max; the sample is ignored"),
 ]

@@ -63,8 +63,9 @@ typedef uint32_t cpf_status;
 #define CPF_GYRO_RANGE      (1u << 9) /* refused: a gyro component beyond gyro_max; state unchanged */
 #define CPF_ACCEL_RANGE     (1u << 10) /* an accelerometer component beyond accel_max; its correction skipped */
 #define CPF_MAG_RANGE       (1u << 11) /* a magnetometer component beyond mag_max; its correction skipped */
-#define CPF_WEIGHTS_RESET   (1u << 12) /* particle weights summed to zero (underflow or corrupted state): reset to 1/N */
-#define CPF_NOT_INITIALISED (1u << 13) /* no usable accelerometer sample yet to initialise from; state unchanged */
+#define CPF_GPS_RANGE       (1u << 12) /* a GPS velocity component beyond gps_vel_max; the sample is ignored */
+#define CPF_WEIGHTS_RESET   (1u << 16) /* particle weights summed to zero (underflow or corrupted state): reset to 1/N */
+#define CPF_NOT_INITIALISED (1u << 17) /* no usable accelerometer sample yet to initialise from; state unchanged */
 #define CPF_REFUSED_MASK (CPF_DT_INVALID | CPF_DT_TOO_LARGE | CPF_GYRO_MISSING | CPF_GYRO_NONFINITE | CPF_GYRO_RANGE)
 
 typedef struct {

@@ -31,6 +31,7 @@ extern "C" {
 #define MEKF_ACCEL_MAX 2000.0f         /* accelerometer component above this skips its correction (ACCEL_RANGE) [m/s^2] */
 #define MEKF_MAG_MIN_NORM 1e-06f       /* magnetometer norm below this skips its correction (MAG_ZERO) [field unit] */
 #define MEKF_MAG_MAX 1e+06f            /* magnetometer component above this skips its correction (MAG_RANGE) [field unit] */
+#define MEKF_GPS_VEL_MAX 500.0f        /* GPS velocity component above this: the sample is ignored (GPS_RANGE) [m/s] */
 /* MEKF_HEADING_SOURCE = gps_course yaw measurement: GPS course over ground atan2(vE, vN) (the patent) or tilt-compensated magnetometer heading */
 #define MEKF_GPS_MIN_SPEED 3.0f        /* GPS course is used as heading only while the horizontal ground speed is at least this (and a GPS sample arrived this step) [m/s] */
 #define MEKF_MAG_DECLINATION 0.0f      /* added to the magnetic heading (heading_source = 'mag') [rad] */
@@ -41,7 +42,6 @@ extern "C" {
 #define MEKF_MAG_HEADING_NOISE 0.05f   /* standard deviation of the tilt-compensated magnetometer heading [rad] */
 #define MEKF_ACCEL_GATE 0.0f           /* if > 0, the roll/pitch rows are dropped while | |accel| - g | exceeds this (ACCEL_GATED); 0 = off, as the patent [m/s^2] */
 /* MEKF_MOTION_COMP = centripetal   motion acceleration removed from the specific force before roll/pitch are taken from it: 'centripetal' = ω × v_b (gyro and GPS velocity in body axes; fixed-wing turns), 'gps_accel' = R(q)ᵀ a_n with a_n the difference of the last two GPS velocities (any motion, noisier, lagged by half a GPS period; multirotors), 'none' = the patent (gravity-only accelerometer) */
-#define MEKF_GPS_VEL_MAX 500.0f        /* a GPS velocity with a component beyond this is ignored (GPS_VEL_RANGE): no course, no compensation [m/s] */
 #define MEKF_GPS_VEL_TIMEOUT 1.0f      /* the last GPS velocity (and GPS acceleration) is used for the motion compensation for at most this long; two GPS samples further apart than this give no acceleration [s] */
 #define MEKF_INIT_FROM_SENSORS 1       /* start from the first usable accelerometer sample (roll, pitch) and heading (yaw, or 0 if none); false: identity attitude at the first step, as the patent leaves the initial condition open */
 #define MEKF_P0_ATT 0.5f               /* initial attitude-error standard deviation per axis (P0 of δq is (p0_att/2)^2) [rad] */
@@ -68,10 +68,10 @@ typedef uint32_t mekf_status;
 #define MEKF_GYRO_RANGE      (1u << 9) /* refused: a gyro component beyond gyro_max; state unchanged */
 #define MEKF_ACCEL_RANGE     (1u << 10) /* an accelerometer component beyond accel_max; its correction skipped */
 #define MEKF_MAG_RANGE       (1u << 11) /* a magnetometer component beyond mag_max; its correction skipped */
-#define MEKF_COURSE_SLOW     (1u << 12) /* GPS sample present but ground speed below gps_min_speed: yaw row dropped */
-#define MEKF_ACCEL_GATED     (1u << 13) /* | |accel| - g | above accel_gate: roll/pitch rows dropped */
-#define MEKF_UPDATE_SKIPPED  (1u << 14) /* correction skipped: innovation covariance not positive definite, or pitch within 0.57 deg of +-90 deg (Euler angles singular) */
-#define MEKF_GPS_VEL_RANGE   (1u << 15) /* a GPS velocity component beyond gps_vel_max: sample ignored */
+#define MEKF_GPS_RANGE       (1u << 12) /* a GPS velocity component beyond gps_vel_max; the sample is ignored */
+#define MEKF_COURSE_SLOW     (1u << 16) /* GPS sample present but ground speed below gps_min_speed: yaw row dropped */
+#define MEKF_ACCEL_GATED     (1u << 17) /* | |accel| - g | above accel_gate: roll/pitch rows dropped */
+#define MEKF_UPDATE_SKIPPED  (1u << 18) /* correction skipped: innovation covariance not positive definite, or pitch within 0.57 deg of +-90 deg (Euler angles singular) */
 #define MEKF_REFUSED_MASK (MEKF_DT_INVALID | MEKF_DT_TOO_LARGE | MEKF_GYRO_MISSING | MEKF_GYRO_NONFINITE | MEKF_GYRO_RANGE)
 
 typedef struct {

@@ -553,7 +553,7 @@ static void qcf_k_propagate(const float q[4], const float gyro_bias[3], const fl
 }
 
 /* Z-Y-X Euler angles [roll, pitch, yaw] of a unit body->NED quaternion
- * ops: add 12, mul 9, trig 3, cmp 2 (total 26) */
+ * ops: add 13, mul 11, sqrt 1, trig 3 (total 28) */
 static void qcf_k_euler(const float q[4], float rpy[3])
 {
     const float tmp0 = q[0] * q[1];
@@ -570,21 +570,23 @@ static void qcf_k_euler(const float q[4], float rpy[3])
     const float tmp11 = q[1] * q[3];
     const float tmp12 = tmp10 - tmp11;
     const float tmp13 = tmp12 + tmp12;
-    const float tmp14 = (tmp13 > (-1.0f)) ? tmp13 : (-1.0f);
-    const float tmp15 = (tmp14 < 1.0f) ? tmp14 : 1.0f;
-    const float tmp16 = asinf(tmp15);
-    const float tmp17 = q[0] * q[3];
-    const float tmp18 = q[1] * q[2];
-    const float tmp19 = tmp17 + tmp18;
-    const float tmp20 = tmp19 + tmp19;
-    const float tmp21 = q[3] * q[3];
-    const float tmp22 = tmp5 + tmp21;
-    const float tmp23 = tmp22 + tmp22;
-    const float tmp24 = 1.0f - tmp23;
-    const float tmp25 = atan2f(tmp20, tmp24);
+    const float tmp14 = tmp3 * tmp3;
+    const float tmp15 = tmp8 * tmp8;
+    const float tmp16 = tmp14 + tmp15;
+    const float tmp17 = sqrtf(tmp16);
+    const float tmp18 = atan2f(tmp13, tmp17);
+    const float tmp19 = q[0] * q[3];
+    const float tmp20 = q[1] * q[2];
+    const float tmp21 = tmp19 + tmp20;
+    const float tmp22 = tmp21 + tmp21;
+    const float tmp23 = q[3] * q[3];
+    const float tmp24 = tmp5 + tmp23;
+    const float tmp25 = tmp24 + tmp24;
+    const float tmp26 = 1.0f - tmp25;
+    const float tmp27 = atan2f(tmp22, tmp26);
     rpy[0] = tmp9;
-    rpy[1] = tmp16;
-    rpy[2] = tmp25;
+    rpy[1] = tmp18;
+    rpy[2] = tmp27;
 }
 
 static bool qcf_finite3(const float v[3])
@@ -672,6 +674,8 @@ qcf_status qcf_step(qcf_state *s, const qcf_input *in, float dt)
     if ((in->valid & QCF_VALID_GPS) != 0u) {
         if (!qcf_finite3(in->gps_vel_ned)) {
             status |= QCF_GPS_NONFINITE;
+        } else if (!qcf_within3(in->gps_vel_ned, QCF_GPS_VEL_MAX)) {
+            status |= QCF_GPS_RANGE;
         } else {
             use_gps = true;
         }

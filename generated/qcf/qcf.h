@@ -31,6 +31,7 @@ extern "C" {
 #define QCF_ACCEL_MAX 2000.0f              /* accelerometer component above this skips its correction (ACCEL_RANGE) [m/s^2] */
 #define QCF_MAG_MIN_NORM 1e-06f            /* magnetometer norm below this skips its correction (MAG_ZERO) [field unit] */
 #define QCF_MAG_MAX 1e+06f                 /* magnetometer component above this skips its correction (MAG_RANGE) [field unit] */
+#define QCF_GPS_VEL_MAX 500.0f             /* GPS velocity component above this: the sample is ignored (GPS_RANGE) [m/s] */
 #define QCF_KP 0.3f                        /* proportional gain on the quaternion error q~ (eq. 14) [rad/s] */
 #define QCF_KI 0.002f                      /* integral gain of the gyro-bias estimate (eq. 14) [rad/s^2] */
 #define QCF_GPS_COMPENSATION 1             /* remove the GPS-derived motion acceleration from the accelerometer (section 3.2) */
@@ -62,6 +63,7 @@ typedef uint32_t qcf_status;
 #define QCF_GYRO_RANGE      (1u << 9) /* refused: a gyro component beyond gyro_max; state unchanged */
 #define QCF_ACCEL_RANGE     (1u << 10) /* an accelerometer component beyond accel_max; its correction skipped */
 #define QCF_MAG_RANGE       (1u << 11) /* a magnetometer component beyond mag_max; its correction skipped */
+#define QCF_GPS_RANGE       (1u << 12) /* a GPS velocity component beyond gps_vel_max; the sample is ignored */
 #define QCF_REFUSED_MASK (QCF_DT_INVALID | QCF_DT_TOO_LARGE | QCF_GYRO_MISSING | QCF_GYRO_NONFINITE | QCF_GYRO_RANGE)
 
 typedef struct {

@@ -89,8 +89,12 @@ def wrap(a) -> ca.SX:
 def euler(q) -> ca.SX:
     """Z-Y-X Euler angles [roll, pitch, yaw] of a unit body->NED quaternion."""
     w, x, y, z = q[0], q[1], q[2], q[3]
-    roll = ca.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
-    pitch = ca.asin(ca.fmin(ca.fmax(2 * (w * y - x * z), -1), 1))
+    r21 = 2 * (w * x + y * z)
+    r22 = 1 - 2 * (x * x + y * y)
+    roll = ca.atan2(r21, r22)
+    # pitch = asin(2(wy - xz)), written as atan2 against cos(pitch) = |(R21, R22)|: well
+    # conditioned up to +-90 deg, and no asinf (newlib's pulls errno state into RAM).
+    pitch = ca.atan2(2 * (w * y - x * z), ca.sqrt(r21 * r21 + r22 * r22))
     yaw = ca.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
     return vec(roll, pitch, yaw)
 

@@ -37,7 +37,6 @@ EXTRA_STATUS = [
     ("COURSE_SLOW", "GPS sample present but ground speed below gps_min_speed: yaw row dropped"),
     ("ACCEL_GATED", "| |accel| - g | above accel_gate: roll/pitch rows dropped"),
     ("UPDATE_SKIPPED", "correction skipped: innovation covariance not positive definite, or pitch within 0.57 deg of +-90 deg (Euler angles singular)"),
-    ("GPS_VEL_RANGE", "a GPS velocity component beyond gps_vel_max: sample ignored"),
 ]
 
 

@@ -40,7 +40,6 @@ from generator.npquat import euler_from_q, q_from_euler, qexp, qmul, rotmat, wra
 COURSE_SLOW = st.FILTER_BASE          # GPS sample present but ground speed < gps_min_speed: yaw row dropped
 ACCEL_GATED = st.FILTER_BASE << 1     # | |f| - g | > accel_gate: roll/pitch rows dropped
 UPDATE_SKIPPED = st.FILTER_BASE << 2  # S not positive definite, or pitch at ±90°: no correction
-GPS_VEL_RANGE = st.FILTER_BASE << 3   # a GPS velocity component beyond gps_vel_max: sample ignored
 
 COS2_PITCH_MIN = 1e-4   # no correction while cos²(pitch) <= this (pitch within 0.57° of ±90°)
 AGE_MAX = 1e3   # the GPS-velocity age stops counting here (s)
@@ -182,7 +181,7 @@ class Reference:
             if not np.all(np.isfinite(v)):
                 status |= st.GPS_NONFINITE
             elif np.any(np.abs(v) > self.gps_vel_max):
-                status |= GPS_VEL_RANGE
+                status |= st.GPS_RANGE
             else:
                 gps_fresh = True
                 speed2 = v[0] * v[0] + v[1] * v[1]

@@ -113,6 +113,9 @@ class Reference:
         if use_gps and not np.all(np.isfinite(gps_vel)):
             use_gps = False
             status |= st.GPS_NONFINITE
+        elif use_gps and np.any(np.abs(np.asarray(gps_vel, float)) > p["gps_vel_max"]):
+            use_gps = False
+            status |= st.GPS_RANGE
 
         if use_gps:
             if self.gps_age > p["gps_timeout"]:
