@@ -122,6 +122,7 @@ def test_refused_steps_leave_state_untouched(precision, change, dt, expected):
     ({"mag": (0, 0, 0)}, 4, st.MAG_ZERO),
     ({"mag": (1e30, 0, 0)}, 4, st.MAG_RANGE),
     ({"gps_vel": (NAN, 0, 0)}, 8, st.GPS_NONFINITE),
+    ({"gps_vel": (3e38, 0, 0)}, 8, st.GPS_RANGE),
 ])
 def test_bad_aiding_sample_skips_only_its_correction(precision, change, cleared_bit, expected):
     hf = host_build("qcf", precision)
