@@ -19,6 +19,8 @@
  * Known-issue exclusion (only when harden.py lists one for a filter, with its reason):
  *   -DAHRS_FUZZ_GPS_MAX=X  finite raw GPS components beyond +-X are clamped to +-X, so the
  *                          fuzzer can explore past a known overflow of huge GPS velocities.
+ *   -DAHRS_FUZZ_DT_MIN=X   a positive dt below X is raised to X (known failure at the smallest
+ *                          denormal dt).
  *
  * After every step (abort() on violation, after printing what broke):
  *   - the status has no bit outside the documented ones;
@@ -88,6 +90,11 @@ static void decode(const uint8_t *r, ahrs_input *in, ahrs_real *dt)
 #endif
     const uint8_t *p = f + 12u * sizeof(ahrs_real);
     *dt = (ctrl & (1u << 4)) ? bounded(p, 1e-4, 0.05) : raw_real(p);
+#ifdef AHRS_FUZZ_DT_MIN
+    if (*dt > (ahrs_real)0 && (double)*dt < AHRS_FUZZ_DT_MIN) {
+        *dt = (ahrs_real)AHRS_FUZZ_DT_MIN;
+    }
+#endif
 }
 
 static void nominal_input(uint32_t k, ahrs_input *in, ahrs_real *dt)
