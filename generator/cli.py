@@ -20,13 +20,15 @@ def _add_build_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--config", metavar="FILE.toml", help="TOML file: prefix, precision and a [params] table")
     p.add_argument("--set", metavar="NAME=VALUE", action="append", default=[],
                    help="override one parameter (repeatable); wins over --config")
+    p.add_argument("--preset", help="start from a named parameter set of the filter, e.g. 'faithful' "
+                                    "(the source as published; see 'ahrsgen list FILTER')")
     p.add_argument("--precision", choices=["float", "double"], help="C floating-point type (default float)")
     p.add_argument("--prefix", help="C identifier prefix of the generated API (default: the filter name)")
 
 
 def _resolve(args):
     from generator import config
-    return config.resolve(args.filter, args.config, args.set, args.precision, args.prefix)
+    return config.resolve(args.filter, args.config, args.set, args.precision, args.prefix, args.preset)
 
 
 def cmd_list(args) -> int:
@@ -42,6 +44,11 @@ def cmd_list(args) -> int:
             unit = f" [{p.unit}]" if p.unit else ""
             print(f"  {pname:<{width}}  default {p.default!r:<10} allowed {p.range_text()}{unit}")
             print(f"  {'':<{width}}  {p.doc}")
+        for pname, path in spec.presets().items():
+            import tomllib
+            with open(path, "rb") as fh:
+                vals = tomllib.load(fh).get("params", {})
+            print(f"  preset '{pname}': " + ", ".join(f"{k}={v!r}" for k, v in vals.items()))
         print()
     if not args.filter:
         print("scenarios:")
@@ -81,7 +88,7 @@ def cmd_validate(args) -> int:
     if site:
         from generator import config as _config
         cfg = _config.resolve(args.filter, args.config, args.set + [f"{k}={v!r}" for k, v in site.items()],
-                              args.precision, args.prefix)
+                              args.precision, args.prefix, args.preset)
         print("  site parameters from the scenario (override with --set): "
               + ", ".join(f"{k}={v:.6g}" for k, v in site.items()))
     bound = args.tolerance if args.tolerance is not None else (1e-9 if cfg.precision == "double" else 1e-3)

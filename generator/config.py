@@ -3,6 +3,7 @@
 A config file:
 
     filter = "qcf"            # optional; must match the filter being generated
+    preset = "faithful"       # optional: start from a named preset of the filter
     prefix = "att"            # C identifier prefix (default: the filter's name)
     precision = "float"       # or "double"
     [params]
@@ -21,7 +22,7 @@ from generator import filters
 from generator.model import ConfigError
 
 PRECISIONS = ("float", "double")
-TOP_KEYS = {"filter", "prefix", "precision", "params"}
+TOP_KEYS = {"filter", "prefix", "precision", "params", "preset"}
 
 
 @dataclass
@@ -44,20 +45,25 @@ def _check_prefix(prefix: str) -> str:
 
 
 def resolve(filter_name: str, config_file: str | Path | None = None, sets: list[str] | None = None,
-            precision: str | None = None, prefix: str | None = None) -> BuildConfig:
+            precision: str | None = None, prefix: str | None = None, preset: str | None = None) -> BuildConfig:
+    """Defaults, then a preset, then the config file's [params], then --set (last wins)."""
     spec = filters.load(filter_name)
     values = spec.defaults()
     overrides = {}
     file_prefix = file_precision = None
+    file_data = _read_config(config_file) if config_file is not None else {}
+    preset = preset or file_data.get("preset")
+    if preset is not None:
+        presets = spec.presets()
+        if preset not in presets:
+            raise ConfigError(f"unknown preset '{preset}' for filter {filter_name} "
+                              f"(known: {', '.join(presets) or 'none'})")
+        data = _read_config(presets[preset])
+        for name, value in data.get("params", {}).items():
+            values[name] = overrides[name] = _check(spec, name, value, f"preset {preset}")
     if config_file is not None:
         path = Path(config_file)
-        try:
-            with open(path, "rb") as fh:
-                data = tomllib.load(fh)
-        except FileNotFoundError:
-            raise ConfigError(f"config file {path} does not exist") from None
-        except tomllib.TOMLDecodeError as e:
-            raise ConfigError(f"{path}: malformed TOML: {e}") from None
+        data = file_data
         unknown = set(data) - TOP_KEYS
         if unknown:
             raise ConfigError(f"{path}: unknown key(s) {', '.join(sorted(unknown))}; allowed: {', '.join(sorted(TOP_KEYS))}")
@@ -80,6 +86,19 @@ def resolve(filter_name: str, config_file: str | Path | None = None, sets: list[
         raise ConfigError(f"precision {precision!r} must be one of {', '.join(PRECISIONS)}")
     prefix = _check_prefix(prefix or file_prefix or filter_name)
     return BuildConfig(filter_name, values, precision, prefix, overrides)
+
+
+def _read_config(path) -> dict:
+    path = Path(path)
+    try:
+        with open(path, "rb") as fh:
+            return tomllib.load(fh)
+    except FileNotFoundError:
+        raise ConfigError(f"config file {path} does not exist") from None
+    except IsADirectoryError:
+        raise ConfigError(f"config file {path} is a directory") from None
+    except tomllib.TOMLDecodeError as e:
+        raise ConfigError(f"{path}: malformed TOML: {e}") from None
 
 
 def _check(spec, name, value, source):

@@ -26,6 +26,11 @@ class FilterSpec:
     def reference_class(self):
         return importlib.import_module(f"generator.filters.{self.name}.reference").Reference
 
+    def presets(self) -> dict[str, Path]:
+        """Named parameter sets in presets/<name>.toml (e.g. 'faithful': the source as published)."""
+        d = self.folder / "presets"
+        return {p.stem: p for p in sorted(d.glob("*.toml"))} if d.is_dir() else {}
+
     def defaults(self) -> dict:
         return {n: p.default for n, p in self.params.items()}
 

@@ -1,0 +1,85 @@
+"""Configuration: presets, files and --set, and the one-line errors users get."""
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+
+from generator import config, filters
+from generator.model import ConfigError
+
+
+def run_cli(*args):
+    return subprocess.run([sys.executable, "-m", "generator.cli", *args], capture_output=True, text=True)
+
+
+def test_every_filter_has_a_faithful_preset_that_applies():
+    for name in filters.names():
+        spec = filters.load(name)
+        assert "faithful" in spec.presets(), name
+        cfg = config.resolve(name, preset="faithful")
+        assert cfg.overrides, name          # it changes something
+    q = config.resolve("qcf", preset="faithful")
+    assert q.params["faithful"] is True and q.params["motion_accel_model"] == "differentiator"
+
+
+def test_set_wins_over_file_wins_over_preset(tmp_path):
+    f = tmp_path / "c.toml"
+    f.write_text('preset = "faithful"\nprefix = "att"\nprecision = "double"\n[params]\nkp = 0.7\nmotion_accel_model = "centripetal"\n')
+    cfg = config.resolve("qcf", f, ["kp=0.9"])
+    assert cfg.params["faithful"] is True                       # from the preset
+    assert cfg.params["motion_accel_model"] == "centripetal"   # file over preset
+    assert cfg.params["kp"] == 0.9                              # --set over file
+    assert cfg.prefix == "att" and cfg.precision == "double"
+
+
+@pytest.mark.parametrize("content, words", [
+    ("[params]\nkpp = 1\n", ["unknown parameter 'kpp'", "known:"]),
+    ("[params]\nkp = -1\n", ["'kp'", "out of range", "(0.0, 100.0]"]),
+    ("[params]\nkp = \"fast\"\n", ["'kp'", "must be a number"]),
+    ("[params]\nfaithful = 3\n", ["'faithful'", "true or false"]),
+    ("[params]\nmotion_accel_model = \"magic\"\n", ["'motion_accel_model'", "one of"]),
+    ("[params\nkp = 1\n", ["malformed TOML"]),
+    ("colour = \"red\"\n", ["unknown key", "colour"]),
+    ("filter = \"mekf\"\n", ["written for filter 'mekf'"]),
+    ("preset = \"nope\"\n", ["unknown preset 'nope'"]),
+    ("prefix = \"My-Att\"\n", ["prefix", "C identifier"]),
+])
+def test_bad_config_file_is_one_clear_line_and_exit_2(tmp_path, content, words):
+    f = tmp_path / "bad.toml"
+    f.write_text(content)
+    with pytest.raises(ConfigError):
+        config.resolve("qcf", f)
+    r = run_cli("generate", "qcf", "--config", str(f), "-o", str(tmp_path / "out"))
+    assert r.returncode == 2
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("ahrsgen: error:"), r.stderr
+    for w in words:
+        assert w in lines[0], (w, lines[0])
+    assert not (tmp_path / "out").exists()                      # nothing half-written
+
+
+@pytest.mark.parametrize("args, word", [
+    (["--set", "kp"], "expected name=value"),
+    (["--set", "dt_max=0"], "out of range"),
+    (["--set", "gyro_max=nan"], "finite"),
+    (["--config", "/does/not/exist.toml"], "does not exist"),
+])
+def test_bad_cli_values(tmp_path, args, word):
+    r = run_cli("generate", "qcf", *args, "-o", str(tmp_path / "o"))
+    assert r.returncode == 2 and word in r.stderr, r.stderr
+
+
+def test_unknown_filter_and_scenario():
+    r = run_cli("generate", "ekf9", "-o", "/tmp/x")
+    assert r.returncode == 2 and "unknown filter 'ekf9'" in r.stderr and "qcf" in r.stderr
+    r = run_cli("validate", "qcf", "--scenario", "moon_landing")
+    assert r.returncode == 2 and "unknown scenario" in r.stderr
+
+
+def test_list_shows_ranges_units_and_presets():
+    r = run_cli("list", "qcf")
+    assert r.returncode == 0
+    assert "kp" in r.stdout and "allowed (0.0, 100.0]" in r.stdout and "[rad/s]" in r.stdout
+    assert "preset 'faithful'" in r.stdout
