@@ -94,15 +94,28 @@ class Model(FilterModel):
         Pm = linalg.symmetrize(ca.mtimes([A, P, A.T]) + Q)
         return qm, normalize(qm), Pm
 
-    def update_expr(self, qm, Pm, f, m, m_ref, use_a, use_m):
+    # The measurement update is emitted as three kernels (sigma points, innovation
+    # statistics, correction) rather than one ~3200-operation function: the same arithmetic,
+    # and static analysers (cppcheck's value flow) are far slower on one very long function.
+    def sigma_expr(self, qm, Pm, m_ref):
+        """Sigma points (4 x 9, columns), their predicted measurements (6 x 9), min pivot of P-."""
         p = self.params
-        a, wm0, wc0, wi = ut_parameters(p["ut_alpha"], p["ut_beta"], p["ut_kappa"])
+        a = ut_parameters(p["ut_alpha"], p["ut_beta"], p["ut_kappa"])[0]
         L, _, piv_p = linalg.cholesky_with_inverse(Pm, p["pivot_min"])
         chis = [qm] + [qm + a * L[:, i] for i in range(N)] + [qm - a * L[:, i] for i in range(N)]
+        Z = [measurement(normalize(c), m_ref) for c in chis]
+        return ca.horzcat(*chis), ca.horzcat(*Z), piv_p
+
+    def innovation_expr(self, qm, X, Z, f, m, use_a, use_m):
+        """Masked P_zz (6x6), P_xz (4x6), residual and adaptive R diagonal."""
+        p = self.params
+        _, wm0, wc0, wi = ut_parameters(p["ut_alpha"], p["ut_beta"], p["ut_kappa"])
         wm = [wm0] + [wi] * (2 * N)
         wc = [wc0] + [wi] * (2 * N)
-        Z = [measurement(normalize(c), m_ref) for c in chis]
-        zhat = sum((wm[i] * Z[i] for i in range(1, 2 * N + 1)), wm[0] * Z[0])
+        chis = [X[:, i] for i in range(2 * N + 1)]
+        Zs = [Z[:, i] for i in range(2 * N + 1)]
+        # the weights of points 1..2n are equal: sum first, weight once
+        zhat = wm[0] * Zs[0] + wi * sum(Zs[2:], Zs[1])
         z = ca.vertcat(normalize(f), normalize(m))
         eps = z - zhat
         sa2, sm2 = p["sigma_acc"] ** 2, p["sigma_mag"] ** 2
@@ -110,13 +123,20 @@ class Model(FilterModel):
         if p["adapt_max"] > 0:        # product option: bound the inflation (0 = as the paper, unbounded)
             adapt = [ca.fmin(x, p["adapt_max"]) for x in adapt]
         R = [sa2 + adapt[i] for i in range(3)] + [sm2 + adapt[i] for i in range(3, 6)]
+        dZ = [Zs[i] - zhat for i in range(2 * N + 1)]
+        dX = [chis[i] - qm for i in range(2 * N + 1)]
+
+        def wsum(terms):
+            return wc[0] * terms[0] + wi * sum(terms[2:], terms[1])
         Pzz = ca.SX.zeros(6, 6)
+        for r in range(6):            # symmetric: upper triangle once, mirrored
+            for c in range(r, 6):
+                Pzz[r, c] = wsum([dZ[i][r] * dZ[i][c] for i in range(2 * N + 1)]) + (R[r] if r == c else 0.0)
+                Pzz[c, r] = Pzz[r, c]
         Pxz = ca.SX.zeros(N, 6)
-        for i in range(2 * N + 1):
-            dz = Z[i] - zhat
-            Pzz = Pzz + wc[i] * ca.mtimes(dz, dz.T)
-            Pxz = Pxz + wc[i] * ca.mtimes(chis[i] - qm, dz.T)
-        Pzz = Pzz + ca.diag(ca.vertcat(*R))
+        for r in range(N):
+            for c in range(6):
+                Pxz[r, c] = wsum([dX[i][r] * dZ[i][c] for i in range(2 * N + 1)])
         # exact masking of an unusable sensor: identity block in P_zz, zero cross-covariance
         # and residual, so its columns of K are exactly zero
         use = [use_a] * 3 + [use_m] * 3
@@ -132,11 +152,21 @@ class Model(FilterModel):
                 Pxz_m[r, c] = ca.if_else(use[c], Pxz[r, c], 0.0)
             eps_m[c] = ca.if_else(use[c], eps[c], 0.0)
             r_used[c] = ca.if_else(use[c], R[c], 0.0)
-        Kt, piv_zz = linalg.spd_solve(Pzz_m, Pxz_m.T, p["pivot_min"], reciprocal=True)
+        return Pzz_m, Pxz_m, eps_m, r_used
+
+    def correct_expr(self, qm, Pm, Pzz, Pxz, eps):
+        """K = P_xz P_zz⁻¹ by a Cholesky solve, q⁺, P⁺, min pivot of P_zz."""
+        p = self.params
+        Kt, piv_zz = linalg.spd_solve(Pzz, Pxz.T, p["pivot_min"], reciprocal=True)
         K = Kt.T
-        q_new = normalize(qm + ca.mtimes(K, eps_m))
-        P_new = linalg.symmetrize(Pm - ca.mtimes([K, Pzz_m, K.T]))
-        return q_new, P_new, r_used, ca.vertcat(piv_p, piv_zz)
+        q_new = normalize(qm + ca.mtimes(K, eps))
+        KS = ca.mtimes(K, Pzz)
+        P_new = ca.SX.zeros(N, N)
+        for r in range(N):            # P- - K P_zz Kᵀ: upper triangle once, mirrored (exactly symmetric)
+            for c in range(r, N):
+                P_new[r, c] = 0.5 * (Pm[r, c] + Pm[c, r]) - ca.dot(KS[r, :].T, K[c, :].T)
+                P_new[c, r] = P_new[r, c]
+        return q_new, P_new, piv_zz
 
     def kernels(self):
         p = self.params
@@ -153,7 +183,14 @@ class Model(FilterModel):
         Pm = ca.SX.sym("P_pred", N, N)
 
         qm_e, qn_e, Pm_e = self.predict_expr(q, P, w, dt)
-        q_new, P_new, r_used, piv = self.update_expr(qm, Pm, f, m, m_ref, use_a, use_m)
+        X = ca.SX.sym("sigma", N, 2 * N + 1)
+        Z = ca.SX.sym("z_sigma", 6, 2 * N + 1)
+        Pzz = ca.SX.sym("P_zz", 6, 6)
+        Pxz = ca.SX.sym("P_xz", N, 6)
+        eps = ca.SX.sym("residual", 6)
+        X_e, Z_e, piv_p = self.sigma_expr(qm, Pm, m_ref)
+        Pzz_e, Pxz_e, eps_e, r_e = self.innovation_expr(qm, X, Z, f, m, use_a, use_m)
+        q_new, P_new, piv_zz = self.correct_expr(qm, Pm, Pzz, Pxz, eps)
 
         decl = math.radians(p["declination_deg"])
         roll, pitch = attitude.tilt_angles(f)
@@ -164,11 +201,20 @@ class Model(FilterModel):
             KernelSpec("predict", function("predict", {"q": q, "P": P, "gyro": w, "dt": dt},
                                            {"q_pred": qm_e, "q_pred_unit": qn_e, "P_pred": Pm_e}),
                        "linear Kalman time update: q- = A q, P- = A P A^T + Q"),
-            KernelSpec("update", function("update", {"q_pred": qm, "P_pred": Pm, "accel": f, "mag": m, "m_ref": m_ref,
-                                                     "use_accel": use_a, "use_mag": use_m},
-                                          {"q_new": q_new, "P_new": P_new, "r_diag": r_used, "pivots": piv}),
-                       "unscented measurement update (9 sigma points, Cholesky of P-), adaptive per-axis R, "
-                       "K by a Cholesky solve of P_zz; pivots = smallest pivots of P- and P_zz"),
+            KernelSpec("sigma_points", function("sigma_points", {"q_pred": qm, "P_pred": Pm, "m_ref": m_ref},
+                                                {"sigma": X_e, "z_sigma": Z_e, "pivot_P": piv_p}),
+                       "9 sigma points from the Cholesky factor of P- (columns of sigma), each normalised "
+                       "and mapped through h; pivot_P = smallest pivot of P-"),
+            KernelSpec("innovation", function("innovation", {"q_pred": qm, "sigma": X, "z_sigma": Z, "accel": f,
+                                                             "mag": m, "use_accel": use_a, "use_mag": use_m},
+                                              {"P_zz": Pzz_e, "P_xz": Pxz_e, "residual": eps_e, "r_diag": r_e}),
+                       "predicted measurement, residual, adaptive per-axis R, P_zz and P_xz (unusable sensors "
+                       "masked out exactly)"),
+            KernelSpec("correct", function("correct", {"q_pred": qm, "P_pred": Pm, "P_zz": Pzz, "P_xz": Pxz,
+                                                       "residual": eps},
+                                           {"q_new": q_new, "P_new": P_new, "pivot_zz": piv_zz}),
+                       "K = P_xz P_zz^-1 by a Cholesky solve (no inverse), q+ = normalise(q- + K eps), "
+                       "P+ = sym(P- - K P_zz K^T); pivot_zz = smallest pivot of P_zz"),
             KernelSpec("init_q", function("init_q", {"accel": f, "mag": m}, {"q": q_init}),
                        "initial attitude: accelerometer tilt and tilt-compensated heading (+ declination)"),
         ]
@@ -194,7 +240,7 @@ class Model(FilterModel):
 
     def step_paths(self):
         return {
-            "accel+mag update": ["predict", "update"],
+            "accel+mag update": ["predict", "sigma_points", "innovation", "correct"],
             "gyro only": ["predict"],
         }
 
