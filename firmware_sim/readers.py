@@ -19,6 +19,8 @@ value (NaN before the first). `vehicle_attitude.q` (body FRD -> NED, like ours) 
 interpolated (normalised linear, sign-aligned) at the step times as `q_true`; it is PX4's own
 EKF estimate, a reference rather than ground truth. PX4's heading is referenced to true
 north; the declination the log used, where a parameter gives it, is `meta['declination_deg']`.
+Logs start with PX4's estimator already running, so `meta['settle_time']` is short:
+min(2 s, 20 % of the log).
 
 `read_log(path)` picks the reader from the file name. `shared_data_dir()` finds the full
 data sets (`$AHRSGEN_DATA`, else `<repo>/../shared/data`).

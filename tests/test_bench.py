@@ -181,6 +181,11 @@ def test_run_on_broad_excerpt_cli(tmp_path, capsys):
     log = readers.read_log(BROAD_X)
     assert data.shape == (len(log), 12)
     assert cli.main(["run", "qcf", "--log", str(tmp_path / "missing.ulg")]) == 2
+    # the standalone executable path prints its own summary and the same score
+    assert cli.main(["run", "qcf", "--log", str(ULOG_X), "--exe", "--plot", str(tmp_path / "p.png")]) == 0
+    text = capsys.readouterr().out
+    assert "standalone executable" in text and "ns per step" in text and "PX4 vehicle_attitude" in text
+    assert (tmp_path / "p.png").stat().st_size > 10000
 
 
 def test_mini_bench_writes_tables(tmp_path):
