@@ -454,13 +454,13 @@ def site_field(params: dict) -> tuple[float, float]:
 
 
 def run_soak(gen_dir: str | Path, steps: int = 10_000_000, seed: int = 1, glitch_rate: float = 1e-3,
-             varied: bool = True) -> dict:
+             varied: bool = True, gyro_bias_scale: float = 1.0) -> dict:
     """Soak one filter (float or double build as generated); see firmware_sim/c/soak.c."""
     gen_dir = Path(gen_dir)
     exe = build_soak(gen_dir)
     decl, incl = site_field(load_manifest(gen_dir)["params"])
     r = subprocess.run([str(exe), str(int(steps)), str(int(seed)), repr(float(glitch_rate)), "1" if varied else "0",
-                        repr(decl), repr(incl)],
+                        repr(decl), repr(incl), repr(float(gyro_bias_scale))],
                        capture_output=True, text=True)
     if r.returncode not in (0, 1) or not r.stdout.strip():
         raise HardenError(f"soak of {gen_dir} failed (exit {r.returncode}):\n{r.stderr}")

@@ -145,7 +145,7 @@ static double ramp(double t, double t0, double T)
 int main(int argc, char **argv)
 {
     if (argc < 4) {
-        fprintf(stderr, "usage: %s STEPS SEED GLITCH_RATE [MOTION: 1 varied (default), 0 gentle] [DECLINATION INCLINATION (rad)]\n", argv[0]);
+        fprintf(stderr, "usage: %s STEPS SEED GLITCH_RATE [MOTION: 1 varied (default), 0 gentle] [DECLINATION INCLINATION (rad)] [GYRO_BIAS_SCALE]\n", argv[0]);
         return 2;
     }
     const uint64_t steps = strtoull(argv[1], NULL, 10);
@@ -154,10 +154,11 @@ int main(int argc, char **argv)
     const int varied = argc > 4 ? atoi(argv[4]) != 0 : 1;
     const double decl = argc > 6 ? strtod(argv[5], NULL) : 0.0;
     const double incl = argc > 6 ? strtod(argv[6], NULL) : 1.0;
+    const double bias_scale = argc > 7 ? strtod(argv[7], NULL) : 1.0;
     rseed(seed);
 
     const double g = 9.80665, V = 15.0, dt0 = 0.01, settle = 30.0;
-    const double bias[3] = { 0.01, -0.015, 0.008 };
+    const double bias[3] = { 0.01 * bias_scale, -0.015 * bias_scale, 0.008 * bias_scale };
     /* unit Earth field, NED (the filter's own declination/inclination, so heading is comparable) */
     const double m_ned[3] = { cos(incl) * cos(decl), cos(incl) * sin(decl), sin(incl) };
     osc roll, pitch;
@@ -309,8 +310,8 @@ int main(int argc, char **argv)
     printf("  \"filter\": \"%s\",\n  \"precision\": \"%s\",\n", AHRS_STR(AHRS_PREFIX), sizeof(ahrs_real) == 4u ? "float" : "double");
     printf("  \"steps\": %llu,\n  \"seed\": %llu,\n  \"simulated_s\": %.1f,\n", (unsigned long long)steps,
            (unsigned long long)seed, t);
-    printf("  \"motion\": \"%s\",\n  \"mag_declination_rad\": %.6g,\n  \"mag_inclination_rad\": %.6g,\n",
-           varied ? "varied" : "gentle", decl, incl);
+    printf("  \"motion\": \"%s\",\n  \"mag_declination_rad\": %.6g,\n  \"mag_inclination_rad\": %.6g,\n"
+           "  \"gyro_bias_scale\": %g,\n", varied ? "varied" : "gentle", decl, incl, bias_scale);
     printf("  \"glitch_rate\": %g,\n  \"glitches\": %llu,\n  \"refused\": %llu,\n  \"flagged\": %llu,\n  \"status_or\": %u,\n",
            glitch_rate, (unsigned long long)glitches, (unsigned long long)refused, (unsigned long long)flagged, status_or);
     printf("  \"violations\": %llu,\n  \"first_violation_step\": %lld,\n  \"first_violation\": \"%s\",\n",
