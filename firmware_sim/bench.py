@@ -861,8 +861,15 @@ def _cmd_run(args) -> int:
     from generator.model import ConfigError
     if not Path(args.log).exists():
         raise ConfigError(f"log file {args.log} does not exist")
-    run_on_log(args.filter, args.log, args.config, args.set, args.precision or "float",
-               plot=args.plot, csv=args.csv, exe=args.exe)
+    res = run_on_log(args.filter, args.log, args.config, args.set, args.precision or "float",
+                     plot=args.plot, csv=args.csv, exe=args.exe)
+    if args.export_log:
+        from generator import config
+        write_harness_log(readers.read_log(args.log), args.export_log)
+        cfg = config.resolve(args.filter, args.config, list(args.set) + res["site_sets"],
+                             args.precision or "float", None)
+        exe = build_log_runner(host.build(cfg).dir)
+        print(f"  wrote {args.export_log}; run it with: {exe} {args.export_log} out.csv")
     return 0
 
 
@@ -894,6 +901,9 @@ def register_cli(sub) -> None:
     p.add_argument("--csv", metavar="OUT.csv", help="write t, q, Euler angles (deg), status (and the reference)")
     p.add_argument("--exe", action="store_true",
                    help="run through the standalone executable (firmware_sim/c/main_log.c) instead of ctypes")
+    p.add_argument("--export-log", metavar="OUT.csv",
+                   help="also write the log in the standalone executable's text format (main_log.c) and "
+                        "print the executable's path, to run it outside Python")
     p.set_defaults(func=_cmd_run)
 
     p = sub.add_parser("bench", help="filters x scenarios x seeds, real logs and peers: accuracy and cost tables",

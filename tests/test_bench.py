@@ -186,6 +186,14 @@ def test_run_on_broad_excerpt_cli(tmp_path, capsys):
     text = capsys.readouterr().out
     assert "standalone executable" in text and "ns per step" in text and "PX4 vehicle_attitude" in text
     assert (tmp_path / "p.png").stat().st_size > 10000
+    # exported harness log + the printed executable reproduce the run outside Python
+    hl = tmp_path / "h.csv"
+    assert cli.main(["run", "qcf", "--log", str(ULOG_X), "--export-log", str(hl)]) == 0
+    line = [ln for ln in capsys.readouterr().out.splitlines() if "run it with:" in ln][0]
+    exe = line.split("run it with: ")[1].split()[0]
+    import subprocess
+    r = subprocess.run([exe, str(hl), str(tmp_path / "o2.csv")], capture_output=True, text=True)
+    assert r.returncode == 0 and "1298 steps" in r.stderr
 
 
 def test_mini_bench_writes_tables(tmp_path):
