@@ -315,6 +315,30 @@ def seed_inputs(man: dict) -> dict[str, bytes]:
     return out
 
 
+def fuzz_dictionary(man: dict) -> str:
+    """libFuzzer dictionary: the bytes of the float values where behaviour changes (every numeric
+    parameter, its neighbours, and its square for the norm thresholds) and IEEE specials."""
+    fmt = real_fmt(man)
+    size = struct.calcsize(fmt)
+    vals = {0.0, -0.0, 1.0, -1.0, 9.80665, -9.80665, float("inf"), float("-inf"), float("nan"),
+            3.4028234663852886e38 if size == 4 else 1.7976931348623157e308,
+            1.1754943508222875e-38 if size == 4 else 2.2250738585072014e-308}
+    smallest = struct.unpack(fmt, (1).to_bytes(size, "little"))[0]
+    vals |= {smallest, -smallest}
+    for v in man["params"].values():
+        if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v != 0:
+            for x in (v, -v, v * v, math.nextafter(v, math.inf), math.nextafter(v, -math.inf)):
+                vals.add(float(x))
+    lines = []
+    for i, v in enumerate(sorted(vals, key=repr)):
+        try:
+            b = struct.pack(fmt, v)
+        except OverflowError:
+            continue
+        lines.append(f'v{i}="' + "".join(f"\\x{c:02x}" for c in b) + '"')
+    return "\n".join(lines) + "\n"
+
+
 def describe_input(data: bytes, man: dict) -> list[str]:
     """Human-readable decoding of a fuzz input (mirrors decode() in fuzz_step.c)."""
     fmt = real_fmt(man)
@@ -377,7 +401,9 @@ def run_fuzz(gen_dir: str | Path, seconds: float | None = None, runs: int | None
         (corpus / name).write_bytes(data)
     if max_len is None:
         max_len = 1 + record_size(man) * 16
+    (work / "floats.dict").write_text(fuzz_dictionary(man))
     cmd = [str(exe), str(corpus), f"-seed={seed}", f"-max_len={max_len}", "-print_final_stats=1",
+           f"-dict={work / 'floats.dict'}", "-use_value_profile=1",
            "-timeout=20", "-rss_limit_mb=2048", f"-artifact_prefix={work}/", "-reload=0"]
     if runs is not None:
         cmd.append(f"-runs={runs}")
@@ -549,7 +575,7 @@ def kernel_structure_issues(k: dict) -> list[str]:
     return issues
 
 
-def _stub(k: dict, real: str) -> str:
+def _stub(k: dict) -> str:
     body = []
     for name, (const, size, ptr) in k["params"].items():
         if const or (size is None and not ptr):
@@ -580,7 +606,7 @@ def run_cppcheck(gen_dir: str | Path, max_kernel_lines: int | None = None, timeo
             if len(k["lines"]) > max_kernel_lines:
                 structural += kernel_structure_issues(k)
                 stubbed.append(f"{k['name']} ({len(k['lines'])} lines)")
-                pieces += [text[last:k["span"][0]], _stub(k, man["precision"])]
+                pieces += [text[last:k["span"][0]], _stub(k)]
                 last = k["span"][1]
         if stubbed:
             pieces.append(text[last:])

@@ -3,8 +3,8 @@
  *
  * Compiled per filter with the layout header written by firmware_sim/harden.py (see
  * firmware_sim/fuzz/ahrs_invariants.h) and the generated source; run as
- *     soak STEPS SEED GLITCH_RATE
- * and prints one JSON object on stdout.
+ *     soak STEPS SEED GLITCH_RATE [MOTION [DECLINATION INCLINATION [GYRO_BIAS_SCALE]]]
+ * and prints one JSON object on stdout (exit 1 if any invariant was violated).
  *
  * Motion (truth in double): roll and pitch are damped random oscillations (std ~25 deg and
  * ~15 deg), yaw follows a random turn rate (std 0.3 rad/s); every 120 s a 1 s barrel roll

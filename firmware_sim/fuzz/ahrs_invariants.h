@@ -63,7 +63,6 @@ typedef struct {
     double max_diag;        /* largest P_kk seen */
     double max_wsum_err;    /* | sum(w) - 1 | */
     char msg[256];          /* first violation of the last check, "" if none */
-    char cov_msg[200];
 } ahrs_inv;
 
 static void ahrs_inv_reset(ahrs_inv *v)
@@ -74,17 +73,20 @@ static void ahrs_inv_reset(ahrs_inv *v)
 }
 
 static double ahrs_max_(double a, double b) { return a > b ? a : b; }
-static double ahrs_min_(double a, double b) { return a < b ? a : b; }
 
+#ifdef AHRS_FOR_EACH_COV
 #define AHRS_COV_MAXDIM 32
 
-/* Symmetry and positive definiteness of one n x n row-major covariance (in double). */
-static int ahrs_check_cov_(const char *name, const ahrs_real *P, int n, ahrs_inv *v)
+static double ahrs_min_(double a, double b) { return a < b ? a : b; }
+
+/* Symmetry and positive definiteness of one n x n row-major covariance (in double); on a
+ * violation, 0 and a description in msg. */
+static int ahrs_check_cov_(const char *name, const ahrs_real *P, int n, ahrs_inv *v, char *msg, size_t msg_size)
 {
     double dmax = 0.0;
-    v->cov_msg[0] = '\0';
+    msg[0] = '\0';
     if (n > AHRS_COV_MAXDIM) {
-        (void)snprintf(v->cov_msg, sizeof v->cov_msg, "state.%s: dimension %d > AHRS_COV_MAXDIM", name, n);
+        (void)snprintf(msg, msg_size, "state.%s: dimension %d > AHRS_COV_MAXDIM", name, n);
         return 0;
     }
     for (int i = 0; i < n; i++) {
@@ -103,7 +105,7 @@ static int ahrs_check_cov_(const char *name, const ahrs_real *P, int n, ahrs_inv
         v->max_asym_rel = ahrs_max_(v->max_asym_rel, asym_rel);
     }
     if (!(asym_rel <= AHRS_SYM_TOL)) {
-        (void)snprintf(v->cov_msg, sizeof v->cov_msg,
+        (void)snprintf(msg, msg_size,
                        "state.%s not symmetric: max |P_ij - P_ji| = %.3g (%.3g of max diag %.3g)",
                        name, asym, asym_rel, dmax);
         return 0;
@@ -125,7 +127,7 @@ static int ahrs_check_cov_(const char *name, const ahrs_real *P, int n, ahrs_inv
             }
         }
         if (!(d > 0.0)) {
-            (void)snprintf(v->cov_msg, sizeof v->cov_msg,
+            (void)snprintf(msg, msg_size,
                            "state.%s not positive definite: LDL^T pivot %d = %.3g (P_%d%d = %.3g)",
                            name, j, d, j, j, pjj);
             return 0;
@@ -140,6 +142,7 @@ static int ahrs_check_cov_(const char *name, const ahrs_real *P, int n, ahrs_inv
     }
     return 1;
 }
+#endif
 
 /* Check the state; accumulate the figures in *v. Returns 1 if every invariant holds, else 0
  * with a description of the first violation in v->msg. */
@@ -196,9 +199,10 @@ static int ahrs_check_state(const ahrs_state *s, ahrs_inv *v)
 
     /* 3. covariances symmetric positive definite */
 #ifdef AHRS_FOR_EACH_COV
-#define AHRS_X_COV_(name, ptr, n)                  \
-    if (!ahrs_check_cov_(name, (ptr), (n), v)) {   \
-        AHRS_FAIL_("%s", v->cov_msg);              \
+    char cov_msg_[200];
+#define AHRS_X_COV_(name, ptr, n)                                           \
+    if (!ahrs_check_cov_(name, (ptr), (n), v, cov_msg_, sizeof cov_msg_)) { \
+        AHRS_FAIL_("%s", cov_msg_);                                         \
     }
     AHRS_FOR_EACH_COV(AHRS_X_COV_, s)
 #undef AHRS_X_COV_
