@@ -36,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from firmware_sim import host, peers, readers
+from generator import config
 from firmware_sim.log import VALID_ACCEL, VALID_GPS, VALID_GYRO, VALID_MAG, SensorLog
 from firmware_sim.metrics import broad_errors_deg, euler_errors_deg
 from generator.npquat import euler_from_q, qmul
@@ -588,13 +589,19 @@ def measure_cost(filter_names, log: SensorLog, repeats=7, passes=3) -> dict:
 
 
 def bench(quick=False, seeds=None, filters=None, peer_names=PEER_NAMES, data_dir=None, out_dir="bench_out",
-          jobs=2, scenarios_only=False, real_only=False, scenario_labels=None, command="") -> dict:
-    """Run the whole benchmark; writes bench.json, bench.md and img/*.png under out_dir."""
+          jobs=2, scenarios_only=False, real_only=False, scenario_labels=None, command="", variants=()) -> dict:
+    """Run the whole benchmark; writes bench.json, bench.md and img/*.png under out_dir.
+
+    variants: (label, filter, [name=value, ...]) rows benchmarked beside the defaults, to
+    compare gains or options of one filter in the same run.
+    """
     t_start = time.time()
     out_dir = Path(out_dir)
     (out_dir / "img").mkdir(parents=True, exist_ok=True)
     filter_names = list(filters) if filters else product_filters()
     ests, build_errors = _estimators(filter_names, peer_names, with_baseline=False)
+    for label, fname, vsets in variants:
+        ests.append(filter_estimator(fname, list(vsets), label=label))
     filter_names = [f for f in filter_names if f not in build_errors]
     # compile everything once in the main process (workers then hit the cache)
     for e in ests:
@@ -873,13 +880,28 @@ def _cmd_run(args) -> int:
     return 0
 
 
+def parse_variants(items) -> list:
+    """'LABEL=FILTER:name=value,name=value' -> (label, filter, [name=value, ...]), validated."""
+    from generator.model import ConfigError
+    out = []
+    for item in items or []:
+        label, eq, rest = item.partition("=")
+        fname, _, sets_text = rest.partition(":")
+        if not eq or not label.isidentifier() or not fname:
+            raise ConfigError(f"--variant {item!r}: expected LABEL=FILTER:name=value,name=value")
+        sets = [s for s in sets_text.split(",") if s]
+        config.resolve(fname, None, sets)        # unknown filter/parameter/value: one clear error
+        out.append((label, fname, sets))
+    return out
+
+
 def _cmd_bench(args) -> int:
     cmd = "ahrsgen bench " + " ".join(sys.argv[2:]) if len(sys.argv) > 1 and sys.argv[1] == "bench" else "ahrsgen bench"
     rep = bench(quick=args.quick, seeds=args.seeds, filters=args.filters or None,
                 peer_names=tuple(args.peers) if args.peers is not None else PEER_NAMES,
                 data_dir=args.data, out_dir=args.output, jobs=args.jobs,
                 scenarios_only=args.scenarios_only, real_only=args.real_only,
-                scenario_labels=args.scenarios, command=cmd)
+                scenario_labels=args.scenarios, command=cmd, variants=parse_variants(args.variant))
     md = Path(args.output) / "bench.md"
     print(md.read_text())
     print(f"wrote {Path(args.output) / 'bench.json'}, {md} and {len(rep['plots'])} plot(s) in "
@@ -921,6 +943,9 @@ def register_cli(sub) -> None:
                                                  "else <repo>/../shared/data)")
     p.add_argument("-o", "--output", default="bench_out", metavar="DIR", help="output folder (default bench_out)")
     p.add_argument("-j", "--jobs", type=int, default=2, help="worker processes (default 2)")
+    p.add_argument("--variant", action="append", default=[], metavar="LABEL=FILTER:k=v,k=v",
+                   help="also bench FILTER with these settings under LABEL, e.g. "
+                        "qcf_soft=qcf:kp=0.05,ki=0.001 (repeatable)")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--scenarios-only", action="store_true", help="skip the real logs")
     g.add_argument("--real-only", action="store_true", help="only the real logs (BROAD, PX4)")

@@ -210,3 +210,12 @@ def test_mini_bench_writes_tables(tmp_path):
     assert "| qcf |" in md and "turntable" in md and "qcf_hand" in md
     assert json.loads((tmp_path / "bench.json").read_text())["command"] == "test"
     assert (tmp_path / "img" / "err_turntable.png").exists()
+
+
+def test_variant_option_is_validated():
+    from firmware_sim.bench import parse_variants
+    from generator.model import ConfigError
+    assert parse_variants(["soft=qcf:kp=0.05,ki=0.001"]) == [("soft", "qcf", ["kp=0.05", "ki=0.001"])]
+    for bad in ["qcf:kp=1", "soft=qcf:kq=1", "soft=nofilter:kp=1", "soft=qcf:kp=-3"]:
+        with pytest.raises(ConfigError):
+            parse_variants([bad])
