@@ -140,10 +140,12 @@ class Model(FilterModel):
         # exact masking of an unusable sensor: identity block in P_zz, zero cross-covariance
         # and residual, so its columns of K are exactly zero
         use = [use_a] * 3 + [use_m] * 3
+        both = ca.logic_and(use_a, use_m)
         Pzz_m = ca.SX.zeros(6, 6)
         for r in range(6):
             for c in range(6):
-                Pzz_m[r, c] = ca.if_else(ca.logic_and(use[r], use[c]), Pzz[r, c], 1.0 if r == c else 0.0)
+                keep = use[r] if (r < 3) == (c < 3) else both
+                Pzz_m[r, c] = ca.if_else(keep, Pzz[r, c], 1.0 if r == c else 0.0)
         Pxz_m = ca.SX.zeros(N, 6)
         eps_m = ca.SX.zeros(6)
         r_used = ca.SX.zeros(6)
