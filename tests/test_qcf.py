@@ -2,11 +2,9 @@
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
 from conftest import host_build, reference_run, scenario
 from firmware_sim import metrics
-from generator import status as st
 
 # Float C vs the double reference over the whole 10-minute fixedwing_gps flight.
 # Measured: 2.4e-5 rad (0.0014 deg) on seed 0. Bound asserted: 0.005 deg.
@@ -81,73 +79,8 @@ def test_gyro_bias_estimate_moves_toward_truth():
     assert np.linalg.norm(b_est - b_true) < 0.5 * np.linalg.norm(b_true)
 
 
-# ---- bad inputs, checked in C ----------------------------------------------------------
-
-GOOD = dict(gyro=(0.01, -0.02, 0.03), accel=(0.3, -0.2, -9.7), mag=(0.2, 0.05, 0.4), gps_vel=(20.0, 1.0, 0.5))
-ALL = 0xF
-NAN, INF = float("nan"), float("inf")
-
-
-def _warm_state(hf):
-    s = hf.new_state()
-    for _ in range(20):
-        assert hf.step(s, valid=ALL, dt=0.08, **GOOD) == 0
-    return s
-
-
-@pytest.mark.parametrize("precision", ["float", "double"])
-@pytest.mark.parametrize("change, dt, expected", [
-    ({}, 0.0, st.DT_INVALID), ({}, -0.01, st.DT_INVALID), ({}, NAN, st.DT_INVALID), ({}, INF, st.DT_INVALID),
-    ({}, 0.6, st.DT_TOO_LARGE),
-    ({"gyro": (NAN, 0, 0)}, 0.08, st.GYRO_NONFINITE), ({"gyro": (0, INF, 0)}, 0.08, st.GYRO_NONFINITE),
-    ({"gyro": (0, 0, 1e30)}, 0.08, st.GYRO_RANGE),
-    ({"valid": ALL & ~1}, 0.08, st.GYRO_MISSING),
-])
-def test_refused_steps_leave_state_untouched(precision, change, dt, expected):
-    hf = host_build("qcf", precision)
-    s = _warm_state(hf)
-    before = hf.state_bytes(s)
-    args = dict(GOOD, valid=ALL)
-    args.update(change)
-    assert hf.step(s, dt=dt, **args) == expected
-    assert hf.state_bytes(s) == before
-
-
-@pytest.mark.parametrize("precision", ["float", "double"])
-@pytest.mark.parametrize("change, cleared_bit, expected", [
-    ({"accel": (NAN, 0, -9.8)}, 2, st.ACCEL_NONFINITE),
-    ({"accel": (0, 0, 0)}, 2, st.ACCEL_ZERO),
-    ({"accel": (0, 1e9, 0)}, 2, st.ACCEL_RANGE),
-    ({"mag": (0, INF, 0)}, 4, st.MAG_NONFINITE),
-    ({"mag": (0, 0, 0)}, 4, st.MAG_ZERO),
-    ({"mag": (1e30, 0, 0)}, 4, st.MAG_RANGE),
-    ({"gps_vel": (NAN, 0, 0)}, 8, st.GPS_NONFINITE),
-    ({"gps_vel": (3e38, 0, 0)}, 8, st.GPS_RANGE),
-])
-def test_bad_aiding_sample_skips_only_its_correction(precision, change, cleared_bit, expected):
-    hf = host_build("qcf", precision)
-    s1 = _warm_state(hf)
-    s2 = hf.copy_state(s1)
-    bad = dict(GOOD, valid=ALL)
-    bad.update(change)
-    assert hf.step(s1, dt=0.08, **bad) == expected
-    # same as a step where that sensor simply delivered nothing
-    assert hf.step(s2, dt=0.08, **dict(GOOD, valid=ALL & ~cleared_bit)) == 0
-    assert hf.state_bytes(s1) == hf.state_bytes(s2)
-    q = np.array(hf.state_dict(s1)["q"])
-    assert np.all(np.isfinite(q)) and abs(np.linalg.norm(q) - 1) < 1e-6
-
-
-def test_reference_reports_the_same_status_bits():
-    from generator import config
-    cfg = config.resolve("qcf")
-    for change, dt, expected in [({}, -1.0, st.DT_INVALID), ({"accel": (0, 0, 0)}, 0.08, st.ACCEL_ZERO),
-                                 ({"mag": (NAN, 0, 0)}, 0.08, st.MAG_NONFINITE),
-                                 ({"gyro": (0, 0, 1e30)}, 0.08, st.GYRO_RANGE)]:
-        ref = cfg.spec.reference(cfg.params)
-        args = dict(GOOD)
-        args.update(change)
-        assert ref.step(args["gyro"], args["accel"], args["mag"], args["gps_vel"], ALL, dt) == expected
+# Bad inputs (refusals, skipped corrections, status bits in C and reference) are checked for
+# every filter by tests/test_input_contract.py.
 
 
 def test_missing_magnetometer_keeps_tilt_corrected():

@@ -1,0 +1,103 @@
+"""The input-check contract of every generated filter (templates/filter.c.j2), driven in C.
+
+Refused steps (bad dt, missing/non-finite/out-of-range gyro) leave the state byte for byte as
+it was; a bad aiding sample (non-finite, out of range, near-zero) changes the state exactly as
+a step where that sensor's valid bit was clear, and sets its own status bit.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from conftest import host_build
+from generator import filters
+from generator import status as st
+
+NAN, INF = float("nan"), float("inf")
+GOOD = dict(gyro=(0.01, -0.02, 0.03), accel=(0.3, -0.2, -9.7), mag=(0.2, 0.05, 0.4), gps_vel=(20.0, 1.0, 0.5))
+ALL = 0xF
+DT = 0.02
+SENSOR_BIT = {"accel": 2, "mag": 4, "gps": 8}
+
+
+def _sensors(name):
+    return filters.load(name).model().sensors
+
+
+def _warm(hf):
+    s = hf.new_state()
+    for _ in range(30):
+        assert hf.step(s, valid=ALL, dt=DT, **GOOD) & st.REFUSED_MASK == 0
+    return s
+
+
+REFUSALS = [
+    ({}, 0.0, st.DT_INVALID), ({}, -DT, st.DT_INVALID), ({}, NAN, st.DT_INVALID), ({}, INF, st.DT_INVALID),
+    ({}, 11.0, st.DT_TOO_LARGE),
+    ({"gyro": (NAN, 0, 0)}, DT, st.GYRO_NONFINITE), ({"gyro": (0, -INF, 0)}, DT, st.GYRO_NONFINITE),
+    ({"gyro": (0, 0, 3e38)}, DT, st.GYRO_RANGE), ({"valid": ALL & ~1}, DT, st.GYRO_MISSING),
+]
+
+SKIPS = [
+    ("accel", {"accel": (NAN, 0, -9.8)}, st.ACCEL_NONFINITE), ("accel", {"accel": (0, 0, 0)}, st.ACCEL_ZERO),
+    ("accel", {"accel": (0, 3e38, 0)}, st.ACCEL_RANGE), ("accel", {"accel": (1e-40, 0, 0)}, st.ACCEL_ZERO),
+    ("mag", {"mag": (0, INF, 0)}, st.MAG_NONFINITE), ("mag", {"mag": (0, 0, 0)}, st.MAG_ZERO),
+    ("mag", {"mag": (3e38, 0, 0)}, st.MAG_RANGE),
+    ("gps", {"gps_vel": (NAN, 0, 0)}, st.GPS_NONFINITE), ("gps", {"gps_vel": (0, 3e38, 0)}, st.GPS_RANGE),
+]
+
+
+@pytest.mark.parametrize("name", filters.names())
+@pytest.mark.parametrize("precision", ["float", "double"])
+def test_refusals_leave_the_state_untouched(name, precision):
+    hf = host_build(name, precision)
+    for change, dt, expected in REFUSALS:
+        s = _warm(hf)
+        before = hf.state_bytes(s)
+        args = dict(GOOD, valid=ALL)
+        args.update(change)
+        if change == {} and dt == 11.0:
+            dt = hf.manifest["params"]["dt_max"] * 1.5
+        got = hf.step(s, dt=dt, **args)
+        assert got == expected, (name, change, dt, got)
+        assert hf.state_bytes(s) == before, (name, change, dt)
+
+
+@pytest.mark.parametrize("name", filters.names())
+@pytest.mark.parametrize("precision", ["float", "double"])
+def test_bad_aiding_sample_equals_a_missing_one(name, precision):
+    hf = host_build(name, precision)
+    sensors = _sensors(name)
+    checked = 0
+    for sensor, change, bit in SKIPS:
+        if sensor not in sensors:
+            continue
+        s1 = _warm(hf)
+        s2 = hf.copy_state(s1)
+        bad = dict(GOOD, valid=ALL)
+        bad.update(change)
+        got = hf.step(s1, dt=DT, **bad)
+        ref = hf.step(s2, dt=DT, **dict(GOOD, valid=ALL & ~SENSOR_BIT[sensor]))
+        assert got == ref | bit, (name, sensor, change, hex(got), hex(ref))
+        assert hf.state_bytes(s1) == hf.state_bytes(s2), (name, sensor, change)
+        q = np.array(hf.state_dict(s1)["q"])
+        assert np.all(np.isfinite(q)) and abs(np.linalg.norm(q) - 1) < 1e-5
+        checked += 1
+    assert checked >= 4      # every filter reads at least accelerometer and magnetometer or GPS
+
+
+@pytest.mark.parametrize("name", filters.names())
+def test_reference_reports_the_same_bits(name):
+    from generator import config
+    cfg = config.resolve(name)
+    sensors = _sensors(name)
+    cases = [(c, dt, e) for c, dt, e in REFUSALS if dt != 11.0]
+    cases += [(c, DT, b) for sensor, c, b in SKIPS if sensor in sensors]
+    for change, dt, expected in cases:
+        ref = cfg.spec.reference(cfg.params)
+        for _ in range(30):
+            ref.step(GOOD["gyro"], GOOD["accel"], GOOD["mag"], GOOD["gps_vel"], ALL, DT)
+        args = dict(GOOD, valid=ALL)
+        args.update(change)
+        got = ref.step(args["gyro"], args["accel"], args["mag"], args["gps_vel"], args["valid"], dt)
+        assert got & expected and (got & st.REFUSED_MASK) == (expected & st.REFUSED_MASK), (name, change, hex(got))
