@@ -22,7 +22,7 @@ CONFIGS = [
     ("MEKF defaults (GPS course, centripetal comp.)", "mekf", []),
     ("MEKF as the patent (no motion compensation)", "mekf", ["motion_comp=none"]),
     ("MEKF, motion_comp = gps_accel", "mekf", ["motion_comp=gps_accel"]),
-    ("MEKF, magnetometer heading (decl. -4 deg)", "mekf", ["heading_source=mag", "mag_declination=-0.06981317007977318"]),
+    ("MEKF, magnetometer heading (decl. -4 deg)", "mekf", ["heading_source=mag", "declination=-0.06981317007977318"]),
     ("QCF defaults (FQA acc+mag, GPS accel comp., decl. -4 deg)", "qcf", ["declination=-0.06981317007977318"]),
 ]
 

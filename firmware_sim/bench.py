@@ -157,7 +157,7 @@ def baseline_filter() -> host.HostFilter:
 # Site parameters (where the vehicle flies) that a user sets and the bench fills from the log:
 # the filter's declination (so its heading is in the reference's north) and, for filters with a
 # configured field direction, the inclination (or learning it at rest when the log has none).
-DECLINATION_PARAMS = (("declination_deg", "deg"), ("declination", "rad"), ("mag_declination", "rad"))
+DECLINATION_PARAMS = (("declination", "rad"),)   # every filter with a magnetometer names it so
 _HF_CACHE: dict = {}
 
 

@@ -469,12 +469,7 @@ def replay(gen_dir: str | Path, data: bytes) -> tuple[int, str]:
 def site_field(params: dict) -> tuple[float, float]:
     """(declination, inclination) in rad that the filter's baked parameters assume (inclination
     60 deg when the filter does not fix one), so the soak's magnetic field matches its site."""
-    if "declination" in params:
-        decl = float(params["declination"])
-    elif "mag_declination" in params:
-        decl = float(params["mag_declination"])
-    else:
-        decl = math.radians(float(params.get("declination_deg", 0.0)))
+    decl = float(params.get("declination", 0.0))
     incl = math.radians(float(params.get("inclination_deg", 60.0)))
     return decl, incl
 

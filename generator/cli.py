@@ -90,7 +90,7 @@ def cmd_validate(args) -> int:
         cfg = _config.resolve(args.filter, args.config, args.set + [f"{k}={v!r}" for k, v in site.items()],
                               args.precision, args.prefix, args.preset)
         print("  site parameters from the scenario (override with --set): "
-              + ", ".join(f"{k}={v:.6g}" for k, v in site.items()))
+              + ", ".join(f"{k}={v:.6g}" if isinstance(v, float) else f"{k}={v}" for k, v in site.items()))
     bound = args.tolerance if args.tolerance is not None else (1e-9 if cfg.precision == "double" else 1e-3)
     print(f"validate {cfg.filter} ({cfg.precision}) on {args.scenario} seed {args.seed}: "
           f"{len(log)} steps, {log.t[-1] - log.t[0]:.1f} s")
@@ -133,11 +133,14 @@ def cmd_validate(args) -> int:
 
 
 def scenario_site_params(cfg, log) -> dict:
-    """Site parameters a scenario knows (magnetic declination) that the user did not set."""
-    import math
+    """Site parameters a scenario knows (declination, inclination) that the user did not set,
+    as the bench sets them (firmware_sim.bench.site_sets)."""
+    from firmware_sim.bench import site_sets
+    sets, _ = site_sets(cfg.filter, log.meta, set(cfg.overrides))
     out = {}
-    if "declination" in cfg.params and "declination" not in cfg.overrides and "declination_deg" in log.meta:
-        out["declination"] = math.radians(float(log.meta["declination_deg"]))
+    for item in sets:
+        k, _, v = item.partition("=")
+        out[k] = float(v) if v.replace(".", "", 1).replace("-", "", 1).replace("e", "", 1).isdigit() else v
     return out
 
 

@@ -80,7 +80,7 @@ def test_float_c_close_to_double_without_drift(c_double, c_float, fw_log):
 @pytest.mark.parametrize("sets", [
     ["motion_comp=none"],                                        # the patent as written
     ["motion_comp=gps_accel"],
-    ["heading_source=mag", f"mag_declination={-4 * DEG!r}"],     # magnetometer heading
+    ["heading_source=mag", f"declination={-4 * DEG!r}"],     # magnetometer heading
     ["accel_gate=1.0", "init_from_sensors=false"],
 ])
 def test_double_c_matches_reference_other_configs(sets):

@@ -25,31 +25,31 @@ extern "C" {
 #endif
 
 /* Parameters baked into this build (already folded into the code; listed for reference). */
-#define ADUKF_DT_MAX 0.5f             /* largest dt a step accepts; larger is refused (DT_TOO_LARGE) [s] */
-#define ADUKF_GYRO_MAX 70.0f          /* largest gyro component accepted; larger is refused (GYRO_RANGE) [rad/s] */
-#define ADUKF_ACCEL_MIN_NORM 0.5f     /* accelerometer norm below this skips its correction (ACCEL_ZERO) [m/s^2] */
-#define ADUKF_ACCEL_MAX 2000.0f       /* accelerometer component above this skips its correction (ACCEL_RANGE) [m/s^2] */
-#define ADUKF_MAG_MIN_NORM 1e-06f     /* magnetometer norm below this skips its correction (MAG_ZERO) [field unit] */
-#define ADUKF_MAG_MAX 1e+06f          /* magnetometer component above this skips its correction (MAG_RANGE) [field unit] */
-#define ADUKF_GYRO_NOISE 0.01f        /* process noise: gyro angle random walk; Q = gyro_noise^2 dt/4 (I4 - q q^T) + q_floor dt I4 [rad/s/sqrt(Hz)] */
-#define ADUKF_Q_FLOOR 1e-09f          /* isotropic process noise per second added to Q (keeps P positive definite) [1/s] */
-#define ADUKF_SIGMA_ACC 0.05f         /* base std of the normalised accelerometer measurement (sigma_a in R) [1 (unit vector)] */
-#define ADUKF_SIGMA_MAG 0.05f         /* base std of the normalised magnetometer measurement (sigma_m in R) [1 (unit vector)] */
-#define ADUKF_K_A 300.0f              /* adaptive weight of the accelerometer residual: R_i = sigma_acc^2 + k_a eps_i^2 (0: plain DUKF) [1] */
-#define ADUKF_K_M 300.0f              /* adaptive weight of the magnetometer residual: R_i = sigma_mag^2 + k_m eps_i^2 (0: plain DUKF) [1] */
-#define ADUKF_ADAPT_MAX 0.0f          /* upper bound of each adaptive term k eps_i^2 in R (0: unbounded, as the paper); a bound keeps some trust in the sensors so a large attitude error can still be corrected [1] */
-#define ADUKF_UT_ALPHA 1.0f           /* unscented transform spread: lambda = alpha^2 (n + kappa) - n, a = sqrt(n + lambda) [1] */
-#define ADUKF_UT_BETA 2.0f            /* unscented transform beta (2 for a Gaussian prior) [1] */
-#define ADUKF_UT_KAPPA 0.0f           /* unscented transform kappa [1] */
-#define ADUKF_P0 0.01f                /* initial covariance P0 = p0 I4 (also what P is reset to when it stops being positive definite) [1] */
-#define ADUKF_PIVOT_MIN 1e-15f        /* a Cholesky pivot at or below this marks P- or P_zz as not positive definite [1] */
-/* ADUKF_MAG_REF = inclination     reference field direction: from inclination/declination, or the dip angle learned from the first samples at rest */
-#define ADUKF_INCLINATION_DEG 53.0f   /* magnetic inclination (field pointing down positive), mag_ref = inclination; default: Xi'an, the paper's site [deg] */
-#define ADUKF_DECLINATION_DEG (-3.5f) /* magnetic declination (east positive); yaw is from true north; default: Xi'an [deg] */
-#define ADUKF_LEARN_SAMPLES 100       /* mag_ref = learn: rest samples (accelerometer and magnetometer usable) averaged for the dip angle [samples] */
-#define ADUKF_REST_GYRO_MAX 0.05f     /* mag_ref = learn: a sample is at rest when |gyro| is below this and ... [rad/s] */
-#define ADUKF_REST_ACCEL_TOL 0.5f     /* ... | |accel| - 9.80665 | is below this [m/s^2] */
-#define ADUKF_FAITHFUL 0              /* the paper's initialisation q0 = [1,0,0,0] and first-order transition A (else q0 from the first accelerometer+magnetometer sample, A normalised) */
+#define ADUKF_DT_MAX 0.5f                 /* largest dt a step accepts; larger is refused (DT_TOO_LARGE) [s] */
+#define ADUKF_GYRO_MAX 70.0f              /* largest gyro component accepted; larger is refused (GYRO_RANGE) [rad/s] */
+#define ADUKF_ACCEL_MIN_NORM 0.5f         /* accelerometer norm below this skips its correction (ACCEL_ZERO) [m/s^2] */
+#define ADUKF_ACCEL_MAX 2000.0f           /* accelerometer component above this skips its correction (ACCEL_RANGE) [m/s^2] */
+#define ADUKF_MAG_MIN_NORM 1e-06f         /* magnetometer norm below this skips its correction (MAG_ZERO) [field unit] */
+#define ADUKF_MAG_MAX 1e+06f              /* magnetometer component above this skips its correction (MAG_RANGE) [field unit] */
+#define ADUKF_GYRO_NOISE 0.01f            /* process noise: gyro angle random walk; Q = gyro_noise^2 dt/4 (I4 - q q^T) + q_floor dt I4 [rad/s/sqrt(Hz)] */
+#define ADUKF_Q_FLOOR 1e-09f              /* isotropic process noise per second added to Q (keeps P positive definite) [1/s] */
+#define ADUKF_SIGMA_ACC 0.05f             /* base std of the normalised accelerometer measurement (sigma_a in R) [1 (unit vector)] */
+#define ADUKF_SIGMA_MAG 0.05f             /* base std of the normalised magnetometer measurement (sigma_m in R) [1 (unit vector)] */
+#define ADUKF_K_A 300.0f                  /* adaptive weight of the accelerometer residual: R_i = sigma_acc^2 + k_a eps_i^2 (0: plain DUKF) [1] */
+#define ADUKF_K_M 300.0f                  /* adaptive weight of the magnetometer residual: R_i = sigma_mag^2 + k_m eps_i^2 (0: plain DUKF) [1] */
+#define ADUKF_ADAPT_MAX 0.0f              /* upper bound of each adaptive term k eps_i^2 in R (0: unbounded, as the paper); a bound keeps some trust in the sensors so a large attitude error can still be corrected [1] */
+#define ADUKF_UT_ALPHA 1.0f               /* unscented transform spread: lambda = alpha^2 (n + kappa) - n, a = sqrt(n + lambda) [1] */
+#define ADUKF_UT_BETA 2.0f                /* unscented transform beta (2 for a Gaussian prior) [1] */
+#define ADUKF_UT_KAPPA 0.0f               /* unscented transform kappa [1] */
+#define ADUKF_P0 0.01f                    /* initial covariance P0 = p0 I4 (also what P is reset to when it stops being positive definite) [1] */
+#define ADUKF_PIVOT_MIN 1e-15f            /* a Cholesky pivot at or below this marks P- or P_zz as not positive definite [1] */
+/* ADUKF_MAG_REF = inclination         reference field direction: from inclination/declination, or the dip angle learned from the first samples at rest */
+#define ADUKF_INCLINATION_DEG 53.0f       /* magnetic inclination (field pointing down positive), mag_ref = inclination; default: Xi'an, the paper's site [deg] */
+#define ADUKF_DECLINATION (-0.061086524f) /* magnetic declination (east positive); yaw is from true north; default: Xi'an (-3.5 deg) [rad] */
+#define ADUKF_LEARN_SAMPLES 100           /* mag_ref = learn: rest samples (accelerometer and magnetometer usable) averaged for the dip angle [samples] */
+#define ADUKF_REST_GYRO_MAX 0.05f         /* mag_ref = learn: a sample is at rest when |gyro| is below this and ... [rad/s] */
+#define ADUKF_REST_ACCEL_TOL 0.5f         /* ... | |accel| - 9.80665 | is below this [m/s^2] */
+#define ADUKF_FAITHFUL 0                  /* the paper's initialisation q0 = [1,0,0,0] and first-order transition A (else q0 from the first accelerometer+magnetometer sample, A normalised) */
 
 /* Input validity bits: set a bit only when that sensor delivered a new sample this step. */
 #define ADUKF_VALID_GYRO (1u << 0)

@@ -34,7 +34,7 @@ extern "C" {
 #define MEKF_GPS_VEL_MAX 500.0f        /* GPS velocity component above this: the sample is ignored (GPS_RANGE) [m/s] */
 /* MEKF_HEADING_SOURCE = gps_course yaw measurement: GPS course over ground atan2(vE, vN) (the patent) or tilt-compensated magnetometer heading */
 #define MEKF_GPS_MIN_SPEED 3.0f        /* GPS course is used as heading only while the horizontal ground speed is at least this (and a GPS sample arrived this step) [m/s] */
-#define MEKF_MAG_DECLINATION 0.0f      /* added to the magnetic heading (heading_source = 'mag') [rad] */
+#define MEKF_DECLINATION 0.0f          /* added to the magnetic heading (heading_source = 'mag') [rad] */
 #define MEKF_GYRO_NOISE 0.00087f       /* gyro rate noise density (angle random walk); the QCF paper's Table 1 gives 0.05 deg/s/sqrt(Hz) [rad/s/sqrt(Hz)] */
 #define MEKF_GYRO_BIAS_RW 1e-05f       /* gyro bias random walk (rate of the bias noise density) [rad/s^2/sqrt(Hz)] */
 #define MEKF_ACCEL_ANGLE_NOISE 0.1f    /* standard deviation of the accelerometer roll and pitch angles; covers vibration and the unmodelled motion acceleration (speed changes: ~0.1 rad per m/s^2 / g). 0.1 chosen from {0.03, 0.05, 0.1, 0.2} on fixedwing_gps [rad] */

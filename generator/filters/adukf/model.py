@@ -65,7 +65,7 @@ class Model(FilterModel):
 
     def m_ref_configured(self):
         p = self.params
-        i, d = math.radians(p["inclination_deg"]), math.radians(p["declination_deg"])
+        i, d = math.radians(p["inclination_deg"]), float(p["declination"])
         return [math.cos(i) * math.cos(d), math.cos(i) * math.sin(d), math.sin(i)]
 
     def state_fields(self):
@@ -194,7 +194,7 @@ class Model(FilterModel):
         Pzz_e, Pxz_e, eps_e, r_e = self.innovation_expr(qm, X, Z, f, m, use_a, use_m)
         q_new, P_new, piv_zz = self.correct_expr(qm, Pm, Pzz, Pxz, eps)
 
-        decl = math.radians(p["declination_deg"])
+        decl = float(p["declination"])
         roll, pitch = attitude.tilt_angles(f)
         yaw = attitude.tilt_compensated_heading(m, roll, pitch, decl)
         q_init = quat.from_euler(roll, pitch, yaw)

@@ -135,7 +135,7 @@ class Reference:
         self.p = dict(params)
         p = self.p
         self.a, self.wm, self.wc = ut_weights(p["ut_alpha"], p["ut_beta"], p["ut_kappa"])
-        self.decl = math.radians(p["declination_deg"])
+        self.decl = float(p["declination"])
         self.learn = p["mag_ref"] == "learn"
         self.m_ref = (np.zeros(3) if self.learn
                       else mag_ref_from_angles(math.radians(p["inclination_deg"]), self.decl))

@@ -135,7 +135,7 @@ def measured_angles(p: dict, q, b, gyro, accel, mag, vel, acc_n, m_comp):
     roll_a, pitch_a = attitude.tilt_angles(f)
     if p["heading_source"] == "mag":
         est = quat.euler(q)
-        yaw_m = attitude.tilt_compensated_heading(mag, est[0], est[1], p["mag_declination"])
+        yaw_m = attitude.tilt_compensated_heading(mag, est[0], est[1], p["declination"])
     else:
         yaw_m = ca.atan2(vel[1], vel[0])
     return roll_a, pitch_a, yaw_m
@@ -179,7 +179,7 @@ def init_function(p: dict, name="init_attitude") -> ca.Function:
     use_head = ca.SX.sym("use_head")
     roll, pitch = attitude.tilt_angles(accel)
     if p["heading_source"] == "mag":
-        yaw = attitude.tilt_compensated_heading(mag, roll, pitch, p["mag_declination"])
+        yaw = attitude.tilt_compensated_heading(mag, roll, pitch, p["declination"])
     else:
         yaw = ca.atan2(vel[1], vel[0])
     yaw = use_head * yaw

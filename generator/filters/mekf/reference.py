@@ -33,6 +33,7 @@ from __future__ import annotations
 import numpy as np
 
 from firmware_sim.log import G0, VALID_ACCEL, VALID_GPS, VALID_GYRO, VALID_MAG
+from generator import input_checks
 from generator import status as st
 from generator.npquat import euler_from_q, q_from_euler, qexp, qmul, rotmat, wrap
 
@@ -108,6 +109,7 @@ def measurement_jacobian(q):
 class Reference:
     def __init__(self, params: dict):
         p = dict(params)
+        self.p = p
         self.dt_max = float(p["dt_max"])
         self.accel_min_norm = float(p["accel_min_norm"])
         self.mag_min_norm = float(p["mag_min_norm"])
@@ -115,7 +117,7 @@ class Reference:
         if self.heading_source not in ("gps_course", "mag"):
             raise ValueError(f"heading_source must be 'gps_course' or 'mag', got {self.heading_source!r}")
         self.gps_min_speed = float(p["gps_min_speed"])
-        self.mag_declination = float(p["mag_declination"])
+        self.declination = float(p["declination"])
         self.gyro_noise = float(p["gyro_noise"])
         self.gyro_bias_rw = float(p["gyro_bias_rw"])
         self.accel_angle_noise = float(p["accel_angle_noise"])
@@ -147,60 +149,33 @@ class Reference:
     def step(self, gyro, accel, mag, gps_vel, valid: int, dt: float) -> int:
         valid = int(valid)
         dt = float(dt)
-        if not np.isfinite(dt) or dt <= 0.0:
-            return st.DT_INVALID
-        if dt > self.dt_max:
-            return st.DT_TOO_LARGE
-        if not valid & VALID_GYRO:
-            return st.GYRO_MISSING
-        gyro = np.asarray(gyro, dtype=float)
-        if not np.all(np.isfinite(gyro)):
-            return st.GYRO_NONFINITE
-        if np.any(np.abs(gyro) > self.gyro_max):
-            return st.GYRO_RANGE
-        status = st.OK
+        sensors = ("accel",) + (("mag",) if self.heading_source == "mag" else ()) + (("gps",) if self.uses_gps else ())
+        c = input_checks.check(self.p, sensors, gyro, accel, mag, gps_vel, valid, dt)
+        if c.refused:
+            return c.refused
+        status, gyro = c.status, c.gyro
 
         # --- which corrections are usable (same order of checks as the generated C) ----
         use_tilt = False
-        if valid & VALID_ACCEL:
+        if c.use_accel:
             f = np.asarray(accel, dtype=float)
-            if not np.all(np.isfinite(f)):
-                status |= st.ACCEL_NONFINITE
-            elif np.any(np.abs(f) > self.accel_max):
-                status |= st.ACCEL_RANGE
-            elif f @ f < self.accel_min_norm ** 2:
-                status |= st.ACCEL_ZERO
-            elif self.accel_gate > 0.0 and abs(np.sqrt(f @ f) - G0) > self.accel_gate:
+            if self.accel_gate > 0.0 and abs(np.sqrt(f @ f) - G0) > self.accel_gate:
                 status |= ACCEL_GATED
             else:
                 use_tilt = True
         course_ok = False
-        gps_fresh = False
-        if self.uses_gps and valid & VALID_GPS:
+        gps_fresh = c.use_gps
+        if gps_fresh:
             v = np.asarray(gps_vel, dtype=float)
-            if not np.all(np.isfinite(v)):
-                status |= st.GPS_NONFINITE
-            elif np.any(np.abs(v) > self.gps_vel_max):
-                status |= st.GPS_RANGE
-            else:
-                gps_fresh = True
-                speed2 = v[0] * v[0] + v[1] * v[1]
-                if self.heading_source == "gps_course":
-                    if speed2 >= self.gps_min_speed ** 2 and speed2 > 0.0:
-                        course_ok = True
-                    else:
-                        status |= COURSE_SLOW
-        mag_ok = False
-        if self.heading_source == "mag" and valid & VALID_MAG:
+            speed2 = v[0] * v[0] + v[1] * v[1]
+            if self.heading_source == "gps_course":
+                if speed2 >= self.gps_min_speed ** 2 and speed2 > 0.0:
+                    course_ok = True
+                else:
+                    status |= COURSE_SLOW
+        mag_ok = c.use_mag
+        if mag_ok:
             m = np.asarray(mag, dtype=float)
-            if not np.all(np.isfinite(m)):
-                status |= st.MAG_NONFINITE
-            elif np.any(np.abs(m) > self.mag_max):
-                status |= st.MAG_RANGE
-            elif m @ m < self.mag_min_norm ** 2:
-                status |= st.MAG_ZERO
-            else:
-                mag_ok = True
 
         # --- last GPS velocity and GPS acceleration, for the motion compensation ----------
         v_age = self.v_age                # (age saturates at AGE_MAX)
@@ -228,7 +203,7 @@ class Reference:
             if course_ok:
                 yaw = np.arctan2(v[1], v[0])
             elif mag_ok:
-                yaw = mag_heading(m, roll, pitch, self.mag_declination)
+                yaw = mag_heading(m, roll, pitch, self.declination)
             else:
                 yaw = 0.0
             self.q = q_from_euler(roll, pitch, yaw)
@@ -266,7 +241,7 @@ class Reference:
             r.append(self.course_noise ** 2)
         elif mag_ok:
             rows.append(2)
-            z.append(wrap(mag_heading(m, est[0], est[1], self.mag_declination) - est[2]))
+            z.append(wrap(mag_heading(m, est[0], est[1], self.declination) - est[2]))
             r.append(self.mag_heading_noise ** 2)
 
         if rows:

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from generator import npquat as nq
-from generator import status as st
+from generator import input_checks
 from generator.constants import G0
 
 PAPER_COEFFS = np.array([0.0971, 0.1662, 0.1853])
@@ -79,43 +79,12 @@ class Reference:
         self.gps_age = 1e3
         self.initialised = bool(self.p["faithful"])
 
-    def _check(self, v, bit_valid, valid, nonfinite, rng, zero, vmax, vmin):
-        if not valid & bit_valid:
-            return False, 0
-        v = np.asarray(v, float)
-        if not np.all(np.isfinite(v)):
-            return False, nonfinite
-        if np.any(np.abs(v) > vmax):
-            return False, rng
-        if v @ v < vmin * vmin:
-            return False, zero
-        return True, 0
-
     def step(self, gyro, accel, mag, gps_vel, valid, dt):
         p = self.p
-        if not np.isfinite(dt) or not dt > 0:
-            return st.DT_INVALID
-        if dt > p["dt_max"]:
-            return st.DT_TOO_LARGE
-        if not valid & 1:
-            return st.GYRO_MISSING
-        gyro = np.asarray(gyro, float)
-        if not np.all(np.isfinite(gyro)):
-            return st.GYRO_NONFINITE
-        if np.any(np.abs(gyro) > p["gyro_max"]):
-            return st.GYRO_RANGE
-        use_accel, s1 = self._check(accel, 2, valid, st.ACCEL_NONFINITE, st.ACCEL_RANGE, st.ACCEL_ZERO,
-                                    p["accel_max"], p["accel_min_norm"])
-        use_mag, s2 = self._check(mag, 4, valid, st.MAG_NONFINITE, st.MAG_RANGE, st.MAG_ZERO,
-                                  p["mag_max"], p["mag_min_norm"])
-        status = s1 | s2
-        use_gps = bool(valid & 8)
-        if use_gps and not np.all(np.isfinite(gps_vel)):
-            use_gps = False
-            status |= st.GPS_NONFINITE
-        elif use_gps and np.any(np.abs(np.asarray(gps_vel, float)) > p["gps_vel_max"]):
-            use_gps = False
-            status |= st.GPS_RANGE
+        c = input_checks.check(p, ("accel", "mag", "gps"), gyro, accel, mag, gps_vel, valid, dt)
+        if c.refused:
+            return c.refused
+        status, use_accel, use_mag, use_gps, gyro = c.status, c.use_accel, c.use_mag, c.use_gps, c.gyro
 
         if use_gps:
             if self.gps_age > p["gps_timeout"]:
