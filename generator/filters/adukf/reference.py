@@ -42,7 +42,8 @@ import math
 
 import numpy as np
 
-from firmware_sim.log import G0, VALID_ACCEL, VALID_GYRO, VALID_MAG
+from generator.constants import G0
+from generator import input_checks
 from generator import status as st
 from generator.npquat import q_from_euler, rotmat
 
@@ -146,41 +147,13 @@ class Reference:
         self.initialized = bool(p["faithful"])
         self.r_diag = np.zeros(6)       # R used by the last step (0 = sensor not used)
 
-    # ------------------------------------------------------------------ input checks
-    def _check(self, v, bit_valid, valid, nonfinite, rng_bit, vmax, zero_bit, nmin):
-        if not (valid & bit_valid):
-            return False, 0
-        x, y, z = (float(c) for c in v)
-        if not (math.isfinite(x) and math.isfinite(y) and math.isfinite(z)):
-            return False, nonfinite
-        if max(abs(x), abs(y), abs(z)) > vmax:
-            return False, rng_bit
-        if math.sqrt(x * x + y * y + z * z) < nmin:
-            return False, zero_bit
-        return True, 0
-
     def step(self, gyro, accel, mag, gps_vel, valid: int, dt: float) -> int:
         p = self.p
-        valid = int(valid)
-        if not math.isfinite(dt) or dt <= 0.0:
-            return st.DT_INVALID
-        if dt > p["dt_max"]:
-            return st.DT_TOO_LARGE
-        if not (valid & VALID_GYRO):
-            return st.GYRO_MISSING
-        w = np.asarray(gyro, dtype=float)
-        wl = [float(c) for c in w]
-        if not all(math.isfinite(c) for c in wl):
-            return st.GYRO_NONFINITE
-        if max(abs(c) for c in wl) > p["gyro_max"]:
-            return st.GYRO_RANGE
-        status = 0
-        use_a, s = self._check(accel, VALID_ACCEL, valid, st.ACCEL_NONFINITE, st.ACCEL_RANGE,
-                               p["accel_max"], st.ACCEL_ZERO, p["accel_min_norm"])
-        status |= s
-        use_m, s = self._check(mag, VALID_MAG, valid, st.MAG_NONFINITE, st.MAG_RANGE,
-                               p["mag_max"], st.MAG_ZERO, p["mag_min_norm"])
-        status |= s
+        c = input_checks.check(p, ("accel", "mag"), gyro, accel, mag, gps_vel, valid, dt)
+        if c.refused:
+            return c.refused
+        status, use_a, use_m, w = c.status, c.use_accel, c.use_mag, c.gyro
+        wl = [float(x) for x in w]
         f = np.asarray(accel, dtype=float)
         m = np.asarray(mag, dtype=float)
         mag_ok = use_m

@@ -56,7 +56,8 @@ import tomllib
 from pathlib import Path
 import numpy as np
 
-from firmware_sim.log import VALID_ACCEL, VALID_GYRO, VALID_MAG
+
+from generator import input_checks
 from generator import status as st
 from generator.filters.cpf.prng import Xoshiro128ss
 
@@ -166,41 +167,18 @@ class Reference:
         """n particles' noise, (n, 4), drawn particle by particle as the C does."""
         return np.array(self.rng.normals(2 * n)).reshape(n, 4)
 
-    def _check(self, v, bit_valid, valid, vmax, vmin_norm, b_nonfinite, b_range, b_zero):
-        """(usable, status bits) for an aiding sensor (accelerometer or magnetometer)."""
-        if not valid & bit_valid:
-            return False, 0
-        if not all(math.isfinite(x) for x in v):
-            return False, b_nonfinite
-        if any(abs(x) > vmax for x in v):
-            return False, b_range
-        if v[0] * v[0] + v[1] * v[1] + v[2] * v[2] < vmin_norm * vmin_norm:
-            return False, b_zero
-        return True, 0
-
     # -- the step -----------------------------------------------------------------------------
     def step(self, gyro, accel, mag, gps_vel, valid: int, dt: float) -> int:
         p = self.p
-        valid = int(valid)
         dt = float(dt)
-        if not (math.isfinite(dt) and dt > 0.0):
-            return st.DT_INVALID
-        if dt > p["dt_max"]:
-            return st.DT_TOO_LARGE
-        if not valid & VALID_GYRO:
-            return st.GYRO_MISSING
-        w = [float(x) for x in gyro]
-        if not all(math.isfinite(x) for x in w):
-            return st.GYRO_NONFINITE
-        if any(abs(x) > p["gyro_max"] for x in w):
-            return st.GYRO_RANGE
+        c = input_checks.check(p, ("accel", "mag"), gyro, accel, mag, gps_vel, valid, dt)
+        if c.refused:
+            return c.refused
+        w = [float(x) for x in c.gyro]
         f = [float(x) for x in accel]
         m = [float(x) for x in mag]
-        acc_ok, s_a = self._check(f, VALID_ACCEL, valid, p["accel_max"], p["accel_min_norm"],
-                                  st.ACCEL_NONFINITE, st.ACCEL_RANGE, st.ACCEL_ZERO)
-        mag_ok, s_m = self._check(m, VALID_MAG, valid, p["mag_max"], p["mag_min_norm"],
-                                  st.MAG_NONFINITE, st.MAG_RANGE, st.MAG_ZERO)
-        status = s_a | s_m
+        acc_ok, mag_ok = c.use_accel, c.use_mag
+        status = c.status
         decl = p["declination"]
 
         if not self.initialised:

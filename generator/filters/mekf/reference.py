@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from firmware_sim.log import G0, VALID_ACCEL, VALID_GPS, VALID_GYRO, VALID_MAG
+from generator.constants import G0
 from generator import input_checks
 from generator import status as st
 from generator.npquat import euler_from_q, q_from_euler, qexp, qmul, rotmat, wrap
