@@ -200,38 +200,7 @@ def test_singular_innovation_covariance_skips_update(precision):
     np.testing.assert_allclose(q, q_before, atol=1e-6)
 
 
-@pytest.mark.parametrize("precision", ["float", "double"])
-@pytest.mark.parametrize("change, dt, expected", [
-    ({}, 0.0, st.DT_INVALID), ({}, NAN, st.DT_INVALID), ({}, 0.6, st.DT_TOO_LARGE),
-    ({"gyro": (NAN, 0, 0)}, 0.01, st.GYRO_NONFINITE), ({"gyro": (0, 0, 1e30)}, 0.01, st.GYRO_RANGE),
-    ({"valid": ALL & ~1}, 0.01, st.GYRO_MISSING),
-])
-def test_refused_steps_leave_state_untouched(precision, change, dt, expected):
-    hf = host_build("adukf", precision)
-    s = _warm(hf)
-    before = hf.state_bytes(s)
-    args = dict(GOOD, valid=ALL)
-    args.update(change)
-    assert hf.step(s, dt=dt, **args) == expected
-    assert hf.state_bytes(s) == before
-
-
-@pytest.mark.parametrize("precision", ["float", "double"])
-@pytest.mark.parametrize("change, cleared_bit, expected", [
-    ({"accel": (NAN, 0, -9.8)}, 2, st.ACCEL_NONFINITE), ({"accel": (0, 0, 0)}, 2, st.ACCEL_ZERO),
-    ({"accel": (0, 1e9, 0)}, 2, st.ACCEL_RANGE), ({"mag": (0, INF, 0)}, 4, st.MAG_NONFINITE),
-    ({"mag": (0, 0, 0)}, 4, st.MAG_ZERO), ({"mag": (1e30, 0, 0)}, 4, st.MAG_RANGE),
-])
-def test_bad_aiding_sample_skips_only_its_correction(precision, change, cleared_bit, expected):
-    hf = host_build("adukf", precision)
-    s1 = _warm(hf)
-    s2 = hf.copy_state(s1)
-    bad = dict(GOOD, valid=ALL)
-    bad.update(change)
-    assert hf.step(s1, dt=0.01, **bad) == expected
-    assert hf.step(s2, dt=0.01, **dict(GOOD, valid=ALL & ~cleared_bit)) == 0
-    assert hf.state_bytes(s1) == hf.state_bytes(s2)
-    _check_state(hf, s1)
+# Refusals and skipped corrections of the common input checks: tests/test_input_contract.py.
 
 
 @pytest.mark.parametrize("missing", [2, 4, 6])
