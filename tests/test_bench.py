@@ -10,6 +10,8 @@
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -219,3 +221,25 @@ def test_variant_option_is_validated():
     for bad in ["qcf:kp=1", "soft=qcf:kq=1", "soft=nofilter:kp=1", "soft=qcf:kp=-3"]:
         with pytest.raises(ConfigError):
             parse_variants([bad])
+
+
+def test_quick_bench_through_the_cli_covers_everything_it_claims(tmp_path):
+    """`ahrsgen bench --quick` as CI runs it: every product filter and every default peer has
+    an entry for every scenario of the quick grid and for every real log it read."""
+    from generator import filters
+    out = tmp_path / "q"
+    r = subprocess.run([sys.executable, "-m", "generator.cli", "bench", "--quick", "-o", str(out)],
+                       capture_output=True, text=True, timeout=900)
+    assert r.returncode == 0, r.stderr[-2000:]
+    rep = json.loads((out / "bench.json").read_text())
+    expected = set(filters.names()) | set(bench.PEER_NAMES)
+    labels = [label for label, _, _ in bench.scenario_configs(quick=True)]
+    assert set(rep["scenarios"]) == set(labels)
+    for label in labels:
+        assert expected <= set(rep["scenarios"][label]), (label, expected - set(rep["scenarios"][label]))
+        for name in expected:
+            assert rep["scenarios"][label][name]["total_rms"]["n"] >= 1
+    for name in filters.names():
+        assert rep["cost"][name]["ns_per_step"] > 0 and rep["cost"][name]["state_bytes"] > 0
+    assert "qcf_hand" in rep["cost"]
+    assert (out / "bench.md").exists()
