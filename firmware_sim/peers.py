@@ -191,6 +191,26 @@ def _nonzero_gyro(g):
     return g
 
 
+def _run_ahrs_filter(m, log, q_earth_to_ned):
+    """Step an `ahrs` Madgwick/Mahony object over a log in FLU sensor axes, with its own
+    earth frame (NWU or ENU, given as the rotation to NED); returns body->NED quaternions."""
+    q = from_ned(_initial_q(log), q_earth_to_ned, Q_FLU_TO_FRD)
+    gyr = log.gyro @ R_FLU_FROM_FRD.T
+    acc = log.accel @ R_FLU_FROM_FRD.T
+    mag = log.mag @ R_FLU_FROM_FRD.T
+    out = np.empty((len(log), 4))
+    for k in range(len(log)):
+        v = int(log.valid[k])
+        g = _nonzero_gyro(gyr[k])
+        a = acc[k] if v & VALID_ACCEL else np.zeros(3)
+        if (v & VALID_MAG) and np.all(np.isfinite(mag[k])):
+            q = m.updateMARG(q, g, a, mag[k], dt=float(log.dt[k]))
+        else:
+            q = m.updateIMU(q, g, a, dt=float(log.dt[k]))
+        out[k] = q
+    return to_ned(out, q_earth_to_ned, Q_FLU_TO_FRD)
+
+
 class MadgwickPeer(Peer):
     """ahrs.filters.Madgwick (earth NWU), fed in FLU sensor axes; beta default 0.12."""
     name = "madgwick"
@@ -202,21 +222,7 @@ class MadgwickPeer(Peer):
         beta = float(self.options.get("beta", 0.12))
         m = Madgwick(frequency=1.0 / float(np.median(log.dt)), gain=beta)
         m.gain = beta
-        q = from_ned(_initial_q(log), Q_NWU_TO_NED, Q_FLU_TO_FRD)
-        gyr = log.gyro @ R_FLU_FROM_FRD.T
-        acc = log.accel @ R_FLU_FROM_FRD.T
-        mag = log.mag @ R_FLU_FROM_FRD.T
-        out = np.empty((len(log), 4))
-        for k in range(len(log)):
-            v = int(log.valid[k])
-            g = _nonzero_gyro(gyr[k])
-            a = acc[k] if v & VALID_ACCEL else np.zeros(3)
-            if (v & VALID_MAG) and np.all(np.isfinite(mag[k])):
-                q = m.updateMARG(q, g, a, mag[k], dt=float(log.dt[k]))
-            else:
-                q = m.updateIMU(q, g, a, dt=float(log.dt[k]))
-            out[k] = q
-        return to_ned(out, Q_NWU_TO_NED, Q_FLU_TO_FRD)
+        return _run_ahrs_filter(m, log, Q_NWU_TO_NED)
 
 
 class MahonyPeer(Peer):
@@ -230,21 +236,7 @@ class MahonyPeer(Peer):
         kp = float(self.options.get("k_P", 0.74))
         ki = float(self.options.get("k_I", 0.0012))
         m = Mahony(frequency=1.0 / float(np.median(log.dt)), k_P=kp, k_I=ki)
-        q = from_ned(_initial_q(log), Q_ENU_TO_NED, Q_FLU_TO_FRD)
-        gyr = log.gyro @ R_FLU_FROM_FRD.T
-        acc = log.accel @ R_FLU_FROM_FRD.T
-        mag = log.mag @ R_FLU_FROM_FRD.T
-        out = np.empty((len(log), 4))
-        for k in range(len(log)):
-            v = int(log.valid[k])
-            g = _nonzero_gyro(gyr[k])
-            a = acc[k] if v & VALID_ACCEL else np.zeros(3)
-            if (v & VALID_MAG) and np.all(np.isfinite(mag[k])):
-                q = m.updateMARG(q, g, a, mag[k], dt=float(log.dt[k]))
-            else:
-                q = m.updateIMU(q, g, a, dt=float(log.dt[k]))
-            out[k] = q
-        return to_ned(out, Q_ENU_TO_NED, Q_FLU_TO_FRD)
+        return _run_ahrs_filter(m, log, Q_ENU_TO_NED)
 
 
 PEERS = {p.name: p for p in (VqfPeer, Vqf6dPeer, FusionPeer, MadgwickPeer, MahonyPeer)}
