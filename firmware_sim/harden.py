@@ -700,12 +700,30 @@ def print_table(results: list[dict]) -> None:
                   f"{s['first_violation']}")
 
 
+def unavailable_checks(fuzz: bool, soak: bool, cppcheck: bool) -> list[str]:
+    """The asked-for checks that cannot run on this machine, each with what is missing."""
+    out = []
+    if cppcheck and not have_tool(CPPCHECK):
+        out.append(f"cppcheck ({CPPCHECK} not found; install cppcheck, or pass --no-cppcheck)")
+    if fuzz and not clang_fuzzer_works():
+        out.append(f"fuzzing ({CLANG} -fsanitize=fuzzer,address,undefined does not link; install clang and "
+                   f"libclang-rt-14-dev as .ci/setup does, or pass --fuzz-seconds 0)")
+    if soak and not have_tool(os.environ.get("CC", "cc")):
+        out.append(f"soak (no C compiler '{os.environ.get('CC', 'cc')}'; or pass --soak-steps 0)")
+    return out
+
+
 def cmd_harden(args) -> int:
     from generator.model import ConfigError
     try:
         dirs = generated_dirs() if args.filter == "all" else [resolve_dir(args.filter)]
     except HardenError as e:
         raise ConfigError(str(e)) from None
+    # A check that was asked for and cannot run is an error, not a '-' in the table.
+    cannot = unavailable_checks(bool(args.fuzz_seconds or args.fuzz_runs), bool(args.soak_steps),
+                                not args.no_cppcheck)
+    if cannot:
+        raise ConfigError("cannot run " + "; ".join(cannot))
     results = []
     for d in dirs:
         print(f"harden {d.name}: cppcheck, fuzz {args.fuzz_seconds or 0:g} s"
@@ -719,7 +737,8 @@ def cmd_harden(args) -> int:
     print_table(results)
     out = Path(args.json) if args.json else BUILD / "harden.json"
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"results": results}, indent=2))
+    from generator.fileio import write_text_atomic
+    write_text_atomic(out, json.dumps({"results": results}, indent=2))
     print(f"\nJSON: {out}")
     return 0 if all(r["ok"] for r in results) else 1
 
@@ -733,9 +752,11 @@ def register_cli(sub) -> None:
                     "over synthesised varied motion with glitches. Prints a table, writes JSON. Exit 1 "
                     "on any finding.")
     p.add_argument("filter", help="generated filter name (generated/NAME), a directory with manifest.json, or 'all'")
-    p.add_argument("--fuzz-seconds", type=float, default=60, metavar="N", help="fuzzing time per filter (default 60; 0 = no fuzzing)")
-    p.add_argument("--fuzz-runs", type=int, metavar="N", help="stop fuzzing after N inputs")
-    p.add_argument("--soak-steps", type=int, default=10_000_000, metavar="N", help="soak steps (default 1e7; 0 = no soak)")
+    from generator.cli import count_arg, nonneg_float_arg
+    p.add_argument("--fuzz-seconds", type=nonneg_float_arg, default=60, metavar="N", help="fuzzing time per filter (default 60; 0 = no fuzzing)")
+    p.add_argument("--fuzz-runs", type=count_arg, metavar="N", help="stop fuzzing after N inputs")
+    p.add_argument("--soak-steps", type=count_arg, default=10_000_000, metavar="N",
+                   help="soak steps, a whole number >= 0 such as 100000 or 1e7 (default 1e7; 0 = no soak)")
     p.add_argument("--seed", type=int, default=1, help="fuzzer and soak seed (default 1)")
     p.add_argument("--glitch-rate", type=float, default=1e-3, help="soak: probability of a glitch per step (default 1e-3)")
     p.add_argument("--no-cppcheck", action="store_true", help="skip cppcheck")

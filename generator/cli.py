@@ -15,6 +15,52 @@ from generator.model import ConfigError
 EPILOG = "Run 'ahrsgen COMMAND --help' for the options of each command."
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse whose usage errors are one line on stderr (exit 2), like every other CLI error."""
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
+
+
+def count_arg(text: str) -> int:
+    """A whole number >= 0, written as an integer or as 1e7."""
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 0, got {text!r}") from None
+    if not (v >= 0 and v == int(v) and v < 2**63):
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 0, got {text!r}")
+    return int(v)
+
+
+def nonneg_int_arg(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 0, got {text!r}") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 0, got {text!r}")
+    return v
+
+
+def nonneg_float_arg(text: str) -> float:
+    import math
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}") from None
+    if not (math.isfinite(v) and v >= 0):
+        raise argparse.ArgumentTypeError(f"expected a finite number >= 0, got {text!r}")
+    return v
+
+
+def positive_float_arg(text: str) -> float:
+    v = nonneg_float_arg(text)
+    if v == 0:
+        raise argparse.ArgumentTypeError(f"expected a number > 0, got {text!r}")
+    return v
+
+
 def _add_build_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("filter", help="filter name (see 'ahrsgen list')")
     p.add_argument("--config", metavar="FILE.toml", help="TOML file: prefix, precision and a [params] table")
@@ -145,7 +191,7 @@ def scenario_site_params(cfg, log) -> dict:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="ahrsgen", epilog=EPILOG,
         description="Generate fixed-size C for UAV attitude filters from CasADi equations, and check it.")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
@@ -166,10 +212,10 @@ def build_parser() -> argparse.ArgumentParser:
                                    "accuracy against the truth. Exit 1 if C and reference disagree.")
     _add_build_options(p)
     p.add_argument("--scenario", default="fixedwing_gps", help="scenario name (see 'ahrsgen list')")
-    p.add_argument("--seed", type=int, default=0, help="scenario seed (default 0)")
+    p.add_argument("--seed", type=nonneg_int_arg, default=0, help="scenario seed, a whole number >= 0 (default 0)")
     p.add_argument("--scenario-opt", metavar="NAME=VALUE", action="append", default=[],
                    help="scenario option, e.g. rate_hz=100 or duration=60 (repeatable)")
-    p.add_argument("--tolerance", type=float, metavar="RAD",
+    p.add_argument("--tolerance", type=positive_float_arg, metavar="RAD",
                    help="largest allowed attitude difference (default 1e-9 rad double, 1e-3 rad float)")
     p.set_defaults(func=cmd_validate)
 

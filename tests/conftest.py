@@ -1,9 +1,76 @@
-"""Shared fixtures: scenarios and host builds are made once per session."""
+"""Shared fixtures: scenarios and host builds are made once per session.
+
+Tools: a test that needs something `.ci/setup` installs says so with `needs(...)` (a skipif
+marker) or `require(...)` (inside the test). Without the tool it is skipped with a reason that
+starts with MISSING_TOOL; under CI=true such a skip, and an importorskip of one of the Python
+packages setup installs, is turned into a failure by the hook below: CI runs every check it
+claims, or goes red. Data files that are absent (../shared) may still skip.
+"""
 from __future__ import annotations
 
 import functools
+import importlib.util
+import os
+import shutil
 
 import pytest
+
+CI = os.environ.get("CI", "").strip().lower() in ("1", "true", "yes")
+MISSING_TOOL = "missing tool that .ci/setup installs"
+
+# Python packages of the [dev] extra that tests or the code under test import.
+CI_MODULES = ("ahrs", "vqf", "imufusion", "pyulog", "matplotlib", "unicorn", "elftools")
+
+
+def _have(name: str) -> bool:
+    if name in CI_MODULES:
+        return importlib.util.find_spec(name) is not None
+    if name == "pyelftools":
+        return importlib.util.find_spec("elftools") is not None
+    if name == "clang-fuzzer":          # clang whose -fsanitize=fuzzer,address,undefined links
+        from firmware_sim import harden
+        return harden.clang_fuzzer_works()
+    if name == "cppcheck":
+        from firmware_sim import harden
+        return harden.have_tool(harden.CPPCHECK)
+    if name == "target":                # arm-none-eabi-gcc + newlib, qemu-system-arm, unicorn, pyelftools
+        from firmware_sim import target
+        return not target.missing_tools()
+    return shutil.which(name) is not None     # an executable: cc, arm-none-eabi-gcc, qemu-system-arm
+
+
+@functools.cache
+def missing(*names: str) -> tuple[str, ...]:
+    return tuple(n for n in names if not _have(n))
+
+
+def needs(*names: str) -> pytest.MarkDecorator:
+    """Skip marker for tests that need these tools (fails instead under CI=true)."""
+    m = missing(*names)
+    return pytest.mark.skipif(bool(m), reason=f"{MISSING_TOOL}: {', '.join(m)}")
+
+
+def require(*names: str) -> None:
+    """Inside a test: skip (fail under CI=true) unless these tools are present."""
+    m = missing(*names)
+    if m:
+        pytest.skip(f"{MISSING_TOOL}: {', '.join(m)}")
+
+
+def _is_tool_skip(reason: str) -> bool:
+    return MISSING_TOOL in reason or any(f"could not import '{mod}'" in reason for mod in CI_MODULES)
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item, call):
+    outcome = yield
+    rep = outcome.get_result()
+    if not (CI and rep.skipped) or hasattr(rep, "wasxfail"):
+        return
+    reason = rep.longrepr[2] if isinstance(rep.longrepr, tuple) else str(rep.longrepr)
+    if _is_tool_skip(reason):
+        rep.outcome = "failed"
+        rep.longrepr = f"CI=true and this check did not run: {reason}"
 
 
 @functools.cache

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import ctypes
 import math
-import shutil
 import subprocess
 from functools import cache
 from pathlib import Path
@@ -18,6 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from conftest import needs
 from firmware_sim import host, scenarios
 from firmware_sim.log import G0, VALID_ACCEL, VALID_GYRO, VALID_MAG, SensorLog
 from firmware_sim.metrics import euler_stats, max_angle_diff_rad
@@ -437,7 +437,7 @@ def test_state_holds_particles_no_heap():
         assert word not in src
 
 
-@pytest.mark.skipif(shutil.which("arm-none-eabi-gcc") is None, reason="arm-none-eabi-gcc not installed")
+@needs("arm-none-eabi-gcc")
 def test_float_build_compiles_for_cortex_m4f(tmp_path):
     d = REPO / "generated" / "cpf"
     r = subprocess.run(["arm-none-eabi-gcc", *host.STRICT, "-O2", "-mcpu=cortex-m4", "-mthumb",

@@ -12,17 +12,15 @@ import shutil
 
 import pytest
 
+from conftest import needs
 from firmware_sim import harden
 
 GEN_DIRS = harden.generated_dirs()
 IDS = [d.name for d in GEN_DIRS]
 
-needs_cppcheck = pytest.mark.skipif(not harden.have_tool(harden.CPPCHECK),
-                                    reason="cppcheck not installed (CI installs it: apt-get install cppcheck)")
-needs_fuzzer = pytest.mark.skipif(not harden.clang_fuzzer_works(),
-                                  reason="clang with -fsanitize=fuzzer,address,undefined not available "
-                                         "(CI installs it: apt-get install clang)")
-needs_cc = pytest.mark.skipif(shutil.which("cc") is None, reason="no C compiler")
+needs_cppcheck = needs("cppcheck")
+needs_fuzzer = needs("clang-fuzzer")
+needs_cc = needs("cc")
 
 
 def test_every_generated_filter_is_covered():
@@ -264,3 +262,31 @@ def test_cli_unknown_filter(capsys):
     from generator import cli
     assert cli.main(["harden", "no_such_filter", "--soak-steps", "0", "--fuzz-seconds", "0"]) == 2
     assert "no generated filter" in capsys.readouterr().err
+
+
+def test_cli_refuses_a_check_it_cannot_run(monkeypatch, capsys):
+    """Fuzzing asked for but the fuzzer cannot link: one line, exit 2, not a table of '-'."""
+    from generator import cli
+    monkeypatch.setattr(harden, "CLANG", "no-such-clang-ahrsgen")
+    rc = cli.main(["harden", "qcf", "--fuzz-seconds", "20", "--soak-steps", "1e5", "--no-cppcheck"])
+    err = capsys.readouterr().err
+    assert rc == 2 and err.count("\n") == 1 and "fuzzing" in err and "libclang-rt" in err, err
+    monkeypatch.setattr(harden, "CPPCHECK", "no-such-cppcheck-ahrsgen")
+    assert cli.main(["harden", "qcf", "--fuzz-seconds", "0", "--soak-steps", "0"]) == 2
+    assert "cppcheck" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("text,value", [("1e5", 100000), ("1e7", 10_000_000), ("0", 0), ("250", 250),
+                                        ("-5", None), ("1.5", None), ("abc", None), ("1e30", None)])
+def test_cli_soak_steps_parsing(text, value, capsys):
+    """--soak-steps takes what its help writes (1e7); a negative count is refused (it used to wrap in
+    strtoull and run for ever)."""
+    from generator import cli
+    cli._load_extra_commands()
+    parser = cli.build_parser()
+    if value is None:
+        with pytest.raises(SystemExit) as e:
+            parser.parse_args(["harden", "qcf", "--soak-steps", text])
+        assert e.value.code == 2 and capsys.readouterr().err.count("\n") == 1
+    else:
+        assert parser.parse_args(["harden", "qcf", "--soak-steps", text]).soak_steps == value

@@ -13,13 +13,10 @@ import subprocess
 import numpy as np
 import pytest
 
+from conftest import needs
 from firmware_sim import target as T
 
-_MISSING = T.missing_tools()
-pytestmark = [
-    pytest.mark.target,
-    pytest.mark.skipif(bool(_MISSING), reason="target toolchain missing: " + ", ".join(_MISSING)),
-]
+pytestmark = [pytest.mark.target, needs("target")]
 
 
 def _toy_records(n=600, seed=0):
