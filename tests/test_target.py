@@ -152,6 +152,18 @@ def test_stack_bound_covers_measured_stack(toy_o2):
     assert qemu_step_depth == toy_o2.counts.stack_bytes == fp.stack_measured_bytes
 
 
+def test_debug_build_stack_bound_covers_its_measured_stack(toy_o2, tmp_path):
+    """The -O0 figure: its call-graph bound covers what the -O0 image actually touches
+    (unicorn's painting), and a debug build needs more than the optimised one."""
+    b = T.toy_binding()
+    fp = toy_o2.footprint
+    assert fp.stack_o0_path[0] == "toy_step"
+    o0 = T.build(b, tmp_path / "o0", T.DEBUG_OPT)
+    measured = T.Emulator(o0.elf).count_steps(b.step_fn, _toy_records(40), 24).stack_bytes
+    assert 0 < measured <= fp.stack_o0_bytes
+    assert fp.stack_o0_bytes > fp.stack_bytes
+
+
 def test_footprint_counts_libm_and_flags_no_double(toy_o2):
     fp = toy_o2.footprint
     assert fp.double_helpers == []

@@ -1,0 +1,118 @@
+"""`ahrsgen target`: the command line of the target checks."""
+from __future__ import annotations
+
+import json
+import tempfile
+from dataclasses import asdict
+from pathlib import Path
+
+from .build import APT_PACKAGES, CPUS, MATH_FLAGS, OPT_LEVELS, PIP_PACKAGES, QEMU_MACHINE, missing_tools, peer_binding, PEER_NAMES
+from .check import DEFAULT_TOLERANCE_DEG, _print_results, check_filter, check_generated, toolchain_versions
+from .emulate import libm_survey, records_from_log
+from .footprint import format_table
+
+
+def cmd_target(args) -> int:
+    from generator import filters
+    from generator.model import ConfigError
+    missing = missing_tools()
+    if missing:
+        raise ConfigError("target checks need " + ", ".join(missing) + " (apt-get install "
+                          + " ".join(APT_PACKAGES) + "; pip install " + " ".join(PIP_PACKAGES) + ")")
+    names = filters.names() if args.filter == "all" else [args.filter]
+    if args.filter == "all" and (args.config or args.set):
+        raise ConfigError("--config/--set apply to one filter, not 'all'")
+    for n in names:
+        filters.load(n)   # unknown filter -> ConfigError
+    opts = args.opt or list(OPT_LEVELS)
+    sopts = {}
+    for item in args.scenario_opt:
+        k, _, v = item.partition("=")
+        try:
+            sopts[k] = float(v) if any(c in v for c in ".e") else int(v)
+        except ValueError:
+            sopts[k] = v
+    results = []
+    with tempfile.TemporaryDirectory(prefix="ahrsgen-target-") as tmp:
+        root = Path(args.workdir) if args.workdir else Path(tmp)
+        for n in names:
+            try:
+                results += check_generated(n, opts, args.cpu, args.scenario, args.seed, sopts, args.config,
+                                           args.set, args.prefix, root / n,
+                                           None if args.count_steps == 0 else args.count_steps,
+                                           pinned=not args.no_pinned, tolerance_deg=args.tolerance,
+                                           precision=args.precision)
+            except KeyError as e:
+                raise ConfigError(str(e.args[0])) from None
+    if not args.workdir:
+        for r in results:
+            r.pop("workdir", None)
+    peer_rows = []
+    if args.peers:
+        from firmware_sim import scenarios
+        log = scenarios.make("fixedwing_gps", seed=args.seed)
+        with tempfile.TemporaryDirectory(prefix="ahrsgen-peers-") as tmp:
+            for pn in PEER_NAMES:
+                for opt in opts:
+                    r = check_filter(peer_binding(pn), records_from_log(log), Path(tmp), opt=opt, cpu=args.cpu,
+                                     count_steps=None if args.count_steps == 0 else args.count_steps)
+                    peer_rows.append(r.footprint)
+    print(f"target {args.cpu}: {' '.join(CPUS[args.cpu])} {' '.join(MATH_FLAGS)}; QEMU {QEMU_MACHINE}; "
+          f"instructions (not cycles) per step under QEMU -icount, checked step by step against unicorn")
+    ok = _print_results(results)
+    survey = None
+    if args.libm_survey:
+        with tempfile.TemporaryDirectory(prefix="ahrsgen-libm-") as tmp:
+            survey = libm_survey(Path(tmp), cpu=args.cpu)
+        print("\nnewlib (target) vs host libm, float functions on the same float32 arguments:")
+        for fn, v in survey.items():
+            print(f"  {fn:<7} differs in {v['differ']}/{v['arguments']} arguments, by at most {v['max_ulp']} ulp")
+    if peer_rows:
+        print("\ncalibration peers (firmware_sim/target/peers, fixedwing_gps; counts only):")
+        print(format_table(peer_rows))
+    doc = {"cpu": args.cpu, "cpu_flags": CPUS[args.cpu], "math_flags": MATH_FLAGS, "qemu_machine": QEMU_MACHINE,
+           "tools": toolchain_versions(), "tolerance_deg": args.tolerance, "results": results,
+           "peers": [asdict(r) for r in peer_rows], "libm_survey": survey}
+    out = Path(args.json)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(doc, indent=2, sort_keys=True) + "\n")
+    print(f"wrote {out}")
+    return 0 if ok else 1
+
+
+def register_cli(sub) -> None:
+    p = sub.add_parser(
+        "target", help="cross-build for a Cortex-M4F, run in QEMU, compare with the host, report footprint",
+        description="Generate the float C of a filter, build it with arm-none-eabi-gcc at -O2 and -Os, run a "
+                    "scenario through it on an emulated Cortex-M4F (QEMU mps2-an386), check the outputs against "
+                    "the host float build, and report flash, static RAM, worst-case stack and instructions per "
+                    "step (table on stdout, JSON file). Exit 1 if target and host disagree beyond the bound.")
+    p.add_argument("filter", help="filter name (see 'ahrsgen list'), or 'all'")
+    p.add_argument("--config", metavar="FILE.toml", help="TOML config (its precision is ignored: see --precision)")
+    p.add_argument("--set", metavar="NAME=VALUE", action="append", default=[], help="override one parameter (repeatable)")
+    p.add_argument("--prefix", help="C identifier prefix (default: the filter name)")
+    p.add_argument("--cpu", choices=sorted(CPUS), default="cortex-m4f", help="target CPU (default cortex-m4f)")
+    p.add_argument("--precision", choices=["float", "double"], default="float",
+                   help="float (default; the M4F FPU) or double (soft-float: shows what a double build costs, "
+                        "compared with the host double build)")
+    p.add_argument("--opt", action="append", choices=list(OPT_LEVELS),
+                   help="optimisation level (repeatable; default both -O2 and -Os)")
+    p.add_argument("--scenario", help="scenario (default: the filter's source experiment, e.g. fixedwing_gps for qcf)")
+    p.add_argument("--seed", type=int, default=0, help="scenario seed (default 0)")
+    p.add_argument("--scenario-opt", metavar="NAME=VALUE", action="append", default=[],
+                   help="scenario option, e.g. duration=30 (repeatable)")
+    p.add_argument("--count-steps", type=int, default=50, metavar="N",
+                   help="steps also run in unicorn (exact instruction count cross-check); 0 = all; "
+                        "default 50. QEMU counts instructions and paints the stack over every step.")
+    p.add_argument("--tolerance", type=float, default=DEFAULT_TOLERANCE_DEG, metavar="DEG",
+                   help=f"largest allowed target-vs-host attitude difference (default {DEFAULT_TOLERANCE_DEG:g} deg)")
+    p.add_argument("--peers", action="store_true",
+                   help="also measure the calibration peers (Madgwick, Mahony with integral) for scale")
+    p.add_argument("--libm-survey", action="store_true",
+                   help="also compare newlib's float sinf/cosf/asinf/atanf/expf/logf/atan2f with the host's, in ulps")
+    p.add_argument("--no-pinned", action="store_true",
+                   help="skip the pinned-libm identity run (float libm evaluated through double on both sides)")
+    p.add_argument("--json", default="build/target/target.json", metavar="FILE",
+                   help="where to write the JSON report (default build/target/target.json)")
+    p.add_argument("--workdir", metavar="DIR", help="keep build products here (default: a temporary directory)")
+    p.set_defaults(func=cmd_target)
