@@ -70,11 +70,18 @@ def _add_build_options(p: argparse.ArgumentParser) -> None:
                                     "(the source as published; see 'ahrsgen list FILTER')")
     p.add_argument("--precision", choices=["float", "double"], help="C floating-point type (default float)")
     p.add_argument("--prefix", help="C identifier prefix of the generated API (default: the filter name)")
+    p.add_argument("--math", choices=["fast", "libm"],
+                   help="float trigonometry: 'fast' = own helpers, no libm (default; errors in "
+                        "generator/fastmath.py), 'libm' = sinf/cosf/atan2f...")
+    p.add_argument("--fma", action="store_true", default=None,
+                   help="write fused multiply-adds (fmaf) where a product feeds one sum: the emitter "
+                        "chooses them, so host and target stay bit-identical")
 
 
 def _resolve(args):
     from generator import config
-    return config.resolve(args.filter, args.config, args.set, args.precision, args.prefix, args.preset)
+    return config.resolve(args.filter, args.config, args.set, args.precision, args.prefix, args.preset,
+                          getattr(args, "math", None), getattr(args, "fma", None))
 
 
 def cmd_list(args) -> int:
@@ -134,7 +141,8 @@ def cmd_validate(args) -> int:
     if site:
         from generator import config as _config
         cfg = _config.resolve(args.filter, args.config, args.set + [f"{k}={v!r}" for k, v in site.items()],
-                              args.precision, args.prefix, args.preset)
+                              args.precision, args.prefix, args.preset, getattr(args, "math", None),
+                              getattr(args, "fma", None))
         print("  site parameters from the scenario (override with --set): "
               + ", ".join(f"{k}={v:.6g}" if isinstance(v, float) else f"{k}={v}" for k, v in site.items()))
     bound = args.tolerance if args.tolerance is not None else (1e-9 if cfg.precision == "double" else 1e-3)

@@ -6,6 +6,8 @@ A config file:
     preset = "faithful"       # optional: start from a named preset of the filter
     prefix = "att"            # C identifier prefix (default: the filter's name)
     precision = "float"       # or "double"
+    math = "fast"             # or "libm": float trigonometry without libm (generator/fastmath.py)
+    fma = false               # true: the emitter writes fmaf(a, b, c) for a product feeding one sum
     [params]
     kp = 1.5
 
@@ -18,11 +20,11 @@ import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from generator import filters
+from generator import fastmath, filters
 from generator.model import ConfigError
 
 PRECISIONS = ("float", "double")
-TOP_KEYS = {"filter", "prefix", "precision", "params", "preset"}
+TOP_KEYS = {"filter", "prefix", "precision", "params", "preset", "math", "fma"}
 
 
 @dataclass
@@ -32,6 +34,8 @@ class BuildConfig:
     precision: str = "float"
     prefix: str = ""
     overrides: dict = field(default_factory=dict)   # what differs from the defaults
+    math: str = fastmath.DEFAULT_MATH                # float trigonometry: "fast" helpers or "libm"
+    fma: bool = False                                # emitter-written fused multiply-adds
 
     @property
     def spec(self):
@@ -45,12 +49,13 @@ def _check_prefix(prefix: str) -> str:
 
 
 def resolve(filter_name: str, config_file: str | Path | None = None, sets: list[str] | None = None,
-            precision: str | None = None, prefix: str | None = None, preset: str | None = None) -> BuildConfig:
+            precision: str | None = None, prefix: str | None = None, preset: str | None = None,
+            math: str | None = None, fma: bool | None = None) -> BuildConfig:
     """Defaults, then a preset, then the config file's [params], then --set (last wins)."""
     spec = filters.load(filter_name)
     values = spec.defaults()
     overrides = {}
-    file_prefix = file_precision = None
+    file_prefix = file_precision = file_math = file_fma = None
     file_data = _read_config(config_file) if config_file is not None else {}
     preset = preset or file_data.get("preset")
     if preset is not None:
@@ -69,7 +74,10 @@ def resolve(filter_name: str, config_file: str | Path | None = None, sets: list[
             raise ConfigError(f"{path}: unknown key(s) {', '.join(sorted(unknown))}; allowed: {', '.join(sorted(TOP_KEYS))}")
         if "filter" in data and data["filter"] != filter_name:
             raise ConfigError(f"{path}: written for filter '{data['filter']}', not '{filter_name}'")
-        file_prefix, file_precision = data.get("prefix"), data.get("precision")
+        file_prefix, file_precision, file_math = data.get("prefix"), data.get("precision"), data.get("math")
+        file_fma = data.get("fma")
+        if file_fma is not None and not isinstance(file_fma, bool):
+            raise ConfigError(f"{path}: fma must be true or false, got {file_fma!r}")
         table = data.get("params", {})
         if not isinstance(table, dict):
             raise ConfigError(f"{path}: 'params' must be a table ([params])")
@@ -85,7 +93,11 @@ def resolve(filter_name: str, config_file: str | Path | None = None, sets: list[
     if precision not in PRECISIONS:
         raise ConfigError(f"precision {precision!r} must be one of {', '.join(PRECISIONS)}")
     prefix = _check_prefix(prefix or file_prefix or filter_name)
-    return BuildConfig(filter_name, values, precision, prefix, overrides)
+    math = math or file_math or fastmath.DEFAULT_MATH
+    if math not in fastmath.MATH_MODES:
+        raise ConfigError(f"math {math!r} must be one of {', '.join(fastmath.MATH_MODES)}")
+    fma = bool(fma if fma is not None else (file_fma or False))
+    return BuildConfig(filter_name, values, precision, prefix, overrides, math, fma)
 
 
 def _read_config(path) -> dict:

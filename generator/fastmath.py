@@ -1,0 +1,145 @@
+"""Float math without libm: the `math = "fast"` build option.
+
+The emitter writes a call to one of these static helpers instead of sinf/cosf/atan2f/asinf/
+acosf/atanf when a float build asks for `math = "fast"`; the template puts the C of the
+helpers used into the generated file. They use only + - * /, sqrtf (one vsqrt.f32 on the
+Cortex-M4F with -fno-math-errno), comparisons and a float->int conversion, all correctly
+rounded IEEE-754, so a fast build gives bit-identical results on the host and the target
+(the real-libm builds differ by newlib's and glibc's last bits).
+
+The methods are the classical ones (Cody and Waite's range reduction, the minimax
+polynomials of Cephes' single-precision sinf/cosf/atanf). The maximum errors below are
+MEASURED against the host's double libm over the whole domain by tests/test_fastmath.py
+(which fails if a helper exceeds its stated bound): every float of the small-argument
+ranges, a dense sweep of the rest, and the special values.
+
+Double builds always use libm: these helpers are single-precision approximations.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import casadi as ca
+
+MATH_MODES = ("libm", "fast")
+DEFAULT_MATH = "fast"
+
+# Arguments of fast_sinf/fast_cosf beyond this (and NaN, +-inf) give NaN: the three-part
+# pi/2 of the reduction is exact for |k| < 2^13 quadrants (the filters' angles are wrapped
+# or bounded by gyro_max * dt_max, far inside).
+TRIG_MAX = 8192.0
+
+
+@dataclass(frozen=True)
+class Helper:
+    name: str
+    doc: str
+    code: str
+    needs: tuple[str, ...] = ()
+    max_abs_error: float = 0.0   # stated bound vs the exact value, over the whole domain
+
+
+_SINCOS_BODY = """
+    const float t = x * 0.636619772f;                       /* x * 2/pi */
+    const int32_t k = (int32_t)((t >= 0.0f) ? t + 0.5f : t - 0.5f);
+    const float kf = (float)k;
+    /* Cody-Waite: pi/2 in three parts, the first two with trailing zero bits */
+    const float r = ((x - kf * 1.5703125f) - kf * 4.837512969970703125e-4f) - kf * 7.54978995489188216e-8f;
+    const float r2 = r * r;
+"""
+
+_SIN_POLY = "r + r * r2 * ((-1.6666654611e-1f) + r2 * (8.3321608736e-3f + r2 * (-1.9515295891e-4f)))"
+_COS_POLY = ("1.0f - 0.5f * r2 + r2 * r2 * (4.166664568298827e-2f + r2 * ((-1.388731625493765e-3f) "
+             "+ r2 * 2.443315711809948e-5f))")
+
+
+def _sincos(name: str, quadrant_shift: int) -> str:
+    return (f"static float {name}(float x)\n{{\n"
+            f"    if (!(fabsf(x) <= {TRIG_MAX:.1f}f)) {{\n        return NAN;\n    }}"
+            + _SINCOS_BODY +
+            f"    const uint32_t quadrant = ((uint32_t)k + {quadrant_shift}u) & 3u;\n"
+            f"    const float v = ((quadrant & 1u) != 0u) ? {_COS_POLY} : {_SIN_POLY};\n"
+            "    return (quadrant >= 2u) ? -v : v;\n}\n")
+
+
+HELPERS = {
+    "sin": Helper("fast_sinf", f"sin(x), |x| <= {TRIG_MAX:g} (NaN beyond; sin(-0) = +0)", _sincos("fast_sinf", 0),
+                  max_abs_error=1.5e-7),
+    "cos": Helper("fast_cosf", f"cos(x), |x| <= {TRIG_MAX:g} (NaN beyond)", _sincos("fast_cosf", 1),
+                  max_abs_error=1.5e-7),
+    "atan2": Helper("fast_atan2f", "atan2(y, x), every float pair; quadrants, signed zeros and infinities as C99",
+                    """static float fast_atan2f(float y, float x)
+{
+    const float ax = fabsf(x);
+    const float ay = fabsf(y);
+    if (isnan(x) || isnan(y)) {
+        return x + y;
+    }
+    const bool steep = ay > ax;
+    const float num = steep ? ax : ay;
+    const float den = steep ? ay : ax;
+    /* t = num / den in [0, 1]; 0/0 -> 0 and inf/inf -> 1 as atan2 wants */
+    float t = (den > FLT_MAX) ? ((num > FLT_MAX) ? 1.0f : 0.0f) : ((den > 0.0f) ? num / den : 0.0f);
+    float a = 0.0f;
+    if (t > 0.414213562f) {                                   /* tan(pi/8) */
+        a = 0.785398163f;
+        t = (t - 1.0f) / (t + 1.0f);
+    }
+    const float z = t * t;
+    a += (((8.05374449538e-2f * z - 1.38776856032e-1f) * z + 1.99777106478e-1f) * z - 3.33329491539e-1f) * z * t + t;
+    if (steep) {
+        a = 1.57079633f - a;
+    }
+    if (signbit(x)) {
+        a = 3.14159265f - a;
+    }
+    return signbit(y) ? -a : a;
+}
+""", max_abs_error=3.5e-7),
+    "asin": Helper("fast_asinf", "asin(x), |x| <= 1 (NaN beyond), as atan2(x, sqrt((1 - x)(1 + x)))",
+                   """static float fast_asinf(float x)
+{
+    return fast_atan2f(x, sqrtf((1.0f - x) * (1.0f + x)));
+}
+""", needs=("atan2",), max_abs_error=5e-7),
+    "acos": Helper("fast_acosf", "acos(x), |x| <= 1 (NaN beyond), as atan2(sqrt((1 - x)(1 + x)), x)",
+                   """static float fast_acosf(float x)
+{
+    return fast_atan2f(sqrtf((1.0f - x) * (1.0f + x)), x);
+}
+""", needs=("atan2",), max_abs_error=5e-7),
+    "atan": Helper("fast_atanf", "atan(x), every float", """static float fast_atanf(float x)
+{
+    return fast_atan2f(x, 1.0f);
+}
+""", needs=("atan2",), max_abs_error=3.5e-7),
+}
+
+# CasADi operation -> helper (unary ops take {a}, atan2 takes {a}, {b}).
+OPS = {ca.OP_SIN: "sin", ca.OP_COS: "cos", ca.OP_ATAN2: "atan2", ca.OP_ASIN: "asin",
+       ca.OP_ACOS: "acos", ca.OP_ATAN: "atan"}
+
+
+def closure(names) -> list[str]:
+    """The helpers needed for `names`, dependencies first, in a fixed order."""
+    need: set[str] = set()
+
+    def add(n):
+        if n not in need:
+            need.add(n)
+            for d in HELPERS[n].needs:
+                add(d)
+    for n in names:
+        add(n)
+    return [n for n in HELPERS if n in need and not HELPERS[n].needs] + \
+           [n for n in HELPERS if n in need and HELPERS[n].needs]
+
+
+def c_source(names) -> str:
+    """C of the helpers `names` need (static functions; <math.h>, <float.h>, <stdbool.h>,
+    <stdint.h> included by the caller)."""
+    out = []
+    for n in closure(names):
+        h = HELPERS[n]
+        out.append(f"/* {h.doc}; max abs error {h.max_abs_error:.1e} (tests/test_fastmath.py) */\n{h.code}")
+    return "\n".join(out)

@@ -1,0 +1,112 @@
+"""math = "fast": the float helpers against the exact functions (NumPy double) over their
+whole domain, each within the maximum error generator/fastmath.py states; the special values
+(signed zeros, infinities, NaN) as C99's atan2 gives them; and a fast build links no libm
+trigonometry while the emitter still writes libm calls for math = "libm" and double."""
+from __future__ import annotations
+
+import ctypes
+import subprocess
+
+import casadi as ca
+import numpy as np
+import pytest
+
+from generator import emit, fastmath
+
+FLAGS = ["-std=c99", "-O2", "-ffp-contract=off", "-fno-math-errno", "-Wall", "-Wextra", "-Wpedantic",
+         "-Wconversion", "-Wdouble-promotion", "-Wshadow", "-Wfloat-equal", "-Werror"]
+
+
+@pytest.fixture(scope="module")
+def lib(tmp_path_factory):
+    d = tmp_path_factory.mktemp("fastmath")
+    src = ["#include <float.h>", "#include <math.h>", "#include <stdbool.h>", "#include <stdint.h>",
+           fastmath.c_source(fastmath.HELPERS)]
+    for n, h in fastmath.HELPERS.items():
+        two = n == "atan2"
+        src.append(f"void v_{n}(const float *x, const float *y, float *o, long k);\n"
+                   f"void v_{n}(const float *x, const float *y, float *o, long k)\n{{\n"
+                   + ("" if two else "    (void)y;\n")
+                   + f"    for (long i = 0; i < k; i++) {{ o[i] = {h.name}(x[i]{', y[i]' if two else ''}); }}\n}}")
+    (d / "fm.c").write_text("\n".join(src) + "\n")
+    subprocess.run(["gcc", *FLAGS, "-shared", "-fPIC", str(d / "fm.c"), "-o", str(d / "fm.so")], check=True)
+    return ctypes.CDLL(str(d / "fm.so"))
+
+
+def _call(lib, name, x, y=None):
+    x = np.ascontiguousarray(x, np.float32)
+    y = np.ascontiguousarray(x if y is None else y, np.float32)
+    o = np.empty_like(x)
+    getattr(lib, "v_" + name)(*(a.ctypes.data_as(ctypes.c_void_p) for a in (x, y, o)), ctypes.c_long(len(x)))
+    return o
+
+
+def _floats_between(lo: float, hi: float, step: int) -> np.ndarray:
+    """Every step-th float32 in [lo, hi] (0 <= lo < hi): all binades, evenly by bit pattern."""
+    a, b = np.float32([lo, hi]).view(np.int32)
+    return np.arange(a, b + 1, step, dtype=np.int32).view(np.float32)
+
+
+def _max_err(got, exact):
+    ok = np.isfinite(exact)
+    return float(np.max(np.abs(got[ok].astype(float) - exact[ok])))
+
+
+RNG = np.random.default_rng(7)
+
+
+def test_sin_cos_within_stated_error_over_the_domain(lib):
+    small = _floats_between(0.0, 1.0, 1000)                        # 1 in 1000 of the floats in [0, 1]
+    x = np.concatenate([small, -small, RNG.uniform(-fastmath.TRIG_MAX, fastmath.TRIG_MAX, 1_000_000),
+                        np.float32([fastmath.TRIG_MAX, -fastmath.TRIG_MAX, np.pi / 4, np.pi / 2, np.pi])])
+    x = x.astype(np.float32)
+    for name, ref in (("sin", np.sin), ("cos", np.cos)):
+        err = _max_err(_call(lib, name, x), ref(x.astype(float)))
+        assert err <= fastmath.HELPERS[name].max_abs_error, (name, err)
+    assert list(_call(lib, "sin", np.float32([0.0, -0.0]))) == [0.0, 0.0]   # (sign of zero not kept)
+    assert list(_call(lib, "cos", np.float32([0.0, -0.0]))) == [1.0, 1.0]
+    out = _call(lib, "sin", np.float32([np.nan, np.inf, -np.inf, 2 * fastmath.TRIG_MAX]))
+    assert np.isnan(out).all()                                   # outside the domain: NaN, documented
+
+
+def test_atan2_asin_acos_atan_within_stated_error(lib):
+    y = RNG.standard_normal(1_000_000).astype(np.float32) * np.float32(10.0) ** RNG.integers(-6, 7, 1_000_000)
+    x = RNG.standard_normal(1_000_000).astype(np.float32) * np.float32(10.0) ** RNG.integers(-6, 7, 1_000_000)
+    err = _max_err(_call(lib, "atan2", y, x), np.arctan2(y.astype(float), x.astype(float)))
+    assert err <= fastmath.HELPERS["atan2"].max_abs_error, err
+    u = np.concatenate([_floats_between(0.0, 1.0, 1000), 1 - RNG.uniform(0, 1e-4, 100_000)]).astype(np.float32)
+    u = np.concatenate([u, -u])
+    for name, ref in (("asin", np.arcsin), ("acos", np.arccos)):
+        err = _max_err(_call(lib, name, u), ref(u.astype(float)))
+        assert err <= fastmath.HELPERS[name].max_abs_error, (name, err)
+    assert np.isnan(_call(lib, "asin", np.float32([1.0001, -1.5, np.nan]))).all()
+    t = np.concatenate([y, np.float32([np.inf, -np.inf, 3e38, 1e-45])])
+    err = _max_err(_call(lib, "atan", t), np.arctan(t.astype(float)))
+    assert err <= fastmath.HELPERS["atan"].max_abs_error, err
+
+
+def test_atan2_special_values_as_c99(lib):
+    sp = np.float32([0.0, -0.0, np.inf, -np.inf, 1.0, -1.0, 1e-45, -3e38, np.nan])
+    Y, X = (a.ravel() for a in np.meshgrid(sp, sp))
+    got = _call(lib, "atan2", Y, X)
+    exact = np.arctan2(Y.astype(float), X.astype(float))
+    both_nan = np.isnan(got) & np.isnan(exact)
+    close = np.abs(got.astype(float) - exact) <= fastmath.HELPERS["atan2"].max_abs_error
+    same_sign = np.signbit(got) == np.signbit(exact)
+    assert np.all(both_nan | (close & same_sign)), list(zip(Y[~(both_nan | close)], X[~(both_nan | close)]))
+
+
+def test_emitter_writes_helpers_only_for_fast_float():
+    x, y = ca.SX.sym("x"), ca.SX.sym("y")
+    fn = emit.function("k", {"x": x, "y": y}, {"o": ca.vertcat(ca.sin(x) + ca.atan2(y, x), ca.asin(y))})
+    fast = emit.emit(fn, "float", math="fast")
+    text = "\n".join(fast.body)
+    assert "fast_sinf(" in text and "fast_atan2f(" in text and "fast_asinf(" in text and " sinf(x)" not in text
+    assert fast.helpers == ["asin", "atan2", "sin"]
+    assert fastmath.closure(fast.helpers) == ["sin", "atan2", "asin"]    # dependencies first
+    libm = "\n".join(emit.emit(fn, "float", math="libm").body)
+    assert " sinf(x)" in libm and "fast_" not in libm
+    dbl = emit.emit(fn, "double", math="fast")
+    assert " sin(x)" in "\n".join(dbl.body) and dbl.helpers == []
+    with pytest.raises(emit.EmitError):
+        emit.emit(fn, "float", math="approx")
