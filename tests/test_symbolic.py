@@ -52,13 +52,33 @@ def test_euler_round_trip_and_wrap():
 
 def test_exponential_is_exact_rotation_and_smooth_at_zero():
     ex = ca.Function("ex", [v3], [quat.qexp(v3)])
-    for scale in [1e-9, 1e-5, 9e-5, 1.1e-4, 1e-2, 1.0, 3.0]:
+    for scale in [0.0, 1e-9, 1e-5, 9e-5, 1.1e-4, 1e-2, 0.0999, 0.1001, 1.0, 3.0]:
         r = rng.normal(size=3)
         r = r / np.linalg.norm(r) * scale
         got = np.array(ex(r)).ravel()
         n = np.linalg.norm(r)
-        exact = np.r_[np.cos(n), np.sin(n) / n * r]
+        exact = np.r_[np.cos(n), np.sin(n) / n * r] if n > 0 else np.r_[1.0, r]
         np.testing.assert_allclose(got, exact, atol=1e-15, rtol=1e-14)
+
+
+def test_exponential_series_truncation_is_below_its_stated_bound():
+    """At the series' edge the truncated sum differs from the exact cos and sinc by no more
+    than the first neglected term (|v|^10/10!, |v|^10/11!) plus double round-off."""
+    import math
+    ex = ca.Function("ex", [v3], [quat.qexp(v3)])
+    n = quat.SERIES_MAX * (1 - 1e-12)
+    got = np.array(ex(np.r_[n, 0.0, 0.0])).ravel()
+    K = quat.SERIES_TERMS
+    assert abs(got[0] - math.cos(n)) <= n ** (2 * K) / math.factorial(2 * K) + 2e-16
+    assert abs(got[1] / n - math.sin(n) / n) <= n ** (2 * K) / math.factorial(2 * K + 1) + 2e-16
+
+
+def test_wrap_by_comparison_equals_floor_wrap_on_its_domain():
+    a = ca.SX.sym("a")
+    w = ca.Function("w", [a], [quat.wrap(a)])
+    x = np.random.default_rng(3).uniform(-3 * np.pi + 1e-9, 3 * np.pi, 2000)
+    got = np.array(w(x.reshape(1, -1))).ravel()
+    np.testing.assert_allclose(got, x + 2 * np.pi * np.floor((np.pi - x) / (2 * np.pi)), atol=1e-15)
 
 
 def _fqa_cases():
