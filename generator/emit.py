@@ -12,7 +12,8 @@ double is ever computed; min/max/comparisons become conditional expressions (no 
 NaN-safe on every target, identical on host and target); inputs and constants are inlined;
 outputs are written after every temporary is computed, so an output may alias an input.
 Matrices are passed flattened in CasADi's column-major order. Each kernel reports its
-operation counts.
+operation counts. With math="fast" a float kernel calls generator/fastmath.py's helpers
+(no libm) instead of sinf/cosf/atan2f/asinf/acosf/atanf, and lists the helpers it uses.
 """
 from __future__ import annotations
 
@@ -22,10 +23,21 @@ from dataclasses import dataclass, field
 import casadi as ca
 import numpy as np
 
+from generator import fastmath
+
 PRECISIONS = ("float", "double")
 
 # Operation categories for the cost report.
 CATEGORIES = ("add", "mul", "div", "sqrt", "trig", "cmp")
+# Relative cost of an operation (roughly Cortex-M4F cycles; a libm or fastmath call ~20).
+_WEIGHT = {"add": 1, "mul": 1, "cmp": 1, "div": 8, "sqrt": 8, "trig": 20}
+# Selects on one condition whose exclusive operations weigh less than this stay ?: (a
+# conditional move is cheaper than a branch around a few adds).
+BRANCH_MIN_COST = 12
+# A kernel with more temporaries than this is written as parts of about this many, called
+# in turn (GCC inlines them at -O1 and above): at -O0 every temporary has its own stack
+# slot, and one frame per part keeps a debug build's stack bounded.
+SPLIT_TEMPS = 160
 
 
 class EmitError(ValueError):
@@ -145,6 +157,9 @@ class Kernel:
     doc: str = ""
     n_temporaries: int = 0
     unused_inputs: list[str] = field(default_factory=list)
+    helpers: list[str] = field(default_factory=list)   # generator/fastmath.py helpers called
+    branches: list[dict] = field(default_factory=list)  # if/else blocks: condition, ops of each side
+    parts: list[str] = field(default_factory=list)      # sources of the part functions of a split kernel
 
     @property
     def ops_total(self) -> int:
@@ -161,6 +176,8 @@ class Kernel:
 
     def source(self, storage: str = "static ", indent: str = "    ") -> str:
         lines = []
+        for part in self.parts:
+            lines += [part, ""]
         if self.doc:
             lines.append("/* " + self.doc.replace("*/", "* /") + " */")
         lines.append(self.prototype(storage))
@@ -173,14 +190,26 @@ class Kernel:
 
 
 def _check_name(name: str, what: str) -> None:
-    if not name.isidentifier() or name.startswith("tmp"):
-        raise EmitError(f"{what} name {name!r} is not a valid C identifier (and must not start with 'tmp')")
+    if not name.isidentifier() or name.startswith("tmp") or re.fullmatch(r"carry\d+", name):
+        raise EmitError(f"{what} name {name!r} is not a valid C identifier (and must not start with 'tmp' "
+                        "or be carry<N>)")
 
 
-def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc: str = "") -> Kernel:
-    """Emit an SX Function as a C function body for the given precision."""
+def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc: str = "",
+         math: str = "libm", branch_min_cost: int | None = BRANCH_MIN_COST, fma: bool = False,
+         split_temps: int | None = SPLIT_TEMPS) -> Kernel:
+    """Emit an SX Function as a C function body for the given precision.
+
+    ``math="fast"`` (float only; double always uses libm) writes fastmath helpers for the
+    trigonometric functions. ``fma=True`` writes a product feeding only one sum as
+    fmaf(a, b, c): the emitter decides every fusion, so host and target round alike (the
+    compiler's -ffp-contract stays off)."""
     if precision not in PRECISIONS:
         raise EmitError(f"precision must be one of {PRECISIONS}, got {precision!r}")
+    if math not in fastmath.MATH_MODES:
+        raise EmitError(f"math must be one of {fastmath.MATH_MODES}, got {math!r}")
+    fast = math == "fast" and precision == "float"
+    helpers: set[str] = set()
     if not fn.is_a("SXFunction"):
         raise EmitError(f"kernel {fn.name()}: only SX functions can be emitted (got {fn.class_name()})")
     name = name or fn.name()
@@ -217,6 +246,11 @@ def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc
         if node is not None and node["code"] in _COMPARISONS:
             a, b = node["args"]
             return f"{a} {_COMPARISONS[node['code']]} {b}"
+        if node is not None and node["code"] == ca.OP_NOT:
+            inner = nodes.get(node["args"][0])
+            if inner is not None and inner["code"] in _COMPARISONS:
+                a, b = inner["args"]
+                return f"!({a} {_COMPARISONS[inner['code']]} {b})"
         return f"{x} != {zero}"
 
     for k in range(fn.n_instructions()):
@@ -246,11 +280,13 @@ def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc
             continue
         ins = fn.instruction_input(k)
         (w,) = fn.instruction_output(k)
+        sel = None
         args = [ref(ins[0])] + ([ref(ins[1])] if code in _BINARY or code == ca.OP_CONSTPOW else [])
         select = _as_select(code, args, nodes)
         if select is not None:
             cond, a, b = select
             cat, expr = "cmp", f"({condition(cond)}) ? {a} : {b}"
+            sel = (condition(cond), a, b)
         elif code == ca.OP_CONSTPOW:
             a, b = args
             expo = _literal_value(b)
@@ -266,6 +302,11 @@ def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc
                 cat, expr = "trig", f"pow{F}({a}, {b})"
         elif code == ca.OP_IF_ELSE_ZERO:
             cat, expr = "cmp", f"({condition(args[0])}) ? {args[1]} : {zero}"
+            sel = (condition(args[0]), args[1], zero)
+        elif fast and code in fastmath.OPS:
+            h = fastmath.OPS[code]
+            helpers.add(h)
+            cat, expr = "trig", f"{fastmath.HELPERS[h].name}({', '.join(args)})"
         elif code in _BINARY:
             cat, fmt = _BINARY[code]
             expr = fmt.format(a=args[0], b=args[1], F=F, one=one, zero=zero)
@@ -277,7 +318,7 @@ def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc
                 f"kernel {name}: CasADi operation {op_name(code)} is not supported by the emitter "
                 f"(supported: {', '.join(SUPPORTED)})")
         tmp = f"t{len(order)}"
-        nodes[tmp] = {"code": code, "cat": cat, "expr": expr, "args": args}
+        nodes[tmp] = {"code": code, "cat": cat, "expr": expr, "args": args, "sel": sel}
         order.append(tmp)
         work[w] = tmp
 
@@ -289,17 +330,278 @@ def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc
         if tmp in live:
             live.update(_TMP_RE.findall(nodes[tmp]["expr"]))
     kept = [t for t in order if t in live]
-    # Renumber so the emitted temporaries count up without gaps.
-    rename = {t: f"tmp{i}" for i, t in enumerate(kept)}
-    sub = lambda s: _TMP_RE.sub(lambda m: rename[m.group(0)], s)  # noqa: E731
+    if fma:
+        kept = _fuse_multiply_add(kept, nodes, writes, "fmaf" if precision == "float" else "fma")
     ops = {c: 0 for c in CATEGORIES}
-    body = []
     for t in kept:
         ops[nodes[t]["cat"]] += 1
-        body.append(f"const {precision} {rename[t]} = {sub(nodes[t]['expr'])};")
-    body += [sub(line) for line in writes]
+        for c in nodes[t].get("extra_ops", ()):
+            ops[c] += 1
+    body, emitted, branches, tops = _layout(kept, nodes, writes, precision, branch_min_cost)
+    # Renumber in emission order so the temporaries count up without gaps.
+    rename = {t: f"tmp{i}" for i, t in enumerate(emitted)}
+    sub = lambda s: _TMP_RE.sub(lambda m: rename[m.group(0)], s)  # noqa: E731
+    parts: list[str] = []
+    if split_temps and len(emitted) > split_temps:
+        body, parts = _split(name, precision, inputs, body, writes, tops, split_temps)
+        body, parts = [sub(line) for line in body], [sub(p) for p in parts]
+    else:
+        body = [sub(line) for line in body] + [sub(line) for line in writes]
+    for br in branches:
+        br["condition"] = sub(br["condition"])
     unused = [a.name for i, a in enumerate(inputs) if i not in used_inputs]
-    return Kernel(name, precision, inputs, outputs, body, ops, doc, len(kept), unused)
+    used = {h for h in helpers if any(fastmath.HELPERS[h].name + "(" in nodes[t]["expr"] for t in kept)}
+    return Kernel(name, precision, inputs, outputs, body, ops, doc, len(kept), unused, sorted(used), branches,
+                  parts)
+
+
+_WORD = re.compile(r"\b[A-Za-z_]\w*\b")
+
+
+def _split(name, precision, inputs, body, writes, tops, size):
+    """Cut the top-level statements into parts of about `size` temporaries; each part is a
+    static function that reads the kernel inputs it uses and the values earlier parts
+    exported (arrays carry<k> in the kernel's frame) and exports what later parts and the
+    outputs read. Returns the kernel's body and the parts' sources (temporaries as t<N>)."""
+    chunks, cur, count = [], [], 0
+    for item in tops:
+        if cur and count + len(item[2]) > size:
+            chunks.append(cur)
+            cur, count = [], 0
+        cur.append(item)
+        count += len(item[2])
+    if cur:
+        chunks.append(cur)
+    texts = [[ln for a, b, _ in ch for ln in body[a:b]] for ch in chunks]
+    defs = [[t for _, _, d in ch for t in d] for ch in chunks]
+    used = [set(_TMP_RE.findall("\n".join(tx))) for tx in texts]
+    used_out = set(_TMP_RE.findall("\n".join(writes)))
+    exports = []
+    for k, d in enumerate(defs):
+        later = set().union(*used[k + 1:]) | used_out
+        exports.append([t for t in d if t in later])
+    where = {t: (k, i) for k, ex in enumerate(exports) for i, t in enumerate(ex)}
+    real = precision
+    parts = []
+    call_lines = [f"/* {len(chunks)} parts called in turn (inlined when optimising): bounded -O0 frames */"]
+    call_lines += [f"{real} carry{k}[{len(ex)}];" for k, ex in enumerate(exports) if ex]
+    for k, tx in enumerate(texts):
+        words = set(_WORD.findall("\n".join(tx)))
+        ins = [a for a in inputs if a.name in words]
+        imports = sorted({where[t][0] for t in used[k] if t in where and where[t][0] < k})
+        params = [f"{real} {a.name}" if a.scalar else f"const {real} {a.name}[{a.size}]" for a in ins]
+        params += [f"const {real} carry{j}[{len(exports[j])}]" for j in imports]
+        if exports[k]:
+            params.append(f"{real} carry{k}[{len(exports[k])}]")
+        imported = {t: f"carry{where[t][0]}[{where[t][1]}]" for t in used[k] if t in where and where[t][0] < k}
+        lines = [_TMP_RE.sub(lambda m: imported.get(m.group(0), m.group(0)), ln) for ln in tx]
+        lines += [f"carry{k}[{i}] = {t};" for i, t in enumerate(exports[k])]
+        pname = f"{name}_part{k}"
+        parts.append(f"static void {pname}({', '.join(params)})\n{{\n" + "\n".join("    " + ln for ln in lines) + "\n}")
+        args = [a.name for a in ins] + [f"carry{j}" for j in imports] + ([f"carry{k}"] if exports[k] else [])
+        call_lines.append(f"{pname}({', '.join(args)});")
+    out = [_TMP_RE.sub(lambda m: f"carry{where[m.group(0)][0]}[{where[m.group(0)][1]}]", w) for w in writes]
+    return call_lines + out, parts
+
+
+def _fuse_multiply_add(kept, nodes, writes, fname):
+    """a * b + c, c + a * b, a * b - c and c - a * b -> one fused multiply-add when the
+    product has no other use (its temporary disappears). Counted as one mul and one add."""
+    users: dict[str, int] = {t: 0 for t in kept}
+    for t in kept:
+        for r in _TMP_RE.findall(nodes[t]["expr"]):
+            users[r] += 1
+    for line in writes:
+        for r in _TMP_RE.findall(line):
+            users[r] += 1
+    fused = set()
+    for t in kept:
+        node = nodes[t]
+        if node["code"] not in (ca.OP_ADD, ca.OP_SUB) or node["sel"] is not None:
+            continue
+        x, y = node["args"]
+        for pos, m in ((0, x), (1, y)):
+            mn = nodes.get(m)
+            if mn is None or m in fused or mn["code"] != ca.OP_MUL or users.get(m) != 1:
+                continue
+            a, b = mn["args"]
+            other = y if pos == 0 else x
+            if node["code"] == ca.OP_ADD:
+                expr = f"{fname}({a}, {b}, {other})"
+            elif pos == 0:                       # a * b - c
+                expr = f"{fname}({a}, {b}, -{other})"
+            else:                                # c - a * b
+                expr = f"{fname}(-{a}, {b}, {other})"
+            node["expr"] = expr
+            node["cat"] = "mul"
+            node.setdefault("extra_ops", []).append("add")
+            fused.add(m)
+            break
+    return [t for t in kept if t not in fused]
+
+
+# --------------------------------------------------------------------------------------
+# Branches: a select whose sides cost more than a few operations becomes if/else
+# --------------------------------------------------------------------------------------
+
+
+
+def _exclusive(group, side, kept, idx, nodes, users, refs):
+    """Temporaries computed only for `side` (1 = then, 2 = else) of the selects in `group`:
+    every use of each lies on that side (CSE-shared work stays outside)."""
+    sel = set(group)
+    other = 3 - side
+    E: set[str] = set()
+    for s in group:
+        r = nodes[s]["sel"][side]
+        if r in idx and users[r] <= sel and all(
+                r != nodes[g]["sel"][other] and r not in _TMP_RE.findall(nodes[g]["sel"][0]) for g in group):
+            E.add(r)
+    top = max(idx[s] for s in group)
+    for t in reversed(kept[:top]):
+        if t not in E and t not in sel and users[t] and users[t] <= E:
+            E.add(t)
+    return E
+
+
+def _layout(kept, nodes, writes, precision, min_cost):
+    """Body lines (temporaries as t<N>), the temporaries in emission order, and the branches.
+
+    Selects on the same condition form a group; a group whose exclusive operations weigh
+    at least `min_cost` is written as one if/else that computes only the taken side.
+    Groups nest when all of a group's selects lie on one side of another."""
+    idx = {t: i for i, t in enumerate(kept)}
+    refs = {t: set(_TMP_RE.findall(nodes[t]["expr"])) for t in kept}
+    users: dict[str, set] = {t: set() for t in kept}
+    for t in kept:
+        for r in refs[t]:
+            users[r].add(t)
+    for line in writes:
+        for r in _TMP_RE.findall(line):
+            users[r].add("<out>")
+    by_cond: dict[str, list[str]] = {}
+    for t in kept:
+        if nodes[t]["sel"] is not None:
+            by_cond.setdefault(nodes[t]["sel"][0], []).append(t)
+
+    def cost(E):
+        return sum(_WEIGHT[nodes[t]["cat"]] for t in E)
+
+    groups = {}
+    for cond, sels in by_cond.items():
+        if min_cost is None:
+            break
+        ea, eb = (_exclusive(sels, side, kept, idx, nodes, users, refs) for side in (1, 2))
+        if cost(ea) + cost(eb) >= min_cost:
+            groups[cond] = (sels, ea, eb)
+
+    while True:
+        try:
+            return _emit_groups(kept, idx, nodes, refs, groups, precision)
+        except _Cycle as c:        # this group cannot be placed as one block: keep it ?:
+            del groups[c.cond]
+
+
+class _Cycle(Exception):
+    def __init__(self, cond):
+        self.cond = cond
+
+
+def _emit_groups(kept, idx, nodes, refs, groups, precision):
+    import heapq
+    # parent of each group: the (group, side) whose exclusive set holds all its selects
+    parent = {}
+    for c, (sels, _, _) in groups.items():
+        best = None
+        for d, (_, ea, eb) in groups.items():
+            if d == c:
+                continue
+            for side, E in ((1, ea), (2, eb)):
+                inside = [s in E for s in sels]
+                if all(inside) and (best is None or len(E) < len(groups[best[0]][best[1]])):
+                    best = (d, side)
+                elif any(inside):
+                    raise _Cycle(c)   # straddles a side: not a block of its own
+        parent[c] = best
+    lines, emitted, branches, tops = [], [], [], []
+
+    def block(members, key, indent):
+        here = [c for c in groups if parent[c] == key]
+        inner = set()
+        for c in here:
+            inner |= groups[c][1] | groups[c][2]
+        owner = {}
+        items = {}
+        for t in members:
+            if t in inner:
+                continue
+            sel = nodes[t]["sel"]
+            g = sel[0] if sel is not None and sel[0] in here else None
+            owner[t] = g if g is not None else t
+            items.setdefault(owner[t], idx[t])
+            items[owner[t]] = min(items[owner[t]], idx[t])
+        deps = {i: set() for i in items}
+        for i in items:
+            if i in groups:
+                sels, ea, eb = groups[i]
+                mem = set(sels) | ea | eb
+            else:
+                mem = {i}
+            for t in mem:
+                for r in refs[t]:
+                    o = owner.get(r)
+                    if o is not None and o != i and r not in mem:
+                        deps[i].add(o)
+        indeg = {i: len(d) for i, d in deps.items()}
+        rdeps = {i: [] for i in items}
+        for i, d in deps.items():
+            for o in d:
+                rdeps[o].append(i)
+        ready = [(items[i], i) for i in items if indeg[i] == 0]
+        heapq.heapify(ready)
+        done = 0
+        while ready:
+            _, i = heapq.heappop(ready)
+            done += 1
+            start, n0 = len(lines), len(emitted)
+            if i in groups:
+                sels, ea, eb = groups[i]
+                for s in sels:
+                    lines.append(f"{indent}{precision} {s};")
+                    emitted.append(s)
+                br = {"condition": i, "then": _ops(ea, nodes), "else": _ops(eb, nodes)}
+                branches.append(br)
+                lines.append(f"{indent}if ({i}) {{")
+                block(sorted(ea, key=idx.get), (i, 1), indent + "    ")
+                for s in sels:
+                    lines.append(f"{indent}    {s} = {nodes[s]['sel'][1]};")
+                lines.append(f"{indent}}} else {{")
+                block(sorted(eb, key=idx.get), (i, 2), indent + "    ")
+                for s in sels:
+                    lines.append(f"{indent}    {s} = {nodes[s]['sel'][2]};")
+                lines.append(f"{indent}}}")
+            else:
+                lines.append(f"{indent}const {precision} {i} = {nodes[i]['expr']};")
+                emitted.append(i)
+            if key is None:
+                tops.append((start, len(lines), emitted[n0:]))
+            for j in rdeps[i]:
+                indeg[j] -= 1
+                if indeg[j] == 0:
+                    heapq.heappush(ready, (items[j], j))
+        if done != len(items):
+            stuck = [i for i in items if indeg[i] > 0 and i in groups]
+            raise _Cycle(stuck[0] if stuck else next(iter(here)))
+
+    block(kept, None, "")
+    return lines, emitted, branches, tops
+
+
+def _ops(E, nodes) -> dict:
+    ops = {c: 0 for c in CATEGORIES}
+    for t in E:
+        ops[nodes[t]["cat"]] += 1
+    return {c: n for c, n in ops.items() if n}
 
 
 _TMP_RE = re.compile(r"\bt\d+\b")

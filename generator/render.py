@@ -15,7 +15,7 @@ import casadi as ca
 import jinja2
 
 
-from generator import emit, status
+from generator import emit, fastmath, status
 from generator.config import BuildConfig
 from generator.model import KernelSpec
 from generator.symbolic import quat
@@ -78,11 +78,12 @@ def render(cfg: BuildConfig) -> Generated:
         "Z-Y-X Euler angles [roll, pitch, yaw] of a unit body->NED quaternion")]
     kernels, kctx = [], []
     for ks in specs:
-        k = emit.emit(ks.function, real, name=f"{prefix}_k_{ks.name}", doc="")
+        k = emit.emit(ks.function, real, name=f"{prefix}_k_{ks.name}", doc="", math=cfg.math, fma=cfg.fma)
         kernels.append(k)
         kctx.append({"name": ks.name, "doc": ks.doc, "code": k.source(storage="static "),
                      "ops_text": ", ".join(f"{n} {c}" for n, c in k.ops.items() if c) + f" (total {k.ops_total})"})
     by_name = {ks.name: k for ks, k in zip(specs, kernels)}
+    fast_helpers = sorted({h for k in kernels for h in k.helpers})
 
     # Parameters as macros (numbers and booleans) or comments (strings).
     params = []
@@ -131,6 +132,25 @@ def render(cfg: BuildConfig) -> Generated:
     layout, state_bytes = struct_layout([(f.name, f.size, f.ctype) for f in fields], real)
     in_layout, input_bytes = struct_layout([(n, s, k) for n, s, k, _ in INPUT_FIELDS], real)
 
+    # The configuration this file was generated from: every value that differs from the
+    # filter's defaults, the build options, and the command that reproduces it.
+    defaults = spec.defaults()
+
+    def _arg(v):
+        if isinstance(v, bool):
+            return "true" if v else "false"
+        s = repr(v) if isinstance(v, float) else str(v)
+        return f"'{s}'" if (" " in s or not s) else s
+    changed = [(n, cfg.params[n]) for n in spec.params if cfg.params[n] != defaults.get(n)]
+    options = [("precision", real, "float"), ("prefix", prefix, spec.name),
+               ("math", cfg.math if real == "float" else "libm", fastmath.DEFAULT_MATH if real == "float" else "libm"),
+               ("fma", cfg.fma, False)]
+    command = " ".join(["ahrsgen generate", spec.name] + [f"--set {n}={_arg(v)}" for n, v in changed]
+                       + [f"--{n}" if isinstance(v, bool) else f"--{n} {v}" for n, v, d in options if v != d]
+                       + ["-o DIR"])
+    config_record = {"changed": [f"{n} = {_arg(v)}" for n, v in changed],
+                     "options": [f"{n} = {_arg(v)}" for n, v, _ in options], "command": command}
+
     env = jinja2.Environment(
         loader=jinja2.FileSystemLoader([str(TEMPLATES), str(spec.folder)]),
         undefined=jinja2.StrictUndefined, trim_blocks=True, lstrip_blocks=True,
@@ -140,6 +160,8 @@ def render(cfg: BuildConfig) -> Generated:
         real=real, F="f" if real == "float" else "", zero=lit(0.0), one=lit(1.0), lit=lit,
         params=params, valid_bits=VALID_BITS, status=status_ctx, state=state_ctx, input=input_ctx,
         kernels=kctx, sensors=model.sensors, state_bytes=state_bytes,
+        math=cfg.math if real == "float" else "libm", fastmath_code=fastmath.c_source(fast_helpers),
+        config_record=config_record,
         step_partial="step.c.j2",
         init_partial="init.c.j2" if (spec.folder / "init.c.j2").exists() else None,
         helpers_partial="helpers.c.j2" if (spec.folder / "helpers.c.j2").exists() else None,
@@ -161,6 +183,8 @@ def render(cfg: BuildConfig) -> Generated:
         "title": spec.title,
         "prefix": prefix,
         "precision": real,
+        "math": cfg.math if real == "float" else "libm",
+        "fma": cfg.fma,
         "files": {"header": f"{prefix}.h", "source": f"{prefix}.c"},
         "params": {n: cfg.params[n] for n in spec.params},
         "status": {n: v for n, v, _ in bits},
@@ -179,9 +203,46 @@ def render(cfg: BuildConfig) -> Generated:
                     for ks, k in zip(specs, kernels)},
         "step_paths": paths,
     }
-    files = {f"{prefix}.h": header, f"{prefix}.c": source,
+    files = {f"{prefix}.h": ascii_text(header), f"{prefix}.c": ascii_text(source),
              "manifest.json": json.dumps(manifest, indent=2, sort_keys=False) + "\n"}
     return Generated(files, manifest, kernels)
+
+
+# Generated C is ASCII only (a reviewer's rule: some toolchains and diff tools still choke on
+# anything else). Documentation strings of filters may use math notation; it is spelled out.
+_ASCII = {
+    "°": " deg", "±": "+-", "²": "^2", "¹": "^1", "³": "^3", "¼": "1/4", "½": "1/2", "×": "x",
+    "Σ": "Sum", "Ω": "Omega", "β": "beta", "δ": "delta", "ε": "eps", "θ": "theta", "σ": "sigma",
+    "τ": "tau", "φ": "phi", "ψ": "psi", "ω": "omega", "ᵀ": "^T", "⁺": "+", "⁻": "-", "₀": "0",
+    "₁": "1", "₂": "2", "₃": "3", "₄": "4", "←": "<-", "→": "->", "∂": "d", "−": "-", "√": "sqrt",
+    "∝": "~", "≡": "==", "⊗": "(x)", "⟨": "<", "⟩": ">", "≤": "<=", "≥": ">=", "≈": "~=",
+    "–": "-", "—": "-", "‘": "'", "’": "'", "“": '"', "”": '"', "…": "...", "·": "*", "γ": "gamma",
+    "α": "alpha", "λ": "lambda", "μ": "mu", "π": "pi", "Δ": "Delta", "Φ": "Phi", "∞": "inf",
+}
+
+
+def ascii_text(text: str) -> str:
+    """`text` with every non-ASCII character spelled in ASCII: the table above, else the
+    base letter of an accented one (u for u-umlaut, q_hat for q-circumflex), else its
+    Unicode name in brackets."""
+    import unicodedata
+    if text.isascii():
+        return text
+    out = []
+    for ch in text:
+        if ch.isascii():
+            out.append(ch)
+        elif ch in _ASCII:
+            out.append(_ASCII[ch])
+        else:
+            for c in unicodedata.normalize("NFKD", ch):
+                if c.isascii() or c in _ASCII:
+                    out.append(_ASCII.get(c, c))
+                elif c == "\u0302":                  # combining circumflex: an estimate
+                    out.append("_hat")
+                elif unicodedata.category(c) != "Mn":  # other accents go, letters stay named
+                    out.append(f"<{unicodedata.name(c, hex(ord(c)))}>")
+    return "".join(out)
 
 
 def write(gen: Generated, out_dir: str | Path) -> list[Path]:
