@@ -24,6 +24,7 @@ from firmware_sim.metrics import euler_stats, max_angle_diff_rad
 from generator import config, render
 from generator import status as st
 from generator.filters.cpf import reference as R
+from generator.filters.cpf import prng
 from generator.filters.cpf.prng import Xoshiro128ss, seed_state
 from generator.npquat import euler_from_q, q_from_euler, rotmat
 
@@ -150,7 +151,7 @@ def test_uniforms_identical_and_gaussians_bitwise_in_double(precision):
     if precision == "double":
         assert np.array_equal(z, pz)                    # same libm calls: bit for bit
     else:
-        assert np.max(np.abs(z - pz)) < 1e-5            # float Box-Muller on the same uniforms
+        assert np.max(np.abs(z - pz)) < 1e-5            # float ziggurat on the same draws
 
 
 @pytest.mark.parametrize("precision", ["double", "float"])
@@ -170,7 +171,11 @@ def test_gaussian_moments_within_statistical_bounds(precision):
     assert abs(np.mean(np.abs(z) < 1.0) - p1) < 5 * math.sqrt(p1 * (1 - p1) / n)
     # lag-1 correlation (the two members of a pair, and consecutive pairs)
     assert abs(np.corrcoef(z[:-1], z[1:])[0, 1]) < 5 / math.sqrt(n)
-    assert np.all(np.abs(z) <= math.sqrt(-2 * math.log(2.0 ** -24)) + 1e-6)
+    # the ziggurat's tail is bounded by the 24-bit uniform: R + 24 ln 2 / R
+    assert np.all(np.abs(z) <= prng.ZIG_R + 24 * math.log(2.0) / prng.ZIG_R + 1e-6)
+    # and it reaches the tail beyond R as often as a normal does: P(|z| > R) = 5.76e-4
+    pt = math.erfc(prng.ZIG_R / math.sqrt(2.0))
+    assert abs(np.mean(np.abs(z) > prng.ZIG_R) - pt) < 5 * math.sqrt(pt / n)
 
 
 # ---- generated C vs reference ------------------------------------------------------------------

@@ -8,7 +8,7 @@ Per step (SPEC.md, CPF; reference.py spells out every equation):
   likelihood     w_i ← w_i exp(4(|⟨Y,x_i⟩| − c_max)/σ_o²), Y = q_cf (q ≡ −q)     (eqs. 12, 13)
   estimate       q = normalise(Σ w_i sign⟨x_i, q_prev⟩ x_i)                      (eqs. 14, 15)
 The loops over particles, the weight normalisation, systematic resampling and the PRNG
-(xoshiro128**, Box-Muller; prng.py documents the exact semantics) are written in the
+(xoshiro128**, ziggurat Gaussian; prng.py documents the exact semantics) are written in the
 filter's templates (helpers.c.j2, step.c.j2) around these kernels.
 """
 from __future__ import annotations
@@ -16,7 +16,7 @@ from __future__ import annotations
 import casadi as ca
 
 from generator.emit import function
-from generator.filters.cpf.prng import seed_state
+from generator.filters.cpf.prng import ZIG_F, ZIG_K, ZIG_R, ZIG_W, seed_state
 from generator.model import FilterModel, KernelSpec, StateField
 from generator.symbolic import attitude, quat
 
@@ -145,7 +145,8 @@ class Model(FilterModel):
 
     def template_context(self):
         return {"n_particles": self.n, "mode": self.mode, "faithful": bool(self.params["faithful"]),
-                "ess_threshold": float(self.params["ess_threshold"])}
+                "ess_threshold": float(self.params["ess_threshold"]),
+                "zig_k": ZIG_K, "zig_w": ZIG_W, "zig_f": ZIG_F, "zig_r": ZIG_R}
 
     def step_paths(self):
         n = self.n

@@ -2,7 +2,7 @@
 
 The generated C (the filter's step partial) and this module produce the same 32-bit integer
 stream for the same seed, and in double precision the same uniforms and Gaussian samples bit
-for bit (the conversions below are exact, and Box-Muller uses libm's log/sqrt/cos/sin through
+for bit (the conversions below are exact, and the ziggurat's rare wedge and tail use libm's exp/log through
 Python's `math` module, i.e. the same glibc functions the host C calls).
 
 Generator: xoshiro128** 1.1 (Blackman & Vigna, 2018), 128-bit state s[0..3] (uint32):
@@ -25,22 +25,56 @@ state is never all-zero (the one forbidden xoshiro state).
 Uniform in (0, 1]:  u = ((x >> 8) + 1) * 2^-24  - 24 bits, so the value is exact in float and
 double alike (the float and double builds draw the same uniforms); never 0, so log(u) is finite.
 
-Gaussian pair by Box-Muller (the basic form, no rejection, one pair per two uniforms):
+Gaussian by Marsaglia and Tsang's ziggurat (J. Stat. Softw. 5(8), 2000), 128 layers, with
+the index, the sign and the magnitude taken from different bits of one 32-bit draw (Doornik's
+remedy for the original's correlation):
 
-    u1 = uniform(); u2 = uniform()
-    r  = sqrt(-2 * log(u1))
-    z0 = r * cos(TWO_PI * u2);  z1 = r * sin(TWO_PI * u2)
+    u = next_u32();  i = u & 127;  negative = u & 128;  j = u >> 8          (24 bits)
+    x = j * W[i]
+    j < K[i]      -> x                          (about 98.8 % of draws: no libm at all)
+    i == 0        -> tail beyond R: repeat xt = -log(uniform()) / R, y = -log(uniform())
+                     until y + y >= xt * xt; x = R + xt
+    otherwise     -> wedge: F[i] + uniform() * (F[i-1] - F[i]) < exp(-x * x / 2) -> x,
+                     else draw again
+    result = -x if negative else x
 
-with TWO_PI the double (or float) nearest 2*pi. |z| <= sqrt(2*24*ln 2) = 5.77 (the 24-bit
-uniform's floor); both values are used, in that order.
+K, W, F are computed once (ziggurat_tables, Marsaglia and Tsang's zigset with 2^24 in place of
+2^31) and written into the C as literals, so the double C and this module compute the same
+products and comparisons bit for bit (the rare tail and wedge use exp/log: glibc's on both
+sides). |z| <= R + 24 ln 2 / R = 8.27 (the 24-bit uniform's floor in the tail).
 """
 from __future__ import annotations
 
 import math
 
 M32 = 0xFFFFFFFF
-TWO_PI = 2.0 * math.pi          # 6.283185307179586, the double nearest 2*pi
 U24 = 1.0 / 16777216.0          # 2^-24
+
+ZIG_LAYERS = 128
+ZIG_R = 3.442619855899          # start of the tail (Marsaglia & Tsang, 128 layers)
+ZIG_V = 9.91256303526217e-3     # area of each layer
+
+
+def ziggurat_tables() -> tuple[list[int], list[float], list[float]]:
+    """K (24-bit acceptance thresholds), W (j -> x scale) and F (density at the layer
+    edges) of the 128-layer ziggurat, as Marsaglia and Tsang's zigset with m = 2^24."""
+    m = 16777216.0
+    dn = tn = ZIG_R
+    q = ZIG_V / math.exp(-0.5 * dn * dn)
+    K, W, F = [0] * ZIG_LAYERS, [0.0] * ZIG_LAYERS, [0.0] * ZIG_LAYERS
+    K[0], K[1] = int((dn / q) * m), 0
+    W[0], W[-1] = q / m, dn / m
+    F[0], F[-1] = 1.0, math.exp(-0.5 * dn * dn)
+    for i in range(ZIG_LAYERS - 2, 0, -1):
+        dn = math.sqrt(-2.0 * math.log(ZIG_V / dn + math.exp(-0.5 * dn * dn)))
+        K[i + 1] = int((dn / tn) * m)
+        tn = dn
+        F[i] = math.exp(-0.5 * dn * dn)
+        W[i] = dn / m
+    return K, W, F
+
+
+ZIG_K, ZIG_W, ZIG_F = ziggurat_tables()
 
 
 def _rotl(x: int, k: int) -> int:
@@ -61,7 +95,7 @@ def seed_state(seed: int) -> list[int]:
 
 
 class Xoshiro128ss:
-    """xoshiro128** with the C twin's seeding, uniform and Box-Muller conversions."""
+    """xoshiro128** with the C twin's seeding, uniform and ziggurat conversions."""
 
     def __init__(self, seed: int = 1):
         self.s = seed_state(seed)
@@ -83,44 +117,39 @@ class Xoshiro128ss:
         """Uniform in (0, 1] with 24-bit resolution (exact in float and double)."""
         return ((self.next_u32() >> 8) + 1) * U24
 
+    def gauss(self) -> float:
+        """One standard normal sample (the ziggurat above)."""
+        K, W, F = ZIG_K, ZIG_W, ZIG_F
+        while True:
+            u = self.next_u32()
+            i = u & 127
+            j = u >> 8
+            x = j * W[i]
+            if j < K[i]:
+                return -x if u & 128 else x
+            if i == 0:
+                while True:
+                    xt = -math.log(self.uniform()) / ZIG_R
+                    y = -math.log(self.uniform())
+                    if y + y >= xt * xt:
+                        break
+                x = ZIG_R + xt
+                return -x if u & 128 else x
+            if F[i] + self.uniform() * (F[i - 1] - F[i]) < math.exp(-0.5 * x * x):
+                return -x if u & 128 else x
+
     def gauss_pair(self) -> tuple[float, float]:
-        """Two independent standard normal samples (Box-Muller)."""
-        u1 = self.uniform()
-        u2 = self.uniform()
-        r = math.sqrt(-2.0 * math.log(u1))
-        a = TWO_PI * u2
-        return r * math.cos(a), r * math.sin(a)
+        """Two independent standard normal samples."""
+        return self.gauss(), self.gauss()
 
     def gauss4(self) -> tuple[float, float, float, float]:
-        """Four standard normal samples (two Box-Muller pairs), as one particle's noise."""
-        a, b = self.gauss_pair()
-        c, d = self.gauss_pair()
-        return a, b, c, d
+        """Four standard normal samples, as one particle's noise."""
+        return self.gauss(), self.gauss(), self.gauss(), self.gauss()
 
     def u32_block(self, n: int) -> list[int]:
         return [self.next_u32() for _ in range(n)]
 
     def normals(self, n_pairs: int) -> list[float]:
-        """2*n_pairs normals, the same as n_pairs calls of gauss_pair() (inlined for speed)."""
-        s0, s1, s2, s3 = self.s
-        out = []
-        log, sqrt, cos, sin = math.log, math.sqrt, math.cos, math.sin
-        for _ in range(n_pairs):
-            u = []
-            for _ in range(2):
-                x = (s1 * 5) & M32
-                r = ((((x << 7) | (x >> 25)) & M32) * 9) & M32
-                t = (s1 << 9) & M32
-                s2 ^= s0
-                s3 ^= s1
-                s1 ^= s2
-                s0 ^= s3
-                s2 ^= t
-                s3 = ((s3 << 11) | (s3 >> 21)) & M32
-                u.append(((r >> 8) + 1) * U24)
-            rad = sqrt(-2.0 * log(u[0]))
-            a = TWO_PI * u[1]
-            out.append(rad * cos(a))
-            out.append(rad * sin(a))
-        self.s = [s0, s1, s2, s3]
-        return out
+        """2*n_pairs normals, the same as n_pairs calls of gauss_pair()."""
+        g = self.gauss
+        return [g() for _ in range(2 * n_pairs)]

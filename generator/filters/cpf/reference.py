@@ -23,7 +23,7 @@ One step (dt > 0, gyro rate ω over the last interval):
    (q_cf = q_g when neither sensor is usable).
 4. Particle filter, section 2.2, on the quaternion (N particles):
    - prediction, eq. 9 + 11: x_i ← normalise((I + dt/2 Ω(ω)) x_i + σ_p √dt / 2 · n_i),
-     n_i four standard normals (2 Box-Muller pairs) - additive quaternion noise W_k as in
+     n_i four standard normals (ziggurat, prng.py) - additive quaternion noise W_k as in
      eq. 9, scaled so that each rotation axis random-walks by process_noise·√dt per step;
    - observation Y = q_cf (eq. 12, H = I); in mode "particle" Y = from_euler(φ_a, θ_a, ψ_m)
      (needs both sensors);
