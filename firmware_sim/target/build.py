@@ -282,10 +282,10 @@ def binding_from_generated(gen_dir: str | Path) -> FilterBinding:
 
 
 def generate(filter_name: str, out_dir: Path, config_file=None, sets=None, prefix=None,
-             precision: str = "float") -> Path:
+             precision: str = "float", math: str | None = None, fma: bool | None = None) -> Path:
     """Render a filter configuration into out_dir (float unless asked: the M4F FPU is
     single precision, a double build runs on soft-float helpers)."""
     from generator import config, render
-    cfg = config.resolve(filter_name, config_file, sets, precision=precision, prefix=prefix)
+    cfg = config.resolve(filter_name, config_file, sets, precision=precision, prefix=prefix, math=math, fma=fma)
     render.write(render.render(cfg), out_dir)
     return Path(out_dir)

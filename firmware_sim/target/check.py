@@ -249,13 +249,14 @@ def check_generated(filter_name: str, opts=OPT_LEVELS, cpu: str = "cortex-m4f", 
                     seed: int = 0, scenario_options: dict | None = None, config_file=None, sets=None,
                     prefix=None, workdir: Path | None = None, count_steps: int | None = 50,
                     log=None, pinned: bool = True, tolerance_deg: float = DEFAULT_TOLERANCE_DEG,
-                    precision: str = "float") -> list[dict]:
+                    precision: str = "float", math: str | None = None, fma: bool | None = None) -> list[dict]:
     """Generate (float), cross-build at each optimisation level, run on the target, compare
     with the host float build, measure the footprint.  One dict per build."""
     from firmware_sim import scenarios
     require_tools()
     workdir = Path(workdir or tempfile.mkdtemp(prefix=f"ahrsgen-target-{filter_name}-"))
-    gen_dir = generate(filter_name, workdir / "generated", config_file, sets, prefix, precision)
+    gen_dir = generate(filter_name, workdir / "generated", config_file, sets, prefix, precision, math, fma)
+    man = json.loads((gen_dir / "manifest.json").read_text())
     b = binding_from_generated(gen_dir)
     scen = scenario or DEFAULT_SCENARIO.get(filter_name, "fixedwing_gps")
     if log is None:
@@ -264,6 +265,9 @@ def check_generated(filter_name: str, opts=OPT_LEVELS, cpu: str = "cortex-m4f", 
     results = []
     for i, opt in enumerate(opts):
         r = check_filter(b, rec, workdir, opt=opt, cpu=cpu, count_steps=count_steps)
+        r.footprint.variant = " ".join(v for v in (f"math={man.get('math')}" if man.get("math") == "libm"
+                                                   and precision == "float" else "",
+                                                   "fma" if man.get("fma") else "") if v)
         cmp_ = asdict(compare_with_host(gen_dir, b, log, r.run))
         pin = None
         if pinned and i == 0 and precision == "float":
@@ -272,6 +276,7 @@ def check_generated(filter_name: str, opts=OPT_LEVELS, cpu: str = "cortex-m4f", 
             pin = asdict(compare_with_host(gen_dir, b, log, prun, pinned_libm=True))
         ok, verdict = judge(filter_name, cmp_, pin, tolerance_deg)
         results.append({"filter": filter_name, "precision": precision, "opt": opt, "cpu": cpu,
+                        "math": man.get("math"), "fma": man.get("fma", False),
                         "scenario": log.name, "seed": seed,
                         "steps": len(rec), "counted_steps": int(len(r.counts.instructions)),
                         "footprint": asdict(r.footprint), "host_comparison": cmp_,

@@ -41,7 +41,7 @@ def cmd_target(args) -> int:
                                            args.set, args.prefix, root / n,
                                            None if args.count_steps == 0 else args.count_steps,
                                            pinned=not args.no_pinned, tolerance_deg=args.tolerance,
-                                           precision=args.precision)
+                                           precision=args.precision, math=args.math, fma=args.fma)
             except KeyError as e:
                 raise ConfigError(str(e.args[0])) from None
     if not args.workdir:
@@ -95,6 +95,8 @@ def register_cli(sub) -> None:
     p.add_argument("--precision", choices=["float", "double"], default="float",
                    help="float (default; the M4F FPU) or double (soft-float: shows what a double build costs, "
                         "compared with the host double build)")
+    p.add_argument("--math", choices=["fast", "libm"], help="float trigonometry (default: the generator's, fast)")
+    p.add_argument("--fma", action="store_true", default=None, help="emitter-written fused multiply-adds")
     p.add_argument("--opt", action="append", choices=list(OPT_LEVELS),
                    help="optimisation level (repeatable; default both -O2 and -Os)")
     p.add_argument("--scenario", help="scenario (default: the filter's source experiment, e.g. fixedwing_gps for qcf)")

@@ -223,6 +223,7 @@ class Footprint:
     precision: str = "float"
     stack_o0_bytes: int = -1     # static worst case of step in a -O0 (debug) build of the same sources
     stack_o0_path: list[str] = field(default_factory=list)
+    variant: str = ""            # generator build options beside the defaults ("fma", "math=libm")
 
 
 def step_instructions(counts: StepCounts | None, run: TargetRun | None) -> dict:
@@ -331,7 +332,7 @@ def format_table(rows: list[Footprint]) -> str:
         own = r.own_code_bytes
         libs = [f for f in r.library_calls if not f.startswith("__")]
         lines.append(
-            f"| {r.filter} | {r.opt}{' double' if r.precision == 'double' else ''} | {r.flash_bytes} ({own}) | {r.ram_static_bytes} ({r.state_bytes}) "
+            f"| {r.filter} | {r.opt}{' double' if r.precision == 'double' else ''}{' ' + r.variant if r.variant else ''} | {r.flash_bytes} ({own}) | {r.ram_static_bytes} ({r.state_bytes}) "
             f"| {r.stack_bytes} / {r.stack_measured_bytes} / {r.stack_o0_bytes if r.stack_o0_bytes >= 0 else '-'} "
             f"| {r.instructions_mean:.0f} "
             f"({r.instructions_min}-{r.instructions_max}) | {', '.join(libs) or '-'} |")
