@@ -41,10 +41,10 @@ extern "C" {
 #define MEKF_COURSE_NOISE 0.05f        /* standard deviation of the GPS course as a heading (covers sideslip and wind crab) [rad] */
 #define MEKF_MAG_HEADING_NOISE 0.05f   /* standard deviation of the tilt-compensated magnetometer heading [rad] */
 #define MEKF_ACCEL_GATE 0.0f           /* if > 0, the roll/pitch rows are dropped while | |accel| - g | exceeds this (ACCEL_GATED); 0 = off, as the patent [m/s^2] */
-/* MEKF_MOTION_COMP = centripetal   motion acceleration removed from the specific force before roll/pitch are taken from it: 'centripetal' = ω × v_b (gyro and GPS velocity in body axes; fixed-wing turns), 'gps_accel' = R(q)ᵀ a_n with a_n the difference of the last two GPS velocities (any motion, noisier, lagged by half a GPS period; multirotors), 'none' = the patent (gravity-only accelerometer) */
+/* MEKF_MOTION_COMP = centripetal   motion acceleration removed from the specific force before roll/pitch are taken from it: 'centripetal' = omega x v_b (gyro and GPS velocity in body axes; fixed-wing turns), 'gps_accel' = R(q)^T a_n with a_n the difference of the last two GPS velocities (any motion, noisier, lagged by half a GPS period; multirotors), 'none' = the patent (gravity-only accelerometer) */
 #define MEKF_GPS_VEL_TIMEOUT 1.0f      /* the last GPS velocity (and GPS acceleration) is used for the motion compensation for at most this long; two GPS samples further apart than this give no acceleration [s] */
 #define MEKF_INIT_FROM_SENSORS 1       /* start from the first usable accelerometer sample (roll, pitch) and heading (yaw, or 0 if none); false: identity attitude at the first step, as the patent leaves the initial condition open */
-#define MEKF_P0_ATT 0.5f               /* initial attitude-error standard deviation per axis (P0 of δq is (p0_att/2)^2) [rad] */
+#define MEKF_P0_ATT 0.5f               /* initial attitude-error standard deviation per axis (P0 of deltaq is (p0_att/2)^2) [rad] */
 #define MEKF_P0_BIAS 0.01f             /* initial gyro-bias standard deviation per axis [rad/s] */
 
 /* Input validity bits: set a bit only when that sensor delivered a new sample this step. */
