@@ -405,16 +405,17 @@ def _split(name, precision, inputs, body, writes, tops, size):
 
 
 def _fuse_multiply_add(kept, nodes, writes, fname):
-    """a * b + c, c + a * b, a * b - c and c - a * b -> one fused multiply-add when the
-    product has no other use (its temporary disappears). Counted as one mul and one add."""
-    users: dict[str, int] = {t: 0 for t in kept}
+    """a * b + c, c + a * b, a * b - c and c - a * b -> one fused multiply-add (rounded once).
+    Every sum with a product operand fuses it; the product's own temporary disappears when
+    no other use is left. Counted as one mul and one add."""
+    uses: dict[str, int] = {t: 0 for t in kept}
     for t in kept:
         for r in _TMP_RE.findall(nodes[t]["expr"]):
-            users[r] += 1
+            uses[r] += 1
     for line in writes:
         for r in _TMP_RE.findall(line):
-            users[r] += 1
-    fused = set()
+            uses[r] += 1
+    fused: dict[str, int] = {}
     for t in kept:
         node = nodes[t]
         if node["code"] not in (ca.OP_ADD, ca.OP_SUB) or node["sel"] is not None:
@@ -422,7 +423,7 @@ def _fuse_multiply_add(kept, nodes, writes, fname):
         x, y = node["args"]
         for pos, m in ((0, x), (1, y)):
             mn = nodes.get(m)
-            if mn is None or m in fused or mn["code"] != ca.OP_MUL or users.get(m) != 1:
+            if mn is None or mn["code"] != ca.OP_MUL or m == (y if pos == 0 else x):
                 continue
             a, b = mn["args"]
             other = y if pos == 0 else x
@@ -434,10 +435,10 @@ def _fuse_multiply_add(kept, nodes, writes, fname):
                 expr = f"{fname}(-{a}, {b}, {other})"
             node["expr"] = expr
             node["cat"] = "mul"
-            node.setdefault("extra_ops", []).append("add")
-            fused.add(m)
+            node["extra_ops"] = ["add"]
+            fused[m] = fused.get(m, 0) + 1
             break
-    return [t for t in kept if t not in fused]
+    return [t for t in kept if not (t in fused and fused[t] == uses[t])]
 
 
 # --------------------------------------------------------------------------------------

@@ -37,6 +37,7 @@ class Helper:
     code: str
     needs: tuple[str, ...] = ()
     max_abs_error: float = 0.0   # stated bound vs the exact value, over the whole domain
+    max_rel_error: float = 0.0   # for exp: bound on |got - exact| / exact instead
 
 
 _SINCOS_BODY = """
@@ -115,9 +116,36 @@ HELPERS = {
 """, needs=("atan2",), max_abs_error=3.5e-7),
 }
 
+HELPERS["exp"] = Helper(
+    "fast_expf", "exp(x), every float: +inf above 88.72, 0 at and below -87.3 (where libm's results are "
+    "subnormal, < 1.2e-38); the relative error is stated above -87.3", """static float fast_expf(float x)
+{
+    if (!(x > -87.3f)) {
+        return isnan(x) ? x : 0.0f;   /* below FLT_MIN: flushed to zero */
+    }
+    if (x > 88.7228391f) {
+        return INFINITY;
+    }
+    /* x = k ln2 + r, |r| <= ln2 / 2 (ln2 in two parts); e^r by Cephes' minimax polynomial */
+    const float t = x * 1.44269504f;
+    const int32_t k = (int32_t)((t >= 0.0f) ? t + 0.5f : t - 0.5f);
+    const float kf = (float)k;
+    const float r = (x - kf * 0.693359375f) - kf * (-2.12194440e-4f);
+    const float p = ((((1.9875691500e-4f * r + 1.3981999507e-3f) * r + 8.3334519073e-3f) * r
+                      + 4.1665795894e-2f) * r + 1.6666665459e-1f) * r + 5.0000001201e-1f;
+    const float e = p * (r * r) + r + 1.0f;
+    /* times 2^k as two exact powers of two (k in [-126, 128]) */
+    union { uint32_t u; float f; } s1, s2;
+    const int32_t k1 = k / 2;
+    s1.u = (uint32_t)(k1 + 127) << 23;
+    s2.u = (uint32_t)(k - k1 + 127) << 23;
+    return e * s1.f * s2.f;
+}
+""", max_rel_error=1.5e-7)
+
 # CasADi operation -> helper (unary ops take {a}, atan2 takes {a}, {b}).
 OPS = {ca.OP_SIN: "sin", ca.OP_COS: "cos", ca.OP_ATAN2: "atan2", ca.OP_ASIN: "asin",
-       ca.OP_ACOS: "acos", ca.OP_ATAN: "atan"}
+       ca.OP_ACOS: "acos", ca.OP_ATAN: "atan", ca.OP_EXP: "exp"}
 
 
 def closure(names) -> list[str]:
@@ -141,5 +169,7 @@ def c_source(names) -> str:
     out = []
     for n in closure(names):
         h = HELPERS[n]
-        out.append(f"/* {h.doc}; max abs error {h.max_abs_error:.1e} (tests/test_fastmath.py) */\n{h.code}")
+        err = (f"max relative error {h.max_rel_error:.1e}" if h.max_rel_error else
+               f"max abs error {h.max_abs_error:.1e}")
+        out.append(f"/* {h.doc}; {err} (tests/test_fastmath.py) */\n{h.code}")
     return "\n".join(out)

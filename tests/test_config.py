@@ -83,3 +83,18 @@ def test_list_shows_ranges_units_and_presets():
     assert r.returncode == 0
     assert "kp" in r.stdout and "allowed (0.0, 100.0]" in r.stdout and "[rad/s]" in r.stdout
     assert "preset 'faithful'" in r.stdout
+
+
+def test_math_and_fma_build_options(tmp_path):
+    assert config.resolve("qcf").math == "fast" and config.resolve("qcf").fma is False
+    f = tmp_path / "c.toml"
+    f.write_text('math = "libm"\nfma = true\n')
+    cfg = config.resolve("qcf", f)
+    assert (cfg.math, cfg.fma) == ("libm", True)
+    assert config.resolve("qcf", f, math="fast").math == "fast"          # the command line wins
+    f.write_text('math = "approx"\n')
+    with pytest.raises(ConfigError, match="math"):
+        config.resolve("qcf", f)
+    f.write_text('fma = "yes"\n')
+    with pytest.raises(ConfigError, match="fma"):
+        config.resolve("qcf", f)

@@ -127,3 +127,87 @@ def test_sparse_input_rejected():
     f = ca.Function("sp", [s], [ca.sum1(s)], ["s"], ["o"])
     with pytest.raises(emit.EmitError, match="sparse"):
         emit.emit(f, "float")
+
+
+def _run1(lib, name, n_in, n_out, args, ct=ctypes.c_double):
+    f = getattr(lib, name)
+    f.restype = None
+    ins = [(ct * len(a))(*a) for a in args]
+    outs = [(ct * n)() for n in n_out]
+    f(*ins, *outs)
+    return [list(o) for o in outs]
+
+
+def test_costly_select_becomes_a_branch_and_a_cheap_one_stays_a_conditional(tmp_path):
+    v = ca.SX.sym("v", 2)
+    costly = ca.if_else(v[0] < v[1], ca.sin(v[0]) * ca.cos(v[1]), ca.sqrt(v[0] * v[0] + 1) / v[1])
+    also = ca.if_else(v[0] < v[1], ca.cos(v[1]) + 1, v[1] * 3)   # same condition: same block
+    cheap = ca.if_else(v[0] > 0, v[0] + 1, v[1])
+    nested = ca.if_else(v[0] < 0, ca.if_else(v[1] < 0, ca.exp(v[0]), ca.log(v[1] + 1)) * ca.sin(v[1]), 2.0)
+    k = emit.emit(emit.function("br", {"v": v}, {"o": ca.vertcat(costly, also, cheap, nested)}), "double")
+    text = "\n".join(k.body)
+    assert text.count("if (") == 3 and "? " in text          # cheap select stays ?:
+    conds = {b["condition"]: b for b in k.branches}
+    assert conds["v[0] < v[1]"]["then"] == {"mul": 1, "trig": 2, "add": 1}   # sin*cos, cos + 1
+    assert conds["v[0] < v[1]"]["else"] == {"mul": 2, "add": 1, "sqrt": 1, "div": 1}   # v0^2, 3 v1
+    ref = emit.emit(emit.function("nobr", {"v": v}, {"o": ca.vertcat(costly, also, cheap, nested)}), "double",
+                    branch_min_cost=None)
+    assert "if (" not in "\n".join(ref.body) and ref.branches == []
+    lib = _build([k, ref], "double", tmp_path)
+    f = ca.Function("f", [v], [ca.vertcat(costly, also, cheap, nested)])
+    rng = np.random.default_rng(5)
+    for _ in range(200):
+        a = rng.uniform(-2, 2, 2).tolist()
+        got = _run1(lib, "br", 1, [4], [a])[0]
+        assert got == _run1(lib, "nobr", 1, [4], [a])[0]   # same operations on the taken side
+        np.testing.assert_allclose(got, np.array(f(a)).ravel(), rtol=1e-14, atol=1e-14)
+
+
+def test_split_kernel_equals_the_unsplit_one_bit_for_bit(tmp_path):
+    A = ca.SX.sym("A", 4, 4)
+    b = ca.SX.sym("b", 4)
+    M = A
+    for _ in range(3):
+        M = ca.mtimes(M, A) / (1 + ca.sumsqr(M))
+    out = {"M": M, "r": ca.mtimes(M, b) + ca.sin(b)}
+    fn = emit.function("big", {"A": A, "b": b}, out)
+    whole = emit.emit(fn, "double", name="whole", split_temps=None)
+    split = emit.emit(fn, "double", name="split", split_temps=40)
+    assert len(split.parts) >= 3 and whole.parts == []
+    assert split.ops == whole.ops
+    lib = _build([whole, split], "double", tmp_path)
+    rng = np.random.default_rng(9)
+    for _ in range(20):
+        a, bb = rng.normal(size=16).tolist(), rng.normal(size=4).tolist()
+        assert _run1(lib, "whole", 2, [16, 4], [a, bb]) == _run1(lib, "split", 2, [16, 4], [a, bb])
+    # the aliasing rule holds for a split kernel too: output into its own input
+    arr = (ctypes.c_double * 4)(*bb)
+    m = (ctypes.c_double * 16)()
+    lib.split.restype = None
+    lib.split((ctypes.c_double * 16)(*a), arr, m, arr)
+    assert list(arr) == _run1(lib, "whole", 2, [16, 4], [a, bb])[1]
+
+
+def test_fma_option_fuses_products_into_sums_and_rounds_once(tmp_path):
+    a, b, c = ca.SX.sym("a"), ca.SX.sym("b"), ca.SX.sym("c")
+    fn = emit.function("fm", {"a": a, "b": b, "c": c}, {"o": ca.vertcat(a * b + c, c - a * b, a * b - c)})
+    k = emit.emit(fn, "float", fma=True)
+    text = "\n".join(k.body)
+    assert text.count("fmaf(") == 3 and " * " not in text    # the shared product goes into each
+    assert k.ops["mul"] == 3 and k.ops["add"] == 3          # counted as the operations they fuse
+    kept = emit.emit(emit.function("fs", {"a": a, "b": b, "c": c}, {"o": ca.vertcat(a * b + c, a * b)}),
+                     "float", fma=True)
+    assert "fmaf(" in "\n".join(kept.body) and " = a * b;" in "\n".join(kept.body)   # still an output
+    lib = _build([k], "float", tmp_path)
+    rng = np.random.default_rng(3)
+    for _ in range(300):
+        v = rng.normal(size=3).astype(np.float32)
+        lib.fm.restype = None
+        lib.fm.argtypes = [ctypes.c_float] * 3 + [ctypes.POINTER(ctypes.c_float)]
+        out = (ctypes.c_float * 3)()
+        lib.fm(float(v[0]), float(v[1]), float(v[2]), out)
+        got = list(out)
+        p = float(v[0]) * float(v[1])                        # exact in double (24 + 24 bits)
+        # one rounding of the exact result (double rounding via float64 is off with p < 2^-29)
+        want = [np.float32(p + float(v[2])), np.float32(float(v[2]) - p), np.float32(p - float(v[2]))]
+        assert [np.float32(g) for g in got] == want

@@ -85,6 +85,15 @@ def test_atan2_asin_acos_atan_within_stated_error(lib):
     assert err <= fastmath.HELPERS["atan"].max_abs_error, err
 
 
+def test_exp_within_stated_relative_error(lib):
+    x = np.concatenate([RNG.uniform(-87.29, 88.72, 1_000_000), _floats_between(0.0, 1.0, 1000),
+                        -_floats_between(0.0, 1.0, 1000)]).astype(np.float32)
+    got, exact = _call(lib, "exp", x).astype(float), np.exp(x.astype(float))
+    assert float(np.max(np.abs(got - exact) / exact)) <= fastmath.HELPERS["exp"].max_rel_error
+    edge = _call(lib, "exp", np.float32([np.nan, np.inf, -np.inf, -200.0, 89.0, 0.0, -87.3]))
+    assert np.isnan(edge[0]) and list(edge[1:]) == [np.inf, 0.0, 0.0, np.inf, 1.0, 0.0]
+
+
 def test_atan2_special_values_as_c99(lib):
     sp = np.float32([0.0, -0.0, np.inf, -np.inf, 1.0, -1.0, 1e-45, -3e38, np.nan])
     Y, X = (a.ravel() for a in np.meshgrid(sp, sp))

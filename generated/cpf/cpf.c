@@ -86,6 +86,31 @@ static float fast_atan2f(float y, float x)
     return signbit(y) ? -a : a;
 }
 
+/* exp(x), every float: +inf above 88.72, 0 at and below -87.3 (where libm's results are subnormal, < 1.2e-38); the relative error is stated above -87.3; max relative error 1.5e-07 (tests/test_fastmath.py) */
+static float fast_expf(float x)
+{
+    if (!(x > -87.3f)) {
+        return isnan(x) ? x : 0.0f;   /* below FLT_MIN: flushed to zero */
+    }
+    if (x > 88.7228391f) {
+        return INFINITY;
+    }
+    /* x = k ln2 + r, |r| <= ln2 / 2 (ln2 in two parts); e^r by Cephes' minimax polynomial */
+    const float t = x * 1.44269504f;
+    const int32_t k = (int32_t)((t >= 0.0f) ? t + 0.5f : t - 0.5f);
+    const float kf = (float)k;
+    const float r = (x - kf * 0.693359375f) - kf * (-2.12194440e-4f);
+    const float p = ((((1.9875691500e-4f * r + 1.3981999507e-3f) * r + 8.3334519073e-3f) * r
+                      + 4.1665795894e-2f) * r + 1.6666665459e-1f) * r + 5.0000001201e-1f;
+    const float e = p * (r * r) + r + 1.0f;
+    /* times 2^k as two exact powers of two (k in [-126, 128]) */
+    union { uint32_t u; float f; } s1, s2;
+    const int32_t k1 = k / 2;
+    s1.u = (uint32_t)(k1 + 127) << 23;
+    s2.u = (uint32_t)(k - k1 + 127) << 23;
+    return e * s1.f * s2.f;
+}
+
 /* accelerometer roll and pitch (eqs. 1-2 in FRD/NED)
  * ops: add 3, mul 2, sqrt 1, trig 2 (total 8) */
 static void cpf_k_tilt(const float accel[3], float *roll, float *pitch)
@@ -407,7 +432,7 @@ static void cpf_k_reweight(float w, const float x[4], const float y[4], float cm
     const float tmp7 = fabsf(tmp6);
     const float tmp8 = tmp7 - cmax;
     const float tmp9 = 10000.0f * tmp8;
-    const float tmp10 = expf(tmp9);
+    const float tmp10 = fast_expf(tmp9);
     const float tmp11 = w * tmp10;
     *w_new = tmp11;
 }
