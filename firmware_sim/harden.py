@@ -35,12 +35,13 @@ import subprocess
 import time
 from pathlib import Path
 
+from generator import paths
+
 HERE = Path(__file__).resolve().parent
-REPO = HERE.parent
 FUZZ_DIR = HERE / "fuzz"
 C_DIR = HERE / "c"
-GENERATED = REPO / "generated"
-BUILD = Path(os.environ.get("AHRSGEN_BUILD_HARDEN", REPO / "build" / "harden"))
+GENERATED = paths.CHECKOUT / "generated" if paths.CHECKOUT else None   # committed builds (checkout only)
+BUILD = paths.build_dir("harden", "AHRSGEN_BUILD_HARDEN")
 
 CLANG = os.environ.get("AHRSGEN_CLANG", "clang")
 CPPCHECK = os.environ.get("AHRSGEN_CPPCHECK", "cppcheck")
@@ -196,17 +197,27 @@ def layout_header(man: dict) -> str:
 
 
 def resolve_dir(filter_or_dir: str | Path) -> Path:
+    """A directory with manifest.json, the committed generated/NAME of a checkout, or else any
+    filter (name or filter folder, see generator.filters) generated with its defaults into the
+    build directory."""
     p = Path(filter_or_dir)
     if (p / "manifest.json").exists():
         return p
-    g = GENERATED / str(filter_or_dir)
-    if (g / "manifest.json").exists():
-        return g
-    raise HardenError(f"no generated filter '{filter_or_dir}' (looked for {p}/manifest.json and {g}/manifest.json)")
+    if GENERATED is not None and (GENERATED / str(filter_or_dir) / "manifest.json").exists():
+        return GENERATED / str(filter_or_dir)
+    from generator import config, render
+    cfg = config.resolve(str(filter_or_dir))       # unknown filter -> ConfigError naming it
+    out = BUILD / "generated" / cfg.filter
+    render.write(render.render(cfg), out)
+    return out
 
 
 def generated_dirs() -> list[Path]:
-    return sorted(d for d in GENERATED.iterdir() if (d / "manifest.json").exists())
+    """'all': the committed builds of a checkout, else every known filter's default build."""
+    if GENERATED is not None and GENERATED.is_dir():
+        return sorted(d for d in GENERATED.iterdir() if (d / "manifest.json").exists())
+    from generator import filters
+    return [resolve_dir(n) for n in filters.names()]
 
 
 # ---------------------------------------------------------------- tools
@@ -783,12 +794,14 @@ def cmd_harden(args) -> int:
 def register_cli(sub) -> None:
     p = sub.add_parser(
         "harden", help="fuzz the step (libFuzzer+ASan+UBSan), soak it, cppcheck the generated C",
-        description="For a generated filter (a name in generated/, a directory, or 'all'): cppcheck the "
+        description="For a filter (a name or folder: its committed generated/ build, else its defaults; a "
+                    "directory with manifest.json; or 'all'): cppcheck the "
                     "source; fuzz its step with arbitrary float bit patterns under AddressSanitizer and "
                     "UndefinedBehaviorSanitizer, checking the state invariants after every step; soak it "
                     "over synthesised varied motion with glitches. Prints a table, writes JSON. Exit 1 "
                     "on any finding.")
-    p.add_argument("filter", help="generated filter name (generated/NAME), a directory with manifest.json, or 'all'")
+    p.add_argument("filter", help="a filter (name or folder; its committed generated/NAME if there is one, else "
+                                  "its defaults), a directory with manifest.json, or 'all'")
     from generator.cli import count_arg, nonneg_float_arg
     p.add_argument("--fuzz-seconds", type=nonneg_float_arg, default=60, metavar="N", help="fuzzing time per filter (default 60; 0 = no fuzzing)")
     p.add_argument("--fuzz-runs", type=count_arg, metavar="N", help="stop fuzzing after N inputs")

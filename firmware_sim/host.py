@@ -20,11 +20,11 @@ from pathlib import Path
 import numpy as np
 
 from firmware_sim.log import SensorLog
+from generator import paths
 
 HERE = Path(__file__).resolve().parent
-REPO = HERE.parent
 C_DIR = HERE / "c"
-CACHE = Path(os.environ.get("AHRSGEN_BUILD", REPO / "build" / "host"))
+CACHE = paths.build_dir("host", "AHRSGEN_BUILD")
 
 STRICT = ["-std=c99", "-Wall", "-Wextra", "-Wpedantic", "-Wconversion", "-Wdouble-promotion",
           "-Wshadow", "-Werror"]

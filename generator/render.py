@@ -15,14 +15,13 @@ import casadi as ca
 import jinja2
 
 
-from generator import emit, status
+from generator import emit, paths, status
 from generator.config import BuildConfig
 from generator.model import KernelSpec
 from generator.symbolic import quat
 
 VERSION = "0.1.0"
-REPO = Path(__file__).resolve().parents[1]
-TEMPLATES = REPO / "templates"
+TEMPLATES = paths.templates_dir()
 
 VALID_BITS = [("GYRO", 0), ("ACCEL", 1), ("MAG", 2), ("GPS", 3)]
 INPUT_FIELDS = [
