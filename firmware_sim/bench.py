@@ -890,7 +890,7 @@ def parse_variants(items) -> list:
         if not eq or not label.isidentifier() or not fname:
             raise ConfigError(f"--variant {item!r}: expected LABEL=FILTER:name=value,name=value")
         sets = [s for s in sets_text.split(",") if s]
-        config.resolve(fname, None, sets)        # unknown filter/parameter/value: one clear error
+        fname = config.resolve(fname, None, sets).filter   # unknown filter/parameter/value: one clear error
         out.append((label, fname, sets))
     return out
 
@@ -914,7 +914,7 @@ def register_cli(sub) -> None:
                        description="Generate and compile a filter for the host, run it over a log file through "
                                    "the firmware harness, and where the log has a reference attitude score it "
                                    "(BROAD's method for BROAD data; PX4's vehicle_attitude for ULog).")
-    p.add_argument("filter", help="filter name (see 'ahrsgen list')")
+    p.add_argument("filter", help="filter name (see 'ahrsgen list') or a filter folder's path")
     p.add_argument("--log", required=True, metavar="FILE", help="BROAD .csv/.csv.gz or PX4 .ulg")
     p.add_argument("--config", metavar="FILE.toml", help="TOML config (prefix, precision, [params])")
     p.add_argument("--set", metavar="NAME=VALUE", action="append", default=[], help="override a parameter")
@@ -935,7 +935,7 @@ def register_cli(sub) -> None:
                                    "Writes bench.json, bench.md and plots.")
     p.add_argument("--quick", action="store_true", help="short CI run (1 seed, shorter scenarios, data excerpts)")
     p.add_argument("--seeds", type=int, help="seeds per scenario (default 3, --quick 1)")
-    p.add_argument("--filters", nargs="*", help="only these product filters (default: all)")
+    p.add_argument("--filters", nargs="*", help="only these filters, names or folder paths (default: all known)")
     p.add_argument("--scenarios", nargs="*", metavar="LABEL",
                    help="only these scenario rows of the grid (e.g. multirotor turntable; default: all)")
     p.add_argument("--peers", nargs="*", choices=list(peers.PEERS), help=f"peers to include (default: {' '.join(PEER_NAMES)})")

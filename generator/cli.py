@@ -62,7 +62,7 @@ def positive_float_arg(text: str) -> float:
 
 
 def _add_build_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("filter", help="filter name (see 'ahrsgen list')")
+    p.add_argument("filter", help="filter name (see 'ahrsgen list') or a filter folder's path")
     p.add_argument("--config", metavar="FILE.toml", help="TOML file: prefix, precision and a [params] table")
     p.add_argument("--set", metavar="NAME=VALUE", action="append", default=[],
                    help="override one parameter (repeatable); wins over --config")
@@ -197,7 +197,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
 
     p = sub.add_parser("list", help="filters, their parameters (defaults, allowed ranges, meaning) and scenarios")
-    p.add_argument("filter", nargs="?", help="only this filter")
+    p.add_argument("filter", nargs="?", help="only this filter (a name or a filter folder's path)")
     p.set_defaults(func=cmd_list)
 
     p = sub.add_parser("generate", help="write <prefix>.h, <prefix>.c and manifest.json for a filter",
@@ -241,6 +241,17 @@ def _load_extra_commands() -> None:
             _EXTRA_COMMANDS.append(reg)
 
 
+def _filter_names(args) -> None:
+    """Every command takes a filter folder's path where it takes a filter name: resolve it once
+    here (generator.filters.load), so the command sees the filter's name."""
+    from generator import filters
+    if isinstance(getattr(args, "filter", None), str) and filters.is_path(args.filter) \
+            and not (Path(args.filter) / "manifest.json").exists():      # harden takes a generated dir
+        args.filter = filters.load(args.filter).name
+    if getattr(args, "filters", None):
+        args.filters = [filters.load(f).name for f in args.filters]
+
+
 def main(argv=None) -> int:
     _load_extra_commands()
     parser = build_parser()
@@ -249,6 +260,7 @@ def main(argv=None) -> int:
         parser.print_help()
         return 2
     try:
+        _filter_names(args)
         return args.func(args)
     except ConfigError as e:
         print(f"ahrsgen: error: {e}", file=sys.stderr)

@@ -46,8 +46,10 @@ def _check_prefix(prefix: str) -> str:
 
 def resolve(filter_name: str, config_file: str | Path | None = None, sets: list[str] | None = None,
             precision: str | None = None, prefix: str | None = None, preset: str | None = None) -> BuildConfig:
-    """Defaults, then a preset, then the config file's [params], then --set (last wins)."""
+    """Defaults, then a preset, then the config file's [params], then --set (last wins).
+    `filter_name` is a name or a filter folder's path (generator.filters); the config keeps the name."""
     spec = filters.load(filter_name)
+    filter_name = spec.name
     values = spec.defaults()
     overrides = {}
     file_prefix = file_precision = None

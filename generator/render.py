@@ -135,7 +135,9 @@ def render(cfg: BuildConfig) -> Generated:
         undefined=jinja2.StrictUndefined, trim_blocks=True, lstrip_blocks=True,
         keep_trailing_newline=True)
     ctx = dict(
-        version=VERSION, filter=spec.name, title=spec.title, source=spec.source, prefix=prefix, P=P,
+        version=VERSION, filter=spec.name, title=spec.title,
+        # where the filter came from, without machine paths (the output is reproducible anywhere)
+        filter_folder=f"generator/filters/{spec.name}/" if spec.origin == "built-in" else f"filter folder {spec.name}/", source=spec.source, prefix=prefix, P=P,
         real=real, F="f" if real == "float" else "", zero=lit(0.0), one=lit(1.0), lit=lit,
         params=params, valid_bits=VALID_BITS, status=status_ctx, state=state_ctx, input=input_ctx,
         kernels=kctx, sensors=model.sensors, state_bytes=state_bytes,
