@@ -178,6 +178,14 @@ def cmd_validate(args) -> int:
     return 0 if ok else 1
 
 
+def cmd_new(args) -> int:
+    from generator import scaffold
+    folder = scaffold.write(args.name, args.output)
+    print(f"wrote {folder}/: defaults.toml, model.py, reference.py, step.c.j2, test_{args.name}.py")
+    print(f"next: ahrsgen validate {folder}   (then edit model.py and reference.py: docs/your_own_filter.md)")
+    return 0
+
+
 def scenario_site_params(cfg, log) -> dict:
     """Site parameters a scenario knows (declination, inclination) that the user did not set,
     as the bench sets them (firmware_sim.bench.site_sets)."""
@@ -218,6 +226,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--tolerance", type=positive_float_arg, metavar="RAD",
                    help="largest allowed attitude difference (default 1e-9 rad double, 1e-3 rad float)")
     p.set_defaults(func=cmd_validate)
+
+    p = sub.add_parser("new", help="write a new filter folder (scaffold) that generates and validates as it is",
+                       description="Write DIR/NAME/ with defaults.toml, model.py (CasADi), reference.py (NumPy), "
+                                   "step.c.j2 and test_NAME.py: a small working filter whose comments explain the "
+                                   "contract. Every command then takes the folder's path: 'ahrsgen validate DIR/NAME'.")
+    p.add_argument("name", help="filter name: a lower-case C identifier (names the folder and prefixes the C API)")
+    p.add_argument("-o", "--output", default=".", metavar="DIR", help="parent directory (default: the current one)")
+    p.set_defaults(func=cmd_new)
 
     for register in _EXTRA_COMMANDS:
         register(sub)

@@ -1,5 +1,5 @@
 """The package installed the way Python users install it: a wheel built from the checkout, put
-into a fresh virtual environment outside the checkout, generates and validates filters there.
+into a fresh virtual environment outside the checkout, generates and validates filters there: a built-in, an example user filter and a scaffold.
 
 The wheel is built from a clean copy of the checkout with pip (build isolation, setuptools from the index, as `pip install .`
 would) and installed with pip into a venv without system site-packages. Its dependencies are
@@ -88,6 +88,14 @@ def test_wheel_installs_and_works_outside_the_checkout(tmp_path):
     for f in (REPO / "generated" / "qcf").iterdir():
         assert (tmp_path / "out" / f.name).read_text() == f.read_text(), f.name
     out = _run([ahrsgen, "validate", "qcf", "--scenario-opt", "duration=20"], tmp_path, env)
+    assert out.rstrip().endswith("PASS"), out
+    # An example user filter (a folder of the checkout, outside the installed package) and a
+    # scaffold written by the installed `ahrsgen new`.
+    out = _run([ahrsgen, "validate", str(REPO / "examples" / "madgwick"), "--precision", "double",
+                "--scenario-opt", "duration=20"], tmp_path, env)
+    assert out.rstrip().endswith("PASS"), out
+    _run([ahrsgen, "new", "myfilt", "-o", "x"], tmp_path, env)
+    out = _run([ahrsgen, "validate", "x/myfilt", "--scenario-opt", "duration=20"], tmp_path, env)
     assert out.rstrip().endswith("PASS"), out
     # Host builds go to the user's cache, never into site-packages.
     assert any((tmp_path / "cache" / "ahrsgen" / "host").iterdir())
