@@ -70,11 +70,14 @@ def _add_build_options(p: argparse.ArgumentParser) -> None:
                                     "(the source as published; see 'ahrsgen list FILTER')")
     p.add_argument("--precision", choices=["float", "double"], help="C floating-point type (default float)")
     p.add_argument("--prefix", help="C identifier prefix of the generated API (default: the filter name)")
+    p.add_argument("--runtime", metavar="NAME,NAME", help="parameters read at run time (<prefix>_set_params) "
+                                                          "instead of folded into the code; real-valued ones only")
 
 
 def _resolve(args):
     from generator import config
-    return config.resolve(args.filter, args.config, args.set, args.precision, args.prefix, args.preset)
+    return config.resolve(args.filter, args.config, args.set, args.precision, args.prefix, args.preset,
+                          getattr(args, "runtime", None))
 
 
 def cmd_list(args) -> int:
@@ -134,7 +137,7 @@ def cmd_validate(args) -> int:
     if site:
         from generator import config as _config
         cfg = _config.resolve(args.filter, args.config, args.set + [f"{k}={v!r}" for k, v in site.items()],
-                              args.precision, args.prefix, args.preset)
+                              args.precision, args.prefix, args.preset, args.runtime)
         print("  site parameters from the scenario (override with --set): "
               + ", ".join(f"{k}={v:.6g}" if isinstance(v, float) else f"{k}={v}" for k, v in site.items()))
     bound = args.tolerance if args.tolerance is not None else (1e-9 if cfg.precision == "double" else 1e-3)
@@ -247,7 +250,7 @@ _EXTRA_COMMANDS: list = []
 
 def _load_extra_commands() -> None:
     import importlib
-    for mod in ("firmware_sim.bench", "firmware_sim.target", "firmware_sim.harden"):
+    for mod in ("firmware_sim.bench", "firmware_sim.target", "firmware_sim.harden", "firmware_sim.tune"):
         try:
             m = importlib.import_module(mod)
         except ImportError:

@@ -127,6 +127,7 @@ class Arg:
     name: str
     size: int
     shape: tuple[int, int]
+    expr: str | None = None    # read from a context (e.g. "par->kp") instead of an argument
 
     @property
     def scalar(self) -> bool:
@@ -145,6 +146,7 @@ class Kernel:
     doc: str = ""
     n_temporaries: int = 0
     unused_inputs: list[str] = field(default_factory=list)
+    context: str | None = None    # leading parameter declaration, e.g. "const att_params *par"
 
     @property
     def ops_total(self) -> int:
@@ -152,8 +154,10 @@ class Kernel:
 
     def prototype(self, storage: str = "static ") -> str:
         real = self.precision
-        params = []
+        params = [self.context] if self.context else []
         for a in self.inputs:
+            if a.expr is not None:
+                continue
             params.append(f"{real} {a.name}" if a.scalar else f"const {real} {a.name}[{a.size}]")
         for a in self.outputs:
             params.append(f"{real} *{a.name}" if a.scalar else f"{real} {a.name}[{a.size}]")
@@ -177,8 +181,14 @@ def _check_name(name: str, what: str) -> None:
         raise EmitError(f"{what} name {name!r} is not a valid C identifier (and must not start with 'tmp')")
 
 
-def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc: str = "") -> Kernel:
-    """Emit an SX Function as a C function body for the given precision."""
+def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc: str = "",
+         context: tuple[str, dict] | None = None) -> Kernel:
+    """Emit an SX Function as a C function body for the given precision.
+
+    context = (declaration, {input name: C expression}): those scalar inputs are read through
+    one leading parameter (e.g. ("const att_params *par", {"param_kp": "par->kp"})) instead of
+    being arguments of their own; the kernel takes the declaration first if it reads any.
+    """
     if precision not in PRECISIONS:
         raise EmitError(f"precision must be one of {PRECISIONS}, got {precision!r}")
     if not fn.is_a("SXFunction"):
@@ -195,6 +205,10 @@ def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc
             raise EmitError(f"kernel {name}: input {fn.name_in(i)!r} is sparse; only dense inputs are supported")
         _check_name(fn.name_in(i), f"kernel {name}: input")
         inputs.append(Arg(fn.name_in(i), sp.nnz(), (sp.size1(), sp.size2())))
+        if context and fn.name_in(i) in context[1]:
+            if sp.nnz() != 1:
+                raise EmitError(f"kernel {name}: context input {fn.name_in(i)!r} must be a scalar")
+            inputs[-1].expr = context[1][fn.name_in(i)]
     for o in range(fn.n_out()):
         sp = fn.sparsity_out(o)
         if not sp.is_dense():
@@ -230,7 +244,7 @@ def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc
             i, nz = fn.instruction_input(k)
             used_inputs.add(i)
             a = inputs[i]
-            work[w] = a.name if a.scalar else f"{a.name}[{nz}]"
+            work[w] = a.expr if a.expr is not None else (a.name if a.scalar else f"{a.name}[{nz}]")
             continue
         if code == ca.OP_OUTPUT:
             (w,) = fn.instruction_input(k)
@@ -298,8 +312,10 @@ def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc
         ops[nodes[t]["cat"]] += 1
         body.append(f"const {precision} {rename[t]} = {sub(nodes[t]['expr'])};")
     body += [sub(line) for line in writes]
-    unused = [a.name for i, a in enumerate(inputs) if i not in used_inputs]
-    return Kernel(name, precision, inputs, outputs, body, ops, doc, len(kept), unused)
+    unused = [a.name for i, a in enumerate(inputs) if i not in used_inputs and a.expr is None]
+    reads_context = any(a.expr is not None for i, a in enumerate(inputs) if i in used_inputs)
+    return Kernel(name, precision, inputs, outputs, body, ops, doc, len(kept), unused,
+                  context[0] if context and reads_context else None)
 
 
 _TMP_RE = re.compile(r"\bt\d+\b")
@@ -330,8 +346,28 @@ def _literal_value(text: str):
         return None
 
 
+# Symbols named with this prefix stand for parameters read at run time (a runtime build):
+# `function` makes the ones an output depends on extra scalar inputs of the kernel.
+RUNTIME_PREFIX = "param_"
+
+
+def runtime_symbol(name: str) -> ca.SX:
+    return ca.SX.sym(RUNTIME_PREFIX + name)
+
+
 def function(name: str, inputs: dict, outputs: dict) -> ca.Function:
-    """Build an SX Function for emission from ordered {name: SX} dicts (CSE on, SSA work)."""
-    return ca.Function(name, list(inputs.values()), [ca.densify(v) for v in outputs.values()],
-                       list(inputs.keys()), list(outputs.keys()),
+    """Build an SX Function for emission from ordered {name: SX} dicts (CSE on, SSA work).
+
+    Runtime-parameter symbols (runtime_symbol) the outputs use become trailing inputs, named
+    after the symbol; any other free symbol is an error (CasADi's)."""
+    outs = [ca.densify(v) for v in outputs.values()]
+    ins, names = list(inputs.values()), list(inputs.keys())
+    given = {str(s) for v in ins for s in ca.symvar(v)}
+    for s in ca.symvar(ca.veccat(*outs)) if outs else []:
+        n = str(s)
+        if n.startswith(RUNTIME_PREFIX) and n not in given:
+            ins.append(s)
+            names.append(n)
+            given.add(n)
+    return ca.Function(name, ins, outs, names, list(outputs.keys()),
                        {"cse": True, "live_variables": False})
