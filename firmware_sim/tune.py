@@ -356,9 +356,10 @@ def folds_of(n: int, k: int) -> list[list[int]]:
 
 
 def tune(filter_name, params, cases, budget=40, folds=None, metric="total", config_file=None, sets=(),
-         workers=2, scheduler=None, output=None, seed=0, out=sys.stdout, progress=True,
+         workers=2, scheduler=None, output=None, seed=0, out=None, progress=True,
          engine="runtime") -> dict:
     """Tune, cross-validate, write the TOML; returns the report as a dict."""
+    out = out or sys.stdout
     from firmware_sim.bench import Progress
     from firmware_sim.fleet import Fleet
     from generator import config
@@ -375,7 +376,7 @@ def tune(filter_name, params, cases, budget=40, folds=None, metric="total", conf
     journal = Path(str(output) + ".journal") if output else None
     t0 = time.time()
     with Fleet(workers, scheduler) as fleet:
-        prog = Progress(budget * (1 + k) + 1) if progress else None
+        prog = Progress(budget * (1 + k) + 1, stream=sys.stderr) if progress else None
         tuner = Tuner(filter_name, dims, cases, fleet, metric, config_file, sets, seed, journal, prog, engine)
         print(f"tune {filter_name} on {n} log(s), {METRICS[metric]} mean over logs, budget {budget} trials"
               f"{f', {k}-fold cross-validation' if k else ''}, on {fleet.where}", file=out)
