@@ -459,7 +459,7 @@ def write_toml(path, rep, base) -> None:
         lines.append(f"# {rep['cv']['folds']}-fold cross-validated error: current {rep['cv']['current']:.3f} deg, "
                      f"tuned {rep['cv']['tuned']:.3f} deg")
     lines.append("# site parameters (declination, ...) were set per log and are not written here: set yours.")
-    lines.append(f'filter = "{rep["filter"]}"')
+    lines.append(f'filter = "{base.spec.name}"')
     lines.append("")
     lines.append("[params]")
     for k, v in rep["overrides"].items():

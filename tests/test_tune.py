@@ -62,3 +62,19 @@ def test_bad_input_one_line(args, words, tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and words in err[0], err
     assert not out.exists()
+
+
+def test_tune_user_filter_folder(tmp_path):
+    # in a separate process: a filter loaded by path stays registered by name in the process
+    import subprocess
+    import sys
+    folder = Path(__file__).resolve().parents[1] / "examples" / "madgwick"
+    out = tmp_path / "m.toml"
+    ahrsgen = [sys.executable, "-m", "generator.cli"]
+    r = subprocess.run([*ahrsgen, "tune", str(folder), *LOGS, "--params", "beta", "--budget", "3", "--folds", "0",
+                        "-o", str(out)], capture_output=True, text=True)
+    assert r.returncode == 0 and "beta set at run time" in r.stdout, r.stderr
+    assert tomllib.loads(out.read_text())["filter"] == "madgwick"
+    r = subprocess.run([*ahrsgen, "generate", str(folder), "--config", str(out), "-o", str(tmp_path / "gen")],
+                       capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
