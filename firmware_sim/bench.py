@@ -196,9 +196,10 @@ class Estimator:
     sets: list = field(default_factory=list)
     config: str | None = None
     site: bool = True         # fill site parameters (declination, inclination) from the log
+    runtime: dict = field(default_factory=dict)   # runtime-parameter values, set in C per run
 
     def host_filter(self, extra_sets=()):
-        key = (self.kind, self.filter, self.config, tuple(self.sets) + tuple(extra_sets))
+        key = (self.kind, self.filter, self.config, tuple(self.sets) + tuple(extra_sets), tuple(sorted(self.runtime)))
         if key not in _HF_CACHE:
             import fcntl
             host.CACHE.mkdir(parents=True, exist_ok=True)
@@ -211,7 +212,7 @@ class Estimator:
                     else:
                         from generator import config
                         cfg = config.resolve(self.filter, self.config, list(self.sets) + list(extra_sets),
-                                             "float", None)
+                                             "float", None, runtime=sorted(self.runtime))
                         _HF_CACHE[key] = host.build(cfg)
                 finally:
                     fcntl.flock(lock, fcntl.LOCK_UN)
@@ -225,9 +226,9 @@ class Estimator:
         if self.kind == "filter" and self.site:
             from generator import config
             user = config.resolve(self.filter, self.config, list(self.sets), "float", None).overrides
-            extra, applied = site_sets(self.filter, log.meta, set(user))
+            extra, applied = site_sets(self.filter, log.meta, set(user) | set(self.runtime))
         heading = "true" if (self.heading == "mag" and applied) else self.heading
-        return self.host_filter(extra).run(log).q, heading, extra
+        return self.host_filter(extra).run(log, params=self.runtime).q, heading, extra
 
 
 def filter_heading(filter_name: str, sets=(), config_file=None) -> str:
@@ -589,7 +590,8 @@ def measure_cost(filter_names, log: SensorLog, repeats=7, passes=3) -> dict:
 
 
 def bench(quick=False, seeds=None, filters=None, peer_names=PEER_NAMES, data_dir=None, out_dir="bench_out",
-          jobs=2, scenarios_only=False, real_only=False, scenario_labels=None, command="", variants=()) -> dict:
+          jobs=2, scenarios_only=False, real_only=False, scenario_labels=None, command="", variants=(),
+          scheduler=None) -> dict:
     """Run the whole benchmark; writes bench.json, bench.md and img/*.png under out_dir.
 
     variants: (label, filter, [name=value, ...]) rows benchmarked beside the defaults, to
@@ -656,19 +658,15 @@ def bench(quick=False, seeds=None, filters=None, peer_names=PEER_NAMES, data_dir
 
     prog = Progress(len(tasks))
     results = []
-    if jobs > 1 and len(tasks) > 1:
-        import multiprocessing as mp
-        # longest first so the two workers finish together
-        order = sorted(tasks, key=lambda t: 0 if t[0] == "broad" else 1)
-        with mp.get_context("fork").Pool(jobs) as pool:
-            for r in pool.imap_unordered(_run_task, order):
-                results.append(r)
-                prog.update(f"{r['label']} {r['log']} seed {r['seed']}")
-    else:
-        for t in tasks:
-            r = _run_task(t)
+    from firmware_sim.fleet import Fleet
+    # longest first so the workers finish together; a local pool or a Dask cluster (--scheduler)
+    order = sorted(tasks, key=lambda t: 0 if t[0] == "broad" else 1)
+    with Fleet(jobs, scheduler) as fleet:
+        for r in fleet.map_unordered(_run_task, order):
             results.append(r)
             prog.update(f"{r['label']} {r['log']} seed {r['seed']}")
+    # one order whatever the order they completed in (the means are summed in it)
+    results.sort(key=lambda r: (r["kind"], r["label"], r["log"], r["seed"]))
 
     # cost: timed on the multirotor scenario (250 Hz, every sensor), seed 0
     from firmware_sim import scenarios as sc
@@ -890,7 +888,7 @@ def parse_variants(items) -> list:
         if not eq or not label.isidentifier() or not fname:
             raise ConfigError(f"--variant {item!r}: expected LABEL=FILTER:name=value,name=value")
         sets = [s for s in sets_text.split(",") if s]
-        config.resolve(fname, None, sets)        # unknown filter/parameter/value: one clear error
+        fname = config.resolve(fname, None, sets).filter   # unknown filter/parameter/value: one clear error
         out.append((label, fname, sets))
     return out
 
@@ -901,7 +899,8 @@ def _cmd_bench(args) -> int:
                 peer_names=tuple(args.peers) if args.peers is not None else PEER_NAMES,
                 data_dir=args.data, out_dir=args.output, jobs=args.jobs,
                 scenarios_only=args.scenarios_only, real_only=args.real_only,
-                scenario_labels=args.scenarios, command=cmd, variants=parse_variants(args.variant))
+                scenario_labels=args.scenarios, command=cmd, variants=parse_variants(args.variant),
+                scheduler=args.scheduler)
     md = Path(args.output) / "bench.md"
     print(md.read_text())
     print(f"wrote {Path(args.output) / 'bench.json'}, {md} and {len(rep['plots'])} plot(s) in "
@@ -914,7 +913,7 @@ def register_cli(sub) -> None:
                        description="Generate and compile a filter for the host, run it over a log file through "
                                    "the firmware harness, and where the log has a reference attitude score it "
                                    "(BROAD's method for BROAD data; PX4's vehicle_attitude for ULog).")
-    p.add_argument("filter", help="filter name (see 'ahrsgen list')")
+    p.add_argument("filter", help="filter name (see 'ahrsgen list') or a filter folder's path")
     p.add_argument("--log", required=True, metavar="FILE", help="BROAD .csv/.csv.gz or PX4 .ulg")
     p.add_argument("--config", metavar="FILE.toml", help="TOML config (prefix, precision, [params])")
     p.add_argument("--set", metavar="NAME=VALUE", action="append", default=[], help="override a parameter")
@@ -935,14 +934,18 @@ def register_cli(sub) -> None:
                                    "Writes bench.json, bench.md and plots.")
     p.add_argument("--quick", action="store_true", help="short CI run (1 seed, shorter scenarios, data excerpts)")
     p.add_argument("--seeds", type=int, help="seeds per scenario (default 3, --quick 1)")
-    p.add_argument("--filters", nargs="*", help="only these product filters (default: all)")
+    p.add_argument("--filters", nargs="*", help="only these filters, names or folder paths (default: all known)")
     p.add_argument("--scenarios", nargs="*", metavar="LABEL",
                    help="only these scenario rows of the grid (e.g. multirotor turntable; default: all)")
     p.add_argument("--peers", nargs="*", choices=list(peers.PEERS), help=f"peers to include (default: {' '.join(PEER_NAMES)})")
     p.add_argument("--data", metavar="DIR", help="folder holding broad/ and px4/ (default: $AHRSGEN_DATA, "
                                                  "else <repo>/../shared/data)")
     p.add_argument("-o", "--output", default="bench_out", metavar="DIR", help="output folder (default bench_out)")
-    p.add_argument("-j", "--jobs", type=int, default=2, help="worker processes (default 2)")
+    p.add_argument("-j", "--jobs", "--workers", dest="jobs", type=int, default=2,
+                   help="local worker processes (default 2)")
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help="run the logs on this Dask distributed scheduler instead of local processes "
+                        "(workers must see the same data paths)")
     p.add_argument("--variant", action="append", default=[], metavar="LABEL=FILTER:k=v,k=v",
                    help="also bench FILTER with these settings under LABEL, e.g. "
                         "qcf_soft=qcf:kp=0.05,ki=0.001 (repeatable)")

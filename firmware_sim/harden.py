@@ -35,12 +35,13 @@ import subprocess
 import time
 from pathlib import Path
 
+from generator import paths
+
 HERE = Path(__file__).resolve().parent
-REPO = HERE.parent
 FUZZ_DIR = HERE / "fuzz"
 C_DIR = HERE / "c"
-GENERATED = REPO / "generated"
-BUILD = Path(os.environ.get("AHRSGEN_BUILD_HARDEN", REPO / "build" / "harden"))
+GENERATED = paths.CHECKOUT / "generated" if paths.CHECKOUT else None   # committed builds (checkout only)
+BUILD = paths.build_dir("harden", "AHRSGEN_BUILD_HARDEN")
 
 CLANG = os.environ.get("AHRSGEN_CLANG", "clang")
 CPPCHECK = os.environ.get("AHRSGEN_CPPCHECK", "cppcheck")
@@ -83,6 +84,27 @@ REGRESSIONS: list[dict] = [
         # flags 0x01 (warm-up), one record: valid 0x03, gyro 0, accel [0 0 -9.80665], dt 0x1p-149
         "reproducer": "01000300000000000000000000000000000000000000000ae81cc1000000000000000000000000000000000000"
                       "00000000000001000000",
+    },
+    {
+        "id": "mekf-P-not-pd-near-pitch-90", "precision": "float", "found_in": "mekf",
+        "what": "P indefinite (LDL^T pivot 2 = -1.14e-05 with P_22 = 0.0044) at step 95 of 256, after pitch walked "
+                "to 89.4 deg on dt = 1e-4 s gyro steps and GPS-course updates (H ~ 1/cos(pitch) ~ 140) hit a nearly "
+                "singular roll/yaw block of P: the textbook Joseph product (I - KH) P (I - KH)^T cancelled terms "
+                "|KH|^2 |P| ~ 500 down to an eigenvalue of 3e-8, which float rounding cannot hold",
+        "fixed_by": "the Joseph form evaluated expanded, P - K(HP) - (HP)^T K^T + K S K^T (generator/symbolic/linalg.py)",
+        # ahrsgen harden mekf --seed 7 --fuzz-seconds 90; also tests/data/mekf-P-not-pd.bin
+        "reproducer": (
+                      "00000f0000000000000000000000000ae81c4123040000000000000000004000000000000000003f0000000000000000"
+                      "000000000ad7233c0000ffffffffffffffffffffffffffffffffffffffffffffffffffff00000000000000000ad7233c"
+                      "0000ffffffffffffffffffffffffffffffffffffffffffffffffffffffffffffffffffffffffffffffffffff5e5e5e5e"
+                      "ffffffffffffffffffffffffff0f0000fd00000000000000000000000000000000e7000000000000000a3de81c410400"
+                      "00ffffffffffffffffffffffffffff999999999999999999999999999999999999999999999999999999999999999999"
+                      "999999999999999999999999999999000000ccbc8c2b0000000000000000009999999999999999999999999999999900"
+                      "0000000000000000000000000000000000000000000000000000000000000000fbffffff000000000000000000000000"
+                      "00000000000000000000000000000000000000000000ccbc8c2b00000000000000000000000000999999999999999999"
+                      "9999999999999999999999999999ffffffffffffffffffffffffffffff0f000000000000000000000000e70000000000"
+                      "00000a3de81c410400000000000000001600003f0100000000000000000002000ad7"
+        ),
     },
 ]
 
@@ -175,17 +197,27 @@ def layout_header(man: dict) -> str:
 
 
 def resolve_dir(filter_or_dir: str | Path) -> Path:
+    """A directory with manifest.json, the committed generated/NAME of a checkout, or else any
+    filter (name or filter folder, see generator.filters) generated with its defaults into the
+    build directory."""
     p = Path(filter_or_dir)
     if (p / "manifest.json").exists():
         return p
-    g = GENERATED / str(filter_or_dir)
-    if (g / "manifest.json").exists():
-        return g
-    raise HardenError(f"no generated filter '{filter_or_dir}' (looked for {p}/manifest.json and {g}/manifest.json)")
+    if GENERATED is not None and (GENERATED / str(filter_or_dir) / "manifest.json").exists():
+        return GENERATED / str(filter_or_dir)
+    from generator import config, render
+    cfg = config.resolve(str(filter_or_dir))       # unknown filter -> ConfigError naming it
+    out = BUILD / "generated" / cfg.filter
+    render.write(render.render(cfg), out)
+    return out
 
 
 def generated_dirs() -> list[Path]:
-    return sorted(d for d in GENERATED.iterdir() if (d / "manifest.json").exists())
+    """'all': the committed builds of a checkout, else every known filter's default build."""
+    if GENERATED is not None and GENERATED.is_dir():
+        return sorted(d for d in GENERATED.iterdir() if (d / "manifest.json").exists())
+    from generator import filters
+    return [resolve_dir(n) for n in filters.names()]
 
 
 # ---------------------------------------------------------------- tools
@@ -339,17 +371,21 @@ def fuzz_dictionary(man: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def describe_input(data: bytes, man: dict) -> list[str]:
-    """Human-readable decoding of a fuzz input (mirrors decode() in fuzz_step.c)."""
+def decode_input(data: bytes, man: dict) -> tuple[int, list[dict]]:
+    """(flags, records) of a fuzz input as the harness reads it (mirrors decode() in fuzz_step.c).
+
+    Each record: {"ctrl", "valid", "gyro", "accel", "mag", "gps", "dt"}, values in double (the C
+    rounds them to its real type; the "plausible" values are made in double there too).
+    """
     fmt = real_fmt(man)
     size = struct.calcsize(fmt)
     rs = record_size(man)
     if len(data) < 1 + rs:
-        return [f"{len(data)} bytes: too short for one record (ignored by the harness)"]
-    lines = [f"flags 0x{data[0]:02x} ({'warm-up first' if data[0] & 1 else 'no warm-up'})"]
+        return (data[0] if data else 0), []
     nrec = min((len(data) - 1) // rs, MAX_RECORDS)
     nominal = [(0, 0, 0), (0, 0, -9.80665), (0.21, 0, 0.43), (0, 0, 0)]
     spread = [3.0, 4.0, 0.2, 30.0]
+    records = []
     for r in range(nrec):
         rec = data[1 + r * rs: 1 + (r + 1) * rs]
         ctrl, valid = rec[0], rec[1]
@@ -363,9 +399,21 @@ def describe_input(data: bytes, man: dict) -> list[str]:
                 vals.append(lo + (hi - lo) * u)
             else:
                 vals.append(struct.unpack(fmt, p)[0])
-        g = lambda a: "[" + ", ".join(f"{v:.6g}" for v in a) + "]"   # noqa: E731
-        lines.append(f"record {r}: valid 0x{valid:02x} gyro {g(vals[0:3])} accel {g(vals[3:6])} "
-                     f"mag {g(vals[6:9])} gps {g(vals[9:12])} dt {vals[12]:.9g} (ctrl 0x{ctrl:02x})")
+        records.append({"ctrl": ctrl, "valid": valid, "gyro": vals[0:3], "accel": vals[3:6], "mag": vals[6:9],
+                        "gps": vals[9:12], "dt": vals[12]})
+    return data[0], records
+
+
+def describe_input(data: bytes, man: dict) -> list[str]:
+    """Human-readable decoding of a fuzz input (decode_input)."""
+    flags, records = decode_input(data, man)
+    if not records:
+        return [f"{len(data)} bytes: too short for one record (ignored by the harness)"]
+    lines = [f"flags 0x{flags:02x} ({'warm-up first' if flags & 1 else 'no warm-up'})"]
+    g = lambda a: "[" + ", ".join(f"{v:.6g}" for v in a) + "]"   # noqa: E731
+    for r, d in enumerate(records):
+        lines.append(f"record {r}: valid 0x{d['valid']:02x} gyro {g(d['gyro'])} accel {g(d['accel'])} "
+                     f"mag {g(d['mag'])} gps {g(d['gps'])} dt {d['dt']:.9g} (ctrl 0x{d['ctrl']:02x})")
     return lines
 
 
@@ -746,12 +794,14 @@ def cmd_harden(args) -> int:
 def register_cli(sub) -> None:
     p = sub.add_parser(
         "harden", help="fuzz the step (libFuzzer+ASan+UBSan), soak it, cppcheck the generated C",
-        description="For a generated filter (a name in generated/, a directory, or 'all'): cppcheck the "
+        description="For a filter (a name or folder: its committed generated/ build, else its defaults; a "
+                    "directory with manifest.json; or 'all'): cppcheck the "
                     "source; fuzz its step with arbitrary float bit patterns under AddressSanitizer and "
                     "UndefinedBehaviorSanitizer, checking the state invariants after every step; soak it "
                     "over synthesised varied motion with glitches. Prints a table, writes JSON. Exit 1 "
                     "on any finding.")
-    p.add_argument("filter", help="generated filter name (generated/NAME), a directory with manifest.json, or 'all'")
+    p.add_argument("filter", help="a filter (name or folder; its committed generated/NAME if there is one, else "
+                                  "its defaults), a directory with manifest.json, or 'all'")
     from generator.cli import count_arg, nonneg_float_arg
     p.add_argument("--fuzz-seconds", type=nonneg_float_arg, default=60, metavar="N", help="fuzzing time per filter (default 60; 0 = no fuzzing)")
     p.add_argument("--fuzz-runs", type=count_arg, metavar="N", help="stop fuzzing after N inputs")

@@ -20,11 +20,11 @@ from pathlib import Path
 import numpy as np
 
 from firmware_sim.log import SensorLog
+from generator import paths
 
 HERE = Path(__file__).resolve().parent
-REPO = HERE.parent
 C_DIR = HERE / "c"
-CACHE = Path(os.environ.get("AHRSGEN_BUILD", REPO / "build" / "host"))
+CACHE = paths.build_dir("host", "AHRSGEN_BUILD")
 
 STRICT = ["-std=c99", "-Wall", "-Wextra", "-Wpedantic", "-Wconversion", "-Wdouble-promotion",
           "-Wshadow", "-Werror"]
@@ -80,10 +80,12 @@ def compile_shared(gen_dir: Path, extra_sources=(), extra_flags=()) -> Path:
 _CT = {"float": ctypes.c_float, "double": ctypes.c_double}
 
 
-def ctypes_struct(name: str, layout: dict, real: str):
+def ctypes_struct(name: str, layout: dict, real: str, params=None):
+    """ctypes Structure of a manifest layout; `params` is the class of a nested
+    runtime-parameter struct (type "params")."""
     fields = []
     for f in layout["fields"]:
-        base = _CT[real] if f["type"] == "real" else ctypes.c_uint32
+        base = params if f["type"] == "params" else _CT[real] if f["type"] == "real" else ctypes.c_uint32
         fields.append((f["name"], base * f["count"] if f["count"] > 1 else base))
     cls = type(name, (ctypes.Structure,), {"_fields_": fields})
     if ctypes.sizeof(cls) != layout["size"]:
@@ -119,7 +121,8 @@ class HostFilter:
         self.lib_path = compile_shared(self.dir)
         self.lib = ctypes.CDLL(str(self.lib_path))
         st = self.manifest["structs"]
-        self.State = ctypes_struct("State", st["state"], self.real)
+        self.Params = ctypes_struct("Params", st["params"], self.real) if "params" in st else None
+        self.State = ctypes_struct("State", st["state"], self.real, self.Params)
         self.Input = ctypes_struct("Input", st["input"], self.real)
         self.input_dtype = numpy_dtype(st["input"], self.real)
         if self.lib.ahrs_sizeof_state() != ctypes.sizeof(self.State):
@@ -141,6 +144,29 @@ class HostFilter:
     @property
     def prefix(self) -> str:
         return self.manifest["prefix"]
+
+    @property
+    def runtime_params(self) -> list[str]:
+        return [r["name"] for r in self.manifest.get("runtime_params", [])]
+
+    def set_params(self, state, values: dict) -> int:
+        """<prefix>_set_params with the build's defaults overridden by `values`: 0 applied,
+        else the code of the first value out of range (state untouched)."""
+        if self.Params is None:
+            raise BuildError(f"{self.dir}: no runtime parameters in this build")
+        unknown = set(values) - set(self.runtime_params)
+        if unknown:
+            raise BuildError(f"not runtime parameters of this build: {', '.join(sorted(unknown))}")
+        p = self.Params()
+        fn = getattr(self.lib, f"{self.prefix}_params_default")
+        fn.argtypes = [ctypes.POINTER(self.Params)]
+        fn(ctypes.byref(p))
+        for k, v in values.items():
+            setattr(p, k, float(v))
+        fn = getattr(self.lib, f"{self.prefix}_set_params")
+        fn.restype = ctypes.c_uint32
+        fn.argtypes = [ctypes.POINTER(self.State), ctypes.POINTER(self.Params)]
+        return int(fn(ctypes.byref(state), ctypes.byref(p)))
 
     def new_state(self):
         s = self.State()
@@ -188,9 +214,14 @@ class HostFilter:
         inp["valid"] = log.valid
         return inp, np.ascontiguousarray(log.dt, dtype=self.np_real)
 
-    def run(self, log: SensorLog, state=None) -> RunResult:
-        """Step through the whole log (from a fresh state unless one is given)."""
+    def run(self, log: SensorLog, state=None, params: dict | None = None) -> RunResult:
+        """Step through the whole log (from a fresh state unless one is given), with runtime
+        parameter values set first if given."""
         s = self.new_state() if state is None else state
+        if params:
+            code = self.set_params(s, params)
+            if code:
+                raise BuildError(f"set_params refused {self.runtime_params[code - 1]} in {params}")
         n = len(log)
         inp, dt = self.pack(log)
         q = np.zeros((n, 4), self.np_real)

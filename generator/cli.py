@@ -62,7 +62,7 @@ def positive_float_arg(text: str) -> float:
 
 
 def _add_build_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("filter", help="filter name (see 'ahrsgen list')")
+    p.add_argument("filter", help="filter name (see 'ahrsgen list') or a filter folder's path")
     p.add_argument("--config", metavar="FILE.toml", help="TOML file: prefix, precision and a [params] table")
     p.add_argument("--set", metavar="NAME=VALUE", action="append", default=[],
                    help="override one parameter (repeatable); wins over --config")
@@ -70,6 +70,8 @@ def _add_build_options(p: argparse.ArgumentParser) -> None:
                                     "(the source as published; see 'ahrsgen list FILTER')")
     p.add_argument("--precision", choices=["float", "double"], help="C floating-point type (default float)")
     p.add_argument("--prefix", help="C identifier prefix of the generated API (default: the filter name)")
+    p.add_argument("--runtime", metavar="NAME,NAME", help="parameters read at run time (<prefix>_set_params) "
+                                                          "instead of folded into the code; real-valued ones only")
     p.add_argument("--math", choices=["fast", "libm"],
                    help="float trigonometry: 'fast' = own helpers, no libm (default; errors in "
                         "generator/fastmath.py), 'libm' = sinf/cosf/atan2f...")
@@ -81,7 +83,7 @@ def _add_build_options(p: argparse.ArgumentParser) -> None:
 def _resolve(args):
     from generator import config
     return config.resolve(args.filter, args.config, args.set, args.precision, args.prefix, args.preset,
-                          getattr(args, "math", None), getattr(args, "fma", None))
+                          getattr(args, "runtime", None), getattr(args, "math", None), getattr(args, "fma", None))
 
 
 def cmd_list(args) -> int:
@@ -141,7 +143,7 @@ def cmd_validate(args) -> int:
     if site:
         from generator import config as _config
         cfg = _config.resolve(args.filter, args.config, args.set + [f"{k}={v!r}" for k, v in site.items()],
-                              args.precision, args.prefix, args.preset, getattr(args, "math", None),
+                              args.precision, args.prefix, args.preset, args.runtime, getattr(args, "math", None),
                               getattr(args, "fma", None))
         print("  site parameters from the scenario (override with --set): "
               + ", ".join(f"{k}={v:.6g}" if isinstance(v, float) else f"{k}={v}" for k, v in site.items()))
@@ -186,6 +188,14 @@ def cmd_validate(args) -> int:
     return 0 if ok else 1
 
 
+def cmd_new(args) -> int:
+    from generator import scaffold
+    folder = scaffold.write(args.name, args.output)
+    print(f"wrote {folder}/: defaults.toml, model.py, reference.py, step.c.j2, test_{args.name}.py")
+    print(f"next: ahrsgen validate {folder}   (then edit model.py and reference.py: docs/your_own_filter.md)")
+    return 0
+
+
 def scenario_site_params(cfg, log) -> dict:
     """Site parameters a scenario knows (declination, inclination) that the user did not set,
     as the bench sets them (firmware_sim.bench.site_sets)."""
@@ -205,7 +215,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
 
     p = sub.add_parser("list", help="filters, their parameters (defaults, allowed ranges, meaning) and scenarios")
-    p.add_argument("filter", nargs="?", help="only this filter")
+    p.add_argument("filter", nargs="?", help="only this filter (a name or a filter folder's path)")
     p.set_defaults(func=cmd_list)
 
     p = sub.add_parser("generate", help="write <prefix>.h, <prefix>.c and manifest.json for a filter",
@@ -227,6 +237,14 @@ def build_parser() -> argparse.ArgumentParser:
                    help="largest allowed attitude difference (default 1e-9 rad double, 1e-3 rad float)")
     p.set_defaults(func=cmd_validate)
 
+    p = sub.add_parser("new", help="write a new filter folder (scaffold) that generates and validates as it is",
+                       description="Write DIR/NAME/ with defaults.toml, model.py (CasADi), reference.py (NumPy), "
+                                   "step.c.j2 and test_NAME.py: a small working filter whose comments explain the "
+                                   "contract. Every command then takes the folder's path: 'ahrsgen validate DIR/NAME'.")
+    p.add_argument("name", help="filter name: a lower-case C identifier (names the folder and prefixes the C API)")
+    p.add_argument("-o", "--output", default=".", metavar="DIR", help="parent directory (default: the current one)")
+    p.set_defaults(func=cmd_new)
+
     for register in _EXTRA_COMMANDS:
         register(sub)
     return parser
@@ -239,7 +257,7 @@ _EXTRA_COMMANDS: list = []
 
 def _load_extra_commands() -> None:
     import importlib
-    for mod in ("firmware_sim.bench", "firmware_sim.target", "firmware_sim.harden"):
+    for mod in ("firmware_sim.bench", "firmware_sim.target", "firmware_sim.harden", "firmware_sim.tune"):
         try:
             m = importlib.import_module(mod)
         except ImportError:
@@ -247,6 +265,17 @@ def _load_extra_commands() -> None:
         reg = getattr(m, "register_cli", None)
         if reg is not None and reg not in _EXTRA_COMMANDS:
             _EXTRA_COMMANDS.append(reg)
+
+
+def _filter_names(args) -> None:
+    """Every command takes a filter folder's path where it takes a filter name: resolve it once
+    here (generator.filters.load), so the command sees the filter's name."""
+    from generator import filters
+    if isinstance(getattr(args, "filter", None), str) and filters.is_path(args.filter) \
+            and not (Path(args.filter) / "manifest.json").exists():      # harden takes a generated dir
+        args.filter = filters.load(args.filter).name
+    if getattr(args, "filters", None):
+        args.filters = [filters.load(f).name for f in args.filters]
 
 
 def main(argv=None) -> int:
@@ -257,6 +286,7 @@ def main(argv=None) -> int:
         parser.print_help()
         return 2
     try:
+        _filter_names(args)
         return args.func(args)
     except ConfigError as e:
         print(f"ahrsgen: error: {e}", file=sys.stderr)

@@ -6,6 +6,7 @@ A config file:
     preset = "faithful"       # optional: start from a named preset of the filter
     prefix = "att"            # C identifier prefix (default: the filter's name)
     precision = "float"       # or "double"
+    runtime = ["kp"]          # parameters read at run time (set_params), not folded in
     math = "fast"             # or "libm": float trigonometry without libm (generator/fastmath.py)
     fma = false               # true: the emitter writes fmaf(a, b, c) for a product feeding one sum
     [params]
@@ -24,7 +25,7 @@ from generator import fastmath, filters
 from generator.model import ConfigError
 
 PRECISIONS = ("float", "double")
-TOP_KEYS = {"filter", "prefix", "precision", "params", "preset", "math", "fma"}
+TOP_KEYS = {"filter", "prefix", "precision", "params", "preset", "runtime", "math", "fma"}
 
 
 @dataclass
@@ -34,6 +35,7 @@ class BuildConfig:
     precision: str = "float"
     prefix: str = ""
     overrides: dict = field(default_factory=dict)   # what differs from the defaults
+    runtime: tuple = ()       # parameters read at run time from <prefix>_params, in this order
     math: str = fastmath.DEFAULT_MATH                # float trigonometry: "fast" helpers or "libm"
     fma: bool = False                                # emitter-written fused multiply-adds
 
@@ -50,9 +52,16 @@ def _check_prefix(prefix: str) -> str:
 
 def resolve(filter_name: str, config_file: str | Path | None = None, sets: list[str] | None = None,
             precision: str | None = None, prefix: str | None = None, preset: str | None = None,
-            math: str | None = None, fma: bool | None = None) -> BuildConfig:
-    """Defaults, then a preset, then the config file's [params], then --set (last wins)."""
+            runtime: list[str] | str | None = None, math: str | None = None,
+            fma: bool | None = None) -> BuildConfig:
+    """Defaults, then a preset, then the config file's [params], then --set (last wins).
+    `filter_name` is a name or a filter folder's path (generator.filters); the config keeps the name.
+
+    runtime (--runtime, else the file's `runtime`): parameters kept out of the folding.
+
+    math, fma (--math, --fma, else the file's): float trigonometry and fused multiply-adds."""
     spec = filters.load(filter_name)
+    filter_name = spec.name
     values = spec.defaults()
     overrides = {}
     file_prefix = file_precision = file_math = file_fma = None
@@ -93,11 +102,42 @@ def resolve(filter_name: str, config_file: str | Path | None = None, sets: list[
     if precision not in PRECISIONS:
         raise ConfigError(f"precision {precision!r} must be one of {', '.join(PRECISIONS)}")
     prefix = _check_prefix(prefix or file_prefix or filter_name)
+    if runtime is None:
+        runtime, source = file_data.get("runtime", []), str(config_file)
+        if not isinstance(runtime, list) or not all(isinstance(x, str) for x in runtime):
+            raise ConfigError(f"{config_file}: 'runtime' must be a list of parameter names")
+    else:
+        source = "--runtime"
+        if isinstance(runtime, str):
+            runtime = [x.strip() for x in runtime.split(",") if x.strip()]
     math = math or file_math or fastmath.DEFAULT_MATH
     if math not in fastmath.MATH_MODES:
         raise ConfigError(f"math {math!r} must be one of {', '.join(fastmath.MATH_MODES)}")
     fma = bool(fma if fma is not None else (file_fma or False))
-    return BuildConfig(filter_name, values, precision, prefix, overrides, math, fma)
+    return BuildConfig(filter_name, values, precision, prefix, overrides,
+                       check_runtime(spec, list(runtime), source), math=math, fma=fma)
+
+
+def check_runtime(spec, names: list[str], source: str = "--runtime") -> tuple:
+    """Names of runtime parameters, each known, once, and a number the equations take as it is.
+
+    Only real-valued parameters can be read at run time: a choice, a boolean or an integer
+    (n_particles) selects or sizes code, which is structural. A real parameter the model
+    needs while building the code is refused when the code is generated (render)."""
+    out = []
+    for n in names:
+        if n not in spec.params:
+            raise ConfigError(f"runtime parameter '{n}' ({source}) is not a parameter of filter {spec.name}; "
+                              f"known: {', '.join(sorted(spec.params))}")
+        if n in out:
+            raise ConfigError(f"runtime parameter '{n}' ({source}) is listed twice")
+        p = spec.params[n]
+        if p.type != "float":
+            kind = "a choice" if p.choices else {"bool": "a boolean", "int": "an integer", "str": "text"}[p.type]
+            raise ConfigError(f"parameter '{n}' ({source}) is {kind}: it shapes the generated code, so it "
+                              f"cannot be a runtime parameter (only real-valued ones can)")
+        out.append(n)
+    return tuple(out)
 
 
 def _read_config(path) -> dict:

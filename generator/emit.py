@@ -139,6 +139,7 @@ class Arg:
     name: str
     size: int
     shape: tuple[int, int]
+    expr: str | None = None    # read from a context (e.g. "par->kp") instead of an argument
 
     @property
     def scalar(self) -> bool:
@@ -160,6 +161,7 @@ class Kernel:
     helpers: list[str] = field(default_factory=list)   # generator/fastmath.py helpers called
     branches: list[dict] = field(default_factory=list)  # if/else blocks: condition, ops of each side
     parts: list[str] = field(default_factory=list)      # sources of the part functions of a split kernel
+    context: str | None = None    # leading parameter declaration, e.g. "const att_params *par"
 
     @property
     def ops_total(self) -> int:
@@ -167,8 +169,10 @@ class Kernel:
 
     def prototype(self, storage: str = "static ") -> str:
         real = self.precision
-        params = []
+        params = [self.context] if self.context else []
         for a in self.inputs:
+            if a.expr is not None:
+                continue
             params.append(f"{real} {a.name}" if a.scalar else f"const {real} {a.name}[{a.size}]")
         for a in self.outputs:
             params.append(f"{real} *{a.name}" if a.scalar else f"{real} {a.name}[{a.size}]")
@@ -197,13 +201,18 @@ def _check_name(name: str, what: str) -> None:
 
 def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc: str = "",
          math: str = "libm", branch_min_cost: int | None = BRANCH_MIN_COST, fma: bool = False,
-         split_temps: int | None = SPLIT_TEMPS) -> Kernel:
+         split_temps: int | None = SPLIT_TEMPS, context: tuple[str, dict] | None = None) -> Kernel:
     """Emit an SX Function as a C function body for the given precision.
 
     ``math="fast"`` (float only; double always uses libm) writes fastmath helpers for the
-    trigonometric functions. ``fma=True`` writes a product feeding only one sum as
-    fmaf(a, b, c): the emitter decides every fusion, so host and target round alike (the
-    compiler's -ffp-contract stays off)."""
+    trigonometric functions. ``fma=True`` writes a product feeding a sum as fmaf(a, b, c):
+    the emitter decides every fusion, so host and target round alike (the compiler's
+    -ffp-contract stays off).
+
+    context = (declaration, {input name: C expression}): those scalar inputs are read through
+    one leading parameter (e.g. ("const att_params *par", {"param_kp": "par->kp"})) instead of
+    being arguments of their own; the kernel takes the declaration first if it reads any.
+    """
     if precision not in PRECISIONS:
         raise EmitError(f"precision must be one of {PRECISIONS}, got {precision!r}")
     if math not in fastmath.MATH_MODES:
@@ -224,6 +233,10 @@ def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc
             raise EmitError(f"kernel {name}: input {fn.name_in(i)!r} is sparse; only dense inputs are supported")
         _check_name(fn.name_in(i), f"kernel {name}: input")
         inputs.append(Arg(fn.name_in(i), sp.nnz(), (sp.size1(), sp.size2())))
+        if context and fn.name_in(i) in context[1]:
+            if sp.nnz() != 1:
+                raise EmitError(f"kernel {name}: context input {fn.name_in(i)!r} must be a scalar")
+            inputs[-1].expr = context[1][fn.name_in(i)]
     for o in range(fn.n_out()):
         sp = fn.sparsity_out(o)
         if not sp.is_dense():
@@ -264,7 +277,7 @@ def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc
             i, nz = fn.instruction_input(k)
             used_inputs.add(i)
             a = inputs[i]
-            work[w] = a.name if a.scalar else f"{a.name}[{nz}]"
+            work[w] = a.expr if a.expr is not None else (a.name if a.scalar else f"{a.name}[{nz}]")
             continue
         if code == ca.OP_OUTPUT:
             (w,) = fn.instruction_input(k)
@@ -342,23 +355,25 @@ def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc
     rename = {t: f"tmp{i}" for i, t in enumerate(emitted)}
     sub = lambda s: _TMP_RE.sub(lambda m: rename[m.group(0)], s)  # noqa: E731
     parts: list[str] = []
+    reads_context = any(a.expr is not None for i, a in enumerate(inputs) if i in used_inputs)
+    ctx_decl = context[0] if context and reads_context else None
     if split_temps and len(emitted) > split_temps:
-        body, parts = _split(name, precision, inputs, body, writes, tops, split_temps)
+        body, parts = _split(name, precision, inputs, body, writes, tops, split_temps, ctx_decl)
         body, parts = [sub(line) for line in body], [sub(p) for p in parts]
     else:
         body = [sub(line) for line in body] + [sub(line) for line in writes]
     for br in branches:
         br["condition"] = sub(br["condition"])
-    unused = [a.name for i, a in enumerate(inputs) if i not in used_inputs]
+    unused = [a.name for i, a in enumerate(inputs) if i not in used_inputs and a.expr is None]
     used = {h for h in helpers if any(fastmath.HELPERS[h].name + "(" in nodes[t]["expr"] for t in kept)}
-    return Kernel(name, precision, inputs, outputs, body, ops, doc, len(kept), unused, sorted(used), branches,
-                  parts)
+    return Kernel(name, precision, inputs, outputs, body, ops, doc, len(kept), unused, helpers=sorted(used),
+                  branches=branches, parts=parts, context=ctx_decl)
 
 
 _WORD = re.compile(r"\b[A-Za-z_]\w*\b")
 
 
-def _split(name, precision, inputs, body, writes, tops, size):
+def _split(name, precision, inputs, body, writes, tops, size, ctx_decl=None):
     """Cut the top-level statements into parts of about `size` temporaries; each part is a
     static function that reads the kernel inputs it uses and the values earlier parts
     exported (arrays carry<k> in the kernel's frame) and exports what later parts and the
@@ -386,10 +401,13 @@ def _split(name, precision, inputs, body, writes, tops, size):
     call_lines = [f"/* {len(chunks)} parts called in turn (inlined when optimising): bounded -O0 frames */"]
     call_lines += [f"{real} carry{k}[{len(ex)}];" for k, ex in enumerate(exports) if ex]
     for k, tx in enumerate(texts):
-        words = set(_WORD.findall("\n".join(tx)))
-        ins = [a for a in inputs if a.name in words]
+        text = "\n".join(tx)
+        words = set(_WORD.findall(text))
+        ins = [a for a in inputs if a.expr is None and a.name in words]
+        ctx = ctx_decl is not None and any(a.expr is not None and a.expr in text for a in inputs)
         imports = sorted({where[t][0] for t in used[k] if t in where and where[t][0] < k})
-        params = [f"{real} {a.name}" if a.scalar else f"const {real} {a.name}[{a.size}]" for a in ins]
+        params = ([ctx_decl] if ctx else []) + [
+            f"{real} {a.name}" if a.scalar else f"const {real} {a.name}[{a.size}]" for a in ins]
         params += [f"const {real} carry{j}[{len(exports[j])}]" for j in imports]
         if exports[k]:
             params.append(f"{real} carry{k}[{len(exports[k])}]")
@@ -398,7 +416,7 @@ def _split(name, precision, inputs, body, writes, tops, size):
         lines += [f"carry{k}[{i}] = {t};" for i, t in enumerate(exports[k])]
         pname = f"{name}_part{k}"
         parts.append(f"static void {pname}({', '.join(params)})\n{{\n" + "\n".join("    " + ln for ln in lines) + "\n}")
-        args = [a.name for a in ins] + [f"carry{j}" for j in imports] + ([f"carry{k}"] if exports[k] else [])
+        args = ([_WORD.findall(ctx_decl)[-1]] if ctx else []) + [a.name for a in ins] + [f"carry{j}" for j in imports] + ([f"carry{k}"] if exports[k] else [])
         call_lines.append(f"{pname}({', '.join(args)});")
     out = [_TMP_RE.sub(lambda m: f"carry{where[m.group(0)][0]}[{where[m.group(0)][1]}]", w) for w in writes]
     return call_lines + out, parts
@@ -633,8 +651,28 @@ def _literal_value(text: str):
         return None
 
 
+# Symbols named with this prefix stand for parameters read at run time (a runtime build):
+# `function` makes the ones an output depends on extra scalar inputs of the kernel.
+RUNTIME_PREFIX = "param_"
+
+
+def runtime_symbol(name: str) -> ca.SX:
+    return ca.SX.sym(RUNTIME_PREFIX + name)
+
+
 def function(name: str, inputs: dict, outputs: dict) -> ca.Function:
-    """Build an SX Function for emission from ordered {name: SX} dicts (CSE on, SSA work)."""
-    return ca.Function(name, list(inputs.values()), [ca.densify(v) for v in outputs.values()],
-                       list(inputs.keys()), list(outputs.keys()),
+    """Build an SX Function for emission from ordered {name: SX} dicts (CSE on, SSA work).
+
+    Runtime-parameter symbols (runtime_symbol) the outputs use become trailing inputs, named
+    after the symbol; any other free symbol is an error (CasADi's)."""
+    outs = [ca.densify(v) for v in outputs.values()]
+    ins, names = list(inputs.values()), list(inputs.keys())
+    given = {str(s) for v in ins for s in ca.symvar(v)}
+    for s in ca.symvar(ca.veccat(*outs)) if outs else []:
+        n = str(s)
+        if n.startswith(RUNTIME_PREFIX) and n not in given:
+            ins.append(s)
+            names.append(n)
+            given.add(n)
+    return ca.Function(name, ins, outs, names, list(outputs.keys()),
                        {"cse": True, "live_variables": False})

@@ -1,6 +1,7 @@
 """The contract every filter implements, and the parameter declarations it is configured by.
 
-A filter lives in generator/filters/<name>/:
+A filter is a folder (generator/filters/<name>/ for the built-ins, anywhere for a user filter:
+see generator/filters/__init__.py and docs/your_own_filter.md):
   defaults.toml   [filter] title/source, [params.<name>] default/min/max/unit/doc (or choices)
   model.py        class Model(FilterModel): state fields, symbolic kernels, step partial
   reference.py    class Reference: independent NumPy implementation, same status bits

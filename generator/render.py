@@ -15,14 +15,13 @@ import casadi as ca
 import jinja2
 
 
-from generator import emit, fastmath, status
+from generator import emit, fastmath, paths, status
 from generator.config import BuildConfig
-from generator.model import KernelSpec
+from generator.model import ConfigError, KernelSpec
 from generator.symbolic import quat
 
 VERSION = "0.1.0"
-REPO = Path(__file__).resolve().parents[1]
-TEMPLATES = REPO / "templates"
+TEMPLATES = paths.templates_dir()
 
 VALID_BITS = [("GYRO", 0), ("ACCEL", 1), ("MAG", 2), ("GPS", 3)]
 INPUT_FIELDS = [
@@ -50,35 +49,119 @@ def _decl(name, size, kind, real, scalar=False):
     return f"{t} {name};" if (size == 1 and scalar) else f"{t} {name}[{size}];"
 
 
-def struct_layout(fields, real):
-    """(offset, size) of each field and the struct size, for the common C ABI."""
+def struct_layout(fields, real, params_bytes=0):
+    """(offset, size) of each field and the struct size, for the common C ABI.
+
+    kind "params": the runtime-parameter struct (params_bytes, aligned as a real)."""
     sizes = {"real": 4 if real == "float" else 8, "uint32": 4}
     off, align, out = 0, 1, []
     for name, count, kind in fields:
-        a = sizes[kind]
+        a = sizes["real" if kind == "params" else kind]
+        size = params_bytes if kind == "params" else a * count
         off = (off + a - 1) // a * a
-        out.append((name, off, a * count))
-        off += a * count
+        out.append((name, off, size))
+        off += size
         align = max(align, a)
     return out, (off + align - 1) // align * align
 
 
+def _runtime_param(p, value, code, lit) -> dict:
+    """A runtime parameter for the templates: default, allowed range and its C check."""
+    terms = []
+    if p.min is not None:
+        terms.append(f"p->{p.name} {'>' if p.min_exclusive else '>='} {lit(p.min)}")
+    if p.max is not None:
+        terms.append(f"p->{p.name} {'<' if p.max_exclusive else '<='} {lit(p.max)}")
+    # a NaN fails every comparison; a range open at both ends still needs a finite value
+    check = " && ".join(terms) if terms else f"isfinite(p->{p.name})"
+    return {"name": p.name, "default": value, "default_lit": lit(value), "allowed": p.range_text(),
+            "check": check, "code": code, "unit": p.unit, "doc": p.doc}
+
+
+def _pass_params(source: str, kernel_names: list[str]) -> str:
+    """Calls of kernels that read runtime parameters get the state's params first: the step,
+    init and helper code call kernels on the state `s`."""
+    import re
+    for name in kernel_names:
+        source = re.sub(rf"(?<!void )\b{name}\(", f"{name}(&s->params, ", source)
+    return source
+
+
+class _RuntimeGuard(dict):
+    """The parameter values templates see: reading a runtime parameter's value is structural."""
+
+    def __init__(self, values, runtime):
+        super().__init__(values)
+        self.runtime = set(runtime)
+
+    def __getitem__(self, key):
+        if key in self.runtime:
+            raise ConfigError(f"parameter '{key}' cannot be a runtime parameter: the filter's C template "
+                              f"uses its value to shape the code")
+        return super().__getitem__(key)
+
+
+def _model_parts(spec, params: dict, runtime: tuple):
+    """The model's kernels, state fields and template context, with the runtime parameters as
+    symbols (generator.emit.runtime_symbol) instead of numbers."""
+    values = dict(params)
+    for n in runtime:
+        values[n] = emit.runtime_symbol(n)
+    model = spec.model(values)
+    specs = list(model.kernels())
+    fields = model.state_fields()
+    for f in fields:
+        for v in f.init_values():
+            if isinstance(v, (ca.SX, ca.SXElem)):
+                raise ConfigError(f"state field '{f.name}' starts from a runtime parameter")
+    tctx = model.template_context()
+    if any(isinstance(v, (ca.SX, ca.SXElem)) for v in tctx.values()):
+        raise ConfigError("the step template uses a runtime parameter's value")
+    return model, specs, fields, tctx
+
+
+def _runtime_model(spec, params, runtime):
+    """_model_parts, turning a model that needs a runtime parameter's value into one clear line."""
+    if not runtime:
+        return _model_parts(spec, params, runtime)
+    try:
+        return _model_parts(spec, params, runtime)
+    except Exception as first:
+        culprits = []
+        for n in runtime:            # name the parameter(s) the model cannot take as symbols
+            try:
+                _model_parts(spec, params, (n,))
+            except Exception:
+                culprits.append(n)
+        names = ", ".join(f"'{n}'" for n in culprits or runtime)
+        why = str(first).splitlines()[0][:120] if isinstance(first, ConfigError) else type(first).__name__
+        raise ConfigError(f"parameter {names} of filter {spec.name} cannot be a runtime parameter: the model "
+                          f"needs its value to build the code ({why})") from None
+
+
 def render(cfg: BuildConfig) -> Generated:
     spec = cfg.spec
-    model = spec.model(cfg.params)
+    runtime = tuple(getattr(cfg, "runtime", ()) or ())
+    model, model_specs, fields, tctx = _runtime_model(spec, cfg.params, runtime)
     real = cfg.precision
     prefix = cfg.prefix
     P = prefix.upper()
     lit = lambda v: emit.literal(v, real)  # noqa: E731
 
-    # Kernels: the filter's plus the shared Euler output.
+    # Kernels: the filter's plus the shared Euler output. Runtime parameters are read through
+    # a pointer to the state's params member.
     qsym = ca.SX.sym("q", 4)
-    specs = list(model.kernels()) + [KernelSpec(
+    specs = model_specs + [KernelSpec(
         "euler", emit.function("euler", {"q": qsym}, {"rpy": quat.euler(qsym)}),
         "Z-Y-X Euler angles [roll, pitch, yaw] of a unit body->NED quaternion")]
+    context = (f"const {prefix}_params *par", {emit.RUNTIME_PREFIX + n: f"par->{n}" for n in runtime})
     kernels, kctx = [], []
     for ks in specs:
-        k = emit.emit(ks.function, real, name=f"{prefix}_k_{ks.name}", doc="", math=cfg.math, fma=cfg.fma)
+        k = emit.emit(ks.function, real, name=f"{prefix}_k_{ks.name}", doc="", context=context,
+                      math=cfg.math, fma=cfg.fma)
+        extra = [a.name for a in k.inputs if a.name.startswith(emit.RUNTIME_PREFIX) and a.expr is None]
+        if extra:
+            raise ConfigError(f"kernel {ks.name}: free symbol(s) {', '.join(extra)} are not runtime parameters")
         kernels.append(k)
         kctx.append({"name": ks.name, "doc": ks.doc, "code": k.source(storage="static "),
                      "ops_text": ", ".join(f"{n} {c}" for n, c in k.ops.items() if c) + f" (total {k.ops_total})"})
@@ -89,7 +172,9 @@ def render(cfg: BuildConfig) -> Generated:
     params = []
     for name, p in spec.params.items():
         v = cfg.params[name]
-        if p.type == "bool":
+        if name in runtime:
+            macro = None
+        elif p.type == "bool":
             macro = "1" if v else "0"
         elif p.type == "int":
             macro = f"{v}"
@@ -97,8 +182,8 @@ def render(cfg: BuildConfig) -> Generated:
             macro = lit(v)
         else:
             macro = None
-        params.append({"name": name, "macro": macro, "value": v, "doc": p.doc, "unit": p.unit,
-                       "len": len(name) + len(macro or str(v))})
+        params.append({"name": name, "macro": macro, "value": f"runtime ({prefix}_params.{name}), default {v!r}" if name in runtime else v,
+                       "doc": p.doc, "unit": p.unit, "len": len(name) + len(macro or str(v))})
     width = max(x["len"] for x in params)
     for x in params:
         x["pad"] = width - x["len"]
@@ -111,7 +196,6 @@ def render(cfg: BuildConfig) -> Generated:
     status_ctx = [{"name": n, "value": "0u" if v == 0 else f"(1u << {v.bit_length() - 1})", "doc": d,
                    "refused": n in refused, "pad": swidth - len(n)} for n, v, d in bits]
 
-    fields = model.state_fields()
     names = [f.name for f in fields]
     if "q" not in names:
         raise ValueError(f"filter {spec.name}: the state must have a field 'q' (body->NED quaternion)")
@@ -129,7 +213,10 @@ def render(cfg: BuildConfig) -> Generated:
     in_decls = [_decl(n, s, k, real, scalar=(s == 1)) for n, s, k, _ in INPUT_FIELDS]
     iw = max(len(d) for d in in_decls)
     input_ctx = [{"decl": d, "doc": doc, "pad": iw - len(d)} for d, (_, _, _, doc) in zip(in_decls, INPUT_FIELDS)]
-    layout, state_bytes = struct_layout([(f.name, f.size, f.ctype) for f in fields], real)
+    runtime_ctx = [_runtime_param(spec.params[n], cfg.params[n], i + 1, lit) for i, n in enumerate(runtime)]
+    params_layout, params_bytes = struct_layout([(n, 1, "real") for n in runtime], real)
+    state_members = [(f.name, f.size, f.ctype) for f in fields] + ([("params", 1, "params")] if runtime else [])
+    layout, state_bytes = struct_layout(state_members, real, params_bytes)
     in_layout, input_bytes = struct_layout([(n, s, k) for n, s, k, _ in INPUT_FIELDS], real)
 
     # The configuration this file was generated from: every value that differs from the
@@ -144,7 +231,7 @@ def render(cfg: BuildConfig) -> Generated:
     changed = [(n, cfg.params[n]) for n in spec.params if cfg.params[n] != defaults.get(n)]
     options = [("precision", real, "float"), ("prefix", prefix, spec.name),
                ("math", cfg.math if real == "float" else "libm", fastmath.DEFAULT_MATH if real == "float" else "libm"),
-               ("fma", cfg.fma, False)]
+               ("fma", cfg.fma, False)] + ([("runtime", ",".join(cfg.runtime), "")] if cfg.runtime else [])
     command = " ".join(["ahrsgen generate", spec.name] + [f"--set {n}={_arg(v)}" for n, v in changed]
                        + [f"--{n}" if isinstance(v, bool) else f"--{n} {v}" for n, v, d in options if v != d]
                        + ["-o DIR"])
@@ -156,18 +243,22 @@ def render(cfg: BuildConfig) -> Generated:
         undefined=jinja2.StrictUndefined, trim_blocks=True, lstrip_blocks=True,
         keep_trailing_newline=True)
     ctx = dict(
-        version=VERSION, filter=spec.name, title=spec.title, source=spec.source, prefix=prefix, P=P,
+        version=VERSION, filter=spec.name, title=spec.title,
+        # where the filter came from, without machine paths (the output is reproducible anywhere)
+        filter_folder=f"generator/filters/{spec.name}/" if spec.origin == "built-in" else f"filter folder {spec.name}/", source=spec.source, prefix=prefix, P=P,
         real=real, F="f" if real == "float" else "", zero=lit(0.0), one=lit(1.0), lit=lit,
         params=params, valid_bits=VALID_BITS, status=status_ctx, state=state_ctx, input=input_ctx,
-        kernels=kctx, sensors=model.sensors, state_bytes=state_bytes,
+        kernels=kctx, sensors=model.sensors, state_bytes=state_bytes, runtime=runtime_ctx,
         math=cfg.math if real == "float" else "libm", fastmath_code=fastmath.c_source(fast_helpers),
         config_record=config_record,
         step_partial="step.c.j2",
         init_partial="init.c.j2" if (spec.folder / "init.c.j2").exists() else None,
         helpers_partial="helpers.c.j2" if (spec.folder / "helpers.c.j2").exists() else None,
-        cfg=cfg.params, **model.template_context())
+        cfg=_RuntimeGuard(cfg.params, runtime), **tctx)
     header = env.get_template("filter.h.j2").render(ctx)
     source = env.get_template("filter.c.j2").render(ctx)
+    if runtime:
+        source = _pass_params(source, [k.name for k in kernels if k.context])
 
     paths = {}
     for pname, knames in model.step_paths().items():
@@ -187,13 +278,21 @@ def render(cfg: BuildConfig) -> Generated:
         "fma": cfg.fma,
         "files": {"header": f"{prefix}.h", "source": f"{prefix}.c"},
         "params": {n: cfg.params[n] for n in spec.params},
+        **({"runtime_params": [{"name": r["name"], "default": r["default"], "allowed": r["allowed"],
+                                "code": r["code"], "unit": r["unit"], "doc": r["doc"]} for r in runtime_ctx]}
+           if runtime else {}),
         "status": {n: v for n, v, _ in bits},
         "refused_mask": sum(v for n, v, _ in bits if n in refused),
         "valid_bits": {n: 1 << b for n, b in VALID_BITS},
         "structs": {
             "state": {"size": state_bytes, "fields": [
                 {"name": f.name, "type": f.ctype, "count": f.size, "offset": off, "doc": f.doc}
-                for f, (_, off, _) in zip(fields, layout)]},
+                for f, (_, off, _) in zip(fields, layout)]
+                + ([{"name": "params", "type": "params", "count": 1, "offset": layout[-1][1],
+                     "doc": f"runtime parameters ({prefix}_params)"}] if runtime else [])},
+            **({"params": {"size": params_bytes, "fields": [
+                {"name": n, "type": "real", "count": 1, "offset": off, "doc": spec.params[n].doc}
+                for n, off, _ in params_layout]}} if runtime else {}),
             "input": {"size": input_bytes, "fields": [
                 {"name": n, "type": k, "count": s, "offset": off, "doc": doc}
                 for (n, s, k, doc), (_, off, _) in zip(INPUT_FIELDS, in_layout)]},

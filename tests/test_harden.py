@@ -261,7 +261,7 @@ def test_cli_harden_soak_only(tmp_path, capsys):
 def test_cli_unknown_filter(capsys):
     from generator import cli
     assert cli.main(["harden", "no_such_filter", "--soak-steps", "0", "--fuzz-seconds", "0"]) == 2
-    assert "no generated filter" in capsys.readouterr().err
+    assert "unknown filter 'no_such_filter'" in capsys.readouterr().err
 
 
 def test_cli_refuses_a_check_it_cannot_run(monkeypatch, capsys):

@@ -6,6 +6,8 @@ a step where that sensor's valid bit was clear, and sets its own status bit.
 """
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -18,6 +20,9 @@ GOOD = dict(gyro=(0.01, -0.02, 0.03), accel=(0.3, -0.2, -9.7), mag=(0.2, 0.05, 0
 ALL = 0xF
 DT = 0.02
 SENSOR_BIT = {"accel": 2, "mag": 4, "gps": 8}
+# the built-in filters and the example user filters (folders outside the package)
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+NAMES = filters.names() + [str(p) for p in sorted(EXAMPLES.iterdir()) if filters.is_filter_folder(p)]
 
 
 def _sensors(name):
@@ -47,7 +52,7 @@ SKIPS = [
 ]
 
 
-@pytest.mark.parametrize("name", filters.names())
+@pytest.mark.parametrize("name", NAMES, ids=lambda n: Path(n).name)
 @pytest.mark.parametrize("precision", ["float", "double"])
 def test_refusals_leave_the_state_untouched(name, precision):
     hf = host_build(name, precision)
@@ -63,7 +68,7 @@ def test_refusals_leave_the_state_untouched(name, precision):
         assert hf.state_bytes(s) == before, (name, change, dt)
 
 
-@pytest.mark.parametrize("name", filters.names())
+@pytest.mark.parametrize("name", NAMES, ids=lambda n: Path(n).name)
 @pytest.mark.parametrize("precision", ["float", "double"])
 def test_bad_aiding_sample_equals_a_missing_one(name, precision):
     hf = host_build(name, precision)
@@ -86,7 +91,7 @@ def test_bad_aiding_sample_equals_a_missing_one(name, precision):
     assert checked >= 4      # every filter reads at least accelerometer and magnetometer or GPS
 
 
-@pytest.mark.parametrize("name", filters.names())
+@pytest.mark.parametrize("name", NAMES, ids=lambda n: Path(n).name)
 def test_reference_reports_the_same_bits(name):
     from generator import config
     cfg = config.resolve(name)

@@ -376,3 +376,47 @@ def test_double_build_runs_on_soft_float_and_costs_what_it_should(tmp_path):
     assert d["footprint"]["double_helpers"] and not f["footprint"]["double_helpers"]
     assert d["footprint"]["state_bytes"] > f["footprint"]["state_bytes"]   # real fields double in size
     assert d["footprint"]["instructions_mean"] > 10 * f["footprint"]["instructions_mean"]
+
+
+# --- the footprint figures the README states ------------------------------------------
+README = Path(__file__).resolve().parents[1] / "README.md"
+README_INSTR_TOL = 0.01      # instruction counts are deterministic (same code, same log): 1 %
+README_FLASH_TOL = 0.02      # flash: the same toolchain gives the same bytes; 2 % for a newlib update
+
+
+def readme_footprint() -> dict[str, dict]:
+    """The README's footprint table: {filter: flash -O2, state, instructions -O2} as stated."""
+    import re
+    num = r"(\d[\d ]*)"
+    row = re.compile(rf"^\| (\w+)(?: \(N = \d+\))? \| {num} / {num} \| {num} \| {num} / {num} \| {num} / {num} \|\s*$")
+    out = {}
+    for line in README.read_text().splitlines():
+        m = row.match(line)
+        if m:
+            v = [int(x.replace(" ", "")) for x in m.groups()[1:]]
+            out[m.group(1)] = {"flash": v[0], "state": v[2], "instructions": v[5]}
+    return out
+
+
+def test_readme_footprint_table_lists_every_filter():
+    from generator import filters
+    assert sorted(readme_footprint()) == sorted(filters.names())
+
+
+@pytest.mark.parametrize("name", sorted(T.DEFAULT_SCENARIO))
+def test_readme_footprint_figures_hold(name, tmp_path):
+    """The committed default build on its README scenario (seed 0, -O2): mean instructions per
+    step within 1 % of the README's figure, state bytes equal, flash within 2 %."""
+    from firmware_sim import scenarios
+    stated = readme_footprint()[name]
+    gen_dir = Path(__file__).resolve().parents[1] / "generated" / name
+    log = scenarios.make(T.DEFAULT_SCENARIO[name], seed=0)
+    r = T.check_filter(T.binding_from_generated(gen_dir), T.records_from_log(log), tmp_path, opt="-O2",
+                       count_steps=20)
+    fp = r.footprint
+    assert fp.instructions_crosscheck_exact is True
+    assert abs(fp.instructions_mean - stated["instructions"]) <= README_INSTR_TOL * stated["instructions"], (
+        f"{name}: {fp.instructions_mean:.0f} instructions per step, README says {stated['instructions']}")
+    assert fp.state_bytes == stated["state"]
+    assert abs(fp.flash_bytes - stated["flash"]) <= README_FLASH_TOL * stated["flash"], (
+        f"{name}: flash {fp.flash_bytes} B, README says {stated['flash']}")

@@ -87,7 +87,7 @@ def register_cli(sub) -> None:
                     "scenario through it on an emulated Cortex-M4F (QEMU mps2-an386), check the outputs against "
                     "the host float build, and report flash, static RAM, worst-case stack and instructions per "
                     "step (table on stdout, JSON file). Exit 1 if target and host disagree beyond the bound.")
-    p.add_argument("filter", help="filter name (see 'ahrsgen list'), or 'all'")
+    p.add_argument("filter", help="filter name (see 'ahrsgen list'), a filter folder's path, or 'all'")
     p.add_argument("--config", metavar="FILE.toml", help="TOML config (its precision is ignored: see --precision)")
     p.add_argument("--set", metavar="NAME=VALUE", action="append", default=[], help="override one parameter (repeatable)")
     p.add_argument("--prefix", help="C identifier prefix (default: the filter name)")

@@ -3,7 +3,8 @@
 Error-state Jacobians are taken with CasADi's `jacobian` of the caller's propagation or
 measurement function and evaluated at the linearisation point (error state and noise = 0),
 so no Jacobian is typed by hand. The gain uses the fixed-size Cholesky solve of
-`linalg.py` (no general inverse); the covariance update is the Joseph form, symmetrised.
+`linalg.py` (no general inverse); the covariance update is the Joseph form (evaluated expanded, see
+linalg.joseph_update), symmetrised.
 
 Rows that are not measured this step are handled by a *mask* instead of separate kernels:
 a masked row has H row = 0, innovation = 0 and R = 1, which makes its gain column exactly
@@ -64,22 +65,24 @@ def gain(P, H, R, tol: float = 0.0):
 
     K is meaningful only where min_pivot > tol (it is finite either way for finite input).
     """
-    PHt = ca.mtimes(P, H.T)
-    S = linalg.symmetrize(ca.mtimes(H, PHt) + R)
-    KT, min_pivot = linalg.spd_solve(S, PHt.T, tol)     # S Kᵀ = H P  (P, S symmetric)
-    return KT.T, S, min_pivot
+    K, _, S, min_pivot = _gain(P, H, R, tol)
+    return K, S, min_pivot
 
 
-def joseph(P, K, H, R, symmetrize: bool = True):
-    """P⁺ = (I − K H) P (I − K H)ᵀ + K R Kᵀ (patent step 6), symmetrised unless told not to."""
-    if symmetrize:
-        return linalg.joseph_update(P, K, H, R)
-    n = P.shape[0]
-    I_KH = ca.SX.eye(n) - ca.mtimes(K, H)
-    return ca.mtimes([I_KH, P, I_KH.T]) + ca.mtimes([K, R, K.T])
+def _gain(P, H, R, tol):
+    HP = ca.mtimes(H, P)                              # = (P Hᵀ)ᵀ, P symmetric
+    S = linalg.symmetrize(ca.mtimes(HP, H.T) + R)
+    KT, min_pivot = linalg.spd_solve(S, HP, tol)      # S Kᵀ = H P  (P, S symmetric)
+    return KT.T, HP, S, min_pivot
+
+
+def joseph(P, K, H, R, symmetrize: bool = True, HP=None, S=None):
+    """P⁺ = (I − K H) P (I − K H)ᵀ + K R Kᵀ (patent step 6), evaluated in the expanded order
+    of linalg.joseph_update (float-safe with large H), symmetrised unless told not to."""
+    return linalg.joseph_update(P, K, H, R, HP=HP, S=S, symmetric=symmetrize)
 
 
 def update(P, H, z, R, tol: float = 0.0, symmetrize: bool = True):
     """Full Kalman correction: returns (dx = K z, P⁺ (Joseph), min_pivot of S)."""
-    K, _, min_pivot = gain(P, H, R, tol)
-    return ca.mtimes(K, z), joseph(P, K, H, R, symmetrize), min_pivot
+    K, HP, S, min_pivot = _gain(P, H, R, tol)
+    return ca.mtimes(K, z), joseph(P, K, H, R, symmetrize, HP=HP, S=S), min_pivot

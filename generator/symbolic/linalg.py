@@ -175,9 +175,28 @@ def symmetrize(P):
     return 0.5 * (P + P.T)
 
 
-def joseph_update(P, K, H, R):
-    """Joseph-form covariance update (I - K H) P (I - K H)ᵀ + K R Kᵀ, symmetrised."""
+def joseph_update(P, K, H, R, HP=None, S=None, symmetric: bool = True):
+    """Joseph-form covariance update (I − K H) P (I − K H)ᵀ + K R Kᵀ, evaluated expanded as
+
+        P − K (H P) − (H P)ᵀ Kᵀ + K S Kᵀ,   S = H P Hᵀ + R
+
+    (the same matrix for any K, so it keeps the Joseph form's robustness to a gain that is
+    not exactly optimal), symmetrised unless symmetric=False. HP and S may be passed when the
+    gain computation already has them.
+
+    Why expanded: the textbook order forms I − K H, whose entries are |K||H| in size. When a
+    precise measurement has a large H (an Euler angle near pitch ±90°: H ∝ 1/cos θ) along
+    a direction P already knows well, |K H| reaches hundreds while P⁺ has eigenvalues
+    ~1e-8 of |P|: the products of (I − K H) P (I − K H)ᵀ are then |K H|² |P| large and
+    cancel to the small result, and in float their rounding (|K H|² |P| ε ~ 1e-5) makes P⁺
+    indefinite. In the expanded order every term is of the size of P, K H P or K S Kᵀ,
+    which for the optimal gain are all bounded by |P|.
+    """
     P, kind = _as_casadi(P)
-    n = P.shape[0]
-    IKH = kind.eye(n) - ca.mtimes(K, H)
-    return symmetrize(ca.mtimes([IKH, P, IKH.T]) + ca.mtimes([K, R, K.T]))
+    if HP is None:
+        HP = ca.mtimes(H, P)
+    if S is None:
+        S = ca.mtimes(HP, H.T) + R
+    KHP = ca.mtimes(K, HP)
+    Pn = P - KHP - KHP.T + ca.mtimes([K, S, K.T])
+    return symmetrize(Pn) if symmetric else Pn

@@ -23,7 +23,10 @@ Step 4:  Z = wrap([φ₂, θ₂, ψ₂] − euler(q̂)).
 Step 5:  K = P Hᵀ (H P Hᵀ + R)⁻¹,  H = ∂ euler(q̂ ⊗ [1, δq]) / ∂X at X = 0 = [2 W(φ̂, θ̂), 0]
   where W maps body rates to Euler-angle rates (right perturbation = body-frame rotation
   of angle 2 δq):  W = [[1, sφ tθ, cφ tθ], [0, cφ, −sφ], [0, sφ/cθ, cφ/cθ]].
-Step 6:  P⁺ = (I − KH) P (I − KH)ᵀ + K R Kᵀ, then P ← (P + Pᵀ)/2.
+Step 6:  P⁺ = (I − KH) P (I − KH)ᵀ + K R Kᵀ, then P ← (P + Pᵀ)/2, evaluated expanded as
+  P − K(HP) − (HP)ᵀKᵀ + K S Kᵀ (the same matrix for any K). Near pitch ±90° H ∝ 1/cos θ and
+  |KH| reaches hundreds: the textbook product then cancels terms |KH|²|P| large down to
+  eigenvalues ~1e-8 |P|, which float cannot (the fuzzer found P indefinite that way).
 Step 7:  X = K Z.
 Step 8:  q̂ ← normalise(q̂ ⊗ [1, δq]),  b̂ ← b̂ + δb,  X ← 0.
 Step 9:  [φ θ ψ] = euler(q̂).
@@ -263,9 +266,11 @@ class Reference:
             if not pivots_ok:
                 status |= UPDATE_SKIPPED
             else:
-                K = np.linalg.solve(S, H @ P).T      # P Hᵀ S⁻¹ (S, P symmetric)
-                IKH = np.eye(6) - K @ H
-                P = IKH @ P @ IKH.T + K @ R @ K.T
+                HP = H @ P
+                K = np.linalg.solve(S, HP).T         # P Hᵀ S⁻¹ (S, P symmetric)
+                # Joseph form (I − KH) P (I − KH)ᵀ + K R Kᵀ, expanded (see the top)
+                KHP = K @ HP
+                P = P - KHP - KHP.T + K @ S @ K.T
                 P = 0.5 * (P + P.T)
                 X = K @ np.asarray(z, dtype=float)
                 q = qmul(q, np.concatenate([[1.0], X[:3]]))

@@ -91,7 +91,7 @@ class Reference:
                 self.hist = []
             self.hist = (self.hist + [np.asarray(gps_vel, float)])[-7:]
             self.gps_age = 0.0
-            if len(self.hist) == 7:
+            if len(self.hist) == 7 and p["motion_accel_model"] == "differentiator":   # (the C keeps it only then)
                 V = self.hist
                 d = [V[3 + i] - V[3 - i] for i in (1, 2, 3)]
                 self.motion_accel = sum(c * di for c, di in zip(self.coeffs, d)) / (2 * p["gps_period"])

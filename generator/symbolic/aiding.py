@@ -1,0 +1,110 @@
+"""Aiding-sensor conditioning shared by the filters: low-pass, rest detection, field check,
+and well-conditioned tilt / heading corrections (CasADi SX, no filter imports here).
+
+All thresholds are plain Python numbers baked in by the caller; flags are returned as 0/1
+SX expressions so that a kernel can output them and the step partial can branch on them.
+
+- `lowpass(x_lp, x, dt, tau)`: first-order low-pass x_lp + dt/(tau + dt) (x - x_lp)
+  (the backward-Euler discretisation of tau x_lp' = x - x_lp; tau = 0 passes x through).
+- `rest_detector(...)`: gyro and accelerometer steady (each within a tolerance of its own
+  low-passed value) and the low-passed rate small, for at least `min_time` s (VQF's idea).
+- `field_check(...)`: magnetometer norm and dip (sin of the angle below the horizontal)
+  against a reference learned at the first sample and tracked slowly while accepted; a field
+  that stays different for `new_time` s becomes the new reference (a permanent change, e.g.
+  a new mounting or a new site), so a rejection cannot hold forever.
+- `tilt_correction(d_n)`: the shortest rotation of the NED frame taking a measured unit
+  down-vector d_n to [0, 0, 1]; it has no z component (never changes heading) and is well
+  conditioned at every attitude except d_n = -[0, 0, 1] (upside-down measurement, where the
+  x-axis half-turn is taken).
+- `heading_correction(q, m, declination)`: the rotation about NED z that brings the horizontal
+  part of R(q) m to magnetic north + declination; it only changes heading (never tilts).
+"""
+from __future__ import annotations
+
+import math
+
+import casadi as ca
+
+from . import quat
+
+# tilt_correction: 1 + d_z below this (d_n within ~0.1 deg of straight up) takes the half-turn
+TILT_FLIP_EPS = 1e-6
+
+
+def lowpass(x_lp, x, dt, tau: float):
+    """One step of the first-order low-pass of time constant tau (s): x_lp + k (x - x_lp)."""
+    if tau <= 0:
+        return x
+    k = dt / (tau + dt)
+    return x_lp + k * (x - x_lp)
+
+
+def rest_detector(gyro, accel, gyro_lp, accel_lp, rest_time, dt, *, tau: float, gyro_tol: float,
+                  accel_tol: float, gyro_max: float, min_time: float, time_cap: float = 1e3):
+    """Returns (gyro_lp', accel_lp', rest_time', at_rest 0/1).
+
+    Steady: |gyro - gyro_lp'| < gyro_tol, |accel - accel_lp'| < accel_tol and
+    |gyro_lp'| < gyro_max (a steady turn is not rest). rest_time counts the steady time
+    (capped at time_cap so it stays exact in float) and is reset to 0 otherwise.
+    """
+    g_lp = lowpass(gyro_lp, gyro, dt, tau)
+    a_lp = lowpass(accel_lp, accel, dt, tau)
+    steady = ca.logic_and(ca.logic_and(ca.sumsqr(gyro - g_lp) < gyro_tol ** 2,
+                                       ca.sumsqr(accel - a_lp) < accel_tol ** 2),
+                          ca.sumsqr(g_lp) < gyro_max ** 2)
+    t_new = ca.if_else(steady, ca.fmin(rest_time + dt, time_cap), 0.0)
+    return g_lp, a_lp, t_new, t_new >= min_time
+
+
+def field_check(norm, sin_dip, ref_norm, ref_dip, dist_time, dt, *, norm_tol: float, dip_tol: float,
+                ref_tau: float, new_time: float):
+    """Magnetic disturbance check. Returns (accept 0/1, ref_norm', ref_dip', dist_time').
+
+    ref_norm <= 0 means "not learned yet": the sample is accepted and becomes the reference.
+    Accepted when |norm/ref_norm - 1| < norm_tol and |sin_dip - ref_dip| < dip_tol; the
+    reference then follows the field with time constant ref_tau. Rejected samples add dt to
+    dist_time; once it exceeds new_time the current field becomes the reference.
+    """
+    learned = ref_norm > 0
+    ok_norm = ca.fabs(norm - ref_norm) < norm_tol * ref_norm
+    ok_dip = ca.fabs(sin_dip - ref_dip) < dip_tol
+    ok = ca.logic_and(ok_norm, ok_dip)
+    t_dist = ca.if_else(ok, 0.0, dist_time + dt)
+    renew = ca.logic_or(ca.logic_not(learned), t_dist > new_time)
+    accept = ca.logic_or(ok, ca.logic_not(learned))
+    n_new = ca.if_else(renew, norm, ca.if_else(ok, lowpass(ref_norm, norm, dt, ref_tau), ref_norm))
+    d_new = ca.if_else(renew, sin_dip, ca.if_else(ok, lowpass(ref_dip, sin_dip, dt, ref_tau), ref_dip))
+    return accept, n_new, d_new, ca.if_else(renew, 0.0, t_dist)
+
+
+def tilt_correction(d_n):
+    """Shortest NED-frame rotation taking the unit vector d_n to [0, 0, 1] (no z component).
+
+    The half-way quaternion [1 + d·e, d × e] normalised, e = [0, 0, 1]:
+    [1 + d_z, d_y, -d_x, 0] / |.|; for d_z <= -1 + TILT_FLIP_EPS the half-turn about x.
+    """
+    w = 1 + d_n[2]
+    flip = w < TILT_FLIP_EPS
+    n2 = ca.fmax(w * w + d_n[0] * d_n[0] + d_n[1] * d_n[1], TILT_FLIP_EPS * TILT_FLIP_EPS)
+    inv = ca.sqrt(1 / n2)
+    return quat.vec(ca.if_else(flip, 0.0, w * inv), ca.if_else(flip, 1.0, d_n[1] * inv),
+                    ca.if_else(flip, 0.0, -d_n[0] * inv), 0.0)
+
+
+def heading_correction(q, m, declination: float = 0.0):
+    """Rotation about NED z taking the horizontal part of R(q) m to heading `declination`.
+
+    With (c, s) the direction of the horizontal field in NED (heading psi_m of the field),
+    the correction is the rotation by -(psi_m - declination), through half-angles.
+    A field with no horizontal part gives the identity.
+    """
+    m_n = quat.rotate(q, m)
+    h2 = m_n[0] * m_n[0] + m_n[1] * m_n[1]
+    degenerate = h2 < 1e-30
+    inv = ca.sqrt(1 / ca.fmax(h2, 1e-30))
+    c, s = m_n[0] * inv, m_n[1] * inv
+    if declination != 0.0:
+        cd, sd = math.cos(declination), math.sin(declination)
+        c, s = c * cd + s * sd, s * cd - c * sd
+    c_h, s_h = quat.half_angle(c, -s)
+    return quat.vec(ca.if_else(degenerate, 1.0, c_h), 0.0, 0.0, ca.if_else(degenerate, 0.0, s_h))

@@ -1,0 +1,94 @@
+"""generator/symbolic/aiding.py against plain NumPy formulas and physical invariants."""
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+import pytest
+
+from generator import npquat as nq
+from generator.symbolic import aiding
+
+
+def _fn(inputs, outputs):
+    f = ca.Function("f", inputs, outputs)
+    return lambda *a: [np.array(o, dtype=float).ravel() for o in f.call([ca.DM(np.asarray(x, dtype=float)) for x in a])]
+
+
+def test_lowpass_is_backward_euler_step():
+    x_lp, x, dt = ca.SX.sym("x_lp", 3), ca.SX.sym("x", 3), ca.SX.sym("dt")
+    f = _fn([x_lp, x, dt], [aiding.lowpass(x_lp, x, dt, 0.5)])
+    y = np.zeros(3)
+    for _ in range(1000):                     # 1 s of a unit step at 1 kHz
+        y = f(y, np.ones(3), 1e-3)[0]
+    # (1 + dt/tau)^-n -> exp(-t/tau) = exp(-2)
+    assert y == pytest.approx(1 - (1 / (1 + 1e-3 / 0.5)) ** 1000, rel=1e-12)
+    assert y[0] == pytest.approx(1 - np.exp(-2), abs=2e-3)
+    assert aiding.lowpass(x_lp, x, dt, 0.0) is x
+
+
+def test_rest_detector_counts_steady_time_and_resets():
+    g, a, glp, alp = (ca.SX.sym(n, 3) for n in ("g", "a", "glp", "alp"))
+    t, dt = ca.SX.sym("t"), ca.SX.sym("dt")
+    f = _fn([g, a, glp, alp, t, dt], list(aiding.rest_detector(
+        g, a, glp, alp, t, dt, tau=0.5, gyro_tol=0.03, accel_tol=0.5, gyro_max=0.03, min_time=1.0)))
+    acc = np.array([0.0, 0.0, -9.81])
+    state = [np.zeros(3), acc, np.zeros(1)]
+    rng = np.random.default_rng(0)
+    for k in range(1500):                     # 1.5 s at rest (small noise, bias 0.01 rad/s)
+        gl, al, tr, rest = f(0.01 + 0.002 * rng.normal(size=3), acc + 0.05 * rng.normal(size=3),
+                             state[0], state[1], state[2], 1e-3)
+        state = [gl, al, tr]
+        assert bool(rest[0]) == (tr[0] >= 1.0)
+    assert tr[0] == pytest.approx(1.5, abs=2e-3) and rest[0] == 1
+    # a steady 0.2 rad/s turn is not rest (|gyro_lp| too large), nor is a jolt of the accelerometer
+    assert f(np.full(3, 0.2), acc, np.full(3, 0.2), acc, 5.0, 1e-3)[2][0] == 0
+    assert f(np.full(3, 0.01), acc + 3.0, np.full(3, 0.01), acc, 5.0, 1e-3)[2][0] == 0
+
+
+def test_field_check_learns_rejects_and_renews():
+    s = [ca.SX.sym(n) for n in ("n", "d", "rn", "rd", "t", "dt")]
+    f = _fn(s, list(aiding.field_check(*s, norm_tol=0.1, dip_tol=0.1, ref_tau=10.0, new_time=2.0)))
+    acc, rn, rd, t = f(50.0, 0.8, 0.0, 0.0, 0.0, 0.01)            # first sample: learned
+    assert (acc[0], rn[0], rd[0], t[0]) == (1, 50.0, 0.8, 0.0)
+    acc, rn, rd, t = f(51.0, 0.81, 50.0, 0.8, 0.0, 0.01)          # close: accepted, tracked
+    assert acc[0] == 1 and rn[0] == pytest.approx(50 + 0.01 / 10.01) and t[0] == 0
+    assert f(60.0, 0.8, 50.0, 0.8, 0.0, 0.01)[0][0] == 0          # norm 20 % off
+    assert f(50.0, 0.95, 50.0, 0.8, 0.0, 0.01)[0][0] == 0         # dip off
+    acc, rn, rd, t = f(60.0, 0.8, 50.0, 0.8, 1.0, 0.01)           # rejected: reference held
+    assert (acc[0], rn[0], t[0]) == (0, 50.0, pytest.approx(1.01))
+    acc, rn, rd, t = f(60.0, 0.9, 50.0, 0.8, 1.995, 0.01)         # rejected for > 2 s: renewed
+    assert (rn[0], rd[0], t[0]) == (60.0, 0.9, 0.0)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_tilt_correction_aligns_down_and_keeps_heading(seed):
+    d = ca.SX.sym("d", 3)
+    f = _fn([d], [aiding.tilt_correction(d)])
+    rng = np.random.default_rng(seed)
+    v = rng.normal(size=3)
+    v /= np.linalg.norm(v)
+    q = f(v)[0]
+    assert np.linalg.norm(q) == pytest.approx(1, abs=1e-12) and q[3] == 0
+    np.testing.assert_allclose(nq.rotmat(q) @ v, [0, 0, 1], atol=1e-12)
+    # shortest: the angle equals the angle between v and e_z
+    assert 2 * np.arccos(min(q[0], 1)) == pytest.approx(np.arccos(v[2]), abs=1e-9)
+    np.testing.assert_allclose(nq.rotmat(f(np.array([0, 0, -1.0]))[0]) @ [0, 0, -1.0], [0, 0, 1], atol=1e-12)
+
+
+@pytest.mark.parametrize("decl", [0.0, 0.3])
+def test_heading_correction_turns_field_north_without_tilting(decl):
+    q, m = ca.SX.sym("q", 4), ca.SX.sym("m", 3)
+    f = _fn([q, m], [aiding.heading_correction(q, m, decl)])
+    rng = np.random.default_rng(1)
+    m_n = np.array([0.4 * np.cos(decl), 0.4 * np.sin(decl), 0.3])      # true field, heading decl
+    for _ in range(10):
+        q_true = nq.qnormalize(rng.normal(size=4))
+        err = nq.from_rotvec([0, 0, rng.uniform(-3, 3)])                 # heading error only
+        q_est = nq.qmul(err, q_true)
+        m_b = nq.rotmat(q_true).T @ m_n
+        c = f(q_est, m_b)[0]
+        assert c[1] == 0 and c[2] == 0
+        fixed = nq.qmul(c, q_est)
+        np.testing.assert_allclose(nq.rotmat(fixed) @ m_b, m_n, atol=1e-9)
+        # tilt untouched: the body's down direction is the same before and after
+        np.testing.assert_allclose(nq.rotmat(fixed).T @ [0, 0, 1], nq.rotmat(q_est).T @ [0, 0, 1], atol=1e-12)

@@ -1,0 +1,80 @@
+"""`ahrsgen tune`: the acceptance run on the committed excerpts, resume, the search space, bad input."""
+from __future__ import annotations
+
+import time
+import tomllib
+from pathlib import Path
+
+import pytest
+
+from generator import cli, config, filters
+
+DATA = Path(__file__).resolve().parent / "data"
+LOGS = ["--log", str(DATA / "broad_01_excerpt.csv.gz"), "--log", str(DATA / "px4_handheld_excerpt.ulg")]
+
+
+def test_tune_two_logs_budget_8_then_generate(tmp_path, capsys):
+    out = tmp_path / "t.toml"
+    t0 = time.perf_counter()
+    assert cli.main(["tune", "qcf", *LOGS, "--params", "kp", "--budget", "8", "-o", str(out)]) == 0
+    seconds = time.perf_counter() - t0
+    assert seconds < 60, f"tune took {seconds:.1f} s"
+    text = capsys.readouterr().out
+    assert "2-fold cross-validated" in text and "engine: one build, kp set at run time" in text
+    data = tomllib.loads(out.read_text())
+    kp = data["params"]["kp"]
+    assert 0 < kp <= 100 and set(data["params"]) == {"kp"}
+    # the study starts from the defaults, so the training error never gets worse
+    train = [line for line in text.splitlines() if "training" in line][0].split()
+    assert float(train[-1]) <= float(train[-2])
+    assert cli.main(["generate", "qcf", "--config", str(out), "-o", str(tmp_path / "gen")]) == 0
+    assert f"#define QCF_KP {config.resolve('qcf', out).params['kp']!r}"[:22] in (tmp_path / "gen" / "qcf.h").read_text()
+    # re-running continues the journal: nothing left to run, same result
+    capsys.readouterr()
+    assert cli.main(["tune", "qcf", *LOGS, "--params", "kp", "--budget", "8", "-o", str(out)]) == 0
+    assert "  0 trial(s) run" in capsys.readouterr().out
+    assert tomllib.loads(out.read_text())["params"]["kp"] == kp
+
+
+def test_search_space_follows_declarations():
+    from firmware_sim.tune import search_space
+    spec = filters.load("qcf")
+    kp, ki, comp, model, decl = search_space(spec, ["kp", "ki", "gps_compensation", "motion_accel_model",
+                                                    "declination"])
+    assert (kp.kind, kp.low, kp.high, kp.log) == ("float", pytest.approx(0.01), pytest.approx(100.0), True)
+    assert ki.log and ki.low == pytest.approx(2e-4) and ki.high == pytest.approx(10.0)
+    assert comp.choices == [False, True] and model.choices == ["differentiator", "centripetal"]
+    assert not decl.log and decl.low == pytest.approx(-3.14159265) and decl.high == pytest.approx(3.14159265)
+    (narrow,) = search_space(spec, ["kp=0.1:1"])
+    assert (narrow.low, narrow.high, narrow.log) == (0.1, 1.0, False)
+
+
+@pytest.mark.parametrize("args,words", [
+    (["--params", "nope"], "unknown parameter 'nope'"),
+    (["--params", "kp=5:1"], "LOW must be below HIGH"),
+    (["--params", "kp=0.1:200"], "out of range"),
+    (["--params", "kp", "--folds", "3"], "--folds 3"),
+    (["--params", "kp", "--log", "/nonexistent.csv"], "does not exist"),
+])
+def test_bad_input_one_line(args, words, tmp_path, capsys):
+    out = tmp_path / "t.toml"
+    assert cli.main(["tune", "qcf", *LOGS, *args, "--budget", "1", "-o", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and words in err[0], err
+    assert not out.exists()
+
+
+def test_tune_user_filter_folder(tmp_path):
+    # in a separate process: a filter loaded by path stays registered by name in the process
+    import subprocess
+    import sys
+    folder = Path(__file__).resolve().parents[1] / "examples" / "madgwick"
+    out = tmp_path / "m.toml"
+    ahrsgen = [sys.executable, "-m", "generator.cli"]
+    r = subprocess.run([*ahrsgen, "tune", str(folder), *LOGS, "--params", "beta", "--budget", "3", "--folds", "0",
+                        "-o", str(out)], capture_output=True, text=True)
+    assert r.returncode == 0 and "beta set at run time" in r.stdout, r.stderr
+    assert tomllib.loads(out.read_text())["filter"] == "madgwick"
+    r = subprocess.run([*ahrsgen, "generate", str(folder), "--config", str(out), "-o", str(tmp_path / "gen")],
+                       capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
