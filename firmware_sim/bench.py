@@ -443,8 +443,8 @@ def scenario_configs(quick: bool) -> list[tuple[str, str, dict]]:
 def _estimators(filter_names, peer_names, with_baseline=True):
     ests, errors = [], {}
     for f in filter_names:
-        try:
-            ests.append(filter_estimator(f))
+        try:   # a filter named like a peer (examples/madgwick beside ahrs' Madgwick) is labelled apart
+            ests.append(filter_estimator(f, label=f"{f}_gen" if f in peer_names else None))
         except Exception as e:   # a filter still being written must not stop the bench
             errors[f] = f"{type(e).__name__}: {e}"
     if with_baseline and "qcf" in filter_names:

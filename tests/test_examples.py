@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from conftest import needs
 from firmware_sim import host, metrics, readers
 from firmware_sim.log import VALID_ACCEL, VALID_MAG
 from generator import config
@@ -69,3 +70,25 @@ def test_example_corner_cases_as_ahrs(folder):
     # its own normalisation and of the frame changes
     assert np.array_equal(c.q[200:260], np.repeat(c.q[199:200], 60, axis=0))
     assert metrics.max_angle_diff_rad(r.q[200:260], np.repeat(r.q[199:200], 60, axis=0)) < 1e-12
+
+
+@needs("target")
+def test_target_sets_the_example_beside_the_hand_written_peer(tmp_path, capsys):
+    """`ahrsgen target ./examples/madgwick --peers`: the generated Madgwick on the emulated M4F
+    agrees with its host build and is reported beside the hand-written Madgwick of the
+    calibration peers, with the ratio of their instruction counts."""
+    import json
+
+    from generator import cli
+    out = tmp_path / "t.json"
+    rc = cli.main(["target", EXAMPLES[0], "--opt=-O2", "--peers", "--scenario-opt", "duration=16",
+                   "--count-steps", "10", "--no-pinned", "--json", str(out)])
+    text = capsys.readouterr().out
+    assert rc == 0, text
+    doc = json.loads(out.read_text())
+    (r,) = doc["results"]
+    assert r["filter"] == "madgwick" and r["pass"] is True
+    hand = {p["filter"]: p for p in doc["peers"]}["peer:madgwick"]
+    (b,) = doc["beside_peers"]
+    assert b["generated"] == r["footprint"]["instructions_mean"] and b["hand_written"] == hand["instructions_mean"]
+    assert f"madgwick -O2: generated {b['generated']:.0f} / hand-written {b['hand_written']:.0f}" in text

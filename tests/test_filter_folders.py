@@ -94,3 +94,19 @@ def test_entry_point(tmp_path, monkeypatch):
     from firmware_sim import metrics
     assert metrics.max_angle_diff_rad(c.q, r.q) <= 1e-9
     sys.modules.pop("shipped_madg", None)
+
+
+def test_a_folder_imports_its_own_helpers_relatively(tmp_path):
+    """A filter folder is imported as a package: model.py may import a sibling module."""
+    assert cli.main(["new", "helped", "-o", str(tmp_path)]) == 0
+    folder = tmp_path / "helped"
+    (folder / "gains.py").write_text("KP_SCALE = 2.0\n")
+    model = folder / "model.py"
+    model.write_text(model.read_text().replace("from generator.symbolic import quat\n",
+                                               "from generator.symbolic import quat\n\nfrom .gains import KP_SCALE\n")
+                     .replace('kp, ki = self.params["kp"], self.params["ki"]',
+                              'kp, ki = KP_SCALE * self.params["kp"], self.params["ki"]'))
+    spec = filters.load(str(folder))
+    fn = {k.name: k.function for k in spec.model().kernels()}["correct"]
+    assert spec.model_class().__module__.endswith(".model") and "KP_SCALE" in model.read_text()
+    assert fn.n_instructions() > 0

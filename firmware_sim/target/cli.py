@@ -67,17 +67,38 @@ def cmd_target(args) -> int:
         print("\nnewlib (target) vs host libm, float functions on the same float32 arguments:")
         for fn, v in survey.items():
             print(f"  {fn:<7} differs in {v['differ']}/{v['arguments']} arguments, by at most {v['max_ulp']} ulp")
+    beside = beside_peers(results, peer_rows)
     if peer_rows:
         print("\ncalibration peers (firmware_sim/target/peers, fixedwing_gps; counts only):")
         print(format_table(peer_rows))
+        for b in beside:
+            print(f"{b['filter']} {b['opt']}: generated {b['generated']:.0f} / hand-written {b['hand_written']:.0f} "
+                  f"instructions per step = {b['ratio']:.2f}x (same scenario)")
     doc = {"cpu": args.cpu, "cpu_flags": CPUS[args.cpu], "math_flags": MATH_FLAGS, "qemu_machine": QEMU_MACHINE,
            "tools": toolchain_versions(), "tolerance_deg": args.tolerance, "results": results,
-           "peers": [asdict(r) for r in peer_rows], "libm_survey": survey}
+           "peers": [asdict(r) for r in peer_rows], "beside_peers": beside, "libm_survey": survey}
     out = Path(args.json)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(doc, indent=2, sort_keys=True) + "\n")
     print(f"wrote {out}")
     return 0 if ok else 1
+
+
+def beside_peers(results: list[dict], peer_rows) -> list[dict]:
+    """A checked filter that has a hand-written twin among the peers (the example user filters
+    examples/madgwick and examples/mahony): instructions per step of both, same build, same
+    scenario (both on fixedwing_gps unless --scenario says otherwise for the filter)."""
+    peers = {(r.filter.removeprefix("peer:"), r.opt): r.instructions_mean for r in peer_rows}
+    out = []
+    for r in results:
+        if r.get("precision", "float") != "float":
+            continue
+        hand = peers.get((r["filter"], r["opt"]))
+        gen = r["footprint"]["instructions_mean"]
+        if hand and r.get("scenario") == "fixedwing_gps":
+            out.append({"filter": r["filter"], "opt": r["opt"], "generated": gen, "hand_written": hand,
+                        "ratio": gen / hand})
+    return out
 
 
 def register_cli(sub) -> None:
@@ -109,7 +130,8 @@ def register_cli(sub) -> None:
     p.add_argument("--tolerance", type=float, default=DEFAULT_TOLERANCE_DEG, metavar="DEG",
                    help=f"largest allowed target-vs-host attitude difference (default {DEFAULT_TOLERANCE_DEG:g} deg)")
     p.add_argument("--peers", action="store_true",
-                   help="also measure the calibration peers (Madgwick, Mahony with integral) for scale")
+                   help="also measure the calibration peers (hand-written Madgwick, Mahony with integral) for scale; "
+                        "a filter named like one (examples/madgwick, examples/mahony) is set beside it (ratio)")
     p.add_argument("--libm-survey", action="store_true",
                    help="also compare newlib's float sinf/cosf/asinf/atanf/expf/logf/atan2f with the host's, in ulps")
     p.add_argument("--no-pinned", action="store_true",

@@ -91,8 +91,9 @@ def _same(a: Path, b: Path) -> bool:
 _BY_PATH: dict[str, Location] = {}
 
 
-def _found() -> dict[str, list[Location]]:
-    """Every definition of every name, in the order: built-in, search path, entry points, paths."""
+def _found(given_paths: bool = True) -> dict[str, list[Location]]:
+    """Every definition of every name, in the order: built-in, search path, entry points, and
+    (given_paths) folders given by path earlier in this process."""
     out: dict[str, list[Location]] = {}
 
     def add(loc: Location) -> None:
@@ -120,13 +121,15 @@ def _found() -> dict[str, list[Location]]:
         if spec is None or not spec.submodule_search_locations:
             raise ConfigError(f"{where}: '{ep.value}' is not an importable package (a filter folder with __init__.py)")
         add(Location(ep.name, Path(list(spec.submodule_search_locations)[0]), where, ep.value))
-    for loc in _BY_PATH.values():
+    for loc in _BY_PATH.values() if given_paths else ():
         add(loc)
     return out
 
 
 def names() -> list[str]:
-    return sorted(_found())
+    """The filters known by name: built-in, AHRSGEN_FILTER_PATH, entry points (not folders
+    given by path, though those resolve by name once given)."""
+    return sorted(_found(given_paths=False))
 
 
 def is_path(ref: str) -> bool:
@@ -156,7 +159,7 @@ def _locate(ref: str) -> Location:
         return loc
     found = _found()
     if ref not in found:
-        raise ConfigError(f"unknown filter '{ref}' (known: {', '.join(sorted(found))}; "
+        raise ConfigError(f"unknown filter '{ref}' (known: {', '.join(names())}; "
                           f"or give a filter folder's path, e.g. ./{ref})")
     if len(found[ref]) > 1:
         raise ConfigError(_twice(ref, found[ref]))
