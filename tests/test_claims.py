@@ -22,7 +22,7 @@ from generator import config, filters, render
 
 # ------------------------------------------------------------------ counting the emitted C
 _LITERAL = re.compile(r"\(-?(?:\d+\.?\d*|\.\d+)(?:e[+-]?\d+)?f?\)|(?<![\w.])(?:\d+\.?\d*|\.\d+)(?:e[+-]?\d+)?f?(?![\w.])")
-_CALL = re.compile(r"\b([a-z][a-z0-9]*)\(")
+_CALL = re.compile(r"\b([a-z][a-z0-9_]*)\(")
 _CMP_FUNCS = {"fabs", "floor", "ceil", "copysign"}
 _SQRT_FUNCS = {"sqrt", "hypot"}
 _TRIG_FUNCS = {"sin", "cos", "tan", "asin", "acos", "atan", "atan2", "exp", "log", "pow", "sinh", "cosh",
@@ -37,7 +37,12 @@ def count_c_ops(expr: str, real: str) -> dict[str, int]:
         return out
     calls = _CALL.findall(expr)
     for c in calls:
+        c = c.removeprefix("fast_")        # math = "fast": the emitter's own helpers
         base = c[:-1] if real == "float" and c.endswith("f") else c
+        if base == "fma":                  # fma = true: one multiply and one add, rounded once
+            out["mul"] += 1
+            out["add"] += 1
+            continue
         if base in _CMP_FUNCS:
             out["cmp"] += 1
         elif base in _SQRT_FUNCS:
@@ -56,11 +61,20 @@ def count_c_ops(expr: str, real: str) -> dict[str, int]:
 
 
 def kernel_bodies(src: str, prefix: str) -> dict[str, list[str]]:
-    """{kernel name: right-hand sides of its temporaries} from a generated source."""
-    out = {}
+    """{kernel name: right-hand sides of its temporaries} from a generated source.
+
+    A split kernel's parts (<kernel>_part<N>) count as the kernel. A select written as a
+    branch is declared without a value (`float tmpN;`) and assigned on each side: it counts
+    as one select ("? :"), like one written as a conditional expression."""
+    out: dict[str, list[str]] = {}
     for m in re.finditer(rf"static void {prefix}_k_(\w+)\([^)]*\)\n\{{\n(.*?)\n\}}", src, re.S):
-        out[m.group(1)] = [ln.split(" = ", 1)[1].rstrip(";")
-                           for ln in m.group(2).splitlines() if re.match(r"\s*const \w+ tmp\d+ = ", ln)]
+        name = re.sub(r"_part\d+$", "", m.group(1))
+        rhs = out.setdefault(name, [])
+        for ln in m.group(2).splitlines():
+            if re.match(r"\s*const \w+ tmp\d+ = ", ln):
+                rhs.append(ln.split(" = ", 1)[1].rstrip(";"))
+            elif re.fullmatch(r"\s*(float|double) tmp\d+;", ln):
+                rhs.append("branch ? taken : other")
     return out
 
 
