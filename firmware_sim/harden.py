@@ -541,7 +541,7 @@ def run_soak(gen_dir: str | Path, steps: int = 10_000_000, seed: int = 1, glitch
 # ---------------------------------------------------------------- cppcheck
 
 _KERNEL = re.compile(r"^static void (\w+)\(([^\n]*)\)\n\{\n(.*?)\n\}\n", re.S | re.M)
-_PARAM = re.compile(r"^(const )?(float|double|uint32_t|int) (\*)?(\w+)(?:\[(\d+)\])?$")
+_PARAM = re.compile(r"^(const )?(float|double|uint32_t|int|\w+) (\*)?(\w+)(?:\[(\d+)\])?$")
 
 
 def emitted_kernels(text: str, prefix: str) -> list[dict]:
@@ -562,44 +562,100 @@ def emitted_kernels(text: str, prefix: str) -> list[dict]:
     return out
 
 
-_TMP_DEF = re.compile(r"^    const (?:float|double) (tmp\d+) = (.*);$")
-_OUT_ARR = re.compile(r"^    (\w+)\[(\d+)\] = (.*);$")
-_OUT_PTR = re.compile(r"^    \*(\w+) = (.*);$")
-_VOID = re.compile(r"^    \(void\)(\w+);$")
+_TMP_DEF = re.compile(r"^\s*const (?:float|double) (tmp\d+) = (.*);$")
+_OUT_ARR = re.compile(r"^\s*(\w+)\[(\d+)\] = (.*);$")
+_OUT_PTR = re.compile(r"^\s*\*(\w+) = (.*);$")
+_VOID = re.compile(r"^\s*\(void\)(\w+);$")
+_DECL = re.compile(r"^\s*(?:float|double) (tmp\d+);$")              # a select set on both sides of a branch
+_SET = re.compile(r"^\s*(tmp\d+) = (.*);$")
+_IF = re.compile(r"^\s*if \((.*)\) \{$")
+_ELSE = re.compile(r"^\s*\} else \{$")
+_END = re.compile(r"^\s*\}$")
+_LOCAL_ARR = re.compile(r"^\s*(?:float|double) (carry\d+)\[(\d+)\];$")  # values handed between a split kernel's parts
+_CALL = re.compile(r"^\s*(\w+_part\d+)\(([\w, ]*)\);$")
 _INDEX = re.compile(r"\b(\w+)\[(\d+)\]")
 _TMP = re.compile(r"\btmp\d+\b")
+_COMMENT = re.compile(r"^\s*/\*.*\*/$")
 
 
 def kernel_structure_issues(k: dict) -> list[str]:
-    """What cppcheck looks for in straight-line code, checked exactly: every indexed access within
-    the declared size of its array parameter, inputs only read, every temporary defined once before
-    use, every output element written exactly once."""
-    issues, defined, written = [], set(), {}
-    params = k["params"]
+    """What cppcheck looks for in emitted code, checked exactly: every indexed access within the
+    declared size of its array, inputs only read, every temporary defined once before use (a
+    temporary defined inside a branch is visible only there; a select declared before an
+    if/else must be set exactly once on each side, and is defined after it), every output
+    element written exactly once. A split kernel's own local arrays (carry<N>) are bounded by
+    their declaration and filled by its parts (each part is checked as a kernel of its own)."""
+    issues, written = [], {}
+    params = dict(k["params"])
+    scopes = [{"defined": set(), "pending": set(), "set": set()}]   # innermost last
+    sides = []          # per open if: the selects set on its then-side (while in the else-side)
+    arrays = {n: size for n, (_, size, _) in params.items() if size is not None}
+
+    def visible(t):
+        return any(t in s["defined"] for s in scopes)
+
+    def check_expr(expr, where):
+        for name, idx in _INDEX.findall(expr):
+            if name not in arrays:
+                issues.append(f"{where}: {name}[{idx}] is not an array parameter")
+            elif int(idx) >= arrays[name]:
+                issues.append(f"{where}: {name}[{idx}] out of bounds (size {arrays[name]})")
+        for t in _TMP.findall(expr):
+            if not visible(t):
+                issues.append(f"{where}: {t} used before it is defined")
+
     for n, line in enumerate(k["lines"], 1):
         where = f"{k['name']} body line {n}"
-        m = _TMP_DEF.match(line) or _OUT_ARR.match(line) or _OUT_PTR.match(line) or _VOID.match(line)
-        if not m:
-            issues.append(f"{where}: not a straight-line statement: {line.strip()}")
+        if _COMMENT.match(line):
             continue
-        if m.re is _VOID:
+        if m := _VOID.match(line):
             if m.group(1) not in params:
                 issues.append(f"{where}: (void) of unknown name {m.group(1)}")
-            continue
-        expr = m.group(m.re.groups)
-        for name, idx in _INDEX.findall(expr):
-            if name not in params or params[name][1] is None:
-                issues.append(f"{where}: {name}[{idx}] is not an array parameter")
-            elif int(idx) >= params[name][1]:
-                issues.append(f"{where}: {name}[{idx}] out of bounds (size {params[name][1]})")
-        for t in _TMP.findall(expr):
-            if t not in defined:
-                issues.append(f"{where}: {t} used before it is defined")
-        if m.re is _TMP_DEF:
-            if m.group(1) in defined:
+        elif m := _LOCAL_ARR.match(line):
+            arrays[m.group(1)] = int(m.group(2))
+        elif m := _CALL.match(line):
+            for a in (x.strip() for x in m.group(2).split(",") if x.strip()):
+                if a not in params and a not in arrays:
+                    issues.append(f"{where}: {a} passed to {m.group(1)} is neither a parameter nor a local array")
+        elif m := _DECL.match(line):
+            if visible(m.group(1)) or any(m.group(1) in s["pending"] for s in scopes):
                 issues.append(f"{where}: {m.group(1)} defined twice")
-            defined.add(m.group(1))
-        else:
+            scopes[-1]["pending"].add(m.group(1))
+        elif m := _IF.match(line):
+            check_expr(m.group(1), where)
+            scopes.append({"defined": set(), "pending": set(), "set": set()})
+            sides.append(None)
+        elif _ELSE.match(line):
+            if len(scopes) < 2 or sides[-1] is not None:
+                issues.append(f"{where}: else without if")
+                continue
+            sides[-1] = scopes.pop()["set"]
+            scopes.append({"defined": set(), "pending": set(), "set": set()})
+        elif _END.match(line):
+            if len(scopes) < 2 or sides[-1] is None:
+                issues.append(f"{where}: unbalanced block")
+                continue
+            then_set, else_set = sides.pop(), scopes.pop()["set"]
+            if then_set != else_set:
+                issues.append(f"{where}: the sides set different selects: {sorted(then_set ^ else_set)}")
+            for t in then_set & else_set:
+                for s in scopes:
+                    s["pending"].discard(t)
+                scopes[-1]["defined"].add(t)
+        elif m := _TMP_DEF.match(line):
+            check_expr(m.group(2), where)
+            if visible(m.group(1)) or any(m.group(1) in s["pending"] for s in scopes):
+                issues.append(f"{where}: {m.group(1)} defined twice")
+            scopes[-1]["defined"].add(m.group(1))
+        elif m := _SET.match(line):
+            check_expr(m.group(2), where)
+            if len(scopes) < 2 or not any(m.group(1) in s["pending"] for s in scopes[:-1]):
+                issues.append(f"{where}: {m.group(1)} set outside a branch or not declared")
+            elif m.group(1) in scopes[-1]["set"]:
+                issues.append(f"{where}: {m.group(1)} set twice on one side")
+            scopes[-1]["set"].add(m.group(1))
+        elif m := (_OUT_ARR.match(line) or _OUT_PTR.match(line)):
+            check_expr(m.group(m.re.groups), where)
             name = m.group(1)
             key = (name, int(m.group(2))) if m.re is _OUT_ARR else (name, 0)
             p = params.get(name)
@@ -608,6 +664,12 @@ def kernel_structure_issues(k: dict) -> list[str]:
             elif m.re is _OUT_ARR and (p[1] is None or key[1] >= p[1]):
                 issues.append(f"{where}: {name}[{key[1]}] out of bounds")
             written[key] = written.get(key, 0) + 1
+        else:
+            issues.append(f"{where}: not an emitted statement: {line.strip()}")
+    if len(scopes) != 1:
+        issues.append(f"{k['name']}: unclosed block")
+    for t in scopes[0]["pending"]:
+        issues.append(f"{k['name']}: {t} declared but never set")
     for name, (const, size, ptr) in params.items():
         if const or (size is None and not ptr):
             continue

@@ -314,8 +314,13 @@ def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc
             else:
                 cat, expr = "trig", f"pow{F}({a}, {b})"
         elif code == ca.OP_IF_ELSE_ZERO:
-            cat, expr = "cmp", f"({condition(args[0])}) ? {args[1]} : {zero}"
-            sel = (condition(args[0]), args[1], zero)
+            c = condition(args[0])
+            if c.startswith("!(") and c.endswith(")"):      # if_else(c, 0, x): same block as c's selects
+                cat, expr = "cmp", f"({c[2:-1]}) ? {zero} : {args[1]}"
+                sel = (c[2:-1], zero, args[1])
+            else:
+                cat, expr = "cmp", f"({c}) ? {args[1]} : {zero}"
+                sel = (c, args[1], zero)
         elif fast and code in fastmath.OPS:
             h = fastmath.OPS[code]
             helpers.add(h)

@@ -164,7 +164,9 @@ def render(cfg: BuildConfig) -> Generated:
             raise ConfigError(f"kernel {ks.name}: free symbol(s) {', '.join(extra)} are not runtime parameters")
         kernels.append(k)
         kctx.append({"name": ks.name, "doc": ks.doc, "code": k.source(storage="static "),
-                     "ops_text": ", ".join(f"{n} {c}" for n, c in k.ops.items() if c) + f" (total {k.ops_total})"})
+                     "ops_text": ", ".join(f"{n} {c}" for n, c in k.ops.items() if c) + f" (total {k.ops_total})"
+                     + "".join(f"\n *      of which only one side runs: if ({b['condition']}) {sum(b['then'].values())}, "
+                               f"else {sum(b['else'].values())}" for b in k.branches)})
     by_name = {ks.name: k for ks, k in zip(specs, kernels)}
     fast_helpers = sorted({h for k in kernels for h in k.helpers})
 
@@ -298,7 +300,8 @@ def render(cfg: BuildConfig) -> Generated:
                 for (n, s, k, doc), (_, off, _) in zip(INPUT_FIELDS, in_layout)]},
         },
         "kernels": {ks.name: {"c_name": k.name, "ops": k.ops, "total": k.ops_total,
-                              "temporaries": k.n_temporaries, "doc": ks.doc}
+                              "temporaries": k.n_temporaries, "doc": ks.doc,
+                              **({"branches": k.branches} if k.branches else {})}
                     for ks, k in zip(specs, kernels)},
         "step_paths": paths,
     }

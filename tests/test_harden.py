@@ -54,6 +54,25 @@ def test_kernel_structure_check_catches_planted_defects():
     for what in ("a[3] out of bounds", "tmp2 used before it is defined", "output out[1] written 0 times",
                  "output out[0] written 2 times", "writes a, which is not an output", "output piv[0] written 0 times"):
         assert what in text, text
+    # branches: a select declared before if/else, set once on each side, defined after it;
+    # a temporary of one side is not visible after the block
+    good = dict(k, lines=["    const float tmp0 = a[0] * dt;", "    float tmp1;", "    if (tmp0 < a[1]) {",
+                          "        const float tmp2 = tmp0 * tmp0;", "        tmp1 = tmp2;", "    } else {",
+                          "        tmp1 = a[2];", "    }", "    out[0] = tmp1;", "    out[1] = tmp0;", "    *piv = tmp1;"])
+    assert harden.kernel_structure_issues(good) == []
+    bad = dict(good, lines=["    const float tmp0 = a[0] * dt;", "    float tmp1;", "    float tmp3;",
+                            "    if (tmp0 < a[1]) {", "        const float tmp2 = tmp0 * tmp0;", "        tmp1 = tmp2;",
+                            "        tmp1 = tmp0;", "    } else {", "        tmp1 = tmp2;", "        tmp3 = a[0];", "    }",
+                            "    out[0] = tmp2;", "    out[1] = tmp1;", "    *piv = tmp1;"])
+    text = "\n".join(harden.kernel_structure_issues(bad))
+    for what in ("tmp1 set twice on one side", "body line 9: tmp2 used before it is defined",
+                 "the sides set different selects: ['tmp3']", "body line 12: tmp2 used before it is defined",
+                 "tmp3 declared but never set"):
+        assert what in text, text
+    # a split kernel: local carry arrays bounded by their declaration
+    split = dict(k, lines=["    float carry0[2];", "    x_k_demo_part0(a, dt, carry0);", "    out[0] = carry0[1];",
+                           "    out[1] = carry0[2];", "    *piv = carry0[0];"])
+    assert harden.kernel_structure_issues(split) == ["x_k_demo body line 4: carry0[2] out of bounds (size 2)"]
 
 
 @needs_cppcheck

@@ -1388,7 +1388,10 @@ static void adukf_k_sigma_points(const float q_pred[4], const float P_pred[16], 
 }
 
 /* predicted measurement, residual, adaptive per-axis R, P_zz and P_xz (unusable sensors masked out exactly)
- * ops: add 559, mul 480, div 2, sqrt 2, cmp 58 (total 1101) */
+ * ops: add 559, mul 480, div 2, sqrt 2, cmp 58 (total 1101)
+ *      of which only one side runs: if (tmp63 != 0.0f) 171, else 0
+ *      of which only one side runs: if (use_accel != 0.0f) 345, else 0
+ *      of which only one side runs: if (use_mag != 0.0f) 345, else 0 */
 static void adukf_k_innovation_part0(const float z_sigma[54], const float accel[3], float use_accel, float use_mag, float carry0[63])
 {
     const float tmp0 = z_sigma[6] + z_sigma[12];

@@ -87,7 +87,8 @@ static float fast_atan2f(float y, float x)
 }
 
 /* time update (patent steps 1-2)
- * ops: add 306, mul 383, div 32, sqrt 2, trig 2, cmp 12 (total 737) */
+ * ops: add 306, mul 383, div 32, sqrt 2, trig 2, cmp 12 (total 737)
+ *      of which only one side runs: if (tmp11 < 0.01f) 82, else 27 */
 static void mekf_k_predict_part0(const float q[4], const float b[3], const float gyro[3], float dt, float carry0[18])
 {
     const float tmp0 = 0.5f * dt;
@@ -1025,7 +1026,8 @@ static void mekf_k_predict(const float q[4], const float b[3], const float P[36]
 }
 
 /* measurement update with row mask (steps 3-8)
- * ops: add 512, mul 533, div 63, sqrt 8, trig 6, cmp 29 (total 1151) */
+ * ops: add 512, mul 533, div 63, sqrt 8, trig 6, cmp 29 (total 1151)
+ *      of which only one side runs: if (mask[2] != 0.0f) 42, else 0 */
 static void mekf_k_update_part0(const float q[4], const float P[36], const float mask[3], float carry0[44])
 {
     const float tmp0 = q[0] * q[0];

@@ -153,7 +153,8 @@ static void qcf_k_motion_accel(const float q[4], const float gyro[3], const floa
 }
 
 /* accelerometer minus the GPS motion acceleration when ||f| - g| exceeds the threshold
- * ops: add 33, mul 21, sqrt 1, cmp 4 (total 59) */
+ * ops: add 33, mul 21, sqrt 1, cmp 4 (total 59)
+ *      of which only one side runs: if (0.3f < tmp7) 48, else 0 */
 static void qcf_k_gravity_part(const float accel[3], const float q[4], const float motion_accel[3], float accel_gravity[3])
 {
     const float tmp0 = accel[0] * accel[0];
@@ -230,7 +231,8 @@ static void qcf_k_gravity_part(const float accel[3], const float q[4], const flo
 }
 
 /* factored quaternion algorithm (FQA): attitude from accelerometer and magnetometer
- * ops: add 36, mul 36, div 13, sqrt 9, cmp 15 (total 109) */
+ * ops: add 36, mul 36, div 13, sqrt 9, cmp 15 (total 109)
+ *      of which only one side runs: if (tmp12 < 1e-06f) 0, else 7 */
 static void qcf_k_reference(const float accel[3], const float mag[3], float q_ref[4])
 {
     const float tmp0 = accel[0] * accel[0];
@@ -252,40 +254,37 @@ static void qcf_k_reference(const float accel[3], const float mag[3], float q_re
     const float tmp16 = tmp15 / 2.0f;
     const float tmp17 = sqrtf(tmp16);
     const float tmp18 = tmp9 * tmp17;
-    const float tmp19 = (tmp12 > 1e-06f) ? tmp12 : 1e-06f;
+    float tmp19;
     float tmp20;
     if (tmp12 < 1e-06f) {
-        tmp20 = 1.0f;
+        tmp19 = 1.0f;
+        tmp20 = 0.0f;
     } else {
         const float tmp21 = accel[2] / tmp5;
-        const float tmp22 = tmp21 / tmp19;
-        const float tmp23 = -tmp22;
-        tmp20 = tmp23;
+        const float tmp22 = (tmp12 > 1e-06f) ? tmp12 : 1e-06f;
+        const float tmp23 = tmp21 / tmp22;
+        const float tmp24 = -tmp23;
+        const float tmp25 = accel[1] / tmp5;
+        const float tmp26 = tmp25 / tmp22;
+        const float tmp27 = -tmp26;
+        tmp19 = tmp24;
+        tmp20 = tmp27;
     }
-    const float tmp24 = (tmp20 > (-1.0f)) ? tmp20 : (-1.0f);
-    const float tmp25 = (tmp24 < 1.0f) ? tmp24 : 1.0f;
-    const float tmp26 = 1.0f + tmp25;
-    const float tmp27 = tmp26 / 2.0f;
-    const float tmp28 = sqrtf(tmp27);
-    const float tmp29 = tmp18 * tmp28;
-    const float tmp30 = tmp29 * tmp29;
-    float tmp31;
-    if (!(tmp12 < 1e-06f)) {
-        const float tmp32 = accel[1] / tmp5;
-        const float tmp33 = tmp32 / tmp19;
-        const float tmp34 = -tmp33;
-        tmp31 = tmp34;
-    } else {
-        tmp31 = 0.0f;
-    }
-    const float tmp35 = (tmp31 < 0.0f) ? (-1.0f) : 1.0f;
-    const float tmp36 = 1.0f - tmp25;
+    const float tmp28 = (tmp19 > (-1.0f)) ? tmp19 : (-1.0f);
+    const float tmp29 = (tmp28 < 1.0f) ? tmp28 : 1.0f;
+    const float tmp30 = 1.0f + tmp29;
+    const float tmp31 = tmp30 / 2.0f;
+    const float tmp32 = sqrtf(tmp31);
+    const float tmp33 = tmp18 * tmp32;
+    const float tmp34 = tmp33 * tmp33;
+    const float tmp35 = (tmp20 < 0.0f) ? (-1.0f) : 1.0f;
+    const float tmp36 = 1.0f - tmp29;
     const float tmp37 = tmp36 / 2.0f;
     const float tmp38 = sqrtf(tmp37);
     const float tmp39 = tmp35 * tmp38;
     const float tmp40 = tmp18 * tmp39;
     const float tmp41 = tmp40 * tmp40;
-    const float tmp42 = tmp30 + tmp41;
+    const float tmp42 = tmp34 + tmp41;
     const float tmp43 = tmp42 + tmp42;
     const float tmp44 = 1.0f - tmp43;
     const float tmp45 = tmp44 * mag[0];
@@ -293,14 +292,14 @@ static void qcf_k_reference(const float accel[3], const float mag[3], float q_re
     const float tmp47 = tmp46 / 2.0f;
     const float tmp48 = sqrtf(tmp47);
     const float tmp49 = tmp48 * tmp39;
-    const float tmp50 = tmp49 * tmp29;
-    const float tmp51 = tmp48 * tmp28;
+    const float tmp50 = tmp49 * tmp33;
+    const float tmp51 = tmp48 * tmp32;
     const float tmp52 = tmp51 * tmp40;
     const float tmp53 = tmp50 + tmp52;
     const float tmp54 = tmp53 + tmp53;
     const float tmp55 = tmp54 * mag[1];
     const float tmp56 = tmp45 + tmp55;
-    const float tmp57 = tmp51 * tmp29;
+    const float tmp57 = tmp51 * tmp33;
     const float tmp58 = tmp49 * tmp40;
     const float tmp59 = tmp57 - tmp58;
     const float tmp60 = tmp59 + tmp59;
@@ -316,7 +315,7 @@ static void qcf_k_reference(const float accel[3], const float mag[3], float q_re
     const float tmp70 = 1.0f - tmp69;
     const float tmp71 = tmp70 * mag[1];
     const float tmp72 = tmp66 + tmp71;
-    const float tmp73 = tmp29 * tmp40;
+    const float tmp73 = tmp33 * tmp40;
     const float tmp74 = tmp51 * tmp49;
     const float tmp75 = tmp73 + tmp74;
     const float tmp76 = -tmp75;
@@ -344,9 +343,9 @@ static void qcf_k_reference(const float accel[3], const float mag[3], float q_re
     const float tmp98 = tmp97 * tmp40;
     const float tmp99 = tmp90 + tmp98;
     const float tmp100 = tmp89 * tmp49;
-    const float tmp101 = tmp97 * tmp29;
+    const float tmp101 = tmp97 * tmp33;
     const float tmp102 = tmp100 - tmp101;
-    const float tmp103 = tmp89 * tmp29;
+    const float tmp103 = tmp89 * tmp33;
     const float tmp104 = tmp97 * tmp49;
     const float tmp105 = tmp103 + tmp104;
     const float tmp106 = tmp97 * tmp51;
@@ -359,7 +358,8 @@ static void qcf_k_reference(const float accel[3], const float mag[3], float q_re
 }
 
 /* FQA tilt with the estimate's yaw, for steps without a magnetometer sample
- * ops: add 18, mul 22, div 10, sqrt 6, trig 3, cmp 11 (total 70) */
+ * ops: add 18, mul 22, div 10, sqrt 6, trig 3, cmp 11 (total 70)
+ *      of which only one side runs: if (tmp23 < 1e-06f) 0, else 7 */
 static void qcf_k_reference_tilt(const float accel[3], const float q[4], float q_ref[4])
 {
     const float tmp0 = q[0] * q[3];
@@ -391,55 +391,52 @@ static void qcf_k_reference_tilt(const float accel[3], const float q[4], float q
     const float tmp26 = 1.0f + tmp25;
     const float tmp27 = tmp26 / 2.0f;
     const float tmp28 = sqrtf(tmp27);
-    const float tmp29 = (tmp23 > 1e-06f) ? tmp23 : 1e-06f;
+    float tmp29;
     float tmp30;
     if (tmp23 < 1e-06f) {
-        tmp30 = 1.0f;
+        tmp29 = 1.0f;
+        tmp30 = 0.0f;
     } else {
         const float tmp31 = accel[2] / tmp17;
-        const float tmp32 = tmp31 / tmp29;
-        const float tmp33 = -tmp32;
-        tmp30 = tmp33;
+        const float tmp32 = (tmp23 > 1e-06f) ? tmp23 : 1e-06f;
+        const float tmp33 = tmp31 / tmp32;
+        const float tmp34 = -tmp33;
+        const float tmp35 = accel[1] / tmp17;
+        const float tmp36 = tmp35 / tmp32;
+        const float tmp37 = -tmp36;
+        tmp29 = tmp34;
+        tmp30 = tmp37;
     }
-    const float tmp34 = (tmp30 > (-1.0f)) ? tmp30 : (-1.0f);
-    const float tmp35 = (tmp34 < 1.0f) ? tmp34 : 1.0f;
-    const float tmp36 = 1.0f + tmp35;
-    const float tmp37 = tmp36 / 2.0f;
-    const float tmp38 = sqrtf(tmp37);
-    const float tmp39 = tmp28 * tmp38;
-    const float tmp40 = tmp11 * tmp39;
-    const float tmp41 = fast_sinf(tmp10);
-    const float tmp42 = (tmp20 < 0.0f) ? (-1.0f) : 1.0f;
-    const float tmp43 = 1.0f - tmp25;
-    const float tmp44 = tmp43 / 2.0f;
-    const float tmp45 = sqrtf(tmp44);
-    const float tmp46 = tmp42 * tmp45;
-    float tmp47;
-    if (!(tmp23 < 1e-06f)) {
-        const float tmp48 = accel[1] / tmp17;
-        const float tmp49 = tmp48 / tmp29;
-        const float tmp50 = -tmp49;
-        tmp47 = tmp50;
-    } else {
-        tmp47 = 0.0f;
-    }
-    const float tmp51 = (tmp47 < 0.0f) ? (-1.0f) : 1.0f;
-    const float tmp52 = 1.0f - tmp35;
+    const float tmp38 = (tmp29 > (-1.0f)) ? tmp29 : (-1.0f);
+    const float tmp39 = (tmp38 < 1.0f) ? tmp38 : 1.0f;
+    const float tmp40 = 1.0f + tmp39;
+    const float tmp41 = tmp40 / 2.0f;
+    const float tmp42 = sqrtf(tmp41);
+    const float tmp43 = tmp28 * tmp42;
+    const float tmp44 = tmp11 * tmp43;
+    const float tmp45 = fast_sinf(tmp10);
+    const float tmp46 = (tmp20 < 0.0f) ? (-1.0f) : 1.0f;
+    const float tmp47 = 1.0f - tmp25;
+    const float tmp48 = tmp47 / 2.0f;
+    const float tmp49 = sqrtf(tmp48);
+    const float tmp50 = tmp46 * tmp49;
+    const float tmp51 = (tmp30 < 0.0f) ? (-1.0f) : 1.0f;
+    const float tmp52 = 1.0f - tmp39;
     const float tmp53 = tmp52 / 2.0f;
     const float tmp54 = sqrtf(tmp53);
     const float tmp55 = tmp51 * tmp54;
-    const float tmp56 = tmp46 * tmp55;
-    const float tmp57 = tmp41 * tmp56;
-    const float tmp58 = tmp40 + tmp57;
+    const float tmp56 = tmp50 * tmp55;
+    const float tmp57 = tmp45 * tmp56;
+    const float tmp58 = tmp44 + tmp57;
     const float tmp59 = tmp28 * tmp55;
     const float tmp60 = tmp11 * tmp59;
-    const float tmp61 = tmp46 * tmp38;
-    const float tmp62 = tmp41 * tmp61;
+    const float tmp61 = tmp50 * tmp42;
+    const float tmp62 = tmp45 * tmp61;
     const float tmp63 = tmp60 - tmp62;
     const float tmp64 = tmp11 * tmp61;
-    const float tmp65 = tmp41 * tmp59;
+    const float tmp65 = tmp45 * tmp59;
     const float tmp66 = tmp64 + tmp65;
-    const float tmp67 = tmp41 * tmp39;
+    const float tmp67 = tmp45 * tmp43;
     const float tmp68 = tmp11 * tmp56;
     const float tmp69 = tmp67 - tmp68;
     q_ref[0] = tmp58;
@@ -449,7 +446,8 @@ static void qcf_k_reference_tilt(const float accel[3], const float q[4], float q
 }
 
 /* PI feedback on the error quaternion q^-1 (x) q_ref and integration (eqs. 13, 14, 9)
- * ops: add 49, mul 63, div 5, sqrt 2, trig 2, cmp 6 (total 127) */
+ * ops: add 49, mul 63, div 5, sqrt 2, trig 2, cmp 6 (total 127)
+ *      of which only one side runs: if (tmp51 < 0.01f) 16, else 5 */
 static void qcf_k_update(const float q[4], const float gyro_bias[3], const float gyro[3], const float q_ref[4], float dt, float q_new[4], float gyro_bias_new[3])
 {
     const float tmp0 = 0.5f * dt;
@@ -596,7 +594,8 @@ static void qcf_k_update(const float q[4], const float gyro_bias[3], const float
 }
 
 /* gyro-only integration with the bias removed (no aiding this step)
- * ops: add 28, mul 38, div 5, sqrt 2, trig 2, cmp 3 (total 78) */
+ * ops: add 28, mul 38, div 5, sqrt 2, trig 2, cmp 3 (total 78)
+ *      of which only one side runs: if (tmp11 < 0.01f) 16, else 5 */
 static void qcf_k_propagate(const float q[4], const float gyro_bias[3], const float gyro[3], float dt, float q_new[4])
 {
     const float tmp0 = 0.5f * dt;
