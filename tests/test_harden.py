@@ -193,9 +193,9 @@ def test_fuzz_harness_detects_state_change_on_refusal(tmp_path):
     shutil.copy(src / "manifest.json", tmp_path / "manifest.json")
     c = tmp_path / man["files"]["source"]
     text = c.read_text()
-    old = "    if (dt > QCF_DT_MAX) {\n"
+    old = "    if (!(dt > 0.0f && dt <= QCF_DT_MAX)) {\n"        # the refusal of a bad dt
     assert old in text
-    c.write_text(text.replace(old, "    if (dt > QCF_DT_MAX) {\n        s->gps_age = 0.0f;\n", 1))
+    c.write_text(text.replace(old, old + "        s->gps_age = 0.0f;\n", 1))
     data = b"\x00" + harden.make_record(man, dt=1.0)
     rc, err = harden.replay(tmp_path, data)
     assert rc != 0 and "refused step changed the state" in err, err[-2000:]
