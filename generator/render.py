@@ -263,7 +263,7 @@ def render(cfg: BuildConfig) -> Generated:
             "state": {"size": state_bytes, "fields": [
                 {"name": f.name, "type": f.ctype, "count": f.size, "offset": off, "doc": f.doc}
                 for f, (_, off, _) in zip(fields, layout)]
-                + ([{"name": "params", "type": "params", "count": 1, "offset": layout[-1][1],
+                + ([{"name": "params", "type": "params", "count": 1, "offset": layout[-1][1], "size": params_bytes,
                      "doc": f"runtime parameters ({prefix}_params)"}] if runtime else [])},
             **({"params": {"size": params_bytes, "fields": [
                 {"name": n, "type": "real", "count": 1, "offset": off, "doc": spec.params[n].doc}
