@@ -13,7 +13,7 @@
  *     every IMU sample: fill a qcf_input (set a VALID bit only for sensors that
  *     delivered a new sample), then qcf_status s = qcf_step(&st, &in, dt);
  *     qcf_euler(&st, rpy);
- * No heap, no recursion; RAM is the state struct (136 bytes with the usual ABI).
+ * No heap, no recursion; RAM is the state struct (200 bytes with the usual ABI).
  */
 #ifndef QCF_H
 #define QCF_H
@@ -40,7 +40,23 @@ extern "C" {
 #define QCF_MOTION_ACCEL_THRESHOLD 0.3f    /* compensate only when ||f| - g| exceeds this (section 3.2) [m/s^2] */
 /* QCF_MOTION_ACCEL_MODEL = centripetal motion acceleration removed from the accelerometer: 'differentiator' = the paper's eq. 29 (lags 3 GPS samples, 0.6 s at 5 Hz); 'centripetal' = R(q)(w - b) x v_gps, known at once from the gyro and the latest GPS velocity */
 #define QCF_DECLINATION 0.0f               /* magnetic declination added to the FQA heading (true north = magnetic north + declination) [rad] */
-#define QCF_FAITHFUL 0                     /* paper exactly: start at q = [1,0,0,0] and use eq. 29's coefficients as printed (ramp gain 0.985); off: start from the first FQA attitude, coefficients scaled to unit ramp gain */
+#define QCF_FAITHFUL 0                     /* paper exactly: start at q = [1,0,0,0], FQA reference, eq. 29's coefficients as printed (ramp gain 0.985), none of the conditioning below; off (product): start from the first accelerometer tilt (+ magnetometer heading), coefficients scaled to unit ramp gain, and the conditioning below */
+#define QCF_CONDITIONING 1                 /* the conditioning below (NED accelerometer low-pass, vector tilt and heading-only magnetometer corrections, bias gate, rest detection, field check, weighted centripetal term); false: the PI filter with the FQA reference as before (ignored when faithful) */
+#define QCF_ACCEL_TAU 1.0f                 /* time constant of the NED-frame low-pass of the accelerometer (R(q) f) that the tilt reference is built from (VQF's idea: motion acceleration averages out, gravity does not); 0 = off [s] */
+#define QCF_BIAS_ACCEL_GATE 1.0f           /* the bias integral runs only in steps with ||f| - g| below this (frozen while the accelerometer is distrusted: no wind-up under sustained acceleration) [m/s^2] */
+#define QCF_REST_TIME 1.5f                 /* rest detection: gyro and accelerometer steady this long -> the gyro bias is learned from the low-passed gyro (0 = off) [s] */
+#define QCF_REST_TAU 0.5f                  /* rest detection: time constant of the low-passes the samples are compared with [s] */
+#define QCF_REST_GYRO_TOL 0.035f           /* rest detection: largest |gyro - low-passed gyro|, and largest |low-passed gyro| (a steady turn is not rest) [rad/s] */
+#define QCF_REST_ACCEL_TOL 0.5f            /* rest detection: largest |accel - low-passed accel| [m/s^2] */
+#define QCF_REST_BIAS_TAU 1.0f             /* at rest the bias follows the low-passed gyro with this time constant [s] */
+#define QCF_MAG_REJECTION 1                /* check the magnetometer's norm and dip against a reference learned at the first sample; a disturbed sample does not correct heading (MAG_DISTURBED) */
+#define QCF_MAG_NORM_TOL 0.1f              /* mag rejection: largest relative deviation of |m| from the reference norm [1] */
+#define QCF_MAG_DIP_TOL 0.1f               /* mag rejection: largest deviation of sin(dip) from the reference [1] */
+#define QCF_MAG_WARMUP 10.0f               /* mag rejection: every sample of the first this-many seconds is accepted and the reference is their mean (the tilt, hence the dip, is still settling at the first sample) [s] */
+#define QCF_MAG_REF_TAU 20.0f              /* mag rejection: time constant with which the reference follows accepted samples [s] */
+#define QCF_MAG_NEW_TIME 20.0f             /* mag rejection: a field rejected this long becomes the new reference (a rejection cannot hold forever) [s] */
+#define QCF_CENTRIPETAL_ALIGN 0.7f         /* centripetal model: the term is weighted by how well the GPS velocity lies along body x (1 aligned, 0 at this cosine or less): a velocity turns with the body only when the body flies along it (fixed-wing), not when a multirotor yaws while moving; 1 = unweighted [1] */
+#define QCF_SPAN_MAX 0.1f                  /* a sample weighs for the time since its sensor's previous sample (so a 100 Hz magnetometer corrects as much per second as a 400 Hz one), at most this [s] */
 
 /* Input validity bits: set a bit only when that sensor delivered a new sample this step. */
 #define QCF_VALID_GYRO (1u << 0)
@@ -64,6 +80,8 @@ typedef uint32_t qcf_status;
 #define QCF_ACCEL_RANGE     (1u << 10) /* an accelerometer component beyond accel_max; its correction skipped */
 #define QCF_MAG_RANGE       (1u << 11) /* a magnetometer component beyond mag_max; its correction skipped */
 #define QCF_GPS_RANGE       (1u << 12) /* a GPS velocity component beyond gps_vel_max; the sample is ignored */
+#define QCF_MAG_DISTURBED   (1u << 16) /* magnetometer norm or dip off its reference: heading not corrected this step */
+#define QCF_AT_REST         (1u << 17) /* at rest: the gyro bias follows the low-passed gyro */
 #define QCF_REFUSED_MASK (QCF_DT_INVALID | QCF_DT_TOO_LARGE | QCF_GYRO_MISSING | QCF_GYRO_NONFINITE | QCF_GYRO_RANGE)
 
 typedef struct {
@@ -73,7 +91,16 @@ typedef struct {
     float motion_accel[3];  /* latest GPS-derived motion acceleration a_{k-3}, NED, m/s^2 */
     float gps_age;          /* time since the last GPS sample, s */
     uint32_t gps_count;     /* GPS samples in the history (saturates at 7) */
-    uint32_t initialised;   /* 1 once the attitude has been initialised */
+    uint32_t initialised;   /* 1 once the attitude has been initialised (tilt only), 2 with heading */
+    float accel_lp[3];      /* low-passed specific force in NED, m/s^2 */
+    float accel_age;        /* time since the last accelerometer sample, s */
+    float mag_age;          /* time since the last magnetometer sample, s */
+    float rest_gyro_lp[3];  /* rest detection: low-passed gyro, rad/s */
+    float rest_accel_lp[3]; /* rest detection: low-passed accelerometer, m/s^2 */
+    float rest_time;        /* rest detection: steady time so far, s */
+    float mag_ref[2];       /* field check reference: |m| and sin(dip) (|m| = 0: not learned) */
+    float mag_dist_time;    /* field check: time the field has been rejected, s */
+    float mag_learn_time;   /* field check: time since the first magnetometer sample (capped), s */
 } qcf_state;
 
 typedef struct {
