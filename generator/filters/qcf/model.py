@@ -26,9 +26,9 @@ Product conditioning (faithful = false; issue 10; building blocks in generator/s
   heading        H = rotation about NED z taking the horizontal part of R(T q̂) m to north +
                  declination, only for a magnetometer sample whose norm and dip (against
                  R(T q̂)ᵀ[0,0,1]) pass the field check
-  error          e = R(q̂)ᵀ (s_a vec(T) + s_m vec(H)) / dt  (the vector part of q̂⁻¹ T H q̂ to
-                 first order, each part weighted by the time s its sensor's sample stands for)
-  PI feedback    β = ω - b̂ + kp e ; b̂ <- b̂ - ki e dt only while ||f| - g| < bias_accel_gate;
+  error          e dt = R(q̂)ᵀ (s_a vec(T) + s_m vec(H))  (the vector part of q̂⁻¹ T H q̂ to first
+                 order, each part weighted by the time s its sensor's sample stands for)
+  PI feedback    β dt = (ω - b̂) dt + kp e dt ; b̂ <- b̂ - ki e dt only while ||f| - g| < bias_accel_gate;
                  at rest (aiding.rest_detector) b̂ follows the low-passed gyro instead
   integration    as eq. 9
 """
@@ -184,11 +184,11 @@ class Model(FilterModel):
         down = -a_lp * ca.sqrt(1 / ca.sumsqr(a_lp))              # measured down, NED (through q̂)
         T = aiding.tilt_correction(down)
         H = aiding.heading_correction(quat.qmul(T, q), m, decl)
-        e_n = (span_a * T[1:] + span_m * H[1:]) / dt
-        e = quat.rotate_inv(q, e_n)
-        beta = gyro - bias + p["kp"] * e
+        # e dt, the error integrated over the step (no division by dt: a tiny dt must not blow up)
+        e_dt = quat.rotate_inv(q, span_a * T[1:] + span_m * H[1:])
+        rotation = (gyro - bias) * dt + p["kp"] * e_dt          # β dt
         trusted = ca.logic_and(use_a, ca.fabs(ca.sqrt(ca.sumsqr(f)) - G0) < p["bias_accel_gate"])
-        bias_pi = ca.if_else(trusted, bias - p["ki"] * e * dt, bias)
+        bias_pi = ca.if_else(trusted, bias - p["ki"] * e_dt, bias)
         if p["rest_time"] > 0:
             bias_new = ca.if_else(at_rest, aiding.lowpass(bias, g_lp, span_a, p["rest_bias_tau"]), bias_pi)
         else:
@@ -210,7 +210,7 @@ class Model(FilterModel):
                                                        "span_mag": span_m, "use_accel": use_a, "accel": f,
                                                        **({"at_rest": at_rest, "rest_gyro_lp": g_lp}
                                                           if p["rest_time"] > 0 else {})},
-                                           {"q_new": quat.integrate(q, beta, dt), "gyro_bias_new": bias_new}),
+                                           {"q_new": quat.integrate(q, rotation, 1.0), "gyro_bias_new": bias_new}),
                        "tilt (low-passed accelerometer) and heading (magnetometer) corrections as PI feedback, "
                        "bias integral gated, bias at rest from the low-passed gyro, integration (eq. 9)"),
         ]

@@ -241,14 +241,14 @@ class Reference:
             if heading_ok:
                 H = heading_correction(nq.qmul(T, self.q), mag, p["declination"])
                 e_n = e_n + self.mag_age * H[1:]
-            e = nq.rotmat(self.q).T @ (e_n / dt)
-            beta = gyro - self.bias + p["kp"] * e
+            e_dt = nq.rotmat(self.q).T @ e_n                 # error integrated over the step
+            theta = (gyro - self.bias) * dt + p["kp"] * e_dt   # rotation of the step, β dt
             if at_rest:
                 s = self.accel_age
                 self.bias = self.bias + s / (p["rest_bias_tau"] + s) * (self.rest_gyro_lp - self.bias)
             elif use_accel and abs(np.linalg.norm(f_raw) - G0) < p["bias_accel_gate"]:
-                self.bias = self.bias - p["ki"] * e * dt
-            self.q = integrate(self.q, beta, dt)
+                self.bias = self.bias - p["ki"] * e_dt
+            self.q = integrate(self.q, theta, 1.0)
         else:
             self.q = integrate(self.q, gyro - self.bias, dt)
         if use_accel:
