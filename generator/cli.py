@@ -88,6 +88,8 @@ def cmd_list(args) -> int:
         spec = filters.load(name)
         print(f"{name}: {spec.title}")
         print(f"  source: {spec.source}")
+        if spec.origin != "built-in":
+            print(f"  folder: {spec.folder} ({spec.origin})")
         width = max(len(n) for n in spec.params)
         for pname, p in spec.params.items():
             unit = f" [{p.unit}]" if p.unit else ""

@@ -110,3 +110,19 @@ def test_a_folder_imports_its_own_helpers_relatively(tmp_path):
     fn = {k.name: k.function for k in spec.model().kernels()}["correct"]
     assert spec.model_class().__module__.endswith(".model") and "KP_SCALE" in model.read_text()
     assert fn.n_instructions() > 0
+
+
+def test_filter_table_keys_are_checked_and_reach_the_spec(tmp_path):
+    assert cli.main(["new", "keyed", "-o", str(tmp_path)]) == 0
+    toml = tmp_path / "keyed" / "defaults.toml"
+    text = toml.read_text()
+    toml.write_text(text.replace('sensors = ["accel"]', 'sensors = ["accel"]\nscenario = "turntable"\n'
+                                                        'stochastic = "it resamples"'))
+    spec = filters.load(str(tmp_path / "keyed"))
+    assert (spec.scenario, spec.stochastic) == ("turntable", "it resamples")
+    assert filters.load("qcf").scenario == "fixedwing_gps" and filters.load("cpf").stochastic
+    toml.write_text(text.replace('sensors = ["accel"]', 'sensors = ["accel"]\nscenarios = "turntable"'))
+    filters._BY_PATH.pop("keyed", None)
+    filters._load.cache_clear()
+    with pytest.raises(ConfigError, match=r"unknown \[filter\] key\(s\) scenarios; allowed: title"):
+        filters.load(str(tmp_path / "keyed"))

@@ -33,6 +33,15 @@ HERE = Path(__file__).parent
 PATH_ENV = "AHRSGEN_FILTER_PATH"
 ENTRY_POINT_GROUP = "ahrsgen.filters"
 FOLDER_FILES = ("defaults.toml", "model.py", "reference.py", "step.c.j2")
+# defaults.toml [filter] keys
+FILTER_KEYS = {
+    "title": "one line",
+    "source": "paper, report or notes",
+    "sensors": 'aiding sensors the step reads, of "accel", "mag", "gps"',
+    "scenario": "scenario of the source experiment: what `ahrsgen target` runs by default",
+    "stochastic": "set (to the reason) for a filter whose run is random by design (a particle filter): "
+                  "`ahrsgen target` then judges a real-libm run by accuracy, not trajectory",
+}
 
 
 @dataclass(frozen=True)
@@ -52,6 +61,8 @@ class FilterSpec:
     params: dict[str, Param]     # every parameter, common input checks included
     package: str                 # the module package model.py and reference.py are imported from
     origin: str = "built-in"
+    scenario: str = "fixedwing_gps"  # the source experiment's scenario ([filter] scenario)
+    stochastic: str = ""             # why its runs are random by design, if they are ([filter] stochastic)
 
     def model_class(self):
         return importlib.import_module(f"{self.package}.model").Model
@@ -186,6 +197,10 @@ def _load(loc: Location) -> FilterSpec:
     except tomllib.TOMLDecodeError as e:
         raise ConfigError(f"{folder / 'defaults.toml'}: malformed TOML: {e}") from None
     info = data.get("filter", {})
+    unknown = set(info) - set(FILTER_KEYS)
+    if unknown:
+        raise ConfigError(f"{folder / 'defaults.toml'}: unknown [filter] key(s) {', '.join(sorted(unknown))}; "
+                          f"allowed: {', '.join(FILTER_KEYS)}")
     sensors = info.get("sensors", ["accel", "mag", "gps"])
     params: dict[str, Param] = {}
     for key in [None, *sensors]:
@@ -201,7 +216,8 @@ def _load(loc: Location) -> FilterSpec:
     for p in params.values():
         p.coerce(p.default, f"default in {name}/defaults.toml")
     package = loc.package or _folder_package(name, folder)
-    return FilterSpec(name, info.get("title", name), info.get("source", ""), folder, params, package, loc.origin)
+    return FilterSpec(name, info.get("title", name), info.get("source", ""), folder, params, package, loc.origin,
+                      info.get("scenario", "fixedwing_gps"), info.get("stochastic", ""))
 
 
 def _folder_package(name: str, folder: Path) -> str:
