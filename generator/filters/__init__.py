@@ -143,6 +143,12 @@ def names() -> list[str]:
     return sorted(_found(given_paths=False))
 
 
+def known(name: str) -> Location | None:
+    """Where a name is defined (built-in, search path, entry point), if it is."""
+    locs = _found(given_paths=False).get(name)
+    return locs[0] if locs else None
+
+
 def is_path(ref: str) -> bool:
     """A filter argument is a folder path when it has a '/' in it (or is '.' or '..')."""
     return "/" in ref or os.sep in ref or ref in (".", "..")
