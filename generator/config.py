@@ -91,6 +91,10 @@ def resolve(filter_name: str, config_file: str | Path | None = None, sets: list[
     precision = precision or file_precision or "float"
     if precision not in PRECISIONS:
         raise ConfigError(f"precision {precision!r} must be one of {', '.join(PRECISIONS)}")
+    if not (prefix or file_prefix) and not (filter_name.isidentifier() and filter_name.isascii()
+                                            and filter_name.lower() == filter_name):
+        raise ConfigError(f"filter '{filter_name}': its name is not a lower-case C identifier, so it cannot be "
+                          f"the C prefix; give one with --prefix (or rename the folder)")
     prefix = _check_prefix(prefix or file_prefix or filter_name)
     if runtime is None:
         runtime, source = file_data.get("runtime", []), str(config_file)

@@ -100,6 +100,7 @@ def _same(a: Path, b: Path) -> bool:
 # Filters given by path in this process: later look-ups by name (a BuildConfig keeps the name)
 # find them too.
 _BY_PATH: dict[str, Location] = {}
+_BROKEN: dict[str, str] = {}      # entry points that do not resolve: name -> why
 
 
 def _found(given_paths: bool = True) -> dict[str, list[Location]]:
@@ -130,7 +131,9 @@ def _found(given_paths: bool = True) -> dict[str, list[Location]]:
         except (ImportError, ValueError):
             spec = None
         if spec is None or not spec.submodule_search_locations:
-            raise ConfigError(f"{where}: '{ep.value}' is not an importable package (a filter folder with __init__.py)")
+            # a broken package must not break the other filters: the error comes when it is asked for
+            _BROKEN[ep.name] = f"{where}: '{ep.value}' is not an importable package (a filter folder)"
+            continue
         add(Location(ep.name, Path(list(spec.submodule_search_locations)[0]), where, ep.value))
     for loc in _BY_PATH.values() if given_paths else ():
         add(loc)
@@ -175,6 +178,8 @@ def _locate(ref: str) -> Location:
         _BY_PATH[folder.name] = loc
         return loc
     found = _found()
+    if ref not in found and ref in _BROKEN:
+        raise ConfigError(_BROKEN[ref])
     if ref not in found:
         raise ConfigError(f"unknown filter '{ref}' (known: {', '.join(names())}; "
                           f"or give a filter folder's path, e.g. ./{ref})")
