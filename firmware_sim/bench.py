@@ -317,14 +317,15 @@ def total_error_series(q_est, log, heading, max_points=2000):
 # ahrsgen run
 
 def run_on_log(filter_name: str, log_path: str, config_file=None, sets=(), precision="float",
-               plot=None, csv=None, exe=False, out=None) -> dict:
-    """Run one generated filter over a log file; score it where the log has a reference."""
+               plot=None, csv=None, exe=False, out=None, runtime=None) -> dict:
+    """Run one generated filter over a log file; score it where the log has a reference.
+    runtime: parameters built as runtime parameters (their values set through set_params)."""
     from generator import config
     out = out or sys.stdout
     log = readers.read_log(log_path)
     user = config.resolve(filter_name, config_file, list(sets), precision, None).overrides
     extra, applied = site_sets(filter_name, log.meta, set(user))
-    cfg = config.resolve(filter_name, config_file, list(sets) + extra, precision, None)
+    cfg = config.resolve(filter_name, config_file, list(sets) + extra, precision, None, runtime=runtime)
     hf = host.build(cfg)
     heading = filter_heading(filter_name, sets, config_file)
     if heading == "mag" and applied:
@@ -867,7 +868,7 @@ def _cmd_run(args) -> int:
     if not Path(args.log).exists():
         raise ConfigError(f"log file {args.log} does not exist")
     res = run_on_log(args.filter, args.log, args.config, args.set, args.precision or "float",
-                     plot=args.plot, csv=args.csv, exe=args.exe)
+                     plot=args.plot, csv=args.csv, exe=args.exe, runtime=args.runtime)
     if args.export_log:
         from generator import config
         write_harness_log(readers.read_log(args.log), args.export_log)
@@ -918,6 +919,8 @@ def register_cli(sub) -> None:
     p.add_argument("--config", metavar="FILE.toml", help="TOML config (prefix, precision, [params])")
     p.add_argument("--set", metavar="NAME=VALUE", action="append", default=[], help="override a parameter")
     p.add_argument("--precision", choices=["float", "double"], help="C floating-point type (default float)")
+    p.add_argument("--runtime", metavar="NAME,NAME", help="build these parameters as runtime parameters "
+                                                          "(same figures; see 'generate --runtime')")
     p.add_argument("--plot", metavar="OUT.png", help="plot roll/pitch/yaw beside the log's reference")
     p.add_argument("--csv", metavar="OUT.csv", help="write t, q, Euler angles (deg), status (and the reference)")
     p.add_argument("--exe", action="store_true",
