@@ -55,14 +55,18 @@ def nonneg_float_arg(text: str) -> float:
 
 
 def positive_float_arg(text: str) -> float:
-    v = nonneg_float_arg(text)
+    try:
+        v = nonneg_float_arg(text)
+    except argparse.ArgumentTypeError:
+        v = 0.0
     if v == 0:
-        raise argparse.ArgumentTypeError(f"expected a number > 0, got {text!r}")
+        raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text!r}")
     return v
 
 
 def _add_build_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("filter", help="filter name (see 'ahrsgen list') or a filter folder's path")
+    p.add_argument("filter", nargs="?", help="filter name (see 'ahrsgen list') or a filter folder's path; may be "
+                                            "left out when the --config file names it (filter = \"...\")")
     p.add_argument("--config", metavar="FILE.toml", help="TOML file: prefix, precision and a [params] table")
     p.add_argument("--set", metavar="NAME=VALUE", action="append", default=[],
                    help="override one parameter (repeatable); wins over --config")
@@ -76,6 +80,8 @@ def _add_build_options(p: argparse.ArgumentParser) -> None:
 
 def _resolve(args):
     from generator import config
+    if args.filter is None:
+        args.filter = config.filter_of(args.config)
     return config.resolve(args.filter, args.config, args.set, args.precision, args.prefix, args.preset,
                           getattr(args, "runtime", None))
 
@@ -110,9 +116,10 @@ def cmd_list(args) -> int:
 
 def cmd_generate(args) -> int:
     from generator import render
+    from generator.fileio import check_output_dir
+    out = check_output_dir(args.output, "-o")
     cfg = _resolve(args)
     gen = render.render(cfg)
-    out = Path(args.output)
     paths = render.write(gen, out)
     for p in paths:
         print(p)
@@ -127,14 +134,15 @@ def cmd_validate(args) -> int:
     import numpy as np
     from firmware_sim import host, metrics, scenarios
     cfg = _resolve(args)
-    opts = {}
-    for item in args.scenario_opt:
-        k, _, v = item.partition("=")
-        opts[k] = float(v) if v.replace(".", "", 1).replace("-", "", 1).isdigit() else v
     try:
+        opts = scenarios.parse_options(args.scenario, args.scenario_opt)
         log = scenarios.make(args.scenario, seed=args.seed, **opts)
     except KeyError as e:
         raise ConfigError(str(e.args[0])) from None
+    except ConfigError:
+        raise
+    except ValueError as e:          # e.g. a duration shorter than one step
+        raise ConfigError(f"scenario {args.scenario}: {e}") from None
     site = scenario_site_params(cfg, log)
     if site:
         from generator import config as _config
@@ -273,10 +281,28 @@ def _filter_names(args) -> None:
         args.filters = [filters.load(f).name for f in args.filters]
 
 
+# Options whose values start with '-' (argparse would take '-O2' for an option): '--opt -O2' is
+# passed on as '--opt=-O2', so the command works as the README and --help write it.
+_DASH_VALUE_OPTIONS = ("--opt",)
+
+
+def _join_dash_values(argv: list[str]) -> list[str]:
+    out, i = [], 0
+    while i < len(argv):
+        a = argv[i]
+        if a in _DASH_VALUE_OPTIONS and i + 1 < len(argv) and argv[i + 1].startswith("-O"):
+            out.append(f"{a}={argv[i + 1]}")
+            i += 2
+            continue
+        out.append(a)
+        i += 1
+    return out
+
+
 def main(argv=None) -> int:
     _load_extra_commands()
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args = parser.parse_args(_join_dash_values(sys.argv[1:] if argv is None else list(argv)))
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
@@ -285,6 +311,10 @@ def main(argv=None) -> int:
         return args.func(args)
     except ConfigError as e:
         print(f"ahrsgen: error: {e}", file=sys.stderr)
+        return 2
+    except OSError as e:             # a path the system refused: one line, not a traceback
+        where = f" {e.filename}" if e.filename else ""
+        print(f"ahrsgen: error: cannot access{where}: {e.strerror or e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("ahrsgen: interrupted", file=sys.stderr)

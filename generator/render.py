@@ -283,13 +283,22 @@ def render(cfg: BuildConfig) -> Generated:
 
 
 def write(gen: Generated, out_dir: str | Path) -> list[Path]:
+    """Write the files into out_dir, each atomically (a crash never leaves half a file). A folder
+    holds one generated filter: manifest.json of another prefix there is refused, not overwritten."""
+    import json
+    from generator.fileio import write_text_atomic
     out = Path(out_dir)
+    old = out / "manifest.json"
+    if old.is_file():
+        try:
+            other = json.loads(old.read_text()).get("prefix")
+        except (ValueError, UnicodeDecodeError):
+            other = None
+        if other is not None and other != gen.manifest["prefix"]:
+            raise ConfigError(f"{out} already holds the generated filter '{other}' (its manifest.json would be "
+                              f"overwritten): generate '{gen.manifest['prefix']}' into its own folder")
     out.mkdir(parents=True, exist_ok=True)
     written = []
     for name, text in gen.files.items():
-        path = out / name
-        tmp = path.with_suffix(path.suffix + ".tmp")
-        tmp.write_text(text)
-        tmp.replace(path)     # atomic: a crash never leaves half a file
-        written.append(path)
+        written.append(write_text_atomic(out / name, text))
     return written
