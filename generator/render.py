@@ -224,7 +224,10 @@ def render(cfg: BuildConfig) -> Generated:
     ctx = dict(
         version=VERSION, filter=spec.name, title=spec.title,
         # where the filter came from, without machine paths (the output is reproducible anywhere)
-        filter_folder=f"generator/filters/{spec.name}/" if spec.origin == "built-in" else f"filter folder {spec.name}/", source=spec.source, prefix=prefix, P=P,
+        filter_folder=f"generator/filters/{spec.name}/" if spec.origin == "built-in" else f"filter folder {spec.name}/",
+        source=_wrap_doc("Source: " + spec.source, prefix),
+        init_doc=_wrap_doc("Initialisation: " + (spec.init or "{prefix}_init sets the start state."), prefix),
+        prefix=prefix, P=P,
         real=real, F="f" if real == "float" else "", zero=lit(0.0), one=lit(1.0), lit=lit,
         params=params, valid_bits=VALID_BITS, status=status_ctx, state=state_ctx, input=input_ctx,
         kernels=kctx, sensors=model.sensors, state_bytes=state_bytes, runtime=runtime_ctx,
@@ -280,6 +283,13 @@ def render(cfg: BuildConfig) -> Generated:
     files = {f"{prefix}.h": header, f"{prefix}.c": source,
              "manifest.json": json.dumps(manifest, indent=2, sort_keys=False) + "\n"}
     return Generated(files, manifest, kernels)
+
+
+def _wrap_doc(text: str, prefix: str, width: int = 92) -> str:
+    """A paragraph for the header comment: {prefix} filled in, wrapped, continuation lines ' * '."""
+    import textwrap
+    lines = textwrap.wrap(text.replace("{prefix}", prefix), width)
+    return "\n * ".join(lines)
 
 
 def write(gen: Generated, out_dir: str | Path) -> list[Path]:

@@ -59,3 +59,12 @@ def test_strict_compile_and_no_double_math(gen_dir, tmp_path):
     code = re.sub(r"/\*.*?\*/|//[^\n]*", "", src, flags=re.S)      # comments may say "double"
     for word in ("malloc", "calloc", "realloc", "free", "double", "alloca"):
         assert not re.search(rf"\b{word}\b", code), word
+
+
+@pytest.mark.parametrize("gen_dir", GENERATED, ids=lambda p: p.name)
+def test_generated_files_are_ascii(gen_dir):
+    """House rule: the generated C (comments included) is ASCII, so any toolchain and editor takes it."""
+    for p in gen_dir.iterdir():
+        if p.is_file():
+            bad = [(i + 1, ln) for i, ln in enumerate(p.read_bytes().decode("utf-8").splitlines()) if not ln.isascii()]
+            assert not bad, f"{p.name}: non-ASCII on line(s) {[n for n, _ in bad]}"

@@ -41,6 +41,8 @@ FILTER_KEYS = {
     "scenario": "scenario of the source experiment: what `ahrsgen target` runs by default",
     "stochastic": "set (to the reason) for a filter whose run is random by design (a particle filter): "
                   "`ahrsgen target` then judges a real-libm run by accuracy, not trajectory",
+    "init": "how the filter initialises (what init sets, which step sets the attitude); printed in the "
+            "header, {prefix} stands for the C prefix",
 }
 
 
@@ -63,6 +65,7 @@ class FilterSpec:
     origin: str = "built-in"
     scenario: str = "fixedwing_gps"  # the source experiment's scenario ([filter] scenario)
     stochastic: str = ""             # why its runs are random by design, if they are ([filter] stochastic)
+    init: str = ""                     # how the filter initialises ([filter] init), for the header
 
     def model_class(self):
         return importlib.import_module(f"{self.package}.model").Model
@@ -228,7 +231,7 @@ def _load(loc: Location) -> FilterSpec:
         p.coerce(p.default, f"default in {name}/defaults.toml")
     package = loc.package or _folder_package(name, folder)
     return FilterSpec(name, info.get("title", name), info.get("source", ""), folder, params, package, loc.origin,
-                      info.get("scenario", "fixedwing_gps"), info.get("stochastic", ""))
+                      info.get("scenario", "fixedwing_gps"), info.get("stochastic", ""), info.get("init", ""))
 
 
 def _folder_package(name: str, folder: Path) -> str:
