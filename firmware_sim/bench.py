@@ -61,19 +61,18 @@ def write_harness_log(log: SensorLog, path: str | Path) -> Path:
     """Write a SensorLog as the text log main_log.c reads (empty fields: no sample)."""
     path = Path(path)
     groups = ((VALID_GYRO, log.gyro), (VALID_ACCEL, log.accel), (VALID_MAG, log.mag), (VALID_GPS, log.gps_vel))
-    with open(path, "w") as f:
-        f.write("# ahrsgen harness log v1\n")
-        f.write(f"# dt0 {float(log.dt[0])!r}\n")
-        f.write(HARNESS_COLUMNS + "\n")
-        for k in range(len(log)):
-            v = int(log.valid[k])
-            parts = [repr(float(log.t[k]))]
-            for bit, arr in groups:
-                if v & bit:
-                    parts.extend(repr(float(x)) for x in arr[k])
-                else:
-                    parts.extend(("", "", ""))
-            f.write(",".join(parts) + "\n")
+    from generator.fileio import write_text_atomic
+    lines = ["# ahrsgen harness log v1", f"# dt0 {float(log.dt[0])!r}", HARNESS_COLUMNS]
+    for k in range(len(log)):
+        v = int(log.valid[k])
+        parts = [repr(float(log.t[k]))]
+        for bit, arr in groups:
+            if v & bit:
+                parts.extend(repr(float(x)) for x in arr[k])
+            else:
+                parts.extend(("", "", ""))
+        lines.append(",".join(parts))
+    write_text_atomic(path, "\n".join(lines) + "\n")
     return path
 
 
@@ -231,9 +230,9 @@ class Estimator:
         return self.host_filter(extra).run(log, params=self.runtime).q, heading, extra
 
 
-def filter_heading(filter_name: str, sets=(), config_file=None) -> str:
+def filter_heading(filter_name: str, sets=(), config_file=None, preset=None) -> str:
     from generator import config
-    cfg = config.resolve(filter_name, config_file, list(sets), "float", None)
+    cfg = config.resolve(filter_name, config_file, list(sets), "float", None, preset)
     sensors = cfg.spec.model(cfg.params).sensors
     if "mag" in sensors:
         return "mag"
@@ -317,16 +316,17 @@ def total_error_series(q_est, log, heading, max_points=2000):
 # ahrsgen run
 
 def run_on_log(filter_name: str, log_path: str, config_file=None, sets=(), precision="float",
-               plot=None, csv=None, exe=False, out=None) -> dict:
-    """Run one generated filter over a log file; score it where the log has a reference."""
+               plot=None, csv=None, exe=False, out=None, runtime=None, preset=None, log=None) -> dict:
+    """Run one generated filter over a log file; score it where the log has a reference.
+    runtime: parameters built as runtime parameters (their values set through set_params)."""
     from generator import config
     out = out or sys.stdout
-    log = readers.read_log(log_path)
-    user = config.resolve(filter_name, config_file, list(sets), precision, None).overrides
+    log = readers.read_log(log_path) if log is None else log
+    user = config.resolve(filter_name, config_file, list(sets), precision, None, preset).overrides
     extra, applied = site_sets(filter_name, log.meta, set(user))
-    cfg = config.resolve(filter_name, config_file, list(sets) + extra, precision, None)
+    cfg = config.resolve(filter_name, config_file, list(sets) + extra, precision, None, preset, runtime=runtime)
     hf = host.build(cfg)
-    heading = filter_heading(filter_name, sets, config_file)
+    heading = filter_heading(filter_name, sets, config_file, preset)
     if heading == "mag" and applied:
         heading = "true"
     if extra:
@@ -363,13 +363,19 @@ def run_on_log(filter_name: str, log_path: str, config_file=None, sets=(), preci
             print(f"    {a:<5} {s[a + '_rms']:7.3f} {s[a + '_mean_abs']:8.3f}", file=out)
         print(f"  BROAD decomposition RMS: total {s['total_rms']:.3f}, heading {s['heading_rms']:.3f}, "
               f"inclination {s['inclination_rms']:.3f}", file=out)
+    elif log.q_true is not None and log.meta.get("movement") is not None:
+        print("  (this log has a reference attitude but no row with movement = 1, the rows to score: "
+              "nothing to score)", file=out)
+    elif log.q_true is not None:
+        print("  (the reference attitude has no finite row after the settle time: nothing to score)", file=out)
     else:
         print("  (no reference attitude in this log: nothing to score)", file=out)
+    result["res"] = res
     if csv:
         _write_run_csv(csv, log, res, heading)
         print(f"  wrote {csv}", file=out)
     if plot:
-        _plot_run(plot, log, res.q, heading, filter_name)
+        _plot_run(plot, log, res.q, heading, filter_name, res.status)
         print(f"  wrote {plot}", file=out)
     return result
 
@@ -383,36 +389,95 @@ def _write_run_csv(path, log, res, heading):
         ref = np.degrees(euler_from_q(np.where(np.isfinite(log.q_true), log.q_true, np.nan)))
         cols += [ref[:, 0], ref[:, 1], ref[:, 2]]
         names += ",ref_roll_deg,ref_pitch_deg,ref_yaw_deg"
-    np.savetxt(path, np.column_stack(cols), delimiter=",", header=names, comments="", fmt="%.9g")
+    import io
+    from generator.fileio import write_text_atomic
+    buf = io.StringIO()
+    np.savetxt(buf, np.column_stack(cols), delimiter=",", header=names, comments="", fmt="%.9g")
+    write_text_atomic(path, buf.getvalue())
 
 
-def _plot_run(path, log, q_est, heading, label):
+def continuous_yaw_deg(yaw_est_deg, yaw_ref_deg=None):
+    """Yaw for plotting without +-180 deg jumps: the reference unwrapped, and the estimate drawn as
+    the reference plus their wrapped difference (so a 2 deg error across the wrap stays 2 deg on the
+    plot, not 358); where there is no reference the estimate is unwrapped on its own."""
+    est = np.asarray(yaw_est_deg, dtype=float)
+    out = np.full(len(est), np.nan)
+    fin = np.isfinite(est)
+    out[fin] = np.degrees(np.unwrap(np.radians(est[fin])))
+    if yaw_ref_deg is None:
+        return out, None
+    ref = np.asarray(yaw_ref_deg, dtype=float)
+    ref_u = np.full(len(ref), np.nan)
+    rf = np.isfinite(ref)
+    ref_u[rf] = np.degrees(np.unwrap(np.radians(ref[rf])))
+    both = rf & fin
+    out[both] = ref_u[both] + (est[both] - ref[both] + 180.0) % 360.0 - 180.0
+    return out, ref_u
+
+
+def _plot_run(path, log, q_est, heading, label, status=None):
+    """Roll, pitch, continuous yaw beside the reference; below, the error over time (BROAD's
+    total, heading, inclination) with the steps of non-zero status marked. Written whole (atomic)."""
+    import io
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from generator.fileio import write_atomic
     q_cmp = compare_frame(q_est, log, heading) if log.q_true is not None else q_est
     est = np.degrees(euler_from_q(q_cmp))
     t = log.t - log.t[0]
-    fig, axs = plt.subplots(3, 1, figsize=(10, 7), sharex=True)
+    ref = None
+    if log.q_true is not None:
+        ref = np.full((len(log), 3), np.nan)
+        ok = np.all(np.isfinite(log.q_true), axis=1)
+        ref[ok] = np.degrees(euler_from_q(log.q_true[ok]))
+    fig, axs = plt.subplots(4, 1, figsize=(10, 9), sharex=True)
     ref_label = {"px4": "PX4 onboard estimate (vehicle_attitude)", "broad": "BROAD optical reference"}.get(
         log.meta.get("scoring"), "reference")
     decl = log.meta.get("declination_deg")
     est_label = f"{label} (generated C)" + (f", yaw + declination {decl:.2f}°" if heading == "mag" and decl else "")
+    yaw_est, yaw_ref = continuous_yaw_deg(est[:, 2], None if ref is None else ref[:, 2])
     for i, a in enumerate(ANGLES):
-        axs[i].plot(t, est[:, i], lw=0.9, label=est_label)
-        if log.q_true is not None:
-            ref = np.full(len(log), np.nan)
-            ok = np.all(np.isfinite(log.q_true), axis=1)
-            ref[ok] = np.degrees(euler_from_q(log.q_true[ok]))[:, i]
-            axs[i].plot(t, ref, lw=0.9, ls="--", label=ref_label)
-        axs[i].set_ylabel(f"{a} [deg]")
+        e = yaw_est if i == 2 else est[:, i]
+        axs[i].plot(t, e, lw=0.9, label=est_label)
+        if ref is not None:
+            axs[i].plot(t, yaw_ref if i == 2 else ref[:, i], lw=0.9, ls="--", label=ref_label)
+        axs[i].set_ylabel(f"{a} [deg]" + (" (unwrapped)" if i == 2 else ""))
         axs[i].grid(alpha=0.3)
+    ax = axs[3]
+    if ref is not None:
+        tt, (tot, hd, inc) = t, _error_series(q_cmp, log)
+        ax.plot(tt, tot, lw=0.9, label="total")
+        ax.plot(tt, hd, lw=0.8, label="heading")
+        ax.plot(tt, inc, lw=0.8, label="inclination")
+        ax.set_ylabel("error [deg]")
+    else:
+        ax.set_ylabel("(no reference)")
+    if status is not None:
+        nz = np.flatnonzero(np.asarray(status) != 0)
+        if len(nz):
+            # along the bottom edge of the panel (x in data, y in axes coordinates)
+            ax.plot(t[nz], np.full(len(nz), 0.03), "|", color="red", ms=8, transform=ax.get_xaxis_transform(),
+                    label=f"non-zero status ({len(nz)} steps)")
+    ax.grid(alpha=0.3)
+    ax.legend(loc="upper right", fontsize=8)
     axs[0].legend(loc="upper right", fontsize=8)
     axs[0].set_title(f"{label} on {log.name}")
     axs[-1].set_xlabel("time [s]")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    buf = io.BytesIO()
+    fig.savefig(buf, dpi=110, format=Path(path).suffix.lstrip(".").lower() or "png")
     plt.close(fig)
+    write_atomic(path, buf.getvalue())
+
+
+def _error_series(q_cmp, log):
+    """Per step BROAD's total / heading / inclination error (degrees), NaN without a reference."""
+    out = np.full((3, len(log)), np.nan)
+    ok = np.all(np.isfinite(log.q_true), axis=1) & np.all(np.isfinite(q_cmp), axis=1)
+    if ok.any():
+        out[:, ok] = np.array(broad_errors_deg(q_cmp[ok], log.q_true[ok]))
+    return out
 
 
 # =========================================================================================
@@ -525,7 +590,7 @@ def _aggregate(results, group_key):
 
 # the hand-written baseline implements SPEC.md's QCF: eq. 29's differentiator for the motion
 # acceleration; the generated QCF is timed with that option too, so the ratio compares like with like
-HAND_QCF_SETS = ["motion_accel_model=differentiator"]
+HAND_QCF_SETS = ["motion_accel_model=differentiator", "conditioning=false"]
 
 
 def _cpu_timer(hf):
@@ -862,17 +927,40 @@ def markdown(rep: dict) -> str:
 # =========================================================================================
 # CLI registration (generator/cli.py calls register_cli(subparsers))
 
+PLOT_FORMATS = (".png", ".pdf", ".svg")
+
+
 def _cmd_run(args) -> int:
+    from generator.fileio import check_output_file
     from generator.model import ConfigError
-    if not Path(args.log).exists():
-        raise ConfigError(f"log file {args.log} does not exist")
+    # everything that could fail after a long run is checked first
+    for opt, path in (("--csv", args.csv), ("--plot", args.plot), ("--export-log", args.export_log)):
+        if path:
+            check_output_file(path, opt)
+    if args.plot:
+        if not Path(args.plot).suffix.lower() in PLOT_FORMATS:
+            raise ConfigError(f"--plot {args.plot}: name the image .png, .pdf or .svg")
+        try:
+            import matplotlib  # noqa: F401
+        except ImportError:
+            raise ConfigError("--plot needs matplotlib: pip install 'ahrsgen[dev]'") from None
+    try:
+        log = readers.read_log(args.log)
+    except FileNotFoundError:
+        raise ConfigError(f"log file {args.log} does not exist") from None
+    except (readers.LogError, OSError) as e:
+        raise ConfigError(str(e) if isinstance(e, readers.LogError) else f"{args.log}: {e.strerror or e}") from None
+    for w in log.meta.get("warnings", []):
+        print(f"ahrsgen: warning: {w}", file=sys.stderr)
+    if log.meta.get("ignored_columns"):
+        print(f"  ignored columns: {', '.join(log.meta['ignored_columns'])}")
     res = run_on_log(args.filter, args.log, args.config, args.set, args.precision or "float",
-                     plot=args.plot, csv=args.csv, exe=args.exe)
+                     plot=args.plot, csv=args.csv, exe=args.exe, runtime=args.runtime, preset=args.preset, log=log)
     if args.export_log:
         from generator import config
-        write_harness_log(readers.read_log(args.log), args.export_log)
+        write_harness_log(log, args.export_log)
         cfg = config.resolve(args.filter, args.config, list(args.set) + res["site_sets"],
-                             args.precision or "float", None)
+                             args.precision or "float", None, args.preset)
         exe = build_log_runner(host.build(cfg).dir)
         print(f"  wrote {args.export_log}; run it with: {exe} {args.export_log} out.csv")
     return 0
@@ -914,11 +1002,18 @@ def register_cli(sub) -> None:
                                    "the firmware harness, and where the log has a reference attitude score it "
                                    "(BROAD's method for BROAD data; PX4's vehicle_attitude for ULog).")
     p.add_argument("filter", help="filter name (see 'ahrsgen list') or a filter folder's path")
-    p.add_argument("--log", required=True, metavar="FILE", help="BROAD .csv/.csv.gz or PX4 .ulg")
+    p.add_argument("--log", required=True, metavar="FILE",
+                   help="a CSV log (.csv/.csv.gz: t,gx,gy,gz,ax,ay,az and optional mx,my,mz, gps_vn,gps_ve,gps_vd, "
+                        "qw,qx,qy,qz, movement; see docs/log-format.md; BROAD's files are in it) or a PX4 .ulg")
     p.add_argument("--config", metavar="FILE.toml", help="TOML config (prefix, precision, [params])")
     p.add_argument("--set", metavar="NAME=VALUE", action="append", default=[], help="override a parameter")
+    p.add_argument("--preset", help="start from a named parameter set of the filter, e.g. 'faithful' "
+                                    "(see 'ahrsgen list FILTER')")
     p.add_argument("--precision", choices=["float", "double"], help="C floating-point type (default float)")
-    p.add_argument("--plot", metavar="OUT.png", help="plot roll/pitch/yaw beside the log's reference")
+    p.add_argument("--runtime", metavar="NAME,NAME", help="build these parameters as runtime parameters "
+                                                          "(same figures; see 'generate --runtime')")
+    p.add_argument("--plot", metavar="OUT.png", help="plot roll/pitch/yaw beside the log's reference and the "
+                                                     "error over time, steps with a non-zero status marked")
     p.add_argument("--csv", metavar="OUT.csv", help="write t, q, Euler angles (deg), status (and the reference)")
     p.add_argument("--exe", action="store_true",
                    help="run through the standalone executable (firmware_sim/c/main_log.c) instead of ctypes")

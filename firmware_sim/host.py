@@ -85,7 +85,11 @@ def ctypes_struct(name: str, layout: dict, real: str, params=None):
     runtime-parameter struct (type "params")."""
     fields = []
     for f in layout["fields"]:
-        base = params if f["type"] == "params" else _CT[real] if f["type"] == "real" else ctypes.c_uint32
+        if f["type"] == "params":      # without its class: as many reals, same size and alignment
+            base = params or _CT[real] * (f["size"] // ctypes.sizeof(_CT[real]))
+            fields.append((f["name"], base))
+            continue
+        base = _CT[real] if f["type"] == "real" else ctypes.c_uint32
         fields.append((f["name"], base * f["count"] if f["count"] > 1 else base))
     cls = type(name, (ctypes.Structure,), {"_fields_": fields})
     if ctypes.sizeof(cls) != layout["size"]:

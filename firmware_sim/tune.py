@@ -8,7 +8,8 @@ parallel on a Fleet (local processes, or Dask with --scheduler).
 
 Search: Optuna's TPE sampler (chosen by measurement, README "Tuning"), each parameter inside
 its declared range: log-uniform where the range spans two decades or more (a range starting at 0
-starts 4 decades below its top, or a decade below the default if that is lower), uniform
+starts 4 decades below its top, or a decade below the default if that is lower; one without a
+top ends two decades above the default), uniform
 otherwise; integers likewise; booleans and choices as categories. Every study starts with the
 current values (defaults, or the --config/--set ones) as its first trial, so the tuned values
 are never worse than them on the training logs.
@@ -172,11 +173,15 @@ def search_space(spec, items: list[str]) -> list[Dim]:
             if not lo < hi:
                 raise ConfigError(f"--params {item!r}: LOW must be below HIGH")
         else:
-            if p.min is None or p.max is None:
+            lo, hi = p.min, p.max
+            positive = not isinstance(p.default, bool) and p.default > 0
+            if hi is None and positive and (lo is None or lo >= 0):
+                hi = p.default * 100           # no upper bound: two decades above the default
+                lo = p.default / 100 if lo is None else lo
+            if lo is None or hi is None:
                 raise ConfigError(f"--params: '{name}' has an unbounded range {p.range_text()}; "
                                   f"give one as {name}=LOW:HIGH")
-            lo, hi = p.min, p.max
-            if p.max_exclusive:
+            if p.max_exclusive and hi == p.max:
                 hi = hi - abs(hi) * 1e-9 if p.type == "float" else hi - 1
             if lo == 0 < hi and p.type == "float":
                 lo = _open_low(p, hi)

@@ -44,9 +44,27 @@ class BuildConfig:
         return filters.load(self.filter)
 
 
+# The prefix names the files (<prefix>.h) and every identifier: it must not be a C keyword, nor
+# shadow a standard header the generated code or the user's build includes (#include "math.h"
+# would pick ours up before <math.h> wherever the folder is on the include path).
+C_KEYWORDS = frozenset("""auto break case char const continue default do double else enum extern float for goto
+    if inline int long register restrict return short signed sizeof static struct switch typedef union
+    unsigned void volatile while""".split())
+STANDARD_HEADERS = frozenset("""assert complex ctype errno fenv float inttypes iso646 limits locale math setjmp signal
+    stdalign stdarg stdatomic stdbool stddef stdint stdio stdlib stdnoreturn string tgmath threads time uchar
+    wchar wctype unistd strings fcntl malloc alloca memory endian""".split())
+
+
 def _check_prefix(prefix: str) -> str:
     if not prefix.isidentifier() or not prefix.isascii() or prefix.lower() != prefix:
         raise ConfigError(f"prefix {prefix!r} must be a lower-case C identifier (letters, digits, _)")
+    if prefix.startswith("_"):
+        raise ConfigError(f"prefix {prefix!r}: identifiers starting with '_' are reserved in C")
+    if prefix in C_KEYWORDS:
+        raise ConfigError(f"prefix {prefix!r} is a C keyword")
+    if prefix in STANDARD_HEADERS:
+        raise ConfigError(f"prefix {prefix!r} would write {prefix}.h, which shadows the standard header "
+                          f"<{prefix}.h>; choose another prefix")
     return prefix
 
 
@@ -101,6 +119,10 @@ def resolve(filter_name: str, config_file: str | Path | None = None, sets: list[
     precision = precision or file_precision or "float"
     if precision not in PRECISIONS:
         raise ConfigError(f"precision {precision!r} must be one of {', '.join(PRECISIONS)}")
+    if not (prefix or file_prefix) and not (filter_name.isidentifier() and filter_name.isascii()
+                                            and filter_name.lower() == filter_name):
+        raise ConfigError(f"filter '{filter_name}': its name is not a lower-case C identifier, so it cannot be "
+                          f"the C prefix; give one with --prefix (or rename the folder)")
     prefix = _check_prefix(prefix or file_prefix or filter_name)
     if runtime is None:
         runtime, source = file_data.get("runtime", []), str(config_file)
@@ -151,6 +173,20 @@ def _read_config(path) -> dict:
         raise ConfigError(f"config file {path} is a directory") from None
     except tomllib.TOMLDecodeError as e:
         raise ConfigError(f"{path}: malformed TOML: {e}") from None
+    except UnicodeDecodeError as e:
+        raise ConfigError(f"{path}: not UTF-8 text (byte {e.start}); TOML files are UTF-8") from None
+    except PermissionError:
+        raise ConfigError(f"config file {path} is not readable") from None
+
+
+def filter_of(config_file) -> str:
+    """The filter a config file names (filter = "..."), for commands given no filter name."""
+    if config_file is None:
+        raise ConfigError("name a filter (see 'ahrsgen list'), or give a --config file that names one")
+    name = _read_config(config_file).get("filter")
+    if not isinstance(name, str):
+        raise ConfigError(f"{config_file}: no 'filter = \"...\"' line; name the filter on the command line")
+    return name
 
 
 def _check(spec, name, value, source):

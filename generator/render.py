@@ -247,7 +247,10 @@ def render(cfg: BuildConfig) -> Generated:
     ctx = dict(
         version=VERSION, filter=spec.name, title=spec.title,
         # where the filter came from, without machine paths (the output is reproducible anywhere)
-        filter_folder=f"generator/filters/{spec.name}/" if spec.origin == "built-in" else f"filter folder {spec.name}/", source=spec.source, prefix=prefix, P=P,
+        filter_folder=f"generator/filters/{spec.name}/" if spec.origin == "built-in" else f"filter folder {spec.name}/",
+        source=_wrap_doc("Source: " + spec.source, prefix),
+        init_doc=_wrap_doc("Initialisation: " + (spec.init or "{prefix}_init sets the start state."), prefix),
+        prefix=prefix, P=P,
         real=real, F="f" if real == "float" else "", zero=lit(0.0), one=lit(1.0), lit=lit,
         params=params, valid_bits=VALID_BITS, status=status_ctx, state=state_ctx, input=input_ctx,
         kernels=kctx, sensors=model.sensors, state_bytes=state_bytes, runtime=runtime_ctx,
@@ -290,7 +293,7 @@ def render(cfg: BuildConfig) -> Generated:
             "state": {"size": state_bytes, "fields": [
                 {"name": f.name, "type": f.ctype, "count": f.size, "offset": off, "doc": f.doc}
                 for f, (_, off, _) in zip(fields, layout)]
-                + ([{"name": "params", "type": "params", "count": 1, "offset": layout[-1][1],
+                + ([{"name": "params", "type": "params", "count": 1, "offset": layout[-1][1], "size": params_bytes,
                      "doc": f"runtime parameters ({prefix}_params)"}] if runtime else [])},
             **({"params": {"size": params_bytes, "fields": [
                 {"name": n, "type": "real", "count": 1, "offset": off, "doc": spec.params[n].doc}
@@ -347,14 +350,30 @@ def ascii_text(text: str) -> str:
     return "".join(out)
 
 
+def _wrap_doc(text: str, prefix: str, width: int = 92) -> str:
+    """A paragraph for the header comment: {prefix} filled in, wrapped, continuation lines ' * '."""
+    import textwrap
+    lines = textwrap.wrap(text.replace("{prefix}", prefix), width)
+    return "\n * ".join(lines)
+
+
 def write(gen: Generated, out_dir: str | Path) -> list[Path]:
+    """Write the files into out_dir, each atomically (a crash never leaves half a file). A folder
+    holds one generated filter: manifest.json of another prefix there is refused, not overwritten."""
+    import json
+    from generator.fileio import write_text_atomic
     out = Path(out_dir)
+    old = out / "manifest.json"
+    if old.is_file():
+        try:
+            other = json.loads(old.read_text()).get("prefix")
+        except (ValueError, UnicodeDecodeError):
+            other = None
+        if other is not None and other != gen.manifest["prefix"]:
+            raise ConfigError(f"{out} already holds the generated filter '{other}' (its manifest.json would be "
+                              f"overwritten): generate '{gen.manifest['prefix']}' into its own folder")
     out.mkdir(parents=True, exist_ok=True)
     written = []
     for name, text in gen.files.items():
-        path = out / name
-        tmp = path.with_suffix(path.suffix + ".tmp")
-        tmp.write_text(text)
-        tmp.replace(path)     # atomic: a crash never leaves half a file
-        written.append(path)
+        written.append(write_text_atomic(out / name, text))
     return written

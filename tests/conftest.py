@@ -61,16 +61,26 @@ def _is_tool_skip(reason: str) -> bool:
     return MISSING_TOOL in reason or any(f"could not import '{mod}'" in reason for mod in CI_MODULES)
 
 
-@pytest.hookimpl(hookwrapper=True)
-def pytest_runtest_makereport(item, call):
-    outcome = yield
-    rep = outcome.get_result()
+def _fail_tool_skip(rep) -> None:
     if not (CI and rep.skipped) or hasattr(rep, "wasxfail"):
         return
     reason = rep.longrepr[2] if isinstance(rep.longrepr, tuple) else str(rep.longrepr)
     if _is_tool_skip(reason):
         rep.outcome = "failed"
         rep.longrepr = f"CI=true and this check did not run: {reason}"
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_make_collect_report(collector):
+    """A whole module skipped at import (a module-level importorskip) counts too."""
+    outcome = yield
+    _fail_tool_skip(outcome.get_result())
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item, call):
+    outcome = yield
+    _fail_tool_skip(outcome.get_result())
 
 
 @functools.cache

@@ -38,11 +38,13 @@ def test_present():
 def _run(tmp_path: Path, ci: str | None) -> str:
     shutil.copy(HERE / "conftest.py", tmp_path / "conftest.py")
     (tmp_path / "test_probe.py").write_text(PROBE_TESTS)
+    (tmp_path / "test_probe_module.py").write_text(
+        "import pytest\npytest.importorskip('ahrs')\n\ndef test_in_skipped_module():\n    pass\n")
     (tmp_path / "ahrs.py").write_text("raise ModuleNotFoundError(\"No module named 'ahrs'\")\n")
     env = {k: v for k, v in os.environ.items() if k != "CI"}
     if ci is not None:
         env["CI"] = ci
-    r = subprocess.run([sys.executable, "-m", "pytest", "-v", "-p", "no:cacheprovider", "--rootdir",
+    r = subprocess.run([sys.executable, "-m", "pytest", "-v", "-p", "no:cacheprovider", "--continue-on-collection-errors", "--rootdir",
                         str(tmp_path), str(tmp_path)], capture_output=True, text=True, cwd=tmp_path, env=env)
     return r.stdout
 
@@ -62,5 +64,7 @@ def test_tool_skips_fail_under_ci(tmp_path, ci):
         assert "CI=true and this check did not run" in out, out
     else:
         assert [outcome(t) for t in tool_tests] == ["SKIPPED"] * 3, out
-    assert outcome("test_data_absent") == "SKIPPED", out      # absent data may skip, even in CI
+    assert outcome("test_data_absent") == "SKIPPED", out
+    # a module skipped at import: an error (collection) under CI, a skip otherwise
+    assert ("ERROR test_probe_module.py" in out) == bool(ci), out      # absent data may skip, even in CI
     assert outcome("test_present") == "PASSED", out

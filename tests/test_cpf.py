@@ -463,8 +463,24 @@ def test_cli_validate_on_turntable(precision, capsys):
     code = cli.main(["validate", "cpf", "--precision", precision, "--scenario", "turntable"])
     out = capsys.readouterr().out
     assert code == 0, out
-    if precision == "float":
-        assert "judged by accuracy" in out
+    if precision == "float" and "judged as estimators" in out:
+        assert "double C vs reference" in out and "particle-noise streams" in out
+
+
+def test_float_vs_double_as_estimators_passes_and_sees_a_planted_float_error():
+    """firmware_sim/stochastic.py: the float build at defaults passes the paired test over 10
+    particle-noise streams; a float build whose process noise is 2x the double's (standing in for a
+    wrong float literal) fails it."""
+    from firmware_sim import stochastic
+    log = _log("turntable")
+    cfg, hd = built("double", **site("turntable"))
+    model = cfg.spec.model(cfg.params)
+    _, hf = built("float", **site("turntable"))
+    good = stochastic.float_vs_double(hf, hd, log, model)
+    assert good["ok"], good
+    _, bad_hf = built("float", process_noise=2 * cfg.params["process_noise"], **site("turntable"))
+    bad = stochastic.float_vs_double(bad_hf, hd, log, model)
+    assert not bad["ok"], bad
 
 
 @pytest.mark.parametrize("precision", ["double", "float"])

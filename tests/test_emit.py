@@ -3,6 +3,7 @@ equals CasADi's own numeric evaluation; unsupported operations fail with their n
 from __future__ import annotations
 
 import ctypes
+import re
 import subprocess
 
 import casadi as ca
@@ -33,6 +34,7 @@ CASES = [
     ("constpow", x ** 2.5, (0.5, 3), None), ("constpow2", x ** 3, (-3, 3), None),
     ("fmod", ca.fmod(x, y), (-3, 3), (0.5, 2)), ("copysign", ca.copysign(x, y), (-3, 3), (-3, 3)),
     ("hypot", ca.hypot(x, y), (-3, 3), (-3, 3)),
+    ("expm1", ca.expm1(x), (-2, 2), None), ("log1p", ca.log1p(x), (-0.9, 3), None),
     ("fmin", ca.fmin(x, y), (-3, 3), (-3, 3)), ("fmax", ca.fmax(x, y), (-3, 3), (-3, 3)),
     ("lt", x < y, (-3, 3), (-3, 3)), ("le", x <= y, (-3, 3), (-3, 3)),
     ("eq", x == ca.floor(y), (-1, 1), (-1, 1)), ("ne", x != y, (-3, 3), (-3, 3)),
@@ -91,16 +93,28 @@ def test_unsupported_operation_is_named():
         emit.emit(f, "float")
 
 
+# A floating literal (with a point or an exponent) not followed by the f suffix: a double in C.
+_DOUBLE_LITERAL = re.compile(r"(?<![\w.])(?:\d+\.\d*|\.\d+|\d+(?=[eE]))(?:[eE][-+]?\d+)?(?![\w.])")
+
+
+def test_double_literal_pattern():
+    for text in ("x * 2.5", "1e-06 + x", "x / 1.5e3", "(-0.5)", ".25 * x", "1E+10"):
+        assert _DOUBLE_LITERAL.search(text), text
+    for text in ("x * 2.5f", "1e-06f + x", "x / 1.5e3f", "(-0.5f)", "tmp12 * t3", "v[3]", "x * 2"):
+        assert not _DOUBLE_LITERAL.search(text), text
+
+
 def test_float_source_has_no_double_math():
-    exprs = ca.vertcat(*[e for _, e, _, _ in CASES])
+    exprs = ca.vertcat(*[e for _, e, _, _ in CASES],
+                       x * 1e-6 + y * 3e38 + 1e-30 * x * y)       # literals the emitter writes in exponent form
     k = emit.emit(emit.function("all_ops", {"x": x, "y": y}, {"out": exprs}), "float")
     src = k.source()
-    import re
+    assert re.search(r"\b\d+e-0?6f\b", src)                       # (the exponent form is there to check)
     doubles = re.findall(r"\b(sqrt|sin|cos|tan|asin|acos|atan|atan2|exp|log|pow|floor|ceil|fabs|fmod|hypot|"
-                         r"sinh|cosh|tanh|asinh|acosh|atanh|erf|copysign)\(", src)
+                         r"sinh|cosh|tanh|asinh|acosh|atanh|erf|copysign|expm1|log1p)\(", src)
     assert doubles == []
     # every literal in a float build carries the f suffix
-    assert not re.search(r"(?<![\w.])\d+\.\d*(e[-+]?\d+)?(?![\w.])(?!f)", src)
+    assert not _DOUBLE_LITERAL.findall(src)
 
 
 def test_literals_round_trip():

@@ -92,3 +92,26 @@ def test_target_sets_the_example_beside_the_hand_written_peer(tmp_path, capsys):
     (b,) = doc["beside_peers"]
     assert b["generated"] == r["footprint"]["instructions_mean"] and b["hand_written"] == hand["instructions_mean"]
     assert f"madgwick -O2: generated {b['generated']:.0f} / hand-written {b['hand_written']:.0f}" in text
+
+
+def test_every_command_takes_the_example_folder(tmp_path, capsys):
+    """list, generate, validate, run, bench and harden on examples/mahony, exactly as on a
+    built-in (target: the test above; tune: tests/test_tune.py)."""
+    from generator import cli
+    folder = EXAMPLES[1]
+    runs = [
+        ["list", folder],
+        ["generate", folder, "--set", "kp=0.5", "-o", str(tmp_path / "gen")],
+        ["validate", folder, "--scenario", "turntable", "--scenario-opt", "duration=20", "--precision", "double"],
+        ["run", folder, "--log", str(BROAD)],
+        ["bench", "--quick", "--filters", folder, "--peers", "mahony", "--scenarios", "turntable",
+         "--scenarios-only", "-o", str(tmp_path / "bench")],
+        ["harden", folder, "--fuzz-seconds", "0", "--soak-steps", "20000", "--no-cppcheck",
+         "--json", str(tmp_path / "h.json")],
+    ]
+    for argv in runs:
+        assert cli.main(argv) == 0, argv
+    out = capsys.readouterr().out
+    assert "mahony: Mahony" in out and "PASS" in out and "BROAD decomposition RMS" in out
+    assert "| mahony_gen |" in (tmp_path / "bench" / "bench.md").read_text()      # beside ahrs' Mahony
+    assert "#define MAHONY_KP 0.5f" in (tmp_path / "gen" / "mahony.h").read_text()

@@ -96,6 +96,18 @@ def test_entry_point(tmp_path, monkeypatch):
     sys.modules.pop("shipped_madg", None)
 
 
+def test_a_broken_entry_point_fails_only_when_asked_for(tmp_path, monkeypatch):
+    dist = tmp_path / "broken_pkg-1.0.dist-info"
+    dist.mkdir()
+    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: broken-pkg\nVersion: 1.0\n")
+    (dist / "entry_points.txt").write_text("[ahrsgen.filters]\nghost = no_such_package_ahrsgen\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    assert "qcf" in filters.names() and "ghost" not in filters.names()
+    assert filters.load("qcf").name == "qcf"
+    with pytest.raises(ConfigError, match="entry point 'ghost = no_such_package_ahrsgen'.*not an importable package"):
+        filters.load("ghost")
+
+
 def test_a_folder_imports_its_own_helpers_relatively(tmp_path):
     """A filter folder is imported as a package: model.py may import a sibling module."""
     assert cli.main(["new", "helped", "-o", str(tmp_path)]) == 0
@@ -110,3 +122,28 @@ def test_a_folder_imports_its_own_helpers_relatively(tmp_path):
     fn = {k.name: k.function for k in spec.model().kernels()}["correct"]
     assert spec.model_class().__module__.endswith(".model") and "KP_SCALE" in model.read_text()
     assert fn.n_instructions() > 0
+
+
+def test_filter_table_keys_are_checked_and_reach_the_spec(tmp_path):
+    assert cli.main(["new", "keyed", "-o", str(tmp_path)]) == 0
+    toml = tmp_path / "keyed" / "defaults.toml"
+    text = toml.read_text()
+    toml.write_text(text.replace('sensors = ["accel"]', 'sensors = ["accel"]\nscenario = "turntable"\n'
+                                                        'stochastic = "it resamples"'))
+    spec = filters.load(str(tmp_path / "keyed"))
+    assert (spec.scenario, spec.stochastic) == ("turntable", "it resamples")
+    assert filters.load("qcf").scenario == "fixedwing_gps" and filters.load("cpf").stochastic
+    toml.write_text(text.replace('sensors = ["accel"]', 'sensors = ["accel"]\nscenarios = "turntable"'))
+    filters._BY_PATH.pop("keyed", None)
+    filters._load.cache_clear()
+    with pytest.raises(ConfigError, match=r"unknown \[filter\] key\(s\) scenarios; allowed: title"):
+        filters.load(str(tmp_path / "keyed"))
+
+
+def test_a_folder_name_that_is_no_c_identifier_needs_a_prefix(tmp_path, capsys):
+    assert cli.main(["new", "hyph", "-o", str(tmp_path)]) == 0
+    (tmp_path / "hyph").rename(tmp_path / "my-filt")
+    assert cli.main(["generate", str(tmp_path / "my-filt"), "-o", str(tmp_path / "o")]) == 2
+    assert "give one with --prefix" in capsys.readouterr().err and not (tmp_path / "o").exists()
+    assert cli.main(["generate", str(tmp_path / "my-filt"), "--prefix", "my_filt", "-o", str(tmp_path / "o")]) == 0
+    assert (tmp_path / "o" / "my_filt.c").exists()

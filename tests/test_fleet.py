@@ -39,3 +39,16 @@ def test_unreachable_scheduler_is_a_config_error():
     from generator.model import ConfigError
     with pytest.raises(ConfigError, match="cannot reach the Dask scheduler at tcp://127.0.0.1:9"):
         Fleet(scheduler="tcp://127.0.0.1:9", timeout="2s")
+
+
+def test_tune_on_local_cluster_equals_local(tmp_path):
+    from pathlib import Path
+    from firmware_sim import tune
+    data = Path(__file__).resolve().parent / "data"
+    cases = tune.collect_cases([data / "broad_01_excerpt.csv.gz", data / "px4_handheld_excerpt.ulg"])
+    kw = dict(budget=3, folds=0, progress=False, out=open("/dev/null", "w"))
+    local = tune.tune("qcf", ["kp", "ki"], cases, workers=2, **kw)
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=False,
+                                  dashboard_address=None) as cluster:
+        dask = tune.tune("qcf", ["kp", "ki"], cases, scheduler=cluster.scheduler_address, **kw)
+    assert local["tuned"] == dask["tuned"] and local["train"] == dask["train"]

@@ -99,3 +99,12 @@ def test_clang_weverything_clean_but_the_listed_flags(gen_dir):
     r = subprocess.run(["clang", "-std=c99", "-Weverything", "-Werror", *[f"-Wno-{w}" for w in off],
                         "-fsyntax-only", str(gen_dir / man["files"]["source"])], capture_output=True, text=True)
     assert r.returncode == 0, r.stderr[:2000]
+
+
+@pytest.mark.parametrize("gen_dir", GENERATED, ids=lambda p: p.name)
+def test_generated_files_are_ascii(gen_dir):
+    """House rule: the generated C (comments included) is ASCII, so any toolchain and editor takes it."""
+    for p in gen_dir.iterdir():
+        if p.is_file():
+            bad = [(i + 1, ln) for i, ln in enumerate(p.read_bytes().decode("utf-8").splitlines()) if not ln.isascii()]
+            assert not bad, f"{p.name}: non-ASCII on line(s) {[n for n, _ in bad]}"

@@ -92,10 +92,10 @@ def test_broad_gyro_integrates_onto_reference(broad):
     assert err_wrong > 3 * err
 
 
-def test_broad_rejects_other_layout(tmp_path):
+def test_csv_rejects_missing_columns(tmp_path):
     p = tmp_path / "x.csv"
     p.write_text("t,gx,gy\n0,0,0\n")
-    with pytest.raises(ValueError, match="BROAD CSV layout"):
+    with pytest.raises(readers.LogError, match="missing column.*gz, ax, ay, az"):
         readers.read_log(p)
     with pytest.raises(ValueError, match="unknown log format"):
         (tmp_path / "a.bin").write_bytes(b"x")

@@ -88,3 +88,14 @@ def test_structural_refused(name, runtime, words, tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and words in err[0]
     assert not (tmp_path / "o").exists()
+
+
+def test_run_and_validate_take_runtime(capsys):
+    from firmware_sim.bench import run_on_log
+    log = str(HERE / "data" / "broad_01_excerpt.csv.gz")
+    baked = run_on_log("qcf", log, sets=["kp=0.5"], out=open("/dev/null", "w"))
+    rt = run_on_log("qcf", log, sets=["kp=0.5"], runtime="kp,ki", out=open("/dev/null", "w"))
+    assert rt["score"]["total_rms"] == pytest.approx(baked["score"]["total_rms"], abs=1e-9)
+    assert cli.main(["validate", "qcf", "--runtime", "kp,ki", "--precision", "double",
+                     "--scenario-opt", "duration=30"]) == 0
+    assert "PASS" in capsys.readouterr().out

@@ -30,6 +30,9 @@ def test_new_refuses_an_existing_folder_and_a_bad_name(tmp_path, capsys):
     (tmp_path / "taken").mkdir()
     assert cli.main(["new", "taken", "-o", str(tmp_path)]) == 2
     assert "already exists" in capsys.readouterr().err
+    assert cli.main(["new", "qcf", "-o", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "a filter named 'qcf' exists already" in err and "built-in" in err
     for bad in ("My-filter", "2fast", "_hidden"):
         assert cli.main(["new", bad, "-o", str(tmp_path)]) == 2
         err = capsys.readouterr().err

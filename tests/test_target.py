@@ -15,6 +15,7 @@ import pytest
 
 from conftest import needs
 from firmware_sim import target as T
+from generator import filters
 
 pytestmark = [pytest.mark.target, needs("target")]
 
@@ -242,7 +243,7 @@ def test_generated_filter_on_target_agrees_with_host(name, tmp_path):
         c = r["host_comparison"]
         assert c["steps"] == len(log)
         assert c["status_common_equal"], r
-        if name in T.STOCHASTIC_FILTERS:
+        if filters.load(name).stochastic:
             # resampling turns 1-ulp libm differences into different particles: equal accuracy
             assert c["identical_steps"] == c["steps"] or c["max_rms_difference_deg"] <= T.ACCURACY_TOLERANCE_DEG, c
         else:
@@ -403,14 +404,14 @@ def test_readme_footprint_table_lists_every_filter():
     assert sorted(readme_footprint()) == sorted(filters.names())
 
 
-@pytest.mark.parametrize("name", sorted(T.DEFAULT_SCENARIO))
+@pytest.mark.parametrize("name", filters.names())
 def test_readme_footprint_figures_hold(name, tmp_path):
     """The committed default build on its README scenario (seed 0, -O2): mean instructions per
     step within 1 % of the README's figure, state bytes equal, flash within 2 %."""
     from firmware_sim import scenarios
     stated = readme_footprint()[name]
     gen_dir = Path(__file__).resolve().parents[1] / "generated" / name
-    log = scenarios.make(T.DEFAULT_SCENARIO[name], seed=0)
+    log = scenarios.make(filters.load(name).scenario, seed=0)
     r = T.check_filter(T.binding_from_generated(gen_dir), T.records_from_log(log), tmp_path, opt="-O2",
                        count_steps=20)
     fp = r.footprint

@@ -78,3 +78,30 @@ def test_tune_user_filter_folder(tmp_path):
     r = subprocess.run([*ahrsgen, "generate", str(folder), "--config", str(out), "-o", str(tmp_path / "gen")],
                        capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
+
+
+def test_interrupted_tune_resumes(tmp_path):
+    """Ctrl-C after a few trials writes no config; re-running runs only the trials left."""
+    import signal
+    import subprocess
+    import sys
+    out = tmp_path / "i.toml"
+    # a child of a non-interactive shell may inherit SIGINT ignored: restore Python's handler
+    code = ("import signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler); "
+            "from generator.cli import main; sys.exit(main(sys.argv[1:]))")
+    args = ["tune", "qcf", *LOGS, "--params", "kp,ki", "--budget", "16", "--folds", "0", "-o", str(out)]
+    p = subprocess.Popen([sys.executable, "-c", code, *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                         text=True)
+    seen = ""
+    while "trial 4 " not in seen:
+        ch = p.stderr.read(1)
+        assert ch, f"tune ended before trial 4: {seen[-300:]}"
+        seen += ch
+    p.send_signal(signal.SIGINT)
+    p.communicate(timeout=60)
+    assert p.returncode == 130 and not out.exists()
+    r = subprocess.run([sys.executable, "-m", "generator.cli", *args], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    ran = int(r.stdout.split(" trial(s) run")[0].split()[-1])
+    assert 6 <= ran <= 12, r.stdout        # trials 0-3 (or a few more) were in the journal
+    assert tomllib.loads(out.read_text())["params"]["kp"] > 0

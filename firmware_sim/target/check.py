@@ -183,18 +183,25 @@ def _accuracy(log, q_t: np.ndarray, q_h: np.ndarray) -> dict:
 # `ahrsgen target`
 # --------------------------------------------------------------------------------------
 
-# The scenario each filter's source experiment is about (SPEC.md); --scenario overrides.
-DEFAULT_SCENARIO = {"qcf": "fixedwing_gps", "mekf": "fixedwing_gps",
-                    "adukf": "static_mag_disturbance", "cpf": "turntable"}
+# The scenario of each filter's source experiment (SPEC.md) is the filter's own: `scenario` in
+# its defaults.toml [filter] table; --scenario overrides.
 DEFAULT_TOLERANCE_DEG = 1e-3
-# Filters whose run is a random process by design: the particle filter resamples, so a
-# 1-ulp difference between newlib's and glibc's logf/cosf/expf picks different particles and
-# the trajectories part (by tenths of a degree) while both stay equally accurate.  For them
-# the real-libm check compares accuracy against the truth instead of trajectories; the
-# pinned-libm run must still be bit-identical.
-STOCHASTIC_FILTERS = {"cpf": "particle resampling amplifies 1-ulp libm differences"}
+# A filter whose run is a random process by design (`stochastic = "reason"` in its [filter]
+# table): the particle filter resamples, so a 1-ulp difference between newlib's and glibc's
+# logf/cosf/expf picks different particles and the trajectories part (by tenths of a degree)
+# while both stay equally accurate.  For them the real-libm check compares accuracy against
+# the truth instead of trajectories; the pinned-libm run must still be bit-identical.
 ACCURACY_TOLERANCE_DEG = 0.1
 _COMMON_STATUS_MASK = (1 << 12) - 1    # generator/status.py: bits below FILTER_BASE
+
+
+def _stochastic(filter_name: str) -> str:
+    from generator import filters
+    from generator.model import ConfigError
+    try:
+        return filters.load(filter_name).stochastic
+    except ConfigError:          # a build without a known filter (a peer, a toy): deterministic
+        return ""
 
 
 def judge(filter_name: str, real: dict, pinned: dict | None, tolerance_deg: float = DEFAULT_TOLERANCE_DEG
@@ -210,12 +217,12 @@ def judge(filter_name: str, real: dict, pinned: dict | None, tolerance_deg: floa
     if real["identical_steps"] == real["steps"]:
         parts.append("real libm: bit-identical in every step")
         ok &= real["status_equal"]
-    elif filter_name in STOCHASTIC_FILTERS:
+    elif _stochastic(filter_name):
         d = real.get("max_rms_difference_deg")
         good = d is not None and d <= ACCURACY_TOLERANCE_DEG and real["status_common_equal"]
         ok &= good
         parts.append(f"real libm: trajectories part from step {real['first_difference']} "
-                     f"(max {real['max_angle_deg']:.3g} deg; {STOCHASTIC_FILTERS[filter_name]}); "
+                     f"(max {real['max_angle_deg']:.3g} deg; {_stochastic(filter_name)}); "
                      f"RMS error vs truth differs by {d if d is None else f'{d:.3g}'} deg "
                      f"(bound {ACCURACY_TOLERANCE_DEG:g} deg)")
     else:
@@ -258,7 +265,8 @@ def check_generated(filter_name: str, opts=OPT_LEVELS, cpu: str = "cortex-m4f", 
     gen_dir = generate(filter_name, workdir / "generated", config_file, sets, prefix, precision, math, fma)
     man = json.loads((gen_dir / "manifest.json").read_text())
     b = binding_from_generated(gen_dir)
-    scen = scenario or DEFAULT_SCENARIO.get(filter_name, "fixedwing_gps")
+    from generator import filters
+    scen = scenario or filters.load(filter_name).scenario
     if log is None:
         log = scenarios.make(scen, seed=seed, **(scenario_options or {}))
     rec = records_from_log(log)

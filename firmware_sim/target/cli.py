@@ -25,13 +25,11 @@ def cmd_target(args) -> int:
     for n in names:
         filters.load(n)   # unknown filter -> ConfigError
     opts = args.opt or list(OPT_LEVELS)
-    sopts = {}
-    for item in args.scenario_opt:
-        k, _, v = item.partition("=")
-        try:
-            sopts[k] = float(v) if any(c in v for c in ".e") else int(v)
-        except ValueError:
-            sopts[k] = v
+    from firmware_sim import scenarios
+    try:
+        sopts = scenarios.parse_options(args.scenario, args.scenario_opt)
+    except KeyError as e:
+        raise ConfigError(str(e.args[0])) from None
     results = []
     with tempfile.TemporaryDirectory(prefix="ahrsgen-target-") as tmp:
         root = Path(args.workdir) if args.workdir else Path(tmp)
@@ -119,7 +117,7 @@ def register_cli(sub) -> None:
     p.add_argument("--math", choices=["fast", "libm"], help="float trigonometry (default: the generator's, fast)")
     p.add_argument("--fma", action="store_true", default=None, help="emitter-written fused multiply-adds")
     p.add_argument("--opt", action="append", choices=list(OPT_LEVELS),
-                   help="optimisation level (repeatable; default both -O2 and -Os)")
+                   help="optimisation level, written --opt -O2 or --opt=-O2 (repeatable; default both -O2 and -Os)")
     p.add_argument("--scenario", help="scenario (default: the filter's source experiment, e.g. fixedwing_gps for qcf)")
     p.add_argument("--seed", type=int, default=0, help="scenario seed (default 0)")
     p.add_argument("--scenario-opt", metavar="NAME=VALUE", action="append", default=[],

@@ -86,70 +86,1025 @@ static float fast_atan2f(float y, float x)
     return signbit(y) ? -a : a;
 }
 
-/* centripetal acceleration now: R(q)(w - b) x v_gps (NED, m/s^2)
- * ops: add 33, mul 24 (total 57) */
-static void qcf_k_motion_accel(const float q[4], const float gyro[3], const float gyro_bias[3], const float gps_vel_hist[21], float motion_accel_now[3])
+/* first attitude: FQA with a magnetometer sample, else the accelerometer's tilt with yaw 0; the low-pass starts at R(q) f
+ * ops: add 64, mul 54, div 13, sqrt 9, cmp 19 (total 159)
+ *      of which only one side runs: if (tmp12 < 1e-06f) 0, else 7
+ *      of which only one side runs: if (use_mag != 0.0f) 64, else 1 */
+static void qcf_k_init_attitude(const float accel[3], const float mag[3], float use_mag, float q[4], float accel_lp[3])
 {
-    const float tmp0 = q[1] * q[2];
-    const float tmp1 = q[0] * q[3];
+    const float tmp0 = accel[0] * accel[0];
+    const float tmp1 = accel[1] * accel[1];
+    const float tmp2 = tmp0 + tmp1;
+    const float tmp3 = accel[2] * accel[2];
+    const float tmp4 = tmp2 + tmp3;
+    const float tmp5 = sqrtf(tmp4);
+    const float tmp6 = accel[0] / tmp5;
+    const float tmp7 = (tmp6 > (-1.0f)) ? tmp6 : (-1.0f);
+    const float tmp8 = (tmp7 < 1.0f) ? tmp7 : 1.0f;
+    const float tmp9 = (tmp8 < 0.0f) ? (-1.0f) : 1.0f;
+    const float tmp10 = tmp8 * tmp8;
+    const float tmp11 = 1.0f - tmp10;
+    const float tmp12 = sqrtf(tmp11);
+    const float tmp13 = (tmp12 > (-1.0f)) ? tmp12 : (-1.0f);
+    const float tmp14 = (tmp13 < 1.0f) ? tmp13 : 1.0f;
+    const float tmp15 = 1.0f - tmp14;
+    const float tmp16 = tmp15 / 2.0f;
+    const float tmp17 = sqrtf(tmp16);
+    const float tmp18 = tmp9 * tmp17;
+    float tmp19;
+    float tmp20;
+    if (tmp12 < 1e-06f) {
+        tmp19 = 1.0f;
+        tmp20 = 0.0f;
+    } else {
+        const float tmp21 = accel[2] / tmp5;
+        const float tmp22 = (tmp12 > 1e-06f) ? tmp12 : 1e-06f;
+        const float tmp23 = tmp21 / tmp22;
+        const float tmp24 = -tmp23;
+        const float tmp25 = accel[1] / tmp5;
+        const float tmp26 = tmp25 / tmp22;
+        const float tmp27 = -tmp26;
+        tmp19 = tmp24;
+        tmp20 = tmp27;
+    }
+    const float tmp28 = (tmp19 > (-1.0f)) ? tmp19 : (-1.0f);
+    const float tmp29 = (tmp28 < 1.0f) ? tmp28 : 1.0f;
+    const float tmp30 = 1.0f + tmp29;
+    const float tmp31 = tmp30 / 2.0f;
+    const float tmp32 = sqrtf(tmp31);
+    const float tmp33 = tmp18 * tmp32;
+    const float tmp34 = (tmp20 < 0.0f) ? (-1.0f) : 1.0f;
+    const float tmp35 = 1.0f - tmp29;
+    const float tmp36 = tmp35 / 2.0f;
+    const float tmp37 = sqrtf(tmp36);
+    const float tmp38 = tmp34 * tmp37;
+    const float tmp39 = tmp18 * tmp38;
+    const float tmp40 = 1.0f + tmp14;
+    const float tmp41 = tmp40 / 2.0f;
+    const float tmp42 = sqrtf(tmp41);
+    const float tmp43 = tmp42 * tmp38;
+    const float tmp44 = tmp42 * tmp32;
+    float tmp45;
+    float tmp46;
+    float tmp47;
+    float tmp48;
+    if (use_mag != 0.0f) {
+        const float tmp49 = tmp33 * tmp33;
+        const float tmp50 = tmp39 * tmp39;
+        const float tmp51 = tmp49 + tmp50;
+        const float tmp52 = tmp51 + tmp51;
+        const float tmp53 = 1.0f - tmp52;
+        const float tmp54 = tmp53 * mag[0];
+        const float tmp55 = tmp43 * tmp33;
+        const float tmp56 = tmp44 * tmp39;
+        const float tmp57 = tmp55 + tmp56;
+        const float tmp58 = tmp57 + tmp57;
+        const float tmp59 = tmp58 * mag[1];
+        const float tmp60 = tmp54 + tmp59;
+        const float tmp61 = tmp44 * tmp33;
+        const float tmp62 = tmp43 * tmp39;
+        const float tmp63 = tmp61 - tmp62;
+        const float tmp64 = tmp63 + tmp63;
+        const float tmp65 = tmp64 * mag[2];
+        const float tmp66 = tmp60 + tmp65;
+        const float tmp67 = tmp66 * tmp66;
+        const float tmp68 = tmp55 - tmp56;
+        const float tmp69 = tmp68 + tmp68;
+        const float tmp70 = tmp69 * mag[0];
+        const float tmp71 = tmp43 * tmp43;
+        const float tmp72 = tmp71 + tmp50;
+        const float tmp73 = tmp72 + tmp72;
+        const float tmp74 = 1.0f - tmp73;
+        const float tmp75 = tmp74 * mag[1];
+        const float tmp76 = tmp70 + tmp75;
+        const float tmp77 = tmp33 * tmp39;
+        const float tmp78 = tmp44 * tmp43;
+        const float tmp79 = tmp77 + tmp78;
+        const float tmp80 = -tmp79;
+        const float tmp81 = tmp80 + tmp80;
+        const float tmp82 = tmp81 * mag[2];
+        const float tmp83 = tmp76 + tmp82;
+        const float tmp84 = tmp83 * tmp83;
+        const float tmp85 = tmp67 + tmp84;
+        const float tmp86 = sqrtf(tmp85);
+        const float tmp87 = (tmp86 > 1e-30f) ? tmp86 : 1e-30f;
+        const float tmp88 = tmp66 / tmp87;
+        const float tmp89 = (tmp88 > (-1.0f)) ? tmp88 : (-1.0f);
+        const float tmp90 = (tmp89 < 1.0f) ? tmp89 : 1.0f;
+        const float tmp91 = 1.0f + tmp90;
+        const float tmp92 = tmp91 / 2.0f;
+        const float tmp93 = sqrtf(tmp92);
+        const float tmp94 = tmp93 * tmp44;
+        const float tmp95 = tmp83 / tmp87;
+        const float tmp96 = -tmp95;
+        const float tmp97 = (tmp96 < 0.0f) ? (-1.0f) : 1.0f;
+        const float tmp98 = 1.0f - tmp90;
+        const float tmp99 = tmp98 / 2.0f;
+        const float tmp100 = sqrtf(tmp99);
+        const float tmp101 = tmp97 * tmp100;
+        const float tmp102 = tmp101 * tmp39;
+        const float tmp103 = tmp94 + tmp102;
+        const float tmp104 = tmp93 * tmp43;
+        const float tmp105 = tmp101 * tmp33;
+        const float tmp106 = tmp104 - tmp105;
+        const float tmp107 = tmp93 * tmp33;
+        const float tmp108 = tmp101 * tmp43;
+        const float tmp109 = tmp107 + tmp108;
+        const float tmp110 = tmp101 * tmp44;
+        const float tmp111 = tmp93 * tmp39;
+        const float tmp112 = tmp110 - tmp111;
+        tmp45 = tmp103;
+        tmp46 = tmp106;
+        tmp47 = tmp109;
+        tmp48 = tmp112;
+    } else {
+        const float tmp113 = -tmp39;
+        tmp45 = tmp44;
+        tmp46 = tmp43;
+        tmp47 = tmp33;
+        tmp48 = tmp113;
+    }
+    const float tmp114 = tmp47 * tmp47;
+    const float tmp115 = tmp48 * tmp48;
+    const float tmp116 = tmp114 + tmp115;
+    const float tmp117 = tmp116 + tmp116;
+    const float tmp118 = 1.0f - tmp117;
+    const float tmp119 = tmp118 * accel[0];
+    const float tmp120 = tmp46 * tmp47;
+    const float tmp121 = tmp45 * tmp48;
+    const float tmp122 = tmp120 - tmp121;
+    const float tmp123 = tmp122 + tmp122;
+    const float tmp124 = tmp123 * accel[1];
+    const float tmp125 = tmp119 + tmp124;
+    const float tmp126 = tmp46 * tmp48;
+    const float tmp127 = tmp45 * tmp47;
+    const float tmp128 = tmp126 + tmp127;
+    const float tmp129 = tmp128 + tmp128;
+    const float tmp130 = tmp129 * accel[2];
+    const float tmp131 = tmp125 + tmp130;
+    const float tmp132 = tmp120 + tmp121;
+    const float tmp133 = tmp132 + tmp132;
+    const float tmp134 = tmp133 * accel[0];
+    const float tmp135 = tmp46 * tmp46;
+    const float tmp136 = tmp135 + tmp115;
+    const float tmp137 = tmp136 + tmp136;
+    const float tmp138 = 1.0f - tmp137;
+    const float tmp139 = tmp138 * accel[1];
+    const float tmp140 = tmp134 + tmp139;
+    const float tmp141 = tmp47 * tmp48;
+    const float tmp142 = tmp45 * tmp46;
+    const float tmp143 = tmp141 - tmp142;
+    const float tmp144 = tmp143 + tmp143;
+    const float tmp145 = tmp144 * accel[2];
+    const float tmp146 = tmp140 + tmp145;
+    const float tmp147 = tmp126 - tmp127;
+    const float tmp148 = tmp147 + tmp147;
+    const float tmp149 = tmp148 * accel[0];
+    const float tmp150 = tmp141 + tmp142;
+    const float tmp151 = tmp150 + tmp150;
+    const float tmp152 = tmp151 * accel[1];
+    const float tmp153 = tmp149 + tmp152;
+    const float tmp154 = tmp135 + tmp114;
+    const float tmp155 = tmp154 + tmp154;
+    const float tmp156 = 1.0f - tmp155;
+    const float tmp157 = tmp156 * accel[2];
+    const float tmp158 = tmp153 + tmp157;
+    q[0] = tmp45;
+    q[1] = tmp46;
+    q[2] = tmp47;
+    q[3] = tmp48;
+    accel_lp[0] = tmp131;
+    accel_lp[1] = tmp146;
+    accel_lp[2] = tmp158;
+}
+
+/* first magnetometer sample after a tilt-only start: heading set, tilt kept
+ * ops: add 26, mul 28, div 3, sqrt 3, cmp 9 (total 69)
+ *      of which only one side runs: if (tmp35 < 1e-30f) 0, else 20 */
+static void qcf_k_heading_init(const float q[4], const float mag[3], float q_new[4])
+{
+    const float tmp0 = q[2] * q[2];
+    const float tmp1 = q[3] * q[3];
     const float tmp2 = tmp0 + tmp1;
     const float tmp3 = tmp2 + tmp2;
-    const float tmp4 = gyro[0] - gyro_bias[0];
-    const float tmp5 = tmp3 * tmp4;
-    const float tmp6 = q[1] * q[1];
-    const float tmp7 = q[3] * q[3];
+    const float tmp4 = 1.0f - tmp3;
+    const float tmp5 = tmp4 * mag[0];
+    const float tmp6 = q[1] * q[2];
+    const float tmp7 = q[0] * q[3];
+    const float tmp8 = tmp6 - tmp7;
+    const float tmp9 = tmp8 + tmp8;
+    const float tmp10 = tmp9 * mag[1];
+    const float tmp11 = tmp5 + tmp10;
+    const float tmp12 = q[1] * q[3];
+    const float tmp13 = q[0] * q[2];
+    const float tmp14 = tmp12 + tmp13;
+    const float tmp15 = tmp14 + tmp14;
+    const float tmp16 = tmp15 * mag[2];
+    const float tmp17 = tmp11 + tmp16;
+    const float tmp18 = tmp17 * tmp17;
+    const float tmp19 = tmp6 + tmp7;
+    const float tmp20 = tmp19 + tmp19;
+    const float tmp21 = tmp20 * mag[0];
+    const float tmp22 = q[1] * q[1];
+    const float tmp23 = tmp22 + tmp1;
+    const float tmp24 = tmp23 + tmp23;
+    const float tmp25 = 1.0f - tmp24;
+    const float tmp26 = tmp25 * mag[1];
+    const float tmp27 = tmp21 + tmp26;
+    const float tmp28 = q[2] * q[3];
+    const float tmp29 = q[0] * q[1];
+    const float tmp30 = tmp28 - tmp29;
+    const float tmp31 = tmp30 + tmp30;
+    const float tmp32 = tmp31 * mag[2];
+    const float tmp33 = tmp27 + tmp32;
+    const float tmp34 = tmp33 * tmp33;
+    const float tmp35 = tmp18 + tmp34;
+    float tmp36;
+    float tmp37;
+    float tmp38;
+    float tmp39;
+    float tmp40;
+    if (tmp35 < 1e-30f) {
+        tmp36 = 1.0f;
+        tmp37 = 0.0f;
+        tmp38 = 0.0f;
+        tmp39 = 0.0f;
+        tmp40 = 0.0f;
+    } else {
+        const float tmp41 = (tmp35 > 1e-30f) ? tmp35 : 1e-30f;
+        const float tmp42 = 1.0f / tmp41;
+        const float tmp43 = sqrtf(tmp42);
+        const float tmp44 = tmp17 * tmp43;
+        const float tmp45 = (tmp44 > (-1.0f)) ? tmp44 : (-1.0f);
+        const float tmp46 = (tmp45 < 1.0f) ? tmp45 : 1.0f;
+        const float tmp47 = 1.0f + tmp46;
+        const float tmp48 = tmp47 / 2.0f;
+        const float tmp49 = sqrtf(tmp48);
+        const float tmp50 = tmp33 * tmp43;
+        const float tmp51 = -tmp50;
+        const float tmp52 = (tmp51 < 0.0f) ? (-1.0f) : 1.0f;
+        const float tmp53 = 1.0f - tmp46;
+        const float tmp54 = tmp53 / 2.0f;
+        const float tmp55 = sqrtf(tmp54);
+        const float tmp56 = tmp52 * tmp55;
+        const float tmp57 = tmp56 * q[3];
+        const float tmp58 = tmp56 * q[2];
+        const float tmp59 = tmp56 * q[1];
+        const float tmp60 = tmp56 * q[0];
+        tmp36 = tmp49;
+        tmp37 = tmp57;
+        tmp38 = tmp58;
+        tmp39 = tmp59;
+        tmp40 = tmp60;
+    }
+    const float tmp61 = tmp36 * q[0];
+    const float tmp62 = tmp61 - tmp37;
+    const float tmp63 = tmp36 * q[1];
+    const float tmp64 = tmp63 - tmp38;
+    const float tmp65 = tmp36 * q[2];
+    const float tmp66 = tmp65 + tmp39;
+    const float tmp67 = tmp36 * q[3];
+    const float tmp68 = tmp67 + tmp40;
+    q_new[0] = tmp62;
+    q_new[1] = tmp64;
+    q_new[2] = tmp66;
+    q_new[3] = tmp68;
+}
+
+/* low-pass of the specific force in NED, R(q) f (time constant accel_tau)
+ * ops: add 34, mul 21, div 1 (total 56) */
+static void qcf_k_accel_lowpass(const float q[4], const float accel[3], const float accel_lp[3], float span, float accel_lp_new[3])
+{
+    const float tmp0 = 1.0f + span;
+    const float tmp1 = span / tmp0;
+    const float tmp2 = q[2] * q[2];
+    const float tmp3 = q[3] * q[3];
+    const float tmp4 = tmp2 + tmp3;
+    const float tmp5 = tmp4 + tmp4;
+    const float tmp6 = 1.0f - tmp5;
+    const float tmp7 = tmp6 * accel[0];
+    const float tmp8 = q[1] * q[2];
+    const float tmp9 = q[0] * q[3];
+    const float tmp10 = tmp8 - tmp9;
+    const float tmp11 = tmp10 + tmp10;
+    const float tmp12 = tmp11 * accel[1];
+    const float tmp13 = tmp7 + tmp12;
+    const float tmp14 = q[1] * q[3];
+    const float tmp15 = q[0] * q[2];
+    const float tmp16 = tmp14 + tmp15;
+    const float tmp17 = tmp16 + tmp16;
+    const float tmp18 = tmp17 * accel[2];
+    const float tmp19 = tmp13 + tmp18;
+    const float tmp20 = tmp19 - accel_lp[0];
+    const float tmp21 = tmp1 * tmp20;
+    const float tmp22 = accel_lp[0] + tmp21;
+    const float tmp23 = tmp8 + tmp9;
+    const float tmp24 = tmp23 + tmp23;
+    const float tmp25 = tmp24 * accel[0];
+    const float tmp26 = q[1] * q[1];
+    const float tmp27 = tmp26 + tmp3;
+    const float tmp28 = tmp27 + tmp27;
+    const float tmp29 = 1.0f - tmp28;
+    const float tmp30 = tmp29 * accel[1];
+    const float tmp31 = tmp25 + tmp30;
+    const float tmp32 = q[2] * q[3];
+    const float tmp33 = q[0] * q[1];
+    const float tmp34 = tmp32 - tmp33;
+    const float tmp35 = tmp34 + tmp34;
+    const float tmp36 = tmp35 * accel[2];
+    const float tmp37 = tmp31 + tmp36;
+    const float tmp38 = tmp37 - accel_lp[1];
+    const float tmp39 = tmp1 * tmp38;
+    const float tmp40 = accel_lp[1] + tmp39;
+    const float tmp41 = tmp14 - tmp15;
+    const float tmp42 = tmp41 + tmp41;
+    const float tmp43 = tmp42 * accel[0];
+    const float tmp44 = tmp32 + tmp33;
+    const float tmp45 = tmp44 + tmp44;
+    const float tmp46 = tmp45 * accel[1];
+    const float tmp47 = tmp43 + tmp46;
+    const float tmp48 = tmp26 + tmp2;
+    const float tmp49 = tmp48 + tmp48;
+    const float tmp50 = 1.0f - tmp49;
+    const float tmp51 = tmp50 * accel[2];
+    const float tmp52 = tmp47 + tmp51;
+    const float tmp53 = tmp52 - accel_lp[2];
+    const float tmp54 = tmp1 * tmp53;
+    const float tmp55 = accel_lp[2] + tmp54;
+    accel_lp_new[0] = tmp22;
+    accel_lp_new[1] = tmp40;
+    accel_lp_new[2] = tmp55;
+}
+
+/* tilt (low-passed accelerometer) and heading (magnetometer) corrections as PI feedback, bias integral gated, bias at rest from the low-passed gyro, integration (eq. 9)
+ * ops: add 106, mul 117, div 10, sqrt 7, trig 2, cmp 32 (total 274)
+ *      of which only one side runs: if (tmp15 < 1e-06f) 0, else 33
+ *      of which only one side runs: if (tmp122 < 1e-30f) 0, else 24
+ *      of which only one side runs: if (tmp174 < 0.01f) 16, else 5
+ *      of which only one side runs: if (at_rest != 0.0f) 11, else 19 */
+static void qcf_k_correct_part0(const float q[4], const float gyro_bias[3], const float gyro[3], float dt, const float accel_lp[3], const float mag[3], float span_accel, float span_mag, float carry0[10])
+{
+    const float tmp0 = gyro[0] - gyro_bias[0];
+    const float tmp1 = tmp0 * dt;
+    const float tmp2 = q[2] * q[2];
+    const float tmp3 = q[3] * q[3];
+    const float tmp4 = tmp2 + tmp3;
+    const float tmp5 = tmp4 + tmp4;
+    const float tmp6 = 1.0f - tmp5;
+    const float tmp7 = accel_lp[0] * accel_lp[0];
+    const float tmp8 = accel_lp[1] * accel_lp[1];
+    const float tmp9 = tmp7 + tmp8;
+    const float tmp10 = accel_lp[2] * accel_lp[2];
+    const float tmp11 = tmp9 + tmp10;
+    const float tmp12 = 1.0f / tmp11;
+    const float tmp13 = sqrtf(tmp12);
+    const float tmp14 = accel_lp[2] * tmp13;
+    const float tmp15 = 1.0f - tmp14;
+    const float tmp16 = q[1] * q[2];
+    const float tmp17 = q[0] * q[3];
+    const float tmp18 = q[1] * q[3];
+    const float tmp19 = q[0] * q[2];
+    const float tmp20 = gyro[1] - gyro_bias[1];
+    const float tmp21 = tmp20 * dt;
+    const float tmp22 = tmp16 - tmp17;
+    const float tmp23 = tmp22 + tmp22;
+    const float tmp24 = q[1] * q[1];
+    const float tmp25 = q[2] * q[3];
+    const float tmp26 = q[0] * q[1];
+    float tmp27;
+    float tmp28;
+    float tmp29;
+    float tmp30;
+    float tmp31;
+    float tmp32;
+    float tmp33;
+    float tmp34;
+    float tmp35;
+    float tmp36;
+    float tmp37;
+    float tmp38;
+    if (tmp15 < 1e-06f) {
+        tmp27 = 1.0f;
+        tmp28 = 0.0f;
+        tmp29 = 0.0f;
+        tmp30 = 0.0f;
+        tmp31 = 0.0f;
+        tmp32 = 0.0f;
+        tmp33 = 0.0f;
+        tmp34 = 0.0f;
+        tmp35 = 0.0f;
+        tmp36 = 0.0f;
+        tmp37 = 0.0f;
+        tmp38 = 0.0f;
+    } else {
+        const float tmp39 = accel_lp[1] * tmp13;
+        const float tmp40 = tmp15 * tmp15;
+        const float tmp41 = accel_lp[0] * tmp13;
+        const float tmp42 = tmp41 * tmp41;
+        const float tmp43 = tmp40 + tmp42;
+        const float tmp44 = tmp39 * tmp39;
+        const float tmp45 = tmp43 + tmp44;
+        const float tmp46 = (tmp45 > 1e-12f) ? tmp45 : 1e-12f;
+        const float tmp47 = 1.0f / tmp46;
+        const float tmp48 = sqrtf(tmp47);
+        const float tmp49 = tmp39 * tmp48;
+        const float tmp50 = -tmp49;
+        const float tmp51 = tmp16 + tmp17;
+        const float tmp52 = tmp51 + tmp51;
+        const float tmp53 = tmp41 * tmp48;
+        const float tmp54 = span_accel * tmp53;
+        const float tmp55 = tmp52 * tmp54;
+        const float tmp56 = tmp15 * tmp48;
+        const float tmp57 = tmp56 * q[2];
+        const float tmp58 = tmp53 * q[0];
+        const float tmp59 = tmp56 * q[3];
+        const float tmp60 = tmp53 * q[1];
+        const float tmp61 = tmp56 * q[1];
+        const float tmp62 = tmp53 * q[3];
+        const float tmp63 = tmp56 * q[0];
+        const float tmp64 = tmp53 * q[2];
+        const float tmp65 = tmp24 + tmp3;
+        const float tmp66 = tmp65 + tmp65;
+        const float tmp67 = 1.0f - tmp66;
+        const float tmp68 = tmp67 * tmp54;
+        const float tmp69 = tmp25 - tmp26;
+        const float tmp70 = tmp69 + tmp69;
+        const float tmp71 = tmp70 * tmp54;
+        tmp27 = tmp50;
+        tmp28 = tmp55;
+        tmp29 = tmp57;
+        tmp30 = tmp58;
+        tmp31 = tmp59;
+        tmp32 = tmp60;
+        tmp33 = tmp61;
+        tmp34 = tmp62;
+        tmp35 = tmp63;
+        tmp36 = tmp64;
+        tmp37 = tmp68;
+        tmp38 = tmp71;
+    }
+    const float tmp72 = span_accel * tmp27;
+    const float tmp73 = tmp6 * tmp72;
+    const float tmp74 = tmp73 + tmp28;
+    const float tmp75 = tmp27 * q[3];
+    const float tmp76 = tmp29 - tmp75;
+    const float tmp77 = tmp76 + tmp30;
+    const float tmp78 = tmp77 * tmp77;
+    const float tmp79 = tmp27 * q[2];
+    const float tmp80 = tmp31 + tmp79;
+    const float tmp81 = tmp80 - tmp32;
+    const float tmp82 = tmp81 * tmp81;
+    const float tmp83 = tmp78 + tmp82;
+    const float tmp84 = tmp83 + tmp83;
+    const float tmp85 = 1.0f - tmp84;
+    const float tmp86 = tmp85 * mag[0];
+    const float tmp87 = tmp27 * q[0];
+    const float tmp88 = tmp33 + tmp87;
+    const float tmp89 = tmp88 + tmp34;
+    const float tmp90 = tmp89 * tmp77;
+    const float tmp91 = tmp27 * q[1];
+    const float tmp92 = tmp35 - tmp91;
+    const float tmp93 = tmp92 - tmp36;
+    const float tmp94 = tmp93 * tmp81;
+    const float tmp95 = tmp90 - tmp94;
+    const float tmp96 = tmp95 + tmp95;
+    const float tmp97 = tmp96 * mag[1];
+    const float tmp98 = tmp86 + tmp97;
+    const float tmp99 = tmp89 * tmp81;
+    const float tmp100 = tmp93 * tmp77;
+    const float tmp101 = tmp99 + tmp100;
+    const float tmp102 = tmp101 + tmp101;
+    const float tmp103 = tmp102 * mag[2];
+    const float tmp104 = tmp98 + tmp103;
+    const float tmp105 = tmp104 * tmp104;
+    const float tmp106 = tmp90 + tmp94;
+    const float tmp107 = tmp106 + tmp106;
+    const float tmp108 = tmp107 * mag[0];
+    const float tmp109 = tmp89 * tmp89;
+    const float tmp110 = tmp109 + tmp82;
+    const float tmp111 = tmp110 + tmp110;
+    const float tmp112 = 1.0f - tmp111;
+    const float tmp113 = tmp112 * mag[1];
+    const float tmp114 = tmp108 + tmp113;
+    const float tmp115 = tmp77 * tmp81;
+    const float tmp116 = tmp93 * tmp89;
+    const float tmp117 = tmp115 - tmp116;
+    const float tmp118 = tmp117 + tmp117;
+    const float tmp119 = tmp118 * mag[2];
+    const float tmp120 = tmp114 + tmp119;
+    const float tmp121 = tmp120 * tmp120;
+    const float tmp122 = tmp105 + tmp121;
+    float tmp123;
+    float tmp124;
+    float tmp125;
+    if (tmp122 < 1e-30f) {
+        tmp123 = 0.0f;
+        tmp124 = 0.0f;
+        tmp125 = 0.0f;
+    } else {
+        const float tmp126 = tmp18 - tmp19;
+        const float tmp127 = tmp126 + tmp126;
+        const float tmp128 = (tmp122 > 1e-30f) ? tmp122 : 1e-30f;
+        const float tmp129 = 1.0f / tmp128;
+        const float tmp130 = sqrtf(tmp129);
+        const float tmp131 = tmp120 * tmp130;
+        const float tmp132 = -tmp131;
+        const float tmp133 = (tmp132 < 0.0f) ? (-1.0f) : 1.0f;
+        const float tmp134 = tmp104 * tmp130;
+        const float tmp135 = (tmp134 > (-1.0f)) ? tmp134 : (-1.0f);
+        const float tmp136 = (tmp135 < 1.0f) ? tmp135 : 1.0f;
+        const float tmp137 = 1.0f - tmp136;
+        const float tmp138 = tmp137 / 2.0f;
+        const float tmp139 = sqrtf(tmp138);
+        const float tmp140 = tmp133 * tmp139;
+        const float tmp141 = span_mag * tmp140;
+        const float tmp142 = tmp127 * tmp141;
+        const float tmp143 = tmp25 + tmp26;
+        const float tmp144 = tmp143 + tmp143;
+        const float tmp145 = tmp144 * tmp141;
+        const float tmp146 = tmp24 + tmp2;
+        const float tmp147 = tmp146 + tmp146;
+        const float tmp148 = 1.0f - tmp147;
+        const float tmp149 = tmp148 * tmp141;
+        tmp123 = tmp142;
+        tmp124 = tmp145;
+        tmp125 = tmp149;
+    }
+    const float tmp150 = tmp74 + tmp123;
+    const float tmp151 = 0.3f * tmp150;
+    const float tmp152 = tmp1 + tmp151;
+    const float tmp153 = 0.5f * tmp152;
+    const float tmp154 = tmp153 * tmp153;
+    const float tmp155 = tmp23 * tmp72;
+    const float tmp156 = tmp155 + tmp37;
+    const float tmp157 = tmp156 + tmp124;
+    const float tmp158 = 0.3f * tmp157;
+    const float tmp159 = tmp21 + tmp158;
+    carry0[0] = tmp18;
+    carry0[1] = tmp19;
+    carry0[2] = tmp38;
+    carry0[3] = tmp72;
+    carry0[4] = tmp125;
+    carry0[5] = tmp150;
+    carry0[6] = tmp153;
+    carry0[7] = tmp154;
+    carry0[8] = tmp157;
+    carry0[9] = tmp159;
+}
+
+static void qcf_k_correct_part1(const float q[4], const float gyro_bias[3], const float gyro[3], float dt, float span_accel, float use_accel, const float accel[3], float at_rest, const float rest_gyro_lp[3], const float carry0[10], float carry1[7])
+{
+    const float tmp160 = 0.5f * carry0[9];
+    const float tmp161 = tmp160 * tmp160;
+    const float tmp162 = carry0[7] + tmp161;
+    const float tmp163 = gyro[2] - gyro_bias[2];
+    const float tmp164 = tmp163 * dt;
+    const float tmp165 = carry0[0] + carry0[1];
+    const float tmp166 = tmp165 + tmp165;
+    const float tmp167 = tmp166 * carry0[3];
+    const float tmp168 = tmp167 + carry0[2];
+    const float tmp169 = tmp168 + carry0[4];
+    const float tmp170 = 0.3f * tmp169;
+    const float tmp171 = tmp164 + tmp170;
+    const float tmp172 = 0.5f * tmp171;
+    const float tmp173 = tmp172 * tmp172;
+    const float tmp174 = tmp162 + tmp173;
+    float tmp175;
+    float tmp176;
+    if (tmp174 < 0.01f) {
+        const float tmp177 = 2.4801588e-05f * tmp174;
+        const float tmp178 = (-0.0013888889f) + tmp177;
+        const float tmp179 = tmp174 * tmp178;
+        const float tmp180 = 0.041666668f + tmp179;
+        const float tmp181 = tmp174 * tmp180;
+        const float tmp182 = (-0.5f) + tmp181;
+        const float tmp183 = tmp174 * tmp182;
+        const float tmp184 = 1.0f + tmp183;
+        const float tmp185 = 2.7557319e-06f * tmp174;
+        const float tmp186 = (-0.0001984127f) + tmp185;
+        const float tmp187 = tmp174 * tmp186;
+        const float tmp188 = 0.008333334f + tmp187;
+        const float tmp189 = tmp174 * tmp188;
+        const float tmp190 = (-0.16666667f) + tmp189;
+        const float tmp191 = tmp174 * tmp190;
+        const float tmp192 = 1.0f + tmp191;
+        tmp175 = tmp184;
+        tmp176 = tmp192;
+    } else {
+        const float tmp193 = (tmp174 > 0.01f) ? tmp174 : 0.01f;
+        const float tmp194 = sqrtf(tmp193);
+        const float tmp195 = fast_cosf(tmp194);
+        const float tmp196 = fast_sinf(tmp194);
+        const float tmp197 = tmp196 / tmp194;
+        tmp175 = tmp195;
+        tmp176 = tmp197;
+    }
+    const float tmp198 = q[0] * tmp175;
+    const float tmp199 = tmp176 * carry0[6];
+    const float tmp200 = q[1] * tmp199;
+    const float tmp201 = tmp198 - tmp200;
+    const float tmp202 = tmp176 * tmp160;
+    const float tmp203 = q[2] * tmp202;
+    const float tmp204 = tmp201 - tmp203;
+    const float tmp205 = tmp176 * tmp172;
+    const float tmp206 = q[3] * tmp205;
+    const float tmp207 = tmp204 - tmp206;
+    const float tmp208 = tmp207 * tmp207;
+    const float tmp209 = q[0] * tmp199;
+    const float tmp210 = q[1] * tmp175;
+    const float tmp211 = tmp209 + tmp210;
+    const float tmp212 = q[2] * tmp205;
+    const float tmp213 = tmp211 + tmp212;
+    const float tmp214 = q[3] * tmp202;
+    const float tmp215 = tmp213 - tmp214;
+    const float tmp216 = tmp215 * tmp215;
+    const float tmp217 = tmp208 + tmp216;
+    const float tmp218 = q[0] * tmp202;
+    const float tmp219 = q[1] * tmp205;
+    const float tmp220 = tmp218 - tmp219;
+    const float tmp221 = q[2] * tmp175;
+    const float tmp222 = tmp220 + tmp221;
+    const float tmp223 = q[3] * tmp199;
+    const float tmp224 = tmp222 + tmp223;
+    const float tmp225 = tmp224 * tmp224;
+    const float tmp226 = tmp217 + tmp225;
+    const float tmp227 = q[0] * tmp205;
+    const float tmp228 = q[1] * tmp202;
+    const float tmp229 = tmp227 + tmp228;
+    const float tmp230 = q[2] * tmp199;
+    const float tmp231 = tmp229 - tmp230;
+    const float tmp232 = q[3] * tmp175;
+    const float tmp233 = tmp231 + tmp232;
+    const float tmp234 = tmp233 * tmp233;
+    const float tmp235 = tmp226 + tmp234;
+    const float tmp236 = sqrtf(tmp235);
+    const float tmp237 = tmp207 / tmp236;
+    const float tmp238 = tmp215 / tmp236;
+    const float tmp239 = tmp224 / tmp236;
+    const float tmp240 = tmp233 / tmp236;
+    float tmp241;
+    float tmp242;
+    float tmp243;
+    if (at_rest != 0.0f) {
+        const float tmp244 = 1.0f + span_accel;
+        const float tmp245 = span_accel / tmp244;
+        const float tmp246 = rest_gyro_lp[0] - gyro_bias[0];
+        const float tmp247 = tmp245 * tmp246;
+        const float tmp248 = gyro_bias[0] + tmp247;
+        const float tmp249 = rest_gyro_lp[1] - gyro_bias[1];
+        const float tmp250 = tmp245 * tmp249;
+        const float tmp251 = gyro_bias[1] + tmp250;
+        const float tmp252 = rest_gyro_lp[2] - gyro_bias[2];
+        const float tmp253 = tmp245 * tmp252;
+        const float tmp254 = gyro_bias[2] + tmp253;
+        tmp241 = tmp248;
+        tmp242 = tmp251;
+        tmp243 = tmp254;
+    } else {
+        const float tmp255 = accel[0] * accel[0];
+        const float tmp256 = accel[1] * accel[1];
+        const float tmp257 = tmp255 + tmp256;
+        const float tmp258 = accel[2] * accel[2];
+        const float tmp259 = tmp257 + tmp258;
+        const float tmp260 = sqrtf(tmp259);
+        const float tmp261 = tmp260 - 9.80665f;
+        const float tmp262 = fabsf(tmp261);
+        const float tmp263 = (tmp262 < 1.0f) ? 1.0f : 0.0f;
+        const float tmp264 = (use_accel != 0.0f && tmp263 != 0.0f) ? 1.0f : 0.0f;
+        const float tmp265 = 0.002f * carry0[5];
+        const float tmp266 = gyro_bias[0] - tmp265;
+        const float tmp267 = (tmp264 != 0.0f) ? tmp266 : gyro_bias[0];
+        const float tmp268 = 0.002f * carry0[8];
+        const float tmp269 = gyro_bias[1] - tmp268;
+        const float tmp270 = (tmp264 != 0.0f) ? tmp269 : gyro_bias[1];
+        const float tmp271 = 0.002f * tmp169;
+        const float tmp272 = gyro_bias[2] - tmp271;
+        const float tmp273 = (tmp264 != 0.0f) ? tmp272 : gyro_bias[2];
+        tmp241 = tmp267;
+        tmp242 = tmp270;
+        tmp243 = tmp273;
+    }
+    carry1[0] = tmp237;
+    carry1[1] = tmp238;
+    carry1[2] = tmp239;
+    carry1[3] = tmp240;
+    carry1[4] = tmp241;
+    carry1[5] = tmp242;
+    carry1[6] = tmp243;
+}
+
+static void qcf_k_correct(const float q[4], const float gyro_bias[3], const float gyro[3], float dt, const float accel_lp[3], const float mag[3], float span_accel, float span_mag, float use_accel, const float accel[3], float at_rest, const float rest_gyro_lp[3], float q_new[4], float gyro_bias_new[3])
+{
+    /* 2 parts called in turn (inlined when optimising): bounded -O0 frames */
+    float carry0[10];
+    float carry1[7];
+    qcf_k_correct_part0(q, gyro_bias, gyro, dt, accel_lp, mag, span_accel, span_mag, carry0);
+    qcf_k_correct_part1(q, gyro_bias, gyro, dt, span_accel, use_accel, accel, at_rest, rest_gyro_lp, carry0, carry1);
+    q_new[0] = carry1[0];
+    q_new[1] = carry1[1];
+    q_new[2] = carry1[2];
+    q_new[3] = carry1[3];
+    gyro_bias_new[0] = carry1[4];
+    gyro_bias_new[1] = carry1[5];
+    gyro_bias_new[2] = carry1[6];
+}
+
+/* rest detection: gyro and accelerometer steady for rest_time
+ * ops: add 26, mul 15, div 1, cmp 8 (total 50) */
+static void qcf_k_rest(const float gyro[3], const float accel[3], const float rest_gyro_lp[3], const float rest_accel_lp[3], float rest_time, float span, float rest_gyro_lp_new[3], float rest_accel_lp_new[3], float *rest_time_new, float *at_rest)
+{
+    const float tmp0 = 0.5f + span;
+    const float tmp1 = span / tmp0;
+    const float tmp2 = gyro[0] - rest_gyro_lp[0];
+    const float tmp3 = tmp1 * tmp2;
+    const float tmp4 = rest_gyro_lp[0] + tmp3;
+    const float tmp5 = gyro[1] - rest_gyro_lp[1];
+    const float tmp6 = tmp1 * tmp5;
+    const float tmp7 = rest_gyro_lp[1] + tmp6;
+    const float tmp8 = gyro[2] - rest_gyro_lp[2];
+    const float tmp9 = tmp1 * tmp8;
+    const float tmp10 = rest_gyro_lp[2] + tmp9;
+    const float tmp11 = accel[0] - rest_accel_lp[0];
+    const float tmp12 = tmp1 * tmp11;
+    const float tmp13 = rest_accel_lp[0] + tmp12;
+    const float tmp14 = accel[1] - rest_accel_lp[1];
+    const float tmp15 = tmp1 * tmp14;
+    const float tmp16 = rest_accel_lp[1] + tmp15;
+    const float tmp17 = accel[2] - rest_accel_lp[2];
+    const float tmp18 = tmp1 * tmp17;
+    const float tmp19 = rest_accel_lp[2] + tmp18;
+    const float tmp20 = gyro[0] - tmp4;
+    const float tmp21 = tmp20 * tmp20;
+    const float tmp22 = gyro[1] - tmp7;
+    const float tmp23 = tmp22 * tmp22;
+    const float tmp24 = tmp21 + tmp23;
+    const float tmp25 = gyro[2] - tmp10;
+    const float tmp26 = tmp25 * tmp25;
+    const float tmp27 = tmp24 + tmp26;
+    const float tmp28 = (tmp27 < 0.001225f) ? 1.0f : 0.0f;
+    const float tmp29 = accel[0] - tmp13;
+    const float tmp30 = tmp29 * tmp29;
+    const float tmp31 = accel[1] - tmp16;
+    const float tmp32 = tmp31 * tmp31;
+    const float tmp33 = tmp30 + tmp32;
+    const float tmp34 = accel[2] - tmp19;
+    const float tmp35 = tmp34 * tmp34;
+    const float tmp36 = tmp33 + tmp35;
+    const float tmp37 = (tmp36 < 0.25f) ? 1.0f : 0.0f;
+    const float tmp38 = (tmp28 != 0.0f && tmp37 != 0.0f) ? 1.0f : 0.0f;
+    const float tmp39 = tmp4 * tmp4;
+    const float tmp40 = tmp7 * tmp7;
+    const float tmp41 = tmp39 + tmp40;
+    const float tmp42 = tmp10 * tmp10;
+    const float tmp43 = tmp41 + tmp42;
+    const float tmp44 = (tmp43 < 0.001225f) ? 1.0f : 0.0f;
+    const float tmp45 = (tmp38 != 0.0f && tmp44 != 0.0f) ? 1.0f : 0.0f;
+    const float tmp46 = rest_time + span;
+    const float tmp47 = (tmp46 < 1000.0f) ? tmp46 : 1000.0f;
+    const float tmp48 = (tmp45 != 0.0f) ? tmp47 : 0.0f;
+    const float tmp49 = (1.5f <= tmp48) ? 1.0f : 0.0f;
+    rest_gyro_lp_new[0] = tmp4;
+    rest_gyro_lp_new[1] = tmp7;
+    rest_gyro_lp_new[2] = tmp10;
+    rest_accel_lp_new[0] = tmp13;
+    rest_accel_lp_new[1] = tmp16;
+    rest_accel_lp_new[2] = tmp19;
+    *rest_time_new = tmp48;
+    *at_rest = tmp49;
+}
+
+/* field check: |m| and sin(dip) against the learned reference
+ * ops: add 43, mul 35, div 4, sqrt 2, cmp 24 (total 108)
+ *      of which only one side runs: if (tmp0 < 10.0f) 5, else 27
+ *      of which only one side runs: if (tmp93 != 0.0f) 1, else 8
+ *      of which only one side runs: if (tmp85 != 0.0f) 6, else 0 */
+static void qcf_k_mag_check(const float q[4], const float accel_lp[3], const float mag[3], const float mag_ref[2], float mag_dist_time, float mag_learn_time, float span, float *accept, float mag_ref_new[2], float *mag_dist_time_new, float *mag_learn_time_new)
+{
+    const float tmp0 = (mag_ref[0] <= 0.0f) ? 0.0f : mag_learn_time;
+    const float tmp1 = mag[0] * mag[0];
+    const float tmp2 = mag[1] * mag[1];
+    const float tmp3 = tmp1 + tmp2;
+    const float tmp4 = mag[2] * mag[2];
+    const float tmp5 = tmp3 + tmp4;
+    const float tmp6 = sqrtf(tmp5);
+    const float tmp7 = tmp6 - mag_ref[0];
+    const float tmp8 = q[2] * q[2];
+    const float tmp9 = q[3] * q[3];
+    const float tmp10 = tmp8 + tmp9;
+    const float tmp11 = tmp10 + tmp10;
+    const float tmp12 = 1.0f - tmp11;
+    const float tmp13 = accel_lp[0] * accel_lp[0];
+    const float tmp14 = accel_lp[1] * accel_lp[1];
+    const float tmp15 = tmp13 + tmp14;
+    const float tmp16 = accel_lp[2] * accel_lp[2];
+    const float tmp17 = tmp15 + tmp16;
+    const float tmp18 = 1.0f / tmp17;
+    const float tmp19 = sqrtf(tmp18);
+    const float tmp20 = accel_lp[0] * tmp19;
+    const float tmp21 = tmp12 * tmp20;
+    const float tmp22 = q[1] * q[2];
+    const float tmp23 = q[0] * q[3];
+    const float tmp24 = tmp22 + tmp23;
+    const float tmp25 = tmp24 + tmp24;
+    const float tmp26 = accel_lp[1] * tmp19;
+    const float tmp27 = tmp25 * tmp26;
+    const float tmp28 = tmp21 + tmp27;
+    const float tmp29 = q[1] * q[3];
+    const float tmp30 = q[0] * q[2];
+    const float tmp31 = tmp29 - tmp30;
+    const float tmp32 = tmp31 + tmp31;
+    const float tmp33 = accel_lp[2] * tmp19;
+    const float tmp34 = tmp32 * tmp33;
+    const float tmp35 = tmp28 + tmp34;
+    const float tmp36 = tmp35 * mag[0];
+    const float tmp37 = tmp22 - tmp23;
+    const float tmp38 = tmp37 + tmp37;
+    const float tmp39 = tmp38 * tmp20;
+    const float tmp40 = q[1] * q[1];
+    const float tmp41 = tmp40 + tmp9;
+    const float tmp42 = tmp41 + tmp41;
+    const float tmp43 = 1.0f - tmp42;
+    const float tmp44 = tmp43 * tmp26;
+    const float tmp45 = tmp39 + tmp44;
+    const float tmp46 = q[2] * q[3];
+    const float tmp47 = q[0] * q[1];
+    const float tmp48 = tmp46 + tmp47;
+    const float tmp49 = tmp48 + tmp48;
+    const float tmp50 = tmp49 * tmp33;
+    const float tmp51 = tmp45 + tmp50;
+    const float tmp52 = tmp51 * mag[1];
+    const float tmp53 = tmp36 + tmp52;
+    const float tmp54 = tmp29 + tmp30;
+    const float tmp55 = tmp54 + tmp54;
+    const float tmp56 = tmp55 * tmp20;
+    const float tmp57 = tmp46 - tmp47;
+    const float tmp58 = tmp57 + tmp57;
+    const float tmp59 = tmp58 * tmp26;
+    const float tmp60 = tmp56 + tmp59;
+    const float tmp61 = tmp40 + tmp8;
+    const float tmp62 = tmp61 + tmp61;
+    const float tmp63 = 1.0f - tmp62;
+    const float tmp64 = tmp63 * tmp33;
+    const float tmp65 = tmp60 + tmp64;
+    const float tmp66 = tmp65 * mag[2];
+    const float tmp67 = tmp53 + tmp66;
+    const float tmp68 = tmp67 / tmp6;
+    const float tmp69 = tmp68 + mag_ref[1];
+    const float tmp70 = tmp0 + span;
+    float tmp71;
+    float tmp72;
+    float tmp73;
+    float tmp74;
+    if (tmp0 < 10.0f) {
+        const float tmp75 = span / tmp70;
+        const float tmp76 = tmp75 * tmp7;
+        const float tmp77 = mag_ref[0] + tmp76;
+        const float tmp78 = tmp75 * tmp69;
+        const float tmp79 = mag_ref[1] - tmp78;
+        tmp71 = 1.0f;
+        tmp72 = tmp77;
+        tmp73 = tmp79;
+        tmp74 = 0.0f;
+    } else {
+        const float tmp80 = fabsf(tmp7);
+        const float tmp81 = 0.1f * mag_ref[0];
+        const float tmp82 = (tmp80 < tmp81) ? 1.0f : 0.0f;
+        const float tmp83 = fabsf(tmp69);
+        const float tmp84 = (tmp83 < 0.1f) ? 1.0f : 0.0f;
+        const float tmp85 = (tmp82 != 0.0f && tmp84 != 0.0f) ? 1.0f : 0.0f;
+        const float tmp86 = (0.0f < mag_ref[0]) ? 1.0f : 0.0f;
+        const float tmp87 = (tmp86 == 0.0f) ? 1.0f : 0.0f;
+        const float tmp88 = (tmp85 != 0.0f || tmp87 != 0.0f) ? 1.0f : 0.0f;
+        const float tmp89 = (tmp85 == 0.0f) ? 1.0f : 0.0f;
+        const float tmp90 = mag_dist_time + span;
+        const float tmp91 = (tmp89 != 0.0f) ? tmp90 : 0.0f;
+        const float tmp92 = (20.0f < tmp91) ? 1.0f : 0.0f;
+        const float tmp93 = (tmp87 != 0.0f || tmp92 != 0.0f) ? 1.0f : 0.0f;
+        const float tmp94 = (tmp93 == 0.0f) ? 1.0f : 0.0f;
+        float tmp95;
+        float tmp96;
+        if (tmp93 != 0.0f) {
+            const float tmp97 = -tmp68;
+            tmp95 = tmp6;
+            tmp96 = tmp97;
+        } else {
+            float tmp98;
+            float tmp99;
+            if (tmp85 != 0.0f) {
+                const float tmp100 = 20.0f + span;
+                const float tmp101 = span / tmp100;
+                const float tmp102 = tmp101 * tmp7;
+                const float tmp103 = mag_ref[0] + tmp102;
+                const float tmp104 = tmp101 * tmp69;
+                const float tmp105 = mag_ref[1] - tmp104;
+                tmp98 = tmp103;
+                tmp99 = tmp105;
+            } else {
+                tmp98 = mag_ref[0];
+                tmp99 = mag_ref[1];
+            }
+            tmp95 = tmp98;
+            tmp96 = tmp99;
+        }
+        const float tmp106 = (tmp94 != 0.0f) ? tmp91 : 0.0f;
+        tmp71 = tmp88;
+        tmp72 = tmp95;
+        tmp73 = tmp96;
+        tmp74 = tmp106;
+    }
+    const float tmp107 = (tmp70 < 10.0f) ? tmp70 : 10.0f;
+    *accept = tmp71;
+    mag_ref_new[0] = tmp72;
+    mag_ref_new[1] = tmp73;
+    *mag_dist_time_new = tmp74;
+    *mag_learn_time_new = tmp107;
+}
+
+/* centripetal acceleration now: R(q)(w - b) x v_gps (NED, m/s^2)
+ * ops: add 38, mul 34, div 2, sqrt 1, cmp 3 (total 78) */
+static void qcf_k_motion_accel(const float q[4], const float gyro[3], const float gyro_bias[3], const float gps_vel_hist[21], float motion_accel_now[3])
+{
+    const float tmp0 = q[2] * q[2];
+    const float tmp1 = q[3] * q[3];
+    const float tmp2 = tmp0 + tmp1;
+    const float tmp3 = tmp2 + tmp2;
+    const float tmp4 = 1.0f - tmp3;
+    const float tmp5 = gps_vel_hist[18] * tmp4;
+    const float tmp6 = q[1] * q[2];
+    const float tmp7 = q[0] * q[3];
     const float tmp8 = tmp6 + tmp7;
     const float tmp9 = tmp8 + tmp8;
-    const float tmp10 = 1.0f - tmp9;
-    const float tmp11 = gyro[1] - gyro_bias[1];
-    const float tmp12 = tmp10 * tmp11;
-    const float tmp13 = tmp5 + tmp12;
-    const float tmp14 = q[2] * q[3];
-    const float tmp15 = q[0] * q[1];
-    const float tmp16 = tmp14 - tmp15;
-    const float tmp17 = tmp16 + tmp16;
-    const float tmp18 = gyro[2] - gyro_bias[2];
-    const float tmp19 = tmp17 * tmp18;
-    const float tmp20 = tmp13 + tmp19;
-    const float tmp21 = tmp20 * gps_vel_hist[20];
-    const float tmp22 = q[1] * q[3];
-    const float tmp23 = q[0] * q[2];
-    const float tmp24 = tmp22 - tmp23;
-    const float tmp25 = tmp24 + tmp24;
-    const float tmp26 = tmp25 * tmp4;
-    const float tmp27 = tmp14 + tmp15;
-    const float tmp28 = tmp27 + tmp27;
-    const float tmp29 = tmp28 * tmp11;
-    const float tmp30 = tmp26 + tmp29;
-    const float tmp31 = q[2] * q[2];
-    const float tmp32 = tmp6 + tmp31;
-    const float tmp33 = tmp32 + tmp32;
-    const float tmp34 = 1.0f - tmp33;
-    const float tmp35 = tmp34 * tmp18;
-    const float tmp36 = tmp30 + tmp35;
-    const float tmp37 = tmp36 * gps_vel_hist[19];
-    const float tmp38 = tmp21 - tmp37;
-    const float tmp39 = tmp36 * gps_vel_hist[18];
-    const float tmp40 = tmp31 + tmp7;
-    const float tmp41 = tmp40 + tmp40;
-    const float tmp42 = 1.0f - tmp41;
-    const float tmp43 = tmp42 * tmp4;
-    const float tmp44 = tmp0 - tmp1;
-    const float tmp45 = tmp44 + tmp44;
-    const float tmp46 = tmp45 * tmp11;
-    const float tmp47 = tmp43 + tmp46;
-    const float tmp48 = tmp22 + tmp23;
-    const float tmp49 = tmp48 + tmp48;
-    const float tmp50 = tmp49 * tmp18;
-    const float tmp51 = tmp47 + tmp50;
-    const float tmp52 = tmp51 * gps_vel_hist[20];
-    const float tmp53 = tmp39 - tmp52;
-    const float tmp54 = tmp51 * gps_vel_hist[19];
-    const float tmp55 = tmp20 * gps_vel_hist[18];
-    const float tmp56 = tmp54 - tmp55;
-    motion_accel_now[0] = tmp38;
-    motion_accel_now[1] = tmp53;
-    motion_accel_now[2] = tmp56;
+    const float tmp10 = gps_vel_hist[19] * tmp9;
+    const float tmp11 = tmp5 + tmp10;
+    const float tmp12 = q[1] * q[3];
+    const float tmp13 = q[0] * q[2];
+    const float tmp14 = tmp12 - tmp13;
+    const float tmp15 = tmp14 + tmp14;
+    const float tmp16 = gps_vel_hist[20] * tmp15;
+    const float tmp17 = tmp11 + tmp16;
+    const float tmp18 = gps_vel_hist[18] * gps_vel_hist[18];
+    const float tmp19 = gps_vel_hist[19] * gps_vel_hist[19];
+    const float tmp20 = tmp18 + tmp19;
+    const float tmp21 = gps_vel_hist[20] * gps_vel_hist[20];
+    const float tmp22 = tmp20 + tmp21;
+    const float tmp23 = (tmp22 > 1e-06f) ? tmp22 : 1e-06f;
+    const float tmp24 = 1.0f / tmp23;
+    const float tmp25 = sqrtf(tmp24);
+    const float tmp26 = tmp17 * tmp25;
+    const float tmp27 = tmp26 - 0.7f;
+    const float tmp28 = tmp27 / 0.3f;
+    const float tmp29 = (tmp28 > 0.0f) ? tmp28 : 0.0f;
+    const float tmp30 = (tmp29 < 1.0f) ? tmp29 : 1.0f;
+    const float tmp31 = gyro[0] - gyro_bias[0];
+    const float tmp32 = tmp9 * tmp31;
+    const float tmp33 = q[1] * q[1];
+    const float tmp34 = tmp33 + tmp1;
+    const float tmp35 = tmp34 + tmp34;
+    const float tmp36 = 1.0f - tmp35;
+    const float tmp37 = gyro[1] - gyro_bias[1];
+    const float tmp38 = tmp36 * tmp37;
+    const float tmp39 = tmp32 + tmp38;
+    const float tmp40 = q[2] * q[3];
+    const float tmp41 = q[0] * q[1];
+    const float tmp42 = tmp40 - tmp41;
+    const float tmp43 = tmp42 + tmp42;
+    const float tmp44 = gyro[2] - gyro_bias[2];
+    const float tmp45 = tmp43 * tmp44;
+    const float tmp46 = tmp39 + tmp45;
+    const float tmp47 = tmp46 * gps_vel_hist[20];
+    const float tmp48 = tmp15 * tmp31;
+    const float tmp49 = tmp40 + tmp41;
+    const float tmp50 = tmp49 + tmp49;
+    const float tmp51 = tmp50 * tmp37;
+    const float tmp52 = tmp48 + tmp51;
+    const float tmp53 = tmp33 + tmp0;
+    const float tmp54 = tmp53 + tmp53;
+    const float tmp55 = 1.0f - tmp54;
+    const float tmp56 = tmp55 * tmp44;
+    const float tmp57 = tmp52 + tmp56;
+    const float tmp58 = tmp57 * gps_vel_hist[19];
+    const float tmp59 = tmp47 - tmp58;
+    const float tmp60 = tmp30 * tmp59;
+    const float tmp61 = tmp57 * gps_vel_hist[18];
+    const float tmp62 = tmp4 * tmp31;
+    const float tmp63 = tmp6 - tmp7;
+    const float tmp64 = tmp63 + tmp63;
+    const float tmp65 = tmp64 * tmp37;
+    const float tmp66 = tmp62 + tmp65;
+    const float tmp67 = tmp12 + tmp13;
+    const float tmp68 = tmp67 + tmp67;
+    const float tmp69 = tmp68 * tmp44;
+    const float tmp70 = tmp66 + tmp69;
+    const float tmp71 = tmp70 * gps_vel_hist[20];
+    const float tmp72 = tmp61 - tmp71;
+    const float tmp73 = tmp30 * tmp72;
+    const float tmp74 = tmp70 * gps_vel_hist[19];
+    const float tmp75 = tmp46 * gps_vel_hist[18];
+    const float tmp76 = tmp74 - tmp75;
+    const float tmp77 = tmp30 * tmp76;
+    motion_accel_now[0] = tmp60;
+    motion_accel_now[1] = tmp73;
+    motion_accel_now[2] = tmp77;
 }
 
 /* accelerometer minus the GPS motion acceleration when ||f| - g| exceeds the threshold
@@ -228,369 +1183,6 @@ static void qcf_k_gravity_part(const float accel[3], const float q[4], const flo
     accel_gravity[0] = tmp8;
     accel_gravity[1] = tmp9;
     accel_gravity[2] = tmp10;
-}
-
-/* factored quaternion algorithm (FQA): attitude from accelerometer and magnetometer
- * ops: add 36, mul 36, div 13, sqrt 9, cmp 15 (total 109)
- *      of which only one side runs: if (tmp12 < 1e-06f) 0, else 7 */
-static void qcf_k_reference(const float accel[3], const float mag[3], float q_ref[4])
-{
-    const float tmp0 = accel[0] * accel[0];
-    const float tmp1 = accel[1] * accel[1];
-    const float tmp2 = tmp0 + tmp1;
-    const float tmp3 = accel[2] * accel[2];
-    const float tmp4 = tmp2 + tmp3;
-    const float tmp5 = sqrtf(tmp4);
-    const float tmp6 = accel[0] / tmp5;
-    const float tmp7 = (tmp6 > (-1.0f)) ? tmp6 : (-1.0f);
-    const float tmp8 = (tmp7 < 1.0f) ? tmp7 : 1.0f;
-    const float tmp9 = (tmp8 < 0.0f) ? (-1.0f) : 1.0f;
-    const float tmp10 = tmp8 * tmp8;
-    const float tmp11 = 1.0f - tmp10;
-    const float tmp12 = sqrtf(tmp11);
-    const float tmp13 = (tmp12 > (-1.0f)) ? tmp12 : (-1.0f);
-    const float tmp14 = (tmp13 < 1.0f) ? tmp13 : 1.0f;
-    const float tmp15 = 1.0f - tmp14;
-    const float tmp16 = tmp15 / 2.0f;
-    const float tmp17 = sqrtf(tmp16);
-    const float tmp18 = tmp9 * tmp17;
-    float tmp19;
-    float tmp20;
-    if (tmp12 < 1e-06f) {
-        tmp19 = 1.0f;
-        tmp20 = 0.0f;
-    } else {
-        const float tmp21 = accel[2] / tmp5;
-        const float tmp22 = (tmp12 > 1e-06f) ? tmp12 : 1e-06f;
-        const float tmp23 = tmp21 / tmp22;
-        const float tmp24 = -tmp23;
-        const float tmp25 = accel[1] / tmp5;
-        const float tmp26 = tmp25 / tmp22;
-        const float tmp27 = -tmp26;
-        tmp19 = tmp24;
-        tmp20 = tmp27;
-    }
-    const float tmp28 = (tmp19 > (-1.0f)) ? tmp19 : (-1.0f);
-    const float tmp29 = (tmp28 < 1.0f) ? tmp28 : 1.0f;
-    const float tmp30 = 1.0f + tmp29;
-    const float tmp31 = tmp30 / 2.0f;
-    const float tmp32 = sqrtf(tmp31);
-    const float tmp33 = tmp18 * tmp32;
-    const float tmp34 = tmp33 * tmp33;
-    const float tmp35 = (tmp20 < 0.0f) ? (-1.0f) : 1.0f;
-    const float tmp36 = 1.0f - tmp29;
-    const float tmp37 = tmp36 / 2.0f;
-    const float tmp38 = sqrtf(tmp37);
-    const float tmp39 = tmp35 * tmp38;
-    const float tmp40 = tmp18 * tmp39;
-    const float tmp41 = tmp40 * tmp40;
-    const float tmp42 = tmp34 + tmp41;
-    const float tmp43 = tmp42 + tmp42;
-    const float tmp44 = 1.0f - tmp43;
-    const float tmp45 = tmp44 * mag[0];
-    const float tmp46 = 1.0f + tmp14;
-    const float tmp47 = tmp46 / 2.0f;
-    const float tmp48 = sqrtf(tmp47);
-    const float tmp49 = tmp48 * tmp39;
-    const float tmp50 = tmp49 * tmp33;
-    const float tmp51 = tmp48 * tmp32;
-    const float tmp52 = tmp51 * tmp40;
-    const float tmp53 = tmp50 + tmp52;
-    const float tmp54 = tmp53 + tmp53;
-    const float tmp55 = tmp54 * mag[1];
-    const float tmp56 = tmp45 + tmp55;
-    const float tmp57 = tmp51 * tmp33;
-    const float tmp58 = tmp49 * tmp40;
-    const float tmp59 = tmp57 - tmp58;
-    const float tmp60 = tmp59 + tmp59;
-    const float tmp61 = tmp60 * mag[2];
-    const float tmp62 = tmp56 + tmp61;
-    const float tmp63 = tmp62 * tmp62;
-    const float tmp64 = tmp50 - tmp52;
-    const float tmp65 = tmp64 + tmp64;
-    const float tmp66 = tmp65 * mag[0];
-    const float tmp67 = tmp49 * tmp49;
-    const float tmp68 = tmp67 + tmp41;
-    const float tmp69 = tmp68 + tmp68;
-    const float tmp70 = 1.0f - tmp69;
-    const float tmp71 = tmp70 * mag[1];
-    const float tmp72 = tmp66 + tmp71;
-    const float tmp73 = tmp33 * tmp40;
-    const float tmp74 = tmp51 * tmp49;
-    const float tmp75 = tmp73 + tmp74;
-    const float tmp76 = -tmp75;
-    const float tmp77 = tmp76 + tmp76;
-    const float tmp78 = tmp77 * mag[2];
-    const float tmp79 = tmp72 + tmp78;
-    const float tmp80 = tmp79 * tmp79;
-    const float tmp81 = tmp63 + tmp80;
-    const float tmp82 = sqrtf(tmp81);
-    const float tmp83 = (tmp82 > 1e-30f) ? tmp82 : 1e-30f;
-    const float tmp84 = tmp62 / tmp83;
-    const float tmp85 = (tmp84 > (-1.0f)) ? tmp84 : (-1.0f);
-    const float tmp86 = (tmp85 < 1.0f) ? tmp85 : 1.0f;
-    const float tmp87 = 1.0f + tmp86;
-    const float tmp88 = tmp87 / 2.0f;
-    const float tmp89 = sqrtf(tmp88);
-    const float tmp90 = tmp89 * tmp51;
-    const float tmp91 = tmp79 / tmp83;
-    const float tmp92 = -tmp91;
-    const float tmp93 = (tmp92 < 0.0f) ? (-1.0f) : 1.0f;
-    const float tmp94 = 1.0f - tmp86;
-    const float tmp95 = tmp94 / 2.0f;
-    const float tmp96 = sqrtf(tmp95);
-    const float tmp97 = tmp93 * tmp96;
-    const float tmp98 = tmp97 * tmp40;
-    const float tmp99 = tmp90 + tmp98;
-    const float tmp100 = tmp89 * tmp49;
-    const float tmp101 = tmp97 * tmp33;
-    const float tmp102 = tmp100 - tmp101;
-    const float tmp103 = tmp89 * tmp33;
-    const float tmp104 = tmp97 * tmp49;
-    const float tmp105 = tmp103 + tmp104;
-    const float tmp106 = tmp97 * tmp51;
-    const float tmp107 = tmp89 * tmp40;
-    const float tmp108 = tmp106 - tmp107;
-    q_ref[0] = tmp99;
-    q_ref[1] = tmp102;
-    q_ref[2] = tmp105;
-    q_ref[3] = tmp108;
-}
-
-/* FQA tilt with the estimate's yaw, for steps without a magnetometer sample
- * ops: add 18, mul 22, div 10, sqrt 6, trig 3, cmp 11 (total 70)
- *      of which only one side runs: if (tmp23 < 1e-06f) 0, else 7 */
-static void qcf_k_reference_tilt(const float accel[3], const float q[4], float q_ref[4])
-{
-    const float tmp0 = q[0] * q[3];
-    const float tmp1 = q[1] * q[2];
-    const float tmp2 = tmp0 + tmp1;
-    const float tmp3 = tmp2 + tmp2;
-    const float tmp4 = q[2] * q[2];
-    const float tmp5 = q[3] * q[3];
-    const float tmp6 = tmp4 + tmp5;
-    const float tmp7 = tmp6 + tmp6;
-    const float tmp8 = 1.0f - tmp7;
-    const float tmp9 = fast_atan2f(tmp3, tmp8);
-    const float tmp10 = tmp9 / 2.0f;
-    const float tmp11 = fast_cosf(tmp10);
-    const float tmp12 = accel[0] * accel[0];
-    const float tmp13 = accel[1] * accel[1];
-    const float tmp14 = tmp12 + tmp13;
-    const float tmp15 = accel[2] * accel[2];
-    const float tmp16 = tmp14 + tmp15;
-    const float tmp17 = sqrtf(tmp16);
-    const float tmp18 = accel[0] / tmp17;
-    const float tmp19 = (tmp18 > (-1.0f)) ? tmp18 : (-1.0f);
-    const float tmp20 = (tmp19 < 1.0f) ? tmp19 : 1.0f;
-    const float tmp21 = tmp20 * tmp20;
-    const float tmp22 = 1.0f - tmp21;
-    const float tmp23 = sqrtf(tmp22);
-    const float tmp24 = (tmp23 > (-1.0f)) ? tmp23 : (-1.0f);
-    const float tmp25 = (tmp24 < 1.0f) ? tmp24 : 1.0f;
-    const float tmp26 = 1.0f + tmp25;
-    const float tmp27 = tmp26 / 2.0f;
-    const float tmp28 = sqrtf(tmp27);
-    float tmp29;
-    float tmp30;
-    if (tmp23 < 1e-06f) {
-        tmp29 = 1.0f;
-        tmp30 = 0.0f;
-    } else {
-        const float tmp31 = accel[2] / tmp17;
-        const float tmp32 = (tmp23 > 1e-06f) ? tmp23 : 1e-06f;
-        const float tmp33 = tmp31 / tmp32;
-        const float tmp34 = -tmp33;
-        const float tmp35 = accel[1] / tmp17;
-        const float tmp36 = tmp35 / tmp32;
-        const float tmp37 = -tmp36;
-        tmp29 = tmp34;
-        tmp30 = tmp37;
-    }
-    const float tmp38 = (tmp29 > (-1.0f)) ? tmp29 : (-1.0f);
-    const float tmp39 = (tmp38 < 1.0f) ? tmp38 : 1.0f;
-    const float tmp40 = 1.0f + tmp39;
-    const float tmp41 = tmp40 / 2.0f;
-    const float tmp42 = sqrtf(tmp41);
-    const float tmp43 = tmp28 * tmp42;
-    const float tmp44 = tmp11 * tmp43;
-    const float tmp45 = fast_sinf(tmp10);
-    const float tmp46 = (tmp20 < 0.0f) ? (-1.0f) : 1.0f;
-    const float tmp47 = 1.0f - tmp25;
-    const float tmp48 = tmp47 / 2.0f;
-    const float tmp49 = sqrtf(tmp48);
-    const float tmp50 = tmp46 * tmp49;
-    const float tmp51 = (tmp30 < 0.0f) ? (-1.0f) : 1.0f;
-    const float tmp52 = 1.0f - tmp39;
-    const float tmp53 = tmp52 / 2.0f;
-    const float tmp54 = sqrtf(tmp53);
-    const float tmp55 = tmp51 * tmp54;
-    const float tmp56 = tmp50 * tmp55;
-    const float tmp57 = tmp45 * tmp56;
-    const float tmp58 = tmp44 + tmp57;
-    const float tmp59 = tmp28 * tmp55;
-    const float tmp60 = tmp11 * tmp59;
-    const float tmp61 = tmp50 * tmp42;
-    const float tmp62 = tmp45 * tmp61;
-    const float tmp63 = tmp60 - tmp62;
-    const float tmp64 = tmp11 * tmp61;
-    const float tmp65 = tmp45 * tmp59;
-    const float tmp66 = tmp64 + tmp65;
-    const float tmp67 = tmp45 * tmp43;
-    const float tmp68 = tmp11 * tmp56;
-    const float tmp69 = tmp67 - tmp68;
-    q_ref[0] = tmp58;
-    q_ref[1] = tmp63;
-    q_ref[2] = tmp66;
-    q_ref[3] = tmp69;
-}
-
-/* PI feedback on the error quaternion q^-1 (x) q_ref and integration (eqs. 13, 14, 9)
- * ops: add 49, mul 63, div 5, sqrt 2, trig 2, cmp 6 (total 127)
- *      of which only one side runs: if (tmp51 < 0.01f) 16, else 5 */
-static void qcf_k_update(const float q[4], const float gyro_bias[3], const float gyro[3], const float q_ref[4], float dt, float q_new[4], float gyro_bias_new[3])
-{
-    const float tmp0 = 0.5f * dt;
-    const float tmp1 = gyro[0] - gyro_bias[0];
-    const float tmp2 = q[0] * q_ref[0];
-    const float tmp3 = q[1] * q_ref[1];
-    const float tmp4 = tmp2 + tmp3;
-    const float tmp5 = q[2] * q_ref[2];
-    const float tmp6 = tmp4 + tmp5;
-    const float tmp7 = q[3] * q_ref[3];
-    const float tmp8 = tmp6 + tmp7;
-    const float tmp9 = q[0] * q_ref[1];
-    const float tmp10 = q[1] * q_ref[0];
-    const float tmp11 = tmp9 - tmp10;
-    const float tmp12 = q[2] * q_ref[3];
-    const float tmp13 = tmp11 - tmp12;
-    const float tmp14 = q[3] * q_ref[2];
-    const float tmp15 = tmp13 + tmp14;
-    const float tmp16 = -tmp15;
-    const float tmp17 = (tmp8 < 0.0f) ? tmp16 : tmp15;
-    const float tmp18 = 0.3f * tmp17;
-    const float tmp19 = tmp1 + tmp18;
-    const float tmp20 = tmp0 * tmp19;
-    const float tmp21 = tmp20 * tmp20;
-    const float tmp22 = gyro[1] - gyro_bias[1];
-    const float tmp23 = q[0] * q_ref[2];
-    const float tmp24 = q[1] * q_ref[3];
-    const float tmp25 = tmp23 + tmp24;
-    const float tmp26 = q[2] * q_ref[0];
-    const float tmp27 = tmp25 - tmp26;
-    const float tmp28 = q[3] * q_ref[1];
-    const float tmp29 = tmp27 - tmp28;
-    const float tmp30 = -tmp29;
-    const float tmp31 = (tmp8 < 0.0f) ? tmp30 : tmp29;
-    const float tmp32 = 0.3f * tmp31;
-    const float tmp33 = tmp22 + tmp32;
-    const float tmp34 = tmp0 * tmp33;
-    const float tmp35 = tmp34 * tmp34;
-    const float tmp36 = tmp21 + tmp35;
-    const float tmp37 = gyro[2] - gyro_bias[2];
-    const float tmp38 = q[0] * q_ref[3];
-    const float tmp39 = q[1] * q_ref[2];
-    const float tmp40 = tmp38 - tmp39;
-    const float tmp41 = q[2] * q_ref[1];
-    const float tmp42 = tmp40 + tmp41;
-    const float tmp43 = q[3] * q_ref[0];
-    const float tmp44 = tmp42 - tmp43;
-    const float tmp45 = -tmp44;
-    const float tmp46 = (tmp8 < 0.0f) ? tmp45 : tmp44;
-    const float tmp47 = 0.3f * tmp46;
-    const float tmp48 = tmp37 + tmp47;
-    const float tmp49 = tmp0 * tmp48;
-    const float tmp50 = tmp49 * tmp49;
-    const float tmp51 = tmp36 + tmp50;
-    float tmp52;
-    float tmp53;
-    if (tmp51 < 0.01f) {
-        const float tmp54 = 2.4801588e-05f * tmp51;
-        const float tmp55 = (-0.0013888889f) + tmp54;
-        const float tmp56 = tmp51 * tmp55;
-        const float tmp57 = 0.041666668f + tmp56;
-        const float tmp58 = tmp51 * tmp57;
-        const float tmp59 = (-0.5f) + tmp58;
-        const float tmp60 = tmp51 * tmp59;
-        const float tmp61 = 1.0f + tmp60;
-        const float tmp62 = 2.7557319e-06f * tmp51;
-        const float tmp63 = (-0.0001984127f) + tmp62;
-        const float tmp64 = tmp51 * tmp63;
-        const float tmp65 = 0.008333334f + tmp64;
-        const float tmp66 = tmp51 * tmp65;
-        const float tmp67 = (-0.16666667f) + tmp66;
-        const float tmp68 = tmp51 * tmp67;
-        const float tmp69 = 1.0f + tmp68;
-        tmp52 = tmp61;
-        tmp53 = tmp69;
-    } else {
-        const float tmp70 = (tmp51 > 0.01f) ? tmp51 : 0.01f;
-        const float tmp71 = sqrtf(tmp70);
-        const float tmp72 = fast_cosf(tmp71);
-        const float tmp73 = fast_sinf(tmp71);
-        const float tmp74 = tmp73 / tmp71;
-        tmp52 = tmp72;
-        tmp53 = tmp74;
-    }
-    const float tmp75 = q[0] * tmp52;
-    const float tmp76 = tmp53 * tmp20;
-    const float tmp77 = q[1] * tmp76;
-    const float tmp78 = tmp75 - tmp77;
-    const float tmp79 = tmp53 * tmp34;
-    const float tmp80 = q[2] * tmp79;
-    const float tmp81 = tmp78 - tmp80;
-    const float tmp82 = tmp53 * tmp49;
-    const float tmp83 = q[3] * tmp82;
-    const float tmp84 = tmp81 - tmp83;
-    const float tmp85 = tmp84 * tmp84;
-    const float tmp86 = q[0] * tmp76;
-    const float tmp87 = q[1] * tmp52;
-    const float tmp88 = tmp86 + tmp87;
-    const float tmp89 = q[2] * tmp82;
-    const float tmp90 = tmp88 + tmp89;
-    const float tmp91 = q[3] * tmp79;
-    const float tmp92 = tmp90 - tmp91;
-    const float tmp93 = tmp92 * tmp92;
-    const float tmp94 = tmp85 + tmp93;
-    const float tmp95 = q[0] * tmp79;
-    const float tmp96 = q[1] * tmp82;
-    const float tmp97 = tmp95 - tmp96;
-    const float tmp98 = q[2] * tmp52;
-    const float tmp99 = tmp97 + tmp98;
-    const float tmp100 = q[3] * tmp76;
-    const float tmp101 = tmp99 + tmp100;
-    const float tmp102 = tmp101 * tmp101;
-    const float tmp103 = tmp94 + tmp102;
-    const float tmp104 = q[0] * tmp82;
-    const float tmp105 = q[1] * tmp79;
-    const float tmp106 = tmp104 + tmp105;
-    const float tmp107 = q[2] * tmp76;
-    const float tmp108 = tmp106 - tmp107;
-    const float tmp109 = q[3] * tmp52;
-    const float tmp110 = tmp108 + tmp109;
-    const float tmp111 = tmp110 * tmp110;
-    const float tmp112 = tmp103 + tmp111;
-    const float tmp113 = sqrtf(tmp112);
-    const float tmp114 = tmp84 / tmp113;
-    const float tmp115 = tmp92 / tmp113;
-    const float tmp116 = tmp101 / tmp113;
-    const float tmp117 = tmp110 / tmp113;
-    const float tmp118 = 0.002f * tmp17;
-    const float tmp119 = tmp118 * dt;
-    const float tmp120 = gyro_bias[0] - tmp119;
-    const float tmp121 = 0.002f * tmp31;
-    const float tmp122 = tmp121 * dt;
-    const float tmp123 = gyro_bias[1] - tmp122;
-    const float tmp124 = 0.002f * tmp46;
-    const float tmp125 = tmp124 * dt;
-    const float tmp126 = gyro_bias[2] - tmp125;
-    q_new[0] = tmp114;
-    q_new[1] = tmp115;
-    q_new[2] = tmp116;
-    q_new[3] = tmp117;
-    gyro_bias_new[0] = tmp120;
-    gyro_bias_new[1] = tmp123;
-    gyro_bias_new[2] = tmp126;
 }
 
 /* gyro-only integration with the bias removed (no aiding this step)
@@ -760,6 +1352,22 @@ void qcf_init(qcf_state *s)
     s->gps_age = 1000.0f;
     s->gps_count = 0u;
     s->initialised = 0u;
+    s->accel_lp[0] = 0.0f;
+    s->accel_lp[1] = 0.0f;
+    s->accel_lp[2] = 0.0f;
+    s->accel_age = 0.0f;
+    s->mag_age = 0.0f;
+    s->rest_gyro_lp[0] = 0.0f;
+    s->rest_gyro_lp[1] = 0.0f;
+    s->rest_gyro_lp[2] = 0.0f;
+    s->rest_accel_lp[0] = 0.0f;
+    s->rest_accel_lp[1] = 0.0f;
+    s->rest_accel_lp[2] = 0.0f;
+    s->rest_time = 0.0f;
+    s->mag_ref[0] = 0.0f;
+    s->mag_ref[1] = 0.0f;
+    s->mag_dist_time = 0.0f;
+    s->mag_learn_time = 0.0f;
 }
 
 qcf_status qcf_step(qcf_state *s, const qcf_input *in, float dt)
@@ -835,31 +1443,70 @@ qcf_status qcf_step(qcf_state *s, const qcf_input *in, float dt)
         s->gps_age += dt;
     }
 
+    /* Product conditioning (model.py docstring): NED low-pass of the accelerometer, tilt and
+     * heading corrections weighted by the time each sample stands for, field check, rest. */
+    float accel_g[3] = { in->accel[0], in->accel[1], in->accel[2] };
     if (use_accel) {
-        /* Reference attitude from the gravity part of the specific force. */
-        float accel_g[3] = { in->accel[0], in->accel[1], in->accel[2] };
-        float q_ref[4];
         /* centripetal acceleration of the latest GPS velocity turning with the body */
         if (QCF_GPS_COMPENSATION && s->gps_count >= 1u && s->gps_age <= QCF_GPS_TIMEOUT) {
             float accel_now[3];
             qcf_k_motion_accel(s->q, in->gyro, s->gyro_bias, s->gps_vel_hist, accel_now);
             qcf_k_gravity_part(in->accel, s->q, accel_now, accel_g);
         }
-        if (use_mag) {
-            qcf_k_reference(accel_g, in->mag, q_ref);
-            if (s->initialised == 0u) {
-                s->q[0] = q_ref[0];
-                s->q[1] = q_ref[1];
-                s->q[2] = q_ref[2];
-                s->q[3] = q_ref[3];
-                s->initialised = 1u;
-            }
-        } else {
-            qcf_k_reference_tilt(accel_g, s->q, q_ref);
+    }
+    if (s->initialised == 0u) {
+        if (!use_accel) {
+            qcf_k_propagate(s->q, s->gyro_bias, in->gyro, dt, s->q);
+            return status;
         }
-        qcf_k_update(s->q, s->gyro_bias, in->gyro, q_ref, dt, s->q, s->gyro_bias);
+        /* First accelerometer sample: its tilt (and the magnetometer's heading if present). */
+        qcf_k_init_attitude(accel_g, in->mag, use_mag ? 1.0f : 0.0f, s->q, s->accel_lp);
+        s->initialised = use_mag ? 2u : 1u;
+        s->accel_age = 0.0f;
+        s->mag_age = 0.0f;
+        for (uint32_t i = 0u; i < 3u; i++) {
+            s->rest_gyro_lp[i] = in->gyro[i];
+            s->rest_accel_lp[i] = in->accel[i];
+        }
+    } else if (s->initialised == 1u && use_mag) {
+        /* First magnetometer sample after a tilt-only start: set the heading. */
+        qcf_k_heading_init(s->q, in->mag, s->q);
+        s->initialised = 2u;
+        s->mag_age = 0.0f;
+    }
+    s->accel_age = (s->accel_age + dt < QCF_SPAN_MAX) ? s->accel_age + dt : QCF_SPAN_MAX;
+    s->mag_age = (s->mag_age + dt < QCF_SPAN_MAX) ? s->mag_age + dt : QCF_SPAN_MAX;
+    float at_rest = 0.0f;
+    if (use_accel) {
+        qcf_k_accel_lowpass(s->q, accel_g, s->accel_lp, s->accel_age, s->accel_lp);
+        qcf_k_rest(in->gyro, in->accel, s->rest_gyro_lp, s->rest_accel_lp, s->rest_time, s->accel_age,
+                            s->rest_gyro_lp, s->rest_accel_lp, &s->rest_time, &at_rest);
+        if (at_rest != 0.0f) {
+            status |= QCF_AT_REST;
+        }
+    }
+    bool heading_ok = use_mag;
+    if (use_mag) {
+        float accept;
+        qcf_k_mag_check(s->q, s->accel_lp, in->mag, s->mag_ref, s->mag_dist_time, s->mag_learn_time,
+                                 s->mag_age, &accept, s->mag_ref, &s->mag_dist_time, &s->mag_learn_time);
+        if (accept == 0.0f) {
+            heading_ok = false;
+            status |= QCF_MAG_DISTURBED;
+        }
+    }
+    if (use_accel || heading_ok) {
+        qcf_k_correct(s->q, s->gyro_bias, in->gyro, dt, s->accel_lp, in->mag,
+                               use_accel ? s->accel_age : 0.0f, heading_ok ? s->mag_age : 0.0f,
+                               use_accel ? 1.0f : 0.0f, in->accel, at_rest, s->rest_gyro_lp,                           s->q, s->gyro_bias);
     } else {
         qcf_k_propagate(s->q, s->gyro_bias, in->gyro, dt, s->q);
+    }
+    if (use_accel) {
+        s->accel_age = 0.0f;
+    }
+    if (use_mag) {
+        s->mag_age = 0.0f;
     }
 
     return status;

@@ -33,6 +33,17 @@ HERE = Path(__file__).parent
 PATH_ENV = "AHRSGEN_FILTER_PATH"
 ENTRY_POINT_GROUP = "ahrsgen.filters"
 FOLDER_FILES = ("defaults.toml", "model.py", "reference.py", "step.c.j2")
+# defaults.toml [filter] keys
+FILTER_KEYS = {
+    "title": "one line",
+    "source": "paper, report or notes",
+    "sensors": 'aiding sensors the step reads, of "accel", "mag", "gps"',
+    "scenario": "scenario of the source experiment: what `ahrsgen target` runs by default",
+    "stochastic": "set (to the reason) for a filter whose run is random by design (a particle filter): "
+                  "`ahrsgen target` then judges a real-libm run by accuracy, not trajectory",
+    "init": "how the filter initialises (what init sets, which step sets the attitude); printed in the "
+            "header, {prefix} stands for the C prefix",
+}
 
 
 @dataclass(frozen=True)
@@ -52,6 +63,9 @@ class FilterSpec:
     params: dict[str, Param]     # every parameter, common input checks included
     package: str                 # the module package model.py and reference.py are imported from
     origin: str = "built-in"
+    scenario: str = "fixedwing_gps"  # the source experiment's scenario ([filter] scenario)
+    stochastic: str = ""             # why its runs are random by design, if they are ([filter] stochastic)
+    init: str = ""                     # how the filter initialises ([filter] init), for the header
 
     def model_class(self):
         return importlib.import_module(f"{self.package}.model").Model
@@ -89,6 +103,7 @@ def _same(a: Path, b: Path) -> bool:
 # Filters given by path in this process: later look-ups by name (a BuildConfig keeps the name)
 # find them too.
 _BY_PATH: dict[str, Location] = {}
+_BROKEN: dict[str, str] = {}      # entry points that do not resolve: name -> why
 
 
 def _found(given_paths: bool = True) -> dict[str, list[Location]]:
@@ -119,7 +134,9 @@ def _found(given_paths: bool = True) -> dict[str, list[Location]]:
         except (ImportError, ValueError):
             spec = None
         if spec is None or not spec.submodule_search_locations:
-            raise ConfigError(f"{where}: '{ep.value}' is not an importable package (a filter folder with __init__.py)")
+            # a broken package must not break the other filters: the error comes when it is asked for
+            _BROKEN[ep.name] = f"{where}: '{ep.value}' is not an importable package (a filter folder)"
+            continue
         add(Location(ep.name, Path(list(spec.submodule_search_locations)[0]), where, ep.value))
     for loc in _BY_PATH.values() if given_paths else ():
         add(loc)
@@ -130,6 +147,12 @@ def names() -> list[str]:
     """The filters known by name: built-in, AHRSGEN_FILTER_PATH, entry points (not folders
     given by path, though those resolve by name once given)."""
     return sorted(_found(given_paths=False))
+
+
+def known(name: str) -> Location | None:
+    """Where a name is defined (built-in, search path, entry point), if it is."""
+    locs = _found(given_paths=False).get(name)
+    return locs[0] if locs else None
 
 
 def is_path(ref: str) -> bool:
@@ -158,6 +181,8 @@ def _locate(ref: str) -> Location:
         _BY_PATH[folder.name] = loc
         return loc
     found = _found()
+    if ref not in found and ref in _BROKEN:
+        raise ConfigError(_BROKEN[ref])
     if ref not in found:
         raise ConfigError(f"unknown filter '{ref}' (known: {', '.join(names())}; "
                           f"or give a filter folder's path, e.g. ./{ref})")
@@ -186,6 +211,10 @@ def _load(loc: Location) -> FilterSpec:
     except tomllib.TOMLDecodeError as e:
         raise ConfigError(f"{folder / 'defaults.toml'}: malformed TOML: {e}") from None
     info = data.get("filter", {})
+    unknown = set(info) - set(FILTER_KEYS)
+    if unknown:
+        raise ConfigError(f"{folder / 'defaults.toml'}: unknown [filter] key(s) {', '.join(sorted(unknown))}; "
+                          f"allowed: {', '.join(FILTER_KEYS)}")
     sensors = info.get("sensors", ["accel", "mag", "gps"])
     params: dict[str, Param] = {}
     for key in [None, *sensors]:
@@ -201,7 +230,8 @@ def _load(loc: Location) -> FilterSpec:
     for p in params.values():
         p.coerce(p.default, f"default in {name}/defaults.toml")
     package = loc.package or _folder_package(name, folder)
-    return FilterSpec(name, info.get("title", name), info.get("source", ""), folder, params, package, loc.origin)
+    return FilterSpec(name, info.get("title", name), info.get("source", ""), folder, params, package, loc.origin,
+                      info.get("scenario", "fixedwing_gps"), info.get("stochastic", ""), info.get("init", ""))
 
 
 def _folder_package(name: str, folder: Path) -> str:

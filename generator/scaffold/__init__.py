@@ -21,6 +21,11 @@ def write(name: str, out_dir: str | Path) -> Path:
     if not (name.isidentifier() and name.isascii() and name.lower() == name and not name.startswith("_")):
         raise ConfigError(f"filter name {name!r} must be a lower-case C identifier (letters, digits, _): "
                           f"it names the folder and prefixes the C API")
+    from generator import filters
+    known = filters.known(name)
+    if known is not None:
+        raise ConfigError(f"a filter named '{name}' exists already ({known.folder}, {known.origin}): "
+                          f"two filters of one name cannot both be used; choose another name")
     out_dir = Path(out_dir)
     target = out_dir / name
     if target.exists():

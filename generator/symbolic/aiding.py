@@ -57,14 +57,31 @@ def rest_detector(gyro, accel, gyro_lp, accel_lp, rest_time, dt, *, tau: float, 
 
 
 def field_check(norm, sin_dip, ref_norm, ref_dip, dist_time, dt, *, norm_tol: float, dip_tol: float,
-                ref_tau: float, new_time: float):
-    """Magnetic disturbance check. Returns (accept 0/1, ref_norm', ref_dip', dist_time').
+                ref_tau: float, new_time: float, learn_time=None, warmup: float = 0.0):
+    """Magnetic disturbance check. Returns (accept 0/1, ref_norm', ref_dip', dist_time'), and
+    learn_time' last when learn_time is given.
+
+    With learn_time (time since the first sample, a state) and warmup > 0, every sample of the
+    first `warmup` seconds is accepted and the reference is their running mean (the attitude,
+    hence the dip, may still be settling at the first sample).
 
     ref_norm <= 0 means "not learned yet": the sample is accepted and becomes the reference.
     Accepted when |norm/ref_norm - 1| < norm_tol and |sin_dip - ref_dip| < dip_tol; the
     reference then follows the field with time constant ref_tau. Rejected samples add dt to
     dist_time; once it exceeds new_time the current field becomes the reference.
     """
+    if learn_time is not None and warmup > 0:
+        first = ref_norm <= 0
+        t_l = ca.if_else(first, 0.0, learn_time)
+        warming = t_l < warmup
+        k = dt / (t_l + dt)                                    # running mean (k = 1 at the first)
+        acc, n1, d1, t1 = field_check(norm, sin_dip, ref_norm, ref_dip, dist_time, dt, norm_tol=norm_tol,
+                                      dip_tol=dip_tol, ref_tau=ref_tau, new_time=new_time)
+        return (ca.if_else(warming, 1.0, acc),
+                ca.if_else(warming, ref_norm + k * (norm - ref_norm), n1),
+                ca.if_else(warming, ref_dip + k * (sin_dip - ref_dip), d1),
+                ca.if_else(warming, 0.0, t1),
+                ca.fmin(t_l + dt, warmup))
     learned = ref_norm > 0
     ok_norm = ca.fabs(norm - ref_norm) < norm_tol * ref_norm
     ok_dip = ca.fabs(sin_dip - ref_dip) < dip_tol

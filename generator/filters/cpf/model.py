@@ -33,8 +33,12 @@ def transition(q, w, dt):
 
 class Model(FilterModel):
     # `ahrsgen validate` in float: the same random numbers, but float rounding changes which
-    # particles are resampled, so the run is compared by accuracy (RMS per angle), not per sample.
-    float_validation = (0.1, "particle resampling amplifies float rounding")
+    # particles are resampled, so float and double are compared as estimators over several
+    # particle-noise streams (firmware_sim/stochastic.py), each stream a PRNG state:
+    @staticmethod
+    def random_state(stream: int) -> dict:
+        """State fields that select particle-noise stream `stream` (the PRNG state seeded with it)."""
+        return {"rng": seed_state(int(stream))}
 
     def __init__(self, params: dict):
         super().__init__(params, sensors=("accel", "mag"), extra_status=list(FILTER_STATUS))

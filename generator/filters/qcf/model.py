@@ -16,6 +16,21 @@ centripetal acceleration of a velocity vector turning with the body, a_c = ω_n 
 ω_n = R(q̂)(ω − b̂), is known at once from the gyro and the latest GPS velocity. (Adding
 eq. 29's along-track part was tried and made things worse: the stale centripetal part of
 the lagged estimate leaks into the projection while the velocity turns.)
+
+Product conditioning (faithful = false; issue 10; building blocks in generator/symbolic/aiding.py):
+  init           the first accelerometer sample sets q (FQA with a magnetometer sample, else
+                 its tilt with yaw 0; the first magnetometer sample then sets the heading)
+  low-pass       a <- a + k (R(q̂) f_g - a), k = s_a/(accel_tau + s_a): the specific force in
+                 NED, low-passed (motion acceleration averages out, gravity does not)
+  tilt           T = shortest NED rotation taking d = -a/|a| to [0,0,1] (no z part, any attitude)
+  heading        H = rotation about NED z taking the horizontal part of R(T q̂) m to north +
+                 declination, only for a magnetometer sample whose norm and dip (against
+                 R(T q̂)ᵀ[0,0,1]) pass the field check
+  error          e dt = R(q̂)ᵀ (s_a vec(T) + s_m vec(H))  (the vector part of q̂⁻¹ T H q̂ to first
+                 order, each part weighted by the time s its sensor's sample stands for)
+  PI feedback    β dt = (ω - b̂) dt + kp e dt ; b̂ <- b̂ - ki e dt only while ||f| - g| < bias_accel_gate;
+                 at rest (aiding.rest_detector) b̂ follows the low-passed gyro instead
+  integration    as eq. 9
 """
 from __future__ import annotations
 
@@ -24,7 +39,7 @@ import casadi as ca
 from generator.emit import function
 from generator.constants import G0
 from generator.model import FilterModel, KernelSpec, StateField
-from generator.symbolic import attitude, quat
+from generator.symbolic import aiding, attitude, quat
 
 # Eq. 29 as printed; its gain on a velocity ramp is c1 + 2 c2 + 3 c3 = 0.9854.
 PAPER_COEFFS = (0.0971, 0.1662, 0.1853)
@@ -38,9 +53,18 @@ def differentiator_coeffs(faithful: bool):
     return tuple(c / gain for c in PAPER_COEFFS)
 
 
+EXTRA_STATUS = [
+    ("MAG_DISTURBED", "magnetometer norm or dip off its reference: heading not corrected this step"),
+    ("AT_REST", "at rest: the gyro bias follows the low-passed gyro"),
+]
+
+
 class Model(FilterModel):
     def __init__(self, params: dict):
-        super().__init__(params, sensors=("accel", "mag", "gps"))
+        product = not params["faithful"] and params["conditioning"]
+        super().__init__(params, sensors=("accel", "mag", "gps"),
+                         extra_status=list(EXTRA_STATUS) if product else [])
+        self.product = product
 
     def state_fields(self):
         p = self.params
@@ -51,8 +75,19 @@ class Model(FilterModel):
             StateField("motion_accel", 3, "latest GPS-derived motion acceleration a_{k-3}, NED, m/s^2", 0.0),
             StateField("gps_age", 1, "time since the last GPS sample, s", 1e3),
             StateField("gps_count", 1, "GPS samples in the history (saturates at 7)", 0, "uint32"),
-            StateField("initialised", 1, "1 once the attitude has been initialised", 1 if p["faithful"] else 0, "uint32"),
-        ]
+            StateField("initialised", 1, "1 once the attitude has been initialised" + (
+                " (tilt only), 2 with heading" if self.product else ""), 1 if p["faithful"] else 0, "uint32"),
+        ] + ([] if not self.product else [
+            StateField("accel_lp", 3, "low-passed specific force in NED, m/s^2", 0.0),
+            StateField("accel_age", 1, "time since the last accelerometer sample, s", 0.0),
+            StateField("mag_age", 1, "time since the last magnetometer sample, s", 0.0),
+            StateField("rest_gyro_lp", 3, "rest detection: low-passed gyro, rad/s", 0.0),
+            StateField("rest_accel_lp", 3, "rest detection: low-passed accelerometer, m/s^2", 0.0),
+            StateField("rest_time", 1, "rest detection: steady time so far, s", 0.0),
+            StateField("mag_ref", 2, "field check reference: |m| and sin(dip) (|m| = 0: not learned)", 0.0),
+            StateField("mag_dist_time", 1, "field check: time the field has been rejected, s", 0.0),
+            StateField("mag_learn_time", 1, "field check: time since the first magnetometer sample (capped), s", 0.0),
+        ])
 
     def kernels(self):
         p = self.params
@@ -81,19 +116,24 @@ class Model(FilterModel):
         V = [hist[3 * i:3 * i + 3] for i in range(GPS_TAPS)]
         acc = sum(c[i - 1] * (V[3 + i] - V[3 - i]) for i in (1, 2, 3)) / (2 * p["gps_period"])
 
-        kernels = []
+        kernels = self.product_kernels() if self.product else []
         if p["motion_accel_model"] != "differentiator":
             v = hist[3 * (GPS_TAPS - 1):]                       # latest GPS velocity
             a_c = ca.cross(quat.rotate(q, gyro - bias), v)
+            if self.product and p["centripetal_align"] < 1:
+                # the velocity turns with the body only if the body flies along it (fixed-wing):
+                # weight 1 when v is along body x, ramping to 0 at cos(angle) = centripetal_align
+                c0 = p["centripetal_align"]
+                v2 = ca.sumsqr(v)
+                along = ca.dot(v, quat.rotate(q, ca.DM([1.0, 0.0, 0.0]))) * ca.sqrt(1 / ca.fmax(v2, 1e-6))
+                w_c = ca.fmin(ca.fmax((along - c0) / (1 - c0), 0.0), 1.0)
+                a_c = w_c * a_c
             kernels.append(KernelSpec(
                 "motion_accel", function("motion_accel", {"q": q, "gyro": gyro, "gyro_bias": bias,
                                                           "gps_vel_hist": hist},
                                          {"motion_accel_now": a_c}),
                 "centripetal acceleration now: R(q)(w - b) x v_gps (NED, m/s^2)"))
-        return kernels + [
-            KernelSpec("gravity_part", function("gravity_part", {"accel": f, "q": q, "motion_accel": a_n},
-                                                {"accel_gravity": f_g}),
-                       "accelerometer minus the GPS motion acceleration when ||f| - g| exceeds the threshold"),
+        paper = [] if self.product else [
             KernelSpec("reference", function("reference", {"accel": f, "mag": m},
                                              {"q_ref": attitude.fqa(f, m, p["declination"])}),
                        "factored quaternion algorithm (FQA): attitude from accelerometer and magnetometer"),
@@ -103,6 +143,12 @@ class Model(FilterModel):
             KernelSpec("update", function("update", {"q": q, "gyro_bias": bias, "gyro": gyro, "q_ref": q_ref, "dt": dt},
                                           {"q_new": quat.integrate(q, beta, dt), "gyro_bias_new": bias_new}),
                        "PI feedback on the error quaternion q^-1 (x) q_ref and integration (eqs. 13, 14, 9)"),
+        ]
+        return kernels + [
+            KernelSpec("gravity_part", function("gravity_part", {"accel": f, "q": q, "motion_accel": a_n},
+                                                {"accel_gravity": f_g}),
+                       "accelerometer minus the GPS motion acceleration when ||f| - g| exceeds the threshold"),
+        ] + paper + [
             KernelSpec("propagate", function("propagate", {"q": q, "gyro_bias": bias, "gyro": gyro, "dt": dt},
                                              {"q_new": quat.integrate(q, gyro - bias, dt)}),
                        "gyro-only integration with the bias removed (no aiding this step)"),
@@ -110,10 +156,103 @@ class Model(FilterModel):
                          "lagged differentiator of GPS velocity (eq. 29): NED acceleration 3 samples back")]
              if p["motion_accel_model"] == "differentiator" else [])
 
+    def product_kernels(self):
+        """Kernels of the product conditioning (faithful = false); see the module docstring."""
+        p = self.params
+        q = ca.SX.sym("q", 4)
+        bias = ca.SX.sym("gyro_bias", 3)
+        gyro = ca.SX.sym("gyro", 3)
+        dt = ca.SX.sym("dt")
+        f = ca.SX.sym("accel", 3)
+        m = ca.SX.sym("mag", 3)
+        a_lp = ca.SX.sym("accel_lp", 3)
+        span = ca.SX.sym("span")
+        span_a = ca.SX.sym("span_accel")
+        span_m = ca.SX.sym("span_mag")
+        use_m = ca.SX.sym("use_mag")
+        g_lp = ca.SX.sym("rest_gyro_lp", 3)
+        f_lp = ca.SX.sym("rest_accel_lp", 3)
+        t_rest = ca.SX.sym("rest_time")
+        at_rest = ca.SX.sym("at_rest")
+        use_a = ca.SX.sym("use_accel")
+        m_ref = ca.SX.sym("mag_ref", 2)
+        t_dist = ca.SX.sym("mag_dist_time")
+        t_learn = ca.SX.sym("mag_learn_time")
+        decl = p["declination"]
+
+        q0 = ca.if_else(use_m, attitude.fqa(f, m, decl), attitude.tilt_with_yaw(f, 0.0))
+        down = -a_lp * ca.sqrt(1 / ca.sumsqr(a_lp))              # measured down, NED (through q̂)
+        T = aiding.tilt_correction(down)
+        H = aiding.heading_correction(quat.qmul(T, q), m, decl)
+        # e dt, the error integrated over the step (no division by dt: a tiny dt must not blow up)
+        e_dt = quat.rotate_inv(q, span_a * T[1:] + span_m * H[1:])
+        rotation = (gyro - bias) * dt + p["kp"] * e_dt          # β dt
+        trusted = ca.logic_and(use_a, ca.fabs(ca.sqrt(ca.sumsqr(f)) - G0) < p["bias_accel_gate"])
+        bias_pi = ca.if_else(trusted, bias - p["ki"] * e_dt, bias)
+        if p["rest_time"] > 0:
+            bias_new = ca.if_else(at_rest, aiding.lowpass(bias, g_lp, span_a, p["rest_bias_tau"]), bias_pi)
+        else:
+            bias_new = bias_pi
+        ks = [
+            KernelSpec("init_attitude", function("init_attitude", {"accel": f, "mag": m, "use_mag": use_m},
+                                                 {"q": q0, "accel_lp": quat.rotate(q0, f)}),
+                       "first attitude: FQA with a magnetometer sample, else the accelerometer's tilt with yaw 0; "
+                       "the low-pass starts at R(q) f"),
+            KernelSpec("heading_init", function("heading_init", {"q": q, "mag": m},
+                                                {"q_new": quat.qmul(aiding.heading_correction(q, m, decl), q)}),
+                       "first magnetometer sample after a tilt-only start: heading set, tilt kept"),
+            KernelSpec("accel_lowpass", function("accel_lowpass", {"q": q, "accel": f, "accel_lp": a_lp, "span": span},
+                                                 {"accel_lp_new": aiding.lowpass(a_lp, quat.rotate(q, f), span,
+                                                                                 p["accel_tau"])}),
+                       "low-pass of the specific force in NED, R(q) f (time constant accel_tau)"),
+            KernelSpec("correct", function("correct", {"q": q, "gyro_bias": bias, "gyro": gyro, "dt": dt,
+                                                       "accel_lp": a_lp, "mag": m, "span_accel": span_a,
+                                                       "span_mag": span_m, "use_accel": use_a, "accel": f,
+                                                       **({"at_rest": at_rest, "rest_gyro_lp": g_lp}
+                                                          if p["rest_time"] > 0 else {})},
+                                           {"q_new": quat.integrate(q, rotation, 1.0), "gyro_bias_new": bias_new}),
+                       "tilt (low-passed accelerometer) and heading (magnetometer) corrections as PI feedback, "
+                       "bias integral gated, bias at rest from the low-passed gyro, integration (eq. 9)"),
+        ]
+        if p["rest_time"] > 0:
+            g2, f2, t2, r2 = aiding.rest_detector(gyro, f, g_lp, f_lp, t_rest, span, tau=p["rest_tau"],
+                                                  gyro_tol=p["rest_gyro_tol"], accel_tol=p["rest_accel_tol"],
+                                                  gyro_max=p["rest_gyro_tol"], min_time=p["rest_time"])
+            ks.append(KernelSpec("rest", function("rest", {"gyro": gyro, "accel": f, "rest_gyro_lp": g_lp,
+                                                           "rest_accel_lp": f_lp, "rest_time": t_rest, "span": span},
+                                                  {"rest_gyro_lp_new": g2, "rest_accel_lp_new": f2,
+                                                   "rest_time_new": t2, "at_rest": r2}),
+                                 "rest detection: gyro and accelerometer steady for rest_time"))
+        if p["mag_rejection"]:
+            down_b = quat.rotate_inv(q, down)
+            mn = ca.sqrt(ca.sumsqr(m))
+            acc, n2, d2, t2, l2 = aiding.field_check(
+                mn, ca.dot(down_b, m) / mn, m_ref[0], m_ref[1], t_dist, span, norm_tol=p["mag_norm_tol"],
+                dip_tol=p["mag_dip_tol"], ref_tau=p["mag_ref_tau"], new_time=p["mag_new_time"],
+                learn_time=t_learn, warmup=p["mag_warmup"])
+            ks.append(KernelSpec("mag_check", function("mag_check", {"q": q, "accel_lp": a_lp, "mag": m, "mag_ref": m_ref,
+                                                                     "mag_dist_time": t_dist, "mag_learn_time": t_learn,
+                                                                     "span": span},
+                                                       {"accept": acc, "mag_ref_new": ca.vertcat(n2, d2),
+                                                        "mag_dist_time_new": t2, "mag_learn_time_new": l2}),
+                                 "field check: |m| and sin(dip) against the learned reference"))
+        return ks
+
     def template_context(self):
-        return {"motion_model": self.params["motion_accel_model"]}
+        p = self.params
+        return {"motion_model": p["motion_accel_model"], "product": self.product,
+                "rest": self.product and p["rest_time"] > 0, "mag_rejection": self.product and p["mag_rejection"]}
 
     def step_paths(self):
+        if self.product:
+            comp = ["gravity_part"] if self.params["motion_accel_model"] == "differentiator" else ["motion_accel", "gravity_part"]
+            extra = (["rest"] if self.params["rest_time"] > 0 else []) + (["mag_check"] if self.params["mag_rejection"] else [])
+            return {
+                "full (accel+mag+GPS comp.)": comp + ["accel_lowpass"] + extra + ["correct"],
+                "accel+mag": ["accel_lowpass"] + extra + ["correct"],
+                "gyro only": ["propagate"],
+                **({"GPS sample (extra)": ["gps_accel"]} if self.params["motion_accel_model"] == "differentiator" else {}),
+            }
         comp = ["gravity_part"] if self.params["motion_accel_model"] == "differentiator" else ["motion_accel", "gravity_part"]
         return {
             "full (accel+mag+GPS comp.)": comp + ["reference", "update"],

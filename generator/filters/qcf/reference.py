@@ -51,6 +51,30 @@ def fqa_tilt_with_yaw(f, yaw):
     return nq.qmul(np.array([np.cos(yaw / 2), 0, 0, np.sin(yaw / 2)]), fqa_tilt(f))
 
 
+def tilt_correction(d):
+    """Shortest rotation (NED) taking the unit vector d to e_z = [0, 0, 1]: axis d x e_z,
+    angle acos(d_z); upside down (d_z <= -1 + 1e-6) the half-turn about x."""
+    d = np.asarray(d, float)
+    if 1 + d[2] < 1e-6:
+        return np.array([0.0, 1.0, 0.0, 0.0])
+    axis = np.cross(d, [0.0, 0.0, 1.0])
+    s = np.linalg.norm(axis)
+    ang = np.arctan2(s, d[2])
+    if s == 0:
+        return np.array([1.0, 0.0, 0.0, 0.0])
+    return np.concatenate([[np.cos(ang / 2)], np.sin(ang / 2) * axis / s])
+
+
+def heading_correction(q, m, declination=0.0):
+    """Rotation about NED z by -(heading of R(q) m's horizontal part - declination)."""
+    m_n = nq.rotmat(q) @ np.asarray(m, float)
+    if m_n[0] ** 2 + m_n[1] ** 2 < 1e-30:
+        return np.array([1.0, 0.0, 0.0, 0.0])
+    err = np.arctan2(m_n[1], m_n[0]) - declination
+    err = (err + np.pi) % (2 * np.pi) - np.pi
+    return np.array([np.cos(err / 2), 0.0, 0.0, -np.sin(err / 2)])
+
+
 def integrate(q, omega, dt):
     return nq.qnormalize(nq.qmul(q, _exp_half(np.asarray(omega, float) * dt)))
 
@@ -77,7 +101,16 @@ class Reference:
         self.hist = []                    # GPS velocities, oldest first, at most 7
         self.motion_accel = np.zeros(3)
         self.gps_age = 1e3
-        self.initialised = bool(self.p["faithful"])
+        self.initialised = 1 if self.p["faithful"] else 0
+        self.product = not self.p["faithful"] and self.p["conditioning"]
+        self.accel_lp = np.zeros(3)
+        self.accel_age = self.mag_age = 0.0
+        self.rest_gyro_lp = np.zeros(3)
+        self.rest_accel_lp = np.zeros(3)
+        self.rest_time = 0.0
+        self.mag_ref = np.zeros(2)         # |m|, sin(dip); |m| = 0: not learned
+        self.mag_dist_time = 0.0
+        self.mag_learn_time = 0.0          # time since the first magnetometer sample (capped at warmup)
 
     def step(self, gyro, accel, mag, gps_vel, valid, dt):
         p = self.p
@@ -98,8 +131,8 @@ class Reference:
         elif self.gps_age < 1e3:
             self.gps_age += dt
 
+        f = np.asarray(accel, float)
         if use_accel:
-            f = np.asarray(accel, float)
             model = p["motion_accel_model"]
             need = 7 if model == "differentiator" else 1
             if p["gps_compensation"] and len(self.hist) >= need and self.gps_age <= p["gps_timeout"]:
@@ -108,8 +141,16 @@ class Reference:
                     # centripetal acceleration of the GPS velocity turning with the body
                     v = self.hist[-1]
                     a_n = np.cross(nq.rotmat(self.q) @ (gyro - self.bias), v)
+                    c0 = p["centripetal_align"]
+                    if self.product and c0 < 1:
+                        # only a velocity along the body's x axis turns with the body
+                        along = (nq.rotmat(self.q)[:, 0] @ v) / np.sqrt(max(v @ v, 1e-6))
+                        a_n = np.clip((along - c0) / (1 - c0), 0.0, 1.0) * a_n
                 if abs(np.linalg.norm(f) - G0) > p["motion_accel_threshold"]:
                     f = f - nq.rotmat(self.q).T @ a_n
+        if self.product:
+            return self._product_step(status, gyro, np.asarray(accel, float), f, mag, use_accel, use_mag, dt)
+        if use_accel:
             if use_mag:
                 q_ref = fqa(f, mag, p["declination"])
                 if not self.initialised:
@@ -125,4 +166,93 @@ class Reference:
             self.q = integrate(self.q, beta, dt)
         else:
             self.q = integrate(self.q, gyro - self.bias, dt)
+        return status
+
+    # ---------------------------------------------------------------- product conditioning
+    def _product_step(self, status, gyro, f_raw, f, mag, use_accel, use_mag, dt):
+        """See model.py's docstring: NED low-pass, tilt/heading corrections, gate, rest, field check."""
+        p = self.p
+        from generator.filters.qcf.model import EXTRA_STATUS
+        bit = {name: 1 << (16 + i) for i, (name, _) in enumerate(EXTRA_STATUS)}
+        if self.initialised == 0:
+            if not use_accel:
+                self.q = integrate(self.q, gyro - self.bias, dt)
+                return status
+            self.q = fqa(f, mag, p["declination"]) if use_mag else fqa_tilt(f)
+            self.accel_lp = nq.rotmat(self.q) @ f
+            self.initialised = 2 if use_mag else 1
+            self.accel_age = self.mag_age = 0.0
+            self.rest_gyro_lp, self.rest_accel_lp = gyro.copy(), f_raw.copy()
+        elif self.initialised == 1 and use_mag:
+            self.q = nq.qmul(heading_correction(self.q, mag, p["declination"]), self.q)
+            self.initialised = 2
+            self.mag_age = 0.0
+        self.accel_age = min(self.accel_age + dt, p["span_max"])
+        self.mag_age = min(self.mag_age + dt, p["span_max"])
+        at_rest = False
+        if use_accel:
+            s = self.accel_age
+            if p["accel_tau"] > 0:
+                self.accel_lp = self.accel_lp + s / (p["accel_tau"] + s) * (nq.rotmat(self.q) @ f - self.accel_lp)
+            else:
+                self.accel_lp = nq.rotmat(self.q) @ f
+            if p["rest_time"] > 0:
+                k = s / (p["rest_tau"] + s)
+                self.rest_gyro_lp = self.rest_gyro_lp + k * (gyro - self.rest_gyro_lp)
+                self.rest_accel_lp = self.rest_accel_lp + k * (f_raw - self.rest_accel_lp)
+                tol = p["rest_gyro_tol"]
+                steady = (np.linalg.norm(gyro - self.rest_gyro_lp) < tol
+                          and np.linalg.norm(f_raw - self.rest_accel_lp) < p["rest_accel_tol"]
+                          and np.linalg.norm(self.rest_gyro_lp) < tol)
+                self.rest_time = min(self.rest_time + s, 1e3) if steady else 0.0
+                at_rest = self.rest_time >= p["rest_time"]
+                if at_rest:
+                    status |= bit["AT_REST"]
+        down = -self.accel_lp / np.linalg.norm(self.accel_lp)
+        heading_ok = use_mag
+        if use_mag and p["mag_rejection"]:
+            m = np.asarray(mag, float)
+            norm = np.linalg.norm(m)
+            sin_dip = (nq.rotmat(self.q).T @ down) @ m / norm
+            ref_n, ref_d = self.mag_ref
+            s = self.mag_age
+            if ref_n <= 0 or (p["mag_warmup"] > 0 and self.mag_learn_time < p["mag_warmup"]):
+                # warm-up: accept, the reference is the mean of the samples so far
+                if ref_n <= 0:
+                    self.mag_learn_time = 0.0
+                n_seen = self.mag_learn_time / s + 1          # samples so far, weighted by their span
+                self.mag_ref = self.mag_ref + (np.array([norm, sin_dip]) - self.mag_ref) / n_seen
+                self.mag_dist_time = 0.0
+                self.mag_learn_time = min(self.mag_learn_time + s, p["mag_warmup"])
+            elif abs(norm / ref_n - 1) < p["mag_norm_tol"] and abs(sin_dip - ref_d) < p["mag_dip_tol"]:
+                k = s / (p["mag_ref_tau"] + s)
+                self.mag_ref = self.mag_ref + k * (np.array([norm, sin_dip]) - self.mag_ref)
+                self.mag_dist_time = 0.0
+            else:
+                heading_ok = False
+                status |= bit["MAG_DISTURBED"]
+                self.mag_dist_time += s
+                if self.mag_dist_time > p["mag_new_time"]:   # a lasting change: new reference
+                    self.mag_ref = np.array([norm, sin_dip])
+                    self.mag_dist_time = 0.0
+        if use_accel or heading_ok:
+            T = tilt_correction(down)
+            e_n = (self.accel_age if use_accel else 0.0) * T[1:]
+            if heading_ok:
+                H = heading_correction(nq.qmul(T, self.q), mag, p["declination"])
+                e_n = e_n + self.mag_age * H[1:]
+            e_dt = nq.rotmat(self.q).T @ e_n                 # error integrated over the step
+            theta = (gyro - self.bias) * dt + p["kp"] * e_dt   # rotation of the step, β dt
+            if at_rest:
+                s = self.accel_age
+                self.bias = self.bias + s / (p["rest_bias_tau"] + s) * (self.rest_gyro_lp - self.bias)
+            elif use_accel and abs(np.linalg.norm(f_raw) - G0) < p["bias_accel_gate"]:
+                self.bias = self.bias - p["ki"] * e_dt
+            self.q = integrate(self.q, theta, 1.0)
+        else:
+            self.q = integrate(self.q, gyro - self.bias, dt)
+        if use_accel:
+            self.accel_age = 0.0
+        if use_mag:
+            self.mag_age = 0.0
         return status

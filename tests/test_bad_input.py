@@ -1,0 +1,180 @@
+"""Bad configs, logs and paths through the CLI: one line on stderr, exit 2, no traceback, nothing
+written half-way (issue 11). Every case runs `ahrsgen` in-process through cli.main; an uncaught
+exception (what a user sees as a traceback) fails the test. Compiling is forbidden in every case
+(host.build raises), so a refused path or option is refused before the run, not after it.
+"""
+from __future__ import annotations
+
+import gzip
+import shutil
+import sys
+from pathlib import Path
+
+import pytest
+
+from firmware_sim import host, readers
+from generator import cli
+
+DATA = Path(__file__).resolve().parent / "data"
+ULOG = DATA / "px4_small_excerpt.ulg"
+BROAD = DATA / "broad_01_excerpt.csv.gz"
+HEADER = "t,gx,gy,gz,ax,ay,az\n"
+ROW = "0.01,0,0,0,0,0,-9.81\n"
+
+
+def _file(tmp, name, content):
+    p = tmp / name
+    if isinstance(content, bytes):
+        p.write_bytes(content)
+    else:
+        p.write_text(content)
+    return str(p)
+
+
+def _truncated_gz(tmp):
+    data = gzip.compress((HEADER + ROW * 2000).encode())
+    return _file(tmp, "cut.csv.gz", data[: len(data) // 2])
+
+
+# (id, argv builder (tmp -> argv, outputs that must not exist afterwards), text expected in the error)
+CASES = [
+    # -o of generate
+    ("o-is-a-file", lambda t: (["generate", "qcf", "-o", _file(t, "f.txt", "x")], []), "not a folder"),
+    ("o-under-a-file", lambda t: (["generate", "qcf", "-o", _file(t, "f.txt", "x") + "/sub"], []), "is a file"),
+    ("o-dev-null", lambda t: (["generate", "qcf", "-o", "/dev/null"], []), "not a folder"),
+    ("o-read-only", lambda t: (["generate", "qcf", "-o", "/proc/ahrsgen-out"], ["/proc/ahrsgen-out"]),
+     "/proc"),
+    # --log of run
+    ("log-empty-csv", lambda t: (["run", "qcf", "--log", _file(t, "e.csv", "")], []), "empty file"),
+    ("log-header-only", lambda t: (["run", "qcf", "--log", _file(t, "h.csv", HEADER)], []), "0 data row"),
+    ("log-missing-columns", lambda t: (["run", "qcf", "--log", _file(t, "m.csv", "t,gx,gy,gz\n0,0,0,0\n")], []),
+     "missing column(s) ax, ay, az"),
+    ("log-text-in-number", lambda t: (["run", "qcf", "--log", _file(t, "x.csv", HEADER + ROW + "0.02,0,abc,0,0,0,-9.81\n")],
+                                      []), "line 3, column 3: 'abc' is not a number"),
+    ("log-truncated-gz", lambda t: (["run", "qcf", "--log", _truncated_gz(t)], []), "truncated gzip"),
+    ("log-not-gzip", lambda t: (["run", "qcf", "--log", _file(t, "n.csv.gz", HEADER + ROW)], []), "not a gzip file"),
+    ("log-not-ulog", lambda t: (["run", "qcf", "--log", _file(t, "n.ulg", "hello, not a ULog\n" * 10)], []),
+     "not a PX4 ULog file"),
+    ("log-100-byte-ulog", lambda t: (["run", "qcf", "--log", _file(t, "s.ulg", ULOG.read_bytes()[:100])], []), "ulg"),
+    ("log-unknown-extension", lambda t: (["run", "qcf", "--log", _file(t, "a.txt", HEADER + ROW)], []),
+     "unknown log format"),
+    ("log-directory", lambda t: (["run", "qcf", "--log", str(t)], []), "is a folder"),
+    ("log-missing", lambda t: (["run", "qcf", "--log", str(t / "nope.csv")], []), "does not exist"),
+    # outputs of run: checked before the run
+    ("plot-no-dir", lambda t: (["run", "qcf", "--log", str(BROAD), "--plot", str(t / "nodir" / "x.png")],
+                               [str(t / "nodir")]), "does not exist"),
+    ("csv-is-dir", lambda t: (["run", "qcf", "--log", str(BROAD), "--csv", str(t)], []), "not a regular file"),
+    ("plot-bad-format", lambda t: (["run", "qcf", "--log", str(BROAD), "--plot", str(t / "x.xyz")],
+                                   [str(t / "x.xyz")]), ".png"),
+    # config files and options
+    ("toml-not-utf8", lambda t: (["generate", "qcf", "--config", _file(t, "c.toml", b"prefix = \"\xff\xfe\"\n"),
+                                  "-o", str(t / "out")], [str(t / "out")]), "not UTF-8"),
+    ("config-without-filter", lambda t: (["generate", "--config", _file(t, "c.toml", "prefix = \"att\"\n"),
+                                          "-o", str(t / "out")], [str(t / "out")]), "no 'filter"),
+    ("no-filter-no-config", lambda t: (["generate", "-o", str(t / "out")], [str(t / "out")]), "name a filter"),
+    ("prefix-math", lambda t: (["generate", "qcf", "--prefix", "math", "-o", str(t / "o")], [str(t / "o")]),
+     "shadows the standard header <math.h>"),
+    ("prefix-stdint", lambda t: (["generate", "qcf", "--prefix", "stdint", "-o", str(t / "o")], [str(t / "o")]),
+     "<stdint.h>"),
+    ("prefix-keyword", lambda t: (["generate", "qcf", "--prefix", "int", "-o", str(t / "o")], [str(t / "o")]),
+     "C keyword"),
+    ("validate-seed-negative", lambda t: (["validate", "qcf", "--seed", "-1"], []), "--seed"),
+    ("validate-tolerance-negative", lambda t: (["validate", "qcf", "--tolerance", "-1"], []), "--tolerance"),
+    ("scenario-opt-text", lambda t: (["validate", "qcf", "--scenario-opt", "duration=abc"], []), "'abc' is not a number"),
+    ("scenario-opt-zero", lambda t: (["validate", "qcf", "--scenario-opt", "duration=0"], []), "duration must be"),
+    ("scenario-opt-unknown", lambda t: (["validate", "qcf", "--scenario-opt", "bogus=1"], []), "unknown option 'bogus'"),
+    ("scenario-opt-too-short", lambda t: (["validate", "qcf", "--scenario-opt", "duration=0.001"], []),
+     "too short"),
+    ("harden-soak-negative", lambda t: (["harden", "qcf", "--soak-steps", "-5"], []), "--soak-steps"),
+    ("unknown-option", lambda t: (["generate", "qcf", "--bogus", "-o", str(t / "o")], [str(t / "o")]),
+     "unrecognized arguments"),
+]
+
+
+@pytest.fixture
+def no_build(monkeypatch):
+    def refuse(*a, **k):
+        raise AssertionError("compiled before the bad input was refused")
+    monkeypatch.setattr(host, "build", refuse)
+
+
+def _run(argv, capsys):
+    try:
+        rc = cli.main(argv)
+    except SystemExit as e:          # argparse
+        rc = e.code
+    out, err = capsys.readouterr()
+    return rc, out, err
+
+
+@pytest.mark.parametrize("case", CASES, ids=[c[0] for c in CASES])
+def test_bad_input_is_one_line_exit_2(case, tmp_path, capsys, no_build):
+    _, build, expect = case
+    argv, outputs = build(tmp_path)
+    before = sorted(p.name for p in tmp_path.iterdir())
+    rc, out, err = _run(argv, capsys)
+    assert rc == 2, (rc, out, err)
+    assert err.count("\n") == 1 and err.startswith("ahrsgen"), err
+    assert "Traceback" not in err + out
+    assert expect in err, err
+    for p in outputs:
+        assert not Path(p).exists(), p
+    # nothing new in the work folder (no partial or temporary file)
+    assert sorted(p.name for p in tmp_path.iterdir()) == before
+
+
+@pytest.mark.parametrize("module,argv_of", [
+    ("matplotlib", lambda t: ["run", "qcf", "--log", str(BROAD), "--plot", str(t / "x.png")]),
+    ("pyulog", lambda t: ["run", "qcf", "--log", str(ULOG)]),
+])
+def test_missing_extra_is_named(module, argv_of, tmp_path, capsys, monkeypatch, no_build):
+    """Without the optional package: one line naming what to install, before any work."""
+    for m in list(sys.modules):
+        if m == module or m.startswith(module + "."):
+            monkeypatch.delitem(sys.modules, m)
+    monkeypatch.setitem(sys.modules, module, None)        # import raises ImportError
+    rc, out, err = _run(argv_of(tmp_path), capsys)
+    assert rc == 2 and err.count("\n") == 1 and "ahrsgen[dev]" in err, err
+    assert not (tmp_path / "x.png").exists()
+
+
+def test_two_filters_do_not_share_a_folder(tmp_path, capsys):
+    """A second filter into the same folder would overwrite manifest.json: refused, first kept whole."""
+    d = tmp_path / "out"
+    assert _run(["generate", "qcf", "--prefix", "att", "-o", str(d)], capsys)[0] == 0
+    before = {p.name: p.read_bytes() for p in d.iterdir()}
+    rc, out, err = _run(["generate", "qcf", "--prefix", "att2", "-o", str(d)], capsys)
+    assert rc == 2 and err.count("\n") == 1 and "already holds the generated filter 'att'" in err, err
+    assert {p.name: p.read_bytes() for p in d.iterdir()} == before
+    # the same prefix again regenerates in place
+    assert _run(["generate", "qcf", "--prefix", "att", "-o", str(d)], capsys)[0] == 0
+
+
+def test_generate_takes_the_filter_from_the_config(tmp_path, capsys):
+    cfg = tmp_path / "c.toml"
+    cfg.write_text('filter = "qcf"\nprefix = "att"\n[params]\nkp = 0.5\n')
+    rc, out, err = _run(["generate", "--config", str(cfg), "-o", str(tmp_path / "o")], capsys)
+    assert rc == 0, err
+    assert "kp = 0.5" not in err and (tmp_path / "o" / "att.h").exists()
+    assert "0.5f" in (tmp_path / "o" / "att.c").read_text()
+
+
+def test_target_opt_as_written_in_the_readme():
+    """'--opt -O2' (README, --help) parses; so do '--opt=-Os' and repeats."""
+    cli._load_extra_commands()
+    p = cli.build_parser()
+    a = p.parse_args(cli._join_dash_values(["target", "qcf", "--opt", "-O2", "--opt=-Os"]))
+    assert a.opt == ["-O2", "-Os"]
+
+
+def test_truncated_ulog_warns(tmp_path):
+    """A ULog cut in the middle of a record is read up to the cut, with a warning saying so."""
+    data = ULOG.read_bytes()
+    cut = tmp_path / "cut.ulg"
+    cut.write_bytes(data[: len(data) * 2 // 3 + 7])
+    assert readers.ulog_truncation(ULOG) is None
+    log = readers.read_log(cut)
+    assert any("cut off" in w for w in log.meta["warnings"]), log.meta["warnings"]
+    assert len(log) < len(readers.read_log(ULOG))
+    shutil.copy(ULOG, tmp_path / "whole.ulg")
+    assert readers.read_log(tmp_path / "whole.ulg").meta["warnings"] == []
