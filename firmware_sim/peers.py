@@ -27,6 +27,7 @@ import numpy as np
 
 from firmware_sim.log import G0, VALID_ACCEL, VALID_MAG, SensorLog
 from firmware_sim.metrics import broad_errors_deg
+from generator.npquat import from_accel_mag as quat_from_accel_mag
 from generator.npquat import qconj, qmul
 
 S2 = np.sqrt(0.5)
@@ -48,38 +49,6 @@ def to_ned(q_lib, q_earth_to_ned, q_sensor_to_frd):
 def from_ned(q_ned, q_earth_to_ned, q_sensor_to_frd):
     """Inverse of to_ned: product quaternion -> the library's own frames."""
     return qmul(qmul(qconj(q_earth_to_ned), q_ned), q_sensor_to_frd)
-
-
-def quat_from_rotmat(R):
-    """Quaternion (scalar first, w >= 0) of a rotation matrix (Shepperd's method)."""
-    R = np.asarray(R, dtype=float)
-    tr = np.trace(R)
-    if tr > 0:
-        s = 2.0 * np.sqrt(1.0 + tr)
-        q = [0.25 * s, (R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s, (R[1, 0] - R[0, 1]) / s]
-    elif R[0, 0] > R[1, 1] and R[0, 0] > R[2, 2]:
-        s = 2.0 * np.sqrt(1.0 + R[0, 0] - R[1, 1] - R[2, 2])
-        q = [(R[2, 1] - R[1, 2]) / s, 0.25 * s, (R[0, 1] + R[1, 0]) / s, (R[0, 2] + R[2, 0]) / s]
-    elif R[1, 1] > R[2, 2]:
-        s = 2.0 * np.sqrt(1.0 + R[1, 1] - R[0, 0] - R[2, 2])
-        q = [(R[0, 2] - R[2, 0]) / s, (R[0, 1] + R[1, 0]) / s, 0.25 * s, (R[1, 2] + R[2, 1]) / s]
-    else:
-        s = 2.0 * np.sqrt(1.0 + R[2, 2] - R[0, 0] - R[1, 1])
-        q = [(R[1, 0] - R[0, 1]) / s, (R[0, 2] + R[2, 0]) / s, (R[1, 2] + R[2, 1]) / s, 0.25 * s]
-    q = np.array(q)
-    q /= np.linalg.norm(q)
-    return q if q[0] >= 0 else -q
-
-
-def quat_from_accel_mag(accel, mag):
-    """Body FRD -> NED attitude from one specific-force and one magnetometer sample (TRIAD)."""
-    down = -np.asarray(accel, dtype=float)
-    down /= np.linalg.norm(down)
-    east = np.cross(down, mag)
-    east /= np.linalg.norm(east)
-    north = np.cross(east, down)
-    R_nb = np.vstack([north, east, down])   # rows: NED axes in body coordinates -> R^T
-    return quat_from_rotmat(R_nb)           # R_nb maps body -> NED coordinates
 
 
 def _first_valid(log: SensorLog, bit):

@@ -98,11 +98,16 @@ def test_reference_reports_the_same_bits(name):
     sensors = _sensors(name)
     cases = [(c, dt, e) for c, dt, e in REFUSALS if dt != 11.0]
     cases += [(c, DT, b) for sensor, c, b in SKIPS if sensor in sensors]
+    hf = host_build(name, "double")
     for change, dt, expected in cases:
         ref = cfg.spec.reference(cfg.params)
         for _ in range(30):
             ref.step(GOOD["gyro"], GOOD["accel"], GOOD["mag"], GOOD["gps_vel"], ALL, DT)
+        s = _warm(hf)
         args = dict(GOOD, valid=ALL)
         args.update(change)
         got = ref.step(args["gyro"], args["accel"], args["mag"], args["gps_vel"], args["valid"], dt)
         assert got & expected and (got & st.REFUSED_MASK) == (expected & st.REFUSED_MASK), (name, change, hex(got))
+        # the whole status, filter bits included, equals the C's for the same step
+        c_got = hf.step(s, dt=dt, **args)
+        assert got == c_got, (name, change, hex(got), hex(c_got))

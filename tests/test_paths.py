@@ -100,8 +100,8 @@ def run_log(name: str) -> tuple[SensorLog, tuple[int, ...]]:
         return readers.read_log(DATA / "px4_handheld_excerpt.ulg").slice(500, 1700), ()
     if name == "fixedwing_dropouts_250Hz":
         # Simulated fixed-wing (GPS course usable, 20 m/s), IMU at 250 Hz, magnetometer every
-        # 5th step; gyro-only, accelerometer-only and magnetometer-only stretches, a 2.4 s GPS
-        # gap (longer than every filter's timeout), and every bad sample of BAD.
+        # 5th step; gyro-only, accelerometer-only and magnetometer-only stretches, a ground-speed
+        # sweep, a 2.4 s GPS gap (longer than every filter's timeout), and every bad sample of BAD.
         log = make("fixedwing_gps", 0, rate_hz=250.0, duration=9.0)
         v = np.array(log.valid)
         k = np.arange(len(v))
@@ -110,6 +110,14 @@ def run_log(name: str) -> tuple[SensorLog, tuple[int, ...]]:
         v[800:950] &= ~np.uint32(VALID_MAG)                  # accelerometer (+GPS) only
         v[1000:1100] &= ~np.uint32(VALID_ACCEL)              # magnetometer (+GPS) only
         v[1200:1800] &= ~np.uint32(VALID_GPS)                # GPS gap 2.4 s
+        # ground-speed sweep 0 -> 6 m/s (GPS every 5th step, along the flown track): crosses
+        # any speed gate of a few m/s (course usable or not) with samples on both sides
+        sweep = np.arange(650, 800, 5)
+        v[sweep] |= np.uint32(VALID_GPS)
+        gps = np.array(log.gps_vel)
+        h = np.hypot(gps[sweep, 0], gps[sweep, 1])
+        gps[sweep, :2] *= (np.linspace(0.0, 6.0, len(sweep)) / h)[:, None]
+        log.gps_vel = gps
         log.valid = v
         return _inject(log, 1850)
     raise KeyError(name)

@@ -15,7 +15,7 @@ import casadi as ca
 
 from generator.emit import function
 from generator.model import FilterModel, KernelSpec, StateField
-from generator.symbolic import quat
+from generator.symbolic import attitude, quat
 
 UP = ca.DM([0.0, 0.0, -1.0])          # "up" in NED: what a resting accelerometer measures, normalised
 
@@ -41,7 +41,11 @@ class Model(FilterModel):
         super().__init__(params, sensors=("accel", "mag"))
 
     def state_fields(self):
-        return [StateField("q", 4, "attitude estimate, body FRD -> NED, [w x y z]", [1.0, 0.0, 0.0, 0.0])]
+        return [
+            StateField("q", 4, "attitude estimate, body FRD -> NED, [w x y z]", [1.0, 0.0, 0.0, 0.0]),
+            StateField("initialised", 1, "1 once the attitude has been set from the sensors (or not asked for)",
+                       0 if self.params["initialise"] else 1, "uint32"),
+        ]
 
     def kernels(self):
         beta = self.params["beta"]
@@ -63,6 +67,9 @@ class Model(FilterModel):
         qdot_imu = _corrected(q, gyro, f_acc, beta)
         ins = {"q": q, "gyro": gyro, "accel": accel, "mag": mag, "dt": dt}
         return [
+            KernelSpec("initial_attitude", function("initial_attitude", {"accel": accel, "mag": mag},
+                                                    {"q_init": attitude.fqa(accel, mag)}),
+                       "attitude of one accelerometer+magnetometer sample (FQA: accelerometer-primary)"),
             KernelSpec("update_marg", function("update_marg", ins, {"q_new": _advance(q, qdot_marg, dt)}),
                        "gyro rate plus gradient step towards gravity and the magnetic reference (eqs. 33, 34, 45, 46)"),
             KernelSpec("update_imu", function("update_imu", {k: ins[k] for k in ("q", "gyro", "accel", "dt")},

@@ -2,8 +2,9 @@
 
 ahrs works with sensor axes FLU and an NWU earth frame; the product with FRD -> NED. Both
 changes are a 180 degree turn about x: samples go in as (x, -y, -z), and the attitude comes
-back as Qx (x) q_ahrs (x) Qx*, Qx = [0, 1, 0, 0]. The input checks are the product's shared
-contract (generator.input_checks); what they let through is handed to ahrs unchanged.
+back as Qx (x) q_ahrs (x) Qx*, Qx = [0, 1, 0, 0]. Until it has one, the first usable accelerometer+magnetometer sample sets
+the attitude (generator.npquat.from_accel_mag: TRIAD with the accelerometer primary). The
+input checks are the product's shared contract (generator.input_checks); what they let through is handed to ahrs unchanged.
 """
 from __future__ import annotations
 
@@ -11,7 +12,7 @@ import numpy as np
 from ahrs.filters import Madgwick
 
 from generator import input_checks
-from generator.npquat import qconj, qmul
+from generator.npquat import from_accel_mag, qconj, qmul
 
 QX = np.array([0.0, 1.0, 0.0, 0.0])     # NWU -> NED and FLU -> FRD alike
 FLU = np.array([1.0, -1.0, -1.0])        # FRD vector -> FLU vector
@@ -22,12 +23,17 @@ class Reference:
         self.p = dict(params)
         self.filter = Madgwick(gain=self.p["beta"])
         self.filter.gain = self.p["beta"]
-        self.q = np.array([1.0, 0.0, 0.0, 0.0])          # body FRD -> NED
+        self.q = np.array([1.0, 0.0, 0.0, 0.0])
+        self.initialised = not self.p["initialise"]          # body FRD -> NED
 
     def step(self, gyro, accel, mag, gps_vel, valid, dt):
         c = input_checks.check(self.p, ("accel", "mag"), gyro, accel, mag, gps_vel, valid, dt)
         if c.refused:
             return c.refused
+        if not self.initialised and c.use_accel and c.use_mag:     # TRIAD (NumPy), not the model's FQA
+            self.q = from_accel_mag(accel, mag)
+            self.initialised = True
+            return c.status                                        # that step does nothing else
         q_ahrs = qmul(qmul(qconj(QX), self.q), QX)
         g = FLU * c.gyro
         a = FLU * np.asarray(accel, float) if c.use_accel else np.zeros(3)

@@ -16,7 +16,7 @@ import casadi as ca
 
 from generator.emit import function
 from generator.model import FilterModel, KernelSpec, StateField
-from generator.symbolic import quat
+from generator.symbolic import attitude, quat
 
 UP = ca.DM([0.0, 0.0, -1.0])
 
@@ -32,6 +32,8 @@ class Model(FilterModel):
     def state_fields(self):
         return [
             StateField("q", 4, "attitude estimate, body FRD -> NED, [w x y z]", [1.0, 0.0, 0.0, 0.0]),
+            StateField("initialised", 1, "1 once the attitude has been set from the sensors (or not asked for)",
+                       0 if self.params["initialise"] else 1, "uint32"),
             StateField("gyro_bias", 3, "gyro-bias estimate b_g, rad/s (ahrs' Mahony.b)", 0.0),
         ]
 
@@ -58,6 +60,9 @@ class Model(FilterModel):
         ins = {"q": q, "gyro_bias": bias, "gyro": gyro, "accel": accel, "mag": mag, "dt": dt}
         imu = {k: ins[k] for k in ("q", "gyro_bias", "gyro", "accel", "dt")}
         return [
+            KernelSpec("initial_attitude", function("initial_attitude", {"accel": accel, "mag": mag},
+                                                    {"q_init": attitude.fqa(accel, mag)}),
+                       "attitude of one accelerometer+magnetometer sample (FQA: accelerometer-primary)"),
             KernelSpec("update_marg", function("update_marg", ins, corrected(err_marg)),
                        "direction errors to gravity and the magnetic reference: PI feedback (eqs. 32c, 48)"),
             KernelSpec("update_imu", function("update_imu", imu, corrected(err_acc)),

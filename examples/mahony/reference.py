@@ -4,7 +4,8 @@ ahrs works with sensor axes FLU and an ENU earth frame; the product with FRD -> 
 go in as (x, -y, -z) (FLU = FRD turned 180 degrees about x); the attitude comes back as
 Q_en (x) q_ahrs (x) Qx*, with Q_en = [0, 1/sqrt2, 1/sqrt2, 0] the turn ENU -> NED (swap x and
 y, negate z) and Qx = [0, 1, 0, 0]. The gyro-bias estimate lives in ahrs (Mahony.b, FLU axes).
-The input checks are the product's shared contract (generator.input_checks).
+Until it has one, the first usable accelerometer+magnetometer sample sets the attitude
+(generator.npquat.from_accel_mag: TRIAD with the accelerometer primary). The input checks are the product's shared contract (generator.input_checks).
 """
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ import numpy as np
 from ahrs.filters import Mahony
 
 from generator import input_checks
-from generator.npquat import qconj, qmul
+from generator.npquat import from_accel_mag, qconj, qmul
 
 QX = np.array([0.0, 1.0, 0.0, 0.0])                          # FLU -> FRD
 Q_EN = np.array([0.0, np.sqrt(0.5), np.sqrt(0.5), 0.0])     # ENU -> NED
@@ -26,7 +27,8 @@ class Reference:
         if self.filter is None:                 # ahrs refuses zero gains at construction; set them after
             self.filter = Mahony(k_P=1.0, k_I=1.0)
             self.filter.k_P, self.filter.k_I = self.p["kp"], self.p["ki"]
-        self.q = np.array([1.0, 0.0, 0.0, 0.0])                 # body FRD -> NED
+        self.q = np.array([1.0, 0.0, 0.0, 0.0])
+        self.initialised = not self.p["initialise"]                 # body FRD -> NED
 
     @property
     def gyro_bias(self):
@@ -36,6 +38,10 @@ class Reference:
         c = input_checks.check(self.p, ("accel", "mag"), gyro, accel, mag, gps_vel, valid, dt)
         if c.refused:
             return c.refused
+        if not self.initialised and c.use_accel and c.use_mag:     # TRIAD (NumPy), not the model's FQA
+            self.q = from_accel_mag(accel, mag)
+            self.initialised = True
+            return c.status                                        # that step does nothing else
         q_ahrs = qmul(qmul(qconj(Q_EN), self.q), QX)
         g = FLU * c.gyro
         a = FLU * np.asarray(accel, float) if c.use_accel else np.zeros(3)
