@@ -555,8 +555,13 @@ def _spec(e: Estimator) -> dict:
 
 
 class Progress:
-    def __init__(self, total, stream=sys.stderr):
-        self.total, self.done, self.stream, self.t0 = total, 0, stream, time.time()
+    def __init__(self, total, stream=None):
+        self.total, self.done, self._stream, self.t0 = total, 0, stream, time.time()
+
+    @property
+    def stream(self):
+        """sys.stderr as it is now (a default bound at import is a stream pytest has closed)."""
+        return self._stream if self._stream is not None else sys.stderr
 
     def update(self, what):
         self.done += 1
