@@ -363,10 +363,8 @@ def folds_of(n: int, k: int) -> list[list[int]]:
 def tune(filter_name, params, cases, budget=40, folds=None, metric="total", config_file=None, sets=(),
          workers=2, scheduler=None, output=None, seed=0, out=None, progress=True,
          engine="runtime") -> dict:
-    """Tune, cross-validate, write the TOML; returns the report as a dict."""
+    """Tune, cross-validate, write the TOML (and the report as JSON beside it); returns the report."""
     out = out or sys.stdout
-    from firmware_sim.bench import Progress
-    from firmware_sim.fleet import Fleet
     from generator import config
     if metric not in METRICS:
         raise ConfigError(f"--metric {metric!r}: one of {', '.join(METRICS)}")
@@ -380,6 +378,20 @@ def tune(filter_name, params, cases, budget=40, folds=None, metric="total", conf
         raise ConfigError(f"--folds {k}: need 0 (none) or 2..{n} (the number of logs)")
     journal = Path(str(output) + ".journal") if output else None
     t0 = time.time()
+    try:
+        return _tune(filter_name, dims, cases, budget, k, metric, config_file, sets, workers, scheduler,
+                     output, journal, seed, out, progress, engine, base, t0)
+    except KeyboardInterrupt:
+        if progress:
+            sys.stderr.write("\n")       # end the progress bar's line
+        raise
+
+
+def _tune(filter_name, dims, cases, budget, k, metric, config_file, sets, workers, scheduler, output, journal,
+          seed, out, progress, engine, base, t0):
+    from firmware_sim.bench import Progress
+    from firmware_sim.fleet import Fleet
+    n = len(cases)
     with Fleet(workers, scheduler) as fleet:
         prog = Progress(budget * (1 + k) + 1, stream=sys.stderr) if progress else None
         tuner = Tuner(filter_name, dims, cases, fleet, metric, config_file, sets, seed, journal, prog, engine)
@@ -421,7 +433,13 @@ def tune(filter_name, params, cases, budget=40, folds=None, metric="total", conf
     _print_report(rep, out)
     if output:
         write_toml(output, rep, base)
-        print(f"wrote {output} (journal {journal}: re-running continues it)", file=out)
+        report = Path(str(output) + ".json")
+        tmp = report.with_name(report.name + ".tmp")
+        tmp.write_text(json.dumps({**rep, "logs": [str(c.arg) if c.kind == "file" else c.label for c in cases]},
+                                  indent=1, default=str) + "\n")
+        os.replace(tmp, report)
+        print(f"wrote {output} and {report.name} (the report; journal {journal.name}: re-running continues it)",
+              file=out)
     return rep
 
 

@@ -184,11 +184,13 @@ def render(cfg: BuildConfig) -> Generated:
             macro = lit(v)
         else:
             macro = None
-        params.append({"name": name, "macro": macro, "value": f"runtime ({prefix}_params.{name}), default {v!r}" if name in runtime else v,
-                       "doc": p.doc, "unit": p.unit, "len": len(name) + len(macro or str(v))})
-    width = max(x["len"] for x in params)
+        shown = f"runtime ({prefix}_params.{name}), default {v!r}:" if name in runtime else v
+        params.append({"name": name, "macro": macro, "value": shown,
+                       "doc": p.doc, "unit": p.unit, "len": len(name) + len(macro or str(v)),
+                       "runtime": name in runtime})
+    width = max((x["len"] for x in params if not x["runtime"]), default=0)
     for x in params:
-        x["pad"] = width - x["len"]
+        x["pad"] = 0 if x["runtime"] else width - x["len"]
 
     bits = [(n, v, d) for n, v, d in status.COMMON]
     for i, (n, d) in enumerate(model.extra_status):

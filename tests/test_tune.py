@@ -27,6 +27,9 @@ def test_tune_two_logs_budget_8_then_generate(tmp_path, capsys):
     # the study starts from the defaults, so the training error never gets worse
     train = [line for line in text.splitlines() if "training" in line][0].split()
     assert float(train[-1]) <= float(train[-2])
+    import json
+    rep = json.loads((tmp_path / "t.toml.json").read_text())
+    assert rep["cv"]["folds"] == 2 and rep["tuned"]["kp"] == kp and len(rep["cv"]["per_fold"]) == 2
     assert cli.main(["generate", "qcf", "--config", str(out), "-o", str(tmp_path / "gen")]) == 0
     assert f"#define QCF_KP {config.resolve('qcf', out).params['kp']!r}"[:22] in (tmp_path / "gen" / "qcf.h").read_text()
     # re-running continues the journal: nothing left to run, same result
