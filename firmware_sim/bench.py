@@ -455,6 +455,9 @@ def _plot_run(path, log, q_est, heading, label, status=None):
         ax.set_ylabel("(no reference)")
     if status is not None:
         nz = np.flatnonzero(np.asarray(status) != 0)
+        if len(nz) and ref is not None:      # room below zero error for the marks
+            top = float(np.nanmax(tot)) if np.isfinite(tot).any() else 1.0
+            ax.set_ylim(-0.12 * top, 1.05 * top)
         if len(nz):
             # along the bottom edge of the panel (x in data, y in axes coordinates)
             ax.plot(t[nz], np.full(len(nz), 0.03), "|", color="red", ms=8, transform=ax.get_xaxis_transform(),
