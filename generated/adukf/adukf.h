@@ -15,7 +15,7 @@
  *     every IMU sample: fill a adukf_input (set a VALID bit only for sensors that
  *     delivered a new sample), then adukf_status s = adukf_step(&st, &in, dt);
  *     adukf_euler(&st, rpy);
- * No heap, no recursion; RAM is the state struct (128 bytes with the usual ABI).
+ * No heap, no recursion; RAM is the state struct (292 bytes with the usual ABI).
  * Needs <math.h> (float functions only in a float build); compilers may also emit calls to
  * memcpy/memset/memmove for struct and array copies.
  *
@@ -54,7 +54,7 @@ extern "C" {
 #define ADUKF_SIGMA_MAG 0.05f             /* base std of the normalised magnetometer measurement (sigma_m in R) [1 (unit vector)] */
 #define ADUKF_K_A 300.0f                  /* adaptive weight of the accelerometer residual: R_i = sigma_acc^2 + k_a eps_i^2 (0: plain DUKF) [1] */
 #define ADUKF_K_M 300.0f                  /* adaptive weight of the magnetometer residual: R_i = sigma_mag^2 + k_m eps_i^2 (0: plain DUKF) [1] */
-#define ADUKF_ADAPT_MAX 0.0f              /* upper bound of each adaptive term k eps_i^2 in R (0: unbounded, as the paper); a bound keeps some trust in the sensors so a large attitude error can still be corrected [1] */
+#define ADUKF_ADAPT_MAX 10.0f             /* upper bound of each adaptive term k eps_i^2 in R (0: unbounded, as the paper); a bound keeps some trust in the sensors so a large attitude error can still be corrected (the adaptation cannot lock the correction out) [1] */
 #define ADUKF_UT_ALPHA 1.0f               /* unscented transform spread: lambda = alpha^2 (n + kappa) - n, a = sqrt(n + lambda) [1] */
 #define ADUKF_UT_BETA 2.0f                /* unscented transform beta (2 for a Gaussian prior) [1] */
 #define ADUKF_UT_KAPPA 0.0f               /* unscented transform kappa [1] */
@@ -66,6 +66,11 @@ extern "C" {
 #define ADUKF_LEARN_SAMPLES 100           /* mag_ref = learn: rest samples (accelerometer and magnetometer usable) averaged for the dip angle [samples] */
 #define ADUKF_REST_GYRO_MAX 0.05f         /* mag_ref = learn: a sample is at rest when |gyro| is below this and ... [rad/s] */
 #define ADUKF_REST_ACCEL_TOL 0.5f         /* ... | |accel| - 9.80665 | is below this [m/s^2] */
+#define ADUKF_GYRO_BIAS_STATE 1           /* product default: the state is [q; gyro bias] (7 states, 15 sigma points; the bias is subtracted from the gyro in the time update, F = d x-/d x from the model) so a biased gyro does not tilt the estimate in motion; false (and faithful): the paper's 4-state filter */
+#define ADUKF_BIAS_RW 1e-04f              /* gyro-bias state: random walk of the bias (process noise bias_rw^2 dt per axis) [rad/s/sqrt(s)] */
+#define ADUKF_P0_BIAS 1e-04f              /* gyro-bias state: initial bias variance (P0 and COV_RESET) [(rad/s)^2] */
+#define ADUKF_ACCEL_TAU 1.0f              /* time constant of the NED-frame low-pass of the accelerometer R(q-) f; the update measures the direction of R(q-)^T of it (motion acceleration averages out, gravity does not; VQF's idea); 0 = the raw accelerometer (as the paper; faithful ignores it) [s] */
+#define ADUKF_SPAN_MAX 0.1f               /* sensors at their own rates: each sensor's R is multiplied by dt / (time since its previous sample, at most span_max), so a 100 Hz magnetometer carries the information of the IMU steps it stands for; 0 = off (as the paper; faithful ignores it) [s] */
 #define ADUKF_FAITHFUL 0                  /* the paper's initialisation q0 = [1,0,0,0] and first-order transition A (else q0 from the first accelerometer+magnetometer sample, A normalised) */
 
 /* Input validity bits: set a bit only when that sensor delivered a new sample this step. */
@@ -98,9 +103,12 @@ typedef uint32_t adukf_status;
 
 typedef struct {
     float q[4];           /* attitude estimate, body->NED, [w x y z] */
-    float P[16];          /* covariance of q, 4x4 (symmetric; column-major) */
+    float gyro_bias[3];   /* gyro bias estimate, rad/s */
+    float P[49];          /* covariance of [q; gyro_bias], 7x7 (symmetric; column-major) */
     float m_ref[3];       /* reference field direction, NED unit vector */
     float r_diag[6];      /* diagonal of the adaptive R used by the last update (0: sensor not used) */
+    float sample_age[2];  /* time since the last accelerometer / magnetometer sample, s */
+    float accel_lp[3];    /* low-passed specific force in NED, m/s^2 (accel_tau > 0) */
     float learn_sum;      /* mag_ref = learn: sum of sin(inclination) over rest samples */
     uint32_t learn_count; /* mag_ref = learn: rest samples summed so far */
     uint32_t initialised; /* 1 once the attitude has been initialised */

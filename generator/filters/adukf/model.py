@@ -22,7 +22,7 @@ import casadi as ca
 from generator.constants import G0
 from generator.emit import function
 from generator.model import FilterModel, KernelSpec, StateField
-from generator.symbolic import attitude, linalg, quat
+from generator.symbolic import aiding, attitude, linalg, quat
 
 N = 4
 EXTRA_STATUS = [
@@ -59,9 +59,15 @@ def measurement(q, m_ref):
     return ca.vertcat(quat.rotate_inv(q, ca.DM([0.0, 0.0, -1.0])), quat.rotate_inv(q, m_ref))
 
 
+def has_bias_state(p) -> bool:
+    """Product default: a gyro-bias state (7-state filter); faithful: the paper's 4-state filter."""
+    return bool(p["gyro_bias_state"]) and not p["faithful"]
+
+
 class Model(FilterModel):
     def __init__(self, params: dict):
         super().__init__(params, sensors=("accel", "mag"), extra_status=list(EXTRA_STATUS))
+        self.n = 7 if has_bias_state(params) else N
 
     def m_ref_configured(self):
         p = self.params
@@ -70,29 +76,56 @@ class Model(FilterModel):
 
     def state_fields(self):
         p = self.params
-        p0 = [p["p0"] if r == c else 0.0 for c in range(N) for r in range(N)]
+        n = self.n
+        p0 = [self.p0_diag()[r] if r == c else 0.0 for c in range(n) for r in range(n)]
         learn = p["mag_ref"] == "learn"
         return [
             StateField("q", 4, "attitude estimate, body->NED, [w x y z]", [1.0, 0.0, 0.0, 0.0]),
-            StateField("P", 16, "covariance of q, 4x4 (symmetric; column-major)", p0),
+        ] + ([StateField("gyro_bias", 3, "gyro bias estimate, rad/s", 0.0)] if n == 7 else []) + [
+            StateField("P", n * n, f"covariance of {'q' if n == 4 else '[q; gyro_bias]'}, {n}x{n} (symmetric; column-major)", p0),
             StateField("m_ref", 3, "reference field direction, NED unit vector", [0.0] * 3 if learn else self.m_ref_configured()),
             StateField("r_diag", 6, "diagonal of the adaptive R used by the last update (0: sensor not used)", 0.0),
+        ] + ([StateField("sample_age", 2, "time since the last accelerometer / magnetometer sample, s", 0.0)]
+             if self.own_rates() else []) + ([StateField("accel_lp", 3, "low-passed specific force in NED, m/s^2 (accel_tau > 0)", 0.0)]
+             if self.lowpass() else []) + [
             StateField("learn_sum", 1, "mag_ref = learn: sum of sin(inclination) over rest samples", 0.0),
             StateField("learn_count", 1, "mag_ref = learn: rest samples summed so far", 0, "uint32"),
             StateField("initialised", 1, "1 once the attitude has been initialised", 1 if p["faithful"] else 0, "uint32"),
         ]
 
+    def own_rates(self) -> bool:
+        return not self.params["faithful"] and self.params["span_max"] > 0
+
+    def lowpass(self) -> bool:
+        return self.params["accel_tau"] > 0 and not self.params["faithful"]
+
+    def p0_diag(self):
+        p = self.params
+        return [p["p0"]] * 4 + [p["p0_bias"]] * (self.n - 4)
+
     # ------------------------------------------------------------------ kernels
     def predict_expr(self, q, P, w, dt):
+        """q is the state x (q, or [q; b] with the bias state). Returns x⁻, q⁻/|q⁻|, P⁻."""
         p = self.params
+        if self.n == 7:
+            x = q
+            q, b = x[:4], x[4:]
+            w = w - b
         A = ca.SX.eye(N) + 0.5 * dt * omega_matrix(w)
         if not p["faithful"]:
             # A / sqrt(1 + |ω|²dt²/4), written as a product with sqrt(1/x): one division
             A = A * ca.sqrt(1 / (1 + 0.25 * dt * dt * ca.sumsqr(w)))
         qm = ca.mtimes(A, q)
         Q = (p["gyro_noise"] ** 2 * 0.25 * dt) * (ca.SX.eye(N) - ca.mtimes(q, q.T)) + p["q_floor"] * dt * ca.SX.eye(N)
-        Pm = linalg.symmetrize(ca.mtimes([A, P, A.T]) + Q)
-        return qm, normalize(qm), Pm
+        if self.n == 4:
+            Pm = linalg.symmetrize(ca.mtimes([A, P, A.T]) + Q)
+            return qm, normalize(qm), Pm
+        # bias state: x⁻ = [A(ω - b) q; b], F = ∂x⁻/∂x (CasADi), bias random walk in Q
+        xm = ca.vertcat(qm, b)
+        F = ca.jacobian(xm, x)
+        Qx = ca.diagcat(Q, (p["bias_rw"] ** 2 * dt + p["q_floor"] * dt) * ca.SX.eye(3))
+        Pm = linalg.symmetrize(ca.mtimes([F, P, F.T]) + Qx)
+        return xm, normalize(qm), Pm
 
     # The measurement update is emitted as three kernels (sigma points, innovation
     # statistics, correction) rather than one ~3200-operation function: the same arithmetic,
@@ -100,20 +133,26 @@ class Model(FilterModel):
     def sigma_expr(self, qm, Pm, m_ref):
         """Sigma points (4 x 9, columns), their predicted measurements (6 x 9), min pivot of P-."""
         p = self.params
-        a = ut_parameters(p["ut_alpha"], p["ut_beta"], p["ut_kappa"])[0]
+        n = self.n
+        a = ut_parameters(p["ut_alpha"], p["ut_beta"], p["ut_kappa"], n)[0]
         L, _, piv_p = linalg.cholesky_with_inverse(Pm, p["pivot_min"])
-        chis = [qm] + [qm + a * L[:, i] for i in range(N)] + [qm - a * L[:, i] for i in range(N)]
-        Z = [measurement(normalize(c), m_ref) for c in chis]
+        chis = [qm] + [qm + a * L[:, i] for i in range(n)] + [qm - a * L[:, i] for i in range(n)]
+        Z = [measurement(normalize(c[:4] if n > 4 else c), m_ref) for c in chis]
         return ca.horzcat(*chis), ca.horzcat(*Z), piv_p
 
-    def innovation_expr(self, qm, X, Z, f, m, use_a, use_m):
-        """Masked P_zz (6x6), P_xz (4x6), residual and adaptive R diagonal."""
+    def innovation_expr(self, qm, X, Z, f, m, use_a, use_m, scale=None):
+        """Masked P_zz (6x6), P_xz (n x 6), residual and adaptive R diagonal.
+
+        scale (product, sensors at their own rates): [dt/s_a, dt/s_m], R of each sensor times
+        the ratio of the step to the time its sample stands for (sigma is per IMU step; a
+        sample standing for k steps carries k steps' information)."""
         p = self.params
-        _, wm0, wc0, wi = ut_parameters(p["ut_alpha"], p["ut_beta"], p["ut_kappa"])
-        wm = [wm0] + [wi] * (2 * N)
-        wc = [wc0] + [wi] * (2 * N)
-        chis = [X[:, i] for i in range(2 * N + 1)]
-        Zs = [Z[:, i] for i in range(2 * N + 1)]
+        n = self.n
+        _, wm0, wc0, wi = ut_parameters(p["ut_alpha"], p["ut_beta"], p["ut_kappa"], n)
+        wm = [wm0] + [wi] * (2 * n)
+        wc = [wc0] + [wi] * (2 * n)
+        chis = [X[:, i] for i in range(2 * n + 1)]
+        Zs = [Z[:, i] for i in range(2 * n + 1)]
         # the weights of points 1..2n are equal: sum first, weight once
         zhat = wm[0] * Zs[0] + wi * sum(Zs[2:], Zs[1])
         z = ca.vertcat(normalize(f), normalize(m))
@@ -123,20 +162,22 @@ class Model(FilterModel):
         if p["adapt_max"] > 0:        # product option: bound the inflation (0 = as the paper, unbounded)
             adapt = [ca.fmin(x, p["adapt_max"]) for x in adapt]
         R = [sa2 + adapt[i] for i in range(3)] + [sm2 + adapt[i] for i in range(3, 6)]
-        dZ = [Zs[i] - zhat for i in range(2 * N + 1)]
-        dX = [chis[i] - qm for i in range(2 * N + 1)]
+        if scale is not None:
+            R = [R[i] * scale[0] for i in range(3)] + [R[i] * scale[1] for i in range(3, 6)]
+        dZ = [Zs[i] - zhat for i in range(2 * n + 1)]
+        dX = [chis[i] - qm for i in range(2 * n + 1)]
 
         def wsum(terms):
             return wc[0] * terms[0] + wi * sum(terms[2:], terms[1])
         Pzz = ca.SX.zeros(6, 6)
         for r in range(6):            # symmetric: upper triangle once, mirrored
             for c in range(r, 6):
-                Pzz[r, c] = wsum([dZ[i][r] * dZ[i][c] for i in range(2 * N + 1)]) + (R[r] if r == c else 0.0)
+                Pzz[r, c] = wsum([dZ[i][r] * dZ[i][c] for i in range(2 * n + 1)]) + (R[r] if r == c else 0.0)
                 Pzz[c, r] = Pzz[r, c]
-        Pxz = ca.SX.zeros(N, 6)
-        for r in range(N):
+        Pxz = ca.SX.zeros(n, 6)
+        for r in range(n):
             for c in range(6):
-                Pxz[r, c] = wsum([dX[i][r] * dZ[i][c] for i in range(2 * N + 1)])
+                Pxz[r, c] = wsum([dX[i][r] * dZ[i][c] for i in range(2 * n + 1)])
         # exact masking of an unusable sensor: identity block in P_zz, zero cross-covariance
         # and residual, so its columns of K are exactly zero
         use = [use_a] * 3 + [use_m] * 3
@@ -146,11 +187,11 @@ class Model(FilterModel):
             for c in range(6):
                 keep = use[r] if (r < 3) == (c < 3) else both
                 Pzz_m[r, c] = ca.if_else(keep, Pzz[r, c], 1.0 if r == c else 0.0)
-        Pxz_m = ca.SX.zeros(N, 6)
+        Pxz_m = ca.SX.zeros(n, 6)
         eps_m = ca.SX.zeros(6)
         r_used = ca.SX.zeros(6)
         for c in range(6):
-            for r in range(N):
+            for r in range(n):
                 Pxz_m[r, c] = ca.if_else(use[c], Pxz[r, c], 0.0)
             eps_m[c] = ca.if_else(use[c], eps[c], 0.0)
             r_used[c] = ca.if_else(use[c], R[c], 0.0)
@@ -161,19 +202,23 @@ class Model(FilterModel):
         p = self.params
         Kt, piv_zz = linalg.spd_solve(Pzz, Pxz.T, p["pivot_min"], reciprocal=True)
         K = Kt.T
-        q_new = normalize(qm + ca.mtimes(K, eps))
+        n = self.n
+        x_new = qm + ca.mtimes(K, eps)
+        q_new = normalize(x_new) if n == 4 else ca.vertcat(normalize(x_new[:4]), x_new[4:])
         KS = ca.mtimes(K, Pzz)
-        P_new = ca.SX.zeros(N, N)
-        for r in range(N):            # P- - K P_zz Kᵀ: upper triangle once, mirrored (exactly symmetric)
-            for c in range(r, N):
+        P_new = ca.SX.zeros(n, n)
+        for r in range(n):            # P- - K P_zz Kᵀ: upper triangle once, mirrored (exactly symmetric)
+            for c in range(r, n):
                 P_new[r, c] = 0.5 * (Pm[r, c] + Pm[c, r]) - ca.dot(KS[r, :].T, K[c, :].T)
                 P_new[c, r] = P_new[r, c]
         return q_new, P_new, piv_zz
 
     def kernels(self):
         p = self.params
-        q = ca.SX.sym("q", N)
-        P = ca.SX.sym("P", N, N)
+        n = self.n
+        xs = "q" if n == 4 else "x"
+        q = ca.SX.sym(xs, n)
+        P = ca.SX.sym("P", n, n)
         w = ca.SX.sym("gyro", 3)
         dt = ca.SX.sym("dt")
         f = ca.SX.sym("accel", 3)
@@ -181,17 +226,25 @@ class Model(FilterModel):
         m_ref = ca.SX.sym("m_ref", 3)
         use_a = ca.SX.sym("use_accel")
         use_m = ca.SX.sym("use_mag")
-        qm = ca.SX.sym("q_pred", N)
-        Pm = ca.SX.sym("P_pred", N, N)
+        qm = ca.SX.sym(xs + "_pred", n)
+        Pm = ca.SX.sym("P_pred", n, n)
 
         qm_e, qn_e, Pm_e = self.predict_expr(q, P, w, dt)
-        X = ca.SX.sym("sigma", N, 2 * N + 1)
-        Z = ca.SX.sym("z_sigma", 6, 2 * N + 1)
+        qn = ca.SX.sym("q_pred_unit", 4)
+        a_lp = ca.SX.sym("accel_lp", 3)
+        restart = ca.SX.sym("restart")
+        f_n = quat.rotate(qn, f)
+        a_lp_new = aiding.lowpass(ca.if_else(restart, f_n, a_lp), f_n, dt, p["accel_tau"])
+        X = ca.SX.sym("sigma", n, 2 * n + 1)
+        Z = ca.SX.sym("z_sigma", 6, 2 * n + 1)
         Pzz = ca.SX.sym("P_zz", 6, 6)
-        Pxz = ca.SX.sym("P_xz", N, 6)
+        Pxz = ca.SX.sym("P_xz", n, 6)
         eps = ca.SX.sym("residual", 6)
         X_e, Z_e, piv_p = self.sigma_expr(qm, Pm, m_ref)
-        Pzz_e, Pxz_e, eps_e, r_e = self.innovation_expr(qm, X, Z, f, m, use_a, use_m)
+        span = ca.SX.sym("span", 2)            # time each sample stands for: accel, mag
+        rated = self.own_rates()
+        Pzz_e, Pxz_e, eps_e, r_e = self.innovation_expr(qm, X, Z, f, m, use_a, use_m,
+                                                        [dt / span[0], dt / span[1]] if rated else None)
         q_new, P_new, piv_zz = self.correct_expr(qm, Pm, Pzz, Pxz, eps)
 
         decl = float(p["declination"])
@@ -200,23 +253,30 @@ class Model(FilterModel):
         q_init = quat.from_euler(roll, pitch, yaw)
 
         specs = [
-            KernelSpec("predict", function("predict", {"q": q, "P": P, "gyro": w, "dt": dt},
-                                           {"q_pred": qm_e, "q_pred_unit": qn_e, "P_pred": Pm_e}),
+            KernelSpec("predict", function("predict", {xs: q, "P": P, "gyro": w, "dt": dt},
+                                           {xs + "_pred": qm_e, "q_pred_unit": qn_e, "P_pred": Pm_e}),
                        "linear Kalman time update: q- = A q, P- = A P A^T + Q"),
-            KernelSpec("sigma_points", function("sigma_points", {"q_pred": qm, "P_pred": Pm, "m_ref": m_ref},
+            KernelSpec("sigma_points", function("sigma_points", {xs + "_pred": qm, "P_pred": Pm, "m_ref": m_ref},
                                                 {"sigma": X_e, "z_sigma": Z_e, "pivot_P": piv_p}),
                        "9 sigma points from the Cholesky factor of P- (columns of sigma), each normalised "
                        "and mapped through h; pivot_P = smallest pivot of P-"),
-            KernelSpec("innovation", function("innovation", {"q_pred": qm, "sigma": X, "z_sigma": Z, "accel": f,
-                                                             "mag": m, "use_accel": use_a, "use_mag": use_m},
+            KernelSpec("innovation", function("innovation", {xs + "_pred": qm, "sigma": X, "z_sigma": Z, "accel": f,
+                                                             "mag": m, "use_accel": use_a, "use_mag": use_m,
+                                                             **({"dt": dt, "span": span} if rated else {})},
                                               {"P_zz": Pzz_e, "P_xz": Pxz_e, "residual": eps_e, "r_diag": r_e}),
                        "predicted measurement, residual, adaptive per-axis R, P_zz and P_xz (unusable sensors "
                        "masked out exactly)"),
-            KernelSpec("correct", function("correct", {"q_pred": qm, "P_pred": Pm, "P_zz": Pzz, "P_xz": Pxz,
+            KernelSpec("correct", function("correct", {xs + "_pred": qm, "P_pred": Pm, "P_zz": Pzz, "P_xz": Pxz,
                                                        "residual": eps},
-                                           {"q_new": q_new, "P_new": P_new, "pivot_zz": piv_zz}),
+                                           {xs + "_new": q_new, "P_new": P_new, "pivot_zz": piv_zz}),
                        "K = P_xz P_zz^-1 by a Cholesky solve (no inverse), q+ = normalise(q- + K eps), "
                        "P+ = sym(P- - K P_zz K^T); pivot_zz = smallest pivot of P_zz"),
+            *([KernelSpec("accel_lowpass", function(
+                "accel_lowpass", {"q_pred_unit": qn, "accel": f, "accel_lp": a_lp, "restart": restart, "dt": dt},
+                {"accel_lp_new": a_lp_new, "accel_body": quat.rotate_inv(qn, a_lp_new)}),
+                "NED low-pass of the specific force R(q-) f (restart: start at R(q-) f); the update "
+                "measures R(q-)^T of it")]
+              if self.lowpass() else []),
             KernelSpec("init_q", function("init_q", {"accel": f, "mag": m}, {"q": q_init}),
                        "initial attitude: accelerometer tilt and tilt-compensated heading (+ declination)"),
         ]
@@ -247,4 +307,5 @@ class Model(FilterModel):
         }
 
     def template_context(self):
-        return {"learn": self.params["mag_ref"] == "learn"}
+        n = self.n
+        return {"learn": self.params["mag_ref"] == "learn", "n": n, "lowpass": self.lowpass(), "rated": self.own_rates(), "bias": n == 7, "xs": "q" if n == 4 else "x"}

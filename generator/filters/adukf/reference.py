@@ -32,6 +32,16 @@ inclination I and declination D, or (mag_ref = "learn") I learned from the mean 
 sin I = (-f̂)·m̂_b over the first `learn_samples` samples at rest; the magnetometer
 correction waits until then (MAG_LEARNING).
 
+Product defaults (issue 10; faithful ignores them):
+- gyro_bias_state: x = [q; b] (n = 7, 15 sigma points). Time update with w = ω - b:
+  q⁻ = A(w) q, b⁻ = b; P⁻ = F P Fᵀ + blockdiag(Q, (bias_rw² + q_floor) dt I3) with
+  F = [[A, -∂(A q)/∂w], [0, I3]], ∂(A q)/∂w = c dt/2 Ξ(q) - c³ dt²/4 (q + dt/2 Ξ(q) w) wᵀ,
+  c = 1/sqrt(1 + |w|² dt²/4), Ω(w) q = Ξ(q) w. The update corrects the whole x; q is normalised.
+- accel_tau > 0: a ← a + dt/(τ + dt) (R(q⁻/|q⁻|) f - a) (started at R f), and the update
+  measures R(q⁻/|q⁻|)ᵀ a instead of f.
+- span_max > 0: each sensor's R is multiplied by dt / s, s = the time since its previous
+  sample (at least dt, at most span_max).
+
 Initialisation: faithful: q = [1,0,0,0] (the paper). Otherwise the first step with usable
 accelerometer and magnetometer sets q from tilt and tilt-compensated heading (SPEC.md
 formulas) and does nothing else.
@@ -131,11 +141,24 @@ def _chol(A):
     return L, float(np.min(np.diag(L)) ** 2)
 
 
+def xi(q):
+    """Ξ(q) with Ω(w) q = Ξ(q) w."""
+    q0, q1, q2, q3 = q
+    return np.array([[-q1, -q2, -q3], [q0, -q3, q2], [q3, q0, -q1], [-q2, q1, q0]])
+
+
 class Reference:
     def __init__(self, params: dict):
         self.p = dict(params)
         p = self.p
-        self.a, self.wm, self.wc = ut_weights(p["ut_alpha"], p["ut_beta"], p["ut_kappa"])
+        self.bias_state = bool(p["gyro_bias_state"]) and not p["faithful"]
+        self.n = 7 if self.bias_state else N
+        self.lowpass = p["accel_tau"] > 0 and not p["faithful"]
+        self.rated = p["span_max"] > 0 and not p["faithful"]
+        self.accel_lp = np.zeros(3)
+        self.sample_age = np.zeros(2)
+        self.bias = np.zeros(3)
+        self.a, self.wm, self.wc = ut_weights(p["ut_alpha"], p["ut_beta"], p["ut_kappa"], self.n)
         self.decl = float(p["declination"])
         self.learn = p["mag_ref"] == "learn"
         self.m_ref = (np.zeros(3) if self.learn
@@ -143,9 +166,12 @@ class Reference:
         self.learn_count = 0
         self.learn_sum = 0.0
         self.q = np.array([1.0, 0.0, 0.0, 0.0])
-        self.P = p["p0"] * np.eye(N)
+        self.P = self.P0()
         self.initialized = bool(p["faithful"])
         self.r_diag = np.zeros(6)       # R used by the last step (0 = sensor not used)
+
+    def P0(self):
+        return np.diag([self.p["p0"]] * 4 + [self.p["p0_bias"]] * (self.n - 4))
 
     def step(self, gyro, accel, mag, gps_vel, valid: int, dt: float) -> int:
         p = self.p
@@ -181,43 +207,84 @@ class Reference:
         if not self.initialized:
             if use_a and mag_ok:
                 self.q = q_from_accel_mag(f, m, self.decl)
-                self.P = p["p0"] * np.eye(N)
+                self.P = self.P0()
                 self.initialized = True
                 self.r_diag = np.zeros(6)
                 return status & ~MAG_LEARNING
 
-        q_old, P_old = self.q.copy(), self.P.copy()
+        q_old, P_old, b_old = self.q.copy(), self.P.copy(), self.bias.copy()
+        n = self.n
 
-        # 1. time update
+        # 1. time update (with the bias state: w = ω - b, F from the derivative above)
+        if self.bias_state:
+            wl = [wl[i] - self.bias[i] for i in range(3)]
+        w_v = np.array(wl)
         A = _I4 + 0.5 * dt * omega_matrix(wl)
+        c_norm = 1.0
         if not p["faithful"]:
-            A = A / math.sqrt(1.0 + 0.25 * dt * dt * (wl[0] ** 2 + wl[1] ** 2 + wl[2] ** 2))
+            c_norm = 1.0 / math.sqrt(1.0 + 0.25 * dt * dt * (wl[0] ** 2 + wl[1] ** 2 + wl[2] ** 2))
+            A = A * c_norm
         q = self.q
         Q = (p["gyro_noise"] ** 2 * dt / 4.0) * (_I4 - np.outer(q, q)) + p["q_floor"] * dt * _I4
         qm = A @ q
-        Pm = A @ self.P @ A.T + Q
+        if self.bias_state:
+            X = xi(q)
+            dqdw = (c_norm * 0.5 * dt * X
+                    - c_norm ** 3 * 0.25 * dt * dt * np.outer(q + 0.5 * dt * X @ w_v, w_v))
+            F = np.eye(7)
+            F[:4, :4] = A
+            F[:4, 4:] = -dqdw
+            Qx = np.zeros((7, 7))
+            Qx[:4, :4] = Q
+            Qx[4:, 4:] = (p["bias_rw"] ** 2 + p["q_floor"]) * dt * np.eye(3)
+            xm = np.concatenate([qm, self.bias])
+            Pm = F @ self.P @ F.T + Qx
+        else:
+            xm = qm
+            Pm = A @ self.P @ A.T + Q
         Pm = 0.5 * (Pm + Pm.T)
         r_diag = np.zeros(6)
 
-        q_new, P_new = qm / math.sqrt(float(qm @ qm)), Pm
+        # sensors at their own rates: the time each sample stands for
+        scale = np.ones(6)
+        if self.rated:
+            self.sample_age = np.minimum(self.sample_age + dt, p["span_max"])
+            span = np.maximum(self.sample_age, dt)
+            scale = np.repeat(dt / span, 3)
+            if use_a:
+                self.sample_age[0] = 0.0
+            if use_m:
+                self.sample_age[1] = 0.0
+
+        x_new = np.concatenate([qm / math.sqrt(float(qm @ qm)), xm[4:]])
+        P_new = Pm
         if use_a or use_m:
+            f_meas = f
+            if self.lowpass and use_a:
+                qn = x_new[:4]
+                f_n = rotmat(qn) @ f
+                if not np.any(self.accel_lp):
+                    self.accel_lp = f_n                          # start at the first sample
+                self.accel_lp = self.accel_lp + dt / (p["accel_tau"] + dt) * (f_n - self.accel_lp)
+                f_meas = rotmat(qn).T @ self.accel_lp
             L, piv = _chol(Pm)
             if not piv > p["pivot_min"]:
                 status |= COV_RESET
-                P_new = p["p0"] * _I4
+                P_new = self.P0()
             else:
-                chis = np.vstack([qm, qm + self.a * L.T, qm - self.a * L.T])
-                Z = h_meas_batch(chis / np.linalg.norm(chis, axis=1, keepdims=True), self.m_ref)
+                chis = np.vstack([xm, xm + self.a * L.T, xm - self.a * L.T])
+                cq = chis[:, :4]
+                Z = h_meas_batch(cq / np.linalg.norm(cq, axis=1, keepdims=True), self.m_ref)
                 zhat = self.wm @ Z
-                z = np.concatenate([f / math.sqrt(float(f @ f)) if use_a else np.zeros(3),
+                z = np.concatenate([f_meas / math.sqrt(float(f_meas @ f_meas)) if use_a else np.zeros(3),
                                     m / math.sqrt(float(m @ m)) if use_m else np.zeros(3)])
                 eps = z - zhat
                 adapt = np.concatenate([p["k_a"] * eps[:3] ** 2, p["k_m"] * eps[3:] ** 2])
                 if p["adapt_max"] > 0:
                     adapt = np.minimum(adapt, p["adapt_max"])
-                R = np.concatenate([np.full(3, p["sigma_acc"] ** 2), np.full(3, p["sigma_mag"] ** 2)]) + adapt
+                R = (np.concatenate([np.full(3, p["sigma_acc"] ** 2), np.full(3, p["sigma_mag"] ** 2)]) + adapt) * scale
                 dZ = Z - zhat
-                dX = chis - qm
+                dX = chis - xm
                 Pzz = (self.wc[:, None] * dZ).T @ dZ + np.diag(R)
                 Pxz = (self.wc[:, None] * dX).T @ dZ
                 mask = np.array([use_a] * 3 + [use_m] * 3)
@@ -231,17 +298,19 @@ class Reference:
                     status |= UPDATE_SKIPPED
                 else:
                     K = np.linalg.solve(Pzz, Pxz.T).T
-                    qp = qm + K @ eps
-                    q_new = qp / math.sqrt(float(qp @ qp))
+                    xp = xm + K @ eps
+                    x_new = np.concatenate([xp[:4] / math.sqrt(float(xp[:4] @ xp[:4])), xp[4:]])
                     P_new = Pm - K @ Pzz @ K.T
                     P_new = 0.5 * (P_new + P_new.T)
                     r_diag = np.where(mask, R, 0.0)
 
-        if not (np.isfinite(q_new).all() and np.isfinite(P_new).all()):
-            self.q, self.P = q_old, P_old
+        if not (np.isfinite(x_new).all() and np.isfinite(P_new).all()):
+            self.q, self.P, self.bias = q_old, P_old, b_old
             self.r_diag = np.zeros(6)
             return status | NUMERIC_FAULT
-        self.q, self.P, self.r_diag = q_new, P_new, r_diag
+        self.q, self.P, self.r_diag = x_new[:4], P_new, r_diag
+        if self.bias_state:
+            self.bias = x_new[4:]
         return status
 
 
