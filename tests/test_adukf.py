@@ -61,12 +61,13 @@ def test_variants_match_reference(name, sets):
 @pytest.mark.parametrize("name", SCENARIOS)
 def test_adaptive_beats_plain_on_every_angle(name):
     """The paper's claim, on our simulation: A-DUKF RMS error well below DUKF's on each angle
-    (measured factors 18x to 81x, see docs/adukf.md; asserted: at least 5x)."""
+    (product defaults of issue 10, seed 0: 10.8x to 82x, see docs/adukf.md; asserted: at
+    least 10x, issue 10's acceptance)."""
     log = scenario(name)
     a = metrics.euler_stats(host_build("adukf", "float").run(log).q, log.q_true, log.t, 0.0)
     p = metrics.euler_stats(host_build("adukf", "float", PLAIN).run(log).q, log.q_true, log.t, 0.0)
     for ang in ("roll", "pitch", "yaw"):
-        assert a[ang]["rms"] * 5 < p[ang]["rms"], (ang, a[ang], p[ang])
+        assert a[ang]["rms"] * 10 < p[ang]["rms"], (ang, a[ang], p[ang])
 
 
 def test_clean_static_is_accurate_and_plain_equals_adaptive_without_disturbance():

@@ -276,3 +276,19 @@ def test_multirotor_vibration_and_manoeuvres():
     assert np.all(np.abs(clean.accel[hover] - [0, 0, -G0]).max() < 1e-9)              # hovering, level
     novib = scenarios.make("multirotor", seed=0, duration=34.0, vibration=False)
     assert np.all((novib.accel[hover] - clean.accel[hover]).std(axis=0) < 0.1)
+
+
+def test_multirotor_own_rate_and_repeated_magnetometer():
+    """IMU 400 Hz, magnetometer 100 Hz: its bit on one step in four; repeat_slow sets it on
+    every step from the first sample on, the rows holding the same samples."""
+    import numpy as np
+    from firmware_sim import scenarios
+    from firmware_sim.log import VALID_MAG
+    own = scenarios.make("multirotor", 0, duration=2.0, rate_hz=400.0, mag_rate=100.0)
+    rep = scenarios.make("multirotor", 0, duration=2.0, rate_hz=400.0, mag_rate=100.0, repeat_slow=True)
+    bits = (own.valid & VALID_MAG) != 0
+    assert abs(bits.sum() - 200) <= 1 and not bits[1:4].any()
+    first = int(np.argmax(bits))
+    assert np.all((rep.valid[first:] & VALID_MAG) != 0) and not np.any(rep.valid[:first] & VALID_MAG)
+    np.testing.assert_array_equal(rep.mag[first:], own.mag[first:])
+    np.testing.assert_array_equal(rep.gyro, own.gyro)

@@ -296,12 +296,15 @@ def simulate(name: str, truth: Truth, *, rate_hz: float, duration: float, seed: 
              jitter: float = 0.0, dropout: dict | None = None,
              accel_disturbance=None, mag_disturbance=None, gyro_disturbance=None,
              random_disturbances: bool = True, description: str = "",
-             settle_time: float = 0.0, meta: dict | None = None) -> SensorLog:
+             settle_time: float = 0.0, meta: dict | None = None, repeat_slow: bool = False) -> SensorLog:
     """Sample `truth` into a SensorLog at `rate_hz` for `duration` s (N = round(duration*rate)
     steps, t[k] = k / rate_hz plus jitter).
 
     accel_rate / mag_rate: None = every IMU step; gps_rate: None = no GPS (bit never set).
     dropout: {"gyro"|"accel"|"mag"|"gps": probability of losing each sample}.
+    repeat_slow: the accelerometer and magnetometer valid bits are set on every step from their
+    first sample on, the rows repeating the last sample (firmware that feeds the latest value
+    every IMU step instead of flagging fresh samples); GPS keeps its own valid bit.
     *_disturbance: callable(t (J,), rng) -> (J,3) body-frame additive term, evaluated at that
     sensor's sample times (t[k] for the gyro), rng a scenario stream of the seed. A callable
     wrapped in `Deterministic(...)` is part of the scenario (static offsets) and is always applied;
@@ -407,6 +410,9 @@ def simulate(name: str, truth: Truth, *, rate_hz: float, duration: float, seed: 
     have_w = np.zeros(n, dtype=bool)
     have_w[k_w2] = True
 
+    if repeat_slow:
+        have_a = np.all(np.isfinite(accel), axis=1)
+        have_m = np.all(np.isfinite(mag), axis=1)
     valid = (np.where(have_w, VALID_GYRO, 0) | np.where(have_a, VALID_ACCEL, 0)
              | np.where(have_m, VALID_MAG, 0) | np.where(have_g, VALID_GPS, 0)).astype(np.uint32)
 
@@ -423,6 +429,7 @@ def simulate(name: str, truth: Truth, *, rate_hz: float, duration: float, seed: 
         "gps_rate_hz": None if gps_rate is None else float(gps_rate),
         "gps_period": None if gps_rate is None else 1.0 / float(gps_rate),
         "jitter_s": float(jitter),
+        "repeat_slow": bool(repeat_slow),
         "dropout": dropout,
         "settle_time": float(settle_time),
         "mag_ref_ned": m_unit.tolist(),

@@ -15,8 +15,10 @@ commanded vertical acceleration and damping the vertical speed
 (T = (g + a_up + 1.0 v_d) / (cos φ cos θ)); integrated by Heun's method on a 1 ms grid. The
 accelerometer therefore also sees the drag in x/y, as on a real multirotor.
 
-Rates: IMU (gyro, accelerometer) 250 Hz (`rate_hz` for more), magnetometer 50 Hz, GPS
-velocity 5 Hz.
+Rates: IMU (gyro, accelerometer) 250 Hz (`rate_hz` for more), magnetometer 50 Hz (`mag_rate`),
+GPS velocity 5 Hz, each sensor's valid bit set only when its sample arrived; `repeat_slow=True`
+instead repeats the last magnetometer sample with its bit set on every IMU step (the bench's
+`multirotor_400hz` / `multirotor_400hz_repeated` pair: IMU 400 Hz, magnetometer 100 Hz).
 Noise (Pixhawk class, MPU-6000 / HMC5883L figures): gyro 0.005 °/s/√Hz, constant bias
 0.05-0.3 °/s per axis (random sign, from the seed) plus a bias random walk 0.001 °/s/√s;
 accelerometer 400 µg/√Hz; magnetometer 2 mgauss 1σ on a 0.5 gauss field (inclination 60°,
@@ -141,7 +143,7 @@ def truth(duration: float, period: float):
 
 def make(seed: int = 0, *, rate_hz: float = 250.0, duration: float = 120.0, mag_rate: float = 50.0,
          gps_rate: float = 5.0, noise: bool = True, vibration: bool = True, jitter: float = 0.0,
-         dropout: dict | None = None, settle_time: float = 5.0) -> SensorLog:
+         dropout: dict | None = None, settle_time: float = 5.0, repeat_slow: bool = False) -> SensorLog:
     period = 1.0 / rate_hz
     tr, tf, thrust = truth(duration, period)
     r = _sim.rng(seed, _sim._S_GYRO_BIAS)
@@ -174,7 +176,7 @@ def make(seed: int = 0, *, rate_hz: float = 250.0, duration: float = 120.0, mag_
         declination_deg=2.0, jitter=jitter, dropout=dropout,
         accel_disturbance=acc_vib if vibration else None,
         gyro_disturbance=gyro_vib if vibration else None,
-        description=DESCRIPTION, settle_time=settle_time,
+        description=DESCRIPTION, settle_time=settle_time, repeat_slow=repeat_slow,
         meta={"vibration": bool(vibration and noise),
               "vibration_hz_range": [float(fm.min()), float(fm.max())],
               "sensor_class": "MPU-6000 gyro/accel, HMC5883L magnetometer (Pixhawk class)"})

@@ -71,6 +71,7 @@ extern "C" {
 #define ADUKF_P0_BIAS 1e-04f              /* gyro-bias state: initial bias variance (P0 and COV_RESET) [(rad/s)^2] */
 #define ADUKF_ACCEL_TAU 1.0f              /* time constant of the NED-frame low-pass of the accelerometer R(q-) f; the update measures the direction of R(q-)^T of it (motion acceleration averages out, gravity does not; VQF's idea); 0 = the raw accelerometer (as the paper; faithful ignores it) [s] */
 #define ADUKF_SPAN_MAX 0.1f               /* sensors at their own rates: each sensor's R is multiplied by dt / (time since its previous sample, at most span_max), so a 100 Hz magnetometer carries the information of the IMU steps it stands for; 0 = off (as the paper; faithful ignores it) [s] */
+#define ADUKF_SPAN_STEPS_MAX 10.0f        /* sensors at their own rates: a sample counts for at most this many IMU steps (the R factor is at least 1/this), so a tiny dt after a normal one cannot make a measurement look exact [steps] */
 #define ADUKF_FAITHFUL 0                  /* the paper's initialisation q0 = [1,0,0,0] and first-order transition A (else q0 from the first accelerometer+magnetometer sample, A normalised) */
 
 /* Input validity bits: set a bit only when that sensor delivered a new sample this step. */

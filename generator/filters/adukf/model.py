@@ -93,6 +93,11 @@ class Model(FilterModel):
             StateField("initialised", 1, "1 once the attitude has been initialised", 1 if p["faithful"] else 0, "uint32"),
         ]
 
+    def r_scale(self, dt, span):
+        """dt / span, at least 1 / span_steps_max (a sample never counts for more steps than that:
+        a tiny dt after a normal one must not make the measurement look exact)."""
+        return ca.fmax(dt / span, 1.0 / self.params["span_steps_max"])
+
     def own_rates(self) -> bool:
         return not self.params["faithful"] and self.params["span_max"] > 0
 
@@ -244,7 +249,8 @@ class Model(FilterModel):
         span = ca.SX.sym("span", 2)            # time each sample stands for: accel, mag
         rated = self.own_rates()
         Pzz_e, Pxz_e, eps_e, r_e = self.innovation_expr(qm, X, Z, f, m, use_a, use_m,
-                                                        [dt / span[0], dt / span[1]] if rated else None)
+                                                        [self.r_scale(dt, span[0]), self.r_scale(dt, span[1])]
+                                                        if rated else None)
         q_new, P_new, piv_zz = self.correct_expr(qm, Pm, Pzz, Pxz, eps)
 
         decl = float(p["declination"])

@@ -39,8 +39,8 @@ Product defaults (issue 10; faithful ignores them):
   c = 1/sqrt(1 + |w|² dt²/4), Ω(w) q = Ξ(q) w. The update corrects the whole x; q is normalised.
 - accel_tau > 0: a ← a + dt/(τ + dt) (R(q⁻/|q⁻|) f - a) (started at R f), and the update
   measures R(q⁻/|q⁻|)ᵀ a instead of f.
-- span_max > 0: each sensor's R is multiplied by dt / s, s = the time since its previous
-  sample (at least dt, at most span_max).
+- span_max > 0: each sensor's R is multiplied by max(dt / s, 1 / span_steps_max), s = the
+  time since its previous sample (at least dt, at most span_max).
 
 Initialisation: faithful: q = [1,0,0,0] (the paper). Otherwise the first step with usable
 accelerometer and magnetometer sets q from tilt and tilt-compensated heading (SPEC.md
@@ -250,7 +250,7 @@ class Reference:
         if self.rated:
             self.sample_age = np.minimum(self.sample_age + dt, p["span_max"])
             span = np.maximum(self.sample_age, dt)
-            scale = np.repeat(dt / span, 3)
+            scale = np.repeat(np.maximum(dt / span, 1.0 / p["span_steps_max"]), 3)
             if use_a:
                 self.sample_age[0] = 0.0
             if use_m:
