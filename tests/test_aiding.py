@@ -92,3 +92,18 @@ def test_heading_correction_turns_field_north_without_tilting(decl):
         np.testing.assert_allclose(nq.rotmat(fixed) @ m_b, m_n, atol=1e-9)
         # tilt untouched: the body's down direction is the same before and after
         np.testing.assert_allclose(nq.rotmat(fixed).T @ [0, 0, 1], nq.rotmat(q_est).T @ [0, 0, 1], atol=1e-12)
+
+
+def test_field_check_warmup_averages_then_checks():
+    s = [ca.SX.sym(n) for n in ("n", "d", "rn", "rd", "t", "dt", "lt")]
+    f = _fn(s, list(aiding.field_check(*s[:6], norm_tol=0.1, dip_tol=0.1, ref_tau=10.0, new_time=2.0,
+                                       learn_time=s[6], warmup=1.0)))
+    acc, rn, rd, t, lt = f(50.0, 0.8, 0.0, 0.0, 0.0, 0.5, 0.0)          # first sample
+    assert (acc[0], rn[0], rd[0], lt[0]) == (1, 50.0, 0.8, 0.5)
+    acc, rn, rd, t, lt = f(70.0, 0.6, 50.0, 0.8, 0.0, 0.5, 0.5)         # still warming: accepted, mean
+    assert (acc[0], rn[0], lt[0]) == (1, 60.0, 1.0) and rd[0] == pytest.approx(0.7)
+    assert f(90.0, 0.7, 60.0, 0.7, 0.0, 0.5, 1.0)[0][0] == 0            # after warm-up: checked
+    g = _fn(s, list(aiding.field_check(*s[:6], norm_tol=0.1, dip_tol=0.1, ref_tau=10.0, new_time=2.0,
+                                       learn_time=s[6], warmup=0.0)))
+    out = g(90.0, 0.7, 60.0, 0.7, 0.0, 0.5, 0.25)                       # warmup 0: learn_time passes through
+    assert len(out) == 5 and out[0][0] == 0 and out[4][0] == 0.25

@@ -70,7 +70,10 @@ def field_check(norm, sin_dip, ref_norm, ref_dip, dist_time, dt, *, norm_tol: fl
     reference then follows the field with time constant ref_tau. Rejected samples add dt to
     dist_time; once it exceeds new_time the current field becomes the reference.
     """
-    if learn_time is not None and warmup > 0:
+    if learn_time is not None and warmup <= 0:
+        return (*field_check(norm, sin_dip, ref_norm, ref_dip, dist_time, dt, norm_tol=norm_tol,
+                             dip_tol=dip_tol, ref_tau=ref_tau, new_time=new_time), learn_time)
+    if learn_time is not None:
         first = ref_norm <= 0
         t_l = ca.if_else(first, 0.0, learn_time)
         warming = t_l < warmup
