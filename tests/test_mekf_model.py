@@ -21,6 +21,12 @@ def defaults():
     return filters.load("mekf").defaults()
 
 
+def euler_params():
+    """The patent's Euler-angle measurement (the kernels _kernel_run drives)."""
+    return {**defaults(), "measurement": "euler_angles", "heading_source": "gps_course",
+            "motion_comp": "centripetal"}
+
+
 # --- independent NumPy versions of the functions the Jacobians linearise ---------------
 def np_propagate(x, noise, omega_hat, dt):
     """[1, δq'] ∝ a* ⊗ [1, δq] ⊗ exp(½(ω̂ − δb − n_g)dt), a = exp(½ ω̂ dt); δb' = δb + n_b."""
@@ -118,7 +124,7 @@ def _kernel_run(p, log):
 
 
 def test_kernels_match_reference_on_fixedwing():
-    p = defaults()
+    p = euler_params()
     log = make("fixedwing_gps", 0, duration=120.0)
     qs, _, _ = R.run(p, log)
     assert max_angle_diff_rad(_kernel_run(p, log), qs) < 1e-12
@@ -135,9 +141,103 @@ def test_sym_lower_mirrors_exactly():
 
 def test_update_refuses_at_vertical_pitch():
     """At pitch exactly 90 deg the Euler Jacobian is infinite: the kernel flags it (pivot < 0)."""
-    p = defaults()
+    p = euler_params()
     fu = M.update_function(p)
     P = np.array(M.initial_P(p))
     for q, usable in (([np.sqrt(0.5), 0, np.sqrt(0.5), 0], False), (list(q_from_euler(0.1, 1.5, 0.3)), True)):
         r = fu(q, np.zeros(3), P, np.zeros(3), [-9.8, 0, 0], np.zeros(3), [20.0, 0, 0], np.zeros(3), [1.0, 1.0, 0.0])
         assert (float(r[3]) > M.S_PIVOT_MIN) == usable
+
+
+# --- measurement = "vectors": gravity direction and vertical-only heading ------------------
+def np_gravity_direction(q, dq):
+    """Body-axis direction of the specific force at rest, R(q ⊗ [1, δq])ᵀ [0, 0, -1]."""
+    from generator.npquat import rotmat
+    e = qmul(q, np.concatenate([[1.0], dq]))
+    return rotmat(e / np.linalg.norm(e)).T @ np.array([0.0, 0.0, -1.0])
+
+
+ATTITUDES = [(0.1, -0.05, 0.8), (2.5, 1.2, -3.0), (0.3, np.pi / 2, 1.0), (-0.2, -np.pi / 2, 0.0),
+             (np.pi, 0.0, 0.4)]
+
+
+@pytest.mark.parametrize("euler", ATTITUDES)
+def test_gravity_H_matches_finite_differences_at_any_attitude(euler):
+    """The gravity rows stay well conditioned at pitch ±90 deg and upside down: the Jacobian
+    matches finite differences and has rank 2 (the two tilt directions) everywhere."""
+    q = q_from_euler(*euler)
+    qs = ca.SX.sym("q", 4)
+    Hs = np.array(ca.Function("H", [qs], [M.jacobian_gravity(qs)])(q))
+    H_fd = central_diff(lambda d: np_gravity_direction(q, d[:3]), 6)
+    assert Hs.shape == (3, 6)
+    assert np.max(np.abs(Hs - H_fd)) < 1e-8
+    assert np.linalg.matrix_rank(Hs[:, :3], tol=1e-6) == 2
+    H_ref = np.zeros((3, 6))
+    H_ref[:, :3] = 2.0 * R.skew(np_gravity_direction(q, np.zeros(3)))
+    assert np.max(np.abs(Hs - H_ref)) < 1e-12
+
+
+@pytest.mark.parametrize("euler", ATTITUDES)
+def test_heading_H_is_vertical_and_matches_finite_differences(euler):
+    """The heading row's Jacobian: finite differences of the twist about the NED vertical of
+    the error rotation, and only the vertical (body axes R(q)ᵀ e3) component."""
+    from generator.npquat import rotmat
+
+    def twist(d):
+        e = qmul(qmul(q, np.concatenate([[1.0], d[:3]])), qconj(q))
+        return np.array([2 * np.arctan2(e[3], e[0])])
+    q = q_from_euler(*euler)
+    qs = ca.SX.sym("q", 4)
+    Hs = np.array(ca.Function("H", [qs], [M.jacobian_heading(qs)])(q))
+    assert np.max(np.abs(Hs - central_diff(twist, 6))) < 1e-8
+    assert np.max(np.abs(Hs[0, :3] - 2.0 * rotmat(q)[2])) < 1e-12
+
+
+def _vec_params(**kw):
+    return {**defaults(), "declination": 0.1, **kw}
+
+
+@pytest.mark.parametrize("use_course", [0.0, 1.0])
+def test_heading_update_never_tilts_and_keeps_P_spd(use_course):
+    """A heading correction with a large innovation and a P with tilt-heading correlation:
+    the gravity direction of the estimate is unchanged (gain projected on the vertical),
+    heading moves toward the measurement, P stays symmetric positive definite."""
+    from generator.npquat import rotmat
+    p = _vec_params()
+    fu = M.update_heading_function(p)
+    q = q_from_euler(0.4, -0.3, 0.2)
+    rng = np.random.default_rng(1)
+    A = rng.normal(size=(6, 6)) * 0.2
+    P = A @ A.T + 1e-4 * np.eye(6)
+    mag = rotmat(q_from_euler(0.4, -0.3, 1.0)).T @ np.array([20.0, 0.0, 40.0])   # field seen 0.8 rad off
+    vel = np.array([10 * np.cos(1.0), 10 * np.sin(1.0), 0.0])
+    r = fu(q, np.zeros(3), P.ravel(order="F"), mag, vel, use_course)
+    q_new = np.array(r[0]).ravel()
+    P_new = np.array(r[2]).reshape(6, 6)
+    assert float(r[3]) > M.S_PIVOT_MIN
+    assert np.max(np.abs(rotmat(q_new)[2] - rotmat(q)[2])) < 1e-12          # no tilt
+    yaw_old, yaw_new = euler_from_q(q)[2], euler_from_q(q_new)[2]
+    target = 1.0 + (0.0 if use_course else 0.1)
+    assert abs(wrap(target - yaw_new)) < abs(wrap(target - yaw_old))
+    assert np.array_equal(P_new, P_new.T)
+    assert np.min(np.linalg.eigvalsh(P_new)) > 0
+
+
+def test_gravity_update_keeps_P_spd_at_vertical_pitch():
+    """Gravity rows at pitch 90 deg: usable pivot, P symmetric positive definite, tilt moves
+    toward the measured direction (no Euler singularity in this measurement)."""
+    from generator.npquat import rotmat
+    p = _vec_params()
+    fu = M.update_gravity_function(p)
+    q = q_from_euler(0.0, np.pi / 2, 0.3)
+    P = np.diag([0.01] * 3 + [1e-4] * 3)
+    q_true = q_from_euler(0.0, np.pi / 2 - 0.1, 0.3)
+    a_lp = rotmat(q_true).T @ np.array([0.0, 0.0, -9.81])
+    a_lp_n = rotmat(q) @ a_lp                       # the kernel takes the earth-frame low-pass
+    r = fu(q, np.zeros(3), P.ravel(), a_lp_n, np.zeros(3), 0.01, [1.0, 0.0])
+    assert float(r[3]) > M.S_PIVOT_MIN
+    q_new = np.array(r[0]).ravel()
+    P_new = np.array(r[2]).reshape(6, 6)
+    up = lambda qq: rotmat(qq)[2]
+    assert np.linalg.norm(up(q_new) - up(q_true)) < 0.5 * np.linalg.norm(up(q) - up(q_true))
+    assert np.min(np.linalg.eigvalsh(P_new)) > 0

@@ -19,11 +19,13 @@ exactly symmetric; the Joseph form keeps it positive semi-definite.
 """
 from __future__ import annotations
 
+import math
+
 import casadi as ca
 
 from generator import emit
 from generator.constants import G0
-from generator.model import FilterModel, KernelSpec, StateField
+from generator.model import ConfigError, FilterModel, KernelSpec, StateField
 from generator.symbolic import attitude, kalman, quat
 
 N = 6           # error-state size
@@ -33,11 +35,19 @@ AGE_MAX = 1e3         # the GPS-velocity age stops counting here (s)
 GPS_DT_MIN = 1e-3     # two GPS samples closer than this (s) give no new acceleration
 DT_Q_MIN = 1e-9       # s: floor of dt in the gyro-noise variance σ_g²/dt
 
+HEAD_AGE_MAX = 1.0    # s without a heading correction before HEADING_UNAIDED
+
 EXTRA_STATUS = [
     ("COURSE_SLOW", "GPS sample present but ground speed below gps_min_speed: yaw row dropped"),
     ("ACCEL_GATED", "| |accel| - g | above accel_gate: roll/pitch rows dropped"),
     ("UPDATE_SKIPPED", "correction skipped: innovation covariance not positive definite, or pitch within 0.57 deg of +-90 deg (Euler angles singular)"),
 ]
+VECTOR_STATUS = [
+    ("HEADING_UNAIDED", "no heading correction (GPS course or magnetometer) for more than 1 s"),
+    ("MAG_DISTURBED", "magnetometer rejected: field norm or dip angle off the learned reference"),
+    ("AT_REST", "rest detected: the gyro reading measures the gyro bias directly"),
+]
+UP_NED = (0.0, 0.0, -1.0)   # direction of the specific force at rest, NED
 
 
 # ------------------------------------------------------------------------------------
@@ -187,6 +197,153 @@ def init_function(p: dict, name="init_attitude") -> ca.Function:
                          {"q_out": quat.from_euler(roll, pitch, yaw)})
 
 
+# ------------------------------------------------------------------------------------
+# measurement = "vectors" (the product design)
+def motion_compensated(p, q, b, gyro, accel, vel, acc_n, m_comp):
+    """Specific force with the GPS-known motion acceleration removed (see measured_angles)."""
+    if p["motion_comp"] == "centripetal":
+        return accel - ca.if_else(m_comp, ca.cross(gyro - b, quat.rotate_inv(q, vel)), ca.DM.zeros(3))
+    if p["motion_comp"] == "gps_accel":
+        return accel - ca.if_else(m_comp, quat.rotate_inv(q, acc_n), ca.DM.zeros(3))
+    return accel
+
+
+def accel_lowpass_function(p: dict, name="accel_lowpass") -> ca.Function:
+    """a_lp ← a_lp + α (R(q) f_c − a_lp), α = dt / (accel_lpf_tau + dt): the specific force
+    low-passed in the earth frame (motion acceleration averages out, gravity does not).
+
+    Returns the new a_lp, the new v_lp and `up`, the low-passed specific force with the
+    low-passed kinematic acceleration removed: for motion_comp = 'gps_lowpass' (m_comp = 1)
+    the GPS velocity goes through the same low-pass, v_lp ← v_lp + α (v − v_lp), and
+    (v − v_lp)/(τ + dt) is the low-passed acceleration (the low-pass of a derivative is the
+    derivative of the low-pass); up = a_lp − (v − v_lp)/(τ + dt). Otherwise up = a_lp.
+    """
+    q, b, gyro, accel, vel, acc_n, a_lp, v_lp, v_ins = (ca.SX.sym(n, k) for n, k in (
+        ("q", 4), ("b", 3), ("gyro", 3), ("accel", 3), ("vel", 3), ("acc_n", 3), ("a_lp", 3), ("v_lp", 3),
+        ("v_ins", 3)))
+    dt = ca.SX.sym("dt")
+    mask = ca.SX.sym("mask", 2)        # [motion compensation, GPS sample this step]
+    m_comp = mask[0]
+    f = motion_compensated(p, q, b, gyro, accel, vel, acc_n, m_comp)
+    alpha = dt / (p["accel_lpf_tau"] + dt)
+    f_n = quat.rotate(q, f)
+    a_new = a_lp + alpha * (f_n - a_lp)
+    if p["motion_comp"] == "gps_lowpass":
+        # velocity: the GPS sample when one arrived, else carried by a = R f + g from the last
+        # one (no GPS-rate staircase in the low-passed derivative)
+        vi_new = ca.if_else(mask[1], vel, v_ins + (f_n + ca.DM([0.0, 0.0, G0])) * dt)
+        v_new = ca.if_else(m_comp, v_lp + alpha * (vi_new - v_lp), v_lp)
+        up = ca.if_else(m_comp, a_new - (vi_new - v_new) / (p["accel_lpf_tau"] + dt), a_new)
+    else:
+        vi_new, v_new, up = v_ins, v_lp, a_new
+    return emit.function(name, {"q": q, "b": b, "gyro": gyro, "accel": accel, "vel": vel, "acc_n": acc_n,
+                                "mask": mask, "a_lp": a_lp, "v_lp": v_lp, "v_ins": v_ins, "dt": dt},
+                         {"a_lp_out": a_new, "v_lp_out": v_new, "v_ins_out": vi_new, "up_out": up})
+
+
+def heading_features_function(name="heading_features") -> ca.Function:
+    """[|m|, dip, v_bx, v_by]: the field's norm and dip (positive down) seen from the
+    attitude q, and the GPS velocity in body axes (is the vehicle moving nose first?)."""
+    q, m, vel = ca.SX.sym("q", 4), ca.SX.sym("mag", 3), ca.SX.sym("vel", 3)
+    mn = quat.rotate(q, m)
+    dip = ca.atan2(mn[2], ca.sqrt(mn[0] * mn[0] + mn[1] * mn[1]))
+    vb = quat.rotate_inv(q, vel)
+    return emit.function(name, {"q": q, "mag": m, "vel": vel},
+                         {"feat": ca.vertcat(ca.sqrt(ca.sumsqr(m)), dip, vb[0], vb[1])})
+
+
+def gravity_direction(q, dq):
+    """Body-axis direction of the specific force at rest seen from normalise(q̂ ⊗ [1, δq])."""
+    return quat.rotate_inv(quat.qnormalize(quat.qmul(q, quat.vec(1, dq[0], dq[1], dq[2]))), ca.DM(UP_NED))
+
+
+def heading_of_error(q, dq):
+    """Heading part of the error: twist angle about the vertical (NED z) of the earth-frame
+    error rotation e = q̂ ⊗ [1, δq] ⊗ q̂*, 2 atan2(e_z, e_w). Its Jacobian at δq = 0 has only
+    the vertical component, so a heading row never asks for a tilt."""
+    e = quat.qmul(quat.qmul(q, quat.vec(1, dq[0], dq[1], dq[2])), quat.qconj(q))
+    return 2 * ca.atan2(e[3], e[0])
+
+
+def jacobian_gravity(q):
+    dq = ca.SX.sym("dq", 3)
+    return ca.horzcat(kalman.jacobian_at(gravity_direction(q, dq), dq, [dq]), ca.SX.zeros(3, 3))
+
+
+def jacobian_heading(q):
+    dq = ca.SX.sym("dq", 3)
+    return ca.horzcat(kalman.jacobian_at(heading_of_error(q, dq), dq, [dq]), ca.SX.zeros(1, 3))
+
+
+def _inject(q, b, X):
+    return quat.qnormalize(quat.qmul(q, quat.vec(1, X[0], X[1], X[2]))), b + X[3:6]
+
+
+def update_gravity_function(p: dict, name="update_gravity") -> ca.Function:
+    """Gravity direction (3 rows) and, at rest, the gyro bias (3 rows), masked.
+
+    z_g = up/|up| in body axes − R(q̂)ᵀ [0, 0, −1] (up: accel_lowpass's earth-frame vector); R_g = σ² min(1 + |z_g|²/(3σ)², cap)
+    (bounded residual adaptation: the correction can be weakened, never locked out).
+    z_b = gyro − b̂ (at rest the gyro reads its bias), R_b = σ_g²/dt (one sample's noise).
+    """
+    q, b, Pv, up, gyro = (ca.SX.sym(n, k) for n, k in (("q", 4), ("b", 3), ("P", N * N), ("up", 3), ("gyro", 3)))
+    dt, mask = ca.SX.sym("dt"), ca.SX.sym("mask", 2)       # [gravity rows, bias rows]
+    d = quat.rotate_inv(q, up) / ca.sqrt(ca.sumsqr(up))
+    z_g = d - gravity_direction(q, ca.DM.zeros(3))
+    sig2 = p["accel_angle_noise"] ** 2
+    r_g = sig2 * ca.fmin(1 + ca.sumsqr(z_g) / (9 * sig2), p["accel_adapt_cap"])
+    r_b = p["gyro_noise"] ** 2 / ca.fmax(dt, DT_Q_MIN)
+    H = ca.vertcat(jacobian_gravity(q), ca.horzcat(ca.SX.zeros(3, 3), ca.SX.eye(3)))
+    z = ca.vertcat(z_g, gyro - b)
+    Hm, zm, R = kalman.mask_rows(H, z, [r_g] * 3 + [r_b] * 3, [mask[0]] * 3 + [mask[1]] * 3)
+    X, P_new, min_pivot = kalman.update(sym_lower(Pv), Hm, zm, R, S_PIVOT_MIN, symmetrize=False)
+    q_new, b_new = _inject(q, b, X)
+    return emit.function(name, {"q": q, "b": b, "P": Pv, "up": up, "gyro": gyro, "dt": dt, "mask": mask},
+                         {"q_out": q_new, "b_out": b_new, "P_out": flat_mirrored(P_new), "min_pivot": min_pivot})
+
+
+def update_heading_function(p: dict, name="update_heading") -> ca.Function:
+    """One heading row: GPS course (use_course = 1) or magnetic heading, vertical only.
+
+    course: z = wrap(atan2(v_E, v_N) − ψ̂), ψ̂ = atan2(R₁₀, R₀₀) (heading of the body x axis);
+    mag:    z = wrap(declination − atan2(m_E, m_N)), m_n = R(q̂) m (the field's heading as
+            the estimate sees it, from north it points at the declination).
+    The attitude part of the gain is projected on the vertical (in body axes, r = R(q̂)ᵀ e₃),
+    so the correction is a pure heading rotation; Joseph's form stays exact for this gain.
+    """
+    q, b, Pv, mag, vel = (ca.SX.sym(n, k) for n, k in (("q", 4), ("b", 3), ("P", N * N), ("mag", 3), ("vel", 3)))
+    use_course = ca.SX.sym("use_course")
+    Rq = quat.rotmat(q)
+    mn = ca.mtimes(Rq, mag)
+    z_course = quat.wrap(ca.atan2(vel[1], vel[0]) - ca.atan2(Rq[1, 0], Rq[0, 0]))
+    z_mag = quat.wrap(p["declination"] - ca.atan2(mn[1], mn[0]))
+    z = ca.if_else(use_course, z_course, z_mag)
+    r = ca.if_else(use_course, p["course_noise"] ** 2, p["mag_heading_noise"] ** 2)
+    H = jacobian_heading(q)
+    P = sym_lower(Pv)
+    PHt = ca.mtimes(P, H.T)
+    S = ca.mtimes(H, PHt) + r                                # 1 x 1
+    K = PHt / ca.if_else(S > S_PIVOT_MIN, S, 1.0)
+    up = Rq[2, :].T
+    K[0:3] = ca.mtimes(ca.mtimes(up, up.T), K[0:3])          # attitude gain about the vertical only
+    P_new = kalman.joseph(P, K, H, ca.reshape(r, 1, 1), symmetrize=False)
+    q_new, b_new = _inject(q, b, K * z)
+    return emit.function(name, {"q": q, "b": b, "P": Pv, "mag": mag, "vel": vel, "use_course": use_course},
+                         {"q_out": q_new, "b_out": b_new, "P_out": flat_mirrored(P_new), "s": S})
+
+
+def init_vectors_function(p: dict, name="init_attitude") -> ca.Function:
+    """First attitude: tilt from the accelerometer, yaw from the GPS course (use[0]) or the
+    magnetometer (use[1]) or 0; and the earth-frame low-pass started at R(q) f."""
+    accel, mag, vel, use = (ca.SX.sym(n, k) for n, k in (("accel", 3), ("mag", 3), ("vel", 3), ("use", 2)))
+    roll, pitch = attitude.tilt_angles(accel)
+    yaw = ca.if_else(use[0], ca.atan2(vel[1], vel[0]),
+                     ca.if_else(use[1], attitude.tilt_compensated_heading(mag, roll, pitch, p["declination"]), 0.0))
+    q = quat.from_euler(roll, pitch, yaw)
+    return emit.function(name, {"accel": accel, "mag": mag, "vel": vel, "use": use},
+                         {"q_out": q, "a_lp_out": quat.rotate(q, accel)})
+
+
 def initial_P(p: dict) -> list:
     d = [(0.5 * p["p0_att"]) ** 2] * 3 + [p["p0_bias"] ** 2] * 3
     return [d[i] if i == j else 0.0 for j in range(N) for i in range(N)]
@@ -195,12 +352,18 @@ def initial_P(p: dict) -> list:
 class Model(FilterModel):
     def __init__(self, params: dict):
         p = params
+        self.vectors = p["measurement"] == "vectors"
+        if not self.vectors and p["heading_source"] == "auto":
+            raise ConfigError("heading_source 'auto' needs measurement = 'vectors'")
+        if not self.vectors and p["motion_comp"] == "gps_lowpass":
+            raise ConfigError("motion_comp 'gps_lowpass' needs measurement = 'vectors'")
         uses = ["accel"]
-        if p["heading_source"] == "mag":
+        if p["heading_source"] != "gps_course":
             uses.append("mag")
-        if p["heading_source"] == "gps_course" or p["motion_comp"] != "none":
+        if p["heading_source"] != "mag" or p["motion_comp"] != "none":
             uses.append("gps")
-        super().__init__(params, sensors=tuple(uses), extra_status=list(EXTRA_STATUS))
+        status = list(EXTRA_STATUS) + (list(VECTOR_STATUS) if self.vectors else [])
+        super().__init__(params, sensors=tuple(uses), extra_status=status)
 
     def state_fields(self) -> list[StateField]:
         return [
@@ -212,10 +375,36 @@ class Model(FilterModel):
             StateField("a_gps", 3, "NED acceleration from the last two GPS velocities, m/s^2 (motion_comp = gps_accel)", 0.0),
             StateField("a_ok", 1, "1 when a_gps comes from two samples at most gps_vel_timeout apart", 0, "uint32"),
             StateField("initialised", 1, "1 once the attitude has been initialised", 0 if self.params["init_from_sensors"] else 1, "uint32"),
+        ] + (self._vector_fields() if self.vectors else [])
+
+    def _vector_fields(self) -> list[StateField]:
+        return [
+            StateField("a_lp", 3, "specific force low-passed in the earth frame (NED), m/s^2", 0.0),
+            StateField("v_lp", 3, "GPS velocity through the same low-pass (motion_comp = gps_lowpass), m/s", 0.0),
+            StateField("vlp_ok", 1, "1 while v_lp follows a fresh GPS velocity", 0, "uint32"),
+            StateField("v_ins", 3, "GPS velocity carried between GPS samples by the accelerometer, m/s", 0.0),
+            StateField("gyro_lp", 3, "rest detection: low-passed gyro, rad/s", 0.0),
+            StateField("acc_lp", 3, "rest detection: low-passed accelerometer, m/s^2", 0.0),
+            StateField("rest_time", 1, "time the gyro and accelerometer have been steady, s (stops at 1e3)", 0.0),
+            StateField("mag_ref", 2, "reference field [norm, dip angle rad] (learned, then followed while accepted)", 0.0),
+            StateField("mag_ref_time", 1, "time spent learning the reference field, s", 0.0),
+            StateField("mag_rej_time", 1, "time the magnetometer has been rejected in a row, s", 0.0),
+            StateField("mag_cand", 2, "candidate new reference [norm, dip] while rejected", 0.0),
+            StateField("mag_cand_time", 1, "time the candidate field has been steady, s", 0.0),
+            StateField("head_age", 1, "time since the last heading correction, s (stops at 1e3)", AGE_MAX),
         ]
 
     def kernels(self) -> list[KernelSpec]:
         p = self.params
+        if self.vectors:
+            return [
+                KernelSpec("predict", predict_function(p), "time update"),
+                KernelSpec("accel_lowpass", accel_lowpass_function(p), "earth-frame low-pass of the compensated specific force"),
+                KernelSpec("heading_features", heading_features_function(), "field norm and dip; GPS velocity in body axes"),
+                KernelSpec("update_gravity", update_gravity_function(p), "gravity direction and rest bias rows (masked)"),
+                KernelSpec("update_heading", update_heading_function(p), "one heading row, gain projected on the vertical"),
+                KernelSpec("init_attitude", init_vectors_function(p), "first attitude and low-pass state"),
+            ]
         return [
             KernelSpec("predict", predict_function(p), "time update (patent steps 1-2)"),
             KernelSpec("update", update_function(p), "measurement update with row mask (steps 3-8)"),
@@ -223,9 +412,14 @@ class Model(FilterModel):
         ]
 
     def step_paths(self) -> dict[str, list[str]]:
+        if self.vectors:
+            return {"gyro only": ["predict"],
+                    "with corrections": ["predict", "heading_features", "accel_lowpass", "update_gravity", "update_heading"]}
         return {"gyro only": ["predict"], "with corrections": ["predict", "update"]}
 
     def template_context(self) -> dict:
         p = self.params
         return {"n": N, "heading_source": p["heading_source"], "motion_comp": p["motion_comp"],
-                "s_pivot_min": S_PIVOT_MIN, "age_max": AGE_MAX, "g0": G0, "gps_dt_min": GPS_DT_MIN}
+                "s_pivot_min": S_PIVOT_MIN, "age_max": AGE_MAX, "g0": G0, "gps_dt_min": GPS_DT_MIN,
+                "vectors": self.vectors, "head_age_max": HEAD_AGE_MAX,
+                "tan2_sideslip": math.tan(p["course_max_sideslip"]) ** 2}

@@ -44,6 +44,11 @@ from generator.npquat import euler_from_q, q_from_euler, qexp, qmul, rotmat, wra
 COURSE_SLOW = st.FILTER_BASE          # GPS sample present but ground speed < gps_min_speed: yaw row dropped
 ACCEL_GATED = st.FILTER_BASE << 1     # | |f| - g | > accel_gate: roll/pitch rows dropped
 UPDATE_SKIPPED = st.FILTER_BASE << 2  # S not positive definite, or pitch at ±90°: no correction
+# measurement = "vectors" only:
+HEADING_UNAIDED = st.FILTER_BASE << 3  # no heading correction for more than HEAD_AGE_MAX s
+MAG_DISTURBED = st.FILTER_BASE << 4    # magnetometer rejected: field norm or dip off its reference
+AT_REST = st.FILTER_BASE << 5          # rest detected: the gyro bias is measured directly
+HEAD_AGE_MAX = 1.0      # s without a heading correction before HEADING_UNAIDED
 
 COS2_PITCH_MIN = 1e-4   # no correction while cos²(pitch) <= this (pitch within 0.57° of ±90°)
 AGE_MAX = 1e3   # the GPS-velocity age stops counting here (s)
@@ -117,8 +122,8 @@ class Reference:
         self.accel_min_norm = float(p["accel_min_norm"])
         self.mag_min_norm = float(p["mag_min_norm"])
         self.heading_source = str(p["heading_source"])
-        if self.heading_source not in ("gps_course", "mag"):
-            raise ValueError(f"heading_source must be 'gps_course' or 'mag', got {self.heading_source!r}")
+        if self.heading_source not in ("auto", "gps_course", "mag"):
+            raise ValueError(f"heading_source must be 'auto', 'gps_course' or 'mag', got {self.heading_source!r}")
         self.gps_min_speed = float(p["gps_min_speed"])
         self.declination = float(p["declination"])
         self.gyro_noise = float(p["gyro_noise"])
@@ -137,7 +142,9 @@ class Reference:
         self.accel_max = float(p["accel_max"])
         self.mag_max = float(p["mag_max"])
         # the step reads GPS only when something uses it (heading or compensation)
-        self.uses_gps = self.heading_source == "gps_course" or self.motion_comp != "none"
+        self.uses_gps = self.heading_source != "mag" or self.motion_comp != "none"
+        self.uses_mag = self.heading_source != "gps_course"
+        self.uses_course = self.heading_source != "mag"
 
         self.q = np.array([1.0, 0.0, 0.0, 0.0])
         self.gyro_bias = np.zeros(3)
@@ -148,8 +155,32 @@ class Reference:
         self.a_gps = np.zeros(3)          # NED acceleration from the last two GPS velocities
         self.a_ok = False                 # ... when they were at most gps_vel_timeout apart
 
+        self.vectors = str(p["measurement"]) == "vectors"
+        if self.vectors:
+            for k in ("accel_lpf_tau", "accel_adapt_cap", "rest_gyro_th", "rest_accel_th", "rest_min_time",
+                      "rest_tau", "mag_norm_th", "mag_dip_th", "mag_learn_time", "mag_reject_max",
+                      "mag_ref_tau", "mag_new_time", "course_max_sideslip"):
+                setattr(self, k, float(p[k]))
+            self.a_lp = np.zeros(3)       # earth-frame (NED) low-passed specific force
+            self.v_lp = np.zeros(3)       # the GPS velocity through the same low-pass (gps_lowpass)
+            self.vlp_ok = False           # v_lp follows a fresh GPS velocity
+            self.v_ins = np.zeros(3)      # GPS velocity carried between samples by the accelerometer
+            self.gyro_lp = np.zeros(3)    # rest detection: low-passed gyro and accelerometer (body)
+            self.acc_lp = np.zeros(3)
+            self.rest_time = 0.0          # time the sensors have been steady, s
+            self.mag_ref = np.zeros(2)    # reference field [norm, dip (rad)]
+            self.mag_ref_time = 0.0       # time spent learning the reference, s
+            self.mag_rej_time = 0.0       # time the magnetometer has been rejected in a row, s
+            self.mag_cand = np.zeros(2)   # candidate new reference [norm, dip] while rejected
+            self.mag_cand_time = 0.0      # time the candidate has been steady, s
+            self.head_age = AGE_MAX       # time since the last heading correction, s
+        elif self.heading_source == "auto" or self.motion_comp == "gps_lowpass":
+            raise ValueError("heading_source 'auto' and motion_comp 'gps_lowpass' need measurement = 'vectors'")
+
     # ------------------------------------------------------------------------------
     def step(self, gyro, accel, mag, gps_vel, valid: int, dt: float) -> int:
+        if self.vectors:
+            return self.step_vectors(gyro, accel, mag, gps_vel, valid, dt)
         valid = int(valid)
         dt = float(dt)
         sensors = ("accel",) + (("mag",) if self.heading_source == "mag" else ()) + (("gps",) if self.uses_gps else ())
@@ -280,6 +311,256 @@ class Reference:
         self.P = P
         self.v_gps, self.v_age = v_gps, v_age
         return status
+
+    # ------------------------------------------------------------------------------
+    # measurement = "vectors": the product design (see the module docstring's second part)
+    def _gps_bookkeeping(self, c, gps_vel, dt):
+        """Last GPS velocity, its age and the GPS-differenced acceleration (as step())."""
+        v_gps, v_age, a_gps, a_ok = self.v_gps, self.v_age, self.a_gps, self.a_ok
+        if c.use_gps:
+            v = np.asarray(gps_vel, dtype=float)
+            if self.motion_comp == "gps_accel":
+                tau = v_age + dt
+                if tau > self.gps_vel_timeout:
+                    a_ok = False
+                elif tau >= GPS_DT_MIN:
+                    a_gps, a_ok = (v - v_gps) / tau, True
+            v_gps = v.copy()
+            v_age = 0.0
+        elif v_age < AGE_MAX:
+            v_age = v_age + dt
+        self.v_gps, self.v_age, self.a_gps, self.a_ok = v_gps, v_age, a_gps, a_ok
+
+    def step_vectors(self, gyro, accel, mag, gps_vel, valid: int, dt: float) -> int:
+        valid = int(valid)
+        dt = float(dt)
+        sensors = ("accel",) + (("mag",) if self.uses_mag else ()) + (("gps",) if self.uses_gps else ())
+        c = input_checks.check(self.p, sensors, gyro, accel, mag, gps_vel, valid, dt)
+        if c.refused:
+            return c.refused
+        status, gyro = c.status, c.gyro
+        f = np.asarray(accel, dtype=float)
+        use_tilt = False
+        if c.use_accel:
+            if self.accel_gate > 0.0 and abs(np.sqrt(f @ f) - G0) > self.accel_gate:
+                status |= ACCEL_GATED
+            else:
+                use_tilt = True
+        # heading sources: a GPS course sample this step; GPS course mode (auto) while the
+        # last GPS velocity is fresh and fast enough; the magnetometer otherwise
+        course_sample = False
+        if c.use_gps and self.uses_course:
+            v = np.asarray(gps_vel, dtype=float)
+            speed2 = v[0] * v[0] + v[1] * v[1]
+            if speed2 >= self.gps_min_speed ** 2 and speed2 > 0.0:
+                course_sample = True
+            else:
+                status |= COURSE_SLOW
+        self._gps_bookkeeping(c, gps_vel, dt)
+        vh2 = self.v_gps[0] ** 2 + self.v_gps[1] ** 2
+        # moving over ground by GPS: no rest, and the course may be the heading
+        moving = (self.uses_gps and self.v_age <= self.gps_vel_timeout
+                  and vh2 >= self.gps_min_speed ** 2 and vh2 > 0.0)
+        m = np.asarray(mag, dtype=float)
+
+        if not self.initialised:
+            if not use_tilt:
+                return status
+            roll, pitch = tilt(f)
+            yaw = 0.0
+            if course_sample:
+                yaw = np.arctan2(gps_vel[1], gps_vel[0])
+                self.head_age = 0.0
+            elif c.use_mag:
+                yaw = mag_heading(m, roll, pitch, self.declination)
+                self.head_age = 0.0
+            self.q = q_from_euler(roll, pitch, yaw)
+            self.a_lp = rotmat(self.q) @ f
+            self.gyro_lp = gyro.copy()
+            self.acc_lp = f.copy()
+            self.initialised = True
+            return status
+
+        # --- time update (as step()) ----------------------------------------------------
+        u = (gyro - self.gyro_bias) * dt
+        q = qmul(self.q, qexp(0.5 * u))
+        q = q / np.linalg.norm(q)
+        F, G = propagation_jacobians(u, dt)
+        Q = np.diag([self.gyro_noise ** 2 / max(dt, DT_Q_MIN)] * 3 + [self.gyro_bias_rw ** 2 * dt] * 3)
+        P = F @ self.P @ F.T + G @ Q @ G.T
+        P = 0.5 * (P + P.T)
+        Rq = rotmat(q)
+
+        # --- heading source: the GPS course while moving nose first (the velocity within
+        # course_max_sideslip of the body x axis: a fixed-wing, not a multirotor drifting
+        # sideways) or while nothing else corrects the heading; the magnetometer otherwise
+        if self.heading_source == "gps_course":
+            course_mode = True
+        elif self.heading_source == "mag":
+            course_mode = False
+        else:
+            vb = Rq.T @ self.v_gps
+            nose_first = vb[0] > 0.0 and vb[1] * vb[1] <= np.tan(self.course_max_sideslip) ** 2 * vb[0] * vb[0]
+            course_mode = moving and (nose_first or self.head_age > HEAD_AGE_MAX)
+        mag_ok = c.use_mag and not course_mode
+
+        # --- rest detection: gyro (and accelerometer) steady near their low-pass -------
+        ar = dt / (self.rest_tau + dt)
+        self.gyro_lp = self.gyro_lp + ar * (gyro - self.gyro_lp)
+        dg = gyro - self.gyro_lp
+        th_g2 = self.rest_gyro_th ** 2
+        still = dg @ dg < th_g2 and self.gyro_lp @ self.gyro_lp < th_g2
+        if c.use_accel:
+            self.acc_lp = self.acc_lp + ar * (f - self.acc_lp)
+            da = f - self.acc_lp
+            still = still and da @ da < self.rest_accel_th ** 2
+        still = still and not moving
+        self.rest_time = min(self.rest_time + dt, AGE_MAX) if still else 0.0
+        at_rest = self.rest_time >= self.rest_min_time
+        if at_rest:
+            status |= AT_REST
+
+        # --- earth-frame low-pass of the (motion-compensated) specific force -----------
+        # gps_lowpass: the GPS velocity goes through the same low-pass; (v − v_lp)/(τ + dt) is
+        # then the low-passed kinematic acceleration (the low-pass of a derivative is the
+        # derivative of the low-pass), removed from the low-passed specific force.
+        fresh = self.v_age <= self.gps_vel_timeout
+        if self.motion_comp == "gps_lowpass" and not fresh:
+            self.vlp_ok = False
+        up = self.a_lp
+        if use_tilt:
+            fc = f
+            if self.motion_comp == "centripetal" and fresh:
+                fc = f - np.cross(gyro - self.gyro_bias, Rq.T @ self.v_gps)
+            elif self.motion_comp == "gps_accel" and self.a_ok and fresh:
+                fc = f - Rq.T @ self.a_gps
+            aa = dt / (self.accel_lpf_tau + dt)
+            self.a_lp = self.a_lp + aa * (Rq @ fc - self.a_lp)
+            up = self.a_lp
+            if self.motion_comp == "gps_lowpass":
+                if fresh and not self.vlp_ok:          # (re)start on the present velocity
+                    self.v_lp, self.v_ins, self.vlp_ok = self.v_gps.copy(), self.v_gps.copy(), True
+                # velocity: the GPS sample when one arrived, else carried by the accelerometer
+                # (a = R f + g) from the last one, so that it has no GPS-rate staircase
+                if c.use_gps:
+                    self.v_ins = self.v_gps.copy()
+                else:
+                    self.v_ins = self.v_ins + (Rq @ f + np.array([0.0, 0.0, G0])) * dt
+                if fresh:
+                    self.v_lp = self.v_lp + aa * (self.v_ins - self.v_lp)
+                    up = self.a_lp - (self.v_ins - self.v_lp) / (self.accel_lpf_tau + dt)
+            if up @ up <= self.accel_min_norm ** 2:
+                use_tilt = False
+
+        # --- magnetometer: disturbance detection against a learned norm and dip --------
+        mag_use = False
+        if mag_ok:
+            mn = Rq @ m
+            cur = np.array([np.sqrt(m @ m), np.arctan2(mn[2], np.hypot(mn[0], mn[1]))])
+            if self.mag_norm_th <= 0.0:
+                mag_use = True
+            elif self.mag_ref_time < self.mag_learn_time:
+                self.mag_ref = self.mag_ref + dt / (self.mag_ref_time + dt) * (cur - self.mag_ref)
+                self.mag_ref_time += dt
+                mag_use = True
+            else:
+                if not self._off(cur, self.mag_ref):
+                    self.mag_rej_time = 0.0
+                    self.mag_ref = self.mag_ref + dt / (self.mag_ref_tau + dt) * (cur - self.mag_ref)
+                    mag_use = True
+                else:
+                    # a new field that stays steady for mag_new_time (a lasting change) becomes
+                    # the reference; after mag_reject_max rejected in a row, the present one does
+                    if self._off(cur, self.mag_cand):
+                        self.mag_cand = cur
+                        self.mag_cand_time = 0.0
+                    else:
+                        self.mag_cand_time += dt
+                        self.mag_cand = self.mag_cand + dt / self.mag_cand_time * (cur - self.mag_cand)
+                    self.mag_rej_time += dt
+                    if self.mag_cand_time >= self.mag_new_time or self.mag_rej_time > self.mag_reject_max:
+                        self.mag_ref = self.mag_cand
+                        self.mag_rej_time = 0.0
+                        self.mag_cand_time = 0.0
+                        mag_use = True
+                    else:
+                        status |= MAG_DISTURBED
+
+        # --- gravity direction (3 rows) and, at rest, the gyro bias (3 rows) -----------
+        rows = ([0, 1, 2] if use_tilt else []) + ([3, 4, 5] if at_rest else [])
+        if rows:
+            d = Rq.T @ up / np.sqrt(up @ up)
+            g_hat = Rq.T @ np.array([0.0, 0.0, -1.0])
+            z_g = d - g_hat
+            sig2 = self.accel_angle_noise ** 2
+            r_g = sig2 * min(1.0 + (z_g @ z_g) / (9.0 * sig2), self.accel_adapt_cap)
+            z = np.concatenate([z_g, gyro - self.gyro_bias])
+            H = np.zeros((6, 6))
+            H[:3, :3] = 2.0 * skew(g_hat)          # d/dθ of Rᵀ(q Exp θ) e = skew(Rᵀe) θ, θ = 2 δq
+            H[3:, 3:] = np.eye(3)
+            r = np.array([r_g] * 3 + [self.gyro_noise ** 2 / max(dt, DT_Q_MIN)] * 3)
+            q, P, ok = self._correct(q, P, H[rows], z[rows], r[rows], None)
+            if not ok:
+                status |= UPDATE_SKIPPED
+            Rq = rotmat(q)
+
+        # --- heading (1 row, vertical only, gain projected so it never tilts) ------------
+        head = False
+        if course_sample and course_mode:
+            v = np.asarray(gps_vel, dtype=float)
+            z_h = wrap(np.arctan2(v[1], v[0]) - np.arctan2(Rq[1, 0], Rq[0, 0]))
+            r_h = self.course_noise ** 2
+            head = True
+        elif mag_use:
+            mn = Rq @ m
+            z_h = wrap(self.declination - np.arctan2(mn[1], mn[0]))
+            r_h = self.mag_heading_noise ** 2
+            head = True
+        if head:
+            up = Rq[2, :]                          # Rᵀ e3: the vertical in body axes
+            H = np.zeros((1, 6))
+            H[0, :3] = 2.0 * up                    # heading of q Exp θ: e3ᵀ R θ, θ = 2 δq
+            q, P, ok = self._correct(q, P, H, np.array([float(z_h)]), np.array([r_h]), up)
+            if ok:
+                self.head_age = 0.0
+            else:
+                status |= UPDATE_SKIPPED
+                head = False
+        if not head:
+            self.head_age = min(self.head_age + dt, AGE_MAX)
+        if self.head_age > HEAD_AGE_MAX:
+            status |= HEADING_UNAIDED
+        self.q, self.P = q, P
+        return status
+
+    def _off(self, cur, ref):
+        """Field [norm, dip] off a reference by more than the thresholds."""
+        return abs(cur[0] - ref[0]) > self.mag_norm_th * ref[0] or abs(cur[1] - ref[1]) > self.mag_dip_th
+
+    def _correct(self, q, P, H, z, r, project_on):
+        """Kalman correction with Joseph form; `project_on` (a body-axis unit vector) keeps
+        only the attitude correction about that axis (the gain is projected; Joseph's form
+        holds for any gain). Returns (q, P, ok)."""
+        R = np.diag(r)
+        S = H @ P @ H.T + R
+        S = 0.5 * (S + S.T)
+        try:
+            ok = np.min(np.diag(np.linalg.cholesky(S)) ** 2) > S_PIVOT_MIN
+        except np.linalg.LinAlgError:
+            ok = False
+        if not ok:
+            return q, P, False
+        K = np.linalg.solve(S, H @ P).T
+        if project_on is not None:
+            K[:3] = np.outer(project_on, project_on) @ K[:3]
+        IKH = np.eye(6) - K @ H
+        P = IKH @ P @ IKH.T + K @ R @ K.T
+        P = 0.5 * (P + P.T)
+        X = K @ z
+        q = qmul(q, np.concatenate([[1.0], X[:3]]))
+        q = q / np.linalg.norm(q)
+        self.gyro_bias = self.gyro_bias + X[3:]
+        return q, P, True
 
     def euler(self) -> np.ndarray:
         return euler_from_q(self.q)
