@@ -15,7 +15,7 @@
  *     every IMU sample: fill a mekf_input (set a VALID bit only for sensors that
  *     delivered a new sample), then mekf_status s = mekf_step(&st, &in, dt);
  *     mekf_euler(&st, rpy);
- * No heap, no recursion; RAM is the state struct (208 bytes with the usual ABI).
+ * No heap, no recursion; RAM is the state struct (308 bytes with the usual ABI).
  * Needs <math.h> (float functions only in a float build); compilers may also emit calls to
  * memcpy/memset/memmove for struct and array copies.
  *
@@ -43,27 +43,41 @@ extern "C" {
 #endif
 
 /* Parameters baked into this build (already folded into the code; listed for reference). */
-#define MEKF_DT_MAX 0.5f               /* largest dt a step accepts; larger is refused (DT_TOO_LARGE) [s] */
-#define MEKF_GYRO_MAX 70.0f            /* largest gyro component accepted; larger is refused (GYRO_RANGE) [rad/s] */
-#define MEKF_ACCEL_MIN_NORM 0.5f       /* accelerometer norm below this skips its correction (ACCEL_ZERO) [m/s^2] */
-#define MEKF_ACCEL_MAX 2000.0f         /* accelerometer component above this skips its correction (ACCEL_RANGE) [m/s^2] */
-#define MEKF_MAG_MIN_NORM 1e-06f       /* magnetometer norm below this skips its correction (MAG_ZERO) [field unit] */
-#define MEKF_MAG_MAX 1e+06f            /* magnetometer component above this skips its correction (MAG_RANGE) [field unit] */
-#define MEKF_GPS_VEL_MAX 500.0f        /* GPS velocity component above this: the sample is ignored (GPS_RANGE) [m/s] */
-/* MEKF_HEADING_SOURCE = gps_course yaw measurement: GPS course over ground atan2(vE, vN) (the patent) or tilt-compensated magnetometer heading */
-#define MEKF_GPS_MIN_SPEED 3.0f        /* GPS course is used as heading only while the horizontal ground speed is at least this (and a GPS sample arrived this step) [m/s] */
-#define MEKF_DECLINATION 0.0f          /* added to the magnetic heading (heading_source = 'mag') [rad] */
-#define MEKF_GYRO_NOISE 0.00087f       /* gyro rate noise density (angle random walk); the QCF paper's Table 1 gives 0.05 deg/s/sqrt(Hz) [rad/s/sqrt(Hz)] */
-#define MEKF_GYRO_BIAS_RW 1e-05f       /* gyro bias random walk (rate of the bias noise density) [rad/s^2/sqrt(Hz)] */
-#define MEKF_ACCEL_ANGLE_NOISE 0.1f    /* standard deviation of the accelerometer roll and pitch angles; covers vibration and the unmodelled motion acceleration (speed changes: ~0.1 rad per m/s^2 / g). 0.1 chosen from {0.03, 0.05, 0.1, 0.2} on fixedwing_gps [rad] */
-#define MEKF_COURSE_NOISE 0.05f        /* standard deviation of the GPS course as a heading (covers sideslip and wind crab) [rad] */
-#define MEKF_MAG_HEADING_NOISE 0.05f   /* standard deviation of the tilt-compensated magnetometer heading [rad] */
-#define MEKF_ACCEL_GATE 0.0f           /* if > 0, the roll/pitch rows are dropped while | |accel| - g | exceeds this (ACCEL_GATED); 0 = off, as the patent [m/s^2] */
-/* MEKF_MOTION_COMP = centripetal   motion acceleration removed from the specific force before roll/pitch are taken from it: 'centripetal' = w x v_b (gyro and GPS velocity in body axes; fixed-wing turns), 'gps_accel' = R(q)^T a_n with a_n the difference of the last two GPS velocities (any motion, noisier, lagged by half a GPS period; multirotors), 'none' = the patent (gravity-only accelerometer) */
-#define MEKF_GPS_VEL_TIMEOUT 1.0f      /* the last GPS velocity (and GPS acceleration) is used for the motion compensation for at most this long; two GPS samples further apart than this give no acceleration [s] */
-#define MEKF_INIT_FROM_SENSORS 1       /* start from the first usable accelerometer sample (roll, pitch) and heading (yaw, or 0 if none); false: identity attitude at the first step, as the patent leaves the initial condition open */
-#define MEKF_P0_ATT 0.5f               /* initial attitude-error standard deviation per axis (P0 of dq is (p0_att/2)^2) [rad] */
-#define MEKF_P0_BIAS 0.01f             /* initial gyro-bias standard deviation per axis [rad/s] */
+#define MEKF_DT_MAX 0.5f              /* largest dt a step accepts; larger is refused (DT_TOO_LARGE) [s] */
+#define MEKF_GYRO_MAX 70.0f           /* largest gyro component accepted; larger is refused (GYRO_RANGE) [rad/s] */
+#define MEKF_ACCEL_MIN_NORM 0.5f      /* accelerometer norm below this skips its correction (ACCEL_ZERO) [m/s^2] */
+#define MEKF_ACCEL_MAX 2000.0f        /* accelerometer component above this skips its correction (ACCEL_RANGE) [m/s^2] */
+#define MEKF_MAG_MIN_NORM 1e-06f      /* magnetometer norm below this skips its correction (MAG_ZERO) [field unit] */
+#define MEKF_MAG_MAX 1e+06f           /* magnetometer component above this skips its correction (MAG_RANGE) [field unit] */
+#define MEKF_GPS_VEL_MAX 500.0f       /* GPS velocity component above this: the sample is ignored (GPS_RANGE) [m/s] */
+/* MEKF_MEASUREMENT = vectors      'vectors': gravity as the direction of the earth-frame low-passed specific force (3 rows, any attitude), heading as a vertical-only row whose gain is projected so it never tilts, rest detection and magnetic disturbance rejection; 'euler_angles': the patent's measured roll, pitch, yaw (singular at pitch +-90 deg; the accel_lpf, rest_ and mag_ parameters are not used) */
+/* MEKF_HEADING_SOURCE = auto      yaw measurement: 'auto' = GPS course while the last GPS velocity is at most gps_vel_timeout old and at least gps_min_speed, the magnetometer otherwise (measurement = 'vectors' only); 'gps_course' = course over ground atan2(vE, vN) (the patent); 'mag' = magnetometer heading */
+#define MEKF_GPS_MIN_SPEED 3.0f       /* GPS course is used as heading only while the horizontal ground speed is at least this (and a GPS sample arrived this step) [m/s] */
+#define MEKF_COURSE_MAX_SIDESLIP 0.5f /* heading_source = 'auto': the GPS course is the heading only while the GPS velocity is within this angle of the body x axis (moving nose first, as a fixed-wing; a multirotor drifting sideways is not) - or while nothing else has corrected the heading for 1 s [rad] */
+#define MEKF_DECLINATION 0.0f         /* added to the magnetic heading (heading_source = 'mag') [rad] */
+#define MEKF_ACCEL_LPF_TAU 1.0f       /* time constant of the low-pass applied to the specific force in the earth frame before its direction corrects the tilt (VQF's idea): motion acceleration averages out, gravity stays; 0 = raw accelerometer [s] */
+#define MEKF_ACCEL_ADAPT_CAP 1.0f     /* residual-adaptive gravity noise, bounded: R = accel_angle_noise^2 * min(1 + |z|^2 / (3 accel_angle_noise)^2, accel_adapt_cap); 1 = off. Bounded so it cannot lock the correction out */
+#define MEKF_REST_GYRO_TH 0.035f      /* rest detection: every gyro sample within this of its low-pass (rest_tau), and the low-pass itself below it (a turntable is not rest); 0 = no rest detection [rad/s] */
+#define MEKF_REST_ACCEL_TH 0.5f       /* rest detection: every accelerometer sample within this of its low-pass [m/s^2] */
+#define MEKF_REST_TAU 0.5f            /* time constant of the rest-detection low-passes [s] */
+#define MEKF_REST_MIN_TIME 1.5f       /* the sensors must be steady this long before rest is declared; at rest the gyro reading is a direct measurement of the bias (noise gyro_noise^2/dt) [s] */
+#define MEKF_MAG_NORM_TH 0.1f         /* magnetometer rejected while its norm differs from the reference norm by more than this fraction; 0 = no rejection */
+#define MEKF_MAG_DIP_TH 0.175f        /* magnetometer rejected while its dip angle (from the estimated attitude) differs from the reference dip by more than this [rad] */
+#define MEKF_MAG_LEARN_TIME 2.0f      /* the reference field norm and dip are the mean of the first mag_learn_time seconds of magnetometer samples [s] */
+#define MEKF_MAG_REF_TAU 20.0f        /* while accepted, the reference norm and dip follow the field with this time constant [s] */
+#define MEKF_MAG_NEW_TIME 20.0f       /* while rejected, a new field whose norm and dip stay within the thresholds for this long becomes the reference (a lasting change is re-acquired; VQF's magNewTime) [s] */
+#define MEKF_MAG_REJECT_MAX 60.0f     /* after this long rejected in a row, the candidate field becomes the reference anyway: heading is never held unaided for longer (VQF's magMaxRejectionTime) [s] */
+#define MEKF_GYRO_NOISE 0.00087f      /* gyro rate noise density (angle random walk); the QCF paper's Table 1 gives 0.05 deg/s/sqrt(Hz) [rad/s/sqrt(Hz)] */
+#define MEKF_GYRO_BIAS_RW 1e-05f      /* gyro bias random walk (rate of the bias noise density) [rad/s^2/sqrt(Hz)] */
+#define MEKF_ACCEL_ANGLE_NOISE 0.07f  /* per-sample standard deviation of the measured gravity direction (measurement = 'vectors': of the low-passed, motion-compensated specific force; 'euler_angles': of the accelerometer roll and pitch, the patent's R). 0.07 chosen on the BROAD trials and the simulated scenarios together (docs/mekf.md) [rad] */
+#define MEKF_COURSE_NOISE 0.05f       /* standard deviation of the GPS course as a heading (covers sideslip and wind crab) [rad] */
+#define MEKF_MAG_HEADING_NOISE 0.1f   /* per-sample standard deviation of the magnetometer heading (soft-iron residuals, timing): 0.1 chosen on the BROAD trials and the simulated scenarios together [rad] */
+#define MEKF_ACCEL_GATE 0.0f          /* if > 0, the roll/pitch rows are dropped while | |accel| - g | exceeds this (ACCEL_GATED); 0 = off, as the patent [m/s^2] */
+/* MEKF_MOTION_COMP = gps_lowpass  motion acceleration removed from the specific force before roll/pitch are taken from it: 'gps_lowpass' (measurement = 'vectors' only) = the GPS velocity goes through the same earth-frame low-pass as the specific force and its low-passed derivative (v - v_lp)/(accel_lpf_tau + dt) is removed from it (any motion, no differencing noise, needs accel_lpf_tau > 0); 'centripetal' = w x v_b (gyro and GPS velocity in body axes; fixed-wing turns), 'gps_accel' = R(q)^T a_n with a_n the difference of the last two GPS velocities (any motion, noisier, lagged by half a GPS period; multirotors), 'none' = the patent (gravity-only accelerometer) */
+#define MEKF_GPS_VEL_TIMEOUT 1.0f     /* the last GPS velocity (and GPS acceleration) is used for the motion compensation for at most this long; two GPS samples further apart than this give no acceleration [s] */
+#define MEKF_INIT_FROM_SENSORS 1      /* start from the first usable accelerometer sample (roll, pitch) and heading (yaw, or 0 if none); false: identity attitude at the first step, as the patent leaves the initial condition open */
+#define MEKF_P0_ATT 0.5f              /* initial attitude-error standard deviation per axis (P0 of dq is (p0_att/2)^2) [rad] */
+#define MEKF_P0_BIAS 0.01f            /* initial gyro-bias standard deviation per axis [rad/s] */
 
 /* Input validity bits: set a bit only when that sensor delivered a new sample this step. */
 #define MEKF_VALID_GYRO (1u << 0)
@@ -90,6 +104,9 @@ typedef uint32_t mekf_status;
 #define MEKF_COURSE_SLOW     (1u << 16) /* GPS sample present but ground speed below gps_min_speed: yaw row dropped */
 #define MEKF_ACCEL_GATED     (1u << 17) /* | |accel| - g | above accel_gate: roll/pitch rows dropped */
 #define MEKF_UPDATE_SKIPPED  (1u << 18) /* correction skipped: innovation covariance not positive definite, or pitch within 0.57 deg of +-90 deg (Euler angles singular) */
+#define MEKF_HEADING_UNAIDED (1u << 19) /* no heading correction (GPS course or magnetometer) for more than 1 s */
+#define MEKF_MAG_DISTURBED   (1u << 20) /* magnetometer rejected: field norm or dip angle off the learned reference */
+#define MEKF_AT_REST         (1u << 21) /* rest detected: the gyro reading measures the gyro bias directly */
 #define MEKF_REFUSED_MASK (MEKF_DT_INVALID | MEKF_DT_TOO_LARGE | MEKF_GYRO_MISSING | MEKF_GYRO_NONFINITE | MEKF_GYRO_RANGE)
 
 typedef struct {
@@ -101,6 +118,19 @@ typedef struct {
     float a_gps[3];       /* NED acceleration from the last two GPS velocities, m/s^2 (motion_comp = gps_accel) */
     uint32_t a_ok;        /* 1 when a_gps comes from two samples at most gps_vel_timeout apart */
     uint32_t initialised; /* 1 once the attitude has been initialised */
+    float a_lp[3];        /* specific force low-passed in the earth frame (NED), m/s^2 */
+    float v_lp[3];        /* GPS velocity through the same low-pass (motion_comp = gps_lowpass), m/s */
+    uint32_t vlp_ok;      /* 1 while v_lp follows a fresh GPS velocity */
+    float v_ins[3];       /* GPS velocity carried between GPS samples by the accelerometer, m/s */
+    float gyro_lp[3];     /* rest detection: low-passed gyro, rad/s */
+    float acc_lp[3];      /* rest detection: low-passed accelerometer, m/s^2 */
+    float rest_time;      /* time the gyro and accelerometer have been steady, s (stops at 1e3) */
+    float mag_ref[2];     /* reference field [norm, dip angle rad] (learned, then followed while accepted) */
+    float mag_ref_time;   /* time spent learning the reference field, s */
+    float mag_rej_time;   /* time the magnetometer has been rejected in a row, s */
+    float mag_cand[2];    /* candidate new reference [norm, dip] while rejected */
+    float mag_cand_time;  /* time the candidate field has been steady, s */
+    float head_age;       /* time since the last heading correction, s (stops at 1e3) */
 } mekf_state;
 
 typedef struct {

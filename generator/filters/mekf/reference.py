@@ -550,11 +550,14 @@ class Reference:
             ok = False
         if not ok:
             return q, P, False
-        K = np.linalg.solve(S, H @ P).T
+        HP = H @ P
+        K = np.linalg.solve(S, HP).T
         if project_on is not None:
             K[:3] = np.outer(project_on, project_on) @ K[:3]
-        IKH = np.eye(6) - K @ H
-        P = IKH @ P @ IKH.T + K @ R @ K.T
+        # Joseph form (I − KH) P (I − KH)ᵀ + K R Kᵀ, expanded as in step(): exact for any K,
+        # the projected heading gain included
+        KHP = K @ HP
+        P = P - KHP - KHP.T + K @ S @ K.T
         P = 0.5 * (P + P.T)
         X = K @ z
         q = qmul(q, np.concatenate([[1.0], X[:3]]))
