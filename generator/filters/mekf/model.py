@@ -25,7 +25,7 @@ import casadi as ca
 
 from generator import emit
 from generator.constants import G0
-from generator.model import ConfigError, FilterModel, KernelSpec, StateField
+from generator.model import FilterModel, KernelSpec, StateField
 from generator.symbolic import attitude, kalman, quat
 
 N = 6           # error-state size
@@ -349,14 +349,23 @@ def initial_P(p: dict) -> list:
     return [d[i] if i == j else 0.0 for j in range(N) for i in range(N)]
 
 
+def euler_design_params(p: dict) -> dict:
+    """measurement = 'euler_angles' has one heading source and no low-pass: there 'auto' means
+    the GPS course (the patent) and 'gps_lowpass' means 'gps_accel' (docs/mekf.md)."""
+    p = dict(p)
+    if p["heading_source"] == "auto":
+        p["heading_source"] = "gps_course"
+    if p["motion_comp"] == "gps_lowpass":
+        p["motion_comp"] = "gps_accel"
+    return p
+
+
 class Model(FilterModel):
     def __init__(self, params: dict):
+        self.vectors = params["measurement"] == "vectors"
+        if not self.vectors:
+            params = euler_design_params(params)
         p = params
-        self.vectors = p["measurement"] == "vectors"
-        if not self.vectors and p["heading_source"] == "auto":
-            raise ConfigError("heading_source 'auto' needs measurement = 'vectors'")
-        if not self.vectors and p["motion_comp"] == "gps_lowpass":
-            raise ConfigError("motion_comp 'gps_lowpass' needs measurement = 'vectors'")
         uses = ["accel"]
         if p["heading_source"] != "gps_course":
             uses.append("mag")

@@ -117,6 +117,13 @@ def measurement_jacobian(q):
 class Reference:
     def __init__(self, params: dict):
         p = dict(params)
+        if str(p["measurement"]) != "vectors":
+            # the Euler-angle design has one heading source and no low-pass: 'auto' means the
+            # GPS course there (the patent), 'gps_lowpass' means 'gps_accel'
+            if p["heading_source"] == "auto":
+                p["heading_source"] = "gps_course"
+            if p["motion_comp"] == "gps_lowpass":
+                p["motion_comp"] = "gps_accel"
         self.p = p
         self.dt_max = float(p["dt_max"])
         self.accel_min_norm = float(p["accel_min_norm"])
@@ -174,8 +181,6 @@ class Reference:
             self.mag_cand = np.zeros(2)   # candidate new reference [norm, dip] while rejected
             self.mag_cand_time = 0.0      # time the candidate has been steady, s
             self.head_age = AGE_MAX       # time since the last heading correction, s
-        elif self.heading_source == "auto" or self.motion_comp == "gps_lowpass":
-            raise ValueError("heading_source 'auto' and motion_comp 'gps_lowpass' need measurement = 'vectors'")
 
     # ------------------------------------------------------------------------------
     def step(self, gyro, accel, mag, gps_vel, valid: int, dt: float) -> int:
