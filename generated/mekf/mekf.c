@@ -1026,8 +1026,7 @@ static void mekf_k_predict(const float q[4], const float b[3], const float P[36]
 }
 
 /* earth-frame low-pass of the compensated specific force
- * ops: add 50, mul 27, div 4, cmp 9 (total 90)
- *      of which only one side runs: if (mask[0] != 0.0f) 18, else 0 */
+ * ops: add 50, mul 33, div 4, cmp 3 (total 90) */
 static void mekf_k_accel_lowpass(const float q[4], const float b[3], const float gyro[3], const float accel[3], const float vel[3], const float acc_n[3], const float mask[2], const float a_lp[3], const float v_lp[3], const float v_ins[3], float dt, float a_lp_out[3], float v_lp_out[3], float v_ins_out[3], float up_out[3])
 {
     (void)b;
@@ -1092,64 +1091,49 @@ static void mekf_k_accel_lowpass(const float q[4], const float b[3], const float
     const float tmp56 = tmp19 * dt;
     const float tmp57 = v_ins[0] + tmp56;
     const float tmp58 = (mask[1] != 0.0f) ? vel[0] : tmp57;
-    const float tmp59 = tmp37 * dt;
-    const float tmp60 = v_ins[1] + tmp59;
-    const float tmp61 = (mask[1] != 0.0f) ? vel[1] : tmp60;
-    const float tmp62 = tmp52 + 9.80665f;
-    const float tmp63 = tmp62 * dt;
-    const float tmp64 = v_ins[2] + tmp63;
-    const float tmp65 = (mask[1] != 0.0f) ? vel[2] : tmp64;
-    float tmp66;
-    float tmp67;
-    float tmp68;
-    float tmp69;
-    float tmp70;
-    float tmp71;
-    if (mask[0] != 0.0f) {
-        const float tmp72 = tmp58 - v_lp[0];
-        const float tmp73 = tmp1 * tmp72;
-        const float tmp74 = v_lp[0] + tmp73;
-        const float tmp75 = tmp61 - v_lp[1];
-        const float tmp76 = tmp1 * tmp75;
-        const float tmp77 = v_lp[1] + tmp76;
-        const float tmp78 = tmp65 - v_lp[2];
-        const float tmp79 = tmp1 * tmp78;
-        const float tmp80 = v_lp[2] + tmp79;
-        const float tmp81 = tmp58 - tmp66;
-        const float tmp82 = tmp81 / tmp0;
-        const float tmp83 = tmp22 - tmp82;
-        const float tmp84 = tmp61 - tmp67;
-        const float tmp85 = tmp84 / tmp0;
-        const float tmp86 = tmp40 - tmp85;
-        const float tmp87 = tmp65 - tmp68;
-        const float tmp88 = tmp87 / tmp0;
-        const float tmp89 = tmp55 - tmp88;
-        tmp66 = tmp74;
-        tmp67 = tmp77;
-        tmp68 = tmp80;
-        tmp69 = tmp83;
-        tmp70 = tmp86;
-        tmp71 = tmp89;
-    } else {
-        tmp66 = v_lp[0];
-        tmp67 = v_lp[1];
-        tmp68 = v_lp[2];
-        tmp69 = tmp22;
-        tmp70 = tmp40;
-        tmp71 = tmp55;
-    }
+    const float tmp59 = tmp58 - v_lp[0];
+    const float tmp60 = tmp1 * tmp59;
+    const float tmp61 = mask[0] * tmp60;
+    const float tmp62 = v_lp[0] + tmp61;
+    const float tmp63 = tmp37 * dt;
+    const float tmp64 = v_ins[1] + tmp63;
+    const float tmp65 = (mask[1] != 0.0f) ? vel[1] : tmp64;
+    const float tmp66 = tmp65 - v_lp[1];
+    const float tmp67 = tmp1 * tmp66;
+    const float tmp68 = mask[0] * tmp67;
+    const float tmp69 = v_lp[1] + tmp68;
+    const float tmp70 = tmp52 + 9.80665f;
+    const float tmp71 = tmp70 * dt;
+    const float tmp72 = v_ins[2] + tmp71;
+    const float tmp73 = (mask[1] != 0.0f) ? vel[2] : tmp72;
+    const float tmp74 = tmp73 - v_lp[2];
+    const float tmp75 = tmp1 * tmp74;
+    const float tmp76 = mask[0] * tmp75;
+    const float tmp77 = v_lp[2] + tmp76;
+    const float tmp78 = tmp58 - tmp62;
+    const float tmp79 = tmp78 / tmp0;
+    const float tmp80 = mask[0] * tmp79;
+    const float tmp81 = tmp22 - tmp80;
+    const float tmp82 = tmp65 - tmp69;
+    const float tmp83 = tmp82 / tmp0;
+    const float tmp84 = mask[0] * tmp83;
+    const float tmp85 = tmp40 - tmp84;
+    const float tmp86 = tmp73 - tmp77;
+    const float tmp87 = tmp86 / tmp0;
+    const float tmp88 = mask[0] * tmp87;
+    const float tmp89 = tmp55 - tmp88;
     a_lp_out[0] = tmp22;
     a_lp_out[1] = tmp40;
     a_lp_out[2] = tmp55;
-    v_lp_out[0] = tmp66;
-    v_lp_out[1] = tmp67;
-    v_lp_out[2] = tmp68;
+    v_lp_out[0] = tmp62;
+    v_lp_out[1] = tmp69;
+    v_lp_out[2] = tmp77;
     v_ins_out[0] = tmp58;
-    v_ins_out[1] = tmp61;
-    v_ins_out[2] = tmp65;
-    up_out[0] = tmp69;
-    up_out[1] = tmp70;
-    up_out[2] = tmp71;
+    v_ins_out[1] = tmp65;
+    v_ins_out[2] = tmp73;
+    up_out[0] = tmp81;
+    up_out[1] = tmp85;
+    up_out[2] = tmp89;
 }
 
 /* field norm and dip; GPS velocity in body axes
