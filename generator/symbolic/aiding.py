@@ -94,9 +94,7 @@ def field_check(norm, sin_dip, ref_norm, ref_dip, dist_time, dt, *, norm_tol: fl
     accept = ca.logic_or(ok, ca.logic_not(learned))
     n_new = ca.if_else(renew, norm, ca.if_else(ok, lowpass(ref_norm, norm, dt, ref_tau), ref_norm))
     d_new = ca.if_else(renew, sin_dip, ca.if_else(ok, lowpass(ref_dip, sin_dip, dt, ref_tau), ref_dip))
-    out = (accept, n_new, d_new, ca.if_else(renew, 0.0, t_dist))
-    # learn_time given but no warm-up (warmup = 0): the same five results, learn_time unchanged
-    return out + (learn_time,) if learn_time is not None else out
+    return accept, n_new, d_new, ca.if_else(renew, 0.0, t_dist)
 
 
 def tilt_correction(d_n):
