@@ -4680,20 +4680,17 @@ mekf_status mekf_step(mekf_state *s, const mekf_input *in, float dt)
             use_tilt = true;
         }
     }
-
-    /* A GPS course sample: a GPS velocity arrived this step, fast enough over ground. */
     bool course_sample = false;
+
+    /* Last valid GPS velocity (for the compensation and the course); its age saturates. */
     if (use_gps) {
+        /* A GPS course sample: a GPS velocity arrived this step, fast enough over ground. */
         const float speed2 = in->gps_vel_ned[0] * in->gps_vel_ned[0] + in->gps_vel_ned[1] * in->gps_vel_ned[1];
         if (speed2 >= MEKF_GPS_MIN_SPEED * MEKF_GPS_MIN_SPEED && speed2 > 0.0f) {
             course_sample = true;
         } else {
             status |= MEKF_COURSE_SLOW;
         }
-    }
-
-    /* Last valid GPS velocity (for the compensation and the course); its age saturates. */
-    if (use_gps) {
         s->v_gps[0] = in->gps_vel_ned[0];
         s->v_gps[1] = in->gps_vel_ned[1];
         s->v_gps[2] = in->gps_vel_ned[2];
