@@ -475,15 +475,22 @@ def _exclusive(group, side, kept, idx, nodes, users, refs):
     every use of each lies on that side (CSE-shared work stays outside)."""
     sel = set(group)
     other = 3 - side
+    # Work that reads a select of this group (a chain of selects on one condition) cannot go
+    # inside the block: it would read the select before the block assigns it. Left outside,
+    # it makes the group depend on itself and the group stays `?:` (see _emit_groups).
+    reads_sel: set[str] = set()
+    for t in kept[:max(idx[s] for s in group)]:
+        if refs[t] & (sel | reads_sel):
+            reads_sel.add(t)
     E: set[str] = set()
     for s in group:
         r = nodes[s]["sel"][side]
-        if r in idx and users[r] <= sel and all(
+        if r in idx and r not in reads_sel and users[r] <= sel and all(
                 r != nodes[g]["sel"][other] and r not in _TMP_RE.findall(nodes[g]["sel"][0]) for g in group):
             E.add(r)
     top = max(idx[s] for s in group)
     for t in reversed(kept[:top]):
-        if t not in E and t not in sel and users[t] and users[t] <= E:
+        if t not in E and t not in sel and t not in reads_sel and users[t] and users[t] <= E:
             E.add(t)
     return E
 

@@ -225,3 +225,28 @@ def test_fma_option_fuses_products_into_sums_and_rounds_once(tmp_path):
         # one rounding of the exact result (double rounding via float64 is off with p < 2^-29)
         want = [np.float32(p + float(v[2])), np.float32(float(v[2]) - p), np.float32(p - float(v[2]))]
         assert [np.float32(g) for g in got] == want
+
+
+def test_select_chained_on_one_condition_is_read_only_after_it_is_assigned(tmp_path):
+    """A select whose value feeds another select on the same condition: the second's side must
+    not be computed inside the if-block before the block assigns the first (it read an
+    unassigned temporary). Such a group stays `?:`; the result equals CasADi's."""
+    v = ca.SX.sym("v", 2)
+    c = v[0] < v[1]
+    a = ca.if_else(c, ca.sin(v[0]) * ca.cos(v[1]) * ca.exp(v[1]), ca.sqrt(v[0] * v[0] + 1) / v[1])
+    b = ca.if_else(c, ca.sin(a * v[1]) + ca.cos(a) * ca.exp(a), ca.log(v[1] * v[1] + 2) * v[0])
+    fn = emit.function("chain", {"v": v}, {"o": ca.vertcat(a, b)})
+    k = emit.emit(fn, "double")
+    lines = k.body
+    for i, line in enumerate(lines):           # every temporary is assigned before it is read
+        m = re.match(r"\s*(?:const )?double (tmp\d+) = ", line) or re.match(r"\s*(tmp\d+) = ", line)
+        if m:
+            for later in lines[:i]:
+                assert not re.search(rf"\b{m.group(1)}\b(?! =)", later.split("=", 1)[-1]) or \
+                    re.match(rf"\s*double {m.group(1)};", later), (m.group(1), later)
+    lib = _build([k], "double", tmp_path)
+    rng = np.random.default_rng(3)
+    for _ in range(100):
+        x = [float(rng.uniform(-2, 2)), float(rng.uniform(0.3, 2))]
+        got = _run1(lib, "chain", 1, [2], [x])[0]
+        np.testing.assert_allclose(got, np.array(fn(x)).ravel(), rtol=1e-13, atol=1e-13)
