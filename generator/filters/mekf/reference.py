@@ -250,13 +250,7 @@ class Reference:
             return status
 
         # --- steps 1-2: time update --------------------------------------------------
-        u = (gyro - self.gyro_bias) * dt
-        q = qmul(self.q, qexp(0.5 * u))
-        q = q / np.linalg.norm(q)
-        F, G = propagation_jacobians(u, dt)
-        Q = np.diag([self.gyro_noise ** 2 / max(dt, DT_Q_MIN)] * 3 + [self.gyro_bias_rw ** 2 * dt] * 3)
-        P = F @ self.P @ F.T + G @ Q @ G.T
-        P = 0.5 * (P + P.T)
+        q, P = self._time_update(gyro, dt)
 
         # --- steps 3-4: measurements and innovations -----------------------------------
         est = euler_from_q(q)
@@ -319,6 +313,17 @@ class Reference:
 
     # ------------------------------------------------------------------------------
     # measurement = "vectors": the product design (see the module docstring's second part)
+    def _time_update(self, gyro, dt):
+        """Steps 1-2: the propagated attitude and covariance (state not yet written)."""
+        u = (gyro - self.gyro_bias) * dt
+        q = qmul(self.q, qexp(0.5 * u))
+        q = q / np.linalg.norm(q)
+        F, G = propagation_jacobians(u, dt)
+        Q = np.diag([self.gyro_noise ** 2 / max(dt, DT_Q_MIN)] * 3 + [self.gyro_bias_rw ** 2 * dt] * 3)
+        P = F @ self.P @ F.T + G @ Q @ G.T
+        P = 0.5 * (P + P.T)
+        return q, P
+
     def _gps_bookkeeping(self, c, gps_vel, dt):
         """Last GPS velocity, its age and the GPS-differenced acceleration (as step())."""
         v_gps, v_age, a_gps, a_ok = self.v_gps, self.v_age, self.a_gps, self.a_ok
@@ -387,13 +392,7 @@ class Reference:
             return status
 
         # --- time update (as step()) ----------------------------------------------------
-        u = (gyro - self.gyro_bias) * dt
-        q = qmul(self.q, qexp(0.5 * u))
-        q = q / np.linalg.norm(q)
-        F, G = propagation_jacobians(u, dt)
-        Q = np.diag([self.gyro_noise ** 2 / max(dt, DT_Q_MIN)] * 3 + [self.gyro_bias_rw ** 2 * dt] * 3)
-        P = F @ self.P @ F.T + G @ Q @ G.T
-        P = 0.5 * (P + P.T)
+        q, P = self._time_update(gyro, dt)
         Rq = rotmat(q)
 
         # --- heading source: the GPS course while moving nose first (the velocity within
