@@ -1026,7 +1026,7 @@ static void mekf_k_predict(const float q[4], const float b[3], const float P[36]
 }
 
 /* earth-frame low-pass of the compensated specific force
- * ops: add 50, mul 33, div 4, cmp 3 (total 90) */
+ * ops: add 50, mul 33, div 1, cmp 3 (total 87) */
 static void mekf_k_accel_lowpass(const float q[4], const float b[3], const float gyro[3], const float accel[3], const float vel[3], const float acc_n[3], const float mask[2], const float a_lp[3], const float v_lp[3], const float v_ins[3], float dt, float a_lp_out[3], float v_lp_out[3], float v_ins_out[3], float up_out[3])
 {
     (void)b;
@@ -1111,17 +1111,14 @@ static void mekf_k_accel_lowpass(const float q[4], const float b[3], const float
     const float tmp76 = mask[0] * tmp75;
     const float tmp77 = v_lp[2] + tmp76;
     const float tmp78 = tmp58 - tmp62;
-    const float tmp79 = tmp78 / tmp0;
-    const float tmp80 = mask[0] * tmp79;
-    const float tmp81 = tmp22 - tmp80;
-    const float tmp82 = tmp65 - tmp69;
-    const float tmp83 = tmp82 / tmp0;
-    const float tmp84 = mask[0] * tmp83;
-    const float tmp85 = tmp40 - tmp84;
-    const float tmp86 = tmp73 - tmp77;
-    const float tmp87 = tmp86 / tmp0;
-    const float tmp88 = mask[0] * tmp87;
-    const float tmp89 = tmp55 - tmp88;
+    const float tmp79 = mask[0] * tmp78;
+    const float tmp80 = tmp22 - tmp79;
+    const float tmp81 = tmp65 - tmp69;
+    const float tmp82 = mask[0] * tmp81;
+    const float tmp83 = tmp40 - tmp82;
+    const float tmp84 = tmp73 - tmp77;
+    const float tmp85 = mask[0] * tmp84;
+    const float tmp86 = tmp55 - tmp85;
     a_lp_out[0] = tmp22;
     a_lp_out[1] = tmp40;
     a_lp_out[2] = tmp55;
@@ -1131,9 +1128,9 @@ static void mekf_k_accel_lowpass(const float q[4], const float b[3], const float
     v_ins_out[0] = tmp58;
     v_ins_out[1] = tmp65;
     v_ins_out[2] = tmp73;
-    up_out[0] = tmp81;
-    up_out[1] = tmp85;
-    up_out[2] = tmp89;
+    up_out[0] = tmp80;
+    up_out[1] = tmp83;
+    up_out[2] = tmp86;
 }
 
 /* field norm and dip; GPS velocity in body axes

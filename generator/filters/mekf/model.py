@@ -215,8 +215,9 @@ def accel_lowpass_function(p: dict, name="accel_lowpass") -> ca.Function:
     Returns the new a_lp, the new v_lp and `up`, the low-passed specific force with the
     low-passed kinematic acceleration removed: for motion_comp = 'gps_lowpass' (m_comp = 1)
     the GPS velocity goes through the same low-pass, v_lp ← v_lp + α (v − v_lp), and
-    (v − v_lp)/(τ + dt) is the low-passed acceleration (the low-pass of a derivative is the
-    derivative of the low-pass); up = a_lp − (v − v_lp)/(τ + dt). Otherwise up = a_lp.
+    (v − v_lp)/τ, with v_lp already updated, is exactly the same discrete low-pass applied to
+    the velocity's differences (v_k − v_{k−1})/dt (the low-pass of a derivative is the derivative
+    of the low-pass); up = a_lp − (v − v_lp)/τ. Otherwise up = a_lp.
     """
     q, b, gyro, accel, vel, acc_n, a_lp, v_lp, v_ins = (ca.SX.sym(n, k) for n, k in (
         ("q", 4), ("b", 3), ("gyro", 3), ("accel", 3), ("vel", 3), ("acc_n", 3), ("a_lp", 3), ("v_lp", 3),
@@ -236,7 +237,7 @@ def accel_lowpass_function(p: dict, name="accel_lowpass") -> ca.Function:
         # v_lp and a_new when 0; one select reading another's result inside its own branch
         # was emitted reading the result before it was assigned)
         v_new = v_lp + m_comp * (alpha * (vi_new - v_lp))
-        up = a_new - m_comp * ((vi_new - v_new) / (p["accel_lpf_tau"] + dt))
+        up = a_new - m_comp * ((vi_new - v_new) / p["accel_lpf_tau"])
     else:
         vi_new, v_new, up = v_ins, v_lp, a_new
     return emit.function(name, {"q": q, "b": b, "gyro": gyro, "accel": accel, "vel": vel, "acc_n": acc_n,

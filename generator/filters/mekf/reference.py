@@ -425,9 +425,9 @@ class Reference:
             status |= AT_REST
 
         # --- earth-frame low-pass of the (motion-compensated) specific force -----------
-        # gps_lowpass: the GPS velocity goes through the same low-pass; (v − v_lp)/(τ + dt) is
-        # then the low-passed kinematic acceleration (the low-pass of a derivative is the
-        # derivative of the low-pass), removed from the low-passed specific force.
+        # gps_lowpass: the GPS velocity goes through the same low-pass; (v − v_lp)/τ (v_lp
+        # updated) is then exactly that low-pass of the velocity's differences, the low-passed
+        # kinematic acceleration (the low-pass of a derivative is the derivative of the low-pass), removed from the low-passed specific force.
         fresh = self.v_age <= self.gps_vel_timeout
         if self.motion_comp == "gps_lowpass" and not fresh:
             self.vlp_ok = False
@@ -452,7 +452,7 @@ class Reference:
                     self.v_ins = self.v_ins + (Rq @ f + np.array([0.0, 0.0, G0])) * dt
                 if fresh:
                     self.v_lp = self.v_lp + aa * (self.v_ins - self.v_lp)
-                    up = self.a_lp - (self.v_ins - self.v_lp) / (self.accel_lpf_tau + dt)
+                    up = self.a_lp - (self.v_ins - self.v_lp) / self.accel_lpf_tau
             if up @ up <= self.accel_min_norm ** 2:
                 use_tilt = False
 
