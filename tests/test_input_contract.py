@@ -111,3 +111,31 @@ def test_reference_reports_the_same_bits(name):
         # the whole status, filter bits included, equals the C's for the same step
         c_got = hf.step(s, dt=dt, **args)
         assert got == c_got, (name, change, hex(got), hex(c_got))
+
+
+SKIP_BITS = {"accel": st.ACCEL_NONFINITE | st.ACCEL_RANGE | st.ACCEL_ZERO,
+             "mag": st.MAG_NONFINITE | st.MAG_RANGE | st.MAG_ZERO, "gps": st.GPS_NONFINITE | st.GPS_RANGE}
+LIMIT = {"gyro": "gyro_max", "accel": "accel_max", "mag": "mag_max", "gps_vel": "gps_vel_max"}
+
+
+@pytest.mark.parametrize("name", NAMES, ids=lambda n: Path(n).name)
+def test_the_range_is_a_box_per_component(name):
+    """The limits bound each component (input_checks.py), not the norm: a sample with every
+    component at 0.95 of its limit (norm 1.65 times the limit) is used, one component just
+    past it is not. The common path tests the norm first; it must not narrow the box."""
+    hf = host_build(name, "float")
+    sensors = _sensors(name)
+    for field, limit in LIMIT.items():
+        sensor = {"gps_vel": "gps"}.get(field, field)
+        if field != "gyro" and sensor not in sensors:
+            continue
+        m = hf.manifest["params"][limit]
+        for scale, ok in ((0.95, True), (1.0001, False)):
+            s = _warm(hf)
+            args = dict(GOOD, valid=ALL)
+            args[field] = (0.95 * m, -0.95 * m, scale * m)
+            got = hf.step(s, dt=DT, **args)
+            if field == "gyro":
+                assert (got & st.REFUSED_MASK == 0) == ok, (name, field, scale, hex(got))
+            else:
+                assert (got & SKIP_BITS[sensor] == 0) == ok, (name, field, scale, hex(got))

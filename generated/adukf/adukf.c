@@ -7657,22 +7657,26 @@ adukf_status adukf_step(adukf_state *s, const adukf_input *in, float dt)
     adukf_status status = ADUKF_OK;
 
     /* Refusals: the state is left exactly as it was. One range test per input on the
-     * common path; which bit a failure sets is sorted out only when it fails. */
+     * common path; which bit a failure sets is sorted out only when it fails.
+     * |v|^2 < MAX^2 (a NaN or infinity fails it) implies every |v_i| < MAX, float rounding
+     * being monotone, so the component test runs only when the cheap one fails. */
     if (!(dt > 0.0f && dt <= ADUKF_DT_MAX)) {
         return (isfinite(dt) && dt > ADUKF_DT_MAX) ? ADUKF_DT_TOO_LARGE : ADUKF_DT_INVALID;
     }
     if ((in->valid & ADUKF_VALID_GYRO) == 0u) {
         return ADUKF_GYRO_MISSING;
     }
-    if (!adukf_within3(in->gyro, ADUKF_GYRO_MAX)) {
+    if (!(adukf_norm2(in->gyro) < ADUKF_GYRO_MAX * ADUKF_GYRO_MAX
+          || adukf_within3(in->gyro, ADUKF_GYRO_MAX))) {
         return adukf_finite3(in->gyro) ? ADUKF_GYRO_RANGE : ADUKF_GYRO_NONFINITE;
     }
 
     /* Aiding sensors: a bad sample skips only its own correction. */
     bool use_accel = false;
+    const float accel_n2 = adukf_norm2(in->accel);   /* read even without its valid bit: a kernel may reuse it */
     if ((in->valid & ADUKF_VALID_ACCEL) != 0u) {
-        if (adukf_within3(in->accel, ADUKF_ACCEL_MAX)
-            && adukf_norm2(in->accel) >= ADUKF_ACCEL_MIN_NORM * ADUKF_ACCEL_MIN_NORM) {
+        if ((accel_n2 < ADUKF_ACCEL_MAX * ADUKF_ACCEL_MAX || adukf_within3(in->accel, ADUKF_ACCEL_MAX))
+            && accel_n2 >= ADUKF_ACCEL_MIN_NORM * ADUKF_ACCEL_MIN_NORM) {
             use_accel = true;
         } else if (!adukf_finite3(in->accel)) {
             status |= ADUKF_ACCEL_NONFINITE;
@@ -7683,9 +7687,10 @@ adukf_status adukf_step(adukf_state *s, const adukf_input *in, float dt)
         }
     }
     bool use_mag = false;
+    const float mag_n2 = adukf_norm2(in->mag);   /* read even without its valid bit: a kernel may reuse it */
     if ((in->valid & ADUKF_VALID_MAG) != 0u) {
-        if (adukf_within3(in->mag, ADUKF_MAG_MAX)
-            && adukf_norm2(in->mag) >= ADUKF_MAG_MIN_NORM * ADUKF_MAG_MIN_NORM) {
+        if ((mag_n2 < ADUKF_MAG_MAX * ADUKF_MAG_MAX || adukf_within3(in->mag, ADUKF_MAG_MAX))
+            && mag_n2 >= ADUKF_MAG_MIN_NORM * ADUKF_MAG_MIN_NORM) {
             use_mag = true;
         } else if (!adukf_finite3(in->mag)) {
             status |= ADUKF_MAG_NONFINITE;

@@ -767,22 +767,26 @@ cpf_status cpf_step(cpf_state *s, const cpf_input *in, float dt)
     cpf_status status = CPF_OK;
 
     /* Refusals: the state is left exactly as it was. One range test per input on the
-     * common path; which bit a failure sets is sorted out only when it fails. */
+     * common path; which bit a failure sets is sorted out only when it fails.
+     * |v|^2 < MAX^2 (a NaN or infinity fails it) implies every |v_i| < MAX, float rounding
+     * being monotone, so the component test runs only when the cheap one fails. */
     if (!(dt > 0.0f && dt <= CPF_DT_MAX)) {
         return (isfinite(dt) && dt > CPF_DT_MAX) ? CPF_DT_TOO_LARGE : CPF_DT_INVALID;
     }
     if ((in->valid & CPF_VALID_GYRO) == 0u) {
         return CPF_GYRO_MISSING;
     }
-    if (!cpf_within3(in->gyro, CPF_GYRO_MAX)) {
+    if (!(cpf_norm2(in->gyro) < CPF_GYRO_MAX * CPF_GYRO_MAX
+          || cpf_within3(in->gyro, CPF_GYRO_MAX))) {
         return cpf_finite3(in->gyro) ? CPF_GYRO_RANGE : CPF_GYRO_NONFINITE;
     }
 
     /* Aiding sensors: a bad sample skips only its own correction. */
     bool use_accel = false;
+    const float accel_n2 = cpf_norm2(in->accel);   /* read even without its valid bit: a kernel may reuse it */
     if ((in->valid & CPF_VALID_ACCEL) != 0u) {
-        if (cpf_within3(in->accel, CPF_ACCEL_MAX)
-            && cpf_norm2(in->accel) >= CPF_ACCEL_MIN_NORM * CPF_ACCEL_MIN_NORM) {
+        if ((accel_n2 < CPF_ACCEL_MAX * CPF_ACCEL_MAX || cpf_within3(in->accel, CPF_ACCEL_MAX))
+            && accel_n2 >= CPF_ACCEL_MIN_NORM * CPF_ACCEL_MIN_NORM) {
             use_accel = true;
         } else if (!cpf_finite3(in->accel)) {
             status |= CPF_ACCEL_NONFINITE;
@@ -793,9 +797,10 @@ cpf_status cpf_step(cpf_state *s, const cpf_input *in, float dt)
         }
     }
     bool use_mag = false;
+    const float mag_n2 = cpf_norm2(in->mag);   /* read even without its valid bit: a kernel may reuse it */
     if ((in->valid & CPF_VALID_MAG) != 0u) {
-        if (cpf_within3(in->mag, CPF_MAG_MAX)
-            && cpf_norm2(in->mag) >= CPF_MAG_MIN_NORM * CPF_MAG_MIN_NORM) {
+        if ((mag_n2 < CPF_MAG_MAX * CPF_MAG_MAX || cpf_within3(in->mag, CPF_MAG_MAX))
+            && mag_n2 >= CPF_MAG_MIN_NORM * CPF_MAG_MIN_NORM) {
             use_mag = true;
         } else if (!cpf_finite3(in->mag)) {
             status |= CPF_MAG_NONFINITE;

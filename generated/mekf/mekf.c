@@ -4616,22 +4616,26 @@ mekf_status mekf_step(mekf_state *s, const mekf_input *in, float dt)
     mekf_status status = MEKF_OK;
 
     /* Refusals: the state is left exactly as it was. One range test per input on the
-     * common path; which bit a failure sets is sorted out only when it fails. */
+     * common path; which bit a failure sets is sorted out only when it fails.
+     * |v|^2 < MAX^2 (a NaN or infinity fails it) implies every |v_i| < MAX, float rounding
+     * being monotone, so the component test runs only when the cheap one fails. */
     if (!(dt > 0.0f && dt <= MEKF_DT_MAX)) {
         return (isfinite(dt) && dt > MEKF_DT_MAX) ? MEKF_DT_TOO_LARGE : MEKF_DT_INVALID;
     }
     if ((in->valid & MEKF_VALID_GYRO) == 0u) {
         return MEKF_GYRO_MISSING;
     }
-    if (!mekf_within3(in->gyro, MEKF_GYRO_MAX)) {
+    if (!(mekf_norm2(in->gyro) < MEKF_GYRO_MAX * MEKF_GYRO_MAX
+          || mekf_within3(in->gyro, MEKF_GYRO_MAX))) {
         return mekf_finite3(in->gyro) ? MEKF_GYRO_RANGE : MEKF_GYRO_NONFINITE;
     }
 
     /* Aiding sensors: a bad sample skips only its own correction. */
     bool use_accel = false;
+    const float accel_n2 = mekf_norm2(in->accel);   /* read even without its valid bit: a kernel may reuse it */
     if ((in->valid & MEKF_VALID_ACCEL) != 0u) {
-        if (mekf_within3(in->accel, MEKF_ACCEL_MAX)
-            && mekf_norm2(in->accel) >= MEKF_ACCEL_MIN_NORM * MEKF_ACCEL_MIN_NORM) {
+        if ((accel_n2 < MEKF_ACCEL_MAX * MEKF_ACCEL_MAX || mekf_within3(in->accel, MEKF_ACCEL_MAX))
+            && accel_n2 >= MEKF_ACCEL_MIN_NORM * MEKF_ACCEL_MIN_NORM) {
             use_accel = true;
         } else if (!mekf_finite3(in->accel)) {
             status |= MEKF_ACCEL_NONFINITE;
@@ -4642,9 +4646,10 @@ mekf_status mekf_step(mekf_state *s, const mekf_input *in, float dt)
         }
     }
     bool use_mag = false;
+    const float mag_n2 = mekf_norm2(in->mag);   /* read even without its valid bit: a kernel may reuse it */
     if ((in->valid & MEKF_VALID_MAG) != 0u) {
-        if (mekf_within3(in->mag, MEKF_MAG_MAX)
-            && mekf_norm2(in->mag) >= MEKF_MAG_MIN_NORM * MEKF_MAG_MIN_NORM) {
+        if ((mag_n2 < MEKF_MAG_MAX * MEKF_MAG_MAX || mekf_within3(in->mag, MEKF_MAG_MAX))
+            && mag_n2 >= MEKF_MAG_MIN_NORM * MEKF_MAG_MIN_NORM) {
             use_mag = true;
         } else if (!mekf_finite3(in->mag)) {
             status |= MEKF_MAG_NONFINITE;
@@ -4656,7 +4661,8 @@ mekf_status mekf_step(mekf_state *s, const mekf_input *in, float dt)
     }
     bool use_gps = false;
     if ((in->valid & MEKF_VALID_GPS) != 0u) {
-        if (mekf_within3(in->gps_vel_ned, MEKF_GPS_VEL_MAX)) {
+        if (mekf_norm2(in->gps_vel_ned) < MEKF_GPS_VEL_MAX * MEKF_GPS_VEL_MAX
+            || mekf_within3(in->gps_vel_ned, MEKF_GPS_VEL_MAX)) {
             use_gps = true;
         } else if (!mekf_finite3(in->gps_vel_ned)) {
             status |= MEKF_GPS_NONFINITE;

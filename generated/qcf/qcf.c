@@ -1375,22 +1375,26 @@ qcf_status qcf_step(qcf_state *s, const qcf_input *in, float dt)
     qcf_status status = QCF_OK;
 
     /* Refusals: the state is left exactly as it was. One range test per input on the
-     * common path; which bit a failure sets is sorted out only when it fails. */
+     * common path; which bit a failure sets is sorted out only when it fails.
+     * |v|^2 < MAX^2 (a NaN or infinity fails it) implies every |v_i| < MAX, float rounding
+     * being monotone, so the component test runs only when the cheap one fails. */
     if (!(dt > 0.0f && dt <= QCF_DT_MAX)) {
         return (isfinite(dt) && dt > QCF_DT_MAX) ? QCF_DT_TOO_LARGE : QCF_DT_INVALID;
     }
     if ((in->valid & QCF_VALID_GYRO) == 0u) {
         return QCF_GYRO_MISSING;
     }
-    if (!qcf_within3(in->gyro, QCF_GYRO_MAX)) {
+    if (!(qcf_norm2(in->gyro) < QCF_GYRO_MAX * QCF_GYRO_MAX
+          || qcf_within3(in->gyro, QCF_GYRO_MAX))) {
         return qcf_finite3(in->gyro) ? QCF_GYRO_RANGE : QCF_GYRO_NONFINITE;
     }
 
     /* Aiding sensors: a bad sample skips only its own correction. */
     bool use_accel = false;
+    const float accel_n2 = qcf_norm2(in->accel);   /* read even without its valid bit: a kernel may reuse it */
     if ((in->valid & QCF_VALID_ACCEL) != 0u) {
-        if (qcf_within3(in->accel, QCF_ACCEL_MAX)
-            && qcf_norm2(in->accel) >= QCF_ACCEL_MIN_NORM * QCF_ACCEL_MIN_NORM) {
+        if ((accel_n2 < QCF_ACCEL_MAX * QCF_ACCEL_MAX || qcf_within3(in->accel, QCF_ACCEL_MAX))
+            && accel_n2 >= QCF_ACCEL_MIN_NORM * QCF_ACCEL_MIN_NORM) {
             use_accel = true;
         } else if (!qcf_finite3(in->accel)) {
             status |= QCF_ACCEL_NONFINITE;
@@ -1401,9 +1405,10 @@ qcf_status qcf_step(qcf_state *s, const qcf_input *in, float dt)
         }
     }
     bool use_mag = false;
+    const float mag_n2 = qcf_norm2(in->mag);   /* read even without its valid bit: a kernel may reuse it */
     if ((in->valid & QCF_VALID_MAG) != 0u) {
-        if (qcf_within3(in->mag, QCF_MAG_MAX)
-            && qcf_norm2(in->mag) >= QCF_MAG_MIN_NORM * QCF_MAG_MIN_NORM) {
+        if ((mag_n2 < QCF_MAG_MAX * QCF_MAG_MAX || qcf_within3(in->mag, QCF_MAG_MAX))
+            && mag_n2 >= QCF_MAG_MIN_NORM * QCF_MAG_MIN_NORM) {
             use_mag = true;
         } else if (!qcf_finite3(in->mag)) {
             status |= QCF_MAG_NONFINITE;
@@ -1415,7 +1420,8 @@ qcf_status qcf_step(qcf_state *s, const qcf_input *in, float dt)
     }
     bool use_gps = false;
     if ((in->valid & QCF_VALID_GPS) != 0u) {
-        if (qcf_within3(in->gps_vel_ned, QCF_GPS_VEL_MAX)) {
+        if (qcf_norm2(in->gps_vel_ned) < QCF_GPS_VEL_MAX * QCF_GPS_VEL_MAX
+            || qcf_within3(in->gps_vel_ned, QCF_GPS_VEL_MAX)) {
             use_gps = true;
         } else if (!qcf_finite3(in->gps_vel_ned)) {
             status |= QCF_GPS_NONFINITE;
