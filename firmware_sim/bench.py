@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import ctypes
 import hashlib
+import io
 import json
 import math
 import os
@@ -776,8 +777,9 @@ def bench(quick=False, seeds=None, filters=None, peer_names=PEER_NAMES, data_dir
         "task_wall_seconds": {f"{r['label']}/{r['log']}/{r['seed']}": round(r["wall"], 1) for r in results},
     }
     report["plots"] = _plots(results, out_dir / "img")
-    (out_dir / "bench.json").write_text(json.dumps(report, indent=1))
-    (out_dir / "bench.md").write_text(markdown(report))
+    from generator.fileio import write_text_atomic     # whole files or none, also on Ctrl-C
+    write_text_atomic(out_dir / "bench.json", json.dumps(report, indent=1))
+    write_text_atomic(out_dir / "bench.md", markdown(report))
     return report
 
 
@@ -803,6 +805,7 @@ def _plots(results, img_dir):
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from generator.fileio import write_atomic
     files = {}
     for r in results:
         if not r["series"]:
@@ -820,7 +823,9 @@ def _plots(results, img_dir):
         ax.legend(fontsize=7, ncol=4, loc="upper right")
         fig.tight_layout()
         p = Path(img_dir) / f"err_{key}.png"
-        fig.savefig(p, dpi=100)
+        buf = io.BytesIO()
+        fig.savefig(buf, dpi=100, format="png")
+        write_atomic(p, buf.getvalue())
         plt.close(fig)
         files[key] = f"img/{p.name}"      # relative to the output folder
     return files

@@ -44,6 +44,10 @@ CASES = [
     ("o-dev-null", lambda t: (["generate", "qcf", "-o", "/dev/null"], []), "not a folder"),
     ("o-read-only", lambda t: (["generate", "qcf", "-o", "/proc/ahrsgen-out"], ["/proc/ahrsgen-out"]),
      "/proc"),
+    # --json of target: refused before anything is built
+    ("target-json-is-dir", lambda t: (["target", "qcf", "--json", str(t)], []), "is a folder"),
+    ("target-json-under-file", lambda t: (["target", "qcf", "--json", _file(t, "f.txt", "x") + "/t.json"], []),
+     "not a folder"),
     # --log of run
     ("log-empty-csv", lambda t: (["run", "qcf", "--log", _file(t, "e.csv", "")], []), "empty file"),
     ("log-header-only", lambda t: (["run", "qcf", "--log", _file(t, "h.csv", HEADER)], []), "0 data row"),

@@ -10,11 +10,16 @@ from .build import APT_PACKAGES, CPUS, MATH_FLAGS, OPT_LEVELS, PIP_PACKAGES, QEM
 from .check import DEFAULT_TOLERANCE_DEG, _print_results, check_filter, check_generated, toolchain_versions
 from .emulate import libm_survey, records_from_log
 from .footprint import format_table
+from generator.fileio import write_text_atomic
 
 
 def cmd_target(args) -> int:
     from generator import filters
     from generator.model import ConfigError
+    from generator.fileio import check_output_dir
+    check_output_dir(Path(args.json).parent, "--json")      # refuse a bad path before the builds
+    if Path(args.json).is_dir():
+        raise ConfigError(f"--json: {args.json} is a folder")
     missing = missing_tools()
     if missing:
         raise ConfigError("target checks need " + ", ".join(missing) + " (apt-get install "
@@ -77,7 +82,7 @@ def cmd_target(args) -> int:
            "peers": [asdict(r) for r in peer_rows], "beside_peers": beside, "libm_survey": survey}
     out = Path(args.json)
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(doc, indent=2, sort_keys=True) + "\n")
+    write_text_atomic(out, json.dumps(doc, indent=2, sort_keys=True) + "\n")     # whole or none
     print(f"wrote {out}")
     return 0 if ok else 1
 
