@@ -169,6 +169,18 @@ def spd_solve(A, B, tol: float = 0.0, reciprocal: bool = False):
     return X, min_pivot
 
 
+def lower_symmetric(P):
+    """The symmetric matrix whose lower triangle is P's (the upper triangle is not read)."""
+    P, kind = _as_casadi(P)
+    n = P.shape[0]
+    out = _zeros(kind, n, n)
+    for i in range(n):
+        for j in range(i + 1):
+            out[i, j] = P[i, j]
+            out[j, i] = P[i, j]
+    return out
+
+
 def symmetrize(P):
     """(P + Pᵀ) / 2."""
     P, _ = _as_casadi(P)

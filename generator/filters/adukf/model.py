@@ -43,6 +43,16 @@ def omega_matrix(w):
     )
 
 
+def xi_matrix(q):
+    """Ξ(q) with Ω(w) q = Ξ(q) w."""
+    return ca.vertcat(
+        ca.horzcat(-q[1], -q[2], -q[3]),
+        ca.horzcat(q[0], -q[3], q[2]),
+        ca.horzcat(q[3], q[0], -q[1]),
+        ca.horzcat(-q[2], q[1], q[0]),
+    )
+
+
 def ut_parameters(alpha, beta, kappa, n=N):
     """Spread a and weights (Wm0, Wc0, Wi) of the scaled unscented transform."""
     lam = alpha * alpha * (n + kappa) - n
@@ -110,56 +120,82 @@ class Model(FilterModel):
 
     # ------------------------------------------------------------------ kernels
     def predict_expr(self, q, P, w, dt):
-        """q is the state x (q, or [q; b] with the bias state). Returns x⁻, q⁻/|q⁻|, P⁻."""
+        """q is the state x (q, or [q; b] with the bias state). Returns x⁻, q⁻/|q⁻|, P⁻.
+
+        P is read through its lower triangle (it is exactly symmetric: every kernel writes one
+        triangle and mirrors it), and P⁻ = F P Fᵀ + Q is computed on its lower triangle and
+        mirrored, which is the symmetrisation (P⁻ + P⁻ᵀ)/2 of the equations without its cost."""
         p = self.params
-        if self.n == 7:
-            x = q
+        n = self.n
+        x = q
+        if n == 7:
             q, b = x[:4], x[4:]
             w = w - b
         A = ca.SX.eye(N) + 0.5 * dt * omega_matrix(w)
+        c_n = 1.0
         if not p["faithful"]:
             # A / sqrt(1 + |ω|²dt²/4), written as a product with sqrt(1/x): one division
-            A = A * ca.sqrt(1 / (1 + 0.25 * dt * dt * ca.sumsqr(w)))
+            c_n = ca.sqrt(1 / (1 + 0.25 * dt * dt * ca.sumsqr(w)))
+            A = A * c_n
         qm = ca.mtimes(A, q)
         Q = (p["gyro_noise"] ** 2 * 0.25 * dt) * (ca.SX.eye(N) - ca.mtimes(q, q.T)) + p["q_floor"] * dt * ca.SX.eye(N)
-        if self.n == 4:
-            Pm = linalg.symmetrize(ca.mtimes([A, P, A.T]) + Q)
+        Ps = linalg.lower_symmetric(P)
+        Pm = ca.SX.zeros(n, n)
+        if n == 4:
+            AP = ca.mtimes(A, Ps)
+            for r in range(N):
+                for c in range(r + 1):
+                    Pm[r, c] = ca.mtimes(AP[r, :], A[c, :].T) + Q[r, c]
+                    Pm[c, r] = Pm[r, c]
             return qm, normalize(qm), Pm
-        # bias state: x⁻ = [A(ω - b) q; b], F = ∂x⁻/∂x (CasADi), bias random walk in Q
+        # bias state: x⁻ = [A(ω - b) q; b], F = [[A, G], [0, I3]] with
+        # G = ∂q⁻/∂b = -∂q⁻/∂w = -(c dt/2 Ξ(q) - c² dt²/4 q⁻ wᵀ) (c: A's normalisation;
+        # reference.py, test_bias_state_jacobian_matches_finite_differences), bias random walk in Q.
+        # F P Fᵀ by blocks: M = F[0:4, :] P (4 x 7) gives the q-q block M F[0:4, :]ᵀ (lower
+        # triangle) and the q-b block M[:, 4:7] (P symmetric); the b-b block is P_bb.
+        G = -(c_n * 0.5 * dt) * xi_matrix(q) + ca.mtimes((c_n * c_n * 0.25 * dt * dt) * qm, w.T)
+        F4 = ca.horzcat(A, G)
+        M = ca.mtimes(F4, Ps)
+        Qb = p["bias_rw"] ** 2 * dt + p["q_floor"] * dt
+        for r in range(n):
+            for c in range(r + 1):
+                if r < N:
+                    Pm[r, c] = ca.mtimes(M[r, :], F4[c, :].T) + Q[r, c]
+                elif c < N:
+                    Pm[r, c] = M[c, r]
+                else:
+                    Pm[r, c] = Ps[r, c] + (Qb if r == c else 0.0)
+                Pm[c, r] = Pm[r, c]
         xm = ca.vertcat(qm, b)
-        F = ca.jacobian(xm, x)
-        Qx = ca.diagcat(Q, (p["bias_rw"] ** 2 * dt + p["q_floor"] * dt) * ca.SX.eye(3))
-        Pm = linalg.symmetrize(ca.mtimes([F, P, F.T]) + Qx)
         return xm, normalize(qm), Pm
 
-    # The measurement update is emitted as three kernels (sigma points, innovation
-    # statistics, correction) rather than one ~3200-operation function: the same arithmetic,
-    # and static analysers (cppcheck's value flow) are far slower on one very long function.
-    def sigma_expr(self, qm, Pm, m_ref):
-        """Sigma points (4 x 9, columns), their predicted measurements (6 x 9), min pivot of P-."""
-        p = self.params
-        n = self.n
-        a = ut_parameters(p["ut_alpha"], p["ut_beta"], p["ut_kappa"], n)[0]
-        L, _, piv_p = linalg.cholesky_with_inverse(Pm, p["pivot_min"])
-        chis = [qm] + [qm + a * L[:, i] for i in range(n)] + [qm - a * L[:, i] for i in range(n)]
-        Z = [measurement(normalize(c[:4] if n > 4 else c), m_ref) for c in chis]
-        return ca.horzcat(*chis), ca.horzcat(*Z), piv_p
+    def innovation_expr(self, xm, Pm, m_ref, f, m, use_a, use_m, scale=None):
+        """Sigma points, their measurements, ẑ, residual, adaptive R, masked P_zz and P_xz, and
+        the smallest Cholesky pivot of P⁻.
 
-    def innovation_expr(self, qm, X, Z, f, m, use_a, use_m, scale=None):
-        """Masked P_zz (6x6), P_xz (n x 6), residual and adaptive R diagonal.
-
+        The structure of the sigma-point set, used exactly (no approximation):
+        - χ = x⁻ ± a L[:, j] with L = chol(P⁻) lower triangular: for a bias column (j ≥ 4)
+          L[0:4, j] = 0, so the attitude part of those 6 points is q⁻ itself and their
+          measurement is h(q⁻), the centre's: only 9 of the 2n+1 points are mapped through h.
+        - χ_i - x⁻ = ±a L[:, j], so P_xz = Σ Wc (χ_i - x⁻)(z_i - ẑ)ᵀ
+          = a Wi Σ_j L[:, j] (z_j+ - z_j-)ᵀ, where the bias columns cancel (z_j+ = z_j-).
         scale (product, sensors at their own rates): [dt/s_a, dt/s_m], R of each sensor times
         the ratio of the step to the time its sample stands for (sigma is per IMU step; a
         sample standing for k steps carries k steps' information)."""
         p = self.params
         n = self.n
-        _, wm0, wc0, wi = ut_parameters(p["ut_alpha"], p["ut_beta"], p["ut_kappa"], n)
-        wm = [wm0] + [wi] * (2 * n)
-        wc = [wc0] + [wi] * (2 * n)
-        chis = [X[:, i] for i in range(2 * n + 1)]
-        Zs = [Z[:, i] for i in range(2 * n + 1)]
-        # the weights of points 1..2n are equal: sum first, weight once
-        zhat = wm[0] * Zs[0] + wi * sum(Zs[2:], Zs[1])
+        a, wm0, wc0, wi = ut_parameters(p["ut_alpha"], p["ut_beta"], p["ut_kappa"], n)
+        L, _, piv_p = linalg.cholesky_with_inverse(Pm, p["pivot_min"])
+        qm = xm[:4]
+        cols = [a * L[:4, j] for j in range(N)]
+        z0 = measurement(normalize(qm), m_ref)
+        zp = [measurement(normalize(qm + d), m_ref) for d in cols]
+        zn = [measurement(normalize(qm - d), m_ref) for d in cols]
+        # the weights of points 1..2n are equal: sum first, weight once; the 2(n-4) points of
+        # the bias columns are the centre
+        w0m = wm0 + 2 * (n - N) * wi
+        w0c = wc0 + 2 * (n - N) * wi
+        zhat = w0m * z0 + wi * sum(zp[1:] + zn, zp[0])
         z = ca.vertcat(normalize(f), normalize(m))
         eps = z - zhat
         sa2, sm2 = p["sigma_acc"] ** 2, p["sigma_mag"] ** 2
@@ -169,29 +205,29 @@ class Model(FilterModel):
         R = [sa2 + adapt[i] for i in range(3)] + [sm2 + adapt[i] for i in range(3, 6)]
         if scale is not None:
             R = [R[i] * scale[0] for i in range(3)] + [R[i] * scale[1] for i in range(3, 6)]
-        dZ = [Zs[i] - zhat for i in range(2 * n + 1)]
-        dX = [chis[i] - qm for i in range(2 * n + 1)]
-
-        def wsum(terms):
-            return wc[0] * terms[0] + wi * sum(terms[2:], terms[1])
+        d0 = z0 - zhat
+        dZ = [zi - zhat for zi in zp + zn]
         Pzz = ca.SX.zeros(6, 6)
-        for r in range(6):            # symmetric: upper triangle once, mirrored
-            for c in range(r, 6):
-                Pzz[r, c] = wsum([dZ[i][r] * dZ[i][c] for i in range(2 * n + 1)]) + (R[r] if r == c else 0.0)
+        for r in range(6):            # symmetric: lower triangle once, mirrored
+            for c in range(r + 1):
+                Pzz[r, c] = w0c * d0[r] * d0[c] + wi * sum([d[r] * d[c] for d in dZ[1:]], dZ[0][r] * dZ[0][c]) \
+                    + (R[r] if r == c else 0.0)
                 Pzz[c, r] = Pzz[r, c]
+        D = [(a * wi) * (zp[j] - zn[j]) for j in range(N)]
         Pxz = ca.SX.zeros(n, 6)
         for r in range(n):
             for c in range(6):
-                Pxz[r, c] = wsum([dX[i][r] * dZ[i][c] for i in range(2 * n + 1)])
+                Pxz[r, c] = sum([L[r, j] * D[j][c] for j in range(1, min(r, N - 1) + 1)], L[r, 0] * D[0][c])
         # exact masking of an unusable sensor: identity block in P_zz, zero cross-covariance
         # and residual, so its columns of K are exactly zero
         use = [use_a] * 3 + [use_m] * 3
         both = ca.logic_and(use_a, use_m)
         Pzz_m = ca.SX.zeros(6, 6)
         for r in range(6):
-            for c in range(6):
+            for c in range(r + 1):
                 keep = use[r] if (r < 3) == (c < 3) else both
                 Pzz_m[r, c] = ca.if_else(keep, Pzz[r, c], 1.0 if r == c else 0.0)
+                Pzz_m[c, r] = Pzz_m[r, c]
         Pxz_m = ca.SX.zeros(n, 6)
         eps_m = ca.SX.zeros(6)
         r_used = ca.SX.zeros(6)
@@ -200,21 +236,24 @@ class Model(FilterModel):
                 Pxz_m[r, c] = ca.if_else(use[c], Pxz[r, c], 0.0)
             eps_m[c] = ca.if_else(use[c], eps[c], 0.0)
             r_used[c] = ca.if_else(use[c], R[c], 0.0)
-        return Pzz_m, Pxz_m, eps_m, r_used
+        return Pzz_m, Pxz_m, eps_m, r_used, piv_p
 
-    def correct_expr(self, qm, Pm, Pzz, Pxz, eps):
-        """K = P_xz P_zz⁻¹ by a Cholesky solve, q⁺, P⁺, min pivot of P_zz."""
+    def correct_expr(self, xm, Pm, Pzz, Pxz, eps):
+        """x⁺ and P⁺ through the Cholesky factor L of P_zz, without forming K:
+        U = P_xz L⁻ᵀ (one forward substitution for Uᵀ), K ε = U (L⁻¹ ε), K P_zz Kᵀ = U Uᵀ
+        (K = P_xz P_zz⁻¹ = U L⁻¹), so P⁺ = P⁻ - U Uᵀ on its lower triangle, mirrored
+        (exactly symmetric). Also the smallest pivot of P_zz."""
         p = self.params
-        Kt, piv_zz = linalg.spd_solve(Pzz, Pxz.T, p["pivot_min"], reciprocal=True)
-        K = Kt.T
         n = self.n
-        x_new = qm + ca.mtimes(K, eps)
+        Lz, inv, piv_zz = linalg.cholesky_with_inverse(Pzz, p["pivot_min"])
+        Ut = linalg.solve_lower(Lz, Pxz.T, inv)          # 6 x n
+        v = linalg.solve_lower(Lz, eps, inv)
+        x_new = xm + ca.mtimes(Ut.T, v)
         q_new = normalize(x_new) if n == 4 else ca.vertcat(normalize(x_new[:4]), x_new[4:])
-        KS = ca.mtimes(K, Pzz)
         P_new = ca.SX.zeros(n, n)
-        for r in range(n):            # P- - K P_zz Kᵀ: upper triangle once, mirrored (exactly symmetric)
-            for c in range(r, n):
-                P_new[r, c] = 0.5 * (Pm[r, c] + Pm[c, r]) - ca.dot(KS[r, :].T, K[c, :].T)
+        for r in range(n):
+            for c in range(r + 1):
+                P_new[r, c] = Pm[r, c] - ca.dot(Ut[:, r], Ut[:, c])
                 P_new[c, r] = P_new[r, c]
         return q_new, P_new, piv_zz
 
@@ -240,17 +279,14 @@ class Model(FilterModel):
         restart = ca.SX.sym("restart")
         f_n = quat.rotate(qn, f)
         a_lp_new = aiding.lowpass(ca.if_else(restart, f_n, a_lp), f_n, dt, p["accel_tau"])
-        X = ca.SX.sym("sigma", n, 2 * n + 1)
-        Z = ca.SX.sym("z_sigma", 6, 2 * n + 1)
         Pzz = ca.SX.sym("P_zz", 6, 6)
         Pxz = ca.SX.sym("P_xz", n, 6)
         eps = ca.SX.sym("residual", 6)
-        X_e, Z_e, piv_p = self.sigma_expr(qm, Pm, m_ref)
         span = ca.SX.sym("span", 2)            # time each sample stands for: accel, mag
         rated = self.own_rates()
-        Pzz_e, Pxz_e, eps_e, r_e = self.innovation_expr(qm, X, Z, f, m, use_a, use_m,
-                                                        [self.r_scale(dt, span[0]), self.r_scale(dt, span[1])]
-                                                        if rated else None)
+        Pzz_e, Pxz_e, eps_e, r_e, piv_p = self.innovation_expr(
+            qm, Pm, m_ref, f, m, use_a, use_m,
+            [self.r_scale(dt, span[0]), self.r_scale(dt, span[1])] if rated else None)
         q_new, P_new, piv_zz = self.correct_expr(qm, Pm, Pzz, Pxz, eps)
 
         decl = float(p["declination"])
@@ -262,21 +298,20 @@ class Model(FilterModel):
             KernelSpec("predict", function("predict", {xs: q, "P": P, "gyro": w, "dt": dt},
                                            {xs + "_pred": qm_e, "q_pred_unit": qn_e, "P_pred": Pm_e}),
                        "linear Kalman time update: q- = A q, P- = A P A^T + Q"),
-            KernelSpec("sigma_points", function("sigma_points", {xs + "_pred": qm, "P_pred": Pm, "m_ref": m_ref},
-                                                {"sigma": X_e, "z_sigma": Z_e, "pivot_P": piv_p}),
-                       "9 sigma points from the Cholesky factor of P- (columns of sigma), each normalised "
-                       "and mapped through h; pivot_P = smallest pivot of P-"),
-            KernelSpec("innovation", function("innovation", {xs + "_pred": qm, "sigma": X, "z_sigma": Z, "accel": f,
+            KernelSpec("innovation", function("innovation", {xs + "_pred": qm, "P_pred": Pm, "m_ref": m_ref, "accel": f,
                                                              "mag": m, "use_accel": use_a, "use_mag": use_m,
                                                              **({"dt": dt, "span": span} if rated else {})},
-                                              {"P_zz": Pzz_e, "P_xz": Pxz_e, "residual": eps_e, "r_diag": r_e}),
-                       "predicted measurement, residual, adaptive per-axis R, P_zz and P_xz (unusable sensors "
-                       "masked out exactly)"),
+                                              {"P_zz": Pzz_e, "P_xz": Pxz_e, "residual": eps_e, "r_diag": r_e,
+                                               "pivot_P": piv_p}),
+                       "sigma points from the Cholesky factor of P- (9 distinct: a bias column moves no "
+                       "attitude), each normalised and mapped through h; predicted measurement, residual, "
+                       "adaptive per-axis R, P_zz and P_xz (unusable sensors masked out exactly); "
+                       "pivot_P = smallest pivot of P-"),
             KernelSpec("correct", function("correct", {xs + "_pred": qm, "P_pred": Pm, "P_zz": Pzz, "P_xz": Pxz,
                                                        "residual": eps},
                                            {xs + "_new": q_new, "P_new": P_new, "pivot_zz": piv_zz}),
-                       "K = P_xz P_zz^-1 by a Cholesky solve (no inverse), q+ = normalise(q- + K eps), "
-                       "P+ = sym(P- - K P_zz K^T); pivot_zz = smallest pivot of P_zz"),
+                       "U = P_xz L^-T with L = chol(P_zz) (no inverse, no K), x+ = x- + U L^-1 eps (q normalised), "
+                       "P+ = P- - U U^T; pivot_zz = smallest pivot of P_zz"),
             *([KernelSpec("accel_lowpass", function(
                 "accel_lowpass", {"q_pred_unit": qn, "accel": f, "accel_lp": a_lp, "restart": restart, "dt": dt},
                 {"accel_lp_new": a_lp_new, "accel_body": quat.rotate_inv(qn, a_lp_new)}),
@@ -308,7 +343,7 @@ class Model(FilterModel):
 
     def step_paths(self):
         return {
-            "accel+mag update": ["predict", "sigma_points", "innovation", "correct"],
+            "accel+mag update": ["predict", "innovation", "correct"],
             "gyro only": ["predict"],
         }
 
