@@ -85,3 +85,60 @@ def test_predict_covariance():
     P, F, G, Q = _spd(rng, 6), rng.normal(size=(6, 6)), rng.normal(size=(6, 6)), np.diag(rng.uniform(0, 1, 6))
     out = np.array(ca.DM(kalman.predict_covariance(ca.DM(P), ca.DM(F), ca.DM(G), ca.DM(Q))))
     assert np.allclose(out, F @ P @ F.T + G @ Q @ G.T, rtol=1e-12)
+
+
+def test_predict_covariance_with_unit_rows():
+    """An error-state F = [[A, B], [0, I]]: the entries read from F P instead of multiplied."""
+    rng = np.random.default_rng(3)
+    F = np.block([[rng.normal(size=(3, 6))], [np.zeros((3, 3)), np.eye(3)]])
+    P, G, Q = _spd(rng, 6), rng.normal(size=(6, 6)), np.diag(rng.uniform(0, 1, 6))
+    Ps, Fs = ca.SX.sym("P", 6, 6), ca.SX(F)
+    for i in range(3):
+        for j in range(6):
+            Fs[i, j] = ca.SX.sym(f"f{i}{j}")
+    syms = ca.vertcat(*[Fs[i, j] for i in range(3) for j in range(6)])
+    f = ca.Function("p", [Ps, syms], [kalman.predict_covariance(Ps, Fs, ca.DM(G), ca.DM(Q))])
+    out = np.array(f(P, F[:3].ravel()))
+    assert np.array_equal(out, out.T)
+    assert np.allclose(out, F @ P @ F.T + G @ Q @ G.T, rtol=1e-12, atol=1e-14)
+    assert f.n_instructions() < ca.Function("q", [Ps, syms], [ca.mtimes([Fs, Ps, Fs.T])]).n_instructions()
+
+
+def _scalar_fn(n, rows_h, x_in):
+    """kalman.scalar_updates over rows with the given H (0 entries structural) as a Function."""
+    P, z, r, x = ca.SX.sym("P", n, n), ca.SX.sym("z", len(rows_h)), ca.SX.sym("r", len(rows_h)), ca.SX.sym("x", n)
+    hs = [ca.SX(ca.DM(h).T) for h in rows_h]
+    dx, Pn, piv = kalman.scalar_updates(P, [(hs[i], z[i], r[i]) for i in range(len(hs))], x if x_in else None, 1e-12)
+    return ca.Function("s", [P, z, r, x], [dx, Pn, piv])
+
+
+def test_scalar_updates_equal_the_batch_update():
+    """Rows in turn, in two groups chained through x (as the MEKF step calls them: three
+    general rows, then three [0 I] rows), equal the batch update of all six rows stacked; the
+    smallest row variance is the smallest squared Cholesky pivot of the batch S."""
+    rng = np.random.default_rng(4)
+    n = 6
+    for trial in range(5):
+        P = _spd(rng, n) * 10.0 ** rng.uniform(-4, 0)
+        H1 = np.hstack([rng.normal(size=(3, 3)), np.zeros((3, 3))])
+        H2 = np.hstack([np.zeros((3, 3)), np.eye(3)])
+        z = rng.normal(size=6) * 0.1
+        r = np.concatenate([rng.uniform(0.01, 1, 3), rng.uniform(1e-6, 1e-3, 3)])
+        x1, P1, piv1 = _scalar_fn(n, H1, False)(P, z[:3], r[:3], np.zeros(n))
+        x2, P2, piv2 = _scalar_fn(n, H2, True)(P1, z[3:], r[3:], x1)
+        H = np.vstack([H1, H2])
+        dx, P_ref = _numpy_update(P, H, z, np.diag(r))
+        assert np.allclose(np.array(x2).ravel(), dx, rtol=1e-9, atol=1e-14)
+        assert np.allclose(np.array(P2), P_ref, rtol=1e-9, atol=1e-14 * np.max(np.abs(P)))
+        assert np.array_equal(np.array(P2), np.array(P2).T)
+        S = H @ P @ H.T + np.diag(r)
+        pivots = np.diag(np.linalg.cholesky(S)) ** 2
+        assert np.isclose(min(float(piv1), float(piv2)), np.min(pivots), rtol=1e-9)
+
+
+def test_scalar_updates_bias_rows_read_columns():
+    """A row [0 .. 1 .. 0] multiplies nothing for P hᵀ: three such rows cost no more than the
+    P - k uᵀ products (21 per row), the gain and x (6 + 6 per row) and a few scalars."""
+    f = _scalar_fn(6, np.hstack([np.zeros((3, 3)), np.eye(3)]), True)
+    muls = sum(f.instruction_id(k) == ca.OP_MUL for k in range(f.n_instructions()))
+    assert muls <= 3 * (21 + 6 + 6)

@@ -228,16 +228,16 @@ def test_gravity_update_keeps_P_spd_at_vertical_pitch():
     toward the measured direction (no Euler singularity in this measurement)."""
     from generator.npquat import rotmat
     p = _vec_params()
-    fu = M.update_gravity_function(p)
+    fu, fi = M.update_gravity_function(p), M.inject_function()
     q = q_from_euler(0.0, np.pi / 2, 0.3)
     P = np.diag([0.01] * 3 + [1e-4] * 3)
     q_true = q_from_euler(0.0, np.pi / 2 - 0.1, 0.3)
     a_lp = rotmat(q_true).T @ np.array([0.0, 0.0, -9.81])
     a_lp_n = rotmat(q) @ a_lp                       # the kernel takes the earth-frame low-pass
-    r = fu(q, np.zeros(3), P.ravel(), a_lp_n, np.zeros(3), 0.01, [1.0, 0.0])
-    assert float(r[3]) > M.S_PIVOT_MIN
-    q_new = np.array(r[0]).ravel()
-    P_new = np.array(r[2]).reshape(6, 6)
+    x, P_new, piv = fu(q, P.ravel(), a_lp_n)
+    assert float(piv) > M.S_PIVOT_MIN
+    q_new = np.array(fi(q, np.zeros(3), x)[0]).ravel()
+    P_new = np.array(P_new).reshape(6, 6)
     up = lambda qq: rotmat(qq)[2]
     assert np.linalg.norm(up(q_new) - up(q_true)) < 0.5 * np.linalg.norm(up(q) - up(q_true))
     assert np.min(np.linalg.eigvalsh(P_new)) > 0

@@ -257,8 +257,10 @@ def heading_features_function(name="heading_features") -> ca.Function:
 
 
 def gravity_direction(q, dq):
-    """Body-axis direction of the specific force at rest seen from normalise(q̂ ⊗ [1, δq])."""
-    return quat.rotate_inv(quat.qnormalize(quat.qmul(q, quat.vec(1, dq[0], dq[1], dq[2]))), ca.DM(UP_NED))
+    """Body-axis direction of the specific force at rest seen from normalise(q̂ ⊗ [1, δq]):
+    R(q̂ ⊗ δ)ᵀ u = R(δ)ᵀ (R(q̂)ᵀ u), written in that order so that its Jacobian in δq
+    (taken at δq = 0) works on the 3-vector R(q̂)ᵀ u, not through q̂'s normalisation."""
+    return quat.rotate_inv(quat.qnormalize(quat.vec(1, dq[0], dq[1], dq[2])), quat.rotate_inv(q, ca.DM(UP_NED)))
 
 
 def heading_of_error(q, dq):
@@ -284,26 +286,44 @@ def _inject(q, b, X):
 
 
 def update_gravity_function(p: dict, name="update_gravity") -> ca.Function:
-    """Gravity direction (3 rows) and, at rest, the gyro bias (3 rows), masked.
+    """Gravity direction, 3 scalar rows in turn (kalman.scalar_updates).
 
     z_g = up/|up| in body axes − R(q̂)ᵀ [0, 0, −1] (up: accel_lowpass's earth-frame vector); R_g = σ² min(1 + |z_g|²/(3σ)², cap)
     (bounded residual adaptation: the correction can be weakened, never locked out).
-    z_b = gyro − b̂ (at rest the gyro reads its bias), R_b = σ_g²/dt (one sample's noise).
+    Returns the error-state correction x (applied by `inject` once every row is in), P⁺
+    and the smallest row variance (the batch S's smallest Cholesky pivot).
     """
-    q, b, Pv, up, gyro = (ca.SX.sym(n, k) for n, k in (("q", 4), ("b", 3), ("P", N * N), ("up", 3), ("gyro", 3)))
-    dt, mask = ca.SX.sym("dt"), ca.SX.sym("mask", 2)       # [gravity rows, bias rows]
+    q, Pv, up = (ca.SX.sym(n, k) for n, k in (("q", 4), ("P", N * N), ("up", 3)))
     d = quat.rotate_inv(q, up) / ca.sqrt(ca.sumsqr(up))
     z_g = d - gravity_direction(q, ca.DM.zeros(3))
     sig2 = p["accel_angle_noise"] ** 2
     r_g = sig2 * ca.fmin(1 + ca.sumsqr(z_g) / (9 * sig2), p["accel_adapt_cap"])
+    H = jacobian_gravity(q)
+    x, P_new, min_pivot = kalman.scalar_updates(sym_lower(Pv), [(H[i, :], z_g[i], r_g) for i in range(3)],
+                                                tol=S_PIVOT_MIN)
+    return emit.function(name, {"q": q, "P": Pv, "up": up},
+                         {"x_out": x, "P_out": flat_mirrored(P_new), "min_pivot": min_pivot})
+
+
+def update_rest_bias_function(p: dict, name="update_rest_bias") -> ca.Function:
+    """At rest the gyro reads its bias: z_b = gyro − b̂, H = [0 I], R_b = σ_g²/dt (one
+    sample's noise), 3 scalar rows after the gravity rows (x: their correction, 0 without)."""
+    b, Pv, gyro, x = (ca.SX.sym(n, k) for n, k in (("b", 3), ("P", N * N), ("gyro", 3), ("x", N)))
+    dt = ca.SX.sym("dt")
     r_b = p["gyro_noise"] ** 2 / ca.fmax(dt, DT_Q_MIN)
-    H = ca.vertcat(jacobian_gravity(q), ca.horzcat(ca.SX.zeros(3, 3), ca.SX.eye(3)))
-    z = ca.vertcat(z_g, gyro - b)
-    Hm, zm, R = kalman.mask_rows(H, z, [r_g] * 3 + [r_b] * 3, [mask[0]] * 3 + [mask[1]] * 3)
-    X, P_new, min_pivot = kalman.update(sym_lower(Pv), Hm, zm, R, S_PIVOT_MIN, symmetrize=False)
-    q_new, b_new = _inject(q, b, X)
-    return emit.function(name, {"q": q, "b": b, "P": Pv, "up": up, "gyro": gyro, "dt": dt, "mask": mask},
-                         {"q_out": q_new, "b_out": b_new, "P_out": flat_mirrored(P_new), "min_pivot": min_pivot})
+    H = ca.horzcat(ca.SX.zeros(3, 3), ca.SX.eye(3))
+    z = gyro - b
+    x_new, P_new, min_pivot = kalman.scalar_updates(sym_lower(Pv), [(H[i, :], z[i], r_b) for i in range(3)],
+                                                    x=x, tol=S_PIVOT_MIN)
+    return emit.function(name, {"b": b, "P": Pv, "gyro": gyro, "dt": dt, "x": x},
+                         {"x_out": x_new, "P_out": flat_mirrored(P_new), "min_pivot": min_pivot})
+
+
+def inject_function(name="inject") -> ca.Function:
+    """Error injection and reset: q ← normalise(q ⊗ [1, x_δq]), b ← b + x_δb."""
+    q, b, x = ca.SX.sym("q", 4), ca.SX.sym("b", 3), ca.SX.sym("x", N)
+    q_new, b_new = _inject(q, b, x)
+    return emit.function(name, {"q": q, "b": b, "x": x}, {"q_out": q_new, "b_out": b_new})
 
 
 def update_heading_function(p: dict, name="update_heading") -> ca.Function:
@@ -414,7 +434,9 @@ class Model(FilterModel):
                 KernelSpec("predict", predict_function(p), "time update"),
                 KernelSpec("accel_lowpass", accel_lowpass_function(p), "earth-frame low-pass of the compensated specific force"),
                 KernelSpec("heading_features", heading_features_function(), "field norm and dip; GPS velocity in body axes"),
-                KernelSpec("update_gravity", update_gravity_function(p), "gravity direction and rest bias rows (masked)"),
+                KernelSpec("update_gravity", update_gravity_function(p), "gravity direction: three scalar rows"),
+                KernelSpec("update_rest_bias", update_rest_bias_function(p), "at rest, the gyro bias: three scalar rows"),
+                KernelSpec("inject", inject_function(), "error injection into q and the gyro bias"),
                 KernelSpec("update_heading", update_heading_function(p), "one heading row, gain projected on the vertical"),
                 KernelSpec("init_attitude", init_vectors_function(p), "first attitude and low-pass state"),
             ]
@@ -427,7 +449,10 @@ class Model(FilterModel):
     def step_paths(self) -> dict[str, list[str]]:
         if self.vectors:
             return {"gyro only": ["predict"],
-                    "with corrections": ["predict", "heading_features", "accel_lowpass", "update_gravity", "update_heading"]}
+                    "with corrections": ["predict", "heading_features", "accel_lowpass", "update_gravity", "inject",
+                                         "update_heading"],
+                    "at rest": ["predict", "heading_features", "accel_lowpass", "update_gravity", "update_rest_bias",
+                                "inject", "update_heading"]}
         return {"gyro only": ["predict"], "with corrections": ["predict", "update"]}
 
     def template_context(self) -> dict:
