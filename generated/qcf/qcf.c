@@ -1020,97 +1020,10 @@ static void qcf_k_mag_check(const float q[4], const float accel_lp[3], const flo
     *mag_learn_time_new = tmp107;
 }
 
-/* centripetal acceleration now: R(q)(w - b) x v_gps (NED, m/s^2)
- * ops: add 38, mul 34, div 2, sqrt 1, cmp 3 (total 78) */
-static void qcf_k_motion_accel(const float q[4], const float gyro[3], const float gyro_bias[3], const float gps_vel_hist[21], float motion_accel_now[3])
-{
-    const float tmp0 = q[2] * q[2];
-    const float tmp1 = q[3] * q[3];
-    const float tmp2 = tmp0 + tmp1;
-    const float tmp3 = tmp2 + tmp2;
-    const float tmp4 = 1.0f - tmp3;
-    const float tmp5 = gps_vel_hist[18] * tmp4;
-    const float tmp6 = q[1] * q[2];
-    const float tmp7 = q[0] * q[3];
-    const float tmp8 = tmp6 + tmp7;
-    const float tmp9 = tmp8 + tmp8;
-    const float tmp10 = gps_vel_hist[19] * tmp9;
-    const float tmp11 = tmp5 + tmp10;
-    const float tmp12 = q[1] * q[3];
-    const float tmp13 = q[0] * q[2];
-    const float tmp14 = tmp12 - tmp13;
-    const float tmp15 = tmp14 + tmp14;
-    const float tmp16 = gps_vel_hist[20] * tmp15;
-    const float tmp17 = tmp11 + tmp16;
-    const float tmp18 = gps_vel_hist[18] * gps_vel_hist[18];
-    const float tmp19 = gps_vel_hist[19] * gps_vel_hist[19];
-    const float tmp20 = tmp18 + tmp19;
-    const float tmp21 = gps_vel_hist[20] * gps_vel_hist[20];
-    const float tmp22 = tmp20 + tmp21;
-    const float tmp23 = (tmp22 > 1e-06f) ? tmp22 : 1e-06f;
-    const float tmp24 = 1.0f / tmp23;
-    const float tmp25 = sqrtf(tmp24);
-    const float tmp26 = tmp17 * tmp25;
-    const float tmp27 = tmp26 - 0.7f;
-    const float tmp28 = tmp27 / 0.3f;
-    const float tmp29 = (tmp28 > 0.0f) ? tmp28 : 0.0f;
-    const float tmp30 = (tmp29 < 1.0f) ? tmp29 : 1.0f;
-    const float tmp31 = gyro[0] - gyro_bias[0];
-    const float tmp32 = tmp9 * tmp31;
-    const float tmp33 = q[1] * q[1];
-    const float tmp34 = tmp33 + tmp1;
-    const float tmp35 = tmp34 + tmp34;
-    const float tmp36 = 1.0f - tmp35;
-    const float tmp37 = gyro[1] - gyro_bias[1];
-    const float tmp38 = tmp36 * tmp37;
-    const float tmp39 = tmp32 + tmp38;
-    const float tmp40 = q[2] * q[3];
-    const float tmp41 = q[0] * q[1];
-    const float tmp42 = tmp40 - tmp41;
-    const float tmp43 = tmp42 + tmp42;
-    const float tmp44 = gyro[2] - gyro_bias[2];
-    const float tmp45 = tmp43 * tmp44;
-    const float tmp46 = tmp39 + tmp45;
-    const float tmp47 = tmp46 * gps_vel_hist[20];
-    const float tmp48 = tmp15 * tmp31;
-    const float tmp49 = tmp40 + tmp41;
-    const float tmp50 = tmp49 + tmp49;
-    const float tmp51 = tmp50 * tmp37;
-    const float tmp52 = tmp48 + tmp51;
-    const float tmp53 = tmp33 + tmp0;
-    const float tmp54 = tmp53 + tmp53;
-    const float tmp55 = 1.0f - tmp54;
-    const float tmp56 = tmp55 * tmp44;
-    const float tmp57 = tmp52 + tmp56;
-    const float tmp58 = tmp57 * gps_vel_hist[19];
-    const float tmp59 = tmp47 - tmp58;
-    const float tmp60 = tmp30 * tmp59;
-    const float tmp61 = tmp57 * gps_vel_hist[18];
-    const float tmp62 = tmp4 * tmp31;
-    const float tmp63 = tmp6 - tmp7;
-    const float tmp64 = tmp63 + tmp63;
-    const float tmp65 = tmp64 * tmp37;
-    const float tmp66 = tmp62 + tmp65;
-    const float tmp67 = tmp12 + tmp13;
-    const float tmp68 = tmp67 + tmp67;
-    const float tmp69 = tmp68 * tmp44;
-    const float tmp70 = tmp66 + tmp69;
-    const float tmp71 = tmp70 * gps_vel_hist[20];
-    const float tmp72 = tmp61 - tmp71;
-    const float tmp73 = tmp30 * tmp72;
-    const float tmp74 = tmp70 * gps_vel_hist[19];
-    const float tmp75 = tmp46 * gps_vel_hist[18];
-    const float tmp76 = tmp74 - tmp75;
-    const float tmp77 = tmp30 * tmp76;
-    motion_accel_now[0] = tmp60;
-    motion_accel_now[1] = tmp73;
-    motion_accel_now[2] = tmp77;
-}
-
-/* accelerometer minus the GPS motion acceleration when ||f| - g| exceeds the threshold
- * ops: add 33, mul 21, sqrt 1, cmp 4 (total 59)
- *      of which only one side runs: if (0.3f < tmp7) 48, else 0 */
-static void qcf_k_gravity_part(const float accel[3], const float q[4], const float motion_accel[3], float accel_gravity[3])
+/* accelerometer minus the GPS motion acceleration when ||f| - g| exceeds the threshold (centripetal: R(q)(w - b) x v_gps, computed only then)
+ * ops: add 50, mul 46, div 2, sqrt 2, cmp 7 (total 107)
+ *      of which only one side runs: if (0.3f < tmp7) 96, else 0 */
+static void qcf_k_gravity_part(const float accel[3], const float q[4], const float gyro[3], const float gyro_bias[3], const float gps_vel_hist[21], float accel_gravity[3])
 {
     const float tmp0 = accel[0] * accel[0];
     const float tmp1 = accel[1] * accel[1];
@@ -1129,52 +1042,100 @@ static void qcf_k_gravity_part(const float accel[3], const float q[4], const flo
         const float tmp13 = tmp11 + tmp12;
         const float tmp14 = tmp13 + tmp13;
         const float tmp15 = 1.0f - tmp14;
-        const float tmp16 = tmp15 * motion_accel[0];
+        const float tmp16 = gps_vel_hist[18] * tmp15;
         const float tmp17 = q[1] * q[2];
         const float tmp18 = q[0] * q[3];
         const float tmp19 = tmp17 + tmp18;
         const float tmp20 = tmp19 + tmp19;
-        const float tmp21 = tmp20 * motion_accel[1];
+        const float tmp21 = gps_vel_hist[19] * tmp20;
         const float tmp22 = tmp16 + tmp21;
         const float tmp23 = q[1] * q[3];
         const float tmp24 = q[0] * q[2];
         const float tmp25 = tmp23 - tmp24;
         const float tmp26 = tmp25 + tmp25;
-        const float tmp27 = tmp26 * motion_accel[2];
+        const float tmp27 = gps_vel_hist[20] * tmp26;
         const float tmp28 = tmp22 + tmp27;
-        const float tmp29 = accel[0] - tmp28;
-        const float tmp30 = tmp17 - tmp18;
-        const float tmp31 = tmp30 + tmp30;
-        const float tmp32 = tmp31 * motion_accel[0];
-        const float tmp33 = q[1] * q[1];
-        const float tmp34 = tmp33 + tmp12;
-        const float tmp35 = tmp34 + tmp34;
-        const float tmp36 = 1.0f - tmp35;
-        const float tmp37 = tmp36 * motion_accel[1];
-        const float tmp38 = tmp32 + tmp37;
-        const float tmp39 = q[2] * q[3];
-        const float tmp40 = q[0] * q[1];
-        const float tmp41 = tmp39 + tmp40;
-        const float tmp42 = tmp41 + tmp41;
-        const float tmp43 = tmp42 * motion_accel[2];
-        const float tmp44 = tmp38 + tmp43;
-        const float tmp45 = accel[1] - tmp44;
-        const float tmp46 = tmp23 + tmp24;
-        const float tmp47 = tmp46 + tmp46;
-        const float tmp48 = tmp47 * motion_accel[0];
-        const float tmp49 = tmp39 - tmp40;
-        const float tmp50 = tmp49 + tmp49;
-        const float tmp51 = tmp50 * motion_accel[1];
-        const float tmp52 = tmp48 + tmp51;
-        const float tmp53 = tmp33 + tmp11;
+        const float tmp29 = gps_vel_hist[18] * gps_vel_hist[18];
+        const float tmp30 = gps_vel_hist[19] * gps_vel_hist[19];
+        const float tmp31 = tmp29 + tmp30;
+        const float tmp32 = gps_vel_hist[20] * gps_vel_hist[20];
+        const float tmp33 = tmp31 + tmp32;
+        const float tmp34 = (tmp33 > 1e-06f) ? tmp33 : 1e-06f;
+        const float tmp35 = 1.0f / tmp34;
+        const float tmp36 = sqrtf(tmp35);
+        const float tmp37 = tmp28 * tmp36;
+        const float tmp38 = tmp37 - 0.7f;
+        const float tmp39 = tmp38 / 0.3f;
+        const float tmp40 = (tmp39 > 0.0f) ? tmp39 : 0.0f;
+        const float tmp41 = (tmp40 < 1.0f) ? tmp40 : 1.0f;
+        const float tmp42 = gyro[0] - gyro_bias[0];
+        const float tmp43 = tmp20 * tmp42;
+        const float tmp44 = q[1] * q[1];
+        const float tmp45 = tmp44 + tmp12;
+        const float tmp46 = tmp45 + tmp45;
+        const float tmp47 = 1.0f - tmp46;
+        const float tmp48 = gyro[1] - gyro_bias[1];
+        const float tmp49 = tmp47 * tmp48;
+        const float tmp50 = tmp43 + tmp49;
+        const float tmp51 = q[2] * q[3];
+        const float tmp52 = q[0] * q[1];
+        const float tmp53 = tmp51 - tmp52;
         const float tmp54 = tmp53 + tmp53;
-        const float tmp55 = 1.0f - tmp54;
-        const float tmp56 = tmp55 * motion_accel[2];
-        const float tmp57 = tmp52 + tmp56;
-        const float tmp58 = accel[2] - tmp57;
-        tmp8 = tmp29;
-        tmp9 = tmp45;
-        tmp10 = tmp58;
+        const float tmp55 = gyro[2] - gyro_bias[2];
+        const float tmp56 = tmp54 * tmp55;
+        const float tmp57 = tmp50 + tmp56;
+        const float tmp58 = tmp57 * gps_vel_hist[20];
+        const float tmp59 = tmp26 * tmp42;
+        const float tmp60 = tmp51 + tmp52;
+        const float tmp61 = tmp60 + tmp60;
+        const float tmp62 = tmp61 * tmp48;
+        const float tmp63 = tmp59 + tmp62;
+        const float tmp64 = tmp44 + tmp11;
+        const float tmp65 = tmp64 + tmp64;
+        const float tmp66 = 1.0f - tmp65;
+        const float tmp67 = tmp66 * tmp55;
+        const float tmp68 = tmp63 + tmp67;
+        const float tmp69 = tmp68 * gps_vel_hist[19];
+        const float tmp70 = tmp58 - tmp69;
+        const float tmp71 = tmp41 * tmp70;
+        const float tmp72 = tmp15 * tmp71;
+        const float tmp73 = tmp68 * gps_vel_hist[18];
+        const float tmp74 = tmp15 * tmp42;
+        const float tmp75 = tmp17 - tmp18;
+        const float tmp76 = tmp75 + tmp75;
+        const float tmp77 = tmp76 * tmp48;
+        const float tmp78 = tmp74 + tmp77;
+        const float tmp79 = tmp23 + tmp24;
+        const float tmp80 = tmp79 + tmp79;
+        const float tmp81 = tmp80 * tmp55;
+        const float tmp82 = tmp78 + tmp81;
+        const float tmp83 = tmp82 * gps_vel_hist[20];
+        const float tmp84 = tmp73 - tmp83;
+        const float tmp85 = tmp41 * tmp84;
+        const float tmp86 = tmp20 * tmp85;
+        const float tmp87 = tmp72 + tmp86;
+        const float tmp88 = tmp82 * gps_vel_hist[19];
+        const float tmp89 = tmp57 * gps_vel_hist[18];
+        const float tmp90 = tmp88 - tmp89;
+        const float tmp91 = tmp41 * tmp90;
+        const float tmp92 = tmp26 * tmp91;
+        const float tmp93 = tmp87 + tmp92;
+        const float tmp94 = accel[0] - tmp93;
+        const float tmp95 = tmp76 * tmp71;
+        const float tmp96 = tmp47 * tmp85;
+        const float tmp97 = tmp95 + tmp96;
+        const float tmp98 = tmp61 * tmp91;
+        const float tmp99 = tmp97 + tmp98;
+        const float tmp100 = accel[1] - tmp99;
+        const float tmp101 = tmp80 * tmp71;
+        const float tmp102 = tmp54 * tmp85;
+        const float tmp103 = tmp101 + tmp102;
+        const float tmp104 = tmp66 * tmp91;
+        const float tmp105 = tmp103 + tmp104;
+        const float tmp106 = accel[2] - tmp105;
+        tmp8 = tmp94;
+        tmp9 = tmp100;
+        tmp10 = tmp106;
     } else {
         tmp8 = accel[0];
         tmp9 = accel[1];
@@ -1471,9 +1432,7 @@ qcf_status qcf_step(qcf_state *s, const qcf_input *in, float dt)
     if (use_accel) {
         /* centripetal acceleration of the latest GPS velocity turning with the body */
         if (QCF_GPS_COMPENSATION && s->gps_count >= 1u && s->gps_age <= QCF_GPS_TIMEOUT) {
-            float accel_now[3];
-            qcf_k_motion_accel(s->q, in->gyro, s->gyro_bias, s->gps_vel_hist, accel_now);
-            qcf_k_gravity_part(in->accel, s->q, accel_now, accel_g);
+            qcf_k_gravity_part(in->accel, s->q, in->gyro, s->gyro_bias, s->gps_vel_hist, accel_g);
         }
     }
     if (s->initialised == 0u) {

@@ -101,10 +101,6 @@ class Model(FilterModel):
         a_n = ca.SX.sym("motion_accel", 3)
         hist = ca.SX.sym("gps_vel_hist", 3 * GPS_TAPS)
 
-        # Gravity part of the specific force (section 3.2): f_b = R^T (a_n - g_n).
-        excess = ca.fabs(ca.sqrt(ca.sumsqr(f)) - G0) > p["motion_accel_threshold"]
-        f_g = ca.if_else(excess, f - quat.rotate_inv(q, a_n), f)
-
         # PI feedback and integration (eqs. 13, 14, 9, 7).
         q_err = quat.qmul(quat.qconj(q), q_ref)
         q_err = ca.if_else(q_err[0] < 0, -q_err, q_err)
@@ -117,22 +113,24 @@ class Model(FilterModel):
         acc = sum(c[i - 1] * (V[3 + i] - V[3 - i]) for i in (1, 2, 3)) / (2 * p["gps_period"])
 
         kernels = self.product_kernels() if self.product else []
-        if p["motion_accel_model"] != "differentiator":
-            v = hist[3 * (GPS_TAPS - 1):]                       # latest GPS velocity
+        # Gravity part of the specific force (section 3.2): f_b = R^T (a_n - g_n).
+        excess = ca.fabs(ca.sqrt(ca.sumsqr(f)) - G0) > p["motion_accel_threshold"]
+        if p["motion_accel_model"] == "differentiator":
+            gravity_in = {"accel": f, "q": q, "motion_accel": a_n}
+            f_g = ca.if_else(excess, f - quat.rotate_inv(q, a_n), f)
+        else:
+            # The centripetal acceleration a_c = R(q)(w - b) x v_n of the latest GPS velocity,
+            # computed inside the excess branch only (skipped while |f| is close to g).
+            v = hist[3 * (GPS_TAPS - 1):]
             a_c = ca.cross(quat.rotate(q, gyro - bias), v)
             if self.product and p["centripetal_align"] < 1:
                 # the velocity turns with the body only if the body flies along it (fixed-wing):
                 # weight 1 when v is along body x, ramping to 0 at cos(angle) = centripetal_align
                 c0 = p["centripetal_align"]
-                v2 = ca.sumsqr(v)
-                along = ca.dot(v, quat.rotate(q, ca.DM([1.0, 0.0, 0.0]))) * ca.sqrt(1 / ca.fmax(v2, 1e-6))
-                w_c = ca.fmin(ca.fmax((along - c0) / (1 - c0), 0.0), 1.0)
-                a_c = w_c * a_c
-            kernels.append(KernelSpec(
-                "motion_accel", function("motion_accel", {"q": q, "gyro": gyro, "gyro_bias": bias,
-                                                          "gps_vel_hist": hist},
-                                         {"motion_accel_now": a_c}),
-                "centripetal acceleration now: R(q)(w - b) x v_gps (NED, m/s^2)"))
+                along = ca.dot(v, quat.rotate(q, ca.DM([1.0, 0.0, 0.0]))) * ca.sqrt(1 / ca.fmax(ca.sumsqr(v), 1e-6))
+                a_c = ca.fmin(ca.fmax((along - c0) / (1 - c0), 0.0), 1.0) * a_c
+            gravity_in = {"accel": f, "q": q, "gyro": gyro, "gyro_bias": bias, "gps_vel_hist": hist}
+            f_g = ca.if_else(excess, f - quat.rotate_inv(q, a_c), f)
         paper = [] if self.product else [
             KernelSpec("reference", function("reference", {"accel": f, "mag": m},
                                              {"q_ref": attitude.fqa(f, m, p["declination"])}),
@@ -145,9 +143,10 @@ class Model(FilterModel):
                        "PI feedback on the error quaternion q^-1 (x) q_ref and integration (eqs. 13, 14, 9)"),
         ]
         return kernels + [
-            KernelSpec("gravity_part", function("gravity_part", {"accel": f, "q": q, "motion_accel": a_n},
-                                                {"accel_gravity": f_g}),
-                       "accelerometer minus the GPS motion acceleration when ||f| - g| exceeds the threshold"),
+            KernelSpec("gravity_part", function("gravity_part", gravity_in, {"accel_gravity": f_g}),
+                       "accelerometer minus the GPS motion acceleration when ||f| - g| exceeds the threshold" + (
+                           "" if p["motion_accel_model"] == "differentiator" else
+                           " (centripetal: R(q)(w - b) x v_gps, computed only then)")),
         ] + paper + [
             KernelSpec("propagate", function("propagate", {"q": q, "gyro_bias": bias, "gyro": gyro, "dt": dt},
                                              {"q_new": quat.integrate(q, gyro - bias, dt)}),
@@ -245,7 +244,7 @@ class Model(FilterModel):
 
     def step_paths(self):
         if self.product:
-            comp = ["gravity_part"] if self.params["motion_accel_model"] == "differentiator" else ["motion_accel", "gravity_part"]
+            comp = ["gravity_part"]
             extra = (["rest"] if self.params["rest_time"] > 0 else []) + (["mag_check"] if self.params["mag_rejection"] else [])
             return {
                 "full (accel+mag+GPS comp.)": comp + ["accel_lowpass"] + extra + ["correct"],
@@ -253,7 +252,7 @@ class Model(FilterModel):
                 "gyro only": ["propagate"],
                 **({"GPS sample (extra)": ["gps_accel"]} if self.params["motion_accel_model"] == "differentiator" else {}),
             }
-        comp = ["gravity_part"] if self.params["motion_accel_model"] == "differentiator" else ["motion_accel", "gravity_part"]
+        comp = ["gravity_part"]
         return {
             "full (accel+mag+GPS comp.)": comp + ["reference", "update"],
             "accel+mag": ["reference", "update"],
