@@ -372,434 +372,371 @@ static void qcf_k_heading_init(const float q[4], const float mag[3], float q_new
 }
 
 /* low-pass of the specific force in NED, R(q) f (time constant accel_tau)
- * ops: add 34, mul 21, div 1 (total 56) */
-static void qcf_k_accel_lowpass(const float q[4], const float accel[3], const float accel_lp[3], float span, float accel_lp_new[3])
+ * ops: add 13, mul 12, div 1 (total 26) */
+static void qcf_k_accel_lowpass(const float rot[9], const float accel[3], const float accel_lp[3], float span, float accel_lp_new[3])
 {
     const float tmp0 = 1.0f + span;
     const float tmp1 = span / tmp0;
-    const float tmp2 = q[2] * q[2];
-    const float tmp3 = q[3] * q[3];
+    const float tmp2 = rot[0] * accel[0];
+    const float tmp3 = rot[3] * accel[1];
     const float tmp4 = tmp2 + tmp3;
-    const float tmp5 = tmp4 + tmp4;
-    const float tmp6 = 1.0f - tmp5;
-    const float tmp7 = tmp6 * accel[0];
-    const float tmp8 = q[1] * q[2];
-    const float tmp9 = q[0] * q[3];
-    const float tmp10 = tmp8 - tmp9;
-    const float tmp11 = tmp10 + tmp10;
-    const float tmp12 = tmp11 * accel[1];
-    const float tmp13 = tmp7 + tmp12;
-    const float tmp14 = q[1] * q[3];
-    const float tmp15 = q[0] * q[2];
-    const float tmp16 = tmp14 + tmp15;
-    const float tmp17 = tmp16 + tmp16;
-    const float tmp18 = tmp17 * accel[2];
-    const float tmp19 = tmp13 + tmp18;
-    const float tmp20 = tmp19 - accel_lp[0];
-    const float tmp21 = tmp1 * tmp20;
-    const float tmp22 = accel_lp[0] + tmp21;
-    const float tmp23 = tmp8 + tmp9;
-    const float tmp24 = tmp23 + tmp23;
-    const float tmp25 = tmp24 * accel[0];
-    const float tmp26 = q[1] * q[1];
-    const float tmp27 = tmp26 + tmp3;
-    const float tmp28 = tmp27 + tmp27;
-    const float tmp29 = 1.0f - tmp28;
-    const float tmp30 = tmp29 * accel[1];
-    const float tmp31 = tmp25 + tmp30;
-    const float tmp32 = q[2] * q[3];
-    const float tmp33 = q[0] * q[1];
-    const float tmp34 = tmp32 - tmp33;
-    const float tmp35 = tmp34 + tmp34;
-    const float tmp36 = tmp35 * accel[2];
-    const float tmp37 = tmp31 + tmp36;
-    const float tmp38 = tmp37 - accel_lp[1];
-    const float tmp39 = tmp1 * tmp38;
-    const float tmp40 = accel_lp[1] + tmp39;
-    const float tmp41 = tmp14 - tmp15;
-    const float tmp42 = tmp41 + tmp41;
-    const float tmp43 = tmp42 * accel[0];
-    const float tmp44 = tmp32 + tmp33;
-    const float tmp45 = tmp44 + tmp44;
-    const float tmp46 = tmp45 * accel[1];
-    const float tmp47 = tmp43 + tmp46;
-    const float tmp48 = tmp26 + tmp2;
-    const float tmp49 = tmp48 + tmp48;
-    const float tmp50 = 1.0f - tmp49;
-    const float tmp51 = tmp50 * accel[2];
-    const float tmp52 = tmp47 + tmp51;
-    const float tmp53 = tmp52 - accel_lp[2];
-    const float tmp54 = tmp1 * tmp53;
-    const float tmp55 = accel_lp[2] + tmp54;
-    accel_lp_new[0] = tmp22;
-    accel_lp_new[1] = tmp40;
-    accel_lp_new[2] = tmp55;
+    const float tmp5 = rot[6] * accel[2];
+    const float tmp6 = tmp4 + tmp5;
+    const float tmp7 = tmp6 - accel_lp[0];
+    const float tmp8 = tmp1 * tmp7;
+    const float tmp9 = accel_lp[0] + tmp8;
+    const float tmp10 = rot[1] * accel[0];
+    const float tmp11 = rot[4] * accel[1];
+    const float tmp12 = tmp10 + tmp11;
+    const float tmp13 = rot[7] * accel[2];
+    const float tmp14 = tmp12 + tmp13;
+    const float tmp15 = tmp14 - accel_lp[1];
+    const float tmp16 = tmp1 * tmp15;
+    const float tmp17 = accel_lp[1] + tmp16;
+    const float tmp18 = rot[2] * accel[0];
+    const float tmp19 = rot[5] * accel[1];
+    const float tmp20 = tmp18 + tmp19;
+    const float tmp21 = rot[8] * accel[2];
+    const float tmp22 = tmp20 + tmp21;
+    const float tmp23 = tmp22 - accel_lp[2];
+    const float tmp24 = tmp1 * tmp23;
+    const float tmp25 = accel_lp[2] + tmp24;
+    accel_lp_new[0] = tmp9;
+    accel_lp_new[1] = tmp17;
+    accel_lp_new[2] = tmp25;
 }
 
 /* tilt (low-passed accelerometer) and heading (magnetometer) corrections as PI feedback, bias integral gated, bias at rest from the low-passed gyro, integration (eq. 9)
- * ops: add 106, mul 117, div 10, sqrt 7, trig 2, cmp 32 (total 274)
- *      of which only one side runs: if (tmp15 < 1e-06f) 0, else 33
- *      of which only one side runs: if (tmp122 < 1e-30f) 0, else 24
- *      of which only one side runs: if (tmp174 < 0.01f) 16, else 5
+ * ops: add 85, mul 108, div 10, sqrt 7, trig 2, cmp 32 (total 244)
+ *      of which only one side runs: if (tmp10 < 1e-06f) 0, else 26
+ *      of which only one side runs: if (tmp99 < 1e-30f) 0, else 17
+ *      of which only one side runs: if (tmp144 < 0.01f) 16, else 5
  *      of which only one side runs: if (at_rest != 0.0f) 11, else 19 */
-static void qcf_k_correct_part0(const float q[4], const float gyro_bias[3], const float gyro[3], float dt, const float accel_lp[3], const float mag[3], float span_accel, float span_mag, float carry0[10])
+static void qcf_k_correct_part0(const float q[4], const float rot[9], const float gyro_bias[3], const float gyro[3], float dt, const float accel_lp[3], const float mag[3], float span_accel, float span_mag, float carry0[7])
 {
     const float tmp0 = gyro[0] - gyro_bias[0];
     const float tmp1 = tmp0 * dt;
-    const float tmp2 = q[2] * q[2];
-    const float tmp3 = q[3] * q[3];
+    const float tmp2 = accel_lp[0] * accel_lp[0];
+    const float tmp3 = accel_lp[1] * accel_lp[1];
     const float tmp4 = tmp2 + tmp3;
-    const float tmp5 = tmp4 + tmp4;
-    const float tmp6 = 1.0f - tmp5;
-    const float tmp7 = accel_lp[0] * accel_lp[0];
-    const float tmp8 = accel_lp[1] * accel_lp[1];
-    const float tmp9 = tmp7 + tmp8;
-    const float tmp10 = accel_lp[2] * accel_lp[2];
-    const float tmp11 = tmp9 + tmp10;
-    const float tmp12 = 1.0f / tmp11;
-    const float tmp13 = sqrtf(tmp12);
-    const float tmp14 = accel_lp[2] * tmp13;
-    const float tmp15 = 1.0f - tmp14;
-    const float tmp16 = q[1] * q[2];
-    const float tmp17 = q[0] * q[3];
-    const float tmp18 = q[1] * q[3];
-    const float tmp19 = q[0] * q[2];
-    const float tmp20 = gyro[1] - gyro_bias[1];
-    const float tmp21 = tmp20 * dt;
-    const float tmp22 = tmp16 - tmp17;
-    const float tmp23 = tmp22 + tmp22;
-    const float tmp24 = q[1] * q[1];
-    const float tmp25 = q[2] * q[3];
-    const float tmp26 = q[0] * q[1];
-    float tmp27;
-    float tmp28;
-    float tmp29;
-    float tmp30;
-    float tmp31;
-    float tmp32;
-    float tmp33;
-    float tmp34;
-    float tmp35;
-    float tmp36;
-    float tmp37;
-    float tmp38;
-    if (tmp15 < 1e-06f) {
-        tmp27 = 1.0f;
-        tmp28 = 0.0f;
-        tmp29 = 0.0f;
-        tmp30 = 0.0f;
-        tmp31 = 0.0f;
-        tmp32 = 0.0f;
-        tmp33 = 0.0f;
-        tmp34 = 0.0f;
-        tmp35 = 0.0f;
-        tmp36 = 0.0f;
-        tmp37 = 0.0f;
-        tmp38 = 0.0f;
+    const float tmp5 = accel_lp[2] * accel_lp[2];
+    const float tmp6 = tmp4 + tmp5;
+    const float tmp7 = 1.0f / tmp6;
+    const float tmp8 = sqrtf(tmp7);
+    const float tmp9 = accel_lp[2] * tmp8;
+    const float tmp10 = 1.0f - tmp9;
+    float tmp11;
+    float tmp12;
+    float tmp13;
+    float tmp14;
+    float tmp15;
+    float tmp16;
+    float tmp17;
+    float tmp18;
+    float tmp19;
+    float tmp20;
+    float tmp21;
+    float tmp22;
+    if (tmp10 < 1e-06f) {
+        tmp11 = 1.0f;
+        tmp12 = 0.0f;
+        tmp13 = 0.0f;
+        tmp14 = 0.0f;
+        tmp15 = 0.0f;
+        tmp16 = 0.0f;
+        tmp17 = 0.0f;
+        tmp18 = 0.0f;
+        tmp19 = 0.0f;
+        tmp20 = 0.0f;
+        tmp21 = 0.0f;
+        tmp22 = 0.0f;
     } else {
-        const float tmp39 = accel_lp[1] * tmp13;
-        const float tmp40 = tmp15 * tmp15;
-        const float tmp41 = accel_lp[0] * tmp13;
-        const float tmp42 = tmp41 * tmp41;
-        const float tmp43 = tmp40 + tmp42;
-        const float tmp44 = tmp39 * tmp39;
-        const float tmp45 = tmp43 + tmp44;
-        const float tmp46 = (tmp45 > 1e-12f) ? tmp45 : 1e-12f;
-        const float tmp47 = 1.0f / tmp46;
-        const float tmp48 = sqrtf(tmp47);
-        const float tmp49 = tmp39 * tmp48;
-        const float tmp50 = -tmp49;
-        const float tmp51 = tmp16 + tmp17;
-        const float tmp52 = tmp51 + tmp51;
-        const float tmp53 = tmp41 * tmp48;
-        const float tmp54 = span_accel * tmp53;
-        const float tmp55 = tmp52 * tmp54;
-        const float tmp56 = tmp15 * tmp48;
-        const float tmp57 = tmp56 * q[2];
-        const float tmp58 = tmp53 * q[0];
-        const float tmp59 = tmp56 * q[3];
-        const float tmp60 = tmp53 * q[1];
-        const float tmp61 = tmp56 * q[1];
-        const float tmp62 = tmp53 * q[3];
-        const float tmp63 = tmp56 * q[0];
-        const float tmp64 = tmp53 * q[2];
-        const float tmp65 = tmp24 + tmp3;
-        const float tmp66 = tmp65 + tmp65;
-        const float tmp67 = 1.0f - tmp66;
-        const float tmp68 = tmp67 * tmp54;
-        const float tmp69 = tmp25 - tmp26;
-        const float tmp70 = tmp69 + tmp69;
-        const float tmp71 = tmp70 * tmp54;
-        tmp27 = tmp50;
-        tmp28 = tmp55;
-        tmp29 = tmp57;
-        tmp30 = tmp58;
-        tmp31 = tmp59;
-        tmp32 = tmp60;
-        tmp33 = tmp61;
-        tmp34 = tmp62;
-        tmp35 = tmp63;
-        tmp36 = tmp64;
-        tmp37 = tmp68;
-        tmp38 = tmp71;
+        const float tmp23 = accel_lp[1] * tmp8;
+        const float tmp24 = tmp10 * tmp10;
+        const float tmp25 = accel_lp[0] * tmp8;
+        const float tmp26 = tmp25 * tmp25;
+        const float tmp27 = tmp24 + tmp26;
+        const float tmp28 = tmp23 * tmp23;
+        const float tmp29 = tmp27 + tmp28;
+        const float tmp30 = (tmp29 > 1e-12f) ? tmp29 : 1e-12f;
+        const float tmp31 = 1.0f / tmp30;
+        const float tmp32 = sqrtf(tmp31);
+        const float tmp33 = tmp23 * tmp32;
+        const float tmp34 = -tmp33;
+        const float tmp35 = tmp25 * tmp32;
+        const float tmp36 = span_accel * tmp35;
+        const float tmp37 = rot[1] * tmp36;
+        const float tmp38 = tmp10 * tmp32;
+        const float tmp39 = tmp38 * q[2];
+        const float tmp40 = tmp35 * q[0];
+        const float tmp41 = tmp38 * q[3];
+        const float tmp42 = tmp35 * q[1];
+        const float tmp43 = tmp38 * q[1];
+        const float tmp44 = tmp35 * q[3];
+        const float tmp45 = tmp38 * q[0];
+        const float tmp46 = tmp35 * q[2];
+        const float tmp47 = rot[4] * tmp36;
+        const float tmp48 = rot[7] * tmp36;
+        tmp11 = tmp34;
+        tmp12 = tmp37;
+        tmp13 = tmp39;
+        tmp14 = tmp40;
+        tmp15 = tmp41;
+        tmp16 = tmp42;
+        tmp17 = tmp43;
+        tmp18 = tmp44;
+        tmp19 = tmp45;
+        tmp20 = tmp46;
+        tmp21 = tmp47;
+        tmp22 = tmp48;
     }
-    const float tmp72 = span_accel * tmp27;
-    const float tmp73 = tmp6 * tmp72;
-    const float tmp74 = tmp73 + tmp28;
-    const float tmp75 = tmp27 * q[3];
-    const float tmp76 = tmp29 - tmp75;
-    const float tmp77 = tmp76 + tmp30;
-    const float tmp78 = tmp77 * tmp77;
-    const float tmp79 = tmp27 * q[2];
-    const float tmp80 = tmp31 + tmp79;
-    const float tmp81 = tmp80 - tmp32;
+    const float tmp49 = span_accel * tmp11;
+    const float tmp50 = rot[0] * tmp49;
+    const float tmp51 = tmp50 + tmp12;
+    const float tmp52 = tmp11 * q[3];
+    const float tmp53 = tmp13 - tmp52;
+    const float tmp54 = tmp53 + tmp14;
+    const float tmp55 = tmp54 * tmp54;
+    const float tmp56 = tmp11 * q[2];
+    const float tmp57 = tmp15 + tmp56;
+    const float tmp58 = tmp57 - tmp16;
+    const float tmp59 = tmp58 * tmp58;
+    const float tmp60 = tmp55 + tmp59;
+    const float tmp61 = tmp60 + tmp60;
+    const float tmp62 = 1.0f - tmp61;
+    const float tmp63 = tmp62 * mag[0];
+    const float tmp64 = tmp11 * q[0];
+    const float tmp65 = tmp17 + tmp64;
+    const float tmp66 = tmp65 + tmp18;
+    const float tmp67 = tmp66 * tmp54;
+    const float tmp68 = tmp11 * q[1];
+    const float tmp69 = tmp19 - tmp68;
+    const float tmp70 = tmp69 - tmp20;
+    const float tmp71 = tmp70 * tmp58;
+    const float tmp72 = tmp67 - tmp71;
+    const float tmp73 = tmp72 + tmp72;
+    const float tmp74 = tmp73 * mag[1];
+    const float tmp75 = tmp63 + tmp74;
+    const float tmp76 = tmp66 * tmp58;
+    const float tmp77 = tmp70 * tmp54;
+    const float tmp78 = tmp76 + tmp77;
+    const float tmp79 = tmp78 + tmp78;
+    const float tmp80 = tmp79 * mag[2];
+    const float tmp81 = tmp75 + tmp80;
     const float tmp82 = tmp81 * tmp81;
-    const float tmp83 = tmp78 + tmp82;
+    const float tmp83 = tmp67 + tmp71;
     const float tmp84 = tmp83 + tmp83;
-    const float tmp85 = 1.0f - tmp84;
-    const float tmp86 = tmp85 * mag[0];
-    const float tmp87 = tmp27 * q[0];
-    const float tmp88 = tmp33 + tmp87;
-    const float tmp89 = tmp88 + tmp34;
-    const float tmp90 = tmp89 * tmp77;
-    const float tmp91 = tmp27 * q[1];
-    const float tmp92 = tmp35 - tmp91;
-    const float tmp93 = tmp92 - tmp36;
-    const float tmp94 = tmp93 * tmp81;
-    const float tmp95 = tmp90 - tmp94;
-    const float tmp96 = tmp95 + tmp95;
-    const float tmp97 = tmp96 * mag[1];
-    const float tmp98 = tmp86 + tmp97;
-    const float tmp99 = tmp89 * tmp81;
-    const float tmp100 = tmp93 * tmp77;
-    const float tmp101 = tmp99 + tmp100;
-    const float tmp102 = tmp101 + tmp101;
-    const float tmp103 = tmp102 * mag[2];
-    const float tmp104 = tmp98 + tmp103;
-    const float tmp105 = tmp104 * tmp104;
-    const float tmp106 = tmp90 + tmp94;
-    const float tmp107 = tmp106 + tmp106;
-    const float tmp108 = tmp107 * mag[0];
-    const float tmp109 = tmp89 * tmp89;
-    const float tmp110 = tmp109 + tmp82;
-    const float tmp111 = tmp110 + tmp110;
-    const float tmp112 = 1.0f - tmp111;
-    const float tmp113 = tmp112 * mag[1];
-    const float tmp114 = tmp108 + tmp113;
-    const float tmp115 = tmp77 * tmp81;
-    const float tmp116 = tmp93 * tmp89;
-    const float tmp117 = tmp115 - tmp116;
-    const float tmp118 = tmp117 + tmp117;
-    const float tmp119 = tmp118 * mag[2];
-    const float tmp120 = tmp114 + tmp119;
-    const float tmp121 = tmp120 * tmp120;
-    const float tmp122 = tmp105 + tmp121;
-    float tmp123;
-    float tmp124;
-    float tmp125;
-    if (tmp122 < 1e-30f) {
-        tmp123 = 0.0f;
-        tmp124 = 0.0f;
-        tmp125 = 0.0f;
+    const float tmp85 = tmp84 * mag[0];
+    const float tmp86 = tmp66 * tmp66;
+    const float tmp87 = tmp86 + tmp59;
+    const float tmp88 = tmp87 + tmp87;
+    const float tmp89 = 1.0f - tmp88;
+    const float tmp90 = tmp89 * mag[1];
+    const float tmp91 = tmp85 + tmp90;
+    const float tmp92 = tmp54 * tmp58;
+    const float tmp93 = tmp70 * tmp66;
+    const float tmp94 = tmp92 - tmp93;
+    const float tmp95 = tmp94 + tmp94;
+    const float tmp96 = tmp95 * mag[2];
+    const float tmp97 = tmp91 + tmp96;
+    const float tmp98 = tmp97 * tmp97;
+    const float tmp99 = tmp82 + tmp98;
+    float tmp100;
+    float tmp101;
+    float tmp102;
+    if (tmp99 < 1e-30f) {
+        tmp100 = 0.0f;
+        tmp101 = 0.0f;
+        tmp102 = 0.0f;
     } else {
-        const float tmp126 = tmp18 - tmp19;
-        const float tmp127 = tmp126 + tmp126;
-        const float tmp128 = (tmp122 > 1e-30f) ? tmp122 : 1e-30f;
-        const float tmp129 = 1.0f / tmp128;
-        const float tmp130 = sqrtf(tmp129);
-        const float tmp131 = tmp120 * tmp130;
-        const float tmp132 = -tmp131;
-        const float tmp133 = (tmp132 < 0.0f) ? (-1.0f) : 1.0f;
-        const float tmp134 = tmp104 * tmp130;
-        const float tmp135 = (tmp134 > (-1.0f)) ? tmp134 : (-1.0f);
-        const float tmp136 = (tmp135 < 1.0f) ? tmp135 : 1.0f;
-        const float tmp137 = 1.0f - tmp136;
-        const float tmp138 = tmp137 / 2.0f;
-        const float tmp139 = sqrtf(tmp138);
-        const float tmp140 = tmp133 * tmp139;
-        const float tmp141 = span_mag * tmp140;
-        const float tmp142 = tmp127 * tmp141;
-        const float tmp143 = tmp25 + tmp26;
-        const float tmp144 = tmp143 + tmp143;
-        const float tmp145 = tmp144 * tmp141;
-        const float tmp146 = tmp24 + tmp2;
-        const float tmp147 = tmp146 + tmp146;
-        const float tmp148 = 1.0f - tmp147;
-        const float tmp149 = tmp148 * tmp141;
-        tmp123 = tmp142;
-        tmp124 = tmp145;
-        tmp125 = tmp149;
+        const float tmp103 = (tmp99 > 1e-30f) ? tmp99 : 1e-30f;
+        const float tmp104 = 1.0f / tmp103;
+        const float tmp105 = sqrtf(tmp104);
+        const float tmp106 = tmp97 * tmp105;
+        const float tmp107 = -tmp106;
+        const float tmp108 = (tmp107 < 0.0f) ? (-1.0f) : 1.0f;
+        const float tmp109 = tmp81 * tmp105;
+        const float tmp110 = (tmp109 > (-1.0f)) ? tmp109 : (-1.0f);
+        const float tmp111 = (tmp110 < 1.0f) ? tmp110 : 1.0f;
+        const float tmp112 = 1.0f - tmp111;
+        const float tmp113 = tmp112 / 2.0f;
+        const float tmp114 = sqrtf(tmp113);
+        const float tmp115 = tmp108 * tmp114;
+        const float tmp116 = span_mag * tmp115;
+        const float tmp117 = rot[2] * tmp116;
+        const float tmp118 = rot[5] * tmp116;
+        const float tmp119 = rot[8] * tmp116;
+        tmp100 = tmp117;
+        tmp101 = tmp118;
+        tmp102 = tmp119;
     }
-    const float tmp150 = tmp74 + tmp123;
-    const float tmp151 = 0.3f * tmp150;
-    const float tmp152 = tmp1 + tmp151;
-    const float tmp153 = 0.5f * tmp152;
-    const float tmp154 = tmp153 * tmp153;
-    const float tmp155 = tmp23 * tmp72;
-    const float tmp156 = tmp155 + tmp37;
-    const float tmp157 = tmp156 + tmp124;
-    const float tmp158 = 0.3f * tmp157;
-    const float tmp159 = tmp21 + tmp158;
-    carry0[0] = tmp18;
-    carry0[1] = tmp19;
-    carry0[2] = tmp38;
-    carry0[3] = tmp72;
-    carry0[4] = tmp125;
-    carry0[5] = tmp150;
-    carry0[6] = tmp153;
-    carry0[7] = tmp154;
-    carry0[8] = tmp157;
-    carry0[9] = tmp159;
+    const float tmp120 = tmp51 + tmp100;
+    const float tmp121 = 0.3f * tmp120;
+    const float tmp122 = tmp1 + tmp121;
+    const float tmp123 = 0.5f * tmp122;
+    const float tmp124 = tmp123 * tmp123;
+    const float tmp125 = gyro[1] - gyro_bias[1];
+    const float tmp126 = tmp125 * dt;
+    const float tmp127 = rot[3] * tmp49;
+    const float tmp128 = tmp127 + tmp21;
+    const float tmp129 = tmp128 + tmp101;
+    const float tmp130 = 0.3f * tmp129;
+    const float tmp131 = tmp126 + tmp130;
+    const float tmp132 = 0.5f * tmp131;
+    const float tmp133 = tmp132 * tmp132;
+    const float tmp134 = tmp124 + tmp133;
+    const float tmp135 = gyro[2] - gyro_bias[2];
+    const float tmp136 = tmp135 * dt;
+    const float tmp137 = rot[6] * tmp49;
+    const float tmp138 = tmp137 + tmp22;
+    const float tmp139 = tmp138 + tmp102;
+    const float tmp140 = 0.3f * tmp139;
+    const float tmp141 = tmp136 + tmp140;
+    const float tmp142 = 0.5f * tmp141;
+    const float tmp143 = tmp142 * tmp142;
+    const float tmp144 = tmp134 + tmp143;
+    carry0[0] = tmp120;
+    carry0[1] = tmp123;
+    carry0[2] = tmp129;
+    carry0[3] = tmp132;
+    carry0[4] = tmp139;
+    carry0[5] = tmp142;
+    carry0[6] = tmp144;
 }
 
-static void qcf_k_correct_part1(const float q[4], const float gyro_bias[3], const float gyro[3], float dt, float span_accel, float use_accel, const float accel[3], float at_rest, const float rest_gyro_lp[3], const float carry0[10], float carry1[7])
+static void qcf_k_correct_part1(const float q[4], const float gyro_bias[3], float span_accel, float use_accel, const float accel[3], float at_rest, const float rest_gyro_lp[3], const float carry0[7], float carry1[7])
 {
-    const float tmp160 = 0.5f * carry0[9];
-    const float tmp161 = tmp160 * tmp160;
-    const float tmp162 = carry0[7] + tmp161;
-    const float tmp163 = gyro[2] - gyro_bias[2];
-    const float tmp164 = tmp163 * dt;
-    const float tmp165 = carry0[0] + carry0[1];
-    const float tmp166 = tmp165 + tmp165;
-    const float tmp167 = tmp166 * carry0[3];
-    const float tmp168 = tmp167 + carry0[2];
-    const float tmp169 = tmp168 + carry0[4];
-    const float tmp170 = 0.3f * tmp169;
-    const float tmp171 = tmp164 + tmp170;
-    const float tmp172 = 0.5f * tmp171;
-    const float tmp173 = tmp172 * tmp172;
-    const float tmp174 = tmp162 + tmp173;
-    float tmp175;
-    float tmp176;
-    if (tmp174 < 0.01f) {
-        const float tmp177 = 2.4801588e-05f * tmp174;
-        const float tmp178 = (-0.0013888889f) + tmp177;
-        const float tmp179 = tmp174 * tmp178;
-        const float tmp180 = 0.041666668f + tmp179;
-        const float tmp181 = tmp174 * tmp180;
-        const float tmp182 = (-0.5f) + tmp181;
-        const float tmp183 = tmp174 * tmp182;
-        const float tmp184 = 1.0f + tmp183;
-        const float tmp185 = 2.7557319e-06f * tmp174;
-        const float tmp186 = (-0.0001984127f) + tmp185;
-        const float tmp187 = tmp174 * tmp186;
-        const float tmp188 = 0.008333334f + tmp187;
-        const float tmp189 = tmp174 * tmp188;
-        const float tmp190 = (-0.16666667f) + tmp189;
-        const float tmp191 = tmp174 * tmp190;
-        const float tmp192 = 1.0f + tmp191;
-        tmp175 = tmp184;
-        tmp176 = tmp192;
+    float tmp145;
+    float tmp146;
+    if (carry0[6] < 0.01f) {
+        const float tmp147 = 2.4801588e-05f * carry0[6];
+        const float tmp148 = (-0.0013888889f) + tmp147;
+        const float tmp149 = carry0[6] * tmp148;
+        const float tmp150 = 0.041666668f + tmp149;
+        const float tmp151 = carry0[6] * tmp150;
+        const float tmp152 = (-0.5f) + tmp151;
+        const float tmp153 = carry0[6] * tmp152;
+        const float tmp154 = 1.0f + tmp153;
+        const float tmp155 = 2.7557319e-06f * carry0[6];
+        const float tmp156 = (-0.0001984127f) + tmp155;
+        const float tmp157 = carry0[6] * tmp156;
+        const float tmp158 = 0.008333334f + tmp157;
+        const float tmp159 = carry0[6] * tmp158;
+        const float tmp160 = (-0.16666667f) + tmp159;
+        const float tmp161 = carry0[6] * tmp160;
+        const float tmp162 = 1.0f + tmp161;
+        tmp145 = tmp154;
+        tmp146 = tmp162;
     } else {
-        const float tmp193 = (tmp174 > 0.01f) ? tmp174 : 0.01f;
-        const float tmp194 = sqrtf(tmp193);
-        const float tmp195 = fast_cosf(tmp194);
-        const float tmp196 = fast_sinf(tmp194);
-        const float tmp197 = tmp196 / tmp194;
-        tmp175 = tmp195;
-        tmp176 = tmp197;
+        const float tmp163 = (carry0[6] > 0.01f) ? carry0[6] : 0.01f;
+        const float tmp164 = sqrtf(tmp163);
+        const float tmp165 = fast_cosf(tmp164);
+        const float tmp166 = fast_sinf(tmp164);
+        const float tmp167 = tmp166 / tmp164;
+        tmp145 = tmp165;
+        tmp146 = tmp167;
     }
-    const float tmp198 = q[0] * tmp175;
-    const float tmp199 = tmp176 * carry0[6];
-    const float tmp200 = q[1] * tmp199;
-    const float tmp201 = tmp198 - tmp200;
-    const float tmp202 = tmp176 * tmp160;
-    const float tmp203 = q[2] * tmp202;
-    const float tmp204 = tmp201 - tmp203;
-    const float tmp205 = tmp176 * tmp172;
-    const float tmp206 = q[3] * tmp205;
-    const float tmp207 = tmp204 - tmp206;
-    const float tmp208 = tmp207 * tmp207;
-    const float tmp209 = q[0] * tmp199;
-    const float tmp210 = q[1] * tmp175;
-    const float tmp211 = tmp209 + tmp210;
-    const float tmp212 = q[2] * tmp205;
-    const float tmp213 = tmp211 + tmp212;
-    const float tmp214 = q[3] * tmp202;
-    const float tmp215 = tmp213 - tmp214;
-    const float tmp216 = tmp215 * tmp215;
-    const float tmp217 = tmp208 + tmp216;
-    const float tmp218 = q[0] * tmp202;
-    const float tmp219 = q[1] * tmp205;
-    const float tmp220 = tmp218 - tmp219;
-    const float tmp221 = q[2] * tmp175;
-    const float tmp222 = tmp220 + tmp221;
-    const float tmp223 = q[3] * tmp199;
-    const float tmp224 = tmp222 + tmp223;
-    const float tmp225 = tmp224 * tmp224;
-    const float tmp226 = tmp217 + tmp225;
-    const float tmp227 = q[0] * tmp205;
-    const float tmp228 = q[1] * tmp202;
-    const float tmp229 = tmp227 + tmp228;
-    const float tmp230 = q[2] * tmp199;
-    const float tmp231 = tmp229 - tmp230;
-    const float tmp232 = q[3] * tmp175;
-    const float tmp233 = tmp231 + tmp232;
-    const float tmp234 = tmp233 * tmp233;
-    const float tmp235 = tmp226 + tmp234;
-    const float tmp236 = sqrtf(tmp235);
-    const float tmp237 = tmp207 / tmp236;
-    const float tmp238 = tmp215 / tmp236;
-    const float tmp239 = tmp224 / tmp236;
-    const float tmp240 = tmp233 / tmp236;
-    float tmp241;
-    float tmp242;
-    float tmp243;
+    const float tmp168 = q[0] * tmp145;
+    const float tmp169 = tmp146 * carry0[1];
+    const float tmp170 = q[1] * tmp169;
+    const float tmp171 = tmp168 - tmp170;
+    const float tmp172 = tmp146 * carry0[3];
+    const float tmp173 = q[2] * tmp172;
+    const float tmp174 = tmp171 - tmp173;
+    const float tmp175 = tmp146 * carry0[5];
+    const float tmp176 = q[3] * tmp175;
+    const float tmp177 = tmp174 - tmp176;
+    const float tmp178 = tmp177 * tmp177;
+    const float tmp179 = q[0] * tmp169;
+    const float tmp180 = q[1] * tmp145;
+    const float tmp181 = tmp179 + tmp180;
+    const float tmp182 = q[2] * tmp175;
+    const float tmp183 = tmp181 + tmp182;
+    const float tmp184 = q[3] * tmp172;
+    const float tmp185 = tmp183 - tmp184;
+    const float tmp186 = tmp185 * tmp185;
+    const float tmp187 = tmp178 + tmp186;
+    const float tmp188 = q[0] * tmp172;
+    const float tmp189 = q[1] * tmp175;
+    const float tmp190 = tmp188 - tmp189;
+    const float tmp191 = q[2] * tmp145;
+    const float tmp192 = tmp190 + tmp191;
+    const float tmp193 = q[3] * tmp169;
+    const float tmp194 = tmp192 + tmp193;
+    const float tmp195 = tmp194 * tmp194;
+    const float tmp196 = tmp187 + tmp195;
+    const float tmp197 = q[0] * tmp175;
+    const float tmp198 = q[1] * tmp172;
+    const float tmp199 = tmp197 + tmp198;
+    const float tmp200 = q[2] * tmp169;
+    const float tmp201 = tmp199 - tmp200;
+    const float tmp202 = q[3] * tmp145;
+    const float tmp203 = tmp201 + tmp202;
+    const float tmp204 = tmp203 * tmp203;
+    const float tmp205 = tmp196 + tmp204;
+    const float tmp206 = sqrtf(tmp205);
+    const float tmp207 = tmp177 / tmp206;
+    const float tmp208 = tmp185 / tmp206;
+    const float tmp209 = tmp194 / tmp206;
+    const float tmp210 = tmp203 / tmp206;
+    float tmp211;
+    float tmp212;
+    float tmp213;
     if (at_rest != 0.0f) {
-        const float tmp244 = 1.0f + span_accel;
-        const float tmp245 = span_accel / tmp244;
-        const float tmp246 = rest_gyro_lp[0] - gyro_bias[0];
-        const float tmp247 = tmp245 * tmp246;
-        const float tmp248 = gyro_bias[0] + tmp247;
-        const float tmp249 = rest_gyro_lp[1] - gyro_bias[1];
-        const float tmp250 = tmp245 * tmp249;
-        const float tmp251 = gyro_bias[1] + tmp250;
-        const float tmp252 = rest_gyro_lp[2] - gyro_bias[2];
-        const float tmp253 = tmp245 * tmp252;
-        const float tmp254 = gyro_bias[2] + tmp253;
-        tmp241 = tmp248;
-        tmp242 = tmp251;
-        tmp243 = tmp254;
+        const float tmp214 = 1.0f + span_accel;
+        const float tmp215 = span_accel / tmp214;
+        const float tmp216 = rest_gyro_lp[0] - gyro_bias[0];
+        const float tmp217 = tmp215 * tmp216;
+        const float tmp218 = gyro_bias[0] + tmp217;
+        const float tmp219 = rest_gyro_lp[1] - gyro_bias[1];
+        const float tmp220 = tmp215 * tmp219;
+        const float tmp221 = gyro_bias[1] + tmp220;
+        const float tmp222 = rest_gyro_lp[2] - gyro_bias[2];
+        const float tmp223 = tmp215 * tmp222;
+        const float tmp224 = gyro_bias[2] + tmp223;
+        tmp211 = tmp218;
+        tmp212 = tmp221;
+        tmp213 = tmp224;
     } else {
-        const float tmp255 = accel[0] * accel[0];
-        const float tmp256 = accel[1] * accel[1];
-        const float tmp257 = tmp255 + tmp256;
-        const float tmp258 = accel[2] * accel[2];
-        const float tmp259 = tmp257 + tmp258;
-        const float tmp260 = sqrtf(tmp259);
-        const float tmp261 = tmp260 - 9.80665f;
-        const float tmp262 = fabsf(tmp261);
-        const float tmp263 = (tmp262 < 1.0f) ? 1.0f : 0.0f;
-        const float tmp264 = (use_accel != 0.0f && tmp263 != 0.0f) ? 1.0f : 0.0f;
-        const float tmp265 = 0.002f * carry0[5];
-        const float tmp266 = gyro_bias[0] - tmp265;
-        const float tmp267 = (tmp264 != 0.0f) ? tmp266 : gyro_bias[0];
-        const float tmp268 = 0.002f * carry0[8];
-        const float tmp269 = gyro_bias[1] - tmp268;
-        const float tmp270 = (tmp264 != 0.0f) ? tmp269 : gyro_bias[1];
-        const float tmp271 = 0.002f * tmp169;
-        const float tmp272 = gyro_bias[2] - tmp271;
-        const float tmp273 = (tmp264 != 0.0f) ? tmp272 : gyro_bias[2];
-        tmp241 = tmp267;
-        tmp242 = tmp270;
-        tmp243 = tmp273;
+        const float tmp225 = accel[0] * accel[0];
+        const float tmp226 = accel[1] * accel[1];
+        const float tmp227 = tmp225 + tmp226;
+        const float tmp228 = accel[2] * accel[2];
+        const float tmp229 = tmp227 + tmp228;
+        const float tmp230 = sqrtf(tmp229);
+        const float tmp231 = tmp230 - 9.80665f;
+        const float tmp232 = fabsf(tmp231);
+        const float tmp233 = (tmp232 < 1.0f) ? 1.0f : 0.0f;
+        const float tmp234 = (use_accel != 0.0f && tmp233 != 0.0f) ? 1.0f : 0.0f;
+        const float tmp235 = 0.002f * carry0[0];
+        const float tmp236 = gyro_bias[0] - tmp235;
+        const float tmp237 = (tmp234 != 0.0f) ? tmp236 : gyro_bias[0];
+        const float tmp238 = 0.002f * carry0[2];
+        const float tmp239 = gyro_bias[1] - tmp238;
+        const float tmp240 = (tmp234 != 0.0f) ? tmp239 : gyro_bias[1];
+        const float tmp241 = 0.002f * carry0[4];
+        const float tmp242 = gyro_bias[2] - tmp241;
+        const float tmp243 = (tmp234 != 0.0f) ? tmp242 : gyro_bias[2];
+        tmp211 = tmp237;
+        tmp212 = tmp240;
+        tmp213 = tmp243;
     }
-    carry1[0] = tmp237;
-    carry1[1] = tmp238;
-    carry1[2] = tmp239;
-    carry1[3] = tmp240;
-    carry1[4] = tmp241;
-    carry1[5] = tmp242;
-    carry1[6] = tmp243;
+    carry1[0] = tmp207;
+    carry1[1] = tmp208;
+    carry1[2] = tmp209;
+    carry1[3] = tmp210;
+    carry1[4] = tmp211;
+    carry1[5] = tmp212;
+    carry1[6] = tmp213;
 }
 
-static void qcf_k_correct(const float q[4], const float gyro_bias[3], const float gyro[3], float dt, const float accel_lp[3], const float mag[3], float span_accel, float span_mag, float use_accel, const float accel[3], float at_rest, const float rest_gyro_lp[3], float q_new[4], float gyro_bias_new[3])
+static void qcf_k_correct(const float q[4], const float rot[9], const float gyro_bias[3], const float gyro[3], float dt, const float accel_lp[3], const float mag[3], float span_accel, float span_mag, float use_accel, const float accel[3], float at_rest, const float rest_gyro_lp[3], float q_new[4], float gyro_bias_new[3])
 {
     /* 2 parts called in turn (inlined when optimising): bounded -O0 frames */
-    float carry0[10];
+    float carry0[7];
     float carry1[7];
-    qcf_k_correct_part0(q, gyro_bias, gyro, dt, accel_lp, mag, span_accel, span_mag, carry0);
-    qcf_k_correct_part1(q, gyro_bias, gyro, dt, span_accel, use_accel, accel, at_rest, rest_gyro_lp, carry0, carry1);
+    qcf_k_correct_part0(q, rot, gyro_bias, gyro, dt, accel_lp, mag, span_accel, span_mag, carry0);
+    qcf_k_correct_part1(q, gyro_bias, span_accel, use_accel, accel, at_rest, rest_gyro_lp, carry0, carry1);
     q_new[0] = carry1[0];
     q_new[1] = carry1[1];
     q_new[2] = carry1[2];
@@ -874,11 +811,11 @@ static void qcf_k_rest(const float gyro[3], const float accel[3], const float re
 }
 
 /* field check: |m| and sin(dip) against the learned reference
- * ops: add 43, mul 35, div 4, sqrt 2, cmp 24 (total 108)
+ * ops: add 22, mul 26, div 4, sqrt 2, cmp 24 (total 78)
  *      of which only one side runs: if (tmp0 < 10.0f) 5, else 27
- *      of which only one side runs: if (tmp93 != 0.0f) 1, else 8
- *      of which only one side runs: if (tmp85 != 0.0f) 6, else 0 */
-static void qcf_k_mag_check(const float q[4], const float accel_lp[3], const float mag[3], const float mag_ref[2], float mag_dist_time, float mag_learn_time, float span, float *accept, float mag_ref_new[2], float *mag_dist_time_new, float *mag_learn_time_new)
+ *      of which only one side runs: if (tmp63 != 0.0f) 1, else 8
+ *      of which only one side runs: if (tmp55 != 0.0f) 6, else 0 */
+static void qcf_k_mag_check(const float rot[9], const float accel_lp[3], const float mag[3], const float mag_ref[2], float mag_dist_time, float mag_learn_time, float span, float *accept, float mag_ref_new[2], float *mag_dist_time_new, float *mag_learn_time_new)
 {
     const float tmp0 = (mag_ref[0] <= 0.0f) ? 0.0f : mag_learn_time;
     const float tmp1 = mag[0] * mag[0];
@@ -888,142 +825,157 @@ static void qcf_k_mag_check(const float q[4], const float accel_lp[3], const flo
     const float tmp5 = tmp3 + tmp4;
     const float tmp6 = sqrtf(tmp5);
     const float tmp7 = tmp6 - mag_ref[0];
-    const float tmp8 = q[2] * q[2];
-    const float tmp9 = q[3] * q[3];
+    const float tmp8 = accel_lp[0] * accel_lp[0];
+    const float tmp9 = accel_lp[1] * accel_lp[1];
     const float tmp10 = tmp8 + tmp9;
-    const float tmp11 = tmp10 + tmp10;
-    const float tmp12 = 1.0f - tmp11;
-    const float tmp13 = accel_lp[0] * accel_lp[0];
-    const float tmp14 = accel_lp[1] * accel_lp[1];
-    const float tmp15 = tmp13 + tmp14;
-    const float tmp16 = accel_lp[2] * accel_lp[2];
-    const float tmp17 = tmp15 + tmp16;
-    const float tmp18 = 1.0f / tmp17;
-    const float tmp19 = sqrtf(tmp18);
-    const float tmp20 = accel_lp[0] * tmp19;
-    const float tmp21 = tmp12 * tmp20;
-    const float tmp22 = q[1] * q[2];
-    const float tmp23 = q[0] * q[3];
-    const float tmp24 = tmp22 + tmp23;
-    const float tmp25 = tmp24 + tmp24;
-    const float tmp26 = accel_lp[1] * tmp19;
-    const float tmp27 = tmp25 * tmp26;
-    const float tmp28 = tmp21 + tmp27;
-    const float tmp29 = q[1] * q[3];
-    const float tmp30 = q[0] * q[2];
-    const float tmp31 = tmp29 - tmp30;
-    const float tmp32 = tmp31 + tmp31;
-    const float tmp33 = accel_lp[2] * tmp19;
-    const float tmp34 = tmp32 * tmp33;
-    const float tmp35 = tmp28 + tmp34;
-    const float tmp36 = tmp35 * mag[0];
-    const float tmp37 = tmp22 - tmp23;
-    const float tmp38 = tmp37 + tmp37;
-    const float tmp39 = tmp38 * tmp20;
-    const float tmp40 = q[1] * q[1];
-    const float tmp41 = tmp40 + tmp9;
-    const float tmp42 = tmp41 + tmp41;
-    const float tmp43 = 1.0f - tmp42;
-    const float tmp44 = tmp43 * tmp26;
-    const float tmp45 = tmp39 + tmp44;
-    const float tmp46 = q[2] * q[3];
-    const float tmp47 = q[0] * q[1];
-    const float tmp48 = tmp46 + tmp47;
-    const float tmp49 = tmp48 + tmp48;
-    const float tmp50 = tmp49 * tmp33;
-    const float tmp51 = tmp45 + tmp50;
-    const float tmp52 = tmp51 * mag[1];
-    const float tmp53 = tmp36 + tmp52;
-    const float tmp54 = tmp29 + tmp30;
-    const float tmp55 = tmp54 + tmp54;
-    const float tmp56 = tmp55 * tmp20;
-    const float tmp57 = tmp46 - tmp47;
-    const float tmp58 = tmp57 + tmp57;
-    const float tmp59 = tmp58 * tmp26;
-    const float tmp60 = tmp56 + tmp59;
-    const float tmp61 = tmp40 + tmp8;
-    const float tmp62 = tmp61 + tmp61;
-    const float tmp63 = 1.0f - tmp62;
-    const float tmp64 = tmp63 * tmp33;
-    const float tmp65 = tmp60 + tmp64;
-    const float tmp66 = tmp65 * mag[2];
-    const float tmp67 = tmp53 + tmp66;
-    const float tmp68 = tmp67 / tmp6;
-    const float tmp69 = tmp68 + mag_ref[1];
-    const float tmp70 = tmp0 + span;
-    float tmp71;
-    float tmp72;
-    float tmp73;
-    float tmp74;
+    const float tmp11 = accel_lp[2] * accel_lp[2];
+    const float tmp12 = tmp10 + tmp11;
+    const float tmp13 = 1.0f / tmp12;
+    const float tmp14 = sqrtf(tmp13);
+    const float tmp15 = accel_lp[0] * tmp14;
+    const float tmp16 = rot[0] * tmp15;
+    const float tmp17 = accel_lp[1] * tmp14;
+    const float tmp18 = rot[1] * tmp17;
+    const float tmp19 = tmp16 + tmp18;
+    const float tmp20 = accel_lp[2] * tmp14;
+    const float tmp21 = rot[2] * tmp20;
+    const float tmp22 = tmp19 + tmp21;
+    const float tmp23 = tmp22 * mag[0];
+    const float tmp24 = rot[3] * tmp15;
+    const float tmp25 = rot[4] * tmp17;
+    const float tmp26 = tmp24 + tmp25;
+    const float tmp27 = rot[5] * tmp20;
+    const float tmp28 = tmp26 + tmp27;
+    const float tmp29 = tmp28 * mag[1];
+    const float tmp30 = tmp23 + tmp29;
+    const float tmp31 = rot[6] * tmp15;
+    const float tmp32 = rot[7] * tmp17;
+    const float tmp33 = tmp31 + tmp32;
+    const float tmp34 = rot[8] * tmp20;
+    const float tmp35 = tmp33 + tmp34;
+    const float tmp36 = tmp35 * mag[2];
+    const float tmp37 = tmp30 + tmp36;
+    const float tmp38 = tmp37 / tmp6;
+    const float tmp39 = tmp38 + mag_ref[1];
+    const float tmp40 = tmp0 + span;
+    float tmp41;
+    float tmp42;
+    float tmp43;
+    float tmp44;
     if (tmp0 < 10.0f) {
-        const float tmp75 = span / tmp70;
-        const float tmp76 = tmp75 * tmp7;
-        const float tmp77 = mag_ref[0] + tmp76;
-        const float tmp78 = tmp75 * tmp69;
-        const float tmp79 = mag_ref[1] - tmp78;
-        tmp71 = 1.0f;
-        tmp72 = tmp77;
-        tmp73 = tmp79;
-        tmp74 = 0.0f;
+        const float tmp45 = span / tmp40;
+        const float tmp46 = tmp45 * tmp7;
+        const float tmp47 = mag_ref[0] + tmp46;
+        const float tmp48 = tmp45 * tmp39;
+        const float tmp49 = mag_ref[1] - tmp48;
+        tmp41 = 1.0f;
+        tmp42 = tmp47;
+        tmp43 = tmp49;
+        tmp44 = 0.0f;
     } else {
-        const float tmp80 = fabsf(tmp7);
-        const float tmp81 = 0.1f * mag_ref[0];
-        const float tmp82 = (tmp80 < tmp81) ? 1.0f : 0.0f;
-        const float tmp83 = fabsf(tmp69);
-        const float tmp84 = (tmp83 < 0.1f) ? 1.0f : 0.0f;
-        const float tmp85 = (tmp82 != 0.0f && tmp84 != 0.0f) ? 1.0f : 0.0f;
-        const float tmp86 = (0.0f < mag_ref[0]) ? 1.0f : 0.0f;
-        const float tmp87 = (tmp86 == 0.0f) ? 1.0f : 0.0f;
-        const float tmp88 = (tmp85 != 0.0f || tmp87 != 0.0f) ? 1.0f : 0.0f;
-        const float tmp89 = (tmp85 == 0.0f) ? 1.0f : 0.0f;
-        const float tmp90 = mag_dist_time + span;
-        const float tmp91 = (tmp89 != 0.0f) ? tmp90 : 0.0f;
-        const float tmp92 = (20.0f < tmp91) ? 1.0f : 0.0f;
-        const float tmp93 = (tmp87 != 0.0f || tmp92 != 0.0f) ? 1.0f : 0.0f;
-        const float tmp94 = (tmp93 == 0.0f) ? 1.0f : 0.0f;
-        float tmp95;
-        float tmp96;
-        if (tmp93 != 0.0f) {
-            const float tmp97 = -tmp68;
-            tmp95 = tmp6;
-            tmp96 = tmp97;
+        const float tmp50 = fabsf(tmp7);
+        const float tmp51 = 0.1f * mag_ref[0];
+        const float tmp52 = (tmp50 < tmp51) ? 1.0f : 0.0f;
+        const float tmp53 = fabsf(tmp39);
+        const float tmp54 = (tmp53 < 0.1f) ? 1.0f : 0.0f;
+        const float tmp55 = (tmp52 != 0.0f && tmp54 != 0.0f) ? 1.0f : 0.0f;
+        const float tmp56 = (0.0f < mag_ref[0]) ? 1.0f : 0.0f;
+        const float tmp57 = (tmp56 == 0.0f) ? 1.0f : 0.0f;
+        const float tmp58 = (tmp55 != 0.0f || tmp57 != 0.0f) ? 1.0f : 0.0f;
+        const float tmp59 = (tmp55 == 0.0f) ? 1.0f : 0.0f;
+        const float tmp60 = mag_dist_time + span;
+        const float tmp61 = (tmp59 != 0.0f) ? tmp60 : 0.0f;
+        const float tmp62 = (20.0f < tmp61) ? 1.0f : 0.0f;
+        const float tmp63 = (tmp57 != 0.0f || tmp62 != 0.0f) ? 1.0f : 0.0f;
+        const float tmp64 = (tmp63 == 0.0f) ? 1.0f : 0.0f;
+        float tmp65;
+        float tmp66;
+        if (tmp63 != 0.0f) {
+            const float tmp67 = -tmp38;
+            tmp65 = tmp6;
+            tmp66 = tmp67;
         } else {
-            float tmp98;
-            float tmp99;
-            if (tmp85 != 0.0f) {
-                const float tmp100 = 20.0f + span;
-                const float tmp101 = span / tmp100;
-                const float tmp102 = tmp101 * tmp7;
-                const float tmp103 = mag_ref[0] + tmp102;
-                const float tmp104 = tmp101 * tmp69;
-                const float tmp105 = mag_ref[1] - tmp104;
-                tmp98 = tmp103;
-                tmp99 = tmp105;
+            float tmp68;
+            float tmp69;
+            if (tmp55 != 0.0f) {
+                const float tmp70 = 20.0f + span;
+                const float tmp71 = span / tmp70;
+                const float tmp72 = tmp71 * tmp7;
+                const float tmp73 = mag_ref[0] + tmp72;
+                const float tmp74 = tmp71 * tmp39;
+                const float tmp75 = mag_ref[1] - tmp74;
+                tmp68 = tmp73;
+                tmp69 = tmp75;
             } else {
-                tmp98 = mag_ref[0];
-                tmp99 = mag_ref[1];
+                tmp68 = mag_ref[0];
+                tmp69 = mag_ref[1];
             }
-            tmp95 = tmp98;
-            tmp96 = tmp99;
+            tmp65 = tmp68;
+            tmp66 = tmp69;
         }
-        const float tmp106 = (tmp94 != 0.0f) ? tmp91 : 0.0f;
-        tmp71 = tmp88;
-        tmp72 = tmp95;
-        tmp73 = tmp96;
-        tmp74 = tmp106;
+        const float tmp76 = (tmp64 != 0.0f) ? tmp61 : 0.0f;
+        tmp41 = tmp58;
+        tmp42 = tmp65;
+        tmp43 = tmp66;
+        tmp44 = tmp76;
     }
-    const float tmp107 = (tmp70 < 10.0f) ? tmp70 : 10.0f;
-    *accept = tmp71;
-    mag_ref_new[0] = tmp72;
-    mag_ref_new[1] = tmp73;
-    *mag_dist_time_new = tmp74;
-    *mag_learn_time_new = tmp107;
+    const float tmp77 = (tmp40 < 10.0f) ? tmp40 : 10.0f;
+    *accept = tmp41;
+    mag_ref_new[0] = tmp42;
+    mag_ref_new[1] = tmp43;
+    *mag_dist_time_new = tmp44;
+    *mag_learn_time_new = tmp77;
+}
+
+/* R(q), read by the kernels of a step that rotate with the estimate (computed once)
+ * ops: add 21, mul 9 (total 30) */
+static void qcf_k_rotation(const float q[4], float rot[9])
+{
+    const float tmp0 = q[2] * q[2];
+    const float tmp1 = q[3] * q[3];
+    const float tmp2 = tmp0 + tmp1;
+    const float tmp3 = tmp2 + tmp2;
+    const float tmp4 = 1.0f - tmp3;
+    const float tmp5 = q[1] * q[2];
+    const float tmp6 = q[0] * q[3];
+    const float tmp7 = tmp5 + tmp6;
+    const float tmp8 = tmp7 + tmp7;
+    const float tmp9 = q[1] * q[3];
+    const float tmp10 = q[0] * q[2];
+    const float tmp11 = tmp9 - tmp10;
+    const float tmp12 = tmp11 + tmp11;
+    const float tmp13 = tmp5 - tmp6;
+    const float tmp14 = tmp13 + tmp13;
+    const float tmp15 = q[1] * q[1];
+    const float tmp16 = tmp15 + tmp1;
+    const float tmp17 = tmp16 + tmp16;
+    const float tmp18 = 1.0f - tmp17;
+    const float tmp19 = q[2] * q[3];
+    const float tmp20 = q[0] * q[1];
+    const float tmp21 = tmp19 + tmp20;
+    const float tmp22 = tmp21 + tmp21;
+    const float tmp23 = tmp9 + tmp10;
+    const float tmp24 = tmp23 + tmp23;
+    const float tmp25 = tmp19 - tmp20;
+    const float tmp26 = tmp25 + tmp25;
+    const float tmp27 = tmp15 + tmp0;
+    const float tmp28 = tmp27 + tmp27;
+    const float tmp29 = 1.0f - tmp28;
+    rot[0] = tmp4;
+    rot[1] = tmp8;
+    rot[2] = tmp12;
+    rot[3] = tmp14;
+    rot[4] = tmp18;
+    rot[5] = tmp22;
+    rot[6] = tmp24;
+    rot[7] = tmp26;
+    rot[8] = tmp29;
 }
 
 /* accelerometer minus the GPS motion acceleration when ||f| - g| exceeds the threshold (centripetal: R(q)(w - b) x v_gps, computed only then)
- * ops: add 50, mul 46, div 2, sqrt 2, cmp 7 (total 107)
- *      of which only one side runs: if (0.3f < tmp7) 96, else 0 */
-static void qcf_k_gravity_part(const float accel[3], const float q[4], const float gyro[3], const float gyro_bias[3], const float gps_vel_hist[21], float accel_gravity[3])
+ * ops: add 29, mul 37, div 2, sqrt 2, cmp 7 (total 77)
+ *      of which only one side runs: if (0.3f < tmp7) 66, else 0 */
+static void qcf_k_gravity_part(const float accel[3], const float rot[9], const float gyro[3], const float gyro_bias[3], const float gps_vel_hist[21], float accel_gravity[3])
 {
     const float tmp0 = accel[0] * accel[0];
     const float tmp1 = accel[1] * accel[1];
@@ -1037,105 +989,75 @@ static void qcf_k_gravity_part(const float accel[3], const float q[4], const flo
     float tmp9;
     float tmp10;
     if (0.3f < tmp7) {
-        const float tmp11 = q[2] * q[2];
-        const float tmp12 = q[3] * q[3];
+        const float tmp11 = gps_vel_hist[18] * rot[0];
+        const float tmp12 = gps_vel_hist[19] * rot[1];
         const float tmp13 = tmp11 + tmp12;
-        const float tmp14 = tmp13 + tmp13;
-        const float tmp15 = 1.0f - tmp14;
-        const float tmp16 = gps_vel_hist[18] * tmp15;
-        const float tmp17 = q[1] * q[2];
-        const float tmp18 = q[0] * q[3];
-        const float tmp19 = tmp17 + tmp18;
-        const float tmp20 = tmp19 + tmp19;
-        const float tmp21 = gps_vel_hist[19] * tmp20;
-        const float tmp22 = tmp16 + tmp21;
-        const float tmp23 = q[1] * q[3];
-        const float tmp24 = q[0] * q[2];
-        const float tmp25 = tmp23 - tmp24;
-        const float tmp26 = tmp25 + tmp25;
-        const float tmp27 = gps_vel_hist[20] * tmp26;
-        const float tmp28 = tmp22 + tmp27;
-        const float tmp29 = gps_vel_hist[18] * gps_vel_hist[18];
-        const float tmp30 = gps_vel_hist[19] * gps_vel_hist[19];
-        const float tmp31 = tmp29 + tmp30;
-        const float tmp32 = gps_vel_hist[20] * gps_vel_hist[20];
-        const float tmp33 = tmp31 + tmp32;
-        const float tmp34 = (tmp33 > 1e-06f) ? tmp33 : 1e-06f;
-        const float tmp35 = 1.0f / tmp34;
-        const float tmp36 = sqrtf(tmp35);
-        const float tmp37 = tmp28 * tmp36;
-        const float tmp38 = tmp37 - 0.7f;
-        const float tmp39 = tmp38 / 0.3f;
-        const float tmp40 = (tmp39 > 0.0f) ? tmp39 : 0.0f;
-        const float tmp41 = (tmp40 < 1.0f) ? tmp40 : 1.0f;
-        const float tmp42 = gyro[0] - gyro_bias[0];
-        const float tmp43 = tmp20 * tmp42;
-        const float tmp44 = q[1] * q[1];
-        const float tmp45 = tmp44 + tmp12;
-        const float tmp46 = tmp45 + tmp45;
-        const float tmp47 = 1.0f - tmp46;
-        const float tmp48 = gyro[1] - gyro_bias[1];
-        const float tmp49 = tmp47 * tmp48;
-        const float tmp50 = tmp43 + tmp49;
-        const float tmp51 = q[2] * q[3];
-        const float tmp52 = q[0] * q[1];
-        const float tmp53 = tmp51 - tmp52;
-        const float tmp54 = tmp53 + tmp53;
-        const float tmp55 = gyro[2] - gyro_bias[2];
-        const float tmp56 = tmp54 * tmp55;
-        const float tmp57 = tmp50 + tmp56;
-        const float tmp58 = tmp57 * gps_vel_hist[20];
-        const float tmp59 = tmp26 * tmp42;
-        const float tmp60 = tmp51 + tmp52;
-        const float tmp61 = tmp60 + tmp60;
-        const float tmp62 = tmp61 * tmp48;
-        const float tmp63 = tmp59 + tmp62;
-        const float tmp64 = tmp44 + tmp11;
-        const float tmp65 = tmp64 + tmp64;
-        const float tmp66 = 1.0f - tmp65;
-        const float tmp67 = tmp66 * tmp55;
-        const float tmp68 = tmp63 + tmp67;
-        const float tmp69 = tmp68 * gps_vel_hist[19];
-        const float tmp70 = tmp58 - tmp69;
-        const float tmp71 = tmp41 * tmp70;
-        const float tmp72 = tmp15 * tmp71;
-        const float tmp73 = tmp68 * gps_vel_hist[18];
-        const float tmp74 = tmp15 * tmp42;
-        const float tmp75 = tmp17 - tmp18;
-        const float tmp76 = tmp75 + tmp75;
-        const float tmp77 = tmp76 * tmp48;
-        const float tmp78 = tmp74 + tmp77;
-        const float tmp79 = tmp23 + tmp24;
-        const float tmp80 = tmp79 + tmp79;
-        const float tmp81 = tmp80 * tmp55;
-        const float tmp82 = tmp78 + tmp81;
-        const float tmp83 = tmp82 * gps_vel_hist[20];
-        const float tmp84 = tmp73 - tmp83;
-        const float tmp85 = tmp41 * tmp84;
-        const float tmp86 = tmp20 * tmp85;
-        const float tmp87 = tmp72 + tmp86;
-        const float tmp88 = tmp82 * gps_vel_hist[19];
-        const float tmp89 = tmp57 * gps_vel_hist[18];
-        const float tmp90 = tmp88 - tmp89;
-        const float tmp91 = tmp41 * tmp90;
-        const float tmp92 = tmp26 * tmp91;
-        const float tmp93 = tmp87 + tmp92;
-        const float tmp94 = accel[0] - tmp93;
-        const float tmp95 = tmp76 * tmp71;
-        const float tmp96 = tmp47 * tmp85;
-        const float tmp97 = tmp95 + tmp96;
-        const float tmp98 = tmp61 * tmp91;
-        const float tmp99 = tmp97 + tmp98;
-        const float tmp100 = accel[1] - tmp99;
-        const float tmp101 = tmp80 * tmp71;
-        const float tmp102 = tmp54 * tmp85;
-        const float tmp103 = tmp101 + tmp102;
-        const float tmp104 = tmp66 * tmp91;
-        const float tmp105 = tmp103 + tmp104;
-        const float tmp106 = accel[2] - tmp105;
-        tmp8 = tmp94;
-        tmp9 = tmp100;
-        tmp10 = tmp106;
+        const float tmp14 = gps_vel_hist[20] * rot[2];
+        const float tmp15 = tmp13 + tmp14;
+        const float tmp16 = gps_vel_hist[18] * gps_vel_hist[18];
+        const float tmp17 = gps_vel_hist[19] * gps_vel_hist[19];
+        const float tmp18 = tmp16 + tmp17;
+        const float tmp19 = gps_vel_hist[20] * gps_vel_hist[20];
+        const float tmp20 = tmp18 + tmp19;
+        const float tmp21 = (tmp20 > 1e-06f) ? tmp20 : 1e-06f;
+        const float tmp22 = 1.0f / tmp21;
+        const float tmp23 = sqrtf(tmp22);
+        const float tmp24 = tmp15 * tmp23;
+        const float tmp25 = tmp24 - 0.7f;
+        const float tmp26 = tmp25 / 0.3f;
+        const float tmp27 = (tmp26 > 0.0f) ? tmp26 : 0.0f;
+        const float tmp28 = (tmp27 < 1.0f) ? tmp27 : 1.0f;
+        const float tmp29 = gyro[0] - gyro_bias[0];
+        const float tmp30 = rot[1] * tmp29;
+        const float tmp31 = gyro[1] - gyro_bias[1];
+        const float tmp32 = rot[4] * tmp31;
+        const float tmp33 = tmp30 + tmp32;
+        const float tmp34 = gyro[2] - gyro_bias[2];
+        const float tmp35 = rot[7] * tmp34;
+        const float tmp36 = tmp33 + tmp35;
+        const float tmp37 = tmp36 * gps_vel_hist[20];
+        const float tmp38 = rot[2] * tmp29;
+        const float tmp39 = rot[5] * tmp31;
+        const float tmp40 = tmp38 + tmp39;
+        const float tmp41 = rot[8] * tmp34;
+        const float tmp42 = tmp40 + tmp41;
+        const float tmp43 = tmp42 * gps_vel_hist[19];
+        const float tmp44 = tmp37 - tmp43;
+        const float tmp45 = tmp28 * tmp44;
+        const float tmp46 = rot[0] * tmp45;
+        const float tmp47 = tmp42 * gps_vel_hist[18];
+        const float tmp48 = rot[0] * tmp29;
+        const float tmp49 = rot[3] * tmp31;
+        const float tmp50 = tmp48 + tmp49;
+        const float tmp51 = rot[6] * tmp34;
+        const float tmp52 = tmp50 + tmp51;
+        const float tmp53 = tmp52 * gps_vel_hist[20];
+        const float tmp54 = tmp47 - tmp53;
+        const float tmp55 = tmp28 * tmp54;
+        const float tmp56 = rot[1] * tmp55;
+        const float tmp57 = tmp46 + tmp56;
+        const float tmp58 = tmp52 * gps_vel_hist[19];
+        const float tmp59 = tmp36 * gps_vel_hist[18];
+        const float tmp60 = tmp58 - tmp59;
+        const float tmp61 = tmp28 * tmp60;
+        const float tmp62 = rot[2] * tmp61;
+        const float tmp63 = tmp57 + tmp62;
+        const float tmp64 = accel[0] - tmp63;
+        const float tmp65 = rot[3] * tmp45;
+        const float tmp66 = rot[4] * tmp55;
+        const float tmp67 = tmp65 + tmp66;
+        const float tmp68 = rot[5] * tmp61;
+        const float tmp69 = tmp67 + tmp68;
+        const float tmp70 = accel[1] - tmp69;
+        const float tmp71 = rot[6] * tmp45;
+        const float tmp72 = rot[7] * tmp55;
+        const float tmp73 = tmp71 + tmp72;
+        const float tmp74 = rot[8] * tmp61;
+        const float tmp75 = tmp73 + tmp74;
+        const float tmp76 = accel[2] - tmp75;
+        tmp8 = tmp64;
+        tmp9 = tmp70;
+        tmp10 = tmp76;
     } else {
         tmp8 = accel[0];
         tmp9 = accel[1];
@@ -1429,10 +1351,12 @@ qcf_status qcf_step(qcf_state *s, const qcf_input *in, float dt)
     /* Product conditioning (model.py docstring): NED low-pass of the accelerometer, tilt and
      * heading corrections weighted by the time each sample stands for, field check, rest. */
     float accel_g[3] = { in->accel[0], in->accel[1], in->accel[2] };
+    float rot[9];      /* R(q), column-major: shared by the kernels below until q changes */
+    qcf_k_rotation(s->q, rot);
     if (use_accel) {
         /* centripetal acceleration of the latest GPS velocity turning with the body */
         if (QCF_GPS_COMPENSATION && s->gps_count >= 1u && s->gps_age <= QCF_GPS_TIMEOUT) {
-            qcf_k_gravity_part(in->accel, s->q, in->gyro, s->gyro_bias, s->gps_vel_hist, accel_g);
+            qcf_k_gravity_part(in->accel, rot, in->gyro, s->gyro_bias, s->gps_vel_hist, accel_g);
         }
     }
     if (s->initialised == 0u) {
@@ -1442,6 +1366,7 @@ qcf_status qcf_step(qcf_state *s, const qcf_input *in, float dt)
         }
         /* First accelerometer sample: its tilt (and the magnetometer's heading if present). */
         qcf_k_init_attitude(accel_g, in->mag, use_mag ? 1.0f : 0.0f, s->q, s->accel_lp);
+        qcf_k_rotation(s->q, rot);
         s->initialised = use_mag ? 2u : 1u;
         s->accel_age = 0.0f;
         s->mag_age = 0.0f;
@@ -1452,6 +1377,7 @@ qcf_status qcf_step(qcf_state *s, const qcf_input *in, float dt)
     } else if (s->initialised == 1u && use_mag) {
         /* First magnetometer sample after a tilt-only start: set the heading. */
         qcf_k_heading_init(s->q, in->mag, s->q);
+        qcf_k_rotation(s->q, rot);
         s->initialised = 2u;
         s->mag_age = 0.0f;
     }
@@ -1459,7 +1385,7 @@ qcf_status qcf_step(qcf_state *s, const qcf_input *in, float dt)
     s->mag_age = (s->mag_age + dt < QCF_SPAN_MAX) ? s->mag_age + dt : QCF_SPAN_MAX;
     float at_rest = 0.0f;
     if (use_accel) {
-        qcf_k_accel_lowpass(s->q, accel_g, s->accel_lp, s->accel_age, s->accel_lp);
+        qcf_k_accel_lowpass(rot, accel_g, s->accel_lp, s->accel_age, s->accel_lp);
         qcf_k_rest(in->gyro, in->accel, s->rest_gyro_lp, s->rest_accel_lp, s->rest_time, s->accel_age,
                             s->rest_gyro_lp, s->rest_accel_lp, &s->rest_time, &at_rest);
         if (at_rest != 0.0f) {
@@ -1469,7 +1395,7 @@ qcf_status qcf_step(qcf_state *s, const qcf_input *in, float dt)
     bool heading_ok = use_mag;
     if (use_mag) {
         float accept;
-        qcf_k_mag_check(s->q, s->accel_lp, in->mag, s->mag_ref, s->mag_dist_time, s->mag_learn_time,
+        qcf_k_mag_check(rot, s->accel_lp, in->mag, s->mag_ref, s->mag_dist_time, s->mag_learn_time,
                                  s->mag_age, &accept, s->mag_ref, &s->mag_dist_time, &s->mag_learn_time);
         if (accept == 0.0f) {
             heading_ok = false;
@@ -1477,7 +1403,7 @@ qcf_status qcf_step(qcf_state *s, const qcf_input *in, float dt)
         }
     }
     if (use_accel || heading_ok) {
-        qcf_k_correct(s->q, s->gyro_bias, in->gyro, dt, s->accel_lp, in->mag,
+        qcf_k_correct(s->q, rot, s->gyro_bias, in->gyro, dt, s->accel_lp, in->mag,
                                use_accel ? s->accel_age : 0.0f, heading_ok ? s->mag_age : 0.0f,
                                use_accel ? 1.0f : 0.0f, in->accel, at_rest, s->rest_gyro_lp,                           s->q, s->gyro_bias);
     } else {

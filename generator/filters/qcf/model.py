@@ -100,6 +100,7 @@ class Model(FilterModel):
         q_ref = ca.SX.sym("q_ref", 4)
         a_n = ca.SX.sym("motion_accel", 3)
         hist = ca.SX.sym("gps_vel_hist", 3 * GPS_TAPS)
+        rot = ca.SX.sym("rot", 3, 3)      # R(q), from the rotation kernel once per step
 
         # PI feedback and integration (eqs. 13, 14, 9, 7).
         q_err = quat.qmul(quat.qconj(q), q_ref)
@@ -116,21 +117,21 @@ class Model(FilterModel):
         # Gravity part of the specific force (section 3.2): f_b = R^T (a_n - g_n).
         excess = ca.fabs(ca.sqrt(ca.sumsqr(f)) - G0) > p["motion_accel_threshold"]
         if p["motion_accel_model"] == "differentiator":
-            gravity_in = {"accel": f, "q": q, "motion_accel": a_n}
-            f_g = ca.if_else(excess, f - quat.rotate_inv(q, a_n), f)
+            gravity_in = {"accel": f, "rot": rot, "motion_accel": a_n}
+            f_g = ca.if_else(excess, f - ca.mtimes(rot.T, a_n), f)
         else:
             # The centripetal acceleration a_c = R(q)(w - b) x v_n of the latest GPS velocity,
             # computed inside the excess branch only (skipped while |f| is close to g).
             v = hist[3 * (GPS_TAPS - 1):]
-            a_c = ca.cross(quat.rotate(q, gyro - bias), v)
+            a_c = ca.cross(ca.mtimes(rot, gyro - bias), v)
             if self.product and p["centripetal_align"] < 1:
                 # the velocity turns with the body only if the body flies along it (fixed-wing):
                 # weight 1 when v is along body x, ramping to 0 at cos(angle) = centripetal_align
                 c0 = p["centripetal_align"]
-                along = ca.dot(v, quat.rotate(q, ca.DM([1.0, 0.0, 0.0]))) * ca.sqrt(1 / ca.fmax(ca.sumsqr(v), 1e-6))
+                along = ca.dot(v, ca.mtimes(rot, ca.DM([1.0, 0.0, 0.0]))) * ca.sqrt(1 / ca.fmax(ca.sumsqr(v), 1e-6))
                 a_c = ca.fmin(ca.fmax((along - c0) / (1 - c0), 0.0), 1.0) * a_c
-            gravity_in = {"accel": f, "q": q, "gyro": gyro, "gyro_bias": bias, "gps_vel_hist": hist}
-            f_g = ca.if_else(excess, f - quat.rotate_inv(q, a_c), f)
+            gravity_in = {"accel": f, "rot": rot, "gyro": gyro, "gyro_bias": bias, "gps_vel_hist": hist}
+            f_g = ca.if_else(excess, f - ca.mtimes(rot.T, a_c), f)
         paper = [] if self.product else [
             KernelSpec("reference", function("reference", {"accel": f, "mag": m},
                                              {"q_ref": attitude.fqa(f, m, p["declination"])}),
@@ -143,6 +144,8 @@ class Model(FilterModel):
                        "PI feedback on the error quaternion q^-1 (x) q_ref and integration (eqs. 13, 14, 9)"),
         ]
         return kernels + [
+            KernelSpec("rotation", function("rotation", {"q": q}, {"rot": quat.rotmat(q)}),
+                       "R(q), read by the kernels of a step that rotate with the estimate (computed once)"),
             KernelSpec("gravity_part", function("gravity_part", gravity_in, {"accel_gravity": f_g}),
                        "accelerometer minus the GPS motion acceleration when ||f| - g| exceeds the threshold" + (
                            "" if p["motion_accel_model"] == "differentiator" else
@@ -178,13 +181,14 @@ class Model(FilterModel):
         t_dist = ca.SX.sym("mag_dist_time")
         t_learn = ca.SX.sym("mag_learn_time")
         decl = p["declination"]
+        rot = ca.SX.sym("rot", 3, 3)      # R(q), from the rotation kernel once per step
 
         q0 = ca.if_else(use_m, attitude.fqa(f, m, decl), attitude.tilt_with_yaw(f, 0.0))
         down = -a_lp * ca.sqrt(1 / ca.sumsqr(a_lp))              # measured down, NED (through q̂)
         T = aiding.tilt_correction(down)
         H = aiding.heading_correction(quat.qmul(T, q), m, decl)
         # e dt, the error integrated over the step (no division by dt: a tiny dt must not blow up)
-        e_dt = quat.rotate_inv(q, span_a * T[1:] + span_m * H[1:])
+        e_dt = ca.mtimes(rot.T, span_a * T[1:] + span_m * H[1:])
         rotation = (gyro - bias) * dt + p["kp"] * e_dt          # β dt
         trusted = ca.logic_and(use_a, ca.fabs(ca.sqrt(ca.sumsqr(f)) - G0) < p["bias_accel_gate"])
         bias_pi = ca.if_else(trusted, bias - p["ki"] * e_dt, bias)
@@ -200,11 +204,11 @@ class Model(FilterModel):
             KernelSpec("heading_init", function("heading_init", {"q": q, "mag": m},
                                                 {"q_new": quat.qmul(aiding.heading_correction(q, m, decl), q)}),
                        "first magnetometer sample after a tilt-only start: heading set, tilt kept"),
-            KernelSpec("accel_lowpass", function("accel_lowpass", {"q": q, "accel": f, "accel_lp": a_lp, "span": span},
-                                                 {"accel_lp_new": aiding.lowpass(a_lp, quat.rotate(q, f), span,
+            KernelSpec("accel_lowpass", function("accel_lowpass", {"rot": rot, "accel": f, "accel_lp": a_lp, "span": span},
+                                                 {"accel_lp_new": aiding.lowpass(a_lp, ca.mtimes(rot, f), span,
                                                                                  p["accel_tau"])}),
                        "low-pass of the specific force in NED, R(q) f (time constant accel_tau)"),
-            KernelSpec("correct", function("correct", {"q": q, "gyro_bias": bias, "gyro": gyro, "dt": dt,
+            KernelSpec("correct", function("correct", {"q": q, "rot": rot, "gyro_bias": bias, "gyro": gyro, "dt": dt,
                                                        "accel_lp": a_lp, "mag": m, "span_accel": span_a,
                                                        "span_mag": span_m, "use_accel": use_a, "accel": f,
                                                        **({"at_rest": at_rest, "rest_gyro_lp": g_lp}
@@ -223,13 +227,13 @@ class Model(FilterModel):
                                                    "rest_time_new": t2, "at_rest": r2}),
                                  "rest detection: gyro and accelerometer steady for rest_time"))
         if p["mag_rejection"]:
-            down_b = quat.rotate_inv(q, down)
+            down_b = ca.mtimes(rot.T, down)
             mn = ca.sqrt(ca.sumsqr(m))
             acc, n2, d2, t2, l2 = aiding.field_check(
                 mn, ca.dot(down_b, m) / mn, m_ref[0], m_ref[1], t_dist, span, norm_tol=p["mag_norm_tol"],
                 dip_tol=p["mag_dip_tol"], ref_tau=p["mag_ref_tau"], new_time=p["mag_new_time"],
                 learn_time=t_learn, warmup=p["mag_warmup"])
-            ks.append(KernelSpec("mag_check", function("mag_check", {"q": q, "accel_lp": a_lp, "mag": m, "mag_ref": m_ref,
+            ks.append(KernelSpec("mag_check", function("mag_check", {"rot": rot, "accel_lp": a_lp, "mag": m, "mag_ref": m_ref,
                                                                      "mag_dist_time": t_dist, "mag_learn_time": t_learn,
                                                                      "span": span},
                                                        {"accept": acc, "mag_ref_new": ca.vertcat(n2, d2),
