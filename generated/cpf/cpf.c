@@ -526,7 +526,7 @@ static void cpf_k_euler(const float q[4], float rpy[3])
 /* xoshiro128** 1.1 (Blackman & Vigna 2018) on a uint32 state; the same integer stream as
  * generator/filters/cpf/prng.py. The state is seeded at generation time (SplitMix32 of the
  * seed parameter) and lives in the filter state. */
-static uint32_t cpf_rng_next(uint32_t r[4])
+static inline uint32_t cpf_rng_next(uint32_t r[4])
 {
     const uint32_t x = r[1] * 5u;
     const uint32_t result = ((x << 7) | (x >> 25)) * 9u;
@@ -637,13 +637,18 @@ static const float cpf_zig_f[128] = {
     0.011839478f, 0.008624485f, 0.005548995f, 0.0026696292f
 };
 
-/* One standard normal sample by the ziggurat: index, sign and 24-bit magnitude from one
- * draw; about 98.8 % of draws return at the first comparison, the rest take the wedge
- * (exp) or the tail beyond R (log) and draw again. */
-static float cpf_rng_gauss(uint32_t r[4])
+/* The ziggurat's rare path (about 1.2 % of draws), for a draw u that failed the first
+ * comparison: the wedge (exp) or the tail beyond R (log), drawing again as long as it rejects.
+ * Kept out of the common path below (not inlined, where the compiler has a way to say so)
+ * so that one stays a few instructions without a large function prologue. */
+#if defined(__GNUC__)
+#define CPF_NOT_INLINED __attribute__((noinline))
+#else
+#define CPF_NOT_INLINED
+#endif
+static CPF_NOT_INLINED float cpf_rng_gauss_slow(uint32_t r[4], uint32_t u)
 {
     for (;;) {
-        const uint32_t u = cpf_rng_next(r);
         const uint32_t i = u & 127u;
         const uint32_t j = u >> 8;
         const float x = (float)j * cpf_zig_w[i];
@@ -664,7 +669,23 @@ static float cpf_rng_gauss(uint32_t r[4])
         if (level < expf((-0.5f) * x * x)) {
             return ((u & 128u) != 0u) ? -x : x;
         }
+        u = cpf_rng_next(r);
     }
+}
+
+/* One standard normal sample by the ziggurat: index, sign and 24-bit magnitude from one
+ * draw; about 98.8 % of draws return at the first comparison, the rest take the wedge
+ * (exp) or the tail beyond R (log) and draw again. */
+static inline float cpf_rng_gauss(uint32_t r[4])
+{
+    const uint32_t u = cpf_rng_next(r);
+    const uint32_t i = u & 127u;
+    const uint32_t j = u >> 8;
+    if (j < cpf_zig_k[i]) {
+        const float x = (float)j * cpf_zig_w[i];
+        return ((u & 128u) != 0u) ? -x : x;
+    }
+    return cpf_rng_gauss_slow(r, u);
 }
 
 /* Four standard normal samples: one particle's noise. */
@@ -871,26 +892,27 @@ cpf_status cpf_step(cpf_state *s, const cpf_input *in, float dt)
     const bool have_obs = use_accel || use_mag;
     const float *y = s->q_cf;
 
-    /* Prediction: eq. 11 plus additive quaternion noise (eq. 9), particle by particle. */
+    /* Prediction: eq. 11 plus additive quaternion noise (eq. 9), particle by particle, and
+     * with an observation the largest |<x_i, Y>| (the likelihood's scale, eq. 13). */
+    float cmax = 0.0f;
     for (uint32_t i = 0u; i < 100u; i++) {
         float noise[4];
         cpf_rng_gauss4(s->rng, noise);
         cpf_k_particle_predict(&s->particles[4u * i], in->gyro, dt, noise, &s->particles[4u * i]);
-    }
-
-    /* Update (eqs. 13-14): likelihood scaled by its largest value, then normalisation; weights
-     * that sum to zero are reset to uniform, never divided by. */
-    if (have_obs) {
-        float cmax;
-        float sum = 0.0f;
-        cpf_k_obs_dot(&s->particles[0], y, &cmax);
-        for (uint32_t i = 1u; i < 100u; i++) {
+        if (have_obs) {
             float c;
             cpf_k_obs_dot(&s->particles[4u * i], y, &c);
-            if (c > cmax) {
+            if (i == 0u || c > cmax) {
                 cmax = c;
             }
         }
+    }
+
+    /* Update (eqs. 13-14): likelihood scaled by its largest value, then normalisation (in the
+     * estimate's loop below); weights that sum to zero are reset to uniform, never divided by. */
+    float sum = 1.0f;
+    if (have_obs) {
+        sum = 0.0f;
         for (uint32_t i = 0u; i < 100u; i++) {
             cpf_k_reweight(s->weights[i], &s->particles[4u * i], y, cmax, &s->weights[i]);
             sum += s->weights[i];
@@ -900,18 +922,19 @@ cpf_status cpf_step(cpf_state *s, const cpf_input *in, float dt)
                 s->weights[i] = 0.01f;
             }
             status |= CPF_WEIGHTS_RESET;
-        } else {
-            for (uint32_t i = 0u; i < 100u; i++) {
-                s->weights[i] = s->weights[i] / sum;
-            }
         }
     }
+    const bool normalise = have_obs && sum > 0.0f;
 
-    /* Estimate (eq. 15): sign-aligned weighted mean, normalised (kept if it degenerates). */
+    /* Estimate (eq. 15): sign-aligned weighted mean of the normalised weights, normalised (kept
+     * if it degenerates). */
     {
         float acc[4] = { 0.0f, 0.0f, 0.0f, 0.0f };
         float w2 = 0.0f;
         for (uint32_t i = 0u; i < 100u; i++) {
+            if (normalise) {
+                s->weights[i] = s->weights[i] / sum;
+            }
             cpf_k_accumulate(acc, s->weights[i], &s->particles[4u * i], s->q, acc);
             w2 += s->weights[i] * s->weights[i];
         }
