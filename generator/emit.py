@@ -140,10 +140,16 @@ class Arg:
     size: int
     shape: tuple[int, int]
     expr: str | None = None    # read from a context (e.g. "par->kp") instead of an argument
+    flag: bool = False         # a true/false input: C type bool, read as a condition
 
     @property
     def scalar(self) -> bool:
         return self.size == 1
+
+    def param(self, real: str) -> str:
+        """Its declaration as a (read-only) parameter."""
+        ctype = "bool" if self.flag else real
+        return f"{ctype} {self.name}" if self.scalar else f"const {ctype} {self.name}[{self.size}]"
 
 
 @dataclass
@@ -173,9 +179,10 @@ class Kernel:
         for a in self.inputs:
             if a.expr is not None:
                 continue
-            params.append(f"{real} {a.name}" if a.scalar else f"const {real} {a.name}[{a.size}]")
+            params.append(a.param(real))
         for a in self.outputs:
-            params.append(f"{real} *{a.name}" if a.scalar else f"{real} {a.name}[{a.size}]")
+            ctype = "bool" if a.flag else real
+            params.append(f"{ctype} *{a.name}" if a.scalar else f"{ctype} {a.name}[{a.size}]")
         return f"{storage}void {self.name}({', '.join(params)})"
 
     def source(self, storage: str = "static ", indent: str = "    ") -> str:
@@ -201,7 +208,8 @@ def _check_name(name: str, what: str) -> None:
 
 def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc: str = "",
          math: str = "libm", branch_min_cost: int | None = BRANCH_MIN_COST, fma: bool = False,
-         split_temps: int | None = SPLIT_TEMPS, context: tuple[str, dict] | None = None) -> Kernel:
+         split_temps: int | None = SPLIT_TEMPS, context: tuple[str, dict] | None = None,
+         flags: tuple[str, ...] | list[str] = ()) -> Kernel:
     """Emit an SX Function as a C function body for the given precision.
 
     ``math="fast"`` (float only; double always uses libm) writes fastmath helpers for the
@@ -212,6 +220,11 @@ def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc
     context = (declaration, {input name: C expression}): those scalar inputs are read through
     one leading parameter (e.g. ("const att_params *par", {"param_kp": "par->kp"})) instead of
     being arguments of their own; the kernel takes the declaration first if it reads any.
+
+    flags: names of inputs (and outputs) that only hold 0 or 1 (masks, use-this-sensor switches): they are
+    declared bool and tested as conditions, never compared with 0.0f. Comparisons and their
+    logic (<, <=, ==, !=, &&, ||, !) become bool temporaries too; where one is used as a number
+    it is converted explicitly, (float)x.
     """
     if precision not in PRECISIONS:
         raise EmitError(f"precision must be one of {PRECISIONS}, got {precision!r}")
@@ -232,7 +245,7 @@ def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc
         if not sp.is_dense():
             raise EmitError(f"kernel {name}: input {fn.name_in(i)!r} is sparse; only dense inputs are supported")
         _check_name(fn.name_in(i), f"kernel {name}: input")
-        inputs.append(Arg(fn.name_in(i), sp.nnz(), (sp.size1(), sp.size2())))
+        inputs.append(Arg(fn.name_in(i), sp.nnz(), (sp.size1(), sp.size2()), flag=fn.name_in(i) in flags))
         if context and fn.name_in(i) in context[1]:
             if sp.nnz() != 1:
                 raise EmitError(f"kernel {name}: context input {fn.name_in(i)!r} must be a scalar")
@@ -242,28 +255,41 @@ def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc
         if not sp.is_dense():
             raise EmitError(f"kernel {name}: output {fn.name_out(o)!r} is sparse; densify it in the model")
         _check_name(fn.name_out(o), f"kernel {name}: output")
-        outputs.append(Arg(fn.name_out(o), sp.nnz(), (sp.size1(), sp.size2())))
+        outputs.append(Arg(fn.name_out(o), sp.nnz(), (sp.size1(), sp.size2()), flag=fn.name_out(o) in flags))
 
     work: dict[int, str] = {}       # work index -> C expression (temporary, input ref or literal)
     nodes: dict[str, dict] = {}     # temporary -> {code, cat, expr, args}
     order: list[str] = []
     writes: list[str] = []
     used_inputs: set[int] = set()
+    booleans: set[str] = set()      # flag input references and bool temporaries
+    unknown = set(flags) - {fn.name_in(i) for i in range(fn.n_in())} - {fn.name_out(o) for o in range(fn.n_out())}
+    if unknown:
+        raise EmitError(f"kernel {name}: flag(s) {', '.join(sorted(unknown))} are neither inputs nor outputs")
 
     def ref(w: int) -> str:
         return work[w]
+
+    def boolish(x: str) -> bool:
+        return x in booleans or x in (one, zero)
+
+    def truth(x: str) -> str:
+        return "true" if x == one else "false" if x == zero else x
+
+    def value(x: str) -> str:
+        """x read as a number: a bool is converted explicitly."""
+        return f"({precision}){x}" if x in booleans else x
 
     def condition(x: str) -> str:
         """C condition for 'x is true', folding a comparison temporary into it."""
         node = nodes.get(x)
         if node is not None and node["code"] in _COMPARISONS:
             a, b = node["args"]
-            return f"{a} {_COMPARISONS[node['code']]} {b}"
+            return f"{value(a)} {_COMPARISONS[node['code']]} {value(b)}"
         if node is not None and node["code"] == ca.OP_NOT:
-            inner = nodes.get(node["args"][0])
-            if inner is not None and inner["code"] in _COMPARISONS:
-                a, b = inner["args"]
-                return f"!({a} {_COMPARISONS[inner['code']]} {b})"
+            return f"!({condition(node['args'][0])})"
+        if x in booleans:
+            return x
         return f"{x} != {zero}"
 
     for k in range(fn.n_instructions()):
@@ -278,13 +304,19 @@ def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc
             used_inputs.add(i)
             a = inputs[i]
             work[w] = a.expr if a.expr is not None else (a.name if a.scalar else f"{a.name}[{nz}]")
+            if a.flag:
+                booleans.add(work[w])
             continue
         if code == ca.OP_OUTPUT:
             (w,) = fn.instruction_input(k)
             o, nz = fn.instruction_output(k)
             a = outputs[o]
             target = f"*{a.name}" if a.scalar else f"{a.name}[{nz}]"
-            writes.append(f"{target} = {ref(w)};")
+            if a.flag:
+                x = ref(w)
+                writes.append(f"{target} = {truth(x) if boolish(x) else f'{x} != {zero}'};")
+            else:
+                writes.append(f"{target} = {value(ref(w))};")
             continue
         if code == ca.OP_ASSIGN:
             (w_in,) = fn.instruction_input(k)[:1]
@@ -296,12 +328,24 @@ def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc
         sel = None
         args = [ref(ins[0])] + ([ref(ins[1])] if code in _BINARY or code == ca.OP_CONSTPOW else [])
         select = _as_select(code, args, nodes)
-        if select is not None:
+        logic = None
+        if select is None and code in _LOGIC:
+            logic = _LOGIC[code](*[condition(a) if code in _CONNECTIVES else value(a) for a in args])
+        if select is None:
+            args_v = [value(a) for a in args]
+        if logic is not None:
+            cat, expr = "cmp", logic
+        elif select is not None:
             cond, a, b = select
+            if boolish(a) and boolish(b):      # a choice between truth values stays bool
+                a, b = truth(a), truth(b)
+                logic = "select"
+            else:
+                a, b = value(a), value(b)
             cat, expr = "cmp", f"({condition(cond)}) ? {a} : {b}"
             sel = (condition(cond), a, b)
         elif code == ca.OP_CONSTPOW:
-            a, b = args
+            a, b = args_v
             expo = _literal_value(b)
             if expo == 2.0:
                 cat, expr = "mul", f"{a} * {a}"
@@ -316,27 +360,31 @@ def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc
         elif code == ca.OP_IF_ELSE_ZERO:
             c = condition(args[0])
             if c.startswith("!(") and c.endswith(")"):      # if_else(c, 0, x): same block as c's selects
-                cat, expr = "cmp", f"({c[2:-1]}) ? {zero} : {args[1]}"
-                sel = (c[2:-1], zero, args[1])
+                cat, expr = "cmp", f"({c[2:-1]}) ? {zero} : {args_v[1]}"
+                sel = (c[2:-1], zero, args_v[1])
             else:
-                cat, expr = "cmp", f"({c}) ? {args[1]} : {zero}"
-                sel = (c, args[1], zero)
+                cat, expr = "cmp", f"({c}) ? {args_v[1]} : {zero}"
+                sel = (c, args_v[1], zero)
         elif fast and code in fastmath.OPS:
             h = fastmath.OPS[code]
             helpers.add(h)
-            cat, expr = "trig", f"{fastmath.HELPERS[h].name}({', '.join(args)})"
+            cat, expr = "trig", f"{fastmath.HELPERS[h].name}({', '.join(args_v)})"
         elif code in _BINARY:
             cat, fmt = _BINARY[code]
-            expr = fmt.format(a=args[0], b=args[1], F=F, one=one, zero=zero)
+            expr = fmt.format(a=args_v[0], b=args_v[1], F=F, one=one, zero=zero)
         elif code in _UNARY:
             cat, fmt = _UNARY[code]
-            expr = fmt.format(a=args[0], F=F, one=one, zero=zero)
+            expr = fmt.format(a=args_v[0], F=F, one=one, zero=zero)
         else:
             raise EmitError(
                 f"kernel {name}: CasADi operation {op_name(code)} is not supported by the emitter "
                 f"(supported: {', '.join(SUPPORTED)})")
         tmp = f"t{len(order)}"
-        nodes[tmp] = {"code": code, "cat": cat, "expr": expr, "args": args, "sel": sel}
+        nodes[tmp] = {"code": code, "cat": cat, "expr": expr, "args": args, "sel": sel,
+                      "vargs": args_v if select is None else args,
+                      "ctype": "bool" if logic is not None else precision}
+        if logic is not None:
+            booleans.add(tmp)
         order.append(tmp)
         work[w] = tmp
 
@@ -363,7 +411,8 @@ def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc
     reads_context = any(a.expr is not None for i, a in enumerate(inputs) if i in used_inputs)
     ctx_decl = context[0] if context and reads_context else None
     if split_temps and len(emitted) > split_temps:
-        body, parts = _split(name, precision, inputs, body, writes, tops, split_temps, ctx_decl)
+        body, parts = _split(name, precision, inputs, body, writes, tops, split_temps, ctx_decl,
+                             frozenset(t for t in kept if nodes[t]["ctype"] == "bool"))
         body, parts = [sub(line) for line in body], [sub(p) for p in parts]
     else:
         body = [sub(line) for line in body] + [sub(line) for line in writes]
@@ -378,11 +427,12 @@ def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc
 _WORD = re.compile(r"\b[A-Za-z_]\w*\b")
 
 
-def _split(name, precision, inputs, body, writes, tops, size, ctx_decl=None):
+def _split(name, precision, inputs, body, writes, tops, size, ctx_decl=None, bools=frozenset()):
     """Cut the top-level statements into parts of about `size` temporaries; each part is a
     static function that reads the kernel inputs it uses and the values earlier parts
     exported (arrays carry<k> in the kernel's frame) and exports what later parts and the
-    outputs read. Returns the kernel's body and the parts' sources (temporaries as t<N>)."""
+    outputs read. Returns the kernel's body and the parts' sources (temporaries as t<N>).
+    A bool temporary travels as 1 or 0 in its carry and is read back as carry > 0.5."""
     chunks, cur, count = [], [], 0
     for item in tops:
         if cur and count + len(item[2]) > size:
@@ -402,6 +452,10 @@ def _split(name, precision, inputs, body, writes, tops, size, ctx_decl=None):
         exports.append([t for t in d if t in later])
     where = {t: (k, i) for k, ex in enumerate(exports) for i, t in enumerate(ex)}
     real = precision
+
+    def carried(t):
+        ref = f"carry{where[t][0]}[{where[t][1]}]"
+        return f"({ref} > {literal(0.5, real)})" if t in bools else ref
     parts = []
     call_lines = [f"/* {len(chunks)} parts called in turn (inlined when optimising): bounded -O0 frames */"]
     call_lines += [f"{real} carry{k}[{len(ex)}];" for k, ex in enumerate(exports) if ex]
@@ -411,19 +465,19 @@ def _split(name, precision, inputs, body, writes, tops, size, ctx_decl=None):
         ins = [a for a in inputs if a.expr is None and a.name in words]
         ctx = ctx_decl is not None and any(a.expr is not None and a.expr in text for a in inputs)
         imports = sorted({where[t][0] for t in used[k] if t in where and where[t][0] < k})
-        params = ([ctx_decl] if ctx else []) + [
-            f"{real} {a.name}" if a.scalar else f"const {real} {a.name}[{a.size}]" for a in ins]
+        params = ([ctx_decl] if ctx else []) + [a.param(real) for a in ins]
         params += [f"const {real} carry{j}[{len(exports[j])}]" for j in imports]
         if exports[k]:
             params.append(f"{real} carry{k}[{len(exports[k])}]")
-        imported = {t: f"carry{where[t][0]}[{where[t][1]}]" for t in used[k] if t in where and where[t][0] < k}
+        imported = {t: carried(t) for t in used[k] if t in where and where[t][0] < k}
         lines = [_TMP_RE.sub(lambda m: imported.get(m.group(0), m.group(0)), ln) for ln in tx]
-        lines += [f"carry{k}[{i}] = {t};" for i, t in enumerate(exports[k])]
+        lines += [f"carry{k}[{i}] = {t} ? {literal(1.0, real)} : {literal(0.0, real)};" if t in bools
+                  else f"carry{k}[{i}] = {t};" for i, t in enumerate(exports[k])]
         pname = f"{name}_part{k}"
         parts.append(f"static void {pname}({', '.join(params)})\n{{\n" + "\n".join("    " + ln for ln in lines) + "\n}")
         args = ([_WORD.findall(ctx_decl)[-1]] if ctx else []) + [a.name for a in ins] + [f"carry{j}" for j in imports] + ([f"carry{k}"] if exports[k] else [])
         call_lines.append(f"{pname}({', '.join(args)});")
-    out = [_TMP_RE.sub(lambda m: f"carry{where[m.group(0)][0]}[{where[m.group(0)][1]}]", w) for w in writes]
+    out = [_TMP_RE.sub(lambda m: carried(m.group(0)), w) for w in writes]
     return call_lines + out, parts
 
 
@@ -443,12 +497,12 @@ def _fuse_multiply_add(kept, nodes, writes, fname):
         node = nodes[t]
         if node["code"] not in (ca.OP_ADD, ca.OP_SUB) or node["sel"] is not None:
             continue
-        x, y = node["args"]
+        x, y = node["vargs"]
         for pos, m in ((0, x), (1, y)):
             mn = nodes.get(m)
             if mn is None or mn["code"] != ca.OP_MUL or m == (y if pos == 0 else x):
                 continue
-            a, b = mn["args"]
+            a, b = mn["vargs"]
             other = y if pos == 0 else x
             if node["code"] == ca.OP_ADD:
                 expr = f"{fname}({a}, {b}, {other})"
@@ -512,8 +566,8 @@ def _layout(kept, nodes, writes, precision, min_cost):
             users[r].add("<out>")
     by_cond: dict[str, list[str]] = {}
     for t in kept:
-        if nodes[t]["sel"] is not None:
-            by_cond.setdefault(nodes[t]["sel"][0], []).append(t)
+        if nodes[t]["sel"] is not None:       # keyed apart from temporaries: a condition may be one
+            by_cond.setdefault(_IF + nodes[t]["sel"][0], []).append(t)
 
     def cost(E):
         return sum(_WEIGHT[nodes[t]["cat"]] for t in E)
@@ -531,6 +585,9 @@ def _layout(kept, nodes, writes, precision, min_cost):
             return _emit_groups(kept, idx, nodes, refs, groups, precision)
         except _Cycle as c:        # this group cannot be placed as one block: keep it ?:
             del groups[c.cond]
+
+
+_IF = "if:"      # prefix of a group's key: the condition text, apart from any temporary's name
 
 
 class _Cycle(Exception):
@@ -567,7 +624,7 @@ def _emit_groups(kept, idx, nodes, refs, groups, precision):
             if t in inner:
                 continue
             sel = nodes[t]["sel"]
-            g = sel[0] if sel is not None and sel[0] in here else None
+            g = _IF + sel[0] if sel is not None and _IF + sel[0] in here else None
             owner[t] = g if g is not None else t
             items.setdefault(owner[t], idx[t])
             items[owner[t]] = min(items[owner[t]], idx[t])
@@ -598,11 +655,11 @@ def _emit_groups(kept, idx, nodes, refs, groups, precision):
             if i in groups:
                 sels, ea, eb = groups[i]
                 for s in sels:
-                    lines.append(f"{indent}{precision} {s};")
+                    lines.append(f"{indent}{nodes[s]['ctype']} {s};")
                     emitted.append(s)
-                br = {"condition": i, "then": _ops(ea, nodes), "else": _ops(eb, nodes)}
+                br = {"condition": i[len(_IF):], "then": _ops(ea, nodes), "else": _ops(eb, nodes)}
                 branches.append(br)
-                lines.append(f"{indent}if ({i}) {{")
+                lines.append(f"{indent}if ({i[len(_IF):]}) {{")
                 block(sorted(ea, key=idx.get), (i, 1), indent + "    ")
                 for s in sels:
                     lines.append(f"{indent}    {s} = {nodes[s]['sel'][1]};")
@@ -612,7 +669,7 @@ def _emit_groups(kept, idx, nodes, refs, groups, precision):
                     lines.append(f"{indent}    {s} = {nodes[s]['sel'][2]};")
                 lines.append(f"{indent}}}")
             else:
-                lines.append(f"{indent}const {precision} {i} = {nodes[i]['expr']};")
+                lines.append(f"{indent}const {nodes[i]['ctype']} {i} = {nodes[i]['expr']};")
                 emitted.append(i)
             if key is None:
                 tops.append((start, len(lines), emitted[n0:]))
@@ -637,6 +694,11 @@ def _ops(E, nodes) -> dict:
 
 _TMP_RE = re.compile(r"\bt\d+\b")
 _COMPARISONS = {ca.OP_LT: "<", ca.OP_LE: "<=", ca.OP_EQ: "==", ca.OP_NE: "!="}
+# Operations with a true/false result, emitted as bool: comparisons of numbers, and the
+# connectives, which read their operands as conditions.
+_CONNECTIVES = {ca.OP_AND: lambda a, b: f"({a}) && ({b})", ca.OP_OR: lambda a, b: f"({a}) || ({b})",
+                ca.OP_NOT: lambda a: f"!({a})"}
+_LOGIC = {**{c: (lambda op: lambda a, b: f"{a} {op} {b}")(op) for c, op in _COMPARISONS.items()}, **_CONNECTIVES}
 
 
 def _as_select(code, args, nodes):

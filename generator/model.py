@@ -149,6 +149,7 @@ class KernelSpec:
     name: str
     function: ca.Function
     doc: str
+    flags: tuple = ()     # inputs holding 0 or 1: emitted as bool (emit.emit's flags)
 
 
 @dataclass

@@ -158,7 +158,7 @@ def render(cfg: BuildConfig) -> Generated:
     kernels, kctx = [], []
     for ks in specs:
         k = emit.emit(ks.function, real, name=f"{prefix}_k_{ks.name}", doc="", context=context,
-                      math=cfg.math, fma=cfg.fma)
+                      math=cfg.math, fma=cfg.fma, flags=ks.flags)
         extra = [a.name for a in k.inputs if a.name.startswith(emit.RUNTIME_PREFIX) and a.expr is None]
         if extra:
             raise ConfigError(f"kernel {ks.name}: free symbol(s) {', '.join(extra)} are not runtime parameters")

@@ -17,7 +17,7 @@ from firmware_sim.host import STRICT, cc
 from generator import emit, filters
 
 
-def _inputs(fn, rng):
+def _inputs(fn, rng, flags=()):
     """Plausible inputs by name: unit quaternions, SPD matrices, small dt, 0/1 flags."""
     vals = []
     for i in range(fn.n_in()):
@@ -27,7 +27,7 @@ def _inputs(fn, rng):
             v = np.array([rng.uniform(0.002, 0.1)])
         elif name == "cmax":                      # cpf: the largest |<x, y>| of unit quaternions
             v = np.array([1.0])
-        elif name.startswith("use_") or name == "mask":
+        elif name.startswith("use_") or name == "mask" or name in flags:
             v = rng.integers(0, 2, n).astype(float)
         elif r == c and r > 1:                    # covariance-like: symmetric positive definite
             a = rng.normal(size=(r, r)) * 0.1
@@ -55,16 +55,16 @@ _cache: dict = {}
 
 def _kernels_of(filter_name):
     if filter_name not in _cache:
-        _cache[filter_name] = {k.name: k.function for k in filters.load(filter_name).model().kernels()}
+        _cache[filter_name] = {k.name: (k.function, k.flags) for k in filters.load(filter_name).model().kernels()}
     return _cache[filter_name]
 
 
 @pytest.mark.parametrize("filter_name, kernel", _all_kernels())
 def test_emitter_agrees_with_casadi_codegen(filter_name, kernel, tmp_path):
-    fn = _kernels_of(filter_name)[kernel]
-    # ours
-    k = emit.emit(fn, "double", name=f"ours_{kernel}")
-    (tmp_path / "ours.c").write_text("#include <math.h>\n\n" + k.source(storage="") + "\n")
+    fn, flags = _kernels_of(filter_name)[kernel]
+    # ours, with its flags as bool (as the filter emits it)
+    k = emit.emit(fn, "double", name=f"ours_{kernel}", flags=flags)
+    (tmp_path / "ours.c").write_text("#include <math.h>\n#include <stdbool.h>\n\n" + k.source(storage="") + "\n")
     # CasADi's
     cg = ca.CodeGenerator("theirs.c", {"casadi_real": "double", "with_header": False})
     cg.add(fn)
@@ -84,15 +84,20 @@ def test_emitter_agrees_with_casadi_codegen(filter_name, kernel, tmp_path):
     rng = np.random.default_rng(11)
     finite = 0
     for trial in range(20):
-        ins = _inputs(fn, rng)
-        outs_ours = [np.zeros(fn.nnz_out(o)) for o in range(fn.n_out())]
+        ins = _inputs(fn, rng, flags)
+        outs_ours = [np.zeros(fn.nnz_out(o), dtype=bool if a.flag else float) for o, a in enumerate(k.outputs)]
         outs_theirs = [np.zeros(fn.nnz_out(o)) for o in range(fn.n_out())]
         args = []
         for a, v in zip(k.inputs, ins):
+            if a.flag:      # a flag holds 0 or 1 (_inputs): passed as C bool
+                b = v.astype(bool)
+                args.append(ctypes.c_bool(bool(b[0])) if a.scalar else b.ctypes.data_as(ctypes.POINTER(ctypes.c_bool)))
+                continue
             args.append(D(float(v[0])) if a.scalar else v.ctypes.data_as(ctypes.POINTER(D)))
         for a, v in zip(k.outputs, outs_ours):
-            args.append(v.ctypes.data_as(ctypes.POINTER(D)))
+            args.append(v.ctypes.data_as(ctypes.POINTER(ctypes.c_bool if a.flag else D)))
         ours(*args)
+        outs_ours = [v.astype(float) for v in outs_ours]
         arg_arr = (ctypes.POINTER(D) * max(1, fn.sz_arg()))(*[v.ctypes.data_as(ctypes.POINTER(D)) for v in ins])
         res_arr = (ctypes.POINTER(D) * max(1, fn.sz_res()))(*[v.ctypes.data_as(ctypes.POINTER(D)) for v in outs_theirs])
         iw = (ctypes.c_longlong * max(1, fn.sz_iw()))()

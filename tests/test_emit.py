@@ -48,7 +48,7 @@ CASES = [
 
 def _build(kernels, precision, tmp_path):
     src = tmp_path / f"k_{precision}.c"
-    body = "#include <math.h>\n\n" + "\n\n".join(k.source(storage="") for k in kernels) + "\n"
+    body = "#include <math.h>\n#include <stdbool.h>\n\n" + "\n\n".join(k.source(storage="") for k in kernels) + "\n"
     src.write_text(body)
     lib = tmp_path / f"k_{precision}.so"
     # -Wno-missing-prototypes style noise does not apply: these are plain external functions.

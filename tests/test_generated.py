@@ -67,9 +67,13 @@ CLANG_LEFT_OUT = {
     "declaration-after-statement": "C89 compatibility: the code is C99 and declares at first use",
 }
 CLANG_LEFT_OUT_PER_FILTER = {   # not yet fixed in these filters' models/partials
-    "mekf": {"float-equal": "measurement masks are float kernel inputs (mask != 0.0f)",
-             "unreachable-code": "step partial tests MEKF_ACCEL_GATE > 0 with the gate folded to 0"},
-    "adukf": {"float-equal": "use_accel/use_mag are float kernel inputs (flag != 0.0f)"},
+    "mekf": {"unreachable-code": "step partial tests MEKF_ACCEL_GATE > 0 with the gate folded to 0"},
+}
+# GCC's -Wfloat-equal also flags x != 0.0f (clang's does not): a filter whose 0/1 values are
+# still float (kernel inputs not yet declared flags, template variables) is listed here.
+FLOAT_EQUAL_LEFT = {
+    "mekf": "measurement masks are float kernel inputs and template variables (mask != 0.0f)",
+    "adukf": "use_accel/use_mag are float kernel inputs (flag != 0.0f)",
 }
 
 
@@ -99,6 +103,19 @@ def test_clang_weverything_clean_but_the_listed_flags(gen_dir):
     r = subprocess.run(["clang", "-std=c99", "-Weverything", "-Werror", *[f"-Wno-{w}" for w in off],
                         "-fsyntax-only", str(gen_dir / man["files"]["source"])], capture_output=True, text=True)
     assert r.returncode == 0, r.stderr[:2000]
+
+
+@pytest.mark.parametrize("gen_dir", GENERATED, ids=lambda p: p.name)
+def test_no_float_equality(gen_dir):
+    """Flags are bool, not floats compared with 0.0f: gcc -Wfloat-equal finds no == / != on a
+    float (flags as emit.emit's `flags`, comparisons and their logic as bool temporaries)."""
+    man = json.loads((gen_dir / "manifest.json").read_text())
+    r = subprocess.run([cc(), "-std=c99", "-Wfloat-equal", "-Werror", "-fsyntax-only",
+                        str(gen_dir / man["files"]["source"])], capture_output=True, text=True)
+    if man["filter"] in FLOAT_EQUAL_LEFT:      # a known gap: the list must shrink once it is fixed
+        assert r.returncode != 0, f"{man['filter']} is now clean: remove it from FLOAT_EQUAL_LEFT"
+    else:
+        assert r.returncode == 0, r.stderr[:2000]
 
 
 @pytest.mark.parametrize("gen_dir", GENERATED, ids=lambda p: p.name)

@@ -893,7 +893,7 @@ static void adukf_k_predict(const float x[7], const float P[49], const float gyr
 
 /* sigma points from the Cholesky factor of P- (9 distinct: a bias column moves no attitude), each normalised and mapped through h; predicted measurement, residual, adaptive per-axis R, P_zz and P_xz (unusable sensors masked out exactly); pivot_P = smallest pivot of P-
  * ops: add 746, mul 727, div 19, sqrt 17, cmp 96 (total 1605)
- *      of which only one side runs: if (tmp361 != 0.0f) 162, else 0
+ *      of which only one side runs: if (tmp361) 162, else 0
  *      of which only one side runs: if (use_accel != 0.0f) 249, else 0
  *      of which only one side runs: if (use_mag != 0.0f) 246, else 0 */
 static void adukf_k_innovation_part0(const float x_pred[7], const float P_pred[49], float carry0[69])
@@ -1423,7 +1423,7 @@ static void adukf_k_innovation_part2(const float m_ref[3], float use_accel, floa
     const float tmp358 = tmp351 - tmp336;
     const float tmp359 = tmp351 - tmp342;
     const float tmp360 = tmp351 - tmp348;
-    const float tmp361 = (use_accel != 0.0f && use_mag != 0.0f) ? 1.0f : 0.0f;
+    const bool tmp361 = (use_accel != 0.0f) && (use_mag != 0.0f);
     const float tmp362 = carry0[4] * carry0[4];
     const float tmp363 = carry1[74] + tmp362;
     const float tmp364 = tmp363 + tmp363;
@@ -1562,7 +1562,7 @@ static void adukf_k_innovation_part2(const float m_ref[3], float use_accel, floa
     carry2[17] = tmp358;
     carry2[18] = tmp359;
     carry2[19] = tmp360;
-    carry2[20] = tmp361;
+    carry2[20] = tmp361 ? 1.0f : 0.0f;
     carry2[21] = tmp362;
     carry2[22] = tmp367;
     carry2[23] = tmp368;
@@ -1906,7 +1906,7 @@ static void adukf_k_innovation_part5(const float carry1[87], const float carry2[
     float tmp716;
     float tmp717;
     float tmp718;
-    if (carry2[20] != 0.0f) {
+    if ((carry2[20] > 0.5f)) {
         const float tmp719 = carry3[3] * carry1[23];
         const float tmp720 = carry3[4] * carry1[24];
         const float tmp721 = carry3[5] * carry1[25];

@@ -215,10 +215,10 @@ static void mekf_k_predict_part0(const float q[4], const float b[3], const float
         tmp30 = tmp112;
     } else {
         const float tmp113 = tmp16 / tmp13;
-        const float tmp114 = (0.01f <= tmp11) ? 1.0f : 0.0f;
-        const float tmp115 = (tmp11 <= 0.01f) ? 1.0f : 0.0f;
-        const float tmp116 = tmp114 + tmp115;
-        const float tmp117 = tmp114 / tmp116;
+        const bool tmp114 = 0.01f <= tmp11;
+        const bool tmp115 = tmp11 <= 0.01f;
+        const float tmp116 = (float)tmp114 + (float)tmp115;
+        const float tmp117 = (float)tmp114 / tmp116;
         const float tmp118 = tmp117 * tmp18;
         const float tmp119 = tmp13 + tmp13;
         const float tmp120 = tmp118 / tmp119;

@@ -89,8 +89,8 @@ static float fast_atan2f(float y, float x)
 /* first attitude: FQA with a magnetometer sample, else the accelerometer's tilt with yaw 0; the low-pass starts at R(q) f
  * ops: add 64, mul 54, div 13, sqrt 9, cmp 19 (total 159)
  *      of which only one side runs: if (tmp12 < 1e-06f) 0, else 7
- *      of which only one side runs: if (use_mag != 0.0f) 64, else 1 */
-static void qcf_k_init_attitude(const float accel[3], const float mag[3], float use_mag, float q[4], float accel_lp[3])
+ *      of which only one side runs: if (use_mag) 64, else 1 */
+static void qcf_k_init_attitude(const float accel[3], const float mag[3], bool use_mag, float q[4], float accel_lp[3])
 {
     const float tmp0 = accel[0] * accel[0];
     const float tmp1 = accel[1] * accel[1];
@@ -148,7 +148,7 @@ static void qcf_k_init_attitude(const float accel[3], const float mag[3], float 
     float tmp46;
     float tmp47;
     float tmp48;
-    if (use_mag != 0.0f) {
+    if (use_mag) {
         const float tmp49 = tmp33 * tmp33;
         const float tmp50 = tmp39 * tmp39;
         const float tmp51 = tmp49 + tmp50;
@@ -407,11 +407,11 @@ static void qcf_k_accel_lowpass(const float rot[9], const float accel[3], const 
 }
 
 /* tilt (low-passed accelerometer) and heading (magnetometer) corrections as PI feedback, bias integral gated, bias at rest from the low-passed gyro, integration (eq. 9)
- * ops: add 85, mul 108, div 10, sqrt 7, trig 2, cmp 32 (total 244)
+ * ops: add 85, mul 108, div 10, sqrt 7, trig 2, cmp 31 (total 243)
  *      of which only one side runs: if (tmp10 < 1e-06f) 0, else 26
  *      of which only one side runs: if (tmp99 < 1e-30f) 0, else 17
  *      of which only one side runs: if (tmp144 < 0.01f) 16, else 5
- *      of which only one side runs: if (at_rest != 0.0f) 11, else 19 */
+ *      of which only one side runs: if (at_rest) 11, else 18 */
 static void qcf_k_correct_part0(const float q[4], const float rot[9], const float gyro_bias[3], const float gyro[3], float dt, const float accel_lp[3], const float mag[3], float span_accel, float span_mag, float carry0[7])
 {
     const float tmp0 = gyro[0] - gyro_bias[0];
@@ -604,7 +604,7 @@ static void qcf_k_correct_part0(const float q[4], const float rot[9], const floa
     carry0[6] = tmp144;
 }
 
-static void qcf_k_correct_part1(const float q[4], const float gyro_bias[3], float span_accel, float use_accel, const float accel[3], float at_rest, const float rest_gyro_lp[3], const float carry0[7], float carry1[7])
+static void qcf_k_correct_part1(const float q[4], const float gyro_bias[3], float span_accel, bool use_accel, const float accel[3], bool at_rest, const float rest_gyro_lp[3], const float carry0[7], float carry1[7])
 {
     float tmp145;
     float tmp146;
@@ -682,7 +682,7 @@ static void qcf_k_correct_part1(const float q[4], const float gyro_bias[3], floa
     float tmp211;
     float tmp212;
     float tmp213;
-    if (at_rest != 0.0f) {
+    if (at_rest) {
         const float tmp214 = 1.0f + span_accel;
         const float tmp215 = span_accel / tmp214;
         const float tmp216 = rest_gyro_lp[0] - gyro_bias[0];
@@ -706,20 +706,19 @@ static void qcf_k_correct_part1(const float q[4], const float gyro_bias[3], floa
         const float tmp230 = sqrtf(tmp229);
         const float tmp231 = tmp230 - 9.80665f;
         const float tmp232 = fabsf(tmp231);
-        const float tmp233 = (tmp232 < 1.0f) ? 1.0f : 0.0f;
-        const float tmp234 = (use_accel != 0.0f && tmp233 != 0.0f) ? 1.0f : 0.0f;
-        const float tmp235 = 0.002f * carry0[0];
-        const float tmp236 = gyro_bias[0] - tmp235;
-        const float tmp237 = (tmp234 != 0.0f) ? tmp236 : gyro_bias[0];
-        const float tmp238 = 0.002f * carry0[2];
-        const float tmp239 = gyro_bias[1] - tmp238;
-        const float tmp240 = (tmp234 != 0.0f) ? tmp239 : gyro_bias[1];
-        const float tmp241 = 0.002f * carry0[4];
-        const float tmp242 = gyro_bias[2] - tmp241;
-        const float tmp243 = (tmp234 != 0.0f) ? tmp242 : gyro_bias[2];
-        tmp211 = tmp237;
-        tmp212 = tmp240;
-        tmp213 = tmp243;
+        const bool tmp233 = (use_accel) && (tmp232 < 1.0f);
+        const float tmp234 = 0.002f * carry0[0];
+        const float tmp235 = gyro_bias[0] - tmp234;
+        const float tmp236 = (tmp233) ? tmp235 : gyro_bias[0];
+        const float tmp237 = 0.002f * carry0[2];
+        const float tmp238 = gyro_bias[1] - tmp237;
+        const float tmp239 = (tmp233) ? tmp238 : gyro_bias[1];
+        const float tmp240 = 0.002f * carry0[4];
+        const float tmp241 = gyro_bias[2] - tmp240;
+        const float tmp242 = (tmp233) ? tmp241 : gyro_bias[2];
+        tmp211 = tmp236;
+        tmp212 = tmp239;
+        tmp213 = tmp242;
     }
     carry1[0] = tmp207;
     carry1[1] = tmp208;
@@ -730,7 +729,7 @@ static void qcf_k_correct_part1(const float q[4], const float gyro_bias[3], floa
     carry1[6] = tmp213;
 }
 
-static void qcf_k_correct(const float q[4], const float rot[9], const float gyro_bias[3], const float gyro[3], float dt, const float accel_lp[3], const float mag[3], float span_accel, float span_mag, float use_accel, const float accel[3], float at_rest, const float rest_gyro_lp[3], float q_new[4], float gyro_bias_new[3])
+static void qcf_k_correct(const float q[4], const float rot[9], const float gyro_bias[3], const float gyro[3], float dt, const float accel_lp[3], const float mag[3], float span_accel, float span_mag, bool use_accel, const float accel[3], bool at_rest, const float rest_gyro_lp[3], float q_new[4], float gyro_bias_new[3])
 {
     /* 2 parts called in turn (inlined when optimising): bounded -O0 frames */
     float carry0[7];
@@ -747,8 +746,8 @@ static void qcf_k_correct(const float q[4], const float rot[9], const float gyro
 }
 
 /* rest detection: gyro and accelerometer steady for rest_time
- * ops: add 26, mul 15, div 1, cmp 8 (total 50) */
-static void qcf_k_rest(const float gyro[3], const float accel[3], const float rest_gyro_lp[3], const float rest_accel_lp[3], float rest_time, float span, float rest_gyro_lp_new[3], float rest_accel_lp_new[3], float *rest_time_new, float *at_rest)
+ * ops: add 26, mul 15, div 1, cmp 5 (total 47) */
+static void qcf_k_rest(const float gyro[3], const float accel[3], const float rest_gyro_lp[3], const float rest_accel_lp[3], float rest_time, float span, float rest_gyro_lp_new[3], float rest_accel_lp_new[3], float *rest_time_new, bool *at_rest)
 {
     const float tmp0 = 0.5f + span;
     const float tmp1 = span / tmp0;
@@ -778,44 +777,40 @@ static void qcf_k_rest(const float gyro[3], const float accel[3], const float re
     const float tmp25 = gyro[2] - tmp10;
     const float tmp26 = tmp25 * tmp25;
     const float tmp27 = tmp24 + tmp26;
-    const float tmp28 = (tmp27 < 0.001225f) ? 1.0f : 0.0f;
-    const float tmp29 = accel[0] - tmp13;
-    const float tmp30 = tmp29 * tmp29;
-    const float tmp31 = accel[1] - tmp16;
-    const float tmp32 = tmp31 * tmp31;
-    const float tmp33 = tmp30 + tmp32;
-    const float tmp34 = accel[2] - tmp19;
-    const float tmp35 = tmp34 * tmp34;
-    const float tmp36 = tmp33 + tmp35;
-    const float tmp37 = (tmp36 < 0.25f) ? 1.0f : 0.0f;
-    const float tmp38 = (tmp28 != 0.0f && tmp37 != 0.0f) ? 1.0f : 0.0f;
-    const float tmp39 = tmp4 * tmp4;
-    const float tmp40 = tmp7 * tmp7;
+    const float tmp28 = accel[0] - tmp13;
+    const float tmp29 = tmp28 * tmp28;
+    const float tmp30 = accel[1] - tmp16;
+    const float tmp31 = tmp30 * tmp30;
+    const float tmp32 = tmp29 + tmp31;
+    const float tmp33 = accel[2] - tmp19;
+    const float tmp34 = tmp33 * tmp33;
+    const float tmp35 = tmp32 + tmp34;
+    const bool tmp36 = (tmp27 < 0.001225f) && (tmp35 < 0.25f);
+    const float tmp37 = tmp4 * tmp4;
+    const float tmp38 = tmp7 * tmp7;
+    const float tmp39 = tmp37 + tmp38;
+    const float tmp40 = tmp10 * tmp10;
     const float tmp41 = tmp39 + tmp40;
-    const float tmp42 = tmp10 * tmp10;
-    const float tmp43 = tmp41 + tmp42;
-    const float tmp44 = (tmp43 < 0.001225f) ? 1.0f : 0.0f;
-    const float tmp45 = (tmp38 != 0.0f && tmp44 != 0.0f) ? 1.0f : 0.0f;
-    const float tmp46 = rest_time + span;
-    const float tmp47 = (tmp46 < 1000.0f) ? tmp46 : 1000.0f;
-    const float tmp48 = (tmp45 != 0.0f) ? tmp47 : 0.0f;
-    const float tmp49 = (1.5f <= tmp48) ? 1.0f : 0.0f;
+    const bool tmp42 = (tmp36) && (tmp41 < 0.001225f);
+    const float tmp43 = rest_time + span;
+    const float tmp44 = (tmp43 < 1000.0f) ? tmp43 : 1000.0f;
+    const float tmp45 = (tmp42) ? tmp44 : 0.0f;
+    const bool tmp46 = 1.5f <= tmp45;
     rest_gyro_lp_new[0] = tmp4;
     rest_gyro_lp_new[1] = tmp7;
     rest_gyro_lp_new[2] = tmp10;
     rest_accel_lp_new[0] = tmp13;
     rest_accel_lp_new[1] = tmp16;
     rest_accel_lp_new[2] = tmp19;
-    *rest_time_new = tmp48;
-    *at_rest = tmp49;
+    *rest_time_new = tmp45;
+    *at_rest = tmp46;
 }
 
 /* field check: |m| and sin(dip) against the learned reference
- * ops: add 22, mul 26, div 4, sqrt 2, cmp 24 (total 78)
- *      of which only one side runs: if (tmp0 < 10.0f) 5, else 27
- *      of which only one side runs: if (tmp63 != 0.0f) 1, else 8
- *      of which only one side runs: if (tmp55 != 0.0f) 6, else 0 */
-static void qcf_k_mag_check(const float rot[9], const float accel_lp[3], const float mag[3], const float mag_ref[2], float mag_dist_time, float mag_learn_time, float span, float *accept, float mag_ref_new[2], float *mag_dist_time_new, float *mag_learn_time_new)
+ * ops: add 22, mul 26, div 4, sqrt 2, cmp 17 (total 71)
+ *      of which only one side runs: if (tmp0 < 10.0f) 5, else 20
+ *      of which only one side runs: if (tmp57) 1, else 8 */
+static void qcf_k_mag_check(const float rot[9], const float accel_lp[3], const float mag[3], const float mag_ref[2], float mag_dist_time, float mag_learn_time, float span, bool *accept, float mag_ref_new[2], float *mag_dist_time_new, float *mag_learn_time_new)
 {
     const float tmp0 = (mag_ref[0] <= 0.0f) ? 0.0f : mag_learn_time;
     const float tmp1 = mag[0] * mag[0];
@@ -858,7 +853,7 @@ static void qcf_k_mag_check(const float rot[9], const float accel_lp[3], const f
     const float tmp38 = tmp37 / tmp6;
     const float tmp39 = tmp38 + mag_ref[1];
     const float tmp40 = tmp0 + span;
-    float tmp41;
+    bool tmp41;
     float tmp42;
     float tmp43;
     float tmp44;
@@ -868,63 +863,51 @@ static void qcf_k_mag_check(const float rot[9], const float accel_lp[3], const f
         const float tmp47 = mag_ref[0] + tmp46;
         const float tmp48 = tmp45 * tmp39;
         const float tmp49 = mag_ref[1] - tmp48;
-        tmp41 = 1.0f;
+        tmp41 = true;
         tmp42 = tmp47;
         tmp43 = tmp49;
         tmp44 = 0.0f;
     } else {
         const float tmp50 = fabsf(tmp7);
         const float tmp51 = 0.1f * mag_ref[0];
-        const float tmp52 = (tmp50 < tmp51) ? 1.0f : 0.0f;
-        const float tmp53 = fabsf(tmp39);
-        const float tmp54 = (tmp53 < 0.1f) ? 1.0f : 0.0f;
-        const float tmp55 = (tmp52 != 0.0f && tmp54 != 0.0f) ? 1.0f : 0.0f;
-        const float tmp56 = (0.0f < mag_ref[0]) ? 1.0f : 0.0f;
-        const float tmp57 = (tmp56 == 0.0f) ? 1.0f : 0.0f;
-        const float tmp58 = (tmp55 != 0.0f || tmp57 != 0.0f) ? 1.0f : 0.0f;
-        const float tmp59 = (tmp55 == 0.0f) ? 1.0f : 0.0f;
-        const float tmp60 = mag_dist_time + span;
-        const float tmp61 = (tmp59 != 0.0f) ? tmp60 : 0.0f;
-        const float tmp62 = (20.0f < tmp61) ? 1.0f : 0.0f;
-        const float tmp63 = (tmp57 != 0.0f || tmp62 != 0.0f) ? 1.0f : 0.0f;
-        const float tmp64 = (tmp63 == 0.0f) ? 1.0f : 0.0f;
-        float tmp65;
-        float tmp66;
-        if (tmp63 != 0.0f) {
-            const float tmp67 = -tmp38;
-            tmp65 = tmp6;
-            tmp66 = tmp67;
+        const float tmp52 = fabsf(tmp39);
+        const bool tmp53 = (tmp50 < tmp51) && (tmp52 < 0.1f);
+        const bool tmp54 = (tmp53) || (!(0.0f < mag_ref[0]));
+        const float tmp55 = mag_dist_time + span;
+        const float tmp56 = (tmp53) ? 0.0f : tmp55;
+        const bool tmp57 = (!(0.0f < mag_ref[0])) || (20.0f < tmp56);
+        float tmp58;
+        float tmp59;
+        float tmp60;
+        if (tmp57) {
+            const float tmp61 = -tmp38;
+            tmp58 = tmp6;
+            tmp59 = tmp61;
+            tmp60 = 0.0f;
         } else {
-            float tmp68;
-            float tmp69;
-            if (tmp55 != 0.0f) {
-                const float tmp70 = 20.0f + span;
-                const float tmp71 = span / tmp70;
-                const float tmp72 = tmp71 * tmp7;
-                const float tmp73 = mag_ref[0] + tmp72;
-                const float tmp74 = tmp71 * tmp39;
-                const float tmp75 = mag_ref[1] - tmp74;
-                tmp68 = tmp73;
-                tmp69 = tmp75;
-            } else {
-                tmp68 = mag_ref[0];
-                tmp69 = mag_ref[1];
-            }
-            tmp65 = tmp68;
-            tmp66 = tmp69;
+            const float tmp62 = 20.0f + span;
+            const float tmp63 = span / tmp62;
+            const float tmp64 = tmp63 * tmp7;
+            const float tmp65 = mag_ref[0] + tmp64;
+            const float tmp66 = (tmp53) ? tmp65 : mag_ref[0];
+            const float tmp67 = tmp63 * tmp39;
+            const float tmp68 = mag_ref[1] - tmp67;
+            const float tmp69 = (tmp53) ? tmp68 : mag_ref[1];
+            tmp58 = tmp66;
+            tmp59 = tmp69;
+            tmp60 = tmp56;
         }
-        const float tmp76 = (tmp64 != 0.0f) ? tmp61 : 0.0f;
-        tmp41 = tmp58;
-        tmp42 = tmp65;
-        tmp43 = tmp66;
-        tmp44 = tmp76;
+        tmp41 = tmp54;
+        tmp42 = tmp58;
+        tmp43 = tmp59;
+        tmp44 = tmp60;
     }
-    const float tmp77 = (tmp40 < 10.0f) ? tmp40 : 10.0f;
+    const float tmp70 = (tmp40 < 10.0f) ? tmp40 : 10.0f;
     *accept = tmp41;
     mag_ref_new[0] = tmp42;
     mag_ref_new[1] = tmp43;
     *mag_dist_time_new = tmp44;
-    *mag_learn_time_new = tmp77;
+    *mag_learn_time_new = tmp70;
 }
 
 /* R(q), read by the kernels of a step that rotate with the estimate (computed once)
@@ -1365,7 +1348,7 @@ qcf_status qcf_step(qcf_state *s, const qcf_input *in, float dt)
             return status;
         }
         /* First accelerometer sample: its tilt (and the magnetometer's heading if present). */
-        qcf_k_init_attitude(accel_g, in->mag, use_mag ? 1.0f : 0.0f, s->q, s->accel_lp);
+        qcf_k_init_attitude(accel_g, in->mag, use_mag, s->q, s->accel_lp);
         qcf_k_rotation(s->q, rot);
         s->initialised = use_mag ? 2u : 1u;
         s->accel_age = 0.0f;
@@ -1383,21 +1366,21 @@ qcf_status qcf_step(qcf_state *s, const qcf_input *in, float dt)
     }
     s->accel_age = (s->accel_age + dt < QCF_SPAN_MAX) ? s->accel_age + dt : QCF_SPAN_MAX;
     s->mag_age = (s->mag_age + dt < QCF_SPAN_MAX) ? s->mag_age + dt : QCF_SPAN_MAX;
-    float at_rest = 0.0f;
+    bool at_rest = false;
     if (use_accel) {
         qcf_k_accel_lowpass(rot, accel_g, s->accel_lp, s->accel_age, s->accel_lp);
         qcf_k_rest(in->gyro, in->accel, s->rest_gyro_lp, s->rest_accel_lp, s->rest_time, s->accel_age,
                             s->rest_gyro_lp, s->rest_accel_lp, &s->rest_time, &at_rest);
-        if (at_rest != 0.0f) {
+        if (at_rest) {
             status |= QCF_AT_REST;
         }
     }
     bool heading_ok = use_mag;
     if (use_mag) {
-        float accept;
+        bool accept;
         qcf_k_mag_check(rot, s->accel_lp, in->mag, s->mag_ref, s->mag_dist_time, s->mag_learn_time,
                                  s->mag_age, &accept, s->mag_ref, &s->mag_dist_time, &s->mag_learn_time);
-        if (accept == 0.0f) {
+        if (!accept) {
             heading_ok = false;
             status |= QCF_MAG_DISTURBED;
         }
@@ -1405,7 +1388,7 @@ qcf_status qcf_step(qcf_state *s, const qcf_input *in, float dt)
     if (use_accel || heading_ok) {
         qcf_k_correct(s->q, rot, s->gyro_bias, in->gyro, dt, s->accel_lp, in->mag,
                                use_accel ? s->accel_age : 0.0f, heading_ok ? s->mag_age : 0.0f,
-                               use_accel ? 1.0f : 0.0f, in->accel, at_rest, s->rest_gyro_lp,                           s->q, s->gyro_bias);
+                               use_accel, in->accel, at_rest, s->rest_gyro_lp,                           s->q, s->gyro_bias);
     } else {
         qcf_k_propagate(s->q, s->gyro_bias, in->gyro, dt, s->q);
     }

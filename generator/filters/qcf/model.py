@@ -200,7 +200,7 @@ class Model(FilterModel):
             KernelSpec("init_attitude", function("init_attitude", {"accel": f, "mag": m, "use_mag": use_m},
                                                  {"q": q0, "accel_lp": quat.rotate(q0, f)}),
                        "first attitude: FQA with a magnetometer sample, else the accelerometer's tilt with yaw 0; "
-                       "the low-pass starts at R(q) f"),
+                       "the low-pass starts at R(q) f", flags=("use_mag",)),
             KernelSpec("heading_init", function("heading_init", {"q": q, "mag": m},
                                                 {"q_new": quat.qmul(aiding.heading_correction(q, m, decl), q)}),
                        "first magnetometer sample after a tilt-only start: heading set, tilt kept"),
@@ -215,7 +215,8 @@ class Model(FilterModel):
                                                           if p["rest_time"] > 0 else {})},
                                            {"q_new": quat.integrate(q, rotation, 1.0), "gyro_bias_new": bias_new}),
                        "tilt (low-passed accelerometer) and heading (magnetometer) corrections as PI feedback, "
-                       "bias integral gated, bias at rest from the low-passed gyro, integration (eq. 9)"),
+                       "bias integral gated, bias at rest from the low-passed gyro, integration (eq. 9)",
+                       flags=("use_accel",) + (("at_rest",) if p["rest_time"] > 0 else ())),
         ]
         if p["rest_time"] > 0:
             g2, f2, t2, r2 = aiding.rest_detector(gyro, f, g_lp, f_lp, t_rest, span, tau=p["rest_tau"],
@@ -225,7 +226,7 @@ class Model(FilterModel):
                                                            "rest_accel_lp": f_lp, "rest_time": t_rest, "span": span},
                                                   {"rest_gyro_lp_new": g2, "rest_accel_lp_new": f2,
                                                    "rest_time_new": t2, "at_rest": r2}),
-                                 "rest detection: gyro and accelerometer steady for rest_time"))
+                                 "rest detection: gyro and accelerometer steady for rest_time", flags=("at_rest",)))
         if p["mag_rejection"]:
             down_b = ca.mtimes(rot.T, down)
             mn = ca.sqrt(ca.sumsqr(m))
@@ -238,7 +239,7 @@ class Model(FilterModel):
                                                                      "span": span},
                                                        {"accept": acc, "mag_ref_new": ca.vertcat(n2, d2),
                                                         "mag_dist_time_new": t2, "mag_learn_time_new": l2}),
-                                 "field check: |m| and sin(dip) against the learned reference"))
+                                 "field check: |m| and sin(dip) against the learned reference", flags=("accept",)))
         return ks
 
     def template_context(self):
