@@ -142,3 +142,21 @@ def test_scalar_updates_bias_rows_read_columns():
     f = _scalar_fn(6, np.hstack([np.zeros((3, 3)), np.eye(3)]), True)
     muls = sum(f.instruction_id(k) == ca.OP_MUL for k in range(f.n_instructions()))
     assert muls <= 3 * (21 + 6 + 6)
+
+
+def test_joseph_row_equals_textbook_joseph_for_any_gain():
+    """One row, a gain that is not the optimal one (projected, as the MEKF heading row's):
+    P - k w^T - w k^T, w = u - s k / 2, equals (I - k h) P (I - k h)^T + k r k^T."""
+    rng = np.random.default_rng(5)
+    n = 6
+    P, h = _spd(rng, n), rng.normal(size=n)
+    r = 0.3
+    u = P @ h
+    s = h @ u + r
+    k = (u / s) * rng.uniform(0.2, 1.5, n)              # any gain
+    Ps, ks, us, ss = ca.SX.sym("P", n, n), ca.SX.sym("k", n), ca.SX.sym("u", n), ca.SX.sym("s")
+    f = ca.Function("j", [Ps, ks, us, ss], [kalman.joseph_row(Ps, ks, us, ss)])
+    out = np.array(f(P, k, u, s))
+    I_kh = np.eye(n) - np.outer(k, h)
+    assert np.array_equal(out, out.T)
+    assert np.allclose(out, I_kh @ P @ I_kh.T + r * np.outer(k, k), rtol=1e-12, atol=1e-12)

@@ -204,17 +204,17 @@ def test_heading_update_never_tilts_and_keeps_P_spd(use_course):
     heading moves toward the measurement, P stays symmetric positive definite."""
     from generator.npquat import rotmat
     p = _vec_params()
-    fu = M.update_heading_function(p)
+    fu, fi = M.update_heading_function(p), M.inject_function()
     q = q_from_euler(0.4, -0.3, 0.2)
     rng = np.random.default_rng(1)
     A = rng.normal(size=(6, 6)) * 0.2
     P = A @ A.T + 1e-4 * np.eye(6)
     mag = rotmat(q_from_euler(0.4, -0.3, 1.0)).T @ np.array([20.0, 0.0, 40.0])   # field seen 0.8 rad off
     vel = np.array([10 * np.cos(1.0), 10 * np.sin(1.0), 0.0])
-    r = fu(q, np.zeros(3), P.ravel(order="F"), mag, vel, use_course)
-    q_new = np.array(r[0]).ravel()
-    P_new = np.array(r[2]).reshape(6, 6)
-    assert float(r[3]) > M.S_PIVOT_MIN
+    x, P_new, s = fu(q, P.ravel(order="F"), mag, vel, use_course)
+    q_new = np.array(fi(q, np.zeros(3), x)[0]).ravel()
+    P_new = np.array(P_new).reshape(6, 6)
+    assert float(s) > M.S_PIVOT_MIN
     assert np.max(np.abs(rotmat(q_new)[2] - rotmat(q)[2])) < 1e-12          # no tilt
     yaw_old, yaw_new = euler_from_q(q)[2], euler_from_q(q_new)[2]
     target = 1.0 + (0.0 if use_course else 0.1)
@@ -228,14 +228,17 @@ def test_gravity_update_keeps_P_spd_at_vertical_pitch():
     toward the measured direction (no Euler singularity in this measurement)."""
     from generator.npquat import rotmat
     p = _vec_params()
-    fu, fi = M.update_gravity_function(p), M.inject_function()
+    fg, fr, fi = M.gravity_rows_function(p), M.update_attitude_row_function(), M.inject_function()
     q = q_from_euler(0.0, np.pi / 2, 0.3)
     P = np.diag([0.01] * 3 + [1e-4] * 3)
     q_true = q_from_euler(0.0, np.pi / 2 - 0.1, 0.3)
     a_lp = rotmat(q_true).T @ np.array([0.0, 0.0, -9.81])
     a_lp_n = rotmat(q) @ a_lp                       # the kernel takes the earth-frame low-pass
-    x, P_new, piv = fu(q, P.ravel(), a_lp_n)
-    assert float(piv) > M.S_PIVOT_MIN
+    h, z, r_g = (np.array(v).ravel() for v in fg(q, a_lp_n))
+    x, P_new = np.zeros(6), P.ravel()
+    for i in range(3):
+        x, P_new, piv = fr(P_new, h[3 * i:3 * i + 3], z[i], r_g[0], x)
+        assert float(piv) > M.S_PIVOT_MIN
     q_new = np.array(fi(q, np.zeros(3), x)[0]).ravel()
     P_new = np.array(P_new).reshape(6, 6)
     up = lambda qq: rotmat(qq)[2]

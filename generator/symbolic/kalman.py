@@ -13,7 +13,7 @@ so the Cholesky solve decouples it). One kernel then serves every subset of rows
 
 `scalar_updates` is the other way to take rows with a diagonal R: one at a time (one
 division per row, no Cholesky), each group of rows in its own kernel that the caller runs
-only when that group is measured.
+only when that group is measured; `joseph_row` is the Joseph form of one row for any gain.
 """
 from __future__ import annotations
 
@@ -170,4 +170,19 @@ def _dot(a, b):
     out = terms[0]
     for t in terms[1:]:
         out = out + t
+    return out
+
+
+def joseph_row(P, k, u, s):
+    """Joseph form for one row h with any gain k: (I − k h) P (I − k h)ᵀ + k r kᵀ
+    = P − k uᵀ − u kᵀ + s k kᵀ (u = P hᵀ, s = h u + r) = P − k wᵀ − w kᵀ, w = u − (s/2) k:
+    two products per entry of the lower triangle, every term of the size of P (as
+    linalg.joseph_update's expanded order). Returns an exactly symmetric n x n matrix."""
+    n = P.shape[0]
+    w = [u[i] - (0.5 * s) * k[i] for i in range(n)]
+    out = ca.SX.zeros(n, n)
+    for j in range(n):
+        for i in range(j, n):
+            out[i, j] = P[i, j] - k[i] * w[j] - w[i] * k[j]
+            out[j, i] = out[i, j]
     return out

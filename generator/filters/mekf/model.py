@@ -80,11 +80,15 @@ def error_propagation(dq, db, ng, nb, omega_hat, dt):
     rate noise averaged over the step (variance σ_g²/dt), n_b the bias random-walk
     increment (σ_bw² dt). Written this way ∂/∂δb and ∂/∂n_g are the same expression, which
     the emitter computes once.
+
+    δq' = e_vec / e_w; at the linearisation point e = a* ⊗ a = [1, 0, 0, 0] (a is a unit
+    quaternion), where the derivative of e_vec / e_w is that of e_vec: e_vec is returned and
+    the Jacobian taken without the quotient rule's divisions.
     """
     a = quat.qexp(0.5 * dt * omega_hat)
     e = quat.qmul(quat.qmul(quat.qconj(a), quat.vec(1, dq[0], dq[1], dq[2])),
                   quat.qexp(0.5 * dt * (omega_hat - db - ng)))
-    return ca.vertcat(e[1] / e[0], e[2] / e[0], e[3] / e[0], db + nb)
+    return ca.vertcat(e[1], e[2], e[3], db + nb)
 
 
 def measurement(q, dq):
@@ -111,22 +115,56 @@ def jacobian_H(q):
 
 # ------------------------------------------------------------------------------------
 # kernels
-def predict_function(p: dict, name="predict") -> ca.Function:
-    q = ca.SX.sym("q", 4)
-    b = ca.SX.sym("b", 3)
-    Pv = ca.SX.sym("P", N * N)
-    gyro = ca.SX.sym("gyro", 3)
-    dt = ca.SX.sym("dt")
+def _time_update(p: dict, q, b, gyro, dt):
+    """q̂' = normalise(q̂ ⊗ exp(½ ω̂ dt)), the error-state F, G (CasADi jacobians) and Q."""
     omega_hat = gyro - b
-    q_new = quat.integrate(q, omega_hat, dt)
     F, G = jacobians_FG(omega_hat, dt)
+    return quat.integrate(q, omega_hat, dt), F, G, _process_noise(p, dt)
+
+
+def _process_noise(p: dict, dt):
     # σ_g²/dt with dt floored at DT_Q_MIN: a vanishing (even denormal) dt gives a vanishing
     # G Q Gᵀ = ¼ σ_g² dt² / max(dt, DT_Q_MIN) J Jᵀ instead of inf * 0 = NaN.
     q_g = p["gyro_noise"] ** 2 / ca.fmax(dt, DT_Q_MIN)
-    Q = ca.diag(ca.vertcat(*([q_g] * 3 + [p["gyro_bias_rw"] ** 2 * dt] * 3)))
+    return ca.diag(ca.vertcat(*([q_g] * 3 + [p["gyro_bias_rw"] ** 2 * dt] * 3)))
+
+
+def predict_function(p: dict, name="predict") -> ca.Function:
+    q, b, Pv, gyro, dt = (ca.SX.sym(n, k) for n, k in (("q", 4), ("b", 3), ("P", N * N), ("gyro", 3), ("dt", 1)))
+    q_new, F, G, Q = _time_update(p, q, b, gyro, dt)
     P_new = kalman.predict_covariance(sym_lower(Pv), F, G, Q, symmetrize=False)   # mirrored below
     return emit.function(name, {"q": q, "b": b, "P": Pv, "gyro": gyro, "dt": dt},
                          {"q_out": q_new, "P_out": flat_mirrored(P_new)})
+
+
+def _blocks(Fq, Fb):
+    """F = [[F_q, F_b], [0, I]] and G = [[F_b, 0], [0, I]] of the error-state propagation."""
+    Z, I = ca.SX.zeros(3, 3), ca.SX.eye(3)
+    return ca.blockcat([[Fq, Fb], [Z, I]]), ca.blockcat([[Fb, Z], [Z, I]])
+
+
+def predict_attitude_function(p: dict, name="predict_attitude") -> ca.Function:
+    """The time update in two kernels (smaller frames): the attitude and F's attitude rows
+    F_q = ∂δq'/∂δq, F_b = ∂δq'/∂δb here; `predict_covariance` takes them. F's other rows are
+    [0, I] and G = [[F_b, 0], [0, I]] (∂/∂n_g is ∂/∂δb): checked here when the model is built."""
+    q, b, gyro, dt = (ca.SX.sym(n, k) for n, k in (("q", 4), ("b", 3), ("gyro", 3), ("dt", 1)))
+    q_new, F, G, _ = _time_update(p, q, b, gyro, dt)
+    Fq, Fb = F[:3, :3], F[:3, 3:]
+    F2, G2 = _blocks(Fq, Fb)
+    check = ca.Function("check", [b, gyro, dt], [F - F2, G - G2])
+    for args in (([0.01, -0.02, 0.03], [0.5, -1.0, 2.0], 0.01), ([0.0] * 3, [3.0, 0.1, -0.2], 0.004)):
+        if any(float(ca.mmax(ca.fabs(m))) > 1e-12 for m in check(*args)):
+            raise AssertionError("mekf: F or G is not [[F_q, F_b], [0, I]], [[F_b, 0], [0, I]]")
+    return emit.function(name, {"q": q, "b": b, "gyro": gyro, "dt": dt},
+                         {"q_out": q_new, "F_q": ca.reshape(Fq, 9, 1), "F_b": ca.reshape(Fb, 9, 1)})
+
+
+def predict_covariance_function(p: dict, name="predict_covariance") -> ca.Function:
+    """P⁻ = F P Fᵀ + G Q Gᵀ from F's attitude rows (see predict_attitude)."""
+    Fq, Fb, Pv, dt = (ca.SX.sym(n, k) for n, k in (("F_q", 9), ("F_b", 9), ("P", N * N), ("dt", 1)))
+    F, G = _blocks(ca.reshape(Fq, 3, 3), ca.reshape(Fb, 3, 3))
+    P_new = kalman.predict_covariance(sym_lower(Pv), F, G, _process_noise(p, dt), symmetrize=False)
+    return emit.function(name, {"F_q": Fq, "F_b": Fb, "P": Pv, "dt": dt}, {"P_out": flat_mirrored(P_new)})
 
 
 def measured_angles(p: dict, q, b, gyro, accel, mag, vel, acc_n, m_comp):
@@ -265,10 +303,9 @@ def gravity_direction(q, dq):
 
 def heading_of_error(q, dq):
     """Heading part of the error: twist angle about the vertical (NED z) of the earth-frame
-    error rotation e = q̂ ⊗ [1, δq] ⊗ q̂*, 2 atan2(e_z, e_w). Its Jacobian at δq = 0 has only
-    the vertical component, so a heading row never asks for a tilt."""
-    e = quat.qmul(quat.qmul(q, quat.vec(1, dq[0], dq[1], dq[2])), quat.qconj(q))
-    return 2 * ca.atan2(e[3], e[0])
+    error rotation e = q̂ ⊗ [1, δq] ⊗ q̂* = [1, R(q̂) δq] (q̂ unit), 2 atan2(e_z, e_w). Its
+    Jacobian at δq = 0 has only the vertical component, so a heading row never asks for a tilt."""
+    return 2 * ca.atan2(quat.rotate(q, dq)[2], 1)
 
 
 def jacobian_gravity(q):
@@ -285,24 +322,33 @@ def _inject(q, b, X):
     return quat.qnormalize(quat.qmul(q, quat.vec(1, X[0], X[1], X[2]))), b + X[3:6]
 
 
-def update_gravity_function(p: dict, name="update_gravity") -> ca.Function:
-    """Gravity direction, 3 scalar rows in turn (kalman.scalar_updates).
+def gravity_rows_function(p: dict, name="gravity_rows") -> ca.Function:
+    """The gravity-direction measurement: rows of H (h, H's rows one after the other; the
+    bias columns are 0), innovations z and their variance r.
 
     z_g = up/|up| in body axes − R(q̂)ᵀ [0, 0, −1] (up: accel_lowpass's earth-frame vector); R_g = σ² min(1 + |z_g|²/(3σ)², cap)
     (bounded residual adaptation: the correction can be weakened, never locked out).
-    Returns the error-state correction x (applied by `inject` once every row is in), P⁺
-    and the smallest row variance (the batch S's smallest Cholesky pivot).
+    The step runs the three rows in turn through `update_attitude_row` (one kernel, called
+    three times: kalman.scalar_updates, the batch update of the rows stacked).
     """
-    q, Pv, up = (ca.SX.sym(n, k) for n, k in (("q", 4), ("P", N * N), ("up", 3)))
+    q, up = ca.SX.sym("q", 4), ca.SX.sym("up", 3)
     d = quat.rotate_inv(q, up) / ca.sqrt(ca.sumsqr(up))
     z_g = d - gravity_direction(q, ca.DM.zeros(3))
     sig2 = p["accel_angle_noise"] ** 2
     r_g = sig2 * ca.fmin(1 + ca.sumsqr(z_g) / (9 * sig2), p["accel_adapt_cap"])
-    H = jacobian_gravity(q)
-    x, P_new, min_pivot = kalman.scalar_updates(sym_lower(Pv), [(H[i, :], z_g[i], r_g) for i in range(3)],
-                                                tol=S_PIVOT_MIN)
-    return emit.function(name, {"q": q, "P": Pv, "up": up},
-                         {"x_out": x, "P_out": flat_mirrored(P_new), "min_pivot": min_pivot})
+    Hq = jacobian_gravity(q)[:, :3]
+    return emit.function(name, {"q": q, "up": up}, {"h": ca.reshape(Hq.T, 9, 1), "z": z_g, "r": r_g})
+
+
+def update_attitude_row_function(name="update_attitude_row") -> ca.Function:
+    """One scalar row h = [h_δq, 0] (kalman.scalar_updates): x and P after it, and its
+    variance s = h P hᵀ + r (a pivot of the batch S)."""
+    Pv, h, x = ca.SX.sym("P", N * N), ca.SX.sym("h", 3), ca.SX.sym("x", N)
+    z, r = ca.SX.sym("z"), ca.SX.sym("r")
+    row = ca.horzcat(h.T, ca.SX.zeros(1, 3))
+    x_new, P_new, s = kalman.scalar_updates(sym_lower(Pv), [(row, z, r)], x=x, tol=S_PIVOT_MIN)
+    return emit.function(name, {"P": Pv, "h": h, "z": z, "r": r, "x": x},
+                         {"x_out": x_new, "P_out": flat_mirrored(P_new), "s": s})
 
 
 def update_rest_bias_function(p: dict, name="update_rest_bias") -> ca.Function:
@@ -327,7 +373,9 @@ def inject_function(name="inject") -> ca.Function:
 
 
 def update_heading_function(p: dict, name="update_heading") -> ca.Function:
-    """One heading row: GPS course (use_course = 1) or magnetic heading, vertical only.
+    """One heading row: GPS course (use_course = 1) or magnetic heading, vertical only;
+    returns the error-state correction x (for `inject`), P⁺ (P itself when s is not usable)
+    and the innovation variance s.
 
     course: z = wrap(atan2(v_E, v_N) − ψ̂), ψ̂ = atan2(R₁₀, R₀₀) (heading of the body x axis);
     mag:    z = wrap(declination − atan2(m_E, m_N)), m_n = R(q̂) m (the field's heading as
@@ -335,7 +383,7 @@ def update_heading_function(p: dict, name="update_heading") -> ca.Function:
     The attitude part of the gain is projected on the vertical (in body axes, r = R(q̂)ᵀ e₃),
     so the correction is a pure heading rotation; Joseph's form stays exact for this gain.
     """
-    q, b, Pv, mag, vel = (ca.SX.sym(n, k) for n, k in (("q", 4), ("b", 3), ("P", N * N), ("mag", 3), ("vel", 3)))
+    q, Pv, mag, vel = (ca.SX.sym(n, k) for n, k in (("q", 4), ("P", N * N), ("mag", 3), ("vel", 3)))
     use_course = ca.SX.sym("use_course")
     Rq = quat.rotmat(q)
     mn = ca.mtimes(Rq, mag)
@@ -350,10 +398,11 @@ def update_heading_function(p: dict, name="update_heading") -> ca.Function:
     K = PHt / ca.if_else(S > S_PIVOT_MIN, S, 1.0)
     up = Rq[2, :].T
     K[0:3] = ca.mtimes(ca.mtimes(up, up.T), K[0:3])          # attitude gain about the vertical only
-    P_new = kalman.joseph(P, K, H, ca.reshape(r, 1, 1), symmetrize=False)
-    q_new, b_new = _inject(q, b, K * z)
-    return emit.function(name, {"q": q, "b": b, "P": Pv, "mag": mag, "vel": vel, "use_course": use_course},
-                         {"q_out": q_new, "b_out": b_new, "P_out": flat_mirrored(P_new), "s": S})
+    # Joseph form for this gain; P unchanged (selected, so the step may pass P as P_out) when
+    # S is not usable - the step then skips the correction
+    P_new = ca.if_else(S > S_PIVOT_MIN, kalman.joseph_row(P, K, PHt, S), P)
+    return emit.function(name, {"q": q, "P": Pv, "mag": mag, "vel": vel, "use_course": use_course},
+                         {"x_out": K * z, "P_out": flat_mirrored(P_new), "s": S})
 
 
 def init_vectors_function(p: dict, name="init_attitude") -> ca.Function:
@@ -431,10 +480,12 @@ class Model(FilterModel):
         p = self.params
         if self.vectors:
             return [
-                KernelSpec("predict", predict_function(p), "time update"),
+                KernelSpec("predict_attitude", predict_attitude_function(p), "time update: attitude and F's attitude rows"),
+                KernelSpec("predict_covariance", predict_covariance_function(p), "time update: covariance"),
                 KernelSpec("accel_lowpass", accel_lowpass_function(p), "earth-frame low-pass of the compensated specific force"),
                 KernelSpec("heading_features", heading_features_function(), "field norm and dip; GPS velocity in body axes"),
-                KernelSpec("update_gravity", update_gravity_function(p), "gravity direction: three scalar rows"),
+                KernelSpec("gravity_rows", gravity_rows_function(p), "gravity direction: H rows, innovations, variance"),
+                KernelSpec("update_attitude_row", update_attitude_row_function(), "one scalar row on the attitude error"),
                 KernelSpec("update_rest_bias", update_rest_bias_function(p), "at rest, the gyro bias: three scalar rows"),
                 KernelSpec("inject", inject_function(), "error injection into q and the gyro bias"),
                 KernelSpec("update_heading", update_heading_function(p), "one heading row, gain projected on the vertical"),
@@ -448,11 +499,11 @@ class Model(FilterModel):
 
     def step_paths(self) -> dict[str, list[str]]:
         if self.vectors:
-            return {"gyro only": ["predict"],
-                    "with corrections": ["predict", "heading_features", "accel_lowpass", "update_gravity", "inject",
-                                         "update_heading"],
-                    "at rest": ["predict", "heading_features", "accel_lowpass", "update_gravity", "update_rest_bias",
-                                "inject", "update_heading"]}
+            return {"gyro only": ["predict_attitude", "predict_covariance"],
+                    "with corrections": ["predict_attitude", "predict_covariance", "heading_features", "accel_lowpass", "gravity_rows"] + ["update_attitude_row"] * 3
+                    + ["inject", "update_heading", "inject"],
+                    "at rest": ["predict_attitude", "predict_covariance", "heading_features", "accel_lowpass", "gravity_rows"] + ["update_attitude_row"] * 3
+                    + ["update_rest_bias", "inject", "update_heading", "inject"]}
         return {"gyro only": ["predict"], "with corrections": ["predict", "update"]}
 
     def template_context(self) -> dict:
