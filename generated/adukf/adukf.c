@@ -4511,7 +4511,7 @@ void adukf_init(adukf_state *s)
     s->initialised = 0u;
 }
 
-adukf_status adukf_step(adukf_state *s, const adukf_input *in, float dt)
+adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in, float dt)
 {
     adukf_status status = ADUKF_OK;
 

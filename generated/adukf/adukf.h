@@ -126,7 +126,8 @@ typedef struct {
 /* Put the filter in its initial state. */
 void adukf_init(adukf_state *s);
 
-/* One filter step of dt seconds. Refusals (ADUKF_REFUSED_MASK) leave *s untouched. */
+/* One filter step of dt seconds. Refusals (ADUKF_REFUSED_MASK) leave *s untouched.
+ * *s and *in must not overlap (the definition declares both restrict). */
 adukf_status adukf_step(adukf_state *s, const adukf_input *in, float dt);
 
 /* Z-Y-X Euler angles [roll, pitch, yaw] of the current attitude, rad, yaw in (-pi, pi]. */

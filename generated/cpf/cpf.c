@@ -783,7 +783,7 @@ void cpf_init(cpf_state *s)
     s->initialised = 0u;
 }
 
-cpf_status cpf_step(cpf_state *s, const cpf_input *in, float dt)
+cpf_status cpf_step(cpf_state *restrict s, const cpf_input *restrict in, float dt)
 {
     cpf_status status = CPF_OK;
 

@@ -109,7 +109,8 @@ typedef struct {
 /* Put the filter in its initial state. */
 void cpf_init(cpf_state *s);
 
-/* One filter step of dt seconds. Refusals (CPF_REFUSED_MASK) leave *s untouched. */
+/* One filter step of dt seconds. Refusals (CPF_REFUSED_MASK) leave *s untouched.
+ * *s and *in must not overlap (the definition declares both restrict). */
 cpf_status cpf_step(cpf_state *s, const cpf_input *in, float dt);
 
 /* Z-Y-X Euler angles [roll, pitch, yaw] of the current attitude, rad, yaw in (-pi, pi]. */

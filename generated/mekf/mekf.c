@@ -2307,7 +2307,7 @@ void mekf_init(mekf_state *s)
     s->head_age = 1000.0f;
 }
 
-mekf_status mekf_step(mekf_state *s, const mekf_input *in, float dt)
+mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, float dt)
 {
     mekf_status status = MEKF_OK;
 

@@ -144,7 +144,8 @@ typedef struct {
 /* Put the filter in its initial state. */
 void mekf_init(mekf_state *s);
 
-/* One filter step of dt seconds. Refusals (MEKF_REFUSED_MASK) leave *s untouched. */
+/* One filter step of dt seconds. Refusals (MEKF_REFUSED_MASK) leave *s untouched.
+ * *s and *in must not overlap (the definition declares both restrict). */
 mekf_status mekf_step(mekf_state *s, const mekf_input *in, float dt);
 
 /* Z-Y-X Euler angles [roll, pitch, yaw] of the current attitude, rad, yaw in (-pi, pi]. */

@@ -1236,7 +1236,7 @@ void qcf_init(qcf_state *s)
     s->mag_learn_time = 0.0f;
 }
 
-qcf_status qcf_step(qcf_state *s, const qcf_input *in, float dt)
+qcf_status qcf_step(qcf_state *restrict s, const qcf_input *restrict in, float dt)
 {
     qcf_status status = QCF_OK;
 

@@ -132,7 +132,8 @@ typedef struct {
 /* Put the filter in its initial state. */
 void qcf_init(qcf_state *s);
 
-/* One filter step of dt seconds. Refusals (QCF_REFUSED_MASK) leave *s untouched. */
+/* One filter step of dt seconds. Refusals (QCF_REFUSED_MASK) leave *s untouched.
+ * *s and *in must not overlap (the definition declares both restrict). */
 qcf_status qcf_step(qcf_state *s, const qcf_input *in, float dt);
 
 /* Z-Y-X Euler angles [roll, pitch, yaw] of the current attitude, rad, yaw in (-pi, pi]. */
