@@ -249,15 +249,15 @@ class Model(FilterModel):
 
     def step_paths(self):
         if self.product:
-            comp = ["gravity_part"]
+            comp = ["rotation", "gravity_part"]
             extra = (["rest"] if self.params["rest_time"] > 0 else []) + (["mag_check"] if self.params["mag_rejection"] else [])
             return {
                 "full (accel+mag+GPS comp.)": comp + ["accel_lowpass"] + extra + ["correct"],
-                "accel+mag": ["accel_lowpass"] + extra + ["correct"],
-                "gyro only": ["propagate"],
+                "accel+mag": ["rotation", "accel_lowpass"] + extra + ["correct"],
+                "gyro only": ["rotation", "propagate"],
                 **({"GPS sample (extra)": ["gps_accel"]} if self.params["motion_accel_model"] == "differentiator" else {}),
             }
-        comp = ["gravity_part"]
+        comp = ["rotation", "gravity_part"]
         return {
             "full (accel+mag+GPS comp.)": comp + ["reference", "update"],
             "accel+mag": ["reference", "update"],
