@@ -169,9 +169,11 @@ class Model(FilterModel):
         xm = ca.vertcat(qm, b)
         return xm, normalize(qm), Pm
 
-    def innovation_expr(self, xm, Pm, m_ref, f, m, use_a, use_m, scale=None):
-        """Sigma points, their measurements, ẑ, residual, adaptive R, masked P_zz and P_xz, and
-        the smallest Cholesky pivot of P⁻.
+    def innovation_expr(self, xm, Pm, m_ref, f, m, scale=None):
+        """Sigma points, their measurements, ẑ, residual, adaptive R, P_zz and P_xz, and the
+        smallest Cholesky pivot of P⁻. (The step masks an unusable sensor out exactly
+        afterwards: identity block in P_zz, zero cross-covariance, residual and R, so its
+        columns of K are exactly zero; the reference does the same.)
 
         The structure of the sigma-point set, used exactly (no approximation):
         - χ = x⁻ ± a L[:, j] with L = chol(P⁻) lower triangular: for a bias column (j ≥ 4)
@@ -218,31 +220,14 @@ class Model(FilterModel):
         for r in range(n):
             for c in range(6):
                 Pxz[r, c] = sum([L[r, j] * D[j][c] for j in range(1, min(r, N - 1) + 1)], L[r, 0] * D[0][c])
-        # exact masking of an unusable sensor: identity block in P_zz, zero cross-covariance
-        # and residual, so its columns of K are exactly zero
-        use = [use_a] * 3 + [use_m] * 3
-        both = ca.logic_and(use_a, use_m)
-        Pzz_m = ca.SX.zeros(6, 6)
-        for r in range(6):
-            for c in range(r + 1):
-                keep = use[r] if (r < 3) == (c < 3) else both
-                Pzz_m[r, c] = ca.if_else(keep, Pzz[r, c], 1.0 if r == c else 0.0)
-                Pzz_m[c, r] = Pzz_m[r, c]
-        Pxz_m = ca.SX.zeros(n, 6)
-        eps_m = ca.SX.zeros(6)
-        r_used = ca.SX.zeros(6)
-        for c in range(6):
-            for r in range(n):
-                Pxz_m[r, c] = ca.if_else(use[c], Pxz[r, c], 0.0)
-            eps_m[c] = ca.if_else(use[c], eps[c], 0.0)
-            r_used[c] = ca.if_else(use[c], R[c], 0.0)
-        return Pzz_m, Pxz_m, eps_m, r_used, piv_p
+        return Pzz, Pxz, eps, ca.vertcat(*R), piv_p
 
-    def correct_expr(self, xm, Pm, Pzz, Pxz, eps):
+    def correct_expr(self, xm, Pm, Pzz, Pxz, eps, x_keep):
         """x⁺ and P⁺ through the Cholesky factor L of P_zz, without forming K:
         U = P_xz L⁻ᵀ (one forward substitution for Uᵀ), K ε = U (L⁻¹ ε), K P_zz Kᵀ = U Uᵀ
         (K = P_xz P_zz⁻¹ = U L⁻¹), so P⁺ = P⁻ - U Uᵀ on its lower triangle, mirrored
-        (exactly symmetric). Also the smallest pivot of P_zz."""
+        (exactly symmetric). Also the smallest pivot of P_zz. When it is not above pivot_min the
+        update is skipped: the outputs are x_keep and P⁻ (the step writes them in place)."""
         p = self.params
         n = self.n
         Lz, inv, piv_zz = linalg.cholesky_with_inverse(Pzz, p["pivot_min"])
@@ -255,7 +240,8 @@ class Model(FilterModel):
             for c in range(r + 1):
                 P_new[r, c] = Pm[r, c] - ca.dot(Ut[:, r], Ut[:, c])
                 P_new[c, r] = P_new[r, c]
-        return q_new, P_new, piv_zz
+        ok = piv_zz > p["pivot_min"]
+        return ca.if_else(ok, q_new, x_keep), ca.if_else(ok, P_new, Pm), piv_zz
 
     def kernels(self):
         p = self.params
@@ -268,8 +254,6 @@ class Model(FilterModel):
         f = ca.SX.sym("accel", 3)
         m = ca.SX.sym("mag", 3)
         m_ref = ca.SX.sym("m_ref", 3)
-        use_a = ca.SX.sym("use_accel")
-        use_m = ca.SX.sym("use_mag")
         qm = ca.SX.sym(xs + "_pred", n)
         Pm = ca.SX.sym("P_pred", n, n)
 
@@ -285,9 +269,10 @@ class Model(FilterModel):
         span = ca.SX.sym("span", 2)            # time each sample stands for: accel, mag
         rated = self.own_rates()
         Pzz_e, Pxz_e, eps_e, r_e, piv_p = self.innovation_expr(
-            qm, Pm, m_ref, f, m, use_a, use_m,
+            qm, Pm, m_ref, f, m,
             [self.r_scale(dt, span[0]), self.r_scale(dt, span[1])] if rated else None)
-        q_new, P_new, piv_zz = self.correct_expr(qm, Pm, Pzz, Pxz, eps)
+        x_keep = ca.SX.sym(xs + "_keep", n)
+        q_new, P_new, piv_zz = self.correct_expr(qm, Pm, Pzz, Pxz, eps, x_keep)
 
         decl = float(p["declination"])
         roll, pitch = attitude.tilt_angles(f)
@@ -299,19 +284,20 @@ class Model(FilterModel):
                                            {xs + "_pred": qm_e, "q_pred_unit": qn_e, "P_pred": Pm_e}),
                        "linear Kalman time update: q- = A q, P- = A P A^T + Q"),
             KernelSpec("innovation", function("innovation", {xs + "_pred": qm, "P_pred": Pm, "m_ref": m_ref, "accel": f,
-                                                             "mag": m, "use_accel": use_a, "use_mag": use_m,
+                                                             "mag": m,
                                                              **({"dt": dt, "span": span} if rated else {})},
                                               {"P_zz": Pzz_e, "P_xz": Pxz_e, "residual": eps_e, "r_diag": r_e,
                                                "pivot_P": piv_p}),
                        "sigma points from the Cholesky factor of P- (9 distinct: a bias column moves no "
                        "attitude), each normalised and mapped through h; predicted measurement, residual, "
-                       "adaptive per-axis R, P_zz and P_xz (unusable sensors masked out exactly); "
+                       "adaptive per-axis R, P_zz and P_xz; "
                        "pivot_P = smallest pivot of P-"),
             KernelSpec("correct", function("correct", {xs + "_pred": qm, "P_pred": Pm, "P_zz": Pzz, "P_xz": Pxz,
-                                                       "residual": eps},
+                                                       "residual": eps, xs + "_keep": x_keep},
                                            {xs + "_new": q_new, "P_new": P_new, "pivot_zz": piv_zz}),
                        "U = P_xz L^-T with L = chol(P_zz) (no inverse, no K), x+ = x- + U L^-1 eps (q normalised), "
-                       "P+ = P- - U U^T; pivot_zz = smallest pivot of P_zz"),
+                       "P+ = P- - U U^T; pivot_zz = smallest pivot of P_zz (not above PIVOT_MIN: x_keep and P- "
+                       "returned, the update skipped)"),
             *([KernelSpec("accel_lowpass", function(
                 "accel_lowpass", {"q_pred_unit": qn, "accel": f, "accel_lp": a_lp, "restart": restart, "dt": dt},
                 {"accel_lp_new": a_lp_new, "accel_body": quat.rotate_inv(qn, a_lp_new)}),
