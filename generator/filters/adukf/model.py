@@ -222,17 +222,17 @@ class Model(FilterModel):
                 Pxz[r, c] = sum([L[r, j] * D[j][c] for j in range(1, min(r, N - 1) + 1)], L[r, 0] * D[0][c])
         return Pzz, Pxz, eps, ca.vertcat(*R), piv_p
 
-    def correct_expr(self, xm, Pm, Pzz, Pxz, eps, x_keep):
-        """x⁺ and P⁺ through the Cholesky factor L of P_zz, without forming K:
-        U = P_xz L⁻ᵀ (one forward substitution for Uᵀ), K ε = U (L⁻¹ ε), K P_zz Kᵀ = U Uᵀ
-        (K = P_xz P_zz⁻¹ = U L⁻¹), so P⁺ = P⁻ - U Uᵀ on its lower triangle, mirrored
-        (exactly symmetric). Also the smallest pivot of P_zz. When it is not above pivot_min the
-        update is skipped: the outputs are x_keep and P⁻ (the step writes them in place)."""
-        p = self.params
+    def gain_expr(self, Pzz, Pxz, eps):
+        """The update without forming K, through L = chol(P_zz): Uᵀ = L⁻¹ P_xzᵀ (U = P_xz L⁻ᵀ,
+        one forward substitution), v = L⁻¹ ε, and the smallest pivot of P_zz. Then
+        K = P_xz P_zz⁻¹ = U L⁻¹, so K ε = U v and K P_zz Kᵀ = U Uᵀ (see correct_expr)."""
+        Lz, inv, piv_zz = linalg.cholesky_with_inverse(Pzz, self.params["pivot_min"])
+        return linalg.solve_lower(Lz, Pxz.T, inv), linalg.solve_lower(Lz, eps, inv), piv_zz
+
+    def correct_expr(self, xm, Pm, Ut, v):
+        """x⁺ = x⁻ + U v (q normalised) and P⁺ = P⁻ - U Uᵀ on its lower triangle, mirrored
+        (exactly symmetric)."""
         n = self.n
-        Lz, inv, piv_zz = linalg.cholesky_with_inverse(Pzz, p["pivot_min"])
-        Ut = linalg.solve_lower(Lz, Pxz.T, inv)          # 6 x n
-        v = linalg.solve_lower(Lz, eps, inv)
         x_new = xm + ca.mtimes(Ut.T, v)
         q_new = normalize(x_new) if n == 4 else ca.vertcat(normalize(x_new[:4]), x_new[4:])
         P_new = ca.SX.zeros(n, n)
@@ -240,8 +240,7 @@ class Model(FilterModel):
             for c in range(r + 1):
                 P_new[r, c] = Pm[r, c] - ca.dot(Ut[:, r], Ut[:, c])
                 P_new[c, r] = P_new[r, c]
-        ok = piv_zz > p["pivot_min"]
-        return ca.if_else(ok, q_new, x_keep), ca.if_else(ok, P_new, Pm), piv_zz
+        return q_new, P_new
 
     def kernels(self):
         p = self.params
@@ -271,8 +270,10 @@ class Model(FilterModel):
         Pzz_e, Pxz_e, eps_e, r_e, piv_p = self.innovation_expr(
             qm, Pm, m_ref, f, m,
             [self.r_scale(dt, span[0]), self.r_scale(dt, span[1])] if rated else None)
-        x_keep = ca.SX.sym(xs + "_keep", n)
-        q_new, P_new, piv_zz = self.correct_expr(qm, Pm, Pzz, Pxz, eps, x_keep)
+        Ut = ca.SX.sym("U_t", 6, n)
+        v = ca.SX.sym("v", 6)
+        Ut_e, v_e, piv_zz = self.gain_expr(Pzz, Pxz, eps)
+        q_new, P_new = self.correct_expr(qm, Pm, Ut, v)
 
         decl = float(p["declination"])
         roll, pitch = attitude.tilt_angles(f)
@@ -292,12 +293,13 @@ class Model(FilterModel):
                        "attitude), each normalised and mapped through h; predicted measurement, residual, "
                        "adaptive per-axis R, P_zz and P_xz; "
                        "pivot_P = smallest pivot of P-"),
-            KernelSpec("correct", function("correct", {xs + "_pred": qm, "P_pred": Pm, "P_zz": Pzz, "P_xz": Pxz,
-                                                       "residual": eps, xs + "_keep": x_keep},
-                                           {xs + "_new": q_new, "P_new": P_new, "pivot_zz": piv_zz}),
-                       "U = P_xz L^-T with L = chol(P_zz) (no inverse, no K), x+ = x- + U L^-1 eps (q normalised), "
-                       "P+ = P- - U U^T; pivot_zz = smallest pivot of P_zz (not above PIVOT_MIN: x_keep and P- "
-                       "returned, the update skipped)"),
+            KernelSpec("gain", function("gain", {"P_zz": Pzz, "P_xz": Pxz, "residual": eps},
+                                        {"U_t": Ut_e, "v": v_e, "pivot_zz": piv_zz}),
+                       "with L = chol(P_zz): U^T = L^-1 P_xz^T and v = L^-1 eps (K = U L^-1 never formed); "
+                       "pivot_zz = smallest pivot of P_zz"),
+            KernelSpec("correct", function("correct", {xs + "_pred": qm, "P_pred": Pm, "U_t": Ut, "v": v},
+                                           {xs + "_new": q_new, "P_new": P_new}),
+                       "x+ = x- + U v = x- + K eps (q normalised), P+ = P- - U U^T = P- - K P_zz K^T"),
             *([KernelSpec("accel_lowpass", function(
                 "accel_lowpass", {"q_pred_unit": qn, "accel": f, "accel_lp": a_lp, "restart": restart, "dt": dt},
                 {"accel_lp_new": a_lp_new, "accel_body": quat.rotate_inv(qn, a_lp_new)}),
@@ -329,7 +331,7 @@ class Model(FilterModel):
 
     def step_paths(self):
         return {
-            "accel+mag update": ["predict", "innovation", "correct"],
+            "accel+mag update": ["predict", "innovation", "gain", "correct"],
             "gyro only": ["predict"],
         }
 
