@@ -73,7 +73,6 @@ CLANG_LEFT_OUT_PER_FILTER = {   # not yet fixed in these filters' models/partial
 # still float (kernel inputs not yet declared flags, template variables) is listed here.
 FLOAT_EQUAL_LEFT = {
     "mekf": "measurement masks are float kernel inputs and template variables (mask != 0.0f)",
-    "adukf": "use_accel/use_mag are float kernel inputs (flag != 0.0f)",
 }
 
 

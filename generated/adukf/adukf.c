@@ -4044,7 +4044,7 @@ static void adukf_k_correct(const float x_pred[7], const float P_pred[49], const
 
 /* NED low-pass of the specific force R(q-) f (restart: start at R(q-) f); the update measures R(q-)^T of it
  * ops: add 40, mul 30, div 1, cmp 3 (total 74) */
-static void adukf_k_accel_lowpass(const float q_pred_unit[4], const float accel[3], const float accel_lp[3], float restart, float dt, float accel_lp_new[3], float accel_body[3])
+static void adukf_k_accel_lowpass(const float q_pred_unit[4], const float accel[3], const float accel_lp[3], bool restart, float dt, float accel_lp_new[3], float accel_body[3])
 {
     const float tmp0 = q_pred_unit[2] * q_pred_unit[2];
     const float tmp1 = q_pred_unit[3] * q_pred_unit[3];
@@ -4064,7 +4064,7 @@ static void adukf_k_accel_lowpass(const float q_pred_unit[4], const float accel[
     const float tmp15 = tmp14 + tmp14;
     const float tmp16 = tmp15 * accel[2];
     const float tmp17 = tmp11 + tmp16;
-    const float tmp18 = (restart != 0.0f) ? tmp17 : accel_lp[0];
+    const float tmp18 = (restart) ? tmp17 : accel_lp[0];
     const float tmp19 = 1.0f + dt;
     const float tmp20 = dt / tmp19;
     const float tmp21 = tmp17 - tmp18;
@@ -4085,7 +4085,7 @@ static void adukf_k_accel_lowpass(const float q_pred_unit[4], const float accel[
     const float tmp36 = tmp35 + tmp35;
     const float tmp37 = tmp36 * accel[2];
     const float tmp38 = tmp32 + tmp37;
-    const float tmp39 = (restart != 0.0f) ? tmp38 : accel_lp[1];
+    const float tmp39 = (restart) ? tmp38 : accel_lp[1];
     const float tmp40 = tmp38 - tmp39;
     const float tmp41 = tmp20 * tmp40;
     const float tmp42 = tmp39 + tmp41;
@@ -4101,7 +4101,7 @@ static void adukf_k_accel_lowpass(const float q_pred_unit[4], const float accel[
     const float tmp52 = 1.0f - tmp51;
     const float tmp53 = tmp52 * accel[2];
     const float tmp54 = tmp49 + tmp53;
-    const float tmp55 = (restart != 0.0f) ? tmp54 : accel_lp[2];
+    const float tmp55 = (restart) ? tmp54 : accel_lp[2];
     const float tmp56 = tmp54 - tmp55;
     const float tmp57 = tmp20 * tmp56;
     const float tmp58 = tmp55 + tmp57;
@@ -4413,8 +4413,10 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
         /* the accelerometer enters low-passed in NED (the low-pass starts at the first sample) */
         float accel_body[3] = { 0.0f, 0.0f, -1.0f };
         if (use_accel) {
-            const bool restart = s->accel_lp[0] == 0.0f && s->accel_lp[1] == 0.0f && s->accel_lp[2] == 0.0f;
-            adukf_k_accel_lowpass(x_new, in->accel, s->accel_lp, restart ? 1.0f : 0.0f, dt,
+            /* all three exactly 0 (x <= 0 && x >= 0: false for NaN, as x == 0) */
+            const bool restart = s->accel_lp[0] <= 0.0f && s->accel_lp[0] >= 0.0f && s->accel_lp[1] <= 0.0f
+                                 && s->accel_lp[1] >= 0.0f && s->accel_lp[2] <= 0.0f && s->accel_lp[2] >= 0.0f;
+            adukf_k_accel_lowpass(x_new, in->accel, s->accel_lp, restart, dt,
                                          s->accel_lp, accel_body);
         }
         const float accel_in[3] = { accel_body[0], accel_body[1], accel_body[2] };

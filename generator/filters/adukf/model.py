@@ -304,7 +304,7 @@ class Model(FilterModel):
                 "accel_lowpass", {"q_pred_unit": qn, "accel": f, "accel_lp": a_lp, "restart": restart, "dt": dt},
                 {"accel_lp_new": a_lp_new, "accel_body": quat.rotate_inv(qn, a_lp_new)}),
                 "NED low-pass of the specific force R(q-) f (restart: start at R(q-) f); the update "
-                "measures R(q-)^T of it")]
+                "measures R(q-)^T of it", flags=("restart",))]
               if self.lowpass() else []),
             KernelSpec("init_q", function("init_q", {"accel": f, "mag": m}, {"q": q_init}),
                        "initial attitude: accelerometer tilt and tilt-compensated heading (+ declination)"),
@@ -322,7 +322,7 @@ class Model(FilterModel):
             specs += [
                 KernelSpec("learn_sample", function("learn_sample", {"gyro": g, "accel": f, "mag": m},
                                                     {"rest": rest, "sin_dip": sin_dip}),
-                           "rest test and sin(inclination) = -f.m/(|f||m|) of one sample"),
+                           "rest test and sin(inclination) = -f.m/(|f||m|) of one sample", flags=("rest",)),
                 KernelSpec("learn_finish", function("learn_finish", {"learn_sum": ssum, "count": cnt},
                                                     {"m_ref": m_learn}),
                            "reference field from the mean sin(inclination) and the declination"),
