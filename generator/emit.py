@@ -17,6 +17,7 @@ operation counts. With math="fast" a float kernel calls generator/fastmath.py's 
 """
 from __future__ import annotations
 
+import math
 import re
 from dataclasses import dataclass, field
 
@@ -396,6 +397,7 @@ def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc
         if tmp in live:
             live.update(_TMP_RE.findall(nodes[tmp]["expr"]))
     kept = [t for t in order if t in live]
+    kept = _exact_reciprocals(kept, nodes, precision)
     if fma:
         kept = _fuse_multiply_add(kept, nodes, writes, "fmaf" if precision == "float" else "fma")
     ops = {c: 0 for c in CATEGORIES}
@@ -479,6 +481,29 @@ def _split(name, precision, inputs, body, writes, tops, size, ctx_decl=None, boo
         call_lines.append(f"{pname}({', '.join(args)});")
     out = [_TMP_RE.sub(lambda m: carried(m.group(0)), w) for w in writes]
     return call_lines + out, parts
+
+
+def _exact_reciprocals(kept, nodes, precision):
+    """x / c with c a power of two -> x * (1 / c): the same value to the last bit (1 / c is
+    exact), a multiplication instead of a division (14 cycles on the M4F, GCC keeps the
+    division without -freciprocal-math)."""
+    for t in kept:
+        n = nodes[t]
+        c = _literal_value(n["args"][1]) if n["code"] == ca.OP_DIV and n["sel"] is None else None
+        if _power_of_two(c, precision):
+            r = literal(1.0 / c, precision)
+            n.update(code=ca.OP_MUL, cat="mul", expr=f"{n['args'][0]} * {r}", args=[n["args"][0], r])
+    return kept
+
+
+def _power_of_two(c, precision) -> bool:
+    """c = +-2^k with 1 / c a normal number of the precision (so x * (1 / c) == x / c)."""
+    if c is None or c == 0.0 or not np.isfinite(c) or math.frexp(abs(c))[0] != 0.5:
+        return False
+    r = abs(1.0 / c)
+    tiny, big = (np.finfo(np.float32).tiny, np.finfo(np.float32).max) if precision == "float" else \
+        (np.finfo(np.float64).tiny, np.finfo(np.float64).max)
+    return tiny <= r <= big
 
 
 def _fuse_multiply_add(kept, nodes, writes, fname):

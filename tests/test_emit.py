@@ -250,3 +250,29 @@ def test_select_chained_on_one_condition_is_read_only_after_it_is_assigned(tmp_p
         x = [float(rng.uniform(-2, 2)), float(rng.uniform(0.3, 2))]
         got = _run1(lib, "chain", 1, [2], [x])[0]
         np.testing.assert_allclose(got, np.array(fn(x)).ravel(), rtol=1e-13, atol=1e-13)
+
+
+@pytest.mark.parametrize("precision", ["double", "float"])
+def test_division_by_a_power_of_two_is_an_exact_multiplication(precision, tmp_path):
+    """x / 2^k becomes x * 2^-k (the same correctly rounded value, subnormals included); a
+    division by another constant, or by a power of two whose reciprocal the type cannot hold,
+    stays a division."""
+    xv = ca.SX.sym("x", 2)        # a vector input: the kernel takes a pointer (x[0] is used)
+    x = xv[0]
+    big = 2.0 ** -130 if precision == "float" else 2.0 ** -1030      # 1 / big overflows the type
+    outs = [x / 2, x / -0.25, x / 1024, x / 3, x / big]
+    k = emit.emit(emit.function(f"p2_{precision}", {"x": xv}, {"o": ca.vertcat(*outs)}), precision)
+    text = "\n".join(k.body)
+    lit = lambda v: emit.literal(v, precision)  # noqa: E731
+    for c in (2, -0.25, 1024):
+        assert f"x[0] * {lit(1 / c)}" in text, text
+    assert f"x[0] / {lit(3.0)}" in text and f"x[0] / {lit(big)}" in text
+    assert k.ops["div"] == 2 and k.ops["mul"] == 3
+    ct, nt = (ctypes.c_float, np.float32) if precision == "float" else (ctypes.c_double, np.float64)
+    lib = _build([k], precision, tmp_path)
+    tiny = np.finfo(nt).tiny
+    for v in [1.0, -3.7, 1e30, tiny, 3 * tiny, -5 * np.finfo(nt).smallest_subnormal, 0.0, 123.456]:
+        got = np.array(_run1(lib, k.name, 1, [5], [[v, 0.0]], ct)[0][:3], dtype=nt)
+        want = np.array([nt(v) / nt(2), nt(v) / nt(-0.25), nt(v) / nt(1024)], dtype=nt)
+        assert np.array_equal(got.view(np.uint32 if nt is np.float32 else np.uint64),
+                              want.view(np.uint32 if nt is np.float32 else np.uint64)), (v, got, want)

@@ -4129,7 +4129,7 @@ static void adukf_k_accel_lowpass(const float q_pred_unit[4], const float accel[
 }
 
 /* initial attitude: accelerometer tilt and tilt-compensated heading (+ declination)
- * ops: add 14, mul 21, div 3, sqrt 1, trig 13, cmp 2 (total 54) */
+ * ops: add 14, mul 24, sqrt 1, trig 13, cmp 2 (total 54) */
 static void adukf_k_init_q(const float accel[3], const float mag[3], float q[4])
 {
     const float tmp0 = -accel[1];
@@ -4161,12 +4161,12 @@ static void adukf_k_init_q(const float accel[3], const float mag[3], float q[4])
     const float tmp26 = tmp24 + 6.2831855f;
     const float tmp27 = (tmp24 <= (-3.1415927f)) ? tmp26 : tmp24;
     const float tmp28 = (3.1415927f < tmp24) ? tmp25 : tmp27;
-    const float tmp29 = tmp28 / 2.0f;
+    const float tmp29 = tmp28 * 0.5f;
     const float tmp30 = fast_cosf(tmp29);
-    const float tmp31 = tmp13 / 2.0f;
+    const float tmp31 = tmp13 * 0.5f;
     const float tmp32 = fast_cosf(tmp31);
     const float tmp33 = tmp30 * tmp32;
-    const float tmp34 = tmp2 / 2.0f;
+    const float tmp34 = tmp2 * 0.5f;
     const float tmp35 = fast_cosf(tmp34);
     const float tmp36 = tmp33 * tmp35;
     const float tmp37 = fast_sinf(tmp29);

@@ -155,15 +155,15 @@ static void cpf_k_heading(const float mag[3], float roll, float pitch, float *ya
 }
 
 /* quaternion of Z-Y-X Euler angles [roll, pitch, yaw]
- * ops: add 4, mul 12, div 3, trig 6 (total 25) */
+ * ops: add 4, mul 15, trig 6 (total 25) */
 static void cpf_k_from_euler(const float rpy[3], float q[4])
 {
-    const float tmp0 = rpy[2] / 2.0f;
+    const float tmp0 = rpy[2] * 0.5f;
     const float tmp1 = fast_cosf(tmp0);
-    const float tmp2 = rpy[1] / 2.0f;
+    const float tmp2 = rpy[1] * 0.5f;
     const float tmp3 = fast_cosf(tmp2);
     const float tmp4 = tmp1 * tmp3;
-    const float tmp5 = rpy[0] / 2.0f;
+    const float tmp5 = rpy[0] * 0.5f;
     const float tmp6 = fast_cosf(tmp5);
     const float tmp7 = tmp4 * tmp6;
     const float tmp8 = fast_sinf(tmp0);
@@ -241,7 +241,7 @@ static void cpf_k_predict(const float q[4], const float gyro[3], float dt, float
 }
 
 /* complementary mix of gyro and accel/mag angles through wrapped differences (eqs. 7-8)
- * ops: add 23, mul 17, div 4, trig 6, cmp 12 (total 62) */
+ * ops: add 23, mul 20, div 1, trig 6, cmp 12 (total 62) */
 static void cpf_k_cf_mix(const float rpy[3], const float am[3], float dt, float use_accel, float use_mag, float q_cf[4])
 {
     const float tmp0 = 0.3f + dt;
@@ -258,7 +258,7 @@ static void cpf_k_cf_mix(const float rpy[3], const float am[3], float dt, float 
     const float tmp11 = tmp9 + 6.2831855f;
     const float tmp12 = (tmp9 <= (-3.1415927f)) ? tmp11 : tmp9;
     const float tmp13 = (3.1415927f < tmp9) ? tmp10 : tmp12;
-    const float tmp14 = tmp13 / 2.0f;
+    const float tmp14 = tmp13 * 0.5f;
     const float tmp15 = fast_cosf(tmp14);
     const float tmp16 = use_accel * tmp1;
     const float tmp17 = am[1] - rpy[1];
@@ -272,7 +272,7 @@ static void cpf_k_cf_mix(const float rpy[3], const float am[3], float dt, float 
     const float tmp25 = tmp23 + 6.2831855f;
     const float tmp26 = (tmp23 <= (-3.1415927f)) ? tmp25 : tmp23;
     const float tmp27 = (3.1415927f < tmp23) ? tmp24 : tmp26;
-    const float tmp28 = tmp27 / 2.0f;
+    const float tmp28 = tmp27 * 0.5f;
     const float tmp29 = fast_cosf(tmp28);
     const float tmp30 = tmp15 * tmp29;
     const float tmp31 = am[0] - rpy[0];
@@ -286,7 +286,7 @@ static void cpf_k_cf_mix(const float rpy[3], const float am[3], float dt, float 
     const float tmp39 = tmp37 + 6.2831855f;
     const float tmp40 = (tmp37 <= (-3.1415927f)) ? tmp39 : tmp37;
     const float tmp41 = (3.1415927f < tmp37) ? tmp38 : tmp40;
-    const float tmp42 = tmp41 / 2.0f;
+    const float tmp42 = tmp41 * 0.5f;
     const float tmp43 = fast_cosf(tmp42);
     const float tmp44 = tmp30 * tmp43;
     const float tmp45 = fast_sinf(tmp14);

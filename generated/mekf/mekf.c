@@ -2041,7 +2041,7 @@ static void mekf_k_update_heading(const float q[4], const float P[36], const flo
 }
 
 /* first attitude and low-pass state
- * ops: add 40, mul 39, div 3, sqrt 1, trig 14, cmp 4 (total 101)
+ * ops: add 40, mul 42, sqrt 1, trig 14, cmp 4 (total 101)
  *      of which only one side runs: if (use[0] != 0.0f) 1, else 21
  *      of which only one side runs: if (use[1] != 0.0f) 20, else 0 */
 static void mekf_k_init_attitude(const float accel[3], const float mag[3], const float vel[3], const float use[2], float q_out[4], float a_lp_out[3])
@@ -2087,12 +2087,12 @@ static void mekf_k_init_attitude(const float accel[3], const float mag[3], const
         }
         tmp8 = tmp10;
     }
-    const float tmp31 = tmp8 / 2.0f;
+    const float tmp31 = tmp8 * 0.5f;
     const float tmp32 = fast_cosf(tmp31);
-    const float tmp33 = tmp7 / 2.0f;
+    const float tmp33 = tmp7 * 0.5f;
     const float tmp34 = fast_cosf(tmp33);
     const float tmp35 = tmp32 * tmp34;
-    const float tmp36 = tmp2 / 2.0f;
+    const float tmp36 = tmp2 * 0.5f;
     const float tmp37 = fast_cosf(tmp36);
     const float tmp38 = tmp35 * tmp37;
     const float tmp39 = fast_sinf(tmp31);

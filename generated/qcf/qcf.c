@@ -87,7 +87,7 @@ static float fast_atan2f(float y, float x)
 }
 
 /* first attitude: FQA with a magnetometer sample, else the accelerometer's tilt with yaw 0; the low-pass starts at R(q) f
- * ops: add 64, mul 54, div 13, sqrt 9, cmp 19 (total 159)
+ * ops: add 64, mul 60, div 7, sqrt 9, cmp 19 (total 159)
  *      of which only one side runs: if (tmp12 < 1e-06f) 0, else 7
  *      of which only one side runs: if (use_mag) 64, else 1 */
 static void qcf_k_init_attitude(const float accel[3], const float mag[3], bool use_mag, float q[4], float accel_lp[3])
@@ -108,7 +108,7 @@ static void qcf_k_init_attitude(const float accel[3], const float mag[3], bool u
     const float tmp13 = (tmp12 > (-1.0f)) ? tmp12 : (-1.0f);
     const float tmp14 = (tmp13 < 1.0f) ? tmp13 : 1.0f;
     const float tmp15 = 1.0f - tmp14;
-    const float tmp16 = tmp15 / 2.0f;
+    const float tmp16 = tmp15 * 0.5f;
     const float tmp17 = sqrtf(tmp16);
     const float tmp18 = tmp9 * tmp17;
     float tmp19;
@@ -130,17 +130,17 @@ static void qcf_k_init_attitude(const float accel[3], const float mag[3], bool u
     const float tmp28 = (tmp19 > (-1.0f)) ? tmp19 : (-1.0f);
     const float tmp29 = (tmp28 < 1.0f) ? tmp28 : 1.0f;
     const float tmp30 = 1.0f + tmp29;
-    const float tmp31 = tmp30 / 2.0f;
+    const float tmp31 = tmp30 * 0.5f;
     const float tmp32 = sqrtf(tmp31);
     const float tmp33 = tmp18 * tmp32;
     const float tmp34 = (tmp20 < 0.0f) ? (-1.0f) : 1.0f;
     const float tmp35 = 1.0f - tmp29;
-    const float tmp36 = tmp35 / 2.0f;
+    const float tmp36 = tmp35 * 0.5f;
     const float tmp37 = sqrtf(tmp36);
     const float tmp38 = tmp34 * tmp37;
     const float tmp39 = tmp18 * tmp38;
     const float tmp40 = 1.0f + tmp14;
-    const float tmp41 = tmp40 / 2.0f;
+    const float tmp41 = tmp40 * 0.5f;
     const float tmp42 = sqrtf(tmp41);
     const float tmp43 = tmp42 * tmp38;
     const float tmp44 = tmp42 * tmp32;
@@ -192,14 +192,14 @@ static void qcf_k_init_attitude(const float accel[3], const float mag[3], bool u
         const float tmp89 = (tmp88 > (-1.0f)) ? tmp88 : (-1.0f);
         const float tmp90 = (tmp89 < 1.0f) ? tmp89 : 1.0f;
         const float tmp91 = 1.0f + tmp90;
-        const float tmp92 = tmp91 / 2.0f;
+        const float tmp92 = tmp91 * 0.5f;
         const float tmp93 = sqrtf(tmp92);
         const float tmp94 = tmp93 * tmp44;
         const float tmp95 = tmp83 / tmp87;
         const float tmp96 = -tmp95;
         const float tmp97 = (tmp96 < 0.0f) ? (-1.0f) : 1.0f;
         const float tmp98 = 1.0f - tmp90;
-        const float tmp99 = tmp98 / 2.0f;
+        const float tmp99 = tmp98 * 0.5f;
         const float tmp100 = sqrtf(tmp99);
         const float tmp101 = tmp97 * tmp100;
         const float tmp102 = tmp101 * tmp39;
@@ -279,7 +279,7 @@ static void qcf_k_init_attitude(const float accel[3], const float mag[3], bool u
 }
 
 /* first magnetometer sample after a tilt-only start: heading set, tilt kept
- * ops: add 26, mul 28, div 3, sqrt 3, cmp 9 (total 69)
+ * ops: add 26, mul 30, div 1, sqrt 3, cmp 9 (total 69)
  *      of which only one side runs: if (tmp35 < 1e-30f) 0, else 20 */
 static void qcf_k_heading_init(const float q[4], const float mag[3], float q_new[4])
 {
@@ -338,13 +338,13 @@ static void qcf_k_heading_init(const float q[4], const float mag[3], float q_new
         const float tmp45 = (tmp44 > (-1.0f)) ? tmp44 : (-1.0f);
         const float tmp46 = (tmp45 < 1.0f) ? tmp45 : 1.0f;
         const float tmp47 = 1.0f + tmp46;
-        const float tmp48 = tmp47 / 2.0f;
+        const float tmp48 = tmp47 * 0.5f;
         const float tmp49 = sqrtf(tmp48);
         const float tmp50 = tmp33 * tmp43;
         const float tmp51 = -tmp50;
         const float tmp52 = (tmp51 < 0.0f) ? (-1.0f) : 1.0f;
         const float tmp53 = 1.0f - tmp46;
-        const float tmp54 = tmp53 / 2.0f;
+        const float tmp54 = tmp53 * 0.5f;
         const float tmp55 = sqrtf(tmp54);
         const float tmp56 = tmp52 * tmp55;
         const float tmp57 = tmp56 * q[3];
@@ -407,7 +407,7 @@ static void qcf_k_accel_lowpass(const float rot[9], const float accel[3], const 
 }
 
 /* tilt (low-passed accelerometer) and heading (magnetometer) corrections as PI feedback, bias integral gated, bias at rest from the low-passed gyro, integration (eq. 9)
- * ops: add 85, mul 108, div 10, sqrt 7, trig 2, cmp 31 (total 243)
+ * ops: add 85, mul 109, div 9, sqrt 7, trig 2, cmp 31 (total 243)
  *      of which only one side runs: if (tmp10 < 1e-06f) 0, else 26
  *      of which only one side runs: if (tmp99 < 1e-30f) 0, else 17
  *      of which only one side runs: if (tmp144 < 0.01f) 16, else 5
@@ -559,7 +559,7 @@ static void qcf_k_correct_part0(const float q[4], const float rot[9], const floa
         const float tmp110 = (tmp109 > (-1.0f)) ? tmp109 : (-1.0f);
         const float tmp111 = (tmp110 < 1.0f) ? tmp110 : 1.0f;
         const float tmp112 = 1.0f - tmp111;
-        const float tmp113 = tmp112 / 2.0f;
+        const float tmp113 = tmp112 * 0.5f;
         const float tmp114 = sqrtf(tmp113);
         const float tmp115 = tmp108 * tmp114;
         const float tmp116 = span_mag * tmp115;
