@@ -167,6 +167,16 @@ def test_reads_lower_triangle_only():
     np.testing.assert_allclose(L, np.linalg.cholesky(A), rtol=1e-12, atol=1e-14)
 
 
+
+def test_lower_symmetric_mirrors_the_lower_triangle_and_ignores_the_upper():
+    rng = np.random.default_rng(5)
+    A = rng.standard_normal((5, 5))
+    S = np.array(linalg.lower_symmetric(A))
+    np.testing.assert_array_equal(S, np.tril(A) + np.tril(A, -1).T)
+    P = ca.SX.sym("P", 3, 3)          # symbolic: no upper-triangle symbol is read
+    deps = ca.symvar(linalg.lower_symmetric(P))
+    assert {str(d) for d in deps} == {str(P[i, j]) for i in range(3) for j in range(i + 1)}
+
 def test_joseph_update_matches_textbook_and_stays_spd():
     rng = np.random.default_rng(5)
     n, m = 6, 3
