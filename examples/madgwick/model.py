@@ -28,7 +28,7 @@ def _corrected(q, gyro, f, beta):
     """qdot of eq. 33: gyro rate minus beta times the normalised gradient of |f|^2 / 2."""
     grad = ca.mtimes(ca.jacobian(f, q).T, f)
     n2 = ca.sumsqr(grad)
-    step = ca.if_else(n2 > 0, beta * grad / ca.sqrt(ca.fmax(n2, 1e-30)), ca.DM.zeros(4))
+    step = ca.if_else(n2 > 0, beta * grad / ca.sqrt(n2), ca.DM.zeros(4))      # |grad_i| <= sqrt(n2)
     return _rate(q, gyro) - step
 
 

@@ -51,7 +51,8 @@ class Model(FilterModel):
         h = quat.rotate(q, m)
         v_m = ca.mtimes(Rt, ca.vertcat(ca.sqrt(h[0] ** 2 + h[1] ** 2), 0, h[2]))
         err_acc = ca.cross(a, ca.mtimes(Rt, UP))
-        err_marg = err_acc + ca.cross(m, v_m / ca.sqrt(ca.sumsqr(v_m)))
+        # |v_m| = |b| = |h| = |m| = 1 for a unit q: ahrs normalises v_m again, a human does not
+        err_marg = err_acc + ca.cross(m, v_m)
 
         def corrected(err):
             bias_new = bias - ki * err * dt
