@@ -395,7 +395,7 @@ def update_heading_function(p: dict, name="update_heading") -> ca.Function:
     P = sym_lower(Pv)
     PHt = ca.mtimes(P, H.T)
     S = ca.mtimes(H, PHt) + r                                # 1 x 1
-    K = PHt / ca.if_else(S > S_PIVOT_MIN, S, 1.0)
+    K = PHt * ca.if_else(S > S_PIVOT_MIN, 1.0 / S, 1.0)        # one division (a select: stays a product)
     up = Rq[2, :].T
     K[0:3] = ca.mtimes(ca.mtimes(up, up.T), K[0:3])          # attitude gain about the vertical only
     # Joseph form for this gain; P unchanged (selected, so the step may pass P as P_out) when
