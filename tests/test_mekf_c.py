@@ -406,6 +406,32 @@ def test_exactly_zero_rate_keeps_covariance_finite(c_float, c_double):
     assert np.allclose(c_double.state_dict(s)["P"].reshape(6, 6), ref.P, rtol=1e-12, atol=1e-18)
 
 
+def test_refused_bias_rows_undo_the_gravity_rows(c_double):
+    """At rest the gravity rows run first, then the bias rows. With a P whose bias block is
+    negative the first bias row's variance is below 1e-12: the batch update (the reference)
+    is refused as a whole, so the C must undo the three gravity rows it already applied to P
+    (restored from the lower triangle it saved). Same status and state as the reference from
+    the same state."""
+    ref, c = reference(), c_double
+    s = c.new_state()
+    still = ((0.0, 0.0, 0.0), (0.0, 0.0, -9.80665), (0, 0, 0), (0, 0, 0), VALID_GYRO | VALID_ACCEL, 0.01)
+    for _ in range(200):                            # 2 s at rest: rest_min_time 1.5 s passed
+        assert c.step(s, *still) == ref.step(*still)
+    assert ref.step(*still) & R.AT_REST and c.step(s, *still) & R.AT_REST
+    P = np.diag([1e-3] * 3 + [-1.0] * 3)
+    P[0, 1] = P[1, 0] = 2e-4
+    for k in range(36):
+        s.P[k] = P.ravel()[k]
+    ref.P = P.copy()
+    before = c.state_dict(s)
+    st_c, st_r = c.step(s, *still), ref.step(*still)
+    assert st_c == st_r and st_c & R.UPDATE_SKIPPED and st_c & R.AT_REST
+    after = c.state_dict(s)
+    assert np.array_equal(after["gyro_bias"], before["gyro_bias"])
+    assert np.allclose(after["P"].reshape(6, 6), ref.P, rtol=1e-12, atol=1e-15)
+    assert angle_diff_series(np.array([after["q"]]), np.array([ref.q]))[0] <= 1e-12
+
+
 # --- fuzz finding: P not positive definite near pitch 90 deg (tests/data/mekf-P-not-pd.bin) ---
 def _load_reference_state(ref, sd):
     """Put the C state (state_dict) into the reference, so that one step of each can be compared."""

@@ -2559,12 +2559,20 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
         }
     }
 
-    /* Gravity direction (3 rows) and, at rest, the gyro bias (3 rows): scalar rows in turn
+    /* Gravity direction (3 rows) and, at rest, the gyro bias (3 rows): scalar rows in turn on P
      * (the batch update with the rows stacked), applied only when every row's variance - the
-     * batch innovation covariance's Cholesky pivots - is usable. */
+     * batch innovation covariance's Cholesky pivots - is usable; else P is restored from its
+     * lower triangle saved here. */
     if (use_tilt || at_rest) {
         float x[6] = { 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f };
-        float P_upd[36];   /* P after the rows, until every row is accepted */
+        const float P_saved[21] = {
+            P[0], P[1], P[2], P[3], P[4], P[5],
+            P[7], P[8], P[9], P[10], P[11],
+            P[14], P[15], P[16], P[17],
+            P[21], P[22], P[23],
+            P[28], P[29],
+            P[35]
+        };
         float min_pivot;
         bool usable = true;
         if (use_tilt) {
@@ -2573,20 +2581,25 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
             float r;
             mekf_k_gravity_rows(q, up, h, z, &r);
             for (uint32_t i = 0u; i < 3u && usable; i++) {
-                mekf_k_update_attitude_row(i == 0u ? P : P_upd, &h[3u * i], z[i], r, x, x, P_upd, &min_pivot);
+                mekf_k_update_attitude_row(P, &h[3u * i], z[i], r, x, x, P, &min_pivot);
                 usable = min_pivot > 1e-12f;
             }
         }
         if (at_rest && usable) {
-            mekf_k_update_rest_bias(s->gyro_bias, use_tilt ? P_upd : P, in->gyro, dt, x, x, P_upd, &min_pivot);
+            mekf_k_update_rest_bias(s->gyro_bias, P, in->gyro, dt, x, x, P, &min_pivot);
             usable = min_pivot > 1e-12f;
         }
         if (usable) {
             mekf_k_inject(q, s->gyro_bias, x, q, s->gyro_bias);
-            for (uint32_t i = 0u; i < 36u; i++) {
-                P[i] = P_upd[i];
-            }
         } else {
+            uint32_t k = 0u;
+            for (uint32_t j = 0u; j < 6u; j++) {
+                for (uint32_t i = j; i < 6u; i++) {
+                    P[i + 6u * j] = P_saved[k];
+                    P[j + 6u * i] = P_saved[k];
+                    k++;
+                }
+            }
             status |= MEKF_UPDATE_SKIPPED;
         }
     }
