@@ -108,6 +108,13 @@ def test_manifest_op_counts_equal_the_emitted_c(name):
 
 
 # ------------------------------------------------------------------ counting CasADi's instructions
+def _exact_reciprocal(c) -> bool:
+    """c = +-2^k whose reciprocal a float holds exactly (a normal float)."""
+    import math
+    return c is not None and c != 0.0 and math.isfinite(c) and math.frexp(abs(c))[0] == 0.5 and \
+        2.0 ** -126 <= abs(1.0 / c) <= 2.0 ** 127
+
+
 def casadi_counts(fn: ca.Function) -> dict[str, int]:
     """div, sqrt, trig and mul-like counts from CasADi's instruction list (no emitter involved)."""
     div = {ca.OP_DIV, ca.OP_INV}
@@ -125,6 +132,8 @@ def casadi_counts(fn: ca.Function) -> dict[str, int]:
             expo = const.get(fn.instruction_input(k)[1])
             cat, n = {2.0: ("mul", 1), 3.0: ("mul", 2), 0.5: ("sqrt", 1), -1.0: ("div", 1)}.get(expo, ("trig", 1))
             out[cat] += n
+        elif code == ca.OP_DIV and _exact_reciprocal(const.get(fn.instruction_input(k)[1])):
+            out["mul"] += 1            # x / 2^k is written x * 2^-k (the same value, a multiplication)
         elif code in div:
             out["div"] += 1
         elif code in sqrt:
