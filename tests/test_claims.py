@@ -65,15 +65,18 @@ def kernel_bodies(src: str, prefix: str) -> dict[str, list[str]]:
 
     A split kernel's parts (<kernel>_part<N>) count as the kernel. A select written as a
     branch is declared without a value (`float tmpN;`) and assigned on each side: it counts
-    as one select ("? :"), like one written as a conditional expression."""
+    as one select ("? :"), like one written as a conditional expression; so does a flag
+    (`bool`: a comparison, or and/or/not on flags, written without `?`)."""
     out: dict[str, list[str]] = {}
     for m in re.finditer(rf"static void {prefix}_k_(\w+)\([^)]*\)\n\{{\n(.*?)\n\}}", src, re.S):
         name = re.sub(r"_part\d+$", "", m.group(1))
         rhs = out.setdefault(name, [])
         for ln in m.group(2).splitlines():
-            if re.match(r"\s*const \w+ tmp\d+ = ", ln):
+            if re.match(r"\s*const bool tmp\d+ = ", ln):
+                rhs.append("flag ? 1 : 0")       # a flag (comparison or logic on flags): one cmp
+            elif re.match(r"\s*const \w+ tmp\d+ = ", ln):
                 rhs.append(ln.split(" = ", 1)[1].rstrip(";"))
-            elif re.fullmatch(r"\s*(float|double) tmp\d+;", ln):
+            elif re.fullmatch(r"\s*(float|double|bool) tmp\d+;", ln):
                 rhs.append("branch ? taken : other")
     return out
 
