@@ -886,7 +886,7 @@ static void mekf_k_predict_covariance(const float F_q[9], const float F_b[9], co
 
 /* earth-frame low-pass of the compensated specific force
  * ops: add 50, mul 33, div 1, cmp 3 (total 87) */
-static void mekf_k_accel_lowpass(const float q[4], const float b[3], const float gyro[3], const float accel[3], const float vel[3], const float acc_n[3], const float mask[2], const float a_lp[3], const float v_lp[3], const float v_ins[3], float dt, float a_lp_out[3], float v_lp_out[3], float v_ins_out[3], float up_out[3])
+static void mekf_k_accel_lowpass(const float q[4], const float b[3], const float gyro[3], const float accel[3], const float vel[3], const float acc_n[3], const bool mask[2], const float a_lp[3], const float v_lp[3], const float v_ins[3], float dt, float a_lp_out[3], float v_lp_out[3], float v_ins_out[3], float up_out[3])
 {
     (void)b;
     (void)gyro;
@@ -949,34 +949,34 @@ static void mekf_k_accel_lowpass(const float q[4], const float b[3], const float
     const float tmp55 = a_lp[2] + tmp54;
     const float tmp56 = tmp19 * dt;
     const float tmp57 = v_ins[0] + tmp56;
-    const float tmp58 = (mask[1] != 0.0f) ? vel[0] : tmp57;
+    const float tmp58 = (mask[1]) ? vel[0] : tmp57;
     const float tmp59 = tmp58 - v_lp[0];
     const float tmp60 = tmp1 * tmp59;
-    const float tmp61 = mask[0] * tmp60;
+    const float tmp61 = (float)mask[0] * tmp60;
     const float tmp62 = v_lp[0] + tmp61;
     const float tmp63 = tmp37 * dt;
     const float tmp64 = v_ins[1] + tmp63;
-    const float tmp65 = (mask[1] != 0.0f) ? vel[1] : tmp64;
+    const float tmp65 = (mask[1]) ? vel[1] : tmp64;
     const float tmp66 = tmp65 - v_lp[1];
     const float tmp67 = tmp1 * tmp66;
-    const float tmp68 = mask[0] * tmp67;
+    const float tmp68 = (float)mask[0] * tmp67;
     const float tmp69 = v_lp[1] + tmp68;
     const float tmp70 = tmp52 + 9.80665f;
     const float tmp71 = tmp70 * dt;
     const float tmp72 = v_ins[2] + tmp71;
-    const float tmp73 = (mask[1] != 0.0f) ? vel[2] : tmp72;
+    const float tmp73 = (mask[1]) ? vel[2] : tmp72;
     const float tmp74 = tmp73 - v_lp[2];
     const float tmp75 = tmp1 * tmp74;
-    const float tmp76 = mask[0] * tmp75;
+    const float tmp76 = (float)mask[0] * tmp75;
     const float tmp77 = v_lp[2] + tmp76;
     const float tmp78 = tmp58 - tmp62;
-    const float tmp79 = mask[0] * tmp78;
+    const float tmp79 = (float)mask[0] * tmp78;
     const float tmp80 = tmp22 - tmp79;
     const float tmp81 = tmp65 - tmp69;
-    const float tmp82 = mask[0] * tmp81;
+    const float tmp82 = (float)mask[0] * tmp81;
     const float tmp83 = tmp40 - tmp82;
     const float tmp84 = tmp73 - tmp77;
-    const float tmp85 = mask[0] * tmp84;
+    const float tmp85 = (float)mask[0] * tmp84;
     const float tmp86 = tmp55 - tmp85;
     a_lp_out[0] = tmp22;
     a_lp_out[1] = tmp40;
@@ -1680,8 +1680,8 @@ static void mekf_k_inject(const float q[4], const float b[3], const float x[6], 
 
 /* one heading row, gain projected on the vertical
  * ops: add 102, mul 117, div 1, trig 3, cmp 28 (total 251)
- *      of which only one side runs: if (use_course != 0.0f) 7, else 26 */
-static void mekf_k_update_heading_part0(const float q[4], const float P[36], const float mag[3], const float vel[3], float use_course, float carry0[25])
+ *      of which only one side runs: if (use_course) 7, else 26 */
+static void mekf_k_update_heading_part0(const float q[4], const float P[36], const float mag[3], const float vel[3], bool use_course, float carry0[25])
 {
     const float tmp0 = q[1] * q[3];
     const float tmp1 = q[0] * q[2];
@@ -1732,7 +1732,7 @@ static void mekf_k_update_heading_part0(const float q[4], const float P[36], con
     const float tmp46 = 1.0f - tmp45;
     float tmp47;
     float tmp48;
-    if (use_course != 0.0f) {
+    if (use_course) {
         const float tmp49 = fast_atan2f(vel[1], vel[0]);
         const float tmp50 = fast_atan2f(tmp42, tmp46);
         const float tmp51 = tmp49 - tmp50;
@@ -1990,7 +1990,7 @@ static void mekf_k_update_heading_part1(const float P[36], const float carry0[25
     carry1[17] = tmp250;
 }
 
-static void mekf_k_update_heading(const float q[4], const float P[36], const float mag[3], const float vel[3], float use_course, float x_out[6], float P_out[36], float *s)
+static void mekf_k_update_heading(const float q[4], const float P[36], const float mag[3], const float vel[3], bool use_course, float x_out[6], float P_out[36], float *s)
 {
     /* 2 parts called in turn (inlined when optimising): bounded -O0 frames */
     float carry0[25];
@@ -2044,9 +2044,9 @@ static void mekf_k_update_heading(const float q[4], const float P[36], const flo
 
 /* first attitude and low-pass state
  * ops: add 40, mul 42, sqrt 1, trig 14, cmp 4 (total 101)
- *      of which only one side runs: if (use[0] != 0.0f) 1, else 21
- *      of which only one side runs: if (use[1] != 0.0f) 20, else 0 */
-static void mekf_k_init_attitude(const float accel[3], const float mag[3], const float vel[3], const float use[2], float q_out[4], float a_lp_out[3])
+ *      of which only one side runs: if (use[0]) 1, else 21
+ *      of which only one side runs: if (use[1]) 20, else 0 */
+static void mekf_k_init_attitude(const float accel[3], const float mag[3], const float vel[3], const bool use[2], float q_out[4], float a_lp_out[3])
 {
     const float tmp0 = -accel[1];
     const float tmp1 = -accel[2];
@@ -2057,12 +2057,12 @@ static void mekf_k_init_attitude(const float accel[3], const float mag[3], const
     const float tmp6 = sqrtf(tmp5);
     const float tmp7 = fast_atan2f(accel[0], tmp6);
     float tmp8;
-    if (use[0] != 0.0f) {
+    if (use[0]) {
         const float tmp9 = fast_atan2f(vel[1], vel[0]);
         tmp8 = tmp9;
     } else {
         float tmp10;
-        if (use[1] != 0.0f) {
+        if (use[1]) {
             const float tmp11 = fast_cosf(tmp2);
             const float tmp12 = mag[1] * tmp11;
             const float tmp13 = fast_sinf(tmp2);
@@ -2374,10 +2374,7 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
      * vertical-only row (GPS course or magnetometer, gain projected so it never tilts). */
     bool use_tilt = false;
     if (use_accel) {
-        if (MEKF_ACCEL_GATE > 0.0f &&
-            fabsf(sqrtf(mekf_norm2(in->accel)) - 9.80665f) > MEKF_ACCEL_GATE) {
-            status |= MEKF_ACCEL_GATED;
-        } else {
+        {
             use_tilt = true;
         }
     }
@@ -2422,8 +2419,7 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
         /* First usable accelerometer sample: tilt from it, yaw from the course or the
          * magnetometer (0 without either); no propagation or correction this step. */
         if (use_tilt) {
-            const float use_head[2] = { course_sample ? 1.0f : 0.0f,
-                                            (!course_sample && use_mag) ? 1.0f : 0.0f };
+            const bool use_head[2] = { course_sample, !course_sample && use_mag };
             mekf_k_init_attitude(in->accel, mag_in, vel_in, use_head, s->q, s->a_lp);
             if (course_sample || use_mag) {
                 s->head_age = 0.0f;
@@ -2499,7 +2495,7 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
         s->vlp_ok = 0u;
     }
     if (use_tilt) {
-        const float m_comp = fresh ? 1.0f : 0.0f;
+        const bool m_comp = fresh;
         if (fresh && s->vlp_ok == 0u) {   /* (re)start on the present velocity */
             for (uint32_t i = 0u; i < 3u; i++) {
                 s->v_lp[i] = s->v_gps[i];
@@ -2507,7 +2503,7 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
             }
             s->vlp_ok = 1u;
         }
-        const float lp_mask[2] = { m_comp, use_gps ? 1.0f : 0.0f };
+        const bool lp_mask[2] = { m_comp, use_gps };
         mekf_k_accel_lowpass(q, s->gyro_bias, in->gyro, in->accel, s->v_gps, s->a_gps, lp_mask, s->a_lp, s->v_lp,
             s->v_ins, dt, s->a_lp, s->v_lp, s->v_ins, up);   /* in place */
         if (mekf_norm2(up) <= MEKF_ACCEL_MIN_NORM * MEKF_ACCEL_MIN_NORM) {
@@ -2610,7 +2606,7 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
         float x[6];
         float s_head;
         /* P in place: the kernel leaves it as it was when s_head is not usable */
-        mekf_k_update_heading(q, P, mag_in, vel_in, (course_sample && course_mode) ? 1.0f : 0.0f,
+        mekf_k_update_heading(q, P, mag_in, vel_in, course_sample && course_mode,
             x, P, &s_head);
         if (s_head > 1e-12f) {
             mekf_k_inject(q, s->gyro_bias, x, q, s->gyro_bias);

@@ -482,19 +482,22 @@ class Model(FilterModel):
             return [
                 KernelSpec("predict_attitude", predict_attitude_function(p), "time update: attitude and F's attitude rows"),
                 KernelSpec("predict_covariance", predict_covariance_function(p), "time update: covariance"),
-                KernelSpec("accel_lowpass", accel_lowpass_function(p), "earth-frame low-pass of the compensated specific force"),
+                KernelSpec("accel_lowpass", accel_lowpass_function(p), "earth-frame low-pass of the compensated specific force",
+                           flags=("mask",)),
                 KernelSpec("heading_features", heading_features_function(), "field norm and dip; GPS velocity in body axes"),
                 KernelSpec("gravity_rows", gravity_rows_function(p), "gravity direction: H rows, innovations, variance"),
                 KernelSpec("update_attitude_row", update_attitude_row_function(), "one scalar row on the attitude error"),
                 KernelSpec("update_rest_bias", update_rest_bias_function(p), "at rest, the gyro bias: three scalar rows"),
                 KernelSpec("inject", inject_function(), "error injection into q and the gyro bias"),
-                KernelSpec("update_heading", update_heading_function(p), "one heading row, gain projected on the vertical"),
-                KernelSpec("init_attitude", init_vectors_function(p), "first attitude and low-pass state"),
+                KernelSpec("update_heading", update_heading_function(p), "one heading row, gain projected on the vertical",
+                           flags=("use_course",)),
+                KernelSpec("init_attitude", init_vectors_function(p), "first attitude and low-pass state",
+                           flags=("use",)),
             ]
         return [
             KernelSpec("predict", predict_function(p), "time update (patent steps 1-2)"),
-            KernelSpec("update", update_function(p), "measurement update with row mask (steps 3-8)"),
-            KernelSpec("init_attitude", init_function(p), "first attitude from tilt and heading"),
+            KernelSpec("update", update_function(p), "measurement update with row mask (steps 3-8)", flags=("mask",)),
+            KernelSpec("init_attitude", init_function(p), "first attitude from tilt and heading", flags=("use_head",)),
         ]
 
     def step_paths(self) -> dict[str, list[str]]:
@@ -511,4 +514,7 @@ class Model(FilterModel):
         return {"n": N, "heading_source": p["heading_source"], "motion_comp": p["motion_comp"],
                 "s_pivot_min": S_PIVOT_MIN, "age_max": AGE_MAX, "g0": G0, "gps_dt_min": GPS_DT_MIN,
                 "vectors": self.vectors, "head_age_max": HEAD_AGE_MAX,
-                "tan2_sideslip": math.tan(p["course_max_sideslip"]) ** 2}
+                "tan2_sideslip": math.tan(p["course_max_sideslip"]) ** 2,
+                # the norm gate's test is written only when it can be on (a runtime value, or > 0):
+                # no unreachable code in a default build. dict.get: not a use of a runtime value.
+                "accel_gate_on": not isinstance(p.get("accel_gate"), (int, float)) or p.get("accel_gate") > 0}
