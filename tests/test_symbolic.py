@@ -118,3 +118,24 @@ def test_tilt_and_heading_formulas():
         assert rr == pytest.approx(r, abs=1e-9) and pp == pytest.approx(p, abs=1e-9)
         h = ca.Function("h", [m3], [attitude.tilt_compensated_heading(m3, r, p)])
         assert float(nq.wrap(float(h(m)) - y)) == pytest.approx(0, abs=1e-9)
+
+
+def test_exponential_jacobian_through_the_squared_norm():
+    """quat.qexp_jacobian (CasADi's derivative taken through m = |v|^2) equals CasADi's direct
+    jacobian of qexp and central differences of the exact exponential, on both sides of the
+    series switch and at 0."""
+    J = ca.Function("J", [v3], [quat.qexp_jacobian(v3)])
+    Jd = ca.Function("Jd", [v3], [ca.jacobian(quat.qexp(v3), v3)])
+
+    def exact(r):
+        n = np.linalg.norm(r)
+        return np.r_[np.cos(n), np.sin(n) / n * r] if n > 0 else np.r_[1.0, r]
+
+    h = 1e-6
+    for scale in [0.0, 1e-5, 0.05, 0.0999, 0.1001, 1.0, 3.0]:
+        r = rng.normal(size=3)
+        r = r / np.linalg.norm(r) * scale
+        got = np.array(J(r))
+        np.testing.assert_allclose(got, np.array(Jd(r)), atol=1e-15, rtol=1e-13)
+        fd = np.column_stack([(exact(r + h * e) - exact(r - h * e)) / (2 * h) for e in np.eye(3)])
+        np.testing.assert_allclose(got, fd, atol=1e-8)

@@ -78,9 +78,11 @@ def _series(x2, coeffs):
     return acc
 
 
-def qexp(v) -> ca.SX:
-    """exp([0, v]) = [cos|v|, sin|v| v/|v|]: the series above below SERIES_MAX (exact at 0)."""
-    n2 = ca.sumsqr(v)
+def qexp(v, n2=None) -> ca.SX:
+    """exp([0, v]) = [cos|v|, sin|v| v/|v|]: the series above below SERIES_MAX (exact at 0).
+
+    n2 stands for |v|² (default: computed from v); qexp_jacobian passes a symbol."""
+    n2 = ca.sumsqr(v) if n2 is None else n2
     small = n2 < SERIES_MAX * SERIES_MAX
     n = ca.sqrt(ca.fmax(n2, SERIES_MAX * SERIES_MAX))
     cos_c = [(-1) ** k / math.factorial(2 * k) for k in range(SERIES_TERMS)]
@@ -88,6 +90,16 @@ def qexp(v) -> ca.SX:
     sinc = ca.if_else(small, _series(n2, sinc_c), ca.sin(n) / n)
     cos_n = ca.if_else(small, _series(n2, cos_c), ca.cos(n))
     return vec(cos_n, sinc * v[0], sinc * v[1], sinc * v[2])
+
+
+def qexp_jacobian(v) -> ca.SX:
+    """∂ qexp(v) / ∂v (4 x 3), by CasADi through m = |v|²: qexp(v) = g(v, |v|²) with
+    g(v, m) = [C(m), S(m) v], so J = ∂g/∂v + ∂g/∂m · 2vᵀ. The series (or sin, cos) are
+    differentiated once, in m, instead of once per component of v."""
+    vs, m = ca.SX.sym("v", 3), ca.SX.sym("m")
+    g = qexp(vs, m)
+    J = ca.jacobian(g, vs) + ca.mtimes(ca.jacobian(g, m), ca.jacobian(ca.sumsqr(vs), vs))
+    return ca.substitute(ca.substitute(J, m, ca.sumsqr(vs)), vs, v)
 
 
 def integrate(q, omega, dt) -> ca.SX:

@@ -71,7 +71,7 @@ def flat_mirrored(M, n=N):
     return ca.vertcat(*out)
 
 
-def error_propagation(dq, db, ng, nb, omega_hat, dt):
+def error_propagation(dq, db, ng, nb, omega_hat, dt, c=None):
     """One-step error propagation (what F and G linearise).
 
     Nominal: q̂' = q̂ ⊗ a, a = exp(½ ω̂ dt). Truth: q' = q ⊗ exp(½ (ω̂ − δb − n_g) dt) with
@@ -83,11 +83,13 @@ def error_propagation(dq, db, ng, nb, omega_hat, dt):
 
     δq' = e_vec / e_w; at the linearisation point e = a* ⊗ a = [1, 0, 0, 0] (a is a unit
     quaternion), where the derivative of e_vec / e_w is that of e_vec: e_vec is returned and
-    the Jacobian taken without the quotient rule's divisions.
+    the Jacobian taken without the quotient rule's divisions. c: a variable standing for
+    exp(½ (ω̂ − δb − n_g) dt) (jacobians_FG differentiates through it).
     """
     a = quat.qexp(0.5 * dt * omega_hat)
-    e = quat.qmul(quat.qmul(quat.qconj(a), quat.vec(1, dq[0], dq[1], dq[2])),
-                  quat.qexp(0.5 * dt * (omega_hat - db - ng)))
+    if c is None:
+        c = quat.qexp(0.5 * dt * (omega_hat - db - ng))
+    e = quat.qmul(quat.qmul(quat.qconj(a), quat.vec(1, dq[0], dq[1], dq[2])), c)
     return ca.vertcat(e[1], e[2], e[3], db + nb)
 
 
@@ -97,13 +99,21 @@ def measurement(q, dq):
 
 
 def jacobians_FG(omega_hat, dt):
-    """(F, G) by CasADi jacobian of error_propagation at X = 0, noise = 0."""
+    """(F, G) by CasADi jacobians of error_propagation at X = 0, noise = 0, taken through the
+    exponential c = exp(v), v = ½ (ω̂ − δb − n_g) dt, which is all that δb and n_g enter:
+    ∂f/∂x = ∂f/∂x|_c + ∂f/∂c · ∂c/∂v · ∂v/∂x (each factor a CasADi jacobian, ∂c/∂v by
+    quat.qexp_jacobian), evaluated at c = exp(½ ω̂ dt)."""
     dq, db, ng, nb = (ca.SX.sym(n, 3) for n in ("dq", "db", "ng", "nb"))
-    f = error_propagation(dq, db, ng, nb, omega_hat, dt)
+    c = ca.SX.sym("c", 4)
+    f = error_propagation(dq, db, ng, nb, omega_hat, dt, c=c)
+    v = 0.5 * dt * (omega_hat - db - ng)
     zeros = [dq, db, ng, nb]
-    F = kalman.jacobian_at(f, ca.vertcat(dq, db), zeros)
-    G = kalman.jacobian_at(f, ca.vertcat(ng, nb), zeros)
-    return F, G
+    chain = ca.mtimes(kalman.jacobian_at(f, c, zeros), quat.qexp_jacobian(0.5 * dt * omega_hat))
+    x, w = ca.vertcat(dq, db), ca.vertcat(ng, nb)
+    F = kalman.jacobian_at(f, x, zeros) + ca.mtimes(chain, ca.jacobian(v, x))
+    G = kalman.jacobian_at(f, w, zeros) + ca.mtimes(chain, ca.jacobian(v, w))
+    c0 = quat.qexp(0.5 * dt * omega_hat)
+    return ca.substitute(F, c, c0), ca.substitute(G, c, c0)
 
 
 def jacobian_H(q):
