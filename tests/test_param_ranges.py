@@ -10,6 +10,7 @@ what the C compiler and the C standard say about the text.
 from __future__ import annotations
 
 import math
+import os
 import re
 import subprocess
 from pathlib import Path
@@ -59,29 +60,34 @@ def cases(name: str) -> list[tuple[str, object]]:
     return [(pn, v) for pn, p in spec.params.items() for v in sweep_values(p)]
 
 
+def _generate(job):
+    """One value: (set text, problem or None, C source folder or None). Runs in a worker."""
+    name, i, pn, v, out = job
+    text = f"{pn}={str(v).lower() if isinstance(v, bool) else v if isinstance(v, str) else repr(v)}"
+    try:
+        cfg = config.resolve(name, sets=[text], prefix=f"v{i}")
+    except ConfigError as e:      # the sweep only uses declared values: a refusal is a bug
+        return text, f"{text}: refused: {e}", None
+    try:
+        gen = render.render(cfg)
+    except Exception as e:        # noqa: BLE001 - report every failing value, not just the first
+        return text, f"{text}: generation failed: {type(e).__name__}: {e}", None
+    src = gen.files[f"v{i}.c"] + gen.files[f"v{i}.h"]
+    bad = sorted(set(_NONFINITE.findall(_COMMENT.sub(" ", src))))
+    d = Path(out) / f"v{i}"
+    render.write(gen, d)
+    return text, f"{text}: non-finite literal(s) {bad} in the C" if bad else None, str(d / f"v{i}.c")
+
+
 @needs("cc")
 @pytest.mark.parametrize("name", filters.names())
 def test_every_accepted_value_generates_finite_c_that_compiles(name, tmp_path):
-    problems, sources = [], []
-    for i, (pn, v) in enumerate(cases(name)):
-        text = f"{pn}={str(v).lower() if isinstance(v, bool) else v if isinstance(v, str) else repr(v)}"
-        try:
-            cfg = config.resolve(name, sets=[text], prefix=f"v{i}")
-        except ConfigError as e:      # the sweep only uses declared values: a refusal is a bug
-            problems.append(f"{text}: refused: {e}")
-            continue
-        try:
-            gen = render.render(cfg)
-        except Exception as e:        # noqa: BLE001 - report every failing value, not just the first
-            problems.append(f"{text}: generation failed: {type(e).__name__}: {e}")
-            continue
-        src = gen.files[f"v{i}.c"] + gen.files[f"v{i}.h"]
-        bad = sorted(set(_NONFINITE.findall(_COMMENT.sub(" ", src))))
-        if bad:
-            problems.append(f"{text}: non-finite literal(s) {bad} in the C")
-        d = tmp_path / f"v{i}"
-        render.write(gen, d)
-        sources.append((text, d / f"v{i}.c"))
+    from concurrent.futures import ProcessPoolExecutor
+    jobs = [(name, i, pn, v, str(tmp_path)) for i, (pn, v) in enumerate(cases(name))]
+    with ProcessPoolExecutor(max(1, min(4, os.cpu_count() or 1))) as pool:     # generation is the cost
+        done = list(pool.map(_generate, jobs, chunksize=4))
+    problems = [p for _, p, _ in done if p]
+    sources = [(t, Path(c)) for t, _, c in done if c]
     # one compiler call for the whole filter: -c of every value's source (objects named apart)
     cmd = ["cc", *host.STRICT, "-O0", "-c"]
     for _, c in sources:
