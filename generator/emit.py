@@ -35,6 +35,11 @@ _WEIGHT = {"add": 1, "mul": 1, "cmp": 1, "div": 8, "sqrt": 8, "trig": 20}
 # Selects on one condition whose exclusive operations weigh less than this stay ?: (a
 # conditional move is cheaper than a branch around a few adds).
 BRANCH_MIN_COST = 12
+# A kernel with at most this many temporaries is declared `static inline`: GCC then inlines
+# it at every call site (a small kernel called from several places, e.g. R(q) again after an
+# attitude reset, otherwise stays a call with its outputs in memory). qcf 723 -> 706
+# instructions/step, -120 B; larger kernels called several times stay calls (flash).
+INLINE_TEMPS = 32
 # A kernel with more temporaries than this is written as parts of about this many, called
 # in turn (GCC inlines them at -O1 and above): at -O0 every temporary has its own stack
 # slot, and one frame per part keeps a debug build's stack bounded.

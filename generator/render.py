@@ -163,7 +163,7 @@ def render(cfg: BuildConfig) -> Generated:
         if extra:
             raise ConfigError(f"kernel {ks.name}: free symbol(s) {', '.join(extra)} are not runtime parameters")
         kernels.append(k)
-        kctx.append({"name": ks.name, "doc": ks.doc, "code": k.source(storage="static "),
+        kctx.append({"name": ks.name, "doc": ks.doc, "code": k.source(storage="static inline " if k.n_temporaries <= emit.INLINE_TEMPS else "static "),
                      "ops_text": ", ".join(f"{n} {c}" for n, c in k.ops.items() if c) + f" (total {k.ops_total})"
                      + "".join(f"\n *      of which only one side runs: if ({b['condition']}) {sum(b['then'].values())}, "
                                f"else {sum(b['else'].values())}" for b in k.branches)})

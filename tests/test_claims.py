@@ -68,7 +68,7 @@ def kernel_bodies(src: str, prefix: str) -> dict[str, list[str]]:
     as one select ("? :"), like one written as a conditional expression; so does a flag
     (`bool`: a comparison, or and/or/not on flags, written without `?`)."""
     out: dict[str, list[str]] = {}
-    for m in re.finditer(rf"static void {prefix}_k_(\w+)\([^)]*\)\n\{{\n(.*?)\n\}}", src, re.S):
+    for m in re.finditer(rf"static (?:inline )?void {prefix}_k_(\w+)\([^)]*\)\n\{{\n(.*?)\n\}}", src, re.S):
         name = re.sub(r"_part\d+$", "", m.group(1))
         rhs = out.setdefault(name, [])
         for ln in m.group(2).splitlines():

@@ -276,3 +276,22 @@ def test_division_by_a_power_of_two_is_an_exact_multiplication(precision, tmp_pa
         want = np.array([nt(v) / nt(2), nt(v) / nt(-0.25), nt(v) / nt(1024)], dtype=nt)
         assert np.array_equal(got.view(np.uint32 if nt is np.float32 else np.uint64),
                               want.view(np.uint32 if nt is np.float32 else np.uint64)), (v, got, want)
+
+
+def test_small_kernels_are_inline_and_large_ones_are_not():
+    """The storage rule of every committed build: a kernel of at most emit.INLINE_TEMPS
+    temporaries (manifest) is `static inline` (GCC inlines it at each of its call sites), a
+    larger one plain `static` (called from several places it stays one copy)."""
+    import json
+    from pathlib import Path
+    seen = {True: 0, False: 0}
+    for man_path in sorted((Path(__file__).resolve().parents[1] / "generated").glob("*/manifest.json")):
+        man = json.loads(man_path.read_text())
+        src = (man_path.parent / man["files"]["source"]).read_text()
+        for name, k in man["kernels"].items():
+            m = re.search(rf"^static (inline )?void {man['prefix']}_k_{name}\(", src, re.M)
+            assert m, (man["prefix"], name)
+            small = k["temporaries"] <= emit.INLINE_TEMPS
+            assert bool(m.group(1)) == small, (man["prefix"], name, k["temporaries"])
+            seen[small] += 1
+    assert seen[True] and seen[False]

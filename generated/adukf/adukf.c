@@ -4194,7 +4194,7 @@ static void adukf_k_init_q(const float accel[3], const float mag[3], float q[4])
 
 /* Z-Y-X Euler angles [roll, pitch, yaw] of a unit body->NED quaternion
  * ops: add 13, mul 11, sqrt 1, trig 3 (total 28) */
-static void adukf_k_euler(const float q[4], float rpy[3])
+static inline void adukf_k_euler(const float q[4], float rpy[3])
 {
     const float tmp0 = q[0] * q[1];
     const float tmp1 = q[2] * q[3];

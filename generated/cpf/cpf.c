@@ -113,7 +113,7 @@ static float fast_expf(float x)
 
 /* accelerometer roll and pitch (eqs. 1-2 in FRD/NED)
  * ops: add 3, mul 2, sqrt 1, trig 2 (total 8) */
-static void cpf_k_tilt(const float accel[3], float *roll, float *pitch)
+static inline void cpf_k_tilt(const float accel[3], float *roll, float *pitch)
 {
     const float tmp0 = -accel[1];
     const float tmp1 = -accel[2];
@@ -129,7 +129,7 @@ static void cpf_k_tilt(const float accel[3], float *roll, float *pitch)
 
 /* tilt-compensated magnetic heading plus declination (eq. 3 in FRD/NED)
  * ops: add 6, mul 7, trig 5, cmp 2 (total 20) */
-static void cpf_k_heading(const float mag[3], float roll, float pitch, float *yaw)
+static inline void cpf_k_heading(const float mag[3], float roll, float pitch, float *yaw)
 {
     const float tmp0 = fast_cosf(roll);
     const float tmp1 = mag[1] * tmp0;
@@ -156,7 +156,7 @@ static void cpf_k_heading(const float mag[3], float roll, float pitch, float *ya
 
 /* quaternion of Z-Y-X Euler angles [roll, pitch, yaw]
  * ops: add 4, mul 15, trig 6 (total 25) */
-static void cpf_k_from_euler(const float rpy[3], float q[4])
+static inline void cpf_k_from_euler(const float rpy[3], float q[4])
 {
     const float tmp0 = rpy[2] * 0.5f;
     const float tmp1 = fast_cosf(tmp0);
@@ -314,7 +314,7 @@ static void cpf_k_cf_mix(const float rpy[3], const float am[3], float dt, float 
 
 /* initial particle: the first attitude plus quaternion noise, normalised
  * ops: add 7, mul 8, div 4, sqrt 1 (total 20) */
-static void cpf_k_init_particle(const float q[4], const float noise[4], float x[4])
+static inline void cpf_k_init_particle(const float q[4], const float noise[4], float x[4])
 {
     const float tmp0 = 0.025f * noise[0];
     const float tmp1 = q[0] + tmp0;
@@ -405,7 +405,7 @@ static void cpf_k_particle_predict(const float x[4], const float gyro[3], float 
 
 /* |<x, Y>|: cosine of half the angle between particle and observation (q = -q)
  * ops: add 3, mul 4, cmp 1 (total 8) */
-static void cpf_k_obs_dot(const float x[4], const float y[4], float *c)
+static inline void cpf_k_obs_dot(const float x[4], const float y[4], float *c)
 {
     const float tmp0 = x[0] * y[0];
     const float tmp1 = x[1] * y[1];
@@ -420,7 +420,7 @@ static void cpf_k_obs_dot(const float x[4], const float y[4], float *c)
 
 /* weight times the Gaussian likelihood exp(-4(1-|<x,Y>|)/obs_noise^2), scaled by its maximum (eq. 13)
  * ops: add 4, mul 6, trig 1, cmp 1 (total 12) */
-static void cpf_k_reweight(float w, const float x[4], const float y[4], float cmax, float *w_new)
+static inline void cpf_k_reweight(float w, const float x[4], const float y[4], float cmax, float *w_new)
 {
     const float tmp0 = x[0] * y[0];
     const float tmp1 = x[1] * y[1];
@@ -439,7 +439,7 @@ static void cpf_k_reweight(float w, const float x[4], const float y[4], float cm
 
 /* sign-aligned weighted sum of the particles (eq. 15, q = -q)
  * ops: add 7, mul 9, cmp 1 (total 17) */
-static void cpf_k_accumulate(const float acc[4], float w, const float x[4], const float ref[4], float acc_new[4])
+static inline void cpf_k_accumulate(const float acc[4], float w, const float x[4], const float ref[4], float acc_new[4])
 {
     const float tmp0 = x[0] * ref[0];
     const float tmp1 = x[1] * ref[1];
@@ -466,7 +466,7 @@ static void cpf_k_accumulate(const float acc[4], float w, const float x[4], cons
 
 /* normalised quaternion
  * ops: add 3, mul 4, div 4, sqrt 1 (total 12) */
-static void cpf_k_normalize(const float acc[4], float q[4])
+static inline void cpf_k_normalize(const float acc[4], float q[4])
 {
     const float tmp0 = acc[0] * acc[0];
     const float tmp1 = acc[1] * acc[1];
@@ -488,7 +488,7 @@ static void cpf_k_normalize(const float acc[4], float q[4])
 
 /* Z-Y-X Euler angles [roll, pitch, yaw] of a unit body->NED quaternion
  * ops: add 13, mul 11, sqrt 1, trig 3 (total 28) */
-static void cpf_k_euler(const float q[4], float rpy[3])
+static inline void cpf_k_euler(const float q[4], float rpy[3])
 {
     const float tmp0 = q[0] * q[1];
     const float tmp1 = q[2] * q[3];

@@ -373,7 +373,7 @@ static void qcf_k_heading_init(const float q[4], const float mag[3], float q_new
 
 /* low-pass of the specific force in NED, R(q) f (time constant accel_tau)
  * ops: add 13, mul 12, div 1 (total 26) */
-static void qcf_k_accel_lowpass(const float rot[9], const float accel[3], const float accel_lp[3], float span, float accel_lp_new[3])
+static inline void qcf_k_accel_lowpass(const float rot[9], const float accel[3], const float accel_lp[3], float span, float accel_lp_new[3])
 {
     const float tmp0 = 1.0f + span;
     const float tmp1 = span / tmp0;
@@ -912,7 +912,7 @@ static void qcf_k_mag_check(const float rot[9], const float accel_lp[3], const f
 
 /* R(q), read by the kernels of a step that rotate with the estimate (computed once)
  * ops: add 21, mul 9 (total 30) */
-static void qcf_k_rotation(const float q[4], float rot[9])
+static inline void qcf_k_rotation(const float q[4], float rot[9])
 {
     const float tmp0 = q[2] * q[2];
     const float tmp1 = q[3] * q[3];
@@ -1149,7 +1149,7 @@ static void qcf_k_propagate(const float q[4], const float gyro_bias[3], const fl
 
 /* Z-Y-X Euler angles [roll, pitch, yaw] of a unit body->NED quaternion
  * ops: add 13, mul 11, sqrt 1, trig 3 (total 28) */
-static void qcf_k_euler(const float q[4], float rpy[3])
+static inline void qcf_k_euler(const float q[4], float rpy[3])
 {
     const float tmp0 = q[0] * q[1];
     const float tmp1 = q[2] * q[3];
