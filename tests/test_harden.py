@@ -69,10 +69,16 @@ def test_kernel_structure_check_catches_planted_defects():
                  "the sides set different selects: ['tmp3']", "body line 12: tmp2 used before it is defined",
                  "tmp3 declared but never set"):
         assert what in text, text
-    # a split kernel: local carry arrays bounded by their declaration
-    split = dict(k, lines=["    float carry0[2];", "    x_k_demo_part0(a, dt, carry0);", "    out[0] = carry0[1];",
-                           "    out[1] = carry0[2];", "    *piv = carry0[0];"])
-    assert harden.kernel_structure_issues(split) == ["x_k_demo body line 4: carry0[2] out of bounds (size 2)"]
+    # a split kernel: its local carry array bounded by its declaration
+    split = dict(k, lines=["    float carry[2];", "    x_k_demo_part0(a, dt, carry);", "    out[0] = carry[1];",
+                           "    out[1] = carry[2];", "    *piv = carry[0];"])
+    assert harden.kernel_structure_issues(split) == ["x_k_demo body line 4: carry[2] out of bounds (size 2)"]
+    # a part writes only its own carry slots (others hold live values), but none twice
+    part = {"name": "x_k_demo_part1", "params": {"a": (True, 3, False), "carry": (False, 4, False)},
+            "lines": ["    const float tmp0 = carry[0] * a[0];", "    carry[2] = tmp0;"]}
+    assert harden.kernel_structure_issues(part) == []
+    twice = dict(part, lines=part["lines"] + ["    carry[2] = a[1];"])
+    assert harden.kernel_structure_issues(twice) == ["x_k_demo_part1: output carry[2] written 2 times"]
 
 
 @needs_cppcheck

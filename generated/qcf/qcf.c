@@ -412,7 +412,7 @@ static inline void qcf_k_accel_lowpass(const float rot[9], const float accel[3],
  *      of which only one side runs: if (tmp99 < 1e-30f) 0, else 17
  *      of which only one side runs: if (tmp144 < 0.01f) 16, else 5
  *      of which only one side runs: if (at_rest) 11, else 18 */
-static void qcf_k_correct_part0(const float q[4], const float rot[9], const float gyro_bias[3], const float gyro[3], float dt, const float accel_lp[3], const float mag[3], float span_accel, float span_mag, float carry0[7])
+static void qcf_k_correct_part0(const float q[4], const float rot[9], const float gyro_bias[3], const float gyro[3], float dt, const float accel_lp[3], const float mag[3], float span_accel, float span_mag, float carry[7])
 {
     const float tmp0 = gyro[0] - gyro_bias[0];
     const float tmp1 = tmp0 * dt;
@@ -595,40 +595,40 @@ static void qcf_k_correct_part0(const float q[4], const float rot[9], const floa
     const float tmp142 = 0.5f * tmp141;
     const float tmp143 = tmp142 * tmp142;
     const float tmp144 = tmp134 + tmp143;
-    carry0[0] = tmp120;
-    carry0[1] = tmp123;
-    carry0[2] = tmp129;
-    carry0[3] = tmp132;
-    carry0[4] = tmp139;
-    carry0[5] = tmp142;
-    carry0[6] = tmp144;
+    carry[0] = tmp120;
+    carry[1] = tmp123;
+    carry[2] = tmp129;
+    carry[3] = tmp132;
+    carry[4] = tmp139;
+    carry[5] = tmp142;
+    carry[6] = tmp144;
 }
 
-static void qcf_k_correct_part1(const float q[4], const float gyro_bias[3], float span_accel, bool use_accel, const float accel[3], bool at_rest, const float rest_gyro_lp[3], const float carry0[7], float carry1[7])
+static void qcf_k_correct_part1(const float q[4], const float gyro_bias[3], float span_accel, bool use_accel, const float accel[3], bool at_rest, const float rest_gyro_lp[3], float carry[7])
 {
     float tmp145;
     float tmp146;
-    if (carry0[6] < 0.01f) {
-        const float tmp147 = 2.4801588e-05f * carry0[6];
+    if (carry[6] < 0.01f) {
+        const float tmp147 = 2.4801588e-05f * carry[6];
         const float tmp148 = (-0.0013888889f) + tmp147;
-        const float tmp149 = carry0[6] * tmp148;
+        const float tmp149 = carry[6] * tmp148;
         const float tmp150 = 0.041666668f + tmp149;
-        const float tmp151 = carry0[6] * tmp150;
+        const float tmp151 = carry[6] * tmp150;
         const float tmp152 = (-0.5f) + tmp151;
-        const float tmp153 = carry0[6] * tmp152;
+        const float tmp153 = carry[6] * tmp152;
         const float tmp154 = 1.0f + tmp153;
-        const float tmp155 = 2.7557319e-06f * carry0[6];
+        const float tmp155 = 2.7557319e-06f * carry[6];
         const float tmp156 = (-0.0001984127f) + tmp155;
-        const float tmp157 = carry0[6] * tmp156;
+        const float tmp157 = carry[6] * tmp156;
         const float tmp158 = 0.008333334f + tmp157;
-        const float tmp159 = carry0[6] * tmp158;
+        const float tmp159 = carry[6] * tmp158;
         const float tmp160 = (-0.16666667f) + tmp159;
-        const float tmp161 = carry0[6] * tmp160;
+        const float tmp161 = carry[6] * tmp160;
         const float tmp162 = 1.0f + tmp161;
         tmp145 = tmp154;
         tmp146 = tmp162;
     } else {
-        const float tmp163 = (carry0[6] > 0.01f) ? carry0[6] : 0.01f;
+        const float tmp163 = (carry[6] > 0.01f) ? carry[6] : 0.01f;
         const float tmp164 = sqrtf(tmp163);
         const float tmp165 = fast_cosf(tmp164);
         const float tmp166 = fast_sinf(tmp164);
@@ -637,13 +637,13 @@ static void qcf_k_correct_part1(const float q[4], const float gyro_bias[3], floa
         tmp146 = tmp167;
     }
     const float tmp168 = q[0] * tmp145;
-    const float tmp169 = tmp146 * carry0[1];
+    const float tmp169 = tmp146 * carry[1];
     const float tmp170 = q[1] * tmp169;
     const float tmp171 = tmp168 - tmp170;
-    const float tmp172 = tmp146 * carry0[3];
+    const float tmp172 = tmp146 * carry[3];
     const float tmp173 = q[2] * tmp172;
     const float tmp174 = tmp171 - tmp173;
-    const float tmp175 = tmp146 * carry0[5];
+    const float tmp175 = tmp146 * carry[5];
     const float tmp176 = q[3] * tmp175;
     const float tmp177 = tmp174 - tmp176;
     const float tmp178 = tmp177 * tmp177;
@@ -707,42 +707,41 @@ static void qcf_k_correct_part1(const float q[4], const float gyro_bias[3], floa
         const float tmp231 = tmp230 - 9.80665f;
         const float tmp232 = fabsf(tmp231);
         const bool tmp233 = (use_accel) && (tmp232 < 1.0f);
-        const float tmp234 = 0.002f * carry0[0];
+        const float tmp234 = 0.002f * carry[0];
         const float tmp235 = gyro_bias[0] - tmp234;
         const float tmp236 = (tmp233) ? tmp235 : gyro_bias[0];
-        const float tmp237 = 0.002f * carry0[2];
+        const float tmp237 = 0.002f * carry[2];
         const float tmp238 = gyro_bias[1] - tmp237;
         const float tmp239 = (tmp233) ? tmp238 : gyro_bias[1];
-        const float tmp240 = 0.002f * carry0[4];
+        const float tmp240 = 0.002f * carry[4];
         const float tmp241 = gyro_bias[2] - tmp240;
         const float tmp242 = (tmp233) ? tmp241 : gyro_bias[2];
         tmp211 = tmp236;
         tmp212 = tmp239;
         tmp213 = tmp242;
     }
-    carry1[0] = tmp207;
-    carry1[1] = tmp208;
-    carry1[2] = tmp209;
-    carry1[3] = tmp210;
-    carry1[4] = tmp211;
-    carry1[5] = tmp212;
-    carry1[6] = tmp213;
+    carry[0] = tmp207;
+    carry[1] = tmp208;
+    carry[2] = tmp209;
+    carry[3] = tmp210;
+    carry[4] = tmp211;
+    carry[5] = tmp212;
+    carry[6] = tmp213;
 }
 
 static void qcf_k_correct(const float q[4], const float rot[9], const float gyro_bias[3], const float gyro[3], float dt, const float accel_lp[3], const float mag[3], float span_accel, float span_mag, bool use_accel, const float accel[3], bool at_rest, const float rest_gyro_lp[3], float q_new[4], float gyro_bias_new[3])
 {
-    /* 2 parts called in turn (inlined when optimising): bounded -O0 frames */
-    float carry0[7];
-    float carry1[7];
-    qcf_k_correct_part0(q, rot, gyro_bias, gyro, dt, accel_lp, mag, span_accel, span_mag, carry0);
-    qcf_k_correct_part1(q, gyro_bias, span_accel, use_accel, accel, at_rest, rest_gyro_lp, carry0, carry1);
-    q_new[0] = carry1[0];
-    q_new[1] = carry1[1];
-    q_new[2] = carry1[2];
-    q_new[3] = carry1[3];
-    gyro_bias_new[0] = carry1[4];
-    gyro_bias_new[1] = carry1[5];
-    gyro_bias_new[2] = carry1[6];
+    /* 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    float carry[7];
+    qcf_k_correct_part0(q, rot, gyro_bias, gyro, dt, accel_lp, mag, span_accel, span_mag, carry);
+    qcf_k_correct_part1(q, gyro_bias, span_accel, use_accel, accel, at_rest, rest_gyro_lp, carry);
+    q_new[0] = carry[0];
+    q_new[1] = carry[1];
+    q_new[2] = carry[2];
+    q_new[3] = carry[3];
+    gyro_bias_new[0] = carry[4];
+    gyro_bias_new[1] = carry[5];
+    gyro_bias_new[2] = carry[6];
 }
 
 /* rest detection: gyro and accelerometer steady for rest_time
