@@ -42,8 +42,12 @@ BRANCH_MIN_COST = 12
 INLINE_TEMPS = 32
 # A kernel with more temporaries than this is written as parts of about this many, called
 # in turn (GCC inlines them at -O1 and above): at -O0 every temporary has its own stack
-# slot, and one frame per part keeps a debug build's stack bounded.
-SPLIT_TEMPS = 160
+# slot, and one frame per part keeps a debug build's stack bounded. 40 measured best over
+# 24..400 (ahrsgen target all, with the shared carry array): adukf stack 2 008 -> 1 592 B,
+# -O0 2 288 -> 1 792 B, 6 222 -> 5 726 instructions/step against 160; mekf -O0 1 360 -> 856 B
+# but static stack 456 -> 488 B; GCC's inlining of the parts makes the figures jump with it
+# (adukf at 56-100: about 1 950 B), so re-measure when changing it.
+SPLIT_TEMPS = 40
 
 
 class EmitError(ValueError):

@@ -191,7 +191,7 @@ static inline void cpf_k_from_euler(const float rpy[3], float q[4])
 
 /* gyro prediction by eq. 11, normalised
  * ops: add 15, mul 21, div 4, sqrt 1 (total 41) */
-static void cpf_k_predict(const float q[4], const float gyro[3], float dt, float q_new[4])
+static void cpf_k_predict_part0(const float q[4], const float gyro[3], float dt, float carry[5])
 {
     const float tmp0 = 0.5f * dt;
     const float tmp1 = q[1] * gyro[0];
@@ -233,16 +233,34 @@ static void cpf_k_predict(const float q[4], const float gyro[3], float dt, float
     const float tmp37 = tmp7 / tmp36;
     const float tmp38 = tmp15 / tmp36;
     const float tmp39 = tmp24 / tmp36;
-    const float tmp40 = tmp33 / tmp36;
-    q_new[0] = tmp37;
-    q_new[1] = tmp38;
-    q_new[2] = tmp39;
-    q_new[3] = tmp40;
+    carry[0] = tmp33;
+    carry[1] = tmp36;
+    carry[2] = tmp37;
+    carry[3] = tmp38;
+    carry[4] = tmp39;
+}
+
+static void cpf_k_predict_part1(float carry[5])
+{
+    const float tmp40 = carry[0] / carry[1];
+    carry[0] = tmp40;
+}
+
+static void cpf_k_predict(const float q[4], const float gyro[3], float dt, float q_new[4])
+{
+    /* 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    float carry[5];
+    cpf_k_predict_part0(q, gyro, dt, carry);
+    cpf_k_predict_part1(carry);
+    q_new[0] = carry[2];
+    q_new[1] = carry[3];
+    q_new[2] = carry[4];
+    q_new[3] = carry[0];
 }
 
 /* complementary mix of gyro and accel/mag angles through wrapped differences (eqs. 7-8)
  * ops: add 23, mul 20, div 1, trig 6, cmp 12 (total 62) */
-static void cpf_k_cf_mix(const float rpy[3], const float am[3], float dt, float use_accel, float use_mag, float q_cf[4])
+static void cpf_k_cf_mix_part0(const float rpy[3], const float am[3], float dt, float use_accel, float use_mag, float carry[8])
 {
     const float tmp0 = 0.3f + dt;
     const float tmp1 = dt / tmp0;
@@ -284,32 +302,56 @@ static void cpf_k_cf_mix(const float rpy[3], const float am[3], float dt, float 
     const float tmp37 = rpy[0] + tmp36;
     const float tmp38 = tmp37 - 6.2831855f;
     const float tmp39 = tmp37 + 6.2831855f;
-    const float tmp40 = (tmp37 <= (-3.1415927f)) ? tmp39 : tmp37;
-    const float tmp41 = (3.1415927f < tmp37) ? tmp38 : tmp40;
+    carry[0] = tmp14;
+    carry[1] = tmp15;
+    carry[2] = tmp28;
+    carry[3] = tmp29;
+    carry[4] = tmp30;
+    carry[5] = tmp37;
+    carry[6] = tmp38;
+    carry[7] = tmp39;
+}
+
+static void cpf_k_cf_mix_part1(float carry[8])
+{
+    const float tmp40 = (carry[5] <= (-3.1415927f)) ? carry[7] : carry[5];
+    const float tmp41 = (3.1415927f < carry[5]) ? carry[6] : tmp40;
     const float tmp42 = tmp41 * 0.5f;
     const float tmp43 = fast_cosf(tmp42);
-    const float tmp44 = tmp30 * tmp43;
-    const float tmp45 = fast_sinf(tmp14);
-    const float tmp46 = fast_sinf(tmp28);
+    const float tmp44 = carry[4] * tmp43;
+    const float tmp45 = fast_sinf(carry[0]);
+    const float tmp46 = fast_sinf(carry[2]);
     const float tmp47 = tmp45 * tmp46;
     const float tmp48 = fast_sinf(tmp42);
     const float tmp49 = tmp47 * tmp48;
     const float tmp50 = tmp44 + tmp49;
-    const float tmp51 = tmp30 * tmp48;
+    const float tmp51 = carry[4] * tmp48;
     const float tmp52 = tmp47 * tmp43;
     const float tmp53 = tmp51 - tmp52;
-    const float tmp54 = tmp15 * tmp46;
+    const float tmp54 = carry[1] * tmp46;
     const float tmp55 = tmp54 * tmp43;
-    const float tmp56 = tmp45 * tmp29;
+    const float tmp56 = tmp45 * carry[3];
     const float tmp57 = tmp56 * tmp48;
     const float tmp58 = tmp55 + tmp57;
     const float tmp59 = tmp56 * tmp43;
     const float tmp60 = tmp54 * tmp48;
     const float tmp61 = tmp59 - tmp60;
-    q_cf[0] = tmp50;
-    q_cf[1] = tmp53;
-    q_cf[2] = tmp58;
-    q_cf[3] = tmp61;
+    carry[0] = tmp50;
+    carry[1] = tmp53;
+    carry[2] = tmp58;
+    carry[3] = tmp61;
+}
+
+static void cpf_k_cf_mix(const float rpy[3], const float am[3], float dt, float use_accel, float use_mag, float q_cf[4])
+{
+    /* 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    float carry[8];
+    cpf_k_cf_mix_part0(rpy, am, dt, use_accel, use_mag, carry);
+    cpf_k_cf_mix_part1(carry);
+    q_cf[0] = carry[0];
+    q_cf[1] = carry[1];
+    q_cf[2] = carry[2];
+    q_cf[3] = carry[3];
 }
 
 /* initial particle: the first attitude plus quaternion noise, normalised
@@ -344,7 +386,7 @@ static inline void cpf_k_init_particle(const float q[4], const float noise[4], f
 
 /* particle prediction: eq. 11 plus the additive process noise of eq. 9, normalised
  * ops: add 19, mul 26, div 4, sqrt 2 (total 51) */
-static void cpf_k_particle_predict(const float x[4], const float gyro[3], float dt, const float noise[4], float x_new[4])
+static void cpf_k_particle_predict_part0(const float x[4], const float gyro[3], float dt, const float noise[4], float carry[7])
 {
     const float tmp0 = 0.5f * dt;
     const float tmp1 = x[1] * gyro[0];
@@ -386,21 +428,44 @@ static void cpf_k_particle_predict(const float x[4], const float gyro[3], float 
     const float tmp37 = tmp35 + tmp36;
     const float tmp38 = x[2] * gyro[0];
     const float tmp39 = tmp37 - tmp38;
-    const float tmp40 = tmp0 * tmp39;
+    carry[0] = tmp0;
+    carry[1] = tmp9;
+    carry[2] = tmp11;
+    carry[3] = tmp21;
+    carry[4] = tmp32;
+    carry[5] = tmp34;
+    carry[6] = tmp39;
+}
+
+static void cpf_k_particle_predict_part1(const float x[4], const float noise[4], float carry[7])
+{
+    const float tmp40 = carry[0] * carry[6];
     const float tmp41 = x[3] + tmp40;
-    const float tmp42 = tmp9 * noise[3];
+    const float tmp42 = carry[1] * noise[3];
     const float tmp43 = tmp41 + tmp42;
     const float tmp44 = tmp43 * tmp43;
-    const float tmp45 = tmp34 + tmp44;
+    const float tmp45 = carry[5] + tmp44;
     const float tmp46 = sqrtf(tmp45);
-    const float tmp47 = tmp11 / tmp46;
-    const float tmp48 = tmp21 / tmp46;
-    const float tmp49 = tmp32 / tmp46;
+    const float tmp47 = carry[2] / tmp46;
+    const float tmp48 = carry[3] / tmp46;
+    const float tmp49 = carry[4] / tmp46;
     const float tmp50 = tmp43 / tmp46;
-    x_new[0] = tmp47;
-    x_new[1] = tmp48;
-    x_new[2] = tmp49;
-    x_new[3] = tmp50;
+    carry[0] = tmp47;
+    carry[1] = tmp48;
+    carry[2] = tmp49;
+    carry[3] = tmp50;
+}
+
+static void cpf_k_particle_predict(const float x[4], const float gyro[3], float dt, const float noise[4], float x_new[4])
+{
+    /* 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    float carry[7];
+    cpf_k_particle_predict_part0(x, gyro, dt, noise, carry);
+    cpf_k_particle_predict_part1(x, noise, carry);
+    x_new[0] = carry[0];
+    x_new[1] = carry[1];
+    x_new[2] = carry[2];
+    x_new[3] = carry[3];
 }
 
 /* |<x, Y>|: cosine of half the angle between particle and observation (q = -q)

@@ -89,7 +89,7 @@ static float fast_atan2f(float y, float x)
 /* time update: attitude and F's attitude rows
  * ops: add 107, mul 121, div 9, sqrt 2, trig 2, cmp 7 (total 248)
  *      of which only one side runs: if (tmp11 < 0.01f) 26, else 13 */
-static void mekf_k_predict_attitude_part0(const float q[4], const float b[3], const float gyro[3], float dt, float carry[30])
+static void mekf_k_predict_attitude_part0(const float b[3], const float gyro[3], float dt, float carry[32])
 {
     const float tmp0 = 0.5f * dt;
     const float tmp1 = gyro[0] - b[0];
@@ -108,73 +108,94 @@ static void mekf_k_predict_attitude_part0(const float q[4], const float b[3], co
     const float tmp14 = fast_cosf(tmp13);
     const float tmp15 = fast_sinf(tmp13);
     const float tmp16 = tmp15 / tmp13;
+    carry[0] = tmp0;
+    carry[1] = tmp2;
+    carry[2] = tmp5;
+    carry[3] = tmp9;
+    carry[4] = tmp11;
+    carry[5] = tmp13;
+    carry[6] = tmp14;
+    carry[7] = tmp15;
+    carry[8] = tmp16;
+}
+
+static void mekf_k_predict_attitude_part1(float carry[32])
+{
     float tmp17;
     float tmp18;
     float tmp19;
     float tmp20;
-    if (tmp11 < 0.01f) {
-        const float tmp21 = 2.4801588e-05f * tmp11;
+    if (carry[4] < 0.01f) {
+        const float tmp21 = 2.4801588e-05f * carry[4];
         const float tmp22 = (-0.0013888889f) + tmp21;
-        const float tmp23 = tmp11 * tmp22;
+        const float tmp23 = carry[4] * tmp22;
         const float tmp24 = 0.041666668f + tmp23;
-        const float tmp25 = tmp11 * tmp24;
+        const float tmp25 = carry[4] * tmp24;
         const float tmp26 = (-0.5f) + tmp25;
-        const float tmp27 = tmp11 * tmp26;
+        const float tmp27 = carry[4] * tmp26;
         const float tmp28 = 1.0f + tmp27;
-        const float tmp29 = 2.7557319e-06f * tmp11;
+        const float tmp29 = 2.7557319e-06f * carry[4];
         const float tmp30 = (-0.0001984127f) + tmp29;
-        const float tmp31 = tmp11 * tmp30;
+        const float tmp31 = carry[4] * tmp30;
         const float tmp32 = 0.008333334f + tmp31;
-        const float tmp33 = tmp11 * tmp32;
+        const float tmp33 = carry[4] * tmp32;
         const float tmp34 = (-0.16666667f) + tmp33;
-        const float tmp35 = tmp11 * tmp34;
+        const float tmp35 = carry[4] * tmp34;
         const float tmp36 = 1.0f + tmp35;
         const float tmp37 = tmp30 + tmp29;
-        const float tmp38 = tmp11 * tmp37;
+        const float tmp38 = carry[4] * tmp37;
         const float tmp39 = tmp32 + tmp38;
-        const float tmp40 = tmp11 * tmp39;
+        const float tmp40 = carry[4] * tmp39;
         const float tmp41 = tmp34 + tmp40;
         const float tmp42 = tmp22 + tmp21;
-        const float tmp43 = tmp11 * tmp42;
+        const float tmp43 = carry[4] * tmp42;
         const float tmp44 = tmp24 + tmp43;
-        const float tmp45 = tmp11 * tmp44;
+        const float tmp45 = carry[4] * tmp44;
         const float tmp46 = tmp26 + tmp45;
         tmp17 = tmp28;
         tmp18 = tmp36;
         tmp19 = tmp41;
         tmp20 = tmp46;
     } else {
-        const bool tmp47 = 0.01f <= tmp11;
-        const bool tmp48 = tmp11 <= 0.01f;
+        const bool tmp47 = 0.01f <= carry[4];
+        const bool tmp48 = carry[4] <= 0.01f;
         const float tmp49 = (float)tmp47 + (float)tmp48;
         const float tmp50 = (float)tmp47 / tmp49;
-        const float tmp51 = tmp13 + tmp13;
+        const float tmp51 = carry[5] + carry[5];
         const float tmp52 = tmp50 / tmp51;
-        const float tmp53 = tmp14 * tmp52;
-        const float tmp54 = tmp53 / tmp13;
-        const float tmp55 = tmp16 / tmp13;
+        const float tmp53 = carry[6] * tmp52;
+        const float tmp54 = tmp53 / carry[5];
+        const float tmp55 = carry[8] / carry[5];
         const float tmp56 = tmp55 * tmp52;
         const float tmp57 = tmp54 - tmp56;
-        const float tmp58 = tmp15 * tmp52;
+        const float tmp58 = carry[7] * tmp52;
         const float tmp59 = -tmp58;
-        tmp17 = tmp14;
-        tmp18 = tmp16;
+        tmp17 = carry[6];
+        tmp18 = carry[8];
         tmp19 = tmp57;
         tmp20 = tmp59;
     }
-    const float tmp60 = q[0] * tmp17;
-    const float tmp61 = tmp18 * tmp2;
+    carry[4] = tmp17;
+    carry[5] = tmp18;
+    carry[6] = tmp19;
+    carry[7] = tmp20;
+}
+
+static void mekf_k_predict_attitude_part2(const float q[4], float carry[32])
+{
+    const float tmp60 = q[0] * carry[4];
+    const float tmp61 = carry[5] * carry[1];
     const float tmp62 = q[1] * tmp61;
     const float tmp63 = tmp60 - tmp62;
-    const float tmp64 = tmp18 * tmp5;
+    const float tmp64 = carry[5] * carry[2];
     const float tmp65 = q[2] * tmp64;
     const float tmp66 = tmp63 - tmp65;
-    const float tmp67 = tmp18 * tmp9;
+    const float tmp67 = carry[5] * carry[3];
     const float tmp68 = q[3] * tmp67;
     const float tmp69 = tmp66 - tmp68;
     const float tmp70 = tmp69 * tmp69;
     const float tmp71 = q[0] * tmp61;
-    const float tmp72 = q[1] * tmp17;
+    const float tmp72 = q[1] * carry[4];
     const float tmp73 = tmp71 + tmp72;
     const float tmp74 = q[2] * tmp67;
     const float tmp75 = tmp73 + tmp74;
@@ -185,7 +206,7 @@ static void mekf_k_predict_attitude_part0(const float q[4], const float b[3], co
     const float tmp80 = q[0] * tmp64;
     const float tmp81 = q[1] * tmp67;
     const float tmp82 = tmp80 - tmp81;
-    const float tmp83 = q[2] * tmp17;
+    const float tmp83 = q[2] * carry[4];
     const float tmp84 = tmp82 + tmp83;
     const float tmp85 = q[3] * tmp61;
     const float tmp86 = tmp84 + tmp85;
@@ -196,35 +217,47 @@ static void mekf_k_predict_attitude_part0(const float q[4], const float b[3], co
     const float tmp91 = tmp89 + tmp90;
     const float tmp92 = q[2] * tmp61;
     const float tmp93 = tmp91 - tmp92;
-    const float tmp94 = q[3] * tmp17;
+    const float tmp94 = q[3] * carry[4];
     const float tmp95 = tmp93 + tmp94;
     const float tmp96 = tmp95 * tmp95;
     const float tmp97 = tmp88 + tmp96;
     const float tmp98 = sqrtf(tmp97);
     const float tmp99 = tmp69 / tmp98;
-    const float tmp100 = tmp77 / tmp98;
-    const float tmp101 = tmp86 / tmp98;
-    const float tmp102 = tmp95 / tmp98;
-    const float tmp103 = tmp61 * tmp61;
-    const float tmp104 = tmp17 * tmp17;
+    carry[8] = tmp61;
+    carry[9] = tmp64;
+    carry[10] = tmp67;
+    carry[11] = tmp77;
+    carry[12] = tmp86;
+    carry[13] = tmp95;
+    carry[14] = tmp98;
+    carry[15] = tmp99;
+}
+
+static void mekf_k_predict_attitude_part3(float carry[32])
+{
+    const float tmp100 = carry[11] / carry[14];
+    const float tmp101 = carry[12] / carry[14];
+    const float tmp102 = carry[13] / carry[14];
+    const float tmp103 = carry[8] * carry[8];
+    const float tmp104 = carry[4] * carry[4];
     const float tmp105 = tmp103 + tmp104;
-    const float tmp106 = tmp67 * tmp67;
+    const float tmp106 = carry[10] * carry[10];
     const float tmp107 = tmp105 - tmp106;
-    const float tmp108 = tmp64 * tmp64;
+    const float tmp108 = carry[9] * carry[9];
     const float tmp109 = tmp107 - tmp108;
-    const float tmp110 = tmp64 * tmp61;
-    const float tmp111 = tmp67 * tmp17;
+    const float tmp110 = carry[9] * carry[8];
+    const float tmp111 = carry[10] * carry[4];
     const float tmp112 = tmp110 - tmp111;
-    const float tmp113 = tmp17 * tmp67;
+    const float tmp113 = carry[4] * carry[10];
     const float tmp114 = tmp112 - tmp113;
-    const float tmp115 = tmp61 * tmp64;
+    const float tmp115 = carry[8] * carry[9];
     const float tmp116 = tmp114 + tmp115;
-    const float tmp117 = tmp67 * tmp61;
-    const float tmp118 = tmp64 * tmp17;
+    const float tmp117 = carry[10] * carry[8];
+    const float tmp118 = carry[9] * carry[4];
     const float tmp119 = tmp117 + tmp118;
-    const float tmp120 = tmp61 * tmp67;
+    const float tmp120 = carry[8] * carry[10];
     const float tmp121 = tmp119 + tmp120;
-    const float tmp122 = tmp17 * tmp64;
+    const float tmp122 = carry[4] * carry[9];
     const float tmp123 = tmp121 + tmp122;
     const float tmp124 = tmp115 + tmp113;
     const float tmp125 = tmp124 + tmp111;
@@ -232,202 +265,213 @@ static void mekf_k_predict_attitude_part0(const float q[4], const float b[3], co
     const float tmp127 = tmp108 - tmp106;
     const float tmp128 = tmp127 + tmp104;
     const float tmp129 = tmp128 - tmp103;
-    const float tmp130 = tmp67 * tmp64;
+    const float tmp130 = carry[10] * carry[9];
     const float tmp131 = tmp130 + tmp130;
-    const float tmp132 = tmp61 * tmp17;
+    const float tmp132 = carry[8] * carry[4];
     const float tmp133 = tmp131 - tmp132;
-    const float tmp134 = tmp17 * tmp61;
+    const float tmp134 = carry[4] * carry[8];
     const float tmp135 = tmp133 - tmp134;
     const float tmp136 = tmp120 - tmp122;
     const float tmp137 = tmp136 + tmp117;
     const float tmp138 = tmp137 - tmp118;
-    const float tmp139 = tmp64 * tmp67;
-    const float tmp140 = tmp139 + tmp139;
-    const float tmp141 = tmp140 + tmp134;
-    const float tmp142 = tmp141 + tmp132;
-    const float tmp143 = tmp106 - tmp108;
-    const float tmp144 = tmp143 - tmp103;
-    const float tmp145 = tmp144 + tmp104;
-    const float tmp146 = tmp2 * tmp19;
-    const float tmp147 = tmp2 + tmp2;
-    const float tmp148 = tmp146 * tmp147;
-    const float tmp149 = tmp18 + tmp148;
-    const float tmp150 = tmp17 * tmp149;
-    const float tmp151 = tmp20 * tmp147;
-    const float tmp152 = tmp61 * tmp151;
-    const float tmp153 = tmp150 - tmp152;
-    const float tmp154 = tmp5 * tmp19;
-    const float tmp155 = tmp154 * tmp147;
-    const float tmp156 = tmp67 * tmp155;
-    const float tmp157 = tmp153 + tmp156;
-    const float tmp158 = tmp9 * tmp19;
-    const float tmp159 = tmp158 * tmp147;
-    carry[0] = tmp0;
-    carry[1] = tmp5;
-    carry[2] = tmp9;
-    carry[3] = tmp17;
-    carry[4] = tmp18;
-    carry[5] = tmp20;
-    carry[6] = tmp61;
-    carry[7] = tmp64;
-    carry[8] = tmp67;
-    carry[9] = tmp99;
-    carry[10] = tmp100;
-    carry[11] = tmp101;
-    carry[12] = tmp102;
-    carry[13] = tmp109;
-    carry[14] = tmp116;
-    carry[15] = tmp123;
-    carry[16] = tmp126;
-    carry[17] = tmp129;
-    carry[18] = tmp135;
-    carry[19] = tmp138;
-    carry[20] = tmp142;
-    carry[21] = tmp145;
-    carry[22] = tmp146;
-    carry[23] = tmp149;
-    carry[24] = tmp151;
-    carry[25] = tmp154;
-    carry[26] = tmp155;
-    carry[27] = tmp157;
-    carry[28] = tmp158;
-    carry[29] = tmp159;
+    const float tmp139 = carry[9] * carry[10];
+    carry[11] = tmp100;
+    carry[12] = tmp101;
+    carry[13] = tmp102;
+    carry[14] = tmp103;
+    carry[16] = tmp104;
+    carry[17] = tmp106;
+    carry[18] = tmp108;
+    carry[19] = tmp109;
+    carry[20] = tmp116;
+    carry[21] = tmp123;
+    carry[22] = tmp126;
+    carry[23] = tmp129;
+    carry[24] = tmp132;
+    carry[25] = tmp134;
+    carry[26] = tmp135;
+    carry[27] = tmp138;
+    carry[28] = tmp139;
 }
 
-static void mekf_k_predict_attitude_part1(float carry[30])
+static void mekf_k_predict_attitude_part4(float carry[32])
 {
-    const float tmp160 = carry[7] * carry[29];
-    const float tmp161 = carry[27] - tmp160;
+    const float tmp140 = carry[28] + carry[28];
+    const float tmp141 = tmp140 + carry[25];
+    const float tmp142 = tmp141 + carry[24];
+    const float tmp143 = carry[17] - carry[18];
+    const float tmp144 = tmp143 - carry[14];
+    const float tmp145 = tmp144 + carry[16];
+    const float tmp146 = carry[1] * carry[6];
+    const float tmp147 = carry[1] + carry[1];
+    const float tmp148 = tmp146 * tmp147;
+    const float tmp149 = carry[5] + tmp148;
+    const float tmp150 = carry[4] * tmp149;
+    const float tmp151 = carry[7] * tmp147;
+    const float tmp152 = carry[8] * tmp151;
+    const float tmp153 = tmp150 - tmp152;
+    const float tmp154 = carry[2] * carry[6];
+    const float tmp155 = tmp154 * tmp147;
+    const float tmp156 = carry[10] * tmp155;
+    const float tmp157 = tmp153 + tmp156;
+    const float tmp158 = carry[3] * carry[6];
+    const float tmp159 = tmp158 * tmp147;
+    const float tmp160 = carry[9] * tmp159;
+    const float tmp161 = tmp157 - tmp160;
     const float tmp162 = tmp161 * carry[0];
     const float tmp163 = -tmp162;
-    const float tmp164 = carry[3] * carry[26];
-    const float tmp165 = carry[7] * carry[24];
-    const float tmp166 = carry[8] * carry[23];
+    const float tmp164 = carry[4] * tmp155;
+    const float tmp165 = carry[9] * tmp151;
+    const float tmp166 = carry[10] * tmp149;
     const float tmp167 = tmp165 + tmp166;
     const float tmp168 = tmp164 - tmp167;
-    const float tmp169 = carry[6] * carry[29];
+    const float tmp169 = carry[8] * tmp159;
     const float tmp170 = tmp168 + tmp169;
     const float tmp171 = tmp170 * carry[0];
     const float tmp172 = -tmp171;
-    const float tmp173 = carry[7] * carry[23];
-    const float tmp174 = carry[8] * carry[24];
+    const float tmp173 = carry[9] * tmp149;
+    const float tmp174 = carry[10] * tmp151;
     const float tmp175 = tmp173 - tmp174;
-    const float tmp176 = carry[6] * carry[26];
+    const float tmp176 = carry[8] * tmp155;
     const float tmp177 = tmp175 - tmp176;
-    const float tmp178 = carry[3] * carry[29];
+    const float tmp178 = carry[4] * tmp159;
     const float tmp179 = tmp177 + tmp178;
-    const float tmp180 = tmp179 * carry[0];
+    carry[1] = tmp142;
+    carry[6] = tmp145;
+    carry[14] = tmp146;
+    carry[16] = tmp154;
+    carry[17] = tmp158;
+    carry[18] = tmp163;
+    carry[24] = tmp172;
+    carry[25] = tmp179;
+}
+
+static void mekf_k_predict_attitude_part5(float carry[32])
+{
+    const float tmp180 = carry[25] * carry[0];
     const float tmp181 = -tmp180;
-    const float tmp182 = carry[1] + carry[1];
-    const float tmp183 = carry[22] * tmp182;
-    const float tmp184 = carry[3] * tmp183;
-    const float tmp185 = carry[5] * tmp182;
-    const float tmp186 = carry[6] * tmp185;
+    const float tmp182 = carry[2] + carry[2];
+    const float tmp183 = carry[14] * tmp182;
+    const float tmp184 = carry[4] * tmp183;
+    const float tmp185 = carry[7] * tmp182;
+    const float tmp186 = carry[8] * tmp185;
     const float tmp187 = tmp184 - tmp186;
-    const float tmp188 = carry[25] * tmp182;
-    const float tmp189 = carry[4] + tmp188;
-    const float tmp190 = carry[8] * tmp189;
+    const float tmp188 = carry[16] * tmp182;
+    const float tmp189 = carry[5] + tmp188;
+    const float tmp190 = carry[10] * tmp189;
     const float tmp191 = tmp187 + tmp190;
-    const float tmp192 = carry[28] * tmp182;
-    const float tmp193 = carry[7] * tmp192;
+    const float tmp192 = carry[17] * tmp182;
+    const float tmp193 = carry[9] * tmp192;
     const float tmp194 = tmp191 - tmp193;
     const float tmp195 = tmp194 * carry[0];
     const float tmp196 = -tmp195;
-    const float tmp197 = carry[3] * tmp189;
-    const float tmp198 = carry[7] * tmp185;
-    const float tmp199 = carry[8] * tmp183;
+    const float tmp197 = carry[4] * tmp189;
+    const float tmp198 = carry[9] * tmp185;
+    const float tmp199 = carry[10] * tmp183;
     const float tmp200 = tmp198 + tmp199;
     const float tmp201 = tmp197 - tmp200;
-    const float tmp202 = carry[6] * tmp192;
+    const float tmp202 = carry[8] * tmp192;
     const float tmp203 = tmp201 + tmp202;
     const float tmp204 = tmp203 * carry[0];
     const float tmp205 = -tmp204;
-    const float tmp206 = carry[7] * tmp183;
-    const float tmp207 = carry[8] * tmp185;
+    const float tmp206 = carry[9] * tmp183;
+    const float tmp207 = carry[10] * tmp185;
     const float tmp208 = tmp206 - tmp207;
-    const float tmp209 = carry[6] * tmp189;
+    const float tmp209 = carry[8] * tmp189;
     const float tmp210 = tmp208 - tmp209;
-    const float tmp211 = carry[3] * tmp192;
+    const float tmp211 = carry[4] * tmp192;
     const float tmp212 = tmp210 + tmp211;
     const float tmp213 = tmp212 * carry[0];
     const float tmp214 = -tmp213;
-    const float tmp215 = carry[2] + carry[2];
-    const float tmp216 = carry[22] * tmp215;
-    const float tmp217 = carry[3] * tmp216;
-    const float tmp218 = carry[5] * tmp215;
-    const float tmp219 = carry[6] * tmp218;
-    const float tmp220 = tmp217 - tmp219;
-    const float tmp221 = carry[25] * tmp215;
-    const float tmp222 = carry[8] * tmp221;
+    const float tmp215 = carry[3] + carry[3];
+    const float tmp216 = carry[14] * tmp215;
+    const float tmp217 = carry[4] * tmp216;
+    const float tmp218 = carry[7] * tmp215;
+    const float tmp219 = carry[8] * tmp218;
+    carry[2] = tmp181;
+    carry[3] = tmp196;
+    carry[7] = tmp205;
+    carry[14] = tmp214;
+    carry[25] = tmp215;
+    carry[28] = tmp216;
+    carry[29] = tmp217;
+    carry[30] = tmp218;
+    carry[31] = tmp219;
+}
+
+static void mekf_k_predict_attitude_part6(float carry[32])
+{
+    const float tmp220 = carry[29] - carry[31];
+    const float tmp221 = carry[16] * carry[25];
+    const float tmp222 = carry[10] * tmp221;
     const float tmp223 = tmp220 + tmp222;
-    const float tmp224 = carry[28] * tmp215;
-    const float tmp225 = carry[4] + tmp224;
-    const float tmp226 = carry[7] * tmp225;
+    const float tmp224 = carry[17] * carry[25];
+    const float tmp225 = carry[5] + tmp224;
+    const float tmp226 = carry[9] * tmp225;
     const float tmp227 = tmp223 - tmp226;
     const float tmp228 = tmp227 * carry[0];
     const float tmp229 = -tmp228;
-    const float tmp230 = carry[3] * tmp221;
-    const float tmp231 = carry[7] * tmp218;
-    const float tmp232 = carry[8] * tmp216;
+    const float tmp230 = carry[4] * tmp221;
+    const float tmp231 = carry[9] * carry[30];
+    const float tmp232 = carry[10] * carry[28];
     const float tmp233 = tmp231 + tmp232;
     const float tmp234 = tmp230 - tmp233;
-    const float tmp235 = carry[6] * tmp225;
+    const float tmp235 = carry[8] * tmp225;
     const float tmp236 = tmp234 + tmp235;
     const float tmp237 = tmp236 * carry[0];
     const float tmp238 = -tmp237;
-    const float tmp239 = carry[7] * tmp216;
-    const float tmp240 = carry[8] * tmp218;
+    const float tmp239 = carry[9] * carry[28];
+    const float tmp240 = carry[10] * carry[30];
     const float tmp241 = tmp239 - tmp240;
-    const float tmp242 = carry[6] * tmp221;
+    const float tmp242 = carry[8] * tmp221;
     const float tmp243 = tmp241 - tmp242;
-    const float tmp244 = carry[3] * tmp225;
+    const float tmp244 = carry[4] * tmp225;
     const float tmp245 = tmp243 + tmp244;
     const float tmp246 = tmp245 * carry[0];
     const float tmp247 = -tmp246;
-    carry[0] = tmp163;
-    carry[1] = tmp172;
-    carry[2] = tmp181;
-    carry[3] = tmp196;
-    carry[4] = tmp205;
-    carry[5] = tmp214;
-    carry[6] = tmp229;
-    carry[7] = tmp238;
-    carry[8] = tmp247;
+    carry[0] = tmp229;
+    carry[4] = tmp238;
+    carry[5] = tmp247;
 }
 
 static void mekf_k_predict_attitude(const float q[4], const float b[3], const float gyro[3], float dt, float q_out[4], float F_q[9], float F_b[9])
 {
-    /* 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
-    float carry[30];
-    mekf_k_predict_attitude_part0(q, b, gyro, dt, carry);
+    /* 7 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    float carry[32];
+    mekf_k_predict_attitude_part0(b, gyro, dt, carry);
     mekf_k_predict_attitude_part1(carry);
-    q_out[0] = carry[9];
-    q_out[1] = carry[10];
-    q_out[2] = carry[11];
-    q_out[3] = carry[12];
-    F_q[0] = carry[13];
-    F_q[1] = carry[14];
-    F_q[2] = carry[15];
-    F_q[3] = carry[16];
-    F_q[4] = carry[17];
-    F_q[5] = carry[18];
-    F_q[6] = carry[19];
-    F_q[7] = carry[20];
-    F_q[8] = carry[21];
-    F_b[0] = carry[0];
-    F_b[1] = carry[1];
+    mekf_k_predict_attitude_part2(q, carry);
+    mekf_k_predict_attitude_part3(carry);
+    mekf_k_predict_attitude_part4(carry);
+    mekf_k_predict_attitude_part5(carry);
+    mekf_k_predict_attitude_part6(carry);
+    q_out[0] = carry[15];
+    q_out[1] = carry[11];
+    q_out[2] = carry[12];
+    q_out[3] = carry[13];
+    F_q[0] = carry[19];
+    F_q[1] = carry[20];
+    F_q[2] = carry[21];
+    F_q[3] = carry[22];
+    F_q[4] = carry[23];
+    F_q[5] = carry[26];
+    F_q[6] = carry[27];
+    F_q[7] = carry[1];
+    F_q[8] = carry[6];
+    F_b[0] = carry[18];
+    F_b[1] = carry[24];
     F_b[2] = carry[2];
     F_b[3] = carry[3];
-    F_b[4] = carry[4];
-    F_b[5] = carry[5];
-    F_b[6] = carry[6];
-    F_b[7] = carry[7];
-    F_b[8] = carry[8];
+    F_b[4] = carry[7];
+    F_b[5] = carry[14];
+    F_b[6] = carry[0];
+    F_b[7] = carry[4];
+    F_b[8] = carry[5];
 }
 
 /* time update: covariance
  * ops: add 141, mul 172, div 1, cmp 1 (total 315) */
-static void mekf_k_predict_covariance_part0(const float F_q[9], const float F_b[9], const float P[36], float dt, float carry[18])
+static void mekf_k_predict_covariance_part0(const float F_q[9], const float F_b[9], const float P[36], float carry[23])
 {
     const float tmp0 = F_q[0] * P[0];
     const float tmp1 = F_q[3] * P[1];
@@ -469,7 +513,14 @@ static void mekf_k_predict_covariance_part0(const float F_q[9], const float F_b[
     const float tmp37 = tmp24 + tmp36;
     const float tmp38 = F_q[0] * P[3];
     const float tmp39 = F_q[3] * P[9];
-    const float tmp40 = tmp38 + tmp39;
+    carry[0] = tmp37;
+    carry[1] = tmp38;
+    carry[2] = tmp39;
+}
+
+static void mekf_k_predict_covariance_part1(const float F_q[9], const float F_b[9], const float P[36], float dt, float carry[23])
+{
+    const float tmp40 = carry[1] + carry[2];
     const float tmp41 = F_q[6] * P[15];
     const float tmp42 = tmp40 + tmp41;
     const float tmp43 = F_b[0] * P[21];
@@ -479,7 +530,7 @@ static void mekf_k_predict_covariance_part0(const float F_q[9], const float F_b[
     const float tmp47 = F_b[6] * P[23];
     const float tmp48 = tmp46 + tmp47;
     const float tmp49 = tmp48 * F_b[0];
-    const float tmp50 = tmp37 + tmp49;
+    const float tmp50 = carry[0] + tmp49;
     const float tmp51 = F_q[0] * P[4];
     const float tmp52 = F_q[3] * P[10];
     const float tmp53 = tmp51 + tmp52;
@@ -509,14 +560,24 @@ static void mekf_k_predict_covariance_part0(const float F_q[9], const float F_b[
     const float tmp77 = (dt > 1e-09f) ? dt : 1e-09f;
     const float tmp78 = 7.569e-07f / tmp77;
     const float tmp79 = F_b[0] * tmp78;
-    const float tmp80 = tmp79 * F_b[0];
-    const float tmp81 = F_b[3] * tmp78;
+    carry[0] = tmp48;
+    carry[1] = tmp61;
+    carry[2] = tmp74;
+    carry[3] = tmp76;
+    carry[4] = tmp78;
+    carry[5] = tmp79;
+}
+
+static void mekf_k_predict_covariance_part2(const float F_q[9], const float F_b[9], const float P[36], float carry[23])
+{
+    const float tmp80 = carry[5] * F_b[0];
+    const float tmp81 = F_b[3] * carry[4];
     const float tmp82 = tmp81 * F_b[3];
     const float tmp83 = tmp80 + tmp82;
-    const float tmp84 = F_b[6] * tmp78;
+    const float tmp84 = F_b[6] * carry[4];
     const float tmp85 = tmp84 * F_b[6];
     const float tmp86 = tmp83 + tmp85;
-    const float tmp87 = tmp76 + tmp86;
+    const float tmp87 = carry[3] + tmp86;
     const float tmp88 = F_q[1] * P[0];
     const float tmp89 = F_q[4] * P[1];
     const float tmp90 = tmp88 + tmp89;
@@ -549,12 +610,21 @@ static void mekf_k_predict_covariance_part0(const float F_q[9], const float F_b[
     const float tmp117 = tmp115 + tmp116;
     const float tmp118 = F_b[1] * P[15];
     const float tmp119 = tmp117 + tmp118;
+    carry[3] = tmp87;
+    carry[5] = tmp98;
+    carry[6] = tmp110;
+    carry[7] = tmp112;
+    carry[8] = tmp119;
+}
+
+static void mekf_k_predict_covariance_part3(const float F_q[9], const float F_b[9], const float P[36], float carry[23])
+{
     const float tmp120 = F_b[4] * P[16];
-    const float tmp121 = tmp119 + tmp120;
+    const float tmp121 = carry[8] + tmp120;
     const float tmp122 = F_b[7] * P[17];
     const float tmp123 = tmp121 + tmp122;
     const float tmp124 = tmp123 * F_q[6];
-    const float tmp125 = tmp112 + tmp124;
+    const float tmp125 = carry[7] + tmp124;
     const float tmp126 = F_q[1] * P[3];
     const float tmp127 = F_q[4] * P[9];
     const float tmp128 = tmp126 + tmp127;
@@ -589,13 +659,6 @@ static void mekf_k_predict_covariance_part0(const float F_q[9], const float F_b[
     const float tmp157 = F_b[1] * P[23];
     const float tmp158 = tmp156 + tmp157;
     const float tmp159 = F_b[4] * P[29];
-    carry[0] = tmp48;
-    carry[1] = tmp61;
-    carry[2] = tmp74;
-    carry[3] = tmp78;
-    carry[4] = tmp87;
-    carry[5] = tmp98;
-    carry[6] = tmp110;
     carry[7] = tmp123;
     carry[8] = tmp136;
     carry[9] = tmp149;
@@ -604,19 +667,19 @@ static void mekf_k_predict_covariance_part0(const float F_q[9], const float F_b[
     carry[12] = tmp159;
 }
 
-static void mekf_k_predict_covariance_part1(const float F_q[9], const float F_b[9], const float P[36], float dt, float carry[18])
+static void mekf_k_predict_covariance_part4(const float F_q[9], const float F_b[9], const float P[36], float carry[23])
 {
     const float tmp160 = carry[11] + carry[12];
     const float tmp161 = F_b[7] * P[35];
     const float tmp162 = tmp160 + tmp161;
     const float tmp163 = tmp162 * F_b[6];
     const float tmp164 = carry[10] + tmp163;
-    const float tmp165 = F_b[1] * carry[3];
+    const float tmp165 = F_b[1] * carry[4];
     const float tmp166 = tmp165 * F_b[0];
-    const float tmp167 = F_b[4] * carry[3];
+    const float tmp167 = F_b[4] * carry[4];
     const float tmp168 = tmp167 * F_b[3];
     const float tmp169 = tmp166 + tmp168;
-    const float tmp170 = F_b[7] * carry[3];
+    const float tmp170 = F_b[7] * carry[4];
     const float tmp171 = tmp170 * F_b[6];
     const float tmp172 = tmp169 + tmp171;
     const float tmp173 = tmp164 + tmp172;
@@ -646,8 +709,21 @@ static void mekf_k_predict_covariance_part1(const float F_q[9], const float F_b[
     const float tmp197 = tmp196 * F_q[3];
     const float tmp198 = tmp185 + tmp197;
     const float tmp199 = F_q[2] * P[2];
+    carry[10] = tmp162;
+    carry[11] = tmp165;
+    carry[12] = tmp167;
+    carry[13] = tmp170;
+    carry[14] = tmp173;
+    carry[15] = tmp184;
+    carry[16] = tmp196;
+    carry[17] = tmp198;
+    carry[18] = tmp199;
+}
+
+static void mekf_k_predict_covariance_part5(const float F_q[9], const float F_b[9], const float P[36], float carry[23])
+{
     const float tmp200 = F_q[5] * P[8];
-    const float tmp201 = tmp199 + tmp200;
+    const float tmp201 = carry[18] + tmp200;
     const float tmp202 = F_q[8] * P[14];
     const float tmp203 = tmp201 + tmp202;
     const float tmp204 = F_b[2] * P[15];
@@ -657,7 +733,7 @@ static void mekf_k_predict_covariance_part1(const float F_q[9], const float F_b[
     const float tmp208 = F_b[8] * P[17];
     const float tmp209 = tmp207 + tmp208;
     const float tmp210 = tmp209 * F_q[6];
-    const float tmp211 = tmp198 + tmp210;
+    const float tmp211 = carry[17] + tmp210;
     const float tmp212 = F_q[2] * P[3];
     const float tmp213 = F_q[5] * P[9];
     const float tmp214 = tmp212 + tmp213;
@@ -686,7 +762,17 @@ static void mekf_k_predict_covariance_part1(const float F_q[9], const float F_b[
     const float tmp237 = tmp224 + tmp236;
     const float tmp238 = F_q[2] * P[5];
     const float tmp239 = F_q[5] * P[11];
-    const float tmp240 = tmp238 + tmp239;
+    carry[17] = tmp209;
+    carry[18] = tmp222;
+    carry[19] = tmp235;
+    carry[20] = tmp237;
+    carry[21] = tmp238;
+    carry[22] = tmp239;
+}
+
+static void mekf_k_predict_covariance_part6(const float F_q[9], const float F_b[9], const float P[36], float carry[23])
+{
+    const float tmp240 = carry[21] + carry[22];
     const float tmp241 = F_q[8] * P[17];
     const float tmp242 = tmp240 + tmp241;
     const float tmp243 = F_b[2] * P[23];
@@ -696,13 +782,13 @@ static void mekf_k_predict_covariance_part1(const float F_q[9], const float F_b[
     const float tmp247 = F_b[8] * P[35];
     const float tmp248 = tmp246 + tmp247;
     const float tmp249 = tmp248 * F_b[6];
-    const float tmp250 = tmp237 + tmp249;
-    const float tmp251 = F_b[2] * carry[3];
+    const float tmp250 = carry[20] + tmp249;
+    const float tmp251 = F_b[2] * carry[4];
     const float tmp252 = tmp251 * F_b[0];
-    const float tmp253 = F_b[5] * carry[3];
+    const float tmp253 = F_b[5] * carry[4];
     const float tmp254 = tmp253 * F_b[3];
     const float tmp255 = tmp252 + tmp254;
-    const float tmp256 = F_b[8] * carry[3];
+    const float tmp256 = F_b[8] * carry[4];
     const float tmp257 = tmp256 * F_b[6];
     const float tmp258 = tmp255 + tmp257;
     const float tmp259 = tmp250 + tmp258;
@@ -715,117 +801,124 @@ static void mekf_k_predict_covariance_part1(const float F_q[9], const float F_b[
     const float tmp266 = tmp264 + tmp265;
     const float tmp267 = carry[9] * F_b[4];
     const float tmp268 = tmp266 + tmp267;
-    const float tmp269 = tmp162 * F_b[7];
+    const float tmp269 = carry[10] * F_b[7];
     const float tmp270 = tmp268 + tmp269;
-    const float tmp271 = tmp165 * F_b[1];
-    const float tmp272 = tmp167 * F_b[4];
+    const float tmp271 = carry[11] * F_b[1];
+    const float tmp272 = carry[12] * F_b[4];
     const float tmp273 = tmp271 + tmp272;
-    const float tmp274 = tmp170 * F_b[7];
+    const float tmp274 = carry[13] * F_b[7];
     const float tmp275 = tmp273 + tmp274;
     const float tmp276 = tmp270 + tmp275;
-    const float tmp277 = tmp184 * F_q[1];
-    const float tmp278 = tmp196 * F_q[4];
+    const float tmp277 = carry[15] * F_q[1];
+    const float tmp278 = carry[16] * F_q[4];
     const float tmp279 = tmp277 + tmp278;
-    const float tmp280 = tmp209 * F_q[7];
-    const float tmp281 = tmp279 + tmp280;
-    const float tmp282 = tmp222 * F_b[1];
+    carry[4] = tmp248;
+    carry[5] = tmp251;
+    carry[6] = tmp253;
+    carry[7] = tmp256;
+    carry[11] = tmp259;
+    carry[12] = tmp276;
+    carry[13] = tmp279;
+}
+
+static void mekf_k_predict_covariance_part7(const float F_q[9], const float F_b[9], const float P[36], float dt, float carry[23])
+{
+    const float tmp280 = carry[17] * F_q[7];
+    const float tmp281 = carry[13] + tmp280;
+    const float tmp282 = carry[18] * F_b[1];
     const float tmp283 = tmp281 + tmp282;
-    const float tmp284 = tmp235 * F_b[4];
+    const float tmp284 = carry[19] * F_b[4];
     const float tmp285 = tmp283 + tmp284;
-    const float tmp286 = tmp248 * F_b[7];
+    const float tmp286 = carry[4] * F_b[7];
     const float tmp287 = tmp285 + tmp286;
-    const float tmp288 = tmp251 * F_b[1];
-    const float tmp289 = tmp253 * F_b[4];
+    const float tmp288 = carry[5] * F_b[1];
+    const float tmp289 = carry[6] * F_b[4];
     const float tmp290 = tmp288 + tmp289;
-    const float tmp291 = tmp256 * F_b[7];
+    const float tmp291 = carry[7] * F_b[7];
     const float tmp292 = tmp290 + tmp291;
     const float tmp293 = tmp287 + tmp292;
-    const float tmp294 = tmp184 * F_q[2];
-    const float tmp295 = tmp196 * F_q[5];
+    const float tmp294 = carry[15] * F_q[2];
+    const float tmp295 = carry[16] * F_q[5];
     const float tmp296 = tmp294 + tmp295;
-    const float tmp297 = tmp209 * F_q[8];
+    const float tmp297 = carry[17] * F_q[8];
     const float tmp298 = tmp296 + tmp297;
-    const float tmp299 = tmp222 * F_b[2];
+    const float tmp299 = carry[18] * F_b[2];
     const float tmp300 = tmp298 + tmp299;
-    const float tmp301 = tmp235 * F_b[5];
+    const float tmp301 = carry[19] * F_b[5];
     const float tmp302 = tmp300 + tmp301;
-    const float tmp303 = tmp248 * F_b[8];
+    const float tmp303 = carry[4] * F_b[8];
     const float tmp304 = tmp302 + tmp303;
-    const float tmp305 = tmp251 * F_b[2];
-    const float tmp306 = tmp253 * F_b[5];
+    const float tmp305 = carry[5] * F_b[2];
+    const float tmp306 = carry[6] * F_b[5];
     const float tmp307 = tmp305 + tmp306;
-    const float tmp308 = tmp256 * F_b[8];
+    const float tmp308 = carry[7] * F_b[8];
     const float tmp309 = tmp307 + tmp308;
     const float tmp310 = tmp304 + tmp309;
     const float tmp311 = 1e-10f * dt;
     const float tmp312 = P[21] + tmp311;
     const float tmp313 = P[28] + tmp311;
     const float tmp314 = P[35] + tmp311;
-    carry[3] = tmp162;
-    carry[5] = tmp173;
-    carry[6] = tmp222;
-    carry[7] = tmp235;
-    carry[10] = tmp248;
-    carry[11] = tmp259;
-    carry[12] = tmp276;
-    carry[13] = tmp293;
-    carry[14] = tmp310;
-    carry[15] = tmp312;
-    carry[16] = tmp313;
-    carry[17] = tmp314;
+    carry[5] = tmp293;
+    carry[6] = tmp310;
+    carry[7] = tmp312;
+    carry[13] = tmp313;
+    carry[15] = tmp314;
 }
 
 static void mekf_k_predict_covariance(const float F_q[9], const float F_b[9], const float P[36], float dt, float P_out[36])
 {
-    /* 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
-    float carry[18];
-    mekf_k_predict_covariance_part0(F_q, F_b, P, dt, carry);
+    /* 8 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    float carry[23];
+    mekf_k_predict_covariance_part0(F_q, F_b, P, carry);
     mekf_k_predict_covariance_part1(F_q, F_b, P, dt, carry);
-    P_out[0] = carry[4];
-    P_out[1] = carry[5];
+    mekf_k_predict_covariance_part2(F_q, F_b, P, carry);
+    mekf_k_predict_covariance_part3(F_q, F_b, P, carry);
+    mekf_k_predict_covariance_part4(F_q, F_b, P, carry);
+    mekf_k_predict_covariance_part5(F_q, F_b, P, carry);
+    mekf_k_predict_covariance_part6(F_q, F_b, P, carry);
+    mekf_k_predict_covariance_part7(F_q, F_b, P, dt, carry);
+    P_out[0] = carry[3];
+    P_out[1] = carry[14];
     P_out[2] = carry[11];
     P_out[3] = carry[0];
     P_out[4] = carry[1];
     P_out[5] = carry[2];
-    P_out[6] = carry[5];
+    P_out[6] = carry[14];
     P_out[7] = carry[12];
-    P_out[8] = carry[13];
+    P_out[8] = carry[5];
     P_out[9] = carry[8];
     P_out[10] = carry[9];
-    P_out[11] = carry[3];
+    P_out[11] = carry[10];
     P_out[12] = carry[11];
-    P_out[13] = carry[13];
-    P_out[14] = carry[14];
-    P_out[15] = carry[6];
-    P_out[16] = carry[7];
-    P_out[17] = carry[10];
+    P_out[13] = carry[5];
+    P_out[14] = carry[6];
+    P_out[15] = carry[18];
+    P_out[16] = carry[19];
+    P_out[17] = carry[4];
     P_out[18] = carry[0];
     P_out[19] = carry[8];
-    P_out[20] = carry[6];
-    P_out[21] = carry[15];
+    P_out[20] = carry[18];
+    P_out[21] = carry[7];
     P_out[22] = P[22];
     P_out[23] = P[23];
     P_out[24] = carry[1];
     P_out[25] = carry[9];
-    P_out[26] = carry[7];
+    P_out[26] = carry[19];
     P_out[27] = P[22];
-    P_out[28] = carry[16];
+    P_out[28] = carry[13];
     P_out[29] = P[29];
     P_out[30] = carry[2];
-    P_out[31] = carry[3];
-    P_out[32] = carry[10];
+    P_out[31] = carry[10];
+    P_out[32] = carry[4];
     P_out[33] = P[23];
     P_out[34] = P[29];
-    P_out[35] = carry[17];
+    P_out[35] = carry[15];
 }
 
 /* earth-frame low-pass of the compensated specific force
  * ops: add 50, mul 33, div 1, cmp 3 (total 87) */
-static void mekf_k_accel_lowpass(const float q[4], const float b[3], const float gyro[3], const float accel[3], const float vel[3], const float acc_n[3], const bool mask[2], const float a_lp[3], const float v_lp[3], const float v_ins[3], float dt, float a_lp_out[3], float v_lp_out[3], float v_ins_out[3], float up_out[3])
+static void mekf_k_accel_lowpass_part0(const float q[4], const float accel[3], const float a_lp[3], float dt, float carry[12])
 {
-    (void)b;
-    (void)gyro;
-    (void)acc_n;
     const float tmp0 = 1.0f + dt;
     const float tmp1 = dt / tmp0;
     const float tmp2 = q[2] * q[2];
@@ -866,34 +959,49 @@ static void mekf_k_accel_lowpass(const float q[4], const float b[3], const float
     const float tmp37 = tmp31 + tmp36;
     const float tmp38 = tmp37 - a_lp[1];
     const float tmp39 = tmp1 * tmp38;
-    const float tmp40 = a_lp[1] + tmp39;
-    const float tmp41 = tmp14 - tmp15;
+    carry[0] = tmp1;
+    carry[1] = tmp2;
+    carry[2] = tmp14;
+    carry[3] = tmp15;
+    carry[4] = tmp19;
+    carry[5] = tmp22;
+    carry[6] = tmp26;
+    carry[7] = tmp32;
+    carry[8] = tmp33;
+    carry[9] = tmp37;
+    carry[10] = tmp39;
+}
+
+static void mekf_k_accel_lowpass_part1(const float accel[3], const float vel[3], const bool mask[2], const float a_lp[3], const float v_lp[3], const float v_ins[3], float dt, float carry[12])
+{
+    const float tmp40 = a_lp[1] + carry[10];
+    const float tmp41 = carry[2] - carry[3];
     const float tmp42 = tmp41 + tmp41;
     const float tmp43 = tmp42 * accel[0];
-    const float tmp44 = tmp32 + tmp33;
+    const float tmp44 = carry[7] + carry[8];
     const float tmp45 = tmp44 + tmp44;
     const float tmp46 = tmp45 * accel[1];
     const float tmp47 = tmp43 + tmp46;
-    const float tmp48 = tmp26 + tmp2;
+    const float tmp48 = carry[6] + carry[1];
     const float tmp49 = tmp48 + tmp48;
     const float tmp50 = 1.0f - tmp49;
     const float tmp51 = tmp50 * accel[2];
     const float tmp52 = tmp47 + tmp51;
     const float tmp53 = tmp52 - a_lp[2];
-    const float tmp54 = tmp1 * tmp53;
+    const float tmp54 = carry[0] * tmp53;
     const float tmp55 = a_lp[2] + tmp54;
-    const float tmp56 = tmp19 * dt;
+    const float tmp56 = carry[4] * dt;
     const float tmp57 = v_ins[0] + tmp56;
     const float tmp58 = (mask[1]) ? vel[0] : tmp57;
     const float tmp59 = tmp58 - v_lp[0];
-    const float tmp60 = tmp1 * tmp59;
+    const float tmp60 = carry[0] * tmp59;
     const float tmp61 = (float)mask[0] * tmp60;
     const float tmp62 = v_lp[0] + tmp61;
-    const float tmp63 = tmp37 * dt;
+    const float tmp63 = carry[9] * dt;
     const float tmp64 = v_ins[1] + tmp63;
     const float tmp65 = (mask[1]) ? vel[1] : tmp64;
     const float tmp66 = tmp65 - v_lp[1];
-    const float tmp67 = tmp1 * tmp66;
+    const float tmp67 = carry[0] * tmp66;
     const float tmp68 = (float)mask[0] * tmp67;
     const float tmp69 = v_lp[1] + tmp68;
     const float tmp70 = tmp52 + 9.80665f;
@@ -901,35 +1009,63 @@ static void mekf_k_accel_lowpass(const float q[4], const float b[3], const float
     const float tmp72 = v_ins[2] + tmp71;
     const float tmp73 = (mask[1]) ? vel[2] : tmp72;
     const float tmp74 = tmp73 - v_lp[2];
-    const float tmp75 = tmp1 * tmp74;
+    const float tmp75 = carry[0] * tmp74;
     const float tmp76 = (float)mask[0] * tmp75;
     const float tmp77 = v_lp[2] + tmp76;
     const float tmp78 = tmp58 - tmp62;
     const float tmp79 = (float)mask[0] * tmp78;
-    const float tmp80 = tmp22 - tmp79;
-    const float tmp81 = tmp65 - tmp69;
+    carry[0] = tmp40;
+    carry[1] = tmp55;
+    carry[2] = tmp58;
+    carry[3] = tmp62;
+    carry[4] = tmp65;
+    carry[6] = tmp69;
+    carry[7] = tmp73;
+    carry[8] = tmp77;
+    carry[9] = tmp79;
+}
+
+static void mekf_k_accel_lowpass_part2(const bool mask[2], float carry[12])
+{
+    const float tmp80 = carry[5] - carry[9];
+    const float tmp81 = carry[4] - carry[6];
     const float tmp82 = (float)mask[0] * tmp81;
-    const float tmp83 = tmp40 - tmp82;
-    const float tmp84 = tmp73 - tmp77;
+    const float tmp83 = carry[0] - tmp82;
+    const float tmp84 = carry[7] - carry[8];
     const float tmp85 = (float)mask[0] * tmp84;
-    const float tmp86 = tmp55 - tmp85;
-    a_lp_out[0] = tmp22;
-    a_lp_out[1] = tmp40;
-    a_lp_out[2] = tmp55;
-    v_lp_out[0] = tmp62;
-    v_lp_out[1] = tmp69;
-    v_lp_out[2] = tmp77;
-    v_ins_out[0] = tmp58;
-    v_ins_out[1] = tmp65;
-    v_ins_out[2] = tmp73;
-    up_out[0] = tmp80;
-    up_out[1] = tmp83;
-    up_out[2] = tmp86;
+    const float tmp86 = carry[1] - tmp85;
+    carry[9] = tmp80;
+    carry[10] = tmp83;
+    carry[11] = tmp86;
+}
+
+static void mekf_k_accel_lowpass(const float q[4], const float b[3], const float gyro[3], const float accel[3], const float vel[3], const float acc_n[3], const bool mask[2], const float a_lp[3], const float v_lp[3], const float v_ins[3], float dt, float a_lp_out[3], float v_lp_out[3], float v_ins_out[3], float up_out[3])
+{
+    (void)b;
+    (void)gyro;
+    (void)acc_n;
+    /* 3 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    float carry[12];
+    mekf_k_accel_lowpass_part0(q, accel, a_lp, dt, carry);
+    mekf_k_accel_lowpass_part1(accel, vel, mask, a_lp, v_lp, v_ins, dt, carry);
+    mekf_k_accel_lowpass_part2(mask, carry);
+    a_lp_out[0] = carry[5];
+    a_lp_out[1] = carry[0];
+    a_lp_out[2] = carry[1];
+    v_lp_out[0] = carry[3];
+    v_lp_out[1] = carry[6];
+    v_lp_out[2] = carry[8];
+    v_ins_out[0] = carry[2];
+    v_ins_out[1] = carry[4];
+    v_ins_out[2] = carry[7];
+    up_out[0] = carry[9];
+    up_out[1] = carry[10];
+    up_out[2] = carry[11];
 }
 
 /* field norm and dip; GPS velocity in body axes
  * ops: add 34, mul 29, sqrt 2, trig 1 (total 66) */
-static void mekf_k_heading_features(const float q[4], const float mag[3], const float vel[3], float feat[4])
+static void mekf_k_heading_features_part0(const float q[4], const float mag[3], float carry[13])
 {
     const float tmp0 = mag[0] * mag[0];
     const float tmp1 = mag[1] * mag[1];
@@ -971,41 +1107,69 @@ static void mekf_k_heading_features(const float q[4], const float mag[3], const 
     const float tmp37 = tmp36 * mag[2];
     const float tmp38 = tmp34 + tmp37;
     const float tmp39 = tmp38 * tmp38;
-    const float tmp40 = tmp29 + tmp30;
+    carry[0] = tmp5;
+    carry[1] = tmp9;
+    carry[2] = tmp11;
+    carry[3] = tmp12;
+    carry[4] = tmp14;
+    carry[5] = tmp17;
+    carry[6] = tmp23;
+    carry[7] = tmp24;
+    carry[8] = tmp27;
+    carry[9] = tmp29;
+    carry[10] = tmp30;
+    carry[11] = tmp32;
+    carry[12] = tmp39;
+}
+
+static void mekf_k_heading_features_part1(const float mag[3], const float vel[3], float carry[13])
+{
+    const float tmp40 = carry[9] + carry[10];
     const float tmp41 = tmp40 + tmp40;
     const float tmp42 = tmp41 * mag[0];
-    const float tmp43 = tmp17 + tmp24;
+    const float tmp43 = carry[5] + carry[7];
     const float tmp44 = tmp43 + tmp43;
     const float tmp45 = 1.0f - tmp44;
     const float tmp46 = tmp45 * mag[1];
     const float tmp47 = tmp42 + tmp46;
-    const float tmp48 = tmp11 - tmp12;
+    const float tmp48 = carry[2] - carry[3];
     const float tmp49 = tmp48 + tmp48;
     const float tmp50 = tmp49 * mag[2];
     const float tmp51 = tmp47 + tmp50;
     const float tmp52 = tmp51 * tmp51;
-    const float tmp53 = tmp39 + tmp52;
+    const float tmp53 = carry[12] + tmp52;
     const float tmp54 = sqrtf(tmp53);
-    const float tmp55 = fast_atan2f(tmp23, tmp54);
-    const float tmp56 = tmp27 * vel[0];
+    const float tmp55 = fast_atan2f(carry[6], tmp54);
+    const float tmp56 = carry[8] * vel[0];
     const float tmp57 = tmp41 * vel[1];
     const float tmp58 = tmp56 + tmp57;
-    const float tmp59 = tmp9 * vel[2];
+    const float tmp59 = carry[1] * vel[2];
     const float tmp60 = tmp58 + tmp59;
-    const float tmp61 = tmp32 * vel[0];
+    const float tmp61 = carry[11] * vel[0];
     const float tmp62 = tmp45 * vel[1];
     const float tmp63 = tmp61 + tmp62;
-    const float tmp64 = tmp14 * vel[2];
+    const float tmp64 = carry[4] * vel[2];
     const float tmp65 = tmp63 + tmp64;
-    feat[0] = tmp5;
-    feat[1] = tmp55;
-    feat[2] = tmp60;
-    feat[3] = tmp65;
+    carry[1] = tmp55;
+    carry[2] = tmp60;
+    carry[3] = tmp65;
+}
+
+static void mekf_k_heading_features(const float q[4], const float mag[3], const float vel[3], float feat[4])
+{
+    /* 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    float carry[13];
+    mekf_k_heading_features_part0(q, mag, carry);
+    mekf_k_heading_features_part1(mag, vel, carry);
+    feat[0] = carry[0];
+    feat[1] = carry[1];
+    feat[2] = carry[2];
+    feat[3] = carry[3];
 }
 
 /* gravity direction: H rows, innovations, variance
  * ops: add 42, mul 30, div 4, sqrt 1, cmp 1 (total 78) */
-static void mekf_k_gravity_rows(const float q[4], const float up[3], float h[9], float z[3], float *r)
+static void mekf_k_gravity_rows_part0(const float q[4], const float up[3], float carry[19])
 {
     const float tmp0 = q[1] * q[1];
     const float tmp1 = q[2] * q[2];
@@ -1047,35 +1211,58 @@ static void mekf_k_gravity_rows(const float q[4], const float up[3], float h[9],
     const float tmp37 = up[0] * up[0];
     const float tmp38 = up[1] * up[1];
     const float tmp39 = tmp37 + tmp38;
+    carry[0] = tmp0;
+    carry[1] = tmp4;
+    carry[2] = tmp6;
+    carry[3] = tmp7;
+    carry[4] = tmp8;
+    carry[5] = tmp9;
+    carry[6] = tmp11;
+    carry[7] = tmp13;
+    carry[8] = tmp14;
+    carry[9] = tmp15;
+    carry[10] = tmp18;
+    carry[11] = tmp20;
+    carry[12] = tmp22;
+    carry[13] = tmp23;
+    carry[14] = tmp28;
+    carry[15] = tmp29;
+    carry[16] = tmp34;
+    carry[17] = tmp36;
+    carry[18] = tmp39;
+}
+
+static void mekf_k_gravity_rows_part1(const float up[3], float carry[19])
+{
     const float tmp40 = up[2] * up[2];
-    const float tmp41 = tmp39 + tmp40;
+    const float tmp41 = carry[18] + tmp40;
     const float tmp42 = sqrtf(tmp41);
-    const float tmp43 = tmp36 / tmp42;
-    const float tmp44 = tmp43 + tmp34;
-    const float tmp45 = tmp28 - tmp29;
+    const float tmp43 = carry[17] / tmp42;
+    const float tmp44 = tmp43 + carry[16];
+    const float tmp45 = carry[14] - carry[15];
     const float tmp46 = tmp45 + tmp45;
     const float tmp47 = tmp46 * up[0];
-    const float tmp48 = tmp0 + tmp23;
+    const float tmp48 = carry[0] + carry[13];
     const float tmp49 = tmp48 + tmp48;
     const float tmp50 = 1.0f - tmp49;
     const float tmp51 = tmp50 * up[1];
     const float tmp52 = tmp47 + tmp51;
-    const float tmp53 = tmp9 + tmp9;
+    const float tmp53 = carry[5] + carry[5];
     const float tmp54 = tmp53 * up[2];
     const float tmp55 = tmp52 + tmp54;
     const float tmp56 = tmp55 / tmp42;
     const float tmp57 = tmp56 + tmp53;
-    const float tmp58 = tmp14 + tmp15;
+    const float tmp58 = carry[8] + carry[9];
     const float tmp59 = tmp58 + tmp58;
     const float tmp60 = tmp59 * up[0];
-    const float tmp61 = tmp7 - tmp8;
+    const float tmp61 = carry[3] - carry[4];
     const float tmp62 = tmp61 + tmp61;
     const float tmp63 = tmp62 * up[1];
     const float tmp64 = tmp60 + tmp63;
-    const float tmp65 = tmp4 * up[2];
+    const float tmp65 = carry[1] * up[2];
     const float tmp66 = tmp64 + tmp65;
     const float tmp67 = tmp66 / tmp42;
-    const float tmp68 = tmp67 + tmp4;
+    const float tmp68 = tmp67 + carry[1];
     const float tmp69 = tmp44 * tmp44;
     const float tmp70 = tmp57 * tmp57;
     const float tmp71 = tmp69 + tmp70;
@@ -1085,24 +1272,36 @@ static void mekf_k_gravity_rows(const float q[4], const float up[3], float h[9],
     const float tmp75 = 1.0f + tmp74;
     const float tmp76 = (tmp75 < 1.0f) ? tmp75 : 1.0f;
     const float tmp77 = 0.0049f * tmp76;
+    carry[0] = tmp44;
+    carry[1] = tmp57;
+    carry[3] = tmp68;
+    carry[4] = tmp77;
+}
+
+static void mekf_k_gravity_rows(const float q[4], const float up[3], float h[9], float z[3], float *r)
+{
+    /* 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    float carry[19];
+    mekf_k_gravity_rows_part0(q, up, carry);
+    mekf_k_gravity_rows_part1(up, carry);
     h[0] = 0.0f;
-    h[1] = tmp6;
-    h[2] = tmp11;
-    h[3] = tmp13;
+    h[1] = carry[2];
+    h[2] = carry[6];
+    h[3] = carry[7];
     h[4] = 0.0f;
-    h[5] = tmp18;
-    h[6] = tmp20;
-    h[7] = tmp22;
+    h[5] = carry[10];
+    h[6] = carry[11];
+    h[7] = carry[12];
     h[8] = 0.0f;
-    z[0] = tmp44;
-    z[1] = tmp57;
-    z[2] = tmp68;
-    *r = tmp77;
+    z[0] = carry[0];
+    z[1] = carry[1];
+    z[2] = carry[3];
+    *r = carry[4];
 }
 
 /* one scalar row on the attitude error
  * ops: add 45, mul 57, div 1, cmp 1 (total 104) */
-static void mekf_k_update_attitude_row(const float P[36], const float h[3], float z, float r, const float x[6], float x_out[6], float P_out[36], float *s)
+static void mekf_k_update_attitude_row_part0(const float P[36], const float h[3], float z, float r, const float x[6], float carry[28])
 {
     const float tmp0 = P[0] * h[0];
     const float tmp1 = P[1] * h[1];
@@ -1144,113 +1343,174 @@ static void mekf_k_update_attitude_row(const float P[36], const float h[3], floa
     const float tmp37 = x[2] + tmp36;
     const float tmp38 = P[3] * h[0];
     const float tmp39 = P[9] * h[1];
-    const float tmp40 = tmp38 + tmp39;
+    carry[0] = tmp4;
+    carry[1] = tmp10;
+    carry[2] = tmp17;
+    carry[3] = tmp20;
+    carry[4] = tmp22;
+    carry[5] = tmp23;
+    carry[6] = tmp29;
+    carry[7] = tmp31;
+    carry[8] = tmp32;
+    carry[9] = tmp34;
+    carry[10] = tmp35;
+    carry[11] = tmp37;
+    carry[12] = tmp38;
+    carry[13] = tmp39;
+}
+
+static void mekf_k_update_attitude_row_part1(const float P[36], const float h[3], const float x[6], float carry[28])
+{
+    const float tmp40 = carry[12] + carry[13];
     const float tmp41 = P[15] * h[2];
     const float tmp42 = tmp40 + tmp41;
-    const float tmp43 = tmp42 * tmp22;
-    const float tmp44 = tmp43 * tmp29;
+    const float tmp43 = tmp42 * carry[4];
+    const float tmp44 = tmp43 * carry[6];
     const float tmp45 = x[3] + tmp44;
     const float tmp46 = P[4] * h[0];
     const float tmp47 = P[10] * h[1];
     const float tmp48 = tmp46 + tmp47;
     const float tmp49 = P[16] * h[2];
     const float tmp50 = tmp48 + tmp49;
-    const float tmp51 = tmp50 * tmp22;
-    const float tmp52 = tmp51 * tmp29;
+    const float tmp51 = tmp50 * carry[4];
+    const float tmp52 = tmp51 * carry[6];
     const float tmp53 = x[4] + tmp52;
     const float tmp54 = P[5] * h[0];
     const float tmp55 = P[11] * h[1];
     const float tmp56 = tmp54 + tmp55;
     const float tmp57 = P[17] * h[2];
     const float tmp58 = tmp56 + tmp57;
-    const float tmp59 = tmp58 * tmp22;
-    const float tmp60 = tmp59 * tmp29;
+    const float tmp59 = tmp58 * carry[4];
+    const float tmp60 = tmp59 * carry[6];
     const float tmp61 = x[5] + tmp60;
-    const float tmp62 = tmp23 * tmp4;
+    const float tmp62 = carry[5] * carry[0];
     const float tmp63 = P[0] - tmp62;
-    const float tmp64 = tmp32 * tmp4;
+    const float tmp64 = carry[8] * carry[0];
     const float tmp65 = P[1] - tmp64;
-    const float tmp66 = tmp35 * tmp4;
+    const float tmp66 = carry[10] * carry[0];
     const float tmp67 = P[2] - tmp66;
-    const float tmp68 = tmp43 * tmp4;
+    const float tmp68 = tmp43 * carry[0];
     const float tmp69 = P[3] - tmp68;
-    const float tmp70 = tmp51 * tmp4;
+    const float tmp70 = tmp51 * carry[0];
     const float tmp71 = P[4] - tmp70;
-    const float tmp72 = tmp59 * tmp4;
+    const float tmp72 = tmp59 * carry[0];
     const float tmp73 = P[5] - tmp72;
-    const float tmp74 = tmp32 * tmp10;
+    const float tmp74 = carry[8] * carry[1];
     const float tmp75 = P[7] - tmp74;
-    const float tmp76 = tmp35 * tmp10;
+    const float tmp76 = carry[10] * carry[1];
     const float tmp77 = P[8] - tmp76;
-    const float tmp78 = tmp43 * tmp10;
+    const float tmp78 = tmp43 * carry[1];
     const float tmp79 = P[9] - tmp78;
-    const float tmp80 = tmp51 * tmp10;
+    carry[0] = tmp42;
+    carry[4] = tmp43;
+    carry[5] = tmp45;
+    carry[6] = tmp50;
+    carry[8] = tmp51;
+    carry[12] = tmp53;
+    carry[13] = tmp58;
+    carry[14] = tmp59;
+    carry[15] = tmp61;
+    carry[16] = tmp63;
+    carry[17] = tmp65;
+    carry[18] = tmp67;
+    carry[19] = tmp69;
+    carry[20] = tmp71;
+    carry[21] = tmp73;
+    carry[22] = tmp75;
+    carry[23] = tmp77;
+    carry[24] = tmp79;
+}
+
+static void mekf_k_update_attitude_row_part2(const float P[36], float carry[28])
+{
+    const float tmp80 = carry[8] * carry[1];
     const float tmp81 = P[10] - tmp80;
-    const float tmp82 = tmp59 * tmp10;
+    const float tmp82 = carry[14] * carry[1];
     const float tmp83 = P[11] - tmp82;
-    const float tmp84 = tmp35 * tmp17;
+    const float tmp84 = carry[10] * carry[2];
     const float tmp85 = P[14] - tmp84;
-    const float tmp86 = tmp43 * tmp17;
+    const float tmp86 = carry[4] * carry[2];
     const float tmp87 = P[15] - tmp86;
-    const float tmp88 = tmp51 * tmp17;
+    const float tmp88 = carry[8] * carry[2];
     const float tmp89 = P[16] - tmp88;
-    const float tmp90 = tmp59 * tmp17;
+    const float tmp90 = carry[14] * carry[2];
     const float tmp91 = P[17] - tmp90;
-    const float tmp92 = tmp43 * tmp42;
+    const float tmp92 = carry[4] * carry[0];
     const float tmp93 = P[21] - tmp92;
-    const float tmp94 = tmp51 * tmp42;
+    const float tmp94 = carry[8] * carry[0];
     const float tmp95 = P[22] - tmp94;
-    const float tmp96 = tmp59 * tmp42;
+    const float tmp96 = carry[14] * carry[0];
     const float tmp97 = P[23] - tmp96;
-    const float tmp98 = tmp51 * tmp50;
+    const float tmp98 = carry[8] * carry[6];
     const float tmp99 = P[28] - tmp98;
-    const float tmp100 = tmp59 * tmp50;
+    const float tmp100 = carry[14] * carry[6];
     const float tmp101 = P[29] - tmp100;
-    const float tmp102 = tmp59 * tmp58;
+    const float tmp102 = carry[14] * carry[13];
     const float tmp103 = P[35] - tmp102;
-    x_out[0] = tmp31;
-    x_out[1] = tmp34;
-    x_out[2] = tmp37;
-    x_out[3] = tmp45;
-    x_out[4] = tmp53;
-    x_out[5] = tmp61;
-    P_out[0] = tmp63;
-    P_out[1] = tmp65;
-    P_out[2] = tmp67;
-    P_out[3] = tmp69;
-    P_out[4] = tmp71;
-    P_out[5] = tmp73;
-    P_out[6] = tmp65;
-    P_out[7] = tmp75;
-    P_out[8] = tmp77;
-    P_out[9] = tmp79;
-    P_out[10] = tmp81;
-    P_out[11] = tmp83;
-    P_out[12] = tmp67;
-    P_out[13] = tmp77;
-    P_out[14] = tmp85;
-    P_out[15] = tmp87;
-    P_out[16] = tmp89;
-    P_out[17] = tmp91;
-    P_out[18] = tmp69;
-    P_out[19] = tmp79;
-    P_out[20] = tmp87;
-    P_out[21] = tmp93;
-    P_out[22] = tmp95;
-    P_out[23] = tmp97;
-    P_out[24] = tmp71;
-    P_out[25] = tmp81;
-    P_out[26] = tmp89;
-    P_out[27] = tmp95;
-    P_out[28] = tmp99;
-    P_out[29] = tmp101;
-    P_out[30] = tmp73;
-    P_out[31] = tmp83;
-    P_out[32] = tmp91;
-    P_out[33] = tmp97;
-    P_out[34] = tmp101;
-    P_out[35] = tmp103;
-    *s = tmp20;
+    carry[0] = tmp81;
+    carry[1] = tmp83;
+    carry[2] = tmp85;
+    carry[4] = tmp87;
+    carry[6] = tmp89;
+    carry[8] = tmp91;
+    carry[10] = tmp93;
+    carry[13] = tmp95;
+    carry[14] = tmp97;
+    carry[25] = tmp99;
+    carry[26] = tmp101;
+    carry[27] = tmp103;
+}
+
+static void mekf_k_update_attitude_row(const float P[36], const float h[3], float z, float r, const float x[6], float x_out[6], float P_out[36], float *s)
+{
+    /* 3 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    float carry[28];
+    mekf_k_update_attitude_row_part0(P, h, z, r, x, carry);
+    mekf_k_update_attitude_row_part1(P, h, x, carry);
+    mekf_k_update_attitude_row_part2(P, carry);
+    x_out[0] = carry[7];
+    x_out[1] = carry[9];
+    x_out[2] = carry[11];
+    x_out[3] = carry[5];
+    x_out[4] = carry[12];
+    x_out[5] = carry[15];
+    P_out[0] = carry[16];
+    P_out[1] = carry[17];
+    P_out[2] = carry[18];
+    P_out[3] = carry[19];
+    P_out[4] = carry[20];
+    P_out[5] = carry[21];
+    P_out[6] = carry[17];
+    P_out[7] = carry[22];
+    P_out[8] = carry[23];
+    P_out[9] = carry[24];
+    P_out[10] = carry[0];
+    P_out[11] = carry[1];
+    P_out[12] = carry[18];
+    P_out[13] = carry[23];
+    P_out[14] = carry[2];
+    P_out[15] = carry[4];
+    P_out[16] = carry[6];
+    P_out[17] = carry[8];
+    P_out[18] = carry[19];
+    P_out[19] = carry[24];
+    P_out[20] = carry[4];
+    P_out[21] = carry[10];
+    P_out[22] = carry[13];
+    P_out[23] = carry[14];
+    P_out[24] = carry[20];
+    P_out[25] = carry[0];
+    P_out[26] = carry[6];
+    P_out[27] = carry[13];
+    P_out[28] = carry[25];
+    P_out[29] = carry[26];
+    P_out[30] = carry[21];
+    P_out[31] = carry[1];
+    P_out[32] = carry[8];
+    P_out[33] = carry[14];
+    P_out[34] = carry[26];
+    P_out[35] = carry[27];
+    *s = carry[3];
 }
 
 /* at rest, the gyro bias: three scalar rows
@@ -1297,266 +1557,307 @@ static void mekf_k_update_rest_bias_part0(const float b[3], const float P[36], c
     const float tmp37 = tmp36 + tmp1;
     const float tmp38 = 1.0f / tmp37;
     const float tmp39 = (1e-12f < tmp37) ? tmp38 : 1.0f;
-    const float tmp40 = tmp32 * tmp39;
+    carry[0] = tmp2;
+    carry[1] = tmp4;
+    carry[2] = tmp5;
+    carry[3] = tmp7;
+    carry[4] = tmp10;
+    carry[5] = tmp12;
+    carry[6] = tmp14;
+    carry[7] = tmp15;
+    carry[8] = tmp17;
+    carry[9] = tmp18;
+    carry[10] = tmp21;
+    carry[11] = tmp22;
+    carry[12] = tmp24;
+    carry[13] = tmp25;
+    carry[14] = tmp29;
+    carry[15] = tmp30;
+    carry[16] = tmp32;
+    carry[17] = tmp36;
+    carry[18] = tmp37;
+    carry[19] = tmp39;
+}
+
+static void mekf_k_update_rest_bias_part1(const float b[3], const float P[36], const float gyro[3], const float x[6], float carry[36])
+{
+    const float tmp40 = carry[16] * carry[19];
     const float tmp41 = gyro[2] - b[2];
-    const float tmp42 = tmp25 * tmp7;
+    const float tmp42 = carry[13] * carry[3];
     const float tmp43 = x[5] + tmp42;
-    const float tmp44 = tmp30 * tmp22;
+    const float tmp44 = carry[15] * carry[11];
     const float tmp45 = tmp43 + tmp44;
     const float tmp46 = tmp41 - tmp45;
     const float tmp47 = tmp40 * tmp46;
-    const float tmp48 = tmp24 + tmp47;
-    const float tmp49 = P[9] * tmp4;
-    const float tmp50 = tmp49 * tmp7;
+    const float tmp48 = carry[12] + tmp47;
+    const float tmp49 = P[9] * carry[1];
+    const float tmp50 = tmp49 * carry[3];
     const float tmp51 = x[1] + tmp50;
-    const float tmp52 = tmp10 * P[9];
+    const float tmp52 = carry[4] * P[9];
     const float tmp53 = P[10] - tmp52;
-    const float tmp54 = tmp53 * tmp17;
-    const float tmp55 = tmp54 * tmp22;
+    const float tmp54 = tmp53 * carry[8];
+    const float tmp55 = tmp54 * carry[11];
     const float tmp56 = tmp51 + tmp55;
-    const float tmp57 = tmp25 * P[9];
+    const float tmp57 = carry[13] * P[9];
     const float tmp58 = P[11] - tmp57;
-    const float tmp59 = tmp30 * tmp53;
+    const float tmp59 = carry[15] * tmp53;
     const float tmp60 = tmp58 - tmp59;
-    const float tmp61 = tmp60 * tmp39;
+    const float tmp61 = tmp60 * carry[19];
     const float tmp62 = tmp61 * tmp46;
     const float tmp63 = tmp56 + tmp62;
-    const float tmp64 = P[15] * tmp4;
-    const float tmp65 = tmp64 * tmp7;
+    const float tmp64 = P[15] * carry[1];
+    const float tmp65 = tmp64 * carry[3];
     const float tmp66 = x[2] + tmp65;
-    const float tmp67 = tmp10 * P[15];
+    const float tmp67 = carry[4] * P[15];
     const float tmp68 = P[16] - tmp67;
-    const float tmp69 = tmp68 * tmp17;
-    const float tmp70 = tmp69 * tmp22;
+    const float tmp69 = tmp68 * carry[8];
+    const float tmp70 = tmp69 * carry[11];
     const float tmp71 = tmp66 + tmp70;
-    const float tmp72 = tmp25 * P[15];
+    const float tmp72 = carry[13] * P[15];
     const float tmp73 = P[17] - tmp72;
-    const float tmp74 = tmp30 * tmp68;
+    const float tmp74 = carry[15] * tmp68;
     const float tmp75 = tmp73 - tmp74;
-    const float tmp76 = tmp75 * tmp39;
+    const float tmp76 = tmp75 * carry[19];
     const float tmp77 = tmp76 * tmp46;
     const float tmp78 = tmp71 + tmp77;
-    const float tmp79 = P[21] * tmp4;
-    const float tmp80 = tmp79 * tmp7;
+    const float tmp79 = P[21] * carry[1];
+    carry[1] = tmp40;
+    carry[12] = tmp45;
+    carry[20] = tmp46;
+    carry[21] = tmp48;
+    carry[22] = tmp49;
+    carry[23] = tmp53;
+    carry[24] = tmp54;
+    carry[25] = tmp60;
+    carry[26] = tmp61;
+    carry[27] = tmp63;
+    carry[28] = tmp64;
+    carry[29] = tmp68;
+    carry[30] = tmp69;
+    carry[31] = tmp75;
+    carry[32] = tmp76;
+    carry[33] = tmp78;
+    carry[34] = tmp79;
+}
+
+static void mekf_k_update_rest_bias_part2(const float P[36], const float x[6], float carry[36])
+{
+    const float tmp80 = carry[34] * carry[3];
     const float tmp81 = x[3] + tmp80;
-    const float tmp82 = tmp10 * P[21];
+    const float tmp82 = carry[4] * P[21];
     const float tmp83 = P[22] - tmp82;
-    const float tmp84 = tmp83 * tmp17;
-    const float tmp85 = tmp84 * tmp22;
+    const float tmp84 = tmp83 * carry[8];
+    const float tmp85 = tmp84 * carry[11];
     const float tmp86 = tmp81 + tmp85;
-    const float tmp87 = tmp25 * P[21];
+    const float tmp87 = carry[13] * P[21];
     const float tmp88 = P[23] - tmp87;
-    const float tmp89 = tmp30 * tmp83;
+    const float tmp89 = carry[15] * tmp83;
     const float tmp90 = tmp88 - tmp89;
-    const float tmp91 = tmp90 * tmp39;
-    const float tmp92 = tmp91 * tmp46;
+    const float tmp91 = tmp90 * carry[19];
+    const float tmp92 = tmp91 * carry[20];
     const float tmp93 = tmp86 + tmp92;
-    const float tmp94 = tmp14 * tmp17;
-    const float tmp95 = tmp94 * tmp22;
-    const float tmp96 = tmp21 + tmp95;
-    const float tmp97 = tmp30 * tmp14;
-    const float tmp98 = tmp29 - tmp97;
-    const float tmp99 = tmp98 * tmp39;
-    const float tmp100 = tmp99 * tmp46;
+    const float tmp94 = carry[6] * carry[8];
+    const float tmp95 = tmp94 * carry[11];
+    const float tmp96 = carry[10] + tmp95;
+    const float tmp97 = carry[15] * carry[6];
+    const float tmp98 = carry[14] - tmp97;
+    const float tmp99 = tmp98 * carry[19];
+    const float tmp100 = tmp99 * carry[20];
     const float tmp101 = tmp96 + tmp100;
-    const float tmp102 = tmp36 * tmp39;
-    const float tmp103 = tmp102 * tmp46;
-    const float tmp104 = tmp45 + tmp103;
-    const float tmp105 = tmp5 * P[3];
+    const float tmp102 = carry[17] * carry[19];
+    const float tmp103 = tmp102 * carry[20];
+    const float tmp104 = carry[12] + tmp103;
+    const float tmp105 = carry[2] * P[3];
     const float tmp106 = P[0] - tmp105;
-    const float tmp107 = tmp18 * tmp12;
+    const float tmp107 = carry[9] * carry[5];
     const float tmp108 = tmp106 - tmp107;
-    const float tmp109 = tmp40 * tmp32;
+    const float tmp109 = carry[1] * carry[16];
     const float tmp110 = tmp108 - tmp109;
-    const float tmp111 = tmp49 * P[3];
+    const float tmp111 = carry[22] * P[3];
     const float tmp112 = P[1] - tmp111;
-    const float tmp113 = tmp54 * tmp12;
+    const float tmp113 = carry[24] * carry[5];
     const float tmp114 = tmp112 - tmp113;
-    const float tmp115 = tmp61 * tmp32;
+    const float tmp115 = carry[26] * carry[16];
     const float tmp116 = tmp114 - tmp115;
-    const float tmp117 = tmp64 * P[3];
+    const float tmp117 = carry[28] * P[3];
     const float tmp118 = P[2] - tmp117;
-    const float tmp119 = tmp69 * tmp12;
-    const float tmp120 = tmp118 - tmp119;
-    const float tmp121 = tmp76 * tmp32;
+    const float tmp119 = carry[30] * carry[5];
+    carry[1] = tmp83;
+    carry[2] = tmp84;
+    carry[3] = tmp90;
+    carry[4] = tmp91;
+    carry[8] = tmp93;
+    carry[9] = tmp94;
+    carry[10] = tmp98;
+    carry[11] = tmp99;
+    carry[12] = tmp101;
+    carry[13] = tmp102;
+    carry[14] = tmp104;
+    carry[15] = tmp110;
+    carry[19] = tmp116;
+    carry[20] = tmp118;
+    carry[35] = tmp119;
+}
+
+static void mekf_k_update_rest_bias_part3(const float P[36], float carry[36])
+{
+    const float tmp120 = carry[20] - carry[35];
+    const float tmp121 = carry[32] * carry[16];
     const float tmp122 = tmp120 - tmp121;
-    const float tmp123 = tmp79 * P[3];
+    const float tmp123 = carry[34] * P[3];
     const float tmp124 = P[3] - tmp123;
-    const float tmp125 = tmp84 * tmp12;
+    const float tmp125 = carry[2] * carry[5];
     const float tmp126 = tmp124 - tmp125;
-    const float tmp127 = tmp91 * tmp32;
+    const float tmp127 = carry[4] * carry[16];
     const float tmp128 = tmp126 - tmp127;
-    const float tmp129 = tmp94 * tmp12;
-    const float tmp130 = tmp12 - tmp129;
-    const float tmp131 = tmp99 * tmp32;
+    const float tmp129 = carry[9] * carry[5];
+    const float tmp130 = carry[5] - tmp129;
+    const float tmp131 = carry[11] * carry[16];
     const float tmp132 = tmp130 - tmp131;
-    const float tmp133 = tmp102 * tmp32;
-    const float tmp134 = tmp32 - tmp133;
-    const float tmp135 = tmp49 * P[9];
+    const float tmp133 = carry[13] * carry[16];
+    const float tmp134 = carry[16] - tmp133;
+    const float tmp135 = carry[22] * P[9];
     const float tmp136 = P[7] - tmp135;
-    const float tmp137 = tmp54 * tmp53;
+    const float tmp137 = carry[24] * carry[23];
     const float tmp138 = tmp136 - tmp137;
-    const float tmp139 = tmp61 * tmp60;
+    const float tmp139 = carry[26] * carry[25];
     const float tmp140 = tmp138 - tmp139;
-    const float tmp141 = tmp64 * P[9];
+    const float tmp141 = carry[28] * P[9];
     const float tmp142 = P[8] - tmp141;
-    const float tmp143 = tmp69 * tmp53;
+    const float tmp143 = carry[30] * carry[23];
     const float tmp144 = tmp142 - tmp143;
-    const float tmp145 = tmp76 * tmp60;
+    const float tmp145 = carry[32] * carry[25];
     const float tmp146 = tmp144 - tmp145;
-    const float tmp147 = tmp79 * P[9];
+    const float tmp147 = carry[34] * P[9];
     const float tmp148 = P[9] - tmp147;
-    const float tmp149 = tmp84 * tmp53;
+    const float tmp149 = carry[2] * carry[23];
     const float tmp150 = tmp148 - tmp149;
-    const float tmp151 = tmp91 * tmp60;
+    const float tmp151 = carry[4] * carry[25];
     const float tmp152 = tmp150 - tmp151;
-    const float tmp153 = tmp94 * tmp53;
-    const float tmp154 = tmp53 - tmp153;
-    const float tmp155 = tmp99 * tmp60;
+    const float tmp153 = carry[9] * carry[23];
+    const float tmp154 = carry[23] - tmp153;
+    const float tmp155 = carry[11] * carry[25];
     const float tmp156 = tmp154 - tmp155;
-    const float tmp157 = tmp102 * tmp60;
-    const float tmp158 = tmp60 - tmp157;
-    const float tmp159 = tmp64 * P[15];
-    carry[0] = tmp2;
-    carry[1] = tmp14;
-    carry[2] = tmp15;
-    carry[3] = tmp36;
-    carry[4] = tmp37;
-    carry[5] = tmp48;
-    carry[6] = tmp63;
-    carry[7] = tmp68;
-    carry[8] = tmp69;
-    carry[9] = tmp75;
-    carry[10] = tmp76;
-    carry[11] = tmp78;
-    carry[12] = tmp79;
-    carry[13] = tmp83;
-    carry[14] = tmp84;
-    carry[15] = tmp90;
-    carry[16] = tmp91;
-    carry[17] = tmp93;
-    carry[18] = tmp94;
-    carry[19] = tmp98;
-    carry[20] = tmp99;
-    carry[21] = tmp101;
-    carry[22] = tmp102;
-    carry[23] = tmp104;
-    carry[24] = tmp110;
-    carry[25] = tmp116;
-    carry[26] = tmp122;
-    carry[27] = tmp128;
-    carry[28] = tmp132;
-    carry[29] = tmp134;
-    carry[30] = tmp140;
-    carry[31] = tmp146;
-    carry[32] = tmp152;
-    carry[33] = tmp156;
-    carry[34] = tmp158;
+    const float tmp157 = carry[13] * carry[25];
+    const float tmp158 = carry[25] - tmp157;
+    const float tmp159 = carry[28] * P[15];
+    carry[5] = tmp122;
+    carry[16] = tmp128;
+    carry[20] = tmp132;
+    carry[22] = tmp134;
+    carry[23] = tmp140;
+    carry[24] = tmp146;
+    carry[25] = tmp152;
+    carry[26] = tmp156;
+    carry[28] = tmp158;
     carry[35] = tmp159;
 }
 
-static void mekf_k_update_rest_bias_part1(const float P[36], float carry[36])
+static void mekf_k_update_rest_bias_part4(const float P[36], float carry[36])
 {
     const float tmp160 = P[14] - carry[35];
-    const float tmp161 = carry[8] * carry[7];
+    const float tmp161 = carry[30] * carry[29];
     const float tmp162 = tmp160 - tmp161;
-    const float tmp163 = carry[10] * carry[9];
+    const float tmp163 = carry[32] * carry[31];
     const float tmp164 = tmp162 - tmp163;
-    const float tmp165 = carry[12] * P[15];
+    const float tmp165 = carry[34] * P[15];
     const float tmp166 = P[15] - tmp165;
-    const float tmp167 = carry[14] * carry[7];
+    const float tmp167 = carry[2] * carry[29];
     const float tmp168 = tmp166 - tmp167;
-    const float tmp169 = carry[16] * carry[9];
+    const float tmp169 = carry[4] * carry[31];
     const float tmp170 = tmp168 - tmp169;
-    const float tmp171 = carry[18] * carry[7];
-    const float tmp172 = carry[7] - tmp171;
-    const float tmp173 = carry[20] * carry[9];
+    const float tmp171 = carry[9] * carry[29];
+    const float tmp172 = carry[29] - tmp171;
+    const float tmp173 = carry[11] * carry[31];
     const float tmp174 = tmp172 - tmp173;
-    const float tmp175 = carry[22] * carry[9];
-    const float tmp176 = carry[9] - tmp175;
-    const float tmp177 = carry[12] * P[21];
+    const float tmp175 = carry[13] * carry[31];
+    const float tmp176 = carry[31] - tmp175;
+    const float tmp177 = carry[34] * P[21];
     const float tmp178 = P[21] - tmp177;
-    const float tmp179 = carry[14] * carry[13];
+    const float tmp179 = carry[2] * carry[1];
     const float tmp180 = tmp178 - tmp179;
-    const float tmp181 = carry[16] * carry[15];
+    const float tmp181 = carry[4] * carry[3];
     const float tmp182 = tmp180 - tmp181;
-    const float tmp183 = carry[18] * carry[13];
-    const float tmp184 = carry[13] - tmp183;
-    const float tmp185 = carry[20] * carry[15];
+    const float tmp183 = carry[9] * carry[1];
+    const float tmp184 = carry[1] - tmp183;
+    const float tmp185 = carry[11] * carry[3];
     const float tmp186 = tmp184 - tmp185;
-    const float tmp187 = carry[22] * carry[15];
-    const float tmp188 = carry[15] - tmp187;
-    const float tmp189 = carry[18] * carry[1];
-    const float tmp190 = carry[1] - tmp189;
-    const float tmp191 = carry[20] * carry[19];
+    const float tmp187 = carry[13] * carry[3];
+    const float tmp188 = carry[3] - tmp187;
+    const float tmp189 = carry[9] * carry[6];
+    const float tmp190 = carry[6] - tmp189;
+    const float tmp191 = carry[11] * carry[10];
     const float tmp192 = tmp190 - tmp191;
-    const float tmp193 = carry[22] * carry[19];
-    const float tmp194 = carry[19] - tmp193;
-    const float tmp195 = carry[22] * carry[3];
-    const float tmp196 = carry[3] - tmp195;
-    const float tmp197 = (carry[0] < carry[2]) ? carry[0] : carry[2];
-    const float tmp198 = (tmp197 < carry[4]) ? tmp197 : carry[4];
+    const float tmp193 = carry[13] * carry[10];
+    const float tmp194 = carry[10] - tmp193;
+    const float tmp195 = carry[13] * carry[17];
+    const float tmp196 = carry[17] - tmp195;
+    const float tmp197 = (carry[0] < carry[7]) ? carry[0] : carry[7];
+    const float tmp198 = (tmp197 < carry[18]) ? tmp197 : carry[18];
     carry[0] = tmp164;
     carry[1] = tmp170;
     carry[2] = tmp174;
     carry[3] = tmp176;
     carry[4] = tmp182;
-    carry[7] = tmp186;
-    carry[8] = tmp188;
+    carry[6] = tmp186;
+    carry[7] = tmp188;
     carry[9] = tmp192;
     carry[10] = tmp194;
-    carry[12] = tmp196;
+    carry[11] = tmp196;
     carry[13] = tmp198;
 }
 
 static void mekf_k_update_rest_bias(const float b[3], const float P[36], const float gyro[3], float dt, const float x[6], float x_out[6], float P_out[36], float *min_pivot)
 {
-    /* 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    /* 5 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
     float carry[36];
     mekf_k_update_rest_bias_part0(b, P, gyro, dt, x, carry);
-    mekf_k_update_rest_bias_part1(P, carry);
-    x_out[0] = carry[5];
-    x_out[1] = carry[6];
-    x_out[2] = carry[11];
-    x_out[3] = carry[17];
-    x_out[4] = carry[21];
-    x_out[5] = carry[23];
-    P_out[0] = carry[24];
-    P_out[1] = carry[25];
-    P_out[2] = carry[26];
-    P_out[3] = carry[27];
-    P_out[4] = carry[28];
-    P_out[5] = carry[29];
-    P_out[6] = carry[25];
-    P_out[7] = carry[30];
-    P_out[8] = carry[31];
-    P_out[9] = carry[32];
-    P_out[10] = carry[33];
-    P_out[11] = carry[34];
-    P_out[12] = carry[26];
-    P_out[13] = carry[31];
+    mekf_k_update_rest_bias_part1(b, P, gyro, x, carry);
+    mekf_k_update_rest_bias_part2(P, x, carry);
+    mekf_k_update_rest_bias_part3(P, carry);
+    mekf_k_update_rest_bias_part4(P, carry);
+    x_out[0] = carry[21];
+    x_out[1] = carry[27];
+    x_out[2] = carry[33];
+    x_out[3] = carry[8];
+    x_out[4] = carry[12];
+    x_out[5] = carry[14];
+    P_out[0] = carry[15];
+    P_out[1] = carry[19];
+    P_out[2] = carry[5];
+    P_out[3] = carry[16];
+    P_out[4] = carry[20];
+    P_out[5] = carry[22];
+    P_out[6] = carry[19];
+    P_out[7] = carry[23];
+    P_out[8] = carry[24];
+    P_out[9] = carry[25];
+    P_out[10] = carry[26];
+    P_out[11] = carry[28];
+    P_out[12] = carry[5];
+    P_out[13] = carry[24];
     P_out[14] = carry[0];
     P_out[15] = carry[1];
     P_out[16] = carry[2];
     P_out[17] = carry[3];
-    P_out[18] = carry[27];
-    P_out[19] = carry[32];
+    P_out[18] = carry[16];
+    P_out[19] = carry[25];
     P_out[20] = carry[1];
     P_out[21] = carry[4];
-    P_out[22] = carry[7];
-    P_out[23] = carry[8];
-    P_out[24] = carry[28];
-    P_out[25] = carry[33];
+    P_out[22] = carry[6];
+    P_out[23] = carry[7];
+    P_out[24] = carry[20];
+    P_out[25] = carry[26];
     P_out[26] = carry[2];
-    P_out[27] = carry[7];
+    P_out[27] = carry[6];
     P_out[28] = carry[9];
     P_out[29] = carry[10];
-    P_out[30] = carry[29];
-    P_out[31] = carry[34];
+    P_out[30] = carry[22];
+    P_out[31] = carry[28];
     P_out[32] = carry[3];
-    P_out[33] = carry[8];
+    P_out[33] = carry[7];
     P_out[34] = carry[10];
-    P_out[35] = carry[12];
+    P_out[35] = carry[11];
     *min_pivot = carry[13];
 }
 
@@ -1615,7 +1916,7 @@ static void mekf_k_inject(const float q[4], const float b[3], const float x[6], 
 /* one heading row, gain projected on the vertical
  * ops: add 102, mul 117, div 1, trig 3, cmp 28 (total 251)
  *      of which only one side runs: if (use_course) 7, else 26 */
-static void mekf_k_update_heading_part0(const float q[4], const float P[36], const float mag[3], const float vel[3], bool use_course, float carry[28])
+static void mekf_k_update_heading_part0(const float q[4], const float P[36], float carry[30])
 {
     const float tmp0 = q[1] * q[3];
     const float tmp1 = q[0] * q[2];
@@ -1657,18 +1958,50 @@ static void mekf_k_update_heading_part0(const float q[4], const float P[36], con
     const float tmp37 = tmp3 * tmp36;
     const float tmp38 = tmp3 * tmp17;
     const float tmp39 = q[1] * q[2];
+    carry[0] = tmp0;
+    carry[1] = tmp1;
+    carry[2] = tmp3;
+    carry[3] = tmp4;
+    carry[4] = tmp5;
+    carry[5] = tmp7;
+    carry[6] = tmp8;
+    carry[7] = tmp10;
+    carry[8] = tmp13;
+    carry[9] = tmp14;
+    carry[10] = tmp17;
+    carry[11] = tmp18;
+    carry[12] = tmp20;
+    carry[13] = tmp26;
+    carry[14] = tmp33;
+    carry[15] = tmp35;
+    carry[16] = tmp36;
+    carry[17] = tmp37;
+    carry[18] = tmp38;
+    carry[19] = tmp39;
+}
+
+static void mekf_k_update_heading_part1(const float q[4], float carry[30])
+{
     const float tmp40 = q[0] * q[3];
-    const float tmp41 = tmp39 + tmp40;
+    const float tmp41 = carry[19] + tmp40;
     const float tmp42 = tmp41 + tmp41;
     const float tmp43 = q[3] * q[3];
-    const float tmp44 = tmp14 + tmp43;
+    const float tmp44 = carry[9] + tmp43;
     const float tmp45 = tmp44 + tmp44;
     const float tmp46 = 1.0f - tmp45;
+    carry[9] = tmp40;
+    carry[20] = tmp42;
+    carry[21] = tmp43;
+    carry[22] = tmp46;
+}
+
+static void mekf_k_update_heading_part2(const float mag[3], const float vel[3], bool use_course, float carry[30])
+{
     float tmp47;
     float tmp48;
     if (use_course) {
         const float tmp49 = fast_atan2f(vel[1], vel[0]);
-        const float tmp50 = fast_atan2f(tmp42, tmp46);
+        const float tmp50 = fast_atan2f(carry[20], carry[22]);
         const float tmp51 = tmp49 - tmp50;
         const float tmp52 = tmp51 - 6.2831855f;
         const float tmp53 = tmp51 + 6.2831855f;
@@ -1677,22 +2010,22 @@ static void mekf_k_update_heading_part0(const float q[4], const float P[36], con
         tmp47 = 0.0025f;
         tmp48 = tmp55;
     } else {
-        const float tmp56 = tmp42 * mag[0];
-        const float tmp57 = tmp13 + tmp43;
+        const float tmp56 = carry[20] * mag[0];
+        const float tmp57 = carry[8] + carry[21];
         const float tmp58 = tmp57 + tmp57;
         const float tmp59 = 1.0f - tmp58;
         const float tmp60 = tmp59 * mag[1];
         const float tmp61 = tmp56 + tmp60;
-        const float tmp62 = tmp7 - tmp8;
+        const float tmp62 = carry[5] - carry[6];
         const float tmp63 = tmp62 + tmp62;
         const float tmp64 = tmp63 * mag[2];
         const float tmp65 = tmp61 + tmp64;
-        const float tmp66 = tmp46 * mag[0];
-        const float tmp67 = tmp39 - tmp40;
+        const float tmp66 = carry[22] * mag[0];
+        const float tmp67 = carry[19] - carry[9];
         const float tmp68 = tmp67 + tmp67;
         const float tmp69 = tmp68 * mag[1];
         const float tmp70 = tmp66 + tmp69;
-        const float tmp71 = tmp0 + tmp1;
+        const float tmp71 = carry[0] + carry[1];
         const float tmp72 = tmp71 + tmp71;
         const float tmp73 = tmp72 * mag[2];
         const float tmp74 = tmp70 + tmp73;
@@ -1706,280 +2039,312 @@ static void mekf_k_update_heading_part0(const float q[4], const float P[36], con
         tmp47 = 0.01f;
         tmp48 = tmp81;
     }
-    const float tmp82 = tmp35 + tmp47;
+    const float tmp82 = carry[15] + tmp47;
     const float tmp83 = 1.0f / tmp82;
     const float tmp84 = (1e-12f < tmp82) ? tmp83 : 1.0f;
-    const float tmp85 = tmp20 * tmp84;
-    const float tmp86 = tmp4 * tmp85;
-    const float tmp87 = tmp26 * tmp84;
-    const float tmp88 = tmp37 * tmp87;
-    const float tmp89 = tmp86 + tmp88;
-    const float tmp90 = tmp33 * tmp84;
-    const float tmp91 = tmp38 * tmp90;
-    const float tmp92 = tmp89 + tmp91;
-    const float tmp93 = tmp92 * tmp48;
-    const float tmp94 = tmp36 * tmp3;
-    const float tmp95 = tmp94 * tmp85;
-    const float tmp96 = tmp36 * tmp36;
-    const float tmp97 = tmp96 * tmp87;
-    const float tmp98 = tmp95 + tmp97;
-    const float tmp99 = tmp36 * tmp17;
-    const float tmp100 = tmp99 * tmp90;
-    const float tmp101 = tmp98 + tmp100;
-    const float tmp102 = tmp101 * tmp48;
-    const float tmp103 = tmp17 * tmp3;
-    const float tmp104 = tmp103 * tmp85;
-    const float tmp105 = tmp17 * tmp36;
-    const float tmp106 = tmp105 * tmp87;
-    const float tmp107 = tmp104 + tmp106;
-    const float tmp108 = tmp17 * tmp17;
-    const float tmp109 = tmp108 * tmp90;
-    const float tmp110 = tmp107 + tmp109;
-    const float tmp111 = tmp110 * tmp48;
-    const float tmp112 = P[3] * tmp5;
-    const float tmp113 = P[9] * tmp10;
-    const float tmp114 = tmp112 + tmp113;
-    const float tmp115 = P[15] * tmp18;
-    const float tmp116 = tmp114 + tmp115;
-    const float tmp117 = tmp116 * tmp84;
-    const float tmp118 = tmp117 * tmp48;
-    const float tmp119 = P[4] * tmp5;
-    const float tmp120 = P[10] * tmp10;
-    const float tmp121 = tmp119 + tmp120;
-    const float tmp122 = P[16] * tmp18;
-    const float tmp123 = tmp121 + tmp122;
-    const float tmp124 = tmp123 * tmp84;
-    const float tmp125 = tmp124 * tmp48;
-    const float tmp126 = P[5] * tmp5;
-    const float tmp127 = P[11] * tmp10;
-    const float tmp128 = tmp126 + tmp127;
-    const float tmp129 = P[17] * tmp18;
-    const float tmp130 = tmp128 + tmp129;
-    const float tmp131 = tmp130 * tmp84;
-    const float tmp132 = tmp131 * tmp48;
-    const float tmp133 = 0.5f * tmp82;
-    const float tmp134 = tmp133 * tmp92;
-    const float tmp135 = tmp20 - tmp134;
-    const float tmp136 = tmp92 * tmp135;
-    const float tmp137 = P[0] - tmp136;
-    const float tmp138 = tmp135 * tmp92;
-    const float tmp139 = tmp137 - tmp138;
-    const float tmp140 = (1e-12f < tmp82) ? tmp139 : P[0];
-    const float tmp141 = tmp101 * tmp135;
-    const float tmp142 = P[1] - tmp141;
-    const float tmp143 = tmp133 * tmp101;
-    const float tmp144 = tmp26 - tmp143;
-    const float tmp145 = tmp144 * tmp92;
-    const float tmp146 = tmp142 - tmp145;
-    const float tmp147 = (1e-12f < tmp82) ? tmp146 : P[1];
-    const float tmp148 = tmp110 * tmp135;
-    const float tmp149 = P[2] - tmp148;
-    const float tmp150 = tmp133 * tmp110;
-    const float tmp151 = tmp33 - tmp150;
-    const float tmp152 = tmp151 * tmp92;
-    const float tmp153 = tmp149 - tmp152;
-    const float tmp154 = (1e-12f < tmp82) ? tmp153 : P[2];
-    const float tmp155 = tmp117 * tmp135;
-    const float tmp156 = P[3] - tmp155;
-    const float tmp157 = tmp133 * tmp117;
-    const float tmp158 = tmp116 - tmp157;
-    const float tmp159 = tmp158 * tmp92;
-    carry[0] = tmp82;
-    carry[1] = tmp92;
-    carry[2] = tmp93;
-    carry[3] = tmp101;
-    carry[4] = tmp102;
-    carry[5] = tmp110;
-    carry[6] = tmp111;
-    carry[7] = tmp117;
-    carry[8] = tmp118;
-    carry[9] = tmp123;
-    carry[10] = tmp124;
-    carry[11] = tmp125;
-    carry[12] = tmp130;
-    carry[13] = tmp131;
-    carry[14] = tmp132;
-    carry[15] = tmp133;
-    carry[16] = tmp135;
-    carry[17] = tmp140;
-    carry[18] = tmp144;
-    carry[19] = tmp147;
-    carry[20] = tmp151;
-    carry[21] = tmp154;
-    carry[22] = tmp156;
-    carry[23] = tmp158;
-    carry[24] = tmp159;
+    const float tmp85 = carry[12] * tmp84;
+    const float tmp86 = carry[3] * tmp85;
+    carry[0] = tmp48;
+    carry[1] = tmp82;
+    carry[3] = tmp84;
+    carry[5] = tmp85;
+    carry[6] = tmp86;
 }
 
-static void mekf_k_update_heading_part1(const float P[36], float carry[28])
+static void mekf_k_update_heading_part3(const float P[36], float carry[30])
 {
-    const float tmp160 = carry[22] - carry[24];
-    const float tmp161 = (1e-12f < carry[0]) ? tmp160 : P[3];
-    const float tmp162 = carry[10] * carry[16];
+    const float tmp87 = carry[13] * carry[3];
+    const float tmp88 = carry[17] * tmp87;
+    const float tmp89 = carry[6] + tmp88;
+    const float tmp90 = carry[14] * carry[3];
+    const float tmp91 = carry[18] * tmp90;
+    const float tmp92 = tmp89 + tmp91;
+    const float tmp93 = tmp92 * carry[0];
+    const float tmp94 = carry[16] * carry[2];
+    const float tmp95 = tmp94 * carry[5];
+    const float tmp96 = carry[16] * carry[16];
+    const float tmp97 = tmp96 * tmp87;
+    const float tmp98 = tmp95 + tmp97;
+    const float tmp99 = carry[16] * carry[10];
+    const float tmp100 = tmp99 * tmp90;
+    const float tmp101 = tmp98 + tmp100;
+    const float tmp102 = tmp101 * carry[0];
+    const float tmp103 = carry[10] * carry[2];
+    const float tmp104 = tmp103 * carry[5];
+    const float tmp105 = carry[10] * carry[16];
+    const float tmp106 = tmp105 * tmp87;
+    const float tmp107 = tmp104 + tmp106;
+    const float tmp108 = carry[10] * carry[10];
+    const float tmp109 = tmp108 * tmp90;
+    const float tmp110 = tmp107 + tmp109;
+    const float tmp111 = tmp110 * carry[0];
+    const float tmp112 = P[3] * carry[4];
+    const float tmp113 = P[9] * carry[7];
+    const float tmp114 = tmp112 + tmp113;
+    const float tmp115 = P[15] * carry[11];
+    const float tmp116 = tmp114 + tmp115;
+    const float tmp117 = tmp116 * carry[3];
+    const float tmp118 = tmp117 * carry[0];
+    const float tmp119 = P[4] * carry[4];
+    const float tmp120 = P[10] * carry[7];
+    const float tmp121 = tmp119 + tmp120;
+    const float tmp122 = P[16] * carry[11];
+    const float tmp123 = tmp121 + tmp122;
+    const float tmp124 = tmp123 * carry[3];
+    const float tmp125 = tmp124 * carry[0];
+    const float tmp126 = P[5] * carry[4];
+    carry[2] = tmp92;
+    carry[4] = tmp93;
+    carry[5] = tmp101;
+    carry[6] = tmp102;
+    carry[8] = tmp110;
+    carry[9] = tmp111;
+    carry[10] = tmp116;
+    carry[15] = tmp117;
+    carry[16] = tmp118;
+    carry[17] = tmp123;
+    carry[18] = tmp124;
+    carry[19] = tmp125;
+    carry[20] = tmp126;
+}
+
+static void mekf_k_update_heading_part4(const float P[36], float carry[30])
+{
+    const float tmp127 = P[11] * carry[7];
+    const float tmp128 = carry[20] + tmp127;
+    const float tmp129 = P[17] * carry[11];
+    const float tmp130 = tmp128 + tmp129;
+    const float tmp131 = tmp130 * carry[3];
+    const float tmp132 = tmp131 * carry[0];
+    const float tmp133 = 0.5f * carry[1];
+    const float tmp134 = tmp133 * carry[2];
+    const float tmp135 = carry[12] - tmp134;
+    const float tmp136 = carry[2] * tmp135;
+    const float tmp137 = P[0] - tmp136;
+    const float tmp138 = tmp135 * carry[2];
+    const float tmp139 = tmp137 - tmp138;
+    const float tmp140 = (1e-12f < carry[1]) ? tmp139 : P[0];
+    const float tmp141 = carry[5] * tmp135;
+    const float tmp142 = P[1] - tmp141;
+    const float tmp143 = tmp133 * carry[5];
+    const float tmp144 = carry[13] - tmp143;
+    const float tmp145 = tmp144 * carry[2];
+    const float tmp146 = tmp142 - tmp145;
+    const float tmp147 = (1e-12f < carry[1]) ? tmp146 : P[1];
+    const float tmp148 = carry[8] * tmp135;
+    const float tmp149 = P[2] - tmp148;
+    const float tmp150 = tmp133 * carry[8];
+    const float tmp151 = carry[14] - tmp150;
+    const float tmp152 = tmp151 * carry[2];
+    const float tmp153 = tmp149 - tmp152;
+    const float tmp154 = (1e-12f < carry[1]) ? tmp153 : P[2];
+    const float tmp155 = carry[15] * tmp135;
+    const float tmp156 = P[3] - tmp155;
+    const float tmp157 = tmp133 * carry[15];
+    const float tmp158 = carry[10] - tmp157;
+    const float tmp159 = tmp158 * carry[2];
+    const float tmp160 = tmp156 - tmp159;
+    const float tmp161 = (1e-12f < carry[1]) ? tmp160 : P[3];
+    const float tmp162 = carry[18] * tmp135;
     const float tmp163 = P[4] - tmp162;
-    const float tmp164 = carry[15] * carry[10];
-    const float tmp165 = carry[9] - tmp164;
-    const float tmp166 = tmp165 * carry[1];
-    const float tmp167 = tmp163 - tmp166;
-    const float tmp168 = (1e-12f < carry[0]) ? tmp167 : P[4];
-    const float tmp169 = carry[13] * carry[16];
+    const float tmp164 = tmp133 * carry[18];
+    const float tmp165 = carry[17] - tmp164;
+    const float tmp166 = tmp165 * carry[2];
+    carry[0] = tmp130;
+    carry[3] = tmp131;
+    carry[7] = tmp132;
+    carry[10] = tmp133;
+    carry[11] = tmp135;
+    carry[12] = tmp140;
+    carry[13] = tmp144;
+    carry[14] = tmp147;
+    carry[17] = tmp151;
+    carry[20] = tmp154;
+    carry[21] = tmp158;
+    carry[22] = tmp161;
+    carry[23] = tmp163;
+    carry[24] = tmp165;
+    carry[25] = tmp166;
+}
+
+static void mekf_k_update_heading_part5(const float P[36], float carry[30])
+{
+    const float tmp167 = carry[23] - carry[25];
+    const float tmp168 = (1e-12f < carry[1]) ? tmp167 : P[4];
+    const float tmp169 = carry[3] * carry[11];
     const float tmp170 = P[5] - tmp169;
-    const float tmp171 = carry[15] * carry[13];
-    const float tmp172 = carry[12] - tmp171;
-    const float tmp173 = tmp172 * carry[1];
+    const float tmp171 = carry[10] * carry[3];
+    const float tmp172 = carry[0] - tmp171;
+    const float tmp173 = tmp172 * carry[2];
     const float tmp174 = tmp170 - tmp173;
-    const float tmp175 = (1e-12f < carry[0]) ? tmp174 : P[5];
-    const float tmp176 = carry[3] * carry[18];
+    const float tmp175 = (1e-12f < carry[1]) ? tmp174 : P[5];
+    const float tmp176 = carry[5] * carry[13];
     const float tmp177 = P[7] - tmp176;
-    const float tmp178 = carry[18] * carry[3];
+    const float tmp178 = carry[13] * carry[5];
     const float tmp179 = tmp177 - tmp178;
-    const float tmp180 = (1e-12f < carry[0]) ? tmp179 : P[7];
-    const float tmp181 = carry[5] * carry[18];
+    const float tmp180 = (1e-12f < carry[1]) ? tmp179 : P[7];
+    const float tmp181 = carry[8] * carry[13];
     const float tmp182 = P[8] - tmp181;
-    const float tmp183 = carry[20] * carry[3];
+    const float tmp183 = carry[17] * carry[5];
     const float tmp184 = tmp182 - tmp183;
-    const float tmp185 = (1e-12f < carry[0]) ? tmp184 : P[8];
-    const float tmp186 = carry[7] * carry[18];
+    const float tmp185 = (1e-12f < carry[1]) ? tmp184 : P[8];
+    const float tmp186 = carry[15] * carry[13];
     const float tmp187 = P[9] - tmp186;
-    const float tmp188 = carry[23] * carry[3];
+    const float tmp188 = carry[21] * carry[5];
     const float tmp189 = tmp187 - tmp188;
-    const float tmp190 = (1e-12f < carry[0]) ? tmp189 : P[9];
-    const float tmp191 = carry[10] * carry[18];
+    const float tmp190 = (1e-12f < carry[1]) ? tmp189 : P[9];
+    const float tmp191 = carry[18] * carry[13];
     const float tmp192 = P[10] - tmp191;
-    const float tmp193 = tmp165 * carry[3];
+    const float tmp193 = carry[24] * carry[5];
     const float tmp194 = tmp192 - tmp193;
-    const float tmp195 = (1e-12f < carry[0]) ? tmp194 : P[10];
-    const float tmp196 = carry[13] * carry[18];
+    const float tmp195 = (1e-12f < carry[1]) ? tmp194 : P[10];
+    const float tmp196 = carry[3] * carry[13];
     const float tmp197 = P[11] - tmp196;
-    const float tmp198 = tmp172 * carry[3];
+    const float tmp198 = tmp172 * carry[5];
     const float tmp199 = tmp197 - tmp198;
-    const float tmp200 = (1e-12f < carry[0]) ? tmp199 : P[11];
-    const float tmp201 = carry[5] * carry[20];
+    const float tmp200 = (1e-12f < carry[1]) ? tmp199 : P[11];
+    const float tmp201 = carry[8] * carry[17];
     const float tmp202 = P[14] - tmp201;
-    const float tmp203 = carry[20] * carry[5];
+    const float tmp203 = carry[17] * carry[8];
     const float tmp204 = tmp202 - tmp203;
-    const float tmp205 = (1e-12f < carry[0]) ? tmp204 : P[14];
-    const float tmp206 = carry[7] * carry[20];
-    const float tmp207 = P[15] - tmp206;
-    const float tmp208 = carry[23] * carry[5];
-    const float tmp209 = tmp207 - tmp208;
-    const float tmp210 = (1e-12f < carry[0]) ? tmp209 : P[15];
-    const float tmp211 = carry[10] * carry[20];
-    const float tmp212 = P[16] - tmp211;
-    const float tmp213 = tmp165 * carry[5];
-    const float tmp214 = tmp212 - tmp213;
-    const float tmp215 = (1e-12f < carry[0]) ? tmp214 : P[16];
-    const float tmp216 = carry[13] * carry[20];
-    const float tmp217 = P[17] - tmp216;
-    const float tmp218 = tmp172 * carry[5];
-    const float tmp219 = tmp217 - tmp218;
-    const float tmp220 = (1e-12f < carry[0]) ? tmp219 : P[17];
-    const float tmp221 = carry[7] * carry[23];
-    const float tmp222 = P[21] - tmp221;
-    const float tmp223 = carry[23] * carry[7];
-    const float tmp224 = tmp222 - tmp223;
-    const float tmp225 = (1e-12f < carry[0]) ? tmp224 : P[21];
-    const float tmp226 = carry[10] * carry[23];
-    const float tmp227 = P[22] - tmp226;
-    const float tmp228 = tmp165 * carry[7];
-    const float tmp229 = tmp227 - tmp228;
-    const float tmp230 = (1e-12f < carry[0]) ? tmp229 : P[22];
-    const float tmp231 = carry[13] * carry[23];
-    const float tmp232 = P[23] - tmp231;
-    const float tmp233 = tmp172 * carry[7];
-    const float tmp234 = tmp232 - tmp233;
-    const float tmp235 = (1e-12f < carry[0]) ? tmp234 : P[23];
-    const float tmp236 = carry[10] * tmp165;
-    const float tmp237 = P[28] - tmp236;
-    const float tmp238 = tmp165 * carry[10];
-    const float tmp239 = tmp237 - tmp238;
-    const float tmp240 = (1e-12f < carry[0]) ? tmp239 : P[28];
-    const float tmp241 = carry[13] * tmp165;
-    const float tmp242 = P[29] - tmp241;
-    const float tmp243 = tmp172 * carry[10];
-    const float tmp244 = tmp242 - tmp243;
-    const float tmp245 = (1e-12f < carry[0]) ? tmp244 : P[29];
-    const float tmp246 = carry[13] * tmp172;
-    const float tmp247 = P[35] - tmp246;
-    const float tmp248 = tmp172 * carry[13];
-    const float tmp249 = tmp247 - tmp248;
-    const float tmp250 = (1e-12f < carry[0]) ? tmp249 : P[35];
-    carry[1] = tmp161;
-    carry[3] = tmp168;
+    const float tmp205 = (1e-12f < carry[1]) ? tmp204 : P[14];
+    const float tmp206 = carry[15] * carry[17];
+    carry[0] = tmp168;
+    carry[2] = tmp172;
     carry[5] = tmp175;
-    carry[7] = tmp180;
-    carry[9] = tmp185;
-    carry[10] = tmp190;
-    carry[12] = tmp195;
-    carry[13] = tmp200;
-    carry[15] = tmp205;
-    carry[16] = tmp210;
-    carry[18] = tmp215;
-    carry[20] = tmp220;
-    carry[22] = tmp225;
-    carry[23] = tmp230;
+    carry[10] = tmp180;
+    carry[11] = tmp185;
+    carry[13] = tmp190;
+    carry[23] = tmp195;
+    carry[25] = tmp200;
+    carry[26] = tmp205;
+    carry[27] = tmp206;
+}
+
+static void mekf_k_update_heading_part6(const float P[36], float carry[30])
+{
+    const float tmp207 = P[15] - carry[27];
+    const float tmp208 = carry[21] * carry[8];
+    const float tmp209 = tmp207 - tmp208;
+    const float tmp210 = (1e-12f < carry[1]) ? tmp209 : P[15];
+    const float tmp211 = carry[18] * carry[17];
+    const float tmp212 = P[16] - tmp211;
+    const float tmp213 = carry[24] * carry[8];
+    const float tmp214 = tmp212 - tmp213;
+    const float tmp215 = (1e-12f < carry[1]) ? tmp214 : P[16];
+    const float tmp216 = carry[3] * carry[17];
+    const float tmp217 = P[17] - tmp216;
+    const float tmp218 = carry[2] * carry[8];
+    const float tmp219 = tmp217 - tmp218;
+    const float tmp220 = (1e-12f < carry[1]) ? tmp219 : P[17];
+    const float tmp221 = carry[15] * carry[21];
+    const float tmp222 = P[21] - tmp221;
+    const float tmp223 = carry[21] * carry[15];
+    const float tmp224 = tmp222 - tmp223;
+    const float tmp225 = (1e-12f < carry[1]) ? tmp224 : P[21];
+    const float tmp226 = carry[18] * carry[21];
+    const float tmp227 = P[22] - tmp226;
+    const float tmp228 = carry[24] * carry[15];
+    const float tmp229 = tmp227 - tmp228;
+    const float tmp230 = (1e-12f < carry[1]) ? tmp229 : P[22];
+    const float tmp231 = carry[3] * carry[21];
+    const float tmp232 = P[23] - tmp231;
+    const float tmp233 = carry[2] * carry[15];
+    const float tmp234 = tmp232 - tmp233;
+    const float tmp235 = (1e-12f < carry[1]) ? tmp234 : P[23];
+    const float tmp236 = carry[18] * carry[24];
+    const float tmp237 = P[28] - tmp236;
+    const float tmp238 = carry[24] * carry[18];
+    const float tmp239 = tmp237 - tmp238;
+    const float tmp240 = (1e-12f < carry[1]) ? tmp239 : P[28];
+    const float tmp241 = carry[3] * carry[24];
+    const float tmp242 = P[29] - tmp241;
+    const float tmp243 = carry[2] * carry[18];
+    const float tmp244 = tmp242 - tmp243;
+    const float tmp245 = (1e-12f < carry[1]) ? tmp244 : P[29];
+    const float tmp246 = carry[3] * carry[2];
+    carry[8] = tmp210;
+    carry[15] = tmp215;
+    carry[17] = tmp220;
+    carry[18] = tmp225;
+    carry[21] = tmp230;
     carry[24] = tmp235;
-    carry[25] = tmp240;
-    carry[26] = tmp245;
-    carry[27] = tmp250;
+    carry[27] = tmp240;
+    carry[28] = tmp245;
+    carry[29] = tmp246;
+}
+
+static void mekf_k_update_heading_part7(const float P[36], float carry[30])
+{
+    const float tmp247 = P[35] - carry[29];
+    const float tmp248 = carry[2] * carry[3];
+    const float tmp249 = tmp247 - tmp248;
+    const float tmp250 = (1e-12f < carry[1]) ? tmp249 : P[35];
+    carry[2] = tmp250;
 }
 
 static void mekf_k_update_heading(const float q[4], const float P[36], const float mag[3], const float vel[3], bool use_course, float x_out[6], float P_out[36], float *s)
 {
-    /* 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
-    float carry[28];
-    mekf_k_update_heading_part0(q, P, mag, vel, use_course, carry);
-    mekf_k_update_heading_part1(P, carry);
-    x_out[0] = carry[2];
-    x_out[1] = carry[4];
-    x_out[2] = carry[6];
-    x_out[3] = carry[8];
-    x_out[4] = carry[11];
-    x_out[5] = carry[14];
-    P_out[0] = carry[17];
-    P_out[1] = carry[19];
-    P_out[2] = carry[21];
-    P_out[3] = carry[1];
-    P_out[4] = carry[3];
+    /* 8 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    float carry[30];
+    mekf_k_update_heading_part0(q, P, carry);
+    mekf_k_update_heading_part1(q, carry);
+    mekf_k_update_heading_part2(mag, vel, use_course, carry);
+    mekf_k_update_heading_part3(P, carry);
+    mekf_k_update_heading_part4(P, carry);
+    mekf_k_update_heading_part5(P, carry);
+    mekf_k_update_heading_part6(P, carry);
+    mekf_k_update_heading_part7(P, carry);
+    x_out[0] = carry[4];
+    x_out[1] = carry[6];
+    x_out[2] = carry[9];
+    x_out[3] = carry[16];
+    x_out[4] = carry[19];
+    x_out[5] = carry[7];
+    P_out[0] = carry[12];
+    P_out[1] = carry[14];
+    P_out[2] = carry[20];
+    P_out[3] = carry[22];
+    P_out[4] = carry[0];
     P_out[5] = carry[5];
-    P_out[6] = carry[19];
-    P_out[7] = carry[7];
-    P_out[8] = carry[9];
-    P_out[9] = carry[10];
-    P_out[10] = carry[12];
-    P_out[11] = carry[13];
-    P_out[12] = carry[21];
-    P_out[13] = carry[9];
-    P_out[14] = carry[15];
-    P_out[15] = carry[16];
-    P_out[16] = carry[18];
-    P_out[17] = carry[20];
-    P_out[18] = carry[1];
-    P_out[19] = carry[10];
-    P_out[20] = carry[16];
-    P_out[21] = carry[22];
-    P_out[22] = carry[23];
+    P_out[6] = carry[14];
+    P_out[7] = carry[10];
+    P_out[8] = carry[11];
+    P_out[9] = carry[13];
+    P_out[10] = carry[23];
+    P_out[11] = carry[25];
+    P_out[12] = carry[20];
+    P_out[13] = carry[11];
+    P_out[14] = carry[26];
+    P_out[15] = carry[8];
+    P_out[16] = carry[15];
+    P_out[17] = carry[17];
+    P_out[18] = carry[22];
+    P_out[19] = carry[13];
+    P_out[20] = carry[8];
+    P_out[21] = carry[18];
+    P_out[22] = carry[21];
     P_out[23] = carry[24];
-    P_out[24] = carry[3];
-    P_out[25] = carry[12];
-    P_out[26] = carry[18];
-    P_out[27] = carry[23];
-    P_out[28] = carry[25];
-    P_out[29] = carry[26];
+    P_out[24] = carry[0];
+    P_out[25] = carry[23];
+    P_out[26] = carry[15];
+    P_out[27] = carry[21];
+    P_out[28] = carry[27];
+    P_out[29] = carry[28];
     P_out[30] = carry[5];
-    P_out[31] = carry[13];
-    P_out[32] = carry[20];
+    P_out[31] = carry[25];
+    P_out[32] = carry[17];
     P_out[33] = carry[24];
-    P_out[34] = carry[26];
-    P_out[35] = carry[27];
-    *s = carry[0];
+    P_out[34] = carry[28];
+    P_out[35] = carry[2];
+    *s = carry[1];
 }
 
 /* first attitude and low-pass state
  * ops: add 40, mul 42, sqrt 1, trig 14, cmp 4 (total 101)
  *      of which only one side runs: if (use[0]) 1, else 21
  *      of which only one side runs: if (use[1]) 20, else 0 */
-static void mekf_k_init_attitude(const float accel[3], const float mag[3], const float vel[3], const bool use[2], float q_out[4], float a_lp_out[3])
+static void mekf_k_init_attitude_part0(const float accel[3], const float mag[3], const float vel[3], const bool use[2], float carry[11])
 {
     const float tmp0 = -accel[1];
     const float tmp1 = -accel[2];
@@ -2031,20 +2396,32 @@ static void mekf_k_init_attitude(const float accel[3], const float mag[3], const
     const float tmp37 = fast_cosf(tmp36);
     const float tmp38 = tmp35 * tmp37;
     const float tmp39 = fast_sinf(tmp31);
-    const float tmp40 = fast_sinf(tmp33);
-    const float tmp41 = tmp39 * tmp40;
-    const float tmp42 = fast_sinf(tmp36);
+    carry[0] = tmp32;
+    carry[1] = tmp33;
+    carry[2] = tmp34;
+    carry[3] = tmp35;
+    carry[4] = tmp36;
+    carry[5] = tmp37;
+    carry[6] = tmp38;
+    carry[7] = tmp39;
+}
+
+static void mekf_k_init_attitude_part1(const float accel[3], float carry[11])
+{
+    const float tmp40 = fast_sinf(carry[1]);
+    const float tmp41 = carry[7] * tmp40;
+    const float tmp42 = fast_sinf(carry[4]);
     const float tmp43 = tmp41 * tmp42;
-    const float tmp44 = tmp38 + tmp43;
-    const float tmp45 = tmp35 * tmp42;
-    const float tmp46 = tmp41 * tmp37;
+    const float tmp44 = carry[6] + tmp43;
+    const float tmp45 = carry[3] * tmp42;
+    const float tmp46 = tmp41 * carry[5];
     const float tmp47 = tmp45 - tmp46;
-    const float tmp48 = tmp32 * tmp40;
-    const float tmp49 = tmp48 * tmp37;
-    const float tmp50 = tmp39 * tmp34;
+    const float tmp48 = carry[0] * tmp40;
+    const float tmp49 = tmp48 * carry[5];
+    const float tmp50 = carry[7] * carry[2];
     const float tmp51 = tmp50 * tmp42;
     const float tmp52 = tmp49 + tmp51;
-    const float tmp53 = tmp50 * tmp37;
+    const float tmp53 = tmp50 * carry[5];
     const float tmp54 = tmp48 * tmp42;
     const float tmp55 = tmp53 - tmp54;
     const float tmp56 = tmp52 * tmp52;
@@ -2071,34 +2448,60 @@ static void mekf_k_init_attitude(const float accel[3], const float mag[3], const
     const float tmp77 = tmp47 * tmp47;
     const float tmp78 = tmp77 + tmp57;
     const float tmp79 = tmp78 + tmp78;
-    const float tmp80 = 1.0f - tmp79;
+    carry[0] = tmp44;
+    carry[1] = tmp47;
+    carry[2] = tmp52;
+    carry[3] = tmp55;
+    carry[4] = tmp56;
+    carry[5] = tmp68;
+    carry[6] = tmp69;
+    carry[7] = tmp73;
+    carry[8] = tmp76;
+    carry[9] = tmp77;
+    carry[10] = tmp79;
+}
+
+static void mekf_k_init_attitude_part2(const float accel[3], float carry[11])
+{
+    const float tmp80 = 1.0f - carry[10];
     const float tmp81 = tmp80 * accel[1];
-    const float tmp82 = tmp76 + tmp81;
-    const float tmp83 = tmp52 * tmp55;
-    const float tmp84 = tmp44 * tmp47;
+    const float tmp82 = carry[8] + tmp81;
+    const float tmp83 = carry[2] * carry[3];
+    const float tmp84 = carry[0] * carry[1];
     const float tmp85 = tmp83 - tmp84;
     const float tmp86 = tmp85 + tmp85;
     const float tmp87 = tmp86 * accel[2];
     const float tmp88 = tmp82 + tmp87;
-    const float tmp89 = tmp68 - tmp69;
+    const float tmp89 = carry[5] - carry[6];
     const float tmp90 = tmp89 + tmp89;
     const float tmp91 = tmp90 * accel[0];
     const float tmp92 = tmp83 + tmp84;
     const float tmp93 = tmp92 + tmp92;
     const float tmp94 = tmp93 * accel[1];
     const float tmp95 = tmp91 + tmp94;
-    const float tmp96 = tmp77 + tmp56;
+    const float tmp96 = carry[9] + carry[4];
     const float tmp97 = tmp96 + tmp96;
     const float tmp98 = 1.0f - tmp97;
     const float tmp99 = tmp98 * accel[2];
     const float tmp100 = tmp95 + tmp99;
-    q_out[0] = tmp44;
-    q_out[1] = tmp47;
-    q_out[2] = tmp52;
-    q_out[3] = tmp55;
-    a_lp_out[0] = tmp73;
-    a_lp_out[1] = tmp88;
-    a_lp_out[2] = tmp100;
+    carry[4] = tmp88;
+    carry[5] = tmp100;
+}
+
+static void mekf_k_init_attitude(const float accel[3], const float mag[3], const float vel[3], const bool use[2], float q_out[4], float a_lp_out[3])
+{
+    /* 3 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    float carry[11];
+    mekf_k_init_attitude_part0(accel, mag, vel, use, carry);
+    mekf_k_init_attitude_part1(accel, carry);
+    mekf_k_init_attitude_part2(accel, carry);
+    q_out[0] = carry[0];
+    q_out[1] = carry[1];
+    q_out[2] = carry[2];
+    q_out[3] = carry[3];
+    a_lp_out[0] = carry[7];
+    a_lp_out[1] = carry[4];
+    a_lp_out[2] = carry[5];
 }
 
 /* Z-Y-X Euler angles [roll, pitch, yaw] of a unit body->NED quaternion

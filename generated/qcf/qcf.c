@@ -90,7 +90,7 @@ static float fast_atan2f(float y, float x)
  * ops: add 64, mul 60, div 7, sqrt 9, cmp 19 (total 159)
  *      of which only one side runs: if (tmp12 < 1e-06f) 0, else 7
  *      of which only one side runs: if (use_mag) 64, else 1 */
-static void qcf_k_init_attitude(const float accel[3], const float mag[3], bool use_mag, float q[4], float accel_lp[3])
+static void qcf_k_init_attitude_part0(const float accel[3], float carry[9])
 {
     const float tmp0 = accel[0] * accel[0];
     const float tmp1 = accel[1] * accel[1];
@@ -139,30 +139,45 @@ static void qcf_k_init_attitude(const float accel[3], const float mag[3], bool u
     const float tmp37 = sqrtf(tmp36);
     const float tmp38 = tmp34 * tmp37;
     const float tmp39 = tmp18 * tmp38;
-    const float tmp40 = 1.0f + tmp14;
+    carry[0] = tmp14;
+    carry[1] = tmp32;
+    carry[2] = tmp33;
+    carry[3] = tmp38;
+    carry[4] = tmp39;
+}
+
+static void qcf_k_init_attitude_part1(float carry[9])
+{
+    const float tmp40 = 1.0f + carry[0];
     const float tmp41 = tmp40 * 0.5f;
     const float tmp42 = sqrtf(tmp41);
-    const float tmp43 = tmp42 * tmp38;
-    const float tmp44 = tmp42 * tmp32;
+    const float tmp43 = tmp42 * carry[3];
+    const float tmp44 = tmp42 * carry[1];
+    carry[0] = tmp43;
+    carry[1] = tmp44;
+}
+
+static void qcf_k_init_attitude_part2(const float mag[3], bool use_mag, float carry[9])
+{
     float tmp45;
     float tmp46;
     float tmp47;
     float tmp48;
     if (use_mag) {
-        const float tmp49 = tmp33 * tmp33;
-        const float tmp50 = tmp39 * tmp39;
+        const float tmp49 = carry[2] * carry[2];
+        const float tmp50 = carry[4] * carry[4];
         const float tmp51 = tmp49 + tmp50;
         const float tmp52 = tmp51 + tmp51;
         const float tmp53 = 1.0f - tmp52;
         const float tmp54 = tmp53 * mag[0];
-        const float tmp55 = tmp43 * tmp33;
-        const float tmp56 = tmp44 * tmp39;
+        const float tmp55 = carry[0] * carry[2];
+        const float tmp56 = carry[1] * carry[4];
         const float tmp57 = tmp55 + tmp56;
         const float tmp58 = tmp57 + tmp57;
         const float tmp59 = tmp58 * mag[1];
         const float tmp60 = tmp54 + tmp59;
-        const float tmp61 = tmp44 * tmp33;
-        const float tmp62 = tmp43 * tmp39;
+        const float tmp61 = carry[1] * carry[2];
+        const float tmp62 = carry[0] * carry[4];
         const float tmp63 = tmp61 - tmp62;
         const float tmp64 = tmp63 + tmp63;
         const float tmp65 = tmp64 * mag[2];
@@ -171,14 +186,14 @@ static void qcf_k_init_attitude(const float accel[3], const float mag[3], bool u
         const float tmp68 = tmp55 - tmp56;
         const float tmp69 = tmp68 + tmp68;
         const float tmp70 = tmp69 * mag[0];
-        const float tmp71 = tmp43 * tmp43;
+        const float tmp71 = carry[0] * carry[0];
         const float tmp72 = tmp71 + tmp50;
         const float tmp73 = tmp72 + tmp72;
         const float tmp74 = 1.0f - tmp73;
         const float tmp75 = tmp74 * mag[1];
         const float tmp76 = tmp70 + tmp75;
-        const float tmp77 = tmp33 * tmp39;
-        const float tmp78 = tmp44 * tmp43;
+        const float tmp77 = carry[2] * carry[4];
+        const float tmp78 = carry[1] * carry[0];
         const float tmp79 = tmp77 + tmp78;
         const float tmp80 = -tmp79;
         const float tmp81 = tmp80 + tmp80;
@@ -194,7 +209,7 @@ static void qcf_k_init_attitude(const float accel[3], const float mag[3], bool u
         const float tmp91 = 1.0f + tmp90;
         const float tmp92 = tmp91 * 0.5f;
         const float tmp93 = sqrtf(tmp92);
-        const float tmp94 = tmp93 * tmp44;
+        const float tmp94 = tmp93 * carry[1];
         const float tmp95 = tmp83 / tmp87;
         const float tmp96 = -tmp95;
         const float tmp97 = (tmp96 < 0.0f) ? (-1.0f) : 1.0f;
@@ -202,42 +217,50 @@ static void qcf_k_init_attitude(const float accel[3], const float mag[3], bool u
         const float tmp99 = tmp98 * 0.5f;
         const float tmp100 = sqrtf(tmp99);
         const float tmp101 = tmp97 * tmp100;
-        const float tmp102 = tmp101 * tmp39;
+        const float tmp102 = tmp101 * carry[4];
         const float tmp103 = tmp94 + tmp102;
-        const float tmp104 = tmp93 * tmp43;
-        const float tmp105 = tmp101 * tmp33;
+        const float tmp104 = tmp93 * carry[0];
+        const float tmp105 = tmp101 * carry[2];
         const float tmp106 = tmp104 - tmp105;
-        const float tmp107 = tmp93 * tmp33;
-        const float tmp108 = tmp101 * tmp43;
+        const float tmp107 = tmp93 * carry[2];
+        const float tmp108 = tmp101 * carry[0];
         const float tmp109 = tmp107 + tmp108;
-        const float tmp110 = tmp101 * tmp44;
-        const float tmp111 = tmp93 * tmp39;
+        const float tmp110 = tmp101 * carry[1];
+        const float tmp111 = tmp93 * carry[4];
         const float tmp112 = tmp110 - tmp111;
         tmp45 = tmp103;
         tmp46 = tmp106;
         tmp47 = tmp109;
         tmp48 = tmp112;
     } else {
-        const float tmp113 = -tmp39;
-        tmp45 = tmp44;
-        tmp46 = tmp43;
-        tmp47 = tmp33;
+        const float tmp113 = -carry[4];
+        tmp45 = carry[1];
+        tmp46 = carry[0];
+        tmp47 = carry[2];
         tmp48 = tmp113;
     }
-    const float tmp114 = tmp47 * tmp47;
-    const float tmp115 = tmp48 * tmp48;
+    carry[0] = tmp45;
+    carry[1] = tmp46;
+    carry[2] = tmp47;
+    carry[3] = tmp48;
+}
+
+static void qcf_k_init_attitude_part3(const float accel[3], float carry[9])
+{
+    const float tmp114 = carry[2] * carry[2];
+    const float tmp115 = carry[3] * carry[3];
     const float tmp116 = tmp114 + tmp115;
     const float tmp117 = tmp116 + tmp116;
     const float tmp118 = 1.0f - tmp117;
     const float tmp119 = tmp118 * accel[0];
-    const float tmp120 = tmp46 * tmp47;
-    const float tmp121 = tmp45 * tmp48;
+    const float tmp120 = carry[1] * carry[2];
+    const float tmp121 = carry[0] * carry[3];
     const float tmp122 = tmp120 - tmp121;
     const float tmp123 = tmp122 + tmp122;
     const float tmp124 = tmp123 * accel[1];
     const float tmp125 = tmp119 + tmp124;
-    const float tmp126 = tmp46 * tmp48;
-    const float tmp127 = tmp45 * tmp47;
+    const float tmp126 = carry[1] * carry[3];
+    const float tmp127 = carry[0] * carry[2];
     const float tmp128 = tmp126 + tmp127;
     const float tmp129 = tmp128 + tmp128;
     const float tmp130 = tmp129 * accel[2];
@@ -245,14 +268,14 @@ static void qcf_k_init_attitude(const float accel[3], const float mag[3], bool u
     const float tmp132 = tmp120 + tmp121;
     const float tmp133 = tmp132 + tmp132;
     const float tmp134 = tmp133 * accel[0];
-    const float tmp135 = tmp46 * tmp46;
+    const float tmp135 = carry[1] * carry[1];
     const float tmp136 = tmp135 + tmp115;
     const float tmp137 = tmp136 + tmp136;
     const float tmp138 = 1.0f - tmp137;
     const float tmp139 = tmp138 * accel[1];
     const float tmp140 = tmp134 + tmp139;
-    const float tmp141 = tmp47 * tmp48;
-    const float tmp142 = tmp45 * tmp46;
+    const float tmp141 = carry[2] * carry[3];
+    const float tmp142 = carry[0] * carry[1];
     const float tmp143 = tmp141 - tmp142;
     const float tmp144 = tmp143 + tmp143;
     const float tmp145 = tmp144 * accel[2];
@@ -264,24 +287,45 @@ static void qcf_k_init_attitude(const float accel[3], const float mag[3], bool u
     const float tmp151 = tmp150 + tmp150;
     const float tmp152 = tmp151 * accel[1];
     const float tmp153 = tmp149 + tmp152;
-    const float tmp154 = tmp135 + tmp114;
+    carry[4] = tmp114;
+    carry[5] = tmp131;
+    carry[6] = tmp135;
+    carry[7] = tmp146;
+    carry[8] = tmp153;
+}
+
+static void qcf_k_init_attitude_part4(const float accel[3], float carry[9])
+{
+    const float tmp154 = carry[6] + carry[4];
     const float tmp155 = tmp154 + tmp154;
     const float tmp156 = 1.0f - tmp155;
     const float tmp157 = tmp156 * accel[2];
-    const float tmp158 = tmp153 + tmp157;
-    q[0] = tmp45;
-    q[1] = tmp46;
-    q[2] = tmp47;
-    q[3] = tmp48;
-    accel_lp[0] = tmp131;
-    accel_lp[1] = tmp146;
-    accel_lp[2] = tmp158;
+    const float tmp158 = carry[8] + tmp157;
+    carry[4] = tmp158;
+}
+
+static void qcf_k_init_attitude(const float accel[3], const float mag[3], bool use_mag, float q[4], float accel_lp[3])
+{
+    /* 5 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    float carry[9];
+    qcf_k_init_attitude_part0(accel, carry);
+    qcf_k_init_attitude_part1(carry);
+    qcf_k_init_attitude_part2(mag, use_mag, carry);
+    qcf_k_init_attitude_part3(accel, carry);
+    qcf_k_init_attitude_part4(accel, carry);
+    q[0] = carry[0];
+    q[1] = carry[1];
+    q[2] = carry[2];
+    q[3] = carry[3];
+    accel_lp[0] = carry[5];
+    accel_lp[1] = carry[7];
+    accel_lp[2] = carry[4];
 }
 
 /* first magnetometer sample after a tilt-only start: heading set, tilt kept
  * ops: add 26, mul 30, div 1, sqrt 3, cmp 9 (total 69)
  *      of which only one side runs: if (tmp35 < 1e-30f) 0, else 20 */
-static void qcf_k_heading_init(const float q[4], const float mag[3], float q_new[4])
+static void qcf_k_heading_init_part0(const float q[4], const float mag[3], float carry[4])
 {
     const float tmp0 = q[2] * q[2];
     const float tmp1 = q[3] * q[3];
@@ -319,28 +363,35 @@ static void qcf_k_heading_init(const float q[4], const float mag[3], float q_new
     const float tmp33 = tmp27 + tmp32;
     const float tmp34 = tmp33 * tmp33;
     const float tmp35 = tmp18 + tmp34;
+    carry[0] = tmp17;
+    carry[1] = tmp33;
+    carry[2] = tmp35;
+}
+
+static void qcf_k_heading_init_part1(const float q[4], float carry[4])
+{
     float tmp36;
     float tmp37;
     float tmp38;
     float tmp39;
     float tmp40;
-    if (tmp35 < 1e-30f) {
+    if (carry[2] < 1e-30f) {
         tmp36 = 1.0f;
         tmp37 = 0.0f;
         tmp38 = 0.0f;
         tmp39 = 0.0f;
         tmp40 = 0.0f;
     } else {
-        const float tmp41 = (tmp35 > 1e-30f) ? tmp35 : 1e-30f;
+        const float tmp41 = (carry[2] > 1e-30f) ? carry[2] : 1e-30f;
         const float tmp42 = 1.0f / tmp41;
         const float tmp43 = sqrtf(tmp42);
-        const float tmp44 = tmp17 * tmp43;
+        const float tmp44 = carry[0] * tmp43;
         const float tmp45 = (tmp44 > (-1.0f)) ? tmp44 : (-1.0f);
         const float tmp46 = (tmp45 < 1.0f) ? tmp45 : 1.0f;
         const float tmp47 = 1.0f + tmp46;
         const float tmp48 = tmp47 * 0.5f;
         const float tmp49 = sqrtf(tmp48);
-        const float tmp50 = tmp33 * tmp43;
+        const float tmp50 = carry[1] * tmp43;
         const float tmp51 = -tmp50;
         const float tmp52 = (tmp51 < 0.0f) ? (-1.0f) : 1.0f;
         const float tmp53 = 1.0f - tmp46;
@@ -365,10 +416,22 @@ static void qcf_k_heading_init(const float q[4], const float mag[3], float q_new
     const float tmp66 = tmp65 + tmp39;
     const float tmp67 = tmp36 * q[3];
     const float tmp68 = tmp67 + tmp40;
-    q_new[0] = tmp62;
-    q_new[1] = tmp64;
-    q_new[2] = tmp66;
-    q_new[3] = tmp68;
+    carry[0] = tmp62;
+    carry[1] = tmp64;
+    carry[2] = tmp66;
+    carry[3] = tmp68;
+}
+
+static void qcf_k_heading_init(const float q[4], const float mag[3], float q_new[4])
+{
+    /* 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    float carry[4];
+    qcf_k_heading_init_part0(q, mag, carry);
+    qcf_k_heading_init_part1(q, carry);
+    q_new[0] = carry[0];
+    q_new[1] = carry[1];
+    q_new[2] = carry[2];
+    q_new[3] = carry[3];
 }
 
 /* low-pass of the specific force in NED, R(q) f (time constant accel_tau)
@@ -412,7 +475,7 @@ static inline void qcf_k_accel_lowpass(const float rot[9], const float accel[3],
  *      of which only one side runs: if (tmp99 < 1e-30f) 0, else 17
  *      of which only one side runs: if (tmp144 < 0.01f) 16, else 5
  *      of which only one side runs: if (at_rest) 11, else 18 */
-static void qcf_k_correct_part0(const float q[4], const float rot[9], const float gyro_bias[3], const float gyro[3], float dt, const float accel_lp[3], const float mag[3], float span_accel, float span_mag, float carry[7])
+static void qcf_k_correct_part0(const float gyro_bias[3], const float gyro[3], float dt, const float accel_lp[3], float carry[15])
 {
     const float tmp0 = gyro[0] - gyro_bias[0];
     const float tmp1 = tmp0 * dt;
@@ -425,6 +488,13 @@ static void qcf_k_correct_part0(const float q[4], const float rot[9], const floa
     const float tmp8 = sqrtf(tmp7);
     const float tmp9 = accel_lp[2] * tmp8;
     const float tmp10 = 1.0f - tmp9;
+    carry[0] = tmp1;
+    carry[1] = tmp8;
+    carry[2] = tmp10;
+}
+
+static void qcf_k_correct_part1(const float q[4], const float rot[9], const float accel_lp[3], float span_accel, float carry[15])
+{
     float tmp11;
     float tmp12;
     float tmp13;
@@ -437,7 +507,7 @@ static void qcf_k_correct_part0(const float q[4], const float rot[9], const floa
     float tmp20;
     float tmp21;
     float tmp22;
-    if (tmp10 < 1e-06f) {
+    if (carry[2] < 1e-06f) {
         tmp11 = 1.0f;
         tmp12 = 0.0f;
         tmp13 = 0.0f;
@@ -451,9 +521,9 @@ static void qcf_k_correct_part0(const float q[4], const float rot[9], const floa
         tmp21 = 0.0f;
         tmp22 = 0.0f;
     } else {
-        const float tmp23 = accel_lp[1] * tmp8;
-        const float tmp24 = tmp10 * tmp10;
-        const float tmp25 = accel_lp[0] * tmp8;
+        const float tmp23 = accel_lp[1] * carry[1];
+        const float tmp24 = carry[2] * carry[2];
+        const float tmp25 = accel_lp[0] * carry[1];
         const float tmp26 = tmp25 * tmp25;
         const float tmp27 = tmp24 + tmp26;
         const float tmp28 = tmp23 * tmp23;
@@ -466,7 +536,7 @@ static void qcf_k_correct_part0(const float q[4], const float rot[9], const floa
         const float tmp35 = tmp25 * tmp32;
         const float tmp36 = span_accel * tmp35;
         const float tmp37 = rot[1] * tmp36;
-        const float tmp38 = tmp10 * tmp32;
+        const float tmp38 = carry[2] * tmp32;
         const float tmp39 = tmp38 * q[2];
         const float tmp40 = tmp35 * q[0];
         const float tmp41 = tmp38 * q[3];
@@ -492,26 +562,44 @@ static void qcf_k_correct_part0(const float q[4], const float rot[9], const floa
     }
     const float tmp49 = span_accel * tmp11;
     const float tmp50 = rot[0] * tmp49;
-    const float tmp51 = tmp50 + tmp12;
-    const float tmp52 = tmp11 * q[3];
-    const float tmp53 = tmp13 - tmp52;
-    const float tmp54 = tmp53 + tmp14;
+    carry[1] = tmp11;
+    carry[2] = tmp12;
+    carry[3] = tmp13;
+    carry[4] = tmp14;
+    carry[5] = tmp15;
+    carry[6] = tmp16;
+    carry[7] = tmp17;
+    carry[8] = tmp18;
+    carry[9] = tmp19;
+    carry[10] = tmp20;
+    carry[11] = tmp21;
+    carry[12] = tmp22;
+    carry[13] = tmp49;
+    carry[14] = tmp50;
+}
+
+static void qcf_k_correct_part2(const float q[4], const float mag[3], float carry[15])
+{
+    const float tmp51 = carry[14] + carry[2];
+    const float tmp52 = carry[1] * q[3];
+    const float tmp53 = carry[3] - tmp52;
+    const float tmp54 = tmp53 + carry[4];
     const float tmp55 = tmp54 * tmp54;
-    const float tmp56 = tmp11 * q[2];
-    const float tmp57 = tmp15 + tmp56;
-    const float tmp58 = tmp57 - tmp16;
+    const float tmp56 = carry[1] * q[2];
+    const float tmp57 = carry[5] + tmp56;
+    const float tmp58 = tmp57 - carry[6];
     const float tmp59 = tmp58 * tmp58;
     const float tmp60 = tmp55 + tmp59;
     const float tmp61 = tmp60 + tmp60;
     const float tmp62 = 1.0f - tmp61;
     const float tmp63 = tmp62 * mag[0];
-    const float tmp64 = tmp11 * q[0];
-    const float tmp65 = tmp17 + tmp64;
-    const float tmp66 = tmp65 + tmp18;
+    const float tmp64 = carry[1] * q[0];
+    const float tmp65 = carry[7] + tmp64;
+    const float tmp66 = tmp65 + carry[8];
     const float tmp67 = tmp66 * tmp54;
-    const float tmp68 = tmp11 * q[1];
-    const float tmp69 = tmp19 - tmp68;
-    const float tmp70 = tmp69 - tmp20;
+    const float tmp68 = carry[1] * q[1];
+    const float tmp69 = carry[9] - tmp68;
+    const float tmp70 = tmp69 - carry[10];
     const float tmp71 = tmp70 * tmp58;
     const float tmp72 = tmp67 - tmp71;
     const float tmp73 = tmp72 + tmp72;
@@ -532,15 +620,28 @@ static void qcf_k_correct_part0(const float q[4], const float rot[9], const floa
     const float tmp88 = tmp87 + tmp87;
     const float tmp89 = 1.0f - tmp88;
     const float tmp90 = tmp89 * mag[1];
-    const float tmp91 = tmp85 + tmp90;
-    const float tmp92 = tmp54 * tmp58;
-    const float tmp93 = tmp70 * tmp66;
+    carry[1] = tmp51;
+    carry[2] = tmp54;
+    carry[3] = tmp58;
+    carry[4] = tmp66;
+    carry[5] = tmp70;
+    carry[6] = tmp81;
+    carry[7] = tmp82;
+    carry[8] = tmp85;
+    carry[9] = tmp90;
+}
+
+static void qcf_k_correct_part3(const float rot[9], const float gyro_bias[3], const float gyro[3], float dt, const float mag[3], float span_mag, float carry[15])
+{
+    const float tmp91 = carry[8] + carry[9];
+    const float tmp92 = carry[2] * carry[3];
+    const float tmp93 = carry[5] * carry[4];
     const float tmp94 = tmp92 - tmp93;
     const float tmp95 = tmp94 + tmp94;
     const float tmp96 = tmp95 * mag[2];
     const float tmp97 = tmp91 + tmp96;
     const float tmp98 = tmp97 * tmp97;
-    const float tmp99 = tmp82 + tmp98;
+    const float tmp99 = carry[7] + tmp98;
     float tmp100;
     float tmp101;
     float tmp102;
@@ -555,7 +656,7 @@ static void qcf_k_correct_part0(const float q[4], const float rot[9], const floa
         const float tmp106 = tmp97 * tmp105;
         const float tmp107 = -tmp106;
         const float tmp108 = (tmp107 < 0.0f) ? (-1.0f) : 1.0f;
-        const float tmp109 = tmp81 * tmp105;
+        const float tmp109 = carry[6] * tmp105;
         const float tmp110 = (tmp109 > (-1.0f)) ? tmp109 : (-1.0f);
         const float tmp111 = (tmp110 < 1.0f) ? tmp110 : 1.0f;
         const float tmp112 = 1.0f - tmp111;
@@ -570,65 +671,65 @@ static void qcf_k_correct_part0(const float q[4], const float rot[9], const floa
         tmp101 = tmp118;
         tmp102 = tmp119;
     }
-    const float tmp120 = tmp51 + tmp100;
+    const float tmp120 = carry[1] + tmp100;
     const float tmp121 = 0.3f * tmp120;
-    const float tmp122 = tmp1 + tmp121;
+    const float tmp122 = carry[0] + tmp121;
     const float tmp123 = 0.5f * tmp122;
     const float tmp124 = tmp123 * tmp123;
     const float tmp125 = gyro[1] - gyro_bias[1];
     const float tmp126 = tmp125 * dt;
-    const float tmp127 = rot[3] * tmp49;
-    const float tmp128 = tmp127 + tmp21;
+    const float tmp127 = rot[3] * carry[13];
+    const float tmp128 = tmp127 + carry[11];
     const float tmp129 = tmp128 + tmp101;
     const float tmp130 = 0.3f * tmp129;
-    const float tmp131 = tmp126 + tmp130;
+    carry[0] = tmp102;
+    carry[1] = tmp120;
+    carry[2] = tmp123;
+    carry[3] = tmp124;
+    carry[4] = tmp126;
+    carry[5] = tmp129;
+    carry[6] = tmp130;
+}
+
+static void qcf_k_correct_part4(const float q[4], const float rot[9], const float gyro_bias[3], const float gyro[3], float dt, float carry[15])
+{
+    const float tmp131 = carry[4] + carry[6];
     const float tmp132 = 0.5f * tmp131;
     const float tmp133 = tmp132 * tmp132;
-    const float tmp134 = tmp124 + tmp133;
+    const float tmp134 = carry[3] + tmp133;
     const float tmp135 = gyro[2] - gyro_bias[2];
     const float tmp136 = tmp135 * dt;
-    const float tmp137 = rot[6] * tmp49;
-    const float tmp138 = tmp137 + tmp22;
-    const float tmp139 = tmp138 + tmp102;
+    const float tmp137 = rot[6] * carry[13];
+    const float tmp138 = tmp137 + carry[12];
+    const float tmp139 = tmp138 + carry[0];
     const float tmp140 = 0.3f * tmp139;
     const float tmp141 = tmp136 + tmp140;
     const float tmp142 = 0.5f * tmp141;
     const float tmp143 = tmp142 * tmp142;
     const float tmp144 = tmp134 + tmp143;
-    carry[0] = tmp120;
-    carry[1] = tmp123;
-    carry[2] = tmp129;
-    carry[3] = tmp132;
-    carry[4] = tmp139;
-    carry[5] = tmp142;
-    carry[6] = tmp144;
-}
-
-static void qcf_k_correct_part1(const float q[4], const float gyro_bias[3], float span_accel, bool use_accel, const float accel[3], bool at_rest, const float rest_gyro_lp[3], float carry[7])
-{
     float tmp145;
     float tmp146;
-    if (carry[6] < 0.01f) {
-        const float tmp147 = 2.4801588e-05f * carry[6];
+    if (tmp144 < 0.01f) {
+        const float tmp147 = 2.4801588e-05f * tmp144;
         const float tmp148 = (-0.0013888889f) + tmp147;
-        const float tmp149 = carry[6] * tmp148;
+        const float tmp149 = tmp144 * tmp148;
         const float tmp150 = 0.041666668f + tmp149;
-        const float tmp151 = carry[6] * tmp150;
+        const float tmp151 = tmp144 * tmp150;
         const float tmp152 = (-0.5f) + tmp151;
-        const float tmp153 = carry[6] * tmp152;
+        const float tmp153 = tmp144 * tmp152;
         const float tmp154 = 1.0f + tmp153;
-        const float tmp155 = 2.7557319e-06f * carry[6];
+        const float tmp155 = 2.7557319e-06f * tmp144;
         const float tmp156 = (-0.0001984127f) + tmp155;
-        const float tmp157 = carry[6] * tmp156;
+        const float tmp157 = tmp144 * tmp156;
         const float tmp158 = 0.008333334f + tmp157;
-        const float tmp159 = carry[6] * tmp158;
+        const float tmp159 = tmp144 * tmp158;
         const float tmp160 = (-0.16666667f) + tmp159;
-        const float tmp161 = carry[6] * tmp160;
+        const float tmp161 = tmp144 * tmp160;
         const float tmp162 = 1.0f + tmp161;
         tmp145 = tmp154;
         tmp146 = tmp162;
     } else {
-        const float tmp163 = (carry[6] > 0.01f) ? carry[6] : 0.01f;
+        const float tmp163 = (tmp144 > 0.01f) ? tmp144 : 0.01f;
         const float tmp164 = sqrtf(tmp163);
         const float tmp165 = fast_cosf(tmp164);
         const float tmp166 = fast_sinf(tmp164);
@@ -637,18 +738,30 @@ static void qcf_k_correct_part1(const float q[4], const float gyro_bias[3], floa
         tmp146 = tmp167;
     }
     const float tmp168 = q[0] * tmp145;
-    const float tmp169 = tmp146 * carry[1];
+    const float tmp169 = tmp146 * carry[2];
     const float tmp170 = q[1] * tmp169;
-    const float tmp171 = tmp168 - tmp170;
-    const float tmp172 = tmp146 * carry[3];
+    carry[0] = tmp132;
+    carry[2] = tmp139;
+    carry[3] = tmp142;
+    carry[4] = tmp145;
+    carry[6] = tmp146;
+    carry[7] = tmp168;
+    carry[8] = tmp169;
+    carry[9] = tmp170;
+}
+
+static void qcf_k_correct_part5(const float q[4], float carry[15])
+{
+    const float tmp171 = carry[7] - carry[9];
+    const float tmp172 = carry[6] * carry[0];
     const float tmp173 = q[2] * tmp172;
     const float tmp174 = tmp171 - tmp173;
-    const float tmp175 = tmp146 * carry[5];
+    const float tmp175 = carry[6] * carry[3];
     const float tmp176 = q[3] * tmp175;
     const float tmp177 = tmp174 - tmp176;
     const float tmp178 = tmp177 * tmp177;
-    const float tmp179 = q[0] * tmp169;
-    const float tmp180 = q[1] * tmp145;
+    const float tmp179 = q[0] * carry[8];
+    const float tmp180 = q[1] * carry[4];
     const float tmp181 = tmp179 + tmp180;
     const float tmp182 = q[2] * tmp175;
     const float tmp183 = tmp181 + tmp182;
@@ -659,18 +772,18 @@ static void qcf_k_correct_part1(const float q[4], const float gyro_bias[3], floa
     const float tmp188 = q[0] * tmp172;
     const float tmp189 = q[1] * tmp175;
     const float tmp190 = tmp188 - tmp189;
-    const float tmp191 = q[2] * tmp145;
+    const float tmp191 = q[2] * carry[4];
     const float tmp192 = tmp190 + tmp191;
-    const float tmp193 = q[3] * tmp169;
+    const float tmp193 = q[3] * carry[8];
     const float tmp194 = tmp192 + tmp193;
     const float tmp195 = tmp194 * tmp194;
     const float tmp196 = tmp187 + tmp195;
     const float tmp197 = q[0] * tmp175;
     const float tmp198 = q[1] * tmp172;
     const float tmp199 = tmp197 + tmp198;
-    const float tmp200 = q[2] * tmp169;
+    const float tmp200 = q[2] * carry[8];
     const float tmp201 = tmp199 - tmp200;
-    const float tmp202 = q[3] * tmp145;
+    const float tmp202 = q[3] * carry[4];
     const float tmp203 = tmp201 + tmp202;
     const float tmp204 = tmp203 * tmp203;
     const float tmp205 = tmp196 + tmp204;
@@ -679,6 +792,14 @@ static void qcf_k_correct_part1(const float q[4], const float gyro_bias[3], floa
     const float tmp208 = tmp185 / tmp206;
     const float tmp209 = tmp194 / tmp206;
     const float tmp210 = tmp203 / tmp206;
+    carry[0] = tmp207;
+    carry[3] = tmp208;
+    carry[4] = tmp209;
+    carry[6] = tmp210;
+}
+
+static void qcf_k_correct_part6(const float gyro_bias[3], float span_accel, bool use_accel, const float accel[3], bool at_rest, const float rest_gyro_lp[3], float carry[15])
+{
     float tmp211;
     float tmp212;
     float tmp213;
@@ -707,46 +828,47 @@ static void qcf_k_correct_part1(const float q[4], const float gyro_bias[3], floa
         const float tmp231 = tmp230 - 9.80665f;
         const float tmp232 = fabsf(tmp231);
         const bool tmp233 = (use_accel) && (tmp232 < 1.0f);
-        const float tmp234 = 0.002f * carry[0];
+        const float tmp234 = 0.002f * carry[1];
         const float tmp235 = gyro_bias[0] - tmp234;
         const float tmp236 = (tmp233) ? tmp235 : gyro_bias[0];
-        const float tmp237 = 0.002f * carry[2];
+        const float tmp237 = 0.002f * carry[5];
         const float tmp238 = gyro_bias[1] - tmp237;
         const float tmp239 = (tmp233) ? tmp238 : gyro_bias[1];
-        const float tmp240 = 0.002f * carry[4];
+        const float tmp240 = 0.002f * carry[2];
         const float tmp241 = gyro_bias[2] - tmp240;
         const float tmp242 = (tmp233) ? tmp241 : gyro_bias[2];
         tmp211 = tmp236;
         tmp212 = tmp239;
         tmp213 = tmp242;
     }
-    carry[0] = tmp207;
-    carry[1] = tmp208;
-    carry[2] = tmp209;
-    carry[3] = tmp210;
-    carry[4] = tmp211;
-    carry[5] = tmp212;
-    carry[6] = tmp213;
+    carry[1] = tmp211;
+    carry[2] = tmp212;
+    carry[5] = tmp213;
 }
 
 static void qcf_k_correct(const float q[4], const float rot[9], const float gyro_bias[3], const float gyro[3], float dt, const float accel_lp[3], const float mag[3], float span_accel, float span_mag, bool use_accel, const float accel[3], bool at_rest, const float rest_gyro_lp[3], float q_new[4], float gyro_bias_new[3])
 {
-    /* 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
-    float carry[7];
-    qcf_k_correct_part0(q, rot, gyro_bias, gyro, dt, accel_lp, mag, span_accel, span_mag, carry);
-    qcf_k_correct_part1(q, gyro_bias, span_accel, use_accel, accel, at_rest, rest_gyro_lp, carry);
+    /* 7 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    float carry[15];
+    qcf_k_correct_part0(gyro_bias, gyro, dt, accel_lp, carry);
+    qcf_k_correct_part1(q, rot, accel_lp, span_accel, carry);
+    qcf_k_correct_part2(q, mag, carry);
+    qcf_k_correct_part3(rot, gyro_bias, gyro, dt, mag, span_mag, carry);
+    qcf_k_correct_part4(q, rot, gyro_bias, gyro, dt, carry);
+    qcf_k_correct_part5(q, carry);
+    qcf_k_correct_part6(gyro_bias, span_accel, use_accel, accel, at_rest, rest_gyro_lp, carry);
     q_new[0] = carry[0];
-    q_new[1] = carry[1];
-    q_new[2] = carry[2];
-    q_new[3] = carry[3];
-    gyro_bias_new[0] = carry[4];
-    gyro_bias_new[1] = carry[5];
-    gyro_bias_new[2] = carry[6];
+    q_new[1] = carry[3];
+    q_new[2] = carry[4];
+    q_new[3] = carry[6];
+    gyro_bias_new[0] = carry[1];
+    gyro_bias_new[1] = carry[2];
+    gyro_bias_new[2] = carry[5];
 }
 
 /* rest detection: gyro and accelerometer steady for rest_time
  * ops: add 26, mul 15, div 1, cmp 5 (total 47) */
-static void qcf_k_rest(const float gyro[3], const float accel[3], const float rest_gyro_lp[3], const float rest_accel_lp[3], float rest_time, float span, float rest_gyro_lp_new[3], float rest_accel_lp_new[3], float *rest_time_new, bool *at_rest)
+static void qcf_k_rest_part0(const float gyro[3], const float accel[3], const float rest_gyro_lp[3], const float rest_accel_lp[3], float span, float carry[8])
 {
     const float tmp0 = 0.5f + span;
     const float tmp1 = span / tmp0;
@@ -788,28 +910,50 @@ static void qcf_k_rest(const float gyro[3], const float accel[3], const float re
     const float tmp37 = tmp4 * tmp4;
     const float tmp38 = tmp7 * tmp7;
     const float tmp39 = tmp37 + tmp38;
-    const float tmp40 = tmp10 * tmp10;
-    const float tmp41 = tmp39 + tmp40;
-    const bool tmp42 = (tmp36) && (tmp41 < 0.001225f);
+    carry[0] = tmp4;
+    carry[1] = tmp7;
+    carry[2] = tmp10;
+    carry[3] = tmp13;
+    carry[4] = tmp16;
+    carry[5] = tmp19;
+    carry[6] = tmp36 ? 1.0f : 0.0f;
+    carry[7] = tmp39;
+}
+
+static void qcf_k_rest_part1(float rest_time, float span, float carry[8])
+{
+    const float tmp40 = carry[2] * carry[2];
+    const float tmp41 = carry[7] + tmp40;
+    const bool tmp42 = ((carry[6] > 0.5f)) && (tmp41 < 0.001225f);
     const float tmp43 = rest_time + span;
     const float tmp44 = (tmp43 < 1000.0f) ? tmp43 : 1000.0f;
     const float tmp45 = (tmp42) ? tmp44 : 0.0f;
     const bool tmp46 = 1.5f <= tmp45;
-    rest_gyro_lp_new[0] = tmp4;
-    rest_gyro_lp_new[1] = tmp7;
-    rest_gyro_lp_new[2] = tmp10;
-    rest_accel_lp_new[0] = tmp13;
-    rest_accel_lp_new[1] = tmp16;
-    rest_accel_lp_new[2] = tmp19;
-    *rest_time_new = tmp45;
-    *at_rest = tmp46;
+    carry[6] = tmp45;
+    carry[7] = tmp46 ? 1.0f : 0.0f;
+}
+
+static void qcf_k_rest(const float gyro[3], const float accel[3], const float rest_gyro_lp[3], const float rest_accel_lp[3], float rest_time, float span, float rest_gyro_lp_new[3], float rest_accel_lp_new[3], float *rest_time_new, bool *at_rest)
+{
+    /* 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    float carry[8];
+    qcf_k_rest_part0(gyro, accel, rest_gyro_lp, rest_accel_lp, span, carry);
+    qcf_k_rest_part1(rest_time, span, carry);
+    rest_gyro_lp_new[0] = carry[0];
+    rest_gyro_lp_new[1] = carry[1];
+    rest_gyro_lp_new[2] = carry[2];
+    rest_accel_lp_new[0] = carry[3];
+    rest_accel_lp_new[1] = carry[4];
+    rest_accel_lp_new[2] = carry[5];
+    *rest_time_new = carry[6];
+    *at_rest = (carry[7] > 0.5f);
 }
 
 /* field check: |m| and sin(dip) against the learned reference
  * ops: add 22, mul 26, div 4, sqrt 2, cmp 17 (total 71)
  *      of which only one side runs: if (tmp0 < 10.0f) 5, else 20
  *      of which only one side runs: if (tmp57) 1, else 8 */
-static void qcf_k_mag_check(const float rot[9], const float accel_lp[3], const float mag[3], const float mag_ref[2], float mag_dist_time, float mag_learn_time, float span, bool *accept, float mag_ref_new[2], float *mag_dist_time_new, float *mag_learn_time_new)
+static void qcf_k_mag_check_part0(const float rot[9], const float accel_lp[3], const float mag[3], const float mag_ref[2], float mag_learn_time, float carry[5])
 {
     const float tmp0 = (mag_ref[0] <= 0.0f) ? 0.0f : mag_learn_time;
     const float tmp1 = mag[0] * mag[0];
@@ -851,25 +995,34 @@ static void qcf_k_mag_check(const float rot[9], const float accel_lp[3], const f
     const float tmp37 = tmp30 + tmp36;
     const float tmp38 = tmp37 / tmp6;
     const float tmp39 = tmp38 + mag_ref[1];
-    const float tmp40 = tmp0 + span;
+    carry[0] = tmp0;
+    carry[1] = tmp6;
+    carry[2] = tmp7;
+    carry[3] = tmp38;
+    carry[4] = tmp39;
+}
+
+static void qcf_k_mag_check_part1(const float mag_ref[2], float mag_dist_time, float span, float carry[5])
+{
+    const float tmp40 = carry[0] + span;
     bool tmp41;
     float tmp42;
     float tmp43;
     float tmp44;
-    if (tmp0 < 10.0f) {
+    if (carry[0] < 10.0f) {
         const float tmp45 = span / tmp40;
-        const float tmp46 = tmp45 * tmp7;
+        const float tmp46 = tmp45 * carry[2];
         const float tmp47 = mag_ref[0] + tmp46;
-        const float tmp48 = tmp45 * tmp39;
+        const float tmp48 = tmp45 * carry[4];
         const float tmp49 = mag_ref[1] - tmp48;
         tmp41 = true;
         tmp42 = tmp47;
         tmp43 = tmp49;
         tmp44 = 0.0f;
     } else {
-        const float tmp50 = fabsf(tmp7);
+        const float tmp50 = fabsf(carry[2]);
         const float tmp51 = 0.1f * mag_ref[0];
-        const float tmp52 = fabsf(tmp39);
+        const float tmp52 = fabsf(carry[4]);
         const bool tmp53 = (tmp50 < tmp51) && (tmp52 < 0.1f);
         const bool tmp54 = (tmp53) || (!(0.0f < mag_ref[0]));
         const float tmp55 = mag_dist_time + span;
@@ -879,17 +1032,17 @@ static void qcf_k_mag_check(const float rot[9], const float accel_lp[3], const f
         float tmp59;
         float tmp60;
         if (tmp57) {
-            const float tmp61 = -tmp38;
-            tmp58 = tmp6;
+            const float tmp61 = -carry[3];
+            tmp58 = carry[1];
             tmp59 = tmp61;
             tmp60 = 0.0f;
         } else {
             const float tmp62 = 20.0f + span;
             const float tmp63 = span / tmp62;
-            const float tmp64 = tmp63 * tmp7;
+            const float tmp64 = tmp63 * carry[2];
             const float tmp65 = mag_ref[0] + tmp64;
             const float tmp66 = (tmp53) ? tmp65 : mag_ref[0];
-            const float tmp67 = tmp63 * tmp39;
+            const float tmp67 = tmp63 * carry[4];
             const float tmp68 = mag_ref[1] - tmp67;
             const float tmp69 = (tmp53) ? tmp68 : mag_ref[1];
             tmp58 = tmp66;
@@ -902,11 +1055,24 @@ static void qcf_k_mag_check(const float rot[9], const float accel_lp[3], const f
         tmp44 = tmp60;
     }
     const float tmp70 = (tmp40 < 10.0f) ? tmp40 : 10.0f;
-    *accept = tmp41;
-    mag_ref_new[0] = tmp42;
-    mag_ref_new[1] = tmp43;
-    *mag_dist_time_new = tmp44;
-    *mag_learn_time_new = tmp70;
+    carry[0] = tmp41 ? 1.0f : 0.0f;
+    carry[1] = tmp42;
+    carry[2] = tmp43;
+    carry[3] = tmp44;
+    carry[4] = tmp70;
+}
+
+static void qcf_k_mag_check(const float rot[9], const float accel_lp[3], const float mag[3], const float mag_ref[2], float mag_dist_time, float mag_learn_time, float span, bool *accept, float mag_ref_new[2], float *mag_dist_time_new, float *mag_learn_time_new)
+{
+    /* 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    float carry[5];
+    qcf_k_mag_check_part0(rot, accel_lp, mag, mag_ref, mag_learn_time, carry);
+    qcf_k_mag_check_part1(mag_ref, mag_dist_time, span, carry);
+    *accept = (carry[0] > 0.5f);
+    mag_ref_new[0] = carry[1];
+    mag_ref_new[1] = carry[2];
+    *mag_dist_time_new = carry[3];
+    *mag_learn_time_new = carry[4];
 }
 
 /* R(q), read by the kernels of a step that rotate with the estimate (computed once)
@@ -957,7 +1123,7 @@ static inline void qcf_k_rotation(const float q[4], float rot[9])
 /* accelerometer minus the GPS motion acceleration when ||f| - g| exceeds the threshold (centripetal: R(q)(w - b) x v_gps, computed only then)
  * ops: add 29, mul 37, div 2, sqrt 2, cmp 7 (total 77)
  *      of which only one side runs: if (0.3f < tmp7) 66, else 0 */
-static void qcf_k_gravity_part(const float accel[3], const float rot[9], const float gyro[3], const float gyro_bias[3], const float gps_vel_hist[21], float accel_gravity[3])
+static void qcf_k_gravity_part_part0(const float accel[3], float carry[3])
 {
     const float tmp0 = accel[0] * accel[0];
     const float tmp1 = accel[1] * accel[1];
@@ -967,10 +1133,15 @@ static void qcf_k_gravity_part(const float accel[3], const float rot[9], const f
     const float tmp5 = sqrtf(tmp4);
     const float tmp6 = tmp5 - 9.80665f;
     const float tmp7 = fabsf(tmp6);
+    carry[0] = tmp7;
+}
+
+static void qcf_k_gravity_part_part1(const float accel[3], const float rot[9], const float gyro[3], const float gyro_bias[3], const float gps_vel_hist[21], float carry[3])
+{
     float tmp8;
     float tmp9;
     float tmp10;
-    if (0.3f < tmp7) {
+    if (0.3f < carry[0]) {
         const float tmp11 = gps_vel_hist[18] * rot[0];
         const float tmp12 = gps_vel_hist[19] * rot[1];
         const float tmp13 = tmp11 + tmp12;
@@ -1045,15 +1216,26 @@ static void qcf_k_gravity_part(const float accel[3], const float rot[9], const f
         tmp9 = accel[1];
         tmp10 = accel[2];
     }
-    accel_gravity[0] = tmp8;
-    accel_gravity[1] = tmp9;
-    accel_gravity[2] = tmp10;
+    carry[0] = tmp8;
+    carry[1] = tmp9;
+    carry[2] = tmp10;
+}
+
+static void qcf_k_gravity_part(const float accel[3], const float rot[9], const float gyro[3], const float gyro_bias[3], const float gps_vel_hist[21], float accel_gravity[3])
+{
+    /* 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    float carry[3];
+    qcf_k_gravity_part_part0(accel, carry);
+    qcf_k_gravity_part_part1(accel, rot, gyro, gyro_bias, gps_vel_hist, carry);
+    accel_gravity[0] = carry[0];
+    accel_gravity[1] = carry[1];
+    accel_gravity[2] = carry[2];
 }
 
 /* gyro-only integration with the bias removed (no aiding this step)
  * ops: add 28, mul 38, div 5, sqrt 2, trig 2, cmp 3 (total 78)
  *      of which only one side runs: if (tmp11 < 0.01f) 16, else 5 */
-static void qcf_k_propagate(const float q[4], const float gyro_bias[3], const float gyro[3], float dt, float q_new[4])
+static void qcf_k_propagate_part0(const float q[4], const float gyro_bias[3], const float gyro[3], float dt, float carry[6])
 {
     const float tmp0 = 0.5f * dt;
     const float tmp1 = gyro[0] - gyro_bias[0];
@@ -1102,36 +1284,46 @@ static void qcf_k_propagate(const float q[4], const float gyro_bias[3], const fl
     const float tmp37 = q[1] * tmp36;
     const float tmp38 = tmp35 - tmp37;
     const float tmp39 = tmp13 * tmp5;
-    const float tmp40 = q[2] * tmp39;
-    const float tmp41 = tmp38 - tmp40;
-    const float tmp42 = tmp13 * tmp9;
+    carry[0] = tmp9;
+    carry[1] = tmp12;
+    carry[2] = tmp13;
+    carry[3] = tmp36;
+    carry[4] = tmp38;
+    carry[5] = tmp39;
+}
+
+static void qcf_k_propagate_part1(const float q[4], float carry[6])
+{
+    const float tmp40 = q[2] * carry[5];
+    const float tmp41 = carry[4] - tmp40;
+    const float tmp42 = carry[2] * carry[0];
     const float tmp43 = q[3] * tmp42;
     const float tmp44 = tmp41 - tmp43;
     const float tmp45 = tmp44 * tmp44;
-    const float tmp46 = q[0] * tmp36;
-    const float tmp47 = q[1] * tmp12;
+    const float tmp46 = q[0] * carry[3];
+    const float tmp47 = q[1] * carry[1];
     const float tmp48 = tmp46 + tmp47;
     const float tmp49 = q[2] * tmp42;
     const float tmp50 = tmp48 + tmp49;
-    const float tmp51 = q[3] * tmp39;
+    const float tmp51 = q[3] * carry[5];
     const float tmp52 = tmp50 - tmp51;
     const float tmp53 = tmp52 * tmp52;
     const float tmp54 = tmp45 + tmp53;
-    const float tmp55 = q[0] * tmp39;
+    const float tmp55 = q[0] * carry[5];
     const float tmp56 = q[1] * tmp42;
     const float tmp57 = tmp55 - tmp56;
-    const float tmp58 = q[2] * tmp12;
+    const float tmp58 = q[2] * carry[1];
     const float tmp59 = tmp57 + tmp58;
-    const float tmp60 = q[3] * tmp36;
+    const float tmp60 = q[3] * carry[3];
     const float tmp61 = tmp59 + tmp60;
     const float tmp62 = tmp61 * tmp61;
     const float tmp63 = tmp54 + tmp62;
     const float tmp64 = q[0] * tmp42;
-    const float tmp65 = q[1] * tmp39;
+    const float tmp65 = q[1] * carry[5];
     const float tmp66 = tmp64 + tmp65;
-    const float tmp67 = q[2] * tmp36;
+    const float tmp67 = q[2] * carry[3];
     const float tmp68 = tmp66 - tmp67;
-    const float tmp69 = q[3] * tmp12;
+    const float tmp69 = q[3] * carry[1];
     const float tmp70 = tmp68 + tmp69;
     const float tmp71 = tmp70 * tmp70;
     const float tmp72 = tmp63 + tmp71;
@@ -1140,10 +1332,22 @@ static void qcf_k_propagate(const float q[4], const float gyro_bias[3], const fl
     const float tmp75 = tmp52 / tmp73;
     const float tmp76 = tmp61 / tmp73;
     const float tmp77 = tmp70 / tmp73;
-    q_new[0] = tmp74;
-    q_new[1] = tmp75;
-    q_new[2] = tmp76;
-    q_new[3] = tmp77;
+    carry[0] = tmp74;
+    carry[1] = tmp75;
+    carry[2] = tmp76;
+    carry[3] = tmp77;
+}
+
+static void qcf_k_propagate(const float q[4], const float gyro_bias[3], const float gyro[3], float dt, float q_new[4])
+{
+    /* 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    float carry[6];
+    qcf_k_propagate_part0(q, gyro_bias, gyro, dt, carry);
+    qcf_k_propagate_part1(q, carry);
+    q_new[0] = carry[0];
+    q_new[1] = carry[1];
+    q_new[2] = carry[2];
+    q_new[3] = carry[3];
 }
 
 /* Z-Y-X Euler angles [roll, pitch, yaw] of a unit body->NED quaternion
