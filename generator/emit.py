@@ -338,18 +338,15 @@ def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc
         sel = None
         args = [ref(ins[0])] + ([ref(ins[1])] if code in _BINARY or code == ca.OP_CONSTPOW else [])
         select = _as_select(code, args, nodes)
-        logic = None
-        if select is None and code in _LOGIC:
-            logic = _LOGIC[code](*[condition(a) if code in _CONNECTIVES else value(a) for a in args])
-        if select is None:
-            args_v = [value(a) for a in args]
-        if logic is not None:
-            cat, expr = "cmp", logic
+        args_v = [value(a) for a in args]    # operands read as numbers
+        is_bool = select is None and code in _LOGIC
+        if is_bool:
+            cat, expr = "cmp", _LOGIC[code](*[condition(a) if code in _CONNECTIVES else value(a) for a in args])
         elif select is not None:
             cond, a, b = select
             if boolish(a) and boolish(b):      # a choice between truth values stays bool
                 a, b = truth(a), truth(b)
-                logic = "select"
+                is_bool = True
             else:
                 a, b = value(a), value(b)
             cat, expr = "cmp", f"({condition(cond)}) ? {a} : {b}"
@@ -391,9 +388,8 @@ def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc
                 f"(supported: {', '.join(SUPPORTED)})")
         tmp = f"t{len(order)}"
         nodes[tmp] = {"code": code, "cat": cat, "expr": expr, "args": args, "sel": sel,
-                      "vargs": args_v if select is None else args,
-                      "ctype": "bool" if logic is not None else precision}
-        if logic is not None:
+                      "vargs": args_v, "ctype": "bool" if is_bool else precision}
+        if is_bool:
             booleans.add(tmp)
         order.append(tmp)
         work[w] = tmp

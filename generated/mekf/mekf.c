@@ -2708,12 +2708,7 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
     /* MEKF step, measurement = "vectors": gravity as the direction of the earth-frame low-passed
      * specific force (any attitude), at rest the gyro bias measured directly, heading as one
      * vertical-only row (GPS course or magnetometer, gain projected so it never tilts). */
-    bool use_tilt = false;
-    if (use_accel) {
-        {
-            use_tilt = true;
-        }
-    }
+    bool use_tilt = use_accel;
     bool course_sample = false;
 
     /* Last valid GPS velocity (for the compensation and the course); its age saturates. */
