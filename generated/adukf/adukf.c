@@ -4775,6 +4775,9 @@ void adukf_init(adukf_state *s)
     s->accel_lp[0] = 0.0f;
     s->accel_lp[1] = 0.0f;
     s->accel_lp[2] = 0.0f;
+    for (uint32_t i = 0u; i < 139u; i++) {
+        s->work[i] = 0.0f;
+    }
     s->learn_sum = 0.0f;
     s->learn_count = 0u;
     s->initialised = 0u;
@@ -4847,11 +4850,12 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
     }
 
     /* Time update (Kalman prediction of x = [q; gyro bias], F = d x-/d x). P_pred becomes the new
-     * covariance: reset, or replaced by the update's result, below. */
+     * covariance: reset, or replaced by the update's result, below. The step's matrices live in
+     * s->work (scratch, no meaning between steps), so its stack frame holds scalars and vectors. */
     float x[7] = { s->q[0], s->q[1], s->q[2], s->q[3], s->gyro_bias[0], s->gyro_bias[1], s->gyro_bias[2] };
     float x_pred[7];
     float x_new[7];
-    float P_pred[49];
+    float *const P_pred = s->work;
     float r_new[6] = { 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f };
     adukf_k_predict(x, s->P, in->gyro, dt, x_pred, x_new, P_pred);
     for (uint32_t i = 4u; i < 7u; i++) {
@@ -4883,10 +4887,10 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
         const float accel_in[3] = { accel_body[0], accel_body[1], accel_body[2] };
         const float mag_in[3] = { use_mag ? in->mag[0] : 1.0f, use_mag ? in->mag[1] : 0.0f,
                                      use_mag ? in->mag[2] : 0.0f };
-        float P_zz[36];
-        float P_xz[42];
-        float residual[6];
-        float r_upd[6];
+        float *const P_zz = s->work + 49;
+        float *const P_xz = P_zz + 36;
+        float *const residual = P_xz + 42;
+        float *const r_upd = residual + 6;
         float pivot_p;
         adukf_k_innovation(x_pred, P_pred, s->m_ref, accel_in, mag_in, dt, span, P_zz, P_xz, residual,
                                   r_upd, &pivot_p);
@@ -4913,6 +4917,9 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
         if (!(pivot_p > ADUKF_PIVOT_MIN)) {
             /* P- is no longer positive definite (round-off, bad input): restart it. */
             status |= ADUKF_COV_RESET;
+            for (uint32_t i = 49u; i < 139u; i++) {
+                s->work[i] = 0.0f;   /* the update's scratch may hold non-finite values */
+            }
             for (uint32_t i = 0u; i < 49u; i++) {
                 P_pred[i] = (i % 8u != 0u) ? 0.0f : ((i < 32u) ? ADUKF_P0 : ADUKF_P0_BIAS);
             }
@@ -4923,6 +4930,9 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
             adukf_k_gain(P_zz, P_xz, residual, P_xz, residual, &pivot_zz);
             if (!(pivot_zz > ADUKF_PIVOT_MIN)) {
                 status |= ADUKF_UPDATE_SKIPPED;
+                for (uint32_t i = 49u; i < 139u; i++) {
+                    s->work[i] = 0.0f;   /* the update's scratch may hold non-finite values */
+                }
             } else {
                 adukf_k_correct(x_pred, P_pred, P_xz, residual, x_new, P_pred);
                 for (uint32_t i = 0u; i < 6u; i++) {
@@ -4942,6 +4952,9 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
         nonfinite += P_pred[i] * 0.0f;
     }
     if (isnan(nonfinite)) {
+        for (uint32_t i = 0u; i < 139u; i++) {
+            s->work[i] = 0.0f;   /* no scratch value outlives a refused result */
+        }
         for (uint32_t i = 0u; i < 6u; i++) {
             s->r_diag[i] = 0.0f;
         }

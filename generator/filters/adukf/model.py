@@ -98,10 +98,17 @@ class Model(FilterModel):
         ] + ([StateField("sample_age", 2, "time since the last accelerometer / magnetometer sample, s", 0.0)]
              if self.own_rates() else []) + ([StateField("accel_lp", 3, "low-passed specific force in NED, m/s^2 (accel_tau > 0)", 0.0)]
              if self.lowpass() else []) + [
+            StateField("work", self.work_size(), "scratch of adukf_step (P-, P_zz, P_xz, residual, R of one "
+                       "update): no meaning between steps, kept here so the step's stack holds scalars only", 0.0),
             StateField("learn_sum", 1, "mag_ref = learn: sum of sin(inclination) over rest samples", 0.0),
             StateField("learn_count", 1, "mag_ref = learn: rest samples summed so far", 0, "uint32"),
             StateField("initialised", 1, "1 once the attitude has been initialised", 1 if p["faithful"] else 0, "uint32"),
         ]
+
+    def work_size(self) -> int:
+        """Floats of the step's scratch in the state (P_pred, P_zz, P_xz, residual, r_upd)."""
+        n = self.n
+        return n * n + 36 + 6 * n + 6 + 6
 
     def r_scale(self, dt, span):
         """dt / span, at least 1 / span_steps_max (a sample never counts for more steps than that:
@@ -337,4 +344,4 @@ class Model(FilterModel):
 
     def template_context(self):
         n = self.n
-        return {"learn": self.params["mag_ref"] == "learn", "n": n, "lowpass": self.lowpass(), "rated": self.own_rates(), "bias": n == 7, "xs": "q" if n == 4 else "x"}
+        return {"learn": self.params["mag_ref"] == "learn", "n": n, "lowpass": self.lowpass(), "rated": self.own_rates(), "bias": n == 7, "xs": "q" if n == 4 else "x", "work": self.work_size()}
