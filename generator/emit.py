@@ -219,7 +219,7 @@ def _check_name(name: str, what: str) -> None:
 def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc: str = "",
          math: str = "libm", branch_min_cost: int | None = BRANCH_MIN_COST, fma: bool = False,
          split_temps: int | None = SPLIT_TEMPS, context: tuple[str, dict] | None = None,
-         flags: tuple[str, ...] | list[str] = ()) -> Kernel:
+         flags: tuple[str, ...] | list[str] = (), names: dict[int, str] | None = None) -> Kernel:
     """Emit an SX Function as a C function body for the given precision.
 
     ``math="fast"`` (float only; double always uses libm) writes fastmath helpers for the
@@ -235,6 +235,11 @@ def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc
     declared bool and tested as conditions, never compared with 0.0f. Comparisons and their
     logic (<, <=, ==, !=, &&, ||, !) become bool temporaries too; where one is used as a number
     it is converted explicitly, (float)x.
+
+    names: {instruction index: text} for OP_CONST instructions that are a folded parameter
+    expression (generator/folded.py); the literal is written with the text in a comment
+    beside it, `0.0049f /* accel_angle_noise^2 */`. Nothing else changes: until the body is
+    written, a named literal is a placeholder that every decision reads as the literal.
     """
     if precision not in PRECISIONS:
         raise EmitError(f"precision must be one of {PRECISIONS}, got {precision!r}")
@@ -280,11 +285,14 @@ def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc
     def ref(w: int) -> str:
         return work[w]
 
+    marks = _Marks()
+
     def boolish(x: str) -> bool:
-        return x in booleans or x in (one, zero)
+        return x in booleans or marks.plain(x) in (one, zero)
 
     def truth(x: str) -> str:
-        return "true" if x == one else "false" if x == zero else x
+        x0 = marks.plain(x)
+        return "true" if x0 == one else "false" if x0 == zero else x
 
     def value(x: str) -> str:
         """x read as a number: a bool is converted explicitly."""
@@ -307,6 +315,8 @@ def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc
         if code == ca.OP_CONST:
             (w,) = fn.instruction_output(k)
             work[w] = literal(fn.instruction_constant(k), precision)
+            if names and k in names:
+                work[w] = marks.add(work[w], names[k])
             continue
         if code == ca.OP_INPUT:
             (w,) = fn.instruction_output(k)
@@ -353,7 +363,7 @@ def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc
             sel = (condition(cond), a, b)
         elif code == ca.OP_CONSTPOW:
             a, b = args_v
-            expo = _literal_value(b)
+            expo = _literal_value(marks.plain(b))
             if expo == 2.0:
                 cat, expr = "mul", f"{a} * {a}"
             elif expo == 3.0:
@@ -402,7 +412,7 @@ def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc
         if tmp in live:
             live.update(_TMP_RE.findall(nodes[tmp]["expr"]))
     kept = [t for t in order if t in live]
-    kept = _exact_reciprocals(kept, nodes, precision)
+    kept = _exact_reciprocals(kept, nodes, precision, marks)
     if fma:
         kept = _fuse_multiply_add(kept, nodes, writes, "fmaf" if precision == "float" else "fma")
     ops = {c: 0 for c in CATEGORIES}
@@ -410,7 +420,7 @@ def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc
         ops[nodes[t]["cat"]] += 1
         for c in nodes[t].get("extra_ops", ()):
             ops[c] += 1
-    body, emitted, branches, tops = _layout(kept, nodes, writes, precision, branch_min_cost)
+    body, emitted, branches, tops = _layout(kept, nodes, writes, precision, branch_min_cost, marks.plain)
     # Renumber in emission order so the temporaries count up without gaps.
     rename = {t: f"tmp{i}" for i, t in enumerate(emitted)}
     sub = lambda s: _TMP_RE.sub(lambda m: rename[m.group(0)], s)  # noqa: E731
@@ -423,6 +433,7 @@ def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc
         body, parts = [sub(line) for line in body], [sub(p) for p in parts]
     else:
         body = [sub(line) for line in body] + [sub(line) for line in writes]
+    body, parts = [marks.write(line) for line in body], [marks.write(p) for p in parts]
     for br in branches:
         br["condition"] = sub(br["condition"])
     unused = [a.name for i, a in enumerate(inputs) if i not in used_inputs and a.expr is None]
@@ -509,15 +520,17 @@ def _split(name, precision, inputs, body, writes, tops, size, ctx_decl=None, boo
     return call_lines + out, parts
 
 
-def _exact_reciprocals(kept, nodes, precision):
+def _exact_reciprocals(kept, nodes, precision, marks):
     """x / c with c a power of two -> x * (1 / c): the same value to the last bit (1 / c is
     exact), a multiplication instead of a division (14 cycles on the M4F, GCC keeps the
-    division without -freciprocal-math)."""
+    division without -freciprocal-math). A named c gives a named 1 / c."""
     for t in kept:
         n = nodes[t]
-        c = _literal_value(n["args"][1]) if n["code"] == ca.OP_DIV and n["sel"] is None else None
+        c = _literal_value(marks.plain(n["args"][1])) if n["code"] == ca.OP_DIV and n["sel"] is None else None
         if _power_of_two(c, precision):
             r = literal(1.0 / c, precision)
+            if marks.name(n["args"][1]):
+                r = marks.add(r, _reciprocal_name(marks.name(n["args"][1])))
             n.update(code=ca.OP_MUL, cat="mul", expr=f"{n['args'][0]} * {r}", args=[n["args"][0], r])
     return kept
 
@@ -600,12 +613,14 @@ def _exclusive(group, side, kept, idx, nodes, users, refs):
     return E
 
 
-def _layout(kept, nodes, writes, precision, min_cost):
+def _layout(kept, nodes, writes, precision, min_cost, plain=lambda s: s):
     """Body lines (temporaries as t<N>), the temporaries in emission order, and the branches.
 
     Selects on the same condition form a group; a group whose exclusive operations weigh
     at least `min_cost` is written as one if/else that computes only the taken side.
-    Groups nest when all of a group's selects lie on one side of another."""
+    Groups nest when all of a group's selects lie on one side of another. Selects are grouped
+    by the plain text of their condition (`plain`: named literals as literals), which the
+    if () shows."""
     idx = {t: i for i, t in enumerate(kept)}
     refs = {t: set(_TMP_RE.findall(nodes[t]["expr"])) for t in kept}
     users: dict[str, set] = {t: set() for t in kept}
@@ -618,7 +633,7 @@ def _layout(kept, nodes, writes, precision, min_cost):
     by_cond: dict[str, list[str]] = {}
     for t in kept:
         if nodes[t]["sel"] is not None:       # keyed apart from temporaries: a condition may be one
-            by_cond.setdefault(_IF + nodes[t]["sel"][0], []).append(t)
+            by_cond.setdefault(_IF + plain(nodes[t]["sel"][0]), []).append(t)
 
     def cost(E):
         return sum(_WEIGHT[nodes[t]["cat"]] for t in E)
@@ -633,7 +648,7 @@ def _layout(kept, nodes, writes, precision, min_cost):
 
     while True:
         try:
-            return _emit_groups(kept, idx, nodes, refs, groups, precision)
+            return _emit_groups(kept, idx, nodes, refs, groups, precision, plain)
         except _Cycle as c:        # this group cannot be placed as one block: keep it ?:
             del groups[c.cond]
 
@@ -646,7 +661,7 @@ class _Cycle(Exception):
         self.cond = cond
 
 
-def _emit_groups(kept, idx, nodes, refs, groups, precision):
+def _emit_groups(kept, idx, nodes, refs, groups, precision, plain):
     import heapq
     # parent of each group: the (group, side) whose exclusive set holds all its selects
     parent = {}
@@ -675,7 +690,7 @@ def _emit_groups(kept, idx, nodes, refs, groups, precision):
             if t in inner:
                 continue
             sel = nodes[t]["sel"]
-            g = _IF + sel[0] if sel is not None and _IF + sel[0] in here else None
+            g = _IF + plain(sel[0]) if sel is not None and _IF + plain(sel[0]) in here else None
             owner[t] = g if g is not None else t
             items.setdefault(owner[t], idx[t])
             items[owner[t]] = min(items[owner[t]], idx[t])
@@ -766,6 +781,36 @@ def _as_select(code, args, nodes):
     if not1 and not1["code"] == ca.OP_NOT and not1["args"][0] == c2:
         return c2, n2["args"][1], n1["args"][1]
     return None
+
+
+class _Marks:
+    """Named literals while a kernel is emitted: each is a placeholder @<n>@ (no letters, so
+    no identifier or temporary pattern matches it) that `plain` reads as the literal and
+    `write` turns into `literal /* name */` in the finished lines."""
+    _RE = re.compile(r"@(\d+)@")
+
+    def __init__(self):
+        self.items: list[tuple[str, str]] = []
+
+    def add(self, lit: str, name: str) -> str:
+        self.items.append((lit, name.replace("*/", "* /").replace("/*", "/ *")))
+        return f"@{len(self.items) - 1}@"
+
+    def name(self, text: str) -> str | None:
+        m = self._RE.fullmatch(text)
+        return self.items[int(m.group(1))][1] if m else None
+
+    def plain(self, text: str) -> str:
+        return self._RE.sub(lambda m: self.items[int(m.group(1))][0], text) if self.items else text
+
+    def write(self, text: str) -> str:
+        if not self.items:
+            return text
+        return self._RE.sub(lambda m: "{} /* {} */".format(*self.items[int(m.group(1))]), text)
+
+
+def _reciprocal_name(name: str) -> str:
+    return f"1/{name}" if name.isidentifier() else f"1/({name})"
 
 
 def _literal_value(text: str):

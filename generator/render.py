@@ -7,6 +7,7 @@ for byte (no dates, no paths).
 """
 from __future__ import annotations
 
+import functools
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -15,7 +16,7 @@ import casadi as ca
 import jinja2
 
 
-from generator import emit, fastmath, paths, status
+from generator import emit, fastmath, folded, paths, status
 from generator.config import BuildConfig
 from generator.model import ConfigError, KernelSpec
 from generator.symbolic import quat
@@ -139,10 +140,47 @@ def _runtime_model(spec, params, runtime):
                           f"needs its value to build the code ({why})") from None
 
 
-def render(cfg: BuildConfig) -> Generated:
+@functools.lru_cache(maxsize=16)
+def _environment(folder: str) -> jinja2.Environment:
+    """One Jinja environment per filter folder: it keeps the compiled templates (compiling
+    them took a third of a render; jinja re-reads a template whose file changed)."""
+    return jinja2.Environment(
+        loader=jinja2.FileSystemLoader([str(TEMPLATES), folder]),
+        undefined=jinja2.StrictUndefined, trim_blocks=True, lstrip_blocks=True,
+        keep_trailing_newline=True)
+
+
+def _folded_names(spec, params: dict, runtime: tuple, specs) -> dict[str, dict[int, str]]:
+    """{kernel: {instruction: parameter expression}} for the literals of the baked kernels that
+    are folded parameters (generator/folded.py: the kernels built again on traced values)."""
+    floats = [n for n, p in spec.params.items() if p.type == "float" and n not in runtime]
+    out: dict[str, dict[int, str]] = {}
+    todo = list(specs)
+    for merge_equal in (False, True):       # the second pass for kernels of another shape
+        values, record = folded.traced_params(params, floats, merge_equal)
+        if not record or not todo:
+            break
+        for n in runtime:
+            values[n] = emit.runtime_symbol(n)
+        try:
+            traced = {ks.name: ks.function for ks in spec.model(values).kernels()}
+        except Exception:      # a model that needs plain numbers: its literals stay unnamed
+            break
+        for ks in list(todo):
+            names = folded.constant_names(ks.function, traced[ks.name], record) if ks.name in traced else None
+            if names is not None:
+                out[ks.name] = names
+                todo.remove(ks)
+    return out
+
+
+def render(cfg: BuildConfig, names: bool = True) -> Generated:
+    """The files of a build. names=False: folded parameters without their names beside
+    them (the same C otherwise; tests/test_folded.py compares the two)."""
     spec = cfg.spec
     runtime = tuple(getattr(cfg, "runtime", ()) or ())
     model, model_specs, fields, tctx = _runtime_model(spec, cfg.params, runtime)
+    kernel_names = _folded_names(spec, cfg.params, runtime, model_specs) if names else {}
     real = cfg.precision
     prefix = cfg.prefix
     P = prefix.upper()
@@ -158,7 +196,7 @@ def render(cfg: BuildConfig) -> Generated:
     kernels, kctx = [], []
     for ks in specs:
         k = emit.emit(ks.function, real, name=f"{prefix}_k_{ks.name}", doc="", context=context,
-                      math=cfg.math, fma=cfg.fma, flags=ks.flags)
+                      math=cfg.math, fma=cfg.fma, flags=ks.flags, names=kernel_names.get(ks.name))
         extra = [a.name for a in k.inputs if a.name.startswith(emit.RUNTIME_PREFIX) and a.expr is None]
         if extra:
             raise ConfigError(f"kernel {ks.name}: free symbol(s) {', '.join(extra)} are not runtime parameters")
@@ -242,10 +280,7 @@ def render(cfg: BuildConfig) -> Generated:
     config_record = {"changed": [f"{n} = {_arg(v)}" for n, v in changed],
                      "options": [f"{n} = {_arg(v)}" for n, v, _ in options], "command": command}
 
-    env = jinja2.Environment(
-        loader=jinja2.FileSystemLoader([str(TEMPLATES), str(spec.folder)]),
-        undefined=jinja2.StrictUndefined, trim_blocks=True, lstrip_blocks=True,
-        keep_trailing_newline=True)
+    env = _environment(str(spec.folder))
     ctx = dict(
         version=VERSION, filter=spec.name, title=spec.title,
         # where the filter came from, without machine paths (the output is reproducible anywhere)

@@ -1,0 +1,180 @@
+"""Folded parameters carry their names (generator/folded.py): `0.0049f /* accel_angle_noise^2 */`.
+
+Checked against things the naming does not decide: the C without comments (the build with
+naming off), the numbers a parameter expression gives when evaluated here in Python from the
+manifest's parameters, and a parameter set equal to the structural constants around it.
+"""
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from generator import cli, config, render
+from generator.folded import Traced, traced_params
+
+REPO = Path(__file__).resolve().parents[1]
+# a literal of the emitter (float or double) followed by its name
+NAMED = re.compile(r"(\(-?[0-9.e+-]+f?\)|[0-9][0-9.e+-]*f?) /\* ([^*]+(?:\*[^/][^*]*)*) \*/")
+COMMENT = re.compile(r" ?/\*.*?\*/", re.S)
+
+
+def _named(text: str) -> list[tuple[str, str]]:
+    return [(m.group(1), m.group(2)) for m in NAMED.finditer(text)]
+
+
+def _value(literal: str) -> float:
+    return float(literal.strip("()").rstrip("f"))
+
+
+def _evaluate(expr: str, params: dict) -> float:
+    """A name read back as arithmetic on the parameter values (Python doubles)."""
+    code = re.sub(r"\|([^|]+)\|", r"abs(\1)", expr).replace("^", "**")
+    return eval(code, {"__builtins__": {}, "abs": abs}, dict(params))   # noqa: S307 - our own text
+
+
+@pytest.mark.parametrize("name", ["qcf", "mekf", "adukf", "cpf"])
+def test_every_committed_name_evaluates_to_the_number_beside_it(name):
+    """Each name in generated/<name>, evaluated from the parameters in its manifest, rounds to
+    the literal it stands beside (the literal's precision); and every filter names some."""
+    man = json.loads((REPO / "generated" / name / "manifest.json").read_text())
+    src = (REPO / "generated" / name / man["files"]["source"]).read_text()
+    pairs = _named(src)
+    assert pairs, f"no named literal in generated/{name}"
+    for lit, expr in pairs:
+        if expr.startswith("from "):        # a long expression: only its parameters are named
+            assert all(p in man["params"] for p in expr[5:].split(", ")), expr
+            continue
+        v = _evaluate(expr, man["params"])
+        if lit.rstrip(")").endswith("f"):
+            assert np.float32(_value(lit)) == np.float32(v), (lit, expr, v)
+        else:
+            assert _value(lit) == v, (lit, expr, v)
+
+
+def _render(name, names=True, **kw):
+    gen = render.render(config.resolve(name, **kw), names=names)
+    return gen.files[f"{gen.manifest['prefix']}.c"]
+
+
+@pytest.mark.parametrize("name,kw", [("mekf", {}), ("qcf", {"runtime": "kp", "precision": "double"})],
+                         ids=["mekf", "qcf-runtime-double"])
+def test_names_change_no_arithmetic(name, kw):
+    """Without its comments the C is byte for byte the build with naming off."""
+    on, off = _render(name, **kw), _render(name, names=False, **kw)
+    assert _named(on) and not _named(off)
+    assert COMMENT.sub("", on) == COMMENT.sub("", off)
+    assert len(on.splitlines()) == len(off.splitlines())
+
+
+def test_a_set_parameter_moves_its_named_number(tmp_path, capsys):
+    """ahrsgen generate mekf --set accel_angle_noise=0.05: its square and nine times it, as
+    float32 literals computed here, stand beside their names; the default's are gone."""
+    assert cli.main(["generate", "mekf", "--set", "accel_angle_noise=0.05", "-o", str(tmp_path)]) == 0
+    capsys.readouterr()
+    src = (tmp_path / "mekf.c").read_text()
+    sq, nine = str(np.float32(0.05 ** 2)), str(np.float32(9 * 0.05 ** 2))
+    assert f"{sq}f /* accel_angle_noise^2 */" in src
+    assert f"{nine}f /* 9*accel_angle_noise^2 */" in src
+    assert "0.0049f" not in src
+
+
+def test_a_parameter_equal_to_structural_constants_is_not_named_with_them():
+    """qcf with kp = 0.5: in the kernel `correct` kp's 0.5 is one CasADi constant with the
+    structural halves of the quaternion algebra, so no 0.5f there may say kp, and none does;
+    the 0.5f that are named are rest_tau's (0.5 by default), as in the default build, where
+    kp = 0.3 is named at each of its uses."""
+    default, half = _render("qcf"), _render("qcf", sets=["kp=0.5"])
+    assert default.count("0.3f /* kp */") == 3
+    assert "/* kp */" not in half
+    assert [e for lit, e in _named(half) if lit == "0.5f"] == [e for lit, e in _named(default) if lit == "0.5f"]
+    assert {e for lit, e in _named(default) if lit == "0.5f"} == {"rest_tau"}
+    bare = re.compile(r"(?<![0-9.e])0\.5f(?! /\*)")
+    assert len(bare.findall(half)) > len(bare.findall(default)) > 0
+
+
+def test_structural_constants_of_mekf_are_not_named():
+    """mekf's fixed constants (S_PIVOT_MIN 1e-12, DT_Q_MIN 1e-9, the 0.01 of the series
+    switch) are written bare, though mag_heading_noise^2 prints as 0.01f too (named there);
+    every name uses only parameters."""
+    src = (REPO / "generated" / "mekf" / "mekf.c").read_text()
+    for lit in ("1e-12f", "1e-09f", "0.01f"):
+        assert re.search(rf"(?<![0-9.e]){re.escape(lit)}(?! /\*)", src), lit
+    assert {e for lit, e in _named(src) if lit in ("1e-12f", "1e-09f", "0.01f")} == {"mag_heading_noise^2"}
+    params = json.loads((REPO / "generated" / "mekf" / "manifest.json").read_text())["params"]
+    for _, expr in _named(src):
+        assert set(re.findall(r"[A-Za-z_]\w*", expr)) <= set(params), expr
+
+
+def test_traced_text_and_values():
+    """Expression text with the parentheses it needs; value (perturbed) and shadow (real)
+    computed by the same operations."""
+    p, record = traced_params({"a": 2.0, "b": 3.0, "n": 4}, ["a", "b"])
+    a, b = p["a"], p["b"]
+    assert isinstance(a, Traced) and p["n"] == 4 and float(a) != 2.0 and a.shadow == 2.0
+    cases = {"(a + b)*a": (a + b) * a, "a - (b - a)": a - (b - a), "a/(a*b)": a / (a * b),
+             "-a^2": -a ** 2, "9*a^2": 9 * a ** 2, "1 - a": 1 - a, "a*(-0.5)": a * -0.5,
+             "(a^2)^b": (a ** 2) ** b}
+    for text, t in cases.items():
+        assert t.text == text
+        assert t.shadow == eval(text.replace("^", "**"), {"a": 2.0, "b": 3.0})   # noqa: S307
+        assert float(t) == eval(text.replace("^", "**"), {"a": float(a), "b": float(b)})   # noqa: S307
+    assert len(record) >= len(cases)
+
+
+def _fn(inputs, out):
+    import casadi as ca
+    return ca.Function("k", inputs, [out], {"cse": True, "live_variables": False})
+
+
+def test_constant_names_rule():
+    """A literal is named when it changes between the builds and the traced value and its real
+    (shadow) value both match one recorded expression; never a structural constant, a value
+    two expressions share, or a perturbed value whose real value differs."""
+    import casadi as ca
+    from generator.folded import constant_names
+    x, y = ca.SX.sym("x"), ca.SX.sym("y")
+    p, record = traced_params({"a": 0.5, "b": 0.25}, ["a", "b"])
+    a, b = p["a"], p["b"]
+    a2 = a ** 2
+    baked = _fn([x, y], x * 0.25 + y * 0.5 + 2.0)
+    traced = _fn([x, y], x * a2 + y * a + 2.0)
+    names = constant_names(baked, traced, record)
+    consts = {k: baked.instruction_constant(k) for k in range(baked.n_instructions())
+              if baked.instruction_id(k) == ca.OP_CONST}
+    assert sorted(names.values()) == ["a", "a^2"]
+    assert {consts[k] for k, v in names.items() if v == "a^2"} == {0.25}   # not b, which is 0.25 too
+    assert sorted(consts.values()) == [0.25, 0.5, 2.0]       # 2.0: structural, unnamed
+    # the real value must match as well: a record entry with the traced value but another shadow
+    a2.shadow = 0.3
+    assert sorted(constant_names(baked, traced, record).values()) == ["a"]
+    # two parameters moved alike (merge_equal): a literal of either is ambiguous
+    p, record = traced_params({"a": 0.5, "b": 0.5}, ["a", "b"], merge_equal=True)
+    assert float(p["a"]) == float(p["b"])
+    assert constant_names(_fn([x], x * 0.5), _fn([x], x * p["a"]), record) == {}
+    assert constant_names(_fn([x], x * 0.5), _fn([x, y], x * p["a"] + y), record) is None  # other shape
+
+
+@pytest.mark.parametrize("name", ["qcf", "mekf"])
+def test_naming_every_constant_changes_no_arithmetic(name):
+    """The emitter with a name on every constant of every kernel (true/false selects, if/else
+    conditions, powers, reciprocals, fused multiply-adds, split kernels) writes the same C once
+    the comments are gone."""
+    import casadi as ca
+    from generator import emit, filters
+    from generator.model import KernelSpec
+    x, y = ca.SX.sym("x"), ca.SX.sym("y")
+    own = KernelSpec("own", emit.function("own", {"x": x, "y": y}, {"o": ca.vertcat(
+        ca.constpow(x, 3.0), ca.constpow(y, 2.5), x / 4.0, ca.if_else(x > 0.5, 1.0, 0.0) * y)}), "")
+    for ks in filters.load(name).model().kernels() + [own]:
+        fn = ks.function
+        names = {k: f"c{k}" for k in range(fn.n_instructions()) if fn.instruction_id(k) == ca.OP_CONST}
+        for fma in (False, True):
+            on = emit.emit(fn, "float", fma=fma, flags=ks.flags, names=names)
+            off = emit.emit(fn, "float", fma=fma, flags=ks.flags)
+            assert COMMENT.sub("", on.source()) == COMMENT.sub("", off.source()), ks.name
+            assert on.branches == off.branches and on.ops == off.ops
+            assert not names or "/* c" in on.source(), ks.name
