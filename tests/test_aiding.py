@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from generator import npquat as nq
-from generator.symbolic import aiding
+from generator.symbolic import aiding, quat
 
 
 def _fn(inputs, outputs):
@@ -73,6 +73,10 @@ def test_tilt_correction_aligns_down_and_keeps_heading(seed):
     # shortest: the angle equals the angle between v and e_z
     assert 2 * np.arccos(min(q[0], 1)) == pytest.approx(np.arccos(v[2]), abs=1e-9)
     np.testing.assert_allclose(nq.rotmat(f(np.array([0, 0, -1.0]))[0]) @ [0, 0, -1.0], [0, 0, 1], atol=1e-12)
+    np.testing.assert_allclose(f(3.7 * v)[0], q, atol=1e-15)            # the length does not matter
+    t = ca.SX.sym("t", 3)
+    xy = _fn([t, d], [quat.rotate_xy_tilt(quat.vec(t[0], t[1], t[2], 0), d)])
+    np.testing.assert_allclose(xy(q[:3], 2 * v)[0], (nq.rotmat(q) @ (2 * v))[:2], atol=1e-12)
 
 
 @pytest.mark.parametrize("decl", [0.0, 0.3])

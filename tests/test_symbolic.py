@@ -73,6 +73,23 @@ def test_exponential_series_truncation_is_below_its_stated_bound():
     assert abs(got[1] / n - math.sin(n) / n) <= n ** (2 * K) / math.factorial(2 * K + 1) + 2e-16
 
 
+def test_scaled_exponential_is_a_positive_multiple_of_the_exact_one():
+    """qexp_scaled normalised equals exp([0, v]) on both sides of SERIES_MAX (the cot series
+    and the exact form), and at the edge its series is within the stated neglected term."""
+    ex = ca.Function("ex", [v3], [quat.qexp_scaled(v3)])
+    for scale in [0.0, 1e-9, 1e-5, 1e-2, 0.0999, 0.1001, 1.0, 3.0]:
+        r = rng.normal(size=3)
+        r = r / np.linalg.norm(r) * scale
+        got = np.array(ex(r)).ravel()
+        n = np.linalg.norm(r)
+        exact = np.r_[np.cos(n), np.sin(n) / n * r] if n > 0 else np.r_[1.0, r]
+        assert got @ exact > 0                                  # a positive multiple: the same rotation sign
+        np.testing.assert_allclose(got / np.linalg.norm(got), exact, atol=1e-15, rtol=1e-14)
+    n = quat.SERIES_MAX * (1 - 1e-12)
+    got = np.array(ex(np.r_[n, 0.0, 0.0])).ravel()
+    assert abs(got[0] - n / np.tan(n)) <= 1382 * n ** 12 / 638512875 + 2e-16
+
+
 def test_wrap_by_comparison_equals_floor_wrap_on_its_domain():
     a = ca.SX.sym("a")
     w = ca.Function("w", [a], [quat.wrap(a)])

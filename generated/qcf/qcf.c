@@ -87,11 +87,35 @@ static float fast_atan2f(float y, float x)
     return signbit(y) ? -a : a;
 }
 
-/* first attitude: FQA with a magnetometer sample, else the accelerometer's tilt with yaw 0; the low-pass starts at R(q) f
- * ops: add 64, mul 60, div 7, sqrt 9, cmp 19 (total 159)
- *      of which only one side runs: if (tmp12 < 1e-06f) 0, else 7
- *      of which only one side runs: if (use_mag) 64, else 1 */
-static void qcf_k_init_attitude_part0(const float accel[3], float carry[9])
+/* the magnetometer sample in NED, R(q) m, read by the field check and the heading correction
+ * ops: add 6, mul 9 (total 15) */
+static inline void qcf_k_mag_ned(const float rot[9], const float mag[3], float mag_ned[3])
+{
+    const float tmp0 = rot[0] * mag[0];
+    const float tmp1 = rot[3] * mag[1];
+    const float tmp2 = tmp0 + tmp1;
+    const float tmp3 = rot[6] * mag[2];
+    const float tmp4 = tmp2 + tmp3;
+    const float tmp5 = rot[1] * mag[0];
+    const float tmp6 = rot[4] * mag[1];
+    const float tmp7 = tmp5 + tmp6;
+    const float tmp8 = rot[7] * mag[2];
+    const float tmp9 = tmp7 + tmp8;
+    const float tmp10 = rot[2] * mag[0];
+    const float tmp11 = rot[5] * mag[1];
+    const float tmp12 = tmp10 + tmp11;
+    const float tmp13 = rot[8] * mag[2];
+    const float tmp14 = tmp12 + tmp13;
+    mag_ned[0] = tmp4;
+    mag_ned[1] = tmp9;
+    mag_ned[2] = tmp14;
+}
+
+/* first attitude: the shortest rotation taking the accelerometer's down to NED down, then the magnetometer's heading if it has a sample; the low-pass starts at R(q) f = [0, 0, -|f|]
+ * ops: add 20, mul 19, div 7, sqrt 4, cmp 23 (total 73)
+ *      of which only one side runs: if (use_mag) 50, else 2
+ *      of which only one side runs: if (tmp36 < 1e-15f) 0, else 20 */
+static void qcf_k_init_attitude_part0(const float accel[3], float carry[6])
 {
     const float tmp0 = accel[0] * accel[0];
     const float tmp1 = accel[1] * accel[1];
@@ -99,233 +123,136 @@ static void qcf_k_init_attitude_part0(const float accel[3], float carry[9])
     const float tmp3 = accel[2] * accel[2];
     const float tmp4 = tmp2 + tmp3;
     const float tmp5 = sqrtf(tmp4);
-    const float tmp6 = accel[0] / tmp5;
-    const float tmp7 = (tmp6 > (-1.0f)) ? tmp6 : (-1.0f);
-    const float tmp8 = (tmp7 < 1.0f) ? tmp7 : 1.0f;
-    const float tmp9 = (tmp8 < 0.0f) ? (-1.0f) : 1.0f;
-    const float tmp10 = tmp8 * tmp8;
-    const float tmp11 = 1.0f - tmp10;
-    const float tmp12 = sqrtf(tmp11);
-    const float tmp13 = (tmp12 > (-1.0f)) ? tmp12 : (-1.0f);
-    const float tmp14 = (tmp13 < 1.0f) ? tmp13 : 1.0f;
-    const float tmp15 = 1.0f - tmp14;
-    const float tmp16 = tmp15 * 0.5f;
-    const float tmp17 = sqrtf(tmp16);
-    const float tmp18 = tmp9 * tmp17;
+    const float tmp6 = tmp5 - accel[2];
+    const float tmp7 = 1e-06f * tmp5;
+    const float tmp8 = tmp5 + tmp5;
+    const float tmp9 = tmp8 * tmp6;
+    const float tmp10 = sqrtf(tmp9);
+    const float tmp11 = accel[0] / tmp10;
+    const float tmp12 = accel[1] / tmp10;
+    const float tmp13 = -tmp12;
+    const float tmp14 = (tmp6 < tmp7) ? 1.0f : tmp13;
+    const float tmp15 = tmp6 / tmp10;
+    carry[0] = tmp5;
+    carry[1] = tmp6;
+    carry[2] = tmp7;
+    carry[3] = tmp11;
+    carry[4] = tmp14;
+    carry[5] = tmp15;
+}
+
+static void qcf_k_init_attitude_part1(const float mag[3], bool use_mag, float carry[6])
+{
+    float tmp16;
+    float tmp17;
+    float tmp18;
     float tmp19;
-    float tmp20;
-    if (tmp12 < 1e-06f) {
-        tmp19 = 1.0f;
-        tmp20 = 0.0f;
-    } else {
-        const float tmp21 = accel[2] / tmp5;
-        const float tmp22 = (tmp12 > 1e-06f) ? tmp12 : 1e-06f;
-        const float tmp23 = tmp21 / tmp22;
-        const float tmp24 = -tmp23;
-        const float tmp25 = accel[1] / tmp5;
-        const float tmp26 = tmp25 / tmp22;
-        const float tmp27 = -tmp26;
-        tmp19 = tmp24;
-        tmp20 = tmp27;
-    }
-    const float tmp28 = (tmp19 > (-1.0f)) ? tmp19 : (-1.0f);
-    const float tmp29 = (tmp28 < 1.0f) ? tmp28 : 1.0f;
-    const float tmp30 = 1.0f + tmp29;
-    const float tmp31 = tmp30 * 0.5f;
-    const float tmp32 = sqrtf(tmp31);
-    const float tmp33 = tmp18 * tmp32;
-    const float tmp34 = (tmp20 < 0.0f) ? (-1.0f) : 1.0f;
-    const float tmp35 = 1.0f - tmp29;
-    const float tmp36 = tmp35 * 0.5f;
-    const float tmp37 = sqrtf(tmp36);
-    const float tmp38 = tmp34 * tmp37;
-    const float tmp39 = tmp18 * tmp38;
-    carry[0] = tmp14;
-    carry[1] = tmp32;
-    carry[2] = tmp33;
-    carry[3] = tmp38;
-    carry[4] = tmp39;
-}
-
-static void qcf_k_init_attitude_part1(float carry[9])
-{
-    const float tmp40 = 1.0f + carry[0];
-    const float tmp41 = tmp40 * 0.5f;
-    const float tmp42 = sqrtf(tmp41);
-    const float tmp43 = tmp42 * carry[3];
-    const float tmp44 = tmp42 * carry[1];
-    carry[0] = tmp43;
-    carry[1] = tmp44;
-}
-
-static void qcf_k_init_attitude_part2(const float mag[3], bool use_mag, float carry[9])
-{
-    float tmp45;
-    float tmp46;
-    float tmp47;
-    float tmp48;
     if (use_mag) {
-        const float tmp49 = carry[2] * carry[2];
-        const float tmp50 = carry[4] * carry[4];
-        const float tmp51 = tmp49 + tmp50;
-        const float tmp52 = tmp51 + tmp51;
-        const float tmp53 = 1.0f - tmp52;
-        const float tmp54 = tmp53 * mag[0];
-        const float tmp55 = carry[0] * carry[2];
-        const float tmp56 = carry[1] * carry[4];
-        const float tmp57 = tmp55 + tmp56;
-        const float tmp58 = tmp57 + tmp57;
-        const float tmp59 = tmp58 * mag[1];
-        const float tmp60 = tmp54 + tmp59;
-        const float tmp61 = carry[1] * carry[2];
-        const float tmp62 = carry[0] * carry[4];
-        const float tmp63 = tmp61 - tmp62;
-        const float tmp64 = tmp63 + tmp63;
-        const float tmp65 = tmp64 * mag[2];
-        const float tmp66 = tmp60 + tmp65;
-        const float tmp67 = tmp66 * tmp66;
-        const float tmp68 = tmp55 - tmp56;
-        const float tmp69 = tmp68 + tmp68;
-        const float tmp70 = tmp69 * mag[0];
-        const float tmp71 = carry[0] * carry[0];
-        const float tmp72 = tmp71 + tmp50;
-        const float tmp73 = tmp72 + tmp72;
-        const float tmp74 = 1.0f - tmp73;
-        const float tmp75 = tmp74 * mag[1];
-        const float tmp76 = tmp70 + tmp75;
-        const float tmp77 = carry[2] * carry[4];
-        const float tmp78 = carry[1] * carry[0];
-        const float tmp79 = tmp77 + tmp78;
-        const float tmp80 = -tmp79;
-        const float tmp81 = tmp80 + tmp80;
-        const float tmp82 = tmp81 * mag[2];
-        const float tmp83 = tmp76 + tmp82;
-        const float tmp84 = tmp83 * tmp83;
-        const float tmp85 = tmp67 + tmp84;
-        const float tmp86 = sqrtf(tmp85);
-        const float tmp87 = (tmp86 > 1e-30f) ? tmp86 : 1e-30f;
-        const float tmp88 = tmp66 / tmp87;
-        const float tmp89 = (tmp88 > (-1.0f)) ? tmp88 : (-1.0f);
-        const float tmp90 = (tmp89 < 1.0f) ? tmp89 : 1.0f;
-        const float tmp91 = 1.0f + tmp90;
-        const float tmp92 = tmp91 * 0.5f;
-        const float tmp93 = sqrtf(tmp92);
-        const float tmp94 = tmp93 * carry[1];
-        const float tmp95 = tmp83 / tmp87;
-        const float tmp96 = -tmp95;
-        const float tmp97 = (tmp96 < 0.0f) ? (-1.0f) : 1.0f;
-        const float tmp98 = 1.0f - tmp90;
-        const float tmp99 = tmp98 * 0.5f;
-        const float tmp100 = sqrtf(tmp99);
-        const float tmp101 = tmp97 * tmp100;
-        const float tmp102 = tmp101 * carry[4];
-        const float tmp103 = tmp94 + tmp102;
-        const float tmp104 = tmp93 * carry[0];
-        const float tmp105 = tmp101 * carry[2];
-        const float tmp106 = tmp104 - tmp105;
-        const float tmp107 = tmp93 * carry[2];
-        const float tmp108 = tmp101 * carry[0];
-        const float tmp109 = tmp107 + tmp108;
-        const float tmp110 = tmp101 * carry[1];
-        const float tmp111 = tmp93 * carry[4];
-        const float tmp112 = tmp110 - tmp111;
-        tmp45 = tmp103;
-        tmp46 = tmp106;
-        tmp47 = tmp109;
-        tmp48 = tmp112;
+        const float tmp20 = carry[3] * mag[0];
+        const float tmp21 = (carry[1] < carry[2]) ? 0.0f : tmp20;
+        const float tmp22 = carry[4] * mag[1];
+        const float tmp23 = tmp21 - tmp22;
+        const float tmp24 = carry[5] * mag[2];
+        const float tmp25 = (carry[1] < carry[2]) ? 0.0f : tmp24;
+        const float tmp26 = tmp23 - tmp25;
+        const float tmp27 = tmp26 + tmp26;
+        const float tmp28 = carry[3] * tmp27;
+        const float tmp29 = (carry[1] < carry[2]) ? 0.0f : tmp28;
+        const float tmp30 = mag[0] - tmp29;
+        const float tmp31 = tmp30 * tmp30;
+        const float tmp32 = carry[4] * tmp27;
+        const float tmp33 = mag[1] + tmp32;
+        const float tmp34 = tmp33 * tmp33;
+        const float tmp35 = tmp31 + tmp34;
+        const float tmp36 = sqrtf(tmp35);
+        float tmp37;
+        float tmp38;
+        float tmp39;
+        float tmp40;
+        if (tmp36 < 1e-15f) {
+            tmp37 = 1.0f;
+            tmp38 = 0.0f;
+            tmp39 = 0.0f;
+            tmp40 = 0.0f;
+        } else {
+            const float tmp41 = tmp36 + tmp30;
+            const float tmp42 = tmp36 + tmp36;
+            const float tmp43 = fabsf(tmp30);
+            const float tmp44 = tmp36 + tmp43;
+            const float tmp45 = tmp42 * tmp44;
+            const float tmp46 = sqrtf(tmp45);
+            const float tmp47 = tmp41 / tmp46;
+            const float tmp48 = fabsf(tmp33);
+            const float tmp49 = tmp48 / tmp46;
+            const float tmp50 = (0.0f <= tmp30) ? tmp47 : tmp49;
+            const float tmp51 = tmp33 / tmp46;
+            const float tmp52 = -tmp51;
+            const float tmp53 = tmp30 - tmp36;
+            const float tmp54 = tmp36 - tmp30;
+            const float tmp55 = (0.0f < tmp33) ? tmp53 : tmp54;
+            const float tmp56 = tmp55 / tmp46;
+            const float tmp57 = (0.0f <= tmp30) ? tmp52 : tmp56;
+            const float tmp58 = tmp57 * carry[3];
+            const float tmp59 = tmp57 * carry[4];
+            const float tmp60 = tmp57 * carry[5];
+            tmp37 = tmp50;
+            tmp38 = tmp58;
+            tmp39 = tmp59;
+            tmp40 = tmp60;
+        }
+        const float tmp61 = tmp37 * carry[5];
+        const float tmp62 = (carry[1] < carry[2]) ? 0.0f : tmp61;
+        const float tmp63 = tmp37 * carry[4];
+        const float tmp64 = (carry[1] < carry[2]) ? 0.0f : tmp38;
+        const float tmp65 = tmp63 - tmp64;
+        const float tmp66 = tmp37 * carry[3];
+        const float tmp67 = (carry[1] < carry[2]) ? 0.0f : tmp66;
+        const float tmp68 = tmp67 + tmp39;
+        const float tmp69 = (carry[1] < carry[2]) ? 0.0f : tmp40;
+        tmp16 = tmp62;
+        tmp17 = tmp65;
+        tmp18 = tmp68;
+        tmp19 = tmp69;
     } else {
-        const float tmp113 = -carry[4];
-        tmp45 = carry[1];
-        tmp46 = carry[0];
-        tmp47 = carry[2];
-        tmp48 = tmp113;
+        const float tmp70 = (carry[1] < carry[2]) ? 0.0f : carry[5];
+        const float tmp71 = (carry[1] < carry[2]) ? 0.0f : carry[3];
+        tmp16 = tmp70;
+        tmp17 = carry[4];
+        tmp18 = tmp71;
+        tmp19 = 0.0f;
     }
-    carry[0] = tmp45;
-    carry[1] = tmp46;
-    carry[2] = tmp47;
-    carry[3] = tmp48;
+    carry[1] = tmp16;
+    carry[2] = tmp17;
+    carry[3] = tmp18;
+    carry[4] = tmp19;
 }
 
-static void qcf_k_init_attitude_part3(const float accel[3], float carry[9])
+static void qcf_k_init_attitude_part2(float carry[6])
 {
-    const float tmp114 = carry[2] * carry[2];
-    const float tmp115 = carry[3] * carry[3];
-    const float tmp116 = tmp114 + tmp115;
-    const float tmp117 = tmp116 + tmp116;
-    const float tmp118 = 1.0f - tmp117;
-    const float tmp119 = tmp118 * accel[0];
-    const float tmp120 = carry[1] * carry[2];
-    const float tmp121 = carry[0] * carry[3];
-    const float tmp122 = tmp120 - tmp121;
-    const float tmp123 = tmp122 + tmp122;
-    const float tmp124 = tmp123 * accel[1];
-    const float tmp125 = tmp119 + tmp124;
-    const float tmp126 = carry[1] * carry[3];
-    const float tmp127 = carry[0] * carry[2];
-    const float tmp128 = tmp126 + tmp127;
-    const float tmp129 = tmp128 + tmp128;
-    const float tmp130 = tmp129 * accel[2];
-    const float tmp131 = tmp125 + tmp130;
-    const float tmp132 = tmp120 + tmp121;
-    const float tmp133 = tmp132 + tmp132;
-    const float tmp134 = tmp133 * accel[0];
-    const float tmp135 = carry[1] * carry[1];
-    const float tmp136 = tmp135 + tmp115;
-    const float tmp137 = tmp136 + tmp136;
-    const float tmp138 = 1.0f - tmp137;
-    const float tmp139 = tmp138 * accel[1];
-    const float tmp140 = tmp134 + tmp139;
-    const float tmp141 = carry[2] * carry[3];
-    const float tmp142 = carry[0] * carry[1];
-    const float tmp143 = tmp141 - tmp142;
-    const float tmp144 = tmp143 + tmp143;
-    const float tmp145 = tmp144 * accel[2];
-    const float tmp146 = tmp140 + tmp145;
-    const float tmp147 = tmp126 - tmp127;
-    const float tmp148 = tmp147 + tmp147;
-    const float tmp149 = tmp148 * accel[0];
-    const float tmp150 = tmp141 + tmp142;
-    const float tmp151 = tmp150 + tmp150;
-    const float tmp152 = tmp151 * accel[1];
-    const float tmp153 = tmp149 + tmp152;
-    carry[4] = tmp114;
-    carry[5] = tmp131;
-    carry[6] = tmp135;
-    carry[7] = tmp146;
-    carry[8] = tmp153;
-}
-
-static void qcf_k_init_attitude_part4(const float accel[3], float carry[9])
-{
-    const float tmp154 = carry[6] + carry[4];
-    const float tmp155 = tmp154 + tmp154;
-    const float tmp156 = 1.0f - tmp155;
-    const float tmp157 = tmp156 * accel[2];
-    const float tmp158 = carry[8] + tmp157;
-    carry[4] = tmp158;
+    const float tmp72 = -carry[0];
+    carry[0] = tmp72;
 }
 
 static void qcf_k_init_attitude(const float accel[3], const float mag[3], bool use_mag, float q[4], float accel_lp[3])
 {
-    /* 5 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
-    float carry[9];
+    /* 3 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    float carry[6];
     qcf_k_init_attitude_part0(accel, carry);
-    qcf_k_init_attitude_part1(carry);
-    qcf_k_init_attitude_part2(mag, use_mag, carry);
-    qcf_k_init_attitude_part3(accel, carry);
-    qcf_k_init_attitude_part4(accel, carry);
-    q[0] = carry[0];
-    q[1] = carry[1];
-    q[2] = carry[2];
-    q[3] = carry[3];
-    accel_lp[0] = carry[5];
-    accel_lp[1] = carry[7];
-    accel_lp[2] = carry[4];
+    qcf_k_init_attitude_part1(mag, use_mag, carry);
+    qcf_k_init_attitude_part2(carry);
+    q[0] = carry[1];
+    q[1] = carry[2];
+    q[2] = carry[3];
+    q[3] = carry[4];
+    accel_lp[0] = 0.0f;
+    accel_lp[1] = 0.0f;
+    accel_lp[2] = carry[0];
 }
 
 /* first magnetometer sample after a tilt-only start: heading set, tilt kept
- * ops: add 26, mul 30, div 1, sqrt 3, cmp 9 (total 69)
- *      of which only one side runs: if (tmp35 < 1e-30f) 0, else 20 */
+ * ops: add 29, mul 26, div 4, sqrt 2, cmp 10 (total 71)
+ *      of which only one side runs: if (tmp36 < 1e-15f) 0, else 21
+ *      of which only one side runs: if (0.0f <= tmp17) 4, else 6 */
 static void qcf_k_heading_init_part0(const float q[4], const float mag[3], float carry[4])
 {
     const float tmp0 = q[2] * q[2];
@@ -364,63 +291,72 @@ static void qcf_k_heading_init_part0(const float q[4], const float mag[3], float
     const float tmp33 = tmp27 + tmp32;
     const float tmp34 = tmp33 * tmp33;
     const float tmp35 = tmp18 + tmp34;
+    const float tmp36 = sqrtf(tmp35);
     carry[0] = tmp17;
     carry[1] = tmp33;
-    carry[2] = tmp35;
+    carry[2] = tmp36;
 }
 
 static void qcf_k_heading_init_part1(const float q[4], float carry[4])
 {
-    float tmp36;
     float tmp37;
     float tmp38;
     float tmp39;
     float tmp40;
-    if (carry[2] < 1e-30f) {
-        tmp36 = 1.0f;
-        tmp37 = 0.0f;
+    float tmp41;
+    if (carry[2] < 1e-15f) {
+        tmp37 = 1.0f;
         tmp38 = 0.0f;
         tmp39 = 0.0f;
         tmp40 = 0.0f;
+        tmp41 = 0.0f;
     } else {
-        const float tmp41 = (carry[2] > 1e-30f) ? carry[2] : 1e-30f;
-        const float tmp42 = 1.0f / tmp41;
-        const float tmp43 = sqrtf(tmp42);
-        const float tmp44 = carry[0] * tmp43;
-        const float tmp45 = (tmp44 > (-1.0f)) ? tmp44 : (-1.0f);
-        const float tmp46 = (tmp45 < 1.0f) ? tmp45 : 1.0f;
-        const float tmp47 = 1.0f + tmp46;
-        const float tmp48 = tmp47 * 0.5f;
-        const float tmp49 = sqrtf(tmp48);
-        const float tmp50 = carry[1] * tmp43;
-        const float tmp51 = -tmp50;
-        const float tmp52 = (tmp51 < 0.0f) ? (-1.0f) : 1.0f;
-        const float tmp53 = 1.0f - tmp46;
-        const float tmp54 = tmp53 * 0.5f;
-        const float tmp55 = sqrtf(tmp54);
-        const float tmp56 = tmp52 * tmp55;
-        const float tmp57 = tmp56 * q[3];
-        const float tmp58 = tmp56 * q[2];
-        const float tmp59 = tmp56 * q[1];
-        const float tmp60 = tmp56 * q[0];
-        tmp36 = tmp49;
-        tmp37 = tmp57;
-        tmp38 = tmp58;
-        tmp39 = tmp59;
-        tmp40 = tmp60;
+        const float tmp42 = carry[2] + carry[2];
+        const float tmp43 = fabsf(carry[0]);
+        const float tmp44 = carry[2] + tmp43;
+        const float tmp45 = tmp42 * tmp44;
+        const float tmp46 = sqrtf(tmp45);
+        float tmp47;
+        float tmp48;
+        if (0.0f <= carry[0]) {
+            const float tmp49 = carry[2] + carry[0];
+            const float tmp50 = tmp49 / tmp46;
+            const float tmp51 = carry[1] / tmp46;
+            const float tmp52 = -tmp51;
+            tmp47 = tmp50;
+            tmp48 = tmp52;
+        } else {
+            const float tmp53 = fabsf(carry[1]);
+            const float tmp54 = tmp53 / tmp46;
+            const float tmp55 = carry[0] - carry[2];
+            const float tmp56 = carry[2] - carry[0];
+            const float tmp57 = (0.0f < carry[1]) ? tmp55 : tmp56;
+            const float tmp58 = tmp57 / tmp46;
+            tmp47 = tmp54;
+            tmp48 = tmp58;
+        }
+        const float tmp59 = tmp48 * q[3];
+        const float tmp60 = tmp48 * q[2];
+        const float tmp61 = tmp48 * q[1];
+        const float tmp62 = tmp48 * q[0];
+        tmp37 = tmp47;
+        tmp38 = tmp59;
+        tmp39 = tmp60;
+        tmp40 = tmp61;
+        tmp41 = tmp62;
     }
-    const float tmp61 = tmp36 * q[0];
-    const float tmp62 = tmp61 - tmp37;
-    const float tmp63 = tmp36 * q[1];
+    const float tmp63 = tmp37 * q[0];
     const float tmp64 = tmp63 - tmp38;
-    const float tmp65 = tmp36 * q[2];
-    const float tmp66 = tmp65 + tmp39;
-    const float tmp67 = tmp36 * q[3];
+    const float tmp65 = tmp37 * q[1];
+    const float tmp66 = tmp65 - tmp39;
+    const float tmp67 = tmp37 * q[2];
     const float tmp68 = tmp67 + tmp40;
-    carry[0] = tmp62;
-    carry[1] = tmp64;
-    carry[2] = tmp66;
-    carry[3] = tmp68;
+    const float tmp69 = tmp37 * q[3];
+    const float tmp70 = tmp69 + tmp41;
+    carry[0] = tmp64;
+    carry[1] = tmp66;
+    carry[2] = tmp68;
+    carry[3] = tmp70;
 }
 
 static void qcf_k_heading_init(const float q[4], const float mag[3], float q_new[4])
@@ -471,399 +407,293 @@ static inline void qcf_k_accel_lowpass(const float rot[9], const float accel[3],
 }
 
 /* tilt (low-passed accelerometer) and heading (magnetometer) corrections as PI feedback, bias integral gated, bias at rest from the low-passed gyro, integration (eq. 9)
- * ops: add 85, mul 109, div 9, sqrt 7, trig 2, cmp 31 (total 243)
- *      of which only one side runs: if (tmp10 < 1e-06f) 0, else 26
- *      of which only one side runs: if (tmp99 < 1e-30f) 0, else 17
- *      of which only one side runs: if (tmp144 < 0.01f) 16, else 5
- *      of which only one side runs: if (at_rest) 11, else 18 */
-static void qcf_k_correct_part0(const float gyro_bias[3], const float gyro[3], float dt, const float accel_lp[3], float carry[15])
+ * ops: add 62, mul 71, div 11, sqrt 6, trig 2, cmp 26 (total 178)
+ *      of which only one side runs: if (tmp42 < 1e-15f) 0, else 17
+ *      of which only one side runs: if (0.0f <= tmp36) 2, else 4
+ *      of which only one side runs: if (tmp85 < 0.01f) 10, else 8
+ *      of which only one side runs: if (at_rest) 11, else 16 */
+static void qcf_k_correct_part0(const float rot[9], const float gyro_bias[3], const float gyro[3], float dt, const float accel_lp[3], const float mag_ned[3], float span_accel, float carry[11])
 {
     const float tmp0 = gyro[0] - gyro_bias[0];
-    const float tmp1 = tmp0 * dt;
-    const float tmp2 = accel_lp[0] * accel_lp[0];
-    const float tmp3 = accel_lp[1] * accel_lp[1];
-    const float tmp4 = tmp2 + tmp3;
-    const float tmp5 = accel_lp[2] * accel_lp[2];
+    const float tmp1 = 0.5f * dt;
+    const float tmp2 = tmp0 * tmp1;
+    const float tmp3 = 0.15f /* 0.5*kp */ * span_accel;
+    const float tmp4 = accel_lp[0] * accel_lp[0];
+    const float tmp5 = accel_lp[1] * accel_lp[1];
     const float tmp6 = tmp4 + tmp5;
-    const float tmp7 = 1.0f / tmp6;
-    const float tmp8 = sqrtf(tmp7);
-    const float tmp9 = accel_lp[2] * tmp8;
-    const float tmp10 = 1.0f - tmp9;
+    const float tmp7 = accel_lp[2] * accel_lp[2];
+    const float tmp8 = tmp6 + tmp7;
+    const float tmp9 = sqrtf(tmp8);
+    const float tmp10 = tmp9 - accel_lp[2];
+    const float tmp11 = 1e-06f * tmp9;
+    const float tmp12 = tmp9 + tmp9;
+    const float tmp13 = tmp12 * tmp10;
+    const float tmp14 = sqrtf(tmp13);
+    const float tmp15 = accel_lp[1] / tmp14;
+    const float tmp16 = -tmp15;
+    const float tmp17 = (tmp10 < tmp11) ? 1.0f : tmp16;
+    const float tmp18 = tmp3 * tmp17;
+    const float tmp19 = rot[0] * tmp18;
+    const float tmp20 = accel_lp[0] / tmp14;
+    const float tmp21 = tmp3 * tmp20;
+    const float tmp22 = rot[1] * tmp21;
+    const float tmp23 = (tmp10 < tmp11) ? 0.0f : tmp22;
+    const float tmp24 = tmp19 + tmp23;
+    const float tmp25 = tmp20 * mag_ned[0];
+    const float tmp26 = (tmp10 < tmp11) ? 0.0f : tmp25;
+    const float tmp27 = tmp17 * mag_ned[1];
+    const float tmp28 = tmp26 - tmp27;
+    const float tmp29 = tmp10 / tmp14;
+    const float tmp30 = tmp29 * mag_ned[2];
+    const float tmp31 = (tmp10 < tmp11) ? 0.0f : tmp30;
+    const float tmp32 = tmp28 - tmp31;
+    const float tmp33 = tmp32 + tmp32;
+    const float tmp34 = tmp20 * tmp33;
+    const float tmp35 = (tmp10 < tmp11) ? 0.0f : tmp34;
+    const float tmp36 = mag_ned[0] - tmp35;
+    const float tmp37 = tmp36 * tmp36;
+    const float tmp38 = tmp17 * tmp33;
+    const float tmp39 = mag_ned[1] + tmp38;
     carry[0] = tmp1;
-    carry[1] = tmp8;
+    carry[1] = tmp2;
     carry[2] = tmp10;
+    carry[3] = tmp11;
+    carry[4] = tmp18;
+    carry[5] = tmp21;
+    carry[6] = tmp24;
+    carry[7] = tmp36;
+    carry[8] = tmp37;
+    carry[9] = tmp39;
 }
 
-static void qcf_k_correct_part1(const float q[4], const float rot[9], const float accel_lp[3], float span_accel, float carry[15])
+static void qcf_k_correct_part1(const float rot[9], const float gyro_bias[3], const float gyro[3], float span_mag, float carry[11])
 {
-    float tmp11;
-    float tmp12;
-    float tmp13;
-    float tmp14;
-    float tmp15;
-    float tmp16;
-    float tmp17;
-    float tmp18;
-    float tmp19;
-    float tmp20;
-    float tmp21;
-    float tmp22;
-    if (carry[2] < 1e-06f) {
-        tmp11 = 1.0f;
-        tmp12 = 0.0f;
-        tmp13 = 0.0f;
-        tmp14 = 0.0f;
-        tmp15 = 0.0f;
-        tmp16 = 0.0f;
-        tmp17 = 0.0f;
-        tmp18 = 0.0f;
-        tmp19 = 0.0f;
-        tmp20 = 0.0f;
-        tmp21 = 0.0f;
-        tmp22 = 0.0f;
+    const float tmp40 = carry[9] * carry[9];
+    const float tmp41 = carry[8] + tmp40;
+    const float tmp42 = sqrtf(tmp41);
+    float tmp43;
+    float tmp44;
+    float tmp45;
+    if (tmp42 < 1e-15f) {
+        tmp43 = 0.0f;
+        tmp44 = 0.0f;
+        tmp45 = 0.0f;
     } else {
-        const float tmp23 = accel_lp[1] * carry[1];
-        const float tmp24 = carry[2] * carry[2];
-        const float tmp25 = accel_lp[0] * carry[1];
-        const float tmp26 = tmp25 * tmp25;
-        const float tmp27 = tmp24 + tmp26;
-        const float tmp28 = tmp23 * tmp23;
-        const float tmp29 = tmp27 + tmp28;
-        const float tmp30 = (tmp29 > 1e-12f) ? tmp29 : 1e-12f;
-        const float tmp31 = 1.0f / tmp30;
-        const float tmp32 = sqrtf(tmp31);
-        const float tmp33 = tmp23 * tmp32;
-        const float tmp34 = -tmp33;
-        const float tmp35 = tmp25 * tmp32;
-        const float tmp36 = span_accel * tmp35;
-        const float tmp37 = rot[1] * tmp36;
-        const float tmp38 = carry[2] * tmp32;
-        const float tmp39 = tmp38 * q[2];
-        const float tmp40 = tmp35 * q[0];
-        const float tmp41 = tmp38 * q[3];
-        const float tmp42 = tmp35 * q[1];
-        const float tmp43 = tmp38 * q[1];
-        const float tmp44 = tmp35 * q[3];
-        const float tmp45 = tmp38 * q[0];
-        const float tmp46 = tmp35 * q[2];
-        const float tmp47 = rot[4] * tmp36;
-        const float tmp48 = rot[7] * tmp36;
-        tmp11 = tmp34;
-        tmp12 = tmp37;
-        tmp13 = tmp39;
-        tmp14 = tmp40;
-        tmp15 = tmp41;
-        tmp16 = tmp42;
-        tmp17 = tmp43;
-        tmp18 = tmp44;
-        tmp19 = tmp45;
-        tmp20 = tmp46;
-        tmp21 = tmp47;
-        tmp22 = tmp48;
+        const float tmp46 = 0.15f /* 0.5*kp */ * span_mag;
+        const float tmp47 = tmp42 + tmp42;
+        const float tmp48 = fabsf(carry[7]);
+        const float tmp49 = tmp42 + tmp48;
+        const float tmp50 = tmp47 * tmp49;
+        const float tmp51 = sqrtf(tmp50);
+        float tmp52;
+        if (0.0f <= carry[7]) {
+            const float tmp53 = carry[9] / tmp51;
+            const float tmp54 = -tmp53;
+            tmp52 = tmp54;
+        } else {
+            const float tmp55 = carry[7] - tmp42;
+            const float tmp56 = tmp42 - carry[7];
+            const float tmp57 = (0.0f < carry[9]) ? tmp55 : tmp56;
+            const float tmp58 = tmp57 / tmp51;
+            tmp52 = tmp58;
+        }
+        const float tmp59 = tmp46 * tmp52;
+        const float tmp60 = rot[2] * tmp59;
+        const float tmp61 = rot[5] * tmp59;
+        const float tmp62 = rot[8] * tmp59;
+        tmp43 = tmp60;
+        tmp44 = tmp61;
+        tmp45 = tmp62;
     }
-    const float tmp49 = span_accel * tmp11;
-    const float tmp50 = rot[0] * tmp49;
-    carry[1] = tmp11;
-    carry[2] = tmp12;
-    carry[3] = tmp13;
-    carry[4] = tmp14;
-    carry[5] = tmp15;
-    carry[6] = tmp16;
-    carry[7] = tmp17;
-    carry[8] = tmp18;
-    carry[9] = tmp19;
-    carry[10] = tmp20;
-    carry[11] = tmp21;
-    carry[12] = tmp22;
-    carry[13] = tmp49;
-    carry[14] = tmp50;
+    const float tmp63 = carry[6] + tmp43;
+    const float tmp64 = carry[1] + tmp63;
+    const float tmp65 = tmp64 * tmp64;
+    const float tmp66 = gyro[1] - gyro_bias[1];
+    const float tmp67 = tmp66 * carry[0];
+    const float tmp68 = rot[3] * carry[4];
+    const float tmp69 = rot[4] * carry[5];
+    const float tmp70 = (carry[2] < carry[3]) ? 0.0f : tmp69;
+    const float tmp71 = tmp68 + tmp70;
+    const float tmp72 = tmp71 + tmp44;
+    const float tmp73 = tmp67 + tmp72;
+    const float tmp74 = tmp73 * tmp73;
+    const float tmp75 = tmp65 + tmp74;
+    const float tmp76 = gyro[2] - gyro_bias[2];
+    const float tmp77 = tmp76 * carry[0];
+    const float tmp78 = rot[6] * carry[4];
+    const float tmp79 = rot[7] * carry[5];
+    carry[0] = tmp45;
+    carry[1] = tmp63;
+    carry[4] = tmp64;
+    carry[5] = tmp72;
+    carry[6] = tmp73;
+    carry[7] = tmp75;
+    carry[8] = tmp77;
+    carry[9] = tmp78;
+    carry[10] = tmp79;
 }
 
-static void qcf_k_correct_part2(const float q[4], const float mag[3], float carry[15])
+static void qcf_k_correct_part2(const float q[4], float carry[11])
 {
-    const float tmp51 = carry[14] + carry[2];
-    const float tmp52 = carry[1] * q[3];
-    const float tmp53 = carry[3] - tmp52;
-    const float tmp54 = tmp53 + carry[4];
-    const float tmp55 = tmp54 * tmp54;
-    const float tmp56 = carry[1] * q[2];
-    const float tmp57 = carry[5] + tmp56;
-    const float tmp58 = tmp57 - carry[6];
-    const float tmp59 = tmp58 * tmp58;
-    const float tmp60 = tmp55 + tmp59;
-    const float tmp61 = tmp60 + tmp60;
-    const float tmp62 = 1.0f - tmp61;
-    const float tmp63 = tmp62 * mag[0];
-    const float tmp64 = carry[1] * q[0];
-    const float tmp65 = carry[7] + tmp64;
-    const float tmp66 = tmp65 + carry[8];
-    const float tmp67 = tmp66 * tmp54;
-    const float tmp68 = carry[1] * q[1];
-    const float tmp69 = carry[9] - tmp68;
-    const float tmp70 = tmp69 - carry[10];
-    const float tmp71 = tmp70 * tmp58;
-    const float tmp72 = tmp67 - tmp71;
-    const float tmp73 = tmp72 + tmp72;
-    const float tmp74 = tmp73 * mag[1];
-    const float tmp75 = tmp63 + tmp74;
-    const float tmp76 = tmp66 * tmp58;
-    const float tmp77 = tmp70 * tmp54;
-    const float tmp78 = tmp76 + tmp77;
-    const float tmp79 = tmp78 + tmp78;
-    const float tmp80 = tmp79 * mag[2];
-    const float tmp81 = tmp75 + tmp80;
-    const float tmp82 = tmp81 * tmp81;
-    const float tmp83 = tmp67 + tmp71;
-    const float tmp84 = tmp83 + tmp83;
-    const float tmp85 = tmp84 * mag[0];
-    const float tmp86 = tmp66 * tmp66;
-    const float tmp87 = tmp86 + tmp59;
-    const float tmp88 = tmp87 + tmp87;
-    const float tmp89 = 1.0f - tmp88;
-    const float tmp90 = tmp89 * mag[1];
-    carry[1] = tmp51;
-    carry[2] = tmp54;
-    carry[3] = tmp58;
-    carry[4] = tmp66;
-    carry[5] = tmp70;
-    carry[6] = tmp81;
-    carry[7] = tmp82;
-    carry[8] = tmp85;
-    carry[9] = tmp90;
-}
-
-static void qcf_k_correct_part3(const float rot[9], const float gyro_bias[3], const float gyro[3], float dt, const float mag[3], float span_mag, float carry[15])
-{
-    const float tmp91 = carry[8] + carry[9];
-    const float tmp92 = carry[2] * carry[3];
-    const float tmp93 = carry[5] * carry[4];
-    const float tmp94 = tmp92 - tmp93;
-    const float tmp95 = tmp94 + tmp94;
-    const float tmp96 = tmp95 * mag[2];
-    const float tmp97 = tmp91 + tmp96;
-    const float tmp98 = tmp97 * tmp97;
-    const float tmp99 = carry[7] + tmp98;
-    float tmp100;
-    float tmp101;
-    float tmp102;
-    if (tmp99 < 1e-30f) {
-        tmp100 = 0.0f;
-        tmp101 = 0.0f;
-        tmp102 = 0.0f;
+    const float tmp80 = (carry[2] < carry[3]) ? 0.0f : carry[10];
+    const float tmp81 = carry[9] + tmp80;
+    const float tmp82 = tmp81 + carry[0];
+    const float tmp83 = carry[8] + tmp82;
+    const float tmp84 = tmp83 * tmp83;
+    const float tmp85 = carry[7] + tmp84;
+    float tmp86;
+    float tmp87;
+    float tmp88;
+    float tmp89;
+    if (tmp85 < 0.01f) {
+        const float tmp90 = (-2.1377798e-05f) * tmp85;
+        const float tmp91 = (-0.00021164022f) + tmp90;
+        const float tmp92 = tmp85 * tmp91;
+        const float tmp93 = (-0.0021164021f) + tmp92;
+        const float tmp94 = tmp85 * tmp93;
+        const float tmp95 = (-0.022222223f) + tmp94;
+        const float tmp96 = tmp85 * tmp95;
+        const float tmp97 = (-0.33333334f) + tmp96;
+        const float tmp98 = tmp85 * tmp97;
+        const float tmp99 = 1.0f + tmp98;
+        tmp86 = tmp99;
+        tmp87 = carry[4];
+        tmp88 = carry[6];
+        tmp89 = tmp83;
     } else {
-        const float tmp103 = (tmp99 > 1e-30f) ? tmp99 : 1e-30f;
-        const float tmp104 = 1.0f / tmp103;
-        const float tmp105 = sqrtf(tmp104);
-        const float tmp106 = tmp97 * tmp105;
-        const float tmp107 = -tmp106;
-        const float tmp108 = (tmp107 < 0.0f) ? (-1.0f) : 1.0f;
-        const float tmp109 = carry[6] * tmp105;
-        const float tmp110 = (tmp109 > (-1.0f)) ? tmp109 : (-1.0f);
-        const float tmp111 = (tmp110 < 1.0f) ? tmp110 : 1.0f;
-        const float tmp112 = 1.0f - tmp111;
-        const float tmp113 = tmp112 * 0.5f;
-        const float tmp114 = sqrtf(tmp113);
-        const float tmp115 = tmp108 * tmp114;
-        const float tmp116 = span_mag * tmp115;
-        const float tmp117 = rot[2] * tmp116;
-        const float tmp118 = rot[5] * tmp116;
-        const float tmp119 = rot[8] * tmp116;
-        tmp100 = tmp117;
-        tmp101 = tmp118;
-        tmp102 = tmp119;
+        const float tmp100 = (tmp85 > 0.01f) ? tmp85 : 0.01f;
+        const float tmp101 = sqrtf(tmp100);
+        const float tmp102 = fast_cosf(tmp101);
+        const float tmp103 = fast_sinf(tmp101);
+        const float tmp104 = tmp103 / tmp101;
+        const float tmp105 = tmp104 * carry[4];
+        const float tmp106 = tmp104 * carry[6];
+        const float tmp107 = tmp104 * tmp83;
+        tmp86 = tmp102;
+        tmp87 = tmp105;
+        tmp88 = tmp106;
+        tmp89 = tmp107;
     }
-    const float tmp120 = carry[1] + tmp100;
-    const float tmp121 = 0.3f /* kp */ * tmp120;
-    const float tmp122 = carry[0] + tmp121;
-    const float tmp123 = 0.5f * tmp122;
-    const float tmp124 = tmp123 * tmp123;
-    const float tmp125 = gyro[1] - gyro_bias[1];
-    const float tmp126 = tmp125 * dt;
-    const float tmp127 = rot[3] * carry[13];
-    const float tmp128 = tmp127 + carry[11];
-    const float tmp129 = tmp128 + tmp101;
-    const float tmp130 = 0.3f /* kp */ * tmp129;
-    carry[0] = tmp102;
-    carry[1] = tmp120;
-    carry[2] = tmp123;
-    carry[3] = tmp124;
-    carry[4] = tmp126;
-    carry[5] = tmp129;
-    carry[6] = tmp130;
+    const float tmp108 = q[0] * tmp86;
+    const float tmp109 = q[1] * tmp87;
+    const float tmp110 = tmp108 - tmp109;
+    const float tmp111 = q[2] * tmp88;
+    const float tmp112 = tmp110 - tmp111;
+    const float tmp113 = q[3] * tmp89;
+    const float tmp114 = tmp112 - tmp113;
+    const float tmp115 = tmp114 * tmp114;
+    const float tmp116 = q[0] * tmp87;
+    const float tmp117 = q[1] * tmp86;
+    const float tmp118 = tmp116 + tmp117;
+    const float tmp119 = q[2] * tmp89;
+    carry[0] = tmp82;
+    carry[2] = tmp86;
+    carry[3] = tmp87;
+    carry[4] = tmp88;
+    carry[6] = tmp89;
+    carry[7] = tmp114;
+    carry[8] = tmp115;
+    carry[9] = tmp118;
+    carry[10] = tmp119;
 }
 
-static void qcf_k_correct_part4(const float q[4], const float rot[9], const float gyro_bias[3], const float gyro[3], float dt, float carry[15])
+static void qcf_k_correct_part3(const float q[4], float carry[11])
 {
-    const float tmp131 = carry[4] + carry[6];
-    const float tmp132 = 0.5f * tmp131;
-    const float tmp133 = tmp132 * tmp132;
-    const float tmp134 = carry[3] + tmp133;
-    const float tmp135 = gyro[2] - gyro_bias[2];
-    const float tmp136 = tmp135 * dt;
-    const float tmp137 = rot[6] * carry[13];
-    const float tmp138 = tmp137 + carry[12];
-    const float tmp139 = tmp138 + carry[0];
-    const float tmp140 = 0.3f /* kp */ * tmp139;
-    const float tmp141 = tmp136 + tmp140;
-    const float tmp142 = 0.5f * tmp141;
-    const float tmp143 = tmp142 * tmp142;
-    const float tmp144 = tmp134 + tmp143;
-    float tmp145;
-    float tmp146;
-    if (tmp144 < 0.01f) {
-        const float tmp147 = 2.4801588e-05f * tmp144;
-        const float tmp148 = (-0.0013888889f) + tmp147;
-        const float tmp149 = tmp144 * tmp148;
-        const float tmp150 = 0.041666668f + tmp149;
-        const float tmp151 = tmp144 * tmp150;
-        const float tmp152 = (-0.5f) + tmp151;
-        const float tmp153 = tmp144 * tmp152;
-        const float tmp154 = 1.0f + tmp153;
-        const float tmp155 = 2.7557319e-06f * tmp144;
-        const float tmp156 = (-0.0001984127f) + tmp155;
-        const float tmp157 = tmp144 * tmp156;
-        const float tmp158 = 0.008333334f + tmp157;
-        const float tmp159 = tmp144 * tmp158;
-        const float tmp160 = (-0.16666667f) + tmp159;
-        const float tmp161 = tmp144 * tmp160;
-        const float tmp162 = 1.0f + tmp161;
-        tmp145 = tmp154;
-        tmp146 = tmp162;
-    } else {
-        const float tmp163 = (tmp144 > 0.01f) ? tmp144 : 0.01f;
-        const float tmp164 = sqrtf(tmp163);
-        const float tmp165 = fast_cosf(tmp164);
-        const float tmp166 = fast_sinf(tmp164);
-        const float tmp167 = tmp166 / tmp164;
-        tmp145 = tmp165;
-        tmp146 = tmp167;
-    }
-    const float tmp168 = q[0] * tmp145;
-    const float tmp169 = tmp146 * carry[2];
-    const float tmp170 = q[1] * tmp169;
-    carry[0] = tmp132;
-    carry[2] = tmp139;
-    carry[3] = tmp142;
-    carry[4] = tmp145;
-    carry[6] = tmp146;
-    carry[7] = tmp168;
-    carry[8] = tmp169;
-    carry[9] = tmp170;
+    const float tmp120 = carry[9] + carry[10];
+    const float tmp121 = q[3] * carry[4];
+    const float tmp122 = tmp120 - tmp121;
+    const float tmp123 = tmp122 * tmp122;
+    const float tmp124 = carry[8] + tmp123;
+    const float tmp125 = q[0] * carry[4];
+    const float tmp126 = q[1] * carry[6];
+    const float tmp127 = tmp125 - tmp126;
+    const float tmp128 = q[2] * carry[2];
+    const float tmp129 = tmp127 + tmp128;
+    const float tmp130 = q[3] * carry[3];
+    const float tmp131 = tmp129 + tmp130;
+    const float tmp132 = tmp131 * tmp131;
+    const float tmp133 = tmp124 + tmp132;
+    const float tmp134 = q[0] * carry[6];
+    const float tmp135 = q[1] * carry[4];
+    const float tmp136 = tmp134 + tmp135;
+    const float tmp137 = q[2] * carry[3];
+    const float tmp138 = tmp136 - tmp137;
+    const float tmp139 = q[3] * carry[2];
+    const float tmp140 = tmp138 + tmp139;
+    const float tmp141 = tmp140 * tmp140;
+    const float tmp142 = tmp133 + tmp141;
+    const float tmp143 = sqrtf(tmp142);
+    const float tmp144 = carry[7] / tmp143;
+    const float tmp145 = tmp122 / tmp143;
+    const float tmp146 = tmp131 / tmp143;
+    const float tmp147 = tmp140 / tmp143;
+    carry[2] = tmp144;
+    carry[3] = tmp145;
+    carry[4] = tmp146;
+    carry[6] = tmp147;
 }
 
-static void qcf_k_correct_part5(const float q[4], float carry[15])
+static void qcf_k_correct_part4(const float gyro_bias[3], float span_accel, bool use_accel, const float accel[3], bool at_rest, const float rest_gyro_lp[3], float carry[11])
 {
-    const float tmp171 = carry[7] - carry[9];
-    const float tmp172 = carry[6] * carry[0];
-    const float tmp173 = q[2] * tmp172;
-    const float tmp174 = tmp171 - tmp173;
-    const float tmp175 = carry[6] * carry[3];
-    const float tmp176 = q[3] * tmp175;
-    const float tmp177 = tmp174 - tmp176;
-    const float tmp178 = tmp177 * tmp177;
-    const float tmp179 = q[0] * carry[8];
-    const float tmp180 = q[1] * carry[4];
-    const float tmp181 = tmp179 + tmp180;
-    const float tmp182 = q[2] * tmp175;
-    const float tmp183 = tmp181 + tmp182;
-    const float tmp184 = q[3] * tmp172;
-    const float tmp185 = tmp183 - tmp184;
-    const float tmp186 = tmp185 * tmp185;
-    const float tmp187 = tmp178 + tmp186;
-    const float tmp188 = q[0] * tmp172;
-    const float tmp189 = q[1] * tmp175;
-    const float tmp190 = tmp188 - tmp189;
-    const float tmp191 = q[2] * carry[4];
-    const float tmp192 = tmp190 + tmp191;
-    const float tmp193 = q[3] * carry[8];
-    const float tmp194 = tmp192 + tmp193;
-    const float tmp195 = tmp194 * tmp194;
-    const float tmp196 = tmp187 + tmp195;
-    const float tmp197 = q[0] * tmp175;
-    const float tmp198 = q[1] * tmp172;
-    const float tmp199 = tmp197 + tmp198;
-    const float tmp200 = q[2] * carry[8];
-    const float tmp201 = tmp199 - tmp200;
-    const float tmp202 = q[3] * carry[4];
-    const float tmp203 = tmp201 + tmp202;
-    const float tmp204 = tmp203 * tmp203;
-    const float tmp205 = tmp196 + tmp204;
-    const float tmp206 = sqrtf(tmp205);
-    const float tmp207 = tmp177 / tmp206;
-    const float tmp208 = tmp185 / tmp206;
-    const float tmp209 = tmp194 / tmp206;
-    const float tmp210 = tmp203 / tmp206;
-    carry[0] = tmp207;
-    carry[3] = tmp208;
-    carry[4] = tmp209;
-    carry[6] = tmp210;
-}
-
-static void qcf_k_correct_part6(const float gyro_bias[3], float span_accel, bool use_accel, const float accel[3], bool at_rest, const float rest_gyro_lp[3], float carry[15])
-{
-    float tmp211;
-    float tmp212;
-    float tmp213;
+    float tmp148;
+    float tmp149;
+    float tmp150;
     if (at_rest) {
-        const float tmp214 = 1.0f + span_accel;
-        const float tmp215 = span_accel / tmp214;
-        const float tmp216 = rest_gyro_lp[0] - gyro_bias[0];
-        const float tmp217 = tmp215 * tmp216;
-        const float tmp218 = gyro_bias[0] + tmp217;
-        const float tmp219 = rest_gyro_lp[1] - gyro_bias[1];
-        const float tmp220 = tmp215 * tmp219;
-        const float tmp221 = gyro_bias[1] + tmp220;
-        const float tmp222 = rest_gyro_lp[2] - gyro_bias[2];
-        const float tmp223 = tmp215 * tmp222;
-        const float tmp224 = gyro_bias[2] + tmp223;
-        tmp211 = tmp218;
-        tmp212 = tmp221;
-        tmp213 = tmp224;
+        const float tmp151 = 1.0f + span_accel;
+        const float tmp152 = span_accel / tmp151;
+        const float tmp153 = rest_gyro_lp[0] - gyro_bias[0];
+        const float tmp154 = tmp152 * tmp153;
+        const float tmp155 = gyro_bias[0] + tmp154;
+        const float tmp156 = rest_gyro_lp[1] - gyro_bias[1];
+        const float tmp157 = tmp152 * tmp156;
+        const float tmp158 = gyro_bias[1] + tmp157;
+        const float tmp159 = rest_gyro_lp[2] - gyro_bias[2];
+        const float tmp160 = tmp152 * tmp159;
+        const float tmp161 = gyro_bias[2] + tmp160;
+        tmp148 = tmp155;
+        tmp149 = tmp158;
+        tmp150 = tmp161;
     } else {
-        const float tmp225 = accel[0] * accel[0];
-        const float tmp226 = accel[1] * accel[1];
-        const float tmp227 = tmp225 + tmp226;
-        const float tmp228 = accel[2] * accel[2];
-        const float tmp229 = tmp227 + tmp228;
-        const float tmp230 = sqrtf(tmp229);
-        const float tmp231 = tmp230 - 9.80665f;
-        const float tmp232 = fabsf(tmp231);
-        const bool tmp233 = (use_accel) && (tmp232 < 1.0f);
-        const float tmp234 = 0.002f /* ki */ * carry[1];
-        const float tmp235 = gyro_bias[0] - tmp234;
-        const float tmp236 = (tmp233) ? tmp235 : gyro_bias[0];
-        const float tmp237 = 0.002f /* ki */ * carry[5];
-        const float tmp238 = gyro_bias[1] - tmp237;
-        const float tmp239 = (tmp233) ? tmp238 : gyro_bias[1];
-        const float tmp240 = 0.002f /* ki */ * carry[2];
-        const float tmp241 = gyro_bias[2] - tmp240;
-        const float tmp242 = (tmp233) ? tmp241 : gyro_bias[2];
-        tmp211 = tmp236;
-        tmp212 = tmp239;
-        tmp213 = tmp242;
+        const float tmp162 = accel[0] * accel[0];
+        const float tmp163 = accel[1] * accel[1];
+        const float tmp164 = tmp162 + tmp163;
+        const float tmp165 = accel[2] * accel[2];
+        const float tmp166 = tmp164 + tmp165;
+        const bool tmp167 = (77.55708f < tmp166) && (tmp166 < 116.78368f);
+        const bool tmp168 = (use_accel) && (tmp167);
+        const float tmp169 = 0.013333334f /* ki/(0.5*kp) */ * carry[1];
+        const float tmp170 = gyro_bias[0] - tmp169;
+        const float tmp171 = (tmp168) ? tmp170 : gyro_bias[0];
+        const float tmp172 = 0.013333334f /* ki/(0.5*kp) */ * carry[5];
+        const float tmp173 = gyro_bias[1] - tmp172;
+        const float tmp174 = (tmp168) ? tmp173 : gyro_bias[1];
+        const float tmp175 = 0.013333334f /* ki/(0.5*kp) */ * carry[0];
+        const float tmp176 = gyro_bias[2] - tmp175;
+        const float tmp177 = (tmp168) ? tmp176 : gyro_bias[2];
+        tmp148 = tmp171;
+        tmp149 = tmp174;
+        tmp150 = tmp177;
     }
-    carry[1] = tmp211;
-    carry[2] = tmp212;
-    carry[5] = tmp213;
+    carry[0] = tmp148;
+    carry[1] = tmp149;
+    carry[5] = tmp150;
 }
 
-static void qcf_k_correct(const float q[4], const float rot[9], const float gyro_bias[3], const float gyro[3], float dt, const float accel_lp[3], const float mag[3], float span_accel, float span_mag, bool use_accel, const float accel[3], bool at_rest, const float rest_gyro_lp[3], float q_new[4], float gyro_bias_new[3])
+static void qcf_k_correct(const float q[4], const float rot[9], const float gyro_bias[3], const float gyro[3], float dt, const float accel_lp[3], const float mag_ned[3], float span_accel, float span_mag, bool use_accel, const float accel[3], bool at_rest, const float rest_gyro_lp[3], float q_new[4], float gyro_bias_new[3])
 {
-    /* 7 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
-    float carry[15];
-    qcf_k_correct_part0(gyro_bias, gyro, dt, accel_lp, carry);
-    qcf_k_correct_part1(q, rot, accel_lp, span_accel, carry);
-    qcf_k_correct_part2(q, mag, carry);
-    qcf_k_correct_part3(rot, gyro_bias, gyro, dt, mag, span_mag, carry);
-    qcf_k_correct_part4(q, rot, gyro_bias, gyro, dt, carry);
-    qcf_k_correct_part5(q, carry);
-    qcf_k_correct_part6(gyro_bias, span_accel, use_accel, accel, at_rest, rest_gyro_lp, carry);
-    q_new[0] = carry[0];
+    /* 5 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    float carry[11];
+    qcf_k_correct_part0(rot, gyro_bias, gyro, dt, accel_lp, mag_ned, span_accel, carry);
+    qcf_k_correct_part1(rot, gyro_bias, gyro, span_mag, carry);
+    qcf_k_correct_part2(q, carry);
+    qcf_k_correct_part3(q, carry);
+    qcf_k_correct_part4(gyro_bias, span_accel, use_accel, accel, at_rest, rest_gyro_lp, carry);
+    q_new[0] = carry[2];
     q_new[1] = carry[3];
     q_new[2] = carry[4];
     q_new[3] = carry[6];
-    gyro_bias_new[0] = carry[1];
-    gyro_bias_new[1] = carry[2];
+    gyro_bias_new[0] = carry[0];
+    gyro_bias_new[1] = carry[1];
     gyro_bias_new[2] = carry[5];
 }
 
@@ -951,10 +781,10 @@ static void qcf_k_rest(const float gyro[3], const float accel[3], const float re
 }
 
 /* field check: |m| and sin(dip) against the learned reference
- * ops: add 22, mul 26, div 4, sqrt 2, cmp 17 (total 71)
+ * ops: add 16, mul 15, div 3, sqrt 2, cmp 17 (total 53)
  *      of which only one side runs: if (tmp0 < 10.0f) 5, else 20
- *      of which only one side runs: if (tmp57) 1, else 8 */
-static void qcf_k_mag_check_part0(const float rot[9], const float accel_lp[3], const float mag[3], const float mag_ref[2], float mag_learn_time, float carry[5])
+ *      of which only one side runs: if (tmp39) 1, else 8 */
+static void qcf_k_mag_check_part0(const float accel_lp[3], const float mag[3], const float mag_ned[3], const float mag_ref[2], float mag_learn_time, float span, float carry[6])
 {
     const float tmp0 = (mag_ref[0] <= 0.0f) ? 0.0f : mag_learn_time;
     const float tmp1 = mag[0] * mag[0];
@@ -964,110 +794,93 @@ static void qcf_k_mag_check_part0(const float rot[9], const float accel_lp[3], c
     const float tmp5 = tmp3 + tmp4;
     const float tmp6 = sqrtf(tmp5);
     const float tmp7 = tmp6 - mag_ref[0];
-    const float tmp8 = accel_lp[0] * accel_lp[0];
-    const float tmp9 = accel_lp[1] * accel_lp[1];
+    const float tmp8 = accel_lp[0] * mag_ned[0];
+    const float tmp9 = accel_lp[1] * mag_ned[1];
     const float tmp10 = tmp8 + tmp9;
-    const float tmp11 = accel_lp[2] * accel_lp[2];
+    const float tmp11 = accel_lp[2] * mag_ned[2];
     const float tmp12 = tmp10 + tmp11;
-    const float tmp13 = 1.0f / tmp12;
-    const float tmp14 = sqrtf(tmp13);
-    const float tmp15 = accel_lp[0] * tmp14;
-    const float tmp16 = rot[0] * tmp15;
-    const float tmp17 = accel_lp[1] * tmp14;
-    const float tmp18 = rot[1] * tmp17;
-    const float tmp19 = tmp16 + tmp18;
-    const float tmp20 = accel_lp[2] * tmp14;
-    const float tmp21 = rot[2] * tmp20;
-    const float tmp22 = tmp19 + tmp21;
-    const float tmp23 = tmp22 * mag[0];
-    const float tmp24 = rot[3] * tmp15;
-    const float tmp25 = rot[4] * tmp17;
-    const float tmp26 = tmp24 + tmp25;
-    const float tmp27 = rot[5] * tmp20;
-    const float tmp28 = tmp26 + tmp27;
-    const float tmp29 = tmp28 * mag[1];
-    const float tmp30 = tmp23 + tmp29;
-    const float tmp31 = rot[6] * tmp15;
-    const float tmp32 = rot[7] * tmp17;
-    const float tmp33 = tmp31 + tmp32;
-    const float tmp34 = rot[8] * tmp20;
-    const float tmp35 = tmp33 + tmp34;
-    const float tmp36 = tmp35 * mag[2];
-    const float tmp37 = tmp30 + tmp36;
-    const float tmp38 = tmp37 / tmp6;
-    const float tmp39 = tmp38 + mag_ref[1];
+    const float tmp13 = accel_lp[0] * accel_lp[0];
+    const float tmp14 = accel_lp[1] * accel_lp[1];
+    const float tmp15 = tmp13 + tmp14;
+    const float tmp16 = accel_lp[2] * accel_lp[2];
+    const float tmp17 = tmp15 + tmp16;
+    const float tmp18 = sqrtf(tmp17);
+    const float tmp19 = tmp18 * tmp6;
+    const float tmp20 = tmp12 / tmp19;
+    const float tmp21 = tmp20 + mag_ref[1];
+    const float tmp22 = tmp0 + span;
     carry[0] = tmp0;
     carry[1] = tmp6;
     carry[2] = tmp7;
-    carry[3] = tmp38;
-    carry[4] = tmp39;
+    carry[3] = tmp20;
+    carry[4] = tmp21;
+    carry[5] = tmp22;
 }
 
-static void qcf_k_mag_check_part1(const float mag_ref[2], float mag_dist_time, float span, float carry[5])
+static void qcf_k_mag_check_part1(const float mag_ref[2], float mag_dist_time, float span, float carry[6])
 {
-    const float tmp40 = carry[0] + span;
-    bool tmp41;
-    float tmp42;
-    float tmp43;
-    float tmp44;
+    bool tmp23;
+    float tmp24;
+    float tmp25;
+    float tmp26;
     if (carry[0] < 10.0f) {
-        const float tmp45 = span / tmp40;
-        const float tmp46 = tmp45 * carry[2];
-        const float tmp47 = mag_ref[0] + tmp46;
-        const float tmp48 = tmp45 * carry[4];
-        const float tmp49 = mag_ref[1] - tmp48;
-        tmp41 = true;
-        tmp42 = tmp47;
-        tmp43 = tmp49;
-        tmp44 = 0.0f;
+        const float tmp27 = span / carry[5];
+        const float tmp28 = tmp27 * carry[2];
+        const float tmp29 = mag_ref[0] + tmp28;
+        const float tmp30 = tmp27 * carry[4];
+        const float tmp31 = mag_ref[1] - tmp30;
+        tmp23 = true;
+        tmp24 = tmp29;
+        tmp25 = tmp31;
+        tmp26 = 0.0f;
     } else {
-        const float tmp50 = fabsf(carry[2]);
-        const float tmp51 = 0.1f * mag_ref[0];
-        const float tmp52 = fabsf(carry[4]);
-        const bool tmp53 = (tmp50 < tmp51) && (tmp52 < 0.1f);
-        const bool tmp54 = (tmp53) || (!(0.0f < mag_ref[0]));
-        const float tmp55 = mag_dist_time + span;
-        const float tmp56 = (tmp53) ? 0.0f : tmp55;
-        const bool tmp57 = (!(0.0f < mag_ref[0])) || (20.0f < tmp56);
-        float tmp58;
-        float tmp59;
-        float tmp60;
-        if (tmp57) {
-            const float tmp61 = -carry[3];
-            tmp58 = carry[1];
-            tmp59 = tmp61;
-            tmp60 = 0.0f;
+        const float tmp32 = fabsf(carry[2]);
+        const float tmp33 = 0.1f * mag_ref[0];
+        const float tmp34 = fabsf(carry[4]);
+        const bool tmp35 = (tmp32 < tmp33) && (tmp34 < 0.1f);
+        const bool tmp36 = (tmp35) || (!(0.0f < mag_ref[0]));
+        const float tmp37 = mag_dist_time + span;
+        const float tmp38 = (tmp35) ? 0.0f : tmp37;
+        const bool tmp39 = (!(0.0f < mag_ref[0])) || (20.0f < tmp38);
+        float tmp40;
+        float tmp41;
+        float tmp42;
+        if (tmp39) {
+            const float tmp43 = -carry[3];
+            tmp40 = carry[1];
+            tmp41 = tmp43;
+            tmp42 = 0.0f;
         } else {
-            const float tmp62 = 20.0f + span;
-            const float tmp63 = span / tmp62;
-            const float tmp64 = tmp63 * carry[2];
-            const float tmp65 = mag_ref[0] + tmp64;
-            const float tmp66 = (tmp53) ? tmp65 : mag_ref[0];
-            const float tmp67 = tmp63 * carry[4];
-            const float tmp68 = mag_ref[1] - tmp67;
-            const float tmp69 = (tmp53) ? tmp68 : mag_ref[1];
-            tmp58 = tmp66;
-            tmp59 = tmp69;
-            tmp60 = tmp56;
+            const float tmp44 = 20.0f + span;
+            const float tmp45 = span / tmp44;
+            const float tmp46 = tmp45 * carry[2];
+            const float tmp47 = mag_ref[0] + tmp46;
+            const float tmp48 = (tmp35) ? tmp47 : mag_ref[0];
+            const float tmp49 = tmp45 * carry[4];
+            const float tmp50 = mag_ref[1] - tmp49;
+            const float tmp51 = (tmp35) ? tmp50 : mag_ref[1];
+            tmp40 = tmp48;
+            tmp41 = tmp51;
+            tmp42 = tmp38;
         }
-        tmp41 = tmp54;
-        tmp42 = tmp58;
-        tmp43 = tmp59;
-        tmp44 = tmp60;
+        tmp23 = tmp36;
+        tmp24 = tmp40;
+        tmp25 = tmp41;
+        tmp26 = tmp42;
     }
-    const float tmp70 = (tmp40 < 10.0f /* mag_warmup */) ? tmp40 : 10.0f /* mag_warmup */;
-    carry[0] = tmp41 ? 1.0f : 0.0f;
-    carry[1] = tmp42;
-    carry[2] = tmp43;
-    carry[3] = tmp44;
-    carry[4] = tmp70;
+    const float tmp52 = (carry[5] < 10.0f /* mag_warmup */) ? carry[5] : 10.0f /* mag_warmup */;
+    carry[0] = tmp23 ? 1.0f : 0.0f;
+    carry[1] = tmp24;
+    carry[2] = tmp25;
+    carry[3] = tmp26;
+    carry[4] = tmp52;
 }
 
-static void qcf_k_mag_check(const float rot[9], const float accel_lp[3], const float mag[3], const float mag_ref[2], float mag_dist_time, float mag_learn_time, float span, bool *accept, float mag_ref_new[2], float *mag_dist_time_new, float *mag_learn_time_new)
+static void qcf_k_mag_check(const float accel_lp[3], const float mag[3], const float mag_ned[3], const float mag_ref[2], float mag_dist_time, float mag_learn_time, float span, bool *accept, float mag_ref_new[2], float *mag_dist_time_new, float *mag_learn_time_new)
 {
     /* 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
-    float carry[5];
-    qcf_k_mag_check_part0(rot, accel_lp, mag, mag_ref, mag_learn_time, carry);
+    float carry[6];
+    qcf_k_mag_check_part0(accel_lp, mag, mag_ned, mag_ref, mag_learn_time, span, carry);
     qcf_k_mag_check_part1(mag_ref, mag_dist_time, span, carry);
     *accept = (carry[0] > 0.5f);
     mag_ref_new[0] = carry[1];
@@ -1121,9 +934,9 @@ static inline void qcf_k_rotation(const float q[4], float rot[9])
     rot[8] = tmp29;
 }
 
-/* accelerometer minus the GPS motion acceleration when ||f| - g| exceeds the threshold (centripetal: R(q)(w - b) x v_gps, computed only then)
- * ops: add 29, mul 37, div 2, sqrt 2, cmp 7 (total 77)
- *      of which only one side runs: if (0.3f < tmp7) 66, else 0 */
+/* accelerometer minus the GPS motion acceleration when ||f| - g| exceeds the threshold (centripetal: (w - b) x R(q)^T v_gps in body axes, computed only then)
+ * ops: add 20, mul 25, div 2, sqrt 1, cmp 7 (total 55)
+ *      of which only one side runs: if (tmp5) 0, else 46 */
 static void qcf_k_gravity_part_part0(const float accel[3], float carry[3])
 {
     const float tmp0 = accel[0] * accel[0];
@@ -1131,95 +944,73 @@ static void qcf_k_gravity_part_part0(const float accel[3], float carry[3])
     const float tmp2 = tmp0 + tmp1;
     const float tmp3 = accel[2] * accel[2];
     const float tmp4 = tmp2 + tmp3;
-    const float tmp5 = sqrtf(tmp4);
-    const float tmp6 = tmp5 - 9.80665f;
-    const float tmp7 = fabsf(tmp6);
-    carry[0] = tmp7;
+    const bool tmp5 = (90.376396f /* (9.80665 - motion_accel_threshold)^2 */ < tmp4) && (tmp4 < 102.14437f /* (9.80665 + motion_accel_threshold)^2 */);
+    carry[0] = tmp5 ? 1.0f : 0.0f;
 }
 
 static void qcf_k_gravity_part_part1(const float accel[3], const float rot[9], const float gyro[3], const float gyro_bias[3], const float gps_vel_hist[21], float carry[3])
 {
+    float tmp6;
+    float tmp7;
     float tmp8;
-    float tmp9;
-    float tmp10;
-    if (0.3f < carry[0]) {
-        const float tmp11 = gps_vel_hist[18] * rot[0];
-        const float tmp12 = gps_vel_hist[19] * rot[1];
-        const float tmp13 = tmp11 + tmp12;
-        const float tmp14 = gps_vel_hist[20] * rot[2];
-        const float tmp15 = tmp13 + tmp14;
-        const float tmp16 = gps_vel_hist[18] * gps_vel_hist[18];
-        const float tmp17 = gps_vel_hist[19] * gps_vel_hist[19];
-        const float tmp18 = tmp16 + tmp17;
-        const float tmp19 = gps_vel_hist[20] * gps_vel_hist[20];
-        const float tmp20 = tmp18 + tmp19;
-        const float tmp21 = (tmp20 > 1e-06f) ? tmp20 : 1e-06f;
-        const float tmp22 = 1.0f / tmp21;
-        const float tmp23 = sqrtf(tmp22);
-        const float tmp24 = tmp15 * tmp23;
-        const float tmp25 = tmp24 - 0.7f /* centripetal_align */;
-        const float tmp26 = tmp25 / 0.3f /* 1 - centripetal_align */;
-        const float tmp27 = (tmp26 > 0.0f) ? tmp26 : 0.0f;
-        const float tmp28 = (tmp27 < 1.0f) ? tmp27 : 1.0f;
-        const float tmp29 = gyro[0] - gyro_bias[0];
-        const float tmp30 = rot[1] * tmp29;
-        const float tmp31 = gyro[1] - gyro_bias[1];
-        const float tmp32 = rot[4] * tmp31;
-        const float tmp33 = tmp30 + tmp32;
-        const float tmp34 = gyro[2] - gyro_bias[2];
-        const float tmp35 = rot[7] * tmp34;
-        const float tmp36 = tmp33 + tmp35;
-        const float tmp37 = tmp36 * gps_vel_hist[20];
-        const float tmp38 = rot[2] * tmp29;
-        const float tmp39 = rot[5] * tmp31;
-        const float tmp40 = tmp38 + tmp39;
-        const float tmp41 = rot[8] * tmp34;
-        const float tmp42 = tmp40 + tmp41;
-        const float tmp43 = tmp42 * gps_vel_hist[19];
-        const float tmp44 = tmp37 - tmp43;
-        const float tmp45 = tmp28 * tmp44;
-        const float tmp46 = rot[0] * tmp45;
-        const float tmp47 = tmp42 * gps_vel_hist[18];
-        const float tmp48 = rot[0] * tmp29;
-        const float tmp49 = rot[3] * tmp31;
-        const float tmp50 = tmp48 + tmp49;
-        const float tmp51 = rot[6] * tmp34;
-        const float tmp52 = tmp50 + tmp51;
-        const float tmp53 = tmp52 * gps_vel_hist[20];
-        const float tmp54 = tmp47 - tmp53;
-        const float tmp55 = tmp28 * tmp54;
-        const float tmp56 = rot[1] * tmp55;
-        const float tmp57 = tmp46 + tmp56;
-        const float tmp58 = tmp52 * gps_vel_hist[19];
-        const float tmp59 = tmp36 * gps_vel_hist[18];
-        const float tmp60 = tmp58 - tmp59;
-        const float tmp61 = tmp28 * tmp60;
-        const float tmp62 = rot[2] * tmp61;
-        const float tmp63 = tmp57 + tmp62;
-        const float tmp64 = accel[0] - tmp63;
-        const float tmp65 = rot[3] * tmp45;
-        const float tmp66 = rot[4] * tmp55;
-        const float tmp67 = tmp65 + tmp66;
-        const float tmp68 = rot[5] * tmp61;
-        const float tmp69 = tmp67 + tmp68;
-        const float tmp70 = accel[1] - tmp69;
-        const float tmp71 = rot[6] * tmp45;
-        const float tmp72 = rot[7] * tmp55;
-        const float tmp73 = tmp71 + tmp72;
-        const float tmp74 = rot[8] * tmp61;
-        const float tmp75 = tmp73 + tmp74;
-        const float tmp76 = accel[2] - tmp75;
-        tmp8 = tmp64;
-        tmp9 = tmp70;
-        tmp10 = tmp76;
+    if ((carry[0] > 0.5f)) {
+        tmp6 = accel[0];
+        tmp7 = accel[1];
+        tmp8 = accel[2];
     } else {
-        tmp8 = accel[0];
-        tmp9 = accel[1];
-        tmp10 = accel[2];
+        const float tmp9 = rot[0] * gps_vel_hist[18];
+        const float tmp10 = rot[1] * gps_vel_hist[19];
+        const float tmp11 = tmp9 + tmp10;
+        const float tmp12 = rot[2] * gps_vel_hist[20];
+        const float tmp13 = tmp11 + tmp12;
+        const float tmp14 = gps_vel_hist[18] * gps_vel_hist[18];
+        const float tmp15 = gps_vel_hist[19] * gps_vel_hist[19];
+        const float tmp16 = tmp14 + tmp15;
+        const float tmp17 = gps_vel_hist[20] * gps_vel_hist[20];
+        const float tmp18 = tmp16 + tmp17;
+        const float tmp19 = (tmp18 > 1e-06f) ? tmp18 : 1e-06f;
+        const float tmp20 = 1.0f / tmp19;
+        const float tmp21 = sqrtf(tmp20);
+        const float tmp22 = tmp13 * tmp21;
+        const float tmp23 = tmp22 - 0.7f /* centripetal_align */;
+        const float tmp24 = tmp23 / 0.3f /* 1 - centripetal_align */;
+        const float tmp25 = (tmp24 > 0.0f) ? tmp24 : 0.0f;
+        const float tmp26 = (tmp25 < 1.0f) ? tmp25 : 1.0f;
+        const float tmp27 = gyro[1] - gyro_bias[1];
+        const float tmp28 = rot[6] * gps_vel_hist[18];
+        const float tmp29 = rot[7] * gps_vel_hist[19];
+        const float tmp30 = tmp28 + tmp29;
+        const float tmp31 = rot[8] * gps_vel_hist[20];
+        const float tmp32 = tmp30 + tmp31;
+        const float tmp33 = tmp27 * tmp32;
+        const float tmp34 = gyro[2] - gyro_bias[2];
+        const float tmp35 = rot[3] * gps_vel_hist[18];
+        const float tmp36 = rot[4] * gps_vel_hist[19];
+        const float tmp37 = tmp35 + tmp36;
+        const float tmp38 = rot[5] * gps_vel_hist[20];
+        const float tmp39 = tmp37 + tmp38;
+        const float tmp40 = tmp34 * tmp39;
+        const float tmp41 = tmp33 - tmp40;
+        const float tmp42 = tmp26 * tmp41;
+        const float tmp43 = accel[0] - tmp42;
+        const float tmp44 = tmp34 * tmp13;
+        const float tmp45 = gyro[0] - gyro_bias[0];
+        const float tmp46 = tmp45 * tmp32;
+        const float tmp47 = tmp44 - tmp46;
+        const float tmp48 = tmp26 * tmp47;
+        const float tmp49 = accel[1] - tmp48;
+        const float tmp50 = tmp45 * tmp39;
+        const float tmp51 = tmp27 * tmp13;
+        const float tmp52 = tmp50 - tmp51;
+        const float tmp53 = tmp26 * tmp52;
+        const float tmp54 = accel[2] - tmp53;
+        tmp6 = tmp43;
+        tmp7 = tmp49;
+        tmp8 = tmp54;
     }
-    carry[0] = tmp8;
-    carry[1] = tmp9;
-    carry[2] = tmp10;
+    carry[0] = tmp6;
+    carry[1] = tmp7;
+    carry[2] = tmp8;
 }
 
 static void qcf_k_gravity_part(const float accel[3], const float rot[9], const float gyro[3], const float gyro_bias[3], const float gps_vel_hist[21], float accel_gravity[3])
@@ -1234,8 +1025,8 @@ static void qcf_k_gravity_part(const float accel[3], const float rot[9], const f
 }
 
 /* gyro-only integration with the bias removed (no aiding this step)
- * ops: add 28, mul 38, div 5, sqrt 2, trig 2, cmp 3 (total 78)
- *      of which only one side runs: if (tmp11 < 0.01f) 16, else 5 */
+ * ops: add 25, mul 35, div 5, sqrt 2, trig 2, cmp 5 (total 74)
+ *      of which only one side runs: if (tmp11 < 0.01f) 10, else 8 */
 static void qcf_k_propagate_part0(const float q[4], const float gyro_bias[3], const float gyro[3], float dt, float carry[6])
 {
     const float tmp0 = 0.5f * dt;
@@ -1252,91 +1043,91 @@ static void qcf_k_propagate_part0(const float q[4], const float gyro_bias[3], co
     const float tmp11 = tmp7 + tmp10;
     float tmp12;
     float tmp13;
+    float tmp14;
+    float tmp15;
     if (tmp11 < 0.01f) {
-        const float tmp14 = 2.4801588e-05f * tmp11;
-        const float tmp15 = (-0.0013888889f) + tmp14;
-        const float tmp16 = tmp11 * tmp15;
-        const float tmp17 = 0.041666668f + tmp16;
+        const float tmp16 = (-2.1377798e-05f) * tmp11;
+        const float tmp17 = (-0.00021164022f) + tmp16;
         const float tmp18 = tmp11 * tmp17;
-        const float tmp19 = (-0.5f) + tmp18;
+        const float tmp19 = (-0.0021164021f) + tmp18;
         const float tmp20 = tmp11 * tmp19;
-        const float tmp21 = 1.0f + tmp20;
-        const float tmp22 = 2.7557319e-06f * tmp11;
-        const float tmp23 = (-0.0001984127f) + tmp22;
+        const float tmp21 = (-0.022222223f) + tmp20;
+        const float tmp22 = tmp11 * tmp21;
+        const float tmp23 = (-0.33333334f) + tmp22;
         const float tmp24 = tmp11 * tmp23;
-        const float tmp25 = 0.008333334f + tmp24;
-        const float tmp26 = tmp11 * tmp25;
-        const float tmp27 = (-0.16666667f) + tmp26;
-        const float tmp28 = tmp11 * tmp27;
-        const float tmp29 = 1.0f + tmp28;
-        tmp12 = tmp21;
-        tmp13 = tmp29;
+        const float tmp25 = 1.0f + tmp24;
+        tmp12 = tmp25;
+        tmp13 = tmp2;
+        tmp14 = tmp5;
+        tmp15 = tmp9;
     } else {
-        const float tmp30 = (tmp11 > 0.01f) ? tmp11 : 0.01f;
-        const float tmp31 = sqrtf(tmp30);
-        const float tmp32 = fast_cosf(tmp31);
-        const float tmp33 = fast_sinf(tmp31);
-        const float tmp34 = tmp33 / tmp31;
-        tmp12 = tmp32;
-        tmp13 = tmp34;
+        const float tmp26 = (tmp11 > 0.01f) ? tmp11 : 0.01f;
+        const float tmp27 = sqrtf(tmp26);
+        const float tmp28 = fast_cosf(tmp27);
+        const float tmp29 = fast_sinf(tmp27);
+        const float tmp30 = tmp29 / tmp27;
+        const float tmp31 = tmp30 * tmp2;
+        const float tmp32 = tmp30 * tmp5;
+        const float tmp33 = tmp30 * tmp9;
+        tmp12 = tmp28;
+        tmp13 = tmp31;
+        tmp14 = tmp32;
+        tmp15 = tmp33;
     }
-    const float tmp35 = q[0] * tmp12;
-    const float tmp36 = tmp13 * tmp2;
-    const float tmp37 = q[1] * tmp36;
-    const float tmp38 = tmp35 - tmp37;
-    const float tmp39 = tmp13 * tmp5;
-    carry[0] = tmp9;
-    carry[1] = tmp12;
-    carry[2] = tmp13;
-    carry[3] = tmp36;
+    const float tmp34 = q[0] * tmp12;
+    const float tmp35 = q[1] * tmp13;
+    const float tmp36 = tmp34 - tmp35;
+    const float tmp37 = q[2] * tmp14;
+    const float tmp38 = tmp36 - tmp37;
+    const float tmp39 = q[3] * tmp15;
+    carry[0] = tmp12;
+    carry[1] = tmp13;
+    carry[2] = tmp14;
+    carry[3] = tmp15;
     carry[4] = tmp38;
     carry[5] = tmp39;
 }
 
 static void qcf_k_propagate_part1(const float q[4], float carry[6])
 {
-    const float tmp40 = q[2] * carry[5];
-    const float tmp41 = carry[4] - tmp40;
-    const float tmp42 = carry[2] * carry[0];
-    const float tmp43 = q[3] * tmp42;
-    const float tmp44 = tmp41 - tmp43;
-    const float tmp45 = tmp44 * tmp44;
-    const float tmp46 = q[0] * carry[3];
-    const float tmp47 = q[1] * carry[1];
-    const float tmp48 = tmp46 + tmp47;
-    const float tmp49 = q[2] * tmp42;
-    const float tmp50 = tmp48 + tmp49;
-    const float tmp51 = q[3] * carry[5];
-    const float tmp52 = tmp50 - tmp51;
-    const float tmp53 = tmp52 * tmp52;
-    const float tmp54 = tmp45 + tmp53;
-    const float tmp55 = q[0] * carry[5];
-    const float tmp56 = q[1] * tmp42;
-    const float tmp57 = tmp55 - tmp56;
-    const float tmp58 = q[2] * carry[1];
-    const float tmp59 = tmp57 + tmp58;
-    const float tmp60 = q[3] * carry[3];
-    const float tmp61 = tmp59 + tmp60;
-    const float tmp62 = tmp61 * tmp61;
-    const float tmp63 = tmp54 + tmp62;
-    const float tmp64 = q[0] * tmp42;
-    const float tmp65 = q[1] * carry[5];
+    const float tmp40 = carry[4] - carry[5];
+    const float tmp41 = tmp40 * tmp40;
+    const float tmp42 = q[0] * carry[1];
+    const float tmp43 = q[1] * carry[0];
+    const float tmp44 = tmp42 + tmp43;
+    const float tmp45 = q[2] * carry[3];
+    const float tmp46 = tmp44 + tmp45;
+    const float tmp47 = q[3] * carry[2];
+    const float tmp48 = tmp46 - tmp47;
+    const float tmp49 = tmp48 * tmp48;
+    const float tmp50 = tmp41 + tmp49;
+    const float tmp51 = q[0] * carry[2];
+    const float tmp52 = q[1] * carry[3];
+    const float tmp53 = tmp51 - tmp52;
+    const float tmp54 = q[2] * carry[0];
+    const float tmp55 = tmp53 + tmp54;
+    const float tmp56 = q[3] * carry[1];
+    const float tmp57 = tmp55 + tmp56;
+    const float tmp58 = tmp57 * tmp57;
+    const float tmp59 = tmp50 + tmp58;
+    const float tmp60 = q[0] * carry[3];
+    const float tmp61 = q[1] * carry[2];
+    const float tmp62 = tmp60 + tmp61;
+    const float tmp63 = q[2] * carry[1];
+    const float tmp64 = tmp62 - tmp63;
+    const float tmp65 = q[3] * carry[0];
     const float tmp66 = tmp64 + tmp65;
-    const float tmp67 = q[2] * carry[3];
-    const float tmp68 = tmp66 - tmp67;
-    const float tmp69 = q[3] * carry[1];
-    const float tmp70 = tmp68 + tmp69;
-    const float tmp71 = tmp70 * tmp70;
-    const float tmp72 = tmp63 + tmp71;
-    const float tmp73 = sqrtf(tmp72);
-    const float tmp74 = tmp44 / tmp73;
-    const float tmp75 = tmp52 / tmp73;
-    const float tmp76 = tmp61 / tmp73;
-    const float tmp77 = tmp70 / tmp73;
-    carry[0] = tmp74;
-    carry[1] = tmp75;
-    carry[2] = tmp76;
-    carry[3] = tmp77;
+    const float tmp67 = tmp66 * tmp66;
+    const float tmp68 = tmp59 + tmp67;
+    const float tmp69 = sqrtf(tmp68);
+    const float tmp70 = tmp40 / tmp69;
+    const float tmp71 = tmp48 / tmp69;
+    const float tmp72 = tmp57 / tmp69;
+    const float tmp73 = tmp66 / tmp69;
+    carry[0] = tmp70;
+    carry[1] = tmp71;
+    carry[2] = tmp72;
+    carry[3] = tmp73;
 }
 
 static void qcf_k_propagate(const float q[4], const float gyro_bias[3], const float gyro[3], float dt, float q_new[4])
@@ -1580,9 +1371,11 @@ qcf_status qcf_step(qcf_state *restrict s, const qcf_input *restrict in, float d
         }
     }
     bool heading_ok = use_mag;
+    float mag_n[3] = { 0.0f, 0.0f, 0.0f };   /* R(q) m; zero (no heading part) without a sample */
     if (use_mag) {
+        qcf_k_mag_ned(rot, in->mag, mag_n);
         bool accept;
-        qcf_k_mag_check(rot, s->accel_lp, in->mag, s->mag_ref, s->mag_dist_time, s->mag_learn_time,
+        qcf_k_mag_check(s->accel_lp, in->mag, mag_n, s->mag_ref, s->mag_dist_time, s->mag_learn_time,
                                  s->mag_age, &accept, s->mag_ref, &s->mag_dist_time, &s->mag_learn_time);
         if (!accept) {
             heading_ok = false;
@@ -1590,7 +1383,7 @@ qcf_status qcf_step(qcf_state *restrict s, const qcf_input *restrict in, float d
         }
     }
     if (use_accel || heading_ok) {
-        qcf_k_correct(s->q, rot, s->gyro_bias, in->gyro, dt, s->accel_lp, in->mag,
+        qcf_k_correct(s->q, rot, s->gyro_bias, in->gyro, dt, s->accel_lp, mag_n,
                                use_accel ? s->accel_age : 0.0f, heading_ok ? s->mag_age : 0.0f,
                                use_accel, in->accel, at_rest, s->rest_gyro_lp,                           s->q, s->gyro_bias);
     } else {

@@ -12,12 +12,14 @@ SX expressions so that a kernel can output them and the step partial can branch 
   against a reference learned at the first sample and tracked slowly while accepted; a field
   that stays different for `new_time` s becomes the new reference (a permanent change, e.g.
   a new mounting or a new site), so a rejection cannot hold forever.
-- `tilt_correction(d_n)`: the shortest rotation of the NED frame taking a measured unit
-  down-vector d_n to [0, 0, 1]; it has no z component (never changes heading) and is well
+- `tilt_correction(d_n)`: the shortest rotation of the NED frame taking a measured
+  down-vector d_n (any length) to [0, 0, 1]; it has no z component (never changes heading) and is well
   conditioned at every attitude except d_n = -[0, 0, 1] (upside-down measurement, where the
   x-axis half-turn is taken).
 - `heading_correction(q, m, declination)`: the rotation about NED z that brings the horizontal
   part of R(q) m to magnetic north + declination; it only changes heading (never tilts).
+  `heading_correction_ned(m_n, declination)` the same from the NED vector m_n.
+- `norm_within(v, center, tol)`: ||v| - center| < tol without a square root.
 """
 from __future__ import annotations
 
@@ -27,7 +29,7 @@ import casadi as ca
 
 from . import quat
 
-# tilt_correction: 1 + d_z below this (d_n within ~0.1 deg of straight up) takes the half-turn
+# tilt_correction: (|d| + d_z)/|d| below this (d_n within ~0.1 deg of straight up) takes the half-turn
 TILT_FLIP_EPS = 1e-6
 
 
@@ -98,33 +100,53 @@ def field_check(norm, sin_dip, ref_norm, ref_dip, dist_time, dt, *, norm_tol: fl
 
 
 def tilt_correction(d_n):
-    """Shortest NED-frame rotation taking the unit vector d_n to [0, 0, 1] (no z component).
+    """Shortest NED-frame rotation taking the direction of d_n to [0, 0, 1] (no z component).
 
-    The half-way quaternion [1 + d·e, d × e] normalised, e = [0, 0, 1]:
-    [1 + d_z, d_y, -d_x, 0] / |.|; for d_z <= -1 + TILT_FLIP_EPS the half-turn about x.
+    d_n is any vector along the measured down direction (its length, n > 0, does not matter).
+    The half-way quaternion [n + d_z, d_y, -d_x, 0] normalised; its squared norm
+    (n + d_z)² + d_x² + d_y² is 2 n (n + d_z), so one square root and one division normalise
+    it (no unit vector first). For n + d_z < TILT_FLIP_EPS n (within ~0.1 deg of straight up)
+    the half-turn about x.
     """
-    w = 1 + d_n[2]
-    flip = w < TILT_FLIP_EPS
-    n2 = ca.fmax(w * w + d_n[0] * d_n[0] + d_n[1] * d_n[1], TILT_FLIP_EPS * TILT_FLIP_EPS)
-    inv = ca.sqrt(1 / n2)
+    n = ca.sqrt(ca.sumsqr(d_n))
+    w = n + d_n[2]
+    flip = w < TILT_FLIP_EPS * n
+    inv = 1 / ca.sqrt(2 * n * w)
     return quat.vec(ca.if_else(flip, 0.0, w * inv), ca.if_else(flip, 1.0, d_n[1] * inv),
                     ca.if_else(flip, 0.0, -d_n[0] * inv), 0.0)
 
 
-def heading_correction(q, m, declination: float = 0.0):
-    """Rotation about NED z taking the horizontal part of R(q) m to heading `declination`.
+def norm_within(v, center: float, tol: float):
+    """||v| - center| < tol, through |v|² (no square root): (center - tol)² < |v|² < (center + tol)²,
+    the lower bound only when center > tol."""
+    n2 = ca.sumsqr(v)
+    inside = n2 < (center + tol) ** 2
+    return ca.logic_and(n2 > (center - tol) ** 2, inside) if center > tol else inside
 
-    With (c, s) the direction of the horizontal field in NED (heading psi_m of the field),
-    the correction is the rotation by -(psi_m - declination), through half-angles.
-    A field with no horizontal part gives the identity.
+
+def heading_correction(q, m, declination: float = 0.0):
+    """Rotation about NED z taking the horizontal part of R(q) m to heading `declination`."""
+    return heading_correction_ned(quat.rotate(q, m), declination)
+
+
+def heading_correction_ned(m_n, declination: float = 0.0):
+    """Rotation about NED z taking the horizontal part (x, y) of the NED vector m_n to heading
+    `declination`: [cos(e/2), 0, 0, -sin(e/2)], e = atan2(y, x) - declination in (-pi, pi].
+
+    Half-way forms, no trigonometry and no cancellation: with h = |(x, y)| (after turning
+    (x, y) by -declination), cos(e/2) = sqrt((h + x)/2h) and |sin(e/2)| = sqrt((h - x)/2h),
+    their product y/2h; so for x >= 0 the quaternion is [h + x, 0, 0, -y] / sqrt(2h(h + x)),
+    for x < 0 [|y|, 0, 0, -sgn(y)(h - x)] / sqrt(2h(h - x)) (sgn(0) = +1: e = pi turns by +pi).
+    A field with no horizontal part (h² < 1e-30) gives the identity.
     """
-    m_n = quat.rotate(q, m)
-    h2 = m_n[0] * m_n[0] + m_n[1] * m_n[1]
-    degenerate = h2 < 1e-30
-    inv = ca.sqrt(1 / ca.fmax(h2, 1e-30))
-    c, s = m_n[0] * inv, m_n[1] * inv
+    x, y = m_n[0], m_n[1]
     if declination != 0.0:
         cd, sd = math.cos(declination), math.sin(declination)
-        c, s = c * cd + s * sd, s * cd - c * sd
-    c_h, s_h = quat.half_angle(c, -s)
+        x, y = x * cd + y * sd, y * cd - x * sd
+    h = ca.sqrt(x * x + y * y)
+    degenerate = h < 1e-15
+    front = x >= 0
+    inv = 1 / ca.sqrt((h + h) * (h + ca.fabs(x)))
+    c_h = ca.if_else(front, (h + x) * inv, ca.fabs(y) * inv)
+    s_h = ca.if_else(front, -y * inv, ca.if_else(y > 0, x - h, h - x) * inv)
     return quat.vec(ca.if_else(degenerate, 1.0, c_h), 0.0, 0.0, ca.if_else(degenerate, 0.0, s_h))

@@ -115,23 +115,26 @@ class Model(FilterModel):
 
         kernels = self.product_kernels() if self.product else []
         # Gravity part of the specific force (section 3.2): f_b = R^T (a_n - g_n).
-        excess = ca.fabs(ca.sqrt(ca.sumsqr(f)) - G0) > p["motion_accel_threshold"]
+        # ||f| - g| > threshold, compared through |f|² (aiding.norm_within: no square root)
+        excess = ca.logic_not(aiding.norm_within(f, G0, p["motion_accel_threshold"]))
         if p["motion_accel_model"] == "differentiator":
             gravity_in = {"accel": f, "rot": rot, "motion_accel": a_n}
             f_g = ca.if_else(excess, f - ca.mtimes(rot.T, a_n), f)
         else:
             # The centripetal acceleration a_c = R(q)(w - b) x v_n of the latest GPS velocity,
-            # computed inside the excess branch only (skipped while |f| is close to g).
+            # computed inside the excess branch only (skipped while |f| is close to g), in body
+            # axes: R^T a_c = (w - b) x v_b with v_b = R^T v_n (a rotation keeps cross products).
             v = hist[3 * (GPS_TAPS - 1):]
-            a_c = ca.cross(ca.mtimes(rot, gyro - bias), v)
+            v_b = ca.mtimes(rot.T, v)
+            a_c = ca.cross(gyro - bias, v_b)
             if self.product and p["centripetal_align"] < 1:
                 # the velocity turns with the body only if the body flies along it (fixed-wing):
                 # weight 1 when v is along body x, ramping to 0 at cos(angle) = centripetal_align
                 c0 = p["centripetal_align"]
-                along = ca.dot(v, ca.mtimes(rot, ca.DM([1.0, 0.0, 0.0]))) * ca.sqrt(1 / ca.fmax(ca.sumsqr(v), 1e-6))
+                along = v_b[0] * ca.sqrt(1 / ca.fmax(ca.sumsqr(v), 1e-6))
                 a_c = ca.fmin(ca.fmax((along - c0) / (1 - c0), 0.0), 1.0) * a_c
             gravity_in = {"accel": f, "rot": rot, "gyro": gyro, "gyro_bias": bias, "gps_vel_hist": hist}
-            f_g = ca.if_else(excess, f - ca.mtimes(rot.T, a_c), f)
+            f_g = ca.if_else(excess, f - a_c, f)
         paper = [] if self.product else [
             KernelSpec("reference", function("reference", {"accel": f, "mag": m},
                                              {"q_ref": attitude.fqa(f, m, p["declination"])}),
@@ -149,10 +152,10 @@ class Model(FilterModel):
             KernelSpec("gravity_part", function("gravity_part", gravity_in, {"accel_gravity": f_g}),
                        "accelerometer minus the GPS motion acceleration when ||f| - g| exceeds the threshold" + (
                            "" if p["motion_accel_model"] == "differentiator" else
-                           " (centripetal: R(q)(w - b) x v_gps, computed only then)")),
+                           " (centripetal: (w - b) x R(q)^T v_gps in body axes, computed only then)")),
         ] + paper + [
             KernelSpec("propagate", function("propagate", {"q": q, "gyro_bias": bias, "gyro": gyro, "dt": dt},
-                                             {"q_new": quat.integrate(q, gyro - bias, dt)}),
+                                             {"q_new": quat.integrate_scaled(q, gyro - bias, dt)}),
                        "gyro-only integration with the bias removed (no aiding this step)"),
         ] + ([KernelSpec("gps_accel", function("gps_accel", {"gps_vel_hist": hist}, {"motion_accel": acc}),
                          "lagged differentiator of GPS velocity (eq. 29): NED acceleration 3 samples back")]
@@ -183,24 +186,36 @@ class Model(FilterModel):
         decl = p["declination"]
         rot = ca.SX.sym("rot", 3, 3)      # R(q), from the rotation kernel once per step
 
-        q0 = ca.if_else(use_m, attitude.fqa(f, m, decl), attitude.tilt_with_yaw(f, 0.0))
-        down = -a_lp * ca.sqrt(1 / ca.sumsqr(a_lp))              # measured down, NED (through q̂)
-        T = aiding.tilt_correction(down)
-        H = aiding.heading_correction(quat.qmul(T, q), m, decl)
-        # e dt, the error integrated over the step (no division by dt: a tiny dt must not blow up)
-        e_dt = ca.mtimes(rot.T, span_a * T[1:] + span_m * H[1:])
-        rotation = (gyro - bias) * dt + p["kp"] * e_dt          # β dt
-        trusted = ca.logic_and(use_a, ca.fabs(ca.sqrt(ca.sumsqr(f)) - G0) < p["bias_accel_gate"])
-        bias_pi = ca.if_else(trusted, bias - p["ki"] * e_dt, bias)
+        m_n = ca.SX.sym("mag_ned", 3)     # R(q) m, from the mag_ned kernel once per step
+
+        # first attitude: the tilt taking the measured down (-f) to NED down from the identity,
+        # then the heading of the field; R(q0) f = [0, 0, -|f|]
+        tilt0 = aiding.tilt_correction(-f)
+        q0 = ca.if_else(use_m, quat.qmul(aiding.heading_correction_ned(quat.rotate_xy_tilt(tilt0, m), decl), tilt0),
+                        tilt0)
+        # the tilt correction from the NED low-pass (measured down -a, any length), then the
+        # heading of the field R(T) R(q) m = R(T) m_n (only its horizontal part)
+        T = aiding.tilt_correction(-a_lp)
+        H = aiding.heading_correction_ned(quat.rotate_xy_tilt(T, m_n), decl)
+        # e dt, the error integrated over the step (no division by dt: a tiny dt must not blow up),
+        # carried as ½ kp e dt: the gain and the exponential's ½ multiply the two weights once
+        kh = 0.5 * p["kp"]
+        e_half = ca.mtimes(rot.T, ca.vertcat((kh * span_a) * T[1], (kh * span_a) * T[2], (kh * span_m) * H[3]))
+        half_rotation = (gyro - bias) * (0.5 * dt) + e_half     # ½ β dt
+        trusted = ca.logic_and(use_a, aiding.norm_within(f, G0, p["bias_accel_gate"]))
+        bias_pi = ca.if_else(trusted, bias - (p["ki"] / kh) * e_half, bias)   # b - ki e dt
         if p["rest_time"] > 0:
             bias_new = ca.if_else(at_rest, aiding.lowpass(bias, g_lp, span_a, p["rest_bias_tau"]), bias_pi)
         else:
             bias_new = bias_pi
         ks = [
+            KernelSpec("mag_ned", function("mag_ned", {"rot": rot, "mag": m}, {"mag_ned": ca.mtimes(rot, m)}),
+                       "the magnetometer sample in NED, R(q) m, read by the field check and the heading correction"),
             KernelSpec("init_attitude", function("init_attitude", {"accel": f, "mag": m, "use_mag": use_m},
-                                                 {"q": q0, "accel_lp": quat.rotate(q0, f)}),
-                       "first attitude: FQA with a magnetometer sample, else the accelerometer's tilt with yaw 0; "
-                       "the low-pass starts at R(q) f", flags=("use_mag",)),
+                                                 {"q": q0, "accel_lp": ca.vertcat(0, 0, -ca.sqrt(ca.sumsqr(f)))}),
+                       "first attitude: the shortest rotation taking the accelerometer's down to NED down, "
+                       "then the magnetometer's heading if it has a sample; the low-pass starts at R(q) f = "
+                       "[0, 0, -|f|]", flags=("use_mag",)),
             KernelSpec("heading_init", function("heading_init", {"q": q, "mag": m},
                                                 {"q_new": quat.qmul(aiding.heading_correction(q, m, decl), q)}),
                        "first magnetometer sample after a tilt-only start: heading set, tilt kept"),
@@ -209,11 +224,12 @@ class Model(FilterModel):
                                                                                  p["accel_tau"])}),
                        "low-pass of the specific force in NED, R(q) f (time constant accel_tau)"),
             KernelSpec("correct", function("correct", {"q": q, "rot": rot, "gyro_bias": bias, "gyro": gyro, "dt": dt,
-                                                       "accel_lp": a_lp, "mag": m, "span_accel": span_a,
+                                                       "accel_lp": a_lp, "mag_ned": m_n, "span_accel": span_a,
                                                        "span_mag": span_m, "use_accel": use_a, "accel": f,
                                                        **({"at_rest": at_rest, "rest_gyro_lp": g_lp}
                                                           if p["rest_time"] > 0 else {})},
-                                           {"q_new": quat.integrate(q, rotation, 1.0), "gyro_bias_new": bias_new}),
+                                           {"q_new": quat.qnormalize(quat.qmul(q, quat.qexp_scaled(half_rotation))),
+                                            "gyro_bias_new": bias_new}),
                        "tilt (low-passed accelerometer) and heading (magnetometer) corrections as PI feedback, "
                        "bias integral gated, bias at rest from the low-passed gyro, integration (eq. 9)",
                        flags=("use_accel",) + (("at_rest",) if p["rest_time"] > 0 else ())),
@@ -228,13 +244,14 @@ class Model(FilterModel):
                                                    "rest_time_new": t2, "at_rest": r2}),
                                  "rest detection: gyro and accelerometer steady for rest_time", flags=("at_rest",)))
         if p["mag_rejection"]:
-            down_b = ca.mtimes(rot.T, down)
             mn = ca.sqrt(ca.sumsqr(m))
+            # sin(dip) = (R^T down) . m / |m| = down . R m / |m|, down = -a/|a|
+            sin_dip = -ca.dot(a_lp, m_n) / (ca.sqrt(ca.sumsqr(a_lp)) * mn)
             acc, n2, d2, t2, l2 = aiding.field_check(
-                mn, ca.dot(down_b, m) / mn, m_ref[0], m_ref[1], t_dist, span, norm_tol=p["mag_norm_tol"],
+                mn, sin_dip, m_ref[0], m_ref[1], t_dist, span, norm_tol=p["mag_norm_tol"],
                 dip_tol=p["mag_dip_tol"], ref_tau=p["mag_ref_tau"], new_time=p["mag_new_time"],
                 learn_time=t_learn, warmup=p["mag_warmup"])
-            ks.append(KernelSpec("mag_check", function("mag_check", {"rot": rot, "accel_lp": a_lp, "mag": m, "mag_ref": m_ref,
+            ks.append(KernelSpec("mag_check", function("mag_check", {"accel_lp": a_lp, "mag": m, "mag_ned": m_n, "mag_ref": m_ref,
                                                                      "mag_dist_time": t_dist, "mag_learn_time": t_learn,
                                                                      "span": span},
                                                        {"accept": acc, "mag_ref_new": ca.vertcat(n2, d2),
@@ -252,8 +269,8 @@ class Model(FilterModel):
             comp = ["rotation", "gravity_part"]
             extra = (["rest"] if self.params["rest_time"] > 0 else []) + (["mag_check"] if self.params["mag_rejection"] else [])
             return {
-                "full (accel+mag+GPS comp.)": comp + ["accel_lowpass"] + extra + ["correct"],
-                "accel+mag": ["rotation", "accel_lowpass"] + extra + ["correct"],
+                "full (accel+mag+GPS comp.)": comp + ["accel_lowpass", "mag_ned"] + extra + ["correct"],
+                "accel+mag": ["rotation", "accel_lowpass", "mag_ned"] + extra + ["correct"],
                 "gyro only": ["rotation", "propagate"],
                 **({"GPS sample (extra)": ["gps_accel"]} if self.params["motion_accel_model"] == "differentiator" else {}),
             }

@@ -178,7 +178,10 @@ class Reference:
             if not use_accel:
                 self.q = integrate(self.q, gyro - self.bias, dt)
                 return status
-            self.q = fqa(f, mag, p["declination"]) if use_mag else fqa_tilt(f)
+            # the shortest rotation taking the measured down to NED down, then the field's heading
+            self.q = tilt_correction(-f / np.linalg.norm(f))
+            if use_mag:
+                self.q = nq.qmul(heading_correction(self.q, mag, p["declination"]), self.q)
             self.accel_lp = nq.rotmat(self.q) @ f
             self.initialised = 2 if use_mag else 1
             self.accel_age = self.mag_age = 0.0
