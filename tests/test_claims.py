@@ -75,7 +75,8 @@ def kernel_bodies(src: str, prefix: str) -> dict[str, list[str]]:
             if re.match(r"\s*const bool tmp\d+ = ", ln):
                 rhs.append("flag ? 1 : 0")       # a flag (comparison or logic on flags): one cmp
             elif re.match(r"\s*const \w+ tmp\d+ = ", ln):
-                rhs.append(ln.split(" = ", 1)[1].rstrip(";"))
+                # a folded parameter's name rides in a comment (0.15f /* 0.5*kp */): not an operation
+                rhs.append(re.sub(r"/\*.*?\*/", "", ln.split(" = ", 1)[1]).rstrip(";"))
             elif re.fullmatch(r"\s*(float|double|bool) tmp\d+;", ln):
                 rhs.append("branch ? taken : other")
     return out
