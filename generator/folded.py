@@ -15,7 +15,7 @@ and a recorded expression equals it in both builds: value == the traced constant
 shadow == the baked constant. A structural constant never changes; a constant CasADi
 computed from a parameter and something else (x * (1 / p) written as x / p, a product of two
 folded numbers) matches no recorded expression at two unrelated points and stays unnamed.
-So a name is either right or absent. The emitter (generator/emit.py, `names`) writes it as
+So a name is either right or absent. The emitter (generator/emit, `names`) writes it as
 a comment beside the literal; the arithmetic does not change.
 """
 from __future__ import annotations
