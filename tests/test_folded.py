@@ -83,17 +83,18 @@ def test_a_set_parameter_moves_its_named_number(tmp_path, capsys):
 
 
 def test_a_parameter_equal_to_structural_constants_is_not_named_with_them():
-    """qcf with kp = 0.5: in the kernel `correct` kp's 0.5 is one CasADi constant with the
-    structural halves of the quaternion algebra, so no 0.5f there may say kp, and none does;
-    the 0.5f that are named are rest_tau's (0.5 by default), as in the default build, where
-    kp = 0.3 is named at each of its uses."""
-    default, half = _render("qcf"), _render("qcf", sets=["kp=0.5"])
-    assert default.count("0.3f /* kp */") == 3
-    assert "/* kp */" not in half
-    assert [e for lit, e in _named(half) if lit == "0.5f"] == [e for lit, e in _named(default) if lit == "0.5f"]
-    assert {e for lit, e in _named(default) if lit == "0.5f"} == {"rest_tau"}
+    """examples/madgwick with beta = 0.5, the value of the structural halves of q_dot = 0.5 q (x) w:
+    every 0.5f is either structural, bare as many times as in the default build (beta = 0.1),
+    or one of beta's uses, and beta's name stands beside 0.5f only."""
+    folder = str(REPO / "examples" / "madgwick")
+    default, half = _render(folder), _render(folder, sets=["beta=0.5"])
+    n = default.count("0.1f /* beta */")
+    assert n > 0 and default.count("/* beta */") == n
+    named = half.count("0.5f /* beta */")
+    assert half.count("/* beta */") == named
     bare = re.compile(r"(?<![0-9.e])0\.5f(?! /\*)")
-    assert len(bare.findall(half)) > len(bare.findall(default)) > 0
+    assert len(bare.findall(default)) > 0
+    assert len(bare.findall(half)) + named == len(bare.findall(default)) + n
 
 
 def test_structural_constants_of_mekf_are_not_named():
