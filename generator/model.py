@@ -150,6 +150,8 @@ class KernelSpec:
     function: ca.Function
     doc: str
     flags: tuple = ()     # inputs holding 0 or 1: emitted as bool (emit.emit's flags)
+    noinline: bool = False  # GCC/clang: never inlined into its caller, so its stack frame does not add
+    #                         to the caller's (a step calling several large kernels once each)
 
 
 @dataclass

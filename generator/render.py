@@ -201,7 +201,7 @@ def render(cfg: BuildConfig, names: bool = True) -> Generated:
         if extra:
             raise ConfigError(f"kernel {ks.name}: free symbol(s) {', '.join(extra)} are not runtime parameters")
         kernels.append(k)
-        kctx.append({"name": ks.name, "doc": ks.doc, "code": k.source(storage="static inline " if k.n_temporaries <= emit.INLINE_TEMPS else "static "),
+        kctx.append({"name": ks.name, "doc": ks.doc, "code": k.source(storage=_storage(ks, k)),
                      "ops_text": ", ".join(f"{n} {c}" for n, c in k.ops.items() if c) + f" (total {k.ops_total})"
                      + "".join(f"\n *      of which only one side runs: if ({b['condition']}) {sum(b['then'].values())}, "
                                f"else {sum(b['else'].values())}" for b in k.branches)})
@@ -348,6 +348,17 @@ def render(cfg: BuildConfig, names: bool = True) -> Generated:
     files = {f"{prefix}.h": ascii_text(header), f"{prefix}.c": ascii_text(source),
              "manifest.json": json.dumps(manifest, indent=2, sort_keys=False) + "\n"}
     return Generated(files, manifest, kernels)
+
+
+# A kernel the model marks noinline: GCC and clang keep it a call (its frame then does not add to
+# its caller's when the caller calls several large kernels once each); other compilers ignore it.
+NOINLINE = "#if defined(__GNUC__)\n__attribute__((noinline))\n#endif\n"
+
+
+def _storage(ks, k) -> str:
+    if ks.noinline:
+        return NOINLINE + "static "
+    return "static inline " if k.n_temporaries <= emit.INLINE_TEMPS else "static "
 
 
 # Generated C is ASCII only (a reviewer's rule: some toolchains and diff tools still choke on

@@ -33,6 +33,10 @@ EXTRA_STATUS = [
 ]
 
 
+# (row, column) of the lower triangle of a 6x6 matrix, row by row
+_LOWER6 = [(r, c) for r in range(6) for c in range(r + 1)]
+
+
 def omega_matrix(w):
     wx, wy, wz = w[0], w[1], w[2]
     return ca.vertcat(
@@ -107,9 +111,19 @@ class Model(FilterModel):
         ]
 
     def work_size(self) -> int:
-        """Floats of the step's scratch in the state (P_pred, P_zz, P_xz, residual, r_upd)."""
+        """Floats of the step's scratch in the state: P_pred, then the update's P_zz, P_xz,
+        residual and R over the sigma points' aL, z0, zsum, zz, zdiff (dead once the innovation
+        kernel, which reads all its inputs before it writes, has run), then x_pred and x_new
+        (bias state)."""
+        return self.update_work_end() + (14 if self.n == 7 else 0)
+
+    def update_work_end(self) -> int:
+        """End of the update's scratch in work (x_pred and x_new follow it with the bias state)."""
         n = self.n
-        return n * n + 36 + 6 * n + 6 + 6
+        return n * n + max(36 + 6 * n + 6 + 6, 4 * n + 6 + 6 + 21 + 6 * N)
+
+    def template_work(self) -> dict:
+        return {"work": self.work_size(), "work_update_end": self.update_work_end(), "zz": len(_LOWER6)}
 
     def r_scale(self, dt, span):
         """dt / span, at least 1 / span_steps_max (a sample never counts for more steps than that:
@@ -177,35 +191,49 @@ class Model(FilterModel):
         xm = ca.vertcat(qm, b)
         return xm, normalize(qm), Pm
 
-    def innovation_expr(self, xm, Pm, m_ref, f, m, scale=None):
-        """Sigma points, their measurements, ẑ, residual, adaptive R, P_zz and P_xz, and the
-        smallest Cholesky pivot of P⁻. (The step masks an unusable sensor out exactly
-        afterwards: identity block in P_zz, zero cross-covariance, residual and R, so its
-        columns of K are exactly zero; the reference does the same.)
+    def sigma_setup_expr(self, xm, Pm, m_ref):
+        """L = chol(P⁻) (its smallest pivot is an output), aL = a L[:, 0:4] and z₀ = h(q⁻), the
+        centre's measurement.
 
         The structure of the sigma-point set, used exactly (no approximation):
-        - χ = x⁻ ± a L[:, j] with L = chol(P⁻) lower triangular: for a bias column (j ≥ 4)
-          L[0:4, j] = 0, so the attitude part of those 6 points is q⁻ itself and their
-          measurement is h(q⁻), the centre's: only 9 of the 2n+1 points are mapped through h.
-        - χ_i - x⁻ = ±a L[:, j], so P_xz = Σ Wc (χ_i - x⁻)(z_i - ẑ)ᵀ
-          = a Wi Σ_j L[:, j] (z_j+ - z_j-)ᵀ, where the bias columns cancel (z_j+ = z_j-).
+        χ = x⁻ ± a L[:, j] with L lower triangular: for a bias column (j ≥ 4) L[0:4, j] = 0, so
+        the attitude part of those points is q⁻ itself and their measurement is z₀: only the
+        4 columns of aL move the attitude, 9 distinct points in all."""
+        p = self.params
+        a = ut_parameters(p["ut_alpha"], p["ut_beta"], p["ut_kappa"], self.n)[0]
+        L, _, piv_p = linalg.cholesky_with_inverse(Pm, p["pivot_min"])
+        return a * L[:, :N], measurement(normalize(xm[:4]), m_ref), piv_p
+
+    def sigma_pair_expr(self, qm, col, m_ref, z0, zsum, zz):
+        """One pair of sigma points q⁻ ± col (col = a L[0:4, j]), each normalised and mapped
+        through h, as deviations from the centre e± = h(χ±) - z₀; accumulated: zsum + e₊ + e₋,
+        zz + e₊e₊ᵀ + e₋e₋ᵀ (lower triangle, 21 values, row by row) and returned: e₊ - e₋."""
+        ep = measurement(normalize(qm + col), m_ref) - z0
+        en = measurement(normalize(qm - col), m_ref) - z0
+        zz_new = ca.vertcat(*[zz[k] + (ep[r] * ep[c] + en[r] * en[c]) for k, (r, c) in enumerate(_LOWER6)])
+        return zsum + ep + en, zz_new, ep - en
+
+    def innovation_expr(self, z0, zsum, zz, zdiff, aL, f, m, scale=None):
+        """ẑ, residual, adaptive R, P_zz and P_xz from the accumulated sigma-point deviations
+        (sigma_pair_expr; e_i = z_i - z₀, zero for the centre and for the 2(n-4) points of the
+        bias columns). Exact rewrites of the sums of the equations:
+        - Σ Wm = 1, so ẑ = z₀ + δ with δ = Wi Σ_i e_i = Wi zsum.
+        - Σ Wc_i (z_i - ẑ)(z_i - ẑ)ᵀ = Σ Wc_i (e_i - δ)(e_i - δ)ᵀ = Wi Σ e_i e_iᵀ + (ΣWc - 2) δδᵀ,
+          because Σ Wc_i e_i = Wi Σ e_i = δ (Wc_i = Wm_i = Wi for i ≥ 1, e₀ = 0);
+          ΣWc - 2 = β - α² (1 at the defaults).
+        - χ_i - x⁻ = ±a L[:, j], so P_xz = Σ Wc (χ_i - x⁻)(z_i - ẑ)ᵀ = Wi Σ_j aL[:, j] (e_j+ - e_j-)ᵀ.
+        (The step masks an unusable sensor out exactly afterwards: identity block in P_zz, zero
+        cross-covariance, residual and R, so its columns of K are exactly zero; the reference
+        does the same.)
         scale (product, sensors at their own rates): [dt/s_a, dt/s_m], R of each sensor times
         the ratio of the step to the time its sample stands for (sigma is per IMU step; a
         sample standing for k steps carries k steps' information)."""
         p = self.params
         n = self.n
-        a, wm0, wc0, wi = ut_parameters(p["ut_alpha"], p["ut_beta"], p["ut_kappa"], n)
-        L, _, piv_p = linalg.cholesky_with_inverse(Pm, p["pivot_min"])
-        qm = xm[:4]
-        cols = [a * L[:4, j] for j in range(N)]
-        z0 = measurement(normalize(qm), m_ref)
-        zp = [measurement(normalize(qm + d), m_ref) for d in cols]
-        zn = [measurement(normalize(qm - d), m_ref) for d in cols]
-        # the weights of points 1..2n are equal: sum first, weight once; the 2(n-4) points of
-        # the bias columns are the centre
-        w0m = wm0 + 2 * (n - N) * wi
-        w0c = wc0 + 2 * (n - N) * wi
-        zhat = w0m * z0 + wi * sum(zp[1:] + zn, zp[0])
+        _, _, wc0, wi = ut_parameters(p["ut_alpha"], p["ut_beta"], p["ut_kappa"], n)
+        c_dd = wc0 + 2 * n * wi - 2          # Σ Wc - 2
+        delta = wi * zsum
+        zhat = z0 + delta
         z = ca.vertcat(normalize(f), normalize(m))
         eps = z - zhat
         sa2, sm2 = p["sigma_acc"] ** 2, p["sigma_mag"] ** 2
@@ -215,20 +243,16 @@ class Model(FilterModel):
         R = [sa2 + adapt[i] for i in range(3)] + [sm2 + adapt[i] for i in range(3, 6)]
         if scale is not None:
             R = [R[i] * scale[0] for i in range(3)] + [R[i] * scale[1] for i in range(3, 6)]
-        d0 = z0 - zhat
-        dZ = [zi - zhat for zi in zp + zn]
         Pzz = ca.SX.zeros(6, 6)
-        for r in range(6):            # symmetric: lower triangle once, mirrored
-            for c in range(r + 1):
-                Pzz[r, c] = w0c * d0[r] * d0[c] + wi * sum([d[r] * d[c] for d in dZ[1:]], dZ[0][r] * dZ[0][c]) \
-                    + (R[r] if r == c else 0.0)
-                Pzz[c, r] = Pzz[r, c]
-        D = [(a * wi) * (zp[j] - zn[j]) for j in range(N)]
+        for k, (r, c) in enumerate(_LOWER6):     # symmetric: lower triangle once, mirrored
+            Pzz[r, c] = wi * zz[k] + c_dd * delta[r] * delta[c] + (R[r] if r == c else 0.0)
+            Pzz[c, r] = Pzz[r, c]
+        D = [wi * zdiff[6 * j:6 * j + 6] for j in range(N)]
         Pxz = ca.SX.zeros(n, 6)
         for r in range(n):
             for c in range(6):
-                Pxz[r, c] = sum([L[r, j] * D[j][c] for j in range(1, min(r, N - 1) + 1)], L[r, 0] * D[0][c])
-        return Pzz, Pxz, eps, ca.vertcat(*R), piv_p
+                Pxz[r, c] = sum([aL[r, j] * D[j][c] for j in range(1, min(r, N - 1) + 1)], aL[r, 0] * D[0][c])
+        return Pzz, Pxz, eps, ca.vertcat(*R)
 
     def gain_expr(self, Pzz, Pxz, eps):
         """The update without forming K, through L = chol(P_zz): Uᵀ = L⁻¹ P_xzᵀ (U = P_xz L⁻ᵀ,
@@ -254,7 +278,12 @@ class Model(FilterModel):
         p = self.params
         n = self.n
         xs = "q" if n == 4 else "x"
-        q = ca.SX.sym(xs, n)
+        if n == 7:          # the state's q and gyro_bias as they are (no copy into one x)
+            q_in = {"q": ca.SX.sym("q", 4), "gyro_bias": ca.SX.sym("gyro_bias", 3)}
+            q = ca.vertcat(q_in["q"], q_in["gyro_bias"])
+        else:
+            q = ca.SX.sym(xs, n)
+            q_in = {xs: q}
         P = ca.SX.sym("P", n, n)
         w = ca.SX.sym("gyro", 3)
         dt = ca.SX.sym("dt")
@@ -275,8 +304,17 @@ class Model(FilterModel):
         eps = ca.SX.sym("residual", 6)
         span = ca.SX.sym("span", 2)            # time each sample stands for: accel, mag
         rated = self.own_rates()
-        Pzz_e, Pxz_e, eps_e, r_e, piv_p = self.innovation_expr(
-            qm, Pm, m_ref, f, m,
+        aL = ca.SX.sym("aL", n, N)
+        z0 = ca.SX.sym("z0", 6)
+        aL_e, z0_e, piv_p = self.sigma_setup_expr(qm, Pm, m_ref)
+        q4 = ca.SX.sym("q_pred", 4)
+        col = ca.SX.sym("col", 4)
+        zsum = ca.SX.sym("zsum", 6)
+        zz = ca.SX.sym("zz", len(_LOWER6))
+        zdiff = ca.SX.sym("zdiff", 6 * N)
+        zsum_e, zz_e, zdiff_e = self.sigma_pair_expr(q4, col, m_ref, z0, zsum, zz)
+        Pzz_e, Pxz_e, eps_e, r_e = self.innovation_expr(
+            z0, zsum, zz, zdiff, aL, f, m,
             [self.r_scale(dt, span[0]), self.r_scale(dt, span[1])] if rated else None)
         Ut = ca.SX.sym("U_t", 6, n)
         v = ca.SX.sym("v", 6)
@@ -289,25 +327,35 @@ class Model(FilterModel):
         q_init = quat.from_euler(roll, pitch, yaw)
 
         specs = [
-            KernelSpec("predict", function("predict", {xs: q, "P": P, "gyro": w, "dt": dt},
+            KernelSpec("predict", function("predict", {**q_in, "P": P, "gyro": w, "dt": dt},
                                            {xs + "_pred": qm_e, "q_pred_unit": qn_e, "P_pred": Pm_e}),
-                       "linear Kalman time update: q- = A q, P- = A P A^T + Q"),
-            KernelSpec("innovation", function("innovation", {xs + "_pred": qm, "P_pred": Pm, "m_ref": m_ref, "accel": f,
-                                                             "mag": m,
+                       "linear Kalman time update: q- = A q, P- = A P A^T + Q", noinline=True),
+            KernelSpec("sigma_setup", function("sigma_setup", {xs + "_pred": qm, "P_pred": Pm, "m_ref": m_ref},
+                                               {"aL": aL_e, "z0": z0_e, "zsum": ca.densify(ca.SX.zeros(6)),
+                                                "zz": ca.densify(ca.SX.zeros(len(_LOWER6))), "pivot_P": piv_p}),
+                       "L = chol(P-), aL = a L[:, 0:4] (the columns that move the attitude: a bias column "
+                       "moves none, so 9 distinct sigma points), z0 = h(q-), the sums zsum and zz cleared; pivot_P = smallest pivot of P-",
+                       noinline=True),
+            KernelSpec("sigma_pair", function("sigma_pair", {"q_pred": q4, "col": col, "m_ref": m_ref, "z0": z0,
+                                                             "zsum": zsum, "zz": zz},
+                                              {"zsum_new": zsum_e, "zz_new": zz_e, "zdiff": zdiff_e}),
+                       "sigma points q- + col and q- - col, each normalised and mapped through h, as "
+                       "deviations e+, e- from z0: zsum + e+ + e-, zz + e+ e+^T + e- e-^T (lower triangle, "
+                       "row by row), e+ - e- (called once per column of aL)"),
+            KernelSpec("innovation", function("innovation", {"z0": z0, "zsum": zsum, "zz": zz, "zdiff": zdiff,
+                                                             "aL": aL, "accel": f, "mag": m,
                                                              **({"dt": dt, "span": span} if rated else {})},
-                                              {"P_zz": Pzz_e, "P_xz": Pxz_e, "residual": eps_e, "r_diag": r_e,
-                                               "pivot_P": piv_p}),
-                       "sigma points from the Cholesky factor of P- (9 distinct: a bias column moves no "
-                       "attitude), each normalised and mapped through h; predicted measurement, residual, "
-                       "adaptive per-axis R, P_zz and P_xz; "
-                       "pivot_P = smallest pivot of P-"),
+                                              {"P_zz": Pzz_e, "P_xz": Pxz_e, "residual": eps_e, "r_diag": r_e}),
+                       "predicted measurement, residual, adaptive per-axis R, P_zz and P_xz from the "
+                       "accumulated sigma-point deviations", noinline=True),
             KernelSpec("gain", function("gain", {"P_zz": Pzz, "P_xz": Pxz, "residual": eps},
                                         {"U_t": Ut_e, "v": v_e, "pivot_zz": piv_zz}),
                        "with L = chol(P_zz): U^T = L^-1 P_xz^T and v = L^-1 eps (K = U L^-1 never formed); "
-                       "pivot_zz = smallest pivot of P_zz"),
+                       "pivot_zz = smallest pivot of P_zz", noinline=True),
             KernelSpec("correct", function("correct", {xs + "_pred": qm, "P_pred": Pm, "U_t": Ut, "v": v},
                                            {xs + "_new": q_new, "P_new": P_new}),
-                       "x+ = x- + U v = x- + K eps (q normalised), P+ = P- - U U^T = P- - K P_zz K^T"),
+                       "x+ = x- + U v = x- + K eps (q normalised), P+ = P- - U U^T = P- - K P_zz K^T",
+                       noinline=True),
             *([KernelSpec("accel_lowpass", function(
                 "accel_lowpass", {"q_pred_unit": qn, "accel": f, "accel_lp": a_lp, "restart": restart, "dt": dt},
                 {"accel_lp_new": a_lp_new, "accel_body": quat.rotate_inv(qn, a_lp_new)}),
@@ -339,10 +387,10 @@ class Model(FilterModel):
 
     def step_paths(self):
         return {
-            "accel+mag update": ["predict", "innovation", "gain", "correct"],
+            "accel+mag update": ["predict", "sigma_setup"] + ["sigma_pair"] * N + ["innovation", "gain", "correct"],
             "gyro only": ["predict"],
         }
 
     def template_context(self):
         n = self.n
-        return {"learn": self.params["mag_ref"] == "learn", "n": n, "lowpass": self.lowpass(), "rated": self.own_rates(), "bias": n == 7, "xs": "q" if n == 4 else "x", "work": self.work_size()}
+        return {"learn": self.params["mag_ref"] == "learn", "n": n, "lowpass": self.lowpass(), "rated": self.own_rates(), "bias": n == 7, "xs": "q" if n == 4 else "x", **self.template_work()}
