@@ -108,10 +108,11 @@ def _hook(precision: str):
     """The generated cpf.c compiled with the PRNG test hook (tests/c/cpf_prng_hook.c)."""
     _, hf = built(precision)
     out = hf.lib_path.parent / f"libcpf_prng_hook_{precision}.so"
-    if not out.exists():
+    hook = REPO / "tests" / "c" / "cpf_prng_hook.c"
+    if not out.exists() or out.stat().st_mtime < hook.stat().st_mtime:   # the hook changes apart from cpf.c
         cmd = [host.cc(), *host.STRICT, *host.HOST_FLAGS, f"-I{hf.dir}", '-DCPF_SOURCE="cpf.c"',
                f"-DCPF_REAL={precision}", "-shared", "-o", str(out),
-               str(REPO / "tests" / "c" / "cpf_prng_hook.c"), "-lm"]
+               str(hook), "-lm"]
         r = subprocess.run(cmd, capture_output=True, text=True)
         assert r.returncode == 0, r.stderr
     lib = ctypes.CDLL(str(out))
@@ -152,6 +153,43 @@ def test_uniforms_identical_and_gaussians_bitwise_in_double(precision):
         assert np.array_equal(z, pz)                    # same libm calls: bit for bit
     else:
         assert np.max(np.abs(z - pz)) < 1e-5            # float ziggurat on the same draws
+
+
+def test_exp_nonpos_within_fast_expf_bound_and_equal_to_it(tmp_path):
+    """The float build's exp for x <= 0 (likelihood factor, ziggurat wedge): within fast_expf's
+    stated relative error of the exact exp over [-87.29, 0], 0 at and below -87.3, NaN kept, and
+    the same float as fastmath's fast_expf for every argument tried (its claim)."""
+    from generator import fastmath
+    lib, _, _ = _hook("float")
+    lib.cpf_hook_exp_nonpos.argtypes = [ctypes.c_void_p, ctypes.c_uint32, ctypes.c_void_p]
+    rng = np.random.default_rng(5)
+    tiny = np.float32(2.0) ** -np.arange(0, 150, dtype=np.float32)      # down to the subnormals
+    x = np.concatenate([rng.uniform(-87.29, 0.0, 1_000_000), -tiny, [0.0, -0.0, -87.29, -87.3, -87.31,
+                                                                     -200.0, -np.inf]]).astype(np.float32)
+    got = np.empty_like(x)
+    lib.cpf_hook_exp_nonpos(x.ctypes.data, len(x), got.ctypes.data)
+    exact = np.exp(x.astype(float))
+    inside = x > np.float32(-87.3)
+    rel = np.abs(got[inside].astype(float) - exact[inside]) / exact[inside]
+    assert float(rel.max()) <= fastmath.HELPERS["exp"].max_rel_error
+    assert np.all(got[~inside] == 0.0)
+    nan = np.float32([np.nan])
+    lib.cpf_hook_exp_nonpos(nan.ctypes.data, 1, got.ctypes.data)
+    assert np.isnan(got[0])
+    # fast_expf itself, compiled from generator/fastmath.py
+    src = tmp_path / "fe.c"
+    src.write_text("#include <math.h>\n#include <stdint.h>\n" + fastmath.c_source(["exp"])
+                   + "void v(const float *x, uint32_t n, float *o);\n"
+                   "void v(const float *x, uint32_t n, float *o) { for (uint32_t k = 0u; k < n; k++) { o[k] = fast_expf(x[k]); } }\n")
+    subprocess.run([host.cc(), *host.STRICT, *host.HOST_FLAGS, "-shared", "-o", str(tmp_path / "fe.so"), str(src)],
+                   check=True)
+    fe = ctypes.CDLL(str(tmp_path / "fe.so"))
+    fe.v.argtypes = [ctypes.c_void_p, ctypes.c_uint32, ctypes.c_void_p]
+    ref = np.empty_like(x)
+    fe.v(x.ctypes.data, len(x), ref.ctypes.data)
+    got = np.empty_like(x)
+    lib.cpf_hook_exp_nonpos(x.ctypes.data, len(x), got.ctypes.data)
+    assert np.array_equal(got.view(np.uint32), ref.view(np.uint32))
 
 
 @pytest.mark.parametrize("precision", ["double", "float"])
@@ -451,9 +489,9 @@ def test_float_build_compiles_for_cortex_m4f(tmp_path):
     assert r.returncode == 0, r.stderr
     nm = subprocess.run(["arm-none-eabi-nm", "-u", str(tmp_path / "cpf.o")], capture_output=True, text=True).stdout
     undefined = {ln.split()[-1] for ln in nm.splitlines() if ln.strip()}
-    # math = "fast": no libm trigonometry or exponential in the kernels; the ziggurat's rare
-    # wedge (expf) and tail (logf) are the only libm calls left
-    assert undefined & {"logf", "cosf", "sinf", "expf", "atan2f"} == {"logf", "expf"}
+    # math = "fast": no libm trigonometry or exponential (the likelihood and the ziggurat's
+    # wedge use cpf_exp_nonpos); the ziggurat's rare tail (logf) is the only libm call left
+    assert undefined & {"logf", "cosf", "sinf", "expf", "atan2f"} == {"logf"}
     assert not undefined & {"sqrt", "log", "cos", "sin", "exp", "atan2", "asin", "floor"}
 
 

@@ -87,31 +87,6 @@ static float fast_atan2f(float y, float x)
     return signbit(y) ? -a : a;
 }
 
-/* exp(x), every float: +inf above 88.72, 0 at and below -87.3 (where libm's results are subnormal, < 1.2e-38); the relative error is stated above -87.3; max relative error 1.5e-07 (tests/test_fastmath.py) */
-static float fast_expf(float x)
-{
-    if (!(x > -87.3f)) {
-        return isnan(x) ? x : 0.0f;   /* below FLT_MIN: flushed to zero */
-    }
-    if (x > 88.7228391f) {
-        return INFINITY;
-    }
-    /* x = k ln2 + r, |r| <= ln2 / 2 (ln2 in two parts); e^r by Cephes' minimax polynomial */
-    const float t = x * 1.44269504f;
-    const int32_t k = (int32_t)((t >= 0.0f) ? t + 0.5f : t - 0.5f);
-    const float kf = (float)k;
-    const float r = (x - kf * 0.693359375f) - kf * (-2.12194440e-4f);
-    const float p = ((((1.9875691500e-4f * r + 1.3981999507e-3f) * r + 8.3334519073e-3f) * r
-                      + 4.1665795894e-2f) * r + 1.6666665459e-1f) * r + 5.0000001201e-1f;
-    const float e = p * (r * r) + r + 1.0f;
-    /* times 2^k as two exact powers of two (k in [-126, 128]) */
-    union { uint32_t u; float f; } s1, s2;
-    const int32_t k1 = k / 2;
-    s1.u = (uint32_t)(k1 + 127) << 23;
-    s2.u = (uint32_t)(k - k1 + 127) << 23;
-    return e * s1.f * s2.f;
-}
-
 /* accelerometer roll and pitch (eqs. 1-2 in FRD/NED)
  * ops: add 3, mul 2, sqrt 1, trig 2 (total 8) */
 static inline void cpf_k_tilt(const float accel[3], float *roll, float *pitch)
@@ -385,88 +360,62 @@ static inline void cpf_k_init_particle(const float q[4], const float noise[4], f
     x[3] = tmp19;
 }
 
-/* particle prediction: eq. 11 plus the additive process noise of eq. 9, normalised
- * ops: add 19, mul 26, div 4, sqrt 2 (total 51) */
-static void cpf_k_particle_predict_part0(const float x[4], const float gyro[3], float dt, const float noise[4], float carry[7])
+/* once per step for every particle: half the rotation increment (dt/2 gyro, eq. 11) and the process-noise std (eq. 9)
+ * ops: mul 5, sqrt 1 (total 6) */
+static inline void cpf_k_particle_scales(const float gyro[3], float dt, float hw[3], float *sp)
 {
     const float tmp0 = 0.5f * dt;
-    const float tmp1 = x[1] * gyro[0];
-    const float tmp2 = x[2] * gyro[1];
-    const float tmp3 = tmp1 + tmp2;
-    const float tmp4 = x[3] * gyro[2];
-    const float tmp5 = tmp3 + tmp4;
-    const float tmp6 = tmp0 * tmp5;
-    const float tmp7 = x[0] - tmp6;
-    const float tmp8 = sqrtf(dt);
-    const float tmp9 = 0.025f /* 0.5*process_noise */ * tmp8;
-    const float tmp10 = tmp9 * noise[0];
-    const float tmp11 = tmp7 + tmp10;
-    const float tmp12 = tmp11 * tmp11;
-    const float tmp13 = x[0] * gyro[0];
-    const float tmp14 = x[2] * gyro[2];
+    const float tmp1 = tmp0 * gyro[0];
+    const float tmp2 = tmp0 * gyro[1];
+    const float tmp3 = tmp0 * gyro[2];
+    const float tmp4 = sqrtf(dt);
+    const float tmp5 = 0.025f /* 0.5*process_noise */ * tmp4;
+    hw[0] = tmp1;
+    hw[1] = tmp2;
+    hw[2] = tmp3;
+    *sp = tmp5;
+}
+
+/* particle prediction: eq. 11 plus the additive process noise of eq. 9 (normalised after it by the normalize kernel)
+ * ops: add 16, mul 16 (total 32) */
+static inline void cpf_k_particle_move(const float x[4], const float hw[3], float sp, const float noise[4], float x_new[4])
+{
+    const float tmp0 = x[1] * hw[0];
+    const float tmp1 = x[2] * hw[1];
+    const float tmp2 = tmp0 + tmp1;
+    const float tmp3 = x[3] * hw[2];
+    const float tmp4 = tmp2 + tmp3;
+    const float tmp5 = x[0] - tmp4;
+    const float tmp6 = sp * noise[0];
+    const float tmp7 = tmp5 + tmp6;
+    const float tmp8 = x[0] * hw[0];
+    const float tmp9 = x[2] * hw[2];
+    const float tmp10 = tmp8 + tmp9;
+    const float tmp11 = x[3] * hw[1];
+    const float tmp12 = tmp10 - tmp11;
+    const float tmp13 = x[1] + tmp12;
+    const float tmp14 = sp * noise[1];
     const float tmp15 = tmp13 + tmp14;
-    const float tmp16 = x[3] * gyro[1];
-    const float tmp17 = tmp15 - tmp16;
-    const float tmp18 = tmp0 * tmp17;
-    const float tmp19 = x[1] + tmp18;
-    const float tmp20 = tmp9 * noise[1];
-    const float tmp21 = tmp19 + tmp20;
-    const float tmp22 = tmp21 * tmp21;
-    const float tmp23 = tmp12 + tmp22;
-    const float tmp24 = x[0] * gyro[1];
-    const float tmp25 = x[1] * gyro[2];
-    const float tmp26 = tmp24 - tmp25;
-    const float tmp27 = x[3] * gyro[0];
-    const float tmp28 = tmp26 + tmp27;
-    const float tmp29 = tmp0 * tmp28;
-    const float tmp30 = x[2] + tmp29;
-    const float tmp31 = tmp9 * noise[2];
-    const float tmp32 = tmp30 + tmp31;
-    const float tmp33 = tmp32 * tmp32;
-    const float tmp34 = tmp23 + tmp33;
-    const float tmp35 = x[0] * gyro[2];
-    const float tmp36 = x[1] * gyro[1];
-    const float tmp37 = tmp35 + tmp36;
-    const float tmp38 = x[2] * gyro[0];
-    const float tmp39 = tmp37 - tmp38;
-    carry[0] = tmp0;
-    carry[1] = tmp9;
-    carry[2] = tmp11;
-    carry[3] = tmp21;
-    carry[4] = tmp32;
-    carry[5] = tmp34;
-    carry[6] = tmp39;
-}
-
-static void cpf_k_particle_predict_part1(const float x[4], const float noise[4], float carry[7])
-{
-    const float tmp40 = carry[0] * carry[6];
-    const float tmp41 = x[3] + tmp40;
-    const float tmp42 = carry[1] * noise[3];
-    const float tmp43 = tmp41 + tmp42;
-    const float tmp44 = tmp43 * tmp43;
-    const float tmp45 = carry[5] + tmp44;
-    const float tmp46 = sqrtf(tmp45);
-    const float tmp47 = carry[2] / tmp46;
-    const float tmp48 = carry[3] / tmp46;
-    const float tmp49 = carry[4] / tmp46;
-    const float tmp50 = tmp43 / tmp46;
-    carry[0] = tmp47;
-    carry[1] = tmp48;
-    carry[2] = tmp49;
-    carry[3] = tmp50;
-}
-
-static void cpf_k_particle_predict(const float x[4], const float gyro[3], float dt, const float noise[4], float x_new[4])
-{
-    /* 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
-    float carry[7];
-    cpf_k_particle_predict_part0(x, gyro, dt, noise, carry);
-    cpf_k_particle_predict_part1(x, noise, carry);
-    x_new[0] = carry[0];
-    x_new[1] = carry[1];
-    x_new[2] = carry[2];
-    x_new[3] = carry[3];
+    const float tmp16 = x[0] * hw[1];
+    const float tmp17 = x[1] * hw[2];
+    const float tmp18 = tmp16 - tmp17;
+    const float tmp19 = x[3] * hw[0];
+    const float tmp20 = tmp18 + tmp19;
+    const float tmp21 = x[2] + tmp20;
+    const float tmp22 = sp * noise[2];
+    const float tmp23 = tmp21 + tmp22;
+    const float tmp24 = x[0] * hw[2];
+    const float tmp25 = x[1] * hw[1];
+    const float tmp26 = tmp24 + tmp25;
+    const float tmp27 = x[2] * hw[0];
+    const float tmp28 = tmp26 - tmp27;
+    const float tmp29 = x[3] + tmp28;
+    const float tmp30 = sp * noise[3];
+    const float tmp31 = tmp29 + tmp30;
+    x_new[0] = tmp7;
+    x_new[1] = tmp15;
+    x_new[2] = tmp23;
+    x_new[3] = tmp31;
 }
 
 /* |<x, Y>|: cosine of half the angle between particle and observation (q = -q)
@@ -484,9 +433,9 @@ static inline void cpf_k_obs_dot(const float x[4], const float y[4], float *c)
     *c = tmp7;
 }
 
-/* weight times the Gaussian likelihood exp(-4(1-|<x,Y>|)/obs_noise^2), scaled by its maximum (eq. 13)
- * ops: add 4, mul 6, trig 1, cmp 1 (total 12) */
-static inline void cpf_k_reweight(float w, const float x[4], const float y[4], float cmax, float *w_new)
+/* log of the Gaussian likelihood exp(-4(1-|<x,Y>|)/obs_noise^2) scaled by its maximum (eq. 13): <= 0; the step multiplies the weight by exp(a)
+ * ops: add 4, mul 5, cmp 1 (total 10) */
+static inline void cpf_k_log_likelihood(const float x[4], const float y[4], float cmax, float *a)
 {
     const float tmp0 = x[0] * y[0];
     const float tmp1 = x[1] * y[1];
@@ -498,9 +447,7 @@ static inline void cpf_k_reweight(float w, const float x[4], const float y[4], f
     const float tmp7 = fabsf(tmp6);
     const float tmp8 = tmp7 - cmax;
     const float tmp9 = 10000.0f /* 4.0/(obs_noise*obs_noise) */ * tmp8;
-    const float tmp10 = fast_expf(tmp9);
-    const float tmp11 = w * tmp10;
-    *w_new = tmp11;
+    *a = tmp9;
 }
 
 /* sign-aligned weighted sum of the particles (eq. 15, q = -q)
@@ -589,6 +536,28 @@ static inline void cpf_k_euler(const float q[4], float rpy[3])
     rpy[2] = tmp27;
 }
 
+/* exp(x) for x <= 0, the only arguments it gets: the likelihood factor exp(gain (c - c_max)),
+ * c <= c_max, and the ziggurat's wedge exp(-x^2/2). fast_expf's reduction and polynomial
+ * (generator/fastmath.py) without its overflow branch and with one scaling by 2^k, exact for
+ * k >= -126 (x > -87.3): the same float as fast_expf for every x <= 0 (relative error
+ * 1.5e-7; 0 at and below -87.3; NaN kept), in fewer instructions (tests/test_cpf.py). */
+static inline float cpf_exp_nonpos(float x)
+{
+    if (!(x > -87.3f)) {
+        return isnan(x) ? x : 0.0f;   /* below FLT_MIN: flushed to zero */
+    }
+    const float t = x * 1.44269504f;
+    const int32_t k = (int32_t)(t - 0.5f);                 /* round(t): t <= 0 */
+    const float kf = (float)k;
+    const float r = (x - kf * 0.693359375f) - kf * (-2.12194440e-4f);
+    const float p = ((((1.9875691500e-4f * r + 1.3981999507e-3f) * r + 8.3334519073e-3f) * r
+                      + 4.1665795894e-2f) * r + 1.6666665459e-1f) * r + 5.0000001201e-1f;
+    const float e = p * (r * r) + r + 1.0f;
+    union { uint32_t u; float f; } scale;
+    scale.u = (uint32_t)(k + 127) << 23;                  /* 2^k, k in [-126, 0] */
+    return e * scale.f;
+}
+
 /* xoshiro128** 1.1 (Blackman & Vigna 2018) on a uint32 state; the same integer stream as
  * generator/filters/cpf/prng.py. The state is seeded at generation time (SplitMix32 of the
  * seed parameter) and lives in the filter state. */
@@ -613,60 +582,79 @@ static float cpf_rng_uniform(uint32_t r[4])
     return (float)((cpf_rng_next(r) >> 8) + 1u) * 5.9604645e-08f;
 }
 
-/* Ziggurat tables (Marsaglia & Tsang 2000, 128 layers; generator/filters/cpf/prng.py):
- * K = 24-bit acceptance thresholds, W = scale of the 24-bit magnitude, F = density at the
- * layer edges. */
-static const uint32_t cpf_zig_k[128] = {
-    15555140u, 0u, 12590646u, 14272655u, 14988941u, 15384586u, 15635011u, 15807563u,
-    15933579u, 16029596u, 16105157u, 16166149u, 16216401u, 16258510u, 16294297u, 16325080u,
-    16351833u, 16375293u, 16396028u, 16414481u, 16431004u, 16445882u, 16459345u, 16471580u,
-    16482746u, 16492973u, 16502371u, 16511033u, 16519041u, 16526461u, 16533355u, 16539771u,
-    16545757u, 16551350u, 16556586u, 16561495u, 16566103u, 16570436u, 16574514u, 16578356u,
-    16581979u, 16585400u, 16588632u, 16591687u, 16594578u, 16597313u, 16599904u, 16602357u,
-    16604681u, 16606884u, 16608971u, 16610948u, 16612821u, 16614596u, 16616275u, 16617864u,
-    16619366u, 16620785u, 16622124u, 16623386u, 16624574u, 16625689u, 16626734u, 16627712u,
-    16628623u, 16629469u, 16630252u, 16630973u, 16631633u, 16632232u, 16632772u, 16633253u,
-    16633676u, 16634040u, 16634345u, 16634592u, 16634780u, 16634909u, 16634978u, 16634986u,
-    16634933u, 16634816u, 16634636u, 16634389u, 16634074u, 16633688u, 16633230u, 16632697u,
-    16632084u, 16631389u, 16630608u, 16629736u, 16628767u, 16627697u, 16626519u, 16625225u,
-    16623807u, 16622256u, 16620562u, 16618713u, 16616695u, 16614493u, 16612090u, 16609464u,
-    16606592u, 16603448u, 16599998u, 16596205u, 16592024u, 16587401u, 16582272u, 16576558u,
-    16570162u, 16562964u, 16554811u, 16545510u, 16534808u, 16522367u, 16507732u, 16490264u,
-    16469044u, 16442689u, 16409025u, 16364393u, 16302110u, 16208407u, 16049218u, 15707337u
-};
-static const float cpf_zig_w[128] = {
-    2.2131718e-07f, 1.6231589e-08f, 2.1628823e-08f, 2.542424e-08f,
-    2.8457512e-08f, 3.103352e-08f, 3.3300648e-08f, 3.5343344e-08f,
-    3.7214672e-08f, 3.895036e-08f, 4.057574e-08f, 4.2109466e-08f,
-    4.3565745e-08f, 4.495565e-08f, 4.628801e-08f, 4.7569994e-08f,
-    4.8807497e-08f, 5.000545e-08f, 5.1168016e-08f, 5.2298752e-08f,
-    5.3400715e-08f, 5.4476573e-08f, 5.5528652e-08f, 5.6559003e-08f,
-    5.7569448e-08f, 5.856161e-08f, 5.9536948e-08f, 6.0496774e-08f,
-    6.144227e-08f, 6.2374525e-08f, 6.329453e-08f, 6.420318e-08f,
-    6.510132e-08f, 6.598971e-08f, 6.686908e-08f, 6.7740075e-08f,
-    6.860333e-08f, 6.945942e-08f, 7.0308886e-08f, 7.115225e-08f,
-    7.199e-08f, 7.282259e-08f, 7.365045e-08f, 7.447401e-08f,
-    7.5293656e-08f, 7.6109785e-08f, 7.692275e-08f, 7.773291e-08f,
-    7.854061e-08f, 7.934618e-08f, 8.014993e-08f, 8.09522e-08f,
-    8.1753264e-08f, 8.255345e-08f, 8.335304e-08f, 8.4152326e-08f,
-    8.4951594e-08f, 8.575113e-08f, 8.6551225e-08f, 8.7352156e-08f,
-    8.8154195e-08f, 8.8957634e-08f, 8.976275e-08f, 9.056983e-08f,
-    9.137916e-08f, 9.219103e-08f, 9.300573e-08f, 9.3823566e-08f,
-    9.464484e-08f, 9.546986e-08f, 9.629894e-08f, 9.7132414e-08f,
-    9.797061e-08f, 9.8813885e-08f, 9.9662586e-08f, 1.00517084e-07f,
-    1.01377765e-07f, 1.0224502e-07f, 1.0311926e-07f, 1.0400093e-07f,
-    1.0489048e-07f, 1.05788374e-07f, 1.0669511e-07f, 1.0761123e-07f,
-    1.0853726e-07f, 1.09473795e-07f, 1.10421446e-07f, 1.11380885e-07f,
-    1.12352794e-07f, 1.1333791e-07f, 1.1433705e-07f, 1.15351035e-07f,
-    1.163808e-07f, 1.17427305e-07f, 1.1849163e-07f, 1.1957489e-07f,
-    1.2067837e-07f, 1.2180338e-07f, 1.229514e-07f, 1.2412407e-07f,
-    1.2532313e-07f, 1.2655053e-07f, 1.2780846e-07f, 1.2909929e-07f,
-    1.3042572e-07f, 1.3179073e-07f, 1.3319769e-07f, 1.3465045e-07f,
-    1.3615335e-07f, 1.3771138e-07f, 1.3933034e-07f, 1.4101693e-07f,
-    1.4277902e-07f, 1.4462594e-07f, 1.4656891e-07f, 1.4862147e-07f,
-    1.5080033e-07f, 1.5312634e-07f, 1.5562607e-07f, 1.5833416e-07f,
-    1.6129694e-07f, 1.6457852e-07f, 1.6827138e-07f, 1.7251635e-07f,
-    1.7754414e-07f, 1.8377476e-07f, 1.9211083e-07f, 2.0519613e-07f
+/* Ziggurat tables (Marsaglia & Tsang 2000, 128 layers; generator/filters/cpf/prng.py), indexed
+ * by the low 8 bits of a draw (layer i = bits 0-6, sign = bit 7): k = the layer's 24-bit
+ * acceptance threshold, w = the scale of the 24-bit magnitude, negative for the negative
+ * half (j * -W == -(j * W) exactly, so the sign costs no instruction); one entry holds both,
+ * so one address serves the comparison and the product. f = density at the layer edges. */
+static const struct {
+    uint32_t k;
+    float w;
+} cpf_zig[256] = {
+    { 15555140u, 2.2131718e-07f }, { 0u, 1.6231589e-08f }, { 12590646u, 2.1628823e-08f }, { 14272655u, 2.542424e-08f },
+    { 14988941u, 2.8457512e-08f }, { 15384586u, 3.103352e-08f }, { 15635011u, 3.3300648e-08f }, { 15807563u, 3.5343344e-08f },
+    { 15933579u, 3.7214672e-08f }, { 16029596u, 3.895036e-08f }, { 16105157u, 4.057574e-08f }, { 16166149u, 4.2109466e-08f },
+    { 16216401u, 4.3565745e-08f }, { 16258510u, 4.495565e-08f }, { 16294297u, 4.628801e-08f }, { 16325080u, 4.7569994e-08f },
+    { 16351833u, 4.8807497e-08f }, { 16375293u, 5.000545e-08f }, { 16396028u, 5.1168016e-08f }, { 16414481u, 5.2298752e-08f },
+    { 16431004u, 5.3400715e-08f }, { 16445882u, 5.4476573e-08f }, { 16459345u, 5.5528652e-08f }, { 16471580u, 5.6559003e-08f },
+    { 16482746u, 5.7569448e-08f }, { 16492973u, 5.856161e-08f }, { 16502371u, 5.9536948e-08f }, { 16511033u, 6.0496774e-08f },
+    { 16519041u, 6.144227e-08f }, { 16526461u, 6.2374525e-08f }, { 16533355u, 6.329453e-08f }, { 16539771u, 6.420318e-08f },
+    { 16545757u, 6.510132e-08f }, { 16551350u, 6.598971e-08f }, { 16556586u, 6.686908e-08f }, { 16561495u, 6.7740075e-08f },
+    { 16566103u, 6.860333e-08f }, { 16570436u, 6.945942e-08f }, { 16574514u, 7.0308886e-08f }, { 16578356u, 7.115225e-08f },
+    { 16581979u, 7.199e-08f }, { 16585400u, 7.282259e-08f }, { 16588632u, 7.365045e-08f }, { 16591687u, 7.447401e-08f },
+    { 16594578u, 7.5293656e-08f }, { 16597313u, 7.6109785e-08f }, { 16599904u, 7.692275e-08f }, { 16602357u, 7.773291e-08f },
+    { 16604681u, 7.854061e-08f }, { 16606884u, 7.934618e-08f }, { 16608971u, 8.014993e-08f }, { 16610948u, 8.09522e-08f },
+    { 16612821u, 8.1753264e-08f }, { 16614596u, 8.255345e-08f }, { 16616275u, 8.335304e-08f }, { 16617864u, 8.4152326e-08f },
+    { 16619366u, 8.4951594e-08f }, { 16620785u, 8.575113e-08f }, { 16622124u, 8.6551225e-08f }, { 16623386u, 8.7352156e-08f },
+    { 16624574u, 8.8154195e-08f }, { 16625689u, 8.8957634e-08f }, { 16626734u, 8.976275e-08f }, { 16627712u, 9.056983e-08f },
+    { 16628623u, 9.137916e-08f }, { 16629469u, 9.219103e-08f }, { 16630252u, 9.300573e-08f }, { 16630973u, 9.3823566e-08f },
+    { 16631633u, 9.464484e-08f }, { 16632232u, 9.546986e-08f }, { 16632772u, 9.629894e-08f }, { 16633253u, 9.7132414e-08f },
+    { 16633676u, 9.797061e-08f }, { 16634040u, 9.8813885e-08f }, { 16634345u, 9.9662586e-08f }, { 16634592u, 1.00517084e-07f },
+    { 16634780u, 1.01377765e-07f }, { 16634909u, 1.0224502e-07f }, { 16634978u, 1.0311926e-07f }, { 16634986u, 1.0400093e-07f },
+    { 16634933u, 1.0489048e-07f }, { 16634816u, 1.05788374e-07f }, { 16634636u, 1.0669511e-07f }, { 16634389u, 1.0761123e-07f },
+    { 16634074u, 1.0853726e-07f }, { 16633688u, 1.09473795e-07f }, { 16633230u, 1.10421446e-07f }, { 16632697u, 1.11380885e-07f },
+    { 16632084u, 1.12352794e-07f }, { 16631389u, 1.1333791e-07f }, { 16630608u, 1.1433705e-07f }, { 16629736u, 1.15351035e-07f },
+    { 16628767u, 1.163808e-07f }, { 16627697u, 1.17427305e-07f }, { 16626519u, 1.1849163e-07f }, { 16625225u, 1.1957489e-07f },
+    { 16623807u, 1.2067837e-07f }, { 16622256u, 1.2180338e-07f }, { 16620562u, 1.229514e-07f }, { 16618713u, 1.2412407e-07f },
+    { 16616695u, 1.2532313e-07f }, { 16614493u, 1.2655053e-07f }, { 16612090u, 1.2780846e-07f }, { 16609464u, 1.2909929e-07f },
+    { 16606592u, 1.3042572e-07f }, { 16603448u, 1.3179073e-07f }, { 16599998u, 1.3319769e-07f }, { 16596205u, 1.3465045e-07f },
+    { 16592024u, 1.3615335e-07f }, { 16587401u, 1.3771138e-07f }, { 16582272u, 1.3933034e-07f }, { 16576558u, 1.4101693e-07f },
+    { 16570162u, 1.4277902e-07f }, { 16562964u, 1.4462594e-07f }, { 16554811u, 1.4656891e-07f }, { 16545510u, 1.4862147e-07f },
+    { 16534808u, 1.5080033e-07f }, { 16522367u, 1.5312634e-07f }, { 16507732u, 1.5562607e-07f }, { 16490264u, 1.5833416e-07f },
+    { 16469044u, 1.6129694e-07f }, { 16442689u, 1.6457852e-07f }, { 16409025u, 1.6827138e-07f }, { 16364393u, 1.7251635e-07f },
+    { 16302110u, 1.7754414e-07f }, { 16208407u, 1.8377476e-07f }, { 16049218u, 1.9211083e-07f }, { 15707337u, 2.0519613e-07f },
+    { 15555140u, (-2.2131718e-07f) }, { 0u, (-1.6231589e-08f) }, { 12590646u, (-2.1628823e-08f) }, { 14272655u, (-2.542424e-08f) },
+    { 14988941u, (-2.8457512e-08f) }, { 15384586u, (-3.103352e-08f) }, { 15635011u, (-3.3300648e-08f) }, { 15807563u, (-3.5343344e-08f) },
+    { 15933579u, (-3.7214672e-08f) }, { 16029596u, (-3.895036e-08f) }, { 16105157u, (-4.057574e-08f) }, { 16166149u, (-4.2109466e-08f) },
+    { 16216401u, (-4.3565745e-08f) }, { 16258510u, (-4.495565e-08f) }, { 16294297u, (-4.628801e-08f) }, { 16325080u, (-4.7569994e-08f) },
+    { 16351833u, (-4.8807497e-08f) }, { 16375293u, (-5.000545e-08f) }, { 16396028u, (-5.1168016e-08f) }, { 16414481u, (-5.2298752e-08f) },
+    { 16431004u, (-5.3400715e-08f) }, { 16445882u, (-5.4476573e-08f) }, { 16459345u, (-5.5528652e-08f) }, { 16471580u, (-5.6559003e-08f) },
+    { 16482746u, (-5.7569448e-08f) }, { 16492973u, (-5.856161e-08f) }, { 16502371u, (-5.9536948e-08f) }, { 16511033u, (-6.0496774e-08f) },
+    { 16519041u, (-6.144227e-08f) }, { 16526461u, (-6.2374525e-08f) }, { 16533355u, (-6.329453e-08f) }, { 16539771u, (-6.420318e-08f) },
+    { 16545757u, (-6.510132e-08f) }, { 16551350u, (-6.598971e-08f) }, { 16556586u, (-6.686908e-08f) }, { 16561495u, (-6.7740075e-08f) },
+    { 16566103u, (-6.860333e-08f) }, { 16570436u, (-6.945942e-08f) }, { 16574514u, (-7.0308886e-08f) }, { 16578356u, (-7.115225e-08f) },
+    { 16581979u, (-7.199e-08f) }, { 16585400u, (-7.282259e-08f) }, { 16588632u, (-7.365045e-08f) }, { 16591687u, (-7.447401e-08f) },
+    { 16594578u, (-7.5293656e-08f) }, { 16597313u, (-7.6109785e-08f) }, { 16599904u, (-7.692275e-08f) }, { 16602357u, (-7.773291e-08f) },
+    { 16604681u, (-7.854061e-08f) }, { 16606884u, (-7.934618e-08f) }, { 16608971u, (-8.014993e-08f) }, { 16610948u, (-8.09522e-08f) },
+    { 16612821u, (-8.1753264e-08f) }, { 16614596u, (-8.255345e-08f) }, { 16616275u, (-8.335304e-08f) }, { 16617864u, (-8.4152326e-08f) },
+    { 16619366u, (-8.4951594e-08f) }, { 16620785u, (-8.575113e-08f) }, { 16622124u, (-8.6551225e-08f) }, { 16623386u, (-8.7352156e-08f) },
+    { 16624574u, (-8.8154195e-08f) }, { 16625689u, (-8.8957634e-08f) }, { 16626734u, (-8.976275e-08f) }, { 16627712u, (-9.056983e-08f) },
+    { 16628623u, (-9.137916e-08f) }, { 16629469u, (-9.219103e-08f) }, { 16630252u, (-9.300573e-08f) }, { 16630973u, (-9.3823566e-08f) },
+    { 16631633u, (-9.464484e-08f) }, { 16632232u, (-9.546986e-08f) }, { 16632772u, (-9.629894e-08f) }, { 16633253u, (-9.7132414e-08f) },
+    { 16633676u, (-9.797061e-08f) }, { 16634040u, (-9.8813885e-08f) }, { 16634345u, (-9.9662586e-08f) }, { 16634592u, (-1.00517084e-07f) },
+    { 16634780u, (-1.01377765e-07f) }, { 16634909u, (-1.0224502e-07f) }, { 16634978u, (-1.0311926e-07f) }, { 16634986u, (-1.0400093e-07f) },
+    { 16634933u, (-1.0489048e-07f) }, { 16634816u, (-1.05788374e-07f) }, { 16634636u, (-1.0669511e-07f) }, { 16634389u, (-1.0761123e-07f) },
+    { 16634074u, (-1.0853726e-07f) }, { 16633688u, (-1.09473795e-07f) }, { 16633230u, (-1.10421446e-07f) }, { 16632697u, (-1.11380885e-07f) },
+    { 16632084u, (-1.12352794e-07f) }, { 16631389u, (-1.1333791e-07f) }, { 16630608u, (-1.1433705e-07f) }, { 16629736u, (-1.15351035e-07f) },
+    { 16628767u, (-1.163808e-07f) }, { 16627697u, (-1.17427305e-07f) }, { 16626519u, (-1.1849163e-07f) }, { 16625225u, (-1.1957489e-07f) },
+    { 16623807u, (-1.2067837e-07f) }, { 16622256u, (-1.2180338e-07f) }, { 16620562u, (-1.229514e-07f) }, { 16618713u, (-1.2412407e-07f) },
+    { 16616695u, (-1.2532313e-07f) }, { 16614493u, (-1.2655053e-07f) }, { 16612090u, (-1.2780846e-07f) }, { 16609464u, (-1.2909929e-07f) },
+    { 16606592u, (-1.3042572e-07f) }, { 16603448u, (-1.3179073e-07f) }, { 16599998u, (-1.3319769e-07f) }, { 16596205u, (-1.3465045e-07f) },
+    { 16592024u, (-1.3615335e-07f) }, { 16587401u, (-1.3771138e-07f) }, { 16582272u, (-1.3933034e-07f) }, { 16576558u, (-1.4101693e-07f) },
+    { 16570162u, (-1.4277902e-07f) }, { 16562964u, (-1.4462594e-07f) }, { 16554811u, (-1.4656891e-07f) }, { 16545510u, (-1.4862147e-07f) },
+    { 16534808u, (-1.5080033e-07f) }, { 16522367u, (-1.5312634e-07f) }, { 16507732u, (-1.5562607e-07f) }, { 16490264u, (-1.5833416e-07f) },
+    { 16469044u, (-1.6129694e-07f) }, { 16442689u, (-1.6457852e-07f) }, { 16409025u, (-1.6827138e-07f) }, { 16364393u, (-1.7251635e-07f) },
+    { 16302110u, (-1.7754414e-07f) }, { 16208407u, (-1.8377476e-07f) }, { 16049218u, (-1.9211083e-07f) }, { 15707337u, (-2.0519613e-07f) }
 };
 static const float cpf_zig_f[128] = {
     1.0f, 0.9635997f, 0.9362827f, 0.9130436f,
@@ -709,16 +697,18 @@ static const float cpf_zig_f[128] = {
  * so that one stays a few instructions without a large function prologue. */
 #if defined(__GNUC__)
 #define CPF_NOT_INLINED __attribute__((noinline))
+#define CPF_LIKELY(c) __builtin_expect((c), 1)
 #else
 #define CPF_NOT_INLINED
+#define CPF_LIKELY(c) (c)
 #endif
 static CPF_NOT_INLINED float cpf_rng_gauss_slow(uint32_t r[4], uint32_t u)
 {
     for (;;) {
         const uint32_t i = u & 127u;
         const uint32_t j = u >> 8;
-        const float x = (float)j * cpf_zig_w[i];
-        if (j < cpf_zig_k[i]) {
+        const float x = (float)j * cpf_zig[i].w;
+        if (j < cpf_zig[i].k) {
             return ((u & 128u) != 0u) ? -x : x;
         }
         if (i == 0u) {
@@ -732,7 +722,7 @@ static CPF_NOT_INLINED float cpf_rng_gauss_slow(uint32_t r[4], uint32_t u)
             return ((u & 128u) != 0u) ? -tail : tail;
         }
         const float level = cpf_zig_f[i] + cpf_rng_uniform(r) * (cpf_zig_f[i - 1u] - cpf_zig_f[i]);
-        if (level < expf((-0.5f) * x * x)) {
+        if (level < cpf_exp_nonpos((-0.5f) * x * x)) {
             return ((u & 128u) != 0u) ? -x : x;
         }
         u = cpf_rng_next(r);
@@ -741,49 +731,67 @@ static CPF_NOT_INLINED float cpf_rng_gauss_slow(uint32_t r[4], uint32_t u)
 
 /* One standard normal sample by the ziggurat: index, sign and 24-bit magnitude from one
  * draw; about 98.8 % of draws return at the first comparison, the rest take the wedge
- * (exp) or the tail beyond R (log) and draw again. */
-static inline float cpf_rng_gauss(uint32_t r[4])
+ * (exp) or the tail beyond R (log) and draw again. The generator's state is r, a local copy
+ * that a loop keeps in registers; the rare path runs on `home` (the state struct's copy),
+ * written before and read back after it, so r's address never leaves the loop. */
+static inline float cpf_rng_gauss(uint32_t r[4], uint32_t home[4])
 {
     const uint32_t u = cpf_rng_next(r);
-    const uint32_t i = u & 127u;
     const uint32_t j = u >> 8;
-    if (j < cpf_zig_k[i]) {
-        const float x = (float)j * cpf_zig_w[i];
-        return ((u & 128u) != 0u) ? -x : x;
+    const uint32_t is = u & 255u;      /* layer and sign */
+    if (CPF_LIKELY(j < cpf_zig[is].k)) {
+        return (float)j * cpf_zig[is].w;
     }
-    return cpf_rng_gauss_slow(r, u);
+    home[0] = r[0];
+    home[1] = r[1];
+    home[2] = r[2];
+    home[3] = r[3];
+    const float z = cpf_rng_gauss_slow(home, u);
+    r[0] = home[0];
+    r[1] = home[1];
+    r[2] = home[2];
+    r[3] = home[3];
+    return z;
 }
 
-/* Four standard normal samples: one particle's noise. */
-static void cpf_rng_gauss4(uint32_t r[4], float n[4])
+/* Four standard normal samples: one particle's noise (state in rng, updated). */
+static void cpf_rng_gauss4(uint32_t rng[4], float n[4])
 {
+    uint32_t r[4] = { rng[0], rng[1], rng[2], rng[3] };
+    n[0] = cpf_rng_gauss(r, rng);
+    n[1] = cpf_rng_gauss(r, rng);
+    n[2] = cpf_rng_gauss(r, rng);
+    n[3] = cpf_rng_gauss(r, rng);
     for (uint32_t k = 0u; k < 4u; k++) {
-        n[k] = cpf_rng_gauss(r);
+        rng[k] = r[k];
     }
 }
 
 /* Systematic resampling: one uniform u in (0, 1], positions (j + u)/N, j = 0..N-1; position j
  * takes the first particle whose cumulative weight is >= it (the last one if rounding leaves
- * the total below 1). The copies are made in place: each selected particle keeps its slot,
- * its extra copies fill the unselected slots in increasing order. */
+ * the total below 1). One pass counts each particle's copies (the positions up to its
+ * cumulative weight) and resets its weight; the copies are then made in place: each selected
+ * particle keeps its slot, its extra copies fill the unselected slots in increasing order. */
 static void cpf_resample(cpf_state *s)
 {
     const float u = cpf_rng_uniform(s->rng);
-    float c = s->weights[0];
-    uint32_t i = 0u;
-    uint32_t d = 0u;
-    for (uint32_t j = 0u; j < 100u; j++) {
-        s->counts[j] = 0u;
-    }
-    for (uint32_t j = 0u; j < 100u; j++) {
-        const float pos = ((float)j + u) / 100.0f;
-        while (pos > c && i < 99u) {
-            i++;
-            c += s->weights[i];
+    float c = 0.0f;
+    float jr = 0.0f;   /* j as a real (exact) */
+    uint32_t j = 0u;
+    for (uint32_t i = 0u; i < 99u; i++) {
+        c += s->weights[i];
+        s->weights[i] = 0.01f;
+        const uint32_t j0 = j;
+        while (j < 100u && (jr + u) / 100.0f <= c) {
+            j++;
+            jr += 1.0f;
         }
-        s->counts[i]++;
+        s->counts[i] = j - j0;
     }
-    for (i = 0u; i < 100u; i++) {
+    s->weights[99u] = 0.01f;
+    s->counts[99u] = 100u - j;
+    uint32_t d = 0u;
+    for (uint32_t i = 0u; i < 100u; i++) {
         while (s->counts[i] > 1u) {
             while (d < 100u && s->counts[d] != 0u) {
                 d++;
@@ -797,9 +805,6 @@ static void cpf_resample(cpf_state *s)
             s->counts[d] = 1u;
             s->counts[i]--;
         }
-    }
-    for (uint32_t j = 0u; j < 100u; j++) {
-        s->weights[j] = 0.01f;
     }
     s->ess = 100.0f;
     s->resample_count++;
@@ -961,16 +966,30 @@ cpf_status cpf_step(cpf_state *restrict s, const cpf_input *restrict in, float d
     /* Prediction: eq. 11 plus additive quaternion noise (eq. 9), particle by particle, and
      * with an observation the largest |<x_i, Y>| (the likelihood's scale, eq. 13). */
     float cmax = 0.0f;
-    for (uint32_t i = 0u; i < 100u; i++) {
-        float noise[4];
-        cpf_rng_gauss4(s->rng, noise);
-        cpf_k_particle_predict(&s->particles[4u * i], in->gyro, dt, noise, &s->particles[4u * i]);
-        if (have_obs) {
-            float c;
-            cpf_k_obs_dot(&s->particles[4u * i], y, &c);
-            if (i == 0u || c > cmax) {
-                cmax = c;
+    {
+        float hw[3];
+        float sp;
+        cpf_k_particle_scales(in->gyro, dt, hw, &sp);
+        uint32_t r[4] = { s->rng[0], s->rng[1], s->rng[2], s->rng[3] };   /* in registers while the loop draws */
+        for (uint32_t i = 0u; i < 100u; i++) {
+            float *x = &s->particles[4u * i];
+            float noise[4];
+            noise[0] = cpf_rng_gauss(r, s->rng);
+            noise[1] = cpf_rng_gauss(r, s->rng);
+            noise[2] = cpf_rng_gauss(r, s->rng);
+            noise[3] = cpf_rng_gauss(r, s->rng);
+            cpf_k_particle_move(x, hw, sp, noise, x);
+            cpf_k_normalize(x, x);
+            if (have_obs) {
+                float c;
+                cpf_k_obs_dot(x, y, &c);
+                if (i == 0u || c > cmax) {
+                    cmax = c;
+                }
             }
+        }
+        for (uint32_t k = 0u; k < 4u; k++) {
+            s->rng[k] = r[k];
         }
     }
 
@@ -980,7 +999,9 @@ cpf_status cpf_step(cpf_state *restrict s, const cpf_input *restrict in, float d
     if (have_obs) {
         sum = 0.0f;
         for (uint32_t i = 0u; i < 100u; i++) {
-            cpf_k_reweight(s->weights[i], &s->particles[4u * i], y, cmax, &s->weights[i]);
+            float a;
+            cpf_k_log_likelihood(&s->particles[4u * i], y, cmax, &a);
+            s->weights[i] = s->weights[i] * cpf_exp_nonpos(a);
             sum += s->weights[i];
         }
         if (!(sum > 0.0f)) {

@@ -27,3 +27,10 @@ void cpf_hook_gauss4(uint32_t state[4], uint32_t n, CPF_REAL *out)
         cpf_rng_gauss4(state, &out[4u * k]);
     }
 }
+
+void cpf_hook_exp_nonpos(const CPF_REAL *x, uint32_t n, CPF_REAL *out)
+{
+    for (uint32_t k = 0u; k < n; k++) {
+        out[k] = cpf_exp_nonpos(x[k]);
+    }
+}

@@ -88,6 +88,8 @@ class Model(FilterModel):
         rpy = ca.SX.sym("rpy", 3)
         am = ca.SX.sym("am", 3)
         noise = ca.SX.sym("noise", 4)
+        hw = ca.SX.sym("hw", 3)
+        sp = ca.SX.sym("sp")
         use_accel = ca.SX.sym("use_accel")
         use_mag = ca.SX.sym("use_mag")
         w = ca.SX.sym("w")
@@ -129,15 +131,22 @@ class Model(FilterModel):
                 KernelSpec("init_particle", function("init_particle", {"q": q, "noise": noise},
                                                      {"x": quat.qnormalize(q + s_0 * noise)}),
                            "initial particle: the first attitude plus quaternion noise, normalised"),
-                KernelSpec("particle_predict",
-                           function("particle_predict", {"x": x, "gyro": gyro, "dt": dt, "noise": noise},
-                                    {"x_new": quat.qnormalize(transition(x, gyro, dt) + s_p * noise)}),
-                           "particle prediction: eq. 11 plus the additive process noise of eq. 9, normalised"),
+                KernelSpec("particle_scales",
+                           function("particle_scales", {"gyro": gyro, "dt": dt},
+                                    {"hw": 0.5 * dt * gyro, "sp": s_p}),
+                           "once per step for every particle: half the rotation increment (dt/2 gyro, eq. 11) "
+                           "and the process-noise std (eq. 9)"),
+                KernelSpec("particle_move",
+                           function("particle_move", {"x": x, "hw": hw, "sp": sp, "noise": noise},
+                                    {"x_new": x + quat.qmul(x, quat.vec(0, hw[0], hw[1], hw[2])) + sp * noise}),
+                           "particle prediction: eq. 11 plus the additive process noise of eq. 9 "
+                           "(normalised after it by the normalize kernel)"),
                 KernelSpec("obs_dot", function("obs_dot", {"x": x, "y": y}, {"c": c}),
                            "|<x, Y>|: cosine of half the angle between particle and observation (q = -q)"),
-                KernelSpec("reweight", function("reweight", {"w": w, "x": x, "y": y, "cmax": cmax},
-                                                {"w_new": w * ca.exp(gain * (c - cmax))}),
-                           "weight times the Gaussian likelihood exp(-4(1-|<x,Y>|)/obs_noise^2), scaled by its maximum (eq. 13)"),
+                KernelSpec("log_likelihood", function("log_likelihood", {"x": x, "y": y, "cmax": cmax},
+                                                      {"a": gain * (c - cmax)}),
+                           "log of the Gaussian likelihood exp(-4(1-|<x,Y>|)/obs_noise^2) scaled by its maximum "
+                           "(eq. 13): <= 0; the step multiplies the weight by exp(a)"),
                 KernelSpec("accumulate", function("accumulate", {"acc": acc, "w": w, "x": x, "ref": ref},
                                                   {"acc_new": acc + w * sgn * x}),
                            "sign-aligned weighted sum of the particles (eq. 15, q = -q)"),
@@ -150,15 +159,15 @@ class Model(FilterModel):
     def template_context(self):
         return {"n_particles": self.n, "mode": self.mode, "faithful": bool(self.params["faithful"]),
                 "ess_threshold": float(self.params["ess_threshold"]),
-                "zig_k": ZIG_K, "zig_w": ZIG_W, "zig_f": ZIG_F, "zig_r": ZIG_R}
+                "zig_kw": list(zip(ZIG_K, ZIG_W)), "zig_f": ZIG_F, "zig_r": ZIG_R}
 
     def step_paths(self):
         n = self.n
         cf = ["predict", "euler", "tilt", "heading", "cf_mix"]
         if self.mode == "complementary":
             return {"accel+mag": cf, "gyro only": ["predict"]}
-        pf_pred = ["particle_predict"] * n
-        pf_upd = ["obs_dot"] * n + ["reweight"] * n
+        pf_pred = ["particle_scales"] + ["particle_move", "normalize"] * n
+        pf_upd = ["obs_dot"] * n + ["log_likelihood"] * n
         est = ["accumulate"] * n + ["normalize"]
         if self.mode == "particle":
             return {"accel+mag (kernels)": ["tilt", "heading", "from_euler"] + pf_pred + pf_upd + est,

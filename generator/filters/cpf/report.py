@@ -115,7 +115,7 @@ def cost(ns=(50, 100, 200), time_it: bool = True) -> str:
 
 def per_particle_ops() -> str:
     m = hf("float").manifest["kernels"]
-    names = ["particle_predict", "obs_dot", "reweight", "accumulate"]
+    names = ["particle_move", "normalize", "obs_dot", "log_likelihood", "accumulate"]
     tot = sum(m[k]["total"] for k in names)
     return ", ".join(f"{k} {m[k]['total']}" for k in names) + f" = {tot} kernel ops per particle"
 
