@@ -67,7 +67,8 @@ class Model(FilterModel):
                 StateField("ess", 1, "effective sample size 1/sum(w^2) after the last update", float(n)),
                 StateField("rng", 4, f"xoshiro128** state (seeded from {self.params['seed']})",
                            seed_state(int(self.params["seed"])), "uint32"),
-                StateField("counts", n, "resampling scratch: copies of each particle", 0, "uint32"),
+                StateField("scratch", n, "per-particle scratch: |<x_i, Y>| during an update, then the number of "
+                           "copies of each particle while resampling (whole numbers)", 0.0),
                 StateField("resample_count", 1, "number of resamplings so far (wraps)", 0, "uint32"),
             ]
         fields.append(StateField("initialised", 1, "1 once initialised from the accelerometer/magnetometer",
@@ -94,6 +95,7 @@ class Model(FilterModel):
         use_mag = ca.SX.sym("use_mag")
         w = ca.SX.sym("w")
         cmax = ca.SX.sym("cmax")
+        cdot = ca.SX.sym("c")
         acc = ca.SX.sym("acc", 4)
         ref = ca.SX.sym("ref", 4)
 
@@ -143,8 +145,8 @@ class Model(FilterModel):
                            "(normalised after it by the normalize kernel)"),
                 KernelSpec("obs_dot", function("obs_dot", {"x": x, "y": y}, {"c": c}),
                            "|<x, Y>|: cosine of half the angle between particle and observation (q = -q)"),
-                KernelSpec("log_likelihood", function("log_likelihood", {"x": x, "y": y, "cmax": cmax},
-                                                      {"a": gain * (c - cmax)}),
+                KernelSpec("log_likelihood", function("log_likelihood", {"c": cdot, "cmax": cmax},
+                                                      {"a": gain * (cdot - cmax)}),
                            "log of the Gaussian likelihood exp(-4(1-|<x,Y>|)/obs_noise^2) scaled by its maximum "
                            "(eq. 13): <= 0; the step multiplies the weight by exp(a)"),
                 KernelSpec("accumulate", function("accumulate", {"acc": acc, "w": w, "x": x, "ref": ref},
