@@ -472,8 +472,8 @@ def test_state_holds_particles_no_heap():
             _, hf = built(precision, n_particles=n)
             size = hf.manifest["structs"]["state"]["size"]
             assert size == ctypes.sizeof(hf.State)
-            # q, q_cf, particles, weights, ess (real) + rng, counts, resample_count, initialised (uint32)
-            reals, words = 4 + 4 + 4 * n + n + 1, 4 + n + 1 + 1
+            # q, q_cf, particles, weights, scratch, ess (real) + rng, resample_count, initialised (uint32)
+            reals, words = 4 + 4 + 4 * n + n + n + 1, 4 + 1 + 1
             assert size == -(-(rb * reals + 4 * words) // rb) * rb
     src = (REPO / "generated" / "cpf" / "cpf.c").read_text()
     for word in ("malloc", "calloc", "realloc", "free(", "alloca"):

@@ -434,20 +434,12 @@ static inline void cpf_k_obs_dot(const float x[4], const float y[4], float *c)
 }
 
 /* log of the Gaussian likelihood exp(-4(1-|<x,Y>|)/obs_noise^2) scaled by its maximum (eq. 13): <= 0; the step multiplies the weight by exp(a)
- * ops: add 4, mul 5, cmp 1 (total 10) */
-static inline void cpf_k_log_likelihood(const float x[4], const float y[4], float cmax, float *a)
+ * ops: add 1, mul 1 (total 2) */
+static inline void cpf_k_log_likelihood(float c, float cmax, float *a)
 {
-    const float tmp0 = x[0] * y[0];
-    const float tmp1 = x[1] * y[1];
-    const float tmp2 = tmp0 + tmp1;
-    const float tmp3 = x[2] * y[2];
-    const float tmp4 = tmp2 + tmp3;
-    const float tmp5 = x[3] * y[3];
-    const float tmp6 = tmp4 + tmp5;
-    const float tmp7 = fabsf(tmp6);
-    const float tmp8 = tmp7 - cmax;
-    const float tmp9 = 10000.0f /* 4.0/(obs_noise*obs_noise) */ * tmp8;
-    *a = tmp9;
+    const float tmp0 = c - cmax;
+    const float tmp1 = 10000.0f /* 4.0/(obs_noise*obs_noise) */ * tmp0;
+    *a = tmp1;
 }
 
 /* sign-aligned weighted sum of the particles (eq. 15, q = -q)
@@ -558,10 +550,23 @@ static inline float cpf_exp_nonpos(float x)
     return e * scale.f;
 }
 
+/* The draws' common path is inlined into the loops even at -Os (it is a few instructions, a
+ * call would cost as many again and keep the generator's state in memory); the rare path is
+ * kept out of line. Compilers other than GCC/Clang get plain functions. */
+#if defined(__GNUC__)
+#define CPF_ALWAYS_INLINE __attribute__((always_inline))
+#define CPF_NOT_INLINED __attribute__((noinline))
+#define CPF_LIKELY(c) __builtin_expect((c), 1)
+#else
+#define CPF_ALWAYS_INLINE
+#define CPF_NOT_INLINED
+#define CPF_LIKELY(c) (c)
+#endif
+
 /* xoshiro128** 1.1 (Blackman & Vigna 2018) on a uint32 state; the same integer stream as
  * generator/filters/cpf/prng.py. The state is seeded at generation time (SplitMix32 of the
  * seed parameter) and lives in the filter state. */
-static inline uint32_t cpf_rng_next(uint32_t r[4])
+static inline CPF_ALWAYS_INLINE uint32_t cpf_rng_next(uint32_t r[4])
 {
     const uint32_t x = r[1] * 5u;
     const uint32_t result = ((x << 7) | (x >> 25)) * 9u;
@@ -695,13 +700,6 @@ static const float cpf_zig_f[128] = {
  * comparison: the wedge (exp) or the tail beyond R (log), drawing again as long as it rejects.
  * Kept out of the common path below (not inlined, where the compiler has a way to say so)
  * so that one stays a few instructions without a large function prologue. */
-#if defined(__GNUC__)
-#define CPF_NOT_INLINED __attribute__((noinline))
-#define CPF_LIKELY(c) __builtin_expect((c), 1)
-#else
-#define CPF_NOT_INLINED
-#define CPF_LIKELY(c) (c)
-#endif
 static CPF_NOT_INLINED float cpf_rng_gauss_slow(uint32_t r[4], uint32_t u)
 {
     for (;;) {
@@ -734,7 +732,7 @@ static CPF_NOT_INLINED float cpf_rng_gauss_slow(uint32_t r[4], uint32_t u)
  * (exp) or the tail beyond R (log) and draw again. The generator's state is r, a local copy
  * that a loop keeps in registers; the rare path runs on `home` (the state struct's copy),
  * written before and read back after it, so r's address never leaves the loop. */
-static inline float cpf_rng_gauss(uint32_t r[4], uint32_t home[4])
+static inline CPF_ALWAYS_INLINE float cpf_rng_gauss(uint32_t r[4], uint32_t home[4])
 {
     const uint32_t u = cpf_rng_next(r);
     const uint32_t j = u >> 8;
@@ -776,24 +774,26 @@ static void cpf_resample(cpf_state *s)
 {
     const float u = cpf_rng_uniform(s->rng);
     float c = 0.0f;
-    float jr = 0.0f;   /* j as a real (exact) */
+    float jr = 0.0f;                /* j as a real (exact) */
+    float pos = u / 100.0f;         /* (j + u)/N */
     uint32_t j = 0u;
     for (uint32_t i = 0u; i < 99u; i++) {
         c += s->weights[i];
         s->weights[i] = 0.01f;
         const uint32_t j0 = j;
-        while (j < 100u && (jr + u) / 100.0f <= c) {
+        while (pos <= c && j < 100u) {
             j++;
             jr += 1.0f;
+            pos = (jr + u) / 100.0f;
         }
-        s->counts[i] = j - j0;
+        s->scratch[i] = (float)(j - j0);
     }
     s->weights[99u] = 0.01f;
-    s->counts[99u] = 100u - j;
+    s->scratch[99u] = (float)(100u - j);
     uint32_t d = 0u;
     for (uint32_t i = 0u; i < 100u; i++) {
-        while (s->counts[i] > 1u) {
-            while (d < 100u && s->counts[d] != 0u) {
+        for (uint32_t n = (uint32_t)s->scratch[i]; n > 1u; n--) {
+            while (d < 100u && s->scratch[d] > 0.0f) {
                 d++;
             }
             if (d >= 100u) {
@@ -802,8 +802,7 @@ static void cpf_resample(cpf_state *s)
             for (uint32_t k = 0u; k < 4u; k++) {
                 s->particles[4u * d + k] = s->particles[4u * i + k];
             }
-            s->counts[d] = 1u;
-            s->counts[i]--;
+            s->scratch[d] = 1.0f;
         }
     }
     s->ess = 100.0f;
@@ -848,7 +847,7 @@ void cpf_init(cpf_state *s)
     s->rng[2] = 2535364964u;
     s->rng[3] = 2041432039u;
     for (uint32_t i = 0u; i < 100u; i++) {
-        s->counts[i] = 0u;
+        s->scratch[i] = 0.0f;
     }
     s->resample_count = 0u;
     s->initialised = 0u;
@@ -964,13 +963,16 @@ cpf_status cpf_step(cpf_state *restrict s, const cpf_input *restrict in, float d
     const float *y = s->q_cf;
 
     /* Prediction: eq. 11 plus additive quaternion noise (eq. 9), particle by particle, and
-     * with an observation the largest |<x_i, Y>| (the likelihood's scale, eq. 13). */
-    float cmax = 0.0f;
+     * with an observation |<x_i, Y>| (kept in scratch for the update) and its largest value
+     * (the likelihood's scale, eq. 13). */
+    float cmax = -1.0f;   /* below every |<x_i, Y>| */
     {
         float hw[3];
         float sp;
         cpf_k_particle_scales(in->gyro, dt, hw, &sp);
-        uint32_t r[4] = { s->rng[0], s->rng[1], s->rng[2], s->rng[3] };   /* in registers while the loop draws */
+        /* local copies the loop keeps in registers (the particles' stores could alias the state's) */
+        uint32_t r[4] = { s->rng[0], s->rng[1], s->rng[2], s->rng[3] };
+        const float yl[4] = { y[0], y[1], y[2], y[3] };
         for (uint32_t i = 0u; i < 100u; i++) {
             float *x = &s->particles[4u * i];
             float noise[4];
@@ -982,8 +984,9 @@ cpf_status cpf_step(cpf_state *restrict s, const cpf_input *restrict in, float d
             cpf_k_normalize(x, x);
             if (have_obs) {
                 float c;
-                cpf_k_obs_dot(x, y, &c);
-                if (i == 0u || c > cmax) {
+                cpf_k_obs_dot(x, yl, &c);
+                s->scratch[i] = c;
+                if (c > cmax) {
                     cmax = c;
                 }
             }
@@ -1000,7 +1003,7 @@ cpf_status cpf_step(cpf_state *restrict s, const cpf_input *restrict in, float d
         sum = 0.0f;
         for (uint32_t i = 0u; i < 100u; i++) {
             float a;
-            cpf_k_log_likelihood(&s->particles[4u * i], y, cmax, &a);
+            cpf_k_log_likelihood(s->scratch[i], cmax, &a);
             s->weights[i] = s->weights[i] * cpf_exp_nonpos(a);
             sum += s->weights[i];
         }
