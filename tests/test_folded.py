@@ -118,7 +118,7 @@ def test_traced_text_and_values():
     assert isinstance(a, Traced) and p["n"] == 4 and float(a) != 2.0 and a.shadow == 2.0
     cases = {"(a + b)*a": (a + b) * a, "a - (b - a)": a - (b - a), "a/(a*b)": a / (a * b),
              "-a^2": -a ** 2, "9*a^2": 9 * a ** 2, "1 - a": 1 - a, "a*(-0.5)": a * -0.5,
-             "(a^2)^b": (a ** 2) ** b}
+             "(a^2)^b": (a ** 2) ** b, "a + b": 0.0 + a + b * 1 - 0.0}
     for text, t in cases.items():
         assert t.text == text
         assert t.shadow == eval(text.replace("^", "**"), {"a": 2.0, "b": 3.0})   # noqa: S307
