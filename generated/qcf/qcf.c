@@ -111,11 +111,10 @@ static inline void qcf_k_mag_ned(const float rot[9], const float mag[3], float m
     mag_ned[2] = tmp14;
 }
 
-/* first attitude: the shortest rotation taking the accelerometer's down to NED down, then the magnetometer's heading if it has a sample; the low-pass starts at R(q) f = [0, 0, -|f|]
- * ops: add 20, mul 19, div 7, sqrt 4, cmp 23 (total 73)
- *      of which only one side runs: if (use_mag) 50, else 2
- *      of which only one side runs: if (tmp36 < 1e-15f) 0, else 20 */
-static void qcf_k_init_attitude_part0(const float accel[3], float carry[6])
+/* first attitude: the shortest rotation taking the accelerometer's down to NED down (heading_init then sets the heading); the low-pass starts at R(q) f = [0, 0, -|f|]
+ * ops: add 6, mul 5, div 3, sqrt 2, cmp 3 (total 19)
+ *      of which only one side runs: if (tmp6 < tmp7) 0, else 7 */
+static inline void qcf_k_init_attitude(const float accel[3], float q[4], float accel_lp[3])
 {
     const float tmp0 = accel[0] * accel[0];
     const float tmp1 = accel[1] * accel[1];
@@ -125,131 +124,36 @@ static void qcf_k_init_attitude_part0(const float accel[3], float carry[6])
     const float tmp5 = sqrtf(tmp4);
     const float tmp6 = tmp5 - accel[2];
     const float tmp7 = 1e-06f * tmp5;
-    const float tmp8 = tmp5 + tmp5;
-    const float tmp9 = tmp8 * tmp6;
-    const float tmp10 = sqrtf(tmp9);
-    const float tmp11 = accel[0] / tmp10;
-    const float tmp12 = accel[1] / tmp10;
-    const float tmp13 = -tmp12;
-    const float tmp14 = (tmp6 < tmp7) ? 1.0f : tmp13;
-    const float tmp15 = tmp6 / tmp10;
-    carry[0] = tmp5;
-    carry[1] = tmp6;
-    carry[2] = tmp7;
-    carry[3] = tmp11;
-    carry[4] = tmp14;
-    carry[5] = tmp15;
-}
-
-static void qcf_k_init_attitude_part1(const float mag[3], bool use_mag, float carry[6])
-{
-    float tmp16;
-    float tmp17;
-    float tmp18;
-    float tmp19;
-    if (use_mag) {
-        const float tmp20 = carry[3] * mag[0];
-        const float tmp21 = (carry[1] < carry[2]) ? 0.0f : tmp20;
-        const float tmp22 = carry[4] * mag[1];
-        const float tmp23 = tmp21 - tmp22;
-        const float tmp24 = carry[5] * mag[2];
-        const float tmp25 = (carry[1] < carry[2]) ? 0.0f : tmp24;
-        const float tmp26 = tmp23 - tmp25;
-        const float tmp27 = tmp26 + tmp26;
-        const float tmp28 = carry[3] * tmp27;
-        const float tmp29 = (carry[1] < carry[2]) ? 0.0f : tmp28;
-        const float tmp30 = mag[0] - tmp29;
-        const float tmp31 = tmp30 * tmp30;
-        const float tmp32 = carry[4] * tmp27;
-        const float tmp33 = mag[1] + tmp32;
-        const float tmp34 = tmp33 * tmp33;
-        const float tmp35 = tmp31 + tmp34;
-        const float tmp36 = sqrtf(tmp35);
-        float tmp37;
-        float tmp38;
-        float tmp39;
-        float tmp40;
-        if (tmp36 < 1e-15f) {
-            tmp37 = 1.0f;
-            tmp38 = 0.0f;
-            tmp39 = 0.0f;
-            tmp40 = 0.0f;
-        } else {
-            const float tmp41 = tmp36 + tmp30;
-            const float tmp42 = tmp36 + tmp36;
-            const float tmp43 = fabsf(tmp30);
-            const float tmp44 = tmp36 + tmp43;
-            const float tmp45 = tmp42 * tmp44;
-            const float tmp46 = sqrtf(tmp45);
-            const float tmp47 = tmp41 / tmp46;
-            const float tmp48 = fabsf(tmp33);
-            const float tmp49 = tmp48 / tmp46;
-            const float tmp50 = (0.0f <= tmp30) ? tmp47 : tmp49;
-            const float tmp51 = tmp33 / tmp46;
-            const float tmp52 = -tmp51;
-            const float tmp53 = tmp30 - tmp36;
-            const float tmp54 = tmp36 - tmp30;
-            const float tmp55 = (0.0f < tmp33) ? tmp53 : tmp54;
-            const float tmp56 = tmp55 / tmp46;
-            const float tmp57 = (0.0f <= tmp30) ? tmp52 : tmp56;
-            const float tmp58 = tmp57 * carry[3];
-            const float tmp59 = tmp57 * carry[4];
-            const float tmp60 = tmp57 * carry[5];
-            tmp37 = tmp50;
-            tmp38 = tmp58;
-            tmp39 = tmp59;
-            tmp40 = tmp60;
-        }
-        const float tmp61 = tmp37 * carry[5];
-        const float tmp62 = (carry[1] < carry[2]) ? 0.0f : tmp61;
-        const float tmp63 = tmp37 * carry[4];
-        const float tmp64 = (carry[1] < carry[2]) ? 0.0f : tmp38;
-        const float tmp65 = tmp63 - tmp64;
-        const float tmp66 = tmp37 * carry[3];
-        const float tmp67 = (carry[1] < carry[2]) ? 0.0f : tmp66;
-        const float tmp68 = tmp67 + tmp39;
-        const float tmp69 = (carry[1] < carry[2]) ? 0.0f : tmp40;
-        tmp16 = tmp62;
-        tmp17 = tmp65;
-        tmp18 = tmp68;
-        tmp19 = tmp69;
+    float tmp8;
+    float tmp9;
+    float tmp10;
+    if (tmp6 < tmp7) {
+        tmp8 = 0.0f;
+        tmp9 = 1.0f;
+        tmp10 = 0.0f;
     } else {
-        const float tmp70 = (carry[1] < carry[2]) ? 0.0f : carry[5];
-        const float tmp71 = (carry[1] < carry[2]) ? 0.0f : carry[3];
-        tmp16 = tmp70;
-        tmp17 = carry[4];
-        tmp18 = tmp71;
-        tmp19 = 0.0f;
+        const float tmp11 = tmp5 + tmp5;
+        const float tmp12 = tmp11 * tmp6;
+        const float tmp13 = sqrtf(tmp12);
+        const float tmp14 = tmp6 / tmp13;
+        const float tmp15 = accel[1] / tmp13;
+        const float tmp16 = -tmp15;
+        const float tmp17 = accel[0] / tmp13;
+        tmp8 = tmp14;
+        tmp9 = tmp16;
+        tmp10 = tmp17;
     }
-    carry[1] = tmp16;
-    carry[2] = tmp17;
-    carry[3] = tmp18;
-    carry[4] = tmp19;
-}
-
-static void qcf_k_init_attitude_part2(float carry[6])
-{
-    const float tmp72 = -carry[0];
-    carry[0] = tmp72;
-}
-
-static void qcf_k_init_attitude(const float accel[3], const float mag[3], bool use_mag, float q[4], float accel_lp[3])
-{
-    /* 3 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
-    float carry[6];
-    qcf_k_init_attitude_part0(accel, carry);
-    qcf_k_init_attitude_part1(mag, use_mag, carry);
-    qcf_k_init_attitude_part2(carry);
-    q[0] = carry[1];
-    q[1] = carry[2];
-    q[2] = carry[3];
-    q[3] = carry[4];
+    const float tmp18 = -tmp5;
+    q[0] = tmp8;
+    q[1] = tmp9;
+    q[2] = tmp10;
+    q[3] = 0.0f;
     accel_lp[0] = 0.0f;
     accel_lp[1] = 0.0f;
-    accel_lp[2] = carry[0];
+    accel_lp[2] = tmp18;
 }
 
-/* first magnetometer sample after a tilt-only start: heading set, tilt kept
+/* first magnetometer sample (with the first attitude or after it): heading set, tilt kept
  * ops: add 29, mul 26, div 4, sqrt 2, cmp 10 (total 71)
  *      of which only one side runs: if (tmp36 < 1e-15f) 0, else 21
  *      of which only one side runs: if (0.0f <= tmp17) 4, else 6 */
@@ -407,11 +311,11 @@ static inline void qcf_k_accel_lowpass(const float rot[9], const float accel[3],
 }
 
 /* tilt (low-passed accelerometer) and heading (magnetometer) corrections as PI feedback, bias integral gated, bias at rest from the low-passed gyro, integration (eq. 9)
- * ops: add 62, mul 71, div 11, sqrt 6, trig 2, cmp 26 (total 178)
+ * ops: add 60, mul 68, div 11, sqrt 6, trig 2, cmp 26 (total 173)
  *      of which only one side runs: if (tmp42 < 1e-15f) 0, else 17
  *      of which only one side runs: if (0.0f <= tmp36) 2, else 4
  *      of which only one side runs: if (tmp85 < 0.01f) 10, else 8
- *      of which only one side runs: if (at_rest) 11, else 16 */
+ *      of which only one side runs: if (at_rest) 11, else 11 */
 static void qcf_k_correct_part0(const float rot[9], const float gyro_bias[3], const float gyro[3], float dt, const float accel_lp[3], const float mag_ned[3], float span_accel, float carry[11])
 {
     const float tmp0 = gyro[0] - gyro_bias[0];
@@ -633,7 +537,7 @@ static void qcf_k_correct_part3(const float q[4], float carry[11])
     carry[6] = tmp147;
 }
 
-static void qcf_k_correct_part4(const float gyro_bias[3], float span_accel, bool use_accel, const float accel[3], bool at_rest, const float rest_gyro_lp[3], float carry[11])
+static void qcf_k_correct_part4(const float gyro_bias[3], float span_accel, bool use_accel, float accel_norm2, bool at_rest, const float rest_gyro_lp[3], float carry[11])
 {
     float tmp148;
     float tmp149;
@@ -654,32 +558,27 @@ static void qcf_k_correct_part4(const float gyro_bias[3], float span_accel, bool
         tmp149 = tmp158;
         tmp150 = tmp161;
     } else {
-        const float tmp162 = accel[0] * accel[0];
-        const float tmp163 = accel[1] * accel[1];
-        const float tmp164 = tmp162 + tmp163;
-        const float tmp165 = accel[2] * accel[2];
-        const float tmp166 = tmp164 + tmp165;
-        const bool tmp167 = (77.55708f < tmp166) && (tmp166 < 116.78368f);
-        const bool tmp168 = (use_accel) && (tmp167);
-        const float tmp169 = 0.013333334f /* ki/(0.5*kp) */ * carry[1];
-        const float tmp170 = gyro_bias[0] - tmp169;
-        const float tmp171 = (tmp168) ? tmp170 : gyro_bias[0];
-        const float tmp172 = 0.013333334f /* ki/(0.5*kp) */ * carry[5];
-        const float tmp173 = gyro_bias[1] - tmp172;
-        const float tmp174 = (tmp168) ? tmp173 : gyro_bias[1];
-        const float tmp175 = 0.013333334f /* ki/(0.5*kp) */ * carry[0];
-        const float tmp176 = gyro_bias[2] - tmp175;
-        const float tmp177 = (tmp168) ? tmp176 : gyro_bias[2];
-        tmp148 = tmp171;
-        tmp149 = tmp174;
-        tmp150 = tmp177;
+        const bool tmp162 = (77.55708f < accel_norm2) && (accel_norm2 < 116.78368f);
+        const bool tmp163 = (use_accel) && (tmp162);
+        const float tmp164 = 0.013333334f /* ki/(0.5*kp) */ * carry[1];
+        const float tmp165 = gyro_bias[0] - tmp164;
+        const float tmp166 = (tmp163) ? tmp165 : gyro_bias[0];
+        const float tmp167 = 0.013333334f /* ki/(0.5*kp) */ * carry[5];
+        const float tmp168 = gyro_bias[1] - tmp167;
+        const float tmp169 = (tmp163) ? tmp168 : gyro_bias[1];
+        const float tmp170 = 0.013333334f /* ki/(0.5*kp) */ * carry[0];
+        const float tmp171 = gyro_bias[2] - tmp170;
+        const float tmp172 = (tmp163) ? tmp171 : gyro_bias[2];
+        tmp148 = tmp166;
+        tmp149 = tmp169;
+        tmp150 = tmp172;
     }
     carry[0] = tmp148;
     carry[1] = tmp149;
     carry[5] = tmp150;
 }
 
-static void qcf_k_correct(const float q[4], const float rot[9], const float gyro_bias[3], const float gyro[3], float dt, const float accel_lp[3], const float mag_ned[3], float span_accel, float span_mag, bool use_accel, const float accel[3], bool at_rest, const float rest_gyro_lp[3], float q_new[4], float gyro_bias_new[3])
+static void qcf_k_correct(const float q[4], const float rot[9], const float gyro_bias[3], const float gyro[3], float dt, const float accel_lp[3], const float mag_ned[3], float span_accel, float span_mag, bool use_accel, float accel_norm2, bool at_rest, const float rest_gyro_lp[3], float q_new[4], float gyro_bias_new[3])
 {
     /* 5 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
     float carry[11];
@@ -687,7 +586,7 @@ static void qcf_k_correct(const float q[4], const float rot[9], const float gyro
     qcf_k_correct_part1(rot, gyro_bias, gyro, span_mag, carry);
     qcf_k_correct_part2(q, carry);
     qcf_k_correct_part3(q, carry);
-    qcf_k_correct_part4(gyro_bias, span_accel, use_accel, accel, at_rest, rest_gyro_lp, carry);
+    qcf_k_correct_part4(gyro_bias, span_accel, use_accel, accel_norm2, at_rest, rest_gyro_lp, carry);
     q_new[0] = carry[2];
     q_new[1] = carry[3];
     q_new[2] = carry[4];
@@ -781,106 +680,101 @@ static void qcf_k_rest(const float gyro[3], const float accel[3], const float re
 }
 
 /* field check: |m| and sin(dip) against the learned reference
- * ops: add 16, mul 15, div 3, sqrt 2, cmp 17 (total 53)
+ * ops: add 14, mul 12, div 3, sqrt 2, cmp 17 (total 48)
  *      of which only one side runs: if (tmp0 < 10.0f) 5, else 20
- *      of which only one side runs: if (tmp39) 1, else 8 */
-static void qcf_k_mag_check_part0(const float accel_lp[3], const float mag[3], const float mag_ned[3], const float mag_ref[2], float mag_learn_time, float span, float carry[6])
+ *      of which only one side runs: if (tmp34) 1, else 8 */
+static void qcf_k_mag_check_part0(const float accel_lp[3], float mag_norm2, const float mag_ned[3], const float mag_ref[2], float mag_learn_time, float span, float carry[6])
 {
     const float tmp0 = (mag_ref[0] <= 0.0f) ? 0.0f : mag_learn_time;
-    const float tmp1 = mag[0] * mag[0];
-    const float tmp2 = mag[1] * mag[1];
-    const float tmp3 = tmp1 + tmp2;
-    const float tmp4 = mag[2] * mag[2];
+    const float tmp1 = sqrtf(mag_norm2);
+    const float tmp2 = tmp1 - mag_ref[0];
+    const float tmp3 = accel_lp[0] * mag_ned[0];
+    const float tmp4 = accel_lp[1] * mag_ned[1];
     const float tmp5 = tmp3 + tmp4;
-    const float tmp6 = sqrtf(tmp5);
-    const float tmp7 = tmp6 - mag_ref[0];
-    const float tmp8 = accel_lp[0] * mag_ned[0];
-    const float tmp9 = accel_lp[1] * mag_ned[1];
+    const float tmp6 = accel_lp[2] * mag_ned[2];
+    const float tmp7 = tmp5 + tmp6;
+    const float tmp8 = accel_lp[0] * accel_lp[0];
+    const float tmp9 = accel_lp[1] * accel_lp[1];
     const float tmp10 = tmp8 + tmp9;
-    const float tmp11 = accel_lp[2] * mag_ned[2];
+    const float tmp11 = accel_lp[2] * accel_lp[2];
     const float tmp12 = tmp10 + tmp11;
-    const float tmp13 = accel_lp[0] * accel_lp[0];
-    const float tmp14 = accel_lp[1] * accel_lp[1];
-    const float tmp15 = tmp13 + tmp14;
-    const float tmp16 = accel_lp[2] * accel_lp[2];
-    const float tmp17 = tmp15 + tmp16;
-    const float tmp18 = sqrtf(tmp17);
-    const float tmp19 = tmp18 * tmp6;
-    const float tmp20 = tmp12 / tmp19;
-    const float tmp21 = tmp20 + mag_ref[1];
-    const float tmp22 = tmp0 + span;
+    const float tmp13 = sqrtf(tmp12);
+    const float tmp14 = tmp13 * tmp1;
+    const float tmp15 = tmp7 / tmp14;
+    const float tmp16 = tmp15 + mag_ref[1];
+    const float tmp17 = tmp0 + span;
     carry[0] = tmp0;
-    carry[1] = tmp6;
-    carry[2] = tmp7;
-    carry[3] = tmp20;
-    carry[4] = tmp21;
-    carry[5] = tmp22;
+    carry[1] = tmp1;
+    carry[2] = tmp2;
+    carry[3] = tmp15;
+    carry[4] = tmp16;
+    carry[5] = tmp17;
 }
 
 static void qcf_k_mag_check_part1(const float mag_ref[2], float mag_dist_time, float span, float carry[6])
 {
-    bool tmp23;
-    float tmp24;
-    float tmp25;
-    float tmp26;
+    bool tmp18;
+    float tmp19;
+    float tmp20;
+    float tmp21;
     if (carry[0] < 10.0f) {
-        const float tmp27 = span / carry[5];
-        const float tmp28 = tmp27 * carry[2];
-        const float tmp29 = mag_ref[0] + tmp28;
-        const float tmp30 = tmp27 * carry[4];
-        const float tmp31 = mag_ref[1] - tmp30;
-        tmp23 = true;
-        tmp24 = tmp29;
-        tmp25 = tmp31;
-        tmp26 = 0.0f;
+        const float tmp22 = span / carry[5];
+        const float tmp23 = tmp22 * carry[2];
+        const float tmp24 = mag_ref[0] + tmp23;
+        const float tmp25 = tmp22 * carry[4];
+        const float tmp26 = mag_ref[1] - tmp25;
+        tmp18 = true;
+        tmp19 = tmp24;
+        tmp20 = tmp26;
+        tmp21 = 0.0f;
     } else {
-        const float tmp32 = fabsf(carry[2]);
-        const float tmp33 = 0.1f * mag_ref[0];
-        const float tmp34 = fabsf(carry[4]);
-        const bool tmp35 = (tmp32 < tmp33) && (tmp34 < 0.1f);
-        const bool tmp36 = (tmp35) || (!(0.0f < mag_ref[0]));
-        const float tmp37 = mag_dist_time + span;
-        const float tmp38 = (tmp35) ? 0.0f : tmp37;
-        const bool tmp39 = (!(0.0f < mag_ref[0])) || (20.0f < tmp38);
-        float tmp40;
-        float tmp41;
-        float tmp42;
-        if (tmp39) {
-            const float tmp43 = -carry[3];
-            tmp40 = carry[1];
-            tmp41 = tmp43;
-            tmp42 = 0.0f;
+        const float tmp27 = fabsf(carry[2]);
+        const float tmp28 = 0.1f * mag_ref[0];
+        const float tmp29 = fabsf(carry[4]);
+        const bool tmp30 = (tmp27 < tmp28) && (tmp29 < 0.1f);
+        const bool tmp31 = (tmp30) || (!(0.0f < mag_ref[0]));
+        const float tmp32 = mag_dist_time + span;
+        const float tmp33 = (tmp30) ? 0.0f : tmp32;
+        const bool tmp34 = (!(0.0f < mag_ref[0])) || (20.0f < tmp33);
+        float tmp35;
+        float tmp36;
+        float tmp37;
+        if (tmp34) {
+            const float tmp38 = -carry[3];
+            tmp35 = carry[1];
+            tmp36 = tmp38;
+            tmp37 = 0.0f;
         } else {
-            const float tmp44 = 20.0f + span;
-            const float tmp45 = span / tmp44;
-            const float tmp46 = tmp45 * carry[2];
-            const float tmp47 = mag_ref[0] + tmp46;
-            const float tmp48 = (tmp35) ? tmp47 : mag_ref[0];
-            const float tmp49 = tmp45 * carry[4];
-            const float tmp50 = mag_ref[1] - tmp49;
-            const float tmp51 = (tmp35) ? tmp50 : mag_ref[1];
-            tmp40 = tmp48;
-            tmp41 = tmp51;
-            tmp42 = tmp38;
+            const float tmp39 = 20.0f + span;
+            const float tmp40 = span / tmp39;
+            const float tmp41 = tmp40 * carry[2];
+            const float tmp42 = mag_ref[0] + tmp41;
+            const float tmp43 = (tmp30) ? tmp42 : mag_ref[0];
+            const float tmp44 = tmp40 * carry[4];
+            const float tmp45 = mag_ref[1] - tmp44;
+            const float tmp46 = (tmp30) ? tmp45 : mag_ref[1];
+            tmp35 = tmp43;
+            tmp36 = tmp46;
+            tmp37 = tmp33;
         }
-        tmp23 = tmp36;
-        tmp24 = tmp40;
-        tmp25 = tmp41;
-        tmp26 = tmp42;
+        tmp18 = tmp31;
+        tmp19 = tmp35;
+        tmp20 = tmp36;
+        tmp21 = tmp37;
     }
-    const float tmp52 = (carry[5] < 10.0f /* mag_warmup */) ? carry[5] : 10.0f /* mag_warmup */;
-    carry[0] = tmp23 ? 1.0f : 0.0f;
-    carry[1] = tmp24;
-    carry[2] = tmp25;
-    carry[3] = tmp26;
-    carry[4] = tmp52;
+    const float tmp47 = (carry[5] < 10.0f /* mag_warmup */) ? carry[5] : 10.0f /* mag_warmup */;
+    carry[0] = tmp18 ? 1.0f : 0.0f;
+    carry[1] = tmp19;
+    carry[2] = tmp20;
+    carry[3] = tmp21;
+    carry[4] = tmp47;
 }
 
-static void qcf_k_mag_check(const float accel_lp[3], const float mag[3], const float mag_ned[3], const float mag_ref[2], float mag_dist_time, float mag_learn_time, float span, bool *accept, float mag_ref_new[2], float *mag_dist_time_new, float *mag_learn_time_new)
+static void qcf_k_mag_check(const float accel_lp[3], float mag_norm2, const float mag_ned[3], const float mag_ref[2], float mag_dist_time, float mag_learn_time, float span, bool *accept, float mag_ref_new[2], float *mag_dist_time_new, float *mag_learn_time_new)
 {
     /* 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
     float carry[6];
-    qcf_k_mag_check_part0(accel_lp, mag, mag_ned, mag_ref, mag_learn_time, span, carry);
+    qcf_k_mag_check_part0(accel_lp, mag_norm2, mag_ned, mag_ref, mag_learn_time, span, carry);
     qcf_k_mag_check_part1(mag_ref, mag_dist_time, span, carry);
     *accept = (carry[0] > 0.5f);
     mag_ref_new[0] = carry[1];
@@ -935,89 +829,84 @@ static inline void qcf_k_rotation(const float q[4], float rot[9])
 }
 
 /* accelerometer minus the GPS motion acceleration when ||f| - g| exceeds the threshold (centripetal: (w - b) x R(q)^T v_gps in body axes, computed only then)
- * ops: add 20, mul 25, div 2, sqrt 1, cmp 7 (total 55)
- *      of which only one side runs: if (tmp5) 0, else 46 */
-static void qcf_k_gravity_part_part0(const float accel[3], float carry[3])
+ * ops: add 18, mul 22, div 2, sqrt 1, cmp 7 (total 50)
+ *      of which only one side runs: if (tmp0) 0, else 46 */
+static void qcf_k_gravity_part_part0(float accel_norm2, float carry[3])
 {
-    const float tmp0 = accel[0] * accel[0];
-    const float tmp1 = accel[1] * accel[1];
-    const float tmp2 = tmp0 + tmp1;
-    const float tmp3 = accel[2] * accel[2];
-    const float tmp4 = tmp2 + tmp3;
-    const bool tmp5 = (90.376396f /* (9.80665 - motion_accel_threshold)^2 */ < tmp4) && (tmp4 < 102.14437f /* (9.80665 + motion_accel_threshold)^2 */);
-    carry[0] = tmp5 ? 1.0f : 0.0f;
+    const bool tmp0 = (90.376396f /* (9.80665 - motion_accel_threshold)^2 */ < accel_norm2) && (accel_norm2 < 102.14437f /* (9.80665 + motion_accel_threshold)^2 */);
+    carry[0] = tmp0 ? 1.0f : 0.0f;
 }
 
-static void qcf_k_gravity_part_part1(const float accel[3], const float rot[9], const float gyro[3], const float gyro_bias[3], const float gps_vel_hist[21], float carry[3])
+static void qcf_k_gravity_part_part1(const float accel[3], const float rot[9], const float gyro[3], const float gyro_bias[3], const float gps_vel_hist[3], float carry[3])
 {
-    float tmp6;
-    float tmp7;
-    float tmp8;
+    float tmp1;
+    float tmp2;
+    float tmp3;
     if ((carry[0] > 0.5f)) {
-        tmp6 = accel[0];
-        tmp7 = accel[1];
-        tmp8 = accel[2];
+        tmp1 = accel[0];
+        tmp2 = accel[1];
+        tmp3 = accel[2];
     } else {
-        const float tmp9 = rot[0] * gps_vel_hist[18];
-        const float tmp10 = rot[1] * gps_vel_hist[19];
+        const float tmp4 = rot[0] * gps_vel_hist[0];
+        const float tmp5 = rot[1] * gps_vel_hist[1];
+        const float tmp6 = tmp4 + tmp5;
+        const float tmp7 = rot[2] * gps_vel_hist[2];
+        const float tmp8 = tmp6 + tmp7;
+        const float tmp9 = gps_vel_hist[0] * gps_vel_hist[0];
+        const float tmp10 = gps_vel_hist[1] * gps_vel_hist[1];
         const float tmp11 = tmp9 + tmp10;
-        const float tmp12 = rot[2] * gps_vel_hist[20];
+        const float tmp12 = gps_vel_hist[2] * gps_vel_hist[2];
         const float tmp13 = tmp11 + tmp12;
-        const float tmp14 = gps_vel_hist[18] * gps_vel_hist[18];
-        const float tmp15 = gps_vel_hist[19] * gps_vel_hist[19];
-        const float tmp16 = tmp14 + tmp15;
-        const float tmp17 = gps_vel_hist[20] * gps_vel_hist[20];
-        const float tmp18 = tmp16 + tmp17;
-        const float tmp19 = (tmp18 > 1e-06f) ? tmp18 : 1e-06f;
-        const float tmp20 = 1.0f / tmp19;
-        const float tmp21 = sqrtf(tmp20);
-        const float tmp22 = tmp13 * tmp21;
-        const float tmp23 = tmp22 - 0.7f /* centripetal_align */;
-        const float tmp24 = tmp23 / 0.3f /* 1 - centripetal_align */;
-        const float tmp25 = (tmp24 > 0.0f) ? tmp24 : 0.0f;
-        const float tmp26 = (tmp25 < 1.0f) ? tmp25 : 1.0f;
-        const float tmp27 = gyro[1] - gyro_bias[1];
-        const float tmp28 = rot[6] * gps_vel_hist[18];
-        const float tmp29 = rot[7] * gps_vel_hist[19];
-        const float tmp30 = tmp28 + tmp29;
-        const float tmp31 = rot[8] * gps_vel_hist[20];
+        const float tmp14 = (tmp13 > 1e-06f) ? tmp13 : 1e-06f;
+        const float tmp15 = 1.0f / tmp14;
+        const float tmp16 = sqrtf(tmp15);
+        const float tmp17 = tmp8 * tmp16;
+        const float tmp18 = tmp17 - 0.7f /* centripetal_align */;
+        const float tmp19 = tmp18 / 0.3f /* 1 - centripetal_align */;
+        const float tmp20 = (tmp19 > 0.0f) ? tmp19 : 0.0f;
+        const float tmp21 = (tmp20 < 1.0f) ? tmp20 : 1.0f;
+        const float tmp22 = gyro[1] - gyro_bias[1];
+        const float tmp23 = rot[6] * gps_vel_hist[0];
+        const float tmp24 = rot[7] * gps_vel_hist[1];
+        const float tmp25 = tmp23 + tmp24;
+        const float tmp26 = rot[8] * gps_vel_hist[2];
+        const float tmp27 = tmp25 + tmp26;
+        const float tmp28 = tmp22 * tmp27;
+        const float tmp29 = gyro[2] - gyro_bias[2];
+        const float tmp30 = rot[3] * gps_vel_hist[0];
+        const float tmp31 = rot[4] * gps_vel_hist[1];
         const float tmp32 = tmp30 + tmp31;
-        const float tmp33 = tmp27 * tmp32;
-        const float tmp34 = gyro[2] - gyro_bias[2];
-        const float tmp35 = rot[3] * gps_vel_hist[18];
-        const float tmp36 = rot[4] * gps_vel_hist[19];
-        const float tmp37 = tmp35 + tmp36;
-        const float tmp38 = rot[5] * gps_vel_hist[20];
-        const float tmp39 = tmp37 + tmp38;
-        const float tmp40 = tmp34 * tmp39;
-        const float tmp41 = tmp33 - tmp40;
-        const float tmp42 = tmp26 * tmp41;
-        const float tmp43 = accel[0] - tmp42;
-        const float tmp44 = tmp34 * tmp13;
-        const float tmp45 = gyro[0] - gyro_bias[0];
-        const float tmp46 = tmp45 * tmp32;
-        const float tmp47 = tmp44 - tmp46;
-        const float tmp48 = tmp26 * tmp47;
-        const float tmp49 = accel[1] - tmp48;
-        const float tmp50 = tmp45 * tmp39;
-        const float tmp51 = tmp27 * tmp13;
-        const float tmp52 = tmp50 - tmp51;
-        const float tmp53 = tmp26 * tmp52;
-        const float tmp54 = accel[2] - tmp53;
-        tmp6 = tmp43;
-        tmp7 = tmp49;
-        tmp8 = tmp54;
+        const float tmp33 = rot[5] * gps_vel_hist[2];
+        const float tmp34 = tmp32 + tmp33;
+        const float tmp35 = tmp29 * tmp34;
+        const float tmp36 = tmp28 - tmp35;
+        const float tmp37 = tmp21 * tmp36;
+        const float tmp38 = accel[0] - tmp37;
+        const float tmp39 = tmp29 * tmp8;
+        const float tmp40 = gyro[0] - gyro_bias[0];
+        const float tmp41 = tmp40 * tmp27;
+        const float tmp42 = tmp39 - tmp41;
+        const float tmp43 = tmp21 * tmp42;
+        const float tmp44 = accel[1] - tmp43;
+        const float tmp45 = tmp40 * tmp34;
+        const float tmp46 = tmp22 * tmp8;
+        const float tmp47 = tmp45 - tmp46;
+        const float tmp48 = tmp21 * tmp47;
+        const float tmp49 = accel[2] - tmp48;
+        tmp1 = tmp38;
+        tmp2 = tmp44;
+        tmp3 = tmp49;
     }
-    carry[0] = tmp6;
-    carry[1] = tmp7;
-    carry[2] = tmp8;
+    carry[0] = tmp1;
+    carry[1] = tmp2;
+    carry[2] = tmp3;
 }
 
-static void qcf_k_gravity_part(const float accel[3], const float rot[9], const float gyro[3], const float gyro_bias[3], const float gps_vel_hist[21], float accel_gravity[3])
+static void qcf_k_gravity_part(const float accel[3], float accel_norm2, const float rot[9], const float gyro[3], const float gyro_bias[3], const float gps_vel_hist[3], float accel_gravity[3])
 {
     /* 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
     float carry[3];
-    qcf_k_gravity_part_part0(accel, carry);
+    qcf_k_gravity_part_part0(accel_norm2, carry);
     qcf_k_gravity_part_part1(accel, rot, gyro, gyro_bias, gps_vel_hist, carry);
     accel_gravity[0] = carry[0];
     accel_gravity[1] = carry[1];
@@ -1204,9 +1093,9 @@ void qcf_init(qcf_state *s)
     s->gyro_bias[0] = 0.0f;
     s->gyro_bias[1] = 0.0f;
     s->gyro_bias[2] = 0.0f;
-    for (uint32_t i = 0u; i < 21u; i++) {
-        s->gps_vel_hist[i] = 0.0f;
-    }
+    s->gps_vel_hist[0] = 0.0f;
+    s->gps_vel_hist[1] = 0.0f;
+    s->gps_vel_hist[2] = 0.0f;
     s->motion_accel[0] = 0.0f;
     s->motion_accel[1] = 0.0f;
     s->motion_accel[2] = 0.0f;
@@ -1291,33 +1180,14 @@ qcf_status qcf_step(qcf_state *restrict s, const qcf_input *restrict in, float d
         }
     }
 
-    /* GPS velocity: restart the history after a gap and shift the sample in. */
+    /* GPS velocity: restart the history after a gap and keep the latest sample. */
     if (use_gps) {
         if (s->gps_age > QCF_GPS_TIMEOUT) {
             s->gps_count = 0u;
         }
-        /* shifted by hand: a loop becomes a call to memmove, which costs 5x more here */
-        s->gps_vel_hist[0] = s->gps_vel_hist[3];
-        s->gps_vel_hist[1] = s->gps_vel_hist[4];
-        s->gps_vel_hist[2] = s->gps_vel_hist[5];
-        s->gps_vel_hist[3] = s->gps_vel_hist[6];
-        s->gps_vel_hist[4] = s->gps_vel_hist[7];
-        s->gps_vel_hist[5] = s->gps_vel_hist[8];
-        s->gps_vel_hist[6] = s->gps_vel_hist[9];
-        s->gps_vel_hist[7] = s->gps_vel_hist[10];
-        s->gps_vel_hist[8] = s->gps_vel_hist[11];
-        s->gps_vel_hist[9] = s->gps_vel_hist[12];
-        s->gps_vel_hist[10] = s->gps_vel_hist[13];
-        s->gps_vel_hist[11] = s->gps_vel_hist[14];
-        s->gps_vel_hist[12] = s->gps_vel_hist[15];
-        s->gps_vel_hist[13] = s->gps_vel_hist[16];
-        s->gps_vel_hist[14] = s->gps_vel_hist[17];
-        s->gps_vel_hist[15] = s->gps_vel_hist[18];
-        s->gps_vel_hist[16] = s->gps_vel_hist[19];
-        s->gps_vel_hist[17] = s->gps_vel_hist[20];
-        s->gps_vel_hist[18] = in->gps_vel_ned[0];
-        s->gps_vel_hist[19] = in->gps_vel_ned[1];
-        s->gps_vel_hist[20] = in->gps_vel_ned[2];
+        s->gps_vel_hist[0] = in->gps_vel_ned[0];
+        s->gps_vel_hist[1] = in->gps_vel_ned[1];
+        s->gps_vel_hist[2] = in->gps_vel_ned[2];
         if (s->gps_count < 7u) {
             s->gps_count++;
         }
@@ -1334,7 +1204,7 @@ qcf_status qcf_step(qcf_state *restrict s, const qcf_input *restrict in, float d
     if (use_accel) {
         /* centripetal acceleration of the latest GPS velocity turning with the body */
         if (QCF_GPS_COMPENSATION && s->gps_count >= 1u && s->gps_age <= QCF_GPS_TIMEOUT) {
-            qcf_k_gravity_part(in->accel, rot, in->gyro, s->gyro_bias, s->gps_vel_hist, accel_g);
+            qcf_k_gravity_part(in->accel, accel_n2, rot, in->gyro, s->gyro_bias, s->gps_vel_hist, accel_g);
         }
     }
     if (s->initialised == 0u) {
@@ -1342,10 +1212,14 @@ qcf_status qcf_step(qcf_state *restrict s, const qcf_input *restrict in, float d
             qcf_k_propagate(s->q, s->gyro_bias, in->gyro, dt, s->q);
             return status;
         }
-        /* First accelerometer sample: its tilt (and the magnetometer's heading if present). */
-        qcf_k_init_attitude(accel_g, in->mag, use_mag, s->q, s->accel_lp);
+        /* First accelerometer sample: its tilt, then the magnetometer's heading if present. */
+        qcf_k_init_attitude(accel_g, s->q, s->accel_lp);
+        s->initialised = 1u;
+        if (use_mag) {
+            qcf_k_heading_init(s->q, in->mag, s->q);
+            s->initialised = 2u;
+        }
         qcf_k_rotation(s->q, rot);
-        s->initialised = use_mag ? 2u : 1u;
         s->accel_age = 0.0f;
         s->mag_age = 0.0f;
         for (uint32_t i = 0u; i < 3u; i++) {
@@ -1375,7 +1249,7 @@ qcf_status qcf_step(qcf_state *restrict s, const qcf_input *restrict in, float d
     if (use_mag) {
         qcf_k_mag_ned(rot, in->mag, mag_n);
         bool accept;
-        qcf_k_mag_check(s->accel_lp, in->mag, mag_n, s->mag_ref, s->mag_dist_time, s->mag_learn_time,
+        qcf_k_mag_check(s->accel_lp, mag_n2, mag_n, s->mag_ref, s->mag_dist_time, s->mag_learn_time,
                                  s->mag_age, &accept, s->mag_ref, &s->mag_dist_time, &s->mag_learn_time);
         if (!accept) {
             heading_ok = false;
@@ -1385,7 +1259,7 @@ qcf_status qcf_step(qcf_state *restrict s, const qcf_input *restrict in, float d
     if (use_accel || heading_ok) {
         qcf_k_correct(s->q, rot, s->gyro_bias, in->gyro, dt, s->accel_lp, mag_n,
                                use_accel ? s->accel_age : 0.0f, heading_ok ? s->mag_age : 0.0f,
-                               use_accel, in->accel, at_rest, s->rest_gyro_lp,                           s->q, s->gyro_bias);
+                               use_accel, accel_n2, at_rest, s->rest_gyro_lp,                           s->q, s->gyro_bias);
     } else {
         qcf_k_propagate(s->q, s->gyro_bias, in->gyro, dt, s->q);
     }

@@ -19,7 +19,7 @@ SX expressions so that a kernel can output them and the step partial can branch 
 - `heading_correction(q, m, declination)`: the rotation about NED z that brings the horizontal
   part of R(q) m to magnetic north + declination; it only changes heading (never tilts).
   `heading_correction_ned(m_n, declination)` the same from the NED vector m_n.
-- `norm_within(v, center, tol)`: ||v| - center| < tol without a square root.
+- `norm_within(n2, center, tol)`: ||v| - center| < tol from |v|², without a square root.
 """
 from __future__ import annotations
 
@@ -116,10 +116,9 @@ def tilt_correction(d_n):
                     ca.if_else(flip, 0.0, -d_n[0] * inv), 0.0)
 
 
-def norm_within(v, center: float, tol: float):
-    """||v| - center| < tol, through |v|² (no square root): (center - tol)² < |v|² < (center + tol)²,
-    the lower bound only when center > tol."""
-    n2 = ca.sumsqr(v)
+def norm_within(n2, center: float, tol: float):
+    """||v| - center| < tol from n2 = |v|², without a square root: (center - tol)² < n2 <
+    (center + tol)², the lower bound only when center > tol."""
     inside = n2 < (center + tol) ** 2
     return ca.logic_and(n2 > (center - tol) ** 2, inside) if center > tol else inside
 

@@ -43,7 +43,12 @@ from generator.symbolic import aiding, attitude, quat
 
 # Eq. 29 as printed; its gain on a velocity ramp is c1 + 2 c2 + 3 c3 = 0.9854.
 PAPER_COEFFS = (0.0971, 0.1662, 0.1853)
-GPS_TAPS = 7          # V_{k-6} .. V_k
+GPS_TAPS = 7          # V_{k-6} .. V_k (the differentiator; the centripetal term reads only V_k)
+
+
+def gps_taps(params) -> int:
+    """GPS velocities the state keeps: eq. 29 reads 7, the centripetal term the latest only."""
+    return GPS_TAPS if params["motion_accel_model"] == "differentiator" else 1
 
 
 def differentiator_coeffs(faithful: bool):
@@ -71,7 +76,8 @@ class Model(FilterModel):
         return [
             StateField("q", 4, "attitude estimate, body->NED, [w x y z]", [1.0, 0.0, 0.0, 0.0]),
             StateField("gyro_bias", 3, "gyro bias estimate b, rad/s", 0.0),
-            StateField("gps_vel_hist", 3 * GPS_TAPS, "last 7 GPS velocities (NED, m/s), oldest first", 0.0),
+            StateField("gps_vel_hist", 3 * gps_taps(p), "last 7 GPS velocities (NED, m/s), oldest first"
+                       if gps_taps(p) > 1 else "latest GPS velocity (NED, m/s)", 0.0),
             StateField("motion_accel", 3, "latest GPS-derived motion acceleration a_{k-3}, NED, m/s^2", 0.0),
             StateField("gps_age", 1, "time since the last GPS sample, s", 1e3),
             StateField("gps_count", 1, "GPS samples in the history (saturates at 7)", 0, "uint32"),
@@ -99,8 +105,9 @@ class Model(FilterModel):
         m = ca.SX.sym("mag", 3)
         q_ref = ca.SX.sym("q_ref", 4)
         a_n = ca.SX.sym("motion_accel", 3)
-        hist = ca.SX.sym("gps_vel_hist", 3 * GPS_TAPS)
+        hist = ca.SX.sym("gps_vel_hist", 3 * gps_taps(p))
         rot = ca.SX.sym("rot", 3, 3)      # R(q), from the rotation kernel once per step
+        f2 = ca.SX.sym("accel_norm2")     # |f|², from the step's input check
 
         # PI feedback and integration (eqs. 13, 14, 9, 7).
         q_err = quat.qmul(quat.qconj(q), q_ref)
@@ -109,22 +116,23 @@ class Model(FilterModel):
         bias_new = bias - p["ki"] * q_err[1:] * dt
 
         # Lagged GPS differentiator (eq. 29).
-        c = differentiator_coeffs(p["faithful"])
-        V = [hist[3 * i:3 * i + 3] for i in range(GPS_TAPS)]
-        acc = sum(c[i - 1] * (V[3 + i] - V[3 - i]) for i in (1, 2, 3)) / (2 * p["gps_period"])
+        if p["motion_accel_model"] == "differentiator":
+            c = differentiator_coeffs(p["faithful"])
+            V = [hist[3 * i:3 * i + 3] for i in range(GPS_TAPS)]
+            acc = sum(c[i - 1] * (V[3 + i] - V[3 - i]) for i in (1, 2, 3)) / (2 * p["gps_period"])
 
         kernels = self.product_kernels() if self.product else []
         # Gravity part of the specific force (section 3.2): f_b = R^T (a_n - g_n).
         # ||f| - g| > threshold, compared through |f|² (aiding.norm_within: no square root)
-        excess = ca.logic_not(aiding.norm_within(f, G0, p["motion_accel_threshold"]))
+        excess = ca.logic_not(aiding.norm_within(f2, G0, p["motion_accel_threshold"]))
         if p["motion_accel_model"] == "differentiator":
-            gravity_in = {"accel": f, "rot": rot, "motion_accel": a_n}
+            gravity_in = {"accel": f, "accel_norm2": f2, "rot": rot, "motion_accel": a_n}
             f_g = ca.if_else(excess, f - ca.mtimes(rot.T, a_n), f)
         else:
             # The centripetal acceleration a_c = R(q)(w - b) x v_n of the latest GPS velocity,
             # computed inside the excess branch only (skipped while |f| is close to g), in body
             # axes: R^T a_c = (w - b) x v_b with v_b = R^T v_n (a rotation keeps cross products).
-            v = hist[3 * (GPS_TAPS - 1):]
+            v = hist[-3:]
             v_b = ca.mtimes(rot.T, v)
             a_c = ca.cross(gyro - bias, v_b)
             if self.product and p["centripetal_align"] < 1:
@@ -133,7 +141,8 @@ class Model(FilterModel):
                 c0 = p["centripetal_align"]
                 along = v_b[0] * ca.sqrt(1 / ca.fmax(ca.sumsqr(v), 1e-6))
                 a_c = ca.fmin(ca.fmax((along - c0) / (1 - c0), 0.0), 1.0) * a_c
-            gravity_in = {"accel": f, "rot": rot, "gyro": gyro, "gyro_bias": bias, "gps_vel_hist": hist}
+            gravity_in = {"accel": f, "accel_norm2": f2, "rot": rot, "gyro": gyro, "gyro_bias": bias,
+                          "gps_vel_hist": hist}
             f_g = ca.if_else(excess, f - a_c, f)
         paper = [] if self.product else [
             KernelSpec("reference", function("reference", {"accel": f, "mag": m},
@@ -187,12 +196,12 @@ class Model(FilterModel):
         rot = ca.SX.sym("rot", 3, 3)      # R(q), from the rotation kernel once per step
 
         m_n = ca.SX.sym("mag_ned", 3)     # R(q) m, from the mag_ned kernel once per step
+        f2 = ca.SX.sym("accel_norm2")     # |f|² and |m|², from the step's input checks
+        m2 = ca.SX.sym("mag_norm2")
 
-        # first attitude: the tilt taking the measured down (-f) to NED down from the identity,
-        # then the heading of the field; R(q0) f = [0, 0, -|f|]
-        tilt0 = aiding.tilt_correction(-f)
-        q0 = ca.if_else(use_m, quat.qmul(aiding.heading_correction_ned(quat.rotate_xy_tilt(tilt0, m), decl), tilt0),
-                        tilt0)
+        # first attitude: the tilt taking the measured down (-f) to NED down from the identity
+        # (then heading_init with a magnetometer sample); R(q0) f = [0, 0, -|f|]
+        q0 = aiding.tilt_correction(-f)
         # the tilt correction from the NED low-pass (measured down -a, any length), then the
         # heading of the field R(T) R(q) m = R(T) m_n (only its horizontal part)
         T = aiding.tilt_correction(-a_lp)
@@ -202,7 +211,7 @@ class Model(FilterModel):
         kh = 0.5 * p["kp"]
         e_half = ca.mtimes(rot.T, ca.vertcat((kh * span_a) * T[1], (kh * span_a) * T[2], (kh * span_m) * H[3]))
         half_rotation = (gyro - bias) * (0.5 * dt) + e_half     # ½ β dt
-        trusted = ca.logic_and(use_a, aiding.norm_within(f, G0, p["bias_accel_gate"]))
+        trusted = ca.logic_and(use_a, aiding.norm_within(f2, G0, p["bias_accel_gate"]))
         bias_pi = ca.if_else(trusted, bias - (p["ki"] / kh) * e_half, bias)   # b - ki e dt
         if p["rest_time"] > 0:
             bias_new = ca.if_else(at_rest, aiding.lowpass(bias, g_lp, span_a, p["rest_bias_tau"]), bias_pi)
@@ -211,21 +220,20 @@ class Model(FilterModel):
         ks = [
             KernelSpec("mag_ned", function("mag_ned", {"rot": rot, "mag": m}, {"mag_ned": ca.mtimes(rot, m)}),
                        "the magnetometer sample in NED, R(q) m, read by the field check and the heading correction"),
-            KernelSpec("init_attitude", function("init_attitude", {"accel": f, "mag": m, "use_mag": use_m},
+            KernelSpec("init_attitude", function("init_attitude", {"accel": f},
                                                  {"q": q0, "accel_lp": ca.vertcat(0, 0, -ca.sqrt(ca.sumsqr(f)))}),
-                       "first attitude: the shortest rotation taking the accelerometer's down to NED down, "
-                       "then the magnetometer's heading if it has a sample; the low-pass starts at R(q) f = "
-                       "[0, 0, -|f|]", flags=("use_mag",)),
+                       "first attitude: the shortest rotation taking the accelerometer's down to NED down "
+                       "(heading_init then sets the heading); the low-pass starts at R(q) f = [0, 0, -|f|]"),
             KernelSpec("heading_init", function("heading_init", {"q": q, "mag": m},
                                                 {"q_new": quat.qmul(aiding.heading_correction(q, m, decl), q)}),
-                       "first magnetometer sample after a tilt-only start: heading set, tilt kept"),
+                       "first magnetometer sample (with the first attitude or after it): heading set, tilt kept"),
             KernelSpec("accel_lowpass", function("accel_lowpass", {"rot": rot, "accel": f, "accel_lp": a_lp, "span": span},
                                                  {"accel_lp_new": aiding.lowpass(a_lp, ca.mtimes(rot, f), span,
                                                                                  p["accel_tau"])}),
                        "low-pass of the specific force in NED, R(q) f (time constant accel_tau)"),
             KernelSpec("correct", function("correct", {"q": q, "rot": rot, "gyro_bias": bias, "gyro": gyro, "dt": dt,
                                                        "accel_lp": a_lp, "mag_ned": m_n, "span_accel": span_a,
-                                                       "span_mag": span_m, "use_accel": use_a, "accel": f,
+                                                       "span_mag": span_m, "use_accel": use_a, "accel_norm2": f2,
                                                        **({"at_rest": at_rest, "rest_gyro_lp": g_lp}
                                                           if p["rest_time"] > 0 else {})},
                                            {"q_new": quat.qnormalize(quat.qmul(q, quat.qexp_scaled(half_rotation))),
@@ -244,14 +252,14 @@ class Model(FilterModel):
                                                    "rest_time_new": t2, "at_rest": r2}),
                                  "rest detection: gyro and accelerometer steady for rest_time", flags=("at_rest",)))
         if p["mag_rejection"]:
-            mn = ca.sqrt(ca.sumsqr(m))
+            mn = ca.sqrt(m2)
             # sin(dip) = (R^T down) . m / |m| = down . R m / |m|, down = -a/|a|
             sin_dip = -ca.dot(a_lp, m_n) / (ca.sqrt(ca.sumsqr(a_lp)) * mn)
             acc, n2, d2, t2, l2 = aiding.field_check(
                 mn, sin_dip, m_ref[0], m_ref[1], t_dist, span, norm_tol=p["mag_norm_tol"],
                 dip_tol=p["mag_dip_tol"], ref_tau=p["mag_ref_tau"], new_time=p["mag_new_time"],
                 learn_time=t_learn, warmup=p["mag_warmup"])
-            ks.append(KernelSpec("mag_check", function("mag_check", {"accel_lp": a_lp, "mag": m, "mag_ned": m_n, "mag_ref": m_ref,
+            ks.append(KernelSpec("mag_check", function("mag_check", {"accel_lp": a_lp, "mag_norm2": m2, "mag_ned": m_n, "mag_ref": m_ref,
                                                                      "mag_dist_time": t_dist, "mag_learn_time": t_learn,
                                                                      "span": span},
                                                        {"accept": acc, "mag_ref_new": ca.vertcat(n2, d2),
@@ -261,7 +269,7 @@ class Model(FilterModel):
 
     def template_context(self):
         p = self.params
-        return {"motion_model": p["motion_accel_model"], "product": self.product,
+        return {"motion_model": p["motion_accel_model"], "product": self.product, "gps_taps": gps_taps(p),
                 "rest": self.product and p["rest_time"] > 0, "mag_rejection": self.product and p["mag_rejection"]}
 
     def step_paths(self):
