@@ -67,12 +67,6 @@ class Traced(float):
         shadow = op(a.shadow, b.shadow)
         if not isinstance(value, float):
             return value
-        # a plain 0 added (or subtracted from) and a plain 1 multiplied by leave the text alone
-        # (0.0 + ut_beta reads ut_beta; the value is the same but for the sign of a zero)
-        if isinstance(a, _Plain) and a.value == (1.0 if sym == "*" else 0.0) and sym in ("*", " + "):
-            return Traced(value, shadow, b.text, b.prec, b.uses, self.record)
-        if isinstance(b, _Plain) and b.value == (1.0 if sym in ("*", "/") else 0.0) and sym != "^":
-            return Traced(value, shadow, a.text, a.prec, a.uses, self.record)
         text = f"{_wrap(a, prec)}{sym}{_wrap(b, prec, right=True)}"
         return Traced(value, shadow, text, prec, a.uses | b.uses, self.record)
 

@@ -154,24 +154,17 @@ def _folded_names(spec, params: dict, runtime: tuple, specs) -> dict[str, dict[i
     """{kernel: {instruction: parameter expression}} for the literals of the baked kernels that
     are folded parameters (generator/folded.py: the kernels built again on traced values)."""
     floats = [n for n, p in spec.params.items() if p.type == "float" and n not in runtime]
-    out: dict[str, dict[int, str]] = {}
-    todo = list(specs)
-    for merge_equal in (False, True):       # the second pass for kernels of another shape
-        values, record = folded.traced_params(params, floats, merge_equal)
-        if not record or not todo:
-            break
-        for n in runtime:
-            values[n] = emit.runtime_symbol(n)
-        try:
-            traced = {ks.name: ks.function for ks in spec.model(values).kernels()}
-        except Exception:      # a model that needs plain numbers: its literals stay unnamed
-            break
-        for ks in list(todo):
-            names = folded.constant_names(ks.function, traced[ks.name], record) if ks.name in traced else None
-            if names is not None:
-                out[ks.name] = names
-                todo.remove(ks)
-    return out
+    values, record = folded.traced_params(params, floats)
+    if not record:
+        return {}
+    for n in runtime:
+        values[n] = emit.runtime_symbol(n)
+    try:
+        traced = {ks.name: ks.function for ks in spec.model(values).kernels()}
+    except Exception:      # a model that needs plain numbers: its literals stay unnamed
+        return {}
+    out = {ks.name: folded.constant_names(ks.function, traced[ks.name], record) for ks in specs if ks.name in traced}
+    return {k: v for k, v in out.items() if v}
 
 
 def render(cfg: BuildConfig, names: bool = True) -> Generated:

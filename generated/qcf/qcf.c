@@ -762,7 +762,7 @@ static void qcf_k_mag_check_part1(const float mag_ref[2], float mag_dist_time, f
         tmp20 = tmp36;
         tmp21 = tmp37;
     }
-    const float tmp47 = (carry[5] < 10.0f /* mag_warmup */) ? carry[5] : 10.0f /* mag_warmup */;
+    const float tmp47 = (carry[5] < 10.0f) ? carry[5] : 10.0f;
     carry[0] = tmp18 ? 1.0f : 0.0f;
     carry[1] = tmp19;
     carry[2] = tmp20;
