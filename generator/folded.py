@@ -15,7 +15,10 @@ and a recorded expression equals it in both builds: value == the traced constant
 shadow == the baked constant. A structural constant never changes; a constant CasADi
 computed from a parameter and something else (x * (1 / p) written as x / p, a product of two
 folded numbers) matches no recorded expression at two unrelated points and stays unnamed.
-So a name is either right or absent. The emitter (generator/emit, `names`) writes it as
+A kernel whose graph CasADi shaped by a parameter's value (two equal constants merged into
+one node, as two parameters at 0.1 multiplying the same x, or a parameter equal to a
+structural constant) has another shape in the traced build: its numbers all stay bare. So a
+name is either right or absent. The emitter (generator/emit, `names`) writes it as
 a comment beside the literal; the arithmetic does not change.
 """
 from __future__ import annotations
@@ -67,6 +70,12 @@ class Traced(float):
         shadow = op(a.shadow, b.shadow)
         if not isinstance(value, float):
             return value
+        # a plain 0 added (or subtracted from) and a plain 1 multiplied by leave the text alone
+        # (0.0 + ut_beta reads ut_beta; the value is the same but for the sign of a zero)
+        if isinstance(a, _Plain) and a.value == (1.0 if sym == "*" else 0.0) and sym in ("*", " + "):
+            return Traced(value, shadow, b.text, b.prec, b.uses, self.record)
+        if isinstance(b, _Plain) and b.value == (1.0 if sym in ("*", "/") else 0.0) and sym != "^":
+            return Traced(value, shadow, a.text, a.prec, a.uses, self.record)
         text = f"{_wrap(a, prec)}{sym}{_wrap(b, prec, right=True)}"
         return Traced(value, shadow, text, prec, a.uses | b.uses, self.record)
 
@@ -134,22 +143,16 @@ def _wrap(x, prec, right=False):
     return f"({x.text})" if x.prec < prec or (right and x.prec == prec) else x.text
 
 
-def traced_params(params: dict, names, merge_equal: bool = False) -> tuple[dict, list]:
+def traced_params(params: dict, names) -> tuple[dict, list]:
     """params with each float parameter in `names` (not 0, 1 or -1) replaced by a perturbed
-    Traced value; and the record every Traced number computed from them is appended to.
-
-    merge_equal: parameters of equal value get the same factor. CasADi merges equal
-    constants (two parameters at 0.1 multiplying the same x are one product), so a kernel
-    where that happens has another shape with distinct factors; with equal ones it keeps its
-    shape, and a literal of either parameter alone matches both and stays unnamed."""
+    Traced value; and the record every Traced number computed from them is appended to."""
     record: list = []
     out = dict(params)
-    factors: dict = {}
-    for n in sorted(names):
+    for i, n in enumerate(sorted(names)):
         v = params[n]
         if type(v) is not float or v in _SPECIAL or not math.isfinite(v):
             continue
-        factor = factors.setdefault(v if merge_equal else n, 1.0 + (len(factors) + 1) * STEP * math.sqrt(2.0))
+        factor = 1.0 + (i + 1) * STEP * math.sqrt(2.0)
         out[n] = Traced(v * factor, v, n, _ATOM, frozenset([n]), record)
     return out, record
 
