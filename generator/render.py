@@ -66,6 +66,17 @@ def struct_layout(fields, real, params_bytes=0):
     return out, (off + align - 1) // align * align
 
 
+# The aiding sensors' input checks (templates/filter.c.j2), in the order they run: input field,
+# the parameters bounding a component and the norm, the prefix of the skip bits, and whether the
+# sensor is in the step's one common-path test (sampled every step: accel and mag; GPS comes at
+# a few Hz, so its valid bit is usually clear and it is tested on its own).
+_AIDING = [
+    {"name": "accel", "field": "accel", "max": "ACCEL_MAX", "min": "ACCEL_MIN_NORM", "bit": "ACCEL", "common": True},
+    {"name": "mag", "field": "mag", "max": "MAG_MAX", "min": "MAG_MIN_NORM", "bit": "MAG", "common": True},
+    {"name": "gps", "field": "gps_vel_ned", "max": "GPS_VEL_MAX", "min": None, "bit": "GPS", "common": False},
+]
+
+
 def _runtime_param(p, value, code, lit) -> dict:
     """A runtime parameter for the templates: default, allowed range and its C check."""
     terms = []
@@ -282,6 +293,11 @@ def render(cfg: BuildConfig, names: bool = True) -> Generated:
         init_doc=_wrap_doc("Initialisation: " + (spec.init or "{prefix}_init sets the start state."), prefix),
         prefix=prefix, P=P,
         real=real, F="f" if real == "float" else "", zero=lit(0.0), one=lit(1.0), lit=lit,
+        uint="uint32_t" if real == "float" else "uint64_t",
+        aiding=[a for a in _AIDING if a["name"] in model.sensors],
+        # the full input checks run out of the step's line: they need the state for a runtime bound
+        checks_read_state=any(n in runtime for a in _AIDING if a["common"] and a["name"] in model.sensors
+                              for n in (a["max"].lower(), a["min"].lower())) or "gyro_max" in runtime,
         params=params, valid_bits=VALID_BITS, status=status_ctx, state=state_ctx, input=input_ctx,
         kernels=kctx, sensors=model.sensors, state_bytes=state_bytes, runtime=runtime_ctx,
         math=cfg.math if real == "float" else "libm", fastmath_code=fastmath.c_source(fast_helpers),

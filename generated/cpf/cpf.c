@@ -22,6 +22,7 @@
 #include <math.h>
 #include <stdbool.h>
 #include <stdint.h>
+#include <string.h>
 
 /* math = "fast": trigonometry without libm (generator/fastmath.py; errors measured there) */
 /* sin(x), |x| <= 8192 (NaN beyond; sin(-0) = +0); max abs error 1.5e-07 (tests/test_fastmath.py) */
@@ -814,7 +815,7 @@ static bool cpf_finite3(const float v[3])
     return isfinite(v[0]) && isfinite(v[1]) && isfinite(v[2]);
 }
 
-/* finite and within +-limit in one test (false for NaN and infinity): the common path */
+/* finite and within +-limit in one test (false for NaN and infinity) */
 static bool cpf_within3(const float v[3], float limit)
 {
     return ((fabsf(v[0]) <= limit) & (fabsf(v[1]) <= limit) & (fabsf(v[2]) <= limit)) != 0;
@@ -823,6 +824,75 @@ static bool cpf_within3(const float v[3], float limit)
 static float cpf_norm2(const float v[3])
 {
     return v[0] * v[0] + v[1] * v[1] + v[2] * v[2];
+}
+
+/* The bit pattern of x. Patterns with the sign bit clear order like their values (NaN above
+ * +infinity) and every pattern with the sign bit set lies above them all, so one unsigned
+ * compare of patterns does the work of two floating-point compares (each a compare, a flag
+ * transfer and a branch on the M4F). */
+static uint32_t cpf_bits(float x)
+{
+    uint32_t u;
+    memcpy(&u, &x, sizeof u);
+    return u;
+}
+
+/* lo <= x < hi, for 0 <= lo and x never -0 (a sum of squares): bits(x) - bits(lo) <
+ * bits(hi) - bits(lo) unsigned, false for NaN and negative x. Constant bounds fold to one
+ * subtraction and one compare. */
+static bool cpf_in_range(float x, float lo, float hi)
+{
+    const uint32_t b_lo = cpf_bits(lo), b_hi = cpf_bits(hi);
+    return b_hi > b_lo && cpf_bits(x) - b_lo < b_hi - b_lo;
+}
+
+/* Skip bit of an aiding sample (0: usable), in the contract's order: not finite, a component
+ * beyond +-vmax, |v|^2 below min2. |v|^2 < vmax^2 (a NaN or infinity fails it) implies every
+ * |v_i| < vmax, float rounding being monotone, so the component test runs only when it fails. */
+static cpf_status cpf_aiding_skip(const float v[3], float n2, float vmax, float min2,
+                                   cpf_status nonfinite, cpf_status range, cpf_status zero)
+{
+    if ((n2 < vmax * vmax || cpf_within3(v, vmax)) && n2 >= min2) {
+        return CPF_OK;
+    }
+    if (!cpf_finite3(v)) {
+        return nonfinite;
+    }
+    return cpf_within3(v, vmax) ? zero : range;
+}
+
+/* The input checks in full, in the contract's order, for a step whose common-path test failed:
+ * a refusal's status (the step returns it, state untouched), or the skip bits of the aiding
+ * samples, with use_* saying which are usable. */
+static cpf_status cpf_check_inputs(const cpf_input *in,
+                                   float accel_n2, bool *use_accel,
+                                   float mag_n2, bool *use_mag)
+{
+    if ((in->valid & CPF_VALID_GYRO) == 0u) {
+        return CPF_GYRO_MISSING;
+    }
+    if (!(cpf_norm2(in->gyro) < CPF_GYRO_MAX * CPF_GYRO_MAX
+          || cpf_within3(in->gyro, CPF_GYRO_MAX))) {
+        return cpf_finite3(in->gyro) ? CPF_GYRO_RANGE : CPF_GYRO_NONFINITE;
+    }
+    cpf_status status = CPF_OK;
+    *use_accel = false;
+    if ((in->valid & CPF_VALID_ACCEL) != 0u) {
+        const cpf_status skip = cpf_aiding_skip(in->accel, accel_n2, CPF_ACCEL_MAX,
+                                                CPF_ACCEL_MIN_NORM * CPF_ACCEL_MIN_NORM, CPF_ACCEL_NONFINITE,
+                                                CPF_ACCEL_RANGE, CPF_ACCEL_ZERO);
+        *use_accel = skip == CPF_OK;
+        status |= skip;
+    }
+    *use_mag = false;
+    if ((in->valid & CPF_VALID_MAG) != 0u) {
+        const cpf_status skip = cpf_aiding_skip(in->mag, mag_n2, CPF_MAG_MAX,
+                                                CPF_MAG_MIN_NORM * CPF_MAG_MIN_NORM, CPF_MAG_NONFINITE,
+                                                CPF_MAG_RANGE, CPF_MAG_ZERO);
+        *use_mag = skip == CPF_OK;
+        status |= skip;
+    }
+    return status;
 }
 
 void cpf_init(cpf_state *s)
@@ -857,48 +927,26 @@ cpf_status cpf_step(cpf_state *restrict s, const cpf_input *restrict in, float d
 {
     cpf_status status = CPF_OK;
 
-    /* Refusals: the state is left exactly as it was. One range test per input on the
-     * common path; which bit a failure sets is sorted out only when it fails.
-     * |v|^2 < MAX^2 (a NaN or infinity fails it) implies every |v_i| < MAX, float rounding
-     * being monotone, so the component test runs only when the cheap one fails. */
-    if (!(dt > 0.0f && dt <= CPF_DT_MAX)) {
+    /* The common path is one test per input: 0 < dt <= DT_MAX (one integer compare of the
+     * patterns), then the gyro, accel, mag present and each |v|^2 in range (a NaN or
+     * infinity fails it; |v|^2 < MAX^2 implies every |v_i| < MAX, float rounding being
+     * monotone). Only when that fails do the full checks sort out which bit to set. */
+    if (!(cpf_bits(dt) - 1u < cpf_bits(CPF_DT_MAX))) {
         return (isfinite(dt) && dt > CPF_DT_MAX) ? CPF_DT_TOO_LARGE : CPF_DT_INVALID;
     }
-    if ((in->valid & CPF_VALID_GYRO) == 0u) {
-        return CPF_GYRO_MISSING;
-    }
-    if (!(cpf_norm2(in->gyro) < CPF_GYRO_MAX * CPF_GYRO_MAX
-          || cpf_within3(in->gyro, CPF_GYRO_MAX))) {
-        return cpf_finite3(in->gyro) ? CPF_GYRO_RANGE : CPF_GYRO_NONFINITE;
-    }
-
-    /* Aiding sensors: a bad sample skips only its own correction. */
-    bool use_accel = false;
+    const uint32_t every_step = CPF_VALID_GYRO | CPF_VALID_ACCEL | CPF_VALID_MAG;
     const float accel_n2 = cpf_norm2(in->accel);   /* read even without its valid bit: a kernel may reuse it */
-    if ((in->valid & CPF_VALID_ACCEL) != 0u) {
-        if ((accel_n2 < CPF_ACCEL_MAX * CPF_ACCEL_MAX || cpf_within3(in->accel, CPF_ACCEL_MAX))
-            && accel_n2 >= CPF_ACCEL_MIN_NORM * CPF_ACCEL_MIN_NORM) {
-            use_accel = true;
-        } else if (!cpf_finite3(in->accel)) {
-            status |= CPF_ACCEL_NONFINITE;
-        } else if (!cpf_within3(in->accel, CPF_ACCEL_MAX)) {
-            status |= CPF_ACCEL_RANGE;
-        } else {
-            status |= CPF_ACCEL_ZERO;
-        }
-    }
-    bool use_mag = false;
+    bool use_accel = true;
     const float mag_n2 = cpf_norm2(in->mag);   /* read even without its valid bit: a kernel may reuse it */
-    if ((in->valid & CPF_VALID_MAG) != 0u) {
-        if ((mag_n2 < CPF_MAG_MAX * CPF_MAG_MAX || cpf_within3(in->mag, CPF_MAG_MAX))
-            && mag_n2 >= CPF_MAG_MIN_NORM * CPF_MAG_MIN_NORM) {
-            use_mag = true;
-        } else if (!cpf_finite3(in->mag)) {
-            status |= CPF_MAG_NONFINITE;
-        } else if (!cpf_within3(in->mag, CPF_MAG_MAX)) {
-            status |= CPF_MAG_RANGE;
-        } else {
-            status |= CPF_MAG_ZERO;
+    bool use_mag = true;
+    if (!((in->valid & every_step) == every_step
+          && cpf_norm2(in->gyro) < CPF_GYRO_MAX * CPF_GYRO_MAX
+          && cpf_in_range(accel_n2, CPF_ACCEL_MIN_NORM * CPF_ACCEL_MIN_NORM, CPF_ACCEL_MAX * CPF_ACCEL_MAX)
+          && cpf_in_range(mag_n2, CPF_MAG_MIN_NORM * CPF_MAG_MIN_NORM, CPF_MAG_MAX * CPF_MAG_MAX))) {
+        /* Refusals leave the state exactly as it was; a bad aiding sample skips only its own correction. */
+        status = cpf_check_inputs(in, accel_n2, &use_accel, mag_n2, &use_mag);
+        if ((status & CPF_REFUSED_MASK) != 0u) {
+            return status;
         }
     }
 

@@ -22,6 +22,7 @@
 #include <math.h>
 #include <stdbool.h>
 #include <stdint.h>
+#include <string.h>
 
 /* math = "fast": trigonometry without libm (generator/fastmath.py; errors measured there) */
 /* sin(x), |x| <= 8192 (NaN beyond; sin(-0) = +0); max abs error 1.5e-07 (tests/test_fastmath.py) */
@@ -1073,7 +1074,7 @@ static bool qcf_finite3(const float v[3])
     return isfinite(v[0]) && isfinite(v[1]) && isfinite(v[2]);
 }
 
-/* finite and within +-limit in one test (false for NaN and infinity): the common path */
+/* finite and within +-limit in one test (false for NaN and infinity) */
 static bool qcf_within3(const float v[3], float limit)
 {
     return ((fabsf(v[0]) <= limit) & (fabsf(v[1]) <= limit) & (fabsf(v[2]) <= limit)) != 0;
@@ -1082,6 +1083,75 @@ static bool qcf_within3(const float v[3], float limit)
 static float qcf_norm2(const float v[3])
 {
     return v[0] * v[0] + v[1] * v[1] + v[2] * v[2];
+}
+
+/* The bit pattern of x. Patterns with the sign bit clear order like their values (NaN above
+ * +infinity) and every pattern with the sign bit set lies above them all, so one unsigned
+ * compare of patterns does the work of two floating-point compares (each a compare, a flag
+ * transfer and a branch on the M4F). */
+static uint32_t qcf_bits(float x)
+{
+    uint32_t u;
+    memcpy(&u, &x, sizeof u);
+    return u;
+}
+
+/* lo <= x < hi, for 0 <= lo and x never -0 (a sum of squares): bits(x) - bits(lo) <
+ * bits(hi) - bits(lo) unsigned, false for NaN and negative x. Constant bounds fold to one
+ * subtraction and one compare. */
+static bool qcf_in_range(float x, float lo, float hi)
+{
+    const uint32_t b_lo = qcf_bits(lo), b_hi = qcf_bits(hi);
+    return b_hi > b_lo && qcf_bits(x) - b_lo < b_hi - b_lo;
+}
+
+/* Skip bit of an aiding sample (0: usable), in the contract's order: not finite, a component
+ * beyond +-vmax, |v|^2 below min2. |v|^2 < vmax^2 (a NaN or infinity fails it) implies every
+ * |v_i| < vmax, float rounding being monotone, so the component test runs only when it fails. */
+static qcf_status qcf_aiding_skip(const float v[3], float n2, float vmax, float min2,
+                                   qcf_status nonfinite, qcf_status range, qcf_status zero)
+{
+    if ((n2 < vmax * vmax || qcf_within3(v, vmax)) && n2 >= min2) {
+        return QCF_OK;
+    }
+    if (!qcf_finite3(v)) {
+        return nonfinite;
+    }
+    return qcf_within3(v, vmax) ? zero : range;
+}
+
+/* The input checks in full, in the contract's order, for a step whose common-path test failed:
+ * a refusal's status (the step returns it, state untouched), or the skip bits of the aiding
+ * samples, with use_* saying which are usable. */
+static qcf_status qcf_check_inputs(const qcf_input *in,
+                                   float accel_n2, bool *use_accel,
+                                   float mag_n2, bool *use_mag)
+{
+    if ((in->valid & QCF_VALID_GYRO) == 0u) {
+        return QCF_GYRO_MISSING;
+    }
+    if (!(qcf_norm2(in->gyro) < QCF_GYRO_MAX * QCF_GYRO_MAX
+          || qcf_within3(in->gyro, QCF_GYRO_MAX))) {
+        return qcf_finite3(in->gyro) ? QCF_GYRO_RANGE : QCF_GYRO_NONFINITE;
+    }
+    qcf_status status = QCF_OK;
+    *use_accel = false;
+    if ((in->valid & QCF_VALID_ACCEL) != 0u) {
+        const qcf_status skip = qcf_aiding_skip(in->accel, accel_n2, QCF_ACCEL_MAX,
+                                                QCF_ACCEL_MIN_NORM * QCF_ACCEL_MIN_NORM, QCF_ACCEL_NONFINITE,
+                                                QCF_ACCEL_RANGE, QCF_ACCEL_ZERO);
+        *use_accel = skip == QCF_OK;
+        status |= skip;
+    }
+    *use_mag = false;
+    if ((in->valid & QCF_VALID_MAG) != 0u) {
+        const qcf_status skip = qcf_aiding_skip(in->mag, mag_n2, QCF_MAG_MAX,
+                                                QCF_MAG_MIN_NORM * QCF_MAG_MIN_NORM, QCF_MAG_NONFINITE,
+                                                QCF_MAG_RANGE, QCF_MAG_ZERO);
+        *use_mag = skip == QCF_OK;
+        status |= skip;
+    }
+    return status;
 }
 
 void qcf_init(qcf_state *s)
@@ -1124,59 +1194,39 @@ qcf_status qcf_step(qcf_state *restrict s, const qcf_input *restrict in, float d
 {
     qcf_status status = QCF_OK;
 
-    /* Refusals: the state is left exactly as it was. One range test per input on the
-     * common path; which bit a failure sets is sorted out only when it fails.
-     * |v|^2 < MAX^2 (a NaN or infinity fails it) implies every |v_i| < MAX, float rounding
-     * being monotone, so the component test runs only when the cheap one fails. */
-    if (!(dt > 0.0f && dt <= QCF_DT_MAX)) {
+    /* The common path is one test per input: 0 < dt <= DT_MAX (one integer compare of the
+     * patterns), then the gyro, accel, mag present and each |v|^2 in range (a NaN or
+     * infinity fails it; |v|^2 < MAX^2 implies every |v_i| < MAX, float rounding being
+     * monotone). Only when that fails do the full checks sort out which bit to set. */
+    if (!(qcf_bits(dt) - 1u < qcf_bits(QCF_DT_MAX))) {
         return (isfinite(dt) && dt > QCF_DT_MAX) ? QCF_DT_TOO_LARGE : QCF_DT_INVALID;
     }
-    if ((in->valid & QCF_VALID_GYRO) == 0u) {
-        return QCF_GYRO_MISSING;
-    }
-    if (!(qcf_norm2(in->gyro) < QCF_GYRO_MAX * QCF_GYRO_MAX
-          || qcf_within3(in->gyro, QCF_GYRO_MAX))) {
-        return qcf_finite3(in->gyro) ? QCF_GYRO_RANGE : QCF_GYRO_NONFINITE;
-    }
-
-    /* Aiding sensors: a bad sample skips only its own correction. */
-    bool use_accel = false;
+    const uint32_t every_step = QCF_VALID_GYRO | QCF_VALID_ACCEL | QCF_VALID_MAG;
     const float accel_n2 = qcf_norm2(in->accel);   /* read even without its valid bit: a kernel may reuse it */
-    if ((in->valid & QCF_VALID_ACCEL) != 0u) {
-        if ((accel_n2 < QCF_ACCEL_MAX * QCF_ACCEL_MAX || qcf_within3(in->accel, QCF_ACCEL_MAX))
-            && accel_n2 >= QCF_ACCEL_MIN_NORM * QCF_ACCEL_MIN_NORM) {
-            use_accel = true;
-        } else if (!qcf_finite3(in->accel)) {
-            status |= QCF_ACCEL_NONFINITE;
-        } else if (!qcf_within3(in->accel, QCF_ACCEL_MAX)) {
-            status |= QCF_ACCEL_RANGE;
-        } else {
-            status |= QCF_ACCEL_ZERO;
-        }
-    }
-    bool use_mag = false;
+    bool use_accel = true;
     const float mag_n2 = qcf_norm2(in->mag);   /* read even without its valid bit: a kernel may reuse it */
-    if ((in->valid & QCF_VALID_MAG) != 0u) {
-        if ((mag_n2 < QCF_MAG_MAX * QCF_MAG_MAX || qcf_within3(in->mag, QCF_MAG_MAX))
-            && mag_n2 >= QCF_MAG_MIN_NORM * QCF_MAG_MIN_NORM) {
-            use_mag = true;
-        } else if (!qcf_finite3(in->mag)) {
-            status |= QCF_MAG_NONFINITE;
-        } else if (!qcf_within3(in->mag, QCF_MAG_MAX)) {
-            status |= QCF_MAG_RANGE;
-        } else {
-            status |= QCF_MAG_ZERO;
+    bool use_mag = true;
+    if (!((in->valid & every_step) == every_step
+          && qcf_norm2(in->gyro) < QCF_GYRO_MAX * QCF_GYRO_MAX
+          && qcf_in_range(accel_n2, QCF_ACCEL_MIN_NORM * QCF_ACCEL_MIN_NORM, QCF_ACCEL_MAX * QCF_ACCEL_MAX)
+          && qcf_in_range(mag_n2, QCF_MAG_MIN_NORM * QCF_MAG_MIN_NORM, QCF_MAG_MAX * QCF_MAG_MAX))) {
+        /* Refusals leave the state exactly as it was; a bad aiding sample skips only its own correction. */
+        status = qcf_check_inputs(in, accel_n2, &use_accel, mag_n2, &use_mag);
+        if ((status & QCF_REFUSED_MASK) != 0u) {
+            return status;
         }
     }
     bool use_gps = false;
     if ((in->valid & QCF_VALID_GPS) != 0u) {
-        if (qcf_norm2(in->gps_vel_ned) < QCF_GPS_VEL_MAX * QCF_GPS_VEL_MAX
-            || qcf_within3(in->gps_vel_ned, QCF_GPS_VEL_MAX)) {
+        const float gps_n2 = qcf_norm2(in->gps_vel_ned);
+        if (gps_n2 < QCF_GPS_VEL_MAX * QCF_GPS_VEL_MAX) {
             use_gps = true;
-        } else if (!qcf_finite3(in->gps_vel_ned)) {
-            status |= QCF_GPS_NONFINITE;
         } else {
-            status |= QCF_GPS_RANGE;
+            const qcf_status skip = qcf_aiding_skip(in->gps_vel_ned, gps_n2, QCF_GPS_VEL_MAX,
+                                                    0.0f, QCF_GPS_NONFINITE, QCF_GPS_RANGE,
+                                                    QCF_OK);
+            use_gps = skip == QCF_OK;
+            status |= skip;
         }
     }
 
