@@ -18,8 +18,10 @@ eq. 29's along-track part was tried and made things worse: the stale centripetal
 the lagged estimate leaks into the projection while the velocity turns.)
 
 Product conditioning (faithful = false; issue 10; building blocks in generator/symbolic/aiding.py):
-  init           the first accelerometer sample sets q (FQA with a magnetometer sample, else
-                 its tilt with yaw 0; the first magnetometer sample then sets the heading)
+  init           the first accelerometer sample sets q: the shortest rotation taking its down
+                 direction to NED down (tilt), then the heading of the first magnetometer
+                 sample (in that step or later) by the heading correction below; with both in
+                 the first step this is FQA's attitude
   low-pass       a <- a + k (R(q̂) f_g - a), k = s_a/(accel_tau + s_a): the specific force in
                  NED, low-passed (motion acceleration averages out, gravity does not)
   tilt           T = shortest NED rotation taking d = -a/|a| to [0,0,1] (no z part, any attitude)
