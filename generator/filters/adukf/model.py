@@ -102,7 +102,8 @@ class Model(FilterModel):
         ] + ([StateField("sample_age", 2, "time since the last accelerometer / magnetometer sample, s", 0.0)]
              if self.own_rates() else []) + ([StateField("accel_lp", 3, "low-passed specific force in NED, m/s^2 (accel_tau > 0)", 0.0)]
              if self.lowpass() else []) + [
-            StateField("work", self.work_size(), "scratch of the step (P-, the update's matrices and sigma-point sums, x- and x+) "
+            StateField("work", self.work_size(), "scratch of the step (P-, the update's matrices and sigma-point sums"
+                       + (", x- and x+) " if n == 7 else ") ") +
                        "kept here instead of on the stack: no meaning between steps, zeroed when an update or its "
                        "result is refused", 0.0),
             StateField("learn_sum", 1, "mag_ref = learn: sum of sin(inclination) over rest samples", 0.0),
