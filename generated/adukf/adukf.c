@@ -4062,12 +4062,12 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
         return (isfinite(dt) && dt > ADUKF_DT_MAX) ? ADUKF_DT_TOO_LARGE : ADUKF_DT_INVALID;
     }
     const uint32_t every_step = ADUKF_VALID_GYRO | ADUKF_VALID_ACCEL | ADUKF_VALID_MAG;
-    const float accel_n2 = adukf_norm2(in->accel);   /* read even without its valid bit: a kernel may reuse it */
+    const float accel_n2 = in->accel[0] * in->accel[0] + in->accel[1] * in->accel[1] + in->accel[2] * in->accel[2];   /* read even without its valid bit: a kernel reuses it */
     bool use_accel = true;
-    const float mag_n2 = adukf_norm2(in->mag);   /* read even without its valid bit: a kernel may reuse it */
+    const float mag_n2 = in->mag[0] * in->mag[0] + in->mag[1] * in->mag[1] + in->mag[2] * in->mag[2];   /* read even without its valid bit: a kernel reuses it */
     bool use_mag = true;
     if (!((in->valid & every_step) == every_step
-          && adukf_norm2(in->gyro) < ADUKF_GYRO_MAX * ADUKF_GYRO_MAX
+          && in->gyro[0] * in->gyro[0] + in->gyro[1] * in->gyro[1] + in->gyro[2] * in->gyro[2] < ADUKF_GYRO_MAX * ADUKF_GYRO_MAX
           && adukf_in_range(accel_n2, ADUKF_ACCEL_MIN_NORM * ADUKF_ACCEL_MIN_NORM, ADUKF_ACCEL_MAX * ADUKF_ACCEL_MAX)
           && adukf_in_range(mag_n2, ADUKF_MAG_MIN_NORM * ADUKF_MAG_MIN_NORM, ADUKF_MAG_MAX * ADUKF_MAG_MAX))) {
         /* Refusals leave the state exactly as it was; a bad aiding sample skips only its own correction. */

@@ -935,12 +935,12 @@ cpf_status cpf_step(cpf_state *restrict s, const cpf_input *restrict in, float d
         return (isfinite(dt) && dt > CPF_DT_MAX) ? CPF_DT_TOO_LARGE : CPF_DT_INVALID;
     }
     const uint32_t every_step = CPF_VALID_GYRO | CPF_VALID_ACCEL | CPF_VALID_MAG;
-    const float accel_n2 = cpf_norm2(in->accel);   /* read even without its valid bit: a kernel may reuse it */
+    const float accel_n2 = in->accel[0] * in->accel[0] + in->accel[1] * in->accel[1] + in->accel[2] * in->accel[2];   /* read even without its valid bit: a kernel reuses it */
     bool use_accel = true;
-    const float mag_n2 = cpf_norm2(in->mag);   /* read even without its valid bit: a kernel may reuse it */
+    const float mag_n2 = in->mag[0] * in->mag[0] + in->mag[1] * in->mag[1] + in->mag[2] * in->mag[2];   /* read even without its valid bit: a kernel reuses it */
     bool use_mag = true;
     if (!((in->valid & every_step) == every_step
-          && cpf_norm2(in->gyro) < CPF_GYRO_MAX * CPF_GYRO_MAX
+          && in->gyro[0] * in->gyro[0] + in->gyro[1] * in->gyro[1] + in->gyro[2] * in->gyro[2] < CPF_GYRO_MAX * CPF_GYRO_MAX
           && cpf_in_range(accel_n2, CPF_ACCEL_MIN_NORM * CPF_ACCEL_MIN_NORM, CPF_ACCEL_MAX * CPF_ACCEL_MAX)
           && cpf_in_range(mag_n2, CPF_MAG_MIN_NORM * CPF_MAG_MIN_NORM, CPF_MAG_MAX * CPF_MAG_MAX))) {
         /* Refusals leave the state exactly as it was; a bad aiding sample skips only its own correction. */

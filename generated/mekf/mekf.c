@@ -2728,12 +2728,12 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
         return (isfinite(dt) && dt > MEKF_DT_MAX) ? MEKF_DT_TOO_LARGE : MEKF_DT_INVALID;
     }
     const uint32_t every_step = MEKF_VALID_GYRO | MEKF_VALID_ACCEL | MEKF_VALID_MAG;
-    const float accel_n2 = mekf_norm2(in->accel);   /* read even without its valid bit: a kernel may reuse it */
+    const float accel_n2 = in->accel[0] * in->accel[0] + in->accel[1] * in->accel[1] + in->accel[2] * in->accel[2];   /* read even without its valid bit: a kernel reuses it */
     bool use_accel = true;
-    const float mag_n2 = mekf_norm2(in->mag);   /* read even without its valid bit: a kernel may reuse it */
+    const float mag_n2 = in->mag[0] * in->mag[0] + in->mag[1] * in->mag[1] + in->mag[2] * in->mag[2];   /* read even without its valid bit: a kernel reuses it */
     bool use_mag = true;
     if (!((in->valid & every_step) == every_step
-          && mekf_norm2(in->gyro) < MEKF_GYRO_MAX * MEKF_GYRO_MAX
+          && in->gyro[0] * in->gyro[0] + in->gyro[1] * in->gyro[1] + in->gyro[2] * in->gyro[2] < MEKF_GYRO_MAX * MEKF_GYRO_MAX
           && mekf_in_range(accel_n2, MEKF_ACCEL_MIN_NORM * MEKF_ACCEL_MIN_NORM, MEKF_ACCEL_MAX * MEKF_ACCEL_MAX)
           && mekf_in_range(mag_n2, MEKF_MAG_MIN_NORM * MEKF_MAG_MIN_NORM, MEKF_MAG_MAX * MEKF_MAG_MAX))) {
         /* Refusals leave the state exactly as it was; a bad aiding sample skips only its own correction. */

@@ -1202,12 +1202,12 @@ qcf_status qcf_step(qcf_state *restrict s, const qcf_input *restrict in, float d
         return (isfinite(dt) && dt > QCF_DT_MAX) ? QCF_DT_TOO_LARGE : QCF_DT_INVALID;
     }
     const uint32_t every_step = QCF_VALID_GYRO | QCF_VALID_ACCEL | QCF_VALID_MAG;
-    const float accel_n2 = qcf_norm2(in->accel);   /* read even without its valid bit: a kernel may reuse it */
+    const float accel_n2 = in->accel[0] * in->accel[0] + in->accel[1] * in->accel[1] + in->accel[2] * in->accel[2];   /* read even without its valid bit: a kernel reuses it */
     bool use_accel = true;
-    const float mag_n2 = qcf_norm2(in->mag);   /* read even without its valid bit: a kernel may reuse it */
+    const float mag_n2 = in->mag[0] * in->mag[0] + in->mag[1] * in->mag[1] + in->mag[2] * in->mag[2];   /* read even without its valid bit: a kernel reuses it */
     bool use_mag = true;
     if (!((in->valid & every_step) == every_step
-          && qcf_norm2(in->gyro) < QCF_GYRO_MAX * QCF_GYRO_MAX
+          && in->gyro[0] * in->gyro[0] + in->gyro[1] * in->gyro[1] + in->gyro[2] * in->gyro[2] < QCF_GYRO_MAX * QCF_GYRO_MAX
           && qcf_in_range(accel_n2, QCF_ACCEL_MIN_NORM * QCF_ACCEL_MIN_NORM, QCF_ACCEL_MAX * QCF_ACCEL_MAX)
           && qcf_in_range(mag_n2, QCF_MAG_MIN_NORM * QCF_MAG_MIN_NORM, QCF_MAG_MAX * QCF_MAG_MAX))) {
         /* Refusals leave the state exactly as it was; a bad aiding sample skips only its own correction. */

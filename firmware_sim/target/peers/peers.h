@@ -30,9 +30,20 @@ typedef struct {
 typedef peer_input madgwick_input;
 typedef peer_input mahony_input;
 
+/* like-for-like peers: the same updates behind the product's input checks (checks.h), with
+ * the product's status bits as the return value */
+typedef madgwick_state madgwick_checked_state;
+typedef mahony_state mahony_checked_state;
+typedef peer_input madgwick_checked_input;
+typedef peer_input mahony_checked_input;
+
 void madgwick_init(madgwick_state *s);
 uint32_t madgwick_step(madgwick_state *s, const madgwick_input *in, float dt);
 void mahony_init(mahony_state *s);
 uint32_t mahony_step(mahony_state *s, const mahony_input *in, float dt);
+void madgwick_checked_init(madgwick_state *s);
+uint32_t madgwick_checked_step(madgwick_state *s, const madgwick_input *in, float dt);
+void mahony_checked_init(mahony_state *s);
+uint32_t mahony_checked_step(mahony_state *s, const mahony_input *in, float dt);
 
 #endif
