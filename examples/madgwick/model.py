@@ -41,11 +41,10 @@ class Model(FilterModel):
         super().__init__(params, sensors=("accel", "mag"))
 
     def state_fields(self):
-        return [
-            StateField("q", 4, "attitude estimate, body FRD -> NED, [w x y z]", [1.0, 0.0, 0.0, 0.0]),
-            StateField("initialised", 1, "1 once the attitude has been set from the sensors (or not asked for)",
-                       0 if self.params["initialise"] else 1, "uint32"),
-        ]
+        fields = [StateField("q", 4, "attitude estimate, body FRD -> NED, [w x y z]", [1.0, 0.0, 0.0, 0.0])]
+        if self.params["initialise"]:        # else the step has no initialisation to wait for
+            fields.append(StateField("initialised", 1, "1 once the attitude has been set from the sensors", 0, "uint32"))
+        return fields
 
     def kernels(self):
         beta = self.params["beta"]
@@ -66,10 +65,11 @@ class Model(FilterModel):
         qdot_marg = ca.substitute(qdot_marg, b, ca.vertcat(ca.sqrt(h[0] ** 2 + h[1] ** 2), h[2]))
         qdot_imu = _corrected(q, gyro, f_acc, beta)
         ins = {"q": q, "gyro": gyro, "accel": accel, "mag": mag, "dt": dt}
-        return [
-            KernelSpec("initial_attitude", function("initial_attitude", {"accel": accel, "mag": mag},
-                                                    {"q_init": attitude.fqa(accel, mag)}),
-                       "attitude of one accelerometer+magnetometer sample (FQA: accelerometer-primary)"),
+        init = KernelSpec("initial_attitude", function("initial_attitude", {"accel": accel, "mag": mag},
+                                                      {"q_init": attitude.fqa(accel, mag)}),
+                          "attitude of one accelerometer+magnetometer sample (FQA: accelerometer-primary)")
+        # initialise = false starts at the identity, as the classic C code does: no kernel, no test
+        return ([init] if self.params["initialise"] else []) + [
             KernelSpec("update_marg", function("update_marg", ins, {"q_new": _advance(q, qdot_marg, dt)}),
                        "gyro rate plus gradient step towards gravity and the magnetic reference (eqs. 33, 34, 45, 46)"),
             KernelSpec("update_imu", function("update_imu", {k: ins[k] for k in ("q", "gyro", "accel", "dt")},

@@ -30,12 +30,10 @@ class Model(FilterModel):
         super().__init__(params, sensors=("accel", "mag"))
 
     def state_fields(self):
-        return [
-            StateField("q", 4, "attitude estimate, body FRD -> NED, [w x y z]", [1.0, 0.0, 0.0, 0.0]),
-            StateField("initialised", 1, "1 once the attitude has been set from the sensors (or not asked for)",
-                       0 if self.params["initialise"] else 1, "uint32"),
-            StateField("gyro_bias", 3, "gyro-bias estimate b_g, rad/s (ahrs' Mahony.b)", 0.0),
-        ]
+        fields = [StateField("q", 4, "attitude estimate, body FRD -> NED, [w x y z]", [1.0, 0.0, 0.0, 0.0])]
+        if self.params["initialise"]:        # else the step has no initialisation to wait for
+            fields.append(StateField("initialised", 1, "1 once the attitude has been set from the sensors", 0, "uint32"))
+        return fields + [StateField("gyro_bias", 3, "gyro-bias estimate b_g, rad/s (ahrs' Mahony.b)", 0.0)]
 
     def kernels(self):
         kp, ki = self.params["kp"], self.params["ki"]
@@ -60,10 +58,11 @@ class Model(FilterModel):
 
         ins = {"q": q, "gyro_bias": bias, "gyro": gyro, "accel": accel, "mag": mag, "dt": dt}
         imu = {k: ins[k] for k in ("q", "gyro_bias", "gyro", "accel", "dt")}
-        return [
-            KernelSpec("initial_attitude", function("initial_attitude", {"accel": accel, "mag": mag},
-                                                    {"q_init": attitude.fqa(accel, mag)}),
-                       "attitude of one accelerometer+magnetometer sample (FQA: accelerometer-primary)"),
+        init = KernelSpec("initial_attitude", function("initial_attitude", {"accel": accel, "mag": mag},
+                                                      {"q_init": attitude.fqa(accel, mag)}),
+                          "attitude of one accelerometer+magnetometer sample (FQA: accelerometer-primary)")
+        # initialise = false starts at the identity, as the classic C code does: no kernel, no test
+        return ([init] if self.params["initialise"] else []) + [
             KernelSpec("update_marg", function("update_marg", ins, corrected(err_marg)),
                        "direction errors to gravity and the magnetic reference: PI feedback (eqs. 32c, 48)"),
             KernelSpec("update_imu", function("update_imu", imu, corrected(err_acc)),

@@ -133,19 +133,24 @@ def toy_binding() -> FilterBinding:
 
 PEERS_DIR = TARGET_DIR / "peers"
 PEER_NAMES = ("madgwick", "mahony")
+# The like-for-like peers: the same updates behind the product's input checks (peers/checks.h),
+# doing what the example filters built with initialise = false do (same status bits).
+CHECKED_PEER_NAMES = ("madgwick_checked", "mahony_checked")
 
 
 def peer_binding(name: str) -> FilterBinding:
     """Calibration peers (firmware_sim/target/peers): Madgwick's and Mahony's 9-axis updates,
-    written from their papers, to put the instruction counts next to known figures."""
-    if name not in PEER_NAMES:
-        raise ValueError(f"unknown peer {name!r}; known: {', '.join(PEER_NAMES)}")
-    fields = {"madgwick": {"q": (0, 4)}, "mahony": {"q": (0, 4), "integral": (16, 3)}}[name]
+    written from their papers, to put the instruction counts next to known figures; and their
+    like-for-like variants with the product's input checks (CHECKED_PEER_NAMES)."""
+    if name not in PEER_NAMES + CHECKED_PEER_NAMES:
+        raise ValueError(f"unknown peer {name!r}; known: {', '.join(PEER_NAMES + CHECKED_PEER_NAMES)}")
+    base = name.removesuffix("_checked")
+    fields = {"madgwick": {"q": (0, 4)}, "mahony": {"q": (0, 4), "integral": (16, 3)}}[base]
     return FilterBinding(
         name=f"peer:{name}", prefix=name, sources=[PEERS_DIR / f"{name}.c"], include_dirs=[PEERS_DIR],
         header="peers.h", state_type=f"{name}_state", input_type=f"{name}_input",
         input_fields={"gyro": "gyro", "accel": "accel", "mag": "mag", "gps_vel": "gps_vel_ned", "valid": "valid"},
-        state_size=16 if name == "madgwick" else 28, state_fields=fields,
+        state_size=16 if base == "madgwick" else 28, state_fields=fields,
     )
 
 

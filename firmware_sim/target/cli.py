@@ -6,7 +6,7 @@ import tempfile
 from dataclasses import asdict
 from pathlib import Path
 
-from .build import APT_PACKAGES, CPUS, MATH_FLAGS, OPT_LEVELS, PIP_PACKAGES, QEMU_MACHINE, missing_tools, peer_binding, PEER_NAMES
+from .build import APT_PACKAGES, CPUS, MATH_FLAGS, OPT_LEVELS, PIP_PACKAGES, QEMU_MACHINE, missing_tools, peer_binding, PEER_NAMES, CHECKED_PEER_NAMES
 from .check import DEFAULT_TOLERANCE_DEG, _print_results, check_filter, check_generated, toolchain_versions
 from .emulate import libm_survey, records_from_log
 from .footprint import format_table
@@ -55,7 +55,7 @@ def cmd_target(args) -> int:
         from firmware_sim import scenarios
         log = scenarios.make("fixedwing_gps", seed=args.seed)
         with tempfile.TemporaryDirectory(prefix="ahrsgen-peers-") as tmp:
-            for pn in PEER_NAMES:
+            for pn in PEER_NAMES + CHECKED_PEER_NAMES:
                 for opt in opts:
                     r = check_filter(peer_binding(pn), records_from_log(log), Path(tmp), opt=opt, cpu=args.cpu,
                                      count_steps=None if args.count_steps == 0 else args.count_steps)
@@ -72,11 +72,17 @@ def cmd_target(args) -> int:
             print(f"  {fn:<7} differs in {v['differ']}/{v['arguments']} arguments, by at most {v['max_ulp']} ulp")
     beside = beside_peers(results, peer_rows)
     if peer_rows:
-        print("\ncalibration peers (firmware_sim/target/peers, fixedwing_gps; counts only):")
+        print("\ncalibration peers (firmware_sim/target/peers, fixedwing_gps; counts only; *_checked: the same "
+              "updates behind the product's input checks):")
         print(format_table(peer_rows))
         for b in beside:
             print(f"{b['filter']} {b['opt']}: generated {b['generated']:.0f} / hand-written {b['hand_written']:.0f} "
-                  f"instructions per step = {b['ratio']:.2f}x (same scenario)")
+                  f"instructions per step = {b['ratio']:.2f}x (same scenario; the hand-written update checks no input)")
+            if b.get("hand_written_checked"):
+                print(f"{b['filter']} {b['opt']}: generated {b['generated']:.0f} / hand-written with the same input "
+                      f"checks {b['hand_written_checked']:.0f} instructions per step = {b['ratio_checked']:.2f}x "
+                      f"(like for like: the same status bits, zero-gyro skip and IMU-only fallback; it starts at "
+                      f"the identity, so compare a build with --set initialise=false)")
     doc = {"cpu": args.cpu, "cpu_flags": CPUS[args.cpu], "math_flags": MATH_FLAGS, "qemu_machine": QEMU_MACHINE,
            "tools": toolchain_versions(), "tolerance_deg": args.tolerance, "results": results,
            "peers": [asdict(r) for r in peer_rows], "beside_peers": beside, "libm_survey": survey}
@@ -90,7 +96,8 @@ def cmd_target(args) -> int:
 def beside_peers(results: list[dict], peer_rows) -> list[dict]:
     """A checked filter that has a hand-written twin among the peers (the example user filters
     examples/madgwick and examples/mahony): instructions per step of both, same build, same
-    scenario (both on fixedwing_gps unless --scenario says otherwise for the filter)."""
+    scenario (both on fixedwing_gps unless --scenario says otherwise for the filter); against
+    the plain hand-written update and against its variant with the product's input checks."""
     peers = {(r.filter.removeprefix("peer:"), r.opt): r.instructions_mean for r in peer_rows}
     out = []
     for r in results:
@@ -99,8 +106,11 @@ def beside_peers(results: list[dict], peer_rows) -> list[dict]:
         hand = peers.get((r["filter"], r["opt"]))
         gen = r["footprint"]["instructions_mean"]
         if hand and r.get("scenario") == "fixedwing_gps":
-            out.append({"filter": r["filter"], "opt": r["opt"], "generated": gen, "hand_written": hand,
-                        "ratio": gen / hand})
+            row = {"filter": r["filter"], "opt": r["opt"], "generated": gen, "hand_written": hand, "ratio": gen / hand}
+            checked = peers.get((r["filter"] + "_checked", r["opt"]))
+            if checked:
+                row.update(hand_written_checked=checked, ratio_checked=gen / checked)
+            out.append(row)
     return out
 
 
@@ -133,8 +143,9 @@ def register_cli(sub) -> None:
     p.add_argument("--tolerance", type=float, default=DEFAULT_TOLERANCE_DEG, metavar="DEG",
                    help=f"largest allowed target-vs-host attitude difference (default {DEFAULT_TOLERANCE_DEG:g} deg)")
     p.add_argument("--peers", action="store_true",
-                   help="also measure the calibration peers (hand-written Madgwick, Mahony with integral) for scale; "
-                        "a filter named like one (examples/madgwick, examples/mahony) is set beside it (ratio)")
+                   help="also measure the calibration peers (hand-written Madgwick, Mahony with integral) for scale, and "
+                        "their variants with the product's input checks; a filter named like one (examples/madgwick, "
+                        "examples/mahony) is set beside both (ratios; like for like with --set initialise=false)")
     p.add_argument("--libm-survey", action="store_true",
                    help="also compare newlib's float sinf/cosf/asinf/atanf/expf/logf/atan2f with the host's, in ulps")
     p.add_argument("--no-pinned", action="store_true",
