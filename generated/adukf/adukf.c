@@ -4100,7 +4100,7 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
     float *const P_pred = s->work;
     float *const x_pred = s->work + 139;
     float *const x_new = x_pred + 7;
-    float r_new[6] = { 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f };
+    bool updated = false;   /* the measurement update was applied (its R goes to r_diag) */
     adukf_k_predict(s->q, s->gyro_bias, s->P, in->gyro, dt, x_pred, x_new, P_pred);
     for (uint32_t i = 4u; i < 7u; i++) {
         x_new[i] = x_pred[i];
@@ -4120,15 +4120,14 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
         /* Unscented measurement update; an unusable sensor gets finite dummy values and is
          * masked out after the innovation. */
         /* the accelerometer enters low-passed in NED (the low-pass starts at the first sample) */
-        float accel_body[3] = { 0.0f, 0.0f, -1.0f };
+        float accel_in[3] = { 0.0f, 0.0f, -1.0f };
         if (use_accel) {
             /* all three exactly 0 (x <= 0 && x >= 0: false for NaN, as x == 0) */
             const bool restart = s->accel_lp[0] <= 0.0f && s->accel_lp[0] >= 0.0f && s->accel_lp[1] <= 0.0f
                                  && s->accel_lp[1] >= 0.0f && s->accel_lp[2] <= 0.0f && s->accel_lp[2] >= 0.0f;
             adukf_k_accel_lowpass(x_new, in->accel, s->accel_lp, restart, dt,
-                                         s->accel_lp, accel_body);
+                                         s->accel_lp, accel_in);
         }
-        const float accel_in[3] = { accel_body[0], accel_body[1], accel_body[2] };
         const float mag_in[3] = { use_mag ? in->mag[0] : 1.0f, use_mag ? in->mag[1] : 0.0f,
                                      use_mag ? in->mag[2] : 0.0f };
         /* the update's matrices, over the sigma points' sums (dead once the innovation kernel,
@@ -4190,9 +4189,7 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
                 }
             } else {
                 adukf_k_correct(x_pred, P_pred, P_xz, residual, x_new, P_pred);
-                for (uint32_t i = 0u; i < 6u; i++) {
-                    r_new[i] = r_upd[i];
-                }
+                updated = true;
             }
         }
     }
@@ -4228,7 +4225,7 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
         s->P[i] = P_pred[i];
     }
     for (uint32_t i = 0u; i < 6u; i++) {
-        s->r_diag[i] = r_new[i];
+        s->r_diag[i] = updated ? s->work[133u + i] : 0.0f;   /* r_upd */
     }
 
     return status;
