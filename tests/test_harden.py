@@ -170,6 +170,16 @@ def test_fixed_fuzz_findings_stay_fixed(gen_dir):
         assert rc == 0, f"{reg['id']} ({reg['what']}) is back in {gen_dir.name}:\n{err[-1500:]}"
 
 
+def _plant_at_step_end(text: str, code: str) -> str:
+    """Insert code before the final `return status;` of qcf_step itself (other functions of the
+    file, such as qcf_check_inputs, end the same way)."""
+    step = text.index("qcf_status qcf_step(")
+    end = text.index("\n}\n", step)
+    marker = "\n    return status;"
+    at = text.rindex(marker, step, end)
+    return text[:at] + "\n" + code + text[at:]
+
+
 @needs_fuzzer
 def test_fuzz_harness_detects_a_broken_state(tmp_path):
     """Plant a bug in a copy of a generated filter (the step scales q by 1.001 on a GPS sample) and
@@ -181,10 +191,7 @@ def test_fuzz_harness_detects_a_broken_state(tmp_path):
     shutil.copy(src / "manifest.json", tmp_path / "manifest.json")
     c = tmp_path / man["files"]["source"]
     text = c.read_text()
-    marker = "\n    return status;\n}"
-    assert marker in text
-    text = text.replace(marker, "\n    if ((in->valid & 8u) != 0u) {\n        s->q[0] *= 1.001f;\n    }" + marker, 1)
-    c.write_text(text)
+    c.write_text(_plant_at_step_end(text, "    if ((in->valid & 8u) != 0u) {\n        s->q[0] *= 1.001f;\n    }"))
     data = harden.seed_inputs(man)["nominal"]
     rc, err = harden.replay(tmp_path, data)
     assert rc != 0 and "quaternion 0: | |q| - 1 |" in err, err[-2000:]
@@ -199,9 +206,10 @@ def test_fuzz_harness_detects_state_change_on_refusal(tmp_path):
     shutil.copy(src / "manifest.json", tmp_path / "manifest.json")
     c = tmp_path / man["files"]["source"]
     text = c.read_text()
-    old = "    if (!(dt > 0.0f && dt <= QCF_DT_MAX)) {\n"        # the refusal of a bad dt
-    assert old in text
-    c.write_text(text.replace(old, old + "        s->gps_age = 0.0f;\n", 1))
+    old = "    if (!(qcf_bits(dt) - 1u < qcf_bits(QCF_DT_MAX))) {\n"   # the step's refusal of a bad dt
+    step = text.index("qcf_status qcf_step(")
+    assert text.find(old, step) > step
+    c.write_text(text[:step] + text[step:].replace(old, old + "        s->gps_age = 0.0f;\n", 1))
     data = b"\x00" + harden.make_record(man, dt=1.0)
     rc, err = harden.replay(tmp_path, data)
     assert rc != 0 and "refused step changed the state" in err, err[-2000:]
@@ -251,8 +259,7 @@ def test_soak_flags_a_broken_filter(tmp_path):
     shutil.copy(src / "manifest.json", tmp_path / "manifest.json")
     c = tmp_path / man["files"]["source"]
     text = c.read_text()
-    marker = "\n    return status;\n}"
-    c.write_text(text.replace(marker, "\n    s->q[0] *= 1.0001f;" + marker, 1))
+    c.write_text(_plant_at_step_end(text, "    s->q[0] *= 1.0001f;"))
     r = harden.run_soak(tmp_path, steps=200_000, seed=7, glitch_rate=0.0)
     assert r["violations"] > 0 and "| |q| - 1 |" in r["first_violation"]
 
