@@ -1166,9 +1166,6 @@ void qcf_init(qcf_state *s)
     s->gps_vel_hist[0] = 0.0f;
     s->gps_vel_hist[1] = 0.0f;
     s->gps_vel_hist[2] = 0.0f;
-    s->motion_accel[0] = 0.0f;
-    s->motion_accel[1] = 0.0f;
-    s->motion_accel[2] = 0.0f;
     s->gps_age = 1000.0f;
     s->gps_count = 0u;
     s->initialised = 0u;

@@ -14,7 +14,7 @@
  *     every IMU sample: fill a qcf_input (set a VALID bit only for sensors that
  *     delivered a new sample), then qcf_status s = qcf_step(&st, &in, dt);
  *     qcf_euler(&st, rpy);
- * No heap, no recursion; RAM is the state struct (128 bytes with the usual ABI).
+ * No heap, no recursion; RAM is the state struct (116 bytes with the usual ABI).
  * Needs <math.h> (float functions only in a float build); compilers may also emit calls to
  * memcpy/memset/memmove for struct and array copies.
  *
@@ -106,9 +106,8 @@ typedef struct {
     float q[4];             /* attitude estimate, body->NED, [w x y z] */
     float gyro_bias[3];     /* gyro bias estimate b, rad/s */
     float gps_vel_hist[3];  /* latest GPS velocity (NED, m/s) */
-    float motion_accel[3];  /* latest GPS-derived motion acceleration a_{k-3}, NED, m/s^2 */
     float gps_age;          /* time since the last GPS sample, s */
-    uint32_t gps_count;     /* GPS samples in the history (saturates at 7) */
+    uint32_t gps_count;     /* GPS samples since the last gap (counting stops at 7) */
     uint32_t initialised;   /* 1 once the attitude has been initialised (tilt only), 2 with heading */
     float accel_lp[3];      /* low-passed specific force in NED, m/s^2 */
     float accel_age;        /* time since the last accelerometer sample, s */

@@ -80,9 +80,11 @@ class Model(FilterModel):
             StateField("gyro_bias", 3, "gyro bias estimate b, rad/s", 0.0),
             StateField("gps_vel_hist", 3 * gps_taps(p), "last 7 GPS velocities (NED, m/s), oldest first"
                        if gps_taps(p) > 1 else "latest GPS velocity (NED, m/s)", 0.0),
+        ] + ([
             StateField("motion_accel", 3, "latest GPS-derived motion acceleration a_{k-3}, NED, m/s^2", 0.0),
+        ] if p["motion_accel_model"] == "differentiator" else []) + [
             StateField("gps_age", 1, "time since the last GPS sample, s", 1e3),
-            StateField("gps_count", 1, "GPS samples in the history (saturates at 7)", 0, "uint32"),
+            StateField("gps_count", 1, "GPS samples since the last gap (counting stops at 7)", 0, "uint32"),
             StateField("initialised", 1, "1 once the attitude has been initialised" + (
                 " (tilt only), 2 with heading" if self.product else ""), 1 if p["faithful"] else 0, "uint32"),
         ] + ([] if not self.product else [
