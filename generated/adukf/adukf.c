@@ -4099,7 +4099,7 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
      * s->work (scratch, no meaning between steps), so its stack frame holds scalars and vectors. */
     float *const P_pred = s->work;
     float *const x_pred = s->work + 139;
-    float *const x_new = x_pred + 7;
+    float *const x_new = s->work + 146;
     bool updated = false;   /* the measurement update was applied (its R goes to r_diag) */
     adukf_k_predict(s->q, s->gyro_bias, s->P, in->gyro, dt, x_pred, x_new, P_pred);
     for (uint32_t i = 4u; i < 7u; i++) {
@@ -4133,14 +4133,14 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
         /* the update's matrices, over the sigma points' sums (dead once the innovation kernel,
          * which reads all its inputs before it writes, has run) */
         float *const P_zz = s->work + 49;
-        float *const P_xz = P_zz + 36;
-        float *const residual = P_xz + 42;
-        float *const r_upd = residual + 6;
+        float *const P_xz = s->work + 85;
+        float *const residual = s->work + 127;
+        float *const r_upd = s->work + 133;
         float *const aL = s->work + 49;
-        float *const z0 = aL + 28;
-        float *const zsum = z0 + 6;
-        float *const zz = zsum + 6;
-        float *const zdiff = zz + 21;
+        float *const z0 = s->work + 77;
+        float *const zsum = s->work + 83;
+        float *const zz = s->work + 89;
+        float *const zdiff = s->work + 110;
         float pivot_p;
         adukf_k_sigma_setup(x_pred, P_pred, s->m_ref, aL, z0, zsum, zz, &pivot_p);
         for (uint32_t j = 0u; j < 4u; j++) {

@@ -102,7 +102,7 @@ class Model(FilterModel):
         ] + ([StateField("sample_age", 2, "time since the last accelerometer / magnetometer sample, s", 0.0)]
              if self.own_rates() else []) + ([StateField("accel_lp", 3, "low-passed specific force in NED, m/s^2 (accel_tau > 0)", 0.0)]
              if self.lowpass() else []) + [
-            StateField("work", self.work_size(), "scratch of the step (P-, the update's matrices and sigma-point sums"
+            StateField("work", self.work_layout()["size"], "scratch of the step (P-, the update's matrices and sigma-point sums"
                        + (", x- and x+) " if n == 7 else ") ") +
                        "kept here instead of on the stack: no meaning between steps, zeroed when an update or its "
                        "result is refused", 0.0),
@@ -111,20 +111,28 @@ class Model(FilterModel):
             StateField("initialised", 1, "1 once the attitude has been initialised", 1 if p["faithful"] else 0, "uint32"),
         ]
 
-    def work_size(self) -> int:
-        """Floats of the step's scratch in the state: P_pred, then the update's P_zz, P_xz,
-        residual and R over the sigma points' aL, z0, zsum, zz, zdiff (dead once the innovation
-        kernel, which reads all its inputs before it writes, has run), then x_pred and x_new
-        (bias state)."""
-        return self.update_work_end() + (14 if self.n == 7 else 0)
-
-    def update_work_end(self) -> int:
-        """End of the update's scratch in work (x_pred and x_new follow it with the bias state)."""
+    def work_layout(self) -> dict:
+        """Offsets (floats) of the step's scratch in the state's `work`, the one place they are
+        derived (the template reads them): P_pred first; over it, from n*n on, the update's two
+        views of the same floats, dead in turn: the sigma points' aL, z0, zsum, zz, zdiff (read by
+        the innovation kernel, which reads all its inputs before it writes), then P_zz, P_xz,
+        the residual and R; then x_pred and x_new (bias state); `update_end` ends the update's
+        floats, `size` the whole scratch."""
         n = self.n
-        return n * n + max(36 + 6 * n + 6 + 6, 4 * n + 6 + 6 + 21 + 6 * N)
-
-    def template_work(self) -> dict:
-        return {"work": self.work_size(), "work_update_end": self.update_work_end(), "zz": len(_LOWER6)}
+        at = {"P_pred": 0, "P_zz": n * n}
+        at["P_xz"] = at["P_zz"] + 36
+        at["residual"] = at["P_xz"] + 6 * n
+        at["r_upd"] = at["residual"] + 6
+        at["aL"] = n * n
+        at["z0"] = at["aL"] + 4 * n
+        at["zsum"] = at["z0"] + 6
+        at["zz"] = at["zsum"] + 6
+        at["zdiff"] = at["zz"] + len(_LOWER6)
+        at["update_end"] = max(at["r_upd"] + 6, at["zdiff"] + 6 * N)
+        at["x_pred"] = at["update_end"]
+        at["x_new"] = at["x_pred"] + 7
+        at["size"] = at["update_end"] + (14 if n == 7 else 0)
+        return at
 
     def r_scale(self, dt, span):
         """dt / span, at least 1 / span_steps_max (a sample never counts for more steps than that:
@@ -394,4 +402,4 @@ class Model(FilterModel):
 
     def template_context(self):
         n = self.n
-        return {"learn": self.params["mag_ref"] == "learn", "n": n, "lowpass": self.lowpass(), "rated": self.own_rates(), "bias": n == 7, "xs": "q" if n == 4 else "x", **self.template_work()}
+        return {"learn": self.params["mag_ref"] == "learn", "n": n, "lowpass": self.lowpass(), "rated": self.own_rates(), "bias": n == 7, "xs": "q" if n == 4 else "x", "at": self.work_layout()}
