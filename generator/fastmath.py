@@ -116,25 +116,29 @@ HELPERS = {
 """, needs=("atan2",), max_abs_error=3.5e-7),
 }
 
-HELPERS["exp"] = Helper(
-    "fast_expf", "exp(x), every float: +inf above 88.72, 0 at and below -87.3 (where libm's results are "
-    "subnormal, < 1.2e-38); the relative error is stated above -87.3", """static float fast_expf(float x)
-{
-    if (!(x > -87.3f)) {
+# exp: below -87.3 the result is flushed to 0 (NaN kept); x = k ln2 + r, |r| <= ln2 / 2 (ln2 in
+# two parts), e^r by Cephes' minimax polynomial. Shared by fast_expf and exp_nonpos_source.
+_EXP_FLUSH = """    if (!(x > -87.3f)) {
         return isnan(x) ? x : 0.0f;   /* below FLT_MIN: flushed to zero */
     }
-    if (x > 88.7228391f) {
+"""
+_EXP_POLY = """    const float kf = (float)k;
+    const float r = (x - kf * 0.693359375f) - kf * (-2.12194440e-4f);
+    const float p = ((((1.9875691500e-4f * r + 1.3981999507e-3f) * r + 8.3334519073e-3f) * r
+                      + 4.1665795894e-2f) * r + 1.6666665459e-1f) * r + 5.0000001201e-1f;
+    const float e = p * (r * r) + r + 1.0f;
+"""
+
+HELPERS["exp"] = Helper(
+    "fast_expf", "exp(x), every float: +inf above 88.72, 0 at and below -87.3 (where libm's results are "
+    "subnormal, < 1.2e-38); the relative error is stated above -87.3", "static float fast_expf(float x)\n{\n"
+    + _EXP_FLUSH + """    if (x > 88.7228391f) {
         return INFINITY;
     }
     /* x = k ln2 + r, |r| <= ln2 / 2 (ln2 in two parts); e^r by Cephes' minimax polynomial */
     const float t = x * 1.44269504f;
     const int32_t k = (int32_t)((t >= 0.0f) ? t + 0.5f : t - 0.5f);
-    const float kf = (float)k;
-    const float r = (x - kf * 0.693359375f) - kf * (-2.12194440e-4f);
-    const float p = ((((1.9875691500e-4f * r + 1.3981999507e-3f) * r + 8.3334519073e-3f) * r
-                      + 4.1665795894e-2f) * r + 1.6666665459e-1f) * r + 5.0000001201e-1f;
-    const float e = p * (r * r) + r + 1.0f;
-    /* times 2^k as two exact powers of two (k in [-126, 128]) */
+""" + _EXP_POLY + """    /* times 2^k as two exact powers of two (k in [-126, 128]) */
     union { uint32_t u; float f; } s1, s2;
     const int32_t k1 = k / 2;
     s1.u = (uint32_t)(k1 + 127) << 23;
@@ -142,6 +146,20 @@ HELPERS["exp"] = Helper(
     return e * s1.f * s2.f;
 }
 """, max_rel_error=1.5e-7)
+
+
+def exp_nonpos_source(name: str) -> str:
+    """C of `static inline float name(float x)`: fast_expf for x <= 0 only, without its
+    overflow branch and with one scaling by 2^k (exact for k >= -126, x > -87.3): the same
+    float as fast_expf for every x <= 0 (NaN kept), in fewer instructions."""
+    return (f"static inline float {name}(float x)\n{{\n" + _EXP_FLUSH
+            + """    const float t = x * 1.44269504f;
+    const int32_t k = (int32_t)(t - 0.5f);                 /* round(t): t <= 0 */
+""" + _EXP_POLY + """    union { uint32_t u; float f; } scale;
+    scale.u = (uint32_t)(k + 127) << 23;                  /* 2^k, k in [-126, 0] */
+    return e * scale.f;
+}
+""")
 
 # CasADi operation -> helper (unary ops take {a}, atan2 takes {a}, {b}).
 OPS = {ca.OP_SIN: "sin", ca.OP_COS: "cos", ca.OP_ATAN2: "atan2", ca.OP_ASIN: "asin",

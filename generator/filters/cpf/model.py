@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import casadi as ca
 
+from generator import fastmath
 from generator.emit import function
 from generator.filters.cpf.prng import ZIG_F, ZIG_K, ZIG_R, ZIG_W, seed_state
 from generator.model import FilterModel, KernelSpec, StateField
@@ -161,7 +162,8 @@ class Model(FilterModel):
     def template_context(self):
         return {"n_particles": self.n, "mode": self.mode, "faithful": bool(self.params["faithful"]),
                 "ess_threshold": float(self.params["ess_threshold"]),
-                "zig_kw": list(zip(ZIG_K, ZIG_W)), "zig_f": ZIG_F, "zig_r": ZIG_R}
+                "zig_kw": list(zip(ZIG_K, ZIG_W)), "zig_f": ZIG_F, "zig_r": ZIG_R,
+                "exp_nonpos_source": fastmath.exp_nonpos_source}
 
     def step_paths(self):
         n = self.n
