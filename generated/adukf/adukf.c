@@ -895,7 +895,7 @@ static void adukf_k_predict_part15(const float q[4], const float P[49], float dt
 #if defined(__GNUC__)
 __attribute__((noinline))
 #endif
-static void adukf_k_predict(const float q[4], const float gyro_bias[3], const float P[49], const float gyro[3], float dt, float x_pred[7], float q_pred_unit[4], float P_pred[49])
+static void adukf_k_predict(const float q[4], const float gyro_bias[3], const float P[49], const float gyro[3], float dt, float x_pred[7], float q_pred_unit[4], float P_pred[28])
 {
     /* 16 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
     float carry[62];
@@ -933,53 +933,32 @@ static void adukf_k_predict(const float q[4], const float gyro_bias[3], const fl
     P_pred[4] = carry[35];
     P_pred[5] = carry[18];
     P_pred[6] = carry[26];
-    P_pred[7] = carry[30];
-    P_pred[8] = carry[15];
-    P_pred[9] = carry[16];
-    P_pred[10] = carry[29];
-    P_pred[11] = carry[50];
-    P_pred[12] = carry[54];
-    P_pred[13] = carry[24];
-    P_pred[14] = carry[0];
-    P_pred[15] = carry[16];
-    P_pred[16] = carry[1];
-    P_pred[17] = carry[4];
-    P_pred[18] = carry[48];
-    P_pred[19] = carry[58];
-    P_pred[20] = carry[61];
-    P_pred[21] = carry[28];
-    P_pred[22] = carry[29];
-    P_pred[23] = carry[4];
-    P_pred[24] = carry[2];
-    P_pred[25] = carry[27];
-    P_pred[26] = carry[23];
-    P_pred[27] = carry[25];
-    P_pred[28] = carry[35];
-    P_pred[29] = carry[50];
-    P_pred[30] = carry[48];
-    P_pred[31] = carry[27];
-    P_pred[32] = carry[5];
-    P_pred[33] = P[33];
-    P_pred[34] = P[34];
-    P_pred[35] = carry[18];
-    P_pred[36] = carry[54];
-    P_pred[37] = carry[58];
-    P_pred[38] = carry[23];
-    P_pred[39] = P[33];
-    P_pred[40] = carry[6];
-    P_pred[41] = P[41];
-    P_pred[42] = carry[26];
-    P_pred[43] = carry[24];
-    P_pred[44] = carry[61];
-    P_pred[45] = carry[25];
-    P_pred[46] = P[34];
-    P_pred[47] = P[41];
-    P_pred[48] = carry[7];
+    P_pred[7] = carry[15];
+    P_pred[8] = carry[16];
+    P_pred[9] = carry[29];
+    P_pred[10] = carry[50];
+    P_pred[11] = carry[54];
+    P_pred[12] = carry[24];
+    P_pred[13] = carry[1];
+    P_pred[14] = carry[4];
+    P_pred[15] = carry[48];
+    P_pred[16] = carry[58];
+    P_pred[17] = carry[61];
+    P_pred[18] = carry[2];
+    P_pred[19] = carry[27];
+    P_pred[20] = carry[23];
+    P_pred[21] = carry[25];
+    P_pred[22] = carry[5];
+    P_pred[23] = P[33];
+    P_pred[24] = P[34];
+    P_pred[25] = carry[6];
+    P_pred[26] = P[41];
+    P_pred[27] = carry[7];
 }
 
-/* L = chol(P-), aL = a L[:, 0:4] (the columns that move the attitude: a bias column moves none, so 9 distinct sigma points), z0 = h(q-), the sums zsum and zz cleared; pivot_P = smallest pivot of P-
+/* L = chol(P-), aL = a L[:, 0:4] (the columns that move the attitude: a bias column moves none, so 9 distinct sigma points), z0 = h(q-); pivot_P = smallest pivot of P-
  * ops: add 89, mul 129, div 7, sqrt 7, cmp 12 (total 244) */
-static void adukf_k_sigma_setup_part0(const float P_pred[49], float carry[49])
+static void adukf_k_sigma_setup_part0(const float P_pred[28], float carry[49])
 {
     const float tmp0 = (1e-15f /* pivot_min */ < P_pred[0]) ? P_pred[0] : 1.0f;
     const float tmp1 = 1.0f / tmp0;
@@ -999,26 +978,26 @@ static void adukf_k_sigma_setup_part0(const float P_pred[49], float carry[49])
     const float tmp15 = P_pred[6] * tmp2;
     const float tmp16 = 2.6457512f * tmp15;
     const float tmp17 = tmp5 * tmp5;
-    const float tmp18 = P_pred[8] - tmp17;
+    const float tmp18 = P_pred[7] - tmp17;
     const float tmp19 = (1e-15f /* pivot_min */ < tmp18) ? tmp18 : 1.0f;
     const float tmp20 = 1.0f / tmp19;
     const float tmp21 = sqrtf(tmp20);
     const float tmp22 = tmp19 * tmp21;
     const float tmp23 = 2.6457512f * tmp22;
     const float tmp24 = tmp7 * tmp5;
-    const float tmp25 = P_pred[9] - tmp24;
+    const float tmp25 = P_pred[8] - tmp24;
     const float tmp26 = tmp25 * tmp21;
     const float tmp27 = 2.6457512f * tmp26;
     const float tmp28 = tmp9 * tmp5;
-    const float tmp29 = P_pred[10] - tmp28;
+    const float tmp29 = P_pred[9] - tmp28;
     const float tmp30 = tmp29 * tmp21;
     const float tmp31 = 2.6457512f * tmp30;
     const float tmp32 = tmp11 * tmp5;
-    const float tmp33 = P_pred[11] - tmp32;
+    const float tmp33 = P_pred[10] - tmp32;
     const float tmp34 = tmp33 * tmp21;
     const float tmp35 = 2.6457512f * tmp34;
     const float tmp36 = tmp13 * tmp5;
-    const float tmp37 = P_pred[12] - tmp36;
+    const float tmp37 = P_pred[11] - tmp36;
     const float tmp38 = tmp37 * tmp21;
     const float tmp39 = 2.6457512f * tmp38;
     carry[0] = tmp4;
@@ -1047,14 +1026,14 @@ static void adukf_k_sigma_setup_part0(const float P_pred[49], float carry[49])
     carry[23] = tmp39;
 }
 
-static void adukf_k_sigma_setup_part1(const float P_pred[49], float carry[49])
+static void adukf_k_sigma_setup_part1(const float P_pred[28], float carry[49])
 {
     const float tmp40 = carry[11] * carry[1];
-    const float tmp41 = P_pred[13] - tmp40;
+    const float tmp41 = P_pred[12] - tmp40;
     const float tmp42 = tmp41 * carry[14];
     const float tmp43 = 2.6457512f * tmp42;
     const float tmp44 = carry[3] * carry[3];
-    const float tmp45 = P_pred[16] - tmp44;
+    const float tmp45 = P_pred[13] - tmp44;
     const float tmp46 = carry[16] * carry[16];
     const float tmp47 = tmp45 - tmp46;
     const float tmp48 = (1e-15f /* pivot_min */ < tmp47) ? tmp47 : 1.0f;
@@ -1063,31 +1042,31 @@ static void adukf_k_sigma_setup_part1(const float P_pred[49], float carry[49])
     const float tmp51 = tmp48 * tmp50;
     const float tmp52 = 2.6457512f * tmp51;
     const float tmp53 = carry[5] * carry[3];
-    const float tmp54 = P_pred[17] - tmp53;
+    const float tmp54 = P_pred[14] - tmp53;
     const float tmp55 = carry[18] * carry[16];
     const float tmp56 = tmp54 - tmp55;
     const float tmp57 = tmp56 * tmp50;
     const float tmp58 = 2.6457512f * tmp57;
     const float tmp59 = carry[7] * carry[3];
-    const float tmp60 = P_pred[18] - tmp59;
+    const float tmp60 = P_pred[15] - tmp59;
     const float tmp61 = carry[20] * carry[16];
     const float tmp62 = tmp60 - tmp61;
     const float tmp63 = tmp62 * tmp50;
     const float tmp64 = 2.6457512f * tmp63;
     const float tmp65 = carry[9] * carry[3];
-    const float tmp66 = P_pred[19] - tmp65;
+    const float tmp66 = P_pred[16] - tmp65;
     const float tmp67 = carry[22] * carry[16];
     const float tmp68 = tmp66 - tmp67;
     const float tmp69 = tmp68 * tmp50;
     const float tmp70 = 2.6457512f * tmp69;
     const float tmp71 = carry[11] * carry[3];
-    const float tmp72 = P_pred[20] - tmp71;
+    const float tmp72 = P_pred[17] - tmp71;
     const float tmp73 = tmp42 * carry[16];
     const float tmp74 = tmp72 - tmp73;
     const float tmp75 = tmp74 * tmp50;
     const float tmp76 = 2.6457512f * tmp75;
     const float tmp77 = carry[5] * carry[5];
-    const float tmp78 = P_pred[24] - tmp77;
+    const float tmp78 = P_pred[18] - tmp77;
     const float tmp79 = carry[18] * carry[18];
     carry[1] = tmp42;
     carry[3] = tmp43;
@@ -1105,7 +1084,7 @@ static void adukf_k_sigma_setup_part1(const float P_pred[49], float carry[49])
     carry[33] = tmp79;
 }
 
-static void adukf_k_sigma_setup_part2(const float x_pred[7], const float P_pred[49], float carry[49])
+static void adukf_k_sigma_setup_part2(const float x_pred[7], const float P_pred[28], float carry[49])
 {
     const float tmp80 = carry[32] - carry[33];
     const float tmp81 = carry[24] * carry[24];
@@ -1116,7 +1095,7 @@ static void adukf_k_sigma_setup_part2(const float x_pred[7], const float P_pred[
     const float tmp86 = tmp83 * tmp85;
     const float tmp87 = 2.6457512f * tmp86;
     const float tmp88 = carry[7] * carry[5];
-    const float tmp89 = P_pred[25] - tmp88;
+    const float tmp89 = P_pred[19] - tmp88;
     const float tmp90 = carry[20] * carry[18];
     const float tmp91 = tmp89 - tmp90;
     const float tmp92 = carry[26] * carry[24];
@@ -1124,7 +1103,7 @@ static void adukf_k_sigma_setup_part2(const float x_pred[7], const float P_pred[
     const float tmp94 = tmp93 * tmp85;
     const float tmp95 = 2.6457512f * tmp94;
     const float tmp96 = carry[9] * carry[5];
-    const float tmp97 = P_pred[26] - tmp96;
+    const float tmp97 = P_pred[20] - tmp96;
     const float tmp98 = carry[22] * carry[18];
     const float tmp99 = tmp97 - tmp98;
     const float tmp100 = carry[28] * carry[24];
@@ -1132,7 +1111,7 @@ static void adukf_k_sigma_setup_part2(const float x_pred[7], const float P_pred[
     const float tmp102 = tmp101 * tmp85;
     const float tmp103 = 2.6457512f * tmp102;
     const float tmp104 = carry[11] * carry[5];
-    const float tmp105 = P_pred[27] - tmp104;
+    const float tmp105 = P_pred[21] - tmp104;
     const float tmp106 = carry[1] * carry[18];
     const float tmp107 = tmp105 - tmp106;
     const float tmp108 = carry[30] * carry[24];
@@ -1214,7 +1193,7 @@ static void adukf_k_sigma_setup_part3(const float x_pred[7], const float m_ref[3
     carry[48] = tmp159;
 }
 
-static void adukf_k_sigma_setup_part4(const float P_pred[49], const float m_ref[3], float carry[49])
+static void adukf_k_sigma_setup_part4(const float P_pred[28], const float m_ref[3], float carry[49])
 {
     const float tmp160 = carry[48] * m_ref[1];
     const float tmp161 = carry[47] + tmp160;
@@ -1233,7 +1212,7 @@ static void adukf_k_sigma_setup_part4(const float P_pred[49], const float m_ref[
     const float tmp174 = (tmp173 < carry[14]) ? tmp173 : carry[14];
     const float tmp175 = (tmp174 < carry[5]) ? tmp174 : carry[5];
     const float tmp176 = carry[7] * carry[7];
-    const float tmp177 = P_pred[32] - tmp176;
+    const float tmp177 = P_pred[22] - tmp176;
     const float tmp178 = carry[20] * carry[20];
     const float tmp179 = tmp177 - tmp178;
     const float tmp180 = carry[26] * carry[26];
@@ -1242,7 +1221,7 @@ static void adukf_k_sigma_setup_part4(const float P_pred[49], const float m_ref[
     const float tmp183 = tmp181 - tmp182;
     const float tmp184 = (tmp175 < tmp183) ? tmp175 : tmp183;
     const float tmp185 = carry[9] * carry[9];
-    const float tmp186 = P_pred[40] - tmp185;
+    const float tmp186 = P_pred[25] - tmp185;
     const float tmp187 = carry[22] * carry[22];
     const float tmp188 = tmp186 - tmp187;
     const float tmp189 = carry[28] * carry[28];
@@ -1250,7 +1229,7 @@ static void adukf_k_sigma_setup_part4(const float P_pred[49], const float m_ref[
     const float tmp191 = carry[33] * carry[33];
     const float tmp192 = tmp190 - tmp191;
     const float tmp193 = carry[9] * carry[7];
-    const float tmp194 = P_pred[33] - tmp193;
+    const float tmp194 = P_pred[23] - tmp193;
     const float tmp195 = carry[22] * carry[20];
     const float tmp196 = tmp194 - tmp195;
     const float tmp197 = carry[28] * carry[26];
@@ -1265,7 +1244,7 @@ static void adukf_k_sigma_setup_part4(const float P_pred[49], const float m_ref[
     carry[41] = tmp199;
 }
 
-static void adukf_k_sigma_setup_part5(const float P_pred[49], float carry[49])
+static void adukf_k_sigma_setup_part5(const float P_pred[28], float carry[49])
 {
     const float tmp200 = carry[40] - carry[41];
     const float tmp201 = (1e-15f /* pivot_min */ < carry[14]) ? carry[14] : 1.0f;
@@ -1276,7 +1255,7 @@ static void adukf_k_sigma_setup_part5(const float P_pred[49], float carry[49])
     const float tmp206 = carry[38] - tmp205;
     const float tmp207 = (carry[37] < tmp206) ? carry[37] : tmp206;
     const float tmp208 = carry[11] * carry[11];
-    const float tmp209 = P_pred[48] - tmp208;
+    const float tmp209 = P_pred[27] - tmp208;
     const float tmp210 = carry[1] * carry[1];
     const float tmp211 = tmp209 - tmp210;
     const float tmp212 = carry[30] * carry[30];
@@ -1284,7 +1263,7 @@ static void adukf_k_sigma_setup_part5(const float P_pred[49], float carry[49])
     const float tmp214 = carry[35] * carry[35];
     const float tmp215 = tmp213 - tmp214;
     const float tmp216 = carry[11] * carry[7];
-    const float tmp217 = P_pred[34] - tmp216;
+    const float tmp217 = P_pred[24] - tmp216;
     const float tmp218 = carry[1] * carry[20];
     const float tmp219 = tmp217 - tmp218;
     const float tmp220 = carry[30] * carry[26];
@@ -1295,7 +1274,7 @@ static void adukf_k_sigma_setup_part5(const float P_pred[49], float carry[49])
     const float tmp225 = tmp224 * tmp224;
     const float tmp226 = tmp215 - tmp225;
     const float tmp227 = carry[11] * carry[9];
-    const float tmp228 = P_pred[41] - tmp227;
+    const float tmp228 = P_pred[26] - tmp227;
     const float tmp229 = carry[1] * carry[22];
     const float tmp230 = tmp228 - tmp229;
     const float tmp231 = carry[30] * carry[28];
@@ -1325,7 +1304,7 @@ static void adukf_k_sigma_setup_part6(float carry[49])
 #if defined(__GNUC__)
 __attribute__((noinline))
 #endif
-static void adukf_k_sigma_setup(const float x_pred[7], const float P_pred[49], const float m_ref[3], float aL[28], float z0[6], float zsum[6], float zz[21], float *pivot_P)
+static void adukf_k_sigma_setup(const float x_pred[7], const float P_pred[28], const float m_ref[3], float aL[28], float z0[6], float *pivot_P)
 {
     /* 7 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
     float carry[49];
@@ -1370,39 +1349,12 @@ static void adukf_k_sigma_setup(const float x_pred[7], const float P_pred[49], c
     z0[3] = carry[46];
     z0[4] = carry[5];
     z0[5] = carry[13];
-    zsum[0] = 0.0f;
-    zsum[1] = 0.0f;
-    zsum[2] = 0.0f;
-    zsum[3] = 0.0f;
-    zsum[4] = 0.0f;
-    zsum[5] = 0.0f;
-    zz[0] = 0.0f;
-    zz[1] = 0.0f;
-    zz[2] = 0.0f;
-    zz[3] = 0.0f;
-    zz[4] = 0.0f;
-    zz[5] = 0.0f;
-    zz[6] = 0.0f;
-    zz[7] = 0.0f;
-    zz[8] = 0.0f;
-    zz[9] = 0.0f;
-    zz[10] = 0.0f;
-    zz[11] = 0.0f;
-    zz[12] = 0.0f;
-    zz[13] = 0.0f;
-    zz[14] = 0.0f;
-    zz[15] = 0.0f;
-    zz[16] = 0.0f;
-    zz[17] = 0.0f;
-    zz[18] = 0.0f;
-    zz[19] = 0.0f;
-    zz[20] = 0.0f;
     *pivot_P = carry[1];
 }
 
-/* sigma points q- + col and q- - col, each normalised and mapped through h, as deviations e+, e- from z0: zsum + e+ + e-, zz + e+ e+^T + e- e-^T (lower triangle, row by row), e+ - e- (called once per column of aL)
- * ops: add 140, mul 94, div 2, sqrt 2 (total 238) */
-static void adukf_k_sigma_pair_part0(const float q_pred[4], const float col[4], const float z0[6], const float zsum[6], float carry[35])
+/* sigma points q- + col and q- - col, each normalised and mapped through h, as deviations e+, e- from z0: e+ + e- and e+ - e- (called once per column of aL)
+ * ops: add 95, mul 52, div 2, sqrt 2 (total 151) */
+static void adukf_k_sigma_pair_part0(const float q_pred[4], const float col[4], const float z0[6], float carry[35])
 {
     const float tmp0 = q_pred[1] + col[1];
     const float tmp1 = q_pred[0] + col[0];
@@ -1426,24 +1378,24 @@ static void adukf_k_sigma_pair_part0(const float q_pred[4], const float col[4], 
     const float tmp19 = tmp15 - tmp18;
     const float tmp20 = tmp19 + tmp19;
     const float tmp21 = tmp20 + z0[0];
-    const float tmp22 = zsum[0] - tmp21;
-    const float tmp23 = q_pred[1] - col[1];
-    const float tmp24 = q_pred[0] - col[0];
-    const float tmp25 = tmp24 * tmp24;
-    const float tmp26 = tmp23 * tmp23;
-    const float tmp27 = tmp25 + tmp26;
-    const float tmp28 = q_pred[2] - col[2];
-    const float tmp29 = tmp28 * tmp28;
-    const float tmp30 = tmp27 + tmp29;
-    const float tmp31 = q_pred[3] - col[3];
-    const float tmp32 = tmp31 * tmp31;
-    const float tmp33 = tmp30 + tmp32;
-    const float tmp34 = 1.0f / tmp33;
-    const float tmp35 = sqrtf(tmp34);
-    const float tmp36 = tmp23 * tmp35;
-    const float tmp37 = tmp31 * tmp35;
-    const float tmp38 = tmp36 * tmp37;
-    const float tmp39 = tmp24 * tmp35;
+    const float tmp22 = q_pred[1] - col[1];
+    const float tmp23 = q_pred[0] - col[0];
+    const float tmp24 = tmp23 * tmp23;
+    const float tmp25 = tmp22 * tmp22;
+    const float tmp26 = tmp24 + tmp25;
+    const float tmp27 = q_pred[2] - col[2];
+    const float tmp28 = tmp27 * tmp27;
+    const float tmp29 = tmp26 + tmp28;
+    const float tmp30 = q_pred[3] - col[3];
+    const float tmp31 = tmp30 * tmp30;
+    const float tmp32 = tmp29 + tmp31;
+    const float tmp33 = 1.0f / tmp32;
+    const float tmp34 = sqrtf(tmp33);
+    const float tmp35 = tmp22 * tmp34;
+    const float tmp36 = tmp30 * tmp34;
+    const float tmp37 = tmp35 * tmp36;
+    const float tmp38 = tmp23 * tmp34;
+    const float tmp39 = tmp27 * tmp34;
     carry[0] = tmp13;
     carry[1] = tmp14;
     carry[2] = tmp15;
@@ -1452,49 +1404,47 @@ static void adukf_k_sigma_pair_part0(const float q_pred[4], const float col[4], 
     carry[5] = tmp18;
     carry[6] = tmp20;
     carry[7] = tmp21;
-    carry[8] = tmp22;
-    carry[9] = tmp28;
-    carry[10] = tmp35;
-    carry[11] = tmp36;
-    carry[12] = tmp37;
-    carry[13] = tmp38;
-    carry[14] = tmp39;
+    carry[8] = tmp35;
+    carry[9] = tmp36;
+    carry[10] = tmp37;
+    carry[11] = tmp38;
+    carry[12] = tmp39;
 }
 
-static void adukf_k_sigma_pair_part1(const float m_ref[3], const float z0[6], const float zsum[6], float carry[35])
+static void adukf_k_sigma_pair_part1(const float m_ref[3], const float z0[6], float carry[35])
 {
-    const float tmp40 = carry[9] * carry[10];
-    const float tmp41 = carry[14] * tmp40;
-    const float tmp42 = carry[13] - tmp41;
-    const float tmp43 = tmp42 + tmp42;
-    const float tmp44 = tmp43 + z0[0];
-    const float tmp45 = carry[8] - tmp44;
+    const float tmp40 = carry[11] * carry[12];
+    const float tmp41 = carry[10] - tmp40;
+    const float tmp42 = tmp41 + tmp41;
+    const float tmp43 = tmp42 + z0[0];
+    const float tmp44 = carry[7] + tmp43;
+    const float tmp45 = -tmp44;
     const float tmp46 = carry[4] * carry[1];
     const float tmp47 = carry[3] * carry[0];
     const float tmp48 = tmp46 + tmp47;
     const float tmp49 = tmp48 + tmp48;
     const float tmp50 = tmp49 + z0[1];
-    const float tmp51 = zsum[1] - tmp50;
-    const float tmp52 = tmp40 * carry[12];
-    const float tmp53 = carry[14] * carry[11];
-    const float tmp54 = tmp52 + tmp53;
-    const float tmp55 = tmp54 + tmp54;
-    const float tmp56 = tmp55 + z0[1];
-    const float tmp57 = tmp51 - tmp56;
+    const float tmp51 = carry[12] * carry[9];
+    const float tmp52 = carry[11] * carry[8];
+    const float tmp53 = tmp51 + tmp52;
+    const float tmp54 = tmp53 + tmp53;
+    const float tmp55 = tmp54 + z0[1];
+    const float tmp56 = tmp50 + tmp55;
+    const float tmp57 = -tmp56;
     const float tmp58 = carry[0] * carry[0];
     const float tmp59 = carry[4] * carry[4];
     const float tmp60 = tmp58 + tmp59;
     const float tmp61 = tmp60 + tmp60;
     const float tmp62 = 1.0f - tmp61;
     const float tmp63 = tmp62 + z0[2];
-    const float tmp64 = zsum[2] - tmp63;
-    const float tmp65 = carry[11] * carry[11];
-    const float tmp66 = tmp40 * tmp40;
-    const float tmp67 = tmp65 + tmp66;
-    const float tmp68 = tmp67 + tmp67;
-    const float tmp69 = 1.0f - tmp68;
-    const float tmp70 = tmp69 + z0[2];
-    const float tmp71 = tmp64 - tmp70;
+    const float tmp64 = carry[8] * carry[8];
+    const float tmp65 = carry[12] * carry[12];
+    const float tmp66 = tmp64 + tmp65;
+    const float tmp67 = tmp66 + tmp66;
+    const float tmp68 = 1.0f - tmp67;
+    const float tmp69 = tmp68 + z0[2];
+    const float tmp70 = tmp63 + tmp69;
+    const float tmp71 = -tmp70;
     const float tmp72 = carry[1] * carry[1];
     const float tmp73 = tmp59 + tmp72;
     const float tmp74 = tmp73 + tmp73;
@@ -1504,26 +1454,25 @@ static void adukf_k_sigma_pair_part1(const float m_ref[3], const float z0[6], co
     const float tmp78 = carry[3] * carry[1];
     const float tmp79 = tmp77 + tmp78;
     carry[0] = tmp40;
-    carry[1] = tmp41;
+    carry[1] = tmp42;
     carry[3] = tmp43;
-    carry[4] = tmp44;
-    carry[8] = tmp45;
-    carry[9] = tmp46;
-    carry[10] = tmp47;
+    carry[4] = tmp45;
+    carry[13] = tmp46;
+    carry[14] = tmp47;
     carry[15] = tmp49;
     carry[16] = tmp50;
-    carry[17] = tmp52;
-    carry[18] = tmp53;
-    carry[19] = tmp55;
-    carry[20] = tmp56;
+    carry[17] = tmp51;
+    carry[18] = tmp52;
+    carry[19] = tmp54;
+    carry[20] = tmp55;
     carry[21] = tmp57;
     carry[22] = tmp58;
     carry[23] = tmp62;
     carry[24] = tmp63;
-    carry[25] = tmp65;
-    carry[26] = tmp66;
-    carry[27] = tmp69;
-    carry[28] = tmp70;
+    carry[25] = tmp64;
+    carry[26] = tmp65;
+    carry[27] = tmp68;
+    carry[28] = tmp69;
     carry[29] = tmp71;
     carry[30] = tmp72;
     carry[31] = tmp76;
@@ -1532,7 +1481,7 @@ static void adukf_k_sigma_pair_part1(const float m_ref[3], const float z0[6], co
     carry[34] = tmp79;
 }
 
-static void adukf_k_sigma_pair_part2(const float m_ref[3], const float z0[6], const float zsum[6], float carry[35])
+static void adukf_k_sigma_pair_part2(const float m_ref[3], const float z0[6], float carry[35])
 {
     const float tmp80 = carry[34] + carry[34];
     const float tmp81 = tmp80 * m_ref[1];
@@ -1540,1503 +1489,1571 @@ static void adukf_k_sigma_pair_part2(const float m_ref[3], const float z0[6], co
     const float tmp83 = carry[6] * m_ref[2];
     const float tmp84 = tmp82 + tmp83;
     const float tmp85 = tmp84 - z0[3];
-    const float tmp86 = zsum[3] + tmp85;
-    const float tmp87 = carry[12] * carry[12];
-    const float tmp88 = carry[26] + tmp87;
-    const float tmp89 = tmp88 + tmp88;
-    const float tmp90 = 1.0f - tmp89;
-    const float tmp91 = tmp90 * m_ref[0];
-    const float tmp92 = carry[11] * carry[0];
-    const float tmp93 = carry[14] * carry[12];
-    const float tmp94 = tmp92 + tmp93;
-    const float tmp95 = tmp94 + tmp94;
-    const float tmp96 = tmp95 * m_ref[1];
-    const float tmp97 = tmp91 + tmp96;
-    const float tmp98 = carry[3] * m_ref[2];
-    const float tmp99 = tmp97 + tmp98;
-    const float tmp100 = tmp99 - z0[3];
-    const float tmp101 = tmp86 + tmp100;
-    const float tmp102 = carry[32] - carry[33];
-    const float tmp103 = tmp102 + tmp102;
-    const float tmp104 = tmp103 * m_ref[0];
-    const float tmp105 = carry[22] + carry[30];
-    const float tmp106 = tmp105 + tmp105;
-    const float tmp107 = 1.0f - tmp106;
-    const float tmp108 = tmp107 * m_ref[1];
-    const float tmp109 = tmp104 + tmp108;
-    const float tmp110 = carry[15] * m_ref[2];
-    const float tmp111 = tmp109 + tmp110;
-    const float tmp112 = tmp111 - z0[4];
-    const float tmp113 = zsum[4] + tmp112;
-    const float tmp114 = tmp92 - tmp93;
-    const float tmp115 = tmp114 + tmp114;
-    const float tmp116 = tmp115 * m_ref[0];
-    const float tmp117 = carry[25] + tmp87;
-    const float tmp118 = tmp117 + tmp117;
-    const float tmp119 = 1.0f - tmp118;
-    carry[0] = tmp85;
-    carry[3] = tmp100;
-    carry[6] = tmp101;
-    carry[11] = tmp112;
-    carry[12] = tmp113;
-    carry[14] = tmp116;
-    carry[15] = tmp119;
-}
-
-static void adukf_k_sigma_pair_part3(const float m_ref[3], const float z0[6], const float zsum[6], const float zz[21], float carry[35])
-{
-    const float tmp120 = carry[15] * m_ref[1];
-    const float tmp121 = carry[14] + tmp120;
-    const float tmp122 = carry[19] * m_ref[2];
-    const float tmp123 = tmp121 + tmp122;
-    const float tmp124 = tmp123 - z0[4];
-    const float tmp125 = carry[12] + tmp124;
-    const float tmp126 = carry[2] + carry[5];
-    const float tmp127 = tmp126 + tmp126;
-    const float tmp128 = tmp127 * m_ref[0];
-    const float tmp129 = carry[9] - carry[10];
-    const float tmp130 = tmp129 + tmp129;
-    const float tmp131 = tmp130 * m_ref[1];
-    const float tmp132 = tmp128 + tmp131;
-    const float tmp133 = carry[23] * m_ref[2];
-    const float tmp134 = tmp132 + tmp133;
-    const float tmp135 = tmp134 - z0[5];
-    const float tmp136 = zsum[5] + tmp135;
-    const float tmp137 = carry[13] + carry[1];
-    const float tmp138 = tmp137 + tmp137;
-    const float tmp139 = tmp138 * m_ref[0];
-    const float tmp140 = carry[17] - carry[18];
-    const float tmp141 = tmp140 + tmp140;
-    const float tmp142 = tmp141 * m_ref[1];
-    const float tmp143 = tmp139 + tmp142;
-    const float tmp144 = carry[27] * m_ref[2];
-    const float tmp145 = tmp143 + tmp144;
-    const float tmp146 = tmp145 - z0[5];
-    const float tmp147 = tmp136 + tmp146;
-    const float tmp148 = carry[7] * carry[7];
-    const float tmp149 = carry[4] * carry[4];
-    const float tmp150 = tmp148 + tmp149;
-    const float tmp151 = zz[0] + tmp150;
-    const float tmp152 = carry[16] * carry[7];
-    const float tmp153 = carry[20] * carry[4];
-    const float tmp154 = tmp152 + tmp153;
-    const float tmp155 = zz[1] + tmp154;
-    const float tmp156 = carry[16] * carry[16];
-    const float tmp157 = carry[20] * carry[20];
-    const float tmp158 = tmp156 + tmp157;
-    const float tmp159 = zz[2] + tmp158;
-    carry[1] = tmp124;
-    carry[2] = tmp125;
-    carry[5] = tmp135;
-    carry[9] = tmp146;
-    carry[10] = tmp147;
-    carry[12] = tmp151;
-    carry[13] = tmp155;
-    carry[14] = tmp159;
-}
-
-static void adukf_k_sigma_pair_part4(const float zz[21], float carry[35])
-{
-    const float tmp160 = carry[24] * carry[7];
-    const float tmp161 = carry[28] * carry[4];
-    const float tmp162 = tmp160 + tmp161;
-    const float tmp163 = zz[3] + tmp162;
-    const float tmp164 = carry[24] * carry[16];
-    const float tmp165 = carry[28] * carry[20];
-    const float tmp166 = tmp164 + tmp165;
-    const float tmp167 = zz[4] + tmp166;
-    const float tmp168 = carry[24] * carry[24];
-    const float tmp169 = carry[28] * carry[28];
-    const float tmp170 = tmp168 + tmp169;
-    const float tmp171 = zz[5] + tmp170;
-    const float tmp172 = carry[0] * carry[7];
-    const float tmp173 = carry[3] * carry[4];
-    const float tmp174 = tmp172 + tmp173;
-    const float tmp175 = zz[6] - tmp174;
-    const float tmp176 = carry[0] * carry[16];
-    const float tmp177 = carry[3] * carry[20];
-    const float tmp178 = tmp176 + tmp177;
-    const float tmp179 = zz[7] - tmp178;
-    const float tmp180 = carry[0] * carry[24];
-    const float tmp181 = carry[3] * carry[28];
-    const float tmp182 = tmp180 + tmp181;
-    const float tmp183 = zz[8] - tmp182;
-    const float tmp184 = carry[0] * carry[0];
-    const float tmp185 = carry[3] * carry[3];
-    const float tmp186 = tmp184 + tmp185;
-    const float tmp187 = zz[9] + tmp186;
-    const float tmp188 = carry[11] * carry[7];
-    const float tmp189 = carry[1] * carry[4];
-    const float tmp190 = tmp188 + tmp189;
-    const float tmp191 = zz[10] - tmp190;
-    const float tmp192 = carry[11] * carry[16];
-    const float tmp193 = carry[1] * carry[20];
-    const float tmp194 = tmp192 + tmp193;
-    const float tmp195 = zz[11] - tmp194;
-    const float tmp196 = carry[11] * carry[24];
-    const float tmp197 = carry[1] * carry[28];
-    const float tmp198 = tmp196 + tmp197;
-    const float tmp199 = zz[12] - tmp198;
-    carry[15] = tmp163;
-    carry[17] = tmp167;
-    carry[18] = tmp171;
-    carry[19] = tmp175;
-    carry[22] = tmp179;
-    carry[23] = tmp183;
-    carry[25] = tmp187;
-    carry[26] = tmp191;
-    carry[27] = tmp195;
-    carry[30] = tmp199;
-}
-
-static void adukf_k_sigma_pair_part5(const float zz[21], float carry[35])
-{
-    const float tmp200 = carry[11] * carry[0];
-    const float tmp201 = carry[1] * carry[3];
-    const float tmp202 = tmp200 + tmp201;
-    const float tmp203 = zz[13] + tmp202;
-    const float tmp204 = carry[11] * carry[11];
-    const float tmp205 = carry[1] * carry[1];
-    const float tmp206 = tmp204 + tmp205;
-    const float tmp207 = zz[14] + tmp206;
-    const float tmp208 = carry[5] * carry[7];
-    const float tmp209 = carry[9] * carry[4];
-    const float tmp210 = tmp208 + tmp209;
-    const float tmp211 = zz[15] - tmp210;
-    const float tmp212 = carry[5] * carry[16];
-    const float tmp213 = carry[9] * carry[20];
-    const float tmp214 = tmp212 + tmp213;
-    const float tmp215 = zz[16] - tmp214;
-    const float tmp216 = carry[5] * carry[24];
-    const float tmp217 = carry[9] * carry[28];
-    const float tmp218 = tmp216 + tmp217;
-    const float tmp219 = zz[17] - tmp218;
-    const float tmp220 = carry[5] * carry[0];
-    const float tmp221 = carry[9] * carry[3];
-    const float tmp222 = tmp220 + tmp221;
-    const float tmp223 = zz[18] + tmp222;
-    const float tmp224 = carry[5] * carry[11];
-    const float tmp225 = carry[9] * carry[1];
-    const float tmp226 = tmp224 + tmp225;
-    const float tmp227 = zz[19] + tmp226;
-    const float tmp228 = carry[5] * carry[5];
-    const float tmp229 = carry[9] * carry[9];
-    const float tmp230 = tmp228 + tmp229;
-    const float tmp231 = zz[20] + tmp230;
-    const float tmp232 = carry[4] - carry[7];
-    const float tmp233 = carry[20] - carry[16];
-    const float tmp234 = carry[28] - carry[24];
-    const float tmp235 = carry[0] - carry[3];
-    const float tmp236 = carry[11] - carry[1];
-    const float tmp237 = carry[5] - carry[9];
-    carry[0] = tmp203;
-    carry[1] = tmp207;
-    carry[3] = tmp211;
-    carry[4] = tmp215;
-    carry[5] = tmp219;
-    carry[7] = tmp223;
-    carry[9] = tmp227;
-    carry[11] = tmp231;
-    carry[16] = tmp232;
-    carry[20] = tmp233;
-    carry[24] = tmp234;
-    carry[28] = tmp235;
-    carry[31] = tmp236;
-    carry[32] = tmp237;
-}
-
-static void adukf_k_sigma_pair(const float q_pred[4], const float col[4], const float m_ref[3], const float z0[6], const float zsum[6], const float zz[21], float zsum_new[6], float zz_new[21], float zdiff[6])
-{
-    /* 6 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
-    float carry[35];
-    adukf_k_sigma_pair_part0(q_pred, col, z0, zsum, carry);
-    adukf_k_sigma_pair_part1(m_ref, z0, zsum, carry);
-    adukf_k_sigma_pair_part2(m_ref, z0, zsum, carry);
-    adukf_k_sigma_pair_part3(m_ref, z0, zsum, zz, carry);
-    adukf_k_sigma_pair_part4(zz, carry);
-    adukf_k_sigma_pair_part5(zz, carry);
-    zsum_new[0] = carry[8];
-    zsum_new[1] = carry[21];
-    zsum_new[2] = carry[29];
-    zsum_new[3] = carry[6];
-    zsum_new[4] = carry[2];
-    zsum_new[5] = carry[10];
-    zz_new[0] = carry[12];
-    zz_new[1] = carry[13];
-    zz_new[2] = carry[14];
-    zz_new[3] = carry[15];
-    zz_new[4] = carry[17];
-    zz_new[5] = carry[18];
-    zz_new[6] = carry[19];
-    zz_new[7] = carry[22];
-    zz_new[8] = carry[23];
-    zz_new[9] = carry[25];
-    zz_new[10] = carry[26];
-    zz_new[11] = carry[27];
-    zz_new[12] = carry[30];
-    zz_new[13] = carry[0];
-    zz_new[14] = carry[1];
-    zz_new[15] = carry[3];
-    zz_new[16] = carry[4];
-    zz_new[17] = carry[5];
-    zz_new[18] = carry[7];
-    zz_new[19] = carry[9];
-    zz_new[20] = carry[11];
-    zdiff[0] = carry[16];
-    zdiff[1] = carry[20];
-    zdiff[2] = carry[24];
-    zdiff[3] = carry[28];
-    zdiff[4] = carry[31];
-    zdiff[5] = carry[32];
-}
-
-/* predicted measurement, residual, adaptive per-axis R, P_zz and P_xz from the accumulated sigma-point deviations
- * ops: add 139, mul 234, div 4, sqrt 2, cmp 8 (total 387) */
-static void adukf_k_innovation_part0(const float z0[6], const float zsum[6], const float zz[21], const float accel[3], float dt, const float span[2], float carry[76])
-{
-    const float tmp0 = 0.071428575f * zz[0];
-    const float tmp1 = 0.071428575f * zsum[0];
-    const float tmp2 = tmp1 * tmp1;
-    const float tmp3 = tmp0 + tmp2;
-    const float tmp4 = accel[0] * accel[0];
-    const float tmp5 = accel[1] * accel[1];
-    const float tmp6 = tmp4 + tmp5;
-    const float tmp7 = accel[2] * accel[2];
-    const float tmp8 = tmp6 + tmp7;
-    const float tmp9 = 1.0f / tmp8;
-    const float tmp10 = sqrtf(tmp9);
-    const float tmp11 = accel[0] * tmp10;
-    const float tmp12 = z0[0] + tmp1;
-    const float tmp13 = tmp11 - tmp12;
-    const float tmp14 = tmp13 * tmp13;
-    const float tmp15 = 300.0f * tmp14;
-    const float tmp16 = (tmp15 < 10.0f) ? tmp15 : 10.0f;
-    const float tmp17 = 0.0025f + tmp16;
-    const float tmp18 = dt / span[0];
-    const float tmp19 = (tmp18 > 0.1f) ? tmp18 : 0.1f;
-    const float tmp20 = tmp17 * tmp19;
-    const float tmp21 = tmp3 + tmp20;
-    const float tmp22 = 0.071428575f * zz[1];
-    const float tmp23 = 0.071428575f * zsum[1];
-    const float tmp24 = tmp23 * tmp1;
-    const float tmp25 = tmp22 + tmp24;
-    const float tmp26 = 0.071428575f * zz[3];
-    const float tmp27 = 0.071428575f * zsum[2];
-    const float tmp28 = tmp27 * tmp1;
-    const float tmp29 = tmp26 + tmp28;
-    const float tmp30 = 0.071428575f * zz[6];
-    const float tmp31 = 0.071428575f * zsum[3];
-    const float tmp32 = tmp31 * tmp1;
-    const float tmp33 = tmp30 + tmp32;
-    const float tmp34 = 0.071428575f * zz[10];
-    const float tmp35 = 0.071428575f * zsum[4];
-    const float tmp36 = tmp35 * tmp1;
-    const float tmp37 = tmp34 + tmp36;
-    const float tmp38 = 0.071428575f * zz[15];
-    const float tmp39 = 0.071428575f * zsum[5];
-    carry[0] = tmp1;
-    carry[1] = tmp10;
-    carry[2] = tmp13;
-    carry[3] = tmp19;
-    carry[4] = tmp20;
-    carry[5] = tmp21;
-    carry[6] = tmp23;
-    carry[7] = tmp25;
-    carry[8] = tmp27;
-    carry[9] = tmp29;
-    carry[10] = tmp31;
-    carry[11] = tmp33;
-    carry[12] = tmp35;
-    carry[13] = tmp37;
-    carry[14] = tmp38;
-    carry[15] = tmp39;
-}
-
-static void adukf_k_innovation_part1(const float z0[6], const float zz[21], const float accel[3], float carry[76])
-{
-    const float tmp40 = carry[15] * carry[0];
-    const float tmp41 = carry[14] + tmp40;
-    const float tmp42 = 0.071428575f * zz[2];
-    const float tmp43 = carry[6] * carry[6];
-    const float tmp44 = tmp42 + tmp43;
-    const float tmp45 = accel[1] * carry[1];
-    const float tmp46 = z0[1] + carry[6];
-    const float tmp47 = tmp45 - tmp46;
-    const float tmp48 = tmp47 * tmp47;
-    const float tmp49 = 300.0f * tmp48;
-    const float tmp50 = (tmp49 < 10.0f) ? tmp49 : 10.0f;
-    const float tmp51 = 0.0025f + tmp50;
-    const float tmp52 = tmp51 * carry[3];
-    const float tmp53 = tmp44 + tmp52;
-    const float tmp54 = 0.071428575f * zz[4];
-    const float tmp55 = carry[8] * carry[6];
-    const float tmp56 = tmp54 + tmp55;
-    const float tmp57 = 0.071428575f * zz[7];
-    const float tmp58 = carry[10] * carry[6];
-    const float tmp59 = tmp57 + tmp58;
-    const float tmp60 = 0.071428575f * zz[11];
-    const float tmp61 = carry[12] * carry[6];
-    const float tmp62 = tmp60 + tmp61;
-    const float tmp63 = 0.071428575f * zz[16];
-    const float tmp64 = carry[15] * carry[6];
-    const float tmp65 = tmp63 + tmp64;
-    const float tmp66 = 0.071428575f * zz[5];
-    const float tmp67 = carry[8] * carry[8];
-    const float tmp68 = tmp66 + tmp67;
-    const float tmp69 = accel[2] * carry[1];
-    const float tmp70 = z0[2] + carry[8];
-    const float tmp71 = tmp69 - tmp70;
-    const float tmp72 = tmp71 * tmp71;
-    const float tmp73 = 300.0f * tmp72;
-    const float tmp74 = (tmp73 < 10.0f) ? tmp73 : 10.0f;
-    const float tmp75 = 0.0025f + tmp74;
-    const float tmp76 = tmp75 * carry[3];
-    const float tmp77 = tmp68 + tmp76;
-    const float tmp78 = 0.071428575f * zz[8];
-    const float tmp79 = carry[10] * carry[8];
-    carry[0] = tmp41;
-    carry[1] = tmp47;
-    carry[3] = tmp52;
-    carry[6] = tmp53;
-    carry[14] = tmp56;
-    carry[16] = tmp59;
-    carry[17] = tmp62;
-    carry[18] = tmp65;
-    carry[19] = tmp71;
-    carry[20] = tmp76;
-    carry[21] = tmp77;
-    carry[22] = tmp78;
-    carry[23] = tmp79;
-}
-
-static void adukf_k_innovation_part2(const float z0[6], const float zz[21], const float mag[3], float dt, const float span[2], float carry[76])
-{
-    const float tmp80 = carry[22] + carry[23];
-    const float tmp81 = 0.071428575f * zz[12];
-    const float tmp82 = carry[12] * carry[8];
-    const float tmp83 = tmp81 + tmp82;
-    const float tmp84 = 0.071428575f * zz[17];
-    const float tmp85 = carry[15] * carry[8];
-    const float tmp86 = tmp84 + tmp85;
-    const float tmp87 = 0.071428575f * zz[9];
-    const float tmp88 = carry[10] * carry[10];
-    const float tmp89 = tmp87 + tmp88;
-    const float tmp90 = mag[0] * mag[0];
-    const float tmp91 = mag[1] * mag[1];
-    const float tmp92 = tmp90 + tmp91;
-    const float tmp93 = mag[2] * mag[2];
-    const float tmp94 = tmp92 + tmp93;
-    const float tmp95 = 1.0f / tmp94;
-    const float tmp96 = sqrtf(tmp95);
-    const float tmp97 = mag[0] * tmp96;
-    const float tmp98 = z0[3] + carry[10];
-    const float tmp99 = tmp97 - tmp98;
-    const float tmp100 = tmp99 * tmp99;
-    const float tmp101 = 300.0f * tmp100;
-    const float tmp102 = (tmp101 < 10.0f) ? tmp101 : 10.0f;
-    const float tmp103 = 0.0025f + tmp102;
-    const float tmp104 = dt / span[1];
-    const float tmp105 = (tmp104 > 0.1f) ? tmp104 : 0.1f;
-    const float tmp106 = tmp103 * tmp105;
-    const float tmp107 = tmp89 + tmp106;
-    const float tmp108 = 0.071428575f * zz[13];
-    const float tmp109 = carry[12] * carry[10];
+    const float tmp86 = carry[9] * carry[9];
+    const float tmp87 = carry[26] + tmp86;
+    const float tmp88 = tmp87 + tmp87;
+    const float tmp89 = 1.0f - tmp88;
+    const float tmp90 = tmp89 * m_ref[0];
+    const float tmp91 = carry[8] * carry[12];
+    const float tmp92 = carry[11] * carry[9];
+    const float tmp93 = tmp91 + tmp92;
+    const float tmp94 = tmp93 + tmp93;
+    const float tmp95 = tmp94 * m_ref[1];
+    const float tmp96 = tmp90 + tmp95;
+    const float tmp97 = carry[1] * m_ref[2];
+    const float tmp98 = tmp96 + tmp97;
+    const float tmp99 = tmp98 - z0[3];
+    const float tmp100 = tmp85 + tmp99;
+    const float tmp101 = carry[32] - carry[33];
+    const float tmp102 = tmp101 + tmp101;
+    const float tmp103 = tmp102 * m_ref[0];
+    const float tmp104 = carry[22] + carry[30];
+    const float tmp105 = tmp104 + tmp104;
+    const float tmp106 = 1.0f - tmp105;
+    const float tmp107 = tmp106 * m_ref[1];
+    const float tmp108 = tmp103 + tmp107;
+    const float tmp109 = carry[15] * m_ref[2];
     const float tmp110 = tmp108 + tmp109;
-    const float tmp111 = 0.071428575f * zz[18];
-    const float tmp112 = carry[15] * carry[10];
-    const float tmp113 = tmp111 + tmp112;
-    const float tmp114 = 0.071428575f * zz[14];
-    const float tmp115 = carry[12] * carry[12];
-    const float tmp116 = tmp114 + tmp115;
-    const float tmp117 = mag[1] * tmp96;
-    const float tmp118 = z0[4] + carry[12];
-    const float tmp119 = tmp117 - tmp118;
-    carry[8] = tmp80;
-    carry[10] = tmp83;
-    carry[22] = tmp86;
-    carry[23] = tmp96;
-    carry[24] = tmp99;
-    carry[25] = tmp105;
-    carry[26] = tmp106;
-    carry[27] = tmp107;
-    carry[28] = tmp110;
-    carry[29] = tmp113;
-    carry[30] = tmp116;
-    carry[31] = tmp119;
+    const float tmp111 = tmp110 - z0[4];
+    const float tmp112 = tmp91 - tmp92;
+    const float tmp113 = tmp112 + tmp112;
+    const float tmp114 = tmp113 * m_ref[0];
+    const float tmp115 = carry[25] + tmp86;
+    const float tmp116 = tmp115 + tmp115;
+    const float tmp117 = 1.0f - tmp116;
+    const float tmp118 = tmp117 * m_ref[1];
+    const float tmp119 = tmp114 + tmp118;
+    carry[1] = tmp85;
+    carry[6] = tmp99;
+    carry[8] = tmp100;
+    carry[9] = tmp111;
+    carry[11] = tmp119;
 }
 
-static void adukf_k_innovation_part3(const float z0[6], const float zz[21], const float zdiff[24], const float aL[28], const float mag[3], float carry[76])
+static void adukf_k_sigma_pair_part3(const float m_ref[3], const float z0[6], float carry[35])
 {
-    const float tmp120 = carry[31] * carry[31];
-    const float tmp121 = 300.0f * tmp120;
-    const float tmp122 = (tmp121 < 10.0f) ? tmp121 : 10.0f;
-    const float tmp123 = 0.0025f + tmp122;
-    const float tmp124 = tmp123 * carry[25];
-    const float tmp125 = carry[30] + tmp124;
-    const float tmp126 = 0.071428575f * zz[19];
-    const float tmp127 = carry[15] * carry[12];
-    const float tmp128 = tmp126 + tmp127;
-    const float tmp129 = 0.071428575f * zz[20];
-    const float tmp130 = carry[15] * carry[15];
-    const float tmp131 = tmp129 + tmp130;
-    const float tmp132 = mag[2] * carry[23];
-    const float tmp133 = z0[5] + carry[15];
-    const float tmp134 = tmp132 - tmp133;
-    const float tmp135 = tmp134 * tmp134;
-    const float tmp136 = 300.0f * tmp135;
-    const float tmp137 = (tmp136 < 10.0f) ? tmp136 : 10.0f;
-    const float tmp138 = 0.0025f + tmp137;
-    const float tmp139 = tmp138 * carry[25];
-    const float tmp140 = tmp131 + tmp139;
-    const float tmp141 = 0.071428575f * zdiff[0];
-    const float tmp142 = aL[0] * tmp141;
-    const float tmp143 = aL[1] * tmp141;
-    const float tmp144 = 0.071428575f * zdiff[6];
-    const float tmp145 = aL[8] * tmp144;
-    const float tmp146 = tmp143 + tmp145;
-    const float tmp147 = aL[2] * tmp141;
-    const float tmp148 = aL[9] * tmp144;
-    const float tmp149 = tmp147 + tmp148;
-    const float tmp150 = 0.071428575f * zdiff[12];
-    const float tmp151 = aL[16] * tmp150;
-    const float tmp152 = tmp149 + tmp151;
-    const float tmp153 = aL[3] * tmp141;
-    const float tmp154 = aL[10] * tmp144;
+    const float tmp120 = carry[19] * m_ref[2];
+    const float tmp121 = carry[11] + tmp120;
+    const float tmp122 = tmp121 - z0[4];
+    const float tmp123 = carry[9] + tmp122;
+    const float tmp124 = carry[2] + carry[5];
+    const float tmp125 = tmp124 + tmp124;
+    const float tmp126 = tmp125 * m_ref[0];
+    const float tmp127 = carry[13] - carry[14];
+    const float tmp128 = tmp127 + tmp127;
+    const float tmp129 = tmp128 * m_ref[1];
+    const float tmp130 = tmp126 + tmp129;
+    const float tmp131 = carry[23] * m_ref[2];
+    const float tmp132 = tmp130 + tmp131;
+    const float tmp133 = tmp132 - z0[5];
+    const float tmp134 = carry[10] + carry[0];
+    const float tmp135 = tmp134 + tmp134;
+    const float tmp136 = tmp135 * m_ref[0];
+    const float tmp137 = carry[17] - carry[18];
+    const float tmp138 = tmp137 + tmp137;
+    const float tmp139 = tmp138 * m_ref[1];
+    const float tmp140 = tmp136 + tmp139;
+    const float tmp141 = carry[27] * m_ref[2];
+    const float tmp142 = tmp140 + tmp141;
+    const float tmp143 = tmp142 - z0[5];
+    const float tmp144 = tmp133 + tmp143;
+    const float tmp145 = carry[3] - carry[7];
+    const float tmp146 = carry[20] - carry[16];
+    const float tmp147 = carry[28] - carry[24];
+    const float tmp148 = carry[1] - carry[6];
+    const float tmp149 = carry[9] - tmp122;
+    const float tmp150 = tmp133 - tmp143;
+    carry[0] = tmp123;
+    carry[1] = tmp144;
+    carry[2] = tmp145;
+    carry[3] = tmp146;
+    carry[5] = tmp147;
+    carry[6] = tmp148;
+    carry[7] = tmp149;
+    carry[9] = tmp150;
+}
+
+static void adukf_k_sigma_pair(const float q_pred[4], const float col[4], const float m_ref[3], const float z0[6], float zsum[6], float zdiff[6])
+{
+    /* 4 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    float carry[35];
+    adukf_k_sigma_pair_part0(q_pred, col, z0, carry);
+    adukf_k_sigma_pair_part1(m_ref, z0, carry);
+    adukf_k_sigma_pair_part2(m_ref, z0, carry);
+    adukf_k_sigma_pair_part3(m_ref, z0, carry);
+    zsum[0] = carry[4];
+    zsum[1] = carry[21];
+    zsum[2] = carry[29];
+    zsum[3] = carry[8];
+    zsum[4] = carry[0];
+    zsum[5] = carry[1];
+    zdiff[0] = carry[2];
+    zdiff[1] = carry[3];
+    zdiff[2] = carry[5];
+    zdiff[3] = carry[6];
+    zdiff[4] = carry[7];
+    zdiff[5] = carry[9];
+}
+
+/* predicted measurement, residual, adaptive per-axis R and P_zz from the sigma pairs' sums and differences of deviations
+ * ops: add 214, mul 246, div 4, sqrt 2, cmp 8 (total 474) */
+static void adukf_k_innovation_part0(const float z0[6], const float zsum[24], const float zdiff[24], const float accel[3], float dt, const float span[2], float carry[34])
+{
+    const float tmp0 = zsum[0] * zsum[0];
+    const float tmp1 = zdiff[0] * zdiff[0];
+    const float tmp2 = tmp0 + tmp1;
+    const float tmp3 = zsum[6] * zsum[6];
+    const float tmp4 = zdiff[6] * zdiff[6];
+    const float tmp5 = tmp3 + tmp4;
+    const float tmp6 = tmp2 + tmp5;
+    const float tmp7 = zsum[12] * zsum[12];
+    const float tmp8 = zdiff[12] * zdiff[12];
+    const float tmp9 = tmp7 + tmp8;
+    const float tmp10 = tmp6 + tmp9;
+    const float tmp11 = zsum[18] * zsum[18];
+    const float tmp12 = zdiff[18] * zdiff[18];
+    const float tmp13 = tmp11 + tmp12;
+    const float tmp14 = tmp10 + tmp13;
+    const float tmp15 = 0.035714287f * tmp14;
+    const float tmp16 = zsum[0] + zsum[6];
+    const float tmp17 = tmp16 + zsum[12];
+    const float tmp18 = tmp17 + zsum[18];
+    const float tmp19 = 0.071428575f * tmp18;
+    const float tmp20 = tmp19 * tmp19;
+    const float tmp21 = tmp15 + tmp20;
+    const float tmp22 = accel[0] * accel[0];
+    const float tmp23 = accel[1] * accel[1];
+    const float tmp24 = tmp22 + tmp23;
+    const float tmp25 = accel[2] * accel[2];
+    const float tmp26 = tmp24 + tmp25;
+    const float tmp27 = 1.0f / tmp26;
+    const float tmp28 = sqrtf(tmp27);
+    const float tmp29 = accel[0] * tmp28;
+    const float tmp30 = z0[0] + tmp19;
+    const float tmp31 = tmp29 - tmp30;
+    const float tmp32 = tmp31 * tmp31;
+    const float tmp33 = 300.0f * tmp32;
+    const float tmp34 = (tmp33 < 10.0f) ? tmp33 : 10.0f;
+    const float tmp35 = 0.0025f + tmp34;
+    const float tmp36 = dt / span[0];
+    const float tmp37 = (tmp36 > 0.1f) ? tmp36 : 0.1f;
+    const float tmp38 = tmp35 * tmp37;
+    const float tmp39 = tmp21 + tmp38;
+    carry[0] = tmp19;
+    carry[1] = tmp28;
+    carry[2] = tmp31;
+    carry[3] = tmp37;
+    carry[4] = tmp38;
+    carry[5] = tmp39;
+}
+
+static void adukf_k_innovation_part1(const float zsum[24], const float zdiff[24], float carry[34])
+{
+    const float tmp40 = zsum[1] * zsum[0];
+    const float tmp41 = zdiff[1] * zdiff[0];
+    const float tmp42 = tmp40 + tmp41;
+    const float tmp43 = zsum[7] * zsum[6];
+    const float tmp44 = zdiff[7] * zdiff[6];
+    const float tmp45 = tmp43 + tmp44;
+    const float tmp46 = tmp42 + tmp45;
+    const float tmp47 = zsum[13] * zsum[12];
+    const float tmp48 = zdiff[13] * zdiff[12];
+    const float tmp49 = tmp47 + tmp48;
+    const float tmp50 = tmp46 + tmp49;
+    const float tmp51 = zsum[19] * zsum[18];
+    const float tmp52 = zdiff[19] * zdiff[18];
+    const float tmp53 = tmp51 + tmp52;
+    const float tmp54 = tmp50 + tmp53;
+    const float tmp55 = 0.035714287f * tmp54;
+    const float tmp56 = zsum[1] + zsum[7];
+    const float tmp57 = tmp56 + zsum[13];
+    const float tmp58 = tmp57 + zsum[19];
+    const float tmp59 = 0.071428575f * tmp58;
+    const float tmp60 = tmp59 * carry[0];
+    const float tmp61 = tmp55 + tmp60;
+    const float tmp62 = zsum[2] * zsum[0];
+    const float tmp63 = zdiff[2] * zdiff[0];
+    const float tmp64 = tmp62 + tmp63;
+    const float tmp65 = zsum[8] * zsum[6];
+    const float tmp66 = zdiff[8] * zdiff[6];
+    const float tmp67 = tmp65 + tmp66;
+    const float tmp68 = tmp64 + tmp67;
+    const float tmp69 = zsum[14] * zsum[12];
+    const float tmp70 = zdiff[14] * zdiff[12];
+    const float tmp71 = tmp69 + tmp70;
+    const float tmp72 = tmp68 + tmp71;
+    const float tmp73 = zsum[20] * zsum[18];
+    const float tmp74 = zdiff[20] * zdiff[18];
+    const float tmp75 = tmp73 + tmp74;
+    const float tmp76 = tmp72 + tmp75;
+    const float tmp77 = 0.035714287f * tmp76;
+    const float tmp78 = zsum[2] + zsum[8];
+    const float tmp79 = tmp78 + zsum[14];
+    carry[6] = tmp59;
+    carry[7] = tmp61;
+    carry[8] = tmp77;
+    carry[9] = tmp79;
+}
+
+static void adukf_k_innovation_part2(const float zsum[24], const float zdiff[24], float carry[34])
+{
+    const float tmp80 = carry[9] + zsum[20];
+    const float tmp81 = 0.071428575f * tmp80;
+    const float tmp82 = tmp81 * carry[0];
+    const float tmp83 = carry[8] + tmp82;
+    const float tmp84 = zsum[3] * zsum[0];
+    const float tmp85 = zdiff[3] * zdiff[0];
+    const float tmp86 = tmp84 + tmp85;
+    const float tmp87 = zsum[9] * zsum[6];
+    const float tmp88 = zdiff[9] * zdiff[6];
+    const float tmp89 = tmp87 + tmp88;
+    const float tmp90 = tmp86 + tmp89;
+    const float tmp91 = zsum[15] * zsum[12];
+    const float tmp92 = zdiff[15] * zdiff[12];
+    const float tmp93 = tmp91 + tmp92;
+    const float tmp94 = tmp90 + tmp93;
+    const float tmp95 = zsum[21] * zsum[18];
+    const float tmp96 = zdiff[21] * zdiff[18];
+    const float tmp97 = tmp95 + tmp96;
+    const float tmp98 = tmp94 + tmp97;
+    const float tmp99 = 0.035714287f * tmp98;
+    const float tmp100 = zsum[3] + zsum[9];
+    const float tmp101 = tmp100 + zsum[15];
+    const float tmp102 = tmp101 + zsum[21];
+    const float tmp103 = 0.071428575f * tmp102;
+    const float tmp104 = tmp103 * carry[0];
+    const float tmp105 = tmp99 + tmp104;
+    const float tmp106 = zsum[4] * zsum[0];
+    const float tmp107 = zdiff[4] * zdiff[0];
+    const float tmp108 = tmp106 + tmp107;
+    const float tmp109 = zsum[10] * zsum[6];
+    const float tmp110 = zdiff[10] * zdiff[6];
+    const float tmp111 = tmp109 + tmp110;
+    const float tmp112 = tmp108 + tmp111;
+    const float tmp113 = zsum[16] * zsum[12];
+    const float tmp114 = zdiff[16] * zdiff[12];
+    const float tmp115 = tmp113 + tmp114;
+    const float tmp116 = tmp112 + tmp115;
+    const float tmp117 = zsum[22] * zsum[18];
+    const float tmp118 = zdiff[22] * zdiff[18];
+    const float tmp119 = tmp117 + tmp118;
+    carry[8] = tmp81;
+    carry[9] = tmp83;
+    carry[10] = tmp103;
+    carry[11] = tmp105;
+    carry[12] = tmp116;
+    carry[13] = tmp119;
+}
+
+static void adukf_k_innovation_part3(const float zsum[24], const float zdiff[24], float carry[34])
+{
+    const float tmp120 = carry[12] + carry[13];
+    const float tmp121 = 0.035714287f * tmp120;
+    const float tmp122 = zsum[4] + zsum[10];
+    const float tmp123 = tmp122 + zsum[16];
+    const float tmp124 = tmp123 + zsum[22];
+    const float tmp125 = 0.071428575f * tmp124;
+    const float tmp126 = tmp125 * carry[0];
+    const float tmp127 = tmp121 + tmp126;
+    const float tmp128 = zsum[5] * zsum[0];
+    const float tmp129 = zdiff[5] * zdiff[0];
+    const float tmp130 = tmp128 + tmp129;
+    const float tmp131 = zsum[11] * zsum[6];
+    const float tmp132 = zdiff[11] * zdiff[6];
+    const float tmp133 = tmp131 + tmp132;
+    const float tmp134 = tmp130 + tmp133;
+    const float tmp135 = zsum[17] * zsum[12];
+    const float tmp136 = zdiff[17] * zdiff[12];
+    const float tmp137 = tmp135 + tmp136;
+    const float tmp138 = tmp134 + tmp137;
+    const float tmp139 = zsum[23] * zsum[18];
+    const float tmp140 = zdiff[23] * zdiff[18];
+    const float tmp141 = tmp139 + tmp140;
+    const float tmp142 = tmp138 + tmp141;
+    const float tmp143 = 0.035714287f * tmp142;
+    const float tmp144 = zsum[5] + zsum[11];
+    const float tmp145 = tmp144 + zsum[17];
+    const float tmp146 = tmp145 + zsum[23];
+    const float tmp147 = 0.071428575f * tmp146;
+    const float tmp148 = tmp147 * carry[0];
+    const float tmp149 = tmp143 + tmp148;
+    const float tmp150 = zsum[1] * zsum[1];
+    const float tmp151 = zdiff[1] * zdiff[1];
+    const float tmp152 = tmp150 + tmp151;
+    const float tmp153 = zsum[7] * zsum[7];
+    const float tmp154 = zdiff[7] * zdiff[7];
     const float tmp155 = tmp153 + tmp154;
-    const float tmp156 = aL[17] * tmp150;
-    const float tmp157 = tmp155 + tmp156;
-    const float tmp158 = 0.071428575f * zdiff[18];
-    const float tmp159 = aL[24] * tmp158;
-    carry[12] = tmp124;
-    carry[15] = tmp125;
-    carry[23] = tmp128;
-    carry[25] = tmp134;
-    carry[30] = tmp139;
-    carry[32] = tmp140;
-    carry[33] = tmp141;
-    carry[34] = tmp142;
-    carry[35] = tmp144;
-    carry[36] = tmp146;
-    carry[37] = tmp150;
-    carry[38] = tmp152;
-    carry[39] = tmp157;
-    carry[40] = tmp158;
-    carry[41] = tmp159;
+    const float tmp156 = tmp152 + tmp155;
+    const float tmp157 = zsum[13] * zsum[13];
+    const float tmp158 = zdiff[13] * zdiff[13];
+    const float tmp159 = tmp157 + tmp158;
+    carry[0] = tmp125;
+    carry[12] = tmp127;
+    carry[13] = tmp147;
+    carry[14] = tmp149;
+    carry[15] = tmp156;
+    carry[16] = tmp159;
 }
 
-static void adukf_k_innovation_part4(const float zdiff[24], const float aL[28], float carry[76])
+static void adukf_k_innovation_part4(const float z0[6], const float zsum[24], const float zdiff[24], const float accel[3], float carry[34])
 {
-    const float tmp160 = carry[39] + carry[41];
-    const float tmp161 = aL[4] * carry[33];
-    const float tmp162 = aL[11] * carry[35];
+    const float tmp160 = carry[15] + carry[16];
+    const float tmp161 = zsum[19] * zsum[19];
+    const float tmp162 = zdiff[19] * zdiff[19];
     const float tmp163 = tmp161 + tmp162;
-    const float tmp164 = aL[18] * carry[37];
-    const float tmp165 = tmp163 + tmp164;
-    const float tmp166 = aL[25] * carry[40];
+    const float tmp164 = tmp160 + tmp163;
+    const float tmp165 = 0.035714287f * tmp164;
+    const float tmp166 = carry[6] * carry[6];
     const float tmp167 = tmp165 + tmp166;
-    const float tmp168 = aL[5] * carry[33];
-    const float tmp169 = aL[12] * carry[35];
-    const float tmp170 = tmp168 + tmp169;
-    const float tmp171 = aL[19] * carry[37];
-    const float tmp172 = tmp170 + tmp171;
-    const float tmp173 = aL[26] * carry[40];
-    const float tmp174 = tmp172 + tmp173;
-    const float tmp175 = aL[6] * carry[33];
-    const float tmp176 = aL[13] * carry[35];
-    const float tmp177 = tmp175 + tmp176;
-    const float tmp178 = aL[20] * carry[37];
+    const float tmp168 = accel[1] * carry[1];
+    const float tmp169 = z0[1] + carry[6];
+    const float tmp170 = tmp168 - tmp169;
+    const float tmp171 = tmp170 * tmp170;
+    const float tmp172 = 300.0f * tmp171;
+    const float tmp173 = (tmp172 < 10.0f) ? tmp172 : 10.0f;
+    const float tmp174 = 0.0025f + tmp173;
+    const float tmp175 = tmp174 * carry[3];
+    const float tmp176 = tmp167 + tmp175;
+    const float tmp177 = zsum[2] * zsum[1];
+    const float tmp178 = zdiff[2] * zdiff[1];
     const float tmp179 = tmp177 + tmp178;
-    const float tmp180 = aL[27] * carry[40];
-    const float tmp181 = tmp179 + tmp180;
-    const float tmp182 = 0.071428575f * zdiff[1];
-    const float tmp183 = aL[0] * tmp182;
-    const float tmp184 = aL[1] * tmp182;
-    const float tmp185 = 0.071428575f * zdiff[7];
-    const float tmp186 = aL[8] * tmp185;
-    const float tmp187 = tmp184 + tmp186;
-    const float tmp188 = aL[2] * tmp182;
-    const float tmp189 = aL[9] * tmp185;
+    const float tmp180 = zsum[8] * zsum[7];
+    const float tmp181 = zdiff[8] * zdiff[7];
+    const float tmp182 = tmp180 + tmp181;
+    const float tmp183 = tmp179 + tmp182;
+    const float tmp184 = zsum[14] * zsum[13];
+    const float tmp185 = zdiff[14] * zdiff[13];
+    const float tmp186 = tmp184 + tmp185;
+    const float tmp187 = tmp183 + tmp186;
+    const float tmp188 = zsum[20] * zsum[19];
+    const float tmp189 = zdiff[20] * zdiff[19];
     const float tmp190 = tmp188 + tmp189;
-    const float tmp191 = 0.071428575f * zdiff[13];
-    const float tmp192 = aL[16] * tmp191;
-    const float tmp193 = tmp190 + tmp192;
-    const float tmp194 = aL[3] * tmp182;
-    const float tmp195 = aL[10] * tmp185;
-    const float tmp196 = tmp194 + tmp195;
-    const float tmp197 = aL[17] * tmp191;
-    const float tmp198 = tmp196 + tmp197;
-    const float tmp199 = 0.071428575f * zdiff[19];
-    carry[33] = tmp160;
-    carry[35] = tmp167;
-    carry[37] = tmp174;
-    carry[39] = tmp181;
-    carry[40] = tmp182;
-    carry[41] = tmp183;
-    carry[42] = tmp185;
-    carry[43] = tmp187;
-    carry[44] = tmp191;
-    carry[45] = tmp193;
-    carry[46] = tmp198;
-    carry[47] = tmp199;
+    const float tmp191 = tmp187 + tmp190;
+    const float tmp192 = 0.035714287f * tmp191;
+    const float tmp193 = carry[8] * carry[6];
+    const float tmp194 = tmp192 + tmp193;
+    const float tmp195 = zsum[3] * zsum[1];
+    const float tmp196 = zdiff[3] * zdiff[1];
+    const float tmp197 = tmp195 + tmp196;
+    const float tmp198 = zsum[9] * zsum[7];
+    const float tmp199 = zdiff[9] * zdiff[7];
+    carry[15] = tmp170;
+    carry[16] = tmp175;
+    carry[17] = tmp176;
+    carry[18] = tmp194;
+    carry[19] = tmp197;
+    carry[20] = tmp198;
+    carry[21] = tmp199;
 }
 
-static void adukf_k_innovation_part5(const float zdiff[24], const float aL[28], float carry[76])
+static void adukf_k_innovation_part5(const float zsum[24], const float zdiff[24], float carry[34])
 {
-    const float tmp200 = aL[24] * carry[47];
-    const float tmp201 = carry[46] + tmp200;
-    const float tmp202 = aL[4] * carry[40];
-    const float tmp203 = aL[11] * carry[42];
+    const float tmp200 = carry[20] + carry[21];
+    const float tmp201 = carry[19] + tmp200;
+    const float tmp202 = zsum[15] * zsum[13];
+    const float tmp203 = zdiff[15] * zdiff[13];
     const float tmp204 = tmp202 + tmp203;
-    const float tmp205 = aL[18] * carry[44];
-    const float tmp206 = tmp204 + tmp205;
-    const float tmp207 = aL[25] * carry[47];
+    const float tmp205 = tmp201 + tmp204;
+    const float tmp206 = zsum[21] * zsum[19];
+    const float tmp207 = zdiff[21] * zdiff[19];
     const float tmp208 = tmp206 + tmp207;
-    const float tmp209 = aL[5] * carry[40];
-    const float tmp210 = aL[12] * carry[42];
-    const float tmp211 = tmp209 + tmp210;
-    const float tmp212 = aL[19] * carry[44];
-    const float tmp213 = tmp211 + tmp212;
-    const float tmp214 = aL[26] * carry[47];
+    const float tmp209 = tmp205 + tmp208;
+    const float tmp210 = 0.035714287f * tmp209;
+    const float tmp211 = carry[10] * carry[6];
+    const float tmp212 = tmp210 + tmp211;
+    const float tmp213 = zsum[4] * zsum[1];
+    const float tmp214 = zdiff[4] * zdiff[1];
     const float tmp215 = tmp213 + tmp214;
-    const float tmp216 = aL[6] * carry[40];
-    const float tmp217 = aL[13] * carry[42];
+    const float tmp216 = zsum[10] * zsum[7];
+    const float tmp217 = zdiff[10] * zdiff[7];
     const float tmp218 = tmp216 + tmp217;
-    const float tmp219 = aL[20] * carry[44];
-    const float tmp220 = tmp218 + tmp219;
-    const float tmp221 = aL[27] * carry[47];
+    const float tmp219 = tmp215 + tmp218;
+    const float tmp220 = zsum[16] * zsum[13];
+    const float tmp221 = zdiff[16] * zdiff[13];
     const float tmp222 = tmp220 + tmp221;
-    const float tmp223 = 0.071428575f * zdiff[2];
-    const float tmp224 = aL[0] * tmp223;
-    const float tmp225 = aL[1] * tmp223;
-    const float tmp226 = 0.071428575f * zdiff[8];
-    const float tmp227 = aL[8] * tmp226;
-    const float tmp228 = tmp225 + tmp227;
-    const float tmp229 = aL[2] * tmp223;
-    const float tmp230 = aL[9] * tmp226;
-    const float tmp231 = tmp229 + tmp230;
-    const float tmp232 = 0.071428575f * zdiff[14];
-    const float tmp233 = aL[16] * tmp232;
-    const float tmp234 = tmp231 + tmp233;
-    const float tmp235 = aL[3] * tmp223;
-    const float tmp236 = aL[10] * tmp226;
-    const float tmp237 = tmp235 + tmp236;
-    const float tmp238 = aL[17] * tmp232;
-    const float tmp239 = tmp237 + tmp238;
-    carry[40] = tmp201;
-    carry[42] = tmp208;
-    carry[44] = tmp215;
-    carry[46] = tmp222;
-    carry[47] = tmp223;
-    carry[48] = tmp224;
-    carry[49] = tmp226;
-    carry[50] = tmp228;
-    carry[51] = tmp232;
-    carry[52] = tmp234;
-    carry[53] = tmp239;
+    const float tmp223 = tmp219 + tmp222;
+    const float tmp224 = zsum[22] * zsum[19];
+    const float tmp225 = zdiff[22] * zdiff[19];
+    const float tmp226 = tmp224 + tmp225;
+    const float tmp227 = tmp223 + tmp226;
+    const float tmp228 = 0.035714287f * tmp227;
+    const float tmp229 = carry[0] * carry[6];
+    const float tmp230 = tmp228 + tmp229;
+    const float tmp231 = zsum[5] * zsum[1];
+    const float tmp232 = zdiff[5] * zdiff[1];
+    const float tmp233 = tmp231 + tmp232;
+    const float tmp234 = zsum[11] * zsum[7];
+    const float tmp235 = zdiff[11] * zdiff[7];
+    const float tmp236 = tmp234 + tmp235;
+    const float tmp237 = tmp233 + tmp236;
+    const float tmp238 = zsum[17] * zsum[13];
+    const float tmp239 = zdiff[17] * zdiff[13];
+    carry[19] = tmp212;
+    carry[20] = tmp230;
+    carry[21] = tmp237;
+    carry[22] = tmp238;
+    carry[23] = tmp239;
 }
 
-static void adukf_k_innovation_part6(const float zdiff[24], const float aL[28], float carry[76])
+static void adukf_k_innovation_part6(const float z0[6], const float zsum[24], const float zdiff[24], const float accel[3], float carry[34])
 {
-    const float tmp240 = 0.071428575f * zdiff[20];
-    const float tmp241 = aL[24] * tmp240;
-    const float tmp242 = carry[53] + tmp241;
-    const float tmp243 = aL[4] * carry[47];
-    const float tmp244 = aL[11] * carry[49];
-    const float tmp245 = tmp243 + tmp244;
-    const float tmp246 = aL[18] * carry[51];
-    const float tmp247 = tmp245 + tmp246;
-    const float tmp248 = aL[25] * tmp240;
-    const float tmp249 = tmp247 + tmp248;
-    const float tmp250 = aL[5] * carry[47];
-    const float tmp251 = aL[12] * carry[49];
-    const float tmp252 = tmp250 + tmp251;
-    const float tmp253 = aL[19] * carry[51];
+    const float tmp240 = carry[22] + carry[23];
+    const float tmp241 = carry[21] + tmp240;
+    const float tmp242 = zsum[23] * zsum[19];
+    const float tmp243 = zdiff[23] * zdiff[19];
+    const float tmp244 = tmp242 + tmp243;
+    const float tmp245 = tmp241 + tmp244;
+    const float tmp246 = 0.035714287f * tmp245;
+    const float tmp247 = carry[13] * carry[6];
+    const float tmp248 = tmp246 + tmp247;
+    const float tmp249 = zsum[2] * zsum[2];
+    const float tmp250 = zdiff[2] * zdiff[2];
+    const float tmp251 = tmp249 + tmp250;
+    const float tmp252 = zsum[8] * zsum[8];
+    const float tmp253 = zdiff[8] * zdiff[8];
     const float tmp254 = tmp252 + tmp253;
-    const float tmp255 = aL[26] * tmp240;
-    const float tmp256 = tmp254 + tmp255;
-    const float tmp257 = aL[6] * carry[47];
-    const float tmp258 = aL[13] * carry[49];
-    const float tmp259 = tmp257 + tmp258;
-    const float tmp260 = aL[20] * carry[51];
-    const float tmp261 = tmp259 + tmp260;
-    const float tmp262 = aL[27] * tmp240;
-    const float tmp263 = tmp261 + tmp262;
-    const float tmp264 = 0.071428575f * zdiff[3];
-    const float tmp265 = aL[0] * tmp264;
-    const float tmp266 = aL[1] * tmp264;
-    const float tmp267 = 0.071428575f * zdiff[9];
-    const float tmp268 = aL[8] * tmp267;
-    const float tmp269 = tmp266 + tmp268;
-    const float tmp270 = aL[2] * tmp264;
-    const float tmp271 = aL[9] * tmp267;
-    const float tmp272 = tmp270 + tmp271;
-    const float tmp273 = 0.071428575f * zdiff[15];
-    const float tmp274 = aL[16] * tmp273;
-    const float tmp275 = tmp272 + tmp274;
-    const float tmp276 = aL[3] * tmp264;
-    const float tmp277 = aL[10] * tmp267;
+    const float tmp255 = tmp251 + tmp254;
+    const float tmp256 = zsum[14] * zsum[14];
+    const float tmp257 = zdiff[14] * zdiff[14];
+    const float tmp258 = tmp256 + tmp257;
+    const float tmp259 = tmp255 + tmp258;
+    const float tmp260 = zsum[20] * zsum[20];
+    const float tmp261 = zdiff[20] * zdiff[20];
+    const float tmp262 = tmp260 + tmp261;
+    const float tmp263 = tmp259 + tmp262;
+    const float tmp264 = 0.035714287f * tmp263;
+    const float tmp265 = carry[8] * carry[8];
+    const float tmp266 = tmp264 + tmp265;
+    const float tmp267 = accel[2] * carry[1];
+    const float tmp268 = z0[2] + carry[8];
+    const float tmp269 = tmp267 - tmp268;
+    const float tmp270 = tmp269 * tmp269;
+    const float tmp271 = 300.0f * tmp270;
+    const float tmp272 = (tmp271 < 10.0f) ? tmp271 : 10.0f;
+    const float tmp273 = 0.0025f + tmp272;
+    const float tmp274 = tmp273 * carry[3];
+    const float tmp275 = tmp266 + tmp274;
+    const float tmp276 = zsum[3] * zsum[2];
+    const float tmp277 = zdiff[3] * zdiff[2];
     const float tmp278 = tmp276 + tmp277;
-    const float tmp279 = aL[17] * tmp273;
-    carry[47] = tmp242;
-    carry[49] = tmp249;
-    carry[51] = tmp256;
-    carry[53] = tmp263;
-    carry[54] = tmp264;
-    carry[55] = tmp265;
-    carry[56] = tmp267;
-    carry[57] = tmp269;
-    carry[58] = tmp273;
-    carry[59] = tmp275;
-    carry[60] = tmp278;
-    carry[61] = tmp279;
+    const float tmp279 = zsum[9] * zsum[8];
+    carry[1] = tmp248;
+    carry[3] = tmp269;
+    carry[6] = tmp274;
+    carry[21] = tmp275;
+    carry[22] = tmp278;
+    carry[23] = tmp279;
 }
 
-static void adukf_k_innovation_part7(const float zdiff[24], const float aL[28], float carry[76])
+static void adukf_k_innovation_part7(const float zsum[24], const float zdiff[24], float carry[34])
 {
-    const float tmp280 = carry[60] + carry[61];
-    const float tmp281 = 0.071428575f * zdiff[21];
-    const float tmp282 = aL[24] * tmp281;
-    const float tmp283 = tmp280 + tmp282;
-    const float tmp284 = aL[4] * carry[54];
-    const float tmp285 = aL[11] * carry[56];
-    const float tmp286 = tmp284 + tmp285;
-    const float tmp287 = aL[18] * carry[58];
-    const float tmp288 = tmp286 + tmp287;
-    const float tmp289 = aL[25] * tmp281;
-    const float tmp290 = tmp288 + tmp289;
-    const float tmp291 = aL[5] * carry[54];
-    const float tmp292 = aL[12] * carry[56];
+    const float tmp280 = zdiff[9] * zdiff[8];
+    const float tmp281 = carry[23] + tmp280;
+    const float tmp282 = carry[22] + tmp281;
+    const float tmp283 = zsum[15] * zsum[14];
+    const float tmp284 = zdiff[15] * zdiff[14];
+    const float tmp285 = tmp283 + tmp284;
+    const float tmp286 = tmp282 + tmp285;
+    const float tmp287 = zsum[21] * zsum[20];
+    const float tmp288 = zdiff[21] * zdiff[20];
+    const float tmp289 = tmp287 + tmp288;
+    const float tmp290 = tmp286 + tmp289;
+    const float tmp291 = 0.035714287f * tmp290;
+    const float tmp292 = carry[10] * carry[8];
     const float tmp293 = tmp291 + tmp292;
-    const float tmp294 = aL[19] * carry[58];
-    const float tmp295 = tmp293 + tmp294;
-    const float tmp296 = aL[26] * tmp281;
-    const float tmp297 = tmp295 + tmp296;
-    const float tmp298 = aL[6] * carry[54];
-    const float tmp299 = aL[13] * carry[56];
-    const float tmp300 = tmp298 + tmp299;
-    const float tmp301 = aL[20] * carry[58];
-    const float tmp302 = tmp300 + tmp301;
-    const float tmp303 = aL[27] * tmp281;
-    const float tmp304 = tmp302 + tmp303;
-    const float tmp305 = 0.071428575f * zdiff[4];
-    const float tmp306 = aL[0] * tmp305;
-    const float tmp307 = aL[1] * tmp305;
-    const float tmp308 = 0.071428575f * zdiff[10];
-    const float tmp309 = aL[8] * tmp308;
-    const float tmp310 = tmp307 + tmp309;
-    const float tmp311 = aL[2] * tmp305;
-    const float tmp312 = aL[9] * tmp308;
-    const float tmp313 = tmp311 + tmp312;
-    const float tmp314 = 0.071428575f * zdiff[16];
-    const float tmp315 = aL[16] * tmp314;
-    const float tmp316 = tmp313 + tmp315;
-    const float tmp317 = aL[3] * tmp305;
-    const float tmp318 = aL[10] * tmp308;
-    const float tmp319 = tmp317 + tmp318;
-    carry[54] = tmp283;
-    carry[56] = tmp290;
-    carry[58] = tmp297;
-    carry[60] = tmp304;
-    carry[61] = tmp305;
-    carry[62] = tmp306;
-    carry[63] = tmp308;
-    carry[64] = tmp310;
-    carry[65] = tmp314;
-    carry[66] = tmp316;
-    carry[67] = tmp319;
+    const float tmp294 = zsum[4] * zsum[2];
+    const float tmp295 = zdiff[4] * zdiff[2];
+    const float tmp296 = tmp294 + tmp295;
+    const float tmp297 = zsum[10] * zsum[8];
+    const float tmp298 = zdiff[10] * zdiff[8];
+    const float tmp299 = tmp297 + tmp298;
+    const float tmp300 = tmp296 + tmp299;
+    const float tmp301 = zsum[16] * zsum[14];
+    const float tmp302 = zdiff[16] * zdiff[14];
+    const float tmp303 = tmp301 + tmp302;
+    const float tmp304 = tmp300 + tmp303;
+    const float tmp305 = zsum[22] * zsum[20];
+    const float tmp306 = zdiff[22] * zdiff[20];
+    const float tmp307 = tmp305 + tmp306;
+    const float tmp308 = tmp304 + tmp307;
+    const float tmp309 = 0.035714287f * tmp308;
+    const float tmp310 = carry[0] * carry[8];
+    const float tmp311 = tmp309 + tmp310;
+    const float tmp312 = zsum[5] * zsum[2];
+    const float tmp313 = zdiff[5] * zdiff[2];
+    const float tmp314 = tmp312 + tmp313;
+    const float tmp315 = zsum[11] * zsum[8];
+    const float tmp316 = zdiff[11] * zdiff[8];
+    const float tmp317 = tmp315 + tmp316;
+    const float tmp318 = tmp314 + tmp317;
+    const float tmp319 = zsum[17] * zsum[14];
+    carry[22] = tmp293;
+    carry[23] = tmp311;
+    carry[24] = tmp318;
+    carry[25] = tmp319;
 }
 
-static void adukf_k_innovation_part8(const float zdiff[24], const float aL[28], float carry[76])
+static void adukf_k_innovation_part8(const float z0[6], const float zsum[24], const float zdiff[24], const float mag[3], float carry[34])
 {
-    const float tmp320 = aL[17] * carry[65];
-    const float tmp321 = carry[67] + tmp320;
-    const float tmp322 = 0.071428575f * zdiff[22];
-    const float tmp323 = aL[24] * tmp322;
-    const float tmp324 = tmp321 + tmp323;
-    const float tmp325 = aL[4] * carry[61];
-    const float tmp326 = aL[11] * carry[63];
-    const float tmp327 = tmp325 + tmp326;
-    const float tmp328 = aL[18] * carry[65];
+    const float tmp320 = zdiff[17] * zdiff[14];
+    const float tmp321 = carry[25] + tmp320;
+    const float tmp322 = carry[24] + tmp321;
+    const float tmp323 = zsum[23] * zsum[20];
+    const float tmp324 = zdiff[23] * zdiff[20];
+    const float tmp325 = tmp323 + tmp324;
+    const float tmp326 = tmp322 + tmp325;
+    const float tmp327 = 0.035714287f * tmp326;
+    const float tmp328 = carry[13] * carry[8];
     const float tmp329 = tmp327 + tmp328;
-    const float tmp330 = aL[25] * tmp322;
-    const float tmp331 = tmp329 + tmp330;
-    const float tmp332 = aL[5] * carry[61];
-    const float tmp333 = aL[12] * carry[63];
-    const float tmp334 = tmp332 + tmp333;
-    const float tmp335 = aL[19] * carry[65];
-    const float tmp336 = tmp334 + tmp335;
-    const float tmp337 = aL[26] * tmp322;
-    const float tmp338 = tmp336 + tmp337;
-    const float tmp339 = aL[6] * carry[61];
-    const float tmp340 = aL[13] * carry[63];
-    const float tmp341 = tmp339 + tmp340;
-    const float tmp342 = aL[20] * carry[65];
+    const float tmp330 = zsum[3] * zsum[3];
+    const float tmp331 = zdiff[3] * zdiff[3];
+    const float tmp332 = tmp330 + tmp331;
+    const float tmp333 = zsum[9] * zsum[9];
+    const float tmp334 = zdiff[9] * zdiff[9];
+    const float tmp335 = tmp333 + tmp334;
+    const float tmp336 = tmp332 + tmp335;
+    const float tmp337 = zsum[15] * zsum[15];
+    const float tmp338 = zdiff[15] * zdiff[15];
+    const float tmp339 = tmp337 + tmp338;
+    const float tmp340 = tmp336 + tmp339;
+    const float tmp341 = zsum[21] * zsum[21];
+    const float tmp342 = zdiff[21] * zdiff[21];
     const float tmp343 = tmp341 + tmp342;
-    const float tmp344 = aL[27] * tmp322;
-    const float tmp345 = tmp343 + tmp344;
-    const float tmp346 = 0.071428575f * zdiff[5];
-    const float tmp347 = aL[0] * tmp346;
-    const float tmp348 = aL[1] * tmp346;
-    const float tmp349 = 0.071428575f * zdiff[11];
-    const float tmp350 = aL[8] * tmp349;
-    const float tmp351 = tmp348 + tmp350;
-    const float tmp352 = aL[2] * tmp346;
-    const float tmp353 = aL[9] * tmp349;
-    const float tmp354 = tmp352 + tmp353;
-    const float tmp355 = 0.071428575f * zdiff[17];
-    const float tmp356 = aL[16] * tmp355;
-    const float tmp357 = tmp354 + tmp356;
-    const float tmp358 = aL[3] * tmp346;
-    const float tmp359 = aL[10] * tmp349;
-    carry[61] = tmp324;
-    carry[63] = tmp331;
-    carry[65] = tmp338;
-    carry[67] = tmp345;
-    carry[68] = tmp346;
-    carry[69] = tmp347;
-    carry[70] = tmp349;
-    carry[71] = tmp351;
-    carry[72] = tmp355;
-    carry[73] = tmp357;
-    carry[74] = tmp358;
-    carry[75] = tmp359;
+    const float tmp344 = tmp340 + tmp343;
+    const float tmp345 = 0.035714287f * tmp344;
+    const float tmp346 = carry[10] * carry[10];
+    const float tmp347 = tmp345 + tmp346;
+    const float tmp348 = mag[0] * mag[0];
+    const float tmp349 = mag[1] * mag[1];
+    const float tmp350 = tmp348 + tmp349;
+    const float tmp351 = mag[2] * mag[2];
+    const float tmp352 = tmp350 + tmp351;
+    const float tmp353 = 1.0f / tmp352;
+    const float tmp354 = sqrtf(tmp353);
+    const float tmp355 = mag[0] * tmp354;
+    const float tmp356 = z0[3] + carry[10];
+    const float tmp357 = tmp355 - tmp356;
+    const float tmp358 = tmp357 * tmp357;
+    const float tmp359 = 300.0f * tmp358;
+    carry[8] = tmp329;
+    carry[24] = tmp347;
+    carry[25] = tmp354;
+    carry[26] = tmp357;
+    carry[27] = tmp359;
 }
 
-static void adukf_k_innovation_part9(const float zdiff[24], const float aL[28], float carry[76])
+static void adukf_k_innovation_part9(const float zsum[24], const float zdiff[24], float dt, const float span[2], float carry[34])
 {
-    const float tmp360 = carry[74] + carry[75];
-    const float tmp361 = aL[17] * carry[72];
-    const float tmp362 = tmp360 + tmp361;
-    const float tmp363 = 0.071428575f * zdiff[23];
-    const float tmp364 = aL[24] * tmp363;
-    const float tmp365 = tmp362 + tmp364;
-    const float tmp366 = aL[4] * carry[68];
-    const float tmp367 = aL[11] * carry[70];
+    const float tmp360 = (carry[27] < 10.0f) ? carry[27] : 10.0f;
+    const float tmp361 = 0.0025f + tmp360;
+    const float tmp362 = dt / span[1];
+    const float tmp363 = (tmp362 > 0.1f) ? tmp362 : 0.1f;
+    const float tmp364 = tmp361 * tmp363;
+    const float tmp365 = carry[24] + tmp364;
+    const float tmp366 = zsum[4] * zsum[3];
+    const float tmp367 = zdiff[4] * zdiff[3];
     const float tmp368 = tmp366 + tmp367;
-    const float tmp369 = aL[18] * carry[72];
-    const float tmp370 = tmp368 + tmp369;
-    const float tmp371 = aL[25] * tmp363;
-    const float tmp372 = tmp370 + tmp371;
-    const float tmp373 = aL[5] * carry[68];
-    const float tmp374 = aL[12] * carry[70];
+    const float tmp369 = zsum[10] * zsum[9];
+    const float tmp370 = zdiff[10] * zdiff[9];
+    const float tmp371 = tmp369 + tmp370;
+    const float tmp372 = tmp368 + tmp371;
+    const float tmp373 = zsum[16] * zsum[15];
+    const float tmp374 = zdiff[16] * zdiff[15];
     const float tmp375 = tmp373 + tmp374;
-    const float tmp376 = aL[19] * carry[72];
-    const float tmp377 = tmp375 + tmp376;
-    const float tmp378 = aL[26] * tmp363;
+    const float tmp376 = tmp372 + tmp375;
+    const float tmp377 = zsum[22] * zsum[21];
+    const float tmp378 = zdiff[22] * zdiff[21];
     const float tmp379 = tmp377 + tmp378;
-    const float tmp380 = aL[6] * carry[68];
-    const float tmp381 = aL[13] * carry[70];
-    const float tmp382 = tmp380 + tmp381;
-    const float tmp383 = aL[20] * carry[72];
-    const float tmp384 = tmp382 + tmp383;
-    const float tmp385 = aL[27] * tmp363;
+    const float tmp380 = tmp376 + tmp379;
+    const float tmp381 = 0.035714287f * tmp380;
+    const float tmp382 = carry[0] * carry[10];
+    const float tmp383 = tmp381 + tmp382;
+    const float tmp384 = zsum[5] * zsum[3];
+    const float tmp385 = zdiff[5] * zdiff[3];
     const float tmp386 = tmp384 + tmp385;
-    carry[68] = tmp365;
-    carry[70] = tmp372;
-    carry[72] = tmp379;
-    carry[74] = tmp386;
+    const float tmp387 = zsum[11] * zsum[9];
+    const float tmp388 = zdiff[11] * zdiff[9];
+    const float tmp389 = tmp387 + tmp388;
+    const float tmp390 = tmp386 + tmp389;
+    const float tmp391 = zsum[17] * zsum[15];
+    const float tmp392 = zdiff[17] * zdiff[15];
+    const float tmp393 = tmp391 + tmp392;
+    const float tmp394 = tmp390 + tmp393;
+    const float tmp395 = zsum[23] * zsum[21];
+    const float tmp396 = zdiff[23] * zdiff[21];
+    const float tmp397 = tmp395 + tmp396;
+    const float tmp398 = tmp394 + tmp397;
+    const float tmp399 = 0.035714287f * tmp398;
+    carry[24] = tmp363;
+    carry[27] = tmp364;
+    carry[28] = tmp365;
+    carry[29] = tmp383;
+    carry[30] = tmp399;
+}
+
+static void adukf_k_innovation_part10(const float z0[6], const float zsum[24], const float zdiff[24], const float mag[3], float carry[34])
+{
+    const float tmp400 = carry[13] * carry[10];
+    const float tmp401 = carry[30] + tmp400;
+    const float tmp402 = zsum[4] * zsum[4];
+    const float tmp403 = zdiff[4] * zdiff[4];
+    const float tmp404 = tmp402 + tmp403;
+    const float tmp405 = zsum[10] * zsum[10];
+    const float tmp406 = zdiff[10] * zdiff[10];
+    const float tmp407 = tmp405 + tmp406;
+    const float tmp408 = tmp404 + tmp407;
+    const float tmp409 = zsum[16] * zsum[16];
+    const float tmp410 = zdiff[16] * zdiff[16];
+    const float tmp411 = tmp409 + tmp410;
+    const float tmp412 = tmp408 + tmp411;
+    const float tmp413 = zsum[22] * zsum[22];
+    const float tmp414 = zdiff[22] * zdiff[22];
+    const float tmp415 = tmp413 + tmp414;
+    const float tmp416 = tmp412 + tmp415;
+    const float tmp417 = 0.035714287f * tmp416;
+    const float tmp418 = carry[0] * carry[0];
+    const float tmp419 = tmp417 + tmp418;
+    const float tmp420 = mag[1] * carry[25];
+    const float tmp421 = z0[4] + carry[0];
+    const float tmp422 = tmp420 - tmp421;
+    const float tmp423 = tmp422 * tmp422;
+    const float tmp424 = 300.0f * tmp423;
+    const float tmp425 = (tmp424 < 10.0f) ? tmp424 : 10.0f;
+    const float tmp426 = 0.0025f + tmp425;
+    const float tmp427 = tmp426 * carry[24];
+    const float tmp428 = tmp419 + tmp427;
+    const float tmp429 = zsum[5] * zsum[4];
+    const float tmp430 = zdiff[5] * zdiff[4];
+    const float tmp431 = tmp429 + tmp430;
+    const float tmp432 = zsum[11] * zsum[10];
+    const float tmp433 = zdiff[11] * zdiff[10];
+    const float tmp434 = tmp432 + tmp433;
+    const float tmp435 = tmp431 + tmp434;
+    const float tmp436 = zsum[17] * zsum[16];
+    const float tmp437 = zdiff[17] * zdiff[16];
+    const float tmp438 = tmp436 + tmp437;
+    const float tmp439 = tmp435 + tmp438;
+    carry[10] = tmp401;
+    carry[30] = tmp422;
+    carry[31] = tmp427;
+    carry[32] = tmp428;
+    carry[33] = tmp439;
+}
+
+static void adukf_k_innovation_part11(const float z0[6], const float zsum[24], const float zdiff[24], const float mag[3], float carry[34])
+{
+    const float tmp440 = zsum[23] * zsum[22];
+    const float tmp441 = zdiff[23] * zdiff[22];
+    const float tmp442 = tmp440 + tmp441;
+    const float tmp443 = carry[33] + tmp442;
+    const float tmp444 = 0.035714287f * tmp443;
+    const float tmp445 = carry[13] * carry[0];
+    const float tmp446 = tmp444 + tmp445;
+    const float tmp447 = zsum[5] * zsum[5];
+    const float tmp448 = zdiff[5] * zdiff[5];
+    const float tmp449 = tmp447 + tmp448;
+    const float tmp450 = zsum[11] * zsum[11];
+    const float tmp451 = zdiff[11] * zdiff[11];
+    const float tmp452 = tmp450 + tmp451;
+    const float tmp453 = tmp449 + tmp452;
+    const float tmp454 = zsum[17] * zsum[17];
+    const float tmp455 = zdiff[17] * zdiff[17];
+    const float tmp456 = tmp454 + tmp455;
+    const float tmp457 = tmp453 + tmp456;
+    const float tmp458 = zsum[23] * zsum[23];
+    const float tmp459 = zdiff[23] * zdiff[23];
+    const float tmp460 = tmp458 + tmp459;
+    const float tmp461 = tmp457 + tmp460;
+    const float tmp462 = 0.035714287f * tmp461;
+    const float tmp463 = carry[13] * carry[13];
+    const float tmp464 = tmp462 + tmp463;
+    const float tmp465 = mag[2] * carry[25];
+    const float tmp466 = z0[5] + carry[13];
+    const float tmp467 = tmp465 - tmp466;
+    const float tmp468 = tmp467 * tmp467;
+    const float tmp469 = 300.0f * tmp468;
+    const float tmp470 = (tmp469 < 10.0f) ? tmp469 : 10.0f;
+    const float tmp471 = 0.0025f + tmp470;
+    const float tmp472 = tmp471 * carry[24];
+    const float tmp473 = tmp464 + tmp472;
+    carry[0] = tmp446;
+    carry[13] = tmp467;
+    carry[24] = tmp472;
+    carry[25] = tmp473;
 }
 
 #if defined(__GNUC__)
 __attribute__((noinline))
 #endif
-static void adukf_k_innovation(const float z0[6], const float zsum[6], const float zz[21], const float zdiff[24], const float aL[28], const float accel[3], const float mag[3], float dt, const float span[2], float P_zz[36], float P_xz[42], float residual[6], float r_diag[6])
+static void adukf_k_innovation(const float z0[6], const float zsum[24], const float zdiff[24], const float accel[3], const float mag[3], float dt, const float span[2], float P_zz[36], float residual[6], float r_diag[6])
 {
-    /* 10 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
-    float carry[76];
-    adukf_k_innovation_part0(z0, zsum, zz, accel, dt, span, carry);
-    adukf_k_innovation_part1(z0, zz, accel, carry);
-    adukf_k_innovation_part2(z0, zz, mag, dt, span, carry);
-    adukf_k_innovation_part3(z0, zz, zdiff, aL, mag, carry);
-    adukf_k_innovation_part4(zdiff, aL, carry);
-    adukf_k_innovation_part5(zdiff, aL, carry);
-    adukf_k_innovation_part6(zdiff, aL, carry);
-    adukf_k_innovation_part7(zdiff, aL, carry);
-    adukf_k_innovation_part8(zdiff, aL, carry);
-    adukf_k_innovation_part9(zdiff, aL, carry);
+    /* 12 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    float carry[34];
+    adukf_k_innovation_part0(z0, zsum, zdiff, accel, dt, span, carry);
+    adukf_k_innovation_part1(zsum, zdiff, carry);
+    adukf_k_innovation_part2(zsum, zdiff, carry);
+    adukf_k_innovation_part3(zsum, zdiff, carry);
+    adukf_k_innovation_part4(z0, zsum, zdiff, accel, carry);
+    adukf_k_innovation_part5(zsum, zdiff, carry);
+    adukf_k_innovation_part6(z0, zsum, zdiff, accel, carry);
+    adukf_k_innovation_part7(zsum, zdiff, carry);
+    adukf_k_innovation_part8(z0, zsum, zdiff, mag, carry);
+    adukf_k_innovation_part9(zsum, zdiff, dt, span, carry);
+    adukf_k_innovation_part10(z0, zsum, zdiff, mag, carry);
+    adukf_k_innovation_part11(z0, zsum, zdiff, mag, carry);
     P_zz[0] = carry[5];
     P_zz[1] = carry[7];
     P_zz[2] = carry[9];
     P_zz[3] = carry[11];
-    P_zz[4] = carry[13];
-    P_zz[5] = carry[0];
+    P_zz[4] = carry[12];
+    P_zz[5] = carry[14];
     P_zz[6] = carry[7];
-    P_zz[7] = carry[6];
-    P_zz[8] = carry[14];
-    P_zz[9] = carry[16];
-    P_zz[10] = carry[17];
-    P_zz[11] = carry[18];
+    P_zz[7] = carry[17];
+    P_zz[8] = carry[18];
+    P_zz[9] = carry[19];
+    P_zz[10] = carry[20];
+    P_zz[11] = carry[1];
     P_zz[12] = carry[9];
-    P_zz[13] = carry[14];
+    P_zz[13] = carry[18];
     P_zz[14] = carry[21];
-    P_zz[15] = carry[8];
-    P_zz[16] = carry[10];
-    P_zz[17] = carry[22];
+    P_zz[15] = carry[22];
+    P_zz[16] = carry[23];
+    P_zz[17] = carry[8];
     P_zz[18] = carry[11];
-    P_zz[19] = carry[16];
-    P_zz[20] = carry[8];
-    P_zz[21] = carry[27];
-    P_zz[22] = carry[28];
-    P_zz[23] = carry[29];
-    P_zz[24] = carry[13];
-    P_zz[25] = carry[17];
-    P_zz[26] = carry[10];
-    P_zz[27] = carry[28];
-    P_zz[28] = carry[15];
-    P_zz[29] = carry[23];
-    P_zz[30] = carry[0];
-    P_zz[31] = carry[18];
-    P_zz[32] = carry[22];
-    P_zz[33] = carry[29];
-    P_zz[34] = carry[23];
-    P_zz[35] = carry[32];
-    P_xz[0] = carry[34];
-    P_xz[1] = carry[36];
-    P_xz[2] = carry[38];
-    P_xz[3] = carry[33];
-    P_xz[4] = carry[35];
-    P_xz[5] = carry[37];
-    P_xz[6] = carry[39];
-    P_xz[7] = carry[41];
-    P_xz[8] = carry[43];
-    P_xz[9] = carry[45];
-    P_xz[10] = carry[40];
-    P_xz[11] = carry[42];
-    P_xz[12] = carry[44];
-    P_xz[13] = carry[46];
-    P_xz[14] = carry[48];
-    P_xz[15] = carry[50];
-    P_xz[16] = carry[52];
-    P_xz[17] = carry[47];
-    P_xz[18] = carry[49];
-    P_xz[19] = carry[51];
-    P_xz[20] = carry[53];
-    P_xz[21] = carry[55];
-    P_xz[22] = carry[57];
-    P_xz[23] = carry[59];
-    P_xz[24] = carry[54];
-    P_xz[25] = carry[56];
-    P_xz[26] = carry[58];
-    P_xz[27] = carry[60];
-    P_xz[28] = carry[62];
-    P_xz[29] = carry[64];
-    P_xz[30] = carry[66];
-    P_xz[31] = carry[61];
-    P_xz[32] = carry[63];
-    P_xz[33] = carry[65];
-    P_xz[34] = carry[67];
-    P_xz[35] = carry[69];
-    P_xz[36] = carry[71];
-    P_xz[37] = carry[73];
-    P_xz[38] = carry[68];
-    P_xz[39] = carry[70];
-    P_xz[40] = carry[72];
-    P_xz[41] = carry[74];
+    P_zz[19] = carry[19];
+    P_zz[20] = carry[22];
+    P_zz[21] = carry[28];
+    P_zz[22] = carry[29];
+    P_zz[23] = carry[10];
+    P_zz[24] = carry[12];
+    P_zz[25] = carry[20];
+    P_zz[26] = carry[23];
+    P_zz[27] = carry[29];
+    P_zz[28] = carry[32];
+    P_zz[29] = carry[0];
+    P_zz[30] = carry[14];
+    P_zz[31] = carry[1];
+    P_zz[32] = carry[8];
+    P_zz[33] = carry[10];
+    P_zz[34] = carry[0];
+    P_zz[35] = carry[25];
     residual[0] = carry[2];
-    residual[1] = carry[1];
-    residual[2] = carry[19];
-    residual[3] = carry[24];
-    residual[4] = carry[31];
-    residual[5] = carry[25];
+    residual[1] = carry[15];
+    residual[2] = carry[3];
+    residual[3] = carry[26];
+    residual[4] = carry[30];
+    residual[5] = carry[13];
     r_diag[0] = carry[4];
-    r_diag[1] = carry[3];
-    r_diag[2] = carry[20];
-    r_diag[3] = carry[26];
-    r_diag[4] = carry[12];
-    r_diag[5] = carry[30];
+    r_diag[1] = carry[16];
+    r_diag[2] = carry[6];
+    r_diag[3] = carry[27];
+    r_diag[4] = carry[31];
+    r_diag[5] = carry[24];
 }
 
-/* with L = chol(P_zz): U^T = L^-1 P_xz^T and v = L^-1 eps (K = U L^-1 never formed); pivot_zz = smallest pivot of P_zz
- * ops: add 155, mul 218, div 6, sqrt 6, cmp 11 (total 396) */
-static void adukf_k_gain_part0(const float P_zz[36], const float P_xz[42], float carry[67])
+/* with L = chol(P_zz): U^T = L^-1 P_xz^T = (Wi L^-1 D) aL^T (P_xz = Wi aL D^T, D the pairs' differences, never formed) and v = L^-1 eps (K = U L^-1 never formed); pivot_zz = smallest pivot of P_zz
+ * ops: add 200, mul 311, div 6, sqrt 6, cmp 11 (total 534) */
+static void adukf_k_gain_part0(const float P_zz[36], const float zdiff[24], const float aL[28], float carry[85])
 {
     const float tmp0 = (1e-15f /* pivot_min */ < P_zz[0]) ? P_zz[0] : 1.0f;
     const float tmp1 = 1.0f / tmp0;
     const float tmp2 = sqrtf(tmp1);
-    const float tmp3 = P_xz[0] * tmp2;
-    const float tmp4 = P_zz[1] * tmp2;
-    const float tmp5 = tmp4 * tmp3;
-    const float tmp6 = P_xz[7] - tmp5;
-    const float tmp7 = tmp4 * tmp4;
-    const float tmp8 = P_zz[7] - tmp7;
-    const float tmp9 = (1e-15f /* pivot_min */ < tmp8) ? tmp8 : 1.0f;
-    const float tmp10 = 1.0f / tmp9;
-    const float tmp11 = sqrtf(tmp10);
-    const float tmp12 = tmp6 * tmp11;
-    const float tmp13 = P_zz[2] * tmp2;
-    const float tmp14 = tmp13 * tmp3;
-    const float tmp15 = P_xz[14] - tmp14;
-    const float tmp16 = tmp13 * tmp4;
-    const float tmp17 = P_zz[8] - tmp16;
-    const float tmp18 = tmp17 * tmp11;
-    const float tmp19 = tmp18 * tmp12;
-    const float tmp20 = tmp15 - tmp19;
-    const float tmp21 = tmp13 * tmp13;
-    const float tmp22 = P_zz[14] - tmp21;
-    const float tmp23 = tmp18 * tmp18;
-    const float tmp24 = tmp22 - tmp23;
-    const float tmp25 = (1e-15f /* pivot_min */ < tmp24) ? tmp24 : 1.0f;
-    const float tmp26 = 1.0f / tmp25;
-    const float tmp27 = sqrtf(tmp26);
-    const float tmp28 = tmp20 * tmp27;
-    const float tmp29 = P_zz[3] * tmp2;
-    const float tmp30 = tmp29 * tmp3;
-    const float tmp31 = P_xz[21] - tmp30;
-    const float tmp32 = tmp29 * tmp4;
-    const float tmp33 = P_zz[9] - tmp32;
-    const float tmp34 = tmp33 * tmp11;
-    const float tmp35 = tmp34 * tmp12;
-    const float tmp36 = tmp31 - tmp35;
-    const float tmp37 = tmp29 * tmp13;
-    const float tmp38 = P_zz[15] - tmp37;
-    const float tmp39 = tmp34 * tmp18;
+    const float tmp3 = zdiff[0] * tmp2;
+    const float tmp4 = 0.071428575f * tmp3;
+    const float tmp5 = tmp4 * aL[0];
+    const float tmp6 = P_zz[1] * tmp2;
+    const float tmp7 = tmp6 * tmp3;
+    const float tmp8 = zdiff[1] - tmp7;
+    const float tmp9 = tmp6 * tmp6;
+    const float tmp10 = P_zz[7] - tmp9;
+    const float tmp11 = (1e-15f /* pivot_min */ < tmp10) ? tmp10 : 1.0f;
+    const float tmp12 = 1.0f / tmp11;
+    const float tmp13 = sqrtf(tmp12);
+    const float tmp14 = tmp8 * tmp13;
+    const float tmp15 = 0.071428575f * tmp14;
+    const float tmp16 = tmp15 * aL[0];
+    const float tmp17 = P_zz[2] * tmp2;
+    const float tmp18 = tmp17 * tmp3;
+    const float tmp19 = zdiff[2] - tmp18;
+    const float tmp20 = tmp17 * tmp6;
+    const float tmp21 = P_zz[8] - tmp20;
+    const float tmp22 = tmp21 * tmp13;
+    const float tmp23 = tmp22 * tmp14;
+    const float tmp24 = tmp19 - tmp23;
+    const float tmp25 = tmp17 * tmp17;
+    const float tmp26 = P_zz[14] - tmp25;
+    const float tmp27 = tmp22 * tmp22;
+    const float tmp28 = tmp26 - tmp27;
+    const float tmp29 = (1e-15f /* pivot_min */ < tmp28) ? tmp28 : 1.0f;
+    const float tmp30 = 1.0f / tmp29;
+    const float tmp31 = sqrtf(tmp30);
+    const float tmp32 = tmp24 * tmp31;
+    const float tmp33 = 0.071428575f * tmp32;
+    const float tmp34 = tmp33 * aL[0];
+    const float tmp35 = P_zz[3] * tmp2;
+    const float tmp36 = tmp35 * tmp3;
+    const float tmp37 = zdiff[3] - tmp36;
+    const float tmp38 = tmp35 * tmp6;
+    const float tmp39 = P_zz[9] - tmp38;
     carry[0] = tmp2;
     carry[1] = tmp3;
     carry[2] = tmp4;
-    carry[3] = tmp8;
-    carry[4] = tmp11;
-    carry[5] = tmp12;
+    carry[3] = tmp5;
+    carry[4] = tmp6;
+    carry[5] = tmp10;
     carry[6] = tmp13;
-    carry[7] = tmp18;
-    carry[8] = tmp24;
-    carry[9] = tmp27;
-    carry[10] = tmp28;
-    carry[11] = tmp29;
-    carry[12] = tmp34;
-    carry[13] = tmp36;
-    carry[14] = tmp38;
-    carry[15] = tmp39;
+    carry[7] = tmp14;
+    carry[8] = tmp15;
+    carry[9] = tmp16;
+    carry[10] = tmp17;
+    carry[11] = tmp22;
+    carry[12] = tmp28;
+    carry[13] = tmp31;
+    carry[14] = tmp32;
+    carry[15] = tmp33;
+    carry[16] = tmp34;
+    carry[17] = tmp35;
+    carry[18] = tmp37;
+    carry[19] = tmp39;
 }
 
-static void adukf_k_gain_part1(const float P_zz[36], const float P_xz[42], float carry[67])
+static void adukf_k_gain_part1(const float P_zz[36], const float zdiff[24], const float aL[28], float carry[85])
 {
-    const float tmp40 = carry[14] - carry[15];
-    const float tmp41 = tmp40 * carry[9];
-    const float tmp42 = tmp41 * carry[10];
-    const float tmp43 = carry[13] - tmp42;
-    const float tmp44 = carry[11] * carry[11];
-    const float tmp45 = P_zz[21] - tmp44;
-    const float tmp46 = carry[12] * carry[12];
-    const float tmp47 = tmp45 - tmp46;
-    const float tmp48 = tmp41 * tmp41;
-    const float tmp49 = tmp47 - tmp48;
-    const float tmp50 = (1e-15f /* pivot_min */ < tmp49) ? tmp49 : 1.0f;
-    const float tmp51 = 1.0f / tmp50;
-    const float tmp52 = sqrtf(tmp51);
-    const float tmp53 = tmp43 * tmp52;
-    const float tmp54 = P_zz[4] * carry[0];
-    const float tmp55 = tmp54 * carry[1];
-    const float tmp56 = P_xz[28] - tmp55;
-    const float tmp57 = tmp54 * carry[2];
-    const float tmp58 = P_zz[10] - tmp57;
-    const float tmp59 = tmp58 * carry[4];
-    const float tmp60 = tmp59 * carry[5];
-    const float tmp61 = tmp56 - tmp60;
-    const float tmp62 = tmp54 * carry[6];
-    const float tmp63 = P_zz[16] - tmp62;
-    const float tmp64 = tmp59 * carry[7];
-    const float tmp65 = tmp63 - tmp64;
-    const float tmp66 = tmp65 * carry[9];
-    const float tmp67 = tmp66 * carry[10];
-    const float tmp68 = tmp61 - tmp67;
-    const float tmp69 = tmp54 * carry[11];
-    const float tmp70 = P_zz[22] - tmp69;
-    const float tmp71 = tmp59 * carry[12];
-    const float tmp72 = tmp70 - tmp71;
-    const float tmp73 = tmp66 * tmp41;
-    const float tmp74 = tmp72 - tmp73;
-    const float tmp75 = tmp74 * tmp52;
-    const float tmp76 = tmp75 * tmp53;
-    const float tmp77 = tmp68 - tmp76;
-    const float tmp78 = tmp54 * tmp54;
-    const float tmp79 = P_zz[28] - tmp78;
-    carry[13] = tmp41;
-    carry[14] = tmp49;
-    carry[15] = tmp52;
-    carry[16] = tmp53;
-    carry[17] = tmp54;
-    carry[18] = tmp59;
-    carry[19] = tmp66;
-    carry[20] = tmp75;
-    carry[21] = tmp77;
-    carry[22] = tmp79;
+    const float tmp40 = carry[19] * carry[6];
+    const float tmp41 = tmp40 * carry[7];
+    const float tmp42 = carry[18] - tmp41;
+    const float tmp43 = carry[17] * carry[10];
+    const float tmp44 = P_zz[15] - tmp43;
+    const float tmp45 = tmp40 * carry[11];
+    const float tmp46 = tmp44 - tmp45;
+    const float tmp47 = tmp46 * carry[13];
+    const float tmp48 = tmp47 * carry[14];
+    const float tmp49 = tmp42 - tmp48;
+    const float tmp50 = carry[17] * carry[17];
+    const float tmp51 = P_zz[21] - tmp50;
+    const float tmp52 = tmp40 * tmp40;
+    const float tmp53 = tmp51 - tmp52;
+    const float tmp54 = tmp47 * tmp47;
+    const float tmp55 = tmp53 - tmp54;
+    const float tmp56 = (1e-15f /* pivot_min */ < tmp55) ? tmp55 : 1.0f;
+    const float tmp57 = 1.0f / tmp56;
+    const float tmp58 = sqrtf(tmp57);
+    const float tmp59 = tmp49 * tmp58;
+    const float tmp60 = 0.071428575f * tmp59;
+    const float tmp61 = tmp60 * aL[0];
+    const float tmp62 = P_zz[4] * carry[0];
+    const float tmp63 = tmp62 * carry[1];
+    const float tmp64 = zdiff[4] - tmp63;
+    const float tmp65 = tmp62 * carry[4];
+    const float tmp66 = P_zz[10] - tmp65;
+    const float tmp67 = tmp66 * carry[6];
+    const float tmp68 = tmp67 * carry[7];
+    const float tmp69 = tmp64 - tmp68;
+    const float tmp70 = tmp62 * carry[10];
+    const float tmp71 = P_zz[16] - tmp70;
+    const float tmp72 = tmp67 * carry[11];
+    const float tmp73 = tmp71 - tmp72;
+    const float tmp74 = tmp73 * carry[13];
+    const float tmp75 = tmp74 * carry[14];
+    const float tmp76 = tmp69 - tmp75;
+    const float tmp77 = tmp62 * carry[17];
+    const float tmp78 = P_zz[22] - tmp77;
+    const float tmp79 = tmp67 * tmp40;
+    carry[18] = tmp40;
+    carry[19] = tmp47;
+    carry[20] = tmp55;
+    carry[21] = tmp58;
+    carry[22] = tmp59;
+    carry[23] = tmp60;
+    carry[24] = tmp61;
+    carry[25] = tmp62;
+    carry[26] = tmp67;
+    carry[27] = tmp74;
+    carry[28] = tmp76;
+    carry[29] = tmp78;
+    carry[30] = tmp79;
 }
 
-static void adukf_k_gain_part2(const float P_zz[36], const float P_xz[42], float carry[67])
+static void adukf_k_gain_part2(const float P_zz[36], const float zdiff[24], const float aL[28], float carry[85])
 {
-    const float tmp80 = carry[18] * carry[18];
-    const float tmp81 = carry[22] - tmp80;
-    const float tmp82 = carry[19] * carry[19];
-    const float tmp83 = tmp81 - tmp82;
-    const float tmp84 = carry[20] * carry[20];
-    const float tmp85 = tmp83 - tmp84;
-    const float tmp86 = (1e-15f /* pivot_min */ < tmp85) ? tmp85 : 1.0f;
-    const float tmp87 = 1.0f / tmp86;
-    const float tmp88 = sqrtf(tmp87);
-    const float tmp89 = carry[21] * tmp88;
-    const float tmp90 = P_zz[5] * carry[0];
-    const float tmp91 = tmp90 * carry[1];
-    const float tmp92 = P_xz[35] - tmp91;
-    const float tmp93 = tmp90 * carry[2];
-    const float tmp94 = P_zz[11] - tmp93;
-    const float tmp95 = tmp94 * carry[4];
-    const float tmp96 = tmp95 * carry[5];
-    const float tmp97 = tmp92 - tmp96;
-    const float tmp98 = tmp90 * carry[6];
-    const float tmp99 = P_zz[17] - tmp98;
-    const float tmp100 = tmp95 * carry[7];
-    const float tmp101 = tmp99 - tmp100;
-    const float tmp102 = tmp101 * carry[9];
-    const float tmp103 = tmp102 * carry[10];
-    const float tmp104 = tmp97 - tmp103;
-    const float tmp105 = tmp90 * carry[11];
-    const float tmp106 = P_zz[23] - tmp105;
-    const float tmp107 = tmp95 * carry[12];
-    const float tmp108 = tmp106 - tmp107;
-    const float tmp109 = tmp102 * carry[13];
-    const float tmp110 = tmp108 - tmp109;
-    const float tmp111 = tmp110 * carry[15];
-    const float tmp112 = tmp111 * carry[16];
-    const float tmp113 = tmp104 - tmp112;
-    const float tmp114 = tmp90 * carry[17];
-    const float tmp115 = P_zz[29] - tmp114;
-    const float tmp116 = tmp95 * carry[18];
-    const float tmp117 = tmp115 - tmp116;
-    const float tmp118 = tmp102 * carry[19];
-    const float tmp119 = tmp117 - tmp118;
-    carry[21] = tmp85;
-    carry[22] = tmp88;
-    carry[23] = tmp89;
-    carry[24] = tmp90;
-    carry[25] = tmp95;
-    carry[26] = tmp102;
-    carry[27] = tmp111;
-    carry[28] = tmp113;
-    carry[29] = tmp119;
+    const float tmp80 = carry[29] - carry[30];
+    const float tmp81 = carry[27] * carry[19];
+    const float tmp82 = tmp80 - tmp81;
+    const float tmp83 = tmp82 * carry[21];
+    const float tmp84 = tmp83 * carry[22];
+    const float tmp85 = carry[28] - tmp84;
+    const float tmp86 = carry[25] * carry[25];
+    const float tmp87 = P_zz[28] - tmp86;
+    const float tmp88 = carry[26] * carry[26];
+    const float tmp89 = tmp87 - tmp88;
+    const float tmp90 = carry[27] * carry[27];
+    const float tmp91 = tmp89 - tmp90;
+    const float tmp92 = tmp83 * tmp83;
+    const float tmp93 = tmp91 - tmp92;
+    const float tmp94 = (1e-15f /* pivot_min */ < tmp93) ? tmp93 : 1.0f;
+    const float tmp95 = 1.0f / tmp94;
+    const float tmp96 = sqrtf(tmp95);
+    const float tmp97 = tmp85 * tmp96;
+    const float tmp98 = 0.071428575f * tmp97;
+    const float tmp99 = tmp98 * aL[0];
+    const float tmp100 = P_zz[5] * carry[0];
+    const float tmp101 = tmp100 * carry[1];
+    const float tmp102 = zdiff[5] - tmp101;
+    const float tmp103 = tmp100 * carry[4];
+    const float tmp104 = P_zz[11] - tmp103;
+    const float tmp105 = tmp104 * carry[6];
+    const float tmp106 = tmp105 * carry[7];
+    const float tmp107 = tmp102 - tmp106;
+    const float tmp108 = tmp100 * carry[10];
+    const float tmp109 = P_zz[17] - tmp108;
+    const float tmp110 = tmp105 * carry[11];
+    const float tmp111 = tmp109 - tmp110;
+    const float tmp112 = tmp111 * carry[13];
+    const float tmp113 = tmp112 * carry[14];
+    const float tmp114 = tmp107 - tmp113;
+    const float tmp115 = tmp100 * carry[17];
+    const float tmp116 = P_zz[23] - tmp115;
+    const float tmp117 = tmp105 * carry[18];
+    const float tmp118 = tmp116 - tmp117;
+    const float tmp119 = tmp112 * carry[19];
+    carry[1] = tmp83;
+    carry[7] = tmp93;
+    carry[14] = tmp96;
+    carry[28] = tmp97;
+    carry[29] = tmp98;
+    carry[30] = tmp99;
+    carry[31] = tmp100;
+    carry[32] = tmp105;
+    carry[33] = tmp112;
+    carry[34] = tmp114;
+    carry[35] = tmp118;
+    carry[36] = tmp119;
 }
 
-static void adukf_k_gain_part3(const float P_zz[36], const float P_xz[42], float carry[67])
+static void adukf_k_gain_part3(const float P_zz[36], const float zdiff[24], const float aL[28], float carry[85])
 {
-    const float tmp120 = carry[27] * carry[20];
-    const float tmp121 = carry[29] - tmp120;
+    const float tmp120 = carry[35] - carry[36];
+    const float tmp121 = tmp120 * carry[21];
     const float tmp122 = tmp121 * carry[22];
-    const float tmp123 = tmp122 * carry[23];
-    const float tmp124 = carry[28] - tmp123;
-    const float tmp125 = carry[24] * carry[24];
-    const float tmp126 = P_zz[35] - tmp125;
-    const float tmp127 = carry[25] * carry[25];
-    const float tmp128 = tmp126 - tmp127;
-    const float tmp129 = carry[26] * carry[26];
-    const float tmp130 = tmp128 - tmp129;
-    const float tmp131 = carry[27] * carry[27];
-    const float tmp132 = tmp130 - tmp131;
-    const float tmp133 = tmp122 * tmp122;
-    const float tmp134 = tmp132 - tmp133;
-    const float tmp135 = (1e-15f /* pivot_min */ < tmp134) ? tmp134 : 1.0f;
-    const float tmp136 = 1.0f / tmp135;
-    const float tmp137 = sqrtf(tmp136);
-    const float tmp138 = tmp124 * tmp137;
-    const float tmp139 = P_xz[1] * carry[0];
-    const float tmp140 = carry[2] * tmp139;
-    const float tmp141 = P_xz[8] - tmp140;
-    const float tmp142 = tmp141 * carry[4];
-    const float tmp143 = carry[6] * tmp139;
-    const float tmp144 = P_xz[15] - tmp143;
-    const float tmp145 = carry[7] * tmp142;
-    const float tmp146 = tmp144 - tmp145;
-    const float tmp147 = tmp146 * carry[9];
-    const float tmp148 = carry[11] * tmp139;
-    const float tmp149 = P_xz[22] - tmp148;
-    const float tmp150 = carry[12] * tmp142;
-    const float tmp151 = tmp149 - tmp150;
-    const float tmp152 = carry[13] * tmp147;
-    const float tmp153 = tmp151 - tmp152;
-    const float tmp154 = tmp153 * carry[15];
-    const float tmp155 = carry[17] * tmp139;
-    const float tmp156 = P_xz[29] - tmp155;
-    const float tmp157 = carry[18] * tmp142;
-    const float tmp158 = tmp156 - tmp157;
-    const float tmp159 = carry[19] * tmp147;
-    carry[28] = tmp122;
-    carry[29] = tmp134;
-    carry[30] = tmp137;
-    carry[31] = tmp138;
-    carry[32] = tmp139;
-    carry[33] = tmp142;
-    carry[34] = tmp147;
-    carry[35] = tmp154;
-    carry[36] = tmp158;
-    carry[37] = tmp159;
+    const float tmp123 = carry[34] - tmp122;
+    const float tmp124 = carry[31] * carry[25];
+    const float tmp125 = P_zz[29] - tmp124;
+    const float tmp126 = carry[32] * carry[26];
+    const float tmp127 = tmp125 - tmp126;
+    const float tmp128 = carry[33] * carry[27];
+    const float tmp129 = tmp127 - tmp128;
+    const float tmp130 = tmp121 * carry[1];
+    const float tmp131 = tmp129 - tmp130;
+    const float tmp132 = tmp131 * carry[14];
+    const float tmp133 = tmp132 * carry[28];
+    const float tmp134 = tmp123 - tmp133;
+    const float tmp135 = carry[31] * carry[31];
+    const float tmp136 = P_zz[35] - tmp135;
+    const float tmp137 = carry[32] * carry[32];
+    const float tmp138 = tmp136 - tmp137;
+    const float tmp139 = carry[33] * carry[33];
+    const float tmp140 = tmp138 - tmp139;
+    const float tmp141 = tmp121 * tmp121;
+    const float tmp142 = tmp140 - tmp141;
+    const float tmp143 = tmp132 * tmp132;
+    const float tmp144 = tmp142 - tmp143;
+    const float tmp145 = (1e-15f /* pivot_min */ < tmp144) ? tmp144 : 1.0f;
+    const float tmp146 = 1.0f / tmp145;
+    const float tmp147 = sqrtf(tmp146);
+    const float tmp148 = tmp134 * tmp147;
+    const float tmp149 = 0.071428575f * tmp148;
+    const float tmp150 = tmp149 * aL[0];
+    const float tmp151 = carry[2] * aL[1];
+    const float tmp152 = zdiff[6] * carry[0];
+    const float tmp153 = 0.071428575f * tmp152;
+    const float tmp154 = tmp153 * aL[8];
+    const float tmp155 = tmp151 + tmp154;
+    const float tmp156 = carry[8] * aL[1];
+    const float tmp157 = carry[4] * tmp152;
+    const float tmp158 = zdiff[7] - tmp157;
+    const float tmp159 = tmp158 * carry[6];
+    carry[22] = tmp121;
+    carry[28] = tmp132;
+    carry[34] = tmp144;
+    carry[35] = tmp147;
+    carry[36] = tmp149;
+    carry[37] = tmp150;
+    carry[38] = tmp152;
+    carry[39] = tmp153;
+    carry[40] = tmp155;
+    carry[41] = tmp156;
+    carry[42] = tmp159;
 }
 
-static void adukf_k_gain_part4(const float P_xz[42], float carry[67])
+static void adukf_k_gain_part4(const float zdiff[24], const float aL[28], float carry[85])
 {
-    const float tmp160 = carry[36] - carry[37];
-    const float tmp161 = carry[20] * carry[35];
-    const float tmp162 = tmp160 - tmp161;
-    const float tmp163 = tmp162 * carry[22];
-    const float tmp164 = carry[24] * carry[32];
-    const float tmp165 = P_xz[36] - tmp164;
-    const float tmp166 = carry[25] * carry[33];
+    const float tmp160 = 0.071428575f * carry[42];
+    const float tmp161 = tmp160 * aL[8];
+    const float tmp162 = carry[41] + tmp161;
+    const float tmp163 = carry[15] * aL[1];
+    const float tmp164 = carry[10] * carry[38];
+    const float tmp165 = zdiff[8] - tmp164;
+    const float tmp166 = carry[11] * carry[42];
     const float tmp167 = tmp165 - tmp166;
-    const float tmp168 = carry[26] * carry[34];
-    const float tmp169 = tmp167 - tmp168;
-    const float tmp170 = carry[27] * carry[35];
-    const float tmp171 = tmp169 - tmp170;
-    const float tmp172 = carry[28] * tmp163;
-    const float tmp173 = tmp171 - tmp172;
-    const float tmp174 = tmp173 * carry[30];
-    const float tmp175 = P_xz[2] * carry[0];
-    const float tmp176 = carry[2] * tmp175;
-    const float tmp177 = P_xz[9] - tmp176;
-    const float tmp178 = tmp177 * carry[4];
-    const float tmp179 = carry[6] * tmp175;
-    const float tmp180 = P_xz[16] - tmp179;
-    const float tmp181 = carry[7] * tmp178;
-    const float tmp182 = tmp180 - tmp181;
-    const float tmp183 = tmp182 * carry[9];
-    const float tmp184 = carry[11] * tmp175;
-    const float tmp185 = P_xz[23] - tmp184;
-    const float tmp186 = carry[12] * tmp178;
+    const float tmp168 = tmp167 * carry[13];
+    const float tmp169 = 0.071428575f * tmp168;
+    const float tmp170 = tmp169 * aL[8];
+    const float tmp171 = tmp163 + tmp170;
+    const float tmp172 = carry[23] * aL[1];
+    const float tmp173 = carry[17] * carry[38];
+    const float tmp174 = zdiff[9] - tmp173;
+    const float tmp175 = carry[18] * carry[42];
+    const float tmp176 = tmp174 - tmp175;
+    const float tmp177 = carry[19] * tmp168;
+    const float tmp178 = tmp176 - tmp177;
+    const float tmp179 = tmp178 * carry[21];
+    const float tmp180 = 0.071428575f * tmp179;
+    const float tmp181 = tmp180 * aL[8];
+    const float tmp182 = tmp172 + tmp181;
+    const float tmp183 = carry[29] * aL[1];
+    const float tmp184 = carry[25] * carry[38];
+    const float tmp185 = zdiff[10] - tmp184;
+    const float tmp186 = carry[26] * carry[42];
     const float tmp187 = tmp185 - tmp186;
-    const float tmp188 = carry[13] * tmp183;
+    const float tmp188 = carry[27] * tmp168;
     const float tmp189 = tmp187 - tmp188;
-    const float tmp190 = tmp189 * carry[15];
-    const float tmp191 = carry[17] * tmp175;
-    const float tmp192 = P_xz[30] - tmp191;
-    const float tmp193 = carry[18] * tmp178;
-    const float tmp194 = tmp192 - tmp193;
-    const float tmp195 = carry[19] * tmp183;
-    const float tmp196 = tmp194 - tmp195;
-    const float tmp197 = carry[20] * tmp190;
-    const float tmp198 = tmp196 - tmp197;
-    const float tmp199 = tmp198 * carry[22];
-    carry[36] = tmp163;
-    carry[37] = tmp174;
-    carry[38] = tmp175;
-    carry[39] = tmp178;
-    carry[40] = tmp183;
-    carry[41] = tmp190;
-    carry[42] = tmp199;
+    const float tmp190 = carry[1] * tmp179;
+    const float tmp191 = tmp189 - tmp190;
+    const float tmp192 = tmp191 * carry[14];
+    const float tmp193 = 0.071428575f * tmp192;
+    const float tmp194 = tmp193 * aL[8];
+    const float tmp195 = tmp183 + tmp194;
+    const float tmp196 = carry[36] * aL[1];
+    const float tmp197 = carry[31] * carry[38];
+    const float tmp198 = zdiff[11] - tmp197;
+    const float tmp199 = carry[32] * carry[42];
+    carry[38] = tmp160;
+    carry[41] = tmp162;
+    carry[42] = tmp168;
+    carry[43] = tmp169;
+    carry[44] = tmp171;
+    carry[45] = tmp179;
+    carry[46] = tmp180;
+    carry[47] = tmp182;
+    carry[48] = tmp192;
+    carry[49] = tmp193;
+    carry[50] = tmp195;
+    carry[51] = tmp196;
+    carry[52] = tmp198;
+    carry[53] = tmp199;
 }
 
-static void adukf_k_gain_part5(const float P_xz[42], float carry[67])
+static void adukf_k_gain_part5(const float zdiff[24], const float aL[28], float carry[85])
 {
-    const float tmp200 = carry[24] * carry[38];
-    const float tmp201 = P_xz[37] - tmp200;
-    const float tmp202 = carry[25] * carry[39];
-    const float tmp203 = tmp201 - tmp202;
-    const float tmp204 = carry[26] * carry[40];
-    const float tmp205 = tmp203 - tmp204;
-    const float tmp206 = carry[27] * carry[41];
-    const float tmp207 = tmp205 - tmp206;
-    const float tmp208 = carry[28] * carry[42];
-    const float tmp209 = tmp207 - tmp208;
-    const float tmp210 = tmp209 * carry[30];
-    const float tmp211 = P_xz[3] * carry[0];
-    const float tmp212 = carry[2] * tmp211;
-    const float tmp213 = P_xz[10] - tmp212;
-    const float tmp214 = tmp213 * carry[4];
-    const float tmp215 = carry[6] * tmp211;
-    const float tmp216 = P_xz[17] - tmp215;
-    const float tmp217 = carry[7] * tmp214;
-    const float tmp218 = tmp216 - tmp217;
-    const float tmp219 = tmp218 * carry[9];
-    const float tmp220 = carry[11] * tmp211;
-    const float tmp221 = P_xz[24] - tmp220;
-    const float tmp222 = carry[12] * tmp214;
-    const float tmp223 = tmp221 - tmp222;
-    const float tmp224 = carry[13] * tmp219;
-    const float tmp225 = tmp223 - tmp224;
-    const float tmp226 = tmp225 * carry[15];
-    const float tmp227 = carry[17] * tmp211;
-    const float tmp228 = P_xz[31] - tmp227;
-    const float tmp229 = carry[18] * tmp214;
-    const float tmp230 = tmp228 - tmp229;
-    const float tmp231 = carry[19] * tmp219;
-    const float tmp232 = tmp230 - tmp231;
-    const float tmp233 = carry[20] * tmp226;
-    const float tmp234 = tmp232 - tmp233;
-    const float tmp235 = tmp234 * carry[22];
-    const float tmp236 = carry[24] * tmp211;
-    const float tmp237 = P_xz[38] - tmp236;
-    const float tmp238 = carry[25] * tmp214;
-    const float tmp239 = tmp237 - tmp238;
-    carry[43] = tmp210;
-    carry[44] = tmp211;
-    carry[45] = tmp214;
-    carry[46] = tmp219;
-    carry[47] = tmp226;
-    carry[48] = tmp235;
-    carry[49] = tmp239;
+    const float tmp200 = carry[52] - carry[53];
+    const float tmp201 = carry[33] * carry[42];
+    const float tmp202 = tmp200 - tmp201;
+    const float tmp203 = carry[22] * carry[45];
+    const float tmp204 = tmp202 - tmp203;
+    const float tmp205 = carry[28] * carry[48];
+    const float tmp206 = tmp204 - tmp205;
+    const float tmp207 = tmp206 * carry[35];
+    const float tmp208 = 0.071428575f * tmp207;
+    const float tmp209 = tmp208 * aL[8];
+    const float tmp210 = carry[51] + tmp209;
+    const float tmp211 = carry[2] * aL[2];
+    const float tmp212 = carry[39] * aL[9];
+    const float tmp213 = tmp211 + tmp212;
+    const float tmp214 = zdiff[12] * carry[0];
+    const float tmp215 = 0.071428575f * tmp214;
+    const float tmp216 = tmp215 * aL[16];
+    const float tmp217 = tmp213 + tmp216;
+    const float tmp218 = carry[8] * aL[2];
+    const float tmp219 = carry[38] * aL[9];
+    const float tmp220 = tmp218 + tmp219;
+    const float tmp221 = carry[4] * tmp214;
+    const float tmp222 = zdiff[13] - tmp221;
+    const float tmp223 = tmp222 * carry[6];
+    const float tmp224 = 0.071428575f * tmp223;
+    const float tmp225 = tmp224 * aL[16];
+    const float tmp226 = tmp220 + tmp225;
+    const float tmp227 = carry[15] * aL[2];
+    const float tmp228 = carry[43] * aL[9];
+    const float tmp229 = tmp227 + tmp228;
+    const float tmp230 = carry[10] * tmp214;
+    const float tmp231 = zdiff[14] - tmp230;
+    const float tmp232 = carry[11] * tmp223;
+    const float tmp233 = tmp231 - tmp232;
+    const float tmp234 = tmp233 * carry[13];
+    const float tmp235 = 0.071428575f * tmp234;
+    const float tmp236 = tmp235 * aL[16];
+    const float tmp237 = tmp229 + tmp236;
+    const float tmp238 = carry[23] * aL[2];
+    const float tmp239 = carry[46] * aL[9];
+    carry[42] = tmp208;
+    carry[45] = tmp210;
+    carry[48] = tmp214;
+    carry[51] = tmp215;
+    carry[52] = tmp217;
+    carry[53] = tmp223;
+    carry[54] = tmp224;
+    carry[55] = tmp226;
+    carry[56] = tmp234;
+    carry[57] = tmp235;
+    carry[58] = tmp237;
+    carry[59] = tmp238;
+    carry[60] = tmp239;
 }
 
-static void adukf_k_gain_part6(const float P_xz[42], float carry[67])
+static void adukf_k_gain_part6(const float zdiff[24], const float aL[28], float carry[85])
 {
-    const float tmp240 = carry[26] * carry[46];
-    const float tmp241 = carry[49] - tmp240;
-    const float tmp242 = carry[27] * carry[47];
-    const float tmp243 = tmp241 - tmp242;
-    const float tmp244 = carry[28] * carry[48];
-    const float tmp245 = tmp243 - tmp244;
-    const float tmp246 = tmp245 * carry[30];
-    const float tmp247 = P_xz[4] * carry[0];
-    const float tmp248 = carry[2] * tmp247;
-    const float tmp249 = P_xz[11] - tmp248;
-    const float tmp250 = tmp249 * carry[4];
-    const float tmp251 = carry[6] * tmp247;
-    const float tmp252 = P_xz[18] - tmp251;
-    const float tmp253 = carry[7] * tmp250;
-    const float tmp254 = tmp252 - tmp253;
-    const float tmp255 = tmp254 * carry[9];
-    const float tmp256 = carry[11] * tmp247;
-    const float tmp257 = P_xz[25] - tmp256;
-    const float tmp258 = carry[12] * tmp250;
+    const float tmp240 = carry[59] + carry[60];
+    const float tmp241 = carry[17] * carry[48];
+    const float tmp242 = zdiff[15] - tmp241;
+    const float tmp243 = carry[18] * carry[53];
+    const float tmp244 = tmp242 - tmp243;
+    const float tmp245 = carry[19] * carry[56];
+    const float tmp246 = tmp244 - tmp245;
+    const float tmp247 = tmp246 * carry[21];
+    const float tmp248 = 0.071428575f * tmp247;
+    const float tmp249 = tmp248 * aL[16];
+    const float tmp250 = tmp240 + tmp249;
+    const float tmp251 = carry[29] * aL[2];
+    const float tmp252 = carry[49] * aL[9];
+    const float tmp253 = tmp251 + tmp252;
+    const float tmp254 = carry[25] * carry[48];
+    const float tmp255 = zdiff[16] - tmp254;
+    const float tmp256 = carry[26] * carry[53];
+    const float tmp257 = tmp255 - tmp256;
+    const float tmp258 = carry[27] * carry[56];
     const float tmp259 = tmp257 - tmp258;
-    const float tmp260 = carry[13] * tmp255;
+    const float tmp260 = carry[1] * tmp247;
     const float tmp261 = tmp259 - tmp260;
-    const float tmp262 = tmp261 * carry[15];
-    const float tmp263 = carry[17] * tmp247;
-    const float tmp264 = P_xz[32] - tmp263;
-    const float tmp265 = carry[18] * tmp250;
-    const float tmp266 = tmp264 - tmp265;
-    const float tmp267 = carry[19] * tmp255;
-    const float tmp268 = tmp266 - tmp267;
-    const float tmp269 = carry[20] * tmp262;
-    const float tmp270 = tmp268 - tmp269;
-    const float tmp271 = tmp270 * carry[22];
-    const float tmp272 = carry[24] * tmp247;
-    const float tmp273 = P_xz[39] - tmp272;
-    const float tmp274 = carry[25] * tmp250;
-    const float tmp275 = tmp273 - tmp274;
-    const float tmp276 = carry[26] * tmp255;
-    const float tmp277 = tmp275 - tmp276;
-    const float tmp278 = carry[27] * tmp262;
-    const float tmp279 = tmp277 - tmp278;
-    carry[49] = tmp246;
-    carry[50] = tmp247;
-    carry[51] = tmp250;
-    carry[52] = tmp255;
-    carry[53] = tmp262;
-    carry[54] = tmp271;
-    carry[55] = tmp279;
+    const float tmp262 = tmp261 * carry[14];
+    const float tmp263 = 0.071428575f * tmp262;
+    const float tmp264 = tmp263 * aL[16];
+    const float tmp265 = tmp253 + tmp264;
+    const float tmp266 = carry[36] * aL[2];
+    const float tmp267 = carry[42] * aL[9];
+    const float tmp268 = tmp266 + tmp267;
+    const float tmp269 = carry[31] * carry[48];
+    const float tmp270 = zdiff[17] - tmp269;
+    const float tmp271 = carry[32] * carry[53];
+    const float tmp272 = tmp270 - tmp271;
+    const float tmp273 = carry[33] * carry[56];
+    const float tmp274 = tmp272 - tmp273;
+    const float tmp275 = carry[22] * tmp247;
+    const float tmp276 = tmp274 - tmp275;
+    const float tmp277 = carry[28] * tmp262;
+    const float tmp278 = tmp276 - tmp277;
+    const float tmp279 = tmp278 * carry[35];
+    carry[48] = tmp248;
+    carry[53] = tmp250;
+    carry[56] = tmp263;
+    carry[59] = tmp265;
+    carry[60] = tmp268;
+    carry[61] = tmp279;
 }
 
-static void adukf_k_gain_part7(const float P_xz[42], float carry[67])
+static void adukf_k_gain_part7(const float zdiff[24], const float aL[28], float carry[85])
 {
-    const float tmp280 = carry[28] * carry[54];
-    const float tmp281 = carry[55] - tmp280;
-    const float tmp282 = tmp281 * carry[30];
-    const float tmp283 = P_xz[5] * carry[0];
-    const float tmp284 = carry[2] * tmp283;
-    const float tmp285 = P_xz[12] - tmp284;
-    const float tmp286 = tmp285 * carry[4];
-    const float tmp287 = carry[6] * tmp283;
-    const float tmp288 = P_xz[19] - tmp287;
-    const float tmp289 = carry[7] * tmp286;
-    const float tmp290 = tmp288 - tmp289;
-    const float tmp291 = tmp290 * carry[9];
-    const float tmp292 = carry[11] * tmp283;
-    const float tmp293 = P_xz[26] - tmp292;
-    const float tmp294 = carry[12] * tmp286;
-    const float tmp295 = tmp293 - tmp294;
-    const float tmp296 = carry[13] * tmp291;
-    const float tmp297 = tmp295 - tmp296;
-    const float tmp298 = tmp297 * carry[15];
-    const float tmp299 = carry[17] * tmp283;
-    const float tmp300 = P_xz[33] - tmp299;
-    const float tmp301 = carry[18] * tmp286;
-    const float tmp302 = tmp300 - tmp301;
-    const float tmp303 = carry[19] * tmp291;
-    const float tmp304 = tmp302 - tmp303;
-    const float tmp305 = carry[20] * tmp298;
-    const float tmp306 = tmp304 - tmp305;
-    const float tmp307 = tmp306 * carry[22];
-    const float tmp308 = carry[24] * tmp283;
-    const float tmp309 = P_xz[40] - tmp308;
-    const float tmp310 = carry[25] * tmp286;
+    const float tmp280 = 0.071428575f * carry[61];
+    const float tmp281 = tmp280 * aL[16];
+    const float tmp282 = carry[60] + tmp281;
+    const float tmp283 = carry[2] * aL[3];
+    const float tmp284 = carry[39] * aL[10];
+    const float tmp285 = tmp283 + tmp284;
+    const float tmp286 = carry[51] * aL[17];
+    const float tmp287 = tmp285 + tmp286;
+    const float tmp288 = zdiff[18] * carry[0];
+    const float tmp289 = 0.071428575f * tmp288;
+    const float tmp290 = tmp289 * aL[24];
+    const float tmp291 = tmp287 + tmp290;
+    const float tmp292 = carry[8] * aL[3];
+    const float tmp293 = carry[38] * aL[10];
+    const float tmp294 = tmp292 + tmp293;
+    const float tmp295 = carry[54] * aL[17];
+    const float tmp296 = tmp294 + tmp295;
+    const float tmp297 = carry[4] * tmp288;
+    const float tmp298 = zdiff[19] - tmp297;
+    const float tmp299 = tmp298 * carry[6];
+    const float tmp300 = 0.071428575f * tmp299;
+    const float tmp301 = tmp300 * aL[24];
+    const float tmp302 = tmp296 + tmp301;
+    const float tmp303 = carry[15] * aL[3];
+    const float tmp304 = carry[43] * aL[10];
+    const float tmp305 = tmp303 + tmp304;
+    const float tmp306 = carry[57] * aL[17];
+    const float tmp307 = tmp305 + tmp306;
+    const float tmp308 = carry[10] * tmp288;
+    const float tmp309 = zdiff[20] - tmp308;
+    const float tmp310 = carry[11] * tmp299;
     const float tmp311 = tmp309 - tmp310;
-    const float tmp312 = carry[26] * tmp291;
-    const float tmp313 = tmp311 - tmp312;
-    const float tmp314 = carry[27] * tmp298;
-    const float tmp315 = tmp313 - tmp314;
-    const float tmp316 = carry[28] * tmp307;
-    const float tmp317 = tmp315 - tmp316;
-    const float tmp318 = tmp317 * carry[30];
-    const float tmp319 = P_xz[6] * carry[0];
-    carry[55] = tmp282;
-    carry[56] = tmp283;
-    carry[57] = tmp286;
-    carry[58] = tmp291;
-    carry[59] = tmp298;
-    carry[60] = tmp307;
-    carry[61] = tmp318;
-    carry[62] = tmp319;
+    const float tmp312 = tmp311 * carry[13];
+    const float tmp313 = 0.071428575f * tmp312;
+    const float tmp314 = tmp313 * aL[24];
+    const float tmp315 = tmp307 + tmp314;
+    const float tmp316 = carry[23] * aL[3];
+    const float tmp317 = carry[46] * aL[10];
+    const float tmp318 = tmp316 + tmp317;
+    const float tmp319 = carry[48] * aL[17];
+    carry[60] = tmp280;
+    carry[61] = tmp282;
+    carry[62] = tmp288;
+    carry[63] = tmp289;
+    carry[64] = tmp291;
+    carry[65] = tmp299;
+    carry[66] = tmp300;
+    carry[67] = tmp302;
+    carry[68] = tmp312;
+    carry[69] = tmp313;
+    carry[70] = tmp315;
+    carry[71] = tmp318;
+    carry[72] = tmp319;
 }
 
-static void adukf_k_gain_part8(const float P_xz[42], const float residual[6], float carry[67])
+static void adukf_k_gain_part8(const float zdiff[24], const float aL[28], float carry[85])
 {
-    const float tmp320 = carry[2] * carry[62];
-    const float tmp321 = P_xz[13] - tmp320;
-    const float tmp322 = tmp321 * carry[4];
-    const float tmp323 = carry[6] * carry[62];
-    const float tmp324 = P_xz[20] - tmp323;
-    const float tmp325 = carry[7] * tmp322;
+    const float tmp320 = carry[71] + carry[72];
+    const float tmp321 = carry[17] * carry[62];
+    const float tmp322 = zdiff[21] - tmp321;
+    const float tmp323 = carry[18] * carry[65];
+    const float tmp324 = tmp322 - tmp323;
+    const float tmp325 = carry[19] * carry[68];
     const float tmp326 = tmp324 - tmp325;
-    const float tmp327 = tmp326 * carry[9];
-    const float tmp328 = carry[11] * carry[62];
-    const float tmp329 = P_xz[27] - tmp328;
-    const float tmp330 = carry[12] * tmp322;
-    const float tmp331 = tmp329 - tmp330;
-    const float tmp332 = carry[13] * tmp327;
-    const float tmp333 = tmp331 - tmp332;
-    const float tmp334 = tmp333 * carry[15];
-    const float tmp335 = carry[17] * carry[62];
-    const float tmp336 = P_xz[34] - tmp335;
-    const float tmp337 = carry[18] * tmp322;
-    const float tmp338 = tmp336 - tmp337;
-    const float tmp339 = carry[19] * tmp327;
-    const float tmp340 = tmp338 - tmp339;
-    const float tmp341 = carry[20] * tmp334;
-    const float tmp342 = tmp340 - tmp341;
-    const float tmp343 = tmp342 * carry[22];
-    const float tmp344 = carry[24] * carry[62];
-    const float tmp345 = P_xz[41] - tmp344;
-    const float tmp346 = carry[25] * tmp322;
-    const float tmp347 = tmp345 - tmp346;
-    const float tmp348 = carry[26] * tmp327;
-    const float tmp349 = tmp347 - tmp348;
-    const float tmp350 = carry[27] * tmp334;
-    const float tmp351 = tmp349 - tmp350;
-    const float tmp352 = carry[28] * tmp343;
-    const float tmp353 = tmp351 - tmp352;
-    const float tmp354 = tmp353 * carry[30];
-    const float tmp355 = residual[0] * carry[0];
-    const float tmp356 = carry[2] * tmp355;
-    const float tmp357 = residual[1] - tmp356;
-    const float tmp358 = tmp357 * carry[4];
-    const float tmp359 = carry[6] * tmp355;
-    carry[0] = tmp322;
-    carry[2] = tmp327;
-    carry[4] = tmp334;
-    carry[6] = tmp343;
-    carry[63] = tmp354;
-    carry[64] = tmp355;
-    carry[65] = tmp358;
-    carry[66] = tmp359;
+    const float tmp327 = tmp326 * carry[21];
+    const float tmp328 = 0.071428575f * tmp327;
+    const float tmp329 = tmp328 * aL[24];
+    const float tmp330 = tmp320 + tmp329;
+    const float tmp331 = carry[29] * aL[3];
+    const float tmp332 = carry[49] * aL[10];
+    const float tmp333 = tmp331 + tmp332;
+    const float tmp334 = carry[56] * aL[17];
+    const float tmp335 = tmp333 + tmp334;
+    const float tmp336 = carry[25] * carry[62];
+    const float tmp337 = zdiff[22] - tmp336;
+    const float tmp338 = carry[26] * carry[65];
+    const float tmp339 = tmp337 - tmp338;
+    const float tmp340 = carry[27] * carry[68];
+    const float tmp341 = tmp339 - tmp340;
+    const float tmp342 = carry[1] * tmp327;
+    const float tmp343 = tmp341 - tmp342;
+    const float tmp344 = tmp343 * carry[14];
+    const float tmp345 = 0.071428575f * tmp344;
+    const float tmp346 = tmp345 * aL[24];
+    const float tmp347 = tmp335 + tmp346;
+    const float tmp348 = carry[36] * aL[3];
+    const float tmp349 = carry[42] * aL[10];
+    const float tmp350 = tmp348 + tmp349;
+    const float tmp351 = carry[60] * aL[17];
+    const float tmp352 = tmp350 + tmp351;
+    const float tmp353 = carry[31] * carry[62];
+    const float tmp354 = zdiff[23] - tmp353;
+    const float tmp355 = carry[32] * carry[65];
+    const float tmp356 = tmp354 - tmp355;
+    const float tmp357 = carry[33] * carry[68];
+    const float tmp358 = tmp356 - tmp357;
+    const float tmp359 = carry[22] * tmp327;
+    carry[62] = tmp328;
+    carry[65] = tmp330;
+    carry[68] = tmp344;
+    carry[71] = tmp345;
+    carry[72] = tmp347;
+    carry[73] = tmp352;
+    carry[74] = tmp358;
+    carry[75] = tmp359;
 }
 
-static void adukf_k_gain_part9(const float P_zz[36], const float residual[6], float carry[67])
+static void adukf_k_gain_part9(const float aL[28], float carry[85])
 {
-    const float tmp360 = residual[2] - carry[66];
-    const float tmp361 = carry[7] * carry[65];
+    const float tmp360 = carry[74] - carry[75];
+    const float tmp361 = carry[28] * carry[68];
     const float tmp362 = tmp360 - tmp361;
-    const float tmp363 = tmp362 * carry[9];
-    const float tmp364 = carry[11] * carry[64];
-    const float tmp365 = residual[3] - tmp364;
-    const float tmp366 = carry[12] * carry[65];
-    const float tmp367 = tmp365 - tmp366;
-    const float tmp368 = carry[13] * tmp363;
-    const float tmp369 = tmp367 - tmp368;
-    const float tmp370 = tmp369 * carry[15];
-    const float tmp371 = carry[17] * carry[64];
-    const float tmp372 = residual[4] - tmp371;
-    const float tmp373 = carry[18] * carry[65];
-    const float tmp374 = tmp372 - tmp373;
-    const float tmp375 = carry[19] * tmp363;
-    const float tmp376 = tmp374 - tmp375;
-    const float tmp377 = carry[20] * tmp370;
-    const float tmp378 = tmp376 - tmp377;
-    const float tmp379 = tmp378 * carry[22];
-    const float tmp380 = carry[24] * carry[64];
-    const float tmp381 = residual[5] - tmp380;
-    const float tmp382 = carry[25] * carry[65];
-    const float tmp383 = tmp381 - tmp382;
-    const float tmp384 = carry[26] * tmp363;
-    const float tmp385 = tmp383 - tmp384;
-    const float tmp386 = carry[27] * tmp370;
-    const float tmp387 = tmp385 - tmp386;
-    const float tmp388 = carry[28] * tmp379;
-    const float tmp389 = tmp387 - tmp388;
-    const float tmp390 = tmp389 * carry[30];
-    const float tmp391 = (P_zz[0] < carry[3]) ? P_zz[0] : carry[3];
-    const float tmp392 = (tmp391 < carry[8]) ? tmp391 : carry[8];
-    const float tmp393 = (tmp392 < carry[14]) ? tmp392 : carry[14];
-    const float tmp394 = (tmp393 < carry[21]) ? tmp393 : carry[21];
-    const float tmp395 = (tmp394 < carry[29]) ? tmp394 : carry[29];
-    carry[3] = tmp363;
-    carry[7] = tmp370;
-    carry[8] = tmp379;
-    carry[9] = tmp390;
-    carry[11] = tmp395;
+    const float tmp363 = tmp362 * carry[35];
+    const float tmp364 = 0.071428575f * tmp363;
+    const float tmp365 = tmp364 * aL[24];
+    const float tmp366 = carry[73] + tmp365;
+    const float tmp367 = carry[2] * aL[4];
+    const float tmp368 = carry[39] * aL[11];
+    const float tmp369 = tmp367 + tmp368;
+    const float tmp370 = carry[51] * aL[18];
+    const float tmp371 = tmp369 + tmp370;
+    const float tmp372 = carry[63] * aL[25];
+    const float tmp373 = tmp371 + tmp372;
+    const float tmp374 = carry[8] * aL[4];
+    const float tmp375 = carry[38] * aL[11];
+    const float tmp376 = tmp374 + tmp375;
+    const float tmp377 = carry[54] * aL[18];
+    const float tmp378 = tmp376 + tmp377;
+    const float tmp379 = carry[66] * aL[25];
+    const float tmp380 = tmp378 + tmp379;
+    const float tmp381 = carry[15] * aL[4];
+    const float tmp382 = carry[43] * aL[11];
+    const float tmp383 = tmp381 + tmp382;
+    const float tmp384 = carry[57] * aL[18];
+    const float tmp385 = tmp383 + tmp384;
+    const float tmp386 = carry[69] * aL[25];
+    const float tmp387 = tmp385 + tmp386;
+    const float tmp388 = carry[23] * aL[4];
+    const float tmp389 = carry[46] * aL[11];
+    const float tmp390 = tmp388 + tmp389;
+    const float tmp391 = carry[48] * aL[18];
+    const float tmp392 = tmp390 + tmp391;
+    const float tmp393 = carry[62] * aL[25];
+    const float tmp394 = tmp392 + tmp393;
+    const float tmp395 = carry[29] * aL[4];
+    const float tmp396 = carry[49] * aL[11];
+    const float tmp397 = tmp395 + tmp396;
+    const float tmp398 = carry[56] * aL[18];
+    const float tmp399 = tmp397 + tmp398;
+    carry[68] = tmp364;
+    carry[73] = tmp366;
+    carry[74] = tmp373;
+    carry[75] = tmp380;
+    carry[76] = tmp387;
+    carry[77] = tmp394;
+    carry[78] = tmp399;
+}
+
+static void adukf_k_gain_part10(const float aL[28], float carry[85])
+{
+    const float tmp400 = carry[71] * aL[25];
+    const float tmp401 = carry[78] + tmp400;
+    const float tmp402 = carry[36] * aL[4];
+    const float tmp403 = carry[42] * aL[11];
+    const float tmp404 = tmp402 + tmp403;
+    const float tmp405 = carry[60] * aL[18];
+    const float tmp406 = tmp404 + tmp405;
+    const float tmp407 = carry[68] * aL[25];
+    const float tmp408 = tmp406 + tmp407;
+    const float tmp409 = carry[2] * aL[5];
+    const float tmp410 = carry[39] * aL[12];
+    const float tmp411 = tmp409 + tmp410;
+    const float tmp412 = carry[51] * aL[19];
+    const float tmp413 = tmp411 + tmp412;
+    const float tmp414 = carry[63] * aL[26];
+    const float tmp415 = tmp413 + tmp414;
+    const float tmp416 = carry[8] * aL[5];
+    const float tmp417 = carry[38] * aL[12];
+    const float tmp418 = tmp416 + tmp417;
+    const float tmp419 = carry[54] * aL[19];
+    const float tmp420 = tmp418 + tmp419;
+    const float tmp421 = carry[66] * aL[26];
+    const float tmp422 = tmp420 + tmp421;
+    const float tmp423 = carry[15] * aL[5];
+    const float tmp424 = carry[43] * aL[12];
+    const float tmp425 = tmp423 + tmp424;
+    const float tmp426 = carry[57] * aL[19];
+    const float tmp427 = tmp425 + tmp426;
+    const float tmp428 = carry[69] * aL[26];
+    const float tmp429 = tmp427 + tmp428;
+    const float tmp430 = carry[23] * aL[5];
+    const float tmp431 = carry[46] * aL[12];
+    const float tmp432 = tmp430 + tmp431;
+    const float tmp433 = carry[48] * aL[19];
+    const float tmp434 = tmp432 + tmp433;
+    const float tmp435 = carry[62] * aL[26];
+    const float tmp436 = tmp434 + tmp435;
+    const float tmp437 = carry[29] * aL[5];
+    const float tmp438 = carry[49] * aL[12];
+    const float tmp439 = tmp437 + tmp438;
+    carry[78] = tmp401;
+    carry[79] = tmp408;
+    carry[80] = tmp415;
+    carry[81] = tmp422;
+    carry[82] = tmp429;
+    carry[83] = tmp436;
+    carry[84] = tmp439;
+}
+
+static void adukf_k_gain_part11(const float aL[28], float carry[85])
+{
+    const float tmp440 = carry[56] * aL[19];
+    const float tmp441 = carry[84] + tmp440;
+    const float tmp442 = carry[71] * aL[26];
+    const float tmp443 = tmp441 + tmp442;
+    const float tmp444 = carry[36] * aL[5];
+    const float tmp445 = carry[42] * aL[12];
+    const float tmp446 = tmp444 + tmp445;
+    const float tmp447 = carry[60] * aL[19];
+    const float tmp448 = tmp446 + tmp447;
+    const float tmp449 = carry[68] * aL[26];
+    const float tmp450 = tmp448 + tmp449;
+    const float tmp451 = carry[2] * aL[6];
+    const float tmp452 = carry[39] * aL[13];
+    const float tmp453 = tmp451 + tmp452;
+    const float tmp454 = carry[51] * aL[20];
+    const float tmp455 = tmp453 + tmp454;
+    const float tmp456 = carry[63] * aL[27];
+    const float tmp457 = tmp455 + tmp456;
+    const float tmp458 = carry[8] * aL[6];
+    const float tmp459 = carry[38] * aL[13];
+    const float tmp460 = tmp458 + tmp459;
+    const float tmp461 = carry[54] * aL[20];
+    const float tmp462 = tmp460 + tmp461;
+    const float tmp463 = carry[66] * aL[27];
+    const float tmp464 = tmp462 + tmp463;
+    const float tmp465 = carry[15] * aL[6];
+    const float tmp466 = carry[43] * aL[13];
+    const float tmp467 = tmp465 + tmp466;
+    const float tmp468 = carry[57] * aL[20];
+    const float tmp469 = tmp467 + tmp468;
+    const float tmp470 = carry[69] * aL[27];
+    const float tmp471 = tmp469 + tmp470;
+    const float tmp472 = carry[23] * aL[6];
+    const float tmp473 = carry[46] * aL[13];
+    const float tmp474 = tmp472 + tmp473;
+    const float tmp475 = carry[48] * aL[20];
+    const float tmp476 = tmp474 + tmp475;
+    const float tmp477 = carry[62] * aL[27];
+    const float tmp478 = tmp476 + tmp477;
+    const float tmp479 = carry[29] * aL[6];
+    carry[2] = tmp443;
+    carry[8] = tmp450;
+    carry[15] = tmp457;
+    carry[23] = tmp464;
+    carry[29] = tmp471;
+    carry[38] = tmp478;
+    carry[39] = tmp479;
+}
+
+static void adukf_k_gain_part12(const float aL[28], const float residual[6], float carry[85])
+{
+    const float tmp480 = carry[49] * aL[13];
+    const float tmp481 = carry[39] + tmp480;
+    const float tmp482 = carry[56] * aL[20];
+    const float tmp483 = tmp481 + tmp482;
+    const float tmp484 = carry[71] * aL[27];
+    const float tmp485 = tmp483 + tmp484;
+    const float tmp486 = carry[36] * aL[6];
+    const float tmp487 = carry[42] * aL[13];
+    const float tmp488 = tmp486 + tmp487;
+    const float tmp489 = carry[60] * aL[20];
+    const float tmp490 = tmp488 + tmp489;
+    const float tmp491 = carry[68] * aL[27];
+    const float tmp492 = tmp490 + tmp491;
+    const float tmp493 = residual[0] * carry[0];
+    const float tmp494 = carry[4] * tmp493;
+    const float tmp495 = residual[1] - tmp494;
+    const float tmp496 = tmp495 * carry[6];
+    const float tmp497 = carry[10] * tmp493;
+    const float tmp498 = residual[2] - tmp497;
+    const float tmp499 = carry[11] * tmp496;
+    const float tmp500 = tmp498 - tmp499;
+    const float tmp501 = tmp500 * carry[13];
+    const float tmp502 = carry[17] * tmp493;
+    const float tmp503 = residual[3] - tmp502;
+    const float tmp504 = carry[18] * tmp496;
+    const float tmp505 = tmp503 - tmp504;
+    const float tmp506 = carry[19] * tmp501;
+    const float tmp507 = tmp505 - tmp506;
+    const float tmp508 = tmp507 * carry[21];
+    const float tmp509 = carry[25] * tmp493;
+    const float tmp510 = residual[4] - tmp509;
+    const float tmp511 = carry[26] * tmp496;
+    const float tmp512 = tmp510 - tmp511;
+    const float tmp513 = carry[27] * tmp501;
+    const float tmp514 = tmp512 - tmp513;
+    const float tmp515 = carry[1] * tmp508;
+    const float tmp516 = tmp514 - tmp515;
+    const float tmp517 = tmp516 * carry[14];
+    const float tmp518 = carry[31] * tmp493;
+    const float tmp519 = residual[5] - tmp518;
+    carry[0] = tmp485;
+    carry[1] = tmp492;
+    carry[4] = tmp493;
+    carry[6] = tmp496;
+    carry[10] = tmp501;
+    carry[11] = tmp508;
+    carry[13] = tmp517;
+    carry[14] = tmp519;
+}
+
+static void adukf_k_gain_part13(const float P_zz[36], float carry[85])
+{
+    const float tmp520 = carry[32] * carry[6];
+    const float tmp521 = carry[14] - tmp520;
+    const float tmp522 = carry[33] * carry[10];
+    const float tmp523 = tmp521 - tmp522;
+    const float tmp524 = carry[22] * carry[11];
+    const float tmp525 = tmp523 - tmp524;
+    const float tmp526 = carry[28] * carry[13];
+    const float tmp527 = tmp525 - tmp526;
+    const float tmp528 = tmp527 * carry[35];
+    const float tmp529 = (P_zz[0] < carry[5]) ? P_zz[0] : carry[5];
+    const float tmp530 = (tmp529 < carry[12]) ? tmp529 : carry[12];
+    const float tmp531 = (tmp530 < carry[20]) ? tmp530 : carry[20];
+    const float tmp532 = (tmp531 < carry[7]) ? tmp531 : carry[7];
+    const float tmp533 = (tmp532 < carry[34]) ? tmp532 : carry[34];
+    carry[5] = tmp528;
+    carry[7] = tmp533;
 }
 
 #if defined(__GNUC__)
 __attribute__((noinline))
 #endif
-static void adukf_k_gain(const float P_zz[36], const float P_xz[42], const float residual[6], float U_t[42], float v[6], float *pivot_zz)
+static void adukf_k_gain(const float P_zz[36], const float zdiff[24], const float aL[28], const float residual[6], float U_t[42], float v[6], float *pivot_zz)
 {
-    /* 10 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
-    float carry[67];
-    adukf_k_gain_part0(P_zz, P_xz, carry);
-    adukf_k_gain_part1(P_zz, P_xz, carry);
-    adukf_k_gain_part2(P_zz, P_xz, carry);
-    adukf_k_gain_part3(P_zz, P_xz, carry);
-    adukf_k_gain_part4(P_xz, carry);
-    adukf_k_gain_part5(P_xz, carry);
-    adukf_k_gain_part6(P_xz, carry);
-    adukf_k_gain_part7(P_xz, carry);
-    adukf_k_gain_part8(P_xz, residual, carry);
-    adukf_k_gain_part9(P_zz, residual, carry);
-    U_t[0] = carry[1];
-    U_t[1] = carry[5];
-    U_t[2] = carry[10];
-    U_t[3] = carry[16];
-    U_t[4] = carry[23];
-    U_t[5] = carry[31];
-    U_t[6] = carry[32];
-    U_t[7] = carry[33];
-    U_t[8] = carry[34];
-    U_t[9] = carry[35];
-    U_t[10] = carry[36];
-    U_t[11] = carry[37];
-    U_t[12] = carry[38];
-    U_t[13] = carry[39];
-    U_t[14] = carry[40];
-    U_t[15] = carry[41];
-    U_t[16] = carry[42];
-    U_t[17] = carry[43];
-    U_t[18] = carry[44];
-    U_t[19] = carry[45];
-    U_t[20] = carry[46];
-    U_t[21] = carry[47];
-    U_t[22] = carry[48];
-    U_t[23] = carry[49];
-    U_t[24] = carry[50];
-    U_t[25] = carry[51];
-    U_t[26] = carry[52];
-    U_t[27] = carry[53];
-    U_t[28] = carry[54];
-    U_t[29] = carry[55];
-    U_t[30] = carry[56];
-    U_t[31] = carry[57];
-    U_t[32] = carry[58];
-    U_t[33] = carry[59];
-    U_t[34] = carry[60];
-    U_t[35] = carry[61];
-    U_t[36] = carry[62];
-    U_t[37] = carry[0];
-    U_t[38] = carry[2];
-    U_t[39] = carry[4];
-    U_t[40] = carry[6];
-    U_t[41] = carry[63];
-    v[0] = carry[64];
-    v[1] = carry[65];
-    v[2] = carry[3];
-    v[3] = carry[7];
-    v[4] = carry[8];
-    v[5] = carry[9];
-    *pivot_zz = carry[11];
+    /* 14 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    float carry[85];
+    adukf_k_gain_part0(P_zz, zdiff, aL, carry);
+    adukf_k_gain_part1(P_zz, zdiff, aL, carry);
+    adukf_k_gain_part2(P_zz, zdiff, aL, carry);
+    adukf_k_gain_part3(P_zz, zdiff, aL, carry);
+    adukf_k_gain_part4(zdiff, aL, carry);
+    adukf_k_gain_part5(zdiff, aL, carry);
+    adukf_k_gain_part6(zdiff, aL, carry);
+    adukf_k_gain_part7(zdiff, aL, carry);
+    adukf_k_gain_part8(zdiff, aL, carry);
+    adukf_k_gain_part9(aL, carry);
+    adukf_k_gain_part10(aL, carry);
+    adukf_k_gain_part11(aL, carry);
+    adukf_k_gain_part12(aL, residual, carry);
+    adukf_k_gain_part13(P_zz, carry);
+    U_t[0] = carry[3];
+    U_t[1] = carry[9];
+    U_t[2] = carry[16];
+    U_t[3] = carry[24];
+    U_t[4] = carry[30];
+    U_t[5] = carry[37];
+    U_t[6] = carry[40];
+    U_t[7] = carry[41];
+    U_t[8] = carry[44];
+    U_t[9] = carry[47];
+    U_t[10] = carry[50];
+    U_t[11] = carry[45];
+    U_t[12] = carry[52];
+    U_t[13] = carry[55];
+    U_t[14] = carry[58];
+    U_t[15] = carry[53];
+    U_t[16] = carry[59];
+    U_t[17] = carry[61];
+    U_t[18] = carry[64];
+    U_t[19] = carry[67];
+    U_t[20] = carry[70];
+    U_t[21] = carry[65];
+    U_t[22] = carry[72];
+    U_t[23] = carry[73];
+    U_t[24] = carry[74];
+    U_t[25] = carry[75];
+    U_t[26] = carry[76];
+    U_t[27] = carry[77];
+    U_t[28] = carry[78];
+    U_t[29] = carry[79];
+    U_t[30] = carry[80];
+    U_t[31] = carry[81];
+    U_t[32] = carry[82];
+    U_t[33] = carry[83];
+    U_t[34] = carry[2];
+    U_t[35] = carry[8];
+    U_t[36] = carry[15];
+    U_t[37] = carry[23];
+    U_t[38] = carry[29];
+    U_t[39] = carry[38];
+    U_t[40] = carry[0];
+    U_t[41] = carry[1];
+    v[0] = carry[4];
+    v[1] = carry[6];
+    v[2] = carry[10];
+    v[3] = carry[11];
+    v[4] = carry[13];
+    v[5] = carry[5];
+    *pivot_zz = carry[7];
 }
 
 /* x+ = x- + U v = x- + K eps (q normalised), P+ = P- - U U^T = P- - K P_zz K^T
@@ -3140,7 +3157,7 @@ static void adukf_k_correct_part1(const float x_pred[7], const float U_t[42], co
     carry[5] = tmp79;
 }
 
-static void adukf_k_correct_part2(const float x_pred[7], const float P_pred[49], const float U_t[42], const float v[6], float carry[35])
+static void adukf_k_correct_part2(const float x_pred[7], const float P_pred[28], const float U_t[42], const float v[6], float carry[35])
 {
     const float tmp80 = U_t[34] * v[4];
     const float tmp81 = carry[5] + tmp80;
@@ -3188,7 +3205,7 @@ static void adukf_k_correct_part2(const float x_pred[7], const float P_pred[49],
     carry[8] = tmp119;
 }
 
-static void adukf_k_correct_part3(const float P_pred[49], const float U_t[42], float carry[35])
+static void adukf_k_correct_part3(const float P_pred[28], const float U_t[42], float carry[35])
 {
     const float tmp120 = P_pred[1] - carry[8];
     const float tmp121 = U_t[12] * U_t[0];
@@ -3237,7 +3254,7 @@ static void adukf_k_correct_part3(const float P_pred[49], const float U_t[42], f
     carry[12] = tmp159;
 }
 
-static void adukf_k_correct_part4(const float P_pred[49], const float U_t[42], float carry[35])
+static void adukf_k_correct_part4(const float P_pred[28], const float U_t[42], float carry[35])
 {
     const float tmp160 = U_t[32] * U_t[2];
     const float tmp161 = carry[12] + tmp160;
@@ -3271,7 +3288,7 @@ static void adukf_k_correct_part4(const float P_pred[49], const float U_t[42], f
     const float tmp189 = tmp187 + tmp188;
     const float tmp190 = U_t[11] * U_t[11];
     const float tmp191 = tmp189 + tmp190;
-    const float tmp192 = P_pred[8] - tmp191;
+    const float tmp192 = P_pred[7] - tmp191;
     const float tmp193 = U_t[12] * U_t[6];
     const float tmp194 = U_t[13] * U_t[7];
     const float tmp195 = tmp193 + tmp194;
@@ -3285,13 +3302,13 @@ static void adukf_k_correct_part4(const float P_pred[49], const float U_t[42], f
     carry[15] = tmp199;
 }
 
-static void adukf_k_correct_part5(const float P_pred[49], const float U_t[42], float carry[35])
+static void adukf_k_correct_part5(const float P_pred[28], const float U_t[42], float carry[35])
 {
     const float tmp200 = U_t[16] * U_t[10];
     const float tmp201 = carry[15] + tmp200;
     const float tmp202 = U_t[17] * U_t[11];
     const float tmp203 = tmp201 + tmp202;
-    const float tmp204 = P_pred[9] - tmp203;
+    const float tmp204 = P_pred[8] - tmp203;
     const float tmp205 = U_t[18] * U_t[6];
     const float tmp206 = U_t[19] * U_t[7];
     const float tmp207 = tmp205 + tmp206;
@@ -3303,7 +3320,7 @@ static void adukf_k_correct_part5(const float P_pred[49], const float U_t[42], f
     const float tmp213 = tmp211 + tmp212;
     const float tmp214 = U_t[23] * U_t[11];
     const float tmp215 = tmp213 + tmp214;
-    const float tmp216 = P_pred[10] - tmp215;
+    const float tmp216 = P_pred[9] - tmp215;
     const float tmp217 = U_t[24] * U_t[6];
     const float tmp218 = U_t[25] * U_t[7];
     const float tmp219 = tmp217 + tmp218;
@@ -3315,7 +3332,7 @@ static void adukf_k_correct_part5(const float P_pred[49], const float U_t[42], f
     const float tmp225 = tmp223 + tmp224;
     const float tmp226 = U_t[29] * U_t[11];
     const float tmp227 = tmp225 + tmp226;
-    const float tmp228 = P_pred[11] - tmp227;
+    const float tmp228 = P_pred[10] - tmp227;
     const float tmp229 = U_t[30] * U_t[6];
     const float tmp230 = U_t[31] * U_t[7];
     const float tmp231 = tmp229 + tmp230;
@@ -3333,9 +3350,9 @@ static void adukf_k_correct_part5(const float P_pred[49], const float U_t[42], f
     carry[18] = tmp239;
 }
 
-static void adukf_k_correct_part6(const float P_pred[49], const float U_t[42], float carry[35])
+static void adukf_k_correct_part6(const float P_pred[28], const float U_t[42], float carry[35])
 {
-    const float tmp240 = P_pred[12] - carry[18];
+    const float tmp240 = P_pred[11] - carry[18];
     const float tmp241 = U_t[36] * U_t[6];
     const float tmp242 = U_t[37] * U_t[7];
     const float tmp243 = tmp241 + tmp242;
@@ -3347,7 +3364,7 @@ static void adukf_k_correct_part6(const float P_pred[49], const float U_t[42], f
     const float tmp249 = tmp247 + tmp248;
     const float tmp250 = U_t[41] * U_t[11];
     const float tmp251 = tmp249 + tmp250;
-    const float tmp252 = P_pred[13] - tmp251;
+    const float tmp252 = P_pred[12] - tmp251;
     const float tmp253 = U_t[12] * U_t[12];
     const float tmp254 = U_t[13] * U_t[13];
     const float tmp255 = tmp253 + tmp254;
@@ -3359,7 +3376,7 @@ static void adukf_k_correct_part6(const float P_pred[49], const float U_t[42], f
     const float tmp261 = tmp259 + tmp260;
     const float tmp262 = U_t[17] * U_t[17];
     const float tmp263 = tmp261 + tmp262;
-    const float tmp264 = P_pred[16] - tmp263;
+    const float tmp264 = P_pred[13] - tmp263;
     const float tmp265 = U_t[18] * U_t[12];
     const float tmp266 = U_t[19] * U_t[13];
     const float tmp267 = tmp265 + tmp266;
@@ -3371,7 +3388,7 @@ static void adukf_k_correct_part6(const float P_pred[49], const float U_t[42], f
     const float tmp273 = tmp271 + tmp272;
     const float tmp274 = U_t[23] * U_t[17];
     const float tmp275 = tmp273 + tmp274;
-    const float tmp276 = P_pred[17] - tmp275;
+    const float tmp276 = P_pred[14] - tmp275;
     const float tmp277 = U_t[24] * U_t[12];
     const float tmp278 = U_t[25] * U_t[13];
     const float tmp279 = tmp277 + tmp278;
@@ -3382,7 +3399,7 @@ static void adukf_k_correct_part6(const float P_pred[49], const float U_t[42], f
     carry[22] = tmp279;
 }
 
-static void adukf_k_correct_part7(const float P_pred[49], const float U_t[42], float carry[35])
+static void adukf_k_correct_part7(const float P_pred[28], const float U_t[42], float carry[35])
 {
     const float tmp280 = U_t[26] * U_t[14];
     const float tmp281 = carry[22] + tmp280;
@@ -3392,7 +3409,7 @@ static void adukf_k_correct_part7(const float P_pred[49], const float U_t[42], f
     const float tmp285 = tmp283 + tmp284;
     const float tmp286 = U_t[29] * U_t[17];
     const float tmp287 = tmp285 + tmp286;
-    const float tmp288 = P_pred[18] - tmp287;
+    const float tmp288 = P_pred[15] - tmp287;
     const float tmp289 = U_t[30] * U_t[12];
     const float tmp290 = U_t[31] * U_t[13];
     const float tmp291 = tmp289 + tmp290;
@@ -3404,7 +3421,7 @@ static void adukf_k_correct_part7(const float P_pred[49], const float U_t[42], f
     const float tmp297 = tmp295 + tmp296;
     const float tmp298 = U_t[35] * U_t[17];
     const float tmp299 = tmp297 + tmp298;
-    const float tmp300 = P_pred[19] - tmp299;
+    const float tmp300 = P_pred[16] - tmp299;
     const float tmp301 = U_t[36] * U_t[12];
     const float tmp302 = U_t[37] * U_t[13];
     const float tmp303 = tmp301 + tmp302;
@@ -3416,7 +3433,7 @@ static void adukf_k_correct_part7(const float P_pred[49], const float U_t[42], f
     const float tmp309 = tmp307 + tmp308;
     const float tmp310 = U_t[41] * U_t[17];
     const float tmp311 = tmp309 + tmp310;
-    const float tmp312 = P_pred[20] - tmp311;
+    const float tmp312 = P_pred[17] - tmp311;
     const float tmp313 = U_t[18] * U_t[18];
     const float tmp314 = U_t[19] * U_t[19];
     const float tmp315 = tmp313 + tmp314;
@@ -3430,13 +3447,13 @@ static void adukf_k_correct_part7(const float P_pred[49], const float U_t[42], f
     carry[25] = tmp319;
 }
 
-static void adukf_k_correct_part8(const float P_pred[49], const float U_t[42], float carry[35])
+static void adukf_k_correct_part8(const float P_pred[28], const float U_t[42], float carry[35])
 {
     const float tmp320 = U_t[22] * U_t[22];
     const float tmp321 = carry[25] + tmp320;
     const float tmp322 = U_t[23] * U_t[23];
     const float tmp323 = tmp321 + tmp322;
-    const float tmp324 = P_pred[24] - tmp323;
+    const float tmp324 = P_pred[18] - tmp323;
     const float tmp325 = U_t[24] * U_t[18];
     const float tmp326 = U_t[25] * U_t[19];
     const float tmp327 = tmp325 + tmp326;
@@ -3448,7 +3465,7 @@ static void adukf_k_correct_part8(const float P_pred[49], const float U_t[42], f
     const float tmp333 = tmp331 + tmp332;
     const float tmp334 = U_t[29] * U_t[23];
     const float tmp335 = tmp333 + tmp334;
-    const float tmp336 = P_pred[25] - tmp335;
+    const float tmp336 = P_pred[19] - tmp335;
     const float tmp337 = U_t[30] * U_t[18];
     const float tmp338 = U_t[31] * U_t[19];
     const float tmp339 = tmp337 + tmp338;
@@ -3460,7 +3477,7 @@ static void adukf_k_correct_part8(const float P_pred[49], const float U_t[42], f
     const float tmp345 = tmp343 + tmp344;
     const float tmp346 = U_t[35] * U_t[23];
     const float tmp347 = tmp345 + tmp346;
-    const float tmp348 = P_pred[26] - tmp347;
+    const float tmp348 = P_pred[20] - tmp347;
     const float tmp349 = U_t[36] * U_t[18];
     const float tmp350 = U_t[37] * U_t[19];
     const float tmp351 = tmp349 + tmp350;
@@ -3478,9 +3495,9 @@ static void adukf_k_correct_part8(const float P_pred[49], const float U_t[42], f
     carry[28] = tmp359;
 }
 
-static void adukf_k_correct_part9(const float P_pred[49], const float U_t[42], float carry[35])
+static void adukf_k_correct_part9(const float P_pred[28], const float U_t[42], float carry[35])
 {
-    const float tmp360 = P_pred[27] - carry[28];
+    const float tmp360 = P_pred[21] - carry[28];
     const float tmp361 = U_t[24] * U_t[24];
     const float tmp362 = U_t[25] * U_t[25];
     const float tmp363 = tmp361 + tmp362;
@@ -3492,7 +3509,7 @@ static void adukf_k_correct_part9(const float P_pred[49], const float U_t[42], f
     const float tmp369 = tmp367 + tmp368;
     const float tmp370 = U_t[29] * U_t[29];
     const float tmp371 = tmp369 + tmp370;
-    const float tmp372 = P_pred[32] - tmp371;
+    const float tmp372 = P_pred[22] - tmp371;
     const float tmp373 = U_t[30] * U_t[24];
     const float tmp374 = U_t[31] * U_t[25];
     const float tmp375 = tmp373 + tmp374;
@@ -3504,7 +3521,7 @@ static void adukf_k_correct_part9(const float P_pred[49], const float U_t[42], f
     const float tmp381 = tmp379 + tmp380;
     const float tmp382 = U_t[35] * U_t[29];
     const float tmp383 = tmp381 + tmp382;
-    const float tmp384 = P_pred[33] - tmp383;
+    const float tmp384 = P_pred[23] - tmp383;
     const float tmp385 = U_t[36] * U_t[24];
     const float tmp386 = U_t[37] * U_t[25];
     const float tmp387 = tmp385 + tmp386;
@@ -3516,7 +3533,7 @@ static void adukf_k_correct_part9(const float P_pred[49], const float U_t[42], f
     const float tmp393 = tmp391 + tmp392;
     const float tmp394 = U_t[41] * U_t[29];
     const float tmp395 = tmp393 + tmp394;
-    const float tmp396 = P_pred[34] - tmp395;
+    const float tmp396 = P_pred[24] - tmp395;
     const float tmp397 = U_t[30] * U_t[30];
     const float tmp398 = U_t[31] * U_t[31];
     const float tmp399 = tmp397 + tmp398;
@@ -3527,7 +3544,7 @@ static void adukf_k_correct_part9(const float P_pred[49], const float U_t[42], f
     carry[32] = tmp399;
 }
 
-static void adukf_k_correct_part10(const float P_pred[49], const float U_t[42], float carry[35])
+static void adukf_k_correct_part10(const float P_pred[28], const float U_t[42], float carry[35])
 {
     const float tmp400 = U_t[32] * U_t[32];
     const float tmp401 = carry[32] + tmp400;
@@ -3537,7 +3554,7 @@ static void adukf_k_correct_part10(const float P_pred[49], const float U_t[42], 
     const float tmp405 = tmp403 + tmp404;
     const float tmp406 = U_t[35] * U_t[35];
     const float tmp407 = tmp405 + tmp406;
-    const float tmp408 = P_pred[40] - tmp407;
+    const float tmp408 = P_pred[25] - tmp407;
     const float tmp409 = U_t[36] * U_t[30];
     const float tmp410 = U_t[37] * U_t[31];
     const float tmp411 = tmp409 + tmp410;
@@ -3549,7 +3566,7 @@ static void adukf_k_correct_part10(const float P_pred[49], const float U_t[42], 
     const float tmp417 = tmp415 + tmp416;
     const float tmp418 = U_t[41] * U_t[35];
     const float tmp419 = tmp417 + tmp418;
-    const float tmp420 = P_pred[41] - tmp419;
+    const float tmp420 = P_pred[26] - tmp419;
     const float tmp421 = U_t[36] * U_t[36];
     const float tmp422 = U_t[37] * U_t[37];
     const float tmp423 = tmp421 + tmp422;
@@ -3561,7 +3578,7 @@ static void adukf_k_correct_part10(const float P_pred[49], const float U_t[42], 
     const float tmp429 = tmp427 + tmp428;
     const float tmp430 = U_t[41] * U_t[41];
     const float tmp431 = tmp429 + tmp430;
-    const float tmp432 = P_pred[48] - tmp431;
+    const float tmp432 = P_pred[27] - tmp431;
     carry[32] = tmp408;
     carry[33] = tmp420;
     carry[34] = tmp432;
@@ -3570,7 +3587,7 @@ static void adukf_k_correct_part10(const float P_pred[49], const float U_t[42], 
 #if defined(__GNUC__)
 __attribute__((noinline))
 #endif
-static void adukf_k_correct(const float x_pred[7], const float P_pred[49], const float U_t[42], const float v[6], float x_new[7], float P_new[49])
+static void adukf_k_correct(const float x_pred[7], const float P_pred[28], const float U_t[42], const float v[6], float x_new[7], float P_new[28])
 {
     /* 11 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
     float carry[35];
@@ -3599,48 +3616,27 @@ static void adukf_k_correct(const float x_pred[7], const float P_pred[49], const
     P_new[4] = carry[11];
     P_new[5] = carry[12];
     P_new[6] = carry[13];
-    P_new[7] = carry[8];
-    P_new[8] = carry[14];
-    P_new[9] = carry[15];
-    P_new[10] = carry[16];
-    P_new[11] = carry[17];
-    P_new[12] = carry[18];
-    P_new[13] = carry[19];
-    P_new[14] = carry[9];
-    P_new[15] = carry[15];
-    P_new[16] = carry[20];
-    P_new[17] = carry[21];
-    P_new[18] = carry[22];
-    P_new[19] = carry[23];
-    P_new[20] = carry[24];
-    P_new[21] = carry[10];
-    P_new[22] = carry[16];
-    P_new[23] = carry[21];
-    P_new[24] = carry[25];
-    P_new[25] = carry[26];
-    P_new[26] = carry[27];
-    P_new[27] = carry[28];
-    P_new[28] = carry[11];
-    P_new[29] = carry[17];
-    P_new[30] = carry[22];
-    P_new[31] = carry[26];
-    P_new[32] = carry[29];
-    P_new[33] = carry[30];
-    P_new[34] = carry[31];
-    P_new[35] = carry[12];
-    P_new[36] = carry[18];
-    P_new[37] = carry[23];
-    P_new[38] = carry[27];
-    P_new[39] = carry[30];
-    P_new[40] = carry[32];
-    P_new[41] = carry[33];
-    P_new[42] = carry[13];
-    P_new[43] = carry[19];
-    P_new[44] = carry[24];
-    P_new[45] = carry[28];
-    P_new[46] = carry[31];
-    P_new[47] = carry[33];
-    P_new[48] = carry[34];
+    P_new[7] = carry[14];
+    P_new[8] = carry[15];
+    P_new[9] = carry[16];
+    P_new[10] = carry[17];
+    P_new[11] = carry[18];
+    P_new[12] = carry[19];
+    P_new[13] = carry[20];
+    P_new[14] = carry[21];
+    P_new[15] = carry[22];
+    P_new[16] = carry[23];
+    P_new[17] = carry[24];
+    P_new[18] = carry[25];
+    P_new[19] = carry[26];
+    P_new[20] = carry[27];
+    P_new[21] = carry[28];
+    P_new[22] = carry[29];
+    P_new[23] = carry[30];
+    P_new[24] = carry[31];
+    P_new[25] = carry[32];
+    P_new[26] = carry[33];
+    P_new[27] = carry[34];
 }
 
 /* NED low-pass of the specific force R(q-) f (restart: start at R(q-) f); the update measures R(q-)^T of it
@@ -4042,7 +4038,7 @@ void adukf_init(adukf_state *s)
     s->accel_lp[0] = 0.0f;
     s->accel_lp[1] = 0.0f;
     s->accel_lp[2] = 0.0f;
-    for (uint32_t i = 0u; i < 153u; i++) {
+    for (uint32_t i = 0u; i < 148u; i++) {
         s->work[i] = 0.0f;
     }
     s->learn_sum = 0.0f;
@@ -4098,8 +4094,8 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
      * covariance: reset, or replaced by the update's result, below. The step's matrices live in
      * s->work (scratch, no meaning between steps), so its stack frame holds scalars and vectors. */
     float *const P_pred = s->work;
-    float *const x_pred = s->work + 139;
-    float *const x_new = s->work + 146;
+    float *const x_pred = s->work + 134;
+    float *const x_new = s->work + 141;
     bool updated = false;   /* the measurement update was applied (its R goes to r_diag) */
     adukf_k_predict(s->q, s->gyro_bias, s->P, in->gyro, dt, x_pred, x_new, P_pred);
     for (uint32_t i = 4u; i < 7u; i++) {
@@ -4130,27 +4126,27 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
         }
         const float mag_in[3] = { use_mag ? in->mag[0] : 1.0f, use_mag ? in->mag[1] : 0.0f,
                                      use_mag ? in->mag[2] : 0.0f };
-        /* the update's matrices, over the sigma points' sums (dead once the innovation kernel,
-         * which reads all its inputs before it writes, has run) */
-        float *const P_zz = s->work + 49;
-        float *const P_xz = s->work + 85;
-        float *const residual = s->work + 127;
-        float *const r_upd = s->work + 133;
-        float *const aL = s->work + 49;
-        float *const z0 = s->work + 77;
-        float *const zsum = s->work + 83;
-        float *const zz = s->work + 89;
-        float *const zdiff = s->work + 110;
+        /* the update's matrices (model.work_layout): P_zz over zsum, U_t over zdiff and P_zz (a
+         * kernel reads all its inputs before it writes any output) */
+        float *const aL = s->work + 28;
+        float *const z0 = s->work + 56;
+        float *const zsum = s->work + 86;
+        float *const zdiff = s->work + 62;
+        float *const P_zz = s->work + 86;
+        float *const residual = s->work + 122;
+        float *const r_upd = s->work + 128;
+        float *const U_t = s->work + 62;
         float pivot_p;
-        adukf_k_sigma_setup(x_pred, P_pred, s->m_ref, aL, z0, zsum, zz, &pivot_p);
+        adukf_k_sigma_setup(x_pred, P_pred, s->m_ref, aL, z0, &pivot_p);
         for (uint32_t j = 0u; j < 4u; j++) {
             /* the sigma points q- +- a L[0:4, j] */
-            adukf_k_sigma_pair(x_pred, aL + 7u * j, s->m_ref, z0, zsum, zz, zsum, zz, zdiff + 6u * j);
+            adukf_k_sigma_pair(x_pred, aL + 7u * j, s->m_ref, z0, zsum + 6u * j, zdiff + 6u * j);
         }
-        adukf_k_innovation(z0, zsum, zz, zdiff, aL, accel_in, mag_in, dt, span, P_zz, P_xz, residual, r_upd);
+        adukf_k_innovation(z0, zsum, zdiff, accel_in, mag_in, dt, span, P_zz, residual, r_upd);
         if (!use_accel || !use_mag) {
-            /* An unusable sensor is masked out exactly: identity block in P_zz, zero cross-covariance,
-             * residual and R, so its columns of the gain are exactly zero. */
+            /* An unusable sensor is masked out exactly: identity block in P_zz, zero rows of the
+             * pairs' differences (so zero cross-covariance), residual and R, so its columns of the
+             * gain are exactly zero. */
             for (uint32_t r = 0u; r < 6u; r++) {
                 const bool use_r = (r < 3u) ? use_accel : use_mag;
                 for (uint32_t c = 0u; c < 6u; c++) {
@@ -4162,8 +4158,8 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
                 if (!use_r) {
                     residual[r] = 0.0f;
                     r_upd[r] = 0.0f;
-                    for (uint32_t i = 0u; i < 7u; i++) {
-                        P_xz[i + 7u * r] = 0.0f;
+                    for (uint32_t j = 0u; j < 4u; j++) {
+                        zdiff[r + 6u * j] = 0.0f;
                     }
                 }
             }
@@ -4171,43 +4167,49 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
         if (!(pivot_p > ADUKF_PIVOT_MIN)) {
             /* P- is no longer positive definite (round-off, bad input): restart it. */
             status |= ADUKF_COV_RESET;
-            for (uint32_t i = 49u; i < 139u; i++) {
+            for (uint32_t i = 28u; i < 134u; i++) {
                 s->work[i] = 0.0f;   /* the update's scratch may hold non-finite values */
             }
-            for (uint32_t i = 0u; i < 49u; i++) {
-                P_pred[i] = (i % 8u != 0u) ? 0.0f : ((i < 32u) ? ADUKF_P0 : ADUKF_P0_BIAS);
+            for (uint32_t i = 0u; i < 28u; i++) {
+                P_pred[i] = 0.0f;
             }
+            P_pred[0] = ADUKF_P0;
+            P_pred[7] = ADUKF_P0;
+            P_pred[13] = ADUKF_P0;
+            P_pred[18] = ADUKF_P0;
+            P_pred[22] = ADUKF_P0_BIAS;
+            P_pred[25] = ADUKF_P0_BIAS;
+            P_pred[27] = ADUKF_P0_BIAS;
         } else {
-            /* U^T and v overwrite P_xz and the residual; x_new and P_pred become the update's
-             * result in place */
+            /* v overwrites the residual; x_new and P_pred become the update's result in place */
             float pivot_zz;
-            adukf_k_gain(P_zz, P_xz, residual, P_xz, residual, &pivot_zz);
+            adukf_k_gain(P_zz, zdiff, aL, residual, U_t, residual, &pivot_zz);
             if (!(pivot_zz > ADUKF_PIVOT_MIN)) {
                 status |= ADUKF_UPDATE_SKIPPED;
-                for (uint32_t i = 49u; i < 139u; i++) {
+                for (uint32_t i = 28u; i < 134u; i++) {
                     s->work[i] = 0.0f;   /* the update's scratch may hold non-finite values */
                 }
             } else {
-                adukf_k_correct(x_pred, P_pred, P_xz, residual, x_new, P_pred);
+                adukf_k_correct(x_pred, P_pred, U_t, residual, x_new, P_pred);
                 updated = true;
             }
         }
     }
 
     /* Commit only a finite result: v * 0 is 0 for a finite v and NaN for an infinite or NaN one,
-     * so one sum tells (in any order). P_pred is exactly symmetric (every kernel writes one
-     * triangle and mirrors it, a reset is diagonal), so its lower triangle tells for all of it.
+     * so one sum tells (in any order). P_pred holds the lower triangle of the new covariance
+     * (packed column by column: every kernel computes one triangle), so it tells for all of P.
      * Written out, one column a line: a loop costs more than the sum. */
     float nonfinite = x_new[0] * 0.0f + x_new[1] * 0.0f + x_new[2] * 0.0f + x_new[3] * 0.0f + x_new[4] * 0.0f + x_new[5] * 0.0f + x_new[6] * 0.0f;
     nonfinite += P_pred[0] * 0.0f + P_pred[1] * 0.0f + P_pred[2] * 0.0f + P_pred[3] * 0.0f + P_pred[4] * 0.0f + P_pred[5] * 0.0f + P_pred[6] * 0.0f;
-    nonfinite += P_pred[8] * 0.0f + P_pred[9] * 0.0f + P_pred[10] * 0.0f + P_pred[11] * 0.0f + P_pred[12] * 0.0f + P_pred[13] * 0.0f;
-    nonfinite += P_pred[16] * 0.0f + P_pred[17] * 0.0f + P_pred[18] * 0.0f + P_pred[19] * 0.0f + P_pred[20] * 0.0f;
-    nonfinite += P_pred[24] * 0.0f + P_pred[25] * 0.0f + P_pred[26] * 0.0f + P_pred[27] * 0.0f;
-    nonfinite += P_pred[32] * 0.0f + P_pred[33] * 0.0f + P_pred[34] * 0.0f;
-    nonfinite += P_pred[40] * 0.0f + P_pred[41] * 0.0f;
-    nonfinite += P_pred[48] * 0.0f;
+    nonfinite += P_pred[7] * 0.0f + P_pred[8] * 0.0f + P_pred[9] * 0.0f + P_pred[10] * 0.0f + P_pred[11] * 0.0f + P_pred[12] * 0.0f;
+    nonfinite += P_pred[13] * 0.0f + P_pred[14] * 0.0f + P_pred[15] * 0.0f + P_pred[16] * 0.0f + P_pred[17] * 0.0f;
+    nonfinite += P_pred[18] * 0.0f + P_pred[19] * 0.0f + P_pred[20] * 0.0f + P_pred[21] * 0.0f;
+    nonfinite += P_pred[22] * 0.0f + P_pred[23] * 0.0f + P_pred[24] * 0.0f;
+    nonfinite += P_pred[25] * 0.0f + P_pred[26] * 0.0f;
+    nonfinite += P_pred[27] * 0.0f;
     if (isnan(nonfinite)) {
-        for (uint32_t i = 0u; i < 153u; i++) {
+        for (uint32_t i = 0u; i < 148u; i++) {
             s->work[i] = 0.0f;   /* no scratch value outlives a refused result */
         }
         for (uint32_t i = 0u; i < 6u; i++) {
@@ -4221,11 +4223,38 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
     for (uint32_t i = 0u; i < 3u; i++) {
         s->gyro_bias[i] = x_new[4u + i];
     }
-    for (uint32_t i = 0u; i < 49u; i++) {
-        s->P[i] = P_pred[i];
-    }
+    /* P from its packed lower triangle, mirrored (written out: a loop over the triangle costs
+     * more than these loads and stores) */
+    s->P[0] = P_pred[0];
+    s->P[1] = s->P[7] = P_pred[1];
+    s->P[2] = s->P[14] = P_pred[2];
+    s->P[3] = s->P[21] = P_pred[3];
+    s->P[4] = s->P[28] = P_pred[4];
+    s->P[5] = s->P[35] = P_pred[5];
+    s->P[6] = s->P[42] = P_pred[6];
+    s->P[8] = P_pred[7];
+    s->P[9] = s->P[15] = P_pred[8];
+    s->P[10] = s->P[22] = P_pred[9];
+    s->P[11] = s->P[29] = P_pred[10];
+    s->P[12] = s->P[36] = P_pred[11];
+    s->P[13] = s->P[43] = P_pred[12];
+    s->P[16] = P_pred[13];
+    s->P[17] = s->P[23] = P_pred[14];
+    s->P[18] = s->P[30] = P_pred[15];
+    s->P[19] = s->P[37] = P_pred[16];
+    s->P[20] = s->P[44] = P_pred[17];
+    s->P[24] = P_pred[18];
+    s->P[25] = s->P[31] = P_pred[19];
+    s->P[26] = s->P[38] = P_pred[20];
+    s->P[27] = s->P[45] = P_pred[21];
+    s->P[32] = P_pred[22];
+    s->P[33] = s->P[39] = P_pred[23];
+    s->P[34] = s->P[46] = P_pred[24];
+    s->P[40] = P_pred[25];
+    s->P[41] = s->P[47] = P_pred[26];
+    s->P[48] = P_pred[27];
     for (uint32_t i = 0u; i < 6u; i++) {
-        s->r_diag[i] = updated ? s->work[133u + i] : 0.0f;   /* r_upd */
+        s->r_diag[i] = updated ? s->work[128u + i] : 0.0f;   /* r_upd */
     }
 
     return status;

@@ -181,6 +181,32 @@ def lower_symmetric(P):
     return out
 
 
+def packed_lower_pairs(n: int) -> list[tuple[int, int]]:
+    """(row, column) of the lower triangle of an n x n matrix in packed order: column by
+    column, each from the diagonal down (LAPACK's 'L' packed storage), n(n+1)/2 entries."""
+    return [(r, c) for c in range(n) for r in range(c, n)]
+
+
+def pack_lower(P):
+    """The lower triangle of P as a packed column vector (packed_lower_pairs order)."""
+    P, kind = _as_casadi(P)
+    pairs = packed_lower_pairs(P.shape[0])
+    out = _zeros(kind, len(pairs), 1)
+    for k, (r, c) in enumerate(pairs):
+        out[k] = P[r, c]
+    return out
+
+
+def unpack_symmetric(v, n: int):
+    """The symmetric n x n matrix whose lower triangle is the packed vector v."""
+    v, kind = _as_casadi(v)
+    out = _zeros(kind, n, n)
+    for k, (r, c) in enumerate(packed_lower_pairs(n)):
+        out[r, c] = v[k]
+        out[c, r] = v[k]
+    return out
+
+
 def symmetrize(P):
     """(P + Pᵀ) / 2."""
     P, _ = _as_casadi(P)

@@ -113,22 +113,23 @@ class Model(FilterModel):
 
     def work_layout(self) -> dict:
         """Offsets (floats) of the step's scratch in the state's `work`, the one place they are
-        derived (the template reads them): P_pred first; over it, from n*n on, the update's two
-        views of the same floats, dead in turn: the sigma points' aL, z0, zsum, zz, zdiff (read by
-        the innovation kernel, which reads all its inputs before it writes), then P_zz, P_xz,
-        the residual and R; then x_pred and x_new (bias state); `update_end` ends the update's
-        floats, `size` the whole scratch."""
+        derived (the template reads them): P_pred first (its lower triangle, packed: linalg's
+        packed_lower_pairs); then the update's floats: the
+        sigma points' aL and z0, the pairs' differences and sums (zdiff, zsum); P_zz over zsum
+        (the innovation kernel reads all its inputs before it writes), the residual and R; U_t
+        over zdiff and P_zz (the gain kernel reads them all before it writes); then x_pred and
+        x_new (bias state); `update_end` ends the update's floats, `size` the whole scratch."""
         n = self.n
-        at = {"P_pred": 0, "P_zz": n * n}
-        at["P_xz"] = at["P_zz"] + 36
-        at["residual"] = at["P_xz"] + 6 * n
-        at["r_upd"] = at["residual"] + 6
-        at["aL"] = n * n
+        at = {"P_pred": 0, "aL": n * (n + 1) // 2}
         at["z0"] = at["aL"] + 4 * n
-        at["zsum"] = at["z0"] + 6
-        at["zz"] = at["zsum"] + 6
-        at["zdiff"] = at["zz"] + len(_LOWER6)
-        at["update_end"] = max(at["r_upd"] + 6, at["zdiff"] + 6 * N)
+        at["zdiff"] = at["z0"] + 6
+        at["zsum"] = at["zdiff"] + 6 * N
+        at["P_zz"] = at["zsum"]
+        at["residual"] = at["P_zz"] + max(36, 6 * N)
+        at["r_upd"] = at["residual"] + 6
+        at["update_end"] = at["r_upd"] + 6
+        at["U_t"] = at["zdiff"]
+        assert at["U_t"] + 6 * n <= at["residual"]      # U_t fits over zdiff and P_zz
         at["x_pred"] = at["update_end"]
         at["x_new"] = at["x_pred"] + 7
         at["size"] = at["update_end"] + (14 if n == 7 else 0)
@@ -213,26 +214,26 @@ class Model(FilterModel):
         L, _, piv_p = linalg.cholesky_with_inverse(Pm, p["pivot_min"])
         return a * L[:, :N], measurement(normalize(xm[:4]), m_ref), piv_p
 
-    def sigma_pair_expr(self, qm, col, m_ref, z0, zsum, zz):
+    def sigma_pair_expr(self, qm, col, m_ref, z0):
         """One pair of sigma points q⁻ ± col (col = a L[0:4, j]), each normalised and mapped
-        through h, as deviations from the centre e± = h(χ±) - z₀; accumulated: zsum + e₊ + e₋,
-        zz + e₊e₊ᵀ + e₋e₋ᵀ (lower triangle, 21 values, row by row) and returned: e₊ - e₋."""
+        through h, as deviations from the centre e± = h(χ±) - z₀; returned: e₊ + e₋ and e₊ - e₋
+        (the innovation kernel sums over the pairs)."""
         ep = measurement(normalize(qm + col), m_ref) - z0
         en = measurement(normalize(qm - col), m_ref) - z0
-        zz_new = ca.vertcat(*[zz[k] + (ep[r] * ep[c] + en[r] * en[c]) for k, (r, c) in enumerate(_LOWER6)])
-        return zsum + ep + en, zz_new, ep - en
+        return ep + en, ep - en
 
-    def innovation_expr(self, z0, zsum, zz, zdiff, aL, f, m, scale=None):
-        """ẑ, residual, adaptive R, P_zz and P_xz from the accumulated sigma-point deviations
-        (sigma_pair_expr; e_i = z_i - z₀, zero for the centre and for the 2(n-4) points of the
-        bias columns). Exact rewrites of the sums of the equations:
-        - Σ Wm = 1, so ẑ = z₀ + δ with δ = Wi Σ_i e_i = Wi zsum.
+    def innovation_expr(self, z0, zsum, zdiff, f, m, scale=None):
+        """ẑ, residual, adaptive R and P_zz from the sigma pairs' deviations (sigma_pair_expr:
+        s_j = e_j+ + e_j-, d_j = e_j+ - e_j- for the 4 columns of aL; e_i = z_i - z₀, zero for
+        the centre and for the 2(n-4) points of the bias columns). Exact rewrites of the sums of
+        the equations:
+        - Σ Wm = 1, so ẑ = z₀ + δ with δ = Wi Σ_i e_i = Wi Σ_j s_j.
         - Σ Wc_i (z_i - ẑ)(z_i - ẑ)ᵀ = Σ Wc_i (e_i - δ)(e_i - δ)ᵀ = Wi Σ e_i e_iᵀ + (ΣWc - 2) δδᵀ,
           because Σ Wc_i e_i = Wi Σ e_i = δ (Wc_i = Wm_i = Wi for i ≥ 1, e₀ = 0);
-          ΣWc - 2 = β - α² (1 at the defaults).
-        - χ_i - x⁻ = ±a L[:, j], so P_xz = Σ Wc (χ_i - x⁻)(z_i - ẑ)ᵀ = Wi Σ_j aL[:, j] (e_j+ - e_j-)ᵀ.
-        (The step masks an unusable sensor out exactly afterwards: identity block in P_zz, zero
-        cross-covariance, residual and R, so its columns of K are exactly zero; the reference
+          ΣWc - 2 = β - α² (1 at the defaults), and e₊e₊ᵀ + e₋e₋ᵀ = (s sᵀ + d dᵀ)/2.
+        (P_xz = Wi Σ_j aL[:, j] d_jᵀ is never formed: see gain_expr. The step masks an unusable
+        sensor out exactly afterwards: identity block in P_zz, zero rows of d (so zero
+        cross-covariance), residual and R, so its columns of K are exactly zero; the reference
         does the same.)
         scale (product, sensors at their own rates): [dt/s_a, dt/s_m], R of each sensor times
         the ratio of the step to the time its sample stands for (sigma is per IMU step; a
@@ -241,7 +242,9 @@ class Model(FilterModel):
         n = self.n
         _, _, wc0, wi = ut_parameters(p["ut_alpha"], p["ut_beta"], p["ut_kappa"], n)
         c_dd = wc0 + 2 * n * wi - 2          # Σ Wc - 2
-        delta = wi * zsum
+        S = [zsum[6 * j:6 * j + 6] for j in range(N)]
+        D = [zdiff[6 * j:6 * j + 6] for j in range(N)]
+        delta = wi * (S[0] + S[1] + S[2] + S[3])
         zhat = z0 + delta
         z = ca.vertcat(normalize(f), normalize(m))
         eps = z - zhat
@@ -253,22 +256,30 @@ class Model(FilterModel):
         if scale is not None:
             R = [R[i] * scale[0] for i in range(3)] + [R[i] * scale[1] for i in range(3, 6)]
         Pzz = ca.SX.zeros(6, 6)
-        for k, (r, c) in enumerate(_LOWER6):     # symmetric: lower triangle once, mirrored
-            Pzz[r, c] = wi * zz[k] + c_dd * delta[r] * delta[c] + (R[r] if r == c else 0.0)
+        for r, c in _LOWER6:     # symmetric: lower triangle once, mirrored
+            zz = sum([S[j][r] * S[j][c] + D[j][r] * D[j][c] for j in range(1, N)], S[0][r] * S[0][c] + D[0][r] * D[0][c])
+            Pzz[r, c] = (0.5 * wi) * zz + c_dd * delta[r] * delta[c] + (R[r] if r == c else 0.0)
             Pzz[c, r] = Pzz[r, c]
-        D = [wi * zdiff[6 * j:6 * j + 6] for j in range(N)]
-        Pxz = ca.SX.zeros(n, 6)
-        for r in range(n):
-            for c in range(6):
-                Pxz[r, c] = sum([aL[r, j] * D[j][c] for j in range(1, min(r, N - 1) + 1)], aL[r, 0] * D[0][c])
-        return Pzz, Pxz, eps, ca.vertcat(*R)
+        return Pzz, eps, ca.vertcat(*R)
 
-    def gain_expr(self, Pzz, Pxz, eps):
-        """The update without forming K, through L = chol(P_zz): Uᵀ = L⁻¹ P_xzᵀ (U = P_xz L⁻ᵀ,
-        one forward substitution), v = L⁻¹ ε, and the smallest pivot of P_zz. Then
-        K = P_xz P_zz⁻¹ = U L⁻¹, so K ε = U v and K P_zz Kᵀ = U Uᵀ (see correct_expr)."""
-        Lz, inv, piv_zz = linalg.cholesky_with_inverse(Pzz, self.params["pivot_min"])
-        return linalg.solve_lower(Lz, Pxz.T, inv), linalg.solve_lower(Lz, eps, inv), piv_zz
+    def gain_expr(self, Pzz, zdiff, aL, eps):
+        """The update without forming K or P_xz, through L = chol(P_zz): Uᵀ = L⁻¹ P_xzᵀ and
+        v = L⁻¹ ε, and the smallest pivot of P_zz. Then K = P_xz P_zz⁻¹ = U L⁻¹, so K ε = U v and
+        K P_zz Kᵀ = U Uᵀ (see correct_expr). With χ - x⁻ = ±a L[:, j], P_xz = Wi Σ_j aL[:, j] d_jᵀ
+        = Wi aL Dᵀ (D = [d_0 .. d_3], 6 x 4; the bias columns cancel), so Uᵀ = (Wi L⁻¹ D) aLᵀ:
+        the forward substitution runs on D's 4 columns instead of P_xzᵀ's n, and aL's top is
+        lower triangular (aL[r, j] = 0 for j > r)."""
+        p = self.params
+        n = self.n
+        wi = ut_parameters(p["ut_alpha"], p["ut_beta"], p["ut_kappa"], n)[3]
+        Lz, inv, piv_zz = linalg.cholesky_with_inverse(Pzz, p["pivot_min"])
+        D = ca.reshape(zdiff, 6, N)
+        W = wi * linalg.solve_lower(Lz, D, inv)
+        Ut = ca.SX.zeros(6, n)
+        for i in range(6):
+            for r in range(n):
+                Ut[i, r] = sum([W[i, j] * aL[r, j] for j in range(1, min(r, N - 1) + 1)], W[i, 0] * aL[r, 0])
+        return Ut, linalg.solve_lower(Lz, eps, inv), piv_zz
 
     def correct_expr(self, xm, Pm, Ut, v):
         """x⁺ = x⁻ + U v (q normalised) and P⁺ = P⁻ - U Uᵀ on its lower triangle, mirrored
@@ -300,7 +311,8 @@ class Model(FilterModel):
         m = ca.SX.sym("mag", 3)
         m_ref = ca.SX.sym("m_ref", 3)
         qm = ca.SX.sym(xs + "_pred", n)
-        Pm = ca.SX.sym("P_pred", n, n)
+        Pm_packed = ca.SX.sym("P_pred", n * (n + 1) // 2)     # lower triangle, packed (linalg)
+        Pm = linalg.unpack_symmetric(Pm_packed, n)
 
         qm_e, qn_e, Pm_e = self.predict_expr(q, P, w, dt)
         qn = ca.SX.sym("q_pred_unit", 4)
@@ -309,7 +321,6 @@ class Model(FilterModel):
         f_n = quat.rotate(qn, f)
         a_lp_new = aiding.lowpass(ca.if_else(restart, f_n, a_lp), f_n, dt, p["accel_tau"])
         Pzz = ca.SX.sym("P_zz", 6, 6)
-        Pxz = ca.SX.sym("P_xz", n, 6)
         eps = ca.SX.sym("residual", 6)
         span = ca.SX.sym("span", 2)            # time each sample stands for: accel, mag
         rated = self.own_rates()
@@ -318,16 +329,15 @@ class Model(FilterModel):
         aL_e, z0_e, piv_p = self.sigma_setup_expr(qm, Pm, m_ref)
         q4 = ca.SX.sym("q_pred", 4)
         col = ca.SX.sym("col", 4)
-        zsum = ca.SX.sym("zsum", 6)
-        zz = ca.SX.sym("zz", len(_LOWER6))
+        zsum = ca.SX.sym("zsum", 6 * N)
         zdiff = ca.SX.sym("zdiff", 6 * N)
-        zsum_e, zz_e, zdiff_e = self.sigma_pair_expr(q4, col, m_ref, z0, zsum, zz)
-        Pzz_e, Pxz_e, eps_e, r_e = self.innovation_expr(
-            z0, zsum, zz, zdiff, aL, f, m,
+        zs_e, zd_e = self.sigma_pair_expr(q4, col, m_ref, z0)
+        Pzz_e, eps_e, r_e = self.innovation_expr(
+            z0, zsum, zdiff, f, m,
             [self.r_scale(dt, span[0]), self.r_scale(dt, span[1])] if rated else None)
         Ut = ca.SX.sym("U_t", 6, n)
         v = ca.SX.sym("v", 6)
-        Ut_e, v_e, piv_zz = self.gain_expr(Pzz, Pxz, eps)
+        Ut_e, v_e, piv_zz = self.gain_expr(Pzz, zdiff, aL, eps)
         q_new, P_new = self.correct_expr(qm, Pm, Ut, v)
 
         decl = float(p["declination"])
@@ -337,32 +347,31 @@ class Model(FilterModel):
 
         specs = [
             KernelSpec("predict", function("predict", {**q_in, "P": P, "gyro": w, "dt": dt},
-                                           {xs + "_pred": qm_e, "q_pred_unit": qn_e, "P_pred": Pm_e}),
+                                           {xs + "_pred": qm_e, "q_pred_unit": qn_e,
+                                            "P_pred": linalg.pack_lower(Pm_e)}),
                        "linear Kalman time update: q- = A q, P- = A P A^T + Q", noinline=True),
-            KernelSpec("sigma_setup", function("sigma_setup", {xs + "_pred": qm, "P_pred": Pm, "m_ref": m_ref},
-                                               {"aL": aL_e, "z0": z0_e, "zsum": ca.densify(ca.SX.zeros(6)),
-                                                "zz": ca.densify(ca.SX.zeros(len(_LOWER6))), "pivot_P": piv_p}),
+            KernelSpec("sigma_setup", function("sigma_setup", {xs + "_pred": qm, "P_pred": Pm_packed, "m_ref": m_ref},
+                                               {"aL": aL_e, "z0": z0_e, "pivot_P": piv_p}),
                        "L = chol(P-), aL = a L[:, 0:4] (the columns that move the attitude: a bias column "
-                       "moves none, so 9 distinct sigma points), z0 = h(q-), the sums zsum and zz cleared; pivot_P = smallest pivot of P-",
+                       "moves none, so 9 distinct sigma points), z0 = h(q-); pivot_P = smallest pivot of P-",
                        noinline=True),
-            KernelSpec("sigma_pair", function("sigma_pair", {"q_pred": q4, "col": col, "m_ref": m_ref, "z0": z0,
-                                                             "zsum": zsum, "zz": zz},
-                                              {"zsum_new": zsum_e, "zz_new": zz_e, "zdiff": zdiff_e}),
+            KernelSpec("sigma_pair", function("sigma_pair", {"q_pred": q4, "col": col, "m_ref": m_ref, "z0": z0},
+                                              {"zsum": zs_e, "zdiff": zd_e}),
                        "sigma points q- + col and q- - col, each normalised and mapped through h, as "
-                       "deviations e+, e- from z0: zsum + e+ + e-, zz + e+ e+^T + e- e-^T (lower triangle, "
-                       "row by row), e+ - e- (called once per column of aL)"),
-            KernelSpec("innovation", function("innovation", {"z0": z0, "zsum": zsum, "zz": zz, "zdiff": zdiff,
-                                                             "aL": aL, "accel": f, "mag": m,
+                       "deviations e+, e- from z0: e+ + e- and e+ - e- (called once per column of aL)"),
+            KernelSpec("innovation", function("innovation", {"z0": z0, "zsum": zsum, "zdiff": zdiff,
+                                                             "accel": f, "mag": m,
                                                              **({"dt": dt, "span": span} if rated else {})},
-                                              {"P_zz": Pzz_e, "P_xz": Pxz_e, "residual": eps_e, "r_diag": r_e}),
-                       "predicted measurement, residual, adaptive per-axis R, P_zz and P_xz from the "
-                       "accumulated sigma-point deviations", noinline=True),
-            KernelSpec("gain", function("gain", {"P_zz": Pzz, "P_xz": Pxz, "residual": eps},
+                                              {"P_zz": Pzz_e, "residual": eps_e, "r_diag": r_e}),
+                       "predicted measurement, residual, adaptive per-axis R and P_zz from the sigma "
+                       "pairs' sums and differences of deviations", noinline=True),
+            KernelSpec("gain", function("gain", {"P_zz": Pzz, "zdiff": zdiff, "aL": aL, "residual": eps},
                                         {"U_t": Ut_e, "v": v_e, "pivot_zz": piv_zz}),
-                       "with L = chol(P_zz): U^T = L^-1 P_xz^T and v = L^-1 eps (K = U L^-1 never formed); "
+                       "with L = chol(P_zz): U^T = L^-1 P_xz^T = (Wi L^-1 D) aL^T (P_xz = Wi aL D^T, D the "
+                       "pairs' differences, never formed) and v = L^-1 eps (K = U L^-1 never formed); "
                        "pivot_zz = smallest pivot of P_zz", noinline=True),
-            KernelSpec("correct", function("correct", {xs + "_pred": qm, "P_pred": Pm, "U_t": Ut, "v": v},
-                                           {xs + "_new": q_new, "P_new": P_new}),
+            KernelSpec("correct", function("correct", {xs + "_pred": qm, "P_pred": Pm_packed, "U_t": Ut, "v": v},
+                                           {xs + "_new": q_new, "P_new": linalg.pack_lower(P_new)}),
                        "x+ = x- + U v = x- + K eps (q normalised), P+ = P- - U U^T = P- - K P_zz K^T",
                        noinline=True),
             *([KernelSpec("accel_lowpass", function(
@@ -402,4 +411,5 @@ class Model(FilterModel):
 
     def template_context(self):
         n = self.n
-        return {"learn": self.params["mag_ref"] == "learn", "n": n, "lowpass": self.lowpass(), "rated": self.own_rates(), "bias": n == 7, "xs": "q" if n == 4 else "x", "at": self.work_layout()}
+        return {"learn": self.params["mag_ref"] == "learn", "n": n, "lowpass": self.lowpass(), "rated": self.own_rates(), "bias": n == 7, "xs": "q" if n == 4 else "x", "at": self.work_layout(),
+                "packed": linalg.packed_lower_pairs(n)}
