@@ -116,8 +116,8 @@ class Model(FilterModel):
         derived (the template reads them): P_pred first (its lower triangle, packed: linalg's
         packed_lower_pairs); then the update's floats: the
         sigma points' aL and z0, the pairs' differences and sums (zdiff, zsum); P_zz over zsum
-        (the innovation kernel reads all its inputs before it writes), the residual and R; U_t
-        over zdiff and P_zz (the gain kernel reads them all before it writes); then x_pred and
+        (the innovation kernel reads all its inputs before it writes), the residual and R; G
+        and g over zdiff and the residual (the gain kernel reads them before it writes); then x_pred and
         x_new (bias state); `update_end` ends the update's floats, `size` the whole scratch."""
         n = self.n
         at = {"P_pred": 0, "aL": n * (n + 1) // 2}
@@ -128,8 +128,8 @@ class Model(FilterModel):
         at["residual"] = at["P_zz"] + max(36, 6 * N)
         at["r_upd"] = at["residual"] + 6
         at["update_end"] = at["r_upd"] + 6
-        at["U_t"] = at["zdiff"]
-        assert at["U_t"] + 6 * n <= at["residual"]      # U_t fits over zdiff and P_zz
+        at["G"] = at["zdiff"]          # written by gain, which reads zdiff
+        at["g"] = at["residual"]       # written by gain, which reads the residual
         at["x_pred"] = at["update_end"]
         at["x_new"] = at["x_pred"] + 7
         at["size"] = at["update_end"] + (14 if n == 7 else 0)
@@ -262,36 +262,40 @@ class Model(FilterModel):
             Pzz[c, r] = Pzz[r, c]
         return Pzz, eps, ca.vertcat(*R)
 
-    def gain_expr(self, Pzz, zdiff, aL, eps):
-        """The update without forming K or P_xz, through L = chol(P_zz): Uᵀ = L⁻¹ P_xzᵀ and
-        v = L⁻¹ ε, and the smallest pivot of P_zz. Then K = P_xz P_zz⁻¹ = U L⁻¹, so K ε = U v and
-        K P_zz Kᵀ = U Uᵀ (see correct_expr). With χ - x⁻ = ±a L[:, j], P_xz = Wi Σ_j aL[:, j] d_jᵀ
-        = Wi aL Dᵀ (D = [d_0 .. d_3], 6 x 4; the bias columns cancel), so Uᵀ = (Wi L⁻¹ D) aLᵀ:
-        the forward substitution runs on D's 4 columns instead of P_xzᵀ's n, and aL's top is
-        lower triangular (aL[r, j] = 0 for j > r)."""
+    def gain_expr(self, Pzz, zdiff, eps):
+        """The update without forming K, P_xz or U, through L = chol(P_zz), and the smallest
+        pivot of P_zz. With χ - x⁻ = ±a L[:, j], P_xz = Wi Σ_j aL[:, j] d_jᵀ = Wi aL Dᵀ
+        (D = [d_0 .. d_3], 6 x 4; the bias columns cancel), so with W = L⁻¹ D (the forward
+        substitution on D's 4 columns) and v = L⁻¹ ε:
+          K ε = P_xz P_zz⁻¹ ε = Wi aL Wᵀ v = aL g,          g = Wi Wᵀ v      (4)
+          K P_zz Kᵀ = Wi² aL Wᵀ W aLᵀ = aL G aLᵀ,          G = Wi² Wᵀ W     (4 x 4)
+        g and G (its lower triangle, packed) are this kernel's outputs (see correct_expr)."""
         p = self.params
         n = self.n
         wi = ut_parameters(p["ut_alpha"], p["ut_beta"], p["ut_kappa"], n)[3]
         Lz, inv, piv_zz = linalg.cholesky_with_inverse(Pzz, p["pivot_min"])
-        D = ca.reshape(zdiff, 6, N)
-        W = wi * linalg.solve_lower(Lz, D, inv)
-        Ut = ca.SX.zeros(6, n)
-        for i in range(6):
-            for r in range(n):
-                Ut[i, r] = sum([W[i, j] * aL[r, j] for j in range(1, min(r, N - 1) + 1)], W[i, 0] * aL[r, 0])
-        return Ut, linalg.solve_lower(Lz, eps, inv), piv_zz
+        W = linalg.solve_lower(Lz, ca.reshape(zdiff, 6, N), inv)
+        v = linalg.solve_lower(Lz, eps, inv)
+        g = wi * ca.mtimes(W.T, v)
+        G = ca.SX.zeros(N, N)
+        for r, c in linalg.packed_lower_pairs(N):
+            G[r, c] = (wi * wi) * ca.dot(W[:, r], W[:, c])
+            G[c, r] = G[r, c]
+        return g, linalg.pack_lower(G), piv_zz
 
-    def correct_expr(self, xm, Pm, Ut, v):
-        """x⁺ = x⁻ + U v (q normalised) and P⁺ = P⁻ - U Uᵀ on its lower triangle, mirrored
-        (exactly symmetric)."""
+    def correct_expr(self, xm, Pm, aL, g, G):
+        """x⁺ = x⁻ + K ε = x⁻ + aL g (q normalised) and P⁺ = P⁻ - K P_zz Kᵀ = P⁻ - aL G aLᵀ on
+        its lower triangle (gain_expr), the top of aL lower triangular (aL[r, j] = 0 for
+        j > r): H = aL G, then P⁺[r, c] = P⁻[r, c] - H[r, :] aL[c, :]ᵀ."""
         n = self.n
-        x_new = xm + ca.mtimes(Ut.T, v)
+        nz = lambda r: range(min(r, N - 1) + 1)      # noqa: E731  the j with aL[r, j] != 0
+        x_new = ca.vertcat(*[xm[r] + sum([aL[r, j] * g[j] for j in nz(r)][1:], aL[r, 0] * g[0]) for r in range(n)])
         q_new = normalize(x_new) if n == 4 else ca.vertcat(normalize(x_new[:4]), x_new[4:])
+        H = [[sum([aL[r, j] * G[j, k] for j in nz(r)][1:], aL[r, 0] * G[0, k]) for k in range(N)] for r in range(n)]
         P_new = ca.SX.zeros(n, n)
-        for r in range(n):
-            for c in range(r + 1):
-                P_new[r, c] = Pm[r, c] - ca.dot(Ut[:, r], Ut[:, c])
-                P_new[c, r] = P_new[r, c]
+        for r, c in linalg.packed_lower_pairs(n):
+            P_new[r, c] = Pm[r, c] - sum([H[r][k] * aL[c, k] for k in nz(c)][1:], H[r][0] * aL[c, 0])
+            P_new[c, r] = P_new[r, c]
         return q_new, P_new
 
     def kernels(self):
@@ -335,10 +339,10 @@ class Model(FilterModel):
         Pzz_e, eps_e, r_e = self.innovation_expr(
             z0, zsum, zdiff, f, m,
             [self.r_scale(dt, span[0]), self.r_scale(dt, span[1])] if rated else None)
-        Ut = ca.SX.sym("U_t", 6, n)
-        v = ca.SX.sym("v", 6)
-        Ut_e, v_e, piv_zz = self.gain_expr(Pzz, zdiff, aL, eps)
-        q_new, P_new = self.correct_expr(qm, Pm, Ut, v)
+        g = ca.SX.sym("g", N)
+        G_packed = ca.SX.sym("G", N * (N + 1) // 2)
+        g_e, G_e, piv_zz = self.gain_expr(Pzz, zdiff, eps)
+        q_new, P_new = self.correct_expr(qm, Pm, aL, g, linalg.unpack_symmetric(G_packed, N))
 
         decl = float(p["declination"])
         roll, pitch = attitude.tilt_angles(f)
@@ -365,14 +369,16 @@ class Model(FilterModel):
                                               {"P_zz": Pzz_e, "residual": eps_e, "r_diag": r_e}),
                        "predicted measurement, residual, adaptive per-axis R and P_zz from the sigma "
                        "pairs' sums and differences of deviations", noinline=True),
-            KernelSpec("gain", function("gain", {"P_zz": Pzz, "zdiff": zdiff, "aL": aL, "residual": eps},
-                                        {"U_t": Ut_e, "v": v_e, "pivot_zz": piv_zz}),
-                       "with L = chol(P_zz): U^T = L^-1 P_xz^T = (Wi L^-1 D) aL^T (P_xz = Wi aL D^T, D the "
-                       "pairs' differences, never formed) and v = L^-1 eps (K = U L^-1 never formed); "
-                       "pivot_zz = smallest pivot of P_zz", noinline=True),
-            KernelSpec("correct", function("correct", {xs + "_pred": qm, "P_pred": Pm_packed, "U_t": Ut, "v": v},
+            KernelSpec("gain", function("gain", {"P_zz": Pzz, "zdiff": zdiff, "residual": eps},
+                                        {"g": g_e, "G": G_e, "pivot_zz": piv_zz}),
+                       "with L = chol(P_zz), W = L^-1 D (D the pairs' differences) and v = L^-1 eps: "
+                       "g = Wi W^T v and G = Wi^2 W^T W (lower triangle, packed), so that K eps = aL g and "
+                       "K P_zz K^T = aL G aL^T (K, P_xz never formed); pivot_zz = smallest pivot of P_zz",
+                       noinline=True),
+            KernelSpec("correct", function("correct", {xs + "_pred": qm, "P_pred": Pm_packed, "aL": aL, "g": g,
+                                                       "G": G_packed},
                                            {xs + "_new": q_new, "P_new": linalg.pack_lower(P_new)}),
-                       "x+ = x- + U v = x- + K eps (q normalised), P+ = P- - U U^T = P- - K P_zz K^T",
+                       "x+ = x- + aL g = x- + K eps (q normalised), P+ = P- - aL G aL^T = P- - K P_zz K^T",
                        noinline=True),
             *([KernelSpec("accel_lowpass", function(
                 "accel_lowpass", {"q_pred_unit": qn, "accel": f, "accel_lp": a_lp, "restart": restart, "dt": dt},
