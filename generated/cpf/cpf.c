@@ -377,46 +377,44 @@ static inline void cpf_k_particle_scales(const float gyro[3], float dt, float hw
     *sp = tmp5;
 }
 
-/* particle prediction: eq. 11 plus the additive process noise of eq. 9 (normalised after it by the normalize kernel)
- * ops: add 16, mul 16 (total 32) */
-static inline void cpf_k_particle_move(const float x[4], const float hw[3], float sp, const float noise[4], float x_new[4])
+/* particle prediction: eq. 11 with the process noise as a rotation-vector perturbation of the increment, x + x (x) [0, dt/2 w + sp n] (normalised after it by the normalize kernel)
+ * ops: add 15, mul 15 (total 30) */
+static inline void cpf_k_particle_move(const float x[4], const float hw[3], float sp, const float noise[3], float x_new[4])
 {
-    const float tmp0 = x[1] * hw[0];
-    const float tmp1 = x[2] * hw[1];
-    const float tmp2 = tmp0 + tmp1;
-    const float tmp3 = x[3] * hw[2];
-    const float tmp4 = tmp2 + tmp3;
-    const float tmp5 = x[0] - tmp4;
-    const float tmp6 = sp * noise[0];
-    const float tmp7 = tmp5 + tmp6;
-    const float tmp8 = x[0] * hw[0];
-    const float tmp9 = x[2] * hw[2];
-    const float tmp10 = tmp8 + tmp9;
-    const float tmp11 = x[3] * hw[1];
-    const float tmp12 = tmp10 - tmp11;
-    const float tmp13 = x[1] + tmp12;
-    const float tmp14 = sp * noise[1];
-    const float tmp15 = tmp13 + tmp14;
-    const float tmp16 = x[0] * hw[1];
-    const float tmp17 = x[1] * hw[2];
-    const float tmp18 = tmp16 - tmp17;
-    const float tmp19 = x[3] * hw[0];
-    const float tmp20 = tmp18 + tmp19;
-    const float tmp21 = x[2] + tmp20;
-    const float tmp22 = sp * noise[2];
-    const float tmp23 = tmp21 + tmp22;
-    const float tmp24 = x[0] * hw[2];
-    const float tmp25 = x[1] * hw[1];
+    const float tmp0 = sp * noise[0];
+    const float tmp1 = hw[0] + tmp0;
+    const float tmp2 = x[1] * tmp1;
+    const float tmp3 = sp * noise[1];
+    const float tmp4 = hw[1] + tmp3;
+    const float tmp5 = x[2] * tmp4;
+    const float tmp6 = tmp2 + tmp5;
+    const float tmp7 = sp * noise[2];
+    const float tmp8 = hw[2] + tmp7;
+    const float tmp9 = x[3] * tmp8;
+    const float tmp10 = tmp6 + tmp9;
+    const float tmp11 = x[0] - tmp10;
+    const float tmp12 = x[0] * tmp1;
+    const float tmp13 = x[2] * tmp8;
+    const float tmp14 = tmp12 + tmp13;
+    const float tmp15 = x[3] * tmp4;
+    const float tmp16 = tmp14 - tmp15;
+    const float tmp17 = x[1] + tmp16;
+    const float tmp18 = x[0] * tmp4;
+    const float tmp19 = x[1] * tmp8;
+    const float tmp20 = tmp18 - tmp19;
+    const float tmp21 = x[3] * tmp1;
+    const float tmp22 = tmp20 + tmp21;
+    const float tmp23 = x[2] + tmp22;
+    const float tmp24 = x[0] * tmp8;
+    const float tmp25 = x[1] * tmp4;
     const float tmp26 = tmp24 + tmp25;
-    const float tmp27 = x[2] * hw[0];
+    const float tmp27 = x[2] * tmp1;
     const float tmp28 = tmp26 - tmp27;
     const float tmp29 = x[3] + tmp28;
-    const float tmp30 = sp * noise[3];
-    const float tmp31 = tmp29 + tmp30;
-    x_new[0] = tmp7;
-    x_new[1] = tmp15;
+    x_new[0] = tmp11;
+    x_new[1] = tmp17;
     x_new[2] = tmp23;
-    x_new[3] = tmp31;
+    x_new[3] = tmp29;
 }
 
 /* |<x, Y>|: cosine of half the angle between particle and observation (q = -q)
@@ -530,24 +528,42 @@ static inline void cpf_k_euler(const float q[4], float rpy[3])
 }
 
 /* exp(x) for x <= 0, the only arguments it gets: the likelihood factor exp(gain (c - c_max)),
- * c <= c_max, and the ziggurat's wedge exp(-x^2/2). fast_expf's reduction and polynomial
- * (generator/fastmath.py) without its overflow branch and with one scaling by 2^k, exact for
- * k >= -126 (x > -87.3): the same float as fast_expf for every x <= 0 (relative error
- * 1.5e-7; 0 at and below -87.3; NaN kept), in fewer instructions (tests/test_cpf.py). */
+ * c <= c_max, and the ziggurat's wedge exp(-x^2/2). A table of 64 powers of two and a
+ * quadratic (generator/fastmath.py, exp_nonpos_source): relative error <= 2.5e-7 + 8e-8 |x|
+ * (2 ulp near 0, 7.2e-6 at -87.3; 0 at and below -87.3; NaN kept), tested in tests/test_cpf.py;
+ * about 20 instructions. */
+/* 2^(i/64) as float bits, less 126 in the exponent field */
+static const uint32_t cpf_exp_nonpos_table[64] = {
+    0x00800000u, 0x008164D2u, 0x0082CD87u, 0x00843A29u,
+    0x0085AAC3u, 0x00871F62u, 0x0088980Fu, 0x008A14D5u,
+    0x008B95C2u, 0x008D1ADFu, 0x008EA43Au, 0x009031DCu,
+    0x0091C3D3u, 0x00935A2Bu, 0x0094F4F0u, 0x0096942Du,
+    0x009837F0u, 0x0099E046u, 0x009B8D3Au, 0x009D3EDAu,
+    0x009EF532u, 0x00A0B051u, 0x00A27043u, 0x00A43516u,
+    0x00A5FED7u, 0x00A7CD94u, 0x00A9A15Bu, 0x00AB7A3Au,
+    0x00AD583Fu, 0x00AF3B79u, 0x00B123F6u, 0x00B311C4u,
+    0x00B504F3u, 0x00B6FD92u, 0x00B8FBAFu, 0x00BAFF5Bu,
+    0x00BD08A4u, 0x00BF179Au, 0x00C12C4Du, 0x00C346CDu,
+    0x00C5672Au, 0x00C78D75u, 0x00C9B9BEu, 0x00CBEC15u,
+    0x00CE248Cu, 0x00D06334u, 0x00D2A81Eu, 0x00D4F35Bu,
+    0x00D744FDu, 0x00D99D16u, 0x00DBFBB8u, 0x00DE60F5u,
+    0x00E0CCDFu, 0x00E33F89u, 0x00E5B907u, 0x00E8396Au,
+    0x00EAC0C7u, 0x00ED4F30u, 0x00EFE4BAu, 0x00F28177u,
+    0x00F5257Du, 0x00F7D0DFu, 0x00FA83B3u, 0x00FD3E0Cu
+};
+
 static inline float cpf_exp_nonpos(float x)
 {
     if (!(x > -87.3f)) {
         return isnan(x) ? x : 0.0f;   /* below FLT_MIN: flushed to zero */
     }
-    const float t = x * 1.44269504f;
-    const int32_t k = (int32_t)(t - 0.5f);                 /* round(t): t <= 0 */
-    const float kf = (float)k;
-    const float r = (x - kf * 0.693359375f) - kf * (-2.12194440e-4f);
-    const float p = ((((1.9875691500e-4f * r + 1.3981999507e-3f) * r + 8.3334519073e-3f) * r
-                      + 4.1665795894e-2f) * r + 1.6666665459e-1f) * r + 5.0000001201e-1f;
-    const float e = p * (r * r) + r + 1.0f;
+    const float t = x * 92.3324814f;                       /* 64 x / ln2 */
+    const int32_t n = (int32_t)(t - 0.5f);                 /* round(t): t <= 0; n >= -8060 */
+    const float r = (t - (float)n) * 0.0108304247f;        /* (t - n) ln2/64, |r| <= ln2/128 */
+    const float e = (0.5f * r + 1.0f) * r + 1.0f;          /* e^r */
+    const uint32_t m = (uint32_t)(n + 8064);               /* n + 126 * 64 >= 4 */
     union { uint32_t u; float f; } scale;
-    scale.u = (uint32_t)(k + 127) << 23;                  /* 2^k, k in [-126, 0] */
+    scale.u = cpf_exp_nonpos_table[m & 63u] + ((m >> 6) << 23);    /* 2^(n/64) */
     return e * scale.f;
 }
 
@@ -1010,7 +1026,7 @@ cpf_status cpf_step(cpf_state *restrict s, const cpf_input *restrict in, float d
     const bool have_obs = use_accel || use_mag;
     const float *y = s->q_cf;
 
-    /* Prediction: eq. 11 plus additive quaternion noise (eq. 9), particle by particle, and
+    /* Prediction: eq. 11 plus process noise as a rotation vector added to the increment, particle by particle, and
      * with an observation |<x_i, Y>| (kept in scratch for the update) and its largest value
      * (the likelihood's scale, eq. 13). */
     float cmax = -1.0f;   /* below every |<x_i, Y>| */
@@ -1023,11 +1039,10 @@ cpf_status cpf_step(cpf_state *restrict s, const cpf_input *restrict in, float d
         const float yl[4] = { y[0], y[1], y[2], y[3] };
         for (uint32_t i = 0u; i < 100u; i++) {
             float *x = &s->particles[4u * i];
-            float noise[4];
+            float noise[3];
             noise[0] = cpf_rng_gauss(r, s->rng);
             noise[1] = cpf_rng_gauss(r, s->rng);
             noise[2] = cpf_rng_gauss(r, s->rng);
-            noise[3] = cpf_rng_gauss(r, s->rng);
             cpf_k_particle_move(x, hw, sp, noise, x);
             cpf_k_normalize(x, x);
             if (have_obs) {

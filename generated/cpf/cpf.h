@@ -53,11 +53,11 @@ extern "C" {
 #define CPF_N_PARTICLES 100     /* number of particles, fixed at generation time (particle arrays live in the state struct); at least 2, a particle filter of one particle has nothing to resample */
 #define CPF_SEED 1              /* seed of the xoshiro128** generator (uint32); the reference draws the same stream */
 #define CPF_TAU 0.3f            /* complementary time constant: k = tau / (tau + dt) (eq. 8); weight of the gyro angles [s] */
-#define CPF_PROCESS_NOISE 0.05f /* particle process noise W (eq. 9): additive quaternion noise of std process_noise*sqrt(dt)/2 per component (each axis random-walks by process_noise*sqrt(dt) per step) [rad/sqrt(s)] */
+#define CPF_PROCESS_NOISE 0.05f /* particle process noise (eq. 9): each rotation axis random-walks by process_noise*sqrt(dt) per step; by default a rotation vector of that std per axis added to the gyro increment (3 normals per particle), in faithful mode the paper's additive quaternion noise W of std process_noise*sqrt(dt)/2 per component (4 normals) [rad/sqrt(s)] */
 #define CPF_OBS_NOISE 0.02f     /* observation noise V (eq. 12) as an angle: quaternion component std obs_noise/2; likelihood exp(-4(1-|<Y,x>|)/obs_noise^2) [rad] */
 #define CPF_INIT_SPREAD 0.05f   /* initial particle spread about the accelerometer/magnetometer attitude (per-axis angle std) [rad] */
 #define CPF_ESS_THRESHOLD 0.5f  /* resample when the effective sample size 1/sum(w^2) falls below ess_threshold*N (faithful mode resamples every step) */
-#define CPF_FAITHFUL 0          /* reproduce the paper's particle filter: systematic resampling after every update (section 2.2.2, step 3) */
+#define CPF_FAITHFUL 0          /* reproduce the paper's particle filter: its additive quaternion process noise (eq. 9) and systematic resampling after every update (section 2.2.2, step 3) */
 #define CPF_DECLINATION 0.0f    /* magnetic declination added to the tilt-compensated heading [rad] */
 
 /* Input validity bits: set a bit only when that sensor delivered a new sample this step. */

@@ -4,7 +4,8 @@ Per step (SPEC.md, CPF; reference.py spells out every equation):
   am angles      φ_a = atan2(−f_y, −f_z), θ_a = atan2(f_x, √(f_y²+f_z²)), ψ_m tilt-compensated
   gyro predict   q_g = normalise((I + dt/2 Ω(ω)) q_cf)                          (eq. 11)
   complementary  a = wrap(a_g + (1−k) wrap(a_am − a_g)), k = τ/(τ+dt)           (eqs. 7, 8)
-  particles      x_i = normalise((I + dt/2 Ω(ω)) x_i + σ_p√dt/2 n_i)            (eqs. 9, 11)
+  particles      x_i = normalise(x_i + ½ x_i ⊗ [0, ω dt + σ_p√dt n_i]), n_i ~ N(0, I₃)  (eqs. 9, 11;
+                 faithful: normalise((I + dt/2 Ω(ω)) x_i + σ_p√dt/2 n_i), n_i ~ N(0, I₄), eq. 9's W)
   likelihood     w_i ← w_i exp(4(|⟨Y,x_i⟩| − c_max)/σ_o²), Y = q_cf (q ≡ −q)     (eqs. 12, 13)
   estimate       q = normalise(Σ w_i sign⟨x_i, q_prev⟩ x_i)                      (eqs. 14, 15)
 The loops over particles, the weight normalisation, systematic resampling and the PRNG
@@ -49,6 +50,12 @@ class Model(FilterModel):
         return int(self.params["n_particles"])
 
     @property
+    def noise_dim(self) -> int:
+        """Normals per particle and prediction: 3 (rotation-vector noise, the default) or 4
+        (faithful: the paper's additive quaternion noise W of eq. 9)."""
+        return 4 if self.params["faithful"] else 3
+
+    @property
     def mode(self) -> str:
         return self.params["mode"]
 
@@ -90,6 +97,8 @@ class Model(FilterModel):
         rpy = ca.SX.sym("rpy", 3)
         am = ca.SX.sym("am", 3)
         noise = ca.SX.sym("noise", 4)
+        nd = self.noise_dim
+        pnoise = ca.SX.sym("noise", nd)
         hw = ca.SX.sym("hw", 3)
         sp = ca.SX.sym("sp")
         use_accel = ca.SX.sym("use_accel")
@@ -130,6 +139,16 @@ class Model(FilterModel):
             c = ca.fabs(ca.dot(x, y))
             gain = 4.0 / (p["obs_noise"] * p["obs_noise"])
             sgn = ca.if_else(ca.dot(x, ref) < 0, -1, 1)
+            if nd == 4:     # the paper's additive quaternion noise W (eq. 9), then eq. 11
+                move = x + quat.qmul(x, quat.vec(0, hw[0], hw[1], hw[2])) + sp * pnoise
+                move_doc = ("particle prediction: eq. 11 plus the paper's additive quaternion process noise "
+                            "(eq. 9, four components; normalised after it by the normalize kernel)")
+            else:           # the noise as a rotation vector added to the gyro increment (tangent space)
+                d = [hw[k] + sp * pnoise[k] for k in range(3)]
+                move = x + quat.qmul(x, quat.vec(0, d[0], d[1], d[2]))
+                move_doc = ("particle prediction: eq. 11 with the process noise as a rotation-vector "
+                            "perturbation of the increment, x + x (x) [0, dt/2 w + sp n] (normalised after "
+                            "it by the normalize kernel)")
             ks += [
                 KernelSpec("init_particle", function("init_particle", {"q": q, "noise": noise},
                                                      {"x": quat.qnormalize(q + s_0 * noise)}),
@@ -139,11 +158,9 @@ class Model(FilterModel):
                                     {"hw": 0.5 * dt * gyro, "sp": s_p}),
                            "once per step for every particle: half the rotation increment (dt/2 gyro, eq. 11) "
                            "and the process-noise std (eq. 9)"),
-                KernelSpec("particle_move",
-                           function("particle_move", {"x": x, "hw": hw, "sp": sp, "noise": noise},
-                                    {"x_new": x + quat.qmul(x, quat.vec(0, hw[0], hw[1], hw[2])) + sp * noise}),
-                           "particle prediction: eq. 11 plus the additive process noise of eq. 9 "
-                           "(normalised after it by the normalize kernel)"),
+                KernelSpec("particle_move", function("particle_move", {"x": x, "hw": hw, "sp": sp, "noise": pnoise},
+                                                     {"x_new": move}),
+                           move_doc),
                 KernelSpec("obs_dot", function("obs_dot", {"x": x, "y": y}, {"c": c}),
                            "|<x, Y>|: cosine of half the angle between particle and observation (q = -q)"),
                 KernelSpec("log_likelihood", function("log_likelihood", {"c": cdot, "cmax": cmax},
@@ -161,6 +178,7 @@ class Model(FilterModel):
 
     def template_context(self):
         return {"n_particles": self.n, "mode": self.mode, "faithful": bool(self.params["faithful"]),
+                "noise_dim": self.noise_dim,
                 "ess_threshold": float(self.params["ess_threshold"]),
                 "zig_kw": list(zip(ZIG_K, ZIG_W)), "zig_f": ZIG_F, "zig_r": ZIG_R,
                 "exp_nonpos_source": fastmath.exp_nonpos_source}

@@ -22,9 +22,13 @@ One step (dt > 0, gyro rate ω over the last interval):
    accelerometer is usable, yaw only when the magnetometer is; q_cf = from_euler(φ, θ, ψ)
    (q_cf = q_g when neither sensor is usable).
 4. Particle filter, section 2.2, on the quaternion (N particles):
-   - prediction, eq. 9 + 11: x_i ← normalise((I + dt/2 Ω(ω)) x_i + σ_p √dt / 2 · n_i),
-     n_i four standard normals (ziggurat, prng.py) - additive quaternion noise W_k as in
-     eq. 9, scaled so that each rotation axis random-walks by process_noise·√dt per step;
+   - prediction, eq. 11 with process noise, each rotation axis random-walking by
+     σ_p √dt per step:
+     default: x_i ← normalise((I + ½ Ω(ω dt + σ_p √dt · n_i)) x_i), n_i three standard normals
+     (ziggurat, prng.py): the noise is a rotation vector added to the gyro increment, i.e. a
+     perturbation in the tangent space of the unit quaternion;
+     faithful: x_i ← normalise((I + dt/2 Ω(ω)) x_i + σ_p √dt / 2 · n_i), n_i four standard
+     normals - the paper's additive quaternion noise W_k of eq. 9;
    - observation Y = q_cf (eq. 12, H = I); in mode "particle" Y = from_euler(φ_a, θ_a, ψ_m)
      (needs both sensors);
    - likelihood with V ~ N(0, (σ_o/2)² I₄) and q ≡ −q: |Y − x|² taken with the nearer sign
@@ -46,8 +50,8 @@ x_i = normalise(q0 + init_spread/2 · n_i), w_i = 1/N; that step's gyro sample i
 then a step returns NOT_INITIALISED and changes nothing but the status.
 
 Random numbers are drawn in this order, always: at initialisation, particle by particle, 4
-normals each; each prediction, particle by particle, 4 normals each; each resampling, one
-uniform (u in (0, 1], positions (j + u)/N).
+normals each; each prediction, particle by particle, 3 normals each (4 in faithful mode); each
+resampling, one uniform (u in (0, 1], positions (j + u)/N).
 """
 from __future__ import annotations
 
@@ -138,6 +142,17 @@ def transition(w, dt: float) -> np.ndarray:
                      [wz, wy, -wx, 1.0]])
 
 
+def transitions(theta: np.ndarray) -> np.ndarray:
+    """I + ½ Ω(θ) for each rotation vector θ (rows of an (n, 3) array): (n, 4, 4)."""
+    n = len(theta)
+    tx, ty, tz = (0.5 * theta[:, k] for k in range(3))
+    one = np.ones(n)
+    return np.stack([np.stack([one, -tx, -ty, -tz], axis=1),
+                     np.stack([tx, one, tz, -ty], axis=1),
+                     np.stack([ty, -tz, one, tx], axis=1),
+                     np.stack([tz, ty, -tx, one], axis=1)], axis=1)
+
+
 class Reference:
     """Independent NumPy CPF; same status logic and random-number order as the generated C."""
 
@@ -163,9 +178,10 @@ class Reference:
         self.n_resample = 0
 
     # -- helpers ------------------------------------------------------------------------------
-    def _normals(self, n: int) -> np.ndarray:
-        """n particles' noise, (n, 4), drawn particle by particle as the C does."""
-        return np.array(self.rng.normals(2 * n)).reshape(n, 4)
+    def _normals(self, n: int, k: int = 4) -> np.ndarray:
+        """n particles' noise, (n, k), drawn particle by particle as the C does."""
+        g = self.rng.gauss
+        return np.array([g() for _ in range(n * k)]).reshape(n, k)
 
     # -- the step -----------------------------------------------------------------------------
     def step(self, gyro, accel, mag, gps_vel, valid: int, dt: float) -> int:
@@ -233,8 +249,12 @@ class Reference:
 
         # ---- particle filter (section 2.2) ----
         N = self.N
-        sp = 0.5 * p["process_noise"] * math.sqrt(dt)
-        x = self.particles @ A.T + sp * self._normals(N)
+        if p["faithful"]:       # the paper's additive quaternion noise (eq. 9)
+            sp = 0.5 * p["process_noise"] * math.sqrt(dt)
+            x = self.particles @ A.T + sp * self._normals(N)
+        else:                   # a rotation vector per particle, added to the gyro increment
+            theta = dt * np.array(w)[None, :] + p["process_noise"] * math.sqrt(dt) * self._normals(N, 3)
+            x = np.einsum("nij,nj->ni", transitions(theta), self.particles)
         x = x / np.linalg.norm(x, axis=1, keepdims=True)
         self.particles = x
         if have_obs:
