@@ -797,28 +797,29 @@ static void cpf_resample(cpf_state *s)
     for (uint32_t i = 0u; i < 99u; i++) {
         c += s->weights[i];
         s->weights[i] = 0.01f;
-        const uint32_t j0 = j;
+        const float jr0 = jr;
         while (pos <= c && j < 100u) {
             j++;
             jr += 1.0f;
             pos = (jr + u) / 100.0f;
         }
-        s->scratch[i] = (float)(j - j0);
+        s->scratch[i] = jr - jr0;             /* whole numbers: exact */
     }
     s->weights[99u] = 0.01f;
-    s->scratch[99u] = (float)(100u - j);
+    s->scratch[99u] = 100.0f - jr;
     uint32_t d = 0u;
     for (uint32_t i = 0u; i < 100u; i++) {
-        for (uint32_t n = (uint32_t)s->scratch[i]; n > 1u; n--) {
+        for (float n = s->scratch[i]; n > 1.0f; n -= 1.0f) {   /* its extra copies */
             while (d < 100u && s->scratch[d] > 0.0f) {
                 d++;
             }
             if (d >= 100u) {
                 break;   /* cannot happen: there are as many empty slots as extra copies */
             }
-            for (uint32_t k = 0u; k < 4u; k++) {
-                s->particles[4u * d + k] = s->particles[4u * i + k];
-            }
+            s->particles[4u * d + 0u] = s->particles[4u * i + 0u];
+            s->particles[4u * d + 1u] = s->particles[4u * i + 1u];
+            s->particles[4u * d + 2u] = s->particles[4u * i + 2u];
+            s->particles[4u * d + 3u] = s->particles[4u * i + 3u];
             s->scratch[d] = 1.0f;
         }
     }
@@ -1045,13 +1046,11 @@ cpf_status cpf_step(cpf_state *restrict s, const cpf_input *restrict in, float d
             noise[2] = cpf_rng_gauss(r, s->rng);
             cpf_k_particle_move(x, hw, sp, noise, x);
             cpf_k_normalize(x, x);
-            if (have_obs) {
-                float c;
-                cpf_k_obs_dot(x, yl, &c);
-                s->scratch[i] = c;
-                if (c > cmax) {
-                    cmax = c;
-                }
+            float c;       /* unused without an observation (cheaper than a test per particle) */
+            cpf_k_obs_dot(x, yl, &c);
+            s->scratch[i] = c;
+            if (c > cmax) {
+                cmax = c;
             }
         }
         for (uint32_t k = 0u; k < 4u; k++) {
@@ -1077,7 +1076,8 @@ cpf_status cpf_step(cpf_state *restrict s, const cpf_input *restrict in, float d
             status |= CPF_WEIGHTS_RESET;
         }
     }
-    const bool normalise = have_obs && sum > 0.0f;
+    /* the divisor of the weights: their sum after an update, else 1 (w / 1 == w exactly) */
+    const float wdiv = (have_obs && sum > 0.0f) ? sum : 1.0f;
 
     /* Estimate (eq. 15): sign-aligned weighted mean of the normalised weights, normalised (kept
      * if it degenerates). */
@@ -1085,9 +1085,7 @@ cpf_status cpf_step(cpf_state *restrict s, const cpf_input *restrict in, float d
         float acc[4] = { 0.0f, 0.0f, 0.0f, 0.0f };
         float w2 = 0.0f;
         for (uint32_t i = 0u; i < 100u; i++) {
-            if (normalise) {
-                s->weights[i] = s->weights[i] / sum;
-            }
+            s->weights[i] = s->weights[i] / wdiv;
             cpf_k_accumulate(acc, s->weights[i], &s->particles[4u * i], s->q, acc);
             w2 += s->weights[i] * s->weights[i];
         }
