@@ -54,20 +54,27 @@ _COS_POLY = ("1.0f - 0.5f * r2 + r2 * r2 * (4.166664568298827e-2f + r2 * ((-1.38
              "+ r2 * 2.443315711809948e-5f))")
 
 
-def _sincos(name: str, quadrant_shift: int) -> str:
-    return (f"static float {name}(float x)\n{{\n"
+def _sincos_quadrant() -> str:
+    """sin and cos share one function (one copy of the reduction and polynomials in flash):
+    the cosine is the sine one quadrant on, so `shift` 0 gives sin(x) and 1 gives cos(x)."""
+    return ("static float fast_sincos_quadrant(float x, uint32_t shift)\n{\n"
             f"    if (!(fabsf(x) <= {TRIG_MAX:.1f}f)) {{\n        return NAN;\n    }}"
             + _SINCOS_BODY +
-            f"    const uint32_t quadrant = ((uint32_t)k + {quadrant_shift}u) & 3u;\n"
+            "    const uint32_t quadrant = ((uint32_t)k + shift) & 3u;\n"
             f"    const float v = ((quadrant & 1u) != 0u) ? {_COS_POLY} : {_SIN_POLY};\n"
             "    return (quadrant >= 2u) ? -v : v;\n}\n")
 
 
 HELPERS = {
-    "sin": Helper("fast_sinf", f"sin(x), |x| <= {TRIG_MAX:g} (NaN beyond; sin(-0) = +0)", _sincos("fast_sinf", 0),
-                  max_abs_error=1.5e-7),
-    "cos": Helper("fast_cosf", f"cos(x), |x| <= {TRIG_MAX:g} (NaN beyond)", _sincos("fast_cosf", 1),
-                  max_abs_error=1.5e-7),
+    "sincos_quadrant": Helper("fast_sincos_quadrant", f"sin(x) (shift 0) or cos(x) (shift 1), |x| <= {TRIG_MAX:g} "
+                              "(NaN beyond); the shared body of fast_sinf and fast_cosf",
+                              _sincos_quadrant(), max_abs_error=1.5e-7),
+    "sin": Helper("fast_sinf", f"sin(x), |x| <= {TRIG_MAX:g} (NaN beyond; sin(-0) = +0)",
+                  "static inline float fast_sinf(float x)\n{\n    return fast_sincos_quadrant(x, 0u);\n}\n",
+                  needs=("sincos_quadrant",), max_abs_error=1.5e-7),
+    "cos": Helper("fast_cosf", f"cos(x), |x| <= {TRIG_MAX:g} (NaN beyond)",
+                  "static inline float fast_cosf(float x)\n{\n    return fast_sincos_quadrant(x, 1u);\n}\n",
+                  needs=("sincos_quadrant",), max_abs_error=1.5e-7),
     "atan2": Helper("fast_atan2f", "atan2(y, x), every float pair; quadrants, signed zeros and infinities as C99",
                     """static float fast_atan2f(float y, float x)
 {
