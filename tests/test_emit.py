@@ -177,6 +177,26 @@ def test_costly_select_becomes_a_branch_and_a_cheap_one_stays_a_conditional(tmp_
         np.testing.assert_allclose(got, np.array(f(a)).ravel(), rtol=1e-14, atol=1e-14)
 
 
+def test_a_value_a_side_returns_and_also_reads_is_computed_on_that_side_only(tmp_path):
+    # the exponential map's shape: above the threshold cos|v| is returned as is and read by the
+    # other outputs' work; below it a series. cos and sin must run only when the else side does.
+    v = ca.SX.sym("v", 2)
+    n2 = ca.sumsqr(v)
+    n = ca.sqrt(ca.fmax(n2, 0.01))
+    c, s = ca.cos(n), ca.sin(n)
+    out = ca.vertcat(ca.if_else(n2 < 0.01, 1 - n2 / 2, c), ca.if_else(n2 < 0.01, v[0], s / n * v[0] + c))
+    k = emit.emit(emit.function("em", {"v": v}, {"o": out}), "double")
+    text = "\n".join(k.body)
+    else_side = text[text.index("} else {"):]
+    assert text.count("cos(") == 1 and "cos(" in else_side and "sin(" in else_side
+    (br,) = k.branches
+    assert br["else"]["trig"] == 2 and "trig" not in br["then"]
+    lib = _build([k], "double", tmp_path)
+    f = ca.Function("f", [v], [out])
+    for a in ([0.01, 0.02], [0.5, -1.0], [0.0, 0.0], [-2.0, 3.0]):
+        np.testing.assert_allclose(_run1(lib, "em", 1, [2], [a])[0], np.array(f(a)).ravel(), rtol=1e-15, atol=0)
+
+
 def test_split_kernel_equals_the_unsplit_one_bit_for_bit(tmp_path):
     A = ca.SX.sym("A", 4, 4)
     b = ca.SX.sym("b", 4)
