@@ -25,8 +25,8 @@
 #include <string.h>
 
 /* math = "fast": trigonometry without libm (generator/fastmath.py; errors measured there) */
-/* sin(x), |x| <= 8192 (NaN beyond; sin(-0) = +0); max abs error 1.5e-07 (tests/test_fastmath.py) */
-static float fast_sinf(float x)
+/* sin(x) (shift 0) or cos(x) (shift 1), |x| <= 8192 (NaN beyond); the shared body of fast_sinf and fast_cosf; max abs error 1.5e-07 (tests/test_fastmath.py) */
+static float fast_sincos_quadrant(float x, uint32_t shift)
 {
     if (!(fabsf(x) <= 8192.0f)) {
         return NAN;
@@ -37,24 +37,7 @@ static float fast_sinf(float x)
     /* Cody-Waite: pi/2 in three parts, the first two with trailing zero bits */
     const float r = ((x - kf * 1.5703125f) - kf * 4.837512969970703125e-4f) - kf * 7.54978995489188216e-8f;
     const float r2 = r * r;
-    const uint32_t quadrant = ((uint32_t)k + 0u) & 3u;
-    const float v = ((quadrant & 1u) != 0u) ? 1.0f - 0.5f * r2 + r2 * r2 * (4.166664568298827e-2f + r2 * ((-1.388731625493765e-3f) + r2 * 2.443315711809948e-5f)) : r + r * r2 * ((-1.6666654611e-1f) + r2 * (8.3321608736e-3f + r2 * (-1.9515295891e-4f)));
-    return (quadrant >= 2u) ? -v : v;
-}
-
-/* cos(x), |x| <= 8192 (NaN beyond); max abs error 1.5e-07 (tests/test_fastmath.py) */
-static float fast_cosf(float x)
-{
-    if (!(fabsf(x) <= 8192.0f)) {
-        return NAN;
-    }
-    const float t = x * 0.636619772f;                       /* x * 2/pi */
-    const int32_t k = (int32_t)((t >= 0.0f) ? t + 0.5f : t - 0.5f);
-    const float kf = (float)k;
-    /* Cody-Waite: pi/2 in three parts, the first two with trailing zero bits */
-    const float r = ((x - kf * 1.5703125f) - kf * 4.837512969970703125e-4f) - kf * 7.54978995489188216e-8f;
-    const float r2 = r * r;
-    const uint32_t quadrant = ((uint32_t)k + 1u) & 3u;
+    const uint32_t quadrant = ((uint32_t)k + shift) & 3u;
     const float v = ((quadrant & 1u) != 0u) ? 1.0f - 0.5f * r2 + r2 * r2 * (4.166664568298827e-2f + r2 * ((-1.388731625493765e-3f) + r2 * 2.443315711809948e-5f)) : r + r * r2 * ((-1.6666654611e-1f) + r2 * (8.3321608736e-3f + r2 * (-1.9515295891e-4f)));
     return (quadrant >= 2u) ? -v : v;
 }
@@ -86,6 +69,18 @@ static float fast_atan2f(float y, float x)
         a = 3.14159265f - a;
     }
     return signbit(y) ? -a : a;
+}
+
+/* sin(x), |x| <= 8192 (NaN beyond; sin(-0) = +0); max abs error 1.5e-07 (tests/test_fastmath.py) */
+static inline float fast_sinf(float x)
+{
+    return fast_sincos_quadrant(x, 0u);
+}
+
+/* cos(x), |x| <= 8192 (NaN beyond); max abs error 1.5e-07 (tests/test_fastmath.py) */
+static inline float fast_cosf(float x)
+{
+    return fast_sincos_quadrant(x, 1u);
 }
 
 /* linear Kalman time update: q- = A q, P- = A P A^T + Q

@@ -25,8 +25,8 @@
 #include <string.h>
 
 /* math = "fast": trigonometry without libm (generator/fastmath.py; errors measured there) */
-/* sin(x), |x| <= 8192 (NaN beyond; sin(-0) = +0); max abs error 1.5e-07 (tests/test_fastmath.py) */
-static float fast_sinf(float x)
+/* sin(x) (shift 0) or cos(x) (shift 1), |x| <= 8192 (NaN beyond); the shared body of fast_sinf and fast_cosf; max abs error 1.5e-07 (tests/test_fastmath.py) */
+static float fast_sincos_quadrant(float x, uint32_t shift)
 {
     if (!(fabsf(x) <= 8192.0f)) {
         return NAN;
@@ -37,24 +37,7 @@ static float fast_sinf(float x)
     /* Cody-Waite: pi/2 in three parts, the first two with trailing zero bits */
     const float r = ((x - kf * 1.5703125f) - kf * 4.837512969970703125e-4f) - kf * 7.54978995489188216e-8f;
     const float r2 = r * r;
-    const uint32_t quadrant = ((uint32_t)k + 0u) & 3u;
-    const float v = ((quadrant & 1u) != 0u) ? 1.0f - 0.5f * r2 + r2 * r2 * (4.166664568298827e-2f + r2 * ((-1.388731625493765e-3f) + r2 * 2.443315711809948e-5f)) : r + r * r2 * ((-1.6666654611e-1f) + r2 * (8.3321608736e-3f + r2 * (-1.9515295891e-4f)));
-    return (quadrant >= 2u) ? -v : v;
-}
-
-/* cos(x), |x| <= 8192 (NaN beyond); max abs error 1.5e-07 (tests/test_fastmath.py) */
-static float fast_cosf(float x)
-{
-    if (!(fabsf(x) <= 8192.0f)) {
-        return NAN;
-    }
-    const float t = x * 0.636619772f;                       /* x * 2/pi */
-    const int32_t k = (int32_t)((t >= 0.0f) ? t + 0.5f : t - 0.5f);
-    const float kf = (float)k;
-    /* Cody-Waite: pi/2 in three parts, the first two with trailing zero bits */
-    const float r = ((x - kf * 1.5703125f) - kf * 4.837512969970703125e-4f) - kf * 7.54978995489188216e-8f;
-    const float r2 = r * r;
-    const uint32_t quadrant = ((uint32_t)k + 1u) & 3u;
+    const uint32_t quadrant = ((uint32_t)k + shift) & 3u;
     const float v = ((quadrant & 1u) != 0u) ? 1.0f - 0.5f * r2 + r2 * r2 * (4.166664568298827e-2f + r2 * ((-1.388731625493765e-3f) + r2 * 2.443315711809948e-5f)) : r + r * r2 * ((-1.6666654611e-1f) + r2 * (8.3321608736e-3f + r2 * (-1.9515295891e-4f)));
     return (quadrant >= 2u) ? -v : v;
 }
@@ -88,9 +71,21 @@ static float fast_atan2f(float y, float x)
     return signbit(y) ? -a : a;
 }
 
+/* sin(x), |x| <= 8192 (NaN beyond; sin(-0) = +0); max abs error 1.5e-07 (tests/test_fastmath.py) */
+static inline float fast_sinf(float x)
+{
+    return fast_sincos_quadrant(x, 0u);
+}
+
+/* cos(x), |x| <= 8192 (NaN beyond); max abs error 1.5e-07 (tests/test_fastmath.py) */
+static inline float fast_cosf(float x)
+{
+    return fast_sincos_quadrant(x, 1u);
+}
+
 /* time update: attitude and F's attitude rows
  * ops: add 107, mul 121, div 9, sqrt 2, trig 2, cmp 7 (total 248)
- *      of which only one side runs: if (tmp11 < 0.01f) 26, else 13 */
+ *      of which only one side runs: if (tmp11 < 0.01f) 26, else 18 */
 static void mekf_k_predict_attitude_part0(const float b[3], const float gyro[3], float dt, float carry[32])
 {
     const float tmp0 = 0.5f * dt;
@@ -105,82 +100,78 @@ static void mekf_k_predict_attitude_part0(const float b[3], const float gyro[3],
     const float tmp9 = tmp0 * tmp8;
     const float tmp10 = tmp9 * tmp9;
     const float tmp11 = tmp7 + tmp10;
-    const float tmp12 = (tmp11 > 0.01f) ? tmp11 : 0.01f;
-    const float tmp13 = sqrtf(tmp12);
-    const float tmp14 = fast_cosf(tmp13);
-    const float tmp15 = fast_sinf(tmp13);
-    const float tmp16 = tmp15 / tmp13;
     carry[0] = tmp0;
     carry[1] = tmp2;
     carry[2] = tmp5;
     carry[3] = tmp9;
     carry[4] = tmp11;
-    carry[5] = tmp13;
-    carry[6] = tmp14;
-    carry[7] = tmp15;
-    carry[8] = tmp16;
 }
 
 static void mekf_k_predict_attitude_part1(float carry[32])
 {
-    float tmp17;
-    float tmp18;
-    float tmp19;
-    float tmp20;
+    float tmp12;
+    float tmp13;
+    float tmp14;
+    float tmp15;
     if (carry[4] < 0.01f) {
-        const float tmp21 = 2.4801588e-05f * carry[4];
-        const float tmp22 = (-0.0013888889f) + tmp21;
-        const float tmp23 = carry[4] * tmp22;
-        const float tmp24 = 0.041666668f + tmp23;
-        const float tmp25 = carry[4] * tmp24;
-        const float tmp26 = (-0.5f) + tmp25;
-        const float tmp27 = carry[4] * tmp26;
-        const float tmp28 = 1.0f + tmp27;
-        const float tmp29 = 2.7557319e-06f * carry[4];
-        const float tmp30 = (-0.0001984127f) + tmp29;
-        const float tmp31 = carry[4] * tmp30;
-        const float tmp32 = 0.008333334f + tmp31;
+        const float tmp16 = 2.4801588e-05f * carry[4];
+        const float tmp17 = (-0.0013888889f) + tmp16;
+        const float tmp18 = carry[4] * tmp17;
+        const float tmp19 = 0.041666668f + tmp18;
+        const float tmp20 = carry[4] * tmp19;
+        const float tmp21 = (-0.5f) + tmp20;
+        const float tmp22 = carry[4] * tmp21;
+        const float tmp23 = 1.0f + tmp22;
+        const float tmp24 = 2.7557319e-06f * carry[4];
+        const float tmp25 = (-0.0001984127f) + tmp24;
+        const float tmp26 = carry[4] * tmp25;
+        const float tmp27 = 0.008333334f + tmp26;
+        const float tmp28 = carry[4] * tmp27;
+        const float tmp29 = (-0.16666667f) + tmp28;
+        const float tmp30 = carry[4] * tmp29;
+        const float tmp31 = 1.0f + tmp30;
+        const float tmp32 = tmp25 + tmp24;
         const float tmp33 = carry[4] * tmp32;
-        const float tmp34 = (-0.16666667f) + tmp33;
+        const float tmp34 = tmp27 + tmp33;
         const float tmp35 = carry[4] * tmp34;
-        const float tmp36 = 1.0f + tmp35;
-        const float tmp37 = tmp30 + tmp29;
+        const float tmp36 = tmp29 + tmp35;
+        const float tmp37 = tmp17 + tmp16;
         const float tmp38 = carry[4] * tmp37;
-        const float tmp39 = tmp32 + tmp38;
+        const float tmp39 = tmp19 + tmp38;
         const float tmp40 = carry[4] * tmp39;
-        const float tmp41 = tmp34 + tmp40;
-        const float tmp42 = tmp22 + tmp21;
-        const float tmp43 = carry[4] * tmp42;
-        const float tmp44 = tmp24 + tmp43;
-        const float tmp45 = carry[4] * tmp44;
-        const float tmp46 = tmp26 + tmp45;
-        tmp17 = tmp28;
-        tmp18 = tmp36;
-        tmp19 = tmp41;
-        tmp20 = tmp46;
+        const float tmp41 = tmp21 + tmp40;
+        tmp12 = tmp23;
+        tmp13 = tmp31;
+        tmp14 = tmp36;
+        tmp15 = tmp41;
     } else {
+        const float tmp42 = (carry[4] > 0.01f) ? carry[4] : 0.01f;
+        const float tmp43 = sqrtf(tmp42);
+        const float tmp44 = fast_cosf(tmp43);
+        const float tmp45 = fast_sinf(tmp43);
+        const float tmp46 = tmp45 / tmp43;
         const bool tmp47 = 0.01f <= carry[4];
         const bool tmp48 = carry[4] <= 0.01f;
         const float tmp49 = (float)tmp47 + (float)tmp48;
         const float tmp50 = (float)tmp47 / tmp49;
-        const float tmp51 = carry[5] + carry[5];
+        const float tmp51 = tmp43 + tmp43;
         const float tmp52 = tmp50 / tmp51;
-        const float tmp53 = carry[6] * tmp52;
-        const float tmp54 = tmp53 / carry[5];
-        const float tmp55 = carry[8] / carry[5];
+        const float tmp53 = tmp44 * tmp52;
+        const float tmp54 = tmp53 / tmp43;
+        const float tmp55 = tmp46 / tmp43;
         const float tmp56 = tmp55 * tmp52;
         const float tmp57 = tmp54 - tmp56;
-        const float tmp58 = carry[7] * tmp52;
+        const float tmp58 = tmp45 * tmp52;
         const float tmp59 = -tmp58;
-        tmp17 = carry[6];
-        tmp18 = carry[8];
-        tmp19 = tmp57;
-        tmp20 = tmp59;
+        tmp12 = tmp44;
+        tmp13 = tmp46;
+        tmp14 = tmp57;
+        tmp15 = tmp59;
     }
-    carry[4] = tmp17;
-    carry[5] = tmp18;
-    carry[6] = tmp19;
-    carry[7] = tmp20;
+    carry[4] = tmp12;
+    carry[5] = tmp13;
+    carry[6] = tmp14;
+    carry[7] = tmp15;
 }
 
 static void mekf_k_predict_attitude_part2(const float q[4], float carry[32])
