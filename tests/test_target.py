@@ -362,6 +362,35 @@ def test_cli_target_writes_table_and_json(tmp_path, capsys):
     assert cli.main(["target", "nosuch"]) == 2
 
 
+def test_cli_profile_accounts_for_every_instruction_of_the_step(tmp_path, capsys):
+    """--profile: the per-function figures of the -g build add up to QEMU's count of the plain
+    build over the same steps (two counters, two builds: -g must not change GCC's code), and
+    every kernel the step runs is named with its manifest operation count."""
+    if "qcf" not in _generated_filters():
+        pytest.skip("qcf not available")
+    import json
+
+    from generator import cli
+    out = tmp_path / "t.json"
+    rc = cli.main(["target", "qcf", "--opt=-O2", "--scenario-opt", "duration=8", "--count-steps", "0",
+                   "--no-pinned", "--profile", "--json", str(out)])
+    text = capsys.readouterr().out
+    assert rc == 0, text
+    assert "where the step's" in text and "| kernel correct |" in text
+    (r,) = json.loads(out.read_text())["results"]
+    prof, fp = r["profile"], r["footprint"]
+    assert prof["steps"] == fp["instructions_steps"] == r["steps"] == 100
+    assert fp["instructions_source"].startswith("qemu")
+    assert abs(prof["instructions_per_step"] - fp["instructions_mean"]) < 1e-9        # exact counts
+    assert abs(sum(row["per_step"] for row in prof["rows"]) - prof["instructions_per_step"]) < 1e-9
+    rows = {row["name"]: row for row in prof["rows"]}
+    man = json.loads((Path(__file__).resolve().parents[1] / "generated/qcf/manifest.json").read_text())
+    for k in ("correct", "rotation", "accel_lowpass", "mag_ned"):     # run on every step of this flight
+        assert rows[f"kernel {k}"]["per_step"] > 0 and rows[f"kernel {k}"]["ops"] == man["kernels"][k]["total"]
+    assert rows["step (control, input checks, copies)"]["per_step"] > 0
+    assert "?" not in rows                                            # every address has a function
+
+
 def test_double_build_runs_on_soft_float_and_costs_what_it_should(tmp_path):
     """--precision double: the M4F FPU is single precision, so a double build runs on
     newlib's soft-float helpers. It must still agree with the host double build (to double

@@ -222,18 +222,20 @@ def cflags_for(cpu: str, opt: str) -> list[str]:
 
 
 def build(b: FilterBinding, workdir: Path, opt: str = "-O2", cpu: str = "cortex-m4f",
-          extra_main: str | None = None, pinned_libm: bool = False, reuse: Build | None = None) -> Build:
+          extra_main: str | None = None, pinned_libm: bool = False, reuse: Build | None = None,
+          debug_info: bool = False) -> Build:
     """Compile the filter and the harness for the target and link the test image.
 
     The filter's sources compile with the same strict warnings as on the host (-Werror).
     ``extra_main`` replaces harness_main.c (used for the footprint images).
     ``pinned_libm`` force-includes target/libm_pinned.h into the filter (identity check only).
     ``reuse``: link the filter objects of an earlier build instead of compiling them again.
+    ``debug_info``: also -g (line information for the profile; GCC's code is the same).
     """
     workdir = Path(workdir)
     workdir.mkdir(parents=True, exist_ok=True)
     write_glue(b, workdir)
-    flags = cflags_for(cpu, opt)
+    flags = cflags_for(cpu, opt) + (["-g"] if debug_info else [])
     incs = [f"-I{workdir}", f"-I{TARGET_DIR}", *[f"-I{d}" for d in b.include_dirs]]
     objs, filt_objs, sus = [], [], []
     for src in ([] if reuse is not None else b.sources):

@@ -256,9 +256,11 @@ def check_generated(filter_name: str, opts=OPT_LEVELS, cpu: str = "cortex-m4f", 
                     seed: int = 0, scenario_options: dict | None = None, config_file=None, sets=None,
                     prefix=None, workdir: Path | None = None, count_steps: int | None = 50,
                     log=None, pinned: bool = True, tolerance_deg: float = DEFAULT_TOLERANCE_DEG,
-                    precision: str = "float", math: str | None = None, fma: bool | None = None) -> list[dict]:
+                    precision: str = "float", math: str | None = None, fma: bool | None = None,
+                    profile: bool = False) -> list[dict]:
     """Generate (float), cross-build at each optimisation level, run on the target, compare
-    with the host float build, measure the footprint.  One dict per build."""
+    with the host float build, measure the footprint.  One dict per build; with ``profile``,
+    where the counted steps' instructions go (firmware_sim/target/profile.py) as "profile"."""
     from firmware_sim import scenarios
     require_tools()
     workdir = Path(workdir or tempfile.mkdtemp(prefix=f"ahrsgen-target-{filter_name}-"))
@@ -283,12 +285,18 @@ def check_generated(filter_name: str, opts=OPT_LEVELS, cpu: str = "cortex-m4f", 
             prun = run_qemu(pb.elf, rec, pb.workdir, icount_shift=None)
             pin = asdict(compare_with_host(gen_dir, b, log, prun, pinned_libm=True))
         ok, verdict = judge(filter_name, cmp_, pin, tolerance_deg)
+        prof = None
+        if profile:
+            from .profile import profile_steps
+            gb = build(b, workdir / f"{b.name}-{opt.lstrip('-')}-g", opt, cpu, debug_info=True)
+            prof = profile_steps(gb.elf, b.step_fn, man["prefix"], rec[:len(r.counts.instructions)],
+                                 r.run.state_bytes, {k: v["total"] for k, v in man["kernels"].items()})
         results.append({"filter": filter_name, "precision": precision, "opt": opt, "cpu": cpu,
                         "math": man.get("math"), "fma": man.get("fma", False),
                         "scenario": log.name, "seed": seed,
                         "steps": len(rec), "counted_steps": int(len(r.counts.instructions)),
                         "footprint": asdict(r.footprint), "host_comparison": cmp_,
-                        "pinned_libm_comparison": pin, "pass": ok, "verdict": verdict,
+                        "pinned_libm_comparison": pin, "pass": ok, "verdict": verdict, "profile": prof,
                         "workdir": str(r.build.workdir)})
     return results
 

@@ -44,7 +44,8 @@ def cmd_target(args) -> int:
                                            args.set, args.prefix, root / n,
                                            None if args.count_steps == 0 else args.count_steps,
                                            pinned=not args.no_pinned, tolerance_deg=args.tolerance,
-                                           precision=args.precision, math=args.math, fma=args.fma)
+                                           precision=args.precision, math=args.math, fma=args.fma,
+                                           profile=args.profile)
             except KeyError as e:
                 raise ConfigError(str(e.args[0])) from None
     if not args.workdir:
@@ -63,6 +64,10 @@ def cmd_target(args) -> int:
     print(f"target {args.cpu}: {' '.join(CPUS[args.cpu])} {' '.join(MATH_FLAGS)}; QEMU {QEMU_MACHINE}; "
           f"instructions (not cycles) per step under QEMU -icount, checked step by step against unicorn")
     ok = _print_results(results)
+    if args.profile:
+        from .profile import format_profile
+        for r in results:
+            print("\n" + format_profile(r["filter"], r["opt"], r["profile"]))
     survey = None
     if args.libm_survey:
         with tempfile.TemporaryDirectory(prefix="ahrsgen-libm-") as tmp:
@@ -146,6 +151,10 @@ def register_cli(sub) -> None:
                    help="also measure the calibration peers (hand-written Madgwick, Mahony with integral) for scale, and "
                         "their variants with the product's input checks; a filter named like one (examples/madgwick, "
                         "examples/mahony) is set beside both (ratios; like for like with --set initialise=false)")
+    p.add_argument("--profile", action="store_true",
+                   help="also show where the step's instructions go: per kernel and helper function, over the "
+                        "--count-steps steps (a -g build of the same code, every instruction counted in unicorn "
+                        "and mapped to its source function)")
     p.add_argument("--libm-survey", action="store_true",
                    help="also compare newlib's float sinf/cosf/asinf/atanf/expf/logf/atan2f with the host's, in ulps")
     p.add_argument("--no-pinned", action="store_true",
