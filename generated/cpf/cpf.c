@@ -412,9 +412,9 @@ static inline void cpf_k_particle_move(const float x[4], const float hw[3], floa
     x_new[3] = tmp29;
 }
 
-/* |<x, Y>|: cosine of half the angle between particle and observation (q = -q)
+/* <x, Y> and |<x, Y>|: cosine of half the angle between particle and observation (q = -q); the sign aligns the particle in the estimate
  * ops: add 3, mul 4, cmp 1 (total 8) */
-static inline void cpf_k_obs_dot(const float x[4], const float y[4], float *c)
+static inline void cpf_k_obs_dot(const float x[4], const float y[4], float *d, float *c)
 {
     const float tmp0 = x[0] * y[0];
     const float tmp1 = x[1] * y[1];
@@ -424,43 +424,38 @@ static inline void cpf_k_obs_dot(const float x[4], const float y[4], float *c)
     const float tmp5 = x[3] * y[3];
     const float tmp6 = tmp4 + tmp5;
     const float tmp7 = fabsf(tmp6);
+    *d = tmp6;
     *c = tmp7;
 }
 
-/* log of the Gaussian likelihood exp(-4(1-|<x,Y>|)/obs_noise^2) scaled by its maximum (eq. 13): <= 0; the step multiplies the weight by exp(a)
- * ops: add 1, mul 1 (total 2) */
-static inline void cpf_k_log_likelihood(float c, float cmax, float *a)
+/* log of the Gaussian likelihood exp(-4(1-|<x,Y>|)/obs_noise^2) scaled by its maximum (eq. 13), from d = <x, Y>: <= 0; the step multiplies the weight by exp(a)
+ * ops: add 1, mul 1, cmp 1 (total 3) */
+static inline void cpf_k_log_likelihood(float d, float cmax, float *a)
 {
-    const float tmp0 = c - cmax;
-    const float tmp1 = 10000.0f /* 4.0/(obs_noise*obs_noise) */ * tmp0;
-    *a = tmp1;
+    const float tmp0 = fabsf(d);
+    const float tmp1 = tmp0 - cmax;
+    const float tmp2 = 10000.0f /* 4.0/(obs_noise*obs_noise) */ * tmp1;
+    *a = tmp2;
 }
 
-/* sign-aligned weighted sum of the particles (eq. 15, q = -q)
- * ops: add 7, mul 9, cmp 1 (total 17) */
-static inline void cpf_k_accumulate(const float acc[4], float w, const float x[4], const float ref[4], float acc_new[4])
+/* sign-aligned weighted sum of the particles (eq. 15, q = -q): the sign of d = <x, Y>
+ * ops: add 4, mul 5, cmp 1 (total 10) */
+static inline void cpf_k_accumulate(const float acc[4], float w, const float x[4], float d, float acc_new[4])
 {
-    const float tmp0 = x[0] * ref[0];
-    const float tmp1 = x[1] * ref[1];
-    const float tmp2 = tmp0 + tmp1;
-    const float tmp3 = x[2] * ref[2];
-    const float tmp4 = tmp2 + tmp3;
-    const float tmp5 = x[3] * ref[3];
-    const float tmp6 = tmp4 + tmp5;
-    const float tmp7 = (tmp6 < 0.0f) ? (-1.0f) : 1.0f;
-    const float tmp8 = w * tmp7;
-    const float tmp9 = tmp8 * x[0];
-    const float tmp10 = acc[0] + tmp9;
-    const float tmp11 = tmp8 * x[1];
-    const float tmp12 = acc[1] + tmp11;
-    const float tmp13 = tmp8 * x[2];
-    const float tmp14 = acc[2] + tmp13;
-    const float tmp15 = tmp8 * x[3];
-    const float tmp16 = acc[3] + tmp15;
-    acc_new[0] = tmp10;
-    acc_new[1] = tmp12;
-    acc_new[2] = tmp14;
-    acc_new[3] = tmp16;
+    const float tmp0 = (d < 0.0f) ? (-1.0f) : 1.0f;
+    const float tmp1 = w * tmp0;
+    const float tmp2 = tmp1 * x[0];
+    const float tmp3 = acc[0] + tmp2;
+    const float tmp4 = tmp1 * x[1];
+    const float tmp5 = acc[1] + tmp4;
+    const float tmp6 = tmp1 * x[2];
+    const float tmp7 = acc[2] + tmp6;
+    const float tmp8 = tmp1 * x[3];
+    const float tmp9 = acc[3] + tmp8;
+    acc_new[0] = tmp3;
+    acc_new[1] = tmp5;
+    acc_new[2] = tmp7;
+    acc_new[3] = tmp9;
 }
 
 /* normalised quaternion
@@ -1023,8 +1018,8 @@ cpf_status cpf_step(cpf_state *restrict s, const cpf_input *restrict in, float d
     const float *y = s->q_cf;
 
     /* Prediction: eq. 11 plus process noise as a rotation vector added to the increment, particle by particle, and
-     * with an observation |<x_i, Y>| (kept in scratch for the update) and its largest value
-     * (the likelihood's scale, eq. 13). */
+     * <x_i, Y> (kept in scratch for the update and the estimate's sign) and the largest
+     * |<x_i, Y>| (the likelihood's scale, eq. 13). */
     float cmax = -1.0f;   /* below every |<x_i, Y>| */
     {
         float hw[3];
@@ -1032,7 +1027,9 @@ cpf_status cpf_step(cpf_state *restrict s, const cpf_input *restrict in, float d
         cpf_k_particle_scales(in->gyro, dt, hw, &sp);
         /* local copies the loop keeps in registers (the particles' stores could alias the state's) */
         uint32_t r[4] = { s->rng[0], s->rng[1], s->rng[2], s->rng[3] };
-        const float yl[4] = { y[0], y[1], y[2], y[3] };
+        /* the observation, or the last estimate without one: the particles' sign reference */
+        const float *ref = have_obs ? y : s->q;
+        const float yl[4] = { ref[0], ref[1], ref[2], ref[3] };
         for (uint32_t i = 0u; i < 100u; i++) {
             float *x = &s->particles[4u * i];
             float noise[3];
@@ -1041,9 +1038,10 @@ cpf_status cpf_step(cpf_state *restrict s, const cpf_input *restrict in, float d
             noise[2] = cpf_rng_gauss(r, s->rng);
             cpf_k_particle_move(x, hw, sp, noise, x);
             cpf_k_normalize(x, x);
+            float d;
             float c;       /* unused without an observation (cheaper than a test per particle) */
-            cpf_k_obs_dot(x, yl, &c);
-            s->scratch[i] = c;
+            cpf_k_obs_dot(x, yl, &d, &c);
+            s->scratch[i] = d;
             if (c > cmax) {
                 cmax = c;
             }
@@ -1074,14 +1072,15 @@ cpf_status cpf_step(cpf_state *restrict s, const cpf_input *restrict in, float d
     /* the divisor of the weights: their sum after an update, else 1 (w / 1 == w exactly) */
     const float wdiv = (have_obs && sum > 0.0f) ? sum : 1.0f;
 
-    /* Estimate (eq. 15): sign-aligned weighted mean of the normalised weights, normalised (kept
-     * if it degenerates). */
+    /* Estimate (eq. 15): weighted mean of the normalised weights, each particle's sign aligned
+     * with the observation (the last estimate without one; q = -q), normalised (kept if it
+     * degenerates). */
     {
         float acc[4] = { 0.0f, 0.0f, 0.0f, 0.0f };
         float w2 = 0.0f;
         for (uint32_t i = 0u; i < 100u; i++) {
             s->weights[i] = s->weights[i] / wdiv;
-            cpf_k_accumulate(acc, s->weights[i], &s->particles[4u * i], s->q, acc);
+            cpf_k_accumulate(acc, s->weights[i], &s->particles[4u * i], s->scratch[i], acc);
             w2 += s->weights[i] * s->weights[i];
         }
         if (acc[0] * acc[0] + acc[1] * acc[1] + acc[2] * acc[2] + acc[3] * acc[3] > 1e-30f) {

@@ -93,7 +93,7 @@ typedef struct {
     float weights[100];      /* normalised particle weights */
     float ess;               /* effective sample size 1/sum(w^2) after the last update */
     uint32_t rng[4];         /* xoshiro128** state (seeded from 1) */
-    float scratch[100];      /* per-particle scratch: |<x_i, Y>| during an update, then the number of copies of each particle while resampling (whole numbers) */
+    float scratch[100];      /* per-particle scratch: <x_i, Y> during a step, then the number of copies of each particle while resampling (whole numbers) */
     uint32_t resample_count; /* number of resamplings so far (wraps) */
     uint32_t initialised;    /* 1 once initialised from the accelerometer/magnetometer */
 } cpf_state;

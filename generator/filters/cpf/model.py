@@ -7,7 +7,7 @@ Per step (SPEC.md, CPF; reference.py spells out every equation):
   particles      x_i = normalise(x_i + ½ x_i ⊗ [0, ω dt + σ_p√dt n_i]), n_i ~ N(0, I₃)  (eqs. 9, 11;
                  faithful: normalise((I + dt/2 Ω(ω)) x_i + σ_p√dt/2 n_i), n_i ~ N(0, I₄), eq. 9's W)
   likelihood     w_i ← w_i exp(4(|⟨Y,x_i⟩| − c_max)/σ_o²), Y = q_cf (q ≡ −q)     (eqs. 12, 13)
-  estimate       q = normalise(Σ w_i sign⟨x_i, q_prev⟩ x_i)                      (eqs. 14, 15)
+  estimate       q = normalise(Σ w_i sign⟨x_i, Y⟩ x_i)  (Y = q_prev without one)  (eqs. 14, 15)
 The loops over particles, the weight normalisation, systematic resampling and the PRNG
 (xoshiro128**, ziggurat Gaussian; prng.py documents the exact semantics) are written in the
 filter's templates (helpers.c.j2, step.c.j2) around these kernels.
@@ -75,7 +75,7 @@ class Model(FilterModel):
                 StateField("ess", 1, "effective sample size 1/sum(w^2) after the last update", float(n)),
                 StateField("rng", 4, f"xoshiro128** state (seeded from {self.params['seed']})",
                            seed_state(int(self.params["seed"])), "uint32"),
-                StateField("scratch", n, "per-particle scratch: |<x_i, Y>| during an update, then the number of "
+                StateField("scratch", n, "per-particle scratch: <x_i, Y> during a step, then the number of "
                            "copies of each particle while resampling (whole numbers)", 0.0),
                 StateField("resample_count", 1, "number of resamplings so far (wraps)", 0, "uint32"),
             ]
@@ -136,9 +136,9 @@ class Model(FilterModel):
         if self.mode != "complementary":
             s_p = 0.5 * p["process_noise"] * ca.sqrt(dt)
             s_0 = 0.5 * p["init_spread"]
-            c = ca.fabs(ca.dot(x, y))
+            d_xy = ca.dot(x, y)
             gain = 4.0 / (p["obs_noise"] * p["obs_noise"])
-            sgn = ca.if_else(ca.dot(x, ref) < 0, -1, 1)
+            sgn = ca.if_else(cdot < 0, -1, 1)
             if nd == 4:     # the paper's additive quaternion noise W (eq. 9), then eq. 11
                 move = x + quat.qmul(x, quat.vec(0, hw[0], hw[1], hw[2])) + sp * pnoise
                 move_doc = ("particle prediction: eq. 11 plus the paper's additive quaternion process noise "
@@ -161,15 +161,16 @@ class Model(FilterModel):
                 KernelSpec("particle_move", function("particle_move", {"x": x, "hw": hw, "sp": sp, "noise": pnoise},
                                                      {"x_new": move}),
                            move_doc),
-                KernelSpec("obs_dot", function("obs_dot", {"x": x, "y": y}, {"c": c}),
-                           "|<x, Y>|: cosine of half the angle between particle and observation (q = -q)"),
-                KernelSpec("log_likelihood", function("log_likelihood", {"c": cdot, "cmax": cmax},
-                                                      {"a": gain * (cdot - cmax)}),
+                KernelSpec("obs_dot", function("obs_dot", {"x": x, "y": y}, {"d": d_xy, "c": ca.fabs(d_xy)}),
+                           "<x, Y> and |<x, Y>|: cosine of half the angle between particle and observation "
+                           "(q = -q); the sign aligns the particle in the estimate"),
+                KernelSpec("log_likelihood", function("log_likelihood", {"d": cdot, "cmax": cmax},
+                                                      {"a": gain * (ca.fabs(cdot) - cmax)}),
                            "log of the Gaussian likelihood exp(-4(1-|<x,Y>|)/obs_noise^2) scaled by its maximum "
-                           "(eq. 13): <= 0; the step multiplies the weight by exp(a)"),
-                KernelSpec("accumulate", function("accumulate", {"acc": acc, "w": w, "x": x, "ref": ref},
+                           "(eq. 13), from d = <x, Y>: <= 0; the step multiplies the weight by exp(a)"),
+                KernelSpec("accumulate", function("accumulate", {"acc": acc, "w": w, "x": x, "d": cdot},
                                                   {"acc_new": acc + w * sgn * x}),
-                           "sign-aligned weighted sum of the particles (eq. 15, q = -q)"),
+                           "sign-aligned weighted sum of the particles (eq. 15, q = -q): the sign of d = <x, Y>"),
                 KernelSpec("normalize", function("normalize", {"acc": acc},
                                                  {"q": acc / ca.sqrt(ca.sumsqr(acc))}),
                            "normalised quaternion"),

@@ -38,7 +38,9 @@ One step (dt > 0, gyro rate ω over the last interval):
      particle's factor at 1, so the exponential alone cannot underflow every weight);
    - normalisation, eq. 14: w_i ← w_i / Σw; if Σw is not > 0 (all weights underflowed, or a
      corrupted state) the weights are reset to 1/N and status bit WEIGHTS_RESET is set;
-   - estimate, eq. 15: q = normalise(Σ w_i s_i x_i), s_i = sign⟨x_i, q_prev⟩ (q ≡ −q);
+   - estimate, eq. 15: q = normalise(Σ w_i s_i x_i), s_i = sign⟨x_i, Y⟩ (q ≡ −q: each
+     particle taken with the sign nearer the observation; with no observation this step,
+     nearer the previous estimate q_prev);
    - systematic resampling: every step in faithful mode, else when ESS = 1/Σw_i² < ess_threshold·N;
      only on steps that had an observation.
    Mode "complementary" stops after step 3 (q = q_cf, no particles, no random numbers).
@@ -269,8 +271,8 @@ class Reference:
             else:
                 wts = wts / s
             self.weights = wts
-        # estimate, eq. 15, sign-aligned with the previous estimate
-        sgn = np.where(x @ self.q < 0.0, -1.0, 1.0)
+        # estimate, eq. 15, each particle sign-aligned with the observation (else the last estimate)
+        sgn = np.where(x @ (Y if have_obs else self.q) < 0.0, -1.0, 1.0)
         acc = (self.weights * sgn) @ x
         n2 = float(acc @ acc)
         if n2 > 1e-30:
