@@ -84,8 +84,8 @@ static inline float fast_cosf(float x)
 }
 
 /* linear Kalman time update: q- = A q, P- = A P A^T + Q
- * ops: add 283, mul 326, div 3, sqrt 2 (total 614) */
-static void adukf_k_predict_part0(const float q[4], const float gyro_bias[3], const float gyro[3], float dt, float carry[62])
+ * ops: add 284, mul 312, div 2, sqrt 2 (total 600) */
+static void adukf_k_predict_part0(const float q[4], const float gyro_bias[3], const float gyro[3], float dt, float carry[60])
 {
     const float tmp0 = 0.25f * dt;
     const float tmp1 = tmp0 * dt;
@@ -99,792 +99,779 @@ static void adukf_k_predict_part0(const float q[4], const float gyro_bias[3], co
     const float tmp9 = tmp6 + tmp8;
     const float tmp10 = tmp1 * tmp9;
     const float tmp11 = 1.0f + tmp10;
-    const float tmp12 = 1.0f / tmp11;
-    const float tmp13 = sqrtf(tmp12);
-    const float tmp14 = tmp13 * q[0];
+    const float tmp12 = 0.5f / tmp11;
+    const float tmp13 = tmp12 + tmp12;
+    const float tmp14 = sqrtf(tmp13);
     const float tmp15 = 0.5f * dt;
     const float tmp16 = tmp15 * tmp2;
-    const float tmp17 = tmp16 * tmp13;
-    const float tmp18 = tmp17 * q[1];
-    const float tmp19 = tmp14 - tmp18;
-    const float tmp20 = tmp15 * tmp4;
-    const float tmp21 = tmp20 * tmp13;
-    const float tmp22 = tmp21 * q[2];
-    const float tmp23 = tmp19 - tmp22;
-    const float tmp24 = tmp15 * tmp7;
-    const float tmp25 = tmp24 * tmp13;
-    const float tmp26 = tmp25 * q[3];
-    const float tmp27 = tmp23 - tmp26;
-    const float tmp28 = tmp17 * q[0];
-    const float tmp29 = tmp13 * q[1];
-    const float tmp30 = tmp28 + tmp29;
-    const float tmp31 = tmp25 * q[2];
-    const float tmp32 = tmp30 + tmp31;
-    const float tmp33 = tmp21 * q[3];
-    const float tmp34 = tmp32 - tmp33;
-    const float tmp35 = tmp21 * q[0];
-    const float tmp36 = tmp25 * q[1];
-    const float tmp37 = tmp35 - tmp36;
-    const float tmp38 = tmp13 * q[2];
-    const float tmp39 = tmp37 + tmp38;
+    const float tmp17 = tmp16 * q[1];
+    const float tmp18 = q[0] - tmp17;
+    const float tmp19 = tmp15 * tmp4;
+    const float tmp20 = tmp19 * q[2];
+    const float tmp21 = tmp18 - tmp20;
+    const float tmp22 = tmp15 * tmp7;
+    const float tmp23 = tmp22 * q[3];
+    const float tmp24 = tmp21 - tmp23;
+    const float tmp25 = tmp14 * tmp24;
+    const float tmp26 = tmp16 * q[0];
+    const float tmp27 = tmp26 + q[1];
+    const float tmp28 = tmp22 * q[2];
+    const float tmp29 = tmp27 + tmp28;
+    const float tmp30 = tmp19 * q[3];
+    const float tmp31 = tmp29 - tmp30;
+    const float tmp32 = tmp14 * tmp31;
+    const float tmp33 = tmp19 * q[0];
+    const float tmp34 = tmp22 * q[1];
+    const float tmp35 = tmp33 - tmp34;
+    const float tmp36 = tmp35 + q[2];
+    const float tmp37 = tmp16 * q[3];
+    const float tmp38 = tmp36 + tmp37;
+    const float tmp39 = tmp14 * tmp38;
     carry[0] = tmp2;
     carry[1] = tmp4;
     carry[2] = tmp7;
-    carry[3] = tmp11;
-    carry[4] = tmp13;
-    carry[5] = tmp17;
-    carry[6] = tmp21;
-    carry[7] = tmp25;
-    carry[8] = tmp27;
-    carry[9] = tmp34;
-    carry[10] = tmp39;
+    carry[3] = tmp13;
+    carry[4] = tmp14;
+    carry[5] = tmp15;
+    carry[6] = tmp16;
+    carry[7] = tmp19;
+    carry[8] = tmp22;
+    carry[9] = tmp25;
+    carry[10] = tmp32;
+    carry[11] = tmp39;
 }
 
-static void adukf_k_predict_part1(const float q[4], const float P[49], float dt, float carry[62])
+static void adukf_k_predict_part1(const float q[4], const float P[49], float dt, float carry[60])
 {
-    const float tmp40 = carry[5] * q[3];
-    const float tmp41 = carry[10] + tmp40;
-    const float tmp42 = carry[7] * q[0];
-    const float tmp43 = carry[6] * q[1];
-    const float tmp44 = tmp42 + tmp43;
-    const float tmp45 = carry[5] * q[2];
-    const float tmp46 = tmp44 - tmp45;
-    const float tmp47 = carry[4] * q[3];
-    const float tmp48 = tmp46 + tmp47;
-    const float tmp49 = carry[8] * carry[8];
-    const float tmp50 = carry[9] * carry[9];
+    const float tmp40 = carry[8] * q[0];
+    const float tmp41 = carry[7] * q[1];
+    const float tmp42 = tmp40 + tmp41;
+    const float tmp43 = carry[6] * q[2];
+    const float tmp44 = tmp42 - tmp43;
+    const float tmp45 = tmp44 + q[3];
+    const float tmp46 = carry[4] * tmp45;
+    const float tmp47 = carry[9] * carry[9];
+    const float tmp48 = carry[10] * carry[10];
+    const float tmp49 = tmp47 + tmp48;
+    const float tmp50 = carry[11] * carry[11];
     const float tmp51 = tmp49 + tmp50;
-    const float tmp52 = tmp41 * tmp41;
+    const float tmp52 = tmp46 * tmp46;
     const float tmp53 = tmp51 + tmp52;
-    const float tmp54 = tmp48 * tmp48;
-    const float tmp55 = tmp53 + tmp54;
-    const float tmp56 = 1.0f / tmp55;
-    const float tmp57 = sqrtf(tmp56);
-    const float tmp58 = carry[8] * tmp57;
-    const float tmp59 = carry[9] * tmp57;
-    const float tmp60 = tmp41 * tmp57;
-    const float tmp61 = tmp48 * tmp57;
-    const float tmp62 = carry[4] * P[0];
-    const float tmp63 = carry[5] * P[1];
-    const float tmp64 = tmp62 - tmp63;
-    const float tmp65 = carry[6] * P[2];
-    const float tmp66 = tmp64 - tmp65;
-    const float tmp67 = carry[7] * P[3];
-    const float tmp68 = tmp66 - tmp67;
-    const float tmp69 = 0.5f * carry[4];
-    const float tmp70 = tmp69 * dt;
-    const float tmp71 = tmp70 * q[1];
-    const float tmp72 = 0.25f / carry[3];
-    const float tmp73 = tmp72 * dt;
-    const float tmp74 = tmp73 * dt;
-    const float tmp75 = tmp74 * carry[8];
-    const float tmp76 = tmp75 * carry[0];
-    const float tmp77 = tmp71 + tmp76;
-    const float tmp78 = tmp77 * P[4];
-    const float tmp79 = tmp68 + tmp78;
-    carry[3] = tmp41;
-    carry[10] = tmp48;
-    carry[11] = tmp58;
-    carry[12] = tmp59;
-    carry[13] = tmp60;
-    carry[14] = tmp61;
-    carry[15] = tmp63;
-    carry[16] = tmp65;
-    carry[17] = tmp67;
-    carry[18] = tmp70;
-    carry[19] = tmp71;
-    carry[20] = tmp74;
-    carry[21] = tmp75;
-    carry[22] = tmp77;
-    carry[23] = tmp79;
+    const float tmp54 = 1.0f / tmp53;
+    const float tmp55 = sqrtf(tmp54);
+    const float tmp56 = carry[9] * tmp55;
+    const float tmp57 = carry[10] * tmp55;
+    const float tmp58 = carry[11] * tmp55;
+    const float tmp59 = tmp46 * tmp55;
+    const float tmp60 = carry[6] * P[1];
+    const float tmp61 = P[0] - tmp60;
+    const float tmp62 = carry[7] * P[2];
+    const float tmp63 = tmp61 - tmp62;
+    const float tmp64 = carry[8] * P[3];
+    const float tmp65 = tmp63 - tmp64;
+    const float tmp66 = carry[5] * q[1];
+    const float tmp67 = 0.25f * carry[4];
+    const float tmp68 = tmp67 * dt;
+    const float tmp69 = tmp68 * dt;
+    const float tmp70 = tmp69 * carry[9];
+    const float tmp71 = tmp70 * carry[0];
+    const float tmp72 = tmp66 + tmp71;
+    const float tmp73 = tmp72 * P[4];
+    const float tmp74 = tmp65 + tmp73;
+    const float tmp75 = carry[5] * q[2];
+    const float tmp76 = tmp70 * carry[1];
+    const float tmp77 = tmp75 + tmp76;
+    const float tmp78 = tmp77 * P[5];
+    const float tmp79 = tmp74 + tmp78;
+    carry[12] = tmp46;
+    carry[13] = tmp56;
+    carry[14] = tmp57;
+    carry[15] = tmp58;
+    carry[16] = tmp59;
+    carry[17] = tmp60;
+    carry[18] = tmp62;
+    carry[19] = tmp64;
+    carry[20] = tmp66;
+    carry[21] = tmp69;
+    carry[22] = tmp70;
+    carry[23] = tmp72;
+    carry[24] = tmp75;
+    carry[25] = tmp77;
+    carry[26] = tmp79;
 }
 
-static void adukf_k_predict_part2(const float q[4], const float P[49], float carry[62])
+static void adukf_k_predict_part2(const float q[4], const float P[49], float carry[60])
 {
-    const float tmp80 = carry[18] * q[2];
-    const float tmp81 = carry[21] * carry[1];
+    const float tmp80 = carry[5] * q[3];
+    const float tmp81 = carry[22] * carry[2];
     const float tmp82 = tmp80 + tmp81;
-    const float tmp83 = tmp82 * P[5];
-    const float tmp84 = carry[23] + tmp83;
-    const float tmp85 = carry[18] * q[3];
-    const float tmp86 = carry[21] * carry[2];
-    const float tmp87 = tmp85 + tmp86;
-    const float tmp88 = tmp87 * P[6];
-    const float tmp89 = tmp84 + tmp88;
-    const float tmp90 = tmp89 * carry[4];
-    const float tmp91 = carry[4] * P[1];
-    const float tmp92 = carry[5] * P[8];
-    const float tmp93 = tmp91 - tmp92;
-    const float tmp94 = carry[6] * P[9];
-    const float tmp95 = tmp93 - tmp94;
-    const float tmp96 = carry[7] * P[10];
-    const float tmp97 = tmp95 - tmp96;
-    const float tmp98 = carry[22] * P[11];
-    const float tmp99 = tmp97 + tmp98;
-    const float tmp100 = tmp82 * P[12];
-    const float tmp101 = tmp99 + tmp100;
-    const float tmp102 = tmp87 * P[13];
-    const float tmp103 = tmp101 + tmp102;
-    const float tmp104 = tmp103 * carry[5];
-    const float tmp105 = tmp90 - tmp104;
-    const float tmp106 = carry[4] * P[2];
-    const float tmp107 = carry[5] * P[9];
-    const float tmp108 = tmp106 - tmp107;
-    const float tmp109 = carry[6] * P[16];
-    const float tmp110 = tmp108 - tmp109;
-    const float tmp111 = carry[7] * P[17];
-    const float tmp112 = tmp110 - tmp111;
-    const float tmp113 = carry[22] * P[18];
-    const float tmp114 = tmp112 + tmp113;
-    const float tmp115 = tmp82 * P[19];
-    const float tmp116 = tmp114 + tmp115;
-    const float tmp117 = tmp87 * P[20];
-    const float tmp118 = tmp116 + tmp117;
-    const float tmp119 = tmp118 * carry[6];
-    carry[21] = tmp80;
-    carry[23] = tmp82;
-    carry[24] = tmp85;
-    carry[25] = tmp87;
-    carry[26] = tmp91;
-    carry[27] = tmp94;
-    carry[28] = tmp96;
-    carry[29] = tmp105;
-    carry[30] = tmp106;
-    carry[31] = tmp107;
-    carry[32] = tmp111;
-    carry[33] = tmp119;
+    const float tmp83 = tmp82 * P[6];
+    const float tmp84 = carry[26] + tmp83;
+    const float tmp85 = carry[6] * P[8];
+    const float tmp86 = P[1] - tmp85;
+    const float tmp87 = carry[7] * P[9];
+    const float tmp88 = tmp86 - tmp87;
+    const float tmp89 = carry[8] * P[10];
+    const float tmp90 = tmp88 - tmp89;
+    const float tmp91 = carry[23] * P[11];
+    const float tmp92 = tmp90 + tmp91;
+    const float tmp93 = carry[25] * P[12];
+    const float tmp94 = tmp92 + tmp93;
+    const float tmp95 = tmp82 * P[13];
+    const float tmp96 = tmp94 + tmp95;
+    const float tmp97 = tmp96 * carry[6];
+    const float tmp98 = tmp84 - tmp97;
+    const float tmp99 = carry[6] * P[9];
+    const float tmp100 = P[2] - tmp99;
+    const float tmp101 = carry[7] * P[16];
+    const float tmp102 = tmp100 - tmp101;
+    const float tmp103 = carry[8] * P[17];
+    const float tmp104 = tmp102 - tmp103;
+    const float tmp105 = carry[23] * P[18];
+    const float tmp106 = tmp104 + tmp105;
+    const float tmp107 = carry[25] * P[19];
+    const float tmp108 = tmp106 + tmp107;
+    const float tmp109 = tmp82 * P[20];
+    const float tmp110 = tmp108 + tmp109;
+    const float tmp111 = tmp110 * carry[7];
+    const float tmp112 = tmp98 - tmp111;
+    const float tmp113 = carry[6] * P[10];
+    const float tmp114 = P[3] - tmp113;
+    const float tmp115 = carry[7] * P[17];
+    const float tmp116 = tmp114 - tmp115;
+    const float tmp117 = carry[8] * P[24];
+    const float tmp118 = tmp116 - tmp117;
+    const float tmp119 = carry[23] * P[25];
+    carry[22] = tmp80;
+    carry[26] = tmp82;
+    carry[27] = tmp87;
+    carry[28] = tmp89;
+    carry[29] = tmp99;
+    carry[30] = tmp103;
+    carry[31] = tmp112;
+    carry[32] = tmp113;
+    carry[33] = tmp115;
+    carry[34] = tmp118;
+    carry[35] = tmp119;
 }
 
-static void adukf_k_predict_part3(const float P[49], float carry[62])
+static void adukf_k_predict_part3(const float P[49], float carry[60])
 {
-    const float tmp120 = carry[29] - carry[33];
-    const float tmp121 = carry[4] * P[3];
-    const float tmp122 = carry[5] * P[10];
-    const float tmp123 = tmp121 - tmp122;
-    const float tmp124 = carry[6] * P[17];
-    const float tmp125 = tmp123 - tmp124;
-    const float tmp126 = carry[7] * P[24];
-    const float tmp127 = tmp125 - tmp126;
-    const float tmp128 = carry[22] * P[25];
-    const float tmp129 = tmp127 + tmp128;
-    const float tmp130 = carry[23] * P[26];
-    const float tmp131 = tmp129 + tmp130;
-    const float tmp132 = carry[25] * P[27];
-    const float tmp133 = tmp131 + tmp132;
-    const float tmp134 = tmp133 * carry[7];
-    const float tmp135 = tmp120 - tmp134;
-    const float tmp136 = carry[4] * P[4];
-    const float tmp137 = carry[5] * P[11];
-    const float tmp138 = tmp136 - tmp137;
-    const float tmp139 = carry[6] * P[18];
-    const float tmp140 = tmp138 - tmp139;
-    const float tmp141 = carry[7] * P[25];
-    const float tmp142 = tmp140 - tmp141;
-    const float tmp143 = carry[22] * P[32];
-    const float tmp144 = tmp142 + tmp143;
-    const float tmp145 = carry[23] * P[33];
-    const float tmp146 = tmp144 + tmp145;
-    const float tmp147 = carry[25] * P[34];
+    const float tmp120 = carry[34] + carry[35];
+    const float tmp121 = carry[25] * P[26];
+    const float tmp122 = tmp120 + tmp121;
+    const float tmp123 = carry[26] * P[27];
+    const float tmp124 = tmp122 + tmp123;
+    const float tmp125 = tmp124 * carry[8];
+    const float tmp126 = carry[31] - tmp125;
+    const float tmp127 = carry[6] * P[11];
+    const float tmp128 = P[4] - tmp127;
+    const float tmp129 = carry[7] * P[18];
+    const float tmp130 = tmp128 - tmp129;
+    const float tmp131 = carry[8] * P[25];
+    const float tmp132 = tmp130 - tmp131;
+    const float tmp133 = carry[23] * P[32];
+    const float tmp134 = tmp132 + tmp133;
+    const float tmp135 = carry[25] * P[33];
+    const float tmp136 = tmp134 + tmp135;
+    const float tmp137 = carry[26] * P[34];
+    const float tmp138 = tmp136 + tmp137;
+    const float tmp139 = tmp138 * carry[23];
+    const float tmp140 = tmp126 + tmp139;
+    const float tmp141 = carry[6] * P[12];
+    const float tmp142 = P[5] - tmp141;
+    const float tmp143 = carry[7] * P[19];
+    const float tmp144 = tmp142 - tmp143;
+    const float tmp145 = carry[8] * P[26];
+    const float tmp146 = tmp144 - tmp145;
+    const float tmp147 = carry[23] * P[33];
     const float tmp148 = tmp146 + tmp147;
-    const float tmp149 = tmp148 * carry[22];
-    const float tmp150 = tmp135 + tmp149;
-    const float tmp151 = carry[4] * P[5];
-    const float tmp152 = carry[5] * P[12];
-    const float tmp153 = tmp151 - tmp152;
-    const float tmp154 = carry[6] * P[19];
-    const float tmp155 = tmp153 - tmp154;
-    const float tmp156 = carry[7] * P[26];
-    const float tmp157 = tmp155 - tmp156;
-    const float tmp158 = carry[22] * P[33];
-    const float tmp159 = tmp157 + tmp158;
-    carry[29] = tmp121;
-    carry[33] = tmp122;
-    carry[34] = tmp124;
-    carry[35] = tmp148;
-    carry[36] = tmp150;
+    const float tmp149 = carry[25] * P[40];
+    const float tmp150 = tmp148 + tmp149;
+    const float tmp151 = carry[26] * P[41];
+    const float tmp152 = tmp150 + tmp151;
+    const float tmp153 = tmp152 * carry[25];
+    const float tmp154 = tmp140 + tmp153;
+    const float tmp155 = carry[6] * P[13];
+    const float tmp156 = P[6] - tmp155;
+    const float tmp157 = carry[7] * P[20];
+    const float tmp158 = tmp156 - tmp157;
+    const float tmp159 = carry[8] * P[27];
+    carry[31] = tmp138;
+    carry[34] = tmp152;
+    carry[35] = tmp154;
+    carry[36] = tmp158;
     carry[37] = tmp159;
 }
 
-static void adukf_k_predict_part4(const float q[4], const float P[49], float dt, float carry[62])
+static void adukf_k_predict_part4(const float q[4], const float P[49], float dt, float carry[60])
 {
-    const float tmp160 = carry[23] * P[40];
-    const float tmp161 = carry[37] + tmp160;
-    const float tmp162 = carry[25] * P[41];
-    const float tmp163 = tmp161 + tmp162;
-    const float tmp164 = tmp163 * carry[23];
-    const float tmp165 = carry[36] + tmp164;
-    const float tmp166 = carry[4] * P[6];
-    const float tmp167 = carry[5] * P[13];
-    const float tmp168 = tmp166 - tmp167;
-    const float tmp169 = carry[6] * P[20];
-    const float tmp170 = tmp168 - tmp169;
-    const float tmp171 = carry[7] * P[27];
-    const float tmp172 = tmp170 - tmp171;
-    const float tmp173 = carry[22] * P[34];
-    const float tmp174 = tmp172 + tmp173;
-    const float tmp175 = carry[23] * P[41];
-    const float tmp176 = tmp174 + tmp175;
-    const float tmp177 = carry[25] * P[48];
-    const float tmp178 = tmp176 + tmp177;
-    const float tmp179 = tmp178 * carry[25];
-    const float tmp180 = tmp165 + tmp179;
-    const float tmp181 = 2.5e-05f /* gyro_noise^2*0.25 */ * dt;
-    const float tmp182 = q[0] * q[0];
-    const float tmp183 = 1.0f - tmp182;
-    const float tmp184 = tmp181 * tmp183;
-    const float tmp185 = 1e-09f /* q_floor */ * dt;
-    const float tmp186 = tmp184 + tmp185;
-    const float tmp187 = tmp180 + tmp186;
-    const float tmp188 = carry[5] * P[0];
-    const float tmp189 = tmp188 + carry[26];
-    const float tmp190 = carry[7] * P[2];
-    const float tmp191 = tmp189 + tmp190;
-    const float tmp192 = carry[6] * P[3];
-    const float tmp193 = tmp191 - tmp192;
-    const float tmp194 = carry[20] * carry[9];
-    const float tmp195 = tmp194 * carry[0];
-    const float tmp196 = carry[18] * q[0];
-    const float tmp197 = tmp195 - tmp196;
-    const float tmp198 = tmp197 * P[4];
-    const float tmp199 = tmp193 + tmp198;
-    carry[18] = tmp163;
-    carry[26] = tmp178;
-    carry[36] = tmp181;
-    carry[37] = tmp185;
-    carry[38] = tmp187;
-    carry[39] = tmp190;
-    carry[40] = tmp192;
-    carry[41] = tmp194;
-    carry[42] = tmp196;
-    carry[43] = tmp197;
-    carry[44] = tmp199;
+    const float tmp160 = carry[36] - carry[37];
+    const float tmp161 = carry[23] * P[34];
+    const float tmp162 = tmp160 + tmp161;
+    const float tmp163 = carry[25] * P[41];
+    const float tmp164 = tmp162 + tmp163;
+    const float tmp165 = carry[26] * P[48];
+    const float tmp166 = tmp164 + tmp165;
+    const float tmp167 = tmp166 * carry[26];
+    const float tmp168 = carry[35] + tmp167;
+    const float tmp169 = carry[3] * tmp168;
+    const float tmp170 = 2.5e-05f /* gyro_noise^2*0.25 */ * dt;
+    const float tmp171 = q[0] * q[0];
+    const float tmp172 = 1.0f - tmp171;
+    const float tmp173 = tmp170 * tmp172;
+    const float tmp174 = 1e-09f /* q_floor */ * dt;
+    const float tmp175 = tmp173 + tmp174;
+    const float tmp176 = tmp169 + tmp175;
+    const float tmp177 = carry[6] * P[0];
+    const float tmp178 = tmp177 + P[1];
+    const float tmp179 = carry[8] * P[2];
+    const float tmp180 = tmp178 + tmp179;
+    const float tmp181 = carry[7] * P[3];
+    const float tmp182 = tmp180 - tmp181;
+    const float tmp183 = carry[21] * carry[10];
+    const float tmp184 = tmp183 * carry[0];
+    const float tmp185 = carry[5] * q[0];
+    const float tmp186 = tmp184 - tmp185;
+    const float tmp187 = tmp186 * P[4];
+    const float tmp188 = tmp182 + tmp187;
+    const float tmp189 = tmp183 * carry[1];
+    const float tmp190 = carry[22] + tmp189;
+    const float tmp191 = tmp190 * P[5];
+    const float tmp192 = tmp188 + tmp191;
+    const float tmp193 = tmp183 * carry[2];
+    const float tmp194 = tmp193 - carry[24];
+    const float tmp195 = tmp194 * P[6];
+    const float tmp196 = tmp192 + tmp195;
+    const float tmp197 = carry[17] + P[8];
+    const float tmp198 = carry[8] * P[9];
+    const float tmp199 = tmp197 + tmp198;
+    carry[5] = tmp166;
+    carry[17] = tmp170;
+    carry[35] = tmp174;
+    carry[36] = tmp176;
+    carry[37] = tmp179;
+    carry[38] = tmp181;
+    carry[39] = tmp185;
+    carry[40] = tmp186;
+    carry[41] = tmp190;
+    carry[42] = tmp194;
+    carry[43] = tmp196;
+    carry[44] = tmp198;
+    carry[45] = tmp199;
 }
 
-static void adukf_k_predict_part5(const float P[49], float carry[62])
+static void adukf_k_predict_part5(const float P[49], float carry[60])
 {
-    const float tmp200 = carry[41] * carry[1];
-    const float tmp201 = carry[24] + tmp200;
-    const float tmp202 = tmp201 * P[5];
-    const float tmp203 = carry[44] + tmp202;
-    const float tmp204 = carry[41] * carry[2];
-    const float tmp205 = tmp204 - carry[21];
-    const float tmp206 = tmp205 * P[6];
-    const float tmp207 = tmp203 + tmp206;
-    const float tmp208 = tmp207 * carry[4];
-    const float tmp209 = carry[4] * P[8];
-    const float tmp210 = carry[15] + tmp209;
-    const float tmp211 = carry[7] * P[9];
-    const float tmp212 = tmp210 + tmp211;
-    const float tmp213 = carry[6] * P[10];
-    const float tmp214 = tmp212 - tmp213;
-    const float tmp215 = carry[43] * P[11];
+    const float tmp200 = carry[7] * P[10];
+    const float tmp201 = carry[45] - tmp200;
+    const float tmp202 = carry[40] * P[11];
+    const float tmp203 = tmp201 + tmp202;
+    const float tmp204 = carry[41] * P[12];
+    const float tmp205 = tmp203 + tmp204;
+    const float tmp206 = carry[42] * P[13];
+    const float tmp207 = tmp205 + tmp206;
+    const float tmp208 = tmp207 * carry[6];
+    const float tmp209 = carry[43] - tmp208;
+    const float tmp210 = carry[6] * P[2];
+    const float tmp211 = tmp210 + P[9];
+    const float tmp212 = carry[8] * P[16];
+    const float tmp213 = tmp211 + tmp212;
+    const float tmp214 = tmp213 - carry[33];
+    const float tmp215 = carry[40] * P[18];
     const float tmp216 = tmp214 + tmp215;
-    const float tmp217 = tmp201 * P[12];
+    const float tmp217 = carry[41] * P[19];
     const float tmp218 = tmp216 + tmp217;
-    const float tmp219 = tmp205 * P[13];
+    const float tmp219 = carry[42] * P[20];
     const float tmp220 = tmp218 + tmp219;
-    const float tmp221 = tmp220 * carry[5];
-    const float tmp222 = tmp208 - tmp221;
-    const float tmp223 = carry[5] * P[2];
-    const float tmp224 = carry[4] * P[9];
-    const float tmp225 = tmp223 + tmp224;
-    const float tmp226 = carry[7] * P[16];
-    const float tmp227 = tmp225 + tmp226;
-    const float tmp228 = tmp227 - carry[34];
-    const float tmp229 = carry[43] * P[18];
-    const float tmp230 = tmp228 + tmp229;
-    const float tmp231 = tmp201 * P[19];
-    const float tmp232 = tmp230 + tmp231;
-    const float tmp233 = tmp205 * P[20];
-    const float tmp234 = tmp232 + tmp233;
-    const float tmp235 = tmp234 * carry[6];
-    const float tmp236 = tmp222 - tmp235;
-    const float tmp237 = carry[5] * P[3];
-    const float tmp238 = carry[4] * P[10];
+    const float tmp221 = tmp220 * carry[7];
+    const float tmp222 = tmp209 - tmp221;
+    const float tmp223 = carry[6] * P[3];
+    const float tmp224 = tmp223 + P[10];
+    const float tmp225 = tmp224 + carry[30];
+    const float tmp226 = carry[7] * P[24];
+    const float tmp227 = tmp225 - tmp226;
+    const float tmp228 = carry[40] * P[25];
+    const float tmp229 = tmp227 + tmp228;
+    const float tmp230 = carry[41] * P[26];
+    const float tmp231 = tmp229 + tmp230;
+    const float tmp232 = carry[42] * P[27];
+    const float tmp233 = tmp231 + tmp232;
+    const float tmp234 = tmp233 * carry[8];
+    const float tmp235 = tmp222 - tmp234;
+    const float tmp236 = carry[6] * P[4];
+    const float tmp237 = tmp236 + P[11];
+    const float tmp238 = carry[8] * P[18];
     const float tmp239 = tmp237 + tmp238;
-    carry[15] = tmp201;
-    carry[34] = tmp205;
-    carry[41] = tmp207;
-    carry[44] = tmp211;
-    carry[45] = tmp213;
+    carry[30] = tmp200;
+    carry[33] = tmp207;
+    carry[45] = tmp210;
     carry[46] = tmp220;
     carry[47] = tmp223;
-    carry[48] = tmp224;
-    carry[49] = tmp234;
-    carry[50] = tmp236;
-    carry[51] = tmp237;
-    carry[52] = tmp238;
-    carry[53] = tmp239;
+    carry[48] = tmp233;
+    carry[49] = tmp235;
+    carry[50] = tmp239;
 }
 
-static void adukf_k_predict_part6(const float P[49], float carry[62])
+static void adukf_k_predict_part6(const float q[4], const float P[49], float carry[60])
 {
-    const float tmp240 = carry[53] + carry[32];
-    const float tmp241 = carry[6] * P[24];
-    const float tmp242 = tmp240 - tmp241;
-    const float tmp243 = carry[43] * P[25];
-    const float tmp244 = tmp242 + tmp243;
-    const float tmp245 = carry[15] * P[26];
-    const float tmp246 = tmp244 + tmp245;
-    const float tmp247 = carry[34] * P[27];
-    const float tmp248 = tmp246 + tmp247;
-    const float tmp249 = tmp248 * carry[7];
-    const float tmp250 = carry[50] - tmp249;
-    const float tmp251 = carry[5] * P[4];
-    const float tmp252 = carry[4] * P[11];
+    const float tmp240 = carry[7] * P[25];
+    const float tmp241 = carry[50] - tmp240;
+    const float tmp242 = carry[40] * P[32];
+    const float tmp243 = tmp241 + tmp242;
+    const float tmp244 = carry[41] * P[33];
+    const float tmp245 = tmp243 + tmp244;
+    const float tmp246 = carry[42] * P[34];
+    const float tmp247 = tmp245 + tmp246;
+    const float tmp248 = tmp247 * carry[23];
+    const float tmp249 = carry[49] + tmp248;
+    const float tmp250 = carry[6] * P[5];
+    const float tmp251 = tmp250 + P[12];
+    const float tmp252 = carry[8] * P[19];
     const float tmp253 = tmp251 + tmp252;
-    const float tmp254 = carry[7] * P[18];
-    const float tmp255 = tmp253 + tmp254;
-    const float tmp256 = carry[6] * P[25];
-    const float tmp257 = tmp255 - tmp256;
-    const float tmp258 = carry[43] * P[32];
+    const float tmp254 = carry[7] * P[26];
+    const float tmp255 = tmp253 - tmp254;
+    const float tmp256 = carry[40] * P[33];
+    const float tmp257 = tmp255 + tmp256;
+    const float tmp258 = carry[41] * P[40];
     const float tmp259 = tmp257 + tmp258;
-    const float tmp260 = carry[15] * P[33];
+    const float tmp260 = carry[42] * P[41];
     const float tmp261 = tmp259 + tmp260;
-    const float tmp262 = carry[34] * P[34];
-    const float tmp263 = tmp261 + tmp262;
-    const float tmp264 = tmp263 * carry[22];
-    const float tmp265 = tmp250 + tmp264;
-    const float tmp266 = carry[5] * P[5];
-    const float tmp267 = carry[4] * P[12];
-    const float tmp268 = tmp266 + tmp267;
-    const float tmp269 = carry[7] * P[19];
-    const float tmp270 = tmp268 + tmp269;
-    const float tmp271 = carry[6] * P[26];
-    const float tmp272 = tmp270 - tmp271;
-    const float tmp273 = carry[43] * P[33];
-    const float tmp274 = tmp272 + tmp273;
-    const float tmp275 = carry[15] * P[40];
-    const float tmp276 = tmp274 + tmp275;
-    const float tmp277 = carry[34] * P[41];
-    const float tmp278 = tmp276 + tmp277;
-    const float tmp279 = tmp278 * carry[23];
-    carry[32] = tmp248;
-    carry[50] = tmp263;
-    carry[53] = tmp265;
-    carry[54] = tmp278;
-    carry[55] = tmp279;
+    const float tmp262 = tmp261 * carry[25];
+    const float tmp263 = tmp249 + tmp262;
+    const float tmp264 = carry[6] * P[6];
+    const float tmp265 = tmp264 + P[13];
+    const float tmp266 = carry[8] * P[20];
+    const float tmp267 = tmp265 + tmp266;
+    const float tmp268 = carry[7] * P[27];
+    const float tmp269 = tmp267 - tmp268;
+    const float tmp270 = carry[40] * P[34];
+    const float tmp271 = tmp269 + tmp270;
+    const float tmp272 = carry[41] * P[41];
+    const float tmp273 = tmp271 + tmp272;
+    const float tmp274 = carry[42] * P[48];
+    const float tmp275 = tmp273 + tmp274;
+    const float tmp276 = tmp275 * carry[26];
+    const float tmp277 = tmp263 + tmp276;
+    const float tmp278 = carry[3] * tmp277;
+    const float tmp279 = q[1] * q[0];
+    carry[49] = tmp247;
+    carry[50] = tmp261;
+    carry[51] = tmp275;
+    carry[52] = tmp278;
+    carry[53] = tmp279;
 }
 
-static void adukf_k_predict_part7(const float q[4], const float P[49], float carry[62])
+static void adukf_k_predict_part7(const float P[49], float carry[60])
 {
-    const float tmp280 = carry[53] + carry[55];
-    const float tmp281 = carry[5] * P[6];
-    const float tmp282 = carry[4] * P[13];
-    const float tmp283 = tmp281 + tmp282;
-    const float tmp284 = carry[7] * P[20];
-    const float tmp285 = tmp283 + tmp284;
-    const float tmp286 = carry[6] * P[27];
-    const float tmp287 = tmp285 - tmp286;
-    const float tmp288 = carry[43] * P[34];
-    const float tmp289 = tmp287 + tmp288;
-    const float tmp290 = carry[15] * P[41];
-    const float tmp291 = tmp289 + tmp290;
-    const float tmp292 = carry[34] * P[48];
-    const float tmp293 = tmp291 + tmp292;
-    const float tmp294 = tmp293 * carry[25];
-    const float tmp295 = tmp280 + tmp294;
-    const float tmp296 = q[1] * q[0];
-    const float tmp297 = carry[36] * tmp296;
-    const float tmp298 = tmp295 - tmp297;
-    const float tmp299 = carry[6] * P[0];
+    const float tmp280 = carry[17] * carry[53];
+    const float tmp281 = carry[52] - tmp280;
+    const float tmp282 = carry[7] * P[0];
+    const float tmp283 = carry[8] * P[1];
+    const float tmp284 = tmp282 - tmp283;
+    const float tmp285 = tmp284 + P[2];
+    const float tmp286 = tmp285 + carry[47];
+    const float tmp287 = carry[21] * carry[11];
+    const float tmp288 = tmp287 * carry[0];
+    const float tmp289 = tmp288 - carry[22];
+    const float tmp290 = tmp289 * P[4];
+    const float tmp291 = tmp286 + tmp290;
+    const float tmp292 = tmp287 * carry[1];
+    const float tmp293 = tmp292 - carry[39];
+    const float tmp294 = tmp293 * P[5];
+    const float tmp295 = tmp291 + tmp294;
+    const float tmp296 = tmp287 * carry[2];
+    const float tmp297 = carry[20] + tmp296;
+    const float tmp298 = tmp297 * P[6];
+    const float tmp299 = tmp295 + tmp298;
     const float tmp300 = carry[7] * P[1];
-    const float tmp301 = tmp299 - tmp300;
-    const float tmp302 = tmp301 + carry[30];
-    const float tmp303 = tmp302 + carry[51];
-    const float tmp304 = carry[20] * carry[3];
-    const float tmp305 = tmp304 * carry[0];
-    const float tmp306 = tmp305 - carry[24];
-    const float tmp307 = tmp306 * P[4];
-    const float tmp308 = tmp303 + tmp307;
-    const float tmp309 = tmp304 * carry[1];
-    const float tmp310 = tmp309 - carry[42];
-    const float tmp311 = tmp310 * P[5];
-    const float tmp312 = tmp308 + tmp311;
-    const float tmp313 = tmp304 * carry[2];
-    const float tmp314 = carry[19] + tmp313;
-    const float tmp315 = tmp314 * P[6];
-    const float tmp316 = tmp312 + tmp315;
-    const float tmp317 = tmp316 * carry[4];
-    const float tmp318 = carry[6] * P[1];
-    const float tmp319 = carry[7] * P[8];
-    carry[24] = tmp293;
-    carry[30] = tmp298;
-    carry[51] = tmp300;
-    carry[53] = tmp306;
-    carry[55] = tmp310;
-    carry[56] = tmp314;
-    carry[57] = tmp316;
-    carry[58] = tmp317;
-    carry[59] = tmp318;
-    carry[60] = tmp319;
+    const float tmp301 = carry[8] * P[8];
+    const float tmp302 = tmp300 - tmp301;
+    const float tmp303 = tmp302 + P[9];
+    const float tmp304 = tmp303 + carry[32];
+    const float tmp305 = tmp289 * P[11];
+    const float tmp306 = tmp304 + tmp305;
+    const float tmp307 = tmp293 * P[12];
+    const float tmp308 = tmp306 + tmp307;
+    const float tmp309 = tmp297 * P[13];
+    const float tmp310 = tmp308 + tmp309;
+    const float tmp311 = tmp310 * carry[6];
+    const float tmp312 = tmp299 - tmp311;
+    const float tmp313 = carry[18] - carry[44];
+    const float tmp314 = tmp313 + P[16];
+    const float tmp315 = carry[6] * P[17];
+    const float tmp316 = tmp314 + tmp315;
+    const float tmp317 = tmp289 * P[18];
+    const float tmp318 = tmp316 + tmp317;
+    const float tmp319 = tmp293 * P[19];
+    carry[18] = tmp281;
+    carry[22] = tmp283;
+    carry[32] = tmp289;
+    carry[44] = tmp293;
+    carry[47] = tmp297;
+    carry[52] = tmp299;
+    carry[53] = tmp300;
+    carry[54] = tmp310;
+    carry[55] = tmp312;
+    carry[56] = tmp315;
+    carry[57] = tmp318;
+    carry[58] = tmp319;
 }
 
-static void adukf_k_predict_part8(const float P[49], float carry[62])
+static void adukf_k_predict_part8(const float P[49], float carry[60])
 {
-    const float tmp320 = carry[59] - carry[60];
-    const float tmp321 = tmp320 + carry[48];
-    const float tmp322 = tmp321 + carry[33];
-    const float tmp323 = carry[53] * P[11];
-    const float tmp324 = tmp322 + tmp323;
-    const float tmp325 = carry[55] * P[12];
-    const float tmp326 = tmp324 + tmp325;
-    const float tmp327 = carry[56] * P[13];
+    const float tmp320 = carry[57] + carry[58];
+    const float tmp321 = carry[47] * P[20];
+    const float tmp322 = tmp320 + tmp321;
+    const float tmp323 = tmp322 * carry[7];
+    const float tmp324 = carry[55] - tmp323;
+    const float tmp325 = carry[38] - carry[28];
+    const float tmp326 = tmp325 + P[17];
+    const float tmp327 = carry[6] * P[24];
     const float tmp328 = tmp326 + tmp327;
-    const float tmp329 = tmp328 * carry[5];
-    const float tmp330 = carry[58] - tmp329;
-    const float tmp331 = carry[16] - carry[44];
-    const float tmp332 = carry[4] * P[16];
-    const float tmp333 = tmp331 + tmp332;
-    const float tmp334 = carry[5] * P[17];
-    const float tmp335 = tmp333 + tmp334;
-    const float tmp336 = carry[53] * P[18];
-    const float tmp337 = tmp335 + tmp336;
-    const float tmp338 = carry[55] * P[19];
-    const float tmp339 = tmp337 + tmp338;
-    const float tmp340 = carry[56] * P[20];
-    const float tmp341 = tmp339 + tmp340;
-    const float tmp342 = tmp341 * carry[6];
-    const float tmp343 = tmp330 - tmp342;
-    const float tmp344 = carry[40] - carry[28];
-    const float tmp345 = carry[4] * P[17];
+    const float tmp329 = carry[32] * P[25];
+    const float tmp330 = tmp328 + tmp329;
+    const float tmp331 = carry[44] * P[26];
+    const float tmp332 = tmp330 + tmp331;
+    const float tmp333 = carry[47] * P[27];
+    const float tmp334 = tmp332 + tmp333;
+    const float tmp335 = tmp334 * carry[8];
+    const float tmp336 = tmp324 - tmp335;
+    const float tmp337 = carry[7] * P[4];
+    const float tmp338 = carry[8] * P[11];
+    const float tmp339 = tmp337 - tmp338;
+    const float tmp340 = tmp339 + P[18];
+    const float tmp341 = carry[6] * P[25];
+    const float tmp342 = tmp340 + tmp341;
+    const float tmp343 = carry[32] * P[32];
+    const float tmp344 = tmp342 + tmp343;
+    const float tmp345 = carry[44] * P[33];
     const float tmp346 = tmp344 + tmp345;
-    const float tmp347 = carry[5] * P[24];
+    const float tmp347 = carry[47] * P[34];
     const float tmp348 = tmp346 + tmp347;
-    const float tmp349 = carry[53] * P[25];
-    const float tmp350 = tmp348 + tmp349;
-    const float tmp351 = carry[55] * P[26];
-    const float tmp352 = tmp350 + tmp351;
-    const float tmp353 = carry[56] * P[27];
-    const float tmp354 = tmp352 + tmp353;
-    const float tmp355 = tmp354 * carry[7];
-    const float tmp356 = tmp343 - tmp355;
-    const float tmp357 = carry[6] * P[4];
-    const float tmp358 = carry[7] * P[11];
-    const float tmp359 = tmp357 - tmp358;
-    carry[16] = tmp328;
-    carry[28] = tmp334;
-    carry[33] = tmp341;
-    carry[40] = tmp345;
-    carry[44] = tmp354;
-    carry[48] = tmp356;
-    carry[58] = tmp359;
+    const float tmp349 = tmp348 * carry[23];
+    const float tmp350 = tmp336 + tmp349;
+    const float tmp351 = carry[7] * P[5];
+    const float tmp352 = carry[8] * P[12];
+    const float tmp353 = tmp351 - tmp352;
+    const float tmp354 = tmp353 + P[19];
+    const float tmp355 = carry[6] * P[26];
+    const float tmp356 = tmp354 + tmp355;
+    const float tmp357 = carry[32] * P[33];
+    const float tmp358 = tmp356 + tmp357;
+    const float tmp359 = carry[44] * P[40];
+    carry[28] = tmp322;
+    carry[38] = tmp334;
+    carry[55] = tmp348;
+    carry[57] = tmp350;
+    carry[58] = tmp358;
+    carry[59] = tmp359;
 }
 
-static void adukf_k_predict_part9(const float P[49], float carry[62])
+static void adukf_k_predict_part9(const float q[4], const float P[49], float carry[60])
 {
-    const float tmp360 = carry[4] * P[18];
-    const float tmp361 = carry[58] + tmp360;
-    const float tmp362 = carry[5] * P[25];
-    const float tmp363 = tmp361 + tmp362;
-    const float tmp364 = carry[53] * P[32];
-    const float tmp365 = tmp363 + tmp364;
-    const float tmp366 = carry[55] * P[33];
-    const float tmp367 = tmp365 + tmp366;
-    const float tmp368 = carry[56] * P[34];
-    const float tmp369 = tmp367 + tmp368;
-    const float tmp370 = tmp369 * carry[22];
-    const float tmp371 = carry[48] + tmp370;
-    const float tmp372 = carry[6] * P[5];
-    const float tmp373 = carry[7] * P[12];
-    const float tmp374 = tmp372 - tmp373;
-    const float tmp375 = carry[4] * P[19];
+    const float tmp360 = carry[58] + carry[59];
+    const float tmp361 = carry[47] * P[41];
+    const float tmp362 = tmp360 + tmp361;
+    const float tmp363 = tmp362 * carry[25];
+    const float tmp364 = carry[57] + tmp363;
+    const float tmp365 = carry[7] * P[6];
+    const float tmp366 = carry[8] * P[13];
+    const float tmp367 = tmp365 - tmp366;
+    const float tmp368 = tmp367 + P[20];
+    const float tmp369 = carry[6] * P[27];
+    const float tmp370 = tmp368 + tmp369;
+    const float tmp371 = carry[32] * P[34];
+    const float tmp372 = tmp370 + tmp371;
+    const float tmp373 = carry[44] * P[41];
+    const float tmp374 = tmp372 + tmp373;
+    const float tmp375 = carry[47] * P[48];
     const float tmp376 = tmp374 + tmp375;
-    const float tmp377 = carry[5] * P[26];
-    const float tmp378 = tmp376 + tmp377;
-    const float tmp379 = carry[53] * P[33];
-    const float tmp380 = tmp378 + tmp379;
-    const float tmp381 = carry[55] * P[40];
-    const float tmp382 = tmp380 + tmp381;
-    const float tmp383 = carry[56] * P[41];
-    const float tmp384 = tmp382 + tmp383;
-    const float tmp385 = tmp384 * carry[23];
-    const float tmp386 = tmp371 + tmp385;
-    const float tmp387 = carry[6] * P[6];
-    const float tmp388 = carry[7] * P[13];
-    const float tmp389 = tmp387 - tmp388;
-    const float tmp390 = carry[4] * P[20];
-    const float tmp391 = tmp389 + tmp390;
-    const float tmp392 = carry[5] * P[27];
-    const float tmp393 = tmp391 + tmp392;
-    const float tmp394 = carry[53] * P[34];
-    const float tmp395 = tmp393 + tmp394;
-    const float tmp396 = carry[55] * P[41];
-    const float tmp397 = tmp395 + tmp396;
-    const float tmp398 = carry[56] * P[48];
-    const float tmp399 = tmp397 + tmp398;
-    carry[48] = tmp369;
-    carry[58] = tmp384;
-    carry[60] = tmp386;
-    carry[61] = tmp399;
+    const float tmp377 = tmp376 * carry[26];
+    const float tmp378 = tmp364 + tmp377;
+    const float tmp379 = carry[3] * tmp378;
+    const float tmp380 = q[2] * q[0];
+    const float tmp381 = carry[17] * tmp380;
+    const float tmp382 = tmp379 - tmp381;
+    const float tmp383 = carry[8] * P[0];
+    const float tmp384 = tmp383 + carry[53];
+    const float tmp385 = tmp384 - carry[45];
+    const float tmp386 = tmp385 + P[3];
+    const float tmp387 = carry[21] * carry[12];
+    const float tmp388 = tmp387 * carry[0];
+    const float tmp389 = carry[24] + tmp388;
+    const float tmp390 = tmp389 * P[4];
+    const float tmp391 = tmp386 + tmp390;
+    const float tmp392 = tmp387 * carry[1];
+    const float tmp393 = tmp392 - carry[20];
+    const float tmp394 = tmp393 * P[5];
+    const float tmp395 = tmp391 + tmp394;
+    const float tmp396 = tmp387 * carry[2];
+    const float tmp397 = tmp396 - carry[39];
+    const float tmp398 = tmp397 * P[6];
+    const float tmp399 = tmp395 + tmp398;
+    carry[0] = tmp362;
+    carry[1] = tmp376;
+    carry[2] = tmp382;
+    carry[20] = tmp389;
+    carry[21] = tmp393;
+    carry[24] = tmp397;
+    carry[39] = tmp399;
 }
 
-static void adukf_k_predict_part10(const float q[4], const float P[49], float carry[62])
+static void adukf_k_predict_part10(const float P[49], float carry[60])
 {
-    const float tmp400 = carry[61] * carry[25];
-    const float tmp401 = carry[60] + tmp400;
-    const float tmp402 = q[2] * q[0];
-    const float tmp403 = carry[36] * tmp402;
-    const float tmp404 = tmp401 - tmp403;
-    const float tmp405 = carry[7] * P[0];
-    const float tmp406 = tmp405 + carry[59];
-    const float tmp407 = tmp406 - carry[47];
-    const float tmp408 = tmp407 + carry[29];
-    const float tmp409 = carry[20] * carry[10];
-    const float tmp410 = tmp409 * carry[0];
-    const float tmp411 = carry[21] + tmp410;
-    const float tmp412 = tmp411 * P[4];
-    const float tmp413 = tmp408 + tmp412;
-    const float tmp414 = tmp409 * carry[1];
-    const float tmp415 = tmp414 - carry[19];
-    const float tmp416 = tmp415 * P[5];
-    const float tmp417 = tmp413 + tmp416;
-    const float tmp418 = tmp409 * carry[2];
-    const float tmp419 = tmp418 - carry[42];
-    const float tmp420 = tmp419 * P[6];
-    const float tmp421 = tmp417 + tmp420;
-    const float tmp422 = tmp421 * carry[4];
-    const float tmp423 = carry[6] * P[8];
-    const float tmp424 = carry[51] + tmp423;
-    const float tmp425 = tmp424 - carry[31];
-    const float tmp426 = tmp425 + carry[52];
-    const float tmp427 = tmp411 * P[11];
+    const float tmp400 = carry[7] * P[8];
+    const float tmp401 = carry[22] + tmp400;
+    const float tmp402 = tmp401 - carry[29];
+    const float tmp403 = tmp402 + P[10];
+    const float tmp404 = carry[20] * P[11];
+    const float tmp405 = tmp403 + tmp404;
+    const float tmp406 = carry[21] * P[12];
+    const float tmp407 = tmp405 + tmp406;
+    const float tmp408 = carry[24] * P[13];
+    const float tmp409 = tmp407 + tmp408;
+    const float tmp410 = tmp409 * carry[6];
+    const float tmp411 = carry[39] - tmp410;
+    const float tmp412 = carry[37] + carry[27];
+    const float tmp413 = carry[6] * P[16];
+    const float tmp414 = tmp412 - tmp413;
+    const float tmp415 = tmp414 + P[17];
+    const float tmp416 = carry[20] * P[18];
+    const float tmp417 = tmp415 + tmp416;
+    const float tmp418 = carry[21] * P[19];
+    const float tmp419 = tmp417 + tmp418;
+    const float tmp420 = carry[24] * P[20];
+    const float tmp421 = tmp419 + tmp420;
+    const float tmp422 = tmp421 * carry[7];
+    const float tmp423 = tmp411 - tmp422;
+    const float tmp424 = carry[19] + carry[30];
+    const float tmp425 = tmp424 - carry[56];
+    const float tmp426 = tmp425 + P[24];
+    const float tmp427 = carry[20] * P[25];
     const float tmp428 = tmp426 + tmp427;
-    const float tmp429 = tmp415 * P[12];
+    const float tmp429 = carry[21] * P[26];
     const float tmp430 = tmp428 + tmp429;
-    const float tmp431 = tmp419 * P[13];
+    const float tmp431 = carry[24] * P[27];
     const float tmp432 = tmp430 + tmp431;
-    const float tmp433 = tmp432 * carry[5];
-    const float tmp434 = tmp422 - tmp433;
-    const float tmp435 = carry[39] + carry[27];
-    const float tmp436 = carry[5] * P[16];
-    const float tmp437 = tmp435 - tmp436;
-    const float tmp438 = tmp437 + carry[40];
-    const float tmp439 = tmp411 * P[18];
-    carry[0] = tmp404;
-    carry[1] = tmp411;
-    carry[2] = tmp415;
-    carry[19] = tmp419;
-    carry[20] = tmp421;
-    carry[21] = tmp432;
-    carry[27] = tmp434;
-    carry[29] = tmp438;
-    carry[31] = tmp439;
+    const float tmp433 = tmp432 * carry[8];
+    const float tmp434 = tmp423 - tmp433;
+    const float tmp435 = carry[8] * P[4];
+    const float tmp436 = carry[7] * P[11];
+    const float tmp437 = tmp435 + tmp436;
+    const float tmp438 = carry[6] * P[18];
+    const float tmp439 = tmp437 - tmp438;
+    carry[19] = tmp409;
+    carry[22] = tmp421;
+    carry[27] = tmp432;
+    carry[29] = tmp434;
+    carry[30] = tmp439;
 }
 
-static void adukf_k_predict_part11(const float P[49], float carry[62])
+static void adukf_k_predict_part11(const float q[4], const float P[49], float carry[60])
 {
-    const float tmp440 = carry[29] + carry[31];
-    const float tmp441 = carry[2] * P[19];
+    const float tmp440 = carry[30] + P[25];
+    const float tmp441 = carry[20] * P[32];
     const float tmp442 = tmp440 + tmp441;
-    const float tmp443 = carry[19] * P[20];
+    const float tmp443 = carry[21] * P[33];
     const float tmp444 = tmp442 + tmp443;
-    const float tmp445 = tmp444 * carry[6];
-    const float tmp446 = carry[27] - tmp445;
-    const float tmp447 = carry[17] + carry[45];
-    const float tmp448 = tmp447 - carry[28];
-    const float tmp449 = carry[4] * P[24];
-    const float tmp450 = tmp448 + tmp449;
-    const float tmp451 = carry[1] * P[25];
-    const float tmp452 = tmp450 + tmp451;
-    const float tmp453 = carry[2] * P[26];
-    const float tmp454 = tmp452 + tmp453;
-    const float tmp455 = carry[19] * P[27];
+    const float tmp445 = carry[24] * P[34];
+    const float tmp446 = tmp444 + tmp445;
+    const float tmp447 = tmp446 * carry[23];
+    const float tmp448 = carry[29] + tmp447;
+    const float tmp449 = carry[8] * P[5];
+    const float tmp450 = carry[7] * P[12];
+    const float tmp451 = tmp449 + tmp450;
+    const float tmp452 = carry[6] * P[19];
+    const float tmp453 = tmp451 - tmp452;
+    const float tmp454 = tmp453 + P[26];
+    const float tmp455 = carry[20] * P[33];
     const float tmp456 = tmp454 + tmp455;
-    const float tmp457 = tmp456 * carry[7];
-    const float tmp458 = tmp446 - tmp457;
-    const float tmp459 = carry[7] * P[4];
-    const float tmp460 = carry[6] * P[11];
-    const float tmp461 = tmp459 + tmp460;
-    const float tmp462 = carry[5] * P[18];
-    const float tmp463 = tmp461 - tmp462;
-    const float tmp464 = carry[4] * P[25];
+    const float tmp457 = carry[21] * P[40];
+    const float tmp458 = tmp456 + tmp457;
+    const float tmp459 = carry[24] * P[41];
+    const float tmp460 = tmp458 + tmp459;
+    const float tmp461 = tmp460 * carry[25];
+    const float tmp462 = tmp448 + tmp461;
+    const float tmp463 = carry[8] * P[6];
+    const float tmp464 = carry[7] * P[13];
     const float tmp465 = tmp463 + tmp464;
-    const float tmp466 = carry[1] * P[32];
-    const float tmp467 = tmp465 + tmp466;
-    const float tmp468 = carry[2] * P[33];
-    const float tmp469 = tmp467 + tmp468;
-    const float tmp470 = carry[19] * P[34];
-    const float tmp471 = tmp469 + tmp470;
-    const float tmp472 = tmp471 * carry[22];
-    const float tmp473 = tmp458 + tmp472;
-    const float tmp474 = carry[7] * P[5];
-    const float tmp475 = carry[6] * P[12];
-    const float tmp476 = tmp474 + tmp475;
-    const float tmp477 = carry[5] * P[19];
-    const float tmp478 = tmp476 - tmp477;
-    const float tmp479 = carry[4] * P[26];
-    carry[17] = tmp444;
-    carry[22] = tmp456;
-    carry[27] = tmp471;
-    carry[28] = tmp473;
-    carry[29] = tmp478;
-    carry[31] = tmp479;
+    const float tmp466 = carry[6] * P[20];
+    const float tmp467 = tmp465 - tmp466;
+    const float tmp468 = tmp467 + P[27];
+    const float tmp469 = carry[20] * P[34];
+    const float tmp470 = tmp468 + tmp469;
+    const float tmp471 = carry[21] * P[41];
+    const float tmp472 = tmp470 + tmp471;
+    const float tmp473 = carry[24] * P[48];
+    const float tmp474 = tmp472 + tmp473;
+    const float tmp475 = tmp474 * carry[26];
+    const float tmp476 = tmp462 + tmp475;
+    const float tmp477 = carry[3] * tmp476;
+    const float tmp478 = q[3] * q[0];
+    const float tmp479 = carry[17] * tmp478;
+    carry[23] = tmp446;
+    carry[25] = tmp460;
+    carry[26] = tmp474;
+    carry[29] = tmp477;
+    carry[30] = tmp479;
 }
 
-static void adukf_k_predict_part12(const float q[4], const float P[49], float carry[62])
+static void adukf_k_predict_part12(const float q[4], float carry[60])
 {
-    const float tmp480 = carry[29] + carry[31];
-    const float tmp481 = carry[1] * P[33];
-    const float tmp482 = tmp480 + tmp481;
-    const float tmp483 = carry[2] * P[40];
-    const float tmp484 = tmp482 + tmp483;
-    const float tmp485 = carry[19] * P[41];
-    const float tmp486 = tmp484 + tmp485;
-    const float tmp487 = tmp486 * carry[23];
-    const float tmp488 = carry[28] + tmp487;
-    const float tmp489 = carry[7] * P[6];
-    const float tmp490 = carry[6] * P[13];
+    const float tmp480 = carry[29] - carry[30];
+    const float tmp481 = carry[4] * carry[31];
+    const float tmp482 = carry[4] * carry[34];
+    const float tmp483 = carry[4] * carry[5];
+    const float tmp484 = carry[43] * carry[6];
+    const float tmp485 = tmp484 + carry[33];
+    const float tmp486 = carry[46] * carry[8];
+    const float tmp487 = tmp485 + tmp486;
+    const float tmp488 = carry[48] * carry[7];
+    const float tmp489 = tmp487 - tmp488;
+    const float tmp490 = carry[49] * carry[40];
     const float tmp491 = tmp489 + tmp490;
-    const float tmp492 = carry[5] * P[20];
-    const float tmp493 = tmp491 - tmp492;
-    const float tmp494 = carry[4] * P[27];
+    const float tmp492 = carry[50] * carry[41];
+    const float tmp493 = tmp491 + tmp492;
+    const float tmp494 = carry[51] * carry[42];
     const float tmp495 = tmp493 + tmp494;
-    const float tmp496 = carry[1] * P[34];
-    const float tmp497 = tmp495 + tmp496;
-    const float tmp498 = carry[2] * P[41];
-    const float tmp499 = tmp497 + tmp498;
-    const float tmp500 = carry[19] * P[48];
-    const float tmp501 = tmp499 + tmp500;
-    const float tmp502 = tmp501 * carry[25];
-    const float tmp503 = tmp488 + tmp502;
-    const float tmp504 = q[3] * q[0];
-    const float tmp505 = carry[36] * tmp504;
-    const float tmp506 = tmp503 - tmp505;
-    const float tmp507 = carry[41] * carry[5];
-    const float tmp508 = carry[46] * carry[4];
+    const float tmp496 = carry[3] * tmp495;
+    const float tmp497 = q[1] * q[1];
+    const float tmp498 = 1.0f - tmp497;
+    const float tmp499 = carry[17] * tmp498;
+    const float tmp500 = tmp499 + carry[35];
+    const float tmp501 = tmp496 + tmp500;
+    const float tmp502 = carry[52] * carry[6];
+    const float tmp503 = tmp502 + carry[54];
+    const float tmp504 = carry[28] * carry[8];
+    const float tmp505 = tmp503 + tmp504;
+    const float tmp506 = carry[38] * carry[7];
+    const float tmp507 = tmp505 - tmp506;
+    const float tmp508 = carry[55] * carry[40];
     const float tmp509 = tmp507 + tmp508;
-    const float tmp510 = carry[49] * carry[7];
+    const float tmp510 = carry[0] * carry[41];
     const float tmp511 = tmp509 + tmp510;
-    const float tmp512 = carry[32] * carry[6];
-    const float tmp513 = tmp511 - tmp512;
-    const float tmp514 = carry[50] * carry[43];
-    const float tmp515 = tmp513 + tmp514;
-    const float tmp516 = carry[54] * carry[15];
-    const float tmp517 = tmp515 + tmp516;
-    const float tmp518 = carry[24] * carry[34];
-    const float tmp519 = tmp517 + tmp518;
-    carry[23] = tmp486;
-    carry[25] = tmp501;
-    carry[28] = tmp506;
-    carry[29] = tmp519;
+    const float tmp512 = carry[1] * carry[42];
+    const float tmp513 = tmp511 + tmp512;
+    const float tmp514 = carry[3] * tmp513;
+    const float tmp515 = q[2] * q[1];
+    const float tmp516 = carry[17] * tmp515;
+    const float tmp517 = tmp514 - tmp516;
+    const float tmp518 = carry[39] * carry[6];
+    const float tmp519 = tmp518 + carry[19];
+    carry[5] = tmp480;
+    carry[29] = tmp481;
+    carry[30] = tmp482;
+    carry[31] = tmp483;
+    carry[33] = tmp501;
+    carry[34] = tmp517;
+    carry[37] = tmp519;
 }
 
-static void adukf_k_predict_part13(const float q[4], float carry[62])
+static void adukf_k_predict_part13(const float q[4], float carry[60])
 {
-    const float tmp520 = q[1] * q[1];
-    const float tmp521 = 1.0f - tmp520;
-    const float tmp522 = carry[36] * tmp521;
-    const float tmp523 = tmp522 + carry[37];
-    const float tmp524 = carry[29] + tmp523;
-    const float tmp525 = carry[57] * carry[5];
-    const float tmp526 = carry[16] * carry[4];
+    const float tmp520 = carry[22] * carry[8];
+    const float tmp521 = carry[37] + tmp520;
+    const float tmp522 = carry[27] * carry[7];
+    const float tmp523 = tmp521 - tmp522;
+    const float tmp524 = carry[23] * carry[40];
+    const float tmp525 = tmp523 + tmp524;
+    const float tmp526 = carry[25] * carry[41];
     const float tmp527 = tmp525 + tmp526;
-    const float tmp528 = carry[33] * carry[7];
+    const float tmp528 = carry[26] * carry[42];
     const float tmp529 = tmp527 + tmp528;
-    const float tmp530 = carry[44] * carry[6];
-    const float tmp531 = tmp529 - tmp530;
-    const float tmp532 = carry[48] * carry[43];
-    const float tmp533 = tmp531 + tmp532;
-    const float tmp534 = carry[58] * carry[15];
-    const float tmp535 = tmp533 + tmp534;
-    const float tmp536 = carry[61] * carry[34];
-    const float tmp537 = tmp535 + tmp536;
-    const float tmp538 = q[2] * q[1];
-    const float tmp539 = carry[36] * tmp538;
-    const float tmp540 = tmp537 - tmp539;
-    const float tmp541 = carry[20] * carry[5];
-    const float tmp542 = carry[21] * carry[4];
-    const float tmp543 = tmp541 + tmp542;
-    const float tmp544 = carry[17] * carry[7];
-    const float tmp545 = tmp543 + tmp544;
-    const float tmp546 = carry[22] * carry[6];
-    const float tmp547 = tmp545 - tmp546;
-    const float tmp548 = carry[27] * carry[43];
-    const float tmp549 = tmp547 + tmp548;
-    const float tmp550 = carry[23] * carry[15];
-    const float tmp551 = tmp549 + tmp550;
-    const float tmp552 = carry[25] * carry[34];
-    const float tmp553 = tmp551 + tmp552;
-    const float tmp554 = q[3] * q[1];
-    const float tmp555 = carry[36] * tmp554;
-    const float tmp556 = tmp553 - tmp555;
-    const float tmp557 = carry[57] * carry[6];
-    const float tmp558 = carry[16] * carry[7];
-    const float tmp559 = tmp557 - tmp558;
-    carry[15] = tmp524;
-    carry[16] = tmp540;
-    carry[29] = tmp556;
-    carry[31] = tmp559;
+    const float tmp530 = carry[3] * tmp529;
+    const float tmp531 = q[3] * q[1];
+    const float tmp532 = carry[17] * tmp531;
+    const float tmp533 = tmp530 - tmp532;
+    const float tmp534 = carry[4] * carry[49];
+    const float tmp535 = carry[4] * carry[50];
+    const float tmp536 = carry[4] * carry[51];
+    const float tmp537 = carry[52] * carry[7];
+    const float tmp538 = carry[54] * carry[8];
+    const float tmp539 = tmp537 - tmp538;
+    const float tmp540 = tmp539 + carry[28];
+    const float tmp541 = carry[38] * carry[6];
+    const float tmp542 = tmp540 + tmp541;
+    const float tmp543 = carry[55] * carry[32];
+    const float tmp544 = tmp542 + tmp543;
+    const float tmp545 = carry[0] * carry[44];
+    const float tmp546 = tmp544 + tmp545;
+    const float tmp547 = carry[1] * carry[47];
+    const float tmp548 = tmp546 + tmp547;
+    const float tmp549 = carry[3] * tmp548;
+    const float tmp550 = q[2] * q[2];
+    const float tmp551 = 1.0f - tmp550;
+    const float tmp552 = carry[17] * tmp551;
+    const float tmp553 = tmp552 + carry[35];
+    const float tmp554 = tmp549 + tmp553;
+    const float tmp555 = carry[39] * carry[7];
+    const float tmp556 = carry[19] * carry[8];
+    const float tmp557 = tmp555 - tmp556;
+    const float tmp558 = tmp557 + carry[22];
+    const float tmp559 = carry[27] * carry[6];
+    carry[28] = tmp533;
+    carry[37] = tmp534;
+    carry[38] = tmp535;
+    carry[40] = tmp536;
+    carry[41] = tmp554;
+    carry[42] = tmp558;
+    carry[43] = tmp559;
 }
 
-static void adukf_k_predict_part14(const float q[4], float carry[62])
+static void adukf_k_predict_part14(const float q[4], const float P[49], float dt, float carry[60])
 {
-    const float tmp560 = carry[33] * carry[4];
-    const float tmp561 = carry[31] + tmp560;
-    const float tmp562 = carry[44] * carry[5];
-    const float tmp563 = tmp561 + tmp562;
-    const float tmp564 = carry[48] * carry[53];
-    const float tmp565 = tmp563 + tmp564;
-    const float tmp566 = carry[58] * carry[55];
-    const float tmp567 = tmp565 + tmp566;
-    const float tmp568 = carry[61] * carry[56];
-    const float tmp569 = tmp567 + tmp568;
-    const float tmp570 = q[2] * q[2];
-    const float tmp571 = 1.0f - tmp570;
-    const float tmp572 = carry[36] * tmp571;
-    const float tmp573 = tmp572 + carry[37];
-    const float tmp574 = tmp569 + tmp573;
-    const float tmp575 = carry[20] * carry[6];
-    const float tmp576 = carry[21] * carry[7];
-    const float tmp577 = tmp575 - tmp576;
-    const float tmp578 = carry[17] * carry[4];
-    const float tmp579 = tmp577 + tmp578;
-    const float tmp580 = carry[22] * carry[5];
+    const float tmp560 = carry[42] + carry[43];
+    const float tmp561 = carry[23] * carry[32];
+    const float tmp562 = tmp560 + tmp561;
+    const float tmp563 = carry[25] * carry[44];
+    const float tmp564 = tmp562 + tmp563;
+    const float tmp565 = carry[26] * carry[47];
+    const float tmp566 = tmp564 + tmp565;
+    const float tmp567 = carry[3] * tmp566;
+    const float tmp568 = q[3] * q[2];
+    const float tmp569 = carry[17] * tmp568;
+    const float tmp570 = tmp567 - tmp569;
+    const float tmp571 = carry[4] * carry[55];
+    const float tmp572 = carry[4] * carry[0];
+    const float tmp573 = carry[4] * carry[1];
+    const float tmp574 = carry[39] * carry[8];
+    const float tmp575 = carry[19] * carry[7];
+    const float tmp576 = tmp574 + tmp575;
+    const float tmp577 = carry[22] * carry[6];
+    const float tmp578 = tmp576 - tmp577;
+    const float tmp579 = tmp578 + carry[27];
+    const float tmp580 = carry[23] * carry[20];
     const float tmp581 = tmp579 + tmp580;
-    const float tmp582 = carry[27] * carry[53];
+    const float tmp582 = carry[25] * carry[21];
     const float tmp583 = tmp581 + tmp582;
-    const float tmp584 = carry[23] * carry[55];
+    const float tmp584 = carry[26] * carry[24];
     const float tmp585 = tmp583 + tmp584;
-    const float tmp586 = carry[25] * carry[56];
-    const float tmp587 = tmp585 + tmp586;
-    const float tmp588 = q[3] * q[2];
-    const float tmp589 = carry[36] * tmp588;
-    const float tmp590 = tmp587 - tmp589;
-    const float tmp591 = carry[20] * carry[7];
-    const float tmp592 = carry[21] * carry[6];
-    const float tmp593 = tmp591 + tmp592;
-    const float tmp594 = carry[17] * carry[5];
-    const float tmp595 = tmp593 - tmp594;
-    const float tmp596 = carry[22] * carry[4];
-    const float tmp597 = tmp595 + tmp596;
-    const float tmp598 = carry[27] * carry[1];
-    const float tmp599 = tmp597 + tmp598;
-    carry[1] = tmp574;
-    carry[4] = tmp590;
-    carry[5] = tmp599;
-}
-
-static void adukf_k_predict_part15(const float q[4], const float P[49], float dt, float carry[62])
-{
-    const float tmp600 = carry[23] * carry[2];
-    const float tmp601 = carry[5] + tmp600;
-    const float tmp602 = carry[25] * carry[19];
-    const float tmp603 = tmp601 + tmp602;
-    const float tmp604 = q[3] * q[3];
-    const float tmp605 = 1.0f - tmp604;
-    const float tmp606 = carry[36] * tmp605;
-    const float tmp607 = tmp606 + carry[37];
-    const float tmp608 = tmp603 + tmp607;
-    const float tmp609 = 1e-08f /* bias_rw^2 */ * dt;
-    const float tmp610 = tmp609 + carry[37];
-    const float tmp611 = P[32] + tmp610;
-    const float tmp612 = P[40] + tmp610;
-    const float tmp613 = P[48] + tmp610;
-    carry[2] = tmp608;
-    carry[5] = tmp611;
-    carry[6] = tmp612;
-    carry[7] = tmp613;
+    const float tmp586 = carry[3] * tmp585;
+    const float tmp587 = q[3] * q[3];
+    const float tmp588 = 1.0f - tmp587;
+    const float tmp589 = carry[17] * tmp588;
+    const float tmp590 = tmp589 + carry[35];
+    const float tmp591 = tmp586 + tmp590;
+    const float tmp592 = carry[4] * carry[23];
+    const float tmp593 = carry[4] * carry[25];
+    const float tmp594 = carry[4] * carry[26];
+    const float tmp595 = 1e-08f /* bias_rw^2 */ * dt;
+    const float tmp596 = tmp595 + carry[35];
+    const float tmp597 = P[32] + tmp596;
+    const float tmp598 = P[40] + tmp596;
+    const float tmp599 = P[48] + tmp596;
+    carry[0] = tmp570;
+    carry[1] = tmp571;
+    carry[3] = tmp572;
+    carry[4] = tmp573;
+    carry[6] = tmp591;
+    carry[7] = tmp592;
+    carry[8] = tmp593;
+    carry[17] = tmp594;
+    carry[19] = tmp597;
+    carry[20] = tmp598;
+    carry[21] = tmp599;
 }
 
 #if defined(__GNUC__)
@@ -892,63 +879,62 @@ __attribute__((noinline))
 #endif
 static void adukf_k_predict(const float q[4], const float gyro_bias[3], const float P[49], const float gyro[3], float dt, float x_pred[7], float q_pred_unit[4], float P_pred[28])
 {
-    /* 16 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
-    float carry[62];
+    /* 15 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    float carry[60];
     adukf_k_predict_part0(q, gyro_bias, gyro, dt, carry);
     adukf_k_predict_part1(q, P, dt, carry);
     adukf_k_predict_part2(q, P, carry);
     adukf_k_predict_part3(P, carry);
     adukf_k_predict_part4(q, P, dt, carry);
     adukf_k_predict_part5(P, carry);
-    adukf_k_predict_part6(P, carry);
-    adukf_k_predict_part7(q, P, carry);
+    adukf_k_predict_part6(q, P, carry);
+    adukf_k_predict_part7(P, carry);
     adukf_k_predict_part8(P, carry);
-    adukf_k_predict_part9(P, carry);
-    adukf_k_predict_part10(q, P, carry);
-    adukf_k_predict_part11(P, carry);
-    adukf_k_predict_part12(q, P, carry);
+    adukf_k_predict_part9(q, P, carry);
+    adukf_k_predict_part10(P, carry);
+    adukf_k_predict_part11(q, P, carry);
+    adukf_k_predict_part12(q, carry);
     adukf_k_predict_part13(q, carry);
-    adukf_k_predict_part14(q, carry);
-    adukf_k_predict_part15(q, P, dt, carry);
-    x_pred[0] = carry[8];
-    x_pred[1] = carry[9];
-    x_pred[2] = carry[3];
-    x_pred[3] = carry[10];
+    adukf_k_predict_part14(q, P, dt, carry);
+    x_pred[0] = carry[9];
+    x_pred[1] = carry[10];
+    x_pred[2] = carry[11];
+    x_pred[3] = carry[12];
     x_pred[4] = gyro_bias[0];
     x_pred[5] = gyro_bias[1];
     x_pred[6] = gyro_bias[2];
-    q_pred_unit[0] = carry[11];
-    q_pred_unit[1] = carry[12];
-    q_pred_unit[2] = carry[13];
-    q_pred_unit[3] = carry[14];
-    P_pred[0] = carry[38];
-    P_pred[1] = carry[30];
-    P_pred[2] = carry[0];
-    P_pred[3] = carry[28];
-    P_pred[4] = carry[35];
-    P_pred[5] = carry[18];
-    P_pred[6] = carry[26];
-    P_pred[7] = carry[15];
-    P_pred[8] = carry[16];
-    P_pred[9] = carry[29];
-    P_pred[10] = carry[50];
-    P_pred[11] = carry[54];
-    P_pred[12] = carry[24];
-    P_pred[13] = carry[1];
-    P_pred[14] = carry[4];
-    P_pred[15] = carry[48];
-    P_pred[16] = carry[58];
-    P_pred[17] = carry[61];
-    P_pred[18] = carry[2];
-    P_pred[19] = carry[27];
-    P_pred[20] = carry[23];
-    P_pred[21] = carry[25];
-    P_pred[22] = carry[5];
+    q_pred_unit[0] = carry[13];
+    q_pred_unit[1] = carry[14];
+    q_pred_unit[2] = carry[15];
+    q_pred_unit[3] = carry[16];
+    P_pred[0] = carry[36];
+    P_pred[1] = carry[18];
+    P_pred[2] = carry[2];
+    P_pred[3] = carry[5];
+    P_pred[4] = carry[29];
+    P_pred[5] = carry[30];
+    P_pred[6] = carry[31];
+    P_pred[7] = carry[33];
+    P_pred[8] = carry[34];
+    P_pred[9] = carry[28];
+    P_pred[10] = carry[37];
+    P_pred[11] = carry[38];
+    P_pred[12] = carry[40];
+    P_pred[13] = carry[41];
+    P_pred[14] = carry[0];
+    P_pred[15] = carry[1];
+    P_pred[16] = carry[3];
+    P_pred[17] = carry[4];
+    P_pred[18] = carry[6];
+    P_pred[19] = carry[7];
+    P_pred[20] = carry[8];
+    P_pred[21] = carry[17];
+    P_pred[22] = carry[19];
     P_pred[23] = P[33];
     P_pred[24] = P[34];
-    P_pred[25] = carry[6];
+    P_pred[25] = carry[20];
     P_pred[26] = P[41];
-    P_pred[27] = carry[7];
+    P_pred[27] = carry[21];
 }
 
 /* L = chol(P-), aL = a L[:, 0:4] (the columns that move the attitude: a bias column moves none, so 9 distinct sigma points), z0 = h(q-); pivot_P = smallest pivot of P-
@@ -2180,7 +2166,7 @@ static void adukf_k_innovation_part11(const float z0[6], const float zsum[24], c
 #if defined(__GNUC__)
 __attribute__((noinline))
 #endif
-static void adukf_k_innovation(const float z0[6], const float zsum[24], const float zdiff[24], const float accel[3], const float mag[3], float dt, const float span[2], float P_zz[36], float residual[6], float r_diag[6])
+static void adukf_k_innovation(const float z0[6], const float zsum[24], const float zdiff[24], const float accel[3], const float mag[3], float dt, const float span[2], float P_zz[21], float residual[6], float r_diag[6])
 {
     /* 12 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
     float carry[34];
@@ -2202,36 +2188,21 @@ static void adukf_k_innovation(const float z0[6], const float zsum[24], const fl
     P_zz[3] = carry[11];
     P_zz[4] = carry[12];
     P_zz[5] = carry[14];
-    P_zz[6] = carry[7];
-    P_zz[7] = carry[17];
-    P_zz[8] = carry[18];
-    P_zz[9] = carry[19];
-    P_zz[10] = carry[20];
-    P_zz[11] = carry[1];
-    P_zz[12] = carry[9];
-    P_zz[13] = carry[18];
-    P_zz[14] = carry[21];
-    P_zz[15] = carry[22];
-    P_zz[16] = carry[23];
-    P_zz[17] = carry[8];
-    P_zz[18] = carry[11];
-    P_zz[19] = carry[19];
-    P_zz[20] = carry[22];
-    P_zz[21] = carry[28];
-    P_zz[22] = carry[29];
-    P_zz[23] = carry[10];
-    P_zz[24] = carry[12];
-    P_zz[25] = carry[20];
-    P_zz[26] = carry[23];
-    P_zz[27] = carry[29];
-    P_zz[28] = carry[32];
-    P_zz[29] = carry[0];
-    P_zz[30] = carry[14];
-    P_zz[31] = carry[1];
-    P_zz[32] = carry[8];
-    P_zz[33] = carry[10];
-    P_zz[34] = carry[0];
-    P_zz[35] = carry[25];
+    P_zz[6] = carry[17];
+    P_zz[7] = carry[18];
+    P_zz[8] = carry[19];
+    P_zz[9] = carry[20];
+    P_zz[10] = carry[1];
+    P_zz[11] = carry[21];
+    P_zz[12] = carry[22];
+    P_zz[13] = carry[23];
+    P_zz[14] = carry[8];
+    P_zz[15] = carry[28];
+    P_zz[16] = carry[29];
+    P_zz[17] = carry[10];
+    P_zz[18] = carry[32];
+    P_zz[19] = carry[0];
+    P_zz[20] = carry[25];
     residual[0] = carry[2];
     residual[1] = carry[15];
     residual[2] = carry[3];
@@ -2248,7 +2219,7 @@ static void adukf_k_innovation(const float z0[6], const float zsum[24], const fl
 
 /* with L = chol(P_zz), W = L^-1 D (D the pairs' differences) and v = L^-1 eps: g = Wi W^T v and G = Wi^2 W^T W (lower triangle, packed), so that K eps = aL g and K P_zz K^T = aL G aL^T (K, P_xz never formed); pivot_zz = smallest pivot of P_zz
  * ops: add 180, mul 253, div 6, sqrt 6, cmp 11 (total 456) */
-static void adukf_k_gain_part0(const float P_zz[36], const float zdiff[24], const float residual[6], float carry[53])
+static void adukf_k_gain_part0(const float P_zz[21], const float zdiff[24], const float residual[6], float carry[53])
 {
     const float tmp0 = (1e-15f /* pivot_min */ < P_zz[0]) ? P_zz[0] : 1.0f;
     const float tmp1 = 1.0f / tmp0;
@@ -2260,7 +2231,7 @@ static void adukf_k_gain_part0(const float P_zz[36], const float zdiff[24], cons
     const float tmp7 = tmp6 * tmp3;
     const float tmp8 = zdiff[1] - tmp7;
     const float tmp9 = tmp6 * tmp6;
-    const float tmp10 = P_zz[7] - tmp9;
+    const float tmp10 = P_zz[6] - tmp9;
     const float tmp11 = (1e-15f /* pivot_min */ < tmp10) ? tmp10 : 1.0f;
     const float tmp12 = 1.0f / tmp11;
     const float tmp13 = sqrtf(tmp12);
@@ -2274,12 +2245,12 @@ static void adukf_k_gain_part0(const float P_zz[36], const float zdiff[24], cons
     const float tmp21 = tmp20 * tmp3;
     const float tmp22 = zdiff[2] - tmp21;
     const float tmp23 = tmp20 * tmp6;
-    const float tmp24 = P_zz[8] - tmp23;
+    const float tmp24 = P_zz[7] - tmp23;
     const float tmp25 = tmp24 * tmp13;
     const float tmp26 = tmp25 * tmp14;
     const float tmp27 = tmp22 - tmp26;
     const float tmp28 = tmp20 * tmp20;
-    const float tmp29 = P_zz[14] - tmp28;
+    const float tmp29 = P_zz[11] - tmp28;
     const float tmp30 = tmp25 * tmp25;
     const float tmp31 = tmp29 - tmp30;
     const float tmp32 = (1e-15f /* pivot_min */ < tmp31) ? tmp31 : 1.0f;
@@ -2307,7 +2278,7 @@ static void adukf_k_gain_part0(const float P_zz[36], const float zdiff[24], cons
     carry[14] = tmp39;
 }
 
-static void adukf_k_gain_part1(const float P_zz[36], const float zdiff[24], const float residual[6], float carry[53])
+static void adukf_k_gain_part1(const float P_zz[21], const float zdiff[24], const float residual[6], float carry[53])
 {
     const float tmp40 = carry[14] * carry[12];
     const float tmp41 = carry[13] * tmp40;
@@ -2316,19 +2287,19 @@ static void adukf_k_gain_part1(const float P_zz[36], const float zdiff[24], cons
     const float tmp44 = tmp43 * carry[1];
     const float tmp45 = zdiff[3] - tmp44;
     const float tmp46 = tmp43 * carry[3];
-    const float tmp47 = P_zz[9] - tmp46;
+    const float tmp47 = P_zz[8] - tmp46;
     const float tmp48 = tmp47 * carry[5];
     const float tmp49 = tmp48 * carry[6];
     const float tmp50 = tmp45 - tmp49;
     const float tmp51 = tmp43 * carry[9];
-    const float tmp52 = P_zz[15] - tmp51;
+    const float tmp52 = P_zz[12] - tmp51;
     const float tmp53 = tmp48 * carry[10];
     const float tmp54 = tmp52 - tmp53;
     const float tmp55 = tmp54 * carry[12];
     const float tmp56 = tmp55 * carry[13];
     const float tmp57 = tmp50 - tmp56;
     const float tmp58 = tmp43 * tmp43;
-    const float tmp59 = P_zz[21] - tmp58;
+    const float tmp59 = P_zz[15] - tmp58;
     const float tmp60 = tmp48 * tmp48;
     const float tmp61 = tmp59 - tmp60;
     const float tmp62 = tmp55 * tmp55;
@@ -2362,22 +2333,22 @@ static void adukf_k_gain_part1(const float P_zz[36], const float zdiff[24], cons
     carry[23] = tmp79;
 }
 
-static void adukf_k_gain_part2(const float P_zz[36], const float residual[6], float carry[53])
+static void adukf_k_gain_part2(const float P_zz[21], const float residual[6], float carry[53])
 {
     const float tmp80 = carry[22] * carry[3];
-    const float tmp81 = P_zz[10] - tmp80;
+    const float tmp81 = P_zz[9] - tmp80;
     const float tmp82 = tmp81 * carry[5];
     const float tmp83 = tmp82 * carry[6];
     const float tmp84 = carry[23] - tmp83;
     const float tmp85 = carry[22] * carry[9];
-    const float tmp86 = P_zz[16] - tmp85;
+    const float tmp86 = P_zz[13] - tmp85;
     const float tmp87 = tmp82 * carry[10];
     const float tmp88 = tmp86 - tmp87;
     const float tmp89 = tmp88 * carry[12];
     const float tmp90 = tmp89 * carry[13];
     const float tmp91 = tmp84 - tmp90;
     const float tmp92 = carry[22] * carry[14];
-    const float tmp93 = P_zz[22] - tmp92;
+    const float tmp93 = P_zz[16] - tmp92;
     const float tmp94 = tmp82 * carry[15];
     const float tmp95 = tmp93 - tmp94;
     const float tmp96 = tmp89 * carry[16];
@@ -2386,7 +2357,7 @@ static void adukf_k_gain_part2(const float P_zz[36], const float residual[6], fl
     const float tmp99 = tmp98 * carry[19];
     const float tmp100 = tmp91 - tmp99;
     const float tmp101 = carry[22] * carry[22];
-    const float tmp102 = P_zz[28] - tmp101;
+    const float tmp102 = P_zz[18] - tmp101;
     const float tmp103 = tmp82 * tmp82;
     const float tmp104 = tmp102 - tmp103;
     const float tmp105 = tmp89 * tmp89;
@@ -2414,7 +2385,7 @@ static void adukf_k_gain_part2(const float P_zz[36], const float residual[6], fl
     carry[30] = tmp119;
 }
 
-static void adukf_k_gain_part3(const float P_zz[36], const float zdiff[24], float carry[53])
+static void adukf_k_gain_part3(const float P_zz[21], const float zdiff[24], float carry[53])
 {
     const float tmp120 = carry[29] - carry[30];
     const float tmp121 = tmp120 * carry[27];
@@ -2424,19 +2395,19 @@ static void adukf_k_gain_part3(const float P_zz[36], const float zdiff[24], floa
     const float tmp125 = tmp124 * carry[1];
     const float tmp126 = zdiff[5] - tmp125;
     const float tmp127 = tmp124 * carry[3];
-    const float tmp128 = P_zz[11] - tmp127;
+    const float tmp128 = P_zz[10] - tmp127;
     const float tmp129 = tmp128 * carry[5];
     const float tmp130 = tmp129 * carry[6];
     const float tmp131 = tmp126 - tmp130;
     const float tmp132 = tmp124 * carry[9];
-    const float tmp133 = P_zz[17] - tmp132;
+    const float tmp133 = P_zz[14] - tmp132;
     const float tmp134 = tmp129 * carry[10];
     const float tmp135 = tmp133 - tmp134;
     const float tmp136 = tmp135 * carry[12];
     const float tmp137 = tmp136 * carry[13];
     const float tmp138 = tmp131 - tmp137;
     const float tmp139 = tmp124 * carry[14];
-    const float tmp140 = P_zz[23] - tmp139;
+    const float tmp140 = P_zz[17] - tmp139;
     const float tmp141 = tmp129 * carry[15];
     const float tmp142 = tmp140 - tmp141;
     const float tmp143 = tmp136 * carry[16];
@@ -2445,7 +2416,7 @@ static void adukf_k_gain_part3(const float P_zz[36], const float zdiff[24], floa
     const float tmp146 = tmp145 * carry[19];
     const float tmp147 = tmp138 - tmp146;
     const float tmp148 = tmp124 * carry[22];
-    const float tmp149 = P_zz[29] - tmp148;
+    const float tmp149 = P_zz[19] - tmp148;
     const float tmp150 = tmp129 * carry[23];
     const float tmp151 = tmp149 - tmp150;
     const float tmp152 = tmp136 * carry[24];
@@ -2467,9 +2438,9 @@ static void adukf_k_gain_part3(const float P_zz[36], const float zdiff[24], floa
     carry[36] = tmp159;
 }
 
-static void adukf_k_gain_part4(const float P_zz[36], const float zdiff[24], const float residual[6], float carry[53])
+static void adukf_k_gain_part4(const float P_zz[21], const float zdiff[24], const float residual[6], float carry[53])
 {
-    const float tmp160 = P_zz[35] - carry[36];
+    const float tmp160 = P_zz[20] - carry[36];
     const float tmp161 = carry[31] * carry[31];
     const float tmp162 = tmp160 - tmp161;
     const float tmp163 = carry[32] * carry[32];
@@ -2820,7 +2791,7 @@ static void adukf_k_gain_part10(float carry[53])
     carry[19] = tmp439;
 }
 
-static void adukf_k_gain_part11(const float P_zz[36], float carry[53])
+static void adukf_k_gain_part11(const float P_zz[21], float carry[53])
 {
     const float tmp440 = carry[3] * carry[3];
     const float tmp441 = carry[19] + tmp440;
@@ -2845,7 +2816,7 @@ static void adukf_k_gain_part11(const float P_zz[36], float carry[53])
 #if defined(__GNUC__)
 __attribute__((noinline))
 #endif
-static void adukf_k_gain(const float P_zz[36], const float zdiff[24], const float residual[6], float g[4], float G[10], float *pivot_zz)
+static void adukf_k_gain(const float P_zz[21], const float zdiff[24], const float residual[6], float g[4], float G[10], float *pivot_zz)
 {
     /* 12 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
     float carry[53];
@@ -3776,7 +3747,7 @@ void adukf_init(adukf_state *s)
     s->accel_lp[0] = 0.0f;
     s->accel_lp[1] = 0.0f;
     s->accel_lp[2] = 0.0f;
-    for (uint32_t i = 0u; i < 148u; i++) {
+    for (uint32_t i = 0u; i < 130u; i++) {
         s->work[i] = 0.0f;
     }
     s->learn_sum = 0.0f;
@@ -3832,9 +3803,9 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
      * covariance: reset, or replaced by the update's result, below. The step's matrices live in
      * s->work (scratch, no meaning between steps), so its stack frame holds scalars and vectors. */
     float *const P_pred = s->work;
-    float *const x_pred = s->work + 134;
-    float *const x_new = s->work + 141;
-    bool updated = false;   /* the measurement update was applied (its R goes to r_diag) */
+    float *const x_pred = s->work + 116;
+    float *const x_new = s->work + 123;
+    bool updated = false;   /* the measurement update was applied (r_diag keeps its R) */
     adukf_k_predict(s->q, s->gyro_bias, s->P, in->gyro, dt, x_pred, x_new, P_pred);
     for (uint32_t i = 4u; i < 7u; i++) {
         x_new[i] = x_pred[i];
@@ -3871,32 +3842,37 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
         float *const zdiff = s->work + 62;
         float *const zsum = s->work + 86;
         float *const P_zz = s->work + 86;
-        float *const residual = s->work + 122;
-        float *const r_upd = s->work + 128;
+        float *const residual = s->work + 110;
         float *const G = s->work + 62;
-        float *const g = s->work + 122;
+        float *const g = s->work + 110;
         float pivot_p;
         adukf_k_sigma_setup(x_pred, P_pred, s->m_ref, aL, z0, &pivot_p);
         for (uint32_t j = 0u; j < 4u; j++) {
             /* the sigma points q- +- a L[0:4, j] */
             adukf_k_sigma_pair(x_pred, aL + 7u * j, s->m_ref, z0, zsum + 6u * j, zdiff + 6u * j);
         }
-        adukf_k_innovation(z0, zsum, zdiff, accel_in, mag_in, dt, span, P_zz, residual, r_upd);
+        adukf_k_innovation(z0, zsum, zdiff, accel_in, mag_in, dt, span, P_zz, residual,
+                                  s->r_diag);   /* zeroed below unless the update is applied */
         if (!use_accel || !use_mag) {
             /* An unusable sensor is masked out exactly: identity block in P_zz, zero rows of the
              * pairs' differences (so zero cross-covariance), residual and R, so its columns of the
              * gain are exactly zero. */
+            uint32_t k = 0u;    /* P_zz is its lower triangle, packed column by column */
+            for (uint32_t c = 0u; c < 6u; c++) {
+                const bool use_c = (c < 3u) ? use_accel : use_mag;
+                for (uint32_t r = c; r < 6u; r++) {
+                    const bool use_r = (r < 3u) ? use_accel : use_mag;
+                    if (!use_r || !use_c) {
+                        P_zz[k] = (r == c) ? 1.0f : 0.0f;
+                    }
+                    k++;
+                }
+            }
             for (uint32_t r = 0u; r < 6u; r++) {
                 const bool use_r = (r < 3u) ? use_accel : use_mag;
-                for (uint32_t c = 0u; c < 6u; c++) {
-                    const bool use_c = (c < 3u) ? use_accel : use_mag;
-                    if (!use_r || !use_c) {
-                        P_zz[r + 6u * c] = (r == c) ? 1.0f : 0.0f;
-                    }
-                }
                 if (!use_r) {
                     residual[r] = 0.0f;
-                    r_upd[r] = 0.0f;
+                    s->r_diag[r] = 0.0f;
                     for (uint32_t j = 0u; j < 4u; j++) {
                         zdiff[r + 6u * j] = 0.0f;
                     }
@@ -3906,7 +3882,7 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
         if (!(pivot_p > ADUKF_PIVOT_MIN)) {
             /* P- is no longer positive definite (round-off, bad input): restart it. */
             status |= ADUKF_COV_RESET;
-            for (uint32_t i = 28u; i < 134u; i++) {
+            for (uint32_t i = 28u; i < 116u; i++) {
                 s->work[i] = 0.0f;   /* the update's scratch may hold non-finite values */
             }
             for (uint32_t i = 0u; i < 28u; i++) {
@@ -3925,7 +3901,7 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
             adukf_k_gain(P_zz, zdiff, residual, g, G, &pivot_zz);
             if (!(pivot_zz > ADUKF_PIVOT_MIN)) {
                 status |= ADUKF_UPDATE_SKIPPED;
-                for (uint32_t i = 28u; i < 134u; i++) {
+                for (uint32_t i = 28u; i < 116u; i++) {
                     s->work[i] = 0.0f;   /* the update's scratch may hold non-finite values */
                 }
             } else {
@@ -3948,7 +3924,7 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
     nonfinite += P_pred[25] * 0.0f + P_pred[26] * 0.0f;
     nonfinite += P_pred[27] * 0.0f;
     if (isnan(nonfinite)) {
-        for (uint32_t i = 0u; i < 148u; i++) {
+        for (uint32_t i = 0u; i < 130u; i++) {
             s->work[i] = 0.0f;   /* no scratch value outlives a refused result */
         }
         for (uint32_t i = 0u; i < 6u; i++) {
@@ -3992,8 +3968,10 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
     s->P[40] = P_pred[25];
     s->P[41] = s->P[47] = P_pred[26];
     s->P[48] = P_pred[27];
-    for (uint32_t i = 0u; i < 6u; i++) {
-        s->r_diag[i] = updated ? s->work[128u + i] : 0.0f;   /* r_upd */
+    if (!updated) {
+        for (uint32_t i = 0u; i < 6u; i++) {
+            s->r_diag[i] = 0.0f;
+        }
     }
 
     return status;

@@ -116,7 +116,8 @@ class Model(FilterModel):
         derived (the template reads them): P_pred first (its lower triangle, packed: linalg's
         packed_lower_pairs); then the update's floats: the
         sigma points' aL and z0, the pairs' differences and sums (zdiff, zsum); P_zz over zsum
-        (the innovation kernel reads all its inputs before it writes), the residual and R; G
+        (its lower triangle, packed; the innovation kernel reads all its inputs before it
+        writes) and the residual (R goes to the state's r_diag directly); G
         and g over zdiff and the residual (the gain kernel reads them before it writes); then x_pred and
         x_new (bias state); `update_end` ends the update's floats, `size` the whole scratch."""
         n = self.n
@@ -125,9 +126,8 @@ class Model(FilterModel):
         at["zdiff"] = at["z0"] + 6
         at["zsum"] = at["zdiff"] + 6 * N
         at["P_zz"] = at["zsum"]
-        at["residual"] = at["P_zz"] + max(36, 6 * N)
-        at["r_upd"] = at["residual"] + 6
-        at["update_end"] = at["r_upd"] + 6
+        at["residual"] = at["P_zz"] + max(21, 6 * N)
+        at["update_end"] = at["residual"] + 6
         at["G"] = at["zdiff"]          # written by gain, which reads zdiff
         at["g"] = at["residual"]       # written by gain, which reads the residual
         at["x_pred"] = at["update_end"]
@@ -163,17 +163,21 @@ class Model(FilterModel):
         if n == 7:
             q, b = x[:4], x[4:]
             w = w - b
-        A = ca.SX.eye(N) + 0.5 * dt * omega_matrix(w)
-        c_n = 1.0
+        A1 = ca.SX.eye(N) + 0.5 * dt * omega_matrix(w)
+        c_n = c_sq = 1.0
         if not p["faithful"]:
-            # A / sqrt(1 + |ω|²dt²/4), written as a product with sqrt(1/x): one division
-            c_n = ca.sqrt(1 / (1 + 0.25 * dt * dt * ca.sumsqr(w)))
-            A = A * c_n
-        qm = ca.mtimes(A, q)
+            # A = c A1, c = 1 / sqrt(1 + |ω|²dt²/4) written as sqrt(1/x): one division. c² = 1/x
+            # is written h + h with h = 0.5/x (exactly 1/x): CasADi turns y * (1/x) into y / x,
+            # and the products by c² below should stay multiplications.
+            half = 0.5 / (1 + 0.25 * dt * dt * ca.sumsqr(w))
+            c_sq = half + half
+            c_n = ca.sqrt(c_sq)
         Q = (p["gyro_noise"] ** 2 * 0.25 * dt) * (ca.SX.eye(N) - ca.mtimes(q, q.T)) + p["q_floor"] * dt * ca.SX.eye(N)
         Ps = linalg.lower_symmetric(P)
         Pm = ca.SX.zeros(n, n)
         if n == 4:
+            A = A1 * c_n
+            qm = ca.mtimes(A, q)
             AP = ca.mtimes(A, Ps)
             for r in range(N):
                 for c in range(r + 1):
@@ -183,18 +187,21 @@ class Model(FilterModel):
         # bias state: x⁻ = [A(ω - b) q; b], F = [[A, G], [0, I3]] with
         # G = ∂q⁻/∂b = -∂q⁻/∂w = -(c dt/2 Ξ(q) - c² dt²/4 q⁻ wᵀ) (c: A's normalisation;
         # reference.py, test_bias_state_jacobian_matches_finite_differences), bias random walk in Q.
-        # F P Fᵀ by blocks: M = F[0:4, :] P (4 x 7) gives the q-q block M F[0:4, :]ᵀ (lower
-        # triangle) and the q-b block M[:, 4:7] (P symmetric); the b-b block is P_bb.
-        G = -(c_n * 0.5 * dt) * xi_matrix(q) + ca.mtimes((c_n * c_n * 0.25 * dt * dt) * qm, w.T)
-        F4 = ca.horzcat(A, G)
-        M = ca.mtimes(F4, Ps)
+        # c is factored out: A = c A1 (A1 = I4 + dt/2 Ω(ω), ones on its diagonal), G = c G1, so
+        # F[0:4, :] = c F1 with F1 = [A1, G1]. F P Fᵀ by blocks: M1 = F1 P (4 x 7) gives the q-q
+        # block c² M1 F1ᵀ (lower triangle) and the q-b block c M1[:, 4:7] (P symmetric); the
+        # b-b block is P_bb.
+        qm = c_n * ca.mtimes(A1, q)
+        G1 = -(0.5 * dt) * xi_matrix(q) + ca.mtimes((c_n * 0.25 * dt * dt) * qm, w.T)
+        F1 = ca.horzcat(A1, G1)
+        M1 = ca.mtimes(F1, Ps)
         Qb = p["bias_rw"] ** 2 * dt + p["q_floor"] * dt
         for r in range(n):
             for c in range(r + 1):
                 if r < N:
-                    Pm[r, c] = ca.mtimes(M[r, :], F4[c, :].T) + Q[r, c]
+                    Pm[r, c] = c_sq * ca.mtimes(M1[r, :], F1[c, :].T) + Q[r, c]
                 elif c < N:
-                    Pm[r, c] = M[c, r]
+                    Pm[r, c] = c_n * M1[c, r]
                 else:
                     Pm[r, c] = Ps[r, c] + (Qb if r == c else 0.0)
                 Pm[c, r] = Pm[r, c]
@@ -324,7 +331,8 @@ class Model(FilterModel):
         restart = ca.SX.sym("restart")
         f_n = quat.rotate(qn, f)
         a_lp_new = aiding.lowpass(ca.if_else(restart, f_n, a_lp), f_n, dt, p["accel_tau"])
-        Pzz = ca.SX.sym("P_zz", 6, 6)
+        Pzz_packed = ca.SX.sym("P_zz", 21)        # lower triangle, packed (linalg)
+        Pzz = linalg.unpack_symmetric(Pzz_packed, 6)
         eps = ca.SX.sym("residual", 6)
         span = ca.SX.sym("span", 2)            # time each sample stands for: accel, mag
         rated = self.own_rates()
@@ -366,10 +374,10 @@ class Model(FilterModel):
             KernelSpec("innovation", function("innovation", {"z0": z0, "zsum": zsum, "zdiff": zdiff,
                                                              "accel": f, "mag": m,
                                                              **({"dt": dt, "span": span} if rated else {})},
-                                              {"P_zz": Pzz_e, "residual": eps_e, "r_diag": r_e}),
+                                              {"P_zz": linalg.pack_lower(Pzz_e), "residual": eps_e, "r_diag": r_e}),
                        "predicted measurement, residual, adaptive per-axis R and P_zz from the sigma "
                        "pairs' sums and differences of deviations", noinline=True),
-            KernelSpec("gain", function("gain", {"P_zz": Pzz, "zdiff": zdiff, "residual": eps},
+            KernelSpec("gain", function("gain", {"P_zz": Pzz_packed, "zdiff": zdiff, "residual": eps},
                                         {"g": g_e, "G": G_e, "pivot_zz": piv_zz}),
                        "with L = chol(P_zz), W = L^-1 D (D the pairs' differences) and v = L^-1 eps: "
                        "g = Wi W^T v and G = Wi^2 W^T W (lower triangle, packed), so that K eps = aL g and "
