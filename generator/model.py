@@ -152,6 +152,8 @@ class KernelSpec:
     flags: tuple = ()     # inputs holding 0 or 1: emitted as bool (emit.emit's flags)
     noinline: bool = False  # GCC/clang: never inlined into its caller, so its stack frame does not add
     #                         to the caller's (a step calling several large kernels once each)
+    early_writes: bool = False  # outputs stored as soon as computed, arrays declared restrict
+    #                             (emit's early_writes): no output may overlap an input or output
 
 
 @dataclass

@@ -200,12 +200,13 @@ def render(cfg: BuildConfig, names: bool = True) -> Generated:
     kernels, kctx = [], []
     for ks in specs:
         k = emit.emit(ks.function, real, name=f"{prefix}_k_{ks.name}", doc="", context=context,
-                      math=cfg.math, fma=cfg.fma, flags=ks.flags, names=kernel_names.get(ks.name))
+                      math=cfg.math, fma=cfg.fma, flags=ks.flags, names=kernel_names.get(ks.name),
+                      early_writes=ks.early_writes)
         extra = [a.name for a in k.inputs if a.name.startswith(emit.RUNTIME_PREFIX) and a.expr is None]
         if extra:
             raise ConfigError(f"kernel {ks.name}: free symbol(s) {', '.join(extra)} are not runtime parameters")
         kernels.append(k)
-        kctx.append({"name": ks.name, "doc": ks.doc, "code": k.source(storage=_storage(ks, k)),
+        kctx.append({"name": ks.name, "doc": ks.doc + (_EARLY_WRITES_NOTE if ks.early_writes else ""), "code": k.source(storage=_storage(ks, k)),
                      "ops_text": ", ".join(f"{n} {c}" for n, c in k.ops.items() if c) + f" (total {k.ops_total})"
                      + "".join(f"\n *      of which only one side runs: if ({b['condition']}) {sum(b['then'].values())}, "
                                f"else {sum(b['else'].values())}" for b in k.branches)})
@@ -362,6 +363,10 @@ def render(cfg: BuildConfig, names: bool = True) -> Generated:
 # A kernel the model marks noinline: GCC and clang keep it a call (its frame then does not add to
 # its caller's when the caller calls several large kernels once each); other compilers ignore it.
 NOINLINE = "#if defined(__GNUC__)\n__attribute__((noinline))\n#endif\n"
+
+
+# The caller's rule for a kernel that stores its outputs as soon as computed (KernelSpec.early_writes).
+_EARLY_WRITES_NOTE = "; outputs are stored as soon as computed (arrays restrict): no argument may overlap an output"
 
 
 def _storage(ks, k) -> str:

@@ -227,6 +227,31 @@ def test_split_kernel_equals_the_unsplit_one_bit_for_bit(tmp_path):
     assert list(arr) == _run1(lib, "whole", 2, [16, 4], [a, bb])[1]
 
 
+def test_early_writes_store_outputs_where_computed_bit_for_bit(tmp_path):
+    """early_writes: each output stored right after its value (also from inside a split
+    kernel's parts), arrays restrict; the same bits as the kernel that stores at its end."""
+    A, b = ca.SX.sym("A", 4, 4), ca.SX.sym("b", 4)
+    M = A
+    for _ in range(3):
+        M = ca.mtimes(M, A) / (1 + ca.sumsqr(M))
+    fn = emit.function("big", {"A": A, "b": b}, {"M": M, "r": ca.mtimes(M, b) + ca.sin(b)})
+    late = emit.emit(fn, "double", name="late", split_temps=None)
+    early = emit.emit(fn, "double", name="early", split_temps=None, early_writes=True)
+    split = emit.emit(fn, "double", name="early_split", split_temps=40, early_writes=True)
+    assert "restrict" in early.prototype() and "restrict" not in late.prototype()
+    first_write = next(i for i, ln in enumerate(early.body) if ln.startswith("M["))
+    last_def = max(i for i, ln in enumerate(early.body) if ln.startswith("const double"))
+    assert first_write < last_def
+    assert any(re.search(r"^\s*M\[\d+\] = ", p, re.M) for p in split.parts)
+    lib = _build([late, early, split], "double", tmp_path)
+    rng = np.random.default_rng(4)
+    for _ in range(20):
+        a, bb = rng.normal(size=16).tolist(), rng.normal(size=4).tolist()
+        ref = _run1(lib, "late", 2, [16, 4], [a, bb])
+        assert _run1(lib, "early", 2, [16, 4], [a, bb]) == ref
+        assert _run1(lib, "early_split", 2, [16, 4], [a, bb]) == ref
+
+
 def test_fma_option_fuses_products_into_sums_and_rounds_once(tmp_path):
     a, b, c = ca.SX.sym("a"), ca.SX.sym("b"), ca.SX.sym("c")
     fn = emit.function("fm", {"a": a, "b": b, "c": c}, {"o": ca.vertcat(a * b + c, c - a * b, a * b - c)})

@@ -67,6 +67,7 @@ class Kernel:
     branches: list[dict] = field(default_factory=list)  # if/else blocks: condition, ops of each side
     parts: list[str] = field(default_factory=list)      # sources of the part functions of a split kernel
     context: str | None = None    # leading parameter declaration, e.g. "const att_params *par"
+    restrict: bool = False        # arrays declared restrict (emit's early_writes)
 
     @property
     def ops_total(self) -> int:
@@ -75,13 +76,14 @@ class Kernel:
     def prototype(self, storage: str = "static ") -> str:
         real = self.precision
         params = [self.context] if self.context else []
+        r = "restrict " if self.restrict else ""
         for a in self.inputs:
             if a.expr is not None:
                 continue
-            params.append(a.param(real))
+            params.append(a.param(real).replace("[", "[" + r))
         for a in self.outputs:
             ctype = "bool" if a.flag else real
-            params.append(f"{ctype} *{a.name}" if a.scalar else f"{ctype} {a.name}[{a.size}]")
+            params.append(f"{ctype} *{r}{a.name}" if a.scalar else f"{ctype} {a.name}[{r}{a.size}]")
         return f"{storage}void {self.name}({', '.join(params)})"
 
     def source(self, storage: str = "static ", indent: str = "    ") -> str:
@@ -108,7 +110,8 @@ def _check_name(name: str, what: str) -> None:
 def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc: str = "",
          math: str = "libm", branch_min_cost: int | None = BRANCH_MIN_COST, fma: bool = False,
          split_temps: int | None = SPLIT_TEMPS, context: tuple[str, dict] | None = None,
-         flags: tuple[str, ...] | list[str] = (), names: dict[int, str] | None = None) -> Kernel:
+         flags: tuple[str, ...] | list[str] = (), names: dict[int, str] | None = None,
+         early_writes: bool = False) -> Kernel:
     """Emit an SX Function as a C function body for the given precision.
 
     ``math="fast"`` (float only; double always uses libm) writes fastmath helpers for the
@@ -124,6 +127,13 @@ def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc
     declared bool and tested as conditions, never compared with 0.0f. Comparisons and their
     logic (<, <=, ==, !=, &&, ||, !) become bool temporaries too; where one is used as a number
     it is converted explicitly, (float)x.
+
+    early_writes: store each output element as soon as its value is computed, instead of all
+    outputs after all inputs are read, and declare the arrays `restrict` (C99): no output may
+    then overlap an input or another output, which the caller must keep (without early_writes
+    an output may overlay an input: every input is read before any output is written). A
+    kernel with many outputs then does not hold them all until its end, where GCC spills what
+    its registers cannot hold, and the compiler may order loads and stores freely.
 
     names: {instruction index: text} for OP_CONST instructions that are a folded parameter
     expression (generator/folded.py); the literal is written with the text in a comment
@@ -310,6 +320,8 @@ def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc
         for c in nodes[t].get("extra_ops", ()):
             ops[c] += 1
     body, emitted, branches, tops = _layout(kept, nodes, writes, precision, branch_min_cost, marks.plain)
+    if early_writes:
+        body, tops, writes = _place_writes_early(body, tops, writes)
     # Renumber in emission order so the temporaries count up without gaps.
     rename = {t: f"tmp{i}" for i, t in enumerate(emitted)}
     sub = lambda s: _TMP_RE.sub(lambda m: rename[m.group(0)], s)  # noqa: E731
@@ -318,7 +330,7 @@ def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc
     ctx_decl = context[0] if context and reads_context else None
     if split_temps and len(emitted) > split_temps:
         body, parts = _split(name, precision, inputs, body, writes, tops, split_temps, ctx_decl,
-                             frozenset(t for t in kept if nodes[t]["ctype"] == "bool"))
+                             frozenset(t for t in kept if nodes[t]["ctype"] == "bool"), outputs)
         body, parts = [sub(line) for line in body], [sub(p) for p in parts]
     else:
         body = [sub(line) for line in body] + [sub(line) for line in writes]
@@ -328,7 +340,25 @@ def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc
     unused = [a.name for i, a in enumerate(inputs) if i not in used_inputs and a.expr is None]
     used = {h for h in helpers if any(fastmath.HELPERS[h].name + "(" in nodes[t]["expr"] for t in kept)}
     return Kernel(name, precision, inputs, outputs, body, ops, doc, len(kept), unused, helpers=sorted(used),
-                  branches=branches, parts=parts, context=ctx_decl)
+                  branches=branches, parts=parts, context=ctx_decl, restrict=early_writes)
+
+
+def _place_writes_early(body, tops, writes):
+    """Each output write moved to just after the top-level statement that defines the last
+    temporary it reads (a write reading only inputs or literals: after the first statement).
+    Returns (body, tops, the writes left for the end: none unless the body is empty)."""
+    def_top = {t: k for k, (_, _, d) in enumerate(tops) for t in d}
+    if not tops:
+        return body, tops, writes
+    at: dict[int, list[str]] = {}
+    for w in writes:
+        at.setdefault(max([def_top[t] for t in _TMP_RE.findall(w)] + [0]), []).append(w)
+    new_body, new_tops = [], []
+    for k, (a, b, d) in enumerate(tops):
+        start = len(new_body)
+        new_body += body[a:b] + at.get(k, [])
+        new_tops.append((start, len(new_body), d))
+    return new_body, new_tops, []
 
 
 def _as_select(code, args, nodes):

@@ -8,14 +8,15 @@ from generator.emit.ops import _TMP_RE, literal
 _WORD = re.compile(r"\b[A-Za-z_]\w*\b")
 
 
-def _split(name, precision, inputs, body, writes, tops, size, ctx_decl=None, bools=frozenset()):
+def _split(name, precision, inputs, body, writes, tops, size, ctx_decl=None, bools=frozenset(), outputs=()):
     """Cut the top-level statements into parts of about `size` temporaries; each part is a
     static function that reads the kernel inputs it uses and the values earlier parts
     exported, and exports what later parts and the outputs read. The exported values live in
     one array `carry` in the kernel's frame; a slot is reused once the value in it is dead (its
     last reader is an earlier part, or the part writing the new value: a part writes its
     exports after all its reads), so the frame holds the values live at once, not every value
-    ever handed over. Returns the kernel's body and the parts' sources (temporaries as t<N>).
+    ever handed over. A part whose statements store outputs (emit's early_writes) takes those
+    outputs as parameters. Returns the kernel's body and the parts' sources (temporaries as t<N>).
     A bool temporary travels as 1 or 0 in its carry and is read back as carry > 0.5."""
     chunks, cur, count = [], [], 0
     for item in tops:
@@ -67,7 +68,10 @@ def _split(name, precision, inputs, body, writes, tops, size, ctx_decl=None, boo
         ins = [a for a in inputs if a.expr is None and a.name in words]
         ctx = ctx_decl is not None and any(a.expr is not None and a.expr in text for a in inputs)
         imported = {t: carried(t) for t in used[k] if t in producer and producer[t] < k}
-        params = ([ctx_decl] if ctx else []) + [a.param(real) for a in ins]
+        outs = [a for a in outputs if re.search(rf"^\*?{a.name}\b", text, re.M)]
+        params = ([ctx_decl] if ctx else []) + [a.param(real) for a in ins] + [
+            (f"{'bool' if a.flag else real} *{a.name}" if a.scalar else f"{'bool' if a.flag else real} {a.name}[{a.size}]")
+            for a in outs]
         if exports[k]:
             params.append(f"{real} carry[{pool}]")
         elif imported:
@@ -77,7 +81,8 @@ def _split(name, precision, inputs, body, writes, tops, size, ctx_decl=None, boo
                   else f"carry[{slot[t]}] = {t};" for t in exports[k]]
         pname = f"{name}_part{k}"
         parts.append(f"static void {pname}({', '.join(params)})\n{{\n" + "\n".join("    " + ln for ln in lines) + "\n}")
-        args = ([_WORD.findall(ctx_decl)[-1]] if ctx else []) + [a.name for a in ins] + (["carry"] if exports[k] or imported else [])
+        args = ([_WORD.findall(ctx_decl)[-1]] if ctx else []) + [a.name for a in ins] + [a.name for a in outs] + (
+            ["carry"] if exports[k] or imported else [])
         call_lines.append(f"{pname}({', '.join(args)});")
     out = [_TMP_RE.sub(lambda m: carried(m.group(0)), w) for w in writes]
     return call_lines + out, parts

@@ -361,12 +361,12 @@ class Model(FilterModel):
             KernelSpec("predict", function("predict", {**q_in, "P": P, "gyro": w, "dt": dt},
                                            {xs + "_pred": qm_e, "q_pred_unit": qn_e,
                                             "P_pred": linalg.pack_lower(Pm_e)}),
-                       "linear Kalman time update: q- = A q, P- = A P A^T + Q", noinline=True),
+                       "linear Kalman time update: q- = A q, P- = A P A^T + Q", noinline=True, early_writes=True),
             KernelSpec("sigma_setup", function("sigma_setup", {xs + "_pred": qm, "P_pred": Pm_packed, "m_ref": m_ref},
                                                {"aL": aL_e, "z0": z0_e, "pivot_P": piv_p}),
                        "L = chol(P-), aL = a L[:, 0:4] (the columns that move the attitude: a bias column "
                        "moves none, so 9 distinct sigma points), z0 = h(q-); pivot_P = smallest pivot of P-",
-                       noinline=True),
+                       noinline=True, early_writes=True),
             KernelSpec("sigma_pair", function("sigma_pair", {"q_pred": q4, "col": col, "m_ref": m_ref, "z0": z0},
                                               {"zsum": zs_e, "zdiff": zd_e}),
                        "sigma points q- + col and q- - col, each normalised and mapped through h, as "
