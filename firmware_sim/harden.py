@@ -541,7 +541,7 @@ def run_soak(gen_dir: str | Path, steps: int = 10_000_000, seed: int = 1, glitch
 # ---------------------------------------------------------------- cppcheck
 
 _KERNEL = re.compile(r"^static (?:inline )?void (\w+)\(([^\n]*)\)\n\{\n(.*?)\n\}\n", re.S | re.M)
-_PARAM = re.compile(r"^(const )?(float|double|uint32_t|int|\w+) (\*)?(\w+)(?:\[(\d+)\])?$")
+_PARAM = re.compile(r"^(const )?(float|double|uint32_t|int|\w+) (\*)?(?:restrict )?(\w+)(?:\[(?:restrict )?(\d+)\])?$")
 
 
 def emitted_kernels(text: str, prefix: str) -> list[dict]:
