@@ -1518,9 +1518,9 @@ static void adukf_k_sigma_pair(const float q_pred[4], const float col[4], const 
     zdiff[5] = carry[9];
 }
 
-/* predicted measurement, residual, adaptive per-axis R and P_zz from the sigma pairs' sums and differences of deviations
+/* predicted measurement, residual, adaptive per-axis R and P_zz from the sigma pairs' sums and differences of deviations; outputs are stored as soon as computed (arrays restrict): no argument may overlap an output
  * ops: add 214, mul 246, div 4, sqrt 2, cmp 8 (total 474) */
-static void adukf_k_innovation_part0(const float z0[6], const float zsum[24], const float zdiff[24], const float accel[3], float dt, const float span[2], float carry[34])
+static void adukf_k_innovation_part0(const float z0[6], const float zsum[24], const float zdiff[24], const float accel[3], float dt, const float span[2], float P_zz[21], float residual[6], float r_diag[6], float carry[10])
 {
     const float tmp0 = zsum[0] * zsum[0];
     const float tmp1 = zdiff[0] * zdiff[0];
@@ -1554,6 +1554,7 @@ static void adukf_k_innovation_part0(const float z0[6], const float zsum[24], co
     const float tmp29 = accel[0] * tmp28;
     const float tmp30 = z0[0] + tmp19;
     const float tmp31 = tmp29 - tmp30;
+    residual[0] = tmp31;
     const float tmp32 = tmp31 * tmp31;
     const float tmp33 = 300.0f * tmp32;
     const float tmp34 = (tmp33 < 10.0f) ? tmp33 : 10.0f;
@@ -1561,16 +1562,15 @@ static void adukf_k_innovation_part0(const float z0[6], const float zsum[24], co
     const float tmp36 = dt / span[0];
     const float tmp37 = (tmp36 > 0.1f) ? tmp36 : 0.1f;
     const float tmp38 = tmp35 * tmp37;
+    r_diag[0] = tmp38;
     const float tmp39 = tmp21 + tmp38;
+    P_zz[0] = tmp39;
     carry[0] = tmp19;
     carry[1] = tmp28;
-    carry[2] = tmp31;
-    carry[3] = tmp37;
-    carry[4] = tmp38;
-    carry[5] = tmp39;
+    carry[2] = tmp37;
 }
 
-static void adukf_k_innovation_part1(const float zsum[24], const float zdiff[24], float carry[34])
+static void adukf_k_innovation_part1(const float zsum[24], const float zdiff[24], float P_zz[21], float carry[10])
 {
     const float tmp40 = zsum[1] * zsum[0];
     const float tmp41 = zdiff[1] * zdiff[0];
@@ -1594,6 +1594,7 @@ static void adukf_k_innovation_part1(const float zsum[24], const float zdiff[24]
     const float tmp59 = 0.071428575f * tmp58;
     const float tmp60 = tmp59 * carry[0];
     const float tmp61 = tmp55 + tmp60;
+    P_zz[1] = tmp61;
     const float tmp62 = zsum[2] * zsum[0];
     const float tmp63 = zdiff[2] * zdiff[0];
     const float tmp64 = tmp62 + tmp63;
@@ -1612,18 +1613,18 @@ static void adukf_k_innovation_part1(const float zsum[24], const float zdiff[24]
     const float tmp77 = 0.035714287f * tmp76;
     const float tmp78 = zsum[2] + zsum[8];
     const float tmp79 = tmp78 + zsum[14];
-    carry[6] = tmp59;
-    carry[7] = tmp61;
-    carry[8] = tmp77;
-    carry[9] = tmp79;
+    carry[3] = tmp59;
+    carry[4] = tmp77;
+    carry[5] = tmp79;
 }
 
-static void adukf_k_innovation_part2(const float zsum[24], const float zdiff[24], float carry[34])
+static void adukf_k_innovation_part2(const float zsum[24], const float zdiff[24], float P_zz[21], float carry[10])
 {
-    const float tmp80 = carry[9] + zsum[20];
+    const float tmp80 = carry[5] + zsum[20];
     const float tmp81 = 0.071428575f * tmp80;
     const float tmp82 = tmp81 * carry[0];
-    const float tmp83 = carry[8] + tmp82;
+    const float tmp83 = carry[4] + tmp82;
+    P_zz[2] = tmp83;
     const float tmp84 = zsum[3] * zsum[0];
     const float tmp85 = zdiff[3] * zdiff[0];
     const float tmp86 = tmp84 + tmp85;
@@ -1646,6 +1647,7 @@ static void adukf_k_innovation_part2(const float zsum[24], const float zdiff[24]
     const float tmp103 = 0.071428575f * tmp102;
     const float tmp104 = tmp103 * carry[0];
     const float tmp105 = tmp99 + tmp104;
+    P_zz[3] = tmp105;
     const float tmp106 = zsum[4] * zsum[0];
     const float tmp107 = zdiff[4] * zdiff[0];
     const float tmp108 = tmp106 + tmp107;
@@ -1660,17 +1662,15 @@ static void adukf_k_innovation_part2(const float zsum[24], const float zdiff[24]
     const float tmp117 = zsum[22] * zsum[18];
     const float tmp118 = zdiff[22] * zdiff[18];
     const float tmp119 = tmp117 + tmp118;
-    carry[8] = tmp81;
-    carry[9] = tmp83;
-    carry[10] = tmp103;
-    carry[11] = tmp105;
-    carry[12] = tmp116;
-    carry[13] = tmp119;
+    carry[4] = tmp81;
+    carry[5] = tmp103;
+    carry[6] = tmp116;
+    carry[7] = tmp119;
 }
 
-static void adukf_k_innovation_part3(const float zsum[24], const float zdiff[24], float carry[34])
+static void adukf_k_innovation_part3(const float zsum[24], const float zdiff[24], float P_zz[21], float carry[10])
 {
-    const float tmp120 = carry[12] + carry[13];
+    const float tmp120 = carry[6] + carry[7];
     const float tmp121 = 0.035714287f * tmp120;
     const float tmp122 = zsum[4] + zsum[10];
     const float tmp123 = tmp122 + zsum[16];
@@ -1678,6 +1678,7 @@ static void adukf_k_innovation_part3(const float zsum[24], const float zdiff[24]
     const float tmp125 = 0.071428575f * tmp124;
     const float tmp126 = tmp125 * carry[0];
     const float tmp127 = tmp121 + tmp126;
+    P_zz[4] = tmp127;
     const float tmp128 = zsum[5] * zsum[0];
     const float tmp129 = zdiff[5] * zdiff[0];
     const float tmp130 = tmp128 + tmp129;
@@ -1700,6 +1701,7 @@ static void adukf_k_innovation_part3(const float zsum[24], const float zdiff[24]
     const float tmp147 = 0.071428575f * tmp146;
     const float tmp148 = tmp147 * carry[0];
     const float tmp149 = tmp143 + tmp148;
+    P_zz[5] = tmp149;
     const float tmp150 = zsum[1] * zsum[1];
     const float tmp151 = zdiff[1] * zdiff[1];
     const float tmp152 = tmp150 + tmp151;
@@ -1711,32 +1713,33 @@ static void adukf_k_innovation_part3(const float zsum[24], const float zdiff[24]
     const float tmp158 = zdiff[13] * zdiff[13];
     const float tmp159 = tmp157 + tmp158;
     carry[0] = tmp125;
-    carry[12] = tmp127;
-    carry[13] = tmp147;
-    carry[14] = tmp149;
-    carry[15] = tmp156;
-    carry[16] = tmp159;
+    carry[6] = tmp147;
+    carry[7] = tmp156;
+    carry[8] = tmp159;
 }
 
-static void adukf_k_innovation_part4(const float z0[6], const float zsum[24], const float zdiff[24], const float accel[3], float carry[34])
+static void adukf_k_innovation_part4(const float z0[6], const float zsum[24], const float zdiff[24], const float accel[3], float P_zz[21], float residual[6], float r_diag[6], float carry[10])
 {
-    const float tmp160 = carry[15] + carry[16];
+    const float tmp160 = carry[7] + carry[8];
     const float tmp161 = zsum[19] * zsum[19];
     const float tmp162 = zdiff[19] * zdiff[19];
     const float tmp163 = tmp161 + tmp162;
     const float tmp164 = tmp160 + tmp163;
     const float tmp165 = 0.035714287f * tmp164;
-    const float tmp166 = carry[6] * carry[6];
+    const float tmp166 = carry[3] * carry[3];
     const float tmp167 = tmp165 + tmp166;
     const float tmp168 = accel[1] * carry[1];
-    const float tmp169 = z0[1] + carry[6];
+    const float tmp169 = z0[1] + carry[3];
     const float tmp170 = tmp168 - tmp169;
+    residual[1] = tmp170;
     const float tmp171 = tmp170 * tmp170;
     const float tmp172 = 300.0f * tmp171;
     const float tmp173 = (tmp172 < 10.0f) ? tmp172 : 10.0f;
     const float tmp174 = 0.0025f + tmp173;
-    const float tmp175 = tmp174 * carry[3];
+    const float tmp175 = tmp174 * carry[2];
+    r_diag[1] = tmp175;
     const float tmp176 = tmp167 + tmp175;
+    P_zz[6] = tmp176;
     const float tmp177 = zsum[2] * zsum[1];
     const float tmp178 = zdiff[2] * zdiff[1];
     const float tmp179 = tmp177 + tmp178;
@@ -1753,26 +1756,23 @@ static void adukf_k_innovation_part4(const float z0[6], const float zsum[24], co
     const float tmp190 = tmp188 + tmp189;
     const float tmp191 = tmp187 + tmp190;
     const float tmp192 = 0.035714287f * tmp191;
-    const float tmp193 = carry[8] * carry[6];
+    const float tmp193 = carry[4] * carry[3];
     const float tmp194 = tmp192 + tmp193;
+    P_zz[7] = tmp194;
     const float tmp195 = zsum[3] * zsum[1];
     const float tmp196 = zdiff[3] * zdiff[1];
     const float tmp197 = tmp195 + tmp196;
     const float tmp198 = zsum[9] * zsum[7];
     const float tmp199 = zdiff[9] * zdiff[7];
-    carry[15] = tmp170;
-    carry[16] = tmp175;
-    carry[17] = tmp176;
-    carry[18] = tmp194;
-    carry[19] = tmp197;
-    carry[20] = tmp198;
-    carry[21] = tmp199;
+    carry[7] = tmp197;
+    carry[8] = tmp198;
+    carry[9] = tmp199;
 }
 
-static void adukf_k_innovation_part5(const float zsum[24], const float zdiff[24], float carry[34])
+static void adukf_k_innovation_part5(const float zsum[24], const float zdiff[24], float P_zz[21], float carry[10])
 {
-    const float tmp200 = carry[20] + carry[21];
-    const float tmp201 = carry[19] + tmp200;
+    const float tmp200 = carry[8] + carry[9];
+    const float tmp201 = carry[7] + tmp200;
     const float tmp202 = zsum[15] * zsum[13];
     const float tmp203 = zdiff[15] * zdiff[13];
     const float tmp204 = tmp202 + tmp203;
@@ -1782,8 +1782,9 @@ static void adukf_k_innovation_part5(const float zsum[24], const float zdiff[24]
     const float tmp208 = tmp206 + tmp207;
     const float tmp209 = tmp205 + tmp208;
     const float tmp210 = 0.035714287f * tmp209;
-    const float tmp211 = carry[10] * carry[6];
+    const float tmp211 = carry[5] * carry[3];
     const float tmp212 = tmp210 + tmp211;
+    P_zz[8] = tmp212;
     const float tmp213 = zsum[4] * zsum[1];
     const float tmp214 = zdiff[4] * zdiff[1];
     const float tmp215 = tmp213 + tmp214;
@@ -1800,8 +1801,9 @@ static void adukf_k_innovation_part5(const float zsum[24], const float zdiff[24]
     const float tmp226 = tmp224 + tmp225;
     const float tmp227 = tmp223 + tmp226;
     const float tmp228 = 0.035714287f * tmp227;
-    const float tmp229 = carry[0] * carry[6];
+    const float tmp229 = carry[0] * carry[3];
     const float tmp230 = tmp228 + tmp229;
+    P_zz[9] = tmp230;
     const float tmp231 = zsum[5] * zsum[1];
     const float tmp232 = zdiff[5] * zdiff[1];
     const float tmp233 = tmp231 + tmp232;
@@ -1811,24 +1813,23 @@ static void adukf_k_innovation_part5(const float zsum[24], const float zdiff[24]
     const float tmp237 = tmp233 + tmp236;
     const float tmp238 = zsum[17] * zsum[13];
     const float tmp239 = zdiff[17] * zdiff[13];
-    carry[19] = tmp212;
-    carry[20] = tmp230;
-    carry[21] = tmp237;
-    carry[22] = tmp238;
-    carry[23] = tmp239;
+    carry[7] = tmp237;
+    carry[8] = tmp238;
+    carry[9] = tmp239;
 }
 
-static void adukf_k_innovation_part6(const float z0[6], const float zsum[24], const float zdiff[24], const float accel[3], float carry[34])
+static void adukf_k_innovation_part6(const float z0[6], const float zsum[24], const float zdiff[24], const float accel[3], float P_zz[21], float residual[6], float r_diag[6], float carry[10])
 {
-    const float tmp240 = carry[22] + carry[23];
-    const float tmp241 = carry[21] + tmp240;
+    const float tmp240 = carry[8] + carry[9];
+    const float tmp241 = carry[7] + tmp240;
     const float tmp242 = zsum[23] * zsum[19];
     const float tmp243 = zdiff[23] * zdiff[19];
     const float tmp244 = tmp242 + tmp243;
     const float tmp245 = tmp241 + tmp244;
     const float tmp246 = 0.035714287f * tmp245;
-    const float tmp247 = carry[13] * carry[6];
+    const float tmp247 = carry[6] * carry[3];
     const float tmp248 = tmp246 + tmp247;
+    P_zz[10] = tmp248;
     const float tmp249 = zsum[2] * zsum[2];
     const float tmp250 = zdiff[2] * zdiff[2];
     const float tmp251 = tmp249 + tmp250;
@@ -1845,34 +1846,33 @@ static void adukf_k_innovation_part6(const float z0[6], const float zsum[24], co
     const float tmp262 = tmp260 + tmp261;
     const float tmp263 = tmp259 + tmp262;
     const float tmp264 = 0.035714287f * tmp263;
-    const float tmp265 = carry[8] * carry[8];
+    const float tmp265 = carry[4] * carry[4];
     const float tmp266 = tmp264 + tmp265;
     const float tmp267 = accel[2] * carry[1];
-    const float tmp268 = z0[2] + carry[8];
+    const float tmp268 = z0[2] + carry[4];
     const float tmp269 = tmp267 - tmp268;
+    residual[2] = tmp269;
     const float tmp270 = tmp269 * tmp269;
     const float tmp271 = 300.0f * tmp270;
     const float tmp272 = (tmp271 < 10.0f) ? tmp271 : 10.0f;
     const float tmp273 = 0.0025f + tmp272;
-    const float tmp274 = tmp273 * carry[3];
+    const float tmp274 = tmp273 * carry[2];
+    r_diag[2] = tmp274;
     const float tmp275 = tmp266 + tmp274;
+    P_zz[11] = tmp275;
     const float tmp276 = zsum[3] * zsum[2];
     const float tmp277 = zdiff[3] * zdiff[2];
     const float tmp278 = tmp276 + tmp277;
     const float tmp279 = zsum[9] * zsum[8];
-    carry[1] = tmp248;
-    carry[3] = tmp269;
-    carry[6] = tmp274;
-    carry[21] = tmp275;
-    carry[22] = tmp278;
-    carry[23] = tmp279;
+    carry[1] = tmp278;
+    carry[2] = tmp279;
 }
 
-static void adukf_k_innovation_part7(const float zsum[24], const float zdiff[24], float carry[34])
+static void adukf_k_innovation_part7(const float zsum[24], const float zdiff[24], float P_zz[21], float carry[10])
 {
     const float tmp280 = zdiff[9] * zdiff[8];
-    const float tmp281 = carry[23] + tmp280;
-    const float tmp282 = carry[22] + tmp281;
+    const float tmp281 = carry[2] + tmp280;
+    const float tmp282 = carry[1] + tmp281;
     const float tmp283 = zsum[15] * zsum[14];
     const float tmp284 = zdiff[15] * zdiff[14];
     const float tmp285 = tmp283 + tmp284;
@@ -1882,8 +1882,9 @@ static void adukf_k_innovation_part7(const float zsum[24], const float zdiff[24]
     const float tmp289 = tmp287 + tmp288;
     const float tmp290 = tmp286 + tmp289;
     const float tmp291 = 0.035714287f * tmp290;
-    const float tmp292 = carry[10] * carry[8];
+    const float tmp292 = carry[5] * carry[4];
     const float tmp293 = tmp291 + tmp292;
+    P_zz[12] = tmp293;
     const float tmp294 = zsum[4] * zsum[2];
     const float tmp295 = zdiff[4] * zdiff[2];
     const float tmp296 = tmp294 + tmp295;
@@ -1900,8 +1901,9 @@ static void adukf_k_innovation_part7(const float zsum[24], const float zdiff[24]
     const float tmp307 = tmp305 + tmp306;
     const float tmp308 = tmp304 + tmp307;
     const float tmp309 = 0.035714287f * tmp308;
-    const float tmp310 = carry[0] * carry[8];
+    const float tmp310 = carry[0] * carry[4];
     const float tmp311 = tmp309 + tmp310;
+    P_zz[13] = tmp311;
     const float tmp312 = zsum[5] * zsum[2];
     const float tmp313 = zdiff[5] * zdiff[2];
     const float tmp314 = tmp312 + tmp313;
@@ -1910,24 +1912,23 @@ static void adukf_k_innovation_part7(const float zsum[24], const float zdiff[24]
     const float tmp317 = tmp315 + tmp316;
     const float tmp318 = tmp314 + tmp317;
     const float tmp319 = zsum[17] * zsum[14];
-    carry[22] = tmp293;
-    carry[23] = tmp311;
-    carry[24] = tmp318;
-    carry[25] = tmp319;
+    carry[1] = tmp318;
+    carry[2] = tmp319;
 }
 
-static void adukf_k_innovation_part8(const float z0[6], const float zsum[24], const float zdiff[24], const float mag[3], float carry[34])
+static void adukf_k_innovation_part8(const float z0[6], const float zsum[24], const float zdiff[24], const float mag[3], float P_zz[21], float residual[6], float carry[10])
 {
     const float tmp320 = zdiff[17] * zdiff[14];
-    const float tmp321 = carry[25] + tmp320;
-    const float tmp322 = carry[24] + tmp321;
+    const float tmp321 = carry[2] + tmp320;
+    const float tmp322 = carry[1] + tmp321;
     const float tmp323 = zsum[23] * zsum[20];
     const float tmp324 = zdiff[23] * zdiff[20];
     const float tmp325 = tmp323 + tmp324;
     const float tmp326 = tmp322 + tmp325;
     const float tmp327 = 0.035714287f * tmp326;
-    const float tmp328 = carry[13] * carry[8];
+    const float tmp328 = carry[6] * carry[4];
     const float tmp329 = tmp327 + tmp328;
+    P_zz[14] = tmp329;
     const float tmp330 = zsum[3] * zsum[3];
     const float tmp331 = zdiff[3] * zdiff[3];
     const float tmp332 = tmp330 + tmp331;
@@ -1944,7 +1945,7 @@ static void adukf_k_innovation_part8(const float z0[6], const float zsum[24], co
     const float tmp343 = tmp341 + tmp342;
     const float tmp344 = tmp340 + tmp343;
     const float tmp345 = 0.035714287f * tmp344;
-    const float tmp346 = carry[10] * carry[10];
+    const float tmp346 = carry[5] * carry[5];
     const float tmp347 = tmp345 + tmp346;
     const float tmp348 = mag[0] * mag[0];
     const float tmp349 = mag[1] * mag[1];
@@ -1954,25 +1955,26 @@ static void adukf_k_innovation_part8(const float z0[6], const float zsum[24], co
     const float tmp353 = 1.0f / tmp352;
     const float tmp354 = sqrtf(tmp353);
     const float tmp355 = mag[0] * tmp354;
-    const float tmp356 = z0[3] + carry[10];
+    const float tmp356 = z0[3] + carry[5];
     const float tmp357 = tmp355 - tmp356;
+    residual[3] = tmp357;
     const float tmp358 = tmp357 * tmp357;
     const float tmp359 = 300.0f * tmp358;
-    carry[8] = tmp329;
-    carry[24] = tmp347;
-    carry[25] = tmp354;
-    carry[26] = tmp357;
-    carry[27] = tmp359;
+    carry[1] = tmp347;
+    carry[2] = tmp354;
+    carry[3] = tmp359;
 }
 
-static void adukf_k_innovation_part9(const float zsum[24], const float zdiff[24], float dt, const float span[2], float carry[34])
+static void adukf_k_innovation_part9(const float zsum[24], const float zdiff[24], float dt, const float span[2], float P_zz[21], float r_diag[6], float carry[10])
 {
-    const float tmp360 = (carry[27] < 10.0f) ? carry[27] : 10.0f;
+    const float tmp360 = (carry[3] < 10.0f) ? carry[3] : 10.0f;
     const float tmp361 = 0.0025f + tmp360;
     const float tmp362 = dt / span[1];
     const float tmp363 = (tmp362 > 0.1f) ? tmp362 : 0.1f;
     const float tmp364 = tmp361 * tmp363;
-    const float tmp365 = carry[24] + tmp364;
+    r_diag[3] = tmp364;
+    const float tmp365 = carry[1] + tmp364;
+    P_zz[15] = tmp365;
     const float tmp366 = zsum[4] * zsum[3];
     const float tmp367 = zdiff[4] * zdiff[3];
     const float tmp368 = tmp366 + tmp367;
@@ -1989,8 +1991,9 @@ static void adukf_k_innovation_part9(const float zsum[24], const float zdiff[24]
     const float tmp379 = tmp377 + tmp378;
     const float tmp380 = tmp376 + tmp379;
     const float tmp381 = 0.035714287f * tmp380;
-    const float tmp382 = carry[0] * carry[10];
+    const float tmp382 = carry[0] * carry[5];
     const float tmp383 = tmp381 + tmp382;
+    P_zz[16] = tmp383;
     const float tmp384 = zsum[5] * zsum[3];
     const float tmp385 = zdiff[5] * zdiff[3];
     const float tmp386 = tmp384 + tmp385;
@@ -2007,17 +2010,15 @@ static void adukf_k_innovation_part9(const float zsum[24], const float zdiff[24]
     const float tmp397 = tmp395 + tmp396;
     const float tmp398 = tmp394 + tmp397;
     const float tmp399 = 0.035714287f * tmp398;
-    carry[24] = tmp363;
-    carry[27] = tmp364;
-    carry[28] = tmp365;
-    carry[29] = tmp383;
-    carry[30] = tmp399;
+    carry[1] = tmp363;
+    carry[3] = tmp399;
 }
 
-static void adukf_k_innovation_part10(const float z0[6], const float zsum[24], const float zdiff[24], const float mag[3], float carry[34])
+static void adukf_k_innovation_part10(const float z0[6], const float zsum[24], const float zdiff[24], const float mag[3], float P_zz[21], float residual[6], float r_diag[6], float carry[10])
 {
-    const float tmp400 = carry[13] * carry[10];
-    const float tmp401 = carry[30] + tmp400;
+    const float tmp400 = carry[6] * carry[5];
+    const float tmp401 = carry[3] + tmp400;
+    P_zz[17] = tmp401;
     const float tmp402 = zsum[4] * zsum[4];
     const float tmp403 = zdiff[4] * zdiff[4];
     const float tmp404 = tmp402 + tmp403;
@@ -2036,15 +2037,18 @@ static void adukf_k_innovation_part10(const float z0[6], const float zsum[24], c
     const float tmp417 = 0.035714287f * tmp416;
     const float tmp418 = carry[0] * carry[0];
     const float tmp419 = tmp417 + tmp418;
-    const float tmp420 = mag[1] * carry[25];
+    const float tmp420 = mag[1] * carry[2];
     const float tmp421 = z0[4] + carry[0];
     const float tmp422 = tmp420 - tmp421;
+    residual[4] = tmp422;
     const float tmp423 = tmp422 * tmp422;
     const float tmp424 = 300.0f * tmp423;
     const float tmp425 = (tmp424 < 10.0f) ? tmp424 : 10.0f;
     const float tmp426 = 0.0025f + tmp425;
-    const float tmp427 = tmp426 * carry[24];
+    const float tmp427 = tmp426 * carry[1];
+    r_diag[4] = tmp427;
     const float tmp428 = tmp419 + tmp427;
+    P_zz[18] = tmp428;
     const float tmp429 = zsum[5] * zsum[4];
     const float tmp430 = zdiff[5] * zdiff[4];
     const float tmp431 = tmp429 + tmp430;
@@ -2056,22 +2060,19 @@ static void adukf_k_innovation_part10(const float z0[6], const float zsum[24], c
     const float tmp437 = zdiff[17] * zdiff[16];
     const float tmp438 = tmp436 + tmp437;
     const float tmp439 = tmp435 + tmp438;
-    carry[10] = tmp401;
-    carry[30] = tmp422;
-    carry[31] = tmp427;
-    carry[32] = tmp428;
-    carry[33] = tmp439;
+    carry[3] = tmp439;
 }
 
-static void adukf_k_innovation_part11(const float z0[6], const float zsum[24], const float zdiff[24], const float mag[3], float carry[34])
+static void adukf_k_innovation_part11(const float z0[6], const float zsum[24], const float zdiff[24], const float mag[3], float P_zz[21], float residual[6], float r_diag[6], const float carry[10])
 {
     const float tmp440 = zsum[23] * zsum[22];
     const float tmp441 = zdiff[23] * zdiff[22];
     const float tmp442 = tmp440 + tmp441;
-    const float tmp443 = carry[33] + tmp442;
+    const float tmp443 = carry[3] + tmp442;
     const float tmp444 = 0.035714287f * tmp443;
-    const float tmp445 = carry[13] * carry[0];
+    const float tmp445 = carry[6] * carry[0];
     const float tmp446 = tmp444 + tmp445;
+    P_zz[19] = tmp446;
     const float tmp447 = zsum[5] * zsum[5];
     const float tmp448 = zdiff[5] * zdiff[5];
     const float tmp449 = tmp447 + tmp448;
@@ -2088,75 +2089,41 @@ static void adukf_k_innovation_part11(const float z0[6], const float zsum[24], c
     const float tmp460 = tmp458 + tmp459;
     const float tmp461 = tmp457 + tmp460;
     const float tmp462 = 0.035714287f * tmp461;
-    const float tmp463 = carry[13] * carry[13];
+    const float tmp463 = carry[6] * carry[6];
     const float tmp464 = tmp462 + tmp463;
-    const float tmp465 = mag[2] * carry[25];
-    const float tmp466 = z0[5] + carry[13];
+    const float tmp465 = mag[2] * carry[2];
+    const float tmp466 = z0[5] + carry[6];
     const float tmp467 = tmp465 - tmp466;
+    residual[5] = tmp467;
     const float tmp468 = tmp467 * tmp467;
     const float tmp469 = 300.0f * tmp468;
     const float tmp470 = (tmp469 < 10.0f) ? tmp469 : 10.0f;
     const float tmp471 = 0.0025f + tmp470;
-    const float tmp472 = tmp471 * carry[24];
+    const float tmp472 = tmp471 * carry[1];
+    r_diag[5] = tmp472;
     const float tmp473 = tmp464 + tmp472;
-    carry[0] = tmp446;
-    carry[13] = tmp467;
-    carry[24] = tmp472;
-    carry[25] = tmp473;
+    P_zz[20] = tmp473;
 }
 
 #if defined(__GNUC__)
 __attribute__((noinline))
 #endif
-static void adukf_k_innovation(const float z0[6], const float zsum[24], const float zdiff[24], const float accel[3], const float mag[3], float dt, const float span[2], float P_zz[21], float residual[6], float r_diag[6])
+static void adukf_k_innovation(const float z0[restrict 6], const float zsum[restrict 24], const float zdiff[restrict 24], const float accel[restrict 3], const float mag[restrict 3], float dt, const float span[restrict 2], float P_zz[restrict 21], float residual[restrict 6], float r_diag[restrict 6])
 {
     /* 12 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
-    float carry[34];
-    adukf_k_innovation_part0(z0, zsum, zdiff, accel, dt, span, carry);
-    adukf_k_innovation_part1(zsum, zdiff, carry);
-    adukf_k_innovation_part2(zsum, zdiff, carry);
-    adukf_k_innovation_part3(zsum, zdiff, carry);
-    adukf_k_innovation_part4(z0, zsum, zdiff, accel, carry);
-    adukf_k_innovation_part5(zsum, zdiff, carry);
-    adukf_k_innovation_part6(z0, zsum, zdiff, accel, carry);
-    adukf_k_innovation_part7(zsum, zdiff, carry);
-    adukf_k_innovation_part8(z0, zsum, zdiff, mag, carry);
-    adukf_k_innovation_part9(zsum, zdiff, dt, span, carry);
-    adukf_k_innovation_part10(z0, zsum, zdiff, mag, carry);
-    adukf_k_innovation_part11(z0, zsum, zdiff, mag, carry);
-    P_zz[0] = carry[5];
-    P_zz[1] = carry[7];
-    P_zz[2] = carry[9];
-    P_zz[3] = carry[11];
-    P_zz[4] = carry[12];
-    P_zz[5] = carry[14];
-    P_zz[6] = carry[17];
-    P_zz[7] = carry[18];
-    P_zz[8] = carry[19];
-    P_zz[9] = carry[20];
-    P_zz[10] = carry[1];
-    P_zz[11] = carry[21];
-    P_zz[12] = carry[22];
-    P_zz[13] = carry[23];
-    P_zz[14] = carry[8];
-    P_zz[15] = carry[28];
-    P_zz[16] = carry[29];
-    P_zz[17] = carry[10];
-    P_zz[18] = carry[32];
-    P_zz[19] = carry[0];
-    P_zz[20] = carry[25];
-    residual[0] = carry[2];
-    residual[1] = carry[15];
-    residual[2] = carry[3];
-    residual[3] = carry[26];
-    residual[4] = carry[30];
-    residual[5] = carry[13];
-    r_diag[0] = carry[4];
-    r_diag[1] = carry[16];
-    r_diag[2] = carry[6];
-    r_diag[3] = carry[27];
-    r_diag[4] = carry[31];
-    r_diag[5] = carry[24];
+    float carry[10];
+    adukf_k_innovation_part0(z0, zsum, zdiff, accel, dt, span, P_zz, residual, r_diag, carry);
+    adukf_k_innovation_part1(zsum, zdiff, P_zz, carry);
+    adukf_k_innovation_part2(zsum, zdiff, P_zz, carry);
+    adukf_k_innovation_part3(zsum, zdiff, P_zz, carry);
+    adukf_k_innovation_part4(z0, zsum, zdiff, accel, P_zz, residual, r_diag, carry);
+    adukf_k_innovation_part5(zsum, zdiff, P_zz, carry);
+    adukf_k_innovation_part6(z0, zsum, zdiff, accel, P_zz, residual, r_diag, carry);
+    adukf_k_innovation_part7(zsum, zdiff, P_zz, carry);
+    adukf_k_innovation_part8(z0, zsum, zdiff, mag, P_zz, residual, carry);
+    adukf_k_innovation_part9(zsum, zdiff, dt, span, P_zz, r_diag, carry);
+    adukf_k_innovation_part10(z0, zsum, zdiff, mag, P_zz, residual, r_diag, carry);
+    adukf_k_innovation_part11(z0, zsum, zdiff, mag, P_zz, residual, r_diag, carry);
 }
 
 /* with L = chol(P_zz), W = L^-1 D (D the pairs' differences) and v = L^-1 eps: g = Wi W^T v and G = Wi^2 W^T W (lower triangle, packed), so that K eps = aL g and K P_zz K^T = aL G aL^T (K, P_xz never formed); pivot_zz = smallest pivot of P_zz
@@ -2791,9 +2758,9 @@ static void adukf_k_gain(const float P_zz[21], const float zdiff[24], const floa
     *pivot_zz = carry[4];
 }
 
-/* x+ = x- + aL g = x- + K eps (q normalised), P+ = P- - aL G aL^T = P- - K P_zz K^T
+/* x+ = x- + aL g = x- + K eps (q normalised), P+ = P- - aL G aL^T = P- - K P_zz K^T; outputs are stored as soon as computed (arrays restrict): no argument may overlap an output
  * ops: add 155, mul 182, div 1, sqrt 1 (total 339) */
-static void adukf_k_correct_part0(const float x_pred[7], const float aL[28], const float g[4], float carry[41])
+static void adukf_k_correct_part0(const float x_pred[7], const float aL[28], const float g[4], float x_new[7], float carry[13])
 {
     const float tmp0 = aL[0] * g[0];
     const float tmp1 = x_pred[0] + tmp0;
@@ -2825,9 +2792,13 @@ static void adukf_k_correct_part0(const float x_pred[7], const float aL[28], con
     const float tmp27 = 1.0f / tmp26;
     const float tmp28 = sqrtf(tmp27);
     const float tmp29 = tmp1 * tmp28;
+    x_new[0] = tmp29;
     const float tmp30 = tmp6 * tmp28;
+    x_new[1] = tmp30;
     const float tmp31 = tmp14 * tmp28;
+    x_new[2] = tmp31;
     const float tmp32 = tmp24 * tmp28;
+    x_new[3] = tmp32;
     const float tmp33 = aL[4] * g[0];
     const float tmp34 = aL[11] * g[1];
     const float tmp35 = tmp33 + tmp34;
@@ -2835,16 +2806,13 @@ static void adukf_k_correct_part0(const float x_pred[7], const float aL[28], con
     const float tmp37 = tmp35 + tmp36;
     const float tmp38 = aL[25] * g[3];
     const float tmp39 = tmp37 + tmp38;
-    carry[0] = tmp29;
-    carry[1] = tmp30;
-    carry[2] = tmp31;
-    carry[3] = tmp32;
-    carry[4] = tmp39;
+    carry[0] = tmp39;
 }
 
-static void adukf_k_correct_part1(const float x_pred[7], const float P_pred[28], const float aL[28], const float g[4], const float G[10], float carry[41])
+static void adukf_k_correct_part1(const float x_pred[7], const float P_pred[28], const float aL[28], const float g[4], const float G[10], float x_new[7], float P_new[28], float carry[13])
 {
-    const float tmp40 = x_pred[4] + carry[4];
+    const float tmp40 = x_pred[4] + carry[0];
+    x_new[4] = tmp40;
     const float tmp41 = aL[5] * g[0];
     const float tmp42 = aL[12] * g[1];
     const float tmp43 = tmp41 + tmp42;
@@ -2853,6 +2821,7 @@ static void adukf_k_correct_part1(const float x_pred[7], const float P_pred[28],
     const float tmp46 = aL[26] * g[3];
     const float tmp47 = tmp45 + tmp46;
     const float tmp48 = x_pred[5] + tmp47;
+    x_new[5] = tmp48;
     const float tmp49 = aL[6] * g[0];
     const float tmp50 = aL[13] * g[1];
     const float tmp51 = tmp49 + tmp50;
@@ -2861,14 +2830,17 @@ static void adukf_k_correct_part1(const float x_pred[7], const float P_pred[28],
     const float tmp54 = aL[27] * g[3];
     const float tmp55 = tmp53 + tmp54;
     const float tmp56 = x_pred[6] + tmp55;
+    x_new[6] = tmp56;
     const float tmp57 = aL[0] * G[0];
     const float tmp58 = tmp57 * aL[0];
     const float tmp59 = P_pred[0] - tmp58;
+    P_new[0] = tmp59;
     const float tmp60 = aL[1] * G[0];
     const float tmp61 = aL[8] * G[1];
     const float tmp62 = tmp60 + tmp61;
     const float tmp63 = tmp62 * aL[0];
     const float tmp64 = P_pred[1] - tmp63;
+    P_new[1] = tmp64;
     const float tmp65 = aL[2] * G[0];
     const float tmp66 = aL[9] * G[1];
     const float tmp67 = tmp65 + tmp66;
@@ -2876,6 +2848,7 @@ static void adukf_k_correct_part1(const float x_pred[7], const float P_pred[28],
     const float tmp69 = tmp67 + tmp68;
     const float tmp70 = tmp69 * aL[0];
     const float tmp71 = P_pred[2] - tmp70;
+    P_new[2] = tmp71;
     const float tmp72 = aL[3] * G[0];
     const float tmp73 = aL[10] * G[1];
     const float tmp74 = tmp72 + tmp73;
@@ -2884,21 +2857,16 @@ static void adukf_k_correct_part1(const float x_pred[7], const float P_pred[28],
     const float tmp77 = aL[24] * G[3];
     const float tmp78 = tmp76 + tmp77;
     const float tmp79 = tmp78 * aL[0];
-    carry[4] = tmp40;
-    carry[5] = tmp48;
-    carry[6] = tmp56;
-    carry[7] = tmp59;
-    carry[8] = tmp62;
-    carry[9] = tmp64;
-    carry[10] = tmp69;
-    carry[11] = tmp71;
-    carry[12] = tmp78;
-    carry[13] = tmp79;
+    carry[0] = tmp62;
+    carry[1] = tmp69;
+    carry[2] = tmp78;
+    carry[3] = tmp79;
 }
 
-static void adukf_k_correct_part2(const float P_pred[28], const float aL[28], const float G[10], float carry[41])
+static void adukf_k_correct_part2(const float P_pred[28], const float aL[28], const float G[10], float P_new[28], float carry[13])
 {
-    const float tmp80 = P_pred[3] - carry[13];
+    const float tmp80 = P_pred[3] - carry[3];
+    P_new[3] = tmp80;
     const float tmp81 = aL[4] * G[0];
     const float tmp82 = aL[11] * G[1];
     const float tmp83 = tmp81 + tmp82;
@@ -2908,6 +2876,7 @@ static void adukf_k_correct_part2(const float P_pred[28], const float aL[28], co
     const float tmp87 = tmp85 + tmp86;
     const float tmp88 = tmp87 * aL[0];
     const float tmp89 = P_pred[4] - tmp88;
+    P_new[4] = tmp89;
     const float tmp90 = aL[5] * G[0];
     const float tmp91 = aL[12] * G[1];
     const float tmp92 = tmp90 + tmp91;
@@ -2917,6 +2886,7 @@ static void adukf_k_correct_part2(const float P_pred[28], const float aL[28], co
     const float tmp96 = tmp94 + tmp95;
     const float tmp97 = tmp96 * aL[0];
     const float tmp98 = P_pred[5] - tmp97;
+    P_new[5] = tmp98;
     const float tmp99 = aL[6] * G[0];
     const float tmp100 = aL[13] * G[1];
     const float tmp101 = tmp99 + tmp100;
@@ -2926,38 +2896,36 @@ static void adukf_k_correct_part2(const float P_pred[28], const float aL[28], co
     const float tmp105 = tmp103 + tmp104;
     const float tmp106 = tmp105 * aL[0];
     const float tmp107 = P_pred[6] - tmp106;
-    const float tmp108 = carry[8] * aL[1];
+    P_new[6] = tmp107;
+    const float tmp108 = carry[0] * aL[1];
     const float tmp109 = aL[1] * G[1];
     const float tmp110 = aL[8] * G[4];
     const float tmp111 = tmp109 + tmp110;
     const float tmp112 = tmp111 * aL[8];
     const float tmp113 = tmp108 + tmp112;
     const float tmp114 = P_pred[7] - tmp113;
-    const float tmp115 = carry[10] * aL[1];
+    P_new[7] = tmp114;
+    const float tmp115 = carry[1] * aL[1];
     const float tmp116 = aL[2] * G[1];
     const float tmp117 = aL[9] * G[4];
     const float tmp118 = tmp116 + tmp117;
     const float tmp119 = aL[16] * G[5];
-    carry[8] = tmp80;
-    carry[13] = tmp87;
-    carry[14] = tmp89;
-    carry[15] = tmp96;
-    carry[16] = tmp98;
-    carry[17] = tmp105;
-    carry[18] = tmp107;
-    carry[19] = tmp114;
-    carry[20] = tmp115;
-    carry[21] = tmp118;
-    carry[22] = tmp119;
+    carry[0] = tmp87;
+    carry[3] = tmp96;
+    carry[4] = tmp105;
+    carry[5] = tmp115;
+    carry[6] = tmp118;
+    carry[7] = tmp119;
 }
 
-static void adukf_k_correct_part3(const float P_pred[28], const float aL[28], const float G[10], float carry[41])
+static void adukf_k_correct_part3(const float P_pred[28], const float aL[28], const float G[10], float P_new[28], float carry[13])
 {
-    const float tmp120 = carry[21] + carry[22];
+    const float tmp120 = carry[6] + carry[7];
     const float tmp121 = tmp120 * aL[8];
-    const float tmp122 = carry[20] + tmp121;
+    const float tmp122 = carry[5] + tmp121;
     const float tmp123 = P_pred[8] - tmp122;
-    const float tmp124 = carry[12] * aL[1];
+    P_new[8] = tmp123;
+    const float tmp124 = carry[2] * aL[1];
     const float tmp125 = aL[3] * G[1];
     const float tmp126 = aL[10] * G[4];
     const float tmp127 = tmp125 + tmp126;
@@ -2968,7 +2936,8 @@ static void adukf_k_correct_part3(const float P_pred[28], const float aL[28], co
     const float tmp132 = tmp131 * aL[8];
     const float tmp133 = tmp124 + tmp132;
     const float tmp134 = P_pred[9] - tmp133;
-    const float tmp135 = carry[13] * aL[1];
+    P_new[9] = tmp134;
+    const float tmp135 = carry[0] * aL[1];
     const float tmp136 = aL[4] * G[1];
     const float tmp137 = aL[11] * G[4];
     const float tmp138 = tmp136 + tmp137;
@@ -2979,7 +2948,8 @@ static void adukf_k_correct_part3(const float P_pred[28], const float aL[28], co
     const float tmp143 = tmp142 * aL[8];
     const float tmp144 = tmp135 + tmp143;
     const float tmp145 = P_pred[10] - tmp144;
-    const float tmp146 = carry[15] * aL[1];
+    P_new[10] = tmp145;
+    const float tmp146 = carry[3] * aL[1];
     const float tmp147 = aL[5] * G[1];
     const float tmp148 = aL[12] * G[4];
     const float tmp149 = tmp147 + tmp148;
@@ -2990,34 +2960,32 @@ static void adukf_k_correct_part3(const float P_pred[28], const float aL[28], co
     const float tmp154 = tmp153 * aL[8];
     const float tmp155 = tmp146 + tmp154;
     const float tmp156 = P_pred[11] - tmp155;
-    const float tmp157 = carry[17] * aL[1];
+    P_new[11] = tmp156;
+    const float tmp157 = carry[4] * aL[1];
     const float tmp158 = aL[6] * G[1];
     const float tmp159 = aL[13] * G[4];
-    carry[20] = tmp120;
-    carry[21] = tmp123;
-    carry[22] = tmp131;
-    carry[23] = tmp134;
-    carry[24] = tmp142;
-    carry[25] = tmp145;
-    carry[26] = tmp153;
-    carry[27] = tmp156;
-    carry[28] = tmp157;
-    carry[29] = tmp158;
-    carry[30] = tmp159;
+    carry[5] = tmp120;
+    carry[6] = tmp131;
+    carry[7] = tmp142;
+    carry[8] = tmp153;
+    carry[9] = tmp157;
+    carry[10] = tmp158;
+    carry[11] = tmp159;
 }
 
-static void adukf_k_correct_part4(const float P_pred[28], const float aL[28], const float G[10], float carry[41])
+static void adukf_k_correct_part4(const float P_pred[28], const float aL[28], const float G[10], float P_new[28], float carry[13])
 {
-    const float tmp160 = carry[29] + carry[30];
+    const float tmp160 = carry[10] + carry[11];
     const float tmp161 = aL[20] * G[5];
     const float tmp162 = tmp160 + tmp161;
     const float tmp163 = aL[27] * G[6];
     const float tmp164 = tmp162 + tmp163;
     const float tmp165 = tmp164 * aL[8];
-    const float tmp166 = carry[28] + tmp165;
+    const float tmp166 = carry[9] + tmp165;
     const float tmp167 = P_pred[12] - tmp166;
-    const float tmp168 = carry[10] * aL[2];
-    const float tmp169 = carry[20] * aL[9];
+    P_new[12] = tmp167;
+    const float tmp168 = carry[1] * aL[2];
+    const float tmp169 = carry[5] * aL[9];
     const float tmp170 = tmp168 + tmp169;
     const float tmp171 = aL[2] * G[2];
     const float tmp172 = aL[9] * G[5];
@@ -3027,8 +2995,9 @@ static void adukf_k_correct_part4(const float P_pred[28], const float aL[28], co
     const float tmp176 = tmp175 * aL[16];
     const float tmp177 = tmp170 + tmp176;
     const float tmp178 = P_pred[13] - tmp177;
-    const float tmp179 = carry[12] * aL[2];
-    const float tmp180 = carry[22] * aL[9];
+    P_new[13] = tmp178;
+    const float tmp179 = carry[2] * aL[2];
+    const float tmp180 = carry[6] * aL[9];
     const float tmp181 = tmp179 + tmp180;
     const float tmp182 = aL[3] * G[2];
     const float tmp183 = aL[10] * G[5];
@@ -3040,32 +3009,31 @@ static void adukf_k_correct_part4(const float P_pred[28], const float aL[28], co
     const float tmp189 = tmp188 * aL[16];
     const float tmp190 = tmp181 + tmp189;
     const float tmp191 = P_pred[14] - tmp190;
-    const float tmp192 = carry[13] * aL[2];
-    const float tmp193 = carry[24] * aL[9];
+    P_new[14] = tmp191;
+    const float tmp192 = carry[0] * aL[2];
+    const float tmp193 = carry[7] * aL[9];
     const float tmp194 = tmp192 + tmp193;
     const float tmp195 = aL[4] * G[2];
     const float tmp196 = aL[11] * G[5];
     const float tmp197 = tmp195 + tmp196;
     const float tmp198 = aL[18] * G[7];
     const float tmp199 = tmp197 + tmp198;
-    carry[10] = tmp164;
-    carry[20] = tmp167;
-    carry[28] = tmp178;
-    carry[29] = tmp188;
-    carry[30] = tmp191;
-    carry[31] = tmp194;
-    carry[32] = tmp199;
+    carry[1] = tmp164;
+    carry[5] = tmp188;
+    carry[9] = tmp194;
+    carry[10] = tmp199;
 }
 
-static void adukf_k_correct_part5(const float P_pred[28], const float aL[28], const float G[10], float carry[41])
+static void adukf_k_correct_part5(const float P_pred[28], const float aL[28], const float G[10], float P_new[28], float carry[13])
 {
     const float tmp200 = aL[25] * G[8];
-    const float tmp201 = carry[32] + tmp200;
+    const float tmp201 = carry[10] + tmp200;
     const float tmp202 = tmp201 * aL[16];
-    const float tmp203 = carry[31] + tmp202;
+    const float tmp203 = carry[9] + tmp202;
     const float tmp204 = P_pred[15] - tmp203;
-    const float tmp205 = carry[15] * aL[2];
-    const float tmp206 = carry[26] * aL[9];
+    P_new[15] = tmp204;
+    const float tmp205 = carry[3] * aL[2];
+    const float tmp206 = carry[8] * aL[9];
     const float tmp207 = tmp205 + tmp206;
     const float tmp208 = aL[5] * G[2];
     const float tmp209 = aL[12] * G[5];
@@ -3077,8 +3045,9 @@ static void adukf_k_correct_part5(const float P_pred[28], const float aL[28], co
     const float tmp215 = tmp214 * aL[16];
     const float tmp216 = tmp207 + tmp215;
     const float tmp217 = P_pred[16] - tmp216;
-    const float tmp218 = carry[17] * aL[2];
-    const float tmp219 = carry[10] * aL[9];
+    P_new[16] = tmp217;
+    const float tmp218 = carry[4] * aL[2];
+    const float tmp219 = carry[1] * aL[9];
     const float tmp220 = tmp218 + tmp219;
     const float tmp221 = aL[6] * G[2];
     const float tmp222 = aL[13] * G[5];
@@ -3090,38 +3059,37 @@ static void adukf_k_correct_part5(const float P_pred[28], const float aL[28], co
     const float tmp228 = tmp227 * aL[16];
     const float tmp229 = tmp220 + tmp228;
     const float tmp230 = P_pred[17] - tmp229;
-    const float tmp231 = carry[12] * aL[3];
-    const float tmp232 = carry[22] * aL[10];
+    P_new[17] = tmp230;
+    const float tmp231 = carry[2] * aL[3];
+    const float tmp232 = carry[6] * aL[10];
     const float tmp233 = tmp231 + tmp232;
-    const float tmp234 = carry[29] * aL[17];
+    const float tmp234 = carry[5] * aL[17];
     const float tmp235 = tmp233 + tmp234;
     const float tmp236 = aL[3] * G[3];
     const float tmp237 = aL[10] * G[6];
     const float tmp238 = tmp236 + tmp237;
     const float tmp239 = aL[17] * G[8];
-    carry[12] = tmp201;
-    carry[22] = tmp204;
-    carry[29] = tmp214;
-    carry[31] = tmp217;
-    carry[32] = tmp227;
-    carry[33] = tmp230;
-    carry[34] = tmp235;
-    carry[35] = tmp238;
-    carry[36] = tmp239;
+    carry[2] = tmp201;
+    carry[5] = tmp214;
+    carry[6] = tmp227;
+    carry[9] = tmp235;
+    carry[10] = tmp238;
+    carry[11] = tmp239;
 }
 
-static void adukf_k_correct_part6(const float P_pred[28], const float aL[28], const float G[10], float carry[41])
+static void adukf_k_correct_part6(const float P_pred[28], const float aL[28], const float G[10], float P_new[28], float carry[13])
 {
-    const float tmp240 = carry[35] + carry[36];
+    const float tmp240 = carry[10] + carry[11];
     const float tmp241 = aL[24] * G[9];
     const float tmp242 = tmp240 + tmp241;
     const float tmp243 = tmp242 * aL[24];
-    const float tmp244 = carry[34] + tmp243;
+    const float tmp244 = carry[9] + tmp243;
     const float tmp245 = P_pred[18] - tmp244;
-    const float tmp246 = carry[13] * aL[3];
-    const float tmp247 = carry[24] * aL[10];
+    P_new[18] = tmp245;
+    const float tmp246 = carry[0] * aL[3];
+    const float tmp247 = carry[7] * aL[10];
     const float tmp248 = tmp246 + tmp247;
-    const float tmp249 = carry[12] * aL[17];
+    const float tmp249 = carry[2] * aL[17];
     const float tmp250 = tmp248 + tmp249;
     const float tmp251 = aL[4] * G[3];
     const float tmp252 = aL[11] * G[6];
@@ -3133,10 +3101,11 @@ static void adukf_k_correct_part6(const float P_pred[28], const float aL[28], co
     const float tmp258 = tmp257 * aL[24];
     const float tmp259 = tmp250 + tmp258;
     const float tmp260 = P_pred[19] - tmp259;
-    const float tmp261 = carry[15] * aL[3];
-    const float tmp262 = carry[26] * aL[10];
+    P_new[19] = tmp260;
+    const float tmp261 = carry[3] * aL[3];
+    const float tmp262 = carry[8] * aL[10];
     const float tmp263 = tmp261 + tmp262;
-    const float tmp264 = carry[29] * aL[17];
+    const float tmp264 = carry[5] * aL[17];
     const float tmp265 = tmp263 + tmp264;
     const float tmp266 = aL[5] * G[3];
     const float tmp267 = aL[12] * G[6];
@@ -3148,22 +3117,20 @@ static void adukf_k_correct_part6(const float P_pred[28], const float aL[28], co
     const float tmp273 = tmp272 * aL[24];
     const float tmp274 = tmp265 + tmp273;
     const float tmp275 = P_pred[20] - tmp274;
-    const float tmp276 = carry[17] * aL[3];
-    const float tmp277 = carry[10] * aL[10];
+    P_new[20] = tmp275;
+    const float tmp276 = carry[4] * aL[3];
+    const float tmp277 = carry[1] * aL[10];
     const float tmp278 = tmp276 + tmp277;
-    const float tmp279 = carry[32] * aL[17];
-    carry[34] = tmp245;
-    carry[35] = tmp257;
-    carry[36] = tmp260;
-    carry[37] = tmp272;
-    carry[38] = tmp275;
-    carry[39] = tmp278;
-    carry[40] = tmp279;
+    const float tmp279 = carry[6] * aL[17];
+    carry[9] = tmp257;
+    carry[10] = tmp272;
+    carry[11] = tmp278;
+    carry[12] = tmp279;
 }
 
-static void adukf_k_correct_part7(const float P_pred[28], const float aL[28], const float G[10], float carry[41])
+static void adukf_k_correct_part7(const float P_pred[28], const float aL[28], const float G[10], float P_new[28], float carry[13])
 {
-    const float tmp280 = carry[39] + carry[40];
+    const float tmp280 = carry[11] + carry[12];
     const float tmp281 = aL[6] * G[3];
     const float tmp282 = aL[13] * G[6];
     const float tmp283 = tmp281 + tmp282;
@@ -3174,120 +3141,85 @@ static void adukf_k_correct_part7(const float P_pred[28], const float aL[28], co
     const float tmp288 = tmp287 * aL[24];
     const float tmp289 = tmp280 + tmp288;
     const float tmp290 = P_pred[21] - tmp289;
-    const float tmp291 = carry[13] * aL[4];
-    const float tmp292 = carry[24] * aL[11];
+    P_new[21] = tmp290;
+    const float tmp291 = carry[0] * aL[4];
+    const float tmp292 = carry[7] * aL[11];
     const float tmp293 = tmp291 + tmp292;
-    const float tmp294 = carry[12] * aL[18];
+    const float tmp294 = carry[2] * aL[18];
     const float tmp295 = tmp293 + tmp294;
-    const float tmp296 = carry[35] * aL[25];
+    const float tmp296 = carry[9] * aL[25];
     const float tmp297 = tmp295 + tmp296;
     const float tmp298 = P_pred[22] - tmp297;
-    const float tmp299 = carry[15] * aL[4];
-    const float tmp300 = carry[26] * aL[11];
+    P_new[22] = tmp298;
+    const float tmp299 = carry[3] * aL[4];
+    const float tmp300 = carry[8] * aL[11];
     const float tmp301 = tmp299 + tmp300;
-    const float tmp302 = carry[29] * aL[18];
+    const float tmp302 = carry[5] * aL[18];
     const float tmp303 = tmp301 + tmp302;
-    const float tmp304 = carry[37] * aL[25];
+    const float tmp304 = carry[10] * aL[25];
     const float tmp305 = tmp303 + tmp304;
     const float tmp306 = P_pred[23] - tmp305;
-    const float tmp307 = carry[17] * aL[4];
-    const float tmp308 = carry[10] * aL[11];
+    P_new[23] = tmp306;
+    const float tmp307 = carry[4] * aL[4];
+    const float tmp308 = carry[1] * aL[11];
     const float tmp309 = tmp307 + tmp308;
-    const float tmp310 = carry[32] * aL[18];
+    const float tmp310 = carry[6] * aL[18];
     const float tmp311 = tmp309 + tmp310;
     const float tmp312 = tmp287 * aL[25];
     const float tmp313 = tmp311 + tmp312;
     const float tmp314 = P_pred[24] - tmp313;
-    const float tmp315 = carry[15] * aL[5];
-    const float tmp316 = carry[26] * aL[12];
+    P_new[24] = tmp314;
+    const float tmp315 = carry[3] * aL[5];
+    const float tmp316 = carry[8] * aL[12];
     const float tmp317 = tmp315 + tmp316;
-    const float tmp318 = carry[29] * aL[19];
+    const float tmp318 = carry[5] * aL[19];
     const float tmp319 = tmp317 + tmp318;
-    carry[12] = tmp287;
-    carry[13] = tmp290;
-    carry[15] = tmp298;
-    carry[24] = tmp306;
-    carry[26] = tmp314;
-    carry[29] = tmp319;
+    carry[0] = tmp287;
+    carry[2] = tmp319;
 }
 
-static void adukf_k_correct_part8(const float P_pred[28], const float aL[28], float carry[41])
+static void adukf_k_correct_part8(const float P_pred[28], const float aL[28], float P_new[28], const float carry[13])
 {
-    const float tmp320 = carry[37] * aL[26];
-    const float tmp321 = carry[29] + tmp320;
+    const float tmp320 = carry[10] * aL[26];
+    const float tmp321 = carry[2] + tmp320;
     const float tmp322 = P_pred[25] - tmp321;
-    const float tmp323 = carry[17] * aL[5];
-    const float tmp324 = carry[10] * aL[12];
+    P_new[25] = tmp322;
+    const float tmp323 = carry[4] * aL[5];
+    const float tmp324 = carry[1] * aL[12];
     const float tmp325 = tmp323 + tmp324;
-    const float tmp326 = carry[32] * aL[19];
+    const float tmp326 = carry[6] * aL[19];
     const float tmp327 = tmp325 + tmp326;
-    const float tmp328 = carry[12] * aL[26];
+    const float tmp328 = carry[0] * aL[26];
     const float tmp329 = tmp327 + tmp328;
     const float tmp330 = P_pred[26] - tmp329;
-    const float tmp331 = carry[17] * aL[6];
-    const float tmp332 = carry[10] * aL[13];
+    P_new[26] = tmp330;
+    const float tmp331 = carry[4] * aL[6];
+    const float tmp332 = carry[1] * aL[13];
     const float tmp333 = tmp331 + tmp332;
-    const float tmp334 = carry[32] * aL[20];
+    const float tmp334 = carry[6] * aL[20];
     const float tmp335 = tmp333 + tmp334;
-    const float tmp336 = carry[12] * aL[27];
+    const float tmp336 = carry[0] * aL[27];
     const float tmp337 = tmp335 + tmp336;
     const float tmp338 = P_pred[27] - tmp337;
-    carry[10] = tmp322;
-    carry[12] = tmp330;
-    carry[17] = tmp338;
+    P_new[27] = tmp338;
 }
 
 #if defined(__GNUC__)
 __attribute__((noinline))
 #endif
-static void adukf_k_correct(const float x_pred[7], const float P_pred[28], const float aL[28], const float g[4], const float G[10], float x_new[7], float P_new[28])
+static void adukf_k_correct(const float x_pred[restrict 7], const float P_pred[restrict 28], const float aL[restrict 28], const float g[restrict 4], const float G[restrict 10], float x_new[restrict 7], float P_new[restrict 28])
 {
     /* 9 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
-    float carry[41];
-    adukf_k_correct_part0(x_pred, aL, g, carry);
-    adukf_k_correct_part1(x_pred, P_pred, aL, g, G, carry);
-    adukf_k_correct_part2(P_pred, aL, G, carry);
-    adukf_k_correct_part3(P_pred, aL, G, carry);
-    adukf_k_correct_part4(P_pred, aL, G, carry);
-    adukf_k_correct_part5(P_pred, aL, G, carry);
-    adukf_k_correct_part6(P_pred, aL, G, carry);
-    adukf_k_correct_part7(P_pred, aL, G, carry);
-    adukf_k_correct_part8(P_pred, aL, carry);
-    x_new[0] = carry[0];
-    x_new[1] = carry[1];
-    x_new[2] = carry[2];
-    x_new[3] = carry[3];
-    x_new[4] = carry[4];
-    x_new[5] = carry[5];
-    x_new[6] = carry[6];
-    P_new[0] = carry[7];
-    P_new[1] = carry[9];
-    P_new[2] = carry[11];
-    P_new[3] = carry[8];
-    P_new[4] = carry[14];
-    P_new[5] = carry[16];
-    P_new[6] = carry[18];
-    P_new[7] = carry[19];
-    P_new[8] = carry[21];
-    P_new[9] = carry[23];
-    P_new[10] = carry[25];
-    P_new[11] = carry[27];
-    P_new[12] = carry[20];
-    P_new[13] = carry[28];
-    P_new[14] = carry[30];
-    P_new[15] = carry[22];
-    P_new[16] = carry[31];
-    P_new[17] = carry[33];
-    P_new[18] = carry[34];
-    P_new[19] = carry[36];
-    P_new[20] = carry[38];
-    P_new[21] = carry[13];
-    P_new[22] = carry[15];
-    P_new[23] = carry[24];
-    P_new[24] = carry[26];
-    P_new[25] = carry[10];
-    P_new[26] = carry[12];
-    P_new[27] = carry[17];
+    float carry[13];
+    adukf_k_correct_part0(x_pred, aL, g, x_new, carry);
+    adukf_k_correct_part1(x_pred, P_pred, aL, g, G, x_new, P_new, carry);
+    adukf_k_correct_part2(P_pred, aL, G, P_new, carry);
+    adukf_k_correct_part3(P_pred, aL, G, P_new, carry);
+    adukf_k_correct_part4(P_pred, aL, G, P_new, carry);
+    adukf_k_correct_part5(P_pred, aL, G, P_new, carry);
+    adukf_k_correct_part6(P_pred, aL, G, P_new, carry);
+    adukf_k_correct_part7(P_pred, aL, G, P_new, carry);
+    adukf_k_correct_part8(P_pred, aL, P_new, carry);
 }
 
 /* NED low-pass of the specific force R(q-) f (restart: start at R(q-) f); the update measures R(q-)^T of it
@@ -3689,7 +3621,7 @@ void adukf_init(adukf_state *s)
     s->accel_lp[0] = 0.0f;
     s->accel_lp[1] = 0.0f;
     s->accel_lp[2] = 0.0f;
-    for (uint32_t i = 0u; i < 130u; i++) {
+    for (uint32_t i = 0u; i < 151u; i++) {
         s->work[i] = 0.0f;
     }
     s->learn_sum = 0.0f;
@@ -3741,13 +3673,14 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
         return status & ~((adukf_status)ADUKF_MAG_LEARNING);
     }
 
-    /* Time update (Kalman prediction of x = [q; gyro bias], F = d x-/d x). P_pred becomes the new
-     * covariance: reset, or replaced by the update's result, below. The step's matrices live in
+    /* Time update (Kalman prediction of x = [q; gyro bias], F = d x-/d x). P_pred (packed lower
+     * triangle) is the new covariance unless reset or updated, below. The step's matrices live in
      * s->work (scratch, no meaning between steps), so its stack frame holds scalars and vectors. */
     float *const P_pred = s->work;
-    float *const x_pred = s->work + 116;
-    float *const x_new = s->work + 123;
+    float *const x_pred = s->work + 137;
+    float *const x_new = s->work + 144;
     bool updated = false;   /* the measurement update was applied (r_diag keeps its R) */
+    float *P_out = P_pred;   /* the new covariance, packed: P_pred, or the update's P_new */
     adukf_k_predict(s->q, s->gyro_bias, s->P, in->gyro, dt, x_pred, x_new, P_pred);
     for (uint32_t i = 4u; i < 7u; i++) {
         x_new[i] = x_pred[i];
@@ -3777,16 +3710,17 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
         }
         const float mag_in[3] = { use_mag ? in->mag[0] : 1.0f, use_mag ? in->mag[1] : 0.0f,
                                      use_mag ? in->mag[2] : 0.0f };
-        /* the update's matrices (model.work_layout): P_zz over zsum, G and g over zdiff and the
-         * residual (a kernel reads all its inputs before it writes any output) */
+        /* the update's matrices (model.work_layout): G and g over zdiff and the residual (the gain
+         * kernel reads all its inputs before it writes), P_new over zsum and P_zz */
         float *const aL = s->work + 28;
         float *const z0 = s->work + 56;
         float *const zdiff = s->work + 62;
         float *const zsum = s->work + 86;
-        float *const P_zz = s->work + 86;
-        float *const residual = s->work + 110;
+        float *const P_zz = s->work + 110;
+        float *const residual = s->work + 131;
         float *const G = s->work + 62;
-        float *const g = s->work + 110;
+        float *const g = s->work + 131;
+        float *const P_new = s->work + 86;
         float pivot_p;
         adukf_k_sigma_setup(x_pred, P_pred, s->m_ref, aL, z0, &pivot_p);
         for (uint32_t j = 0u; j < 4u; j++) {
@@ -3824,7 +3758,7 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
         if (!(pivot_p > ADUKF_PIVOT_MIN)) {
             /* P- is no longer positive definite (round-off, bad input): restart it. */
             status |= ADUKF_COV_RESET;
-            for (uint32_t i = 28u; i < 116u; i++) {
+            for (uint32_t i = 28u; i < 137u; i++) {
                 s->work[i] = 0.0f;   /* the update's scratch may hold non-finite values */
             }
             for (uint32_t i = 0u; i < 28u; i++) {
@@ -3838,35 +3772,36 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
             P_pred[25] = ADUKF_P0_BIAS;
             P_pred[27] = ADUKF_P0_BIAS;
         } else {
-            /* x_new and P_pred become the update's result in place */
+            /* x_new and P_new become the update's result */
             float pivot_zz;
             adukf_k_gain(P_zz, zdiff, residual, g, G, &pivot_zz);
             if (!(pivot_zz > ADUKF_PIVOT_MIN)) {
                 status |= ADUKF_UPDATE_SKIPPED;
-                for (uint32_t i = 28u; i < 116u; i++) {
+                for (uint32_t i = 28u; i < 137u; i++) {
                     s->work[i] = 0.0f;   /* the update's scratch may hold non-finite values */
                 }
             } else {
-                adukf_k_correct(x_pred, P_pred, aL, g, G, x_new, P_pred);
+                adukf_k_correct(x_pred, P_pred, aL, g, G, x_new, P_new);
+                P_out = P_new;
                 updated = true;
             }
         }
     }
 
     /* Commit only a finite result: v * 0 is 0 for a finite v and NaN for an infinite or NaN one,
-     * so one sum tells (in any order). P_pred holds the lower triangle of the new covariance
+     * so one sum tells (in any order). P_out holds the lower triangle of the new covariance
      * (packed column by column: every kernel computes one triangle), so it tells for all of P.
      * Written out, one column a line: a loop costs more than the sum. */
     float nonfinite = x_new[0] * 0.0f + x_new[1] * 0.0f + x_new[2] * 0.0f + x_new[3] * 0.0f + x_new[4] * 0.0f + x_new[5] * 0.0f + x_new[6] * 0.0f;
-    nonfinite += P_pred[0] * 0.0f + P_pred[1] * 0.0f + P_pred[2] * 0.0f + P_pred[3] * 0.0f + P_pred[4] * 0.0f + P_pred[5] * 0.0f + P_pred[6] * 0.0f;
-    nonfinite += P_pred[7] * 0.0f + P_pred[8] * 0.0f + P_pred[9] * 0.0f + P_pred[10] * 0.0f + P_pred[11] * 0.0f + P_pred[12] * 0.0f;
-    nonfinite += P_pred[13] * 0.0f + P_pred[14] * 0.0f + P_pred[15] * 0.0f + P_pred[16] * 0.0f + P_pred[17] * 0.0f;
-    nonfinite += P_pred[18] * 0.0f + P_pred[19] * 0.0f + P_pred[20] * 0.0f + P_pred[21] * 0.0f;
-    nonfinite += P_pred[22] * 0.0f + P_pred[23] * 0.0f + P_pred[24] * 0.0f;
-    nonfinite += P_pred[25] * 0.0f + P_pred[26] * 0.0f;
-    nonfinite += P_pred[27] * 0.0f;
+    nonfinite += P_out[0] * 0.0f + P_out[1] * 0.0f + P_out[2] * 0.0f + P_out[3] * 0.0f + P_out[4] * 0.0f + P_out[5] * 0.0f + P_out[6] * 0.0f;
+    nonfinite += P_out[7] * 0.0f + P_out[8] * 0.0f + P_out[9] * 0.0f + P_out[10] * 0.0f + P_out[11] * 0.0f + P_out[12] * 0.0f;
+    nonfinite += P_out[13] * 0.0f + P_out[14] * 0.0f + P_out[15] * 0.0f + P_out[16] * 0.0f + P_out[17] * 0.0f;
+    nonfinite += P_out[18] * 0.0f + P_out[19] * 0.0f + P_out[20] * 0.0f + P_out[21] * 0.0f;
+    nonfinite += P_out[22] * 0.0f + P_out[23] * 0.0f + P_out[24] * 0.0f;
+    nonfinite += P_out[25] * 0.0f + P_out[26] * 0.0f;
+    nonfinite += P_out[27] * 0.0f;
     if (isnan(nonfinite)) {
-        for (uint32_t i = 0u; i < 130u; i++) {
+        for (uint32_t i = 0u; i < 151u; i++) {
             s->work[i] = 0.0f;   /* no scratch value outlives a refused result */
         }
         for (uint32_t i = 0u; i < 6u; i++) {
@@ -3882,34 +3817,34 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
     }
     /* P from its packed lower triangle, mirrored (written out: a loop over the triangle costs
      * more than these loads and stores) */
-    s->P[0] = P_pred[0];
-    s->P[1] = s->P[7] = P_pred[1];
-    s->P[2] = s->P[14] = P_pred[2];
-    s->P[3] = s->P[21] = P_pred[3];
-    s->P[4] = s->P[28] = P_pred[4];
-    s->P[5] = s->P[35] = P_pred[5];
-    s->P[6] = s->P[42] = P_pred[6];
-    s->P[8] = P_pred[7];
-    s->P[9] = s->P[15] = P_pred[8];
-    s->P[10] = s->P[22] = P_pred[9];
-    s->P[11] = s->P[29] = P_pred[10];
-    s->P[12] = s->P[36] = P_pred[11];
-    s->P[13] = s->P[43] = P_pred[12];
-    s->P[16] = P_pred[13];
-    s->P[17] = s->P[23] = P_pred[14];
-    s->P[18] = s->P[30] = P_pred[15];
-    s->P[19] = s->P[37] = P_pred[16];
-    s->P[20] = s->P[44] = P_pred[17];
-    s->P[24] = P_pred[18];
-    s->P[25] = s->P[31] = P_pred[19];
-    s->P[26] = s->P[38] = P_pred[20];
-    s->P[27] = s->P[45] = P_pred[21];
-    s->P[32] = P_pred[22];
-    s->P[33] = s->P[39] = P_pred[23];
-    s->P[34] = s->P[46] = P_pred[24];
-    s->P[40] = P_pred[25];
-    s->P[41] = s->P[47] = P_pred[26];
-    s->P[48] = P_pred[27];
+    s->P[0] = P_out[0];
+    s->P[1] = s->P[7] = P_out[1];
+    s->P[2] = s->P[14] = P_out[2];
+    s->P[3] = s->P[21] = P_out[3];
+    s->P[4] = s->P[28] = P_out[4];
+    s->P[5] = s->P[35] = P_out[5];
+    s->P[6] = s->P[42] = P_out[6];
+    s->P[8] = P_out[7];
+    s->P[9] = s->P[15] = P_out[8];
+    s->P[10] = s->P[22] = P_out[9];
+    s->P[11] = s->P[29] = P_out[10];
+    s->P[12] = s->P[36] = P_out[11];
+    s->P[13] = s->P[43] = P_out[12];
+    s->P[16] = P_out[13];
+    s->P[17] = s->P[23] = P_out[14];
+    s->P[18] = s->P[30] = P_out[15];
+    s->P[19] = s->P[37] = P_out[16];
+    s->P[20] = s->P[44] = P_out[17];
+    s->P[24] = P_out[18];
+    s->P[25] = s->P[31] = P_out[19];
+    s->P[26] = s->P[38] = P_out[20];
+    s->P[27] = s->P[45] = P_out[21];
+    s->P[32] = P_out[22];
+    s->P[33] = s->P[39] = P_out[23];
+    s->P[34] = s->P[46] = P_out[24];
+    s->P[40] = P_out[25];
+    s->P[41] = s->P[47] = P_out[26];
+    s->P[48] = P_out[27];
     if (!updated) {
         for (uint32_t i = 0u; i < 6u; i++) {
             s->r_diag[i] = 0.0f;

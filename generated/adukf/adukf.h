@@ -15,7 +15,7 @@
  *     every IMU sample: fill a adukf_input (set a VALID bit only for sensors that
  *     delivered a new sample), then adukf_status s = adukf_step(&st, &in, dt);
  *     adukf_euler(&st, rpy);
- * No heap, no recursion; RAM is the state struct (812 bytes with the usual ABI).
+ * No heap, no recursion; RAM is the state struct (896 bytes with the usual ABI).
  * Needs <math.h> (float functions only in a float build); compilers may also emit calls to
  * memcpy/memset/memmove for struct and array copies.
  *
@@ -110,7 +110,7 @@ typedef struct {
     float r_diag[6];      /* diagonal of the adaptive R used by the last update (0: sensor not used) */
     float sample_age[2];  /* time since the last accelerometer / magnetometer sample, s */
     float accel_lp[3];    /* low-passed specific force in NED, m/s^2 (accel_tau > 0) */
-    float work[130];      /* scratch of the step (P-, the update's matrices and sigma-point sums, x- and x+) kept here instead of on the stack: no meaning between steps, zeroed when an update or its result is refused */
+    float work[151];      /* scratch of the step (P-, the update's matrices and sigma-point sums, x- and x+) kept here instead of on the stack: no meaning between steps, zeroed when an update or its result is refused */
     float learn_sum;      /* mag_ref = learn: sum of sin(inclination) over rest samples */
     uint32_t learn_count; /* mag_ref = learn: rest samples summed so far */
     uint32_t initialised; /* 1 once the attitude has been initialised */

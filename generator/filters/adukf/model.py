@@ -114,22 +114,26 @@ class Model(FilterModel):
     def work_layout(self) -> dict:
         """Offsets (floats) of the step's scratch in the state's `work`, the one place they are
         derived (the template reads them): P_pred first (its lower triangle, packed: linalg's
-        packed_lower_pairs); then the update's floats: the
-        sigma points' aL and z0, the pairs' differences and sums (zdiff, zsum); P_zz over zsum
-        (its lower triangle, packed; the innovation kernel reads all its inputs before it
-        writes) and the residual (R goes to the state's r_diag directly); G
-        and g over zdiff and the residual (the gain kernel reads them before it writes); then x_pred and
-        x_new (bias state); `update_end` ends the update's floats, `size` the whole scratch."""
+        packed_lower_pairs); then the update's floats: the sigma points' aL and z0, the pairs'
+        differences and sums (zdiff, zsum), P_zz (packed) and the residual (R goes to the
+        state's r_diag directly). The gain kernel reads all its inputs before it writes, so G
+        and g go over zdiff and the residual; the innovation and correct kernels store each
+        output as soon as computed (early_writes), so their outputs overlap none of their
+        inputs: P_new (packed) over zsum and P_zz, both dead by then. Then x_pred and x_new (bias
+        state); `update_end` ends the update's floats, `size` the whole scratch."""
         n = self.n
-        at = {"P_pred": 0, "aL": n * (n + 1) // 2}
+        npk = n * (n + 1) // 2
+        at = {"P_pred": 0, "aL": npk}
         at["z0"] = at["aL"] + 4 * n
         at["zdiff"] = at["z0"] + 6
         at["zsum"] = at["zdiff"] + 6 * N
-        at["P_zz"] = at["zsum"]
-        at["residual"] = at["P_zz"] + max(21, 6 * N)
+        at["P_zz"] = at["zsum"] + 6 * N
+        at["residual"] = at["P_zz"] + 21
         at["update_end"] = at["residual"] + 6
         at["G"] = at["zdiff"]          # written by gain, which reads zdiff
         at["g"] = at["residual"]       # written by gain, which reads the residual
+        at["P_new"] = at["zsum"]
+        assert at["P_new"] + npk <= at["residual"] and at["G"] + 10 <= at["zsum"]
         at["x_pred"] = at["update_end"]
         at["x_new"] = at["x_pred"] + 7
         at["size"] = at["update_end"] + (14 if n == 7 else 0)
@@ -376,7 +380,7 @@ class Model(FilterModel):
                                                              **({"dt": dt, "span": span} if rated else {})},
                                               {"P_zz": linalg.pack_lower(Pzz_e), "residual": eps_e, "r_diag": r_e}),
                        "predicted measurement, residual, adaptive per-axis R and P_zz from the sigma "
-                       "pairs' sums and differences of deviations", noinline=True),
+                       "pairs' sums and differences of deviations", noinline=True, early_writes=True),
             KernelSpec("gain", function("gain", {"P_zz": Pzz_packed, "zdiff": zdiff, "residual": eps},
                                         {"g": g_e, "G": G_e, "pivot_zz": piv_zz}),
                        "with L = chol(P_zz), W = L^-1 D (D the pairs' differences) and v = L^-1 eps: "
@@ -387,7 +391,7 @@ class Model(FilterModel):
                                                        "G": G_packed},
                                            {xs + "_new": q_new, "P_new": linalg.pack_lower(P_new)}),
                        "x+ = x- + aL g = x- + K eps (q normalised), P+ = P- - aL G aL^T = P- - K P_zz K^T",
-                       noinline=True),
+                       noinline=True, early_writes=True),
             *([KernelSpec("accel_lowpass", function(
                 "accel_lowpass", {"q_pred_unit": qn, "accel": f, "accel_lp": a_lp, "restart": restart, "dt": dt},
                 {"accel_lp_new": a_lp_new, "accel_body": quat.rotate_inv(qn, a_lp_new)}),
