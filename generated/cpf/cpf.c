@@ -570,26 +570,22 @@ static inline float cpf_exp_nonpos(float x)
 #define CPF_LIKELY(c) (c)
 #endif
 
-/* xoshiro128** 1.1 (Blackman & Vigna 2018) on a uint32 state; the same integer stream as
+/* xoroshiro64** 1.0 (Blackman & Vigna 2018) on two uint32 words; the same integer stream as
  * generator/filters/cpf/prng.py. The state is seeded at generation time (SplitMix32 of the
  * seed parameter) and lives in the filter state. */
-static inline CPF_ALWAYS_INLINE uint32_t cpf_rng_next(uint32_t r[4])
+static inline CPF_ALWAYS_INLINE uint32_t cpf_rng_next(uint32_t r[2])
 {
-    const uint32_t x = r[1] * 5u;
-    const uint32_t result = ((x << 7) | (x >> 25)) * 9u;
-    const uint32_t t = r[1] << 9;
-    r[2] ^= r[0];
-    r[3] ^= r[1];
-    r[1] ^= r[2];
-    r[0] ^= r[3];
-    r[2] ^= t;
-    r[3] = (r[3] << 11) | (r[3] >> 21);
+    const uint32_t x = r[0] * 0x9E3779BBu;
+    const uint32_t result = ((x << 5) | (x >> 27)) * 5u;
+    const uint32_t s1 = r[1] ^ r[0];
+    r[0] = ((r[0] << 26) | (r[0] >> 6)) ^ s1 ^ (s1 << 9);
+    r[1] = (s1 << 13) | (s1 >> 19);
     return result;
 }
 
 /* Uniform in (0, 1]: the top 24 bits plus one, times 2^-24 (exact in float and double;
  * never 0, so log() below is finite). */
-static float cpf_rng_uniform(uint32_t r[4])
+static float cpf_rng_uniform(uint32_t r[2])
 {
     return (float)((cpf_rng_next(r) >> 8) + 1u) * 5.9604645e-08f;
 }
@@ -707,7 +703,7 @@ static const float cpf_zig_f[128] = {
  * comparison: the wedge (exp) or the tail beyond R (log), drawing again as long as it rejects.
  * Kept out of the common path below (not inlined, where the compiler has a way to say so)
  * so that one stays a few instructions without a large function prologue. */
-static CPF_NOT_INLINED float cpf_rng_gauss_slow(uint32_t r[4], uint32_t u)
+static CPF_NOT_INLINED float cpf_rng_gauss_slow(uint32_t r[2], uint32_t u)
 {
     for (;;) {
         const uint32_t i = u & 127u;
@@ -739,7 +735,7 @@ static CPF_NOT_INLINED float cpf_rng_gauss_slow(uint32_t r[4], uint32_t u)
  * (exp) or the tail beyond R (log) and draw again. The generator's state is r, a local copy
  * that a loop keeps in registers; the rare path runs on `home` (the state struct's copy),
  * written before and read back after it, so r's address never leaves the loop. */
-static inline CPF_ALWAYS_INLINE float cpf_rng_gauss(uint32_t r[4], uint32_t home[4])
+static inline CPF_ALWAYS_INLINE float cpf_rng_gauss(uint32_t r[2], uint32_t home[2])
 {
     const uint32_t u = cpf_rng_next(r);
     const uint32_t j = u >> 8;
@@ -749,27 +745,22 @@ static inline CPF_ALWAYS_INLINE float cpf_rng_gauss(uint32_t r[4], uint32_t home
     }
     home[0] = r[0];
     home[1] = r[1];
-    home[2] = r[2];
-    home[3] = r[3];
     const float z = cpf_rng_gauss_slow(home, u);
     r[0] = home[0];
     r[1] = home[1];
-    r[2] = home[2];
-    r[3] = home[3];
     return z;
 }
 
 /* Four standard normal samples: one particle's noise (state in rng, updated). */
-static void cpf_rng_gauss4(uint32_t rng[4], float n[4])
+static void cpf_rng_gauss4(uint32_t rng[2], float n[4])
 {
-    uint32_t r[4] = { rng[0], rng[1], rng[2], rng[3] };
+    uint32_t r[2] = { rng[0], rng[1] };
     n[0] = cpf_rng_gauss(r, rng);
     n[1] = cpf_rng_gauss(r, rng);
     n[2] = cpf_rng_gauss(r, rng);
     n[3] = cpf_rng_gauss(r, rng);
-    for (uint32_t k = 0u; k < 4u; k++) {
-        rng[k] = r[k];
-    }
+    rng[0] = r[0];
+    rng[1] = r[1];
 }
 
 /* Systematic resampling: one uniform u in (0, 1], positions (j + u)/N, j = 0..N-1; position j
@@ -921,8 +912,6 @@ void cpf_init(cpf_state *s)
     s->ess = 100.0f;
     s->rng[0] = 2527132011u;
     s->rng[1] = 314344336u;
-    s->rng[2] = 2535364964u;
-    s->rng[3] = 2041432039u;
     for (uint32_t i = 0u; i < 100u; i++) {
         s->scratch[i] = 0.0f;
     }
@@ -1026,7 +1015,7 @@ cpf_status cpf_step(cpf_state *restrict s, const cpf_input *restrict in, float d
         float sp;
         cpf_k_particle_scales(in->gyro, dt, hw, &sp);
         /* local copies the loop keeps in registers (the particles' stores could alias the state's) */
-        uint32_t r[4] = { s->rng[0], s->rng[1], s->rng[2], s->rng[3] };
+        uint32_t r[2] = { s->rng[0], s->rng[1] };
         /* the observation, or the last estimate without one: the particles' sign reference */
         const float *ref = have_obs ? y : s->q;
         const float yl[4] = { ref[0], ref[1], ref[2], ref[3] };
@@ -1046,9 +1035,8 @@ cpf_status cpf_step(cpf_state *restrict s, const cpf_input *restrict in, float d
                 cmax = c;
             }
         }
-        for (uint32_t k = 0u; k < 4u; k++) {
-            s->rng[k] = r[k];
-        }
+        s->rng[0] = r[0];
+        s->rng[1] = r[1];
     }
 
     /* Update (eqs. 13-14): likelihood scaled by its largest value, then normalisation (in the

@@ -15,7 +15,7 @@
  *     every IMU sample: fill a cpf_input (set a VALID bit only for sensors that
  *     delivered a new sample), then cpf_status s = cpf_step(&st, &in, dt);
  *     cpf_euler(&st, rpy);
- * No heap, no recursion; RAM is the state struct (2460 bytes with the usual ABI).
+ * No heap, no recursion; RAM is the state struct (2452 bytes with the usual ABI).
  * Needs <math.h> (float functions only in a float build); compilers may also emit calls to
  * memcpy/memset/memmove for struct and array copies.
  *
@@ -51,7 +51,7 @@ extern "C" {
 #define CPF_MAG_MAX 1e+06f      /* magnetometer component above this skips its correction (MAG_RANGE) [field unit] */
 /* CPF_MODE = combined       combined: complementary filter then particle filter on its output (the paper's method); complementary / particle: one stage alone (the paper's Table 1 columns) */
 #define CPF_N_PARTICLES 100     /* number of particles, fixed at generation time (particle arrays live in the state struct); at least 2, a particle filter of one particle has nothing to resample */
-#define CPF_SEED 1              /* seed of the xoshiro128** generator (uint32); the reference draws the same stream */
+#define CPF_SEED 1              /* seed of the xoroshiro64** generator (uint32); the reference draws the same stream */
 #define CPF_TAU 0.3f            /* complementary time constant: k = tau / (tau + dt) (eq. 8); weight of the gyro angles [s] */
 #define CPF_PROCESS_NOISE 0.05f /* particle process noise (eq. 9): each rotation axis random-walks by process_noise*sqrt(dt) per step; by default a rotation vector of that std per axis added to the gyro increment (3 normals per particle), in faithful mode the paper's additive quaternion noise W of std process_noise*sqrt(dt)/2 per component (4 normals) [rad/sqrt(s)] */
 #define CPF_OBS_NOISE 0.02f     /* observation noise V (eq. 12) as an angle: quaternion component std obs_noise/2; likelihood exp(-4(1-|<Y,x>|)/obs_noise^2) [rad] */
@@ -92,7 +92,7 @@ typedef struct {
     float particles[400];    /* 100 particles, quaternions [w x y z] one after another (drawn at initialisation) */
     float weights[100];      /* normalised particle weights */
     float ess;               /* effective sample size 1/sum(w^2) after the last update */
-    uint32_t rng[4];         /* xoshiro128** state (seeded from 1) */
+    uint32_t rng[2];         /* xoroshiro64** state (seeded from 1) */
     float scratch[100];      /* per-particle scratch: <x_i, Y> during a step, then the number of copies of each particle while resampling (whole numbers) */
     uint32_t resample_count; /* number of resamplings so far (wraps) */
     uint32_t initialised;    /* 1 once initialised from the accelerometer/magnetometer */

@@ -7,21 +7,21 @@
  */
 #include CPF_SOURCE
 
-void cpf_hook_u32(uint32_t state[4], uint32_t n, uint32_t *out)
+void cpf_hook_u32(uint32_t state[2], uint32_t n, uint32_t *out)
 {
     for (uint32_t k = 0u; k < n; k++) {
         out[k] = cpf_rng_next(state);
     }
 }
 
-void cpf_hook_uniform(uint32_t state[4], uint32_t n, CPF_REAL *out)
+void cpf_hook_uniform(uint32_t state[2], uint32_t n, CPF_REAL *out)
 {
     for (uint32_t k = 0u; k < n; k++) {
         out[k] = cpf_rng_uniform(state);
     }
 }
 
-void cpf_hook_gauss4(uint32_t state[4], uint32_t n, CPF_REAL *out)
+void cpf_hook_gauss4(uint32_t state[2], uint32_t n, CPF_REAL *out)
 {
     for (uint32_t k = 0u; k < n; k++) {
         cpf_rng_gauss4(state, &out[4u * k]);

@@ -9,7 +9,7 @@ Per step (SPEC.md, CPF; reference.py spells out every equation):
   likelihood     w_i ← w_i exp(4(|⟨Y,x_i⟩| − c_max)/σ_o²), Y = q_cf (q ≡ −q)     (eqs. 12, 13)
   estimate       q = normalise(Σ w_i sign⟨x_i, Y⟩ x_i)  (Y = q_prev without one)  (eqs. 14, 15)
 The loops over particles, the weight normalisation, systematic resampling and the PRNG
-(xoshiro128**, ziggurat Gaussian; prng.py documents the exact semantics) are written in the
+(xoroshiro64**, ziggurat Gaussian; prng.py documents the exact semantics) are written in the
 filter's templates (helpers.c.j2, step.c.j2) around these kernels.
 """
 from __future__ import annotations
@@ -73,7 +73,7 @@ class Model(FilterModel):
                            "(drawn at initialisation)", 0.0),
                 StateField("weights", n, "normalised particle weights", 1.0 / n),
                 StateField("ess", 1, "effective sample size 1/sum(w^2) after the last update", float(n)),
-                StateField("rng", 4, f"xoshiro128** state (seeded from {self.params['seed']})",
+                StateField("rng", 2, f"xoroshiro64** state (seeded from {self.params['seed']})",
                            seed_state(int(self.params["seed"])), "uint32"),
                 StateField("scratch", n, "per-particle scratch: <x_i, Y> during a step, then the number of "
                            "copies of each particle while resampling (whole numbers)", 0.0),

@@ -65,7 +65,7 @@ import numpy as np
 
 from generator import input_checks
 from generator import status as st
-from generator.filters.cpf.prng import Xoshiro128ss
+from generator.filters.cpf.prng import Xoroshiro64ss
 
 # Filter status bits (from FILTER_BASE upward; the C header defines the same values)
 WEIGHTS_RESET = st.FILTER_BASE << 0     # weights summed to zero (underflow): reset to uniform
@@ -170,7 +170,7 @@ class Reference:
         if self.mode not in MODES:
             raise ValueError(f"mode must be one of {MODES}, got {self.mode!r}")
         self.N = int(p["n_particles"])
-        self.rng = Xoshiro128ss(int(p["seed"]))
+        self.rng = Xoroshiro64ss(int(p["seed"]))
         self.q = np.array([1.0, 0.0, 0.0, 0.0])
         self.q_cf = np.array([1.0, 0.0, 0.0, 0.0])
         self.particles = np.zeros((self.N, 4))          # drawn at initialisation

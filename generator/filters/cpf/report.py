@@ -88,7 +88,7 @@ def reproduction(seeds=range(10)) -> str:
 
 
 # Per-particle work written in the template (not in the kernels' op counts): three ziggurat
-# normals (four in faithful mode; each a xoshiro128** draw, a table look-up and compare, an
+# normals (four in faithful mode; each a xoroshiro64** draw, a table look-up and compare, an
 # int->real conversion and a multiply; the wedge's exp and the tail's log in about 1.2 % of
 # draws) and the likelihood's exp; the loops add 1 compare/add per particle for the maximum,
 # the weight sum, the normalisation divide and the ESS square-sum; resampling is O(N) (one
