@@ -120,3 +120,17 @@ def test_generated_files_are_ascii(gen_dir):
         if p.is_file():
             bad = [(i + 1, ln) for i, ln in enumerate(p.read_bytes().decode("utf-8").splitlines()) if not ln.isascii()]
             assert not bad, f"{p.name}: non-ASCII on line(s) {[n for n, _ in bad]}"
+
+
+@pytest.mark.parametrize("gen_dir", GENERATED, ids=lambda p: p.name)
+def test_header_aliasing_rule_names_every_kernel_that_declares_restrict(gen_dir):
+    """The file header's aliasing rule (outputs may overlay inputs) has its exceptions listed:
+    exactly the kernels whose parameters are declared restrict (stores as soon as computed)."""
+    man = json.loads((gen_dir / "manifest.json").read_text())
+    text = (gen_dir / man["files"]["source"]).read_text()
+    header = text[:text.index("*/")]
+    restricted = set(re.findall(r"^(?:static |static inline )?void (\w+_k_\w+)\([^)]*\brestrict\b",
+                                text, re.M))
+    m = re.search(r"Exceptions: (.*?) store each output", " ".join(header.replace(" * ", " ").split()))
+    named = set(re.split(r", | and ", m.group(1))) if m else set()
+    assert named == restricted

@@ -15,6 +15,9 @@
  * Aliasing: every adukf_k_* function reads all its inputs before it writes any
  * output, so an output may be the same array as an input (the step updates the state in
  * place, without copies); two outputs must not overlap.
+ * Exceptions: adukf_k_predict, adukf_k_sigma_setup, adukf_k_innovation and adukf_k_correct
+ * store each output as soon as it is computed and declare their arrays restrict: no argument
+ * of theirs may overlap one of their outputs.
  */
 #include "adukf.h"
 
