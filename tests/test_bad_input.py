@@ -45,6 +45,8 @@ CASES = [
     ("o-read-only", lambda t: (["generate", "qcf", "-o", "/proc/ahrsgen-out"], ["/proc/ahrsgen-out"]),
      "/proc"),
     # --json of target: refused before anything is built
+    ("target-negative-count-steps", lambda t: (["target", "qcf", "--count-steps", "-3"], []), "whole number >= 0"),
+    ("target-nan-tolerance", lambda t: (["target", "qcf", "--tolerance", "nan"], []), "finite number >= 0"),
     ("target-json-is-dir", lambda t: (["target", "qcf", "--json", str(t)], []), "is a folder"),
     ("target-json-under-file", lambda t: (["target", "qcf", "--json", _file(t, "f.txt", "x") + "/t.json"], []),
      "not a folder"),

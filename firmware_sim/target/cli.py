@@ -120,6 +120,7 @@ def beside_peers(results: list[dict], peer_rows) -> list[dict]:
 
 
 def register_cli(sub) -> None:
+    from generator.cli import nonneg_float_arg, nonneg_int_arg   # loaded: it is the caller
     p = sub.add_parser(
         "target", help="cross-build for a Cortex-M4F, run in QEMU, compare with the host, report footprint",
         description="Generate the float C of a filter, build it with arm-none-eabi-gcc at -O2 and -Os, run a "
@@ -142,10 +143,10 @@ def register_cli(sub) -> None:
     p.add_argument("--seed", type=int, default=0, help="scenario seed (default 0)")
     p.add_argument("--scenario-opt", metavar="NAME=VALUE", action="append", default=[],
                    help="scenario option, e.g. duration=30 (repeatable)")
-    p.add_argument("--count-steps", type=int, default=50, metavar="N",
+    p.add_argument("--count-steps", type=nonneg_int_arg, default=50, metavar="N",
                    help="steps also run in unicorn (exact instruction count cross-check); 0 = all; "
                         "default 50. QEMU counts instructions and paints the stack over every step.")
-    p.add_argument("--tolerance", type=float, default=DEFAULT_TOLERANCE_DEG, metavar="DEG",
+    p.add_argument("--tolerance", type=nonneg_float_arg, default=DEFAULT_TOLERANCE_DEG, metavar="DEG",
                    help=f"largest allowed target-vs-host attitude difference (default {DEFAULT_TOLERANCE_DEG:g} deg)")
     p.add_argument("--peers", action="store_true",
                    help="also measure the calibration peers (hand-written Madgwick, Mahony with integral) for scale, and "
