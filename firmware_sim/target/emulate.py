@@ -115,14 +115,20 @@ _PAINT = 0xA5
 _PAINT_BYTES = 64 * 1024
 
 
-def thumb_instruction_count(code: bytes) -> int:
-    """Instructions in a straight run of Thumb-2 code (16- and 32-bit encodings)."""
-    n, i = 0, 0
+def thumb_instruction_offsets(code: bytes) -> list[int]:
+    """Byte offsets of the instructions in a straight run of Thumb-2 code (16- and 32-bit
+    encodings: a first halfword 0b11101, 0b11110 or 0b11111 in its top bits takes two)."""
+    offsets, i = [], 0
     while i + 1 < len(code):
+        offsets.append(i)
         hw = code[i] | (code[i + 1] << 8)
         i += 4 if (hw >> 11) in (0b11101, 0b11110, 0b11111) else 2
-        n += 1
-    return n
+    return offsets
+
+
+def thumb_instruction_count(code: bytes) -> int:
+    """Instructions in a straight run of Thumb-2 code (16- and 32-bit encodings)."""
+    return len(thumb_instruction_offsets(code))
 
 
 @dataclass
@@ -173,6 +179,11 @@ class Emulator:
         self._step_addr = None
         self._ninsn_cache: dict[tuple[int, int], int] = {}
         self.uc.hook_add(UC_HOOK_BLOCK, self._on_block)
+
+    @property
+    def in_step(self) -> bool:
+        """True while the step (or what it calls) runs: the blocks counted in `count_steps`."""
+        return self._counting
 
     def _ninsn(self, address: int, size: int) -> int:
         key = (address, size)

@@ -60,23 +60,19 @@ def profile_steps(elf: Path, step_fn: str, prefix: str, records: np.ndarray, sta
     share, ops}]}, rows by cost."""
     from unicorn import UC_HOOK_BLOCK
 
-    from .emulate import Emulator
+    from .emulate import Emulator, thumb_instruction_offsets
     emu = Emulator(elf)
     blocks: Counter[tuple[int, int]] = Counter()
 
     def on_block(_uc, address, size, _user):
-        if emu._counting:   # the emulator's own block hook (added first) has set it for this block
+        if emu.in_step:     # the emulator's own block hook (added first) has set it for this block
             blocks[(address, size)] += 1
     emu.uc.hook_add(UC_HOOK_BLOCK, on_block)
     counts = emu.count_steps(step_fn, records, state_bytes)
     hits: Counter[int] = Counter()
     for (address, size), n in blocks.items():     # every instruction of a block, as the counter sees it
-        code = bytes(emu.uc.mem_read(address, size))
-        i = 0
-        while i + 1 < len(code):
-            hits[address + i] += n
-            hw = code[i] | (code[i + 1] << 8)
-            i += 4 if (hw >> 11) in (0b11101, 0b11110, 0b11111) else 2
+        for offset in thumb_instruction_offsets(bytes(emu.uc.mem_read(address, size))):
+            hits[address + offset] += n
     names = _functions(elf, sorted(hits))
     per: Counter[str] = Counter()
     for a, n in hits.items():
