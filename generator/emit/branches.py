@@ -16,21 +16,16 @@ def _exclusive(group, side, kept, idx, nodes, users, refs):
     for t in kept[:max(idx[s] for s in group)]:
         if refs[t] & (sel | reads_sel):
             reads_sel.add(t)
-    E: set[str] = set()
-    for s in group:
-        r = nodes[s]["sel"][side]
-        if r in idx and r not in reads_sel and users[r] <= sel and all(
-                r != nodes[g]["sel"][other] and r not in _TMP_RE.findall(nodes[g]["sel"][0]) for g in group):
-            E.add(r)
     cond_refs = set()
     for g in group:
         cond_refs.update(_TMP_RE.findall(nodes[g]["sel"][0]))
-    top = max(idx[s] for s in group)
-    for t in reversed(kept[:top]):
-        if t in E or t in sel or t in reads_sel or not users[t] or t in cond_refs:
+    # Latest first, so that a temporary's users are decided before it: each is read only by
+    # exclusive work or by selects of the group that take it as this side's value (and not as
+    # the other's), e.g. cos|v| both returned by the else side and read by it.
+    E: set[str] = set()
+    for t in reversed(kept[:max(idx[s] for s in group)]):
+        if t in sel or t in reads_sel or not users[t] or t in cond_refs:
             continue
-        # read by exclusive work, or a select of the group takes it as this side's value (and
-        # not as the other's): e.g. cos|v| both returned by the else side and read by it
         takes = {g for g in group if nodes[g]["sel"][side] == t and nodes[g]["sel"][other] != t}
         if users[t] <= E | takes:
             E.add(t)
