@@ -61,7 +61,9 @@ def _sincos_quadrant() -> str:
             f"    if (!(fabsf(x) <= {TRIG_MAX:.1f}f)) {{\n        return NAN;\n    }}"
             + _SINCOS_BODY +
             "    const uint32_t quadrant = ((uint32_t)k + shift) & 3u;\n"
-            f"    const float v = ((quadrant & 1u) != 0u) ? {_COS_POLY} : {_SIN_POLY};\n"
+            "    const float v = ((quadrant & 1u) != 0u)\n"
+            f"        ? {_COS_POLY}  /* cos(r) */\n"
+            f"        : {_SIN_POLY};  /* sin(r) */\n"
             "    return (quadrant >= 2u) ? -v : v;\n}\n")
 
 

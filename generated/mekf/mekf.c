@@ -38,7 +38,9 @@ static float fast_sincos_quadrant(float x, uint32_t shift)
     const float r = ((x - kf * 1.5703125f) - kf * 4.837512969970703125e-4f) - kf * 7.54978995489188216e-8f;
     const float r2 = r * r;
     const uint32_t quadrant = ((uint32_t)k + shift) & 3u;
-    const float v = ((quadrant & 1u) != 0u) ? 1.0f - 0.5f * r2 + r2 * r2 * (4.166664568298827e-2f + r2 * ((-1.388731625493765e-3f) + r2 * 2.443315711809948e-5f)) : r + r * r2 * ((-1.6666654611e-1f) + r2 * (8.3321608736e-3f + r2 * (-1.9515295891e-4f)));
+    const float v = ((quadrant & 1u) != 0u)
+        ? 1.0f - 0.5f * r2 + r2 * r2 * (4.166664568298827e-2f + r2 * ((-1.388731625493765e-3f) + r2 * 2.443315711809948e-5f))  /* cos(r) */
+        : r + r * r2 * ((-1.6666654611e-1f) + r2 * (8.3321608736e-3f + r2 * (-1.9515295891e-4f)));  /* sin(r) */
     return (quadrant >= 2u) ? -v : v;
 }
 
