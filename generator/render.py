@@ -301,7 +301,7 @@ def render(cfg: BuildConfig, names: bool = True) -> Generated:
                               for n in (a["max"].lower(), a["min"].lower())) or "gyro_max" in runtime,
         params=params, valid_bits=VALID_BITS, status=status_ctx, state=state_ctx, input=input_ctx,
         kernels=kctx, sensors=model.sensors, state_bytes=state_bytes, runtime=runtime_ctx,
-        aliasing_exceptions=_aliasing_exceptions([k.name for ks, k in zip(specs, kernels) if ks.early_writes]),
+        aliasing_exceptions=_aliasing_exceptions([k.name for ks, k in zip(specs, kernels) if ks.early_writes], prefix),
         math=cfg.math if real == "float" else "libm", fastmath_code=fastmath.c_source(fast_helpers),
         config_record=config_record,
         step_partial="step.c.j2",
@@ -370,16 +370,14 @@ NOINLINE = "#if defined(__GNUC__)\n__attribute__((noinline))\n#endif\n"
 _EARLY_WRITES_NOTE = "; outputs are stored as soon as computed (arrays restrict): no argument may overlap an output"
 
 
-def _aliasing_exceptions(names: list[str]) -> list[str]:
-    """Lines of the file header naming the kernels the aliasing rule does not cover
-    (KernelSpec.early_writes), wrapped for the comment block; none when there are none."""
+def _aliasing_exceptions(names: list[str], prefix: str) -> str:
+    """The header's paragraph naming the kernels the aliasing rule does not cover
+    (KernelSpec.early_writes); empty when there are none."""
     if not names:
-        return []
-    import textwrap
+        return ""
     listed = names[0] if len(names) == 1 else ", ".join(names[:-1]) + " and " + names[-1]
-    text = (f"Exceptions: {listed} store each output as soon as it is computed and declare "
-            f"their arrays restrict: no argument of theirs may overlap one of their outputs.")
-    return textwrap.wrap(text, 92)
+    return _wrap_doc(f"Exceptions: {listed} store each output as soon as it is computed and declare "
+                     f"their arrays restrict: no argument of theirs may overlap one of their outputs.", prefix)
 
 
 def _storage(ks, k) -> str:
