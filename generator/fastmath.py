@@ -54,29 +54,42 @@ _COS_POLY = ("1.0f - 0.5f * r2 + r2 * r2 * (4.166664568298827e-2f + r2 * ((-1.38
              "+ r2 * 2.443315711809948e-5f))")
 
 
-def _sincos_quadrant() -> str:
-    """sin and cos share one function (one copy of the reduction and polynomials in flash):
-    the cosine is the sine one quadrant on, so `shift` 0 gives sin(x) and 1 gives cos(x)."""
-    return ("static float fast_sincos_quadrant(float x, uint32_t shift)\n{\n"
-            f"    if (!(fabsf(x) <= {TRIG_MAX:.1f}f)) {{\n        return NAN;\n    }}"
+def _sincos() -> str:
+    """sin and cos share one function (one copy of the reduction and polynomials in flash).
+    The cosine is the sine one quadrant on: with k quadrants taken off, sin(x) is +-sin(r)
+    for even k and +-cos(r) for odd k, and cos(x) the other one. The emitter calls it once
+    for a sin and a cos of the same argument (emit/kernel.py), fast_sinf and fast_cosf for
+    one of them; either way a value is the same float. The pair comes back in registers (a
+    struct of two floats is returned in s0 and s1 on the Cortex-M4F's hard-float ABI); the
+    inline fast_sincosf stores it where the caller wants it, which at -O2 is its registers."""
+    return ("typedef struct {\n    float s;\n    float c;\n} fast_sin_cos;\n\n"
+            "static fast_sin_cos fast_sin_cos_of(float x)\n{\n"
+            "    fast_sin_cos v;\n"
+            f"    if (!(fabsf(x) <= {TRIG_MAX:.1f}f)) {{\n        v.s = NAN;\n        v.c = NAN;\n        return v;\n    }}"
             + _SINCOS_BODY +
-            "    const uint32_t quadrant = ((uint32_t)k + shift) & 3u;\n"
-            "    const float v = ((quadrant & 1u) != 0u)\n"
-            f"        ? {_COS_POLY}  /* cos(r) */\n"
-            f"        : {_SIN_POLY};  /* sin(r) */\n"
-            "    return (quadrant >= 2u) ? -v : v;\n}\n")
+            f"    const float sin_r = {_SIN_POLY};\n"
+            f"    const float cos_r = {_COS_POLY};\n"
+            "    const uint32_t quadrant = (uint32_t)k & 3u;\n"
+            "    const float vs = ((quadrant & 1u) != 0u) ? cos_r : sin_r;\n"
+            "    const float vc = ((quadrant & 1u) != 0u) ? sin_r : cos_r;\n"
+            "    v.s = (quadrant >= 2u) ? -vs : vs;\n"
+            "    v.c = (quadrant == 1u || quadrant == 2u) ? -vc : vc;   /* quadrant + 1 >= 2 (mod 4) */\n"
+            "    return v;\n}\n\n"
+            "static inline void fast_sincosf(float x, float *s, float *c)\n{\n"
+            "    const fast_sin_cos v = fast_sin_cos_of(x);\n    *s = v.s;\n    *c = v.c;\n}\n")
+
+
+def _one_of_sincos(name: str, which: str) -> str:
+    return f"static inline float {name}(float x)\n{{\n    return fast_sin_cos_of(x).{which};\n}}\n"
 
 
 HELPERS = {
-    "sincos_quadrant": Helper("fast_sincos_quadrant", f"sin(x) (shift 0) or cos(x) (shift 1), |x| <= {TRIG_MAX:g} "
-                              "(NaN beyond); the shared body of fast_sinf and fast_cosf",
-                              _sincos_quadrant(), max_abs_error=1.5e-7),
+    "sincos": Helper("fast_sincosf", f"sin(x) into *s and cos(x) into *c with one reduction, |x| <= {TRIG_MAX:g} "
+                     "(NaN beyond); the body of fast_sinf and fast_cosf too", _sincos(), max_abs_error=1.5e-7),
     "sin": Helper("fast_sinf", f"sin(x), |x| <= {TRIG_MAX:g} (NaN beyond; sin(-0) = +0)",
-                  "static inline float fast_sinf(float x)\n{\n    return fast_sincos_quadrant(x, 0u);\n}\n",
-                  needs=("sincos_quadrant",), max_abs_error=1.5e-7),
+                  _one_of_sincos("fast_sinf", "s"), needs=("sincos",), max_abs_error=1.5e-7),
     "cos": Helper("fast_cosf", f"cos(x), |x| <= {TRIG_MAX:g} (NaN beyond)",
-                  "static inline float fast_cosf(float x)\n{\n    return fast_sincos_quadrant(x, 1u);\n}\n",
-                  needs=("sincos_quadrant",), max_abs_error=1.5e-7),
+                  _one_of_sincos("fast_cosf", "c"), needs=("sincos",), max_abs_error=1.5e-7),
     "atan2": Helper("fast_atan2f", "atan2(y, x), every float pair; quadrants, signed zeros and infinities as C99",
                     """static float fast_atan2f(float y, float x)
 {

@@ -66,13 +66,22 @@ def kernel_bodies(src: str, prefix: str) -> dict[str, list[str]]:
     A split kernel's parts (<kernel>_part<N>) count as the kernel. A select written as a
     branch is declared without a value (`float tmpN;`) and assigned on each side: it counts
     as one select ("? :"), like one written as a conditional expression; so does a flag
-    (`bool`: a comparison, or and/or/not on flags, written without `?`)."""
+    (`bool`: a comparison, or and/or/not on flags, written without `?`). A sine and a cosine
+    of one argument computed by one call, `fast_sincosf(a, &tmpS, &tmpC)` after the
+    declarations `float tmpS; float tmpC;`, are two temporaries: one sin, one cos."""
     out: dict[str, list[str]] = {}
     for m in re.finditer(rf"static (?:inline )?void {prefix}_k_(\w+)\([^)]*\)\n\{{\n(.*?)\n\}}", src, re.S):
         name = re.sub(r"_part\d+$", "", m.group(1))
         rhs = out.setdefault(name, [])
+        paired = {t for pair in re.findall(r"fast_sincosf\(.+, &(tmp\d+), &(tmp\d+)\);", m.group(2)) for t in pair}
         for ln in m.group(2).splitlines():
-            if re.match(r"\s*const bool tmp\d+ = ", ln):
+            call = re.match(r"\s*fast_sincosf\((.+), &tmp\d+, &tmp\d+\);", ln)
+            declared = re.fullmatch(r"\s*float (tmp\d+);", ln)
+            if call:
+                rhs += [f"fast_sinf({call.group(1)})", f"fast_cosf({call.group(1)})"]
+            elif declared and declared.group(1) in paired:
+                continue
+            elif re.match(r"\s*const bool tmp\d+ = ", ln):
                 rhs.append("flag ? 1 : 0")       # a flag (comparison or logic on flags): one cmp
             elif re.match(r"\s*const \w+ tmp\d+ = ", ln):
                 # a folded parameter's name rides in a comment (0.15f /* 0.5*kp */): not an operation

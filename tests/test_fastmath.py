@@ -23,7 +23,7 @@ def lib(tmp_path_factory):
     src = ["#include <float.h>", "#include <math.h>", "#include <stdbool.h>", "#include <stdint.h>",
            fastmath.c_source(fastmath.HELPERS)]
     for n, h in fastmath.HELPERS.items():
-        if n == "sincos_quadrant":
+        if n == "sincos":
             continue   # fast_sinf's and fast_cosf's shared body, measured through them
         two = n == "atan2"
         src.append(f"void v_{n}(const float *x, const float *y, float *o, long k);\n"
@@ -114,10 +114,43 @@ def test_emitter_writes_helpers_only_for_fast_float():
     text = "\n".join(fast.body)
     assert "fast_sinf(" in text and "fast_atan2f(" in text and "fast_asinf(" in text and " sinf(x)" not in text
     assert fast.helpers == ["asin", "atan2", "sin"]
-    assert fastmath.closure(fast.helpers) == ["sincos_quadrant", "atan2", "sin", "asin"]    # dependencies first
+    assert fastmath.closure(fast.helpers) == ["sincos", "atan2", "sin", "asin"]    # dependencies first
     libm = "\n".join(emit.emit(fn, "float", math="libm").body)
     assert " sinf(x)" in libm and "fast_" not in libm
     dbl = emit.emit(fn, "double", math="fast")
     assert " sin(x)" in "\n".join(dbl.body) and dbl.helpers == []
     with pytest.raises(emit.EmitError):
         emit.emit(fn, "float", math="approx")
+
+
+def test_sin_and_cos_of_one_argument_share_one_call_in_one_scope(tmp_path):
+    """math = "fast": sin(a) and cos(a) in one scope become one fast_sincosf call, also when
+    a kernel split puts them in different statements (the second value is then handed on
+    from the first's part); a sin and a cos on the two sides of an if/else stay apart. The
+    kernel's floats are checked against the double functions within the helpers' bound."""
+    a, b = ca.SX.sym("a"), ca.SX.sym("b")
+    big = a * b
+    for _ in range(30):                 # enough work between the pair to split it into parts
+        big = big * a + b
+    side = ca.if_else(b < 0, ca.sin(b) * ca.exp(a) * 3, ca.cos(b) / (1 + a * a) + 2)
+    out = ca.vertcat(ca.sin(a) * 2, big, ca.cos(a) + big, side)
+    fn = emit.function("k", {"a": a, "b": b}, {"o": out})
+    k = emit.emit(fn, "float", math="fast", split_temps=20)
+    src = "\n".join(k.body + k.parts)
+    assert len(k.parts) >= 2
+    assert src.count("fast_sincosf(a, &") == 1 and "fast_sinf(a)" not in src and "fast_cosf(a)" not in src
+    assert "fast_sinf(b)" in src and "fast_cosf(b)" in src       # if/else sides: not paired
+    assert k.ops["trig"] == 5                                     # the count still names each function
+    assert k.helpers == ["cos", "exp", "sin", "sincos"]
+    c = tmp_path / "k.c"
+    c.write_text("#include <float.h>\n#include <math.h>\n#include <stdbool.h>\n#include <stdint.h>\n"
+                 + fastmath.c_source(k.helpers) + "\n" + k.source(storage="") + "\n")
+    subprocess.run(["gcc", *FLAGS, "-shared", "-fPIC", str(c), "-o", str(tmp_path / "k.so")], check=True)
+    lib = ctypes.CDLL(str(tmp_path / "k.so"))
+    lib.k.restype = None
+    f = ca.Function("f", [a, b], [out])
+    for x, y in ((0.3, -0.7), (-2.0, 0.4), (1e-3, 0.99), (3.0, -0.01)):
+        o = (ctypes.c_float * 4)()
+        lib.k(ctypes.c_float(x), ctypes.c_float(y), o)
+        exact = np.array(f(np.float32(x), np.float32(y))).ravel()
+        np.testing.assert_allclose(list(o), exact, rtol=1e-5, atol=1e-6)

@@ -28,11 +28,19 @@
 #include <string.h>
 
 /* math = "fast": trigonometry without libm (generator/fastmath.py; errors measured there) */
-/* sin(x) (shift 0) or cos(x) (shift 1), |x| <= 8192 (NaN beyond); the shared body of fast_sinf and fast_cosf; max abs error 1.5e-07 (tests/test_fastmath.py) */
-static float fast_sincos_quadrant(float x, uint32_t shift)
+/* sin(x) into *s and cos(x) into *c with one reduction, |x| <= 8192 (NaN beyond); the body of fast_sinf and fast_cosf too; max abs error 1.5e-07 (tests/test_fastmath.py) */
+typedef struct {
+    float s;
+    float c;
+} fast_sin_cos;
+
+static fast_sin_cos fast_sin_cos_of(float x)
 {
+    fast_sin_cos v;
     if (!(fabsf(x) <= 8192.0f)) {
-        return NAN;
+        v.s = NAN;
+        v.c = NAN;
+        return v;
     }
     const float t = x * 0.636619772f;                       /* x * 2/pi */
     const int32_t k = (int32_t)((t >= 0.0f) ? t + 0.5f : t - 0.5f);
@@ -40,11 +48,21 @@ static float fast_sincos_quadrant(float x, uint32_t shift)
     /* Cody-Waite: pi/2 in three parts, the first two with trailing zero bits */
     const float r = ((x - kf * 1.5703125f) - kf * 4.837512969970703125e-4f) - kf * 7.54978995489188216e-8f;
     const float r2 = r * r;
-    const uint32_t quadrant = ((uint32_t)k + shift) & 3u;
-    const float v = ((quadrant & 1u) != 0u)
-        ? 1.0f - 0.5f * r2 + r2 * r2 * (4.166664568298827e-2f + r2 * ((-1.388731625493765e-3f) + r2 * 2.443315711809948e-5f))  /* cos(r) */
-        : r + r * r2 * ((-1.6666654611e-1f) + r2 * (8.3321608736e-3f + r2 * (-1.9515295891e-4f)));  /* sin(r) */
-    return (quadrant >= 2u) ? -v : v;
+    const float sin_r = r + r * r2 * ((-1.6666654611e-1f) + r2 * (8.3321608736e-3f + r2 * (-1.9515295891e-4f)));
+    const float cos_r = 1.0f - 0.5f * r2 + r2 * r2 * (4.166664568298827e-2f + r2 * ((-1.388731625493765e-3f) + r2 * 2.443315711809948e-5f));
+    const uint32_t quadrant = (uint32_t)k & 3u;
+    const float vs = ((quadrant & 1u) != 0u) ? cos_r : sin_r;
+    const float vc = ((quadrant & 1u) != 0u) ? sin_r : cos_r;
+    v.s = (quadrant >= 2u) ? -vs : vs;
+    v.c = (quadrant == 1u || quadrant == 2u) ? -vc : vc;   /* quadrant + 1 >= 2 (mod 4) */
+    return v;
+}
+
+static inline void fast_sincosf(float x, float *s, float *c)
+{
+    const fast_sin_cos v = fast_sin_cos_of(x);
+    *s = v.s;
+    *c = v.c;
 }
 
 /* atan2(y, x), every float pair; quadrants, signed zeros and infinities as C99; max abs error 3.5e-07 (tests/test_fastmath.py) */
@@ -74,18 +92,6 @@ static float fast_atan2f(float y, float x)
         a = 3.14159265f - a;
     }
     return signbit(y) ? -a : a;
-}
-
-/* sin(x), |x| <= 8192 (NaN beyond; sin(-0) = +0); max abs error 1.5e-07 (tests/test_fastmath.py) */
-static inline float fast_sinf(float x)
-{
-    return fast_sincos_quadrant(x, 0u);
-}
-
-/* cos(x), |x| <= 8192 (NaN beyond); max abs error 1.5e-07 (tests/test_fastmath.py) */
-static inline float fast_cosf(float x)
-{
-    return fast_sincos_quadrant(x, 1u);
 }
 
 /* linear Kalman time update: q- = A q, P- = A P A^T + Q; outputs are stored as soon as computed (arrays restrict): no argument may overlap an output
@@ -3348,14 +3354,15 @@ static void adukf_k_accel_lowpass(const float q_pred_unit[4], const float accel[
 
 /* initial attitude: accelerometer tilt and tilt-compensated heading (+ declination)
  * ops: add 14, mul 24, sqrt 1, trig 13, cmp 2 (total 54) */
-static void adukf_k_init_q_part0(const float accel[3], const float mag[3], float carry[9])
+static void adukf_k_init_q_part0(const float accel[3], const float mag[3], float carry[8])
 {
     const float tmp0 = -accel[1];
     const float tmp1 = -accel[2];
     const float tmp2 = fast_atan2f(tmp0, tmp1);
-    const float tmp3 = fast_cosf(tmp2);
+    float tmp5;
+    float tmp3;
+    fast_sincosf(tmp2, &tmp5, &tmp3);   /* sin and cos, one reduction */
     const float tmp4 = mag[1] * tmp3;
-    const float tmp5 = fast_sinf(tmp2);
     const float tmp6 = mag[2] * tmp5;
     const float tmp7 = tmp4 - tmp6;
     const float tmp8 = -tmp7;
@@ -3364,9 +3371,10 @@ static void adukf_k_init_q_part0(const float accel[3], const float mag[3], float
     const float tmp11 = tmp9 + tmp10;
     const float tmp12 = sqrtf(tmp11);
     const float tmp13 = fast_atan2f(accel[0], tmp12);
-    const float tmp14 = fast_cosf(tmp13);
+    float tmp16;
+    float tmp14;
+    fast_sincosf(tmp13, &tmp16, &tmp14);   /* sin and cos, one reduction */
     const float tmp15 = mag[0] * tmp14;
-    const float tmp16 = fast_sinf(tmp13);
     const float tmp17 = mag[1] * tmp16;
     const float tmp18 = tmp17 * tmp5;
     const float tmp19 = tmp15 + tmp18;
@@ -3380,42 +3388,44 @@ static void adukf_k_init_q_part0(const float accel[3], const float mag[3], float
     const float tmp27 = (tmp24 <= (-3.1415927f)) ? tmp26 : tmp24;
     const float tmp28 = (3.1415927f < tmp24) ? tmp25 : tmp27;
     const float tmp29 = tmp28 * 0.5f;
-    const float tmp30 = fast_cosf(tmp29);
+    float tmp37;
+    float tmp30;
+    fast_sincosf(tmp29, &tmp37, &tmp30);   /* sin and cos, one reduction */
     const float tmp31 = tmp13 * 0.5f;
-    const float tmp32 = fast_cosf(tmp31);
+    float tmp38;
+    float tmp32;
+    fast_sincosf(tmp31, &tmp38, &tmp32);   /* sin and cos, one reduction */
     const float tmp33 = tmp30 * tmp32;
     const float tmp34 = tmp2 * 0.5f;
-    const float tmp35 = fast_cosf(tmp34);
+    float tmp40;
+    float tmp35;
+    fast_sincosf(tmp34, &tmp40, &tmp35);   /* sin and cos, one reduction */
     const float tmp36 = tmp33 * tmp35;
-    const float tmp37 = fast_sinf(tmp29);
-    const float tmp38 = fast_sinf(tmp31);
-    const float tmp39 = tmp37 * tmp38;
     carry[0] = tmp30;
-    carry[1] = tmp32;
-    carry[2] = tmp33;
-    carry[3] = tmp34;
-    carry[4] = tmp35;
-    carry[5] = tmp36;
-    carry[6] = tmp37;
-    carry[7] = tmp38;
-    carry[8] = tmp39;
+    carry[1] = tmp37;
+    carry[2] = tmp32;
+    carry[3] = tmp38;
+    carry[4] = tmp33;
+    carry[5] = tmp35;
+    carry[6] = tmp40;
+    carry[7] = tmp36;
 }
 
-static void adukf_k_init_q_part1(float carry[9])
+static void adukf_k_init_q_part1(float carry[8])
 {
-    const float tmp40 = fast_sinf(carry[3]);
-    const float tmp41 = carry[8] * tmp40;
-    const float tmp42 = carry[5] + tmp41;
-    const float tmp43 = carry[2] * tmp40;
-    const float tmp44 = carry[8] * carry[4];
+    const float tmp39 = carry[1] * carry[3];
+    const float tmp41 = tmp39 * carry[6];
+    const float tmp42 = carry[7] + tmp41;
+    const float tmp43 = carry[4] * carry[6];
+    const float tmp44 = tmp39 * carry[5];
     const float tmp45 = tmp43 - tmp44;
-    const float tmp46 = carry[0] * carry[7];
-    const float tmp47 = tmp46 * carry[4];
-    const float tmp48 = carry[6] * carry[1];
-    const float tmp49 = tmp48 * tmp40;
+    const float tmp46 = carry[0] * carry[3];
+    const float tmp47 = tmp46 * carry[5];
+    const float tmp48 = carry[1] * carry[2];
+    const float tmp49 = tmp48 * carry[6];
     const float tmp50 = tmp47 + tmp49;
-    const float tmp51 = tmp48 * carry[4];
-    const float tmp52 = tmp46 * tmp40;
+    const float tmp51 = tmp48 * carry[5];
+    const float tmp52 = tmp46 * carry[6];
     const float tmp53 = tmp51 - tmp52;
     carry[0] = tmp42;
     carry[1] = tmp45;
@@ -3426,7 +3436,7 @@ static void adukf_k_init_q_part1(float carry[9])
 static void adukf_k_init_q(const float accel[3], const float mag[3], float q[4])
 {
     /* 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
-    float carry[9];
+    float carry[8];
     adukf_k_init_q_part0(accel, mag, carry);
     adukf_k_init_q_part1(carry);
     q[0] = carry[0];

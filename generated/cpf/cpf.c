@@ -25,11 +25,19 @@
 #include <string.h>
 
 /* math = "fast": trigonometry without libm (generator/fastmath.py; errors measured there) */
-/* sin(x) (shift 0) or cos(x) (shift 1), |x| <= 8192 (NaN beyond); the shared body of fast_sinf and fast_cosf; max abs error 1.5e-07 (tests/test_fastmath.py) */
-static float fast_sincos_quadrant(float x, uint32_t shift)
+/* sin(x) into *s and cos(x) into *c with one reduction, |x| <= 8192 (NaN beyond); the body of fast_sinf and fast_cosf too; max abs error 1.5e-07 (tests/test_fastmath.py) */
+typedef struct {
+    float s;
+    float c;
+} fast_sin_cos;
+
+static fast_sin_cos fast_sin_cos_of(float x)
 {
+    fast_sin_cos v;
     if (!(fabsf(x) <= 8192.0f)) {
-        return NAN;
+        v.s = NAN;
+        v.c = NAN;
+        return v;
     }
     const float t = x * 0.636619772f;                       /* x * 2/pi */
     const int32_t k = (int32_t)((t >= 0.0f) ? t + 0.5f : t - 0.5f);
@@ -37,11 +45,21 @@ static float fast_sincos_quadrant(float x, uint32_t shift)
     /* Cody-Waite: pi/2 in three parts, the first two with trailing zero bits */
     const float r = ((x - kf * 1.5703125f) - kf * 4.837512969970703125e-4f) - kf * 7.54978995489188216e-8f;
     const float r2 = r * r;
-    const uint32_t quadrant = ((uint32_t)k + shift) & 3u;
-    const float v = ((quadrant & 1u) != 0u)
-        ? 1.0f - 0.5f * r2 + r2 * r2 * (4.166664568298827e-2f + r2 * ((-1.388731625493765e-3f) + r2 * 2.443315711809948e-5f))  /* cos(r) */
-        : r + r * r2 * ((-1.6666654611e-1f) + r2 * (8.3321608736e-3f + r2 * (-1.9515295891e-4f)));  /* sin(r) */
-    return (quadrant >= 2u) ? -v : v;
+    const float sin_r = r + r * r2 * ((-1.6666654611e-1f) + r2 * (8.3321608736e-3f + r2 * (-1.9515295891e-4f)));
+    const float cos_r = 1.0f - 0.5f * r2 + r2 * r2 * (4.166664568298827e-2f + r2 * ((-1.388731625493765e-3f) + r2 * 2.443315711809948e-5f));
+    const uint32_t quadrant = (uint32_t)k & 3u;
+    const float vs = ((quadrant & 1u) != 0u) ? cos_r : sin_r;
+    const float vc = ((quadrant & 1u) != 0u) ? sin_r : cos_r;
+    v.s = (quadrant >= 2u) ? -vs : vs;
+    v.c = (quadrant == 1u || quadrant == 2u) ? -vc : vc;   /* quadrant + 1 >= 2 (mod 4) */
+    return v;
+}
+
+static inline void fast_sincosf(float x, float *s, float *c)
+{
+    const fast_sin_cos v = fast_sin_cos_of(x);
+    *s = v.s;
+    *c = v.c;
 }
 
 /* atan2(y, x), every float pair; quadrants, signed zeros and infinities as C99; max abs error 3.5e-07 (tests/test_fastmath.py) */
@@ -73,18 +91,6 @@ static float fast_atan2f(float y, float x)
     return signbit(y) ? -a : a;
 }
 
-/* sin(x), |x| <= 8192 (NaN beyond; sin(-0) = +0); max abs error 1.5e-07 (tests/test_fastmath.py) */
-static inline float fast_sinf(float x)
-{
-    return fast_sincos_quadrant(x, 0u);
-}
-
-/* cos(x), |x| <= 8192 (NaN beyond); max abs error 1.5e-07 (tests/test_fastmath.py) */
-static inline float fast_cosf(float x)
-{
-    return fast_sincos_quadrant(x, 1u);
-}
-
 /* accelerometer roll and pitch (eqs. 1-2 in FRD/NED)
  * ops: add 3, mul 2, sqrt 1, trig 2 (total 8) */
 static inline void cpf_k_tilt(const float accel[3], float *roll, float *pitch)
@@ -105,15 +111,17 @@ static inline void cpf_k_tilt(const float accel[3], float *roll, float *pitch)
  * ops: add 6, mul 7, trig 5, cmp 2 (total 20) */
 static inline void cpf_k_heading(const float mag[3], float roll, float pitch, float *yaw)
 {
-    const float tmp0 = fast_cosf(roll);
+    float tmp2;
+    float tmp0;
+    fast_sincosf(roll, &tmp2, &tmp0);   /* sin and cos, one reduction */
     const float tmp1 = mag[1] * tmp0;
-    const float tmp2 = fast_sinf(roll);
     const float tmp3 = mag[2] * tmp2;
     const float tmp4 = tmp1 - tmp3;
     const float tmp5 = -tmp4;
-    const float tmp6 = fast_cosf(pitch);
+    float tmp8;
+    float tmp6;
+    fast_sincosf(pitch, &tmp8, &tmp6);   /* sin and cos, one reduction */
     const float tmp7 = mag[0] * tmp6;
-    const float tmp8 = fast_sinf(pitch);
     const float tmp9 = mag[1] * tmp8;
     const float tmp10 = tmp9 * tmp2;
     const float tmp11 = tmp7 + tmp10;
@@ -133,17 +141,20 @@ static inline void cpf_k_heading(const float mag[3], float roll, float pitch, fl
 static inline void cpf_k_from_euler(const float rpy[3], float q[4])
 {
     const float tmp0 = rpy[2] * 0.5f;
-    const float tmp1 = fast_cosf(tmp0);
+    float tmp8;
+    float tmp1;
+    fast_sincosf(tmp0, &tmp8, &tmp1);   /* sin and cos, one reduction */
     const float tmp2 = rpy[1] * 0.5f;
-    const float tmp3 = fast_cosf(tmp2);
+    float tmp9;
+    float tmp3;
+    fast_sincosf(tmp2, &tmp9, &tmp3);   /* sin and cos, one reduction */
     const float tmp4 = tmp1 * tmp3;
     const float tmp5 = rpy[0] * 0.5f;
-    const float tmp6 = fast_cosf(tmp5);
+    float tmp11;
+    float tmp6;
+    fast_sincosf(tmp5, &tmp11, &tmp6);   /* sin and cos, one reduction */
     const float tmp7 = tmp4 * tmp6;
-    const float tmp8 = fast_sinf(tmp0);
-    const float tmp9 = fast_sinf(tmp2);
     const float tmp10 = tmp8 * tmp9;
-    const float tmp11 = fast_sinf(tmp5);
     const float tmp12 = tmp10 * tmp11;
     const float tmp13 = tmp7 + tmp12;
     const float tmp14 = tmp4 * tmp11;
@@ -234,7 +245,7 @@ static void cpf_k_predict(const float q[4], const float gyro[3], float dt, float
 
 /* complementary mix of gyro and accel/mag angles through wrapped differences (eqs. 7-8)
  * ops: add 23, mul 20, div 1, trig 6, cmp 12 (total 62) */
-static void cpf_k_cf_mix_part0(const float rpy[3], const float am[3], float dt, float use_accel, float use_mag, float carry[8])
+static void cpf_k_cf_mix_part0(const float rpy[3], const float am[3], float dt, float use_accel, float use_mag, float carry[6])
 {
     const float tmp0 = 0.3f /* tau */ + dt;
     const float tmp1 = dt / tmp0;
@@ -251,7 +262,9 @@ static void cpf_k_cf_mix_part0(const float rpy[3], const float am[3], float dt, 
     const float tmp12 = (tmp9 <= (-3.1415927f)) ? tmp11 : tmp9;
     const float tmp13 = (3.1415927f < tmp9) ? tmp10 : tmp12;
     const float tmp14 = tmp13 * 0.5f;
-    const float tmp15 = fast_cosf(tmp14);
+    float tmp45;
+    float tmp15;
+    fast_sincosf(tmp14, &tmp45, &tmp15);   /* sin and cos, one reduction */
     const float tmp16 = use_accel * tmp1;
     const float tmp17 = am[1] - rpy[1];
     const float tmp18 = tmp17 - 6.2831855f;
@@ -265,7 +278,9 @@ static void cpf_k_cf_mix_part0(const float rpy[3], const float am[3], float dt, 
     const float tmp26 = (tmp23 <= (-3.1415927f)) ? tmp25 : tmp23;
     const float tmp27 = (3.1415927f < tmp23) ? tmp24 : tmp26;
     const float tmp28 = tmp27 * 0.5f;
-    const float tmp29 = fast_cosf(tmp28);
+    float tmp46;
+    float tmp29;
+    fast_sincosf(tmp28, &tmp46, &tmp29);   /* sin and cos, one reduction */
     const float tmp30 = tmp15 * tmp29;
     const float tmp31 = am[0] - rpy[0];
     const float tmp32 = tmp31 - 6.2831855f;
@@ -274,37 +289,34 @@ static void cpf_k_cf_mix_part0(const float rpy[3], const float am[3], float dt, 
     const float tmp35 = (3.1415927f < tmp31) ? tmp32 : tmp34;
     const float tmp36 = tmp16 * tmp35;
     const float tmp37 = rpy[0] + tmp36;
-    const float tmp38 = tmp37 - 6.2831855f;
-    const float tmp39 = tmp37 + 6.2831855f;
-    carry[0] = tmp14;
-    carry[1] = tmp15;
-    carry[2] = tmp28;
-    carry[3] = tmp29;
+    carry[0] = tmp15;
+    carry[1] = tmp45;
+    carry[2] = tmp29;
+    carry[3] = tmp46;
     carry[4] = tmp30;
     carry[5] = tmp37;
-    carry[6] = tmp38;
-    carry[7] = tmp39;
 }
 
-static void cpf_k_cf_mix_part1(float carry[8])
+static void cpf_k_cf_mix_part1(float carry[6])
 {
-    const float tmp40 = (carry[5] <= (-3.1415927f)) ? carry[7] : carry[5];
-    const float tmp41 = (3.1415927f < carry[5]) ? carry[6] : tmp40;
+    const float tmp38 = carry[5] - 6.2831855f;
+    const float tmp39 = carry[5] + 6.2831855f;
+    const float tmp40 = (carry[5] <= (-3.1415927f)) ? tmp39 : carry[5];
+    const float tmp41 = (3.1415927f < carry[5]) ? tmp38 : tmp40;
     const float tmp42 = tmp41 * 0.5f;
-    const float tmp43 = fast_cosf(tmp42);
+    float tmp48;
+    float tmp43;
+    fast_sincosf(tmp42, &tmp48, &tmp43);   /* sin and cos, one reduction */
     const float tmp44 = carry[4] * tmp43;
-    const float tmp45 = fast_sinf(carry[0]);
-    const float tmp46 = fast_sinf(carry[2]);
-    const float tmp47 = tmp45 * tmp46;
-    const float tmp48 = fast_sinf(tmp42);
+    const float tmp47 = carry[1] * carry[3];
     const float tmp49 = tmp47 * tmp48;
     const float tmp50 = tmp44 + tmp49;
     const float tmp51 = carry[4] * tmp48;
     const float tmp52 = tmp47 * tmp43;
     const float tmp53 = tmp51 - tmp52;
-    const float tmp54 = carry[1] * tmp46;
+    const float tmp54 = carry[0] * carry[3];
     const float tmp55 = tmp54 * tmp43;
-    const float tmp56 = tmp45 * carry[3];
+    const float tmp56 = carry[1] * carry[2];
     const float tmp57 = tmp56 * tmp48;
     const float tmp58 = tmp55 + tmp57;
     const float tmp59 = tmp56 * tmp43;
@@ -319,7 +331,7 @@ static void cpf_k_cf_mix_part1(float carry[8])
 static void cpf_k_cf_mix(const float rpy[3], const float am[3], float dt, float use_accel, float use_mag, float q_cf[4])
 {
     /* 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
-    float carry[8];
+    float carry[6];
     cpf_k_cf_mix_part0(rpy, am, dt, use_accel, use_mag, carry);
     cpf_k_cf_mix_part1(carry);
     q_cf[0] = carry[0];

@@ -25,11 +25,19 @@
 #include <string.h>
 
 /* math = "fast": trigonometry without libm (generator/fastmath.py; errors measured there) */
-/* sin(x) (shift 0) or cos(x) (shift 1), |x| <= 8192 (NaN beyond); the shared body of fast_sinf and fast_cosf; max abs error 1.5e-07 (tests/test_fastmath.py) */
-static float fast_sincos_quadrant(float x, uint32_t shift)
+/* sin(x) into *s and cos(x) into *c with one reduction, |x| <= 8192 (NaN beyond); the body of fast_sinf and fast_cosf too; max abs error 1.5e-07 (tests/test_fastmath.py) */
+typedef struct {
+    float s;
+    float c;
+} fast_sin_cos;
+
+static fast_sin_cos fast_sin_cos_of(float x)
 {
+    fast_sin_cos v;
     if (!(fabsf(x) <= 8192.0f)) {
-        return NAN;
+        v.s = NAN;
+        v.c = NAN;
+        return v;
     }
     const float t = x * 0.636619772f;                       /* x * 2/pi */
     const int32_t k = (int32_t)((t >= 0.0f) ? t + 0.5f : t - 0.5f);
@@ -37,11 +45,21 @@ static float fast_sincos_quadrant(float x, uint32_t shift)
     /* Cody-Waite: pi/2 in three parts, the first two with trailing zero bits */
     const float r = ((x - kf * 1.5703125f) - kf * 4.837512969970703125e-4f) - kf * 7.54978995489188216e-8f;
     const float r2 = r * r;
-    const uint32_t quadrant = ((uint32_t)k + shift) & 3u;
-    const float v = ((quadrant & 1u) != 0u)
-        ? 1.0f - 0.5f * r2 + r2 * r2 * (4.166664568298827e-2f + r2 * ((-1.388731625493765e-3f) + r2 * 2.443315711809948e-5f))  /* cos(r) */
-        : r + r * r2 * ((-1.6666654611e-1f) + r2 * (8.3321608736e-3f + r2 * (-1.9515295891e-4f)));  /* sin(r) */
-    return (quadrant >= 2u) ? -v : v;
+    const float sin_r = r + r * r2 * ((-1.6666654611e-1f) + r2 * (8.3321608736e-3f + r2 * (-1.9515295891e-4f)));
+    const float cos_r = 1.0f - 0.5f * r2 + r2 * r2 * (4.166664568298827e-2f + r2 * ((-1.388731625493765e-3f) + r2 * 2.443315711809948e-5f));
+    const uint32_t quadrant = (uint32_t)k & 3u;
+    const float vs = ((quadrant & 1u) != 0u) ? cos_r : sin_r;
+    const float vc = ((quadrant & 1u) != 0u) ? sin_r : cos_r;
+    v.s = (quadrant >= 2u) ? -vs : vs;
+    v.c = (quadrant == 1u || quadrant == 2u) ? -vc : vc;   /* quadrant + 1 >= 2 (mod 4) */
+    return v;
+}
+
+static inline void fast_sincosf(float x, float *s, float *c)
+{
+    const fast_sin_cos v = fast_sin_cos_of(x);
+    *s = v.s;
+    *c = v.c;
 }
 
 /* atan2(y, x), every float pair; quadrants, signed zeros and infinities as C99; max abs error 3.5e-07 (tests/test_fastmath.py) */
@@ -71,18 +89,6 @@ static float fast_atan2f(float y, float x)
         a = 3.14159265f - a;
     }
     return signbit(y) ? -a : a;
-}
-
-/* sin(x), |x| <= 8192 (NaN beyond; sin(-0) = +0); max abs error 1.5e-07 (tests/test_fastmath.py) */
-static inline float fast_sinf(float x)
-{
-    return fast_sincos_quadrant(x, 0u);
-}
-
-/* cos(x), |x| <= 8192 (NaN beyond); max abs error 1.5e-07 (tests/test_fastmath.py) */
-static inline float fast_cosf(float x)
-{
-    return fast_sincos_quadrant(x, 1u);
 }
 
 /* time update: attitude and F's attitude rows
@@ -149,8 +155,9 @@ static void mekf_k_predict_attitude_part1(float carry[32])
     } else {
         const float tmp42 = (carry[4] > 0.01f) ? carry[4] : 0.01f;
         const float tmp43 = sqrtf(tmp42);
-        const float tmp44 = fast_cosf(tmp43);
-        const float tmp45 = fast_sinf(tmp43);
+        float tmp45;
+        float tmp44;
+        fast_sincosf(tmp43, &tmp45, &tmp44);   /* sin and cos, one reduction */
         const float tmp46 = tmp45 / tmp43;
         const bool tmp47 = 0.01f <= carry[4];
         const bool tmp48 = carry[4] <= 0.01f;
@@ -2356,15 +2363,17 @@ static void mekf_k_init_attitude_part0(const float accel[3], const float mag[3],
     } else {
         float tmp10;
         if (use[1]) {
-            const float tmp11 = fast_cosf(tmp2);
+            float tmp13;
+            float tmp11;
+            fast_sincosf(tmp2, &tmp13, &tmp11);   /* sin and cos, one reduction */
             const float tmp12 = mag[1] * tmp11;
-            const float tmp13 = fast_sinf(tmp2);
             const float tmp14 = mag[2] * tmp13;
             const float tmp15 = tmp12 - tmp14;
             const float tmp16 = -tmp15;
-            const float tmp17 = fast_cosf(tmp7);
+            float tmp19;
+            float tmp17;
+            fast_sincosf(tmp7, &tmp19, &tmp17);   /* sin and cos, one reduction */
             const float tmp18 = mag[0] * tmp17;
-            const float tmp19 = fast_sinf(tmp7);
             const float tmp20 = mag[1] * tmp19;
             const float tmp21 = tmp20 * tmp13;
             const float tmp22 = tmp18 + tmp21;
@@ -2383,40 +2392,41 @@ static void mekf_k_init_attitude_part0(const float accel[3], const float mag[3],
         tmp8 = tmp10;
     }
     const float tmp31 = tmp8 * 0.5f;
-    const float tmp32 = fast_cosf(tmp31);
+    float tmp39;
+    float tmp32;
+    fast_sincosf(tmp31, &tmp39, &tmp32);   /* sin and cos, one reduction */
     const float tmp33 = tmp7 * 0.5f;
-    const float tmp34 = fast_cosf(tmp33);
+    float tmp40;
+    float tmp34;
+    fast_sincosf(tmp33, &tmp40, &tmp34);   /* sin and cos, one reduction */
     const float tmp35 = tmp32 * tmp34;
     const float tmp36 = tmp2 * 0.5f;
-    const float tmp37 = fast_cosf(tmp36);
-    const float tmp38 = tmp35 * tmp37;
-    const float tmp39 = fast_sinf(tmp31);
     carry[0] = tmp32;
-    carry[1] = tmp33;
+    carry[1] = tmp39;
     carry[2] = tmp34;
-    carry[3] = tmp35;
-    carry[4] = tmp36;
-    carry[5] = tmp37;
-    carry[6] = tmp38;
-    carry[7] = tmp39;
+    carry[3] = tmp40;
+    carry[4] = tmp35;
+    carry[5] = tmp36;
 }
 
 static void mekf_k_init_attitude_part1(const float accel[3], float carry[11])
 {
-    const float tmp40 = fast_sinf(carry[1]);
-    const float tmp41 = carry[7] * tmp40;
-    const float tmp42 = fast_sinf(carry[4]);
+    float tmp42;
+    float tmp37;
+    fast_sincosf(carry[5], &tmp42, &tmp37);   /* sin and cos, one reduction */
+    const float tmp38 = carry[4] * tmp37;
+    const float tmp41 = carry[1] * carry[3];
     const float tmp43 = tmp41 * tmp42;
-    const float tmp44 = carry[6] + tmp43;
-    const float tmp45 = carry[3] * tmp42;
-    const float tmp46 = tmp41 * carry[5];
+    const float tmp44 = tmp38 + tmp43;
+    const float tmp45 = carry[4] * tmp42;
+    const float tmp46 = tmp41 * tmp37;
     const float tmp47 = tmp45 - tmp46;
-    const float tmp48 = carry[0] * tmp40;
-    const float tmp49 = tmp48 * carry[5];
-    const float tmp50 = carry[7] * carry[2];
+    const float tmp48 = carry[0] * carry[3];
+    const float tmp49 = tmp48 * tmp37;
+    const float tmp50 = carry[1] * carry[2];
     const float tmp51 = tmp50 * tmp42;
     const float tmp52 = tmp49 + tmp51;
-    const float tmp53 = tmp50 * carry[5];
+    const float tmp53 = tmp50 * tmp37;
     const float tmp54 = tmp48 * tmp42;
     const float tmp55 = tmp53 - tmp54;
     const float tmp56 = tmp52 * tmp52;
@@ -2442,7 +2452,6 @@ static void mekf_k_init_attitude_part1(const float accel[3], float carry[11])
     const float tmp76 = tmp75 * accel[0];
     const float tmp77 = tmp47 * tmp47;
     const float tmp78 = tmp77 + tmp57;
-    const float tmp79 = tmp78 + tmp78;
     carry[0] = tmp44;
     carry[1] = tmp47;
     carry[2] = tmp52;
@@ -2453,12 +2462,13 @@ static void mekf_k_init_attitude_part1(const float accel[3], float carry[11])
     carry[7] = tmp73;
     carry[8] = tmp76;
     carry[9] = tmp77;
-    carry[10] = tmp79;
+    carry[10] = tmp78;
 }
 
 static void mekf_k_init_attitude_part2(const float accel[3], float carry[11])
 {
-    const float tmp80 = 1.0f - carry[10];
+    const float tmp79 = carry[10] + carry[10];
+    const float tmp80 = 1.0f - tmp79;
     const float tmp81 = tmp80 * accel[1];
     const float tmp82 = carry[8] + tmp81;
     const float tmp83 = carry[2] * carry[3];

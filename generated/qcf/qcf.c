@@ -25,11 +25,19 @@
 #include <string.h>
 
 /* math = "fast": trigonometry without libm (generator/fastmath.py; errors measured there) */
-/* sin(x) (shift 0) or cos(x) (shift 1), |x| <= 8192 (NaN beyond); the shared body of fast_sinf and fast_cosf; max abs error 1.5e-07 (tests/test_fastmath.py) */
-static float fast_sincos_quadrant(float x, uint32_t shift)
+/* sin(x) into *s and cos(x) into *c with one reduction, |x| <= 8192 (NaN beyond); the body of fast_sinf and fast_cosf too; max abs error 1.5e-07 (tests/test_fastmath.py) */
+typedef struct {
+    float s;
+    float c;
+} fast_sin_cos;
+
+static fast_sin_cos fast_sin_cos_of(float x)
 {
+    fast_sin_cos v;
     if (!(fabsf(x) <= 8192.0f)) {
-        return NAN;
+        v.s = NAN;
+        v.c = NAN;
+        return v;
     }
     const float t = x * 0.636619772f;                       /* x * 2/pi */
     const int32_t k = (int32_t)((t >= 0.0f) ? t + 0.5f : t - 0.5f);
@@ -37,11 +45,21 @@ static float fast_sincos_quadrant(float x, uint32_t shift)
     /* Cody-Waite: pi/2 in three parts, the first two with trailing zero bits */
     const float r = ((x - kf * 1.5703125f) - kf * 4.837512969970703125e-4f) - kf * 7.54978995489188216e-8f;
     const float r2 = r * r;
-    const uint32_t quadrant = ((uint32_t)k + shift) & 3u;
-    const float v = ((quadrant & 1u) != 0u)
-        ? 1.0f - 0.5f * r2 + r2 * r2 * (4.166664568298827e-2f + r2 * ((-1.388731625493765e-3f) + r2 * 2.443315711809948e-5f))  /* cos(r) */
-        : r + r * r2 * ((-1.6666654611e-1f) + r2 * (8.3321608736e-3f + r2 * (-1.9515295891e-4f)));  /* sin(r) */
-    return (quadrant >= 2u) ? -v : v;
+    const float sin_r = r + r * r2 * ((-1.6666654611e-1f) + r2 * (8.3321608736e-3f + r2 * (-1.9515295891e-4f)));
+    const float cos_r = 1.0f - 0.5f * r2 + r2 * r2 * (4.166664568298827e-2f + r2 * ((-1.388731625493765e-3f) + r2 * 2.443315711809948e-5f));
+    const uint32_t quadrant = (uint32_t)k & 3u;
+    const float vs = ((quadrant & 1u) != 0u) ? cos_r : sin_r;
+    const float vc = ((quadrant & 1u) != 0u) ? sin_r : cos_r;
+    v.s = (quadrant >= 2u) ? -vs : vs;
+    v.c = (quadrant == 1u || quadrant == 2u) ? -vc : vc;   /* quadrant + 1 >= 2 (mod 4) */
+    return v;
+}
+
+static inline void fast_sincosf(float x, float *s, float *c)
+{
+    const fast_sin_cos v = fast_sin_cos_of(x);
+    *s = v.s;
+    *c = v.c;
 }
 
 /* atan2(y, x), every float pair; quadrants, signed zeros and infinities as C99; max abs error 3.5e-07 (tests/test_fastmath.py) */
@@ -71,18 +89,6 @@ static float fast_atan2f(float y, float x)
         a = 3.14159265f - a;
     }
     return signbit(y) ? -a : a;
-}
-
-/* sin(x), |x| <= 8192 (NaN beyond; sin(-0) = +0); max abs error 1.5e-07 (tests/test_fastmath.py) */
-static inline float fast_sinf(float x)
-{
-    return fast_sincos_quadrant(x, 0u);
-}
-
-/* cos(x), |x| <= 8192 (NaN beyond); max abs error 1.5e-07 (tests/test_fastmath.py) */
-static inline float fast_cosf(float x)
-{
-    return fast_sincos_quadrant(x, 1u);
 }
 
 /* the magnetometer sample in NED, R(q) m, read by the field check and the heading correction
@@ -465,8 +471,9 @@ static void qcf_k_correct_part2(const float q[4], float carry[11])
     } else {
         const float tmp100 = (tmp85 > 0.01f) ? tmp85 : 0.01f;
         const float tmp101 = sqrtf(tmp100);
-        const float tmp102 = fast_cosf(tmp101);
-        const float tmp103 = fast_sinf(tmp101);
+        float tmp103;
+        float tmp102;
+        fast_sincosf(tmp101, &tmp103, &tmp102);   /* sin and cos, one reduction */
         const float tmp104 = tmp103 / tmp101;
         const float tmp105 = tmp104 * carry[4];
         const float tmp106 = tmp104 * carry[6];
@@ -950,8 +957,9 @@ static void qcf_k_propagate_part0(const float q[4], const float gyro_bias[3], co
     } else {
         const float tmp26 = (tmp11 > 0.01f) ? tmp11 : 0.01f;
         const float tmp27 = sqrtf(tmp26);
-        const float tmp28 = fast_cosf(tmp27);
-        const float tmp29 = fast_sinf(tmp27);
+        float tmp29;
+        float tmp28;
+        fast_sincosf(tmp27, &tmp29, &tmp28);   /* sin and cos, one reduction */
         const float tmp30 = tmp29 / tmp27;
         const float tmp31 = tmp30 * tmp2;
         const float tmp32 = tmp30 * tmp5;

@@ -320,6 +320,8 @@ def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc
         for c in nodes[t].get("extra_ops", ()):
             ops[c] += 1
     body, emitted, branches, tops = _layout(kept, nodes, writes, precision, branch_min_cost, marks.plain)
+    if fast:
+        body, tops = _pair_sincos(body, tops)
     if early_writes:
         body, tops, writes = _place_writes_early(body, tops, writes)
     # Renumber in emission order so the temporaries count up without gaps.
@@ -338,9 +340,55 @@ def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc
     for br in branches:
         br["condition"] = sub(br["condition"])
     unused = [a.name for i, a in enumerate(inputs) if i not in used_inputs and a.expr is None]
-    used = {h for h in helpers if any(fastmath.HELPERS[h].name + "(" in nodes[t]["expr"] for t in kept)}
+    text = "\n".join(body + parts)
+    used = {h for h in helpers | {"sincos"} if fastmath.HELPERS[h].name + "(" in text}
     return Kernel(name, precision, inputs, outputs, body, ops, doc, len(kept), unused, helpers=sorted(used),
                   branches=branches, parts=parts, context=ctx_decl, restrict=early_writes)
+
+
+_SIN_OR_COS = re.compile(r"^(\s*)const float (t\d+) = fast_(sin|cos)f\((.+)\);$")
+
+
+def _pair_sincos(body, tops):
+    """A sin and a cos of the same argument in one scope become one fast_sincosf call at the
+    first of them: one range reduction, the same floats. A pair is two lines
+    `const float tN = fast_sinf(a);` and `fast_cosf(a)` with the same indentation and argument
+    text and no line between them less indented (which would close their scope, e.g.
+    `} else {`). The argument is an SSA temporary or input, defined before the first, so
+    computing the second value there changes nothing; if the two lie in different top-level
+    statements, the second's temporary is now defined by the first's (for _split). Returns
+    (body, tops) with the lines renumbered."""
+    lines: list[str | None] = list(body)
+    top_of = {k: n for n, (a, b, _) in enumerate(tops) for k in range(a, b)}
+    defs = [list(d) for _, _, d in tops]
+    for i, line in enumerate(lines):
+        m = _SIN_OR_COS.match(line) if line is not None else None
+        if not m:
+            continue
+        ind, tmp, fn, arg = m.groups()
+        for j in range(i + 1, len(lines)):
+            other = lines[j]
+            if other is None:
+                continue
+            if other.strip() and len(other) - len(other.lstrip()) < len(ind):
+                break
+            m2 = _SIN_OR_COS.match(other)
+            if m2 and m2.group(1) == ind and m2.group(4) == arg and m2.group(3) != fn:
+                second = m2.group(2)
+                s, c = (tmp, second) if fn == "sin" else (second, tmp)
+                lines[i] = (f"{ind}float {s};\n{ind}float {c};\n"
+                            f"{ind}fast_sincosf({arg}, &{s}, &{c});   /* sin and cos, one reduction */")
+                lines[j] = None
+                if top_of[i] != top_of[j]:
+                    defs[top_of[j]].remove(second)
+                    defs[top_of[i]].append(second)
+                break
+    new_body, new_tops = [], []
+    for n, (a, b, _) in enumerate(tops):
+        start = len(new_body)
+        new_body += [ln for text in lines[a:b] if text is not None for ln in text.split("\n")]
+        new_tops.append((start, len(new_body), defs[n]))
+    return new_body, new_tops
 
 
 def _place_writes_early(body, tops, writes):
