@@ -1311,7 +1311,8 @@ qcf_status qcf_step(qcf_state *restrict s, const qcf_input *restrict in, float d
     if (use_accel || heading_ok) {
         qcf_k_correct(s->q, rot, s->gyro_bias, in->gyro, dt, s->accel_lp, mag_n,
                                use_accel ? s->accel_age : 0.0f, heading_ok ? s->mag_age : 0.0f,
-                               use_accel, accel_n2, at_rest, s->rest_gyro_lp,                           s->q, s->gyro_bias);
+                               use_accel, accel_n2, at_rest, s->rest_gyro_lp,
+                               s->q, s->gyro_bias);
     } else {
         qcf_k_propagate(s->q, s->gyro_bias, in->gyro, dt, s->q);
     }
