@@ -3522,7 +3522,7 @@ static bool adukf_in_range(float x, float lo, float hi)
  * beyond +-vmax, |v|^2 below min2. |v|^2 < vmax^2 (a NaN or infinity fails it) implies every
  * |v_i| < vmax, float rounding being monotone, so the component test runs only when it fails. */
 static adukf_status adukf_aiding_skip(const float v[3], float n2, float vmax, float min2,
-                                   adukf_status nonfinite, adukf_status range, adukf_status zero)
+    adukf_status nonfinite, adukf_status range, adukf_status zero)
 {
     if ((n2 < vmax * vmax || adukf_within3(v, vmax)) && n2 >= min2) {
         return ADUKF_OK;
@@ -3537,8 +3537,8 @@ static adukf_status adukf_aiding_skip(const float v[3], float n2, float vmax, fl
  * a refusal's status (the step returns it, state untouched), or the skip bits of the aiding
  * samples, with use_* saying which are usable. */
 static adukf_status adukf_check_inputs(const adukf_input *in,
-                                   float accel_n2, bool *use_accel,
-                                   float mag_n2, bool *use_mag)
+    float accel_n2, bool *use_accel,
+    float mag_n2, bool *use_mag)
 {
     if ((in->valid & ADUKF_VALID_GYRO) == 0u) {
         return ADUKF_GYRO_MISSING;
@@ -3551,16 +3551,16 @@ static adukf_status adukf_check_inputs(const adukf_input *in,
     *use_accel = false;
     if ((in->valid & ADUKF_VALID_ACCEL) != 0u) {
         const adukf_status skip = adukf_aiding_skip(in->accel, accel_n2, ADUKF_ACCEL_MAX,
-                                                ADUKF_ACCEL_MIN_NORM * ADUKF_ACCEL_MIN_NORM, ADUKF_ACCEL_NONFINITE,
-                                                ADUKF_ACCEL_RANGE, ADUKF_ACCEL_ZERO);
+            ADUKF_ACCEL_MIN_NORM * ADUKF_ACCEL_MIN_NORM, ADUKF_ACCEL_NONFINITE,
+            ADUKF_ACCEL_RANGE, ADUKF_ACCEL_ZERO);
         *use_accel = skip == ADUKF_OK;
         status |= skip;
     }
     *use_mag = false;
     if ((in->valid & ADUKF_VALID_MAG) != 0u) {
         const adukf_status skip = adukf_aiding_skip(in->mag, mag_n2, ADUKF_MAG_MAX,
-                                                ADUKF_MAG_MIN_NORM * ADUKF_MAG_MIN_NORM, ADUKF_MAG_NONFINITE,
-                                                ADUKF_MAG_RANGE, ADUKF_MAG_ZERO);
+            ADUKF_MAG_MIN_NORM * ADUKF_MAG_MIN_NORM, ADUKF_MAG_NONFINITE,
+            ADUKF_MAG_RANGE, ADUKF_MAG_ZERO);
         *use_mag = skip == ADUKF_OK;
         status |= skip;
     }

@@ -862,7 +862,7 @@ static bool cpf_in_range(float x, float lo, float hi)
  * beyond +-vmax, |v|^2 below min2. |v|^2 < vmax^2 (a NaN or infinity fails it) implies every
  * |v_i| < vmax, float rounding being monotone, so the component test runs only when it fails. */
 static cpf_status cpf_aiding_skip(const float v[3], float n2, float vmax, float min2,
-                                   cpf_status nonfinite, cpf_status range, cpf_status zero)
+    cpf_status nonfinite, cpf_status range, cpf_status zero)
 {
     if ((n2 < vmax * vmax || cpf_within3(v, vmax)) && n2 >= min2) {
         return CPF_OK;
@@ -877,8 +877,8 @@ static cpf_status cpf_aiding_skip(const float v[3], float n2, float vmax, float 
  * a refusal's status (the step returns it, state untouched), or the skip bits of the aiding
  * samples, with use_* saying which are usable. */
 static cpf_status cpf_check_inputs(const cpf_input *in,
-                                   float accel_n2, bool *use_accel,
-                                   float mag_n2, bool *use_mag)
+    float accel_n2, bool *use_accel,
+    float mag_n2, bool *use_mag)
 {
     if ((in->valid & CPF_VALID_GYRO) == 0u) {
         return CPF_GYRO_MISSING;
@@ -891,16 +891,16 @@ static cpf_status cpf_check_inputs(const cpf_input *in,
     *use_accel = false;
     if ((in->valid & CPF_VALID_ACCEL) != 0u) {
         const cpf_status skip = cpf_aiding_skip(in->accel, accel_n2, CPF_ACCEL_MAX,
-                                                CPF_ACCEL_MIN_NORM * CPF_ACCEL_MIN_NORM, CPF_ACCEL_NONFINITE,
-                                                CPF_ACCEL_RANGE, CPF_ACCEL_ZERO);
+            CPF_ACCEL_MIN_NORM * CPF_ACCEL_MIN_NORM, CPF_ACCEL_NONFINITE,
+            CPF_ACCEL_RANGE, CPF_ACCEL_ZERO);
         *use_accel = skip == CPF_OK;
         status |= skip;
     }
     *use_mag = false;
     if ((in->valid & CPF_VALID_MAG) != 0u) {
         const cpf_status skip = cpf_aiding_skip(in->mag, mag_n2, CPF_MAG_MAX,
-                                                CPF_MAG_MIN_NORM * CPF_MAG_MIN_NORM, CPF_MAG_NONFINITE,
-                                                CPF_MAG_RANGE, CPF_MAG_ZERO);
+            CPF_MAG_MIN_NORM * CPF_MAG_MIN_NORM, CPF_MAG_NONFINITE,
+            CPF_MAG_RANGE, CPF_MAG_ZERO);
         *use_mag = skip == CPF_OK;
         status |= skip;
     }

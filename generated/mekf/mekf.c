@@ -2593,7 +2593,7 @@ static bool mekf_in_range(float x, float lo, float hi)
  * beyond +-vmax, |v|^2 below min2. |v|^2 < vmax^2 (a NaN or infinity fails it) implies every
  * |v_i| < vmax, float rounding being monotone, so the component test runs only when it fails. */
 static mekf_status mekf_aiding_skip(const float v[3], float n2, float vmax, float min2,
-                                   mekf_status nonfinite, mekf_status range, mekf_status zero)
+    mekf_status nonfinite, mekf_status range, mekf_status zero)
 {
     if ((n2 < vmax * vmax || mekf_within3(v, vmax)) && n2 >= min2) {
         return MEKF_OK;
@@ -2608,8 +2608,8 @@ static mekf_status mekf_aiding_skip(const float v[3], float n2, float vmax, floa
  * a refusal's status (the step returns it, state untouched), or the skip bits of the aiding
  * samples, with use_* saying which are usable. */
 static mekf_status mekf_check_inputs(const mekf_input *in,
-                                   float accel_n2, bool *use_accel,
-                                   float mag_n2, bool *use_mag)
+    float accel_n2, bool *use_accel,
+    float mag_n2, bool *use_mag)
 {
     if ((in->valid & MEKF_VALID_GYRO) == 0u) {
         return MEKF_GYRO_MISSING;
@@ -2622,16 +2622,16 @@ static mekf_status mekf_check_inputs(const mekf_input *in,
     *use_accel = false;
     if ((in->valid & MEKF_VALID_ACCEL) != 0u) {
         const mekf_status skip = mekf_aiding_skip(in->accel, accel_n2, MEKF_ACCEL_MAX,
-                                                MEKF_ACCEL_MIN_NORM * MEKF_ACCEL_MIN_NORM, MEKF_ACCEL_NONFINITE,
-                                                MEKF_ACCEL_RANGE, MEKF_ACCEL_ZERO);
+            MEKF_ACCEL_MIN_NORM * MEKF_ACCEL_MIN_NORM, MEKF_ACCEL_NONFINITE,
+            MEKF_ACCEL_RANGE, MEKF_ACCEL_ZERO);
         *use_accel = skip == MEKF_OK;
         status |= skip;
     }
     *use_mag = false;
     if ((in->valid & MEKF_VALID_MAG) != 0u) {
         const mekf_status skip = mekf_aiding_skip(in->mag, mag_n2, MEKF_MAG_MAX,
-                                                MEKF_MAG_MIN_NORM * MEKF_MAG_MIN_NORM, MEKF_MAG_NONFINITE,
-                                                MEKF_MAG_RANGE, MEKF_MAG_ZERO);
+            MEKF_MAG_MIN_NORM * MEKF_MAG_MIN_NORM, MEKF_MAG_NONFINITE,
+            MEKF_MAG_RANGE, MEKF_MAG_ZERO);
         *use_mag = skip == MEKF_OK;
         status |= skip;
     }
@@ -2752,8 +2752,8 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
             use_gps = true;
         } else {
             const mekf_status skip = mekf_aiding_skip(in->gps_vel_ned, gps_n2, MEKF_GPS_VEL_MAX,
-                                                    0.0f, MEKF_GPS_NONFINITE, MEKF_GPS_RANGE,
-                                                    MEKF_OK);
+                0.0f, MEKF_GPS_NONFINITE, MEKF_GPS_RANGE,
+                MEKF_OK);
             use_gps = skip == MEKF_OK;
             status |= skip;
         }

@@ -1114,7 +1114,7 @@ static bool qcf_in_range(float x, float lo, float hi)
  * beyond +-vmax, |v|^2 below min2. |v|^2 < vmax^2 (a NaN or infinity fails it) implies every
  * |v_i| < vmax, float rounding being monotone, so the component test runs only when it fails. */
 static qcf_status qcf_aiding_skip(const float v[3], float n2, float vmax, float min2,
-                                   qcf_status nonfinite, qcf_status range, qcf_status zero)
+    qcf_status nonfinite, qcf_status range, qcf_status zero)
 {
     if ((n2 < vmax * vmax || qcf_within3(v, vmax)) && n2 >= min2) {
         return QCF_OK;
@@ -1129,8 +1129,8 @@ static qcf_status qcf_aiding_skip(const float v[3], float n2, float vmax, float 
  * a refusal's status (the step returns it, state untouched), or the skip bits of the aiding
  * samples, with use_* saying which are usable. */
 static qcf_status qcf_check_inputs(const qcf_input *in,
-                                   float accel_n2, bool *use_accel,
-                                   float mag_n2, bool *use_mag)
+    float accel_n2, bool *use_accel,
+    float mag_n2, bool *use_mag)
 {
     if ((in->valid & QCF_VALID_GYRO) == 0u) {
         return QCF_GYRO_MISSING;
@@ -1143,16 +1143,16 @@ static qcf_status qcf_check_inputs(const qcf_input *in,
     *use_accel = false;
     if ((in->valid & QCF_VALID_ACCEL) != 0u) {
         const qcf_status skip = qcf_aiding_skip(in->accel, accel_n2, QCF_ACCEL_MAX,
-                                                QCF_ACCEL_MIN_NORM * QCF_ACCEL_MIN_NORM, QCF_ACCEL_NONFINITE,
-                                                QCF_ACCEL_RANGE, QCF_ACCEL_ZERO);
+            QCF_ACCEL_MIN_NORM * QCF_ACCEL_MIN_NORM, QCF_ACCEL_NONFINITE,
+            QCF_ACCEL_RANGE, QCF_ACCEL_ZERO);
         *use_accel = skip == QCF_OK;
         status |= skip;
     }
     *use_mag = false;
     if ((in->valid & QCF_VALID_MAG) != 0u) {
         const qcf_status skip = qcf_aiding_skip(in->mag, mag_n2, QCF_MAG_MAX,
-                                                QCF_MAG_MIN_NORM * QCF_MAG_MIN_NORM, QCF_MAG_NONFINITE,
-                                                QCF_MAG_RANGE, QCF_MAG_ZERO);
+            QCF_MAG_MIN_NORM * QCF_MAG_MIN_NORM, QCF_MAG_NONFINITE,
+            QCF_MAG_RANGE, QCF_MAG_ZERO);
         *use_mag = skip == QCF_OK;
         status |= skip;
     }
@@ -1225,8 +1225,8 @@ qcf_status qcf_step(qcf_state *restrict s, const qcf_input *restrict in, float d
             use_gps = true;
         } else {
             const qcf_status skip = qcf_aiding_skip(in->gps_vel_ned, gps_n2, QCF_GPS_VEL_MAX,
-                                                    0.0f, QCF_GPS_NONFINITE, QCF_GPS_RANGE,
-                                                    QCF_OK);
+                0.0f, QCF_GPS_NONFINITE, QCF_GPS_RANGE,
+                QCF_OK);
             use_gps = skip == QCF_OK;
             status |= skip;
         }
@@ -1291,7 +1291,7 @@ qcf_status qcf_step(qcf_state *restrict s, const qcf_input *restrict in, float d
     if (use_accel) {
         qcf_k_accel_lowpass(rot, accel_g, s->accel_lp, s->accel_age, s->accel_lp);
         qcf_k_rest(in->gyro, in->accel, s->rest_gyro_lp, s->rest_accel_lp, s->rest_time, s->accel_age,
-                            s->rest_gyro_lp, s->rest_accel_lp, &s->rest_time, &at_rest);
+            s->rest_gyro_lp, s->rest_accel_lp, &s->rest_time, &at_rest);
         if (at_rest) {
             status |= QCF_AT_REST;
         }
@@ -1302,7 +1302,7 @@ qcf_status qcf_step(qcf_state *restrict s, const qcf_input *restrict in, float d
         qcf_k_mag_ned(rot, in->mag, mag_n);
         bool accept;
         qcf_k_mag_check(s->accel_lp, mag_n2, mag_n, s->mag_ref, s->mag_dist_time, s->mag_learn_time,
-                                 s->mag_age, &accept, s->mag_ref, &s->mag_dist_time, &s->mag_learn_time);
+            s->mag_age, &accept, s->mag_ref, &s->mag_dist_time, &s->mag_learn_time);
         if (!accept) {
             heading_ok = false;
             status |= QCF_MAG_DISTURBED;
@@ -1310,9 +1310,9 @@ qcf_status qcf_step(qcf_state *restrict s, const qcf_input *restrict in, float d
     }
     if (use_accel || heading_ok) {
         qcf_k_correct(s->q, rot, s->gyro_bias, in->gyro, dt, s->accel_lp, mag_n,
-                               use_accel ? s->accel_age : 0.0f, heading_ok ? s->mag_age : 0.0f,
-                               use_accel, accel_n2, at_rest, s->rest_gyro_lp,
-                               s->q, s->gyro_bias);
+            use_accel ? s->accel_age : 0.0f, heading_ok ? s->mag_age : 0.0f,
+            use_accel, accel_n2, at_rest, s->rest_gyro_lp,
+            s->q, s->gyro_bias);
     } else {
         qcf_k_propagate(s->q, s->gyro_bias, in->gyro, dt, s->q);
     }
