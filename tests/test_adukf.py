@@ -49,9 +49,12 @@ def test_float_c_within_bound(name):
 
 
 @pytest.mark.parametrize("name", SCENARIOS)
-@pytest.mark.parametrize("sets", [PLAIN, ("adapt_max=1.0",)], ids=["plain", "adapt_max"])
+@pytest.mark.parametrize("sets", [PLAIN, ("adapt_max=1.0",), ("sigma_set=simplex",)],
+                         ids=["plain", "adapt_max", "simplex"])
 def test_variants_match_reference(name, sets):
-    """k_a = k_m = 0 (the DUKF baseline), and the bounded adaptation, through C and reference."""
+    """k_a = k_m = 0 (the DUKF baseline), the bounded adaptation, and the simplex sigma points
+    (the C's prefix sums and folded weights against the reference's textbook sums over the
+    12 points), through C and reference."""
     log = scenario(name, 0, duration=40.0)
     c = host_build("adukf", "double", sets).run(log)
     r = reference_run("adukf", name, sets, 0, duration=40.0)
@@ -101,6 +104,20 @@ def test_adaptive_r_rises_on_the_disturbed_axis():
         hp.step(s, log.gyro[k], log.accel[k], log.mag[k], log.gps_vel[k], int(log.valid[k]), float(log.dt[k]))
     rd = hp.state_dict(s)["r_diag"]
     np.testing.assert_allclose(rd, [base] * 3 + [p["sigma_mag"] ** 2] * 3, rtol=1e-12)
+
+
+@pytest.mark.parametrize("n", [4, 7])
+def test_simplex_sigma_set_matches_mean_and_covariance(n):
+    """The reference's simplex set against the UT's defining moments: Σ Wm σ = 0,
+    Σ Wm σ σᵀ = I, weights summing to 1, every point at the symmetric set's radius a, 5 points
+    moving the attitude (Julier 2003: n + 1 points in n = 4 dimensions)."""
+    S, wm, wc = ref_mod.sigma_set("simplex", 1.0, 2.0, 0.0, n)
+    a, wm_sym, wc_sym = ref_mod.ut_weights(1.0, 2.0, 0.0, n)
+    np.testing.assert_allclose(S @ wm, 0.0, atol=1e-15)
+    np.testing.assert_allclose((S * wm) @ S.T, np.eye(n), atol=1e-14)
+    assert abs(wm.sum() - 1.0) < 1e-14 and abs(wc.sum() - wc_sym.sum()) < 1e-14
+    np.testing.assert_allclose(np.linalg.norm(S[:, 1:], axis=0), a, rtol=1e-14)
+    assert S.shape[1] == 2 * n - 2 and np.count_nonzero(np.abs(S[:4]).sum(axis=0)) == 5
 
 
 def test_faithful_mode_matches_reference_and_starts_at_identity():

@@ -920,8 +920,8 @@ static void adukf_k_predict(const float q[restrict 4], const float gyro_bias[res
 }
 
 /* L = chol(P-), aL = a L[:, 0:4] (the columns that move the attitude: a bias column moves none, so 9 distinct sigma points), z0 = h(q-); pivot_P = smallest pivot of P-; outputs are stored as soon as computed (arrays restrict): no argument may overlap an output
- * ops: add 89, mul 129, div 7, sqrt 7, cmp 12 (total 244) */
-static void adukf_k_sigma_setup_part0(const float P_pred[28], float aL[28], float carry[23])
+ * ops: add 86, mul 121, div 6, sqrt 6, cmp 12 (total 231) */
+static void adukf_k_sigma_setup_part0(const float P_pred[28], float aL[28], float carry[21])
 {
     const float tmp0 = (1e-15f /* pivot_min */ < P_pred[0]) ? P_pred[0] : 1.0f;
     aL[7] = 0.0f;
@@ -995,7 +995,7 @@ static void adukf_k_sigma_setup_part0(const float P_pred[28], float aL[28], floa
     carry[11] = tmp38;
 }
 
-static void adukf_k_sigma_setup_part1(const float P_pred[28], float aL[28], float carry[23])
+static void adukf_k_sigma_setup_part1(const float P_pred[28], float aL[28], float carry[21])
 {
     const float tmp40 = carry[5] * carry[0];
     const float tmp41 = P_pred[12] - tmp40;
@@ -1053,7 +1053,7 @@ static void adukf_k_sigma_setup_part1(const float P_pred[28], float aL[28], floa
     carry[15] = tmp79;
 }
 
-static void adukf_k_sigma_setup_part2(const float x_pred[7], const float P_pred[28], float aL[28], float carry[23])
+static void adukf_k_sigma_setup_part2(const float q_pred_unit[4], const float P_pred[28], float aL[28], float z0[6], float carry[21])
 {
     const float tmp80 = carry[14] - carry[15];
     const float tmp81 = carry[7] * carry[7];
@@ -1091,199 +1091,175 @@ static void adukf_k_sigma_setup_part2(const float x_pred[7], const float P_pred[
     const float tmp110 = tmp109 * tmp85;
     const float tmp111 = 2.6457512f * tmp110;
     aL[27] = tmp111;
-    const float tmp112 = x_pred[0] * x_pred[0];
-    const float tmp113 = x_pred[1] * x_pred[1];
-    const float tmp114 = tmp112 + tmp113;
-    const float tmp115 = x_pred[2] * x_pred[2];
-    const float tmp116 = tmp114 + tmp115;
-    const float tmp117 = x_pred[3] * x_pred[3];
-    const float tmp118 = tmp116 + tmp117;
-    const float tmp119 = 1.0f / tmp118;
+    const float tmp112 = q_pred_unit[1] * q_pred_unit[3];
+    const float tmp113 = q_pred_unit[0] * q_pred_unit[2];
+    const float tmp114 = tmp112 - tmp113;
+    const float tmp115 = tmp114 + tmp114;
+    const float tmp116 = -tmp115;
+    z0[0] = tmp116;
+    const float tmp117 = q_pred_unit[2] * q_pred_unit[3];
+    const float tmp118 = q_pred_unit[0] * q_pred_unit[1];
+    const float tmp119 = tmp117 + tmp118;
     carry[2] = tmp82;
     carry[7] = tmp94;
     carry[9] = tmp102;
     carry[14] = tmp110;
-    carry[15] = tmp119;
+    carry[15] = tmp112;
+    carry[16] = tmp113;
+    carry[17] = tmp115;
+    carry[18] = tmp117;
+    carry[19] = tmp118;
+    carry[20] = tmp119;
 }
 
-static void adukf_k_sigma_setup_part3(const float x_pred[7], const float m_ref[3], float z0[6], float carry[23])
+static void adukf_k_sigma_setup_part3(const float q_pred_unit[4], const float m_ref[3], float z0[6], const float carry[21])
 {
-    const float tmp120 = sqrtf(carry[15]);
-    const float tmp121 = x_pred[1] * tmp120;
-    const float tmp122 = x_pred[3] * tmp120;
-    const float tmp123 = tmp121 * tmp122;
-    const float tmp124 = x_pred[0] * tmp120;
-    const float tmp125 = x_pred[2] * tmp120;
-    const float tmp126 = tmp124 * tmp125;
-    const float tmp127 = tmp123 - tmp126;
-    const float tmp128 = tmp127 + tmp127;
-    const float tmp129 = -tmp128;
-    z0[0] = tmp129;
-    const float tmp130 = tmp125 * tmp122;
-    const float tmp131 = tmp124 * tmp121;
-    const float tmp132 = tmp130 + tmp131;
-    const float tmp133 = tmp132 + tmp132;
-    const float tmp134 = -tmp133;
-    z0[1] = tmp134;
-    const float tmp135 = tmp121 * tmp121;
-    const float tmp136 = tmp125 * tmp125;
-    const float tmp137 = tmp135 + tmp136;
-    const float tmp138 = tmp137 + tmp137;
-    const float tmp139 = 1.0f - tmp138;
-    const float tmp140 = -tmp139;
-    z0[2] = tmp140;
-    const float tmp141 = tmp122 * tmp122;
-    const float tmp142 = tmp136 + tmp141;
-    const float tmp143 = tmp142 + tmp142;
-    const float tmp144 = 1.0f - tmp143;
-    const float tmp145 = tmp144 * m_ref[0];
-    const float tmp146 = tmp121 * tmp125;
-    const float tmp147 = tmp124 * tmp122;
-    const float tmp148 = tmp146 + tmp147;
-    const float tmp149 = tmp148 + tmp148;
-    const float tmp150 = tmp149 * m_ref[1];
-    const float tmp151 = tmp145 + tmp150;
-    const float tmp152 = tmp128 * m_ref[2];
-    const float tmp153 = tmp151 + tmp152;
-    z0[3] = tmp153;
-    const float tmp154 = tmp146 - tmp147;
+    const float tmp120 = carry[20] + carry[20];
+    const float tmp121 = -tmp120;
+    z0[1] = tmp121;
+    const float tmp122 = q_pred_unit[1] * q_pred_unit[1];
+    const float tmp123 = q_pred_unit[2] * q_pred_unit[2];
+    const float tmp124 = tmp122 + tmp123;
+    const float tmp125 = tmp124 + tmp124;
+    const float tmp126 = 1.0f - tmp125;
+    const float tmp127 = -tmp126;
+    z0[2] = tmp127;
+    const float tmp128 = q_pred_unit[3] * q_pred_unit[3];
+    const float tmp129 = tmp123 + tmp128;
+    const float tmp130 = tmp129 + tmp129;
+    const float tmp131 = 1.0f - tmp130;
+    const float tmp132 = tmp131 * m_ref[0];
+    const float tmp133 = q_pred_unit[1] * q_pred_unit[2];
+    const float tmp134 = q_pred_unit[0] * q_pred_unit[3];
+    const float tmp135 = tmp133 + tmp134;
+    const float tmp136 = tmp135 + tmp135;
+    const float tmp137 = tmp136 * m_ref[1];
+    const float tmp138 = tmp132 + tmp137;
+    const float tmp139 = carry[17] * m_ref[2];
+    const float tmp140 = tmp138 + tmp139;
+    z0[3] = tmp140;
+    const float tmp141 = tmp133 - tmp134;
+    const float tmp142 = tmp141 + tmp141;
+    const float tmp143 = tmp142 * m_ref[0];
+    const float tmp144 = tmp122 + tmp128;
+    const float tmp145 = tmp144 + tmp144;
+    const float tmp146 = 1.0f - tmp145;
+    const float tmp147 = tmp146 * m_ref[1];
+    const float tmp148 = tmp143 + tmp147;
+    const float tmp149 = tmp120 * m_ref[2];
+    const float tmp150 = tmp148 + tmp149;
+    z0[4] = tmp150;
+    const float tmp151 = carry[15] + carry[16];
+    const float tmp152 = tmp151 + tmp151;
+    const float tmp153 = tmp152 * m_ref[0];
+    const float tmp154 = carry[18] - carry[19];
     const float tmp155 = tmp154 + tmp154;
-    const float tmp156 = tmp155 * m_ref[0];
-    const float tmp157 = tmp135 + tmp141;
-    const float tmp158 = tmp157 + tmp157;
-    const float tmp159 = 1.0f - tmp158;
-    carry[15] = tmp123;
-    carry[16] = tmp126;
-    carry[17] = tmp130;
-    carry[18] = tmp131;
-    carry[19] = tmp133;
-    carry[20] = tmp139;
-    carry[21] = tmp156;
-    carry[22] = tmp159;
+    const float tmp156 = tmp155 * m_ref[1];
+    const float tmp157 = tmp153 + tmp156;
+    const float tmp158 = tmp126 * m_ref[2];
+    const float tmp159 = tmp157 + tmp158;
+    z0[5] = tmp159;
 }
 
-static void adukf_k_sigma_setup_part4(const float P_pred[28], const float m_ref[3], float z0[6], float carry[23])
+static void adukf_k_sigma_setup_part4(const float P_pred[28], float carry[21])
 {
-    const float tmp160 = carry[22] * m_ref[1];
-    const float tmp161 = carry[21] + tmp160;
-    const float tmp162 = carry[19] * m_ref[2];
-    const float tmp163 = tmp161 + tmp162;
-    z0[4] = tmp163;
-    const float tmp164 = carry[15] + carry[16];
-    const float tmp165 = tmp164 + tmp164;
-    const float tmp166 = tmp165 * m_ref[0];
-    const float tmp167 = carry[17] - carry[18];
-    const float tmp168 = tmp167 + tmp167;
-    const float tmp169 = tmp168 * m_ref[1];
-    const float tmp170 = tmp166 + tmp169;
-    const float tmp171 = carry[20] * m_ref[2];
-    const float tmp172 = tmp170 + tmp171;
-    z0[5] = tmp172;
-    const float tmp173 = (P_pred[0] < carry[6]) ? P_pred[0] : carry[6];
-    const float tmp174 = (tmp173 < carry[1]) ? tmp173 : carry[1];
-    const float tmp175 = (tmp174 < carry[2]) ? tmp174 : carry[2];
-    const float tmp176 = carry[3] * carry[3];
-    const float tmp177 = P_pred[22] - tmp176;
-    const float tmp178 = carry[10] * carry[10];
+    const float tmp160 = (P_pred[0] < carry[6]) ? P_pred[0] : carry[6];
+    const float tmp161 = (tmp160 < carry[1]) ? tmp160 : carry[1];
+    const float tmp162 = (tmp161 < carry[2]) ? tmp161 : carry[2];
+    const float tmp163 = carry[3] * carry[3];
+    const float tmp164 = P_pred[22] - tmp163;
+    const float tmp165 = carry[10] * carry[10];
+    const float tmp166 = tmp164 - tmp165;
+    const float tmp167 = carry[8] * carry[8];
+    const float tmp168 = tmp166 - tmp167;
+    const float tmp169 = carry[7] * carry[7];
+    const float tmp170 = tmp168 - tmp169;
+    const float tmp171 = (tmp162 < tmp170) ? tmp162 : tmp170;
+    const float tmp172 = carry[4] * carry[4];
+    const float tmp173 = P_pred[25] - tmp172;
+    const float tmp174 = carry[11] * carry[11];
+    const float tmp175 = tmp173 - tmp174;
+    const float tmp176 = carry[12] * carry[12];
+    const float tmp177 = tmp175 - tmp176;
+    const float tmp178 = carry[9] * carry[9];
     const float tmp179 = tmp177 - tmp178;
-    const float tmp180 = carry[8] * carry[8];
-    const float tmp181 = tmp179 - tmp180;
-    const float tmp182 = carry[7] * carry[7];
+    const float tmp180 = carry[4] * carry[3];
+    const float tmp181 = P_pred[23] - tmp180;
+    const float tmp182 = carry[11] * carry[10];
     const float tmp183 = tmp181 - tmp182;
-    const float tmp184 = (tmp175 < tmp183) ? tmp175 : tmp183;
-    const float tmp185 = carry[4] * carry[4];
-    const float tmp186 = P_pred[25] - tmp185;
-    const float tmp187 = carry[11] * carry[11];
-    const float tmp188 = tmp186 - tmp187;
-    const float tmp189 = carry[12] * carry[12];
-    const float tmp190 = tmp188 - tmp189;
-    const float tmp191 = carry[9] * carry[9];
-    const float tmp192 = tmp190 - tmp191;
-    const float tmp193 = carry[4] * carry[3];
-    const float tmp194 = P_pred[23] - tmp193;
-    const float tmp195 = carry[11] * carry[10];
-    const float tmp196 = tmp194 - tmp195;
-    const float tmp197 = carry[12] * carry[8];
+    const float tmp184 = carry[12] * carry[8];
+    const float tmp185 = tmp183 - tmp184;
+    const float tmp186 = carry[9] * carry[7];
+    const float tmp187 = tmp185 - tmp186;
+    const float tmp188 = (1e-15f /* pivot_min */ < tmp170) ? tmp170 : 1.0f;
+    const float tmp189 = 1.0f / tmp188;
+    const float tmp190 = sqrtf(tmp189);
+    const float tmp191 = tmp187 * tmp190;
+    const float tmp192 = tmp191 * tmp191;
+    const float tmp193 = tmp179 - tmp192;
+    const float tmp194 = (tmp171 < tmp193) ? tmp171 : tmp193;
+    const float tmp195 = carry[5] * carry[5];
+    const float tmp196 = P_pred[27] - tmp195;
+    const float tmp197 = carry[0] * carry[0];
     const float tmp198 = tmp196 - tmp197;
-    const float tmp199 = carry[9] * carry[7];
-    carry[1] = tmp183;
-    carry[2] = tmp184;
-    carry[6] = tmp192;
-    carry[15] = tmp198;
-    carry[16] = tmp199;
+    const float tmp199 = carry[13] * carry[13];
+    carry[1] = tmp190;
+    carry[2] = tmp191;
+    carry[6] = tmp193;
+    carry[15] = tmp194;
+    carry[16] = tmp198;
+    carry[17] = tmp199;
 }
 
-static void adukf_k_sigma_setup_part5(const float P_pred[28], float carry[23])
+static void adukf_k_sigma_setup_part5(const float P_pred[28], float *pivot_P, const float carry[21])
 {
-    const float tmp200 = carry[15] - carry[16];
-    const float tmp201 = (1e-15f /* pivot_min */ < carry[1]) ? carry[1] : 1.0f;
-    const float tmp202 = 1.0f / tmp201;
-    const float tmp203 = sqrtf(tmp202);
-    const float tmp204 = tmp200 * tmp203;
-    const float tmp205 = tmp204 * tmp204;
-    const float tmp206 = carry[6] - tmp205;
-    const float tmp207 = (carry[2] < tmp206) ? carry[2] : tmp206;
-    const float tmp208 = carry[5] * carry[5];
-    const float tmp209 = P_pred[27] - tmp208;
-    const float tmp210 = carry[0] * carry[0];
-    const float tmp211 = tmp209 - tmp210;
-    const float tmp212 = carry[13] * carry[13];
-    const float tmp213 = tmp211 - tmp212;
-    const float tmp214 = carry[14] * carry[14];
-    const float tmp215 = tmp213 - tmp214;
-    const float tmp216 = carry[5] * carry[3];
-    const float tmp217 = P_pred[24] - tmp216;
-    const float tmp218 = carry[0] * carry[10];
+    const float tmp200 = carry[16] - carry[17];
+    const float tmp201 = carry[14] * carry[14];
+    const float tmp202 = tmp200 - tmp201;
+    const float tmp203 = carry[5] * carry[3];
+    const float tmp204 = P_pred[24] - tmp203;
+    const float tmp205 = carry[0] * carry[10];
+    const float tmp206 = tmp204 - tmp205;
+    const float tmp207 = carry[13] * carry[8];
+    const float tmp208 = tmp206 - tmp207;
+    const float tmp209 = carry[14] * carry[7];
+    const float tmp210 = tmp208 - tmp209;
+    const float tmp211 = tmp210 * carry[1];
+    const float tmp212 = tmp211 * tmp211;
+    const float tmp213 = tmp202 - tmp212;
+    const float tmp214 = carry[5] * carry[4];
+    const float tmp215 = P_pred[26] - tmp214;
+    const float tmp216 = carry[0] * carry[11];
+    const float tmp217 = tmp215 - tmp216;
+    const float tmp218 = carry[13] * carry[12];
     const float tmp219 = tmp217 - tmp218;
-    const float tmp220 = carry[13] * carry[8];
+    const float tmp220 = carry[14] * carry[9];
     const float tmp221 = tmp219 - tmp220;
-    const float tmp222 = carry[14] * carry[7];
+    const float tmp222 = tmp211 * carry[2];
     const float tmp223 = tmp221 - tmp222;
-    const float tmp224 = tmp223 * tmp203;
-    const float tmp225 = tmp224 * tmp224;
-    const float tmp226 = tmp215 - tmp225;
-    const float tmp227 = carry[5] * carry[4];
-    const float tmp228 = P_pred[26] - tmp227;
-    const float tmp229 = carry[0] * carry[11];
-    const float tmp230 = tmp228 - tmp229;
-    const float tmp231 = carry[13] * carry[12];
-    const float tmp232 = tmp230 - tmp231;
-    const float tmp233 = carry[14] * carry[9];
-    const float tmp234 = tmp232 - tmp233;
-    const float tmp235 = tmp224 * tmp204;
-    const float tmp236 = tmp234 - tmp235;
-    const float tmp237 = (1e-15f /* pivot_min */ < tmp206) ? tmp206 : 1.0f;
-    const float tmp238 = 1.0f / tmp237;
-    const float tmp239 = sqrtf(tmp238);
-    carry[0] = tmp207;
-    carry[1] = tmp226;
-    carry[2] = tmp236;
-    carry[3] = tmp239;
-}
-
-static void adukf_k_sigma_setup_part6(float *pivot_P, const float carry[23])
-{
-    const float tmp240 = carry[2] * carry[3];
-    const float tmp241 = tmp240 * tmp240;
-    const float tmp242 = carry[1] - tmp241;
-    const float tmp243 = (carry[0] < tmp242) ? carry[0] : tmp242;
-    *pivot_P = tmp243;
+    const float tmp224 = (1e-15f /* pivot_min */ < carry[6]) ? carry[6] : 1.0f;
+    const float tmp225 = 1.0f / tmp224;
+    const float tmp226 = sqrtf(tmp225);
+    const float tmp227 = tmp223 * tmp226;
+    const float tmp228 = tmp227 * tmp227;
+    const float tmp229 = tmp213 - tmp228;
+    const float tmp230 = (carry[15] < tmp229) ? carry[15] : tmp229;
+    *pivot_P = tmp230;
 }
 
 #if defined(__GNUC__)
 __attribute__((noinline))
 #endif
-static void adukf_k_sigma_setup(const float x_pred[restrict 7], const float P_pred[restrict 28], const float m_ref[restrict 3], float aL[restrict 28], float z0[restrict 6], float *restrict pivot_P)
+static void adukf_k_sigma_setup(const float q_pred_unit[restrict 4], const float P_pred[restrict 28], const float m_ref[restrict 3], float aL[restrict 28], float z0[restrict 6], float *restrict pivot_P)
 {
-    /* 7 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
-    float carry[23];
+    /* 6 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    float carry[21];
     adukf_k_sigma_setup_part0(P_pred, aL, carry);
     adukf_k_sigma_setup_part1(P_pred, aL, carry);
-    adukf_k_sigma_setup_part2(x_pred, P_pred, aL, carry);
-    adukf_k_sigma_setup_part3(x_pred, m_ref, z0, carry);
-    adukf_k_sigma_setup_part4(P_pred, m_ref, z0, carry);
-    adukf_k_sigma_setup_part5(P_pred, carry);
-    adukf_k_sigma_setup_part6(pivot_P, carry);
+    adukf_k_sigma_setup_part2(q_pred_unit, P_pred, aL, z0, carry);
+    adukf_k_sigma_setup_part3(q_pred_unit, m_ref, z0, carry);
+    adukf_k_sigma_setup_part4(P_pred, carry);
+    adukf_k_sigma_setup_part5(P_pred, pivot_P, carry);
 }
 
 /* sigma points q- + col and q- - col, each normalised and mapped through h, as deviations e+, e- from z0: e+ + e- and e+ - e- (called once per column of aL)
@@ -3717,9 +3693,9 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
         /* the accelerometer enters low-passed in NED (the low-pass starts at the first sample) */
         float accel_in[3] = { 0.0f, 0.0f, -1.0f };
         if (use_accel) {
-            /* all three exactly 0 (x <= 0 && x >= 0: false for NaN, as x == 0) */
-            const bool restart = s->accel_lp[0] <= 0.0f && s->accel_lp[0] >= 0.0f && s->accel_lp[1] <= 0.0f
-                                 && s->accel_lp[1] >= 0.0f && s->accel_lp[2] <= 0.0f && s->accel_lp[2] >= 0.0f;
+            /* all three exactly 0 (+0 or -0: every bit but the sign clear; false for NaN, as x == 0) */
+            const bool restart = ((adukf_bits(s->accel_lp[0]) | adukf_bits(s->accel_lp[1])
+                                   | adukf_bits(s->accel_lp[2])) << 1) == 0u;
             adukf_k_accel_lowpass(x_new, in->accel, s->accel_lp, restart, dt,
                                          s->accel_lp, accel_in);
         }
@@ -3737,7 +3713,7 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
         float *const g = s->work + 131;
         float *const P_new = s->work + 86;
         float pivot_p;
-        adukf_k_sigma_setup(x_pred, P_pred, s->m_ref, aL, z0, &pivot_p);
+        adukf_k_sigma_setup(x_new, P_pred, s->m_ref, aL, z0, &pivot_p);
         for (uint32_t j = 0u; j < 4u; j++) {
             /* the sigma points q- +- a L[0:4, j] */
             adukf_k_sigma_pair(x_pred, aL + 7u * j, s->m_ref, z0, zsum + 6u * j, zdiff + 6u * j);

@@ -58,6 +58,7 @@ extern "C" {
 #define ADUKF_UT_ALPHA 1.0f               /* unscented transform spread: lambda = alpha^2 (n + kappa) - n, a = sqrt(n + lambda) [1] */
 #define ADUKF_UT_BETA 2.0f                /* unscented transform beta (2 for a Gaussian prior) [1] */
 #define ADUKF_UT_KAPPA 0.0f               /* unscented transform kappa [1] */
+/* ADUKF_SIGMA_SET = symmetric         sigma points along L's 4 attitude columns: symmetric (2 x 4, the scaled UT, as the paper) or simplex (the 5 points of a spherical simplex, Julier 2003, at the symmetric set's radius and total weight: 3 fewer points through h, 250 fewer instructions per step; not the default: fixed-wing at 100 Hz 7 % worse on each of 6 seeds, and on multirotor seed 0 the gyro-bias estimate keeps 90 % of its error after 120 s where symmetric keeps 32 %; docs/adukf.md); the centre and the bias columns' pairs are the same in both; faithful ignores it (symmetric) */
 #define ADUKF_P0 0.01f                    /* initial covariance P0 = p0 I4 (also what P is reset to when it stops being positive definite) [1] */
 #define ADUKF_PIVOT_MIN 1e-15f            /* a Cholesky pivot at or below this marks P- or P_zz as not positive definite [1] */
 /* ADUKF_MAG_REF = inclination         reference field direction: from inclination/declination, or the dip angle learned from the first samples at rest */

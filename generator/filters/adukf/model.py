@@ -63,6 +63,13 @@ def ut_parameters(alpha, beta, kappa, n=N):
     return math.sqrt(n + lam), lam / (n + lam), lam / (n + lam) + 1 - alpha * alpha + beta, 1 / (2 * (n + lam))
 
 
+def simplex_scales(w):
+    """c_k = 1 / sqrt(j (j + 1) w), j = k + 1, of the spherical simplex of N dimensions with
+    weight w per point (reference.spherical_simplex): point i (1..N+1) is Σ_k c_k t_i[k] e_k
+    with the integers t_i[k] = -1 for i <= k + 1, k + 1 for i = k + 2, 0 beyond."""
+    return [1.0 / math.sqrt((k + 1) * (k + 2) * w) for k in range(N)]
+
+
 def normalize(v):
     """v/|v| with one division: v * sqrt(1/|v|²) (CasADi keeps this a multiplication)."""
     return v * ca.sqrt(1 / ca.sumsqr(v))
@@ -82,6 +89,19 @@ class Model(FilterModel):
     def __init__(self, params: dict):
         super().__init__(params, sensors=("accel", "mag"), extra_status=list(EXTRA_STATUS))
         self.n = 7 if has_bias_state(params) else N
+
+    def simplex(self) -> bool:
+        return self.params["sigma_set"] == "simplex" and not self.params["faithful"]
+
+    def ut(self):
+        """(a, Wc0, w, c_dd): spread, centre's covariance weight, weight of each attitude point
+        (Wi, or the simplex's 2N Wi / (N + 1): the same total) and c_dd = Σ Wc - 2 (the same for
+        both sets)."""
+        p = self.params
+        n = self.n
+        a, _, wc0, wi = ut_parameters(p["ut_alpha"], p["ut_beta"], p["ut_kappa"], n)
+        w = 2 * N * wi / (N + 1) if self.simplex() else wi
+        return a, wc0, w, wc0 + 2 * n * wi - 2
 
     def m_ref_configured(self):
         p = self.params
@@ -116,7 +136,9 @@ class Model(FilterModel):
         derived (the template reads them): P_pred first (its lower triangle, packed: linalg's
         packed_lower_pairs); then the update's floats: the sigma points' aL and z0, the pairs'
         differences and sums (zdiff, zsum), P_zz (packed) and the residual (R goes to the
-        state's r_diag directly). The gain kernel reads all its inputs before it writes, so G
+        state's r_diag directly). sigma_set = simplex: the points' attitude parts (4 x 5, over
+        the first 20 of zdiff, which the innovation writes after they are read) and their
+        deviations zdev (6 x 5) in place of zsum. The gain kernel reads all its inputs before it writes, so G
         and g go over zdiff and the residual; the innovation and correct kernels store each
         output as soon as computed (early_writes), so their outputs overlap none of their
         inputs: P_new (packed) over zsum and P_zz, both dead by then. Then x_pred and x_new (bias
@@ -126,14 +148,21 @@ class Model(FilterModel):
         at = {"P_pred": 0, "aL": npk}
         at["z0"] = at["aL"] + 4 * n
         at["zdiff"] = at["z0"] + 6
-        at["zsum"] = at["zdiff"] + 6 * N
-        at["P_zz"] = at["zsum"] + 6 * N
+        if self.simplex():
+            at["points"] = at["zdiff"]
+            at["zdev"] = at["zdiff"] + 6 * N
+            at["P_zz"] = at["zdev"] + 6 * (N + 1)
+            at["P_new"] = at["zdev"]
+        else:
+            at["zsum"] = at["zdiff"] + 6 * N
+            at["P_zz"] = at["zsum"] + 6 * N
+            at["P_new"] = at["zsum"]
         at["residual"] = at["P_zz"] + 21
         at["update_end"] = at["residual"] + 6
         at["G"] = at["zdiff"]          # written by gain, which reads zdiff
         at["g"] = at["residual"]       # written by gain, which reads the residual
-        at["P_new"] = at["zsum"]
-        assert at["P_new"] + npk <= at["residual"] and at["G"] + 10 <= at["zsum"]
+        assert at["P_new"] + npk <= at["residual"] and at["G"] + 10 <= at["zdiff"] + 6 * N
+        assert at.get("points", 0) + 4 * (N + 1) <= at["zdiff"] + 6 * N
         at["x_pred"] = at["update_end"]
         at["x_new"] = at["x_pred"] + 7
         at["size"] = at["update_end"] + (14 if n == 7 else 0)
@@ -212,18 +241,33 @@ class Model(FilterModel):
         xm = ca.vertcat(qm, b)
         return xm, normalize(qm), Pm
 
-    def sigma_setup_expr(self, xm, Pm, m_ref):
+    def sigma_setup_expr(self, qn, Pm, m_ref, qm=None):
         """L = chol(P⁻) (its smallest pivot is an output), aL = a L[:, 0:4] and z₀ = h(q⁻), the
-        centre's measurement.
+        centre's measurement, from qn = q⁻/|q⁻| as predict computed it (not normalised again).
+        sigma_set = simplex: aL = L[:, 0:4] diag(c) instead, and a fourth output, the attitude
+        parts of the 5 simplex points (qm = x⁻).
 
         The structure of the sigma-point set, used exactly (no approximation):
         χ = x⁻ ± a L[:, j] with L lower triangular: for a bias column (j ≥ 4) L[0:4, j] = 0, so
         the attitude part of those points is q⁻ itself and their measurement is z₀: only the
         4 columns of aL move the attitude, 9 distinct points in all."""
         p = self.params
-        a = ut_parameters(p["ut_alpha"], p["ut_beta"], p["ut_kappa"], self.n)[0]
+        a, _, w, _ = self.ut()
         L, _, piv_p = linalg.cholesky_with_inverse(Pm, p["pivot_min"])
-        return a * L[:, :N], measurement(normalize(xm[:4]), m_ref), piv_p
+        z0 = measurement(qn, m_ref)
+        if not self.simplex():
+            return a * L[:, :N], z0, piv_p
+        # simplex: V = L[:, 0:4] diag(c) and the 5 points' attitude parts q⁻ + u_i, u_i =
+        # V[0:4, :] t_i (simplex_scales), by suffix sums R_k = Σ_{k' >= k} V[:, k']: u_1 = -R_0,
+        # u_{k+2} = (k + 1) V[:, k] - R_{k+1}
+        V = ca.horzcat(*[L[:, k] * c for k, c in enumerate(simplex_scales(w))])
+        Vq = [V[:N, k] for k in range(N)]
+        R = [None] * N
+        R[N - 1] = Vq[N - 1]
+        for k in range(N - 2, -1, -1):
+            R[k] = Vq[k] + R[k + 1]
+        U = [-R[0]] + [(k + 1) * Vq[k] - R[k + 1] if k < N - 1 else (k + 1) * Vq[k] for k in range(N)]
+        return V, z0, piv_p, ca.vertcat(*[qm[:N] + u for u in U])
 
     def sigma_pair_expr(self, qm, col, m_ref, z0):
         """One pair of sigma points q⁻ ± col (col = a L[0:4, j]), each normalised and mapped
@@ -232,6 +276,47 @@ class Model(FilterModel):
         ep = measurement(normalize(qm + col), m_ref) - z0
         en = measurement(normalize(qm - col), m_ref) - z0
         return ep + en, ep - en
+
+    def sigma_point_expr(self, point, m_ref, z0):
+        """sigma_set = simplex: one point's attitude part χ (sigma_setup), normalised and mapped
+        through h, as its deviation from the centre h(χ) - z₀."""
+        return measurement(normalize(point), m_ref) - z0
+
+    def residual_and_r(self, zhat, f, m, scale):
+        """ε = z - ẑ and the adaptive per-axis R (both sigma sets)."""
+        p = self.params
+        z = ca.vertcat(normalize(f), normalize(m))
+        eps = z - zhat
+        sa2, sm2 = p["sigma_acc"] ** 2, p["sigma_mag"] ** 2
+        adapt = [p["k_a"] * eps[i] ** 2 for i in range(3)] + [p["k_m"] * eps[i] ** 2 for i in range(3, 6)]
+        if p["adapt_max"] > 0:        # product option: bound the inflation (0 = as the paper, unbounded)
+            adapt = [ca.fmin(x, p["adapt_max"]) for x in adapt]
+        R = [sa2 + adapt[i] for i in range(3)] + [sm2 + adapt[i] for i in range(3, 6)]
+        if scale is not None:
+            R = [R[i] * scale[0] for i in range(3)] + [R[i] * scale[1] for i in range(3, 6)]
+        return eps, R
+
+    def innovation_simplex_expr(self, z0, zdev, f, m, scale=None):
+        """sigma_set = simplex: ẑ, residual, R, P_zz and D from the 5 points' deviations e_i
+        (sigma_point_expr; zero for the centre and the bias columns' points). With w the
+        weight of a simplex point: ẑ = z₀ + δ, δ = w Σ e_i; P_zz = w Σ e_i e_iᵀ + c_dd δδᵀ + R
+        (as innovation_expr); P_xz = w Σ_i V t_i e_iᵀ = w V Dᵀ with D[:, k] = Σ_i t_i[k] e_i =
+        (k + 1) e_{k+2} - Σ_{i <= k+1} e_i (prefix sums; the bias points' ±a L cancel, as do
+        the Σ t_i = 0 with δ), so gain and correct are those of the symmetric set with w."""
+        _, _, w, c_dd = self.ut()
+        E = [zdev[6 * i:6 * i + 6] for i in range(N + 1)]
+        T = [E[0]]
+        for i in range(1, N + 1):
+            T.append(T[-1] + E[i])
+        delta = w * T[N]
+        eps, R = self.residual_and_r(z0 + delta, f, m, scale)
+        D = [E[1] - T[0]] + [(k + 1) * E[k + 1] - T[k] for k in range(1, N)]
+        Pzz = ca.SX.zeros(6, 6)
+        for r, c in _LOWER6:
+            zz = sum([E[i][r] * E[i][c] for i in range(1, N + 1)], E[0][r] * E[0][c])
+            Pzz[r, c] = w * zz + c_dd * delta[r] * delta[c] + (R[r] if r == c else 0.0)
+            Pzz[c, r] = Pzz[r, c]
+        return Pzz, eps, ca.vertcat(*R), ca.vertcat(*D)
 
     def innovation_expr(self, z0, zsum, zdiff, f, m, scale=None):
         """ẑ, residual, adaptive R and P_zz from the sigma pairs' deviations (sigma_pair_expr:
@@ -249,23 +334,11 @@ class Model(FilterModel):
         scale (product, sensors at their own rates): [dt/s_a, dt/s_m], R of each sensor times
         the ratio of the step to the time its sample stands for (sigma is per IMU step; a
         sample standing for k steps carries k steps' information)."""
-        p = self.params
-        n = self.n
-        _, _, wc0, wi = ut_parameters(p["ut_alpha"], p["ut_beta"], p["ut_kappa"], n)
-        c_dd = wc0 + 2 * n * wi - 2          # Σ Wc - 2
+        _, _, wi, c_dd = self.ut()           # c_dd = Σ Wc - 2
         S = [zsum[6 * j:6 * j + 6] for j in range(N)]
         D = [zdiff[6 * j:6 * j + 6] for j in range(N)]
         delta = wi * (S[0] + S[1] + S[2] + S[3])
-        zhat = z0 + delta
-        z = ca.vertcat(normalize(f), normalize(m))
-        eps = z - zhat
-        sa2, sm2 = p["sigma_acc"] ** 2, p["sigma_mag"] ** 2
-        adapt = [p["k_a"] * eps[i] ** 2 for i in range(3)] + [p["k_m"] * eps[i] ** 2 for i in range(3, 6)]
-        if p["adapt_max"] > 0:        # product option: bound the inflation (0 = as the paper, unbounded)
-            adapt = [ca.fmin(x, p["adapt_max"]) for x in adapt]
-        R = [sa2 + adapt[i] for i in range(3)] + [sm2 + adapt[i] for i in range(3, 6)]
-        if scale is not None:
-            R = [R[i] * scale[0] for i in range(3)] + [R[i] * scale[1] for i in range(3, 6)]
+        eps, R = self.residual_and_r(z0 + delta, f, m, scale)
         Pzz = ca.SX.zeros(6, 6)
         for r, c in _LOWER6:     # symmetric: lower triangle once, mirrored
             zz = sum([S[j][r] * S[j][c] + D[j][r] * D[j][c] for j in range(1, N)], S[0][r] * S[0][c] + D[0][r] * D[0][c])
@@ -282,8 +355,7 @@ class Model(FilterModel):
           K P_zz Kᵀ = Wi² aL Wᵀ W aLᵀ = aL G aLᵀ,          G = Wi² Wᵀ W     (4 x 4)
         g and G (its lower triangle, packed) are this kernel's outputs (see correct_expr)."""
         p = self.params
-        n = self.n
-        wi = ut_parameters(p["ut_alpha"], p["ut_beta"], p["ut_kappa"], n)[3]
+        wi = self.ut()[2]            # the weight of an attitude point (Wi; simplex: w)
         Lz, inv, piv_zz = linalg.cholesky_with_inverse(Pzz, p["pivot_min"])
         W = linalg.solve_lower(Lz, ca.reshape(zdiff, 6, N), inv)
         v = linalg.solve_lower(Lz, eps, inv)
@@ -342,15 +414,21 @@ class Model(FilterModel):
         rated = self.own_rates()
         aL = ca.SX.sym("aL", n, N)
         z0 = ca.SX.sym("z0", 6)
-        aL_e, z0_e, piv_p = self.sigma_setup_expr(qm, Pm, m_ref)
+        simplex = self.simplex()
+        setup_out = self.sigma_setup_expr(qn, Pm, m_ref, qm)
+        aL_e, z0_e, piv_p = setup_out[:3]
         q4 = ca.SX.sym("q_pred", 4)
         col = ca.SX.sym("col", 4)
         zsum = ca.SX.sym("zsum", 6 * N)
         zdiff = ca.SX.sym("zdiff", 6 * N)
-        zs_e, zd_e = self.sigma_pair_expr(q4, col, m_ref, z0)
-        Pzz_e, eps_e, r_e = self.innovation_expr(
-            z0, zsum, zdiff, f, m,
-            [self.r_scale(dt, span[0]), self.r_scale(dt, span[1])] if rated else None)
+        zdev = ca.SX.sym("zdev", 6 * (N + 1))
+        point = ca.SX.sym("point", 4)
+        scale = [self.r_scale(dt, span[0]), self.r_scale(dt, span[1])] if rated else None
+        if simplex:
+            Pzz_e, eps_e, r_e, zd_e = self.innovation_simplex_expr(z0, zdev, f, m, scale)
+        else:
+            zs_e, zd_e = self.sigma_pair_expr(q4, col, m_ref, z0)
+            Pzz_e, eps_e, r_e = self.innovation_expr(z0, zsum, zdiff, f, m, scale)
         g = ca.SX.sym("g", N)
         G_packed = ca.SX.sym("G", N * (N + 1) // 2)
         g_e, G_e, piv_zz = self.gain_expr(Pzz, zdiff, eps)
@@ -361,26 +439,46 @@ class Model(FilterModel):
         yaw = attitude.tilt_compensated_heading(m, roll, pitch, decl)
         q_init = quat.from_euler(roll, pitch, yaw)
 
+        innov_doc = ("predicted measurement, residual, adaptive per-axis R and P_zz from the sigma "
+                     "pairs' sums and differences of deviations")
+        innov_in = {"z0": z0, "zsum": zsum, "zdiff": zdiff}
+        innov_out = {}
+        if not simplex:
+            points = [KernelSpec("sigma_pair", function("sigma_pair", {"q_pred": q4, "col": col, "m_ref": m_ref,
+                                                                       "z0": z0}, {"zsum": zs_e, "zdiff": zd_e}),
+                                 "sigma points q- + col and q- - col, each normalised and mapped through h, as "
+                                 "deviations e+, e- from z0: e+ + e- and e+ - e- (called once per column of aL)")]
+        else:
+            innov_doc = ("predicted measurement, residual, adaptive per-axis R, P_zz and D (zdiff: P_xz = w aL D^T) "
+                         "from the simplex points' deviations")
+            innov_in = {"z0": z0, "zdev": zdev}
+            innov_out = {"zdiff": zd_e}
+            points = [KernelSpec("sigma_point", function("sigma_point", {"point": point, "m_ref": m_ref, "z0": z0},
+                                                         {"zdev": self.sigma_point_expr(point, m_ref, z0)}),
+                                 "sigma point (attitude part), normalised and mapped through h, as its deviation "
+                                 "from z0 (called once per simplex point)")]
         specs = [
             KernelSpec("predict", function("predict", {**q_in, "P": P, "gyro": w, "dt": dt},
                                            {xs + "_pred": qm_e, "q_pred_unit": qn_e,
                                             "P_pred": linalg.pack_lower(Pm_e)}),
                        "linear Kalman time update: q- = A q, P- = A P A^T + Q", noinline=True, early_writes=True),
-            KernelSpec("sigma_setup", function("sigma_setup", {xs + "_pred": qm, "P_pred": Pm_packed, "m_ref": m_ref},
-                                               {"aL": aL_e, "z0": z0_e, "pivot_P": piv_p}),
-                       "L = chol(P-), aL = a L[:, 0:4] (the columns that move the attitude: a bias column "
-                       "moves none, so 9 distinct sigma points), z0 = h(q-); pivot_P = smallest pivot of P-",
+            KernelSpec("sigma_setup", function("sigma_setup", {**({xs + "_pred": qm} if simplex else {}),
+                                                               "q_pred_unit": qn, "P_pred": Pm_packed, "m_ref": m_ref},
+                                               {"aL": aL_e, "z0": z0_e, "pivot_P": piv_p,
+                                                **({"points": setup_out[3]} if simplex else {})}),
+                       ("L = chol(P-), aL = L[:, 0:4] diag(c) (the columns that move the attitude), the 5 "
+                        "simplex points' attitude parts q- + aL[0:4, :] t_i, z0 = h(q-); pivot_P = smallest "
+                        "pivot of P-"
+                        if simplex else
+                        "L = chol(P-), aL = a L[:, 0:4] (the columns that move the attitude: a bias column "
+                        "moves none, so 9 distinct sigma points), z0 = h(q-); pivot_P = smallest pivot of P-"),
                        noinline=True, early_writes=True),
-            KernelSpec("sigma_pair", function("sigma_pair", {"q_pred": q4, "col": col, "m_ref": m_ref, "z0": z0},
-                                              {"zsum": zs_e, "zdiff": zd_e}),
-                       "sigma points q- + col and q- - col, each normalised and mapped through h, as "
-                       "deviations e+, e- from z0: e+ + e- and e+ - e- (called once per column of aL)"),
-            KernelSpec("innovation", function("innovation", {"z0": z0, "zsum": zsum, "zdiff": zdiff,
-                                                             "accel": f, "mag": m,
+            *points,
+            KernelSpec("innovation", function("innovation", {**innov_in, "accel": f, "mag": m,
                                                              **({"dt": dt, "span": span} if rated else {})},
-                                              {"P_zz": linalg.pack_lower(Pzz_e), "residual": eps_e, "r_diag": r_e}),
-                       "predicted measurement, residual, adaptive per-axis R and P_zz from the sigma "
-                       "pairs' sums and differences of deviations", noinline=True, early_writes=True),
+                                              {"P_zz": linalg.pack_lower(Pzz_e), "residual": eps_e, "r_diag": r_e,
+                                               **innov_out}),
+                       innov_doc, noinline=True, early_writes=True),
             KernelSpec("gain", function("gain", {"P_zz": Pzz_packed, "zdiff": zdiff, "residual": eps},
                                         {"g": g_e, "G": G_e, "pivot_zz": piv_zz}),
                        "with L = chol(P_zz), W = L^-1 D (D the pairs' differences) and v = L^-1 eps: "
@@ -423,11 +521,12 @@ class Model(FilterModel):
 
     def step_paths(self):
         return {
-            "accel+mag update": ["predict", "sigma_setup"] + ["sigma_pair"] * N + ["innovation", "gain", "correct"],
+            "accel+mag update": ["predict", "sigma_setup"]
+            + (["sigma_point"] * (N + 1) if self.simplex() else ["sigma_pair"] * N) + ["innovation", "gain", "correct"],
             "gyro only": ["predict"],
         }
 
     def template_context(self):
         n = self.n
-        return {"learn": self.params["mag_ref"] == "learn", "n": n, "lowpass": self.lowpass(), "rated": self.own_rates(), "bias": n == 7, "xs": "q" if n == 4 else "x", "at": self.work_layout(),
+        return {"learn": self.params["mag_ref"] == "learn", "n": n, "lowpass": self.lowpass(), "rated": self.own_rates(), "bias": n == 7, "simplex": self.simplex(), "xs": "q" if n == 4 else "x", "at": self.work_layout(),
                 "packed": linalg.packed_lower_pairs(n)}

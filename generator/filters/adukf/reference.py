@@ -14,6 +14,9 @@ State q (4, body->NED, unit), P (4x4). One step, after the common input checks:
 2. Unscented measurement update (n = 4, 9 sigma points): L = chol(P⁻),
    χ0 = q⁻, χi = q⁻ + a L[:, i], χ(i+4) = q⁻ - a L[:, i], a = sqrt(n + λ),
    λ = α²(n + κ) - n; weights Wm0 = λ/(n+λ), Wc0 = Wm0 + 1 - α² + β, Wi = 1/(2(n+λ)).
+   Option sigma_set = "simplex": the 2·4 points along the attitude columns of L are replaced
+   by the 5 points of a spherical simplex (Julier 2003) at the same radius a, each weighing
+   8 Wi / 5 (sigma_set() below).
    Each sigma point is normalised before h(q) = [R(q)ᵀ(-ĝ), R(q)ᵀ m̂], ĝ = [0,0,1].
    z = [f/|f|; m/|m|], ẑ = Σ Wm z_i, ε = z - ẑ,
    R = diag(σa² + k_a ε1..3², σm² + k_m ε4..6²),
@@ -94,6 +97,41 @@ def ut_weights(alpha, beta, kappa, n=N):
     return a, wm, wc
 
 
+def spherical_simplex(d, w):
+    """The d + 1 non-centre points of Julier's spherical simplex set (Julier 2003, "The
+    spherical simplex unscented transformation"), d x (d + 1), for weight w per point: built
+    dimension by dimension, j = 1: [-1, 1] / sqrt(2 w); j > 1: every earlier point gets
+    -1 / sqrt(j (j + 1) w) in dimension j, and a new point [0 .. 0, j / sqrt(j (j + 1) w)].
+    Σ w χ = 0 and Σ w χ χᵀ = I."""
+    X = np.array([[-1.0, 1.0]]) / math.sqrt(2.0 * w)
+    for j in range(2, d + 1):
+        c = 1.0 / math.sqrt(j * (j + 1) * w)
+        X = np.vstack([np.hstack([X, np.zeros((j - 1, 1))]), np.append(np.full(j, -c), j * c)])
+    return X
+
+
+def sigma_set(kind, alpha, beta, kappa, n):
+    """(S, Wm, Wc): sigma points χ_i = x + L S[:, i] (L = chol(P), lower) and their weights.
+    symmetric: the scaled UT, 2n + 1 points, S = [0, a I, -a I].
+    simplex: the attitude dimensions 0..3 by the N + 1 = 5 points of a spherical simplex at the
+    same radius a and with the same total weight as the 2N symmetric attitude points
+    (w = 2N Wi / (N + 1)); the centre and the bias dimensions' pairs ±a as in symmetric.
+    Mean and covariance are matched exactly by both (Σ Wm S = 0, Σ Wm S Sᵀ = I)."""
+    a, wm, wc = ut_weights(alpha, beta, kappa, n)
+    if kind == "symmetric":
+        return np.hstack([np.zeros((n, 1)), a * np.eye(n), -a * np.eye(n)]), wm, wc
+    w_s = 2 * N * wm[1] / (N + 1)
+    X = np.zeros((n, N + 1))
+    X[:N] = spherical_simplex(N, w_s)
+    B = np.zeros((n, n - N))
+    B[N:] = a * np.eye(n - N)
+    S = np.hstack([np.zeros((n, 1)), X, B, -B])
+    w = np.concatenate([[wm[0]], np.full(N + 1, w_s), np.full(2 * (n - N), wm[1])])
+    wcs = w.copy()
+    wcs[0] = wc[0]
+    return S, w, wcs
+
+
 def mag_ref_from_angles(incl, decl):
     return np.array([math.cos(incl) * math.cos(decl), math.cos(incl) * math.sin(decl), math.sin(incl)])
 
@@ -158,7 +196,8 @@ class Reference:
         self.accel_lp = np.zeros(3)
         self.sample_age = np.zeros(2)
         self.bias = np.zeros(3)
-        self.a, self.wm, self.wc = ut_weights(p["ut_alpha"], p["ut_beta"], p["ut_kappa"], self.n)
+        kind = "symmetric" if p["faithful"] else p["sigma_set"]       # faithful: the paper's points
+        self.S, self.wm, self.wc = sigma_set(kind, p["ut_alpha"], p["ut_beta"], p["ut_kappa"], self.n)
         self.decl = float(p["declination"])
         self.learn = p["mag_ref"] == "learn"
         self.m_ref = (np.zeros(3) if self.learn
@@ -272,7 +311,7 @@ class Reference:
                 status |= COV_RESET
                 P_new = self.P0()
             else:
-                chis = np.vstack([xm, xm + self.a * L.T, xm - self.a * L.T])
+                chis = xm + (L @ self.S).T
                 cq = chis[:, :4]
                 Z = h_meas_batch(cq / np.linalg.norm(cq, axis=1, keepdims=True), self.m_ref)
                 zhat = self.wm @ Z
