@@ -3697,10 +3697,10 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
             const bool restart = ((adukf_bits(s->accel_lp[0]) | adukf_bits(s->accel_lp[1])
                                    | adukf_bits(s->accel_lp[2])) << 1) == 0u;
             adukf_k_accel_lowpass(x_new, in->accel, s->accel_lp, restart, dt,
-                                         s->accel_lp, accel_in);
+                s->accel_lp, accel_in);
         }
         const float mag_in[3] = { use_mag ? in->mag[0] : 1.0f, use_mag ? in->mag[1] : 0.0f,
-                                     use_mag ? in->mag[2] : 0.0f };
+            use_mag ? in->mag[2] : 0.0f };
         /* the update's matrices (model.work_layout): G and g over zdiff and the residual (the gain
          * kernel reads all its inputs before it writes), P_new over zsum and P_zz */
         float *const aL = s->work + 28;
@@ -3719,7 +3719,7 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
             adukf_k_sigma_pair(x_pred, aL + 7u * j, s->m_ref, z0, zsum + 6u * j, zdiff + 6u * j);
         }
         adukf_k_innovation(z0, zsum, zdiff, accel_in, mag_in, dt, span, P_zz, residual,
-                                  s->r_diag);   /* zeroed below unless the update is applied */
+            s->r_diag);   /* zeroed below unless the update is applied */
         if (!use_accel || !use_mag) {
             /* An unusable sensor is masked out exactly: identity block in P_zz, zero rows of the
              * pairs' differences (so zero cross-covariance), residual and R, so its columns of the
