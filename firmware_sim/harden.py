@@ -17,7 +17,8 @@ is a covariance, the status bits) come from the filter's manifest.json through a
   real state field named `q`, `q_*` (4 reals) or documented as quaternion(s) -> unit quaternions
   (an array of several, e.g. particles, only once the `initialised` flag is set);
   a real field named `P` (or documented as a covariance) with n*n reals -> symmetric positive
-  definite; a field named `weights` -> non-negative, summing to 1.
+  definite; a field named `weights` -> non-negative, summing to 1 (to the real field
+  `weight_sum`, if there is one: weights kept unnormalised with their sum).
 
 Entry points: `harden(gen_dir, ...)` (all three), `run_fuzz`, `run_soak`, `run_cppcheck`, and
 `ahrsgen harden FILTER|all` (register_cli).
@@ -190,6 +191,8 @@ def layout_header(man: dict) -> str:
     if plan["weights"]:
         lines += [f"#define AHRS_WEIGHTS_FIELD {plan['weights']}",
                   f"#define AHRS_WEIGHTS_COUNT {by[plan['weights']]['count']}"]
+        if "weight_sum" in by and by["weight_sum"]["type"] == "real" and by["weight_sum"]["count"] == 1:
+            lines.append("#define AHRS_WEIGHT_SUM_FIELD weight_sum")
     if plan["initialised"]:
         lines.append("#define AHRS_INIT_FIELD initialised")
     lines += ["#endif", ""]

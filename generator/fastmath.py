@@ -192,28 +192,43 @@ def _exp_nonpos_table() -> list[int]:
     return out
 
 
-def exp_nonpos_source(name: str) -> str:
-    """C of `static inline float name(float x)` for x <= 0: exp(x) = 2^(n/64) e^r with
-    n = round(64 x / ln2), |r| <= ln2/128; 2^(n/64) from a table of 64 powers of two with the
-    exponent added in the integers, e^r = 1 + r + r^2/2 (truncation <= 2.6e-8). Relative error
-    <= EXP_NONPOS_REL_ERROR + EXP_NONPOS_REL_ERROR_PER_UNIT |x| above -87.3 (0 at and below,
-    NaN kept): 2 ulp near 0, 7.2e-6 at -87.3; about 20 instructions on the Cortex-M4F,
-    fast_expf's reduction and polynomial about 30."""
+def exp_nonpos_source(name: str, name2: str) -> str:
+    """C of `static inline float name2(float t)`, 2^(t/64) for t <= 0, and of
+    `static inline float name(float x)`, exp(x) = name2(64 x / ln2) for x <= 0: 2^(t/64) =
+    2^(n/64) e^r with n = round(t), r = (t - n) ln2/64, |r| <= ln2/128 (n by adding 1.5 2^23, which
+    leaves round(t) in the low bits of the float, with no conversion); 2^(n/64) from a table of
+    64 powers of two with the exponent added in the integers, e^r = 1 + r + r^2/2 (truncation
+    <= 2.6e-8) evaluated in fr = t - n as (C2 fr + C1) fr + 1, C1 = ln2/64, C2 = C1^2/2. Relative
+    error of exp <= EXP_NONPOS_REL_ERROR + EXP_NONPOS_REL_ERROR_PER_UNIT |x| above -87.3 (0 at
+    and below, NaN kept): 2 ulp near 0, 7.2e-6 at -87.3 (the second term is the rounding of
+    t = 64 x / ln2; name2 is within EXP_NONPOS_REL_ERROR of 2^(t/64) for t > -8060.626, 0 below). About 20
+    instructions on the Cortex-M4F, fast_expf's reduction and polynomial about 30; a caller
+    that can fold the factor 64/ln2 into its own constant calls name2 and saves one more."""
     rows = []
     tab = _exp_nonpos_table()
     for k in range(0, len(tab), 4):
         rows.append("    " + ", ".join(f"0x{b:08X}u" for b in tab[k:k + 4]))
     return (f"/* 2^(i/64) as float bits, less 126 in the exponent field */\n"
             f"static const uint32_t {name}_table[64] = {{\n" + ",\n".join(rows) + "\n};\n\n"
-            f"static inline float {name}(float x)\n{{\n" + _EXP_FLUSH
-            + f"""    const float t = x * 92.3324814f;                       /* 64 x / ln2 */
-    const int32_t n = (int32_t)(t - 0.5f);                 /* round(t): t <= 0; n >= -8060 */
-    const float r = (t - (float)n) * 0.0108304247f;        /* (t - n) ln2/64, |r| <= ln2/128 */
-    const float e = (0.5f * r + 1.0f) * r + 1.0f;          /* e^r */
-    const uint32_t m = (uint32_t)(n + 8064);               /* n + 126 * 64 >= 4 */
+            f"/* 2^(t/64) for t <= 0 */\nstatic inline float {name2}(float t)\n{{\n"
+            + """    if (!(t > -8060.626f)) {         /* -87.3 * 64/ln2 */
+        return isnan(t) ? t : 0.0f;   /* below FLT_MIN: flushed to zero */
+    }
+"""
+            + f"""    union {{ float f; uint32_t u; }} rn;
+    rn.f = t + 12582912.0f;                                /* 1.5 2^23 + round(t): round(t) in the low bits */
+    const float fr = t - (rn.f - 12582912.0f);             /* t - round(t), |fr| <= 1/2: r = fr ln2/64 */
+    const float e = (5.864905e-05f * fr + 0.010830425f) * fr + 1.0f;   /* e^r = 1 + r + r^2/2 */
+    const uint32_t m = rn.u - 0x4B3FE080u;                 /* round(t) + 126 * 64 >= 3 */
     union {{ uint32_t u; float f; }} scale;
     scale.u = {name}_table[m & 63u] + ((m >> 6) << 23);    /* 2^(n/64) */
     return e * scale.f;
+}}
+
+/* exp(x) for x <= 0 */
+static inline float {name}(float x)
+{{
+    return {name2}(x * 92.33248f);                         /* 64 x / ln2 */
 }}
 """)
 

@@ -180,6 +180,18 @@ def test_exp_nonpos_within_its_stated_bound():
     nan = np.float32([np.nan])
     lib.cpf_hook_exp_nonpos(nan.ctypes.data, 1, got.ctypes.data)
     assert np.isnan(got[0])
+    # the likelihood's form, 2^(t/64) of t = 64 x / ln2 folded into the caller's constant: within
+    # EXP_NONPOS_REL_ERROR of the exact power over the same range, 0 below it, NaN kept
+    lib.cpf_hook_exp2_64.argtypes = [ctypes.c_void_p, ctypes.c_uint32, ctypes.c_void_p]
+    t = np.concatenate([rng.uniform(-8060.6, 0.0, 1_000_000), -tiny, -np.arange(0, 8061.0), -np.arange(0, 8061.0) - 0.5,
+                        [0.0, -8060.62, -8060.63, -9000.0, -np.inf, np.nan]]).astype(np.float32)
+    got = np.empty_like(t)
+    lib.cpf_hook_exp2_64(t.ctypes.data, len(t), got.ctypes.data)
+    inside = t > np.float32(-8060.626)
+    exact = 2.0 ** (t[inside].astype(float) / 64.0)
+    rel = np.abs(got[inside].astype(float) - exact) / exact
+    assert np.all(rel <= fastmath.EXP_NONPOS_REL_ERROR), float(np.max(rel))
+    assert np.all(got[(t <= np.float32(-8060.626))] == 0.0) and np.isnan(got[-1])
 
 
 @pytest.mark.parametrize("precision", ["double", "float"])
@@ -232,6 +244,7 @@ def test_double_c_matches_reference(scen, params):
         state = hf.state_dict(hf.last_state)
         assert state["resample_count"] == ref.n_resample
         np.testing.assert_allclose(state["weights"], ref.weights, rtol=0, atol=1e-9)
+        assert state["weight_sum"] == pytest.approx(ref.weight_sum, rel=1e-12)
         np.testing.assert_allclose(state["particles"].reshape(-1, 4), ref.particles, rtol=0, atol=1e-9)
         assert list(state["rng"]) == ref.rng.s          # the same number of draws
 
@@ -387,7 +400,8 @@ def test_far_observation_does_not_underflow_the_weights(precision):
         code = hf.step(s, (0, 0, 0), f, m, (0, 0, 0), VALID_IMU, 0.1)
         assert code == 0
         w = np.array(s.weights[:])
-        assert np.all(np.isfinite(w)) and abs(w.sum() - 1) < 1e-5
+        assert np.all(np.isfinite(w)) and abs(w.sum() / s.weight_sum - 1) < 1e-5
+        assert R.WEIGHT_SUM_MIN <= s.weight_sum <= 1 + 1e-5
         assert np.all(np.isfinite(s.q[:]))
 
 
@@ -462,8 +476,9 @@ def test_state_holds_particles_no_heap():
             _, hf = built(precision, n_particles=n)
             size = hf.manifest["structs"]["state"]["size"]
             assert size == ctypes.sizeof(hf.State)
-            # q, q_cf, particles, weights, scratch, ess (real) + rng, resample_count, initialised (uint32)
-            reals, words = 4 + 4 + 4 * n + n + n + 1, 2 + 1 + 1
+            # q, q_cf, particles, weights, scratch, weight_sum, ess (real) + rng, resample_count,
+            # initialised (uint32)
+            reals, words = 4 + 4 + 4 * n + n + n + 1 + 1, 2 + 1 + 1
             assert size == -(-(rb * reals + 4 * words) // rb) * rb
     src = (REPO / "generated" / "cpf" / "cpf.c").read_text()
     for word in ("malloc", "calloc", "realloc", "free(", "alloca"):
@@ -512,6 +527,35 @@ def test_float_vs_double_as_estimators_passes_and_sees_a_planted_float_error():
 
 
 @pytest.mark.parametrize("precision", ["double", "float"])
+def test_unnormalised_weights_are_renormalised_below_the_bound(precision):
+    """The weights are kept unnormalised with their sum, which each update only decreases (every
+    likelihood factor <= 1); without resampling (ess_threshold 0) it falls below 2^-20 within a
+    few steps, and the update then normalises the weights in place. So the sum stays in
+    [2^-20, 1] and the stored weights are the normalised ones times it; in double the C follows
+    the reference through every renormalisation."""
+    params = {"ess_threshold": 0.0}
+    _, hf = built(precision, **params)
+    rows, _ = _static_inputs(math.radians(30.0), 40)
+    jump, _ = _static_inputs(math.radians(34.0), 10)
+    s = hf.new_state()
+    ref = R.Reference(config.resolve("cpf", sets=_sets(params), precision="double").params)
+    renormalised, last = 0, 1.0
+    for g, f, m in rows + jump:
+        code = hf.step(s, g, f, m, (0, 0, 0), VALID_IMU, 0.1)
+        assert code == ref.step(g, f, m, (0, 0, 0), VALID_IMU, 0.1) == 0
+        wsum = s.weight_sum
+        assert R.WEIGHT_SUM_MIN <= wsum <= 1 + 1e-5
+        w = np.array(s.weights[:])
+        assert np.all(w >= 0) and abs(w.sum() / wsum - 1) < 1e-5
+        renormalised += wsum > last       # only a renormalisation raises it (no resampling here)
+        last = wsum
+        if precision == "double":
+            np.testing.assert_allclose(w / wsum, ref.weights / ref.weight_sum, rtol=0, atol=1e-9)
+            assert max_angle_diff_rad(np.array([s.q[:]]), np.array([ref.q])) < 1e-9
+    assert s.resample_count == 0 and renormalised >= 3, renormalised
+
+
+@pytest.mark.parametrize("precision", ["double", "float"])
 def test_genuine_weight_underflow_is_reset_not_divided(precision):
     """Never resampling (ess_threshold 0) with a sharp likelihood, the weights degenerate: all
     but one or two particles' weights underflow to exactly zero, and when the surviving ones
@@ -529,7 +573,8 @@ def test_genuine_weight_underflow_is_reset_not_divided(precision):
         codes_c.append(hf.step(s, g, f, m, (0, 0, 0), VALID_IMU, 0.1))
         codes_r.append(ref.step(g, f, m, (0, 0, 0), VALID_IMU, 0.1))
         w = np.array(s.weights[:])
-        assert np.all(np.isfinite(w)) and abs(w.sum() - 1) < 1e-5
+        assert np.all(np.isfinite(w)) and abs(w.sum() / s.weight_sum - 1) < 1e-5
+        assert R.WEIGHT_SUM_MIN <= s.weight_sum <= 1 + 1e-5
         assert np.all(np.isfinite(s.q[:]))
     reset_c = [k for k, c in enumerate(codes_c) if c & R.WEIGHTS_RESET]
     assert reset_c, codes_c

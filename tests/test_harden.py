@@ -122,6 +122,8 @@ def test_layout_follows_manifest(gen_dir):
         assert plan["covariances"] and plan["covariances"][0][0] == "P"
     text = harden.layout_header(man)
     assert f"#define AHRS_REFUSED_MASK {man['refused_mask']}u" in text
+    names = {f["name"] for f in man["structs"]["state"]["fields"]}
+    assert ("#define AHRS_WEIGHT_SUM_FIELD weight_sum" in text) == ("weight_sum" in names and "weights" in names)
 
 
 # ------------------------------------------------------------------ fuzz
@@ -170,10 +172,10 @@ def test_fixed_fuzz_findings_stay_fixed(gen_dir):
         assert rc == 0, f"{reg['id']} ({reg['what']}) is back in {gen_dir.name}:\n{err[-1500:]}"
 
 
-def _plant_at_step_end(text: str, code: str) -> str:
-    """Insert code before the final `return status;` of qcf_step itself (other functions of the
-    file, such as qcf_check_inputs, end the same way)."""
-    step = text.index("qcf_status qcf_step(")
+def _plant_at_step_end(text: str, code: str, prefix: str = "qcf") -> str:
+    """Insert code before the final `return status;` of <prefix>_step itself (other functions of
+    the file, such as qcf_check_inputs, end the same way)."""
+    step = text.index(f"{prefix}_status {prefix}_step(")
     end = text.index("\n}\n", step)
     marker = "\n    return status;"
     at = text.rindex(marker, step, end)
@@ -195,6 +197,22 @@ def test_fuzz_harness_detects_a_broken_state(tmp_path):
     data = harden.seed_inputs(man)["nominal"]
     rc, err = harden.replay(tmp_path, data)
     assert rc != 0 and "quaternion 0: | |q| - 1 |" in err, err[-2000:]
+
+
+@needs_fuzzer
+def test_fuzz_harness_checks_weights_against_their_stored_sum(tmp_path):
+    """cpf keeps its weights unnormalised with their sum: a planted step end that doubles the
+    stored sum breaks the weights' invariant and the harness reports it."""
+    src = harden.GENERATED / "cpf"
+    man = harden.load_manifest(src)
+    for f in man["files"].values():
+        shutil.copy(src / f, tmp_path / f)
+    shutil.copy(src / "manifest.json", tmp_path / "manifest.json")
+    c = tmp_path / man["files"]["source"]
+    c.write_text(_plant_at_step_end(c.read_text(), "    s->weight_sum *= 2.0f;", "cpf"))
+    data = harden.seed_inputs(man)["nominal"]
+    rc, err = harden.replay(tmp_path, data)
+    assert rc != 0 and "state.weights sum to" in err, err[-2000:]
 
 
 @needs_fuzzer

@@ -10,7 +10,9 @@
  *   AHRS_FOR_EACH_QUAT(X, s)   X("name", pointer, number of quaternions, only_when_initialised)
  *   AHRS_FOR_EACH_COV(X, s)    (optional) X("name", pointer, n) for each n x n covariance,
  *                              row-major
- *   AHRS_WEIGHTS_FIELD, AHRS_WEIGHTS_COUNT (optional) normalised particle weights
+ *   AHRS_WEIGHTS_FIELD, AHRS_WEIGHTS_COUNT (optional) particle weights
+ *   AHRS_WEIGHT_SUM_FIELD      (optional, with the weights) their stored sum, for weights kept
+ *                              unnormalised; without it the weights are normalised
  *   AHRS_INIT_FIELD                     (optional) the uint32 'initialised' flag
  *
  * Invariants (a violation is reported with the field and the numbers):
@@ -19,7 +21,8 @@
  *   - the covariance is symmetric, |P_ij - P_ji| <= AHRS_SYM_TOL * max_k P_kk (relative), and
  *     positive definite: every pivot of its LDL^T (Cholesky without square roots) in double
  *     is > 0;
- *   - particle weights are >= 0 and sum to 1 within AHRS_WSUM_TOL;
+ *   - particle weights are >= 0 and sum to 1 within AHRS_WSUM_TOL (relative to the stored sum,
+ *     which is then > 0, if the filter keeps one);
  *   - the Euler angles are finite and in range (roll, yaw in [-pi, pi], pitch in [-pi/2, pi/2]).
  */
 #ifndef AHRS_INVARIANTS_H
@@ -209,9 +212,17 @@ static int ahrs_check_state(const ahrs_state *s, ahrs_inv *v)
 #endif
 
 #ifdef AHRS_WEIGHTS_FIELD
-    /* 4. particle weights: non-negative, normalised */
+    /* 4. particle weights: non-negative, normalised (by their stored sum, if kept) */
     {
         double sum = 0.0;
+#ifdef AHRS_WEIGHT_SUM_FIELD
+        const double norm = (double)s->AHRS_WEIGHT_SUM_FIELD;
+        if (!(norm > 0.0)) {
+            AHRS_FAIL_("state.%s = %.3g <= 0", AHRS_STR(AHRS_WEIGHT_SUM_FIELD), norm);
+        }
+#else
+        const double norm = 1.0;
+#endif
         for (uint32_t i = 0u; i < (uint32_t)AHRS_WEIGHTS_COUNT; i++) {
             const double w = (double)s->AHRS_WEIGHTS_FIELD[i];
             if (!(w >= 0.0)) {
@@ -219,7 +230,7 @@ static int ahrs_check_state(const ahrs_state *s, ahrs_inv *v)
             }
             sum += w;
         }
-        const double e = fabs(sum - 1.0);
+        const double e = fabs(sum / norm - 1.0);
         if (isfinite(e)) {
             v->max_wsum_err = ahrs_max_(v->max_wsum_err, e);
         }

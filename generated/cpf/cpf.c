@@ -426,9 +426,9 @@ static inline void cpf_k_particle_move(const float x[4], const float hw[3], floa
     x_new[3] = tmp29;
 }
 
-/* <x, Y> and |<x, Y>|: cosine of half the angle between particle and observation (q = -q); the sign aligns the particle in the estimate
- * ops: add 3, mul 4, cmp 1 (total 8) */
-static inline void cpf_k_obs_dot(const float x[4], const float y[4], float *d, float *c)
+/* <x, Y>: cosine of half the angle between particle and observation, up to the sign (q = -q; the step keeps each particle where it is >= 0)
+ * ops: add 3, mul 4 (total 7) */
+static inline void cpf_k_obs_dot(const float x[4], const float y[4], float *d)
 {
     const float tmp0 = x[0] * y[0];
     const float tmp1 = x[1] * y[1];
@@ -437,39 +437,34 @@ static inline void cpf_k_obs_dot(const float x[4], const float y[4], float *d, f
     const float tmp4 = tmp2 + tmp3;
     const float tmp5 = x[3] * y[3];
     const float tmp6 = tmp4 + tmp5;
-    const float tmp7 = fabsf(tmp6);
     *d = tmp6;
-    *c = tmp7;
 }
 
-/* log of the Gaussian likelihood exp(-4(1-|<x,Y>|)/obs_noise^2) scaled by its maximum (eq. 13), from d = <x, Y>: <= 0; the step multiplies the weight by exp(a)
- * ops: add 1, mul 1, cmp 1 (total 3) */
-static inline void cpf_k_log_likelihood(float d, float cmax, float *a)
+/* log of the Gaussian likelihood exp(-4(1-|<x,Y>|)/obs_noise^2) scaled by its maximum (eq. 13), from d = |<x, Y>| (the particle in Y's hemisphere), in units of ln2/64: t <= 0; the step multiplies the weight by 2^(t/64)
+ * ops: add 1, mul 1 (total 2) */
+static inline void cpf_k_log_likelihood(float d, float cmax, float *t)
 {
-    const float tmp0 = fabsf(d);
-    const float tmp1 = tmp0 - cmax;
-    const float tmp2 = 10000.0f /* 4.0/(obs_noise*obs_noise) */ * tmp1;
-    *a = tmp2;
+    const float tmp0 = d - cmax;
+    const float tmp1 = 923324.8f /* from obs_noise */ * tmp0;
+    *t = tmp1;
 }
 
-/* sign-aligned weighted sum of the particles (eq. 15, q = -q): the sign of d = <x, Y>
- * ops: add 4, mul 5, cmp 1 (total 10) */
-static inline void cpf_k_accumulate(const float acc[4], float w, const float x[4], float d, float acc_new[4])
+/* weighted sum of the particles (eq. 15), each in the observation's hemisphere
+ * ops: add 4, mul 4 (total 8) */
+static inline void cpf_k_accumulate(const float acc[4], float w, const float x[4], float acc_new[4])
 {
-    const float tmp0 = (d < 0.0f) ? (-1.0f) : 1.0f;
-    const float tmp1 = w * tmp0;
-    const float tmp2 = tmp1 * x[0];
-    const float tmp3 = acc[0] + tmp2;
-    const float tmp4 = tmp1 * x[1];
-    const float tmp5 = acc[1] + tmp4;
-    const float tmp6 = tmp1 * x[2];
-    const float tmp7 = acc[2] + tmp6;
-    const float tmp8 = tmp1 * x[3];
-    const float tmp9 = acc[3] + tmp8;
-    acc_new[0] = tmp3;
-    acc_new[1] = tmp5;
-    acc_new[2] = tmp7;
-    acc_new[3] = tmp9;
+    const float tmp0 = w * x[0];
+    const float tmp1 = acc[0] + tmp0;
+    const float tmp2 = w * x[1];
+    const float tmp3 = acc[1] + tmp2;
+    const float tmp4 = w * x[2];
+    const float tmp5 = acc[2] + tmp4;
+    const float tmp6 = w * x[3];
+    const float tmp7 = acc[3] + tmp6;
+    acc_new[0] = tmp1;
+    acc_new[1] = tmp3;
+    acc_new[2] = tmp5;
+    acc_new[3] = tmp7;
 }
 
 /* normalised quaternion
@@ -531,11 +526,12 @@ static inline void cpf_k_euler(const float q[4], float rpy[3])
     rpy[2] = tmp27;
 }
 
-/* exp(x) for x <= 0, the only arguments it gets: the likelihood factor exp(gain (c - c_max)),
- * c <= c_max, and the ziggurat's wedge exp(-x^2/2). A table of 64 powers of two and a
- * quadratic (generator/fastmath.py, exp_nonpos_source): relative error <= 2.5e-7 + 8e-8 |x|
- * (2 ulp near 0, 7.2e-6 at -87.3; 0 at and below -87.3; NaN kept), tested in tests/test_cpf.py;
- * about 20 instructions. */
+/* exp for arguments <= 0, the only ones it gets: the likelihood factor exp(gain (d - c_max)),
+ * d <= c_max, taken as 2^(t/64) with t = gain 64/ln2 (d - c_max) (the kernel log_likelihood
+ * folds 64/ln2 into its constant), and the ziggurat's wedge exp(-x^2/2). A table of 64
+ * powers of two and a quadratic (generator/fastmath.py, exp_nonpos_source): relative error
+ * <= 2.5e-7 + 8e-8 |x| (2 ulp near 0, 7.2e-6 at -87.3; 0 at and below -87.3; NaN kept), tested
+ * in tests/test_cpf.py; about 20 instructions. */
 /* 2^(i/64) as float bits, less 126 in the exponent field */
 static const uint32_t cpf_exp_nonpos_table[64] = {
     0x00800000u, 0x008164D2u, 0x0082CD87u, 0x00843A29u,
@@ -556,19 +552,26 @@ static const uint32_t cpf_exp_nonpos_table[64] = {
     0x00F5257Du, 0x00F7D0DFu, 0x00FA83B3u, 0x00FD3E0Cu
 };
 
-static inline float cpf_exp_nonpos(float x)
+/* 2^(t/64) for t <= 0 */
+static inline float cpf_exp2_64(float t)
 {
-    if (!(x > -87.3f)) {
-        return isnan(x) ? x : 0.0f;   /* below FLT_MIN: flushed to zero */
+    if (!(t > -8060.626f)) {         /* -87.3 * 64/ln2 */
+        return isnan(t) ? t : 0.0f;   /* below FLT_MIN: flushed to zero */
     }
-    const float t = x * 92.3324814f;                       /* 64 x / ln2 */
-    const int32_t n = (int32_t)(t - 0.5f);                 /* round(t): t <= 0; n >= -8060 */
-    const float r = (t - (float)n) * 0.0108304247f;        /* (t - n) ln2/64, |r| <= ln2/128 */
-    const float e = (0.5f * r + 1.0f) * r + 1.0f;          /* e^r */
-    const uint32_t m = (uint32_t)(n + 8064);               /* n + 126 * 64 >= 4 */
+    union { float f; uint32_t u; } rn;
+    rn.f = t + 12582912.0f;                                /* 1.5 2^23 + round(t): round(t) in the low bits */
+    const float fr = t - (rn.f - 12582912.0f);             /* t - round(t), |fr| <= 1/2: r = fr ln2/64 */
+    const float e = (5.864905e-05f * fr + 0.010830425f) * fr + 1.0f;   /* e^r = 1 + r + r^2/2 */
+    const uint32_t m = rn.u - 0x4B3FE080u;                 /* round(t) + 126 * 64 >= 3 */
     union { uint32_t u; float f; } scale;
     scale.u = cpf_exp_nonpos_table[m & 63u] + ((m >> 6) << 23);    /* 2^(n/64) */
     return e * scale.f;
+}
+
+/* exp(x) for x <= 0 */
+static inline float cpf_exp_nonpos(float x)
+{
+    return cpf_exp2_64(x * 92.33248f);                         /* 64 x / ln2 */
 }
 
 /* The draws' common path is inlined into the loops even at -Os (it is a few instructions, a
@@ -578,10 +581,12 @@ static inline float cpf_exp_nonpos(float x)
 #define CPF_ALWAYS_INLINE __attribute__((always_inline))
 #define CPF_NOT_INLINED __attribute__((noinline))
 #define CPF_LIKELY(c) __builtin_expect((c), 1)
+#define CPF_UNLIKELY(c) __builtin_expect((c), 0)
 #else
 #define CPF_ALWAYS_INLINE
 #define CPF_NOT_INLINED
 #define CPF_LIKELY(c) (c)
+#define CPF_UNLIKELY(c) (c)
 #endif
 
 /* xoroshiro64** 1.0 (Blackman & Vigna 2018) on two uint32 words; the same integer stream as
@@ -605,78 +610,79 @@ static float cpf_rng_uniform(uint32_t r[2])
 }
 
 /* Ziggurat tables (Marsaglia & Tsang 2000, 128 layers; generator/filters/cpf/prng.py), indexed
- * by the low 8 bits of a draw (layer i = bits 0-6, sign = bit 7): k = the layer's 24-bit
- * acceptance threshold, w = the scale of the 24-bit magnitude, negative for the negative
- * half (j * -W == -(j * W) exactly, so the sign costs no instruction); one entry holds both,
- * so one address serves the comparison and the product. f = density at the layer edges. */
+ * by the low 8 bits of a draw u (layer i = bits 0-6, sign = bit 7): k = 256 times the layer's
+ * 24-bit acceptance threshold K (u < k is the test u >> 8 < K), w = W/256, the scale of the whole
+ * draw (u w is the 24-bit magnitude u >> 8 times W plus less than one step), negative for the
+ * negative half (u * -w == -(u * w) exactly, so the sign costs no instruction); one entry holds
+ * both, so one address serves the comparison and the product. f = density at the layer edges. */
 static const struct {
     uint32_t k;
     float w;
 } cpf_zig[256] = {
-    { 15555140u, 2.2131718e-07f }, { 0u, 1.6231589e-08f }, { 12590646u, 2.1628823e-08f }, { 14272655u, 2.542424e-08f },
-    { 14988941u, 2.8457512e-08f }, { 15384586u, 3.103352e-08f }, { 15635011u, 3.3300648e-08f }, { 15807563u, 3.5343344e-08f },
-    { 15933579u, 3.7214672e-08f }, { 16029596u, 3.895036e-08f }, { 16105157u, 4.057574e-08f }, { 16166149u, 4.2109466e-08f },
-    { 16216401u, 4.3565745e-08f }, { 16258510u, 4.495565e-08f }, { 16294297u, 4.628801e-08f }, { 16325080u, 4.7569994e-08f },
-    { 16351833u, 4.8807497e-08f }, { 16375293u, 5.000545e-08f }, { 16396028u, 5.1168016e-08f }, { 16414481u, 5.2298752e-08f },
-    { 16431004u, 5.3400715e-08f }, { 16445882u, 5.4476573e-08f }, { 16459345u, 5.5528652e-08f }, { 16471580u, 5.6559003e-08f },
-    { 16482746u, 5.7569448e-08f }, { 16492973u, 5.856161e-08f }, { 16502371u, 5.9536948e-08f }, { 16511033u, 6.0496774e-08f },
-    { 16519041u, 6.144227e-08f }, { 16526461u, 6.2374525e-08f }, { 16533355u, 6.329453e-08f }, { 16539771u, 6.420318e-08f },
-    { 16545757u, 6.510132e-08f }, { 16551350u, 6.598971e-08f }, { 16556586u, 6.686908e-08f }, { 16561495u, 6.7740075e-08f },
-    { 16566103u, 6.860333e-08f }, { 16570436u, 6.945942e-08f }, { 16574514u, 7.0308886e-08f }, { 16578356u, 7.115225e-08f },
-    { 16581979u, 7.199e-08f }, { 16585400u, 7.282259e-08f }, { 16588632u, 7.365045e-08f }, { 16591687u, 7.447401e-08f },
-    { 16594578u, 7.5293656e-08f }, { 16597313u, 7.6109785e-08f }, { 16599904u, 7.692275e-08f }, { 16602357u, 7.773291e-08f },
-    { 16604681u, 7.854061e-08f }, { 16606884u, 7.934618e-08f }, { 16608971u, 8.014993e-08f }, { 16610948u, 8.09522e-08f },
-    { 16612821u, 8.1753264e-08f }, { 16614596u, 8.255345e-08f }, { 16616275u, 8.335304e-08f }, { 16617864u, 8.4152326e-08f },
-    { 16619366u, 8.4951594e-08f }, { 16620785u, 8.575113e-08f }, { 16622124u, 8.6551225e-08f }, { 16623386u, 8.7352156e-08f },
-    { 16624574u, 8.8154195e-08f }, { 16625689u, 8.8957634e-08f }, { 16626734u, 8.976275e-08f }, { 16627712u, 9.056983e-08f },
-    { 16628623u, 9.137916e-08f }, { 16629469u, 9.219103e-08f }, { 16630252u, 9.300573e-08f }, { 16630973u, 9.3823566e-08f },
-    { 16631633u, 9.464484e-08f }, { 16632232u, 9.546986e-08f }, { 16632772u, 9.629894e-08f }, { 16633253u, 9.7132414e-08f },
-    { 16633676u, 9.797061e-08f }, { 16634040u, 9.8813885e-08f }, { 16634345u, 9.9662586e-08f }, { 16634592u, 1.00517084e-07f },
-    { 16634780u, 1.01377765e-07f }, { 16634909u, 1.0224502e-07f }, { 16634978u, 1.0311926e-07f }, { 16634986u, 1.0400093e-07f },
-    { 16634933u, 1.0489048e-07f }, { 16634816u, 1.05788374e-07f }, { 16634636u, 1.0669511e-07f }, { 16634389u, 1.0761123e-07f },
-    { 16634074u, 1.0853726e-07f }, { 16633688u, 1.09473795e-07f }, { 16633230u, 1.10421446e-07f }, { 16632697u, 1.11380885e-07f },
-    { 16632084u, 1.12352794e-07f }, { 16631389u, 1.1333791e-07f }, { 16630608u, 1.1433705e-07f }, { 16629736u, 1.15351035e-07f },
-    { 16628767u, 1.163808e-07f }, { 16627697u, 1.17427305e-07f }, { 16626519u, 1.1849163e-07f }, { 16625225u, 1.1957489e-07f },
-    { 16623807u, 1.2067837e-07f }, { 16622256u, 1.2180338e-07f }, { 16620562u, 1.229514e-07f }, { 16618713u, 1.2412407e-07f },
-    { 16616695u, 1.2532313e-07f }, { 16614493u, 1.2655053e-07f }, { 16612090u, 1.2780846e-07f }, { 16609464u, 1.2909929e-07f },
-    { 16606592u, 1.3042572e-07f }, { 16603448u, 1.3179073e-07f }, { 16599998u, 1.3319769e-07f }, { 16596205u, 1.3465045e-07f },
-    { 16592024u, 1.3615335e-07f }, { 16587401u, 1.3771138e-07f }, { 16582272u, 1.3933034e-07f }, { 16576558u, 1.4101693e-07f },
-    { 16570162u, 1.4277902e-07f }, { 16562964u, 1.4462594e-07f }, { 16554811u, 1.4656891e-07f }, { 16545510u, 1.4862147e-07f },
-    { 16534808u, 1.5080033e-07f }, { 16522367u, 1.5312634e-07f }, { 16507732u, 1.5562607e-07f }, { 16490264u, 1.5833416e-07f },
-    { 16469044u, 1.6129694e-07f }, { 16442689u, 1.6457852e-07f }, { 16409025u, 1.6827138e-07f }, { 16364393u, 1.7251635e-07f },
-    { 16302110u, 1.7754414e-07f }, { 16208407u, 1.8377476e-07f }, { 16049218u, 1.9211083e-07f }, { 15707337u, 2.0519613e-07f },
-    { 15555140u, (-2.2131718e-07f) }, { 0u, (-1.6231589e-08f) }, { 12590646u, (-2.1628823e-08f) }, { 14272655u, (-2.542424e-08f) },
-    { 14988941u, (-2.8457512e-08f) }, { 15384586u, (-3.103352e-08f) }, { 15635011u, (-3.3300648e-08f) }, { 15807563u, (-3.5343344e-08f) },
-    { 15933579u, (-3.7214672e-08f) }, { 16029596u, (-3.895036e-08f) }, { 16105157u, (-4.057574e-08f) }, { 16166149u, (-4.2109466e-08f) },
-    { 16216401u, (-4.3565745e-08f) }, { 16258510u, (-4.495565e-08f) }, { 16294297u, (-4.628801e-08f) }, { 16325080u, (-4.7569994e-08f) },
-    { 16351833u, (-4.8807497e-08f) }, { 16375293u, (-5.000545e-08f) }, { 16396028u, (-5.1168016e-08f) }, { 16414481u, (-5.2298752e-08f) },
-    { 16431004u, (-5.3400715e-08f) }, { 16445882u, (-5.4476573e-08f) }, { 16459345u, (-5.5528652e-08f) }, { 16471580u, (-5.6559003e-08f) },
-    { 16482746u, (-5.7569448e-08f) }, { 16492973u, (-5.856161e-08f) }, { 16502371u, (-5.9536948e-08f) }, { 16511033u, (-6.0496774e-08f) },
-    { 16519041u, (-6.144227e-08f) }, { 16526461u, (-6.2374525e-08f) }, { 16533355u, (-6.329453e-08f) }, { 16539771u, (-6.420318e-08f) },
-    { 16545757u, (-6.510132e-08f) }, { 16551350u, (-6.598971e-08f) }, { 16556586u, (-6.686908e-08f) }, { 16561495u, (-6.7740075e-08f) },
-    { 16566103u, (-6.860333e-08f) }, { 16570436u, (-6.945942e-08f) }, { 16574514u, (-7.0308886e-08f) }, { 16578356u, (-7.115225e-08f) },
-    { 16581979u, (-7.199e-08f) }, { 16585400u, (-7.282259e-08f) }, { 16588632u, (-7.365045e-08f) }, { 16591687u, (-7.447401e-08f) },
-    { 16594578u, (-7.5293656e-08f) }, { 16597313u, (-7.6109785e-08f) }, { 16599904u, (-7.692275e-08f) }, { 16602357u, (-7.773291e-08f) },
-    { 16604681u, (-7.854061e-08f) }, { 16606884u, (-7.934618e-08f) }, { 16608971u, (-8.014993e-08f) }, { 16610948u, (-8.09522e-08f) },
-    { 16612821u, (-8.1753264e-08f) }, { 16614596u, (-8.255345e-08f) }, { 16616275u, (-8.335304e-08f) }, { 16617864u, (-8.4152326e-08f) },
-    { 16619366u, (-8.4951594e-08f) }, { 16620785u, (-8.575113e-08f) }, { 16622124u, (-8.6551225e-08f) }, { 16623386u, (-8.7352156e-08f) },
-    { 16624574u, (-8.8154195e-08f) }, { 16625689u, (-8.8957634e-08f) }, { 16626734u, (-8.976275e-08f) }, { 16627712u, (-9.056983e-08f) },
-    { 16628623u, (-9.137916e-08f) }, { 16629469u, (-9.219103e-08f) }, { 16630252u, (-9.300573e-08f) }, { 16630973u, (-9.3823566e-08f) },
-    { 16631633u, (-9.464484e-08f) }, { 16632232u, (-9.546986e-08f) }, { 16632772u, (-9.629894e-08f) }, { 16633253u, (-9.7132414e-08f) },
-    { 16633676u, (-9.797061e-08f) }, { 16634040u, (-9.8813885e-08f) }, { 16634345u, (-9.9662586e-08f) }, { 16634592u, (-1.00517084e-07f) },
-    { 16634780u, (-1.01377765e-07f) }, { 16634909u, (-1.0224502e-07f) }, { 16634978u, (-1.0311926e-07f) }, { 16634986u, (-1.0400093e-07f) },
-    { 16634933u, (-1.0489048e-07f) }, { 16634816u, (-1.05788374e-07f) }, { 16634636u, (-1.0669511e-07f) }, { 16634389u, (-1.0761123e-07f) },
-    { 16634074u, (-1.0853726e-07f) }, { 16633688u, (-1.09473795e-07f) }, { 16633230u, (-1.10421446e-07f) }, { 16632697u, (-1.11380885e-07f) },
-    { 16632084u, (-1.12352794e-07f) }, { 16631389u, (-1.1333791e-07f) }, { 16630608u, (-1.1433705e-07f) }, { 16629736u, (-1.15351035e-07f) },
-    { 16628767u, (-1.163808e-07f) }, { 16627697u, (-1.17427305e-07f) }, { 16626519u, (-1.1849163e-07f) }, { 16625225u, (-1.1957489e-07f) },
-    { 16623807u, (-1.2067837e-07f) }, { 16622256u, (-1.2180338e-07f) }, { 16620562u, (-1.229514e-07f) }, { 16618713u, (-1.2412407e-07f) },
-    { 16616695u, (-1.2532313e-07f) }, { 16614493u, (-1.2655053e-07f) }, { 16612090u, (-1.2780846e-07f) }, { 16609464u, (-1.2909929e-07f) },
-    { 16606592u, (-1.3042572e-07f) }, { 16603448u, (-1.3179073e-07f) }, { 16599998u, (-1.3319769e-07f) }, { 16596205u, (-1.3465045e-07f) },
-    { 16592024u, (-1.3615335e-07f) }, { 16587401u, (-1.3771138e-07f) }, { 16582272u, (-1.3933034e-07f) }, { 16576558u, (-1.4101693e-07f) },
-    { 16570162u, (-1.4277902e-07f) }, { 16562964u, (-1.4462594e-07f) }, { 16554811u, (-1.4656891e-07f) }, { 16545510u, (-1.4862147e-07f) },
-    { 16534808u, (-1.5080033e-07f) }, { 16522367u, (-1.5312634e-07f) }, { 16507732u, (-1.5562607e-07f) }, { 16490264u, (-1.5833416e-07f) },
-    { 16469044u, (-1.6129694e-07f) }, { 16442689u, (-1.6457852e-07f) }, { 16409025u, (-1.6827138e-07f) }, { 16364393u, (-1.7251635e-07f) },
-    { 16302110u, (-1.7754414e-07f) }, { 16208407u, (-1.8377476e-07f) }, { 16049218u, (-1.9211083e-07f) }, { 15707337u, (-2.0519613e-07f) }
+    { 3982115840u, 8.6452023e-10f }, { 0u, 6.340464e-11f }, { 3223205376u, 8.448759e-11f }, { 3653799680u, 9.931344e-11f },
+    { 3837168896u, 1.11162156e-10f }, { 3938454016u, 1.2122468e-10f }, { 4002562816u, 1.3008065e-10f }, { 4046736128u, 1.3805994e-10f },
+    { 4078996224u, 1.4536981e-10f }, { 4103576576u, 1.5214985e-10f }, { 4122920192u, 1.5849898e-10f }, { 4138534144u, 1.644901e-10f },
+    { 4151398656u, 1.7017869e-10f }, { 4162178560u, 1.7560801e-10f }, { 4171340032u, 1.8081255e-10f }, { 4179220480u, 1.8582029e-10f },
+    { 4186069248u, 1.9065428e-10f }, { 4192075008u, 1.9533379e-10f }, { 4197383168u, 1.9987506e-10f }, { 4202107136u, 2.04292e-10f },
+    { 4206337024u, 2.0859654e-10f }, { 4210145792u, 2.1279911e-10f }, { 4213592320u, 2.169088e-10f }, { 4216724480u, 2.209336e-10f },
+    { 4219582976u, 2.2488066e-10f }, { 4222201088u, 2.2875629e-10f }, { 4224606976u, 2.325662e-10f }, { 4226824448u, 2.3631552e-10f },
+    { 4228874496u, 2.4000887e-10f }, { 4230774016u, 2.436505e-10f }, { 4232538880u, 2.4724425e-10f }, { 4234181376u, 2.5079366e-10f },
+    { 4235713792u, 2.5430202e-10f }, { 4237145600u, 2.577723e-10f }, { 4238486016u, 2.6120733e-10f }, { 4239742720u, 2.6460967e-10f },
+    { 4240922368u, 2.6798175e-10f }, { 4242031616u, 2.7132585e-10f }, { 4243075584u, 2.7464409e-10f }, { 4244059136u, 2.7793848e-10f },
+    { 4244986624u, 2.8121094e-10f }, { 4245862400u, 2.8446323e-10f }, { 4246689792u, 2.8769706e-10f }, { 4247471872u, 2.909141e-10f },
+    { 4248211968u, 2.9411584e-10f }, { 4248912128u, 2.9730385e-10f }, { 4249575424u, 3.004795e-10f }, { 4250203392u, 3.036442e-10f },
+    { 4250798336u, 3.0679925e-10f }, { 4251362304u, 3.09946e-10f }, { 4251896576u, 3.1308567e-10f }, { 4252402688u, 3.1621952e-10f },
+    { 4252882176u, 3.193487e-10f }, { 4253336576u, 3.224744e-10f }, { 4253766400u, 3.255978e-10f }, { 4254173184u, 3.2872002e-10f },
+    { 4254557696u, 3.3184216e-10f }, { 4254920960u, 3.3496536e-10f }, { 4255263744u, 3.3809072e-10f }, { 4255586816u, 3.4121936e-10f },
+    { 4255890944u, 3.4435232e-10f }, { 4256176384u, 3.4749076e-10f }, { 4256443904u, 3.5063574e-10f }, { 4256694272u, 3.537884e-10f },
+    { 4256927488u, 3.5694983e-10f }, { 4257144064u, 3.601212e-10f }, { 4257344512u, 3.6330364e-10f }, { 4257529088u, 3.664983e-10f },
+    { 4257698048u, 3.697064e-10f }, { 4257851392u, 3.7292913e-10f }, { 4257989632u, 3.7616774e-10f }, { 4258112768u, 3.794235e-10f },
+    { 4258221056u, 3.826977e-10f }, { 4258314240u, 3.8599174e-10f }, { 4258392320u, 3.8930698e-10f }, { 4258455552u, 3.9264486e-10f },
+    { 4258503680u, 3.960069e-10f }, { 4258536704u, 3.993946e-10f }, { 4258554368u, 4.0280962e-10f }, { 4258556416u, 4.0625364e-10f },
+    { 4258542848u, 4.0972845e-10f }, { 4258512896u, 4.1323583e-10f }, { 4258466816u, 4.1677778e-10f }, { 4258403584u, 4.2035636e-10f },
+    { 4258322944u, 4.2397366e-10f }, { 4258224128u, 4.27632e-10f }, { 4258106880u, 4.3133377e-10f }, { 4257970432u, 4.3508158e-10f },
+    { 4257813504u, 4.388781e-10f }, { 4257635584u, 4.4272622e-10f }, { 4257435648u, 4.466291e-10f }, { 4257212416u, 4.5058998e-10f },
+    { 4256964352u, 4.546125e-10f }, { 4256690432u, 4.587004e-10f }, { 4256388864u, 4.6285792e-10f }, { 4256057600u, 4.670894e-10f },
+    { 4255694592u, 4.7139986e-10f }, { 4255297536u, 4.7579446e-10f }, { 4254863872u, 4.802789e-10f }, { 4254390528u, 4.8485965e-10f },
+    { 4253873920u, 4.8954346e-10f }, { 4253310208u, 4.94338e-10f }, { 4252695040u, 4.992518e-10f }, { 4252022784u, 5.042941e-10f },
+    { 4251287552u, 5.0947546e-10f }, { 4250482688u, 5.1480753e-10f }, { 4249599488u, 5.2030347e-10f }, { 4248628480u, 5.259783e-10f },
+    { 4247558144u, 5.31849e-10f }, { 4246374656u, 5.379351e-10f }, { 4245061632u, 5.4425914e-10f }, { 4243598848u, 5.5084737e-10f },
+    { 4241961472u, 5.5773053e-10f }, { 4240118784u, 5.649451e-10f }, { 4238031616u, 5.725348e-10f }, { 4235650560u, 5.805526e-10f },
+    { 4232910848u, 5.890638e-10f }, { 4229725952u, 5.9814975e-10f }, { 4225979392u, 6.0791433e-10f }, { 4221507584u, 6.184928e-10f },
+    { 4216075264u, 6.3006617e-10f }, { 4209328384u, 6.4288486e-10f }, { 4200710400u, 6.573101e-10f }, { 4189284608u, 6.73892e-10f },
+    { 4173340160u, 6.935318e-10f }, { 4149352192u, 7.1787015e-10f }, { 4108599808u, 7.5043294e-10f }, { 4021078272u, 8.015474e-10f },
+    { 3982115840u, (-8.6452023e-10f) }, { 0u, (-6.340464e-11f) }, { 3223205376u, (-8.448759e-11f) }, { 3653799680u, (-9.931344e-11f) },
+    { 3837168896u, (-1.11162156e-10f) }, { 3938454016u, (-1.2122468e-10f) }, { 4002562816u, (-1.3008065e-10f) }, { 4046736128u, (-1.3805994e-10f) },
+    { 4078996224u, (-1.4536981e-10f) }, { 4103576576u, (-1.5214985e-10f) }, { 4122920192u, (-1.5849898e-10f) }, { 4138534144u, (-1.644901e-10f) },
+    { 4151398656u, (-1.7017869e-10f) }, { 4162178560u, (-1.7560801e-10f) }, { 4171340032u, (-1.8081255e-10f) }, { 4179220480u, (-1.8582029e-10f) },
+    { 4186069248u, (-1.9065428e-10f) }, { 4192075008u, (-1.9533379e-10f) }, { 4197383168u, (-1.9987506e-10f) }, { 4202107136u, (-2.04292e-10f) },
+    { 4206337024u, (-2.0859654e-10f) }, { 4210145792u, (-2.1279911e-10f) }, { 4213592320u, (-2.169088e-10f) }, { 4216724480u, (-2.209336e-10f) },
+    { 4219582976u, (-2.2488066e-10f) }, { 4222201088u, (-2.2875629e-10f) }, { 4224606976u, (-2.325662e-10f) }, { 4226824448u, (-2.3631552e-10f) },
+    { 4228874496u, (-2.4000887e-10f) }, { 4230774016u, (-2.436505e-10f) }, { 4232538880u, (-2.4724425e-10f) }, { 4234181376u, (-2.5079366e-10f) },
+    { 4235713792u, (-2.5430202e-10f) }, { 4237145600u, (-2.577723e-10f) }, { 4238486016u, (-2.6120733e-10f) }, { 4239742720u, (-2.6460967e-10f) },
+    { 4240922368u, (-2.6798175e-10f) }, { 4242031616u, (-2.7132585e-10f) }, { 4243075584u, (-2.7464409e-10f) }, { 4244059136u, (-2.7793848e-10f) },
+    { 4244986624u, (-2.8121094e-10f) }, { 4245862400u, (-2.8446323e-10f) }, { 4246689792u, (-2.8769706e-10f) }, { 4247471872u, (-2.909141e-10f) },
+    { 4248211968u, (-2.9411584e-10f) }, { 4248912128u, (-2.9730385e-10f) }, { 4249575424u, (-3.004795e-10f) }, { 4250203392u, (-3.036442e-10f) },
+    { 4250798336u, (-3.0679925e-10f) }, { 4251362304u, (-3.09946e-10f) }, { 4251896576u, (-3.1308567e-10f) }, { 4252402688u, (-3.1621952e-10f) },
+    { 4252882176u, (-3.193487e-10f) }, { 4253336576u, (-3.224744e-10f) }, { 4253766400u, (-3.255978e-10f) }, { 4254173184u, (-3.2872002e-10f) },
+    { 4254557696u, (-3.3184216e-10f) }, { 4254920960u, (-3.3496536e-10f) }, { 4255263744u, (-3.3809072e-10f) }, { 4255586816u, (-3.4121936e-10f) },
+    { 4255890944u, (-3.4435232e-10f) }, { 4256176384u, (-3.4749076e-10f) }, { 4256443904u, (-3.5063574e-10f) }, { 4256694272u, (-3.537884e-10f) },
+    { 4256927488u, (-3.5694983e-10f) }, { 4257144064u, (-3.601212e-10f) }, { 4257344512u, (-3.6330364e-10f) }, { 4257529088u, (-3.664983e-10f) },
+    { 4257698048u, (-3.697064e-10f) }, { 4257851392u, (-3.7292913e-10f) }, { 4257989632u, (-3.7616774e-10f) }, { 4258112768u, (-3.794235e-10f) },
+    { 4258221056u, (-3.826977e-10f) }, { 4258314240u, (-3.8599174e-10f) }, { 4258392320u, (-3.8930698e-10f) }, { 4258455552u, (-3.9264486e-10f) },
+    { 4258503680u, (-3.960069e-10f) }, { 4258536704u, (-3.993946e-10f) }, { 4258554368u, (-4.0280962e-10f) }, { 4258556416u, (-4.0625364e-10f) },
+    { 4258542848u, (-4.0972845e-10f) }, { 4258512896u, (-4.1323583e-10f) }, { 4258466816u, (-4.1677778e-10f) }, { 4258403584u, (-4.2035636e-10f) },
+    { 4258322944u, (-4.2397366e-10f) }, { 4258224128u, (-4.27632e-10f) }, { 4258106880u, (-4.3133377e-10f) }, { 4257970432u, (-4.3508158e-10f) },
+    { 4257813504u, (-4.388781e-10f) }, { 4257635584u, (-4.4272622e-10f) }, { 4257435648u, (-4.466291e-10f) }, { 4257212416u, (-4.5058998e-10f) },
+    { 4256964352u, (-4.546125e-10f) }, { 4256690432u, (-4.587004e-10f) }, { 4256388864u, (-4.6285792e-10f) }, { 4256057600u, (-4.670894e-10f) },
+    { 4255694592u, (-4.7139986e-10f) }, { 4255297536u, (-4.7579446e-10f) }, { 4254863872u, (-4.802789e-10f) }, { 4254390528u, (-4.8485965e-10f) },
+    { 4253873920u, (-4.8954346e-10f) }, { 4253310208u, (-4.94338e-10f) }, { 4252695040u, (-4.992518e-10f) }, { 4252022784u, (-5.042941e-10f) },
+    { 4251287552u, (-5.0947546e-10f) }, { 4250482688u, (-5.1480753e-10f) }, { 4249599488u, (-5.2030347e-10f) }, { 4248628480u, (-5.259783e-10f) },
+    { 4247558144u, (-5.31849e-10f) }, { 4246374656u, (-5.379351e-10f) }, { 4245061632u, (-5.4425914e-10f) }, { 4243598848u, (-5.5084737e-10f) },
+    { 4241961472u, (-5.5773053e-10f) }, { 4240118784u, (-5.649451e-10f) }, { 4238031616u, (-5.725348e-10f) }, { 4235650560u, (-5.805526e-10f) },
+    { 4232910848u, (-5.890638e-10f) }, { 4229725952u, (-5.9814975e-10f) }, { 4225979392u, (-6.0791433e-10f) }, { 4221507584u, (-6.184928e-10f) },
+    { 4216075264u, (-6.3006617e-10f) }, { 4209328384u, (-6.4288486e-10f) }, { 4200710400u, (-6.573101e-10f) }, { 4189284608u, (-6.73892e-10f) },
+    { 4173340160u, (-6.935318e-10f) }, { 4149352192u, (-7.1787015e-10f) }, { 4108599808u, (-7.5043294e-10f) }, { 4021078272u, (-8.015474e-10f) }
 };
 static const float cpf_zig_f[128] = {
     1.0f, 0.9635997f, 0.9362827f, 0.9130436f,
@@ -721,9 +727,8 @@ static CPF_NOT_INLINED float cpf_rng_gauss_slow(uint32_t r[2], uint32_t u)
 {
     for (;;) {
         const uint32_t i = u & 127u;
-        const uint32_t j = u >> 8;
-        const float x = (float)j * cpf_zig[i].w;
-        if (j < cpf_zig[i].k) {
+        const float x = (float)u * cpf_zig[i].w;
+        if (u < cpf_zig[i].k) {
             return ((u & 128u) != 0u) ? -x : x;
         }
         if (i == 0u) {
@@ -744,18 +749,16 @@ static CPF_NOT_INLINED float cpf_rng_gauss_slow(uint32_t r[2], uint32_t u)
     }
 }
 
-/* One standard normal sample by the ziggurat: index, sign and 24-bit magnitude from one
- * draw; about 98.8 % of draws return at the first comparison, the rest take the wedge
+/* One standard normal sample by the ziggurat: index, sign and magnitude from one draw; about 98.8 % of draws return at the first comparison, the rest take the wedge
  * (exp) or the tail beyond R (log) and draw again. The generator's state is r, a local copy
  * that a loop keeps in registers; the rare path runs on `home` (the state struct's copy),
  * written before and read back after it, so r's address never leaves the loop. */
 static inline CPF_ALWAYS_INLINE float cpf_rng_gauss(uint32_t r[2], uint32_t home[2])
 {
     const uint32_t u = cpf_rng_next(r);
-    const uint32_t j = u >> 8;
     const uint32_t is = u & 255u;      /* layer and sign */
-    if (CPF_LIKELY(j < cpf_zig[is].k)) {
-        return (float)j * cpf_zig[is].w;
+    if (CPF_LIKELY(u < cpf_zig[is].k)) {
+        return (float)u * cpf_zig[is].w;
     }
     home[0] = r[0];
     home[1] = r[1];
@@ -777,17 +780,19 @@ static void cpf_rng_gauss4(uint32_t rng[2], float n[4])
     rng[1] = r[1];
 }
 
-/* Systematic resampling: one uniform u in (0, 1], positions (j + u)/N, j = 0..N-1; position j
- * takes the first particle whose cumulative weight is >= it (the last one if rounding leaves
- * the total below 1). One pass counts each particle's copies (the positions up to its
- * cumulative weight) and resets its weight; the copies are then made in place: each selected
- * particle keeps its slot, its extra copies fill the unselected slots in increasing order. */
+/* Systematic resampling: one uniform u in (0, 1], positions (j + u)/N of the normalised
+ * weights, i.e. (j + u) weight_sum/N of the stored ones, j = 0..N-1; position j takes the first
+ * particle whose cumulative weight is >= it (the last one if rounding leaves the total below
+ * it). One pass counts each particle's copies (the positions up to its cumulative weight) and
+ * resets its weight; the copies are then made in place: each selected particle keeps its slot,
+ * its extra copies fill the unselected slots in increasing order. */
 static void cpf_resample(cpf_state *s)
 {
     const float u = cpf_rng_uniform(s->rng);
+    const float step = s->weight_sum / 100.0f;
     float c = 0.0f;
     float jr = 0.0f;                /* j as a real (exact) */
-    float pos = u / 100.0f;         /* (j + u)/N */
+    float pos = u * step;                 /* (j + u) weight_sum/N, summed step by step */
     uint32_t j = 0u;
     for (uint32_t i = 0u; i < 99u; i++) {
         c += s->weights[i];
@@ -796,20 +801,22 @@ static void cpf_resample(cpf_state *s)
         while (pos <= c && j < 100u) {
             j++;
             jr += 1.0f;
-            pos = (jr + u) / 100.0f;
+            pos += step;
         }
         s->scratch[i] = jr - jr0;             /* whole numbers: exact */
     }
     s->weights[99u] = 0.01f;
+    s->weight_sum = 1.0f;
     s->scratch[99u] = 100.0f - jr;
+    /* The counts are whole numbers >= 0 that sum to exactly N (j <= N), so there are exactly
+     * as many unselected slots (count 0) as extra copies (count - 1 of each selected one): for
+     * every extra copy an unfilled slot lies at or after d, and the scan below stops at it
+     * before N. */
     uint32_t d = 0u;
     for (uint32_t i = 0u; i < 100u; i++) {
         for (float n = s->scratch[i]; n > 1.0f; n -= 1.0f) {   /* its extra copies */
-            while (d < 100u && s->scratch[d] > 0.0f) {
+            while (s->scratch[d] > 0.0f) {
                 d++;
-            }
-            if (d >= 100u) {
-                break;   /* cannot happen: there are as many empty slots as extra copies */
             }
             s->particles[4u * d + 0u] = s->particles[4u * i + 0u];
             s->particles[4u * d + 1u] = s->particles[4u * i + 1u];
@@ -923,6 +930,7 @@ void cpf_init(cpf_state *s)
     for (uint32_t i = 0u; i < 100u; i++) {
         s->weights[i] = 0.01f;
     }
+    s->weight_sum = 1.0f;
     s->ess = 100.0f;
     s->rng[0] = 2527132011u;
     s->rng[1] = 314344336u;
@@ -982,6 +990,7 @@ cpf_status cpf_step(cpf_state *restrict s, const cpf_input *restrict in, float d
             cpf_k_init_particle(s->q, noise, &s->particles[4u * i]);
             s->weights[i] = 0.01f;
         }
+        s->weight_sum = 1.0f;
         s->ess = 100.0f;
         s->initialised = 1u;
         return status;
@@ -1020,10 +1029,12 @@ cpf_status cpf_step(cpf_state *restrict s, const cpf_input *restrict in, float d
     const bool have_obs = use_accel || use_mag;
     const float *y = s->q_cf;
 
-    /* Prediction: eq. 11 plus process noise as a rotation vector added to the increment, particle by particle, and
-     * <x_i, Y> (kept in scratch for the update and the estimate's sign) and the largest
-     * |<x_i, Y>| (the likelihood's scale, eq. 13). */
-    float cmax = -1.0f;   /* below every |<x_i, Y>| */
+    /* Prediction: eq. 11 plus process noise as a rotation vector added to the increment,
+     * particle by particle. Each particle is then kept in the hemisphere of the observation Y (of
+     * the last estimate in a step without one; q = -q), so that d_i = <x_i, Y> >= 0 is its
+     * likelihood's argument and it enters the estimate as it is. d_i is kept in scratch for the
+     * update, and the largest d_i is the likelihood's scale (eq. 13). */
+    float cmax = -1.0f;   /* below every d_i */
     {
         float hw[3];
         float sp;
@@ -1042,54 +1053,81 @@ cpf_status cpf_step(cpf_state *restrict s, const cpf_input *restrict in, float d
             cpf_k_particle_move(x, hw, sp, noise, x);
             cpf_k_normalize(x, x);
             float d;
-            float c;       /* unused without an observation (cheaper than a test per particle) */
-            cpf_k_obs_dot(x, yl, &d, &c);
+            cpf_k_obs_dot(x, yl, &d);
+            if (CPF_UNLIKELY(d < 0.0f)) {     /* rare: Y (or a particle) changed sign */
+                for (uint32_t k = 0u; k < 4u; k++) {
+                    x[k] = -x[k];
+                }
+                d = -d;
+            }
             s->scratch[i] = d;
-            if (c > cmax) {
-                cmax = c;
+            if (d > cmax) {     /* unused without an observation (cheaper than a test per particle) */
+                cmax = d;
             }
         }
         s->rng[0] = r[0];
         s->rng[1] = r[1];
     }
 
-    /* Update (eqs. 13-14): likelihood scaled by its largest value, then normalisation (in the
-     * estimate's loop below); weights that sum to zero are reset to uniform, never divided by. */
-    float sum = 1.0f;
+    /* Update (eqs. 13-14) and estimate (eq. 15) in one pass over the particles. The weights are
+     * stored unnormalised, with their sum weight_sum (eq. 14's division deferred to where the
+     * weights are used): w_i <- w_i exp(gain (d_i - c_max)) = w_i 2^(t_i/64), the likelihood scaled
+     * by its largest value (d_i <= c_max: each factor <= 1, the best particle's exactly 1). The estimate
+     * is normalised, ESS = sum^2 / sum(w^2) and resampling scales its positions by the sum, so
+     * none needs normalised weights. Representable: the sum only decreases (by the factors) until
+     * resampling sets it to 1, and an update that leaves it below 2^-20 normalises the weights in
+     * place, so the stored weights are the normalised ones times a sum in [2^-20, 1]. Weights
+     * that sum to zero (or NaN) are reset to uniform, never divided by. After either rare case
+     * the sums are taken again from the stored weights, as in a step without an observation. */
+    float sum = 0.0f;
+    float w2 = 0.0f;
+    float acc[4] = { 0.0f, 0.0f, 0.0f, 0.0f };
+    bool resum = !have_obs;
     if (have_obs) {
-        sum = 0.0f;
         for (uint32_t i = 0u; i < 100u; i++) {
-            float a;
-            cpf_k_log_likelihood(s->scratch[i], cmax, &a);
-            s->weights[i] = s->weights[i] * cpf_exp_nonpos(a);
-            sum += s->weights[i];
+            float t;
+            cpf_k_log_likelihood(s->scratch[i], cmax, &t);
+            const float w = s->weights[i] * cpf_exp2_64(t);
+            s->weights[i] = w;
+            sum += w;
+            w2 += w * w;
+            cpf_k_accumulate(acc, w, &s->particles[4u * i], acc);
         }
-        if (!(sum > 0.0f)) {
-            for (uint32_t i = 0u; i < 100u; i++) {
-                s->weights[i] = 0.01f;
+        if (!(sum >= 9.536743e-07f)) {     /* below 2^-20, zero or NaN: rare */
+            if (sum > 0.0f) {
+                for (uint32_t i = 0u; i < 100u; i++) {
+                    s->weights[i] = s->weights[i] / sum;
+                }
+            } else {
+                for (uint32_t i = 0u; i < 100u; i++) {
+                    s->weights[i] = 0.01f;
+                }
+                status |= CPF_WEIGHTS_RESET;
             }
-            status |= CPF_WEIGHTS_RESET;
+            resum = true;
         }
     }
-    /* the divisor of the weights: their sum after an update, else 1 (w / 1 == w exactly) */
-    const float wdiv = (have_obs && sum > 0.0f) ? sum : 1.0f;
-
-    /* Estimate (eq. 15): weighted mean of the normalised weights, each particle's sign aligned
-     * with the observation (the last estimate without one; q = -q), normalised (kept if it
-     * degenerates). */
-    {
-        float acc[4] = { 0.0f, 0.0f, 0.0f, 0.0f };
-        float w2 = 0.0f;
+    if (resum) {
+        /* the sums from the stored weights */
+        sum = 0.0f;
+        w2 = 0.0f;
+        for (uint32_t k = 0u; k < 4u; k++) {
+            acc[k] = 0.0f;
+        }
         for (uint32_t i = 0u; i < 100u; i++) {
-            s->weights[i] = s->weights[i] / wdiv;
-            cpf_k_accumulate(acc, s->weights[i], &s->particles[4u * i], s->scratch[i], acc);
-            w2 += s->weights[i] * s->weights[i];
+            const float w = s->weights[i];
+            sum += w;
+            w2 += w * w;
+            cpf_k_accumulate(acc, w, &s->particles[4u * i], acc);
         }
-        if (acc[0] * acc[0] + acc[1] * acc[1] + acc[2] * acc[2] + acc[3] * acc[3] > 1e-30f) {
-            cpf_k_normalize(acc, s->q);
-        }
-        s->ess = 1.0f / w2;
     }
+    /* Estimate (eq. 15): the weighted mean of the aligned particles, normalised (kept if it
+     * degenerates). */
+    if (acc[0] * acc[0] + acc[1] * acc[1] + acc[2] * acc[2] + acc[3] * acc[3] > 1e-30f * sum * sum) {
+        cpf_k_normalize(acc, s->q);
+    }
+    s->weight_sum = sum;
+    s->ess = sum * sum / w2;
 
     /* Systematic resampling: when the effective sample size is below 0.5 N. */
     if (have_obs && s->ess < 50.0f) {

@@ -15,7 +15,7 @@
  *     every IMU sample: fill a cpf_input (set a VALID bit only for sensors that
  *     delivered a new sample), then cpf_status s = cpf_step(&st, &in, dt);
  *     cpf_euler(&st, rpy);
- * No heap, no recursion; RAM is the state struct (2452 bytes with the usual ABI).
+ * No heap, no recursion; RAM is the state struct (2456 bytes with the usual ABI).
  * Needs <math.h> (float functions only in a float build); compilers may also emit calls to
  * memcpy/memset/memmove for struct and array copies.
  *
@@ -90,8 +90,9 @@ typedef struct {
     float q[4];              /* attitude estimate, body->NED, [w x y z] */
     float q_cf[4];           /* complementary filter output (the particle filter's observation) */
     float particles[400];    /* 100 particles, quaternions [w x y z] one after another (drawn at initialisation) */
-    float weights[100];      /* normalised particle weights */
-    float ess;               /* effective sample size 1/sum(w^2) after the last update */
+    float weights[100];      /* particle weights, normalised by weight_sum (eq. 14 deferred to their next use) */
+    float weight_sum;        /* the weights' sum (their divisor): 1 after initialisation and resampling */
+    float ess;               /* effective sample size weight_sum^2/sum(w^2) after the last update */
     uint32_t rng[2];         /* xoroshiro64** state (seeded from 1) */
     float scratch[100];      /* per-particle scratch: <x_i, Y> during a step, then the number of copies of each particle while resampling (whole numbers) */
     uint32_t resample_count; /* number of resamplings so far (wraps) */

@@ -34,3 +34,10 @@ void cpf_hook_exp_nonpos(const CPF_REAL *x, uint32_t n, CPF_REAL *out)
         out[k] = cpf_exp_nonpos(x[k]);
     }
 }
+
+void cpf_hook_exp2_64(const CPF_REAL *t, uint32_t n, CPF_REAL *out)
+{
+    for (uint32_t k = 0u; k < n; k++) {
+        out[k] = cpf_exp2_64(t[k]);
+    }
+}

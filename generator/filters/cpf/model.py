@@ -6,19 +6,23 @@ Per step (SPEC.md, CPF; reference.py spells out every equation):
   complementary  a = wrap(a_g + (1−k) wrap(a_am − a_g)), k = τ/(τ+dt)           (eqs. 7, 8)
   particles      x_i = normalise(x_i + ½ x_i ⊗ [0, ω dt + σ_p√dt n_i]), n_i ~ N(0, I₃)  (eqs. 9, 11;
                  faithful: normalise((I + dt/2 Ω(ω)) x_i + σ_p√dt/2 n_i), n_i ~ N(0, I₄), eq. 9's W)
-  likelihood     w_i ← w_i exp(4(|⟨Y,x_i⟩| − c_max)/σ_o²), Y = q_cf (q ≡ −q)     (eqs. 12, 13)
-  estimate       q = normalise(Σ w_i sign⟨x_i, Y⟩ x_i)  (Y = q_prev without one)  (eqs. 14, 15)
+  alignment      x_i ← −x_i where ⟨x_i, Y⟩ < 0 (q ≡ −q; Y = q_prev without an observation)
+  likelihood     w_i ← w_i exp(4(⟨Y,x_i⟩ − c_max)/σ_o²), Y = q_cf                 (eqs. 12, 13)
+  estimate       q = normalise(Σ w_i x_i), the weights kept unnormalised         (eqs. 14, 15)
 The loops over particles, the weight normalisation, systematic resampling and the PRNG
 (xoroshiro64**, ziggurat Gaussian; prng.py documents the exact semantics) are written in the
 filter's templates (helpers.c.j2, step.c.j2) around these kernels.
 """
 from __future__ import annotations
 
+import math
+
 import casadi as ca
 
 from generator import fastmath
 from generator.emit import function
 from generator.filters.cpf.prng import ZIG_F, ZIG_K, ZIG_R, ZIG_W, seed_state
+from generator.filters.cpf.reference import WEIGHT_SUM_MIN
 from generator.model import FilterModel, KernelSpec, StateField
 from generator.symbolic import attitude, quat
 
@@ -71,8 +75,12 @@ class Model(FilterModel):
             fields += [
                 StateField("particles", 4 * n, f"{n} particles, quaternions [w x y z] one after another "
                            "(drawn at initialisation)", 0.0),
-                StateField("weights", n, "normalised particle weights", 1.0 / n),
-                StateField("ess", 1, "effective sample size 1/sum(w^2) after the last update", float(n)),
+                StateField("weights", n, "particle weights, normalised by weight_sum (eq. 14 deferred to their "
+                           "next use)", 1.0 / n),
+                StateField("weight_sum", 1, "the weights' sum (their divisor): 1 after initialisation and "
+                           "resampling", 1.0),
+                StateField("ess", 1, "effective sample size weight_sum^2/sum(w^2) after the last update",
+                           float(n)),
                 StateField("rng", 2, f"xoroshiro64** state (seeded from {self.params['seed']})",
                            seed_state(int(self.params["seed"])), "uint32"),
                 StateField("scratch", n, "per-particle scratch: <x_i, Y> during a step, then the number of "
@@ -138,7 +146,6 @@ class Model(FilterModel):
             s_0 = 0.5 * p["init_spread"]
             d_xy = ca.dot(x, y)
             gain = 4.0 / (p["obs_noise"] * p["obs_noise"])
-            sgn = ca.if_else(cdot < 0, -1, 1)
             if nd == 4:     # the paper's additive quaternion noise W (eq. 9), then eq. 11
                 move = x + quat.qmul(x, quat.vec(0, hw[0], hw[1], hw[2])) + sp * pnoise
                 move_doc = ("particle prediction: eq. 11 plus the paper's additive quaternion process noise "
@@ -161,16 +168,17 @@ class Model(FilterModel):
                 KernelSpec("particle_move", function("particle_move", {"x": x, "hw": hw, "sp": sp, "noise": pnoise},
                                                      {"x_new": move}),
                            move_doc),
-                KernelSpec("obs_dot", function("obs_dot", {"x": x, "y": y}, {"d": d_xy, "c": ca.fabs(d_xy)}),
-                           "<x, Y> and |<x, Y>|: cosine of half the angle between particle and observation "
-                           "(q = -q); the sign aligns the particle in the estimate"),
+                KernelSpec("obs_dot", function("obs_dot", {"x": x, "y": y}, {"d": d_xy}),
+                           "<x, Y>: cosine of half the angle between particle and observation, up to the "
+                           "sign (q = -q; the step keeps each particle where it is >= 0)"),
                 KernelSpec("log_likelihood", function("log_likelihood", {"d": cdot, "cmax": cmax},
-                                                      {"a": gain * (ca.fabs(cdot) - cmax)}),
+                                                      {"t": (gain * 64.0 / math.log(2.0)) * (cdot - cmax)}),
                            "log of the Gaussian likelihood exp(-4(1-|<x,Y>|)/obs_noise^2) scaled by its maximum "
-                           "(eq. 13), from d = <x, Y>: <= 0; the step multiplies the weight by exp(a)"),
-                KernelSpec("accumulate", function("accumulate", {"acc": acc, "w": w, "x": x, "d": cdot},
-                                                  {"acc_new": acc + w * sgn * x}),
-                           "sign-aligned weighted sum of the particles (eq. 15, q = -q): the sign of d = <x, Y>"),
+                           "(eq. 13), from d = |<x, Y>| (the particle in Y's hemisphere), in units of ln2/64: "
+                           "t <= 0; the step multiplies the weight by 2^(t/64)"),
+                KernelSpec("accumulate", function("accumulate", {"acc": acc, "w": w, "x": x},
+                                                  {"acc_new": acc + w * x}),
+                           "weighted sum of the particles (eq. 15), each in the observation's hemisphere"),
                 KernelSpec("normalize", function("normalize", {"acc": acc},
                                                  {"q": acc / ca.sqrt(ca.sumsqr(acc))}),
                            "normalised quaternion"),
@@ -181,8 +189,9 @@ class Model(FilterModel):
         return {"n_particles": self.n, "mode": self.mode, "faithful": bool(self.params["faithful"]),
                 "noise_dim": self.noise_dim,
                 "ess_threshold": float(self.params["ess_threshold"]),
-                "zig_kw": list(zip(ZIG_K, ZIG_W)), "zig_f": ZIG_F, "zig_r": ZIG_R,
-                "exp_nonpos_source": fastmath.exp_nonpos_source}
+                "wsum_min": WEIGHT_SUM_MIN, "wsum_min_doc": "2^-20",
+                "zig_kw": [(256 * k, w / 256.0) for k, w in zip(ZIG_K, ZIG_W)], "zig_f": ZIG_F, "zig_r": ZIG_R,
+                "exp_nonpos_source": fastmath.exp_nonpos_source, "math_ln2": math.log(2.0)}
 
     def step_paths(self):
         n = self.n

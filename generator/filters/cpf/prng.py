@@ -34,7 +34,7 @@ the index, the sign and the magnitude taken from different bits of one 32-bit dr
 remedy for the original's correlation):
 
     u = next_u32();  i = u & 127;  negative = u & 128;  j = u >> 8          (24 bits)
-    x = j * W[i]
+    x = u * (W[i] / 256)
     j < K[i]      -> x                          (about 98.8 % of draws: no libm at all)
     i == 0        -> tail beyond R: repeat xt = -log(uniform()) / R, y = -log(uniform())
                      until y + y >= xt * xt; x = R + xt
@@ -42,8 +42,12 @@ remedy for the original's correlation):
                      else draw again
     result = -x if negative else x
 
-K, W, F are computed once (ziggurat_tables, Marsaglia and Tsang's zigset with 2^24 in place of
-2^31) and written into the C as literals, so the double C and this module compute the same
+x is the whole draw u = 256 j + (u & 255) scaled by W[i]/256, i.e. j W[i] plus less than one
+step W[i] of the 24-bit magnitude (a fixed fraction of a step per layer and sign: the
+magnitude's resolution is 2^-24 of the layer either way); the C then needs no shift for the
+product, and it tests u < 256 K[i], the same test as j < K[i]. (Until issue 14's last change
+x = j W[i].) K, W, F are computed once (ziggurat_tables, Marsaglia and Tsang's zigset with 2^24
+in place of 2^31) and written into the C as literals (256 K and W/256, exact), so the double C and this module compute the same
 products and comparisons bit for bit (the rare tail and wedge use exp/log: glibc's on both
 sides). |z| <= R + 24 ln 2 / R = 8.27 (the 24-bit uniform's floor in the tail).
 """
@@ -124,7 +128,7 @@ class Xoroshiro64ss:
             u = self.next_u32()
             i = u & 127
             j = u >> 8
-            x = j * W[i]
+            x = u * (W[i] / 256.0)
             if j < K[i]:
                 return -x if u & 128 else x
             if i == 0:

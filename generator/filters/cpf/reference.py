@@ -31,18 +31,24 @@ One step (dt > 0, gyro rate ω over the last interval):
      normals - the paper's additive quaternion noise W_k of eq. 9;
    - observation Y = q_cf (eq. 12, H = I); in mode "particle" Y = from_euler(φ_a, θ_a, ψ_m)
      (needs both sensors);
+   - q ≡ −q: each particle is replaced by −x_i where ⟨x_i, Y⟩ < 0 (⟨x_i, q_prev⟩ < 0 in a
+     step without an observation), so every particle lies in the reference's hemisphere;
    - likelihood with V ~ N(0, (σ_o/2)² I₄) and q ≡ −q: |Y − x|² taken with the nearer sign
      is 2(1 − |⟨Y, x⟩|), so p(Y|x) ∝ exp(−4(1 − |⟨Y, x⟩|)/σ_o²);
      w_i ← w_i · exp(4(|⟨Y, x_i⟩| − c_max)/σ_o²), c_max = max_i |⟨Y, x_i⟩| (eq. 13; the
      constant factor exp(4(c_max − 1)/σ_o²) cancels in the normalisation and keeps the best
      particle's factor at 1, so the exponential alone cannot underflow every weight);
-   - normalisation, eq. 14: w_i ← w_i / Σw; if Σw is not > 0 (all weights underflowed, or a
-     corrupted state) the weights are reset to 1/N and status bit WEIGHTS_RESET is set;
-   - estimate, eq. 15: q = normalise(Σ w_i s_i x_i), s_i = sign⟨x_i, Y⟩ (q ≡ −q: each
-     particle taken with the sign nearer the observation; with no observation this step,
-     nearer the previous estimate q_prev);
-   - systematic resampling: every step in faithful mode, else when ESS = 1/Σw_i² < ess_threshold·N;
-     only on steps that had an observation.
+   - normalisation, eq. 14, deferred: the weights are kept unnormalised with their sum S
+     (weight_sum), which the update only decreases; if the new sum is not >= 2⁻²⁰ the weights
+     are normalised in place (so S stays in [2⁻²⁰, 1]), and if it is not > 0 (all weights
+     underflowed, or a corrupted state) they are reset to 1/N and status bit WEIGHTS_RESET is
+     set;
+   - estimate, eq. 15: q = normalise(Σ w_i x_i) of the aligned particles; kept if
+     |Σ w_i x_i|² ≤ 1e-30 S²;
+   - systematic resampling: every step in faithful mode, else when ESS = S²/Σw_i² < ess_threshold·N;
+     only on steps that had an observation; positions (j + u)·S/N (u·S/N, then S/N added
+     j times) against the cumulative weights, i.e. (j + u)/N of the normalised ones; then
+     w_i = 1/N, S = 1.
    Mode "complementary" stops after step 3 (q = q_cf, no particles, no random numbers).
 
 Initialisation (section 1.2: the initial quaternion from the accelerometer and magnetometer
@@ -79,6 +85,9 @@ FILTER_STATUS = [
 ]
 
 MODES = ("combined", "complementary", "particle")
+# The weights are kept unnormalised with their sum (eq. 14 deferred to their next use); an
+# update whose weights sum to less than this normalises them in place.
+WEIGHT_SUM_MIN = 2.0 ** -20
 TWO_PI = 2.0 * math.pi
 
 
@@ -175,6 +184,7 @@ class Reference:
         self.q_cf = np.array([1.0, 0.0, 0.0, 0.0])
         self.particles = np.zeros((self.N, 4))          # drawn at initialisation
         self.weights = np.full(self.N, 1.0 / self.N)
+        self.weight_sum = 1.0
         self.ess = float(self.N)
         self.initialised = False
         self.n_resample = 0
@@ -212,6 +222,7 @@ class Reference:
                 x = q0[None, :] + s0 * self._normals(self.N)
                 self.particles = x / np.linalg.norm(x, axis=1, keepdims=True)
                 self.weights = np.full(self.N, 1.0 / self.N)
+                self.weight_sum = 1.0
                 self.ess = float(self.N)
             self.initialised = True
             return status
@@ -258,26 +269,36 @@ class Reference:
             theta = dt * np.array(w)[None, :] + p["process_noise"] * math.sqrt(dt) * self._normals(N, 3)
             x = np.einsum("nij,nj->ni", transitions(theta), self.particles)
         x = x / np.linalg.norm(x, axis=1, keepdims=True)
+        # q ≡ −q: each particle kept in the hemisphere of the observation (of the last estimate
+        # without one), so d = ⟨x, Y⟩ >= 0 is |⟨x, Y⟩| and the particles enter the mean as they are
+        d = x @ (Y if have_obs else self.q)
+        flip = d < 0.0
+        x[flip] = -x[flip]
+        d = np.where(flip, -d, d)
         self.particles = x
+        wts = self.weights
         if have_obs:
-            c = np.abs(x @ Y)
-            cmax = float(np.max(c))
+            cmax = float(np.max(d))
             gain = 4.0 / (p["obs_noise"] * p["obs_noise"])
-            wts = self.weights * np.exp(gain * (c - cmax))
+            # the weights times the likelihood scaled by its maximum (eq. 13); eq. 14's division
+            # by their sum is deferred to where they are used
+            wts = self.weights * np.exp(gain * (d - cmax))
             s = float(np.sum(wts))
-            if not s > 0.0:
-                wts = np.full(N, 1.0 / N)
-                status |= WEIGHTS_RESET
-            else:
-                wts = wts / s
+            if not s >= WEIGHT_SUM_MIN:
+                if s > 0.0:
+                    wts = wts / s
+                else:
+                    wts = np.full(N, 1.0 / N)
+                    status |= WEIGHTS_RESET
             self.weights = wts
-        # estimate, eq. 15, each particle sign-aligned with the observation (else the last estimate)
-        sgn = np.where(x @ (Y if have_obs else self.q) < 0.0, -1.0, 1.0)
-        acc = (self.weights * sgn) @ x
+        s = float(np.sum(wts))
+        # estimate, eq. 15
+        acc = wts @ x
         n2 = float(acc @ acc)
-        if n2 > 1e-30:
+        if n2 > 1e-30 * s * s:
             self.q = acc / math.sqrt(n2)
-        self.ess = 1.0 / float(np.sum(self.weights * self.weights))
+        self.weight_sum = s
+        self.ess = s * s / float(np.sum(wts * wts))
         if have_obs and (p["faithful"] or self.ess < p["ess_threshold"] * N):
             self._resample()
         return status
@@ -287,7 +308,8 @@ class Reference:
         N = self.N
         u = self.rng.uniform()
         cum = np.cumsum(self.weights)                    # sequential sums, as the C walks them
-        pos = (np.arange(N) + u) / N                     # (j + u) / N, one rounding each
+        step = self.weight_sum / N                       # (j + u)/N of the normalised weights,
+        pos = np.cumsum(np.concatenate([[u * step], np.full(N - 1, step)]))   # summed as the C does
         idx = np.minimum(np.searchsorted(cum, pos, side="left"), N - 1)   # first c >= u_j
         counts = np.bincount(idx, minlength=N)
         x = self.particles
@@ -300,6 +322,7 @@ class Reference:
                 counts[d] = 1
                 counts[i] -= 1
         self.weights = np.full(N, 1.0 / N)
+        self.weight_sum = 1.0
         self.ess = float(N)
         self.n_resample += 1
 

@@ -90,9 +90,9 @@ def reproduction(seeds=range(10)) -> str:
 # Per-particle work written in the template (not in the kernels' op counts): three ziggurat
 # normals (four in faithful mode; each a xoroshiro64** draw, a table look-up and compare, an
 # int->real conversion and a multiply; the wedge's exp and the tail's log in about 1.2 % of
-# draws) and the likelihood's exp; the loops add 1 compare/add per particle for the maximum,
-# the weight sum, the normalisation divide and the ESS square-sum; resampling is O(N) (one
-# uniform, N cumulative adds and compares, at most N copies of 4 values).
+# draws) and the likelihood's exp; the loops add per particle the hemisphere test, the
+# maximum's compare, the weight sum and the ESS square-sum; resampling is O(N) (one uniform, N
+# cumulative adds and compares, at most N copies of 4 values).
 
 
 def cost(ns=(50, 100, 200), time_it: bool = True) -> str:
