@@ -1034,7 +1034,7 @@ cpf_status cpf_step(cpf_state *restrict s, const cpf_input *restrict in, float d
      * the last estimate in a step without one; q = -q), so that d_i = <x_i, Y> >= 0 is its
      * likelihood's argument and it enters the estimate as it is. d_i is kept in scratch for the
      * update, and the largest d_i is the likelihood's scale (eq. 13). */
-    float cmax = -1.0f;   /* below every d_i */
+    float cmax = 0.0f;
     {
         float hw[3];
         float sp;
@@ -1044,6 +1044,10 @@ cpf_status cpf_step(cpf_state *restrict s, const cpf_input *restrict in, float d
         /* the observation, or the last estimate without one: the particles' sign reference */
         const float *ref = have_obs ? y : s->q;
         const float yl[4] = { ref[0], ref[1], ref[2], ref[3] };
+        /* the largest d_i so far (0 at first: every d_i is >= 0 once aligned) and a d_i, each also
+         * seen as its bits */
+        union { float f; uint32_t u; } dmax, bits;
+        dmax.f = 0.0f;
         for (uint32_t i = 0u; i < 100u; i++) {
             float *x = &s->particles[4u * i];
             float noise[3];
@@ -1054,17 +1058,23 @@ cpf_status cpf_step(cpf_state *restrict s, const cpf_input *restrict in, float d
             cpf_k_normalize(x, x);
             float d;
             cpf_k_obs_dot(x, yl, &d);
-            if (CPF_UNLIKELY(d < 0.0f)) {     /* rare: Y (or a particle) changed sign */
-                for (uint32_t k = 0u; k < 4u; k++) {
-                    x[k] = -x[k];
+            /* One integer comparison finds both rare cases: the bits of a float >= 0 order as the
+             * values do, and a negative d (sign bit set) or NaN has bits above every such value. */
+            bits.f = d;
+            if (CPF_UNLIKELY(bits.u > dmax.u)) {
+                if (d < 0.0f) {     /* Y (or this particle) changed sign */
+                    for (uint32_t k = 0u; k < 4u; k++) {
+                        x[k] = -x[k];
+                    }
+                    d = -d;
                 }
-                d = -d;
+                if (d > dmax.f) {         /* a new largest d_i (unused without an observation) */
+                    dmax.f = d;
+                }
             }
             s->scratch[i] = d;
-            if (d > cmax) {     /* unused without an observation (cheaper than a test per particle) */
-                cmax = d;
-            }
         }
+        cmax = dmax.f;
         s->rng[0] = r[0];
         s->rng[1] = r[1];
     }
