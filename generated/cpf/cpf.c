@@ -792,7 +792,7 @@ static void cpf_resample(cpf_state *s)
     const float step = s->weight_sum / 100.0f;
     float c = 0.0f;
     float jr = 0.0f;                /* j as a real (exact) */
-    float pos = u * step;                 /* (j + u) weight_sum/N, summed step by step */
+    float pos = u * step;                 /* (j + u) weight_sum/N */
     uint32_t j = 0u;
     for (uint32_t i = 0u; i < 99u; i++) {
         c += s->weights[i];
@@ -801,7 +801,7 @@ static void cpf_resample(cpf_state *s)
         while (pos <= c && j < 100u) {
             j++;
             jr += 1.0f;
-            pos += step;
+            pos = (jr + u) * step;
         }
         s->scratch[i] = jr - jr0;             /* whole numbers: exact */
     }

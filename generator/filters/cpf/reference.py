@@ -46,9 +46,8 @@ One step (dt > 0, gyro rate ω over the last interval):
    - estimate, eq. 15: q = normalise(Σ w_i x_i) of the aligned particles; kept if
      |Σ w_i x_i|² ≤ 1e-30 S²;
    - systematic resampling: every step in faithful mode, else when ESS = S²/Σw_i² < ess_threshold·N;
-     only on steps that had an observation; positions (j + u)·S/N (u·S/N, then S/N added
-     j times) against the cumulative weights, i.e. (j + u)/N of the normalised ones; then
-     w_i = 1/N, S = 1.
+     only on steps that had an observation; positions (j + u)·S/N against the cumulative
+     weights, i.e. (j + u)/N of the normalised ones; then w_i = 1/N, S = 1.
    Mode "complementary" stops after step 3 (q = q_cf, no particles, no random numbers).
 
 Initialisation (section 1.2: the initial quaternion from the accelerometer and magnetometer
@@ -308,8 +307,7 @@ class Reference:
         N = self.N
         u = self.rng.uniform()
         cum = np.cumsum(self.weights)                    # sequential sums, as the C walks them
-        step = self.weight_sum / N                       # (j + u)/N of the normalised weights,
-        pos = np.cumsum(np.concatenate([[u * step], np.full(N - 1, step)]))   # summed as the C does
+        pos = (np.arange(N) + u) * (self.weight_sum / N)   # (j + u)/N of the normalised weights
         idx = np.minimum(np.searchsorted(cum, pos, side="left"), N - 1)   # first c >= u_j
         counts = np.bincount(idx, minlength=N)
         x = self.particles
