@@ -127,6 +127,30 @@ def test_every_command_takes_the_example_folder(tmp_path, capsys):
     assert "#define MAHONY_KP 0.5f" in (tmp_path / "gen" / "mahony.h").read_text()
 
 
+def test_rounding_sensitive_madgwick_is_judged_as_an_estimator(capsys):
+    """examples/madgwick declares `rounding_sensitive`: on the 12.5 Hz fixed-wing flight its float
+    build parts from the double reference by more than validate's 1e-3 rad (normalised-gradient
+    chatter), so validate judges it as an estimator: double C = reference at 1e-9 rad, then float
+    vs double paired over 10 seeds (firmware_sim/stochastic.py). It passes; a float build whose
+    beta is 1.05x the double's fails the same judgement (the check has power); Mahony, which
+    declares nothing, is held to the sample-by-sample bound."""
+    from firmware_sim import scenarios, stochastic
+    from generator import cli, filters
+    folder = EXAMPLES[0]
+    assert filters.load(folder).rounding_sensitive and not filters.load(EXAMPLES[1]).rounding_sensitive
+    assert cli.main(["validate", folder, "--scenario-opt", "duration=120"]) == 0
+    out = capsys.readouterr().out
+    assert "(bound 0.001 rad)" in out and "declares it rounding-sensitive" in out
+    assert "float vs double C over 10 seeds of fixedwing_gps" in out and out.rstrip().endswith("PASS")
+    qdiff = float(out.split("max attitude difference ")[1].split(" rad")[0])
+    assert qdiff > 1e-3                       # the strict bound is missed: the judgement above ran
+    logs = [scenarios.make("fixedwing_gps", seed=k, duration=120.0) for k in range(1, 11)]
+    double = host.build(config.resolve(folder, precision="double"))
+    assert stochastic.float_vs_double_seeds(host.build(config.resolve(folder)), double, logs)["ok"]
+    wrong = host.build(config.resolve(folder, sets=["beta=0.105"]))
+    assert not stochastic.float_vs_double_seeds(wrong, double, logs)["ok"]
+
+
 def _doctored_flight(seed: int = 1, duration: float = 80.0):
     """A simulated flight with every kind of bad sample the input contract names, and runs of an
     exactly zero gyro, a missing magnetometer (the IMU-only update) and a missing accelerometer

@@ -41,6 +41,10 @@ FILTER_KEYS = {
     "scenario": "scenario of the source experiment: what `ahrsgen target` runs by default",
     "stochastic": "set (to the reason) for a filter whose run is random by design (a particle filter): "
                   "`ahrsgen target` then judges a real-libm run by accuracy, not trajectory",
+    "rounding_sensitive": "set (to the reason) for a deterministic filter whose float run parts from the double "
+                          "reference by more than rounding (fixed-size normalised-gradient steps, for one): "
+                          "`ahrsgen validate` then judges a float build that misses its bound as an estimator, "
+                          "float vs double over 10 seeds of the scenario",
     "init": "how the filter initialises (what init sets, which step sets the attitude); printed in the "
             "header, {prefix} stands for the C prefix",
 }
@@ -66,6 +70,7 @@ class FilterSpec:
     scenario: str = "fixedwing_gps"  # the source experiment's scenario ([filter] scenario)
     stochastic: str = ""             # why its runs are random by design, if they are ([filter] stochastic)
     init: str = ""                     # how the filter initialises ([filter] init), for the header
+    rounding_sensitive: str = ""       # why its float run parts from double, if it does ([filter] rounding_sensitive)
 
     def model_class(self):
         return importlib.import_module(f"{self.package}.model").Model
@@ -238,7 +243,8 @@ def _load(loc: Location) -> FilterSpec:
         p.coerce(p.default, f"default in {name}/defaults.toml")
     package = loc.package or _folder_package(name, folder)
     return FilterSpec(name, info.get("title", name), info.get("source", ""), folder, params, package, loc.origin,
-                      info.get("scenario", "fixedwing_gps"), info.get("stochastic", ""), info.get("init", ""))
+                      info.get("scenario", "fixedwing_gps"), info.get("stochastic", ""), info.get("init", ""),
+                      info.get("rounding_sensitive", ""))
 
 
 def _folder_package(name: str, folder: Path) -> str:
