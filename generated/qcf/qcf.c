@@ -601,9 +601,9 @@ static void qcf_k_correct(const float q[4], const float rot[9], const float gyro
     gyro_bias_new[2] = carry[5];
 }
 
-/* rest detection: gyro and accelerometer steady for rest_time
- * ops: add 26, mul 15, div 1, cmp 5 (total 47) */
-static void qcf_k_rest_part0(const float gyro[3], const float accel[3], const float rest_gyro_lp[3], const float rest_accel_lp[3], float span, float carry[8])
+/* rest detection: gyro steady and |f| near g for rest_time
+ * ops: add 15, mul 9, div 1, cmp 6 (total 31) */
+static inline void qcf_k_rest(const float gyro[3], float accel_norm2, const float rest_gyro_lp[3], float rest_time, float span, float rest_gyro_lp_new[3], float *rest_time_new, bool *at_rest)
 {
     const float tmp0 = 0.5f /* rest_tau */ + span;
     const float tmp1 = span / tmp0;
@@ -616,72 +616,31 @@ static void qcf_k_rest_part0(const float gyro[3], const float accel[3], const fl
     const float tmp8 = gyro[2] - rest_gyro_lp[2];
     const float tmp9 = tmp1 * tmp8;
     const float tmp10 = rest_gyro_lp[2] + tmp9;
-    const float tmp11 = accel[0] - rest_accel_lp[0];
-    const float tmp12 = tmp1 * tmp11;
-    const float tmp13 = rest_accel_lp[0] + tmp12;
-    const float tmp14 = accel[1] - rest_accel_lp[1];
-    const float tmp15 = tmp1 * tmp14;
-    const float tmp16 = rest_accel_lp[1] + tmp15;
-    const float tmp17 = accel[2] - rest_accel_lp[2];
-    const float tmp18 = tmp1 * tmp17;
-    const float tmp19 = rest_accel_lp[2] + tmp18;
-    const float tmp20 = gyro[0] - tmp4;
-    const float tmp21 = tmp20 * tmp20;
-    const float tmp22 = gyro[1] - tmp7;
-    const float tmp23 = tmp22 * tmp22;
-    const float tmp24 = tmp21 + tmp23;
-    const float tmp25 = gyro[2] - tmp10;
-    const float tmp26 = tmp25 * tmp25;
-    const float tmp27 = tmp24 + tmp26;
-    const float tmp28 = accel[0] - tmp13;
-    const float tmp29 = tmp28 * tmp28;
-    const float tmp30 = accel[1] - tmp16;
-    const float tmp31 = tmp30 * tmp30;
-    const float tmp32 = tmp29 + tmp31;
-    const float tmp33 = accel[2] - tmp19;
-    const float tmp34 = tmp33 * tmp33;
-    const float tmp35 = tmp32 + tmp34;
-    const bool tmp36 = (tmp27 < 0.001225f /* rest_gyro_tol^2 */) && (tmp35 < 0.25f /* rest_accel_tol^2 */);
-    const float tmp37 = tmp4 * tmp4;
-    const float tmp38 = tmp7 * tmp7;
-    const float tmp39 = tmp37 + tmp38;
-    carry[0] = tmp4;
-    carry[1] = tmp7;
-    carry[2] = tmp10;
-    carry[3] = tmp13;
-    carry[4] = tmp16;
-    carry[5] = tmp19;
-    carry[6] = tmp36 ? 1.0f : 0.0f;
-    carry[7] = tmp39;
-}
-
-static void qcf_k_rest_part1(float rest_time, float span, float carry[8])
-{
-    const float tmp40 = carry[2] * carry[2];
-    const float tmp41 = carry[7] + tmp40;
-    const bool tmp42 = ((carry[6] > 0.5f)) && (tmp41 < 0.001225f /* rest_gyro_tol^2 */);
-    const float tmp43 = rest_time + span;
-    const float tmp44 = (tmp43 < 1000.0f) ? tmp43 : 1000.0f;
-    const float tmp45 = (tmp42) ? tmp44 : 0.0f;
-    const bool tmp46 = 1.5f /* rest_time */ <= tmp45;
-    carry[6] = tmp45;
-    carry[7] = tmp46 ? 1.0f : 0.0f;
-}
-
-static void qcf_k_rest(const float gyro[3], const float accel[3], const float rest_gyro_lp[3], const float rest_accel_lp[3], float rest_time, float span, float rest_gyro_lp_new[3], float rest_accel_lp_new[3], float *rest_time_new, bool *at_rest)
-{
-    /* 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
-    float carry[8];
-    qcf_k_rest_part0(gyro, accel, rest_gyro_lp, rest_accel_lp, span, carry);
-    qcf_k_rest_part1(rest_time, span, carry);
-    rest_gyro_lp_new[0] = carry[0];
-    rest_gyro_lp_new[1] = carry[1];
-    rest_gyro_lp_new[2] = carry[2];
-    rest_accel_lp_new[0] = carry[3];
-    rest_accel_lp_new[1] = carry[4];
-    rest_accel_lp_new[2] = carry[5];
-    *rest_time_new = carry[6];
-    *at_rest = (carry[7] > 0.5f);
+    const float tmp11 = gyro[0] - tmp4;
+    const float tmp12 = tmp11 * tmp11;
+    const float tmp13 = gyro[1] - tmp7;
+    const float tmp14 = tmp13 * tmp13;
+    const float tmp15 = tmp12 + tmp14;
+    const float tmp16 = gyro[2] - tmp10;
+    const float tmp17 = tmp16 * tmp16;
+    const float tmp18 = tmp15 + tmp17;
+    const bool tmp19 = (86.61373f /* (9.80665 - rest_accel_tol)^2 */ < accel_norm2) && (accel_norm2 < 106.227036f /* (9.80665 + rest_accel_tol)^2 */);
+    const bool tmp20 = (tmp18 < 0.001225f /* rest_gyro_tol^2 */) && (tmp19);
+    const float tmp21 = tmp4 * tmp4;
+    const float tmp22 = tmp7 * tmp7;
+    const float tmp23 = tmp21 + tmp22;
+    const float tmp24 = tmp10 * tmp10;
+    const float tmp25 = tmp23 + tmp24;
+    const bool tmp26 = (tmp20) && (tmp25 < 0.001225f /* rest_gyro_tol^2 */);
+    const float tmp27 = rest_time + span;
+    const float tmp28 = (tmp27 < 1000.0f) ? tmp27 : 1000.0f;
+    const float tmp29 = (tmp26) ? tmp28 : 0.0f;
+    const bool tmp30 = 1.5f /* rest_time */ <= tmp29;
+    rest_gyro_lp_new[0] = tmp4;
+    rest_gyro_lp_new[1] = tmp7;
+    rest_gyro_lp_new[2] = tmp10;
+    *rest_time_new = tmp29;
+    *at_rest = tmp30;
 }
 
 /* field check: |m| and sin(dip) against the learned reference
@@ -1182,9 +1141,6 @@ void qcf_init(qcf_state *s)
     s->rest_gyro_lp[0] = 0.0f;
     s->rest_gyro_lp[1] = 0.0f;
     s->rest_gyro_lp[2] = 0.0f;
-    s->rest_accel_lp[0] = 0.0f;
-    s->rest_accel_lp[1] = 0.0f;
-    s->rest_accel_lp[2] = 0.0f;
     s->rest_time = 0.0f;
     s->mag_ref[0] = 0.0f;
     s->mag_ref[1] = 0.0f;
@@ -1276,7 +1232,6 @@ qcf_status qcf_step(qcf_state *restrict s, const qcf_input *restrict in, float d
         s->mag_age = 0.0f;
         for (uint32_t i = 0u; i < 3u; i++) {
             s->rest_gyro_lp[i] = in->gyro[i];
-            s->rest_accel_lp[i] = in->accel[i];
         }
     } else if (s->initialised == 1u && use_mag) {
         /* First magnetometer sample after a tilt-only start: set the heading. */
@@ -1290,8 +1245,8 @@ qcf_status qcf_step(qcf_state *restrict s, const qcf_input *restrict in, float d
     bool at_rest = false;
     if (use_accel) {
         qcf_k_accel_lowpass(rot, accel_g, s->accel_lp, s->accel_age, s->accel_lp);
-        qcf_k_rest(in->gyro, in->accel, s->rest_gyro_lp, s->rest_accel_lp, s->rest_time, s->accel_age,
-            s->rest_gyro_lp, s->rest_accel_lp, &s->rest_time, &at_rest);
+        qcf_k_rest(in->gyro, accel_n2, s->rest_gyro_lp, s->rest_time, s->accel_age,
+            s->rest_gyro_lp, &s->rest_time, &at_rest);
         if (at_rest) {
             status |= QCF_AT_REST;
         }

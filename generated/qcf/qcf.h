@@ -14,7 +14,7 @@
  *     every IMU sample: fill a qcf_input (set a VALID bit only for sensors that
  *     delivered a new sample), then qcf_status s = qcf_step(&st, &in, dt);
  *     qcf_euler(&st, rpy);
- * No heap, no recursion; RAM is the state struct (116 bytes with the usual ABI).
+ * No heap, no recursion; RAM is the state struct (104 bytes with the usual ABI).
  * Needs <math.h> (float functions only in a float build); compilers may also emit calls to
  * memcpy/memset/memmove for struct and array copies.
  *
@@ -62,10 +62,10 @@ extern "C" {
 #define QCF_CONDITIONING 1                 /* the conditioning below (NED accelerometer low-pass, vector tilt and heading-only magnetometer corrections, bias gate, rest detection, field check, weighted centripetal term); false: the PI filter with the FQA reference as before (ignored when faithful) */
 #define QCF_ACCEL_TAU 1.0f                 /* time constant of the NED-frame low-pass of the accelerometer (R(q) f) that the tilt reference is built from (VQF's idea: motion acceleration averages out, gravity does not); 0 = off [s] */
 #define QCF_BIAS_ACCEL_GATE 1.0f           /* the bias integral runs only in steps with ||f| - g| below this (frozen while the accelerometer is distrusted: no wind-up under sustained acceleration) [m/s^2] */
-#define QCF_REST_TIME 1.5f                 /* rest detection: gyro and accelerometer steady this long -> the gyro bias is learned from the low-passed gyro (0 = off) [s] */
-#define QCF_REST_TAU 0.5f                  /* rest detection: time constant of the low-passes the samples are compared with [s] */
+#define QCF_REST_TIME 1.5f                 /* rest detection: gyro steady and |f| near g this long -> the gyro bias is learned from the low-passed gyro (0 = off) [s] */
+#define QCF_REST_TAU 0.5f                  /* rest detection: time constant of the gyro low-pass the samples are compared with [s] */
 #define QCF_REST_GYRO_TOL 0.035f           /* rest detection: largest |gyro - low-passed gyro|, and largest |low-passed gyro| (a steady turn is not rest) [rad/s] */
-#define QCF_REST_ACCEL_TOL 0.5f            /* rest detection: largest |accel - low-passed accel| [m/s^2] */
+#define QCF_REST_ACCEL_TOL 0.5f            /* rest detection: largest ||accel| - g| [m/s^2] */
 #define QCF_REST_BIAS_TAU 1.0f             /* at rest the bias follows the low-passed gyro with this time constant [s] */
 #define QCF_MAG_REJECTION 1                /* check the magnetometer's norm and dip against a reference learned at the first sample; a disturbed sample does not correct heading (MAG_DISTURBED) */
 #define QCF_MAG_NORM_TOL 0.1f              /* mag rejection: largest relative deviation of |m| from the reference norm [1] */
@@ -103,21 +103,20 @@ typedef uint32_t qcf_status;
 #define QCF_REFUSED_MASK (QCF_DT_INVALID | QCF_DT_TOO_LARGE | QCF_GYRO_MISSING | QCF_GYRO_NONFINITE | QCF_GYRO_RANGE)
 
 typedef struct {
-    float q[4];             /* attitude estimate, body->NED, [w x y z] */
-    float gyro_bias[3];     /* gyro bias estimate b, rad/s */
-    float gps_vel_hist[3];  /* latest GPS velocity (NED, m/s) */
-    float gps_age;          /* time since the last GPS sample, s */
-    uint32_t gps_count;     /* GPS samples since the last gap (counting stops at 7) */
-    uint32_t initialised;   /* 1 once the attitude has been initialised (tilt only), 2 with heading */
-    float accel_lp[3];      /* low-passed specific force in NED, m/s^2 */
-    float accel_age;        /* time since the last accelerometer sample, s */
-    float mag_age;          /* time since the last magnetometer sample, s */
-    float rest_gyro_lp[3];  /* rest detection: low-passed gyro, rad/s */
-    float rest_accel_lp[3]; /* rest detection: low-passed accelerometer, m/s^2 */
-    float rest_time;        /* rest detection: steady time so far, s */
-    float mag_ref[2];       /* field check reference: |m| and sin(dip) (|m| = 0: not learned) */
-    float mag_dist_time;    /* field check: time the field has been rejected, s */
-    float mag_learn_time;   /* field check: time since the first magnetometer sample (capped), s */
+    float q[4];            /* attitude estimate, body->NED, [w x y z] */
+    float gyro_bias[3];    /* gyro bias estimate b, rad/s */
+    float gps_vel_hist[3]; /* latest GPS velocity (NED, m/s) */
+    float gps_age;         /* time since the last GPS sample, s */
+    uint32_t gps_count;    /* GPS samples since the last gap (counting stops at 7) */
+    uint32_t initialised;  /* 1 once the attitude has been initialised (tilt only), 2 with heading */
+    float accel_lp[3];     /* low-passed specific force in NED, m/s^2 */
+    float accel_age;       /* time since the last accelerometer sample, s */
+    float mag_age;         /* time since the last magnetometer sample, s */
+    float rest_gyro_lp[3]; /* rest detection: low-passed gyro, rad/s */
+    float rest_time;       /* rest detection: steady time so far, s */
+    float mag_ref[2];      /* field check reference: |m| and sin(dip) (|m| = 0: not learned) */
+    float mag_dist_time;   /* field check: time the field has been rejected, s */
+    float mag_learn_time;  /* field check: time since the first magnetometer sample (capped), s */
 } qcf_state;
 
 typedef struct {

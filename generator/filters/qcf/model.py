@@ -92,7 +92,6 @@ class Model(FilterModel):
             StateField("accel_age", 1, "time since the last accelerometer sample, s", 0.0),
             StateField("mag_age", 1, "time since the last magnetometer sample, s", 0.0),
             StateField("rest_gyro_lp", 3, "rest detection: low-passed gyro, rad/s", 0.0),
-            StateField("rest_accel_lp", 3, "rest detection: low-passed accelerometer, m/s^2", 0.0),
             StateField("rest_time", 1, "rest detection: steady time so far, s", 0.0),
             StateField("mag_ref", 2, "field check reference: |m| and sin(dip) (|m| = 0: not learned)", 0.0),
             StateField("mag_dist_time", 1, "field check: time the field has been rejected, s", 0.0),
@@ -189,7 +188,6 @@ class Model(FilterModel):
         span_m = ca.SX.sym("span_mag")
         use_m = ca.SX.sym("use_mag")
         g_lp = ca.SX.sym("rest_gyro_lp", 3)
-        f_lp = ca.SX.sym("rest_accel_lp", 3)
         t_rest = ca.SX.sym("rest_time")
         at_rest = ca.SX.sym("at_rest")
         use_a = ca.SX.sym("use_accel")
@@ -247,14 +245,13 @@ class Model(FilterModel):
                        flags=("use_accel",) + (("at_rest",) if p["rest_time"] > 0 else ())),
         ]
         if p["rest_time"] > 0:
-            g2, f2, t2, r2 = aiding.rest_detector(gyro, f, g_lp, f_lp, t_rest, span, tau=p["rest_tau"],
-                                                  gyro_tol=p["rest_gyro_tol"], accel_tol=p["rest_accel_tol"],
-                                                  gyro_max=p["rest_gyro_tol"], min_time=p["rest_time"])
-            ks.append(KernelSpec("rest", function("rest", {"gyro": gyro, "accel": f, "rest_gyro_lp": g_lp,
-                                                           "rest_accel_lp": f_lp, "rest_time": t_rest, "span": span},
-                                                  {"rest_gyro_lp_new": g2, "rest_accel_lp_new": f2,
-                                                   "rest_time_new": t2, "at_rest": r2}),
-                                 "rest detection: gyro and accelerometer steady for rest_time", flags=("at_rest",)))
+            g2, t2, r2 = aiding.rest_detector(gyro, f2, g_lp, t_rest, span, tau=p["rest_tau"],
+                                              gyro_tol=p["rest_gyro_tol"], accel_tol=p["rest_accel_tol"],
+                                              gravity=G0, gyro_max=p["rest_gyro_tol"], min_time=p["rest_time"])
+            ks.append(KernelSpec("rest", function("rest", {"gyro": gyro, "accel_norm2": f2, "rest_gyro_lp": g_lp,
+                                                           "rest_time": t_rest, "span": span},
+                                                  {"rest_gyro_lp_new": g2, "rest_time_new": t2, "at_rest": r2}),
+                                 "rest detection: gyro steady and |f| near g for rest_time", flags=("at_rest",)))
         if p["mag_rejection"]:
             mn = ca.sqrt(m2)
             # sin(dip) = (R^T down) . m / |m| = down . R m / |m|, down = -a/|a|

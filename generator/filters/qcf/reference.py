@@ -106,7 +106,6 @@ class Reference:
         self.accel_lp = np.zeros(3)
         self.accel_age = self.mag_age = 0.0
         self.rest_gyro_lp = np.zeros(3)
-        self.rest_accel_lp = np.zeros(3)
         self.rest_time = 0.0
         self.mag_ref = np.zeros(2)         # |m|, sin(dip); |m| = 0: not learned
         self.mag_dist_time = 0.0
@@ -185,7 +184,7 @@ class Reference:
             self.accel_lp = nq.rotmat(self.q) @ f
             self.initialised = 2 if use_mag else 1
             self.accel_age = self.mag_age = 0.0
-            self.rest_gyro_lp, self.rest_accel_lp = gyro.copy(), f_raw.copy()
+            self.rest_gyro_lp = gyro.copy()
         elif self.initialised == 1 and use_mag:
             self.q = nq.qmul(heading_correction(self.q, mag, p["declination"]), self.q)
             self.initialised = 2
@@ -202,10 +201,9 @@ class Reference:
             if p["rest_time"] > 0:
                 k = s / (p["rest_tau"] + s)
                 self.rest_gyro_lp = self.rest_gyro_lp + k * (gyro - self.rest_gyro_lp)
-                self.rest_accel_lp = self.rest_accel_lp + k * (f_raw - self.rest_accel_lp)
                 tol = p["rest_gyro_tol"]
                 steady = (np.linalg.norm(gyro - self.rest_gyro_lp) < tol
-                          and np.linalg.norm(f_raw - self.rest_accel_lp) < p["rest_accel_tol"]
+                          and abs(np.linalg.norm(f_raw) - G0) < p["rest_accel_tol"]
                           and np.linalg.norm(self.rest_gyro_lp) < tol)
                 self.rest_time = min(self.rest_time + s, 1e3) if steady else 0.0
                 at_rest = self.rest_time >= p["rest_time"]
