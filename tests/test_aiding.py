@@ -27,22 +27,26 @@ def test_lowpass_is_backward_euler_step():
 
 
 def test_rest_detector_counts_steady_time_and_resets():
-    g, a, glp, alp = (ca.SX.sym(n, 3) for n in ("g", "a", "glp", "alp"))
-    t, dt = ca.SX.sym("t"), ca.SX.sym("dt")
-    f = _fn([g, a, glp, alp, t, dt], list(aiding.rest_detector(
-        g, a, glp, alp, t, dt, tau=0.5, gyro_tol=0.03, accel_tol=0.5, gyro_max=0.03, min_time=1.0)))
+    g, glp = (ca.SX.sym(n, 3) for n in ("g", "glp"))
+    a2, t, dt = ca.SX.sym("a2"), ca.SX.sym("t"), ca.SX.sym("dt")
+    f = _fn([g, a2, glp, t, dt], list(aiding.rest_detector(
+        g, a2, glp, t, dt, tau=0.5, gyro_tol=0.03, accel_tol=0.5, gravity=9.81, gyro_max=0.03, min_time=1.0)))
     acc = np.array([0.0, 0.0, -9.81])
-    state = [np.zeros(3), acc, np.zeros(1)]
+    state = [np.zeros(3), np.zeros(1)]
     rng = np.random.default_rng(0)
     for k in range(1500):                     # 1.5 s at rest (small noise, bias 0.01 rad/s)
-        gl, al, tr, rest = f(0.01 + 0.002 * rng.normal(size=3), acc + 0.05 * rng.normal(size=3),
-                             state[0], state[1], state[2], 1e-3)
-        state = [gl, al, tr]
+        a = acc + 0.05 * rng.normal(size=3)
+        gl, tr, rest = f(0.01 + 0.002 * rng.normal(size=3), a @ a, state[0], state[1], 1e-3)
+        state = [gl, tr]
         assert bool(rest[0]) == (tr[0] >= 1.0)
     assert tr[0] == pytest.approx(1.5, abs=2e-3) and rest[0] == 1
-    # a steady 0.2 rad/s turn is not rest (|gyro_lp| too large), nor is a jolt of the accelerometer
-    assert f(np.full(3, 0.2), acc, np.full(3, 0.2), acc, 5.0, 1e-3)[2][0] == 0
-    assert f(np.full(3, 0.01), acc + 3.0, np.full(3, 0.01), acc, 5.0, 1e-3)[2][0] == 0
+    # a steady 0.2 rad/s turn is not rest (|gyro_lp| too large), nor is an accelerometer
+    # magnitude 0.6 m/s^2 off gravity (either way), nor a gyro jolt away from its low-pass
+    assert f(np.full(3, 0.2), 9.81 ** 2, np.full(3, 0.2), 5.0, 1e-3)[1][0] == 0
+    assert f(np.full(3, 0.01), 10.41 ** 2, np.full(3, 0.01), 5.0, 1e-3)[1][0] == 0
+    assert f(np.full(3, 0.01), 9.21 ** 2, np.full(3, 0.01), 5.0, 1e-3)[1][0] == 0
+    assert f(np.full(3, 0.01), 10.21 ** 2, np.full(3, 0.01), 5.0, 1e-3)[1][0] > 0   # 0.4 off: steady
+    assert f(np.array([0.1, 0.01, 0.01]), 9.81 ** 2, np.full(3, 0.01), 5.0, 1e-3)[1][0] == 0
 
 
 def test_field_check_learns_rejects_and_renews():
