@@ -81,14 +81,19 @@ def test_kernel_structure_check_catches_planted_defects():
     assert harden.kernel_structure_issues(twice) == ["x_k_demo_part1: output carry[2] written 2 times"]
 
 
+def _copy_build(name: str, tmp_path):
+    """The committed generated/<name> build copied into tmp_path (to plant a defect in); its manifest."""
+    src = harden.GENERATED / name
+    man = harden.load_manifest(src)
+    for f in [*man["files"].values(), "manifest.json"]:
+        shutil.copy(src / f, tmp_path / f)
+    return man
+
+
 @needs_cppcheck
 def test_kernel_stub_keeps_the_rest_checked(tmp_path):
     """With every kernel stubbed, cppcheck still sees (and flags) a defect in the step code."""
-    src = harden.GENERATED / "qcf"
-    man = harden.load_manifest(src)
-    for f in man["files"].values():
-        shutil.copy(src / f, tmp_path / f)
-    shutil.copy(src / "manifest.json", tmp_path / "manifest.json")
+    man = _copy_build("qcf", tmp_path)
     c = tmp_path / man["files"]["source"]
     c.write_text(c.read_text().replace("\n    return status;\n}", "\n    float z[2] = { 0.0f, 0.0f };\n"
                                        "    status |= (qcf_status)z[2];\n    return status;\n}", 1))
@@ -100,11 +105,7 @@ def test_kernel_stub_keeps_the_rest_checked(tmp_path):
 @needs_cppcheck
 def test_cppcheck_catches_a_planted_defect(tmp_path):
     """The cppcheck invocation does report problems (so 'clean' means something)."""
-    src = harden.GENERATED / "qcf"
-    man = harden.load_manifest(src)
-    for f in man["files"].values():
-        shutil.copy(src / f, tmp_path / f)
-    shutil.copy(src / "manifest.json", tmp_path / "manifest.json")
+    man = _copy_build("qcf", tmp_path)
     c = tmp_path / man["files"]["source"]
     c.write_text(c.read_text() + "\nint harden_planted(void)\n{\n    int a[3] = { 0, 1, 2 };\n    return a[3];\n}\n")
     r = harden.run_cppcheck(tmp_path, max_kernel_lines=CI_MAX_KERNEL_LINES, timeout=120)
@@ -186,11 +187,7 @@ def _plant_at_step_end(text: str, code: str, prefix: str = "qcf") -> str:
 def test_fuzz_harness_detects_a_broken_state(tmp_path):
     """Plant a bug in a copy of a generated filter (the step scales q by 1.001 on a GPS sample) and
     check the harness aborts with the quaternion-norm message: the invariant checks are live."""
-    src = harden.GENERATED / "qcf"
-    man = harden.load_manifest(src)
-    for f in man["files"].values():
-        shutil.copy(src / f, tmp_path / f)
-    shutil.copy(src / "manifest.json", tmp_path / "manifest.json")
+    man = _copy_build("qcf", tmp_path)
     c = tmp_path / man["files"]["source"]
     text = c.read_text()
     c.write_text(_plant_at_step_end(text, "    if ((in->valid & 8u) != 0u) {\n        s->q[0] *= 1.001f;\n    }"))
@@ -203,11 +200,7 @@ def test_fuzz_harness_detects_a_broken_state(tmp_path):
 def test_fuzz_harness_checks_weights_against_their_stored_sum(tmp_path):
     """cpf keeps its weights unnormalised with their sum: a planted step end that doubles the
     stored sum breaks the weights' invariant and the harness reports it."""
-    src = harden.GENERATED / "cpf"
-    man = harden.load_manifest(src)
-    for f in man["files"].values():
-        shutil.copy(src / f, tmp_path / f)
-    shutil.copy(src / "manifest.json", tmp_path / "manifest.json")
+    man = _copy_build("cpf", tmp_path)
     c = tmp_path / man["files"]["source"]
     c.write_text(_plant_at_step_end(c.read_text(), "    s->weight_sum *= 2.0f;", "cpf"))
     data = harden.seed_inputs(man)["nominal"]
@@ -217,11 +210,7 @@ def test_fuzz_harness_checks_weights_against_their_stored_sum(tmp_path):
 
 @needs_fuzzer
 def test_fuzz_harness_detects_state_change_on_refusal(tmp_path):
-    src = harden.GENERATED / "qcf"
-    man = harden.load_manifest(src)
-    for f in man["files"].values():
-        shutil.copy(src / f, tmp_path / f)
-    shutil.copy(src / "manifest.json", tmp_path / "manifest.json")
+    man = _copy_build("qcf", tmp_path)
     c = tmp_path / man["files"]["source"]
     text = c.read_text()
     old = "    if (!(qcf_bits(dt) - 1u < qcf_bits(QCF_DT_MAX))) {\n"   # the step's refusal of a bad dt
@@ -270,11 +259,7 @@ def test_soak_invariants(gen_dir):
 @needs_cc
 def test_soak_flags_a_broken_filter(tmp_path):
     """The soak's checks are live: a copy of qcf whose step leaves |q| 1e-4 off fails."""
-    src = harden.GENERATED / "qcf"
-    man = harden.load_manifest(src)
-    for f in man["files"].values():
-        shutil.copy(src / f, tmp_path / f)
-    shutil.copy(src / "manifest.json", tmp_path / "manifest.json")
+    man = _copy_build("qcf", tmp_path)
     c = tmp_path / man["files"]["source"]
     text = c.read_text()
     c.write_text(_plant_at_step_end(text, "    s->q[0] *= 1.0001f;"))
