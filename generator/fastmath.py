@@ -84,8 +84,9 @@ def _one_of_sincos(name: str, which: str) -> str:
 
 
 HELPERS = {
-    "sincos": Helper("fast_sincosf", f"sin(x) into *s and cos(x) into *c with one reduction, |x| <= {TRIG_MAX:g} "
-                     "(NaN beyond); the body of fast_sinf and fast_cosf too", _sincos(), max_abs_error=1.5e-7),
+    "sincos": Helper("fast_sincosf", f"sin(x) and cos(x) with one reduction, |x| <= {TRIG_MAX:g} (NaN beyond): "
+                     "fast_sin_cos_of returns both, fast_sincosf stores them through pointers, fast_sinf and "
+                     "fast_cosf below return one", _sincos(), max_abs_error=1.5e-7),
     "sin": Helper("fast_sinf", f"sin(x), |x| <= {TRIG_MAX:g} (NaN beyond; sin(-0) = +0)",
                   _one_of_sincos("fast_sinf", "s"), needs=("sincos",), max_abs_error=1.5e-7),
     "cos": Helper("fast_cosf", f"cos(x), |x| <= {TRIG_MAX:g} (NaN beyond)",

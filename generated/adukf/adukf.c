@@ -28,7 +28,7 @@
 #include <string.h>
 
 /* math = "fast": trigonometry without libm (generator/fastmath.py; errors measured there) */
-/* sin(x) into *s and cos(x) into *c with one reduction, |x| <= 8192 (NaN beyond); the body of fast_sinf and fast_cosf too; max abs error 1.5e-07 (tests/test_fastmath.py) */
+/* sin(x) and cos(x) with one reduction, |x| <= 8192 (NaN beyond): fast_sin_cos_of returns both, fast_sincosf stores them through pointers, fast_sinf and fast_cosf below return one; max abs error 1.5e-07 (tests/test_fastmath.py) */
 typedef struct {
     float s;
     float c;
