@@ -877,125 +877,6 @@ static void qcf_k_gravity_part(const float accel[3], float accel_norm2, const fl
     accel_gravity[2] = carry[2];
 }
 
-/* gyro-only integration with the bias removed (no aiding this step)
- * ops: add 25, mul 35, div 5, sqrt 2, trig 2, cmp 5 (total 74)
- *      of which only one side runs: if (tmp11 < 0.01f) 10, else 8 */
-static void qcf_k_propagate_part0(const float q[4], const float gyro_bias[3], const float gyro[3], float dt, float carry[6])
-{
-    const float tmp0 = 0.5f * dt;
-    const float tmp1 = gyro[0] - gyro_bias[0];
-    const float tmp2 = tmp0 * tmp1;
-    const float tmp3 = tmp2 * tmp2;
-    const float tmp4 = gyro[1] - gyro_bias[1];
-    const float tmp5 = tmp0 * tmp4;
-    const float tmp6 = tmp5 * tmp5;
-    const float tmp7 = tmp3 + tmp6;
-    const float tmp8 = gyro[2] - gyro_bias[2];
-    const float tmp9 = tmp0 * tmp8;
-    const float tmp10 = tmp9 * tmp9;
-    const float tmp11 = tmp7 + tmp10;
-    float tmp12;
-    float tmp13;
-    float tmp14;
-    float tmp15;
-    if (tmp11 < 0.01f) {
-        const float tmp16 = (-2.1377798e-05f) * tmp11;
-        const float tmp17 = (-0.00021164022f) + tmp16;
-        const float tmp18 = tmp11 * tmp17;
-        const float tmp19 = (-0.0021164021f) + tmp18;
-        const float tmp20 = tmp11 * tmp19;
-        const float tmp21 = (-0.022222223f) + tmp20;
-        const float tmp22 = tmp11 * tmp21;
-        const float tmp23 = (-0.33333334f) + tmp22;
-        const float tmp24 = tmp11 * tmp23;
-        const float tmp25 = 1.0f + tmp24;
-        tmp12 = tmp25;
-        tmp13 = tmp2;
-        tmp14 = tmp5;
-        tmp15 = tmp9;
-    } else {
-        const float tmp26 = (tmp11 > 0.01f) ? tmp11 : 0.01f;
-        const float tmp27 = sqrtf(tmp26);
-        float tmp29;
-        float tmp28;
-        fast_sincosf(tmp27, &tmp29, &tmp28);   /* sin and cos, one reduction */
-        const float tmp30 = tmp29 / tmp27;
-        const float tmp31 = tmp30 * tmp2;
-        const float tmp32 = tmp30 * tmp5;
-        const float tmp33 = tmp30 * tmp9;
-        tmp12 = tmp28;
-        tmp13 = tmp31;
-        tmp14 = tmp32;
-        tmp15 = tmp33;
-    }
-    const float tmp34 = q[0] * tmp12;
-    const float tmp35 = q[1] * tmp13;
-    const float tmp36 = tmp34 - tmp35;
-    const float tmp37 = q[2] * tmp14;
-    const float tmp38 = tmp36 - tmp37;
-    const float tmp39 = q[3] * tmp15;
-    carry[0] = tmp12;
-    carry[1] = tmp13;
-    carry[2] = tmp14;
-    carry[3] = tmp15;
-    carry[4] = tmp38;
-    carry[5] = tmp39;
-}
-
-static void qcf_k_propagate_part1(const float q[4], float carry[6])
-{
-    const float tmp40 = carry[4] - carry[5];
-    const float tmp41 = tmp40 * tmp40;
-    const float tmp42 = q[0] * carry[1];
-    const float tmp43 = q[1] * carry[0];
-    const float tmp44 = tmp42 + tmp43;
-    const float tmp45 = q[2] * carry[3];
-    const float tmp46 = tmp44 + tmp45;
-    const float tmp47 = q[3] * carry[2];
-    const float tmp48 = tmp46 - tmp47;
-    const float tmp49 = tmp48 * tmp48;
-    const float tmp50 = tmp41 + tmp49;
-    const float tmp51 = q[0] * carry[2];
-    const float tmp52 = q[1] * carry[3];
-    const float tmp53 = tmp51 - tmp52;
-    const float tmp54 = q[2] * carry[0];
-    const float tmp55 = tmp53 + tmp54;
-    const float tmp56 = q[3] * carry[1];
-    const float tmp57 = tmp55 + tmp56;
-    const float tmp58 = tmp57 * tmp57;
-    const float tmp59 = tmp50 + tmp58;
-    const float tmp60 = q[0] * carry[3];
-    const float tmp61 = q[1] * carry[2];
-    const float tmp62 = tmp60 + tmp61;
-    const float tmp63 = q[2] * carry[1];
-    const float tmp64 = tmp62 - tmp63;
-    const float tmp65 = q[3] * carry[0];
-    const float tmp66 = tmp64 + tmp65;
-    const float tmp67 = tmp66 * tmp66;
-    const float tmp68 = tmp59 + tmp67;
-    const float tmp69 = sqrtf(tmp68);
-    const float tmp70 = tmp40 / tmp69;
-    const float tmp71 = tmp48 / tmp69;
-    const float tmp72 = tmp57 / tmp69;
-    const float tmp73 = tmp66 / tmp69;
-    carry[0] = tmp70;
-    carry[1] = tmp71;
-    carry[2] = tmp72;
-    carry[3] = tmp73;
-}
-
-static void qcf_k_propagate(const float q[4], const float gyro_bias[3], const float gyro[3], float dt, float q_new[4])
-{
-    /* 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
-    float carry[6];
-    qcf_k_propagate_part0(q, gyro_bias, gyro, dt, carry);
-    qcf_k_propagate_part1(q, carry);
-    q_new[0] = carry[0];
-    q_new[1] = carry[1];
-    q_new[2] = carry[2];
-    q_new[3] = carry[3];
-}
-
 /* Z-Y-X Euler angles [roll, pitch, yaw] of a unit body->NED quaternion
  * ops: add 13, mul 11, sqrt 1, trig 3 (total 28) */
 static inline void qcf_k_euler(const float q[4], float rpy[3])
@@ -1031,6 +912,36 @@ static inline void qcf_k_euler(const float q[4], float rpy[3])
     rpy[0] = tmp9;
     rpy[1] = tmp18;
     rpy[2] = tmp27;
+}
+
+/* The initialisation steps: the first accelerometer sample sets the tilt (and the heading with a
+ * magnetometer sample), else the first magnetometer sample after it sets the heading. Out of line
+ * and cold (they run once or twice per flight): inlined, their branches cost the every-step path
+ * registers and the step grows by their code. */
+#if defined(__GNUC__)
+__attribute__((noinline, cold))
+#endif
+static void qcf_start(qcf_state *s, const qcf_input *in, bool use_accel, bool use_mag)
+{
+    if (s->initialised == 0u) {
+        if (use_accel) {
+            qcf_k_init_attitude(in->accel, s->q, s->accel_lp);
+            s->initialised = 1u;
+            if (use_mag) {
+                qcf_k_heading_init(s->q, in->mag, s->q);
+                s->initialised = 2u;
+            }
+            s->accel_age = 0.0f;
+            s->mag_age = 0.0f;
+            for (uint32_t i = 0u; i < 3u; i++) {
+                s->rest_gyro_lp[i] = in->gyro[i];
+            }
+        }
+    } else if (s->initialised == 1u && use_mag) {
+        qcf_k_heading_init(s->q, in->mag, s->q);
+        s->initialised = 2u;
+        s->mag_age = 0.0f;
+    }
 }
 
 static bool qcf_finite3(const float v[3])
@@ -1135,7 +1046,7 @@ void qcf_init(qcf_state *s)
     s->initialised = 0u;
     s->accel_lp[0] = 0.0f;
     s->accel_lp[1] = 0.0f;
-    s->accel_lp[2] = 0.0f;
+    s->accel_lp[2] = (-9.80665f);
     s->accel_age = 0.0f;
     s->mag_age = 0.0f;
     s->rest_gyro_lp[0] = 0.0f;
@@ -1205,40 +1116,19 @@ qcf_status qcf_step(qcf_state *restrict s, const qcf_input *restrict in, float d
     }
 
     /* Product conditioning (model.py docstring): NED low-pass of the accelerometer, tilt and
-     * heading corrections weighted by the time each sample stands for, field check, rest. */
-    float accel_g[3] = { in->accel[0], in->accel[1], in->accel[2] };
-    float rot[9];      /* R(q), column-major: shared by the kernels below until q changes */
+     * heading corrections weighted by the time each sample stands for, field check, rest.
+     * One path for every step: without a usable sample (or before the first accelerometer
+     * sample) the correction's weights are zero and it is the gyro integration alone. */
+    qcf_start(s, in, use_accel, use_mag);   /* the first samples set the attitude */
+    const bool started = s->initialised != 0u;   /* false only before the first accelerometer sample */
+    float rot[9];      /* R(q), column-major: shared by the kernels below */
     qcf_k_rotation(s->q, rot);
+    float accel_g[3] = { in->accel[0], in->accel[1], in->accel[2] };
     if (use_accel) {
         /* centripetal acceleration of the latest GPS velocity turning with the body */
         if (QCF_GPS_COMPENSATION && s->gps_count >= 1u && s->gps_age <= QCF_GPS_TIMEOUT) {
             qcf_k_gravity_part(in->accel, accel_n2, rot, in->gyro, s->gyro_bias, s->gps_vel_hist, accel_g);
         }
-    }
-    if (s->initialised == 0u) {
-        if (!use_accel) {
-            qcf_k_propagate(s->q, s->gyro_bias, in->gyro, dt, s->q);
-            return status;
-        }
-        /* First accelerometer sample: its tilt, then the magnetometer's heading if present. */
-        qcf_k_init_attitude(accel_g, s->q, s->accel_lp);
-        s->initialised = 1u;
-        if (use_mag) {
-            qcf_k_heading_init(s->q, in->mag, s->q);
-            s->initialised = 2u;
-        }
-        qcf_k_rotation(s->q, rot);
-        s->accel_age = 0.0f;
-        s->mag_age = 0.0f;
-        for (uint32_t i = 0u; i < 3u; i++) {
-            s->rest_gyro_lp[i] = in->gyro[i];
-        }
-    } else if (s->initialised == 1u && use_mag) {
-        /* First magnetometer sample after a tilt-only start: set the heading. */
-        qcf_k_heading_init(s->q, in->mag, s->q);
-        qcf_k_rotation(s->q, rot);
-        s->initialised = 2u;
-        s->mag_age = 0.0f;
     }
     s->accel_age = (s->accel_age + dt < QCF_SPAN_MAX) ? s->accel_age + dt : QCF_SPAN_MAX;
     s->mag_age = (s->mag_age + dt < QCF_SPAN_MAX) ? s->mag_age + dt : QCF_SPAN_MAX;
@@ -1251,9 +1141,9 @@ qcf_status qcf_step(qcf_state *restrict s, const qcf_input *restrict in, float d
             status |= QCF_AT_REST;
         }
     }
-    bool heading_ok = use_mag;
+    bool heading_ok = use_mag && started;
     float mag_n[3] = { 0.0f, 0.0f, 0.0f };   /* R(q) m; zero (no heading part) without a sample */
-    if (use_mag) {
+    if (heading_ok) {
         qcf_k_mag_ned(rot, in->mag, mag_n);
         bool accept;
         qcf_k_mag_check(s->accel_lp, mag_n2, mag_n, s->mag_ref, s->mag_dist_time, s->mag_learn_time,
@@ -1263,14 +1153,10 @@ qcf_status qcf_step(qcf_state *restrict s, const qcf_input *restrict in, float d
             status |= QCF_MAG_DISTURBED;
         }
     }
-    if (use_accel || heading_ok) {
-        qcf_k_correct(s->q, rot, s->gyro_bias, in->gyro, dt, s->accel_lp, mag_n,
-            use_accel ? s->accel_age : 0.0f, heading_ok ? s->mag_age : 0.0f,
-            use_accel, accel_n2, at_rest, s->rest_gyro_lp,
-            s->q, s->gyro_bias);
-    } else {
-        qcf_k_propagate(s->q, s->gyro_bias, in->gyro, dt, s->q);
-    }
+    qcf_k_correct(s->q, rot, s->gyro_bias, in->gyro, dt, s->accel_lp, mag_n,
+        use_accel ? s->accel_age : 0.0f, heading_ok ? s->mag_age : 0.0f,
+        use_accel, accel_n2, at_rest, s->rest_gyro_lp,
+        s->q, s->gyro_bias);
     if (use_accel) {
         s->accel_age = 0.0f;
     }

@@ -109,7 +109,7 @@ typedef struct {
     float gps_age;         /* time since the last GPS sample, s */
     uint32_t gps_count;    /* GPS samples since the last gap (counting stops at 7) */
     uint32_t initialised;  /* 1 once the attitude has been initialised (tilt only), 2 with heading */
-    float accel_lp[3];     /* low-passed specific force in NED, m/s^2 */
+    float accel_lp[3];     /* low-passed specific force in NED, m/s^2 (level at rest until the first accelerometer sample: the correction before it has zero weights) */
     float accel_age;       /* time since the last accelerometer sample, s */
     float mag_age;         /* time since the last magnetometer sample, s */
     float rest_gyro_lp[3]; /* rest detection: low-passed gyro, rad/s */

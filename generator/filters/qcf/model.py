@@ -18,7 +18,7 @@ eq. 29's along-track part was tried and made things worse: the stale centripetal
 the lagged estimate leaks into the projection while the velocity turns.)
 
 Product conditioning (faithful = false; issue 10; building blocks in generator/symbolic/aiding.py):
-  init           the first accelerometer sample sets q: the shortest rotation taking its down
+  init           the first accelerometer sample sets q: the shortest rotation taking its (raw) down
                  direction to NED down (tilt), then the heading of the first magnetometer
                  sample (in that step or later) by the heading correction below; with both in
                  the first step this is FQA's attitude
@@ -88,7 +88,8 @@ class Model(FilterModel):
             StateField("initialised", 1, "1 once the attitude has been initialised" + (
                 " (tilt only), 2 with heading" if self.product else ""), 1 if p["faithful"] else 0, "uint32"),
         ] + ([] if not self.product else [
-            StateField("accel_lp", 3, "low-passed specific force in NED, m/s^2", 0.0),
+            StateField("accel_lp", 3, "low-passed specific force in NED, m/s^2 (level at rest until the "
+                       "first accelerometer sample: the correction before it has zero weights)", [0.0, 0.0, -G0]),
             StateField("accel_age", 1, "time since the last accelerometer sample, s", 0.0),
             StateField("mag_age", 1, "time since the last magnetometer sample, s", 0.0),
             StateField("rest_gyro_lp", 3, "rest detection: low-passed gyro, rad/s", 0.0),
@@ -165,11 +166,11 @@ class Model(FilterModel):
                        "accelerometer minus the GPS motion acceleration when ||f| - g| exceeds the threshold" + (
                            "" if p["motion_accel_model"] == "differentiator" else
                            " (centripetal: (w - b) x R(q)^T v_gps in body axes, computed only then)")),
-        ] + paper + [
+        ] + paper + ([] if self.product else [
             KernelSpec("propagate", function("propagate", {"q": q, "gyro_bias": bias, "gyro": gyro, "dt": dt},
                                              {"q_new": quat.integrate_scaled(q, gyro - bias, dt)}),
                        "gyro-only integration with the bias removed (no aiding this step)"),
-        ] + ([KernelSpec("gps_accel", function("gps_accel", {"gps_vel_hist": hist}, {"motion_accel": acc}),
+        ]) + ([KernelSpec("gps_accel", function("gps_accel", {"gps_vel_hist": hist}, {"motion_accel": acc}),
                          "lagged differentiator of GPS velocity (eq. 29): NED acceleration 3 samples back")]
              if p["motion_accel_model"] == "differentiator" else [])
 
@@ -280,7 +281,7 @@ class Model(FilterModel):
             return {
                 "full (accel+mag+GPS comp.)": comp + ["accel_lowpass", "mag_ned"] + extra + ["correct"],
                 "accel+mag": ["rotation", "accel_lowpass", "mag_ned"] + extra + ["correct"],
-                "gyro only": ["rotation", "propagate"],
+                "gyro only": ["rotation", "correct"],
                 **({"GPS sample (extra)": ["gps_accel"]} if self.params["motion_accel_model"] == "differentiator" else {}),
             }
         comp = ["rotation", "gravity_part"]

@@ -103,7 +103,7 @@ class Reference:
         self.gps_age = 1e3
         self.initialised = 1 if self.p["faithful"] else 0
         self.product = not self.p["faithful"] and self.p["conditioning"]
-        self.accel_lp = np.zeros(3)
+        self.accel_lp = np.array([0.0, 0.0, -G0])   # read by nothing before the first accelerometer sample
         self.accel_age = self.mag_age = 0.0
         self.rest_gyro_lp = np.zeros(3)
         self.rest_time = 0.0
@@ -131,6 +131,8 @@ class Reference:
             self.gps_age += dt
 
         f = np.asarray(accel, float)
+        if self.product:
+            self._start(f, mag, use_accel, use_mag, gyro, p)
         if use_accel:
             model = p["motion_accel_model"]
             need = 7 if model == "differentiator" else 1
@@ -168,16 +170,12 @@ class Reference:
         return status
 
     # ---------------------------------------------------------------- product conditioning
-    def _product_step(self, status, gyro, f_raw, f, mag, use_accel, use_mag, dt):
-        """See model.py's docstring: NED low-pass, tilt/heading corrections, gate, rest, field check."""
-        p = self.p
-        from generator.filters.qcf.model import EXTRA_STATUS
-        bit = {name: 1 << (16 + i) for i, (name, _) in enumerate(EXTRA_STATUS)}
-        if self.initialised == 0:
-            if not use_accel:
-                self.q = integrate(self.q, gyro - self.bias, dt)
-                return status
-            # the shortest rotation taking the measured down to NED down, then the field's heading
+    def _start(self, f, mag, use_accel, use_mag, gyro, p):
+        """Initialisation, before anything else of the step reads the attitude. The first
+        accelerometer sample: the shortest rotation taking its (raw) down to NED down, then the
+        field's heading if the step has a magnetometer sample; else the first magnetometer
+        sample after it: the heading, tilt kept."""
+        if self.initialised == 0 and use_accel:
             self.q = tilt_correction(-f / np.linalg.norm(f))
             if use_mag:
                 self.q = nq.qmul(heading_correction(self.q, mag, p["declination"]), self.q)
@@ -189,6 +187,15 @@ class Reference:
             self.q = nq.qmul(heading_correction(self.q, mag, p["declination"]), self.q)
             self.initialised = 2
             self.mag_age = 0.0
+
+    def _product_step(self, status, gyro, f_raw, f, mag, use_accel, use_mag, dt):
+        """See model.py's docstring: NED low-pass, tilt/heading corrections, gate, rest, field check."""
+        p = self.p
+        from generator.filters.qcf.model import EXTRA_STATUS
+        bit = {name: 1 << (16 + i) for i, (name, _) in enumerate(EXTRA_STATUS)}
+        if self.initialised == 0:            # no accelerometer sample yet (_start sets it)
+            self.q = integrate(self.q, gyro - self.bias, dt)
+            return status
         self.accel_age = min(self.accel_age + dt, p["span_max"])
         self.mag_age = min(self.mag_age + dt, p["span_max"])
         at_rest = False
