@@ -178,6 +178,36 @@ def test_tilt_only_start_equals_reference():
     assert _euler_deg(c.q[0])[:2] == pytest.approx([25.0, -40.0], abs=1e-6)
 
 
+def test_gyro_only_start_then_first_accel_with_gps():
+    # Steps before the first accelerometer sample integrate the gyro alone (the correction
+    # with zero weights): the exact rotation exp(w t / 2) from the identity. The first
+    # accelerometer sample then sets the tilt from its raw direction even when a GPS velocity
+    # is already in (the centripetal term would tilt it: 15 m/s at 0.3 rad/s is 4.5 m/s^2).
+    from firmware_sim import host
+    from firmware_sim.log import VALID_ACCEL, VALID_GPS, VALID_GYRO, VALID_MAG
+    from generator import config
+    from generator import npquat as nq
+    # climbing at 2 m/s^2: ||f| - g| is above the threshold, so the centripetal term is applied
+    # (and clear of bias_accel_gate = 1, where a tie would make C and reference differ by rounding)
+    log = _static_log(roll_deg=25.0, seconds=0.5, accel_ned_extra=lambda t: np.tile([0.0, 0.0, -2.0], (len(t), 1)))
+    w = np.array([0.1, -0.2, 0.3])
+    log.gyro[:] = w
+    log.gps_vel[:] = [15.0, 0.0, 0.0]
+    n0 = 20
+    log.valid[:n0] = VALID_GYRO | VALID_MAG | VALID_GPS
+    log.valid[n0:] |= VALID_GPS
+    c = host_build("qcf", "double").run(log)
+    for k in (0, n0 - 1):
+        half = 0.5 * w * log.t[k + 1]                    # rotation over k + 1 steps of 1/200 s
+        expect = np.concatenate([[np.cos(np.linalg.norm(half))], np.sin(np.linalg.norm(half)) * half / np.linalg.norm(half)])
+        assert metrics.max_angle_diff_rad(c.q[k:k + 1], expect[None]) <= 1e-12
+    assert _euler_deg(c.q[n0])[0] == pytest.approx(25.0, abs=0.2)   # raw tilt, then one corrected step
+    cfg = config.resolve("qcf")
+    r = host.run_reference(cfg.spec.reference(cfg.params), log)
+    assert metrics.max_angle_diff_rad(c.q, r.q) <= 1e-9
+    np.testing.assert_array_equal(c.status, r.status)
+
+
 def test_rest_learns_the_gyro_bias():
     bias = np.radians([0.5, -0.3, 0.2])                    # deg/s-level bias, still sensor
     log = _static_log(seconds=10.0, gyro_bias=bias)
