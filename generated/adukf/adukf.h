@@ -15,7 +15,7 @@
  *     every IMU sample: fill a adukf_input (set a VALID bit only for sensors that
  *     delivered a new sample), then adukf_status s = adukf_step(&st, &in, dt);
  *     adukf_euler(&st, rpy);
- * No heap, no recursion; RAM is the state struct (896 bytes with the usual ABI).
+ * No heap, no recursion; RAM is the state struct (728 bytes with the usual ABI).
  * Needs <math.h> (float functions only in a float build); compilers may also emit calls to
  * memcpy/memset/memmove for struct and array copies.
  *
@@ -50,15 +50,15 @@ extern "C" {
 #define ADUKF_MAG_MAX 1e+06f              /* magnetometer component above this skips its correction (MAG_RANGE) [field unit] */
 #define ADUKF_GYRO_NOISE 0.01f            /* process noise: gyro angle random walk; Q = gyro_noise^2 dt/4 (I4 - q q^T) + q_floor dt I4 [rad/s/sqrt(Hz)] */
 #define ADUKF_Q_FLOOR 1e-09f              /* isotropic process noise per second added to Q (keeps P positive definite) [1/s] */
-#define ADUKF_SIGMA_ACC 0.05f             /* base std of the normalised accelerometer measurement (sigma_a in R) [1 (unit vector)] */
-#define ADUKF_SIGMA_MAG 0.05f             /* base std of the normalised magnetometer measurement (sigma_m in R) [1 (unit vector)] */
+#define ADUKF_SIGMA_ACC 0.07f             /* base std of the normalised accelerometer measurement (sigma_a in R); 0.07 since issue 14 (chosen with the error state by the bench, docs/adukf.md; the paper's scenarios were tuned at 0.05, which the faithful preset keeps) [1 (unit vector)] */
+#define ADUKF_SIGMA_MAG 0.07f             /* base std of the normalised magnetometer measurement (sigma_m in R); 0.07 since issue 14 (as sigma_acc) [1 (unit vector)] */
 #define ADUKF_K_A 300.0f                  /* adaptive weight of the accelerometer residual: R_i = sigma_acc^2 + k_a eps_i^2 (0: plain DUKF) [1] */
 #define ADUKF_K_M 300.0f                  /* adaptive weight of the magnetometer residual: R_i = sigma_mag^2 + k_m eps_i^2 (0: plain DUKF) [1] */
 #define ADUKF_ADAPT_MAX 10.0f             /* upper bound of each adaptive term k eps_i^2 in R (0: unbounded, as the paper); a bound keeps some trust in the sensors so a large attitude error can still be corrected (the adaptation cannot lock the correction out) [1] */
 #define ADUKF_UT_ALPHA 1.0f               /* unscented transform spread: lambda = alpha^2 (n + kappa) - n, a = sqrt(n + lambda) [1] */
 #define ADUKF_UT_BETA 2.0f                /* unscented transform beta (2 for a Gaussian prior) [1] */
 #define ADUKF_UT_KAPPA 0.0f               /* unscented transform kappa [1] */
-/* ADUKF_SIGMA_SET = symmetric         sigma points along L's 4 attitude columns: symmetric (2 x 4, the scaled UT, as the paper) or simplex (the 5 points of a spherical simplex, Julier 2003, at the symmetric set's radius and total weight: 3 fewer points through h, 250 fewer instructions per step; not the default: fixed-wing at 100 Hz 7 % worse on each of 6 seeds, and on multirotor seed 0 the gyro-bias estimate keeps 90 % of its error after 120 s where symmetric keeps 32 %; docs/adukf.md); the centre and the bias columns' pairs are the same in both; faithful ignores it (symmetric) */
+/* ADUKF_SIGMA_SET = symmetric         sigma points along L's 4 attitude columns: symmetric (2 x 4, the scaled UT, as the paper) or simplex (the 5 points of a spherical simplex, Julier 2003, at the symmetric set's radius and total weight: 3 fewer points through h, 250 fewer instructions per step; not the default: fixed-wing at 100 Hz 7 % worse on each of 6 seeds, and on multirotor seed 0 the gyro-bias estimate keeps 90 % of its error after 120 s where symmetric keeps 32 %; docs/adukf.md); the centre and the bias columns' pairs are the same in both; for the quaternion state only: faithful and attitude_state = error ignore it (symmetric) */
 #define ADUKF_P0 0.01f                    /* initial covariance P0 = p0 I4 (also what P is reset to when it stops being positive definite) [1] */
 #define ADUKF_PIVOT_MIN 1e-15f            /* a Cholesky pivot at or below this marks P- or P_zz as not positive definite [1] */
 /* ADUKF_MAG_REF = inclination         reference field direction: from inclination/declination, or the dip angle learned from the first samples at rest */
@@ -68,6 +68,7 @@ extern "C" {
 #define ADUKF_REST_GYRO_MAX 0.05f         /* mag_ref = learn: a sample is at rest when |gyro| is below this and ... [rad/s] */
 #define ADUKF_REST_ACCEL_TOL 0.5f         /* ... | |accel| - 9.80665 | is below this [m/s^2] */
 #define ADUKF_GYRO_BIAS_STATE 1           /* product default: the state is [q; gyro bias] (7 states, 15 sigma points; the bias is subtracted from the gyro in the time update, F = d x-/d x from the model) so a biased gyro does not tilt the estimate in motion; false (and faithful): the paper's 4-state filter */
+/* ADUKF_ATTITUDE_STATE = error        with the gyro-bias state: error (issue 14: the covariance is that of a 3-parameter attitude error d in body axes, q = q_est * [1, d/2] normalised, and of the bias: 6 states, 13 sigma points, 6x6 P; the error is folded into q after each update) or quaternion (the covariance of the 4-component q and the bias: 7 states, 15 sigma points, 7x7 P, as before issue 14); faithful and gyro_bias_state = false ignore it (the 4-state quaternion filter) */
 #define ADUKF_BIAS_RW 1e-04f              /* gyro-bias state: random walk of the bias (process noise bias_rw^2 dt per axis) [rad/s/sqrt(s)] */
 #define ADUKF_P0_BIAS 1e-04f              /* gyro-bias state: initial bias variance (P0 and COV_RESET) [(rad/s)^2] */
 #define ADUKF_ACCEL_TAU 1.0f              /* time constant of the NED-frame low-pass of the accelerometer R(q-) f; the update measures the direction of R(q-)^T of it (motion acceleration averages out, gravity does not; VQF's idea); 0 = the raw accelerometer (as the paper; faithful ignores it) [s] */
@@ -106,12 +107,12 @@ typedef uint32_t adukf_status;
 typedef struct {
     float q[4];           /* attitude estimate, body->NED, [w x y z] */
     float gyro_bias[3];   /* gyro bias estimate, rad/s */
-    float P[49];          /* covariance of [q; gyro_bias], 7x7 (symmetric; column-major) */
+    float P[36];          /* covariance of [attitude error d (rad, body axes: q = q_est * [1, d/2] normalised); gyro_bias], 6x6 (symmetric; column-major) */
     float m_ref[3];       /* reference field direction, NED unit vector */
     float r_diag[6];      /* diagonal of the adaptive R used by the last update (0: sensor not used) */
     float sample_age[2];  /* time since the last accelerometer / magnetometer sample, s */
     float accel_lp[3];    /* low-passed specific force in NED, m/s^2 (accel_tau > 0) */
-    float work[151];      /* scratch of the step (P-, the update's matrices and sigma-point sums, x- and x+) kept here instead of on the stack: no meaning between steps, zeroed when an update or its result is refused */
+    float work[122];      /* scratch of the step (P-, the update's matrices and sigma-point sums, x- and x+) kept here instead of on the stack: no meaning between steps, zeroed when an update or its result is refused */
     float learn_sum;      /* mag_ref = learn: sum of sin(inclination) over rest samples */
     uint32_t learn_count; /* mag_ref = learn: rest samples summed so far */
     uint32_t initialised; /* 1 once the attitude has been initialised */

@@ -85,13 +85,31 @@ def has_bias_state(p) -> bool:
     return bool(p["gyro_bias_state"]) and not p["faithful"]
 
 
+def has_error_state(p) -> bool:
+    """Product default: with the bias state, the covariance is that of the 3-parameter attitude
+    error and the bias (6 states; attitude_state = "error")."""
+    return has_bias_state(p) and p["attitude_state"] == "error"
+
+
+def cross(a, b):
+    return ca.vertcat(a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+
+
+def skew(v):
+    """[v]x with [v]x u = v x u."""
+    return ca.vertcat(ca.horzcat(0, -v[2], v[1]), ca.horzcat(v[2], 0, -v[0]), ca.horzcat(-v[1], v[0], 0))
+
+
 class Model(FilterModel):
     def __init__(self, params: dict):
         super().__init__(params, sensors=("accel", "mag"), extra_status=list(EXTRA_STATUS))
-        self.n = 7 if has_bias_state(params) else N
+        self.err = has_error_state(params)
+        self.nx = 7 if has_bias_state(params) else N      # the state x: q, or [q; gyro bias]
+        self.n = 6 if self.err else self.nx              # P's size: [δθ; b] (error state), or x's
+        self.na = 3 if self.err else N                   # the columns of L that move the attitude
 
     def simplex(self) -> bool:
-        return self.params["sigma_set"] == "simplex" and not self.params["faithful"]
+        return self.params["sigma_set"] == "simplex" and not self.params["faithful"] and not self.err
 
     def ut(self):
         """(a, Wc0, w, c_dd): spread, centre's covariance weight, weight of each attitude point
@@ -115,21 +133,26 @@ class Model(FilterModel):
         learn = p["mag_ref"] == "learn"
         return [
             StateField("q", 4, "attitude estimate, body->NED, [w x y z]", [1.0, 0.0, 0.0, 0.0]),
-        ] + ([StateField("gyro_bias", 3, "gyro bias estimate, rad/s", 0.0)] if n == 7 else []) + [
-            StateField("P", n * n, f"covariance of {'q' if n == 4 else '[q; gyro_bias]'}, {n}x{n} (symmetric; column-major)", p0),
+        ] + ([StateField("gyro_bias", 3, "gyro bias estimate, rad/s", 0.0)] if self.nx == 7 else []) + [
+            StateField("P", n * n, f"covariance of {self.p_meaning()}, {n}x{n} (symmetric; column-major)", p0),
             StateField("m_ref", 3, "reference field direction, NED unit vector", [0.0] * 3 if learn else self.m_ref_configured()),
             StateField("r_diag", 6, "diagonal of the adaptive R used by the last update (0: sensor not used)", 0.0),
         ] + ([StateField("sample_age", 2, "time since the last accelerometer / magnetometer sample, s", 0.0)]
              if self.own_rates() else []) + ([StateField("accel_lp", 3, "low-passed specific force in NED, m/s^2 (accel_tau > 0)", 0.0)]
              if self.lowpass() else []) + [
             StateField("work", self.work_layout()["size"], "scratch of the step (P-, the update's matrices and sigma-point sums"
-                       + (", x- and x+) " if n == 7 else ") ") +
+                       + (", x- and x+) " if self.nx == 7 else ") ") +
                        "kept here instead of on the stack: no meaning between steps, zeroed when an update or its "
                        "result is refused", 0.0),
             StateField("learn_sum", 1, "mag_ref = learn: sum of sin(inclination) over rest samples", 0.0),
             StateField("learn_count", 1, "mag_ref = learn: rest samples summed so far", 0, "uint32"),
             StateField("initialised", 1, "1 once the attitude has been initialised", 1 if p["faithful"] else 0, "uint32"),
         ]
+
+    def p_meaning(self) -> str:
+        if self.err:
+            return ("[attitude error d (rad, body axes: q = q_est * [1, d/2] normalised); gyro_bias]")
+        return "q" if self.n == 4 else "[q; gyro_bias]"
 
     def work_layout(self) -> dict:
         """Offsets (floats) of the step's scratch in the state's `work`, the one place they are
@@ -143,10 +166,10 @@ class Model(FilterModel):
         output as soon as computed (early_writes), so their outputs overlap none of their
         inputs: P_new (packed) over zsum and P_zz, both dead by then. Then x_pred and x_new (bias
         state); `update_end` ends the update's floats, `size` the whole scratch."""
-        n = self.n
+        n, na = self.n, self.na
         npk = n * (n + 1) // 2
         at = {"P_pred": 0, "aL": npk}
-        at["z0"] = at["aL"] + 4 * n
+        at["z0"] = at["aL"] + na * n
         at["zdiff"] = at["z0"] + 6
         if self.simplex():
             at["points"] = at["zdiff"]
@@ -154,18 +177,18 @@ class Model(FilterModel):
             at["P_zz"] = at["zdev"] + 6 * (N + 1)
             at["P_new"] = at["zdev"]
         else:
-            at["zsum"] = at["zdiff"] + 6 * N
-            at["P_zz"] = at["zsum"] + 6 * N
+            at["zsum"] = at["zdiff"] + 6 * na
+            at["P_zz"] = at["zsum"] + 6 * na
             at["P_new"] = at["zsum"]
         at["residual"] = at["P_zz"] + 21
         at["update_end"] = at["residual"] + 6
         at["G"] = at["zdiff"]          # written by gain, which reads zdiff
         at["g"] = at["residual"]       # written by gain, which reads the residual
-        assert at["P_new"] + npk <= at["residual"] and at["G"] + 10 <= at["zdiff"] + 6 * N
-        assert at.get("points", 0) + 4 * (N + 1) <= at["zdiff"] + 6 * N
+        assert at["P_new"] + npk <= at["residual"] and at["G"] + na * (na + 1) // 2 <= at["zdiff"] + 6 * na
+        assert at.get("points", 0) + 4 * (N + 1) <= at["zdiff"] + 6 * na
         at["x_pred"] = at["update_end"]
         at["x_new"] = at["x_pred"] + 7
-        at["size"] = at["update_end"] + (14 if n == 7 else 0)
+        at["size"] = at["update_end"] + (14 if self.nx == 7 else 0)
         return at
 
     def r_scale(self, dt, span):
@@ -180,7 +203,11 @@ class Model(FilterModel):
         return self.params["accel_tau"] > 0 and not self.params["faithful"]
 
     def p0_diag(self):
+        """P0's diagonal. Error state: 4 p0 per attitude-error axis, the same spread of attitude as
+        p0 I4 on q (a small rotation d moves a unit q by dq = Ξ(q) d / 2, and Ξᵀ Ξ = I3)."""
         p = self.params
+        if self.err:
+            return [4.0 * p["p0"]] * 3 + [p["p0_bias"]] * 3
         return [p["p0"]] * 4 + [p["p0_bias"]] * (self.n - 4)
 
     # ------------------------------------------------------------------ kernels
@@ -193,7 +220,7 @@ class Model(FilterModel):
         p = self.params
         n = self.n
         x = q
-        if n == 7:
+        if self.nx == 7:
             q, b = x[:4], x[4:]
             w = w - b
         A1 = ca.SX.eye(N) + 0.5 * dt * omega_matrix(w)
@@ -208,6 +235,34 @@ class Model(FilterModel):
         Q = (p["gyro_noise"] ** 2 * 0.25 * dt) * (ca.SX.eye(N) - ca.mtimes(q, q.T)) + p["q_floor"] * dt * ca.SX.eye(N)
         Ps = linalg.lower_symmetric(P)
         Pm = ca.SX.zeros(n, n)
+        Qb = p["bias_rw"] ** 2 * dt + p["q_floor"] * dt
+        if self.err:
+            # error state [d; b]: q = q̂ ⊗ δq(d), δq(d) = [1, d/2]/|[1, d/2]|, b = b̂ + δb. The step's
+            # rotation is r = δq(v), v = (ω - b̂) dt (q⁻ = q ⊗ r = A q, A as above), so
+            # d⁻ = R(r)ᵀ d + J δv with δv = -dt δb to first order: F = [[Φ, B], [0, I3]],
+            # Φ = R(r)ᵀ = c² ((1 - |v|²/4) I3 + v vᵀ/2 - [v]x) = (2c² - 1) I3 + c² (v vᵀ/2 - [v]x),
+            # B = -dt J = -dt c² (I3 - [v]x / 2) (c² = 1/(1 + |v|²/4); the Jacobian of
+            # v -> δq(v) on the right, reference.py derives it). Q: the gyro's angle random
+            # walk gyro_noise² dt and 4 q_floor dt on each attitude axis (the quaternion form's Q
+            # is this mapped by Ξ(q)/2), the bias random walk on the bias.
+            # F P Fᵀ by blocks, F1 = [Φ, B]: M1 = F1 P (3 x 6), attitude block M1 F1ᵀ, cross
+            # block M1[:, 3:6], bias block P_bb.
+            qm = c_n * ca.mtimes(A1, q)
+            Phi = (c_sq + c_sq - 1.0) * ca.SX.eye(3) + c_sq * ((0.5 * dt * dt) * ca.mtimes(w, w.T) - dt * skew(w))
+            B = (-dt * c_sq) * ca.SX.eye(3) + (0.5 * dt * dt * c_sq) * skew(w)
+            F1 = ca.horzcat(Phi, B)
+            M1 = ca.mtimes(F1, Ps)
+            Qa = (p["gyro_noise"] ** 2 + 4.0 * p["q_floor"]) * dt
+            for r in range(n):
+                for c in range(r + 1):
+                    if r < 3:
+                        Pm[r, c] = ca.mtimes(M1[r, :], F1[c, :].T) + (Qa if r == c else 0.0)
+                    elif c < 3:
+                        Pm[r, c] = M1[c, r]
+                    else:
+                        Pm[r, c] = Ps[r, c] + (Qb if r == c else 0.0)
+                    Pm[c, r] = Pm[r, c]
+            return ca.vertcat(qm, b), normalize(qm), Pm
         if n == 4:
             A = A1 * c_n
             qm = ca.mtimes(A, q)
@@ -228,7 +283,6 @@ class Model(FilterModel):
         G1 = -(0.5 * dt) * xi_matrix(q) + ca.mtimes((c_n * 0.25 * dt * dt) * qm, w.T)
         F1 = ca.horzcat(A1, G1)
         M1 = ca.mtimes(F1, Ps)
-        Qb = p["bias_rw"] ** 2 * dt + p["q_floor"] * dt
         for r in range(n):
             for c in range(r + 1):
                 if r < N:
@@ -256,7 +310,7 @@ class Model(FilterModel):
         L, _, piv_p = linalg.cholesky_with_inverse(Pm, p["pivot_min"])
         z0 = measurement(qn, m_ref)
         if not self.simplex():
-            return a * L[:, :N], z0, piv_p
+            return a * L[:, :self.na], z0, piv_p
         # simplex: V = L[:, 0:4] diag(c) and the 5 points' attitude parts q⁻ + u_i, u_i =
         # V[0:4, :] t_i (simplex_scales), by suffix sums R_k = Σ_{k' >= k} V[:, k']: u_1 = -R_0,
         # u_{k+2} = (k + 1) V[:, k] - R_{k+1}
@@ -276,6 +330,21 @@ class Model(FilterModel):
         ep = measurement(normalize(qm + col), m_ref) - z0
         en = measurement(normalize(qm - col), m_ref) - z0
         return ep + en, ep - en
+
+    def sigma_pair_error_expr(self, col, z0):
+        """Error state: the pair of sigma points ±d (d = col = a L[0:3, j]), q̂ ⊗ δq(±d), as
+        deviations from the centre. With δq(±d) = [k, ±k d/2], k² = 1/(1 + |d|²/4), and u the
+        centre's body-frame vectors (z₀ = [u_g; u_m]): h(q̂ ⊗ δq) = R(δq)ᵀ R(q̂)ᵀ v = R(δq)ᵀ u, and
+        R([w, s])ᵀ u = u - 2w (s x u) + 2 s x (s x u), so e± = ∓k² (d x u) + k²/2 d x (d x u):
+        e₊ + e₋ = k² d x (d x u), e₊ - e₋ = -2k² (d x u) (exact; no normalisation, no m_ref)."""
+        half = 0.5 / (1.0 + 0.25 * ca.sumsqr(col))
+        k2 = half + half            # exactly 1/x, kept a product (as in predict_expr)
+        s, d = [], []
+        for u in (z0[0:3], z0[3:6]):
+            a = cross(col, u)
+            s.append(k2 * cross(col, a))
+            d.append((-2.0 * k2) * a)
+        return ca.vertcat(*s), ca.vertcat(*d)
 
     def sigma_point_expr(self, point, m_ref, z0):
         """sigma_set = simplex: one point's attitude part χ (sigma_setup), normalised and mapped
@@ -335,13 +404,14 @@ class Model(FilterModel):
         the ratio of the step to the time its sample stands for (sigma is per IMU step; a
         sample standing for k steps carries k steps' information)."""
         _, _, wi, c_dd = self.ut()           # c_dd = Σ Wc - 2
-        S = [zsum[6 * j:6 * j + 6] for j in range(N)]
-        D = [zdiff[6 * j:6 * j + 6] for j in range(N)]
-        delta = wi * (S[0] + S[1] + S[2] + S[3])
+        na = self.na
+        S = [zsum[6 * j:6 * j + 6] for j in range(na)]
+        D = [zdiff[6 * j:6 * j + 6] for j in range(na)]
+        delta = wi * sum(S[1:], S[0])
         eps, R = self.residual_and_r(z0 + delta, f, m, scale)
         Pzz = ca.SX.zeros(6, 6)
         for r, c in _LOWER6:     # symmetric: lower triangle once, mirrored
-            zz = sum([S[j][r] * S[j][c] + D[j][r] * D[j][c] for j in range(1, N)], S[0][r] * S[0][c] + D[0][r] * D[0][c])
+            zz = sum([S[j][r] * S[j][c] + D[j][r] * D[j][c] for j in range(1, na)], S[0][r] * S[0][c] + D[0][r] * D[0][c])
             Pzz[r, c] = (0.5 * wi) * zz + c_dd * delta[r] * delta[c] + (R[r] if r == c else 0.0)
             Pzz[c, r] = Pzz[r, c]
         return Pzz, eps, ca.vertcat(*R)
@@ -357,11 +427,12 @@ class Model(FilterModel):
         p = self.params
         wi = self.ut()[2]            # the weight of an attitude point (Wi; simplex: w)
         Lz, inv, piv_zz = linalg.cholesky_with_inverse(Pzz, p["pivot_min"])
-        W = linalg.solve_lower(Lz, ca.reshape(zdiff, 6, N), inv)
+        na = self.na
+        W = linalg.solve_lower(Lz, ca.reshape(zdiff, 6, na), inv)
         v = linalg.solve_lower(Lz, eps, inv)
         g = wi * ca.mtimes(W.T, v)
-        G = ca.SX.zeros(N, N)
-        for r, c in linalg.packed_lower_pairs(N):
+        G = ca.SX.zeros(na, na)
+        for r, c in linalg.packed_lower_pairs(na):
             G[r, c] = (wi * wi) * ca.dot(W[:, r], W[:, c])
             G[c, r] = G[r, c]
         return g, linalg.pack_lower(G), piv_zz
@@ -370,11 +441,16 @@ class Model(FilterModel):
         """x⁺ = x⁻ + K ε = x⁻ + aL g (q normalised) and P⁺ = P⁻ - K P_zz Kᵀ = P⁻ - aL G aLᵀ on
         its lower triangle (gain_expr), the top of aL lower triangular (aL[r, j] = 0 for
         j > r): H = aL G, then P⁺[r, c] = P⁻[r, c] - H[r, :] aL[c, :]ᵀ."""
-        n = self.n
-        nz = lambda r: range(min(r, N - 1) + 1)      # noqa: E731  the j with aL[r, j] != 0
-        x_new = ca.vertcat(*[xm[r] + sum([aL[r, j] * g[j] for j in nz(r)][1:], aL[r, 0] * g[0]) for r in range(n)])
-        q_new = normalize(x_new) if n == 4 else ca.vertcat(normalize(x_new[:4]), x_new[4:])
-        H = [[sum([aL[r, j] * G[j, k] for j in nz(r)][1:], aL[r, 0] * G[0, k]) for k in range(N)] for r in range(n)]
+        n, na = self.n, self.na
+        nz = lambda r: range(min(r, na - 1) + 1)      # noqa: E731  the j with aL[r, j] != 0
+        x_new = ca.vertcat(*[sum([aL[r, j] * g[j] for j in nz(r)][1:], aL[r, 0] * g[0]) for r in range(n)])
+        if self.err:
+            # x_new = [d; δb] = K ε: q⁺ = q⁻ ⊗ δq(d) = (q⁻ + Ξ(q⁻) d / 2) normalised, b⁺ = b⁻ + δb
+            q_new = ca.vertcat(normalize(xm[:4] + ca.mtimes(xi_matrix(xm[:4]), 0.5 * x_new[:3])), xm[4:] + x_new[3:])
+        else:
+            x_new = xm + x_new
+            q_new = normalize(x_new) if n == 4 else ca.vertcat(normalize(x_new[:4]), x_new[4:])
+        H = [[sum([aL[r, j] * G[j, k] for j in nz(r)][1:], aL[r, 0] * G[0, k]) for k in range(na)] for r in range(n)]
         P_new = ca.SX.zeros(n, n)
         for r, c in linalg.packed_lower_pairs(n):
             P_new[r, c] = Pm[r, c] - sum([H[r][k] * aL[c, k] for k in nz(c)][1:], H[r][0] * aL[c, 0])
@@ -383,13 +459,13 @@ class Model(FilterModel):
 
     def kernels(self):
         p = self.params
-        n = self.n
-        xs = "q" if n == 4 else "x"
-        if n == 7:          # the state's q and gyro_bias as they are (no copy into one x)
+        n, na, nx = self.n, self.na, self.nx
+        xs = "q" if nx == 4 else "x"
+        if nx == 7:          # the state's q and gyro_bias as they are (no copy into one x)
             q_in = {"q": ca.SX.sym("q", 4), "gyro_bias": ca.SX.sym("gyro_bias", 3)}
             q = ca.vertcat(q_in["q"], q_in["gyro_bias"])
         else:
-            q = ca.SX.sym(xs, n)
+            q = ca.SX.sym(xs, nx)
             q_in = {xs: q}
         P = ca.SX.sym("P", n, n)
         w = ca.SX.sym("gyro", 3)
@@ -397,7 +473,7 @@ class Model(FilterModel):
         f = ca.SX.sym("accel", 3)
         m = ca.SX.sym("mag", 3)
         m_ref = ca.SX.sym("m_ref", 3)
-        qm = ca.SX.sym(xs + "_pred", n)
+        qm = ca.SX.sym(xs + "_pred", nx)
         Pm_packed = ca.SX.sym("P_pred", n * (n + 1) // 2)     # lower triangle, packed (linalg)
         Pm = linalg.unpack_symmetric(Pm_packed, n)
 
@@ -412,27 +488,30 @@ class Model(FilterModel):
         eps = ca.SX.sym("residual", 6)
         span = ca.SX.sym("span", 2)            # time each sample stands for: accel, mag
         rated = self.own_rates()
-        aL = ca.SX.sym("aL", n, N)
+        aL = ca.SX.sym("aL", n, na)
         z0 = ca.SX.sym("z0", 6)
         simplex = self.simplex()
         setup_out = self.sigma_setup_expr(qn, Pm, m_ref, qm)
         aL_e, z0_e, piv_p = setup_out[:3]
         q4 = ca.SX.sym("q_pred", 4)
-        col = ca.SX.sym("col", 4)
-        zsum = ca.SX.sym("zsum", 6 * N)
-        zdiff = ca.SX.sym("zdiff", 6 * N)
+        col = ca.SX.sym("col", na)
+        zsum = ca.SX.sym("zsum", 6 * na)
+        zdiff = ca.SX.sym("zdiff", 6 * na)
         zdev = ca.SX.sym("zdev", 6 * (N + 1))
         point = ca.SX.sym("point", 4)
         scale = [self.r_scale(dt, span[0]), self.r_scale(dt, span[1])] if rated else None
         if simplex:
             Pzz_e, eps_e, r_e, zd_e = self.innovation_simplex_expr(z0, zdev, f, m, scale)
+        elif self.err:
+            zs_e, zd_e = self.sigma_pair_error_expr(col, z0)
+            Pzz_e, eps_e, r_e = self.innovation_expr(z0, zsum, zdiff, f, m, scale)
         else:
             zs_e, zd_e = self.sigma_pair_expr(q4, col, m_ref, z0)
             Pzz_e, eps_e, r_e = self.innovation_expr(z0, zsum, zdiff, f, m, scale)
-        g = ca.SX.sym("g", N)
-        G_packed = ca.SX.sym("G", N * (N + 1) // 2)
+        g = ca.SX.sym("g", na)
+        G_packed = ca.SX.sym("G", na * (na + 1) // 2)
         g_e, G_e, piv_zz = self.gain_expr(Pzz, zdiff, eps)
-        q_new, P_new = self.correct_expr(qm, Pm, aL, g, linalg.unpack_symmetric(G_packed, N))
+        q_new, P_new = self.correct_expr(qm, Pm, aL, g, linalg.unpack_symmetric(G_packed, na))
 
         decl = float(p["declination"])
         roll, pitch = attitude.tilt_angles(f)
@@ -443,7 +522,13 @@ class Model(FilterModel):
                      "pairs' sums and differences of deviations")
         innov_in = {"z0": z0, "zsum": zsum, "zdiff": zdiff}
         innov_out = {}
-        if not simplex:
+        if self.err:
+            points = [KernelSpec("sigma_pair", function("sigma_pair", {"col": col, "z0": z0},
+                                                        {"zsum": zs_e, "zdiff": zd_e}),
+                                 "sigma points q- * dq(+col) and q- * dq(-col) (col = a L[0:3, j], an attitude "
+                                 "error), mapped through h, as deviations e+, e- from z0: e+ + e- and e+ - e- "
+                                 "(called once per attitude column of aL)")]
+        elif not simplex:
             points = [KernelSpec("sigma_pair", function("sigma_pair", {"q_pred": q4, "col": col, "m_ref": m_ref,
                                                                        "z0": z0}, {"zsum": zs_e, "zdiff": zd_e}),
                                  "sigma points q- + col and q- - col, each normalised and mapped through h, as "
@@ -470,8 +555,8 @@ class Model(FilterModel):
                         "simplex points' attitude parts q- + aL[0:4, :] t_i, z0 = h(q-); pivot_P = smallest "
                         "pivot of P-"
                         if simplex else
-                        "L = chol(P-), aL = a L[:, 0:4] (the columns that move the attitude: a bias column "
-                        "moves none, so 9 distinct sigma points), z0 = h(q-); pivot_P = smallest pivot of P-"),
+                        f"L = chol(P-), aL = a L[:, 0:{na}] (the columns that move the attitude: a bias column "
+                        f"moves none, so {2 * na + 1} distinct sigma points), z0 = h(q-); pivot_P = smallest pivot of P-"),
                        noinline=True, early_writes=True),
             *points,
             KernelSpec("innovation", function("innovation", {**innov_in, "accel": f, "mag": m,
@@ -488,7 +573,9 @@ class Model(FilterModel):
             KernelSpec("correct", function("correct", {xs + "_pred": qm, "P_pred": Pm_packed, "aL": aL, "g": g,
                                                        "G": G_packed},
                                            {xs + "_new": q_new, "P_new": linalg.pack_lower(P_new)}),
-                       "x+ = x- + aL g = x- + K eps (q normalised), P+ = P- - aL G aL^T = P- - K P_zz K^T",
+                       ("[d; db] = aL g = K eps, q+ = q- * [1, d/2] normalised, b+ = b- + db, "
+                        if self.err else "x+ = x- + aL g = x- + K eps (q normalised), ")
+                       + "P+ = P- - aL G aL^T = P- - K P_zz K^T",
                        noinline=True, early_writes=True),
             *([KernelSpec("accel_lowpass", function(
                 "accel_lowpass", {"q_pred_unit": qn, "accel": f, "accel_lp": a_lp, "restart": restart, "dt": dt},
@@ -522,11 +609,11 @@ class Model(FilterModel):
     def step_paths(self):
         return {
             "accel+mag update": ["predict", "sigma_setup"]
-            + (["sigma_point"] * (N + 1) if self.simplex() else ["sigma_pair"] * N) + ["innovation", "gain", "correct"],
+            + (["sigma_point"] * (N + 1) if self.simplex() else ["sigma_pair"] * self.na) + ["innovation", "gain", "correct"],
             "gyro only": ["predict"],
         }
 
     def template_context(self):
         n = self.n
-        return {"learn": self.params["mag_ref"] == "learn", "n": n, "lowpass": self.lowpass(), "rated": self.own_rates(), "bias": n == 7, "simplex": self.simplex(), "xs": "q" if n == 4 else "x", "at": self.work_layout(),
+        return {"learn": self.params["mag_ref"] == "learn", "n": n, "nx": self.nx, "na": self.na, "err": self.err, "lowpass": self.lowpass(), "rated": self.own_rates(), "bias": self.nx == 7, "simplex": self.simplex(), "xs": "q" if self.nx == 4 else "x", "at": self.work_layout(),
                 "packed": linalg.packed_lower_pairs(n)}

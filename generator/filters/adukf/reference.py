@@ -40,6 +40,19 @@ Product defaults (issue 10; faithful ignores them):
   q⁻ = A(w) q, b⁻ = b; P⁻ = F P Fᵀ + blockdiag(Q, (bias_rw² + q_floor) dt I3) with
   F = [[A, -∂(A q)/∂w], [0, I3]], ∂(A q)/∂w = c dt/2 Ξ(q) - c³ dt²/4 (q + dt/2 Ξ(q) w) wᵀ,
   c = 1/sqrt(1 + |w|² dt²/4), Ω(w) q = Ξ(q) w. The update corrects the whole x; q is normalised.
+- attitude_state = "error" (with the bias state; the product default since issue 14): the
+  covariance is that of the error state [d; δb] (n = 6, 13 sigma points), d a rotation in body
+  axes with q_true = q̂ ⊗ δq(d), δq(d) = [1, d/2] / |[1, d/2]| (d is twice the Gibbs vector
+  of the error rotation), b_true = b̂ + δb. Time update: r = δq(v), v = (ω - b̂) dt (the same
+  rotation as the normalised A: A q = q ⊗ r), q⁻ = q ⊗ r, and
+    d⁻ = R(r)ᵀ d - dt J δb,   J = ∂ε/∂Δv at Δv = 0 with r(v + Δv) = r(v) ⊗ δq(ε):
+  r(v)* ⊗ r(v + Δv) ∝ [1 + v·(v + Δv)/4, Δv/2 - v × Δv/4], so ε = 2 vec / scal and
+  J = (I3 - [v]x/2) / (1 + |v|²/4). So F = [[R(r)ᵀ, -dt J], [0, I3]] and
+  Q = diag((gyro_noise² + 4 q_floor) dt I3, (bias_rw² + q_floor) dt I3). P0 = diag(4 p0 I3,
+  p0_bias I3) (the spread of p0 I4 on q: dq = Ξ(q) d / 2). Update: sigma points
+  χ_i = L S[:, i] in the error state, attitude q⁻ ⊗ δq(χ_i[0:3]) through h; P_xz from χ_i;
+  [d; δb] = K ε, q⁺ = normalise(q⁻ ⊗ [1, d/2]), b⁺ = b⁻ + δb, P⁺ = P⁻ - K P_zz Kᵀ.
+  sigma_set is ignored (symmetric).
 - accel_tau > 0: a ← a + dt/(τ + dt) (R(q⁻/|q⁻|) f - a) (started at R f), and the update
   measures R(q⁻/|q⁻|)ᵀ a instead of f.
 - span_max > 0: each sensor's R is multiplied by max(dt / s, 1 / span_steps_max), s = the
@@ -58,7 +71,7 @@ import numpy as np
 from generator.constants import G0
 from generator import input_checks
 from generator import status as st
-from generator.npquat import q_from_euler, rotmat
+from generator.npquat import q_from_euler, qmul, rotmat
 
 # filter-specific status bits (same values in the model and the generated C)
 COV_RESET = st.FILTER_BASE << 0        # P⁻ not positive definite: P reset to P0, update skipped
@@ -179,6 +192,16 @@ def _chol(A):
     return L, float(np.min(np.diag(L)) ** 2)
 
 
+def dq_gibbs(d):
+    """δq(d) = [1, d/2] / |[1, d/2]|: the rotation of the attitude error d (twice its Gibbs vector)."""
+    v = np.concatenate([[1.0], 0.5 * np.asarray(d, dtype=float)])
+    return v / np.linalg.norm(v)
+
+
+def skew(v):
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
 def xi(q):
     """Ξ(q) with Ω(w) q = Ξ(q) w."""
     q0, q1, q2, q3 = q
@@ -190,13 +213,14 @@ class Reference:
         self.p = dict(params)
         p = self.p
         self.bias_state = bool(p["gyro_bias_state"]) and not p["faithful"]
-        self.n = 7 if self.bias_state else N
+        self.err = self.bias_state and p["attitude_state"] == "error"
+        self.n = 6 if self.err else (7 if self.bias_state else N)
         self.lowpass = p["accel_tau"] > 0 and not p["faithful"]
         self.rated = p["span_max"] > 0 and not p["faithful"]
         self.accel_lp = np.zeros(3)
         self.sample_age = np.zeros(2)
         self.bias = np.zeros(3)
-        kind = "symmetric" if p["faithful"] else p["sigma_set"]       # faithful: the paper's points
+        kind = "symmetric" if p["faithful"] or self.err else p["sigma_set"]       # faithful: the paper's points
         self.S, self.wm, self.wc = sigma_set(kind, p["ut_alpha"], p["ut_beta"], p["ut_kappa"], self.n)
         self.decl = float(p["declination"])
         self.learn = p["mag_ref"] == "learn"
@@ -210,6 +234,8 @@ class Reference:
         self.r_diag = np.zeros(6)       # R used by the last step (0 = sensor not used)
 
     def P0(self):
+        if self.err:
+            return np.diag([4.0 * self.p["p0"]] * 3 + [self.p["p0_bias"]] * 3)
         return np.diag([self.p["p0"]] * 4 + [self.p["p0_bias"]] * (self.n - 4))
 
     def step(self, gyro, accel, mag, gps_vel, valid: int, dt: float) -> int:
@@ -266,7 +292,19 @@ class Reference:
         q = self.q
         Q = (p["gyro_noise"] ** 2 * dt / 4.0) * (_I4 - np.outer(q, q)) + p["q_floor"] * dt * _I4
         qm = A @ q
-        if self.bias_state:
+        if self.err:
+            v = w_v * dt
+            r = dq_gibbs(v)
+            qm = qmul(q, r)
+            J = (np.eye(3) - 0.5 * skew(v)) / (1.0 + 0.25 * float(v @ v))
+            F = np.eye(6)
+            F[:3, :3] = rotmat(r).T
+            F[:3, 3:] = -dt * J
+            Qx = np.diag([(p["gyro_noise"] ** 2 + 4.0 * p["q_floor"]) * dt] * 3
+                         + [(p["bias_rw"] ** 2 + p["q_floor"]) * dt] * 3)
+            xm = np.concatenate([qm, self.bias])
+            Pm = F @ self.P @ F.T + Qx
+        elif self.bias_state:
             X = xi(q)
             dqdw = (c_norm * 0.5 * dt * X
                     - c_norm ** 3 * 0.25 * dt * dt * np.outer(q + 0.5 * dt * X @ w_v, w_v))
@@ -311,8 +349,14 @@ class Reference:
                 status |= COV_RESET
                 P_new = self.P0()
             else:
-                chis = xm + (L @ self.S).T
-                cq = chis[:, :4]
+                if self.err:          # error-state points, their attitude q⁻ ⊗ δq(d_i)
+                    chis = (L @ self.S).T
+                    cq = np.array([qmul(xm[:4], dq_gibbs(c[:3])) for c in chis])
+                    xc = np.zeros(6)
+                else:
+                    chis = xm + (L @ self.S).T
+                    cq = chis[:, :4]
+                    xc = xm
                 Z = h_meas_batch(cq / np.linalg.norm(cq, axis=1, keepdims=True), self.m_ref)
                 zhat = self.wm @ Z
                 z = np.concatenate([f_meas / math.sqrt(float(f_meas @ f_meas)) if use_a else np.zeros(3),
@@ -323,7 +367,7 @@ class Reference:
                     adapt = np.minimum(adapt, p["adapt_max"])
                 R = (np.concatenate([np.full(3, p["sigma_acc"] ** 2), np.full(3, p["sigma_mag"] ** 2)]) + adapt) * scale
                 dZ = Z - zhat
-                dX = chis - xm
+                dX = chis - xc
                 Pzz = (self.wc[:, None] * dZ).T @ dZ + np.diag(R)
                 Pxz = (self.wc[:, None] * dX).T @ dZ
                 mask = np.array([use_a] * 3 + [use_m] * 3)
@@ -337,8 +381,13 @@ class Reference:
                     status |= UPDATE_SKIPPED
                 else:
                     K = np.linalg.solve(Pzz, Pxz.T).T
-                    xp = xm + K @ eps
-                    x_new = np.concatenate([xp[:4] / math.sqrt(float(xp[:4] @ xp[:4])), xp[4:]])
+                    if self.err:
+                        dx = K @ eps
+                        qp = qmul(xm[:4], np.concatenate([[1.0], 0.5 * dx[:3]]))
+                        x_new = np.concatenate([qp / math.sqrt(float(qp @ qp)), xm[4:] + dx[3:]])
+                    else:
+                        xp = xm + K @ eps
+                        x_new = np.concatenate([xp[:4] / math.sqrt(float(xp[:4] @ xp[:4])), xp[4:]])
                     P_new = Pm - K @ Pzz @ K.T
                     P_new = 0.5 * (P_new + P_new.T)
                     r_diag = np.where(mask, R, 0.0)
