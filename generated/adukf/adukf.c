@@ -94,7 +94,7 @@ static float fast_atan2f(float y, float x)
     return signbit(y) ? -a : a;
 }
 
-/* linear Kalman time update: q- = A q, P- = A P A^T + Q; outputs are stored as soon as computed (arrays restrict): no argument may overlap an output
+/* time update of the error state [d; db]: q- = A q = q * dq((w - b) dt), P- = F P F^T + Q with F = [[Phi, B], [0, I3]]; outputs are stored as soon as computed (arrays restrict): no argument may overlap an output
  * ops: add 159, mul 209, div 2, sqrt 2 (total 372) */
 static void adukf_k_predict_part0(const float q[4], const float gyro_bias[3], const float P[36], const float gyro[3], float dt, float x_pred[7], float P_pred[21], float carry[31])
 {

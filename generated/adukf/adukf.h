@@ -67,7 +67,7 @@ extern "C" {
 #define ADUKF_LEARN_SAMPLES 100           /* mag_ref = learn: rest samples (accelerometer and magnetometer usable) averaged for the dip angle [samples] */
 #define ADUKF_REST_GYRO_MAX 0.05f         /* mag_ref = learn: a sample is at rest when |gyro| is below this and ... [rad/s] */
 #define ADUKF_REST_ACCEL_TOL 0.5f         /* ... | |accel| - 9.80665 | is below this [m/s^2] */
-#define ADUKF_GYRO_BIAS_STATE 1           /* product default: the state is [q; gyro bias] (7 states, 15 sigma points; the bias is subtracted from the gyro in the time update, F = d x-/d x from the model) so a biased gyro does not tilt the estimate in motion; false (and faithful): the paper's 4-state filter */
+#define ADUKF_GYRO_BIAS_STATE 1           /* product default: the state is [q; gyro bias] (its covariance: attitude_state; the bias is subtracted from the gyro in the time update, F = d x-/d x from the model) so a biased gyro does not tilt the estimate in motion; false (and faithful): the paper's 4-state filter */
 /* ADUKF_ATTITUDE_STATE = error        with the gyro-bias state: error (issue 14: the covariance is that of a 3-parameter attitude error d in body axes, q = q_est * [1, d/2] normalised, and of the bias: 6 states, 13 sigma points, 6x6 P; the error is folded into q after each update) or quaternion (the covariance of the 4-component q and the bias: 7 states, 15 sigma points, 7x7 P, as before issue 14); faithful and gyro_bias_state = false ignore it (the 4-state quaternion filter) */
 #define ADUKF_BIAS_RW 1e-04f              /* gyro-bias state: random walk of the bias (process noise bias_rw^2 dt per axis) [rad/s/sqrt(s)] */
 #define ADUKF_P0_BIAS 1e-04f              /* gyro-bias state: initial bias variance (P0 and COV_RESET) [(rad/s)^2] */

@@ -10,6 +10,10 @@ State q (4, body->NED), P (4x4). The equations are those of reference.py's docst
             K = P_xz P_zz⁻¹ by a Cholesky solve, q⁺ = normalise(q⁻ + K ε),
             P⁺ = sym(P⁻ - K P_zz Kᵀ). Unusable sensors are masked out exactly.
 
+Product default (issue 14, attitude_state = "error", with the gyro-bias state): P is the
+covariance of the error state [d; δb], q = q̂ ⊗ [1, d/2]/|.|, b = b̂ + δb (6 states, 13 sigma
+points; predict_expr, sigma_pair_error_expr, correct_expr).
+
 The two smallest Cholesky pivots (of P⁻ and of P_zz) are outputs; the step partial uses
 them to reset P or skip the update with a status bit, so the state never becomes NaN.
 """
@@ -546,7 +550,9 @@ class Model(FilterModel):
             KernelSpec("predict", function("predict", {**q_in, "P": P, "gyro": w, "dt": dt},
                                            {xs + "_pred": qm_e, "q_pred_unit": qn_e,
                                             "P_pred": linalg.pack_lower(Pm_e)}),
-                       "linear Kalman time update: q- = A q, P- = A P A^T + Q", noinline=True, early_writes=True),
+                       ("time update of the error state [d; db]: q- = A q = q * dq((w - b) dt), "
+                        "P- = F P F^T + Q with F = [[Phi, B], [0, I3]]" if self.err else
+                        "linear Kalman time update: q- = A q, P- = A P A^T + Q"), noinline=True, early_writes=True),
             KernelSpec("sigma_setup", function("sigma_setup", {**({xs + "_pred": qm} if simplex else {}),
                                                                "q_pred_unit": qn, "P_pred": Pm_packed, "m_ref": m_ref},
                                                {"aL": aL_e, "z0": z0_e, "pivot_P": piv_p,
