@@ -38,6 +38,12 @@ def qrot(q, v):
     return rotmat(q) @ np.asarray(v, dtype=float)
 
 
+def skew(v):
+    """[v]x, with [v]x u = v x u."""
+    x, y, z = v
+    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
+
+
 def rotmat(q):
     """Rotation matrix R(q) with v_n = R v_b."""
     w, x, y, z = np.asarray(q, dtype=float)

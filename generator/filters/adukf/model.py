@@ -95,10 +95,6 @@ def has_error_state(p) -> bool:
     return has_bias_state(p) and p["attitude_state"] == "error"
 
 
-def cross(a, b):
-    return ca.vertcat(a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
-
-
 def skew(v):
     """[v]x with [v]x u = v x u."""
     return ca.vertcat(ca.horzcat(0, -v[2], v[1]), ca.horzcat(v[2], 0, -v[0]), ca.horzcat(-v[1], v[0], 0))
@@ -345,8 +341,8 @@ class Model(FilterModel):
         k2 = half + half            # exactly 1/x, kept a product (as in predict_expr)
         s, d = [], []
         for u in (z0[0:3], z0[3:6]):
-            a = cross(col, u)
-            s.append(k2 * cross(col, a))
+            a = ca.cross(col, u)
+            s.append(k2 * ca.cross(col, a))
             d.append((-2.0 * k2) * a)
         return ca.vertcat(*s), ca.vertcat(*d)
 

@@ -71,7 +71,7 @@ import numpy as np
 from generator.constants import G0
 from generator import input_checks
 from generator import status as st
-from generator.npquat import q_from_euler, qmul, rotmat
+from generator.npquat import q_from_euler, qmul, rotmat, skew
 
 # filter-specific status bits (same values in the model and the generated C)
 COV_RESET = st.FILTER_BASE << 0        # P⁻ not positive definite: P reset to P0, update skipped
@@ -196,10 +196,6 @@ def dq_gibbs(d):
     """δq(d) = [1, d/2] / |[1, d/2]|: the rotation of the attitude error d (twice its Gibbs vector)."""
     v = np.concatenate([[1.0], 0.5 * np.asarray(d, dtype=float)])
     return v / np.linalg.norm(v)
-
-
-def skew(v):
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
 
 
 def xi(q):

@@ -38,7 +38,7 @@ import numpy as np
 from generator.constants import G0
 from generator import input_checks
 from generator import status as st
-from generator.npquat import euler_from_q, q_from_euler, qexp, qmul, rotmat, wrap
+from generator.npquat import euler_from_q, q_from_euler, qexp, qmul, rotmat, skew, wrap
 
 # Filter-specific status bits (informational; the step ran).
 COURSE_SLOW = st.FILTER_BASE          # GPS sample present but ground speed < gps_min_speed: yaw row dropped
@@ -57,11 +57,6 @@ DT_Q_MIN = 1e-9     # s: floor of dt in the gyro-noise variance σ_g²/dt
 
 # The innovation covariance must have Cholesky pivots above this to be used.
 S_PIVOT_MIN = 1e-12
-
-
-def skew(v):
-    x, y, z = v
-    return np.array([[0.0, -z, y], [z, 0.0, -x], [-y, x, 0.0]])
 
 
 def right_jacobian(u):
