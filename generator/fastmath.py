@@ -1,10 +1,11 @@
 """Float math without libm: the `math = "fast"` build option.
 
 The emitter writes a call to one of these static helpers instead of sinf/cosf/atan2f/asinf/
-acosf/atanf when a float build asks for `math = "fast"`; the template puts the C of the
-helpers used into the generated file. They use only + - * /, sqrtf (one vsqrt.f32 on the
-Cortex-M4F with -fno-math-errno), comparisons and a float->int conversion, all correctly
-rounded IEEE-754, so a fast build gives bit-identical results on the host and the target
+acosf/atanf/expf/logf when a float build asks for `math = "fast"`; the template puts the C of
+the helpers used into the generated file (a filter's own template code asks for more through
+its model's `template_helpers`). They use only + - * /, sqrtf (one vsqrt.f32 on the
+Cortex-M4F with -fno-math-errno), comparisons, float<->int conversions and integer operations
+on a float's bit pattern, all exact or correctly rounded IEEE-754, so a fast build gives bit-identical results on the host and the target
 (the real-libm builds differ by newlib's and glibc's last bits).
 
 The methods are the classical ones (Cody and Waite's range reduction, the minimax
@@ -37,7 +38,7 @@ class Helper:
     code: str
     needs: tuple[str, ...] = ()
     max_abs_error: float = 0.0   # stated bound vs the exact value, over the whole domain
-    max_rel_error: float = 0.0   # for exp: bound on |got - exact| / exact instead
+    max_rel_error: float = 0.0   # for exp and log: bound on |got - exact| / |exact| instead
 
 
 _SINCOS_BODY = """
@@ -171,6 +172,44 @@ HELPERS["exp"] = Helper(
 """, max_rel_error=1.5e-7)
 
 
+# log: x = m 2^e with m in [sqrt(1/2), sqrt(2)) from the bit pattern (subnormals scaled up by
+# 2^25 first), log(m) = z - z^2/2 + z^3 P(z), z = m - 1, by Cephes' logf minimax polynomial;
+# e ln2 added in two parts (0.693359375 has trailing zero bits, so e times it is exact).
+HELPERS["log"] = Helper(
+    "fast_logf", "log(x), every float: -inf at +-0, NaN below 0 and for NaN, +inf at +inf, "
+    "subnormals included",
+    """static float fast_logf(float x)
+{
+    if (!(x > 0.0f)) {
+        return (x < 0.0f || isnan(x)) ? NAN : -INFINITY;
+    }
+    if (x > FLT_MAX) {
+        return x;
+    }
+    int32_t e = 0;
+    union { float f; uint32_t u; } v;
+    v.f = x;
+    if (x < FLT_MIN) {                                       /* subnormal: times 2^25 */
+        v.f = x * 33554432.0f;
+        e = -25;
+    }
+    e += (int32_t)(v.u >> 23) - 127;
+    v.u = (v.u & 0x007FFFFFu) | 0x3F800000u;                  /* m in [1, 2) */
+    if (v.f >= 1.41421356f) {                                 /* m in [sqrt(1/2), sqrt(2)) */
+        v.f *= 0.5f;
+        e += 1;
+    }
+    const float z = v.f - 1.0f;
+    const float z2 = z * z;
+    const float p = ((((((((7.0376836292e-2f * z - 1.1514610310e-1f) * z + 1.1676998740e-1f) * z
+                         - 1.2420140846e-1f) * z + 1.4249322787e-1f) * z - 1.6668057665e-1f) * z
+                      + 2.0000714765e-1f) * z - 2.4999993993e-1f) * z + 3.3333331174e-1f) * z * z2;
+    const float ef = (float)e;
+    return ((p - 2.12194440e-4f * ef) - 0.5f * z2 + z) + 0.693359375f * ef;
+}
+""", max_rel_error=1.0e-7)
+
+
 # exp for x <= 0 by a table of 64 powers of two (exp_nonpos_source): relative error at most
 # EXP_NONPOS_REL_ERROR + EXP_NONPOS_REL_ERROR_PER_UNIT * |x| above -87.3. The second term is
 # t = x * 64/ln2 in one float product (not split as in fast_expf): its rounding, 2^-24 |t|, and
@@ -236,7 +275,7 @@ static inline float {name}(float x)
 
 # CasADi operation -> helper (unary ops take {a}, atan2 takes {a}, {b}).
 OPS = {ca.OP_SIN: "sin", ca.OP_COS: "cos", ca.OP_ATAN2: "atan2", ca.OP_ASIN: "asin",
-       ca.OP_ACOS: "acos", ca.OP_ATAN: "atan", ca.OP_EXP: "exp"}
+       ca.OP_ACOS: "acos", ca.OP_ATAN: "atan", ca.OP_EXP: "exp", ca.OP_LOG: "log"}
 
 
 def closure(names) -> list[str]:

@@ -178,3 +178,8 @@ class FilterModel:
     def template_context(self) -> dict:
         """Extra values for the step partial (sizes, flags)."""
         return {}
+
+    def template_helpers(self) -> tuple[str, ...]:
+        """generator/fastmath.py helpers that the filter's own template code calls (a float build
+        with math = "fast" gets their C beside the kernels' helpers, written once)."""
+        return ()

@@ -211,7 +211,8 @@ def render(cfg: BuildConfig, names: bool = True) -> Generated:
                      + "".join(f"\n *      of which only one side runs: if ({b['condition']}) {sum(b['then'].values())}, "
                                f"else {sum(b['else'].values())}" for b in k.branches)})
     by_name = {ks.name: k for ks, k in zip(specs, kernels)}
-    fast_helpers = sorted({h for k in kernels for h in k.helpers})
+    fast_helpers = sorted({h for k in kernels for h in k.helpers}
+                          | (set(model.template_helpers()) if real == "float" and cfg.math == "fast" else set()))
 
     # Parameters as macros (numbers and booleans) or comments (strings).
     params = []

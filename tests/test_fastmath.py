@@ -96,6 +96,22 @@ def test_exp_within_stated_relative_error(lib):
     assert np.isnan(edge[0]) and list(edge[1:]) == [np.inf, 0.0, 0.0, np.inf, 1.0, 0.0]
 
 
+def test_log_within_stated_relative_error(lib):
+    """Every float of [0.5, 2] (each mantissa, both sides of the sqrt(2) switch and of 1, where
+    log x -> 0 and the error must shrink with it), 2*10^6 random bit patterns over all positive
+    floats with the subnormals, and the special values."""
+    a, b = np.float32([0.5, 2.0]).view(np.int32)
+    x = np.concatenate([np.arange(a, b + 1, dtype=np.int32).view(np.float32),
+                        RNG.integers(1, 0x7F800000, 2_000_000).astype(np.int32).view(np.float32),
+                        np.float32([1e-45, 1.1754942e-38, 1.1754944e-38, 3.4028235e38])])
+    got, exact = _call(lib, "log", x).astype(float), np.log(x.astype(float))
+    ok = exact != 0.0
+    assert np.all(got[~ok] == 0.0)                                       # log 1 = 0 exactly
+    assert float(np.max(np.abs(got[ok] - exact[ok]) / np.abs(exact[ok]))) <= fastmath.HELPERS["log"].max_rel_error
+    edge = _call(lib, "log", np.float32([0.0, -0.0, np.inf, -1.0, -np.inf, np.nan, -1e-45]))
+    assert list(edge[:3]) == [-np.inf, -np.inf, np.inf] and np.all(np.isnan(edge[3:]))
+
+
 def test_atan2_special_values_as_c99(lib):
     sp = np.float32([0.0, -0.0, np.inf, -np.inf, 1.0, -1.0, 1e-45, -3e38, np.nan])
     Y, X = (a.ravel() for a in np.meshgrid(sp, sp))

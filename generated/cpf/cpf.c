@@ -91,6 +91,37 @@ static float fast_atan2f(float y, float x)
     return signbit(y) ? -a : a;
 }
 
+/* log(x), every float: -inf at +-0, NaN below 0 and for NaN, +inf at +inf, subnormals included; max relative error 1.0e-07 (tests/test_fastmath.py) */
+static float fast_logf(float x)
+{
+    if (!(x > 0.0f)) {
+        return (x < 0.0f || isnan(x)) ? NAN : -INFINITY;
+    }
+    if (x > FLT_MAX) {
+        return x;
+    }
+    int32_t e = 0;
+    union { float f; uint32_t u; } v;
+    v.f = x;
+    if (x < FLT_MIN) {                                       /* subnormal: times 2^25 */
+        v.f = x * 33554432.0f;
+        e = -25;
+    }
+    e += (int32_t)(v.u >> 23) - 127;
+    v.u = (v.u & 0x007FFFFFu) | 0x3F800000u;                  /* m in [1, 2) */
+    if (v.f >= 1.41421356f) {                                 /* m in [sqrt(1/2), sqrt(2)) */
+        v.f *= 0.5f;
+        e += 1;
+    }
+    const float z = v.f - 1.0f;
+    const float z2 = z * z;
+    const float p = ((((((((7.0376836292e-2f * z - 1.1514610310e-1f) * z + 1.1676998740e-1f) * z
+                         - 1.2420140846e-1f) * z + 1.4249322787e-1f) * z - 1.6668057665e-1f) * z
+                      + 2.0000714765e-1f) * z - 2.4999993993e-1f) * z + 3.3333331174e-1f) * z * z2;
+    const float ef = (float)e;
+    return ((p - 2.12194440e-4f * ef) - 0.5f * z2 + z) + 0.693359375f * ef;
+}
+
 /* accelerometer roll and pitch (eqs. 1-2 in FRD/NED)
  * ops: add 3, mul 2, sqrt 1, trig 2 (total 8) */
 static inline void cpf_k_tilt(const float accel[3], float *roll, float *pitch)
@@ -735,8 +766,8 @@ static CPF_NOT_INLINED float cpf_rng_gauss_slow(uint32_t r[2], uint32_t u)
             float xt;
             float y;
             do {
-                xt = -logf(cpf_rng_uniform(r)) / 3.4426198f;
-                y = -logf(cpf_rng_uniform(r));
+                xt = -fast_logf(cpf_rng_uniform(r)) / 3.4426198f;
+                y = -fast_logf(cpf_rng_uniform(r));
             } while (!(y + y >= xt * xt));
             const float tail = 3.4426198f + xt;
             return ((u & 128u) != 0u) ? -tail : tail;

@@ -193,6 +193,9 @@ class Model(FilterModel):
                 "zig_kw": [(256 * k, w / 256.0) for k, w in zip(ZIG_K, ZIG_W)], "zig_f": ZIG_F, "zig_r": ZIG_R,
                 "exp_nonpos_source": fastmath.exp_nonpos_source, "math_ln2": math.log(2.0)}
 
+    def template_helpers(self):
+        return () if self.mode == "complementary" else ("log",)   # the ziggurat's tail (helpers.c.j2)
+
     def step_paths(self):
         n = self.n
         cf = ["predict", "euler", "tilt", "heading", "cf_mix"]
