@@ -362,6 +362,31 @@ def test_cli_target_writes_table_and_json(tmp_path, capsys):
     assert cli.main(["target", "nosuch"]) == 2
 
 
+def test_cli_target_cflags_reach_every_build_and_a_bad_one_is_one_line(tmp_path, capsys):
+    """--cflags: a user's own flags go to the target builds (in the JSON and the build column),
+    and they matter: -ffast-math lets GCC reassociate, so target and host part (the check still
+    runs and says so). An optimisation level or a flag GCC refuses: one line, exit 2."""
+    if "qcf" not in _generated_filters():
+        pytest.skip("qcf not available")
+    import json
+
+    from generator import cli
+    out = tmp_path / "t.json"
+    rc = cli.main(["target", "qcf", "--opt=-O2", "--scenario-opt", "duration=16", "--count-steps", "10",
+                   "--no-pinned", "--cflags=-ffast-math", "--json", str(out)])
+    text = capsys.readouterr().out
+    assert rc in (0, 1), text
+    assert "| qcf | -O2 -ffast-math |" in text
+    (r,) = json.loads(out.read_text())["results"]
+    assert r["cflags"] == ["-ffast-math"] and r["footprint"]["flags"][-1] == "-ffast-math"
+    assert r["host_comparison"]["identical_steps"] < r["steps"]         # without it: every step
+    assert cli.main(["target", "qcf", "--opt=-O2", "--no-pinned", "--cflags=-O3"]) == 2
+    assert cli.main(["target", "qcf", "--opt=-O2", "--no-pinned", "--scenario-opt", "duration=8",
+                     "--cflags=-fno-such-flag"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 2 and "--opt" in err[0] and "unrecognized command-line option" in err[1], err
+
+
 def test_cli_profile_accounts_for_every_instruction_of_the_step(tmp_path, capsys):
     """--profile: the per-function figures of the -g build add up to QEMU's count of the plain
     build over the same steps (two counters, two builds: -g must not change GCC's code), and

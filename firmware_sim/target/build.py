@@ -211,6 +211,7 @@ class Build:
     filter_objects: list[Path]  # the filter's own objects
     stack_usage_files: list[Path]
     cflags: list[str]
+    extra_cflags: tuple[str, ...] = ()   # the user's own flags (in cflags too, last)
 
 
 def cflags_for(cpu: str, opt: str) -> list[str]:
@@ -223,7 +224,7 @@ def cflags_for(cpu: str, opt: str) -> list[str]:
 
 def build(b: FilterBinding, workdir: Path, opt: str = "-O2", cpu: str = "cortex-m4f",
           extra_main: str | None = None, pinned_libm: bool = False, reuse: Build | None = None,
-          debug_info: bool = False) -> Build:
+          debug_info: bool = False, extra_cflags: tuple[str, ...] = ()) -> Build:
     """Compile the filter and the harness for the target and link the test image.
 
     The filter's sources compile with the same strict warnings as on the host (-Werror).
@@ -231,11 +232,12 @@ def build(b: FilterBinding, workdir: Path, opt: str = "-O2", cpu: str = "cortex-
     ``pinned_libm`` force-includes target/libm_pinned.h into the filter (identity check only).
     ``reuse``: link the filter objects of an earlier build instead of compiling them again.
     ``debug_info``: also -g (line information for the profile; GCC's code is the same).
+    ``extra_cflags``: a user's own compiler flags, after ours (``ahrsgen target --cflags``).
     """
     workdir = Path(workdir)
     workdir.mkdir(parents=True, exist_ok=True)
     write_glue(b, workdir)
-    flags = cflags_for(cpu, opt) + (["-g"] if debug_info else [])
+    flags = cflags_for(cpu, opt) + (["-g"] if debug_info else []) + list(extra_cflags)
     incs = [f"-I{workdir}", f"-I{TARGET_DIR}", *[f"-I{d}" for d in b.include_dirs]]
     objs, filt_objs, sus = [], [], []
     for src in ([] if reuse is not None else b.sources):
@@ -261,7 +263,7 @@ def build(b: FilterBinding, workdir: Path, opt: str = "-O2", cpu: str = "cortex-
     elf = workdir / "image.elf"
     _run(["arm-none-eabi-gcc", *CPUS[cpu], opt, *LINK_FLAGS, "-T", str(TARGET_DIR / "mps2_an386.ld"),
           *map(str, objs), "-lm", "-Wl,-Map=" + str(workdir / "image.map"), "-o", str(elf)], cwd=workdir)
-    return Build(b.name, opt, cpu, workdir, elf, filt_objs, sus, flags)
+    return Build(b.name, opt, cpu, workdir, elf, filt_objs, sus, flags, tuple(extra_cflags))
 
 
 

@@ -30,25 +30,27 @@ class TargetResult:
 
 def check_filter(b: FilterBinding, records: np.ndarray, workdir: Path | None = None,
                  opt: str = "-O2", cpu: str = "cortex-m4f",
-                 count_steps: int | None = 50, o0_stack: bool = True) -> TargetResult:
+                 count_steps: int | None = 50, o0_stack: bool = True,
+                 cflags: tuple[str, ...] = ()) -> TargetResult:
     """Build for the target, run in QEMU, count in unicorn, measure the footprint.
 
     ``count_steps`` limits the unicorn run (exact counts and stack painting on the first
     steps; None = all).  The QEMU run always covers every record and gives the per-step
     counts of the whole run once it agrees with unicorn on the common steps.
     ``o0_stack`` also builds the filter at -O0 for its debug-build stack bound.
+    ``cflags``: the user's own compiler flags, added to every build (``--cflags``).
     """
     require_tools()
     workdir = Path(workdir or tempfile.mkdtemp(prefix=f"ahrsgen-target-{b.name}-"))
     tag = opt.lstrip("-")
-    bld = build(b, workdir / f"{b.name}-{tag}", opt, cpu)
+    bld = build(b, workdir / f"{b.name}-{tag}", opt, cpu, extra_cflags=cflags)
     run = run_qemu(bld.elf, records, bld.workdir)
     if b.state_size is None:
         b.state_size = run.state_bytes
     sub = records if count_steps is None else records[:count_steps]
     emu = Emulator(bld.elf)
     counts = emu.count_steps(b.step_fn, sub, run.state_bytes)
-    o0 = debug_stack(b, workdir / f"{b.name}-O0", cpu) if o0_stack else None
+    o0 = debug_stack(b, workdir / f"{b.name}-O0", cpu, cflags) if o0_stack else None
     fp = footprint(b, bld, counts, run, o0)
     return TargetResult(bld, run, counts, fp)
 
@@ -257,7 +259,7 @@ def check_generated(filter_name: str, opts=OPT_LEVELS, cpu: str = "cortex-m4f", 
                     prefix=None, workdir: Path | None = None, count_steps: int | None = 50,
                     log=None, pinned: bool = True, tolerance_deg: float = DEFAULT_TOLERANCE_DEG,
                     precision: str = "float", math: str | None = None, fma: bool | None = None,
-                    profile: bool = False) -> list[dict]:
+                    profile: bool = False, cflags: tuple[str, ...] = ()) -> list[dict]:
     """Generate (float), cross-build at each optimisation level, run on the target, compare
     with the host float build, measure the footprint.  One dict per build; with ``profile``,
     where the counted steps' instructions go (firmware_sim/target/profile.py) as "profile"."""
@@ -274,25 +276,35 @@ def check_generated(filter_name: str, opts=OPT_LEVELS, cpu: str = "cortex-m4f", 
     rec = records_from_log(log)
     results = []
     for i, opt in enumerate(opts):
-        r = check_filter(b, rec, workdir, opt=opt, cpu=cpu, count_steps=count_steps)
+        try:
+            r = check_filter(b, rec, workdir, opt=opt, cpu=cpu, count_steps=count_steps, cflags=cflags)
+        except RuntimeError as e:
+            if not cflags:
+                raise
+            from generator.model import ConfigError
+            out = str(e).splitlines()[1:]                  # the compiler's own lines, after the command
+            why = next((ln.strip() for ln in out if "error:" in ln), out[0] if out else str(e))
+            raise ConfigError(f"--cflags {' '.join(cflags)}: the target build failed: {why}") from None
         r.footprint.variant = " ".join(v for v in (f"math={man.get('math')}" if man.get("math") == "libm"
                                                    and precision == "float" else "",
-                                                   "fma" if man.get("fma") else "") if v)
+                                                   "fma" if man.get("fma") else "", *cflags) if v)
         cmp_ = asdict(compare_with_host(gen_dir, b, log, r.run))
         pin = None
         if pinned and i == 0 and precision == "float":
-            pb = build(b, workdir / f"{b.name}-{opt.lstrip('-')}-pinned", opt, cpu, pinned_libm=True)
+            pb = build(b, workdir / f"{b.name}-{opt.lstrip('-')}-pinned", opt, cpu, pinned_libm=True,
+                       extra_cflags=cflags)
             prun = run_qemu(pb.elf, rec, pb.workdir, icount_shift=None)
             pin = asdict(compare_with_host(gen_dir, b, log, prun, pinned_libm=True))
         ok, verdict = judge(filter_name, cmp_, pin, tolerance_deg)
         prof = None
         if profile:
             from .profile import profile_steps
-            gb = build(b, workdir / f"{b.name}-{opt.lstrip('-')}-g", opt, cpu, debug_info=True)
+            gb = build(b, workdir / f"{b.name}-{opt.lstrip('-')}-g", opt, cpu, debug_info=True,
+                       extra_cflags=cflags)
             prof = profile_steps(gb.elf, b.step_fn, man["prefix"], rec[:len(r.counts.instructions)],
                                  r.run.state_bytes, {k: v["total"] for k, v in man["kernels"].items()})
         results.append({"filter": filter_name, "precision": precision, "opt": opt, "cpu": cpu,
-                        "math": man.get("math"), "fma": man.get("fma", False),
+                        "math": man.get("math"), "fma": man.get("fma", False), "cflags": list(cflags),
                         "scenario": log.name, "seed": seed,
                         "steps": len(rec), "counted_steps": int(len(r.counts.instructions)),
                         "footprint": asdict(r.footprint), "host_comparison": cmp_,

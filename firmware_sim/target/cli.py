@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import shlex
 import tempfile
 from dataclasses import asdict
 from pathlib import Path
@@ -30,6 +31,9 @@ def cmd_target(args) -> int:
     for n in names:
         filters.load(n)   # unknown filter -> ConfigError
     opts = args.opt or list(OPT_LEVELS)
+    cflags = tuple(shlex.split(args.cflags or ""))
+    if any(f.startswith("-O") for f in cflags):
+        raise ConfigError("--cflags: give the optimisation level with --opt (-O2, -Os), not in --cflags")
     from firmware_sim import scenarios
     try:
         sopts = scenarios.parse_options(args.scenario, args.scenario_opt)
@@ -45,7 +49,7 @@ def cmd_target(args) -> int:
                                            None if args.count_steps == 0 else args.count_steps,
                                            pinned=not args.no_pinned, tolerance_deg=args.tolerance,
                                            precision=args.precision, math=args.math, fma=args.fma,
-                                           profile=args.profile)
+                                           profile=args.profile, cflags=cflags)
             except KeyError as e:
                 raise ConfigError(str(e.args[0])) from None
     if not args.workdir:
@@ -59,7 +63,9 @@ def cmd_target(args) -> int:
             for pn in PEER_NAMES + CHECKED_PEER_NAMES:
                 for opt in opts:
                     r = check_filter(peer_binding(pn), records_from_log(log), Path(tmp), opt=opt, cpu=args.cpu,
-                                     count_steps=None if args.count_steps == 0 else args.count_steps)
+                                     count_steps=None if args.count_steps == 0 else args.count_steps,
+                                     cflags=cflags)
+                    r.footprint.variant = " ".join(cflags)
                     peer_rows.append(r.footprint)
     print(f"target {args.cpu}: {' '.join(CPUS[args.cpu])} {' '.join(MATH_FLAGS)}; QEMU {QEMU_MACHINE}; "
           f"instructions (not cycles) per step under QEMU -icount, checked step by step against unicorn")
@@ -139,6 +145,10 @@ def register_cli(sub) -> None:
     p.add_argument("--fma", action="store_true", default=None, help="emitter-written fused multiply-adds")
     p.add_argument("--opt", action="append", choices=list(OPT_LEVELS),
                    help="optimisation level, written --opt -O2 or --opt=-O2 (repeatable; default both -O2 and -Os)")
+    p.add_argument("--cflags", metavar="'FLAGS'",
+                   help="your project's own compiler flags, added after ours to every target build, e.g. "
+                        "--cflags='-fno-gcse-lm' (the report's build column shows them; target vs host still "
+                        "checked, so a flag that changes the arithmetic, such as -ffast-math, shows there)")
     p.add_argument("--scenario", help="scenario (default: the filter's source experiment, e.g. fixedwing_gps for qcf)")
     p.add_argument("--seed", type=int, default=0, help="scenario seed (default 0)")
     p.add_argument("--scenario-opt", metavar="NAME=VALUE", action="append", default=[],

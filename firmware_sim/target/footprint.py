@@ -223,7 +223,7 @@ class Footprint:
     precision: str = "float"
     stack_o0_bytes: int = -1     # static worst case of step in a -O0 (debug) build of the same sources
     stack_o0_path: list[str] = field(default_factory=list)
-    variant: str = ""            # generator build options beside the defaults ("fma", "math=libm")
+    variant: str = ""            # build options beside the defaults ("fma", "math=libm", the user's --cflags)
 
 
 def step_instructions(counts: StepCounts | None, run: TargetRun | None) -> dict:
@@ -257,11 +257,11 @@ def step_instructions(counts: StepCounts | None, run: TargetRun | None) -> dict:
     return out
 
 
-def debug_stack(b: FilterBinding, workdir: Path, cpu: str = "cortex-m4f") -> dict:
+def debug_stack(b: FilterBinding, workdir: Path, cpu: str = "cortex-m4f", extra_cflags: tuple[str, ...] = ()) -> dict:
     """Static worst-case stack of step when the filter is built at -O0 (what a debug build of
     the flight code needs; every temporary gets its own slot there).  Same call-graph bound
     as the optimised builds: GCC's -fstack-usage frames over the linked image's calls."""
-    bld = build(b, Path(workdir), DEBUG_OPT, cpu)
+    bld = build(b, Path(workdir), DEBUG_OPT, cpu, extra_cflags=extra_cflags)
     return worst_stack(b.step_fn, disassemble_functions(bld.elf), parse_stack_usage(bld.stack_usage_files))
 
 
@@ -272,10 +272,12 @@ def footprint(b: FilterBinding, build_: Build, counts: StepCounts | None = None,
     wd.mkdir(exist_ok=True)
     main_c = wd / "fp_main.c"
     main_c.write_text(FOOTPRINT_MAIN)
-    with_f = build(b, wd / "with", build_.opt, build_.cpu, extra_main=str(main_c), reuse=build_)
+    with_f = build(b, wd / "with", build_.opt, build_.cpu, extra_main=str(main_c), reuse=build_,
+                   extra_cflags=build_.extra_cflags)
     base_main = wd / "fp_base.c"
     base_main.write_text("#define FP_BASELINE 1\n" + FOOTPRINT_MAIN)
-    base = build(b, wd / "base", build_.opt, build_.cpu, extra_main=str(base_main), reuse=build_)
+    base = build(b, wd / "base", build_.opt, build_.cpu, extra_main=str(base_main), reuse=build_,
+                 extra_cflags=build_.extra_cflags)
     f1, r1 = image_flash_ram(with_f.elf)
     f0, r0 = image_flash_ram(base.elf)
     s1, s0 = section_sizes(with_f.elf), section_sizes(base.elf)
