@@ -316,6 +316,24 @@ def total_error_series(q_est, log, heading, max_points=2000):
 # =========================================================================================
 # ahrsgen run
 
+def refusal_hint(status: np.ndarray, log, params: dict) -> str:
+    """One line on why most of a log's steps were refused, when they were: the usual causes are a
+    time column not in seconds or a gyro not in rad/s."""
+    from generator import status as st
+    n = len(status)
+    if n == 0 or np.count_nonzero(status & st.REFUSED_MASK) * 2 < n:
+        return ""
+    dt = np.diff(log.t)
+    med = float(np.median(dt)) if len(dt) else float("nan")
+    if np.count_nonzero(status & st.DT_TOO_LARGE) * 2 >= n:
+        return (f"most steps were refused for dt above dt_max = {params.get('dt_max', float('nan')):g} s; "
+                f"the log's median dt is {med:.3g} s: is its time column t in seconds?")
+    if np.count_nonzero(status & st.GYRO_RANGE) * 2 >= n:
+        return (f"most steps were refused for a gyro component beyond gyro_max = "
+                f"{params.get('gyro_max', float('nan')):g} rad/s: is the gyro in rad/s (not deg/s)?")
+    return ""
+
+
 def run_on_log(filter_name: str, log_path: str, config_file=None, sets=(), precision="float",
                plot=None, csv=None, exe=False, out=None, runtime=None, preset=None, log=None) -> dict:
     """Run one generated filter over a log file; score it where the log has a reference.
@@ -346,6 +364,9 @@ def run_on_log(filter_name: str, log_path: str, config_file=None, sets=(), preci
         print(f"  {summary}", file=out)
     refused = int(np.count_nonzero(res.status & 0x20F))
     print(f"  steps with a non-zero status: {int(np.count_nonzero(res.status))}, refused: {refused}", file=out)
+    hint = refusal_hint(res.status, log, cfg.params)
+    if hint:
+        print(f"  hint: {hint}", file=out)
     result = {"filter": filter_name, "log": str(log_path), "steps": len(log), "heading": heading,
               "precision": cfg.precision, "overrides": cfg.overrides, "site_sets": extra}
     if log.q_true is not None and score_mask(log).any():

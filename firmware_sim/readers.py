@@ -179,8 +179,8 @@ def read_csv(path: str | os.PathLike, name: str | None = None) -> SensorLog:
         raise LogError(f"{path}: line {int(np.flatnonzero(~np.isfinite(t))[0]) + 2}: time t is empty or not finite")
     back = np.flatnonzero(np.diff(t) <= 0)
     if len(back):
-        raise LogError(f"{path}: line {int(back[0]) + 3}: time t = {t[back[0] + 1]!r} does not increase "
-                       f"(previous {t[back[0]]!r})")
+        raise LogError(f"{path}: line {int(back[0]) + 3}: time t = {float(t[back[0] + 1])!r} does not increase "
+                       f"(previous {float(t[back[0]])!r})")
     n = len(t)
     dt = np.empty(n)
     dt[1:] = np.diff(t)

@@ -57,6 +57,10 @@ CASES = [
      "missing column(s) ax, ay, az"),
     ("log-text-in-number", lambda t: (["run", "qcf", "--log", _file(t, "x.csv", HEADER + ROW + "0.02,0,abc,0,0,0,-9.81\n")],
                                       []), "line 3, column 3: 'abc' is not a number"),
+    ("log-time-backwards", lambda t: (["run", "qcf", "--log", _file(t, "b.csv", HEADER + ROW + "0.005,0,0,0,0,0,-9.81\n")],
+                                      []), "line 3: time t = 0.005 does not increase (previous 0.01)"),
+    ("target-cflags-opt", lambda t: (["target", "qcf", "--cflags=-O3 -g"], []), "--opt"),
+    ("target-cflags-quote", lambda t: (["target", "qcf", "--cflags=-DX='a"], []), "No closing quotation"),
     ("log-truncated-gz", lambda t: (["run", "qcf", "--log", _truncated_gz(t)], []), "truncated gzip"),
     ("log-not-gzip", lambda t: (["run", "qcf", "--log", _file(t, "n.csv.gz", HEADER + ROW)], []), "not a gzip file"),
     ("log-not-ulog", lambda t: (["run", "qcf", "--log", _file(t, "n.ulg", "hello, not a ULog\n" * 10)], []),
@@ -184,3 +188,16 @@ def test_truncated_ulog_warns(tmp_path):
     assert len(log) < len(readers.read_log(ULOG))
     shutil.copy(ULOG, tmp_path / "whole.ulg")
     assert readers.read_log(tmp_path / "whole.ulg").meta["warnings"] == []
+
+
+def test_run_says_why_most_steps_were_refused(tmp_path, capsys):
+    """A log whose time column is in nanoseconds runs (every step refused: dt too large) and
+    `run` says what probably went wrong in one hint line; a good log gets no hint."""
+    rows = "".join(f"{k * 4_000_000},0.01,0,0,0,0,-9.81\n" for k in range(1, 60))
+    rc, out, _ = _run(["run", "qcf", "--log", _file(tmp_path, "ns.csv", HEADER + rows)], capsys)
+    assert rc == 0, out
+    assert "refused: 59" in out and "hint: most steps were refused for dt above dt_max" in out
+    assert "median dt is 4e+06 s: is its time column t in seconds?" in out
+    rows = "".join(f"{k * 0.004},0.01,0,0,0,0,-9.81\n" for k in range(1, 60))
+    rc, out, _ = _run(["run", "qcf", "--log", _file(tmp_path, "s.csv", HEADER + rows)], capsys)
+    assert rc == 0 and "hint:" not in out, out

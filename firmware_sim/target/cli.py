@@ -21,6 +21,12 @@ def cmd_target(args) -> int:
     check_output_dir(Path(args.json).parent, "--json")      # refuse a bad path before the builds
     if Path(args.json).is_dir():
         raise ConfigError(f"--json: {args.json} is a folder")
+    try:
+        cflags = tuple(shlex.split(args.cflags or ""))
+    except ValueError as e:                                # an unbalanced quote
+        raise ConfigError(f"--cflags: {e}") from None
+    if any(f.startswith("-O") for f in cflags):
+        raise ConfigError("--cflags: give the optimisation level with --opt (-O2, -Os), not in --cflags")
     missing = missing_tools()
     if missing:
         raise ConfigError("target checks need " + ", ".join(missing) + " (apt-get install "
@@ -31,9 +37,6 @@ def cmd_target(args) -> int:
     for n in names:
         filters.load(n)   # unknown filter -> ConfigError
     opts = args.opt or list(OPT_LEVELS)
-    cflags = tuple(shlex.split(args.cflags or ""))
-    if any(f.startswith("-O") for f in cflags):
-        raise ConfigError("--cflags: give the optimisation level with --opt (-O2, -Os), not in --cflags")
     from firmware_sim import scenarios
     try:
         sopts = scenarios.parse_options(args.scenario, args.scenario_opt)
