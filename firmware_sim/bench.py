@@ -1019,6 +1019,11 @@ def parse_variants(items) -> list:
 
 
 def _cmd_bench(args) -> int:
+    if args.data is not None and not Path(args.data).is_dir():
+        from generator.model import ConfigError
+        what = "is not a folder" if Path(args.data).exists() else "does not exist"
+        raise ConfigError(f"--data {args.data} {what} (it should hold broad/ and px4/; without --data: "
+                          f"${readers.DATA_ENV}, else <repo>/../shared/data)")
     cmd = "ahrsgen bench " + " ".join(sys.argv[2:]) if len(sys.argv) > 1 and sys.argv[1] == "bench" else "ahrsgen bench"
     rep = bench(quick=args.quick, seeds=args.seeds, filters=args.filters or None,
                 peer_names=tuple(args.peers) if args.peers is not None else PEER_NAMES,
