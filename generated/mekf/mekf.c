@@ -65,16 +65,16 @@ static inline void fast_sincosf(float x, float *s, float *c)
 /* atan2(y, x), every float pair; quadrants, signed zeros and infinities as C99; max abs error 3.5e-07 (tests/test_fastmath.py) */
 static float fast_atan2f(float y, float x)
 {
-    const float ax = fabsf(x);
-    const float ay = fabsf(y);
     if (isnan(x) || isnan(y)) {
         return x + y;
     }
+    const float ax = fabsf(x);
+    const float ay = fabsf(y);
     const bool steep = ay > ax;
     const float num = steep ? ax : ay;
     const float den = steep ? ay : ax;
-    /* t = num / den in [0, 1]; 0/0 -> 0 and inf/inf -> 1 as atan2 wants */
-    float t = (den > FLT_MAX) ? ((num > FLT_MAX) ? 1.0f : 0.0f) : ((den > 0.0f) ? num / den : 0.0f);
+    /* t = num / den in [0, 1]; num == den (inf/inf too) -> 1 and 0/0 -> 0 as atan2 wants */
+    float t = (num < den) ? num / den : ((den > 0.0f) ? 1.0f : 0.0f);
     float a = 0.0f;
     if (t > 0.414213562f) {                                   /* tan(pi/8) */
         a = 0.785398163f;
