@@ -716,6 +716,10 @@ def bench(quick=False, seeds=None, filters=None, peer_names=PEER_NAMES, data_dir
 
     ddir = readers.shared_data_dir(data_dir)
     notes = []
+    env_dir = os.environ.get(readers.DATA_ENV)
+    if data_dir is None and env_dir and not Path(env_dir).is_dir():
+        notes.append(f"${readers.DATA_ENV} = {env_dir} is not a folder: ignored"
+                     + (f" (used {ddir})." if ddir else "."))
     tasks = []
     if not real_only:
         for label, scen, opts in scenario_configs(quick):

@@ -198,7 +198,8 @@ def test_run_on_broad_excerpt_cli(tmp_path, capsys):
     assert r.returncode == 0 and "1298 steps" in r.stderr
 
 
-def test_mini_bench_writes_tables(tmp_path):
+def test_mini_bench_writes_tables(tmp_path, monkeypatch):
+    monkeypatch.setenv("AHRSGEN_DATA", str(tmp_path / "no-such-folder"))     # a typo: said, not silent
     rep = bench.bench(quick=True, seeds=2, filters=["qcf"], peer_names=("vqf",), out_dir=tmp_path,
                       jobs=1, scenarios_only=True, scenario_labels=["turntable"], command="test")
     assert set(rep["scenarios"]["turntable"]) == {"qcf", "vqf"}
@@ -215,6 +216,7 @@ def test_mini_bench_writes_tables(tmp_path):
     assert c["qcf"]["ops_total"] > c["qcf"]["paths"].get("gyro only", 0) > 0
     md = (tmp_path / "bench.md").read_text()
     assert "| qcf |" in md and "turntable" in md and "qcf_hand" in md
+    assert f"$AHRSGEN_DATA = {tmp_path / 'no-such-folder'} is not a folder: ignored" in md
     assert json.loads((tmp_path / "bench.json").read_text())["command"] == "test"
     assert (tmp_path / "img" / "err_turntable.png").exists()
 
