@@ -5,8 +5,9 @@ acosf/atanf/expf/logf when a float build asks for `math = "fast"`; the template 
 the helpers used into the generated file (a filter's own template code asks for more through
 its model's `template_helpers`). They use only + - * /, sqrtf (one vsqrt.f32 on the
 Cortex-M4F with -fno-math-errno), comparisons, float<->int conversions and integer operations
-on a float's bit pattern, all exact or correctly rounded IEEE-754, so a fast build gives bit-identical results on the host and the target
-(the real-libm builds differ by newlib's and glibc's last bits).
+on a float's bit pattern, all exact or correctly rounded IEEE-754, so a fast build gives
+bit-identical results on the host and the target (the real-libm builds differ by newlib's and
+glibc's last bits).
 
 The methods are the classical ones (Cody and Waite's range reduction, the minimax
 polynomials of Cephes' single-precision sinf/cosf/atanf). The maximum errors below are
