@@ -184,9 +184,8 @@ def test_gyro_only_start_then_first_accel_with_gps():
     # accelerometer sample then sets the tilt from its raw direction even when a GPS velocity
     # is already in (the centripetal term would tilt it: 15 m/s at 0.3 rad/s is 4.5 m/s^2).
     from firmware_sim import host
-    from firmware_sim.log import VALID_ACCEL, VALID_GPS, VALID_GYRO, VALID_MAG
+    from firmware_sim.log import VALID_GPS, VALID_GYRO, VALID_MAG
     from generator import config
-    from generator import npquat as nq
     # climbing at 2 m/s^2: ||f| - g| is above the threshold, so the centripetal term is applied
     # (and clear of bias_accel_gate = 1, where a tie would make C and reference differ by rounding)
     log = _static_log(roll_deg=25.0, seconds=0.5, accel_ned_extra=lambda t: np.tile([0.0, 0.0, -2.0], (len(t), 1)))
