@@ -45,7 +45,6 @@ from generator.npquat import euler_from_q, qmul
 HERE = Path(__file__).resolve().parent
 C_DIR = HERE / "c"
 REPO = HERE.parent
-TEST_DATA = REPO / "tests" / "data"
 
 PEER_NAMES = ("vqf", "fusion", "madgwick", "mahony")
 ANGLES = ("roll", "pitch", "yaw")
@@ -699,6 +698,13 @@ def bench(quick=False, seeds=None, filters=None, peer_names=PEER_NAMES, data_dir
     out_dir = Path(out_dir)
     (out_dir / "img").mkdir(parents=True, exist_ok=True)
     filter_names = list(filters) if filters else product_filters()
+    notes = []
+    missing = [p for p in peer_names if not peers.PEERS[p].available()]
+    if missing:   # the peers are optional (the `dev` extra): say which were left out
+        notes.append("peers left out, their packages are not installed: "
+                     + ", ".join(f"{p} ({peers.PEERS[p].package})" for p in missing)
+                     + ": pip install 'ahrsgen[dev]'.")
+        peer_names = tuple(p for p in peer_names if p not in missing)
     ests, build_errors = _estimators(filter_names, peer_names, with_baseline=False)
     for label, fname, vsets in variants:
         ests.append(filter_estimator(fname, list(vsets), label=label))
@@ -715,7 +721,6 @@ def bench(quick=False, seeds=None, filters=None, peer_names=PEER_NAMES, data_dir
     n_seeds = seeds if seeds is not None else (1 if quick else 3)
 
     ddir = readers.shared_data_dir(data_dir)
-    notes = []
     env_dir = os.environ.get(readers.DATA_ENV)
     if data_dir is None and env_dir and not Path(env_dir).is_dir():
         notes.append(f"${readers.DATA_ENV} = {env_dir} is not a folder: ignored"
@@ -733,10 +738,10 @@ def bench(quick=False, seeds=None, filters=None, peer_names=PEER_NAMES, data_dir
         if quick or not trials:
             if not trials:
                 notes.append("BROAD subset not found (looked in --data, $AHRSGEN_DATA, <repo>/../shared/data): "
-                             "used the committed excerpt tests/data/broad_01_excerpt.csv.gz only.")
+                             "used the committed excerpt firmware_sim/data/broad_01_excerpt.csv.gz only.")
             else:
-                notes.append("--quick: BROAD scored on the committed excerpt only (tests/data/broad_01_excerpt.csv.gz).")
-            trials = [TEST_DATA / "broad_01_excerpt.csv.gz"]
+                notes.append("--quick: BROAD scored on the committed excerpt only (firmware_sim/data/broad_01_excerpt.csv.gz).")
+            trials = [readers.EXCERPTS / "broad_01_excerpt.csv.gz"]
         # BROAD: product filters with a magnetometer heading, plus MEKF with its mag option
         broad_specs = [s for s in specs if s["heading"] == "mag" or s["kind"] == "peer"]
         if "mekf" in filter_names:
@@ -747,12 +752,15 @@ def bench(quick=False, seeds=None, filters=None, peer_names=PEER_NAMES, data_dir
         for i, p in enumerate(trials):
             tasks.append(("broad", "BROAD", str(p), {}, 0, broad_specs, i == 0))
         ulogs = []
-        if ddir and (ddir / "px4").is_dir():
-            ulogs = sorted((ddir / "px4").glob("*.ulg"))
-        if quick or not ulogs:
-            if not ulogs:
-                notes.append("PX4 logs not found: used the committed excerpts tests/data/*.ulg.")
-            ulogs = sorted(TEST_DATA.glob("*.ulg"))
+        if not _have("pyulog"):
+            notes.append("PX4 logs left out: reading ULog needs pyulog: pip install 'ahrsgen[dev]'.")
+        else:
+            if ddir and (ddir / "px4").is_dir():
+                ulogs = sorted((ddir / "px4").glob("*.ulg"))
+            if quick or not ulogs:
+                if not ulogs:
+                    notes.append("PX4 logs not found: used the committed excerpts firmware_sim/data/*.ulg.")
+                ulogs = sorted(readers.EXCERPTS.glob("*.ulg"))
         for p in ulogs:
             tasks.append(("px4", p.stem, str(p), {}, 0, broad_specs, True))
         real["broad"] = [str(p) for p in trials]
@@ -801,11 +809,21 @@ def bench(quick=False, seeds=None, filters=None, peer_names=PEER_NAMES, data_dir
         "task_cpu_seconds": float(sum(r.get("cpu", 0.0) for r in results)),
         "task_wall_seconds": {f"{r['label']}/{r['log']}/{r['seed']}": round(r["wall"], 1) for r in results},
     }
-    report["plots"] = _plots(results, out_dir / "img")
+    if _have("matplotlib"):
+        report["plots"] = _plots(results, out_dir / "img")
+    else:
+        report["plots"] = {}
+        notes.append("no plots: they need matplotlib: pip install 'ahrsgen[dev]'.")
     from generator.fileio import write_text_atomic     # whole files or none, also on Ctrl-C
     write_text_atomic(out_dir / "bench.json", json.dumps(report, indent=1))
     write_text_atomic(out_dir / "bench.md", markdown(report))
     return report
+
+
+def _have(module: str) -> bool:
+    """Whether an optional package (the `dev` extra) is installed."""
+    import importlib.util
+    return importlib.util.find_spec(module) is not None
 
 
 def _host_info():
@@ -1028,6 +1046,11 @@ def _cmd_bench(args) -> int:
         what = "is not a folder" if Path(args.data).exists() else "does not exist"
         raise ConfigError(f"--data {args.data} {what} (it should hold broad/ and px4/; without --data: "
                           f"${readers.DATA_ENV}, else <repo>/../shared/data)")
+    asked = [p for p in (args.peers or ()) if not peers.PEERS[p].available()]
+    if asked:
+        from generator.model import ConfigError
+        raise ConfigError(f"--peers {' '.join(asked)}: package {peers.PEERS[asked[0]].package} is not installed "
+                          f"(pip install 'ahrsgen[dev]')")
     cmd = "ahrsgen bench " + " ".join(sys.argv[2:]) if len(sys.argv) > 1 and sys.argv[1] == "bench" else "ahrsgen bench"
     rep = bench(quick=args.quick, seeds=args.seeds, filters=args.filters or None,
                 peer_names=tuple(args.peers) if args.peers is not None else PEER_NAMES,

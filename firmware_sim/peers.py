@@ -74,6 +74,12 @@ class Peer:
     name = "peer"
     uses_mag = True
     title = ""
+    package = ""          # the PyPI package it runs (installed by the `dev` extra)
+
+    @classmethod
+    def available(cls) -> bool:
+        import importlib.util
+        return importlib.util.find_spec(cls.package) is not None
 
     def __init__(self, **options):
         self.options = options
@@ -85,6 +91,7 @@ class Peer:
 class FusionPeer(Peer):
     """x-io Fusion (imufusion), NED convention, library defaults unless options say otherwise."""
     name = "fusion"
+    package = "imufusion"
     title = "x-io Fusion (imufusion, defaults)"
 
     def run(self, log):
@@ -127,6 +134,7 @@ class FusionPeer(Peer):
 class VqfPeer(Peer):
     """VQF (Laidig & Seel 2023), 9D by default; `vqf6d` ignores the magnetometer."""
     name = "vqf"
+    package = "vqf"
     title = "VQF 9D (vqf)"
 
     def run(self, log):
@@ -183,6 +191,7 @@ def _run_ahrs_filter(m, log, q_earth_to_ned):
 class MadgwickPeer(Peer):
     """ahrs.filters.Madgwick (earth NWU), fed in FLU sensor axes; beta default 0.12."""
     name = "madgwick"
+    package = "ahrs"
     title = "Madgwick (ahrs, beta 0.12)"
 
     def run(self, log):
@@ -197,6 +206,7 @@ class MadgwickPeer(Peer):
 class MahonyPeer(Peer):
     """ahrs.filters.Mahony (earth ENU), fed in FLU sensor axes; Kp 0.74, Ki 0.0012 by default."""
     name = "mahony"
+    package = "ahrs"
     title = "Mahony (ahrs, Kp 0.74, Ki 0.0012)"
 
     def run(self, log):

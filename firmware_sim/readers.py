@@ -52,6 +52,9 @@ CSV_GROUPS = {                       # optional column groups: all of a group or
 }
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
+# Small real logs installed with the package (attribution in its README): the tests, `bench
+# --quick` and the documentation's examples read them, in a checkout or an installed wheel alike.
+EXCERPTS = Path(__file__).resolve().parent / "data"
 DATA_ENV = "AHRSGEN_DATA"
 
 

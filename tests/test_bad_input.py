@@ -14,8 +14,9 @@ import pytest
 
 from firmware_sim import host, readers
 from generator import cli
+from firmware_sim.readers import EXCERPTS
 
-DATA = Path(__file__).resolve().parent / "data"
+DATA = EXCERPTS
 ULOG = DATA / "px4_small_excerpt.ulg"
 BROAD = DATA / "broad_01_excerpt.csv.gz"
 HEADER = "t,gx,gy,gz,ax,ay,az\n"

@@ -12,17 +12,17 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from firmware_sim import bench, host, metrics, readers, scenarios
 from firmware_sim.log import VALID_ACCEL, VALID_ALL, VALID_GPS, VALID_GYRO, VALID_MAG, SensorLog
-from generator import config, status
+from generator import cli, config, status
 from generator.npquat import qmul
+from firmware_sim.readers import EXCERPTS
 
-DATA = Path(__file__).parent / "data"
+DATA = EXCERPTS
 BROAD_X = DATA / "broad_01_excerpt.csv.gz"
 ULOG_X = DATA / "px4_small_excerpt.ulg"
 ULOG_MOVING = DATA / "px4_handheld_excerpt.ulg"
@@ -173,7 +173,6 @@ def test_score_movement_mask_and_divergence():
 
 
 def test_run_on_broad_excerpt_cli(tmp_path, capsys):
-    from generator import cli
     out_csv = tmp_path / "o.csv"
     rc = cli.main(["run", "qcf", "--log", str(BROAD_X), "--csv", str(out_csv)])
     assert rc == 0
@@ -219,6 +218,28 @@ def test_mini_bench_writes_tables(tmp_path, monkeypatch):
     assert f"$AHRSGEN_DATA = {tmp_path / 'no-such-folder'} is not a folder: ignored" in md
     assert json.loads((tmp_path / "bench.json").read_text())["command"] == "test"
     assert (tmp_path / "img" / "err_turntable.png").exists()
+
+
+def test_bench_without_the_optional_packages(tmp_path, monkeypatch, capsys):
+    """A plain `pip install .` has no peers, pyulog or matplotlib (the `dev` extra): the bench
+    still runs and says what it left out; a peer asked for by name is one line, exit 2."""
+    from firmware_sim import peers
+    monkeypatch.setattr(peers.VqfPeer, "package", "no_such_vqf_package")
+    assert cli.main(["bench", "--quick", "--filters", "qcf", "--peers", "vqf", "-o", str(tmp_path / "a")]) == 2
+    assert capsys.readouterr().err.strip().splitlines() == [
+        "ahrsgen: error: --peers vqf: package no_such_vqf_package is not installed (pip install 'ahrsgen[dev]')"]
+    assert not (tmp_path / "a" / "bench.json").exists()
+    real_have = bench._have
+    monkeypatch.setattr(bench, "_have", lambda m: m not in ("pyulog", "matplotlib") and real_have(m))
+    rep = bench.bench(quick=True, filters=["qcf"], peer_names=("vqf", "madgwick"), out_dir=tmp_path / "b",
+                      jobs=1, real_only=True, command="test")
+    assert rep["notes"][0] == ("peers left out, their packages are not installed: vqf (no_such_vqf_package): "
+                               "pip install 'ahrsgen[dev]'.")
+    assert "PX4 logs left out: reading ULog needs pyulog: pip install 'ahrsgen[dev]'." in rep["notes"]
+    assert "no plots: they need matplotlib: pip install 'ahrsgen[dev]'." in rep["notes"]
+    assert rep["px4"] == {} and rep["plots"] == {} and not list((tmp_path / "b" / "img").iterdir())
+    assert set(rep["broad"]["trials"]["broad_01_excerpt"]) == {"qcf", "madgwick"}
+    assert "no plots: they need matplotlib" in (tmp_path / "b" / "bench.md").read_text()
 
 
 def test_variant_option_is_validated():

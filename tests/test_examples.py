@@ -19,10 +19,11 @@ from conftest import needs
 from firmware_sim import host, metrics, readers
 from firmware_sim.log import VALID_ACCEL, VALID_MAG
 from generator import config
+from firmware_sim.readers import EXCERPTS
 
 REPO = Path(__file__).resolve().parents[1]
 EXAMPLES = [str(REPO / "examples" / n) for n in ("madgwick", "mahony")]
-BROAD = REPO / "tests" / "data" / "broad_01_excerpt.csv.gz"
+BROAD = EXCERPTS / "broad_01_excerpt.csv.gz"
 FLOAT_BOUND_RAD = 5e-5
 pytest.importorskip("ahrs")
 

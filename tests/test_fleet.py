@@ -7,6 +7,7 @@ import distributed      # in the dev extras: a missing install fails here, in CI
 
 from firmware_sim import bench
 from firmware_sim.fleet import Fleet
+from firmware_sim.readers import EXCERPTS
 
 
 def _figures(rep):
@@ -42,9 +43,8 @@ def test_unreachable_scheduler_is_a_config_error():
 
 
 def test_tune_on_local_cluster_equals_local(tmp_path):
-    from pathlib import Path
     from firmware_sim import tune
-    data = Path(__file__).resolve().parent / "data"
+    data = EXCERPTS
     cases = tune.collect_cases([data / "broad_01_excerpt.csv.gz", data / "px4_handheld_excerpt.ulg"])
     kw = dict(budget=3, folds=0, progress=False, out=open("/dev/null", "w"))
     local = tune.tune("qcf", ["kp", "ki"], cases, workers=2, **kw)

@@ -23,7 +23,6 @@ seen), so shortening a run cannot silently drop a path.
 from __future__ import annotations
 
 import functools
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -34,8 +33,9 @@ from firmware_sim.log import VALID_ACCEL, VALID_GPS, VALID_GYRO, VALID_MAG, Sens
 from firmware_sim.scenarios import make
 from generator import config, filters
 from generator import status as st
+from firmware_sim.readers import EXCERPTS
 
-DATA = Path(__file__).parent / "data"
+DATA = EXCERPTS
 ANGLE_TOL = 1e-9        # rad, double C vs reference (SPEC: <= 1e-9)
 FIELD_RTOL = 1e-9       # other state fields: relative to the field's largest magnitude (floor 1)
 NAN, INF = float("nan"), float("inf")

@@ -6,7 +6,6 @@ off at rest but tens of degrees off on the turntable, so both cases are required
 """
 from __future__ import annotations
 
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,6 +13,7 @@ import pytest
 from firmware_sim import peers, readers
 from firmware_sim.log import G0, VALID_ACCEL, VALID_GYRO, VALID_MAG, SensorLog
 from generator.npquat import euler_from_q, q_from_euler, qconj, qexp, qmul, rotmat
+from firmware_sim.readers import EXCERPTS
 
 MAG_NED = np.array([0.20, 0.0, 0.45])     # magnetic north = north, inclination ~66°
 
@@ -135,7 +135,7 @@ def test_broad_score_decomposition_and_mask():
     assert peers.broad_score(est, log)["total"] == pytest.approx(0.0, abs=1e-3)
 
 
-BROAD_X = Path(__file__).parent / "data" / "broad_01_excerpt.csv.gz"
+BROAD_X = EXCERPTS / "broad_01_excerpt.csv.gz"
 
 
 def test_peers_on_broad_excerpt():

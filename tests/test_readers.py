@@ -8,7 +8,6 @@ north-down plane; integrating the gyro from the reference must land on the later
 from __future__ import annotations
 
 import gzip
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -16,8 +15,9 @@ import pytest
 from firmware_sim import readers
 from firmware_sim.log import G0, VALID_ACCEL, VALID_GPS, VALID_GYRO, VALID_MAG
 from generator.npquat import qconj, qexp, qmul, rotmat
+from firmware_sim.readers import EXCERPTS
 
-DATA = Path(__file__).parent / "data"
+DATA = EXCERPTS
 BROAD_X = DATA / "broad_01_excerpt.csv.gz"
 ULOG_X = DATA / "px4_small_excerpt.ulg"          # CubeOrange on the bench: mag, GPS, attitude
 ULOG_MOVING = DATA / "px4_handheld_excerpt.ulg"  # AUAV-X21 hand-held: first 12 s, old mag layout

@@ -17,6 +17,7 @@ from firmware_sim.metrics import max_angle_diff_rad
 from generator import cli, config, render
 
 from conftest import scenario
+from firmware_sim.readers import EXCERPTS
 
 HERE = Path(__file__).resolve().parent
 
@@ -92,7 +93,7 @@ def test_structural_refused(name, runtime, words, tmp_path, capsys):
 
 def test_run_and_validate_take_runtime(capsys):
     from firmware_sim.bench import run_on_log
-    log = str(HERE / "data" / "broad_01_excerpt.csv.gz")
+    log = str(EXCERPTS / "broad_01_excerpt.csv.gz")
     baked = run_on_log("qcf", log, sets=["kp=0.5"], out=open("/dev/null", "w"))
     rt = run_on_log("qcf", log, sets=["kp=0.5"], runtime="kp,ki", out=open("/dev/null", "w"))
     assert rt["score"]["total_rms"] == pytest.approx(baked["score"]["total_rms"], abs=1e-9)

@@ -8,8 +8,9 @@ from pathlib import Path
 import pytest
 
 from generator import cli, config, filters
+from firmware_sim.readers import EXCERPTS
 
-DATA = Path(__file__).resolve().parent / "data"
+DATA = EXCERPTS
 LOGS = ["--log", str(DATA / "broad_01_excerpt.csv.gz"), "--log", str(DATA / "px4_handheld_excerpt.ulg")]
 
 
