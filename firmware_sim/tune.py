@@ -370,6 +370,11 @@ def tune(filter_name, params, cases, budget=40, folds=None, metric="total", conf
         raise ConfigError(f"--metric {metric!r}: one of {', '.join(METRICS)}")
     if budget < 1:
         raise ConfigError(f"--budget {budget}: need at least 1 trial")
+    try:
+        import optuna  # noqa: F401   (the search; an optional extra)
+    except ImportError:
+        raise ConfigError("ahrsgen tune searches with Optuna, which is not installed: "
+                          "pip install 'ahrsgen[tune]'") from None
     base = config.resolve(filter_name, config_file, list(sets), "float", None)
     dims = search_space(base.spec, params)
     n = len(cases)

@@ -1,6 +1,7 @@
 """`ahrsgen tune`: the acceptance run on the committed excerpts, resume, the search space, bad input."""
 from __future__ import annotations
 
+import sys
 import time
 import tomllib
 from pathlib import Path
@@ -65,6 +66,15 @@ def test_bad_input_one_line(args, words, tmp_path, capsys):
     assert cli.main(["tune", "qcf", *LOGS, *args, "--budget", "1", "-o", str(out)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and words in err[0], err
+    assert not out.exists()
+
+
+def test_tune_without_optuna_is_one_line(tmp_path, capsys, monkeypatch):
+    monkeypatch.setitem(sys.modules, "optuna", None)     # as a plain `pip install .` has it
+    out = tmp_path / "t.toml"
+    assert cli.main(["tune", "qcf", *LOGS, "--params", "kp", "--budget", "1", "-o", str(out)]) == 2
+    assert capsys.readouterr().err.strip().splitlines() == [
+        "ahrsgen: error: ahrsgen tune searches with Optuna, which is not installed: pip install 'ahrsgen[tune]'"]
     assert not out.exists()
 
 
