@@ -1066,6 +1066,7 @@ def _cmd_bench(args) -> int:
 
 
 def register_cli(sub) -> None:
+    from generator.cli import positive_int_arg   # loaded: it is the caller
     p = sub.add_parser("run", help="run a generated filter over a real log (BROAD CSV or PX4 ULog) and score it",
                        description="Generate and compile a filter for the host, run it over a log file through "
                                    "the firmware harness, and where the log has a reference attitude score it "
@@ -1097,7 +1098,7 @@ def register_cli(sub) -> None:
                                    "BROAD subset and the PX4 logs; measure ns/step against a hand-written QCF. "
                                    "Writes bench.json, bench.md and plots.")
     p.add_argument("--quick", action="store_true", help="short CI run (1 seed, shorter scenarios, data excerpts)")
-    p.add_argument("--seeds", type=int, help="seeds per scenario (default 3, --quick 1)")
+    p.add_argument("--seeds", type=positive_int_arg, help="seeds per scenario (default 3, --quick 1)")
     p.add_argument("--filters", nargs="*", help="only these filters, names or folder paths (default: all known)")
     p.add_argument("--scenarios", nargs="*", metavar="LABEL",
                    help="only these scenario rows of the grid (e.g. multirotor turntable; default: all)")
@@ -1105,7 +1106,7 @@ def register_cli(sub) -> None:
     p.add_argument("--data", metavar="DIR", help="folder holding broad/ and px4/ (default: $AHRSGEN_DATA, "
                                                  "else <repo>/../shared/data)")
     p.add_argument("-o", "--output", default="bench_out", metavar="DIR", help="output folder (default bench_out)")
-    p.add_argument("-j", "--jobs", "--workers", dest="jobs", type=int, default=2,
+    p.add_argument("-j", "--jobs", "--workers", dest="jobs", type=positive_int_arg, default=2,
                    help="local worker processes (default 2)")
     p.add_argument("--scheduler", metavar="ADDRESS",
                    help="run the logs on this Dask distributed scheduler instead of local processes "

@@ -70,6 +70,19 @@ def load_case(case: Case):
 LOG_SUFFIXES = (".csv", ".csv.gz", ".ulg")
 
 
+def _check_log(path: str) -> None:
+    """A log tuning can score: readable, with a reference attitude somewhere (else every trial
+    would score the failure penalty and the 'best' values would be noise). One line if not."""
+    from firmware_sim import readers
+    try:
+        log = readers.read_log(path)
+    except readers.LogError as e:
+        raise ConfigError(str(e)) from None
+    if log.q_true is None or not np.isfinite(log.q_true).all(axis=1).any():
+        raise ConfigError(f"{path}: no reference attitude to tune against (CSV columns qw,qx,qy,qz; "
+                          f"ULog topic vehicle_attitude)")
+
+
 def collect_cases(logs=(), logs_dir=None, scenario=None, seeds=1, scenario_opts=()) -> list[Case]:
     cases = []
     for p in logs or []:
@@ -84,6 +97,9 @@ def collect_cases(logs=(), logs_dir=None, scenario=None, seeds=1, scenario_opts=
         if not found:
             raise ConfigError(f"--logs {d}: no {', '.join(LOG_SUFFIXES)} files in it")
         cases += [Case("file", str(p)) for p in found]
+    for c in cases:
+        if c.kind == "file":
+            _check_log(c.arg)
     if scenario:
         from firmware_sim import scenarios
         if scenario not in scenarios.names():
@@ -522,6 +538,7 @@ def _split_params(text: str) -> list[str]:
 
 
 def register_cli(sub) -> None:
+    from generator.cli import positive_int_arg   # loaded: it is the caller
     p = sub.add_parser("tune", help="choose parameters from logs with a reference attitude; write a TOML config",
                        description="Search the named parameters of a filter inside their declared ranges (Optuna "
                                    "TPE) to minimise the RMS attitude error of its float C over logs with a "
@@ -532,17 +549,17 @@ def register_cli(sub) -> None:
     p.add_argument("--log", action="append", default=[], metavar="FILE", help="BROAD .csv/.csv.gz or PX4 .ulg (repeatable)")
     p.add_argument("--logs", metavar="DIR", help="every .csv, .csv.gz and .ulg file in DIR")
     p.add_argument("--scenario", help="also simulated flights of this scenario (see 'ahrsgen list')")
-    p.add_argument("--seeds", type=int, default=1, help="scenario seeds 0..N-1 (default 1)")
+    p.add_argument("--seeds", type=positive_int_arg, default=1, help="scenario seeds 0..N-1 (default 1)")
     p.add_argument("--scenario-opt", action="append", default=[], metavar="NAME=VALUE", help="scenario option")
     p.add_argument("--params", action="append", required=True, metavar="NAME[=LOW:HIGH],...",
                    help="parameters to tune, comma-separated; optional search range inside the declared one")
     p.add_argument("--metric", choices=list(METRICS), default="total",
                    help="error to minimise: BROAD's total, inclination or heading RMS (default total)")
-    p.add_argument("--budget", type=int, default=40, help="trials per study (default 40)")
+    p.add_argument("--budget", type=positive_int_arg, default=40, help="trials per study (default 40)")
     p.add_argument("--folds", type=int, help="K-fold cross-validation over logs (default min(5, logs); 0 = none)")
     p.add_argument("--config", metavar="FILE.toml", help="start from this config (its values are kept)")
     p.add_argument("--set", metavar="NAME=VALUE", action="append", default=[], help="fix a parameter")
-    p.add_argument("--workers", type=int, default=2, help="local worker processes (default 2)")
+    p.add_argument("--workers", type=positive_int_arg, default=2, help="local worker processes (default 2)")
     p.add_argument("--scheduler", metavar="ADDRESS", help="run on this Dask distributed scheduler instead")
     p.add_argument("--seed", type=int, default=0, help="sampler seed (default 0)")
     p.add_argument("--engine", choices=["runtime", "baked"], default="runtime",

@@ -55,6 +55,16 @@ def nonneg_int_arg(text: str) -> int:
     return v
 
 
+def positive_int_arg(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 1, got {text!r}") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"expected a whole number >= 1, got {text!r}")
+    return v
+
+
 def nonneg_float_arg(text: str) -> float:
     import math
     try:

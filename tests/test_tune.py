@@ -69,6 +69,22 @@ def test_bad_input_one_line(args, words, tmp_path, capsys):
     assert not out.exists()
 
 
+def test_logs_tuning_cannot_score_are_one_line(tmp_path, capsys):
+    """Checked before the first trial: an unreadable log, or one without a reference attitude,
+    would otherwise score the failure penalty in every trial and still write a 'best' config."""
+    no_ref = tmp_path / "noref.csv"
+    no_ref.write_text("t,gx,gy,gz,ax,ay,az\n" + "".join(f"{k * 0.01},0,0,0,0,0,-9.81\n" for k in range(50)))
+    other = tmp_path / "notes.txt"
+    other.write_text("hello\n")
+    for log, words in [(no_ref, f"{no_ref}: no reference attitude to tune against"),
+                       (other, f"{other}: unknown log format")]:
+        out = tmp_path / "t.toml"
+        assert cli.main(["tune", "qcf", "--log", str(log), "--params", "kp", "--budget", "1", "-o", str(out)]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and words in err[0], err
+        assert not out.exists()
+
+
 def test_tune_without_optuna_is_one_line(tmp_path, capsys, monkeypatch):
     monkeypatch.setitem(sys.modules, "optuna", None)     # as a plain `pip install .` has it
     out = tmp_path / "t.toml"
