@@ -2,7 +2,8 @@
 
 Run: .venv/bin/python docs/rate_sensitivity.py [FILTER or LABEL=FILTER:name=value,... ...]
 (default: mekf qcf adukf). Every BROAD trial in ../shared/data/broad (or $AHRSGEN_DATA) three
-ways: as recorded (286 Hz), every third row (the IMU at 95 Hz, dt from the kept rows' times), and
+ways: as recorded (286 Hz), the IMU at 95 Hz (every third row, carrying the mean gyro and
+accelerometer of its three rows, as an IMU that integrates over its interval), and
 the magnetometer's valid bit on every third row only (the magnetometer at 95 Hz, the IMU at 286
 Hz). Each filter is its generated float C through the harness, as `ahrsgen run` runs it; VQF
 (the peer) runs beside them. Prints BROAD's mean total RMS per variant, then per trial.
@@ -38,13 +39,19 @@ def variant(log: SensorLog, kind: str) -> SensorLog:
     if kind == "as recorded":
         return log
     if kind == "IMU / 3":
-        idx = np.arange(0, len(log), 3)
+        # a 95 Hz IMU that integrates: each kept row k carries the mean gyro and accelerometer of
+        # rows k-2..k (the rate over its own interval, as a delta-angle IMU reports it), the
+        # magnetometer and reference at row k
+        n = len(log) // 3 * 3
+        idx = np.arange(2, n, 3)
         t = log.t[idx]
         dt = np.empty(len(idx))
         dt[1:] = np.diff(t)
         dt[0] = dt[1]
+        gyro = log.gyro[:n].reshape(-1, 3, 3).mean(axis=1)
+        accel = log.accel[:n].reshape(-1, 3, 3).mean(axis=1)
         meta = {**log.meta, "movement": np.asarray(log.meta["movement"])[idx]}
-        return SensorLog(log.name, t, dt, log.gyro[idx], log.accel[idx], log.mag[idx], log.gps_vel[idx],
+        return SensorLog(log.name, t, dt, gyro, accel, log.mag[idx], log.gps_vel[idx],
                          log.valid[idx].copy(), log.q_true[idx], meta)
     valid = log.valid.copy()
     valid[np.arange(len(log)) % 3 != 0] &= ~np.uint32(VALID_MAG)
