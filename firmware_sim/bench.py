@@ -1074,7 +1074,9 @@ def register_cli(sub) -> None:
     p.add_argument("filter", help="filter name (see 'ahrsgen list') or a filter folder's path")
     p.add_argument("--log", required=True, metavar="FILE",
                    help="a CSV log (.csv/.csv.gz: t,gx,gy,gz,ax,ay,az and optional mx,my,mz, gps_vn,gps_ve,gps_vd, "
-                        "qw,qx,qy,qz, movement; see docs/log-format.md; BROAD's files are in it) or a PX4 .ulg")
+                        "qw,qx,qy,qz, movement; see docs/log-format.md; BROAD's files are in it) or a PX4 .ulg. "
+                        f"Examples installed with ahrsgen: {readers.EXCERPTS / 'broad_01_excerpt.csv.gz'} (BROAD, "
+                        f"optical reference), {readers.EXCERPTS / 'px4_handheld_excerpt.ulg'} (PX4, needs pyulog)")
     p.add_argument("--config", metavar="FILE.toml", help="TOML config (prefix, precision, [params])")
     p.add_argument("--set", metavar="NAME=VALUE", action="append", default=[], help="override a parameter")
     p.add_argument("--preset", help="start from a named parameter set of the filter, e.g. 'faithful' "

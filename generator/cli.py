@@ -27,8 +27,21 @@ Logs: CSV (docs/log-format.md) or PX4 ULog. Exit status: 0 ok, 1 a check failed,
 Run 'ahrsgen COMMAND --help' for the options of each command."""
 
 
+class _Formatter(argparse.HelpFormatter):
+    """Help text wrapped at spaces only: a path or an option like --set=a-b stays whole, so it
+    can be copied from the help."""
+
+    def _split_lines(self, text, width):
+        import textwrap
+        return textwrap.wrap(" ".join(text.split()), width, break_on_hyphens=False, break_long_words=False)
+
+
 class _Parser(argparse.ArgumentParser):
     """argparse whose usage errors are one line on stderr (exit 2), like every other CLI error."""
+
+    def __init__(self, *args, **kwargs):
+        kwargs.setdefault("formatter_class", _Formatter)
+        super().__init__(*args, **kwargs)
 
     def error(self, message):
         self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")

@@ -104,6 +104,12 @@ def test_wheel_installs_and_works_outside_the_checkout(tmp_path):
     out = _run([ahrsgen, "harden", "qcf", "--fuzz-seconds", "0", "--soak-steps", "20000", "--no-cppcheck",
                 "--json", "h.json"], tmp_path, env)
     assert (tmp_path / "h.json").exists(), out
+    # `run --help` names the example logs installed with the package, and they run as named there
+    helptext = " ".join(_run([ahrsgen, "run", "--help"], tmp_path, env).split())
+    example = str(site / "firmware_sim" / "data" / "broad_01_excerpt.csv.gz")
+    assert example in helptext, helptext
+    out = _run([ahrsgen, "run", "mekf", "--log", example], tmp_path, env)
+    assert "BROAD decomposition RMS: total" in out, out
     # The benchmark on its built-in data (the excerpts ship inside the package); the packages of
     # the `dev` extra that are missing here (vqf, imufusion, pyulog, matplotlib) are said, not fatal.
     _run([ahrsgen, "bench", "--quick", "--filters", "qcf", "--real-only", "-o", "b"], tmp_path, env)
