@@ -574,7 +574,7 @@ _SET = re.compile(r"^\s*(tmp\d+) = (.*);$")
 _IF = re.compile(r"^\s*if \((.*)\) \{$")
 _ELSE = re.compile(r"^\s*\} else \{$")
 _END = re.compile(r"^\s*\}$")
-_LOCAL_ARR = re.compile(r"^\s*(?:float|double) (carry\d*)\[(\d+)\];$")  # values handed between a split kernel's parts
+_LOCAL_ARR = re.compile(r"^\s*(?:float|double|bool) (carry|flags)\[(\d+)\];$")  # values handed between a split kernel's parts
 _CALL = re.compile(r"^\s*(\w+_part\d+)\(([\w, ]*)\);$")
 _INDEX = re.compile(r"\b(\w+)\[(\d+)\]")
 _TMP = re.compile(r"\btmp\d+\b")
@@ -586,9 +586,9 @@ def kernel_structure_issues(k: dict) -> list[str]:
     declared size of its array, inputs only read, every temporary defined once before use (a
     temporary defined inside a branch is visible only there; a select declared before an
     if/else must be set exactly once on each side, and is defined after it), every output
-    element written exactly once. A split kernel's own local array (carry) is bounded by its
-    declaration and filled by its parts (each part is checked as a kernel of its own; a part
-    writes only the carry slots of its exports, each at most once)."""
+    element written exactly once. A split kernel's own local arrays (carry, and flags for its
+    bools) are bounded by their declarations and filled by its parts (each part is checked as a
+    kernel of its own; a part writes only the slots of its exports, each at most once)."""
     issues, written = [], {}
     params = dict(k["params"])
     scopes = [{"defined": set(), "pending": set(), "set": set()}]   # innermost last
@@ -679,7 +679,7 @@ def kernel_structure_issues(k: dict) -> list[str]:
             continue
         for i in range(size or 1):
             c = written.get((name, i), 0)
-            if c != 1 and not (name == "carry" and c == 0):
+            if c != 1 and not (name in ("carry", "flags") and c == 0):
                 issues.append(f"{k['name']}: output {name}[{i}] written {c} times")
     return issues
 

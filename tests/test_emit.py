@@ -227,6 +227,41 @@ def test_split_kernel_equals_the_unsplit_one_bit_for_bit(tmp_path):
     assert list(arr) == _run1(lib, "whole", 2, [16, 4], [a, bb])[1]
 
 
+def test_split_kernel_hands_bools_over_as_bools(tmp_path):
+    """A flag output made in a part travels to the kernel in a bool array `flags`, not as
+    1.0/0.0 in the float carry read back with > 0.5 (a bool read by a later part goes the same
+    way: generated/qcf's qcf_k_gravity_part_part1 takes `const bool flags[1]`, and
+    tests/test_generated.py keeps that file current)."""
+    A, b = ca.SX.sym("A", 4, 4), ca.SX.sym("b", 4)
+    c = ca.sumsqr(b) < A[0, 0] * A[1, 1] + 1
+    M = A
+    for _ in range(3):
+        M = ca.mtimes(M, A) / (1 + ca.sumsqr(M))
+    r = ca.if_else(c, ca.mtimes(M, b), ca.sin(b))
+    fn = emit.function("fl", {"A": A, "b": b}, {"r": r, "ok": ca.logic_and(c, ca.sumsqr(M) < 3)})
+    whole = emit.emit(fn, "double", name="fl_whole", split_temps=None, flags=["ok"])
+    split = emit.emit(fn, "double", name="fl_split", split_temps=30, flags=["ok"])
+    assert len(split.parts) >= 3
+    src = "\n".join(split.body + split.parts)
+    assert "bool flags[1];" in src, src
+    assert "> 0.5" not in src and "? 1.0 : 0.0" not in src, src
+    assert re.search(r"^\s*\*ok = flags\[\d+\];$", src, re.M), src
+    lib = _build([whole, split], "double", tmp_path)
+    rng = np.random.default_rng(4)
+    for fun in ("fl_whole", "fl_split"):
+        getattr(lib, fun).restype = None
+    for _ in range(40):
+        a, bb = rng.normal(size=16), rng.normal(size=4)
+        got = []
+        for fun in ("fl_whole", "fl_split"):
+            r_out, ok = (ctypes.c_double * 4)(), ctypes.c_bool()
+            getattr(lib, fun)((ctypes.c_double * 16)(*a), (ctypes.c_double * 4)(*bb), r_out, ctypes.byref(ok))
+            got.append((list(r_out), ok.value))
+        assert got[0] == got[1]
+        want = fn(a.reshape(4, 4).T, bb)
+        assert got[1][1] == bool(float(want[1])) and got[1][0] == np.array(want[0]).ravel().tolist()
+
+
 def test_early_writes_store_outputs_where_computed_bit_for_bit(tmp_path):
     """early_writes: each output stored right after its value (also from inside a split
     kernel's parts), arrays restrict; the same bits as the kernel that stores at its end."""

@@ -675,7 +675,7 @@ static void qcf_k_mag_check_part0(const float accel_lp[3], float mag_norm2, cons
     carry[5] = tmp17;
 }
 
-static void qcf_k_mag_check_part1(const float mag_ref[2], float mag_dist_time, float span, float carry[6])
+static void qcf_k_mag_check_part1(const float mag_ref[2], float mag_dist_time, float span, float carry[6], bool flags[1])
 {
     bool tmp18;
     float tmp19;
@@ -727,24 +727,25 @@ static void qcf_k_mag_check_part1(const float mag_ref[2], float mag_dist_time, f
         tmp21 = tmp37;
     }
     const float tmp47 = (carry[5] < 10.0f) ? carry[5] : 10.0f;
-    carry[0] = tmp18 ? 1.0f : 0.0f;
-    carry[1] = tmp19;
-    carry[2] = tmp20;
-    carry[3] = tmp21;
-    carry[4] = tmp47;
+    flags[0] = tmp18;
+    carry[0] = tmp19;
+    carry[1] = tmp20;
+    carry[2] = tmp21;
+    carry[3] = tmp47;
 }
 
 static void qcf_k_mag_check(const float accel_lp[3], float mag_norm2, const float mag_ned[3], const float mag_ref[2], float mag_dist_time, float mag_learn_time, float span, bool *accept, float mag_ref_new[2], float *mag_dist_time_new, float *mag_learn_time_new)
 {
-    /* 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    /* 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry and flags hold the values handed between them (a slot reused once its value is dead) */
     float carry[6];
+    bool flags[1];
     qcf_k_mag_check_part0(accel_lp, mag_norm2, mag_ned, mag_ref, mag_learn_time, span, carry);
-    qcf_k_mag_check_part1(mag_ref, mag_dist_time, span, carry);
-    *accept = (carry[0] > 0.5f);
-    mag_ref_new[0] = carry[1];
-    mag_ref_new[1] = carry[2];
-    *mag_dist_time_new = carry[3];
-    *mag_learn_time_new = carry[4];
+    qcf_k_mag_check_part1(mag_ref, mag_dist_time, span, carry, flags);
+    *accept = flags[0];
+    mag_ref_new[0] = carry[0];
+    mag_ref_new[1] = carry[1];
+    *mag_dist_time_new = carry[2];
+    *mag_learn_time_new = carry[3];
 }
 
 /* R(q), read by the kernels of a step that rotate with the estimate (computed once)
@@ -795,18 +796,18 @@ static inline void qcf_k_rotation(const float q[4], float rot[9])
 /* accelerometer minus the GPS motion acceleration when ||f| - g| exceeds the threshold (centripetal: (w - b) x R(q)^T v_gps in body axes, computed only then)
  * ops: add 18, mul 22, div 2, sqrt 1, cmp 7 (total 50)
  *      of which only one side runs: if (tmp0) 0, else 46 */
-static void qcf_k_gravity_part_part0(float accel_norm2, float carry[3])
+static void qcf_k_gravity_part_part0(float accel_norm2, bool flags[1])
 {
     const bool tmp0 = (90.376396f /* (9.80665 - motion_accel_threshold)^2 */ < accel_norm2) && (accel_norm2 < 102.14437f /* (9.80665 + motion_accel_threshold)^2 */);
-    carry[0] = tmp0 ? 1.0f : 0.0f;
+    flags[0] = tmp0;
 }
 
-static void qcf_k_gravity_part_part1(const float accel[3], const float rot[9], const float gyro[3], const float gyro_bias[3], const float gps_vel_hist[3], float carry[3])
+static void qcf_k_gravity_part_part1(const float accel[3], const float rot[9], const float gyro[3], const float gyro_bias[3], const float gps_vel_hist[3], float carry[3], const bool flags[1])
 {
     float tmp1;
     float tmp2;
     float tmp3;
-    if ((carry[0] > 0.5f)) {
+    if (flags[0]) {
         tmp1 = accel[0];
         tmp2 = accel[1];
         tmp3 = accel[2];
@@ -868,10 +869,11 @@ static void qcf_k_gravity_part_part1(const float accel[3], const float rot[9], c
 
 static void qcf_k_gravity_part(const float accel[3], float accel_norm2, const float rot[9], const float gyro[3], const float gyro_bias[3], const float gps_vel_hist[3], float accel_gravity[3])
 {
-    /* 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    /* 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry and flags hold the values handed between them (a slot reused once its value is dead) */
     float carry[3];
-    qcf_k_gravity_part_part0(accel_norm2, carry);
-    qcf_k_gravity_part_part1(accel, rot, gyro, gyro_bias, gps_vel_hist, carry);
+    bool flags[1];
+    qcf_k_gravity_part_part0(accel_norm2, flags);
+    qcf_k_gravity_part_part1(accel, rot, gyro, gyro_bias, gps_vel_hist, carry, flags);
     accel_gravity[0] = carry[0];
     accel_gravity[1] = carry[1];
     accel_gravity[2] = carry[2];

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import re
 
-from generator.emit.ops import _TMP_RE, literal
+from generator.emit.ops import _TMP_RE
 
 _WORD = re.compile(r"\b[A-Za-z_]\w*\b")
 
@@ -17,7 +17,7 @@ def _split(name, precision, inputs, body, writes, tops, size, ctx_decl=None, boo
     exports after all its reads), so the frame holds the values live at once, not every value
     ever handed over. A part whose statements store outputs (emit's early_writes) takes those
     outputs as parameters. Returns the kernel's body and the parts' sources (temporaries as t<N>).
-    A bool temporary travels as 1 or 0 in its carry and is read back as carry > 0.5."""
+    A bool temporary travels in a second array, `flags` (bool), with slots reused the same way."""
     chunks, cur, count = [], [], 0
     for item in tops:
         if cur and count + len(item[2]) > size:
@@ -38,30 +38,35 @@ def _split(name, precision, inputs, body, writes, tops, size, ctx_decl=None, boo
     # slots: the last part reading each exported value (len(chunks): an output reads it)
     last = {t: max([j for j in range(k + 1, len(chunks)) if t in used[j]] + [len(chunks) if t in used_out else -1])
             for k, ex in enumerate(exports) for t in ex}
-    slot, holder, free, pool = {}, {}, [], 0
-    for k, ex in enumerate(exports):
-        for s, t in list(holder.items()):
-            if last[t] <= k:
-                free.append(s)
-                del holder[s]
-        free.sort()
-        for t in ex:
-            if free:
-                s = free.pop(0)
-            else:
-                s, pool = pool, pool + 1
-            slot[t], holder[s] = s, t
+    slot, pool = {}, {}
+    for kind in ("carry", "flags"):
+        holder, free, pool[kind] = {}, [], 0
+        for k, ex in enumerate(exports):
+            for s, t in list(holder.items()):
+                if last[t] <= k:
+                    free.append(s)
+                    del holder[s]
+            free.sort()
+            for t in ex:
+                if (t in bools) != (kind == "flags"):
+                    continue
+                if free:
+                    s = free.pop(0)
+                else:
+                    s, pool[kind] = pool[kind], pool[kind] + 1
+                slot[t], holder[s] = s, t
     producer = {t: k for k, ex in enumerate(exports) for t in ex}
     real = precision
+    array_type = {"carry": real, "flags": "bool"}
 
     def carried(t):
-        ref = f"carry[{slot[t]}]"
-        return f"({ref} > {literal(0.5, real)})" if t in bools else ref
+        return f"{'flags' if t in bools else 'carry'}[{slot[t]}]"
     parts = []
+    held = [a for a in ("carry", "flags") if pool[a]]
     call_lines = [f"/* {len(chunks)} parts called in turn (inlined when optimising): bounded -O0 frames; "
-                  f"carry holds the values handed between them (a slot reused once its value is dead) */"]
-    if pool:
-        call_lines.append(f"{real} carry[{pool}];")
+                  f"{' and '.join(held)} {'hold' if len(held) > 1 else 'holds'} the values handed between "
+                  f"them (a slot reused once its value is dead) */"]
+    call_lines += [f"{array_type[a]} {a}[{pool[a]}];" for a in ("carry", "flags") if pool[a]]
     for k, tx in enumerate(texts):
         text = "\n".join(tx)
         words = set(_WORD.findall(text))
@@ -72,17 +77,18 @@ def _split(name, precision, inputs, body, writes, tops, size, ctx_decl=None, boo
         params = ([ctx_decl] if ctx else []) + [a.param(real) for a in ins] + [
             (f"{'bool' if a.flag else real} *{a.name}" if a.scalar else f"{'bool' if a.flag else real} {a.name}[{a.size}]")
             for a in outs]
-        if exports[k]:
-            params.append(f"{real} carry[{pool}]")
-        elif imported:
-            params.append(f"const {real} carry[{pool}]")
+        arrays = []
+        for a in ("carry", "flags"):
+            writes_a = any((t in bools) == (a == "flags") for t in exports[k])
+            reads_a = any((t in bools) == (a == "flags") for t in imported)
+            if writes_a or reads_a:
+                params.append(f"{'' if writes_a else 'const '}{array_type[a]} {a}[{pool[a]}]")
+                arrays.append(a)
         lines = [_TMP_RE.sub(lambda m: imported.get(m.group(0), m.group(0)), ln) for ln in tx]
-        lines += [f"carry[{slot[t]}] = {t} ? {literal(1.0, real)} : {literal(0.0, real)};" if t in bools
-                  else f"carry[{slot[t]}] = {t};" for t in exports[k]]
+        lines += [f"{carried(t)} = {t};" for t in exports[k]]
         pname = f"{name}_part{k}"
         parts.append(f"static void {pname}({', '.join(params)})\n{{\n" + "\n".join("    " + ln for ln in lines) + "\n}")
-        args = ([_WORD.findall(ctx_decl)[-1]] if ctx else []) + [a.name for a in ins] + [a.name for a in outs] + (
-            ["carry"] if exports[k] or imported else [])
+        args = ([_WORD.findall(ctx_decl)[-1]] if ctx else []) + [a.name for a in ins] + [a.name for a in outs] + arrays
         call_lines.append(f"{pname}({', '.join(args)});")
     out = [_TMP_RE.sub(lambda m: carried(m.group(0)), w) for w in writes]
     return call_lines + out, parts
