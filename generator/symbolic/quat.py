@@ -93,13 +93,25 @@ def qexp(v, n2=None) -> ca.SX:
 
 
 def qexp_jacobian(v) -> ca.SX:
-    """∂ qexp(v) / ∂v (4 x 3), by CasADi through m = |v|²: qexp(v) = g(v, |v|²) with
-    g(v, m) = [C(m), S(m) v], so J = ∂g/∂v + ∂g/∂m · 2vᵀ. The series (or sin, cos) are
-    differentiated once, in m, instead of once per component of v."""
-    vs, m = ca.SX.sym("v", 3), ca.SX.sym("m")
-    g = qexp(vs, m)
-    J = ca.jacobian(g, vs) + ca.mtimes(ca.jacobian(g, m), ca.jacobian(ca.sumsqr(vs), vs))
-    return ca.substitute(ca.substitute(J, m, ca.sumsqr(vs)), vs, v)
+    """∂ qexp(v) / ∂v (4 x 3) through m = |v|²: qexp(v) = [C(m), S(m) v], so
+    J = [2 C'(m) vᵀ; S(m) I + 2 S'(m) v vᵀ], with C' and S' the derivatives of the series
+    below SERIES_MAX (their own Horner sums) and of cos √m and sin √m / √m above it:
+    C' = −sin n / (2n), S' = (cos n − sin n / n) / (2n²), n = √m, built on the same n, sin n
+    and cos n as qexp, so the emitted step computes them once."""
+    m = ca.sumsqr(v)
+    small = m < SERIES_MAX * SERIES_MAX
+    n2 = ca.fmax(m, SERIES_MAX * SERIES_MAX)
+    n = ca.sqrt(n2)
+    sin_n, cos_n = ca.sin(n), ca.cos(n)
+    cos_c = [(-1) ** k / math.factorial(2 * k) for k in range(SERIES_TERMS)]
+    sinc_c = [(-1) ** k / math.factorial(2 * k + 1) for k in range(SERIES_TERMS)]
+
+    def d(coeffs):            # the series' derivative in m: sum_k k c_k m^(k-1)
+        return [k * c for k, c in enumerate(coeffs)][1:]
+    S = ca.if_else(small, _series(m, sinc_c), sin_n / n)
+    dC = ca.if_else(small, _series(m, d(cos_c)), -sin_n / (2 * n))
+    dS = ca.if_else(small, _series(m, d(sinc_c)), (cos_n - sin_n / n) / (2 * n2))
+    return ca.vertcat(2 * dC * v.T, S * ca.SX.eye(3) + 2 * dS * ca.mtimes(v, v.T))
 
 
 def integrate(q, omega, dt) -> ca.SX:
