@@ -915,7 +915,7 @@ static void mekf_k_predict_covariance(const float F_q[9], const float F_b[9], co
 }
 
 /* earth-frame low-pass of the compensated specific force
- * ops: add 50, mul 33, div 1, cmp 3 (total 87) */
+ * ops: add 50, mul 27, div 1, cmp 9 (total 87) */
 static void mekf_k_accel_lowpass_part0(const float q[4], const float accel[3], const float a_lp[3], float dt, float carry[12])
 {
     const float tmp0 = 1.0f + dt;
@@ -994,25 +994,25 @@ static void mekf_k_accel_lowpass_part1(const float accel[3], const float vel[3],
     const float tmp58 = (mask[1]) ? vel[0] : tmp57;
     const float tmp59 = tmp58 - v_lp[0];
     const float tmp60 = carry[0] * tmp59;
-    const float tmp61 = (float)mask[0] * tmp60;
-    const float tmp62 = v_lp[0] + tmp61;
+    const float tmp61 = v_lp[0] + tmp60;
+    const float tmp62 = (mask[0]) ? tmp61 : v_lp[0];
     const float tmp63 = carry[9] * dt;
     const float tmp64 = v_ins[1] + tmp63;
     const float tmp65 = (mask[1]) ? vel[1] : tmp64;
     const float tmp66 = tmp65 - v_lp[1];
     const float tmp67 = carry[0] * tmp66;
-    const float tmp68 = (float)mask[0] * tmp67;
-    const float tmp69 = v_lp[1] + tmp68;
+    const float tmp68 = v_lp[1] + tmp67;
+    const float tmp69 = (mask[0]) ? tmp68 : v_lp[1];
     const float tmp70 = tmp52 + 9.80665f;
     const float tmp71 = tmp70 * dt;
     const float tmp72 = v_ins[2] + tmp71;
     const float tmp73 = (mask[1]) ? vel[2] : tmp72;
     const float tmp74 = tmp73 - v_lp[2];
     const float tmp75 = carry[0] * tmp74;
-    const float tmp76 = (float)mask[0] * tmp75;
-    const float tmp77 = v_lp[2] + tmp76;
+    const float tmp76 = v_lp[2] + tmp75;
+    const float tmp77 = (mask[0]) ? tmp76 : v_lp[2];
     const float tmp78 = tmp58 - tmp62;
-    const float tmp79 = (float)mask[0] * tmp78;
+    const float tmp79 = carry[5] - tmp78;
     carry[0] = tmp40;
     carry[1] = tmp55;
     carry[2] = tmp58;
@@ -1026,13 +1026,13 @@ static void mekf_k_accel_lowpass_part1(const float accel[3], const float vel[3],
 
 static void mekf_k_accel_lowpass_part2(const bool mask[2], float carry[12])
 {
-    const float tmp80 = carry[5] - carry[9];
+    const float tmp80 = (mask[0]) ? carry[9] : carry[5];
     const float tmp81 = carry[4] - carry[6];
-    const float tmp82 = (float)mask[0] * tmp81;
-    const float tmp83 = carry[0] - tmp82;
+    const float tmp82 = carry[0] - tmp81;
+    const float tmp83 = (mask[0]) ? tmp82 : carry[0];
     const float tmp84 = carry[7] - carry[8];
-    const float tmp85 = (float)mask[0] * tmp84;
-    const float tmp86 = carry[1] - tmp85;
+    const float tmp85 = carry[1] - tmp84;
+    const float tmp86 = (mask[0]) ? tmp85 : carry[1];
     carry[9] = tmp80;
     carry[10] = tmp83;
     carry[11] = tmp86;

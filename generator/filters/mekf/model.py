@@ -281,11 +281,9 @@ def accel_lowpass_function(p: dict, name="accel_lowpass") -> ca.Function:
         # velocity: the GPS sample when one arrived, else carried by a = R f + g from the last
         # one (no GPS-rate staircase in the low-passed derivative)
         vi_new = ca.if_else(mask[1], vel, v_ins + (f_n + ca.DM([0.0, 0.0, G0])) * dt)
-        # m_comp is 0 or 1 and every operand finite: products instead of selects (exactly
-        # v_lp and a_new when 0; one select reading another's result inside its own branch
-        # was emitted reading the result before it was assigned)
-        v_new = v_lp + m_comp * (alpha * (vi_new - v_lp))
-        up = a_new - m_comp * ((vi_new - v_new) / p["accel_lpf_tau"])
+        # without compensation (m_comp = 0) the velocity low-pass holds and up is a_new
+        v_new = ca.if_else(m_comp, v_lp + alpha * (vi_new - v_lp), v_lp)
+        up = ca.if_else(m_comp, a_new - (vi_new - v_new) / p["accel_lpf_tau"], a_new)
     else:
         vi_new, v_new, up = v_ins, v_lp, a_new
     return emit.function(name, {"q": q, "b": b, "gyro": gyro, "accel": accel, "vel": vel, "acc_n": acc_n,
