@@ -188,7 +188,13 @@ def render(cfg: BuildConfig, names: bool = True) -> Generated:
     real = cfg.precision
     prefix = cfg.prefix
     P = prefix.upper()
-    lit = lambda v: emit.literal(v, real)  # noqa: E731
+    name_derived = names
+
+    def lit(v, name: str | None = None) -> str:
+        """A literal of the build's type; a value derived from parameters carries its
+        derivation beside it, as the kernels' folded constants do (`0.29844642f /* ... */`)."""
+        text = emit.literal(v, real)
+        return f"{text} /* {name} */" if name and name_derived else text
 
     # Kernels: the filter's plus the shared Euler output. Runtime parameters are read through
     # a pointer to the state's params member.

@@ -827,7 +827,7 @@ static void cpf_resample(cpf_state *s)
     uint32_t j = 0u;
     for (uint32_t i = 0u; i < 99u; i++) {
         c += s->weights[i];
-        s->weights[i] = 0.01f;
+        s->weights[i] = 0.01f /* 1 / n_particles */;
         const float jr0 = jr;
         while (pos <= c && j < 100u) {
             j++;
@@ -836,7 +836,7 @@ static void cpf_resample(cpf_state *s)
         }
         s->scratch[i] = jr - jr0;             /* whole numbers: exact */
     }
-    s->weights[99u] = 0.01f;
+    s->weights[99u] = 0.01f /* 1 / n_particles */;
     s->weight_sum = 1.0f;
     s->scratch[99u] = 100.0f - jr;
     /* The counts are whole numbers >= 0 that sum to exactly N (j <= N), so there are exactly
@@ -1019,7 +1019,7 @@ cpf_status cpf_step(cpf_state *restrict s, const cpf_input *restrict in, float d
             float noise[4];
             cpf_rng_gauss4(s->rng, noise);
             cpf_k_init_particle(s->q, noise, &s->particles[4u * i]);
-            s->weights[i] = 0.01f;
+            s->weights[i] = 0.01f /* 1 / n_particles */;
         }
         s->weight_sum = 1.0f;
         s->ess = 100.0f;
@@ -1141,7 +1141,7 @@ cpf_status cpf_step(cpf_state *restrict s, const cpf_input *restrict in, float d
                 }
             } else {
                 for (uint32_t i = 0u; i < 100u; i++) {
-                    s->weights[i] = 0.01f;
+                    s->weights[i] = 0.01f /* 1 / n_particles */;
                 }
                 status |= CPF_WEIGHTS_RESET;
             }

@@ -2833,7 +2833,7 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
      * course_max_sideslip of the body x axis) or while nothing else corrects the heading;
      * the magnetometer otherwise. */
     const bool nose_first = feat[2] > 0.0f &&
-        feat[3] * feat[3] <= 0.29844642f * feat[2] * feat[2];
+        feat[3] * feat[3] <= 0.29844642f /* tan(course_max_sideslip)^2 */ * feat[2] * feat[2];
     const bool course_mode = moving && (nose_first || s->head_age > 1.0f);
     const bool mag_ok = use_mag && !course_mode;
 
