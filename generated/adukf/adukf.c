@@ -2751,6 +2751,8 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
     if (s->initialised == 0u && use_accel && mag_ok) {
         /* First accelerometer + magnetometer sample: attitude from tilt and heading. */
         adukf_k_init_q(in->accel, in->mag, s->q);
+        /* attitude error variance 4 p0 per axis (an angle is twice the quaternion component p0 is
+         * stated for), gyro bias p0_bias */
         for (uint32_t i = 0u; i < 36u; i++) {
             s->P[i] = (i % 7u != 0u) ? 0.0f : ((i < 21u) ? 4.0f * ADUKF_P0 : ADUKF_P0_BIAS);
         }
@@ -2849,6 +2851,8 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
             for (uint32_t i = 21u; i < 108u; i++) {
                 s->work[i] = 0.0f;   /* the update's scratch may hold non-finite values */
             }
+            /* attitude error variance 4 p0 per axis (an angle is twice the quaternion component p0 is
+             * stated for), gyro bias p0_bias */
             for (uint32_t i = 0u; i < 21u; i++) {
                 P_pred[i] = 0.0f;
             }
