@@ -13,7 +13,7 @@ past an input check into a field that the attitude does not show yet is caught.
 
 The runs are chosen so that together they take every step path (manifest "step_paths") and
 every input check of every filter: real IMUs at 204-286 Hz (BROAD and PX4 excerpts in
-tests/data/), the magnetometer at a lower rate than the IMU, GPS at 5 Hz both slow (bench log)
+firmware_sim/data/), the magnetometer at a lower rate than the IMU, GPS at 5 Hz both slow (bench log)
 and fast (fixed-wing), GPS gaps longer than any filter's timeout, gyro-only stretches,
 accelerometer-only and magnetometer-only stretches, and single bad samples of every kind
 (magnetometer NaN included) with the valid bit set, plus NaN behind a clear valid bit.

@@ -1,4 +1,4 @@
-"""Log readers: BROAD CSV and PX4 ULog excerpts (tests/data/) mapped into SensorLog.
+"""Log readers: BROAD CSV and PX4 ULog excerpts (firmware_sim/data/) mapped into SensorLog.
 
 The checks are physical, not copies of the reader's output: at rest the reference attitude
 must rotate the specific force onto [0, 0, -g] and (BROAD: magnetic north) the field into the
