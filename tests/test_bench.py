@@ -229,8 +229,9 @@ def test_bench_without_the_optional_packages(tmp_path, monkeypatch, capsys):
     assert capsys.readouterr().err.strip().splitlines() == [
         "ahrsgen: error: --peers vqf: package no_such_vqf_package is not installed (pip install 'ahrsgen[dev]')"]
     assert not (tmp_path / "a" / "bench.json").exists()
-    real_have = bench._have
-    monkeypatch.setattr(bench, "_have", lambda m: m not in ("pyulog", "matplotlib") and real_have(m))
+    from firmware_sim.bench import grid
+    real_have = grid._have
+    monkeypatch.setattr(grid, "_have", lambda m: m not in ("pyulog", "matplotlib") and real_have(m))
     rep = bench.bench(quick=True, filters=["qcf"], peer_names=("vqf", "madgwick"), out_dir=tmp_path / "b",
                       jobs=1, real_only=True, command="test")
     assert rep["notes"][0] == ("peers left out, their packages are not installed: vqf (no_such_vqf_package): "

@@ -1,7 +1,7 @@
 /*
  * main_log.c - firmware-like main loop over a recorded sensor log, for one generated filter.
  *
- * Build with the generated source (ahrsgen does it: firmware_sim/bench.py build_log_runner):
+ * Build with the generated source (ahrsgen does it: firmware_sim/bench/harness.py build_log_runner):
  *   cc -std=c99 ... -DAHRS_PREFIX=qcf -DAHRS_HEADER='"qcf.h"' -DAHRS_REAL=float \
  *      -I<generated dir> main_log.c qcf.c -lm -o qcf_log
  * Run:
