@@ -38,6 +38,8 @@ def _split(name, precision, inputs, body, writes, tops, size, ctx_decl=None, boo
     # slots: the last part reading each exported value (len(chunks): an output reads it)
     last = {t: max([j for j in range(k + 1, len(chunks)) if t in used[j]] + [len(chunks) if t in used_out else -1])
             for k, ex in enumerate(exports) for t in ex}
+    def array_of(t):            # the array a handed value travels in
+        return "flags" if t in bools else "carry"
     slot, pool = {}, {}
     for kind in ("carry", "flags"):
         holder, free, pool[kind] = {}, [], 0
@@ -48,7 +50,7 @@ def _split(name, precision, inputs, body, writes, tops, size, ctx_decl=None, boo
                     del holder[s]
             free.sort()
             for t in ex:
-                if (t in bools) != (kind == "flags"):
+                if array_of(t) != kind:
                     continue
                 if free:
                     s = free.pop(0)
@@ -60,13 +62,13 @@ def _split(name, precision, inputs, body, writes, tops, size, ctx_decl=None, boo
     array_type = {"carry": real, "flags": "bool"}
 
     def carried(t):
-        return f"{'flags' if t in bools else 'carry'}[{slot[t]}]"
+        return f"{array_of(t)}[{slot[t]}]"
     parts = []
     held = [a for a in ("carry", "flags") if pool[a]]
     call_lines = [f"/* {len(chunks)} parts called in turn (inlined when optimising): bounded -O0 frames; "
                   f"{' and '.join(held)} {'hold' if len(held) > 1 else 'holds'} the values handed between "
                   f"them (a slot reused once its value is dead) */"]
-    call_lines += [f"{array_type[a]} {a}[{pool[a]}];" for a in ("carry", "flags") if pool[a]]
+    call_lines += [f"{array_type[a]} {a}[{pool[a]}];" for a in held]
     for k, tx in enumerate(texts):
         text = "\n".join(tx)
         words = set(_WORD.findall(text))
@@ -79,8 +81,8 @@ def _split(name, precision, inputs, body, writes, tops, size, ctx_decl=None, boo
             for a in outs]
         arrays = []
         for a in ("carry", "flags"):
-            writes_a = any((t in bools) == (a == "flags") for t in exports[k])
-            reads_a = any((t in bools) == (a == "flags") for t in imported)
+            writes_a = any(array_of(t) == a for t in exports[k])
+            reads_a = any(array_of(t) == a for t in imported)
             if writes_a or reads_a:
                 params.append(f"{'' if writes_a else 'const '}{array_type[a]} {a}[{pool[a]}]")
                 arrays.append(a)
