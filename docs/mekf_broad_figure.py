@@ -13,8 +13,9 @@ from pathlib import Path
 
 import numpy as np
 
-from firmware_sim import bench, host, readers
-from generator import config
+from ahrsgen import bench
+from ahrsgen.sim import host, readers
+from ahrsgen.generate import config
 
 OUT = Path(__file__).resolve().parent
 

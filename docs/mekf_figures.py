@@ -10,11 +10,11 @@ from pathlib import Path
 
 import numpy as np
 
-from firmware_sim import host
-from firmware_sim.log import VALID_GPS
-from firmware_sim.metrics import euler_errors_deg, euler_stats
-from firmware_sim.scenarios import make
-from generator import config
+from ahrsgen.sim import host
+from ahrsgen.sim.log import VALID_GPS
+from ahrsgen.sim.metrics import euler_errors_deg, euler_stats
+from ahrsgen.sim.scenarios import make
+from ahrsgen.generate import config
 
 OUT = Path(__file__).resolve().parent
 

@@ -16,8 +16,9 @@ from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 
-from firmware_sim import bench, peers, readers
-from firmware_sim.log import VALID_MAG, SensorLog
+from ahrsgen import bench
+from ahrsgen.sim import peers, readers
+from ahrsgen.sim.log import VALID_MAG, SensorLog
 
 VARIANTS = ("as recorded", "IMU / 3", "mag / 3")
 

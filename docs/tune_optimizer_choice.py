@@ -4,7 +4,7 @@
 
 (needs `pip install cma scipy` besides the dev extras). Optuna and CMA-ES are run with SEEDS
 sampler seeds each (Powell is deterministic).
-Each optimizer minimises the same objective as `ahrsgen tune` (firmware_sim.tune.Tuner.scores:
+Each optimizer minimises the same objective as `ahrsgen tune` (ahrsgen.tune.Tuner.scores:
 the float C through the harness, mean total RMS over the logs) over the same search space,
 starting from the current values, with the same number of objective evaluations. Prints the
 best error after each quarter of the budget and writes the table as JSON on stdout's last line.
@@ -20,11 +20,11 @@ import numpy as np
 
 
 def main(filter_name, params, budget, logs, seed=0, sets=()):
-    from firmware_sim import tune
-    from firmware_sim.fleet import Fleet
+    from ahrsgen import tune
+    from ahrsgen.sim.fleet import Fleet
     cases = tune.collect_cases(logs)
     with Fleet(2) as fleet:
-        from generator import config
+        from ahrsgen.generate import config
         base = config.resolve(filter_name, sets=list(sets))
         dims = tune.search_space(base.spec, params.split(","))
         assert all(d.kind == "float" for d in dims), "this comparison handles float parameters"

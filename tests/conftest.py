@@ -28,13 +28,13 @@ def _have(name: str) -> bool:
     if name == "pyelftools":
         return importlib.util.find_spec("elftools") is not None
     if name == "clang-fuzzer":          # clang whose -fsanitize=fuzzer,address,undefined links
-        from firmware_sim import harden
+        from ahrsgen.check import harden
         return harden.clang_fuzzer_works()
     if name == "cppcheck":
-        from firmware_sim import harden
+        from ahrsgen.check import harden
         return harden.have_tool(harden.CPPCHECK)
     if name == "target":                # arm-none-eabi-gcc + newlib, qemu-system-arm, unicorn, pyelftools
-        from firmware_sim import target
+        from ahrsgen import target
         return not target.missing_tools()
     return shutil.which(name) is not None     # an executable: cc, arm-none-eabi-gcc, qemu-system-arm
 
@@ -85,21 +85,21 @@ def pytest_runtest_makereport(item, call):
 
 @functools.cache
 def scenario(name: str, seed: int = 0, **opts):
-    from firmware_sim import scenarios
+    from ahrsgen.sim import scenarios
     return scenarios.make(name, seed=seed, **opts)
 
 
 @functools.cache
 def host_build(filter_name: str, precision: str = "float", sets: tuple = ()):
-    from generator import config
-    from firmware_sim import host
+    from ahrsgen.generate import config
+    from ahrsgen.sim import host
     return host.build(config.resolve(filter_name, sets=list(sets), precision=precision))
 
 
 @functools.cache
 def reference_run(filter_name: str, scenario_name: str, sets: tuple = (), seed: int = 0, **opts):
-    from generator import config
-    from firmware_sim import host
+    from ahrsgen.generate import config
+    from ahrsgen.sim import host
     cfg = config.resolve(filter_name, sets=list(sets))
     return host.run_reference(cfg.spec.reference(cfg.params), scenario(scenario_name, seed, **opts))
 

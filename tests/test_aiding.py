@@ -1,12 +1,12 @@
-"""generator/symbolic/aiding.py against plain NumPy formulas and physical invariants."""
+"""src/ahrsgen/symbolic/aiding.py against plain NumPy formulas and physical invariants."""
 from __future__ import annotations
 
 import casadi as ca
 import numpy as np
 import pytest
 
-from generator import npquat as nq
-from generator.symbolic import aiding, quat
+from ahrsgen import npquat as nq
+from ahrsgen.symbolic import aiding, quat
 
 
 def _fn(inputs, outputs):

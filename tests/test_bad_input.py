@@ -12,9 +12,9 @@ from pathlib import Path
 
 import pytest
 
-from firmware_sim import host, readers
-from generator import cli
-from firmware_sim.readers import EXCERPTS
+from ahrsgen.sim import host, readers
+from ahrsgen import cli
+from ahrsgen.sim.readers import EXCERPTS
 
 DATA = EXCERPTS
 ULOG = DATA / "px4_small_excerpt.ulg"

@@ -16,11 +16,13 @@ import sys
 import numpy as np
 import pytest
 
-from firmware_sim import bench, host, metrics, readers, scenarios
-from firmware_sim.log import VALID_ACCEL, VALID_ALL, VALID_GPS, VALID_GYRO, VALID_MAG, SensorLog
-from generator import cli, config, status
-from generator.npquat import qmul
-from firmware_sim.readers import EXCERPTS
+from ahrsgen import bench
+from ahrsgen.sim import host, metrics, readers, scenarios
+from ahrsgen.sim.log import VALID_ACCEL, VALID_ALL, VALID_GPS, VALID_GYRO, VALID_MAG, SensorLog
+from ahrsgen import cli, status
+from ahrsgen.generate import config
+from ahrsgen.npquat import qmul
+from ahrsgen.sim.readers import EXCERPTS
 
 DATA = EXCERPTS
 BROAD_X = DATA / "broad_01_excerpt.csv.gz"
@@ -223,13 +225,13 @@ def test_mini_bench_writes_tables(tmp_path, monkeypatch):
 def test_bench_without_the_optional_packages(tmp_path, monkeypatch, capsys):
     """A plain `pip install .` has no peers, pyulog or matplotlib (the `dev` extra): the bench
     still runs and says what it left out; a peer asked for by name is one line, exit 2."""
-    from firmware_sim import peers
+    from ahrsgen.sim import peers
     monkeypatch.setattr(peers.VqfPeer, "package", "no_such_vqf_package")
     assert cli.main(["bench", "--quick", "--filters", "qcf", "--peers", "vqf", "-o", str(tmp_path / "a")]) == 2
     assert capsys.readouterr().err.strip().splitlines() == [
         "ahrsgen: error: --peers vqf: package no_such_vqf_package is not installed (pip install 'ahrsgen[dev]')"]
     assert not (tmp_path / "a" / "bench.json").exists()
-    from firmware_sim.bench import grid
+    from ahrsgen.bench import grid
     real_have = grid._have
     monkeypatch.setattr(grid, "_have", lambda m: m not in ("pyulog", "matplotlib") and real_have(m))
     rep = bench.bench(quick=True, filters=["qcf"], peer_names=("vqf", "madgwick"), out_dir=tmp_path / "b",
@@ -244,8 +246,8 @@ def test_bench_without_the_optional_packages(tmp_path, monkeypatch, capsys):
 
 
 def test_variant_option_is_validated():
-    from firmware_sim.bench import parse_variants
-    from generator.model import ConfigError
+    from ahrsgen.cli.bench import parse_variants
+    from ahrsgen.codegen.model import ConfigError
     assert parse_variants(["soft=qcf:kp=0.05,ki=0.001"]) == [("soft", "qcf", ["kp=0.05", "ki=0.001"])]
     for bad in ["qcf:kp=1", "soft=qcf:kq=1", "soft=nofilter:kp=1", "soft=qcf:kp=-3"]:
         with pytest.raises(ConfigError):
@@ -255,9 +257,9 @@ def test_variant_option_is_validated():
 def test_quick_bench_through_the_cli_covers_everything_it_claims(tmp_path):
     """`ahrsgen bench --quick` as CI runs it: every product filter and every default peer has
     an entry for every scenario of the quick grid and for every real log it read."""
-    from generator import filters
+    from ahrsgen import filters
     out = tmp_path / "q"
-    r = subprocess.run([sys.executable, "-m", "generator.cli", "bench", "--quick", "-o", str(out)],
+    r = subprocess.run([sys.executable, "-m", "ahrsgen.cli", "bench", "--quick", "-o", str(out)],
                        capture_output=True, text=True, timeout=900)
     assert r.returncode == 0, r.stderr[-2000:]
     rep = json.loads((out / "bench.json").read_text())

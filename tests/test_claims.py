@@ -16,7 +16,8 @@ import re
 import casadi as ca
 import pytest
 
-from generator import config, filters, render
+from ahrsgen.generate import config, render
+from ahrsgen import filters
 
 
 

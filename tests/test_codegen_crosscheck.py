@@ -13,8 +13,9 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from firmware_sim.host import STRICT, cc
-from generator import emit, filters
+from ahrsgen.sim.host import STRICT, cc
+from ahrsgen.codegen import emit
+from ahrsgen import filters
 
 
 def _inputs(fn, rng, flags=()):

@@ -6,12 +6,13 @@ import sys
 
 import pytest
 
-from generator import config, filters
-from generator.model import ConfigError
+from ahrsgen.generate import config
+from ahrsgen import filters
+from ahrsgen.codegen.model import ConfigError
 
 
 def run_cli(*args):
-    return subprocess.run([sys.executable, "-m", "generator.cli", *args], capture_output=True, text=True)
+    return subprocess.run([sys.executable, "-m", "ahrsgen.cli", *args], capture_output=True, text=True)
 
 
 def test_every_filter_has_a_faithful_preset_that_applies():

@@ -18,15 +18,15 @@ import numpy as np
 import pytest
 
 from conftest import needs
-from firmware_sim import host, scenarios
-from firmware_sim.log import G0, VALID_ACCEL, VALID_GYRO, VALID_MAG, SensorLog
-from firmware_sim.metrics import euler_stats, max_angle_diff_rad
-from generator import config, render
-from generator import status as st
-from generator.filters.cpf import reference as R
-from generator.filters.cpf import prng
-from generator.filters.cpf.prng import Xoroshiro64ss, seed_state
-from generator.npquat import euler_from_q, q_from_euler, rotmat
+from ahrsgen.sim import host, scenarios
+from ahrsgen.sim.log import G0, VALID_ACCEL, VALID_GYRO, VALID_MAG, SensorLog
+from ahrsgen.sim.metrics import euler_stats, max_angle_diff_rad
+from ahrsgen.generate import config, render
+from ahrsgen import status as st
+from ahrsgen.filters.cpf import reference as R
+from ahrsgen.filters.cpf import prng
+from ahrsgen.filters.cpf.prng import Xoroshiro64ss, seed_state
+from ahrsgen.npquat import euler_from_q, q_from_euler, rotmat
 
 REPO = Path(__file__).resolve().parents[1]
 VALID_IMU = VALID_GYRO | VALID_ACCEL | VALID_MAG
@@ -160,7 +160,7 @@ def test_exp_nonpos_within_its_stated_bound():
     stated relative error EXP_NONPOS_REL_ERROR + EXP_NONPOS_REL_ERROR_PER_UNIT |x| of the exact
     exp over [-87.29, 0] (every power of two down to the subnormals, the table's 64 nodes and
     their midpoints, 10^6 random arguments), 1 at 0, 0 at and below -87.3, NaN kept."""
-    from generator import fastmath
+    from ahrsgen.codegen import fastmath
     lib, _, _ = _hook("float")
     lib.cpf_hook_exp_nonpos.argtypes = [ctypes.c_void_p, ctypes.c_uint32, ctypes.c_void_p]
     rng = np.random.default_rng(5)
@@ -502,7 +502,7 @@ def test_float_build_compiles_for_cortex_m4f(tmp_path):
 
 @pytest.mark.parametrize("precision", ["double", "float"])
 def test_cli_validate_on_turntable(precision, capsys):
-    from generator import cli
+    from ahrsgen import cli
     code = cli.main(["validate", "cpf", "--precision", precision, "--scenario", "turntable"])
     out = capsys.readouterr().out
     assert code == 0, out
@@ -511,10 +511,10 @@ def test_cli_validate_on_turntable(precision, capsys):
 
 
 def test_float_vs_double_as_estimators_passes_and_sees_a_planted_float_error():
-    """firmware_sim/stochastic.py: the float build at defaults passes the paired test over 10
+    """src/ahrsgen/sim/stochastic.py: the float build at defaults passes the paired test over 10
     particle-noise streams; a float build whose process noise is 2x the double's (standing in for a
     wrong float literal) fails it."""
-    from firmware_sim import stochastic
+    from ahrsgen.sim import stochastic
     log = _log("turntable")
     cfg, hd = built("double", **site("turntable"))
     model = cfg.spec.model(cfg.params)

@@ -10,8 +10,8 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from firmware_sim.host import STRICT, cc
-from generator import emit
+from ahrsgen.sim.host import STRICT, cc
+from ahrsgen.codegen import emit
 
 x = ca.SX.sym("x")
 y = ca.SX.sym("y")

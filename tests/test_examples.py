@@ -16,10 +16,10 @@ import numpy as np
 import pytest
 
 from conftest import needs
-from firmware_sim import host, metrics, readers
-from firmware_sim.log import VALID_ACCEL, VALID_MAG
-from generator import config
-from firmware_sim.readers import EXCERPTS
+from ahrsgen.sim import host, metrics, readers
+from ahrsgen.sim.log import VALID_ACCEL, VALID_MAG
+from ahrsgen.generate import config
+from ahrsgen.sim.readers import EXCERPTS
 
 REPO = Path(__file__).resolve().parents[1]
 EXAMPLES = [str(REPO / "examples" / n) for n in ("madgwick", "mahony")]
@@ -87,7 +87,7 @@ def test_target_sets_the_example_beside_the_hand_written_peer(tmp_path, capsys):
     their instruction counts."""
     import json
 
-    from generator import cli
+    from ahrsgen import cli
     out = tmp_path / "t.json"
     rc = cli.main(["target", EXAMPLES[0], "--opt=-O2", "--peers", "--scenario-opt", "duration=16",
                    "--count-steps", "10", "--no-pinned", "--json", str(out)])
@@ -108,7 +108,7 @@ def test_target_sets_the_example_beside_the_hand_written_peer(tmp_path, capsys):
 def test_every_command_takes_the_example_folder(tmp_path, capsys):
     """list, generate, validate, run, bench and harden on examples/mahony, exactly as on a
     built-in (target: the test above; tune: tests/test_tune.py)."""
-    from generator import cli
+    from ahrsgen import cli
     folder = EXAMPLES[1]
     runs = [
         ["list", folder],
@@ -132,11 +132,11 @@ def test_rounding_sensitive_madgwick_is_judged_as_an_estimator(capsys):
     """examples/madgwick declares `rounding_sensitive`: on the 12.5 Hz fixed-wing flight its float
     build parts from the double reference by more than validate's 1e-3 rad (normalised-gradient
     chatter), so validate judges it as an estimator: double C = reference at 1e-9 rad, then float
-    vs double paired over 10 seeds (firmware_sim/stochastic.py). It passes; a float build whose
+    vs double paired over 10 seeds (src/ahrsgen/sim/stochastic.py). It passes; a float build whose
     beta is 1.05x the double's fails the same judgement (the check has power); Mahony, which
     declares nothing, is held to the sample-by-sample bound."""
-    from firmware_sim import scenarios, stochastic
-    from generator import cli, filters
+    from ahrsgen.sim import scenarios, stochastic
+    from ahrsgen import cli, filters
     folder = EXAMPLES[0]
     assert filters.load(folder).rounding_sensitive and not filters.load(EXAMPLES[1]).rounding_sensitive
     assert cli.main(["validate", folder, "--scenario-opt", "duration=120"]) == 0
@@ -158,8 +158,8 @@ def _doctored_flight(seed: int = 1, duration: float = 80.0):
     (1 000 steps at 12.5 Hz)."""
     import dataclasses
 
-    from firmware_sim import scenarios
-    from firmware_sim.log import VALID_GYRO
+    from ahrsgen.sim import scenarios
+    from ahrsgen.sim.log import VALID_GYRO
     log = scenarios.make("fixedwing_gps", seed=seed, duration=duration)
     g, a, m = log.gyro.copy(), log.accel.copy(), log.mag.copy()
     valid, dt = log.valid.copy(), log.dt.copy()
@@ -178,13 +178,13 @@ def _doctored_flight(seed: int = 1, duration: float = 80.0):
 @needs("target")
 @pytest.mark.parametrize("folder", EXAMPLES, ids=lambda p: Path(p).name)
 def test_like_for_like_peer_does_what_the_example_does(folder, tmp_path):
-    """The hand-written like-for-like peers (firmware_sim/target/peers/*_checked.c), the yardstick
+    """The hand-written like-for-like peers (src/ahrsgen/target/peers/*_checked.c), the yardstick
     of the examples' like-for-like ratio, are only fair if they do what the generated step does:
     on a flight with bad samples of every kind, a zero gyro, no magnetometer and no
     accelerometer, the same status in every step as the independent reference (ahrs behind the
     product's input checks, initialise = false), and an attitude as close to it as the generated
     float build's (measured: Madgwick 5.8e-5 rad, generated 6.0e-5 at 12.5 Hz; Mahony 8e-7)."""
-    from firmware_sim import target as T
+    from ahrsgen import target as T
     log = _doctored_flight()
     cfg = config.resolve(folder, precision="double", sets=["initialise=false"])
     ref = host.run_reference(cfg.spec.reference(cfg.params), log)

@@ -1,5 +1,5 @@
 """math = "fast": the float helpers against the exact functions (NumPy double) over their
-whole domain, each within the maximum error generator/fastmath.py states; the special values
+whole domain, each within the maximum error src/ahrsgen/codegen/fastmath.py states; the special values
 (signed zeros, infinities, NaN) as C99's atan2 gives them; and a fast build links no libm
 trigonometry while the emitter still writes libm calls for math = "libm" and double."""
 from __future__ import annotations
@@ -11,7 +11,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from generator import emit, fastmath
+from ahrsgen.codegen import emit, fastmath
 
 FLAGS = ["-std=c99", "-O2", "-ffp-contract=off", "-fno-math-errno", "-Wall", "-Wextra", "-Wpedantic",
          "-Wconversion", "-Wdouble-promotion", "-Wshadow", "-Wfloat-equal", "-Werror"]

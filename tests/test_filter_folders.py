@@ -1,5 +1,5 @@
 """Filters outside the package: a folder path, AHRSGEN_FILTER_PATH and the `ahrsgen.filters`
-entry-point group are resolved by one resolver (generator.filters) for every command; a name
+entry-point group are resolved by one resolver (ahrsgen.filters) for every command; a name
 defined twice is a one-line error naming both places."""
 from __future__ import annotations
 
@@ -9,8 +9,9 @@ from pathlib import Path
 
 import pytest
 
-from generator import cli, config, filters
-from generator.model import ConfigError
+from ahrsgen import cli, filters
+from ahrsgen.generate import config
+from ahrsgen.codegen.model import ConfigError
 
 REPO = Path(__file__).resolve().parents[1]
 EXAMPLES = REPO / "examples"
@@ -31,8 +32,8 @@ def test_a_folder_path_is_a_filter(tmp_path, capsys):
 
 
 def test_the_folder_of_a_built_in_is_the_built_in(tmp_path):
-    spec = filters.load(str(REPO / "generator" / "filters" / "qcf"))
-    assert spec.origin == "built-in" and spec.package == "generator.filters.qcf"
+    spec = filters.load(str(REPO / "src" / "ahrsgen" / "filters" / "qcf"))
+    assert spec.origin == "built-in" and spec.package == "ahrsgen.filters.qcf"
 
 
 @pytest.mark.parametrize("arg,message", [
@@ -55,12 +56,12 @@ def test_search_path(monkeypatch, capsys):
 
 
 def test_a_name_defined_twice_is_an_error_naming_both(tmp_path, monkeypatch, capsys):
-    shutil.copytree(REPO / "generator" / "filters" / "qcf", tmp_path / "qcf")
+    shutil.copytree(REPO / "src" / "ahrsgen" / "filters" / "qcf", tmp_path / "qcf")
     monkeypatch.setenv(filters.PATH_ENV, str(tmp_path))
     with pytest.raises(ConfigError) as e:
         filters.load("qcf")
     msg = str(e.value)
-    assert "defined twice" in msg and str(tmp_path / "qcf") in msg and str(REPO / "generator" / "filters" / "qcf") in msg
+    assert "defined twice" in msg and str(tmp_path / "qcf") in msg and str(REPO / "src" / "ahrsgen" / "filters" / "qcf") in msg
     for argv in (["list"], ["generate", "qcf", "-o", str(tmp_path / "o")], ["validate", "qcf"]):
         assert cli.main(argv) == 2
         err = capsys.readouterr().err
@@ -86,12 +87,12 @@ def test_entry_point(tmp_path, monkeypatch):
     assert spec.model_class().__module__ == "shipped_madg.model"
     cfg = config.resolve("madg_shipped", precision="double")
     assert cfg.prefix == "madg_shipped"
-    from firmware_sim import host
+    from ahrsgen.sim import host
     from conftest import scenario
     log = scenario("turntable", duration=5)
     c = host.build(cfg).run(log)
     r = host.run_reference(cfg.spec.reference(cfg.params), log)
-    from firmware_sim import metrics
+    from ahrsgen.sim import metrics
     assert metrics.max_angle_diff_rad(c.q, r.q) <= 1e-9
     sys.modules.pop("shipped_madg", None)
 
@@ -114,8 +115,8 @@ def test_a_folder_imports_its_own_helpers_relatively(tmp_path):
     folder = tmp_path / "helped"
     (folder / "gains.py").write_text("KP_SCALE = 2.0\n")
     model = folder / "model.py"
-    model.write_text(model.read_text().replace("from generator.symbolic import quat\n",
-                                               "from generator.symbolic import quat\n\nfrom .gains import KP_SCALE\n")
+    model.write_text(model.read_text().replace("from ahrsgen.symbolic import quat\n",
+                                               "from ahrsgen.symbolic import quat\n\nfrom .gains import KP_SCALE\n")
                      .replace('kp, ki = self.params["kp"], self.params["ki"]',
                               'kp, ki = KP_SCALE * self.params["kp"], self.params["ki"]'))
     spec = filters.load(str(folder))

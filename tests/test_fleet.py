@@ -5,9 +5,9 @@ import json
 
 import distributed      # in the dev extras: a missing install fails here, in CI too
 
-from firmware_sim import bench
-from firmware_sim.fleet import Fleet
-from firmware_sim.readers import EXCERPTS
+from ahrsgen import bench
+from ahrsgen.sim.fleet import Fleet
+from ahrsgen.sim.readers import EXCERPTS
 
 
 def _figures(rep):
@@ -37,13 +37,13 @@ def test_fleet_map_keeps_order_and_reports_where():
 
 def test_unreachable_scheduler_is_a_config_error():
     import pytest
-    from generator.model import ConfigError
+    from ahrsgen.codegen.model import ConfigError
     with pytest.raises(ConfigError, match="cannot reach the Dask scheduler at tcp://127.0.0.1:9"):
         Fleet(scheduler="tcp://127.0.0.1:9", timeout="2s")
 
 
 def test_tune_on_local_cluster_equals_local(tmp_path):
-    from firmware_sim import tune
+    from ahrsgen import tune
     data = EXCERPTS
     cases = tune.collect_cases([data / "broad_01_excerpt.csv.gz", data / "px4_handheld_excerpt.ulg"])
     kw = dict(budget=3, folds=0, progress=False, out=open("/dev/null", "w"))

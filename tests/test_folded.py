@@ -1,4 +1,4 @@
-"""Folded parameters carry their names (generator/folded.py): `0.0049f /* accel_angle_noise^2 */`.
+"""Folded parameters carry their names (src/ahrsgen/codegen/folded.py): `0.0049f /* accel_angle_noise^2 */`.
 
 Checked against things the naming does not decide: the C without comments (the build with
 naming off), the numbers a parameter expression gives when evaluated here in Python from the
@@ -14,8 +14,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from generator import cli, config, render
-from generator.folded import Traced, traced_params
+from ahrsgen import cli
+from ahrsgen.generate import config, render
+from ahrsgen.codegen.folded import Traced, traced_params
 
 REPO = Path(__file__).resolve().parents[1]
 # a literal of the emitter (float or double) followed by its name
@@ -141,7 +142,7 @@ def test_constant_names_rule():
     (shadow) value both match one recorded expression; never a structural constant, a value
     two expressions share, or a perturbed value whose real value differs."""
     import casadi as ca
-    from generator.folded import constant_names
+    from ahrsgen.codegen.folded import constant_names
     x, y = ca.SX.sym("x"), ca.SX.sym("y")
     p, record = traced_params({"a": 0.5, "b": 0.25}, ["a", "b"])
     a, b = p["a"], p["b"]
@@ -172,8 +173,9 @@ def test_naming_every_constant_changes_no_arithmetic(name):
     conditions, powers, reciprocals, fused multiply-adds, split kernels) writes the same C once
     the comments are gone."""
     import casadi as ca
-    from generator import emit, filters
-    from generator.model import KernelSpec
+    from ahrsgen.codegen import emit
+    from ahrsgen import filters
+    from ahrsgen.codegen.model import KernelSpec
     x, y = ca.SX.sym("x"), ca.SX.sym("y")
     own = KernelSpec("own", emit.function("own", {"x": x, "y": y}, {"o": ca.vertcat(
         ca.constpow(x, 3.0), ca.constpow(y, 2.5), x / 4.0, ca.if_else(x > 0.5, 1.0, 0.0) * y)}), "")

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from firmware_sim.host import STRICT, cc
-from generator import config, render
+from ahrsgen.sim.host import STRICT, cc
+from ahrsgen.generate import config, render
 
 REPO = Path(__file__).resolve().parents[1]
 GENERATED = sorted(p for p in (REPO / "generated").iterdir() if (p / "manifest.json").exists())
@@ -20,7 +20,7 @@ DOUBLE_LIBM = {"sin", "cos", "tan", "asin", "acos", "atan", "atan2", "sqrt", "ex
 
 def test_every_filter_has_its_committed_build():
     """A removed generated/<name> fails here (the staleness test below only sees what exists)."""
-    from generator import filters
+    from ahrsgen import filters
     names = filters.names()
     assert len(names) >= 4
     missing = [n for n in names if not (REPO / "generated" / n / "manifest.json").exists()]

@@ -1,8 +1,8 @@
-"""Hardening of the generated C (firmware_sim/harden.py): cppcheck, libFuzzer under ASan/UBSan,
+"""Hardening of the generated C (src/ahrsgen/check/harden.py): cppcheck, libFuzzer under ASan/UBSan,
 soak over varied motion with glitches. Every generated/*/ directory is checked.
 
 The invariants are physical (finite state, |q| = 1, covariance symmetric positive definite,
-weights summing to 1) and checked in double by firmware_sim/fuzz/ahrs_invariants.h; the
+weights summing to 1) and checked in double by src/ahrsgen/sim/fuzz/ahrs_invariants.h; the
 harness itself is checked below on states that must fail it.
 """
 from __future__ import annotations
@@ -13,7 +13,7 @@ import shutil
 import pytest
 
 from conftest import needs
-from firmware_sim import harden
+from ahrsgen.check import harden
 
 GEN_DIRS = harden.generated_dirs()
 IDS = [d.name for d in GEN_DIRS]
@@ -282,7 +282,7 @@ def test_soak_motion_is_consistent():
 
 @needs_cc
 def test_cli_harden_soak_only(tmp_path, capsys):
-    from generator import cli
+    from ahrsgen import cli
     out = tmp_path / "h.json"
     rc = cli.main(["harden", "qcf", "--fuzz-seconds", "0", "--soak-steps", "20000", "--no-cppcheck",
                    "--json", str(out)])
@@ -294,14 +294,14 @@ def test_cli_harden_soak_only(tmp_path, capsys):
 
 
 def test_cli_unknown_filter(capsys):
-    from generator import cli
+    from ahrsgen import cli
     assert cli.main(["harden", "no_such_filter", "--soak-steps", "0", "--fuzz-seconds", "0"]) == 2
     assert "unknown filter 'no_such_filter'" in capsys.readouterr().err
 
 
 def test_cli_refuses_a_check_it_cannot_run(monkeypatch, capsys):
     """Fuzzing asked for but the fuzzer cannot link: one line, exit 2, not a table of '-'."""
-    from generator import cli
+    from ahrsgen import cli
     monkeypatch.setattr(harden, "CLANG", "no-such-clang-ahrsgen")
     rc = cli.main(["harden", "qcf", "--fuzz-seconds", "20", "--soak-steps", "1e5", "--no-cppcheck"])
     err = capsys.readouterr().err
@@ -316,7 +316,7 @@ def test_cli_refuses_a_check_it_cannot_run(monkeypatch, capsys):
 def test_cli_soak_steps_parsing(text, value, capsys):
     """--soak-steps takes what its help writes (1e7); a negative count is refused (it used to wrap in
     strtoull and run for ever)."""
-    from generator import cli
+    from ahrsgen import cli
     cli._load_extra_commands()
     parser = cli.build_parser()
     if value is None:

@@ -1,4 +1,4 @@
-"""The input-check contract of every generated filter (templates/filter.c.j2), driven in C.
+"""The input-check contract of every generated filter (src/ahrsgen/codegen/templates/filter.c.j2), driven in C.
 
 Refused steps (bad dt, missing/non-finite/out-of-range gyro) leave the state byte for byte as
 it was; a bad aiding sample (non-finite, out of range, near-zero) changes the state exactly as
@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from conftest import host_build
-from generator import filters
-from generator import status as st
+from ahrsgen import filters
+from ahrsgen import status as st
 
 NAN, INF = float("nan"), float("inf")
 GOOD = dict(gyro=(0.01, -0.02, 0.03), accel=(0.3, -0.2, -9.7), mag=(0.2, 0.05, 0.4), gps_vel=(20.0, 1.0, 0.5))
@@ -93,7 +93,7 @@ def test_bad_aiding_sample_equals_a_missing_one(name, precision):
 
 @pytest.mark.parametrize("name", NAMES, ids=lambda n: Path(n).name)
 def test_reference_reports_the_same_bits(name):
-    from generator import config
+    from ahrsgen.generate import config
     cfg = config.resolve(name)
     sensors = _sensors(name)
     cases = [(c, dt, e) for c, dt, e in REFUSALS if dt != 11.0]

@@ -1,4 +1,4 @@
-"""Fixed-size Cholesky, triangular solves and SPD solve (generator/symbolic/linalg.py)
+"""Fixed-size Cholesky, triangular solves and SPD solve (src/ahrsgen/symbolic/linalg.py)
 checked against numpy.linalg on random SPD matrices, well- and ill-conditioned.
 
 The symbolic expressions are built once per size as SX functions and evaluated by CasADi
@@ -13,7 +13,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from generator.symbolic import linalg
+from ahrsgen.symbolic import linalg
 
 EPS = np.finfo(float).eps
 
@@ -204,7 +204,7 @@ def test_works_on_dm_and_numpy():
 import ctypes  # noqa: E402
 import subprocess  # noqa: E402
 
-from generator import emit  # noqa: E402
+from ahrsgen.codegen import emit  # noqa: E402
 
 C_SIZES = (3, 4, 6)
 C_NRHS = 4
@@ -213,7 +213,7 @@ C_NRHS = 4
 @functools.lru_cache(maxsize=None)
 def c_lib(precision):
     """Shared library with chol<n> and spd_solve<n> kernels for n in C_SIZES."""
-    from firmware_sim.host import CACHE, STRICT, cc
+    from ahrsgen.sim.host import CACHE, STRICT, cc
     parts = ["#include <math.h>", ""]
     for n in C_SIZES:
         A = ca.SX.sym("A", n, n)

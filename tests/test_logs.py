@@ -9,9 +9,10 @@ import numpy as np
 import pytest
 
 from conftest import host_build, scenario
-from firmware_sim import bench, readers
-from firmware_sim.log import VALID_ACCEL, VALID_GPS, VALID_GYRO, VALID_MAG
-from firmware_sim.metrics import euler_stats, max_angle_diff_rad
+from ahrsgen import bench
+from ahrsgen.sim import readers
+from ahrsgen.sim.log import VALID_ACCEL, VALID_GPS, VALID_GYRO, VALID_MAG
+from ahrsgen.sim.metrics import euler_stats, max_angle_diff_rad
 
 
 @pytest.fixture(scope="module")
@@ -102,7 +103,7 @@ def test_continuous_yaw_shows_a_small_error_across_the_wrap():
 
 
 def test_run_plot_and_csv_are_written(flight_csv, tmp_path):
-    from generator import cli
+    from ahrsgen import cli
     png, csv = tmp_path / "p.png", tmp_path / "r.csv"
     assert cli.main(["run", "qcf", "--log", str(flight_csv), "--plot", str(png), "--csv", str(csv)]) == 0
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

@@ -11,14 +11,14 @@ import copy
 import numpy as np
 import pytest
 
-from firmware_sim import host
-from firmware_sim.log import VALID_ACCEL, VALID_GPS, VALID_GYRO
-from firmware_sim.metrics import euler_errors_deg, max_angle_diff_rad
-from firmware_sim.scenarios import make
-from generator import config
-from generator import status as st
-from generator.filters.mekf import reference as R
-from generator.npquat import qconj, qmul
+from ahrsgen.sim import host
+from ahrsgen.sim.log import VALID_ACCEL, VALID_GPS, VALID_GYRO
+from ahrsgen.sim.metrics import euler_errors_deg, max_angle_diff_rad
+from ahrsgen.sim.scenarios import make
+from ahrsgen.generate import config
+from ahrsgen import status as st
+from ahrsgen.filters.mekf import reference as R
+from ahrsgen.npquat import qconj, qmul
 
 DEG = np.pi / 180
 FLOAT_BOUND_RAD = 1e-5
@@ -283,8 +283,8 @@ def test_fault_injected_log_matches_reference(c_double):
 
 def _loop_log(noise=True):
     """A loop: level for 5 s, then pitching up at 0.5 rad/s through +-90 deg twice (no GPS)."""
-    from firmware_sim.log import G0, SensorLog
-    from generator.npquat import qexp, rotmat
+    from ahrsgen.sim.log import G0, SensorLog
+    from ahrsgen.npquat import qexp, rotmat
     dt, n = 0.01, 3000
     rng = np.random.default_rng(3)
     t = np.arange(n) * dt
@@ -321,7 +321,7 @@ def test_loop_through_vertical_pitch(sets):
     assert np.all(np.isfinite(c_float.state_dict(c_float.last_state)["P"]))
     err = np.degrees(angle_diff_series(rf.q, log.q_true))
     # yaw is unobservable here (no heading): score the tilt only, i.e. the gravity direction
-    from generator.npquat import rotmat
+    from ahrsgen.npquat import rotmat
     g_est = np.array([rotmat(q)[2] for q in rf.q])
     g_true = np.array([rotmat(q)[2] for q in log.q_true])
     tilt_err = np.degrees(np.arccos(np.clip(np.sum(g_est * g_true, axis=1), -1, 1)))
@@ -332,8 +332,8 @@ def test_loop_through_vertical_pitch(sets):
 def test_course_across_plus_minus_180_deg(c_double, c_float):
     """Flying due south: the GPS course flips between +180 and -180 deg with the noise. The
     wrapped innovation must treat them as neighbours (an unwrapped one would yank yaw 360)."""
-    from firmware_sim.log import G0, SensorLog
-    from generator.npquat import q_from_euler, rotmat
+    from ahrsgen.sim.log import G0, SensorLog
+    from ahrsgen.npquat import q_from_euler, rotmat
     rng = np.random.default_rng(11)
     n, dt = 1500, 0.08
     t = np.arange(n) * dt
@@ -456,7 +456,7 @@ def test_fuzz_input_P_not_pd_keeps_covariance_spd(c_float, c_double, precision):
     The double C also equals the reference over the whole run, status codes included."""
     from pathlib import Path
 
-    from firmware_sim import harden
+    from ahrsgen.check import harden
     data = (Path(__file__).parent / "data" / "mekf-P-not-pd.bin").read_bytes()
     c = c_float if precision == "float" else c_double
     flags, records = harden.decode_input(data, dict(c.manifest, precision="float"))   # float records

@@ -4,7 +4,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from generator.symbolic import kalman
+from ahrsgen.symbolic import kalman
 
 
 def _spd(rng, n):

@@ -7,13 +7,13 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from firmware_sim.log import VALID_GPS
-from firmware_sim.metrics import max_angle_diff_rad
-from firmware_sim.scenarios import make
-from generator import filters
-from generator.filters.mekf import model as M
-from generator.filters.mekf import reference as R
-from generator.npquat import euler_from_q, q_from_euler, qconj, qexp, qmul, wrap
+from ahrsgen.sim.log import VALID_GPS
+from ahrsgen.sim.metrics import max_angle_diff_rad
+from ahrsgen.sim.scenarios import make
+from ahrsgen import filters
+from ahrsgen.filters.mekf import model as M
+from ahrsgen.filters.mekf import reference as R
+from ahrsgen.npquat import euler_from_q, q_from_euler, qconj, qexp, qmul, wrap
 
 
 
@@ -152,7 +152,7 @@ def test_update_refuses_at_vertical_pitch():
 # --- measurement = "vectors": gravity direction and vertical-only heading ------------------
 def np_gravity_direction(q, dq):
     """Body-axis direction of the specific force at rest, R(q ⊗ [1, δq])ᵀ [0, 0, -1]."""
-    from generator.npquat import rotmat
+    from ahrsgen.npquat import rotmat
     e = qmul(q, np.concatenate([[1.0], dq]))
     return rotmat(e / np.linalg.norm(e)).T @ np.array([0.0, 0.0, -1.0])
 
@@ -181,7 +181,7 @@ def test_gravity_H_matches_finite_differences_at_any_attitude(euler):
 def test_heading_H_is_vertical_and_matches_finite_differences(euler):
     """The heading row's Jacobian: finite differences of the twist about the NED vertical of
     the error rotation, and only the vertical (body axes R(q)ᵀ e3) component."""
-    from generator.npquat import rotmat
+    from ahrsgen.npquat import rotmat
 
     def twist(d):
         e = qmul(qmul(q, np.concatenate([[1.0], d[:3]])), qconj(q))
@@ -202,7 +202,7 @@ def test_heading_update_never_tilts_and_keeps_P_spd(use_course):
     """A heading correction with a large innovation and a P with tilt-heading correlation:
     the gravity direction of the estimate is unchanged (gain projected on the vertical),
     heading moves toward the measurement, P stays symmetric positive definite."""
-    from generator.npquat import rotmat
+    from ahrsgen.npquat import rotmat
     p = _vec_params()
     fu, fi = M.update_heading_function(p), M.inject_function()
     q = q_from_euler(0.4, -0.3, 0.2)
@@ -226,7 +226,7 @@ def test_heading_update_never_tilts_and_keeps_P_spd(use_course):
 def test_gravity_update_keeps_P_spd_at_vertical_pitch():
     """Gravity rows at pitch 90 deg: usable pivot, P symmetric positive definite, tilt moves
     toward the measured direction (no Euler singularity in this measurement)."""
-    from generator.npquat import rotmat
+    from ahrsgen.npquat import rotmat
     p = _vec_params()
     fg, fr, fi = M.gravity_rows_function(p), M.update_attitude_row_function(), M.inject_function()
     q = q_from_euler(0.0, np.pi / 2, 0.3)

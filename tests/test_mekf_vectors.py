@@ -10,14 +10,14 @@ import copy
 import numpy as np
 import pytest
 
-from firmware_sim import host
-from firmware_sim.log import VALID_ACCEL, VALID_GYRO, VALID_MAG, SensorLog
-from firmware_sim.metrics import broad_errors_deg, max_angle_diff_rad
-from firmware_sim.scenarios import make
-from firmware_sim.scenarios._static import make_static
-from generator import config
-from generator.filters.mekf import reference as R
-from generator.npquat import qexp, qmul, rotmat
+from ahrsgen.sim import host
+from ahrsgen.sim.log import VALID_ACCEL, VALID_GYRO, VALID_MAG, SensorLog
+from ahrsgen.sim.metrics import broad_errors_deg, max_angle_diff_rad
+from ahrsgen.sim.scenarios import make
+from ahrsgen.sim.scenarios._static import make_static
+from ahrsgen.generate import config
+from ahrsgen.filters.mekf import reference as R
+from ahrsgen.npquat import qexp, qmul, rotmat
 
 DEG = np.pi / 180
 

@@ -18,9 +18,10 @@ from pathlib import Path
 import pytest
 
 from conftest import needs
-from firmware_sim import host
-from generator import config, filters, render
-from generator.model import ConfigError
+from ahrsgen.sim import host
+from ahrsgen.generate import config, render
+from ahrsgen import filters
+from ahrsgen.codegen.model import ConfigError
 
 # A parameter value folded into a literal that overflowed prints as inf / inff (nan / nanf);
 # comments are left out, and the C99 macros NAN / INFINITY a template writes on purpose (e.g. a

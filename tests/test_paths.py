@@ -13,7 +13,7 @@ past an input check into a field that the attitude does not show yet is caught.
 
 The runs are chosen so that together they take every step path (manifest "step_paths") and
 every input check of every filter: real IMUs at 204-286 Hz (BROAD and PX4 excerpts in
-firmware_sim/data/), the magnetometer at a lower rate than the IMU, GPS at 5 Hz both slow (bench log)
+src/ahrsgen/sim/data/), the magnetometer at a lower rate than the IMU, GPS at 5 Hz both slow (bench log)
 and fast (fixed-wing), GPS gaps longer than any filter's timeout, gyro-only stretches,
 accelerometer-only and magnetometer-only stretches, and single bad samples of every kind
 (magnetometer NaN included) with the valid bit set, plus NaN behind a clear valid bit.
@@ -28,12 +28,13 @@ import numpy as np
 import pytest
 
 from conftest import host_build
-from firmware_sim import readers
-from firmware_sim.log import VALID_ACCEL, VALID_GPS, VALID_GYRO, VALID_MAG, SensorLog
-from firmware_sim.scenarios import make
-from generator import config, filters
-from generator import status as st
-from firmware_sim.readers import EXCERPTS
+from ahrsgen.sim import readers
+from ahrsgen.sim.log import VALID_ACCEL, VALID_GPS, VALID_GYRO, VALID_MAG, SensorLog
+from ahrsgen.sim.scenarios import make
+from ahrsgen.generate import config
+from ahrsgen import filters
+from ahrsgen import status as st
+from ahrsgen.sim.readers import EXCERPTS
 
 DATA = EXCERPTS
 ANGLE_TOL = 1e-9        # rad, double C vs reference (SPEC: <= 1e-9)

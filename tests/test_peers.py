@@ -10,10 +10,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from firmware_sim import peers, readers
-from firmware_sim.log import G0, VALID_ACCEL, VALID_GYRO, VALID_MAG, SensorLog
-from generator.npquat import euler_from_q, q_from_euler, qconj, qexp, qmul, rotmat
-from firmware_sim.readers import EXCERPTS
+from ahrsgen.sim import peers, readers
+from ahrsgen.sim.log import G0, VALID_ACCEL, VALID_GYRO, VALID_MAG, SensorLog
+from ahrsgen.npquat import euler_from_q, q_from_euler, qconj, qexp, qmul, rotmat
+from ahrsgen.sim.readers import EXCERPTS
 
 MAG_NED = np.array([0.20, 0.0, 0.45])     # magnetic north = north, inclination ~66°
 

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from conftest import host_build, reference_run, scenario
-from firmware_sim import metrics
+from ahrsgen.sim import metrics
 
 # Float C vs the double reference over the whole 10-minute fixedwing_gps flight.
 # Continuous path (no gate can decide differently): measured 1.2e-5 rad (0.0007 deg) on
@@ -115,7 +115,7 @@ def test_missing_magnetometer_keeps_tilt_corrected():
     # cleared on every step: the tilt-only reference corrects roll and pitch exactly as
     # well as with the magnetometer, and yaw is held on the gyro (not pulled anywhere).
     log = scenario("turntable", 0)
-    from firmware_sim.log import SensorLog, VALID_MAG
+    from ahrsgen.sim.log import SensorLog, VALID_MAG
     nomag = SensorLog(log.name, log.t, log.dt, log.gyro, log.accel, log.mag, log.gps_vel,
                       log.valid & ~np.uint32(VALID_MAG), log.q_true, log.meta)
     hf = host_build("qcf", "float", ("faithful=true",))
@@ -133,8 +133,8 @@ def test_missing_magnetometer_keeps_tilt_corrected():
 def _static_log(roll_deg=0.0, seconds=10.0, rate=200.0, gyro_bias=(0.0, 0.0, 0.0), mag=True,
                 accel_ned_extra=None, mag_scale=None):
     """Still sensor at a fixed attitude (yaw 30 deg): exact gravity and field, optional extras."""
-    from firmware_sim.log import SensorLog, VALID_ACCEL, VALID_GYRO, VALID_MAG
-    from generator import npquat as nq
+    from ahrsgen.sim.log import SensorLog, VALID_ACCEL, VALID_GYRO, VALID_MAG
+    from ahrsgen import npquat as nq
     n = int(seconds * rate)
     t = np.arange(n) / rate
     q = nq.q_from_euler(np.radians(roll_deg), 0.0, np.radians(30.0))
@@ -149,7 +149,7 @@ def _static_log(roll_deg=0.0, seconds=10.0, rate=200.0, gyro_bias=(0.0, 0.0, 0.0
 
 
 def _euler_deg(q):
-    from generator import npquat as nq
+    from ahrsgen import npquat as nq
     return np.degrees(nq.euler_from_q(np.asarray(q)))
 
 
@@ -166,9 +166,9 @@ def test_starts_from_the_accelerometer_tilt_without_magnetometer():
 def test_tilt_only_start_equals_reference():
     # roll and pitch together, no magnetometer: the start is the shortest rotation taking the
     # measured down to NED down (its yaw is not 0 then), the same in the C and the reference
-    from firmware_sim import host
-    from generator import config
-    from generator import npquat as nq
+    from ahrsgen.sim import host
+    from ahrsgen.generate import config
+    from ahrsgen import npquat as nq
     log = _static_log(roll_deg=25.0, seconds=0.05, mag=False)
     log.accel[:] = (np.array([0.0, 0.0, -9.80665]) @ nq.rotmat(nq.q_from_euler(np.radians(25.0), np.radians(-40.0), 0.0)))
     c = host_build("qcf", "double").run(log)
@@ -183,9 +183,9 @@ def test_gyro_only_start_then_first_accel_with_gps():
     # with zero weights): the exact rotation exp(w t / 2) from the identity. The first
     # accelerometer sample then sets the tilt from its raw direction even when a GPS velocity
     # is already in (the centripetal term would tilt it: 15 m/s at 0.3 rad/s is 4.5 m/s^2).
-    from firmware_sim import host
-    from firmware_sim.log import VALID_GPS, VALID_GYRO, VALID_MAG
-    from generator import config
+    from ahrsgen.sim import host
+    from ahrsgen.sim.log import VALID_GPS, VALID_GYRO, VALID_MAG
+    from ahrsgen.generate import config
     # climbing at 2 m/s^2: ||f| - g| is above the threshold, so the centripetal term is applied
     # (and clear of bias_accel_gate = 1, where a tie would make C and reference differ by rounding)
     log = _static_log(roll_deg=25.0, seconds=0.5, accel_ned_extra=lambda t: np.tile([0.0, 0.0, -2.0], (len(t), 1)))
@@ -212,7 +212,7 @@ def test_rest_learns_the_gyro_bias():
     log = _static_log(seconds=10.0, gyro_bias=bias)
     hf = host_build("qcf", "double")
     res = hf.run(log)
-    from generator.filters.qcf.model import EXTRA_STATUS
+    from ahrsgen.filters.qcf.model import EXTRA_STATUS
     at_rest = 1 << (16 + [n for n, _ in EXTRA_STATUS].index("AT_REST"))
     assert np.all(res.status[log.t > 2.0] & at_rest)       # rest found after rest_time (1.5 s)
     assert not np.any(res.status[log.t < 1.4] & at_rest)
@@ -250,12 +250,12 @@ def test_heading_held_through_a_magnetic_disturbance():
     def scale(t):
         return np.where((t > 15) & (t < 25), 1.6, 1.0)
     log = _static_log(seconds=30.0, mag_scale=scale)
-    from firmware_sim.log import SensorLog
+    from ahrsgen.sim.log import SensorLog
     mag = log.mag.copy()
     k = (log.t > 15) & (log.t < 25)
     mag[k] = mag[k] @ np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]).T   # turned 90 deg
     log = SensorLog(log.name, log.t, log.dt, log.gyro, log.accel, mag, log.gps_vel, log.valid, log.q_true, {})
-    from generator.filters.qcf.model import EXTRA_STATUS
+    from ahrsgen.filters.qcf.model import EXTRA_STATUS
     dist = 1 << (16 + [n for n, _ in EXTRA_STATUS].index("MAG_DISTURBED"))
     res = host_build("qcf", "double").run(log)
     assert np.all(res.status[k] & dist) and not np.any(res.status[log.t < 15] & dist)
@@ -268,8 +268,8 @@ def test_heading_held_through_a_magnetic_disturbance():
 def test_magnetometer_at_its_own_rate_as_good_as_repeated_samples():
     # Issue 10 item 4: a 100 Hz magnetometer on a 400 Hz IMU, valid bit only when a sample
     # arrived, must do at least as well as the same samples repeated on every step.
-    from firmware_sim import bench
-    from firmware_sim.log import SensorLog, VALID_MAG
+    from ahrsgen import bench
+    from ahrsgen.sim.log import SensorLog, VALID_MAG
     log = scenario("multirotor", 0, duration=60.0, rate_hz=400.0, mag_rate=100.0)
     rep = SensorLog(log.name, log.t, log.dt, log.gyro, log.accel, log.mag, log.gps_vel,
                     log.valid | np.where(np.all(np.isfinite(log.mag), axis=1), VALID_MAG, 0).astype(np.uint32),

@@ -1,4 +1,4 @@
-"""Log readers: BROAD CSV and PX4 ULog excerpts (firmware_sim/data/) mapped into SensorLog.
+"""Log readers: BROAD CSV and PX4 ULog excerpts (src/ahrsgen/sim/data/) mapped into SensorLog.
 
 The checks are physical, not copies of the reader's output: at rest the reference attitude
 must rotate the specific force onto [0, 0, -g] and (BROAD: magnetic north) the field into the
@@ -12,10 +12,10 @@ import gzip
 import numpy as np
 import pytest
 
-from firmware_sim import readers
-from firmware_sim.log import G0, VALID_ACCEL, VALID_GPS, VALID_GYRO, VALID_MAG
-from generator.npquat import qconj, qexp, qmul, rotmat
-from firmware_sim.readers import EXCERPTS
+from ahrsgen.sim import readers
+from ahrsgen.sim.log import G0, VALID_ACCEL, VALID_GPS, VALID_GYRO, VALID_MAG
+from ahrsgen.npquat import qconj, qexp, qmul, rotmat
+from ahrsgen.sim.readers import EXCERPTS
 
 DATA = EXCERPTS
 BROAD_X = DATA / "broad_01_excerpt.csv.gz"

@@ -12,12 +12,13 @@ from pathlib import Path
 
 import pytest
 
-from firmware_sim import host
-from firmware_sim.metrics import max_angle_diff_rad
-from generator import cli, config, render
+from ahrsgen.sim import host
+from ahrsgen.sim.metrics import max_angle_diff_rad
+from ahrsgen import cli
+from ahrsgen.generate import config, render
 
 from conftest import scenario
-from firmware_sim.readers import EXCERPTS
+from ahrsgen.sim.readers import EXCERPTS
 
 HERE = Path(__file__).resolve().parent
 
@@ -92,7 +93,7 @@ def test_structural_refused(name, runtime, words, tmp_path, capsys):
 
 
 def test_run_and_validate_take_runtime(capsys):
-    from firmware_sim.bench import run_on_log
+    from ahrsgen.bench import run_on_log
     log = str(EXCERPTS / "broad_01_excerpt.csv.gz")
     baked = run_on_log("qcf", log, sets=["kp=0.5"], out=open("/dev/null", "w"))
     rt = run_on_log("qcf", log, sets=["kp=0.5"], runtime="kp,ki", out=open("/dev/null", "w"))

@@ -6,7 +6,7 @@ from __future__ import annotations
 import subprocess
 import sys
 
-from generator import cli
+from ahrsgen import cli
 
 
 def test_new_then_validate(tmp_path, capsys):

@@ -1,7 +1,7 @@
 """Scenario checks against physics and independent arithmetic (not against the simulator itself).
 
 - determinism per seed; another seed changes the noise;
-- noise off: the gyro, integrated by the exact exponential (generator/npquat, not the
+- noise off: the gyro, integrated by the exact exponential (src/ahrsgen/npquat.py, not the
   simulator's own helpers), reproduces q_true; the accelerometer is R^T(a_n - g_n) with R from
   npquat, a_n consistent with the finite-difference derivative of the true velocity; the
   magnetometer is R^T m_n with m_n from the stated inclination/declination;
@@ -15,9 +15,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from firmware_sim import scenarios
-from firmware_sim.log import G0, VALID_ACCEL, VALID_GPS, VALID_GYRO, VALID_MAG
-from generator.npquat import euler_from_q, qconj, qexp, qmul, rotmat, to_rotvec
+from ahrsgen.sim import scenarios
+from ahrsgen.sim.log import G0, VALID_ACCEL, VALID_GPS, VALID_GYRO, VALID_MAG
+from ahrsgen.npquat import euler_from_q, qconj, qexp, qmul, rotmat, to_rotvec
 
 DEG = np.pi / 180
 
@@ -282,8 +282,8 @@ def test_multirotor_own_rate_and_repeated_magnetometer():
     """IMU 400 Hz, magnetometer 100 Hz: its bit on one step in four; repeat_slow sets it on
     every step from the first sample on, the rows holding the same samples."""
     import numpy as np
-    from firmware_sim import scenarios
-    from firmware_sim.log import VALID_MAG
+    from ahrsgen.sim import scenarios
+    from ahrsgen.sim.log import VALID_MAG
     own = scenarios.make("multirotor", 0, duration=2.0, rate_hz=400.0, mag_rate=100.0)
     rep = scenarios.make("multirotor", 0, duration=2.0, rate_hz=400.0, mag_rate=100.0, repeat_slow=True)
     bits = (own.valid & VALID_MAG) != 0

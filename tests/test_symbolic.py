@@ -5,9 +5,9 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from generator import npquat as nq
-from generator.filters.qcf import reference as qref
-from generator.symbolic import attitude, quat
+from ahrsgen import npquat as nq
+from ahrsgen.filters.qcf import reference as qref
+from ahrsgen.symbolic import attitude, quat
 
 rng = np.random.default_rng(7)
 q4 = ca.SX.sym("q", 4)

@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 from conftest import needs
-from firmware_sim import target as T
-from generator import filters
+from ahrsgen import target as T
+from ahrsgen import filters
 
 pytestmark = [pytest.mark.target, needs("target")]
 
@@ -205,7 +205,7 @@ def test_thumb_length_rule():
 # ---------------------------------------------------------------------------------------
 
 def _generated_filters():
-    from generator import filters
+    from ahrsgen import filters
     return [n for n in ("qcf", "mekf", "adukf", "cpf") if n in filters.names()]
 
 
@@ -215,8 +215,8 @@ _SHORT = {"qcf": ("fixedwing_gps", {"duration": 60.0}), "mekf": ("fixedwing_gps"
 
 
 def _short_log_with_bad_rows(name):
-    from firmware_sim import scenarios
-    from firmware_sim.log import VALID_ACCEL, VALID_GYRO
+    from ahrsgen.sim import scenarios
+    from ahrsgen.sim.log import VALID_ACCEL, VALID_GYRO
     scen, opts = _SHORT[name]
     log = scenarios.make(scen, seed=3, **opts)
     for a in ("gyro", "accel", "dt", "valid"):
@@ -238,7 +238,7 @@ def test_generated_filter_on_target_agrees_with_host(name, tmp_path):
     log = _short_log_with_bad_rows(name)
     opts = ("-O2", "-Os") if name == "qcf" else ("-O2",)
     results = T.check_generated(name, opts, log=log, workdir=tmp_path, count_steps=30)
-    from generator import status as S
+    from ahrsgen import status as S
     for r in results:
         c = r["host_comparison"]
         assert c["steps"] == len(log)
@@ -278,7 +278,7 @@ def test_host_comparison_sees_a_single_flipped_bit(tmp_path):
     name = "qcf"
     if name not in _generated_filters():
         pytest.skip("qcf not available")
-    from firmware_sim import scenarios
+    from ahrsgen.sim import scenarios
     log = scenarios.make("fixedwing_gps", seed=1, duration=16.0)
     gen = T.generate(name, tmp_path / "gen")
     b = T.binding_from_generated(gen)
@@ -316,7 +316,7 @@ _PUBLISHED = {"madgwick": 241, "mahony": 178}
 
 @pytest.mark.parametrize("peer", T.PEER_NAMES)
 def test_counter_calibration_against_published_peer_figures(peer, tmp_path):
-    from firmware_sim import metrics, scenarios
+    from ahrsgen.sim import metrics, scenarios
     # 60 s: Mahony's magnetometer error also acts on roll/pitch until yaw (40 deg off) settles
     log = scenarios.make("static_mag_disturbance", disturbances=False, attitude_deg=(20.0, -10.0, 40.0),
                          duration=60.0)
@@ -347,7 +347,7 @@ def test_cli_target_writes_table_and_json(tmp_path, capsys):
         pytest.skip("qcf not available")
     import json
 
-    from generator import cli
+    from ahrsgen import cli
     out = tmp_path / "t.json"
     rc = cli.main(["target", "qcf", "--opt=-Os", "--prefix", "att", "--scenario-opt", "duration=16",
                    "--count-steps", "10", "--no-pinned", "--json", str(out)])
@@ -370,7 +370,7 @@ def test_cli_target_cflags_reach_every_build_and_a_bad_one_is_one_line(tmp_path,
         pytest.skip("qcf not available")
     import json
 
-    from generator import cli
+    from ahrsgen import cli
     out = tmp_path / "t.json"
     rc = cli.main(["target", "qcf", "--opt=-O2", "--scenario-opt", "duration=16", "--count-steps", "10",
                    "--no-pinned", "--cflags=-ffast-math", "--json", str(out)])
@@ -395,7 +395,7 @@ def test_cli_profile_accounts_for_every_instruction_of_the_step(tmp_path, capsys
         pytest.skip("qcf not available")
     import json
 
-    from generator import cli
+    from ahrsgen import cli
     out = tmp_path / "t.json"
     rc = cli.main(["target", "qcf", "--opt=-O2", "--scenario-opt", "duration=8", "--count-steps", "0",
                    "--no-pinned", "--profile", "--json", str(out)])
@@ -422,7 +422,7 @@ def test_double_build_runs_on_soft_float_and_costs_what_it_should(tmp_path):
     round-off: newlib vs glibc double libm), and the counter must show the cost at once."""
     if "qcf" not in _generated_filters():
         pytest.skip("qcf not available")
-    from firmware_sim import scenarios
+    from ahrsgen.sim import scenarios
     log = scenarios.make("fixedwing_gps", seed=2, duration=16.0)
     (d,) = T.check_generated("qcf", ("-O2",), log=log, workdir=tmp_path / "d", count_steps=5, precision="double")
     (f,) = T.check_generated("qcf", ("-O2",), log=log, workdir=tmp_path / "f", count_steps=5, pinned=False)
@@ -454,7 +454,7 @@ def readme_footprint() -> dict[str, dict]:
 
 
 def test_readme_footprint_table_lists_every_filter():
-    from generator import filters
+    from ahrsgen import filters
     assert sorted(readme_footprint()) == sorted(filters.names())
 
 
@@ -462,7 +462,7 @@ def test_readme_footprint_table_lists_every_filter():
 def test_readme_footprint_figures_hold(name, tmp_path):
     """The committed default build on its README scenario (seed 0, -O2): mean instructions per
     step within 1 % of the README's figure, state bytes equal, flash within 2 %."""
-    from firmware_sim import scenarios
+    from ahrsgen.sim import scenarios
     stated = readme_footprint()[name]
     gen_dir = Path(__file__).resolve().parents[1] / "generated" / name
     log = scenarios.make(filters.load(name).scenario, seed=0)

@@ -8,8 +8,9 @@ from pathlib import Path
 
 import pytest
 
-from generator import cli, config, filters
-from firmware_sim.readers import EXCERPTS
+from ahrsgen import cli, filters
+from ahrsgen.generate import config
+from ahrsgen.sim.readers import EXCERPTS
 
 DATA = EXCERPTS
 LOGS = ["--log", str(DATA / "broad_01_excerpt.csv.gz"), "--log", str(DATA / "px4_handheld_excerpt.ulg")]
@@ -42,7 +43,7 @@ def test_tune_two_logs_budget_8_then_generate(tmp_path, capsys):
 
 
 def test_search_space_follows_declarations():
-    from firmware_sim.tune import search_space
+    from ahrsgen.tune import search_space
     spec = filters.load("qcf")
     kp, ki, comp, model, decl = search_space(spec, ["kp", "ki", "gps_compensation", "motion_accel_model",
                                                     "declination"])
@@ -100,7 +101,7 @@ def test_tune_user_filter_folder(tmp_path):
     import sys
     folder = Path(__file__).resolve().parents[1] / "examples" / "madgwick"
     out = tmp_path / "m.toml"
-    ahrsgen = [sys.executable, "-m", "generator.cli"]
+    ahrsgen = [sys.executable, "-m", "ahrsgen.cli"]
     r = subprocess.run([*ahrsgen, "tune", str(folder), *LOGS, "--params", "beta", "--budget", "3", "--folds", "0",
                         "-o", str(out)], capture_output=True, text=True)
     assert r.returncode == 0 and "beta set at run time" in r.stdout, r.stderr
@@ -118,7 +119,7 @@ def test_interrupted_tune_resumes(tmp_path):
     out = tmp_path / "i.toml"
     # a child of a non-interactive shell may inherit SIGINT ignored: restore Python's handler
     code = ("import signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler); "
-            "from generator.cli import main; sys.exit(main(sys.argv[1:]))")
+            "from ahrsgen.cli import main; sys.exit(main(sys.argv[1:]))")
     args = ["tune", "qcf", *LOGS, "--params", "kp,ki", "--budget", "16", "--folds", "0", "-o", str(out)]
     p = subprocess.Popen([sys.executable, "-c", code, *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                          text=True)
@@ -130,7 +131,7 @@ def test_interrupted_tune_resumes(tmp_path):
     p.send_signal(signal.SIGINT)
     p.communicate(timeout=60)
     assert p.returncode == 130 and not out.exists()
-    r = subprocess.run([sys.executable, "-m", "generator.cli", *args], capture_output=True, text=True)
+    r = subprocess.run([sys.executable, "-m", "ahrsgen.cli", *args], capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
     ran = int(r.stdout.split(" trial(s) run")[0].split()[-1])
     assert 6 <= ran <= 12, r.stdout        # trials 0-3 (or a few more) were in the journal

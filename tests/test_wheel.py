@@ -6,7 +6,7 @@ would) and installed with pip into a venv without system site-packages. Its depe
 not downloaded and unpacked again (casadi alone is ~300 MB and 30 s): the distributions this
 environment already has are linked into the new venv through a .pth file, and pip, run
 without an index, must find every requirement the wheel declares among them. Nothing of the
-checkout is importable there: the test asserts `generator` comes from the new venv.
+checkout is importable there: the test asserts `ahrsgen` comes from the new venv.
 """
 from __future__ import annotations
 
@@ -78,9 +78,10 @@ def test_wheel_installs_and_works_outside_the_checkout(tmp_path):
     _run([*pip, "--python", str(py), "install", "-q", "--no-index", str(wheel)], tmp_path, env)
     t_install = time.perf_counter()
 
-    where = _run([str(py), "-c", "import generator, firmware_sim; print(generator.__file__); "
-                  "print(firmware_sim.__file__)"], tmp_path, env)
-    assert all(line.startswith(str(site)) for line in where.split()), where
+    where = _run([str(py), "-c", "import ahrsgen, ahrsgen.cli; print(ahrsgen.__file__); "
+                  "print(ahrsgen.cli.__file__); print(ahrsgen.__version__)"], tmp_path, env).split()
+    assert all(line.startswith(str(site)) for line in where[:2]), where
+    assert where[2] == metadata.version("ahrsgen"), where       # the version is written once
 
     ahrsgen = str(venv / "bin" / "ahrsgen")
     # A built-in filter: the installed package generates exactly the committed output.
@@ -106,7 +107,7 @@ def test_wheel_installs_and_works_outside_the_checkout(tmp_path):
     assert (tmp_path / "h.json").exists(), out
     # `run --help` names the example logs installed with the package, and they run as named there
     helptext = " ".join(_run([ahrsgen, "run", "--help"], tmp_path, env).split())
-    example = str(site / "firmware_sim" / "data" / "broad_01_excerpt.csv.gz")
+    example = str(site / "ahrsgen" / "sim" / "data" / "broad_01_excerpt.csv.gz")
     assert example in helptext, helptext
     out = _run([ahrsgen, "run", "mekf", "--log", example], tmp_path, env)
     assert "BROAD decomposition RMS: total" in out, out

@@ -13,9 +13,9 @@ from __future__ import annotations
 
 import casadi as ca
 
-from generator.emit import function
-from generator.model import FilterModel, KernelSpec, StateField
-from generator.symbolic import attitude, quat
+from ahrsgen.codegen.emit import function
+from ahrsgen.codegen.model import FilterModel, KernelSpec, StateField
+from ahrsgen.symbolic import attitude, quat
 
 UP = ca.DM([0.0, 0.0, -1.0])          # "up" in NED: what a resting accelerometer measures, normalised
 

@@ -3,16 +3,16 @@
 ahrs works with sensor axes FLU and an NWU earth frame; the product with FRD -> NED. Both
 changes are a 180 degree turn about x: samples go in as (x, -y, -z), and the attitude comes
 back as Qx (x) q_ahrs (x) Qx*, Qx = [0, 1, 0, 0]. Until it has one, the first usable accelerometer+magnetometer sample sets
-the attitude (generator.npquat.from_accel_mag: TRIAD with the accelerometer primary). The
-input checks are the product's shared contract (generator.input_checks); what they let through is handed to ahrs unchanged.
+the attitude (ahrsgen.npquat.from_accel_mag: TRIAD with the accelerometer primary). The
+input checks are the product's shared contract (ahrsgen.codegen.input_checks); what they let through is handed to ahrs unchanged.
 """
 from __future__ import annotations
 
 import numpy as np
 from ahrs.filters import Madgwick
 
-from generator import input_checks
-from generator.npquat import from_accel_mag, qconj, qmul
+from ahrsgen.codegen import input_checks
+from ahrsgen.npquat import from_accel_mag, qconj, qmul
 
 QX = np.array([0.0, 1.0, 0.0, 0.0])     # NWU -> NED and FLU -> FRD alike
 FLU = np.array([1.0, -1.0, -1.0])        # FRD vector -> FLU vector

@@ -5,15 +5,15 @@ go in as (x, -y, -z) (FLU = FRD turned 180 degrees about x); the attitude comes 
 Q_en (x) q_ahrs (x) Qx*, with Q_en = [0, 1/sqrt2, 1/sqrt2, 0] the turn ENU -> NED (swap x and
 y, negate z) and Qx = [0, 1, 0, 0]. The gyro-bias estimate lives in ahrs (Mahony.b, FLU axes).
 Until it has one, the first usable accelerometer+magnetometer sample sets the attitude
-(generator.npquat.from_accel_mag: TRIAD with the accelerometer primary). The input checks are the product's shared contract (generator.input_checks).
+(ahrsgen.npquat.from_accel_mag: TRIAD with the accelerometer primary). The input checks are the product's shared contract (ahrsgen.codegen.input_checks).
 """
 from __future__ import annotations
 
 import numpy as np
 from ahrs.filters import Mahony
 
-from generator import input_checks
-from generator.npquat import from_accel_mag, qconj, qmul
+from ahrsgen.codegen import input_checks
+from ahrsgen.npquat import from_accel_mag, qconj, qmul
 
 QX = np.array([0.0, 1.0, 0.0, 0.0])                          # FLU -> FRD
 Q_EN = np.array([0.0, np.sqrt(0.5), np.sqrt(0.5), 0.0])     # ENU -> NED

@@ -1,1 +1,0 @@
-"""ahrsgen: attitude filters as CasADi equations, emitted as fixed-size C."""

@@ -1,2 +1,0 @@
-"""Physical constants shared by models and references (same values as firmware_sim.log)."""
-G0 = 9.80665  # standard gravity, m/s^2

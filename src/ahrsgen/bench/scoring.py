@@ -1,0 +1,179 @@
+"""Estimators (generated filters, peers) and how they are scored against a log's reference:
+site parameters from the log, the heading frame, per-angle and BROAD errors."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ahrsgen.sim import host, peers
+from ahrsgen.sim.log import SensorLog
+from ahrsgen.sim.metrics import broad_errors_deg, euler_errors_deg
+from ahrsgen.npquat import qmul
+from ahrsgen.bench.common import ANGLES, BROAD_METRICS
+from ahrsgen.bench.harness import baseline_filter
+
+
+# =========================================================================================
+# Estimators (generated filters, the hand-written QCF, peers) and scoring
+
+# Site parameters (where the vehicle flies) that a user sets and the bench fills from the log:
+# the filter's declination (so its heading is in the reference's north) and, for filters with a
+# configured field direction, the inclination (or learning it at rest when the log has none).
+DECLINATION_PARAMS = (("declination", "rad"),)   # every filter with a magnetometer names it so
+_HF_CACHE: dict = {}
+
+
+def site_sets(filter_name: str, meta: dict, user_keys=()) -> tuple[list[str], bool]:
+    """--set strings for the site of a log, and whether a declination parameter was set.
+
+    A log's meta['declination_deg'] is the offset from its reference's north to magnetic
+    north (absent: the reference is magnetic north, as BROAD's). Parameters the user set
+    (user_keys) are left alone.
+    """
+    from ahrsgen import filters
+    names = filters.load(filter_name).params
+    out, applied = [], False
+    decl = float(meta.get("declination_deg", 0.0) or 0.0)
+    for pname, unit in DECLINATION_PARAMS:
+        if pname in names and pname not in user_keys:
+            out.append(f"{pname}={decl if unit == 'deg' else math.radians(decl)!r}")
+            applied = True
+        elif pname in names:
+            applied = True
+    if "inclination_deg" in names and "inclination_deg" not in user_keys:
+        if meta.get("inclination_deg") is not None:
+            out.append(f"inclination_deg={float(meta['inclination_deg'])!r}")
+        elif "mag_ref" in names and "mag_ref" not in user_keys:
+            out.append("mag_ref=learn")
+    return out, applied
+
+
+@dataclass
+class Estimator:
+    name: str
+    kind: str                 # "filter" | "baseline" | "peer"
+    heading: str              # "mag" (magnetic north) | "true" (GPS course) | "none"
+    title: str = ""
+    filter: str = ""          # product filter name
+    sets: list = field(default_factory=list)
+    config: str | None = None
+    site: bool = True         # fill site parameters (declination, inclination) from the log
+    runtime: dict = field(default_factory=dict)   # runtime-parameter values, set in C per run
+
+    def host_filter(self, extra_sets=()):
+        key = (self.kind, self.filter, self.config, tuple(self.sets) + tuple(extra_sets), tuple(sorted(self.runtime)))
+        if key not in _HF_CACHE:
+            import fcntl
+            host.CACHE.mkdir(parents=True, exist_ok=True)
+            # bench workers may build the same configuration at once: one at a time
+            with open(host.CACHE / ".bench-build.lock", "w") as lock:
+                fcntl.flock(lock, fcntl.LOCK_EX)
+                try:
+                    if self.kind == "baseline":
+                        _HF_CACHE[key] = baseline_filter()
+                    else:
+                        from ahrsgen.generate import config
+                        cfg = config.resolve(self.filter, self.config, list(self.sets) + list(extra_sets),
+                                             "float", None, runtime=sorted(self.runtime))
+                        _HF_CACHE[key] = host.build(cfg)
+                finally:
+                    fcntl.flock(lock, fcntl.LOCK_UN)
+        return _HF_CACHE[key]
+
+    def run(self, log: SensorLog) -> tuple[np.ndarray, str, list]:
+        """(q, heading frame of q for scoring, site --set strings used)."""
+        if self.kind == "peer":
+            return peers.run(self.name, log), self.heading, []
+        extra, applied = [], False
+        if self.kind == "filter" and self.site:
+            from ahrsgen.generate import config
+            user = config.resolve(self.filter, self.config, list(self.sets), "float", None).overrides
+            extra, applied = site_sets(self.filter, log.meta, set(user) | set(self.runtime))
+        heading = "true" if (self.heading == "mag" and applied) else self.heading
+        return self.host_filter(extra).run(log, params=self.runtime).q, heading, extra
+
+
+def filter_heading(filter_name: str, sets=(), config_file=None, preset=None) -> str:
+    from ahrsgen.generate import config
+    cfg = config.resolve(filter_name, config_file, list(sets), "float", None, preset)
+    sensors = cfg.spec.model(cfg.params).sensors
+    if "mag" in sensors:
+        return "mag"
+    if "gps" in sensors:
+        return "true"
+    return "none"
+
+
+def product_filters() -> list[str]:
+    from ahrsgen import filters
+    return filters.names()
+
+
+def filter_estimator(name: str, sets=(), config_file=None, label: str | None = None) -> Estimator:
+    from ahrsgen import filters
+    return Estimator(label or name, "filter", filter_heading(name, sets, config_file),
+                     filters.load(name).title, name, list(sets), config_file)
+
+
+def peer_estimator(name: str) -> Estimator:
+    cls = peers.PEERS[name]
+    return Estimator(name, "peer", "mag" if cls.uses_mag else "none", cls.title)
+
+
+def _rotz(angle_rad):
+    return np.array([math.cos(angle_rad / 2), 0.0, 0.0, math.sin(angle_rad / 2)])
+
+
+def score_mask(log: SensorLog) -> np.ndarray:
+    """Rows that count: BROAD's movement phase where given, else after settle time; finite reference."""
+    mv = log.meta.get("movement")
+    mask = np.asarray(mv, dtype=bool).copy() if mv is not None else (log.t >= log.t[0] + log.settle_time)
+    return mask & np.all(np.isfinite(log.q_true), axis=1)
+
+
+def compare_frame(q_est: np.ndarray, log: SensorLog, heading: str, mask=None) -> np.ndarray:
+    """The estimate in the reference's heading frame (see module docstring)."""
+    q_est = np.asarray(q_est, dtype=float)
+    if heading == "mag":
+        decl = math.radians(float(log.meta.get("declination_deg", 0.0) or 0.0))
+        return qmul(_rotz(decl), q_est) if decl else q_est
+    if heading == "none":
+        return peers.remove_heading_offset(q_est, log.q_true, score_mask(log) if mask is None else mask)
+    return q_est
+
+
+def score(q_est: np.ndarray, log: SensorLog, heading: str) -> dict:
+    """RMS / mean |e| per Euler angle and BROAD's total / heading / inclination RMS (degrees)."""
+    mask = score_mask(log)
+    if not mask.any():
+        raise ValueError(f"log {log.name!r}: no rows to score")
+    q = compare_frame(q_est, log, heading, mask)[mask]
+    ref = log.q_true[mask]
+    ok = np.all(np.isfinite(q), axis=1)
+    out = {"n": int(mask.sum()), "nonfinite": int((~ok).sum())}
+    # a diverged (non-finite) estimate scores 180° on every measure rather than vanishing
+    e = np.full((len(q), 3), 180.0)
+    e[ok] = euler_errors_deg(q[ok], ref[ok])
+    for i, a in enumerate(ANGLES):
+        out[f"{a}_rms"] = float(np.sqrt(np.mean(e[:, i] ** 2)))
+        out[f"{a}_mean_abs"] = float(np.mean(np.abs(e[:, i])))
+    dec = np.full((3, len(q)), 180.0)
+    if ok.any():
+        dec[:, ok] = np.array(broad_errors_deg(q[ok], ref[ok]))
+    for name, v in zip(BROAD_METRICS, dec):
+        out[f"{name}_rms"] = float(np.sqrt(np.mean(v ** 2)))
+    return out
+
+
+def total_error_series(q_est, log, heading, max_points=2000):
+    """(t, total error in degrees) downsampled for plots; NaN where no reference."""
+    q = compare_frame(q_est, log, heading)
+    tot = np.full(len(log), np.nan)
+    ok = np.all(np.isfinite(log.q_true), axis=1) & np.all(np.isfinite(q), axis=1)
+    tot[ok] = broad_errors_deg(q[ok], log.q_true[ok])[0]
+    step = max(1, len(log) // max_points)
+    return log.t[::step] - log.t[0], tot[::step]
+
+

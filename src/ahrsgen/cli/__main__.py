@@ -1,0 +1,6 @@
+"""python -m ahrsgen.cli: the `ahrsgen` command."""
+import sys
+
+from ahrsgen.cli import main
+
+sys.exit(main())

@@ -1,0 +1,182 @@
+"""The contract every filter implements, and the parameter declarations it is configured by.
+
+A filter is a folder (src/ahrsgen/filters/<name>/ for the built-ins, anywhere for a user filter:
+see src/ahrsgen/filters/__init__.py and docs/your_own_filter.md):
+  defaults.toml   [filter] title/source, [params.<name>] default/min/max/unit/doc (or choices)
+  model.py        class Model(FilterModel): state fields, symbolic kernels, step partial
+  reference.py    class Reference: independent NumPy implementation, same status bits
+  step.c.j2       the body of <prefix>_step after the common input checks (Jinja partial)
+
+Parameters shared by all filters for input checking (dt_max, gyro_max, accel/mag norm
+bounds) are declared once here; a filter's defaults.toml may override their defaults.
+"""
+from __future__ import annotations
+
+from ahrsgen.errors import ConfigError  # noqa: F401  (raised here; callers import it from here too)
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import casadi as ca
+
+
+@dataclass
+class Param:
+    name: str
+    default: Any
+    doc: str = ""
+    unit: str = ""
+    min: float | None = None
+    max: float | None = None
+    min_exclusive: bool = False
+    max_exclusive: bool = False
+    choices: list | None = None
+
+    @property
+    def type(self) -> str:
+        if isinstance(self.default, bool):
+            return "bool"
+        if isinstance(self.default, int):
+            return "int"
+        if isinstance(self.default, float):
+            return "float"
+        return "str"
+
+    def range_text(self) -> str:
+        if self.choices:
+            return "one of " + ", ".join(repr(c) for c in self.choices)
+        if self.type == "bool":
+            return "true or false"
+        lo = "-inf" if self.min is None else repr(self.min)
+        hi = "inf" if self.max is None else repr(self.max)
+        return f"{'(' if self.min_exclusive or self.min is None else '['}{lo}, {hi}{')' if self.max_exclusive or self.max is None else ']'}"
+
+    def coerce(self, value, source: str = "") -> Any:
+        """Check and convert a value (from TOML or a --set string); raise ConfigError."""
+        where = f" ({source})" if source else ""
+        t = self.type
+        if isinstance(value, str) and t != "str":
+            value = _parse_text(value)
+        if t == "bool":
+            if not isinstance(value, bool):
+                raise ConfigError(f"parameter '{self.name}' = {value!r}{where} must be true or false")
+            return value
+        if t == "str":
+            if not isinstance(value, str) or (self.choices and value not in self.choices):
+                raise ConfigError(f"parameter '{self.name}' = {value!r}{where} must be {self.range_text()}")
+            return value
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(f"parameter '{self.name}' = {value!r}{where} must be a number in {self.range_text()}")
+        if t == "int":
+            if float(value) != int(value):
+                raise ConfigError(f"parameter '{self.name}' = {value!r}{where} must be an integer in {self.range_text()}")
+            value = int(value)
+        else:
+            value = float(value)
+        if not math.isfinite(value):
+            raise ConfigError(f"parameter '{self.name}' = {value!r}{where} must be finite, in {self.range_text()}")
+        bad = ((self.min is not None and (value < self.min or (self.min_exclusive and value == self.min)))
+               or (self.max is not None and (value > self.max or (self.max_exclusive and value == self.max))))
+        if bad:
+            raise ConfigError(f"parameter '{self.name}' = {value!r}{where} is out of range: allowed {self.range_text()}")
+        return value
+
+
+def _parse_text(text: str):
+    low = text.strip().lower()
+    if low in ("true", "false"):
+        return low == "true"
+    try:
+        return int(low)
+    except ValueError:
+        pass
+    try:
+        return float(low)
+    except ValueError:
+        return text
+
+
+def param_from_toml(name: str, spec: dict) -> Param:
+    known = {"default", "doc", "unit", "min", "max", "min_exclusive", "max_exclusive", "choices"}
+    extra = set(spec) - known
+    if extra or "default" not in spec:
+        raise ConfigError(f"defaults.toml: [params.{name}] needs 'default' and only {sorted(known)}; got {sorted(spec)}")
+    return Param(name=name, **spec)
+
+
+# Input checks shared by every filter (the sensor they concern in the key).
+COMMON_PARAMS = {
+    None: [
+        Param("dt_max", 0.5, "largest dt a step accepts; larger is refused (DT_TOO_LARGE)", "s", 0.0, 10.0, True),
+        Param("gyro_max", 70.0, "largest gyro component accepted; larger is refused (GYRO_RANGE)", "rad/s", 0.0, 1e4, True),
+    ],
+    "accel": [
+        Param("accel_min_norm", 0.5, "accelerometer norm below this skips its correction (ACCEL_ZERO)", "m/s^2", 0.0, 100.0),
+        Param("accel_max", 2000.0, "accelerometer component above this skips its correction (ACCEL_RANGE)", "m/s^2", 0.0, 1e6, True),
+    ],
+    "mag": [
+        Param("mag_min_norm", 1e-6, "magnetometer norm below this skips its correction (MAG_ZERO)", "field unit", 0.0, 1e6),
+        Param("mag_max", 1e6, "magnetometer component above this skips its correction (MAG_RANGE)", "field unit", 0.0, 1e12, True),
+    ],
+    "gps": [
+        Param("gps_vel_max", 500.0, "GPS velocity component above this: the sample is ignored (GPS_RANGE)", "m/s", 0.0, 1e4, True),
+    ],
+}
+
+
+@dataclass
+class StateField:
+    """One member of the generated state struct."""
+    name: str
+    size: int
+    doc: str
+    init: Any = 0.0            # scalar (fill) or list of `size` values
+    ctype: str = "real"       # "real" (float/double per build) or "uint32"
+
+    def init_values(self) -> list:
+        if isinstance(self.init, (list, tuple)):
+            if len(self.init) != self.size:
+                raise ValueError(f"state field {self.name}: init has {len(self.init)} values, size is {self.size}")
+            return list(self.init)
+        return [self.init] * self.size
+
+
+@dataclass
+class KernelSpec:
+    name: str
+    function: ca.Function
+    doc: str
+    flags: tuple = ()     # inputs holding 0 or 1: emitted as bool (emit.emit's flags)
+    noinline: bool = False  # GCC/clang: never inlined into its caller, so its stack frame does not add
+    #                         to the caller's (a step calling several large kernels once each)
+    early_writes: bool = False  # outputs stored as soon as computed, arrays declared restrict
+    #                             (emit's early_writes): no output may overlap an input or output
+
+
+@dataclass
+class FilterModel:
+    """Base class of a filter's symbolic model. Subclasses fill in the hooks below."""
+    params: dict
+    sensors: tuple = ("accel", "mag", "gps")   # aiding sensors the step reads
+    extra_status: list = field(default_factory=list)  # [(NAME, doc)]: bits from status.FILTER_BASE up
+
+    # --- hooks -------------------------------------------------------------------------
+    def state_fields(self) -> list[StateField]:
+        raise NotImplementedError
+
+    def kernels(self) -> list[KernelSpec]:
+        """Symbolic kernels (build them with ahrsgen.codegen.emit.function)."""
+        raise NotImplementedError
+
+    def step_paths(self) -> dict[str, list[str]]:
+        """Named paths through one step -> kernels they run, for the op-count report."""
+        return {}
+
+    def template_context(self) -> dict:
+        """Extra values for the step partial (sizes, flags)."""
+        return {}
+
+    def template_helpers(self) -> tuple[str, ...]:
+        """src/ahrsgen/codegen/fastmath.py helpers that the filter's own template code calls (a float build
+        with math = "fast" gets their C beside the kernels' helpers, written once)."""
+        return ()

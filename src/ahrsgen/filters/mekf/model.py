@@ -1,0 +1,528 @@
+"""Symbolic model of the MEKF (patent CN102692225B): CasADi kernels for the generated C.
+
+Error state X = [δq (3), δb (3)], nominal q̂ (body->NED) and b̂; true attitude
+normalise(q̂ ⊗ [1, δq]), true bias b̂ + δb. The Jacobians F, G (discrete error-state
+propagation) and H (Euler angles of q̂ ⊗ [1, δq] at δq = 0) are taken by CasADi's
+`jacobian` of the functions written out below - nothing is typed by hand here (the NumPy
+reference derives them by hand, independently).
+
+Kernels:
+  <p>_predict  patent steps 1-2: q̂ ← normalise(q̂ ⊗ exp(½ (ω − b̂) dt)), P ← F P Fᵀ + G Q Gᵀ
+  <p>_update   steps 3-8 with a row mask: measured angles (accelerometer tilt after the
+               optional motion compensation, GPS course or magnetic heading), wrapped
+               innovations, Cholesky gain, Joseph update, error injection and reset
+  <p>_init     first attitude from the accelerometer tilt and the heading (if any)
+
+P is stored full (36 values, column-major = row-major since symmetric) but each kernel
+reads only its lower triangle and writes the lower triangle mirrored, so the stored P is
+exactly symmetric; the Joseph form keeps it positive semi-definite.
+"""
+from __future__ import annotations
+
+import math
+
+import casadi as ca
+
+from ahrsgen.codegen import emit
+from ahrsgen.constants import G0
+from ahrsgen.codegen.model import FilterModel, KernelSpec, StateField
+from ahrsgen.symbolic import attitude, kalman, quat
+
+N = 6           # error-state size
+S_PIVOT_MIN = 1e-12   # innovation covariance must have Cholesky pivots above this
+COS2_PITCH_MIN = 1e-4  # no correction while cos²(pitch) <= this (pitch within 0.57° of ±90°)
+AGE_MAX = 1e3         # the GPS-velocity age stops counting here (s)
+GPS_DT_MIN = 1e-3     # two GPS samples closer than this (s) give no new acceleration
+DT_Q_MIN = 1e-9       # s: floor of dt in the gyro-noise variance σ_g²/dt
+
+HEAD_AGE_MAX = 1.0    # s without a heading correction before HEADING_UNAIDED
+
+EXTRA_STATUS = [
+    ("COURSE_SLOW", "GPS sample present but ground speed below gps_min_speed: yaw row dropped"),
+    ("ACCEL_GATED", "| |accel| - g | above accel_gate: roll/pitch rows dropped"),
+    ("UPDATE_SKIPPED", "correction skipped: innovation covariance not positive definite, or pitch within 0.57 deg of +-90 deg (Euler angles singular)"),
+]
+VECTOR_STATUS = [
+    ("HEADING_UNAIDED", "no heading correction (GPS course or magnetometer) for more than 1 s"),
+    ("MAG_DISTURBED", "magnetometer rejected: field norm or dip angle off the learned reference"),
+    ("AT_REST", "rest detected: the gyro reading measures the gyro bias directly"),
+]
+UP_NED = (0.0, 0.0, -1.0)   # direction of the specific force at rest, NED
+
+
+# ------------------------------------------------------------------------------------
+# helpers
+def sym_lower(v, n=N):
+    """n x n symmetric SX matrix from a flat (n*n) vector, reading only its lower triangle."""
+    M = ca.SX.zeros(n, n)
+    for j in range(n):
+        for i in range(j, n):
+            M[i, j] = v[i + n * j]
+            M[j, i] = v[i + n * j]
+    return M
+
+
+def flat_mirrored(M, n=N):
+    """Flat column-major (n*n) vector of the lower triangle of M mirrored (exactly symmetric)."""
+    out = []
+    for j in range(n):
+        for i in range(n):
+            out.append(M[max(i, j), min(i, j)])
+    return ca.vertcat(*out)
+
+
+def error_propagation(dq, db, ng, nb, omega_hat, dt, c=None):
+    """One-step error propagation (what F and G linearise).
+
+    Nominal: q̂' = q̂ ⊗ a, a = exp(½ ω̂ dt). Truth: q' = q ⊗ exp(½ (ω̂ − δb − n_g) dt) with
+    q = q̂ ⊗ [1, δq] (unnormalised; the Jacobian at 0 does not depend on the norm), so
+    [1, δq'] ∝ a* ⊗ [1, δq] ⊗ exp(½ (ω̂ − δb − n_g) dt); δb' = δb + n_b. n_g is the gyro
+    rate noise averaged over the step (variance σ_g²/dt), n_b the bias random-walk
+    increment (σ_bw² dt). Written this way ∂/∂δb and ∂/∂n_g are the same expression, which
+    the emitter computes once.
+
+    δq' = e_vec / e_w; at the linearisation point e = a* ⊗ a = [1, 0, 0, 0] (a is a unit
+    quaternion), where the derivative of e_vec / e_w is that of e_vec: e_vec is returned and
+    the Jacobian taken without the quotient rule's divisions. c: a variable standing for
+    exp(½ (ω̂ − δb − n_g) dt) (jacobians_FG differentiates through it).
+    """
+    a = quat.qexp(0.5 * dt * omega_hat)
+    if c is None:
+        c = quat.qexp(0.5 * dt * (omega_hat - db - ng))
+    e = quat.qmul(quat.qmul(quat.qconj(a), quat.vec(1, dq[0], dq[1], dq[2])), c)
+    return ca.vertcat(e[1], e[2], e[3], db + nb)
+
+
+def measurement(q, dq):
+    """Euler angles of normalise(q̂ ⊗ [1, δq]) (what H linearises)."""
+    return quat.euler(quat.qnormalize(quat.qmul(q, quat.vec(1, dq[0], dq[1], dq[2]))))
+
+
+def jacobians_FG(omega_hat, dt):
+    """(F, G) by CasADi jacobians of error_propagation at X = 0, noise = 0, taken through the
+    exponential c = exp(v), v = ½ (ω̂ − δb − n_g) dt, which is all that δb and n_g enter:
+    ∂f/∂x = ∂f/∂x|_c + ∂f/∂c · ∂c/∂v · ∂v/∂x (each factor a CasADi jacobian, ∂c/∂v by
+    quat.qexp_jacobian), evaluated at c = exp(½ ω̂ dt)."""
+    dq, db, ng, nb = (ca.SX.sym(n, 3) for n in ("dq", "db", "ng", "nb"))
+    c = ca.SX.sym("c", 4)
+    f = error_propagation(dq, db, ng, nb, omega_hat, dt, c=c)
+    v = 0.5 * dt * (omega_hat - db - ng)
+    zeros = [dq, db, ng, nb]
+    chain = ca.mtimes(kalman.jacobian_at(f, c, zeros), quat.qexp_jacobian(0.5 * dt * omega_hat))
+    x, w = ca.vertcat(dq, db), ca.vertcat(ng, nb)
+    F = kalman.jacobian_at(f, x, zeros) + ca.mtimes(chain, ca.jacobian(v, x))
+    G = kalman.jacobian_at(f, w, zeros) + ca.mtimes(chain, ca.jacobian(v, w))
+    c0 = quat.qexp(0.5 * dt * omega_hat)
+    return ca.substitute(F, c, c0), ca.substitute(G, c, c0)
+
+
+def jacobian_H(q):
+    """H (3 x 6) by CasADi jacobian of measurement at δq = 0 (zero columns for δb)."""
+    dq = ca.SX.sym("dq", 3)
+    Hq = kalman.jacobian_at(measurement(q, dq), dq, [dq])
+    return ca.horzcat(Hq, ca.SX.zeros(3, 3))
+
+
+# ------------------------------------------------------------------------------------
+# kernels
+def _time_update(p: dict, q, b, gyro, dt):
+    """q̂' = normalise(q̂ ⊗ exp(½ ω̂ dt)), the error-state F, G (CasADi jacobians) and Q."""
+    omega_hat = gyro - b
+    F, G = jacobians_FG(omega_hat, dt)
+    return quat.integrate(q, omega_hat, dt), F, G, _process_noise(p, dt)
+
+
+def _process_noise(p: dict, dt):
+    # σ_g²/dt with dt floored at DT_Q_MIN: a vanishing (even denormal) dt gives a vanishing
+    # G Q Gᵀ = ¼ σ_g² dt² / max(dt, DT_Q_MIN) J Jᵀ instead of inf * 0 = NaN.
+    q_g = p["gyro_noise"] ** 2 / ca.fmax(dt, DT_Q_MIN)
+    return ca.diag(ca.vertcat(*([q_g] * 3 + [p["gyro_bias_rw"] ** 2 * dt] * 3)))
+
+
+def predict_function(p: dict, name="predict") -> ca.Function:
+    q, b, Pv, gyro, dt = (ca.SX.sym(n, k) for n, k in (("q", 4), ("b", 3), ("P", N * N), ("gyro", 3), ("dt", 1)))
+    q_new, F, G, Q = _time_update(p, q, b, gyro, dt)
+    P_new = kalman.predict_covariance(sym_lower(Pv), F, G, Q, symmetrize=False)   # mirrored below
+    return emit.function(name, {"q": q, "b": b, "P": Pv, "gyro": gyro, "dt": dt},
+                         {"q_out": q_new, "P_out": flat_mirrored(P_new)})
+
+
+def _blocks(Fq, Fb):
+    """F = [[F_q, F_b], [0, I]] and G = [[F_b, 0], [0, I]] of the error-state propagation."""
+    Z, I = ca.SX.zeros(3, 3), ca.SX.eye(3)
+    return ca.blockcat([[Fq, Fb], [Z, I]]), ca.blockcat([[Fb, Z], [Z, I]])
+
+
+def predict_attitude_function(p: dict, name="predict_attitude") -> ca.Function:
+    """The time update in two kernels (smaller frames): the attitude and F's attitude rows
+    F_q = ∂δq'/∂δq, F_b = ∂δq'/∂δb here; `predict_covariance` takes them. F's other rows are
+    [0, I] and G = [[F_b, 0], [0, I]] (∂/∂n_g is ∂/∂δb): checked here when the model is built."""
+    q, b, gyro, dt = (ca.SX.sym(n, k) for n, k in (("q", 4), ("b", 3), ("gyro", 3), ("dt", 1)))
+    q_new, F, G, _ = _time_update(p, q, b, gyro, dt)
+    Fq, Fb = F[:3, :3], F[:3, 3:]
+    F2, G2 = _blocks(Fq, Fb)
+    check = ca.Function("check", [b, gyro, dt], [F - F2, G - G2])
+    for args in (([0.01, -0.02, 0.03], [0.5, -1.0, 2.0], 0.01), ([0.0] * 3, [3.0, 0.1, -0.2], 0.004)):
+        if any(float(ca.mmax(ca.fabs(m))) > 1e-12 for m in check(*args)):
+            raise AssertionError("mekf: F or G is not [[F_q, F_b], [0, I]], [[F_b, 0], [0, I]]")
+    return emit.function(name, {"q": q, "b": b, "gyro": gyro, "dt": dt},
+                         {"q_out": q_new, "F_q": ca.reshape(Fq, 9, 1), "F_b": ca.reshape(Fb, 9, 1)})
+
+
+def predict_covariance_function(p: dict, name="predict_covariance") -> ca.Function:
+    """P⁻ = F P Fᵀ + G Q Gᵀ from F's attitude rows (see predict_attitude)."""
+    Fq, Fb, Pv, dt = (ca.SX.sym(n, k) for n, k in (("F_q", 9), ("F_b", 9), ("P", N * N), ("dt", 1)))
+    F, G = _blocks(ca.reshape(Fq, 3, 3), ca.reshape(Fb, 3, 3))
+    P_new = kalman.predict_covariance(sym_lower(Pv), F, G, _process_noise(p, dt), symmetrize=False)
+    return emit.function(name, {"F_q": Fq, "F_b": Fb, "P": Pv, "dt": dt}, {"P_out": flat_mirrored(P_new)})
+
+
+def measured_angles(p: dict, q, b, gyro, accel, mag, vel, acc_n, m_comp):
+    """Step 3: [φ₂, θ₂, ψ₂] from the (compensated) accelerometer and the heading source.
+
+    f_b = dv_b/dt + ω × v_b − R(q)ᵀ g_n = R(q)ᵀ (a_n − g_n). 'centripetal' removes ω × v_b
+    (v_b = R(q)ᵀ v_gps), 'gps_accel' removes R(q)ᵀ a_n with a_n from GPS differences.
+    """
+    f = accel
+    if p["motion_comp"] == "centripetal":
+        w = gyro - b
+        vb = quat.rotate_inv(q, vel)
+        f = accel - ca.if_else(m_comp, ca.cross(w, vb), ca.DM.zeros(3))
+    elif p["motion_comp"] == "gps_accel":
+        f = accel - ca.if_else(m_comp, quat.rotate_inv(q, acc_n), ca.DM.zeros(3))
+    roll_a, pitch_a = attitude.tilt_angles(f)
+    if p["heading_source"] == "mag":
+        est = quat.euler(q)
+        yaw_m = attitude.tilt_compensated_heading(mag, est[0], est[1], p["declination"])
+    else:
+        yaw_m = ca.atan2(vel[1], vel[0])
+    return roll_a, pitch_a, yaw_m
+
+
+def update_function(p: dict, name="update") -> ca.Function:
+    q = ca.SX.sym("q", 4)
+    b = ca.SX.sym("b", 3)
+    Pv = ca.SX.sym("P", N * N)
+    gyro = ca.SX.sym("gyro", 3)
+    accel = ca.SX.sym("accel", 3)
+    mag = ca.SX.sym("mag", 3)
+    vel = ca.SX.sym("vel", 3)
+    acc_n = ca.SX.sym("acc_n", 3)
+    mask = ca.SX.sym("mask", 3)     # [tilt rows, heading row, motion compensation] as 0/1
+    roll_a, pitch_a, yaw_m = measured_angles(p, q, b, gyro, accel, mag, vel, acc_n, mask[2])
+    est = quat.euler(q)
+    z = quat.wrap(ca.vertcat(roll_a, pitch_a, yaw_m) - est)                       # step 4
+    H = jacobian_H(q)
+    r_head = p["mag_heading_noise"] if p["heading_source"] == "mag" else p["course_noise"]
+    r = [p["accel_angle_noise"] ** 2] * 2 + [r_head ** 2]
+    Hm, zm, R = kalman.mask_rows(H, z, r, [mask[0], mask[0], mask[1]])
+    # steps 5-7: Cholesky gain, Joseph form (mirrored below), X = K Z
+    X, P_new, min_pivot = kalman.update(sym_lower(Pv), Hm, zm, R, S_PIVOT_MIN, symmetrize=False)
+    q_new = quat.qnormalize(quat.qmul(q, quat.vec(1, X[0], X[1], X[2])))         # step 8
+    b_new = b + X[3:6]
+    # Euler angles are singular at pitch ±90°: there H has 1/cos(pitch) and the asin's
+    # derivative is infinite. Report a negative pivot so the step skips the correction.
+    sin_pitch = 2 * (q[0] * q[2] - q[1] * q[3])
+    usable = ca.if_else(1 - sin_pitch * sin_pitch > COS2_PITCH_MIN, min_pivot, -1.0)
+    return emit.function(name, {"q": q, "b": b, "P": Pv, "gyro": gyro, "accel": accel, "mag": mag,
+                                "vel": vel, "acc_n": acc_n, "mask": mask},
+                         {"q_out": q_new, "b_out": b_new, "P_out": flat_mirrored(P_new),
+                          "min_pivot": usable})
+
+
+def init_function(p: dict, name="init_attitude") -> ca.Function:
+    accel = ca.SX.sym("accel", 3)
+    mag = ca.SX.sym("mag", 3)
+    vel = ca.SX.sym("vel", 3)
+    use_head = ca.SX.sym("use_head")
+    roll, pitch = attitude.tilt_angles(accel)
+    if p["heading_source"] == "mag":
+        yaw = attitude.tilt_compensated_heading(mag, roll, pitch, p["declination"])
+    else:
+        yaw = ca.atan2(vel[1], vel[0])
+    yaw = use_head * yaw
+    return emit.function(name, {"accel": accel, "mag": mag, "vel": vel, "use_head": use_head},
+                         {"q_out": quat.from_euler(roll, pitch, yaw)})
+
+
+# ------------------------------------------------------------------------------------
+# measurement = "vectors" (the product design)
+def motion_compensated(p, q, b, gyro, accel, vel, acc_n, m_comp):
+    """Specific force with the GPS-known motion acceleration removed (see measured_angles)."""
+    if p["motion_comp"] == "centripetal":
+        return accel - ca.if_else(m_comp, ca.cross(gyro - b, quat.rotate_inv(q, vel)), ca.DM.zeros(3))
+    if p["motion_comp"] == "gps_accel":
+        return accel - ca.if_else(m_comp, quat.rotate_inv(q, acc_n), ca.DM.zeros(3))
+    return accel
+
+
+def accel_lowpass_function(p: dict, name="accel_lowpass") -> ca.Function:
+    """a_lp ← a_lp + α (R(q) f_c − a_lp), α = dt / (accel_lpf_tau + dt): the specific force
+    low-passed in the earth frame (motion acceleration averages out, gravity does not).
+
+    Returns the new a_lp, the new v_lp and `up`, the low-passed specific force with the
+    low-passed kinematic acceleration removed: for motion_comp = 'gps_lowpass' (m_comp = 1)
+    the GPS velocity goes through the same low-pass, v_lp ← v_lp + α (v − v_lp), and
+    (v − v_lp)/τ, with v_lp already updated, is exactly the same discrete low-pass applied to
+    the velocity's differences (v_k − v_{k−1})/dt (the low-pass of a derivative is the derivative
+    of the low-pass); up = a_lp − (v − v_lp)/τ. Otherwise up = a_lp.
+    """
+    q, b, gyro, accel, vel, acc_n, a_lp, v_lp, v_ins = (ca.SX.sym(n, k) for n, k in (
+        ("q", 4), ("b", 3), ("gyro", 3), ("accel", 3), ("vel", 3), ("acc_n", 3), ("a_lp", 3), ("v_lp", 3),
+        ("v_ins", 3)))
+    dt = ca.SX.sym("dt")
+    mask = ca.SX.sym("mask", 2)        # [motion compensation, GPS sample this step]
+    m_comp = mask[0]
+    f = motion_compensated(p, q, b, gyro, accel, vel, acc_n, m_comp)
+    alpha = dt / (p["accel_lpf_tau"] + dt)
+    f_n = quat.rotate(q, f)
+    a_new = a_lp + alpha * (f_n - a_lp)
+    if p["motion_comp"] == "gps_lowpass":
+        # velocity: the GPS sample when one arrived, else carried by a = R f + g from the last
+        # one (no GPS-rate staircase in the low-passed derivative)
+        vi_new = ca.if_else(mask[1], vel, v_ins + (f_n + ca.DM([0.0, 0.0, G0])) * dt)
+        # without compensation (m_comp = 0) the velocity low-pass holds and up is a_new
+        v_new = ca.if_else(m_comp, v_lp + alpha * (vi_new - v_lp), v_lp)
+        up = ca.if_else(m_comp, a_new - (vi_new - v_new) / p["accel_lpf_tau"], a_new)
+    else:
+        vi_new, v_new, up = v_ins, v_lp, a_new
+    return emit.function(name, {"q": q, "b": b, "gyro": gyro, "accel": accel, "vel": vel, "acc_n": acc_n,
+                                "mask": mask, "a_lp": a_lp, "v_lp": v_lp, "v_ins": v_ins, "dt": dt},
+                         {"a_lp_out": a_new, "v_lp_out": v_new, "v_ins_out": vi_new, "up_out": up})
+
+
+def heading_features_function(name="heading_features") -> ca.Function:
+    """[|m|, dip, v_bx, v_by]: the field's norm and dip (positive down) seen from the
+    attitude q, and the GPS velocity in body axes (is the vehicle moving nose first?)."""
+    q, m, vel = ca.SX.sym("q", 4), ca.SX.sym("mag", 3), ca.SX.sym("vel", 3)
+    mn = quat.rotate(q, m)
+    dip = ca.atan2(mn[2], ca.sqrt(mn[0] * mn[0] + mn[1] * mn[1]))
+    vb = quat.rotate_inv(q, vel)
+    return emit.function(name, {"q": q, "mag": m, "vel": vel},
+                         {"feat": ca.vertcat(ca.sqrt(ca.sumsqr(m)), dip, vb[0], vb[1])})
+
+
+def gravity_direction(q, dq):
+    """Body-axis direction of the specific force at rest seen from normalise(q̂ ⊗ [1, δq]):
+    R(q̂ ⊗ δ)ᵀ u = R(δ)ᵀ (R(q̂)ᵀ u), written in that order so that its Jacobian in δq
+    (taken at δq = 0) works on the 3-vector R(q̂)ᵀ u, not through q̂'s normalisation."""
+    return quat.rotate_inv(quat.qnormalize(quat.vec(1, dq[0], dq[1], dq[2])), quat.rotate_inv(q, ca.DM(UP_NED)))
+
+
+def heading_of_error(q, dq):
+    """Heading part of the error: twist angle about the vertical (NED z) of the earth-frame
+    error rotation e = q̂ ⊗ [1, δq] ⊗ q̂* = [1, R(q̂) δq] (q̂ unit), 2 atan2(e_z, e_w). Its
+    Jacobian at δq = 0 has only the vertical component, so a heading row never asks for a tilt."""
+    return 2 * ca.atan2(quat.rotate(q, dq)[2], 1)
+
+
+def jacobian_gravity(q):
+    dq = ca.SX.sym("dq", 3)
+    return ca.horzcat(kalman.jacobian_at(gravity_direction(q, dq), dq, [dq]), ca.SX.zeros(3, 3))
+
+
+def jacobian_heading(q):
+    dq = ca.SX.sym("dq", 3)
+    return ca.horzcat(kalman.jacobian_at(heading_of_error(q, dq), dq, [dq]), ca.SX.zeros(1, 3))
+
+
+def _inject(q, b, X):
+    return quat.qnormalize(quat.qmul(q, quat.vec(1, X[0], X[1], X[2]))), b + X[3:6]
+
+
+def gravity_rows_function(p: dict, name="gravity_rows") -> ca.Function:
+    """The gravity-direction measurement: rows of H (h, H's rows one after the other; the
+    bias columns are 0), innovations z and their variance r.
+
+    z_g = up/|up| in body axes − R(q̂)ᵀ [0, 0, −1] (up: accel_lowpass's earth-frame vector); R_g = σ² min(1 + |z_g|²/(3σ)², cap)
+    (bounded residual adaptation: the correction can be weakened, never locked out).
+    The step runs the three rows in turn through `update_attitude_row` (one kernel, called
+    three times: kalman.scalar_updates, the batch update of the rows stacked).
+    """
+    q, up = ca.SX.sym("q", 4), ca.SX.sym("up", 3)
+    d = quat.rotate_inv(q, up) / ca.sqrt(ca.sumsqr(up))
+    z_g = d - gravity_direction(q, ca.DM.zeros(3))
+    sig2 = p["accel_angle_noise"] ** 2
+    r_g = sig2 * ca.fmin(1 + ca.sumsqr(z_g) / (9 * sig2), p["accel_adapt_cap"])
+    Hq = jacobian_gravity(q)[:, :3]
+    return emit.function(name, {"q": q, "up": up}, {"h": ca.reshape(Hq.T, 9, 1), "z": z_g, "r": r_g})
+
+
+def update_attitude_row_function(name="update_attitude_row") -> ca.Function:
+    """One scalar row h = [h_δq, 0] (kalman.scalar_updates): x and P after it, and its
+    variance s = h P hᵀ + r (a pivot of the batch S)."""
+    Pv, h, x = ca.SX.sym("P", N * N), ca.SX.sym("h", 3), ca.SX.sym("x", N)
+    z, r = ca.SX.sym("z"), ca.SX.sym("r")
+    row = ca.horzcat(h.T, ca.SX.zeros(1, 3))
+    x_new, P_new, s = kalman.scalar_updates(sym_lower(Pv), [(row, z, r)], x=x, tol=S_PIVOT_MIN)
+    return emit.function(name, {"P": Pv, "h": h, "z": z, "r": r, "x": x},
+                         {"x_out": x_new, "P_out": flat_mirrored(P_new), "s": s})
+
+
+def update_rest_bias_function(p: dict, name="update_rest_bias") -> ca.Function:
+    """At rest the gyro reads its bias: z_b = gyro − b̂, H = [0 I], R_b = σ_g²/dt (one
+    sample's noise), 3 scalar rows after the gravity rows (x: their correction, 0 without)."""
+    b, Pv, gyro, x = (ca.SX.sym(n, k) for n, k in (("b", 3), ("P", N * N), ("gyro", 3), ("x", N)))
+    dt = ca.SX.sym("dt")
+    r_b = p["gyro_noise"] ** 2 / ca.fmax(dt, DT_Q_MIN)
+    H = ca.horzcat(ca.SX.zeros(3, 3), ca.SX.eye(3))
+    z = gyro - b
+    x_new, P_new, min_pivot = kalman.scalar_updates(sym_lower(Pv), [(H[i, :], z[i], r_b) for i in range(3)],
+                                                    x=x, tol=S_PIVOT_MIN)
+    return emit.function(name, {"b": b, "P": Pv, "gyro": gyro, "dt": dt, "x": x},
+                         {"x_out": x_new, "P_out": flat_mirrored(P_new), "min_pivot": min_pivot})
+
+
+def inject_function(name="inject") -> ca.Function:
+    """Error injection and reset: q ← normalise(q ⊗ [1, x_δq]), b ← b + x_δb."""
+    q, b, x = ca.SX.sym("q", 4), ca.SX.sym("b", 3), ca.SX.sym("x", N)
+    q_new, b_new = _inject(q, b, x)
+    return emit.function(name, {"q": q, "b": b, "x": x}, {"q_out": q_new, "b_out": b_new})
+
+
+def update_heading_function(p: dict, name="update_heading") -> ca.Function:
+    """One heading row: GPS course (use_course = 1) or magnetic heading, vertical only;
+    returns the error-state correction x (for `inject`), P⁺ (P itself when s is not usable)
+    and the innovation variance s.
+
+    course: z = wrap(atan2(v_E, v_N) − ψ̂), ψ̂ = atan2(R₁₀, R₀₀) (heading of the body x axis);
+    mag:    z = wrap(declination − atan2(m_E, m_N)), m_n = R(q̂) m (the field's heading as
+            the estimate sees it, from north it points at the declination).
+    The attitude part of the gain is projected on the vertical (in body axes, r = R(q̂)ᵀ e₃),
+    so the correction is a pure heading rotation; Joseph's form stays exact for this gain.
+    """
+    q, Pv, mag, vel = (ca.SX.sym(n, k) for n, k in (("q", 4), ("P", N * N), ("mag", 3), ("vel", 3)))
+    use_course = ca.SX.sym("use_course")
+    Rq = quat.rotmat(q)
+    mn = ca.mtimes(Rq, mag)
+    z_course = quat.wrap(ca.atan2(vel[1], vel[0]) - ca.atan2(Rq[1, 0], Rq[0, 0]))
+    z_mag = quat.wrap(p["declination"] - ca.atan2(mn[1], mn[0]))
+    z = ca.if_else(use_course, z_course, z_mag)
+    r = ca.if_else(use_course, p["course_noise"] ** 2, p["mag_heading_noise"] ** 2)
+    H = jacobian_heading(q)
+    P = sym_lower(Pv)
+    PHt = ca.mtimes(P, H.T)
+    S = ca.mtimes(H, PHt) + r                                # 1 x 1
+    K = PHt * ca.if_else(S > S_PIVOT_MIN, 1.0 / S, 1.0)        # one division (a select: stays a product)
+    up = Rq[2, :].T
+    K[0:3] = ca.mtimes(ca.mtimes(up, up.T), K[0:3])          # attitude gain about the vertical only
+    # Joseph form for this gain; P unchanged (selected, so the step may pass P as P_out) when
+    # S is not usable - the step then skips the correction
+    P_new = ca.if_else(S > S_PIVOT_MIN, kalman.joseph_row(P, K, PHt, S), P)
+    return emit.function(name, {"q": q, "P": Pv, "mag": mag, "vel": vel, "use_course": use_course},
+                         {"x_out": K * z, "P_out": flat_mirrored(P_new), "s": S})
+
+
+def init_vectors_function(p: dict, name="init_attitude") -> ca.Function:
+    """First attitude: tilt from the accelerometer, yaw from the GPS course (use[0]) or the
+    magnetometer (use[1]) or 0; and the earth-frame low-pass started at R(q) f."""
+    accel, mag, vel, use = (ca.SX.sym(n, k) for n, k in (("accel", 3), ("mag", 3), ("vel", 3), ("use", 2)))
+    roll, pitch = attitude.tilt_angles(accel)
+    yaw = ca.if_else(use[0], ca.atan2(vel[1], vel[0]),
+                     ca.if_else(use[1], attitude.tilt_compensated_heading(mag, roll, pitch, p["declination"]), 0.0))
+    q = quat.from_euler(roll, pitch, yaw)
+    return emit.function(name, {"accel": accel, "mag": mag, "vel": vel, "use": use},
+                         {"q_out": q, "a_lp_out": quat.rotate(q, accel)})
+
+
+def initial_P(p: dict) -> list:
+    d = [(0.5 * p["p0_att"]) ** 2] * 3 + [p["p0_bias"] ** 2] * 3
+    return [d[i] if i == j else 0.0 for j in range(N) for i in range(N)]
+
+
+def euler_design_params(p: dict) -> dict:
+    """measurement = 'euler_angles' has one heading source and no low-pass: there 'auto' means
+    the GPS course (the patent) and 'gps_lowpass' means 'gps_accel' (docs/mekf.md)."""
+    p = dict(p)
+    if p["heading_source"] == "auto":
+        p["heading_source"] = "gps_course"
+    if p["motion_comp"] == "gps_lowpass":
+        p["motion_comp"] = "gps_accel"
+    return p
+
+
+class Model(FilterModel):
+    def __init__(self, params: dict):
+        self.vectors = params["measurement"] == "vectors"
+        if not self.vectors:
+            params = euler_design_params(params)
+        p = params
+        uses = ["accel"]
+        if p["heading_source"] != "gps_course":
+            uses.append("mag")
+        if p["heading_source"] != "mag" or p["motion_comp"] != "none":
+            uses.append("gps")
+        status = list(EXTRA_STATUS) + (list(VECTOR_STATUS) if self.vectors else [])
+        super().__init__(params, sensors=tuple(uses), extra_status=status)
+
+    def state_fields(self) -> list[StateField]:
+        return [
+            StateField("q", 4, "attitude quaternion body->NED [w x y z]", [1.0, 0.0, 0.0, 0.0]),
+            StateField("gyro_bias", 3, "gyro bias estimate, rad/s", 0.0),
+            StateField("P", N * N, "error-state covariance [dq, db] (6x6, symmetric)", initial_P(self.params)),
+            StateField("v_gps", 3, "last valid GPS velocity NED, m/s", 0.0),
+            StateField("v_age", 1, "age of v_gps, s (stops counting at 1e3)", AGE_MAX),
+            StateField("a_gps", 3, "NED acceleration from the last two GPS velocities, m/s^2 (motion_comp = gps_accel)", 0.0),
+            StateField("a_ok", 1, "1 when a_gps comes from two samples at most gps_vel_timeout apart", 0, "uint32"),
+            StateField("initialised", 1, "1 once the attitude has been initialised", 0 if self.params["init_from_sensors"] else 1, "uint32"),
+        ] + (self._vector_fields() if self.vectors else [])
+
+    def _vector_fields(self) -> list[StateField]:
+        return [
+            StateField("a_lp", 3, "specific force low-passed in the earth frame (NED), m/s^2", 0.0),
+            StateField("v_lp", 3, "GPS velocity through the same low-pass (motion_comp = gps_lowpass), m/s", 0.0),
+            StateField("vlp_ok", 1, "1 while v_lp follows a fresh GPS velocity", 0, "uint32"),
+            StateField("v_ins", 3, "GPS velocity carried between GPS samples by the accelerometer, m/s", 0.0),
+            StateField("gyro_lp", 3, "rest detection: low-passed gyro, rad/s", 0.0),
+            StateField("acc_lp", 3, "rest detection: low-passed accelerometer, m/s^2", 0.0),
+            StateField("rest_time", 1, "time the gyro and accelerometer have been steady, s (stops at 1e3)", 0.0),
+            StateField("mag_ref", 2, "reference field [norm, dip angle rad] (learned, then followed while accepted)", 0.0),
+            StateField("mag_ref_time", 1, "time spent learning the reference field, s", 0.0),
+            StateField("mag_rej_time", 1, "time the magnetometer has been rejected in a row, s", 0.0),
+            StateField("mag_cand", 2, "candidate new reference [norm, dip] while rejected", 0.0),
+            StateField("mag_cand_time", 1, "time the candidate field has been steady, s", 0.0),
+            StateField("head_age", 1, "time since the last heading correction, s (stops at 1e3)", AGE_MAX),
+        ]
+
+    def kernels(self) -> list[KernelSpec]:
+        p = self.params
+        if self.vectors:
+            return [
+                KernelSpec("predict_attitude", predict_attitude_function(p), "time update: attitude and F's attitude rows"),
+                KernelSpec("predict_covariance", predict_covariance_function(p), "time update: covariance"),
+                KernelSpec("accel_lowpass", accel_lowpass_function(p), "earth-frame low-pass of the compensated specific force",
+                           flags=("mask",)),
+                KernelSpec("heading_features", heading_features_function(), "field norm and dip; GPS velocity in body axes"),
+                KernelSpec("gravity_rows", gravity_rows_function(p), "gravity direction: H rows, innovations, variance"),
+                KernelSpec("update_attitude_row", update_attitude_row_function(), "one scalar row on the attitude error"),
+                KernelSpec("update_rest_bias", update_rest_bias_function(p), "at rest, the gyro bias: three scalar rows"),
+                KernelSpec("inject", inject_function(), "error injection into q and the gyro bias"),
+                KernelSpec("update_heading", update_heading_function(p), "one heading row, gain projected on the vertical",
+                           flags=("use_course",)),
+                KernelSpec("init_attitude", init_vectors_function(p), "first attitude and low-pass state",
+                           flags=("use",)),
+            ]
+        return [
+            KernelSpec("predict", predict_function(p), "time update (patent steps 1-2)"),
+            KernelSpec("update", update_function(p), "measurement update with row mask (steps 3-8)", flags=("mask",)),
+            KernelSpec("init_attitude", init_function(p), "first attitude from tilt and heading", flags=("use_head",)),
+        ]
+
+    def step_paths(self) -> dict[str, list[str]]:
+        if self.vectors:
+            return {"gyro only": ["predict_attitude", "predict_covariance"],
+                    "with corrections": ["predict_attitude", "predict_covariance", "heading_features", "accel_lowpass", "gravity_rows"] + ["update_attitude_row"] * 3
+                    + ["inject", "update_heading", "inject"],
+                    "at rest": ["predict_attitude", "predict_covariance", "heading_features", "accel_lowpass", "gravity_rows"] + ["update_attitude_row"] * 3
+                    + ["update_rest_bias", "inject", "update_heading", "inject"]}
+        return {"gyro only": ["predict"], "with corrections": ["predict", "update"]}
+
+    def template_context(self) -> dict:
+        p = self.params
+        return {"n": N, "heading_source": p["heading_source"], "motion_comp": p["motion_comp"],
+                "s_pivot_min": S_PIVOT_MIN, "age_max": AGE_MAX, "g0": G0, "gps_dt_min": GPS_DT_MIN,
+                "vectors": self.vectors, "head_age_max": HEAD_AGE_MAX,
+                "tan2_sideslip": math.tan(p["course_max_sideslip"]) ** 2,
+                # the norm gate's test is written only when it can be on (a runtime value, or > 0):
+                # no unreachable code in a default build. dict.get: not a use of a runtime value.
+                "accel_gate_on": not isinstance(p.get("accel_gate"), (int, float)) or p.get("accel_gate") > 0}

@@ -1,0 +1,293 @@
+"""QCF: quaternion complementary filter (Lü, Xiao, Hu 2014), symbolic model.
+
+Per step (SPEC.md, QCF):
+  gravity part   f_g = f - R(q̂)^T a_n when ||f| - g| > threshold and a GPS acceleration is
+                 available (section 3.2), else f
+  reference      Q_r = FQA(f_g, m) (eq. 13's Q), or tilt-only FQA with q̂'s yaw without a
+                 magnetometer sample
+  error          Q~ = q̂^-1 ⊗ Q_r with q~0 >= 0 (eq. 13); q~ its vector part
+  PI feedback    β = ω - b̂ + kp q~ ;  b̂ <- b̂ - ki q~ dt (eq. 14, b̂ of the previous step in β)
+  integration    q̂ <- normalise(q̂ ⊗ exp(½ β dt)) (eq. 9 with the Picard/exact step, eq. 7)
+  GPS accel      a_{k-3} = (c1 d1 + c2 d2 + c3 d3) / (2 T), d_i = V_{k-3+i} - V_{k-3-i} (eq. 29)
+
+Product option (motion_accel_model): eq. 29 estimates the acceleration 3 GPS samples
+(0.6 s at 5 Hz) in the past; in a turn the centripetal part changes faster than that. The
+centripetal acceleration of a velocity vector turning with the body, a_c = ω_n × v_n with
+ω_n = R(q̂)(ω − b̂), is known at once from the gyro and the latest GPS velocity. (Adding
+eq. 29's along-track part was tried and made things worse: the stale centripetal part of
+the lagged estimate leaks into the projection while the velocity turns.)
+
+Product conditioning (faithful = false; issue 10; building blocks in src/ahrsgen/symbolic/aiding.py):
+  init           the first accelerometer sample sets q: the shortest rotation taking its (raw) down
+                 direction to NED down (tilt), then the heading of the first magnetometer
+                 sample (in that step or later) by the heading correction below; with both in
+                 the first step this is FQA's attitude
+  low-pass       a <- a + k (R(q̂) f_g - a), k = s_a/(accel_tau + s_a): the specific force in
+                 NED, low-passed (motion acceleration averages out, gravity does not)
+  tilt           T = shortest NED rotation taking d = -a/|a| to [0,0,1] (no z part, any attitude)
+  heading        H = rotation about NED z taking the horizontal part of R(T q̂) m to north +
+                 declination, only for a magnetometer sample whose norm and dip (against
+                 R(T q̂)ᵀ[0,0,1]) pass the field check
+  error          e dt = R(q̂)ᵀ (s_a vec(T) + s_m vec(H))  (the vector part of q̂⁻¹ T H q̂ to first
+                 order, each part weighted by the time s its sensor's sample stands for)
+  PI feedback    β dt = (ω - b̂) dt + kp e dt ; b̂ <- b̂ - ki e dt only while ||f| - g| < bias_accel_gate;
+                 at rest (aiding.rest_detector) b̂ follows the low-passed gyro instead
+  integration    as eq. 9
+"""
+from __future__ import annotations
+
+import casadi as ca
+
+from ahrsgen.codegen.emit import function
+from ahrsgen.constants import G0
+from ahrsgen.codegen.model import FilterModel, KernelSpec, StateField
+from ahrsgen.symbolic import aiding, attitude, quat
+
+# Eq. 29 as printed; its gain on a velocity ramp is c1 + 2 c2 + 3 c3 = 0.9854.
+PAPER_COEFFS = (0.0971, 0.1662, 0.1853)
+GPS_TAPS = 7          # V_{k-6} .. V_k (the differentiator; the centripetal term reads only V_k)
+
+
+def gps_taps(params) -> int:
+    """GPS velocities the state keeps: eq. 29 reads 7, the centripetal term the latest only."""
+    return GPS_TAPS if params["motion_accel_model"] == "differentiator" else 1
+
+
+def differentiator_coeffs(faithful: bool):
+    if faithful:
+        return PAPER_COEFFS
+    gain = sum((i + 1) * c for i, c in enumerate(PAPER_COEFFS))
+    return tuple(c / gain for c in PAPER_COEFFS)
+
+
+EXTRA_STATUS = [
+    ("MAG_DISTURBED", "magnetometer norm or dip off its reference: heading not corrected this step"),
+    ("AT_REST", "at rest: the gyro bias follows the low-passed gyro"),
+]
+
+
+class Model(FilterModel):
+    def __init__(self, params: dict):
+        product = not params["faithful"] and params["conditioning"]
+        super().__init__(params, sensors=("accel", "mag", "gps"),
+                         extra_status=list(EXTRA_STATUS) if product else [])
+        self.product = product
+
+    def state_fields(self):
+        p = self.params
+        return [
+            StateField("q", 4, "attitude estimate, body->NED, [w x y z]", [1.0, 0.0, 0.0, 0.0]),
+            StateField("gyro_bias", 3, "gyro bias estimate b, rad/s", 0.0),
+            StateField("gps_vel_hist", 3 * gps_taps(p), "last 7 GPS velocities (NED, m/s), oldest first"
+                       if gps_taps(p) > 1 else "latest GPS velocity (NED, m/s)", 0.0),
+        ] + ([
+            StateField("motion_accel", 3, "latest GPS-derived motion acceleration a_{k-3}, NED, m/s^2", 0.0),
+        ] if p["motion_accel_model"] == "differentiator" else []) + [
+            StateField("gps_age", 1, "time since the last GPS sample, s", 1e3),
+            StateField("gps_count", 1, "GPS samples since the last gap (counting stops at 7)", 0, "uint32"),
+            StateField("initialised", 1, "1 once the attitude has been initialised" + (
+                " (tilt only), 2 with heading" if self.product else ""), 1 if p["faithful"] else 0, "uint32"),
+        ] + ([] if not self.product else [
+            StateField("accel_lp", 3, "low-passed specific force in NED, m/s^2 (level at rest until the "
+                       "first accelerometer sample: the correction before it has zero weights)", [0.0, 0.0, -G0]),
+            StateField("accel_age", 1, "time since the last accelerometer sample, s", 0.0),
+            StateField("mag_age", 1, "time since the last magnetometer sample, s", 0.0),
+            StateField("rest_gyro_lp", 3, "rest detection: low-passed gyro, rad/s", 0.0),
+            StateField("rest_time", 1, "rest detection: steady time so far, s", 0.0),
+            StateField("mag_ref", 2, "field check reference: |m| and sin(dip) (|m| = 0: not learned)", 0.0),
+            StateField("mag_dist_time", 1, "field check: time the field has been rejected, s", 0.0),
+            StateField("mag_learn_time", 1, "field check: time since the first magnetometer sample (capped), s", 0.0),
+        ])
+
+    def kernels(self):
+        p = self.params
+        q = ca.SX.sym("q", 4)
+        bias = ca.SX.sym("gyro_bias", 3)
+        gyro = ca.SX.sym("gyro", 3)
+        dt = ca.SX.sym("dt")
+        f = ca.SX.sym("accel", 3)
+        m = ca.SX.sym("mag", 3)
+        q_ref = ca.SX.sym("q_ref", 4)
+        a_n = ca.SX.sym("motion_accel", 3)
+        hist = ca.SX.sym("gps_vel_hist", 3 * gps_taps(p))
+        rot = ca.SX.sym("rot", 3, 3)      # R(q), from the rotation kernel once per step
+        f2 = ca.SX.sym("accel_norm2")     # |f|², from the step's input check
+
+        # PI feedback and integration (eqs. 13, 14, 9, 7).
+        q_err = quat.qmul(quat.qconj(q), q_ref)
+        q_err = ca.if_else(q_err[0] < 0, -q_err, q_err)
+        beta = gyro - bias + p["kp"] * q_err[1:]
+        bias_new = bias - p["ki"] * q_err[1:] * dt
+
+        # Lagged GPS differentiator (eq. 29).
+        if p["motion_accel_model"] == "differentiator":
+            c = differentiator_coeffs(p["faithful"])
+            V = [hist[3 * i:3 * i + 3] for i in range(GPS_TAPS)]
+            acc = sum(c[i - 1] * (V[3 + i] - V[3 - i]) for i in (1, 2, 3)) / (2 * p["gps_period"])
+
+        kernels = self.product_kernels() if self.product else []
+        # Gravity part of the specific force (section 3.2): f_b = R^T (a_n - g_n).
+        # ||f| - g| > threshold, compared through |f|² (aiding.norm_within: no square root)
+        excess = ca.logic_not(aiding.norm_within(f2, G0, p["motion_accel_threshold"]))
+        if p["motion_accel_model"] == "differentiator":
+            gravity_in = {"accel": f, "accel_norm2": f2, "rot": rot, "motion_accel": a_n}
+            f_g = ca.if_else(excess, f - ca.mtimes(rot.T, a_n), f)
+        else:
+            # The centripetal acceleration a_c = R(q)(w - b) x v_n of the latest GPS velocity,
+            # computed inside the excess branch only (skipped while |f| is close to g), in body
+            # axes: R^T a_c = (w - b) x v_b with v_b = R^T v_n (a rotation keeps cross products).
+            v = hist[-3:]
+            v_b = ca.mtimes(rot.T, v)
+            a_c = ca.cross(gyro - bias, v_b)
+            if self.product and p["centripetal_align"] < 1:
+                # the velocity turns with the body only if the body flies along it (fixed-wing):
+                # weight 1 when v is along body x, ramping to 0 at cos(angle) = centripetal_align
+                c0 = p["centripetal_align"]
+                along = v_b[0] * ca.sqrt(1 / ca.fmax(ca.sumsqr(v), 1e-6))
+                a_c = ca.fmin(ca.fmax((along - c0) / (1 - c0), 0.0), 1.0) * a_c
+            gravity_in = {"accel": f, "accel_norm2": f2, "rot": rot, "gyro": gyro, "gyro_bias": bias,
+                          "gps_vel_hist": hist}
+            f_g = ca.if_else(excess, f - a_c, f)
+        paper = [] if self.product else [
+            KernelSpec("reference", function("reference", {"accel": f, "mag": m},
+                                             {"q_ref": attitude.fqa(f, m, p["declination"])}),
+                       "factored quaternion algorithm (FQA): attitude from accelerometer and magnetometer"),
+            KernelSpec("reference_tilt", function("reference_tilt", {"accel": f, "q": q},
+                                                  {"q_ref": attitude.tilt_with_yaw(f, quat.euler(q)[2])}),
+                       "FQA tilt with the estimate's yaw, for steps without a magnetometer sample"),
+            KernelSpec("update", function("update", {"q": q, "gyro_bias": bias, "gyro": gyro, "q_ref": q_ref, "dt": dt},
+                                          {"q_new": quat.integrate(q, beta, dt), "gyro_bias_new": bias_new}),
+                       "PI feedback on the error quaternion q^-1 (x) q_ref and integration (eqs. 13, 14, 9)"),
+        ]
+        return kernels + [
+            KernelSpec("rotation", function("rotation", {"q": q}, {"rot": quat.rotmat(q)}),
+                       "R(q), read by the kernels of a step that rotate with the estimate (computed once)"),
+            KernelSpec("gravity_part", function("gravity_part", gravity_in, {"accel_gravity": f_g}),
+                       "accelerometer minus the GPS motion acceleration when ||f| - g| exceeds the threshold" + (
+                           "" if p["motion_accel_model"] == "differentiator" else
+                           " (centripetal: (w - b) x R(q)^T v_gps in body axes, computed only then)")),
+        ] + paper + ([] if self.product else [
+            KernelSpec("propagate", function("propagate", {"q": q, "gyro_bias": bias, "gyro": gyro, "dt": dt},
+                                             {"q_new": quat.integrate_scaled(q, gyro - bias, dt)}),
+                       "gyro-only integration with the bias removed (no aiding this step)"),
+        ]) + ([KernelSpec("gps_accel", function("gps_accel", {"gps_vel_hist": hist}, {"motion_accel": acc}),
+                         "lagged differentiator of GPS velocity (eq. 29): NED acceleration 3 samples back")]
+             if p["motion_accel_model"] == "differentiator" else [])
+
+    def product_kernels(self):
+        """Kernels of the product conditioning (faithful = false); see the module docstring."""
+        p = self.params
+        q = ca.SX.sym("q", 4)
+        bias = ca.SX.sym("gyro_bias", 3)
+        gyro = ca.SX.sym("gyro", 3)
+        dt = ca.SX.sym("dt")
+        f = ca.SX.sym("accel", 3)
+        m = ca.SX.sym("mag", 3)
+        a_lp = ca.SX.sym("accel_lp", 3)
+        span = ca.SX.sym("span")
+        span_a = ca.SX.sym("span_accel")
+        span_m = ca.SX.sym("span_mag")
+        use_m = ca.SX.sym("use_mag")
+        g_lp = ca.SX.sym("rest_gyro_lp", 3)
+        t_rest = ca.SX.sym("rest_time")
+        at_rest = ca.SX.sym("at_rest")
+        use_a = ca.SX.sym("use_accel")
+        m_ref = ca.SX.sym("mag_ref", 2)
+        t_dist = ca.SX.sym("mag_dist_time")
+        t_learn = ca.SX.sym("mag_learn_time")
+        decl = p["declination"]
+        rot = ca.SX.sym("rot", 3, 3)      # R(q), from the rotation kernel once per step
+
+        m_n = ca.SX.sym("mag_ned", 3)     # R(q) m, from the mag_ned kernel once per step
+        f2 = ca.SX.sym("accel_norm2")     # |f|² and |m|², from the step's input checks
+        m2 = ca.SX.sym("mag_norm2")
+
+        # first attitude: the tilt taking the measured down (-f) to NED down from the identity
+        # (then heading_init with a magnetometer sample); R(q0) f = [0, 0, -|f|]
+        q0 = aiding.tilt_correction(-f)
+        # the tilt correction from the NED low-pass (measured down -a, any length), then the
+        # heading of the field R(T) R(q) m = R(T) m_n (only its horizontal part)
+        T = aiding.tilt_correction(-a_lp)
+        H = aiding.heading_correction_ned(quat.rotate_xy_tilt(T, m_n), decl)
+        # e dt, the error integrated over the step (no division by dt: a tiny dt must not blow up),
+        # carried as ½ kp e dt: the gain and the exponential's ½ multiply the two weights once
+        kh = 0.5 * p["kp"]
+        e_half = ca.mtimes(rot.T, ca.vertcat((kh * span_a) * T[1], (kh * span_a) * T[2], (kh * span_m) * H[3]))
+        half_rotation = (gyro - bias) * (0.5 * dt) + e_half     # ½ β dt
+        trusted = ca.logic_and(use_a, aiding.norm_within(f2, G0, p["bias_accel_gate"]))
+        bias_pi = ca.if_else(trusted, bias - (p["ki"] / kh) * e_half, bias)   # b - ki e dt
+        if p["rest_time"] > 0:
+            bias_new = ca.if_else(at_rest, aiding.lowpass(bias, g_lp, span_a, p["rest_bias_tau"]), bias_pi)
+        else:
+            bias_new = bias_pi
+        ks = [
+            KernelSpec("mag_ned", function("mag_ned", {"rot": rot, "mag": m}, {"mag_ned": ca.mtimes(rot, m)}),
+                       "the magnetometer sample in NED, R(q) m, read by the field check and the heading correction"),
+            KernelSpec("init_attitude", function("init_attitude", {"accel": f},
+                                                 {"q": q0, "accel_lp": ca.vertcat(0, 0, -ca.sqrt(ca.sumsqr(f)))}),
+                       "first attitude: the shortest rotation taking the accelerometer's down to NED down "
+                       "(heading_init then sets the heading); the low-pass starts at R(q) f = [0, 0, -|f|]"),
+            KernelSpec("heading_init", function("heading_init", {"q": q, "mag": m},
+                                                {"q_new": quat.qmul(aiding.heading_correction(q, m, decl), q)}),
+                       "first magnetometer sample (with the first attitude or after it): heading set, tilt kept"),
+            KernelSpec("accel_lowpass", function("accel_lowpass", {"rot": rot, "accel": f, "accel_lp": a_lp, "span": span},
+                                                 {"accel_lp_new": aiding.lowpass(a_lp, ca.mtimes(rot, f), span,
+                                                                                 p["accel_tau"])}),
+                       "low-pass of the specific force in NED, R(q) f (time constant accel_tau)"),
+            KernelSpec("correct", function("correct", {"q": q, "rot": rot, "gyro_bias": bias, "gyro": gyro, "dt": dt,
+                                                       "accel_lp": a_lp, "mag_ned": m_n, "span_accel": span_a,
+                                                       "span_mag": span_m, "use_accel": use_a, "accel_norm2": f2,
+                                                       **({"at_rest": at_rest, "rest_gyro_lp": g_lp}
+                                                          if p["rest_time"] > 0 else {})},
+                                           {"q_new": quat.qnormalize(quat.qmul(q, quat.qexp_scaled(half_rotation))),
+                                            "gyro_bias_new": bias_new}),
+                       "tilt (low-passed accelerometer) and heading (magnetometer) corrections as PI feedback, "
+                       "bias integral gated, bias at rest from the low-passed gyro, integration (eq. 9)",
+                       flags=("use_accel",) + (("at_rest",) if p["rest_time"] > 0 else ())),
+        ]
+        if p["rest_time"] > 0:
+            g2, t2, r2 = aiding.rest_detector(gyro, f2, g_lp, t_rest, span, tau=p["rest_tau"],
+                                              gyro_tol=p["rest_gyro_tol"], accel_tol=p["rest_accel_tol"],
+                                              gravity=G0, gyro_max=p["rest_gyro_tol"], min_time=p["rest_time"])
+            ks.append(KernelSpec("rest", function("rest", {"gyro": gyro, "accel_norm2": f2, "rest_gyro_lp": g_lp,
+                                                           "rest_time": t_rest, "span": span},
+                                                  {"rest_gyro_lp_new": g2, "rest_time_new": t2, "at_rest": r2}),
+                                 "rest detection: gyro steady and |f| near g for rest_time", flags=("at_rest",)))
+        if p["mag_rejection"]:
+            mn = ca.sqrt(m2)
+            # sin(dip) = (R^T down) . m / |m| = down . R m / |m|, down = -a/|a|
+            sin_dip = -ca.dot(a_lp, m_n) / (ca.sqrt(ca.sumsqr(a_lp)) * mn)
+            acc, n2, d2, t2, l2 = aiding.field_check(
+                mn, sin_dip, m_ref[0], m_ref[1], t_dist, span, norm_tol=p["mag_norm_tol"],
+                dip_tol=p["mag_dip_tol"], ref_tau=p["mag_ref_tau"], new_time=p["mag_new_time"],
+                learn_time=t_learn, warmup=p["mag_warmup"])
+            ks.append(KernelSpec("mag_check", function("mag_check", {"accel_lp": a_lp, "mag_norm2": m2, "mag_ned": m_n, "mag_ref": m_ref,
+                                                                     "mag_dist_time": t_dist, "mag_learn_time": t_learn,
+                                                                     "span": span},
+                                                       {"accept": acc, "mag_ref_new": ca.vertcat(n2, d2),
+                                                        "mag_dist_time_new": t2, "mag_learn_time_new": l2}),
+                                 "field check: |m| and sin(dip) against the learned reference", flags=("accept",)))
+        return ks
+
+    def template_context(self):
+        p = self.params
+        return {"motion_model": p["motion_accel_model"], "product": self.product, "gps_taps": gps_taps(p),
+                "rest": self.product and p["rest_time"] > 0, "mag_rejection": self.product and p["mag_rejection"]}
+
+    def step_paths(self):
+        if self.product:
+            comp = ["rotation", "gravity_part"]
+            extra = (["rest"] if self.params["rest_time"] > 0 else []) + (["mag_check"] if self.params["mag_rejection"] else [])
+            return {
+                "full (accel+mag+GPS comp.)": comp + ["accel_lowpass", "mag_ned"] + extra + ["correct"],
+                "accel+mag": ["rotation", "accel_lowpass", "mag_ned"] + extra + ["correct"],
+                "gyro only": ["rotation", "correct"],
+                **({"GPS sample (extra)": ["gps_accel"]} if self.params["motion_accel_model"] == "differentiator" else {}),
+            }
+        comp = ["rotation", "gravity_part"]
+        return {
+            "full (accel+mag+GPS comp.)": comp + ["reference", "update"],
+            "accel+mag": ["reference", "update"],
+            "gyro only": ["propagate"],
+            **({"GPS sample (extra)": ["gps_accel"]} if self.params["motion_accel_model"] == "differentiator" else {}),
+        }

@@ -1,0 +1,266 @@
+"""QCF reference in plain NumPy, written from the paper's equations (not from the model).
+
+Same step logic and status bits as the generated C; see model.py's docstring for the
+equations. FQA follows Yun, Bachmann, McGhee (2008) in the product's FRD/NED convention.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ahrsgen import npquat as nq
+from ahrsgen.codegen import input_checks
+from ahrsgen.constants import G0
+
+PAPER_COEFFS = np.array([0.0971, 0.1662, 0.1853])
+
+
+def _half(c, s):
+    c = min(max(c, -1.0), 1.0)
+    sign = -1.0 if s < 0 else 1.0
+    return np.sqrt((1 + c) / 2), sign * np.sqrt((1 - c) / 2)
+
+
+def fqa_tilt(f):
+    a = np.asarray(f, float) / np.linalg.norm(f)
+    s_th = min(max(a[0], -1.0), 1.0)
+    c_th = np.sqrt(1 - s_th * s_th)
+    ch, sh = _half(c_th, s_th)
+    q_pitch = np.array([ch, 0.0, sh, 0.0])
+    if c_th < 1e-6:
+        s_ph, c_ph = 0.0, 1.0
+    else:
+        s_ph, c_ph = -a[1] / c_th, -a[2] / c_th
+    ch, sh = _half(c_ph, s_ph)
+    q_roll = np.array([ch, sh, 0.0, 0.0])
+    return nq.qmul(q_pitch, q_roll)
+
+
+def fqa(f, m, declination=0.0):
+    """Body->NED attitude from specific force f and field m (FQA, half-angle form)."""
+    q_tilt = fqa_tilt(f)
+    ml = nq.rotmat(q_tilt) @ np.asarray(m, float)
+    n = max(np.hypot(ml[0], ml[1]), 1e-30)
+    ch, sh = _half(ml[0] / n, -ml[1] / n)
+    q = nq.qmul(np.array([ch, 0.0, 0.0, sh]), q_tilt)
+    if declination:
+        q = nq.qmul(np.array([np.cos(declination / 2), 0, 0, np.sin(declination / 2)]), q)
+    return q
+
+
+def fqa_tilt_with_yaw(f, yaw):
+    return nq.qmul(np.array([np.cos(yaw / 2), 0, 0, np.sin(yaw / 2)]), fqa_tilt(f))
+
+
+def tilt_correction(d):
+    """Shortest rotation (NED) taking the unit vector d to e_z = [0, 0, 1]: axis d x e_z,
+    angle acos(d_z); upside down (d_z <= -1 + 1e-6) the half-turn about x."""
+    d = np.asarray(d, float)
+    if 1 + d[2] < 1e-6:
+        return np.array([0.0, 1.0, 0.0, 0.0])
+    axis = np.cross(d, [0.0, 0.0, 1.0])
+    s = np.linalg.norm(axis)
+    ang = np.arctan2(s, d[2])
+    if s == 0:
+        return np.array([1.0, 0.0, 0.0, 0.0])
+    return np.concatenate([[np.cos(ang / 2)], np.sin(ang / 2) * axis / s])
+
+
+def heading_correction(q, m, declination=0.0):
+    """Rotation about NED z by -(heading of R(q) m's horizontal part - declination)."""
+    m_n = nq.rotmat(q) @ np.asarray(m, float)
+    if m_n[0] ** 2 + m_n[1] ** 2 < 1e-30:
+        return np.array([1.0, 0.0, 0.0, 0.0])
+    err = np.arctan2(m_n[1], m_n[0]) - declination
+    err = (err + np.pi) % (2 * np.pi) - np.pi
+    return np.array([np.cos(err / 2), 0.0, 0.0, -np.sin(err / 2)])
+
+
+def integrate(q, omega, dt):
+    return nq.qnormalize(nq.qmul(q, _exp_half(np.asarray(omega, float) * dt)))
+
+
+def _exp_half(rotvec):
+    """exp([0, r/2]) with the same small-angle series as the C (threshold 1e-4 on |r/2|)."""
+    v = 0.5 * rotvec
+    n2 = float(v @ v)
+    n = np.sqrt(n2)
+    if n < 1e-4:
+        return np.array([1 - n2 / 2, *((1 - n2 / 6) * v)])
+    return np.array([np.cos(n), *(np.sin(n) / n * v)])
+
+
+class Reference:
+    def __init__(self, params: dict):
+        self.p = dict(params)
+        c = PAPER_COEFFS
+        if not self.p["faithful"]:
+            c = c / (c[0] + 2 * c[1] + 3 * c[2])
+        self.coeffs = c
+        self.q = np.array([1.0, 0.0, 0.0, 0.0])
+        self.bias = np.zeros(3)
+        self.hist = []                    # GPS velocities, oldest first, at most 7
+        self.motion_accel = np.zeros(3)
+        self.gps_age = 1e3
+        self.initialised = 1 if self.p["faithful"] else 0
+        self.product = not self.p["faithful"] and self.p["conditioning"]
+        self.accel_lp = np.array([0.0, 0.0, -G0])   # read by nothing before the first accelerometer sample
+        self.accel_age = self.mag_age = 0.0
+        self.rest_gyro_lp = np.zeros(3)
+        self.rest_time = 0.0
+        self.mag_ref = np.zeros(2)         # |m|, sin(dip); |m| = 0: not learned
+        self.mag_dist_time = 0.0
+        self.mag_learn_time = 0.0          # time since the first magnetometer sample (capped at warmup)
+
+    def step(self, gyro, accel, mag, gps_vel, valid, dt):
+        p = self.p
+        c = input_checks.check(p, ("accel", "mag", "gps"), gyro, accel, mag, gps_vel, valid, dt)
+        if c.refused:
+            return c.refused
+        status, use_accel, use_mag, use_gps, gyro = c.status, c.use_accel, c.use_mag, c.use_gps, c.gyro
+
+        if use_gps:
+            if self.gps_age > p["gps_timeout"]:
+                self.hist = []
+            self.hist = (self.hist + [np.asarray(gps_vel, float)])[-7:]
+            self.gps_age = 0.0
+            if len(self.hist) == 7 and p["motion_accel_model"] == "differentiator":   # (the C keeps it only then)
+                V = self.hist
+                d = [V[3 + i] - V[3 - i] for i in (1, 2, 3)]
+                self.motion_accel = sum(c * di for c, di in zip(self.coeffs, d)) / (2 * p["gps_period"])
+        elif self.gps_age < 1e3:
+            self.gps_age += dt
+
+        f = np.asarray(accel, float)
+        if self.product:
+            self._start(f, mag, use_accel, use_mag, gyro, p)
+        if use_accel:
+            model = p["motion_accel_model"]
+            need = 7 if model == "differentiator" else 1
+            if p["gps_compensation"] and len(self.hist) >= need and self.gps_age <= p["gps_timeout"]:
+                a_n = self.motion_accel
+                if model != "differentiator":
+                    # centripetal acceleration of the GPS velocity turning with the body
+                    v = self.hist[-1]
+                    a_n = np.cross(nq.rotmat(self.q) @ (gyro - self.bias), v)
+                    c0 = p["centripetal_align"]
+                    if self.product and c0 < 1:
+                        # only a velocity along the body's x axis turns with the body
+                        along = (nq.rotmat(self.q)[:, 0] @ v) / np.sqrt(max(v @ v, 1e-6))
+                        a_n = np.clip((along - c0) / (1 - c0), 0.0, 1.0) * a_n
+                if abs(np.linalg.norm(f) - G0) > p["motion_accel_threshold"]:
+                    f = f - nq.rotmat(self.q).T @ a_n
+        if self.product:
+            return self._product_step(status, gyro, np.asarray(accel, float), f, mag, use_accel, use_mag, dt)
+        if use_accel:
+            if use_mag:
+                q_ref = fqa(f, mag, p["declination"])
+                if not self.initialised:
+                    self.q = q_ref.copy()
+                    self.initialised = True
+            else:
+                q_ref = fqa_tilt_with_yaw(f, nq.euler_from_q(self.q)[2])
+            q_err = nq.qmul(nq.qconj(self.q), q_ref)
+            if q_err[0] < 0:
+                q_err = -q_err
+            beta = gyro - self.bias + p["kp"] * q_err[1:]
+            self.bias = self.bias - p["ki"] * q_err[1:] * dt
+            self.q = integrate(self.q, beta, dt)
+        else:
+            self.q = integrate(self.q, gyro - self.bias, dt)
+        return status
+
+    # ---------------------------------------------------------------- product conditioning
+    def _start(self, f, mag, use_accel, use_mag, gyro, p):
+        """Initialisation, before anything else of the step reads the attitude. The first
+        accelerometer sample: the shortest rotation taking its (raw) down to NED down, then the
+        field's heading if the step has a magnetometer sample; else the first magnetometer
+        sample after it: the heading, tilt kept."""
+        if self.initialised == 0 and use_accel:
+            self.q = tilt_correction(-f / np.linalg.norm(f))
+            if use_mag:
+                self.q = nq.qmul(heading_correction(self.q, mag, p["declination"]), self.q)
+            self.accel_lp = nq.rotmat(self.q) @ f
+            self.initialised = 2 if use_mag else 1
+            self.accel_age = self.mag_age = 0.0
+            self.rest_gyro_lp = gyro.copy()
+        elif self.initialised == 1 and use_mag:
+            self.q = nq.qmul(heading_correction(self.q, mag, p["declination"]), self.q)
+            self.initialised = 2
+            self.mag_age = 0.0
+
+    def _product_step(self, status, gyro, f_raw, f, mag, use_accel, use_mag, dt):
+        """See model.py's docstring: NED low-pass, tilt/heading corrections, gate, rest, field check."""
+        p = self.p
+        from ahrsgen.filters.qcf.model import EXTRA_STATUS
+        bit = {name: 1 << (16 + i) for i, (name, _) in enumerate(EXTRA_STATUS)}
+        if self.initialised == 0:            # no accelerometer sample yet (_start sets it)
+            self.q = integrate(self.q, gyro - self.bias, dt)
+            return status
+        self.accel_age = min(self.accel_age + dt, p["span_max"])
+        self.mag_age = min(self.mag_age + dt, p["span_max"])
+        at_rest = False
+        if use_accel:
+            s = self.accel_age
+            if p["accel_tau"] > 0:
+                self.accel_lp = self.accel_lp + s / (p["accel_tau"] + s) * (nq.rotmat(self.q) @ f - self.accel_lp)
+            else:
+                self.accel_lp = nq.rotmat(self.q) @ f
+            if p["rest_time"] > 0:
+                k = s / (p["rest_tau"] + s)
+                self.rest_gyro_lp = self.rest_gyro_lp + k * (gyro - self.rest_gyro_lp)
+                tol = p["rest_gyro_tol"]
+                steady = (np.linalg.norm(gyro - self.rest_gyro_lp) < tol
+                          and abs(np.linalg.norm(f_raw) - G0) < p["rest_accel_tol"]
+                          and np.linalg.norm(self.rest_gyro_lp) < tol)
+                self.rest_time = min(self.rest_time + s, 1e3) if steady else 0.0
+                at_rest = self.rest_time >= p["rest_time"]
+                if at_rest:
+                    status |= bit["AT_REST"]
+        down = -self.accel_lp / np.linalg.norm(self.accel_lp)
+        heading_ok = use_mag
+        if use_mag and p["mag_rejection"]:
+            m = np.asarray(mag, float)
+            norm = np.linalg.norm(m)
+            sin_dip = (nq.rotmat(self.q).T @ down) @ m / norm
+            ref_n, ref_d = self.mag_ref
+            s = self.mag_age
+            if ref_n <= 0 or (p["mag_warmup"] > 0 and self.mag_learn_time < p["mag_warmup"]):
+                # warm-up: accept, the reference is the mean of the samples so far
+                if ref_n <= 0:
+                    self.mag_learn_time = 0.0
+                n_seen = self.mag_learn_time / s + 1          # samples so far, weighted by their span
+                self.mag_ref = self.mag_ref + (np.array([norm, sin_dip]) - self.mag_ref) / n_seen
+                self.mag_dist_time = 0.0
+                self.mag_learn_time = min(self.mag_learn_time + s, p["mag_warmup"])
+            elif abs(norm / ref_n - 1) < p["mag_norm_tol"] and abs(sin_dip - ref_d) < p["mag_dip_tol"]:
+                k = s / (p["mag_ref_tau"] + s)
+                self.mag_ref = self.mag_ref + k * (np.array([norm, sin_dip]) - self.mag_ref)
+                self.mag_dist_time = 0.0
+            else:
+                heading_ok = False
+                status |= bit["MAG_DISTURBED"]
+                self.mag_dist_time += s
+                if self.mag_dist_time > p["mag_new_time"]:   # a lasting change: new reference
+                    self.mag_ref = np.array([norm, sin_dip])
+                    self.mag_dist_time = 0.0
+        if use_accel or heading_ok:
+            T = tilt_correction(down)
+            e_n = (self.accel_age if use_accel else 0.0) * T[1:]
+            if heading_ok:
+                H = heading_correction(nq.qmul(T, self.q), mag, p["declination"])
+                e_n = e_n + self.mag_age * H[1:]
+            e_dt = nq.rotmat(self.q).T @ e_n                 # error integrated over the step
+            theta = (gyro - self.bias) * dt + p["kp"] * e_dt   # rotation of the step, β dt
+            if at_rest:
+                s = self.accel_age
+                self.bias = self.bias + s / (p["rest_bias_tau"] + s) * (self.rest_gyro_lp - self.bias)
+            elif use_accel and abs(np.linalg.norm(f_raw) - G0) < p["bias_accel_gate"]:
+                self.bias = self.bias - p["ki"] * e_dt
+            self.q = integrate(self.q, theta, 1.0)
+        else:
+            self.q = integrate(self.q, gyro - self.bias, dt)
+        if use_accel:
+            self.accel_age = 0.0
+        if use_mag:
+            self.mag_age = 0.0
+        return status

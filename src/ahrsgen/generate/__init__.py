@@ -1,0 +1,2 @@
+"""Generate: a configuration (filter, parameters, precision, prefix) resolved against its filter
+folder, rendered through the emitter and the C templates into header, source and manifest."""
