@@ -202,13 +202,13 @@ def test_truncated_ulog_warns(tmp_path):
 
 
 def test_run_says_why_most_steps_were_refused(tmp_path, capsys):
-    """A log whose time column is in nanoseconds runs (every step refused: dt too large) and
-    `run` says what probably went wrong in one hint line; a good log gets no hint."""
+    """A log whose time column is in nanoseconds runs (every step refused: dt too large): `run`
+    fails and says what probably went wrong in one line on stderr; a good log gets no hint."""
     rows = "".join(f"{k * 4_000_000},0.01,0,0,0,0,-9.81\n" for k in range(1, 60))
-    rc, out, _ = _run(["run", "qcf", "--log", _file(tmp_path, "ns.csv", HEADER + rows)], capsys)
-    assert rc == 0, out
-    assert "refused: 59" in out and "hint: most steps were refused for dt above dt_max" in out
-    assert "median dt is 4e+06 s: is its time column t in seconds?" in out
+    rc, out, err = _run(["run", "qcf", "--log", _file(tmp_path, "ns.csv", HEADER + rows)], capsys)
+    assert rc == 1, out              # a filter that never ran is a failure (issue 27), said on stderr
+    assert "refused: 59" in out and "most steps were refused for dt above dt_max" in err
+    assert "median dt is 4e+06 s: is its time column t in seconds (not ms or us)?" in err
     rows = "".join(f"{k * 0.004},0.01,0,0,0,0,-9.81\n" for k in range(1, 60))
     rc, out, _ = _run(["run", "qcf", "--log", _file(tmp_path, "s.csv", HEADER + rows)], capsys)
     assert rc == 0 and "hint:" not in out, out

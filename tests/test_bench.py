@@ -180,7 +180,7 @@ def test_run_on_broad_excerpt_cli(tmp_path, capsys):
     assert rc == 0
     text = capsys.readouterr().out
     assert "BROAD optical reference" in text and "total" in text
-    data = np.loadtxt(out_csv, delimiter=",", skiprows=1)
+    data = np.loadtxt(out_csv, delimiter=",", skiprows=2)      # the marker comment, the column names
     log = readers.read_log(BROAD_X)
     assert data.shape == (len(log), 12)
     assert cli.main(["run", "qcf", "--log", str(tmp_path / "missing.ulg")]) == 2

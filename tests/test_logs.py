@@ -107,5 +107,6 @@ def test_run_plot_and_csv_are_written(flight_csv, tmp_path):
     png, csv = tmp_path / "p.png", tmp_path / "r.csv"
     assert cli.main(["run", "qcf", "--log", str(flight_csv), "--plot", str(png), "--csv", str(csv)]) == 0
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    assert csv.read_text().splitlines()[0].startswith("t,qw,qx,qy,qz")
+    first, header = csv.read_text().splitlines()[:2]
+    assert first == "# written by ahrsgen run" and header.startswith("t,qw,qx,qy,qz")   # docs/output-files.md
     assert sorted(p.name for p in tmp_path.iterdir()) == ["p.png", "r.csv"]     # no temporary left

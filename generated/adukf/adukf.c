@@ -2439,8 +2439,8 @@ static void adukf_k_accel_lowpass(const float q_pred_unit[4], const float accel[
 }
 
 /* initial attitude: accelerometer tilt and tilt-compensated heading (+ declination)
- * ops: add 14, mul 24, sqrt 1, trig 13, cmp 2 (total 54) */
-static void adukf_k_init_q_part0(const float accel[3], const float mag[3], float carry[8])
+ * ops: add 13, mul 24, sqrt 1, trig 13, cmp 2 (total 53) */
+static void adukf_k_init_q_part0(const float accel[3], const float mag[3], float carry[9])
 {
     const float tmp0 = -accel[1];
     const float tmp1 = -accel[2];
@@ -2468,67 +2468,119 @@ static void adukf_k_init_q_part0(const float accel[3], const float mag[3], float
     const float tmp21 = tmp20 * tmp3;
     const float tmp22 = tmp19 + tmp21;
     const float tmp23 = fast_atan2f(tmp8, tmp22);
-    const float tmp24 = tmp23 + (-0.061086524f) /* declination */;
-    const float tmp25 = tmp24 - 6.2831855f;
-    const float tmp26 = tmp24 + 6.2831855f;
-    const float tmp27 = (tmp24 <= (-3.1415927f)) ? tmp26 : tmp24;
-    const float tmp28 = (3.1415927f < tmp24) ? tmp25 : tmp27;
-    const float tmp29 = tmp28 * 0.5f;
+    const float tmp24 = tmp23 - 6.2831855f;
+    const float tmp25 = tmp23 + 6.2831855f;
+    const float tmp26 = (tmp23 <= (-3.1415927f)) ? tmp25 : tmp23;
+    const float tmp27 = (3.1415927f < tmp23) ? tmp24 : tmp26;
+    const float tmp28 = tmp27 * 0.5f;
+    float tmp36;
+    float tmp29;
+    fast_sincosf(tmp28, &tmp36, &tmp29);   /* sin and cos, one reduction */
+    const float tmp30 = tmp13 * 0.5f;
     float tmp37;
-    float tmp30;
-    fast_sincosf(tmp29, &tmp37, &tmp30);   /* sin and cos, one reduction */
-    const float tmp31 = tmp13 * 0.5f;
-    float tmp38;
-    float tmp32;
-    fast_sincosf(tmp31, &tmp38, &tmp32);   /* sin and cos, one reduction */
-    const float tmp33 = tmp30 * tmp32;
-    const float tmp34 = tmp2 * 0.5f;
-    float tmp40;
-    float tmp35;
-    fast_sincosf(tmp34, &tmp40, &tmp35);   /* sin and cos, one reduction */
-    const float tmp36 = tmp33 * tmp35;
-    carry[0] = tmp30;
-    carry[1] = tmp37;
-    carry[2] = tmp32;
-    carry[3] = tmp38;
-    carry[4] = tmp33;
-    carry[5] = tmp35;
-    carry[6] = tmp40;
-    carry[7] = tmp36;
+    float tmp31;
+    fast_sincosf(tmp30, &tmp37, &tmp31);   /* sin and cos, one reduction */
+    const float tmp32 = tmp29 * tmp31;
+    const float tmp33 = tmp2 * 0.5f;
+    float tmp39;
+    float tmp34;
+    fast_sincosf(tmp33, &tmp39, &tmp34);   /* sin and cos, one reduction */
+    const float tmp35 = tmp32 * tmp34;
+    const float tmp38 = tmp36 * tmp37;
+    carry[0] = tmp29;
+    carry[1] = tmp36;
+    carry[2] = tmp31;
+    carry[3] = tmp37;
+    carry[4] = tmp32;
+    carry[5] = tmp34;
+    carry[6] = tmp39;
+    carry[7] = tmp35;
+    carry[8] = tmp38;
 }
 
-static void adukf_k_init_q_part1(float carry[8])
+static void adukf_k_init_q_part1(float carry[9])
 {
-    const float tmp39 = carry[1] * carry[3];
-    const float tmp41 = tmp39 * carry[6];
-    const float tmp42 = carry[7] + tmp41;
-    const float tmp43 = carry[4] * carry[6];
-    const float tmp44 = tmp39 * carry[5];
-    const float tmp45 = tmp43 - tmp44;
-    const float tmp46 = carry[0] * carry[3];
-    const float tmp47 = tmp46 * carry[5];
-    const float tmp48 = carry[1] * carry[2];
-    const float tmp49 = tmp48 * carry[6];
-    const float tmp50 = tmp47 + tmp49;
-    const float tmp51 = tmp48 * carry[5];
-    const float tmp52 = tmp46 * carry[6];
-    const float tmp53 = tmp51 - tmp52;
-    carry[0] = tmp42;
-    carry[1] = tmp45;
-    carry[2] = tmp50;
-    carry[3] = tmp53;
+    const float tmp40 = carry[8] * carry[6];
+    const float tmp41 = carry[7] + tmp40;
+    const float tmp42 = carry[4] * carry[6];
+    const float tmp43 = carry[8] * carry[5];
+    const float tmp44 = tmp42 - tmp43;
+    const float tmp45 = carry[0] * carry[3];
+    const float tmp46 = tmp45 * carry[5];
+    const float tmp47 = carry[1] * carry[2];
+    const float tmp48 = tmp47 * carry[6];
+    const float tmp49 = tmp46 + tmp48;
+    const float tmp50 = tmp47 * carry[5];
+    const float tmp51 = tmp45 * carry[6];
+    const float tmp52 = tmp50 - tmp51;
+    carry[0] = tmp41;
+    carry[1] = tmp44;
+    carry[2] = tmp49;
+    carry[3] = tmp52;
 }
 
 static void adukf_k_init_q(const float accel[3], const float mag[3], float q[4])
 {
     /* 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
-    float carry[8];
+    float carry[9];
     adukf_k_init_q_part0(accel, mag, carry);
     adukf_k_init_q_part1(carry);
     q[0] = carry[0];
     q[1] = carry[1];
     q[2] = carry[2];
     q[3] = carry[3];
+}
+
+/* rest test and sin(inclination) = -f.m/(|f||m|) of one sample
+ * ops: add 10, mul 13, div 1, sqrt 2, cmp 2 (total 28) */
+static inline void adukf_k_learn_sample(const float gyro[3], const float accel[3], const float mag[3], bool *rest, float *sin_dip)
+{
+    const float tmp0 = gyro[0] * gyro[0];
+    const float tmp1 = gyro[1] * gyro[1];
+    const float tmp2 = tmp0 + tmp1;
+    const float tmp3 = gyro[2] * gyro[2];
+    const float tmp4 = tmp2 + tmp3;
+    const float tmp5 = accel[0] * accel[0];
+    const float tmp6 = accel[1] * accel[1];
+    const float tmp7 = tmp5 + tmp6;
+    const float tmp8 = accel[2] * accel[2];
+    const float tmp9 = tmp7 + tmp8;
+    const float tmp10 = sqrtf(tmp9);
+    const float tmp11 = tmp10 - 9.80665f;
+    const float tmp12 = fabsf(tmp11);
+    const bool tmp13 = (tmp4 < 0.0025f /* rest_gyro_max^2 */) && (tmp12 < 0.5f /* rest_accel_tol */);
+    const float tmp14 = accel[0] * mag[0];
+    const float tmp15 = accel[1] * mag[1];
+    const float tmp16 = tmp14 + tmp15;
+    const float tmp17 = accel[2] * mag[2];
+    const float tmp18 = tmp16 + tmp17;
+    const float tmp19 = mag[0] * mag[0];
+    const float tmp20 = mag[1] * mag[1];
+    const float tmp21 = tmp19 + tmp20;
+    const float tmp22 = mag[2] * mag[2];
+    const float tmp23 = tmp21 + tmp22;
+    const float tmp24 = sqrtf(tmp23);
+    const float tmp25 = tmp10 * tmp24;
+    const float tmp26 = tmp18 / tmp25;
+    const float tmp27 = -tmp26;
+    *rest = tmp13;
+    *sin_dip = tmp27;
+}
+
+/* reference field from the mean sin(inclination) and the declination
+ * ops: add 1, mul 1, div 1, sqrt 1, cmp 3 (total 7) */
+static inline void adukf_k_learn_finish(float learn_sum, float count, float m_ref[3])
+{
+    const float tmp0 = learn_sum / count;
+    const float tmp1 = (tmp0 > (-1.0f)) ? tmp0 : (-1.0f);
+    const float tmp2 = (tmp1 < 1.0f) ? tmp1 : 1.0f;
+    const float tmp3 = tmp2 * tmp2;
+    const float tmp4 = 1.0f - tmp3;
+    const float tmp5 = (tmp4 > 0.0f) ? tmp4 : 0.0f;
+    const float tmp6 = sqrtf(tmp5);
+    m_ref[0] = tmp6;
+    m_ref[1] = 0.0f;
+    m_ref[2] = tmp2;
 }
 
 /* Z-Y-X Euler angles [roll, pitch, yaw] of a unit body->NED quaternion
@@ -2698,9 +2750,9 @@ void adukf_init(adukf_state *s)
     s->P[33] = 0.0f;
     s->P[34] = 0.0f;
     s->P[35] = 1e-04f;
-    s->m_ref[0] = 0.6006925f;
-    s->m_ref[1] = (-0.036739927f);
-    s->m_ref[2] = 0.7986355f;
+    s->m_ref[0] = 0.0f;
+    s->m_ref[1] = 0.0f;
+    s->m_ref[2] = 0.0f;
     for (uint32_t i = 0u; i < 6u; i++) {
         s->r_diag[i] = 0.0f;
     }
@@ -2747,6 +2799,26 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
     /* A-DUKF step (seeds/003, SPEC.md). Order as in reference.py: learn the reference field,
      * initialise, then time update and unscented measurement update. */
     const bool mag_ok = use_mag;
+    if (s->learn_count < ADUKF_LEARN_SAMPLES) {
+        if (use_accel && use_mag) {
+            bool rest;
+            float sin_dip;
+            adukf_k_learn_sample(in->gyro, in->accel, in->mag, &rest, &sin_dip);
+            if (rest) {
+                s->learn_sum += sin_dip;
+                s->learn_count++;
+                if (s->learn_count >= ADUKF_LEARN_SAMPLES) {
+                    adukf_k_learn_finish(s->learn_sum, (float)s->learn_count, s->m_ref);
+                }
+            }
+        }
+        if (s->learn_count < ADUKF_LEARN_SAMPLES) {
+            if (use_mag) {
+                status |= ADUKF_MAG_LEARNING;
+            }
+            use_mag = false;
+        }
+    }
 
     if (s->initialised == 0u && use_accel && mag_ok) {
         /* First accelerometer + magnetometer sample: attitude from tilt and heading. */

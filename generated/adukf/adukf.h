@@ -42,39 +42,39 @@ extern "C" {
 #endif
 
 /* Parameters baked into this build (already folded into the code; listed for reference). */
-#define ADUKF_DT_MAX 0.5f                 /* largest dt a step accepts; larger is refused (DT_TOO_LARGE) [s] */
-#define ADUKF_GYRO_MAX 70.0f              /* largest gyro component accepted; larger is refused (GYRO_RANGE) [rad/s] */
-#define ADUKF_ACCEL_MIN_NORM 0.5f         /* accelerometer norm below this skips its correction (ACCEL_ZERO) [m/s^2] */
-#define ADUKF_ACCEL_MAX 2000.0f           /* accelerometer component above this skips its correction (ACCEL_RANGE) [m/s^2] */
-#define ADUKF_MAG_MIN_NORM 1e-06f         /* magnetometer norm below this skips its correction (MAG_ZERO) [field unit] */
-#define ADUKF_MAG_MAX 1e+06f              /* magnetometer component above this skips its correction (MAG_RANGE) [field unit] */
-#define ADUKF_GYRO_NOISE 0.01f            /* process noise: gyro angle random walk; Q = gyro_noise^2 dt/4 (I4 - q q^T) + q_floor dt I4 [rad/s/sqrt(Hz)] */
-#define ADUKF_Q_FLOOR 1e-09f              /* isotropic process noise per second added to Q (keeps P positive definite) [1/s] */
-#define ADUKF_SIGMA_ACC 0.07f             /* base std of the normalised accelerometer measurement (sigma_a in R); 0.07 since issue 14 (chosen with the error state by the bench, docs/adukf.md; the paper's scenarios were tuned at 0.05, which the faithful preset keeps) [1 (unit vector)] */
-#define ADUKF_SIGMA_MAG 0.07f             /* base std of the normalised magnetometer measurement (sigma_m in R); 0.07 since issue 14 (as sigma_acc) [1 (unit vector)] */
-#define ADUKF_K_A 300.0f                  /* adaptive weight of the accelerometer residual: R_i = sigma_acc^2 + k_a eps_i^2 (0: plain DUKF) [1] */
-#define ADUKF_K_M 300.0f                  /* adaptive weight of the magnetometer residual: R_i = sigma_mag^2 + k_m eps_i^2 (0: plain DUKF) [1] */
-#define ADUKF_ADAPT_MAX 10.0f             /* upper bound of each adaptive term k eps_i^2 in R (0: unbounded, as the paper); a bound keeps some trust in the sensors so a large attitude error can still be corrected (the adaptation cannot lock the correction out) [1] */
-#define ADUKF_UT_ALPHA 1.0f               /* unscented transform spread: lambda = alpha^2 (n + kappa) - n, a = sqrt(n + lambda) [1] */
-#define ADUKF_UT_BETA 2.0f                /* unscented transform beta (2 for a Gaussian prior) [1] */
-#define ADUKF_UT_KAPPA 0.0f               /* unscented transform kappa [1] */
-/* ADUKF_SIGMA_SET = symmetric         sigma points along L's 4 attitude columns: symmetric (2 x 4, the scaled UT, as the paper) or simplex (the 5 points of a spherical simplex, Julier 2003, at the symmetric set's radius and total weight: 3 fewer points through h, 250 fewer instructions per step; not the default: fixed-wing at 100 Hz 7 % worse on each of 6 seeds, and on multirotor seed 0 the gyro-bias estimate keeps 90 % of its error after 120 s where symmetric keeps 32 %; docs/adukf.md); the centre and the bias columns' pairs are the same in both; for the quaternion state only: faithful and attitude_state = error ignore it (symmetric) */
-#define ADUKF_P0 0.01f                    /* initial covariance P0 = p0 I4 (also what P is reset to when it stops being positive definite) [1] */
-#define ADUKF_PIVOT_MIN 1e-15f            /* a Cholesky pivot at or below this marks P- or P_zz as not positive definite [1] */
-/* ADUKF_MAG_REF = inclination         reference field direction: from inclination/declination, or the dip angle learned from the first samples at rest */
-#define ADUKF_INCLINATION_DEG 53.0f       /* magnetic inclination (field pointing down positive), mag_ref = inclination; default: Xi'an, the paper's site [deg] */
-#define ADUKF_DECLINATION (-0.061086524f) /* magnetic declination (east positive); yaw is from true north; default: Xi'an (-3.5 deg) [rad] */
-#define ADUKF_LEARN_SAMPLES 100           /* mag_ref = learn: rest samples (accelerometer and magnetometer usable) averaged for the dip angle [samples] */
-#define ADUKF_REST_GYRO_MAX 0.05f         /* mag_ref = learn: a sample is at rest when |gyro| is below this and ... [rad/s] */
-#define ADUKF_REST_ACCEL_TOL 0.5f         /* ... | |accel| - 9.80665 | is below this [m/s^2] */
-#define ADUKF_GYRO_BIAS_STATE 1           /* product default: the state is [q; gyro bias] (its covariance: attitude_state; the bias is subtracted from the gyro in the time update, F = d x-/d x from the model) so a biased gyro does not tilt the estimate in motion; false (and faithful): the paper's 4-state filter */
-/* ADUKF_ATTITUDE_STATE = error        with the gyro-bias state: error (issue 14: the covariance is that of a 3-parameter attitude error d in body axes, q = q_est * [1, d/2] normalised, and of the bias: 6 states, 13 sigma points, 6x6 P; the error is folded into q after each update) or quaternion (the covariance of the 4-component q and the bias: 7 states, 15 sigma points, 7x7 P, as before issue 14); faithful and gyro_bias_state = false ignore it (the 4-state quaternion filter) */
-#define ADUKF_BIAS_RW 1e-04f              /* gyro-bias state: random walk of the bias (process noise bias_rw^2 dt per axis) [rad/s/sqrt(s)] */
-#define ADUKF_P0_BIAS 1e-04f              /* gyro-bias state: initial bias variance (P0 and COV_RESET) [(rad/s)^2] */
-#define ADUKF_ACCEL_TAU 1.0f              /* time constant of the NED-frame low-pass of the accelerometer R(q-) f; the update measures the direction of R(q-)^T of it (motion acceleration averages out, gravity does not; VQF's idea); 0 = the raw accelerometer (as the paper; faithful ignores it) [s] */
-#define ADUKF_SPAN_MAX 0.1f               /* sensors at their own rates: each sensor's R is multiplied by dt / (time since its previous sample, at most span_max), so a 100 Hz magnetometer carries the information of the IMU steps it stands for; 0 = off (as the paper; faithful ignores it) [s] */
-#define ADUKF_SPAN_STEPS_MAX 10.0f        /* sensors at their own rates: a sample counts for at most this many IMU steps (the R factor is at least 1/this), so a tiny dt after a normal one cannot make a measurement look exact [steps] */
-#define ADUKF_FAITHFUL 0                  /* the paper's initialisation q0 = [1,0,0,0] and first-order transition A (else q0 from the first accelerometer+magnetometer sample, A normalised) */
+#define ADUKF_DT_MAX 0.5f           /* largest dt a step accepts; larger is refused (DT_TOO_LARGE) [s] */
+#define ADUKF_GYRO_MAX 70.0f        /* largest gyro component accepted; larger is refused (GYRO_RANGE) [rad/s] */
+#define ADUKF_ACCEL_MIN_NORM 0.5f   /* accelerometer norm below this skips its correction (ACCEL_ZERO) [m/s^2] */
+#define ADUKF_ACCEL_MAX 2000.0f     /* accelerometer component above this skips its correction (ACCEL_RANGE) [m/s^2] */
+#define ADUKF_MAG_MIN_NORM 1e-06f   /* magnetometer norm below this skips its correction (MAG_ZERO) [field unit] */
+#define ADUKF_MAG_MAX 1e+06f        /* magnetometer component above this skips its correction (MAG_RANGE) [field unit] */
+#define ADUKF_GYRO_NOISE 0.01f      /* process noise: gyro angle random walk; Q = gyro_noise^2 dt/4 (I4 - q q^T) + q_floor dt I4 [rad/s/sqrt(Hz)] */
+#define ADUKF_Q_FLOOR 1e-09f        /* isotropic process noise per second added to Q (keeps P positive definite) [1/s] */
+#define ADUKF_SIGMA_ACC 0.07f       /* base std of the normalised accelerometer measurement (sigma_a in R); 0.07 since issue 14 (chosen with the error state by the bench, docs/adukf.md; the paper's scenarios were tuned at 0.05, which the faithful preset keeps) [1 (unit vector)] */
+#define ADUKF_SIGMA_MAG 0.07f       /* base std of the normalised magnetometer measurement (sigma_m in R); 0.07 since issue 14 (as sigma_acc) [1 (unit vector)] */
+#define ADUKF_K_A 300.0f            /* adaptive weight of the accelerometer residual: R_i = sigma_acc^2 + k_a eps_i^2 (0: plain DUKF) [1] */
+#define ADUKF_K_M 300.0f            /* adaptive weight of the magnetometer residual: R_i = sigma_mag^2 + k_m eps_i^2 (0: plain DUKF) [1] */
+#define ADUKF_ADAPT_MAX 10.0f       /* upper bound of each adaptive term k eps_i^2 in R (0: unbounded, as the paper); a bound keeps some trust in the sensors so a large attitude error can still be corrected (the adaptation cannot lock the correction out) [1] */
+#define ADUKF_UT_ALPHA 1.0f         /* unscented transform spread: lambda = alpha^2 (n + kappa) - n, a = sqrt(n + lambda) [1] */
+#define ADUKF_UT_BETA 2.0f          /* unscented transform beta (2 for a Gaussian prior) [1] */
+#define ADUKF_UT_KAPPA 0.0f         /* unscented transform kappa [1] */
+/* ADUKF_SIGMA_SET = symmetric   sigma points along L's 4 attitude columns: symmetric (2 x 4, the scaled UT, as the paper) or simplex (the 5 points of a spherical simplex, Julier 2003, at the symmetric set's radius and total weight: 3 fewer points through h, 250 fewer instructions per step; not the default: fixed-wing at 100 Hz 7 % worse on each of 6 seeds, and on multirotor seed 0 the gyro-bias estimate keeps 90 % of its error after 120 s where symmetric keeps 32 %; docs/adukf.md); the centre and the bias columns' pairs are the same in both; for the quaternion state only: faithful and attitude_state = error ignore it (symmetric) */
+#define ADUKF_P0 0.01f              /* initial covariance P0 = p0 I4 (also what P is reset to when it stops being positive definite) [1] */
+#define ADUKF_PIVOT_MIN 1e-15f      /* a Cholesky pivot at or below this marks P- or P_zz as not positive definite [1] */
+/* ADUKF_MAG_REF = learn         reference field direction: the dip angle learned from the first samples at rest (default: no site baked in), or from inclination_deg/declination (set them for your site) */
+#define ADUKF_INCLINATION_DEG 53.0f /* magnetic inclination (field pointing down positive), read only with mag_ref = inclination; default: Xi'an, the paper's site (the faithful preset uses it) [deg] */
+#define ADUKF_DECLINATION 0.0f      /* magnetic declination (east positive): yaw is from true north once set for your site; default 0: yaw from magnetic north (the faithful preset: Xi'an, -3.5 deg) [rad] */
+#define ADUKF_LEARN_SAMPLES 100     /* mag_ref = learn: rest samples (accelerometer and magnetometer usable) averaged for the dip angle [samples] */
+#define ADUKF_REST_GYRO_MAX 0.05f   /* mag_ref = learn: a sample is at rest when |gyro| is below this and ... [rad/s] */
+#define ADUKF_REST_ACCEL_TOL 0.5f   /* ... | |accel| - 9.80665 | is below this [m/s^2] */
+#define ADUKF_GYRO_BIAS_STATE 1     /* product default: the state is [q; gyro bias] (its covariance: attitude_state; the bias is subtracted from the gyro in the time update, F = d x-/d x from the model) so a biased gyro does not tilt the estimate in motion; false (and faithful): the paper's 4-state filter */
+/* ADUKF_ATTITUDE_STATE = error  with the gyro-bias state: error (issue 14: the covariance is that of a 3-parameter attitude error d in body axes, q = q_est * [1, d/2] normalised, and of the bias: 6 states, 13 sigma points, 6x6 P; the error is folded into q after each update) or quaternion (the covariance of the 4-component q and the bias: 7 states, 15 sigma points, 7x7 P, as before issue 14); faithful and gyro_bias_state = false ignore it (the 4-state quaternion filter) */
+#define ADUKF_BIAS_RW 1e-04f        /* gyro-bias state: random walk of the bias (process noise bias_rw^2 dt per axis) [rad/s/sqrt(s)] */
+#define ADUKF_P0_BIAS 1e-04f        /* gyro-bias state: initial bias variance (P0 and COV_RESET) [(rad/s)^2] */
+#define ADUKF_ACCEL_TAU 1.0f        /* time constant of the NED-frame low-pass of the accelerometer R(q-) f; the update measures the direction of R(q-)^T of it (motion acceleration averages out, gravity does not; VQF's idea); 0 = the raw accelerometer (as the paper; faithful ignores it) [s] */
+#define ADUKF_SPAN_MAX 0.1f         /* sensors at their own rates: each sensor's R is multiplied by dt / (time since its previous sample, at most span_max), so a 100 Hz magnetometer carries the information of the IMU steps it stands for; 0 = off (as the paper; faithful ignores it) [s] */
+#define ADUKF_SPAN_STEPS_MAX 10.0f  /* sensors at their own rates: a sample counts for at most this many IMU steps (the R factor is at least 1/this), so a tiny dt after a normal one cannot make a measurement look exact [steps] */
+#define ADUKF_FAITHFUL 0            /* the paper's initialisation q0 = [1,0,0,0] and first-order transition A (else q0 from the first accelerometer+magnetometer sample, A normalised) */
 
 /* Input validity bits: set a bit only when that sensor delivered a new sample this step. */
 #define ADUKF_VALID_GYRO (1u << 0)

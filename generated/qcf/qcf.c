@@ -91,6 +91,125 @@ static float fast_atan2f(float y, float x)
     return signbit(y) ? -a : a;
 }
 
+/* prediction: the gyro integrated with the bias removed, before the step's sensors are compared with the attitude (so they meet the attitude of their own step)
+ * ops: add 25, mul 35, div 5, sqrt 2, trig 2, cmp 5 (total 74)
+ *      of which only one side runs: if (tmp11 < 0.01f) 10, else 8 */
+static void qcf_k_predict_part0(const float q[4], const float gyro_bias[3], const float gyro[3], float dt, float carry[6])
+{
+    const float tmp0 = 0.5f * dt;
+    const float tmp1 = gyro[0] - gyro_bias[0];
+    const float tmp2 = tmp0 * tmp1;
+    const float tmp3 = tmp2 * tmp2;
+    const float tmp4 = gyro[1] - gyro_bias[1];
+    const float tmp5 = tmp0 * tmp4;
+    const float tmp6 = tmp5 * tmp5;
+    const float tmp7 = tmp3 + tmp6;
+    const float tmp8 = gyro[2] - gyro_bias[2];
+    const float tmp9 = tmp0 * tmp8;
+    const float tmp10 = tmp9 * tmp9;
+    const float tmp11 = tmp7 + tmp10;
+    float tmp12;
+    float tmp13;
+    float tmp14;
+    float tmp15;
+    if (tmp11 < 0.01f) {
+        const float tmp16 = (-2.1377798e-05f) * tmp11;
+        const float tmp17 = (-0.00021164022f) + tmp16;
+        const float tmp18 = tmp11 * tmp17;
+        const float tmp19 = (-0.0021164021f) + tmp18;
+        const float tmp20 = tmp11 * tmp19;
+        const float tmp21 = (-0.022222223f) + tmp20;
+        const float tmp22 = tmp11 * tmp21;
+        const float tmp23 = (-0.33333334f) + tmp22;
+        const float tmp24 = tmp11 * tmp23;
+        const float tmp25 = 1.0f + tmp24;
+        tmp12 = tmp25;
+        tmp13 = tmp2;
+        tmp14 = tmp5;
+        tmp15 = tmp9;
+    } else {
+        const float tmp26 = (tmp11 > 0.01f) ? tmp11 : 0.01f;
+        const float tmp27 = sqrtf(tmp26);
+        float tmp29;
+        float tmp28;
+        fast_sincosf(tmp27, &tmp29, &tmp28);   /* sin and cos, one reduction */
+        const float tmp30 = tmp29 / tmp27;
+        const float tmp31 = tmp30 * tmp2;
+        const float tmp32 = tmp30 * tmp5;
+        const float tmp33 = tmp30 * tmp9;
+        tmp12 = tmp28;
+        tmp13 = tmp31;
+        tmp14 = tmp32;
+        tmp15 = tmp33;
+    }
+    const float tmp34 = q[0] * tmp12;
+    const float tmp35 = q[1] * tmp13;
+    const float tmp36 = tmp34 - tmp35;
+    const float tmp37 = q[2] * tmp14;
+    const float tmp38 = tmp36 - tmp37;
+    const float tmp39 = q[3] * tmp15;
+    carry[0] = tmp12;
+    carry[1] = tmp13;
+    carry[2] = tmp14;
+    carry[3] = tmp15;
+    carry[4] = tmp38;
+    carry[5] = tmp39;
+}
+
+static void qcf_k_predict_part1(const float q[4], float carry[6])
+{
+    const float tmp40 = carry[4] - carry[5];
+    const float tmp41 = tmp40 * tmp40;
+    const float tmp42 = q[0] * carry[1];
+    const float tmp43 = q[1] * carry[0];
+    const float tmp44 = tmp42 + tmp43;
+    const float tmp45 = q[2] * carry[3];
+    const float tmp46 = tmp44 + tmp45;
+    const float tmp47 = q[3] * carry[2];
+    const float tmp48 = tmp46 - tmp47;
+    const float tmp49 = tmp48 * tmp48;
+    const float tmp50 = tmp41 + tmp49;
+    const float tmp51 = q[0] * carry[2];
+    const float tmp52 = q[1] * carry[3];
+    const float tmp53 = tmp51 - tmp52;
+    const float tmp54 = q[2] * carry[0];
+    const float tmp55 = tmp53 + tmp54;
+    const float tmp56 = q[3] * carry[1];
+    const float tmp57 = tmp55 + tmp56;
+    const float tmp58 = tmp57 * tmp57;
+    const float tmp59 = tmp50 + tmp58;
+    const float tmp60 = q[0] * carry[3];
+    const float tmp61 = q[1] * carry[2];
+    const float tmp62 = tmp60 + tmp61;
+    const float tmp63 = q[2] * carry[1];
+    const float tmp64 = tmp62 - tmp63;
+    const float tmp65 = q[3] * carry[0];
+    const float tmp66 = tmp64 + tmp65;
+    const float tmp67 = tmp66 * tmp66;
+    const float tmp68 = tmp59 + tmp67;
+    const float tmp69 = sqrtf(tmp68);
+    const float tmp70 = tmp40 / tmp69;
+    const float tmp71 = tmp48 / tmp69;
+    const float tmp72 = tmp57 / tmp69;
+    const float tmp73 = tmp66 / tmp69;
+    carry[0] = tmp70;
+    carry[1] = tmp71;
+    carry[2] = tmp72;
+    carry[3] = tmp73;
+}
+
+static void qcf_k_predict(const float q[4], const float gyro_bias[3], const float gyro[3], float dt, float q_new[4])
+{
+    /* 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    float carry[6];
+    qcf_k_predict_part0(q, gyro_bias, gyro, dt, carry);
+    qcf_k_predict_part1(q, carry);
+    q_new[0] = carry[0];
+    q_new[1] = carry[1];
+    q_new[2] = carry[2];
+    q_new[3] = carry[3];
+}
+
 /* the magnetometer sample in NED, R(q) m, read by the field check and the heading correction
  * ops: add 6, mul 9 (total 15) */
 static inline void qcf_k_mag_ned(const float rot[9], const float mag[3], float mag_ned[3])
@@ -314,291 +433,273 @@ static inline void qcf_k_accel_lowpass(const float rot[9], const float accel[3],
     accel_lp_new[2] = tmp25;
 }
 
-/* tilt (low-passed accelerometer) and heading (magnetometer) corrections as PI feedback, bias integral gated, bias at rest from the low-passed gyro, integration (eq. 9)
- * ops: add 60, mul 68, div 11, sqrt 6, trig 2, cmp 26 (total 173)
- *      of which only one side runs: if (tmp42 < 1e-15f) 0, else 17
- *      of which only one side runs: if (0.0f <= tmp36) 2, else 4
- *      of which only one side runs: if (tmp85 < 0.01f) 10, else 8
+/* tilt (low-passed accelerometer) and heading (magnetometer) corrections as PI feedback on the predicted attitude, bias integral gated, bias at rest from the low-passed gyro
+ * ops: add 54, mul 64, div 11, sqrt 6, trig 2, cmp 26 (total 163)
+ *      of which only one side runs: if (tmp39 < 1e-15f) 0, else 17
+ *      of which only one side runs: if (0.0f <= tmp33) 2, else 4
+ *      of which only one side runs: if (tmp75 < 0.01f) 10, else 8
  *      of which only one side runs: if (at_rest) 11, else 11 */
-static void qcf_k_correct_part0(const float rot[9], const float gyro_bias[3], const float gyro[3], float dt, const float accel_lp[3], const float mag_ned[3], float span_accel, float carry[11])
+static void qcf_k_correct_part0(const float rot[9], const float accel_lp[3], const float mag_ned[3], float span_accel, float carry[11])
 {
-    const float tmp0 = gyro[0] - gyro_bias[0];
-    const float tmp1 = 0.5f * dt;
-    const float tmp2 = tmp0 * tmp1;
-    const float tmp3 = 0.15f /* 0.5*kp */ * span_accel;
-    const float tmp4 = accel_lp[0] * accel_lp[0];
-    const float tmp5 = accel_lp[1] * accel_lp[1];
-    const float tmp6 = tmp4 + tmp5;
-    const float tmp7 = accel_lp[2] * accel_lp[2];
-    const float tmp8 = tmp6 + tmp7;
-    const float tmp9 = sqrtf(tmp8);
-    const float tmp10 = tmp9 - accel_lp[2];
-    const float tmp11 = 1e-06f * tmp9;
-    const float tmp12 = tmp9 + tmp9;
-    const float tmp13 = tmp12 * tmp10;
-    const float tmp14 = sqrtf(tmp13);
-    const float tmp15 = accel_lp[1] / tmp14;
-    const float tmp16 = -tmp15;
-    const float tmp17 = (tmp10 < tmp11) ? 1.0f : tmp16;
-    const float tmp18 = tmp3 * tmp17;
-    const float tmp19 = rot[0] * tmp18;
-    const float tmp20 = accel_lp[0] / tmp14;
-    const float tmp21 = tmp3 * tmp20;
-    const float tmp22 = rot[1] * tmp21;
-    const float tmp23 = (tmp10 < tmp11) ? 0.0f : tmp22;
-    const float tmp24 = tmp19 + tmp23;
-    const float tmp25 = tmp20 * mag_ned[0];
-    const float tmp26 = (tmp10 < tmp11) ? 0.0f : tmp25;
-    const float tmp27 = tmp17 * mag_ned[1];
-    const float tmp28 = tmp26 - tmp27;
-    const float tmp29 = tmp10 / tmp14;
-    const float tmp30 = tmp29 * mag_ned[2];
-    const float tmp31 = (tmp10 < tmp11) ? 0.0f : tmp30;
-    const float tmp32 = tmp28 - tmp31;
-    const float tmp33 = tmp32 + tmp32;
-    const float tmp34 = tmp20 * tmp33;
-    const float tmp35 = (tmp10 < tmp11) ? 0.0f : tmp34;
-    const float tmp36 = mag_ned[0] - tmp35;
+    const float tmp0 = 0.15f /* 0.5*kp */ * span_accel;
+    const float tmp1 = accel_lp[0] * accel_lp[0];
+    const float tmp2 = accel_lp[1] * accel_lp[1];
+    const float tmp3 = tmp1 + tmp2;
+    const float tmp4 = accel_lp[2] * accel_lp[2];
+    const float tmp5 = tmp3 + tmp4;
+    const float tmp6 = sqrtf(tmp5);
+    const float tmp7 = tmp6 - accel_lp[2];
+    const float tmp8 = 1e-06f * tmp6;
+    const float tmp9 = tmp6 + tmp6;
+    const float tmp10 = tmp9 * tmp7;
+    const float tmp11 = sqrtf(tmp10);
+    const float tmp12 = accel_lp[1] / tmp11;
+    const float tmp13 = -tmp12;
+    const float tmp14 = (tmp7 < tmp8) ? 1.0f : tmp13;
+    const float tmp15 = tmp0 * tmp14;
+    const float tmp16 = rot[0] * tmp15;
+    const float tmp17 = accel_lp[0] / tmp11;
+    const float tmp18 = tmp0 * tmp17;
+    const float tmp19 = rot[1] * tmp18;
+    const float tmp20 = (tmp7 < tmp8) ? 0.0f : tmp19;
+    const float tmp21 = tmp16 + tmp20;
+    const float tmp22 = tmp17 * mag_ned[0];
+    const float tmp23 = (tmp7 < tmp8) ? 0.0f : tmp22;
+    const float tmp24 = tmp14 * mag_ned[1];
+    const float tmp25 = tmp23 - tmp24;
+    const float tmp26 = tmp7 / tmp11;
+    const float tmp27 = tmp26 * mag_ned[2];
+    const float tmp28 = (tmp7 < tmp8) ? 0.0f : tmp27;
+    const float tmp29 = tmp25 - tmp28;
+    const float tmp30 = tmp29 + tmp29;
+    const float tmp31 = tmp17 * tmp30;
+    const float tmp32 = (tmp7 < tmp8) ? 0.0f : tmp31;
+    const float tmp33 = mag_ned[0] - tmp32;
+    const float tmp34 = tmp33 * tmp33;
+    const float tmp35 = tmp14 * tmp30;
+    const float tmp36 = mag_ned[1] + tmp35;
     const float tmp37 = tmp36 * tmp36;
-    const float tmp38 = tmp17 * tmp33;
-    const float tmp39 = mag_ned[1] + tmp38;
-    carry[0] = tmp1;
-    carry[1] = tmp2;
-    carry[2] = tmp10;
-    carry[3] = tmp11;
-    carry[4] = tmp18;
-    carry[5] = tmp21;
-    carry[6] = tmp24;
-    carry[7] = tmp36;
-    carry[8] = tmp37;
-    carry[9] = tmp39;
+    const float tmp38 = tmp34 + tmp37;
+    const float tmp39 = sqrtf(tmp38);
+    carry[0] = tmp7;
+    carry[1] = tmp8;
+    carry[2] = tmp15;
+    carry[3] = tmp18;
+    carry[4] = tmp21;
+    carry[5] = tmp33;
+    carry[6] = tmp36;
+    carry[7] = tmp39;
 }
 
-static void qcf_k_correct_part1(const float rot[9], const float gyro_bias[3], const float gyro[3], float span_mag, float carry[11])
+static void qcf_k_correct_part1(const float rot[9], float span_mag, float carry[11])
 {
-    const float tmp40 = carry[9] * carry[9];
-    const float tmp41 = carry[8] + tmp40;
-    const float tmp42 = sqrtf(tmp41);
-    float tmp43;
-    float tmp44;
-    float tmp45;
-    if (tmp42 < 1e-15f) {
-        tmp43 = 0.0f;
-        tmp44 = 0.0f;
-        tmp45 = 0.0f;
+    float tmp40;
+    float tmp41;
+    float tmp42;
+    if (carry[7] < 1e-15f) {
+        tmp40 = 0.0f;
+        tmp41 = 0.0f;
+        tmp42 = 0.0f;
     } else {
-        const float tmp46 = 0.15f /* 0.5*kp */ * span_mag;
-        const float tmp47 = tmp42 + tmp42;
-        const float tmp48 = fabsf(carry[7]);
-        const float tmp49 = tmp42 + tmp48;
-        const float tmp50 = tmp47 * tmp49;
-        const float tmp51 = sqrtf(tmp50);
-        float tmp52;
-        if (0.0f <= carry[7]) {
-            const float tmp53 = carry[9] / tmp51;
-            const float tmp54 = -tmp53;
-            tmp52 = tmp54;
+        const float tmp43 = 0.15f /* 0.5*kp */ * span_mag;
+        const float tmp44 = carry[7] + carry[7];
+        const float tmp45 = fabsf(carry[5]);
+        const float tmp46 = carry[7] + tmp45;
+        const float tmp47 = tmp44 * tmp46;
+        const float tmp48 = sqrtf(tmp47);
+        float tmp49;
+        if (0.0f <= carry[5]) {
+            const float tmp50 = carry[6] / tmp48;
+            const float tmp51 = -tmp50;
+            tmp49 = tmp51;
         } else {
-            const float tmp55 = carry[7] - tmp42;
-            const float tmp56 = tmp42 - carry[7];
-            const float tmp57 = (0.0f < carry[9]) ? tmp55 : tmp56;
-            const float tmp58 = tmp57 / tmp51;
-            tmp52 = tmp58;
+            const float tmp52 = carry[5] - carry[7];
+            const float tmp53 = carry[7] - carry[5];
+            const float tmp54 = (0.0f < carry[6]) ? tmp52 : tmp53;
+            const float tmp55 = tmp54 / tmp48;
+            tmp49 = tmp55;
         }
-        const float tmp59 = tmp46 * tmp52;
-        const float tmp60 = rot[2] * tmp59;
-        const float tmp61 = rot[5] * tmp59;
-        const float tmp62 = rot[8] * tmp59;
-        tmp43 = tmp60;
-        tmp44 = tmp61;
-        tmp45 = tmp62;
+        const float tmp56 = tmp43 * tmp49;
+        const float tmp57 = rot[2] * tmp56;
+        const float tmp58 = rot[5] * tmp56;
+        const float tmp59 = rot[8] * tmp56;
+        tmp40 = tmp57;
+        tmp41 = tmp58;
+        tmp42 = tmp59;
     }
-    const float tmp63 = carry[6] + tmp43;
-    const float tmp64 = carry[1] + tmp63;
-    const float tmp65 = tmp64 * tmp64;
-    const float tmp66 = gyro[1] - gyro_bias[1];
-    const float tmp67 = tmp66 * carry[0];
-    const float tmp68 = rot[3] * carry[4];
-    const float tmp69 = rot[4] * carry[5];
-    const float tmp70 = (carry[2] < carry[3]) ? 0.0f : tmp69;
-    const float tmp71 = tmp68 + tmp70;
-    const float tmp72 = tmp71 + tmp44;
-    const float tmp73 = tmp67 + tmp72;
+    const float tmp60 = carry[4] + tmp40;
+    const float tmp61 = tmp60 * tmp60;
+    const float tmp62 = rot[3] * carry[2];
+    const float tmp63 = rot[4] * carry[3];
+    const float tmp64 = (carry[0] < carry[1]) ? 0.0f : tmp63;
+    const float tmp65 = tmp62 + tmp64;
+    const float tmp66 = tmp65 + tmp41;
+    const float tmp67 = tmp66 * tmp66;
+    const float tmp68 = tmp61 + tmp67;
+    const float tmp69 = rot[6] * carry[2];
+    const float tmp70 = rot[7] * carry[3];
+    const float tmp71 = (carry[0] < carry[1]) ? 0.0f : tmp70;
+    const float tmp72 = tmp69 + tmp71;
+    const float tmp73 = tmp72 + tmp42;
     const float tmp74 = tmp73 * tmp73;
-    const float tmp75 = tmp65 + tmp74;
-    const float tmp76 = gyro[2] - gyro_bias[2];
-    const float tmp77 = tmp76 * carry[0];
-    const float tmp78 = rot[6] * carry[4];
-    const float tmp79 = rot[7] * carry[5];
-    carry[0] = tmp45;
-    carry[1] = tmp63;
-    carry[4] = tmp64;
-    carry[5] = tmp72;
-    carry[6] = tmp73;
-    carry[7] = tmp75;
-    carry[8] = tmp77;
-    carry[9] = tmp78;
-    carry[10] = tmp79;
+    const float tmp75 = tmp68 + tmp74;
+    carry[0] = tmp60;
+    carry[1] = tmp66;
+    carry[2] = tmp73;
+    carry[3] = tmp75;
 }
 
 static void qcf_k_correct_part2(const float q[4], float carry[11])
 {
-    const float tmp80 = (carry[2] < carry[3]) ? 0.0f : carry[10];
-    const float tmp81 = carry[9] + tmp80;
-    const float tmp82 = tmp81 + carry[0];
-    const float tmp83 = carry[8] + tmp82;
-    const float tmp84 = tmp83 * tmp83;
-    const float tmp85 = carry[7] + tmp84;
-    float tmp86;
-    float tmp87;
-    float tmp88;
-    float tmp89;
-    if (tmp85 < 0.01f) {
-        const float tmp90 = (-2.1377798e-05f) * tmp85;
-        const float tmp91 = (-0.00021164022f) + tmp90;
-        const float tmp92 = tmp85 * tmp91;
-        const float tmp93 = (-0.0021164021f) + tmp92;
-        const float tmp94 = tmp85 * tmp93;
-        const float tmp95 = (-0.022222223f) + tmp94;
-        const float tmp96 = tmp85 * tmp95;
-        const float tmp97 = (-0.33333334f) + tmp96;
-        const float tmp98 = tmp85 * tmp97;
-        const float tmp99 = 1.0f + tmp98;
-        tmp86 = tmp99;
-        tmp87 = carry[4];
-        tmp88 = carry[6];
-        tmp89 = tmp83;
+    float tmp76;
+    float tmp77;
+    float tmp78;
+    float tmp79;
+    if (carry[3] < 0.01f) {
+        const float tmp80 = (-2.1377798e-05f) * carry[3];
+        const float tmp81 = (-0.00021164022f) + tmp80;
+        const float tmp82 = carry[3] * tmp81;
+        const float tmp83 = (-0.0021164021f) + tmp82;
+        const float tmp84 = carry[3] * tmp83;
+        const float tmp85 = (-0.022222223f) + tmp84;
+        const float tmp86 = carry[3] * tmp85;
+        const float tmp87 = (-0.33333334f) + tmp86;
+        const float tmp88 = carry[3] * tmp87;
+        const float tmp89 = 1.0f + tmp88;
+        tmp76 = tmp89;
+        tmp77 = carry[0];
+        tmp78 = carry[1];
+        tmp79 = carry[2];
     } else {
-        const float tmp100 = (tmp85 > 0.01f) ? tmp85 : 0.01f;
-        const float tmp101 = sqrtf(tmp100);
-        float tmp103;
-        float tmp102;
-        fast_sincosf(tmp101, &tmp103, &tmp102);   /* sin and cos, one reduction */
-        const float tmp104 = tmp103 / tmp101;
-        const float tmp105 = tmp104 * carry[4];
-        const float tmp106 = tmp104 * carry[6];
-        const float tmp107 = tmp104 * tmp83;
-        tmp86 = tmp102;
-        tmp87 = tmp105;
-        tmp88 = tmp106;
-        tmp89 = tmp107;
+        const float tmp90 = (carry[3] > 0.01f) ? carry[3] : 0.01f;
+        const float tmp91 = sqrtf(tmp90);
+        float tmp93;
+        float tmp92;
+        fast_sincosf(tmp91, &tmp93, &tmp92);   /* sin and cos, one reduction */
+        const float tmp94 = tmp93 / tmp91;
+        const float tmp95 = tmp94 * carry[0];
+        const float tmp96 = tmp94 * carry[1];
+        const float tmp97 = tmp94 * carry[2];
+        tmp76 = tmp92;
+        tmp77 = tmp95;
+        tmp78 = tmp96;
+        tmp79 = tmp97;
     }
-    const float tmp108 = q[0] * tmp86;
-    const float tmp109 = q[1] * tmp87;
-    const float tmp110 = tmp108 - tmp109;
-    const float tmp111 = q[2] * tmp88;
+    const float tmp98 = q[0] * tmp76;
+    const float tmp99 = q[1] * tmp77;
+    const float tmp100 = tmp98 - tmp99;
+    const float tmp101 = q[2] * tmp78;
+    const float tmp102 = tmp100 - tmp101;
+    const float tmp103 = q[3] * tmp79;
+    const float tmp104 = tmp102 - tmp103;
+    const float tmp105 = tmp104 * tmp104;
+    const float tmp106 = q[0] * tmp77;
+    const float tmp107 = q[1] * tmp76;
+    const float tmp108 = tmp106 + tmp107;
+    const float tmp109 = q[2] * tmp79;
+    const float tmp110 = tmp108 + tmp109;
+    const float tmp111 = q[3] * tmp78;
     const float tmp112 = tmp110 - tmp111;
-    const float tmp113 = q[3] * tmp89;
-    const float tmp114 = tmp112 - tmp113;
-    const float tmp115 = tmp114 * tmp114;
-    const float tmp116 = q[0] * tmp87;
-    const float tmp117 = q[1] * tmp86;
-    const float tmp118 = tmp116 + tmp117;
-    const float tmp119 = q[2] * tmp89;
-    carry[0] = tmp82;
-    carry[2] = tmp86;
-    carry[3] = tmp87;
-    carry[4] = tmp88;
-    carry[6] = tmp89;
-    carry[7] = tmp114;
-    carry[8] = tmp115;
-    carry[9] = tmp118;
-    carry[10] = tmp119;
+    const float tmp113 = tmp112 * tmp112;
+    const float tmp114 = tmp105 + tmp113;
+    const float tmp115 = q[0] * tmp78;
+    carry[3] = tmp76;
+    carry[4] = tmp77;
+    carry[5] = tmp78;
+    carry[6] = tmp79;
+    carry[7] = tmp104;
+    carry[8] = tmp112;
+    carry[9] = tmp114;
+    carry[10] = tmp115;
 }
 
 static void qcf_k_correct_part3(const float q[4], float carry[11])
 {
-    const float tmp120 = carry[9] + carry[10];
-    const float tmp121 = q[3] * carry[4];
-    const float tmp122 = tmp120 - tmp121;
-    const float tmp123 = tmp122 * tmp122;
-    const float tmp124 = carry[8] + tmp123;
-    const float tmp125 = q[0] * carry[4];
-    const float tmp126 = q[1] * carry[6];
-    const float tmp127 = tmp125 - tmp126;
-    const float tmp128 = q[2] * carry[2];
-    const float tmp129 = tmp127 + tmp128;
-    const float tmp130 = q[3] * carry[3];
-    const float tmp131 = tmp129 + tmp130;
-    const float tmp132 = tmp131 * tmp131;
-    const float tmp133 = tmp124 + tmp132;
-    const float tmp134 = q[0] * carry[6];
-    const float tmp135 = q[1] * carry[4];
-    const float tmp136 = tmp134 + tmp135;
-    const float tmp137 = q[2] * carry[3];
-    const float tmp138 = tmp136 - tmp137;
-    const float tmp139 = q[3] * carry[2];
-    const float tmp140 = tmp138 + tmp139;
-    const float tmp141 = tmp140 * tmp140;
-    const float tmp142 = tmp133 + tmp141;
-    const float tmp143 = sqrtf(tmp142);
-    const float tmp144 = carry[7] / tmp143;
-    const float tmp145 = tmp122 / tmp143;
-    const float tmp146 = tmp131 / tmp143;
-    const float tmp147 = tmp140 / tmp143;
-    carry[2] = tmp144;
-    carry[3] = tmp145;
-    carry[4] = tmp146;
-    carry[6] = tmp147;
+    const float tmp116 = q[1] * carry[6];
+    const float tmp117 = carry[10] - tmp116;
+    const float tmp118 = q[2] * carry[3];
+    const float tmp119 = tmp117 + tmp118;
+    const float tmp120 = q[3] * carry[4];
+    const float tmp121 = tmp119 + tmp120;
+    const float tmp122 = tmp121 * tmp121;
+    const float tmp123 = carry[9] + tmp122;
+    const float tmp124 = q[0] * carry[6];
+    const float tmp125 = q[1] * carry[5];
+    const float tmp126 = tmp124 + tmp125;
+    const float tmp127 = q[2] * carry[4];
+    const float tmp128 = tmp126 - tmp127;
+    const float tmp129 = q[3] * carry[3];
+    const float tmp130 = tmp128 + tmp129;
+    const float tmp131 = tmp130 * tmp130;
+    const float tmp132 = tmp123 + tmp131;
+    const float tmp133 = sqrtf(tmp132);
+    const float tmp134 = carry[7] / tmp133;
+    const float tmp135 = carry[8] / tmp133;
+    const float tmp136 = tmp121 / tmp133;
+    const float tmp137 = tmp130 / tmp133;
+    carry[3] = tmp134;
+    carry[4] = tmp135;
+    carry[5] = tmp136;
+    carry[6] = tmp137;
 }
 
 static void qcf_k_correct_part4(const float gyro_bias[3], float span_accel, bool use_accel, float accel_norm2, bool at_rest, const float rest_gyro_lp[3], float carry[11])
 {
-    float tmp148;
-    float tmp149;
-    float tmp150;
+    float tmp138;
+    float tmp139;
+    float tmp140;
     if (at_rest) {
-        const float tmp151 = 1.0f + span_accel;
-        const float tmp152 = span_accel / tmp151;
-        const float tmp153 = rest_gyro_lp[0] - gyro_bias[0];
-        const float tmp154 = tmp152 * tmp153;
-        const float tmp155 = gyro_bias[0] + tmp154;
-        const float tmp156 = rest_gyro_lp[1] - gyro_bias[1];
-        const float tmp157 = tmp152 * tmp156;
-        const float tmp158 = gyro_bias[1] + tmp157;
-        const float tmp159 = rest_gyro_lp[2] - gyro_bias[2];
-        const float tmp160 = tmp152 * tmp159;
-        const float tmp161 = gyro_bias[2] + tmp160;
-        tmp148 = tmp155;
-        tmp149 = tmp158;
-        tmp150 = tmp161;
+        const float tmp141 = 1.0f + span_accel;
+        const float tmp142 = span_accel / tmp141;
+        const float tmp143 = rest_gyro_lp[0] - gyro_bias[0];
+        const float tmp144 = tmp142 * tmp143;
+        const float tmp145 = gyro_bias[0] + tmp144;
+        const float tmp146 = rest_gyro_lp[1] - gyro_bias[1];
+        const float tmp147 = tmp142 * tmp146;
+        const float tmp148 = gyro_bias[1] + tmp147;
+        const float tmp149 = rest_gyro_lp[2] - gyro_bias[2];
+        const float tmp150 = tmp142 * tmp149;
+        const float tmp151 = gyro_bias[2] + tmp150;
+        tmp138 = tmp145;
+        tmp139 = tmp148;
+        tmp140 = tmp151;
     } else {
-        const bool tmp162 = (77.55708f < accel_norm2) && (accel_norm2 < 116.78368f);
-        const bool tmp163 = (use_accel) && (tmp162);
-        const float tmp164 = 0.013333334f /* ki/(0.5*kp) */ * carry[1];
-        const float tmp165 = gyro_bias[0] - tmp164;
-        const float tmp166 = (tmp163) ? tmp165 : gyro_bias[0];
-        const float tmp167 = 0.013333334f /* ki/(0.5*kp) */ * carry[5];
-        const float tmp168 = gyro_bias[1] - tmp167;
-        const float tmp169 = (tmp163) ? tmp168 : gyro_bias[1];
-        const float tmp170 = 0.013333334f /* ki/(0.5*kp) */ * carry[0];
-        const float tmp171 = gyro_bias[2] - tmp170;
-        const float tmp172 = (tmp163) ? tmp171 : gyro_bias[2];
-        tmp148 = tmp166;
-        tmp149 = tmp169;
-        tmp150 = tmp172;
+        const bool tmp152 = (77.55708f < accel_norm2) && (accel_norm2 < 116.78368f);
+        const bool tmp153 = (use_accel) && (tmp152);
+        const float tmp154 = 0.013333334f /* ki/(0.5*kp) */ * carry[0];
+        const float tmp155 = gyro_bias[0] - tmp154;
+        const float tmp156 = (tmp153) ? tmp155 : gyro_bias[0];
+        const float tmp157 = 0.013333334f /* ki/(0.5*kp) */ * carry[1];
+        const float tmp158 = gyro_bias[1] - tmp157;
+        const float tmp159 = (tmp153) ? tmp158 : gyro_bias[1];
+        const float tmp160 = 0.013333334f /* ki/(0.5*kp) */ * carry[2];
+        const float tmp161 = gyro_bias[2] - tmp160;
+        const float tmp162 = (tmp153) ? tmp161 : gyro_bias[2];
+        tmp138 = tmp156;
+        tmp139 = tmp159;
+        tmp140 = tmp162;
     }
-    carry[0] = tmp148;
-    carry[1] = tmp149;
-    carry[5] = tmp150;
+    carry[0] = tmp138;
+    carry[1] = tmp139;
+    carry[2] = tmp140;
 }
 
-static void qcf_k_correct(const float q[4], const float rot[9], const float gyro_bias[3], const float gyro[3], float dt, const float accel_lp[3], const float mag_ned[3], float span_accel, float span_mag, bool use_accel, float accel_norm2, bool at_rest, const float rest_gyro_lp[3], float q_new[4], float gyro_bias_new[3])
+static void qcf_k_correct(const float q[4], const float rot[9], const float gyro_bias[3], const float accel_lp[3], const float mag_ned[3], float span_accel, float span_mag, bool use_accel, float accel_norm2, bool at_rest, const float rest_gyro_lp[3], float q_new[4], float gyro_bias_new[3])
 {
     /* 5 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
     float carry[11];
-    qcf_k_correct_part0(rot, gyro_bias, gyro, dt, accel_lp, mag_ned, span_accel, carry);
-    qcf_k_correct_part1(rot, gyro_bias, gyro, span_mag, carry);
+    qcf_k_correct_part0(rot, accel_lp, mag_ned, span_accel, carry);
+    qcf_k_correct_part1(rot, span_mag, carry);
     qcf_k_correct_part2(q, carry);
     qcf_k_correct_part3(q, carry);
     qcf_k_correct_part4(gyro_bias, span_accel, use_accel, accel_norm2, at_rest, rest_gyro_lp, carry);
-    q_new[0] = carry[2];
-    q_new[1] = carry[3];
-    q_new[2] = carry[4];
+    q_new[0] = carry[3];
+    q_new[1] = carry[4];
+    q_new[2] = carry[5];
     q_new[3] = carry[6];
     gyro_bias_new[0] = carry[0];
     gyro_bias_new[1] = carry[1];
-    gyro_bias_new[2] = carry[5];
+    gyro_bias_new[2] = carry[2];
 }
 
 /* rest detection: gyro steady and |f| near g for rest_time
@@ -1119,8 +1220,11 @@ qcf_status qcf_step(qcf_state *restrict s, const qcf_input *restrict in, float d
 
     /* Product conditioning (model.py docstring): NED low-pass of the accelerometer, tilt and
      * heading corrections weighted by the time each sample stands for, field check, rest.
+     * Predict, then correct: the gyro moves the attitude to this step first, so the step's sensors
+     * are compared with the attitude of their own step (the paper's order leads by omega dt).
      * One path for every step: without a usable sample (or before the first accelerometer
-     * sample) the correction's weights are zero and it is the gyro integration alone. */
+     * sample) the correction's weights are zero and it is the gyro prediction alone. */
+    qcf_k_predict(s->q, s->gyro_bias, in->gyro, dt, s->q);
     qcf_start(s, in, use_accel, use_mag);   /* the first samples set the attitude */
     const bool started = s->initialised != 0u;   /* false only before the first accelerometer sample */
     float rot[9];      /* R(q), column-major: shared by the kernels below */
@@ -1155,7 +1259,7 @@ qcf_status qcf_step(qcf_state *restrict s, const qcf_input *restrict in, float d
             status |= QCF_MAG_DISTURBED;
         }
     }
-    qcf_k_correct(s->q, rot, s->gyro_bias, in->gyro, dt, s->accel_lp, mag_n,
+    qcf_k_correct(s->q, rot, s->gyro_bias, s->accel_lp, mag_n,
         use_accel ? s->accel_age : 0.0f, heading_ok ? s->mag_age : 0.0f,
         use_accel, accel_n2, at_rest, s->rest_gyro_lp,
         s->q, s->gyro_bias);

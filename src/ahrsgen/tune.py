@@ -81,6 +81,8 @@ def _check_log(path: str) -> None:
     if log.q_true is None or not np.isfinite(log.q_true).all(axis=1).any():
         raise ConfigError(f"{path}: no reference attitude to tune against (CSV columns qw,qx,qy,qz; "
                           f"ULog topic vehicle_attitude)")
+    for w in log.meta.get("warnings", []) + [f"{Path(path).name}: {u}" for u in readers.unit_warnings(log)]:
+        print(f"ahrsgen: warning: {w}", file=sys.stderr)      # gains tuned to a log in wrong units are wrong
 
 
 def collect_cases(logs=(), logs_dir=None, scenario=None, seeds=1, scenario_opts=()) -> list[Case]:
@@ -232,7 +234,7 @@ def evaluate(task: dict) -> dict:
         # (built once per worker and structural combination); baked: one build per trial
         rt = {k: v for k, v in task["values"].items() if k in task["runtime"]}
         folded = {k: v for k, v in task["values"].items() if k not in rt}
-        est = Estimator("tune", "filter", task["heading"], filter=task["filter"],
+        est = Estimator(task["filter"], "filter", task["heading"], filter=task["filter"],
                         sets=list(task["sets"]) + [set_text(k, v) for k, v in folded.items()],
                         config=task["config"], runtime=rt)
         q, heading, _ = est.run(log)
@@ -295,6 +297,7 @@ class Tuner:
         tasks = [{"case": c, "filter": self.filter, "config": self.config_file, "sets": self.sets,
                   "heading": self.heading, "values": values, "runtime": self.runtime} for c in cases]
         res = self.fleet.map(evaluate, tasks)
+        self.last_errors = [r.get("error") for r in res]
         for r in res:
             if "error" in r and r["error"] not in self.errors:
                 self.errors.append(f"{r['label']} with {values}: {r['error']}")
@@ -423,6 +426,9 @@ def _tune(filter_name, dims, cases, budget, k, metric, config_file, sets, worker
               file=out)
         start = tuner.current()
         start_errs = tuner.scores(start, cases)
+        refused = [e for e in tuner.last_errors if e and e.startswith("MostlyRefused")]
+        if refused:                  # the filter does not run on a log: nothing to tune from
+            raise TuneFailed(refused[0].partition(": ")[2] + " (with the starting values)")
         if prog:
             prog.update("current values")
         best, train, ran = tuner.optimise(cases, budget, "all logs")
@@ -451,17 +457,39 @@ def _tune(filter_name, dims, cases, budget, k, metric, config_file, sets, worker
                      "per_log_tuned": dict(zip([c.label for c in cases], best_errs))},
            "cv": cv, "trials_run": ran, "seconds": seconds, "errors": tuner.errors,
            "overrides": {**base.overrides, **best}}
+    # Recommended only if the tuned values beat the starting ones where it counts: on held-out
+    # logs (cross-validation), else (no folds) on the training logs, said to be in-sample.
+    judge = cv if cv else rep["train"]
+    rep["recommended"] = bool(judge["tuned"] < judge["current"])
+    rep["judged_on"] = f"{cv['folds']}-fold cross-validation" if cv else "the training logs (in-sample only)"
     _print_report(rep, out)
+    if not rep["recommended"]:
+        rep["overrides"] = dict(base.overrides)
     if output:
-        write_toml(output, rep, base)
+        if rep["recommended"]:
+            write_toml(output, rep, base)
         report = Path(str(output) + ".json")
         tmp = report.with_name(report.name + ".tmp")
-        tmp.write_text(json.dumps({**rep, "logs": [str(c.arg) if c.kind == "file" else c.label for c in cases]},
+        tmp.write_text(json.dumps({"written_by": "ahrsgen tune", **rep, "logs": [str(c.arg) if c.kind == "file" else c.label for c in cases]},
                                   indent=1, default=str) + "\n")
         os.replace(tmp, report)
-        print(f"wrote {output} and {report.name} (the report; journal {journal.name}: re-running continues it)",
+        if rep["recommended"]:
+            print(f"wrote {output} and {report.name} (the report; journal {journal.name}: re-running continues "
+                  f"it)", file=out)
+        else:
+            print(f"wrote {report.name} (the report; journal {journal.name}); {output} not written", file=out)
+    if not rep["recommended"]:
+        raise TuneFailed(f"the tuned values ({_fmt(best)}) do not beat the starting ones ({_fmt(start)}) on "
+                         f"{rep['judged_on']}: {judge['tuned']:.3f} vs {judge['current']:.3f} deg; "
+                         f"not recommended, keep the starting values")
+    if not cv:
+        print("  note: no cross-validation (--folds 0 or one log): the improvement is on the training logs only",
               file=out)
     return rep
+
+
+class TuneFailed(Exception):
+    """A tune that produced nothing to recommend (one line; `ahrsgen tune` exits 1)."""
 
 
 def _print_report(rep, out):
@@ -496,7 +524,8 @@ def _toml_value(v) -> str:
 
 def write_toml(path, rep, base) -> None:
     """A config `ahrsgen generate --config` takes: the tuned values and the --config/--set ones."""
-    lines = [f"# ahrsgen tune {rep['filter']}: {', '.join(rep['search'])} on {len(rep['logs'])} log(s), "
+    lines = ["# written by ahrsgen tune (a later tune may replace this file)",
+             f"# ahrsgen tune {rep['filter']}: {', '.join(rep['search'])} on {len(rep['logs'])} log(s), "
              f"{rep['budget']} trials, {rep['metric']}",
              f"# training error: current {rep['train']['current']:.3f} deg, tuned {rep['train']['tuned']:.3f} deg"]
     if rep["cv"]:
@@ -526,10 +555,20 @@ def _cmd_tune(args) -> int:
     if not out.parent.is_dir():
         raise ConfigError(f"-o {out}: folder {out.parent} does not exist")
     cases = collect_cases(args.log, args.logs, args.scenario, args.seeds, args.scenario_opt)
+    from ahrsgen.fileio import check_outputs
+    from ahrsgen.filters import input_folders as filter_inputs
+    logs = [c.arg for c in cases if c.kind == "file"]
+    check_outputs([("-o", out), ("-o (its report)", Path(str(out) + ".json"))],
+                  [*logs, args.config, *filter_inputs(args.filter)], args.force)
+    check_outputs([("-o (its journal)", Path(str(out) + ".journal"))], [*logs, args.config], force=True)
     params = [p for item in args.params for p in _split_params(item)]
-    tune(args.filter, params, cases, budget=args.budget, folds=args.folds, metric=args.metric,
-         config_file=args.config, sets=args.set, workers=args.workers, scheduler=args.scheduler,
-         output=out, seed=args.seed, progress=True, engine=args.engine)
+    try:
+        tune(args.filter, params, cases, budget=args.budget, folds=args.folds, metric=args.metric,
+             config_file=args.config, sets=args.set, workers=args.workers, scheduler=args.scheduler,
+             output=out, seed=args.seed, progress=True, engine=args.engine)
+    except TuneFailed as e:
+        print(f"ahrsgen: tune failed: {e}", file=sys.stderr)
+        return 1
     return 0
 
 
@@ -538,13 +577,16 @@ def _split_params(text: str) -> list[str]:
 
 
 def register_cli(sub) -> None:
-    from ahrsgen.argtypes import positive_int_arg   # loaded: it is the caller
+    from ahrsgen.argtypes import nonneg_int_arg, positive_int_arg   # loaded: it is the caller
     p = sub.add_parser("tune", help="choose parameters from logs with a reference attitude; write a TOML config",
                        description="Search the named parameters of a filter inside their declared ranges (Optuna "
                                    "TPE) to minimise the RMS attitude error of its float C over logs with a "
                                    "reference, scored as 'ahrsgen run' and 'bench' score; report the training and "
                                    "K-fold cross-validated error beside the current values; write a config that "
-                                   "'ahrsgen generate --config' takes. Interrupt and re-run to resume.")
+                                   "'ahrsgen generate --config' takes. Interrupt and re-run to resume. The "
+                                   "config is written only if the tuned values beat the current ones out of "
+                                   "sample (cross-validated; with --folds 0, on the training logs); else exit 1 "
+                                   "with the report only. Exit 1 too if the filter refuses most steps of a log.")
     p.add_argument("filter", help="filter name (see 'ahrsgen list')")
     p.add_argument("--log", action="append", default=[], metavar="FILE", help="BROAD .csv/.csv.gz or PX4 .ulg (repeatable)")
     p.add_argument("--logs", metavar="DIR", help="every .csv, .csv.gz and .ulg file in DIR")
@@ -561,9 +603,13 @@ def register_cli(sub) -> None:
     p.add_argument("--set", metavar="NAME=VALUE", action="append", default=[], help="fix a parameter")
     p.add_argument("--workers", type=positive_int_arg, default=2, help="local worker processes (default 2)")
     p.add_argument("--scheduler", metavar="ADDRESS", help="run on this Dask distributed scheduler instead")
-    p.add_argument("--seed", type=int, default=0, help="sampler seed (default 0)")
+    p.add_argument("--seed", type=nonneg_int_arg, default=0, help="sampler seed, a whole number >= 0 (default 0)")
     p.add_argument("--engine", choices=["runtime", "baked"], default="runtime",
                    help="runtime (default): build once with the tuned real parameters as runtime parameters "
                         "and set them per trial; baked: fold them in and rebuild per trial")
-    p.add_argument("-o", "--output", required=True, metavar="TUNED.toml", help="config file to write")
+    p.add_argument("-o", "--output", required=True, metavar="TUNED.toml",
+                   help="config file to write (with TUNED.toml.json, the report); an existing file is replaced "
+                        "only if ahrsgen wrote it (docs/output-files.md)")
+    from ahrsgen.fileio import add_force_option
+    add_force_option(p)
     p.set_defaults(func=_cmd_tune)

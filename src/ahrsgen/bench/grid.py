@@ -331,8 +331,8 @@ def bench(quick=False, seeds=None, filters=None, peer_names=PEER_NAMES, data_dir
         report["plots"] = {}
         notes.append("no plots: they need matplotlib: pip install 'ahrsgen[dev]'.")
     from ahrsgen.fileio import write_text_atomic     # whole files or none, also on Ctrl-C
-    write_text_atomic(out_dir / "bench.json", json.dumps(report, indent=1))
-    write_text_atomic(out_dir / "bench.md", markdown(report))
+    write_text_atomic(out_dir / "bench.json", json.dumps({"written_by": "ahrsgen bench", **report}, indent=1))
+    write_text_atomic(out_dir / "bench.md", markdown(report) + "\n<!-- written by ahrsgen bench -->\n")
     return report
 
 

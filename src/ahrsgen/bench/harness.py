@@ -28,7 +28,7 @@ def write_harness_log(log: SensorLog, path: str | Path) -> Path:
     path = Path(path)
     groups = ((VALID_GYRO, log.gyro), (VALID_ACCEL, log.accel), (VALID_MAG, log.mag), (VALID_GPS, log.gps_vel))
     from ahrsgen.fileio import write_text_atomic
-    lines = ["# ahrsgen harness log v1", f"# dt0 {float(log.dt[0])!r}", HARNESS_COLUMNS]
+    lines = ["# ahrsgen harness log v1, written by ahrsgen run --export-log", f"# dt0 {float(log.dt[0])!r}", HARNESS_COLUMNS]
     for k in range(len(log)):
         v = int(log.valid[k])
         parts = [repr(float(log.t[k]))]

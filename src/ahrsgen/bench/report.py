@@ -30,7 +30,7 @@ def _plots(results, img_dir):
         fig.tight_layout()
         p = Path(img_dir) / f"err_{key}.png"
         buf = io.BytesIO()
-        fig.savefig(buf, dpi=100, format="png")
+        fig.savefig(buf, dpi=100, format="png", metadata={"Software": "written by ahrsgen bench"})
         write_atomic(p, buf.getvalue())
         plt.close(fig)
         files[key] = f"img/{p.name}"      # relative to the output folder

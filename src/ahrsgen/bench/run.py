@@ -13,29 +13,12 @@ from ahrsgen.sim.metrics import broad_errors_deg
 from ahrsgen.npquat import euler_from_q
 from ahrsgen.bench.common import ANGLES
 from ahrsgen.bench.harness import build_log_runner, run_log_exe
-from ahrsgen.bench.scoring import compare_frame, filter_heading, score, score_mask, site_sets
+from ahrsgen.bench.scoring import (compare_frame, filter_heading, refusal_failure, refusal_hint,  # noqa: F401
+                                         score, score_mask, site_sets)
 
 
 # =========================================================================================
 # ahrsgen run
-
-def refusal_hint(status: np.ndarray, log, params: dict) -> str:
-    """One line on why most of a log's steps were refused, when they were: the usual causes are a
-    time column not in seconds or a gyro not in rad/s."""
-    from ahrsgen import status as st
-    n = len(status)
-    if n == 0 or np.count_nonzero(status & st.REFUSED_MASK) * 2 < n:
-        return ""
-    dt = np.diff(log.t)
-    med = float(np.median(dt)) if len(dt) else float("nan")
-    if np.count_nonzero(status & st.DT_TOO_LARGE) * 2 >= n:
-        return (f"most steps were refused for dt above dt_max = {params.get('dt_max', float('nan')):g} s; "
-                f"the log's median dt is {med:.3g} s: is its time column t in seconds?")
-    if np.count_nonzero(status & st.GYRO_RANGE) * 2 >= n:
-        return (f"most steps were refused for a gyro component beyond gyro_max = "
-                f"{params.get('gyro_max', float('nan')):g} rad/s: is the gyro in rad/s (not deg/s)?")
-    return ""
-
 
 def run_on_log(filter_name: str, log_path: str, config_file=None, sets=(), precision="float",
                plot=None, csv=None, exe=False, out=None, runtime=None, preset=None, log=None) -> dict:
@@ -67,12 +50,15 @@ def run_on_log(filter_name: str, log_path: str, config_file=None, sets=(), preci
         print(f"  {summary}", file=out)
     refused = int(np.count_nonzero(res.status & 0x20F))
     print(f"  steps with a non-zero status: {int(np.count_nonzero(res.status))}, refused: {refused}", file=out)
+    failed = refusal_failure(res.status, log, cfg.params, filter_name)
     hint = refusal_hint(res.status, log, cfg.params)
-    if hint:
+    if hint and not failed:
         print(f"  hint: {hint}", file=out)
     result = {"filter": filter_name, "log": str(log_path), "steps": len(log), "heading": heading,
               "precision": cfg.precision, "overrides": cfg.overrides, "site_sets": extra}
-    if log.q_true is not None and score_mask(log).any():
+    if failed:                       # a filter that never ran gets no score (the caller exits 1)
+        result["failed"] = failed
+    elif log.q_true is not None and score_mask(log).any():
         s = score(res.q, log, heading)
         result["score"] = s
         ref_name = {"broad": "BROAD optical reference (movement phase)",
@@ -117,6 +103,7 @@ def _write_run_csv(path, log, res, heading):
     import io
     from ahrsgen.fileio import write_text_atomic
     buf = io.StringIO()
+    buf.write("# written by ahrsgen run\n")        # the marker: a later run may replace this file
     np.savetxt(buf, np.column_stack(cols), delimiter=",", header=names, comments="", fmt="%.9g")
     write_text_atomic(path, buf.getvalue())
 
@@ -194,7 +181,9 @@ def _plot_run(path, log, q_est, heading, label, status=None):
     axs[-1].set_xlabel("time [s]")
     fig.tight_layout()
     buf = io.BytesIO()
-    fig.savefig(buf, dpi=110, format=Path(path).suffix.lstrip(".").lower() or "png")
+    fmt = Path(path).suffix.lstrip(".").lower() or "png"
+    from ahrsgen.fileio import MARK
+    fig.savefig(buf, dpi=110, format=fmt, metadata={"Software" if fmt == "png" else "Creator": f"{MARK} run"})
     plt.close(fig)
     write_atomic(path, buf.getvalue())
 

@@ -45,9 +45,60 @@ def site_sets(filter_name: str, meta: dict, user_keys=()) -> tuple[list[str], bo
     if "inclination_deg" in names and "inclination_deg" not in user_keys:
         if meta.get("inclination_deg") is not None:
             out.append(f"inclination_deg={float(meta['inclination_deg'])!r}")
+            if "mag_ref" in names and "mag_ref" not in user_keys:      # the default learns it instead
+                out.append("mag_ref=inclination")
         elif "mag_ref" in names and "mag_ref" not in user_keys:
             out.append("mag_ref=learn")
     return out, applied
+
+
+def refusal_hint(status: np.ndarray, log, params: dict) -> str:
+    """One line on why most of a log's steps were refused, when they were: the usual causes are a
+    time column not in seconds or a gyro not in rad/s."""
+    from ahrsgen import status as st
+    n = len(status)
+    if n == 0 or np.count_nonzero(status & st.REFUSED_MASK) * 2 < n:
+        return ""
+    dt = np.diff(log.t)
+    med = float(np.median(dt)) if len(dt) else float("nan")
+    if np.count_nonzero(status & st.DT_TOO_LARGE) * 2 >= n:
+        dt_max = params.get('dt_max', float('nan'))
+        if med > 1.0:                # no IMU samples at less than 1 Hz: the unit of t
+            return (f"most steps were refused for dt above dt_max = {dt_max:g} s; "
+                    f"the log's median dt is {med:.3g} s: is its time column t in seconds (not ms or us)?")
+        return (f"most steps were refused for dt above dt_max = {dt_max:g} s, below the log's median dt "
+                f"{med:.3g} s: set dt_max above the sample period")
+    if np.count_nonzero(status & st.GYRO_RANGE) * 2 >= n:
+        return (f"most steps were refused for a gyro component beyond gyro_max = "
+                f"{params.get('gyro_max', float('nan')):g} rad/s: is the gyro in rad/s (not deg/s)?")
+    if np.count_nonzero(status & st.GYRO_NONFINITE) * 2 >= n:
+        return "most steps were refused for a gyro sample that is not finite (NaN or Inf): check the gyro columns"
+    if np.count_nonzero(status & st.GYRO_MISSING) * 2 >= n:
+        return ("most steps were refused for a missing gyro sample (empty or NaN fields): does the log hold the "
+                "gyro on every row?")
+    if np.count_nonzero(status & st.DT_INVALID) * 2 >= n:
+        return "most steps were refused for a dt that is not finite or not positive: check the time column t"
+    return ""
+
+
+REFUSED_FAILURE = 0.5      # a run that refused more than this fraction of its steps is a failure
+
+
+class MostlyRefused(RuntimeError):
+    """A filter refused most steps of a log: it never really ran, so there is nothing to score."""
+
+
+def refusal_failure(status, log, params: dict, what: str = "the filter") -> str:
+    """One line when `what` refused more than REFUSED_FAILURE of the log's steps (a failed run:
+    no score, exit 1), else ""."""
+    from ahrsgen import status as st
+    status = np.asarray(status)
+    n = len(status)
+    refused = int(np.count_nonzero(status & st.REFUSED_MASK))
+    if n == 0 or refused <= REFUSED_FAILURE * n:
+        return ""
+    why = refusal_hint(status, log, params) or "see the status bits (docs/log-format.md)"
+    return f"{what} refused {refused} of {n} steps of {log.name}, so it did not run: {why}"
 
 
 @dataclass
@@ -92,7 +143,13 @@ class Estimator:
             user = config.resolve(self.filter, self.config, list(self.sets), "float", None).overrides
             extra, applied = site_sets(self.filter, log.meta, set(user) | set(self.runtime))
         heading = "true" if (self.heading == "mag" and applied) else self.heading
-        return self.host_filter(extra).run(log, params=self.runtime).q, heading, extra
+        hf = self.host_filter(extra)
+        res = hf.run(log, params=self.runtime)
+        if self.kind == "filter":
+            failed = refusal_failure(res.status, log, {**hf.manifest.get("params", {}), **self.runtime}, self.name)
+            if failed:
+                raise MostlyRefused(failed)
+        return res.q, heading, extra
 
 
 def filter_heading(filter_name: str, sets=(), config_file=None, preset=None) -> str:

@@ -771,12 +771,14 @@ def _fmt(v, spec=".3g"):
 
 
 def print_table(results: list[dict]) -> None:
-    print(f"{'filter':<8} {'cppcheck':<9} {'fuzz execs':>11} {'exec/s':>7} {'cov':>5} {'crashes':>7} "
+    # no cppcheck column when it was not run (--no-cppcheck): nothing about it to say
+    show_cc = any("skipped" not in r.get("cppcheck", {"skipped": True}) for r in results)
+    print(f"{'filter':<8} {'cppcheck' if show_cc else '':<9} {'fuzz execs':>11} {'exec/s':>7} {'cov':>5} {'crashes':>7} "
           f"{'soak steps':>11} {'viol':>5} {'max||q|-1|':>10} {'max|P-PT|rel':>12} {'min pivot':>10} "
           f"{'min piv rel':>11} {'ns/step':>8} {'att rms deg':>11}")
     for r in results:
         c, f, s = r.get("cppcheck", {}), r.get("fuzz", {}), r.get("soak", {})
-        cc = ("skipped" if "skipped" in c else "-" if not c else "timeout" if c["timed_out"] else "clean" if c["ok"]
+        cc = ("" if not show_cc else "skipped" if "skipped" in c else "-" if not c else "timeout" if c["timed_out"] else "clean" if c["ok"]
               else f"{len(c['issues']) + len(c['structural_issues'])} issues")
         print(f"{r['filter']:<8} {cc:<9} {_fmt(f.get('executions'), 'd'):>11} {_fmt(f.get('exec_per_s'), 'd'):>7} "
               f"{_fmt(f.get('coverage'), 'd'):>5} {len(f.get('crashes', [])) if 'executions' in f else '-':>7} "
@@ -837,9 +839,15 @@ def cmd_harden(args) -> int:
                                 not args.no_cppcheck)
     if cannot:
         raise ConfigError("cannot run " + "; ".join(cannot))
+    out = Path(args.json) if args.json else BUILD / "harden.json"
+    from ahrsgen.fileio import check_outputs
+    if out.is_dir():
+        raise ConfigError(f"--json: {out} is a folder")
+    if out.parent.is_dir() or args.json:
+        check_outputs([("--json", out)], dirs, args.force)
     results = []
     for d in dirs:
-        print(f"harden {d.name}: cppcheck, fuzz {args.fuzz_seconds or 0:g} s"
+        print(f"harden {d.name}: {'' if args.no_cppcheck else 'cppcheck, '}fuzz {args.fuzz_seconds or 0:g} s"
               f"{f' / {args.fuzz_runs} runs' if args.fuzz_runs else ''}, soak {args.soak_steps} steps ...", flush=True)
         results.append(harden(d, fuzz_seconds=args.fuzz_seconds, fuzz_runs=args.fuzz_runs,
                               soak_steps=args.soak_steps, seed=args.seed, glitch_rate=args.glitch_rate,
@@ -848,10 +856,9 @@ def cmd_harden(args) -> int:
                               cppcheck_timeout=args.cppcheck_timeout))
     print()
     print_table(results)
-    out = Path(args.json) if args.json else BUILD / "harden.json"
     out.parent.mkdir(parents=True, exist_ok=True)
     from ahrsgen.fileio import write_text_atomic
-    write_text_atomic(out, json.dumps({"results": results}, indent=2))
+    write_text_atomic(out, json.dumps({"written_by": "ahrsgen harden", "results": results}, indent=2))
     print(f"\nJSON: {out}")
     return 0 if all(r["ok"] for r in results) else 1
 
@@ -867,18 +874,34 @@ def register_cli(sub) -> None:
                     "on any finding.")
     p.add_argument("filter", help="a filter (name or folder; its committed generated/NAME if there is one, else "
                                   "its defaults), a directory with manifest.json, or 'all'")
-    from ahrsgen.argtypes import count_arg, nonneg_float_arg
+    from ahrsgen.argtypes import count_arg, nonneg_float_arg, nonneg_int_arg, positive_int_arg, positive_float_arg
+    from ahrsgen.fileio import add_force_option
     p.add_argument("--fuzz-seconds", type=nonneg_float_arg, default=60, metavar="N", help="fuzzing time per filter (default 60; 0 = no fuzzing)")
     p.add_argument("--fuzz-runs", type=count_arg, metavar="N", help="stop fuzzing after N inputs")
     p.add_argument("--soak-steps", type=count_arg, default=10_000_000, metavar="N",
                    help="soak steps, a whole number >= 0 such as 100000 or 1e7 (default 1e7; 0 = no soak)")
-    p.add_argument("--seed", type=int, default=1, help="fuzzer and soak seed (default 1)")
-    p.add_argument("--glitch-rate", type=float, default=1e-3, help="soak: probability of a glitch per step (default 1e-3)")
+    p.add_argument("--seed", type=nonneg_int_arg, default=1, help="fuzzer and soak seed, a whole number >= 0 (default 1)")
+    p.add_argument("--glitch-rate", type=probability_arg, default=1e-3,
+                   help="soak: probability of a glitch per step, 0 to 1 (default 1e-3)")
     p.add_argument("--no-cppcheck", action="store_true", help="skip cppcheck")
-    p.add_argument("--cppcheck-max-kernel-lines", type=int, metavar="N",
+    p.add_argument("--cppcheck-max-kernel-lines", type=positive_int_arg, metavar="N",
                    help="emitted kernels longer than N lines are checked structurally (bounds, definitions, "
                         "outputs) instead of by cppcheck, whose analysis of a 3000-line kernel takes minutes "
                         "(default: cppcheck everything)")
-    p.add_argument("--cppcheck-timeout", type=float, default=3600, metavar="S", help="cppcheck time limit per filter")
+    p.add_argument("--cppcheck-timeout", type=positive_float_arg, default=3600, metavar="S", help="cppcheck time limit per filter")
     p.add_argument("--json", metavar="FILE", help="write the results here (default build/harden/harden.json)")
+    add_force_option(p)
     p.set_defaults(func=cmd_harden)
+
+
+def probability_arg(text: str) -> float:
+    """A probability: a finite number from 0 to 1."""
+    import argparse
+    import math
+    try:
+        v = float(text)
+    except ValueError:
+        v = float("nan")
+    if not (math.isfinite(v) and 0.0 <= v <= 1.0):
+        raise argparse.ArgumentTypeError(f"expected a probability from 0 to 1, got {text!r}")
+    return v

@@ -13,6 +13,7 @@ from pathlib import Path
 from ahrsgen.argtypes import (  # noqa: F401  (the commands' argument types, named here as before)
     count_arg, nonneg_float_arg, nonneg_int_arg, positive_float_arg, positive_int_arg)
 from ahrsgen.errors import ConfigError
+from ahrsgen.fileio import add_force_option
 
 EPILOG = """\
 Conventions of every filter, log and output:
@@ -25,6 +26,8 @@ Conventions of every filter, log and output:
   dt          seconds covered by the step's gyro sample
 Logs: CSV (docs/log-format.md) or PX4 ULog. Exit status: 0 ok, 1 a check failed,
 2 bad usage, configuration, log or path (one line on stderr).
+Outputs: never an input of the command; an existing file is replaced only if ahrsgen
+wrote it, or with --force (docs/output-files.md).
 
 Run 'ahrsgen COMMAND --help' for the options of each command."""
 
@@ -107,10 +110,15 @@ def cmd_list(args) -> int:
 
 def cmd_generate(args) -> int:
     from ahrsgen.generate import render
-    from ahrsgen.fileio import check_output_dir
+    from ahrsgen.fileio import check_output_dir, check_outputs
     out = check_output_dir(args.output, "-o")
     cfg = _resolve(args)
+    for w in cfg.spec.model(cfg.params).stability_warnings():
+        print(f"ahrsgen: warning: {cfg.filter}: {w}", file=sys.stderr)
     gen = render.render(cfg)
+    if out.is_dir():                # files there are replaced only if ahrsgen wrote them
+        check_outputs([("-o", out / name) for name in gen.files], [args.config, *filter_inputs(args.filter)],
+                      args.force)
     paths = render.write(gen, out)
     for p in paths:
         print(p)
@@ -119,6 +127,12 @@ def cmd_generate(args) -> int:
         print(f"  step path '{name}': {info['total']} ops ({', '.join(f'{k} {v}' for k, v in info['ops'].items() if v)})")
     print(f"  state struct: {gen.manifest['structs']['state']['size']} bytes")
     return 0
+
+
+def filter_inputs(name) -> list:
+    """The files a command reads to build a filter: its folder (model.py, reference.py, ...)."""
+    from ahrsgen import filters
+    return filters.input_folders(name)
 
 
 def cmd_validate(args) -> int:
@@ -137,11 +151,14 @@ def cmd_validate(args) -> int:
     site = scenario_site_params(cfg, log)
     if site:
         from ahrsgen.generate import config as _config
-        cfg = _config.resolve(args.filter, args.config, args.set + [f"{k}={v!r}" for k, v in site.items()],
+        cfg = _config.resolve(args.filter, args.config, args.set + [f"{k}={v}" if isinstance(v, str) else f"{k}={v!r}"
+                                                                for k, v in site.items()],
                               args.precision, args.prefix, args.preset, args.runtime, getattr(args, "math", None),
                               getattr(args, "fma", None))
         print("  site parameters from the scenario (override with --set): "
               + ", ".join(f"{k}={v:.6g}" if isinstance(v, float) else f"{k}={v}" for k, v in site.items()))
+    for w in cfg.spec.model(cfg.params).stability_warnings():
+        print(f"ahrsgen: warning: {cfg.filter}: {w}", file=sys.stderr)
     bound = args.tolerance if args.tolerance is not None else (1e-9 if cfg.precision == "double" else 1e-3)
     print(f"validate {cfg.filter} ({cfg.precision}) on {args.scenario} seed {args.seed}: "
           f"{len(log)} steps, {log.t[-1] - log.t[0]:.1f} s")
@@ -162,6 +179,11 @@ def cmd_validate(args) -> int:
     print(f"  status codes identical: {'yes' if same_status else 'NO'}"
           f" (non-zero in {int(np.count_nonzero(c.status))} steps)")
     ok = qdiff <= bound and same_status
+    from ahrsgen.bench.scoring import refusal_failure
+    failed = refusal_failure(c.status, log, cfg.params, cfg.filter)
+    if failed:                       # C and reference agree on doing nothing: not a PASS
+        print(f"ahrsgen: validate failed: {failed}", file=sys.stderr)
+        return 1
     if log.q_true is not None:
         s = metrics.euler_stats(c.q, log.q_true, log.t, log.settle_time)
         print(f"  accuracy vs truth after {log.settle_time:g} s (C {cfg.precision}), degrees:")
@@ -203,8 +225,28 @@ def cmd_validate(args) -> int:
             print(f"    {a:<5} float {v['float_mean']:7.3f}  double {v['double_mean']:7.3f} +- {v['double_sd']:.3f}"
                   f"  diff {v['diff_mean']:+.4f} +- {v['diff_sd']:.4f}  t {v['t']:+.2f}  {'ok' if v['ok'] else 'FAIL'}")
         ok = dd <= 1e-9 and d_same and st["ok"]
-    print("PASS" if ok else "FAIL: generated C disagrees with the reference")
-    return 0 if ok else 1
+    if ok:
+        print("PASS")
+        return 0
+    # Tell an unstable configuration (the equations themselves diverge: the reference leaves the
+    # truth, and C and reference part because rounding differences grow) from a code-generation
+    # error (the reference follows the truth, the C does not).
+    unstable = model.stability_warnings()
+    ref_lost = None
+    if log.q_true is not None:
+        late = log.t - log.t[0] >= log.settle_time
+        ref_lost = metrics.max_angle_diff_rad(r.q[late], log.q_true[late]) if late.any() else None
+    if ref_lost is not None and (not np.isfinite(ref_lost) or np.degrees(ref_lost) > 60.0):
+        why = f"; {unstable[0]}" if unstable else ""
+        print(f"FAIL: unstable configuration, not a code-generation error: the NumPy reference itself leaves "
+              f"the truth (max {np.degrees(ref_lost):.0f} deg after {log.settle_time:g} s), so C and reference "
+              f"part as rounding grows{why}")
+        print(f"ahrsgen: validate failed: {cfg.filter} is unstable with these parameters"
+              + (f": {unstable[0]}" if unstable else " (the reference diverges from the truth)"), file=sys.stderr)
+        return 1
+    print("FAIL: generated C disagrees with the reference" + (
+        f" (the reference follows the truth: max {np.degrees(ref_lost):.1f} deg)" if ref_lost is not None else ""))
+    return 1
 
 
 def cmd_new(args) -> int:
@@ -240,13 +282,18 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("generate", help="write <prefix>.h, <prefix>.c and manifest.json for a filter",
                        description="Generate C for a filter with its parameters baked in.")
     _add_build_options(p)
-    p.add_argument("-o", "--output", required=True, metavar="DIR", help="output directory (created if needed)")
+    p.add_argument("-o", "--output", required=True, metavar="DIR",
+                   help="output directory (created if needed); files in it are replaced only if ahrsgen wrote "
+                        "them (docs/output-files.md)")
+    add_force_option(p)
     p.set_defaults(func=cmd_generate)
 
     p = sub.add_parser("validate", help="generate, compile, run C and the NumPy reference on a scenario, compare",
                        description="Generate and compile a filter for the host, run it and its independent NumPy "
                                    "reference over a simulated scenario, print the largest difference and the "
-                                   "accuracy against the truth. Exit 1 if C and reference disagree. A float "
+                                   "accuracy against the truth. Exit 1 if C and reference disagree (said as an "
+                                   "unstable configuration when the reference itself leaves the truth, else a "
+                                   "code-generation error) or if the filter refused most steps. A float "
                                    "build of a particle filter, or of a filter that declares [filter] "
                                    "rounding_sensitive, that misses the bound is judged as an estimator: double "
                                    "C = reference, float vs double over 10 streams or seeds (paired t test).")

@@ -19,12 +19,12 @@ PLOT_FORMATS = (".png", ".pdf", ".svg")
 
 
 def _cmd_run(args) -> int:
-    from ahrsgen.fileio import check_output_file
+    from ahrsgen.fileio import check_outputs
+    from ahrsgen.cli import filter_inputs
     from ahrsgen.errors import ConfigError
     # everything that could fail after a long run is checked first
-    for opt, path in (("--csv", args.csv), ("--plot", args.plot), ("--export-log", args.export_log)):
-        if path:
-            check_output_file(path, opt)
+    check_outputs((("--csv", args.csv), ("--plot", args.plot), ("--export-log", args.export_log)),
+                  [args.log, args.config, *filter_inputs(args.filter)], args.force)
     if args.plot:
         if not Path(args.plot).suffix.lower() in PLOT_FORMATS:
             raise ConfigError(f"--plot {args.plot}: name the image .png, .pdf or .svg")
@@ -38,7 +38,7 @@ def _cmd_run(args) -> int:
         raise ConfigError(f"log file {args.log} does not exist") from None
     except (readers.LogError, OSError) as e:
         raise ConfigError(str(e) if isinstance(e, readers.LogError) else f"{args.log}: {e.strerror or e}") from None
-    for w in log.meta.get("warnings", []):
+    for w in log.meta.get("warnings", []) + readers.unit_warnings(log):
         print(f"ahrsgen: warning: {w}", file=sys.stderr)
     if log.meta.get("ignored_columns"):
         print(f"  ignored columns: {', '.join(log.meta['ignored_columns'])}")
@@ -51,6 +51,9 @@ def _cmd_run(args) -> int:
                              args.precision or "float", None, args.preset)
         exe = build_log_runner(host.build(cfg).dir)
         print(f"  wrote {args.export_log}; run it with: {exe} {args.export_log} out.csv")
+    if res.get("failed"):
+        print(f"ahrsgen: run failed: {res['failed']}", file=sys.stderr)
+        return 1
     return 0
 
 
@@ -80,6 +83,27 @@ def _cmd_bench(args) -> int:
         from ahrsgen.errors import ConfigError
         raise ConfigError(f"--peers {' '.join(asked)}: package {peers.PEERS[asked[0]].package} is not installed "
                           f"(pip install 'ahrsgen[dev]')")
+    from ahrsgen.fileio import check_output_dir, check_outputs
+    from ahrsgen.cli import filter_inputs
+    from ahrsgen.errors import ConfigError
+    from ahrsgen.bench.grid import scenario_configs
+    if args.scenarios:
+        known = sorted({label for quick in (True, False) for label, _, _ in scenario_configs(quick)})
+        grid = {label for label, _, _ in scenario_configs(args.quick)}
+        bad = [s for s in args.scenarios if s not in grid]
+        if bad:
+            raise ConfigError(f"--scenarios {bad[0]}: not a scenario row of the "
+                              f"{'--quick ' if args.quick else ''}grid (rows: {', '.join(sorted(grid))})"
+                              if bad[0] in known else
+                              f"--scenarios {bad[0]}: unknown scenario row (rows: {', '.join(sorted(grid))})")
+        if args.real_only:
+            raise ConfigError("--scenarios with --real-only: the real logs have no scenario rows")
+    out = check_output_dir(args.output, "-o")
+    data = None if args.scenarios_only else readers.shared_data_dir(args.data)
+    olds = sorted((out / "img").glob("err_*.png")) if (out / "img").is_dir() else []
+    if out.is_dir():                 # else it is created: nothing there to replace
+        check_outputs([("-o", out / "bench.json"), ("-o", out / "bench.md"), *(("-o", p) for p in olds)],
+                      [data, *(x for f in (args.filters or []) for x in filter_inputs(f))], args.force)
     cmd = "ahrsgen bench " + " ".join(sys.argv[2:]) if len(sys.argv) > 1 and sys.argv[1] == "bench" else "ahrsgen bench"
     rep = bench(quick=args.quick, seeds=args.seeds, filters=args.filters or None,
                 peer_names=tuple(args.peers) if args.peers is not None else PEER_NAMES,
@@ -88,18 +112,29 @@ def _cmd_bench(args) -> int:
                 scenario_labels=args.scenarios, command=cmd, variants=parse_variants(args.variant),
                 scheduler=args.scheduler)
     md = Path(args.output) / "bench.md"
-    print(md.read_text())
+    print(md.read_text().replace("\n<!-- written by ahrsgen bench -->\n", ""))
     print(f"wrote {Path(args.output) / 'bench.json'}, {md} and {len(rep['plots'])} plot(s) in "
           f"{Path(args.output) / 'img'} ({rep['seconds']:.0f} s)", file=sys.stderr)
+    # a product filter that refused most steps of a log did not run there: the bench failed
+    refused = [msg for errs in rep.get("run_errors", {}).values() for msg in errs.values()
+               if msg.startswith("MostlyRefused")]
+    if refused:
+        more = f" (and {len(refused) - 1} more: bench.json, run_errors)" if len(refused) > 1 else ""
+        print(f"ahrsgen: bench failed: {refused[0].partition(': ')[2]}{more}", file=sys.stderr)
+        return 1
     return 0
 
 
 def register_cli(sub) -> None:
     from ahrsgen.argtypes import positive_int_arg   # loaded: it is the caller
+    from ahrsgen.fileio import add_force_option
     p = sub.add_parser("run", help="run a generated filter over a real log (BROAD CSV or PX4 ULog) and score it",
                        description="Generate and compile a filter for the host, run it over a log file through "
                                    "the firmware harness, and where the log has a reference attitude score it "
-                                   "(BROAD's method for BROAD data; PX4's vehicle_attitude for ULog).")
+                                   "(BROAD's method for BROAD data; PX4's vehicle_attitude for ULog). A gyro in "
+                                   "deg/s or an accelerometer in g is recognised from the data and said in one "
+                                   "warning line. Exit 1, with no score, if the filter refused most steps (a "
+                                   "time column in ms or us, a gyro of NaN): one line on stderr says why.")
     p.add_argument("filter", help="filter name (see 'ahrsgen list') or a filter folder's path")
     p.add_argument("--log", required=True, metavar="FILE",
                    help="a CSV log (.csv/.csv.gz: t,gx,gy,gz,ax,ay,az and optional mx,my,mz, gps_vn,gps_ve,gps_vd, "
@@ -121,13 +156,15 @@ def register_cli(sub) -> None:
     p.add_argument("--export-log", metavar="OUT.csv",
                    help="also write the log in the standalone executable's text format (main_log.c) and "
                         "print the executable's path, to run it outside Python")
+    add_force_option(p)
     p.set_defaults(func=_cmd_run)
 
     p = sub.add_parser("bench", help="filters x scenarios x seeds, real logs and peers: accuracy and cost tables",
                        description="Benchmark every product filter (float C through the firmware harness) and "
                                    "the peers (VQF, Fusion, Madgwick, Mahony) on the simulated scenarios, the "
                                    "BROAD subset and the PX4 logs; measure ns/step against a hand-written QCF. "
-                                   "Writes bench.json, bench.md and plots.")
+                                   "Writes bench.json, bench.md and plots. Exit 1 if a generated filter refused "
+                                   "most steps of a log (listed under Failures, no score).")
     p.add_argument("--quick", action="store_true", help="short CI run (1 seed, shorter scenarios, data excerpts)")
     p.add_argument("--seeds", type=positive_int_arg, help="seeds per scenario (default 3, --quick 1)")
     p.add_argument("--filters", nargs="*", help="only these filters, names or folder paths (default: all known)")
@@ -145,6 +182,7 @@ def register_cli(sub) -> None:
     p.add_argument("--variant", action="append", default=[], metavar="LABEL=FILTER:k=v,k=v",
                    help="also bench FILTER with these settings under LABEL, e.g. "
                         "qcf_soft=qcf:kp=0.05,ki=0.001 (repeatable)")
+    add_force_option(p)
     g = p.add_mutually_exclusive_group()
     g.add_argument("--scenarios-only", action="store_true", help="skip the real logs")
     g.add_argument("--real-only", action="store_true", help="only the real logs (BROAD, PX4)")

@@ -21,6 +21,11 @@ def cmd_target(args) -> int:
     check_output_dir(Path(args.json).parent, "--json")      # refuse a bad path before the builds
     if Path(args.json).is_dir():
         raise ConfigError(f"--json: {args.json} is a folder")
+    from ahrsgen.fileio import check_outputs
+    from ahrsgen.cli import filter_inputs
+    if Path(args.json).parent.is_dir():          # else it is created: nothing there to replace
+        check_outputs([("--json", args.json)], [args.config, *filter_inputs(args.filter if args.filter != "all" else None)],
+                      args.force)
     try:
         cflags = tuple(shlex.split(args.cflags or ""))
     except ValueError as e:                                # an unbalanced quote
@@ -97,7 +102,7 @@ def cmd_target(args) -> int:
                       f"checks {b['hand_written_checked']:.0f} instructions per step = {b['ratio_checked']:.2f}x "
                       f"(like for like: the same status bits, zero-gyro skip and IMU-only fallback; it starts at "
                       f"the identity, so compare a build with --set initialise=false)")
-    doc = {"cpu": args.cpu, "cpu_flags": CPUS[args.cpu], "math_flags": MATH_FLAGS, "qemu_machine": QEMU_MACHINE,
+    doc = {"written_by": "ahrsgen target", "cpu": args.cpu, "cpu_flags": CPUS[args.cpu], "math_flags": MATH_FLAGS, "qemu_machine": QEMU_MACHINE,
            "tools": toolchain_versions(), "tolerance_deg": args.tolerance, "results": results,
            "peers": [asdict(r) for r in peer_rows], "beside_peers": beside, "libm_survey": survey}
     out = Path(args.json)
@@ -153,7 +158,7 @@ def register_cli(sub) -> None:
                         "--cflags='-fno-gcse-lm' (the report's build column shows them; target vs host still "
                         "checked, so a flag that changes the arithmetic, such as -ffast-math, shows there)")
     p.add_argument("--scenario", help="scenario (default: the filter's source experiment, e.g. fixedwing_gps for qcf)")
-    p.add_argument("--seed", type=int, default=0, help="scenario seed (default 0)")
+    p.add_argument("--seed", type=nonneg_int_arg, default=0, help="scenario seed, a whole number >= 0 (default 0)")
     p.add_argument("--scenario-opt", metavar="NAME=VALUE", action="append", default=[],
                    help="scenario option, e.g. duration=30 (repeatable)")
     p.add_argument("--count-steps", type=nonneg_int_arg, default=50, metavar="N",
@@ -176,4 +181,6 @@ def register_cli(sub) -> None:
     p.add_argument("--json", default="build/target/target.json", metavar="FILE",
                    help="where to write the JSON report (default build/target/target.json)")
     p.add_argument("--workdir", metavar="DIR", help="keep build products here (default: a temporary directory)")
+    from ahrsgen.fileio import add_force_option
+    add_force_option(p)
     p.set_defaults(func=cmd_target)

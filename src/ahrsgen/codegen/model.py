@@ -176,6 +176,12 @@ class FilterModel:
         """Extra values for the step partial (sizes, flags)."""
         return {}
 
+    def stability_warnings(self) -> list[str]:
+        """One line per combination of parameter values (each inside its declared range) that
+        makes the filter diverge: `generate` and `validate` print them; `validate` then reads a
+        disagreement as an unstable configuration rather than a code-generation error."""
+        return []
+
     def template_helpers(self) -> tuple[str, ...]:
         """src/ahrsgen/codegen/fastmath.py helpers that the filter's own template code calls (a float build
         with math = "fast" gets their C beside the kernels' helpers, written once)."""

@@ -264,3 +264,14 @@ def _folder_package(name: str, folder: Path) -> str:
         if spec.loader is not None:
             spec.loader.exec_module(module)
     return package
+
+
+def input_folders(name) -> list:
+    """The folders a command reads to build a filter (its model.py, reference.py, ...): what an
+    output must never replace (ahrsgen.fileio.check_outputs). Empty for no or an unknown filter."""
+    if not name:
+        return []
+    try:
+        return [load(name).folder]
+    except ConfigError:
+        return []

@@ -30,9 +30,13 @@ Product conditioning (faithful = false; issue 10; building blocks in src/ahrsgen
                  R(T q̂)ᵀ[0,0,1]) pass the field check
   error          e dt = R(q̂)ᵀ (s_a vec(T) + s_m vec(H))  (the vector part of q̂⁻¹ T H q̂ to first
                  order, each part weighted by the time s its sensor's sample stands for)
-  PI feedback    β dt = (ω - b̂) dt + kp e dt ; b̂ <- b̂ - ki e dt only while ||f| - g| < bias_accel_gate;
+  order          predict, then correct (issue 27): q̂⁻ = normalise(q̂ ⊗ exp(½ (ω - b̂) dt)) first, so
+                 the sensors of step k are compared with the attitude of step k, not of step k-1
+                 (the paper's order, kept when faithful or conditioning = false, leads the truth
+                 by ω dt: 0.02 rad at 2 rad/s and 100 Hz); everything below reads q̂⁻
+  PI feedback    q̂ <- normalise(q̂⁻ ⊗ exp(½ kp e dt)) ; b̂ <- b̂ - ki e dt only while ||f| - g| < bias_accel_gate;
                  at rest (aiding.rest_detector) b̂ follows the low-passed gyro instead
-  integration    as eq. 9
+  integration    as eq. 9, the gyro part in the prediction
 """
 from __future__ import annotations
 
@@ -213,7 +217,8 @@ class Model(FilterModel):
         # carried as ½ kp e dt: the gain and the exponential's ½ multiply the two weights once
         kh = 0.5 * p["kp"]
         e_half = ca.mtimes(rot.T, ca.vertcat((kh * span_a) * T[1], (kh * span_a) * T[2], (kh * span_m) * H[3]))
-        half_rotation = (gyro - bias) * (0.5 * dt) + e_half     # ½ β dt
+        # the gyro's ½ (ω - b) dt was applied by the prediction (predict kernel), before R(q) was formed
+        half_rotation = e_half                                  # ½ kp e dt
         trusted = ca.logic_and(use_a, aiding.norm_within(f2, G0, p["bias_accel_gate"]))
         bias_pi = ca.if_else(trusted, bias - (p["ki"] / kh) * e_half, bias)   # b - ki e dt
         if p["rest_time"] > 0:
@@ -221,6 +226,10 @@ class Model(FilterModel):
         else:
             bias_new = bias_pi
         ks = [
+            KernelSpec("predict", function("predict", {"q": q, "gyro_bias": bias, "gyro": gyro, "dt": dt},
+                                           {"q_new": quat.integrate_scaled(q, gyro - bias, dt)}),
+                       "prediction: the gyro integrated with the bias removed, before the step's sensors are "
+                       "compared with the attitude (so they meet the attitude of their own step)"),
             KernelSpec("mag_ned", function("mag_ned", {"rot": rot, "mag": m}, {"mag_ned": ca.mtimes(rot, m)}),
                        "the magnetometer sample in NED, R(q) m, read by the field check and the heading correction"),
             KernelSpec("init_attitude", function("init_attitude", {"accel": f},
@@ -234,15 +243,15 @@ class Model(FilterModel):
                                                  {"accel_lp_new": aiding.lowpass(a_lp, ca.mtimes(rot, f), span,
                                                                                  p["accel_tau"])}),
                        "low-pass of the specific force in NED, R(q) f (time constant accel_tau)"),
-            KernelSpec("correct", function("correct", {"q": q, "rot": rot, "gyro_bias": bias, "gyro": gyro, "dt": dt,
+            KernelSpec("correct", function("correct", {"q": q, "rot": rot, "gyro_bias": bias,
                                                        "accel_lp": a_lp, "mag_ned": m_n, "span_accel": span_a,
                                                        "span_mag": span_m, "use_accel": use_a, "accel_norm2": f2,
                                                        **({"at_rest": at_rest, "rest_gyro_lp": g_lp}
                                                           if p["rest_time"] > 0 else {})},
                                            {"q_new": quat.qnormalize(quat.qmul(q, quat.qexp_scaled(half_rotation))),
                                             "gyro_bias_new": bias_new}),
-                       "tilt (low-passed accelerometer) and heading (magnetometer) corrections as PI feedback, "
-                       "bias integral gated, bias at rest from the low-passed gyro, integration (eq. 9)",
+                       "tilt (low-passed accelerometer) and heading (magnetometer) corrections as PI feedback "
+                       "on the predicted attitude, bias integral gated, bias at rest from the low-passed gyro",
                        flags=("use_accel",) + (("at_rest",) if p["rest_time"] > 0 else ())),
         ]
         if p["rest_time"] > 0:
@@ -269,6 +278,26 @@ class Model(FilterModel):
                                  "field check: |m| and sin(dip) against the learned reference", flags=("accept",)))
         return ks
 
+    def stability_warnings(self):
+        """The product loop's two limits (docs/qcf.md, 'Stable gains'), each inside the declared
+        ranges. (1) A correction turns the estimate by kp s / 2 of the error per sample (s: the
+        time the sample stands for, at most span_max): beyond 2 it overshoots and grows, so
+        kp span_max < 4; warned from 3. (2) With the accelerometer low-pass (time constant tau)
+        in the loop, the error's characteristic polynomial is tau s^3 + s^2 + kp s + ki, stable
+        (Routh-Hurwitz) only if ki < kp / tau. Measured on fixedwing_gps seed 0 (12.5 Hz):
+        kp = 40 follows, ki = 0.25 follows, ki = 0.6 diverges (kp = 0.3, tau = 1)."""
+        p = self.params
+        if not self.product:
+            return []
+        out = []
+        if p["kp"] * p["span_max"] >= 3.0:
+            out.append(f"kp x span_max = {p['kp'] * p['span_max']:.3g} >= 3: a correction at samples span_max "
+                       f"apart overshoots the error (diverges from 4); lower kp or span_max")
+        if p["accel_tau"] > 0 and p["ki"] >= p["kp"] / p["accel_tau"]:
+            out.append(f"ki = {p['ki']:g} >= kp / accel_tau = {p['kp'] / p['accel_tau']:.3g}: the bias loop through "
+                       f"the accelerometer low-pass is unstable (tau s^3 + s^2 + kp s + ki needs ki < kp / tau)")
+        return out
+
     def template_context(self):
         p = self.params
         return {"motion_model": p["motion_accel_model"], "product": self.product, "gps_taps": gps_taps(p),
@@ -279,9 +308,9 @@ class Model(FilterModel):
             comp = ["rotation", "gravity_part"]
             extra = (["rest"] if self.params["rest_time"] > 0 else []) + (["mag_check"] if self.params["mag_rejection"] else [])
             return {
-                "full (accel+mag+GPS comp.)": comp + ["accel_lowpass", "mag_ned"] + extra + ["correct"],
-                "accel+mag": ["rotation", "accel_lowpass", "mag_ned"] + extra + ["correct"],
-                "gyro only": ["rotation", "correct"],
+                "full (accel+mag+GPS comp.)": ["predict"] + comp + ["accel_lowpass", "mag_ned"] + extra + ["correct"],
+                "accel+mag": ["predict", "rotation", "accel_lowpass", "mag_ned"] + extra + ["correct"],
+                "gyro only": ["predict", "rotation", "correct"],
                 **({"GPS sample (extra)": ["gps_accel"]} if self.params["motion_accel_model"] == "differentiator" else {}),
             }
         comp = ["rotation", "gravity_part"]

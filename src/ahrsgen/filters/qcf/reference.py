@@ -132,6 +132,10 @@ class Reference:
 
         f = np.asarray(accel, float)
         if self.product:
+            # predict, then correct: the gyro first moves the attitude to this step, so the
+            # sensors below meet the attitude of their own step (issue 27; the paper's order,
+            # kept when faithful or conditioning = false, leads the truth by omega dt)
+            self.q = integrate(self.q, gyro - self.bias, dt)
             self._start(f, mag, use_accel, use_mag, gyro, p)
         if use_accel:
             model = p["motion_accel_model"]
@@ -193,8 +197,7 @@ class Reference:
         p = self.p
         from ahrsgen.filters.qcf.model import EXTRA_STATUS
         bit = {name: 1 << (16 + i) for i, (name, _) in enumerate(EXTRA_STATUS)}
-        if self.initialised == 0:            # no accelerometer sample yet (_start sets it)
-            self.q = integrate(self.q, gyro - self.bias, dt)
+        if self.initialised == 0:            # no accelerometer sample yet (_start sets it): predicted only
             return status
         self.accel_age = min(self.accel_age + dt, p["span_max"])
         self.mag_age = min(self.mag_age + dt, p["span_max"])
@@ -250,15 +253,13 @@ class Reference:
                 H = heading_correction(nq.qmul(T, self.q), mag, p["declination"])
                 e_n = e_n + self.mag_age * H[1:]
             e_dt = nq.rotmat(self.q).T @ e_n                 # error integrated over the step
-            theta = (gyro - self.bias) * dt + p["kp"] * e_dt   # rotation of the step, β dt
+            theta = p["kp"] * e_dt                             # the correction (the gyro's part was predicted)
             if at_rest:
                 s = self.accel_age
                 self.bias = self.bias + s / (p["rest_bias_tau"] + s) * (self.rest_gyro_lp - self.bias)
             elif use_accel and abs(np.linalg.norm(f_raw) - G0) < p["bias_accel_gate"]:
                 self.bias = self.bias - p["ki"] * e_dt
             self.q = integrate(self.q, theta, 1.0)
-        else:
-            self.q = integrate(self.q, gyro - self.bias, dt)
         if use_accel:
             self.accel_age = 0.0
         if use_mag:
