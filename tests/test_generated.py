@@ -134,3 +134,37 @@ def test_header_aliasing_rule_names_every_kernel_that_declares_restrict(gen_dir)
     m = re.search(r"Exceptions: (.*?) store each output", " ".join(header.replace(" * ", " ").split()))
     named = set(re.split(r", | and ", m.group(1))) if m else set()
     assert named == restricted
+
+
+def test_every_filter_builds_in_one_translation_unit(tmp_path):
+    """A unity build: all committed filters #included into one .c compiles clean. Each filter's
+    names carry its prefix; the fast-math helpers they share are guarded by a checksum of their
+    code (a helper written differently by two ahrsgen versions fails to compile, loudly)."""
+    unity = tmp_path / "unity.c"
+    unity.write_text("".join(f'#include "{d / json.loads((d / "manifest.json").read_text())["files"]["source"]}"\n'
+                             for d in GENERATED))
+    assert len(GENERATED) >= 2
+    r = subprocess.run([cc(), *STRICT, "-O2", "-c", str(unity), "-o", str(tmp_path / "u.o")],
+                       capture_output=True, text=True)
+    assert r.returncode == 0 and r.stderr == "", r.stderr
+
+
+def test_fault_mask_in_the_header_is_the_manifest_mask(tmp_path):
+    """<PREFIX>_STATUS_FAULT_MASK as the C preprocessor computes it from the header equals the
+    manifest's figure, holds every refusal bit, and leaves out the bits the filter calls
+    information (tests/test_input_contract.py checks what the bits do)."""
+    from ahrsgen import status as st
+    for d in GENERATED:
+        man = json.loads((d / "manifest.json").read_text())
+        p = man["prefix"].upper()
+        prog = tmp_path / f"{man['prefix']}_mask.c"
+        prog.write_text(f'#include <stdio.h>\n#include "{d / man["files"]["header"]}"\n'
+                        f'int main(void) {{ printf("%lu\\n", (unsigned long){p}_STATUS_FAULT_MASK); return 0; }}\n')
+        exe = tmp_path / f"{man['prefix']}_mask"
+        subprocess.run([cc(), *STRICT, str(prog), "-o", str(exe)], check=True, capture_output=True)
+        mask = int(subprocess.run([str(exe)], capture_output=True, text=True, check=True).stdout)
+        assert mask == man["status_fault_mask"], d.name
+        assert mask & st.REFUSED_MASK == st.REFUSED_MASK
+        for name in ("AT_REST", "MAG_DISTURBED", "HEADING_UNAIDED", "MAG_LEARNING", "NOT_INITIALISED"):
+            if name in man["status"]:
+                assert not mask & man["status"][name], (d.name, name)

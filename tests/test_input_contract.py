@@ -139,3 +139,21 @@ def test_the_range_is_a_box_per_component(name):
                 assert (got & st.REFUSED_MASK == 0) == ok, (name, field, scale, hex(got))
             else:
                 assert (got & SKIP_BITS[sensor] == 0) == ok, (name, field, scale, hex(got))
+
+
+@pytest.mark.parametrize("name", ["qcf", "mekf"])
+def test_at_rest_is_information_and_a_bad_sample_a_fault(name):
+    """A level sensor at rest with clean samples: the filter says AT_REST (a non-zero status),
+    and nothing in the fault mask; a NaN accelerometer sample then sets a fault bit."""
+    hf = host_build(name, "float")
+    bits, fault = hf.manifest["status"], hf.manifest["status_fault_mask"]
+    s = hf.new_state()
+    still = dict(gyro=(0.0, 0.0, 0.0), accel=(0.0, 0.0, -9.81), mag=(0.2, 0.0, 0.4), gps_vel=(0.0, 0.0, 0.0))
+    seen = 0
+    for _ in range(600):
+        status = hf.step(s, valid=ALL & ~8, dt=DT, **still)
+        assert status & fault == 0, status
+        seen |= status
+    assert seen & bits["AT_REST"]
+    bad = dict(still, accel=(NAN, 0.0, -9.81))
+    assert hf.step(s, valid=ALL & ~8, dt=DT, **bad) & fault == st.ACCEL_NONFINITE

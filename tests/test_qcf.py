@@ -213,7 +213,7 @@ def test_rest_learns_the_gyro_bias():
     hf = host_build("qcf", "double")
     res = hf.run(log)
     from ahrsgen.filters.qcf.model import EXTRA_STATUS
-    at_rest = 1 << (16 + [n for n, _ in EXTRA_STATUS].index("AT_REST"))
+    at_rest = 1 << (16 + [e[0] for e in EXTRA_STATUS].index("AT_REST"))
     assert np.all(res.status[log.t > 2.0] & at_rest)       # rest found after rest_time (1.5 s)
     assert not np.any(res.status[log.t < 1.4] & at_rest)
     b = np.array(hf.state_dict(hf.last_state)["gyro_bias"])
@@ -256,7 +256,7 @@ def test_heading_held_through_a_magnetic_disturbance():
     mag[k] = mag[k] @ np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]).T   # turned 90 deg
     log = SensorLog(log.name, log.t, log.dt, log.gyro, log.accel, mag, log.gps_vel, log.valid, log.q_true, {})
     from ahrsgen.filters.qcf.model import EXTRA_STATUS
-    dist = 1 << (16 + [n for n, _ in EXTRA_STATUS].index("MAG_DISTURBED"))
+    dist = 1 << (16 + [e[0] for e in EXTRA_STATUS].index("MAG_DISTURBED"))
     res = host_build("qcf", "double").run(log)
     assert np.all(res.status[k] & dist) and not np.any(res.status[log.t < 15] & dist)
     assert not np.any(res.status[log.t > 25.1] & dist)

@@ -28,6 +28,13 @@
 #include <string.h>
 
 /* math = "fast": trigonometry without libm (src/ahrsgen/codegen/fastmath.py; errors measured there) */
+/* The helpers' names carry this filter's prefix (a unity build may include several
+ * generated filters); the code below writes them short. */
+#define fast_sincosf adukf_fast_sincosf
+#define fast_sin_cos adukf_fast_sin_cos
+#define fast_sin_cos_of adukf_fast_sin_cos_of
+#define fast_atan2f adukf_fast_atan2f
+
 /* sin(x) and cos(x) with one reduction, |x| <= 8192 (NaN beyond): fast_sin_cos_of returns both, fast_sincosf stores them through pointers, fast_sinf and fast_cosf below return one; max abs error 1.5e-07 (tests/test_fastmath.py) */
 typedef struct {
     float s;
@@ -2796,7 +2803,7 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
         }
     }
 
-    /* A-DUKF step (seeds/003, SPEC.md). Order as in reference.py: learn the reference field,
+    /* A-DUKF step (the paper's equations; docs/adukf.md). Order as in reference.py: learn the reference field,
      * initialise, then time update and unscented measurement update. */
     const bool mag_ok = use_mag;
     if (s->learn_count < ADUKF_LEARN_SAMPLES) {
@@ -3013,3 +3020,8 @@ void adukf_euler(const adukf_state *s, float rpy[3])
 {
     adukf_k_euler(s->q, rpy);
 }
+
+#undef fast_sincosf
+#undef fast_sin_cos
+#undef fast_sin_cos_of
+#undef fast_atan2f

@@ -5,7 +5,7 @@
  * change the configuration and regenerate instead.
  * Source: Cai Anjiang, Liu Kaifeng, Liu Libo, Zhai Yanzhao (Xi'an University of Architecture
  * and Technology): Adaptive DUKF attitude estimation algorithm for multi-rotor UAVs (journal
- * and year not given in the copy the equations were taken from); equations as in SPEC.md
+ * and year not given in the copy the equations were taken from); equations in docs/adukf.md
  * Precision: float. Conventions: NED navigation frame, FRD body frame, Hamilton
  * quaternion [w x y z] rotating body to NED, Z-Y-X Euler angles [roll pitch yaw] in rad.
  *
@@ -14,6 +14,14 @@
  *     adukf_init(&st);
  *     every IMU sample: fill a adukf_input (set a VALID bit only for sensors that
  *     delivered a new sample), then adukf_status s = adukf_step(&st, &in, dt);
+ *     a fault is (s & ADUKF_STATUS_FAULT_MASK) != 0u; other bits are information.
+ * Zero-initialise each adukf_input (adukf_input in = {0};): the step reads
+ * every field, also those of a sensor whose VALID bit is clear.
+ *
+ * Build flags: the stated accuracy and the bit-for-bit identity of host and Cortex-M4F builds
+ * assume -ffp-contract=off (no fused multiply-add contraction; GCC contracts by default in
+ * its GNU modes, -std=c99 turns it off) and -fno-math-errno; -ffast-math breaks the input
+ * checks (isfinite). Any C99 compiler builds it; see the ahrsgen docs (target.md).
  *     adukf_euler(&st, rpy);
  * No heap, no recursion; RAM is the state struct (728 bytes with the usual ABI).
  * Needs <math.h> (float functions only in a float build); compilers may also emit calls to
@@ -103,6 +111,10 @@ typedef uint32_t adukf_status;
 #define ADUKF_NUMERIC_FAULT   (1u << 18) /* non-finite result: state left as it was before the step */
 #define ADUKF_MAG_LEARNING    (1u << 19) /* reference field still being learned: magnetometer correction not applied */
 #define ADUKF_REFUSED_MASK (ADUKF_DT_INVALID | ADUKF_DT_TOO_LARGE | ADUKF_GYRO_MISSING | ADUKF_GYRO_NONFINITE | ADUKF_GYRO_RANGE)
+/* Bits that mean trouble (a refused step, a bad sample, a numeric fault); the others are
+ * information (what the filter noticed: MAG_LEARNING).
+ * Test (status & ADUKF_STATUS_FAULT_MASK) != 0u for a fault, not status != 0. */
+#define ADUKF_STATUS_FAULT_MASK (ADUKF_DT_INVALID | ADUKF_DT_TOO_LARGE | ADUKF_GYRO_MISSING | ADUKF_GYRO_NONFINITE | ADUKF_ACCEL_NONFINITE | ADUKF_ACCEL_ZERO | ADUKF_MAG_NONFINITE | ADUKF_MAG_ZERO | ADUKF_GPS_NONFINITE | ADUKF_GYRO_RANGE | ADUKF_ACCEL_RANGE | ADUKF_MAG_RANGE | ADUKF_GPS_RANGE | ADUKF_COV_RESET | ADUKF_UPDATE_SKIPPED | ADUKF_NUMERIC_FAULT)
 
 typedef struct {
     float q[4];           /* attitude estimate, body->NED, [w x y z] */

@@ -25,6 +25,14 @@
 #include <string.h>
 
 /* math = "fast": trigonometry without libm (src/ahrsgen/codegen/fastmath.py; errors measured there) */
+/* The helpers' names carry this filter's prefix (a unity build may include several
+ * generated filters); the code below writes them short. */
+#define fast_sincosf cpf_fast_sincosf
+#define fast_sin_cos cpf_fast_sin_cos
+#define fast_sin_cos_of cpf_fast_sin_cos_of
+#define fast_atan2f cpf_fast_atan2f
+#define fast_logf cpf_fast_logf
+
 /* sin(x) and cos(x) with one reduction, |x| <= 8192 (NaN beyond): fast_sin_cos_of returns both, fast_sincosf stores them through pointers, fast_sinf and fast_cosf below return one; max abs error 1.5e-07 (tests/test_fastmath.py) */
 typedef struct {
     float s;
@@ -1182,3 +1190,9 @@ void cpf_euler(const cpf_state *s, float rpy[3])
 {
     cpf_k_euler(s->q, rpy);
 }
+
+#undef fast_sincosf
+#undef fast_sin_cos
+#undef fast_sin_cos_of
+#undef fast_atan2f
+#undef fast_logf

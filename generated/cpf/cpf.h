@@ -14,6 +14,14 @@
  *     cpf_init(&st);
  *     every IMU sample: fill a cpf_input (set a VALID bit only for sensors that
  *     delivered a new sample), then cpf_status s = cpf_step(&st, &in, dt);
+ *     a fault is (s & CPF_STATUS_FAULT_MASK) != 0u; other bits are information.
+ * Zero-initialise each cpf_input (cpf_input in = {0};): the step reads
+ * every field, also those of a sensor whose VALID bit is clear.
+ *
+ * Build flags: the stated accuracy and the bit-for-bit identity of host and Cortex-M4F builds
+ * assume -ffp-contract=off (no fused multiply-add contraction; GCC contracts by default in
+ * its GNU modes, -std=c99 turns it off) and -fno-math-errno; -ffast-math breaks the input
+ * checks (isfinite). Any C99 compiler builds it; see the ahrsgen docs (target.md).
  *     cpf_euler(&st, rpy);
  * No heap, no recursion; RAM is the state struct (2456 bytes with the usual ABI).
  * Needs <math.h> (float functions only in a float build); compilers may also emit calls to
@@ -85,6 +93,10 @@ typedef uint32_t cpf_status;
 #define CPF_WEIGHTS_RESET   (1u << 16) /* particle weights summed to zero (underflow or corrupted state): reset to 1/N */
 #define CPF_NOT_INITIALISED (1u << 17) /* no usable accelerometer sample yet to initialise from; state unchanged */
 #define CPF_REFUSED_MASK (CPF_DT_INVALID | CPF_DT_TOO_LARGE | CPF_GYRO_MISSING | CPF_GYRO_NONFINITE | CPF_GYRO_RANGE)
+/* Bits that mean trouble (a refused step, a bad sample, a numeric fault); the others are
+ * information (what the filter noticed: NOT_INITIALISED).
+ * Test (status & CPF_STATUS_FAULT_MASK) != 0u for a fault, not status != 0. */
+#define CPF_STATUS_FAULT_MASK (CPF_DT_INVALID | CPF_DT_TOO_LARGE | CPF_GYRO_MISSING | CPF_GYRO_NONFINITE | CPF_ACCEL_NONFINITE | CPF_ACCEL_ZERO | CPF_MAG_NONFINITE | CPF_MAG_ZERO | CPF_GPS_NONFINITE | CPF_GYRO_RANGE | CPF_ACCEL_RANGE | CPF_MAG_RANGE | CPF_GPS_RANGE | CPF_WEIGHTS_RESET)
 
 typedef struct {
     float q[4];              /* attitude estimate, body->NED, [w x y z] */

@@ -25,6 +25,13 @@
 #include <string.h>
 
 /* math = "fast": trigonometry without libm (src/ahrsgen/codegen/fastmath.py; errors measured there) */
+/* The helpers' names carry this filter's prefix (a unity build may include several
+ * generated filters); the code below writes them short. */
+#define fast_sincosf mekf_fast_sincosf
+#define fast_sin_cos mekf_fast_sin_cos
+#define fast_sin_cos_of mekf_fast_sin_cos_of
+#define fast_atan2f mekf_fast_atan2f
+
 /* sin(x) and cos(x) with one reduction, |x| <= 8192 (NaN beyond): fast_sin_cos_of returns both, fast_sincosf stores them through pointers, fast_sinf and fast_cosf below return one; max abs error 1.5e-07 (tests/test_fastmath.py) */
 typedef struct {
     float s;
@@ -3013,3 +3020,8 @@ void mekf_euler(const mekf_state *s, float rpy[3])
 {
     mekf_k_euler(s->q, rpy);
 }
+
+#undef fast_sincosf
+#undef fast_sin_cos
+#undef fast_sin_cos_of
+#undef fast_atan2f

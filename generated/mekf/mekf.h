@@ -14,6 +14,14 @@
  *     mekf_init(&st);
  *     every IMU sample: fill a mekf_input (set a VALID bit only for sensors that
  *     delivered a new sample), then mekf_status s = mekf_step(&st, &in, dt);
+ *     a fault is (s & MEKF_STATUS_FAULT_MASK) != 0u; other bits are information.
+ * Zero-initialise each mekf_input (mekf_input in = {0};): the step reads
+ * every field, also those of a sensor whose VALID bit is clear.
+ *
+ * Build flags: the stated accuracy and the bit-for-bit identity of host and Cortex-M4F builds
+ * assume -ffp-contract=off (no fused multiply-add contraction; GCC contracts by default in
+ * its GNU modes, -std=c99 turns it off) and -fno-math-errno; -ffast-math breaks the input
+ * checks (isfinite). Any C99 compiler builds it; see the ahrsgen docs (target.md).
  *     mekf_euler(&st, rpy);
  * No heap, no recursion; RAM is the state struct (308 bytes with the usual ABI).
  * Needs <math.h> (float functions only in a float build); compilers may also emit calls to
@@ -108,6 +116,10 @@ typedef uint32_t mekf_status;
 #define MEKF_MAG_DISTURBED   (1u << 20) /* magnetometer rejected: field norm or dip angle off the learned reference */
 #define MEKF_AT_REST         (1u << 21) /* rest detected: the gyro reading measures the gyro bias directly */
 #define MEKF_REFUSED_MASK (MEKF_DT_INVALID | MEKF_DT_TOO_LARGE | MEKF_GYRO_MISSING | MEKF_GYRO_NONFINITE | MEKF_GYRO_RANGE)
+/* Bits that mean trouble (a refused step, a bad sample, a numeric fault); the others are
+ * information (what the filter noticed: COURSE_SLOW, ACCEL_GATED, HEADING_UNAIDED, MAG_DISTURBED, AT_REST).
+ * Test (status & MEKF_STATUS_FAULT_MASK) != 0u for a fault, not status != 0. */
+#define MEKF_STATUS_FAULT_MASK (MEKF_DT_INVALID | MEKF_DT_TOO_LARGE | MEKF_GYRO_MISSING | MEKF_GYRO_NONFINITE | MEKF_ACCEL_NONFINITE | MEKF_ACCEL_ZERO | MEKF_MAG_NONFINITE | MEKF_MAG_ZERO | MEKF_GPS_NONFINITE | MEKF_GYRO_RANGE | MEKF_ACCEL_RANGE | MEKF_MAG_RANGE | MEKF_GPS_RANGE | MEKF_UPDATE_SKIPPED)
 
 typedef struct {
     float q[4];           /* attitude quaternion body->NED [w x y z] */

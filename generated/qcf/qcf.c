@@ -25,6 +25,13 @@
 #include <string.h>
 
 /* math = "fast": trigonometry without libm (src/ahrsgen/codegen/fastmath.py; errors measured there) */
+/* The helpers' names carry this filter's prefix (a unity build may include several
+ * generated filters); the code below writes them short. */
+#define fast_sincosf qcf_fast_sincosf
+#define fast_sin_cos qcf_fast_sin_cos
+#define fast_sin_cos_of qcf_fast_sin_cos_of
+#define fast_atan2f qcf_fast_atan2f
+
 /* sin(x) and cos(x) with one reduction, |x| <= 8192 (NaN beyond): fast_sin_cos_of returns both, fast_sincosf stores them through pointers, fast_sinf and fast_cosf below return one; max abs error 1.5e-07 (tests/test_fastmath.py) */
 typedef struct {
     float s;
@@ -1277,3 +1284,8 @@ void qcf_euler(const qcf_state *s, float rpy[3])
 {
     qcf_k_euler(s->q, rpy);
 }
+
+#undef fast_sincosf
+#undef fast_sin_cos
+#undef fast_sin_cos_of
+#undef fast_atan2f

@@ -13,6 +13,14 @@
  *     qcf_init(&st);
  *     every IMU sample: fill a qcf_input (set a VALID bit only for sensors that
  *     delivered a new sample), then qcf_status s = qcf_step(&st, &in, dt);
+ *     a fault is (s & QCF_STATUS_FAULT_MASK) != 0u; other bits are information.
+ * Zero-initialise each qcf_input (qcf_input in = {0};): the step reads
+ * every field, also those of a sensor whose VALID bit is clear.
+ *
+ * Build flags: the stated accuracy and the bit-for-bit identity of host and Cortex-M4F builds
+ * assume -ffp-contract=off (no fused multiply-add contraction; GCC contracts by default in
+ * its GNU modes, -std=c99 turns it off) and -fno-math-errno; -ffast-math breaks the input
+ * checks (isfinite). Any C99 compiler builds it; see the ahrsgen docs (target.md).
  *     qcf_euler(&st, rpy);
  * No heap, no recursion; RAM is the state struct (104 bytes with the usual ABI).
  * Needs <math.h> (float functions only in a float build); compilers may also emit calls to
@@ -101,6 +109,10 @@ typedef uint32_t qcf_status;
 #define QCF_MAG_DISTURBED   (1u << 16) /* magnetometer norm or dip off its reference: heading not corrected this step */
 #define QCF_AT_REST         (1u << 17) /* at rest: the gyro bias follows the low-passed gyro */
 #define QCF_REFUSED_MASK (QCF_DT_INVALID | QCF_DT_TOO_LARGE | QCF_GYRO_MISSING | QCF_GYRO_NONFINITE | QCF_GYRO_RANGE)
+/* Bits that mean trouble (a refused step, a bad sample, a numeric fault); the others are
+ * information (what the filter noticed: MAG_DISTURBED, AT_REST).
+ * Test (status & QCF_STATUS_FAULT_MASK) != 0u for a fault, not status != 0. */
+#define QCF_STATUS_FAULT_MASK (QCF_DT_INVALID | QCF_DT_TOO_LARGE | QCF_GYRO_MISSING | QCF_GYRO_NONFINITE | QCF_ACCEL_NONFINITE | QCF_ACCEL_ZERO | QCF_MAG_NONFINITE | QCF_MAG_ZERO | QCF_GPS_NONFINITE | QCF_GYRO_RANGE | QCF_ACCEL_RANGE | QCF_MAG_RANGE | QCF_GPS_RANGE)
 
 typedef struct {
     float q[4];            /* attitude estimate, body->NED, [w x y z] */

@@ -26,6 +26,36 @@ FILTER_BASE = 1 << 16      # first bit a filter may define for itself
 
 REFUSED_MASK = DT_INVALID | DT_TOO_LARGE | GYRO_MISSING | GYRO_NONFINITE | GYRO_RANGE
 
+# Every common bit says something went wrong: a refused step or a bad sample. A filter's own
+# bits are faults too unless the filter marks them "info" (AT_REST, MAG_DISTURBED: what the
+# filter noticed about the world, a normal part of flight). <PREFIX>_STATUS_FAULT_MASK in the
+# header is the union of the faults, so firmware tests (status & FAULT_MASK) != 0, not status != 0.
+INFO = "info"
+
+
+def extra_bits(extra_status) -> list[tuple[str, int, str, bool]]:
+    """(name, value, doc, is_fault) of a filter's own bits, from FILTER_BASE up; entries are
+    (NAME, doc) or (NAME, doc, "info")."""
+    out = []
+    for i, entry in enumerate(extra_status):
+        name, doc = entry[0], entry[1]
+        kind = entry[2] if len(entry) > 2 else "fault"
+        if kind not in ("fault", INFO):
+            raise ValueError(f"status bit {name}: kind must be 'fault' or 'info', not {kind!r}")
+        out.append((name, FILTER_BASE << i, doc, kind != INFO))
+    return out
+
+
+def fault_mask(extra_status) -> int:
+    """The bits of a filter's status that mean trouble: every common bit, and its own unless 'info'."""
+    mask = 0
+    for _, v, _ in COMMON:
+        mask |= v
+    for _, v, _, fault in extra_bits(extra_status):
+        if fault:
+            mask |= v
+    return mask
+
 COMMON = [
     ("OK", OK, "step completed with every available correction"),
     ("DT_INVALID", DT_INVALID, "refused: dt is not finite or not positive; state unchanged"),

@@ -19,6 +19,7 @@ Double builds always use libm: these helpers are single-precision approximations
 """
 from __future__ import annotations
 
+
 from dataclasses import dataclass
 
 import casadi as ca
@@ -40,6 +41,7 @@ class Helper:
     needs: tuple[str, ...] = ()
     max_abs_error: float = 0.0   # stated bound vs the exact value, over the whole domain
     max_rel_error: float = 0.0   # for exp and log: bound on |got - exact| / |exact| instead
+    also: tuple[str, ...] = ()   # file-scope names the code defines besides `name`
 
 
 _SINCOS_BODY = """
@@ -88,7 +90,8 @@ def _one_of_sincos(name: str, which: str) -> str:
 HELPERS = {
     "sincos": Helper("fast_sincosf", f"sin(x) and cos(x) with one reduction, |x| <= {TRIG_MAX:g} (NaN beyond): "
                      "fast_sin_cos_of returns both, fast_sincosf stores them through pointers, fast_sinf and "
-                     "fast_cosf below return one", _sincos(), max_abs_error=1.5e-7),
+                     "fast_cosf below return one", _sincos(), max_abs_error=1.5e-7,
+                     also=("fast_sin_cos", "fast_sin_cos_of")),
     "sin": Helper("fast_sinf", f"sin(x), |x| <= {TRIG_MAX:g} (NaN beyond; sin(-0) = +0)",
                   _one_of_sincos("fast_sinf", "s"), needs=("sincos",), max_abs_error=1.5e-7),
     "cos": Helper("fast_cosf", f"cos(x), |x| <= {TRIG_MAX:g} (NaN beyond)",
@@ -294,13 +297,33 @@ def closure(names) -> list[str]:
            [n for n in HELPERS if n in need and HELPERS[n].needs]
 
 
-def c_source(names) -> str:
-    """C of the helpers `names` need (static functions; <math.h>, <float.h>, <stdbool.h>,
-    <stdint.h> included by the caller)."""
+def file_scope_names(names) -> list[str]:
+    """Every file-scope identifier the helpers `names` need define (functions, the sin/cos pair's type)."""
     out = []
+    for n in closure(names):
+        out += [HELPERS[n].name, *HELPERS[n].also]
+    return out
+
+
+def c_source(names, prefix: str | None = None) -> str:
+    """C of the helpers `names` need (static functions; <math.h>, <float.h>, <stdbool.h>,
+    <stdint.h> included by the caller). With a prefix, each file-scope name is first defined as
+    a macro for <prefix>_<name>, so the compiled names carry the filter's prefix and several
+    generated filters build in one translation unit; c_source_end undefines the macros at the
+    end of the file."""
+    out = []
+    if prefix:
+        out.append("/* The helpers' names carry this filter's prefix (a unity build may include several\n"
+                   " * generated filters); the code below writes them short. */\n"
+                   + "".join(f"#define {n} {prefix}_{n}\n" for n in file_scope_names(names)))
     for n in closure(names):
         h = HELPERS[n]
         err = (f"max relative error {h.max_rel_error:.1e}" if h.max_rel_error else
                f"max abs error {h.max_abs_error:.1e}")
         out.append(f"/* {h.doc}; {err} (tests/test_fastmath.py) */\n{h.code}")
     return "\n".join(out)
+
+
+def c_source_end(names) -> str:
+    """The #undef lines that close c_source(names, prefix)."""
+    return "".join(f"#undef {n}\n" for n in file_scope_names(names))

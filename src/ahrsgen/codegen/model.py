@@ -158,7 +158,7 @@ class FilterModel:
     """Base class of a filter's symbolic model. Subclasses fill in the hooks below."""
     params: dict
     sensors: tuple = ("accel", "mag", "gps")   # aiding sensors the step reads
-    extra_status: list = field(default_factory=list)  # [(NAME, doc)]: bits from status.FILTER_BASE up
+    extra_status: list = field(default_factory=list)  # [(NAME, doc) or (NAME, doc, "info")]: bits from status.FILTER_BASE up
 
     # --- hooks -------------------------------------------------------------------------
     def state_fields(self) -> list[StateField]:

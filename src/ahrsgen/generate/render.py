@@ -245,12 +245,13 @@ def render(cfg: BuildConfig, names: bool = True) -> Generated:
         x["pad"] = 0 if x["runtime"] else width - x["len"]
 
     bits = [(n, v, d) for n, v, d in status.COMMON]
-    for i, (n, d) in enumerate(model.extra_status):
-        bits.append((n, status.FILTER_BASE << i, d))
+    bits += [(n, v, d) for n, v, d, _ in status.extra_bits(model.extra_status)]
+    fault_mask = status.fault_mask(model.extra_status)
     refused = {n for n, v, _ in bits if v & status.REFUSED_MASK}
     swidth = max(len(n) for n, _, _ in bits)
     status_ctx = [{"name": n, "value": "0u" if v == 0 else f"(1u << {v.bit_length() - 1})", "doc": d,
-                   "refused": n in refused, "pad": swidth - len(n)} for n, v, d in bits]
+                   "refused": n in refused, "fault": bool(v & fault_mask), "pad": swidth - len(n)}
+                  for n, v, d in bits]
 
     names = [f.name for f in fields]
     if "q" not in names:
@@ -311,7 +312,8 @@ def render(cfg: BuildConfig, names: bool = True) -> Generated:
         params=params, valid_bits=VALID_BITS, status=status_ctx, state=state_ctx, input=input_ctx,
         kernels=kctx, sensors=model.sensors, state_bytes=state_bytes, runtime=runtime_ctx,
         aliasing_exceptions=_aliasing_exceptions([k.name for ks, k in zip(specs, kernels) if ks.early_writes], prefix),
-        math=cfg.math if real == "float" else "libm", fastmath_code=fastmath.c_source(fast_helpers),
+        math=cfg.math if real == "float" else "libm", fastmath_code=fastmath.c_source(fast_helpers, prefix),
+        fastmath_end=fastmath.c_source_end(fast_helpers),
         config_record=config_record,
         step_partial="step.c.j2",
         init_partial="init.c.j2" if (spec.folder / "init.c.j2").exists() else None,
@@ -344,6 +346,7 @@ def render(cfg: BuildConfig, names: bool = True) -> Generated:
                                 "code": r["code"], "unit": r["unit"], "doc": r["doc"]} for r in runtime_ctx]}
            if runtime else {}),
         "status": {n: v for n, v, _ in bits},
+        "status_fault_mask": fault_mask,
         "refused_mask": sum(v for n, v, _ in bits if n in refused),
         "valid_bits": {n: 1 << b for n, b in VALID_BITS},
         "structs": {

@@ -33,7 +33,7 @@ EXTRA_STATUS = [
     ("COV_RESET", "P- was not positive definite: P reset to P0, measurement update skipped"),
     ("UPDATE_SKIPPED", "P_zz was not positive definite: measurement update skipped"),
     ("NUMERIC_FAULT", "non-finite result: state left as it was before the step"),
-    ("MAG_LEARNING", "reference field still being learned: magnetometer correction not applied"),
+    ("MAG_LEARNING", "reference field still being learned: magnetometer correction not applied", "info"),
 ]
 
 

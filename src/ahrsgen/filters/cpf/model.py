@@ -28,7 +28,7 @@ from ahrsgen.symbolic import attitude, quat
 
 FILTER_STATUS = [
     ("WEIGHTS_RESET", "particle weights summed to zero (underflow or corrupted state): reset to 1/N"),
-    ("NOT_INITIALISED", "no usable accelerometer sample yet to initialise from; state unchanged"),
+    ("NOT_INITIALISED", "no usable accelerometer sample yet to initialise from; state unchanged", "info"),
 ]
 
 

@@ -38,14 +38,14 @@ DT_Q_MIN = 1e-9       # s: floor of dt in the gyro-noise variance σ_g²/dt
 HEAD_AGE_MAX = 1.0    # s without a heading correction before HEADING_UNAIDED
 
 EXTRA_STATUS = [
-    ("COURSE_SLOW", "GPS sample present but ground speed below gps_min_speed: yaw row dropped"),
-    ("ACCEL_GATED", "| |accel| - g | above accel_gate: roll/pitch rows dropped"),
+    ("COURSE_SLOW", "GPS sample present but ground speed below gps_min_speed: yaw row dropped", "info"),
+    ("ACCEL_GATED", "| |accel| - g | above accel_gate: roll/pitch rows dropped", "info"),
     ("UPDATE_SKIPPED", "correction skipped: innovation covariance not positive definite, or pitch within 0.57 deg of +-90 deg (Euler angles singular)"),
 ]
 VECTOR_STATUS = [
-    ("HEADING_UNAIDED", "no heading correction (GPS course or magnetometer) for more than 1 s"),
-    ("MAG_DISTURBED", "magnetometer rejected: field norm or dip angle off the learned reference"),
-    ("AT_REST", "rest detected: the gyro reading measures the gyro bias directly"),
+    ("HEADING_UNAIDED", "no heading correction (GPS course or magnetometer) for more than 1 s", "info"),
+    ("MAG_DISTURBED", "magnetometer rejected: field norm or dip angle off the learned reference", "info"),
+    ("AT_REST", "rest detected: the gyro reading measures the gyro bias directly", "info"),
 ]
 UP_NED = (0.0, 0.0, -1.0)   # direction of the specific force at rest, NED
 

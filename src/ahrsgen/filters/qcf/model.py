@@ -65,8 +65,8 @@ def differentiator_coeffs(faithful: bool):
 
 
 EXTRA_STATUS = [
-    ("MAG_DISTURBED", "magnetometer norm or dip off its reference: heading not corrected this step"),
-    ("AT_REST", "at rest: the gyro bias follows the low-passed gyro"),
+    ("MAG_DISTURBED", "magnetometer norm or dip off its reference: heading not corrected this step", "info"),
+    ("AT_REST", "at rest: the gyro bias follows the low-passed gyro", "info"),
 ]
 
 

@@ -196,7 +196,7 @@ class Reference:
         """See model.py's docstring: NED low-pass, tilt/heading corrections, gate, rest, field check."""
         p = self.p
         from ahrsgen.filters.qcf.model import EXTRA_STATUS
-        bit = {name: 1 << (16 + i) for i, (name, _) in enumerate(EXTRA_STATUS)}
+        bit = {entry[0]: 1 << (16 + i) for i, entry in enumerate(EXTRA_STATUS)}
         if self.initialised == 0:            # no accelerometer sample yet (_start sets it): predicted only
             return status
         self.accel_age = min(self.accel_age + dt, p["span_max"])
