@@ -99,6 +99,12 @@ CASES = [
      "<stdint.h>"),
     ("prefix-keyword", lambda t: (["generate", "qcf", "--prefix", "int", "-o", str(t / "o")], [str(t / "o")]),
      "C keyword"),
+    ("prefix-empty", lambda t: (["generate", "qcf", "--prefix", "", "-o", str(t / "o")], [str(t / "o")]),
+     "prefix is empty"),
+    ("prefix-too-long", lambda t: (["generate", "qcf", "--prefix", "a" * 300, "-o", str(t / "o")], [str(t / "o")]),
+     "300 characters long"),
+    ("ulog-10-bytes", lambda t: (["run", "qcf", "--log", _file(t, "x.ulg", b"ULog\x01\x12\x35\x01\x00\x00")], []),
+     "truncated PX4 ULog"),
     ("validate-seed-negative", lambda t: (["validate", "qcf", "--seed", "-1"], []), "--seed"),
     ("validate-tolerance-negative", lambda t: (["validate", "qcf", "--tolerance", "-1"], []), "--tolerance"),
     ("scenario-opt-text", lambda t: (["validate", "qcf", "--scenario-opt", "duration=abc"], []), "'abc' is not a number"),
@@ -212,3 +218,30 @@ def test_run_says_why_most_steps_were_refused(tmp_path, capsys):
     rows = "".join(f"{k * 0.004},0.01,0,0,0,0,-9.81\n" for k in range(1, 60))
     rc, out, _ = _run(["run", "qcf", "--log", _file(tmp_path, "s.csv", HEADER + rows)], capsys)
     assert rc == 0 and "hint:" not in out, out
+
+
+def test_version(capsys):
+    from importlib import metadata
+    rc, out, err = _run(["--version"], capsys)
+    assert rc == 0 and out.strip() == f"ahrsgen {metadata.version('ahrsgen')}"
+
+
+def test_a_closed_pipe_is_a_normal_end():
+    """`ahrsgen list | head -1`: the reader closes the pipe; ahrsgen ends quietly with 0."""
+    import subprocess
+    p = subprocess.Popen([sys.executable, "-m", "ahrsgen.cli", "list"], stdout=subprocess.PIPE,
+                         stderr=subprocess.PIPE)
+    p.stdout.readline()
+    p.stdout.close()
+    err = p.stderr.read().decode()
+    assert p.wait(timeout=120) == 0, err
+    assert err == ""
+
+
+def test_ctrl_c_is_one_line_and_130(capsys, monkeypatch):
+    """Ctrl-C while the commands are still importing (the first ~0.7 s): one line, exit 130."""
+    def interrupted():
+        raise KeyboardInterrupt
+    monkeypatch.setattr(cli, "_load_extra_commands", interrupted)
+    rc, out, err = _run(["list"], capsys)
+    assert rc == 130 and err == "ahrsgen: interrupted\n" and out == ""

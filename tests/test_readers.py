@@ -215,3 +215,15 @@ def test_full_broad_subset_reads():
         pytest.skip("BROAD subset not found (../shared/data/broad or $AHRSGEN_DATA)")
     log = readers.read_broad(trials[0])
     assert len(log) > 40000 and log.meta["movement"].any()
+
+
+def test_csv_with_a_byte_order_mark(tmp_path):
+    """Excel's "CSV UTF-8" starts the file with a byte-order mark: the first column is still t.
+    The file is written here byte by byte, not by the writer under test."""
+    f = tmp_path / "bom.csv"
+    rows = ["t,gx,gy,gz,ax,ay,az", "0.00,0.1,0.2,0.3,0,0,-9.81", "0.01,0.1,0.2,0.3,0,0,-9.81",
+            "0.02,0.1,0.2,0.3,0,0,-9.81"]
+    f.write_bytes(b"\xef\xbb\xbf" + "\n".join(rows).encode() + b"\n")
+    log = readers.read_log(f)
+    assert log.meta["columns"][0] == "t"
+    assert np.allclose(log.gyro[0], [0.1, 0.2, 0.3])

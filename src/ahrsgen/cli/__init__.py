@@ -273,6 +273,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(
         prog="ahrsgen", epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter,
         description="Generate fixed-size C for UAV attitude filters from CasADi equations, and check it.")
+    from ahrsgen import __version__
+    parser.add_argument("--version", action="version", version=f"ahrsgen {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
 
     p = sub.add_parser("list", help="filters, their parameters (defaults, allowed ranges, meaning) and scenarios")
@@ -363,6 +365,28 @@ def _join_dash_values(argv: list[str]) -> list[str]:
 
 
 def main(argv=None) -> int:
+    try:
+        return _main(argv)
+    except KeyboardInterrupt:        # Ctrl-C anywhere, also while the commands import
+        print("ahrsgen: interrupted", file=sys.stderr)
+        return 130
+    except BrokenPipeError:          # `ahrsgen list | head -1`: the reader has all it wanted
+        _quiet_stdout()
+        return 0
+
+
+def _quiet_stdout() -> None:
+    """After a broken pipe, point stdout at /dev/null so the interpreter's final flush does not
+    raise again (the Python documentation's recipe for SIGPIPE)."""
+    import os
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError):
+        pass
+
+
+def _main(argv=None) -> int:
     _load_extra_commands()
     parser = build_parser()
     args = parser.parse_args(_join_dash_values(sys.argv[1:] if argv is None else list(argv)))
@@ -375,13 +399,12 @@ def main(argv=None) -> int:
     except ConfigError as e:
         print(f"ahrsgen: error: {e}", file=sys.stderr)
         return 2
+    except BrokenPipeError:
+        raise                        # a closed pipe is a normal end (main)
     except OSError as e:             # a path the system refused: one line, not a traceback
         where = f" {e.filename}" if e.filename else ""
         print(f"ahrsgen: error: cannot access{where}: {e.strerror or e}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print("ahrsgen: interrupted", file=sys.stderr)
-        return 130
 
 
 if __name__ == "__main__":

@@ -56,7 +56,17 @@ STANDARD_HEADERS = frozenset("""assert complex ctype errno fenv float inttypes i
     wchar wctype unistd strings fcntl malloc alloca memory endian""".split())
 
 
+# Longest prefix: its longest macro (<PREFIX>_STATUS_FAULT_MASK and the like, ~25 more
+# characters) stays within C99's 63 significant characters of an internal identifier, and the
+# file names within any file system's 255.
+PREFIX_MAX = 32
+
+
 def _check_prefix(prefix: str) -> str:
+    if prefix == "":
+        raise ConfigError("prefix is empty: give a lower-case C identifier, or leave --prefix out for the filter's name")
+    if len(prefix) > PREFIX_MAX:
+        raise ConfigError(f"prefix {prefix[:20]!r}... is {len(prefix)} characters long; at most {PREFIX_MAX}")
     if not prefix.isidentifier() or not prefix.isascii() or prefix.lower() != prefix:
         raise ConfigError(f"prefix {prefix!r} must be a lower-case C identifier (letters, digits, _)")
     if prefix.startswith("_"):
@@ -124,7 +134,7 @@ def resolve(filter_name: str, config_file: str | Path | None = None, sets: list[
                                             and filter_name.lower() == filter_name):
         raise ConfigError(f"filter '{filter_name}': its name is not a lower-case C identifier, so it cannot be "
                           f"the C prefix; give one with --prefix (or rename the folder)")
-    prefix = _check_prefix(prefix or file_prefix or filter_name)
+    prefix = _check_prefix(prefix if prefix is not None else file_prefix if file_prefix is not None else filter_name)
     if runtime is None:
         runtime, source = file_data.get("runtime", []), str(config_file)
         if not isinstance(runtime, list) or not all(isinstance(x, str) for x in runtime):

@@ -94,7 +94,7 @@ def _read_text(path: Path) -> str:
     except zlib.error as e:
         raise LogError(f"{path}: damaged gzip data ({e})") from None
     try:
-        return raw.decode("utf-8")
+        return raw.decode("utf-8-sig")     # a byte-order mark (Excel's "CSV UTF-8") is not a column
     except UnicodeDecodeError as e:
         raise LogError(f"{path}: not a text file (byte {e.start} is not UTF-8)") from None
 
@@ -388,6 +388,8 @@ def read_ulog(path: str | os.PathLike, name: str | None = None) -> SensorLog:
         raise LogError(f"{path}: reading PX4 ULog needs the pyulog package: pip install 'ahrsgen[dev]'") from None
     with open(path, "rb") as fh:
         head = fh.read(16)
+    if head and len(head) < 16 and (head.startswith(ULOG_MAGIC) or ULOG_MAGIC.startswith(head)):
+        raise LogError(f"{path}: truncated PX4 ULog file ({len(head)} bytes, shorter than the 16-byte ULog header)")
     if len(head) < 16 or not head.startswith(ULOG_MAGIC):
         raise LogError(f"{path}: not a PX4 ULog file (it does not start with the ULog header)")
     try:
