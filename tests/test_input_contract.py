@@ -157,3 +157,29 @@ def test_at_rest_is_information_and_a_bad_sample_a_fault(name):
     assert seen & bits["AT_REST"]
     bad = dict(still, accel=(NAN, 0.0, -9.81))
     assert hf.step(s, valid=ALL & ~8, dt=DT, **bad) & fault == st.ACCEL_NONFINITE
+
+
+@pytest.mark.parametrize("name", ["qcf", "mekf", "adukf"])
+def test_a_stall_stops_the_filter_once_not_for_ever(name):
+    """The header's dt rule: dt is timed from the previous call, whatever it returned. A 0.8 s
+    stall of the caller's task (dt_max 0.5 s) in a simulated multirotor flight is one refused
+    step; every later step runs, and the estimate stays finite and normalised."""
+    from conftest import scenario
+    hf = host_build(name, "float")
+    log = scenario("multirotor", 0, duration=30)
+    keep = ~((log.t >= 20.0) & (log.t < 20.8))
+    idx = np.flatnonzero(keep)
+    j = int(np.searchsorted(log.t[idx], 20.8))
+    dt = log.dt[idx].copy()
+    dt[j] = log.t[idx][j] - log.t[idx][j - 1]            # the stall, as the caller measures it
+    assert dt[j] > hf.manifest["params"]["dt_max"]
+    s = hf.new_state()
+    for k, i in enumerate(idx):
+        status = hf.step(s, gyro=log.gyro[i], accel=log.accel[i], mag=log.mag[i], gps_vel=log.gps_vel[i],
+                         valid=int(log.valid[i]), dt=float(dt[k]))
+        if k == j:
+            assert status & st.DT_TOO_LARGE
+        else:
+            assert status & st.REFUSED_MASK == 0, (k, status)
+    q = np.array(hf.state_dict(s)["q"])
+    assert np.all(np.isfinite(q)) and abs(np.linalg.norm(q) - 1) < 1e-5

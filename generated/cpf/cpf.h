@@ -32,9 +32,11 @@
  * thread or interrupt, as long as one state is not used by two of them at once.
  *
  * dt: seconds from the previous step to this one, the interval the gyro rate in this input
- * covers. A refused step (status & CPF_REFUSED_MASK) leaves the state untouched, so the next
- * step's dt is the time since the last step that was not refused. If that exceeds CPF_DT_MAX
- * every later step is refused as well: call cpf_init to start again.
+ * covers: the time since the previous call of cpf_step, whatever that call returned. A
+ * refused step (status & CPF_REFUSED_MASK) leaves the state untouched and its interval's
+ * rotation is not integrated; a dt above CPF_DT_MAX (a stalled task, a sensor gap) is refused
+ * once, and the next step, timed from it, runs again: no gap stops the filter for good. The
+ * accelerometer and magnetometer corrections then pull back the rotation the gap lost.
  *
  * Initialisation: cpf_init seeds the PRNG. The first step with a usable accelerometer sample
  * sets the attitude from the accelerometer (and magnetometer) angles and draws the particles

@@ -32,9 +32,11 @@
  * thread or interrupt, as long as one state is not used by two of them at once.
  *
  * dt: seconds from the previous step to this one, the interval the gyro rate in this input
- * covers. A refused step (status & MEKF_REFUSED_MASK) leaves the state untouched, so the next
- * step's dt is the time since the last step that was not refused. If that exceeds MEKF_DT_MAX
- * every later step is refused as well: call mekf_init to start again.
+ * covers: the time since the previous call of mekf_step, whatever that call returned. A
+ * refused step (status & MEKF_REFUSED_MASK) leaves the state untouched and its interval's
+ * rotation is not integrated; a dt above MEKF_DT_MAX (a stalled task, a sensor gap) is refused
+ * once, and the next step, timed from it, runs again: no gap stops the filter for good. The
+ * accelerometer and magnetometer corrections then pull back the rotation the gap lost.
  *
  * Initialisation: mekf_init sets q = [1 0 0 0], zero gyro bias and P from p0_att, p0_bias.
  * With init_from_sensors (default) the first step with a usable accelerometer sample sets roll

@@ -31,9 +31,11 @@
  * thread or interrupt, as long as one state is not used by two of them at once.
  *
  * dt: seconds from the previous step to this one, the interval the gyro rate in this input
- * covers. A refused step (status & QCF_REFUSED_MASK) leaves the state untouched, so the next
- * step's dt is the time since the last step that was not refused. If that exceeds QCF_DT_MAX
- * every later step is refused as well: call qcf_init to start again.
+ * covers: the time since the previous call of qcf_step, whatever that call returned. A
+ * refused step (status & QCF_REFUSED_MASK) leaves the state untouched and its interval's
+ * rotation is not integrated; a dt above QCF_DT_MAX (a stalled task, a sensor gap) is refused
+ * once, and the next step, timed from it, runs again: no gap stops the filter for good. The
+ * accelerometer and magnetometer corrections then pull back the rotation the gap lost.
  *
  * Initialisation: qcf_init sets q = [1 0 0 0] and a zero gyro bias. Product mode: the first
  * step with an accelerometer sample sets roll and pitch from it, and yaw from the magnetometer
