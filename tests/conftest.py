@@ -107,3 +107,24 @@ def reference_run(filter_name: str, scenario_name: str, sets: tuple = (), seed: 
 @pytest.fixture(scope="session")
 def fixedwing():
     return scenario("fixedwing_gps")
+
+
+def cli_run(argv, capsys):
+    """`ahrsgen ARGV` in this process: (exit status, stdout, stderr)."""
+    from ahrsgen import cli
+    try:
+        rc = cli.main(argv)
+    except SystemExit as e:          # argparse
+        rc = e.code
+    out, err = capsys.readouterr()
+    return rc, out, err
+
+
+@pytest.fixture
+def no_build(monkeypatch):
+    """Fails the test if anything is compiled: bad input must be refused before any build."""
+    from ahrsgen.sim import host
+
+    def refuse(*a, **k):
+        raise AssertionError("compiled before the bad input or output path was refused")
+    monkeypatch.setattr(host, "build", refuse)

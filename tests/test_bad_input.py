@@ -12,7 +12,9 @@ from pathlib import Path
 
 import pytest
 
-from ahrsgen.sim import host, readers
+from conftest import cli_run as _run
+
+from ahrsgen.sim import readers
 from ahrsgen import cli
 from ahrsgen.sim.readers import EXCERPTS
 
@@ -118,20 +120,7 @@ CASES = [
 ]
 
 
-@pytest.fixture
-def no_build(monkeypatch):
-    def refuse(*a, **k):
-        raise AssertionError("compiled before the bad input was refused")
-    monkeypatch.setattr(host, "build", refuse)
 
-
-def _run(argv, capsys):
-    try:
-        rc = cli.main(argv)
-    except SystemExit as e:          # argparse
-        rc = e.code
-    out, err = capsys.readouterr()
-    return rc, out, err
 
 
 @pytest.mark.parametrize("case", CASES, ids=[c[0] for c in CASES])

@@ -16,7 +16,8 @@ from pathlib import Path
 
 import pytest
 
-from ahrsgen.sim import host
+from conftest import cli_run as _run
+
 from ahrsgen.sim.readers import EXCERPTS
 from ahrsgen import cli
 from ahrsgen.fileio import written_by_ahrsgen
@@ -122,20 +123,7 @@ REFUSED = [
 ]
 
 
-@pytest.fixture
-def no_build(monkeypatch):
-    def refuse(*a, **k):
-        raise AssertionError("compiled before the output path was refused")
-    monkeypatch.setattr(host, "build", refuse)
 
-
-def _run(argv, capsys):
-    try:
-        rc = cli.main(argv)
-    except SystemExit as e:          # argparse
-        rc = e.code
-    out, err = capsys.readouterr()
-    return rc, out, err
 
 
 def _snapshot(root: Path) -> dict:

@@ -10,8 +10,7 @@ import sys
 import time
 from pathlib import Path
 
-from ahrsgen.argtypes import (  # noqa: F401  (the commands' argument types, named here as before)
-    count_arg, nonneg_float_arg, nonneg_int_arg, positive_float_arg, positive_int_arg)
+from ahrsgen.argtypes import nonneg_int_arg, positive_float_arg
 from ahrsgen.errors import ConfigError
 from ahrsgen.fileio import add_force_option
 
