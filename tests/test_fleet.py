@@ -47,8 +47,17 @@ def test_tune_on_local_cluster_equals_local(tmp_path):
     data = EXCERPTS
     cases = tune.collect_cases([data / "broad_01_excerpt.csv.gz", data / "px4_handheld_excerpt.ulg"])
     kw = dict(budget=3, folds=0, progress=False, out=open("/dev/null", "w"))
-    local = tune.tune("qcf", ["kp", "ki"], cases, workers=2, **kw)
+
+    def outcome(**where):
+        """What a user gets: the tuned values and scores, or the one-line refusal of a tune
+        that does not beat its starting values (a 3-trial budget often does not)."""
+        try:
+            r = tune.tune("qcf", ["kp", "ki"], cases, **where, **kw)
+            return r["tuned"], r["train"]
+        except tune.TuneFailed as e:
+            return str(e)
+    local = outcome(workers=2)
     with distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=False,
                                   dashboard_address=None) as cluster:
-        dask = tune.tune("qcf", ["kp", "ki"], cases, scheduler=cluster.scheduler_address, **kw)
-    assert local["tuned"] == dask["tuned"] and local["train"] == dask["train"]
+        dask = outcome(scheduler=cluster.scheduler_address)
+    assert local == dask

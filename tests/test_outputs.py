@@ -50,8 +50,10 @@ def _hardlink(t, target, name):
 
 
 def _filter_folder(t):
-    shutil.copytree(MADGWICK, t / "madgwick", ignore=shutil.ignore_patterns("__pycache__"))
-    return str(t / "madgwick")
+    """A user's filter folder (a copy of examples/madgwick under its own name: a second folder
+    named madgwick would clash with the example, which other tests load in this process)."""
+    shutil.copytree(MADGWICK, t / "mymadg", ignore=shutil.ignore_patterns("__pycache__"))
+    return str(t / "mymadg")
 
 
 CONFIG = 'filter = "qcf"\n[params]\nkp = 0.5\n'
@@ -73,7 +75,7 @@ REFUSED = [
     ("run-csv-is-config", lambda t: ["run", "qcf", "--log", str(BROAD), "--config", _file(t, "c.toml", CONFIG),
                                      "--csv", str(t / "c.toml"), "--force"], "is an input of this command"),
     ("run-csv-in-filter-folder", lambda t: ["run", _filter_folder(t), "--log", str(BROAD), "--csv",
-                                            str(t / "madgwick" / "model.py"), "--force"],
+                                            str(t / "mymadg" / "model.py"), "--force"],
      "is an input of this command"),
     ("run-input-forced", lambda t: ["run", "qcf", "--log", _copy_log(t), "--csv", str(t / "in.csv.gz"), "--force"],
      "is an input of this command"),
