@@ -582,3 +582,33 @@ def test_genuine_weight_underflow_is_reset_not_divided(precision):
     if precision == "double":
         assert codes_c == codes_r
         assert max_angle_diff_rad(np.array([s.q[:]]), np.array([ref.q])) < 1e-9
+
+
+def _state_whose_next_draw_is(x: int) -> list[int]:
+    """A xoroshiro64** state [s0, s1] whose next output is x: the output is
+    rotl(s0 * 0x9E3779BB, 5) * 5 mod 2^32, so s0 = rotr(x * 5^-1, 5) * 0x9E3779BB^-1 (both
+    multipliers are odd, hence invertible mod 2^32); s1 does not enter the output."""
+    m = 1 << 32
+    y = (x * pow(5, -1, m)) % m
+    y = ((y >> 5) | (y << 27)) & (m - 1)
+    return [(y * pow(0x9E3779BB, -1, m)) % m, 1]
+
+
+@pytest.mark.parametrize("precision", ["double", "float"])
+def test_uniform_interval_is_open_at_zero_closed_at_one(precision):
+    """The documented interval (0, 1] at its two ends, with raw draws chosen, not hoped for
+    (a draw whose top 24 bits are zero comes once in 2^24): the smallest draw gives 2^-24, never
+    0 (the ziggurat's tail takes log of it), the largest gives exactly 1; in C and in Python."""
+    lib, npr, _ = _hook(precision)
+    for raw, expect in ((0, 2.0 ** -24), (0xFF, 2.0 ** -24), (0x100, 2.0 ** -23), (0xFFFFFFFF, 1.0)):
+        st0 = _state_whose_next_draw_is(raw)
+        g = Xoroshiro64ss(1)
+        g.s = list(st0)
+        assert g.next_u32() == raw                      # the state is the one we meant
+        g.s = list(st0)
+        assert g.uniform() == expect, (raw, g.s)
+        state = (ctypes.c_uint32 * 2)(*st0)
+        u = np.zeros(1, npr)
+        lib.cpf_hook_uniform(state, 1, u.ctypes.data)
+        assert float(u[0]) == expect, (precision, raw)
+        assert math.isfinite(-math.log(float(u[0])))
