@@ -274,3 +274,48 @@ def test_quick_bench_through_the_cli_covers_everything_it_claims(tmp_path):
         assert rep["cost"][name]["ns_per_step"] > 0 and rep["cost"][name]["state_bytes"] > 0
     assert "qcf_hand" in rep["cost"]
     assert (out / "bench.md").exists()
+
+
+# --- which north the bench scores against (issue 30, class 5) -----------------------------------
+
+def _site_log(decl_deg: float, yaw_true_deg: float, incl_deg: float = 60.0, seconds: float = 40.0) -> SensorLog:
+    """A level sensor at rest, yawed yaw_true from TRUE north, in a field whose horizontal part
+    points declination degrees east of true north; the reference is in true north. Written
+    from the definitions here (NED, body -> NED), not by the simulator under test."""
+    from ahrsgen.npquat import q_from_euler
+    n = int(seconds * 100)
+    d, i, y = np.radians(decl_deg), np.radians(incl_deg), np.radians(yaw_true_deg)
+    m_ned = np.array([np.cos(i) * np.cos(d), np.cos(i) * np.sin(d), np.sin(i)])
+    c, s = np.cos(y), np.sin(y)
+    r_body_to_ned = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])       # level, yaw y
+    mag = np.tile(r_body_to_ned.T @ m_ned, (n, 1))
+    accel = np.tile([0.0, 0.0, -9.80665], (n, 1))
+    q = np.tile(q_from_euler(0.0, 0.0, y), (n, 1))
+    t = np.arange(n) * 0.01
+    return SensorLog("site", t, np.full(n, 0.01), np.zeros((n, 3)), accel, mag, np.zeros((n, 3)),
+                     np.full(n, VALID_GYRO | VALID_ACCEL | VALID_MAG, np.uint32), q,
+                     {"declination_deg": decl_deg, "inclination_deg": incl_deg, "settle_time": 20.0,
+                      "rate_hz": 100.0})
+
+
+@pytest.mark.parametrize("name", ["qcf", "mekf"])
+def test_a_filter_is_scored_in_the_references_north(name):
+    """With a 20 deg declination in the log, the bench sets the filter's declination, so its
+    heading lands in the reference's (true) north: heading error ~0, not 20 deg."""
+    from io import StringIO
+    log = _site_log(20.0, 30.0)
+    r = bench.run_on_log(name, "site.csv", log=log, out=StringIO())
+    assert r["score"]["heading_rms"] < 0.5, r["score"]
+
+
+def test_a_magnetic_heading_is_rotated_by_the_declination():
+    """A peer reports magnetic heading (yaw_true - declination for an east declination); the
+    bench's frame turns it into the reference's north before scoring: zero error, where a
+    wrong sign would leave twice the declination."""
+    from ahrsgen.npquat import q_from_euler
+    log = _site_log(20.0, 30.0)
+    q_mag = np.tile(q_from_euler(0.0, 0.0, np.radians(30.0 - 20.0)), (len(log), 1))
+    s = bench.score(q_mag, log, "mag")
+    assert s["heading_rms"] < 1e-6 and s["total_rms"] < 1e-6, s
+    s_none = bench.score(q_mag, log, "true")            # taken as true north: 20 deg off
+    assert abs(s_none["heading_rms"] - 20.0) < 1e-6
