@@ -154,3 +154,56 @@ def test_interrupted_tune_resumes(tmp_path):
     ran = int(r.stdout.split(" trial(s) run")[0].split()[-1])
     assert 6 <= ran <= 12, r.stdout        # trials 0-3 (or a few more) were in the journal
     assert tomllib.loads(out.read_text())["params"]["kp"] > 0
+
+
+# --- cross-validation cannot leak (issue 30, class 2) --------------------------------------------
+
+@pytest.mark.parametrize("n", range(2, 13))
+def test_folds_partition_the_logs(n):
+    """Every k from 2 to n: the held-out groups are disjoint, non-empty, cover every log once,
+    and differ in size by at most one."""
+    from ahrsgen.tune import folds_of
+    for k in range(2, n + 1):
+        groups = folds_of(n, k)
+        assert len(groups) == k and all(groups)
+        flat = [j for g in groups for j in g]
+        assert sorted(flat) == list(range(n))
+        assert max(map(len, groups)) - min(map(len, groups)) <= 1
+
+
+def test_a_fold_never_evaluates_its_held_out_logs(monkeypatch):
+    """The property itself, on the real tune loop: while a fold's search runs, every log it
+    evaluates is one of its training logs; each log is scored once as held out. The
+    evaluation is replaced by a known error surface (no C is run) so the trace is exact."""
+    import io
+    from ahrsgen import tune
+    cases = [tune.Case("scenario", "turntable", seed=s) for s in range(5)]
+    training = {"labels": None}
+    seen = []
+
+    def fake_evaluate(task):
+        label = task["case"].label
+        seen.append((training["labels"], label))
+        e = abs(task["values"]["kp"] - 0.2 * (1 + task["case"].seed))
+        return {"label": label, "score": {"total_rms": e, "heading_rms": e, "inclination_rms": e}}
+    real_optimise = tune.Tuner.optimise
+
+    def optimise(self, cases, budget, what):
+        training["labels"] = frozenset(c.label for c in cases)
+        try:
+            return real_optimise(self, cases, budget, what)
+        finally:
+            training["labels"] = None
+    monkeypatch.setattr(tune, "evaluate", fake_evaluate)
+    monkeypatch.setattr(tune.Tuner, "optimise", optimise)
+    try:
+        rep = tune.tune("qcf", ["kp"], cases, budget=4, folds=5, workers=1, progress=False, out=io.StringIO())
+        held = rep["cv"]["per_fold"]
+    except tune.TuneFailed:
+        held = None
+    searched = [(tr, label) for tr, label in seen if tr is not None]
+    fold_searches = [tr for tr in {tr for tr, _ in searched} if len(tr) < len(cases)]
+    assert len(fold_searches) == 5                       # one search per fold, each without one log
+    assert all(label in tr for tr, label in searched), [x for x in searched if x[1] not in x[0]]
+    if held is not None:
+        assert sorted(lab for f in held for lab in f["held_out"]) == sorted(c.label for c in cases)
