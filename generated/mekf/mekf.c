@@ -2550,11 +2550,11 @@ static inline void mekf_k_euler(const float q[4], float rpy[3])
     rpy[2] = tmp27;
 }
 
-/* Field features [norm, dip] off a reference by more than mag_norm_th (relative) or mag_dip_th. */
-static bool mekf_field_off(const float feat[2], const float ref[2])
+/* Field features [norm, dip] off a reference by more than norm_th (relative) or dip_th
+ * (mag_norm_th, mag_dip_th: passed in, so that either may be a runtime parameter). */
+static bool mekf_field_off(const float feat[2], const float ref[2], float norm_th, float dip_th)
 {
-    return fabsf(feat[0] - ref[0]) > MEKF_MAG_NORM_TH * ref[0] ||
-        fabsf(feat[1] - ref[1]) > MEKF_MAG_DIP_TH;
+    return fabsf(feat[0] - ref[0]) > norm_th * ref[0] || fabsf(feat[1] - ref[1]) > dip_th;
 }
 
 static bool mekf_finite3(const float v[3])
@@ -2912,7 +2912,7 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
             s->mag_ref[1] += w * (feat[1] - s->mag_ref[1]);
             s->mag_ref_time += dt;
             mag_use = true;
-        } else if (!mekf_field_off(feat, s->mag_ref)) {
+        } else if (!mekf_field_off(feat, s->mag_ref, MEKF_MAG_NORM_TH, MEKF_MAG_DIP_TH)) {
             const float w = dt / (MEKF_MAG_REF_TAU + dt);
             s->mag_rej_time = 0.0f;
             s->mag_ref[0] += w * (feat[0] - s->mag_ref[0]);
@@ -2921,7 +2921,7 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
         } else {
             /* A new field steady for mag_new_time (a lasting change) becomes the reference;
              * after mag_reject_max rejected in a row, the present one does. */
-            if (mekf_field_off(feat, s->mag_cand)) {
+            if (mekf_field_off(feat, s->mag_cand, MEKF_MAG_NORM_TH, MEKF_MAG_DIP_TH)) {
                 s->mag_cand[0] = feat[0];
                 s->mag_cand[1] = feat[1];
                 s->mag_cand_time = 0.0f;
