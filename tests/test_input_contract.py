@@ -6,6 +6,7 @@ a step where that sensor's valid bit was clear, and sets its own status bit.
 """
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -183,3 +184,55 @@ def test_a_stall_stops_the_filter_once_not_for_ever(name):
             assert status & st.REFUSED_MASK == 0, (k, status)
     q = np.array(hf.state_dict(s)["q"])
     assert np.all(np.isfinite(q)) and abs(np.linalg.norm(q) - 1) < 1e-5
+
+
+def _f32_above(x: float) -> float:
+    return float(np.nextafter(np.float32(x), np.float32(np.inf)))
+
+
+@pytest.mark.parametrize("name", NAMES, ids=lambda n: Path(n).name)
+@pytest.mark.parametrize("precision", ["float", "double"])
+def test_input_limits_at_their_edges(name, precision):
+    """Each component limit (gyro_max, accel_max, mag_max, gps_vel_max) at the limit itself is
+    accepted and the next float beyond refused or skipped, per component: a vector whose
+    components are all inside but whose norm is beyond the limit is accepted (a check on the
+    norm would refuse it). The minimum norms (accel_min_norm, mag_min_norm) likewise at their
+    edge. The same answers from the reference's checks (input_checks.check)."""
+    from ahrsgen.codegen import input_checks
+    hf = host_build(name, precision)
+    p = hf.manifest["params"]
+    sensors = _sensors(name)
+    cases = [("gyro", "gyro_max", st.GYRO_RANGE, "gyro")]
+    cases += [(s, f"{s}_max" if s != "gps" else "gps_vel_max", {"accel": st.ACCEL_RANGE, "mag": st.MAG_RANGE,
+              "gps": st.GPS_RANGE}[s], {"gps": "gps_vel"}.get(s, s)) for s in ("accel", "mag", "gps") if s in sensors]
+    for sensor, limit, bit, field in cases:
+        lim = p[limit]
+        base = dict(GOOD)
+        for comp in range(3):
+            for value, flagged in ((lim, False), (-lim, False), (_f32_above(lim), True), (-_f32_above(lim), True)):
+                v = list(base[field]) if sensor != "gyro" else [0.0, 0.0, 0.0]
+                v[comp] = value
+                args = dict(base, **{field: tuple(v)})
+                s = _warm(hf)
+                got = hf.step(s, valid=ALL, dt=DT, **args)
+                assert bool(got & bit) == flagged, (name, limit, comp, value, got)
+                c = input_checks.check(p, sensors, args["gyro"], args["accel"], args["mag"], args["gps_vel"], ALL, DT)
+                assert bool((c.refused | c.status) & bit) == flagged, (name, limit, comp, value, "reference")
+        inside = (0.9 * lim, -0.9 * lim, 0.9 * lim)               # norm 1.56 lim, every component inside
+        args = dict(base, **{field: inside})
+        s = _warm(hf)
+        got = hf.step(s, valid=ALL, dt=DT, **args)
+        assert not got & bit, (name, limit, "a norm check would refuse this")
+        c = input_checks.check(p, sensors, args["gyro"], args["accel"], args["mag"], args["gps_vel"], ALL, DT)
+        assert not (c.refused | c.status) & bit
+    for sensor, limit, bit in (("accel", "accel_min_norm", st.ACCEL_ZERO), ("mag", "mag_min_norm", st.MAG_ZERO)):
+        if sensor not in sensors:
+            continue
+        lo = p[limit]
+        for scale, flagged in ((1.01, False), (0.99, True)):
+            v = (lo * scale / math.sqrt(3.0),) * 3
+            args = dict(GOOD, **{sensor: v})
+            s = _warm(hf)
+            assert bool(hf.step(s, valid=ALL, dt=DT, **args) & bit) == flagged, (name, limit, scale)
+            c = input_checks.check(p, sensors, args["gyro"], args["accel"], args["mag"], args["gps_vel"], ALL, DT)
+            assert bool(c.status & bit) == flagged, (name, limit, scale, "reference")
