@@ -319,3 +319,12 @@ def test_a_magnetic_heading_is_rotated_by_the_declination():
     assert s["heading_rms"] < 1e-6 and s["total_rms"] < 1e-6, s
     s_none = bench.score(q_mag, log, "true")            # taken as true north: 20 deg off
     assert abs(s_none["heading_rms"] - 20.0) < 1e-6
+
+
+def test_run_names_the_status_bits_it_saw(tmp_path, capsys):
+    """`run` says which bits a non-zero status was made of, by the header's names (issue 27)."""
+    rc = cli.main(["run", "qcf", "--log", str(EXCERPTS / "broad_01_excerpt.csv.gz")])
+    out = capsys.readouterr().out
+    assert rc == 0
+    line = next(l for l in out.splitlines() if "status bits (steps):" in l)
+    assert "AT_REST" in line and "(fault)" not in line.split("AT_REST")[1].split(",")[0]

@@ -280,3 +280,22 @@ def test_magnetometer_at_its_own_rate_as_good_as_repeated_samples():
     repeated = bench.score(hf.run(rep).q, rep, "true")["total_rms"]
     assert own <= repeated + 0.05, (own, repeated)
     assert own < 4.0
+
+
+def test_ki_zero_turns_the_bias_integration_off():
+    """ki = 0 is allowed (issue 27): with the rest detector off too (rest_time = 0: at rest it sets
+    the bias from the low-passed gyro, apart from ki), the gyro-bias estimate never moves from
+    zero, in the C and in the reference, over a flight whose gyro has a bias."""
+    from conftest import host_build, scenario
+    from ahrsgen.generate import config
+    log = scenario("fixedwing_gps", 0, duration=60.0)
+    hf = host_build("qcf", "double", ("ki=0", "rest_time=0"))
+    s = hf.new_state()
+    for k in range(len(log)):
+        hf.step(s, log.gyro[k], log.accel[k], log.mag[k], log.gps_vel[k], int(log.valid[k]), float(log.dt[k]))
+    assert list(hf.state_dict(s)["gyro_bias"]) == [0.0, 0.0, 0.0]
+    cfg = config.resolve("qcf", sets=["ki=0", "rest_time=0"])
+    ref = cfg.spec.reference(cfg.params)
+    for k in range(len(log)):
+        ref.step(log.gyro[k], log.accel[k], log.mag[k], log.gps_vel[k], int(log.valid[k]), float(log.dt[k]))
+    assert list(ref.bias) == [0.0, 0.0, 0.0]

@@ -20,6 +20,18 @@ from ahrsgen.bench.scoring import (compare_frame, filter_heading, refusal_failur
 # =========================================================================================
 # ahrsgen run
 
+def status_counts(status: np.ndarray, manifest: dict) -> str:
+    """'AT_REST 1200, MAG_DISTURBED 35 (fault)': every status bit a run set, by the names of the
+    build's header, with the number of steps; the faults (STATUS_FAULT_MASK) marked."""
+    fault = int(manifest.get("status_fault_mask", 0))
+    parts = []
+    for name, bit in manifest.get("status", {}).items():
+        n = int(np.count_nonzero(status & np.uint32(bit))) if bit else 0
+        if n:
+            parts.append(f"{name} {n}" + (" (fault)" if bit & fault else ""))
+    return ", ".join(parts)
+
+
 def run_on_log(filter_name: str, log_path: str, config_file=None, sets=(), precision="float",
                plot=None, csv=None, exe=False, out=None, runtime=None, preset=None, log=None) -> dict:
     """Run one generated filter over a log file; score it where the log has a reference.
@@ -50,6 +62,9 @@ def run_on_log(filter_name: str, log_path: str, config_file=None, sets=(), preci
         print(f"  {summary}", file=out)
     refused = int(np.count_nonzero(res.status & 0x20F))
     print(f"  steps with a non-zero status: {int(np.count_nonzero(res.status))}, refused: {refused}", file=out)
+    named = status_counts(res.status, hf.manifest)
+    if named:
+        print(f"  status bits (steps): {named}", file=out)
     failed = refusal_failure(res.status, log, cfg.params, filter_name)
     hint = refusal_hint(res.status, log, cfg.params)
     if hint and not failed:

@@ -32,6 +32,11 @@ def make(name: str, seed: int = 0, **options) -> SensorLog:
 
 # Options that are rates or lengths of time: a number > 0. Every other number is >= 0.
 _POSITIVE = ("rate_hz", "duration", "gps_rate", "mag_rate")
+# A simulated flight is held in memory, about 100 bytes per IMU step (truth and sensors): 10
+# million steps (a 1 kHz IMU for 2.8 hours) is about 1 GB. An IMU below 5 Hz is not one an
+# attitude filter runs on (and leaves the truth too coarse to score).
+MAX_STEPS = 10_000_000
+MIN_RATE_HZ = 5.0
 
 
 def options(name: str) -> dict:
@@ -90,4 +95,10 @@ def parse_options(name: str | None, items: list[str]) -> dict:
         if not math.isfinite(v) or v < 0 or (key in _POSITIVE and v == 0):
             raise ConfigError(f"{where}: {key} must be a finite number {'> 0' if key in _POSITIVE else '>= 0'}")
         out[key] = v
+    rate, duration = out.get("rate_hz", known.get("rate_hz")), out.get("duration", known.get("duration"))
+    if "rate_hz" in out and rate < MIN_RATE_HZ:
+        raise ConfigError(f"--scenario-opt rate_hz={rate:g}: the IMU rate must be at least {MIN_RATE_HZ:g} Hz")
+    if isinstance(rate, (int, float)) and isinstance(duration, (int, float)) and rate * duration > MAX_STEPS:
+        raise ConfigError(f"--scenario-opt: {rate:g} Hz for {duration:g} s is {rate * duration:.3g} IMU steps; at most "
+                          f"{MAX_STEPS:.0e} (about 1 GB of memory): shorten duration or lower rate_hz")
     return out
