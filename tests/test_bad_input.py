@@ -237,3 +237,38 @@ def test_ctrl_c_is_one_line_and_130(capsys, monkeypatch):
     monkeypatch.setattr(cli, "_load_extra_commands", interrupted)
     rc, out, err = _run(["list"], capsys)
     assert rc == 130 and err == "ahrsgen: interrupted\n" and out == ""
+
+
+def test_a_bad_folder_on_the_filter_path_does_not_break_list(tmp_path, capsys, monkeypatch):
+    """A filter folder whose defaults.toml is not UTF-8, on AHRSGEN_FILTER_PATH: `list` still
+    lists every other filter, names the bad one in one stderr line and exits 2; a command that
+    names the bad folder gets one line too."""
+    bad = tmp_path / "filters" / "broken"
+    bad.mkdir(parents=True)
+    for f in ("model.py", "reference.py", "step.c.j2"):
+        (bad / f).write_text("")
+    (bad / "defaults.toml").write_bytes(b"[filter]\ntitle = \"\xff\xfe\"\n")
+    monkeypatch.setenv("AHRSGEN_FILTER_PATH", str(tmp_path / "filters"))
+    rc, out, err = _run(["list"], capsys)
+    assert rc == 2 and "qcf:" in out and "mekf:" in out
+    assert err.count("\n") == 1 and "broken" in err and "not UTF-8" in err
+    rc, out, err = _run(["generate", str(bad), "-o", str(tmp_path / "o")], capsys)
+    assert rc == 2 and err.count("\n") == 1 and "not UTF-8" in err
+
+
+def test_an_error_in_a_users_model_is_its_file_and_line(tmp_path, capsys):
+    """An exception raised in a user's model.py: one line naming that file and line, exit 2,
+    no traceback (issue 27)."""
+    folder = tmp_path / "myfilt"
+    shutil.copytree(Path(__file__).resolve().parents[1] / "examples" / "madgwick", folder,
+                    ignore=shutil.ignore_patterns("__pycache__"))
+    model = folder / "model.py"
+    lines = model.read_text().splitlines()
+    at = next(i for i, line in enumerate(lines) if line.startswith("class Model"))
+    body = next(i for i in range(at + 1, len(lines)) if lines[i].strip().startswith("def "))
+    indent = lines[body][:len(lines[body]) - len(lines[body].lstrip())]
+    lines.insert(body + 1, indent + "    raise RuntimeError('boom in my model')")
+    model.write_text("\n".join(lines) + "\n")
+    rc, out, err = _run(["generate", str(folder), "-o", str(tmp_path / "o")], capsys)
+    assert rc == 2, err
+    assert err.count("\n") == 1 and f"{model}:{body + 2}: RuntimeError: boom in my model" in err, err

@@ -83,8 +83,17 @@ def cmd_list(args) -> int:
     from ahrsgen import filters
     from ahrsgen.sim import scenarios
     names = [args.filter] if args.filter else filters.names()
+    broken = 0
     for name in names:
-        spec = filters.load(name)
+        try:
+            spec = filters.load(name)
+        except ConfigError as e:
+            if args.filter:
+                raise
+            # one bad folder on AHRSGEN_FILTER_PATH does not hide the others
+            print(f"ahrsgen: warning: filter {name} left out: {e}", file=sys.stderr)
+            broken += 1
+            continue
         print(f"{name}: {spec.title}")
         print(f"  source: {spec.source}")
         if spec.origin != "built-in":
@@ -104,7 +113,7 @@ def cmd_list(args) -> int:
         print("scenarios:")
         for s in scenarios.names():
             print(f"  {s:<26} {getattr(scenarios.module(s), 'DESCRIPTION', '')}")
-    return 0
+    return 2 if broken else 0
 
 
 def cmd_generate(args) -> int:
@@ -374,6 +383,18 @@ def main(argv=None) -> int:
         return 0
 
 
+def _user_filter_frame(exc: BaseException):
+    """The innermost traceback frame in a filter folder outside the package (a user's model.py,
+    reference.py, ...), or None when the error is ahrsgen's own (then the traceback stands)."""
+    import traceback
+    from ahrsgen import paths
+    for frame in reversed(traceback.extract_tb(exc.__traceback__)):
+        p = Path(frame.filename).resolve()
+        if (p.parent / "defaults.toml").is_file() and paths.PACKAGE_ROOT not in p.parents:
+            return frame
+    return None
+
+
 def _quiet_stdout() -> None:
     """After a broken pipe, point stdout at /dev/null so the interpreter's final flush does not
     raise again (the Python documentation's recipe for SIGPIPE)."""
@@ -400,6 +421,12 @@ def _main(argv=None) -> int:
         return 2
     except BrokenPipeError:
         raise                        # a closed pipe is a normal end (main)
+    except Exception as e:           # an error in a user's filter folder: its file and line, one line
+        frame = _user_filter_frame(e)
+        if frame is None:
+            raise
+        print(f"ahrsgen: error: {frame.filename}:{frame.lineno}: {type(e).__name__}: {e}", file=sys.stderr)
+        return 2
     except OSError as e:             # a path the system refused: one line, not a traceback
         where = f" {e.filename}" if e.filename else ""
         print(f"ahrsgen: error: cannot access{where}: {e.strerror or e}", file=sys.stderr)

@@ -223,6 +223,8 @@ def _load(loc: Location) -> FilterSpec:
             data = tomllib.load(fh)
     except tomllib.TOMLDecodeError as e:
         raise ConfigError(f"{folder / 'defaults.toml'}: malformed TOML: {e}") from None
+    except UnicodeDecodeError as e:
+        raise ConfigError(f"{folder / 'defaults.toml'}: not UTF-8 text (byte {e.start})") from None
     info = data.get("filter", {})
     unknown = set(info) - set(FILTER_KEYS)
     if unknown:
