@@ -272,3 +272,19 @@ def test_an_error_in_a_users_model_is_its_file_and_line(tmp_path, capsys):
     rc, out, err = _run(["generate", str(folder), "-o", str(tmp_path / "o")], capsys)
     assert rc == 2, err
     assert err.count("\n") == 1 and f"{model}:{body + 2}: RuntimeError: boom in my model" in err, err
+
+
+def test_a_config_names_a_folder_relative_to_itself_and_says_it_runs_code(tmp_path, capsys, monkeypatch):
+    """filter = "../filters/myfilt" in proj/cfg/att.toml resolves from proj/cfg/, wherever the
+    command runs, and one stderr line says the folder's Python will run (issue 27)."""
+    proj = tmp_path / "proj"
+    shutil.copytree(Path(__file__).resolve().parents[1] / "examples" / "madgwick", proj / "filters" / "myfilt",
+                    ignore=shutil.ignore_patterns("__pycache__"))
+    (proj / "cfg").mkdir()
+    cfg = proj / "cfg" / "att.toml"
+    cfg.write_text('filter = "../filters/myfilt"\n')
+    monkeypatch.chdir(tmp_path)
+    rc, out, err = _run(["generate", "--config", str(cfg), "-o", str(tmp_path / "o")], capsys)
+    assert rc == 0, err
+    assert (tmp_path / "o" / "myfilt.c").is_file()
+    assert err.count("\n") == 1 and "brings in the filter folder" in err and "run as Python" in err

@@ -148,3 +148,22 @@ def test_a_folder_name_that_is_no_c_identifier_needs_a_prefix(tmp_path, capsys):
     assert "give one with --prefix" in capsys.readouterr().err and not (tmp_path / "o").exists()
     assert cli.main(["generate", str(tmp_path / "my-filt"), "--prefix", "my_filt", "-o", str(tmp_path / "o")]) == 0
     assert (tmp_path / "o" / "my_filt.c").exists()
+
+
+def test_reproduce_line_of_a_folder_filter_resolves(tmp_path):
+    """The .c's 'Reproduce with:' command names a folder filter by its folder, and running it
+    (from elsewhere) regenerates the same files (issue 27)."""
+    import shlex
+    import subprocess
+    import sys
+    folder = EXAMPLES / "mahony"
+    out = tmp_path / "a"
+    subprocess.run([sys.executable, "-m", "ahrsgen.cli", "generate", str(folder), "--set", "kp=0.7", "-o", str(out)],
+                   check=True, capture_output=True)
+    line = next(l for l in (out / "mahony.c").read_text().splitlines() if "Reproduce with:" in l)
+    argv = shlex.split(line.split("Reproduce with:", 1)[1].replace("-o DIR", f"-o {tmp_path / 'b'}"))
+    assert argv[:2] == ["ahrsgen", "generate"] and argv[2] == str(folder)
+    subprocess.run([sys.executable, "-m", "ahrsgen.cli", *argv[1:]], check=True, capture_output=True, cwd="/")
+    for f in out.iterdir():
+        if f.name != "manifest.json":
+            assert (tmp_path / "b" / f.name).read_text() == f.read_text(), f.name

@@ -123,10 +123,15 @@ def test_tune_user_filter_folder(tmp_path):
     r = subprocess.run([*ahrsgen, "tune", str(folder), *LOGS, "--params", "beta", "--budget", "8", "--folds", "0",
                         "-o", str(out)], capture_output=True, text=True)
     assert r.returncode == 0 and "beta set at run time" in r.stdout, r.stderr
-    assert tomllib.loads(out.read_text())["filter"] == "madgwick"
+    ref = tomllib.loads(out.read_text())["filter"]          # the folder, relative to the config
+    assert (out.parent / ref).resolve() == folder.resolve(), ref
     r = subprocess.run([*ahrsgen, "generate", str(folder), "--config", str(out), "-o", str(tmp_path / "gen")],
                        capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
+    # and the config alone is enough, from any working directory (issue 27)
+    r = subprocess.run([*ahrsgen, "generate", "--config", str(out), "-o", str(tmp_path / "gen2")],
+                       capture_output=True, text=True, cwd="/")
+    assert r.returncode == 0 and "brings in the filter folder" in r.stderr, r.stderr
 
 
 def test_interrupted_tune_resumes(tmp_path):

@@ -522,6 +522,14 @@ def _toml_value(v) -> str:
     return json.dumps(str(v))
 
 
+def filter_ref_for(spec, config_path) -> str:
+    """How a config at config_path names the filter so that it resolves again: a built-in by its
+    name, a folder by its path relative to the config's own folder (config.config_filter_ref)."""
+    if spec.origin == "built-in":
+        return spec.name
+    return Path(os.path.relpath(spec.folder.resolve(), Path(config_path).resolve().parent)).as_posix()
+
+
 def write_toml(path, rep, base) -> None:
     """A config `ahrsgen generate --config` takes: the tuned values and the --config/--set ones."""
     lines = ["# written by ahrsgen tune (a later tune may replace this file)",
@@ -532,7 +540,7 @@ def write_toml(path, rep, base) -> None:
         lines.append(f"# {rep['cv']['folds']}-fold cross-validated error: current {rep['cv']['current']:.3f} deg, "
                      f"tuned {rep['cv']['tuned']:.3f} deg")
     lines.append("# site parameters (declination, ...) were set per log and are not written here: set yours.")
-    lines.append(f'filter = "{base.spec.name}"')
+    lines.append(f'filter = "{filter_ref_for(base.spec, path)}"')
     lines.append("")
     lines.append("[params]")
     for k, v in rep["overrides"].items():

@@ -110,8 +110,10 @@ def resolve(filter_name: str, config_file: str | Path | None = None, sets: list[
         unknown = set(data) - TOP_KEYS
         if unknown:
             raise ConfigError(f"{path}: unknown key(s) {', '.join(sorted(unknown))}; allowed: {', '.join(sorted(TOP_KEYS))}")
-        if "filter" in data and data["filter"] != filter_name:
-            raise ConfigError(f"{path}: written for filter '{data['filter']}', not '{filter_name}'")
+        if "filter" in data:
+            ref = config_filter_ref(path, data["filter"])
+            if (filters.load(ref).name if filters.is_path(ref) else ref) != filter_name:
+                raise ConfigError(f"{path}: written for filter '{data['filter']}', not '{filter_name}'")
         file_prefix, file_precision, file_math = data.get("prefix"), data.get("precision"), data.get("math")
         file_fma = data.get("fma")
         if file_fma is not None and not isinstance(file_fma, bool):
@@ -190,13 +192,27 @@ def _read_config(path) -> dict:
         raise ConfigError(f"config file {path} is not readable") from None
 
 
+def config_filter_ref(config_file, ref):
+    """A config's `filter = "..."`: a built-in name as it is; a folder path relative to the
+    config file's own folder (not to wherever the command runs)."""
+    if isinstance(ref, str) and filters.is_path(ref) and not Path(ref).is_absolute():
+        return str(Path(config_file).parent / ref)
+    return ref
+
+
 def filter_of(config_file) -> str:
-    """The filter a config file names (filter = "..."), for commands given no filter name."""
+    """The filter a config file names (filter = "..."), for commands given no filter name. A
+    folder it names is code that will run: say so, in one line on stderr."""
+    import sys
     if config_file is None:
         raise ConfigError("name a filter (see 'ahrsgen list'), or give a --config file that names one")
     name = _read_config(config_file).get("filter")
     if not isinstance(name, str):
         raise ConfigError(f"{config_file}: no 'filter = \"...\"' line; name the filter on the command line")
+    name = config_filter_ref(config_file, name)
+    if filters.is_path(name):
+        print(f"ahrsgen: note: {config_file} brings in the filter folder {Path(name).resolve()}: its model.py "
+              f"and reference.py run as Python", file=sys.stderr)
     return name
 
 

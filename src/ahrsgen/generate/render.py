@@ -289,7 +289,9 @@ def render(cfg: BuildConfig, names: bool = True) -> Generated:
     options = [("precision", real, "float"), ("prefix", prefix, spec.name),
                ("math", cfg.math if real == "float" else "libm", fastmath.DEFAULT_MATH if real == "float" else "libm"),
                ("fma", cfg.fma, False)] + ([("runtime", ",".join(cfg.runtime), "")] if cfg.runtime else [])
-    command = " ".join(["ahrsgen generate", spec.name] + [f"--set {n}={_arg(v)}" for n, v in changed]
+    # a folder filter by its folder (a name alone resolves only for the built-ins)
+    target = spec.name if spec.origin == "built-in" else _arg(str(spec.folder))
+    command = " ".join(["ahrsgen generate", target] + [f"--set {n}={_arg(v)}" for n, v in changed]
                        + [f"--{n}" if isinstance(v, bool) else f"--{n} {v}" for n, v, d in options if v != d]
                        + ["-o DIR"])
     config_record = {"changed": [f"{n} = {_arg(v)}" for n, v in changed],
