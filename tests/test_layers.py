@@ -26,7 +26,7 @@ LAYERS = [
     ["ahrsgen.generate"],
     ["ahrsgen.sim"],
     ["ahrsgen.target", "ahrsgen.bench"],
-    ["ahrsgen.check", "ahrsgen.tune"],
+    ["ahrsgen.check", "ahrsgen.tune", "ahrsgen.calibrate"],
     ["ahrsgen.cli", "ahrsgen.__main__"],
 ]
 OUTSIDE = ("tests", "studies", "docs", "examples", "generator", "firmware_sim")

@@ -335,10 +335,11 @@ _EXTRA_COMMANDS: list = []
 
 
 def _load_extra_commands() -> None:
-    from ahrsgen import tune
+    from ahrsgen import calibrate, tune
     from ahrsgen.check import harden
     from ahrsgen.cli import bench, target
-    for reg in (bench.register_cli, target.register_cli, harden.register_cli, tune.register_cli):
+    for reg in (bench.register_cli, target.register_cli, harden.register_cli, tune.register_cli,
+                calibrate.register_cli):
         if reg not in _EXTRA_COMMANDS:
             _EXTRA_COMMANDS.append(reg)
 
