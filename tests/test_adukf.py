@@ -48,6 +48,7 @@ def test_status_bits_agree_with_reference_module():
         assert man[name] == value
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", SCENARIOS)
 def test_double_c_matches_reference(name):
     log = scenario(name)
@@ -70,6 +71,7 @@ def test_float_c_within_bound(name):
 @pytest.mark.parametrize("sets", [PLAIN, ("adapt_max=1.0",), ("attitude_state=quaternion",),
                                   ("attitude_state=quaternion", "sigma_set=simplex")],
                          ids=["plain", "adapt_max", "quaternion", "simplex"])
+@pytest.mark.slow
 def test_variants_match_reference(name, sets):
     """k_a = k_m = 0 (the DUKF baseline), the bounded adaptation, the 7-state quaternion
     covariance (the default before issue 14) and its simplex sigma points (the C's prefix sums

@@ -259,7 +259,7 @@ def test_a_bad_folder_on_the_filter_path_does_not_break_list(tmp_path, capsys, m
 def test_an_error_in_a_users_model_is_its_file_and_line(tmp_path, capsys):
     """An exception raised in a user's model.py: one line naming that file and line, exit 2,
     no traceback (issue 27)."""
-    folder = tmp_path / "myfilt"
+    folder = tmp_path / "boomfilt"
     shutil.copytree(Path(__file__).resolve().parents[1] / "examples" / "madgwick", folder,
                     ignore=shutil.ignore_patterns("__pycache__"))
     model = folder / "model.py"
@@ -275,16 +275,16 @@ def test_an_error_in_a_users_model_is_its_file_and_line(tmp_path, capsys):
 
 
 def test_a_config_names_a_folder_relative_to_itself_and_says_it_runs_code(tmp_path, capsys, monkeypatch):
-    """filter = "../filters/myfilt" in proj/cfg/att.toml resolves from proj/cfg/, wherever the
+    """filter = "../filters/cfgfilt" in proj/cfg/att.toml resolves from proj/cfg/, wherever the
     command runs, and one stderr line says the folder's Python will run (issue 27)."""
     proj = tmp_path / "proj"
-    shutil.copytree(Path(__file__).resolve().parents[1] / "examples" / "madgwick", proj / "filters" / "myfilt",
+    shutil.copytree(Path(__file__).resolve().parents[1] / "examples" / "madgwick", proj / "filters" / "cfgfilt",
                     ignore=shutil.ignore_patterns("__pycache__"))
     (proj / "cfg").mkdir()
     cfg = proj / "cfg" / "att.toml"
-    cfg.write_text('filter = "../filters/myfilt"\n')
+    cfg.write_text('filter = "../filters/cfgfilt"\n')
     monkeypatch.chdir(tmp_path)
     rc, out, err = _run(["generate", "--config", str(cfg), "-o", str(tmp_path / "o")], capsys)
     assert rc == 0, err
-    assert (tmp_path / "o" / "myfilt.c").is_file()
+    assert (tmp_path / "o" / "cfgfilt.c").is_file()
     assert err.count("\n") == 1 and "brings in the filter folder" in err and "run as Python" in err

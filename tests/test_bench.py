@@ -254,6 +254,7 @@ def test_variant_option_is_validated():
             parse_variants([bad])
 
 
+@pytest.mark.slow
 def test_quick_bench_through_the_cli_covers_everything_it_claims(tmp_path):
     """`ahrsgen bench --quick` as CI runs it: every product filter and every default peer has
     an entry for every scenario of the quick grid and for every real log it read."""

@@ -232,6 +232,7 @@ CASES = [
 
 @pytest.mark.parametrize("scen,params", CASES, ids=[f"{s}-{'-'.join(f'{k}={v}' for k, v in p.items()) or 'default'}"
                                                     for s, p in CASES])
+@pytest.mark.slow
 def test_double_c_matches_reference(scen, params):
     params = {**site(scen), **params}
     log = _log(scen)

@@ -79,6 +79,7 @@ def test_example_corner_cases_as_ahrs(folder, initialise):
     assert (to_truth < np.radians(5)) if initialise else (to_identity < 0.01 and to_truth > np.radians(45))
 
 
+@pytest.mark.slow
 @needs("target")
 def test_target_sets_the_example_beside_the_hand_written_peer(tmp_path, capsys):
     """`ahrsgen target ./examples/madgwick --peers`: the generated Madgwick on the emulated M4F

@@ -3,11 +3,15 @@ from __future__ import annotations
 
 import json
 
+import pytest
+
 import distributed      # in the dev extras: a missing install fails here, in CI too
 
 from ahrsgen import bench
 from ahrsgen.sim.fleet import Fleet
 from ahrsgen.sim.readers import EXCERPTS
+
+pytestmark = pytest.mark.slow       # tests/README.md: left out of the quick run
 
 
 def _figures(rep):

@@ -15,6 +15,8 @@ import pytest
 from conftest import needs
 from ahrsgen.check import harden
 
+pytestmark = pytest.mark.slow       # tests/README.md: left out of the quick run
+
 GEN_DIRS = harden.generated_dirs()
 IDS = [d.name for d in GEN_DIRS]
 

@@ -305,6 +305,7 @@ def _loop_log(noise=True):
 
 @pytest.mark.parametrize("sets", [[], ["measurement=euler_angles", "heading_source=gps_course", "motion_comp=none"]],
                          ids=["vectors", "euler_angles"])
+@pytest.mark.slow
 def test_loop_through_vertical_pitch(sets):
     """A loop through pitch +-90 deg. Euler angles are singular there: that measurement skips
     the correction (UPDATE_SKIPPED); the gravity-vector measurement (defaults) keeps

@@ -23,6 +23,8 @@ from ahrsgen.generate import config, render
 from ahrsgen import filters
 from ahrsgen.codegen.model import ConfigError
 
+pytestmark = pytest.mark.slow       # tests/README.md: left out of the quick run
+
 # A parameter value folded into a literal that overflowed prints as inf / inff (nan / nanf);
 # comments are left out, and the C99 macros NAN / INFINITY a template writes on purpose (e.g. a
 # fast sine returning NAN out of range) are not literals of a parameter.

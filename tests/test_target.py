@@ -17,7 +17,7 @@ from conftest import needs
 from ahrsgen import target as T
 from ahrsgen import filters
 
-pytestmark = [pytest.mark.target, needs("target")]
+pytestmark = [pytest.mark.slow, pytest.mark.target, needs("target")]
 
 
 def _toy_records(n=600, seed=0):

@@ -21,6 +21,8 @@ from pathlib import Path
 
 import pytest
 
+pytestmark = pytest.mark.slow       # tests/README.md: left out of the quick run
+
 REPO = Path(__file__).resolve().parents[1]
 # Distributions linked into the fresh venv: the package's requirements, their requirements,
 # and `ahrs` (the examples' independent reference).

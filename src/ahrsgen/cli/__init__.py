@@ -422,15 +422,15 @@ def _main(argv=None) -> int:
         return 2
     except BrokenPipeError:
         raise                        # a closed pipe is a normal end (main)
+    except OSError as e:             # a path the system refused: one line, not a traceback
+        where = f" {e.filename}" if e.filename else ""
+        print(f"ahrsgen: error: cannot access{where}: {e.strerror or e}", file=sys.stderr)
+        return 2
     except Exception as e:           # an error in a user's filter folder: its file and line, one line
         frame = _user_filter_frame(e)
         if frame is None:
             raise
         print(f"ahrsgen: error: {frame.filename}:{frame.lineno}: {type(e).__name__}: {e}", file=sys.stderr)
-        return 2
-    except OSError as e:             # a path the system refused: one line, not a traceback
-        where = f" {e.filename}" if e.filename else ""
-        print(f"ahrsgen: error: cannot access{where}: {e.strerror or e}", file=sys.stderr)
         return 2
 
 
