@@ -58,6 +58,7 @@ def test_double_c_matches_reference(name):
     np.testing.assert_array_equal(c.status, r.status)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", SCENARIOS)
 def test_float_c_within_bound(name):
     log = scenario(name)
@@ -266,6 +267,7 @@ def test_missing_sensors_match_reference(missing):
     np.testing.assert_array_equal(c.status, r.status)
 
 
+@pytest.mark.slow
 def test_ten_minute_float_run_keeps_P_spd_and_q_unit():
     """10 minutes of fixed-wing flight at 100 Hz (turns, climbs, sustained accelerations) in
     the float C build: P symmetric positive definite and |q| = 1 at every step."""
@@ -318,6 +320,7 @@ def test_cli_validate_passes():
 MOVING_FLOAT_BOUND_RAD = 5e-5
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name, opts", [("turntable", {}), ("multirotor", {"duration": 20.0})],
                          ids=["turntable", "multirotor"])
 def test_moving_cases_match_reference(name, opts):

@@ -263,6 +263,7 @@ def test_resampling_policy():
     assert 0 < k < n_obs                                # only on low effective sample size
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("scen,bound_deg", [("turntable", 0.05), ("fixedwing_gps", 0.25)])
 def test_float_accuracy_within_bound_of_reference(scen, bound_deg):
     """Float C draws the same random numbers but its particle clouds part from the double run's

@@ -129,6 +129,7 @@ def test_every_command_takes_the_example_folder(tmp_path, capsys):
     assert "#define MAHONY_KP 0.5f" in (tmp_path / "gen" / "mahony.h").read_text()
 
 
+@pytest.mark.slow
 def test_rounding_sensitive_madgwick_is_judged_as_an_estimator(capsys):
     """examples/madgwick declares `rounding_sensitive`: on the 12.5 Hz fixed-wing flight its float
     build parts from the double reference by more than validate's 1e-3 rad (normalised-gradient

@@ -98,6 +98,7 @@ SHORT = ["--scenario-opt", "duration=120"]
     (["kp=100", "ki=10"], "kp x span_max = 10 >= 3", SHORT),   # issue 27's example
     (["ki=0.6"], "ki = 0.6 >= kp / accel_tau = 0.3", []),      # the bias loop (Routh-Hurwitz): 600 s
 ])
+@pytest.mark.slow
 def test_validate_tells_an_unstable_configuration(sets, words, opts, capsys):
     rc = cli.main(["validate", "qcf", *[x for s in sets for x in ("--set", s)], *opts])
     out, err = capsys.readouterr()

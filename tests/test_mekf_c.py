@@ -70,6 +70,7 @@ def angle_diff_series(qa, qb):
 
 
 # --- C vs reference ------------------------------------------------------------------
+@pytest.mark.slow
 def test_double_c_matches_reference(c_double, fw_log, fw_ref):
     r = c_double.run(fw_log)
     assert np.array_equal(r.status, fw_ref.status)

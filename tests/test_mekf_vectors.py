@@ -35,6 +35,7 @@ def heading_err_deg(q, log):
     return broad_errors_deg(q, log.q_true)[1]
 
 
+@pytest.mark.slow
 def test_double_c_matches_reference_multirate_with_dropouts():
     """Magnetometer at 50 Hz, GPS at 5 Hz, IMU at 250 Hz with jitter and dropouts: same status
     every step, same attitude (<= 1e-9 rad) as the independent reference."""

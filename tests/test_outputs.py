@@ -146,6 +146,7 @@ def test_output_refused_nothing_changed(case, tmp_path, capsys, no_build, monkey
     assert _snapshot(tmp_path) == before
 
 
+@pytest.mark.slow
 def test_outputs_carry_the_marker_and_are_replaced_by_a_later_run(tmp_path, capsys):
     """What run writes (CSV, plots in the three formats, the harness log) is recognised as
     ahrsgen's, so the same command twice works; a foreign file goes only with --force."""

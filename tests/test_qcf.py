@@ -24,6 +24,7 @@ def _float_vs_reference(log, sets=()):
     return c, r, ang
 
 
+@pytest.mark.slow
 def test_float_c_within_bound_and_no_drift(fixedwing):
     c, r, ang = _float_vs_reference(fixedwing, ("mag_rejection=false",))
     assert ang.max() <= FLOAT_BOUND_RAD
@@ -39,6 +40,7 @@ def test_float_c_within_bound_and_no_drift(fixedwing):
     assert np.max(np.abs(np.linalg.norm(c.q, axis=1) - 1)) < 1e-6
 
 
+@pytest.mark.slow
 def test_float_c_at_defaults_differs_only_at_gate_thresholds(fixedwing):
     c, r, ang = _float_vs_reference(fixedwing)
     assert np.mean(c.status != r.status) <= 1e-3
@@ -89,6 +91,7 @@ def test_centripetal_model_beats_the_lagged_differentiator(fixedwing):
         assert s_new[a]["mean_abs"] < 0.8 * s_old[a]["mean_abs"], (a, s_new[a], s_old[a])
 
 
+@pytest.mark.slow
 def test_differentiator_double_c_matches_reference(fixedwing):
     sets = ("motion_accel_model=differentiator",)
     c = host_build("qcf", "double", sets).run(fixedwing)

@@ -3,12 +3,15 @@ it is (the acceptance of issue 15: `ahrsgen new myfilt -o /tmp/x && ahrsgen vali
 and whose own pytest file passes."""
 from __future__ import annotations
 
+import pytest
+
 import subprocess
 import sys
 
 from ahrsgen import cli
 
 
+@pytest.mark.slow
 def test_new_then_validate(tmp_path, capsys):
     assert cli.main(["new", "myfilt", "-o", str(tmp_path)]) == 0
     folder = tmp_path / "myfilt"

@@ -113,6 +113,7 @@ def test_tune_without_optuna_is_one_line(tmp_path, capsys, monkeypatch):
     assert not out.exists()
 
 
+@pytest.mark.slow
 def test_tune_user_filter_folder(tmp_path):
     # in a separate process: a filter loaded by path stays registered by name in the process
     import subprocess
@@ -134,6 +135,7 @@ def test_tune_user_filter_folder(tmp_path):
     assert r.returncode == 0 and "brings in the filter folder" in r.stderr, r.stderr
 
 
+@pytest.mark.slow
 def test_interrupted_tune_resumes(tmp_path):
     """Ctrl-C after a few trials writes no config; re-running runs only the trials left."""
     import signal

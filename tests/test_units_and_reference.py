@@ -50,6 +50,7 @@ def test_units_recognised_one_line_before_the_score(case, tmp_path, capsys):
     assert rc in (0, 1)           # mdeg/s is refused by gyro_max (exit 1); the others run
 
 
+@pytest.mark.slow
 def test_right_units_give_no_line(capsys):
     """No unit line for the committed excerpts or any log of the shared data (BROAD's 10 trials,
     including fast translation and magnets, and the PX4 logs): the scale of each is 1 +- 0.2."""
