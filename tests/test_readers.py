@@ -272,3 +272,58 @@ def test_csv_writer_output_read_by_the_documented_format(tmp_path):
             "mz": 0.6, "gps_vn": 7.0, "gps_ve": 8.0, "gps_vd": 9.0, "qw": 1.0, "qx": 0.0}
     for col, v in want.items():
         assert float(r[col]) == pytest.approx(v), col
+
+
+# --- a ULog field against the file's bytes decoded by hand (issue 30, class 1) ----------------
+_ULOG_TYPES = {"int8_t": "b", "uint8_t": "B", "int16_t": "h", "uint16_t": "H", "int32_t": "i", "uint32_t": "I",
+               "int64_t": "q", "uint64_t": "Q", "float": "f", "double": "d", "bool": "?", "char": "c"}
+
+
+def _ulog_by_hand(path, topic: str) -> list[dict]:
+    """Every `topic` message of a ULog, decoded from the format in PX4's ULog file-format
+    document, independently of pyulog: 16-byte header, then records (uint16 size, uint8 type,
+    payload); 'F' defines a format "name:type field;...", 'A' subscribes (uint8 multi_id, uint16
+    msg_id, name), 'D' carries data (uint16 msg_id, fields in order, little-endian, packed).
+    Only formats of basic types are decoded (enough for sensor_combined); trailing padding fields
+    are not in the data."""
+    import struct
+    data = path.read_bytes()
+    assert data[:7] == b"ULog\x01\x12\x35"
+    pos, formats, subs, out = 16, {}, {}, []
+    while pos + 3 <= len(data):
+        size, kind = struct.unpack_from("<HB", data, pos)
+        body = data[pos + 3:pos + 3 + size]
+        pos += 3 + size
+        if kind == ord("F"):
+            name, _, fields = body.decode().partition(":")
+            formats[name] = [f.split(" ") for f in fields.split(";") if f]
+        elif kind == ord("A"):
+            subs[struct.unpack_from("<H", body, 1)[0]] = body[3:].decode()
+        elif kind == ord("D") and subs.get(struct.unpack_from("<H", body, 0)[0]) == topic:
+            fmt, vals, off = "<", {}, 2
+            for typ, fname in formats[topic]:
+                base, count = typ, 1
+                if "[" in typ:
+                    base, count = typ[:-1].split("[")
+                    count = int(count)
+                code = _ULOG_TYPES[base]
+                if fname.startswith("_padding") and off + struct.calcsize(f"<{count}{code}") > len(body):
+                    break                 # trailing padding is not written (the format document)
+                v = struct.unpack_from(f"<{count}{code}", body, off)
+                off += struct.calcsize(f"<{count}{code}")
+                vals[fname] = v if count > 1 else v[0]
+            out.append(vals)
+    return out
+
+
+def test_ulog_gyro_and_accel_match_the_bytes_decoded_by_hand():
+    path = EXCERPTS / "px4_small_excerpt.ulg"
+    msgs = _ulog_by_hand(path, "sensor_combined")
+    assert len(msgs) > 100
+    log = readers.read_log(path)
+    by_t = {m["timestamp"]: m for m in msgs}
+    t0 = min(by_t)
+    for k in (0, 1, len(log) // 2, len(log) - 1):
+        m = by_t[t0 + int(round(log.t[k] * 1e6))]
+        assert np.array_equal(log.gyro[k], np.array(m["gyro_rad"], dtype=np.float32).astype(float)), k
+        assert np.array_equal(log.accel[k], np.array(m["accelerometer_m_s2"], dtype=np.float32).astype(float)), k
