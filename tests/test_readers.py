@@ -300,7 +300,7 @@ def _ulog_by_hand(path, topic: str) -> list[dict]:
         elif kind == ord("A"):
             subs[struct.unpack_from("<H", body, 1)[0]] = body[3:].decode()
         elif kind == ord("D") and subs.get(struct.unpack_from("<H", body, 0)[0]) == topic:
-            fmt, vals, off = "<", {}, 2
+            vals, off = {}, 2
             for typ, fname in formats[topic]:
                 base, count = typ, 1
                 if "[" in typ:
