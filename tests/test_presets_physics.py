@@ -57,3 +57,53 @@ def test_constant_rate_with_perfect_sensors(name, preset, sets):
     # 2 s on the gyro alone (1 rad of turn): the error may not grow by more than 0.5 deg
     end = t >= T_AIDED + T_GYRO - 0.05
     assert np.max(total[end]) < np.max(total[aided]) + 0.5, (name, preset, sets, float(np.max(total[end])))
+
+
+BIAS = np.array([0.01, -0.01, 0.005])     # rad/s
+T_BIAS = 120.0                            # s
+
+
+def _biased_spin(name, preset, sets):
+    from ahrsgen.bench import site_sets
+    n = int(T_BIAS * RATE)
+    t = np.arange(n) / RATE
+    yaw = W * t
+    m_ned = np.array([0.5, 0.0, 0.866])
+    c, s = np.cos(yaw), np.sin(yaw)
+    mag = np.stack([c * m_ned[0], -s * m_ned[0], np.full(n, m_ned[2])], axis=1)
+    log = SensorLog("spin-biased", t, np.full(n, 1 / RATE), np.tile([0.0, 0.0, W], (n, 1)) + BIAS,
+                    np.tile([0.0, 0.0, -G0], (n, 1)), mag, np.zeros((n, 3)),
+                    np.full(n, VALID_GYRO | VALID_ACCEL | VALID_MAG, np.uint32), None,
+                    {"rate_hz": RATE, "declination_deg": 0.0, "inclination_deg": 60.0})
+    site, _ = site_sets(name, log.meta)
+    cfg = config.resolve(name, sets=site + list(sets), preset=preset)
+    hf = host.build(cfg)
+    s = hf.new_state()
+    hf.run(log, state=s)
+    return np.array(hf.state_dict(s)["gyro_bias"]), cfg.params
+
+
+@pytest.mark.parametrize("name, preset, sets", [("mekf", None, ()), ("adukf", None, ())])
+def test_kalman_designs_learn_a_known_gyro_bias(name, preset, sets):
+    """Every axis observable (gravity and the field, turning): the bias estimate converges to the
+    true bias, within 2 %, in 120 s."""
+    b, _ = _biased_spin(name, preset, sets)
+    assert np.max(np.abs(b - BIAS)) < 0.02 * np.max(np.abs(BIAS)), b
+
+
+def test_patent_mekf_learns_tilt_bias_and_not_yaw_without_its_heading_source():
+    """The patent design (faithful) takes heading from the GPS course: with no GPS, the bias
+    about the vertical is unobservable and stays near zero, the other two are learned (2 %)."""
+    b, _ = _biased_spin("mekf", "faithful", ())
+    assert np.max(np.abs(b[:2] - BIAS[:2])) < 0.02 * np.max(np.abs(BIAS)), b
+    assert abs(b[2]) < 0.1 * abs(BIAS[2]), b
+
+
+@pytest.mark.parametrize("preset, sets", [("faithful", ()), (None, ("conditioning=false",)), (None, ())])
+def test_qcf_bias_about_the_vertical_follows_the_pi_loops_slow_pole(preset, sets):
+    """QCF's PI loop about the vertical: e'' + kp e' + ki e = 0 has its slow pole at about
+    -ki/kp (150 s at the defaults), so after T the estimate of a constant bias about the spin
+    axis is b (1 - exp(-T ki/kp)) (linear theory; within 10 %)."""
+    b, p = _biased_spin("qcf", preset, sets)
+    want = BIAS[2] * (1.0 - np.exp(-T_BIAS * p["ki"] / p["kp"]))
+    assert abs(b[2] - want) < 0.1 * want, (b[2], want)
