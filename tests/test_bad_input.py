@@ -288,3 +288,10 @@ def test_a_config_names_a_folder_relative_to_itself_and_says_it_runs_code(tmp_pa
     assert rc == 0, err
     assert (tmp_path / "o" / "cfgfilt.c").is_file()
     assert err.count("\n") == 1 and "brings in the filter folder" in err and "run as Python" in err
+
+
+def test_a_run_shorter_than_its_settle_time_is_one_line(capsys):
+    """validate mekf --scenario multirotor --scenario-opt duration=5 (settle time 5 s) raised
+    a ValueError from the metrics; now one line, exit 2 (issue 27)."""
+    rc, out, err = _run(["validate", "mekf", "--scenario", "multirotor", "--scenario-opt", "duration=5"], capsys)
+    assert rc == 2 and err.count("\n") == 1 and "shorter than its settle time" in err, err

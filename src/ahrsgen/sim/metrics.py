@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ahrsgen.errors import ConfigError
 from ahrsgen.npquat import euler_from_q, qconj, qmul, wrap
 
 
@@ -22,7 +23,11 @@ def euler_stats(q_est, q_ref, t=None, settle_time=0.0):
         keep &= np.asarray(t) >= np.asarray(t)[0] + settle_time
     e = err[keep]
     if len(e) == 0:
-        raise ValueError("no samples left to score (all before settle time or reference missing)")
+        # a ConfigError (a ValueError too): the run asked for is too short to score, one line
+        if t is not None and len(t) and np.asarray(t)[-1] - np.asarray(t)[0] < settle_time:
+            raise ConfigError(f"the run lasts {np.asarray(t)[-1] - np.asarray(t)[0]:.4g} s, shorter than its settle "
+                              f"time of {settle_time:g} s: nothing to score (give a longer duration)")
+        raise ConfigError("no samples left to score (all before the settle time, or no reference)")
     out = {}
     for i, name in enumerate(("roll", "pitch", "yaw")):
         out[name] = {
