@@ -31,6 +31,8 @@
 #define fast_sin_cos mekf_fast_sin_cos
 #define fast_sin_cos_of mekf_fast_sin_cos_of
 #define fast_atan2f mekf_fast_atan2f
+#define fast_sinf mekf_fast_sinf
+#define fast_asinf mekf_fast_asinf
 
 /* sin(x) and cos(x) with one reduction, |x| <= 8192 (NaN beyond): fast_sin_cos_of returns both, fast_sincosf stores them through pointers, fast_sinf and fast_cosf below return one; max abs error 1.5e-07 (tests/test_fastmath.py) */
 typedef struct {
@@ -96,6 +98,18 @@ static float fast_atan2f(float y, float x)
         a = 3.14159265f - a;
     }
     return signbit(y) ? -a : a;
+}
+
+/* sin(x), |x| <= 8192 (NaN beyond; sin(-0) = +0); max abs error 1.5e-07 (tests/test_fastmath.py) */
+static inline float fast_sinf(float x)
+{
+    return fast_sin_cos_of(x).s;
+}
+
+/* asin(x), |x| <= 1 (NaN beyond), as atan2(x, sqrt((1 - x)(1 + x))); max abs error 5.0e-07 (tests/test_fastmath.py) */
+static float fast_asinf(float x)
+{
+    return fast_atan2f(x, sqrtf((1.0f - x) * (1.0f + x)));
 }
 
 /* time update: attitude and F's attitude rows
@@ -2513,6 +2527,597 @@ static void mekf_k_init_attitude(const float accel[3], const float mag[3], const
     a_lp_out[2] = carry[5];
 }
 
+/* candidate field model: one step while turning
+ * ops: add 140, mul 123, div 13, sqrt 4, trig 1, cmp 44 (total 325) */
+static void mekf_k_hard_iron_fit_part0(const float mag[3], const float b[3], const float ref[2], const float cx[5], const float cP[25], float dt, bool init, float carry[44])
+{
+    const float tmp0 = b[0] / ref[0];
+    const float tmp1 = (init) ? tmp0 : cx[0];
+    const float tmp2 = (init) ? 0.09f : cP[0];
+    const float tmp3 = 1e-06f * dt;
+    const float tmp4 = tmp2 + tmp3;
+    const float tmp5 = mag[0] / ref[0];
+    const float tmp6 = tmp5 - tmp1;
+    const float tmp7 = tmp6 * tmp6;
+    const float tmp8 = mag[1] / ref[0];
+    const float tmp9 = b[1] / ref[0];
+    const float tmp10 = (init) ? tmp9 : cx[1];
+    const float tmp11 = tmp8 - tmp10;
+    const float tmp12 = tmp11 * tmp11;
+    const float tmp13 = tmp7 + tmp12;
+    const float tmp14 = mag[2] / ref[0];
+    const float tmp15 = b[2] / ref[0];
+    const float tmp16 = (init) ? tmp15 : cx[2];
+    const float tmp17 = tmp14 - tmp16;
+    const float tmp18 = tmp17 * tmp17;
+    const float tmp19 = tmp13 + tmp18;
+    const float tmp20 = sqrtf(tmp19);
+    const bool tmp21 = 1e-06f <= tmp20;
+    const bool tmp22 = tmp20 <= 1e-06f;
+    const float tmp23 = (float)tmp21 + (float)tmp22;
+    const float tmp24 = (float)tmp21 / tmp23;
+    const float tmp25 = tmp11 / tmp20;
+    const float tmp26 = tmp24 * tmp25;
+    const float tmp27 = cP[1] * tmp26;
+    const float tmp28 = -tmp27;
+    const float tmp29 = (init) ? 0.0f : tmp28;
+    const float tmp30 = tmp6 / tmp20;
+    const float tmp31 = tmp24 * tmp30;
+    const float tmp32 = tmp4 * tmp31;
+    const float tmp33 = tmp29 - tmp32;
+    const float tmp34 = tmp17 / tmp20;
+    const float tmp35 = tmp24 * tmp34;
+    const float tmp36 = cP[2] * tmp35;
+    const float tmp37 = -tmp36;
+    const float tmp38 = (init) ? 0.0f : tmp37;
+    const float tmp39 = tmp33 + tmp38;
+    carry[0] = tmp0;
+    carry[1] = tmp1;
+    carry[2] = tmp3;
+    carry[3] = tmp4;
+    carry[4] = tmp5;
+    carry[5] = tmp6;
+    carry[6] = tmp8;
+    carry[7] = tmp9;
+    carry[8] = tmp10;
+    carry[9] = tmp11;
+    carry[10] = tmp14;
+    carry[11] = tmp15;
+    carry[12] = tmp16;
+    carry[13] = tmp17;
+    carry[14] = tmp20;
+    carry[15] = tmp26;
+    carry[16] = tmp31;
+    carry[17] = tmp35;
+    carry[18] = tmp39;
+}
+
+static void mekf_k_hard_iron_fit_part1(const float cP[25], bool init, float carry[44])
+{
+    const float tmp40 = -cP[3];
+    const float tmp41 = (init) ? 0.0f : tmp40;
+    const float tmp42 = carry[18] + tmp41;
+    const float tmp43 = carry[16] * tmp42;
+    const float tmp44 = cP[1] * carry[16];
+    const float tmp45 = -tmp44;
+    const float tmp46 = (init) ? 0.0f : tmp45;
+    const float tmp47 = (init) ? 0.09f : cP[6];
+    const float tmp48 = tmp47 + carry[2];
+    const float tmp49 = tmp48 * carry[15];
+    const float tmp50 = tmp46 - tmp49;
+    const float tmp51 = cP[7] * carry[17];
+    const float tmp52 = -tmp51;
+    const float tmp53 = (init) ? 0.0f : tmp52;
+    const float tmp54 = tmp50 + tmp53;
+    const float tmp55 = -cP[8];
+    const float tmp56 = (init) ? 0.0f : tmp55;
+    const float tmp57 = tmp54 + tmp56;
+    const float tmp58 = carry[15] * tmp57;
+    const float tmp59 = tmp43 + tmp58;
+    const float tmp60 = cP[2] * carry[16];
+    const float tmp61 = cP[7] * carry[15];
+    const float tmp62 = tmp60 + tmp61;
+    const float tmp63 = -tmp62;
+    const float tmp64 = (init) ? 0.0f : tmp63;
+    const float tmp65 = (init) ? 0.09f : cP[12];
+    const float tmp66 = tmp65 + carry[2];
+    const float tmp67 = tmp66 * carry[17];
+    const float tmp68 = tmp64 - tmp67;
+    const float tmp69 = -cP[13];
+    const float tmp70 = (init) ? 0.0f : tmp69;
+    const float tmp71 = tmp68 + tmp70;
+    const float tmp72 = carry[17] * tmp71;
+    const float tmp73 = tmp59 + tmp72;
+    const float tmp74 = cP[3] * carry[16];
+    const float tmp75 = cP[8] * carry[15];
+    const float tmp76 = tmp74 + tmp75;
+    const float tmp77 = cP[13] * carry[17];
+    const float tmp78 = tmp76 + tmp77;
+    const float tmp79 = -tmp78;
+    carry[18] = tmp42;
+    carry[19] = tmp48;
+    carry[20] = tmp57;
+    carry[21] = tmp66;
+    carry[22] = tmp71;
+    carry[23] = tmp73;
+    carry[24] = tmp79;
+}
+
+static void mekf_k_hard_iron_fit_part2(const float q[4], const float cP[25], bool init, float carry[44])
+{
+    const float tmp80 = (init) ? 0.0f : carry[24];
+    const float tmp81 = (init) ? 0.09f : cP[18];
+    const float tmp82 = tmp81 + carry[2];
+    const float tmp83 = tmp80 - tmp82;
+    const float tmp84 = carry[23] + tmp83;
+    const float tmp85 = 0.0025f - tmp84;
+    const float tmp86 = 1.0f / tmp85;
+    const float tmp87 = (1e-12f < tmp85) ? tmp86 : 1.0f;
+    const float tmp88 = carry[18] * tmp87;
+    const float tmp89 = tmp88 * carry[18];
+    const float tmp90 = carry[3] - tmp89;
+    const float tmp91 = q[1] * q[3];
+    const float tmp92 = q[0] * q[2];
+    const float tmp93 = tmp91 - tmp92;
+    const float tmp94 = tmp93 + tmp93;
+    const float tmp95 = tmp90 * tmp94;
+    const float tmp96 = (init) ? 0.0f : cP[1];
+    const float tmp97 = carry[20] * tmp87;
+    const float tmp98 = tmp97 * carry[18];
+    const float tmp99 = tmp96 - tmp98;
+    const float tmp100 = q[2] * q[3];
+    const float tmp101 = q[0] * q[1];
+    const float tmp102 = tmp100 + tmp101;
+    const float tmp103 = tmp102 + tmp102;
+    const float tmp104 = tmp99 * tmp103;
+    const float tmp105 = tmp95 + tmp104;
+    const float tmp106 = (init) ? 0.0f : cP[2];
+    const float tmp107 = carry[22] * tmp87;
+    const float tmp108 = tmp107 * carry[18];
+    const float tmp109 = tmp106 - tmp108;
+    const float tmp110 = q[1] * q[1];
+    const float tmp111 = q[2] * q[2];
+    const float tmp112 = tmp110 + tmp111;
+    const float tmp113 = tmp112 + tmp112;
+    const float tmp114 = 1.0f - tmp113;
+    const float tmp115 = tmp109 * tmp114;
+    const float tmp116 = tmp105 + tmp115;
+    const float tmp117 = (init) ? 0.0f : cP[4];
+    const float tmp118 = cP[4] * carry[16];
+    const float tmp119 = cP[9] * carry[15];
+    carry[3] = tmp82;
+    carry[15] = tmp83;
+    carry[16] = tmp87;
+    carry[23] = tmp88;
+    carry[24] = tmp90;
+    carry[25] = tmp94;
+    carry[26] = tmp97;
+    carry[27] = tmp99;
+    carry[28] = tmp103;
+    carry[29] = tmp107;
+    carry[30] = tmp109;
+    carry[31] = tmp114;
+    carry[32] = tmp116;
+    carry[33] = tmp117;
+    carry[34] = tmp118;
+    carry[35] = tmp119;
+}
+
+static void mekf_k_hard_iron_fit_part3(const float cP[25], bool init, float carry[44])
+{
+    const float tmp120 = carry[34] + carry[35];
+    const float tmp121 = cP[14] * carry[17];
+    const float tmp122 = tmp120 + tmp121;
+    const float tmp123 = tmp122 + cP[19];
+    const float tmp124 = tmp123 * carry[16];
+    const float tmp125 = tmp124 * carry[18];
+    const float tmp126 = -tmp125;
+    const float tmp127 = (init) ? 0.0f : tmp126;
+    const float tmp128 = carry[33] - tmp127;
+    const float tmp129 = carry[32] + tmp128;
+    const float tmp130 = carry[25] * tmp129;
+    const float tmp131 = carry[27] * carry[25];
+    const float tmp132 = carry[26] * carry[20];
+    const float tmp133 = carry[19] - tmp132;
+    const float tmp134 = tmp133 * carry[28];
+    const float tmp135 = tmp131 + tmp134;
+    const float tmp136 = (init) ? 0.0f : cP[7];
+    const float tmp137 = carry[29] * carry[20];
+    const float tmp138 = tmp136 - tmp137;
+    const float tmp139 = tmp138 * carry[31];
+    const float tmp140 = tmp135 + tmp139;
+    const float tmp141 = (init) ? 0.0f : cP[9];
+    const float tmp142 = tmp124 * carry[20];
+    const float tmp143 = -tmp142;
+    const float tmp144 = (init) ? 0.0f : tmp143;
+    const float tmp145 = tmp141 - tmp144;
+    const float tmp146 = tmp140 + tmp145;
+    const float tmp147 = carry[28] * tmp146;
+    const float tmp148 = tmp130 + tmp147;
+    const float tmp149 = carry[30] * carry[25];
+    const float tmp150 = tmp138 * carry[28];
+    const float tmp151 = tmp149 + tmp150;
+    const float tmp152 = carry[29] * carry[22];
+    const float tmp153 = carry[21] - tmp152;
+    const float tmp154 = tmp153 * carry[31];
+    const float tmp155 = tmp151 + tmp154;
+    const float tmp156 = (init) ? 0.0f : cP[14];
+    const float tmp157 = tmp124 * carry[22];
+    const float tmp158 = -tmp157;
+    const float tmp159 = (init) ? 0.0f : tmp158;
+    carry[17] = tmp123;
+    carry[19] = tmp124;
+    carry[21] = tmp128;
+    carry[32] = tmp129;
+    carry[33] = tmp133;
+    carry[34] = tmp138;
+    carry[35] = tmp145;
+    carry[36] = tmp146;
+    carry[37] = tmp148;
+    carry[38] = tmp153;
+    carry[39] = tmp155;
+    carry[40] = tmp156;
+    carry[41] = tmp159;
+}
+
+static void mekf_k_hard_iron_fit_part4(const float ref[2], const float cx[5], const float cP[25], bool init, float carry[44])
+{
+    const float tmp160 = carry[40] - carry[41];
+    const float tmp161 = carry[39] + tmp160;
+    const float tmp162 = carry[31] * tmp161;
+    const float tmp163 = carry[37] + tmp162;
+    const float tmp164 = carry[21] * carry[25];
+    const float tmp165 = carry[35] * carry[28];
+    const float tmp166 = tmp164 + tmp165;
+    const float tmp167 = tmp160 * carry[31];
+    const float tmp168 = tmp166 + tmp167;
+    const float tmp169 = (init) ? 0.09f : cP[24];
+    const float tmp170 = tmp169 + carry[2];
+    const float tmp171 = carry[19] * carry[17];
+    const float tmp172 = (init) ? 0.0f : tmp171;
+    const float tmp173 = (init) ? 0.0f : tmp172;
+    const float tmp174 = tmp170 - tmp173;
+    const float tmp175 = tmp168 + tmp174;
+    const float tmp176 = tmp163 + tmp175;
+    const float tmp177 = tmp176 + 0.0025f;
+    const float tmp178 = 1.0f / tmp177;
+    const float tmp179 = (1e-12f < tmp177) ? tmp178 : 1.0f;
+    const float tmp180 = carry[32] * tmp179;
+    const float tmp181 = carry[25] * carry[5];
+    const float tmp182 = carry[28] * carry[9];
+    const float tmp183 = tmp181 + tmp182;
+    const float tmp184 = carry[31] * carry[13];
+    const float tmp185 = tmp183 + tmp184;
+    const float tmp186 = fast_sinf(ref[1]);
+    const float tmp187 = (init) ? tmp186 : cx[4];
+    const float tmp188 = tmp185 - tmp187;
+    const float tmp189 = (carry[14] > 1e-06f) ? carry[14] : 1e-06f;
+    const float tmp190 = (init) ? 1.0f : cx[3];
+    const float tmp191 = tmp189 - tmp190;
+    const float tmp192 = carry[23] * tmp191;
+    const float tmp193 = carry[25] * tmp192;
+    const float tmp194 = carry[26] * tmp191;
+    const float tmp195 = carry[28] * tmp194;
+    const float tmp196 = tmp193 + tmp195;
+    const float tmp197 = carry[29] * tmp191;
+    const float tmp198 = carry[31] * tmp197;
+    const float tmp199 = tmp196 + tmp198;
+    carry[2] = tmp160;
+    carry[5] = tmp161;
+    carry[9] = tmp174;
+    carry[13] = tmp175;
+    carry[14] = tmp179;
+    carry[17] = tmp180;
+    carry[23] = tmp186;
+    carry[26] = tmp187;
+    carry[29] = tmp188;
+    carry[37] = tmp190;
+    carry[39] = tmp191;
+    carry[40] = tmp192;
+    carry[41] = tmp194;
+    carry[42] = tmp197;
+    carry[43] = tmp199;
+}
+
+static void mekf_k_hard_iron_fit_part5(const float cP[25], bool init, float carry[44])
+{
+    const float tmp200 = carry[19] * carry[39];
+    const float tmp201 = -tmp200;
+    const float tmp202 = (init) ? 0.0f : tmp201;
+    const float tmp203 = carry[43] + tmp202;
+    const float tmp204 = carry[29] + tmp203;
+    const float tmp205 = carry[17] * tmp204;
+    const float tmp206 = tmp205 - carry[40];
+    const float tmp207 = carry[1] + tmp206;
+    const float tmp208 = tmp207 * tmp207;
+    const float tmp209 = carry[36] * carry[14];
+    const float tmp210 = tmp209 * tmp204;
+    const float tmp211 = tmp210 - carry[41];
+    const float tmp212 = carry[8] + tmp211;
+    const float tmp213 = tmp212 * tmp212;
+    const float tmp214 = tmp208 + tmp213;
+    const float tmp215 = carry[5] * carry[14];
+    const float tmp216 = tmp215 * tmp204;
+    const float tmp217 = tmp216 - carry[42];
+    const float tmp218 = carry[12] + tmp217;
+    const float tmp219 = tmp218 * tmp218;
+    const float tmp220 = tmp214 + tmp219;
+    const float tmp221 = sqrtf(tmp220);
+    const float tmp222 = 2.0f / tmp221;
+    const float tmp223 = (2.0f < tmp221) ? tmp222 : 1.0f;
+    const float tmp224 = tmp207 * tmp223;
+    const float tmp225 = tmp212 * tmp223;
+    const float tmp226 = tmp218 * tmp223;
+    const float tmp227 = (init) ? 0.0f : cP[3];
+    const float tmp228 = carry[15] * carry[16];
+    const float tmp229 = tmp228 * carry[18];
+    const float tmp230 = tmp227 - tmp229;
+    const float tmp231 = tmp230 * carry[25];
+    const float tmp232 = (init) ? 0.0f : cP[8];
+    const float tmp233 = tmp228 * carry[20];
+    const float tmp234 = tmp232 - tmp233;
+    const float tmp235 = tmp234 * carry[28];
+    const float tmp236 = tmp231 + tmp235;
+    const float tmp237 = (init) ? 0.0f : cP[13];
+    const float tmp238 = tmp228 * carry[22];
+    const float tmp239 = tmp237 - tmp238;
+    carry[1] = tmp200;
+    carry[8] = tmp204;
+    carry[12] = tmp209;
+    carry[16] = tmp215;
+    carry[18] = tmp224;
+    carry[20] = tmp225;
+    carry[22] = tmp226;
+    carry[29] = tmp228;
+    carry[40] = tmp230;
+    carry[41] = tmp234;
+    carry[42] = tmp236;
+    carry[43] = tmp239;
+}
+
+static void mekf_k_hard_iron_fit_part6(const float cP[25], bool init, float carry[44])
+{
+    const float tmp240 = carry[43] * carry[31];
+    const float tmp241 = carry[42] + tmp240;
+    const float tmp242 = (init) ? 0.0f : cP[19];
+    const float tmp243 = carry[19] * carry[15];
+    const float tmp244 = -tmp243;
+    const float tmp245 = (init) ? 0.0f : tmp244;
+    const float tmp246 = tmp242 - tmp245;
+    const float tmp247 = tmp241 + tmp246;
+    const float tmp248 = tmp247 * carry[14];
+    const float tmp249 = tmp248 * carry[8];
+    const float tmp250 = carry[29] * carry[39];
+    const float tmp251 = tmp249 - tmp250;
+    const float tmp252 = carry[37] + tmp251;
+    const float tmp253 = (init) ? 0.0f : carry[1];
+    const float tmp254 = carry[13] * carry[14];
+    const float tmp255 = tmp254 * carry[8];
+    const float tmp256 = tmp253 + tmp255;
+    const float tmp257 = carry[26] + tmp256;
+    const float tmp258 = carry[17] * carry[32];
+    const float tmp259 = carry[24] - tmp258;
+    const float tmp260 = carry[12] * carry[32];
+    const float tmp261 = carry[27] - tmp260;
+    const float tmp262 = carry[16] * carry[32];
+    const float tmp263 = carry[30] - tmp262;
+    const float tmp264 = tmp248 * carry[32];
+    const float tmp265 = carry[40] - tmp264;
+    const float tmp266 = tmp254 * carry[32];
+    const float tmp267 = carry[21] - tmp266;
+    const float tmp268 = carry[12] * carry[36];
+    const float tmp269 = carry[33] - tmp268;
+    const float tmp270 = carry[16] * carry[36];
+    const float tmp271 = carry[34] - tmp270;
+    const float tmp272 = tmp248 * carry[36];
+    const float tmp273 = carry[41] - tmp272;
+    const float tmp274 = tmp254 * carry[36];
+    const float tmp275 = carry[35] - tmp274;
+    const float tmp276 = carry[16] * carry[5];
+    const float tmp277 = carry[38] - tmp276;
+    const float tmp278 = tmp248 * carry[5];
+    const float tmp279 = carry[43] - tmp278;
+    carry[1] = tmp246;
+    carry[8] = tmp247;
+    carry[12] = tmp248;
+    carry[14] = tmp252;
+    carry[16] = tmp254;
+    carry[17] = tmp257;
+    carry[19] = tmp259;
+    carry[21] = tmp261;
+    carry[24] = tmp263;
+    carry[26] = tmp265;
+    carry[27] = tmp267;
+    carry[30] = tmp269;
+    carry[32] = tmp271;
+    carry[33] = tmp273;
+    carry[34] = tmp275;
+    carry[35] = tmp277;
+    carry[36] = tmp279;
+}
+
+static void mekf_k_hard_iron_fit_part7(float carry[44])
+{
+    const float tmp280 = carry[16] * carry[5];
+    const float tmp281 = carry[2] - tmp280;
+    const float tmp282 = carry[29] * carry[15];
+    const float tmp283 = carry[3] - tmp282;
+    const float tmp284 = carry[12] * carry[8];
+    const float tmp285 = tmp283 - tmp284;
+    const float tmp286 = carry[16] * carry[8];
+    const float tmp287 = carry[1] - tmp286;
+    const float tmp288 = carry[16] * carry[13];
+    const float tmp289 = carry[9] - tmp288;
+    const float tmp290 = carry[4] - carry[0];
+    const float tmp291 = tmp290 * tmp290;
+    const float tmp292 = carry[6] - carry[7];
+    const float tmp293 = tmp292 * tmp292;
+    const float tmp294 = tmp291 + tmp293;
+    const float tmp295 = carry[10] - carry[11];
+    const float tmp296 = tmp295 * tmp295;
+    const float tmp297 = tmp294 + tmp296;
+    const float tmp298 = sqrtf(tmp297);
+    const float tmp299 = tmp298 - 1.0f;
+    const float tmp300 = carry[25] * tmp290;
+    const float tmp301 = carry[28] * tmp292;
+    const float tmp302 = tmp300 + tmp301;
+    const float tmp303 = carry[31] * tmp295;
+    const float tmp304 = tmp302 + tmp303;
+    const float tmp305 = tmp304 - carry[23];
+    const float tmp306 = carry[4] - carry[18];
+    const float tmp307 = tmp306 * tmp306;
+    const float tmp308 = carry[6] - carry[20];
+    const float tmp309 = tmp308 * tmp308;
+    const float tmp310 = tmp307 + tmp309;
+    const float tmp311 = carry[10] - carry[22];
+    const float tmp312 = tmp311 * tmp311;
+    const float tmp313 = tmp310 + tmp312;
+    const float tmp314 = sqrtf(tmp313);
+    const float tmp315 = (tmp314 > 1e-06f) ? tmp314 : 1e-06f;
+    const float tmp316 = tmp315 - carry[14];
+    const float tmp317 = carry[25] * tmp306;
+    const float tmp318 = carry[28] * tmp308;
+    const float tmp319 = tmp317 + tmp318;
+    carry[0] = tmp281;
+    carry[1] = tmp285;
+    carry[2] = tmp287;
+    carry[3] = tmp289;
+    carry[4] = tmp299;
+    carry[5] = tmp305;
+    carry[6] = tmp311;
+    carry[7] = tmp316;
+    carry[8] = tmp319;
+}
+
+static void mekf_k_hard_iron_fit_part8(float carry[44])
+{
+    const float tmp320 = carry[31] * carry[6];
+    const float tmp321 = carry[8] + tmp320;
+    const float tmp322 = tmp321 - carry[17];
+    const float tmp323 = carry[19] + carry[30];
+    const float tmp324 = tmp323 + carry[35];
+    carry[6] = tmp322;
+    carry[8] = tmp324;
+}
+
+static void mekf_k_hard_iron_fit(const float q[4], const float mag[3], const float b[3], const float ref[2], const float cx[5], const float cP[25], float dt, bool init, float cx_out[5], float cP_out[25], float res[4], float *p_beta)
+{
+    /* 9 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    float carry[44];
+    mekf_k_hard_iron_fit_part0(mag, b, ref, cx, cP, dt, init, carry);
+    mekf_k_hard_iron_fit_part1(cP, init, carry);
+    mekf_k_hard_iron_fit_part2(q, cP, init, carry);
+    mekf_k_hard_iron_fit_part3(cP, init, carry);
+    mekf_k_hard_iron_fit_part4(ref, cx, cP, init, carry);
+    mekf_k_hard_iron_fit_part5(cP, init, carry);
+    mekf_k_hard_iron_fit_part6(cP, init, carry);
+    mekf_k_hard_iron_fit_part7(carry);
+    mekf_k_hard_iron_fit_part8(carry);
+    cx_out[0] = carry[18];
+    cx_out[1] = carry[20];
+    cx_out[2] = carry[22];
+    cx_out[3] = carry[14];
+    cx_out[4] = carry[17];
+    cP_out[0] = carry[19];
+    cP_out[1] = carry[21];
+    cP_out[2] = carry[24];
+    cP_out[3] = carry[26];
+    cP_out[4] = carry[27];
+    cP_out[5] = carry[21];
+    cP_out[6] = carry[30];
+    cP_out[7] = carry[32];
+    cP_out[8] = carry[33];
+    cP_out[9] = carry[34];
+    cP_out[10] = carry[24];
+    cP_out[11] = carry[32];
+    cP_out[12] = carry[35];
+    cP_out[13] = carry[36];
+    cP_out[14] = carry[0];
+    cP_out[15] = carry[26];
+    cP_out[16] = carry[33];
+    cP_out[17] = carry[36];
+    cP_out[18] = carry[1];
+    cP_out[19] = carry[2];
+    cP_out[20] = carry[27];
+    cP_out[21] = carry[34];
+    cP_out[22] = carry[0];
+    cP_out[23] = carry[2];
+    cP_out[24] = carry[3];
+    res[0] = carry[4];
+    res[1] = carry[5];
+    res[2] = carry[7];
+    res[3] = carry[6];
+    *p_beta = carry[8];
+}
+
+/* the candidate becomes the hard iron and reference
+ * ops: mul 5, div 19, trig 1, cmp 2 (total 27) */
+static inline void mekf_k_hard_iron_switch(const float cx[5], const float cP[25], const float ref[2], float b_out[3], float ref_out[2], float cx_out[5], float cP_out[25])
+{
+    const float tmp0 = ref[0] * cx[0];
+    const float tmp1 = ref[0] * cx[1];
+    const float tmp2 = ref[0] * cx[2];
+    const float tmp3 = cx[3] * ref[0];
+    const float tmp4 = cx[4] / cx[3];
+    const float tmp5 = (tmp4 > (-1.0f)) ? tmp4 : (-1.0f);
+    const float tmp6 = (tmp5 < 1.0f) ? tmp5 : 1.0f;
+    const float tmp7 = fast_asinf(tmp6);
+    const float tmp8 = cx[0] / cx[3];
+    const float tmp9 = cx[1] / cx[3];
+    const float tmp10 = cx[2] / cx[3];
+    const float tmp11 = cx[3] * cx[3];
+    const float tmp12 = cP[0] / tmp11;
+    const float tmp13 = cP[1] / tmp11;
+    const float tmp14 = cP[2] / tmp11;
+    const float tmp15 = cP[3] / tmp11;
+    const float tmp16 = cP[4] / tmp11;
+    const float tmp17 = cP[6] / tmp11;
+    const float tmp18 = cP[7] / tmp11;
+    const float tmp19 = cP[8] / tmp11;
+    const float tmp20 = cP[9] / tmp11;
+    const float tmp21 = cP[12] / tmp11;
+    const float tmp22 = cP[13] / tmp11;
+    const float tmp23 = cP[14] / tmp11;
+    const float tmp24 = cP[18] / tmp11;
+    const float tmp25 = cP[19] / tmp11;
+    const float tmp26 = cP[24] / tmp11;
+    b_out[0] = tmp0;
+    b_out[1] = tmp1;
+    b_out[2] = tmp2;
+    ref_out[0] = tmp3;
+    ref_out[1] = tmp7;
+    cx_out[0] = tmp8;
+    cx_out[1] = tmp9;
+    cx_out[2] = tmp10;
+    cx_out[3] = 1.0f;
+    cx_out[4] = tmp4;
+    cP_out[0] = tmp12;
+    cP_out[1] = tmp13;
+    cP_out[2] = tmp14;
+    cP_out[3] = tmp15;
+    cP_out[4] = tmp16;
+    cP_out[5] = tmp13;
+    cP_out[6] = tmp17;
+    cP_out[7] = tmp18;
+    cP_out[8] = tmp19;
+    cP_out[9] = tmp20;
+    cP_out[10] = tmp14;
+    cP_out[11] = tmp18;
+    cP_out[12] = tmp21;
+    cP_out[13] = tmp22;
+    cP_out[14] = tmp23;
+    cP_out[15] = tmp15;
+    cP_out[16] = tmp19;
+    cP_out[17] = tmp22;
+    cP_out[18] = tmp24;
+    cP_out[19] = tmp25;
+    cP_out[20] = tmp16;
+    cP_out[21] = tmp20;
+    cP_out[22] = tmp23;
+    cP_out[23] = tmp25;
+    cP_out[24] = tmp26;
+}
+
 /* Z-Y-X Euler angles [roll, pitch, yaw] of a unit body->NED quaternion
  * ops: add 13, mul 11, sqrt 1, trig 3 (total 28) */
 static inline void mekf_k_euler(const float q[4], float rpy[3])
@@ -2555,6 +3160,77 @@ static inline void mekf_k_euler(const float q[4], float rpy[3])
 static bool mekf_field_off(const float feat[2], const float ref[2], float norm_th, float dip_th)
 {
     return fabsf(feat[0] - ref[0]) > norm_th * ref[0] || fabsf(feat[1] - ref[1]) > dip_th;
+}
+
+/* Hard iron (docs/mekf.md, "Hard iron"): while the sensor turns, a candidate field model
+ * [hard iron / B (3), norm / B, down component / B] is fitted from the field's norm and vertical
+ * component (neither involves the heading). It replaces the hard iron and the reference when,
+ * over mag_bias_settle of turning, it explains the field (RMS of the residuals low-passed over
+ * 0.2 s below mag_bias_th) 4.0x better in mean square than the present hard iron
+ * does even with a re-fitted reference, differs from it by at least mag_norm_th, and its hard
+ * iron is known to mag_bias_th (square root of its covariance's trace). While it explains the field better and differs that much
+ * ("suspect") the magnetometer is not used for heading. `onset`: the field check rejected the
+ * field this step after accepting it: a new disturbance, the candidate's covariance reopens. */
+static void mekf_hard_iron(mekf_state *s, const float mag[3], const float gyro[3],
+    const float q[4], float dt, bool onset, bool *mag_use, mekf_status *status)
+{
+    if (onset && s->mag_suspect == 0u) {
+        for (uint32_t i = 0u; i < 25u; i++) {
+            s->mag_cP[i] = (i % 6u == 0u) ? 0.09f /* mag_bias_p0^2 */ : 0.0f;
+        }
+    }
+    const float w0 = gyro[0] - s->gyro_bias[0];
+    const float w1 = gyro[1] - s->gyro_bias[1];
+    const float w2 = gyro[2] - s->gyro_bias[2];
+    if (w0 * w0 + w1 * w1 + w2 * w2 >= MEKF_MAG_BIAS_MIN_RATE * MEKF_MAG_BIAS_MIN_RATE) {
+        float res[4];   /* residuals: present model (norm, down), candidate (norm, down) */
+        float p_beta;   /* trace of the candidate hard iron's covariance */
+        mekf_k_hard_iron_fit(q, mag, s->mag_bias, s->mag_ref, s->mag_cx, s->mag_cP, dt, s->mag_c_ok == 0u,
+            s->mag_cx, s->mag_cP, res, &p_beta);
+        s->mag_c_ok = 1u;
+        const float a_s = dt / (0.2f + dt);
+        for (uint32_t i = 0u; i < 4u; i++) {
+            s->mag_rlp[i] += a_s * (res[i] - s->mag_rlp[i]);
+        }
+        const float a = dt / (MEKF_MAG_BIAS_SETTLE + dt);
+        s->mag_rmean[0] += a * (s->mag_rlp[0] - s->mag_rmean[0]);
+        s->mag_rmean[1] += a * (s->mag_rlp[1] - s->mag_rmean[1]);
+        const float d0 = s->mag_rlp[0] - s->mag_rmean[0];
+        const float d1 = s->mag_rlp[1] - s->mag_rmean[1];
+        s->mag_e[0] += a * (s->mag_rlp[0] * s->mag_rlp[0] + s->mag_rlp[1] * s->mag_rlp[1] - s->mag_e[0]);
+        s->mag_e[1] += a * (s->mag_rlp[2] * s->mag_rlp[2] + s->mag_rlp[3] * s->mag_rlp[3] - s->mag_e[1]);
+        s->mag_e[2] += a * (d0 * d0 + d1 * d1 - s->mag_e[2]);
+        s->mag_turn_time = s->mag_turn_time + dt < 1000.0f ? s->mag_turn_time + dt : 1000.0f;
+        const bool better = s->mag_turn_time >= MEKF_MAG_BIAS_SETTLE &&
+            s->mag_e[2] > 4.0f * s->mag_e[1];
+        /* |candidate - present hard iron| >= mag_norm_th, in the field's units */
+        const float B = s->mag_ref[0];
+        float db2 = 0.0f;
+        for (uint32_t i = 0u; i < 3u; i++) {
+            const float d = s->mag_cx[i] * B - s->mag_bias[i];
+            db2 += d * d;
+        }
+        const bool suspect = better && db2 >= MEKF_MAG_NORM_TH * MEKF_MAG_NORM_TH * B * B;
+        s->mag_suspect = suspect ? 1u : 0u;
+        const float th2 = MEKF_MAG_BIAS_TH * MEKF_MAG_BIAS_TH;
+        if (suspect && s->mag_e[1] < th2 && p_beta < th2 && s->mag_cx[3] > 0.1f) {
+            mekf_k_hard_iron_switch(s->mag_cx, s->mag_cP, s->mag_ref, s->mag_bias, s->mag_ref, s->mag_cx, s->mag_cP);
+            s->mag_e[0] = s->mag_e[1];
+            s->mag_e[2] = s->mag_e[1];
+            s->mag_rmean[0] = 0.0f;
+            s->mag_rmean[1] = 0.0f;
+            s->mag_turn_time = 0.0f;
+            s->mag_suspect = 0u;
+            s->mag_rej_time = 0.0f;
+            s->mag_cand_time = 0.0f;
+            *status |= MEKF_HARD_IRON_SWITCHED;
+            *mag_use = false;   /* the field check was made with the old hard iron */
+        }
+    }
+    if (*mag_use && s->mag_suspect != 0u) {
+        *mag_use = false;
+        *status |= MEKF_MAG_DISTURBED;
+    }
 }
 
 static bool mekf_finite3(const float v[3])
@@ -2721,6 +3397,27 @@ void mekf_init(mekf_state *s)
     s->mag_cand[1] = 0.0f;
     s->mag_cand_time = 0.0f;
     s->head_age = 1000.0f;
+    s->mag_bias[0] = 0.0f;
+    s->mag_bias[1] = 0.0f;
+    s->mag_bias[2] = 0.0f;
+    for (uint32_t i = 0u; i < 5u; i++) {
+        s->mag_cx[i] = 0.0f;
+    }
+    for (uint32_t i = 0u; i < 25u; i++) {
+        s->mag_cP[i] = 0.0f;
+    }
+    s->mag_c_ok = 0u;
+    s->mag_rlp[0] = 0.0f;
+    s->mag_rlp[1] = 0.0f;
+    s->mag_rlp[2] = 0.0f;
+    s->mag_rlp[3] = 0.0f;
+    s->mag_rmean[0] = 0.0f;
+    s->mag_rmean[1] = 0.0f;
+    s->mag_e[0] = 0.0f;
+    s->mag_e[1] = 0.0f;
+    s->mag_e[2] = 0.0f;
+    s->mag_turn_time = 0.0f;
+    s->mag_suspect = 0u;
 }
 
 mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, float dt)
@@ -2793,10 +3490,10 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
     /* Finite copies for the kernels: a sensor that is not usable this step is passed as zeros. */
     float mag_in[3] = { 0.0f, 0.0f, 0.0f };
     float vel_in[3] = { 0.0f, 0.0f, 0.0f };
-    if (use_mag) {
-        mag_in[0] = in->mag[0];
-        mag_in[1] = in->mag[1];
-        mag_in[2] = in->mag[2];
+    if (use_mag) {   /* the hard iron removed */
+        mag_in[0] = in->mag[0] - s->mag_bias[0];
+        mag_in[1] = in->mag[1] - s->mag_bias[1];
+        mag_in[2] = in->mag[2] - s->mag_bias[2];
     }
     if (use_gps) {
         vel_in[0] = in->gps_vel_ned[0];
@@ -2903,6 +3600,7 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
     /* Magnetometer: rejected while its norm or dip is off the reference learned at start
      * (mag_learn_time), re-acquired after mag_reject_max seconds rejected in a row. */
     bool mag_use = false;
+    bool onset = false;   /* rejected this step, accepted the step before */
     if (mag_ok) {
         if (MEKF_MAG_NORM_TH <= 0.0f) {
             mag_use = true;
@@ -2931,8 +3629,11 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
                 s->mag_cand[0] += w * (feat[0] - s->mag_cand[0]);
                 s->mag_cand[1] += w * (feat[1] - s->mag_cand[1]);
             }
+            onset = !(s->mag_rej_time > 0.0f);   /* never negative: zero */
             s->mag_rej_time += dt;
-            if (s->mag_cand_time >= MEKF_MAG_NEW_TIME || s->mag_rej_time > MEKF_MAG_REJECT_MAX) {
+            /* (not while the hard-iron candidate explains the field: it is the better model) */
+            if ((s->mag_cand_time >= MEKF_MAG_NEW_TIME || s->mag_rej_time > MEKF_MAG_REJECT_MAX) &&
+                s->mag_suspect == 0u) {
                 s->mag_ref[0] = s->mag_cand[0];
                 s->mag_ref[1] = s->mag_cand[1];
                 s->mag_rej_time = 0.0f;
@@ -2941,6 +3642,9 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
             } else {
                 status |= MEKF_MAG_DISTURBED;
             }
+        }
+        if (s->mag_ref[0] > 0.0f && s->mag_ref_time >= MEKF_MAG_LEARN_TIME) {
+            mekf_hard_iron(s, in->mag, in->gyro, q, dt, onset, &mag_use, &status);
         }
     }
 
@@ -3025,3 +3729,5 @@ void mekf_euler(const mekf_state *s, float rpy[3])
 #undef fast_sin_cos
 #undef fast_sin_cos_of
 #undef fast_atan2f
+#undef fast_sinf
+#undef fast_asinf

@@ -23,7 +23,7 @@
  * its GNU modes, -std=c99 turns it off) and -fno-math-errno; -ffast-math breaks the input
  * checks (isfinite). Any C99 compiler builds it; see the ahrsgen docs (target.md).
  *     mekf_euler(&st, rpy);
- * No heap, no recursion; RAM is the state struct (308 bytes with the usual ABI).
+ * No heap, no recursion; RAM is the state struct (488 bytes with the usual ABI).
  * Needs <math.h> (float functions only in a float build); compilers may also emit calls to
  * memcpy/memset/memmove for struct and array copies.
  *
@@ -77,6 +77,13 @@ extern "C" {
 #define MEKF_MAG_REF_TAU 20.0f        /* while accepted, the reference norm and dip follow the field with this time constant [s] */
 #define MEKF_MAG_NEW_TIME 20.0f       /* while rejected, a new field whose norm and dip stay within the thresholds for this long becomes the reference (a lasting change is re-acquired; VQF's magNewTime) [s] */
 #define MEKF_MAG_REJECT_MAX 60.0f     /* after this long rejected in a row, the candidate field becomes the reference anyway: heading is never held unaided for longer (VQF's magMaxRejectionTime) [s] */
+#define MEKF_MAG_BIAS 1               /* estimate the magnetometer's hard iron while the sensor turns: a candidate field model (hard iron, field norm and dip) is fitted beside the filter and replaces the hard iron when it explains the field clearly better (a magnet attached mid-run); false: the hard iron stays as calibrated */
+#define MEKF_MAG_BIAS_RW 0.001f       /* random walk of the candidate hard iron and field, as a fraction of the field norm, while turning [1/sqrt(s)] */
+#define MEKF_MAG_BIAS_NOISE 0.05f     /* per-sample standard deviation of the candidate's norm and vertical-component rows, as a fraction of the field norm (sensor noise, soft iron, field gradients) */
+#define MEKF_MAG_BIAS_MIN_RATE 0.3f   /* the candidate is fitted only while the sensor turns at least this fast (the hard iron is observable only then; held otherwise) [rad/s] */
+#define MEKF_MAG_BIAS_SETTLE 5.0f     /* residuals are averaged over this much turning, and the candidate must have been fitted this long, before it may replace the hard iron [s] */
+#define MEKF_MAG_BIAS_TH 0.015f       /* the candidate may replace the hard iron when its residuals (low-passed over 0.2 s, RMS) are below this fraction of the field norm, four times (in mean square) below the present model's with its reference re-fitted, and its hard iron is known to this (square root of the trace of its covariance) */
+#define MEKF_MAG_BIAS_MAX 2.0f        /* bound of the hard-iron estimate, as a multiple of the field norm */
 #define MEKF_GYRO_NOISE 0.00087f      /* gyro rate noise density (angle random walk); the QCF paper's Table 1 gives 0.05 deg/s/sqrt(Hz) [rad/s/sqrt(Hz)] */
 #define MEKF_GYRO_BIAS_RW 1e-05f      /* gyro bias random walk (rate of the bias noise density) [rad/s^2/sqrt(Hz)] */
 #define MEKF_ACCEL_ANGLE_NOISE 0.07f  /* per-sample standard deviation of the measured gravity direction (measurement = 'vectors': of the low-passed, motion-compensated specific force; 'euler_angles': of the accelerometer roll and pitch, the patent's R). 0.07 chosen on the BROAD trials and the simulated scenarios together (docs/mekf.md) [rad] */
@@ -97,29 +104,30 @@ extern "C" {
 
 /* Status bits returned by mekf_step; 0 means every available correction ran. */
 typedef uint32_t mekf_status;
-#define MEKF_OK              0u /* step completed with every available correction */
-#define MEKF_DT_INVALID      (1u << 0) /* refused: dt is not finite or not positive; state unchanged */
-#define MEKF_DT_TOO_LARGE    (1u << 1) /* refused: dt above the configured maximum; state unchanged */
-#define MEKF_GYRO_MISSING    (1u << 2) /* refused: gyro valid bit clear; state unchanged */
-#define MEKF_GYRO_NONFINITE  (1u << 3) /* refused: gyro sample not finite; state unchanged */
-#define MEKF_ACCEL_NONFINITE (1u << 4) /* accelerometer sample not finite; its correction skipped */
-#define MEKF_ACCEL_ZERO      (1u << 5) /* accelerometer norm below minimum; its correction skipped */
-#define MEKF_MAG_NONFINITE   (1u << 6) /* magnetometer sample not finite; its correction skipped */
-#define MEKF_MAG_ZERO        (1u << 7) /* magnetometer norm below minimum; its correction skipped */
-#define MEKF_GPS_NONFINITE   (1u << 8) /* GPS velocity not finite; its correction skipped */
-#define MEKF_GYRO_RANGE      (1u << 9) /* refused: a gyro component beyond gyro_max; state unchanged */
-#define MEKF_ACCEL_RANGE     (1u << 10) /* an accelerometer component beyond accel_max; its correction skipped */
-#define MEKF_MAG_RANGE       (1u << 11) /* a magnetometer component beyond mag_max; its correction skipped */
-#define MEKF_GPS_RANGE       (1u << 12) /* a GPS velocity component beyond gps_vel_max; the sample is ignored */
-#define MEKF_COURSE_SLOW     (1u << 16) /* GPS sample present but ground speed below gps_min_speed: yaw row dropped */
-#define MEKF_ACCEL_GATED     (1u << 17) /* | |accel| - g | above accel_gate: roll/pitch rows dropped */
-#define MEKF_UPDATE_SKIPPED  (1u << 18) /* correction skipped: innovation covariance not positive definite, or pitch within 0.57 deg of +-90 deg (Euler angles singular) */
-#define MEKF_HEADING_UNAIDED (1u << 19) /* no heading correction (GPS course or magnetometer) for more than 1 s */
-#define MEKF_MAG_DISTURBED   (1u << 20) /* magnetometer rejected: field norm or dip angle off the learned reference */
-#define MEKF_AT_REST         (1u << 21) /* rest detected: the gyro reading measures the gyro bias directly */
+#define MEKF_OK                 0u /* step completed with every available correction */
+#define MEKF_DT_INVALID         (1u << 0) /* refused: dt is not finite or not positive; state unchanged */
+#define MEKF_DT_TOO_LARGE       (1u << 1) /* refused: dt above the configured maximum; state unchanged */
+#define MEKF_GYRO_MISSING       (1u << 2) /* refused: gyro valid bit clear; state unchanged */
+#define MEKF_GYRO_NONFINITE     (1u << 3) /* refused: gyro sample not finite; state unchanged */
+#define MEKF_ACCEL_NONFINITE    (1u << 4) /* accelerometer sample not finite; its correction skipped */
+#define MEKF_ACCEL_ZERO         (1u << 5) /* accelerometer norm below minimum; its correction skipped */
+#define MEKF_MAG_NONFINITE      (1u << 6) /* magnetometer sample not finite; its correction skipped */
+#define MEKF_MAG_ZERO           (1u << 7) /* magnetometer norm below minimum; its correction skipped */
+#define MEKF_GPS_NONFINITE      (1u << 8) /* GPS velocity not finite; its correction skipped */
+#define MEKF_GYRO_RANGE         (1u << 9) /* refused: a gyro component beyond gyro_max; state unchanged */
+#define MEKF_ACCEL_RANGE        (1u << 10) /* an accelerometer component beyond accel_max; its correction skipped */
+#define MEKF_MAG_RANGE          (1u << 11) /* a magnetometer component beyond mag_max; its correction skipped */
+#define MEKF_GPS_RANGE          (1u << 12) /* a GPS velocity component beyond gps_vel_max; the sample is ignored */
+#define MEKF_COURSE_SLOW        (1u << 16) /* GPS sample present but ground speed below gps_min_speed: yaw row dropped */
+#define MEKF_ACCEL_GATED        (1u << 17) /* | |accel| - g | above accel_gate: roll/pitch rows dropped */
+#define MEKF_UPDATE_SKIPPED     (1u << 18) /* correction skipped: innovation covariance not positive definite, or pitch within 0.57 deg of +-90 deg (Euler angles singular) */
+#define MEKF_HEADING_UNAIDED    (1u << 19) /* no heading correction (GPS course or magnetometer) for more than 1 s */
+#define MEKF_MAG_DISTURBED      (1u << 20) /* magnetometer rejected: field norm or dip angle off the learned reference */
+#define MEKF_AT_REST            (1u << 21) /* rest detected: the gyro reading measures the gyro bias directly */
+#define MEKF_HARD_IRON_SWITCHED (1u << 22) /* the magnetometer hard iron and reference field were replaced by the candidate fitted while turning */
 #define MEKF_REFUSED_MASK (MEKF_DT_INVALID | MEKF_DT_TOO_LARGE | MEKF_GYRO_MISSING | MEKF_GYRO_NONFINITE | MEKF_GYRO_RANGE)
 /* Bits that mean trouble (a refused step, a bad sample, a numeric fault); the others are
- * information (what the filter noticed: COURSE_SLOW, ACCEL_GATED, HEADING_UNAIDED, MAG_DISTURBED, AT_REST).
+ * information (what the filter noticed: COURSE_SLOW, ACCEL_GATED, HEADING_UNAIDED, MAG_DISTURBED, AT_REST, HARD_IRON_SWITCHED).
  * Test (status & MEKF_STATUS_FAULT_MASK) != 0u for a fault, not status != 0. */
 #define MEKF_STATUS_FAULT_MASK (MEKF_DT_INVALID | MEKF_DT_TOO_LARGE | MEKF_GYRO_MISSING | MEKF_GYRO_NONFINITE | MEKF_ACCEL_NONFINITE | MEKF_ACCEL_ZERO | MEKF_MAG_NONFINITE | MEKF_MAG_ZERO | MEKF_GPS_NONFINITE | MEKF_GYRO_RANGE | MEKF_ACCEL_RANGE | MEKF_MAG_RANGE | MEKF_GPS_RANGE | MEKF_UPDATE_SKIPPED)
 
@@ -145,6 +153,15 @@ typedef struct {
     float mag_cand[2];    /* candidate new reference [norm, dip] while rejected */
     float mag_cand_time;  /* time the candidate field has been steady, s */
     float head_age;       /* time since the last heading correction, s (stops at 1e3) */
+    float mag_bias[3];    /* magnetometer hard iron, body axes, the field's units (m - mag_bias is used) */
+    float mag_cx[5];      /* candidate field model [hard iron / B (3), norm / B, down component / B], B = mag_ref[0] */
+    float mag_cP[25];     /* its covariance (5x5, symmetric) */
+    uint32_t mag_c_ok;    /* 1 once the candidate has been started from the reference */
+    float mag_rlp[4];     /* hard-iron residuals [present (2), candidate (2)] low-passed over 0.2 s */
+    float mag_rmean[2];   /* the present residuals' mean over mag_bias_settle */
+    float mag_e[3];       /* mean squares: present, candidate, present less its mean */
+    float mag_turn_time;  /* time turning since the candidate started or switched, s (stops at 1e3) */
+    uint32_t mag_suspect; /* 1 while the candidate explains the field and the present model does not */
 } mekf_state;
 
 typedef struct {
