@@ -30,11 +30,12 @@ def _random_rotations(rng, n):
                      np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1)], 1)
 
 
-def sim_log(seed=0, n_turn=3000, rest_s=5.0, planar=False):
+def sim_log(seed=0, n_turn=3000, rest_s=5.0, planar=False, field=FIELD, inclination_deg=60.0, h=H_TRUE, w=W_TRUE):
     """100 Hz: rest_s seconds still and level, then n_turn samples in random orientations (or
-    turning about the vertical only, planar=True). The field is fixed in NED."""
+    turning about the vertical only, planar=True). The field is fixed in NED; raw = w m + h."""
     rng = np.random.default_rng(seed)
-    m_ned = FIELD * np.array([np.cos(np.radians(60)), 0.0, np.sin(np.radians(60))])
+    inc = np.radians(inclination_deg)
+    m_ned = field * np.array([np.cos(inc), 0.0, np.sin(inc)])
     n_rest = int(rest_s * 100)
     if planar:
         yaw = rng.uniform(-np.pi, np.pi, n_turn)
@@ -46,7 +47,7 @@ def sim_log(seed=0, n_turn=3000, rest_s=5.0, planar=False):
     R = np.concatenate([np.tile(np.eye(3), (n_rest, 1, 1)), R])
     n = len(R)
     m_body = np.einsum("nji,j->ni", R, m_ned)                  # R^T m_ned
-    mag = m_body @ W_TRUE.T + H_TRUE + rng.normal(0, NOISE, (n, 3))
+    mag = m_body @ np.asarray(w).T + h + rng.normal(0, NOISE, (n, 3))
     accel = np.einsum("nji,j->ni", R, np.array([0.0, 0.0, -G0])) + rng.normal(0, 0.02, (n, 3))
     gyro = np.tile(BIAS, (n, 1)) + rng.normal(0, 0.002, (n, 3))
     gyro[n_rest:] += rng.normal(0, 1.0, (n - n_rest, 3))       # turning

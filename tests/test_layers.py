@@ -19,7 +19,7 @@ PKG = SRC / "ahrsgen"
 # Bottom first. A module belongs to the first entry that is its name or a prefix of it.
 LAYERS = [
     ["ahrsgen.errors", "ahrsgen.argtypes", "ahrsgen.constants", "ahrsgen.status", "ahrsgen.npquat",
-     "ahrsgen.paths", "ahrsgen.fileio", "ahrsgen"],
+     "ahrsgen.paths", "ahrsgen.fileio", "ahrsgen.sensor_frame", "ahrsgen"],
     ["ahrsgen.symbolic"],
     ["ahrsgen.codegen"],
     ["ahrsgen.filters", "ahrsgen.scaffold"],

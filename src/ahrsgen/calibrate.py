@@ -20,8 +20,9 @@
 Quality figures are written beside the values: the residual (RMS of |m_cal| - B, relative to
 B), the coverage, the field norm, and how many seconds of rest the gyro bias comes from.
 
-The TOML's [calibration] table is the input of the next step (the generated C applying it to
-the raw samples); `generate --config` does not read it yet and refuses the table by name.
+The TOML's [calibration] table goes into `generate --config` and `run --config`: the generated
+C applies it to every raw sample before anything else, folded as constants
+(ahrsgen/sensor_frame.py; a [mounting] table may be added to the same file).
 """
 from __future__ import annotations
 
@@ -147,7 +148,7 @@ def toml_text(cal: dict, logs) -> str:
         return "[" + ", ".join(f"{float(x):.9g}" for x in v) + "]"
     lines = [f"# {MARK} calibrate from {', '.join(str(x) for x in logs)}",
              "# model: m_cal = S (m - h): remove the hard iron h, then apply the soft-iron matrix S",
-             "# (not Fusion's S m - h). The generated C does not apply it yet: this table is its input.",
+             "# (not Fusion's S m - h). generate/run --config this file: the C applies it to every raw sample.",
              f"# field norm {cal['field_norm']:.6g} (raw units), residual {100 * cal['residual']:.2f} % of it, "
              f"coverage {100 * cal['coverage']:.0f} % of directions, {cal['samples']} samples",
              "[calibration]",

@@ -176,7 +176,9 @@ def cmd_validate(args) -> int:
     c = hf.run(log)
     t2 = time.perf_counter()
     ref = cfg.spec.reference(cfg.params)
-    r = host.run_reference(ref, log, progress=sys.stderr.isatty())
+    # the reference works in body axes: the config's calibration and mounting applied in NumPy
+    # (the C applies them itself, to the raw samples)
+    r = host.run_reference(ref, cfg.frame.apply(log) if cfg.frame is not None else log, progress=sys.stderr.isatty())
     t3 = time.perf_counter()
     print(f"  compiled in {t1 - t0:.2f} s, C run {t2 - t1:.3f} s, NumPy reference {t3 - t2:.2f} s")
     diff = np.degrees(np.abs(metrics.wrap_deg_diff(c.rpy, r.rpy)))

@@ -24,9 +24,11 @@ from pathlib import Path
 from ahrsgen.codegen import fastmath
 from ahrsgen import filters
 from ahrsgen.errors import ConfigError
+from ahrsgen import sensor_frame
+from ahrsgen.sensor_frame import SensorFrame
 
 PRECISIONS = ("float", "double")
-TOP_KEYS = {"filter", "prefix", "precision", "params", "preset", "runtime", "math", "fma"}
+TOP_KEYS = {"filter", "prefix", "precision", "params", "preset", "runtime", "math", "fma", "calibration", "mounting"}
 
 
 @dataclass
@@ -39,6 +41,7 @@ class BuildConfig:
     runtime: tuple = ()       # parameters read at run time from <prefix>_params, in this order
     math: str = fastmath.DEFAULT_MATH                # float trigonometry: "fast" helpers or "libm"
     fma: bool = False                                # emitter-written fused multiply-adds
+    frame: SensorFrame | None = None                 # [calibration] / [mounting]: raw sample -> body
 
     @property
     def spec(self):
@@ -149,8 +152,9 @@ def resolve(filter_name: str, config_file: str | Path | None = None, sets: list[
     if math not in fastmath.MATH_MODES:
         raise ConfigError(f"math {math!r} must be one of {', '.join(fastmath.MATH_MODES)}")
     fma = bool(fma if fma is not None else (file_fma or False))
+    frame = sensor_frame.from_config(file_data, str(config_file)) if config_file is not None else None
     return BuildConfig(filter_name, values, precision, prefix, overrides,
-                       check_runtime(spec, list(runtime), source), math=math, fma=fma)
+                       check_runtime(spec, list(runtime), source), math=math, fma=fma, frame=frame)
 
 
 def check_runtime(spec, names: list[str], source: str = "--runtime") -> tuple:
