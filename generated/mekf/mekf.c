@@ -3176,7 +3176,7 @@ static void mekf_hard_iron(mekf_state *s, const float mag[3], const float gyro[3
 {
     if (onset && s->mag_suspect == 0u) {
         for (uint32_t i = 0u; i < 25u; i++) {
-            s->mag_cP[i] = (i % 6u == 0u) ? 0.09f /* mag_bias_p0^2 */ : 0.0f;
+            s->mag_cP[i] = (i % 6u == 0u) ? 0.09f : 0.0f;
         }
     }
     const float w0 = gyro[0] - s->gyro_bias[0];
@@ -3403,9 +3403,31 @@ void mekf_init(mekf_state *s)
     for (uint32_t i = 0u; i < 5u; i++) {
         s->mag_cx[i] = 0.0f;
     }
-    for (uint32_t i = 0u; i < 25u; i++) {
-        s->mag_cP[i] = 0.0f;
-    }
+    s->mag_cP[0] = 0.09f;
+    s->mag_cP[1] = 0.0f;
+    s->mag_cP[2] = 0.0f;
+    s->mag_cP[3] = 0.0f;
+    s->mag_cP[4] = 0.0f;
+    s->mag_cP[5] = 0.0f;
+    s->mag_cP[6] = 0.09f;
+    s->mag_cP[7] = 0.0f;
+    s->mag_cP[8] = 0.0f;
+    s->mag_cP[9] = 0.0f;
+    s->mag_cP[10] = 0.0f;
+    s->mag_cP[11] = 0.0f;
+    s->mag_cP[12] = 0.09f;
+    s->mag_cP[13] = 0.0f;
+    s->mag_cP[14] = 0.0f;
+    s->mag_cP[15] = 0.0f;
+    s->mag_cP[16] = 0.0f;
+    s->mag_cP[17] = 0.0f;
+    s->mag_cP[18] = 0.09f;
+    s->mag_cP[19] = 0.0f;
+    s->mag_cP[20] = 0.0f;
+    s->mag_cP[21] = 0.0f;
+    s->mag_cP[22] = 0.0f;
+    s->mag_cP[23] = 0.0f;
+    s->mag_cP[24] = 0.09f;
     s->mag_c_ok = 0u;
     s->mag_rlp[0] = 0.0f;
     s->mag_rlp[1] = 0.0f;
@@ -3600,8 +3622,8 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
     /* Magnetometer: rejected while its norm or dip is off the reference learned at start
      * (mag_learn_time), re-acquired after mag_reject_max seconds rejected in a row. */
     bool mag_use = false;
-    bool onset = false;   /* rejected this step, accepted the step before */
     if (mag_ok) {
+        bool onset = false;   /* rejected this step, accepted the step before */
         if (MEKF_MAG_NORM_TH <= 0.0f) {
             mag_use = true;
         } else if (s->mag_ref_time < MEKF_MAG_LEARN_TIME) {

@@ -190,7 +190,7 @@ class Reference:
                 setattr(self, k, float(p[k]))
             self.mag_bias = np.zeros(3)
             self.mag_cx = np.zeros(5)
-            self.mag_cP = np.zeros((5, 5))
+            self.mag_cP = np.eye(5) * MAG_BIAS_P0 ** 2
             self.mag_c_ok = False         # the candidate has been started from the reference
             self.mag_rlp = np.zeros(4)    # residuals [present (2), candidate (2)] over 0.2 s
             self.mag_rmean = np.zeros(2)  # the present residuals' mean over mag_bias_settle
