@@ -3171,6 +3171,9 @@ static bool mekf_field_off(const float feat[2], const float ref[2], float norm_t
  * iron is known to mag_bias_th (square root of its covariance's trace). While it explains the field better and differs that much
  * ("suspect") the magnetometer is not used for heading. `onset`: the field check rejected the
  * field this step after accepting it: a new disturbance, the candidate's covariance reopens. */
+#if defined(__GNUC__)
+__attribute__((noinline))   /* a call: its frame does not add to the step's (worst-case stack) */
+#endif
 static void mekf_hard_iron(mekf_state *s, const float mag[3], const float gyro[3],
     const float q[4], float dt, bool onset, bool *mag_use, mekf_status *status)
 {
