@@ -3165,21 +3165,25 @@ static bool mekf_field_off(const float feat[2], const float ref[2], float norm_t
 /* Hard iron (docs/mekf.md, "Hard iron"): while the sensor turns, a candidate field model
  * [hard iron / B (3), norm / B, down component / B] is fitted from the field's norm and vertical
  * component (neither involves the heading). It replaces the hard iron and the reference when,
- * over mag_bias_settle of turning, it explains the field (RMS of the residuals low-passed over
- * 0.2 s below mag_bias_th) 4.0x better in mean square than the present hard iron
- * does even with a re-fitted reference, differs from it by at least mag_norm_th, and its hard
- * iron is known to mag_bias_th (square root of its covariance's trace). While it explains the field better and differs that much
- * ("suspect") the magnetometer is not used for heading. `onset`: the field check rejected the
- * field this step after accepting it: a new disturbance, the candidate's covariance reopens. */
+ * over mag_bias_settle of turning,
+ * - it explains the field: RMS of its residuals, low-passed over 0.2 s, below mag_bias_th;
+ * - it does so 4x better in mean square than the present hard iron does even
+ *   with a re-fitted reference (the present residuals less their mean);
+ * - it differs from the present hard iron by at least mag_norm_th of the field;
+ * - its hard iron is known to mag_bias_th (square root of its covariance's trace).
+ * While the first three hold ("suspect") the magnetometer is not used for heading. `onset`: the
+ * field check rejected the field this step after accepting it (a new disturbance): the
+ * candidate's covariance reopens to its prior. A call of its own (its frame then does not add
+ * to the step's). */
 #if defined(__GNUC__)
-__attribute__((noinline))   /* a call: its frame does not add to the step's (worst-case stack) */
+__attribute__((noinline))
 #endif
 static void mekf_hard_iron(mekf_state *s, const float mag[3], const float gyro[3],
     const float q[4], float dt, bool onset, bool *mag_use, mekf_status *status)
 {
     if (onset && s->mag_suspect == 0u) {
         for (uint32_t i = 0u; i < 25u; i++) {
-            s->mag_cP[i] = (i % 6u == 0u) ? 0.09f : 0.0f;
+            s->mag_cP[i] = (i % 6u == 0u) ? 0.09f : 0.0f;   /* prior: 0.3^2 I */
         }
     }
     const float w0 = gyro[0] - s->gyro_bias[0];
@@ -3216,6 +3220,7 @@ static void mekf_hard_iron(mekf_state *s, const float mag[3], const float gyro[3
         const bool suspect = better && db2 >= MEKF_MAG_NORM_TH * MEKF_MAG_NORM_TH * B * B;
         s->mag_suspect = suspect ? 1u : 0u;
         const float th2 = MEKF_MAG_BIAS_TH * MEKF_MAG_BIAS_TH;
+        /* (a candidate norm below 0.1 of the reference is never taken) */
         if (suspect && s->mag_e[1] < th2 && p_beta < th2 && s->mag_cx[3] > 0.1f) {
             mekf_k_hard_iron_switch(s->mag_cx, s->mag_cP, s->mag_ref, s->mag_bias, s->mag_ref, s->mag_cx, s->mag_cP);
             s->mag_e[0] = s->mag_e[1];

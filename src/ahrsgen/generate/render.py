@@ -321,6 +321,7 @@ def render(cfg: BuildConfig, names: bool = True) -> Generated:
         init_partial="init.c.j2" if (spec.folder / "init.c.j2").exists() else None,
         helpers_partial="helpers.c.j2" if (spec.folder / "helpers.c.j2").exists() else None,
         input_transform=_input_transform(getattr(cfg, "frame", None), model.sensors, lit, real),
+        noinline=NOINLINE,
         cfg=_RuntimeGuard(cfg.params, runtime), **tctx)
     header = env.get_template("filter.h.j2").render(ctx)
     source = env.get_template("filter.c.j2").render(ctx)
@@ -377,13 +378,11 @@ def render(cfg: BuildConfig, names: bool = True) -> Generated:
     return Generated(files, manifest, kernels)
 
 
-_INPUT_FIELD = {"gyro": "gyro", "accel": "accel", "mag": "mag"}
-
-
 def _input_transform(frame, sensors, lit, real) -> list[str]:
     """C statements taking the raw sample (in_raw) to the body frame (in_body), body = M (raw - c)
-    per sensor (ahrsgen.sensor_frame), folded: zero coefficients dropped, +-1 as a sign. Empty
-    when the config has no [calibration] / [mounting] table (the step then reads `in` itself)."""
+    per sensor (ahrsgen.sensor_frame), folded: zero coefficients dropped, +-1 as a sign, rows
+    that are the raw value left as copied. Empty when the config has no [calibration] /
+    [mounting] table (the step then reads `in` itself)."""
     if frame is None:
         return []
     out = []
@@ -391,29 +390,21 @@ def _input_transform(frame, sensors, lit, real) -> list[str]:
         if (s != "gyro" and s not in sensors) or not frame.changes(s):
             continue
         M, c = frame.affine(s)
-        f = _INPUT_FIELD[s]
         src = []
         for j in range(3):
             if c[j]:
-                sign, v = ("-", float(c[j])) if c[j] > 0 else ("+", -float(c[j]))
-                out.append(f"const {real} {s}_{j} = in_raw->{f}[{j}] {sign} {lit(v)};")
+                out.append(f"const {real} {s}_{j} = in_raw->{s}[{j}] {'-' if c[j] > 0 else '+'} {lit(abs(float(c[j])))};")
                 src.append(f"{s}_{j}")
             else:
-                src.append(f"in_raw->{f}[{j}]")
+                src.append(f"in_raw->{s}[{j}]")
         for i in range(3):
             if not c[i] and all(float(M[i, j]) == (1.0 if j == i else 0.0) for j in range(3)):
-                continue            # in_body already holds the raw value
-            terms = []
-            for j in range(3):
-                m = float(M[i, j])
-                if m == 0.0:
-                    continue
-                t = src[j] if abs(m) == 1.0 else f"{lit(abs(m))} * {src[j]}"
-                terms.append(("- " if m < 0 else "+ ") + t)
-            expr = " ".join(terms).lstrip("+ ") if terms else "0"
-            if expr.startswith("- "):
-                expr = "-" + expr[2:]
-            out.append(f"in_body.{f}[{i}] = {expr if terms else lit(0.0)};")
+                continue
+            terms = [(float(M[i, j]), src[j]) for j in range(3) if float(M[i, j]) != 0.0]
+            text = " ".join(("-" if m < 0 else "+") + " " + (v if abs(m) == 1.0 else f"{lit(abs(m))} * {v}")
+                            for m, v in terms)
+            text = text[2:] if text.startswith("+ ") else "-" + text[2:]
+            out.append(f"in_body.{s}[{i}] = {text};")
     return out
 
 

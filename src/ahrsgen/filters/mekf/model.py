@@ -545,6 +545,10 @@ class Model(FilterModel):
             StateField("mag_cand_time", 1, "time the candidate field has been steady, s", 0.0),
             StateField("head_age", 1, "time since the last heading correction, s (stops at 1e3)", AGE_MAX),
             StateField("mag_bias", 3, "magnetometer hard iron, body axes, the field's units (m - mag_bias is used)", 0.0),
+        ] + (self._hard_iron_fields() if self._hard_iron() else [])
+
+    def _hard_iron_fields(self) -> list[StateField]:
+        return [
             StateField("mag_cx", NC, "candidate field model [hard iron / B (3), norm / B, down component / B], B = mag_ref[0]", 0.0),
             StateField("mag_cP", NC * NC, "its covariance (5x5, symmetric)",
                        [MAG_BIAS_P0 ** 2 if i == j else 0.0 for j in range(NC) for i in range(NC)]),
