@@ -101,3 +101,19 @@ def test_run_and_validate_take_runtime(capsys):
     assert cli.main(["validate", "qcf", "--runtime", "kp,ki", "--precision", "double",
                      "--scenario-opt", "duration=30"]) == 0
     assert "PASS" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("name,runtime", [("qcf", "dt_max"), ("qcf", ""), ("mekf", "dt_max,gyro_max")])
+def test_header_names_only_what_it_defines(name, runtime, tmp_path):
+    """Every PREFIX_NAME the header's prose mentions is defined in the header: a parameter made
+    runtime is named as its params field, not as the macro it replaced (issue 27)."""
+    import re
+    args = ["generate", name, "-o", str(tmp_path)] + (["--runtime", runtime] if runtime else [])
+    assert cli.main(args) == 0
+    h = (tmp_path / f"{name}.h").read_text()
+    P = name.upper()
+    defined = set(re.findall(rf"#define ({P}_\w+)", h)) | set(re.findall(rf"\b({P}_\w+)\s*=", h))
+    mentioned = {m for m in re.findall(rf"\b{P}_[A-Z0-9_]+\b", h) if not m.endswith("_")} - {f"{P}_H"}
+    assert mentioned <= defined, sorted(mentioned - defined)
+    for n in filter(None, runtime.split(",")):
+        assert f"{name}_params.{n}" in h

@@ -487,3 +487,22 @@ def test_adukf_step_stack_within_the_issue_goal(tmp_path):
     assert ws["bytes"] <= 512, (ws["bytes"], ws["path"])
     o0 = T.debug_stack(b, tmp_path / "o0")
     assert o0["bytes"] <= 2048, (o0["bytes"], o0["path"])
+
+
+def test_judge_names_the_check_that_failed():
+    """A FAIL says which check failed: -ffp-contract=fast keeps the real-libm build within its
+    bound while the pinned-libm build is no longer bit-identical (issue 27)."""
+    from ahrsgen.target.check import judge
+    real = {"identical_steps": 0, "steps": 100, "first_difference": 0, "max_angle_deg": 8e-5,
+            "status_equal": True, "status_common_equal": True}
+    pinned = {"identical_steps": 0, "steps": 100, "first_difference": 0, "max_angle_deg": 8e-5,
+              "status_equal": True}
+    ok, verdict = judge("qcf", real, pinned)
+    assert not ok and verdict.endswith("-> FAIL: pinned libm not bit-identical (host == target needs the "
+                                       "same code on both sides: -ffp-contract=off, docs/target.md)")
+    ok, verdict = judge("qcf", real, {**pinned, "identical_steps": 100})
+    assert ok and "FAIL" not in verdict
+    ok, verdict = judge("qcf", {**real, "max_angle_deg": 0.01}, None)
+    assert not ok and verdict.endswith("-> FAIL: real libm: attitude beyond 0.001 deg")
+    ok, verdict = judge("qcf", {**real, "identical_steps": 100, "status_equal": False}, None)
+    assert not ok and "FAIL: status codes differ" in verdict

@@ -34,9 +34,10 @@
  * dt: seconds from the previous step to this one, the interval the gyro rate in this input
  * covers: the time since the previous call of adukf_step, whatever that call returned. A
  * refused step (status & ADUKF_REFUSED_MASK) leaves the state untouched and its interval's
- * rotation is not integrated; a dt above ADUKF_DT_MAX (a stalled task, a sensor gap) is refused
- * once, and the next step, timed from it, runs again: no gap stops the filter for good. The
- * accelerometer and magnetometer corrections then pull back the rotation the gap lost.
+ * rotation is not integrated. A dt above ADUKF_DT_MAX
+ * (a stalled task, a sensor gap) is refused once, and the next step, timed from it, runs
+ * again: no gap stops the filter for good. The accelerometer and magnetometer corrections then
+ * pull back the rotation the gap lost.
  *
  * Initialisation: adukf_init sets q = [1 0 0 0]. The first step with usable accelerometer and
  * magnetometer samples sets the attitude from tilt and heading and P to P0 (faithful mode

@@ -34,9 +34,10 @@
  * dt: seconds from the previous step to this one, the interval the gyro rate in this input
  * covers: the time since the previous call of cpf_step, whatever that call returned. A
  * refused step (status & CPF_REFUSED_MASK) leaves the state untouched and its interval's
- * rotation is not integrated; a dt above CPF_DT_MAX (a stalled task, a sensor gap) is refused
- * once, and the next step, timed from it, runs again: no gap stops the filter for good. The
- * accelerometer and magnetometer corrections then pull back the rotation the gap lost.
+ * rotation is not integrated. A dt above CPF_DT_MAX
+ * (a stalled task, a sensor gap) is refused once, and the next step, timed from it, runs
+ * again: no gap stops the filter for good. The accelerometer and magnetometer corrections then
+ * pull back the rotation the gap lost.
  *
  * Initialisation: cpf_init seeds the PRNG. The first step with a usable accelerometer sample
  * sets the attitude from the accelerometer (and magnetometer) angles and draws the particles

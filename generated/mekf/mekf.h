@@ -34,9 +34,10 @@
  * dt: seconds from the previous step to this one, the interval the gyro rate in this input
  * covers: the time since the previous call of mekf_step, whatever that call returned. A
  * refused step (status & MEKF_REFUSED_MASK) leaves the state untouched and its interval's
- * rotation is not integrated; a dt above MEKF_DT_MAX (a stalled task, a sensor gap) is refused
- * once, and the next step, timed from it, runs again: no gap stops the filter for good. The
- * accelerometer and magnetometer corrections then pull back the rotation the gap lost.
+ * rotation is not integrated. A dt above MEKF_DT_MAX
+ * (a stalled task, a sensor gap) is refused once, and the next step, timed from it, runs
+ * again: no gap stops the filter for good. The accelerometer and magnetometer corrections then
+ * pull back the rotation the gap lost.
  *
  * Initialisation: mekf_init sets q = [1 0 0 0], zero gyro bias and P from p0_att, p0_bias.
  * With init_from_sensors (default) the first step with a usable accelerometer sample sets roll

@@ -33,9 +33,10 @@
  * dt: seconds from the previous step to this one, the interval the gyro rate in this input
  * covers: the time since the previous call of qcf_step, whatever that call returned. A
  * refused step (status & QCF_REFUSED_MASK) leaves the state untouched and its interval's
- * rotation is not integrated; a dt above QCF_DT_MAX (a stalled task, a sensor gap) is refused
- * once, and the next step, timed from it, runs again: no gap stops the filter for good. The
- * accelerometer and magnetometer corrections then pull back the rotation the gap lost.
+ * rotation is not integrated. A dt above QCF_DT_MAX
+ * (a stalled task, a sensor gap) is refused once, and the next step, timed from it, runs
+ * again: no gap stops the filter for good. The accelerometer and magnetometer corrections then
+ * pull back the rotation the gap lost.
  *
  * Initialisation: qcf_init sets q = [1 0 0 0] and a zero gyro bias. Product mode: the first
  * step with an accelerometer sample sets roll and pitch from it, and yaw from the magnetometer

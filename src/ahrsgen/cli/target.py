@@ -140,7 +140,9 @@ def register_cli(sub) -> None:
         description="Generate the float C of a filter, build it with arm-none-eabi-gcc at -O2 and -Os, run a "
                     "scenario through it on an emulated Cortex-M4F (QEMU mps2-an386), check the outputs against "
                     "the host float build, and report flash, static RAM, worst-case stack and instructions per "
-                    "step (table on stdout, JSON file). Exit 1 if target and host disagree beyond the bound.")
+                    "step (table on stdout, JSON file). Exit 1 if a check fails: the pinned-libm build not "
+                    "bit-identical with the host, the real-libm build beyond its bound, or the status codes "
+                    "differ; each FAIL line names the check.")
     p.add_argument("filter", help="filter name (see 'ahrsgen list'), a filter folder's path, or 'all'")
     p.add_argument("--config", metavar="FILE.toml", help="TOML config (its precision is ignored: see --precision)")
     p.add_argument("--set", metavar="NAME=VALUE", action="append", default=[], help="override one parameter (repeatable)")

@@ -305,6 +305,8 @@ def render(cfg: BuildConfig, names: bool = True) -> Generated:
         source=_wrap_doc("Source: " + spec.source, prefix),
         init_doc=_wrap_doc("Initialisation: " + (spec.init or "{prefix}_init sets the start state."), prefix),
         prefix=prefix, P=P,
+        # how the header names the largest dt: a macro, or the runtime parameter that replaces it
+        dt_max_name=f"{prefix}_params.dt_max" if "dt_max" in runtime else f"{P}_DT_MAX",
         real=real, F="f" if real == "float" else "", zero=lit(0.0), one=lit(1.0), lit=lit,
         uint="uint32_t" if real == "float" else "uint64_t",
         aiding=[a for a in _AIDING if a["name"] in model.sensors],
