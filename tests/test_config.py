@@ -99,3 +99,26 @@ def test_math_and_fma_build_options(tmp_path):
     f.write_text('fma = "yes"\n')
     with pytest.raises(ConfigError, match="fma"):
         config.resolve("qcf", f)
+
+
+@pytest.mark.parametrize("decl_deg", [-0.001, -1e-7, 3.0])
+def test_site_parameters_pass_as_numbers(decl_deg):
+    """A log's site (declination, inclination) reaches the build as numbers, never through
+    "k=v" text: a declination of -0.001 deg is -1.745e-05 rad, which the former text round
+    trip returned as a string that resolve refused (issue 27)."""
+    import math
+    from ahrsgen.bench import site_values
+    values, applied = site_values("adukf", {"declination_deg": decl_deg, "inclination_deg": 64.5})
+    assert applied and values == {"declination": math.radians(decl_deg), "inclination_deg": 64.5,
+                                  "mag_ref": "inclination"}
+    cfg = config.resolve("adukf", values=values)
+    assert cfg.params["declination"] == math.radians(decl_deg) and cfg.params["inclination_deg"] == 64.5
+    assert config.resolve("adukf", values=values, sets=["declination=0.5"]).params["declination"] == 0.5
+
+
+def test_validate_runs_the_filters_own_scenario(capsys):
+    """validate without --scenario uses the filter's source experiment (as target does): adukf's
+    is the static magnetic disturbance, not the fixed-wing flight it was never made for."""
+    from ahrsgen import cli
+    assert cli.main(["validate", "adukf", "--scenario-opt", "duration=20"]) == 0
+    assert "validate adukf (float) on static_mag_disturbance seed 0" in capsys.readouterr().out

@@ -25,7 +25,7 @@ from ahrsgen.bench.harness import (  # noqa: F401
     HARNESS_COLUMNS, baseline_filter, build_log_runner, run_log_exe, write_harness_log)
 from ahrsgen.bench.scoring import (  # noqa: F401
     DECLINATION_PARAMS, Estimator, compare_frame, filter_estimator, filter_heading, peer_estimator,
-    product_filters, score, score_mask, site_sets, total_error_series)
+    product_filters, score, score_mask, site_sets, site_values, total_error_series)
 from ahrsgen.bench.run import continuous_yaw_deg, refusal_hint, run_on_log  # noqa: F401
 from ahrsgen.bench.grid import (  # noqa: F401
     HAND_QCF_SETS, Progress, bench, measure_cost, scenario_configs)

@@ -25,31 +25,37 @@ DECLINATION_PARAMS = (("declination", "rad"),)   # every filter with a magnetome
 _HF_CACHE: dict = {}
 
 
-def site_sets(filter_name: str, meta: dict, user_keys=()) -> tuple[list[str], bool]:
-    """--set strings for the site of a log, and whether a declination parameter was set.
+def site_values(filter_name: str, meta: dict, user_keys=()) -> tuple[dict, bool]:
+    """Parameter values for the site of a log, and whether a declination parameter was set.
 
     A log's meta['declination_deg'] is the offset from its reference's north to magnetic
     north (absent: the reference is magnetic north, as BROAD's). Parameters the user set
-    (user_keys) are left alone.
+    (user_keys) are left alone. Numbers stay numbers (config.resolve's `values`).
     """
     from ahrsgen import filters
     names = filters.load(filter_name).params
-    out, applied = [], False
+    out, applied = {}, False
     decl = float(meta.get("declination_deg", 0.0) or 0.0)
     for pname, unit in DECLINATION_PARAMS:
         if pname in names and pname not in user_keys:
-            out.append(f"{pname}={decl if unit == 'deg' else math.radians(decl)!r}")
+            out[pname] = decl if unit == "deg" else math.radians(decl)
             applied = True
         elif pname in names:
             applied = True
     if "inclination_deg" in names and "inclination_deg" not in user_keys:
         if meta.get("inclination_deg") is not None:
-            out.append(f"inclination_deg={float(meta['inclination_deg'])!r}")
+            out["inclination_deg"] = float(meta["inclination_deg"])
             if "mag_ref" in names and "mag_ref" not in user_keys:      # the default learns it instead
-                out.append("mag_ref=inclination")
+                out["mag_ref"] = "inclination"
         elif "mag_ref" in names and "mag_ref" not in user_keys:
-            out.append("mag_ref=learn")
+            out["mag_ref"] = "learn"
     return out, applied
+
+
+def site_sets(filter_name: str, meta: dict, user_keys=()) -> tuple[list[str], bool]:
+    """site_values as --set strings (what a user would type; shown in reports and JSON)."""
+    values, applied = site_values(filter_name, meta, user_keys)
+    return [f"{k}={v!r}" if isinstance(v, float) else f"{k}={v}" for k, v in values.items()], applied
 
 
 def refusal_hint(status: np.ndarray, log, params: dict) -> str:

@@ -147,6 +147,7 @@ def cmd_validate(args) -> int:
     import numpy as np
     from ahrsgen.sim import host, metrics, scenarios
     cfg = _resolve(args)
+    args.scenario = args.scenario or cfg.spec.scenario     # the filter's own, as `target` uses
     try:
         opts = scenarios.parse_options(args.scenario, args.scenario_opt)
         log = scenarios.make(args.scenario, seed=args.seed, **opts)
@@ -159,10 +160,8 @@ def cmd_validate(args) -> int:
     site = scenario_site_params(cfg, log)
     if site:
         from ahrsgen.generate import config as _config
-        cfg = _config.resolve(args.filter, args.config, args.set + [f"{k}={v}" if isinstance(v, str) else f"{k}={v!r}"
-                                                                for k, v in site.items()],
-                              args.precision, args.prefix, args.preset, args.runtime, getattr(args, "math", None),
-                              getattr(args, "fma", None))
+        cfg = _config.resolve(args.filter, args.config, args.set, args.precision, args.prefix, args.preset,
+                              args.runtime, getattr(args, "math", None), getattr(args, "fma", None), values=site)
         print("  site parameters from the scenario (override with --set): "
               + ", ".join(f"{k}={v:.6g}" if isinstance(v, float) else f"{k}={v}" for k, v in site.items()))
     for w in cfg.spec.model(cfg.params).stability_warnings():
@@ -269,14 +268,9 @@ def cmd_new(args) -> int:
 
 def scenario_site_params(cfg, log) -> dict:
     """Site parameters a scenario knows (declination, inclination) that the user did not set,
-    as the bench sets them (ahrsgen.bench.site_sets)."""
-    from ahrsgen.bench import site_sets
-    sets, _ = site_sets(cfg.filter, log.meta, set(cfg.overrides))
-    out = {}
-    for item in sets:
-        k, _, v = item.partition("=")
-        out[k] = float(v) if v.replace(".", "", 1).replace("-", "", 1).replace("e", "", 1).isdigit() else v
-    return out
+    as the bench sets them (ahrsgen.bench.site_values): numbers, not text."""
+    from ahrsgen.bench import site_values
+    return site_values(cfg.filter, log.meta, set(cfg.overrides))[0]
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -310,7 +304,8 @@ def build_parser() -> argparse.ArgumentParser:
                                    "rounding_sensitive, that misses the bound is judged as an estimator: double "
                                    "C = reference, float vs double over 10 streams or seeds (paired t test).")
     _add_build_options(p)
-    p.add_argument("--scenario", default="fixedwing_gps", help="scenario name (see 'ahrsgen list')")
+    p.add_argument("--scenario", help="scenario name (see 'ahrsgen list'; default: the filter's own, the "
+                                       "scenario of its source experiment: [filter] scenario in defaults.toml)")
     p.add_argument("--seed", type=nonneg_int_arg, default=0, help="scenario seed, a whole number >= 0 (default 0)")
     p.add_argument("--scenario-opt", metavar="NAME=VALUE", action="append", default=[],
                    help="scenario option, e.g. rate_hz=100 or duration=60 (repeatable)")

@@ -85,8 +85,9 @@ def _check_prefix(prefix: str) -> str:
 def resolve(filter_name: str, config_file: str | Path | None = None, sets: list[str] | None = None,
             precision: str | None = None, prefix: str | None = None, preset: str | None = None,
             runtime: list[str] | str | None = None, math: str | None = None,
-            fma: bool | None = None) -> BuildConfig:
-    """Defaults, then a preset, then the config file's [params], then --set (last wins).
+            fma: bool | None = None, values: dict | None = None) -> BuildConfig:
+    """Defaults, then a preset, then the config file's [params], then `values` (typed, e.g. a
+    log's site parameters), then --set (last wins).
     `filter_name` is a name or a filter folder's path (ahrsgen.filters); the config keeps the name.
 
     runtime (--runtime, else the file's `runtime`): parameters kept out of the folding.
@@ -94,7 +95,7 @@ def resolve(filter_name: str, config_file: str | Path | None = None, sets: list[
     math, fma (--math, --fma, else the file's): float trigonometry and fused multiply-adds."""
     spec = filters.load(filter_name)
     filter_name = spec.name
-    values = spec.defaults()
+    given, values = values or {}, spec.defaults()
     overrides = {}
     file_prefix = file_precision = file_math = file_fma = None
     file_data = _read_config(config_file) if config_file is not None else {}
@@ -126,6 +127,8 @@ def resolve(filter_name: str, config_file: str | Path | None = None, sets: list[
             raise ConfigError(f"{path}: 'params' must be a table ([params])")
         for name, value in table.items():
             values[name] = overrides[name] = _check(spec, name, value, str(path))
+    for name, value in given.items():
+        values[name] = overrides[name] = _check(spec, name, value, "site")
     for item in sets or []:
         if "=" not in item:
             raise ConfigError(f"--set {item!r}: expected name=value")

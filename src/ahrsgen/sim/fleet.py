@@ -46,12 +46,17 @@ class Fleet:
     def __enter__(self):
         return self
 
-    def __exit__(self, *exc):
-        self.close()
+    def __exit__(self, exc_type, *exc):
+        self.close(interrupted=exc_type is not None and issubclass(exc_type, KeyboardInterrupt))
 
-    def close(self) -> None:
+    def close(self, interrupted: bool = False) -> None:
         if self._pool is not None:
-            self._pool.shutdown(cancel_futures=True)
+            if interrupted:          # Ctrl-C: the workers ignore it (_ignore_sigint); end them now
+                for proc in list(getattr(self._pool, "_processes", {}).values()):
+                    proc.terminate()
+                self._pool.shutdown(wait=False, cancel_futures=True)
+            else:
+                self._pool.shutdown(cancel_futures=True)
             self._pool = None
         if self._client is not None:
             self._client.close()
@@ -72,7 +77,8 @@ class Fleet:
             return
         if self._pool is None:
             import multiprocessing as mp
-            self._pool = ProcessPoolExecutor(self.workers, mp_context=mp.get_context("fork"))
+            self._pool = ProcessPoolExecutor(self.workers, mp_context=mp.get_context("fork"),
+                                             initializer=_ignore_sigint)
         futures = [self._pool.submit(fn, it) for it in items]
         for fut in as_completed(futures):
             yield fut.result()
@@ -96,3 +102,10 @@ class _Tagged:
     def __call__(self, item):
         i, x = item
         return i, self.fn(x)
+
+
+def _ignore_sigint() -> None:
+    """In a worker: Ctrl-C reaches the whole process group, and only the parent answers it (one
+    line, exit 130, the workers ended by Fleet.close), not every worker with a traceback."""
+    import signal
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
