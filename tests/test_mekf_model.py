@@ -234,7 +234,7 @@ def test_gravity_update_keeps_P_spd_at_vertical_pitch():
     q_true = q_from_euler(0.0, np.pi / 2 - 0.1, 0.3)
     a_lp = rotmat(q_true).T @ np.array([0.0, 0.0, -9.81])
     a_lp_n = rotmat(q) @ a_lp                       # the kernel takes the earth-frame low-pass
-    h, z, r_g = (np.array(v).ravel() for v in fg(q, a_lp_n))
+    h, z, r_g = (np.array(v).ravel() for v in fg(q, a_lp_n, 0))
     x, P_new = np.zeros(6), P.ravel()
     for i in range(3):
         x, P_new, piv = fr(P_new, h[3 * i:3 * i + 3], z[i], r_g[0], x)
@@ -261,7 +261,7 @@ def test_lowpass_removes_a_steady_motion_acceleration_exactly(dt):
     q = np.array([1.0, 0.0, 0.0, 0.0])               # body = NED: f in body axes = f in NED
     a_lp, v_lp, v_ins = np.zeros(3), np.zeros(3), np.zeros(3)
     for k in range(int(round(15 * p["accel_lpf_tau"] / dt))):
-        mask = [1.0, 1.0 if k == 0 else 0.0]         # one GPS sample at the start, then none
+        mask = [1.0, 1.0 if k == 0 else 0.0, 0.0]    # one GPS sample at the start, then none
         out = fn(q=q, b=np.zeros(3), gyro=np.zeros(3), accel=a - g, vel=np.zeros(3), acc_n=np.zeros(3),
                  mask=mask, a_lp=a_lp, v_lp=v_lp, v_ins=v_ins, dt=dt)
         a_lp, v_lp, v_ins = (np.asarray(out[n]).ravel() for n in ("a_lp_out", "v_lp_out", "v_ins_out"))

@@ -490,8 +490,8 @@ static void mekf_k_predict_attitude(const float q[4], const float b[3], const fl
 }
 
 /* time update: covariance
- * ops: add 141, mul 172, div 1, cmp 1 (total 315) */
-static void mekf_k_predict_covariance_part0(const float F_q[9], const float F_b[9], const float P[36], float carry[23])
+ * ops: add 144, mul 174, div 1, cmp 2 (total 321) */
+static void mekf_k_predict_covariance_part0(const float F_q[9], const float F_b[9], const float P[36], float carry[22])
 {
     const float tmp0 = F_q[0] * P[0];
     const float tmp1 = F_q[3] * P[1];
@@ -538,7 +538,7 @@ static void mekf_k_predict_covariance_part0(const float F_q[9], const float F_b[
     carry[2] = tmp39;
 }
 
-static void mekf_k_predict_covariance_part1(const float F_q[9], const float F_b[9], const float P[36], float dt, float carry[23])
+static void mekf_k_predict_covariance_part1(const float F_q[9], const float F_b[9], const float P[36], float dt, float carry[22])
 {
     const float tmp40 = carry[1] + carry[2];
     const float tmp41 = F_q[6] * P[15];
@@ -588,7 +588,7 @@ static void mekf_k_predict_covariance_part1(const float F_q[9], const float F_b[
     carry[5] = tmp79;
 }
 
-static void mekf_k_predict_covariance_part2(const float F_q[9], const float F_b[9], const float P[36], float carry[23])
+static void mekf_k_predict_covariance_part2(const float F_q[9], const float F_b[9], const float P[36], float dt, bool clip, float carry[22])
 {
     const float tmp80 = carry[5] * F_b[0];
     const float tmp81 = F_b[3] * carry[4];
@@ -598,475 +598,489 @@ static void mekf_k_predict_covariance_part2(const float F_q[9], const float F_b[
     const float tmp85 = tmp84 * F_b[6];
     const float tmp86 = tmp83 + tmp85;
     const float tmp87 = carry[3] + tmp86;
-    const float tmp88 = F_q[1] * P[0];
-    const float tmp89 = F_q[4] * P[1];
-    const float tmp90 = tmp88 + tmp89;
-    const float tmp91 = F_q[7] * P[2];
-    const float tmp92 = tmp90 + tmp91;
-    const float tmp93 = F_b[1] * P[3];
+    const float tmp88 = 17.453293f /* 0.5*gyro_full_scale */ * dt;
+    const float tmp89 = tmp88 * tmp88;
+    const float tmp90 = (clip) ? tmp89 : 0.0f;
+    const float tmp91 = tmp87 + tmp90;
+    const float tmp92 = F_q[1] * P[0];
+    const float tmp93 = F_q[4] * P[1];
     const float tmp94 = tmp92 + tmp93;
-    const float tmp95 = F_b[4] * P[4];
+    const float tmp95 = F_q[7] * P[2];
     const float tmp96 = tmp94 + tmp95;
-    const float tmp97 = F_b[7] * P[5];
+    const float tmp97 = F_b[1] * P[3];
     const float tmp98 = tmp96 + tmp97;
-    const float tmp99 = tmp98 * F_q[0];
-    const float tmp100 = F_q[1] * P[1];
-    const float tmp101 = F_q[4] * P[7];
+    const float tmp99 = F_b[4] * P[4];
+    const float tmp100 = tmp98 + tmp99;
+    const float tmp101 = F_b[7] * P[5];
     const float tmp102 = tmp100 + tmp101;
-    const float tmp103 = F_q[7] * P[8];
-    const float tmp104 = tmp102 + tmp103;
-    const float tmp105 = F_b[1] * P[9];
+    const float tmp103 = tmp102 * F_q[0];
+    const float tmp104 = F_q[1] * P[1];
+    const float tmp105 = F_q[4] * P[7];
     const float tmp106 = tmp104 + tmp105;
-    const float tmp107 = F_b[4] * P[10];
+    const float tmp107 = F_q[7] * P[8];
     const float tmp108 = tmp106 + tmp107;
-    const float tmp109 = F_b[7] * P[11];
+    const float tmp109 = F_b[1] * P[9];
     const float tmp110 = tmp108 + tmp109;
-    const float tmp111 = tmp110 * F_q[3];
-    const float tmp112 = tmp99 + tmp111;
-    const float tmp113 = F_q[1] * P[2];
-    const float tmp114 = F_q[4] * P[8];
-    const float tmp115 = tmp113 + tmp114;
-    const float tmp116 = F_q[7] * P[14];
-    const float tmp117 = tmp115 + tmp116;
-    const float tmp118 = F_b[1] * P[15];
+    const float tmp111 = F_b[4] * P[10];
+    const float tmp112 = tmp110 + tmp111;
+    const float tmp113 = F_b[7] * P[11];
+    const float tmp114 = tmp112 + tmp113;
+    const float tmp115 = tmp114 * F_q[3];
+    const float tmp116 = tmp103 + tmp115;
+    const float tmp117 = F_q[1] * P[2];
+    const float tmp118 = F_q[4] * P[8];
     const float tmp119 = tmp117 + tmp118;
-    carry[3] = tmp87;
-    carry[5] = tmp98;
-    carry[6] = tmp110;
-    carry[7] = tmp112;
-    carry[8] = tmp119;
+    carry[3] = tmp90;
+    carry[5] = tmp91;
+    carry[6] = tmp102;
+    carry[7] = tmp114;
+    carry[8] = tmp116;
+    carry[9] = tmp119;
 }
 
-static void mekf_k_predict_covariance_part3(const float F_q[9], const float F_b[9], const float P[36], float carry[23])
+static void mekf_k_predict_covariance_part3(const float F_q[9], const float F_b[9], const float P[36], float carry[22])
 {
-    const float tmp120 = F_b[4] * P[16];
-    const float tmp121 = carry[8] + tmp120;
-    const float tmp122 = F_b[7] * P[17];
+    const float tmp120 = F_q[7] * P[14];
+    const float tmp121 = carry[9] + tmp120;
+    const float tmp122 = F_b[1] * P[15];
     const float tmp123 = tmp121 + tmp122;
-    const float tmp124 = tmp123 * F_q[6];
-    const float tmp125 = carry[7] + tmp124;
-    const float tmp126 = F_q[1] * P[3];
-    const float tmp127 = F_q[4] * P[9];
-    const float tmp128 = tmp126 + tmp127;
-    const float tmp129 = F_q[7] * P[15];
-    const float tmp130 = tmp128 + tmp129;
-    const float tmp131 = F_b[1] * P[21];
+    const float tmp124 = F_b[4] * P[16];
+    const float tmp125 = tmp123 + tmp124;
+    const float tmp126 = F_b[7] * P[17];
+    const float tmp127 = tmp125 + tmp126;
+    const float tmp128 = tmp127 * F_q[6];
+    const float tmp129 = carry[8] + tmp128;
+    const float tmp130 = F_q[1] * P[3];
+    const float tmp131 = F_q[4] * P[9];
     const float tmp132 = tmp130 + tmp131;
-    const float tmp133 = F_b[4] * P[22];
+    const float tmp133 = F_q[7] * P[15];
     const float tmp134 = tmp132 + tmp133;
-    const float tmp135 = F_b[7] * P[23];
+    const float tmp135 = F_b[1] * P[21];
     const float tmp136 = tmp134 + tmp135;
-    const float tmp137 = tmp136 * F_b[0];
-    const float tmp138 = tmp125 + tmp137;
-    const float tmp139 = F_q[1] * P[4];
-    const float tmp140 = F_q[4] * P[10];
-    const float tmp141 = tmp139 + tmp140;
-    const float tmp142 = F_q[7] * P[16];
-    const float tmp143 = tmp141 + tmp142;
-    const float tmp144 = F_b[1] * P[22];
+    const float tmp137 = F_b[4] * P[22];
+    const float tmp138 = tmp136 + tmp137;
+    const float tmp139 = F_b[7] * P[23];
+    const float tmp140 = tmp138 + tmp139;
+    const float tmp141 = tmp140 * F_b[0];
+    const float tmp142 = tmp129 + tmp141;
+    const float tmp143 = F_q[1] * P[4];
+    const float tmp144 = F_q[4] * P[10];
     const float tmp145 = tmp143 + tmp144;
-    const float tmp146 = F_b[4] * P[28];
+    const float tmp146 = F_q[7] * P[16];
     const float tmp147 = tmp145 + tmp146;
-    const float tmp148 = F_b[7] * P[29];
+    const float tmp148 = F_b[1] * P[22];
     const float tmp149 = tmp147 + tmp148;
-    const float tmp150 = tmp149 * F_b[3];
-    const float tmp151 = tmp138 + tmp150;
-    const float tmp152 = F_q[1] * P[5];
-    const float tmp153 = F_q[4] * P[11];
-    const float tmp154 = tmp152 + tmp153;
-    const float tmp155 = F_q[7] * P[17];
-    const float tmp156 = tmp154 + tmp155;
-    const float tmp157 = F_b[1] * P[23];
+    const float tmp150 = F_b[4] * P[28];
+    const float tmp151 = tmp149 + tmp150;
+    const float tmp152 = F_b[7] * P[29];
+    const float tmp153 = tmp151 + tmp152;
+    const float tmp154 = tmp153 * F_b[3];
+    const float tmp155 = tmp142 + tmp154;
+    const float tmp156 = F_q[1] * P[5];
+    const float tmp157 = F_q[4] * P[11];
     const float tmp158 = tmp156 + tmp157;
-    const float tmp159 = F_b[4] * P[29];
-    carry[7] = tmp123;
-    carry[8] = tmp136;
-    carry[9] = tmp149;
-    carry[10] = tmp151;
-    carry[11] = tmp158;
-    carry[12] = tmp159;
+    const float tmp159 = F_q[7] * P[17];
+    carry[8] = tmp127;
+    carry[9] = tmp140;
+    carry[10] = tmp153;
+    carry[11] = tmp155;
+    carry[12] = tmp158;
+    carry[13] = tmp159;
 }
 
-static void mekf_k_predict_covariance_part4(const float F_q[9], const float F_b[9], const float P[36], float carry[23])
+static void mekf_k_predict_covariance_part4(const float F_q[9], const float F_b[9], const float P[36], float carry[22])
 {
-    const float tmp160 = carry[11] + carry[12];
-    const float tmp161 = F_b[7] * P[35];
+    const float tmp160 = carry[12] + carry[13];
+    const float tmp161 = F_b[1] * P[23];
     const float tmp162 = tmp160 + tmp161;
-    const float tmp163 = tmp162 * F_b[6];
-    const float tmp164 = carry[10] + tmp163;
-    const float tmp165 = F_b[1] * carry[4];
-    const float tmp166 = tmp165 * F_b[0];
-    const float tmp167 = F_b[4] * carry[4];
-    const float tmp168 = tmp167 * F_b[3];
-    const float tmp169 = tmp166 + tmp168;
-    const float tmp170 = F_b[7] * carry[4];
-    const float tmp171 = tmp170 * F_b[6];
-    const float tmp172 = tmp169 + tmp171;
-    const float tmp173 = tmp164 + tmp172;
-    const float tmp174 = F_q[2] * P[0];
-    const float tmp175 = F_q[5] * P[1];
-    const float tmp176 = tmp174 + tmp175;
-    const float tmp177 = F_q[8] * P[2];
-    const float tmp178 = tmp176 + tmp177;
-    const float tmp179 = F_b[2] * P[3];
+    const float tmp163 = F_b[4] * P[29];
+    const float tmp164 = tmp162 + tmp163;
+    const float tmp165 = F_b[7] * P[35];
+    const float tmp166 = tmp164 + tmp165;
+    const float tmp167 = tmp166 * F_b[6];
+    const float tmp168 = carry[11] + tmp167;
+    const float tmp169 = F_b[1] * carry[4];
+    const float tmp170 = tmp169 * F_b[0];
+    const float tmp171 = F_b[4] * carry[4];
+    const float tmp172 = tmp171 * F_b[3];
+    const float tmp173 = tmp170 + tmp172;
+    const float tmp174 = F_b[7] * carry[4];
+    const float tmp175 = tmp174 * F_b[6];
+    const float tmp176 = tmp173 + tmp175;
+    const float tmp177 = tmp168 + tmp176;
+    const float tmp178 = F_q[2] * P[0];
+    const float tmp179 = F_q[5] * P[1];
     const float tmp180 = tmp178 + tmp179;
-    const float tmp181 = F_b[5] * P[4];
+    const float tmp181 = F_q[8] * P[2];
     const float tmp182 = tmp180 + tmp181;
-    const float tmp183 = F_b[8] * P[5];
+    const float tmp183 = F_b[2] * P[3];
     const float tmp184 = tmp182 + tmp183;
-    const float tmp185 = tmp184 * F_q[0];
-    const float tmp186 = F_q[2] * P[1];
-    const float tmp187 = F_q[5] * P[7];
+    const float tmp185 = F_b[5] * P[4];
+    const float tmp186 = tmp184 + tmp185;
+    const float tmp187 = F_b[8] * P[5];
     const float tmp188 = tmp186 + tmp187;
-    const float tmp189 = F_q[8] * P[8];
-    const float tmp190 = tmp188 + tmp189;
-    const float tmp191 = F_b[2] * P[9];
+    const float tmp189 = tmp188 * F_q[0];
+    const float tmp190 = F_q[2] * P[1];
+    const float tmp191 = F_q[5] * P[7];
     const float tmp192 = tmp190 + tmp191;
-    const float tmp193 = F_b[5] * P[10];
+    const float tmp193 = F_q[8] * P[8];
     const float tmp194 = tmp192 + tmp193;
-    const float tmp195 = F_b[8] * P[11];
+    const float tmp195 = F_b[2] * P[9];
     const float tmp196 = tmp194 + tmp195;
-    const float tmp197 = tmp196 * F_q[3];
-    const float tmp198 = tmp185 + tmp197;
-    const float tmp199 = F_q[2] * P[2];
-    carry[10] = tmp162;
-    carry[11] = tmp165;
-    carry[12] = tmp167;
-    carry[13] = tmp170;
-    carry[14] = tmp173;
-    carry[15] = tmp184;
-    carry[16] = tmp196;
-    carry[17] = tmp198;
-    carry[18] = tmp199;
+    const float tmp197 = F_b[5] * P[10];
+    const float tmp198 = tmp196 + tmp197;
+    const float tmp199 = F_b[8] * P[11];
+    carry[11] = tmp166;
+    carry[12] = tmp169;
+    carry[13] = tmp171;
+    carry[14] = tmp174;
+    carry[15] = tmp177;
+    carry[16] = tmp188;
+    carry[17] = tmp189;
+    carry[18] = tmp198;
+    carry[19] = tmp199;
 }
 
-static void mekf_k_predict_covariance_part5(const float F_q[9], const float F_b[9], const float P[36], float carry[23])
+static void mekf_k_predict_covariance_part5(const float F_q[9], const float F_b[9], const float P[36], float carry[22])
 {
-    const float tmp200 = F_q[5] * P[8];
-    const float tmp201 = carry[18] + tmp200;
-    const float tmp202 = F_q[8] * P[14];
-    const float tmp203 = tmp201 + tmp202;
-    const float tmp204 = F_b[2] * P[15];
+    const float tmp200 = carry[18] + carry[19];
+    const float tmp201 = tmp200 * F_q[3];
+    const float tmp202 = carry[17] + tmp201;
+    const float tmp203 = F_q[2] * P[2];
+    const float tmp204 = F_q[5] * P[8];
     const float tmp205 = tmp203 + tmp204;
-    const float tmp206 = F_b[5] * P[16];
+    const float tmp206 = F_q[8] * P[14];
     const float tmp207 = tmp205 + tmp206;
-    const float tmp208 = F_b[8] * P[17];
+    const float tmp208 = F_b[2] * P[15];
     const float tmp209 = tmp207 + tmp208;
-    const float tmp210 = tmp209 * F_q[6];
-    const float tmp211 = carry[17] + tmp210;
-    const float tmp212 = F_q[2] * P[3];
-    const float tmp213 = F_q[5] * P[9];
-    const float tmp214 = tmp212 + tmp213;
-    const float tmp215 = F_q[8] * P[15];
-    const float tmp216 = tmp214 + tmp215;
-    const float tmp217 = F_b[2] * P[21];
+    const float tmp210 = F_b[5] * P[16];
+    const float tmp211 = tmp209 + tmp210;
+    const float tmp212 = F_b[8] * P[17];
+    const float tmp213 = tmp211 + tmp212;
+    const float tmp214 = tmp213 * F_q[6];
+    const float tmp215 = tmp202 + tmp214;
+    const float tmp216 = F_q[2] * P[3];
+    const float tmp217 = F_q[5] * P[9];
     const float tmp218 = tmp216 + tmp217;
-    const float tmp219 = F_b[5] * P[22];
+    const float tmp219 = F_q[8] * P[15];
     const float tmp220 = tmp218 + tmp219;
-    const float tmp221 = F_b[8] * P[23];
+    const float tmp221 = F_b[2] * P[21];
     const float tmp222 = tmp220 + tmp221;
-    const float tmp223 = tmp222 * F_b[0];
-    const float tmp224 = tmp211 + tmp223;
-    const float tmp225 = F_q[2] * P[4];
-    const float tmp226 = F_q[5] * P[10];
-    const float tmp227 = tmp225 + tmp226;
-    const float tmp228 = F_q[8] * P[16];
-    const float tmp229 = tmp227 + tmp228;
-    const float tmp230 = F_b[2] * P[22];
+    const float tmp223 = F_b[5] * P[22];
+    const float tmp224 = tmp222 + tmp223;
+    const float tmp225 = F_b[8] * P[23];
+    const float tmp226 = tmp224 + tmp225;
+    const float tmp227 = tmp226 * F_b[0];
+    const float tmp228 = tmp215 + tmp227;
+    const float tmp229 = F_q[2] * P[4];
+    const float tmp230 = F_q[5] * P[10];
     const float tmp231 = tmp229 + tmp230;
-    const float tmp232 = F_b[5] * P[28];
+    const float tmp232 = F_q[8] * P[16];
     const float tmp233 = tmp231 + tmp232;
-    const float tmp234 = F_b[8] * P[29];
+    const float tmp234 = F_b[2] * P[22];
     const float tmp235 = tmp233 + tmp234;
-    const float tmp236 = tmp235 * F_b[3];
-    const float tmp237 = tmp224 + tmp236;
-    const float tmp238 = F_q[2] * P[5];
-    const float tmp239 = F_q[5] * P[11];
-    carry[17] = tmp209;
-    carry[18] = tmp222;
-    carry[19] = tmp235;
-    carry[20] = tmp237;
-    carry[21] = tmp238;
-    carry[22] = tmp239;
+    const float tmp236 = F_b[5] * P[28];
+    const float tmp237 = tmp235 + tmp236;
+    const float tmp238 = F_b[8] * P[29];
+    const float tmp239 = tmp237 + tmp238;
+    carry[17] = tmp200;
+    carry[18] = tmp213;
+    carry[19] = tmp226;
+    carry[20] = tmp228;
+    carry[21] = tmp239;
 }
 
-static void mekf_k_predict_covariance_part6(const float F_q[9], const float F_b[9], const float P[36], float carry[23])
+static void mekf_k_predict_covariance_part6(const float F_q[9], const float F_b[9], const float P[36], float carry[22])
 {
-    const float tmp240 = carry[21] + carry[22];
-    const float tmp241 = F_q[8] * P[17];
-    const float tmp242 = tmp240 + tmp241;
-    const float tmp243 = F_b[2] * P[23];
+    const float tmp240 = carry[21] * F_b[3];
+    const float tmp241 = carry[20] + tmp240;
+    const float tmp242 = F_q[2] * P[5];
+    const float tmp243 = F_q[5] * P[11];
     const float tmp244 = tmp242 + tmp243;
-    const float tmp245 = F_b[5] * P[29];
+    const float tmp245 = F_q[8] * P[17];
     const float tmp246 = tmp244 + tmp245;
-    const float tmp247 = F_b[8] * P[35];
+    const float tmp247 = F_b[2] * P[23];
     const float tmp248 = tmp246 + tmp247;
-    const float tmp249 = tmp248 * F_b[6];
-    const float tmp250 = carry[20] + tmp249;
-    const float tmp251 = F_b[2] * carry[4];
-    const float tmp252 = tmp251 * F_b[0];
-    const float tmp253 = F_b[5] * carry[4];
-    const float tmp254 = tmp253 * F_b[3];
-    const float tmp255 = tmp252 + tmp254;
-    const float tmp256 = F_b[8] * carry[4];
-    const float tmp257 = tmp256 * F_b[6];
-    const float tmp258 = tmp255 + tmp257;
-    const float tmp259 = tmp250 + tmp258;
-    const float tmp260 = carry[5] * F_q[1];
-    const float tmp261 = carry[6] * F_q[4];
-    const float tmp262 = tmp260 + tmp261;
-    const float tmp263 = carry[7] * F_q[7];
-    const float tmp264 = tmp262 + tmp263;
-    const float tmp265 = carry[8] * F_b[1];
+    const float tmp249 = F_b[5] * P[29];
+    const float tmp250 = tmp248 + tmp249;
+    const float tmp251 = F_b[8] * P[35];
+    const float tmp252 = tmp250 + tmp251;
+    const float tmp253 = tmp252 * F_b[6];
+    const float tmp254 = tmp241 + tmp253;
+    const float tmp255 = F_b[2] * carry[4];
+    const float tmp256 = tmp255 * F_b[0];
+    const float tmp257 = F_b[5] * carry[4];
+    const float tmp258 = tmp257 * F_b[3];
+    const float tmp259 = tmp256 + tmp258;
+    const float tmp260 = F_b[8] * carry[4];
+    const float tmp261 = tmp260 * F_b[6];
+    const float tmp262 = tmp259 + tmp261;
+    const float tmp263 = tmp254 + tmp262;
+    const float tmp264 = carry[6] * F_q[1];
+    const float tmp265 = carry[7] * F_q[4];
     const float tmp266 = tmp264 + tmp265;
-    const float tmp267 = carry[9] * F_b[4];
+    const float tmp267 = carry[8] * F_q[7];
     const float tmp268 = tmp266 + tmp267;
-    const float tmp269 = carry[10] * F_b[7];
+    const float tmp269 = carry[9] * F_b[1];
     const float tmp270 = tmp268 + tmp269;
-    const float tmp271 = carry[11] * F_b[1];
-    const float tmp272 = carry[12] * F_b[4];
-    const float tmp273 = tmp271 + tmp272;
-    const float tmp274 = carry[13] * F_b[7];
-    const float tmp275 = tmp273 + tmp274;
-    const float tmp276 = tmp270 + tmp275;
-    const float tmp277 = carry[15] * F_q[1];
-    const float tmp278 = carry[16] * F_q[4];
+    const float tmp271 = carry[10] * F_b[4];
+    const float tmp272 = tmp270 + tmp271;
+    const float tmp273 = carry[11] * F_b[7];
+    const float tmp274 = tmp272 + tmp273;
+    const float tmp275 = carry[12] * F_b[1];
+    const float tmp276 = carry[13] * F_b[4];
+    const float tmp277 = tmp275 + tmp276;
+    const float tmp278 = carry[14] * F_b[7];
     const float tmp279 = tmp277 + tmp278;
-    carry[4] = tmp248;
-    carry[5] = tmp251;
-    carry[6] = tmp253;
-    carry[7] = tmp256;
-    carry[11] = tmp259;
-    carry[12] = tmp276;
-    carry[13] = tmp279;
+    carry[4] = tmp252;
+    carry[6] = tmp255;
+    carry[7] = tmp257;
+    carry[8] = tmp260;
+    carry[12] = tmp263;
+    carry[13] = tmp274;
+    carry[14] = tmp279;
 }
 
-static void mekf_k_predict_covariance_part7(const float F_q[9], const float F_b[9], const float P[36], float dt, float carry[23])
+static void mekf_k_predict_covariance_part7(const float F_q[9], const float F_b[9], const float P[36], float dt, float carry[22])
 {
-    const float tmp280 = carry[17] * F_q[7];
-    const float tmp281 = carry[13] + tmp280;
-    const float tmp282 = carry[18] * F_b[1];
-    const float tmp283 = tmp281 + tmp282;
-    const float tmp284 = carry[19] * F_b[4];
-    const float tmp285 = tmp283 + tmp284;
-    const float tmp286 = carry[4] * F_b[7];
-    const float tmp287 = tmp285 + tmp286;
-    const float tmp288 = carry[5] * F_b[1];
-    const float tmp289 = carry[6] * F_b[4];
+    const float tmp280 = carry[13] + carry[14];
+    const float tmp281 = tmp280 + carry[3];
+    const float tmp282 = carry[16] * F_q[1];
+    const float tmp283 = carry[17] * F_q[4];
+    const float tmp284 = tmp282 + tmp283;
+    const float tmp285 = carry[18] * F_q[7];
+    const float tmp286 = tmp284 + tmp285;
+    const float tmp287 = carry[19] * F_b[1];
+    const float tmp288 = tmp286 + tmp287;
+    const float tmp289 = carry[21] * F_b[4];
     const float tmp290 = tmp288 + tmp289;
-    const float tmp291 = carry[7] * F_b[7];
+    const float tmp291 = carry[4] * F_b[7];
     const float tmp292 = tmp290 + tmp291;
-    const float tmp293 = tmp287 + tmp292;
-    const float tmp294 = carry[15] * F_q[2];
-    const float tmp295 = carry[16] * F_q[5];
-    const float tmp296 = tmp294 + tmp295;
-    const float tmp297 = carry[17] * F_q[8];
-    const float tmp298 = tmp296 + tmp297;
-    const float tmp299 = carry[18] * F_b[2];
-    const float tmp300 = tmp298 + tmp299;
-    const float tmp301 = carry[19] * F_b[5];
-    const float tmp302 = tmp300 + tmp301;
-    const float tmp303 = carry[4] * F_b[8];
-    const float tmp304 = tmp302 + tmp303;
-    const float tmp305 = carry[5] * F_b[2];
-    const float tmp306 = carry[6] * F_b[5];
+    const float tmp293 = carry[6] * F_b[1];
+    const float tmp294 = carry[7] * F_b[4];
+    const float tmp295 = tmp293 + tmp294;
+    const float tmp296 = carry[8] * F_b[7];
+    const float tmp297 = tmp295 + tmp296;
+    const float tmp298 = tmp292 + tmp297;
+    const float tmp299 = carry[16] * F_q[2];
+    const float tmp300 = carry[17] * F_q[5];
+    const float tmp301 = tmp299 + tmp300;
+    const float tmp302 = carry[18] * F_q[8];
+    const float tmp303 = tmp301 + tmp302;
+    const float tmp304 = carry[19] * F_b[2];
+    const float tmp305 = tmp303 + tmp304;
+    const float tmp306 = carry[21] * F_b[5];
     const float tmp307 = tmp305 + tmp306;
-    const float tmp308 = carry[7] * F_b[8];
+    const float tmp308 = carry[4] * F_b[8];
     const float tmp309 = tmp307 + tmp308;
-    const float tmp310 = tmp304 + tmp309;
-    const float tmp311 = 1e-10f /* gyro_bias_rw^2 */ * dt;
-    const float tmp312 = P[21] + tmp311;
-    const float tmp313 = P[28] + tmp311;
-    const float tmp314 = P[35] + tmp311;
-    carry[5] = tmp293;
-    carry[6] = tmp310;
-    carry[7] = tmp312;
-    carry[13] = tmp313;
-    carry[15] = tmp314;
+    const float tmp310 = carry[6] * F_b[2];
+    const float tmp311 = carry[7] * F_b[5];
+    const float tmp312 = tmp310 + tmp311;
+    const float tmp313 = carry[8] * F_b[8];
+    const float tmp314 = tmp312 + tmp313;
+    const float tmp315 = tmp309 + tmp314;
+    const float tmp316 = tmp315 + carry[3];
+    const float tmp317 = 1e-10f /* gyro_bias_rw^2 */ * dt;
+    const float tmp318 = P[21] + tmp317;
+    const float tmp319 = P[28] + tmp317;
+    carry[3] = tmp281;
+    carry[6] = tmp298;
+    carry[7] = tmp316;
+    carry[8] = tmp317;
+    carry[13] = tmp318;
+    carry[14] = tmp319;
 }
 
-static void mekf_k_predict_covariance(const float F_q[9], const float F_b[9], const float P[36], float dt, float P_out[36])
+static void mekf_k_predict_covariance_part8(const float P[36], float carry[22])
 {
-    /* 8 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
-    float carry[23];
+    const float tmp320 = P[35] + carry[8];
+    carry[8] = tmp320;
+}
+
+static void mekf_k_predict_covariance(const float F_q[9], const float F_b[9], const float P[36], float dt, bool clip, float P_out[36])
+{
+    /* 9 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    float carry[22];
     mekf_k_predict_covariance_part0(F_q, F_b, P, carry);
     mekf_k_predict_covariance_part1(F_q, F_b, P, dt, carry);
-    mekf_k_predict_covariance_part2(F_q, F_b, P, carry);
+    mekf_k_predict_covariance_part2(F_q, F_b, P, dt, clip, carry);
     mekf_k_predict_covariance_part3(F_q, F_b, P, carry);
     mekf_k_predict_covariance_part4(F_q, F_b, P, carry);
     mekf_k_predict_covariance_part5(F_q, F_b, P, carry);
     mekf_k_predict_covariance_part6(F_q, F_b, P, carry);
     mekf_k_predict_covariance_part7(F_q, F_b, P, dt, carry);
-    P_out[0] = carry[3];
-    P_out[1] = carry[14];
-    P_out[2] = carry[11];
+    mekf_k_predict_covariance_part8(P, carry);
+    P_out[0] = carry[5];
+    P_out[1] = carry[15];
+    P_out[2] = carry[12];
     P_out[3] = carry[0];
     P_out[4] = carry[1];
     P_out[5] = carry[2];
-    P_out[6] = carry[14];
-    P_out[7] = carry[12];
-    P_out[8] = carry[5];
-    P_out[9] = carry[8];
-    P_out[10] = carry[9];
-    P_out[11] = carry[10];
-    P_out[12] = carry[11];
-    P_out[13] = carry[5];
-    P_out[14] = carry[6];
-    P_out[15] = carry[18];
-    P_out[16] = carry[19];
+    P_out[6] = carry[15];
+    P_out[7] = carry[3];
+    P_out[8] = carry[6];
+    P_out[9] = carry[9];
+    P_out[10] = carry[10];
+    P_out[11] = carry[11];
+    P_out[12] = carry[12];
+    P_out[13] = carry[6];
+    P_out[14] = carry[7];
+    P_out[15] = carry[19];
+    P_out[16] = carry[21];
     P_out[17] = carry[4];
     P_out[18] = carry[0];
-    P_out[19] = carry[8];
-    P_out[20] = carry[18];
-    P_out[21] = carry[7];
+    P_out[19] = carry[9];
+    P_out[20] = carry[19];
+    P_out[21] = carry[13];
     P_out[22] = P[22];
     P_out[23] = P[23];
     P_out[24] = carry[1];
-    P_out[25] = carry[9];
-    P_out[26] = carry[19];
+    P_out[25] = carry[10];
+    P_out[26] = carry[21];
     P_out[27] = P[22];
-    P_out[28] = carry[13];
+    P_out[28] = carry[14];
     P_out[29] = P[29];
     P_out[30] = carry[2];
-    P_out[31] = carry[10];
+    P_out[31] = carry[11];
     P_out[32] = carry[4];
     P_out[33] = P[23];
     P_out[34] = P[29];
-    P_out[35] = carry[15];
+    P_out[35] = carry[8];
 }
 
 /* earth-frame low-pass of the compensated specific force
- * ops: add 50, mul 27, div 1, cmp 9 (total 87) */
-static void mekf_k_accel_lowpass_part0(const float q[4], const float accel[3], const float a_lp[3], float dt, float carry[12])
+ * ops: add 50, mul 27, div 1, cmp 10 (total 88) */
+static void mekf_k_accel_lowpass_part0(const float q[4], const float accel[3], const bool mask[3], const float a_lp[3], float dt, float carry[12])
 {
     const float tmp0 = 1.0f + dt;
     const float tmp1 = dt / tmp0;
-    const float tmp2 = q[2] * q[2];
-    const float tmp3 = q[3] * q[3];
-    const float tmp4 = tmp2 + tmp3;
-    const float tmp5 = tmp4 + tmp4;
-    const float tmp6 = 1.0f - tmp5;
-    const float tmp7 = tmp6 * accel[0];
-    const float tmp8 = q[1] * q[2];
-    const float tmp9 = q[0] * q[3];
-    const float tmp10 = tmp8 - tmp9;
-    const float tmp11 = tmp10 + tmp10;
-    const float tmp12 = tmp11 * accel[1];
-    const float tmp13 = tmp7 + tmp12;
-    const float tmp14 = q[1] * q[3];
-    const float tmp15 = q[0] * q[2];
-    const float tmp16 = tmp14 + tmp15;
-    const float tmp17 = tmp16 + tmp16;
-    const float tmp18 = tmp17 * accel[2];
-    const float tmp19 = tmp13 + tmp18;
-    const float tmp20 = tmp19 - a_lp[0];
-    const float tmp21 = tmp1 * tmp20;
-    const float tmp22 = a_lp[0] + tmp21;
-    const float tmp23 = tmp8 + tmp9;
-    const float tmp24 = tmp23 + tmp23;
-    const float tmp25 = tmp24 * accel[0];
-    const float tmp26 = q[1] * q[1];
-    const float tmp27 = tmp26 + tmp3;
-    const float tmp28 = tmp27 + tmp27;
-    const float tmp29 = 1.0f - tmp28;
-    const float tmp30 = tmp29 * accel[1];
-    const float tmp31 = tmp25 + tmp30;
-    const float tmp32 = q[2] * q[3];
-    const float tmp33 = q[0] * q[1];
-    const float tmp34 = tmp32 - tmp33;
-    const float tmp35 = tmp34 + tmp34;
-    const float tmp36 = tmp35 * accel[2];
-    const float tmp37 = tmp31 + tmp36;
-    const float tmp38 = tmp37 - a_lp[1];
-    const float tmp39 = tmp1 * tmp38;
-    carry[0] = tmp1;
-    carry[1] = tmp2;
-    carry[2] = tmp14;
-    carry[3] = tmp15;
-    carry[4] = tmp19;
-    carry[5] = tmp22;
-    carry[6] = tmp26;
-    carry[7] = tmp32;
-    carry[8] = tmp33;
-    carry[9] = tmp37;
+    const float tmp2 = (mask[2]) ? 1.0f : tmp1;
+    const float tmp3 = q[2] * q[2];
+    const float tmp4 = q[3] * q[3];
+    const float tmp5 = tmp3 + tmp4;
+    const float tmp6 = tmp5 + tmp5;
+    const float tmp7 = 1.0f - tmp6;
+    const float tmp8 = tmp7 * accel[0];
+    const float tmp9 = q[1] * q[2];
+    const float tmp10 = q[0] * q[3];
+    const float tmp11 = tmp9 - tmp10;
+    const float tmp12 = tmp11 + tmp11;
+    const float tmp13 = tmp12 * accel[1];
+    const float tmp14 = tmp8 + tmp13;
+    const float tmp15 = q[1] * q[3];
+    const float tmp16 = q[0] * q[2];
+    const float tmp17 = tmp15 + tmp16;
+    const float tmp18 = tmp17 + tmp17;
+    const float tmp19 = tmp18 * accel[2];
+    const float tmp20 = tmp14 + tmp19;
+    const float tmp21 = tmp20 - a_lp[0];
+    const float tmp22 = tmp2 * tmp21;
+    const float tmp23 = a_lp[0] + tmp22;
+    const float tmp24 = tmp9 + tmp10;
+    const float tmp25 = tmp24 + tmp24;
+    const float tmp26 = tmp25 * accel[0];
+    const float tmp27 = q[1] * q[1];
+    const float tmp28 = tmp27 + tmp4;
+    const float tmp29 = tmp28 + tmp28;
+    const float tmp30 = 1.0f - tmp29;
+    const float tmp31 = tmp30 * accel[1];
+    const float tmp32 = tmp26 + tmp31;
+    const float tmp33 = q[2] * q[3];
+    const float tmp34 = q[0] * q[1];
+    const float tmp35 = tmp33 - tmp34;
+    const float tmp36 = tmp35 + tmp35;
+    const float tmp37 = tmp36 * accel[2];
+    const float tmp38 = tmp32 + tmp37;
+    const float tmp39 = tmp38 - a_lp[1];
+    carry[0] = tmp2;
+    carry[1] = tmp3;
+    carry[2] = tmp15;
+    carry[3] = tmp16;
+    carry[4] = tmp20;
+    carry[5] = tmp23;
+    carry[6] = tmp27;
+    carry[7] = tmp33;
+    carry[8] = tmp34;
+    carry[9] = tmp38;
     carry[10] = tmp39;
 }
 
-static void mekf_k_accel_lowpass_part1(const float accel[3], const float vel[3], const bool mask[2], const float a_lp[3], const float v_lp[3], const float v_ins[3], float dt, float carry[12])
+static void mekf_k_accel_lowpass_part1(const float accel[3], const float vel[3], const bool mask[3], const float a_lp[3], const float v_lp[3], const float v_ins[3], float dt, float carry[12])
 {
-    const float tmp40 = a_lp[1] + carry[10];
-    const float tmp41 = carry[2] - carry[3];
-    const float tmp42 = tmp41 + tmp41;
-    const float tmp43 = tmp42 * accel[0];
-    const float tmp44 = carry[7] + carry[8];
-    const float tmp45 = tmp44 + tmp44;
-    const float tmp46 = tmp45 * accel[1];
-    const float tmp47 = tmp43 + tmp46;
-    const float tmp48 = carry[6] + carry[1];
-    const float tmp49 = tmp48 + tmp48;
-    const float tmp50 = 1.0f - tmp49;
-    const float tmp51 = tmp50 * accel[2];
-    const float tmp52 = tmp47 + tmp51;
-    const float tmp53 = tmp52 - a_lp[2];
-    const float tmp54 = carry[0] * tmp53;
-    const float tmp55 = a_lp[2] + tmp54;
-    const float tmp56 = carry[4] * dt;
-    const float tmp57 = v_ins[0] + tmp56;
-    const float tmp58 = (mask[1]) ? vel[0] : tmp57;
-    const float tmp59 = tmp58 - v_lp[0];
-    const float tmp60 = carry[0] * tmp59;
-    const float tmp61 = v_lp[0] + tmp60;
-    const float tmp62 = (mask[0]) ? tmp61 : v_lp[0];
-    const float tmp63 = carry[9] * dt;
-    const float tmp64 = v_ins[1] + tmp63;
-    const float tmp65 = (mask[1]) ? vel[1] : tmp64;
-    const float tmp66 = tmp65 - v_lp[1];
-    const float tmp67 = carry[0] * tmp66;
-    const float tmp68 = v_lp[1] + tmp67;
-    const float tmp69 = (mask[0]) ? tmp68 : v_lp[1];
-    const float tmp70 = tmp52 + 9.80665f;
-    const float tmp71 = tmp70 * dt;
-    const float tmp72 = v_ins[2] + tmp71;
-    const float tmp73 = (mask[1]) ? vel[2] : tmp72;
-    const float tmp74 = tmp73 - v_lp[2];
-    const float tmp75 = carry[0] * tmp74;
-    const float tmp76 = v_lp[2] + tmp75;
-    const float tmp77 = (mask[0]) ? tmp76 : v_lp[2];
-    const float tmp78 = tmp58 - tmp62;
-    const float tmp79 = carry[5] - tmp78;
-    carry[0] = tmp40;
-    carry[1] = tmp55;
-    carry[2] = tmp58;
-    carry[3] = tmp62;
-    carry[4] = tmp65;
-    carry[6] = tmp69;
-    carry[7] = tmp73;
-    carry[8] = tmp77;
+    const float tmp40 = carry[0] * carry[10];
+    const float tmp41 = a_lp[1] + tmp40;
+    const float tmp42 = carry[2] - carry[3];
+    const float tmp43 = tmp42 + tmp42;
+    const float tmp44 = tmp43 * accel[0];
+    const float tmp45 = carry[7] + carry[8];
+    const float tmp46 = tmp45 + tmp45;
+    const float tmp47 = tmp46 * accel[1];
+    const float tmp48 = tmp44 + tmp47;
+    const float tmp49 = carry[6] + carry[1];
+    const float tmp50 = tmp49 + tmp49;
+    const float tmp51 = 1.0f - tmp50;
+    const float tmp52 = tmp51 * accel[2];
+    const float tmp53 = tmp48 + tmp52;
+    const float tmp54 = tmp53 - a_lp[2];
+    const float tmp55 = carry[0] * tmp54;
+    const float tmp56 = a_lp[2] + tmp55;
+    const float tmp57 = carry[4] * dt;
+    const float tmp58 = v_ins[0] + tmp57;
+    const float tmp59 = (mask[1]) ? vel[0] : tmp58;
+    const float tmp60 = tmp59 - v_lp[0];
+    const float tmp61 = carry[0] * tmp60;
+    const float tmp62 = v_lp[0] + tmp61;
+    const float tmp63 = (mask[0]) ? tmp62 : v_lp[0];
+    const float tmp64 = carry[9] * dt;
+    const float tmp65 = v_ins[1] + tmp64;
+    const float tmp66 = (mask[1]) ? vel[1] : tmp65;
+    const float tmp67 = tmp66 - v_lp[1];
+    const float tmp68 = carry[0] * tmp67;
+    const float tmp69 = v_lp[1] + tmp68;
+    const float tmp70 = (mask[0]) ? tmp69 : v_lp[1];
+    const float tmp71 = tmp53 + 9.80665f;
+    const float tmp72 = tmp71 * dt;
+    const float tmp73 = v_ins[2] + tmp72;
+    const float tmp74 = (mask[1]) ? vel[2] : tmp73;
+    const float tmp75 = tmp74 - v_lp[2];
+    const float tmp76 = carry[0] * tmp75;
+    const float tmp77 = v_lp[2] + tmp76;
+    const float tmp78 = (mask[0]) ? tmp77 : v_lp[2];
+    const float tmp79 = tmp59 - tmp63;
+    carry[0] = tmp41;
+    carry[1] = tmp56;
+    carry[2] = tmp59;
+    carry[3] = tmp63;
+    carry[4] = tmp66;
+    carry[6] = tmp70;
+    carry[7] = tmp74;
+    carry[8] = tmp78;
     carry[9] = tmp79;
 }
 
-static void mekf_k_accel_lowpass_part2(const bool mask[2], float carry[12])
+static void mekf_k_accel_lowpass_part2(const bool mask[3], float carry[12])
 {
-    const float tmp80 = (mask[0]) ? carry[9] : carry[5];
-    const float tmp81 = carry[4] - carry[6];
-    const float tmp82 = carry[0] - tmp81;
-    const float tmp83 = (mask[0]) ? tmp82 : carry[0];
-    const float tmp84 = carry[7] - carry[8];
-    const float tmp85 = carry[1] - tmp84;
-    const float tmp86 = (mask[0]) ? tmp85 : carry[1];
-    carry[9] = tmp80;
-    carry[10] = tmp83;
-    carry[11] = tmp86;
+    const float tmp80 = carry[5] - carry[9];
+    const float tmp81 = (mask[0]) ? tmp80 : carry[5];
+    const float tmp82 = carry[4] - carry[6];
+    const float tmp83 = carry[0] - tmp82;
+    const float tmp84 = (mask[0]) ? tmp83 : carry[0];
+    const float tmp85 = carry[7] - carry[8];
+    const float tmp86 = carry[1] - tmp85;
+    const float tmp87 = (mask[0]) ? tmp86 : carry[1];
+    carry[9] = tmp81;
+    carry[10] = tmp84;
+    carry[11] = tmp87;
 }
 
-static void mekf_k_accel_lowpass(const float q[4], const float b[3], const float gyro[3], const float accel[3], const float vel[3], const float acc_n[3], const bool mask[2], const float a_lp[3], const float v_lp[3], const float v_ins[3], float dt, float a_lp_out[3], float v_lp_out[3], float v_ins_out[3], float up_out[3])
+static void mekf_k_accel_lowpass(const float q[4], const float b[3], const float gyro[3], const float accel[3], const float vel[3], const float acc_n[3], const bool mask[3], const float a_lp[3], const float v_lp[3], const float v_ins[3], float dt, float a_lp_out[3], float v_lp_out[3], float v_ins_out[3], float up_out[3])
 {
     (void)b;
     (void)gyro;
     (void)acc_n;
     /* 3 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
     float carry[12];
-    mekf_k_accel_lowpass_part0(q, accel, a_lp, dt, carry);
+    mekf_k_accel_lowpass_part0(q, accel, mask, a_lp, dt, carry);
     mekf_k_accel_lowpass_part1(accel, vel, mask, a_lp, v_lp, v_ins, dt, carry);
     mekf_k_accel_lowpass_part2(mask, carry);
     a_lp_out[0] = carry[5];
@@ -1188,7 +1202,8 @@ static void mekf_k_heading_features(const float q[4], const float mag[3], const 
 }
 
 /* gravity direction: H rows, innovations, variance
- * ops: add 42, mul 30, div 4, sqrt 1, cmp 1 (total 78) */
+ * ops: add 42, mul 30, div 4, sqrt 1, cmp 2 (total 79)
+ *      of which only one side runs: if (recover) 0, else 9 */
 static void mekf_k_gravity_rows_part0(const float q[4], const float up[3], float carry[19])
 {
     const float tmp0 = q[1] * q[1];
@@ -1252,7 +1267,7 @@ static void mekf_k_gravity_rows_part0(const float q[4], const float up[3], float
     carry[18] = tmp39;
 }
 
-static void mekf_k_gravity_rows_part1(const float up[3], float carry[19])
+static void mekf_k_gravity_rows_part1(const float up[3], bool recover, float carry[19])
 {
     const float tmp40 = up[2] * up[2];
     const float tmp41 = carry[18] + tmp40;
@@ -1283,27 +1298,33 @@ static void mekf_k_gravity_rows_part1(const float up[3], float carry[19])
     const float tmp66 = tmp64 + tmp65;
     const float tmp67 = tmp66 / tmp42;
     const float tmp68 = tmp67 + carry[1];
-    const float tmp69 = tmp44 * tmp44;
-    const float tmp70 = tmp57 * tmp57;
-    const float tmp71 = tmp69 + tmp70;
-    const float tmp72 = tmp68 * tmp68;
-    const float tmp73 = tmp71 + tmp72;
-    const float tmp74 = tmp73 / 0.0441f /* 9*accel_angle_noise^2 */;
-    const float tmp75 = 1.0f + tmp74;
-    const float tmp76 = (tmp75 < 1.0f) ? tmp75 : 1.0f;
-    const float tmp77 = 0.0049f /* accel_angle_noise^2 */ * tmp76;
+    float tmp69;
+    if (recover) {
+        tmp69 = 0.0049f /* accel_angle_noise^2 */;
+    } else {
+        const float tmp70 = tmp44 * tmp44;
+        const float tmp71 = tmp57 * tmp57;
+        const float tmp72 = tmp70 + tmp71;
+        const float tmp73 = tmp68 * tmp68;
+        const float tmp74 = tmp72 + tmp73;
+        const float tmp75 = tmp74 / 0.0441f /* 9*accel_angle_noise^2 */;
+        const float tmp76 = 1.0f + tmp75;
+        const float tmp77 = (tmp76 < 1.0f) ? tmp76 : 1.0f;
+        const float tmp78 = 0.0049f /* accel_angle_noise^2 */ * tmp77;
+        tmp69 = tmp78;
+    }
     carry[0] = tmp44;
     carry[1] = tmp57;
     carry[3] = tmp68;
-    carry[4] = tmp77;
+    carry[4] = tmp69;
 }
 
-static void mekf_k_gravity_rows(const float q[4], const float up[3], float h[9], float z[3], float *r)
+static void mekf_k_gravity_rows(const float q[4], const float up[3], bool recover, float h[9], float z[3], float *r)
 {
     /* 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
     float carry[19];
     mekf_k_gravity_rows_part0(q, up, carry);
-    mekf_k_gravity_rows_part1(up, carry);
+    mekf_k_gravity_rows_part1(up, recover, carry);
     h[0] = 0.0f;
     h[1] = carry[2];
     h[2] = carry[6];
@@ -3405,6 +3426,7 @@ void mekf_init(mekf_state *s)
     s->mag_cand[1] = 0.0f;
     s->mag_cand_time = 0.0f;
     s->head_age = 1000.0f;
+    s->recover_time = 0.0f;
     s->mag_bias[0] = 0.0f;
     s->mag_bias[1] = 0.0f;
     s->mag_bias[2] = 0.0f;
@@ -3549,6 +3571,14 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
         return status;
     }
 
+    /* Gyro over-range: a component at gyro_full_scale is a clipped sample, integrated as it is; the
+     * rotation it missed widens the attitude covariance (predict_covariance), and for
+     * clip_recovery_time after the last one the corrections take the sensors as they come. */
+    bool clipped = false;
+    for (uint32_t i = 0u; i < 3u; i++) {
+        clipped = clipped || fabsf(in->gyro[i]) >= MEKF_GYRO_FULL_SCALE;
+    }
+
     /* Time update, in place: from here on the step works on the state itself. */
     float *const q = s->q;
     float *const P = s->P;
@@ -3556,7 +3586,16 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
         float F_q[9];   /* F's attitude rows: by the attitude error and by the bias error */
         float F_b[9];
         mekf_k_predict_attitude(q, s->gyro_bias, in->gyro, dt, q, F_q, F_b);
-        mekf_k_predict_covariance(F_q, F_b, P, dt, P);
+        mekf_k_predict_covariance(F_q, F_b, P, dt, clipped, P);
+    }
+    if (clipped) {
+        s->recover_time = MEKF_CLIP_RECOVERY_TIME;
+    } else if (s->recover_time > 0.0f) {
+        s->recover_time = s->recover_time - dt > 0.0f ? s->recover_time - dt : 0.0f;
+    }
+    const bool recovering = s->recover_time > 0.5f * dt;
+    if (recovering) {
+        status |= MEKF_GYRO_RECOVERY;
     }
 
     /* Field norm and dip, GPS velocity in body axes (predicted attitude). */
@@ -3598,7 +3637,9 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
     } else {
         s->rest_time = 0.0f;
     }
-    const bool at_rest = s->rest_time >= MEKF_REST_MIN_TIME;
+    /* (timers against a threshold: half a step of margin, so that a sum of steps landing on the
+     * threshold decides the same in float and double) */
+    const bool at_rest = s->rest_time + 0.5f * dt >= MEKF_REST_MIN_TIME;
     if (at_rest) {
         status |= MEKF_AT_REST;
     }
@@ -3619,7 +3660,7 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
             }
             s->vlp_ok = 1u;
         }
-        const bool lp_mask[2] = { m_comp, use_gps };
+        const bool lp_mask[3] = { m_comp, use_gps, recovering };
         mekf_k_accel_lowpass(q, s->gyro_bias, in->gyro, in->accel, s->v_gps, s->a_gps, lp_mask, s->a_lp, s->v_lp,
             s->v_ins, dt, s->a_lp, s->v_lp, s->v_ins, up);   /* in place */
         if (mekf_norm2(up) <= MEKF_ACCEL_MIN_NORM * MEKF_ACCEL_MIN_NORM) {
@@ -3632,8 +3673,8 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
     bool mag_use = false;
     if (mag_ok) {
         bool onset = false;   /* rejected this step, accepted the step before */
-        if (MEKF_MAG_NORM_TH <= 0.0f) {
-            mag_use = true;
+        if (MEKF_MAG_NORM_TH <= 0.0f || (recovering && s->mag_ref_time >= MEKF_MAG_LEARN_TIME)) {
+            mag_use = true;   /* (recovering: no field check, the sensors as they come) */
         } else if (s->mag_ref_time < MEKF_MAG_LEARN_TIME) {
             const float w = dt / (s->mag_ref_time + dt);
             s->mag_ref[0] += w * (feat[0] - s->mag_ref[0]);
@@ -3673,7 +3714,7 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
                 status |= MEKF_MAG_DISTURBED;
             }
         }
-        if (s->mag_ref[0] > 0.0f && s->mag_ref_time >= MEKF_MAG_LEARN_TIME) {
+        if (s->mag_ref[0] > 0.0f && s->mag_ref_time >= MEKF_MAG_LEARN_TIME && !recovering) {
             mekf_hard_iron(s, in->mag, in->gyro, q, dt, onset, &mag_use, &status);
         }
     }
@@ -3698,7 +3739,7 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
             float h[9];   /* the rows of H, one after the other */
             float z[3];
             float r;
-            mekf_k_gravity_rows(q, up, h, z, &r);
+            mekf_k_gravity_rows(q, up, recovering, h, z, &r);
             for (uint32_t i = 0u; i < 3u && usable; i++) {
                 mekf_k_update_attitude_row(P, &h[3u * i], z[i], r, x, x, P, &min_pivot);
                 usable = min_pivot > 1e-12f;

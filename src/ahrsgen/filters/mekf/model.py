@@ -53,6 +53,7 @@ VECTOR_STATUS = [
     ("MAG_DISTURBED", "magnetometer rejected: field norm or dip angle off the learned reference", "info"),
     ("AT_REST", "rest detected: the gyro reading measures the gyro bias directly", "info"),
     ("HARD_IRON_SWITCHED", "the magnetometer hard iron and reference field were replaced by the candidate fitted while turning", "info"),
+    ("GYRO_RECOVERY", "a gyro component at gyro_full_scale (clipped), or within clip_recovery_time after one: the attitude covariance widened, the sensors taken as they come", "info"),
 ]
 UP_NED = (0.0, 0.0, -1.0)   # direction of the specific force at rest, NED
 
@@ -177,11 +178,19 @@ def predict_attitude_function(p: dict, name="predict_attitude") -> ca.Function:
 
 
 def predict_covariance_function(p: dict, name="predict_covariance") -> ca.Function:
-    """P⁻ = F P Fᵀ + G Q Gᵀ from F's attitude rows (see predict_attitude)."""
-    Fq, Fb, Pv, dt = (ca.SX.sym(n, k) for n, k in (("F_q", 9), ("F_b", 9), ("P", N * N), ("dt", 1)))
+    """P⁻ = F P Fᵀ + G Q Gᵀ from F's attitude rows (see predict_attitude).
+
+    clip = 1 (a gyro component at gyro_full_scale): the rotation the sample missed is unknown, up
+    to one range's worth over the step, so the attitude block gains (gyro_full_scale dt / 2)² per
+    axis (the error state is the half angle)."""
+    Fq, Fb, Pv, dt, clip = (ca.SX.sym(n, k) for n, k in (("F_q", 9), ("F_b", 9), ("P", N * N), ("dt", 1),
+                                                         ("clip", 1)))
     F, G = _blocks(ca.reshape(Fq, 3, 3), ca.reshape(Fb, 3, 3))
     P_new = kalman.predict_covariance(sym_lower(Pv), F, G, _process_noise(p, dt), symmetrize=False)
-    return emit.function(name, {"F_q": Fq, "F_b": Fb, "P": Pv, "dt": dt}, {"P_out": flat_mirrored(P_new)})
+    w = 0.5 * p["gyro_full_scale"] * dt
+    P_new = P_new + ca.if_else(clip, w * w, 0) * ca.diag(ca.DM([1, 1, 1, 0, 0, 0]))
+    return emit.function(name, {"F_q": Fq, "F_b": Fb, "P": Pv, "dt": dt, "clip": clip},
+                         {"P_out": flat_mirrored(P_new)})
 
 
 def measured_angles(p: dict, q, b, gyro, accel, mag, vel, acc_n, m_comp):
@@ -278,10 +287,10 @@ def accel_lowpass_function(p: dict, name="accel_lowpass") -> ca.Function:
         ("q", 4), ("b", 3), ("gyro", 3), ("accel", 3), ("vel", 3), ("acc_n", 3), ("a_lp", 3), ("v_lp", 3),
         ("v_ins", 3)))
     dt = ca.SX.sym("dt")
-    mask = ca.SX.sym("mask", 2)        # [motion compensation, GPS sample this step]
+    mask = ca.SX.sym("mask", 3)        # [motion compensation, GPS sample this step, gyro recovery]
     m_comp = mask[0]
     f = motion_compensated(p, q, b, gyro, accel, vel, acc_n, m_comp)
-    alpha = dt / (p["accel_lpf_tau"] + dt)
+    alpha = ca.if_else(mask[2], 1, dt / (p["accel_lpf_tau"] + dt))   # recovering: the sample itself
     f_n = quat.rotate(q, f)
     a_new = a_lp + alpha * (f_n - a_lp)
     if p["motion_comp"] == "gps_lowpass":
@@ -346,13 +355,15 @@ def gravity_rows_function(p: dict, name="gravity_rows") -> ca.Function:
     The step runs the three rows in turn through `update_attitude_row` (one kernel, called
     three times: kalman.scalar_updates, the batch update of the rows stacked).
     """
-    q, up = ca.SX.sym("q", 4), ca.SX.sym("up", 3)
+    q, up, recover = ca.SX.sym("q", 4), ca.SX.sym("up", 3), ca.SX.sym("recover")
     d = quat.rotate_inv(q, up) / ca.sqrt(ca.sumsqr(up))
     z_g = d - gravity_direction(q, ca.DM.zeros(3))
     sig2 = p["accel_angle_noise"] ** 2
-    r_g = sig2 * ca.fmin(1 + ca.sumsqr(z_g) / (9 * sig2), p["accel_adapt_cap"])
+    # recovering after a gyro clip (recover = 1): no weakening, the covariance sets the gain
+    r_g = ca.if_else(recover, sig2, sig2 * ca.fmin(1 + ca.sumsqr(z_g) / (9 * sig2), p["accel_adapt_cap"]))
     Hq = jacobian_gravity(q)[:, :3]
-    return emit.function(name, {"q": q, "up": up}, {"h": ca.reshape(Hq.T, 9, 1), "z": z_g, "r": r_g})
+    return emit.function(name, {"q": q, "up": up, "recover": recover},
+                         {"h": ca.reshape(Hq.T, 9, 1), "z": z_g, "r": r_g})
 
 
 def update_attitude_row_function(name="update_attitude_row") -> ca.Function:
@@ -544,6 +555,7 @@ class Model(FilterModel):
             StateField("mag_cand", 2, "candidate new reference [norm, dip] while rejected", 0.0),
             StateField("mag_cand_time", 1, "time the candidate field has been steady, s", 0.0),
             StateField("head_age", 1, "time since the last heading correction, s (stops at 1e3)", AGE_MAX),
+            StateField("recover_time", 1, "time left of the recovery after a clipped gyro sample, s", 0.0),
             StateField("mag_bias", 3, "magnetometer hard iron, body axes, the field's units (m - mag_bias is used)", 0.0),
         ] + (self._hard_iron_fields() if self._hard_iron() else [])
 
@@ -565,11 +577,13 @@ class Model(FilterModel):
         if self.vectors:
             return [
                 KernelSpec("predict_attitude", predict_attitude_function(p), "time update: attitude and F's attitude rows"),
-                KernelSpec("predict_covariance", predict_covariance_function(p), "time update: covariance"),
+                KernelSpec("predict_covariance", predict_covariance_function(p), "time update: covariance",
+                           flags=("clip",)),
                 KernelSpec("accel_lowpass", accel_lowpass_function(p), "earth-frame low-pass of the compensated specific force",
                            flags=("mask",)),
                 KernelSpec("heading_features", heading_features_function(), "field norm and dip; GPS velocity in body axes"),
-                KernelSpec("gravity_rows", gravity_rows_function(p), "gravity direction: H rows, innovations, variance"),
+                KernelSpec("gravity_rows", gravity_rows_function(p), "gravity direction: H rows, innovations, variance",
+                           flags=("recover",)),
                 KernelSpec("update_attitude_row", update_attitude_row_function(), "one scalar row on the attitude error"),
                 KernelSpec("update_rest_bias", update_rest_bias_function(p), "at rest, the gyro bias: three scalar rows"),
                 KernelSpec("inject", inject_function(), "error injection into q and the gyro bias"),
@@ -609,4 +623,6 @@ class Model(FilterModel):
                 "tan2_sideslip": math.tan(p["course_max_sideslip"]) ** 2,
                 # the norm gate's test is written only when it can be on (a runtime value, or > 0):
                 # no unreachable code in a default build. dict.get: not a use of a runtime value.
-                "accel_gate_on": not isinstance(p.get("accel_gate"), (int, float)) or p.get("accel_gate") > 0}
+                "accel_gate_on": not isinstance(p.get("accel_gate"), (int, float)) or p.get("accel_gate") > 0,
+                # the over-range test likewise (gyro_full_scale = 0: no over-range handling)
+                "gyro_fs_on": not isinstance(p.get("gyro_full_scale"), (int, float)) or p.get("gyro_full_scale") > 0}

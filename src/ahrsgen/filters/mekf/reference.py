@@ -49,6 +49,7 @@ HEADING_UNAIDED = st.FILTER_BASE << 3  # no heading correction for more than HEA
 MAG_DISTURBED = st.FILTER_BASE << 4    # magnetometer rejected: field norm or dip off its reference
 AT_REST = st.FILTER_BASE << 5          # rest detected: the gyro bias is measured directly
 HARD_IRON_SWITCHED = st.FILTER_BASE << 6  # the hard iron and reference were replaced by the candidate
+GYRO_RECOVERY = st.FILTER_BASE << 7    # a gyro sample at its range, or clip_recovery_time after one
 MAG_RES_TAU = 0.2       # s: the hard-iron residuals are low-passed over this (white noise averages out)
 MAG_BIAS_P0 = 0.3       # initial standard deviation of the candidate field model, fraction of the norm
 MAG_BIAS_RATIO = 4.0    # the candidate must explain the field this much better (mean squares)
@@ -167,8 +168,10 @@ class Reference:
         if self.vectors:
             for k in ("accel_lpf_tau", "accel_adapt_cap", "rest_gyro_th", "rest_accel_th", "rest_min_time",
                       "rest_tau", "mag_norm_th", "mag_dip_th", "mag_learn_time", "mag_reject_max",
-                      "mag_ref_tau", "mag_new_time", "course_max_sideslip"):
+                      "mag_ref_tau", "mag_new_time", "course_max_sideslip", "gyro_full_scale",
+                      "clip_recovery_time"):
                 setattr(self, k, float(p[k]))
+            self.recover_time = 0.0       # time left of the recovery after a gyro clip, s
             self.a_lp = np.zeros(3)       # earth-frame (NED) low-passed specific force
             self.v_lp = np.zeros(3)       # the GPS velocity through the same low-pass (gps_lowpass)
             self.vlp_ok = False           # v_lp follows a fresh GPS velocity
@@ -410,6 +413,20 @@ class Reference:
         # --- time update (as step()) ----------------------------------------------------
         q, P = self._time_update(gyro, dt)
         Rq = rotmat(q)
+        # --- gyro over-range: a sample at the range is integrated as it is, and the rotation
+        # it missed (unknown, up to one range's worth per step: half-angle (range dt / 2)^2 in
+        # the error state) widens the attitude covariance; for clip_recovery_time after the
+        # last clipped sample the corrections take the sensors as they come (no low-pass, no
+        # motion weighting, no field check) so that the covariance, not the low-pass, sets
+        # how fast the attitude comes back
+        if self.gyro_full_scale > 0.0 and np.max(np.abs(gyro)) >= self.gyro_full_scale:
+            P = P + np.diag([(0.5 * self.gyro_full_scale * dt) ** 2] * 3 + [0.0] * 3)
+            self.recover_time = self.clip_recovery_time
+        elif self.recover_time > 0.0:
+            self.recover_time = max(self.recover_time - dt, 0.0)
+        recovering = self.recover_time > 0.5 * dt
+        if recovering:
+            status |= GYRO_RECOVERY
 
         # --- heading source: the GPS course while moving nose first (the velocity within
         # course_max_sideslip of the body x axis: a fixed-wing, not a multirotor drifting
@@ -436,7 +453,9 @@ class Reference:
             still = still and da @ da < self.rest_accel_th ** 2
         still = still and not moving
         self.rest_time = min(self.rest_time + dt, AGE_MAX) if still else 0.0
-        at_rest = self.rest_time >= self.rest_min_time
+        # timers against a threshold: half a step of margin, so that a sum of steps landing on
+        # the threshold decides the same in float and double (rounding moves it by ~1e-7 s)
+        at_rest = self.rest_time + 0.5 * dt >= self.rest_min_time
         if at_rest:
             status |= AT_REST
 
@@ -454,7 +473,7 @@ class Reference:
                 fc = f - np.cross(gyro - self.gyro_bias, Rq.T @ self.v_gps)
             elif self.motion_comp == "gps_accel" and self.a_ok and fresh:
                 fc = f - Rq.T @ self.a_gps
-            aa = dt / (self.accel_lpf_tau + dt)
+            aa = 1.0 if recovering else dt / (self.accel_lpf_tau + dt)
             self.a_lp = self.a_lp + aa * (Rq @ fc - self.a_lp)
             up = self.a_lp
             if self.motion_comp == "gps_lowpass":
@@ -478,7 +497,7 @@ class Reference:
         if mag_ok:
             mn = Rq @ m
             cur = np.array([np.sqrt(m @ m), np.arctan2(mn[2], np.hypot(mn[0], mn[1]))])
-            if self.mag_norm_th <= 0.0:
+            if self.mag_norm_th <= 0.0 or (recovering and self.mag_ref_time >= self.mag_learn_time):
                 mag_use = True
             elif self.mag_ref_time < self.mag_learn_time:
                 self.mag_ref = self.mag_ref + dt / (self.mag_ref_time + dt) * (cur - self.mag_ref)
@@ -509,7 +528,8 @@ class Reference:
                         mag_use = True
                     else:
                         status |= MAG_DISTURBED
-            if self.mag_bias_on and self.mag_ref[0] > 0.0 and self.mag_ref_time >= self.mag_learn_time:
+            if (self.mag_bias_on and self.mag_ref[0] > 0.0 and self.mag_ref_time >= self.mag_learn_time
+                    and not recovering):
                 w = gyro - self.gyro_bias
                 if onset and not self.mag_suspect:
                     self.mag_cP = np.eye(5) * MAG_BIAS_P0 ** 2    # a new disturbance: the candidate starts afresh
@@ -527,7 +547,7 @@ class Reference:
             g_hat = Rq.T @ np.array([0.0, 0.0, -1.0])
             z_g = d - g_hat
             sig2 = self.accel_angle_noise ** 2
-            r_g = sig2 * min(1.0 + (z_g @ z_g) / (9.0 * sig2), self.accel_adapt_cap)
+            r_g = sig2 if recovering else sig2 * min(1.0 + (z_g @ z_g) / (9.0 * sig2), self.accel_adapt_cap)
             z = np.concatenate([z_g, gyro - self.gyro_bias])
             H = np.zeros((6, 6))
             H[:3, :3] = 2.0 * skew(g_hat)          # d/dθ of Rᵀ(q Exp θ) e = skew(Rᵀe) θ, θ = 2 δq
