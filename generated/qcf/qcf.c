@@ -405,301 +405,317 @@ static void qcf_k_heading_init(const float q[4], const float mag[3], float q_new
     q_new[3] = carry[3];
 }
 
-/* low-pass of the specific force in NED, R(q) f (time constant accel_tau)
- * ops: add 13, mul 12, div 1 (total 26) */
-static inline void qcf_k_accel_lowpass(const float rot[9], const float accel[3], const float accel_lp[3], float span, float accel_lp_new[3])
+/* low-pass of the specific force in NED, R(q) f (time constant accel_tau; recovering from a clipped gyro sample: the sample itself)
+ * ops: add 13, mul 12, div 1, cmp 3 (total 29)
+ *      of which only one side runs: if (recover) 0, else 11 */
+static inline void qcf_k_accel_lowpass(const float rot[9], const float accel[3], const float accel_lp[3], float span, bool recover, float accel_lp_new[3])
 {
-    const float tmp0 = 1.0f + span;
-    const float tmp1 = span / tmp0;
-    const float tmp2 = rot[0] * accel[0];
-    const float tmp3 = rot[3] * accel[1];
+    const float tmp0 = rot[0] * accel[0];
+    const float tmp1 = rot[3] * accel[1];
+    const float tmp2 = tmp0 + tmp1;
+    const float tmp3 = rot[6] * accel[2];
     const float tmp4 = tmp2 + tmp3;
-    const float tmp5 = rot[6] * accel[2];
-    const float tmp6 = tmp4 + tmp5;
-    const float tmp7 = tmp6 - accel_lp[0];
-    const float tmp8 = tmp1 * tmp7;
-    const float tmp9 = accel_lp[0] + tmp8;
-    const float tmp10 = rot[1] * accel[0];
-    const float tmp11 = rot[4] * accel[1];
+    const float tmp5 = rot[1] * accel[0];
+    const float tmp6 = rot[4] * accel[1];
+    const float tmp7 = tmp5 + tmp6;
+    const float tmp8 = rot[7] * accel[2];
+    const float tmp9 = tmp7 + tmp8;
+    const float tmp10 = rot[2] * accel[0];
+    const float tmp11 = rot[5] * accel[1];
     const float tmp12 = tmp10 + tmp11;
-    const float tmp13 = rot[7] * accel[2];
+    const float tmp13 = rot[8] * accel[2];
     const float tmp14 = tmp12 + tmp13;
-    const float tmp15 = tmp14 - accel_lp[1];
-    const float tmp16 = tmp1 * tmp15;
-    const float tmp17 = accel_lp[1] + tmp16;
-    const float tmp18 = rot[2] * accel[0];
-    const float tmp19 = rot[5] * accel[1];
-    const float tmp20 = tmp18 + tmp19;
-    const float tmp21 = rot[8] * accel[2];
-    const float tmp22 = tmp20 + tmp21;
-    const float tmp23 = tmp22 - accel_lp[2];
-    const float tmp24 = tmp1 * tmp23;
-    const float tmp25 = accel_lp[2] + tmp24;
-    accel_lp_new[0] = tmp9;
-    accel_lp_new[1] = tmp17;
-    accel_lp_new[2] = tmp25;
+    float tmp15;
+    float tmp16;
+    float tmp17;
+    if (recover) {
+        tmp15 = tmp4;
+        tmp16 = tmp9;
+        tmp17 = tmp14;
+    } else {
+        const float tmp18 = 1.0f + span;
+        const float tmp19 = span / tmp18;
+        const float tmp20 = tmp4 - accel_lp[0];
+        const float tmp21 = tmp19 * tmp20;
+        const float tmp22 = accel_lp[0] + tmp21;
+        const float tmp23 = tmp9 - accel_lp[1];
+        const float tmp24 = tmp19 * tmp23;
+        const float tmp25 = accel_lp[1] + tmp24;
+        const float tmp26 = tmp14 - accel_lp[2];
+        const float tmp27 = tmp19 * tmp26;
+        const float tmp28 = accel_lp[2] + tmp27;
+        tmp15 = tmp22;
+        tmp16 = tmp25;
+        tmp17 = tmp28;
+    }
+    accel_lp_new[0] = tmp15;
+    accel_lp_new[1] = tmp16;
+    accel_lp_new[2] = tmp17;
 }
 
 /* tilt (low-passed accelerometer) and heading (magnetometer) corrections as PI feedback on the predicted attitude, bias integral gated, bias at rest from the low-passed gyro
- * ops: add 54, mul 64, div 11, sqrt 6, trig 2, cmp 26 (total 163)
- *      of which only one side runs: if (tmp39 < 1e-15f) 0, else 17
- *      of which only one side runs: if (0.0f <= tmp33) 2, else 4
- *      of which only one side runs: if (tmp75 < 0.01f) 10, else 8
- *      of which only one side runs: if (at_rest) 11, else 11 */
-static void qcf_k_correct_part0(const float rot[9], const float accel_lp[3], const float mag_ned[3], float span_accel, float carry[11])
+ * ops: add 54, mul 64, div 11, sqrt 6, trig 2, cmp 28 (total 165)
+ *      of which only one side runs: if (tmp40 < 1e-15f) 0, else 17
+ *      of which only one side runs: if (0.0f <= tmp34) 2, else 4
+ *      of which only one side runs: if (tmp76 < 0.01f) 10, else 8
+ *      of which only one side runs: if (at_rest) 11, else 12 */
+static void qcf_k_correct_part0(const float rot[9], const float accel_lp[3], const float mag_ned[3], float span_accel, bool recover, float carry[11])
 {
-    const float tmp0 = 0.15f /* 0.5*kp */ * span_accel;
-    const float tmp1 = accel_lp[0] * accel_lp[0];
-    const float tmp2 = accel_lp[1] * accel_lp[1];
-    const float tmp3 = tmp1 + tmp2;
-    const float tmp4 = accel_lp[2] * accel_lp[2];
-    const float tmp5 = tmp3 + tmp4;
-    const float tmp6 = sqrtf(tmp5);
-    const float tmp7 = tmp6 - accel_lp[2];
-    const float tmp8 = 1e-06f * tmp6;
-    const float tmp9 = tmp6 + tmp6;
-    const float tmp10 = tmp9 * tmp7;
-    const float tmp11 = sqrtf(tmp10);
-    const float tmp12 = accel_lp[1] / tmp11;
-    const float tmp13 = -tmp12;
-    const float tmp14 = (tmp7 < tmp8) ? 1.0f : tmp13;
-    const float tmp15 = tmp0 * tmp14;
-    const float tmp16 = rot[0] * tmp15;
-    const float tmp17 = accel_lp[0] / tmp11;
-    const float tmp18 = tmp0 * tmp17;
-    const float tmp19 = rot[1] * tmp18;
-    const float tmp20 = (tmp7 < tmp8) ? 0.0f : tmp19;
-    const float tmp21 = tmp16 + tmp20;
-    const float tmp22 = tmp17 * mag_ned[0];
-    const float tmp23 = (tmp7 < tmp8) ? 0.0f : tmp22;
-    const float tmp24 = tmp14 * mag_ned[1];
-    const float tmp25 = tmp23 - tmp24;
-    const float tmp26 = tmp7 / tmp11;
-    const float tmp27 = tmp26 * mag_ned[2];
-    const float tmp28 = (tmp7 < tmp8) ? 0.0f : tmp27;
-    const float tmp29 = tmp25 - tmp28;
-    const float tmp30 = tmp29 + tmp29;
-    const float tmp31 = tmp17 * tmp30;
-    const float tmp32 = (tmp7 < tmp8) ? 0.0f : tmp31;
-    const float tmp33 = mag_ned[0] - tmp32;
-    const float tmp34 = tmp33 * tmp33;
-    const float tmp35 = tmp14 * tmp30;
-    const float tmp36 = mag_ned[1] + tmp35;
-    const float tmp37 = tmp36 * tmp36;
-    const float tmp38 = tmp34 + tmp37;
-    const float tmp39 = sqrtf(tmp38);
-    carry[0] = tmp7;
+    const float tmp0 = (recover) ? 1.0f : 0.15f;
+    const float tmp1 = tmp0 * span_accel;
+    const float tmp2 = accel_lp[0] * accel_lp[0];
+    const float tmp3 = accel_lp[1] * accel_lp[1];
+    const float tmp4 = tmp2 + tmp3;
+    const float tmp5 = accel_lp[2] * accel_lp[2];
+    const float tmp6 = tmp4 + tmp5;
+    const float tmp7 = sqrtf(tmp6);
+    const float tmp8 = tmp7 - accel_lp[2];
+    const float tmp9 = 1e-06f * tmp7;
+    const float tmp10 = tmp7 + tmp7;
+    const float tmp11 = tmp10 * tmp8;
+    const float tmp12 = sqrtf(tmp11);
+    const float tmp13 = accel_lp[1] / tmp12;
+    const float tmp14 = -tmp13;
+    const float tmp15 = (tmp8 < tmp9) ? 1.0f : tmp14;
+    const float tmp16 = tmp1 * tmp15;
+    const float tmp17 = rot[0] * tmp16;
+    const float tmp18 = accel_lp[0] / tmp12;
+    const float tmp19 = tmp1 * tmp18;
+    const float tmp20 = rot[1] * tmp19;
+    const float tmp21 = (tmp8 < tmp9) ? 0.0f : tmp20;
+    const float tmp22 = tmp17 + tmp21;
+    const float tmp23 = tmp18 * mag_ned[0];
+    const float tmp24 = (tmp8 < tmp9) ? 0.0f : tmp23;
+    const float tmp25 = tmp15 * mag_ned[1];
+    const float tmp26 = tmp24 - tmp25;
+    const float tmp27 = tmp8 / tmp12;
+    const float tmp28 = tmp27 * mag_ned[2];
+    const float tmp29 = (tmp8 < tmp9) ? 0.0f : tmp28;
+    const float tmp30 = tmp26 - tmp29;
+    const float tmp31 = tmp30 + tmp30;
+    const float tmp32 = tmp18 * tmp31;
+    const float tmp33 = (tmp8 < tmp9) ? 0.0f : tmp32;
+    const float tmp34 = mag_ned[0] - tmp33;
+    const float tmp35 = tmp34 * tmp34;
+    const float tmp36 = tmp15 * tmp31;
+    const float tmp37 = mag_ned[1] + tmp36;
+    const float tmp38 = tmp37 * tmp37;
+    const float tmp39 = tmp35 + tmp38;
+    carry[0] = tmp0;
     carry[1] = tmp8;
-    carry[2] = tmp15;
-    carry[3] = tmp18;
-    carry[4] = tmp21;
-    carry[5] = tmp33;
-    carry[6] = tmp36;
-    carry[7] = tmp39;
+    carry[2] = tmp9;
+    carry[3] = tmp16;
+    carry[4] = tmp19;
+    carry[5] = tmp22;
+    carry[6] = tmp34;
+    carry[7] = tmp37;
+    carry[8] = tmp39;
 }
 
 static void qcf_k_correct_part1(const float rot[9], float span_mag, float carry[11])
 {
-    float tmp40;
+    const float tmp40 = sqrtf(carry[8]);
     float tmp41;
     float tmp42;
-    if (carry[7] < 1e-15f) {
-        tmp40 = 0.0f;
+    float tmp43;
+    if (tmp40 < 1e-15f) {
         tmp41 = 0.0f;
         tmp42 = 0.0f;
+        tmp43 = 0.0f;
     } else {
-        const float tmp43 = 0.15f /* 0.5*kp */ * span_mag;
-        const float tmp44 = carry[7] + carry[7];
-        const float tmp45 = fabsf(carry[5]);
-        const float tmp46 = carry[7] + tmp45;
-        const float tmp47 = tmp44 * tmp46;
-        const float tmp48 = sqrtf(tmp47);
-        float tmp49;
-        if (0.0f <= carry[5]) {
-            const float tmp50 = carry[6] / tmp48;
-            const float tmp51 = -tmp50;
-            tmp49 = tmp51;
+        const float tmp44 = carry[0] * span_mag;
+        const float tmp45 = tmp40 + tmp40;
+        const float tmp46 = fabsf(carry[6]);
+        const float tmp47 = tmp40 + tmp46;
+        const float tmp48 = tmp45 * tmp47;
+        const float tmp49 = sqrtf(tmp48);
+        float tmp50;
+        if (0.0f <= carry[6]) {
+            const float tmp51 = carry[7] / tmp49;
+            const float tmp52 = -tmp51;
+            tmp50 = tmp52;
         } else {
-            const float tmp52 = carry[5] - carry[7];
-            const float tmp53 = carry[7] - carry[5];
-            const float tmp54 = (0.0f < carry[6]) ? tmp52 : tmp53;
-            const float tmp55 = tmp54 / tmp48;
-            tmp49 = tmp55;
+            const float tmp53 = carry[6] - tmp40;
+            const float tmp54 = tmp40 - carry[6];
+            const float tmp55 = (0.0f < carry[7]) ? tmp53 : tmp54;
+            const float tmp56 = tmp55 / tmp49;
+            tmp50 = tmp56;
         }
-        const float tmp56 = tmp43 * tmp49;
-        const float tmp57 = rot[2] * tmp56;
-        const float tmp58 = rot[5] * tmp56;
-        const float tmp59 = rot[8] * tmp56;
-        tmp40 = tmp57;
+        const float tmp57 = tmp44 * tmp50;
+        const float tmp58 = rot[2] * tmp57;
+        const float tmp59 = rot[5] * tmp57;
+        const float tmp60 = rot[8] * tmp57;
         tmp41 = tmp58;
         tmp42 = tmp59;
+        tmp43 = tmp60;
     }
-    const float tmp60 = carry[4] + tmp40;
-    const float tmp61 = tmp60 * tmp60;
-    const float tmp62 = rot[3] * carry[2];
-    const float tmp63 = rot[4] * carry[3];
-    const float tmp64 = (carry[0] < carry[1]) ? 0.0f : tmp63;
-    const float tmp65 = tmp62 + tmp64;
-    const float tmp66 = tmp65 + tmp41;
-    const float tmp67 = tmp66 * tmp66;
-    const float tmp68 = tmp61 + tmp67;
-    const float tmp69 = rot[6] * carry[2];
-    const float tmp70 = rot[7] * carry[3];
-    const float tmp71 = (carry[0] < carry[1]) ? 0.0f : tmp70;
-    const float tmp72 = tmp69 + tmp71;
-    const float tmp73 = tmp72 + tmp42;
-    const float tmp74 = tmp73 * tmp73;
-    const float tmp75 = tmp68 + tmp74;
-    carry[0] = tmp60;
-    carry[1] = tmp66;
-    carry[2] = tmp73;
-    carry[3] = tmp75;
+    const float tmp61 = carry[5] + tmp41;
+    const float tmp62 = tmp61 * tmp61;
+    const float tmp63 = rot[3] * carry[3];
+    const float tmp64 = rot[4] * carry[4];
+    const float tmp65 = (carry[1] < carry[2]) ? 0.0f : tmp64;
+    const float tmp66 = tmp63 + tmp65;
+    const float tmp67 = tmp66 + tmp42;
+    const float tmp68 = tmp67 * tmp67;
+    const float tmp69 = tmp62 + tmp68;
+    const float tmp70 = rot[6] * carry[3];
+    const float tmp71 = rot[7] * carry[4];
+    const float tmp72 = (carry[1] < carry[2]) ? 0.0f : tmp71;
+    const float tmp73 = tmp70 + tmp72;
+    const float tmp74 = tmp73 + tmp43;
+    const float tmp75 = tmp74 * tmp74;
+    const float tmp76 = tmp69 + tmp75;
+    carry[0] = tmp61;
+    carry[1] = tmp67;
+    carry[2] = tmp74;
+    carry[3] = tmp76;
 }
 
 static void qcf_k_correct_part2(const float q[4], float carry[11])
 {
-    float tmp76;
     float tmp77;
     float tmp78;
     float tmp79;
+    float tmp80;
     if (carry[3] < 0.01f) {
-        const float tmp80 = (-2.1377798e-05f) * carry[3];
-        const float tmp81 = (-0.00021164022f) + tmp80;
-        const float tmp82 = carry[3] * tmp81;
-        const float tmp83 = (-0.0021164021f) + tmp82;
-        const float tmp84 = carry[3] * tmp83;
-        const float tmp85 = (-0.022222223f) + tmp84;
-        const float tmp86 = carry[3] * tmp85;
-        const float tmp87 = (-0.33333334f) + tmp86;
-        const float tmp88 = carry[3] * tmp87;
-        const float tmp89 = 1.0f + tmp88;
-        tmp76 = tmp89;
-        tmp77 = carry[0];
-        tmp78 = carry[1];
-        tmp79 = carry[2];
+        const float tmp81 = (-2.1377798e-05f) * carry[3];
+        const float tmp82 = (-0.00021164022f) + tmp81;
+        const float tmp83 = carry[3] * tmp82;
+        const float tmp84 = (-0.0021164021f) + tmp83;
+        const float tmp85 = carry[3] * tmp84;
+        const float tmp86 = (-0.022222223f) + tmp85;
+        const float tmp87 = carry[3] * tmp86;
+        const float tmp88 = (-0.33333334f) + tmp87;
+        const float tmp89 = carry[3] * tmp88;
+        const float tmp90 = 1.0f + tmp89;
+        tmp77 = tmp90;
+        tmp78 = carry[0];
+        tmp79 = carry[1];
+        tmp80 = carry[2];
     } else {
-        const float tmp90 = (carry[3] > 0.01f) ? carry[3] : 0.01f;
-        const float tmp91 = sqrtf(tmp90);
+        const float tmp91 = (carry[3] > 0.01f) ? carry[3] : 0.01f;
+        const float tmp92 = sqrtf(tmp91);
+        float tmp94;
         float tmp93;
-        float tmp92;
-        fast_sincosf(tmp91, &tmp93, &tmp92);   /* sin and cos, one reduction */
-        const float tmp94 = tmp93 / tmp91;
-        const float tmp95 = tmp94 * carry[0];
-        const float tmp96 = tmp94 * carry[1];
-        const float tmp97 = tmp94 * carry[2];
-        tmp76 = tmp92;
-        tmp77 = tmp95;
+        fast_sincosf(tmp92, &tmp94, &tmp93);   /* sin and cos, one reduction */
+        const float tmp95 = tmp94 / tmp92;
+        const float tmp96 = tmp95 * carry[0];
+        const float tmp97 = tmp95 * carry[1];
+        const float tmp98 = tmp95 * carry[2];
+        tmp77 = tmp93;
         tmp78 = tmp96;
         tmp79 = tmp97;
+        tmp80 = tmp98;
     }
-    const float tmp98 = q[0] * tmp76;
-    const float tmp99 = q[1] * tmp77;
-    const float tmp100 = tmp98 - tmp99;
-    const float tmp101 = q[2] * tmp78;
-    const float tmp102 = tmp100 - tmp101;
-    const float tmp103 = q[3] * tmp79;
-    const float tmp104 = tmp102 - tmp103;
-    const float tmp105 = tmp104 * tmp104;
-    const float tmp106 = q[0] * tmp77;
-    const float tmp107 = q[1] * tmp76;
-    const float tmp108 = tmp106 + tmp107;
-    const float tmp109 = q[2] * tmp79;
-    const float tmp110 = tmp108 + tmp109;
-    const float tmp111 = q[3] * tmp78;
-    const float tmp112 = tmp110 - tmp111;
-    const float tmp113 = tmp112 * tmp112;
-    const float tmp114 = tmp105 + tmp113;
-    const float tmp115 = q[0] * tmp78;
-    carry[3] = tmp76;
-    carry[4] = tmp77;
-    carry[5] = tmp78;
-    carry[6] = tmp79;
-    carry[7] = tmp104;
-    carry[8] = tmp112;
-    carry[9] = tmp114;
-    carry[10] = tmp115;
+    const float tmp99 = q[0] * tmp77;
+    const float tmp100 = q[1] * tmp78;
+    const float tmp101 = tmp99 - tmp100;
+    const float tmp102 = q[2] * tmp79;
+    const float tmp103 = tmp101 - tmp102;
+    const float tmp104 = q[3] * tmp80;
+    const float tmp105 = tmp103 - tmp104;
+    const float tmp106 = tmp105 * tmp105;
+    const float tmp107 = q[0] * tmp78;
+    const float tmp108 = q[1] * tmp77;
+    const float tmp109 = tmp107 + tmp108;
+    const float tmp110 = q[2] * tmp80;
+    const float tmp111 = tmp109 + tmp110;
+    const float tmp112 = q[3] * tmp79;
+    const float tmp113 = tmp111 - tmp112;
+    const float tmp114 = tmp113 * tmp113;
+    const float tmp115 = tmp106 + tmp114;
+    const float tmp116 = q[0] * tmp79;
+    carry[3] = tmp77;
+    carry[4] = tmp78;
+    carry[5] = tmp79;
+    carry[6] = tmp80;
+    carry[7] = tmp105;
+    carry[8] = tmp113;
+    carry[9] = tmp115;
+    carry[10] = tmp116;
 }
 
 static void qcf_k_correct_part3(const float q[4], float carry[11])
 {
-    const float tmp116 = q[1] * carry[6];
-    const float tmp117 = carry[10] - tmp116;
-    const float tmp118 = q[2] * carry[3];
-    const float tmp119 = tmp117 + tmp118;
-    const float tmp120 = q[3] * carry[4];
-    const float tmp121 = tmp119 + tmp120;
-    const float tmp122 = tmp121 * tmp121;
-    const float tmp123 = carry[9] + tmp122;
-    const float tmp124 = q[0] * carry[6];
-    const float tmp125 = q[1] * carry[5];
-    const float tmp126 = tmp124 + tmp125;
-    const float tmp127 = q[2] * carry[4];
-    const float tmp128 = tmp126 - tmp127;
-    const float tmp129 = q[3] * carry[3];
-    const float tmp130 = tmp128 + tmp129;
-    const float tmp131 = tmp130 * tmp130;
-    const float tmp132 = tmp123 + tmp131;
-    const float tmp133 = sqrtf(tmp132);
-    const float tmp134 = carry[7] / tmp133;
-    const float tmp135 = carry[8] / tmp133;
-    const float tmp136 = tmp121 / tmp133;
-    const float tmp137 = tmp130 / tmp133;
-    carry[3] = tmp134;
-    carry[4] = tmp135;
-    carry[5] = tmp136;
-    carry[6] = tmp137;
+    const float tmp117 = q[1] * carry[6];
+    const float tmp118 = carry[10] - tmp117;
+    const float tmp119 = q[2] * carry[3];
+    const float tmp120 = tmp118 + tmp119;
+    const float tmp121 = q[3] * carry[4];
+    const float tmp122 = tmp120 + tmp121;
+    const float tmp123 = tmp122 * tmp122;
+    const float tmp124 = carry[9] + tmp123;
+    const float tmp125 = q[0] * carry[6];
+    const float tmp126 = q[1] * carry[5];
+    const float tmp127 = tmp125 + tmp126;
+    const float tmp128 = q[2] * carry[4];
+    const float tmp129 = tmp127 - tmp128;
+    const float tmp130 = q[3] * carry[3];
+    const float tmp131 = tmp129 + tmp130;
+    const float tmp132 = tmp131 * tmp131;
+    const float tmp133 = tmp124 + tmp132;
+    const float tmp134 = sqrtf(tmp133);
+    const float tmp135 = carry[7] / tmp134;
+    const float tmp136 = carry[8] / tmp134;
+    const float tmp137 = tmp122 / tmp134;
+    const float tmp138 = tmp131 / tmp134;
+    carry[3] = tmp135;
+    carry[4] = tmp136;
+    carry[5] = tmp137;
+    carry[6] = tmp138;
 }
 
-static void qcf_k_correct_part4(const float gyro_bias[3], float span_accel, bool use_accel, float accel_norm2, bool at_rest, const float rest_gyro_lp[3], float carry[11])
+static void qcf_k_correct_part4(const float gyro_bias[3], float span_accel, bool use_accel, float accel_norm2, bool recover, bool at_rest, const float rest_gyro_lp[3], float carry[11])
 {
-    float tmp138;
     float tmp139;
     float tmp140;
+    float tmp141;
     if (at_rest) {
-        const float tmp141 = 1.0f + span_accel;
-        const float tmp142 = span_accel / tmp141;
-        const float tmp143 = rest_gyro_lp[0] - gyro_bias[0];
-        const float tmp144 = tmp142 * tmp143;
-        const float tmp145 = gyro_bias[0] + tmp144;
-        const float tmp146 = rest_gyro_lp[1] - gyro_bias[1];
-        const float tmp147 = tmp142 * tmp146;
-        const float tmp148 = gyro_bias[1] + tmp147;
-        const float tmp149 = rest_gyro_lp[2] - gyro_bias[2];
-        const float tmp150 = tmp142 * tmp149;
-        const float tmp151 = gyro_bias[2] + tmp150;
-        tmp138 = tmp145;
-        tmp139 = tmp148;
-        tmp140 = tmp151;
+        const float tmp142 = 1.0f + span_accel;
+        const float tmp143 = span_accel / tmp142;
+        const float tmp144 = rest_gyro_lp[0] - gyro_bias[0];
+        const float tmp145 = tmp143 * tmp144;
+        const float tmp146 = gyro_bias[0] + tmp145;
+        const float tmp147 = rest_gyro_lp[1] - gyro_bias[1];
+        const float tmp148 = tmp143 * tmp147;
+        const float tmp149 = gyro_bias[1] + tmp148;
+        const float tmp150 = rest_gyro_lp[2] - gyro_bias[2];
+        const float tmp151 = tmp143 * tmp150;
+        const float tmp152 = gyro_bias[2] + tmp151;
+        tmp139 = tmp146;
+        tmp140 = tmp149;
+        tmp141 = tmp152;
     } else {
-        const bool tmp152 = (77.55708f < accel_norm2) && (accel_norm2 < 116.78368f);
-        const bool tmp153 = (use_accel) && (tmp152);
-        const float tmp154 = 0.013333334f /* ki/(0.5*kp) */ * carry[0];
-        const float tmp155 = gyro_bias[0] - tmp154;
-        const float tmp156 = (tmp153) ? tmp155 : gyro_bias[0];
-        const float tmp157 = 0.013333334f /* ki/(0.5*kp) */ * carry[1];
-        const float tmp158 = gyro_bias[1] - tmp157;
-        const float tmp159 = (tmp153) ? tmp158 : gyro_bias[1];
-        const float tmp160 = 0.013333334f /* ki/(0.5*kp) */ * carry[2];
-        const float tmp161 = gyro_bias[2] - tmp160;
-        const float tmp162 = (tmp153) ? tmp161 : gyro_bias[2];
-        tmp138 = tmp156;
-        tmp139 = tmp159;
-        tmp140 = tmp162;
+        const bool tmp153 = (use_accel) && (!(recover));
+        const bool tmp154 = (77.55708f < accel_norm2) && (accel_norm2 < 116.78368f);
+        const bool tmp155 = (tmp153) && (tmp154);
+        const float tmp156 = 0.013333334f * carry[0];
+        const float tmp157 = gyro_bias[0] - tmp156;
+        const float tmp158 = (tmp155) ? tmp157 : gyro_bias[0];
+        const float tmp159 = 0.013333334f * carry[1];
+        const float tmp160 = gyro_bias[1] - tmp159;
+        const float tmp161 = (tmp155) ? tmp160 : gyro_bias[1];
+        const float tmp162 = 0.013333334f * carry[2];
+        const float tmp163 = gyro_bias[2] - tmp162;
+        const float tmp164 = (tmp155) ? tmp163 : gyro_bias[2];
+        tmp139 = tmp158;
+        tmp140 = tmp161;
+        tmp141 = tmp164;
     }
-    carry[0] = tmp138;
-    carry[1] = tmp139;
-    carry[2] = tmp140;
+    carry[0] = tmp139;
+    carry[1] = tmp140;
+    carry[2] = tmp141;
 }
 
-static void qcf_k_correct(const float q[4], const float rot[9], const float gyro_bias[3], const float accel_lp[3], const float mag_ned[3], float span_accel, float span_mag, bool use_accel, float accel_norm2, bool at_rest, const float rest_gyro_lp[3], float q_new[4], float gyro_bias_new[3])
+static void qcf_k_correct(const float q[4], const float rot[9], const float gyro_bias[3], const float accel_lp[3], const float mag_ned[3], float span_accel, float span_mag, bool use_accel, float accel_norm2, bool recover, bool at_rest, const float rest_gyro_lp[3], float q_new[4], float gyro_bias_new[3])
 {
     /* 5 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
     float carry[11];
-    qcf_k_correct_part0(rot, accel_lp, mag_ned, span_accel, carry);
+    qcf_k_correct_part0(rot, accel_lp, mag_ned, span_accel, recover, carry);
     qcf_k_correct_part1(rot, span_mag, carry);
     qcf_k_correct_part2(q, carry);
     qcf_k_correct_part3(q, carry);
-    qcf_k_correct_part4(gyro_bias, span_accel, use_accel, accel_norm2, at_rest, rest_gyro_lp, carry);
+    qcf_k_correct_part4(gyro_bias, span_accel, use_accel, accel_norm2, recover, at_rest, rest_gyro_lp, carry);
     q_new[0] = carry[3];
     q_new[1] = carry[4];
     q_new[2] = carry[5];
@@ -710,10 +726,10 @@ static void qcf_k_correct(const float q[4], const float rot[9], const float gyro
 }
 
 /* rest detection: gyro steady and |f| near g for rest_time
- * ops: add 15, mul 9, div 1, cmp 6 (total 31) */
-static inline void qcf_k_rest(const float gyro[3], float accel_norm2, const float rest_gyro_lp[3], float rest_time, float span, float rest_gyro_lp_new[3], float *rest_time_new, bool *at_rest)
+ * ops: add 16, mul 10, div 1, cmp 6 (total 33) */
+static void qcf_k_rest(const float gyro[3], float accel_norm2, const float rest_gyro_lp[3], float rest_time, float span, float rest_gyro_lp_new[3], float *rest_time_new, bool *at_rest)
 {
-    const float tmp0 = 0.5f /* rest_tau */ + span;
+    const float tmp0 = 0.5f + span;
     const float tmp1 = span / tmp0;
     const float tmp2 = gyro[0] - rest_gyro_lp[0];
     const float tmp3 = tmp1 * tmp2;
@@ -732,23 +748,25 @@ static inline void qcf_k_rest(const float gyro[3], float accel_norm2, const floa
     const float tmp16 = gyro[2] - tmp10;
     const float tmp17 = tmp16 * tmp16;
     const float tmp18 = tmp15 + tmp17;
-    const bool tmp19 = (86.61373f /* (9.80665 - rest_accel_tol)^2 */ < accel_norm2) && (accel_norm2 < 106.227036f /* (9.80665 + rest_accel_tol)^2 */);
-    const bool tmp20 = (tmp18 < 0.001225f /* rest_gyro_tol^2 */) && (tmp19);
+    const bool tmp19 = (86.61373f < accel_norm2) && (accel_norm2 < 106.227036f);
+    const bool tmp20 = (tmp18 < 0.001225f) && (tmp19);
     const float tmp21 = tmp4 * tmp4;
     const float tmp22 = tmp7 * tmp7;
     const float tmp23 = tmp21 + tmp22;
     const float tmp24 = tmp10 * tmp10;
     const float tmp25 = tmp23 + tmp24;
-    const bool tmp26 = (tmp20) && (tmp25 < 0.001225f /* rest_gyro_tol^2 */);
+    const bool tmp26 = (tmp20) && (tmp25 < 0.001225f);
     const float tmp27 = rest_time + span;
     const float tmp28 = (tmp27 < 1000.0f) ? tmp27 : 1000.0f;
     const float tmp29 = (tmp26) ? tmp28 : 0.0f;
-    const bool tmp30 = 1.5f /* rest_time */ <= tmp29;
+    const float tmp30 = 0.5f * span;
+    const float tmp31 = tmp29 + tmp30;
+    const bool tmp32 = 1.5f <= tmp31;
     rest_gyro_lp_new[0] = tmp4;
     rest_gyro_lp_new[1] = tmp7;
     rest_gyro_lp_new[2] = tmp10;
     *rest_time_new = tmp29;
-    *at_rest = tmp30;
+    *at_rest = tmp32;
 }
 
 /* field check: |m| and sin(dip) against the learned reference
@@ -1167,6 +1185,7 @@ void qcf_init(qcf_state *s)
     s->mag_ref[1] = 0.0f;
     s->mag_dist_time = 0.0f;
     s->mag_learn_time = 0.0f;
+    s->recover_time = 0.0f;
 }
 
 qcf_status qcf_step(qcf_state *restrict s, const qcf_input *restrict in, float dt)
@@ -1234,6 +1253,25 @@ qcf_status qcf_step(qcf_state *restrict s, const qcf_input *restrict in, float d
     qcf_k_predict(s->q, s->gyro_bias, in->gyro, dt, s->q);
     qcf_start(s, in, use_accel, use_mag);   /* the first samples set the attitude */
     const bool started = s->initialised != 0u;   /* false only before the first accelerometer sample */
+    /* Gyro over-range: a component at gyro_full_scale is a clipped sample, integrated as it is; for
+     * clip_recovery_time after the last one the correction takes the sensors as they come with
+     * kp_recovery (timer: half a step of margin, so that float and double decide alike). */
+    bool recovering = false;
+    if (started) {
+        bool clipped = false;
+        for (uint32_t i = 0u; i < 3u; i++) {
+            clipped = clipped || fabsf(in->gyro[i]) >= QCF_GYRO_FULL_SCALE;
+        }
+        if (clipped) {
+            s->recover_time = QCF_CLIP_RECOVERY_TIME;
+        } else if (s->recover_time > 0.0f) {
+            s->recover_time = s->recover_time - dt > 0.0f ? s->recover_time - dt : 0.0f;
+        }
+        recovering = s->recover_time > 0.5f * dt;
+        if (recovering) {
+            status |= QCF_GYRO_RECOVERY;
+        }
+    }
     float rot[9];      /* R(q), column-major: shared by the kernels below */
     qcf_k_rotation(s->q, rot);
     float accel_g[3] = { in->accel[0], in->accel[1], in->accel[2] };
@@ -1247,7 +1285,7 @@ qcf_status qcf_step(qcf_state *restrict s, const qcf_input *restrict in, float d
     s->mag_age = (s->mag_age + dt < QCF_SPAN_MAX) ? s->mag_age + dt : QCF_SPAN_MAX;
     bool at_rest = false;
     if (use_accel) {
-        qcf_k_accel_lowpass(rot, accel_g, s->accel_lp, s->accel_age, s->accel_lp);
+        qcf_k_accel_lowpass(rot, accel_g, s->accel_lp, s->accel_age, recovering, s->accel_lp);
         qcf_k_rest(in->gyro, accel_n2, s->rest_gyro_lp, s->rest_time, s->accel_age,
             s->rest_gyro_lp, &s->rest_time, &at_rest);
         if (at_rest) {
@@ -1261,14 +1299,14 @@ qcf_status qcf_step(qcf_state *restrict s, const qcf_input *restrict in, float d
         bool accept;
         qcf_k_mag_check(s->accel_lp, mag_n2, mag_n, s->mag_ref, s->mag_dist_time, s->mag_learn_time,
             s->mag_age, &accept, s->mag_ref, &s->mag_dist_time, &s->mag_learn_time);
-        if (!accept) {
+        if (!accept && !recovering) {   /* (recovering: the dip was judged with the wrong attitude) */
             heading_ok = false;
             status |= QCF_MAG_DISTURBED;
         }
     }
     qcf_k_correct(s->q, rot, s->gyro_bias, s->accel_lp, mag_n,
         use_accel ? s->accel_age : 0.0f, heading_ok ? s->mag_age : 0.0f,
-        use_accel, accel_n2, at_rest, s->rest_gyro_lp,
+        use_accel, accel_n2, recovering, at_rest, s->rest_gyro_lp,
         s->q, s->gyro_bias);
     if (use_accel) {
         s->accel_age = 0.0f;

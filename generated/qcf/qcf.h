@@ -22,7 +22,7 @@
  * its GNU modes, -std=c99 turns it off) and -fno-math-errno; -ffast-math breaks the input
  * checks (isfinite). Any C99 compiler builds it; see the ahrsgen docs (target.md).
  *     qcf_euler(&st, rpy);
- * No heap, no recursion; RAM is the state struct (104 bytes with the usual ABI).
+ * No heap, no recursion; RAM is the state struct (108 bytes with the usual ABI).
  * Needs <math.h> (float functions only in a float build); compilers may also emit calls to
  * memcpy/memset/memmove for struct and array copies.
  *
@@ -73,6 +73,9 @@ extern "C" {
 #define QCF_CONDITIONING 1                 /* the conditioning below (NED accelerometer low-pass, vector tilt and heading-only magnetometer corrections, bias gate, rest detection, field check, weighted centripetal term); false: the PI filter with the FQA reference as before (ignored when faithful) */
 #define QCF_ACCEL_TAU 1.0f                 /* time constant of the NED-frame low-pass of the accelerometer (R(q) f) that the tilt reference is built from (VQF's idea: motion acceleration averages out, gravity does not); 0 = off [s] */
 #define QCF_BIAS_ACCEL_GATE 1.0f           /* the bias integral runs only in steps with ||f| - g| below this (frozen while the accelerometer is distrusted: no wind-up under sustained acceleration) [m/s^2] */
+#define QCF_GYRO_FULL_SCALE 34.906586f     /* the gyro's full scale (Fusion's gyroscopeRange): a component at or beyond it is a clipped sample, integrated as it is, that starts clip_recovery_time of recovery (status GYRO_RECOVERY). Default 2000 deg/s, the commonest flight-controller setting; set your sensor's (a +-500 deg/s gyro: 8.7266). 0: no over-range handling [rad/s] */
+#define QCF_CLIP_RECOVERY_TIME 2.0f        /* after the last clipped gyro sample, for this long the correction uses kp_recovery on the accelerometer sample itself (no low-pass) and the magnetometer without the field check, and the bias integral holds [s] */
+#define QCF_KP_RECOVERY 2.0f               /* proportional gain while recovering from a clipped gyro sample (Fusion's start-up gain idea): the error falls as exp(-kp_recovery t), 19 deg to 0.05 deg in 3 s [rad/s] */
 #define QCF_REST_TIME 1.5f                 /* rest detection: gyro steady and |f| near g this long -> the gyro bias is learned from the low-passed gyro (0 = off) [s] */
 #define QCF_REST_TAU 0.5f                  /* rest detection: time constant of the gyro low-pass the samples are compared with [s] */
 #define QCF_REST_GYRO_TOL 0.035f           /* rest detection: largest |gyro - low-passed gyro|, and largest |low-passed gyro| (a steady turn is not rest) [rad/s] */
@@ -111,9 +114,10 @@ typedef uint32_t qcf_status;
 #define QCF_GPS_RANGE       (1u << 12) /* a GPS velocity component beyond gps_vel_max; the sample is ignored */
 #define QCF_MAG_DISTURBED   (1u << 16) /* magnetometer norm or dip off its reference: heading not corrected this step */
 #define QCF_AT_REST         (1u << 17) /* at rest: the gyro bias follows the low-passed gyro */
+#define QCF_GYRO_RECOVERY   (1u << 18) /* a gyro component at gyro_full_scale (clipped), or within clip_recovery_time after one: kp_recovery on the sensors as they come */
 #define QCF_REFUSED_MASK (QCF_DT_INVALID | QCF_DT_TOO_LARGE | QCF_GYRO_MISSING | QCF_GYRO_NONFINITE | QCF_GYRO_RANGE)
 /* Bits that mean trouble (a refused step, a bad sample, a numeric fault); the others are
- * information (what the filter noticed: MAG_DISTURBED, AT_REST).
+ * information (what the filter noticed: MAG_DISTURBED, AT_REST, GYRO_RECOVERY).
  * Test (status & QCF_STATUS_FAULT_MASK) != 0u for a fault, not status != 0. */
 #define QCF_STATUS_FAULT_MASK (QCF_DT_INVALID | QCF_DT_TOO_LARGE | QCF_GYRO_MISSING | QCF_GYRO_NONFINITE | QCF_ACCEL_NONFINITE | QCF_ACCEL_ZERO | QCF_MAG_NONFINITE | QCF_MAG_ZERO | QCF_GPS_NONFINITE | QCF_GYRO_RANGE | QCF_ACCEL_RANGE | QCF_MAG_RANGE | QCF_GPS_RANGE)
 
@@ -132,6 +136,7 @@ typedef struct {
     float mag_ref[2];      /* field check reference: |m| and sin(dip) (|m| = 0: not learned) */
     float mag_dist_time;   /* field check: time the field has been rejected, s */
     float mag_learn_time;  /* field check: time since the first magnetometer sample (capped), s */
+    float recover_time;    /* time left of the recovery after a clipped gyro sample, s */
 } qcf_state;
 
 typedef struct {

@@ -59,7 +59,8 @@ def rest_detector(gyro, accel_norm2, gyro_lp, rest_time, dt, *, tau: float, gyro
                                        norm_within(accel_norm2, gravity, accel_tol)),
                           ca.sumsqr(g_lp) < gyro_max ** 2)
     t_new = ca.if_else(steady, ca.fmin(rest_time + dt, time_cap), 0.0)
-    return g_lp, t_new, t_new >= min_time
+    # half a step of margin: a sum of steps landing on min_time decides alike in float and double
+    return g_lp, t_new, t_new + 0.5 * dt >= min_time
 
 
 def field_check(norm, sin_dip, ref_norm, ref_dip, dist_time, dt, *, norm_tol: float, dip_tol: float,

@@ -67,6 +67,7 @@ def differentiator_coeffs(faithful: bool):
 EXTRA_STATUS = [
     ("MAG_DISTURBED", "magnetometer norm or dip off its reference: heading not corrected this step", "info"),
     ("AT_REST", "at rest: the gyro bias follows the low-passed gyro", "info"),
+    ("GYRO_RECOVERY", "a gyro component at gyro_full_scale (clipped), or within clip_recovery_time after one: kp_recovery on the sensors as they come", "info"),
 ]
 
 
@@ -101,6 +102,7 @@ class Model(FilterModel):
             StateField("mag_ref", 2, "field check reference: |m| and sin(dip) (|m| = 0: not learned)", 0.0),
             StateField("mag_dist_time", 1, "field check: time the field has been rejected, s", 0.0),
             StateField("mag_learn_time", 1, "field check: time since the first magnetometer sample (capped), s", 0.0),
+            StateField("recover_time", 1, "time left of the recovery after a clipped gyro sample, s", 0.0),
         ])
 
     def kernels(self):
@@ -196,6 +198,7 @@ class Model(FilterModel):
         t_rest = ca.SX.sym("rest_time")
         at_rest = ca.SX.sym("at_rest")
         use_a = ca.SX.sym("use_accel")
+        recover = ca.SX.sym("recover")    # recovering from a clipped gyro sample
         m_ref = ca.SX.sym("mag_ref", 2)
         t_dist = ca.SX.sym("mag_dist_time")
         t_learn = ca.SX.sym("mag_learn_time")
@@ -215,12 +218,15 @@ class Model(FilterModel):
         H = aiding.heading_correction_ned(quat.rotate_xy_tilt(T, m_n), decl)
         # e dt, the error integrated over the step (no division by dt: a tiny dt must not blow up),
         # carried as ½ kp e dt: the gain and the exponential's ½ multiply the two weights once
-        kh = 0.5 * p["kp"]
+        # (recovering from a clipped gyro sample the gain is kp_recovery and the bias integral holds,
+        # so the bias below only ever sees the nominal gain)
+        kh = ca.if_else(recover, 0.5 * p["kp_recovery"], 0.5 * p["kp"])
         e_half = ca.mtimes(rot.T, ca.vertcat((kh * span_a) * T[1], (kh * span_a) * T[2], (kh * span_m) * H[3]))
         # the gyro's ½ (ω - b) dt was applied by the prediction (predict kernel), before R(q) was formed
         half_rotation = e_half                                  # ½ kp e dt
-        trusted = ca.logic_and(use_a, aiding.norm_within(f2, G0, p["bias_accel_gate"]))
-        bias_pi = ca.if_else(trusted, bias - (p["ki"] / kh) * e_half, bias)   # b - ki e dt
+        trusted = ca.logic_and(ca.logic_and(use_a, ca.logic_not(recover)),
+                               aiding.norm_within(f2, G0, p["bias_accel_gate"]))
+        bias_pi = ca.if_else(trusted, bias - (p["ki"] / (0.5 * p["kp"])) * e_half, bias)   # b - ki e dt
         if p["rest_time"] > 0:
             bias_new = ca.if_else(at_rest, aiding.lowpass(bias, g_lp, span_a, p["rest_bias_tau"]), bias_pi)
         else:
@@ -239,20 +245,24 @@ class Model(FilterModel):
             KernelSpec("heading_init", function("heading_init", {"q": q, "mag": m},
                                                 {"q_new": quat.qmul(aiding.heading_correction(q, m, decl), q)}),
                        "first magnetometer sample (with the first attitude or after it): heading set, tilt kept"),
-            KernelSpec("accel_lowpass", function("accel_lowpass", {"rot": rot, "accel": f, "accel_lp": a_lp, "span": span},
-                                                 {"accel_lp_new": aiding.lowpass(a_lp, ca.mtimes(rot, f), span,
-                                                                                 p["accel_tau"])}),
-                       "low-pass of the specific force in NED, R(q) f (time constant accel_tau)"),
+            KernelSpec("accel_lowpass", function("accel_lowpass", {"rot": rot, "accel": f, "accel_lp": a_lp, "span": span,
+                                                                   "recover": recover},
+                                                 {"accel_lp_new": ca.if_else(recover, ca.mtimes(rot, f),
+                                                                             aiding.lowpass(a_lp, ca.mtimes(rot, f), span,
+                                                                                            p["accel_tau"]))}),
+                       "low-pass of the specific force in NED, R(q) f (time constant accel_tau; recovering from "
+                       "a clipped gyro sample: the sample itself)", flags=("recover",)),
             KernelSpec("correct", function("correct", {"q": q, "rot": rot, "gyro_bias": bias,
                                                        "accel_lp": a_lp, "mag_ned": m_n, "span_accel": span_a,
                                                        "span_mag": span_m, "use_accel": use_a, "accel_norm2": f2,
+                                                       "recover": recover,
                                                        **({"at_rest": at_rest, "rest_gyro_lp": g_lp}
                                                           if p["rest_time"] > 0 else {})},
                                            {"q_new": quat.qnormalize(quat.qmul(q, quat.qexp_scaled(half_rotation))),
                                             "gyro_bias_new": bias_new}),
                        "tilt (low-passed accelerometer) and heading (magnetometer) corrections as PI feedback "
                        "on the predicted attitude, bias integral gated, bias at rest from the low-passed gyro",
-                       flags=("use_accel",) + (("at_rest",) if p["rest_time"] > 0 else ())),
+                       flags=("use_accel", "recover") + (("at_rest",) if p["rest_time"] > 0 else ())),
         ]
         if p["rest_time"] > 0:
             g2, t2, r2 = aiding.rest_detector(gyro, f2, g_lp, t_rest, span, tau=p["rest_tau"],
@@ -301,7 +311,9 @@ class Model(FilterModel):
     def template_context(self):
         p = self.params
         return {"motion_model": p["motion_accel_model"], "product": self.product, "gps_taps": gps_taps(p),
-                "rest": self.product and p["rest_time"] > 0, "mag_rejection": self.product and p["mag_rejection"]}
+                "rest": self.product and p["rest_time"] > 0, "mag_rejection": self.product and p["mag_rejection"],
+                # the over-range test only when it can be on (gyro_full_scale = 0: no handling)
+                "gyro_fs_on": not isinstance(p.get("gyro_full_scale"), (int, float)) or p.get("gyro_full_scale") > 0}
 
     def step_paths(self):
         if self.product:

@@ -110,6 +110,7 @@ class Reference:
         self.mag_ref = np.zeros(2)         # |m|, sin(dip); |m| = 0: not learned
         self.mag_dist_time = 0.0
         self.mag_learn_time = 0.0          # time since the first magnetometer sample (capped at warmup)
+        self.recover_time = 0.0            # time left of the recovery after a clipped gyro sample
 
     def step(self, gyro, accel, mag, gps_vel, valid, dt):
         p = self.p
@@ -199,12 +200,22 @@ class Reference:
         bit = {entry[0]: 1 << (16 + i) for i, entry in enumerate(EXTRA_STATUS)}
         if self.initialised == 0:            # no accelerometer sample yet (_start sets it): predicted only
             return status
+        # gyro over-range: a clipped sample was integrated as it is; for clip_recovery_time after
+        # the last one the correction takes the sensors as they come with kp_recovery (half a
+        # step of margin on the timer: float and double decide alike)
+        if p["gyro_full_scale"] > 0 and np.max(np.abs(gyro)) >= p["gyro_full_scale"]:
+            self.recover_time = p["clip_recovery_time"]
+        elif self.recover_time > 0:
+            self.recover_time = max(self.recover_time - dt, 0.0)
+        recovering = self.recover_time > 0.5 * dt
+        if recovering:
+            status |= bit["GYRO_RECOVERY"]
         self.accel_age = min(self.accel_age + dt, p["span_max"])
         self.mag_age = min(self.mag_age + dt, p["span_max"])
         at_rest = False
         if use_accel:
             s = self.accel_age
-            if p["accel_tau"] > 0:
+            if p["accel_tau"] > 0 and not recovering:
                 self.accel_lp = self.accel_lp + s / (p["accel_tau"] + s) * (nq.rotmat(self.q) @ f - self.accel_lp)
             else:
                 self.accel_lp = nq.rotmat(self.q) @ f
@@ -216,7 +227,7 @@ class Reference:
                           and abs(np.linalg.norm(f_raw) - G0) < p["rest_accel_tol"]
                           and np.linalg.norm(self.rest_gyro_lp) < tol)
                 self.rest_time = min(self.rest_time + s, 1e3) if steady else 0.0
-                at_rest = self.rest_time >= p["rest_time"]
+                at_rest = self.rest_time + 0.5 * s >= p["rest_time"]    # (half a step of margin)
                 if at_rest:
                     status |= bit["AT_REST"]
         down = -self.accel_lp / np.linalg.norm(self.accel_lp)
@@ -240,8 +251,9 @@ class Reference:
                 self.mag_ref = self.mag_ref + k * (np.array([norm, sin_dip]) - self.mag_ref)
                 self.mag_dist_time = 0.0
             else:
-                heading_ok = False
-                status |= bit["MAG_DISTURBED"]
+                if not recovering:           # the dip was judged with the attitude that is wrong
+                    heading_ok = False
+                    status |= bit["MAG_DISTURBED"]
                 self.mag_dist_time += s
                 if self.mag_dist_time > p["mag_new_time"]:   # a lasting change: new reference
                     self.mag_ref = np.array([norm, sin_dip])
@@ -253,11 +265,12 @@ class Reference:
                 H = heading_correction(nq.qmul(T, self.q), mag, p["declination"])
                 e_n = e_n + self.mag_age * H[1:]
             e_dt = nq.rotmat(self.q).T @ e_n                 # error integrated over the step
-            theta = p["kp"] * e_dt                             # the correction (the gyro's part was predicted)
+            kp = p["kp_recovery"] if recovering else p["kp"]
+            theta = kp * e_dt                                  # the correction (the gyro's part was predicted)
             if at_rest:
                 s = self.accel_age
                 self.bias = self.bias + s / (p["rest_bias_tau"] + s) * (self.rest_gyro_lp - self.bias)
-            elif use_accel and abs(np.linalg.norm(f_raw) - G0) < p["bias_accel_gate"]:
+            elif use_accel and not recovering and abs(np.linalg.norm(f_raw) - G0) < p["bias_accel_gate"]:
                 self.bias = self.bias - p["ki"] * e_dt
             self.q = integrate(self.q, theta, 1.0)
         if use_accel:
