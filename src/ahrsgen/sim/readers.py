@@ -340,10 +340,10 @@ class CsvChunks:
     read_csv's parser, which names the bad line), else by read_csv's parser.
     """
 
-    def __init__(self, path: str | os.PathLike, name: str | None = None, block_bytes: int = BLOCK_BYTES):
+    def __init__(self, path: str | os.PathLike, name: str | None = None, block_bytes: int | None = None):
         self.path = Path(path)
         self.name = name or self.path.name.split(".")[0]
-        self.block_bytes = max(1, int(block_bytes))
+        self.block_bytes = max(1, int(BLOCK_BYTES if block_bytes is None else block_bytes))
         self.size = self.path.stat().st_size
         self.done_bytes = 0                 # bytes of the file (compressed, for .gz) read so far
         self.rows = None
