@@ -193,3 +193,13 @@ def test_cli_run_reads_a_large_log_in_chunks(tmp_path, monkeypatch, capsys):
     whole = capsys.readouterr().out
     tail = lambda s: s[s.index("error vs"):s.index("wrote") if "wrote" in s else None]  # noqa: E731
     assert tail(chunked).strip() == tail(whole).strip()
+
+
+def test_without_pyarrow_same_arrays(tmp_path, monkeypatch):
+    """A plain install (no pyarrow): every block goes through read_csv's numpy parser."""
+    p = _variant(tmp_path, movement=False)
+    with_arrow = _concat(list(readers.CsvChunks(p, block_bytes=5000)))
+    monkeypatch.setattr(readers, "_arrow_csv", lambda: (None, None))
+    without = _concat(list(readers.CsvChunks(p, block_bytes=5000)))
+    for f in FIELDS:
+        assert np.array_equal(with_arrow[f], without[f], equal_nan=True), f
