@@ -17,6 +17,7 @@ One rule for every output path of every command (docs/output-files.md), checked 
 """
 from __future__ import annotations
 
+import contextlib
 import os
 import tempfile
 from pathlib import Path
@@ -147,18 +148,27 @@ def check_output_dir(path: str | Path, what: str) -> Path:
     return p
 
 
-def write_atomic(path: str | Path, data: bytes) -> Path:
+@contextlib.contextmanager
+def atomic_file(path: str | Path, mode: str = "wb"):
+    """A file object to write `path` through: a temporary file in the same folder, which replaces
+    the target in one rename when the block ends, and is removed if it raises ("wb", or "w" for
+    UTF-8 text with the newlines as written)."""
     p = Path(path)
     fd, tmp = tempfile.mkstemp(dir=p.parent if str(p.parent) else ".", prefix=f".{p.name}.", suffix=".tmp")
     try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
+        with (os.fdopen(fd, "wb") if mode == "wb" else os.fdopen(fd, "w", encoding="utf-8", newline="")) as fh:
+            yield fh
         os.chmod(tmp, 0o644)
         os.replace(tmp, p)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
-    return p
+
+
+def write_atomic(path: str | Path, data: bytes) -> Path:
+    with atomic_file(path) as fh:
+        fh.write(data)
+    return Path(path)
 
 
 def write_text_atomic(path: str | Path, text: str) -> Path:

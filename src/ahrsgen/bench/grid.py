@@ -106,8 +106,9 @@ class Progress:
         """sys.stderr as it is now (a default bound at import is a stream pytest has closed)."""
         return self._stream if self._stream is not None else sys.stderr
 
-    def update(self, what):
-        self.done += 1
+    def update(self, what, done=None):
+        """One more done (or `done` of the total, e.g. bytes of a file read so far)."""
+        self.done = self.done + 1 if done is None else done
         frac = self.done / max(self.total, 1)
         bar = "#" * int(30 * frac) + "." * (30 - int(30 * frac))
         el = time.time() - self.t0

@@ -13,32 +13,51 @@ from ahrsgen.sim.metrics import broad_errors_deg
 from ahrsgen.npquat import euler_from_q
 from ahrsgen.bench.common import ANGLES
 from ahrsgen.bench.harness import build_log_runner, run_log_exe
-from ahrsgen.bench.scoring import (compare_frame, filter_heading, refusal_failure, refusal_hint,  # noqa: F401
-                                         score, score_mask, site_sets)
+from ahrsgen.bench.scoring import (ScoreSums, StatusTally, compare_frame, filter_heading,  # noqa: F401
+                                         refusal_failure, refusal_hint, score, score_mask, site_sets)
+from ahrsgen.sim.log import SensorLog
+from ahrsgen.sim.peers import heading_offset_sums, rotate_heading
+from ahrsgen.status import REFUSED_MASK
 
 
 # =========================================================================================
 # ahrsgen run
 
-def status_counts(status: np.ndarray, manifest: dict) -> str:
+def status_counts(status, manifest: dict) -> str:
     """'AT_REST 1200, MAG_DISTURBED 35 (fault)': every status bit a run set, by the names of the
-    build's header, with the number of steps; the faults (STATUS_FAULT_MASK) marked."""
+    build's header, with the number of steps; the faults (STATUS_FAULT_MASK) marked. `status`:
+    the statuses or their StatusTally."""
     fault = int(manifest.get("status_fault_mask", 0))
+    tally = status if isinstance(status, StatusTally) else StatusTally(status)
     parts = []
     for name, bit in manifest.get("status", {}).items():
-        n = int(np.count_nonzero(status & np.uint32(bit))) if bit else 0
+        n = tally.count(bit) if bit else 0
         if n:
             parts.append(f"{name} {n}" + (" (fault)" if bit & fault else ""))
     return ", ".join(parts)
 
 
+# A log read in chunks (readers.CsvChunks) is scored without holding it: the score's sums are
+# added chunk by chunk (ScoreSums), rows of the first SETTLE_MAX seconds wait until the settle
+# time is known (min(10 s, 20 % of the log): it needs the log's length), and a filter without a
+# heading source (its one constant heading offset is a mean over every scored row) is run over
+# the log a second time to score it. The plot keeps at most PLOT_ROWS rows (every k-th row).
+SETTLE_MAX = 10.0
+PLOT_ROWS = 200_000
+
+
 def run_on_log(filter_name: str, log_path: str, config_file=None, sets=(), precision="float",
                plot=None, csv=None, exe=False, out=None, runtime=None, preset=None, log=None) -> dict:
     """Run one generated filter over a log file; score it where the log has a reference.
-    runtime: parameters built as runtime parameters (their values set through set_params)."""
+    runtime: parameters built as runtime parameters (their values set through set_params).
+    log: the log already read, a SensorLog or a readers.CsvChunks (a log of any size, run a
+    chunk at a time with the filter's state carried across; result['res'] is then None)."""
     from ahrsgen.generate import config
     out = out or sys.stdout
     log = readers.read_log(log_path) if log is None else log
+    whole = isinstance(log, SensorLog)
+    if exe and not whole:
+        raise ValueError("run_on_log: exe runs a whole SensorLog, not a log read in chunks")
     user = config.resolve(filter_name, config_file, list(sets), precision, None, preset).overrides
     extra, applied = site_sets(filter_name, log.meta, set(user))
     cfg = config.resolve(filter_name, config_file, list(sets) + extra, precision, None, preset, runtime=runtime)
@@ -48,33 +67,69 @@ def run_on_log(filter_name: str, log_path: str, config_file=None, sets=(), preci
         heading = "true"
     if extra:
         print(f"site parameters from the log (override with --set): {', '.join(extra)}", file=out)
-    t0 = time.perf_counter()
-    if exe:
-        res, summary = run_log_exe(build_log_runner(hf.dir), log)
+    tally, summary, timing = StatusTally(), "", [0.0]
+    if whole:
+        t0 = time.perf_counter()
+        if exe:
+            res, summary = run_log_exe(build_log_runner(hf.dir), log)
+        else:
+            res = hf.run(log)
+        timing[0] = time.perf_counter() - t0
+        chunks = [(log, res)]
+        head, steps, span = log, len(log), float(log.t[-1] - log.t[0])
     else:
-        res = hf.run(log)
-        summary = ""
-    wall = time.perf_counter() - t0
-    print(f"run {filter_name} ({cfg.precision} C) on {Path(log_path).name}: {len(log)} steps, "
-          f"{log.t[-1] - log.t[0]:.1f} s of data, {log.meta.get('rate_hz', 0):.0f} Hz IMU, "
-          f"{'standalone executable' if exe else 'ctypes batch'} {wall:.2f} s", file=out)
+        res = None
+        chunks = _chunk_results(hf, log, timing)
+    scorer = None if whole else _ChunkScore(heading)
+    plot_rows = None if (whole or not plot) else _PlotRows()
+    csv_out = _RunCsv(csv) if csv else None
+    try:
+        for part, r in chunks:
+            tally.add(r.status)
+            if csv_out:
+                csv_out.add(part, r)
+            if scorer:
+                scorer.add(part, r, plot_rows)
+    except BaseException as e:
+        if csv_out:
+            csv_out.abort(e)
+        raise
+    if csv_out:
+        csv_out.close()
+    if not whole:
+        head, steps, span = log.head, log.rows, float(scorer.t_last - scorer.t_first)
+        scorer.finish(log.meta["settle_time"], plot_rows)
+        if scorer.offset_pending:          # no heading source: score in a second pass
+            for part, r in _chunk_results(hf, log, [0.0], progress=False):
+                scorer.add(part, r, plot_rows)
+            scorer.finish(log.meta["settle_time"], plot_rows)
+    wall = timing[0]
+    print(f"run {filter_name} ({cfg.precision} C) on {Path(log_path).name}: {steps} steps, "
+          f"{span:.1f} s of data, {log.meta.get('rate_hz', 0):.0f} Hz IMU, "
+          f"{'standalone executable' if exe else 'ctypes batch'} {wall:.2f} s"
+          + ("" if whole else f" (read in chunks of {log.block_bytes >> 20} MiB of text)"), file=out)
     if summary:
         print(f"  {summary}", file=out)
-    refused = int(np.count_nonzero(res.status & 0x20F))
-    print(f"  steps with a non-zero status: {int(np.count_nonzero(res.status))}, refused: {refused}", file=out)
-    named = status_counts(res.status, hf.manifest)
+    refused = tally.count(REFUSED_MASK)
+    print(f"  steps with a non-zero status: {tally.count(0)}, refused: {refused}", file=out)
+    named = status_counts(tally, hf.manifest)
     if named:
         print(f"  status bits (steps): {named}", file=out)
-    failed = refusal_failure(res.status, log, cfg.params, filter_name)
-    hint = refusal_hint(res.status, log, cfg.params)
+    failed = refusal_failure(tally, head, cfg.params, filter_name)
+    hint = refusal_hint(tally, head, cfg.params)
     if hint and not failed:
         print(f"  hint: {hint}", file=out)
-    result = {"filter": filter_name, "log": str(log_path), "steps": len(log), "heading": heading,
+    result = {"filter": filter_name, "log": str(log_path), "steps": steps, "heading": heading,
               "precision": cfg.precision, "overrides": cfg.overrides, "site_sets": extra}
+    has_ref = log.q_true is not None if whole else "reference" in log.meta
+    if whole:
+        scorable = has_ref and bool(score_mask(log).any())
+    else:
+        scorable = scorer.sums.n > 0
     if failed:                       # a filter that never ran gets no score (the caller exits 1)
         result["failed"] = failed
-    elif log.q_true is not None and score_mask(log).any():
-        s = score(res.q, log, heading)
+    elif scorable:
+        s = score(res.q, log, heading) if whole else scorer.sums.result()
         result["score"] = s
         ref_name = {"broad": "BROAD optical reference (movement phase)",
                     "px4": "PX4 vehicle_attitude (onboard EKF, not ground truth)"}.get(
@@ -89,38 +144,176 @@ def run_on_log(filter_name: str, log_path: str, config_file=None, sets=(), preci
             print(f"    {a:<5} {s[a + '_rms']:7.3f} {s[a + '_mean_abs']:8.3f}", file=out)
         print(f"  BROAD decomposition RMS: total {s['total_rms']:.3f}, heading {s['heading_rms']:.3f}, "
               f"inclination {s['inclination_rms']:.3f}", file=out)
-    elif log.q_true is not None and log.meta.get("movement") is not None:
+    elif has_ref and (log.meta.get("movement") is not None if whole else log.meta.get("scoring") == "broad"):
         print("  (this log has a reference attitude but no row with movement = 1, the rows to score: "
               "nothing to score)", file=out)
-    elif log.q_true is not None:
+    elif has_ref:
         print("  (the reference attitude has no finite row after the settle time: nothing to score)", file=out)
     else:
         print("  (no reference attitude in this log: nothing to score)", file=out)
     result["res"] = res
     if csv:
-        _write_run_csv(csv, log, res, heading)
         print(f"  wrote {csv}", file=out)
     if plot:
-        _plot_run(plot, log, res.q, heading, filter_name, res.status)
+        if whole:
+            _plot_run(plot, log, res.q, heading, filter_name, res.status)
+        else:
+            plog, q_cmp, st = plot_rows.log(log.name, log.meta)
+            _plot_run(plot, plog, q_cmp, heading, filter_name, st, q_cmp=q_cmp, nonzero=tally.count(0))
         print(f"  wrote {plot}", file=out)
     return result
 
 
-def _write_run_csv(path, log, res, heading):
-    rpy = np.degrees(res.rpy)
-    cols = [log.t, res.q[:, 0], res.q[:, 1], res.q[:, 2], res.q[:, 3], rpy[:, 0], rpy[:, 1], rpy[:, 2],
-            res.status.astype(float)]
-    names = "t,qw,qx,qy,qz,roll_deg,pitch_deg,yaw_deg,status"
-    if log.q_true is not None:
-        ref = np.degrees(euler_from_q(np.where(np.isfinite(log.q_true), log.q_true, np.nan)))
-        cols += [ref[:, 0], ref[:, 1], ref[:, 2]]
-        names += ",ref_roll_deg,ref_pitch_deg,ref_yaw_deg"
-    import io
-    from ahrsgen.fileio import write_text_atomic
-    buf = io.StringIO()
-    buf.write("# written by ahrsgen run\n")        # the marker: a later run may replace this file
-    np.savetxt(buf, np.column_stack(cols), delimiter=",", header=names, comments="", fmt="%.9g")
-    write_text_atomic(path, buf.getvalue())
+def _chunk_results(hf, chunks, timing, progress=None):
+    """(chunk, RunResult) for each chunk of a readers.CsvChunks, the filter's state carried from
+    one chunk to the next; timing[0] adds up the seconds in C. A progress bar on stderr when it
+    is a terminal (progress None) or when progress is True."""
+    from ahrsgen.bench.grid import Progress
+    show = sys.stderr.isatty() if progress is None else progress
+    prog = Progress(max(chunks.size, 1)) if show else None
+    state, rows = None, 0
+    for part in chunks:
+        t0 = time.perf_counter()
+        r = hf.run(part, state=state)
+        timing[0] += time.perf_counter() - t0
+        state = hf.last_state
+        yield part, r
+        rows += len(part)
+        if prog:
+            prog.update(f"{rows} rows", done=min(chunks.done_bytes, prog.total - 1))
+    if prog:
+        prog.update(f"{rows} rows", done=prog.total)
+
+
+class _ChunkScore:
+    """score() of a log run a chunk at a time (see SETTLE_MAX above): rows certainly scored are
+    added as they come; rows of the first SETTLE_MAX s wait for the settle time."""
+
+    def __init__(self, heading: str):
+        self.heading = heading
+        self.sums = ScoreSums()
+        self.offset = None if heading == "none" else 0.0      # heading offset removed (radians)
+        self.off_sums = [0.0, 0.0, 0]
+        self.early = []                  # (t, q, q_true) of rows before t_first + SETTLE_MAX
+        self.t_first = self.t_last = None
+        self.settle = None               # known after the first pass
+
+    @property
+    def offset_pending(self) -> bool:
+        return self.offset is None
+
+    def add(self, part, r, plot_rows=None) -> None:
+        if self.t_first is None:
+            self.t_first = float(part.t[0])
+        self.t_last = float(part.t[-1])
+        q = r.q
+        if self.offset is not None:
+            q = compare_frame(q, part, self.heading) if self.heading != "none" else rotate_heading(q, self.offset)
+            if plot_rows is not None:
+                plot_rows.add(part, q, r.status)
+        if part.q_true is None:
+            return
+        ok = np.all(np.isfinite(part.q_true), axis=1)
+        mv = part.meta.get("movement")
+        if mv is not None:               # BROAD's method: the movement column says which rows
+            sure, early = ok & mv, np.zeros(len(part), bool)
+        elif self.settle is not None:
+            sure, early = ok & (part.t >= self.t_first + self.settle), np.zeros(len(part), bool)
+        else:
+            cut = part.t >= self.t_first + SETTLE_MAX
+            sure, early = ok & cut, ok & ~cut
+        if early.any():
+            self.early.append((part.t[early], q[early], part.q_true[early]))
+        self._add(q[sure], part.q_true[sure])
+
+    def _add(self, q, ref) -> None:
+        if self.offset is None:
+            ss, sc, n = heading_offset_sums(q, ref)
+            self.off_sums = [self.off_sums[0] + ss, self.off_sums[1] + sc, self.off_sums[2] + n]
+        else:
+            self.sums.add(q, ref)
+
+    def finish(self, settle: float, plot_rows=None) -> None:
+        """After a pass: the rows that waited are added where t >= t_first + settle; for a filter
+        without a heading source the first pass ends with the offset known."""
+        for t, q, ref in self.early:
+            keep = t >= self.t_first + settle
+            self._add(q[keep], ref[keep])
+        self.early, self.settle = [], settle
+        if self.offset is None:
+            ss, sc, n = self.off_sums
+            self.offset = float(np.arctan2(ss / n, sc / n)) if n else 0.0
+            self.t_first = None
+
+
+class _PlotRows:
+    """Every k-th row of a log run in chunks, for the plot: k doubles whenever more than
+    PLOT_ROWS rows are kept, so the plot holds PLOT_ROWS / 2 to PLOT_ROWS rows; a kept row's
+    status is the OR of the k steps it stands for."""
+
+    def __init__(self, limit: int = PLOT_ROWS):
+        self.limit, self.stride, self.seen = limit, 1, 0
+        self.t, self.q, self.ref, self.st = [], [], [], []
+
+    def add(self, part, q_cmp, status) -> None:
+        n = len(part)
+        idx = np.flatnonzero((np.arange(self.seen, self.seen + n) % self.stride) == 0)
+        self.seen += n
+        if not len(idx):
+            return
+        self.t.append(part.t[idx])
+        self.q.append(q_cmp[idx])
+        self.ref.append(part.q_true[idx] if part.q_true is not None else np.full((len(idx), 4), np.nan))
+        self.st.append(np.bitwise_or.reduceat(np.asarray(status, np.uint32), idx))
+        if sum(map(len, self.t)) > self.limit:
+            t, q, ref, st = (np.concatenate(a) for a in (self.t, self.q, self.ref, self.st))
+            st2 = st[0::2].copy()
+            st2[:len(st[1::2])] |= st[1::2]
+            self.t, self.q, self.ref, self.st = [t[0::2]], [q[0::2]], [ref[0::2]], [st2]
+            self.stride *= 2
+
+    def log(self, name: str, meta: dict):
+        """(SensorLog of the kept rows (time and reference), their estimate, their status)."""
+        t, q, ref, st = (np.concatenate(a) for a in (self.t, self.q, self.ref, self.st))
+        z = np.zeros((len(t), 3))
+        has_ref = bool(np.isfinite(ref).any())
+        return (SensorLog(name, t, np.zeros(len(t)), z, z, z, z, np.zeros(len(t), np.uint32),
+                          ref if has_ref else None, {k: v for k, v in meta.items() if k != "movement"}), q, st)
+
+
+class _RunCsv:
+    """`run --csv`: t, q, Euler angles (deg), status (and the reference's angles) written a chunk
+    at a time into a temporary file beside the target, which replaces it when done (atomic)."""
+
+    NAMES = "t,qw,qx,qy,qz,roll_deg,pitch_deg,yaw_deg,status"
+
+    def __init__(self, path):
+        from ahrsgen.fileio import atomic_file
+        self._ctx = atomic_file(path, "w")
+        self.fh = self._ctx.__enter__()
+        self.fh.write("# written by ahrsgen run\n")   # the marker: a later run may replace this file
+        self.first = True
+
+    def add(self, log, res) -> None:
+        rpy = np.degrees(res.rpy)
+        cols = [log.t, res.q[:, 0], res.q[:, 1], res.q[:, 2], res.q[:, 3], rpy[:, 0], rpy[:, 1], rpy[:, 2],
+                res.status.astype(float)]
+        names = self.NAMES
+        if log.q_true is not None:
+            ref = np.degrees(euler_from_q(np.where(np.isfinite(log.q_true), log.q_true, np.nan)))
+            cols += [ref[:, 0], ref[:, 1], ref[:, 2]]
+            names += ",ref_roll_deg,ref_pitch_deg,ref_yaw_deg"
+        np.savetxt(self.fh, np.column_stack(cols), delimiter=",", header=names if self.first else "",
+                   comments="", fmt="%.9g")
+        self.first = False
+
+    def close(self) -> None:
+        """The file replaces the target."""
+        self._ctx.__exit__(None, None, None)
+
+    def abort(self, e: BaseException) -> None:
+        """The temporary file is removed; the target is left as it was."""
+        self._ctx.__exit__(type(e), e, e.__traceback__)
 
 
 def continuous_yaw_deg(yaw_est_deg, yaw_ref_deg=None):
@@ -142,15 +335,18 @@ def continuous_yaw_deg(yaw_est_deg, yaw_ref_deg=None):
     return out, ref_u
 
 
-def _plot_run(path, log, q_est, heading, label, status=None):
+def _plot_run(path, log, q_est, heading, label, status=None, q_cmp=None, nonzero=None):
     """Roll, pitch, continuous yaw beside the reference; below, the error over time (BROAD's
-    total, heading, inclination) with the steps of non-zero status marked. Written whole (atomic)."""
+    total, heading, inclination) with the steps of non-zero status marked. Written whole (atomic).
+    q_cmp: the estimate already in the reference's heading frame; nonzero: the number of steps
+    with a non-zero status when `status` is of every k-th row (a long log's plot)."""
     import io
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from ahrsgen.fileio import write_atomic
-    q_cmp = compare_frame(q_est, log, heading) if log.q_true is not None else q_est
+    if q_cmp is None:
+        q_cmp = compare_frame(q_est, log, heading) if log.q_true is not None else q_est
     est = np.degrees(euler_from_q(q_cmp))
     t = log.t - log.t[0]
     ref = None
@@ -188,7 +384,7 @@ def _plot_run(path, log, q_est, heading, label, status=None):
         if len(nz):
             # along the bottom edge of the panel (x in data, y in axes coordinates)
             ax.plot(t[nz], np.full(len(nz), 0.03), "|", color="red", ms=8, transform=ax.get_xaxis_transform(),
-                    label=f"non-zero status ({len(nz)} steps)")
+                    label=f"non-zero status ({len(nz) if nonzero is None else nonzero} steps)")
     ax.grid(alpha=0.3)
     ax.legend(loc="upper right", fontsize=8)
     axs[0].legend(loc="upper right", fontsize=8)

@@ -58,31 +58,66 @@ def site_sets(filter_name: str, meta: dict, user_keys=()) -> tuple[list[str], bo
     return [f"{k}={v!r}" if isinstance(v, float) else f"{k}={v}" for k, v in values.items()], applied
 
 
-def refusal_hint(status: np.ndarray, log, params: dict) -> str:
+class StatusTally:
+    """How many steps set each status bit (and any refusal bit, any bit): what the run's report
+    and refusal_hint need of a log's statuses, summed a chunk at a time."""
+
+    def __init__(self, status=None):
+        self.n = self.nonzero = self.refused = 0
+        self.bits = [0] * 32
+        if status is not None:
+            self.add(status)
+
+    def add(self, status: np.ndarray) -> None:
+        from ahrsgen import status as st
+        status = np.asarray(status, dtype=np.uint32)
+        self.n += len(status)
+        self.nonzero += int(np.count_nonzero(status))
+        self.refused += int(np.count_nonzero(status & np.uint32(st.REFUSED_MASK)))
+        seen = int(np.bitwise_or.reduce(status)) if len(status) else 0
+        for b in range(32):
+            if seen >> b & 1:
+                self.bits[b] += int(np.count_nonzero(status & np.uint32(1 << b)))
+
+    def count(self, mask: int) -> int:
+        """Steps with any bit of `mask` set (one bit, REFUSED_MASK, or 0 for any bit)."""
+        from ahrsgen import status as st
+        if mask == 0:
+            return self.nonzero
+        if mask == st.REFUSED_MASK:
+            return self.refused
+        if mask & (mask - 1):
+            raise ValueError(f"StatusTally counts single bits, REFUSED_MASK and 0, not {mask:#x}")
+        return self.bits[mask.bit_length() - 1]
+
+
+def refusal_hint(status, log, params: dict) -> str:
     """One line on why most of a log's steps were refused, when they were: the usual causes are a
-    time column not in seconds or a gyro not in rad/s."""
+    time column not in seconds or a gyro not in rad/s. `status`: the steps' statuses or their
+    StatusTally; the median dt is log.t's (of a log read in chunks: its first chunk's)."""
     from ahrsgen import status as st
-    n = len(status)
-    if n == 0 or np.count_nonzero(status & st.REFUSED_MASK) * 2 < n:
+    tally = status if isinstance(status, StatusTally) else StatusTally(status)
+    n = tally.n
+    if n == 0 or tally.count(st.REFUSED_MASK) * 2 < n:
         return ""
     dt = np.diff(log.t)
     med = float(np.median(dt)) if len(dt) else float("nan")
-    if np.count_nonzero(status & st.DT_TOO_LARGE) * 2 >= n:
+    if tally.count(st.DT_TOO_LARGE) * 2 >= n:
         dt_max = params.get('dt_max', float('nan'))
         if med > 1.0:                # no IMU samples at less than 1 Hz: the unit of t
             return (f"most steps were refused for dt above dt_max = {dt_max:g} s; "
                     f"the log's median dt is {med:.3g} s: is its time column t in seconds (not ms or us)?")
         return (f"most steps were refused for dt above dt_max = {dt_max:g} s, below the log's median dt "
                 f"{med:.3g} s: set dt_max above the sample period")
-    if np.count_nonzero(status & st.GYRO_RANGE) * 2 >= n:
+    if tally.count(st.GYRO_RANGE) * 2 >= n:
         return (f"most steps were refused for a gyro component beyond gyro_max = "
                 f"{params.get('gyro_max', float('nan')):g} rad/s: is the gyro in rad/s (not deg/s)?")
-    if np.count_nonzero(status & st.GYRO_NONFINITE) * 2 >= n:
+    if tally.count(st.GYRO_NONFINITE) * 2 >= n:
         return "most steps were refused for a gyro sample that is not finite (NaN or Inf): check the gyro columns"
-    if np.count_nonzero(status & st.GYRO_MISSING) * 2 >= n:
+    if tally.count(st.GYRO_MISSING) * 2 >= n:
         return ("most steps were refused for a missing gyro sample (empty or NaN fields): does the log hold the "
                 "gyro on every row?")
-    if np.count_nonzero(status & st.DT_INVALID) * 2 >= n:
+    if tally.count(st.DT_INVALID) * 2 >= n:
         return "most steps were refused for a dt that is not finite or not positive: check the time column t"
     return ""
 
@@ -96,14 +131,14 @@ class MostlyRefused(RuntimeError):
 
 def refusal_failure(status, log, params: dict, what: str = "the filter") -> str:
     """One line when `what` refused more than REFUSED_FAILURE of the log's steps (a failed run:
-    no score, exit 1), else ""."""
+    no score, exit 1), else "". `status`: the statuses or their StatusTally."""
     from ahrsgen import status as st
-    status = np.asarray(status)
-    n = len(status)
-    refused = int(np.count_nonzero(status & st.REFUSED_MASK))
+    tally = status if isinstance(status, StatusTally) else StatusTally(status)
+    n = tally.n
+    refused = tally.count(st.REFUSED_MASK)
     if n == 0 or refused <= REFUSED_FAILURE * n:
         return ""
-    why = refusal_hint(status, log, params) or "see the status bits (docs/log-format.md)"
+    why = refusal_hint(tally, log, params) or "see the status bits (docs/log-format.md)"
     return f"{what} refused {refused} of {n} steps of {log.name}, so it did not run: {why}"
 
 
@@ -212,22 +247,49 @@ def score(q_est: np.ndarray, log: SensorLog, heading: str) -> dict:
     mask = score_mask(log)
     if not mask.any():
         raise ValueError(f"log {log.name!r}: no rows to score")
-    q = compare_frame(q_est, log, heading, mask)[mask]
-    ref = log.q_true[mask]
-    ok = np.all(np.isfinite(q), axis=1)
-    out = {"n": int(mask.sum()), "nonfinite": int((~ok).sum())}
-    # a diverged (non-finite) estimate scores 180° on every measure rather than vanishing
-    e = np.full((len(q), 3), 180.0)
-    e[ok] = euler_errors_deg(q[ok], ref[ok])
-    for i, a in enumerate(ANGLES):
-        out[f"{a}_rms"] = float(np.sqrt(np.mean(e[:, i] ** 2)))
-        out[f"{a}_mean_abs"] = float(np.mean(np.abs(e[:, i])))
-    dec = np.full((3, len(q)), 180.0)
-    if ok.any():
-        dec[:, ok] = np.array(broad_errors_deg(q[ok], ref[ok]))
-    for name, v in zip(BROAD_METRICS, dec):
-        out[f"{name}_rms"] = float(np.sqrt(np.mean(v ** 2)))
-    return out
+    sums = ScoreSums()
+    sums.add(compare_frame(q_est, log, heading, mask)[mask], log.q_true[mask])
+    return sums.result()
+
+
+class ScoreSums:
+    """score()'s figures as sums over rows, so a log scored a chunk at a time gets the whole
+    log's figures: each RMS is sqrt(sum of squares / n), each mean |e| sum / n. One add() of
+    all rows is score() exactly (np.mean is np.sum / n); chunk sums add up to the whole log's
+    in another order, which changes a figure by a few units of 1e-16 relative."""
+
+    def __init__(self):
+        self.n = self.nonfinite = 0
+        self.sq = {f"{a}_rms": 0.0 for a in ANGLES} | {f"{m}_rms": 0.0 for m in BROAD_METRICS}
+        self.ab = {f"{a}_mean_abs": 0.0 for a in ANGLES}
+
+    def add(self, q: np.ndarray, ref: np.ndarray) -> None:
+        """Rows to score: the estimate in the reference's heading frame (compare_frame) and the reference."""
+        if not len(q):
+            return
+        ok = np.all(np.isfinite(q), axis=1)
+        self.n += len(q)
+        self.nonfinite += int((~ok).sum())
+        # a diverged (non-finite) estimate scores 180° on every measure rather than vanishing
+        e = np.full((len(q), 3), 180.0)
+        e[ok] = euler_errors_deg(q[ok], ref[ok])
+        for i, a in enumerate(ANGLES):
+            self.sq[f"{a}_rms"] += float(np.sum(e[:, i] ** 2))
+            self.ab[f"{a}_mean_abs"] += float(np.sum(np.abs(e[:, i])))
+        dec = np.full((3, len(q)), 180.0)
+        if ok.any():
+            dec[:, ok] = np.array(broad_errors_deg(q[ok], ref[ok]))
+        for name, v in zip(BROAD_METRICS, dec):
+            self.sq[f"{name}_rms"] += float(np.sum(v ** 2))
+
+    def result(self) -> dict:
+        out = {"n": self.n, "nonfinite": self.nonfinite}
+        for a in ANGLES:
+            out[f"{a}_rms"] = float(np.sqrt(self.sq[f"{a}_rms"] / self.n))
+            out[f"{a}_mean_abs"] = float(self.ab[f"{a}_mean_abs"] / self.n)
+        for name in BROAD_METRICS:
+            out[f"{name}_rms"] = float(np.sqrt(self.sq[f"{name}_rms"] / self.n))
+        return out
 
 
 def total_error_series(q_est, log, heading, max_points=2000):

@@ -32,18 +32,31 @@ def _cmd_run(args) -> int:
             import matplotlib  # noqa: F401
         except ImportError:
             raise ConfigError("--plot needs matplotlib: pip install 'ahrsgen[dev]'") from None
+    # a CSV log longer than one chunk is read a chunk at a time (bounded memory), unless the
+    # whole log is needed at once (--exe, --export-log)
+    lower = str(args.log).lower()
+    chunked = (lower.endswith((".csv", ".csv.gz")) and not (args.exe or args.export_log)
+               and Path(args.log).is_file() and Path(args.log).stat().st_size > readers.BLOCK_BYTES)
     try:
-        log = readers.read_log(args.log)
+        log = readers.CsvChunks(args.log) if chunked else readers.read_log(args.log)
     except FileNotFoundError:
         raise ConfigError(f"log file {args.log} does not exist") from None
     except (readers.LogError, OSError) as e:
         raise ConfigError(str(e) if isinstance(e, readers.LogError) else f"{args.log}: {e.strerror or e}") from None
-    for w in log.meta.get("warnings", []) + readers.unit_warnings(log):
-        print(f"ahrsgen: warning: {w}", file=sys.stderr)
+    if not chunked:
+        for w in log.meta.get("warnings", []) + readers.unit_warnings(log):
+            print(f"ahrsgen: warning: {w}", file=sys.stderr)
     if log.meta.get("ignored_columns"):
         print(f"  ignored columns: {', '.join(log.meta['ignored_columns'])}")
-    res = run_on_log(args.filter, args.log, args.config, args.set, args.precision or "float",
-                     plot=args.plot, csv=args.csv, exe=args.exe, runtime=args.runtime, preset=args.preset, log=log)
+    try:
+        res = run_on_log(args.filter, args.log, args.config, args.set, args.precision or "float",
+                         plot=args.plot, csv=args.csv, exe=args.exe, runtime=args.runtime, preset=args.preset,
+                         log=log)
+    except readers.LogError as e:         # a chunked log's bad line is found when its chunk is read
+        raise ConfigError(str(e)) from None
+    if chunked:                           # the reference's warnings count every row; units: the first chunk's
+        for w in log.meta.get("warnings", []) + readers.unit_warnings(log.head):
+            print(f"ahrsgen: warning: {w}", file=sys.stderr)
     if args.export_log:
         from ahrsgen.generate import config
         write_harness_log(log, args.export_log)

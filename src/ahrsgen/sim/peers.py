@@ -244,14 +244,27 @@ def remove_heading_offset(q_est, q_ref, mask=None):
     The offset is the circular mean, over the rows in `mask` with a finite reference, of the
     heading part 2·atan2(z, w) of the earth-frame error q_est ⊗ q_ref⁻¹.
     """
+    ss, sc, n = heading_offset_sums(q_est, q_ref, mask)
+    if not n:
+        return np.array(q_est, dtype=float)
+    return rotate_heading(q_est, np.arctan2(ss / n, sc / n))
+
+
+def heading_offset_sums(q_est, q_ref, mask=None) -> tuple[float, float, int]:
+    """(sum of sin, sum of cos, count) of the heading offsets remove_heading_offset averages: sums
+    of a log's chunks add up to the whole log's (the mean is sum / count)."""
     qe = qmul(q_est, qconj(q_ref))
     ok = np.all(np.isfinite(qe), axis=1)
     if mask is not None:
         ok &= np.asarray(mask, dtype=bool)
     if not ok.any():
-        return np.array(q_est, dtype=float)
+        return 0.0, 0.0, 0
     delta = 2.0 * np.arctan2(qe[ok, 3], qe[ok, 0])
-    d = np.arctan2(np.mean(np.sin(delta)), np.mean(np.cos(delta)))
+    return float(np.sum(np.sin(delta))), float(np.sum(np.cos(delta))), int(ok.sum())
+
+
+def rotate_heading(q_est, d: float) -> np.ndarray:
+    """q_est rotated by -d (radians) about the NED vertical: a heading offset d removed."""
     rot = np.array([np.cos(-d / 2), 0.0, 0.0, np.sin(-d / 2)])
     return qmul(rot, q_est)
 

@@ -28,6 +28,7 @@ data sets (`$AHRSGEN_DATA`, else `<repo>/../shared/data`).
 from __future__ import annotations
 
 from ahrsgen.errors import LogError  # noqa: F401  (raised here; callers import it from here too)
+import codecs
 import gzip
 import io
 import os
@@ -99,8 +100,9 @@ def _read_text(path: Path) -> str:
         raise LogError(f"{path}: not a text file (byte {e.start} is not UTF-8)") from None
 
 
-def _parse_rows(path: Path, lines: list[str], ncol: int) -> np.ndarray:
-    """Numbers of the data lines; an empty field is NaN. A bad field is a LogError naming its line."""
+def _parse_rows(path: Path, lines: list[str], ncol: int, first_line: int = 2) -> np.ndarray:
+    """Numbers of the data lines; an empty field is NaN. A bad field is a LogError naming its line
+    (first_line: the line number of lines[0], counting non-empty lines as read_csv does)."""
     if not lines:
         return np.empty((0, ncol))
     try:       # fast path: numpy's parser (a file without empty fields or text)
@@ -113,7 +115,7 @@ def _parse_rows(path: Path, lines: list[str], ncol: int) -> np.ndarray:
     for i, ln in enumerate(lines):
         fields = ln.split(",")
         if len(fields) != ncol:
-            raise LogError(f"{path}: line {i + 2} has {len(fields)} fields, the header has {ncol}")
+            raise LogError(f"{path}: line {i + first_line} has {len(fields)} fields, the header has {ncol}")
         for j, f in enumerate(fields):
             f = f.strip()
             if not f:
@@ -122,36 +124,26 @@ def _parse_rows(path: Path, lines: list[str], ncol: int) -> np.ndarray:
             try:
                 out[i, j] = float(f)
             except ValueError:
-                raise LogError(f"{path}: line {i + 2}, column {j + 1}: {f[:20]!r} is not a number") from None
+                raise LogError(f"{path}: line {i + first_line}, column {j + 1}: {f[:20]!r} is not a number") from None
     return out
 
 
-def _hold(values: np.ndarray, arrived: np.ndarray) -> np.ndarray:
-    """Rows without a sample hold the last sample (NaN before the first), as the ULog reader does."""
+def _hold(values: np.ndarray, arrived: np.ndarray, last: np.ndarray | None = None) -> np.ndarray:
+    """Rows without a sample hold the last sample (NaN before the first), as the ULog reader does;
+    `last` is the sample held before these rows (a previous chunk's), if any."""
     idx = np.where(arrived, np.arange(len(arrived)), -1)
     idx = np.maximum.accumulate(idx)
     out = np.full_like(values, np.nan)
     have = idx >= 0
     out[have] = values[idx[have]]
+    if last is not None:
+        out[~have] = last
     return out
 
 
-def read_csv(path: str | os.PathLike, name: str | None = None) -> SensorLog:
-    """A CSV log (.csv or .csv.gz), header-driven; the format is docs/log-format.md.
-
-    Required columns t, gx, gy, gz, ax, ay, az; optional groups mx, my, mz (magnetometer),
-    gps_vn, gps_ve, gps_vd (GPS velocity, NED m/s), qw, qx, qy, qz (reference attitude),
-    movement (1 = score this row, BROAD's method). A row is one step; a sensor whose fields are
-    empty or NaN in a row delivered no sample there (its valid bit is clear), so every sensor
-    has its own rate. Other columns are ignored (listed in meta['ignored_columns']).
-    """
-    path = Path(path)
-    text = _read_text(path)
-    lines = [ln.strip() for ln in text.splitlines()]
-    lines = [ln for ln in lines if ln]
-    if not lines:
-        raise LogError(f"{path}: empty file (expected a header line: {','.join(CSV_REQUIRED)},...)")
-    header = [h.strip() for h in lines[0].split(",")]
+def _csv_header(path: Path, line: str) -> tuple[list[str], dict]:
+    """The header's column names and which optional groups it has; its errors are LogErrors."""
+    header = [h.strip() for h in line.split(",")]
     if len(set(header)) != len(header):
         dup = sorted({h for h in header if header.count(h) > 1})
         raise LogError(f"{path}: column(s) {', '.join(dup)} appear more than once in the header")
@@ -166,86 +158,316 @@ def read_csv(path: str | os.PathLike, name: str | None = None) -> SensorLog:
             raise LogError(f"{path}: column(s) {', '.join(c for c in cols if c not in header)} missing "
                            f"beside {', '.join(have)} ({g} needs all of {', '.join(cols)})")
         groups[g] = bool(have)
-    known = set(CSV_REQUIRED).union(*CSV_GROUPS.values())
+    return header, groups
+
+
+class _CsvRows:
+    """Rows of one CSV log turned into SensorLog arrays a chunk at a time: what one chunk hands
+    the next (the last time, the held sensor values) and the counts the log's meta needs
+    (samples per sensor, reference rows left out) are kept here, so read_csv (one chunk) and
+    CsvChunks (many) build the same arrays."""
+
+    def __init__(self, path: Path, header: list[str], groups: dict):
+        self.path, self.header, self.groups = path, header, groups
+        self.col = {c: i for i, c in enumerate(header)}
+        self.rows = 0                    # data rows so far
+        self.t_first = self.t_last = None
+        self.last = {}                   # sensor -> last sample (held into the next chunk)
+        self.samples = {"gyro": 0, "accel": 0, "mag": 0, "gps": 0}
+        self.ref_off = 0                 # reference rows whose norm is far from 1
+        self.ref_finite = False          # some reference row is left to score
+        self.first_moving = None         # time of the first row with movement = 1
+
+    def chunk(self, data: np.ndarray, dt0: float | None = None) -> dict:
+        """SensorLog fields of the next data rows (an (n, columns) array); dt0 is the first row's
+        dt when these are the log's first rows (else the step from the previous chunk's last t)."""
+        path, col, groups = self.path, self.col, self.groups
+        first = self.rows + 2            # line number of data[0] (non-empty lines, header = 1)
+
+        def block(cols):
+            return data[:, [col[c] for c in cols]]
+
+        t = data[:, col["t"]]
+        if not np.all(np.isfinite(t)):
+            raise LogError(f"{path}: line {int(np.flatnonzero(~np.isfinite(t))[0]) + first}: time t is empty or not finite")
+        tt = t if self.t_last is None else np.concatenate(([self.t_last], t))
+        back = np.flatnonzero(np.diff(tt) <= 0)
+        if len(back):
+            k = int(back[0]) + (first + 1 if self.t_last is None else first)
+            raise LogError(f"{path}: line {k}: time t = {float(tt[back[0] + 1])!r} does not increase "
+                           f"(previous {float(tt[back[0]])!r})")
+        n = len(t)
+        dt = np.diff(tt, prepend=np.nan)[-n:] if n else np.empty(0)
+        if self.t_last is None and n:
+            dt[0] = float(np.median(dt[1:])) if dt0 is None else dt0
+        valid = np.zeros(n, dtype=np.uint32)
+        arrays = {}
+        for key, cols, bit in (("gyro", CSV_REQUIRED[1:4], VALID_GYRO), ("accel", CSV_REQUIRED[4:7], VALID_ACCEL),
+                               ("mag", CSV_GROUPS["mag"], VALID_MAG), ("gps", CSV_GROUPS["gps"], VALID_GPS)):
+            if key in ("mag", "gps") and not groups[key]:
+                arrays[key] = np.full((n, 3), np.nan)
+                continue
+            v = block(cols)
+            arrived = np.all(np.isfinite(v), axis=1)
+            valid[arrived] |= np.uint32(bit)
+            arrays[key] = _hold(v, arrived, self.last.get(key))
+            if n:
+                self.last[key] = arrays[key][-1].copy()
+            self.samples[key] += int(arrived.sum())
+        q_true = None
+        if groups["reference"]:
+            q_true = block(CSV_GROUPS["reference"])
+            q_true[~np.all(np.isfinite(q_true), axis=1)] = np.nan
+            # a row whose norm is far from 1 (zeros, a scaled or garbled quaternion) is no attitude:
+            # left out of the score like a non-finite row, and counted
+            norm = np.linalg.norm(q_true, axis=1)
+            off = np.isfinite(norm) & (np.abs(norm - 1.0) > REF_NORM_TOL)
+            if off.any():
+                q_true[off] = np.nan
+                self.ref_off += int(off.sum())
+            self.ref_finite = self.ref_finite or bool(np.isfinite(q_true).any())
+        movement = None
+        if groups["movement"]:
+            mv = data[:, col["movement"]]
+            movement = np.isfinite(mv) & (mv > 0.5)
+            moving = np.flatnonzero(movement)
+            if self.first_moving is None and len(moving):
+                self.first_moving = float(t[moving[0]])
+        if n:
+            self.t_first = float(t[0]) if self.t_first is None else self.t_first
+            self.t_last = float(t[-1])
+        self.rows += n
+        return {"t": t, "dt": dt, "gyro": arrays["gyro"], "accel": arrays["accel"], "mag": arrays["mag"],
+                "gps_vel": arrays["gps"], "valid": valid, "q_true": q_true, "movement": movement}
+
+    def meta(self, dt0: float) -> dict:
+        """The log's meta once every row is read (as read_csv has always given it)."""
+        path, header, groups = self.path, self.header, self.groups
+        known = set(CSV_REQUIRED).union(*CSV_GROUPS.values())
+        duration = max(float(self.t_last - self.t_first), 1e-9)
+        ref_warnings = []
+        if self.ref_off:
+            ref_warnings.append(f"{path.name}: {self.ref_off} reference row(s) with a quaternion norm "
+                                f"outside 1 +- {REF_NORM_TOL:g} (e.g. all zeros) left out of the score")
+            if not self.ref_finite:
+                ref_warnings[-1] += ": no reference row is left, nothing to score"
+        broad = header == BROAD_COLUMNS
+        stem = path.name.split(".")[0]
+        meta = {
+            "source": "BROAD" if broad else "CSV",
+            "description": (f"BROAD trial {stem} (optical motion capture reference)" if broad
+                            else f"CSV log {path.name} ({duration:.1f} s)"),
+            "file": str(path),
+            "rate_hz": 1.0 / dt0,
+            "columns": header,
+            "ignored_columns": [h for h in header if h not in known],
+            "warnings": ref_warnings,
+        }
+        meta.update({f"{k}_rate_hz": float(v / duration) for k, v in self.samples.items()
+                     if k != "gyro" and (k not in ("mag", "gps") or groups[k])})
+        if broad:
+            meta.update({"citation": BROAD_CITATION, "mag_unit": "uT", "heading_reference": "magnetic north",
+                         "reference": "optical motion capture (NaN where markers were lost)"})
+        elif groups["reference"] and self.ref_finite:
+            meta["reference"] = "the log's qw, qx, qy, qz columns"
+        if groups["movement"]:
+            meta["settle_time"] = float(self.first_moving - self.t_first) if self.first_moving is not None else 0.0
+            meta["scoring"] = "broad"
+        else:
+            meta["settle_time"] = min(10.0, 0.2 * duration)
+        return meta
+
+
+def read_csv(path: str | os.PathLike, name: str | None = None) -> SensorLog:
+    """A CSV log (.csv or .csv.gz), header-driven; the format is docs/log-format.md.
+
+    Required columns t, gx, gy, gz, ax, ay, az; optional groups mx, my, mz (magnetometer),
+    gps_vn, gps_ve, gps_vd (GPS velocity, NED m/s), qw, qx, qy, qz (reference attitude),
+    movement (1 = score this row, BROAD's method). A row is one step; a sensor whose fields are
+    empty or NaN in a row delivered no sample there (its valid bit is clear), so every sensor
+    has its own rate. Other columns are ignored (listed in meta['ignored_columns']).
+    The whole file is read at once; CsvChunks reads a log of any size a chunk at a time.
+    """
+    path = Path(path)
+    text = _read_text(path)
+    lines = [ln.strip() for ln in text.splitlines()]
+    lines = [ln for ln in lines if ln]
+    if not lines:
+        raise LogError(f"{path}: empty file (expected a header line: {','.join(CSV_REQUIRED)},...)")
+    header, groups = _csv_header(path, lines[0])
     data = _parse_rows(path, lines[1:], len(header))
     if len(data) < 2:
         raise LogError(f"{path}: {len(data)} data row(s); a log needs at least two")
-    col = {c: i for i, c in enumerate(header)}
-
-    def block(cols):
-        return data[:, [col[c] for c in cols]]
-
-    t = data[:, col["t"]]
-    if not np.all(np.isfinite(t)):
-        raise LogError(f"{path}: line {int(np.flatnonzero(~np.isfinite(t))[0]) + 2}: time t is empty or not finite")
-    back = np.flatnonzero(np.diff(t) <= 0)
-    if len(back):
-        raise LogError(f"{path}: line {int(back[0]) + 3}: time t = {float(t[back[0] + 1])!r} does not increase "
-                       f"(previous {float(t[back[0]])!r})")
-    n = len(t)
-    dt = np.empty(n)
-    dt[1:] = np.diff(t)
-    dt[0] = float(np.median(dt[1:]))
-    valid = np.zeros(n, dtype=np.uint32)
-    arrays = {}
-    rates = {}
-    duration = max(float(t[-1] - t[0]), 1e-9)
-    for key, cols, bit in (("gyro", CSV_REQUIRED[1:4], VALID_GYRO), ("accel", CSV_REQUIRED[4:7], VALID_ACCEL),
-                           ("mag", CSV_GROUPS["mag"], VALID_MAG), ("gps", CSV_GROUPS["gps"], VALID_GPS)):
-        if key in ("mag", "gps") and not groups[key]:
-            arrays[key] = np.full((n, 3), np.nan)
-            continue
-        v = block(cols)
-        arrived = np.all(np.isfinite(v), axis=1)
-        valid[arrived] |= np.uint32(bit)
-        arrays[key] = _hold(v, arrived)
-        rates[key] = float(arrived.sum() / duration)
-    q_true = None
-    ref_warnings = []
-    if groups["reference"]:
-        q_true = block(CSV_GROUPS["reference"])
-        q_true[~np.all(np.isfinite(q_true), axis=1)] = np.nan
-        # a row whose norm is far from 1 (zeros, a scaled or garbled quaternion) is no attitude:
-        # left out of the score like a non-finite row, and counted
-        norm = np.linalg.norm(q_true, axis=1)
-        off = np.isfinite(norm) & (np.abs(norm - 1.0) > REF_NORM_TOL)
-        if off.any():
-            q_true[off] = np.nan
-            ref_warnings.append(f"{path.name}: {int(off.sum())} reference row(s) with a quaternion norm "
-                                f"outside 1 +- {REF_NORM_TOL:g} (e.g. all zeros) left out of the score")
-        if not np.isfinite(q_true).any():
-            q_true = None
-            if off.any():
-                ref_warnings[-1] += ": no reference row is left, nothing to score"
-    broad = header == BROAD_COLUMNS
+    rows = _CsvRows(path, header, groups)
+    f = rows.chunk(data)
+    meta = rows.meta(float(f["dt"][0]))
+    if f["movement"] is not None:
+        meta["movement"] = f["movement"]
     stem = path.name.split(".")[0]
-    meta = {
-        "source": "BROAD" if broad else "CSV",
-        "description": (f"BROAD trial {stem} (optical motion capture reference)" if broad
-                        else f"CSV log {path.name} ({duration:.1f} s)"),
-        "file": str(path),
-        "rate_hz": 1.0 / dt[0],
-        "columns": header,
-        "ignored_columns": [h for h in header if h not in known],
-        "warnings": ref_warnings,
-    }
-    meta.update({f"{k}_rate_hz": v for k, v in rates.items() if k != "gyro"})
-    if broad:
-        meta.update({"citation": BROAD_CITATION, "mag_unit": "uT", "heading_reference": "magnetic north",
-                     "reference": "optical motion capture (NaN where markers were lost)"})
-    elif q_true is not None:
-        meta["reference"] = "the log's qw, qx, qy, qz columns"
-    if groups["movement"]:
-        mv = data[:, col["movement"]]
-        movement = np.isfinite(mv) & (mv > 0.5)
-        meta["movement"] = movement
-        moving = np.flatnonzero(movement)
-        meta["settle_time"] = float(t[moving[0]] - t[0]) if len(moving) else 0.0
-        meta["scoring"] = "broad"
-    else:
-        meta["settle_time"] = min(10.0, 0.2 * duration)
-    return SensorLog(name or stem, t, dt, arrays["gyro"], arrays["accel"], arrays["mag"], arrays["gps"],
-                     valid, q_true, meta)
+    return SensorLog(name or stem, f["t"], f["dt"], f["gyro"], f["accel"], f["mag"], f["gps_vel"], f["valid"],
+                     f["q_true"] if rows.ref_finite else None, meta)
+
+
+# Reading a log a chunk at a time. A block of about BLOCK_BYTES of text (cut at a line end) is
+# one chunk: ~25 000 rows of a 15-column log, ~3 MB of arrays, whatever the file's size
+# (measured, studies/large_log_bench.py: 16 MiB blocks peaked at 320 MB on a 200 MB log, 4 MiB
+# at 186 MB, at the same speed).
+BLOCK_BYTES = 4 << 20
+
+
+def _arrow_csv():
+    """pyarrow.csv when installed (the optional `fast` extra), else None: its multi-threaded
+    parser reads a block several times faster than numpy's."""
+    try:
+        import pyarrow
+        import pyarrow.csv as pacsv
+    except ImportError:
+        return None, None
+    return pyarrow, pacsv
+
+
+class CsvChunks:
+    """A CSV log (the format of read_csv) read in bounded memory: iterating yields SensorLog
+    chunks of consecutive rows, about `block_bytes` of text each, with the arrays read_csv
+    would give for those rows (sensor values held across chunk ends, dt of a chunk's first row
+    from the previous chunk). A file's errors are read_csv's, with the same line numbers, each
+    raised when its chunk is reached; the header's are raised here, at once.
+
+    Differences from read_csv, for a log longer than its first chunk: the first row's dt (and
+    meta['rate_hz']) is the median step of the first chunk rather than of the whole log; a
+    chunk's meta holds its own rows' 'movement'. After the last chunk, `meta` is the log's
+    meta as read_csv gives it (without the 'movement' array) and `rows` the number of rows;
+    `head` is the first chunk. Iterating again reads the file again.
+    Rows are parsed by pyarrow when it is installed (a block it refuses is parsed again by
+    read_csv's parser, which names the bad line), else by read_csv's parser.
+    """
+
+    def __init__(self, path: str | os.PathLike, name: str | None = None, block_bytes: int | None = None):
+        self.path = Path(path)
+        self.name = name or self.path.name.split(".")[0]
+        self.block_bytes = max(1, int(BLOCK_BYTES if block_bytes is None else block_bytes))
+        self.size = self.path.stat().st_size
+        self.done_bytes = 0                 # bytes of the file (compressed, for .gz) read so far
+        self.rows = None
+        self.head = None
+        for header_line, _, _ in self._blocks():
+            break
+        else:
+            header_line = None
+        if header_line is None:
+            raise LogError(f"{self.path}: empty file (expected a header line: {','.join(CSV_REQUIRED)},...)")
+        self.header, self.groups = _csv_header(self.path, header_line)
+        known = set(CSV_REQUIRED).union(*CSV_GROUPS.values())
+        self.meta = {"source": "BROAD" if self.header == BROAD_COLUMNS else "CSV", "file": str(self.path),
+                     "columns": self.header, "ignored_columns": [h for h in self.header if h not in known],
+                     "warnings": []}
+        if self.groups["movement"]:
+            self.meta["scoring"] = "broad"
+
+    def _blocks(self):
+        """(header line, data bytes of a block, number of the block's first byte) in file order;
+        the header line is found in the first block (None before it). Damaged gzip data, text
+        that is not UTF-8: LogError as read_csv says it."""
+        path = self.path
+        gz = str(path).endswith(".gz")
+        try:
+            with open(path, "rb") as raw:
+                f = gzip.GzipFile(fileobj=raw, mode="rb") if gz else raw
+                pos, header = 0, None
+                while True:
+                    block = f.read(self.block_bytes)
+                    if block and not block.endswith(b"\n"):
+                        block += f.readline()          # whole lines only
+                    self.done_bytes = raw.tell()
+                    if not block:
+                        if header is not None:
+                            return
+                        yield None, b"", pos
+                        return
+                    start = pos
+                    pos += len(block)
+                    if start == 0 and block.startswith(codecs.BOM_UTF8):
+                        block = block[3:]                # a byte-order mark is not a column
+                        start = 3
+                    if not block.isascii():
+                        try:
+                            block.decode("utf-8")
+                        except UnicodeDecodeError as e:
+                            raise LogError(f"{path}: not a text file (byte {start + e.start} is not UTF-8)") from None
+                    if header is None:                   # the first non-empty line
+                        for k, ln in enumerate(block.split(b"\n")):
+                            if ln.strip():
+                                header = ln.decode("utf-8").strip()
+                                block = b"\n".join(block.split(b"\n")[k + 1:])
+                                break
+                        else:
+                            continue
+                    yield header, block, start
+        except gzip.BadGzipFile:
+            raise LogError(f"{path}: not a gzip file (the name ends in .gz)") from None
+        except EOFError:
+            raise LogError(f"{path}: truncated gzip file (it ends before the end-of-stream marker)") from None
+        except zlib.error as e:
+            raise LogError(f"{path}: damaged gzip data ({e})") from None
+
+    def _parse(self, block: bytes, first_line: int) -> np.ndarray:
+        """The block's rows as an (n, columns) array: pyarrow where it reads them all, else (and
+        for the error naming the line) read_csv's parser."""
+        ncol = len(self.header)
+        pa, pacsv = _arrow_csv()
+        if pa is not None:
+            try:
+                tab = pacsv.read_csv(
+                    pa.py_buffer(block),
+                    read_options=pacsv.ReadOptions(column_names=[f"c{j}" for j in range(ncol)],
+                                                   block_size=1 << 22),
+                    parse_options=pacsv.ParseOptions(quote_char=False),
+                    convert_options=pacsv.ConvertOptions(column_types={f"c{j}": pa.float64() for j in range(ncol)},
+                                                         null_values=[""], strings_can_be_null=False))
+            except (pa.ArrowInvalid, pa.ArrowException):
+                tab = None
+            if tab is not None:
+                out = np.empty((tab.num_rows, ncol))
+                for j, c in enumerate(tab.columns):
+                    out[:, j] = c.to_numpy()
+                return out
+        lines = [ln.strip() for ln in block.decode("utf-8").splitlines()]
+        return _parse_rows(self.path, [ln for ln in lines if ln], ncol, first_line)
+
+    def __iter__(self):
+        rows = _CsvRows(self.path, self.header, self.groups)
+        parsed = 0
+        pending = []             # the first chunk waits for two rows (its median step)
+        first = True
+        for _, block, _ in self._blocks():
+            if not block:
+                continue
+            data = self._parse(block, parsed + 2)
+            parsed += len(data)
+            if first:
+                pending.append(data)
+                if parsed < 2:
+                    continue
+                data = np.concatenate(pending) if len(pending) > 1 else pending[0]
+                pending = []
+            if not len(data):
+                continue
+            chunk = self._log(rows, data)
+            if first:
+                self.head, first = chunk, False
+            yield chunk
+        if first:
+            raise LogError(f"{self.path}: {parsed} data row(s); a log needs at least two")
+        self.rows = rows.rows
+        self.meta = rows.meta(float(self.head.dt[0]))
+
+    def _log(self, rows: _CsvRows, data: np.ndarray) -> SensorLog:
+        f = rows.chunk(data)
+        meta = dict(self.meta)
+        if f["movement"] is not None:
+            meta["movement"] = f["movement"]
+        return SensorLog(self.name, f["t"], f["dt"], f["gyro"], f["accel"], f["mag"], f["gps_vel"], f["valid"],
+                         f["q_true"], meta)
 
 
 def write_csv(log: SensorLog, path: str | os.PathLike) -> Path:
