@@ -102,8 +102,8 @@ static float fast_atan2f(float y, float x)
 }
 
 /* time update of the error state [d; db]: q- = A q = q * dq((w - b) dt), P- = F P F^T + Q with F = [[Phi, B], [0, I3]]; outputs are stored as soon as computed (arrays restrict): no argument may overlap an output
- * ops: add 159, mul 209, div 2, sqrt 2 (total 372) */
-static void adukf_k_predict_part0(const float q[4], const float gyro_bias[3], const float P[36], const float gyro[3], float dt, float x_pred[7], float P_pred[21], float carry[31])
+ * ops: add 162, mul 211, div 2, sqrt 2, cmp 1 (total 378) */
+static void adukf_k_predict_part0(const float q[4], const float gyro_bias[3], const float P[36], const float gyro[3], float dt, float x_pred[7], float P_pred[21], float carry[32])
 {
     const float tmp0 = 0.25f * dt;
     x_pred[4] = gyro_bias[0];
@@ -172,7 +172,7 @@ static void adukf_k_predict_part0(const float q[4], const float gyro_bias[3], co
     carry[15] = tmp39;
 }
 
-static void adukf_k_predict_part1(const float q[4], const float P[36], float dt, float x_pred[7], float q_pred_unit[4], float carry[31])
+static void adukf_k_predict_part1(const float q[4], const float P[36], float dt, float x_pred[7], float q_pred_unit[4], float carry[32])
 {
     const float tmp40 = carry[12] * q[0];
     const float tmp41 = carry[11] * q[1];
@@ -230,7 +230,7 @@ static void adukf_k_predict_part1(const float q[4], const float P[36], float dt,
     carry[14] = tmp79;
 }
 
-static void adukf_k_predict_part2(const float P[36], float dt, float carry[31])
+static void adukf_k_predict_part2(const float P[36], float dt, float carry[32])
 {
     const float tmp80 = carry[11] + carry[14];
     const float tmp81 = dt * carry[7];
@@ -281,7 +281,7 @@ static void adukf_k_predict_part2(const float P[36], float dt, float carry[31])
     carry[19] = tmp119;
 }
 
-static void adukf_k_predict_part3(const float P[36], float dt, float P_pred[21], float carry[31])
+static void adukf_k_predict_part3(const float P[36], float dt, float P_pred[21], float carry[32])
 {
     const float tmp120 = carry[18] + carry[19];
     const float tmp121 = carry[13] * P[15];
@@ -325,311 +325,320 @@ static void adukf_k_predict_part3(const float P[36], float dt, float P_pred[21],
     const float tmp156 = tmp143 + tmp155;
     const float tmp157 = 0.000100004f /* gyro_noise^2 + 4.0*q_floor */ * dt;
     const float tmp158 = tmp156 + tmp157;
-    P_pred[0] = tmp158;
-    const float tmp159 = carry[2] * carry[0];
+    const float tmp159 = 34.906586f /* gyro_full_scale */ * dt;
     carry[17] = tmp125;
     carry[18] = tmp127;
     carry[19] = tmp136;
     carry[20] = tmp149;
     carry[21] = tmp157;
-    carry[22] = tmp159;
+    carry[22] = tmp158;
+    carry[23] = tmp159;
 }
 
-static void adukf_k_predict_part4(const float P[36], float dt, float carry[31])
+static void adukf_k_predict_part4(const float P[36], float dt, bool clip, float P_pred[21], float carry[32])
 {
-    const float tmp160 = carry[6] * carry[22];
-    const float tmp161 = tmp160 - carry[9];
-    const float tmp162 = carry[7] * tmp161;
-    const float tmp163 = tmp162 * P[0];
-    const float tmp164 = carry[6] * carry[3];
-    const float tmp165 = carry[7] * tmp164;
-    const float tmp166 = carry[1] + tmp165;
-    const float tmp167 = tmp166 * P[1];
-    const float tmp168 = tmp163 + tmp167;
-    const float tmp169 = carry[2] * carry[4];
-    const float tmp170 = carry[6] * tmp169;
-    const float tmp171 = dt * carry[0];
-    const float tmp172 = tmp170 + tmp171;
-    const float tmp173 = carry[7] * tmp172;
-    const float tmp174 = tmp173 * P[2];
-    const float tmp175 = tmp168 + tmp174;
-    const float tmp176 = carry[15] * P[3];
-    const float tmp177 = tmp175 + tmp176;
-    const float tmp178 = carry[11] * P[4];
-    const float tmp179 = tmp177 - tmp178;
-    const float tmp180 = carry[14] * carry[0];
-    const float tmp181 = tmp180 * P[5];
-    const float tmp182 = tmp179 - tmp181;
-    const float tmp183 = tmp182 * carry[8];
-    const float tmp184 = tmp162 * P[1];
-    const float tmp185 = tmp166 * P[7];
-    const float tmp186 = tmp184 + tmp185;
-    const float tmp187 = tmp173 * P[8];
-    const float tmp188 = tmp186 + tmp187;
-    const float tmp189 = carry[15] * P[9];
+    const float tmp160 = carry[23] * carry[23];
+    const float tmp161 = (clip) ? tmp160 : 0.0f;
+    const float tmp162 = carry[22] + tmp161;
+    P_pred[0] = tmp162;
+    const float tmp163 = carry[2] * carry[0];
+    const float tmp164 = carry[6] * tmp163;
+    const float tmp165 = tmp164 - carry[9];
+    const float tmp166 = carry[7] * tmp165;
+    const float tmp167 = tmp166 * P[0];
+    const float tmp168 = carry[6] * carry[3];
+    const float tmp169 = carry[7] * tmp168;
+    const float tmp170 = carry[1] + tmp169;
+    const float tmp171 = tmp170 * P[1];
+    const float tmp172 = tmp167 + tmp171;
+    const float tmp173 = carry[2] * carry[4];
+    const float tmp174 = carry[6] * tmp173;
+    const float tmp175 = dt * carry[0];
+    const float tmp176 = tmp174 + tmp175;
+    const float tmp177 = carry[7] * tmp176;
+    const float tmp178 = tmp177 * P[2];
+    const float tmp179 = tmp172 + tmp178;
+    const float tmp180 = carry[15] * P[3];
+    const float tmp181 = tmp179 + tmp180;
+    const float tmp182 = carry[11] * P[4];
+    const float tmp183 = tmp181 - tmp182;
+    const float tmp184 = carry[14] * carry[0];
+    const float tmp185 = tmp184 * P[5];
+    const float tmp186 = tmp183 - tmp185;
+    const float tmp187 = tmp186 * carry[8];
+    const float tmp188 = tmp166 * P[1];
+    const float tmp189 = tmp170 * P[7];
     const float tmp190 = tmp188 + tmp189;
-    const float tmp191 = carry[11] * P[10];
-    const float tmp192 = tmp190 - tmp191;
-    const float tmp193 = tmp180 * P[11];
-    const float tmp194 = tmp192 - tmp193;
-    const float tmp195 = tmp194 * carry[10];
-    const float tmp196 = tmp183 + tmp195;
-    const float tmp197 = tmp162 * P[2];
-    const float tmp198 = tmp166 * P[8];
-    const float tmp199 = tmp197 + tmp198;
-    carry[3] = tmp162;
+    const float tmp191 = tmp177 * P[8];
+    const float tmp192 = tmp190 + tmp191;
+    const float tmp193 = carry[15] * P[9];
+    const float tmp194 = tmp192 + tmp193;
+    const float tmp195 = carry[11] * P[10];
+    const float tmp196 = tmp194 - tmp195;
+    const float tmp197 = tmp184 * P[11];
+    const float tmp198 = tmp196 - tmp197;
+    const float tmp199 = tmp198 * carry[10];
+    carry[3] = tmp161;
     carry[9] = tmp166;
-    carry[14] = tmp171;
-    carry[22] = tmp173;
-    carry[23] = tmp180;
-    carry[24] = tmp182;
-    carry[25] = tmp194;
-    carry[26] = tmp196;
-    carry[27] = tmp199;
+    carry[14] = tmp170;
+    carry[22] = tmp175;
+    carry[23] = tmp177;
+    carry[24] = tmp184;
+    carry[25] = tmp186;
+    carry[26] = tmp187;
+    carry[27] = tmp198;
+    carry[28] = tmp199;
 }
 
-static void adukf_k_predict_part5(const float P[36], float P_pred[21], float carry[31])
+static void adukf_k_predict_part5(const float P[36], float P_pred[21], float carry[32])
 {
-    const float tmp200 = carry[22] * P[14];
-    const float tmp201 = carry[27] + tmp200;
-    const float tmp202 = carry[15] * P[15];
+    const float tmp200 = carry[26] + carry[28];
+    const float tmp201 = carry[9] * P[2];
+    const float tmp202 = carry[14] * P[8];
     const float tmp203 = tmp201 + tmp202;
-    const float tmp204 = carry[11] * P[16];
-    const float tmp205 = tmp203 - tmp204;
-    const float tmp206 = carry[23] * P[17];
-    const float tmp207 = tmp205 - tmp206;
-    const float tmp208 = tmp207 * carry[13];
-    const float tmp209 = carry[26] + tmp208;
-    const float tmp210 = carry[3] * P[3];
-    const float tmp211 = carry[9] * P[9];
-    const float tmp212 = tmp210 + tmp211;
-    const float tmp213 = carry[22] * P[15];
-    const float tmp214 = tmp212 + tmp213;
-    const float tmp215 = carry[15] * P[21];
+    const float tmp204 = carry[23] * P[14];
+    const float tmp205 = tmp203 + tmp204;
+    const float tmp206 = carry[15] * P[15];
+    const float tmp207 = tmp205 + tmp206;
+    const float tmp208 = carry[11] * P[16];
+    const float tmp209 = tmp207 - tmp208;
+    const float tmp210 = carry[24] * P[17];
+    const float tmp211 = tmp209 - tmp210;
+    const float tmp212 = tmp211 * carry[13];
+    const float tmp213 = tmp200 + tmp212;
+    const float tmp214 = carry[9] * P[3];
+    const float tmp215 = carry[14] * P[9];
     const float tmp216 = tmp214 + tmp215;
-    const float tmp217 = tmp216 - carry[19];
-    const float tmp218 = carry[23] * P[23];
-    const float tmp219 = tmp217 - tmp218;
-    P_pred[8] = tmp219;
-    const float tmp220 = tmp219 * carry[11];
-    const float tmp221 = tmp209 - tmp220;
-    const float tmp222 = carry[3] * P[4];
-    const float tmp223 = carry[9] * P[10];
-    const float tmp224 = tmp222 + tmp223;
-    const float tmp225 = carry[22] * P[16];
-    const float tmp226 = tmp224 + tmp225;
-    const float tmp227 = tmp226 + carry[17];
-    const float tmp228 = carry[11] * P[28];
-    const float tmp229 = tmp227 - tmp228;
-    const float tmp230 = carry[23] * P[29];
-    const float tmp231 = tmp229 - tmp230;
-    P_pred[9] = tmp231;
-    const float tmp232 = tmp231 * carry[15];
-    const float tmp233 = tmp221 - tmp232;
-    const float tmp234 = carry[3] * P[5];
-    const float tmp235 = carry[9] * P[11];
-    const float tmp236 = tmp234 + tmp235;
-    const float tmp237 = carry[22] * P[17];
-    const float tmp238 = tmp236 + tmp237;
-    const float tmp239 = carry[15] * P[23];
-    carry[17] = tmp207;
-    carry[19] = tmp219;
-    carry[26] = tmp230;
-    carry[27] = tmp231;
-    carry[28] = tmp233;
-    carry[29] = tmp238;
-    carry[30] = tmp239;
+    const float tmp217 = carry[23] * P[15];
+    const float tmp218 = tmp216 + tmp217;
+    const float tmp219 = carry[15] * P[21];
+    const float tmp220 = tmp218 + tmp219;
+    const float tmp221 = tmp220 - carry[19];
+    const float tmp222 = carry[24] * P[23];
+    const float tmp223 = tmp221 - tmp222;
+    P_pred[8] = tmp223;
+    const float tmp224 = tmp223 * carry[11];
+    const float tmp225 = tmp213 - tmp224;
+    const float tmp226 = carry[9] * P[4];
+    const float tmp227 = carry[14] * P[10];
+    const float tmp228 = tmp226 + tmp227;
+    const float tmp229 = carry[23] * P[16];
+    const float tmp230 = tmp228 + tmp229;
+    const float tmp231 = tmp230 + carry[17];
+    const float tmp232 = carry[11] * P[28];
+    const float tmp233 = tmp231 - tmp232;
+    const float tmp234 = carry[24] * P[29];
+    const float tmp235 = tmp233 - tmp234;
+    P_pred[9] = tmp235;
+    const float tmp236 = tmp235 * carry[15];
+    const float tmp237 = tmp225 - tmp236;
+    const float tmp238 = carry[9] * P[5];
+    const float tmp239 = carry[14] * P[11];
+    carry[17] = tmp211;
+    carry[19] = tmp223;
+    carry[26] = tmp234;
+    carry[28] = tmp235;
+    carry[29] = tmp237;
+    carry[30] = tmp238;
+    carry[31] = tmp239;
 }
 
-static void adukf_k_predict_part6(const float P[36], float P_pred[21], float carry[31])
+static void adukf_k_predict_part6(const float P[36], float P_pred[21], float carry[32])
 {
-    const float tmp240 = carry[29] + carry[30];
-    const float tmp241 = carry[11] * P[29];
-    const float tmp242 = tmp240 - tmp241;
-    const float tmp243 = carry[23] * P[35];
-    const float tmp244 = tmp242 - tmp243;
-    P_pred[10] = tmp244;
-    const float tmp245 = tmp244 * carry[16];
-    const float tmp246 = carry[28] + tmp245;
-    P_pred[1] = tmp246;
-    const float tmp247 = carry[4] * carry[0];
-    const float tmp248 = carry[6] * tmp247;
-    const float tmp249 = tmp248 + carry[12];
-    const float tmp250 = carry[7] * tmp249;
-    const float tmp251 = tmp250 * P[0];
-    const float tmp252 = carry[4] * carry[2];
-    const float tmp253 = carry[6] * tmp252;
-    const float tmp254 = tmp253 - carry[14];
-    const float tmp255 = carry[7] * tmp254;
-    const float tmp256 = tmp255 * P[1];
-    const float tmp257 = tmp251 + tmp256;
-    const float tmp258 = carry[6] * carry[5];
+    const float tmp240 = carry[30] + carry[31];
+    const float tmp241 = carry[23] * P[17];
+    const float tmp242 = tmp240 + tmp241;
+    const float tmp243 = carry[15] * P[23];
+    const float tmp244 = tmp242 + tmp243;
+    const float tmp245 = carry[11] * P[29];
+    const float tmp246 = tmp244 - tmp245;
+    const float tmp247 = carry[24] * P[35];
+    const float tmp248 = tmp246 - tmp247;
+    P_pred[10] = tmp248;
+    const float tmp249 = tmp248 * carry[16];
+    const float tmp250 = carry[29] + tmp249;
+    P_pred[1] = tmp250;
+    const float tmp251 = carry[4] * carry[0];
+    const float tmp252 = carry[6] * tmp251;
+    const float tmp253 = tmp252 + carry[12];
+    const float tmp254 = carry[7] * tmp253;
+    const float tmp255 = tmp254 * P[0];
+    const float tmp256 = carry[4] * carry[2];
+    const float tmp257 = carry[6] * tmp256;
+    const float tmp258 = tmp257 - carry[22];
     const float tmp259 = carry[7] * tmp258;
-    const float tmp260 = carry[1] + tmp259;
-    const float tmp261 = tmp260 * P[2];
-    const float tmp262 = tmp257 + tmp261;
-    const float tmp263 = carry[16] * P[3];
-    const float tmp264 = tmp262 - tmp263;
-    const float tmp265 = carry[23] * P[4];
-    const float tmp266 = tmp264 + tmp265;
-    const float tmp267 = carry[11] * P[5];
+    const float tmp260 = tmp259 * P[1];
+    const float tmp261 = tmp255 + tmp260;
+    const float tmp262 = carry[6] * carry[5];
+    const float tmp263 = carry[7] * tmp262;
+    const float tmp264 = carry[1] + tmp263;
+    const float tmp265 = tmp264 * P[2];
+    const float tmp266 = tmp261 + tmp265;
+    const float tmp267 = carry[16] * P[3];
     const float tmp268 = tmp266 - tmp267;
-    const float tmp269 = tmp268 * carry[8];
-    const float tmp270 = tmp250 * P[1];
-    const float tmp271 = tmp255 * P[7];
-    const float tmp272 = tmp270 + tmp271;
-    const float tmp273 = tmp260 * P[8];
-    const float tmp274 = tmp272 + tmp273;
-    const float tmp275 = carry[16] * P[9];
-    const float tmp276 = tmp274 - tmp275;
-    const float tmp277 = carry[23] * P[10];
+    const float tmp269 = carry[24] * P[4];
+    const float tmp270 = tmp268 + tmp269;
+    const float tmp271 = carry[11] * P[5];
+    const float tmp272 = tmp270 - tmp271;
+    const float tmp273 = tmp272 * carry[8];
+    const float tmp274 = tmp254 * P[1];
+    const float tmp275 = tmp259 * P[7];
+    const float tmp276 = tmp274 + tmp275;
+    const float tmp277 = tmp264 * P[8];
     const float tmp278 = tmp276 + tmp277;
-    const float tmp279 = carry[11] * P[11];
-    carry[0] = tmp241;
-    carry[1] = tmp244;
-    carry[2] = tmp250;
-    carry[4] = tmp255;
-    carry[5] = tmp260;
-    carry[6] = tmp268;
-    carry[7] = tmp269;
+    const float tmp279 = carry[16] * P[9];
+    carry[0] = tmp245;
+    carry[1] = tmp248;
+    carry[2] = tmp254;
+    carry[4] = tmp259;
+    carry[5] = tmp264;
+    carry[6] = tmp272;
+    carry[7] = tmp273;
     carry[8] = tmp278;
     carry[12] = tmp279;
 }
 
-static void adukf_k_predict_part7(const float P[36], float P_pred[21], float carry[31])
+static void adukf_k_predict_part7(const float P[36], float P_pred[21], float carry[32])
 {
     const float tmp280 = carry[8] - carry[12];
-    const float tmp281 = tmp280 * carry[10];
-    const float tmp282 = carry[7] + tmp281;
-    const float tmp283 = carry[2] * P[2];
-    const float tmp284 = carry[4] * P[8];
-    const float tmp285 = tmp283 + tmp284;
-    const float tmp286 = carry[5] * P[14];
-    const float tmp287 = tmp285 + tmp286;
-    const float tmp288 = carry[16] * P[15];
-    const float tmp289 = tmp287 - tmp288;
-    const float tmp290 = carry[23] * P[16];
+    const float tmp281 = carry[24] * P[10];
+    const float tmp282 = tmp280 + tmp281;
+    const float tmp283 = carry[11] * P[11];
+    const float tmp284 = tmp282 - tmp283;
+    const float tmp285 = tmp284 * carry[10];
+    const float tmp286 = carry[7] + tmp285;
+    const float tmp287 = carry[2] * P[2];
+    const float tmp288 = carry[4] * P[8];
+    const float tmp289 = tmp287 + tmp288;
+    const float tmp290 = carry[5] * P[14];
     const float tmp291 = tmp289 + tmp290;
-    const float tmp292 = carry[11] * P[17];
+    const float tmp292 = carry[16] * P[15];
     const float tmp293 = tmp291 - tmp292;
-    const float tmp294 = tmp293 * carry[13];
-    const float tmp295 = tmp282 + tmp294;
-    const float tmp296 = carry[2] * P[3];
-    const float tmp297 = carry[4] * P[9];
-    const float tmp298 = tmp296 + tmp297;
-    const float tmp299 = carry[5] * P[15];
-    const float tmp300 = tmp298 + tmp299;
-    const float tmp301 = carry[16] * P[21];
-    const float tmp302 = tmp300 - tmp301;
-    const float tmp303 = carry[23] * P[22];
+    const float tmp294 = carry[24] * P[16];
+    const float tmp295 = tmp293 + tmp294;
+    const float tmp296 = carry[11] * P[17];
+    const float tmp297 = tmp295 - tmp296;
+    const float tmp298 = tmp297 * carry[13];
+    const float tmp299 = tmp286 + tmp298;
+    const float tmp300 = carry[2] * P[3];
+    const float tmp301 = carry[4] * P[9];
+    const float tmp302 = tmp300 + tmp301;
+    const float tmp303 = carry[5] * P[15];
     const float tmp304 = tmp302 + tmp303;
-    const float tmp305 = tmp304 - carry[20];
-    P_pred[12] = tmp305;
-    const float tmp306 = tmp305 * carry[11];
-    const float tmp307 = tmp295 - tmp306;
-    const float tmp308 = carry[2] * P[4];
-    const float tmp309 = carry[4] * P[10];
-    const float tmp310 = tmp308 + tmp309;
-    const float tmp311 = carry[5] * P[16];
-    const float tmp312 = tmp310 + tmp311;
-    const float tmp313 = carry[16] * P[22];
-    const float tmp314 = tmp312 - tmp313;
-    const float tmp315 = carry[23] * P[28];
+    const float tmp305 = carry[16] * P[21];
+    const float tmp306 = tmp304 - tmp305;
+    const float tmp307 = carry[24] * P[22];
+    const float tmp308 = tmp306 + tmp307;
+    const float tmp309 = tmp308 - carry[20];
+    P_pred[12] = tmp309;
+    const float tmp310 = tmp309 * carry[11];
+    const float tmp311 = tmp299 - tmp310;
+    const float tmp312 = carry[2] * P[4];
+    const float tmp313 = carry[4] * P[10];
+    const float tmp314 = tmp312 + tmp313;
+    const float tmp315 = carry[5] * P[16];
     const float tmp316 = tmp314 + tmp315;
-    const float tmp317 = tmp316 - carry[0];
-    P_pred[13] = tmp317;
-    const float tmp318 = tmp317 * carry[15];
-    const float tmp319 = tmp307 - tmp318;
-    carry[0] = tmp280;
-    carry[7] = tmp293;
-    carry[8] = tmp305;
-    carry[10] = tmp317;
-    carry[12] = tmp319;
+    const float tmp317 = carry[16] * P[22];
+    const float tmp318 = tmp316 - tmp317;
+    const float tmp319 = carry[24] * P[28];
+    carry[7] = tmp284;
+    carry[8] = tmp297;
+    carry[10] = tmp309;
+    carry[12] = tmp311;
+    carry[13] = tmp318;
+    carry[20] = tmp319;
 }
 
-static void adukf_k_predict_part8(const float P[36], float P_pred[21], float carry[31])
+static void adukf_k_predict_part8(const float P[36], float P_pred[21], float carry[32])
 {
-    const float tmp320 = carry[2] * P[5];
-    const float tmp321 = carry[4] * P[11];
-    const float tmp322 = tmp320 + tmp321;
-    const float tmp323 = carry[5] * P[17];
-    const float tmp324 = tmp322 + tmp323;
-    const float tmp325 = tmp324 - carry[18];
-    const float tmp326 = tmp325 + carry[26];
-    const float tmp327 = carry[11] * P[35];
-    const float tmp328 = tmp326 - tmp327;
-    P_pred[14] = tmp328;
-    const float tmp329 = tmp328 * carry[16];
-    const float tmp330 = carry[12] + tmp329;
-    P_pred[2] = tmp330;
-    const float tmp331 = carry[24] * carry[3];
-    const float tmp332 = carry[25] * carry[9];
-    const float tmp333 = tmp331 + tmp332;
-    const float tmp334 = carry[17] * carry[22];
-    const float tmp335 = tmp333 + tmp334;
-    const float tmp336 = carry[19] * carry[15];
+    const float tmp320 = carry[13] + carry[20];
+    const float tmp321 = tmp320 - carry[0];
+    P_pred[13] = tmp321;
+    const float tmp322 = tmp321 * carry[15];
+    const float tmp323 = carry[12] - tmp322;
+    const float tmp324 = carry[2] * P[5];
+    const float tmp325 = carry[4] * P[11];
+    const float tmp326 = tmp324 + tmp325;
+    const float tmp327 = carry[5] * P[17];
+    const float tmp328 = tmp326 + tmp327;
+    const float tmp329 = tmp328 - carry[18];
+    const float tmp330 = tmp329 + carry[26];
+    const float tmp331 = carry[11] * P[35];
+    const float tmp332 = tmp330 - tmp331;
+    P_pred[14] = tmp332;
+    const float tmp333 = tmp332 * carry[16];
+    const float tmp334 = tmp323 + tmp333;
+    P_pred[2] = tmp334;
+    const float tmp335 = carry[25] * carry[9];
+    const float tmp336 = carry[27] * carry[14];
     const float tmp337 = tmp335 + tmp336;
-    const float tmp338 = carry[27] * carry[11];
-    const float tmp339 = tmp337 - tmp338;
-    const float tmp340 = carry[1] * carry[23];
-    const float tmp341 = tmp339 - tmp340;
-    const float tmp342 = tmp341 + carry[21];
-    P_pred[6] = tmp342;
-    const float tmp343 = carry[6] * carry[3];
-    const float tmp344 = carry[0] * carry[9];
-    const float tmp345 = tmp343 + tmp344;
-    const float tmp346 = carry[7] * carry[22];
-    const float tmp347 = tmp345 + tmp346;
-    const float tmp348 = carry[8] * carry[15];
-    const float tmp349 = tmp347 + tmp348;
-    const float tmp350 = carry[10] * carry[11];
-    const float tmp351 = tmp349 - tmp350;
-    const float tmp352 = tmp328 * carry[23];
-    const float tmp353 = tmp351 - tmp352;
-    P_pred[7] = tmp353;
-    const float tmp354 = carry[6] * carry[2];
-    const float tmp355 = carry[0] * carry[4];
-    const float tmp356 = tmp354 + tmp355;
-    const float tmp357 = carry[7] * carry[5];
-    const float tmp358 = tmp356 + tmp357;
-    const float tmp359 = carry[8] * carry[16];
-    carry[0] = tmp328;
-    carry[1] = tmp358;
+    const float tmp338 = carry[17] * carry[23];
+    const float tmp339 = tmp337 + tmp338;
+    const float tmp340 = carry[19] * carry[15];
+    const float tmp341 = tmp339 + tmp340;
+    const float tmp342 = carry[28] * carry[11];
+    const float tmp343 = tmp341 - tmp342;
+    const float tmp344 = carry[1] * carry[24];
+    const float tmp345 = tmp343 - tmp344;
+    const float tmp346 = tmp345 + carry[21];
+    const float tmp347 = tmp346 + carry[3];
+    P_pred[6] = tmp347;
+    const float tmp348 = carry[6] * carry[9];
+    const float tmp349 = carry[7] * carry[14];
+    const float tmp350 = tmp348 + tmp349;
+    const float tmp351 = carry[8] * carry[23];
+    const float tmp352 = tmp350 + tmp351;
+    const float tmp353 = carry[10] * carry[15];
+    const float tmp354 = tmp352 + tmp353;
+    const float tmp355 = tmp321 * carry[11];
+    const float tmp356 = tmp354 - tmp355;
+    const float tmp357 = tmp332 * carry[24];
+    const float tmp358 = tmp356 - tmp357;
+    P_pred[7] = tmp358;
+    const float tmp359 = carry[6] * carry[2];
+    carry[0] = tmp321;
+    carry[1] = tmp332;
     carry[2] = tmp359;
 }
 
-static void adukf_k_predict_part9(const float P[36], float dt, float P_pred[21], const float carry[31])
+static void adukf_k_predict_part9(const float P[36], float dt, float P_pred[21], const float carry[32])
 {
-    const float tmp360 = carry[1] - carry[2];
-    const float tmp361 = carry[10] * carry[23];
-    const float tmp362 = tmp360 + tmp361;
-    const float tmp363 = carry[0] * carry[11];
-    const float tmp364 = tmp362 - tmp363;
-    const float tmp365 = tmp364 + carry[21];
-    P_pred[11] = tmp365;
-    const float tmp366 = 1e-08f /* bias_rw^2 */ * dt;
-    const float tmp367 = 1e-09f /* q_floor */ * dt;
-    const float tmp368 = tmp366 + tmp367;
-    const float tmp369 = P[21] + tmp368;
-    P_pred[15] = tmp369;
-    const float tmp370 = P[28] + tmp368;
-    P_pred[18] = tmp370;
-    const float tmp371 = P[35] + tmp368;
-    P_pred[20] = tmp371;
+    const float tmp360 = carry[7] * carry[4];
+    const float tmp361 = carry[2] + tmp360;
+    const float tmp362 = carry[8] * carry[5];
+    const float tmp363 = tmp361 + tmp362;
+    const float tmp364 = carry[10] * carry[16];
+    const float tmp365 = tmp363 - tmp364;
+    const float tmp366 = carry[0] * carry[24];
+    const float tmp367 = tmp365 + tmp366;
+    const float tmp368 = carry[1] * carry[11];
+    const float tmp369 = tmp367 - tmp368;
+    const float tmp370 = tmp369 + carry[21];
+    const float tmp371 = tmp370 + carry[3];
+    P_pred[11] = tmp371;
+    const float tmp372 = 1e-08f /* bias_rw^2 */ * dt;
+    const float tmp373 = 1e-09f /* q_floor */ * dt;
+    const float tmp374 = tmp372 + tmp373;
+    const float tmp375 = P[21] + tmp374;
+    P_pred[15] = tmp375;
+    const float tmp376 = P[28] + tmp374;
+    P_pred[18] = tmp376;
+    const float tmp377 = P[35] + tmp374;
+    P_pred[20] = tmp377;
 }
 
 #if defined(__GNUC__)
 __attribute__((noinline))
 #endif
-static void adukf_k_predict(const float q[restrict 4], const float gyro_bias[restrict 3], const float P[restrict 36], const float gyro[restrict 3], float dt, float x_pred[restrict 7], float q_pred_unit[restrict 4], float P_pred[restrict 21])
+static void adukf_k_predict(const float q[restrict 4], const float gyro_bias[restrict 3], const float P[restrict 36], const float gyro[restrict 3], float dt, bool clip, float x_pred[restrict 7], float q_pred_unit[restrict 4], float P_pred[restrict 21])
 {
     /* 10 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
-    float carry[31];
+    float carry[32];
     adukf_k_predict_part0(q, gyro_bias, P, gyro, dt, x_pred, P_pred, carry);
     adukf_k_predict_part1(q, P, dt, x_pred, q_pred_unit, carry);
     adukf_k_predict_part2(P, dt, carry);
     adukf_k_predict_part3(P, dt, P_pred, carry);
-    adukf_k_predict_part4(P, dt, carry);
+    adukf_k_predict_part4(P, dt, clip, P_pred, carry);
     adukf_k_predict_part5(P, P_pred, carry);
     adukf_k_predict_part6(P, P_pred, carry);
     adukf_k_predict_part7(P, P_pred, carry);
@@ -1009,8 +1018,9 @@ static void adukf_k_sigma_pair(const float col[3], const float z0[6], float zsum
 }
 
 /* predicted measurement, residual, adaptive per-axis R and P_zz from the sigma pairs' sums and differences of deviations; outputs are stored as soon as computed (arrays restrict): no argument may overlap an output
- * ops: add 166, mul 204, div 4, sqrt 2, cmp 8 (total 384) */
-static void adukf_k_innovation_part0(const float z0[6], const float zsum[18], const float zdiff[18], const float accel[3], float dt, const float span[2], float P_zz[21], float residual[6], float r_diag[6], float carry[8])
+ * ops: add 166, mul 204, div 4, sqrt 2, cmp 14 (total 390)
+ *      of which only one side runs: if (recover) 0, else 18 */
+static void adukf_k_innovation_part0(const float z0[6], const float zsum[18], const float zdiff[18], const float accel[3], float dt, const float span[2], float residual[6], float carry[16])
 {
     const float tmp0 = zsum[0] * zsum[0];
     const float tmp1 = zdiff[0] * zdiff[0];
@@ -1040,475 +1050,510 @@ static void adukf_k_innovation_part0(const float z0[6], const float zsum[18], co
     const float tmp25 = z0[0] + tmp14;
     const float tmp26 = tmp24 - tmp25;
     residual[0] = tmp26;
-    const float tmp27 = tmp26 * tmp26;
-    const float tmp28 = 300.0f * tmp27;
-    const float tmp29 = (tmp28 < 10.0f) ? tmp28 : 10.0f;
-    const float tmp30 = 0.0049f + tmp29;
-    const float tmp31 = dt / span[0];
-    const float tmp32 = (tmp31 > 0.1f) ? tmp31 : 0.1f;
-    const float tmp33 = tmp30 * tmp32;
-    r_diag[0] = tmp33;
-    const float tmp34 = tmp16 + tmp33;
-    P_zz[0] = tmp34;
-    const float tmp35 = zsum[1] * zsum[0];
-    const float tmp36 = zdiff[1] * zdiff[0];
-    const float tmp37 = tmp35 + tmp36;
-    const float tmp38 = zsum[7] * zsum[6];
-    const float tmp39 = zdiff[7] * zdiff[6];
+    const float tmp27 = dt / span[0];
+    const float tmp28 = (tmp27 > 0.1f) ? tmp27 : 0.1f;
+    const float tmp29 = zsum[1] * zsum[0];
+    const float tmp30 = zdiff[1] * zdiff[0];
+    const float tmp31 = tmp29 + tmp30;
+    const float tmp32 = zsum[7] * zsum[6];
+    const float tmp33 = zdiff[7] * zdiff[6];
+    const float tmp34 = tmp32 + tmp33;
+    const float tmp35 = tmp31 + tmp34;
+    const float tmp36 = zsum[13] * zsum[12];
+    const float tmp37 = zdiff[13] * zdiff[12];
+    const float tmp38 = tmp36 + tmp37;
+    const float tmp39 = tmp35 + tmp38;
     carry[0] = tmp14;
-    carry[1] = tmp23;
-    carry[2] = tmp32;
-    carry[3] = tmp37;
-    carry[4] = tmp38;
+    carry[1] = tmp16;
+    carry[2] = tmp23;
+    carry[3] = tmp26;
+    carry[4] = tmp28;
     carry[5] = tmp39;
 }
 
-static void adukf_k_innovation_part1(const float zsum[18], const float zdiff[18], float P_zz[21], float carry[8])
+static void adukf_k_innovation_part1(const float zsum[18], const float zdiff[18], float P_zz[21], float carry[16])
 {
-    const float tmp40 = carry[4] + carry[5];
-    const float tmp41 = carry[3] + tmp40;
-    const float tmp42 = zsum[13] * zsum[12];
-    const float tmp43 = zdiff[13] * zdiff[12];
-    const float tmp44 = tmp42 + tmp43;
-    const float tmp45 = tmp41 + tmp44;
-    const float tmp46 = 0.041666668f * tmp45;
-    const float tmp47 = zsum[1] + zsum[7];
-    const float tmp48 = tmp47 + zsum[13];
-    const float tmp49 = 0.083333336f * tmp48;
-    const float tmp50 = tmp49 * carry[0];
-    const float tmp51 = tmp46 + tmp50;
-    P_zz[1] = tmp51;
-    const float tmp52 = zsum[2] * zsum[0];
-    const float tmp53 = zdiff[2] * zdiff[0];
-    const float tmp54 = tmp52 + tmp53;
-    const float tmp55 = zsum[8] * zsum[6];
-    const float tmp56 = zdiff[8] * zdiff[6];
-    const float tmp57 = tmp55 + tmp56;
-    const float tmp58 = tmp54 + tmp57;
-    const float tmp59 = zsum[14] * zsum[12];
-    const float tmp60 = zdiff[14] * zdiff[12];
-    const float tmp61 = tmp59 + tmp60;
-    const float tmp62 = tmp58 + tmp61;
-    const float tmp63 = 0.041666668f * tmp62;
-    const float tmp64 = zsum[2] + zsum[8];
-    const float tmp65 = tmp64 + zsum[14];
-    const float tmp66 = 0.083333336f * tmp65;
-    const float tmp67 = tmp66 * carry[0];
-    const float tmp68 = tmp63 + tmp67;
-    P_zz[2] = tmp68;
-    const float tmp69 = zsum[3] * zsum[0];
-    const float tmp70 = zdiff[3] * zdiff[0];
-    const float tmp71 = tmp69 + tmp70;
-    const float tmp72 = zsum[9] * zsum[6];
-    const float tmp73 = zdiff[9] * zdiff[6];
-    const float tmp74 = tmp72 + tmp73;
-    const float tmp75 = tmp71 + tmp74;
-    const float tmp76 = zsum[15] * zsum[12];
-    const float tmp77 = zdiff[15] * zdiff[12];
-    const float tmp78 = tmp76 + tmp77;
-    const float tmp79 = tmp75 + tmp78;
-    carry[3] = tmp49;
-    carry[4] = tmp66;
-    carry[5] = tmp79;
+    const float tmp40 = 0.041666668f * carry[5];
+    const float tmp41 = zsum[1] + zsum[7];
+    const float tmp42 = tmp41 + zsum[13];
+    const float tmp43 = 0.083333336f * tmp42;
+    const float tmp44 = tmp43 * carry[0];
+    const float tmp45 = tmp40 + tmp44;
+    P_zz[1] = tmp45;
+    const float tmp46 = zsum[2] * zsum[0];
+    const float tmp47 = zdiff[2] * zdiff[0];
+    const float tmp48 = tmp46 + tmp47;
+    const float tmp49 = zsum[8] * zsum[6];
+    const float tmp50 = zdiff[8] * zdiff[6];
+    const float tmp51 = tmp49 + tmp50;
+    const float tmp52 = tmp48 + tmp51;
+    const float tmp53 = zsum[14] * zsum[12];
+    const float tmp54 = zdiff[14] * zdiff[12];
+    const float tmp55 = tmp53 + tmp54;
+    const float tmp56 = tmp52 + tmp55;
+    const float tmp57 = 0.041666668f * tmp56;
+    const float tmp58 = zsum[2] + zsum[8];
+    const float tmp59 = tmp58 + zsum[14];
+    const float tmp60 = 0.083333336f * tmp59;
+    const float tmp61 = tmp60 * carry[0];
+    const float tmp62 = tmp57 + tmp61;
+    P_zz[2] = tmp62;
+    const float tmp63 = zsum[3] * zsum[0];
+    const float tmp64 = zdiff[3] * zdiff[0];
+    const float tmp65 = tmp63 + tmp64;
+    const float tmp66 = zsum[9] * zsum[6];
+    const float tmp67 = zdiff[9] * zdiff[6];
+    const float tmp68 = tmp66 + tmp67;
+    const float tmp69 = tmp65 + tmp68;
+    const float tmp70 = zsum[15] * zsum[12];
+    const float tmp71 = zdiff[15] * zdiff[12];
+    const float tmp72 = tmp70 + tmp71;
+    const float tmp73 = tmp69 + tmp72;
+    const float tmp74 = 0.041666668f * tmp73;
+    const float tmp75 = zsum[3] + zsum[9];
+    const float tmp76 = tmp75 + zsum[15];
+    const float tmp77 = 0.083333336f * tmp76;
+    const float tmp78 = tmp77 * carry[0];
+    const float tmp79 = tmp74 + tmp78;
+    P_zz[3] = tmp79;
+    carry[5] = tmp43;
+    carry[6] = tmp60;
+    carry[7] = tmp77;
 }
 
-static void adukf_k_innovation_part2(const float zsum[18], const float zdiff[18], float P_zz[21], float carry[8])
+static void adukf_k_innovation_part2(const float zsum[18], const float zdiff[18], float P_zz[21], float carry[16])
 {
-    const float tmp80 = 0.041666668f * carry[5];
-    const float tmp81 = zsum[3] + zsum[9];
-    const float tmp82 = tmp81 + zsum[15];
-    const float tmp83 = 0.083333336f * tmp82;
-    const float tmp84 = tmp83 * carry[0];
-    const float tmp85 = tmp80 + tmp84;
-    P_zz[3] = tmp85;
-    const float tmp86 = zsum[4] * zsum[0];
-    const float tmp87 = zdiff[4] * zdiff[0];
-    const float tmp88 = tmp86 + tmp87;
-    const float tmp89 = zsum[10] * zsum[6];
-    const float tmp90 = zdiff[10] * zdiff[6];
-    const float tmp91 = tmp89 + tmp90;
-    const float tmp92 = tmp88 + tmp91;
-    const float tmp93 = zsum[16] * zsum[12];
-    const float tmp94 = zdiff[16] * zdiff[12];
-    const float tmp95 = tmp93 + tmp94;
-    const float tmp96 = tmp92 + tmp95;
-    const float tmp97 = 0.041666668f * tmp96;
-    const float tmp98 = zsum[4] + zsum[10];
-    const float tmp99 = tmp98 + zsum[16];
-    const float tmp100 = 0.083333336f * tmp99;
-    const float tmp101 = tmp100 * carry[0];
-    const float tmp102 = tmp97 + tmp101;
-    P_zz[4] = tmp102;
-    const float tmp103 = zsum[5] * zsum[0];
-    const float tmp104 = zdiff[5] * zdiff[0];
-    const float tmp105 = tmp103 + tmp104;
-    const float tmp106 = zsum[11] * zsum[6];
-    const float tmp107 = zdiff[11] * zdiff[6];
-    const float tmp108 = tmp106 + tmp107;
-    const float tmp109 = tmp105 + tmp108;
-    const float tmp110 = zsum[17] * zsum[12];
-    const float tmp111 = zdiff[17] * zdiff[12];
-    const float tmp112 = tmp110 + tmp111;
-    const float tmp113 = tmp109 + tmp112;
-    const float tmp114 = 0.041666668f * tmp113;
-    const float tmp115 = zsum[5] + zsum[11];
-    const float tmp116 = tmp115 + zsum[17];
-    const float tmp117 = 0.083333336f * tmp116;
-    const float tmp118 = tmp117 * carry[0];
-    const float tmp119 = tmp114 + tmp118;
-    P_zz[5] = tmp119;
-    carry[0] = tmp83;
-    carry[5] = tmp100;
-    carry[6] = tmp117;
+    const float tmp80 = zsum[4] * zsum[0];
+    const float tmp81 = zdiff[4] * zdiff[0];
+    const float tmp82 = tmp80 + tmp81;
+    const float tmp83 = zsum[10] * zsum[6];
+    const float tmp84 = zdiff[10] * zdiff[6];
+    const float tmp85 = tmp83 + tmp84;
+    const float tmp86 = tmp82 + tmp85;
+    const float tmp87 = zsum[16] * zsum[12];
+    const float tmp88 = zdiff[16] * zdiff[12];
+    const float tmp89 = tmp87 + tmp88;
+    const float tmp90 = tmp86 + tmp89;
+    const float tmp91 = 0.041666668f * tmp90;
+    const float tmp92 = zsum[4] + zsum[10];
+    const float tmp93 = tmp92 + zsum[16];
+    const float tmp94 = 0.083333336f * tmp93;
+    const float tmp95 = tmp94 * carry[0];
+    const float tmp96 = tmp91 + tmp95;
+    P_zz[4] = tmp96;
+    const float tmp97 = zsum[5] * zsum[0];
+    const float tmp98 = zdiff[5] * zdiff[0];
+    const float tmp99 = tmp97 + tmp98;
+    const float tmp100 = zsum[11] * zsum[6];
+    const float tmp101 = zdiff[11] * zdiff[6];
+    const float tmp102 = tmp100 + tmp101;
+    const float tmp103 = tmp99 + tmp102;
+    const float tmp104 = zsum[17] * zsum[12];
+    const float tmp105 = zdiff[17] * zdiff[12];
+    const float tmp106 = tmp104 + tmp105;
+    const float tmp107 = tmp103 + tmp106;
+    const float tmp108 = 0.041666668f * tmp107;
+    const float tmp109 = zsum[5] + zsum[11];
+    const float tmp110 = tmp109 + zsum[17];
+    const float tmp111 = 0.083333336f * tmp110;
+    const float tmp112 = tmp111 * carry[0];
+    const float tmp113 = tmp108 + tmp112;
+    P_zz[5] = tmp113;
+    const float tmp114 = zsum[1] * zsum[1];
+    const float tmp115 = zdiff[1] * zdiff[1];
+    const float tmp116 = tmp114 + tmp115;
+    const float tmp117 = zsum[7] * zsum[7];
+    const float tmp118 = zdiff[7] * zdiff[7];
+    const float tmp119 = tmp117 + tmp118;
+    carry[0] = tmp94;
+    carry[8] = tmp111;
+    carry[9] = tmp116;
+    carry[10] = tmp119;
 }
 
-static void adukf_k_innovation_part3(const float z0[6], const float zsum[18], const float zdiff[18], const float accel[3], float P_zz[21], float residual[6], float r_diag[6], float carry[8])
+static void adukf_k_innovation_part3(const float z0[6], const float zsum[18], const float zdiff[18], const float accel[3], float P_zz[21], float residual[6], float carry[16])
 {
-    const float tmp120 = zsum[1] * zsum[1];
-    const float tmp121 = zdiff[1] * zdiff[1];
-    const float tmp122 = tmp120 + tmp121;
-    const float tmp123 = zsum[7] * zsum[7];
-    const float tmp124 = zdiff[7] * zdiff[7];
-    const float tmp125 = tmp123 + tmp124;
-    const float tmp126 = tmp122 + tmp125;
-    const float tmp127 = zsum[13] * zsum[13];
-    const float tmp128 = zdiff[13] * zdiff[13];
-    const float tmp129 = tmp127 + tmp128;
-    const float tmp130 = tmp126 + tmp129;
-    const float tmp131 = 0.041666668f * tmp130;
-    const float tmp132 = carry[3] * carry[3];
+    const float tmp120 = carry[9] + carry[10];
+    const float tmp121 = zsum[13] * zsum[13];
+    const float tmp122 = zdiff[13] * zdiff[13];
+    const float tmp123 = tmp121 + tmp122;
+    const float tmp124 = tmp120 + tmp123;
+    const float tmp125 = 0.041666668f * tmp124;
+    const float tmp126 = carry[5] * carry[5];
+    const float tmp127 = tmp125 + tmp126;
+    const float tmp128 = accel[1] * carry[2];
+    const float tmp129 = z0[1] + carry[5];
+    const float tmp130 = tmp128 - tmp129;
+    residual[1] = tmp130;
+    const float tmp131 = zsum[2] * zsum[1];
+    const float tmp132 = zdiff[2] * zdiff[1];
     const float tmp133 = tmp131 + tmp132;
-    const float tmp134 = accel[1] * carry[1];
-    const float tmp135 = z0[1] + carry[3];
-    const float tmp136 = tmp134 - tmp135;
-    residual[1] = tmp136;
-    const float tmp137 = tmp136 * tmp136;
-    const float tmp138 = 300.0f * tmp137;
-    const float tmp139 = (tmp138 < 10.0f) ? tmp138 : 10.0f;
-    const float tmp140 = 0.0049f + tmp139;
-    const float tmp141 = tmp140 * carry[2];
-    r_diag[1] = tmp141;
-    const float tmp142 = tmp133 + tmp141;
-    P_zz[6] = tmp142;
-    const float tmp143 = zsum[2] * zsum[1];
-    const float tmp144 = zdiff[2] * zdiff[1];
-    const float tmp145 = tmp143 + tmp144;
-    const float tmp146 = zsum[8] * zsum[7];
-    const float tmp147 = zdiff[8] * zdiff[7];
-    const float tmp148 = tmp146 + tmp147;
-    const float tmp149 = tmp145 + tmp148;
-    const float tmp150 = zsum[14] * zsum[13];
-    const float tmp151 = zdiff[14] * zdiff[13];
-    const float tmp152 = tmp150 + tmp151;
-    const float tmp153 = tmp149 + tmp152;
-    const float tmp154 = 0.041666668f * tmp153;
-    const float tmp155 = carry[4] * carry[3];
-    const float tmp156 = tmp154 + tmp155;
-    P_zz[7] = tmp156;
-    const float tmp157 = zsum[3] * zsum[1];
-    const float tmp158 = zdiff[3] * zdiff[1];
-    const float tmp159 = tmp157 + tmp158;
-    carry[7] = tmp159;
+    const float tmp134 = zsum[8] * zsum[7];
+    const float tmp135 = zdiff[8] * zdiff[7];
+    const float tmp136 = tmp134 + tmp135;
+    const float tmp137 = tmp133 + tmp136;
+    const float tmp138 = zsum[14] * zsum[13];
+    const float tmp139 = zdiff[14] * zdiff[13];
+    const float tmp140 = tmp138 + tmp139;
+    const float tmp141 = tmp137 + tmp140;
+    const float tmp142 = 0.041666668f * tmp141;
+    const float tmp143 = carry[6] * carry[5];
+    const float tmp144 = tmp142 + tmp143;
+    P_zz[7] = tmp144;
+    const float tmp145 = zsum[3] * zsum[1];
+    const float tmp146 = zdiff[3] * zdiff[1];
+    const float tmp147 = tmp145 + tmp146;
+    const float tmp148 = zsum[9] * zsum[7];
+    const float tmp149 = zdiff[9] * zdiff[7];
+    const float tmp150 = tmp148 + tmp149;
+    const float tmp151 = tmp147 + tmp150;
+    const float tmp152 = zsum[15] * zsum[13];
+    const float tmp153 = zdiff[15] * zdiff[13];
+    const float tmp154 = tmp152 + tmp153;
+    const float tmp155 = tmp151 + tmp154;
+    const float tmp156 = 0.041666668f * tmp155;
+    const float tmp157 = carry[7] * carry[5];
+    const float tmp158 = tmp156 + tmp157;
+    P_zz[8] = tmp158;
+    const float tmp159 = zsum[4] * zsum[1];
+    carry[9] = tmp127;
+    carry[10] = tmp130;
+    carry[11] = tmp159;
 }
 
-static void adukf_k_innovation_part4(const float zsum[18], const float zdiff[18], float P_zz[21], float carry[8])
+static void adukf_k_innovation_part4(const float zsum[18], const float zdiff[18], float P_zz[21], float carry[16])
 {
-    const float tmp160 = zsum[9] * zsum[7];
-    const float tmp161 = zdiff[9] * zdiff[7];
-    const float tmp162 = tmp160 + tmp161;
-    const float tmp163 = carry[7] + tmp162;
-    const float tmp164 = zsum[15] * zsum[13];
-    const float tmp165 = zdiff[15] * zdiff[13];
-    const float tmp166 = tmp164 + tmp165;
-    const float tmp167 = tmp163 + tmp166;
-    const float tmp168 = 0.041666668f * tmp167;
-    const float tmp169 = carry[0] * carry[3];
-    const float tmp170 = tmp168 + tmp169;
-    P_zz[8] = tmp170;
-    const float tmp171 = zsum[4] * zsum[1];
-    const float tmp172 = zdiff[4] * zdiff[1];
-    const float tmp173 = tmp171 + tmp172;
-    const float tmp174 = zsum[10] * zsum[7];
-    const float tmp175 = zdiff[10] * zdiff[7];
-    const float tmp176 = tmp174 + tmp175;
-    const float tmp177 = tmp173 + tmp176;
-    const float tmp178 = zsum[16] * zsum[13];
-    const float tmp179 = zdiff[16] * zdiff[13];
-    const float tmp180 = tmp178 + tmp179;
-    const float tmp181 = tmp177 + tmp180;
-    const float tmp182 = 0.041666668f * tmp181;
-    const float tmp183 = carry[5] * carry[3];
-    const float tmp184 = tmp182 + tmp183;
-    P_zz[9] = tmp184;
-    const float tmp185 = zsum[5] * zsum[1];
-    const float tmp186 = zdiff[5] * zdiff[1];
-    const float tmp187 = tmp185 + tmp186;
-    const float tmp188 = zsum[11] * zsum[7];
-    const float tmp189 = zdiff[11] * zdiff[7];
-    const float tmp190 = tmp188 + tmp189;
-    const float tmp191 = tmp187 + tmp190;
-    const float tmp192 = zsum[17] * zsum[13];
-    const float tmp193 = zdiff[17] * zdiff[13];
-    const float tmp194 = tmp192 + tmp193;
-    const float tmp195 = tmp191 + tmp194;
-    const float tmp196 = 0.041666668f * tmp195;
-    const float tmp197 = carry[6] * carry[3];
-    const float tmp198 = tmp196 + tmp197;
-    P_zz[10] = tmp198;
-    const float tmp199 = zsum[2] * zsum[2];
-    carry[3] = tmp199;
+    const float tmp160 = zdiff[4] * zdiff[1];
+    const float tmp161 = carry[11] + tmp160;
+    const float tmp162 = zsum[10] * zsum[7];
+    const float tmp163 = zdiff[10] * zdiff[7];
+    const float tmp164 = tmp162 + tmp163;
+    const float tmp165 = tmp161 + tmp164;
+    const float tmp166 = zsum[16] * zsum[13];
+    const float tmp167 = zdiff[16] * zdiff[13];
+    const float tmp168 = tmp166 + tmp167;
+    const float tmp169 = tmp165 + tmp168;
+    const float tmp170 = 0.041666668f * tmp169;
+    const float tmp171 = carry[0] * carry[5];
+    const float tmp172 = tmp170 + tmp171;
+    P_zz[9] = tmp172;
+    const float tmp173 = zsum[5] * zsum[1];
+    const float tmp174 = zdiff[5] * zdiff[1];
+    const float tmp175 = tmp173 + tmp174;
+    const float tmp176 = zsum[11] * zsum[7];
+    const float tmp177 = zdiff[11] * zdiff[7];
+    const float tmp178 = tmp176 + tmp177;
+    const float tmp179 = tmp175 + tmp178;
+    const float tmp180 = zsum[17] * zsum[13];
+    const float tmp181 = zdiff[17] * zdiff[13];
+    const float tmp182 = tmp180 + tmp181;
+    const float tmp183 = tmp179 + tmp182;
+    const float tmp184 = 0.041666668f * tmp183;
+    const float tmp185 = carry[8] * carry[5];
+    const float tmp186 = tmp184 + tmp185;
+    P_zz[10] = tmp186;
+    const float tmp187 = zsum[2] * zsum[2];
+    const float tmp188 = zdiff[2] * zdiff[2];
+    const float tmp189 = tmp187 + tmp188;
+    const float tmp190 = zsum[8] * zsum[8];
+    const float tmp191 = zdiff[8] * zdiff[8];
+    const float tmp192 = tmp190 + tmp191;
+    const float tmp193 = tmp189 + tmp192;
+    const float tmp194 = zsum[14] * zsum[14];
+    const float tmp195 = zdiff[14] * zdiff[14];
+    const float tmp196 = tmp194 + tmp195;
+    const float tmp197 = tmp193 + tmp196;
+    const float tmp198 = 0.041666668f * tmp197;
+    const float tmp199 = carry[6] * carry[6];
+    carry[5] = tmp198;
+    carry[11] = tmp199;
 }
 
-static void adukf_k_innovation_part5(const float z0[6], const float zsum[18], const float zdiff[18], const float accel[3], float P_zz[21], float residual[6], float r_diag[6], float carry[8])
+static void adukf_k_innovation_part5(const float z0[6], const float zsum[18], const float zdiff[18], const float accel[3], float P_zz[21], float residual[6], float carry[16])
 {
-    const float tmp200 = zdiff[2] * zdiff[2];
-    const float tmp201 = carry[3] + tmp200;
-    const float tmp202 = zsum[8] * zsum[8];
-    const float tmp203 = zdiff[8] * zdiff[8];
-    const float tmp204 = tmp202 + tmp203;
-    const float tmp205 = tmp201 + tmp204;
-    const float tmp206 = zsum[14] * zsum[14];
-    const float tmp207 = zdiff[14] * zdiff[14];
-    const float tmp208 = tmp206 + tmp207;
-    const float tmp209 = tmp205 + tmp208;
-    const float tmp210 = 0.041666668f * tmp209;
-    const float tmp211 = carry[4] * carry[4];
-    const float tmp212 = tmp210 + tmp211;
-    const float tmp213 = accel[2] * carry[1];
-    const float tmp214 = z0[2] + carry[4];
-    const float tmp215 = tmp213 - tmp214;
-    residual[2] = tmp215;
-    const float tmp216 = tmp215 * tmp215;
-    const float tmp217 = 300.0f * tmp216;
-    const float tmp218 = (tmp217 < 10.0f) ? tmp217 : 10.0f;
-    const float tmp219 = 0.0049f + tmp218;
-    const float tmp220 = tmp219 * carry[2];
-    r_diag[2] = tmp220;
-    const float tmp221 = tmp212 + tmp220;
-    P_zz[11] = tmp221;
-    const float tmp222 = zsum[3] * zsum[2];
-    const float tmp223 = zdiff[3] * zdiff[2];
-    const float tmp224 = tmp222 + tmp223;
-    const float tmp225 = zsum[9] * zsum[8];
-    const float tmp226 = zdiff[9] * zdiff[8];
+    const float tmp200 = carry[5] + carry[11];
+    const float tmp201 = accel[2] * carry[2];
+    const float tmp202 = z0[2] + carry[6];
+    const float tmp203 = tmp201 - tmp202;
+    residual[2] = tmp203;
+    const float tmp204 = zsum[3] * zsum[2];
+    const float tmp205 = zdiff[3] * zdiff[2];
+    const float tmp206 = tmp204 + tmp205;
+    const float tmp207 = zsum[9] * zsum[8];
+    const float tmp208 = zdiff[9] * zdiff[8];
+    const float tmp209 = tmp207 + tmp208;
+    const float tmp210 = tmp206 + tmp209;
+    const float tmp211 = zsum[15] * zsum[14];
+    const float tmp212 = zdiff[15] * zdiff[14];
+    const float tmp213 = tmp211 + tmp212;
+    const float tmp214 = tmp210 + tmp213;
+    const float tmp215 = 0.041666668f * tmp214;
+    const float tmp216 = carry[7] * carry[6];
+    const float tmp217 = tmp215 + tmp216;
+    P_zz[12] = tmp217;
+    const float tmp218 = zsum[4] * zsum[2];
+    const float tmp219 = zdiff[4] * zdiff[2];
+    const float tmp220 = tmp218 + tmp219;
+    const float tmp221 = zsum[10] * zsum[8];
+    const float tmp222 = zdiff[10] * zdiff[8];
+    const float tmp223 = tmp221 + tmp222;
+    const float tmp224 = tmp220 + tmp223;
+    const float tmp225 = zsum[16] * zsum[14];
+    const float tmp226 = zdiff[16] * zdiff[14];
     const float tmp227 = tmp225 + tmp226;
     const float tmp228 = tmp224 + tmp227;
-    const float tmp229 = zsum[15] * zsum[14];
-    const float tmp230 = zdiff[15] * zdiff[14];
+    const float tmp229 = 0.041666668f * tmp228;
+    const float tmp230 = carry[0] * carry[6];
     const float tmp231 = tmp229 + tmp230;
-    const float tmp232 = tmp228 + tmp231;
-    const float tmp233 = 0.041666668f * tmp232;
-    const float tmp234 = carry[0] * carry[4];
-    const float tmp235 = tmp233 + tmp234;
-    P_zz[12] = tmp235;
-    const float tmp236 = zsum[4] * zsum[2];
-    const float tmp237 = zdiff[4] * zdiff[2];
-    const float tmp238 = tmp236 + tmp237;
-    const float tmp239 = zsum[10] * zsum[8];
-    carry[1] = tmp238;
-    carry[2] = tmp239;
+    P_zz[13] = tmp231;
+    const float tmp232 = zsum[5] * zsum[2];
+    const float tmp233 = zdiff[5] * zdiff[2];
+    const float tmp234 = tmp232 + tmp233;
+    const float tmp235 = zsum[11] * zsum[8];
+    const float tmp236 = zdiff[11] * zdiff[8];
+    const float tmp237 = tmp235 + tmp236;
+    const float tmp238 = tmp234 + tmp237;
+    const float tmp239 = zsum[17] * zsum[14];
+    carry[2] = tmp200;
+    carry[5] = tmp203;
+    carry[11] = tmp238;
+    carry[12] = tmp239;
 }
 
-static void adukf_k_innovation_part6(const float zsum[18], const float zdiff[18], const float mag[3], float P_zz[21], float carry[8])
+static void adukf_k_innovation_part6(const float z0[6], const float zsum[18], const float zdiff[18], const float mag[3], float dt, const float span[2], float P_zz[21], float residual[6], float carry[16])
 {
-    const float tmp240 = zdiff[10] * zdiff[8];
-    const float tmp241 = carry[2] + tmp240;
-    const float tmp242 = carry[1] + tmp241;
-    const float tmp243 = zsum[16] * zsum[14];
-    const float tmp244 = zdiff[16] * zdiff[14];
+    const float tmp240 = zdiff[17] * zdiff[14];
+    const float tmp241 = carry[12] + tmp240;
+    const float tmp242 = carry[11] + tmp241;
+    const float tmp243 = 0.041666668f * tmp242;
+    const float tmp244 = carry[8] * carry[6];
     const float tmp245 = tmp243 + tmp244;
-    const float tmp246 = tmp242 + tmp245;
-    const float tmp247 = 0.041666668f * tmp246;
-    const float tmp248 = carry[5] * carry[4];
-    const float tmp249 = tmp247 + tmp248;
-    P_zz[13] = tmp249;
-    const float tmp250 = zsum[5] * zsum[2];
-    const float tmp251 = zdiff[5] * zdiff[2];
-    const float tmp252 = tmp250 + tmp251;
-    const float tmp253 = zsum[11] * zsum[8];
-    const float tmp254 = zdiff[11] * zdiff[8];
+    P_zz[14] = tmp245;
+    const float tmp246 = zsum[3] * zsum[3];
+    const float tmp247 = zdiff[3] * zdiff[3];
+    const float tmp248 = tmp246 + tmp247;
+    const float tmp249 = zsum[9] * zsum[9];
+    const float tmp250 = zdiff[9] * zdiff[9];
+    const float tmp251 = tmp249 + tmp250;
+    const float tmp252 = tmp248 + tmp251;
+    const float tmp253 = zsum[15] * zsum[15];
+    const float tmp254 = zdiff[15] * zdiff[15];
     const float tmp255 = tmp253 + tmp254;
     const float tmp256 = tmp252 + tmp255;
-    const float tmp257 = zsum[17] * zsum[14];
-    const float tmp258 = zdiff[17] * zdiff[14];
+    const float tmp257 = 0.041666668f * tmp256;
+    const float tmp258 = carry[7] * carry[7];
     const float tmp259 = tmp257 + tmp258;
-    const float tmp260 = tmp256 + tmp259;
-    const float tmp261 = 0.041666668f * tmp260;
-    const float tmp262 = carry[6] * carry[4];
-    const float tmp263 = tmp261 + tmp262;
-    P_zz[14] = tmp263;
-    const float tmp264 = zsum[3] * zsum[3];
-    const float tmp265 = zdiff[3] * zdiff[3];
-    const float tmp266 = tmp264 + tmp265;
-    const float tmp267 = zsum[9] * zsum[9];
-    const float tmp268 = zdiff[9] * zdiff[9];
-    const float tmp269 = tmp267 + tmp268;
-    const float tmp270 = tmp266 + tmp269;
-    const float tmp271 = zsum[15] * zsum[15];
-    const float tmp272 = zdiff[15] * zdiff[15];
-    const float tmp273 = tmp271 + tmp272;
-    const float tmp274 = tmp270 + tmp273;
-    const float tmp275 = 0.041666668f * tmp274;
-    const float tmp276 = carry[0] * carry[0];
+    const float tmp260 = mag[0] * mag[0];
+    const float tmp261 = mag[1] * mag[1];
+    const float tmp262 = tmp260 + tmp261;
+    const float tmp263 = mag[2] * mag[2];
+    const float tmp264 = tmp262 + tmp263;
+    const float tmp265 = 1.0f / tmp264;
+    const float tmp266 = sqrtf(tmp265);
+    const float tmp267 = mag[0] * tmp266;
+    const float tmp268 = z0[3] + carry[7];
+    const float tmp269 = tmp267 - tmp268;
+    residual[3] = tmp269;
+    const float tmp270 = dt / span[1];
+    const float tmp271 = (tmp270 > 0.1f) ? tmp270 : 0.1f;
+    const float tmp272 = zsum[4] * zsum[3];
+    const float tmp273 = zdiff[4] * zdiff[3];
+    const float tmp274 = tmp272 + tmp273;
+    const float tmp275 = zsum[10] * zsum[9];
+    const float tmp276 = zdiff[10] * zdiff[9];
     const float tmp277 = tmp275 + tmp276;
-    const float tmp278 = mag[0] * mag[0];
-    const float tmp279 = mag[1] * mag[1];
-    carry[1] = tmp277;
-    carry[2] = tmp278;
-    carry[3] = tmp279;
+    const float tmp278 = tmp274 + tmp277;
+    const float tmp279 = zsum[16] * zsum[15];
+    carry[6] = tmp259;
+    carry[11] = tmp266;
+    carry[12] = tmp269;
+    carry[13] = tmp271;
+    carry[14] = tmp278;
+    carry[15] = tmp279;
 }
 
-static void adukf_k_innovation_part7(const float z0[6], const float zsum[18], const float zdiff[18], const float mag[3], float dt, const float span[2], float P_zz[21], float residual[6], float r_diag[6], float carry[8])
+static void adukf_k_innovation_part7(const float z0[6], const float zsum[18], const float zdiff[18], const float mag[3], float P_zz[21], float residual[6], float carry[16])
 {
-    const float tmp280 = carry[2] + carry[3];
-    const float tmp281 = mag[2] * mag[2];
-    const float tmp282 = tmp280 + tmp281;
-    const float tmp283 = 1.0f / tmp282;
-    const float tmp284 = sqrtf(tmp283);
-    const float tmp285 = mag[0] * tmp284;
-    const float tmp286 = z0[3] + carry[0];
-    const float tmp287 = tmp285 - tmp286;
-    residual[3] = tmp287;
-    const float tmp288 = tmp287 * tmp287;
-    const float tmp289 = 300.0f * tmp288;
-    const float tmp290 = (tmp289 < 10.0f) ? tmp289 : 10.0f;
-    const float tmp291 = 0.0049f + tmp290;
-    const float tmp292 = dt / span[1];
-    const float tmp293 = (tmp292 > 0.1f) ? tmp292 : 0.1f;
-    const float tmp294 = tmp291 * tmp293;
-    r_diag[3] = tmp294;
-    const float tmp295 = carry[1] + tmp294;
-    P_zz[15] = tmp295;
-    const float tmp296 = zsum[4] * zsum[3];
-    const float tmp297 = zdiff[4] * zdiff[3];
-    const float tmp298 = tmp296 + tmp297;
-    const float tmp299 = zsum[10] * zsum[9];
-    const float tmp300 = zdiff[10] * zdiff[9];
-    const float tmp301 = tmp299 + tmp300;
-    const float tmp302 = tmp298 + tmp301;
-    const float tmp303 = zsum[16] * zsum[15];
-    const float tmp304 = zdiff[16] * zdiff[15];
+    const float tmp280 = zdiff[16] * zdiff[15];
+    const float tmp281 = carry[15] + tmp280;
+    const float tmp282 = carry[14] + tmp281;
+    const float tmp283 = 0.041666668f * tmp282;
+    const float tmp284 = carry[0] * carry[7];
+    const float tmp285 = tmp283 + tmp284;
+    P_zz[16] = tmp285;
+    const float tmp286 = zsum[5] * zsum[3];
+    const float tmp287 = zdiff[5] * zdiff[3];
+    const float tmp288 = tmp286 + tmp287;
+    const float tmp289 = zsum[11] * zsum[9];
+    const float tmp290 = zdiff[11] * zdiff[9];
+    const float tmp291 = tmp289 + tmp290;
+    const float tmp292 = tmp288 + tmp291;
+    const float tmp293 = zsum[17] * zsum[15];
+    const float tmp294 = zdiff[17] * zdiff[15];
+    const float tmp295 = tmp293 + tmp294;
+    const float tmp296 = tmp292 + tmp295;
+    const float tmp297 = 0.041666668f * tmp296;
+    const float tmp298 = carry[8] * carry[7];
+    const float tmp299 = tmp297 + tmp298;
+    P_zz[17] = tmp299;
+    const float tmp300 = zsum[4] * zsum[4];
+    const float tmp301 = zdiff[4] * zdiff[4];
+    const float tmp302 = tmp300 + tmp301;
+    const float tmp303 = zsum[10] * zsum[10];
+    const float tmp304 = zdiff[10] * zdiff[10];
     const float tmp305 = tmp303 + tmp304;
     const float tmp306 = tmp302 + tmp305;
-    const float tmp307 = 0.041666668f * tmp306;
-    const float tmp308 = carry[5] * carry[0];
+    const float tmp307 = zsum[16] * zsum[16];
+    const float tmp308 = zdiff[16] * zdiff[16];
     const float tmp309 = tmp307 + tmp308;
-    P_zz[16] = tmp309;
-    const float tmp310 = zsum[5] * zsum[3];
-    const float tmp311 = zdiff[5] * zdiff[3];
-    const float tmp312 = tmp310 + tmp311;
-    const float tmp313 = zsum[11] * zsum[9];
-    const float tmp314 = zdiff[11] * zdiff[9];
-    const float tmp315 = tmp313 + tmp314;
-    const float tmp316 = tmp312 + tmp315;
-    const float tmp317 = zsum[17] * zsum[15];
-    const float tmp318 = zdiff[17] * zdiff[15];
+    const float tmp310 = tmp306 + tmp309;
+    const float tmp311 = 0.041666668f * tmp310;
+    const float tmp312 = carry[0] * carry[0];
+    const float tmp313 = tmp311 + tmp312;
+    const float tmp314 = mag[1] * carry[11];
+    const float tmp315 = z0[4] + carry[0];
+    const float tmp316 = tmp314 - tmp315;
+    residual[4] = tmp316;
+    const float tmp317 = zsum[5] * zsum[4];
+    const float tmp318 = zdiff[5] * zdiff[4];
     const float tmp319 = tmp317 + tmp318;
-    carry[1] = tmp284;
-    carry[2] = tmp293;
-    carry[3] = tmp316;
-    carry[4] = tmp319;
+    carry[7] = tmp313;
+    carry[14] = tmp316;
+    carry[15] = tmp319;
 }
 
-static void adukf_k_innovation_part8(const float z0[6], const float zsum[18], const float zdiff[18], const float mag[3], float P_zz[21], float residual[6], float r_diag[6], float carry[8])
+static void adukf_k_innovation_part8(const float z0[6], const float zsum[18], const float zdiff[18], const float mag[3], float P_zz[21], float residual[6], float carry[16])
 {
-    const float tmp320 = carry[3] + carry[4];
-    const float tmp321 = 0.041666668f * tmp320;
-    const float tmp322 = carry[6] * carry[0];
-    const float tmp323 = tmp321 + tmp322;
-    P_zz[17] = tmp323;
-    const float tmp324 = zsum[4] * zsum[4];
-    const float tmp325 = zdiff[4] * zdiff[4];
+    const float tmp320 = zsum[11] * zsum[10];
+    const float tmp321 = zdiff[11] * zdiff[10];
+    const float tmp322 = tmp320 + tmp321;
+    const float tmp323 = carry[15] + tmp322;
+    const float tmp324 = zsum[17] * zsum[16];
+    const float tmp325 = zdiff[17] * zdiff[16];
     const float tmp326 = tmp324 + tmp325;
-    const float tmp327 = zsum[10] * zsum[10];
-    const float tmp328 = zdiff[10] * zdiff[10];
-    const float tmp329 = tmp327 + tmp328;
-    const float tmp330 = tmp326 + tmp329;
-    const float tmp331 = zsum[16] * zsum[16];
-    const float tmp332 = zdiff[16] * zdiff[16];
+    const float tmp327 = tmp323 + tmp326;
+    const float tmp328 = 0.041666668f * tmp327;
+    const float tmp329 = carry[8] * carry[0];
+    const float tmp330 = tmp328 + tmp329;
+    P_zz[19] = tmp330;
+    const float tmp331 = zsum[5] * zsum[5];
+    const float tmp332 = zdiff[5] * zdiff[5];
     const float tmp333 = tmp331 + tmp332;
-    const float tmp334 = tmp330 + tmp333;
-    const float tmp335 = 0.041666668f * tmp334;
-    const float tmp336 = carry[5] * carry[5];
-    const float tmp337 = tmp335 + tmp336;
-    const float tmp338 = mag[1] * carry[1];
-    const float tmp339 = z0[4] + carry[5];
-    const float tmp340 = tmp338 - tmp339;
-    residual[4] = tmp340;
-    const float tmp341 = tmp340 * tmp340;
-    const float tmp342 = 300.0f * tmp341;
-    const float tmp343 = (tmp342 < 10.0f) ? tmp342 : 10.0f;
-    const float tmp344 = 0.0049f + tmp343;
-    const float tmp345 = tmp344 * carry[2];
-    r_diag[4] = tmp345;
-    const float tmp346 = tmp337 + tmp345;
-    P_zz[18] = tmp346;
-    const float tmp347 = zsum[5] * zsum[4];
-    const float tmp348 = zdiff[5] * zdiff[4];
-    const float tmp349 = tmp347 + tmp348;
-    const float tmp350 = zsum[11] * zsum[10];
-    const float tmp351 = zdiff[11] * zdiff[10];
-    const float tmp352 = tmp350 + tmp351;
-    const float tmp353 = tmp349 + tmp352;
-    const float tmp354 = zsum[17] * zsum[16];
-    const float tmp355 = zdiff[17] * zdiff[16];
-    const float tmp356 = tmp354 + tmp355;
-    const float tmp357 = tmp353 + tmp356;
-    const float tmp358 = 0.041666668f * tmp357;
-    const float tmp359 = carry[6] * carry[5];
-    carry[0] = tmp358;
-    carry[3] = tmp359;
+    const float tmp334 = zsum[11] * zsum[11];
+    const float tmp335 = zdiff[11] * zdiff[11];
+    const float tmp336 = tmp334 + tmp335;
+    const float tmp337 = tmp333 + tmp336;
+    const float tmp338 = zsum[17] * zsum[17];
+    const float tmp339 = zdiff[17] * zdiff[17];
+    const float tmp340 = tmp338 + tmp339;
+    const float tmp341 = tmp337 + tmp340;
+    const float tmp342 = 0.041666668f * tmp341;
+    const float tmp343 = carry[8] * carry[8];
+    const float tmp344 = tmp342 + tmp343;
+    const float tmp345 = mag[2] * carry[11];
+    const float tmp346 = z0[5] + carry[8];
+    const float tmp347 = tmp345 - tmp346;
+    residual[5] = tmp347;
+    carry[0] = tmp344;
+    carry[8] = tmp347;
 }
 
-static void adukf_k_innovation_part9(const float z0[6], const float zsum[18], const float zdiff[18], const float mag[3], float P_zz[21], float residual[6], float r_diag[6], const float carry[8])
+static void adukf_k_innovation_part9(bool recover, float P_zz[21], float r_diag[6], float carry[16])
 {
-    const float tmp360 = carry[0] + carry[3];
-    P_zz[19] = tmp360;
-    const float tmp361 = zsum[5] * zsum[5];
-    const float tmp362 = zdiff[5] * zdiff[5];
-    const float tmp363 = tmp361 + tmp362;
-    const float tmp364 = zsum[11] * zsum[11];
-    const float tmp365 = zdiff[11] * zdiff[11];
-    const float tmp366 = tmp364 + tmp365;
-    const float tmp367 = tmp363 + tmp366;
-    const float tmp368 = zsum[17] * zsum[17];
-    const float tmp369 = zdiff[17] * zdiff[17];
-    const float tmp370 = tmp368 + tmp369;
-    const float tmp371 = tmp367 + tmp370;
-    const float tmp372 = 0.041666668f * tmp371;
-    const float tmp373 = carry[6] * carry[6];
-    const float tmp374 = tmp372 + tmp373;
-    const float tmp375 = mag[2] * carry[1];
-    const float tmp376 = z0[5] + carry[6];
-    const float tmp377 = tmp375 - tmp376;
-    residual[5] = tmp377;
-    const float tmp378 = tmp377 * tmp377;
-    const float tmp379 = 300.0f * tmp378;
-    const float tmp380 = (tmp379 < 10.0f) ? tmp379 : 10.0f;
-    const float tmp381 = 0.0049f + tmp380;
-    const float tmp382 = tmp381 * carry[2];
-    r_diag[5] = tmp382;
-    const float tmp383 = tmp374 + tmp382;
-    P_zz[20] = tmp383;
+    float tmp348;
+    float tmp349;
+    float tmp350;
+    float tmp351;
+    float tmp352;
+    float tmp353;
+    if (recover) {
+        tmp348 = 0.0f;
+        tmp349 = 0.0f;
+        tmp350 = 0.0f;
+        tmp351 = 0.0f;
+        tmp352 = 0.0f;
+        tmp353 = 0.0f;
+    } else {
+        const float tmp354 = carry[3] * carry[3];
+        const float tmp355 = 300.0f * tmp354;
+        const float tmp356 = (tmp355 < 10.0f) ? tmp355 : 10.0f;
+        const float tmp357 = carry[10] * carry[10];
+        const float tmp358 = 300.0f * tmp357;
+        const float tmp359 = (tmp358 < 10.0f) ? tmp358 : 10.0f;
+        const float tmp360 = carry[5] * carry[5];
+        const float tmp361 = 300.0f * tmp360;
+        const float tmp362 = (tmp361 < 10.0f) ? tmp361 : 10.0f;
+        const float tmp363 = carry[12] * carry[12];
+        const float tmp364 = 300.0f * tmp363;
+        const float tmp365 = (tmp364 < 10.0f) ? tmp364 : 10.0f;
+        const float tmp366 = carry[14] * carry[14];
+        const float tmp367 = 300.0f * tmp366;
+        const float tmp368 = (tmp367 < 10.0f) ? tmp367 : 10.0f;
+        const float tmp369 = carry[8] * carry[8];
+        const float tmp370 = 300.0f * tmp369;
+        const float tmp371 = (tmp370 < 10.0f) ? tmp370 : 10.0f;
+        tmp348 = tmp356;
+        tmp349 = tmp359;
+        tmp350 = tmp362;
+        tmp351 = tmp365;
+        tmp352 = tmp368;
+        tmp353 = tmp371;
+    }
+    const float tmp372 = 0.0049f + tmp348;
+    const float tmp373 = tmp372 * carry[4];
+    r_diag[0] = tmp373;
+    const float tmp374 = carry[1] + tmp373;
+    P_zz[0] = tmp374;
+    const float tmp375 = 0.0049f + tmp349;
+    const float tmp376 = tmp375 * carry[4];
+    r_diag[1] = tmp376;
+    const float tmp377 = carry[9] + tmp376;
+    P_zz[6] = tmp377;
+    const float tmp378 = 0.0049f + tmp350;
+    const float tmp379 = tmp378 * carry[4];
+    r_diag[2] = tmp379;
+    const float tmp380 = carry[2] + tmp379;
+    P_zz[11] = tmp380;
+    const float tmp381 = 0.0049f + tmp351;
+    const float tmp382 = tmp381 * carry[13];
+    r_diag[3] = tmp382;
+    const float tmp383 = carry[6] + tmp382;
+    P_zz[15] = tmp383;
+    const float tmp384 = 0.0049f + tmp352;
+    const float tmp385 = tmp384 * carry[13];
+    r_diag[4] = tmp385;
+    const float tmp386 = carry[7] + tmp385;
+    P_zz[18] = tmp386;
+    const float tmp387 = 0.0049f + tmp353;
+    carry[1] = tmp387;
+}
+
+static void adukf_k_innovation_part10(float P_zz[21], float r_diag[6], const float carry[16])
+{
+    const float tmp388 = carry[1] * carry[13];
+    r_diag[5] = tmp388;
+    const float tmp389 = carry[0] + tmp388;
+    P_zz[20] = tmp389;
 }
 
 #if defined(__GNUC__)
 __attribute__((noinline))
 #endif
-static void adukf_k_innovation(const float z0[restrict 6], const float zsum[restrict 18], const float zdiff[restrict 18], const float accel[restrict 3], const float mag[restrict 3], float dt, const float span[restrict 2], float P_zz[restrict 21], float residual[restrict 6], float r_diag[restrict 6])
+static void adukf_k_innovation(const float z0[restrict 6], const float zsum[restrict 18], const float zdiff[restrict 18], const float accel[restrict 3], const float mag[restrict 3], float dt, const float span[restrict 2], bool recover, float P_zz[restrict 21], float residual[restrict 6], float r_diag[restrict 6])
 {
-    /* 10 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
-    float carry[8];
-    adukf_k_innovation_part0(z0, zsum, zdiff, accel, dt, span, P_zz, residual, r_diag, carry);
+    /* 11 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    float carry[16];
+    adukf_k_innovation_part0(z0, zsum, zdiff, accel, dt, span, residual, carry);
     adukf_k_innovation_part1(zsum, zdiff, P_zz, carry);
     adukf_k_innovation_part2(zsum, zdiff, P_zz, carry);
-    adukf_k_innovation_part3(z0, zsum, zdiff, accel, P_zz, residual, r_diag, carry);
+    adukf_k_innovation_part3(z0, zsum, zdiff, accel, P_zz, residual, carry);
     adukf_k_innovation_part4(zsum, zdiff, P_zz, carry);
-    adukf_k_innovation_part5(z0, zsum, zdiff, accel, P_zz, residual, r_diag, carry);
-    adukf_k_innovation_part6(zsum, zdiff, mag, P_zz, carry);
-    adukf_k_innovation_part7(z0, zsum, zdiff, mag, dt, span, P_zz, residual, r_diag, carry);
-    adukf_k_innovation_part8(z0, zsum, zdiff, mag, P_zz, residual, r_diag, carry);
-    adukf_k_innovation_part9(z0, zsum, zdiff, mag, P_zz, residual, r_diag, carry);
+    adukf_k_innovation_part5(z0, zsum, zdiff, accel, P_zz, residual, carry);
+    adukf_k_innovation_part6(z0, zsum, zdiff, mag, dt, span, P_zz, residual, carry);
+    adukf_k_innovation_part7(z0, zsum, zdiff, mag, P_zz, residual, carry);
+    adukf_k_innovation_part8(z0, zsum, zdiff, mag, P_zz, residual, carry);
+    adukf_k_innovation_part9(recover, P_zz, r_diag, carry);
+    adukf_k_innovation_part10(P_zz, r_diag, carry);
 }
 
 /* with L = chol(P_zz), W = L^-1 D (D the pairs' differences) and v = L^-1 eps: g = Wi W^T v and G = Wi^2 W^T W (lower triangle, packed), so that K eps = aL g and K P_zz K^T = aL G aL^T (K, P_xz never formed); pivot_zz = smallest pivot of P_zz
@@ -2326,123 +2371,144 @@ static void adukf_k_correct(const float x_pred[restrict 7], const float P_pred[r
     adukf_k_correct_part5(P_pred, aL, P_new, carry);
 }
 
-/* NED low-pass of the specific force R(q-) f (restart: start at R(q-) f); the update measures R(q-)^T of it
- * ops: add 40, mul 30, div 1, cmp 3 (total 74) */
-static void adukf_k_accel_lowpass_part0(const float q_pred_unit[4], const float accel[3], const float accel_lp[3], bool restart, float dt, float carry[16])
+/* NED low-pass of the specific force R(q-) f (restart: start at R(q-) f); the update measures R(q-)^T of it (recovering from a clipped gyro sample: the sample itself)
+ * ops: add 40, mul 30, div 1, cmp 4 (total 75) */
+static void adukf_k_accel_lowpass_part0(const float q_pred_unit[4], const float accel[3], const float accel_lp[3], bool restart, float dt, bool recover, float carry[15], bool flags[1])
 {
-    const float tmp0 = q_pred_unit[2] * q_pred_unit[2];
-    const float tmp1 = q_pred_unit[3] * q_pred_unit[3];
-    const float tmp2 = tmp0 + tmp1;
-    const float tmp3 = tmp2 + tmp2;
-    const float tmp4 = 1.0f - tmp3;
-    const float tmp5 = tmp4 * accel[0];
-    const float tmp6 = q_pred_unit[1] * q_pred_unit[2];
-    const float tmp7 = q_pred_unit[0] * q_pred_unit[3];
-    const float tmp8 = tmp6 - tmp7;
-    const float tmp9 = tmp8 + tmp8;
-    const float tmp10 = tmp9 * accel[1];
-    const float tmp11 = tmp5 + tmp10;
-    const float tmp12 = q_pred_unit[1] * q_pred_unit[3];
-    const float tmp13 = q_pred_unit[0] * q_pred_unit[2];
-    const float tmp14 = tmp12 + tmp13;
-    const float tmp15 = tmp14 + tmp14;
-    const float tmp16 = tmp15 * accel[2];
-    const float tmp17 = tmp11 + tmp16;
-    const float tmp18 = (restart) ? tmp17 : accel_lp[0];
-    const float tmp19 = 1.0f + dt;
-    const float tmp20 = dt / tmp19;
-    const float tmp21 = tmp17 - tmp18;
-    const float tmp22 = tmp20 * tmp21;
-    const float tmp23 = tmp18 + tmp22;
-    const float tmp24 = tmp6 + tmp7;
-    const float tmp25 = tmp24 + tmp24;
-    const float tmp26 = tmp25 * accel[0];
-    const float tmp27 = q_pred_unit[1] * q_pred_unit[1];
-    const float tmp28 = tmp27 + tmp1;
-    const float tmp29 = tmp28 + tmp28;
-    const float tmp30 = 1.0f - tmp29;
-    const float tmp31 = tmp30 * accel[1];
-    const float tmp32 = tmp26 + tmp31;
-    const float tmp33 = q_pred_unit[2] * q_pred_unit[3];
-    const float tmp34 = q_pred_unit[0] * q_pred_unit[1];
-    const float tmp35 = tmp33 - tmp34;
-    const float tmp36 = tmp35 + tmp35;
-    const float tmp37 = tmp36 * accel[2];
-    const float tmp38 = tmp32 + tmp37;
-    const float tmp39 = (restart) ? tmp38 : accel_lp[1];
-    carry[0] = tmp0;
-    carry[1] = tmp4;
-    carry[2] = tmp9;
-    carry[3] = tmp12;
-    carry[4] = tmp13;
-    carry[5] = tmp15;
-    carry[6] = tmp20;
-    carry[7] = tmp23;
-    carry[8] = tmp25;
-    carry[9] = tmp27;
-    carry[10] = tmp30;
-    carry[11] = tmp33;
-    carry[12] = tmp34;
-    carry[13] = tmp36;
-    carry[14] = tmp38;
-    carry[15] = tmp39;
+    const bool tmp0 = (restart) || (recover);
+    const float tmp1 = q_pred_unit[2] * q_pred_unit[2];
+    const float tmp2 = q_pred_unit[3] * q_pred_unit[3];
+    const float tmp3 = tmp1 + tmp2;
+    const float tmp4 = tmp3 + tmp3;
+    const float tmp5 = 1.0f - tmp4;
+    const float tmp6 = tmp5 * accel[0];
+    const float tmp7 = q_pred_unit[1] * q_pred_unit[2];
+    const float tmp8 = q_pred_unit[0] * q_pred_unit[3];
+    const float tmp9 = tmp7 - tmp8;
+    const float tmp10 = tmp9 + tmp9;
+    const float tmp11 = tmp10 * accel[1];
+    const float tmp12 = tmp6 + tmp11;
+    const float tmp13 = q_pred_unit[1] * q_pred_unit[3];
+    const float tmp14 = q_pred_unit[0] * q_pred_unit[2];
+    const float tmp15 = tmp13 + tmp14;
+    const float tmp16 = tmp15 + tmp15;
+    const float tmp17 = tmp16 * accel[2];
+    const float tmp18 = tmp12 + tmp17;
+    const float tmp19 = (tmp0) ? tmp18 : accel_lp[0];
+    const float tmp20 = 1.0f + dt;
+    const float tmp21 = dt / tmp20;
+    const float tmp22 = tmp18 - tmp19;
+    const float tmp23 = tmp21 * tmp22;
+    const float tmp24 = tmp19 + tmp23;
+    const float tmp25 = tmp7 + tmp8;
+    const float tmp26 = tmp25 + tmp25;
+    const float tmp27 = tmp26 * accel[0];
+    const float tmp28 = q_pred_unit[1] * q_pred_unit[1];
+    const float tmp29 = tmp28 + tmp2;
+    const float tmp30 = tmp29 + tmp29;
+    const float tmp31 = 1.0f - tmp30;
+    const float tmp32 = tmp31 * accel[1];
+    const float tmp33 = tmp27 + tmp32;
+    const float tmp34 = q_pred_unit[2] * q_pred_unit[3];
+    const float tmp35 = q_pred_unit[0] * q_pred_unit[1];
+    const float tmp36 = tmp34 - tmp35;
+    const float tmp37 = tmp36 + tmp36;
+    const float tmp38 = tmp37 * accel[2];
+    const float tmp39 = tmp33 + tmp38;
+    flags[0] = tmp0;
+    carry[0] = tmp1;
+    carry[1] = tmp5;
+    carry[2] = tmp10;
+    carry[3] = tmp13;
+    carry[4] = tmp14;
+    carry[5] = tmp16;
+    carry[6] = tmp21;
+    carry[7] = tmp24;
+    carry[8] = tmp26;
+    carry[9] = tmp28;
+    carry[10] = tmp31;
+    carry[11] = tmp34;
+    carry[12] = tmp35;
+    carry[13] = tmp37;
+    carry[14] = tmp39;
 }
 
-static void adukf_k_accel_lowpass_part1(const float accel[3], const float accel_lp[3], bool restart, float carry[16])
+static void adukf_k_accel_lowpass_part1(const float accel[3], const float accel_lp[3], float carry[15], const bool flags[1])
 {
-    const float tmp40 = carry[14] - carry[15];
-    const float tmp41 = carry[6] * tmp40;
-    const float tmp42 = carry[15] + tmp41;
-    const float tmp43 = carry[3] - carry[4];
-    const float tmp44 = tmp43 + tmp43;
-    const float tmp45 = tmp44 * accel[0];
-    const float tmp46 = carry[11] + carry[12];
-    const float tmp47 = tmp46 + tmp46;
-    const float tmp48 = tmp47 * accel[1];
-    const float tmp49 = tmp45 + tmp48;
-    const float tmp50 = carry[9] + carry[0];
-    const float tmp51 = tmp50 + tmp50;
-    const float tmp52 = 1.0f - tmp51;
-    const float tmp53 = tmp52 * accel[2];
-    const float tmp54 = tmp49 + tmp53;
-    const float tmp55 = (restart) ? tmp54 : accel_lp[2];
-    const float tmp56 = tmp54 - tmp55;
-    const float tmp57 = carry[6] * tmp56;
-    const float tmp58 = tmp55 + tmp57;
-    const float tmp59 = carry[1] * carry[7];
-    const float tmp60 = carry[8] * tmp42;
-    const float tmp61 = tmp59 + tmp60;
-    const float tmp62 = tmp44 * tmp58;
-    const float tmp63 = tmp61 + tmp62;
-    const float tmp64 = carry[2] * carry[7];
-    const float tmp65 = carry[10] * tmp42;
-    const float tmp66 = tmp64 + tmp65;
-    const float tmp67 = tmp47 * tmp58;
-    const float tmp68 = tmp66 + tmp67;
-    const float tmp69 = carry[5] * carry[7];
-    const float tmp70 = carry[13] * tmp42;
-    const float tmp71 = tmp69 + tmp70;
-    const float tmp72 = tmp52 * tmp58;
-    const float tmp73 = tmp71 + tmp72;
-    carry[0] = tmp42;
-    carry[1] = tmp58;
-    carry[2] = tmp63;
-    carry[3] = tmp68;
-    carry[4] = tmp73;
+    const float tmp40 = (flags[0]) ? carry[14] : accel_lp[1];
+    const float tmp41 = carry[14] - tmp40;
+    const float tmp42 = carry[6] * tmp41;
+    const float tmp43 = tmp40 + tmp42;
+    const float tmp44 = carry[3] - carry[4];
+    const float tmp45 = tmp44 + tmp44;
+    const float tmp46 = tmp45 * accel[0];
+    const float tmp47 = carry[11] + carry[12];
+    const float tmp48 = tmp47 + tmp47;
+    const float tmp49 = tmp48 * accel[1];
+    const float tmp50 = tmp46 + tmp49;
+    const float tmp51 = carry[9] + carry[0];
+    const float tmp52 = tmp51 + tmp51;
+    const float tmp53 = 1.0f - tmp52;
+    const float tmp54 = tmp53 * accel[2];
+    const float tmp55 = tmp50 + tmp54;
+    const float tmp56 = (flags[0]) ? tmp55 : accel_lp[2];
+    const float tmp57 = tmp55 - tmp56;
+    const float tmp58 = carry[6] * tmp57;
+    const float tmp59 = tmp56 + tmp58;
+    const float tmp60 = carry[1] * carry[7];
+    const float tmp61 = carry[8] * tmp43;
+    const float tmp62 = tmp60 + tmp61;
+    const float tmp63 = tmp45 * tmp59;
+    const float tmp64 = tmp62 + tmp63;
+    const float tmp65 = carry[2] * carry[7];
+    const float tmp66 = carry[10] * tmp43;
+    const float tmp67 = tmp65 + tmp66;
+    const float tmp68 = tmp48 * tmp59;
+    const float tmp69 = tmp67 + tmp68;
+    const float tmp70 = carry[5] * carry[7];
+    const float tmp71 = carry[13] * tmp43;
+    const float tmp72 = tmp70 + tmp71;
+    const float tmp73 = tmp53 * tmp59;
+    const float tmp74 = tmp72 + tmp73;
+    carry[0] = tmp43;
+    carry[1] = tmp59;
+    carry[2] = tmp64;
+    carry[3] = tmp69;
+    carry[4] = tmp74;
 }
 
-static void adukf_k_accel_lowpass(const float q_pred_unit[4], const float accel[3], const float accel_lp[3], bool restart, float dt, float accel_lp_new[3], float accel_body[3])
+static void adukf_k_accel_lowpass(const float q_pred_unit[4], const float accel[3], const float accel_lp[3], bool restart, float dt, bool recover, float accel_lp_new[3], float accel_body[3])
 {
-    /* 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
-    float carry[16];
-    adukf_k_accel_lowpass_part0(q_pred_unit, accel, accel_lp, restart, dt, carry);
-    adukf_k_accel_lowpass_part1(accel, accel_lp, restart, carry);
+    /* 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry and flags hold the values handed between them (a slot reused once its value is dead) */
+    float carry[15];
+    bool flags[1];
+    adukf_k_accel_lowpass_part0(q_pred_unit, accel, accel_lp, restart, dt, recover, carry, flags);
+    adukf_k_accel_lowpass_part1(accel, accel_lp, carry, flags);
     accel_lp_new[0] = carry[7];
     accel_lp_new[1] = carry[0];
     accel_lp_new[2] = carry[1];
     accel_body[0] = carry[2];
     accel_body[1] = carry[3];
     accel_body[2] = carry[4];
+}
+
+/* gyro over-range: a component at gyro_full_scale (clipped) sets the recovery timer to clip_recovery_time; recovering while more than half a step of it is left
+ * ops: add 1, mul 1, cmp 8 (total 10) */
+static inline void adukf_k_gyro_recovery(const float gyro[3], float recover_time, float dt, bool *clipped, float *recover_time_new, bool *recovering)
+{
+    const float tmp0 = fabsf(gyro[0]);
+    const float tmp1 = fabsf(gyro[1]);
+    const bool tmp2 = (34.906586f /* gyro_full_scale */ <= tmp0) || (34.906586f /* gyro_full_scale */ <= tmp1);
+    const float tmp3 = fabsf(gyro[2]);
+    const bool tmp4 = (tmp2) || (34.906586f /* gyro_full_scale */ <= tmp3);
+    const float tmp5 = recover_time - dt;
+    const float tmp6 = (tmp5 > 0.0f) ? tmp5 : 0.0f;
+    const float tmp7 = (tmp4) ? 2.0f /* clip_recovery_time */ : tmp6;
+    const float tmp8 = 0.5f * dt;
+    const bool tmp9 = tmp8 < tmp7;
+    *clipped = tmp4;
+    *recover_time_new = tmp7;
+    *recovering = tmp9;
 }
 
 /* initial attitude: accelerometer tilt and tilt-compensated heading (+ declination)
@@ -2768,6 +2834,7 @@ void adukf_init(adukf_state *s)
     s->accel_lp[0] = 0.0f;
     s->accel_lp[1] = 0.0f;
     s->accel_lp[2] = 0.0f;
+    s->recover_time = 0.0f;
     for (uint32_t i = 0u; i < 122u; i++) {
         s->work[i] = 0.0f;
     }
@@ -2842,6 +2909,17 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
         return status & ~((adukf_status)ADUKF_MAG_LEARNING);
     }
 
+    /* Gyro over-range: a component at gyro_full_scale is a clipped sample, integrated as it is; the
+     * rotation it missed widens the attitude covariance (predict), and for clip_recovery_time after
+     * the last one R is not adapted and the accelerometer is not low-passed (timer: half a step of
+     * margin, so that float and double decide alike). */
+    bool clipped;
+    bool recovering;
+    adukf_k_gyro_recovery(in->gyro, s->recover_time, dt, &clipped, &s->recover_time, &recovering);
+    if (recovering) {
+        status |= ADUKF_GYRO_RECOVERY;
+    }
+
     /* Time update (Kalman prediction of x = [q; gyro bias], F = d x-/d x). P_pred (packed lower
      * triangle) is the new covariance unless reset or updated, below. The step's matrices live in
      * s->work (scratch, no meaning between steps), so its stack frame holds scalars and vectors. */
@@ -2850,7 +2928,7 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
     float *const x_new = s->work + 115;
     bool updated = false;   /* the measurement update was applied (r_diag keeps its R) */
     float *P_out = P_pred;   /* the new covariance, packed: P_pred, or the update's P_new */
-    adukf_k_predict(s->q, s->gyro_bias, s->P, in->gyro, dt, x_pred, x_new, P_pred);
+    adukf_k_predict(s->q, s->gyro_bias, s->P, in->gyro, dt, clipped, x_pred, x_new, P_pred);
     for (uint32_t i = 4u; i < 7u; i++) {
         x_new[i] = x_pred[i];
     }
@@ -2875,7 +2953,7 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
             const bool restart = ((adukf_bits(s->accel_lp[0]) | adukf_bits(s->accel_lp[1])
                                    | adukf_bits(s->accel_lp[2])) << 1) == 0u;
             adukf_k_accel_lowpass(x_new, in->accel, s->accel_lp, restart, dt,
-                s->accel_lp, accel_in);
+                recovering, s->accel_lp, accel_in);
         }
         const float mag_in[3] = { use_mag ? in->mag[0] : 1.0f, use_mag ? in->mag[1] : 0.0f,
             use_mag ? in->mag[2] : 0.0f };
@@ -2896,8 +2974,8 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
             /* the sigma points q- * dq(+-d), d = a L[0:3, j] (an attitude error) */
             adukf_k_sigma_pair(aL + 6u * j, z0, zsum + 6u * j, zdiff + 6u * j);
         }
-        adukf_k_innovation(z0, zsum, zdiff, accel_in, mag_in, dt, span, P_zz, residual,
-            s->r_diag);   /* zeroed below unless the update is applied */
+        adukf_k_innovation(z0, zsum, zdiff, accel_in, mag_in, dt, span, recovering, P_zz,
+            residual, s->r_diag);   /* zeroed below unless the update is applied */
         if (!use_accel || !use_mag) {
             /* An unusable sensor is masked out exactly: identity block in P_zz, zero rows of the
              * pairs' differences (so zero cross-covariance), residual and R, so its columns of the

@@ -112,6 +112,25 @@ static float fast_asinf(float x)
     return fast_atan2f(x, sqrtf((1.0f - x) * (1.0f + x)));
 }
 
+/* gyro over-range: a component at gyro_full_scale (clipped) sets the recovery timer to clip_recovery_time; recovering while more than half a step of it is left
+ * ops: add 1, mul 1, cmp 8 (total 10) */
+static inline void mekf_k_gyro_recovery(const float gyro[3], float recover_time, float dt, bool *clipped, float *recover_time_new, bool *recovering)
+{
+    const float tmp0 = fabsf(gyro[0]);
+    const float tmp1 = fabsf(gyro[1]);
+    const bool tmp2 = (34.906586f /* gyro_full_scale */ <= tmp0) || (34.906586f /* gyro_full_scale */ <= tmp1);
+    const float tmp3 = fabsf(gyro[2]);
+    const bool tmp4 = (tmp2) || (34.906586f /* gyro_full_scale */ <= tmp3);
+    const float tmp5 = recover_time - dt;
+    const float tmp6 = (tmp5 > 0.0f) ? tmp5 : 0.0f;
+    const float tmp7 = (tmp4) ? 2.0f /* clip_recovery_time */ : tmp6;
+    const float tmp8 = 0.5f * dt;
+    const bool tmp9 = tmp8 < tmp7;
+    *clipped = tmp4;
+    *recover_time_new = tmp7;
+    *recovering = tmp9;
+}
+
 /* time update: attitude and F's attitude rows
  * ops: add 106, mul 123, div 7, sqrt 2, trig 2, cmp 5 (total 245)
  *      of which only one side runs: if (tmp11 < 0.01f) 28, else 11 */
@@ -3574,10 +3593,9 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
     /* Gyro over-range: a component at gyro_full_scale is a clipped sample, integrated as it is; the
      * rotation it missed widens the attitude covariance (predict_covariance), and for
      * clip_recovery_time after the last one the corrections take the sensors as they come. */
-    bool clipped = false;
-    for (uint32_t i = 0u; i < 3u; i++) {
-        clipped = clipped || fabsf(in->gyro[i]) >= MEKF_GYRO_FULL_SCALE;
-    }
+    bool clipped;
+    bool recovering;
+    mekf_k_gyro_recovery(in->gyro, s->recover_time, dt, &clipped, &s->recover_time, &recovering);
 
     /* Time update, in place: from here on the step works on the state itself. */
     float *const q = s->q;
@@ -3588,12 +3606,6 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
         mekf_k_predict_attitude(q, s->gyro_bias, in->gyro, dt, q, F_q, F_b);
         mekf_k_predict_covariance(F_q, F_b, P, dt, clipped, P);
     }
-    if (clipped) {
-        s->recover_time = MEKF_CLIP_RECOVERY_TIME;
-    } else if (s->recover_time > 0.0f) {
-        s->recover_time = s->recover_time - dt > 0.0f ? s->recover_time - dt : 0.0f;
-    }
-    const bool recovering = s->recover_time > 0.5f * dt;
     if (recovering) {
         status |= MEKF_GYRO_RECOVERY;
     }

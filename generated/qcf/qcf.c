@@ -98,6 +98,25 @@ static float fast_atan2f(float y, float x)
     return signbit(y) ? -a : a;
 }
 
+/* gyro over-range: a component at gyro_full_scale (clipped) sets the recovery timer to clip_recovery_time; recovering while more than half a step of it is left
+ * ops: add 1, mul 1, cmp 8 (total 10) */
+static inline void qcf_k_gyro_recovery(const float gyro[3], float recover_time, float dt, bool *clipped, float *recover_time_new, bool *recovering)
+{
+    const float tmp0 = fabsf(gyro[0]);
+    const float tmp1 = fabsf(gyro[1]);
+    const bool tmp2 = (34.906586f /* gyro_full_scale */ <= tmp0) || (34.906586f /* gyro_full_scale */ <= tmp1);
+    const float tmp3 = fabsf(gyro[2]);
+    const bool tmp4 = (tmp2) || (34.906586f /* gyro_full_scale */ <= tmp3);
+    const float tmp5 = recover_time - dt;
+    const float tmp6 = (tmp5 > 0.0f) ? tmp5 : 0.0f;
+    const float tmp7 = (tmp4) ? 2.0f /* clip_recovery_time */ : tmp6;
+    const float tmp8 = 0.5f * dt;
+    const bool tmp9 = tmp8 < tmp7;
+    *clipped = tmp4;
+    *recover_time_new = tmp7;
+    *recovering = tmp9;
+}
+
 /* prediction: the gyro integrated with the bias removed, before the step's sensors are compared with the attitude (so they meet the attitude of their own step)
  * ops: add 25, mul 35, div 5, sqrt 2, trig 2, cmp 5 (total 74)
  *      of which only one side runs: if (tmp11 < 0.01f) 10, else 8 */
@@ -1258,16 +1277,8 @@ qcf_status qcf_step(qcf_state *restrict s, const qcf_input *restrict in, float d
      * kp_recovery (timer: half a step of margin, so that float and double decide alike). */
     bool recovering = false;
     if (started) {
-        bool clipped = false;
-        for (uint32_t i = 0u; i < 3u; i++) {
-            clipped = clipped || fabsf(in->gyro[i]) >= QCF_GYRO_FULL_SCALE;
-        }
-        if (clipped) {
-            s->recover_time = QCF_CLIP_RECOVERY_TIME;
-        } else if (s->recover_time > 0.0f) {
-            s->recover_time = s->recover_time - dt > 0.0f ? s->recover_time - dt : 0.0f;
-        }
-        recovering = s->recover_time > 0.5f * dt;
+        bool clipped;
+        qcf_k_gyro_recovery(in->gyro, s->recover_time, dt, &clipped, &s->recover_time, &recovering);
         if (recovering) {
             status |= QCF_GYRO_RECOVERY;
         }

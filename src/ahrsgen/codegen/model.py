@@ -186,3 +186,19 @@ class FilterModel:
         """src/ahrsgen/codegen/fastmath.py helpers that the filter's own template code calls (a float build
         with math = "fast" gets their C beside the kernels' helpers, written once)."""
         return ()
+
+    def gyro_recovery_kernel(self) -> KernelSpec:
+        """The gyro over-range kernel a filter with gyro_full_scale and clip_recovery_time
+        parameters calls once per step (symbolic/aiding.gyro_recovery): clipped, the recovery
+        timer and whether the step is recovering."""
+        from ahrsgen.codegen.emit import function
+        from ahrsgen.symbolic import aiding
+        g, t, dt = ca.SX.sym("gyro", 3), ca.SX.sym("recover_time"), ca.SX.sym("dt")
+        clipped, t_new, recovering = aiding.gyro_recovery(
+            g, t, dt, full_scale=self.params["gyro_full_scale"], recovery_time=self.params["clip_recovery_time"])
+        return KernelSpec("gyro_recovery", function("gyro_recovery", {"gyro": g, "recover_time": t, "dt": dt},
+                                                    {"clipped": clipped, "recover_time_new": t_new,
+                                                     "recovering": recovering}),
+                          "gyro over-range: a component at gyro_full_scale (clipped) sets the recovery timer to "
+                          "clip_recovery_time; recovering while more than half a step of it is left",
+                          flags=("clipped", "recovering"))

@@ -20,6 +20,8 @@ SX expressions so that a kernel can output them and the step partial can branch 
   part of R(q) m to magnetic north + declination; it only changes heading (never tilts).
   `heading_correction_ned(m_n, declination)` the same from the NED vector m_n.
 - `norm_within(n2, center, tol)`: ||v| - center| < tol from |v|², without a square root.
+- `gyro_recovery(...)`: a gyro component at the sensor's full scale (a clipped sample) and the
+  recovery window that follows it (the filters decide what recovering means for them).
 """
 from __future__ import annotations
 
@@ -61,6 +63,22 @@ def rest_detector(gyro, accel_norm2, gyro_lp, rest_time, dt, *, tau: float, gyro
     t_new = ca.if_else(steady, ca.fmin(rest_time + dt, time_cap), 0.0)
     # half a step of margin: a sum of steps landing on min_time decides alike in float and double
     return g_lp, t_new, t_new + 0.5 * dt >= min_time
+
+
+def gyro_recovery(gyro, recover_time, dt, *, full_scale, recovery_time):
+    """Returns (clipped 0/1, recover_time', recovering 0/1).
+
+    clipped: a gyro component at or beyond full_scale (0: never). recover_time counts down
+    from recovery_time, set by every clipped sample, to 0. recovering: more than half a step of
+    it is left, a margin so that a count landing on 0 decides the same in float and double.
+    full_scale may be a runtime parameter's symbol."""
+    if isinstance(full_scale, (int, float)) and full_scale <= 0:
+        clipped = ca.SX(0)
+    else:
+        clipped = ca.logic_or(ca.logic_or(ca.fabs(gyro[0]) >= full_scale, ca.fabs(gyro[1]) >= full_scale),
+                              ca.fabs(gyro[2]) >= full_scale)
+    t_new = ca.if_else(clipped, recovery_time, ca.fmax(recover_time - dt, 0.0))
+    return clipped, t_new, t_new > 0.5 * dt
 
 
 def field_check(norm, sin_dip, ref_norm, ref_dip, dist_time, dt, *, norm_tol: float, dip_tol: float,

@@ -34,6 +34,7 @@ EXTRA_STATUS = [
     ("UPDATE_SKIPPED", "P_zz was not positive definite: measurement update skipped"),
     ("NUMERIC_FAULT", "non-finite result: state left as it was before the step"),
     ("MAG_LEARNING", "reference field still being learned: magnetometer correction not applied", "info"),
+    ("GYRO_RECOVERY", "a gyro component at gyro_full_scale (clipped), or within clip_recovery_time after one: the attitude covariance widened, R not adapted, the accelerometer not low-passed (error state only)", "info"),
 ]
 
 
@@ -139,7 +140,8 @@ class Model(FilterModel):
             StateField("r_diag", 6, "diagonal of the adaptive R used by the last update (0: sensor not used)", 0.0),
         ] + ([StateField("sample_age", 2, "time since the last accelerometer / magnetometer sample, s", 0.0)]
              if self.own_rates() else []) + ([StateField("accel_lp", 3, "low-passed specific force in NED, m/s^2 (accel_tau > 0)", 0.0)]
-             if self.lowpass() else []) + [
+             if self.lowpass() else []) + ([StateField("recover_time", 1, "time left of the recovery after a clipped "
+                                                      "gyro sample, s", 0.0)] if self.err else []) + [
             StateField("work", self.work_layout()["size"], "scratch of the step (P-, the update's matrices and sigma-point sums"
                        + (", x- and x+) " if self.nx == 7 else ") ") +
                        "kept here instead of on the stack: no meaning between steps, zeroed when an update or its "
@@ -351,8 +353,9 @@ class Model(FilterModel):
         through h, as its deviation from the centre h(χ) - z₀."""
         return measurement(normalize(point), m_ref) - z0
 
-    def residual_and_r(self, zhat, f, m, scale):
-        """ε = z - ẑ and the adaptive per-axis R (both sigma sets)."""
+    def residual_and_r(self, zhat, f, m, scale, recover=None):
+        """ε = z - ẑ and the adaptive per-axis R (both sigma sets); recovering from a clipped gyro
+        sample (recover = 1) R is not adapted: the large residual is the attitude's error."""
         p = self.params
         z = ca.vertcat(normalize(f), normalize(m))
         eps = z - zhat
@@ -360,6 +363,8 @@ class Model(FilterModel):
         adapt = [p["k_a"] * eps[i] ** 2 for i in range(3)] + [p["k_m"] * eps[i] ** 2 for i in range(3, 6)]
         if p["adapt_max"] > 0:        # product option: bound the inflation (0 = as the paper, unbounded)
             adapt = [ca.fmin(x, p["adapt_max"]) for x in adapt]
+        if recover is not None:
+            adapt = [ca.if_else(recover, 0.0, x) for x in adapt]
         R = [sa2 + adapt[i] for i in range(3)] + [sm2 + adapt[i] for i in range(3, 6)]
         if scale is not None:
             R = [R[i] * scale[0] for i in range(3)] + [R[i] * scale[1] for i in range(3, 6)]
@@ -387,7 +392,7 @@ class Model(FilterModel):
             Pzz[c, r] = Pzz[r, c]
         return Pzz, eps, ca.vertcat(*R), ca.vertcat(*D)
 
-    def innovation_expr(self, z0, zsum, zdiff, f, m, scale=None):
+    def innovation_expr(self, z0, zsum, zdiff, f, m, scale=None, recover=None):
         """ẑ, residual, adaptive R and P_zz from the sigma pairs' deviations (sigma_pair_expr:
         s_j = e_j+ + e_j-, d_j = e_j+ - e_j- for the 4 columns of aL; e_i = z_i - z₀, zero for
         the centre and for the 2(n-4) points of the bias columns). Exact rewrites of the sums of
@@ -408,7 +413,7 @@ class Model(FilterModel):
         S = [zsum[6 * j:6 * j + 6] for j in range(na)]
         D = [zdiff[6 * j:6 * j + 6] for j in range(na)]
         delta = wi * sum(S[1:], S[0])
-        eps, R = self.residual_and_r(z0 + delta, f, m, scale)
+        eps, R = self.residual_and_r(z0 + delta, f, m, scale, recover)
         Pzz = ca.SX.zeros(6, 6)
         for r, c in _LOWER6:     # symmetric: lower triangle once, mirrored
             zz = sum([S[j][r] * S[j][c] + D[j][r] * D[j][c] for j in range(1, na)], S[0][r] * S[0][c] + D[0][r] * D[0][c])
@@ -478,11 +483,20 @@ class Model(FilterModel):
         Pm = linalg.unpack_symmetric(Pm_packed, n)
 
         qm_e, qn_e, Pm_e = self.predict_expr(q, P, w, dt)
+        clip = ca.SX.sym("clip")               # a gyro component at gyro_full_scale (error state)
+        if self.err:
+            # the rotation the clipped sample missed: up to one full scale's worth over the step,
+            # on each attitude-error axis (d is the rotation angle to first order)
+            wc2 = (p["gyro_full_scale"] * dt) ** 2
+            for i in range(3):
+                Pm_e[i, i] = Pm_e[i, i] + ca.if_else(clip, wc2, 0.0)
         qn = ca.SX.sym("q_pred_unit", 4)
         a_lp = ca.SX.sym("accel_lp", 3)
         restart = ca.SX.sym("restart")
         f_n = quat.rotate(qn, f)
-        a_lp_new = aiding.lowpass(ca.if_else(restart, f_n, a_lp), f_n, dt, p["accel_tau"])
+        recover = ca.SX.sym("recover")        # recovering from a clipped gyro sample (error state)
+        start = ca.logic_or(restart, recover) if self.err else restart     # (recovering: the sample itself)
+        a_lp_new = aiding.lowpass(ca.if_else(start, f_n, a_lp), f_n, dt, p["accel_tau"])
         Pzz_packed = ca.SX.sym("P_zz", 21)        # lower triangle, packed (linalg)
         Pzz = linalg.unpack_symmetric(Pzz_packed, 6)
         eps = ca.SX.sym("residual", 6)
@@ -504,7 +518,7 @@ class Model(FilterModel):
             Pzz_e, eps_e, r_e, zd_e = self.innovation_simplex_expr(z0, zdev, f, m, scale)
         elif self.err:
             zs_e, zd_e = self.sigma_pair_error_expr(col, z0)
-            Pzz_e, eps_e, r_e = self.innovation_expr(z0, zsum, zdiff, f, m, scale)
+            Pzz_e, eps_e, r_e = self.innovation_expr(z0, zsum, zdiff, f, m, scale, recover)
         else:
             zs_e, zd_e = self.sigma_pair_expr(q4, col, m_ref, z0)
             Pzz_e, eps_e, r_e = self.innovation_expr(z0, zsum, zdiff, f, m, scale)
@@ -543,12 +557,14 @@ class Model(FilterModel):
                                  "sigma point (attitude part), normalised and mapped through h, as its deviation "
                                  "from z0 (called once per simplex point)")]
         specs = [
-            KernelSpec("predict", function("predict", {**q_in, "P": P, "gyro": w, "dt": dt},
+            KernelSpec("predict", function("predict", {**q_in, "P": P, "gyro": w, "dt": dt,
+                                                       **({"clip": clip} if self.err else {})},
                                            {xs + "_pred": qm_e, "q_pred_unit": qn_e,
                                             "P_pred": linalg.pack_lower(Pm_e)}),
                        ("time update of the error state [d; db]: q- = A q = q * dq((w - b) dt), "
                         "P- = F P F^T + Q with F = [[Phi, B], [0, I3]]" if self.err else
-                        "linear Kalman time update: q- = A q, P- = A P A^T + Q"), noinline=True, early_writes=True),
+                        "linear Kalman time update: q- = A q, P- = A P A^T + Q"), noinline=True, early_writes=True,
+                       flags=("clip",) if self.err else ()),
             KernelSpec("sigma_setup", function("sigma_setup", {**({xs + "_pred": qm} if simplex else {}),
                                                                "q_pred_unit": qn, "P_pred": Pm_packed, "m_ref": m_ref},
                                                {"aL": aL_e, "z0": z0_e, "pivot_P": piv_p,
@@ -562,10 +578,11 @@ class Model(FilterModel):
                        noinline=True, early_writes=True),
             *points,
             KernelSpec("innovation", function("innovation", {**innov_in, "accel": f, "mag": m,
-                                                             **({"dt": dt, "span": span} if rated else {})},
+                                                             **({"dt": dt, "span": span} if rated else {}),
+                                                             **({"recover": recover} if self.err else {})},
                                               {"P_zz": linalg.pack_lower(Pzz_e), "residual": eps_e, "r_diag": r_e,
                                                **innov_out}),
-                       innov_doc, noinline=True, early_writes=True),
+                       innov_doc, noinline=True, early_writes=True, flags=("recover",) if self.err else ()),
             KernelSpec("gain", function("gain", {"P_zz": Pzz_packed, "zdiff": zdiff, "residual": eps},
                                         {"g": g_e, "G": G_e, "pivot_zz": piv_zz}),
                        "with L = chol(P_zz), W = L^-1 D (D the pairs' differences) and v = L^-1 eps: "
@@ -580,11 +597,14 @@ class Model(FilterModel):
                        + "P+ = P- - aL G aL^T = P- - K P_zz K^T",
                        noinline=True, early_writes=True),
             *([KernelSpec("accel_lowpass", function(
-                "accel_lowpass", {"q_pred_unit": qn, "accel": f, "accel_lp": a_lp, "restart": restart, "dt": dt},
+                "accel_lowpass", {"q_pred_unit": qn, "accel": f, "accel_lp": a_lp, "restart": restart, "dt": dt,
+                                  **({"recover": recover} if self.err else {})},
                 {"accel_lp_new": a_lp_new, "accel_body": quat.rotate_inv(qn, a_lp_new)}),
                 "NED low-pass of the specific force R(q-) f (restart: start at R(q-) f); the update "
-                "measures R(q-)^T of it", flags=("restart",))]
+                "measures R(q-)^T of it (recovering from a clipped gyro sample: the sample itself)",
+                flags=("restart", "recover") if self.err else ("restart",))]
               if self.lowpass() else []),
+            *([self.gyro_recovery_kernel()] if self.err else []),
             KernelSpec("init_q", function("init_q", {"accel": f, "mag": m}, {"q": q_init}),
                        "initial attitude: accelerometer tilt and tilt-compensated heading (+ declination)"),
         ]
@@ -609,13 +629,14 @@ class Model(FilterModel):
         return specs
 
     def step_paths(self):
+        first = ["gyro_recovery", "predict"] if self.err else ["predict"]
         return {
-            "accel+mag update": ["predict", "sigma_setup"]
+            "accel+mag update": first + ["sigma_setup"]
             + (["sigma_point"] * (N + 1) if self.simplex() else ["sigma_pair"] * self.na) + ["innovation", "gain", "correct"],
-            "gyro only": ["predict"],
+            "gyro only": first,
         }
 
     def template_context(self):
         n = self.n
-        return {"learn": self.params["mag_ref"] == "learn", "n": n, "nx": self.nx, "na": self.na, "err": self.err, "lowpass": self.lowpass(), "rated": self.own_rates(), "bias": self.nx == 7, "simplex": self.simplex(), "xs": "q" if self.nx == 4 else "x", "at": self.work_layout(),
+        return {"recovery": self.err, "learn": self.params["mag_ref"] == "learn", "n": n, "nx": self.nx, "na": self.na, "err": self.err, "lowpass": self.lowpass(), "rated": self.own_rates(), "bias": self.nx == 7, "simplex": self.simplex(), "xs": "q" if self.nx == 4 else "x", "at": self.work_layout(),
                 "packed": linalg.packed_lower_pairs(n)}

@@ -78,6 +78,7 @@ COV_RESET = st.FILTER_BASE << 0        # P⁻ not positive definite: P reset to 
 UPDATE_SKIPPED = st.FILTER_BASE << 1   # P_zz not positive definite: update skipped
 NUMERIC_FAULT = st.FILTER_BASE << 2    # non-finite result: state left as before the step
 MAG_LEARNING = st.FILTER_BASE << 3     # reference field still being learned: no mag correction
+GYRO_RECOVERY = st.FILTER_BASE << 4    # a clipped gyro sample, or clip_recovery_time after one
 
 STATUS_BITS = [
     ("COV_RESET", COV_RESET, "P⁻ was not positive definite: P reset to P0, measurement update skipped"),
@@ -228,6 +229,7 @@ class Reference:
         self.P = self.P0()
         self.initialized = bool(p["faithful"])
         self.r_diag = np.zeros(6)       # R used by the last step (0 = sensor not used)
+        self.recover_time = 0.0         # time left of the recovery after a clipped gyro sample (error state)
 
     def P0(self):
         if self.err:
@@ -276,6 +278,21 @@ class Reference:
         q_old, P_old, b_old = self.q.copy(), self.P.copy(), self.bias.copy()
         n = self.n
 
+        # gyro over-range (error state): a clipped sample is integrated as it is, the rotation it
+        # missed (up to one full scale's worth over the step) widens the attitude covariance, and
+        # for clip_recovery_time after the last one R is not adapted and the accelerometer is not
+        # low-passed (the timer keeps half a step of margin: float and double decide alike)
+        clipped = recovering = False
+        if self.err:
+            clipped = p["gyro_full_scale"] > 0 and max(abs(x) for x in wl) >= p["gyro_full_scale"]
+            if clipped:
+                self.recover_time = p["clip_recovery_time"]
+            elif self.recover_time > 0:
+                self.recover_time = max(self.recover_time - dt, 0.0)
+            recovering = self.recover_time > 0.5 * dt
+            if recovering:
+                status |= GYRO_RECOVERY
+
         # 1. time update (with the bias state: w = ω - b, F from the derivative above)
         if self.bias_state:
             wl = [wl[i] - self.bias[i] for i in range(3)]
@@ -300,6 +317,8 @@ class Reference:
                          + [(p["bias_rw"] ** 2 + p["q_floor"]) * dt] * 3)
             xm = np.concatenate([qm, self.bias])
             Pm = F @ self.P @ F.T + Qx
+            if clipped:
+                Pm = Pm + np.diag([(p["gyro_full_scale"] * dt) ** 2] * 3 + [0.0] * 3)
         elif self.bias_state:
             X = xi(q)
             dqdw = (c_norm * 0.5 * dt * X
@@ -336,8 +355,8 @@ class Reference:
             if self.lowpass and use_a:
                 qn = x_new[:4]
                 f_n = rotmat(qn) @ f
-                if not np.any(self.accel_lp):
-                    self.accel_lp = f_n                          # start at the first sample
+                if not np.any(self.accel_lp) or recovering:
+                    self.accel_lp = f_n                          # start at the first sample (and recovering)
                 self.accel_lp = self.accel_lp + dt / (p["accel_tau"] + dt) * (f_n - self.accel_lp)
                 f_meas = rotmat(qn).T @ self.accel_lp
             L, piv = _chol(Pm)
@@ -361,6 +380,8 @@ class Reference:
                 adapt = np.concatenate([p["k_a"] * eps[:3] ** 2, p["k_m"] * eps[3:] ** 2])
                 if p["adapt_max"] > 0:
                     adapt = np.minimum(adapt, p["adapt_max"])
+                if recovering:
+                    adapt = np.zeros(6)
                 R = (np.concatenate([np.full(3, p["sigma_acc"] ** 2), np.full(3, p["sigma_mag"] ** 2)]) + adapt) * scale
                 dZ = Z - zhat
                 dX = chis - xc

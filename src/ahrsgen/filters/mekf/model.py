@@ -576,6 +576,7 @@ class Model(FilterModel):
         p = self.params
         if self.vectors:
             return [
+                self.gyro_recovery_kernel(),
                 KernelSpec("predict_attitude", predict_attitude_function(p), "time update: attitude and F's attitude rows"),
                 KernelSpec("predict_covariance", predict_covariance_function(p), "time update: covariance",
                            flags=("clip",)),
@@ -606,10 +607,10 @@ class Model(FilterModel):
 
     def step_paths(self) -> dict[str, list[str]]:
         if self.vectors:
-            return {"gyro only": ["predict_attitude", "predict_covariance"],
-                    "with corrections": ["predict_attitude", "predict_covariance", "heading_features", "accel_lowpass", "gravity_rows"] + ["update_attitude_row"] * 3
+            return {"gyro only": ["gyro_recovery", "predict_attitude", "predict_covariance"],
+                    "with corrections": ["gyro_recovery", "predict_attitude", "predict_covariance", "heading_features", "accel_lowpass", "gravity_rows"] + ["update_attitude_row"] * 3
                     + ["inject", "update_heading", "inject"],
-                    "at rest": ["predict_attitude", "predict_covariance", "heading_features", "accel_lowpass", "gravity_rows"] + ["update_attitude_row"] * 3
+                    "at rest": ["gyro_recovery", "predict_attitude", "predict_covariance", "heading_features", "accel_lowpass", "gravity_rows"] + ["update_attitude_row"] * 3
                     + ["update_rest_bias", "inject", "update_heading", "inject"]}
         return {"gyro only": ["predict"], "with corrections": ["predict", "update"]}
 
@@ -623,6 +624,4 @@ class Model(FilterModel):
                 "tan2_sideslip": math.tan(p["course_max_sideslip"]) ** 2,
                 # the norm gate's test is written only when it can be on (a runtime value, or > 0):
                 # no unreachable code in a default build. dict.get: not a use of a runtime value.
-                "accel_gate_on": not isinstance(p.get("accel_gate"), (int, float)) or p.get("accel_gate") > 0,
-                # the over-range test likewise (gyro_full_scale = 0: no over-range handling)
-                "gyro_fs_on": not isinstance(p.get("gyro_full_scale"), (int, float)) or p.get("gyro_full_scale") > 0}
+                "accel_gate_on": not isinstance(p.get("accel_gate"), (int, float)) or p.get("accel_gate") > 0}

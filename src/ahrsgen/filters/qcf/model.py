@@ -232,6 +232,7 @@ class Model(FilterModel):
         else:
             bias_new = bias_pi
         ks = [
+            self.gyro_recovery_kernel(),
             KernelSpec("predict", function("predict", {"q": q, "gyro_bias": bias, "gyro": gyro, "dt": dt},
                                            {"q_new": quat.integrate_scaled(q, gyro - bias, dt)}),
                        "prediction: the gyro integrated with the bias removed, before the step's sensors are "
@@ -311,18 +312,17 @@ class Model(FilterModel):
     def template_context(self):
         p = self.params
         return {"motion_model": p["motion_accel_model"], "product": self.product, "gps_taps": gps_taps(p),
-                "rest": self.product and p["rest_time"] > 0, "mag_rejection": self.product and p["mag_rejection"],
-                # the over-range test only when it can be on (gyro_full_scale = 0: no handling)
-                "gyro_fs_on": not isinstance(p.get("gyro_full_scale"), (int, float)) or p.get("gyro_full_scale") > 0}
+                "rest": self.product and p["rest_time"] > 0, "mag_rejection": self.product and p["mag_rejection"]}
 
     def step_paths(self):
         if self.product:
             comp = ["rotation", "gravity_part"]
             extra = (["rest"] if self.params["rest_time"] > 0 else []) + (["mag_check"] if self.params["mag_rejection"] else [])
             return {
-                "full (accel+mag+GPS comp.)": ["predict"] + comp + ["accel_lowpass", "mag_ned"] + extra + ["correct"],
-                "accel+mag": ["predict", "rotation", "accel_lowpass", "mag_ned"] + extra + ["correct"],
-                "gyro only": ["predict", "rotation", "correct"],
+                "full (accel+mag+GPS comp.)": ["predict", "gyro_recovery"] + comp + ["accel_lowpass", "mag_ned"]
+                + extra + ["correct"],
+                "accel+mag": ["predict", "gyro_recovery", "rotation", "accel_lowpass", "mag_ned"] + extra + ["correct"],
+                "gyro only": ["predict", "gyro_recovery", "rotation", "correct"],
                 **({"GPS sample (extra)": ["gps_accel"]} if self.params["motion_accel_model"] == "differentiator" else {}),
             }
         comp = ["rotation", "gravity_part"]
