@@ -79,3 +79,14 @@ def test_double_c_equals_the_reference_through_the_clip(name):
     assert np.array_equal(c.status, r.status)
     assert np.any(c.status & np.uint32(host.build(cfg).manifest["status"]["GYRO_RECOVERY"]))
     assert max_angle_diff_rad(c.q, r.q) <= 1e-9
+
+
+def test_the_log_states_its_gyro_range_as_a_user_sets_it():
+    """gyro_clip states its gyro's range; run, validate and bench set gyro_full_scale from it
+    (bench.site_values) unless the user set it."""
+    from ahrsgen.bench import site_values
+    meta = make("gyro_clip", seed=0).meta
+    for name in FILTERS:
+        assert site_values(name, meta)[0]["gyro_full_scale"] == np.radians(500.0)
+        assert "gyro_full_scale" not in site_values(name, meta, {"gyro_full_scale"})[0]
+    assert "gyro_full_scale" not in site_values("cpf", meta)[0]

@@ -203,3 +203,24 @@ def test_without_pyarrow_same_arrays(tmp_path, monkeypatch):
     without = _concat(list(readers.CsvChunks(p, block_bytes=5000)))
     for f in FIELDS:
         assert np.array_equal(with_arrow[f], without[f], equal_nan=True), f
+
+
+def test_cli_a_bad_line_in_a_later_chunk_is_one_line(tmp_path, monkeypatch, capsys):
+    """The chunks are read ahead in a thread (run._prefetched): a bad field far into the file
+    still ends `run` with read_csv's one line naming that line, exit 2, and no --csv file."""
+    from ahrsgen.cli import main
+    lines = _lines(tmp_path)
+    k = len(lines) - 5
+    f = lines[k].split(",")
+    f[3] = "x1"
+    lines[k] = ",".join(f)
+    p = tmp_path / "bad.csv"
+    p.write_text("\n".join(lines) + "\n")
+    with pytest.raises(readers.LogError) as whole:
+        readers.read_csv(p)
+    monkeypatch.setattr(readers, "BLOCK_BYTES", 2000)
+    out = tmp_path / "o.csv"
+    assert main(["run", "qcf", "--log", str(p), "--csv", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(whole.value) in err[0] and f"line {k + 1}" in err[0], err
+    assert not out.exists()

@@ -44,7 +44,8 @@ def scenario_configs(quick: bool) -> list[tuple[str, str, dict]]:
                  {"jitter": 0.0004, "dropout": {"gyro": 0.005, "accel": 0.01, "mag": 0.05, "gps": 0.1}}),
                 ("static_accel_disturbance", "static_accel_disturbance", {}),
                 ("static_mag_disturbance", "static_mag_disturbance", {}),
-                ("turntable", "turntable", {})]
+                ("turntable", "turntable", {}),
+                ("gyro_clip", "gyro_clip", {})]
     return [g for g in grid if g[1] in known]
 
 

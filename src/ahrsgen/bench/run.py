@@ -172,7 +172,7 @@ def _chunk_results(hf, chunks, timing, progress=None):
     show = sys.stderr.isatty() if progress is None else progress
     prog = Progress(max(chunks.size, 1)) if show else None
     state, rows = None, 0
-    for part in chunks:
+    for part in _prefetched(chunks):
         t0 = time.perf_counter()
         r = hf.run(part, state=state)
         timing[0] += time.perf_counter() - t0
@@ -183,6 +183,49 @@ def _chunk_results(hf, chunks, timing, progress=None):
             prog.update(f"{rows} rows", done=min(chunks.done_bytes, prog.total - 1))
     if prog:
         prog.update(f"{rows} rows", done=prog.total)
+
+
+def _prefetched(chunks, depth: int = 2):
+    """The chunks of an iterable, read `depth` ahead in a thread: pyarrow's parser and numpy
+    release the GIL, so the next chunk is read while this one runs through the filter and the
+    score (two cores: reading and the rest overlap). An error reading a chunk is raised here,
+    where that chunk would have been; leaving the loop early stops the reader."""
+    import queue
+    import threading
+    q: queue.Queue = queue.Queue(maxsize=depth)
+    stop = threading.Event()
+    end = object()
+
+    def put(item) -> bool:
+        while not stop.is_set():
+            try:
+                q.put(item, timeout=0.1)
+                return True
+            except queue.Full:
+                continue
+        return False                        # the consumer left
+
+    def read():
+        try:
+            for part in chunks:
+                if not put((part, None)):
+                    return
+            put((end, None))
+        except BaseException as e:          # raised in the consumer, where the chunk was due
+            put((end, e))
+
+    reader = threading.Thread(target=read, name="ahrsgen-log-reader", daemon=True)
+    reader.start()
+    try:
+        while True:
+            part, err = q.get()
+            if part is end:
+                if err is not None:
+                    raise err
+                return
+            yield part
+    finally:
+        stop.set()
 
 
 class _ChunkScore:

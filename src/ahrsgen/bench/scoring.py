@@ -29,8 +29,10 @@ def site_values(filter_name: str, meta: dict, user_keys=()) -> tuple[dict, bool]
     """Parameter values for the site of a log, and whether a declination parameter was set.
 
     A log's meta['declination_deg'] is the offset from its reference's north to magnetic
-    north (absent: the reference is magnetic north, as BROAD's). Parameters the user set
-    (user_keys) are left alone. Numbers stay numbers (config.resolve's `values`).
+    north (absent: the reference is magnetic north, as BROAD's). A log that states its gyro's
+    full scale (meta['gyro_full_scale_rad_s'], a simulated sensor) sets gyro_full_scale, as a
+    user configures the sensor. Parameters the user set (user_keys) are left alone. Numbers
+    stay numbers (config.resolve's `values`).
     """
     from ahrsgen import filters
     names = filters.load(filter_name).params
@@ -49,6 +51,9 @@ def site_values(filter_name: str, meta: dict, user_keys=()) -> tuple[dict, bool]
                 out["mag_ref"] = "inclination"
         elif "mag_ref" in names and "mag_ref" not in user_keys:
             out["mag_ref"] = "learn"
+    fs = meta.get("gyro_full_scale_rad_s")
+    if fs is not None and "gyro_full_scale" in names and "gyro_full_scale" not in user_keys:
+        out["gyro_full_scale"] = float(fs)
     return out, applied
 
 

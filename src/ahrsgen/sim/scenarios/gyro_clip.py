@@ -17,7 +17,9 @@ bias of 0.1-0.3 deg/s per axis, each axis clipped at +-`gyro_range_deg_s` (500);
 300 ug/sqrt(Hz); magnetometer 0.3 uT per sample on a 50 uT field (inclination 67 deg, magnetic
 north). No GPS.
 
-Scored from 3 s after the clip ends (`settle_time`): the acceptance is the largest attitude error
+meta['gyro_full_scale_rad_s'] states the gyro's range: `ahrsgen run`, `validate` and `bench` set
+the filters' gyro_full_scale from it, as a user configures the sensor. Scored from 3 s after the
+clip ends (`settle_time`): the acceptance is the largest attitude error
 from there on (meta['clip'] gives the clip's start and end, the range and the rotation it lost).
 """
 from __future__ import annotations
@@ -103,6 +105,7 @@ def make(seed: int = 0, *, rate_hz: float = 200.0, gyro_range_deg_s: float = 500
     log.gyro = np.clip(log.gyro, -rng_rad, rng_rad)
     clipped = np.any(np.abs(raw) > rng_rad, axis=1)
     lost = float(np.sum(np.abs(raw - log.gyro).max(axis=1) * log.dt)) / DEG
+    log.meta["gyro_full_scale_rad_s"] = float(rng_rad)     # the sensor's range, as a user configures it
     log.meta["clip"] = {"gyro_range_rad_s": float(rng_rad), "flip_time_s": float(tf), "flip_length_s": float(T),
                         "start_s": float(log.t[clipped][0]) if clipped.any() else None,
                         "end_s": float(log.t[clipped][-1]) if clipped.any() else None,
