@@ -239,6 +239,28 @@ def test_ctrl_c_is_one_line_and_130(capsys, monkeypatch):
     assert rc == 130 and err == "ahrsgen: interrupted\n" and out == ""
 
 
+@pytest.mark.parametrize("how", ["raised", "returned"])
+def test_an_error_caused_by_the_same_ctrl_c_is_the_interruption(capsys, monkeypatch, how):
+    """A terminal's Ctrl-C reaches the whole process group: a compiler or a lock the command
+    waits on can fail from it and surface as an ordinary error (exit 2) before the
+    KeyboardInterrupt. When SIGINT was seen during the command, that is still one line and 130
+    (CI saw `tune` end with 2 that way); the same error without a Ctrl-C stays exit 2."""
+    from ahrsgen.errors import ConfigError
+
+    def failing(args, interrupted=True):
+        cli._INTERRUPTED[0] = interrupted
+        if how == "raised":
+            raise ConfigError("compiling failed: cc killed by signal 2")
+        print("ahrsgen: error: compiling failed", file=sys.stderr)
+        return 2
+    monkeypatch.setattr(cli, "cmd_list", failing)
+    rc, out, err = _run(["list"], capsys)
+    assert rc == 130 and err.endswith("ahrsgen: interrupted\n"), err
+    monkeypatch.setattr(cli, "cmd_list", lambda args: failing(args, interrupted=False))
+    rc, out, err = _run(["list"], capsys)
+    assert rc == 2 and "interrupted" not in err
+
+
 def test_a_bad_folder_on_the_filter_path_does_not_break_list(tmp_path, capsys, monkeypatch):
     """A filter folder whose defaults.toml is not UTF-8, on AHRSGEN_FILTER_PATH: `list` still
     lists every other filter, names the bad one in one stderr line and exits 2; a command that

@@ -370,7 +370,26 @@ def _join_dash_values(argv: list[str]) -> list[str]:
     return out
 
 
+# Ctrl-C seen during this command. A terminal's Ctrl-C reaches the whole process group: a
+# compiler or a lock the command was waiting on can fail from the same signal and surface as an
+# ordinary error (exit 2) before, or instead of, the KeyboardInterrupt; the flag says which it was.
+_INTERRUPTED = [False]
+
+
+def _on_sigint(signum, frame):
+    _INTERRUPTED[0] = True
+    raise KeyboardInterrupt
+
+
 def main(argv=None) -> int:
+    import signal
+    import threading
+    _INTERRUPTED[0] = False
+    prev = None
+    if threading.current_thread() is threading.main_thread():
+        prev = signal.getsignal(signal.SIGINT)
+        if prev is signal.default_int_handler:        # (an ignored SIGINT stays ignored)
+            signal.signal(signal.SIGINT, _on_sigint)
     try:
         return _main(argv)
     except KeyboardInterrupt:        # Ctrl-C anywhere, also while the commands import
@@ -379,6 +398,9 @@ def main(argv=None) -> int:
     except BrokenPipeError:          # `ahrsgen list | head -1`: the reader has all it wanted
         _quiet_stdout()
         return 0
+    finally:
+        if prev is signal.default_int_handler:
+            signal.signal(signal.SIGINT, prev)
 
 
 def _user_filter_frame(exc: BaseException):
@@ -413,22 +435,32 @@ def _main(argv=None) -> int:
         return 2
     try:
         _filter_names(args)
-        return args.func(args)
-    except ConfigError as e:
+        rc = args.func(args)
+    except Exception as e:
+        if _INTERRUPTED[0]:          # an error the same Ctrl-C caused (a compiler, a lock): interrupted
+            raise KeyboardInterrupt from None
+        return _report(e)
+    if rc and _INTERRUPTED[0]:       # a failure the command reported itself, from the same Ctrl-C
+        raise KeyboardInterrupt
+    return rc
+
+
+def _report(e: Exception) -> int:
+    """Exit 2 and one line for an error the user can fix; anything else is raised again."""
+    if isinstance(e, ConfigError):
         print(f"ahrsgen: error: {e}", file=sys.stderr)
         return 2
-    except BrokenPipeError:
-        raise                        # a closed pipe is a normal end (main)
-    except OSError as e:             # a path the system refused: one line, not a traceback
+    if isinstance(e, BrokenPipeError):
+        raise e                      # a closed pipe is a normal end (main)
+    if isinstance(e, OSError):       # a path the system refused: one line, not a traceback
         where = f" {e.filename}" if e.filename else ""
         print(f"ahrsgen: error: cannot access{where}: {e.strerror or e}", file=sys.stderr)
         return 2
-    except Exception as e:           # an error in a user's filter folder: its file and line, one line
-        frame = _user_filter_frame(e)
-        if frame is None:
-            raise
-        print(f"ahrsgen: error: {frame.filename}:{frame.lineno}: {type(e).__name__}: {e}", file=sys.stderr)
-        return 2
+    frame = _user_filter_frame(e)    # an error in a user's filter folder: its file and line, one line
+    if frame is None:
+        raise e
+    print(f"ahrsgen: error: {frame.filename}:{frame.lineno}: {type(e).__name__}: {e}", file=sys.stderr)
+    return 2
 
 
 if __name__ == "__main__":
