@@ -29,6 +29,7 @@ from __future__ import annotations
 
 from ahrsgen.errors import LogError  # noqa: F401  (raised here; callers import it from here too)
 import codecs
+import contextlib
 import gzip
 import io
 import os
@@ -80,20 +81,27 @@ def broad_trials(data_dir: str | os.PathLike | None = None) -> list[Path]:
     return sorted(p for p in (d / "broad").iterdir() if p.name.endswith((".csv.gz", ".csv")))
 
 
-def _read_text(path: Path) -> str:
-    """The whole file as text; gzip when the name ends in .gz. Damaged files are a LogError."""
+@contextlib.contextmanager
+def _gzip_errors(path: Path):
+    """Damaged gzip data read inside the block: one LogError naming the file."""
     try:
-        if str(path).endswith(".gz"):
-            with gzip.open(path, "rb") as f:
-                raw = f.read()
-        else:
-            raw = path.read_bytes()
+        yield
     except gzip.BadGzipFile:
         raise LogError(f"{path}: not a gzip file (the name ends in .gz)") from None
     except EOFError:
         raise LogError(f"{path}: truncated gzip file (it ends before the end-of-stream marker)") from None
     except zlib.error as e:
         raise LogError(f"{path}: damaged gzip data ({e})") from None
+
+
+def _read_text(path: Path) -> str:
+    """The whole file as text; gzip when the name ends in .gz. Damaged files are a LogError."""
+    with _gzip_errors(path):
+        if str(path).endswith(".gz"):
+            with gzip.open(path, "rb") as f:
+                raw = f.read()
+        else:
+            raw = path.read_bytes()
     try:
         return raw.decode("utf-8-sig")     # a byte-order mark (Excel's "CSV UTF-8") is not a column
     except UnicodeDecodeError as e:
@@ -370,7 +378,7 @@ class CsvChunks:
         that is not UTF-8: LogError as read_csv says it."""
         path = self.path
         gz = str(path).endswith(".gz")
-        try:
+        with _gzip_errors(path):
             with open(path, "rb") as raw:
                 f = gzip.GzipFile(fileobj=raw, mode="rb") if gz else raw
                 pos, header = 0, None
@@ -403,12 +411,6 @@ class CsvChunks:
                         else:
                             continue
                     yield header, block, start
-        except gzip.BadGzipFile:
-            raise LogError(f"{path}: not a gzip file (the name ends in .gz)") from None
-        except EOFError:
-            raise LogError(f"{path}: truncated gzip file (it ends before the end-of-stream marker)") from None
-        except zlib.error as e:
-            raise LogError(f"{path}: damaged gzip data ({e})") from None
 
     def _parse(self, block: bytes, first_line: int) -> np.ndarray:
         """The block's rows as an (n, columns) array: pyarrow where it reads them all, else (and

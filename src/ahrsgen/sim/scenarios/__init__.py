@@ -3,6 +3,7 @@
 Each module `src/ahrsgen/sim/scenarios/<name>.py` defines
 
     DESCRIPTION: str                      # one line for `ahrsgen list` / reports
+    MAX_DURATION_S: float                 # only without a `duration` option: the longest log it makes
     def make(seed: int = 0, **options) -> SensorLog
 
 and is deterministic for a given seed and options. `names()` finds them; `make(name, seed,
@@ -96,6 +97,8 @@ def parse_options(name: str | None, items: list[str]) -> dict:
             raise ConfigError(f"{where}: {key} must be a finite number {'> 0' if key in _POSITIVE else '>= 0'}")
         out[key] = v
     rate, duration = out.get("rate_hz", known.get("rate_hz")), out.get("duration", known.get("duration"))
+    if duration is None and name is not None:      # a scenario whose length follows from its motion
+        duration = getattr(module(name), "MAX_DURATION_S", None)
     if "rate_hz" in out and rate < MIN_RATE_HZ:
         raise ConfigError(f"--scenario-opt rate_hz={rate:g}: the IMU rate must be at least {MIN_RATE_HZ:g} Hz")
     if isinstance(rate, (int, float)) and isinstance(duration, (int, float)) and rate * duration > MAX_STEPS:

@@ -38,6 +38,7 @@ FIELD_UT = 50.0
 REST = 5.0
 AFTER = 12.0
 RECOVER = 3.0
+MAX_DURATION_S = 600.0   # the longest log make() writes (a later flip_time, a slower flip: refused)
 
 
 def flip_length(range_rad_s: float, clip_s: float, axis_x: float) -> float:
@@ -91,6 +92,9 @@ def make(seed: int = 0, *, rate_hz: float = 200.0, gyro_range_deg_s: float = 500
     period = 1.0 / rate_hz
     clip_end = tf + 0.5 * (T + clip_s)
     duration = tf + T + AFTER
+    if duration > MAX_DURATION_S:
+        raise ValueError(f"the flip ends at {tf + T:.4g} s (flip_time and a {T:.3g} s flip): the log would be "
+                         f"{duration:.4g} s long, at most {MAX_DURATION_S:g}")
     tr = truth(duration, period, _sim.rng(seed, _sim._S_SCENARIO + 5), tf, T, axis)
     rb = _sim.rng(seed, _sim._S_GYRO_BIAS)
     bias = rb.uniform(0.1, 0.3, 3) * rb.choice([-1.0, 1.0], 3) * DEG
