@@ -16,6 +16,7 @@ from ahrsgen.npquat import qconj, qmul
 from ahrsgen.sim import host
 from ahrsgen.sim.metrics import max_angle_diff_rad
 from ahrsgen.sim.scenarios import make
+from docs_tables import min_max_rows
 
 RANGE = f"gyro_full_scale={float(np.radians(500.0))!r}"      # the scenario's gyro: +-500 deg/s
 
@@ -92,21 +93,6 @@ def test_the_log_states_its_gyro_range_as_a_user_sets_it():
     assert "gyro_full_scale" not in site_values("cpf", meta)[0]
 
 
-def _docs_table() -> dict:
-    """docs/scenarios.md's gyro_clip table: estimator -> (min, max) in degrees."""
-    from pathlib import Path
-    text = (Path(__file__).resolve().parents[1] / "docs" / "scenarios.md").read_text()
-    text = text[text.index("Largest attitude error from 3 s after the clip"):]
-    rows = {}
-    for ln in text.splitlines():
-        cells = [c.strip() for c in ln.strip().strip("|").split("|")]
-        if len(cells) == 3 and cells[1].replace(".", "").isdigit():
-            rows[cells[0]] = (float(cells[1]), float(cells[2]))
-        elif rows and not ln.startswith("|"):
-            break
-    return rows
-
-
 def test_docs_table_of_gyro_clip_holds():
     """Every row of docs/scenarios.md's gyro_clip table, re-measured (seeds 0-4, to its 0.01 deg)."""
     from ahrsgen.sim import peers
@@ -115,7 +101,7 @@ def test_docs_table_of_gyro_clip_holds():
     for name in FILTERS:
         runs[name] = build(name, sets=[f"gyro_full_scale={fs!r}"]).run
         runs[f"{name}, gyro_full_scale = 0"] = build(name, sets=["gyro_full_scale=0"]).run
-    stated = _docs_table()
+    stated = min_max_rows("scenarios.md", "Largest attitude error from 3 s after the clip")
     assert set(stated) == set(runs) | {"vqf", "fusion (defaults)", "fusion, gyroscope_range = 500", "mahony"}
     peer = {"vqf": ("vqf", {}), "fusion (defaults)": ("fusion", {}),
             "fusion, gyroscope_range = 500": ("fusion", {"gyroscope_range": 500.0}), "mahony": ("mahony", {})}

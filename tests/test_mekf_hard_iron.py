@@ -18,6 +18,8 @@ from ahrsgen.filters.mekf import model as M
 from ahrsgen.npquat import q_from_euler, rotmat
 from pathlib import Path
 
+from docs_tables import min_max_rows
+
 EXCERPT = Path(__file__).resolve().parents[1] / "src/ahrsgen/sim/data/broad_01_excerpt.csv.gz"
 
 
@@ -49,6 +51,24 @@ def test_attached_magnet_heading_within_3_deg_and_the_hard_iron_found():
         assert np.linalg.norm(b - mg["offset_body"]) <= 3 * th * 50.0, (seed, b, mg["offset_body"])
         if seed < 2:
             assert scored_heading_rms(f_off.run(log).q, log) > 10.0, seed
+
+
+@pytest.mark.slow
+def test_docs_table_of_attached_magnet_holds():
+    """Every row of docs/scenarios.md's attached_magnet table, re-measured (seeds 0-4, to its
+    0.01 deg): heading RMS from settle_time."""
+    from ahrsgen.sim import peers
+    runs = {"mekf": build().run, "mekf, mag_bias = false": build(sets=["mag_bias=false"]).run,
+            "qcf": host.build(config.resolve("qcf")).run, "adukf": host.build(config.resolve("adukf")).run}
+    stated = min_max_rows("scenarios.md", "Heading RMS from `settle_time` to the end")
+    assert set(stated) == set(runs) | {"vqf", "fusion"}
+    rms = {k: [] for k in stated}
+    for seed in range(5):
+        log = make("attached_magnet", seed)
+        for k in stated:
+            rms[k].append(scored_heading_rms(runs[k](log).q if k in runs else peers.run(k, log), log))
+    for k, (lo, hi) in stated.items():
+        assert (round(min(rms[k]), 2), round(max(rms[k]), 2)) == (lo, hi), k
 
 
 def test_no_switch_without_a_magnet():

@@ -45,7 +45,8 @@ def scenario_configs(quick: bool) -> list[tuple[str, str, dict]]:
                 ("static_accel_disturbance", "static_accel_disturbance", {}),
                 ("static_mag_disturbance", "static_mag_disturbance", {}),
                 ("turntable", "turntable", {}),
-                ("gyro_clip", "gyro_clip", {})]
+                ("gyro_clip", "gyro_clip", {}),
+                ("attached_magnet", "attached_magnet", {})]
     return [g for g in grid if g[1] in known]
 
 
