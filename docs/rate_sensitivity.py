@@ -40,20 +40,9 @@ def variant(log: SensorLog, kind: str) -> SensorLog:
     if kind == "as recorded":
         return log
     if kind == "IMU / 3":
-        # a 95 Hz IMU that integrates: each kept row k carries the mean gyro and accelerometer of
-        # rows k-2..k (the rate over its own interval, as a delta-angle IMU reports it), the
-        # magnetometer and reference at row k
-        n = len(log) // 3 * 3
-        idx = np.arange(2, n, 3)
-        t = log.t[idx]
-        dt = np.empty(len(idx))
-        dt[1:] = np.diff(t)
-        dt[0] = dt[1]
-        gyro = log.gyro[:n].reshape(-1, 3, 3).mean(axis=1)
-        accel = log.accel[:n].reshape(-1, 3, 3).mean(axis=1)
-        meta = {**log.meta, "movement": np.asarray(log.meta["movement"])[idx]}
-        return SensorLog(log.name, t, dt, gyro, accel, log.mag[idx], log.gps_vel[idx],
-                         log.valid[idx].copy(), log.q_true[idx], meta)
+        # a 95 Hz IMU that integrates: each kept row carries the mean gyro and accelerometer of its
+        # three rows (SensorLog.averaged)
+        return log.averaged(3)
     valid = log.valid.copy()
     valid[np.arange(len(log)) % 3 != 0] &= ~np.uint32(VALID_MAG)
     return SensorLog(log.name, log.t, log.dt, log.gyro, log.accel, log.mag, log.gps_vel, valid, log.q_true,

@@ -84,6 +84,20 @@ def test_no_switch_without_a_magnet():
     assert not np.any(f.run(real).status & R.HARD_IRON_SWITCHED)
 
 
+def test_a_hard_iron_smaller_than_mag_bias_jump_is_not_taken():
+    """A magnet of 0.12 of the field (the size of the spurious hard irons BROAD's phone-vibration
+    trial shows without a magnet) is left to the field check; one of 0.3 (the smallest the issue
+    asks to catch) is taken, seeds 0-2."""
+    f = build()
+    for seed in range(3):
+        small = f.run(make("attached_magnet", seed, strength=0.12))
+        assert not np.any(small.status & R.HARD_IRON_SWITCHED), seed
+        log = make("attached_magnet", seed, strength=0.3)
+        r = f.run(log)
+        assert np.any(r.status & R.HARD_IRON_SWITCHED), seed
+        assert scored_heading_rms(r.q, log) <= 3.0, seed
+
+
 def test_hard_iron_held_while_not_turning():
     """A magnet attached while the sensor is at rest (before the rotation starts at 10 s) and
     the rotation then stopped for good: no switch while not turning; the candidate learns only
@@ -99,12 +113,13 @@ def test_hard_iron_held_while_not_turning():
 @pytest.mark.slow
 def test_double_c_matches_reference_through_a_switch():
     """Double C = the NumPy reference at every step (status, attitude <= 1e-9 rad) on a log with
-    a hard-iron switch."""
-    log = make("attached_magnet", 4, duration=100.0, attach_time=30.0)
+    a hard-iron switch and a second one that refines it (smaller than mag_bias_jump: allowed
+    once the present hard iron is a magnet's)."""
+    log = make("attached_magnet", 8, duration=70.0)
     r = build("double").run(log)
     cfg = config.resolve("mekf")
     rr = host.run_reference(cfg.spec.reference(cfg.params), log)
-    assert np.any(r.status & R.HARD_IRON_SWITCHED)
+    assert np.count_nonzero(r.status & R.HARD_IRON_SWITCHED) >= 2
     assert np.array_equal(r.status, rr.status)
     assert max_angle_diff_rad(r.q, rr.q) <= 1e-9
 

@@ -317,3 +317,27 @@ def test_gyro_clip_truth_and_clip():
     assert abs(np.count_nonzero(at) * log.dt[1] - 0.3) <= 0.02
     lost = np.degrees(max_angle_diff_rad(_integrate(log)[-1:], log.q_true[-1:]))
     assert 10.0 < lost and abs(lost - log.meta["clip"]["rotation_lost_deg"]) < 0.05 * lost
+
+
+def test_averaged_log_is_the_slower_integrating_imu():
+    """SensorLog.averaged(k): every k rows one at the last row's time, the mean gyro and
+    accelerometer of the k rows; on a noise-free flight the averaged gyro still carries the
+    attitude (integrated exactly, it follows the truth to a small second-order error), a gyro
+    sample missing in a group makes the averaged row's gyro invalid, and per-row meta arrays
+    are thinned alike."""
+    log = scenarios.make("attached_magnet", 0, noise=False, duration=30.0)
+    log.meta["movement"] = np.arange(len(log)) % 2 == 0
+    slow = log.averaged(3)
+    n = len(log) // 3
+    assert len(slow) == n
+    assert np.array_equal(slow.t, log.t[2:3 * n:3])
+    assert np.allclose(slow.dt[1:], 3 * log.dt[1], rtol=1e-9)
+    assert np.allclose(slow.gyro[5], log.gyro[15:18].mean(axis=0), rtol=0, atol=1e-15)
+    assert np.array_equal(slow.mag, log.mag[2:3 * n:3]) and np.array_equal(slow.q_true, log.q_true[2:3 * n:3])
+    assert np.array_equal(slow.meta["movement"], log.meta["movement"][2:3 * n:3])
+    assert integrate_exact(slow) < np.radians(0.05)
+    log.valid[16] &= ~np.uint32(VALID_GYRO)
+    v = log.averaged(3).valid
+    assert not v[5] & VALID_GYRO and v[4] & VALID_GYRO and v[5] & VALID_ACCEL
+    with pytest.raises(ValueError):
+        log.averaged(0)

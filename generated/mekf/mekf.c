@@ -3209,7 +3209,8 @@ static bool mekf_field_off(const float feat[2], const float ref[2], float norm_t
  * - it explains the field: RMS of its residuals, low-passed over 0.2 s, below mag_bias_th;
  * - it does so 4x better in mean square than the present hard iron does even
  *   with a re-fitted reference (the present residuals less their mean);
- * - it differs from the present hard iron by at least mag_norm_th of the field;
+ * - it differs from the present hard iron by at least mag_bias_jump of the field, or by
+ *   mag_norm_th once the present hard iron is itself that large (a magnet found: refined);
  * - its hard iron is known to mag_bias_th (square root of its covariance's trace).
  * While the first three hold ("suspect") the magnetometer is not used for heading. `onset`: the
  * field check rejected the field this step after accepting it (a new disturbance): the
@@ -3250,14 +3251,19 @@ static void mekf_hard_iron(mekf_state *s, const float mag[3], const float gyro[3
         s->mag_turn_time = s->mag_turn_time + dt < 1000.0f ? s->mag_turn_time + dt : 1000.0f;
         const bool better = s->mag_turn_time >= MEKF_MAG_BIAS_SETTLE &&
             s->mag_e[2] > 4.0f * s->mag_e[1];
-        /* |candidate - present hard iron| >= mag_norm_th, in the field's units */
+        /* |candidate - present hard iron| >= mag_bias_jump (mag_norm_th when the present hard
+         * iron is at least mag_bias_jump), in the field's units */
         const float B = s->mag_ref[0];
         float db2 = 0.0f;
+        float b2 = 0.0f;
         for (uint32_t i = 0u; i < 3u; i++) {
             const float d = s->mag_cx[i] * B - s->mag_bias[i];
             db2 += d * d;
+            b2 += s->mag_bias[i] * s->mag_bias[i];
         }
-        const bool suspect = better && db2 >= MEKF_MAG_NORM_TH * MEKF_MAG_NORM_TH * B * B;
+        const float jump = b2 >= MEKF_MAG_BIAS_JUMP * MEKF_MAG_BIAS_JUMP * B * B ? MEKF_MAG_NORM_TH
+                                                                                : MEKF_MAG_BIAS_JUMP;
+        const bool suspect = better && db2 >= jump * jump * B * B;
         s->mag_suspect = suspect ? 1u : 0u;
         const float th2 = MEKF_MAG_BIAS_TH * MEKF_MAG_BIAS_TH;
         /* (a candidate norm below 0.1 of the reference is never taken) */

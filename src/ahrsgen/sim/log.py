@@ -74,3 +74,29 @@ class SensorLog:
         return SensorLog(self.name, self.t[sl], self.dt[sl], self.gyro[sl], self.accel[sl],
                          self.mag[sl], self.gps_vel[sl], self.valid[sl],
                          None if self.q_true is None else self.q_true[sl], dict(self.meta))
+
+    def averaged(self, k: int) -> "SensorLog":
+        """The log an IMU running k times slower records, as an integrating IMU reports it: every
+        k rows become one at the time of the last, carrying the mean gyro and accelerometer of
+        the k rows (the rate over its own interval); the magnetometer, GPS and truth are that
+        row's, the gyro and accelerometer valid only if they were on all k rows. Rows after the
+        last whole group are dropped; meta arrays of one entry per row are thinned alike."""
+        k = int(k)
+        if k < 1:
+            raise ValueError(f"averaged: k must be a positive integer, got {k}")
+        n = len(self) // k * k
+        idx = np.arange(k - 1, n, k)
+        t = self.t[idx]
+        dt = np.empty(len(idx))
+        dt[1:] = np.diff(t)
+        dt[:1] = self.dt[0] * k
+        valid = self.valid[idx].copy()
+        for bit in (VALID_GYRO, VALID_ACCEL):
+            every = np.all((self.valid[:n].reshape(-1, k) & np.uint32(bit)) != 0, axis=1)
+            valid[~every] &= ~np.uint32(bit)
+        meta = {key: (np.asarray(v)[idx] if isinstance(v, np.ndarray) and v.shape[:1] == (len(self),) else v)
+                for key, v in self.meta.items()}
+        return SensorLog(self.name, t, dt, self.gyro[:n].reshape(-1, k, 3).mean(axis=1),
+                         self.accel[:n].reshape(-1, k, 3).mean(axis=1), self.mag[idx], self.gps_vel[idx], valid,
+                         None if self.q_true is None else self.q_true[idx], meta)
+

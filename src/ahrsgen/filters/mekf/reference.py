@@ -189,7 +189,7 @@ class Reference:
             # while the sensor turns, in units of the reference norm: [β (3), n, v]
             self.mag_bias_on = bool(p["mag_bias"])
             for k in ("mag_bias_rw", "mag_bias_noise", "mag_bias_min_rate", "mag_bias_settle", "mag_bias_th",
-                      "mag_bias_max"):
+                      "mag_bias_max", "mag_bias_jump"):
                 setattr(self, k, float(p[k]))
             self.mag_bias = np.zeros(3)
             self.mag_cx = np.zeros(5)
@@ -636,7 +636,9 @@ class Reference:
         self.mag_turn_time = min(self.mag_turn_time + dt, AGE_MAX)
         better = self.mag_turn_time >= self.mag_bias_settle and self.mag_e[2] > MAG_BIAS_RATIO * self.mag_e[1]
         db = x[:3] - self.mag_bias / B
-        self.mag_suspect = better and db @ db >= self.mag_norm_th ** 2
+        b = self.mag_bias / B
+        jump = self.mag_norm_th if b @ b >= self.mag_bias_jump ** 2 else self.mag_bias_jump   # a magnet found: refined
+        self.mag_suspect = better and db @ db >= jump ** 2
         if not (self.mag_suspect and self.mag_e[1] < self.mag_bias_th ** 2
                 and np.trace(P[:3, :3]) < self.mag_bias_th ** 2 and x[3] > MAG_N_MIN):
             return False
