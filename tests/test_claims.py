@@ -130,7 +130,9 @@ def _exact_reciprocal(c) -> bool:
 
 
 def casadi_counts(fn: ca.Function) -> dict[str, int]:
-    """div, sqrt, trig and mul-like counts from CasADi's instruction list (no emitter involved)."""
+    """div, sqrt, trig and mul-like counts from CasADi's instruction list (no emitter involved).
+    Quotients by one computed denominator count as one division and a product each, as a
+    hand-writer (and the emitter) writes them: r = 1 / d, x * r."""
     div = {ca.OP_DIV, ca.OP_INV}
     sqrt = {ca.OP_SQRT, ca.OP_HYPOT}
     trig = {ca.OP_SIN, ca.OP_COS, ca.OP_TAN, ca.OP_ASIN, ca.OP_ACOS, ca.OP_ATAN, ca.OP_ATAN2, ca.OP_EXP,
@@ -139,8 +141,12 @@ def casadi_counts(fn: ca.Function) -> dict[str, int]:
     mul = {ca.OP_MUL, ca.OP_SQ}
     out = {"div": 0, "sqrt": 0, "trig": 0, "mul": 0}
     const = {}                         # work index -> constant it holds now (the work vector is reused)
+    value = {}                         # work index -> the value it holds now: (instruction) or (input, nz)
+    per_den: dict = {}                 # computed denominator value -> quotients by it
     for k in range(fn.n_instructions()):
         code = fn.instruction_id(k)
+        if code == ca.OP_DIV and fn.instruction_input(k)[1] not in const:
+            per_den[value[fn.instruction_input(k)[1]]] = per_den.get(value[fn.instruction_input(k)[1]], 0) + 1
         if code == ca.OP_CONSTPOW:
             # x^c with a constant exponent: 2 -> x*x, 3 -> x*x*x, 0.5 -> sqrt, -1 -> 1/x, else pow
             expo = const.get(fn.instruction_input(k)[1])
@@ -148,6 +154,8 @@ def casadi_counts(fn: ca.Function) -> dict[str, int]:
             out[cat] += n
         elif code == ca.OP_DIV and _exact_reciprocal(const.get(fn.instruction_input(k)[1])):
             out["mul"] += 1            # x / 2^k is written x * 2^-k (the same value, a multiplication)
+        elif code == ca.OP_DIV and fn.instruction_input(k)[1] not in const:
+            pass                       # by a computed denominator: counted below, per denominator
         elif code in div:
             out["div"] += 1
         elif code in sqrt:
@@ -158,9 +166,16 @@ def casadi_counts(fn: ca.Function) -> dict[str, int]:
             out["mul"] += 1
         if code == ca.OP_CONST:
             const[fn.instruction_output(k)[0]] = fn.instruction_constant(k)
+            value.pop(fn.instruction_output(k)[0], None)
         elif code != ca.OP_OUTPUT:
             for w in fn.instruction_output(k):
                 const.pop(w, None)
+                value[w] = (value[fn.instruction_input(k)[0]] if code == ca.OP_ASSIGN else
+                            ("in",) + tuple(fn.instruction_input(k)) if code == ca.OP_INPUT else ("op", k))
+    # quotients by one computed denominator share one reciprocal: 1 / d once, then x * (1 / d)
+    for n in per_den.values():
+        out["div"] += 1
+        out["mul"] += n if n >= 2 else 0
     return out
 
 

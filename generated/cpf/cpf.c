@@ -214,7 +214,7 @@ static inline void cpf_k_from_euler(const float rpy[3], float q[4])
 }
 
 /* gyro prediction by eq. 11, normalised
- * ops: add 15, mul 21, div 4, sqrt 1 (total 41) */
+ * ops: add 15, mul 25, div 1, sqrt 1 (total 42) */
 static void cpf_k_predict_part0(const float q[4], const float gyro[3], float dt, float carry[5])
 {
     const float tmp0 = 0.5f * dt;
@@ -254,11 +254,11 @@ static void cpf_k_predict_part0(const float q[4], const float gyro[3], float dt,
     const float tmp34 = tmp33 * tmp33;
     const float tmp35 = tmp26 + tmp34;
     const float tmp36 = sqrtf(tmp35);
-    const float tmp37 = tmp7 / tmp36;
-    const float tmp38 = tmp15 / tmp36;
-    const float tmp39 = tmp24 / tmp36;
-    carry[0] = tmp33;
-    carry[1] = tmp36;
+    const float tmp37 = 1.0f / tmp36;
+    const float tmp38 = tmp7 * tmp37;
+    const float tmp39 = tmp15 * tmp37;
+    carry[0] = tmp24;
+    carry[1] = tmp33;
     carry[2] = tmp37;
     carry[3] = tmp38;
     carry[4] = tmp39;
@@ -266,8 +266,10 @@ static void cpf_k_predict_part0(const float q[4], const float gyro[3], float dt,
 
 static void cpf_k_predict_part1(float carry[5])
 {
-    const float tmp40 = carry[0] / carry[1];
+    const float tmp40 = carry[0] * carry[2];
+    const float tmp41 = carry[1] * carry[2];
     carry[0] = tmp40;
+    carry[1] = tmp41;
 }
 
 static void cpf_k_predict(const float q[4], const float gyro[3], float dt, float q_new[4])
@@ -276,10 +278,10 @@ static void cpf_k_predict(const float q[4], const float gyro[3], float dt, float
     float carry[5];
     cpf_k_predict_part0(q, gyro, dt, carry);
     cpf_k_predict_part1(carry);
-    q_new[0] = carry[2];
-    q_new[1] = carry[3];
-    q_new[2] = carry[4];
-    q_new[3] = carry[0];
+    q_new[0] = carry[3];
+    q_new[1] = carry[4];
+    q_new[2] = carry[0];
+    q_new[3] = carry[1];
 }
 
 /* complementary mix of gyro and accel/mag angles through wrapped differences (eqs. 7-8)
@@ -380,7 +382,7 @@ static void cpf_k_cf_mix(const float rpy[3], const float am[3], float dt, float 
 }
 
 /* initial particle: the first attitude plus quaternion noise, normalised
- * ops: add 7, mul 8, div 4, sqrt 1 (total 20) */
+ * ops: add 7, mul 12, div 1, sqrt 1 (total 21) */
 static inline void cpf_k_init_particle(const float q[4], const float noise[4], float x[4])
 {
     const float tmp0 = 0.025f /* 0.5*init_spread */ * noise[0];
@@ -399,14 +401,15 @@ static inline void cpf_k_init_particle(const float q[4], const float noise[4], f
     const float tmp13 = tmp12 * tmp12;
     const float tmp14 = tmp10 + tmp13;
     const float tmp15 = sqrtf(tmp14);
-    const float tmp16 = tmp1 / tmp15;
-    const float tmp17 = tmp4 / tmp15;
-    const float tmp18 = tmp8 / tmp15;
-    const float tmp19 = tmp12 / tmp15;
-    x[0] = tmp16;
-    x[1] = tmp17;
-    x[2] = tmp18;
-    x[3] = tmp19;
+    const float tmp16 = 1.0f / tmp15;
+    const float tmp17 = tmp1 * tmp16;
+    const float tmp18 = tmp4 * tmp16;
+    const float tmp19 = tmp8 * tmp16;
+    const float tmp20 = tmp12 * tmp16;
+    x[0] = tmp17;
+    x[1] = tmp18;
+    x[2] = tmp19;
+    x[3] = tmp20;
 }
 
 /* once per step for every particle: half the rotation increment (dt/2 gyro, eq. 11) and the process-noise std (eq. 9)
@@ -507,7 +510,7 @@ static inline void cpf_k_accumulate(const float acc[4], float w, const float x[4
 }
 
 /* normalised quaternion
- * ops: add 3, mul 4, div 4, sqrt 1 (total 12) */
+ * ops: add 3, mul 8, div 1, sqrt 1 (total 13) */
 static inline void cpf_k_normalize(const float acc[4], float q[4])
 {
     const float tmp0 = acc[0] * acc[0];
@@ -518,14 +521,15 @@ static inline void cpf_k_normalize(const float acc[4], float q[4])
     const float tmp5 = acc[3] * acc[3];
     const float tmp6 = tmp4 + tmp5;
     const float tmp7 = sqrtf(tmp6);
-    const float tmp8 = acc[0] / tmp7;
-    const float tmp9 = acc[1] / tmp7;
-    const float tmp10 = acc[2] / tmp7;
-    const float tmp11 = acc[3] / tmp7;
-    q[0] = tmp8;
-    q[1] = tmp9;
-    q[2] = tmp10;
-    q[3] = tmp11;
+    const float tmp8 = 1.0f / tmp7;
+    const float tmp9 = acc[0] * tmp8;
+    const float tmp10 = acc[1] * tmp8;
+    const float tmp11 = acc[2] * tmp8;
+    const float tmp12 = acc[3] * tmp8;
+    q[0] = tmp9;
+    q[1] = tmp10;
+    q[2] = tmp11;
+    q[3] = tmp12;
 }
 
 /* Z-Y-X Euler angles [roll, pitch, yaw] of a unit body->NED quaternion

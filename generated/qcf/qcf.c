@@ -118,7 +118,7 @@ static inline void qcf_k_gyro_recovery(const float gyro[3], float recover_time, 
 }
 
 /* prediction: the gyro integrated with the bias removed, before the step's sensors are compared with the attitude (so they meet the attitude of their own step)
- * ops: add 25, mul 35, div 5, sqrt 2, trig 2, cmp 5 (total 74)
+ * ops: add 25, mul 39, div 2, sqrt 2, trig 2, cmp 5 (total 75)
  *      of which only one side runs: if (tmp11 < 0.01f) 10, else 8 */
 static void qcf_k_predict_part0(const float q[4], const float gyro_bias[3], const float gyro[3], float dt, float carry[6])
 {
@@ -214,14 +214,15 @@ static void qcf_k_predict_part1(const float q[4], float carry[6])
     const float tmp67 = tmp66 * tmp66;
     const float tmp68 = tmp59 + tmp67;
     const float tmp69 = sqrtf(tmp68);
-    const float tmp70 = tmp40 / tmp69;
-    const float tmp71 = tmp48 / tmp69;
-    const float tmp72 = tmp57 / tmp69;
-    const float tmp73 = tmp66 / tmp69;
-    carry[0] = tmp70;
-    carry[1] = tmp71;
-    carry[2] = tmp72;
-    carry[3] = tmp73;
+    const float tmp70 = 1.0f / tmp69;
+    const float tmp71 = tmp40 * tmp70;
+    const float tmp72 = tmp48 * tmp70;
+    const float tmp73 = tmp57 * tmp70;
+    const float tmp74 = tmp66 * tmp70;
+    carry[0] = tmp71;
+    carry[1] = tmp72;
+    carry[2] = tmp73;
+    carry[3] = tmp74;
 }
 
 static void qcf_k_predict(const float q[4], const float gyro_bias[3], const float gyro[3], float dt, float q_new[4])
@@ -261,8 +262,8 @@ static inline void qcf_k_mag_ned(const float rot[9], const float mag[3], float m
 }
 
 /* first attitude: the shortest rotation taking the accelerometer's down to NED down (heading_init then sets the heading); the low-pass starts at R(q) f = [0, 0, -|f|]
- * ops: add 6, mul 5, div 3, sqrt 2, cmp 3 (total 19)
- *      of which only one side runs: if (tmp6 < tmp7) 0, else 7 */
+ * ops: add 6, mul 8, div 1, sqrt 2, cmp 3 (total 20)
+ *      of which only one side runs: if (tmp6 < tmp7) 0, else 8 */
 static inline void qcf_k_init_attitude(const float accel[3], float q[4], float accel_lp[3])
 {
     const float tmp0 = accel[0] * accel[0];
@@ -284,28 +285,28 @@ static inline void qcf_k_init_attitude(const float accel[3], float q[4], float a
         const float tmp11 = tmp5 + tmp5;
         const float tmp12 = tmp11 * tmp6;
         const float tmp13 = sqrtf(tmp12);
-        const float tmp14 = tmp6 / tmp13;
-        const float tmp15 = accel[1] / tmp13;
-        const float tmp16 = -tmp15;
-        const float tmp17 = accel[0] / tmp13;
-        tmp8 = tmp14;
-        tmp9 = tmp16;
-        tmp10 = tmp17;
+        const float tmp14 = 1.0f / tmp13;
+        const float tmp15 = tmp6 * tmp14;
+        const float tmp16 = accel[1] * tmp14;
+        const float tmp17 = -tmp16;
+        const float tmp18 = accel[0] * tmp14;
+        tmp8 = tmp15;
+        tmp9 = tmp17;
+        tmp10 = tmp18;
     }
-    const float tmp18 = -tmp5;
+    const float tmp19 = -tmp5;
     q[0] = tmp8;
     q[1] = tmp9;
     q[2] = tmp10;
     q[3] = 0.0f;
     accel_lp[0] = 0.0f;
     accel_lp[1] = 0.0f;
-    accel_lp[2] = tmp18;
+    accel_lp[2] = tmp19;
 }
 
 /* first magnetometer sample (with the first attitude or after it): heading set, tilt kept
- * ops: add 29, mul 26, div 4, sqrt 2, cmp 10 (total 71)
- *      of which only one side runs: if (tmp36 < 1e-15f) 0, else 21
- *      of which only one side runs: if (0.0f <= tmp17) 4, else 6 */
+ * ops: add 29, mul 30, div 1, sqrt 2, cmp 10 (total 72)
+ *      of which only one side runs: if (tmp36 < 1e-15f) 0, else 22 */
 static void qcf_k_heading_init_part0(const float q[4], const float mag[3], float carry[4])
 {
     const float tmp0 = q[2] * q[2];
@@ -364,52 +365,46 @@ static void qcf_k_heading_init_part1(const float q[4], float carry[4])
         tmp40 = 0.0f;
         tmp41 = 0.0f;
     } else {
-        const float tmp42 = carry[2] + carry[2];
-        const float tmp43 = fabsf(carry[0]);
-        const float tmp44 = carry[2] + tmp43;
-        const float tmp45 = tmp42 * tmp44;
-        const float tmp46 = sqrtf(tmp45);
-        float tmp47;
-        float tmp48;
-        if (0.0f <= carry[0]) {
-            const float tmp49 = carry[2] + carry[0];
-            const float tmp50 = tmp49 / tmp46;
-            const float tmp51 = carry[1] / tmp46;
-            const float tmp52 = -tmp51;
-            tmp47 = tmp50;
-            tmp48 = tmp52;
-        } else {
-            const float tmp53 = fabsf(carry[1]);
-            const float tmp54 = tmp53 / tmp46;
-            const float tmp55 = carry[0] - carry[2];
-            const float tmp56 = carry[2] - carry[0];
-            const float tmp57 = (0.0f < carry[1]) ? tmp55 : tmp56;
-            const float tmp58 = tmp57 / tmp46;
-            tmp47 = tmp54;
-            tmp48 = tmp58;
-        }
-        const float tmp59 = tmp48 * q[3];
-        const float tmp60 = tmp48 * q[2];
-        const float tmp61 = tmp48 * q[1];
-        const float tmp62 = tmp48 * q[0];
-        tmp37 = tmp47;
-        tmp38 = tmp59;
-        tmp39 = tmp60;
-        tmp40 = tmp61;
-        tmp41 = tmp62;
+        const float tmp42 = carry[2] + carry[0];
+        const float tmp43 = carry[2] + carry[2];
+        const float tmp44 = fabsf(carry[0]);
+        const float tmp45 = carry[2] + tmp44;
+        const float tmp46 = tmp43 * tmp45;
+        const float tmp47 = sqrtf(tmp46);
+        const float tmp48 = 1.0f / tmp47;
+        const float tmp49 = tmp42 * tmp48;
+        const float tmp50 = fabsf(carry[1]);
+        const float tmp51 = tmp50 * tmp48;
+        const float tmp52 = (0.0f <= carry[0]) ? tmp49 : tmp51;
+        const float tmp53 = carry[1] * tmp48;
+        const float tmp54 = -tmp53;
+        const float tmp55 = carry[0] - carry[2];
+        const float tmp56 = carry[2] - carry[0];
+        const float tmp57 = (0.0f < carry[1]) ? tmp55 : tmp56;
+        const float tmp58 = tmp57 * tmp48;
+        const float tmp59 = (0.0f <= carry[0]) ? tmp54 : tmp58;
+        const float tmp60 = tmp59 * q[3];
+        const float tmp61 = tmp59 * q[2];
+        const float tmp62 = tmp59 * q[1];
+        const float tmp63 = tmp59 * q[0];
+        tmp37 = tmp52;
+        tmp38 = tmp60;
+        tmp39 = tmp61;
+        tmp40 = tmp62;
+        tmp41 = tmp63;
     }
-    const float tmp63 = tmp37 * q[0];
-    const float tmp64 = tmp63 - tmp38;
-    const float tmp65 = tmp37 * q[1];
-    const float tmp66 = tmp65 - tmp39;
-    const float tmp67 = tmp37 * q[2];
-    const float tmp68 = tmp67 + tmp40;
-    const float tmp69 = tmp37 * q[3];
-    const float tmp70 = tmp69 + tmp41;
-    carry[0] = tmp64;
-    carry[1] = tmp66;
-    carry[2] = tmp68;
-    carry[3] = tmp70;
+    const float tmp64 = tmp37 * q[0];
+    const float tmp65 = tmp64 - tmp38;
+    const float tmp66 = tmp37 * q[1];
+    const float tmp67 = tmp66 - tmp39;
+    const float tmp68 = tmp37 * q[2];
+    const float tmp69 = tmp68 + tmp40;
+    const float tmp70 = tmp37 * q[3];
+    const float tmp71 = tmp70 + tmp41;
+    carry[0] = tmp65;
+    carry[1] = tmp67;
+    carry[2] = tmp69;
+    carry[3] = tmp71;
 }
 
 static void qcf_k_heading_init(const float q[4], const float mag[3], float q_new[4])
@@ -473,10 +468,9 @@ static inline void qcf_k_accel_lowpass(const float rot[9], const float accel[3],
 }
 
 /* tilt (low-passed accelerometer) and heading (magnetometer) corrections as PI feedback on the predicted attitude, bias integral gated, bias at rest from the low-passed gyro
- * ops: add 54, mul 64, div 11, sqrt 6, trig 2, cmp 28 (total 165)
- *      of which only one side runs: if (tmp40 < 1e-15f) 0, else 17
- *      of which only one side runs: if (0.0f <= tmp34) 2, else 4
- *      of which only one side runs: if (tmp76 < 0.01f) 10, else 8
+ * ops: add 54, mul 73, div 5, sqrt 6, trig 2, cmp 28 (total 168)
+ *      of which only one side runs: if (tmp41 < 1e-15f) 0, else 18
+ *      of which only one side runs: if (tmp78 < 0.01f) 10, else 8
  *      of which only one side runs: if (at_rest) 11, else 12 */
 static void qcf_k_correct_part0(const float rot[9], const float accel_lp[3], const float mag_ned[3], float span_accel, bool recover, float carry[11])
 {
@@ -493,237 +487,236 @@ static void qcf_k_correct_part0(const float rot[9], const float accel_lp[3], con
     const float tmp10 = tmp7 + tmp7;
     const float tmp11 = tmp10 * tmp8;
     const float tmp12 = sqrtf(tmp11);
-    const float tmp13 = accel_lp[1] / tmp12;
-    const float tmp14 = -tmp13;
-    const float tmp15 = (tmp8 < tmp9) ? 1.0f : tmp14;
-    const float tmp16 = tmp1 * tmp15;
-    const float tmp17 = rot[0] * tmp16;
-    const float tmp18 = accel_lp[0] / tmp12;
-    const float tmp19 = tmp1 * tmp18;
-    const float tmp20 = rot[1] * tmp19;
-    const float tmp21 = (tmp8 < tmp9) ? 0.0f : tmp20;
-    const float tmp22 = tmp17 + tmp21;
-    const float tmp23 = tmp18 * mag_ned[0];
-    const float tmp24 = (tmp8 < tmp9) ? 0.0f : tmp23;
-    const float tmp25 = tmp15 * mag_ned[1];
-    const float tmp26 = tmp24 - tmp25;
-    const float tmp27 = tmp8 / tmp12;
-    const float tmp28 = tmp27 * mag_ned[2];
-    const float tmp29 = (tmp8 < tmp9) ? 0.0f : tmp28;
-    const float tmp30 = tmp26 - tmp29;
-    const float tmp31 = tmp30 + tmp30;
-    const float tmp32 = tmp18 * tmp31;
-    const float tmp33 = (tmp8 < tmp9) ? 0.0f : tmp32;
-    const float tmp34 = mag_ned[0] - tmp33;
-    const float tmp35 = tmp34 * tmp34;
-    const float tmp36 = tmp15 * tmp31;
-    const float tmp37 = mag_ned[1] + tmp36;
-    const float tmp38 = tmp37 * tmp37;
-    const float tmp39 = tmp35 + tmp38;
+    const float tmp13 = 1.0f / tmp12;
+    const float tmp14 = accel_lp[1] * tmp13;
+    const float tmp15 = -tmp14;
+    const float tmp16 = (tmp8 < tmp9) ? 1.0f : tmp15;
+    const float tmp17 = tmp1 * tmp16;
+    const float tmp18 = rot[0] * tmp17;
+    const float tmp19 = accel_lp[0] * tmp13;
+    const float tmp20 = tmp1 * tmp19;
+    const float tmp21 = rot[1] * tmp20;
+    const float tmp22 = (tmp8 < tmp9) ? 0.0f : tmp21;
+    const float tmp23 = tmp18 + tmp22;
+    const float tmp24 = tmp19 * mag_ned[0];
+    const float tmp25 = (tmp8 < tmp9) ? 0.0f : tmp24;
+    const float tmp26 = tmp16 * mag_ned[1];
+    const float tmp27 = tmp25 - tmp26;
+    const float tmp28 = tmp8 * tmp13;
+    const float tmp29 = tmp28 * mag_ned[2];
+    const float tmp30 = (tmp8 < tmp9) ? 0.0f : tmp29;
+    const float tmp31 = tmp27 - tmp30;
+    const float tmp32 = tmp31 + tmp31;
+    const float tmp33 = tmp19 * tmp32;
+    const float tmp34 = (tmp8 < tmp9) ? 0.0f : tmp33;
+    const float tmp35 = mag_ned[0] - tmp34;
+    const float tmp36 = tmp35 * tmp35;
+    const float tmp37 = tmp16 * tmp32;
+    const float tmp38 = mag_ned[1] + tmp37;
+    const float tmp39 = tmp38 * tmp38;
     carry[0] = tmp0;
     carry[1] = tmp8;
     carry[2] = tmp9;
-    carry[3] = tmp16;
-    carry[4] = tmp19;
-    carry[5] = tmp22;
-    carry[6] = tmp34;
-    carry[7] = tmp37;
-    carry[8] = tmp39;
+    carry[3] = tmp17;
+    carry[4] = tmp20;
+    carry[5] = tmp23;
+    carry[6] = tmp35;
+    carry[7] = tmp36;
+    carry[8] = tmp38;
+    carry[9] = tmp39;
 }
 
 static void qcf_k_correct_part1(const float rot[9], float span_mag, float carry[11])
 {
-    const float tmp40 = sqrtf(carry[8]);
-    float tmp41;
+    const float tmp40 = carry[7] + carry[9];
+    const float tmp41 = sqrtf(tmp40);
     float tmp42;
     float tmp43;
-    if (tmp40 < 1e-15f) {
-        tmp41 = 0.0f;
+    float tmp44;
+    if (tmp41 < 1e-15f) {
         tmp42 = 0.0f;
         tmp43 = 0.0f;
+        tmp44 = 0.0f;
     } else {
-        const float tmp44 = carry[0] * span_mag;
-        const float tmp45 = tmp40 + tmp40;
-        const float tmp46 = fabsf(carry[6]);
-        const float tmp47 = tmp40 + tmp46;
-        const float tmp48 = tmp45 * tmp47;
-        const float tmp49 = sqrtf(tmp48);
-        float tmp50;
-        if (0.0f <= carry[6]) {
-            const float tmp51 = carry[7] / tmp49;
-            const float tmp52 = -tmp51;
-            tmp50 = tmp52;
-        } else {
-            const float tmp53 = carry[6] - tmp40;
-            const float tmp54 = tmp40 - carry[6];
-            const float tmp55 = (0.0f < carry[7]) ? tmp53 : tmp54;
-            const float tmp56 = tmp55 / tmp49;
-            tmp50 = tmp56;
-        }
-        const float tmp57 = tmp44 * tmp50;
-        const float tmp58 = rot[2] * tmp57;
-        const float tmp59 = rot[5] * tmp57;
-        const float tmp60 = rot[8] * tmp57;
-        tmp41 = tmp58;
-        tmp42 = tmp59;
-        tmp43 = tmp60;
+        const float tmp45 = carry[0] * span_mag;
+        const float tmp46 = tmp41 + tmp41;
+        const float tmp47 = fabsf(carry[6]);
+        const float tmp48 = tmp41 + tmp47;
+        const float tmp49 = tmp46 * tmp48;
+        const float tmp50 = sqrtf(tmp49);
+        const float tmp51 = 1.0f / tmp50;
+        const float tmp52 = carry[8] * tmp51;
+        const float tmp53 = -tmp52;
+        const float tmp54 = carry[6] - tmp41;
+        const float tmp55 = tmp41 - carry[6];
+        const float tmp56 = (0.0f < carry[8]) ? tmp54 : tmp55;
+        const float tmp57 = tmp56 * tmp51;
+        const float tmp58 = (0.0f <= carry[6]) ? tmp53 : tmp57;
+        const float tmp59 = tmp45 * tmp58;
+        const float tmp60 = rot[2] * tmp59;
+        const float tmp61 = rot[5] * tmp59;
+        const float tmp62 = rot[8] * tmp59;
+        tmp42 = tmp60;
+        tmp43 = tmp61;
+        tmp44 = tmp62;
     }
-    const float tmp61 = carry[5] + tmp41;
-    const float tmp62 = tmp61 * tmp61;
-    const float tmp63 = rot[3] * carry[3];
-    const float tmp64 = rot[4] * carry[4];
-    const float tmp65 = (carry[1] < carry[2]) ? 0.0f : tmp64;
-    const float tmp66 = tmp63 + tmp65;
-    const float tmp67 = tmp66 + tmp42;
-    const float tmp68 = tmp67 * tmp67;
-    const float tmp69 = tmp62 + tmp68;
-    const float tmp70 = rot[6] * carry[3];
-    const float tmp71 = rot[7] * carry[4];
-    const float tmp72 = (carry[1] < carry[2]) ? 0.0f : tmp71;
-    const float tmp73 = tmp70 + tmp72;
-    const float tmp74 = tmp73 + tmp43;
-    const float tmp75 = tmp74 * tmp74;
-    const float tmp76 = tmp69 + tmp75;
-    carry[0] = tmp61;
-    carry[1] = tmp67;
-    carry[2] = tmp74;
-    carry[3] = tmp76;
+    const float tmp63 = carry[5] + tmp42;
+    const float tmp64 = tmp63 * tmp63;
+    const float tmp65 = rot[3] * carry[3];
+    const float tmp66 = rot[4] * carry[4];
+    const float tmp67 = (carry[1] < carry[2]) ? 0.0f : tmp66;
+    const float tmp68 = tmp65 + tmp67;
+    const float tmp69 = tmp68 + tmp43;
+    const float tmp70 = tmp69 * tmp69;
+    const float tmp71 = tmp64 + tmp70;
+    const float tmp72 = rot[6] * carry[3];
+    const float tmp73 = rot[7] * carry[4];
+    const float tmp74 = (carry[1] < carry[2]) ? 0.0f : tmp73;
+    const float tmp75 = tmp72 + tmp74;
+    const float tmp76 = tmp75 + tmp44;
+    const float tmp77 = tmp76 * tmp76;
+    const float tmp78 = tmp71 + tmp77;
+    carry[0] = tmp63;
+    carry[1] = tmp69;
+    carry[2] = tmp76;
+    carry[3] = tmp78;
 }
 
 static void qcf_k_correct_part2(const float q[4], float carry[11])
 {
-    float tmp77;
-    float tmp78;
     float tmp79;
     float tmp80;
+    float tmp81;
+    float tmp82;
     if (carry[3] < 0.01f) {
-        const float tmp81 = (-2.1377798e-05f) * carry[3];
-        const float tmp82 = (-0.00021164022f) + tmp81;
-        const float tmp83 = carry[3] * tmp82;
-        const float tmp84 = (-0.0021164021f) + tmp83;
+        const float tmp83 = (-2.1377798e-05f) * carry[3];
+        const float tmp84 = (-0.00021164022f) + tmp83;
         const float tmp85 = carry[3] * tmp84;
-        const float tmp86 = (-0.022222223f) + tmp85;
+        const float tmp86 = (-0.0021164021f) + tmp85;
         const float tmp87 = carry[3] * tmp86;
-        const float tmp88 = (-0.33333334f) + tmp87;
+        const float tmp88 = (-0.022222223f) + tmp87;
         const float tmp89 = carry[3] * tmp88;
-        const float tmp90 = 1.0f + tmp89;
-        tmp77 = tmp90;
-        tmp78 = carry[0];
-        tmp79 = carry[1];
-        tmp80 = carry[2];
+        const float tmp90 = (-0.33333334f) + tmp89;
+        const float tmp91 = carry[3] * tmp90;
+        const float tmp92 = 1.0f + tmp91;
+        tmp79 = tmp92;
+        tmp80 = carry[0];
+        tmp81 = carry[1];
+        tmp82 = carry[2];
     } else {
-        const float tmp91 = (carry[3] > 0.01f) ? carry[3] : 0.01f;
-        const float tmp92 = sqrtf(tmp91);
-        float tmp94;
-        float tmp93;
-        fast_sincosf(tmp92, &tmp94, &tmp93);   /* sin and cos, one reduction */
-        const float tmp95 = tmp94 / tmp92;
-        const float tmp96 = tmp95 * carry[0];
-        const float tmp97 = tmp95 * carry[1];
-        const float tmp98 = tmp95 * carry[2];
-        tmp77 = tmp93;
-        tmp78 = tmp96;
-        tmp79 = tmp97;
+        const float tmp93 = (carry[3] > 0.01f) ? carry[3] : 0.01f;
+        const float tmp94 = sqrtf(tmp93);
+        float tmp96;
+        float tmp95;
+        fast_sincosf(tmp94, &tmp96, &tmp95);   /* sin and cos, one reduction */
+        const float tmp97 = tmp96 / tmp94;
+        const float tmp98 = tmp97 * carry[0];
+        const float tmp99 = tmp97 * carry[1];
+        const float tmp100 = tmp97 * carry[2];
+        tmp79 = tmp95;
         tmp80 = tmp98;
+        tmp81 = tmp99;
+        tmp82 = tmp100;
     }
-    const float tmp99 = q[0] * tmp77;
-    const float tmp100 = q[1] * tmp78;
-    const float tmp101 = tmp99 - tmp100;
-    const float tmp102 = q[2] * tmp79;
+    const float tmp101 = q[0] * tmp79;
+    const float tmp102 = q[1] * tmp80;
     const float tmp103 = tmp101 - tmp102;
-    const float tmp104 = q[3] * tmp80;
+    const float tmp104 = q[2] * tmp81;
     const float tmp105 = tmp103 - tmp104;
-    const float tmp106 = tmp105 * tmp105;
-    const float tmp107 = q[0] * tmp78;
-    const float tmp108 = q[1] * tmp77;
-    const float tmp109 = tmp107 + tmp108;
-    const float tmp110 = q[2] * tmp80;
+    const float tmp106 = q[3] * tmp82;
+    const float tmp107 = tmp105 - tmp106;
+    const float tmp108 = tmp107 * tmp107;
+    const float tmp109 = q[0] * tmp80;
+    const float tmp110 = q[1] * tmp79;
     const float tmp111 = tmp109 + tmp110;
-    const float tmp112 = q[3] * tmp79;
-    const float tmp113 = tmp111 - tmp112;
-    const float tmp114 = tmp113 * tmp113;
-    const float tmp115 = tmp106 + tmp114;
-    const float tmp116 = q[0] * tmp79;
-    carry[3] = tmp77;
-    carry[4] = tmp78;
-    carry[5] = tmp79;
-    carry[6] = tmp80;
-    carry[7] = tmp105;
-    carry[8] = tmp113;
-    carry[9] = tmp115;
-    carry[10] = tmp116;
+    const float tmp112 = q[2] * tmp82;
+    const float tmp113 = tmp111 + tmp112;
+    const float tmp114 = q[3] * tmp81;
+    const float tmp115 = tmp113 - tmp114;
+    const float tmp116 = tmp115 * tmp115;
+    const float tmp117 = tmp108 + tmp116;
+    const float tmp118 = q[0] * tmp81;
+    carry[3] = tmp79;
+    carry[4] = tmp80;
+    carry[5] = tmp81;
+    carry[6] = tmp82;
+    carry[7] = tmp107;
+    carry[8] = tmp115;
+    carry[9] = tmp117;
+    carry[10] = tmp118;
 }
 
 static void qcf_k_correct_part3(const float q[4], float carry[11])
 {
-    const float tmp117 = q[1] * carry[6];
-    const float tmp118 = carry[10] - tmp117;
-    const float tmp119 = q[2] * carry[3];
-    const float tmp120 = tmp118 + tmp119;
-    const float tmp121 = q[3] * carry[4];
+    const float tmp119 = q[1] * carry[6];
+    const float tmp120 = carry[10] - tmp119;
+    const float tmp121 = q[2] * carry[3];
     const float tmp122 = tmp120 + tmp121;
-    const float tmp123 = tmp122 * tmp122;
-    const float tmp124 = carry[9] + tmp123;
-    const float tmp125 = q[0] * carry[6];
-    const float tmp126 = q[1] * carry[5];
-    const float tmp127 = tmp125 + tmp126;
-    const float tmp128 = q[2] * carry[4];
-    const float tmp129 = tmp127 - tmp128;
-    const float tmp130 = q[3] * carry[3];
-    const float tmp131 = tmp129 + tmp130;
-    const float tmp132 = tmp131 * tmp131;
-    const float tmp133 = tmp124 + tmp132;
-    const float tmp134 = sqrtf(tmp133);
-    const float tmp135 = carry[7] / tmp134;
-    const float tmp136 = carry[8] / tmp134;
-    const float tmp137 = tmp122 / tmp134;
-    const float tmp138 = tmp131 / tmp134;
-    carry[3] = tmp135;
-    carry[4] = tmp136;
-    carry[5] = tmp137;
-    carry[6] = tmp138;
+    const float tmp123 = q[3] * carry[4];
+    const float tmp124 = tmp122 + tmp123;
+    const float tmp125 = tmp124 * tmp124;
+    const float tmp126 = carry[9] + tmp125;
+    const float tmp127 = q[0] * carry[6];
+    const float tmp128 = q[1] * carry[5];
+    const float tmp129 = tmp127 + tmp128;
+    const float tmp130 = q[2] * carry[4];
+    const float tmp131 = tmp129 - tmp130;
+    const float tmp132 = q[3] * carry[3];
+    const float tmp133 = tmp131 + tmp132;
+    const float tmp134 = tmp133 * tmp133;
+    const float tmp135 = tmp126 + tmp134;
+    const float tmp136 = sqrtf(tmp135);
+    const float tmp137 = 1.0f / tmp136;
+    const float tmp138 = carry[7] * tmp137;
+    const float tmp139 = carry[8] * tmp137;
+    const float tmp140 = tmp124 * tmp137;
+    const float tmp141 = tmp133 * tmp137;
+    carry[3] = tmp138;
+    carry[4] = tmp139;
+    carry[5] = tmp140;
+    carry[6] = tmp141;
 }
 
 static void qcf_k_correct_part4(const float gyro_bias[3], float span_accel, bool use_accel, float accel_norm2, bool recover, bool at_rest, const float rest_gyro_lp[3], float carry[11])
 {
-    float tmp139;
-    float tmp140;
-    float tmp141;
+    float tmp142;
+    float tmp143;
+    float tmp144;
     if (at_rest) {
-        const float tmp142 = 1.0f + span_accel;
-        const float tmp143 = span_accel / tmp142;
-        const float tmp144 = rest_gyro_lp[0] - gyro_bias[0];
-        const float tmp145 = tmp143 * tmp144;
-        const float tmp146 = gyro_bias[0] + tmp145;
-        const float tmp147 = rest_gyro_lp[1] - gyro_bias[1];
-        const float tmp148 = tmp143 * tmp147;
-        const float tmp149 = gyro_bias[1] + tmp148;
-        const float tmp150 = rest_gyro_lp[2] - gyro_bias[2];
-        const float tmp151 = tmp143 * tmp150;
-        const float tmp152 = gyro_bias[2] + tmp151;
-        tmp139 = tmp146;
-        tmp140 = tmp149;
-        tmp141 = tmp152;
+        const float tmp145 = 1.0f + span_accel;
+        const float tmp146 = span_accel / tmp145;
+        const float tmp147 = rest_gyro_lp[0] - gyro_bias[0];
+        const float tmp148 = tmp146 * tmp147;
+        const float tmp149 = gyro_bias[0] + tmp148;
+        const float tmp150 = rest_gyro_lp[1] - gyro_bias[1];
+        const float tmp151 = tmp146 * tmp150;
+        const float tmp152 = gyro_bias[1] + tmp151;
+        const float tmp153 = rest_gyro_lp[2] - gyro_bias[2];
+        const float tmp154 = tmp146 * tmp153;
+        const float tmp155 = gyro_bias[2] + tmp154;
+        tmp142 = tmp149;
+        tmp143 = tmp152;
+        tmp144 = tmp155;
     } else {
-        const bool tmp153 = (use_accel) && (!(recover));
-        const bool tmp154 = (77.55708f < accel_norm2) && (accel_norm2 < 116.78368f);
-        const bool tmp155 = (tmp153) && (tmp154);
-        const float tmp156 = 0.013333334f * carry[0];
-        const float tmp157 = gyro_bias[0] - tmp156;
-        const float tmp158 = (tmp155) ? tmp157 : gyro_bias[0];
-        const float tmp159 = 0.013333334f * carry[1];
-        const float tmp160 = gyro_bias[1] - tmp159;
-        const float tmp161 = (tmp155) ? tmp160 : gyro_bias[1];
-        const float tmp162 = 0.013333334f * carry[2];
-        const float tmp163 = gyro_bias[2] - tmp162;
-        const float tmp164 = (tmp155) ? tmp163 : gyro_bias[2];
-        tmp139 = tmp158;
-        tmp140 = tmp161;
-        tmp141 = tmp164;
+        const bool tmp156 = (use_accel) && (!(recover));
+        const bool tmp157 = (77.55708f < accel_norm2) && (accel_norm2 < 116.78368f);
+        const bool tmp158 = (tmp156) && (tmp157);
+        const float tmp159 = 0.013333334f * carry[0];
+        const float tmp160 = gyro_bias[0] - tmp159;
+        const float tmp161 = (tmp158) ? tmp160 : gyro_bias[0];
+        const float tmp162 = 0.013333334f * carry[1];
+        const float tmp163 = gyro_bias[1] - tmp162;
+        const float tmp164 = (tmp158) ? tmp163 : gyro_bias[1];
+        const float tmp165 = 0.013333334f * carry[2];
+        const float tmp166 = gyro_bias[2] - tmp165;
+        const float tmp167 = (tmp158) ? tmp166 : gyro_bias[2];
+        tmp142 = tmp161;
+        tmp143 = tmp164;
+        tmp144 = tmp167;
     }
-    carry[0] = tmp139;
-    carry[1] = tmp140;
-    carry[2] = tmp141;
+    carry[0] = tmp142;
+    carry[1] = tmp143;
+    carry[2] = tmp144;
 }
 
 static void qcf_k_correct(const float q[4], const float rot[9], const float gyro_bias[3], const float accel_lp[3], const float mag_ned[3], float span_accel, float span_mag, bool use_accel, float accel_norm2, bool recover, bool at_rest, const float rest_gyro_lp[3], float q_new[4], float gyro_bias_new[3])

@@ -12,7 +12,7 @@ from ahrsgen.codegen.emit.branches import _layout
 from ahrsgen.codegen.emit.names import _Marks
 from ahrsgen.codegen.emit.ops import (_BINARY, _COMPARISONS, _CONNECTIVES, _LOGIC, _TMP_RE, _UNARY, CATEGORIES, PRECISIONS,
                                 SUPPORTED, EmitError, _literal_value, literal, op_name)
-from ahrsgen.codegen.emit.rewrite import _exact_reciprocals, _fuse_multiply_add
+from ahrsgen.codegen.emit.rewrite import _exact_reciprocals, _fuse_multiply_add, _shared_reciprocals
 from ahrsgen.codegen.emit.split import _split
 
 # Selects on one condition whose exclusive operations weigh less than this stay ?: (a
@@ -312,6 +312,7 @@ def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc
             live.update(_TMP_RE.findall(nodes[tmp]["expr"]))
     kept = [t for t in order if t in live]
     kept = _exact_reciprocals(kept, nodes, precision, marks)
+    kept = _shared_reciprocals(kept, nodes, one)
     if fma:
         kept = _fuse_multiply_add(kept, nodes, writes, "fmaf" if precision == "float" else "fma")
     ops = {c: 0 for c in CATEGORIES}

@@ -25,6 +25,38 @@ def _exact_reciprocals(kept, nodes, precision, marks):
     return kept
 
 
+def _shared_reciprocals(kept, nodes, one):
+    """Two or more quotients by one computed denominator d (a temporary or an input, not a
+    literal) -> r = 1 / d once and products x * r: one division (14 cycles on the M4F) instead
+    of several, as a hand-writer normalises a vector. x * (1 / d) may differ from x / d in the
+    last bit (the double build stays within 1e-9 rad of the reference; the float effect is
+    measured in docs/target.md). r is placed just before the first quotient, so the branch
+    layout puts it where its users are."""
+    by_den: dict[str, list[str]] = {}
+    for t in kept:
+        n = nodes[t]
+        if n["code"] == ca.OP_DIV and n["sel"] is None and _literal_value(n["args"][1]) is None:
+            by_den.setdefault(n["args"][1], []).append(t)
+    first = {ts[0]: d for d, ts in by_den.items() if len(ts) >= 2}
+    if not first:
+        return kept
+    out = []
+    for t in kept:
+        d = first.get(t)
+        if d is not None:
+            r = f"t{len(nodes)}"
+            den = nodes[t]["vargs"][1]
+            nodes[r] = {"code": ca.OP_DIV, "cat": "div", "expr": f"{one} / {den}", "args": [one, d],
+                        "sel": None, "vargs": [one, den], "ctype": nodes[t]["ctype"]}
+            out.append(r)
+            for q in by_den[d]:
+                x = nodes[q]["args"][0]
+                nodes[q].update(code=ca.OP_MUL, cat="mul", expr=f"{nodes[q]['vargs'][0]} * {r}", args=[x, r],
+                                vargs=[nodes[q]["vargs"][0], r])
+        out.append(t)
+    return out
+
+
 def _power_of_two(c, precision) -> bool:
     """c = +-2^k with 1 / c a normal number of the precision (so x * (1 / c) == x / c)."""
     if c is None or c == 0.0 or not np.isfinite(c) or math.frexp(abs(c))[0] != 0.5:
