@@ -1,0 +1,138 @@
+"""Leave one BROAD group out: the cross-validation the mekf studies choose their defaults by.
+
+A candidate is one parameter set for all data (as BROAD scores every peer). Its entries are the
+10 BROAD trials, each scored as recorded (286 Hz) and averaged to 95 Hz (every three rows one,
+as an integrating IMU reports them: one default for any rate), and any simulated scenarios the
+study adds, each one more entry (its mean over seeds). The score of a candidate on a set of
+trials is the mean of its entries: per trial the mean of its 286 Hz and 95 Hz totals, plus the
+scenario entries, which are always in the training set. For each BROAD group held out, the
+candidate best on the other groups (and the scenarios) is chosen and scored on the held-out
+group; the mean over the 10 trials of those held-out scores is the cross-validated figure, shown
+beside the in-sample choice's. Float C through the host build, as `ahrsgen run`.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+import numpy as np
+
+from ahrsgen.bench.scoring import filter_estimator, score
+from ahrsgen.generate import config
+from ahrsgen.sim import host
+from ahrsgen.sim.peers import broad_score
+from ahrsgen.sim.readers import broad_trials, read_log, shared_data_dir
+
+GROUPS = {"rotation": ("01", "04", "06", "08"), "translation": ("10", "15"),
+          "tapping, vibration": ("24", "26"), "magnet": ("28", "32")}
+TRIALS = [t for g in GROUPS.values() for t in g]
+RATES = ("", "@95")          # entry suffixes: as recorded, averaged to 95 Hz
+
+
+def setup(doc: str, argv=None):
+    """A study's command line ([DATA_DIR] [--json FILE]) and its BROAD logs: (args, (logs,
+    logs at 95 Hz)), the logs None (said on stdout) when the 10 trials are not there."""
+    ap = argparse.ArgumentParser(description=doc.splitlines()[0])
+    ap.add_argument("data", nargs="?", default=None)
+    ap.add_argument("--json", default=None)
+    a = ap.parse_args(argv)
+    broad = load_broad(a.data)
+    if broad is None:
+        print("the 10 BROAD trials are not here (shared data folder); nothing measured")
+    return a, broad
+
+
+def write_json(path, results, cv) -> None:
+    if path:
+        with open(path, "w") as fh:
+            json.dump({"candidates": [{"sets": s, "entries": e} for s, e in results], **cv}, fh, indent=1)
+
+
+def load_broad(data_dir=None):
+    """{trial: log} and {trial: log averaged to 95 Hz}, or None when the 10 trials are absent."""
+    data = shared_data_dir(data_dir)
+    paths = broad_trials(data) if data else []
+    if len(paths) < len(TRIALS):
+        return None
+    logs = {p.name[:2]: read_log(p) for p in paths}
+    return logs, {n: log.averaged(3) for n, log in logs.items()}
+
+
+def evaluate(sets: dict, logs, slow, scenarios: dict, measure: str = "total") -> dict:
+    """{entry: figure}: BROAD totals per trial and rate, and per scenario the mean of `measure`
+    ('total' or 'heading' RMS) over its logs, run and scored as `ahrsgen bench` does (the log's
+    site parameters set, magnetic heading turned by the scenario's declination)."""
+    sets_kv = [f"{k}={v}" for k, v in sets.items()]
+    f = host.build(config.resolve("mekf", sets=sets_kv))
+    out = {n: broad_score(f.run(log).q, log)["total"] for n, log in logs.items()}
+    out |= {n + "@95": broad_score(f.run(log).q, log)["total"] for n, log in slow.items()}
+    est = filter_estimator("mekf", sets_kv)
+    for name, scen_logs in scenarios.items():
+        runs = [(est.run(log), log) for log in scen_logs]        # (q, heading frame, extra)
+        out[name] = float(np.mean([score(r[0], log, r[1])[measure + "_rms"] for r, log in runs]))
+    return out
+
+
+def objective(res: dict, trials, extra) -> float:
+    return (sum(0.5 * (res[t] + res[t + "@95"]) for t in trials) + sum(res[e] for e in extra)) / (len(trials) + len(extra))
+
+
+def run(candidates, logs, slow, scenarios: dict, measure="total", progress=sys.stderr) -> list:
+    """[(sets, entries)] of every candidate, a line of progress each."""
+    results = []
+    for i, sets in enumerate(candidates):
+        res = evaluate(sets, logs, slow, scenarios, measure)
+        results.append((sets, res))
+        extra = ", ".join(f"{k} {res[k]:.2f}" for k in scenarios)
+        print(f"[{i + 1}] {json.dumps(sets)}: BROAD {np.mean([res[t] for t in logs]):.3f}, at 95 Hz "
+              f"{np.mean([res[t + '@95'] for t in logs]):.3f}" + (f"; {extra}" if extra else ""),
+              file=progress, flush=True)
+    return results
+
+
+def cross_validate(results, extra, admissible=None) -> dict:
+    """The in-sample choice, and per held-out group the choice on the rest with its held-out
+    figures; only among the candidates whose entries `admissible` accepts (a bound a study
+    states, e.g. an issue's 'nothing lost' figure on a scenario), when given."""
+    results = [r for r in results if admissible is None or admissible(r[1])]
+    best = min(results, key=lambda r: objective(r[1], TRIALS, extra))
+    folds, held = [], {}
+    for g, trials in GROUPS.items():
+        pick = min(results, key=lambda r: objective(r[1], [t for t in TRIALS if t not in trials], extra))
+        for t in trials:
+            for sfx in RATES:
+                held[t + sfx] = pick[1][t + sfx]
+        folds.append({"held_out": g, "chosen": pick[0],
+                      **{f"held_out_mean{s}": float(np.mean([pick[1][t + s] for t in trials])) for s in RATES},
+                      **{f"in_sample_mean{s}": float(np.mean([best[1][t + s] for t in trials])) for s in RATES}})
+    return {"in_sample_choice": best[0], "in_sample_entries": best[1], "folds": folds,
+            "cross_validated": {s: float(np.mean([held[t + s] for t in TRIALS])) for s in RATES},
+            "in_sample": {s: float(np.mean([best[1][t + s] for t in TRIALS])) for s in RATES}}
+
+
+def print_table(title: str, cv: dict, baseline: tuple[str, dict]) -> None:
+    """Folds, the means of 10 and the baseline (label, entries) beside them, 286 Hz / 95 Hz."""
+    label, base = baseline
+    print(f"\n{title} (mean total RMS, degrees; float C): 286 Hz / 95 Hz")
+    print(f"{'group held out':22s} {'chosen on the rest':70s} {'held out':>13s} {'in-sample':>13s} {label:>13s}")
+    for r in cv["folds"]:
+        b = [np.mean([base[t + s] for t in GROUPS[r["held_out"]]]) for s in RATES]
+        print(f"{r['held_out']:22s} {json.dumps(r['chosen']):70s} {r['held_out_mean']:6.2f}/{r['held_out_mean@95']:.2f} "
+              f"{r['in_sample_mean']:6.2f}/{r['in_sample_mean@95']:.2f} {b[0]:6.2f}/{b[1]:.2f}")
+    c, i = cv["cross_validated"], cv["in_sample"]
+    b = [float(np.mean([base[t + s] for t in TRIALS])) for s in RATES]
+    print(f"{'mean of 10':22s} {'':70s} {c['']:6.3f}/{c['@95']:.3f} {i['']:6.3f}/{i['@95']:.3f} {b[0]:6.3f}/{b[1]:.3f}")
+    print(f"in-sample choice: {json.dumps(cv['in_sample_choice'])}")
+
+
+def defaults_entry(results) -> tuple[dict, dict]:
+    """The candidate whose values are the present defaults."""
+    p = config.resolve("mekf").params
+
+    def same(a, b):
+        try:
+            return float(a) == float(b)
+        except (TypeError, ValueError):
+            return str(a).lower() == str(b).lower()
+    return next(r for r in results if all(same(p[k], v) for k, v in r[0].items()))
