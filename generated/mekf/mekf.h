@@ -23,7 +23,7 @@
  * its GNU modes, -std=c99 turns it off) and -fno-math-errno; -ffast-math breaks the input
  * checks (isfinite). Any C99 compiler builds it; see the ahrsgen docs (target.md).
  *     mekf_euler(&st, rpy);
- * No heap, no recursion; RAM is the state struct (492 bytes with the usual ABI).
+ * No heap, no recursion; RAM is the state struct (496 bytes with the usual ABI).
  * Needs <math.h> (float functions only in a float build); compilers may also emit calls to
  * memcpy/memset/memmove for struct and array copies.
  *
@@ -79,7 +79,7 @@ extern "C" {
 #define MEKF_MAG_NEW_TIME 20.0f         /* while rejected, a new field whose norm and dip stay within the thresholds for this long becomes the reference (a lasting change is re-acquired; VQF's magNewTime) [s] */
 #define MEKF_MAG_REJECT_MAX 60.0f       /* after this long rejected in a row, the candidate field becomes the reference anyway: heading is never held unaided for longer (VQF's magMaxRejectionTime) [s] */
 #define MEKF_MAG_BIAS 1                 /* estimate the magnetometer's hard iron while the sensor turns: a candidate field model (hard iron, field norm and dip) is fitted beside the filter and replaces the hard iron when it explains the field clearly better (a magnet attached mid-run); false: the hard iron stays as calibrated */
-#define MEKF_MAG_BIAS_RW 0.001f         /* random walk of the candidate hard iron and field, as a fraction of the field norm, while turning [1/sqrt(s)] */
+#define MEKF_MAG_BIAS_RW 0.003f         /* random walk of the candidate hard iron and field, as a fraction of the field norm, while turning; 0.003 chosen by studies/mekf_hard_iron_cv.py (in-sample, with the noise defaults of studies/mekf_gyro_rate_noise_cv.py) [1/sqrt(s)] */
 #define MEKF_MAG_BIAS_NOISE 0.05f       /* per-sample standard deviation of the candidate's norm and vertical-component rows, as a fraction of the field norm (sensor noise, soft iron, field gradients) */
 #define MEKF_MAG_BIAS_MIN_RATE 0.3f     /* the candidate is fitted only while the sensor turns at least this fast (the hard iron is observable only then; held otherwise) [rad/s] */
 #define MEKF_MAG_BIAS_SETTLE 5.0f       /* residuals are averaged over this much turning, and the candidate must have been fitted this long, before it may replace the hard iron [s] */
@@ -89,10 +89,12 @@ extern "C" {
 #define MEKF_GYRO_FULL_SCALE 34.906586f /* the gyro's full scale (Fusion's gyroscopeRange): a component at or beyond it is a clipped sample, integrated as it is, that widens the attitude covariance by the rotation it may have missed and starts clip_recovery_time of recovery (status GYRO_RECOVERY). Default 2000 deg/s, the commonest flight-controller setting; set your sensor's (a +-500 deg/s gyro: 8.7266). 0: no over-range handling [rad/s] */
 #define MEKF_CLIP_RECOVERY_TIME 2.0f    /* after the last clipped gyro sample, for this long the corrections take the accelerometer and magnetometer as they come (no low-pass, no motion weighting, no field check), so the widened covariance sets how fast the attitude comes back [s] */
 #define MEKF_GYRO_NOISE 0.00087f        /* gyro rate noise density (angle random walk); the QCF paper's Table 1 gives 0.05 deg/s/sqrt(Hz) [rad/s/sqrt(Hz)] */
+#define MEKF_GYRO_RATE_NOISE 0.001f     /* measurement = 'vectors': each axis's gyro noise density grows by this times that axis's rate, in quadrature (a MEMS gyro's scale-factor and cross-axis errors grow with the rate): during fast rotation the attitude uncertainty grows and the accelerometer and magnetometer are trusted more; 0 = a constant density. 1e-3 chosen with mag_heading_density by leave-one-BROAD-group-out with the scenarios (studies/mekf_gyro_rate_noise_cv.py, docs/mekf.md) [sqrt(s)] */
 #define MEKF_GYRO_BIAS_RW 1e-05f        /* gyro bias random walk (rate of the bias noise density) [rad/s^2/sqrt(Hz)] */
 #define MEKF_ACCEL_ANGLE_NOISE 0.07f    /* per-sample standard deviation of the measured gravity direction (measurement = 'vectors': of the low-passed, motion-compensated specific force; 'euler_angles': of the accelerometer roll and pitch, the patent's R). 0.07 chosen on the BROAD trials and the simulated scenarios together (docs/mekf.md) [rad] */
 #define MEKF_COURSE_NOISE 0.05f         /* standard deviation of the GPS course as a heading (covers sideslip and wind crab) [rad] */
-#define MEKF_MAG_HEADING_NOISE 0.1f     /* per-sample standard deviation of the magnetometer heading (soft-iron residuals, timing): 0.1 chosen on the BROAD trials and the simulated scenarios together [rad] */
+#define MEKF_MAG_HEADING_NOISE 0.1f     /* measurement = 'euler_angles' (the patent's design): per-sample standard deviation of the magnetometer heading [rad] */
+#define MEKF_MAG_HEADING_DENSITY 0.024f /* measurement = 'vectors': noise density of the magnetometer heading; a sample's variance is its square over the magnetometer's own sample interval (at most 0.1 s), so the trust per second does not depend on the magnetometer's rate (0.024 = 0.41 rad per sample at 286 Hz, 0.17 at 50 Hz, 0.085 at 12.5 Hz). Its errors (calibration residuals, nearby iron) are correlated over seconds, far beyond the sensor's white noise. Chosen with gyro_rate_noise by leave-one-BROAD-group-out with the scenarios (studies/mekf_gyro_rate_noise_cv.py) [rad/sqrt(Hz)] */
 #define MEKF_ACCEL_GATE 0.0f            /* if > 0, the roll/pitch rows are dropped while | |accel| - g | exceeds this (ACCEL_GATED); 0 = off, as the patent [m/s^2] */
 /* MEKF_MOTION_COMP = gps_lowpass    motion acceleration removed from the specific force before roll/pitch are taken from it: 'gps_lowpass' (measurement = 'vectors' only) = the GPS velocity goes through the same earth-frame low-pass as the specific force and its low-passed derivative (v - v_lp)/accel_lpf_tau is removed from it (any motion, no differencing noise, needs accel_lpf_tau > 0); 'centripetal' = w x v_b (gyro and GPS velocity in body axes; fixed-wing turns), 'gps_accel' = R(q)^T a_n with a_n the difference of the last two GPS velocities (any motion, noisier, lagged by half a GPS period; multirotors), 'none' = the patent (gravity-only accelerometer) */
 #define MEKF_GPS_VEL_TIMEOUT 1.0f       /* the last GPS velocity (and GPS acceleration) is used for the motion compensation for at most this long; two GPS samples further apart than this give no acceleration [s] */
@@ -158,6 +160,7 @@ typedef struct {
     float mag_cand[2];    /* candidate new reference [norm, dip] while rejected */
     float mag_cand_time;  /* time the candidate field has been steady, s */
     float head_age;       /* time since the last heading correction, s (stops at 1e3) */
+    float mag_age;        /* time since the last usable magnetometer sample, s (stops at 0.1) */
     float recover_time;   /* time left of the recovery after a clipped gyro sample, s */
     float mag_bias[3];    /* magnetometer hard iron, body axes, the field's units (m - mag_bias is used) */
     float mag_cx[5];      /* candidate field model [hard iron / B (3), norm / B, down component / B], B = mag_ref[0] */

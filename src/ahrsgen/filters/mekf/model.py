@@ -36,6 +36,7 @@ GPS_DT_MIN = 1e-3     # two GPS samples closer than this (s) give no new acceler
 DT_Q_MIN = 1e-9       # s: floor of dt in the gyro-noise variance σ_g²/dt
 
 HEAD_AGE_MAX = 1.0    # s without a heading correction before HEADING_UNAIDED
+MAG_INTERVAL_MAX = 0.1  # s: a magnetometer sample stands for at most this long (mag_heading_density)
 MAG_RES_TAU = 0.2     # s: the hard-iron residuals are low-passed over this (white noise averages out)
 MAG_BIAS_P0 = 0.3     # initial standard deviation of the candidate field model, fraction of the norm
 MAG_BIAS_RATIO = 4.0  # the candidate must explain the field this much better (mean squares)
@@ -140,11 +141,18 @@ def _time_update(p: dict, q, b, gyro, dt):
     return quat.integrate(q, omega_hat, dt), F, G, _process_noise(p, dt)
 
 
-def _process_noise(p: dict, dt):
+def _process_noise(p: dict, dt, gyro=None):
     # σ_g²/dt with dt floored at DT_Q_MIN: a vanishing (even denormal) dt gives a vanishing
     # G Q Gᵀ = ¼ σ_g² dt² / max(dt, DT_Q_MIN) J Jᵀ instead of inf * 0 = NaN.
-    q_g = p["gyro_noise"] ** 2 / ca.fmax(dt, DT_Q_MIN)
-    return ca.diag(ca.vertcat(*([q_g] * 3 + [p["gyro_bias_rw"] ** 2 * dt] * 3)))
+    # gyro given (the product design): each axis's density grows by gyro_rate_noise |ω_i|
+    # (scale-factor and cross-axis errors grow with the rate), added in quadrature; the raw
+    # rate, the bias being small beside the rates where this term matters.
+    inv = 1 / ca.fmax(dt, DT_Q_MIN)
+    if gyro is None:
+        q_g = [p["gyro_noise"] ** 2 * inv] * 3
+    else:
+        q_g = [(p["gyro_noise"] ** 2 + (p["gyro_rate_noise"] * gyro[i]) ** 2) * inv for i in range(3)]
+    return ca.diag(ca.vertcat(*(q_g + [p["gyro_bias_rw"] ** 2 * dt] * 3)))
 
 
 def predict_function(p: dict, name="predict") -> ca.Function:
@@ -183,13 +191,13 @@ def predict_covariance_function(p: dict, name="predict_covariance") -> ca.Functi
     clip = 1 (a gyro component at gyro_full_scale): the rotation the sample missed is unknown, up
     to one range's worth over the step, so the attitude block gains (gyro_full_scale dt / 2)² per
     axis (the error state is the half angle)."""
-    Fq, Fb, Pv, dt, clip = (ca.SX.sym(n, k) for n, k in (("F_q", 9), ("F_b", 9), ("P", N * N), ("dt", 1),
-                                                         ("clip", 1)))
+    Fq, Fb, Pv, gyro, dt, clip = (ca.SX.sym(n, k) for n, k in (("F_q", 9), ("F_b", 9), ("P", N * N), ("gyro", 3),
+                                                               ("dt", 1), ("clip", 1)))
     F, G = _blocks(ca.reshape(Fq, 3, 3), ca.reshape(Fb, 3, 3))
-    P_new = kalman.predict_covariance(sym_lower(Pv), F, G, _process_noise(p, dt), symmetrize=False)
+    P_new = kalman.predict_covariance(sym_lower(Pv), F, G, _process_noise(p, dt, gyro), symmetrize=False)
     w = 0.5 * p["gyro_full_scale"] * dt
     P_new = P_new + ca.if_else(clip, w * w, 0) * ca.diag(ca.DM([1, 1, 1, 0, 0, 0]))
-    return emit.function(name, {"F_q": Fq, "F_b": Fb, "P": Pv, "dt": dt, "clip": clip},
+    return emit.function(name, {"F_q": Fq, "F_b": Fb, "P": Pv, "gyro": gyro, "dt": dt, "clip": clip},
                          {"P_out": flat_mirrored(P_new)})
 
 
@@ -403,6 +411,12 @@ def update_heading_function(p: dict, name="update_heading") -> ca.Function:
     returns the error-state correction x (for `inject`), P⁺ (P itself when s is not usable)
     and the innovation variance s.
 
+    Variance: the course's course_noise² per sample; the magnetic heading's is a density,
+    mag_heading_density² / mag_dt with mag_dt the magnetometer's own sample interval (the step
+    keeps it, at most MAG_INTERVAL_MAX): the trust per second does not depend on the
+    magnetometer's rate (its heading errors, calibration residuals and nearby iron, are
+    correlated over far longer than a sample).
+
     course: z = wrap(atan2(v_E, v_N) − ψ̂), ψ̂ = atan2(R₁₀, R₀₀) (heading of the body x axis);
     mag:    z = wrap(declination − atan2(m_E, m_N)), m_n = R(q̂) m (the field's heading as
             the estimate sees it, from north it points at the declination).
@@ -410,13 +424,13 @@ def update_heading_function(p: dict, name="update_heading") -> ca.Function:
     so the correction is a pure heading rotation; Joseph's form stays exact for this gain.
     """
     q, Pv, mag, vel = (ca.SX.sym(n, k) for n, k in (("q", 4), ("P", N * N), ("mag", 3), ("vel", 3)))
-    use_course = ca.SX.sym("use_course")
+    use_course, mag_dt = ca.SX.sym("use_course"), ca.SX.sym("mag_dt")
     Rq = quat.rotmat(q)
     mn = ca.mtimes(Rq, mag)
     z_course = quat.wrap(ca.atan2(vel[1], vel[0]) - ca.atan2(Rq[1, 0], Rq[0, 0]))
     z_mag = quat.wrap(p["declination"] - ca.atan2(mn[1], mn[0]))
     z = ca.if_else(use_course, z_course, z_mag)
-    r = ca.if_else(use_course, p["course_noise"] ** 2, p["mag_heading_noise"] ** 2)
+    r = ca.if_else(use_course, p["course_noise"] ** 2, p["mag_heading_density"] ** 2 / ca.fmax(mag_dt, DT_Q_MIN))
     H = jacobian_heading(q)
     P = sym_lower(Pv)
     PHt = ca.mtimes(P, H.T)
@@ -427,7 +441,8 @@ def update_heading_function(p: dict, name="update_heading") -> ca.Function:
     # Joseph form for this gain; P unchanged (selected, so the step may pass P as P_out) when
     # S is not usable - the step then skips the correction
     P_new = ca.if_else(S > S_PIVOT_MIN, kalman.joseph_row(P, K, PHt, S), P)
-    return emit.function(name, {"q": q, "P": Pv, "mag": mag, "vel": vel, "use_course": use_course},
+    return emit.function(name, {"q": q, "P": Pv, "mag": mag, "vel": vel, "use_course": use_course,
+                                "mag_dt": mag_dt},
                          {"x_out": K * z, "P_out": flat_mirrored(P_new), "s": S})
 
 
@@ -555,6 +570,7 @@ class Model(FilterModel):
             StateField("mag_cand", 2, "candidate new reference [norm, dip] while rejected", 0.0),
             StateField("mag_cand_time", 1, "time the candidate field has been steady, s", 0.0),
             StateField("head_age", 1, "time since the last heading correction, s (stops at 1e3)", AGE_MAX),
+            StateField("mag_age", 1, f"time since the last usable magnetometer sample, s (stops at {MAG_INTERVAL_MAX:g})", 0.0),
             StateField("recover_time", 1, "time left of the recovery after a clipped gyro sample, s", 0.0),
             StateField("mag_bias", 3, "magnetometer hard iron, body axes, the field's units (m - mag_bias is used)", 0.0),
         ] + (self._hard_iron_fields() if self._hard_iron() else [])
@@ -617,7 +633,7 @@ class Model(FilterModel):
     def template_context(self) -> dict:
         p = self.params
         return {"n": N, "heading_source": p["heading_source"], "motion_comp": p["motion_comp"],
-                "s_pivot_min": S_PIVOT_MIN, "age_max": AGE_MAX, "g0": G0, "gps_dt_min": GPS_DT_MIN,
+                "s_pivot_min": S_PIVOT_MIN, "age_max": AGE_MAX, "mag_interval_max": MAG_INTERVAL_MAX, "g0": G0, "gps_dt_min": GPS_DT_MIN,
                 "vectors": self.vectors, "head_age_max": HEAD_AGE_MAX, "hard_iron": self._hard_iron(),
                 "mag_res_tau": MAG_RES_TAU, "mag_bias_ratio": MAG_BIAS_RATIO, "mag_n_min": MAG_N_MIN, "nc": NC,
                 "mag_bias_p0": MAG_BIAS_P0,

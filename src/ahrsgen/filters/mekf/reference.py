@@ -59,6 +59,7 @@ HEAD_AGE_MAX = 1.0      # s without a heading correction before HEADING_UNAIDED
 
 COS2_PITCH_MIN = 1e-4   # no correction while cos²(pitch) <= this (pitch within 0.57° of ±90°)
 AGE_MAX = 1e3   # the GPS-velocity age stops counting here (s)
+MAG_INTERVAL_MAX = 0.1  # s: a magnetometer sample stands for at most this long
 GPS_DT_MIN = 1e-3   # two GPS samples closer than this (s) give no new acceleration
 DT_Q_MIN = 1e-9     # s: floor of dt in the gyro-noise variance σ_g²/dt
 
@@ -169,7 +170,7 @@ class Reference:
             for k in ("accel_lpf_tau", "accel_adapt_cap", "rest_gyro_th", "rest_accel_th", "rest_min_time",
                       "rest_tau", "mag_norm_th", "mag_dip_th", "mag_learn_time", "mag_reject_max",
                       "mag_ref_tau", "mag_new_time", "course_max_sideslip", "gyro_full_scale",
-                      "clip_recovery_time"):
+                      "clip_recovery_time", "gyro_rate_noise", "mag_heading_density"):
                 setattr(self, k, float(p[k]))
             self.recover_time = 0.0       # time left of the recovery after a gyro clip, s
             self.a_lp = np.zeros(3)       # earth-frame (NED) low-passed specific force
@@ -185,6 +186,7 @@ class Reference:
             self.mag_cand = np.zeros(2)   # candidate new reference [norm, dip] while rejected
             self.mag_cand_time = 0.0      # time the candidate has been steady, s
             self.head_age = AGE_MAX       # time since the last heading correction, s
+            self.mag_age = 0.0            # time since the last usable magnetometer sample, s
             # hard iron (body axes, the field's units) and the candidate field model fitted
             # while the sensor turns, in units of the reference norm: [β (3), n, v]
             self.mag_bias_on = bool(p["mag_bias"])
@@ -338,7 +340,10 @@ class Reference:
         q = qmul(self.q, qexp(0.5 * u))
         q = q / np.linalg.norm(q)
         F, G = propagation_jacobians(u, dt)
-        Q = np.diag([self.gyro_noise ** 2 / max(dt, DT_Q_MIN)] * 3 + [self.gyro_bias_rw ** 2 * dt] * 3)
+        # the product design: each axis's density grows with its (raw) rate, gyro_rate_noise
+        k = self.gyro_rate_noise if self.vectors else 0.0
+        q_g = (self.gyro_noise ** 2 + (k * np.asarray(gyro, dtype=float)) ** 2) / max(dt, DT_Q_MIN)
+        Q = np.diag(list(q_g) + [self.gyro_bias_rw ** 2 * dt] * 3)
         P = F @ self.P @ F.T + G @ Q @ G.T
         P = 0.5 * (P + P.T)
         return q, P
@@ -391,6 +396,11 @@ class Reference:
         moving = (self.uses_gps and self.v_age <= self.gps_vel_timeout
                   and vh2 >= self.gps_min_speed ** 2 and vh2 > 0.0)
         m = np.asarray(mag, dtype=float) - self.mag_bias    # the hard iron removed
+        # the magnetometer's own sample interval: its heading variance is a density over it
+        mag_dt = dt
+        if self.uses_mag:
+            mag_dt = min(self.mag_age + dt, MAG_INTERVAL_MAX)
+            self.mag_age = 0.0 if c.use_mag else mag_dt
 
         if not self.initialised:
             if not use_tilt:
@@ -568,7 +578,7 @@ class Reference:
         elif mag_use:
             mn = Rq @ m
             z_h = wrap(self.declination - np.arctan2(mn[1], mn[0]))
-            r_h = self.mag_heading_noise ** 2
+            r_h = self.mag_heading_density ** 2 / max(mag_dt, DT_Q_MIN)
             head = True
         if head:
             up = Rq[2, :]                          # Rᵀ e3: the vertical in body axes
