@@ -104,6 +104,12 @@ def test_target_sets_the_example_beside_the_hand_written_peer(tmp_path, capsys):
     checked = {p["filter"]: p for p in doc["peers"]}["peer:madgwick_checked"]      # like for like
     assert b["hand_written_checked"] == checked["instructions_mean"] > hand["instructions_mean"]
     assert f"hand-written with the same input checks {b['hand_written_checked']:.0f}" in text
+    # and the estimated cycles of both (target/cycles.py), each from its own footprint
+    assert b["generated_cycles_est"] == r["footprint"]["cycles_est_mean"]
+    assert b["hand_written_cycles_est"] == hand["cycles_est_mean"]
+    assert b["hand_written_checked_cycles_est"] == checked["cycles_est_mean"]
+    assert abs(b["ratio_cycles_est"] - b["generated_cycles_est"] / b["hand_written_cycles_est"]) < 1e-12
+    assert f"estimated cycles per step, generated {b['generated_cycles_est']:.0f}" in text
 
 
 def test_every_command_takes_the_example_folder(tmp_path, capsys):

@@ -358,6 +358,12 @@ def test_cli_target_writes_table_and_json(tmp_path, capsys):
     (r,) = doc["results"]
     assert r["opt"] == "-Os" and r["steps"] == 200 and r["pass"] is True
     assert r["footprint"]["stack_path"][0] == "att_step"      # the prefix reached the C
+    # the cycle estimate beside the count (target/cycles.py), over the steps unicorn ran
+    assert "est. cycles/step" in text
+    fp = r["footprint"]
+    assert fp["cycles_est_steps"] == 10 and fp["cycles_est_unmodelled"] == []
+    assert fp["cycles_est_min"] <= fp["cycles_est_mean"] <= fp["cycles_est_max"]
+    assert fp["cycles_est_mean"] > fp["instructions_min"]      # no instruction is free
     assert doc["math_flags"] == ["-ffp-contract=off", "-fno-math-errno"]
     assert cli.main(["target", "nosuch"]) == 2
 
@@ -414,6 +420,14 @@ def test_cli_profile_accounts_for_every_instruction_of_the_step(tmp_path, capsys
         assert rows[f"kernel {k}"]["per_step"] > 0 and rows[f"kernel {k}"]["ops"] == man["kernels"][k]["total"]
     assert rows["step (control, input checks, copies)"]["per_step"] > 0
     assert "?" not in rows                                            # every address has a function
+    # estimated cycles per function add up to the step's estimate, and the -g build's estimate
+    # equals the plain build's over the same steps (same code, same per-address weights)
+    assert "| est. cycles/step |" in text
+    assert fp["cycles_est_steps"] == prof["steps"]
+    assert abs(sum(row["cycles_est_per_step"] for row in prof["rows"]) - prof["cycles_est_per_step"]) < 1e-6
+    assert abs(prof["cycles_est_per_step"] - fp["cycles_est_mean"]) < 1e-9
+    for k in ("correct", "rotation"):
+        assert rows[f"kernel {k}"]["cycles_est_per_step"] >= rows[f"kernel {k}"]["per_step"]
 
 
 def test_double_build_runs_on_soft_float_and_costs_what_it_should(tmp_path):

@@ -75,8 +75,10 @@ def cmd_target(args) -> int:
                                      cflags=cflags)
                     r.footprint.variant = " ".join(cflags)
                     peer_rows.append(r.footprint)
+    from ahrsgen.target.cycles import MODEL_TEXT
     print(f"target {args.cpu}: {' '.join(CPUS[args.cpu])} {' '.join(MATH_FLAGS)}; QEMU {QEMU_MACHINE}; "
-          f"instructions (not cycles) per step under QEMU -icount, checked step by step against unicorn")
+          f"instructions (not cycles) per step under QEMU -icount, checked step by step against unicorn; "
+          f"est. cycles per step over the steps unicorn ran [steps]: {MODEL_TEXT}")
     ok = _print_results(results)
     if args.profile:
         from ahrsgen.target.profile import format_profile
@@ -102,6 +104,13 @@ def cmd_target(args) -> int:
                       f"checks {b['hand_written_checked']:.0f} instructions per step = {b['ratio_checked']:.2f}x "
                       f"(like for like: the same status bits, zero-gyro skip and IMU-only fallback; it starts at "
                       f"the identity, so compare a build with --set initialise=false)")
+            if b.get("ratio_cycles_est") is not None:
+                line = (f"{b['filter']} {b['opt']}: estimated cycles per step, generated {b['generated_cycles_est']:.0f} / "
+                        f"hand-written {b['hand_written_cycles_est']:.0f} = {b['ratio_cycles_est']:.2f}x")
+                if b.get("ratio_checked_cycles_est") is not None:
+                    line += (f"; / hand-written with the input checks {b['hand_written_checked_cycles_est']:.0f} = "
+                             f"{b['ratio_checked_cycles_est']:.2f}x")
+                print(line + " (over the steps unicorn ran)")
     doc = {"written_by": "ahrsgen target", "cpu": args.cpu, "cpu_flags": CPUS[args.cpu], "math_flags": MATH_FLAGS, "qemu_machine": QEMU_MACHINE,
            "tools": toolchain_versions(), "tolerance_deg": args.tolerance, "results": results,
            "peers": [asdict(r) for r in peer_rows], "beside_peers": beside, "libm_survey": survey}
@@ -116,8 +125,11 @@ def beside_peers(results: list[dict], peer_rows) -> list[dict]:
     """A checked filter that has a hand-written twin among the peers (the example user filters
     examples/madgwick and examples/mahony): instructions per step of both, same build, same
     scenario (both on fixedwing_gps unless --scenario says otherwise for the filter); against
-    the plain hand-written update and against its variant with the product's input checks."""
+    the plain hand-written update and against its variant with the product's input checks; the
+    estimated cycles per step of both beside them (target/cycles.py, over the counted steps)."""
     peers = {(r.filter.removeprefix("peer:"), r.opt): r.instructions_mean for r in peer_rows}
+    peer_cycles = {(r.filter.removeprefix("peer:"), r.opt): r.cycles_est_mean for r in peer_rows
+                   if r.cycles_est_steps > 0}
     out = []
     for r in results:
         if r.get("precision", "float") != "float":
@@ -129,6 +141,13 @@ def beside_peers(results: list[dict], peer_rows) -> list[dict]:
             checked = peers.get((r["filter"] + "_checked", r["opt"]))
             if checked:
                 row.update(hand_written_checked=checked, ratio_checked=gen / checked)
+            gen_c = r["footprint"].get("cycles_est_mean") if r["footprint"].get("cycles_est_steps", 0) > 0 else None
+            hand_c = peer_cycles.get((r["filter"], r["opt"]))
+            if gen_c and hand_c:
+                row.update(generated_cycles_est=gen_c, hand_written_cycles_est=hand_c, ratio_cycles_est=gen_c / hand_c)
+                checked_c = peer_cycles.get((r["filter"] + "_checked", r["opt"]))
+                if checked_c:
+                    row.update(hand_written_checked_cycles_est=checked_c, ratio_checked_cycles_est=gen_c / checked_c)
             out.append(row)
     return out
 
@@ -173,7 +192,7 @@ def register_cli(sub) -> None:
                         "their variants with the product's input checks; a filter named like one (examples/madgwick, "
                         "examples/mahony) is set beside both (ratios; like for like with --set initialise=false)")
     p.add_argument("--profile", action="store_true",
-                   help="also show where the step's instructions go: per kernel and helper function, over the "
+                   help="also show where the step's instructions and estimated cycles go: per kernel and helper function, over the "
                         "--count-steps steps (a -g build of the same code, every instruction counted in unicorn "
                         "and mapped to its source function)")
     p.add_argument("--libm-survey", action="store_true",

@@ -33,7 +33,8 @@ sides), where every filter must be bit-identical in every step.  docs/target.md 
 figur
 
 The package: ``build`` (toolchain, flags, harness binding, cross build), ``emulate`` (QEMU
-and unicorn runs, libm survey), ``footprint`` (sizes, stack, instruction counts), ``check``
+and unicorn runs, libm survey), ``footprint`` (sizes, stack, instruction counts), ``cycles`` (estimated
+Cortex-M4 cycles from the TRM's timings), ``check``
 (host comparison, verdicts, one filter end to end), ``cli`` (``ahrsgen target``).
 """
 from .build import *  # noqa: F401,F403

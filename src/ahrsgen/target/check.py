@@ -49,9 +49,11 @@ def check_filter(b: FilterBinding, records: np.ndarray, workdir: Path | None = N
         b.state_size = run.state_bytes
     sub = records if count_steps is None else records[:count_steps]
     emu = Emulator(bld.elf)
+    from .cycles import CycleCounter
+    cycles = CycleCounter(emu, bld.elf)      # estimated Cortex-M4 cycles of the same steps
     counts = emu.count_steps(b.step_fn, sub, run.state_bytes)
     o0 = debug_stack(b, workdir / f"{b.name}-O0", cpu, cflags) if o0_stack else None
-    fp = footprint(b, bld, counts, run, o0)
+    fp = footprint(b, bld, counts, run, o0, cycles.estimate(counts.instructions))
     return TargetResult(bld, run, counts, fp)
 
 

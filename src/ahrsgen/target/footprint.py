@@ -224,6 +224,15 @@ class Footprint:
     stack_o0_bytes: int = -1     # static worst case of step in a -O0 (debug) build of the same sources
     stack_o0_path: list[str] = field(default_factory=list)
     variant: str = ""            # build options beside the defaults ("fma", "math=libm", the user's --cflags)
+    # Estimated Cortex-M4 cycles per step (target/cycles.py: the TRM's timings weighed over the
+    # instructions unicorn ran, zero wait states; an estimate, QEMU counts no cycles), over the
+    # unicorn-counted steps (cycles_est_steps, the first --count-steps steps)
+    cycles_est_mean: float = float("nan")
+    cycles_est_min: int = -1
+    cycles_est_max: int = -1
+    cycles_est_steps: int = 0
+    cycles_est_unmodelled: list[str] = field(default_factory=list)   # mnemonics costed 1 by default
+    cycles_est_model: str = ""
 
 
 def step_instructions(counts: StepCounts | None, run: TargetRun | None) -> dict:
@@ -266,8 +275,10 @@ def debug_stack(b: FilterBinding, workdir: Path, cpu: str = "cortex-m4f", extra_
 
 
 def footprint(b: FilterBinding, build_: Build, counts: StepCounts | None = None,
-              run: TargetRun | None = None, o0_stack: dict | None = None) -> Footprint:
-    """Sizes of the filter in one build (links a footprint image and a baseline)."""
+              run: TargetRun | None = None, o0_stack: dict | None = None,
+              cycles: dict | None = None) -> Footprint:
+    """Sizes of the filter in one build (links a footprint image and a baseline); ``cycles``:
+    the estimate of target/cycles.py (``CycleCounter.estimate``) over the counted steps."""
     wd = build_.workdir / "footprint"
     wd.mkdir(exist_ok=True)
     main_c = wd / "fp_main.c"
@@ -321,14 +332,15 @@ def footprint(b: FilterBinding, build_: Build, counts: StepCounts | None = None,
         **step_instructions(counts, run), library_calls=lib, double_helpers=dbl, flags=build_.cflags,
         precision=b.scalar,
         stack_o0_bytes=o0_stack["bytes"] if o0_stack else -1, stack_o0_path=o0_stack["path"] if o0_stack else [],
+        **(cycles or {}),
     )
 
 
 def format_table(rows: list[Footprint]) -> str:
     """Markdown table of footprints (library column: entry points only, no __internals)."""
     hdr = ("| filter | build | flash B (own code) | static RAM B (state) | stack B static / measured / -O0 "
-           "| instructions/step mean (min-max) | library functions |")
-    sep = "|" + "---|" * 7
+           "| instructions/step mean (min-max) | est. cycles/step mean (min-max) [steps] | library functions |")
+    sep = "|" + "---|" * 8
     lines = [hdr, sep]
     for r in rows:
         own = r.own_code_bytes
@@ -337,8 +349,14 @@ def format_table(rows: list[Footprint]) -> str:
             f"| {r.filter} | {r.opt}{' double' if r.precision == 'double' else ''}{' ' + r.variant if r.variant else ''} | {r.flash_bytes} ({own}) | {r.ram_static_bytes} ({r.state_bytes}) "
             f"| {r.stack_bytes} / {r.stack_measured_bytes} / {r.stack_o0_bytes if r.stack_o0_bytes >= 0 else '-'} "
             f"| {r.instructions_mean:.0f} "
-            f"({r.instructions_min}-{r.instructions_max}) | {', '.join(libs) or '-'} |")
+            f"({r.instructions_min}-{r.instructions_max}) | {_cycles_cell(r)} | {', '.join(libs) or '-'} |")
     return "\n".join(lines)
+
+
+def _cycles_cell(r: Footprint) -> str:
+    if r.cycles_est_steps <= 0:
+        return "-"
+    return f"{r.cycles_est_mean:.0f} ({r.cycles_est_min}-{r.cycles_est_max}) [{r.cycles_est_steps}]"
 
 
 def to_json(rows: list[Footprint]) -> str:

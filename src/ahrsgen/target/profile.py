@@ -8,7 +8,9 @@ mapped to the source function it came from (addr2line, innermost inlined frame).
 a kernel split for the -O0 stack (`<prefix>_k_<name>_part<N>`) count as that kernel; the
 step's own code (control, input checks, copies) is the step's line; helpers (fast math, the
 input-check helpers, libc) keep their names. Beside a kernel: its operation count from the
-manifest (every side of its branches, per call), to set its instructions against.
+manifest (every side of its branches, per call), to set its instructions against; and the
+estimated Cortex-M4 cycles of the same instructions (target/cycles.py: the TRM's timings, an
+estimate) per function.
 
 The total is exact; the split is as good as GCC's line information at -O2, which can give a
 few scheduled instructions (typically the step's prologue and first loads) the location of a
@@ -60,9 +62,11 @@ def profile_steps(elf: Path, step_fn: str, prefix: str, records: np.ndarray, sta
     share, ops}]}, rows by cost."""
     from unicorn import UC_HOOK_BLOCK
 
+    from .cycles import CycleCounter
     from .emulate import Emulator, thumb_instruction_offsets
     emu = Emulator(elf)
     blocks: Counter[tuple[int, int]] = Counter()
+    cycles = CycleCounter(emu, elf)        # estimated cycles of the same steps, per address
 
     def on_block(_uc, address, size, _user):
         if emu.in_step:     # the emulator's own block hook (added first) has set it for this block
@@ -81,22 +85,29 @@ def profile_steps(elf: Path, step_fn: str, prefix: str, records: np.ndarray, sta
     total = sum(per.values())
     if total != int(counts.instructions.sum()):
         raise RuntimeError(f"profile counted {total} instructions, the step {int(counts.instructions.sum())}")
+    est = cycles.estimate(counts.instructions)
+    per_cyc: Counter[str] = Counter()
+    for a, c in cycles.per_address().items():
+        per_cyc[group_name(names.get(a, "?"), prefix)] += c
     ops = kernel_ops or {}
-    rows = [{"name": k, "per_step": n / steps, "share": n / total,
+    rows = [{"name": k, "per_step": n / steps, "share": n / total, "cycles_est_per_step": per_cyc[k] / steps,
              "ops": ops.get(k.removeprefix("kernel ")) if k.startswith("kernel ") else None}
             for k, n in per.most_common()]
-    return {"steps": steps, "instructions_per_step": total / steps, "rows": rows}
+    return {"steps": steps, "instructions_per_step": total / steps, "rows": rows,
+            "cycles_est_per_step": est["cycles_est_mean"], "cycles_est_model": est["cycles_est_model"]}
 
 
 def format_profile(filter_name: str, opt: str, prof: dict) -> str:
-    lines = [f"{filter_name} {opt}: where the step's {prof['instructions_per_step']:.0f} instructions go "
+    lines = [f"{filter_name} {opt}: where the step's {prof['instructions_per_step']:.0f} instructions "
+             f"(estimated {prof['cycles_est_per_step']:.0f} cycles) go "
              f"(first {prof['steps']} steps, unicorn; kernel parts counted as their kernel, inlined "
              f"code as the function GCC's line information gives it: the total is exact, a few "
-             f"scheduled instructions such as the prologue can land on a neighbouring function)",
-             "| function | instructions/step | share | kernel operations (manifest: every side, per call) |",
-             "|---|---|---|---|"]
+             f"scheduled instructions such as the prologue can land on a neighbouring function; "
+             f"cycles: {prof['cycles_est_model']})",
+             "| function | instructions/step | share | est. cycles/step | kernel operations (manifest: every side, per call) |",
+             "|---|---|---|---|---|"]
     for r in prof["rows"]:
         ops = r["ops"]
         lines.append(f"| {r['name']} | {r['per_step']:.1f} | {100 * r['share']:.1f} % | "
-                     f"{ops if ops is not None else ''} |")
+                     f"{r['cycles_est_per_step']:.1f} | {ops if ops is not None else ''} |")
     return "\n".join(lines)
