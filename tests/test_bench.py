@@ -209,10 +209,11 @@ def test_mini_bench_writes_tables(tmp_path, monkeypatch):
     c = rep["cost"]
     # the hand-written QCF: 34 floats (a 7-sample GPS velocity history); the default product
     # build: 13 words of the paper's filter with only the latest GPS velocity (q 4, bias 3,
-    # velocity 3, GPS age, count, initialised) and 14 floats of
+    # velocity 3, GPS age, count, initialised) and 20 floats of
     # conditioning state (NED low-pass 3, sample ages 2, rest detector 4: low-passed gyro and
-    # steady time, field reference 2 + 2 timers, the gyro over-range recovery timer)
-    assert c["qcf_hand"]["state_bytes"] == 136 and c["qcf"]["state_bytes"] == (13 + 14) * 4
+    # steady time, field reference 2 + 2 timers, the gyro over-range recovery timer and its
+    # plateau detector 6: the previous gyro sample and the repeat counts)
+    assert c["qcf_hand"]["state_bytes"] == 136 and c["qcf"]["state_bytes"] == (13 + 20) * 4
     assert 0.2 < c["qcf_eq29"]["ratio_to_hand_qcf"] < 20
     assert c["qcf"]["ops_total"] > c["qcf"]["paths"].get("gyro only", 0) > 0
     md = (tmp_path / "bench.md").read_text()

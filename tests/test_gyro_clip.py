@@ -54,6 +54,70 @@ def test_back_within_2_deg_within_3_s_of_the_clip(name):
 
 
 @pytest.mark.parametrize("name", FILTERS)
+def test_a_clip_below_the_default_range_is_found_by_its_plateau(name):
+    """The user left gyro_full_scale at its default (2000 deg/s) and the gyro clips at 500: the
+    log does not state its range. A clipped component repeats the range's end exactly, and the
+    filters take 4 such samples in a row (gyro_plateau_rate) for a clip. At 200 Hz, 5 seeds:
+    back within 2 deg within 3 s, as with the range configured; with gyro_plateau_rate = 0 more
+    than 3 deg off on every seed (measured: mekf 3.2-8.2, qcf 10-13, adukf 12-18). At 90 Hz (the
+    held-back pendulum's rate) the result with the range unstated is within 0.1 deg of the one
+    with it configured (the plateau costs 3 samples of detection)."""
+    f = build(name)
+    f_off = build(name, sets=["gyro_plateau_rate=0"])
+    f_told = build(name, sets=[RANGE])
+    for seed in range(5):
+        log = make("gyro_clip", seed=seed, range_stated=False)
+        assert "gyro_full_scale_rad_s" not in log.meta
+        after = log.t >= log.meta["clip"]["end_s"] + 3.0
+        assert error_deg(f.run(log).q, log.q_true)[after].max() <= 2.0, seed
+        assert error_deg(f_off.run(log).q, log.q_true)[after].max() > 3.0, seed
+        slow = make("gyro_clip", seed=seed, rate_hz=90.0, range_stated=False)
+        after = slow.t >= slow.meta["clip"]["end_s"] + 3.0
+        e, e_told = (error_deg(g.run(slow).q, slow.q_true)[after].max() for g in (f, f_told))
+        assert abs(e - e_told) <= 0.1, (seed, e, e_told)
+
+
+def test_the_plateau_is_not_a_duplicate_or_a_slow_repeat():
+    """What the plateau is not, in the C (qcf's kernel, the one all three filters share): a whole
+    sample repeated (a logger's duplicate), a component repeating below gyro_plateau_rate, or a
+    fast one repeating only 3 times in a row; and what it is: the 4th equal fast sample."""
+    f = build("qcf")
+    bit = np.uint32(f.manifest["status"]["GYRO_RECOVERY"])
+    n, rate = 1000, 200.0
+    base = make("gyro_clip", seed=0, clip_s=0.0, range_stated=False)
+    cases = {}
+    for label, rows, value, other_changes in [("duplicate samples", 6, 5.0, False),
+                                              ("slow component", 6, 3.0, True),
+                                              ("3 equal fast samples", 3, 5.0, True),
+                                              ("4 equal fast samples", 4, 5.0, True)]:
+        log = base.slice(0, n)
+        log.gyro = log.gyro.copy()
+        k = np.arange(300, 300 + rows)
+        log.gyro[k, 0] = value
+        if not other_changes:
+            log.gyro[k, 1:] = log.gyro[300, 1:]
+        on = (f.run(log).status & bit) != 0
+        cases[label] = on
+    assert not any(cases[k].any() for k in ("duplicate samples", "slow component", "3 equal fast samples"))
+    on = cases["4 equal fast samples"]
+    assert on[303] and not on[:303].any()
+    assert abs(np.count_nonzero(on) - 2.0 * rate) <= 2            # clip_recovery_time (2 s) from there
+
+
+def test_no_plateau_in_the_full_broad_trials():
+    """The default gyro_plateau_rate (200 deg/s) finds no clip in the 10 BROAD trials (286 Hz,
+    rotations up to 1 350 deg/s, a gyro that never clips): GYRO_RECOVERY is never set."""
+    from ahrsgen.sim import readers
+    trials = readers.broad_trials()
+    if not trials:
+        pytest.skip("BROAD subset not found (../shared/data/broad or $AHRSGEN_DATA)")
+    f = build("qcf")
+    bit = np.uint32(f.manifest["status"]["GYRO_RECOVERY"])
+    for p in trials:
+        assert not np.any(f.run(readers.read_broad(p)).status & bit), p.name
+
+
+@pytest.mark.parametrize("name", FILTERS)
 def test_recovery_status_spans_the_clip_and_clip_recovery_time(name):
     """GYRO_RECOVERY is set from the first clipped sample to clip_recovery_time after the last,
     and never on the same flip done slowly enough that the gyro stays in range; there the

@@ -2492,23 +2492,62 @@ static void adukf_k_accel_lowpass(const float q_pred_unit[4], const float accel[
     accel_body[2] = carry[4];
 }
 
-/* gyro over-range: a component at gyro_full_scale (clipped) sets the recovery timer to clip_recovery_time; recovering while more than half a step of it is left
- * ops: add 1, mul 1, cmp 8 (total 10) */
-static inline void adukf_k_gyro_recovery(const float gyro[3], float recover_time, float dt, bool *clipped, float *recover_time_new, bool *recovering)
+/* gyro over-range: a component at gyro_full_scale, or one at or above gyro_plateau_rate that holds its value for 4 samples while the others change (clipped), sets the recovery timer to clip_recovery_time; recovering while more than half a step of it is left
+ * ops: add 7, mul 1, cmp 28 (total 36)
+ *      of which only one side runs: if (tmp12) 0, else 12 */
+static void adukf_k_gyro_recovery(const float gyro[3], const float gyro_prev[3], const float gyro_repeats[3], float recover_time, float dt, bool *clipped, float *recover_time_new, bool *recovering, float gyro_repeats_new[3])
 {
     const float tmp0 = fabsf(gyro[0]);
     const float tmp1 = fabsf(gyro[1]);
     const bool tmp2 = (34.906586f /* gyro_full_scale */ <= tmp0) || (34.906586f /* gyro_full_scale */ <= tmp1);
     const float tmp3 = fabsf(gyro[2]);
     const bool tmp4 = (tmp2) || (34.906586f /* gyro_full_scale */ <= tmp3);
-    const float tmp5 = recover_time - dt;
-    const float tmp6 = (tmp5 > 0.0f) ? tmp5 : 0.0f;
-    const float tmp7 = (tmp4) ? 2.0f /* clip_recovery_time */ : tmp6;
-    const float tmp8 = 0.5f * dt;
-    const bool tmp9 = tmp8 < tmp7;
-    *clipped = tmp4;
-    *recover_time_new = tmp7;
-    *recovering = tmp9;
+    const float tmp5 = gyro[0] - gyro_prev[0];
+    const float tmp6 = fabsf(tmp5);
+    const float tmp7 = gyro[1] - gyro_prev[1];
+    const float tmp8 = fabsf(tmp7);
+    const bool tmp9 = (tmp6 < 1e-06f) && (tmp8 < 1e-06f);
+    const float tmp10 = gyro[2] - gyro_prev[2];
+    const float tmp11 = fabsf(tmp10);
+    const bool tmp12 = (tmp9) && (tmp11 < 1e-06f);
+    float tmp13;
+    float tmp14;
+    float tmp15;
+    if (tmp12) {
+        tmp13 = gyro_repeats[0];
+        tmp14 = gyro_repeats[1];
+        tmp15 = gyro_repeats[2];
+    } else {
+        const bool tmp16 = (tmp6 < 1e-06f) && (3.5f /* gyro_plateau_rate */ <= tmp0);
+        const float tmp17 = gyro_repeats[0] + 1.0f;
+        const float tmp18 = (tmp17 < 3.0f) ? tmp17 : 3.0f;
+        const float tmp19 = (tmp16) ? tmp18 : 0.0f;
+        const bool tmp20 = (tmp8 < 1e-06f) && (3.5f /* gyro_plateau_rate */ <= tmp1);
+        const float tmp21 = gyro_repeats[1] + 1.0f;
+        const float tmp22 = (tmp21 < 3.0f) ? tmp21 : 3.0f;
+        const float tmp23 = (tmp20) ? tmp22 : 0.0f;
+        const bool tmp24 = (tmp11 < 1e-06f) && (3.5f /* gyro_plateau_rate */ <= tmp3);
+        const float tmp25 = gyro_repeats[2] + 1.0f;
+        const float tmp26 = (tmp25 < 3.0f) ? tmp25 : 3.0f;
+        const float tmp27 = (tmp24) ? tmp26 : 0.0f;
+        tmp13 = tmp19;
+        tmp14 = tmp23;
+        tmp15 = tmp27;
+    }
+    const bool tmp28 = (3.0f <= tmp13) || (3.0f <= tmp14);
+    const bool tmp29 = (tmp28) || (3.0f <= tmp15);
+    const bool tmp30 = (tmp4) || (tmp29);
+    const float tmp31 = recover_time - dt;
+    const float tmp32 = (tmp31 > 0.0f) ? tmp31 : 0.0f;
+    const float tmp33 = (tmp30) ? 2.0f /* clip_recovery_time */ : tmp32;
+    const float tmp34 = 0.5f * dt;
+    const bool tmp35 = tmp34 < tmp33;
+    *clipped = tmp30;
+    *recover_time_new = tmp33;
+    *recovering = tmp35;
+    gyro_repeats_new[0] = tmp13;
+    gyro_repeats_new[1] = tmp14;
+    gyro_repeats_new[2] = tmp15;
 }
 
 /* initial attitude: accelerometer tilt and tilt-compensated heading (+ declination)
@@ -2835,6 +2874,12 @@ void adukf_init(adukf_state *s)
     s->accel_lp[1] = 0.0f;
     s->accel_lp[2] = 0.0f;
     s->recover_time = 0.0f;
+    s->gyro_prev[0] = 0.0f;
+    s->gyro_prev[1] = 0.0f;
+    s->gyro_prev[2] = 0.0f;
+    s->gyro_repeats[0] = 0.0f;
+    s->gyro_repeats[1] = 0.0f;
+    s->gyro_repeats[2] = 0.0f;
     for (uint32_t i = 0u; i < 122u; i++) {
         s->work[i] = 0.0f;
     }
@@ -2909,13 +2954,18 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
         return status & ~((adukf_status)ADUKF_MAG_LEARNING);
     }
 
-    /* Gyro over-range: a component at gyro_full_scale is a clipped sample, integrated as it is; the
+    /* Gyro over-range: a component at gyro_full_scale (or holding its value at or above
+     * gyro_plateau_rate for 4 samples) is a clipped sample, integrated as it is; the
      * rotation it missed widens the attitude covariance (predict), and for clip_recovery_time after
      * the last one R is not adapted and the accelerometer is not low-passed (timer: half a step of
      * margin, so that float and double decide alike). */
     bool clipped;
     bool recovering;
-    adukf_k_gyro_recovery(in->gyro, s->recover_time, dt, &clipped, &s->recover_time, &recovering);
+    adukf_k_gyro_recovery(in->gyro, s->gyro_prev, s->gyro_repeats, s->recover_time, dt, &clipped,
+                                 &s->recover_time, &recovering, s->gyro_repeats);
+    for (int i = 0; i < 3; i++) {
+        s->gyro_prev[i] = in->gyro[i];
+    }
     if (recovering) {
         status |= ADUKF_GYRO_RECOVERY;
     }

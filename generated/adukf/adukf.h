@@ -23,7 +23,7 @@
  * its GNU modes, -std=c99 turns it off) and -fno-math-errno; -ffast-math breaks the input
  * checks (isfinite). Any C99 compiler builds it; see the ahrsgen docs (target.md).
  *     adukf_euler(&st, rpy);
- * No heap, no recursion; RAM is the state struct (732 bytes with the usual ABI).
+ * No heap, no recursion; RAM is the state struct (756 bytes with the usual ABI).
  * Needs <math.h> (float functions only in a float build); compilers may also emit calls to
  * memcpy/memset/memmove for struct and array copies.
  *
@@ -83,6 +83,7 @@ extern "C" {
 #define ADUKF_BIAS_RW 1e-04f             /* gyro-bias state: random walk of the bias (process noise bias_rw^2 dt per axis) [rad/s/sqrt(s)] */
 #define ADUKF_P0_BIAS 1e-04f             /* gyro-bias state: initial bias variance (P0 and COV_RESET) [(rad/s)^2] */
 #define ADUKF_GYRO_FULL_SCALE 34.906586f /* the gyro's full scale (Fusion's gyroscopeRange), error state only: a component at or beyond it is a clipped sample, integrated as it is, that widens the attitude covariance by the rotation it may have missed and starts clip_recovery_time of recovery (status GYRO_RECOVERY). Default 2000 deg/s, the commonest flight-controller setting; set your sensor's (a +-500 deg/s gyro: 8.7266). 0: no over-range handling [rad/s] */
+#define ADUKF_GYRO_PLATEAU_RATE 3.5f     /* a gyro that clips below gyro_full_scale (the range left at its default) is still recognised: a component at or above this rate that holds exactly the same value for 4 samples in a row, while the other components change, is a clipped sample. A whole sample repeated (a logger's duplicate) is not. Default 200 deg/s: no component of the 10 BROAD trials (286 Hz) does this. 0: only gyro_full_scale [rad/s] */
 #define ADUKF_CLIP_RECOVERY_TIME 2.0f    /* after the last clipped gyro sample, for this long R is not adapted (the large residual is the attitude's error, not a disturbance) and the accelerometer is not low-passed (error state only) [s] */
 #define ADUKF_ACCEL_TAU 1.0f             /* time constant of the NED-frame low-pass of the accelerometer R(q-) f; the update measures the direction of R(q-)^T of it (motion acceleration averages out, gravity does not; VQF's idea); 0 = the raw accelerometer (as the paper; faithful ignores it) [s] */
 #define ADUKF_SPAN_MAX 0.1f              /* sensors at their own rates: each sensor's R is multiplied by dt / (time since its previous sample, at most span_max), so a 100 Hz magnetometer carries the information of the IMU steps it stands for; 0 = off (as the paper; faithful ignores it) [s] */
@@ -123,18 +124,20 @@ typedef uint32_t adukf_status;
 #define ADUKF_STATUS_FAULT_MASK (ADUKF_DT_INVALID | ADUKF_DT_TOO_LARGE | ADUKF_GYRO_MISSING | ADUKF_GYRO_NONFINITE | ADUKF_ACCEL_NONFINITE | ADUKF_ACCEL_ZERO | ADUKF_MAG_NONFINITE | ADUKF_MAG_ZERO | ADUKF_GPS_NONFINITE | ADUKF_GYRO_RANGE | ADUKF_ACCEL_RANGE | ADUKF_MAG_RANGE | ADUKF_GPS_RANGE | ADUKF_COV_RESET | ADUKF_UPDATE_SKIPPED | ADUKF_NUMERIC_FAULT)
 
 typedef struct {
-    float q[4];           /* attitude estimate, body->NED, [w x y z] */
-    float gyro_bias[3];   /* gyro bias estimate, rad/s */
-    float P[36];          /* covariance of [attitude error d (rad, body axes: q = q_est * [1, d/2] normalised); gyro_bias], 6x6 (symmetric; column-major) */
-    float m_ref[3];       /* reference field direction, NED unit vector */
-    float r_diag[6];      /* diagonal of the adaptive R used by the last update (0: sensor not used) */
-    float sample_age[2];  /* time since the last accelerometer / magnetometer sample, s */
-    float accel_lp[3];    /* low-passed specific force in NED, m/s^2 (accel_tau > 0) */
-    float recover_time;   /* time left of the recovery after a clipped gyro sample, s */
-    float work[122];      /* scratch of the step (P-, the update's matrices and sigma-point sums, x- and x+) kept here instead of on the stack: no meaning between steps, zeroed when an update or its result is refused */
-    float learn_sum;      /* mag_ref = learn: sum of sin(inclination) over rest samples */
-    uint32_t learn_count; /* mag_ref = learn: rest samples summed so far */
-    uint32_t initialised; /* 1 once the attitude has been initialised */
+    float q[4];            /* attitude estimate, body->NED, [w x y z] */
+    float gyro_bias[3];    /* gyro bias estimate, rad/s */
+    float P[36];           /* covariance of [attitude error d (rad, body axes: q = q_est * [1, d/2] normalised); gyro_bias], 6x6 (symmetric; column-major) */
+    float m_ref[3];        /* reference field direction, NED unit vector */
+    float r_diag[6];       /* diagonal of the adaptive R used by the last update (0: sensor not used) */
+    float sample_age[2];   /* time since the last accelerometer / magnetometer sample, s */
+    float accel_lp[3];     /* low-passed specific force in NED, m/s^2 (accel_tau > 0) */
+    float recover_time;    /* time left of the recovery after a clipped gyro sample, s */
+    float gyro_prev[3];    /* the previous gyro sample, rad/s (over-range plateau) */
+    float gyro_repeats[3]; /* times each gyro component has repeated its value at or above gyro_plateau_rate (over-range plateau) */
+    float work[122];       /* scratch of the step (P-, the update's matrices and sigma-point sums, x- and x+) kept here instead of on the stack: no meaning between steps, zeroed when an update or its result is refused */
+    float learn_sum;       /* mag_ref = learn: sum of sin(inclination) over rest samples */
+    uint32_t learn_count;  /* mag_ref = learn: rest samples summed so far */
+    uint32_t initialised;  /* 1 once the attitude has been initialised */
 } adukf_state;
 
 typedef struct {

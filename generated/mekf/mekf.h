@@ -23,7 +23,7 @@
  * its GNU modes, -std=c99 turns it off) and -fno-math-errno; -ffast-math breaks the input
  * checks (isfinite). Any C99 compiler builds it; see the ahrsgen docs (target.md).
  *     mekf_euler(&st, rpy);
- * No heap, no recursion; RAM is the state struct (496 bytes with the usual ABI).
+ * No heap, no recursion; RAM is the state struct (520 bytes with the usual ABI).
  * Needs <math.h> (float functions only in a float build); compilers may also emit calls to
  * memcpy/memset/memmove for struct and array copies.
  *
@@ -87,6 +87,7 @@ extern "C" {
 #define MEKF_MAG_BIAS_JUMP 0.2f         /* the candidate may replace the hard iron only when it differs from it by at least this fraction of the field norm (by mag_norm_th once the present hard iron is itself this large: a magnet found is refined): smaller changes are left to the field check's tolerance (soft iron, field gradients and a phone's own field on real data look like small hard irons) */
 #define MEKF_MAG_BIAS_MAX 2.0f          /* bound of the hard-iron estimate, as a multiple of the field norm */
 #define MEKF_GYRO_FULL_SCALE 34.906586f /* the gyro's full scale (Fusion's gyroscopeRange): a component at or beyond it is a clipped sample, integrated as it is, that widens the attitude covariance by the rotation it may have missed and starts clip_recovery_time of recovery (status GYRO_RECOVERY). Default 2000 deg/s, the commonest flight-controller setting; set your sensor's (a +-500 deg/s gyro: 8.7266). 0: no over-range handling [rad/s] */
+#define MEKF_GYRO_PLATEAU_RATE 3.5f     /* a gyro that clips below gyro_full_scale (the range left at its default) is still recognised: a component at or above this rate that holds exactly the same value for 4 samples in a row, while the other components change, is a clipped sample. A whole sample repeated (a logger's duplicate) is not. Default 200 deg/s: no component of the 10 BROAD trials (286 Hz) does this. 0: only gyro_full_scale [rad/s] */
 #define MEKF_CLIP_RECOVERY_TIME 2.0f    /* after the last clipped gyro sample, for this long the corrections take the accelerometer and magnetometer as they come (no low-pass, no motion weighting, no field check), so the widened covariance sets how fast the attitude comes back [s] */
 #define MEKF_GYRO_NOISE 0.00087f        /* gyro rate noise density (angle random walk); the QCF paper's Table 1 gives 0.05 deg/s/sqrt(Hz) [rad/s/sqrt(Hz)] */
 #define MEKF_GYRO_RATE_NOISE 0.001f     /* measurement = 'vectors': each axis's gyro noise density grows by this times that axis's rate, in quadrature (a MEMS gyro's scale-factor and cross-axis errors grow with the rate): during fast rotation the attitude uncertainty grows and the accelerometer and magnetometer are trusted more; 0 = a constant density. 1e-3 chosen with mag_heading_density by leave-one-BROAD-group-out with the scenarios (studies/mekf_gyro_rate_noise_cv.py, docs/mekf.md) [sqrt(s)] */
@@ -139,38 +140,40 @@ typedef uint32_t mekf_status;
 #define MEKF_STATUS_FAULT_MASK (MEKF_DT_INVALID | MEKF_DT_TOO_LARGE | MEKF_GYRO_MISSING | MEKF_GYRO_NONFINITE | MEKF_ACCEL_NONFINITE | MEKF_ACCEL_ZERO | MEKF_MAG_NONFINITE | MEKF_MAG_ZERO | MEKF_GPS_NONFINITE | MEKF_GYRO_RANGE | MEKF_ACCEL_RANGE | MEKF_MAG_RANGE | MEKF_GPS_RANGE | MEKF_UPDATE_SKIPPED)
 
 typedef struct {
-    float q[4];           /* attitude quaternion body->NED [w x y z] */
-    float gyro_bias[3];   /* gyro bias estimate, rad/s */
-    float P[36];          /* error-state covariance [dq, db] (6x6, symmetric) */
-    float v_gps[3];       /* last valid GPS velocity NED, m/s */
-    float v_age;          /* age of v_gps, s (stops counting at 1e3) */
-    float a_gps[3];       /* NED acceleration from the last two GPS velocities, m/s^2 (motion_comp = gps_accel) */
-    uint32_t a_ok;        /* 1 when a_gps comes from two samples at most gps_vel_timeout apart */
-    uint32_t initialised; /* 1 once the attitude has been initialised */
-    float a_lp[3];        /* specific force low-passed in the earth frame (NED), m/s^2 */
-    float v_lp[3];        /* GPS velocity through the same low-pass (motion_comp = gps_lowpass), m/s */
-    uint32_t vlp_ok;      /* 1 while v_lp follows a fresh GPS velocity */
-    float v_ins[3];       /* GPS velocity carried between GPS samples by the accelerometer, m/s */
-    float gyro_lp[3];     /* rest detection: low-passed gyro, rad/s */
-    float acc_lp[3];      /* rest detection: low-passed accelerometer, m/s^2 */
-    float rest_time;      /* time the gyro and accelerometer have been steady, s (stops at 1e3) */
-    float mag_ref[2];     /* reference field [norm, dip angle rad] (learned, then followed while accepted) */
-    float mag_ref_time;   /* time spent learning the reference field, s */
-    float mag_rej_time;   /* time the magnetometer has been rejected in a row, s */
-    float mag_cand[2];    /* candidate new reference [norm, dip] while rejected */
-    float mag_cand_time;  /* time the candidate field has been steady, s */
-    float head_age;       /* time since the last heading correction, s (stops at 1e3) */
-    float mag_age;        /* time since the last usable magnetometer sample, s (stops at 0.1) */
-    float recover_time;   /* time left of the recovery after a clipped gyro sample, s */
-    float mag_bias[3];    /* magnetometer hard iron, body axes, the field's units (m - mag_bias is used) */
-    float mag_cx[5];      /* candidate field model [hard iron / B (3), norm / B, down component / B], B = mag_ref[0] */
-    float mag_cP[25];     /* its covariance (5x5, symmetric) */
-    uint32_t mag_c_ok;    /* 1 once the candidate has been started from the reference */
-    float mag_rlp[4];     /* hard-iron residuals [present (2), candidate (2)] low-passed over 0.2 s */
-    float mag_rmean[2];   /* the present residuals' mean over mag_bias_settle */
-    float mag_e[3];       /* mean squares: present, candidate, present less its mean */
-    float mag_turn_time;  /* time turning since the candidate started or switched, s (stops at 1e3) */
-    uint32_t mag_suspect; /* 1 while the candidate explains the field and the present model does not */
+    float q[4];            /* attitude quaternion body->NED [w x y z] */
+    float gyro_bias[3];    /* gyro bias estimate, rad/s */
+    float P[36];           /* error-state covariance [dq, db] (6x6, symmetric) */
+    float v_gps[3];        /* last valid GPS velocity NED, m/s */
+    float v_age;           /* age of v_gps, s (stops counting at 1e3) */
+    float a_gps[3];        /* NED acceleration from the last two GPS velocities, m/s^2 (motion_comp = gps_accel) */
+    uint32_t a_ok;         /* 1 when a_gps comes from two samples at most gps_vel_timeout apart */
+    uint32_t initialised;  /* 1 once the attitude has been initialised */
+    float a_lp[3];         /* specific force low-passed in the earth frame (NED), m/s^2 */
+    float v_lp[3];         /* GPS velocity through the same low-pass (motion_comp = gps_lowpass), m/s */
+    uint32_t vlp_ok;       /* 1 while v_lp follows a fresh GPS velocity */
+    float v_ins[3];        /* GPS velocity carried between GPS samples by the accelerometer, m/s */
+    float gyro_lp[3];      /* rest detection: low-passed gyro, rad/s */
+    float acc_lp[3];       /* rest detection: low-passed accelerometer, m/s^2 */
+    float rest_time;       /* time the gyro and accelerometer have been steady, s (stops at 1e3) */
+    float mag_ref[2];      /* reference field [norm, dip angle rad] (learned, then followed while accepted) */
+    float mag_ref_time;    /* time spent learning the reference field, s */
+    float mag_rej_time;    /* time the magnetometer has been rejected in a row, s */
+    float mag_cand[2];     /* candidate new reference [norm, dip] while rejected */
+    float mag_cand_time;   /* time the candidate field has been steady, s */
+    float head_age;        /* time since the last heading correction, s (stops at 1e3) */
+    float mag_age;         /* time since the last usable magnetometer sample, s (stops at 0.1) */
+    float recover_time;    /* time left of the recovery after a clipped gyro sample, s */
+    float gyro_prev[3];    /* the previous gyro sample, rad/s (over-range plateau) */
+    float gyro_repeats[3]; /* times each gyro component has repeated its value at or above gyro_plateau_rate (over-range plateau) */
+    float mag_bias[3];     /* magnetometer hard iron, body axes, the field's units (m - mag_bias is used) */
+    float mag_cx[5];       /* candidate field model [hard iron / B (3), norm / B, down component / B], B = mag_ref[0] */
+    float mag_cP[25];      /* its covariance (5x5, symmetric) */
+    uint32_t mag_c_ok;     /* 1 once the candidate has been started from the reference */
+    float mag_rlp[4];      /* hard-iron residuals [present (2), candidate (2)] low-passed over 0.2 s */
+    float mag_rmean[2];    /* the present residuals' mean over mag_bias_settle */
+    float mag_e[3];        /* mean squares: present, candidate, present less its mean */
+    float mag_turn_time;   /* time turning since the candidate started or switched, s (stops at 1e3) */
+    uint32_t mag_suspect;  /* 1 while the candidate explains the field and the present model does not */
 } mekf_state;
 
 typedef struct {

@@ -22,7 +22,7 @@
  * its GNU modes, -std=c99 turns it off) and -fno-math-errno; -ffast-math breaks the input
  * checks (isfinite). Any C99 compiler builds it; see the ahrsgen docs (target.md).
  *     qcf_euler(&st, rpy);
- * No heap, no recursion; RAM is the state struct (108 bytes with the usual ABI).
+ * No heap, no recursion; RAM is the state struct (132 bytes with the usual ABI).
  * Needs <math.h> (float functions only in a float build); compilers may also emit calls to
  * memcpy/memset/memmove for struct and array copies.
  *
@@ -74,6 +74,7 @@ extern "C" {
 #define QCF_ACCEL_TAU 1.0f                 /* time constant of the NED-frame low-pass of the accelerometer (R(q) f) that the tilt reference is built from (VQF's idea: motion acceleration averages out, gravity does not); 0 = off [s] */
 #define QCF_BIAS_ACCEL_GATE 1.0f           /* the bias integral runs only in steps with ||f| - g| below this (frozen while the accelerometer is distrusted: no wind-up under sustained acceleration) [m/s^2] */
 #define QCF_GYRO_FULL_SCALE 34.906586f     /* the gyro's full scale (Fusion's gyroscopeRange): a component at or beyond it is a clipped sample, integrated as it is, that starts clip_recovery_time of recovery (status GYRO_RECOVERY). Default 2000 deg/s, the commonest flight-controller setting; set your sensor's (a +-500 deg/s gyro: 8.7266). 0: no over-range handling [rad/s] */
+#define QCF_GYRO_PLATEAU_RATE 3.5f         /* a gyro that clips below gyro_full_scale (the range left at its default) is still recognised: a component at or above this rate that holds exactly the same value for 4 samples in a row, while the other components change, is a clipped sample. A whole sample repeated (a logger's duplicate) is not. Default 200 deg/s: no component of the 10 BROAD trials (286 Hz) does this. 0: only gyro_full_scale [rad/s] */
 #define QCF_CLIP_RECOVERY_TIME 2.0f        /* after the last clipped gyro sample, for this long the correction uses kp_recovery on the accelerometer sample itself (no low-pass) and the magnetometer without the field check, and the bias integral holds [s] */
 #define QCF_KP_RECOVERY 2.0f               /* proportional gain while recovering from a clipped gyro sample (Fusion's start-up gain idea): the error falls as exp(-kp_recovery t), 19 deg to 0.05 deg in 3 s [rad/s] */
 #define QCF_REST_TIME 1.5f                 /* rest detection: gyro steady and |f| near g this long -> the gyro bias is learned from the low-passed gyro (0 = off) [s] */
@@ -137,6 +138,8 @@ typedef struct {
     float mag_dist_time;   /* field check: time the field has been rejected, s */
     float mag_learn_time;  /* field check: time since the first magnetometer sample (capped), s */
     float recover_time;    /* time left of the recovery after a clipped gyro sample, s */
+    float gyro_prev[3];    /* the previous gyro sample, rad/s (over-range plateau) */
+    float gyro_repeats[3]; /* times each gyro component has repeated its value at or above gyro_plateau_rate (over-range plateau) */
 } qcf_state;
 
 typedef struct {

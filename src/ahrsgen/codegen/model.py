@@ -187,18 +187,31 @@ class FilterModel:
         with math = "fast" gets their C beside the kernels' helpers, written once)."""
         return ()
 
+    def gyro_recovery_state(self) -> list:
+        """The state fields of the gyro over-range handling (gyro_recovery_kernel's)."""
+        return [StateField("recover_time", 1, "time left of the recovery after a clipped gyro sample, s", 0.0),
+                StateField("gyro_prev", 3, "the previous gyro sample, rad/s (over-range plateau)", 0.0),
+                StateField("gyro_repeats", 3, "times each gyro component has repeated its value at or above "
+                           "gyro_plateau_rate (over-range plateau)", 0.0)]
+
     def gyro_recovery_kernel(self) -> KernelSpec:
-        """The gyro over-range kernel a filter with gyro_full_scale and clip_recovery_time
-        parameters calls once per step (symbolic/aiding.gyro_recovery): clipped, the recovery
-        timer and whether the step is recovering."""
+        """The gyro over-range kernel a filter with gyro_full_scale, gyro_plateau_rate and
+        clip_recovery_time parameters calls once per step (symbolic/aiding.gyro_plateau and
+        gyro_recovery): clipped, the recovery timer, whether the step is recovering, and the
+        plateau's state (gyro_recovery_state)."""
         from ahrsgen.codegen.emit import function
         from ahrsgen.symbolic import aiding
-        g, t, dt = ca.SX.sym("gyro", 3), ca.SX.sym("recover_time"), ca.SX.sym("dt")
+        g, prev, reps = ca.SX.sym("gyro", 3), ca.SX.sym("gyro_prev", 3), ca.SX.sym("gyro_repeats", 3)
+        t, dt = ca.SX.sym("recover_time"), ca.SX.sym("dt")
+        plateau, reps_new = aiding.gyro_plateau(g, prev, reps, min_rate=self.params["gyro_plateau_rate"])
         clipped, t_new, recovering = aiding.gyro_recovery(
-            g, t, dt, full_scale=self.params["gyro_full_scale"], recovery_time=self.params["clip_recovery_time"])
-        return KernelSpec("gyro_recovery", function("gyro_recovery", {"gyro": g, "recover_time": t, "dt": dt},
-                                                    {"clipped": clipped, "recover_time_new": t_new,
-                                                     "recovering": recovering}),
-                          "gyro over-range: a component at gyro_full_scale (clipped) sets the recovery timer to "
-                          "clip_recovery_time; recovering while more than half a step of it is left",
-                          flags=("clipped", "recovering"))
+            g, t, dt, full_scale=self.params["gyro_full_scale"], recovery_time=self.params["clip_recovery_time"],
+            plateau=plateau)
+        return KernelSpec("gyro_recovery", function(
+            "gyro_recovery", {"gyro": g, "gyro_prev": prev, "gyro_repeats": reps, "recover_time": t, "dt": dt},
+            {"clipped": clipped, "recover_time_new": t_new, "recovering": recovering,
+             "gyro_repeats_new": reps_new}),
+            "gyro over-range: a component at gyro_full_scale, or one at or above gyro_plateau_rate that "
+            f"holds its value for {aiding.PLATEAU_SAMPLES} samples while the others change (clipped), sets the "
+            "recovery timer to clip_recovery_time; recovering while more than half a step of it is left",
+            flags=("clipped", "recovering"))

@@ -22,6 +22,8 @@ SX expressions so that a kernel can output them and the step partial can branch 
 - `norm_within(n2, center, tol)`: ||v| - center| < tol from |v|², without a square root.
 - `gyro_recovery(...)`: a gyro component at the sensor's full scale (a clipped sample) and the
   recovery window that follows it (the filters decide what recovering means for them).
+- `gyro_plateau(...)`: a clipped sample recognised without the range: a fast component that
+  holds exactly the same value for PLATEAU_SAMPLES samples while the others change.
 """
 from __future__ import annotations
 
@@ -65,18 +67,53 @@ def rest_detector(gyro, accel_norm2, gyro_lp, rest_time, dt, *, tau: float, gyro
     return g_lp, t_new, t_new + 0.5 * dt >= min_time
 
 
-def gyro_recovery(gyro, recover_time, dt, *, full_scale, recovery_time):
+# gyro_plateau: this many equal samples in a row (3 repeats) of one fast component is a clip. On
+# the 10 BROAD trials (286 Hz, a gyro that never clips) no component above 200 deg/s repeats
+# 3 times outside whole-sample duplicates; 2 repeats happen (up to 2 per trial at 200 deg/s)
+PLATEAU_SAMPLES = 4
+# ... "equal" meaning within this (rad/s): far below any gyro's resolution (a 16-bit +-2000 deg/s
+# gyro's step is 1e-3 rad/s), so a clipped sensor's repeated value passes and a moving one's fails
+PLATEAU_TOL = 1e-6
+
+
+def gyro_plateau(gyro, gyro_prev, runs, *, min_rate):
+    """Returns (plateau 0/1, runs'): a clipped sample recognised from the data when the user
+    left the range at its default (a +-600 deg/s gyro under a 2000 deg/s setting).
+
+    A saturated gyro reports the end of its range, exactly the same number sample after
+    sample, while a moving one never does for long. runs[i] counts the repeats of component i
+    (|gyro[i]| >= min_rate and |gyro[i] - gyro_prev[i]| < PLATEAU_TOL); a sample equal to the previous one in
+    all three components is a duplicate (a logger repeating a sample), which neither counts
+    nor resets. plateau: a count reached PLATEAU_SAMPLES - 1. min_rate <= 0 (a number): never.
+    min_rate may be a runtime parameter's symbol."""
+    if isinstance(min_rate, (int, float)) and min_rate <= 0:
+        return ca.SX(0), ca.SX.zeros(3)
+    same = [ca.fabs(gyro[i] - gyro_prev[i]) < PLATEAU_TOL for i in range(3)]
+    dup = ca.logic_and(ca.logic_and(same[0], same[1]), same[2])
+    need = PLATEAU_SAMPLES - 1
+    new = [ca.if_else(dup, runs[i], ca.if_else(ca.logic_and(same[i], ca.fabs(gyro[i]) >= min_rate),
+                                                   ca.fmin(runs[i] + 1.0, need), 0.0)) for i in range(3)]
+    plateau = ca.logic_or(ca.logic_or(new[0] >= need, new[1] >= need), new[2] >= need)
+    return plateau, ca.vertcat(*new)
+
+
+def gyro_recovery(gyro, recover_time, dt, *, full_scale, recovery_time, plateau=None):
     """Returns (clipped 0/1, recover_time', recovering 0/1).
 
-    clipped: a gyro component at or beyond full_scale (0: never). recover_time counts down
-    from recovery_time, set by every clipped sample, to 0. recovering: more than half a step of
-    it is left, a margin so that a count landing on 0 decides the same in float and double.
-    full_scale may be a runtime parameter's symbol."""
+    clipped: a gyro component at or beyond full_scale, or `plateau` (gyro_plateau's flag);
+    full_scale = 0 (a number): never. recover_time counts down from recovery_time, set by
+    every clipped sample, to 0. recovering: more than half a step of it is left, a margin so
+    that a count landing on 0 decides the same in float and double. full_scale may be a
+    runtime parameter's symbol."""
     if isinstance(full_scale, (int, float)) and full_scale <= 0:
         clipped = ca.SX(0)
     else:
         clipped = ca.logic_or(ca.logic_or(ca.fabs(gyro[0]) >= full_scale, ca.fabs(gyro[1]) >= full_scale),
                               ca.fabs(gyro[2]) >= full_scale)
+        if plateau is not None:
+            clipped = ca.logic_or(clipped, plateau)
+        if not isinstance(full_scale, (int, float)):     # a runtime parameter: 0 turns it off there too
+            clipped = ca.logic_and(full_scale > 0, clipped)
     t_new = ca.if_else(clipped, recovery_time, ca.fmax(recover_time - dt, 0.0))
     return clipped, t_new, t_new > 0.5 * dt
 

@@ -140,8 +140,7 @@ class Model(FilterModel):
             StateField("r_diag", 6, "diagonal of the adaptive R used by the last update (0: sensor not used)", 0.0),
         ] + ([StateField("sample_age", 2, "time since the last accelerometer / magnetometer sample, s", 0.0)]
              if self.own_rates() else []) + ([StateField("accel_lp", 3, "low-passed specific force in NED, m/s^2 (accel_tau > 0)", 0.0)]
-             if self.lowpass() else []) + ([StateField("recover_time", 1, "time left of the recovery after a clipped "
-                                                      "gyro sample, s", 0.0)] if self.err else []) + [
+             if self.lowpass() else []) + (self.gyro_recovery_state() if self.err else []) + [
             StateField("work", self.work_layout()["size"], "scratch of the step (P-, the update's matrices and sigma-point sums"
                        + (", x- and x+) " if self.nx == 7 else ") ") +
                        "kept here instead of on the stack: no meaning between steps, zeroed when an update or its "

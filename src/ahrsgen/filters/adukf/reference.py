@@ -69,6 +69,7 @@ import math
 import numpy as np
 
 from ahrsgen.constants import G0
+from ahrsgen.reference_aiding import GyroClip
 from ahrsgen.codegen import input_checks
 from ahrsgen import status as st
 from ahrsgen.npquat import q_from_euler, qmul, rotmat, skew
@@ -229,7 +230,8 @@ class Reference:
         self.P = self.P0()
         self.initialized = bool(p["faithful"])
         self.r_diag = np.zeros(6)       # R used by the last step (0 = sensor not used)
-        self.recover_time = 0.0         # time left of the recovery after a clipped gyro sample (error state)
+        self.clip = GyroClip(float(self.p["gyro_full_scale"]), float(self.p["gyro_plateau_rate"]),
+                             float(self.p["clip_recovery_time"]))   # gyro over-range (error state)
 
     def P0(self):
         if self.err:
@@ -284,12 +286,7 @@ class Reference:
         # low-passed (the timer keeps half a step of margin: float and double decide alike)
         clipped = recovering = False
         if self.err:
-            clipped = p["gyro_full_scale"] > 0 and max(abs(x) for x in wl) >= p["gyro_full_scale"]
-            if clipped:
-                self.recover_time = p["clip_recovery_time"]
-            elif self.recover_time > 0:
-                self.recover_time = max(self.recover_time - dt, 0.0)
-            recovering = self.recover_time > 0.5 * dt
+            clipped, recovering = self.clip.step(wl, dt)
             if recovering:
                 status |= GYRO_RECOVERY
 

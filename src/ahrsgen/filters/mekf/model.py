@@ -571,7 +571,7 @@ class Model(FilterModel):
             StateField("mag_cand_time", 1, "time the candidate field has been steady, s", 0.0),
             StateField("head_age", 1, "time since the last heading correction, s (stops at 1e3)", AGE_MAX),
             StateField("mag_age", 1, f"time since the last usable magnetometer sample, s (stops at {MAG_INTERVAL_MAX:g})", 0.0),
-            StateField("recover_time", 1, "time left of the recovery after a clipped gyro sample, s", 0.0),
+            *self.gyro_recovery_state(),
             StateField("mag_bias", 3, "magnetometer hard iron, body axes, the field's units (m - mag_bias is used)", 0.0),
         ] + (self._hard_iron_fields() if self._hard_iron() else [])
 

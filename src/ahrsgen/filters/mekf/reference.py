@@ -38,6 +38,7 @@ import numpy as np
 from ahrsgen.constants import G0
 from ahrsgen.codegen import input_checks
 from ahrsgen import status as st
+from ahrsgen.reference_aiding import GyroClip
 from ahrsgen.npquat import euler_from_q, q_from_euler, qexp, qmul, rotmat, skew, wrap
 
 # Filter-specific status bits (informational; the step ran).
@@ -172,7 +173,7 @@ class Reference:
                       "mag_ref_tau", "mag_new_time", "course_max_sideslip", "gyro_full_scale",
                       "clip_recovery_time", "gyro_rate_noise", "mag_heading_density"):
                 setattr(self, k, float(p[k]))
-            self.recover_time = 0.0       # time left of the recovery after a gyro clip, s
+            self.clip = GyroClip(self.gyro_full_scale, float(p["gyro_plateau_rate"]), self.clip_recovery_time)
             self.a_lp = np.zeros(3)       # earth-frame (NED) low-passed specific force
             self.v_lp = np.zeros(3)       # the GPS velocity through the same low-pass (gps_lowpass)
             self.vlp_ok = False           # v_lp follows a fresh GPS velocity
@@ -429,12 +430,9 @@ class Reference:
         # last clipped sample the corrections take the sensors as they come (no low-pass, no
         # motion weighting, no field check) so that the covariance, not the low-pass, sets
         # how fast the attitude comes back
-        if self.gyro_full_scale > 0.0 and np.max(np.abs(gyro)) >= self.gyro_full_scale:
+        clipped, recovering = self.clip.step(gyro, dt)
+        if clipped:
             P = P + np.diag([(0.5 * self.gyro_full_scale * dt) ** 2] * 3 + [0.0] * 3)
-            self.recover_time = self.clip_recovery_time
-        elif self.recover_time > 0.0:
-            self.recover_time = max(self.recover_time - dt, 0.0)
-        recovering = self.recover_time > 0.5 * dt
         if recovering:
             status |= GYRO_RECOVERY
 

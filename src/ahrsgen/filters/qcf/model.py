@@ -102,7 +102,7 @@ class Model(FilterModel):
             StateField("mag_ref", 2, "field check reference: |m| and sin(dip) (|m| = 0: not learned)", 0.0),
             StateField("mag_dist_time", 1, "field check: time the field has been rejected, s", 0.0),
             StateField("mag_learn_time", 1, "field check: time since the first magnetometer sample (capped), s", 0.0),
-            StateField("recover_time", 1, "time left of the recovery after a clipped gyro sample, s", 0.0),
+            *self.gyro_recovery_state(),
         ])
 
     def kernels(self):

@@ -10,6 +10,7 @@ import numpy as np
 from ahrsgen import npquat as nq
 from ahrsgen.codegen import input_checks
 from ahrsgen.constants import G0
+from ahrsgen.reference_aiding import GyroClip
 
 PAPER_COEFFS = np.array([0.0971, 0.1662, 0.1853])
 
@@ -110,7 +111,8 @@ class Reference:
         self.mag_ref = np.zeros(2)         # |m|, sin(dip); |m| = 0: not learned
         self.mag_dist_time = 0.0
         self.mag_learn_time = 0.0          # time since the first magnetometer sample (capped at warmup)
-        self.recover_time = 0.0            # time left of the recovery after a clipped gyro sample
+        self.clip = GyroClip(float(self.p["gyro_full_scale"]), float(self.p["gyro_plateau_rate"]),
+                             float(self.p["clip_recovery_time"]))
 
     def step(self, gyro, accel, mag, gps_vel, valid, dt):
         p = self.p
@@ -203,11 +205,7 @@ class Reference:
         # gyro over-range: a clipped sample was integrated as it is; for clip_recovery_time after
         # the last one the correction takes the sensors as they come with kp_recovery (half a
         # step of margin on the timer: float and double decide alike)
-        if p["gyro_full_scale"] > 0 and np.max(np.abs(gyro)) >= p["gyro_full_scale"]:
-            self.recover_time = p["clip_recovery_time"]
-        elif self.recover_time > 0:
-            self.recover_time = max(self.recover_time - dt, 0.0)
-        recovering = self.recover_time > 0.5 * dt
+        _, recovering = self.clip.step(gyro, dt)
         if recovering:
             status |= bit["GYRO_RECOVERY"]
         self.accel_age = min(self.accel_age + dt, p["span_max"])

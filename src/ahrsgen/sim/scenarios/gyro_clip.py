@@ -80,9 +80,11 @@ def truth(duration, period, r, flip_time, T, axis) -> _sim.Truth:
 
 def make(seed: int = 0, *, rate_hz: float = 200.0, gyro_range_deg_s: float = 500.0, clip_s: float = 0.3,
          flip_time: float = -1.0, noise: bool = True, jitter: float = 0.0,
-         dropout: dict | None = None) -> SensorLog:
+         dropout: dict | None = None, range_stated: bool = True) -> SensorLog:
     """flip_time < 0: drawn from the seed in [15, 20] s. clip_s = 0: the same flip slow enough
-    that the gyro never clips (its peak rate is then 90 % of the range)."""
+    that the gyro never clips (its peak rate is then 90 % of the range). range_stated = False:
+    the log does not state the gyro's range (a user who left gyro_full_scale at its default;
+    the filters must recognise the clip from the data)."""
     r = _sim.rng(seed, _sim._S_SCENARIO)
     tf = r.uniform(15.0, 20.0) if flip_time < 0.0 else float(flip_time)
     a = r.uniform(-30.0, 30.0) * DEG
@@ -109,7 +111,8 @@ def make(seed: int = 0, *, rate_hz: float = 200.0, gyro_range_deg_s: float = 500
     log.gyro = np.clip(log.gyro, -rng_rad, rng_rad)
     clipped = np.any(np.abs(raw) > rng_rad, axis=1)
     lost = float(np.sum(np.abs(raw - log.gyro).max(axis=1) * log.dt)) / DEG
-    log.meta["gyro_full_scale_rad_s"] = float(rng_rad)     # the sensor's range, as a user configures it
+    if range_stated:
+        log.meta["gyro_full_scale_rad_s"] = float(rng_rad)     # the sensor's range, as a user configures it
     log.meta["clip"] = {"gyro_range_rad_s": float(rng_rad), "flip_time_s": float(tf), "flip_length_s": float(T),
                         "start_s": float(log.t[clipped][0]) if clipped.any() else None,
                         "end_s": float(log.t[clipped][-1]) if clipped.any() else None,
