@@ -44,7 +44,7 @@ import hashlib
 import importlib
 import json
 import platform
-import subprocess
+import shutil
 import sys
 import tarfile
 import tempfile
@@ -238,9 +238,14 @@ def ratios(rows: list[dict]) -> list[dict]:
             if a is None or p is None:
                 continue
             rc = a["cycles_est_mean"] / p["cycles_est_mean"]
-            out.append({"filter": ours, "peer": peer, "opt": opt, "cycles_ratio": rc,
-                        "instructions_ratio": a["instructions_mean"] / p["instructions_mean"],
-                        "bound_cycles": bound, "within_bound": bool(rc <= bound)})
+            row = {"filter": ours, "peer": peer, "opt": opt, "cycles_ratio": rc,
+                   "instructions_ratio": a["instructions_mean"] / p["instructions_mean"],
+                   "bound_cycles": bound, "within_bound": bool(rc <= bound)}
+            if "inner" in p:     # against the library's update alone, without the wrapper's unit conversions
+                row.update(inner=p["inner"]["function"],
+                           cycles_ratio_inner=a["cycles_est_mean"] / p["inner"]["cycles_est_mean"],
+                           instructions_ratio_inner=a["instructions_mean"] / p["inner"]["instructions_mean"])
+            out.append(row)
     return out
 
 
@@ -268,16 +273,14 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     if args.count_steps < 0:
         ap.error("--count-steps must be >= 0")
-    missing = B.missing_tools()
-    if subprocess.run(["which", "arm-none-eabi-g++"], capture_output=True).returncode != 0:
-        missing.append("arm-none-eabi-g++")
-    if missing:
-        print(f"cycles_vs_peers: missing {', '.join(missing)} (.ci/setup installs them)", file=sys.stderr)
-        return 2
     try:
         src = get_sources(Path(args.sources).expanduser())
     except SourcesMissing as e:
         print(f"cycles_vs_peers: {e}", file=sys.stderr)
+        return 2
+    missing = B.missing_tools() + ([] if shutil.which("arm-none-eabi-g++") else ["arm-none-eabi-g++"])
+    if missing:
+        print(f"cycles_vs_peers: missing {', '.join(missing)} (.ci/setup installs them)", file=sys.stderr)
         return 2
     opts = args.opt or list(B.OPT_LEVELS)
     count_steps = None if args.count_steps == 0 else args.count_steps
@@ -311,7 +314,9 @@ def main(argv=None) -> int:
     for q in rat:
         print(f"{q['filter']} / {q['peer']} {q['opt']}: {q['cycles_ratio']:.2f}x in est. cycles, "
               f"{q['instructions_ratio']:.2f}x in instructions (issue 29 bound {q['bound_cycles']}x in cycles: "
-              f"{'within' if q['within_bound'] else 'NOT within'})")
+              f"{'within' if q['within_bound'] else 'NOT within'})"
+              + (f"; against {q['inner']} alone {q['cycles_ratio_inner']:.2f}x and {q['instructions_ratio_inner']:.2f}x"
+                 if "inner" in q else ""))
     for r in rows:
         if "inner" in r:
             i = r["inner"]
