@@ -88,6 +88,21 @@ def test_cycle_estimate_matches_hand_count_from_the_trm(name, tmp_path):
     assert abs(est["cycles_est_mean"] - hand) <= TOL * hand, (name, est["cycles_est_mean"], hand)
 
 
+@pytest.mark.target
+@needs("target")
+def test_executions_count_the_divisions_and_square_roots(tmp_path):
+    """CycleCounter.executions: cyc_div runs 100 vdiv and 100 vsqrt per call (the listing)."""
+    from ahrsgen import target as T
+    from ahrsgen.target.cycles import CycleCounter
+    b = _loop_binding("cyc_div", tmp_path)
+    bld = T.build(b, tmp_path / "build", "-O2")
+    emu = T.Emulator(bld.elf)
+    cc = CycleCounter(emu, bld.elf)
+    emu.count_steps(b.step_fn, np.zeros(3, dtype=T.RECORD_DTYPE), 32)
+    assert cc.executions({"vdiv"}) == 300 and cc.executions({"vdiv", "vsqrt"}) == 600
+    assert cc.executions({"sdiv"}) == 0
+
+
 def test_hand_counts_assume_the_module_refill():
     from ahrsgen.target import cycles
     assert cycles.BRANCH_REFILL == P

@@ -107,6 +107,12 @@ class FilterBinding:
     state_fields: dict[str, tuple[int, int]] = field(default_factory=dict)
     scalar: str = "float"
     has_euler: bool = False      # <prefix>_euler(const state *, real rpy[3]) exists
+    # Someone else's code (studies/cycles_vs_peers.py: Fusion, BasicVQF) keeps its own warnings:
+    # these flags replace WARN_FLAGS for the filter's own C sources (None: the strict set); its
+    # C++ sources (.cpp) compile with arm-none-eabi-g++ and cxx_flags instead. CPU, optimisation,
+    # MATH_FLAGS and SECTION_FLAGS apply to both; the glue and the harness stay strict.
+    own_cflags: list[str] | None = None
+    cxx_flags: list[str] = field(default_factory=lambda: ["-std=c++17", "-fno-exceptions", "-fno-rtti"])
 
     @property
     def init_fn(self) -> str:
@@ -240,8 +246,12 @@ def build(b: FilterBinding, workdir: Path, opt: str = "-O2", cpu: str = "cortex-
     for src in ([] if reuse is not None else b.sources):
         obj = workdir / (Path(src).stem + ".o")
         pin = ["-include", str(PINNED_LIBM_H)] if pinned_libm else []
-        _run(["arm-none-eabi-gcc", *flags, *incs, *pin, "-fstack-usage", "-c", str(src), "-o", str(obj)],
-             cwd=workdir)
+        cc, own = "arm-none-eabi-gcc", flags
+        if Path(src).suffix in (".cpp", ".cc"):
+            cc, own = "arm-none-eabi-g++", [f for f in flags if f not in WARN_FLAGS] + b.cxx_flags
+        elif b.own_cflags is not None:
+            own = [f for f in flags if f not in WARN_FLAGS] + b.own_cflags
+        _run([cc, *own, *incs, *pin, "-fstack-usage", "-c", str(src), "-o", str(obj)], cwd=workdir)
         objs.append(obj)
         filt_objs.append(obj)
         sus.append(obj.with_suffix(".su"))

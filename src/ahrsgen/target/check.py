@@ -26,6 +26,7 @@ class TargetResult:
     run: TargetRun
     counts: StepCounts
     footprint: Footprint
+    cycles: object = None       # the CycleCounter of the counted steps (target/cycles.py)
 
 
 def check_filter(b: FilterBinding, records: np.ndarray, workdir: Path | None = None,
@@ -54,7 +55,7 @@ def check_filter(b: FilterBinding, records: np.ndarray, workdir: Path | None = N
     counts = emu.count_steps(b.step_fn, sub, run.state_bytes)
     o0 = debug_stack(b, workdir / f"{b.name}-O0", cpu, cflags) if o0_stack else None
     fp = footprint(b, bld, counts, run, o0, cycles.estimate(counts.instructions))
-    return TargetResult(bld, run, counts, fp)
+    return TargetResult(bld, run, counts, fp, cycles)
 
 
 @dataclass

@@ -285,6 +285,15 @@ class CycleCounter:
                 out[addr] += n * c
         return out
 
+    def executions(self, bases: set[str]) -> int:
+        """How many instructions with these base mnemonics (`split_mnemonic`, e.g. {"vdiv",
+        "vsqrt"}) ran over every counted step."""
+        n = 0
+        for (a, s, _t), times in self.transitions.items():
+            b = self._block(a, s)
+            n += times * sum(split_mnemonic(self.insns.get(addr, ("?", ""))[0])[0] in bases for addr in b.addresses)
+        return n
+
     def unmodelled_mnemonics(self) -> list[str]:
         """Executed mnemonics the table does not know (costed 1 each)."""
         seen = set()
