@@ -77,15 +77,17 @@ def test_names_change_no_arithmetic(name, kw):
 
 
 def test_a_set_parameter_moves_its_named_number(tmp_path, capsys):
-    """ahrsgen generate mekf --set accel_angle_noise=0.05: its square and nine times it, as
-    float32 literals computed here, stand beside their names; the default's are gone."""
-    assert cli.main(["generate", "mekf", "--set", "accel_angle_noise=0.05", "-o", str(tmp_path)]) == 0
+    """ahrsgen generate mekf --set accel_angle_noise=0.05 (accel_noise_density = 0, so that the
+    gravity variance is the parameter's alone): its square and nine times it, as float32
+    literals computed here, stand beside their names; the default's are gone."""
+    assert cli.main(["generate", "mekf", "--set", "accel_angle_noise=0.05", "--set", "accel_noise_density=0",
+                     "-o", str(tmp_path)]) == 0
     capsys.readouterr()
     src = (tmp_path / "mekf.c").read_text()
     sq, nine = str(np.float32(0.05 ** 2)), str(np.float32(9 * 0.05 ** 2))
     assert f"{sq}f /* accel_angle_noise^2 */" in src
     assert f"{nine}f /* 9*accel_angle_noise^2 */" in src
-    assert "0.0049f" not in src
+    assert "0.0049f" not in src and "/* accel_noise_density" not in src     # no density term left
 
 
 def test_a_parameter_equal_to_structural_constants_is_not_named_with_them():

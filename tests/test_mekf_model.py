@@ -234,7 +234,7 @@ def test_gravity_update_keeps_P_spd_at_vertical_pitch():
     q_true = q_from_euler(0.0, np.pi / 2 - 0.1, 0.3)
     a_lp = rotmat(q_true).T @ np.array([0.0, 0.0, -9.81])
     a_lp_n = rotmat(q) @ a_lp                       # the kernel takes the earth-frame low-pass
-    h, z, r_g = (np.array(v).ravel() for v in fg(q, a_lp_n, 0))
+    h, z, r_g = (np.array(v).ravel() for v in fg(q, a_lp_n, 0, 0.01))
     x, P_new = np.zeros(6), P.ravel()
     for i in range(3):
         x, P_new, piv = fr(P_new, h[3 * i:3 * i + 3], z[i], r_g[0], x)

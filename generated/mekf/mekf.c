@@ -1275,8 +1275,8 @@ static void mekf_k_heading_features(const float q[4], const float mag[3], const 
 }
 
 /* gravity direction: H rows, innovations, variance
- * ops: add 42, mul 33, div 2, sqrt 1, cmp 2 (total 80)
- *      of which only one side runs: if (recover) 0, else 9 */
+ * ops: add 43, mul 34, div 3, sqrt 1, cmp 3 (total 84)
+ *      of which only one side runs: if (recover) 0, else 10 */
 static void mekf_k_gravity_rows_part0(const float q[4], const float up[3], float carry[19])
 {
     const float tmp0 = q[1] * q[1];
@@ -1340,7 +1340,7 @@ static void mekf_k_gravity_rows_part0(const float q[4], const float up[3], float
     carry[18] = tmp39;
 }
 
-static void mekf_k_gravity_rows_part1(const float up[3], bool recover, float carry[19])
+static void mekf_k_gravity_rows_part1(const float up[3], float dt, float carry[19])
 {
     const float tmp40 = up[2] * up[2];
     const float tmp41 = carry[18] + tmp40;
@@ -1372,33 +1372,43 @@ static void mekf_k_gravity_rows_part1(const float up[3], bool recover, float car
     const float tmp67 = tmp65 + tmp66;
     const float tmp68 = tmp67 * tmp43;
     const float tmp69 = tmp68 + carry[1];
-    float tmp70;
-    if (recover) {
-        tmp70 = 0.0049f /* accel_angle_noise^2 */;
-    } else {
-        const float tmp71 = tmp45 * tmp45;
-        const float tmp72 = tmp58 * tmp58;
-        const float tmp73 = tmp71 + tmp72;
-        const float tmp74 = tmp69 * tmp69;
-        const float tmp75 = tmp73 + tmp74;
-        const float tmp76 = tmp75 / 0.0441f /* 9*accel_angle_noise^2 */;
-        const float tmp77 = 1.0f + tmp76;
-        const float tmp78 = (tmp77 < 1.0f) ? tmp77 : 1.0f;
-        const float tmp79 = 0.0049f /* accel_angle_noise^2 */ * tmp78;
-        tmp70 = tmp79;
-    }
+    const float tmp70 = (dt > 1e-09f) ? dt : 1e-09f;
+    const float tmp71 = 1.6e-05f /* accel_noise_density^2 */ / tmp70;
+    const float tmp72 = 0.0049f /* accel_angle_noise^2 */ + tmp71;
     carry[0] = tmp45;
     carry[1] = tmp58;
     carry[3] = tmp69;
-    carry[4] = tmp70;
+    carry[4] = tmp72;
 }
 
-static void mekf_k_gravity_rows(const float q[4], const float up[3], bool recover, float h[9], float z[3], float *r)
+static void mekf_k_gravity_rows_part2(bool recover, float carry[19])
 {
-    /* 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    float tmp73;
+    if (recover) {
+        tmp73 = carry[4];
+    } else {
+        const float tmp74 = carry[0] * carry[0];
+        const float tmp75 = carry[1] * carry[1];
+        const float tmp76 = tmp74 + tmp75;
+        const float tmp77 = carry[3] * carry[3];
+        const float tmp78 = tmp76 + tmp77;
+        const float tmp79 = 9.0f * carry[4];
+        const float tmp80 = tmp78 / tmp79;
+        const float tmp81 = 1.0f + tmp80;
+        const float tmp82 = (tmp81 < 1.0f) ? tmp81 : 1.0f;
+        const float tmp83 = carry[4] * tmp82;
+        tmp73 = tmp83;
+    }
+    carry[4] = tmp73;
+}
+
+static void mekf_k_gravity_rows(const float q[4], const float up[3], bool recover, float dt, float h[9], float z[3], float *r)
+{
+    /* 3 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
     float carry[19];
     mekf_k_gravity_rows_part0(q, up, carry);
-    mekf_k_gravity_rows_part1(up, recover, carry);
+    mekf_k_gravity_rows_part1(up, dt, carry);
+    mekf_k_gravity_rows_part2(recover, carry);
     h[0] = 0.0f;
     h[1] = carry[2];
     h[2] = carry[6];
@@ -3835,7 +3845,7 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
             float h[9];   /* the rows of H, one after the other */
             float z[3];
             float r;
-            mekf_k_gravity_rows(q, up, recovering, h, z, &r);
+            mekf_k_gravity_rows(q, up, recovering, dt, h, z, &r);
             for (uint32_t i = 0u; i < 3u && usable; i++) {
                 mekf_k_update_attitude_row(P, &h[3u * i], z[i], r, x, x, P, &min_pivot);
                 usable = min_pivot > 1e-12f;

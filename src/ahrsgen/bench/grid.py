@@ -40,6 +40,7 @@ def scenario_configs(quick: bool) -> list[tuple[str, str, dict]]:
                 ("multirotor_400hz", "multirotor", {"rate_hz": 400.0, "mag_rate": 100.0}),
                 ("multirotor_400hz_repeated", "multirotor", {"rate_hz": 400.0, "mag_rate": 100.0,
                                                               "repeat_slow": True}),
+                ("multirotor_1khz", "multirotor", {"rate_hz": 1000.0, "mag_rate": 100.0}),
                 ("multirotor_jitter_dropouts", "multirotor",
                  {"jitter": 0.0004, "dropout": {"gyro": 0.005, "accel": 0.01, "mag": 0.05, "gps": 0.1}}),
                 ("static_accel_disturbance", "static_accel_disturbance", {}),

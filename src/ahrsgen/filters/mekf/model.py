@@ -358,19 +358,22 @@ def gravity_rows_function(p: dict, name="gravity_rows") -> ca.Function:
     """The gravity-direction measurement: rows of H (h, H's rows one after the other; the
     bias columns are 0), innovations z and their variance r.
 
-    z_g = up/|up| in body axes − R(q̂)ᵀ [0, 0, −1] (up: accel_lowpass's earth-frame vector); R_g = σ² min(1 + |z_g|²/(3σ)², cap)
+    z_g = up/|up| in body axes − R(q̂)ᵀ [0, 0, −1] (up: accel_lowpass's earth-frame vector); R_g = σ² min(1 + |z_g|²/(3σ)², cap), σ² = accel_angle_noise² + accel_noise_density²/dt
     (bounded residual adaptation: the correction can be weakened, never locked out).
     The step runs the three rows in turn through `update_attitude_row` (one kernel, called
     three times: kalman.scalar_updates, the batch update of the rows stacked).
     """
-    q, up, recover = ca.SX.sym("q", 4), ca.SX.sym("up", 3), ca.SX.sym("recover")
+    q, up, recover, dt = ca.SX.sym("q", 4), ca.SX.sym("up", 3), ca.SX.sym("recover"), ca.SX.sym("dt")
     d = quat.rotate_inv(q, up) / ca.sqrt(ca.sumsqr(up))
     z_g = d - gravity_direction(q, ca.DM.zeros(3))
+    # the motion the low-pass leaves (per sample) and the sensor's white noise (a density over dt)
     sig2 = p["accel_angle_noise"] ** 2
+    if not (isinstance(p["accel_noise_density"], (int, float)) and p["accel_noise_density"] == 0):
+        sig2 = sig2 + p["accel_noise_density"] ** 2 / ca.fmax(dt, DT_Q_MIN)
     # recovering after a gyro clip (recover = 1): no weakening, the covariance sets the gain
     r_g = ca.if_else(recover, sig2, sig2 * ca.fmin(1 + ca.sumsqr(z_g) / (9 * sig2), p["accel_adapt_cap"]))
     Hq = jacobian_gravity(q)[:, :3]
-    return emit.function(name, {"q": q, "up": up, "recover": recover},
+    return emit.function(name, {"q": q, "up": up, "recover": recover, "dt": dt},
                          {"h": ca.reshape(Hq.T, 9, 1), "z": z_g, "r": r_g})
 
 

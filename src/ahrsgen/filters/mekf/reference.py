@@ -171,7 +171,7 @@ class Reference:
             for k in ("accel_lpf_tau", "accel_adapt_cap", "rest_gyro_th", "rest_accel_th", "rest_min_time",
                       "rest_tau", "mag_norm_th", "mag_dip_th", "mag_learn_time", "mag_reject_max",
                       "mag_ref_tau", "mag_new_time", "course_max_sideslip", "gyro_full_scale",
-                      "clip_recovery_time", "gyro_rate_noise", "mag_heading_density"):
+                      "clip_recovery_time", "gyro_rate_noise", "mag_heading_density", "accel_noise_density"):
                 setattr(self, k, float(p[k]))
             self.clip = GyroClip(self.gyro_full_scale, float(p["gyro_plateau_rate"]), self.clip_recovery_time)
             self.a_lp = np.zeros(3)       # earth-frame (NED) low-passed specific force
@@ -554,7 +554,7 @@ class Reference:
             d = Rq.T @ up / np.sqrt(up @ up)
             g_hat = Rq.T @ np.array([0.0, 0.0, -1.0])
             z_g = d - g_hat
-            sig2 = self.accel_angle_noise ** 2
+            sig2 = self.accel_angle_noise ** 2 + self.accel_noise_density ** 2 / max(dt, DT_Q_MIN)
             r_g = sig2 if recovering else sig2 * min(1.0 + (z_g @ z_g) / (9.0 * sig2), self.accel_adapt_cap)
             z = np.concatenate([z_g, gyro - self.gyro_bias])
             H = np.zeros((6, 6))
