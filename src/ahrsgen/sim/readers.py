@@ -321,6 +321,7 @@ def read_csv(path: str | os.PathLike, name: str | None = None) -> SensorLog:
 # (measured, studies/large_log_bench.py: 16 MiB blocks peaked at 320 MB on a 200 MB log, 4 MiB
 # at 186 MB, at the same speed).
 BLOCK_BYTES = 4 << 20
+PARSE_AHEAD = 2        # blocks parsed ahead of the one being used (CsvChunks, with pyarrow)
 
 
 def _arrow_csv():
@@ -412,39 +413,67 @@ class CsvChunks:
                             continue
                     yield header, block, start
 
-    def _parse(self, block: bytes, first_line: int) -> np.ndarray:
-        """The block's rows as an (n, columns) array: pyarrow where it reads them all, else (and
-        for the error naming the line) read_csv's parser."""
+    def _arrow(self, block: bytes) -> np.ndarray | None:
+        """The block's rows as an (n, columns) array by pyarrow, or None (no pyarrow, or a block
+        it refuses). Releases the GIL: __iter__ parses two blocks at once."""
         ncol = len(self.header)
         pa, pacsv = _arrow_csv()
-        if pa is not None:
-            try:
-                tab = pacsv.read_csv(
-                    pa.py_buffer(block),
-                    read_options=pacsv.ReadOptions(column_names=[f"c{j}" for j in range(ncol)],
-                                                   block_size=1 << 22),
-                    parse_options=pacsv.ParseOptions(quote_char=False),
-                    convert_options=pacsv.ConvertOptions(column_types={f"c{j}": pa.float64() for j in range(ncol)},
-                                                         null_values=[""], strings_can_be_null=False))
-            except (pa.ArrowInvalid, pa.ArrowException):
-                tab = None
-            if tab is not None:
-                out = np.empty((tab.num_rows, ncol))
-                for j, c in enumerate(tab.columns):
-                    out[:, j] = c.to_numpy()
-                return out
+        if pa is None:
+            return None
+        try:
+            tab = pacsv.read_csv(
+                pa.py_buffer(block),
+                read_options=pacsv.ReadOptions(column_names=[f"c{j}" for j in range(ncol)],
+                                               block_size=1 << 22, use_threads=False),
+                parse_options=pacsv.ParseOptions(quote_char=False),
+                convert_options=pacsv.ConvertOptions(column_types={f"c{j}": pa.float64() for j in range(ncol)},
+                                                     null_values=[""], strings_can_be_null=False))
+        except (pa.ArrowInvalid, pa.ArrowException):
+            return None
+        out = np.empty((tab.num_rows, ncol))
+        for j, c in enumerate(tab.columns):
+            out[:, j] = c.to_numpy()
+        return out
+
+    def _parse(self, block: bytes, first_line: int, arrow: np.ndarray | None = None) -> np.ndarray:
+        """The block's rows as an (n, columns) array: pyarrow's where it reads them all (`arrow`,
+        when already parsed), else (and for the error naming the line) read_csv's parser."""
+        out = arrow if arrow is not None else self._arrow(block)
+        if out is not None:
+            return out
         lines = [ln.strip() for ln in block.decode("utf-8").splitlines()]
-        return _parse_rows(self.path, [ln for ln in lines if ln], ncol, first_line)
+        return _parse_rows(self.path, [ln for ln in lines if ln], len(self.header), first_line)
+
+    def _parsed_blocks(self):
+        """(block, pyarrow's rows or None) in file order; with pyarrow, the next blocks are parsed
+        on two worker threads while the caller works on this one (at most PARSE_AHEAD ahead)."""
+        blocks = (block for _, block, _ in self._blocks() if block)
+        if _arrow_csv()[0] is None:
+            yield from ((b, None) for b in blocks)
+            return
+        from collections import deque
+        from concurrent.futures import ThreadPoolExecutor
+        ex = ThreadPoolExecutor(2, thread_name_prefix="csv-parse")
+        ahead: deque = deque()
+        try:
+            for b in blocks:
+                ahead.append((b, ex.submit(self._arrow, b)))
+                if len(ahead) > PARSE_AHEAD:
+                    b0, f = ahead.popleft()
+                    yield b0, f.result()
+            while ahead:
+                b0, f = ahead.popleft()
+                yield b0, f.result()
+        finally:
+            ex.shutdown(wait=True, cancel_futures=True)
 
     def __iter__(self):
         rows = _CsvRows(self.path, self.header, self.groups)
         parsed = 0
         pending = []             # the first chunk waits for two rows (its median step)
         first = True
-        for _, block, _ in self._blocks():
-            if not block:
-                continue
-            data = self._parse(block, parsed + 2)
+        for block, arrow in self._parsed_blocks():
+            data = self._parse(block, parsed + 2, arrow)
             parsed += len(data)
             if first:
                 pending.append(data)
