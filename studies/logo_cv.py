@@ -1,4 +1,5 @@
-"""Leave one BROAD group out: the cross-validation the mekf studies choose their defaults by.
+"""Leave one BROAD group out: the cross-validation the defaults studies choose their defaults by
+(mekf by default; `filter_name` for another filter).
 
 A candidate is one parameter set for all data (as BROAD scores every peer). Its entries are the
 10 BROAD trials, each scored as recorded (286 Hz) and averaged to 95 Hz (every three rows one,
@@ -59,15 +60,15 @@ def load_broad(data_dir=None):
     return logs, {n: log.averaged(3) for n, log in logs.items()}
 
 
-def evaluate(sets: dict, logs, slow, scenarios: dict, measure: str = "total") -> dict:
+def evaluate(sets: dict, logs, slow, scenarios: dict, measure: str = "total", filter_name: str = "mekf") -> dict:
     """{entry: figure}: BROAD totals per trial and rate, and per scenario the mean of `measure`
     ('total' or 'heading' RMS) over its logs, run and scored as `ahrsgen bench` does (the log's
     site parameters set, magnetic heading turned by the scenario's declination)."""
     sets_kv = [f"{k}={v}" for k, v in sets.items()]
-    f = host.build(config.resolve("mekf", sets=sets_kv))
+    f = host.build(config.resolve(filter_name, sets=sets_kv))
     out = {n: broad_score(f.run(log).q, log)["total"] for n, log in logs.items()}
     out |= {n + "@95": broad_score(f.run(log).q, log)["total"] for n, log in slow.items()}
-    est = filter_estimator("mekf", sets_kv)
+    est = filter_estimator(filter_name, sets_kv)
     for name, scen_logs in scenarios.items():
         runs = [(est.run(log), log) for log in scen_logs]        # (q, heading frame, extra)
         out[name] = float(np.mean([score(r[0], log, r[1])[measure + "_rms"] for r, log in runs]))
@@ -78,11 +79,11 @@ def objective(res: dict, trials, extra) -> float:
     return (sum(0.5 * (res[t] + res[t + "@95"]) for t in trials) + sum(res[e] for e in extra)) / (len(trials) + len(extra))
 
 
-def run(candidates, logs, slow, scenarios: dict, measure="total", progress=sys.stderr) -> list:
+def run(candidates, logs, slow, scenarios: dict, measure="total", progress=sys.stderr, filter_name="mekf") -> list:
     """[(sets, entries)] of every candidate, a line of progress each."""
     results = []
     for i, sets in enumerate(candidates):
-        res = evaluate(sets, logs, slow, scenarios, measure)
+        res = evaluate(sets, logs, slow, scenarios, measure, filter_name)
         results.append((sets, res))
         extra = ", ".join(f"{k} {res[k]:.2f}" for k in scenarios)
         print(f"[{i + 1}] {json.dumps(sets)}: BROAD {np.mean([res[t] for t in logs]):.3f}, at 95 Hz "

@@ -61,8 +61,9 @@ extern "C" {
 #define ADUKF_MAG_MAX 1e+06f             /* magnetometer component above this skips its correction (MAG_RANGE) [field unit] */
 #define ADUKF_GYRO_NOISE 0.01f           /* process noise: gyro angle random walk; Q = gyro_noise^2 dt/4 (I4 - q q^T) + q_floor dt I4 [rad/s/sqrt(Hz)] */
 #define ADUKF_Q_FLOOR 1e-09f             /* isotropic process noise per second added to Q (keeps P positive definite) [1/s] */
-#define ADUKF_SIGMA_ACC 0.07f            /* base std of the normalised accelerometer measurement (sigma_a in R); 0.07 since issue 14 (chosen with the error state by the bench, docs/adukf.md; the paper's scenarios were tuned at 0.05, which the faithful preset keeps) [1 (unit vector)] */
-#define ADUKF_SIGMA_MAG 0.07f            /* base std of the normalised magnetometer measurement (sigma_m in R); 0.07 since issue 14 (as sigma_acc) [1 (unit vector)] */
+#define ADUKF_SIGMA_ACC 0.05f            /* base std of the normalised accelerometer measurement (sigma_a in R); 0.05 with sigma_acc_density 0.008 since issue 26 (studies/adukf_accel_density_cv.py; 0.07 from issue 14 before; the paper's scenarios were tuned at 0.05, which the faithful preset keeps) [1 (unit vector)] */
+#define ADUKF_SIGMA_ACC_DENSITY 0.008f   /* product (sensors at their own rates): the accelerometer rows of R add sigma_acc_density^2 / s_a (s_a: the time its sample stands for), its white noise as a density: a 1 kHz IMU's samples each weigh less than a 100 Hz one's. 0 = sigma_acc per sample only. 0.008 chosen with sigma_acc 0.05 by leave-one-BROAD-group-out with the scenarios (studies/adukf_accel_density_cv.py, docs/adukf.md) [1*sqrt(s)] */
+#define ADUKF_SIGMA_MAG 0.07f            /* base std of the normalised magnetometer measurement (sigma_m in R); 0.07 since issue 14 [1 (unit vector)] */
 #define ADUKF_K_A 300.0f                 /* adaptive weight of the accelerometer residual: R_i = sigma_acc^2 + k_a eps_i^2 (0: plain DUKF) [1] */
 #define ADUKF_K_M 300.0f                 /* adaptive weight of the magnetometer residual: R_i = sigma_mag^2 + k_m eps_i^2 (0: plain DUKF) [1] */
 #define ADUKF_ADAPT_MAX 10.0f            /* upper bound of each adaptive term k eps_i^2 in R (0: unbounded, as the paper); a bound keeps some trust in the sensors so a large attitude error can still be corrected (the adaptation cannot lock the correction out) [1] */

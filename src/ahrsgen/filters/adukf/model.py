@@ -42,6 +42,10 @@ EXTRA_STATUS = [
 _LOWER6 = [(r, c) for r in range(6) for c in range(r + 1)]
 
 
+# s: floor of the sample interval in the density term (a denormal dt must not overflow R to inf)
+SPAN_MIN = 1e-9
+
+
 def omega_matrix(w):
     wx, wy, wz = w[0], w[1], w[2]
     return ca.vertcat(
@@ -352,9 +356,11 @@ class Model(FilterModel):
         through h, as its deviation from the centre h(χ) - z₀."""
         return measurement(normalize(point), m_ref) - z0
 
-    def residual_and_r(self, zhat, f, m, scale, recover=None):
+    def residual_and_r(self, zhat, f, m, scale, recover=None, span=None):
         """ε = z - ẑ and the adaptive per-axis R (both sigma sets); recovering from a clipped gyro
-        sample (recover = 1) R is not adapted: the large residual is the attitude's error."""
+        sample (recover = 1) R is not adapted: the large residual is the attitude's error. With
+        span (product, sensors at their own rates) the accelerometer's rows add its white noise
+        as a density, sigma_acc_density² / s_a (s_a: the time its sample stands for)."""
         p = self.params
         z = ca.vertcat(normalize(f), normalize(m))
         eps = z - zhat
@@ -367,9 +373,12 @@ class Model(FilterModel):
         R = [sa2 + adapt[i] for i in range(3)] + [sm2 + adapt[i] for i in range(3, 6)]
         if scale is not None:
             R = [R[i] * scale[0] for i in range(3)] + [R[i] * scale[1] for i in range(3, 6)]
+        d = p["sigma_acc_density"]
+        if span is not None and not (isinstance(d, (int, float)) and d == 0):
+            R = [R[i] + d ** 2 / ca.fmax(span[0], SPAN_MIN) for i in range(3)] + R[3:]
         return eps, R
 
-    def innovation_simplex_expr(self, z0, zdev, f, m, scale=None):
+    def innovation_simplex_expr(self, z0, zdev, f, m, scale=None, span=None):
         """sigma_set = simplex: ẑ, residual, R, P_zz and D from the 5 points' deviations e_i
         (sigma_point_expr; zero for the centre and the bias columns' points). With w the
         weight of a simplex point: ẑ = z₀ + δ, δ = w Σ e_i; P_zz = w Σ e_i e_iᵀ + c_dd δδᵀ + R
@@ -382,7 +391,7 @@ class Model(FilterModel):
         for i in range(1, N + 1):
             T.append(T[-1] + E[i])
         delta = w * T[N]
-        eps, R = self.residual_and_r(z0 + delta, f, m, scale)
+        eps, R = self.residual_and_r(z0 + delta, f, m, scale, span=span)
         D = [E[1] - T[0]] + [(k + 1) * E[k + 1] - T[k] for k in range(1, N)]
         Pzz = ca.SX.zeros(6, 6)
         for r, c in _LOWER6:
@@ -391,7 +400,7 @@ class Model(FilterModel):
             Pzz[c, r] = Pzz[r, c]
         return Pzz, eps, ca.vertcat(*R), ca.vertcat(*D)
 
-    def innovation_expr(self, z0, zsum, zdiff, f, m, scale=None, recover=None):
+    def innovation_expr(self, z0, zsum, zdiff, f, m, scale=None, recover=None, span=None):
         """ẑ, residual, adaptive R and P_zz from the sigma pairs' deviations (sigma_pair_expr:
         s_j = e_j+ + e_j-, d_j = e_j+ - e_j- for the 4 columns of aL; e_i = z_i - z₀, zero for
         the centre and for the 2(n-4) points of the bias columns). Exact rewrites of the sums of
@@ -412,7 +421,7 @@ class Model(FilterModel):
         S = [zsum[6 * j:6 * j + 6] for j in range(na)]
         D = [zdiff[6 * j:6 * j + 6] for j in range(na)]
         delta = wi * sum(S[1:], S[0])
-        eps, R = self.residual_and_r(z0 + delta, f, m, scale, recover)
+        eps, R = self.residual_and_r(z0 + delta, f, m, scale, recover, span)
         Pzz = ca.SX.zeros(6, 6)
         for r, c in _LOWER6:     # symmetric: lower triangle once, mirrored
             zz = sum([S[j][r] * S[j][c] + D[j][r] * D[j][c] for j in range(1, na)], S[0][r] * S[0][c] + D[0][r] * D[0][c])
@@ -513,14 +522,15 @@ class Model(FilterModel):
         zdev = ca.SX.sym("zdev", 6 * (N + 1))
         point = ca.SX.sym("point", 4)
         scale = [self.r_scale(dt, span[0]), self.r_scale(dt, span[1])] if rated else None
+        sp = span if rated else None
         if simplex:
-            Pzz_e, eps_e, r_e, zd_e = self.innovation_simplex_expr(z0, zdev, f, m, scale)
+            Pzz_e, eps_e, r_e, zd_e = self.innovation_simplex_expr(z0, zdev, f, m, scale, sp)
         elif self.err:
             zs_e, zd_e = self.sigma_pair_error_expr(col, z0)
-            Pzz_e, eps_e, r_e = self.innovation_expr(z0, zsum, zdiff, f, m, scale, recover)
+            Pzz_e, eps_e, r_e = self.innovation_expr(z0, zsum, zdiff, f, m, scale, recover, sp)
         else:
             zs_e, zd_e = self.sigma_pair_expr(q4, col, m_ref, z0)
-            Pzz_e, eps_e, r_e = self.innovation_expr(z0, zsum, zdiff, f, m, scale)
+            Pzz_e, eps_e, r_e = self.innovation_expr(z0, zsum, zdiff, f, m, scale, span=sp)
         g = ca.SX.sym("g", na)
         G_packed = ca.SX.sym("G", na * (na + 1) // 2)
         g_e, G_e, piv_zz = self.gain_expr(Pzz, zdiff, eps)

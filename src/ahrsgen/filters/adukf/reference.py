@@ -336,10 +336,12 @@ class Reference:
 
         # sensors at their own rates: the time each sample stands for
         scale = np.ones(6)
+        noise = np.zeros(6)          # sigma_acc_density² / s_a on the accelerometer rows (rated)
         if self.rated:
             self.sample_age = np.minimum(self.sample_age + dt, p["span_max"])
             span = np.maximum(self.sample_age, dt)
             scale = np.repeat(np.maximum(dt / span, 1.0 / p["span_steps_max"]), 3)
+            noise[:3] = p["sigma_acc_density"] ** 2 / max(span[0], 1e-9)     # model.SPAN_MIN
             if use_a:
                 self.sample_age[0] = 0.0
             if use_m:
@@ -379,7 +381,7 @@ class Reference:
                     adapt = np.minimum(adapt, p["adapt_max"])
                 if recovering:
                     adapt = np.zeros(6)
-                R = (np.concatenate([np.full(3, p["sigma_acc"] ** 2), np.full(3, p["sigma_mag"] ** 2)]) + adapt) * scale
+                R = (np.concatenate([np.full(3, p["sigma_acc"] ** 2), np.full(3, p["sigma_mag"] ** 2)]) + adapt) * scale + noise
                 dZ = Z - zhat
                 dX = chis - xc
                 Pzz = (self.wc[:, None] * dZ).T @ dZ + np.diag(R)
