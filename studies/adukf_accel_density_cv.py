@@ -45,11 +45,8 @@ def main(argv=None):
     static = ("static_accel_disturbance", "static_mag_disturbance")
     cv = logo_cv.cross_validate(results, list(scen), admissible=lambda e: all(
         e[k] <= WORSE_MAX * before[1][k] for k in static))
-    logo_cv.print_table("adukf sigma_acc x sigma_acc_density, leave one BROAD group out", cv,
-                        ("0.07, 0 (before)", before[1]))
-    print("scenarios (mean total RMS over seeds, degrees): " + "; ".join(
-        f"{k} {cv['in_sample_entries'][k]:.3f} (before {before[1][k]:.3f})" for k in scen))
-    logo_cv.write_json(a.json, results, cv)
+    logo_cv.report("adukf sigma_acc x sigma_acc_density, leave one BROAD group out", cv,
+                   ("0.07, 0 (before)", before[1]), scen, results, a.json)
     return 0
 
 

@@ -127,6 +127,16 @@ def print_table(title: str, cv: dict, baseline: tuple[str, dict]) -> None:
     print(f"in-sample choice: {json.dumps(cv['in_sample_choice'])}")
 
 
+def report(title: str, cv: dict, baseline: tuple[str, dict], scenarios, results, json_path) -> None:
+    """A study's output: print_table, the scenario entries of the in-sample choice beside the
+    baseline's, and the JSON (write_json)."""
+    label, base = baseline
+    print_table(title, cv, baseline)
+    print("scenarios (mean total RMS over seeds, degrees): " + "; ".join(
+        f"{k} {cv['in_sample_entries'][k]:.3f} ({label} {base[k]:.3f})" for k in scenarios))
+    write_json(json_path, results, cv)
+
+
 def defaults_entry(results) -> tuple[dict, dict]:
     """The candidate whose values are the present defaults."""
     p = config.resolve("mekf").params

@@ -67,11 +67,8 @@ def main(argv=None):
     cv = logo_cv.cross_validate(results, list(scen), admissible=lambda e: e["multirotor"] <= MULTIROTOR_MAX
                                 and e["fixedwing_gps"] <= FIXEDWING_MAX
                                 and e["fixedwing_gps_outage"] <= OUTAGE_WORSE_MAX * before[1]["fixedwing_gps_outage"])
-    logo_cv.print_table("mekf accel_angle_noise x accel_noise_density, leave one BROAD group out", cv,
-                        ("0.07, 0 (before)", before[1]))
-    print("scenarios (mean total RMS over seeds, degrees): " + "; ".join(
-        f"{k} {cv['in_sample_entries'][k]:.3f} (before {before[1][k]:.3f})" for k in scen))
-    logo_cv.write_json(a.json, results, cv)
+    logo_cv.report("mekf accel_angle_noise x accel_noise_density, leave one BROAD group out", cv,
+                   ("0.07, 0 (before)", before[1]), scen, results, a.json)
     return 0
 
 

@@ -47,11 +47,8 @@ def main(argv=None):
     results = logo_cv.run(candidates(), *broad, scen)
     cv = logo_cv.cross_validate(results, list(scen), admissible=lambda e: e["multirotor"] <= MULTIROTOR_MAX)
     before = next(r for r in results if r[0] == {"gyro_rate_noise": 0.0, "mag_heading_density": 0.006})
-    logo_cv.print_table("mekf gyro_rate_noise x mag_heading_density, leave one BROAD group out", cv,
-                        ("0, 0.006 (~before)", before[1]))
-    print("scenarios (mean total RMS over seeds, degrees): " + "; ".join(
-        f"{k} {cv['in_sample_entries'][k]:.3f} (before {before[1][k]:.3f})" for k in scen))
-    logo_cv.write_json(a.json, results, cv)
+    logo_cv.report("mekf gyro_rate_noise x mag_heading_density, leave one BROAD group out", cv,
+                   ("0, 0.006 (~before)", before[1]), scen, results, a.json)
     return 0
 
 
