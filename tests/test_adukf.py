@@ -127,7 +127,8 @@ def test_adaptive_r_rises_on_the_disturbed_axis():
     for k in range(len(log)):
         hp.step(s, log.gyro[k], log.accel[k], log.mag[k], log.gps_vel[k], int(log.valid[k]), float(log.dt[k]))
     rd = hp.state_dict(s)["r_diag"]
-    np.testing.assert_allclose(rd, [base] * 3 + [p["sigma_mag"] ** 2] * 3, rtol=1e-12)
+    np.testing.assert_allclose(rd, [base] * 3 + [p["sigma_mag"] ** 2 + p["sigma_mag_density"] ** 2 / 0.01] * 3,
+                               rtol=1e-12)
 
 
 @pytest.mark.parametrize("n", [4, 7])

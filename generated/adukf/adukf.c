@@ -1018,9 +1018,9 @@ static void adukf_k_sigma_pair(const float col[3], const float z0[6], float zsum
 }
 
 /* predicted measurement, residual, adaptive per-axis R and P_zz from the sigma pairs' sums and differences of deviations; outputs are stored as soon as computed (arrays restrict): no argument may overlap an output
- * ops: add 169, mul 204, div 5, sqrt 2, cmp 15 (total 395)
+ * ops: add 172, mul 204, div 6, sqrt 2, cmp 16 (total 400)
  *      of which only one side runs: if (recover) 0, else 18 */
-static void adukf_k_innovation_part0(const float z0[6], const float zsum[18], const float zdiff[18], const float accel[3], float dt, const float span[2], float residual[6], float carry[17])
+static void adukf_k_innovation_part0(const float z0[6], const float zsum[18], const float zdiff[18], const float accel[3], float dt, const float span[2], float residual[6], float carry[18])
 {
     const float tmp0 = zsum[0] * zsum[0];
     const float tmp1 = zdiff[0] * zdiff[0];
@@ -1074,7 +1074,7 @@ static void adukf_k_innovation_part0(const float z0[6], const float zsum[18], co
     carry[8] = tmp39;
 }
 
-static void adukf_k_innovation_part1(const float zsum[18], const float zdiff[18], float P_zz[21], float carry[17])
+static void adukf_k_innovation_part1(const float zsum[18], const float zdiff[18], float P_zz[21], float carry[18])
 {
     const float tmp40 = carry[7] + carry[8];
     const float tmp41 = carry[6] + tmp40;
@@ -1124,7 +1124,7 @@ static void adukf_k_innovation_part1(const float zsum[18], const float zdiff[18]
     carry[9] = tmp79;
 }
 
-static void adukf_k_innovation_part2(const float zsum[18], const float zdiff[18], float P_zz[21], float carry[17])
+static void adukf_k_innovation_part2(const float zsum[18], const float zdiff[18], float P_zz[21], float carry[18])
 {
     const float tmp80 = carry[9] * carry[0];
     const float tmp81 = carry[8] + tmp80;
@@ -1175,7 +1175,7 @@ static void adukf_k_innovation_part2(const float zsum[18], const float zdiff[18]
     carry[11] = tmp119;
 }
 
-static void adukf_k_innovation_part3(const float z0[6], const float zsum[18], const float zdiff[18], const float accel[3], float P_zz[21], float residual[6], float carry[17])
+static void adukf_k_innovation_part3(const float z0[6], const float zsum[18], const float zdiff[18], const float accel[3], float P_zz[21], float residual[6], float carry[18])
 {
     const float tmp120 = zdiff[7] * zdiff[7];
     const float tmp121 = carry[11] + tmp120;
@@ -1225,7 +1225,7 @@ static void adukf_k_innovation_part3(const float z0[6], const float zsum[18], co
     carry[13] = tmp159;
 }
 
-static void adukf_k_innovation_part4(const float zsum[18], const float zdiff[18], float P_zz[21], float carry[17])
+static void adukf_k_innovation_part4(const float zsum[18], const float zdiff[18], float P_zz[21], float carry[18])
 {
     const float tmp160 = carry[12] + carry[13];
     P_zz[8] = tmp160;
@@ -1273,7 +1273,7 @@ static void adukf_k_innovation_part4(const float zsum[18], const float zdiff[18]
     carry[6] = tmp199;
 }
 
-static void adukf_k_innovation_part5(const float z0[6], const float zsum[18], const float zdiff[18], const float accel[3], float P_zz[21], float residual[6], float carry[17])
+static void adukf_k_innovation_part5(const float z0[6], const float zsum[18], const float zdiff[18], const float accel[3], float P_zz[21], float residual[6], float carry[18])
 {
     const float tmp200 = 0.041666668f * carry[6];
     const float tmp201 = carry[7] * carry[7];
@@ -1324,7 +1324,7 @@ static void adukf_k_innovation_part5(const float z0[6], const float zsum[18], co
     carry[13] = tmp239;
 }
 
-static void adukf_k_innovation_part6(const float z0[6], const float zsum[18], const float zdiff[18], const float mag[3], float dt, const float span[2], float P_zz[21], float residual[6], float carry[17])
+static void adukf_k_innovation_part6(const float z0[6], const float zsum[18], const float zdiff[18], const float mag[3], float dt, const float span[2], float P_zz[21], float residual[6], float carry[18])
 {
     const float tmp240 = carry[12] + carry[13];
     const float tmp241 = zsum[17] * zsum[14];
@@ -1362,188 +1362,195 @@ static void adukf_k_innovation_part6(const float z0[6], const float zsum[18], co
     residual[3] = tmp271;
     const float tmp272 = dt / span[1];
     const float tmp273 = (tmp272 > 0.1f) ? tmp272 : 0.1f;
-    const float tmp274 = zsum[4] * zsum[3];
-    const float tmp275 = zdiff[4] * zdiff[3];
-    const float tmp276 = tmp274 + tmp275;
-    const float tmp277 = zsum[10] * zsum[9];
-    const float tmp278 = zdiff[10] * zdiff[9];
-    const float tmp279 = tmp277 + tmp278;
+    const float tmp274 = (span[1] > 1e-09f) ? span[1] : 1e-09f;
+    const float tmp275 = 0.000144f / tmp274;
+    const float tmp276 = zsum[4] * zsum[3];
+    const float tmp277 = zdiff[4] * zdiff[3];
+    const float tmp278 = tmp276 + tmp277;
+    const float tmp279 = zsum[10] * zsum[9];
     carry[7] = tmp261;
     carry[12] = tmp268;
     carry[13] = tmp271;
     carry[14] = tmp273;
-    carry[15] = tmp276;
-    carry[16] = tmp279;
+    carry[15] = tmp275;
+    carry[16] = tmp278;
+    carry[17] = tmp279;
 }
 
-static void adukf_k_innovation_part7(const float z0[6], const float zsum[18], const float zdiff[18], const float mag[3], float P_zz[21], float residual[6], float carry[17])
+static void adukf_k_innovation_part7(const float z0[6], const float zsum[18], const float zdiff[18], const float mag[3], float P_zz[21], float carry[18])
 {
-    const float tmp280 = carry[15] + carry[16];
-    const float tmp281 = zsum[16] * zsum[15];
-    const float tmp282 = zdiff[16] * zdiff[15];
-    const float tmp283 = tmp281 + tmp282;
-    const float tmp284 = tmp280 + tmp283;
-    const float tmp285 = 0.041666668f * tmp284;
-    const float tmp286 = carry[0] * carry[9];
-    const float tmp287 = tmp285 + tmp286;
-    P_zz[16] = tmp287;
-    const float tmp288 = zsum[5] * zsum[3];
-    const float tmp289 = zdiff[5] * zdiff[3];
-    const float tmp290 = tmp288 + tmp289;
-    const float tmp291 = zsum[11] * zsum[9];
-    const float tmp292 = zdiff[11] * zdiff[9];
-    const float tmp293 = tmp291 + tmp292;
-    const float tmp294 = tmp290 + tmp293;
-    const float tmp295 = zsum[17] * zsum[15];
-    const float tmp296 = zdiff[17] * zdiff[15];
-    const float tmp297 = tmp295 + tmp296;
-    const float tmp298 = tmp294 + tmp297;
-    const float tmp299 = 0.041666668f * tmp298;
-    const float tmp300 = carry[8] * carry[9];
-    const float tmp301 = tmp299 + tmp300;
-    P_zz[17] = tmp301;
-    const float tmp302 = zsum[4] * zsum[4];
-    const float tmp303 = zdiff[4] * zdiff[4];
-    const float tmp304 = tmp302 + tmp303;
-    const float tmp305 = zsum[10] * zsum[10];
-    const float tmp306 = zdiff[10] * zdiff[10];
-    const float tmp307 = tmp305 + tmp306;
-    const float tmp308 = tmp304 + tmp307;
-    const float tmp309 = zsum[16] * zsum[16];
-    const float tmp310 = zdiff[16] * zdiff[16];
-    const float tmp311 = tmp309 + tmp310;
-    const float tmp312 = tmp308 + tmp311;
-    const float tmp313 = 0.041666668f * tmp312;
-    const float tmp314 = carry[0] * carry[0];
-    const float tmp315 = tmp313 + tmp314;
-    const float tmp316 = mag[1] * carry[12];
-    const float tmp317 = z0[4] + carry[0];
-    const float tmp318 = tmp316 - tmp317;
-    residual[4] = tmp318;
-    const float tmp319 = zsum[5] * zsum[4];
-    carry[9] = tmp315;
-    carry[15] = tmp318;
-    carry[16] = tmp319;
+    const float tmp280 = zdiff[10] * zdiff[9];
+    const float tmp281 = carry[17] + tmp280;
+    const float tmp282 = carry[16] + tmp281;
+    const float tmp283 = zsum[16] * zsum[15];
+    const float tmp284 = zdiff[16] * zdiff[15];
+    const float tmp285 = tmp283 + tmp284;
+    const float tmp286 = tmp282 + tmp285;
+    const float tmp287 = 0.041666668f * tmp286;
+    const float tmp288 = carry[0] * carry[9];
+    const float tmp289 = tmp287 + tmp288;
+    P_zz[16] = tmp289;
+    const float tmp290 = zsum[5] * zsum[3];
+    const float tmp291 = zdiff[5] * zdiff[3];
+    const float tmp292 = tmp290 + tmp291;
+    const float tmp293 = zsum[11] * zsum[9];
+    const float tmp294 = zdiff[11] * zdiff[9];
+    const float tmp295 = tmp293 + tmp294;
+    const float tmp296 = tmp292 + tmp295;
+    const float tmp297 = zsum[17] * zsum[15];
+    const float tmp298 = zdiff[17] * zdiff[15];
+    const float tmp299 = tmp297 + tmp298;
+    const float tmp300 = tmp296 + tmp299;
+    const float tmp301 = 0.041666668f * tmp300;
+    const float tmp302 = carry[8] * carry[9];
+    const float tmp303 = tmp301 + tmp302;
+    P_zz[17] = tmp303;
+    const float tmp304 = zsum[4] * zsum[4];
+    const float tmp305 = zdiff[4] * zdiff[4];
+    const float tmp306 = tmp304 + tmp305;
+    const float tmp307 = zsum[10] * zsum[10];
+    const float tmp308 = zdiff[10] * zdiff[10];
+    const float tmp309 = tmp307 + tmp308;
+    const float tmp310 = tmp306 + tmp309;
+    const float tmp311 = zsum[16] * zsum[16];
+    const float tmp312 = zdiff[16] * zdiff[16];
+    const float tmp313 = tmp311 + tmp312;
+    const float tmp314 = tmp310 + tmp313;
+    const float tmp315 = 0.041666668f * tmp314;
+    const float tmp316 = carry[0] * carry[0];
+    const float tmp317 = tmp315 + tmp316;
+    const float tmp318 = mag[1] * carry[12];
+    const float tmp319 = z0[4] + carry[0];
+    carry[9] = tmp317;
+    carry[16] = tmp318;
+    carry[17] = tmp319;
 }
 
-static void adukf_k_innovation_part8(const float z0[6], const float zsum[18], const float zdiff[18], const float mag[3], float P_zz[21], float residual[6], float carry[17])
+static void adukf_k_innovation_part8(const float z0[6], const float zsum[18], const float zdiff[18], const float mag[3], float P_zz[21], float residual[6], float carry[18])
 {
-    const float tmp320 = zdiff[5] * zdiff[4];
-    const float tmp321 = carry[16] + tmp320;
-    const float tmp322 = zsum[11] * zsum[10];
-    const float tmp323 = zdiff[11] * zdiff[10];
-    const float tmp324 = tmp322 + tmp323;
-    const float tmp325 = tmp321 + tmp324;
-    const float tmp326 = zsum[17] * zsum[16];
-    const float tmp327 = zdiff[17] * zdiff[16];
-    const float tmp328 = tmp326 + tmp327;
-    const float tmp329 = tmp325 + tmp328;
-    const float tmp330 = 0.041666668f * tmp329;
-    const float tmp331 = carry[8] * carry[0];
-    const float tmp332 = tmp330 + tmp331;
-    P_zz[19] = tmp332;
-    const float tmp333 = zsum[5] * zsum[5];
-    const float tmp334 = zdiff[5] * zdiff[5];
-    const float tmp335 = tmp333 + tmp334;
-    const float tmp336 = zsum[11] * zsum[11];
-    const float tmp337 = zdiff[11] * zdiff[11];
-    const float tmp338 = tmp336 + tmp337;
-    const float tmp339 = tmp335 + tmp338;
-    const float tmp340 = zsum[17] * zsum[17];
-    const float tmp341 = zdiff[17] * zdiff[17];
-    const float tmp342 = tmp340 + tmp341;
-    const float tmp343 = tmp339 + tmp342;
-    const float tmp344 = 0.041666668f * tmp343;
-    const float tmp345 = carry[8] * carry[8];
-    const float tmp346 = tmp344 + tmp345;
-    const float tmp347 = mag[2] * carry[12];
-    const float tmp348 = z0[5] + carry[8];
-    const float tmp349 = tmp347 - tmp348;
-    residual[5] = tmp349;
-    carry[0] = tmp346;
-    carry[8] = tmp349;
+    const float tmp320 = carry[16] - carry[17];
+    residual[4] = tmp320;
+    const float tmp321 = zsum[5] * zsum[4];
+    const float tmp322 = zdiff[5] * zdiff[4];
+    const float tmp323 = tmp321 + tmp322;
+    const float tmp324 = zsum[11] * zsum[10];
+    const float tmp325 = zdiff[11] * zdiff[10];
+    const float tmp326 = tmp324 + tmp325;
+    const float tmp327 = tmp323 + tmp326;
+    const float tmp328 = zsum[17] * zsum[16];
+    const float tmp329 = zdiff[17] * zdiff[16];
+    const float tmp330 = tmp328 + tmp329;
+    const float tmp331 = tmp327 + tmp330;
+    const float tmp332 = 0.041666668f * tmp331;
+    const float tmp333 = carry[8] * carry[0];
+    const float tmp334 = tmp332 + tmp333;
+    P_zz[19] = tmp334;
+    const float tmp335 = zsum[5] * zsum[5];
+    const float tmp336 = zdiff[5] * zdiff[5];
+    const float tmp337 = tmp335 + tmp336;
+    const float tmp338 = zsum[11] * zsum[11];
+    const float tmp339 = zdiff[11] * zdiff[11];
+    const float tmp340 = tmp338 + tmp339;
+    const float tmp341 = tmp337 + tmp340;
+    const float tmp342 = zsum[17] * zsum[17];
+    const float tmp343 = zdiff[17] * zdiff[17];
+    const float tmp344 = tmp342 + tmp343;
+    const float tmp345 = tmp341 + tmp344;
+    const float tmp346 = 0.041666668f * tmp345;
+    const float tmp347 = carry[8] * carry[8];
+    const float tmp348 = tmp346 + tmp347;
+    const float tmp349 = mag[2] * carry[12];
+    const float tmp350 = z0[5] + carry[8];
+    const float tmp351 = tmp349 - tmp350;
+    residual[5] = tmp351;
+    carry[0] = tmp320;
+    carry[8] = tmp348;
+    carry[12] = tmp351;
 }
 
-static void adukf_k_innovation_part9(bool recover, float P_zz[21], float r_diag[6], float carry[17])
+static void adukf_k_innovation_part9(bool recover, float P_zz[21], float r_diag[6], float carry[18])
 {
-    float tmp350;
-    float tmp351;
     float tmp352;
     float tmp353;
     float tmp354;
     float tmp355;
+    float tmp356;
+    float tmp357;
     if (recover) {
-        tmp350 = 0.0f;
-        tmp351 = 0.0f;
         tmp352 = 0.0f;
         tmp353 = 0.0f;
         tmp354 = 0.0f;
         tmp355 = 0.0f;
+        tmp356 = 0.0f;
+        tmp357 = 0.0f;
     } else {
-        const float tmp356 = carry[3] * carry[3];
-        const float tmp357 = 300.0f * tmp356;
-        const float tmp358 = (tmp357 < 10.0f) ? tmp357 : 10.0f;
-        const float tmp359 = carry[11] * carry[11];
-        const float tmp360 = 300.0f * tmp359;
-        const float tmp361 = (tmp360 < 10.0f) ? tmp360 : 10.0f;
-        const float tmp362 = carry[6] * carry[6];
-        const float tmp363 = 300.0f * tmp362;
-        const float tmp364 = (tmp363 < 10.0f) ? tmp363 : 10.0f;
-        const float tmp365 = carry[13] * carry[13];
-        const float tmp366 = 300.0f * tmp365;
-        const float tmp367 = (tmp366 < 10.0f) ? tmp366 : 10.0f;
-        const float tmp368 = carry[15] * carry[15];
-        const float tmp369 = 300.0f * tmp368;
-        const float tmp370 = (tmp369 < 10.0f) ? tmp369 : 10.0f;
-        const float tmp371 = carry[8] * carry[8];
-        const float tmp372 = 300.0f * tmp371;
-        const float tmp373 = (tmp372 < 10.0f) ? tmp372 : 10.0f;
-        tmp350 = tmp358;
-        tmp351 = tmp361;
-        tmp352 = tmp364;
-        tmp353 = tmp367;
-        tmp354 = tmp370;
-        tmp355 = tmp373;
+        const float tmp358 = carry[3] * carry[3];
+        const float tmp359 = 300.0f * tmp358;
+        const float tmp360 = (tmp359 < 10.0f) ? tmp359 : 10.0f;
+        const float tmp361 = carry[11] * carry[11];
+        const float tmp362 = 300.0f * tmp361;
+        const float tmp363 = (tmp362 < 10.0f) ? tmp362 : 10.0f;
+        const float tmp364 = carry[6] * carry[6];
+        const float tmp365 = 300.0f * tmp364;
+        const float tmp366 = (tmp365 < 10.0f) ? tmp365 : 10.0f;
+        const float tmp367 = carry[13] * carry[13];
+        const float tmp368 = 300.0f * tmp367;
+        const float tmp369 = (tmp368 < 10.0f) ? tmp368 : 10.0f;
+        const float tmp370 = carry[0] * carry[0];
+        const float tmp371 = 300.0f * tmp370;
+        const float tmp372 = (tmp371 < 10.0f) ? tmp371 : 10.0f;
+        const float tmp373 = carry[12] * carry[12];
+        const float tmp374 = 300.0f * tmp373;
+        const float tmp375 = (tmp374 < 10.0f) ? tmp374 : 10.0f;
+        tmp352 = tmp360;
+        tmp353 = tmp363;
+        tmp354 = tmp366;
+        tmp355 = tmp369;
+        tmp356 = tmp372;
+        tmp357 = tmp375;
     }
-    const float tmp374 = 0.0025f + tmp350;
-    const float tmp375 = tmp374 * carry[4];
-    const float tmp376 = tmp375 + carry[5];
-    r_diag[0] = tmp376;
-    const float tmp377 = carry[1] + tmp376;
-    P_zz[0] = tmp377;
-    const float tmp378 = 0.0025f + tmp351;
-    const float tmp379 = tmp378 * carry[4];
-    const float tmp380 = tmp379 + carry[5];
-    r_diag[1] = tmp380;
-    const float tmp381 = carry[10] + tmp380;
-    P_zz[6] = tmp381;
-    const float tmp382 = 0.0025f + tmp352;
-    const float tmp383 = tmp382 * carry[4];
-    const float tmp384 = tmp383 + carry[5];
-    r_diag[2] = tmp384;
-    const float tmp385 = carry[2] + tmp384;
-    P_zz[11] = tmp385;
-    const float tmp386 = 0.0049f + tmp353;
-    const float tmp387 = tmp386 * carry[14];
-    r_diag[3] = tmp387;
-    const float tmp388 = carry[7] + tmp387;
-    P_zz[15] = tmp388;
-    const float tmp389 = 0.0049f + tmp354;
-    carry[1] = tmp355;
-    carry[2] = tmp389;
+    const float tmp376 = 0.0025f + tmp352;
+    const float tmp377 = tmp376 * carry[4];
+    const float tmp378 = tmp377 + carry[5];
+    r_diag[0] = tmp378;
+    const float tmp379 = carry[1] + tmp378;
+    P_zz[0] = tmp379;
+    const float tmp380 = 0.0025f + tmp353;
+    const float tmp381 = tmp380 * carry[4];
+    const float tmp382 = tmp381 + carry[5];
+    r_diag[1] = tmp382;
+    const float tmp383 = carry[10] + tmp382;
+    P_zz[6] = tmp383;
+    const float tmp384 = 0.0025f + tmp354;
+    const float tmp385 = tmp384 * carry[4];
+    const float tmp386 = tmp385 + carry[5];
+    r_diag[2] = tmp386;
+    const float tmp387 = carry[2] + tmp386;
+    P_zz[11] = tmp387;
+    const float tmp388 = 0.0025f + tmp355;
+    const float tmp389 = tmp388 * carry[14];
+    const float tmp390 = tmp389 + carry[15];
+    r_diag[3] = tmp390;
+    const float tmp391 = carry[7] + tmp390;
+    P_zz[15] = tmp391;
+    carry[0] = tmp356;
+    carry[1] = tmp357;
 }
 
-static void adukf_k_innovation_part10(float P_zz[21], float r_diag[6], const float carry[17])
+static void adukf_k_innovation_part10(float P_zz[21], float r_diag[6], const float carry[18])
 {
-    const float tmp390 = carry[2] * carry[14];
-    r_diag[4] = tmp390;
-    const float tmp391 = carry[9] + tmp390;
-    P_zz[18] = tmp391;
-    const float tmp392 = 0.0049f + carry[1];
+    const float tmp392 = 0.0025f + carry[0];
     const float tmp393 = tmp392 * carry[14];
-    r_diag[5] = tmp393;
-    const float tmp394 = carry[0] + tmp393;
-    P_zz[20] = tmp394;
+    const float tmp394 = tmp393 + carry[15];
+    r_diag[4] = tmp394;
+    const float tmp395 = carry[9] + tmp394;
+    P_zz[18] = tmp395;
+    const float tmp396 = 0.0025f + carry[1];
+    const float tmp397 = tmp396 * carry[14];
+    const float tmp398 = tmp397 + carry[15];
+    r_diag[5] = tmp398;
+    const float tmp399 = carry[8] + tmp398;
+    P_zz[20] = tmp399;
 }
 
 #if defined(__GNUC__)
@@ -1552,7 +1559,7 @@ __attribute__((noinline))
 static void adukf_k_innovation(const float z0[restrict 6], const float zsum[restrict 18], const float zdiff[restrict 18], const float accel[restrict 3], const float mag[restrict 3], float dt, const float span[restrict 2], bool recover, float P_zz[restrict 21], float residual[restrict 6], float r_diag[restrict 6])
 {
     /* 11 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
-    float carry[17];
+    float carry[18];
     adukf_k_innovation_part0(z0, zsum, zdiff, accel, dt, span, residual, carry);
     adukf_k_innovation_part1(zsum, zdiff, P_zz, carry);
     adukf_k_innovation_part2(zsum, zdiff, P_zz, carry);
@@ -1560,7 +1567,7 @@ static void adukf_k_innovation(const float z0[restrict 6], const float zsum[rest
     adukf_k_innovation_part4(zsum, zdiff, P_zz, carry);
     adukf_k_innovation_part5(z0, zsum, zdiff, accel, P_zz, residual, carry);
     adukf_k_innovation_part6(z0, zsum, zdiff, mag, dt, span, P_zz, residual, carry);
-    adukf_k_innovation_part7(z0, zsum, zdiff, mag, P_zz, residual, carry);
+    adukf_k_innovation_part7(z0, zsum, zdiff, mag, P_zz, carry);
     adukf_k_innovation_part8(z0, zsum, zdiff, mag, P_zz, residual, carry);
     adukf_k_innovation_part9(recover, P_zz, r_diag, carry);
     adukf_k_innovation_part10(P_zz, r_diag, carry);

@@ -376,6 +376,9 @@ class Model(FilterModel):
         d = p["sigma_acc_density"]
         if span is not None and not (isinstance(d, (int, float)) and d == 0):
             R = [R[i] + d ** 2 / ca.fmax(span[0], SPAN_MIN) for i in range(3)] + R[3:]
+        dm = p["sigma_mag_density"]
+        if span is not None and not (isinstance(dm, (int, float)) and dm == 0):
+            R = R[:3] + [R[i] + dm ** 2 / ca.fmax(span[1], SPAN_MIN) for i in range(3, 6)]
         return eps, R
 
     def innovation_simplex_expr(self, z0, zdev, f, m, scale=None, span=None):

@@ -342,6 +342,7 @@ class Reference:
             span = np.maximum(self.sample_age, dt)
             scale = np.repeat(np.maximum(dt / span, 1.0 / p["span_steps_max"]), 3)
             noise[:3] = p["sigma_acc_density"] ** 2 / max(span[0], 1e-9)     # model.SPAN_MIN
+            noise[3:] = p["sigma_mag_density"] ** 2 / max(span[1], 1e-9)
             if use_a:
                 self.sample_age[0] = 0.0
             if use_m:
