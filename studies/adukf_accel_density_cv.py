@@ -18,7 +18,6 @@ import itertools
 import sys
 
 import logo_cv
-from ahrsgen.sim.scenarios import make
 
 SEEDS = range(3)
 WORSE_MAX = 1.10
@@ -39,7 +38,7 @@ def main(argv=None):
     a, broad = logo_cv.setup(__doc__, argv)
     if broad is None:
         return 2
-    scen = {label: [make(name, s, **opts) for s in SEEDS] for label, (name, opts) in SCENARIOS.items()}
+    scen = logo_cv.scenarios(SCENARIOS, SEEDS)
     results = logo_cv.run(candidates(), *broad, scen, filter_name="adukf")
     before = next(r for r in results if r[0] == {"sigma_acc": 0.07, "sigma_acc_density": 0.0})
     static = ("static_accel_disturbance", "static_mag_disturbance")

@@ -24,19 +24,11 @@ import itertools
 import sys
 
 import logo_cv
-from ahrsgen.sim.scenarios import make
+from adukf_accel_density_cv import SCENARIOS, SEEDS, WORSE_MAX     # the same entries and bound
 
-SEEDS = range(3)
-WORSE_MAX = 1.10
 MULTIROTOR_MAX = 1.0
 CLAIM_FAILS = {(0.1, 0.012), (0.07, 0.012), (0.05, 0.016), (0.07, 0.016), (0.1, 0.016),
                (0.05, 0.024), (0.07, 0.024), (0.1, 0.024)}
-SCENARIOS = {"multirotor": ("multirotor", {}),
-             "multirotor_400hz": ("multirotor", {"rate_hz": 400.0, "mag_rate": 100.0}),
-             "multirotor_1khz": ("multirotor", {"rate_hz": 1000.0, "mag_rate": 100.0}),
-             "static_accel_disturbance": ("static_accel_disturbance", {}),
-             "static_mag_disturbance": ("static_mag_disturbance", {}),
-             "turntable": ("turntable", {})}
 
 
 def candidates():
@@ -48,7 +40,7 @@ def main(argv=None):
     a, broad = logo_cv.setup(__doc__, argv)
     if broad is None:
         return 2
-    scen = {label: [make(name, s, **opts) for s in SEEDS] for label, (name, opts) in SCENARIOS.items()}
+    scen = logo_cv.scenarios(SCENARIOS, SEEDS)
     results = logo_cv.run(candidates(), *broad, scen, filter_name="adukf")
     before = next(r for r in results if r[0] == {"sigma_mag": 0.07, "sigma_mag_density": 0.0})
     kept = [r for r in results if (r[0]["sigma_mag"], r[0]["sigma_mag_density"]) not in CLAIM_FAILS]

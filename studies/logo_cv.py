@@ -50,6 +50,12 @@ def write_json(path, results, cv) -> None:
             json.dump({"candidates": [{"sets": s, "entries": e} for s, e in results], **cv}, fh, indent=1)
 
 
+def scenarios(spec: dict, seeds=range(3)) -> dict:
+    """{label: [log per seed]} of a study's scenario entries, spec {label: (scenario, options)}."""
+    from ahrsgen.sim.scenarios import make
+    return {label: [make(name, s, **opts) for s in seeds] for label, (name, opts) in spec.items()}
+
+
 def load_broad(data_dir=None):
     """{trial: log} and {trial: log averaged to 95 Hz}, or None when the 10 trials are absent."""
     data = shared_data_dir(data_dir)

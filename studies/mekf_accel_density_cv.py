@@ -60,7 +60,7 @@ def main(argv=None):
     a, broad = logo_cv.setup(__doc__, argv)
     if broad is None:
         return 2
-    scen = {label: [make(name, s, **opts) for s in SEEDS] for label, (name, opts) in SCENARIOS.items()}
+    scen = logo_cv.scenarios(SCENARIOS, SEEDS)
     scen["fixedwing_gps_outage"] = [gps_outage(make("fixedwing_gps", s)) for s in SEEDS]
     results = logo_cv.run(candidates(), *broad, scen)
     before = next(r for r in results if r[0] == {"accel_angle_noise": 0.07, "accel_noise_density": 0.0})

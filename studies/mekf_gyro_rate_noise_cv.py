@@ -22,7 +22,6 @@ import itertools
 import sys
 
 import logo_cv
-from ahrsgen.sim.scenarios import make
 
 SEEDS = range(3)
 MULTIROTOR_MAX = 1.0        # degrees, issue 25's 'nothing lost where the product wins'
@@ -43,7 +42,7 @@ def main(argv=None):
     a, broad = logo_cv.setup(__doc__, argv)
     if broad is None:
         return 2
-    scen = {label: [make(name, s, **opts) for s in SEEDS] for label, (name, opts) in SCENARIOS.items()}
+    scen = logo_cv.scenarios(SCENARIOS, SEEDS)
     results = logo_cv.run(candidates(), *broad, scen)
     cv = logo_cv.cross_validate(results, list(scen), admissible=lambda e: e["multirotor"] <= MULTIROTOR_MAX)
     before = next(r for r in results if r[0] == {"gyro_rate_noise": 0.0, "mag_heading_density": 0.006})

@@ -77,6 +77,13 @@ def test_a_clip_below_the_default_range_is_found_by_its_plateau(name):
         assert abs(e - e_told) <= 0.1, (seed, e, e_told)
 
 
+def test_the_reference_states_the_plateau_rule_as_the_model_does():
+    from ahrsgen import reference_aiding
+    from ahrsgen.symbolic import aiding
+    assert (reference_aiding.PLATEAU_SAMPLES, reference_aiding.PLATEAU_TOL) == (aiding.PLATEAU_SAMPLES,
+                                                                             aiding.PLATEAU_TOL)
+
+
 def test_the_plateau_is_not_a_duplicate_or_a_slow_repeat():
     """What the plateau is not, in the C (qcf's kernel, the one all three filters share): a whole
     sample repeated (a logger's duplicate), a component repeating below gyro_plateau_rate, or a

@@ -5,9 +5,10 @@ from __future__ import annotations
 
 import numpy as np
 
-# symbolic/aiding.PLATEAU_SAMPLES: equal samples in a row of one fast component that make a clip
+# the rule's constants, as symbolic/aiding states them (this layer cannot import it; a test
+# checks they agree): equal samples in a row of one fast component, "equal" within (rad/s)
 PLATEAU_SAMPLES = 4
-PLATEAU_TOL = 1e-6     # rad/s: "the same value" (far below any gyro's resolution)
+PLATEAU_TOL = 1e-6
 
 
 class GyroClip:
