@@ -25,8 +25,8 @@ LAYERS = [
     ["ahrsgen.filters", "ahrsgen.scaffold"],
     ["ahrsgen.generate"],
     ["ahrsgen.sim"],
-    ["ahrsgen.target", "ahrsgen.bench"],
-    ["ahrsgen.check", "ahrsgen.tune", "ahrsgen.calibrate"],
+    ["ahrsgen.target", "ahrsgen.bench", "ahrsgen.calibrate"],
+    ["ahrsgen.check", "ahrsgen.tune"],
     ["ahrsgen.cli", "ahrsgen.__main__"],
 ]
 OUTSIDE = ("tests", "studies", "docs", "examples", "generator", "firmware_sim")

@@ -47,8 +47,42 @@ def scenario_configs(quick: bool) -> list[tuple[str, str, dict]]:
                 ("static_mag_disturbance", "static_mag_disturbance", {}),
                 ("turntable", "turntable", {}),
                 ("gyro_clip", "gyro_clip", {}),
-                ("attached_magnet", "attached_magnet", {})]
+                ("attached_magnet", "attached_magnet", {}),
+                ("handheld", "handheld", {}),
+                ("handheld_uncalibrated_iron", "handheld", {"iron": True}),
+                ("handheld_rolled_180", "handheld", {"board_rotation": "ROLL_180"})]
     return [g for g in grid if g[1] in known]
+
+
+# the seed of the log a user records to calibrate the sensor (not one of the scored seeds)
+CALIBRATION_SEED = 1000
+
+
+def row_estimators(label: str, scen: str, opts: dict, filter_names, config_dir: Path) -> tuple[list, bool]:
+    """Estimators a grid row adds, and whether the default estimators run on it too.
+
+    An uncalibrated sensor (option iron): every filter with a magnetometer heading again, built
+    with the [calibration] that `ahrsgen calibrate` finds on the sensor's own calibration log
+    (the scenario with calibration=True), as `<filter>_calibrated`. A rotated board (option
+    board_rotation): every filter built with that [mounting] sensor_rotation, as
+    `<filter>_mounted`, alone (an estimator told nothing of the mounting scores nothing useful).
+    The configs are written to config_dir, where a user would keep them."""
+    from ahrsgen import calibrate
+    from ahrsgen.fileio import write_text_atomic
+    from ahrsgen.sim import scenarios
+    config_dir.mkdir(parents=True, exist_ok=True)
+    path = config_dir / f"{label}.toml"
+    if opts.get("iron"):
+        cal_log = scenarios.make(scen, seed=CALIBRATION_SEED, **opts, calibration=True)
+        write_text_atomic(path, calibrate.toml_text(calibrate.calibrate([cal_log]),
+                                                    [f"{scen} calibration log, seed {CALIBRATION_SEED}"]))
+        named = [(f, filter_estimator(f, config_file=str(path), label=f"{f}_calibrated")) for f in filter_names]
+        return [e for f, e in named if e.heading == "mag"], True
+    rot = opts.get("board_rotation", "NONE")
+    if rot != "NONE":
+        write_text_atomic(path, f'[mounting]\nsensor_rotation = "{rot}"\n')
+        return [filter_estimator(f, config_file=str(path), label=f"{f}_mounted") for f in filter_names], False
+    return [], True
 
 
 def _estimators(filter_names, peer_names, with_baseline=True):
@@ -250,8 +284,16 @@ def bench(quick=False, seeds=None, filters=None, peer_names=PEER_NAMES, data_dir
         for label, scen, opts in scenario_configs(quick):
             if scenario_labels and label not in scenario_labels:
                 continue
+            extra, with_defaults = row_estimators(label, scen, opts, filter_names, out_dir / "configs")
+            for e in extra:
+                try:
+                    e.host_filter()
+                    ests.append(e)
+                except Exception as ex:
+                    build_errors[e.name] = f"{type(ex).__name__}: {ex}"
+            row_specs = (specs if with_defaults else []) + [_spec(e) for e in extra if e.name not in build_errors]
             for seed in range(n_seeds):
-                tasks.append(("scenario", label, scen, opts, seed, specs, seed == 0))
+                tasks.append(("scenario", label, scen, opts, seed, row_specs, seed == 0))
     real = {"broad": [], "px4": []}
     if not scenarios_only:
         trials = readers.broad_trials(ddir) if ddir else []

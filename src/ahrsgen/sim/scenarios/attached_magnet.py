@@ -24,44 +24,17 @@ from __future__ import annotations
 
 import numpy as np
 
-from ahrsgen.npquat import q_from_euler
 from ahrsgen.sim.log import G0, SensorLog
-from ahrsgen.sim.scenarios import _sim
+from ahrsgen.sim.scenarios import _sim, handheld
 from ahrsgen.sim.scenarios._sim import DEG
 
 DESCRIPTION = ("hand-held rotation at 286 Hz, 150 s, no GPS; a magnet attached to the sensor at 40-60 s: "
                "a body-frame offset of 0.3-1x the Earth's field (50 uT, inclination 67 deg) that stays; "
                "scored from 30 s after its arrival")
 
-FIELD_UT = 50.0
-REST = 10.0
-RAMP = 5.0
+FIELD_UT = handheld.FIELD_UT
+REST = handheld.REST
 SCORE_AFTER = 30.0
-
-
-def _angles(t, r):
-    env = _sim.smoothstep((t - REST) / RAMP)
-    ph = r.uniform(0.0, 2 * np.pi, (3, 3))
-    f = np.array([[0.11, 0.23, 0.41], [0.13, 0.19, 0.37], [0.05, 0.09, 0.17]])
-    a = np.array([[18.0, 12.0, 6.0], [15.0, 10.0, 5.0], [70.0, 35.0, 15.0]]) * DEG
-    out = []
-    for i in range(3):
-        out.append(env * sum(a[i, j] * np.sin(2 * np.pi * f[i, j] * t + ph[i, j]) for j in range(3)))
-    yaw0 = r.uniform(-np.pi, np.pi)
-    drift = env * 0.02 * (t - REST) * np.sign(r.uniform(-1, 1))   # slowly turning centre, rad
-    return out[0], out[1], yaw0 + drift + out[2]
-
-
-def truth(duration: float, period: float, r) -> _sim.Truth:
-    m = int(np.ceil(period / 0.001 - 1e-9))
-    h = period / m
-    k0 = int(np.ceil(1.0 / h))
-    k1 = int(np.ceil((duration + 1.0) / h))
-    t = np.arange(-k0, k1 + 1) * h
-    roll, pitch, yaw = _angles(t, r)
-    q = q_from_euler(roll, pitch, yaw)
-    z = np.zeros((len(t), 3))
-    return _sim.Truth(t[0], h, q, z, z.copy())
 
 
 def make(seed: int = 0, *, rate_hz: float = 285.714, duration: float = 150.0, noise: bool = True,
@@ -79,7 +52,7 @@ def make(seed: int = 0, *, rate_hz: float = 285.714, duration: float = 150.0, no
         k = float(strength)
     offset = k * FIELD_UT * d
     period = 1.0 / rate_hz
-    tr = truth(duration, period, _sim.rng(seed, _sim._S_SCENARIO + 5))
+    tr = handheld.truth(duration, period, _sim.rng(seed, _sim._S_SCENARIO + 5))
     rb = _sim.rng(seed, _sim._S_GYRO_BIAS)
     bias = rb.uniform(0.1, 0.3, 3) * rb.choice([-1.0, 1.0], 3) * DEG
     sensors = _sim.SensorModel(gyro_nd=0.01 * DEG, gyro_bias=bias, accel_nd=300e-6 * G0,
