@@ -513,7 +513,7 @@ static inline void qcf_k_accel_lowpass(const float rot[9], const float accel[3],
  *      of which only one side runs: if (at_rest) 11, else 12 */
 static void qcf_k_correct_part0(const float rot[9], const float accel_lp[3], const float mag_ned[3], float span_accel, bool recover, float carry[11])
 {
-    const float tmp0 = (recover) ? 1.0f : 0.15f;
+    const float tmp0 = (recover) ? 1.0f : 0.125f;
     const float tmp1 = tmp0 * span_accel;
     const float tmp2 = accel_lp[0] * accel_lp[0];
     const float tmp3 = accel_lp[1] * accel_lp[1];
@@ -740,13 +740,13 @@ static void qcf_k_correct_part4(const float gyro_bias[3], float span_accel, bool
         const bool tmp156 = (use_accel) && (!(recover));
         const bool tmp157 = (77.55708f < accel_norm2) && (accel_norm2 < 116.78368f);
         const bool tmp158 = (tmp156) && (tmp157);
-        const float tmp159 = 0.013333334f * carry[0];
+        const float tmp159 = 0.016f * carry[0];
         const float tmp160 = gyro_bias[0] - tmp159;
         const float tmp161 = (tmp158) ? tmp160 : gyro_bias[0];
-        const float tmp162 = 0.013333334f * carry[1];
+        const float tmp162 = 0.016f * carry[1];
         const float tmp163 = gyro_bias[1] - tmp162;
         const float tmp164 = (tmp158) ? tmp163 : gyro_bias[1];
-        const float tmp165 = 0.013333334f * carry[2];
+        const float tmp165 = 0.016f * carry[2];
         const float tmp166 = gyro_bias[2] - tmp165;
         const float tmp167 = (tmp158) ? tmp166 : gyro_bias[2];
         tmp142 = tmp161;

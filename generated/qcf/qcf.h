@@ -61,7 +61,7 @@ extern "C" {
 #define QCF_MAG_MIN_NORM 1e-06f            /* magnetometer norm below this skips its correction (MAG_ZERO) [field unit] */
 #define QCF_MAG_MAX 1e+06f                 /* magnetometer component above this skips its correction (MAG_RANGE) [field unit] */
 #define QCF_GPS_VEL_MAX 500.0f             /* GPS velocity component above this: the sample is ignored (GPS_RANGE) [m/s] */
-#define QCF_KP 0.3f                        /* proportional gain on the quaternion error q~ (eq. 14) [rad/s] */
+#define QCF_KP 0.25f                       /* proportional gain on the quaternion error q~ (eq. 14); 0.25 chosen by studies/qcf_gains_cv.py (leave one BROAD group out with the scenarios; 0.3 before) [rad/s] */
 #define QCF_KI 0.002f                      /* integral gain of the gyro-bias estimate (eq. 14); 0 turns the integration off (the rest detector still learns the bias at rest unless rest_time = 0) [rad/s^2] */
 #define QCF_GPS_COMPENSATION 1             /* remove the GPS-derived motion acceleration from the accelerometer (section 3.2) */
 #define QCF_GPS_PERIOD 0.2f                /* GPS sample period T of the lagged differentiator (eq. 29) [s] */
