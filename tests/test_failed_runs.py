@@ -96,7 +96,7 @@ SHORT = ["--scenario-opt", "duration=120"]
 
 @pytest.mark.parametrize("sets,words,opts", [
     (["kp=100", "ki=10"], "kp x span_max = 10 >= 3", SHORT),   # issue 27's example
-    (["ki=0.6"], "ki = 0.6 >= kp / accel_tau = 0.3", []),      # the bias loop (Routh-Hurwitz): 600 s
+    (["kp=0.3", "ki=0.6"], "ki = 0.6 >= kp / accel_tau = 0.3", []),      # the bias loop (Routh-Hurwitz): 600 s
 ])
 @pytest.mark.slow
 def test_validate_tells_an_unstable_configuration(sets, words, opts, capsys):
@@ -125,7 +125,7 @@ def test_validate_still_reports_a_code_generation_error(monkeypatch, capsys):
 
 
 @pytest.mark.parametrize("sets,warned", [
-    ([], False), (["kp=29"], False), (["kp=35"], True), (["ki=0.29"], False), (["ki=1"], True),
+    ([], False), (["kp=29"], False), (["kp=35"], True), (["kp=0.3", "ki=0.29"], False), (["ki=1"], True), (["ki=0.26"], True),
     (["kp=35", "span_max=0.05"], False), (["faithful=true", "ki=1"], False),
 ])
 def test_generate_warns_of_unstable_gains(sets, warned, tmp_path, capsys):

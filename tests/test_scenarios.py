@@ -319,6 +319,20 @@ def test_gyro_clip_truth_and_clip():
     assert 10.0 < lost and abs(lost - log.meta["clip"]["rotation_lost_deg"]) < 0.05 * lost
 
 
+def test_gyro_clip_at_the_pendulums_range_or_refused():
+    """At 600 deg/s (the pendulum's clip) a one-turn flip holds the x gyro at the range for 0.3 s
+    where its axis allows (to 20 ms, as above); where it cannot, make() says so instead of
+    writing a log without a clip (seed 1 used to); so does the CLI, in one line."""
+    rng = np.radians(600.0)
+    for seed in (0, 2, 3):
+        log = scenarios.make("gyro_clip", seed=seed, noise=False, gyro_range_deg_s=600.0)
+        at = np.abs(log.gyro[:, 0]) >= rng
+        assert abs(np.count_nonzero(at) * log.dt[1] - 0.3) <= 0.02, seed
+    with pytest.raises(ValueError, match="no 360 deg flip keeps this gyro beyond 600 deg/s"):
+        scenarios.make("gyro_clip", seed=1, gyro_range_deg_s=600.0)
+    assert scenarios.make("gyro_clip", seed=1, gyro_range_deg_s=600.0, clip_s=0.25).meta["clip"]["end_s"]
+
+
 def test_averaged_log_is_the_slower_integrating_imu():
     """SensorLog.averaged(k): every k rows one at the last row's time, the mean gyro and
     accelerometer of the k rows; on a noise-free flight the averaged gyro still carries the

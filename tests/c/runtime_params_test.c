@@ -37,7 +37,7 @@ int main(void)
     memset(&in, 0, sizeof in);
     att_init(&s);
     att_params_default(&p);
-    check(p.kp == 0.3f && p.ki == 0.002f, "defaults are the declared ones");
+    check(p.kp == 0.25f && p.ki == 0.002f, "defaults are the declared ones");
     check(s.params.kp == p.kp && s.params.ki == p.ki, "init sets the defaults");
     in.gyro[0] = 0.1f; in.gyro[1] = -0.05f; in.gyro[2] = 0.2f;
     in.accel[2] = -9.81f; in.accel[0] = 0.3f;
