@@ -2392,7 +2392,7 @@ static void adukf_k_correct(const float x_pred[restrict 7], const float P_pred[r
  * ops: add 40, mul 30, div 1, cmp 4 (total 75) */
 static void adukf_k_accel_lowpass_part0(const float q_pred_unit[4], const float accel[3], const float accel_lp[3], bool restart, float dt, bool recover, float carry[15], bool flags[1])
 {
-    const bool tmp0 = (restart) || (recover);
+    const bool tmp0 = restart || recover;
     const float tmp1 = q_pred_unit[2] * q_pred_unit[2];
     const float tmp2 = q_pred_unit[3] * q_pred_unit[3];
     const float tmp3 = tmp1 + tmp2;
@@ -2518,7 +2518,7 @@ static void adukf_k_gyro_recovery(const float gyro[3], const float gyro_prev[3],
     const float tmp1 = fabsf(gyro[1]);
     const bool tmp2 = (34.906586f /* gyro_full_scale */ <= tmp0) || (34.906586f /* gyro_full_scale */ <= tmp1);
     const float tmp3 = fabsf(gyro[2]);
-    const bool tmp4 = (tmp2) || (34.906586f /* gyro_full_scale */ <= tmp3);
+    const bool tmp4 = tmp2 || (34.906586f /* gyro_full_scale */ <= tmp3);
     const float tmp5 = gyro[0] - gyro_prev[0];
     const float tmp6 = fabsf(tmp5);
     const float tmp7 = gyro[1] - gyro_prev[1];
@@ -2526,7 +2526,7 @@ static void adukf_k_gyro_recovery(const float gyro[3], const float gyro_prev[3],
     const bool tmp9 = (tmp6 < 1e-06f) && (tmp8 < 1e-06f);
     const float tmp10 = gyro[2] - gyro_prev[2];
     const float tmp11 = fabsf(tmp10);
-    const bool tmp12 = (tmp9) && (tmp11 < 1e-06f);
+    const bool tmp12 = tmp9 && (tmp11 < 1e-06f);
     float tmp13;
     float tmp14;
     float tmp15;
@@ -2552,8 +2552,8 @@ static void adukf_k_gyro_recovery(const float gyro[3], const float gyro_prev[3],
         tmp15 = tmp27;
     }
     const bool tmp28 = (3.0f <= tmp13) || (3.0f <= tmp14);
-    const bool tmp29 = (tmp28) || (3.0f <= tmp15);
-    const bool tmp30 = (tmp4) || (tmp29);
+    const bool tmp29 = tmp28 || (3.0f <= tmp15);
+    const bool tmp30 = tmp4 || tmp29;
     const float tmp31 = recover_time - dt;
     const float tmp32 = (tmp31 > 0.0f) ? tmp31 : 0.0f;
     const float tmp33 = (tmp30) ? 2.0f /* clip_recovery_time */ : tmp32;
@@ -2616,31 +2616,31 @@ static void adukf_k_init_q_part0(const float accel[3], const float mag[3], float
     fast_sincosf(tmp33, &tmp39, &tmp34);   /* sin and cos, one reduction */
     const float tmp35 = tmp32 * tmp34;
     const float tmp38 = tmp36 * tmp37;
-    carry[0] = tmp29;
-    carry[1] = tmp36;
-    carry[2] = tmp31;
-    carry[3] = tmp37;
+    carry[0] = tmp36;
+    carry[1] = tmp29;
+    carry[2] = tmp37;
+    carry[3] = tmp31;
     carry[4] = tmp32;
-    carry[5] = tmp34;
-    carry[6] = tmp39;
+    carry[5] = tmp39;
+    carry[6] = tmp34;
     carry[7] = tmp35;
     carry[8] = tmp38;
 }
 
 static void adukf_k_init_q_part1(float carry[9])
 {
-    const float tmp40 = carry[8] * carry[6];
+    const float tmp40 = carry[8] * carry[5];
     const float tmp41 = carry[7] + tmp40;
-    const float tmp42 = carry[4] * carry[6];
-    const float tmp43 = carry[8] * carry[5];
+    const float tmp42 = carry[4] * carry[5];
+    const float tmp43 = carry[8] * carry[6];
     const float tmp44 = tmp42 - tmp43;
-    const float tmp45 = carry[0] * carry[3];
-    const float tmp46 = tmp45 * carry[5];
-    const float tmp47 = carry[1] * carry[2];
-    const float tmp48 = tmp47 * carry[6];
+    const float tmp45 = carry[1] * carry[2];
+    const float tmp46 = tmp45 * carry[6];
+    const float tmp47 = carry[0] * carry[3];
+    const float tmp48 = tmp47 * carry[5];
     const float tmp49 = tmp46 + tmp48;
-    const float tmp50 = tmp47 * carry[5];
-    const float tmp51 = tmp45 * carry[6];
+    const float tmp50 = tmp47 * carry[6];
+    const float tmp51 = tmp45 * carry[5];
     const float tmp52 = tmp50 - tmp51;
     carry[0] = tmp41;
     carry[1] = tmp44;

@@ -330,10 +330,10 @@ static void cpf_k_cf_mix_part0(const float rpy[3], const float am[3], float dt, 
     const float tmp35 = (3.1415927f < tmp31) ? tmp32 : tmp34;
     const float tmp36 = tmp16 * tmp35;
     const float tmp37 = rpy[0] + tmp36;
-    carry[0] = tmp15;
-    carry[1] = tmp45;
-    carry[2] = tmp29;
-    carry[3] = tmp46;
+    carry[0] = tmp45;
+    carry[1] = tmp15;
+    carry[2] = tmp46;
+    carry[3] = tmp29;
     carry[4] = tmp30;
     carry[5] = tmp37;
 }
@@ -349,15 +349,15 @@ static void cpf_k_cf_mix_part1(float carry[6])
     float tmp43;
     fast_sincosf(tmp42, &tmp48, &tmp43);   /* sin and cos, one reduction */
     const float tmp44 = carry[4] * tmp43;
-    const float tmp47 = carry[1] * carry[3];
+    const float tmp47 = carry[0] * carry[2];
     const float tmp49 = tmp47 * tmp48;
     const float tmp50 = tmp44 + tmp49;
     const float tmp51 = carry[4] * tmp48;
     const float tmp52 = tmp47 * tmp43;
     const float tmp53 = tmp51 - tmp52;
-    const float tmp54 = carry[0] * carry[3];
+    const float tmp54 = carry[1] * carry[2];
     const float tmp55 = tmp54 * tmp43;
-    const float tmp56 = carry[1] * carry[2];
+    const float tmp56 = carry[0] * carry[3];
     const float tmp57 = tmp56 * tmp48;
     const float tmp58 = tmp55 + tmp57;
     const float tmp59 = tmp56 * tmp43;

@@ -121,7 +121,7 @@ static void mekf_k_gyro_recovery(const float gyro[3], const float gyro_prev[3], 
     const float tmp1 = fabsf(gyro[1]);
     const bool tmp2 = (34.906586f /* gyro_full_scale */ <= tmp0) || (34.906586f /* gyro_full_scale */ <= tmp1);
     const float tmp3 = fabsf(gyro[2]);
-    const bool tmp4 = (tmp2) || (34.906586f /* gyro_full_scale */ <= tmp3);
+    const bool tmp4 = tmp2 || (34.906586f /* gyro_full_scale */ <= tmp3);
     const float tmp5 = gyro[0] - gyro_prev[0];
     const float tmp6 = fabsf(tmp5);
     const float tmp7 = gyro[1] - gyro_prev[1];
@@ -129,7 +129,7 @@ static void mekf_k_gyro_recovery(const float gyro[3], const float gyro_prev[3], 
     const bool tmp9 = (tmp6 < 1e-06f) && (tmp8 < 1e-06f);
     const float tmp10 = gyro[2] - gyro_prev[2];
     const float tmp11 = fabsf(tmp10);
-    const bool tmp12 = (tmp9) && (tmp11 < 1e-06f);
+    const bool tmp12 = tmp9 && (tmp11 < 1e-06f);
     float tmp13;
     float tmp14;
     float tmp15;
@@ -155,8 +155,8 @@ static void mekf_k_gyro_recovery(const float gyro[3], const float gyro_prev[3], 
         tmp15 = tmp27;
     }
     const bool tmp28 = (3.0f <= tmp13) || (3.0f <= tmp14);
-    const bool tmp29 = (tmp28) || (3.0f <= tmp15);
-    const bool tmp30 = (tmp4) || (tmp29);
+    const bool tmp29 = tmp28 || (3.0f <= tmp15);
+    const bool tmp30 = tmp4 || tmp29;
     const float tmp31 = recover_time - dt;
     const float tmp32 = (tmp31 > 0.0f) ? tmp31 : 0.0f;
     const float tmp33 = (tmp30) ? 2.0f /* clip_recovery_time */ : tmp32;
@@ -2524,10 +2524,10 @@ static void mekf_k_init_attitude_part0(const float accel[3], const float mag[3],
     fast_sincosf(tmp33, &tmp40, &tmp34);   /* sin and cos, one reduction */
     const float tmp35 = tmp32 * tmp34;
     const float tmp36 = tmp2 * 0.5f;
-    carry[0] = tmp32;
-    carry[1] = tmp39;
-    carry[2] = tmp34;
-    carry[3] = tmp40;
+    carry[0] = tmp39;
+    carry[1] = tmp32;
+    carry[2] = tmp40;
+    carry[3] = tmp34;
     carry[4] = tmp35;
     carry[5] = tmp36;
 }
@@ -2538,15 +2538,15 @@ static void mekf_k_init_attitude_part1(const float accel[3], float carry[11])
     float tmp37;
     fast_sincosf(carry[5], &tmp42, &tmp37);   /* sin and cos, one reduction */
     const float tmp38 = carry[4] * tmp37;
-    const float tmp41 = carry[1] * carry[3];
+    const float tmp41 = carry[0] * carry[2];
     const float tmp43 = tmp41 * tmp42;
     const float tmp44 = tmp38 + tmp43;
     const float tmp45 = carry[4] * tmp42;
     const float tmp46 = tmp41 * tmp37;
     const float tmp47 = tmp45 - tmp46;
-    const float tmp48 = carry[0] * carry[3];
+    const float tmp48 = carry[1] * carry[2];
     const float tmp49 = tmp48 * tmp37;
-    const float tmp50 = carry[1] * carry[2];
+    const float tmp50 = carry[0] * carry[3];
     const float tmp51 = tmp50 * tmp42;
     const float tmp52 = tmp49 + tmp51;
     const float tmp53 = tmp50 * tmp37;

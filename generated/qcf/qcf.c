@@ -107,7 +107,7 @@ static void qcf_k_gyro_recovery(const float gyro[3], const float gyro_prev[3], c
     const float tmp1 = fabsf(gyro[1]);
     const bool tmp2 = (34.906586f /* gyro_full_scale */ <= tmp0) || (34.906586f /* gyro_full_scale */ <= tmp1);
     const float tmp3 = fabsf(gyro[2]);
-    const bool tmp4 = (tmp2) || (34.906586f /* gyro_full_scale */ <= tmp3);
+    const bool tmp4 = tmp2 || (34.906586f /* gyro_full_scale */ <= tmp3);
     const float tmp5 = gyro[0] - gyro_prev[0];
     const float tmp6 = fabsf(tmp5);
     const float tmp7 = gyro[1] - gyro_prev[1];
@@ -115,7 +115,7 @@ static void qcf_k_gyro_recovery(const float gyro[3], const float gyro_prev[3], c
     const bool tmp9 = (tmp6 < 1e-06f) && (tmp8 < 1e-06f);
     const float tmp10 = gyro[2] - gyro_prev[2];
     const float tmp11 = fabsf(tmp10);
-    const bool tmp12 = (tmp9) && (tmp11 < 1e-06f);
+    const bool tmp12 = tmp9 && (tmp11 < 1e-06f);
     float tmp13;
     float tmp14;
     float tmp15;
@@ -141,8 +141,8 @@ static void qcf_k_gyro_recovery(const float gyro[3], const float gyro_prev[3], c
         tmp15 = tmp27;
     }
     const bool tmp28 = (3.0f <= tmp13) || (3.0f <= tmp14);
-    const bool tmp29 = (tmp28) || (3.0f <= tmp15);
-    const bool tmp30 = (tmp4) || (tmp29);
+    const bool tmp29 = tmp28 || (3.0f <= tmp15);
+    const bool tmp30 = tmp4 || tmp29;
     const float tmp31 = recover_time - dt;
     const float tmp32 = (tmp31 > 0.0f) ? tmp31 : 0.0f;
     const float tmp33 = (tmp30) ? 2.0f /* clip_recovery_time */ : tmp32;
@@ -737,9 +737,9 @@ static void qcf_k_correct_part4(const float gyro_bias[3], float span_accel, bool
         tmp143 = tmp152;
         tmp144 = tmp155;
     } else {
-        const bool tmp156 = (use_accel) && (!(recover));
+        const bool tmp156 = use_accel && (!(recover));
         const bool tmp157 = (77.55708f < accel_norm2) && (accel_norm2 < 116.78368f);
-        const bool tmp158 = (tmp156) && (tmp157);
+        const bool tmp158 = tmp156 && tmp157;
         const float tmp159 = 0.013333334f * carry[0];
         const float tmp160 = gyro_bias[0] - tmp159;
         const float tmp161 = (tmp158) ? tmp160 : gyro_bias[0];
@@ -800,13 +800,13 @@ static void qcf_k_rest(const float gyro[3], float accel_norm2, const float rest_
     const float tmp17 = tmp16 * tmp16;
     const float tmp18 = tmp15 + tmp17;
     const bool tmp19 = (86.61373f < accel_norm2) && (accel_norm2 < 106.227036f);
-    const bool tmp20 = (tmp18 < 0.001225f) && (tmp19);
+    const bool tmp20 = (tmp18 < 0.001225f) && tmp19;
     const float tmp21 = tmp4 * tmp4;
     const float tmp22 = tmp7 * tmp7;
     const float tmp23 = tmp21 + tmp22;
     const float tmp24 = tmp10 * tmp10;
     const float tmp25 = tmp23 + tmp24;
-    const bool tmp26 = (tmp20) && (tmp25 < 0.001225f);
+    const bool tmp26 = tmp20 && (tmp25 < 0.001225f);
     const float tmp27 = rest_time + span;
     const float tmp28 = (tmp27 < 1000.0f) ? tmp27 : 1000.0f;
     const float tmp29 = (tmp26) ? tmp28 : 0.0f;
@@ -873,7 +873,7 @@ static void qcf_k_mag_check_part1(const float mag_ref[2], float mag_dist_time, f
         const float tmp28 = 0.1f * mag_ref[0];
         const float tmp29 = fabsf(carry[4]);
         const bool tmp30 = (tmp27 < tmp28) && (tmp29 < 0.1f);
-        const bool tmp31 = (tmp30) || (!(0.0f < mag_ref[0]));
+        const bool tmp31 = tmp30 || (!(0.0f < mag_ref[0]));
         const float tmp32 = mag_dist_time + span;
         const float tmp33 = (tmp30) ? 0.0f : tmp32;
         const bool tmp34 = (!(0.0f < mag_ref[0])) || (20.0f < tmp33);

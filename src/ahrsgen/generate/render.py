@@ -92,13 +92,28 @@ def _runtime_param(p, value, code, lit) -> dict:
             "check": check, "code": code, "unit": p.unit, "doc": p.doc}
 
 
-def _pass_params(source: str, kernel_names: list[str]) -> str:
-    """Calls of kernels that read runtime parameters get the state's params first: the step,
-    init and helper code call kernels on the state `s`."""
-    import re
-    for name in kernel_names:
-        source = re.sub(rf"(?<!void )\b{name}\(", f"{name}(&s->params, ", source)
-    return source
+class _Calls:
+    """How the templates call a kernel: `{{ call.predict }}s->q, ...)` opens the call of
+    <prefix>_k_predict, with the state's params first if the kernel reads runtime parameters
+    (Kernel.context; the step, init and helper code call kernels on the state `s`). A plain
+    object, not a dict, so that a kernel may be called `update` or `items`."""
+
+    def __init__(self, calls: dict):
+        self._calls = calls
+
+    def __getattr__(self, key):
+        if key.startswith("__"):
+            raise AttributeError(key)
+        if key not in self._calls:
+            raise ConfigError(f"the C template calls kernel '{key}', which the model does not define "
+                              f"(kernels: {', '.join(sorted(self._calls))})")
+        return self._calls[key]
+
+    __getitem__ = __getattr__
+
+
+def _calls(specs, kernels) -> _Calls:
+    return _Calls({ks.name: k.name + "(" + ("&s->params, " if k.context else "") for ks, k in zip(specs, kernels)})
 
 
 class _RuntimeGuard(dict):
@@ -323,12 +338,10 @@ def render(cfg: BuildConfig, names: bool = True) -> Generated:
         init_partial="init.c.j2" if (spec.folder / "init.c.j2").exists() else None,
         helpers_partial="helpers.c.j2" if (spec.folder / "helpers.c.j2").exists() else None,
         input_transform=_input_transform(getattr(cfg, "frame", None), model.sensors, lit, real),
-        noinline=NOINLINE,
+        noinline=NOINLINE, call=_calls(specs, kernels),
         cfg=_RuntimeGuard(cfg.params, runtime), **tctx)
     header = env.get_template("filter.h.j2").render(ctx)
     source = env.get_template("filter.c.j2").render(ctx)
-    if runtime:
-        source = _pass_params(source, [k.name for k in kernels if k.context])
 
     paths = {}
     for pname, knames in model.step_paths().items():
