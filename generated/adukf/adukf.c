@@ -101,8 +101,6 @@ static float fast_atan2f(float y, float x)
     return signbit(y) ? -a : a;
 }
 
-/* time update of the error state [d; db]: q- = A q = q * dq((w - b) dt), P- = F P F^T + Q with F = [[Phi, B], [0, I3]]; outputs are stored as soon as computed (arrays restrict): no argument may overlap an output
- * ops: add 162, mul 211, div 2, sqrt 2, cmp 1 (total 378) */
 static void adukf_k_predict_part0(const float q[4], const float gyro_bias[3], const float P[36], const float gyro[3], float dt, float x_pred[7], float P_pred[21], float carry[32])
 {
     const float tmp0 = 0.25f * dt;
@@ -627,6 +625,25 @@ static void adukf_k_predict_part9(const float P[36], float dt, float P_pred[21],
     P_pred[20] = tmp377;
 }
 
+/*
+ * time update of the error state [d; db]: q- = A q = q * dq((w - b) dt), P- = F P F^T + Q with F =
+ * [[Phi, B], [0, I3]]; outputs are stored as soon as computed (arrays restrict): no argument may
+ * overlap an output
+ *
+ * Args:
+ *     q: float[4]
+ *     gyro_bias: float[3]
+ *     P: float[36], 6x6 matrix, column-major: row i, column j at [i + 6 * j]
+ *     gyro: float[3]
+ *     dt: float
+ *     clip: bool
+ * Outputs:
+ *     x_pred: float[7]
+ *     q_pred_unit: float[4]
+ *     P_pred: float[21]
+ *
+ * Total ops: 378 (add 162, mul 211, div 2, sqrt 2, cmp 1)
+ */
 #if defined(__GNUC__)
 __attribute__((noinline))
 #endif
@@ -646,8 +663,6 @@ static void adukf_k_predict(const float q[restrict 4], const float gyro_bias[res
     adukf_k_predict_part9(P, dt, P_pred, carry);
 }
 
-/* L = chol(P-), aL = a L[:, 0:3] (the columns that move the attitude: a bias column moves none, so 7 distinct sigma points), z0 = h(q-); pivot_P = smallest pivot of P-; outputs are stored as soon as computed (arrays restrict): no argument may overlap an output
- * ops: add 65, mul 86, div 5, sqrt 5, cmp 10 (total 171) */
 static void adukf_k_sigma_setup_part0(const float P_pred[21], float aL[18], float carry[20])
 {
     const float tmp0 = (1e-15f /* pivot_min */ < P_pred[0]) ? P_pred[0] : 1.0f;
@@ -896,6 +911,22 @@ static void adukf_k_sigma_setup_part4(float *pivot_P, const float carry[20])
     *pivot_P = tmp170;
 }
 
+/*
+ * L = chol(P-), aL = a L[:, 0:3] (the columns that move the attitude: a bias column moves none, so
+ * 7 distinct sigma points), z0 = h(q-); pivot_P = smallest pivot of P-; outputs are stored as soon
+ * as computed (arrays restrict): no argument may overlap an output
+ *
+ * Args:
+ *     q_pred_unit: float[4]
+ *     P_pred: float[21]
+ *     m_ref: float[3]
+ * Outputs:
+ *     aL: float[18], 6x3 matrix, column-major: row i, column j at [i + 6 * j]
+ *     z0: float[6]
+ *     pivot_P: float
+ *
+ * Total ops: 171 (add 65, mul 86, div 5, sqrt 5, cmp 10)
+ */
 #if defined(__GNUC__)
 __attribute__((noinline))
 #endif
@@ -910,8 +941,6 @@ static void adukf_k_sigma_setup(const float q_pred_unit[restrict 4], const float
     adukf_k_sigma_setup_part4(pivot_P, carry);
 }
 
-/* sigma points q- * dq(+col) and q- * dq(-col) (col = a L[0:3, j], an attitude error), mapped through h, as deviations e+, e- from z0: e+ + e- and e+ - e- (called once per attitude column of aL)
- * ops: add 16, mul 41, div 1 (total 58) */
 static void adukf_k_sigma_pair_part0(const float col[3], const float z0[6], float carry[12])
 {
     const float tmp0 = col[0] * col[0];
@@ -997,6 +1026,20 @@ static void adukf_k_sigma_pair_part1(const float col[3], const float z0[6], floa
     carry[11] = tmp57;
 }
 
+/*
+ * sigma points q- * dq(+col) and q- * dq(-col) (col = a L[0:3, j], an attitude error), mapped
+ * through h, as deviations e+, e- from z0: e+ + e- and e+ - e- (called once per attitude column of
+ * aL)
+ *
+ * Args:
+ *     col: float[3]
+ *     z0: float[6]
+ * Outputs:
+ *     zsum: float[6]
+ *     zdiff: float[6]
+ *
+ * Total ops: 58 (add 16, mul 41, div 1)
+ */
 static void adukf_k_sigma_pair(const float col[3], const float z0[6], float zsum[6], float zdiff[6])
 {
     /* 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
@@ -1017,9 +1060,6 @@ static void adukf_k_sigma_pair(const float col[3], const float z0[6], float zsum
     zdiff[5] = carry[11];
 }
 
-/* predicted measurement, residual, adaptive per-axis R and P_zz from the sigma pairs' sums and differences of deviations; outputs are stored as soon as computed (arrays restrict): no argument may overlap an output
- * ops: add 172, mul 204, div 6, sqrt 2, cmp 16 (total 400)
- *      of which only one side runs: if (recover) 0, else 18 */
 static void adukf_k_innovation_part0(const float z0[6], const float zsum[18], const float zdiff[18], const float accel[3], float dt, const float span[2], float residual[6], float carry[18])
 {
     const float tmp0 = zsum[0] * zsum[0];
@@ -1553,6 +1593,28 @@ static void adukf_k_innovation_part10(float P_zz[21], float r_diag[6], const flo
     P_zz[20] = tmp399;
 }
 
+/*
+ * predicted measurement, residual, adaptive per-axis R and P_zz from the sigma pairs' sums and
+ * differences of deviations; outputs are stored as soon as computed (arrays restrict): no argument
+ * may overlap an output
+ *
+ * Args:
+ *     z0: float[6]
+ *     zsum: float[18]
+ *     zdiff: float[18]
+ *     accel: float[3]
+ *     mag: float[3]
+ *     dt: float
+ *     span: float[2]
+ *     recover: bool
+ * Outputs:
+ *     P_zz: float[21]
+ *     residual: float[6]
+ *     r_diag: float[6]
+ *
+ * Total ops: 400 (add 172, mul 204, div 6, sqrt 2, cmp 16)
+ *     of which only one side runs: if (recover) 0, else 18
+ */
 #if defined(__GNUC__)
 __attribute__((noinline))
 #endif
@@ -1573,8 +1635,6 @@ static void adukf_k_innovation(const float z0[restrict 6], const float zsum[rest
     adukf_k_innovation_part10(P_zz, r_diag, carry);
 }
 
-/* with L = chol(P_zz), W = L^-1 D (D the pairs' differences) and v = L^-1 eps: g = Wi W^T v and G = Wi^2 W^T W (lower triangle, packed), so that K eps = aL g and K P_zz K^T = aL G aL^T (K, P_xz never formed); pivot_zz = smallest pivot of P_zz
- * ops: add 140, mul 197, div 6, sqrt 6, cmp 11 (total 360) */
 static void adukf_k_gain_part0(const float P_zz[21], const float zdiff[18], const float residual[6], float carry[45])
 {
     const float tmp0 = (1e-15f /* pivot_min */ < P_zz[0]) ? P_zz[0] : 1.0f;
@@ -2045,6 +2105,22 @@ static void adukf_k_gain_part8(const float P_zz[21], float carry[45])
     carry[4] = tmp359;
 }
 
+/*
+ * with L = chol(P_zz), W = L^-1 D (D the pairs' differences) and v = L^-1 eps: g = Wi W^T v and G =
+ * Wi^2 W^T W (lower triangle, packed), so that K eps = aL g and K P_zz K^T = aL G aL^T (K, P_xz
+ * never formed); pivot_zz = smallest pivot of P_zz
+ *
+ * Args:
+ *     P_zz: float[21]
+ *     zdiff: float[18]
+ *     residual: float[6]
+ * Outputs:
+ *     g: float[3]
+ *     G: float[6]
+ *     pivot_zz: float
+ *
+ * Total ops: 360 (add 140, mul 197, div 6, sqrt 6, cmp 11)
+ */
 #if defined(__GNUC__)
 __attribute__((noinline))
 #endif
@@ -2073,8 +2149,6 @@ static void adukf_k_gain(const float P_zz[21], const float zdiff[18], const floa
     *pivot_zz = carry[4];
 }
 
-/* [d; db] = aL g = K eps, q+ = q- * [1, d/2] normalised, b+ = b- + db, P+ = P- - aL G aL^T = P- - K P_zz K^T; outputs are stored as soon as computed (arrays restrict): no argument may overlap an output
- * ops: add 99, mul 125, div 1, sqrt 1 (total 226) */
 static void adukf_k_correct_part0(const float x_pred[7], const float aL[18], const float g[3], float carry[8])
 {
     const float tmp0 = aL[0] * g[0];
@@ -2373,6 +2447,23 @@ static void adukf_k_correct_part5(const float P_pred[21], const float aL[18], fl
     P_new[20] = tmp225;
 }
 
+/*
+ * [d; db] = aL g = K eps, q+ = q- * [1, d/2] normalised, b+ = b- + db, P+ = P- - aL G aL^T = P- - K
+ * P_zz K^T; outputs are stored as soon as computed (arrays restrict): no argument may overlap an
+ * output
+ *
+ * Args:
+ *     x_pred: float[7]
+ *     P_pred: float[21]
+ *     aL: float[18], 6x3 matrix, column-major: row i, column j at [i + 6 * j]
+ *     g: float[3]
+ *     G: float[6]
+ * Outputs:
+ *     x_new: float[7]
+ *     P_new: float[21]
+ *
+ * Total ops: 226 (add 99, mul 125, div 1, sqrt 1)
+ */
 #if defined(__GNUC__)
 __attribute__((noinline))
 #endif
@@ -2388,8 +2479,6 @@ static void adukf_k_correct(const float x_pred[restrict 7], const float P_pred[r
     adukf_k_correct_part5(P_pred, aL, P_new, carry);
 }
 
-/* NED low-pass of the specific force R(q-) f (restart: start at R(q-) f); the update measures R(q-)^T of it (recovering from a clipped gyro sample: the sample itself)
- * ops: add 40, mul 30, div 1, cmp 4 (total 75) */
 static void adukf_k_accel_lowpass_part0(const float q_pred_unit[4], const float accel[3], const float accel_lp[3], bool restart, float dt, bool recover, float carry[15], bool flags[1])
 {
     const bool tmp0 = restart || recover;
@@ -2494,6 +2583,23 @@ static void adukf_k_accel_lowpass_part1(const float accel[3], const float accel_
     carry[4] = tmp74;
 }
 
+/*
+ * NED low-pass of the specific force R(q-) f (restart: start at R(q-) f); the update measures
+ * R(q-)^T of it (recovering from a clipped gyro sample: the sample itself)
+ *
+ * Args:
+ *     q_pred_unit: float[4]
+ *     accel: float[3]
+ *     accel_lp: float[3]
+ *     restart: bool
+ *     dt: float
+ *     recover: bool
+ * Outputs:
+ *     accel_lp_new: float[3]
+ *     accel_body: float[3]
+ *
+ * Total ops: 75 (add 40, mul 30, div 1, cmp 4)
+ */
 static void adukf_k_accel_lowpass(const float q_pred_unit[4], const float accel[3], const float accel_lp[3], bool restart, float dt, bool recover, float accel_lp_new[3], float accel_body[3])
 {
     /* 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry and flags hold the values handed between them (a slot reused once its value is dead) */
@@ -2509,9 +2615,26 @@ static void adukf_k_accel_lowpass(const float q_pred_unit[4], const float accel[
     accel_body[2] = carry[4];
 }
 
-/* gyro over-range: a component at gyro_full_scale, or one at or above gyro_plateau_rate that holds its value for 4 samples while the others change (clipped), sets the recovery timer to clip_recovery_time; recovering while more than half a step of it is left
- * ops: add 7, mul 1, cmp 28 (total 36)
- *      of which only one side runs: if (tmp12) 0, else 12 */
+/*
+ * gyro over-range: a component at gyro_full_scale, or one at or above gyro_plateau_rate that holds
+ * its value for 4 samples while the others change (clipped), sets the recovery timer to
+ * clip_recovery_time; recovering while more than half a step of it is left
+ *
+ * Args:
+ *     gyro: float[3]
+ *     gyro_prev: float[3]
+ *     gyro_repeats: float[3]
+ *     recover_time: float
+ *     dt: float
+ * Outputs:
+ *     clipped: bool
+ *     recover_time_new: float
+ *     recovering: bool
+ *     gyro_repeats_new: float[3]
+ *
+ * Total ops: 36 (add 7, mul 1, cmp 28)
+ *     of which only one side runs: if (tmp12) 0, else 12
+ */
 static void adukf_k_gyro_recovery(const float gyro[3], const float gyro_prev[3], const float gyro_repeats[3], float recover_time, float dt, bool *clipped, float *recover_time_new, bool *recovering, float gyro_repeats_new[3])
 {
     const float tmp0 = fabsf(gyro[0]);
@@ -2567,8 +2690,6 @@ static void adukf_k_gyro_recovery(const float gyro[3], const float gyro_prev[3],
     gyro_repeats_new[2] = tmp15;
 }
 
-/* initial attitude: accelerometer tilt and tilt-compensated heading (+ declination)
- * ops: add 13, mul 24, sqrt 1, trig 13, cmp 2 (total 53) */
 static void adukf_k_init_q_part0(const float accel[3], const float mag[3], float carry[9])
 {
     const float tmp0 = -accel[1];
@@ -2648,6 +2769,17 @@ static void adukf_k_init_q_part1(float carry[9])
     carry[3] = tmp52;
 }
 
+/*
+ * initial attitude: accelerometer tilt and tilt-compensated heading (+ declination)
+ *
+ * Args:
+ *     accel: float[3]
+ *     mag: float[3]
+ * Outputs:
+ *     q: float[4]
+ *
+ * Total ops: 53 (add 13, mul 24, sqrt 1, trig 13, cmp 2)
+ */
 static void adukf_k_init_q(const float accel[3], const float mag[3], float q[4])
 {
     /* 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
@@ -2660,8 +2792,19 @@ static void adukf_k_init_q(const float accel[3], const float mag[3], float q[4])
     q[3] = carry[3];
 }
 
-/* rest test and sin(inclination) = -f.m/(|f||m|) of one sample
- * ops: add 10, mul 13, div 1, sqrt 2, cmp 2 (total 28) */
+/*
+ * rest test and sin(inclination) = -f.m/(|f||m|) of one sample
+ *
+ * Args:
+ *     gyro: float[3]
+ *     accel: float[3]
+ *     mag: float[3]
+ * Outputs:
+ *     rest: bool
+ *     sin_dip: float
+ *
+ * Total ops: 28 (add 10, mul 13, div 1, sqrt 2, cmp 2)
+ */
 static inline void adukf_k_learn_sample(const float gyro[3], const float accel[3], const float mag[3], bool *rest, float *sin_dip)
 {
     const float tmp0 = gyro[0] * gyro[0];
@@ -2696,8 +2839,17 @@ static inline void adukf_k_learn_sample(const float gyro[3], const float accel[3
     *sin_dip = tmp27;
 }
 
-/* reference field from the mean sin(inclination) and the declination
- * ops: add 1, mul 1, div 1, sqrt 1, cmp 3 (total 7) */
+/*
+ * reference field from the mean sin(inclination) and the declination
+ *
+ * Args:
+ *     learn_sum: float
+ *     count: float
+ * Outputs:
+ *     m_ref: float[3]
+ *
+ * Total ops: 7 (add 1, mul 1, div 1, sqrt 1, cmp 3)
+ */
 static inline void adukf_k_learn_finish(float learn_sum, float count, float m_ref[3])
 {
     const float tmp0 = learn_sum / count;
@@ -2712,8 +2864,16 @@ static inline void adukf_k_learn_finish(float learn_sum, float count, float m_re
     m_ref[2] = tmp2;
 }
 
-/* Z-Y-X Euler angles [roll, pitch, yaw] of a unit body->NED quaternion
- * ops: add 13, mul 11, sqrt 1, trig 3 (total 28) */
+/*
+ * Z-Y-X Euler angles [roll, pitch, yaw] of a unit body->NED quaternion
+ *
+ * Args:
+ *     q: float[4]
+ * Outputs:
+ *     rpy: float[3]
+ *
+ * Total ops: 28 (add 13, mul 11, sqrt 1, trig 3)
+ */
 static inline void adukf_k_euler(const float q[4], float rpy[3])
 {
     const float tmp0 = q[0] * q[1];

@@ -130,8 +130,17 @@ static float fast_logf(float x)
     return ((p - 2.12194440e-4f * ef) - 0.5f * z2 + z) + 0.693359375f * ef;
 }
 
-/* accelerometer roll and pitch (eqs. 1-2 in FRD/NED)
- * ops: add 3, mul 2, sqrt 1, trig 2 (total 8) */
+/*
+ * accelerometer roll and pitch (eqs. 1-2 in FRD/NED)
+ *
+ * Args:
+ *     accel: float[3]
+ * Outputs:
+ *     roll: float
+ *     pitch: float
+ *
+ * Total ops: 8 (add 3, mul 2, sqrt 1, trig 2)
+ */
 static inline void cpf_k_tilt(const float accel[3], float *roll, float *pitch)
 {
     const float tmp0 = -accel[1];
@@ -146,8 +155,18 @@ static inline void cpf_k_tilt(const float accel[3], float *roll, float *pitch)
     *pitch = tmp7;
 }
 
-/* tilt-compensated magnetic heading plus declination (eq. 3 in FRD/NED)
- * ops: add 6, mul 7, trig 5, cmp 2 (total 20) */
+/*
+ * tilt-compensated magnetic heading plus declination (eq. 3 in FRD/NED)
+ *
+ * Args:
+ *     mag: float[3]
+ *     roll: float
+ *     pitch: float
+ * Outputs:
+ *     yaw: float
+ *
+ * Total ops: 20 (add 6, mul 7, trig 5, cmp 2)
+ */
 static inline void cpf_k_heading(const float mag[3], float roll, float pitch, float *yaw)
 {
     float tmp2;
@@ -175,8 +194,16 @@ static inline void cpf_k_heading(const float mag[3], float roll, float pitch, fl
     *yaw = tmp19;
 }
 
-/* quaternion of Z-Y-X Euler angles [roll, pitch, yaw]
- * ops: add 4, mul 15, trig 6 (total 25) */
+/*
+ * quaternion of Z-Y-X Euler angles [roll, pitch, yaw]
+ *
+ * Args:
+ *     rpy: float[3]
+ * Outputs:
+ *     q: float[4]
+ *
+ * Total ops: 25 (add 4, mul 15, trig 6)
+ */
 static inline void cpf_k_from_euler(const float rpy[3], float q[4])
 {
     const float tmp0 = rpy[2] * 0.5f;
@@ -213,8 +240,6 @@ static inline void cpf_k_from_euler(const float rpy[3], float q[4])
     q[3] = tmp24;
 }
 
-/* gyro prediction by eq. 11, normalised
- * ops: add 15, mul 25, div 1, sqrt 1 (total 42) */
 static void cpf_k_predict_part0(const float q[4], const float gyro[3], float dt, float carry[5])
 {
     const float tmp0 = 0.5f * dt;
@@ -272,6 +297,18 @@ static void cpf_k_predict_part1(float carry[5])
     carry[1] = tmp41;
 }
 
+/*
+ * gyro prediction by eq. 11, normalised
+ *
+ * Args:
+ *     q: float[4]
+ *     gyro: float[3]
+ *     dt: float
+ * Outputs:
+ *     q_new: float[4]
+ *
+ * Total ops: 42 (add 15, mul 25, div 1, sqrt 1)
+ */
 static void cpf_k_predict(const float q[4], const float gyro[3], float dt, float q_new[4])
 {
     /* 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
@@ -284,8 +321,6 @@ static void cpf_k_predict(const float q[4], const float gyro[3], float dt, float
     q_new[3] = carry[1];
 }
 
-/* complementary mix of gyro and accel/mag angles through wrapped differences (eqs. 7-8)
- * ops: add 23, mul 20, div 1, trig 6, cmp 12 (total 62) */
 static void cpf_k_cf_mix_part0(const float rpy[3], const float am[3], float dt, float use_accel, float use_mag, float carry[6])
 {
     const float tmp0 = 0.3f /* tau */ + dt;
@@ -369,6 +404,20 @@ static void cpf_k_cf_mix_part1(float carry[6])
     carry[3] = tmp61;
 }
 
+/*
+ * complementary mix of gyro and accel/mag angles through wrapped differences (eqs. 7-8)
+ *
+ * Args:
+ *     rpy: float[3]
+ *     am: float[3]
+ *     dt: float
+ *     use_accel: float
+ *     use_mag: float
+ * Outputs:
+ *     q_cf: float[4]
+ *
+ * Total ops: 62 (add 23, mul 20, div 1, trig 6, cmp 12)
+ */
 static void cpf_k_cf_mix(const float rpy[3], const float am[3], float dt, float use_accel, float use_mag, float q_cf[4])
 {
     /* 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
@@ -381,8 +430,17 @@ static void cpf_k_cf_mix(const float rpy[3], const float am[3], float dt, float 
     q_cf[3] = carry[3];
 }
 
-/* initial particle: the first attitude plus quaternion noise, normalised
- * ops: add 7, mul 12, div 1, sqrt 1 (total 21) */
+/*
+ * initial particle: the first attitude plus quaternion noise, normalised
+ *
+ * Args:
+ *     q: float[4]
+ *     noise: float[4]
+ * Outputs:
+ *     x: float[4]
+ *
+ * Total ops: 21 (add 7, mul 12, div 1, sqrt 1)
+ */
 static inline void cpf_k_init_particle(const float q[4], const float noise[4], float x[4])
 {
     const float tmp0 = 0.025f /* 0.5*init_spread */ * noise[0];
@@ -412,8 +470,19 @@ static inline void cpf_k_init_particle(const float q[4], const float noise[4], f
     x[3] = tmp20;
 }
 
-/* once per step for every particle: half the rotation increment (dt/2 gyro, eq. 11) and the process-noise std (eq. 9)
- * ops: mul 5, sqrt 1 (total 6) */
+/*
+ * once per step for every particle: half the rotation increment (dt/2 gyro, eq. 11) and the
+ * process-noise std (eq. 9)
+ *
+ * Args:
+ *     gyro: float[3]
+ *     dt: float
+ * Outputs:
+ *     hw: float[3]
+ *     sp: float
+ *
+ * Total ops: 6 (mul 5, sqrt 1)
+ */
 static inline void cpf_k_particle_scales(const float gyro[3], float dt, float hw[3], float *sp)
 {
     const float tmp0 = 0.5f * dt;
@@ -428,8 +497,20 @@ static inline void cpf_k_particle_scales(const float gyro[3], float dt, float hw
     *sp = tmp5;
 }
 
-/* particle prediction: eq. 11 with the process noise as a rotation-vector perturbation of the increment, x + x (x) [0, dt/2 w + sp n] (normalised after it by the normalize kernel)
- * ops: add 15, mul 15 (total 30) */
+/*
+ * particle prediction: eq. 11 with the process noise as a rotation-vector perturbation of the
+ * increment, x + x (x) [0, dt/2 w + sp n] (normalised after it by the normalize kernel)
+ *
+ * Args:
+ *     x: float[4]
+ *     hw: float[3]
+ *     sp: float
+ *     noise: float[3]
+ * Outputs:
+ *     x_new: float[4]
+ *
+ * Total ops: 30 (add 15, mul 15)
+ */
 static inline void cpf_k_particle_move(const float x[4], const float hw[3], float sp, const float noise[3], float x_new[4])
 {
     const float tmp0 = sp * noise[0];
@@ -468,8 +549,18 @@ static inline void cpf_k_particle_move(const float x[4], const float hw[3], floa
     x_new[3] = tmp29;
 }
 
-/* <x, Y>: cosine of half the angle between particle and observation, up to the sign (q = -q; the step keeps each particle where it is >= 0)
- * ops: add 3, mul 4 (total 7) */
+/*
+ * <x, Y>: cosine of half the angle between particle and observation, up to the sign (q = -q; the
+ * step keeps each particle where it is >= 0)
+ *
+ * Args:
+ *     x: float[4]
+ *     y: float[4]
+ * Outputs:
+ *     d: float
+ *
+ * Total ops: 7 (add 3, mul 4)
+ */
 static inline void cpf_k_obs_dot(const float x[4], const float y[4], float *d)
 {
     const float tmp0 = x[0] * y[0];
@@ -482,8 +573,19 @@ static inline void cpf_k_obs_dot(const float x[4], const float y[4], float *d)
     *d = tmp6;
 }
 
-/* log of the Gaussian likelihood exp(-4(1-|<x,Y>|)/obs_noise^2) scaled by its maximum (eq. 13), from d = |<x, Y>| (the particle in Y's hemisphere), in units of ln2/64: t <= 0; the step multiplies the weight by 2^(t/64)
- * ops: add 1, mul 1 (total 2) */
+/*
+ * log of the Gaussian likelihood exp(-4(1-|<x,Y>|)/obs_noise^2) scaled by its maximum (eq. 13),
+ * from d = |<x, Y>| (the particle in Y's hemisphere), in units of ln2/64: t <= 0; the step
+ * multiplies the weight by 2^(t/64)
+ *
+ * Args:
+ *     d: float
+ *     cmax: float
+ * Outputs:
+ *     t: float
+ *
+ * Total ops: 2 (add 1, mul 1)
+ */
 static inline void cpf_k_log_likelihood(float d, float cmax, float *t)
 {
     const float tmp0 = d - cmax;
@@ -491,8 +593,18 @@ static inline void cpf_k_log_likelihood(float d, float cmax, float *t)
     *t = tmp1;
 }
 
-/* weighted sum of the particles (eq. 15), each in the observation's hemisphere
- * ops: add 4, mul 4 (total 8) */
+/*
+ * weighted sum of the particles (eq. 15), each in the observation's hemisphere
+ *
+ * Args:
+ *     acc: float[4]
+ *     w: float
+ *     x: float[4]
+ * Outputs:
+ *     acc_new: float[4]
+ *
+ * Total ops: 8 (add 4, mul 4)
+ */
 static inline void cpf_k_accumulate(const float acc[4], float w, const float x[4], float acc_new[4])
 {
     const float tmp0 = w * x[0];
@@ -509,8 +621,16 @@ static inline void cpf_k_accumulate(const float acc[4], float w, const float x[4
     acc_new[3] = tmp7;
 }
 
-/* normalised quaternion
- * ops: add 3, mul 8, div 1, sqrt 1 (total 13) */
+/*
+ * normalised quaternion
+ *
+ * Args:
+ *     acc: float[4]
+ * Outputs:
+ *     q: float[4]
+ *
+ * Total ops: 13 (add 3, mul 8, div 1, sqrt 1)
+ */
 static inline void cpf_k_normalize(const float acc[4], float q[4])
 {
     const float tmp0 = acc[0] * acc[0];
@@ -532,8 +652,16 @@ static inline void cpf_k_normalize(const float acc[4], float q[4])
     q[3] = tmp12;
 }
 
-/* Z-Y-X Euler angles [roll, pitch, yaw] of a unit body->NED quaternion
- * ops: add 13, mul 11, sqrt 1, trig 3 (total 28) */
+/*
+ * Z-Y-X Euler angles [roll, pitch, yaw] of a unit body->NED quaternion
+ *
+ * Args:
+ *     q: float[4]
+ * Outputs:
+ *     rpy: float[3]
+ *
+ * Total ops: 28 (add 13, mul 11, sqrt 1, trig 3)
+ */
 static inline void cpf_k_euler(const float q[4], float rpy[3])
 {
     const float tmp0 = q[0] * q[1];

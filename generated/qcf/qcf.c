@@ -98,9 +98,26 @@ static float fast_atan2f(float y, float x)
     return signbit(y) ? -a : a;
 }
 
-/* gyro over-range: a component at gyro_full_scale, or one at or above gyro_plateau_rate that holds its value for 4 samples while the others change (clipped), sets the recovery timer to clip_recovery_time; recovering while more than half a step of it is left
- * ops: add 7, mul 1, cmp 28 (total 36)
- *      of which only one side runs: if (tmp12) 0, else 12 */
+/*
+ * gyro over-range: a component at gyro_full_scale, or one at or above gyro_plateau_rate that holds
+ * its value for 4 samples while the others change (clipped), sets the recovery timer to
+ * clip_recovery_time; recovering while more than half a step of it is left
+ *
+ * Args:
+ *     gyro: float[3]
+ *     gyro_prev: float[3]
+ *     gyro_repeats: float[3]
+ *     recover_time: float
+ *     dt: float
+ * Outputs:
+ *     clipped: bool
+ *     recover_time_new: float
+ *     recovering: bool
+ *     gyro_repeats_new: float[3]
+ *
+ * Total ops: 36 (add 7, mul 1, cmp 28)
+ *     of which only one side runs: if (tmp12) 0, else 12
+ */
 static void qcf_k_gyro_recovery(const float gyro[3], const float gyro_prev[3], const float gyro_repeats[3], float recover_time, float dt, bool *clipped, float *recover_time_new, bool *recovering, float gyro_repeats_new[3])
 {
     const float tmp0 = fabsf(gyro[0]);
@@ -156,9 +173,6 @@ static void qcf_k_gyro_recovery(const float gyro[3], const float gyro_prev[3], c
     gyro_repeats_new[2] = tmp15;
 }
 
-/* prediction: the gyro integrated with the bias removed, before the step's sensors are compared with the attitude (so they meet the attitude of their own step)
- * ops: add 25, mul 39, div 2, sqrt 2, trig 2, cmp 5 (total 75)
- *      of which only one side runs: if (tmp11 < 0.01f) 10, else 8 */
 static void qcf_k_predict_part0(const float q[4], const float gyro_bias[3], const float gyro[3], float dt, float carry[6])
 {
     const float tmp0 = 0.5f * dt;
@@ -264,6 +278,21 @@ static void qcf_k_predict_part1(const float q[4], float carry[6])
     carry[3] = tmp74;
 }
 
+/*
+ * prediction: the gyro integrated with the bias removed, before the step's sensors are compared
+ * with the attitude (so they meet the attitude of their own step)
+ *
+ * Args:
+ *     q: float[4]
+ *     gyro_bias: float[3]
+ *     gyro: float[3]
+ *     dt: float
+ * Outputs:
+ *     q_new: float[4]
+ *
+ * Total ops: 75 (add 25, mul 39, div 2, sqrt 2, trig 2, cmp 5)
+ *     of which only one side runs: if (tmp11 < 0.01f) 10, else 8
+ */
 static void qcf_k_predict(const float q[4], const float gyro_bias[3], const float gyro[3], float dt, float q_new[4])
 {
     /* 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
@@ -276,8 +305,17 @@ static void qcf_k_predict(const float q[4], const float gyro_bias[3], const floa
     q_new[3] = carry[3];
 }
 
-/* the magnetometer sample in NED, R(q) m, read by the field check and the heading correction
- * ops: add 6, mul 9 (total 15) */
+/*
+ * the magnetometer sample in NED, R(q) m, read by the field check and the heading correction
+ *
+ * Args:
+ *     rot: float[9], 3x3 matrix, column-major: row i, column j at [i + 3 * j]
+ *     mag: float[3]
+ * Outputs:
+ *     mag_ned: float[3]
+ *
+ * Total ops: 15 (add 6, mul 9)
+ */
 static inline void qcf_k_mag_ned(const float rot[9], const float mag[3], float mag_ned[3])
 {
     const float tmp0 = rot[0] * mag[0];
@@ -300,9 +338,19 @@ static inline void qcf_k_mag_ned(const float rot[9], const float mag[3], float m
     mag_ned[2] = tmp14;
 }
 
-/* first attitude: the shortest rotation taking the accelerometer's down to NED down (heading_init then sets the heading); the low-pass starts at R(q) f = [0, 0, -|f|]
- * ops: add 6, mul 8, div 1, sqrt 2, cmp 3 (total 20)
- *      of which only one side runs: if (tmp6 < tmp7) 0, else 8 */
+/*
+ * first attitude: the shortest rotation taking the accelerometer's down to NED down (heading_init
+ * then sets the heading); the low-pass starts at R(q) f = [0, 0, -|f|]
+ *
+ * Args:
+ *     accel: float[3]
+ * Outputs:
+ *     q: float[4]
+ *     accel_lp: float[3]
+ *
+ * Total ops: 20 (add 6, mul 8, div 1, sqrt 2, cmp 3)
+ *     of which only one side runs: if (tmp6 < tmp7) 0, else 8
+ */
 static inline void qcf_k_init_attitude(const float accel[3], float q[4], float accel_lp[3])
 {
     const float tmp0 = accel[0] * accel[0];
@@ -343,9 +391,6 @@ static inline void qcf_k_init_attitude(const float accel[3], float q[4], float a
     accel_lp[2] = tmp19;
 }
 
-/* first magnetometer sample (with the first attitude or after it): heading set, tilt kept
- * ops: add 29, mul 30, div 1, sqrt 2, cmp 10 (total 72)
- *      of which only one side runs: if (tmp36 < 1e-15f) 0, else 22 */
 static void qcf_k_heading_init_part0(const float q[4], const float mag[3], float carry[4])
 {
     const float tmp0 = q[2] * q[2];
@@ -446,6 +491,18 @@ static void qcf_k_heading_init_part1(const float q[4], float carry[4])
     carry[3] = tmp71;
 }
 
+/*
+ * first magnetometer sample (with the first attitude or after it): heading set, tilt kept
+ *
+ * Args:
+ *     q: float[4]
+ *     mag: float[3]
+ * Outputs:
+ *     q_new: float[4]
+ *
+ * Total ops: 72 (add 29, mul 30, div 1, sqrt 2, cmp 10)
+ *     of which only one side runs: if (tmp36 < 1e-15f) 0, else 22
+ */
 static void qcf_k_heading_init(const float q[4], const float mag[3], float q_new[4])
 {
     /* 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
@@ -458,9 +515,22 @@ static void qcf_k_heading_init(const float q[4], const float mag[3], float q_new
     q_new[3] = carry[3];
 }
 
-/* low-pass of the specific force in NED, R(q) f (time constant accel_tau; recovering from a clipped gyro sample: the sample itself)
- * ops: add 13, mul 12, div 1, cmp 3 (total 29)
- *      of which only one side runs: if (recover) 0, else 11 */
+/*
+ * low-pass of the specific force in NED, R(q) f (time constant accel_tau; recovering from a clipped
+ * gyro sample: the sample itself)
+ *
+ * Args:
+ *     rot: float[9], 3x3 matrix, column-major: row i, column j at [i + 3 * j]
+ *     accel: float[3]
+ *     accel_lp: float[3]
+ *     span: float
+ *     recover: bool
+ * Outputs:
+ *     accel_lp_new: float[3]
+ *
+ * Total ops: 29 (add 13, mul 12, div 1, cmp 3)
+ *     of which only one side runs: if (recover) 0, else 11
+ */
 static inline void qcf_k_accel_lowpass(const float rot[9], const float accel[3], const float accel_lp[3], float span, bool recover, float accel_lp_new[3])
 {
     const float tmp0 = rot[0] * accel[0];
@@ -506,11 +576,6 @@ static inline void qcf_k_accel_lowpass(const float rot[9], const float accel[3],
     accel_lp_new[2] = tmp17;
 }
 
-/* tilt (low-passed accelerometer) and heading (magnetometer) corrections as PI feedback on the predicted attitude, bias integral gated, bias at rest from the low-passed gyro
- * ops: add 54, mul 73, div 5, sqrt 6, trig 2, cmp 28 (total 168)
- *      of which only one side runs: if (tmp41 < 1e-15f) 0, else 18
- *      of which only one side runs: if (tmp78 < 0.01f) 10, else 8
- *      of which only one side runs: if (at_rest) 11, else 12 */
 static void qcf_k_correct_part0(const float rot[9], const float accel_lp[3], const float mag_ned[3], float span_accel, bool recover, float carry[11])
 {
     const float tmp0 = (recover) ? 1.0f : 0.15f;
@@ -758,6 +823,32 @@ static void qcf_k_correct_part4(const float gyro_bias[3], float span_accel, bool
     carry[2] = tmp144;
 }
 
+/*
+ * tilt (low-passed accelerometer) and heading (magnetometer) corrections as PI feedback on the
+ * predicted attitude, bias integral gated, bias at rest from the low-passed gyro
+ *
+ * Args:
+ *     q: float[4]
+ *     rot: float[9], 3x3 matrix, column-major: row i, column j at [i + 3 * j]
+ *     gyro_bias: float[3]
+ *     accel_lp: float[3]
+ *     mag_ned: float[3]
+ *     span_accel: float
+ *     span_mag: float
+ *     use_accel: bool
+ *     accel_norm2: float
+ *     recover: bool
+ *     at_rest: bool
+ *     rest_gyro_lp: float[3]
+ * Outputs:
+ *     q_new: float[4]
+ *     gyro_bias_new: float[3]
+ *
+ * Total ops: 168 (add 54, mul 73, div 5, sqrt 6, trig 2, cmp 28)
+ *     of which only one side runs: if (tmp41 < 1e-15f) 0, else 18
+ *     of which only one side runs: if (tmp78 < 0.01f) 10, else 8
+ *     of which only one side runs: if (at_rest) 11, else 12
+ */
 static void qcf_k_correct(const float q[4], const float rot[9], const float gyro_bias[3], const float accel_lp[3], const float mag_ned[3], float span_accel, float span_mag, bool use_accel, float accel_norm2, bool recover, bool at_rest, const float rest_gyro_lp[3], float q_new[4], float gyro_bias_new[3])
 {
     /* 5 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
@@ -776,8 +867,22 @@ static void qcf_k_correct(const float q[4], const float rot[9], const float gyro
     gyro_bias_new[2] = carry[2];
 }
 
-/* rest detection: gyro steady and |f| near g for rest_time
- * ops: add 16, mul 10, div 1, cmp 6 (total 33) */
+/*
+ * rest detection: gyro steady and |f| near g for rest_time
+ *
+ * Args:
+ *     gyro: float[3]
+ *     accel_norm2: float
+ *     rest_gyro_lp: float[3]
+ *     rest_time: float
+ *     span: float
+ * Outputs:
+ *     rest_gyro_lp_new: float[3]
+ *     rest_time_new: float
+ *     at_rest: bool
+ *
+ * Total ops: 33 (add 16, mul 10, div 1, cmp 6)
+ */
 static void qcf_k_rest(const float gyro[3], float accel_norm2, const float rest_gyro_lp[3], float rest_time, float span, float rest_gyro_lp_new[3], float *rest_time_new, bool *at_rest)
 {
     const float tmp0 = 0.5f + span;
@@ -820,10 +925,6 @@ static void qcf_k_rest(const float gyro[3], float accel_norm2, const float rest_
     *at_rest = tmp32;
 }
 
-/* field check: |m| and sin(dip) against the learned reference
- * ops: add 14, mul 12, div 3, sqrt 2, cmp 17 (total 48)
- *      of which only one side runs: if (tmp0 < 10.0f) 5, else 20
- *      of which only one side runs: if (tmp34) 1, else 8 */
 static void qcf_k_mag_check_part0(const float accel_lp[3], float mag_norm2, const float mag_ned[3], const float mag_ref[2], float mag_learn_time, float span, float carry[6])
 {
     const float tmp0 = (mag_ref[0] <= 0.0f) ? 0.0f : mag_learn_time;
@@ -911,6 +1012,27 @@ static void qcf_k_mag_check_part1(const float mag_ref[2], float mag_dist_time, f
     carry[3] = tmp47;
 }
 
+/*
+ * field check: |m| and sin(dip) against the learned reference
+ *
+ * Args:
+ *     accel_lp: float[3]
+ *     mag_norm2: float
+ *     mag_ned: float[3]
+ *     mag_ref: float[2]
+ *     mag_dist_time: float
+ *     mag_learn_time: float
+ *     span: float
+ * Outputs:
+ *     accept: bool
+ *     mag_ref_new: float[2]
+ *     mag_dist_time_new: float
+ *     mag_learn_time_new: float
+ *
+ * Total ops: 48 (add 14, mul 12, div 3, sqrt 2, cmp 17)
+ *     of which only one side runs: if (tmp0 < 10.0f) 5, else 20
+ *     of which only one side runs: if (tmp34) 1, else 8
+ */
 static void qcf_k_mag_check(const float accel_lp[3], float mag_norm2, const float mag_ned[3], const float mag_ref[2], float mag_dist_time, float mag_learn_time, float span, bool *accept, float mag_ref_new[2], float *mag_dist_time_new, float *mag_learn_time_new)
 {
     /* 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry and flags hold the values handed between them (a slot reused once its value is dead) */
@@ -925,8 +1047,16 @@ static void qcf_k_mag_check(const float accel_lp[3], float mag_norm2, const floa
     *mag_learn_time_new = carry[3];
 }
 
-/* R(q), read by the kernels of a step that rotate with the estimate (computed once)
- * ops: add 21, mul 9 (total 30) */
+/*
+ * R(q), read by the kernels of a step that rotate with the estimate (computed once)
+ *
+ * Args:
+ *     q: float[4]
+ * Outputs:
+ *     rot: float[9], 3x3 matrix, column-major: row i, column j at [i + 3 * j]
+ *
+ * Total ops: 30 (add 21, mul 9)
+ */
 static inline void qcf_k_rotation(const float q[4], float rot[9])
 {
     const float tmp0 = q[2] * q[2];
@@ -970,9 +1100,6 @@ static inline void qcf_k_rotation(const float q[4], float rot[9])
     rot[8] = tmp29;
 }
 
-/* accelerometer minus the GPS motion acceleration when ||f| - g| exceeds the threshold (centripetal: (w - b) x R(q)^T v_gps in body axes, computed only then)
- * ops: add 18, mul 22, div 2, sqrt 1, cmp 7 (total 50)
- *      of which only one side runs: if (tmp0) 0, else 46 */
 static void qcf_k_gravity_part_part0(float accel_norm2, bool flags[1])
 {
     const bool tmp0 = (90.376396f /* (9.80665 - motion_accel_threshold)^2 */ < accel_norm2) && (accel_norm2 < 102.14437f /* (9.80665 + motion_accel_threshold)^2 */);
@@ -1044,6 +1171,23 @@ static void qcf_k_gravity_part_part1(const float accel[3], const float rot[9], c
     carry[2] = tmp3;
 }
 
+/*
+ * accelerometer minus the GPS motion acceleration when ||f| - g| exceeds the threshold
+ * (centripetal: (w - b) x R(q)^T v_gps in body axes, computed only then)
+ *
+ * Args:
+ *     accel: float[3]
+ *     accel_norm2: float
+ *     rot: float[9], 3x3 matrix, column-major: row i, column j at [i + 3 * j]
+ *     gyro: float[3]
+ *     gyro_bias: float[3]
+ *     gps_vel_hist: float[3]
+ * Outputs:
+ *     accel_gravity: float[3]
+ *
+ * Total ops: 50 (add 18, mul 22, div 2, sqrt 1, cmp 7)
+ *     of which only one side runs: if (tmp0) 0, else 46
+ */
 static void qcf_k_gravity_part(const float accel[3], float accel_norm2, const float rot[9], const float gyro[3], const float gyro_bias[3], const float gps_vel_hist[3], float accel_gravity[3])
 {
     /* 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry and flags hold the values handed between them (a slot reused once its value is dead) */
@@ -1056,8 +1200,16 @@ static void qcf_k_gravity_part(const float accel[3], float accel_norm2, const fl
     accel_gravity[2] = carry[2];
 }
 
-/* Z-Y-X Euler angles [roll, pitch, yaw] of a unit body->NED quaternion
- * ops: add 13, mul 11, sqrt 1, trig 3 (total 28) */
+/*
+ * Z-Y-X Euler angles [roll, pitch, yaw] of a unit body->NED quaternion
+ *
+ * Args:
+ *     q: float[4]
+ * Outputs:
+ *     rpy: float[3]
+ *
+ * Total ops: 28 (add 13, mul 11, sqrt 1, trig 3)
+ */
 static inline void qcf_k_euler(const float q[4], float rpy[3])
 {
     const float tmp0 = q[0] * q[1];

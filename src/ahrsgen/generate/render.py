@@ -222,17 +222,15 @@ def render(cfg: BuildConfig, names: bool = True) -> Generated:
     context = (f"const {prefix}_params *par", {emit.RUNTIME_PREFIX + n: f"par->{n}" for n in runtime})
     kernels, kctx = [], []
     for ks in specs:
-        k = emit.emit(ks.function, real, name=f"{prefix}_k_{ks.name}", doc="", context=context,
+        k = emit.emit(ks.function, real, name=f"{prefix}_k_{ks.name}",
+                      doc=ks.doc + (_EARLY_WRITES_NOTE if ks.early_writes else ""), context=context,
                       math=cfg.math, fma=cfg.fma, flags=ks.flags, names=kernel_names.get(ks.name),
                       early_writes=ks.early_writes)
         extra = [a.name for a in k.inputs if a.name.startswith(emit.RUNTIME_PREFIX) and a.expr is None]
         if extra:
             raise ConfigError(f"kernel {ks.name}: free symbol(s) {', '.join(extra)} are not runtime parameters")
         kernels.append(k)
-        kctx.append({"name": ks.name, "doc": ks.doc + (_EARLY_WRITES_NOTE if ks.early_writes else ""), "code": k.source(storage=_storage(ks, k)),
-                     "ops_text": ", ".join(f"{n} {c}" for n, c in k.ops.items() if c) + f" (total {k.ops_total})"
-                     + "".join(f"\n *      of which only one side runs: if ({b['condition']}) {sum(b['then'].values())}, "
-                               f"else {sum(b['else'].values())}" for b in k.branches)})
+        kctx.append({"name": ks.name, "code": k.source(storage=_storage(ks, k))})
     by_name = {ks.name: k for ks, k in zip(specs, kernels)}
     fast_helpers = sorted({h for k in kernels for h in k.helpers}
                           | (set(model.template_helpers()) if real == "float" and cfg.math == "fast" else set()))

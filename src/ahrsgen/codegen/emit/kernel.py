@@ -2,6 +2,7 @@
 the Kernel it returns."""
 from __future__ import annotations
 
+import textwrap
 from dataclasses import dataclass, field
 
 import casadi as ca
@@ -115,14 +116,50 @@ class Kernel:
     def part_sources(self) -> list[str]:
         return [p.source() for p in self.parts]
 
+    def comment(self, width: int = 100) -> list[str]:
+        """The block above the kernel's function, as PX4's and SymForce's generated functions
+        carry: what it computes (doc), Args and Outputs (name, C type and shape; a matrix is
+        stated column-major), the total operation count and its categories."""
+        wrap = lambda text, first="", rest="": textwrap.wrap(  # noqa: E731
+            text, width - 3, initial_indent=first, subsequent_indent=rest, break_on_hyphens=False)
+        lines = wrap(self.doc.replace("*/", "* /")) + [""] if self.doc else []
+        lines.append("Args:")
+        if self.context:
+            read = ", ".join(a.expr for a in self.inputs if a.expr is not None)
+            lines += wrap(f"{context_param(self.context).name}: runtime parameters, reads {read}", "    ", "        ")
+        for a in self.inputs:
+            if a.expr is None:
+                lines += wrap(f"{a.name}: {_shape_text(a, self.precision)}"
+                              + (" (unused)" if a.name in self.unused_inputs else ""), "    ", "        ")
+        lines.append("Outputs:")
+        for a in self.outputs:
+            lines += wrap(f"{a.name}: {_shape_text(a, self.precision)}", "    ", "        ")
+        lines += ["", f"Total ops: {self.ops_total} ("
+                  + ", ".join(f"{n} {c}" for n, c in self.ops.items() if c) + ")"]
+        for b in self.branches:
+            lines += wrap(f"of which only one side runs: if ({b['condition']}) {sum(b['then'].values())}, "
+                          f"else {sum(b['else'].values())}", "    ", "        ")
+        return ["/*"] + [(" * " + ln).rstrip() for ln in lines] + [" */"]
+
     def source(self, storage: str = "static ", indent: str = "    ") -> str:
+        """The kernel's C: its parts (a split kernel), then its comment and its function."""
         lines = []
         for part in self.parts:
             lines += [part.source(indent=indent), ""]
-        if self.doc:
-            lines.append("/* " + self.doc.replace("*/", "* /") + " */")
+        lines += self.comment()
         lines.append(self.function().source(storage, indent))
         return "\n".join(lines)
+
+
+def _shape_text(a: Arg, real: str) -> str:
+    """C type and shape of an argument; a matrix is flattened column-major (CasADi's order)."""
+    ctype = "bool" if a.flag else real
+    rows, cols = a.shape
+    if a.size == 1:
+        return ctype
+    if rows == 1 or cols == 1:
+        return f"{ctype}[{a.size}]"
+    return f"{ctype}[{a.size}], {rows}x{cols} matrix, column-major: row i, column j at [i + {rows} * j]"
 
 
 def _check_name(name: str, what: str) -> None:
