@@ -9,15 +9,13 @@
 """
 from __future__ import annotations
 
-import functools
-import json
-
 import casadi as ca
 import pytest
 
 from ahrsgen.codegen.emit import ir
 from ahrsgen.generate import config, render
 from ahrsgen import filters
+from conftest import RUNTIME_BUILDS, rendered
 
 
 
@@ -84,12 +82,11 @@ def kernel_counts(k, real: str) -> tuple[dict[str, int], int]:
     return ops, temporaries
 
 
-@functools.cache
 def fresh(name: str, precision: str = "float", runtime: str = "", math: str | None = None,
           fma: bool = False) -> render.Generated:
     """A build of the filter rendered now (the committed default float one equals it:
     test_generated.py), so an emitter change is counted here before anything is committed."""
-    return render.render(config.resolve(name, precision=precision, runtime=runtime or None, math=math, fma=fma))
+    return rendered(name, precision, runtime, math, fma)
 
 
 @pytest.mark.parametrize("name", filters.names())
@@ -167,11 +164,10 @@ def casadi_counts(fn: ca.Function) -> dict[str, int]:
     return out
 
 
-# Runtime builds (test_runtime_params.py's cases): the kernels read parameters through the
-# context pointer, the counts must not change with that.
-_RUNTIME = {"qcf": "kp,ki", "mekf": "gyro_noise,accel_angle_noise,gps_min_speed"}
+# Runtime builds: the kernels read parameters through the context pointer, the counts must
+# not change with that.
 _BUILDS = [(n, p, r, m, f) for n in filters.names() for p in ("float", "double")
-           for r in ("", _RUNTIME.get(n, "")) for m in ((None, "libm") if p == "float" else (None,))
+           for r in ("", RUNTIME_BUILDS.get(n, "")) for m in ((None, "libm") if p == "float" else (None,))
            for f in ((False, True) if p == "float" and m is None and not r else (False,))]
 _BUILDS = sorted(set(_BUILDS), key=str)
 

@@ -4,21 +4,9 @@ and double, default and runtime builds, against the CasADi Function the kernel w
 from (names and shapes) and the manifest (op counts)."""
 from __future__ import annotations
 
-import functools
-
 import pytest
 
-from ahrsgen import filters
-from ahrsgen.generate import config, render
-
-# runtime builds: tests/test_runtime_params.py's cases
-_RUNTIME = {"qcf": "kp,ki", "mekf": "gyro_noise,accel_angle_noise,gps_min_speed"}
-BUILDS = sorted({(n, p, r) for n in filters.names() for p in ("float", "double") for r in ("", _RUNTIME.get(n, ""))})
-
-
-@functools.cache
-def build(name, precision, runtime):
-    return render.render(config.resolve(name, precision=precision, runtime=runtime or None))
+from conftest import kernel_builds, rendered
 
 
 def _block_above(lines: list[str], name: str) -> list[str]:
@@ -46,9 +34,9 @@ def _section(block: list[str], head: str) -> list[str]:
     return out
 
 
-@pytest.mark.parametrize("name,precision,runtime", BUILDS)
+@pytest.mark.parametrize("name,precision,runtime", kernel_builds())
 def test_every_kernel_has_its_args_outputs_block(name, precision, runtime):
-    gen = build(name, precision, runtime)
+    gen = rendered(name, precision, runtime)
     man = gen.manifest
     lines = gen.files[man["files"]["source"]].splitlines()
     totals = {k["c_name"]: k["total"] for k in man["kernels"].values()}

@@ -101,7 +101,8 @@ static float fast_atan2f(float y, float x)
     return signbit(y) ? -a : a;
 }
 
-static void adukf_k_predict_part0(const float q[4], const float gyro_bias[3], const float P[36], const float gyro[3], float dt, float x_pred[7], float P_pred[21], float carry[32])
+static void adukf_k_predict_part0(const float q[4], const float gyro_bias[3], const float P[36],
+    const float gyro[3], float dt, float x_pred[7], float P_pred[21], float carry[32])
 {
     const float tmp0 = 0.25f * dt;
     x_pred[4] = gyro_bias[0];
@@ -170,7 +171,8 @@ static void adukf_k_predict_part0(const float q[4], const float gyro_bias[3], co
     carry[15] = tmp39;
 }
 
-static void adukf_k_predict_part1(const float q[4], const float P[36], float dt, float x_pred[7], float q_pred_unit[4], float carry[32])
+static void adukf_k_predict_part1(const float q[4], const float P[36], float dt, float x_pred[7],
+    float q_pred_unit[4], float carry[32])
 {
     const float tmp40 = carry[12] * q[0];
     const float tmp41 = carry[11] * q[1];
@@ -333,7 +335,8 @@ static void adukf_k_predict_part3(const float P[36], float dt, float P_pred[21],
     carry[23] = tmp159;
 }
 
-static void adukf_k_predict_part4(const float P[36], float dt, bool clip, float P_pred[21], float carry[32])
+static void adukf_k_predict_part4(const float P[36], float dt, bool clip, float P_pred[21],
+    float carry[32])
 {
     const float tmp160 = carry[23] * carry[23];
     const float tmp161 = (clip) ? tmp160 : 0.0f;
@@ -599,7 +602,8 @@ static void adukf_k_predict_part8(const float P[36], float P_pred[21], float car
     carry[2] = tmp359;
 }
 
-static void adukf_k_predict_part9(const float P[36], float dt, float P_pred[21], const float carry[32])
+static void adukf_k_predict_part9(const float P[36], float dt, float P_pred[21],
+    const float carry[32])
 {
     const float tmp360 = carry[7] * carry[4];
     const float tmp361 = carry[2] + tmp360;
@@ -647,9 +651,14 @@ static void adukf_k_predict_part9(const float P[36], float dt, float P_pred[21],
 #if defined(__GNUC__)
 __attribute__((noinline))
 #endif
-static void adukf_k_predict(const float q[restrict 4], const float gyro_bias[restrict 3], const float P[restrict 36], const float gyro[restrict 3], float dt, bool clip, float x_pred[restrict 7], float q_pred_unit[restrict 4], float P_pred[restrict 21])
+static void adukf_k_predict(const float q[restrict 4], const float gyro_bias[restrict 3],
+    const float P[restrict 36], const float gyro[restrict 3], float dt, bool clip,
+    float x_pred[restrict 7], float q_pred_unit[restrict 4], float P_pred[restrict 21])
 {
-    /* 10 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    /*
+     * 10 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
+     * handed between them (a slot reused once its value is dead)
+     */
     float carry[32];
     adukf_k_predict_part0(q, gyro_bias, P, gyro, dt, x_pred, P_pred, carry);
     adukf_k_predict_part1(q, P, dt, x_pred, q_pred_unit, carry);
@@ -731,7 +740,8 @@ static void adukf_k_sigma_setup_part0(const float P_pred[21], float aL[18], floa
     carry[9] = tmp39;
 }
 
-static void adukf_k_sigma_setup_part1(const float q_pred_unit[4], const float P_pred[21], float aL[18], float z0[6], float carry[20])
+static void adukf_k_sigma_setup_part1(const float q_pred_unit[4], const float P_pred[21],
+    float aL[18], float z0[6], float carry[20])
 {
     const float tmp40 = carry[5] * carry[5];
     const float tmp41 = carry[9] - tmp40;
@@ -794,7 +804,8 @@ static void adukf_k_sigma_setup_part1(const float q_pred_unit[4], const float P_
     carry[19] = tmp79;
 }
 
-static void adukf_k_sigma_setup_part2(const float q_pred_unit[4], const float P_pred[21], const float m_ref[3], float z0[6], float carry[20])
+static void adukf_k_sigma_setup_part2(const float q_pred_unit[4], const float P_pred[21],
+    const float m_ref[3], float z0[6], float carry[20])
 {
     const float tmp80 = -carry[19];
     z0[2] = tmp80;
@@ -930,9 +941,14 @@ static void adukf_k_sigma_setup_part4(float *pivot_P, const float carry[20])
 #if defined(__GNUC__)
 __attribute__((noinline))
 #endif
-static void adukf_k_sigma_setup(const float q_pred_unit[restrict 4], const float P_pred[restrict 21], const float m_ref[restrict 3], float aL[restrict 18], float z0[restrict 6], float *restrict pivot_P)
+static void adukf_k_sigma_setup(const float q_pred_unit[restrict 4],
+    const float P_pred[restrict 21], const float m_ref[restrict 3], float aL[restrict 18],
+    float z0[restrict 6], float *restrict pivot_P)
 {
-    /* 5 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    /*
+     * 5 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
+     * handed between them (a slot reused once its value is dead)
+     */
     float carry[20];
     adukf_k_sigma_setup_part0(P_pred, aL, carry);
     adukf_k_sigma_setup_part1(q_pred_unit, P_pred, aL, z0, carry);
@@ -1042,7 +1058,10 @@ static void adukf_k_sigma_pair_part1(const float col[3], const float z0[6], floa
  */
 static void adukf_k_sigma_pair(const float col[3], const float z0[6], float zsum[6], float zdiff[6])
 {
-    /* 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    /*
+     * 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
+     * handed between them (a slot reused once its value is dead)
+     */
     float carry[12];
     adukf_k_sigma_pair_part0(col, z0, carry);
     adukf_k_sigma_pair_part1(col, z0, carry);
@@ -1060,7 +1079,8 @@ static void adukf_k_sigma_pair(const float col[3], const float z0[6], float zsum
     zdiff[5] = carry[11];
 }
 
-static void adukf_k_innovation_part0(const float z0[6], const float zsum[18], const float zdiff[18], const float accel[3], float dt, const float span[2], float residual[6], float carry[18])
+static void adukf_k_innovation_part0(const float z0[6], const float zsum[18], const float zdiff[18],
+    const float accel[3], float dt, const float span[2], float residual[6], float carry[18])
 {
     const float tmp0 = zsum[0] * zsum[0];
     const float tmp1 = zdiff[0] * zdiff[0];
@@ -1114,7 +1134,8 @@ static void adukf_k_innovation_part0(const float z0[6], const float zsum[18], co
     carry[8] = tmp39;
 }
 
-static void adukf_k_innovation_part1(const float zsum[18], const float zdiff[18], float P_zz[21], float carry[18])
+static void adukf_k_innovation_part1(const float zsum[18], const float zdiff[18], float P_zz[21],
+    float carry[18])
 {
     const float tmp40 = carry[7] + carry[8];
     const float tmp41 = carry[6] + tmp40;
@@ -1164,7 +1185,8 @@ static void adukf_k_innovation_part1(const float zsum[18], const float zdiff[18]
     carry[9] = tmp79;
 }
 
-static void adukf_k_innovation_part2(const float zsum[18], const float zdiff[18], float P_zz[21], float carry[18])
+static void adukf_k_innovation_part2(const float zsum[18], const float zdiff[18], float P_zz[21],
+    float carry[18])
 {
     const float tmp80 = carry[9] * carry[0];
     const float tmp81 = carry[8] + tmp80;
@@ -1215,7 +1237,8 @@ static void adukf_k_innovation_part2(const float zsum[18], const float zdiff[18]
     carry[11] = tmp119;
 }
 
-static void adukf_k_innovation_part3(const float z0[6], const float zsum[18], const float zdiff[18], const float accel[3], float P_zz[21], float residual[6], float carry[18])
+static void adukf_k_innovation_part3(const float z0[6], const float zsum[18], const float zdiff[18],
+    const float accel[3], float P_zz[21], float residual[6], float carry[18])
 {
     const float tmp120 = zdiff[7] * zdiff[7];
     const float tmp121 = carry[11] + tmp120;
@@ -1265,7 +1288,8 @@ static void adukf_k_innovation_part3(const float z0[6], const float zsum[18], co
     carry[13] = tmp159;
 }
 
-static void adukf_k_innovation_part4(const float zsum[18], const float zdiff[18], float P_zz[21], float carry[18])
+static void adukf_k_innovation_part4(const float zsum[18], const float zdiff[18], float P_zz[21],
+    float carry[18])
 {
     const float tmp160 = carry[12] + carry[13];
     P_zz[8] = tmp160;
@@ -1313,7 +1337,8 @@ static void adukf_k_innovation_part4(const float zsum[18], const float zdiff[18]
     carry[6] = tmp199;
 }
 
-static void adukf_k_innovation_part5(const float z0[6], const float zsum[18], const float zdiff[18], const float accel[3], float P_zz[21], float residual[6], float carry[18])
+static void adukf_k_innovation_part5(const float z0[6], const float zsum[18], const float zdiff[18],
+    const float accel[3], float P_zz[21], float residual[6], float carry[18])
 {
     const float tmp200 = 0.041666668f * carry[6];
     const float tmp201 = carry[7] * carry[7];
@@ -1364,7 +1389,9 @@ static void adukf_k_innovation_part5(const float z0[6], const float zsum[18], co
     carry[13] = tmp239;
 }
 
-static void adukf_k_innovation_part6(const float z0[6], const float zsum[18], const float zdiff[18], const float mag[3], float dt, const float span[2], float P_zz[21], float residual[6], float carry[18])
+static void adukf_k_innovation_part6(const float z0[6], const float zsum[18], const float zdiff[18],
+    const float mag[3], float dt, const float span[2], float P_zz[21], float residual[6],
+    float carry[18])
 {
     const float tmp240 = carry[12] + carry[13];
     const float tmp241 = zsum[17] * zsum[14];
@@ -1417,7 +1444,8 @@ static void adukf_k_innovation_part6(const float z0[6], const float zsum[18], co
     carry[17] = tmp279;
 }
 
-static void adukf_k_innovation_part7(const float z0[6], const float zsum[18], const float zdiff[18], const float mag[3], float P_zz[21], float carry[18])
+static void adukf_k_innovation_part7(const float z0[6], const float zsum[18], const float zdiff[18],
+    const float mag[3], float P_zz[21], float carry[18])
 {
     const float tmp280 = zdiff[10] * zdiff[9];
     const float tmp281 = carry[17] + tmp280;
@@ -1466,7 +1494,8 @@ static void adukf_k_innovation_part7(const float z0[6], const float zsum[18], co
     carry[17] = tmp319;
 }
 
-static void adukf_k_innovation_part8(const float z0[6], const float zsum[18], const float zdiff[18], const float mag[3], float P_zz[21], float residual[6], float carry[18])
+static void adukf_k_innovation_part8(const float z0[6], const float zsum[18], const float zdiff[18],
+    const float mag[3], float P_zz[21], float residual[6], float carry[18])
 {
     const float tmp320 = carry[16] - carry[17];
     residual[4] = tmp320;
@@ -1618,9 +1647,15 @@ static void adukf_k_innovation_part10(float P_zz[21], float r_diag[6], const flo
 #if defined(__GNUC__)
 __attribute__((noinline))
 #endif
-static void adukf_k_innovation(const float z0[restrict 6], const float zsum[restrict 18], const float zdiff[restrict 18], const float accel[restrict 3], const float mag[restrict 3], float dt, const float span[restrict 2], bool recover, float P_zz[restrict 21], float residual[restrict 6], float r_diag[restrict 6])
+static void adukf_k_innovation(const float z0[restrict 6], const float zsum[restrict 18],
+    const float zdiff[restrict 18], const float accel[restrict 3], const float mag[restrict 3],
+    float dt, const float span[restrict 2], bool recover, float P_zz[restrict 21],
+    float residual[restrict 6], float r_diag[restrict 6])
 {
-    /* 11 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    /*
+     * 11 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
+     * handed between them (a slot reused once its value is dead)
+     */
     float carry[18];
     adukf_k_innovation_part0(z0, zsum, zdiff, accel, dt, span, residual, carry);
     adukf_k_innovation_part1(zsum, zdiff, P_zz, carry);
@@ -1635,7 +1670,8 @@ static void adukf_k_innovation(const float z0[restrict 6], const float zsum[rest
     adukf_k_innovation_part10(P_zz, r_diag, carry);
 }
 
-static void adukf_k_gain_part0(const float P_zz[21], const float zdiff[18], const float residual[6], float carry[45])
+static void adukf_k_gain_part0(const float P_zz[21], const float zdiff[18], const float residual[6],
+    float carry[45])
 {
     const float tmp0 = (1e-15f /* pivot_min */ < P_zz[0]) ? P_zz[0] : 1.0f;
     const float tmp1 = 1.0f / tmp0;
@@ -1694,7 +1730,8 @@ static void adukf_k_gain_part0(const float P_zz[21], const float zdiff[18], cons
     carry[14] = tmp39;
 }
 
-static void adukf_k_gain_part1(const float P_zz[21], const float zdiff[18], const float residual[6], float carry[45])
+static void adukf_k_gain_part1(const float P_zz[21], const float zdiff[18], const float residual[6],
+    float carry[45])
 {
     const float tmp40 = carry[14] * carry[12];
     const float tmp41 = carry[13] * tmp40;
@@ -1854,7 +1891,8 @@ static void adukf_k_gain_part3(const float P_zz[21], const float zdiff[18], floa
     carry[36] = tmp159;
 }
 
-static void adukf_k_gain_part4(const float P_zz[21], const float zdiff[18], const float residual[6], float carry[45])
+static void adukf_k_gain_part4(const float P_zz[21], const float zdiff[18], const float residual[6],
+    float carry[45])
 {
     const float tmp160 = P_zz[20] - carry[36];
     const float tmp161 = carry[31] * carry[31];
@@ -2124,9 +2162,13 @@ static void adukf_k_gain_part8(const float P_zz[21], float carry[45])
 #if defined(__GNUC__)
 __attribute__((noinline))
 #endif
-static void adukf_k_gain(const float P_zz[21], const float zdiff[18], const float residual[6], float g[3], float G[6], float *pivot_zz)
+static void adukf_k_gain(const float P_zz[21], const float zdiff[18], const float residual[6],
+    float g[3], float G[6], float *pivot_zz)
 {
-    /* 9 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    /*
+     * 9 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
+     * handed between them (a slot reused once its value is dead)
+     */
     float carry[45];
     adukf_k_gain_part0(P_zz, zdiff, residual, carry);
     adukf_k_gain_part1(P_zz, zdiff, residual, carry);
@@ -2149,7 +2191,8 @@ static void adukf_k_gain(const float P_zz[21], const float zdiff[18], const floa
     *pivot_zz = carry[4];
 }
 
-static void adukf_k_correct_part0(const float x_pred[7], const float aL[18], const float g[3], float carry[8])
+static void adukf_k_correct_part0(const float x_pred[7], const float aL[18], const float g[3],
+    float carry[8])
 {
     const float tmp0 = aL[0] * g[0];
     const float tmp1 = 0.5f * tmp0;
@@ -2198,7 +2241,8 @@ static void adukf_k_correct_part0(const float x_pred[7], const float aL[18], con
     carry[4] = tmp39;
 }
 
-static void adukf_k_correct_part1(const float x_pred[7], const float P_pred[21], const float aL[18], const float g[3], const float G[6], float x_new[7], float P_new[21], float carry[8])
+static void adukf_k_correct_part1(const float x_pred[7], const float P_pred[21], const float aL[18],
+    const float g[3], const float G[6], float x_new[7], float P_new[21], float carry[8])
 {
     const float tmp40 = x_pred[3] + carry[4];
     const float tmp41 = tmp40 * tmp40;
@@ -2253,7 +2297,8 @@ static void adukf_k_correct_part1(const float x_pred[7], const float P_pred[21],
     carry[1] = tmp79;
 }
 
-static void adukf_k_correct_part2(const float P_pred[21], const float aL[18], const float G[6], float P_new[21], float carry[8])
+static void adukf_k_correct_part2(const float P_pred[21], const float aL[18], const float G[6],
+    float P_new[21], float carry[8])
 {
     const float tmp80 = carry[1] * aL[0];
     const float tmp81 = P_pred[2] - tmp80;
@@ -2308,7 +2353,8 @@ static void adukf_k_correct_part2(const float P_pred[21], const float aL[18], co
     carry[5] = tmp119;
 }
 
-static void adukf_k_correct_part3(const float P_pred[21], const float aL[18], const float G[6], float P_new[21], float carry[8])
+static void adukf_k_correct_part3(const float P_pred[21], const float aL[18], const float G[6],
+    float P_new[21], float carry[8])
 {
     const float tmp120 = aL[3] * G[1];
     const float tmp121 = aL[9] * G[3];
@@ -2360,7 +2406,8 @@ static void adukf_k_correct_part3(const float P_pred[21], const float aL[18], co
     carry[6] = tmp159;
 }
 
-static void adukf_k_correct_part4(const float P_pred[21], const float aL[18], const float G[6], float P_new[21], float carry[8])
+static void adukf_k_correct_part4(const float P_pred[21], const float aL[18], const float G[6],
+    float P_new[21], float carry[8])
 {
     const float tmp160 = aL[3] * G[2];
     const float tmp161 = aL[9] * G[4];
@@ -2412,7 +2459,8 @@ static void adukf_k_correct_part4(const float P_pred[21], const float aL[18], co
     carry[7] = tmp199;
 }
 
-static void adukf_k_correct_part5(const float P_pred[21], const float aL[18], float P_new[21], const float carry[8])
+static void adukf_k_correct_part5(const float P_pred[21], const float aL[18], float P_new[21],
+    const float carry[8])
 {
     const float tmp200 = carry[6] + carry[7];
     const float tmp201 = P_pred[16] - tmp200;
@@ -2467,9 +2515,14 @@ static void adukf_k_correct_part5(const float P_pred[21], const float aL[18], fl
 #if defined(__GNUC__)
 __attribute__((noinline))
 #endif
-static void adukf_k_correct(const float x_pred[restrict 7], const float P_pred[restrict 21], const float aL[restrict 18], const float g[restrict 3], const float G[restrict 6], float x_new[restrict 7], float P_new[restrict 21])
+static void adukf_k_correct(const float x_pred[restrict 7], const float P_pred[restrict 21],
+    const float aL[restrict 18], const float g[restrict 3], const float G[restrict 6],
+    float x_new[restrict 7], float P_new[restrict 21])
 {
-    /* 6 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    /*
+     * 6 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
+     * handed between them (a slot reused once its value is dead)
+     */
     float carry[8];
     adukf_k_correct_part0(x_pred, aL, g, carry);
     adukf_k_correct_part1(x_pred, P_pred, aL, g, G, x_new, P_new, carry);
@@ -2479,7 +2532,8 @@ static void adukf_k_correct(const float x_pred[restrict 7], const float P_pred[r
     adukf_k_correct_part5(P_pred, aL, P_new, carry);
 }
 
-static void adukf_k_accel_lowpass_part0(const float q_pred_unit[4], const float accel[3], const float accel_lp[3], bool restart, float dt, bool recover, float carry[15], bool flags[1])
+static void adukf_k_accel_lowpass_part0(const float q_pred_unit[4], const float accel[3],
+    const float accel_lp[3], bool restart, float dt, bool recover, float carry[15], bool flags[1])
 {
     const bool tmp0 = restart || recover;
     const float tmp1 = q_pred_unit[2] * q_pred_unit[2];
@@ -2539,7 +2593,8 @@ static void adukf_k_accel_lowpass_part0(const float q_pred_unit[4], const float 
     carry[14] = tmp39;
 }
 
-static void adukf_k_accel_lowpass_part1(const float accel[3], const float accel_lp[3], float carry[15], const bool flags[1])
+static void adukf_k_accel_lowpass_part1(const float accel[3], const float accel_lp[3],
+    float carry[15], const bool flags[1])
 {
     const float tmp40 = (flags[0]) ? carry[14] : accel_lp[1];
     const float tmp41 = carry[14] - tmp40;
@@ -2600,9 +2655,14 @@ static void adukf_k_accel_lowpass_part1(const float accel[3], const float accel_
  *
  * Total ops: 75 (add 40, mul 30, div 1, cmp 4)
  */
-static void adukf_k_accel_lowpass(const float q_pred_unit[4], const float accel[3], const float accel_lp[3], bool restart, float dt, bool recover, float accel_lp_new[3], float accel_body[3])
+static void adukf_k_accel_lowpass(const float q_pred_unit[4], const float accel[3],
+    const float accel_lp[3], bool restart, float dt, bool recover, float accel_lp_new[3],
+    float accel_body[3])
 {
-    /* 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry and flags hold the values handed between them (a slot reused once its value is dead) */
+    /*
+     * 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry and flags hold
+     * the values handed between them (a slot reused once its value is dead)
+     */
     float carry[15];
     bool flags[1];
     adukf_k_accel_lowpass_part0(q_pred_unit, accel, accel_lp, restart, dt, recover, carry, flags);
@@ -2635,11 +2695,14 @@ static void adukf_k_accel_lowpass(const float q_pred_unit[4], const float accel[
  * Total ops: 36 (add 7, mul 1, cmp 28)
  *     of which only one side runs: if (tmp12) 0, else 12
  */
-static void adukf_k_gyro_recovery(const float gyro[3], const float gyro_prev[3], const float gyro_repeats[3], float recover_time, float dt, bool *clipped, float *recover_time_new, bool *recovering, float gyro_repeats_new[3])
+static void adukf_k_gyro_recovery(const float gyro[3], const float gyro_prev[3],
+    const float gyro_repeats[3], float recover_time, float dt, bool *clipped,
+    float *recover_time_new, bool *recovering, float gyro_repeats_new[3])
 {
     const float tmp0 = fabsf(gyro[0]);
     const float tmp1 = fabsf(gyro[1]);
-    const bool tmp2 = (34.906586f /* gyro_full_scale */ <= tmp0) || (34.906586f /* gyro_full_scale */ <= tmp1);
+    const bool tmp2 = (34.906586f /* gyro_full_scale */ <= tmp0) ||
+            (34.906586f /* gyro_full_scale */ <= tmp1);
     const float tmp3 = fabsf(gyro[2]);
     const bool tmp4 = tmp2 || (34.906586f /* gyro_full_scale */ <= tmp3);
     const float tmp5 = gyro[0] - gyro_prev[0];
@@ -2782,7 +2845,10 @@ static void adukf_k_init_q_part1(float carry[9])
  */
 static void adukf_k_init_q(const float accel[3], const float mag[3], float q[4])
 {
-    /* 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    /*
+     * 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
+     * handed between them (a slot reused once its value is dead)
+     */
     float carry[9];
     adukf_k_init_q_part0(accel, mag, carry);
     adukf_k_init_q_part1(carry);
@@ -2805,7 +2871,8 @@ static void adukf_k_init_q(const float accel[3], const float mag[3], float q[4])
  *
  * Total ops: 28 (add 10, mul 13, div 1, sqrt 2, cmp 2)
  */
-static inline void adukf_k_learn_sample(const float gyro[3], const float accel[3], const float mag[3], bool *rest, float *sin_dip)
+static inline void adukf_k_learn_sample(const float gyro[3], const float accel[3],
+    const float mag[3], bool *rest, float *sin_dip)
 {
     const float tmp0 = gyro[0] * gyro[0];
     const float tmp1 = gyro[1] * gyro[1];
@@ -2820,7 +2887,8 @@ static inline void adukf_k_learn_sample(const float gyro[3], const float accel[3
     const float tmp10 = sqrtf(tmp9);
     const float tmp11 = tmp10 - 9.80665f;
     const float tmp12 = fabsf(tmp11);
-    const bool tmp13 = (tmp4 < 0.0025f /* rest_gyro_max^2 */) && (tmp12 < 0.5f /* rest_accel_tol */);
+    const bool tmp13 = (tmp4 < 0.0025f /* rest_gyro_max^2 */) && (tmp12 <
+            0.5f /* rest_accel_tol */);
     const float tmp14 = accel[0] * mag[0];
     const float tmp15 = accel[1] * mag[1];
     const float tmp16 = tmp14 + tmp15;

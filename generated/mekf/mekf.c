@@ -132,11 +132,14 @@ static float fast_asinf(float x)
  * Total ops: 36 (add 7, mul 1, cmp 28)
  *     of which only one side runs: if (tmp12) 0, else 12
  */
-static void mekf_k_gyro_recovery(const float gyro[3], const float gyro_prev[3], const float gyro_repeats[3], float recover_time, float dt, bool *clipped, float *recover_time_new, bool *recovering, float gyro_repeats_new[3])
+static void mekf_k_gyro_recovery(const float gyro[3], const float gyro_prev[3],
+    const float gyro_repeats[3], float recover_time, float dt, bool *clipped,
+    float *recover_time_new, bool *recovering, float gyro_repeats_new[3])
 {
     const float tmp0 = fabsf(gyro[0]);
     const float tmp1 = fabsf(gyro[1]);
-    const bool tmp2 = (34.906586f /* gyro_full_scale */ <= tmp0) || (34.906586f /* gyro_full_scale */ <= tmp1);
+    const bool tmp2 = (34.906586f /* gyro_full_scale */ <= tmp0) ||
+            (34.906586f /* gyro_full_scale */ <= tmp1);
     const float tmp3 = fabsf(gyro[2]);
     const bool tmp4 = tmp2 || (34.906586f /* gyro_full_scale */ <= tmp3);
     const float tmp5 = gyro[0] - gyro_prev[0];
@@ -187,7 +190,8 @@ static void mekf_k_gyro_recovery(const float gyro[3], const float gyro_prev[3], 
     gyro_repeats_new[2] = tmp15;
 }
 
-static void mekf_k_predict_attitude_part0(const float b[3], const float gyro[3], float dt, float carry[32])
+static void mekf_k_predict_attitude_part0(const float b[3], const float gyro[3], float dt,
+    float carry[32])
 {
     const float tmp0 = 0.5f * dt;
     const float tmp1 = gyro[0] - b[0];
@@ -543,9 +547,13 @@ static void mekf_k_predict_attitude_part6(float carry[32])
  * Total ops: 246 (add 106, mul 127, div 4, sqrt 2, trig 2, cmp 5)
  *     of which only one side runs: if (tmp11 < 0.01f) 28, else 11
  */
-static void mekf_k_predict_attitude(const float q[4], const float b[3], const float gyro[3], float dt, float q_out[4], float F_q[9], float F_b[9])
+static void mekf_k_predict_attitude(const float q[4], const float b[3], const float gyro[3],
+    float dt, float q_out[4], float F_q[9], float F_b[9])
 {
-    /* 7 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    /*
+     * 7 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
+     * handed between them (a slot reused once its value is dead)
+     */
     float carry[32];
     mekf_k_predict_attitude_part0(b, gyro, dt, carry);
     mekf_k_predict_attitude_part1(carry);
@@ -578,7 +586,8 @@ static void mekf_k_predict_attitude(const float q[4], const float b[3], const fl
     F_b[8] = carry[5];
 }
 
-static void mekf_k_predict_covariance_part0(const float F_q[9], const float F_b[9], const float P[36], float carry[24])
+static void mekf_k_predict_covariance_part0(const float F_q[9], const float F_b[9],
+    const float P[36], float carry[24])
 {
     const float tmp0 = F_q[0] * P[0];
     const float tmp1 = F_q[3] * P[1];
@@ -625,7 +634,8 @@ static void mekf_k_predict_covariance_part0(const float F_q[9], const float F_b[
     carry[2] = tmp39;
 }
 
-static void mekf_k_predict_covariance_part1(const float F_q[9], const float F_b[9], const float P[36], const float gyro[3], float carry[24])
+static void mekf_k_predict_covariance_part1(const float F_q[9], const float F_b[9],
+    const float P[36], const float gyro[3], float carry[24])
 {
     const float tmp40 = carry[1] + carry[2];
     const float tmp41 = F_q[6] * P[15];
@@ -674,7 +684,8 @@ static void mekf_k_predict_covariance_part1(const float F_q[9], const float F_b[
     carry[4] = tmp79;
 }
 
-static void mekf_k_predict_covariance_part2(const float F_q[9], const float F_b[9], const float P[36], const float gyro[3], float dt, bool clip, float carry[24])
+static void mekf_k_predict_covariance_part2(const float F_q[9], const float F_b[9],
+    const float P[36], const float gyro[3], float dt, bool clip, float carry[24])
 {
     const float tmp80 = (dt > 1e-09f) ? dt : 1e-09f;
     const float tmp81 = 1.0f / tmp80;
@@ -727,7 +738,8 @@ static void mekf_k_predict_covariance_part2(const float F_q[9], const float F_b[
     carry[11] = tmp119;
 }
 
-static void mekf_k_predict_covariance_part3(const float F_q[9], const float F_b[9], const float P[36], float carry[24])
+static void mekf_k_predict_covariance_part3(const float F_q[9], const float F_b[9],
+    const float P[36], float carry[24])
 {
     const float tmp120 = carry[10] + carry[11];
     const float tmp121 = F_b[1] * P[9];
@@ -776,7 +788,8 @@ static void mekf_k_predict_covariance_part3(const float F_q[9], const float F_b[
     carry[13] = tmp159;
 }
 
-static void mekf_k_predict_covariance_part4(const float F_q[9], const float F_b[9], const float P[36], float carry[24])
+static void mekf_k_predict_covariance_part4(const float F_q[9], const float F_b[9],
+    const float P[36], float carry[24])
 {
     const float tmp160 = F_b[1] * P[22];
     const float tmp161 = carry[13] + tmp160;
@@ -828,7 +841,8 @@ static void mekf_k_predict_covariance_part4(const float F_q[9], const float F_b[
     carry[19] = tmp199;
 }
 
-static void mekf_k_predict_covariance_part5(const float F_q[9], const float F_b[9], const float P[36], float carry[24])
+static void mekf_k_predict_covariance_part5(const float F_q[9], const float F_b[9],
+    const float P[36], float carry[24])
 {
     const float tmp200 = carry[18] + carry[19];
     const float tmp201 = tmp200 * F_q[0];
@@ -878,7 +892,8 @@ static void mekf_k_predict_covariance_part5(const float F_q[9], const float F_b[
     carry[23] = tmp239;
 }
 
-static void mekf_k_predict_covariance_part6(const float F_q[9], const float F_b[9], const float P[36], float carry[24])
+static void mekf_k_predict_covariance_part6(const float F_q[9], const float F_b[9],
+    const float P[36], float carry[24])
 {
     const float tmp240 = carry[21] + carry[23];
     const float tmp241 = F_q[2] * P[4];
@@ -977,7 +992,8 @@ static void mekf_k_predict_covariance_part7(const float F_q[9], const float F_b[
     carry[16] = tmp319;
 }
 
-static void mekf_k_predict_covariance_part8(const float F_b[9], const float P[36], float dt, float carry[24])
+static void mekf_k_predict_covariance_part8(const float F_b[9], const float P[36], float dt,
+    float carry[24])
 {
     const float tmp320 = carry[4] * F_b[8];
     const float tmp321 = carry[16] + tmp320;
@@ -1013,9 +1029,13 @@ static void mekf_k_predict_covariance_part8(const float F_b[9], const float P[36
  *
  * Total ops: 333 (add 147, mul 183, div 1, cmp 2)
  */
-static void mekf_k_predict_covariance(const float F_q[9], const float F_b[9], const float P[36], const float gyro[3], float dt, bool clip, float P_out[36])
+static void mekf_k_predict_covariance(const float F_q[9], const float F_b[9], const float P[36],
+    const float gyro[3], float dt, bool clip, float P_out[36])
 {
-    /* 9 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    /*
+     * 9 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
+     * handed between them (a slot reused once its value is dead)
+     */
     float carry[24];
     mekf_k_predict_covariance_part0(F_q, F_b, P, carry);
     mekf_k_predict_covariance_part1(F_q, F_b, P, gyro, carry);
@@ -1064,7 +1084,8 @@ static void mekf_k_predict_covariance(const float F_q[9], const float F_b[9], co
     P_out[35] = carry[9];
 }
 
-static void mekf_k_accel_lowpass_part0(const float q[4], const float accel[3], const bool mask[3], const float a_lp[3], float dt, float carry[12])
+static void mekf_k_accel_lowpass_part0(const float q[4], const float accel[3], const bool mask[3],
+    const float a_lp[3], float dt, float carry[12])
 {
     const float tmp0 = 1.0f + dt;
     const float tmp1 = dt / tmp0;
@@ -1119,7 +1140,8 @@ static void mekf_k_accel_lowpass_part0(const float q[4], const float accel[3], c
     carry[10] = tmp39;
 }
 
-static void mekf_k_accel_lowpass_part1(const float accel[3], const float vel[3], const bool mask[3], const float a_lp[3], const float v_lp[3], const float v_ins[3], float dt, float carry[12])
+static void mekf_k_accel_lowpass_part1(const float accel[3], const float vel[3], const bool mask[3],
+    const float a_lp[3], const float v_lp[3], const float v_ins[3], float dt, float carry[12])
 {
     const float tmp40 = carry[0] * carry[10];
     const float tmp41 = a_lp[1] + tmp40;
@@ -1210,12 +1232,18 @@ static void mekf_k_accel_lowpass_part2(const bool mask[3], float carry[12])
  *
  * Total ops: 88 (add 50, mul 27, div 1, cmp 10)
  */
-static void mekf_k_accel_lowpass(const float q[4], const float b[3], const float gyro[3], const float accel[3], const float vel[3], const float acc_n[3], const bool mask[3], const float a_lp[3], const float v_lp[3], const float v_ins[3], float dt, float a_lp_out[3], float v_lp_out[3], float v_ins_out[3], float up_out[3])
+static void mekf_k_accel_lowpass(const float q[4], const float b[3], const float gyro[3],
+    const float accel[3], const float vel[3], const float acc_n[3], const bool mask[3],
+    const float a_lp[3], const float v_lp[3], const float v_ins[3], float dt, float a_lp_out[3],
+    float v_lp_out[3], float v_ins_out[3], float up_out[3])
 {
     (void)b;
     (void)gyro;
     (void)acc_n;
-    /* 3 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    /*
+     * 3 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
+     * handed between them (a slot reused once its value is dead)
+     */
     float carry[12];
     mekf_k_accel_lowpass_part0(q, accel, mask, a_lp, dt, carry);
     mekf_k_accel_lowpass_part1(accel, vel, mask, a_lp, v_lp, v_ins, dt, carry);
@@ -1336,9 +1364,13 @@ static void mekf_k_heading_features_part1(const float mag[3], const float vel[3]
  *
  * Total ops: 66 (add 34, mul 29, sqrt 2, trig 1)
  */
-static void mekf_k_heading_features(const float q[4], const float mag[3], const float vel[3], float feat[4])
+static void mekf_k_heading_features(const float q[4], const float mag[3], const float vel[3],
+    float feat[4])
 {
-    /* 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    /*
+     * 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
+     * handed between them (a slot reused once its value is dead)
+     */
     float carry[13];
     mekf_k_heading_features_part0(q, mag, carry);
     mekf_k_heading_features_part1(mag, vel, carry);
@@ -1489,9 +1521,13 @@ static void mekf_k_gravity_rows_part2(bool recover, float carry[19])
  * Total ops: 84 (add 43, mul 34, div 3, sqrt 1, cmp 3)
  *     of which only one side runs: if (recover) 0, else 10
  */
-static void mekf_k_gravity_rows(const float q[4], const float up[3], bool recover, float dt, float h[9], float z[3], float *r)
+static void mekf_k_gravity_rows(const float q[4], const float up[3], bool recover, float dt,
+    float h[9], float z[3], float *r)
 {
-    /* 3 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    /*
+     * 3 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
+     * handed between them (a slot reused once its value is dead)
+     */
     float carry[19];
     mekf_k_gravity_rows_part0(q, up, carry);
     mekf_k_gravity_rows_part1(up, dt, carry);
@@ -1511,7 +1547,8 @@ static void mekf_k_gravity_rows(const float q[4], const float up[3], bool recove
     *r = carry[4];
 }
 
-static void mekf_k_update_attitude_row_part0(const float P[36], const float h[3], float z, float r, const float x[6], float carry[28])
+static void mekf_k_update_attitude_row_part0(const float P[36], const float h[3], float z, float r,
+    const float x[6], float carry[28])
 {
     const float tmp0 = P[0] * h[0];
     const float tmp1 = P[1] * h[1];
@@ -1569,7 +1606,8 @@ static void mekf_k_update_attitude_row_part0(const float P[36], const float h[3]
     carry[13] = tmp39;
 }
 
-static void mekf_k_update_attitude_row_part1(const float P[36], const float h[3], const float x[6], float carry[28])
+static void mekf_k_update_attitude_row_part1(const float P[36], const float h[3], const float x[6],
+    float carry[28])
 {
     const float tmp40 = carry[12] + carry[13];
     const float tmp41 = P[15] * h[2];
@@ -1687,9 +1725,13 @@ static void mekf_k_update_attitude_row_part2(const float P[36], float carry[28])
  *
  * Total ops: 104 (add 45, mul 57, div 1, cmp 1)
  */
-static void mekf_k_update_attitude_row(const float P[36], const float h[3], float z, float r, const float x[6], float x_out[6], float P_out[36], float *s)
+static void mekf_k_update_attitude_row(const float P[36], const float h[3], float z, float r,
+    const float x[6], float x_out[6], float P_out[36], float *s)
 {
-    /* 3 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    /*
+     * 3 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
+     * handed between them (a slot reused once its value is dead)
+     */
     float carry[28];
     mekf_k_update_attitude_row_part0(P, h, z, r, x, carry);
     mekf_k_update_attitude_row_part1(P, h, x, carry);
@@ -1739,7 +1781,8 @@ static void mekf_k_update_attitude_row(const float P[36], const float h[3], floa
     *s = carry[3];
 }
 
-static void mekf_k_update_rest_bias_part0(const float b[3], const float P[36], const float gyro[3], float dt, const float x[6], float carry[36])
+static void mekf_k_update_rest_bias_part0(const float b[3], const float P[36], const float gyro[3],
+    float dt, const float x[6], float carry[36])
 {
     const float tmp0 = (dt > 1e-09f) ? dt : 1e-09f;
     const float tmp1 = 7.569e-07f /* gyro_noise^2 */ / tmp0;
@@ -1803,7 +1846,8 @@ static void mekf_k_update_rest_bias_part0(const float b[3], const float P[36], c
     carry[19] = tmp39;
 }
 
-static void mekf_k_update_rest_bias_part1(const float b[3], const float P[36], const float gyro[3], const float x[6], float carry[36])
+static void mekf_k_update_rest_bias_part1(const float b[3], const float P[36], const float gyro[3],
+    const float x[6], float carry[36])
 {
     const float tmp40 = carry[16] * carry[19];
     const float tmp41 = gyro[2] - b[2];
@@ -2047,9 +2091,13 @@ static void mekf_k_update_rest_bias_part4(const float P[36], float carry[36])
  *
  * Total ops: 199 (add 90, mul 99, div 4, cmp 6)
  */
-static void mekf_k_update_rest_bias(const float b[3], const float P[36], const float gyro[3], float dt, const float x[6], float x_out[6], float P_out[36], float *min_pivot)
+static void mekf_k_update_rest_bias(const float b[3], const float P[36], const float gyro[3],
+    float dt, const float x[6], float x_out[6], float P_out[36], float *min_pivot)
 {
-    /* 5 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    /*
+     * 5 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
+     * handed between them (a slot reused once its value is dead)
+     */
     float carry[36];
     mekf_k_update_rest_bias_part0(b, P, gyro, dt, x, carry);
     mekf_k_update_rest_bias_part1(b, P, gyro, x, carry);
@@ -2114,7 +2162,8 @@ static void mekf_k_update_rest_bias(const float b[3], const float P[36], const f
  *
  * Total ops: 40 (add 18, mul 20, div 1, sqrt 1)
  */
-static void mekf_k_inject(const float q[4], const float b[3], const float x[6], float q_out[4], float b_out[3])
+static void mekf_k_inject(const float q[4], const float b[3], const float x[6], float q_out[4],
+    float b_out[3])
 {
     const float tmp0 = q[1] * x[0];
     const float tmp1 = q[0] - tmp0;
@@ -2244,7 +2293,8 @@ static void mekf_k_update_heading_part1(const float q[4], float carry[29])
     carry[22] = tmp46;
 }
 
-static void mekf_k_update_heading_part2(const float mag[3], const float vel[3], bool use_course, float mag_dt, float carry[29])
+static void mekf_k_update_heading_part2(const float mag[3], const float vel[3], bool use_course,
+    float mag_dt, float carry[29])
 {
     float tmp47;
     float tmp48;
@@ -2549,9 +2599,13 @@ static void mekf_k_update_heading_part7(const float P[36], float carry[29])
  * Total ops: 253 (add 102, mul 117, div 2, trig 3, cmp 29)
  *     of which only one side runs: if (use_course) 7, else 28
  */
-static void mekf_k_update_heading(const float q[4], const float P[36], const float mag[3], const float vel[3], bool use_course, float mag_dt, float x_out[6], float P_out[36], float *s)
+static void mekf_k_update_heading(const float q[4], const float P[36], const float mag[3],
+    const float vel[3], bool use_course, float mag_dt, float x_out[6], float P_out[36], float *s)
 {
-    /* 8 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    /*
+     * 8 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
+     * handed between them (a slot reused once its value is dead)
+     */
     float carry[29];
     mekf_k_update_heading_part0(q, P, carry);
     mekf_k_update_heading_part1(q, carry);
@@ -2606,7 +2660,8 @@ static void mekf_k_update_heading(const float q[4], const float P[36], const flo
     *s = carry[1];
 }
 
-static void mekf_k_init_attitude_part0(const float accel[3], const float mag[3], const float vel[3], const bool use[2], float carry[11])
+static void mekf_k_init_attitude_part0(const float accel[3], const float mag[3], const float vel[3],
+    const bool use[2], float carry[11])
 {
     const float tmp0 = -accel[1];
     const float tmp1 = -accel[2];
@@ -2769,9 +2824,13 @@ static void mekf_k_init_attitude_part2(const float accel[3], float carry[11])
  *     of which only one side runs: if (use[0]) 1, else 21
  *     of which only one side runs: if (use[1]) 20, else 0
  */
-static void mekf_k_init_attitude(const float accel[3], const float mag[3], const float vel[3], const bool use[2], float q_out[4], float a_lp_out[3])
+static void mekf_k_init_attitude(const float accel[3], const float mag[3], const float vel[3],
+    const bool use[2], float q_out[4], float a_lp_out[3])
 {
-    /* 3 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    /*
+     * 3 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
+     * handed between them (a slot reused once its value is dead)
+     */
     float carry[11];
     mekf_k_init_attitude_part0(accel, mag, vel, use, carry);
     mekf_k_init_attitude_part1(accel, carry);
@@ -2785,7 +2844,8 @@ static void mekf_k_init_attitude(const float accel[3], const float mag[3], const
     a_lp_out[2] = carry[5];
 }
 
-static void mekf_k_hard_iron_fit_part0(const float mag[3], const float b[3], const float ref[2], const float cx[5], const float cP[25], float dt, bool init, float carry[45])
+static void mekf_k_hard_iron_fit_part0(const float mag[3], const float b[3], const float ref[2],
+    const float cx[5], const float cP[25], float dt, bool init, float carry[45])
 {
     const float tmp0 = 1.0f / ref[0];
     const float tmp1 = b[0] * tmp0;
@@ -2901,7 +2961,8 @@ static void mekf_k_hard_iron_fit_part1(const float cP[25], bool init, float carr
     carry[25] = tmp79;
 }
 
-static void mekf_k_hard_iron_fit_part2(const float q[4], const float cP[25], bool init, float carry[45])
+static void mekf_k_hard_iron_fit_part2(const float q[4], const float cP[25], bool init,
+    float carry[45])
 {
     const float tmp80 = carry[24] + carry[25];
     const float tmp81 = -tmp80;
@@ -3016,7 +3077,8 @@ static void mekf_k_hard_iron_fit_part3(const float cP[25], bool init, float carr
     carry[41] = tmp159;
 }
 
-static void mekf_k_hard_iron_fit_part4(const float ref[2], const float cx[5], const float cP[25], bool init, float carry[45])
+static void mekf_k_hard_iron_fit_part4(const float ref[2], const float cx[5], const float cP[25],
+    bool init, float carry[45])
 {
     const float tmp160 = -carry[41];
     const float tmp161 = (init) ? 0.0f : tmp160;
@@ -3280,9 +3342,14 @@ static void mekf_k_hard_iron_fit_part8(float carry[45])
  *
  * Total ops: 327 (add 140, mul 132, div 6, sqrt 4, trig 1, cmp 44)
  */
-static void mekf_k_hard_iron_fit(const float q[4], const float mag[3], const float b[3], const float ref[2], const float cx[5], const float cP[25], float dt, bool init, float cx_out[5], float cP_out[25], float res[4], float *p_beta)
+static void mekf_k_hard_iron_fit(const float q[4], const float mag[3], const float b[3],
+    const float ref[2], const float cx[5], const float cP[25], float dt, bool init, float cx_out[5],
+    float cP_out[25], float res[4], float *p_beta)
 {
-    /* 9 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    /*
+     * 9 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
+     * handed between them (a slot reused once its value is dead)
+     */
     float carry[45];
     mekf_k_hard_iron_fit_part0(mag, b, ref, cx, cP, dt, init, carry);
     mekf_k_hard_iron_fit_part1(cP, init, carry);
@@ -3345,7 +3412,8 @@ static void mekf_k_hard_iron_fit(const float q[4], const float mag[3], const flo
  *
  * Total ops: 29 (mul 24, div 2, trig 1, cmp 2)
  */
-static inline void mekf_k_hard_iron_switch(const float cx[5], const float cP[25], const float ref[2], float b_out[3], float ref_out[2], float cx_out[5], float cP_out[25])
+static inline void mekf_k_hard_iron_switch(const float cx[5], const float cP[25],
+    const float ref[2], float b_out[3], float ref_out[2], float cx_out[5], float cP_out[25])
 {
     const float tmp0 = ref[0] * cx[0];
     const float tmp1 = ref[0] * cx[1];

@@ -554,13 +554,12 @@ def build_kernels(man: dict) -> list:
 
 def emitted_functions(text: str, kernels: list) -> tuple[list[dict], list[str]]:
     """Where each C function of the kernels (a split kernel's parts, then itself) lies in a
-    generated source: its printed text (ir's printer, without the storage class) found as it
-    is. Returns ([{name, function (ir.Function), lines (body lines), span}], issues: a function
+    generated source: its printed text (ir's printer) found as it is. Returns ([{name, function (ir.Function), lines (body lines), span}], issues: a function
     the source does not hold as the kernels print it)."""
     found, issues = [], []
     for k in kernels:
         for f in k.functions():
-            code = f.source(storage="")
+            code = f.source()
             at = text.find(code)
             if at < 0:
                 issues.append(f"{f.name}: not in the source as its manifest's configuration emits it")
@@ -725,7 +724,7 @@ def _stub(f) -> str:
             body.append(f"    *{p.name} = 0;")
         else:
             body.append(f"    for (int i = 0; i < {p.size}; i++) {{\n        {p.name}[i] = 0;\n    }}")
-    return f.prototype(storage="") + "\n{\n" + "\n".join(body) + "\n}"
+    return f.prototype() + "\n{\n" + "\n".join(body) + "\n}"
 
 
 def run_cppcheck(gen_dir: str | Path, max_kernel_lines: int | None = None, timeout: float | None = None) -> dict:

@@ -230,7 +230,8 @@ def render(cfg: BuildConfig, names: bool = True) -> Generated:
         if extra:
             raise ConfigError(f"kernel {ks.name}: free symbol(s) {', '.join(extra)} are not runtime parameters")
         kernels.append(k)
-        kctx.append({"name": ks.name, "code": k.source(storage=_storage(ks, k))})
+        k.storage = _storage(ks, k)
+        kctx.append({"name": ks.name, "code": k.source()})
     by_name = {ks.name: k for ks, k in zip(specs, kernels)}
     fast_helpers = sorted({h for k in kernels for h in k.helpers}
                           | (set(model.template_helpers()) if real == "float" and cfg.math == "fast" else set()))
@@ -337,6 +338,12 @@ def render(cfg: BuildConfig, names: bool = True) -> Generated:
         helpers_partial="helpers.c.j2" if (spec.folder / "helpers.c.j2").exists() else None,
         input_transform=_input_transform(getattr(cfg, "frame", None), model.sensors, lit, real),
         noinline=NOINLINE, call=_calls(specs, kernels),
+        # lines within 100 columns (ahrsgen.codegen.emit.ir's printer)
+        cline=emit.ir.with_comment, cdefine=emit.ir.define, ccomment=lambda t: "\n".join(emit.ir.comment(t)),
+        title_line=lambda name: _wrap_doc(f"{name} - {spec.title}", prefix, 96),
+        status_refused=[f"{P}_{s['name']}" for s in status_ctx if s["refused"]],
+        status_faults=[f"{P}_{s['name']}" for s in status_ctx if s["fault"]],
+        status_info=", ".join(s["name"] for s in status_ctx if not s["fault"] and s["value"] != "0u") or "none here",
         cfg=_RuntimeGuard(cfg.params, runtime), **tctx)
     header = env.get_template("filter.h.j2").render(ctx)
     source = env.get_template("filter.c.j2").render(ctx)

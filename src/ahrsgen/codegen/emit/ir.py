@@ -280,15 +280,20 @@ class Function:
     params: list[Param]
     body: list
     unused: list[str] = field(default_factory=list)
+    storage: str = "static "       # what precedes `void`: static, static inline, an attribute
 
-    def prototype(self, storage: str = "static ") -> str:
-        return f"{storage}void {self.name}({', '.join(p.c() for p in self.params)})"
+    def prototype(self, storage: str | None = None) -> str:
+        """The declaration, continued on lines indented by 4 after a comma where it is too long
+        (the storage's own lines, e.g. an attribute, stay as they are)."""
+        *above, last = (self.storage if storage is None else storage).split("\n")
+        words = _call_words(f"{last}void {self.name}", [p.c() for p in self.params], "")
+        return "\n".join(above + fill(words, "", WIDTH, "    "))
 
-    def lines(self, names: bool = True) -> list[str]:
-        return [f"(void){n};" for n in self.unused] + print_statements(self.body, "", names)
+    def lines(self, names: bool = True, indent: str = "") -> list[str]:
+        return [f"{indent}(void){n};" for n in self.unused] + print_statements(self.body, indent, names)
 
-    def source(self, storage: str = "static ", indent: str = "    ") -> str:
-        return "\n".join([self.prototype(storage), "{"] + [indent + ln for ln in self.lines()] + ["}"])
+    def source(self, storage: str | None = None, indent: str = "    ") -> str:
+        return "\n".join([self.prototype(storage), "{"] + self.lines(indent=indent) + ["}"])
 
 
 # ------------------------------------------------------------------ the printer
@@ -297,90 +302,182 @@ _PREC = {"*": 13, "/": 13, "+": 12, "-": 12, "<": 10, "<=": 10, ">": 10, ">=": 1
          "&&": 5, "||": 4}
 
 
+# Lines the printer writes stay within this many columns (DESIGN.md); a longer statement
+# continues on lines indented by CONTINUATION more than it, broken between words.
+WIDTH = 100
+CONTINUATION = "        "
+
+
 def print_expr(e, names: bool = True) -> str:
     """C text of an expression; names=False leaves folded parameters' names out."""
-    return _expr(e, names)
+    return " ".join(_words(e, names))
 
 
-def _paren(e, names) -> str:
-    return _expr(e, names) if isinstance(e, ATOMS + (Call,)) else f"({_expr(e, names)})"
-
-
-def _expr(e, names) -> str:
+def _words(e, names) -> list[str]:
+    """The expression's text as words: joined by single spaces they are its C text, and a line
+    may break at any of those spaces (a literal's name comment is one word)."""
     if isinstance(e, Temp):
-        return e.name
+        return [e.name]
     if isinstance(e, Elem):
-        return e.arg if e.index is None else f"{e.arg}[{e.index}]"
+        return [e.arg if e.index is None else f"{e.arg}[{e.index}]"]
     if isinstance(e, Ctx):
-        return e.text
+        return [e.text]
     if isinstance(e, Lit):
-        return f"{e.text} /* {e.name} */" if names and e.name else e.text
+        return [f"{e.text} /* {e.name} */" if names and e.name else e.text]
     if isinstance(e, Slot):
-        return f"{e.array}[{e.index}]"
+        return [f"{e.array}[{e.index}]"]
     if isinstance(e, Call):
-        return f"{e.fn}({', '.join(_expr(a, names) for a in e.args)})"
+        out = []
+        for n, a in enumerate(e.args):
+            w = _words(a, names)
+            w[-1] += "," if n < len(e.args) - 1 else ")"
+            out += w
+        out[0] = f"{e.fn}(" + out[0]
+        return out
     if isinstance(e, Cast):
-        return f"({e.ctype}){_paren(e.arg, names)}"
+        return _prefix(f"({e.ctype})", _paren(e.arg, names))
     if isinstance(e, Select):
-        side = lambda x: _paren(x, names) if isinstance(x, Select) else _expr(x, names)  # noqa: E731
-        return f"({_expr(e.cond, names)}) ? {side(e.a)} : {side(e.b)}"
+        side = lambda x: _paren(x, names) if isinstance(x, Select) else _words(x, names)  # noqa: E731
+        return _wrap_in(_words(e.cond, names)) + ["?"] + side(e.a) + [":"] + side(e.b)
     if isinstance(e, Op):
         if e.op == "neg":
-            return "-" + _operand(e.args[0], 99, False, names)
+            return _prefix("-", _operand(e.args[0], 99, False, names))
         if e.op == "!":
-            return f"!({_expr(e.args[0], names)})"
+            return _prefix("!", _wrap_in(_words(e.args[0], names)))
         a, b = e.args
         if e.op in ("&&", "||"):
-            return f"{_paren(a, names)} {e.op} {_paren(b, names)}"
+            return _paren(a, names) + [e.op] + _paren(b, names)
         p = _PREC[e.op]
-        return f"{_operand(a, p, False, names)} {e.op} {_operand(b, p, True, names)}"
+        return _operand(a, p, False, names) + [e.op] + _operand(b, p, True, names)
     raise TypeError(f"not an expression: {e!r}")
 
 
-def _operand(x, p, right, names) -> str:
+def _prefix(text: str, words: list[str]) -> list[str]:
+    return [text + words[0]] + words[1:]
+
+
+def _wrap_in(words: list[str]) -> list[str]:
+    """The words in parentheses."""
+    out = list(words)
+    out[0] = "(" + out[0]
+    out[-1] = out[-1] + ")"
+    return out
+
+
+def _paren(e, names) -> list[str]:
+    w = _words(e, names)
+    return w if isinstance(e, ATOMS + (Call,)) else _wrap_in(w)
+
+
+def _operand(x, p, right, names) -> list[str]:
     if isinstance(x, Op) and x.op not in ("neg", "!"):
         q = _PREC[x.op]
         if q < p or (right and q == p):
-            return f"({_expr(x, names)})"
+            return _wrap_in(_words(x, names))
     elif isinstance(x, (Select, Op)):
-        return f"({_expr(x, names)})"
-    return _expr(x, names)
+        return _wrap_in(_words(x, names))
+    return _words(x, names)
+
+
+def fill(words: list[str], indent: str, width: int = WIDTH, more: str = CONTINUATION) -> list[str]:
+    """The words joined by spaces into lines of at most `width` columns (a word longer than a
+    line stands alone): the first line indented by `indent`, the rest by indent + more."""
+    lines, cur = [], indent + words[0]
+    for w in words[1:]:
+        if len(cur) + 1 + len(w) > width:
+            lines.append(cur)
+            cur = indent + more + w
+        else:
+            cur += " " + w
+    return lines + [cur]
 
 
 def _target(t) -> str:
     if isinstance(t, Elem) and t.index is None:
         return f"*{t.arg}"
-    return _expr(t, False)
+    return print_expr(t, False)
 
 
-def print_statements(stmts, indent: str = "", names: bool = True) -> list[str]:
+def _call_words(fn: str, args: list[str], end: str) -> list[str]:
+    """`fn(a, b, ...)` + end as words, broken after each comma."""
+    if not args:
+        return [f"{fn}(){end}"]
+    words = [a + "," for a in args[:-1]] + [args[-1] + ")" + end]
+    return _prefix(fn + "(", words)
+
+
+def print_statements(stmts, indent: str = "", names: bool = True, width: int = WIDTH) -> list[str]:
     out = []
+
+    def put(words, ind=indent):
+        out.extend(fill(words, ind, width))
     for s in stmts:
         if isinstance(s, Let):
-            out.append(f"{indent}const {s.temp.ctype} {s.temp.name} = {_expr(s.expr, names)};")
+            put([f"const {s.temp.ctype} {s.temp.name} ="] + _words(s.expr, names)[:-1]
+                + [_words(s.expr, names)[-1] + ";"])
         elif isinstance(s, Set):
-            out.append(f"{indent}{s.temp.name} = {_expr(s.expr, names)};")
+            w = _words(s.expr, names)
+            put([f"{s.temp.name} ="] + w[:-1] + [w[-1] + ";"])
         elif isinstance(s, If):
             out += [f"{indent}{t.ctype} {t.name};" for t in s.declare]
-            out.append(f"{indent}if ({_expr(s.cond, names)}) {{")
-            out += print_statements(s.then, indent + "    ", names)
+            put(_prefix("if ", _wrap_in(_words(s.cond, names)))[:-1] + [_wrap_in(_words(s.cond, names))[-1] + " {"]
+                if len(_words(s.cond, names)) > 1 else [f"if ({_words(s.cond, names)[0]}) {{"])
+            out += print_statements(s.then, indent + "    ", names, width)
             out.append(f"{indent}}} else {{")
-            out += print_statements(s.orelse, indent + "    ", names)
+            out += print_statements(s.orelse, indent + "    ", names, width)
             out.append(f"{indent}}}")
         elif isinstance(s, Store):
-            out.append(f"{indent}{_target(s.target)} = {_expr(s.expr, names)};")
+            w = _words(s.expr, names)
+            put([f"{_target(s.target)} ="] + w[:-1] + [w[-1] + ";"])
         elif isinstance(s, SinCos):
-            a = _expr(s.arg, names)
-            out += [f"{indent}{s.sin.ctype} {s.sin.name};", f"{indent}{s.cos.ctype} {s.cos.name};",
-                    f"{indent}{s.fn}({a}, &{s.sin.name}, &{s.cos.name});   /* sin and cos, one reduction */"]
+            out += [f"{indent}{s.sin.ctype} {s.sin.name};", f"{indent}{s.cos.ctype} {s.cos.name};"]
+            put(_call_words(s.fn, [print_expr(s.arg, names), f"&{s.sin.name}", f"&{s.cos.name}"], ";")
+                + ["  /* sin and cos, one reduction */"])
         elif isinstance(s, Unused):
             out.append(f"{indent}(void){s.name};")
         elif isinstance(s, Local):
             out.append(f"{indent}{s.ctype} {s.array}[{s.size}];")
         elif isinstance(s, PartCall):
-            out.append(f"{indent}{s.part}({', '.join(s.args)});")
+            put(_call_words(s.part, list(s.args), ";"))
         elif isinstance(s, Comment):
-            out.append(f"{indent}/* {s.text} */")
+            out += comment(s.text, indent, width)
         else:
             raise TypeError(f"not a statement: {s!r}")
     return out
+
+
+def comment(text: str, indent: str = "", width: int = WIDTH) -> list[str]:
+    """A C comment of the text: `/* text */` on one line if it fits, else wrapped in a block."""
+    one = f"{indent}/* {text} */"
+    if len(one) <= width:
+        return [one]
+    return [f"{indent}/*"] + fill(text.split(), indent + " * ", width, "") + [f"{indent} */"]
+
+
+def with_comment(code: str, text: str, width: int = WIDTH) -> str:
+    """`code /* text */` within `width` columns: a long comment continues on lines aligned
+    under its first word (the header's parameter, status and field lines)."""
+    one = f"{code} /* {text} */"
+    if len(one) <= width:
+        return one
+    lead = code + " /* "
+    if len(lead) > width - 30:          # little room beside the code: the comment above it
+        return "\n".join(comment(text, _indent_of(code), width) + [code])
+    lines = fill(text.split(), "", width - len(lead), "")
+    lines[-1] += " */"
+    if len(lines[-1]) > width - len(lead):
+        lines[-1] = lines[-1][:-3]
+        lines.append("*/")
+    return "\n".join([lead + lines[0]] + [" " * len(lead) + ln for ln in lines[1:]])
+
+
+def _indent_of(code: str) -> str:
+    return code[:len(code) - len(code.lstrip())]
+
+
+def define(name: str, items: list[str], sep: str = " |", width: int = WIDTH) -> str:
+    """`#define name (a | b | ...)` within `width` columns, continued with backslashes."""
+    words = [it + sep for it in items[:-1]] + [items[-1] + ")"] if items else [")"]
+    words[0] = "(" + words[0]
+    lines = fill([f"#define {name}"] + words, "", width - 2, "    ")
+    return " \\\n".join(lines)

@@ -87,6 +87,7 @@ class Kernel:
     context: str | None = None    # leading parameter declaration, e.g. "const att_params *par"
     restrict: bool = False        # arrays declared restrict (emit's early_writes)
     source_fn: ca.Function | None = field(default=None, repr=False, compare=False)  # what was emitted
+    storage: str = "static "      # what precedes `void` in its definition (the renderer decides)
 
     @property
     def ops_total(self) -> int:
@@ -100,13 +101,13 @@ class Kernel:
 
     def function(self) -> ir.Function:
         """The kernel's own function (a split kernel's calls its parts)."""
-        return ir.Function(self.name, self.params(), self.body, list(self.unused_inputs))
+        return ir.Function(self.name, self.params(), self.body, list(self.unused_inputs), self.storage)
 
     def functions(self) -> list[ir.Function]:
         """Every C function of the kernel, in the order printed: its parts, then itself."""
         return list(self.parts) + [self.function()]
 
-    def prototype(self, storage: str = "static ") -> str:
+    def prototype(self, storage: str | None = None) -> str:
         return self.function().prototype(storage)
 
     def lines(self) -> list[str]:
@@ -141,7 +142,7 @@ class Kernel:
                           f"else {sum(b['else'].values())}", "    ", "        ")
         return ["/*"] + [(" * " + ln).rstrip() for ln in lines] + [" */"]
 
-    def source(self, storage: str = "static ", indent: str = "    ") -> str:
+    def source(self, storage: str | None = None, indent: str = "    ") -> str:
         """The kernel's C: its parts (a split kernel), then its comment and its function."""
         lines = []
         for part in self.parts:
