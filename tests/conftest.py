@@ -128,3 +128,23 @@ def no_build(monkeypatch):
     def refuse(*a, **k):
         raise AssertionError("compiled before the bad input or output path was refused")
     monkeypatch.setattr(host, "build", refuse)
+
+
+# Runtime builds that the tests of generated kernels cover besides the default ones (the
+# parameters of tests/test_runtime_params.py's cases).
+RUNTIME_BUILDS = {"qcf": "kp,ki", "mekf": "gyro_noise,accel_angle_noise,gps_min_speed"}
+
+
+@functools.cache
+def rendered(name: str, precision: str = "float", runtime: str = "", math: str | None = None, fma: bool = False):
+    """A build of a filter rendered now (ahrsgen.generate.render.Generated: files, manifest,
+    kernel objects), shared by the tests that read kernels."""
+    from ahrsgen.generate import config, render
+    return render.render(config.resolve(name, precision=precision, runtime=runtime or None, math=math, fma=fma))
+
+
+def kernel_builds() -> list[tuple[str, str, str]]:
+    """(filter, precision, runtime) for every filter: float and double, default and runtime."""
+    from ahrsgen import filters
+    return sorted({(n, p, r) for n in filters.names() for p in ("float", "double")
+                   for r in ("", RUNTIME_BUILDS.get(n, ""))})

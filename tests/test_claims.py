@@ -1,120 +1,105 @@
 """Claims about the generated builds, checked against counts made independently of the emitter.
 
 - The operation counts in each manifest (per kernel, and per step path as the sum of its
-  kernels) equal two independent counts: one read from the emitted C text of each kernel (what
-  the MCU executes: one classified operation per temporary, operators counted), and one from
-  CasADi's own instruction list of the same Function (OP_DIV/OP_INV, OP_SQRT/OP_HYPOT, the
-  trigonometric and transcendental codes, OP_MUL/OP_SQ), for the categories that the emitter's
-  select folding cannot change.
+  kernels) equal two independent counts: one made from the kernel objects' statements (what the
+  MCU executes: the operators and calls of each expression tree, one select per branch-decided
+  value; not the emitter's own cost labels), and one from CasADi's own instruction list of the
+  same Function (OP_DIV/OP_INV, OP_SQRT/OP_HYPOT, the trigonometric and transcendental codes,
+  OP_MUL/OP_SQ), for the categories that the emitter's select folding cannot change.
 """
 from __future__ import annotations
-
-import functools
-import json
-import re
 
 import casadi as ca
 import pytest
 
+from ahrsgen.codegen.emit import ir
 from ahrsgen.generate import config, render
 from ahrsgen import filters
+from conftest import RUNTIME_BUILDS, rendered
 
 
 
-# ------------------------------------------------------------------ counting the emitted C
-_LITERAL = re.compile(r"\(-?(?:\d+\.?\d*|\.\d+)(?:e[+-]?\d+)?f?\)|(?<![\w.])(?:\d+\.?\d*|\.\d+)(?:e[+-]?\d+)?f?(?![\w.])")
-_CALL = re.compile(r"\b([a-z][a-z0-9_]*)\(")
+# ------------------------------------------------------------------ counting the kernel objects
 _CMP_FUNCS = {"fabs", "floor", "ceil", "copysign"}
 _SQRT_FUNCS = {"sqrt", "hypot"}
 _TRIG_FUNCS = {"sin", "cos", "tan", "asin", "acos", "atan", "atan2", "exp", "log", "pow", "sinh", "cosh",
                "tanh", "asinh", "acosh", "atanh", "erf", "expm1", "log1p", "fmod"}
+_OPERATORS = {"+": "add", "-": "add", "neg": "add", "*": "mul", "/": "div"}
 
 
-def count_c_ops(expr: str, real: str) -> dict[str, int]:
-    """Operations of one emitted right-hand side, read from the C text alone."""
+def count_expr(e, real: str) -> dict[str, int]:
+    """Operations of one right-hand side, read from its expression tree alone."""
     out = {"add": 0, "mul": 0, "div": 0, "sqrt": 0, "trig": 0, "cmp": 0}
-    if "?" in expr:                       # a select: one comparison (its operands are temporaries)
+    if isinstance(e, ir.Select):          # a select: one comparison (its operands are values)
         out["cmp"] += 1
         return out
-    calls = _CALL.findall(expr)
+    calls = [x for x in ir.walk(e) if isinstance(x, ir.Call)]
     for c in calls:
-        c = c.removeprefix("fast_")        # math = "fast": the emitter's own helpers
-        base = c[:-1] if real == "float" and c.endswith("f") else c
+        f = c.fn.removeprefix("fast_")        # math = "fast": the emitter's own helpers
+        base = f[:-1] if real == "float" and f.endswith("f") else f
         if base == "fma":                  # fma = true: one multiply and one add, rounded once
             out["mul"] += 1
             out["add"] += 1
-            continue
-        if base in _CMP_FUNCS:
+        elif base in _CMP_FUNCS:
             out["cmp"] += 1
         elif base in _SQRT_FUNCS:
             out["sqrt"] += 1
         elif base in _TRIG_FUNCS:
             out["trig"] += 1
         else:
-            raise AssertionError(f"unknown function {c} in {expr!r}")
-    if calls:
+            raise AssertionError(f"unknown function {c.fn} in {ir.print_expr(e)!r}")
+    if calls:                              # a sign flip of a call's operand is free (vfms)
         return out
-    bare = _LITERAL.sub("L", expr)
-    out["div"] += bare.count("/")
-    out["mul"] += bare.count("*")
-    out["add"] += bare.count("+") + bare.count("-")
+    for x in ir.walk(e):
+        if isinstance(x, ir.Op):
+            if x.op not in _OPERATORS:
+                raise AssertionError(f"operator {x.op} outside a flag or select in {ir.print_expr(e)!r}")
+            out[_OPERATORS[x.op]] += 1
     return out
 
 
-def kernel_bodies(src: str, prefix: str) -> dict[str, list[str]]:
-    """{kernel name: right-hand sides of its temporaries} from a generated source.
-
-    A split kernel's parts (<kernel>_part<N>) count as the kernel. A select written as a
-    branch is declared without a value (`float tmpN;`) and assigned on each side: it counts
-    as one select ("? :"), like one written as a conditional expression; so does a flag
-    (`bool`: a comparison, or and/or/not on flags, written without `?`). A sine and a cosine
-    of one argument computed by one call, `fast_sincosf(a, &tmpS, &tmpC)` after the
-    declarations `float tmpS; float tmpC;`, are two temporaries: one sin, one cos."""
-    out: dict[str, list[str]] = {}
-    for m in re.finditer(rf"static (?:inline )?void {prefix}_k_(\w+)\([^)]*\)\n\{{\n(.*?)\n\}}", src, re.S):
-        name = re.sub(r"_part\d+$", "", m.group(1))
-        rhs = out.setdefault(name, [])
-        paired = {t for pair in re.findall(r"fast_sincosf\(.+, &(tmp\d+), &(tmp\d+)\);", m.group(2)) for t in pair}
-        for ln in m.group(2).splitlines():
-            call = re.match(r"\s*fast_sincosf\((.+), &tmp\d+, &tmp\d+\);", ln)
-            declared = re.fullmatch(r"\s*float (tmp\d+);", ln)
-            if call:
-                rhs += [f"fast_sinf({call.group(1)})", f"fast_cosf({call.group(1)})"]
-            elif declared and declared.group(1) in paired:
+def kernel_counts(k, real: str) -> tuple[dict[str, int], int]:
+    """(operation counts, temporaries) of a kernel from its statements, parts included. A value
+    decided by a branch counts as one select, like one written as a conditional expression; so
+    does a flag (`bool`: a comparison, or and/or/not on flags). fast_sincosf is one sin and one cos."""
+    ops = {"add": 0, "mul": 0, "div": 0, "sqrt": 0, "trig": 0, "cmp": 0}
+    temporaries = 0
+    for f in k.functions():
+        for s in ir.all_statements(f.body):
+            if isinstance(s, ir.Let):
+                temporaries += 1
+                got = {"cmp": 1} if s.temp.ctype == "bool" else count_expr(s.expr, real)
+            elif isinstance(s, ir.If):
+                temporaries += len(s.declare)
+                got = {"cmp": len(s.declare)}
+            elif isinstance(s, ir.SinCos):
+                temporaries += 2
+                got = {"trig": 2}
+            else:
                 continue
-            elif re.match(r"\s*const bool tmp\d+ = ", ln):
-                rhs.append("flag ? 1 : 0")       # a flag (comparison or logic on flags): one cmp
-            elif re.match(r"\s*const \w+ tmp\d+ = ", ln):
-                # a folded parameter's name rides in a comment (0.15f /* 0.5*kp */): not an operation
-                rhs.append(re.sub(r"/\*.*?\*/", "", ln.split(" = ", 1)[1]).rstrip(";"))
-            elif re.fullmatch(r"\s*(float|double|bool) tmp\d+;", ln):
-                rhs.append("branch ? taken : other")
-    return out
+            for c, n in got.items():
+                ops[c] += n
+    return ops, temporaries
 
 
-@functools.cache
-def fresh(name: str) -> tuple[dict, str]:
-    """(manifest, source) of the default float build rendered now (the committed one equals it:
+def fresh(name: str, precision: str = "float", runtime: str = "", math: str | None = None,
+          fma: bool = False) -> render.Generated:
+    """A build of the filter rendered now (the committed default float one equals it:
     test_generated.py), so an emitter change is counted here before anything is committed."""
-    cfg = config.resolve(name)
-    files = render.render(cfg).files
-    man = json.loads(files["manifest.json"])
-    return man, files[man["files"]["source"]]
+    return rendered(name, precision, runtime, math, fma)
 
 
 @pytest.mark.parametrize("name", filters.names())
-def test_manifest_op_counts_equal_the_emitted_c(name):
-    man, src = fresh(name)
-    bodies = kernel_bodies(src, man["prefix"])
-    assert set(bodies) == set(man["kernels"]), (sorted(bodies), sorted(man["kernels"]))
-    for name, k in man["kernels"].items():
-        counted = {c: 0 for c in k["ops"]}
-        for expr in bodies[name]:
-            for c, n in count_c_ops(expr, man["precision"]).items():
-                counted[c] += n
-        assert counted == k["ops"], f"{name} kernel {name}: manifest {k['ops']}, emitted C {counted}"
+def test_manifest_op_counts_equal_the_kernel_statements(name):
+    gen = fresh(name)
+    man = gen.manifest
+    by_c = {k.name: k for k in gen.kernels}
+    assert {k["c_name"] for k in man["kernels"].values()} == set(by_c)
+    for kname, k in man["kernels"].items():
+        counted, temporaries = kernel_counts(by_c[k["c_name"]], man["precision"])
+        assert counted == k["ops"], f"{name} kernel {kname}: manifest {k['ops']}, statements {counted}"
         assert k["total"] == sum(counted.values())
-        assert k["temporaries"] == len(bodies[name])
+        assert k["temporaries"] == temporaries
     for pname, path in man["step_paths"].items():
         total = {c: sum(man["kernels"][kn]["ops"][c] for kn in path["kernels"]) for c in path["ops"]}
         assert path["ops"] == total, f"{name} path {pname!r}"
@@ -179,9 +164,34 @@ def casadi_counts(fn: ca.Function) -> dict[str, int]:
     return out
 
 
+# Runtime builds: the kernels read parameters through the context pointer, the counts must
+# not change with that.
+_BUILDS = [(n, p, r, m, f) for n in filters.names() for p in ("float", "double")
+           for r in ("", RUNTIME_BUILDS.get(n, "")) for m in ((None, "libm") if p == "float" else (None,))
+           for f in ((False, True) if p == "float" and m is None and not r else (False,))]
+_BUILDS = sorted(set(_BUILDS), key=str)
+
+
+@pytest.mark.parametrize("name,precision,runtime,math,fma", _BUILDS)
+def test_statement_op_counts_equal_the_emitter_and_casadi(name, precision, runtime, math, fma):
+    """Every kernel of every filter, float and double, default and runtime builds, libm and
+    fast math, with and without fused multiply-adds: the counts made from the kernel's
+    statements equal the emitter's own (Kernel.ops, the manifest's) and CasADi's instruction
+    list of the Function it was emitted from (mul not with fma: a product read by two sums is
+    multiplied again in each fmaf)."""
+    gen = fresh(name, precision, runtime, math, fma)
+    for k in gen.kernels:
+        counted, temporaries = kernel_counts(k, precision)
+        assert counted == k.ops, f"{k.name}: emitter {k.ops}, statements {counted}"
+        assert temporaries == k.n_temporaries
+        got = casadi_counts(k.source_fn)
+        for c in ("div", "sqrt", "trig") + (() if fma else ("mul",)):
+            assert counted[c] == got[c], f"{k.name}: statements {c} {counted[c]}, CasADi {got[c]}"
+
+
 @pytest.mark.parametrize("name", filters.names())
 def test_manifest_op_counts_equal_casadi_instruction_list(name):
-    man, _ = fresh(name)
+    man = fresh(name).manifest
     cfg = config.resolve(name)
     model = cfg.spec.model(cfg.params)
     checked = 0

@@ -159,14 +159,14 @@ def test_costly_select_becomes_a_branch_and_a_cheap_one_stays_a_conditional(tmp_
     cheap = ca.if_else(v[0] > 0, v[0] + 1, v[1])
     nested = ca.if_else(v[0] < 0, ca.if_else(v[1] < 0, ca.exp(v[0]), ca.log(v[1] + 1)) * ca.sin(v[1]), 2.0)
     k = emit.emit(emit.function("br", {"v": v}, {"o": ca.vertcat(costly, also, cheap, nested)}), "double")
-    text = "\n".join(k.body)
+    text = "\n".join(k.lines())
     assert text.count("if (") == 3 and "? " in text          # cheap select stays ?:
     conds = {b["condition"]: b for b in k.branches}
     assert conds["v[0] < v[1]"]["then"] == {"mul": 1, "trig": 2, "add": 1}   # sin*cos, cos + 1
     assert conds["v[0] < v[1]"]["else"] == {"mul": 2, "add": 1, "sqrt": 1, "div": 1}   # v0^2, 3 v1
     ref = emit.emit(emit.function("nobr", {"v": v}, {"o": ca.vertcat(costly, also, cheap, nested)}), "double",
                     branch_min_cost=None)
-    assert "if (" not in "\n".join(ref.body) and ref.branches == []
+    assert "if (" not in "\n".join(ref.lines()) and ref.branches == []
     lib = _build([k, ref], "double", tmp_path)
     f = ca.Function("f", [v], [ca.vertcat(costly, also, cheap, nested)])
     rng = np.random.default_rng(5)
@@ -186,7 +186,7 @@ def test_a_value_a_side_returns_and_also_reads_is_computed_on_that_side_only(tmp
     c, s = ca.cos(n), ca.sin(n)
     out = ca.vertcat(ca.if_else(n2 < 0.01, 1 - n2 / 2, c), ca.if_else(n2 < 0.01, v[0], s / n * v[0] + c))
     k = emit.emit(emit.function("em", {"v": v}, {"o": out}), "double")
-    text = "\n".join(k.body)
+    text = "\n".join(k.lines())
     else_side = text[text.index("} else {"):]
     assert text.count("cos(") == 1 and "cos(" in else_side and "sin(" in else_side
     (br,) = k.branches
@@ -211,8 +211,8 @@ def test_split_kernel_equals_the_unsplit_one_bit_for_bit(tmp_path):
     assert split.ops == whole.ops
     # the values handed between parts share slots once dead: the carry array is smaller than
     # the number of values handed over (and the bit-for-bit runs below catch a live slot reused)
-    pool = int(re.search(r"double carry\[(\d+)\];", "\n".join(split.body)).group(1))
-    handed = sum(len(re.findall(r"^\s*carry\[\d+\] = ", p, re.M)) for p in split.parts)
+    pool = int(re.search(r"double carry\[(\d+)\];", "\n".join(split.lines())).group(1))
+    handed = sum(len(re.findall(r"^\s*carry\[\d+\] = ", p, re.M)) for p in split.part_sources())
     assert pool < handed / 2
     lib = _build([whole, split], "double", tmp_path)
     rng = np.random.default_rng(9)
@@ -242,7 +242,7 @@ def test_split_kernel_hands_bools_over_as_bools(tmp_path):
     whole = emit.emit(fn, "double", name="fl_whole", split_temps=None, flags=["ok"])
     split = emit.emit(fn, "double", name="fl_split", split_temps=30, flags=["ok"])
     assert len(split.parts) >= 3
-    src = "\n".join(split.body + split.parts)
+    src = "\n".join(split.lines() + split.part_sources())
     assert "bool flags[1];" in src, src
     assert "> 0.5" not in src and "? 1.0 : 0.0" not in src, src
     assert re.search(r"^\s*\*ok = flags\[\d+\];$", src, re.M), src
@@ -277,10 +277,10 @@ def test_early_writes_store_outputs_where_computed_bit_for_bit(tmp_path):
     early = emit.emit(fn, "double", name="early", split_temps=None, early_writes=True)
     split = emit.emit(fn, "double", name="early_split", split_temps=40, early_writes=True)
     assert "restrict" in early.prototype() and "restrict" not in late.prototype()
-    first_write = next(i for i, ln in enumerate(early.body) if ln.startswith("M["))
-    last_def = max(i for i, ln in enumerate(early.body) if ln.startswith("const double"))
+    first_write = next(i for i, ln in enumerate(early.lines()) if ln.startswith("M["))
+    last_def = max(i for i, ln in enumerate(early.lines()) if ln.startswith("const double"))
     assert first_write < last_def
-    assert any(re.search(r"^\s*M\[\d+\] = ", p, re.M) for p in split.parts)
+    assert any(re.search(r"^\s*M\[\d+\] = ", p, re.M) for p in split.part_sources())
     lib = _build([late, early, split], "double", tmp_path)
     rng = np.random.default_rng(4)
     for _ in range(20):
@@ -294,12 +294,12 @@ def test_fma_option_fuses_products_into_sums_and_rounds_once(tmp_path):
     a, b, c = ca.SX.sym("a"), ca.SX.sym("b"), ca.SX.sym("c")
     fn = emit.function("fm", {"a": a, "b": b, "c": c}, {"o": ca.vertcat(a * b + c, c - a * b, a * b - c)})
     k = emit.emit(fn, "float", fma=True)
-    text = "\n".join(k.body)
+    text = "\n".join(k.lines())
     assert text.count("fmaf(") == 3 and " * " not in text    # the shared product goes into each
     assert k.ops["mul"] == 3 and k.ops["add"] == 3          # counted as the operations they fuse
     kept = emit.emit(emit.function("fs", {"a": a, "b": b, "c": c}, {"o": ca.vertcat(a * b + c, a * b)}),
                      "float", fma=True)
-    assert "fmaf(" in "\n".join(kept.body) and " = a * b;" in "\n".join(kept.body)   # still an output
+    assert "fmaf(" in "\n".join(kept.lines()) and " = a * b;" in "\n".join(kept.lines())   # still an output
     lib = _build([k], "float", tmp_path)
     rng = np.random.default_rng(3)
     for _ in range(300):
@@ -325,7 +325,7 @@ def test_select_chained_on_one_condition_is_read_only_after_it_is_assigned(tmp_p
     b = ca.if_else(c, ca.sin(a * v[1]) + ca.cos(a) * ca.exp(a), ca.log(v[1] * v[1] + 2) * v[0])
     fn = emit.function("chain", {"v": v}, {"o": ca.vertcat(a, b)})
     k = emit.emit(fn, "double")
-    lines = k.body
+    lines = k.lines()
     for i, line in enumerate(lines):           # every temporary is assigned before it is read
         m = re.match(r"\s*(?:const )?double (tmp\d+) = ", line) or re.match(r"\s*(tmp\d+) = ", line)
         if m:
@@ -350,7 +350,7 @@ def test_division_by_a_power_of_two_is_an_exact_multiplication(precision, tmp_pa
     big = 2.0 ** -130 if precision == "float" else 2.0 ** -1030      # 1 / big overflows the type
     outs = [x / 2, x / -0.25, x / 1024, x / 3, x / big]
     k = emit.emit(emit.function(f"p2_{precision}", {"x": xv}, {"o": ca.vertcat(*outs)}), precision)
-    text = "\n".join(k.body)
+    text = "\n".join(k.lines())
     lit = lambda v: emit.literal(v, precision)  # noqa: E731
     for c in (2, -0.25, 1024):
         assert f"x[0] * {lit(1 / c)}" in text, text
@@ -394,7 +394,7 @@ def test_shared_denominator_becomes_one_reciprocal(precision, tmp_path):
     n = ca.sqrt(ca.sumsqr(v))
     fn = emit.function("nrm", {"v": v, "w": w}, {"u": v / n, "s": w / v[0], "k": ca.vertcat(w / 3.0, v[1] / 3.0)})
     k = emit.emit(fn, precision, name="nrm")
-    text = "\n".join(k.body)
+    text = "\n".join(k.lines())
     assert k.ops["div"] == 1 + 1 + 2, text          # 1 / |v|, w / v[0], the two by the literal 3
     assert text.count(" / ") == 4 and text.count(" * tmp") >= 4, text
     lib = _build([k], precision, tmp_path)

@@ -127,14 +127,14 @@ def test_emitter_writes_helpers_only_for_fast_float():
     x, y = ca.SX.sym("x"), ca.SX.sym("y")
     fn = emit.function("k", {"x": x, "y": y}, {"o": ca.vertcat(ca.sin(x) + ca.atan2(y, x), ca.asin(y))})
     fast = emit.emit(fn, "float", math="fast")
-    text = "\n".join(fast.body)
+    text = "\n".join(fast.lines())
     assert "fast_sinf(" in text and "fast_atan2f(" in text and "fast_asinf(" in text and " sinf(x)" not in text
     assert fast.helpers == ["asin", "atan2", "sin"]
     assert fastmath.closure(fast.helpers) == ["sincos", "atan2", "sin", "asin"]    # dependencies first
-    libm = "\n".join(emit.emit(fn, "float", math="libm").body)
+    libm = "\n".join(emit.emit(fn, "float", math="libm").lines())
     assert " sinf(x)" in libm and "fast_" not in libm
     dbl = emit.emit(fn, "double", math="fast")
-    assert " sin(x)" in "\n".join(dbl.body) and dbl.helpers == []
+    assert " sin(x)" in "\n".join(dbl.lines()) and dbl.helpers == []
     with pytest.raises(emit.EmitError):
         emit.emit(fn, "float", math="approx")
 
@@ -152,7 +152,7 @@ def test_sin_and_cos_of_one_argument_share_one_call_in_one_scope(tmp_path):
     out = ca.vertcat(ca.sin(a) * 2, big, ca.cos(a) + big, side)
     fn = emit.function("k", {"a": a, "b": b}, {"o": out})
     k = emit.emit(fn, "float", math="fast", split_temps=20)
-    src = "\n".join(k.body + k.parts)
+    src = "\n".join(k.lines() + k.part_sources())
     assert len(k.parts) >= 2
     assert src.count("fast_sincosf(a, &") == 1 and "fast_sinf(a)" not in src and "fast_cosf(a)" not in src
     assert "fast_sinf(b)" in src and "fast_cosf(b)" in src       # if/else sides: not paired

@@ -45,42 +45,72 @@ def test_cppcheck_clean(gen_dir):
 
 
 def test_kernel_structure_check_catches_planted_defects():
-    k = {"name": "x_k_demo", "signature": "", "span": (0, 0),
-         "params": {"a": (True, 3, False), "dt": (True, None, False), "out": (False, 2, False), "piv": (False, None, True)},
-         "lines": ["    const float tmp0 = a[0] * dt;", "    const float tmp1 = tmp0 + a[2];",
-                   "    out[0] = tmp1;", "    out[1] = tmp0;", "    *piv = tmp1;"]}
-    assert harden.kernel_structure_issues(k) == []
-    bad = dict(k, lines=["    const float tmp0 = a[3] * dt;", "    const float tmp1 = tmp2 + a[2];",
-                         "    out[0] = tmp1;", "    out[0] = tmp0;", "    a[1] = tmp0;"])
-    text = "\n".join(harden.kernel_structure_issues(bad))
+    from ahrsgen.codegen.emit.ir import (Elem, Function, If, Let, Local, Op, Param, PartCall, Set, Slot, Store,
+                                         Temp)
+    params = [Param("a", "float", 3, const=True), Param("dt", "float"), Param("out", "float", 2),
+              Param("piv", "float", pointer=True)]
+    t = [Temp("float", f"tmp{i}") for i in range(4)]
+
+    def fn(body, ps=params, name="x_k_demo"):
+        return Function(name, ps, body)
+
+    def issues(body, **kw):
+        return harden.kernel_structure_issues(fn(body, **kw))
+    mul = lambda x, y: Op("*", (x, y))     # noqa: E731
+    good = [Let(t[0], mul(Elem("a", 0), Elem("dt")), "mul"), Let(t[1], Op("+", (t[0], Elem("a", 2))), "add"),
+            Store(Elem("out", 0), t[1]), Store(Elem("out", 1), t[0]), Store(Elem("piv"), t[1])]
+    assert issues(good) == []
+    bad = [Let(t[0], mul(Elem("a", 3), Elem("dt")), "mul"), Let(t[1], Op("+", (t[2], Elem("a", 2))), "add"),
+           Store(Elem("out", 0), t[1]), Store(Elem("out", 0), t[0]), Store(Elem("a", 1), t[0])]
+    text = "\n".join(issues(bad))
     for what in ("a[3] out of bounds", "tmp2 used before it is defined", "output out[1] written 0 times",
                  "output out[0] written 2 times", "writes a, which is not an output", "output piv[0] written 0 times"):
         assert what in text, text
-    # branches: a select declared before if/else, set once on each side, defined after it;
-    # a temporary of one side is not visible after the block
-    good = dict(k, lines=["    const float tmp0 = a[0] * dt;", "    float tmp1;", "    if (tmp0 < a[1]) {",
-                          "        const float tmp2 = tmp0 * tmp0;", "        tmp1 = tmp2;", "    } else {",
-                          "        tmp1 = a[2];", "    }", "    out[0] = tmp1;", "    out[1] = tmp0;", "    *piv = tmp1;"])
-    assert harden.kernel_structure_issues(good) == []
-    bad = dict(good, lines=["    const float tmp0 = a[0] * dt;", "    float tmp1;", "    float tmp3;",
-                            "    if (tmp0 < a[1]) {", "        const float tmp2 = tmp0 * tmp0;", "        tmp1 = tmp2;",
-                            "        tmp1 = tmp0;", "    } else {", "        tmp1 = tmp2;", "        tmp3 = a[0];", "    }",
-                            "    out[0] = tmp2;", "    out[1] = tmp1;", "    *piv = tmp1;"])
-    text = "\n".join(harden.kernel_structure_issues(bad))
-    for what in ("tmp1 set twice on one side", "body line 9: tmp2 used before it is defined",
-                 "the sides set different selects: ['tmp3']", "body line 12: tmp2 used before it is defined",
-                 "tmp3 declared but never set"):
+    # branches: a select declared by the If, set once on each side, defined after it; a
+    # temporary of one side is not visible after the block
+    branch = [Let(t[0], mul(Elem("a", 0), Elem("dt")), "mul"),
+              If(Op("<", (t[0], Elem("a", 1))), [Let(t[2], mul(t[0], t[0]), "mul"), Set(t[1], t[2])],
+                 [Set(t[1], Elem("a", 2))], [t[1]]),
+              Store(Elem("out", 0), t[1]), Store(Elem("out", 1), t[0]), Store(Elem("piv"), t[1])]
+    assert issues(branch) == []
+    bad = [Let(t[0], mul(Elem("a", 0), Elem("dt")), "mul"),
+           If(Op("<", (t[0], Elem("a", 1))), [Let(t[2], mul(t[0], t[0]), "mul"), Set(t[1], t[2]), Set(t[1], t[0])],
+              [Set(t[1], t[2]), Set(t[3], Elem("a", 0))], [t[1], t[3]]),
+           Store(Elem("out", 0), t[2]), Store(Elem("out", 1), t[1]), Store(Elem("piv"), t[1])]
+    text = "\n".join(issues(bad))
+    for what in ("tmp1 set twice on one side", "statement 2.else.1: tmp2 used before it is defined",
+                 "the sides set different selects: ['tmp3']", "statement 3: tmp2 used before it is defined",
+                 "tmp3 declared but not set on both sides"):
         assert what in text, text
     # a split kernel: its local carry array bounded by its declaration
-    split = dict(k, lines=["    float carry[2];", "    x_k_demo_part0(a, dt, carry);", "    out[0] = carry[1];",
-                           "    out[1] = carry[2];", "    *piv = carry[0];"])
-    assert harden.kernel_structure_issues(split) == ["x_k_demo body line 4: carry[2] out of bounds (size 2)"]
+    split = [Local("float", "carry", 2), PartCall("x_k_demo_part0", ["a", "dt", "carry"]),
+             Store(Elem("out", 0), Slot("carry", 1)), Store(Elem("out", 1), Slot("carry", 2)),
+             Store(Elem("piv"), Slot("carry", 0))]
+    assert issues(split) == ["x_k_demo statement 4: carry[2] out of bounds (size 2)"]
     # a part writes only its own carry slots (others hold live values), but none twice
-    part = {"name": "x_k_demo_part1", "params": {"a": (True, 3, False), "carry": (False, 4, False)},
-            "lines": ["    const float tmp0 = carry[0] * a[0];", "    carry[2] = tmp0;"]}
-    assert harden.kernel_structure_issues(part) == []
-    twice = dict(part, lines=part["lines"] + ["    carry[2] = a[1];"])
-    assert harden.kernel_structure_issues(twice) == ["x_k_demo_part1: output carry[2] written 2 times"]
+    part_params = [Param("a", "float", 3, const=True), Param("carry", "float", 4)]
+    part = [Let(t[0], mul(Slot("carry", 0), Elem("a", 0)), "mul"), Store(Slot("carry", 2), t[0])]
+    assert issues(part, ps=part_params, name="x_k_demo_part1") == []
+    twice = part + [Store(Slot("carry", 2), Elem("a", 1))]
+    assert issues(twice, ps=part_params, name="x_k_demo_part1") == ["x_k_demo_part1: output carry[2] written 2 times"]
+    # a part of a kernel that stores its outputs where computed writes some of them
+    early = [Param("a", "float", 3, const=True), Param("out", "float", 2)]
+    one = [Let(t[0], mul(Elem("a", 0), Elem("a", 1)), "mul"), Store(Elem("out", 1), t[0])]
+    assert harden.kernel_structure_issues(Function("x_k_demo_part0", early, one), partial=True) == []
+    assert issues(one, ps=early) == ["x_k_demo: output out[0] written 0 times"]
+
+
+def test_every_generated_kernel_is_found_and_structurally_sound():
+    """Each function of each kernel lies in the committed source as the kernel objects print it
+    (so harden's structure check and stubs are about that text), and passes the check."""
+    for gen_dir in GEN_DIRS:
+        man = harden.load_manifest(gen_dir)
+        text = (gen_dir / man["files"]["source"]).read_text()
+        kernels = harden.build_kernels(man)
+        found, missing = harden.emitted_functions(text, kernels)
+        assert missing == [] and len(found) == sum(len(k.functions()) for k in kernels)
+        for k in kernels:
+            assert harden.kernel_issues(k) == [], k.name
 
 
 def _copy_build(name: str, tmp_path):
@@ -100,7 +130,8 @@ def test_kernel_stub_keeps_the_rest_checked(tmp_path):
     c.write_text(c.read_text().replace("\n    return status;\n}", "\n    float z[2] = { 0.0f, 0.0f };\n"
                                        "    status |= (qcf_status)z[2];\n    return status;\n}", 1))
     r = harden.run_cppcheck(tmp_path, max_kernel_lines=0, timeout=120)
-    assert len(r["structurally_checked"]) == len(harden.emitted_kernels(c.read_text(), "qcf"))
+    kernels = harden.build_kernels(man)
+    assert len(r["structurally_checked"]) == sum(len(k.functions()) for k in kernels)
     assert not r["ok"] and any("arrayIndexOutOfBounds" in i for i in r["issues"]), r["issues"]
 
 

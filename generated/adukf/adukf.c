@@ -101,9 +101,8 @@ static float fast_atan2f(float y, float x)
     return signbit(y) ? -a : a;
 }
 
-/* time update of the error state [d; db]: q- = A q = q * dq((w - b) dt), P- = F P F^T + Q with F = [[Phi, B], [0, I3]]; outputs are stored as soon as computed (arrays restrict): no argument may overlap an output
- * ops: add 162, mul 211, div 2, sqrt 2, cmp 1 (total 378) */
-static void adukf_k_predict_part0(const float q[4], const float gyro_bias[3], const float P[36], const float gyro[3], float dt, float x_pred[7], float P_pred[21], float carry[32])
+static void adukf_k_predict_part0(const float q[4], const float gyro_bias[3], const float P[36],
+    const float gyro[3], float dt, float x_pred[7], float P_pred[21], float carry[32])
 {
     const float tmp0 = 0.25f * dt;
     x_pred[4] = gyro_bias[0];
@@ -172,7 +171,8 @@ static void adukf_k_predict_part0(const float q[4], const float gyro_bias[3], co
     carry[15] = tmp39;
 }
 
-static void adukf_k_predict_part1(const float q[4], const float P[36], float dt, float x_pred[7], float q_pred_unit[4], float carry[32])
+static void adukf_k_predict_part1(const float q[4], const float P[36], float dt, float x_pred[7],
+    float q_pred_unit[4], float carry[32])
 {
     const float tmp40 = carry[12] * q[0];
     const float tmp41 = carry[11] * q[1];
@@ -335,7 +335,8 @@ static void adukf_k_predict_part3(const float P[36], float dt, float P_pred[21],
     carry[23] = tmp159;
 }
 
-static void adukf_k_predict_part4(const float P[36], float dt, bool clip, float P_pred[21], float carry[32])
+static void adukf_k_predict_part4(const float P[36], float dt, bool clip, float P_pred[21],
+    float carry[32])
 {
     const float tmp160 = carry[23] * carry[23];
     const float tmp161 = (clip) ? tmp160 : 0.0f;
@@ -601,7 +602,8 @@ static void adukf_k_predict_part8(const float P[36], float P_pred[21], float car
     carry[2] = tmp359;
 }
 
-static void adukf_k_predict_part9(const float P[36], float dt, float P_pred[21], const float carry[32])
+static void adukf_k_predict_part9(const float P[36], float dt, float P_pred[21],
+    const float carry[32])
 {
     const float tmp360 = carry[7] * carry[4];
     const float tmp361 = carry[2] + tmp360;
@@ -627,12 +629,36 @@ static void adukf_k_predict_part9(const float P[36], float dt, float P_pred[21],
     P_pred[20] = tmp377;
 }
 
+/*
+ * time update of the error state [d; db]: q- = A q = q * dq((w - b) dt), P- = F P F^T + Q with F =
+ * [[Phi, B], [0, I3]]; outputs are stored as soon as computed (arrays restrict): no argument may
+ * overlap an output
+ *
+ * Args:
+ *     q: float[4]
+ *     gyro_bias: float[3]
+ *     P: float[36], 6x6 matrix, column-major: row i, column j at [i + 6 * j]
+ *     gyro: float[3]
+ *     dt: float
+ *     clip: bool
+ * Outputs:
+ *     x_pred: float[7]
+ *     q_pred_unit: float[4]
+ *     P_pred: float[21]
+ *
+ * Total ops: 378 (add 162, mul 211, div 2, sqrt 2, cmp 1)
+ */
 #if defined(__GNUC__)
 __attribute__((noinline))
 #endif
-static void adukf_k_predict(const float q[restrict 4], const float gyro_bias[restrict 3], const float P[restrict 36], const float gyro[restrict 3], float dt, bool clip, float x_pred[restrict 7], float q_pred_unit[restrict 4], float P_pred[restrict 21])
+static void adukf_k_predict(const float q[restrict 4], const float gyro_bias[restrict 3],
+    const float P[restrict 36], const float gyro[restrict 3], float dt, bool clip,
+    float x_pred[restrict 7], float q_pred_unit[restrict 4], float P_pred[restrict 21])
 {
-    /* 10 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    /*
+     * 10 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
+     * handed between them (a slot reused once its value is dead)
+     */
     float carry[32];
     adukf_k_predict_part0(q, gyro_bias, P, gyro, dt, x_pred, P_pred, carry);
     adukf_k_predict_part1(q, P, dt, x_pred, q_pred_unit, carry);
@@ -646,8 +672,6 @@ static void adukf_k_predict(const float q[restrict 4], const float gyro_bias[res
     adukf_k_predict_part9(P, dt, P_pred, carry);
 }
 
-/* L = chol(P-), aL = a L[:, 0:3] (the columns that move the attitude: a bias column moves none, so 7 distinct sigma points), z0 = h(q-); pivot_P = smallest pivot of P-; outputs are stored as soon as computed (arrays restrict): no argument may overlap an output
- * ops: add 65, mul 86, div 5, sqrt 5, cmp 10 (total 171) */
 static void adukf_k_sigma_setup_part0(const float P_pred[21], float aL[18], float carry[20])
 {
     const float tmp0 = (1e-15f /* pivot_min */ < P_pred[0]) ? P_pred[0] : 1.0f;
@@ -716,7 +740,8 @@ static void adukf_k_sigma_setup_part0(const float P_pred[21], float aL[18], floa
     carry[9] = tmp39;
 }
 
-static void adukf_k_sigma_setup_part1(const float q_pred_unit[4], const float P_pred[21], float aL[18], float z0[6], float carry[20])
+static void adukf_k_sigma_setup_part1(const float q_pred_unit[4], const float P_pred[21],
+    float aL[18], float z0[6], float carry[20])
 {
     const float tmp40 = carry[5] * carry[5];
     const float tmp41 = carry[9] - tmp40;
@@ -779,7 +804,8 @@ static void adukf_k_sigma_setup_part1(const float q_pred_unit[4], const float P_
     carry[19] = tmp79;
 }
 
-static void adukf_k_sigma_setup_part2(const float q_pred_unit[4], const float P_pred[21], const float m_ref[3], float z0[6], float carry[20])
+static void adukf_k_sigma_setup_part2(const float q_pred_unit[4], const float P_pred[21],
+    const float m_ref[3], float z0[6], float carry[20])
 {
     const float tmp80 = -carry[19];
     z0[2] = tmp80;
@@ -896,12 +922,33 @@ static void adukf_k_sigma_setup_part4(float *pivot_P, const float carry[20])
     *pivot_P = tmp170;
 }
 
+/*
+ * L = chol(P-), aL = a L[:, 0:3] (the columns that move the attitude: a bias column moves none, so
+ * 7 distinct sigma points), z0 = h(q-); pivot_P = smallest pivot of P-; outputs are stored as soon
+ * as computed (arrays restrict): no argument may overlap an output
+ *
+ * Args:
+ *     q_pred_unit: float[4]
+ *     P_pred: float[21]
+ *     m_ref: float[3]
+ * Outputs:
+ *     aL: float[18], 6x3 matrix, column-major: row i, column j at [i + 6 * j]
+ *     z0: float[6]
+ *     pivot_P: float
+ *
+ * Total ops: 171 (add 65, mul 86, div 5, sqrt 5, cmp 10)
+ */
 #if defined(__GNUC__)
 __attribute__((noinline))
 #endif
-static void adukf_k_sigma_setup(const float q_pred_unit[restrict 4], const float P_pred[restrict 21], const float m_ref[restrict 3], float aL[restrict 18], float z0[restrict 6], float *restrict pivot_P)
+static void adukf_k_sigma_setup(const float q_pred_unit[restrict 4],
+    const float P_pred[restrict 21], const float m_ref[restrict 3], float aL[restrict 18],
+    float z0[restrict 6], float *restrict pivot_P)
 {
-    /* 5 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    /*
+     * 5 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
+     * handed between them (a slot reused once its value is dead)
+     */
     float carry[20];
     adukf_k_sigma_setup_part0(P_pred, aL, carry);
     adukf_k_sigma_setup_part1(q_pred_unit, P_pred, aL, z0, carry);
@@ -910,8 +957,6 @@ static void adukf_k_sigma_setup(const float q_pred_unit[restrict 4], const float
     adukf_k_sigma_setup_part4(pivot_P, carry);
 }
 
-/* sigma points q- * dq(+col) and q- * dq(-col) (col = a L[0:3, j], an attitude error), mapped through h, as deviations e+, e- from z0: e+ + e- and e+ - e- (called once per attitude column of aL)
- * ops: add 16, mul 41, div 1 (total 58) */
 static void adukf_k_sigma_pair_part0(const float col[3], const float z0[6], float carry[12])
 {
     const float tmp0 = col[0] * col[0];
@@ -997,9 +1042,26 @@ static void adukf_k_sigma_pair_part1(const float col[3], const float z0[6], floa
     carry[11] = tmp57;
 }
 
+/*
+ * sigma points q- * dq(+col) and q- * dq(-col) (col = a L[0:3, j], an attitude error), mapped
+ * through h, as deviations e+, e- from z0: e+ + e- and e+ - e- (called once per attitude column of
+ * aL)
+ *
+ * Args:
+ *     col: float[3]
+ *     z0: float[6]
+ * Outputs:
+ *     zsum: float[6]
+ *     zdiff: float[6]
+ *
+ * Total ops: 58 (add 16, mul 41, div 1)
+ */
 static void adukf_k_sigma_pair(const float col[3], const float z0[6], float zsum[6], float zdiff[6])
 {
-    /* 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    /*
+     * 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
+     * handed between them (a slot reused once its value is dead)
+     */
     float carry[12];
     adukf_k_sigma_pair_part0(col, z0, carry);
     adukf_k_sigma_pair_part1(col, z0, carry);
@@ -1017,10 +1079,8 @@ static void adukf_k_sigma_pair(const float col[3], const float z0[6], float zsum
     zdiff[5] = carry[11];
 }
 
-/* predicted measurement, residual, adaptive per-axis R and P_zz from the sigma pairs' sums and differences of deviations; outputs are stored as soon as computed (arrays restrict): no argument may overlap an output
- * ops: add 172, mul 204, div 6, sqrt 2, cmp 16 (total 400)
- *      of which only one side runs: if (recover) 0, else 18 */
-static void adukf_k_innovation_part0(const float z0[6], const float zsum[18], const float zdiff[18], const float accel[3], float dt, const float span[2], float residual[6], float carry[18])
+static void adukf_k_innovation_part0(const float z0[6], const float zsum[18], const float zdiff[18],
+    const float accel[3], float dt, const float span[2], float residual[6], float carry[18])
 {
     const float tmp0 = zsum[0] * zsum[0];
     const float tmp1 = zdiff[0] * zdiff[0];
@@ -1074,7 +1134,8 @@ static void adukf_k_innovation_part0(const float z0[6], const float zsum[18], co
     carry[8] = tmp39;
 }
 
-static void adukf_k_innovation_part1(const float zsum[18], const float zdiff[18], float P_zz[21], float carry[18])
+static void adukf_k_innovation_part1(const float zsum[18], const float zdiff[18], float P_zz[21],
+    float carry[18])
 {
     const float tmp40 = carry[7] + carry[8];
     const float tmp41 = carry[6] + tmp40;
@@ -1124,7 +1185,8 @@ static void adukf_k_innovation_part1(const float zsum[18], const float zdiff[18]
     carry[9] = tmp79;
 }
 
-static void adukf_k_innovation_part2(const float zsum[18], const float zdiff[18], float P_zz[21], float carry[18])
+static void adukf_k_innovation_part2(const float zsum[18], const float zdiff[18], float P_zz[21],
+    float carry[18])
 {
     const float tmp80 = carry[9] * carry[0];
     const float tmp81 = carry[8] + tmp80;
@@ -1175,7 +1237,8 @@ static void adukf_k_innovation_part2(const float zsum[18], const float zdiff[18]
     carry[11] = tmp119;
 }
 
-static void adukf_k_innovation_part3(const float z0[6], const float zsum[18], const float zdiff[18], const float accel[3], float P_zz[21], float residual[6], float carry[18])
+static void adukf_k_innovation_part3(const float z0[6], const float zsum[18], const float zdiff[18],
+    const float accel[3], float P_zz[21], float residual[6], float carry[18])
 {
     const float tmp120 = zdiff[7] * zdiff[7];
     const float tmp121 = carry[11] + tmp120;
@@ -1225,7 +1288,8 @@ static void adukf_k_innovation_part3(const float z0[6], const float zsum[18], co
     carry[13] = tmp159;
 }
 
-static void adukf_k_innovation_part4(const float zsum[18], const float zdiff[18], float P_zz[21], float carry[18])
+static void adukf_k_innovation_part4(const float zsum[18], const float zdiff[18], float P_zz[21],
+    float carry[18])
 {
     const float tmp160 = carry[12] + carry[13];
     P_zz[8] = tmp160;
@@ -1273,7 +1337,8 @@ static void adukf_k_innovation_part4(const float zsum[18], const float zdiff[18]
     carry[6] = tmp199;
 }
 
-static void adukf_k_innovation_part5(const float z0[6], const float zsum[18], const float zdiff[18], const float accel[3], float P_zz[21], float residual[6], float carry[18])
+static void adukf_k_innovation_part5(const float z0[6], const float zsum[18], const float zdiff[18],
+    const float accel[3], float P_zz[21], float residual[6], float carry[18])
 {
     const float tmp200 = 0.041666668f * carry[6];
     const float tmp201 = carry[7] * carry[7];
@@ -1324,7 +1389,9 @@ static void adukf_k_innovation_part5(const float z0[6], const float zsum[18], co
     carry[13] = tmp239;
 }
 
-static void adukf_k_innovation_part6(const float z0[6], const float zsum[18], const float zdiff[18], const float mag[3], float dt, const float span[2], float P_zz[21], float residual[6], float carry[18])
+static void adukf_k_innovation_part6(const float z0[6], const float zsum[18], const float zdiff[18],
+    const float mag[3], float dt, const float span[2], float P_zz[21], float residual[6],
+    float carry[18])
 {
     const float tmp240 = carry[12] + carry[13];
     const float tmp241 = zsum[17] * zsum[14];
@@ -1377,7 +1444,8 @@ static void adukf_k_innovation_part6(const float z0[6], const float zsum[18], co
     carry[17] = tmp279;
 }
 
-static void adukf_k_innovation_part7(const float z0[6], const float zsum[18], const float zdiff[18], const float mag[3], float P_zz[21], float carry[18])
+static void adukf_k_innovation_part7(const float z0[6], const float zsum[18], const float zdiff[18],
+    const float mag[3], float P_zz[21], float carry[18])
 {
     const float tmp280 = zdiff[10] * zdiff[9];
     const float tmp281 = carry[17] + tmp280;
@@ -1426,7 +1494,8 @@ static void adukf_k_innovation_part7(const float z0[6], const float zsum[18], co
     carry[17] = tmp319;
 }
 
-static void adukf_k_innovation_part8(const float z0[6], const float zsum[18], const float zdiff[18], const float mag[3], float P_zz[21], float residual[6], float carry[18])
+static void adukf_k_innovation_part8(const float z0[6], const float zsum[18], const float zdiff[18],
+    const float mag[3], float P_zz[21], float residual[6], float carry[18])
 {
     const float tmp320 = carry[16] - carry[17];
     residual[4] = tmp320;
@@ -1553,12 +1622,40 @@ static void adukf_k_innovation_part10(float P_zz[21], float r_diag[6], const flo
     P_zz[20] = tmp399;
 }
 
+/*
+ * predicted measurement, residual, adaptive per-axis R and P_zz from the sigma pairs' sums and
+ * differences of deviations; outputs are stored as soon as computed (arrays restrict): no argument
+ * may overlap an output
+ *
+ * Args:
+ *     z0: float[6]
+ *     zsum: float[18]
+ *     zdiff: float[18]
+ *     accel: float[3]
+ *     mag: float[3]
+ *     dt: float
+ *     span: float[2]
+ *     recover: bool
+ * Outputs:
+ *     P_zz: float[21]
+ *     residual: float[6]
+ *     r_diag: float[6]
+ *
+ * Total ops: 400 (add 172, mul 204, div 6, sqrt 2, cmp 16)
+ *     of which only one side runs: if (recover) 0, else 18
+ */
 #if defined(__GNUC__)
 __attribute__((noinline))
 #endif
-static void adukf_k_innovation(const float z0[restrict 6], const float zsum[restrict 18], const float zdiff[restrict 18], const float accel[restrict 3], const float mag[restrict 3], float dt, const float span[restrict 2], bool recover, float P_zz[restrict 21], float residual[restrict 6], float r_diag[restrict 6])
+static void adukf_k_innovation(const float z0[restrict 6], const float zsum[restrict 18],
+    const float zdiff[restrict 18], const float accel[restrict 3], const float mag[restrict 3],
+    float dt, const float span[restrict 2], bool recover, float P_zz[restrict 21],
+    float residual[restrict 6], float r_diag[restrict 6])
 {
-    /* 11 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    /*
+     * 11 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
+     * handed between them (a slot reused once its value is dead)
+     */
     float carry[18];
     adukf_k_innovation_part0(z0, zsum, zdiff, accel, dt, span, residual, carry);
     adukf_k_innovation_part1(zsum, zdiff, P_zz, carry);
@@ -1573,9 +1670,8 @@ static void adukf_k_innovation(const float z0[restrict 6], const float zsum[rest
     adukf_k_innovation_part10(P_zz, r_diag, carry);
 }
 
-/* with L = chol(P_zz), W = L^-1 D (D the pairs' differences) and v = L^-1 eps: g = Wi W^T v and G = Wi^2 W^T W (lower triangle, packed), so that K eps = aL g and K P_zz K^T = aL G aL^T (K, P_xz never formed); pivot_zz = smallest pivot of P_zz
- * ops: add 140, mul 197, div 6, sqrt 6, cmp 11 (total 360) */
-static void adukf_k_gain_part0(const float P_zz[21], const float zdiff[18], const float residual[6], float carry[45])
+static void adukf_k_gain_part0(const float P_zz[21], const float zdiff[18], const float residual[6],
+    float carry[45])
 {
     const float tmp0 = (1e-15f /* pivot_min */ < P_zz[0]) ? P_zz[0] : 1.0f;
     const float tmp1 = 1.0f / tmp0;
@@ -1634,7 +1730,8 @@ static void adukf_k_gain_part0(const float P_zz[21], const float zdiff[18], cons
     carry[14] = tmp39;
 }
 
-static void adukf_k_gain_part1(const float P_zz[21], const float zdiff[18], const float residual[6], float carry[45])
+static void adukf_k_gain_part1(const float P_zz[21], const float zdiff[18], const float residual[6],
+    float carry[45])
 {
     const float tmp40 = carry[14] * carry[12];
     const float tmp41 = carry[13] * tmp40;
@@ -1794,7 +1891,8 @@ static void adukf_k_gain_part3(const float P_zz[21], const float zdiff[18], floa
     carry[36] = tmp159;
 }
 
-static void adukf_k_gain_part4(const float P_zz[21], const float zdiff[18], const float residual[6], float carry[45])
+static void adukf_k_gain_part4(const float P_zz[21], const float zdiff[18], const float residual[6],
+    float carry[45])
 {
     const float tmp160 = P_zz[20] - carry[36];
     const float tmp161 = carry[31] * carry[31];
@@ -2045,12 +2143,32 @@ static void adukf_k_gain_part8(const float P_zz[21], float carry[45])
     carry[4] = tmp359;
 }
 
+/*
+ * with L = chol(P_zz), W = L^-1 D (D the pairs' differences) and v = L^-1 eps: g = Wi W^T v and G =
+ * Wi^2 W^T W (lower triangle, packed), so that K eps = aL g and K P_zz K^T = aL G aL^T (K, P_xz
+ * never formed); pivot_zz = smallest pivot of P_zz
+ *
+ * Args:
+ *     P_zz: float[21]
+ *     zdiff: float[18]
+ *     residual: float[6]
+ * Outputs:
+ *     g: float[3]
+ *     G: float[6]
+ *     pivot_zz: float
+ *
+ * Total ops: 360 (add 140, mul 197, div 6, sqrt 6, cmp 11)
+ */
 #if defined(__GNUC__)
 __attribute__((noinline))
 #endif
-static void adukf_k_gain(const float P_zz[21], const float zdiff[18], const float residual[6], float g[3], float G[6], float *pivot_zz)
+static void adukf_k_gain(const float P_zz[21], const float zdiff[18], const float residual[6],
+    float g[3], float G[6], float *pivot_zz)
 {
-    /* 9 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    /*
+     * 9 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
+     * handed between them (a slot reused once its value is dead)
+     */
     float carry[45];
     adukf_k_gain_part0(P_zz, zdiff, residual, carry);
     adukf_k_gain_part1(P_zz, zdiff, residual, carry);
@@ -2073,9 +2191,8 @@ static void adukf_k_gain(const float P_zz[21], const float zdiff[18], const floa
     *pivot_zz = carry[4];
 }
 
-/* [d; db] = aL g = K eps, q+ = q- * [1, d/2] normalised, b+ = b- + db, P+ = P- - aL G aL^T = P- - K P_zz K^T; outputs are stored as soon as computed (arrays restrict): no argument may overlap an output
- * ops: add 99, mul 125, div 1, sqrt 1 (total 226) */
-static void adukf_k_correct_part0(const float x_pred[7], const float aL[18], const float g[3], float carry[8])
+static void adukf_k_correct_part0(const float x_pred[7], const float aL[18], const float g[3],
+    float carry[8])
 {
     const float tmp0 = aL[0] * g[0];
     const float tmp1 = 0.5f * tmp0;
@@ -2124,7 +2241,8 @@ static void adukf_k_correct_part0(const float x_pred[7], const float aL[18], con
     carry[4] = tmp39;
 }
 
-static void adukf_k_correct_part1(const float x_pred[7], const float P_pred[21], const float aL[18], const float g[3], const float G[6], float x_new[7], float P_new[21], float carry[8])
+static void adukf_k_correct_part1(const float x_pred[7], const float P_pred[21], const float aL[18],
+    const float g[3], const float G[6], float x_new[7], float P_new[21], float carry[8])
 {
     const float tmp40 = x_pred[3] + carry[4];
     const float tmp41 = tmp40 * tmp40;
@@ -2179,7 +2297,8 @@ static void adukf_k_correct_part1(const float x_pred[7], const float P_pred[21],
     carry[1] = tmp79;
 }
 
-static void adukf_k_correct_part2(const float P_pred[21], const float aL[18], const float G[6], float P_new[21], float carry[8])
+static void adukf_k_correct_part2(const float P_pred[21], const float aL[18], const float G[6],
+    float P_new[21], float carry[8])
 {
     const float tmp80 = carry[1] * aL[0];
     const float tmp81 = P_pred[2] - tmp80;
@@ -2234,7 +2353,8 @@ static void adukf_k_correct_part2(const float P_pred[21], const float aL[18], co
     carry[5] = tmp119;
 }
 
-static void adukf_k_correct_part3(const float P_pred[21], const float aL[18], const float G[6], float P_new[21], float carry[8])
+static void adukf_k_correct_part3(const float P_pred[21], const float aL[18], const float G[6],
+    float P_new[21], float carry[8])
 {
     const float tmp120 = aL[3] * G[1];
     const float tmp121 = aL[9] * G[3];
@@ -2286,7 +2406,8 @@ static void adukf_k_correct_part3(const float P_pred[21], const float aL[18], co
     carry[6] = tmp159;
 }
 
-static void adukf_k_correct_part4(const float P_pred[21], const float aL[18], const float G[6], float P_new[21], float carry[8])
+static void adukf_k_correct_part4(const float P_pred[21], const float aL[18], const float G[6],
+    float P_new[21], float carry[8])
 {
     const float tmp160 = aL[3] * G[2];
     const float tmp161 = aL[9] * G[4];
@@ -2338,7 +2459,8 @@ static void adukf_k_correct_part4(const float P_pred[21], const float aL[18], co
     carry[7] = tmp199;
 }
 
-static void adukf_k_correct_part5(const float P_pred[21], const float aL[18], float P_new[21], const float carry[8])
+static void adukf_k_correct_part5(const float P_pred[21], const float aL[18], float P_new[21],
+    const float carry[8])
 {
     const float tmp200 = carry[6] + carry[7];
     const float tmp201 = P_pred[16] - tmp200;
@@ -2373,12 +2495,34 @@ static void adukf_k_correct_part5(const float P_pred[21], const float aL[18], fl
     P_new[20] = tmp225;
 }
 
+/*
+ * [d; db] = aL g = K eps, q+ = q- * [1, d/2] normalised, b+ = b- + db, P+ = P- - aL G aL^T = P- - K
+ * P_zz K^T; outputs are stored as soon as computed (arrays restrict): no argument may overlap an
+ * output
+ *
+ * Args:
+ *     x_pred: float[7]
+ *     P_pred: float[21]
+ *     aL: float[18], 6x3 matrix, column-major: row i, column j at [i + 6 * j]
+ *     g: float[3]
+ *     G: float[6]
+ * Outputs:
+ *     x_new: float[7]
+ *     P_new: float[21]
+ *
+ * Total ops: 226 (add 99, mul 125, div 1, sqrt 1)
+ */
 #if defined(__GNUC__)
 __attribute__((noinline))
 #endif
-static void adukf_k_correct(const float x_pred[restrict 7], const float P_pred[restrict 21], const float aL[restrict 18], const float g[restrict 3], const float G[restrict 6], float x_new[restrict 7], float P_new[restrict 21])
+static void adukf_k_correct(const float x_pred[restrict 7], const float P_pred[restrict 21],
+    const float aL[restrict 18], const float g[restrict 3], const float G[restrict 6],
+    float x_new[restrict 7], float P_new[restrict 21])
 {
-    /* 6 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    /*
+     * 6 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
+     * handed between them (a slot reused once its value is dead)
+     */
     float carry[8];
     adukf_k_correct_part0(x_pred, aL, g, carry);
     adukf_k_correct_part1(x_pred, P_pred, aL, g, G, x_new, P_new, carry);
@@ -2388,11 +2532,10 @@ static void adukf_k_correct(const float x_pred[restrict 7], const float P_pred[r
     adukf_k_correct_part5(P_pred, aL, P_new, carry);
 }
 
-/* NED low-pass of the specific force R(q-) f (restart: start at R(q-) f); the update measures R(q-)^T of it (recovering from a clipped gyro sample: the sample itself)
- * ops: add 40, mul 30, div 1, cmp 4 (total 75) */
-static void adukf_k_accel_lowpass_part0(const float q_pred_unit[4], const float accel[3], const float accel_lp[3], bool restart, float dt, bool recover, float carry[15], bool flags[1])
+static void adukf_k_accel_lowpass_part0(const float q_pred_unit[4], const float accel[3],
+    const float accel_lp[3], bool restart, float dt, bool recover, float carry[15], bool flags[1])
 {
-    const bool tmp0 = (restart) || (recover);
+    const bool tmp0 = restart || recover;
     const float tmp1 = q_pred_unit[2] * q_pred_unit[2];
     const float tmp2 = q_pred_unit[3] * q_pred_unit[3];
     const float tmp3 = tmp1 + tmp2;
@@ -2450,7 +2593,8 @@ static void adukf_k_accel_lowpass_part0(const float q_pred_unit[4], const float 
     carry[14] = tmp39;
 }
 
-static void adukf_k_accel_lowpass_part1(const float accel[3], const float accel_lp[3], float carry[15], const bool flags[1])
+static void adukf_k_accel_lowpass_part1(const float accel[3], const float accel_lp[3],
+    float carry[15], const bool flags[1])
 {
     const float tmp40 = (flags[0]) ? carry[14] : accel_lp[1];
     const float tmp41 = carry[14] - tmp40;
@@ -2494,9 +2638,31 @@ static void adukf_k_accel_lowpass_part1(const float accel[3], const float accel_
     carry[4] = tmp74;
 }
 
-static void adukf_k_accel_lowpass(const float q_pred_unit[4], const float accel[3], const float accel_lp[3], bool restart, float dt, bool recover, float accel_lp_new[3], float accel_body[3])
+/*
+ * NED low-pass of the specific force R(q-) f (restart: start at R(q-) f); the update measures
+ * R(q-)^T of it (recovering from a clipped gyro sample: the sample itself)
+ *
+ * Args:
+ *     q_pred_unit: float[4]
+ *     accel: float[3]
+ *     accel_lp: float[3]
+ *     restart: bool
+ *     dt: float
+ *     recover: bool
+ * Outputs:
+ *     accel_lp_new: float[3]
+ *     accel_body: float[3]
+ *
+ * Total ops: 75 (add 40, mul 30, div 1, cmp 4)
+ */
+static void adukf_k_accel_lowpass(const float q_pred_unit[4], const float accel[3],
+    const float accel_lp[3], bool restart, float dt, bool recover, float accel_lp_new[3],
+    float accel_body[3])
 {
-    /* 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry and flags hold the values handed between them (a slot reused once its value is dead) */
+    /*
+     * 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry and flags hold
+     * the values handed between them (a slot reused once its value is dead)
+     */
     float carry[15];
     bool flags[1];
     adukf_k_accel_lowpass_part0(q_pred_unit, accel, accel_lp, restart, dt, recover, carry, flags);
@@ -2509,16 +2675,36 @@ static void adukf_k_accel_lowpass(const float q_pred_unit[4], const float accel[
     accel_body[2] = carry[4];
 }
 
-/* gyro over-range: a component at gyro_full_scale, or one at or above gyro_plateau_rate that holds its value for 4 samples while the others change (clipped), sets the recovery timer to clip_recovery_time; recovering while more than half a step of it is left
- * ops: add 7, mul 1, cmp 28 (total 36)
- *      of which only one side runs: if (tmp12) 0, else 12 */
-static void adukf_k_gyro_recovery(const float gyro[3], const float gyro_prev[3], const float gyro_repeats[3], float recover_time, float dt, bool *clipped, float *recover_time_new, bool *recovering, float gyro_repeats_new[3])
+/*
+ * gyro over-range: a component at gyro_full_scale, or one at or above gyro_plateau_rate that holds
+ * its value for 4 samples while the others change (clipped), sets the recovery timer to
+ * clip_recovery_time; recovering while more than half a step of it is left
+ *
+ * Args:
+ *     gyro: float[3]
+ *     gyro_prev: float[3]
+ *     gyro_repeats: float[3]
+ *     recover_time: float
+ *     dt: float
+ * Outputs:
+ *     clipped: bool
+ *     recover_time_new: float
+ *     recovering: bool
+ *     gyro_repeats_new: float[3]
+ *
+ * Total ops: 36 (add 7, mul 1, cmp 28)
+ *     of which only one side runs: if (tmp12) 0, else 12
+ */
+static void adukf_k_gyro_recovery(const float gyro[3], const float gyro_prev[3],
+    const float gyro_repeats[3], float recover_time, float dt, bool *clipped,
+    float *recover_time_new, bool *recovering, float gyro_repeats_new[3])
 {
     const float tmp0 = fabsf(gyro[0]);
     const float tmp1 = fabsf(gyro[1]);
-    const bool tmp2 = (34.906586f /* gyro_full_scale */ <= tmp0) || (34.906586f /* gyro_full_scale */ <= tmp1);
+    const bool tmp2 = (34.906586f /* gyro_full_scale */ <= tmp0) ||
+            (34.906586f /* gyro_full_scale */ <= tmp1);
     const float tmp3 = fabsf(gyro[2]);
-    const bool tmp4 = (tmp2) || (34.906586f /* gyro_full_scale */ <= tmp3);
+    const bool tmp4 = tmp2 || (34.906586f /* gyro_full_scale */ <= tmp3);
     const float tmp5 = gyro[0] - gyro_prev[0];
     const float tmp6 = fabsf(tmp5);
     const float tmp7 = gyro[1] - gyro_prev[1];
@@ -2526,7 +2712,7 @@ static void adukf_k_gyro_recovery(const float gyro[3], const float gyro_prev[3],
     const bool tmp9 = (tmp6 < 1e-06f) && (tmp8 < 1e-06f);
     const float tmp10 = gyro[2] - gyro_prev[2];
     const float tmp11 = fabsf(tmp10);
-    const bool tmp12 = (tmp9) && (tmp11 < 1e-06f);
+    const bool tmp12 = tmp9 && (tmp11 < 1e-06f);
     float tmp13;
     float tmp14;
     float tmp15;
@@ -2552,8 +2738,8 @@ static void adukf_k_gyro_recovery(const float gyro[3], const float gyro_prev[3],
         tmp15 = tmp27;
     }
     const bool tmp28 = (3.0f <= tmp13) || (3.0f <= tmp14);
-    const bool tmp29 = (tmp28) || (3.0f <= tmp15);
-    const bool tmp30 = (tmp4) || (tmp29);
+    const bool tmp29 = tmp28 || (3.0f <= tmp15);
+    const bool tmp30 = tmp4 || tmp29;
     const float tmp31 = recover_time - dt;
     const float tmp32 = (tmp31 > 0.0f) ? tmp31 : 0.0f;
     const float tmp33 = (tmp30) ? 2.0f /* clip_recovery_time */ : tmp32;
@@ -2567,8 +2753,6 @@ static void adukf_k_gyro_recovery(const float gyro[3], const float gyro_prev[3],
     gyro_repeats_new[2] = tmp15;
 }
 
-/* initial attitude: accelerometer tilt and tilt-compensated heading (+ declination)
- * ops: add 13, mul 24, sqrt 1, trig 13, cmp 2 (total 53) */
 static void adukf_k_init_q_part0(const float accel[3], const float mag[3], float carry[9])
 {
     const float tmp0 = -accel[1];
@@ -2616,31 +2800,31 @@ static void adukf_k_init_q_part0(const float accel[3], const float mag[3], float
     fast_sincosf(tmp33, &tmp39, &tmp34);   /* sin and cos, one reduction */
     const float tmp35 = tmp32 * tmp34;
     const float tmp38 = tmp36 * tmp37;
-    carry[0] = tmp29;
-    carry[1] = tmp36;
-    carry[2] = tmp31;
-    carry[3] = tmp37;
+    carry[0] = tmp36;
+    carry[1] = tmp29;
+    carry[2] = tmp37;
+    carry[3] = tmp31;
     carry[4] = tmp32;
-    carry[5] = tmp34;
-    carry[6] = tmp39;
+    carry[5] = tmp39;
+    carry[6] = tmp34;
     carry[7] = tmp35;
     carry[8] = tmp38;
 }
 
 static void adukf_k_init_q_part1(float carry[9])
 {
-    const float tmp40 = carry[8] * carry[6];
+    const float tmp40 = carry[8] * carry[5];
     const float tmp41 = carry[7] + tmp40;
-    const float tmp42 = carry[4] * carry[6];
-    const float tmp43 = carry[8] * carry[5];
+    const float tmp42 = carry[4] * carry[5];
+    const float tmp43 = carry[8] * carry[6];
     const float tmp44 = tmp42 - tmp43;
-    const float tmp45 = carry[0] * carry[3];
-    const float tmp46 = tmp45 * carry[5];
-    const float tmp47 = carry[1] * carry[2];
-    const float tmp48 = tmp47 * carry[6];
+    const float tmp45 = carry[1] * carry[2];
+    const float tmp46 = tmp45 * carry[6];
+    const float tmp47 = carry[0] * carry[3];
+    const float tmp48 = tmp47 * carry[5];
     const float tmp49 = tmp46 + tmp48;
-    const float tmp50 = tmp47 * carry[5];
-    const float tmp51 = tmp45 * carry[6];
+    const float tmp50 = tmp47 * carry[6];
+    const float tmp51 = tmp45 * carry[5];
     const float tmp52 = tmp50 - tmp51;
     carry[0] = tmp41;
     carry[1] = tmp44;
@@ -2648,9 +2832,23 @@ static void adukf_k_init_q_part1(float carry[9])
     carry[3] = tmp52;
 }
 
+/*
+ * initial attitude: accelerometer tilt and tilt-compensated heading (+ declination)
+ *
+ * Args:
+ *     accel: float[3]
+ *     mag: float[3]
+ * Outputs:
+ *     q: float[4]
+ *
+ * Total ops: 53 (add 13, mul 24, sqrt 1, trig 13, cmp 2)
+ */
 static void adukf_k_init_q(const float accel[3], const float mag[3], float q[4])
 {
-    /* 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    /*
+     * 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
+     * handed between them (a slot reused once its value is dead)
+     */
     float carry[9];
     adukf_k_init_q_part0(accel, mag, carry);
     adukf_k_init_q_part1(carry);
@@ -2660,9 +2858,21 @@ static void adukf_k_init_q(const float accel[3], const float mag[3], float q[4])
     q[3] = carry[3];
 }
 
-/* rest test and sin(inclination) = -f.m/(|f||m|) of one sample
- * ops: add 10, mul 13, div 1, sqrt 2, cmp 2 (total 28) */
-static inline void adukf_k_learn_sample(const float gyro[3], const float accel[3], const float mag[3], bool *rest, float *sin_dip)
+/*
+ * rest test and sin(inclination) = -f.m/(|f||m|) of one sample
+ *
+ * Args:
+ *     gyro: float[3]
+ *     accel: float[3]
+ *     mag: float[3]
+ * Outputs:
+ *     rest: bool
+ *     sin_dip: float
+ *
+ * Total ops: 28 (add 10, mul 13, div 1, sqrt 2, cmp 2)
+ */
+static inline void adukf_k_learn_sample(const float gyro[3], const float accel[3],
+    const float mag[3], bool *rest, float *sin_dip)
 {
     const float tmp0 = gyro[0] * gyro[0];
     const float tmp1 = gyro[1] * gyro[1];
@@ -2677,7 +2887,8 @@ static inline void adukf_k_learn_sample(const float gyro[3], const float accel[3
     const float tmp10 = sqrtf(tmp9);
     const float tmp11 = tmp10 - 9.80665f;
     const float tmp12 = fabsf(tmp11);
-    const bool tmp13 = (tmp4 < 0.0025f /* rest_gyro_max^2 */) && (tmp12 < 0.5f /* rest_accel_tol */);
+    const bool tmp13 = (tmp4 < 0.0025f /* rest_gyro_max^2 */) && (tmp12 <
+            0.5f /* rest_accel_tol */);
     const float tmp14 = accel[0] * mag[0];
     const float tmp15 = accel[1] * mag[1];
     const float tmp16 = tmp14 + tmp15;
@@ -2696,8 +2907,17 @@ static inline void adukf_k_learn_sample(const float gyro[3], const float accel[3
     *sin_dip = tmp27;
 }
 
-/* reference field from the mean sin(inclination) and the declination
- * ops: add 1, mul 1, div 1, sqrt 1, cmp 3 (total 7) */
+/*
+ * reference field from the mean sin(inclination) and the declination
+ *
+ * Args:
+ *     learn_sum: float
+ *     count: float
+ * Outputs:
+ *     m_ref: float[3]
+ *
+ * Total ops: 7 (add 1, mul 1, div 1, sqrt 1, cmp 3)
+ */
 static inline void adukf_k_learn_finish(float learn_sum, float count, float m_ref[3])
 {
     const float tmp0 = learn_sum / count;
@@ -2712,8 +2932,16 @@ static inline void adukf_k_learn_finish(float learn_sum, float count, float m_re
     m_ref[2] = tmp2;
 }
 
-/* Z-Y-X Euler angles [roll, pitch, yaw] of a unit body->NED quaternion
- * ops: add 13, mul 11, sqrt 1, trig 3 (total 28) */
+/*
+ * Z-Y-X Euler angles [roll, pitch, yaw] of a unit body->NED quaternion
+ *
+ * Args:
+ *     q: float[4]
+ * Outputs:
+ *     rpy: float[3]
+ *
+ * Total ops: 28 (add 13, mul 11, sqrt 1, trig 3)
+ */
 static inline void adukf_k_euler(const float q[4], float rpy[3])
 {
     const float tmp0 = q[0] * q[1];

@@ -53,44 +53,144 @@ extern "C" {
 #endif
 
 /* Parameters baked into this build (already folded into the code; listed for reference). */
-#define ADUKF_DT_MAX 0.5f                /* largest dt a step accepts; larger is refused (DT_TOO_LARGE) [s] */
-#define ADUKF_GYRO_MAX 70.0f             /* largest gyro component accepted; larger is refused (GYRO_RANGE) [rad/s] */
-#define ADUKF_ACCEL_MIN_NORM 0.5f        /* accelerometer norm below this skips its correction (ACCEL_ZERO) [m/s^2] */
-#define ADUKF_ACCEL_MAX 2000.0f          /* accelerometer component above this skips its correction (ACCEL_RANGE) [m/s^2] */
-#define ADUKF_MAG_MIN_NORM 1e-06f        /* magnetometer norm below this skips its correction (MAG_ZERO) [field unit] */
-#define ADUKF_MAG_MAX 1e+06f             /* magnetometer component above this skips its correction (MAG_RANGE) [field unit] */
-#define ADUKF_GYRO_NOISE 0.01f           /* process noise: gyro angle random walk; Q = gyro_noise^2 dt/4 (I4 - q q^T) + q_floor dt I4 [rad/s/sqrt(Hz)] */
-#define ADUKF_Q_FLOOR 1e-09f             /* isotropic process noise per second added to Q (keeps P positive definite) [1/s] */
-#define ADUKF_SIGMA_ACC 0.05f            /* base std of the normalised accelerometer measurement (sigma_a in R); 0.05 with sigma_acc_density 0.008 since issue 26 (studies/adukf_accel_density_cv.py; 0.07 from issue 14 before; the paper's scenarios were tuned at 0.05, which the faithful preset keeps) [1 (unit vector)] */
-#define ADUKF_SIGMA_ACC_DENSITY 0.008f   /* product (sensors at their own rates): the accelerometer rows of R add sigma_acc_density^2 / s_a (s_a: the time its sample stands for), its white noise as a density: a 1 kHz IMU's samples each weigh less than a 100 Hz one's. 0 = sigma_acc per sample only. 0.008 chosen with sigma_acc 0.05 by leave-one-BROAD-group-out with the scenarios (studies/adukf_accel_density_cv.py, docs/adukf.md) [1*sqrt(s)] */
-#define ADUKF_SIGMA_MAG 0.05f            /* base std of the normalised magnetometer measurement (sigma_m in R); 0.05 with sigma_mag_density 0.012 since issue 26 (studies/adukf_mag_density_cv.py; 0.07 from issue 14 before) [1 (unit vector)] */
-#define ADUKF_SIGMA_MAG_DENSITY 0.012f   /* product (sensors at their own rates): the magnetometer rows of R add sigma_mag_density^2 / s_m (s_m: the time its sample stands for), as sigma_acc_density for the accelerometer. 0 = sigma_mag per sample only. 0.012 chosen with sigma_mag 0.05 by leave-one-BROAD-group-out with the scenarios (studies/adukf_mag_density_cv.py, docs/adukf.md) [1*sqrt(s)] */
-#define ADUKF_K_A 300.0f                 /* adaptive weight of the accelerometer residual: R_i = sigma_acc^2 + k_a eps_i^2 (0: plain DUKF) [1] */
-#define ADUKF_K_M 300.0f                 /* adaptive weight of the magnetometer residual: R_i = sigma_mag^2 + k_m eps_i^2 (0: plain DUKF) [1] */
-#define ADUKF_ADAPT_MAX 10.0f            /* upper bound of each adaptive term k eps_i^2 in R (0: unbounded, as the paper); a bound keeps some trust in the sensors so a large attitude error can still be corrected (the adaptation cannot lock the correction out) [1] */
-#define ADUKF_UT_ALPHA 1.0f              /* unscented transform spread: lambda = alpha^2 (n + kappa) - n, a = sqrt(n + lambda) [1] */
+#define ADUKF_DT_MAX 0.5f                /* largest dt a step accepts; larger is refused
+                                            (DT_TOO_LARGE) [s] */
+#define ADUKF_GYRO_MAX 70.0f             /* largest gyro component accepted; larger is refused
+                                            (GYRO_RANGE) [rad/s] */
+#define ADUKF_ACCEL_MIN_NORM 0.5f        /* accelerometer norm below this skips its correction
+                                            (ACCEL_ZERO) [m/s^2] */
+#define ADUKF_ACCEL_MAX 2000.0f          /* accelerometer component above this skips its correction
+                                            (ACCEL_RANGE) [m/s^2] */
+#define ADUKF_MAG_MIN_NORM 1e-06f        /* magnetometer norm below this skips its correction
+                                            (MAG_ZERO) [field unit] */
+#define ADUKF_MAG_MAX 1e+06f             /* magnetometer component above this skips its correction
+                                            (MAG_RANGE) [field unit] */
+#define ADUKF_GYRO_NOISE 0.01f           /* process noise: gyro angle random walk; Q = gyro_noise^2
+                                            dt/4 (I4 - q q^T) + q_floor dt I4 [rad/s/sqrt(Hz)] */
+#define ADUKF_Q_FLOOR 1e-09f             /* isotropic process noise per second added to Q (keeps P
+                                            positive definite) [1/s] */
+#define ADUKF_SIGMA_ACC 0.05f            /* base std of the normalised accelerometer measurement
+                                            (sigma_a in R); 0.05 with sigma_acc_density 0.008 since
+                                            issue 26 (studies/adukf_accel_density_cv.py; 0.07 from
+                                            issue 14 before; the paper's scenarios were tuned at
+                                            0.05, which the faithful preset keeps) [1 (unit vector)]
+                                            */
+#define ADUKF_SIGMA_ACC_DENSITY 0.008f   /* product (sensors at their own rates): the accelerometer
+                                            rows of R add sigma_acc_density^2 / s_a (s_a: the time
+                                            its sample stands for), its white noise as a density: a
+                                            1 kHz IMU's samples each weigh less than a 100 Hz one's.
+                                            0 = sigma_acc per sample only. 0.008 chosen with
+                                            sigma_acc 0.05 by leave-one-BROAD-group-out with the
+                                            scenarios (studies/adukf_accel_density_cv.py,
+                                            docs/adukf.md) [1*sqrt(s)] */
+#define ADUKF_SIGMA_MAG 0.05f            /* base std of the normalised magnetometer measurement
+                                            (sigma_m in R); 0.05 with sigma_mag_density 0.012 since
+                                            issue 26 (studies/adukf_mag_density_cv.py; 0.07 from
+                                            issue 14 before) [1 (unit vector)] */
+#define ADUKF_SIGMA_MAG_DENSITY 0.012f   /* product (sensors at their own rates): the magnetometer
+                                            rows of R add sigma_mag_density^2 / s_m (s_m: the time
+                                            its sample stands for), as sigma_acc_density for the
+                                            accelerometer. 0 = sigma_mag per sample only. 0.012
+                                            chosen with sigma_mag 0.05 by leave-one-BROAD-group-out
+                                            with the scenarios (studies/adukf_mag_density_cv.py,
+                                            docs/adukf.md) [1*sqrt(s)] */
+#define ADUKF_K_A 300.0f                 /* adaptive weight of the accelerometer residual: R_i =
+                                            sigma_acc^2 + k_a eps_i^2 (0: plain DUKF) [1] */
+#define ADUKF_K_M 300.0f                 /* adaptive weight of the magnetometer residual: R_i =
+                                            sigma_mag^2 + k_m eps_i^2 (0: plain DUKF) [1] */
+#define ADUKF_ADAPT_MAX 10.0f            /* upper bound of each adaptive term k eps_i^2 in R (0:
+                                            unbounded, as the paper); a bound keeps some trust in
+                                            the sensors so a large attitude error can still be
+                                            corrected (the adaptation cannot lock the correction
+                                            out) [1] */
+#define ADUKF_UT_ALPHA 1.0f              /* unscented transform spread: lambda = alpha^2 (n + kappa)
+                                            - n, a = sqrt(n + lambda) [1] */
 #define ADUKF_UT_BETA 2.0f               /* unscented transform beta (2 for a Gaussian prior) [1] */
 #define ADUKF_UT_KAPPA 0.0f              /* unscented transform kappa [1] */
-/* ADUKF_SIGMA_SET = symmetric        sigma points along L's 4 attitude columns: symmetric (2 x 4, the scaled UT, as the paper) or simplex (the 5 points of a spherical simplex, Julier 2003, at the symmetric set's radius and total weight: 3 fewer points through h, 250 fewer instructions per step; not the default: fixed-wing at 100 Hz 7 % worse on each of 6 seeds, and on multirotor seed 0 the gyro-bias estimate keeps 90 % of its error after 120 s where symmetric keeps 32 %; docs/adukf.md); the centre and the bias columns' pairs are the same in both; for the quaternion state only: faithful and attitude_state = error ignore it (symmetric) */
-#define ADUKF_P0 0.01f                   /* initial covariance P0 = p0 I4 (also what P is reset to when it stops being positive definite) [1] */
-#define ADUKF_PIVOT_MIN 1e-15f           /* a Cholesky pivot at or below this marks P- or P_zz as not positive definite [1] */
-/* ADUKF_MAG_REF = learn              reference field direction: the dip angle learned from the first samples at rest (default: no site baked in), or from inclination_deg/declination (set them for your site) */
-#define ADUKF_INCLINATION_DEG 53.0f      /* magnetic inclination (field pointing down positive), read only with mag_ref = inclination; default: Xi'an, the paper's site (the faithful preset uses it) [deg] */
-#define ADUKF_DECLINATION 0.0f           /* magnetic declination (east positive): yaw is from true north once set for your site; default 0: yaw from magnetic north (the faithful preset: Xi'an, -3.5 deg) [rad] */
-#define ADUKF_LEARN_SAMPLES 100          /* mag_ref = learn: rest samples (accelerometer and magnetometer usable) averaged for the dip angle [samples] */
-#define ADUKF_REST_GYRO_MAX 0.05f        /* mag_ref = learn: a sample is at rest when |gyro| is below this and ... [rad/s] */
+/*
+ * ADUKF_SIGMA_SET = symmetric sigma points along L's 4 attitude columns: symmetric (2 x 4, the
+ * scaled UT, as the paper) or simplex (the 5 points of a spherical simplex, Julier 2003, at the
+ * symmetric set's radius and total weight: 3 fewer points through h, 250 fewer instructions per
+ * step; not the default: fixed-wing at 100 Hz 7 % worse on each of 6 seeds, and on multirotor seed
+ * 0 the gyro-bias estimate keeps 90 % of its error after 120 s where symmetric keeps 32 %;
+ * docs/adukf.md); the centre and the bias columns' pairs are the same in both; for the quaternion
+ * state only: faithful and attitude_state = error ignore it (symmetric)
+ */
+#define ADUKF_P0 0.01f                   /* initial covariance P0 = p0 I4 (also what P is reset to
+                                            when it stops being positive definite) [1] */
+#define ADUKF_PIVOT_MIN 1e-15f           /* a Cholesky pivot at or below this marks P- or P_zz as
+                                            not positive definite [1] */
+/*
+ * ADUKF_MAG_REF = learn reference field direction: the dip angle learned from the first samples at
+ * rest (default: no site baked in), or from inclination_deg/declination (set them for your site)
+ */
+#define ADUKF_INCLINATION_DEG 53.0f      /* magnetic inclination (field pointing down positive),
+                                            read only with mag_ref = inclination; default: Xi'an,
+                                            the paper's site (the faithful preset uses it) [deg] */
+#define ADUKF_DECLINATION 0.0f           /* magnetic declination (east positive): yaw is from true
+                                            north once set for your site; default 0: yaw from
+                                            magnetic north (the faithful preset: Xi'an, -3.5 deg)
+                                            [rad] */
+#define ADUKF_LEARN_SAMPLES 100          /* mag_ref = learn: rest samples (accelerometer and
+                                            magnetometer usable) averaged for the dip angle
+                                            [samples] */
+#define ADUKF_REST_GYRO_MAX 0.05f        /* mag_ref = learn: a sample is at rest when |gyro| is
+                                            below this and ... [rad/s] */
 #define ADUKF_REST_ACCEL_TOL 0.5f        /* ... | |accel| - 9.80665 | is below this [m/s^2] */
-#define ADUKF_GYRO_BIAS_STATE 1          /* product default: the state is [q; gyro bias] (its covariance: attitude_state; the bias is subtracted from the gyro in the time update, F = d x-/d x from the model) so a biased gyro does not tilt the estimate in motion; false (and faithful): the paper's 4-state filter */
-/* ADUKF_ATTITUDE_STATE = error       with the gyro-bias state: error (issue 14: the covariance is that of a 3-parameter attitude error d in body axes, q = q_est * [1, d/2] normalised, and of the bias: 6 states, 13 sigma points, 6x6 P; the error is folded into q after each update) or quaternion (the covariance of the 4-component q and the bias: 7 states, 15 sigma points, 7x7 P, as before issue 14); faithful and gyro_bias_state = false ignore it (the 4-state quaternion filter) */
-#define ADUKF_BIAS_RW 1e-04f             /* gyro-bias state: random walk of the bias (process noise bias_rw^2 dt per axis) [rad/s/sqrt(s)] */
-#define ADUKF_P0_BIAS 1e-04f             /* gyro-bias state: initial bias variance (P0 and COV_RESET) [(rad/s)^2] */
-#define ADUKF_GYRO_FULL_SCALE 34.906586f /* the gyro's full scale (Fusion's gyroscopeRange), error state only: a component at or beyond it is a clipped sample, integrated as it is, that widens the attitude covariance by the rotation it may have missed and starts clip_recovery_time of recovery (status GYRO_RECOVERY). Default 2000 deg/s, the commonest flight-controller setting; set your sensor's (a +-500 deg/s gyro: 8.7266). 0: no over-range handling [rad/s] */
-#define ADUKF_GYRO_PLATEAU_RATE 3.5f     /* a gyro that clips below gyro_full_scale (the range left at its default) is still recognised: a component at or above this rate that holds exactly the same value for 4 samples in a row, while the other components change, is a clipped sample. A whole sample repeated (a logger's duplicate) is not. Default 200 deg/s: no component of the 10 BROAD trials (286 Hz) does this. 0: only gyro_full_scale [rad/s] */
-#define ADUKF_CLIP_RECOVERY_TIME 2.0f    /* after the last clipped gyro sample, for this long R is not adapted (the large residual is the attitude's error, not a disturbance) and the accelerometer is not low-passed (error state only) [s] */
-#define ADUKF_ACCEL_TAU 1.0f             /* time constant of the NED-frame low-pass of the accelerometer R(q-) f; the update measures the direction of R(q-)^T of it (motion acceleration averages out, gravity does not; VQF's idea); 0 = the raw accelerometer (as the paper; faithful ignores it) [s] */
-#define ADUKF_SPAN_MAX 0.1f              /* sensors at their own rates: each sensor's R is multiplied by dt / (time since its previous sample, at most span_max), so a 100 Hz magnetometer carries the information of the IMU steps it stands for; 0 = off (as the paper; faithful ignores it) [s] */
-#define ADUKF_SPAN_STEPS_MAX 10.0f       /* sensors at their own rates: a sample counts for at most this many IMU steps (the R factor is at least 1/this), so a tiny dt after a normal one cannot make a measurement look exact [steps] */
-#define ADUKF_FAITHFUL 0                 /* the paper's initialisation q0 = [1,0,0,0] and first-order transition A (else q0 from the first accelerometer+magnetometer sample, A normalised) */
+#define ADUKF_GYRO_BIAS_STATE 1          /* product default: the state is [q; gyro bias] (its
+                                            covariance: attitude_state; the bias is subtracted from
+                                            the gyro in the time update, F = d x-/d x from the
+                                            model) so a biased gyro does not tilt the estimate in
+                                            motion; false (and faithful): the paper's 4-state filter
+                                            */
+/*
+ * ADUKF_ATTITUDE_STATE = error with the gyro-bias state: error (issue 14: the covariance is that of
+ * a 3-parameter attitude error d in body axes, q = q_est * [1, d/2] normalised, and of the bias: 6
+ * states, 13 sigma points, 6x6 P; the error is folded into q after each update) or quaternion (the
+ * covariance of the 4-component q and the bias: 7 states, 15 sigma points, 7x7 P, as before issue
+ * 14); faithful and gyro_bias_state = false ignore it (the 4-state quaternion filter)
+ */
+#define ADUKF_BIAS_RW 1e-04f             /* gyro-bias state: random walk of the bias (process noise
+                                            bias_rw^2 dt per axis) [rad/s/sqrt(s)] */
+#define ADUKF_P0_BIAS 1e-04f             /* gyro-bias state: initial bias variance (P0 and
+                                            COV_RESET) [(rad/s)^2] */
+#define ADUKF_GYRO_FULL_SCALE 34.906586f /* the gyro's full scale (Fusion's gyroscopeRange), error
+                                            state only: a component at or beyond it is a clipped
+                                            sample, integrated as it is, that widens the attitude
+                                            covariance by the rotation it may have missed and starts
+                                            clip_recovery_time of recovery (status GYRO_RECOVERY).
+                                            Default 2000 deg/s, the commonest flight-controller
+                                            setting; set your sensor's (a +-500 deg/s gyro: 8.7266).
+                                            0: no over-range handling [rad/s] */
+#define ADUKF_GYRO_PLATEAU_RATE 3.5f     /* a gyro that clips below gyro_full_scale (the range left
+                                            at its default) is still recognised: a component at or
+                                            above this rate that holds exactly the same value for 4
+                                            samples in a row, while the other components change, is
+                                            a clipped sample. A whole sample repeated (a logger's
+                                            duplicate) is not. Default 200 deg/s: no component of
+                                            the 10 BROAD trials (286 Hz) does this. 0: only
+                                            gyro_full_scale [rad/s] */
+#define ADUKF_CLIP_RECOVERY_TIME 2.0f    /* after the last clipped gyro sample, for this long R is
+                                            not adapted (the large residual is the attitude's error,
+                                            not a disturbance) and the accelerometer is not
+                                            low-passed (error state only) [s] */
+#define ADUKF_ACCEL_TAU 1.0f             /* time constant of the NED-frame low-pass of the
+                                            accelerometer R(q-) f; the update measures the direction
+                                            of R(q-)^T of it (motion acceleration averages out,
+                                            gravity does not; VQF's idea); 0 = the raw accelerometer
+                                            (as the paper; faithful ignores it) [s] */
+#define ADUKF_SPAN_MAX 0.1f              /* sensors at their own rates: each sensor's R is
+                                            multiplied by dt / (time since its previous sample, at
+                                            most span_max), so a 100 Hz magnetometer carries the
+                                            information of the IMU steps it stands for; 0 = off (as
+                                            the paper; faithful ignores it) [s] */
+#define ADUKF_SPAN_STEPS_MAX 10.0f       /* sensors at their own rates: a sample counts for at most
+                                            this many IMU steps (the R factor is at least 1/this),
+                                            so a tiny dt after a normal one cannot make a
+                                            measurement look exact [steps] */
+#define ADUKF_FAITHFUL 0                 /* the paper's initialisation q0 = [1,0,0,0] and
+                                            first-order transition A (else q0 from the first
+                                            accelerometer+magnetometer sample, A normalised) */
 
 /* Input validity bits: set a bit only when that sensor delivered a new sample this step. */
 #define ADUKF_VALID_GYRO (1u << 0)
@@ -101,42 +201,70 @@ extern "C" {
 /* Status bits returned by adukf_step; 0 means every available correction ran. */
 typedef uint32_t adukf_status;
 #define ADUKF_OK              0u /* step completed with every available correction */
-#define ADUKF_DT_INVALID      (1u << 0) /* refused: dt is not finite or not positive; state unchanged */
-#define ADUKF_DT_TOO_LARGE    (1u << 1) /* refused: dt above the configured maximum; state unchanged */
+#define ADUKF_DT_INVALID      (1u << 0) /* refused: dt is not finite or not positive; state
+                                           unchanged */
+#define ADUKF_DT_TOO_LARGE    (1u << 1) /* refused: dt above the configured maximum; state unchanged
+                                           */
 #define ADUKF_GYRO_MISSING    (1u << 2) /* refused: gyro valid bit clear; state unchanged */
 #define ADUKF_GYRO_NONFINITE  (1u << 3) /* refused: gyro sample not finite; state unchanged */
-#define ADUKF_ACCEL_NONFINITE (1u << 4) /* accelerometer sample not finite; its correction skipped */
-#define ADUKF_ACCEL_ZERO      (1u << 5) /* accelerometer norm below minimum; its correction skipped */
+#define ADUKF_ACCEL_NONFINITE (1u << 4) /* accelerometer sample not finite; its correction skipped
+                                           */
+#define ADUKF_ACCEL_ZERO      (1u << 5) /* accelerometer norm below minimum; its correction skipped
+                                           */
 #define ADUKF_MAG_NONFINITE   (1u << 6) /* magnetometer sample not finite; its correction skipped */
-#define ADUKF_MAG_ZERO        (1u << 7) /* magnetometer norm below minimum; its correction skipped */
+#define ADUKF_MAG_ZERO        (1u << 7) /* magnetometer norm below minimum; its correction skipped
+                                           */
 #define ADUKF_GPS_NONFINITE   (1u << 8) /* GPS velocity not finite; its correction skipped */
-#define ADUKF_GYRO_RANGE      (1u << 9) /* refused: a gyro component beyond gyro_max; state unchanged */
-#define ADUKF_ACCEL_RANGE     (1u << 10) /* an accelerometer component beyond accel_max; its correction skipped */
-#define ADUKF_MAG_RANGE       (1u << 11) /* a magnetometer component beyond mag_max; its correction skipped */
-#define ADUKF_GPS_RANGE       (1u << 12) /* a GPS velocity component beyond gps_vel_max; the sample is ignored */
-#define ADUKF_COV_RESET       (1u << 16) /* P- was not positive definite: P reset to P0, measurement update skipped */
-#define ADUKF_UPDATE_SKIPPED  (1u << 17) /* P_zz was not positive definite: measurement update skipped */
-#define ADUKF_NUMERIC_FAULT   (1u << 18) /* non-finite result: state left as it was before the step */
-#define ADUKF_MAG_LEARNING    (1u << 19) /* reference field still being learned: magnetometer correction not applied */
-#define ADUKF_GYRO_RECOVERY   (1u << 20) /* a gyro component at gyro_full_scale (clipped), or within clip_recovery_time after one: the attitude covariance widened, R not adapted, the accelerometer not low-passed (error state only) */
-#define ADUKF_REFUSED_MASK (ADUKF_DT_INVALID | ADUKF_DT_TOO_LARGE | ADUKF_GYRO_MISSING | ADUKF_GYRO_NONFINITE | ADUKF_GYRO_RANGE)
-/* Bits that mean trouble (a refused step, a bad sample, a numeric fault); the others are
- * information (what the filter noticed: MAG_LEARNING, GYRO_RECOVERY).
- * Test (status & ADUKF_STATUS_FAULT_MASK) != 0u for a fault, not status != 0. */
-#define ADUKF_STATUS_FAULT_MASK (ADUKF_DT_INVALID | ADUKF_DT_TOO_LARGE | ADUKF_GYRO_MISSING | ADUKF_GYRO_NONFINITE | ADUKF_ACCEL_NONFINITE | ADUKF_ACCEL_ZERO | ADUKF_MAG_NONFINITE | ADUKF_MAG_ZERO | ADUKF_GPS_NONFINITE | ADUKF_GYRO_RANGE | ADUKF_ACCEL_RANGE | ADUKF_MAG_RANGE | ADUKF_GPS_RANGE | ADUKF_COV_RESET | ADUKF_UPDATE_SKIPPED | ADUKF_NUMERIC_FAULT)
+#define ADUKF_GYRO_RANGE      (1u << 9) /* refused: a gyro component beyond gyro_max; state
+                                           unchanged */
+#define ADUKF_ACCEL_RANGE     (1u << 10) /* an accelerometer component beyond accel_max; its
+                                            correction skipped */
+#define ADUKF_MAG_RANGE       (1u << 11) /* a magnetometer component beyond mag_max; its correction
+                                            skipped */
+#define ADUKF_GPS_RANGE       (1u << 12) /* a GPS velocity component beyond gps_vel_max; the sample
+                                            is ignored */
+#define ADUKF_COV_RESET       (1u << 16) /* P- was not positive definite: P reset to P0, measurement
+                                            update skipped */
+#define ADUKF_UPDATE_SKIPPED  (1u << 17) /* P_zz was not positive definite: measurement update
+                                            skipped */
+#define ADUKF_NUMERIC_FAULT   (1u << 18) /* non-finite result: state left as it was before the step
+                                            */
+#define ADUKF_MAG_LEARNING    (1u << 19) /* reference field still being learned: magnetometer
+                                            correction not applied */
+#define ADUKF_GYRO_RECOVERY   (1u << 20) /* a gyro component at gyro_full_scale (clipped), or within
+                                            clip_recovery_time after one: the attitude covariance
+                                            widened, R not adapted, the accelerometer not low-passed
+                                            (error state only) */
+#define ADUKF_REFUSED_MASK (ADUKF_DT_INVALID | ADUKF_DT_TOO_LARGE | ADUKF_GYRO_MISSING | \
+    ADUKF_GYRO_NONFINITE | ADUKF_GYRO_RANGE)
+/*
+ * Bits that mean trouble (a refused step, a bad sample, a numeric fault); the others are
+ * information (what the filter noticed: MAG_LEARNING, GYRO_RECOVERY). Test (status &
+ * ADUKF_STATUS_FAULT_MASK) != 0u for a fault, not status != 0.
+ */
+#define ADUKF_STATUS_FAULT_MASK (ADUKF_DT_INVALID | ADUKF_DT_TOO_LARGE | ADUKF_GYRO_MISSING | \
+    ADUKF_GYRO_NONFINITE | ADUKF_ACCEL_NONFINITE | ADUKF_ACCEL_ZERO | ADUKF_MAG_NONFINITE | \
+    ADUKF_MAG_ZERO | ADUKF_GPS_NONFINITE | ADUKF_GYRO_RANGE | ADUKF_ACCEL_RANGE | \
+    ADUKF_MAG_RANGE | ADUKF_GPS_RANGE | ADUKF_COV_RESET | ADUKF_UPDATE_SKIPPED | \
+    ADUKF_NUMERIC_FAULT)
 
 typedef struct {
     float q[4];            /* attitude estimate, body->NED, [w x y z] */
     float gyro_bias[3];    /* gyro bias estimate, rad/s */
-    float P[36];           /* covariance of [attitude error d (rad, body axes: q = q_est * [1, d/2] normalised); gyro_bias], 6x6 (symmetric; column-major) */
+    float P[36];           /* covariance of [attitude error d (rad, body axes: q = q_est * [1, d/2]
+                              normalised); gyro_bias], 6x6 (symmetric; column-major) */
     float m_ref[3];        /* reference field direction, NED unit vector */
-    float r_diag[6];       /* diagonal of the adaptive R used by the last update (0: sensor not used) */
+    float r_diag[6];       /* diagonal of the adaptive R used by the last update (0: sensor not
+                              used) */
     float sample_age[2];   /* time since the last accelerometer / magnetometer sample, s */
     float accel_lp[3];     /* low-passed specific force in NED, m/s^2 (accel_tau > 0) */
     float recover_time;    /* time left of the recovery after a clipped gyro sample, s */
     float gyro_prev[3];    /* the previous gyro sample, rad/s (over-range plateau) */
-    float gyro_repeats[3]; /* times each gyro component has repeated its value at or above gyro_plateau_rate (over-range plateau) */
-    float work[122];       /* scratch of the step (P-, the update's matrices and sigma-point sums, x- and x+) kept here instead of on the stack: no meaning between steps, zeroed when an update or its result is refused */
+    float gyro_repeats[3]; /* times each gyro component has repeated its value at or above
+                              gyro_plateau_rate (over-range plateau) */
+    float work[122];       /* scratch of the step (P-, the update's matrices and sigma-point sums,
+                              x- and x+) kept here instead of on the stack: no meaning between
+                              steps, zeroed when an update or its result is refused */
     float learn_sum;       /* mag_ref = learn: sum of sin(inclination) over rest samples */
     uint32_t learn_count;  /* mag_ref = learn: rest samples summed so far */
     uint32_t initialised;  /* 1 once the attitude has been initialised */

@@ -112,16 +112,36 @@ static float fast_asinf(float x)
     return fast_atan2f(x, sqrtf((1.0f - x) * (1.0f + x)));
 }
 
-/* gyro over-range: a component at gyro_full_scale, or one at or above gyro_plateau_rate that holds its value for 4 samples while the others change (clipped), sets the recovery timer to clip_recovery_time; recovering while more than half a step of it is left
- * ops: add 7, mul 1, cmp 28 (total 36)
- *      of which only one side runs: if (tmp12) 0, else 12 */
-static void mekf_k_gyro_recovery(const float gyro[3], const float gyro_prev[3], const float gyro_repeats[3], float recover_time, float dt, bool *clipped, float *recover_time_new, bool *recovering, float gyro_repeats_new[3])
+/*
+ * gyro over-range: a component at gyro_full_scale, or one at or above gyro_plateau_rate that holds
+ * its value for 4 samples while the others change (clipped), sets the recovery timer to
+ * clip_recovery_time; recovering while more than half a step of it is left
+ *
+ * Args:
+ *     gyro: float[3]
+ *     gyro_prev: float[3]
+ *     gyro_repeats: float[3]
+ *     recover_time: float
+ *     dt: float
+ * Outputs:
+ *     clipped: bool
+ *     recover_time_new: float
+ *     recovering: bool
+ *     gyro_repeats_new: float[3]
+ *
+ * Total ops: 36 (add 7, mul 1, cmp 28)
+ *     of which only one side runs: if (tmp12) 0, else 12
+ */
+static void mekf_k_gyro_recovery(const float gyro[3], const float gyro_prev[3],
+    const float gyro_repeats[3], float recover_time, float dt, bool *clipped,
+    float *recover_time_new, bool *recovering, float gyro_repeats_new[3])
 {
     const float tmp0 = fabsf(gyro[0]);
     const float tmp1 = fabsf(gyro[1]);
-    const bool tmp2 = (34.906586f /* gyro_full_scale */ <= tmp0) || (34.906586f /* gyro_full_scale */ <= tmp1);
+    const bool tmp2 = (34.906586f /* gyro_full_scale */ <= tmp0) ||
+            (34.906586f /* gyro_full_scale */ <= tmp1);
     const float tmp3 = fabsf(gyro[2]);
-    const bool tmp4 = (tmp2) || (34.906586f /* gyro_full_scale */ <= tmp3);
+    const bool tmp4 = tmp2 || (34.906586f /* gyro_full_scale */ <= tmp3);
     const float tmp5 = gyro[0] - gyro_prev[0];
     const float tmp6 = fabsf(tmp5);
     const float tmp7 = gyro[1] - gyro_prev[1];
@@ -129,7 +149,7 @@ static void mekf_k_gyro_recovery(const float gyro[3], const float gyro_prev[3], 
     const bool tmp9 = (tmp6 < 1e-06f) && (tmp8 < 1e-06f);
     const float tmp10 = gyro[2] - gyro_prev[2];
     const float tmp11 = fabsf(tmp10);
-    const bool tmp12 = (tmp9) && (tmp11 < 1e-06f);
+    const bool tmp12 = tmp9 && (tmp11 < 1e-06f);
     float tmp13;
     float tmp14;
     float tmp15;
@@ -155,8 +175,8 @@ static void mekf_k_gyro_recovery(const float gyro[3], const float gyro_prev[3], 
         tmp15 = tmp27;
     }
     const bool tmp28 = (3.0f <= tmp13) || (3.0f <= tmp14);
-    const bool tmp29 = (tmp28) || (3.0f <= tmp15);
-    const bool tmp30 = (tmp4) || (tmp29);
+    const bool tmp29 = tmp28 || (3.0f <= tmp15);
+    const bool tmp30 = tmp4 || tmp29;
     const float tmp31 = recover_time - dt;
     const float tmp32 = (tmp31 > 0.0f) ? tmp31 : 0.0f;
     const float tmp33 = (tmp30) ? 2.0f /* clip_recovery_time */ : tmp32;
@@ -170,10 +190,8 @@ static void mekf_k_gyro_recovery(const float gyro[3], const float gyro_prev[3], 
     gyro_repeats_new[2] = tmp15;
 }
 
-/* time update: attitude and F's attitude rows
- * ops: add 106, mul 127, div 4, sqrt 2, trig 2, cmp 5 (total 246)
- *      of which only one side runs: if (tmp11 < 0.01f) 28, else 11 */
-static void mekf_k_predict_attitude_part0(const float b[3], const float gyro[3], float dt, float carry[32])
+static void mekf_k_predict_attitude_part0(const float b[3], const float gyro[3], float dt,
+    float carry[32])
 {
     const float tmp0 = 0.5f * dt;
     const float tmp1 = gyro[0] - b[0];
@@ -513,9 +531,29 @@ static void mekf_k_predict_attitude_part6(float carry[32])
     carry[5] = tmp245;
 }
 
-static void mekf_k_predict_attitude(const float q[4], const float b[3], const float gyro[3], float dt, float q_out[4], float F_q[9], float F_b[9])
+/*
+ * time update: attitude and F's attitude rows
+ *
+ * Args:
+ *     q: float[4]
+ *     b: float[3]
+ *     gyro: float[3]
+ *     dt: float
+ * Outputs:
+ *     q_out: float[4]
+ *     F_q: float[9]
+ *     F_b: float[9]
+ *
+ * Total ops: 246 (add 106, mul 127, div 4, sqrt 2, trig 2, cmp 5)
+ *     of which only one side runs: if (tmp11 < 0.01f) 28, else 11
+ */
+static void mekf_k_predict_attitude(const float q[4], const float b[3], const float gyro[3],
+    float dt, float q_out[4], float F_q[9], float F_b[9])
 {
-    /* 7 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    /*
+     * 7 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
+     * handed between them (a slot reused once its value is dead)
+     */
     float carry[32];
     mekf_k_predict_attitude_part0(b, gyro, dt, carry);
     mekf_k_predict_attitude_part1(carry);
@@ -548,9 +586,8 @@ static void mekf_k_predict_attitude(const float q[4], const float b[3], const fl
     F_b[8] = carry[5];
 }
 
-/* time update: covariance
- * ops: add 147, mul 183, div 1, cmp 2 (total 333) */
-static void mekf_k_predict_covariance_part0(const float F_q[9], const float F_b[9], const float P[36], float carry[24])
+static void mekf_k_predict_covariance_part0(const float F_q[9], const float F_b[9],
+    const float P[36], float carry[24])
 {
     const float tmp0 = F_q[0] * P[0];
     const float tmp1 = F_q[3] * P[1];
@@ -597,7 +634,8 @@ static void mekf_k_predict_covariance_part0(const float F_q[9], const float F_b[
     carry[2] = tmp39;
 }
 
-static void mekf_k_predict_covariance_part1(const float F_q[9], const float F_b[9], const float P[36], const float gyro[3], float carry[24])
+static void mekf_k_predict_covariance_part1(const float F_q[9], const float F_b[9],
+    const float P[36], const float gyro[3], float carry[24])
 {
     const float tmp40 = carry[1] + carry[2];
     const float tmp41 = F_q[6] * P[15];
@@ -646,7 +684,8 @@ static void mekf_k_predict_covariance_part1(const float F_q[9], const float F_b[
     carry[4] = tmp79;
 }
 
-static void mekf_k_predict_covariance_part2(const float F_q[9], const float F_b[9], const float P[36], const float gyro[3], float dt, bool clip, float carry[24])
+static void mekf_k_predict_covariance_part2(const float F_q[9], const float F_b[9],
+    const float P[36], const float gyro[3], float dt, bool clip, float carry[24])
 {
     const float tmp80 = (dt > 1e-09f) ? dt : 1e-09f;
     const float tmp81 = 1.0f / tmp80;
@@ -699,7 +738,8 @@ static void mekf_k_predict_covariance_part2(const float F_q[9], const float F_b[
     carry[11] = tmp119;
 }
 
-static void mekf_k_predict_covariance_part3(const float F_q[9], const float F_b[9], const float P[36], float carry[24])
+static void mekf_k_predict_covariance_part3(const float F_q[9], const float F_b[9],
+    const float P[36], float carry[24])
 {
     const float tmp120 = carry[10] + carry[11];
     const float tmp121 = F_b[1] * P[9];
@@ -748,7 +788,8 @@ static void mekf_k_predict_covariance_part3(const float F_q[9], const float F_b[
     carry[13] = tmp159;
 }
 
-static void mekf_k_predict_covariance_part4(const float F_q[9], const float F_b[9], const float P[36], float carry[24])
+static void mekf_k_predict_covariance_part4(const float F_q[9], const float F_b[9],
+    const float P[36], float carry[24])
 {
     const float tmp160 = F_b[1] * P[22];
     const float tmp161 = carry[13] + tmp160;
@@ -800,7 +841,8 @@ static void mekf_k_predict_covariance_part4(const float F_q[9], const float F_b[
     carry[19] = tmp199;
 }
 
-static void mekf_k_predict_covariance_part5(const float F_q[9], const float F_b[9], const float P[36], float carry[24])
+static void mekf_k_predict_covariance_part5(const float F_q[9], const float F_b[9],
+    const float P[36], float carry[24])
 {
     const float tmp200 = carry[18] + carry[19];
     const float tmp201 = tmp200 * F_q[0];
@@ -850,7 +892,8 @@ static void mekf_k_predict_covariance_part5(const float F_q[9], const float F_b[
     carry[23] = tmp239;
 }
 
-static void mekf_k_predict_covariance_part6(const float F_q[9], const float F_b[9], const float P[36], float carry[24])
+static void mekf_k_predict_covariance_part6(const float F_q[9], const float F_b[9],
+    const float P[36], float carry[24])
 {
     const float tmp240 = carry[21] + carry[23];
     const float tmp241 = F_q[2] * P[4];
@@ -949,7 +992,8 @@ static void mekf_k_predict_covariance_part7(const float F_q[9], const float F_b[
     carry[16] = tmp319;
 }
 
-static void mekf_k_predict_covariance_part8(const float F_b[9], const float P[36], float dt, float carry[24])
+static void mekf_k_predict_covariance_part8(const float F_b[9], const float P[36], float dt,
+    float carry[24])
 {
     const float tmp320 = carry[4] * F_b[8];
     const float tmp321 = carry[16] + tmp320;
@@ -970,9 +1014,28 @@ static void mekf_k_predict_covariance_part8(const float F_b[9], const float P[36
     carry[9] = tmp332;
 }
 
-static void mekf_k_predict_covariance(const float F_q[9], const float F_b[9], const float P[36], const float gyro[3], float dt, bool clip, float P_out[36])
+/*
+ * time update: covariance
+ *
+ * Args:
+ *     F_q: float[9]
+ *     F_b: float[9]
+ *     P: float[36]
+ *     gyro: float[3]
+ *     dt: float
+ *     clip: bool
+ * Outputs:
+ *     P_out: float[36]
+ *
+ * Total ops: 333 (add 147, mul 183, div 1, cmp 2)
+ */
+static void mekf_k_predict_covariance(const float F_q[9], const float F_b[9], const float P[36],
+    const float gyro[3], float dt, bool clip, float P_out[36])
 {
-    /* 9 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    /*
+     * 9 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
+     * handed between them (a slot reused once its value is dead)
+     */
     float carry[24];
     mekf_k_predict_covariance_part0(F_q, F_b, P, carry);
     mekf_k_predict_covariance_part1(F_q, F_b, P, gyro, carry);
@@ -1021,9 +1084,8 @@ static void mekf_k_predict_covariance(const float F_q[9], const float F_b[9], co
     P_out[35] = carry[9];
 }
 
-/* earth-frame low-pass of the compensated specific force
- * ops: add 50, mul 27, div 1, cmp 10 (total 88) */
-static void mekf_k_accel_lowpass_part0(const float q[4], const float accel[3], const bool mask[3], const float a_lp[3], float dt, float carry[12])
+static void mekf_k_accel_lowpass_part0(const float q[4], const float accel[3], const bool mask[3],
+    const float a_lp[3], float dt, float carry[12])
 {
     const float tmp0 = 1.0f + dt;
     const float tmp1 = dt / tmp0;
@@ -1078,7 +1140,8 @@ static void mekf_k_accel_lowpass_part0(const float q[4], const float accel[3], c
     carry[10] = tmp39;
 }
 
-static void mekf_k_accel_lowpass_part1(const float accel[3], const float vel[3], const bool mask[3], const float a_lp[3], const float v_lp[3], const float v_ins[3], float dt, float carry[12])
+static void mekf_k_accel_lowpass_part1(const float accel[3], const float vel[3], const bool mask[3],
+    const float a_lp[3], const float v_lp[3], const float v_ins[3], float dt, float carry[12])
 {
     const float tmp40 = carry[0] * carry[10];
     const float tmp41 = a_lp[1] + tmp40;
@@ -1146,12 +1209,41 @@ static void mekf_k_accel_lowpass_part2(const bool mask[3], float carry[12])
     carry[11] = tmp87;
 }
 
-static void mekf_k_accel_lowpass(const float q[4], const float b[3], const float gyro[3], const float accel[3], const float vel[3], const float acc_n[3], const bool mask[3], const float a_lp[3], const float v_lp[3], const float v_ins[3], float dt, float a_lp_out[3], float v_lp_out[3], float v_ins_out[3], float up_out[3])
+/*
+ * earth-frame low-pass of the compensated specific force
+ *
+ * Args:
+ *     q: float[4]
+ *     b: float[3] (unused)
+ *     gyro: float[3] (unused)
+ *     accel: float[3]
+ *     vel: float[3]
+ *     acc_n: float[3] (unused)
+ *     mask: bool[3]
+ *     a_lp: float[3]
+ *     v_lp: float[3]
+ *     v_ins: float[3]
+ *     dt: float
+ * Outputs:
+ *     a_lp_out: float[3]
+ *     v_lp_out: float[3]
+ *     v_ins_out: float[3]
+ *     up_out: float[3]
+ *
+ * Total ops: 88 (add 50, mul 27, div 1, cmp 10)
+ */
+static void mekf_k_accel_lowpass(const float q[4], const float b[3], const float gyro[3],
+    const float accel[3], const float vel[3], const float acc_n[3], const bool mask[3],
+    const float a_lp[3], const float v_lp[3], const float v_ins[3], float dt, float a_lp_out[3],
+    float v_lp_out[3], float v_ins_out[3], float up_out[3])
 {
     (void)b;
     (void)gyro;
     (void)acc_n;
-    /* 3 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    /*
+     * 3 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
+     * handed between them (a slot reused once its value is dead)
+     */
     float carry[12];
     mekf_k_accel_lowpass_part0(q, accel, mask, a_lp, dt, carry);
     mekf_k_accel_lowpass_part1(accel, vel, mask, a_lp, v_lp, v_ins, dt, carry);
@@ -1170,8 +1262,6 @@ static void mekf_k_accel_lowpass(const float q[4], const float b[3], const float
     up_out[2] = carry[11];
 }
 
-/* field norm and dip; GPS velocity in body axes
- * ops: add 34, mul 29, sqrt 2, trig 1 (total 66) */
 static void mekf_k_heading_features_part0(const float q[4], const float mag[3], float carry[13])
 {
     const float tmp0 = mag[0] * mag[0];
@@ -1262,9 +1352,25 @@ static void mekf_k_heading_features_part1(const float mag[3], const float vel[3]
     carry[3] = tmp65;
 }
 
-static void mekf_k_heading_features(const float q[4], const float mag[3], const float vel[3], float feat[4])
+/*
+ * field norm and dip; GPS velocity in body axes
+ *
+ * Args:
+ *     q: float[4]
+ *     mag: float[3]
+ *     vel: float[3]
+ * Outputs:
+ *     feat: float[4]
+ *
+ * Total ops: 66 (add 34, mul 29, sqrt 2, trig 1)
+ */
+static void mekf_k_heading_features(const float q[4], const float mag[3], const float vel[3],
+    float feat[4])
 {
-    /* 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    /*
+     * 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
+     * handed between them (a slot reused once its value is dead)
+     */
     float carry[13];
     mekf_k_heading_features_part0(q, mag, carry);
     mekf_k_heading_features_part1(mag, vel, carry);
@@ -1274,9 +1380,6 @@ static void mekf_k_heading_features(const float q[4], const float mag[3], const 
     feat[3] = carry[3];
 }
 
-/* gravity direction: H rows, innovations, variance
- * ops: add 43, mul 34, div 3, sqrt 1, cmp 3 (total 84)
- *      of which only one side runs: if (recover) 0, else 10 */
 static void mekf_k_gravity_rows_part0(const float q[4], const float up[3], float carry[19])
 {
     const float tmp0 = q[1] * q[1];
@@ -1402,9 +1505,29 @@ static void mekf_k_gravity_rows_part2(bool recover, float carry[19])
     carry[4] = tmp73;
 }
 
-static void mekf_k_gravity_rows(const float q[4], const float up[3], bool recover, float dt, float h[9], float z[3], float *r)
+/*
+ * gravity direction: H rows, innovations, variance
+ *
+ * Args:
+ *     q: float[4]
+ *     up: float[3]
+ *     recover: bool
+ *     dt: float
+ * Outputs:
+ *     h: float[9]
+ *     z: float[3]
+ *     r: float
+ *
+ * Total ops: 84 (add 43, mul 34, div 3, sqrt 1, cmp 3)
+ *     of which only one side runs: if (recover) 0, else 10
+ */
+static void mekf_k_gravity_rows(const float q[4], const float up[3], bool recover, float dt,
+    float h[9], float z[3], float *r)
 {
-    /* 3 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    /*
+     * 3 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
+     * handed between them (a slot reused once its value is dead)
+     */
     float carry[19];
     mekf_k_gravity_rows_part0(q, up, carry);
     mekf_k_gravity_rows_part1(up, dt, carry);
@@ -1424,9 +1547,8 @@ static void mekf_k_gravity_rows(const float q[4], const float up[3], bool recove
     *r = carry[4];
 }
 
-/* one scalar row on the attitude error
- * ops: add 45, mul 57, div 1, cmp 1 (total 104) */
-static void mekf_k_update_attitude_row_part0(const float P[36], const float h[3], float z, float r, const float x[6], float carry[28])
+static void mekf_k_update_attitude_row_part0(const float P[36], const float h[3], float z, float r,
+    const float x[6], float carry[28])
 {
     const float tmp0 = P[0] * h[0];
     const float tmp1 = P[1] * h[1];
@@ -1484,7 +1606,8 @@ static void mekf_k_update_attitude_row_part0(const float P[36], const float h[3]
     carry[13] = tmp39;
 }
 
-static void mekf_k_update_attitude_row_part1(const float P[36], const float h[3], const float x[6], float carry[28])
+static void mekf_k_update_attitude_row_part1(const float P[36], const float h[3], const float x[6],
+    float carry[28])
 {
     const float tmp40 = carry[12] + carry[13];
     const float tmp41 = P[15] * h[2];
@@ -1586,9 +1709,29 @@ static void mekf_k_update_attitude_row_part2(const float P[36], float carry[28])
     carry[27] = tmp103;
 }
 
-static void mekf_k_update_attitude_row(const float P[36], const float h[3], float z, float r, const float x[6], float x_out[6], float P_out[36], float *s)
+/*
+ * one scalar row on the attitude error
+ *
+ * Args:
+ *     P: float[36]
+ *     h: float[3]
+ *     z: float
+ *     r: float
+ *     x: float[6]
+ * Outputs:
+ *     x_out: float[6]
+ *     P_out: float[36]
+ *     s: float
+ *
+ * Total ops: 104 (add 45, mul 57, div 1, cmp 1)
+ */
+static void mekf_k_update_attitude_row(const float P[36], const float h[3], float z, float r,
+    const float x[6], float x_out[6], float P_out[36], float *s)
 {
-    /* 3 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    /*
+     * 3 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
+     * handed between them (a slot reused once its value is dead)
+     */
     float carry[28];
     mekf_k_update_attitude_row_part0(P, h, z, r, x, carry);
     mekf_k_update_attitude_row_part1(P, h, x, carry);
@@ -1638,9 +1781,8 @@ static void mekf_k_update_attitude_row(const float P[36], const float h[3], floa
     *s = carry[3];
 }
 
-/* at rest, the gyro bias: three scalar rows
- * ops: add 90, mul 99, div 4, cmp 6 (total 199) */
-static void mekf_k_update_rest_bias_part0(const float b[3], const float P[36], const float gyro[3], float dt, const float x[6], float carry[36])
+static void mekf_k_update_rest_bias_part0(const float b[3], const float P[36], const float gyro[3],
+    float dt, const float x[6], float carry[36])
 {
     const float tmp0 = (dt > 1e-09f) ? dt : 1e-09f;
     const float tmp1 = 7.569e-07f /* gyro_noise^2 */ / tmp0;
@@ -1704,7 +1846,8 @@ static void mekf_k_update_rest_bias_part0(const float b[3], const float P[36], c
     carry[19] = tmp39;
 }
 
-static void mekf_k_update_rest_bias_part1(const float b[3], const float P[36], const float gyro[3], const float x[6], float carry[36])
+static void mekf_k_update_rest_bias_part1(const float b[3], const float P[36], const float gyro[3],
+    const float x[6], float carry[36])
 {
     const float tmp40 = carry[16] * carry[19];
     const float tmp41 = gyro[2] - b[2];
@@ -1932,9 +2075,29 @@ static void mekf_k_update_rest_bias_part4(const float P[36], float carry[36])
     carry[13] = tmp198;
 }
 
-static void mekf_k_update_rest_bias(const float b[3], const float P[36], const float gyro[3], float dt, const float x[6], float x_out[6], float P_out[36], float *min_pivot)
+/*
+ * at rest, the gyro bias: three scalar rows
+ *
+ * Args:
+ *     b: float[3]
+ *     P: float[36]
+ *     gyro: float[3]
+ *     dt: float
+ *     x: float[6]
+ * Outputs:
+ *     x_out: float[6]
+ *     P_out: float[36]
+ *     min_pivot: float
+ *
+ * Total ops: 199 (add 90, mul 99, div 4, cmp 6)
+ */
+static void mekf_k_update_rest_bias(const float b[3], const float P[36], const float gyro[3],
+    float dt, const float x[6], float x_out[6], float P_out[36], float *min_pivot)
 {
-    /* 5 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    /*
+     * 5 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
+     * handed between them (a slot reused once its value is dead)
+     */
     float carry[36];
     mekf_k_update_rest_bias_part0(b, P, gyro, dt, x, carry);
     mekf_k_update_rest_bias_part1(b, P, gyro, x, carry);
@@ -1986,9 +2149,21 @@ static void mekf_k_update_rest_bias(const float b[3], const float P[36], const f
     *min_pivot = carry[13];
 }
 
-/* error injection into q and the gyro bias
- * ops: add 18, mul 20, div 1, sqrt 1 (total 40) */
-static void mekf_k_inject(const float q[4], const float b[3], const float x[6], float q_out[4], float b_out[3])
+/*
+ * error injection into q and the gyro bias
+ *
+ * Args:
+ *     q: float[4]
+ *     b: float[3]
+ *     x: float[6]
+ * Outputs:
+ *     q_out: float[4]
+ *     b_out: float[3]
+ *
+ * Total ops: 40 (add 18, mul 20, div 1, sqrt 1)
+ */
+static void mekf_k_inject(const float q[4], const float b[3], const float x[6], float q_out[4],
+    float b_out[3])
 {
     const float tmp0 = q[1] * x[0];
     const float tmp1 = q[0] - tmp0;
@@ -2039,9 +2214,6 @@ static void mekf_k_inject(const float q[4], const float b[3], const float x[6], 
     b_out[2] = tmp39;
 }
 
-/* one heading row, gain projected on the vertical
- * ops: add 102, mul 117, div 2, trig 3, cmp 29 (total 253)
- *      of which only one side runs: if (use_course) 7, else 28 */
 static void mekf_k_update_heading_part0(const float q[4], const float P[36], float carry[29])
 {
     const float tmp0 = q[1] * q[3];
@@ -2121,7 +2293,8 @@ static void mekf_k_update_heading_part1(const float q[4], float carry[29])
     carry[22] = tmp46;
 }
 
-static void mekf_k_update_heading_part2(const float mag[3], const float vel[3], bool use_course, float mag_dt, float carry[29])
+static void mekf_k_update_heading_part2(const float mag[3], const float vel[3], bool use_course,
+    float mag_dt, float carry[29])
 {
     float tmp47;
     float tmp48;
@@ -2408,9 +2581,31 @@ static void mekf_k_update_heading_part7(const float P[36], float carry[29])
     carry[6] = tmp252;
 }
 
-static void mekf_k_update_heading(const float q[4], const float P[36], const float mag[3], const float vel[3], bool use_course, float mag_dt, float x_out[6], float P_out[36], float *s)
+/*
+ * one heading row, gain projected on the vertical
+ *
+ * Args:
+ *     q: float[4]
+ *     P: float[36]
+ *     mag: float[3]
+ *     vel: float[3]
+ *     use_course: bool
+ *     mag_dt: float
+ * Outputs:
+ *     x_out: float[6]
+ *     P_out: float[36]
+ *     s: float
+ *
+ * Total ops: 253 (add 102, mul 117, div 2, trig 3, cmp 29)
+ *     of which only one side runs: if (use_course) 7, else 28
+ */
+static void mekf_k_update_heading(const float q[4], const float P[36], const float mag[3],
+    const float vel[3], bool use_course, float mag_dt, float x_out[6], float P_out[36], float *s)
 {
-    /* 8 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    /*
+     * 8 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
+     * handed between them (a slot reused once its value is dead)
+     */
     float carry[29];
     mekf_k_update_heading_part0(q, P, carry);
     mekf_k_update_heading_part1(q, carry);
@@ -2465,11 +2660,8 @@ static void mekf_k_update_heading(const float q[4], const float P[36], const flo
     *s = carry[1];
 }
 
-/* first attitude and low-pass state
- * ops: add 40, mul 42, sqrt 1, trig 14, cmp 4 (total 101)
- *      of which only one side runs: if (use[0]) 1, else 21
- *      of which only one side runs: if (use[1]) 20, else 0 */
-static void mekf_k_init_attitude_part0(const float accel[3], const float mag[3], const float vel[3], const bool use[2], float carry[11])
+static void mekf_k_init_attitude_part0(const float accel[3], const float mag[3], const float vel[3],
+    const bool use[2], float carry[11])
 {
     const float tmp0 = -accel[1];
     const float tmp1 = -accel[2];
@@ -2524,10 +2716,10 @@ static void mekf_k_init_attitude_part0(const float accel[3], const float mag[3],
     fast_sincosf(tmp33, &tmp40, &tmp34);   /* sin and cos, one reduction */
     const float tmp35 = tmp32 * tmp34;
     const float tmp36 = tmp2 * 0.5f;
-    carry[0] = tmp32;
-    carry[1] = tmp39;
-    carry[2] = tmp34;
-    carry[3] = tmp40;
+    carry[0] = tmp39;
+    carry[1] = tmp32;
+    carry[2] = tmp40;
+    carry[3] = tmp34;
     carry[4] = tmp35;
     carry[5] = tmp36;
 }
@@ -2538,15 +2730,15 @@ static void mekf_k_init_attitude_part1(const float accel[3], float carry[11])
     float tmp37;
     fast_sincosf(carry[5], &tmp42, &tmp37);   /* sin and cos, one reduction */
     const float tmp38 = carry[4] * tmp37;
-    const float tmp41 = carry[1] * carry[3];
+    const float tmp41 = carry[0] * carry[2];
     const float tmp43 = tmp41 * tmp42;
     const float tmp44 = tmp38 + tmp43;
     const float tmp45 = carry[4] * tmp42;
     const float tmp46 = tmp41 * tmp37;
     const float tmp47 = tmp45 - tmp46;
-    const float tmp48 = carry[0] * carry[3];
+    const float tmp48 = carry[1] * carry[2];
     const float tmp49 = tmp48 * tmp37;
-    const float tmp50 = carry[1] * carry[2];
+    const float tmp50 = carry[0] * carry[3];
     const float tmp51 = tmp50 * tmp42;
     const float tmp52 = tmp49 + tmp51;
     const float tmp53 = tmp50 * tmp37;
@@ -2616,9 +2808,29 @@ static void mekf_k_init_attitude_part2(const float accel[3], float carry[11])
     carry[5] = tmp100;
 }
 
-static void mekf_k_init_attitude(const float accel[3], const float mag[3], const float vel[3], const bool use[2], float q_out[4], float a_lp_out[3])
+/*
+ * first attitude and low-pass state
+ *
+ * Args:
+ *     accel: float[3]
+ *     mag: float[3]
+ *     vel: float[3]
+ *     use: bool[2]
+ * Outputs:
+ *     q_out: float[4]
+ *     a_lp_out: float[3]
+ *
+ * Total ops: 101 (add 40, mul 42, sqrt 1, trig 14, cmp 4)
+ *     of which only one side runs: if (use[0]) 1, else 21
+ *     of which only one side runs: if (use[1]) 20, else 0
+ */
+static void mekf_k_init_attitude(const float accel[3], const float mag[3], const float vel[3],
+    const bool use[2], float q_out[4], float a_lp_out[3])
 {
-    /* 3 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    /*
+     * 3 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
+     * handed between them (a slot reused once its value is dead)
+     */
     float carry[11];
     mekf_k_init_attitude_part0(accel, mag, vel, use, carry);
     mekf_k_init_attitude_part1(accel, carry);
@@ -2632,9 +2844,8 @@ static void mekf_k_init_attitude(const float accel[3], const float mag[3], const
     a_lp_out[2] = carry[5];
 }
 
-/* candidate field model: one step while turning
- * ops: add 140, mul 132, div 6, sqrt 4, trig 1, cmp 44 (total 327) */
-static void mekf_k_hard_iron_fit_part0(const float mag[3], const float b[3], const float ref[2], const float cx[5], const float cP[25], float dt, bool init, float carry[45])
+static void mekf_k_hard_iron_fit_part0(const float mag[3], const float b[3], const float ref[2],
+    const float cx[5], const float cP[25], float dt, bool init, float carry[45])
 {
     const float tmp0 = 1.0f / ref[0];
     const float tmp1 = b[0] * tmp0;
@@ -2750,7 +2961,8 @@ static void mekf_k_hard_iron_fit_part1(const float cP[25], bool init, float carr
     carry[25] = tmp79;
 }
 
-static void mekf_k_hard_iron_fit_part2(const float q[4], const float cP[25], bool init, float carry[45])
+static void mekf_k_hard_iron_fit_part2(const float q[4], const float cP[25], bool init,
+    float carry[45])
 {
     const float tmp80 = carry[24] + carry[25];
     const float tmp81 = -tmp80;
@@ -2865,7 +3077,8 @@ static void mekf_k_hard_iron_fit_part3(const float cP[25], bool init, float carr
     carry[41] = tmp159;
 }
 
-static void mekf_k_hard_iron_fit_part4(const float ref[2], const float cx[5], const float cP[25], bool init, float carry[45])
+static void mekf_k_hard_iron_fit_part4(const float ref[2], const float cx[5], const float cP[25],
+    bool init, float carry[45])
 {
     const float tmp160 = -carry[41];
     const float tmp161 = (init) ? 0.0f : tmp160;
@@ -3109,9 +3322,34 @@ static void mekf_k_hard_iron_fit_part8(float carry[45])
     carry[8] = tmp326;
 }
 
-static void mekf_k_hard_iron_fit(const float q[4], const float mag[3], const float b[3], const float ref[2], const float cx[5], const float cP[25], float dt, bool init, float cx_out[5], float cP_out[25], float res[4], float *p_beta)
+/*
+ * candidate field model: one step while turning
+ *
+ * Args:
+ *     q: float[4]
+ *     mag: float[3]
+ *     b: float[3]
+ *     ref: float[2]
+ *     cx: float[5]
+ *     cP: float[25]
+ *     dt: float
+ *     init: bool
+ * Outputs:
+ *     cx_out: float[5]
+ *     cP_out: float[25]
+ *     res: float[4]
+ *     p_beta: float
+ *
+ * Total ops: 327 (add 140, mul 132, div 6, sqrt 4, trig 1, cmp 44)
+ */
+static void mekf_k_hard_iron_fit(const float q[4], const float mag[3], const float b[3],
+    const float ref[2], const float cx[5], const float cP[25], float dt, bool init, float cx_out[5],
+    float cP_out[25], float res[4], float *p_beta)
 {
-    /* 9 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values handed between them (a slot reused once its value is dead) */
+    /*
+     * 9 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
+     * handed between them (a slot reused once its value is dead)
+     */
     float carry[45];
     mekf_k_hard_iron_fit_part0(mag, b, ref, cx, cP, dt, init, carry);
     mekf_k_hard_iron_fit_part1(cP, init, carry);
@@ -3159,9 +3397,23 @@ static void mekf_k_hard_iron_fit(const float q[4], const float mag[3], const flo
     *p_beta = carry[8];
 }
 
-/* the candidate becomes the hard iron and reference
- * ops: mul 24, div 2, trig 1, cmp 2 (total 29) */
-static inline void mekf_k_hard_iron_switch(const float cx[5], const float cP[25], const float ref[2], float b_out[3], float ref_out[2], float cx_out[5], float cP_out[25])
+/*
+ * the candidate becomes the hard iron and reference
+ *
+ * Args:
+ *     cx: float[5]
+ *     cP: float[25]
+ *     ref: float[2]
+ * Outputs:
+ *     b_out: float[3]
+ *     ref_out: float[2]
+ *     cx_out: float[5]
+ *     cP_out: float[25]
+ *
+ * Total ops: 29 (mul 24, div 2, trig 1, cmp 2)
+ */
+static inline void mekf_k_hard_iron_switch(const float cx[5], const float cP[25],
+    const float ref[2], float b_out[3], float ref_out[2], float cx_out[5], float cP_out[25])
 {
     const float tmp0 = ref[0] * cx[0];
     const float tmp1 = ref[0] * cx[1];
@@ -3229,8 +3481,16 @@ static inline void mekf_k_hard_iron_switch(const float cx[5], const float cP[25]
     cP_out[24] = tmp28;
 }
 
-/* Z-Y-X Euler angles [roll, pitch, yaw] of a unit body->NED quaternion
- * ops: add 13, mul 11, sqrt 1, trig 3 (total 28) */
+/*
+ * Z-Y-X Euler angles [roll, pitch, yaw] of a unit body->NED quaternion
+ *
+ * Args:
+ *     q: float[4]
+ * Outputs:
+ *     rpy: float[3]
+ *
+ * Total ops: 28 (add 13, mul 11, sqrt 1, trig 3)
+ */
 static inline void mekf_k_euler(const float q[4], float rpy[3])
 {
     const float tmp0 = q[0] * q[1];

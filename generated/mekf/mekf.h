@@ -54,54 +54,206 @@ extern "C" {
 #endif
 
 /* Parameters baked into this build (already folded into the code; listed for reference). */
-#define MEKF_DT_MAX 0.5f                /* largest dt a step accepts; larger is refused (DT_TOO_LARGE) [s] */
-#define MEKF_GYRO_MAX 70.0f             /* largest gyro component accepted; larger is refused (GYRO_RANGE) [rad/s] */
-#define MEKF_ACCEL_MIN_NORM 0.5f        /* accelerometer norm below this skips its correction (ACCEL_ZERO) [m/s^2] */
-#define MEKF_ACCEL_MAX 2000.0f          /* accelerometer component above this skips its correction (ACCEL_RANGE) [m/s^2] */
-#define MEKF_MAG_MIN_NORM 1e-06f        /* magnetometer norm below this skips its correction (MAG_ZERO) [field unit] */
-#define MEKF_MAG_MAX 1e+06f             /* magnetometer component above this skips its correction (MAG_RANGE) [field unit] */
-#define MEKF_GPS_VEL_MAX 500.0f         /* GPS velocity component above this: the sample is ignored (GPS_RANGE) [m/s] */
-/* MEKF_MEASUREMENT = vectors        'vectors': gravity as the direction of the earth-frame low-passed specific force (3 rows, any attitude), heading as a vertical-only row whose gain is projected so it never tilts, rest detection and magnetic disturbance rejection; 'euler_angles': the patent's measured roll, pitch, yaw (singular at pitch +-90 deg; the accel_lpf, rest_ and mag_ parameters are not used; heading_source 'auto' means 'gps_course' and motion_comp 'gps_lowpass' means 'gps_accel' there) */
-/* MEKF_HEADING_SOURCE = auto        yaw measurement: 'auto' = GPS course while the last GPS velocity is at most gps_vel_timeout old and at least gps_min_speed, the magnetometer otherwise (measurement = 'vectors' only); 'gps_course' = course over ground atan2(vE, vN) (the patent); 'mag' = magnetometer heading */
-#define MEKF_GPS_MIN_SPEED 3.0f         /* GPS course is used as heading only while the horizontal ground speed is at least this (and a GPS sample arrived this step) [m/s] */
-#define MEKF_COURSE_MAX_SIDESLIP 0.5f   /* heading_source = 'auto': the GPS course is the heading only while the GPS velocity is within this angle of the body x axis (moving nose first, as a fixed-wing; a multirotor drifting sideways is not) - or while nothing else has corrected the heading for 1 s [rad] */
-#define MEKF_DECLINATION 0.0f           /* added to the magnetic heading (heading_source = 'mag') [rad] */
-#define MEKF_ACCEL_LPF_TAU 1.0f         /* time constant of the low-pass applied to the specific force in the earth frame before its direction corrects the tilt (VQF's idea): motion acceleration averages out, gravity stays; 0 = raw accelerometer [s] */
-#define MEKF_ACCEL_ADAPT_CAP 1.0f       /* residual-adaptive gravity noise, bounded: R = accel_angle_noise^2 * min(1 + |z|^2 / (3 accel_angle_noise)^2, accel_adapt_cap); 1 = off. Bounded so it cannot lock the correction out */
-#define MEKF_REST_GYRO_TH 0.035f        /* rest detection: every gyro sample within this of its low-pass (rest_tau), and the low-pass itself below it (a turntable is not rest); 0 = no rest detection [rad/s] */
-#define MEKF_REST_ACCEL_TH 0.5f         /* rest detection: every accelerometer sample within this of its low-pass [m/s^2] */
+#define MEKF_DT_MAX 0.5f                /* largest dt a step accepts; larger is refused
+                                           (DT_TOO_LARGE) [s] */
+#define MEKF_GYRO_MAX 70.0f             /* largest gyro component accepted; larger is refused
+                                           (GYRO_RANGE) [rad/s] */
+#define MEKF_ACCEL_MIN_NORM 0.5f        /* accelerometer norm below this skips its correction
+                                           (ACCEL_ZERO) [m/s^2] */
+#define MEKF_ACCEL_MAX 2000.0f          /* accelerometer component above this skips its correction
+                                           (ACCEL_RANGE) [m/s^2] */
+#define MEKF_MAG_MIN_NORM 1e-06f        /* magnetometer norm below this skips its correction
+                                           (MAG_ZERO) [field unit] */
+#define MEKF_MAG_MAX 1e+06f             /* magnetometer component above this skips its correction
+                                           (MAG_RANGE) [field unit] */
+#define MEKF_GPS_VEL_MAX 500.0f         /* GPS velocity component above this: the sample is ignored
+                                           (GPS_RANGE) [m/s] */
+/*
+ * MEKF_MEASUREMENT = vectors 'vectors': gravity as the direction of the earth-frame low-passed
+ * specific force (3 rows, any attitude), heading as a vertical-only row whose gain is projected so
+ * it never tilts, rest detection and magnetic disturbance rejection; 'euler_angles': the patent's
+ * measured roll, pitch, yaw (singular at pitch +-90 deg; the accel_lpf, rest_ and mag_ parameters
+ * are not used; heading_source 'auto' means 'gps_course' and motion_comp 'gps_lowpass' means
+ * 'gps_accel' there)
+ */
+/*
+ * MEKF_HEADING_SOURCE = auto yaw measurement: 'auto' = GPS course while the last GPS velocity is at
+ * most gps_vel_timeout old and at least gps_min_speed, the magnetometer otherwise (measurement =
+ * 'vectors' only); 'gps_course' = course over ground atan2(vE, vN) (the patent); 'mag' =
+ * magnetometer heading
+ */
+#define MEKF_GPS_MIN_SPEED 3.0f         /* GPS course is used as heading only while the horizontal
+                                           ground speed is at least this (and a GPS sample arrived
+                                           this step) [m/s] */
+#define MEKF_COURSE_MAX_SIDESLIP 0.5f   /* heading_source = 'auto': the GPS course is the heading
+                                           only while the GPS velocity is within this angle of the
+                                           body x axis (moving nose first, as a fixed-wing; a
+                                           multirotor drifting sideways is not) - or while nothing
+                                           else has corrected the heading for 1 s [rad] */
+#define MEKF_DECLINATION 0.0f           /* added to the magnetic heading (heading_source = 'mag')
+                                           [rad] */
+#define MEKF_ACCEL_LPF_TAU 1.0f         /* time constant of the low-pass applied to the specific
+                                           force in the earth frame before its direction corrects
+                                           the tilt (VQF's idea): motion acceleration averages out,
+                                           gravity stays; 0 = raw accelerometer [s] */
+#define MEKF_ACCEL_ADAPT_CAP 1.0f       /* residual-adaptive gravity noise, bounded: R =
+                                           accel_angle_noise^2 * min(1 + |z|^2 / (3
+                                           accel_angle_noise)^2, accel_adapt_cap); 1 = off. Bounded
+                                           so it cannot lock the correction out */
+#define MEKF_REST_GYRO_TH 0.035f        /* rest detection: every gyro sample within this of its
+                                           low-pass (rest_tau), and the low-pass itself below it (a
+                                           turntable is not rest); 0 = no rest detection [rad/s] */
+#define MEKF_REST_ACCEL_TH 0.5f         /* rest detection: every accelerometer sample within this of
+                                           its low-pass [m/s^2] */
 #define MEKF_REST_TAU 0.5f              /* time constant of the rest-detection low-passes [s] */
-#define MEKF_REST_MIN_TIME 1.5f         /* the sensors must be steady this long before rest is declared; at rest the gyro reading is a direct measurement of the bias (noise gyro_noise^2/dt) [s] */
-#define MEKF_MAG_NORM_TH 0.1f           /* magnetometer rejected while its norm differs from the reference norm by more than this fraction; 0 = no rejection */
-#define MEKF_MAG_DIP_TH 0.175f          /* magnetometer rejected while its dip angle (from the estimated attitude) differs from the reference dip by more than this [rad] */
-#define MEKF_MAG_LEARN_TIME 2.0f        /* the reference field norm and dip are the mean of the first mag_learn_time seconds of magnetometer samples [s] */
-#define MEKF_MAG_REF_TAU 20.0f          /* while accepted, the reference norm and dip follow the field with this time constant [s] */
-#define MEKF_MAG_NEW_TIME 20.0f         /* while rejected, a new field whose norm and dip stay within the thresholds for this long becomes the reference (a lasting change is re-acquired; VQF's magNewTime) [s] */
-#define MEKF_MAG_REJECT_MAX 60.0f       /* after this long rejected in a row, the candidate field becomes the reference anyway: heading is never held unaided for longer (VQF's magMaxRejectionTime) [s] */
-#define MEKF_MAG_BIAS 1                 /* estimate the magnetometer's hard iron while the sensor turns: a candidate field model (hard iron, field norm and dip) is fitted beside the filter and replaces the hard iron when it explains the field clearly better (a magnet attached mid-run); false: the hard iron stays as calibrated */
-#define MEKF_MAG_BIAS_RW 0.003f         /* random walk of the candidate hard iron and field, as a fraction of the field norm, while turning; 0.003 chosen by studies/mekf_hard_iron_cv.py (in-sample, with the noise defaults of studies/mekf_gyro_rate_noise_cv.py) [1/sqrt(s)] */
-#define MEKF_MAG_BIAS_NOISE 0.05f       /* per-sample standard deviation of the candidate's norm and vertical-component rows, as a fraction of the field norm (sensor noise, soft iron, field gradients) */
-#define MEKF_MAG_BIAS_MIN_RATE 0.3f     /* the candidate is fitted only while the sensor turns at least this fast (the hard iron is observable only then; held otherwise) [rad/s] */
-#define MEKF_MAG_BIAS_SETTLE 5.0f       /* residuals are averaged over this much turning, and the candidate must have been fitted this long, before it may replace the hard iron [s] */
-#define MEKF_MAG_BIAS_TH 0.015f         /* the candidate may replace the hard iron when its residuals (low-passed over 0.2 s, RMS) are below this fraction of the field norm, four times (in mean square) below the present model's with its reference re-fitted, and its hard iron is known to this (square root of the trace of its covariance) */
-#define MEKF_MAG_BIAS_JUMP 0.2f         /* the candidate may replace the hard iron only when it differs from it by at least this fraction of the field norm (by mag_norm_th once the present hard iron is itself this large: a magnet found is refined): smaller changes are left to the field check's tolerance (soft iron, field gradients and a phone's own field on real data look like small hard irons) */
-#define MEKF_MAG_BIAS_MAX 2.0f          /* bound of the hard-iron estimate, as a multiple of the field norm */
-#define MEKF_GYRO_FULL_SCALE 34.906586f /* the gyro's full scale (Fusion's gyroscopeRange): a component at or beyond it is a clipped sample, integrated as it is, that widens the attitude covariance by the rotation it may have missed and starts clip_recovery_time of recovery (status GYRO_RECOVERY). Default 2000 deg/s, the commonest flight-controller setting; set your sensor's (a +-500 deg/s gyro: 8.7266). 0: no over-range handling [rad/s] */
-#define MEKF_GYRO_PLATEAU_RATE 3.5f     /* a gyro that clips below gyro_full_scale (the range left at its default) is still recognised: a component at or above this rate that holds exactly the same value for 4 samples in a row, while the other components change, is a clipped sample. A whole sample repeated (a logger's duplicate) is not. Default 200 deg/s: no component of the 10 BROAD trials (286 Hz) does this. 0: only gyro_full_scale [rad/s] */
-#define MEKF_CLIP_RECOVERY_TIME 2.0f    /* after the last clipped gyro sample, for this long the corrections take the accelerometer and magnetometer as they come (no low-pass, no motion weighting, no field check), so the widened covariance sets how fast the attitude comes back [s] */
-#define MEKF_GYRO_NOISE 0.00087f        /* gyro rate noise density (angle random walk); the QCF paper's Table 1 gives 0.05 deg/s/sqrt(Hz) [rad/s/sqrt(Hz)] */
-#define MEKF_GYRO_RATE_NOISE 0.001f     /* measurement = 'vectors': each axis's gyro noise density grows by this times that axis's rate, in quadrature (a MEMS gyro's scale-factor and cross-axis errors grow with the rate): during fast rotation the attitude uncertainty grows and the accelerometer and magnetometer are trusted more; 0 = a constant density. 1e-3 chosen with mag_heading_density by leave-one-BROAD-group-out with the scenarios (studies/mekf_gyro_rate_noise_cv.py, docs/mekf.md) [sqrt(s)] */
-#define MEKF_GYRO_BIAS_RW 1e-05f        /* gyro bias random walk (rate of the bias noise density) [rad/s^2/sqrt(Hz)] */
-#define MEKF_ACCEL_ANGLE_NOISE 0.07f    /* per-sample standard deviation of the measured gravity direction (measurement = 'vectors': of the low-passed, motion-compensated specific force; 'euler_angles': of the accelerometer roll and pitch, the patent's R). With measurement = 'vectors' the motion the low-pass leaves, the same per sample at any rate, beside accel_noise_density's white noise. 0.07 chosen with accel_noise_density (studies/mekf_accel_density_cv.py, docs/mekf.md) [rad] */
-#define MEKF_ACCEL_NOISE_DENSITY 0.004f /* measurement = 'vectors': the gravity direction's variance is accel_angle_noise^2 + accel_noise_density^2 / dt: accel_angle_noise is the motion the low-pass leaves (the same per sample at any rate), this the sensor's white noise (its variance per sample grows with the rate, so a 1 kHz IMU's samples each weigh less than a 100 Hz one's). 0 = per sample only. 0.004 chosen with accel_angle_noise 0.07 by leave-one-BROAD-group-out with the scenarios at 12.5 Hz to 1 kHz (studies/mekf_accel_density_cv.py, docs/mekf.md) [rad*sqrt(s)] */
-#define MEKF_COURSE_NOISE 0.05f         /* standard deviation of the GPS course as a heading (covers sideslip and wind crab) [rad] */
-#define MEKF_MAG_HEADING_NOISE 0.1f     /* measurement = 'euler_angles' (the patent's design): per-sample standard deviation of the magnetometer heading [rad] */
-#define MEKF_MAG_HEADING_DENSITY 0.024f /* measurement = 'vectors': noise density of the magnetometer heading; a sample's variance is its square over the magnetometer's own sample interval (at most 0.1 s), so the trust per second does not depend on the magnetometer's rate (0.024 = 0.41 rad per sample at 286 Hz, 0.17 at 50 Hz, 0.085 at 12.5 Hz). Its errors (calibration residuals, nearby iron) are correlated over seconds, far beyond the sensor's white noise. Chosen with gyro_rate_noise by leave-one-BROAD-group-out with the scenarios (studies/mekf_gyro_rate_noise_cv.py) [rad/sqrt(Hz)] */
-#define MEKF_ACCEL_GATE 0.0f            /* if > 0, the roll/pitch rows are dropped while | |accel| - g | exceeds this (ACCEL_GATED); 0 = off, as the patent [m/s^2] */
-/* MEKF_MOTION_COMP = gps_lowpass    motion acceleration removed from the specific force before roll/pitch are taken from it: 'gps_lowpass' (measurement = 'vectors' only) = the GPS velocity goes through the same earth-frame low-pass as the specific force and its low-passed derivative (v - v_lp)/accel_lpf_tau is removed from it (any motion, no differencing noise, needs accel_lpf_tau > 0); 'centripetal' = w x v_b (gyro and GPS velocity in body axes; fixed-wing turns), 'gps_accel' = R(q)^T a_n with a_n the difference of the last two GPS velocities (any motion, noisier, lagged by half a GPS period; multirotors), 'none' = the patent (gravity-only accelerometer) */
-#define MEKF_GPS_VEL_TIMEOUT 1.0f       /* the last GPS velocity (and GPS acceleration) is used for the motion compensation for at most this long; two GPS samples further apart than this give no acceleration [s] */
-#define MEKF_INIT_FROM_SENSORS 1        /* start from the first usable accelerometer sample (roll, pitch) and heading (yaw, or 0 if none); false: identity attitude at the first step, as the patent leaves the initial condition open */
-#define MEKF_P0_ATT 0.5f                /* initial attitude-error standard deviation per axis (P0 of dq is (p0_att/2)^2) [rad] */
+#define MEKF_REST_MIN_TIME 1.5f         /* the sensors must be steady this long before rest is
+                                           declared; at rest the gyro reading is a direct
+                                           measurement of the bias (noise gyro_noise^2/dt) [s] */
+#define MEKF_MAG_NORM_TH 0.1f           /* magnetometer rejected while its norm differs from the
+                                           reference norm by more than this fraction; 0 = no
+                                           rejection */
+#define MEKF_MAG_DIP_TH 0.175f          /* magnetometer rejected while its dip angle (from the
+                                           estimated attitude) differs from the reference dip by
+                                           more than this [rad] */
+#define MEKF_MAG_LEARN_TIME 2.0f        /* the reference field norm and dip are the mean of the
+                                           first mag_learn_time seconds of magnetometer samples [s]
+                                           */
+#define MEKF_MAG_REF_TAU 20.0f          /* while accepted, the reference norm and dip follow the
+                                           field with this time constant [s] */
+#define MEKF_MAG_NEW_TIME 20.0f         /* while rejected, a new field whose norm and dip stay
+                                           within the thresholds for this long becomes the reference
+                                           (a lasting change is re-acquired; VQF's magNewTime) [s]
+                                           */
+#define MEKF_MAG_REJECT_MAX 60.0f       /* after this long rejected in a row, the candidate field
+                                           becomes the reference anyway: heading is never held
+                                           unaided for longer (VQF's magMaxRejectionTime) [s] */
+#define MEKF_MAG_BIAS 1                 /* estimate the magnetometer's hard iron while the sensor
+                                           turns: a candidate field model (hard iron, field norm and
+                                           dip) is fitted beside the filter and replaces the hard
+                                           iron when it explains the field clearly better (a magnet
+                                           attached mid-run); false: the hard iron stays as
+                                           calibrated */
+#define MEKF_MAG_BIAS_RW 0.003f         /* random walk of the candidate hard iron and field, as a
+                                           fraction of the field norm, while turning; 0.003 chosen
+                                           by studies/mekf_hard_iron_cv.py (in-sample, with the
+                                           noise defaults of studies/mekf_gyro_rate_noise_cv.py)
+                                           [1/sqrt(s)] */
+#define MEKF_MAG_BIAS_NOISE 0.05f       /* per-sample standard deviation of the candidate's norm and
+                                           vertical-component rows, as a fraction of the field norm
+                                           (sensor noise, soft iron, field gradients) */
+#define MEKF_MAG_BIAS_MIN_RATE 0.3f     /* the candidate is fitted only while the sensor turns at
+                                           least this fast (the hard iron is observable only then;
+                                           held otherwise) [rad/s] */
+#define MEKF_MAG_BIAS_SETTLE 5.0f       /* residuals are averaged over this much turning, and the
+                                           candidate must have been fitted this long, before it may
+                                           replace the hard iron [s] */
+#define MEKF_MAG_BIAS_TH 0.015f         /* the candidate may replace the hard iron when its
+                                           residuals (low-passed over 0.2 s, RMS) are below this
+                                           fraction of the field norm, four times (in mean square)
+                                           below the present model's with its reference re-fitted,
+                                           and its hard iron is known to this (square root of the
+                                           trace of its covariance) */
+#define MEKF_MAG_BIAS_JUMP 0.2f         /* the candidate may replace the hard iron only when it
+                                           differs from it by at least this fraction of the field
+                                           norm (by mag_norm_th once the present hard iron is itself
+                                           this large: a magnet found is refined): smaller changes
+                                           are left to the field check's tolerance (soft iron, field
+                                           gradients and a phone's own field on real data look like
+                                           small hard irons) */
+#define MEKF_MAG_BIAS_MAX 2.0f          /* bound of the hard-iron estimate, as a multiple of the
+                                           field norm */
+#define MEKF_GYRO_FULL_SCALE 34.906586f /* the gyro's full scale (Fusion's gyroscopeRange): a
+                                           component at or beyond it is a clipped sample, integrated
+                                           as it is, that widens the attitude covariance by the
+                                           rotation it may have missed and starts clip_recovery_time
+                                           of recovery (status GYRO_RECOVERY). Default 2000 deg/s,
+                                           the commonest flight-controller setting; set your
+                                           sensor's (a +-500 deg/s gyro: 8.7266). 0: no over-range
+                                           handling [rad/s] */
+#define MEKF_GYRO_PLATEAU_RATE 3.5f     /* a gyro that clips below gyro_full_scale (the range left
+                                           at its default) is still recognised: a component at or
+                                           above this rate that holds exactly the same value for 4
+                                           samples in a row, while the other components change, is a
+                                           clipped sample. A whole sample repeated (a logger's
+                                           duplicate) is not. Default 200 deg/s: no component of the
+                                           10 BROAD trials (286 Hz) does this. 0: only
+                                           gyro_full_scale [rad/s] */
+#define MEKF_CLIP_RECOVERY_TIME 2.0f    /* after the last clipped gyro sample, for this long the
+                                           corrections take the accelerometer and magnetometer as
+                                           they come (no low-pass, no motion weighting, no field
+                                           check), so the widened covariance sets how fast the
+                                           attitude comes back [s] */
+#define MEKF_GYRO_NOISE 0.00087f        /* gyro rate noise density (angle random walk); the QCF
+                                           paper's Table 1 gives 0.05 deg/s/sqrt(Hz)
+                                           [rad/s/sqrt(Hz)] */
+#define MEKF_GYRO_RATE_NOISE 0.001f     /* measurement = 'vectors': each axis's gyro noise density
+                                           grows by this times that axis's rate, in quadrature (a
+                                           MEMS gyro's scale-factor and cross-axis errors grow with
+                                           the rate): during fast rotation the attitude uncertainty
+                                           grows and the accelerometer and magnetometer are trusted
+                                           more; 0 = a constant density. 1e-3 chosen with
+                                           mag_heading_density by leave-one-BROAD-group-out with the
+                                           scenarios (studies/mekf_gyro_rate_noise_cv.py,
+                                           docs/mekf.md) [sqrt(s)] */
+#define MEKF_GYRO_BIAS_RW 1e-05f        /* gyro bias random walk (rate of the bias noise density)
+                                           [rad/s^2/sqrt(Hz)] */
+#define MEKF_ACCEL_ANGLE_NOISE 0.07f    /* per-sample standard deviation of the measured gravity
+                                           direction (measurement = 'vectors': of the low-passed,
+                                           motion-compensated specific force; 'euler_angles': of the
+                                           accelerometer roll and pitch, the patent's R). With
+                                           measurement = 'vectors' the motion the low-pass leaves,
+                                           the same per sample at any rate, beside
+                                           accel_noise_density's white noise. 0.07 chosen with
+                                           accel_noise_density (studies/mekf_accel_density_cv.py,
+                                           docs/mekf.md) [rad] */
+#define MEKF_ACCEL_NOISE_DENSITY 0.004f /* measurement = 'vectors': the gravity direction's variance
+                                           is accel_angle_noise^2 + accel_noise_density^2 / dt:
+                                           accel_angle_noise is the motion the low-pass leaves (the
+                                           same per sample at any rate), this the sensor's white
+                                           noise (its variance per sample grows with the rate, so a
+                                           1 kHz IMU's samples each weigh less than a 100 Hz one's).
+                                           0 = per sample only. 0.004 chosen with accel_angle_noise
+                                           0.07 by leave-one-BROAD-group-out with the scenarios at
+                                           12.5 Hz to 1 kHz (studies/mekf_accel_density_cv.py,
+                                           docs/mekf.md) [rad*sqrt(s)] */
+#define MEKF_COURSE_NOISE 0.05f         /* standard deviation of the GPS course as a heading (covers
+                                           sideslip and wind crab) [rad] */
+#define MEKF_MAG_HEADING_NOISE 0.1f     /* measurement = 'euler_angles' (the patent's design):
+                                           per-sample standard deviation of the magnetometer heading
+                                           [rad] */
+#define MEKF_MAG_HEADING_DENSITY 0.024f /* measurement = 'vectors': noise density of the
+                                           magnetometer heading; a sample's variance is its square
+                                           over the magnetometer's own sample interval (at most 0.1
+                                           s), so the trust per second does not depend on the
+                                           magnetometer's rate (0.024 = 0.41 rad per sample at 286
+                                           Hz, 0.17 at 50 Hz, 0.085 at 12.5 Hz). Its errors
+                                           (calibration residuals, nearby iron) are correlated over
+                                           seconds, far beyond the sensor's white noise. Chosen with
+                                           gyro_rate_noise by leave-one-BROAD-group-out with the
+                                           scenarios (studies/mekf_gyro_rate_noise_cv.py)
+                                           [rad/sqrt(Hz)] */
+#define MEKF_ACCEL_GATE 0.0f            /* if > 0, the roll/pitch rows are dropped while | |accel| -
+                                           g | exceeds this (ACCEL_GATED); 0 = off, as the patent
+                                           [m/s^2] */
+/*
+ * MEKF_MOTION_COMP = gps_lowpass motion acceleration removed from the specific force before
+ * roll/pitch are taken from it: 'gps_lowpass' (measurement = 'vectors' only) = the GPS velocity
+ * goes through the same earth-frame low-pass as the specific force and its low-passed derivative (v
+ * - v_lp)/accel_lpf_tau is removed from it (any motion, no differencing noise, needs accel_lpf_tau
+ * > 0); 'centripetal' = w x v_b (gyro and GPS velocity in body axes; fixed-wing turns), 'gps_accel'
+ * = R(q)^T a_n with a_n the difference of the last two GPS velocities (any motion, noisier, lagged
+ * by half a GPS period; multirotors), 'none' = the patent (gravity-only accelerometer)
+ */
+#define MEKF_GPS_VEL_TIMEOUT 1.0f       /* the last GPS velocity (and GPS acceleration) is used for
+                                           the motion compensation for at most this long; two GPS
+                                           samples further apart than this give no acceleration [s]
+                                           */
+#define MEKF_INIT_FROM_SENSORS 1        /* start from the first usable accelerometer sample (roll,
+                                           pitch) and heading (yaw, or 0 if none); false: identity
+                                           attitude at the first step, as the patent leaves the
+                                           initial condition open */
+#define MEKF_P0_ATT 0.5f                /* initial attitude-error standard deviation per axis (P0 of
+                                           dq is (p0_att/2)^2) [rad] */
 #define MEKF_P0_BIAS 0.01f              /* initial gyro-bias standard deviation per axis [rad/s] */
 
 /* Input validity bits: set a bit only when that sensor delivered a new sample this step. */
@@ -113,32 +265,59 @@ extern "C" {
 /* Status bits returned by mekf_step; 0 means every available correction ran. */
 typedef uint32_t mekf_status;
 #define MEKF_OK                 0u /* step completed with every available correction */
-#define MEKF_DT_INVALID         (1u << 0) /* refused: dt is not finite or not positive; state unchanged */
-#define MEKF_DT_TOO_LARGE       (1u << 1) /* refused: dt above the configured maximum; state unchanged */
+#define MEKF_DT_INVALID         (1u << 0) /* refused: dt is not finite or not positive; state
+                                             unchanged */
+#define MEKF_DT_TOO_LARGE       (1u << 1) /* refused: dt above the configured maximum; state
+                                             unchanged */
 #define MEKF_GYRO_MISSING       (1u << 2) /* refused: gyro valid bit clear; state unchanged */
 #define MEKF_GYRO_NONFINITE     (1u << 3) /* refused: gyro sample not finite; state unchanged */
-#define MEKF_ACCEL_NONFINITE    (1u << 4) /* accelerometer sample not finite; its correction skipped */
-#define MEKF_ACCEL_ZERO         (1u << 5) /* accelerometer norm below minimum; its correction skipped */
-#define MEKF_MAG_NONFINITE      (1u << 6) /* magnetometer sample not finite; its correction skipped */
-#define MEKF_MAG_ZERO           (1u << 7) /* magnetometer norm below minimum; its correction skipped */
+#define MEKF_ACCEL_NONFINITE    (1u << 4) /* accelerometer sample not finite; its correction skipped
+                                             */
+#define MEKF_ACCEL_ZERO         (1u << 5) /* accelerometer norm below minimum; its correction
+                                             skipped */
+#define MEKF_MAG_NONFINITE      (1u << 6) /* magnetometer sample not finite; its correction skipped
+                                             */
+#define MEKF_MAG_ZERO           (1u << 7) /* magnetometer norm below minimum; its correction skipped
+                                             */
 #define MEKF_GPS_NONFINITE      (1u << 8) /* GPS velocity not finite; its correction skipped */
-#define MEKF_GYRO_RANGE         (1u << 9) /* refused: a gyro component beyond gyro_max; state unchanged */
-#define MEKF_ACCEL_RANGE        (1u << 10) /* an accelerometer component beyond accel_max; its correction skipped */
-#define MEKF_MAG_RANGE          (1u << 11) /* a magnetometer component beyond mag_max; its correction skipped */
-#define MEKF_GPS_RANGE          (1u << 12) /* a GPS velocity component beyond gps_vel_max; the sample is ignored */
-#define MEKF_COURSE_SLOW        (1u << 16) /* GPS sample present but ground speed below gps_min_speed: yaw row dropped */
-#define MEKF_ACCEL_GATED        (1u << 17) /* | |accel| - g | above accel_gate: roll/pitch rows dropped */
-#define MEKF_UPDATE_SKIPPED     (1u << 18) /* correction skipped: innovation covariance not positive definite, or pitch within 0.57 deg of +-90 deg (Euler angles singular) */
-#define MEKF_HEADING_UNAIDED    (1u << 19) /* no heading correction (GPS course or magnetometer) for more than 1 s */
-#define MEKF_MAG_DISTURBED      (1u << 20) /* magnetometer rejected: field norm or dip angle off the learned reference */
-#define MEKF_AT_REST            (1u << 21) /* rest detected: the gyro reading measures the gyro bias directly */
-#define MEKF_HARD_IRON_SWITCHED (1u << 22) /* the magnetometer hard iron and reference field were replaced by the candidate fitted while turning */
-#define MEKF_GYRO_RECOVERY      (1u << 23) /* a gyro component at gyro_full_scale (clipped), or within clip_recovery_time after one: the attitude covariance widened, the sensors taken as they come */
-#define MEKF_REFUSED_MASK (MEKF_DT_INVALID | MEKF_DT_TOO_LARGE | MEKF_GYRO_MISSING | MEKF_GYRO_NONFINITE | MEKF_GYRO_RANGE)
-/* Bits that mean trouble (a refused step, a bad sample, a numeric fault); the others are
- * information (what the filter noticed: COURSE_SLOW, ACCEL_GATED, HEADING_UNAIDED, MAG_DISTURBED, AT_REST, HARD_IRON_SWITCHED, GYRO_RECOVERY).
- * Test (status & MEKF_STATUS_FAULT_MASK) != 0u for a fault, not status != 0. */
-#define MEKF_STATUS_FAULT_MASK (MEKF_DT_INVALID | MEKF_DT_TOO_LARGE | MEKF_GYRO_MISSING | MEKF_GYRO_NONFINITE | MEKF_ACCEL_NONFINITE | MEKF_ACCEL_ZERO | MEKF_MAG_NONFINITE | MEKF_MAG_ZERO | MEKF_GPS_NONFINITE | MEKF_GYRO_RANGE | MEKF_ACCEL_RANGE | MEKF_MAG_RANGE | MEKF_GPS_RANGE | MEKF_UPDATE_SKIPPED)
+#define MEKF_GYRO_RANGE         (1u << 9) /* refused: a gyro component beyond gyro_max; state
+                                             unchanged */
+#define MEKF_ACCEL_RANGE        (1u << 10) /* an accelerometer component beyond accel_max; its
+                                              correction skipped */
+#define MEKF_MAG_RANGE          (1u << 11) /* a magnetometer component beyond mag_max; its
+                                              correction skipped */
+#define MEKF_GPS_RANGE          (1u << 12) /* a GPS velocity component beyond gps_vel_max; the
+                                              sample is ignored */
+#define MEKF_COURSE_SLOW        (1u << 16) /* GPS sample present but ground speed below
+                                              gps_min_speed: yaw row dropped */
+#define MEKF_ACCEL_GATED        (1u << 17) /* | |accel| - g | above accel_gate: roll/pitch rows
+                                              dropped */
+#define MEKF_UPDATE_SKIPPED     (1u << 18) /* correction skipped: innovation covariance not positive
+                                              definite, or pitch within 0.57 deg of +-90 deg (Euler
+                                              angles singular) */
+#define MEKF_HEADING_UNAIDED    (1u << 19) /* no heading correction (GPS course or magnetometer) for
+                                              more than 1 s */
+#define MEKF_MAG_DISTURBED      (1u << 20) /* magnetometer rejected: field norm or dip angle off the
+                                              learned reference */
+#define MEKF_AT_REST            (1u << 21) /* rest detected: the gyro reading measures the gyro bias
+                                              directly */
+#define MEKF_HARD_IRON_SWITCHED (1u << 22) /* the magnetometer hard iron and reference field were
+                                              replaced by the candidate fitted while turning */
+#define MEKF_GYRO_RECOVERY      (1u << 23) /* a gyro component at gyro_full_scale (clipped), or
+                                              within clip_recovery_time after one: the attitude
+                                              covariance widened, the sensors taken as they come */
+#define MEKF_REFUSED_MASK (MEKF_DT_INVALID | MEKF_DT_TOO_LARGE | MEKF_GYRO_MISSING | \
+    MEKF_GYRO_NONFINITE | MEKF_GYRO_RANGE)
+/*
+ * Bits that mean trouble (a refused step, a bad sample, a numeric fault); the others are
+ * information (what the filter noticed: COURSE_SLOW, ACCEL_GATED, HEADING_UNAIDED, MAG_DISTURBED,
+ * AT_REST, HARD_IRON_SWITCHED, GYRO_RECOVERY). Test (status & MEKF_STATUS_FAULT_MASK) != 0u for a
+ * fault, not status != 0.
+ */
+#define MEKF_STATUS_FAULT_MASK (MEKF_DT_INVALID | MEKF_DT_TOO_LARGE | MEKF_GYRO_MISSING | \
+    MEKF_GYRO_NONFINITE | MEKF_ACCEL_NONFINITE | MEKF_ACCEL_ZERO | MEKF_MAG_NONFINITE | \
+    MEKF_MAG_ZERO | MEKF_GPS_NONFINITE | MEKF_GYRO_RANGE | MEKF_ACCEL_RANGE | MEKF_MAG_RANGE | \
+    MEKF_GPS_RANGE | MEKF_UPDATE_SKIPPED)
 
 typedef struct {
     float q[4];            /* attitude quaternion body->NED [w x y z] */
@@ -146,17 +325,20 @@ typedef struct {
     float P[36];           /* error-state covariance [dq, db] (6x6, symmetric) */
     float v_gps[3];        /* last valid GPS velocity NED, m/s */
     float v_age;           /* age of v_gps, s (stops counting at 1e3) */
-    float a_gps[3];        /* NED acceleration from the last two GPS velocities, m/s^2 (motion_comp = gps_accel) */
+    float a_gps[3];        /* NED acceleration from the last two GPS velocities, m/s^2 (motion_comp
+                              = gps_accel) */
     uint32_t a_ok;         /* 1 when a_gps comes from two samples at most gps_vel_timeout apart */
     uint32_t initialised;  /* 1 once the attitude has been initialised */
     float a_lp[3];         /* specific force low-passed in the earth frame (NED), m/s^2 */
-    float v_lp[3];         /* GPS velocity through the same low-pass (motion_comp = gps_lowpass), m/s */
+    float v_lp[3];         /* GPS velocity through the same low-pass (motion_comp = gps_lowpass),
+                              m/s */
     uint32_t vlp_ok;       /* 1 while v_lp follows a fresh GPS velocity */
     float v_ins[3];        /* GPS velocity carried between GPS samples by the accelerometer, m/s */
     float gyro_lp[3];      /* rest detection: low-passed gyro, rad/s */
     float acc_lp[3];       /* rest detection: low-passed accelerometer, m/s^2 */
     float rest_time;       /* time the gyro and accelerometer have been steady, s (stops at 1e3) */
-    float mag_ref[2];      /* reference field [norm, dip angle rad] (learned, then followed while accepted) */
+    float mag_ref[2];      /* reference field [norm, dip angle rad] (learned, then followed while
+                              accepted) */
     float mag_ref_time;    /* time spent learning the reference field, s */
     float mag_rej_time;    /* time the magnetometer has been rejected in a row, s */
     float mag_cand[2];     /* candidate new reference [norm, dip] while rejected */
@@ -165,16 +347,22 @@ typedef struct {
     float mag_age;         /* time since the last usable magnetometer sample, s (stops at 0.1) */
     float recover_time;    /* time left of the recovery after a clipped gyro sample, s */
     float gyro_prev[3];    /* the previous gyro sample, rad/s (over-range plateau) */
-    float gyro_repeats[3]; /* times each gyro component has repeated its value at or above gyro_plateau_rate (over-range plateau) */
-    float mag_bias[3];     /* magnetometer hard iron, body axes, the field's units (m - mag_bias is used) */
-    float mag_cx[5];       /* candidate field model [hard iron / B (3), norm / B, down component / B], B = mag_ref[0] */
+    float gyro_repeats[3]; /* times each gyro component has repeated its value at or above
+                              gyro_plateau_rate (over-range plateau) */
+    float mag_bias[3];     /* magnetometer hard iron, body axes, the field's units (m - mag_bias is
+                              used) */
+    float mag_cx[5];       /* candidate field model [hard iron / B (3), norm / B, down component /
+                              B], B = mag_ref[0] */
     float mag_cP[25];      /* its covariance (5x5, symmetric) */
     uint32_t mag_c_ok;     /* 1 once the candidate has been started from the reference */
-    float mag_rlp[4];      /* hard-iron residuals [present (2), candidate (2)] low-passed over 0.2 s */
+    float mag_rlp[4];      /* hard-iron residuals [present (2), candidate (2)] low-passed over 0.2 s
+                              */
     float mag_rmean[2];    /* the present residuals' mean over mag_bias_settle */
     float mag_e[3];        /* mean squares: present, candidate, present less its mean */
-    float mag_turn_time;   /* time turning since the candidate started or switched, s (stops at 1e3) */
-    uint32_t mag_suspect;  /* 1 while the candidate explains the field and the present model does not */
+    float mag_turn_time;   /* time turning since the candidate started or switched, s (stops at 1e3)
+                              */
+    uint32_t mag_suspect;  /* 1 while the candidate explains the field and the present model does
+                              not */
 } mekf_state;
 
 typedef struct {

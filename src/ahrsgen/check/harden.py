@@ -542,157 +542,189 @@ def run_soak(gen_dir: str | Path, steps: int = 10_000_000, seed: int = 1, glitch
 
 # ---------------------------------------------------------------- cppcheck
 
-_KERNEL = re.compile(r"^static (?:inline )?void (\w+)\(([^\n]*)\)\n\{\n(.*?)\n\}\n", re.S | re.M)
-_PARAM = re.compile(r"^(const )?(float|double|uint32_t|int|\w+) (\*)?(?:restrict )?(\w+)(?:\[(?:restrict )?(\d+)\])?$")
+def build_kernels(man: dict) -> list:
+    """The kernel objects (ahrsgen.codegen.emit.Kernel) of a generated build, emitted again
+    from its manifest: filter, parameters, precision, prefix, math, fma, runtime parameters."""
+    from ahrsgen.generate import config, render
+    runtime = [r["name"] for r in man.get("runtime_params", [])]
+    cfg = config.resolve(man["filter"], precision=man["precision"], prefix=man["prefix"], math=man["math"],
+                         fma=man["fma"], runtime=runtime, values=man["params"])
+    return render.render(cfg).kernels
 
 
-def emitted_kernels(text: str, prefix: str) -> list[dict]:
-    """The emitted straight-line kernels (<prefix>_k_*) of a generated source: name, parameters
-    (name -> (is_const, array size or None, is_pointer)), body lines, span in the text."""
-    out = []
-    for m in _KERNEL.finditer(text):
-        if not m.group(1).startswith(f"{prefix}_k_"):
-            continue
-        params = {}
-        for p in m.group(2).split(", "):
-            pm = _PARAM.match(p.strip())
-            if not pm:
-                raise HardenError(f"{m.group(1)}: cannot parse parameter '{p}'")
-            params[pm.group(4)] = (bool(pm.group(1)), int(pm.group(5)) if pm.group(5) else None, bool(pm.group(3)))
-        out.append({"name": m.group(1), "params": params, "lines": m.group(3).split("\n"),
-                    "span": m.span(), "signature": text[m.start():text.index("\n", m.start())]})
-    return out
+def emitted_functions(text: str, kernels: list) -> tuple[list[dict], list[str]]:
+    """Where each C function of the kernels (a split kernel's parts, then itself) lies in a
+    generated source: its printed text (ir's printer) found as it is. Returns ([{name, function (ir.Function), lines (body lines), span}], issues: a function
+    the source does not hold as the kernels print it)."""
+    found, issues = [], []
+    for k in kernels:
+        for f in k.functions():
+            code = f.source()
+            at = text.find(code)
+            if at < 0:
+                issues.append(f"{f.name}: not in the source as its manifest's configuration emits it")
+                continue
+            found.append({"name": f.name, "function": f, "kernel": k, "lines": len(f.lines()),
+                          "span": (at, at + len(code))})
+    return found, issues
 
 
-_TMP_DEF = re.compile(r"^\s*const (?:float|double) (tmp\d+) = (.*);$")
-_OUT_ARR = re.compile(r"^\s*(\w+)\[(\d+)\] = (.*);$")
-_OUT_PTR = re.compile(r"^\s*\*(\w+) = (.*);$")
-_VOID = re.compile(r"^\s*\(void\)(\w+);$")
-_DECL = re.compile(r"^\s*(?:float|double) (tmp\d+);$")              # a select set on both sides of a branch
-_SET = re.compile(r"^\s*(tmp\d+) = (.*);$")
-_IF = re.compile(r"^\s*if \((.*)\) \{$")
-_ELSE = re.compile(r"^\s*\} else \{$")
-_END = re.compile(r"^\s*\}$")
-_LOCAL_ARR = re.compile(r"^\s*(?:float|double|bool) (carry|flags)\[(\d+)\];$")  # values handed between a split kernel's parts
-_CALL = re.compile(r"^\s*(\w+_part\d+)\(([\w, ]*)\);$")
-_INDEX = re.compile(r"\b(\w+)\[(\d+)\]")
-_TMP = re.compile(r"\btmp\d+\b")
-_COMMENT = re.compile(r"^\s*/\*.*\*/$")
-
-
-def kernel_structure_issues(k: dict) -> list[str]:
-    """What cppcheck looks for in emitted code, checked exactly: every indexed access within the
-    declared size of its array, inputs only read, every temporary defined once before use (a
-    temporary defined inside a branch is visible only there; a select declared before an
-    if/else must be set exactly once on each side, and is defined after it), every output
-    element written exactly once. A split kernel's own local arrays (carry, and flags for its
-    bools) are bounded by their declarations and filled by its parts (each part is checked as a
-    kernel of its own; a part writes only the slots of its exports, each at most once)."""
+def kernel_issues(k) -> list[str]:
+    """kernel_structure_issues of every function of a kernel; a split kernel's parts may each
+    write some of its output elements (emit's early_writes), so across the parts and the
+    kernel every output element is written exactly once."""
     issues, written = [], {}
-    params = dict(k["params"])
-    scopes = [{"defined": set(), "pending": set(), "set": set()}]   # innermost last
-    sides = []          # per open if: the selects set on its then-side (while in the else-side)
-    arrays = {n: size for n, (_, size, _) in params.items() if size is not None}
-
-    def visible(t):
-        return any(t in s["defined"] for s in scopes)
-
-    def check_expr(expr, where):
-        for name, idx in _INDEX.findall(expr):
-            if name not in arrays:
-                issues.append(f"{where}: {name}[{idx}] is not an array parameter")
-            elif int(idx) >= arrays[name]:
-                issues.append(f"{where}: {name}[{idx}] out of bounds (size {arrays[name]})")
-        for t in _TMP.findall(expr):
-            if not visible(t):
-                issues.append(f"{where}: {t} used before it is defined")
-
-    for n, line in enumerate(k["lines"], 1):
-        where = f"{k['name']} body line {n}"
-        if _COMMENT.match(line):
-            continue
-        if m := _VOID.match(line):
-            if m.group(1) not in params:
-                issues.append(f"{where}: (void) of unknown name {m.group(1)}")
-        elif m := _LOCAL_ARR.match(line):
-            arrays[m.group(1)] = int(m.group(2))
-        elif m := _CALL.match(line):
-            for a in (x.strip() for x in m.group(2).split(",") if x.strip()):
-                if a not in params and a not in arrays:
-                    issues.append(f"{where}: {a} passed to {m.group(1)} is neither a parameter nor a local array")
-        elif m := _DECL.match(line):
-            if visible(m.group(1)) or any(m.group(1) in s["pending"] for s in scopes):
-                issues.append(f"{where}: {m.group(1)} defined twice")
-            scopes[-1]["pending"].add(m.group(1))
-        elif m := _IF.match(line):
-            check_expr(m.group(1), where)
-            scopes.append({"defined": set(), "pending": set(), "set": set()})
-            sides.append(None)
-        elif _ELSE.match(line):
-            if len(scopes) < 2 or sides[-1] is not None:
-                issues.append(f"{where}: else without if")
-                continue
-            sides[-1] = scopes.pop()["set"]
-            scopes.append({"defined": set(), "pending": set(), "set": set()})
-        elif _END.match(line):
-            if len(scopes) < 2 or sides[-1] is None:
-                issues.append(f"{where}: unbalanced block")
-                continue
-            then_set, else_set = sides.pop(), scopes.pop()["set"]
-            if then_set != else_set:
-                issues.append(f"{where}: the sides set different selects: {sorted(then_set ^ else_set)}")
-            for t in then_set & else_set:
-                for s in scopes:
-                    s["pending"].discard(t)
-                scopes[-1]["defined"].add(t)
-        elif m := _TMP_DEF.match(line):
-            check_expr(m.group(2), where)
-            if visible(m.group(1)) or any(m.group(1) in s["pending"] for s in scopes):
-                issues.append(f"{where}: {m.group(1)} defined twice")
-            scopes[-1]["defined"].add(m.group(1))
-        elif m := _SET.match(line):
-            check_expr(m.group(2), where)
-            if len(scopes) < 2 or not any(m.group(1) in s["pending"] for s in scopes[:-1]):
-                issues.append(f"{where}: {m.group(1)} set outside a branch or not declared")
-            elif m.group(1) in scopes[-1]["set"]:
-                issues.append(f"{where}: {m.group(1)} set twice on one side")
-            scopes[-1]["set"].add(m.group(1))
-        elif m := (_OUT_ARR.match(line) or _OUT_PTR.match(line)):
-            check_expr(m.group(m.re.groups), where)
-            name = m.group(1)
-            key = (name, int(m.group(2))) if m.re is _OUT_ARR else (name, 0)
-            p = params.get(name)
-            if p is None or p[0]:
-                issues.append(f"{where}: writes {name}, which is not an output parameter")
-            elif m.re is _OUT_ARR and (p[1] is None or key[1] >= p[1]):
-                issues.append(f"{where}: {name}[{key[1]}] out of bounds")
-            written[key] = written.get(key, 0) + 1
-        else:
-            issues.append(f"{where}: not an emitted statement: {line.strip()}")
-    if len(scopes) != 1:
-        issues.append(f"{k['name']}: unclosed block")
-    for t in scopes[0]["pending"]:
-        issues.append(f"{k['name']}: {t} declared but never set")
-    for name, (const, size, ptr) in params.items():
-        if const or (size is None and not ptr):
-            continue
-        for i in range(size or 1):
-            c = written.get((name, i), 0)
-            if c != 1 and not (name in ("carry", "flags") and c == 0):
-                issues.append(f"{k['name']}: output {name}[{i}] written {c} times")
+    for f in k.functions():
+        got, w = _structure(f, partial=bool(k.parts))
+        issues += got
+        for key, n in w.items():
+            written[key] = written.get(key, 0) + n
+    for p in k.function().params:
+        if p.output:
+            for i in range(p.size or 1):
+                if written.get((p.name, i), 0) != 1:
+                    issues.append(f"{k.name}: output {p.name}[{i}] written {written.get((p.name, i), 0)} times")
     return issues
 
 
-def _stub(k: dict) -> str:
+def kernel_structure_issues(f, partial: bool = False) -> list[str]:
+    """What cppcheck looks for in emitted code, checked exactly on the kernel's statements
+    (ahrsgen.codegen.emit.ir.Function): every indexed access within the declared size of its
+    array, inputs only read, every temporary defined once before use (a temporary defined inside
+    a branch is visible only there; a select an If declares must be set exactly once on each
+    side, and is defined after it), every output element written exactly once. A split
+    kernel's own local arrays (carry, and flags for its bools) are bounded by their declarations
+    and filled by its parts (each part is checked as a function of its own; a part writes only
+    the slots of its exports, each at most once). partial: the function is one part of a
+    kernel, writing each output element at most once (kernel_issues checks the whole)."""
+    return _structure(f, partial)[0]
+
+
+def _structure(f, partial: bool) -> tuple[list[str], dict]:
+    from ahrsgen.codegen.emit import ir
+    issues, written = [], {}
+    params = {p.name: p for p in f.params}
+    arrays = {p.name: p.size for p in f.params if p.size is not None}
+    for name in f.unused:
+        if name not in params:
+            issues.append(f"{f.name}: (void) of unknown name {name}")
+    scopes = [set()]            # temporaries defined, innermost scope last
+    pending: set = set()        # selects declared by the enclosing Ifs and not yet defined
+
+    def visible(t):
+        return any(t in sc for sc in scopes)
+
+    def check_expr(e, where):
+        for x in ir.walk(e):
+            if isinstance(x, ir.Elem):
+                p = params.get(x.arg)
+                if p is None:
+                    issues.append(f"{where}: {x.arg} is not a parameter")
+                elif (x.index is None) != (p.size is None):
+                    issues.append(f"{where}: {x.arg} read unlike its declaration")
+                elif x.index is not None and not 0 <= x.index < p.size:
+                    issues.append(f"{where}: {x.arg}[{x.index}] out of bounds (size {p.size})")
+            elif isinstance(x, ir.Slot):
+                if x.array not in arrays:
+                    issues.append(f"{where}: {x.array}[{x.index}] is not an array")
+                elif not 0 <= x.index < arrays[x.array]:
+                    issues.append(f"{where}: {x.array}[{x.index}] out of bounds (size {arrays[x.array]})")
+            elif isinstance(x, ir.Ctx):
+                if not any(p.pointer and p.const and p.size is None for p in f.params):
+                    issues.append(f"{where}: {x.text} read without a context parameter")
+            elif isinstance(x, ir.Temp) and not visible(x):
+                issues.append(f"{where}: {x.name} used before it is defined")
+
+    def define(t, where):
+        if visible(t) or t in pending:
+            issues.append(f"{where}: {t.name} defined twice")
+        scopes[-1].add(t)
+
+    def run(stmts, path, selects) -> set:
+        """Check a statement list; returns the selects (of `selects`, the enclosing If's) it sets."""
+        done = set()
+        for n, s in enumerate(stmts, 1):
+            where = f"{f.name} statement {path}{n}"
+            if isinstance(s, ir.Let):
+                check_expr(s.expr, where)
+                define(s.temp, where)
+            elif isinstance(s, ir.SinCos):
+                check_expr(s.arg, where)
+                define(s.sin, where)
+                define(s.cos, where)
+            elif isinstance(s, ir.If):
+                check_expr(s.cond, where)
+                for t in s.declare:
+                    if visible(t) or t in pending:
+                        issues.append(f"{where}: {t.name} defined twice")
+                pending.update(s.declare)
+                sides = []
+                for side, block in (("then", s.then), ("else", s.orelse)):
+                    scopes.append(set())
+                    sides.append(run(block, f"{path}{n}.{side}.", set(s.declare)))
+                    scopes.pop()
+                if sides[0] != sides[1]:
+                    issues.append(f"{where}: the sides set different selects: "
+                                  f"{sorted(t.name for t in sides[0] ^ sides[1])}")
+                for t in s.declare:
+                    pending.discard(t)
+                    if t in sides[0] and t in sides[1]:
+                        scopes[-1].add(t)
+                    else:
+                        issues.append(f"{where}: {t.name} declared but not set on both sides")
+            elif isinstance(s, ir.Set):
+                check_expr(s.expr, where)
+                if s.temp not in selects:
+                    issues.append(f"{where}: {s.temp.name} set outside its branch or not declared")
+                elif s.temp in done:
+                    issues.append(f"{where}: {s.temp.name} set twice on one side")
+                done.add(s.temp)
+            elif isinstance(s, ir.Store):
+                check_expr(s.expr, where)
+                t = s.target
+                name, i = (t.array, t.index) if isinstance(t, ir.Slot) else (t.arg, t.index or 0)
+                p = params.get(name)
+                if isinstance(t, ir.Slot) and name in arrays and (p is None or not p.const):
+                    if not 0 <= i < arrays[name]:
+                        issues.append(f"{where}: {name}[{i}] out of bounds (size {arrays[name]})")
+                elif p is None or not p.output:
+                    issues.append(f"{where}: writes {name}, which is not an output parameter")
+                    continue
+                elif (t.index is None) != (p.size is None) or (p.size is not None and not 0 <= i < p.size):
+                    issues.append(f"{where}: {name}[{i}] out of bounds")
+                written[(name, i)] = written.get((name, i), 0) + 1
+            elif isinstance(s, ir.Local):
+                arrays[s.array] = s.size
+            elif isinstance(s, ir.PartCall):
+                for a in s.args:
+                    if a not in params and a not in arrays:
+                        issues.append(f"{where}: {a} passed to {s.part} is neither a parameter nor a local array")
+            elif not isinstance(s, ir.Comment):
+                issues.append(f"{where}: not an emitted statement: {s!r}")
+        return done
+
+    run(f.body, "", set())
+    for p in f.params:
+        if not p.output:
+            continue
+        for i in range(p.size or 1):
+            c = written.get((p.name, i), 0)
+            if c != 1 and not ((partial or p.name in ("carry", "flags")) and c == 0):
+                issues.append(f"{f.name}: output {p.name}[{i}] written {c} times")
+    return issues, written
+
+
+def _stub(f) -> str:
+    """The function with a body that only touches its parameters (cppcheck sees the call sites)."""
     body = []
-    for name, (const, size, ptr) in k["params"].items():
-        if const or (size is None and not ptr):
-            body.append(f"    (void){name};")
-        elif ptr:
-            body.append(f"    *{name} = 0;")
+    for p in f.params:
+        if not p.output:
+            body.append(f"    (void){p.name};")
+        elif p.size is None:
+            body.append(f"    *{p.name} = 0;")
         else:
-            body.append(f"    for (int i = 0; i < {size}; i++) {{\n        {name}[i] = 0;\n    }}")
-    return k["signature"] + "\n{\n" + "\n".join(body) + "\n}\n"
+            body.append(f"    for (int i = 0; i < {p.size}; i++) {{\n        {p.name}[i] = 0;\n    }}")
+    return f.prototype() + "\n{\n" + "\n".join(body) + "\n}"
 
 
 def run_cppcheck(gen_dir: str | Path, max_kernel_lines: int | None = None, timeout: float | None = None) -> dict:
@@ -709,12 +741,15 @@ def run_cppcheck(gen_dir: str | Path, max_kernel_lines: int | None = None, timeo
     target, structural, stubbed = src, [], []
     tmpdir = None
     if max_kernel_lines is not None:
-        pieces, last = [], 0
-        for k in emitted_kernels(text, man["prefix"]):
-            if len(k["lines"]) > max_kernel_lines:
-                structural += kernel_structure_issues(k)
-                stubbed.append(f"{k['name']} ({len(k['lines'])} lines)")
-                pieces += [text[last:k["span"][0]], _stub(k)]
+        found, structural = emitted_functions(text, build_kernels(man))
+        pieces, last, checked = [], 0, []
+        for k in sorted(found, key=lambda k: k["span"]):
+            if k["lines"] > max_kernel_lines:
+                if not any(k["kernel"] is c for c in checked):
+                    structural += kernel_issues(k["kernel"])
+                    checked.append(k["kernel"])
+                stubbed.append(f"{k['name']} ({k['lines']} lines)")
+                pieces += [text[last:k["span"][0]], _stub(k["function"])]
                 last = k["span"][1]
         if stubbed:
             pieces.append(text[last:])

@@ -92,13 +92,28 @@ def _runtime_param(p, value, code, lit) -> dict:
             "check": check, "code": code, "unit": p.unit, "doc": p.doc}
 
 
-def _pass_params(source: str, kernel_names: list[str]) -> str:
-    """Calls of kernels that read runtime parameters get the state's params first: the step,
-    init and helper code call kernels on the state `s`."""
-    import re
-    for name in kernel_names:
-        source = re.sub(rf"(?<!void )\b{name}\(", f"{name}(&s->params, ", source)
-    return source
+class _Calls:
+    """How the templates call a kernel: `{{ call.predict }}s->q, ...)` opens the call of
+    <prefix>_k_predict, with the state's params first if the kernel reads runtime parameters
+    (Kernel.context; the step, init and helper code call kernels on the state `s`). A plain
+    object, not a dict, so that a kernel may be called `update` or `items`."""
+
+    def __init__(self, calls: dict):
+        self._calls = calls
+
+    def __getattr__(self, key):
+        if key.startswith("__"):
+            raise AttributeError(key)
+        if key not in self._calls:
+            raise ConfigError(f"the C template calls kernel '{key}', which the model does not define "
+                              f"(kernels: {', '.join(sorted(self._calls))})")
+        return self._calls[key]
+
+    __getitem__ = __getattr__
+
+
+def _calls(specs, kernels) -> _Calls:
+    return _Calls({ks.name: k.name + "(" + ("&s->params, " if k.context else "") for ks, k in zip(specs, kernels)})
 
 
 class _RuntimeGuard(dict):
@@ -207,17 +222,16 @@ def render(cfg: BuildConfig, names: bool = True) -> Generated:
     context = (f"const {prefix}_params *par", {emit.RUNTIME_PREFIX + n: f"par->{n}" for n in runtime})
     kernels, kctx = [], []
     for ks in specs:
-        k = emit.emit(ks.function, real, name=f"{prefix}_k_{ks.name}", doc="", context=context,
+        k = emit.emit(ks.function, real, name=f"{prefix}_k_{ks.name}",
+                      doc=ks.doc + (_EARLY_WRITES_NOTE if ks.early_writes else ""), context=context,
                       math=cfg.math, fma=cfg.fma, flags=ks.flags, names=kernel_names.get(ks.name),
                       early_writes=ks.early_writes)
         extra = [a.name for a in k.inputs if a.name.startswith(emit.RUNTIME_PREFIX) and a.expr is None]
         if extra:
             raise ConfigError(f"kernel {ks.name}: free symbol(s) {', '.join(extra)} are not runtime parameters")
         kernels.append(k)
-        kctx.append({"name": ks.name, "doc": ks.doc + (_EARLY_WRITES_NOTE if ks.early_writes else ""), "code": k.source(storage=_storage(ks, k)),
-                     "ops_text": ", ".join(f"{n} {c}" for n, c in k.ops.items() if c) + f" (total {k.ops_total})"
-                     + "".join(f"\n *      of which only one side runs: if ({b['condition']}) {sum(b['then'].values())}, "
-                               f"else {sum(b['else'].values())}" for b in k.branches)})
+        k.storage = _storage(ks, k)
+        kctx.append({"name": ks.name, "code": k.source()})
     by_name = {ks.name: k for ks, k in zip(specs, kernels)}
     fast_helpers = sorted({h for k in kernels for h in k.helpers}
                           | (set(model.template_helpers()) if real == "float" and cfg.math == "fast" else set()))
@@ -323,12 +337,16 @@ def render(cfg: BuildConfig, names: bool = True) -> Generated:
         init_partial="init.c.j2" if (spec.folder / "init.c.j2").exists() else None,
         helpers_partial="helpers.c.j2" if (spec.folder / "helpers.c.j2").exists() else None,
         input_transform=_input_transform(getattr(cfg, "frame", None), model.sensors, lit, real),
-        noinline=NOINLINE,
+        noinline=NOINLINE, call=_calls(specs, kernels),
+        # lines within 100 columns (ahrsgen.codegen.emit.ir's printer)
+        cline=emit.ir.with_comment, cdefine=emit.ir.define, ccomment=lambda t: "\n".join(emit.ir.comment(t)),
+        title_line=lambda name: _wrap_doc(f"{name} - {spec.title}", prefix, 96),
+        status_refused=[f"{P}_{s['name']}" for s in status_ctx if s["refused"]],
+        status_faults=[f"{P}_{s['name']}" for s in status_ctx if s["fault"]],
+        status_info=", ".join(s["name"] for s in status_ctx if not s["fault"] and s["value"] != "0u") or "none here",
         cfg=_RuntimeGuard(cfg.params, runtime), **tctx)
     header = env.get_template("filter.h.j2").render(ctx)
     source = env.get_template("filter.c.j2").render(ctx)
-    if runtime:
-        source = _pass_params(source, [k.name for k in kernels if k.context])
 
     paths = {}
     for pname, knames in model.step_paths().items():

@@ -1,4 +1,4 @@
-"""CasADi SX Function -> straight-line C, for float or double.
+"""CasADi SX Function -> kernel objects printed as straight-line C, for float or double.
 
 The emitter walks the SX function's instruction list (Function.instruction_id/_input/
 _output/_constant) and writes one named `const` temporary per operation, so the C reads
@@ -17,10 +17,12 @@ operation counts. With math="fast" a float kernel calls src/ahrsgen/codegen/fast
 A constant the caller names (emit's `names`: a folded parameter, src/ahrsgen/codegen/folded.py) is
 written with its name in a comment beside it, the C otherwise unchanged.
 
-Modules: ops (C text and cost category of each operation, literals), kernel (the walk over
-the instructions: emit, Kernel), rewrite (exact reciprocals, fused multiply-adds), branches
-(selects as if/else), split (long kernels as parts), names (named literals), build
-(function, runtime_symbol).
+Modules: ir (the kernel as data: expression trees, statements, parameters, and the one
+printer that writes C; every reader of a kernel reads these, none parses C), ops (the
+expression and cost category of each operation, literals), kernel (the walk over the
+instructions: emit, Kernel with its Args/Outputs comment), rewrite (exact reciprocals, fused
+multiply-adds), branches (selects as if/else), split (long kernels as parts), names (names of
+derived literals), build (function, runtime_symbol).
 """
 from __future__ import annotations
 

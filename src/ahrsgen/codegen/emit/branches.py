@@ -1,7 +1,8 @@
 """Branches: a select whose sides cost more than a few operations becomes if/else."""
 from __future__ import annotations
 
-from ahrsgen.codegen.emit.ops import _TMP_RE, _WEIGHT, CATEGORIES
+from ahrsgen.codegen.emit.ir import If, Let, Set, temps
+from ahrsgen.codegen.emit.ops import _WEIGHT, CATEGORIES
 
 
 def _exclusive(group, side, kept, idx, nodes, users, refs):
@@ -18,7 +19,7 @@ def _exclusive(group, side, kept, idx, nodes, users, refs):
             reads_sel.add(t)
     cond_refs = set()
     for g in group:
-        cond_refs.update(_TMP_RE.findall(nodes[g]["sel"][0]))
+        cond_refs.update(temps(nodes[g]["sel"][0]))
     # Latest first, so that a temporary's users are decided before it: each is read only by
     # exclusive work or by selects of the group that take it as this side's value (and not as
     # the other's), e.g. cos|v| both returned by the else side and read by it.
@@ -32,27 +33,27 @@ def _exclusive(group, side, kept, idx, nodes, users, refs):
     return E
 
 
-def _layout(kept, nodes, writes, precision, min_cost, plain=lambda s: s):
-    """Body lines (temporaries as t<N>), the temporaries in emission order, and the branches.
+def _layout(kept, nodes, writes, precision, min_cost):
+    """Body statements (ir), the temporaries in emission order, and the branches.
 
     Selects on the same condition form a group; a group whose exclusive operations weigh
     at least `min_cost` is written as one if/else that computes only the taken side.
     Groups nest when all of a group's selects lie on one side of another. Selects are grouped
-    by the plain text of their condition (`plain`: named literals as literals), which the
+    by their condition (equal expressions; a named literal equals the plain one), which the
     if () shows."""
     idx = {t: i for i, t in enumerate(kept)}
-    refs = {t: set(_TMP_RE.findall(nodes[t]["expr"])) for t in kept}
+    refs = {t: set(temps(nodes[t]["expr"])) for t in kept}
     users: dict[str, set] = {t: set() for t in kept}
     for t in kept:
         for r in refs[t]:
             users[r].add(t)
-    for line in writes:
-        for r in _TMP_RE.findall(line):
+    for w in writes:
+        for r in temps(w.expr):
             users[r].add("<out>")
-    by_cond: dict[str, list[str]] = {}
+    by_cond: dict[tuple, list] = {}
     for t in kept:
         if nodes[t]["sel"] is not None:       # keyed apart from temporaries: a condition may be one
-            by_cond.setdefault(_IF + plain(nodes[t]["sel"][0]), []).append(t)
+            by_cond.setdefault((_IF, nodes[t]["sel"][0]), []).append(t)
 
     def cost(E):
         return sum(_WEIGHT[nodes[t]["cat"]] for t in E)
@@ -67,12 +68,12 @@ def _layout(kept, nodes, writes, precision, min_cost, plain=lambda s: s):
 
     while True:
         try:
-            return _emit_groups(kept, idx, nodes, refs, groups, precision, plain)
+            return _emit_groups(kept, idx, nodes, refs, groups)
         except _Cycle as c:        # this group cannot be placed as one block: keep it ?:
             del groups[c.cond]
 
 
-_IF = "if:"      # prefix of a group's key: the condition text, apart from any temporary's name
+_IF = "if"      # a group's key: (_IF, its condition), apart from any temporary
 
 
 class _Cycle(Exception):
@@ -80,7 +81,7 @@ class _Cycle(Exception):
         self.cond = cond
 
 
-def _emit_groups(kept, idx, nodes, refs, groups, precision, plain):
+def _emit_groups(kept, idx, nodes, refs, groups):
     import heapq
     # parent of each group: the (group, side) whose exclusive set holds all its selects
     parent = {}
@@ -96,9 +97,10 @@ def _emit_groups(kept, idx, nodes, refs, groups, precision, plain):
                 elif any(inside):
                     raise _Cycle(c)   # straddles a side: not a block of its own
         parent[c] = best
-    lines, emitted, branches, tops = [], [], [], []
+    emitted, branches = [], []
 
-    def block(members, key, indent):
+    def block(members, key) -> list:
+        out = []
         here = [c for c in groups if parent[c] == key]
         inner = set()
         for c in here:
@@ -109,7 +111,7 @@ def _emit_groups(kept, idx, nodes, refs, groups, precision, plain):
             if t in inner:
                 continue
             sel = nodes[t]["sel"]
-            g = _IF + plain(sel[0]) if sel is not None and _IF + plain(sel[0]) in here else None
+            g = (_IF, sel[0]) if sel is not None and (_IF, sel[0]) in here else None
             owner[t] = g if g is not None else t
             items.setdefault(owner[t], idx[t])
             items[owner[t]] = min(items[owner[t]], idx[t])
@@ -130,44 +132,35 @@ def _emit_groups(kept, idx, nodes, refs, groups, precision, plain):
         for i, d in deps.items():
             for o in d:
                 rdeps[o].append(i)
-        ready = [(items[i], i) for i in items if indeg[i] == 0]
+        order = {i: n for n, i in enumerate(items)}       # a tie-breaker that never compares keys
+        ready = [(items[i], order[i], i) for i in items if indeg[i] == 0]
         heapq.heapify(ready)
         done = 0
         while ready:
-            _, i = heapq.heappop(ready)
+            _, _, i = heapq.heappop(ready)
             done += 1
-            start, n0 = len(lines), len(emitted)
             if i in groups:
                 sels, ea, eb = groups[i]
-                for s in sels:
-                    lines.append(f"{indent}{nodes[s]['ctype']} {s};")
-                    emitted.append(s)
-                br = {"condition": i[len(_IF):], "then": _ops(ea, nodes), "else": _ops(eb, nodes)}
-                branches.append(br)
-                lines.append(f"{indent}if ({i[len(_IF):]}) {{")
-                block(sorted(ea, key=idx.get), (i, 1), indent + "    ")
-                for s in sels:
-                    lines.append(f"{indent}    {s} = {nodes[s]['sel'][1]};")
-                lines.append(f"{indent}}} else {{")
-                block(sorted(eb, key=idx.get), (i, 2), indent + "    ")
-                for s in sels:
-                    lines.append(f"{indent}    {s} = {nodes[s]['sel'][2]};")
-                lines.append(f"{indent}}}")
+                emitted.extend(sels)
+                branches.append({"condition": i[1], "then": _ops(ea, nodes), "else": _ops(eb, nodes)})
+                then = block(sorted(ea, key=idx.get), (i, 1)) + [Set(s, nodes[s]["sel"][1]) for s in sels]
+                orelse = block(sorted(eb, key=idx.get), (i, 2)) + [Set(s, nodes[s]["sel"][2]) for s in sels]
+                out.append(If(i[1], then, orelse, list(sels)))
             else:
-                lines.append(f"{indent}const {nodes[i]['ctype']} {i} = {nodes[i]['expr']};")
+                n = nodes[i]
+                out.append(Let(i, n["expr"], n["cat"], tuple(n.get("extra_ops", ()))))
                 emitted.append(i)
-            if key is None:
-                tops.append((start, len(lines), emitted[n0:]))
             for j in rdeps[i]:
                 indeg[j] -= 1
                 if indeg[j] == 0:
-                    heapq.heappush(ready, (items[j], j))
+                    heapq.heappush(ready, (items[j], order[j], j))
         if done != len(items):
             stuck = [i for i in items if indeg[i] > 0 and i in groups]
             raise _Cycle(stuck[0] if stuck else next(iter(here)))
+        return out
 
-    block(kept, None, "")
-    return lines, emitted, branches, tops
+    body = block(kept, None)
+    return body, emitted, branches
 
 
 def _ops(E, nodes) -> dict:

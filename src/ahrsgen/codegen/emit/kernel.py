@@ -2,16 +2,17 @@
 the Kernel it returns."""
 from __future__ import annotations
 
-import re
+import textwrap
 from dataclasses import dataclass, field
 
 import casadi as ca
 
 from ahrsgen.codegen import fastmath
+from ahrsgen.codegen.emit import ir
 from ahrsgen.codegen.emit.branches import _layout
-from ahrsgen.codegen.emit.names import _Marks
-from ahrsgen.codegen.emit.ops import (_BINARY, _COMPARISONS, _CONNECTIVES, _LOGIC, _TMP_RE, _UNARY, CATEGORIES, PRECISIONS,
-                                SUPPORTED, EmitError, _literal_value, literal, op_name)
+from ahrsgen.codegen.emit.ir import Call, Cast, Ctx, Elem, If, Let, Lit, Op, Param, Select, SinCos, Store, Temp
+from ahrsgen.codegen.emit.ops import (_BINARY, _COMPARISONS, _CONNECTIVES, _LOGIC, _UNARY, CATEGORIES, PRECISIONS,
+                                      SUPPORTED, EmitError, lit, op_name)
 from ahrsgen.codegen.emit.rewrite import _exact_reciprocals, _fuse_multiply_add, _shared_reciprocals
 from ahrsgen.codegen.emit.split import _split
 
@@ -45,66 +46,133 @@ class Arg:
     def scalar(self) -> bool:
         return self.size == 1
 
+    def as_param(self, real: str, output: bool = False, restrict: bool = False) -> Param:
+        """Its parameter: an input read-only (a scalar by value), an output written through."""
+        ctype = "bool" if self.flag else real
+        if output:
+            return Param(self.name, ctype, None if self.scalar else self.size, pointer=self.scalar, restrict=restrict)
+        if self.scalar:
+            return Param(self.name, ctype)
+        return Param(self.name, ctype, self.size, const=True, restrict=restrict)
+
     def param(self, real: str) -> str:
         """Its declaration as a (read-only) parameter."""
-        ctype = "bool" if self.flag else real
-        return f"{ctype} {self.name}" if self.scalar else f"const {ctype} {self.name}[{self.size}]"
+        return self.as_param(real).c()
+
+
+def context_param(decl: str) -> Param:
+    """The context pointer's parameter from its declaration, e.g. "const att_params *par"."""
+    ctype, _, name = decl.rpartition("*")
+    ctype = ctype.strip()
+    const = ctype.startswith("const ")
+    return Param(name.strip(), ctype.removeprefix("const ").strip(), pointer=True, const=const)
 
 
 @dataclass
 class Kernel:
-    """One emitted C function: prototype, body lines and its operation counts."""
+    """One emitted C function as data: its arguments, its statements (ir), the part functions
+    of a split kernel, its operation counts. ir's printer writes it as C."""
     name: str
     precision: str
     inputs: list[Arg]
     outputs: list[Arg]
-    body: list[str]
+    body: list                     # ir statements
     ops: dict[str, int]
     doc: str = ""
     n_temporaries: int = 0
     unused_inputs: list[str] = field(default_factory=list)
     helpers: list[str] = field(default_factory=list)   # src/ahrsgen/codegen/fastmath.py helpers called
     branches: list[dict] = field(default_factory=list)  # if/else blocks: condition, ops of each side
-    parts: list[str] = field(default_factory=list)      # sources of the part functions of a split kernel
+    parts: list[ir.Function] = field(default_factory=list)   # the part functions of a split kernel
     context: str | None = None    # leading parameter declaration, e.g. "const att_params *par"
     restrict: bool = False        # arrays declared restrict (emit's early_writes)
+    source_fn: ca.Function | None = field(default=None, repr=False, compare=False)  # what was emitted
+    storage: str = "static "      # what precedes `void` in its definition (the renderer decides)
 
     @property
     def ops_total(self) -> int:
         return sum(self.ops.values())
 
-    def prototype(self, storage: str = "static ") -> str:
-        real = self.precision
-        params = [self.context] if self.context else []
-        r = "restrict " if self.restrict else ""
-        for a in self.inputs:
-            if a.expr is not None:
-                continue
-            params.append(a.param(real).replace("[", "[" + r))
-        for a in self.outputs:
-            ctype = "bool" if a.flag else real
-            params.append(f"{ctype} *{r}{a.name}" if a.scalar else f"{ctype} {a.name}[{r}{a.size}]")
-        return f"{storage}void {self.name}({', '.join(params)})"
+    def params(self) -> list[Param]:
+        out = [context_param(self.context)] if self.context else []
+        out += [a.as_param(self.precision, restrict=self.restrict) for a in self.inputs if a.expr is None]
+        out += [a.as_param(self.precision, output=True, restrict=self.restrict) for a in self.outputs]
+        return out
 
-    def source(self, storage: str = "static ", indent: str = "    ") -> str:
+    def function(self) -> ir.Function:
+        """The kernel's own function (a split kernel's calls its parts)."""
+        return ir.Function(self.name, self.params(), self.body, list(self.unused_inputs), self.storage)
+
+    def functions(self) -> list[ir.Function]:
+        """Every C function of the kernel, in the order printed: its parts, then itself."""
+        return list(self.parts) + [self.function()]
+
+    def prototype(self, storage: str | None = None) -> str:
+        return self.function().prototype(storage)
+
+    def lines(self) -> list[str]:
+        """The printed body of the kernel's own function."""
+        return self.function().lines()
+
+    def part_sources(self) -> list[str]:
+        return [p.source() for p in self.parts]
+
+    def comment(self, width: int = 100) -> list[str]:
+        """The block above the kernel's function, as PX4's and SymForce's generated functions
+        carry: what it computes (doc), Args and Outputs (name, C type and shape; a matrix is
+        stated column-major), the total operation count and its categories."""
+        wrap = lambda text, first="", rest="": textwrap.wrap(  # noqa: E731
+            text, width - 3, initial_indent=first, subsequent_indent=rest, break_on_hyphens=False)
+        lines = wrap(self.doc.replace("*/", "* /")) + [""] if self.doc else []
+        lines.append("Args:")
+        if self.context:
+            read = ", ".join(a.expr for a in self.inputs if a.expr is not None)
+            lines += wrap(f"{context_param(self.context).name}: runtime parameters, reads {read}", "    ", "        ")
+        for a in self.inputs:
+            if a.expr is None:
+                lines += wrap(f"{a.name}: {_shape_text(a, self.precision)}"
+                              + (" (unused)" if a.name in self.unused_inputs else ""), "    ", "        ")
+        lines.append("Outputs:")
+        for a in self.outputs:
+            lines += wrap(f"{a.name}: {_shape_text(a, self.precision)}", "    ", "        ")
+        lines += ["", f"Total ops: {self.ops_total} ("
+                  + ", ".join(f"{n} {c}" for n, c in self.ops.items() if c) + ")"]
+        for b in self.branches:
+            lines += wrap(f"of which only one side runs: if ({b['condition']}) {sum(b['then'].values())}, "
+                          f"else {sum(b['else'].values())}", "    ", "        ")
+        return ["/*"] + [(" * " + ln).rstrip() for ln in lines] + [" */"]
+
+    def source(self, storage: str | None = None, indent: str = "    ") -> str:
+        """The kernel's C: its parts (a split kernel), then its comment and its function."""
         lines = []
         for part in self.parts:
-            lines += [part, ""]
-        if self.doc:
-            lines.append("/* " + self.doc.replace("*/", "* /") + " */")
-        lines.append(self.prototype(storage))
-        lines.append("{")
-        for name in self.unused_inputs:
-            lines.append(f"{indent}(void){name};")
-        lines.extend(indent + b for b in self.body)
-        lines.append("}")
+            lines += [part.source(indent=indent), ""]
+        lines += self.comment()
+        lines.append(self.function().source(storage, indent))
         return "\n".join(lines)
 
 
+def _shape_text(a: Arg, real: str) -> str:
+    """C type and shape of an argument; a matrix is flattened column-major (CasADi's order)."""
+    ctype = "bool" if a.flag else real
+    rows, cols = a.shape
+    if a.size == 1:
+        return ctype
+    if rows == 1 or cols == 1:
+        return f"{ctype}[{a.size}]"
+    return f"{ctype}[{a.size}], {rows}x{cols} matrix, column-major: row i, column j at [i + {rows} * j]"
+
+
 def _check_name(name: str, what: str) -> None:
-    if not name.isidentifier() or name.startswith("tmp") or re.fullmatch(r"carry\d*", name):
+    if (not name.isidentifier() or name.startswith("tmp") or
+            (name.startswith("carry") and (name[5:] == "" or name[5:].isdigit()))):
         raise EmitError(f"{what} name {name!r} is not a valid C identifier (and must not start with 'tmp' "
                         "or be carry/carry<N>)")
+
+
+def _literal_name(name: str) -> str:
+    """A folded parameter's text as it rides in a C comment."""
+    return name.replace("*/", "* /").replace("/*", "/ *")
 
 
 def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc: str = "",
@@ -112,7 +180,7 @@ def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc
          split_temps: int | None = SPLIT_TEMPS, context: tuple[str, dict] | None = None,
          flags: tuple[str, ...] | list[str] = (), names: dict[int, str] | None = None,
          early_writes: bool = False) -> Kernel:
-    """Emit an SX Function as a C function body for the given precision.
+    """Emit an SX Function as a kernel (statements as data, ir) for the given precision.
 
     ``math="fast"`` (float only; double always uses libm) writes fastmath helpers for the
     trigonometric functions. ``fma=True`` writes a product feeding a sum as fmaf(a, b, c):
@@ -136,9 +204,9 @@ def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc
     its registers cannot hold, and the compiler may order loads and stores freely.
 
     names: {instruction index: text} for OP_CONST instructions that are a folded parameter
-    expression (src/ahrsgen/codegen/folded.py); the literal is written with the text in a comment
-    beside it, `0.0049f /* accel_angle_noise^2 */`. Nothing else changes: until the body is
-    written, a named literal is a placeholder that every decision reads as the literal.
+    expression (src/ahrsgen/codegen/folded.py); the literal (ir.Lit) carries the text, printed
+    in a comment beside it, `0.0049f /* accel_angle_noise^2 */`. Nothing else changes: every
+    decision reads a named literal as the literal.
     """
     if precision not in PRECISIONS:
         raise EmitError(f"precision must be one of {PRECISIONS}, got {precision!r}")
@@ -151,7 +219,8 @@ def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc
     name = name or fn.name()
     _check_name(name, "kernel")
     F = "f" if precision == "float" else ""
-    one, zero = literal(1.0, precision), literal(0.0, precision)
+    one, zero = lit(1.0, precision), lit(0.0, precision)
+    true, false = Lit("true", 1.0), Lit("false", 0.0)
 
     inputs, outputs = [], []
     for i in range(fn.n_in()):
@@ -171,58 +240,54 @@ def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc
         _check_name(fn.name_out(o), f"kernel {name}: output")
         outputs.append(Arg(fn.name_out(o), sp.nnz(), (sp.size1(), sp.size2()), flag=fn.name_out(o) in flags))
 
-    work: dict[int, str] = {}       # work index -> C expression (temporary, input ref or literal)
-    nodes: dict[str, dict] = {}     # temporary -> {code, cat, expr, args}
-    order: list[str] = []
-    writes: list[str] = []
+    work: dict[int, object] = {}    # work index -> expression (temporary, input element or literal)
+    nodes: dict[Temp, dict] = {}    # temporary -> {code, cat, expr, args, sel, vargs, ctype}
+    order: list[Temp] = []
+    writes: list[Store] = []
     used_inputs: set[int] = set()
-    booleans: set[str] = set()      # flag input references and bool temporaries
+    booleans: set = set()           # flag input elements and bool temporaries
     unknown = set(flags) - {fn.name_in(i) for i in range(fn.n_in())} - {fn.name_out(o) for o in range(fn.n_out())}
     if unknown:
         raise EmitError(f"kernel {name}: flag(s) {', '.join(sorted(unknown))} are neither inputs nor outputs")
 
-    def ref(w: int) -> str:
-        return work[w]
+    def is_lit(x, v) -> bool:
+        return isinstance(x, Lit) and x.value == v
 
-    marks = _Marks()
+    def boolish(x) -> bool:
+        return x in booleans or is_lit(x, 1.0) or is_lit(x, 0.0)
 
-    def boolish(x: str) -> bool:
-        return x in booleans or marks.plain(x) in (one, zero)
+    def truth(x):
+        return true if is_lit(x, 1.0) else false if is_lit(x, 0.0) else x
 
-    def truth(x: str) -> str:
-        x0 = marks.plain(x)
-        return "true" if x0 == one else "false" if x0 == zero else x
-
-    def value(x: str) -> str:
+    def value(x):
         """x read as a number: a bool is converted explicitly."""
-        return f"({precision}){x}" if x in booleans else x
+        return Cast(precision, x) if x in booleans else x
 
-    def condition(x: str) -> str:
-        """C condition for 'x is true', folding a comparison temporary into it."""
+    def condition(x):
+        """The condition 'x is true', folding a comparison temporary into it."""
         node = nodes.get(x)
         if node is not None and node["code"] in _COMPARISONS:
             a, b = node["args"]
-            return f"{value(a)} {_COMPARISONS[node['code']]} {value(b)}"
+            return Op(_COMPARISONS[node["code"]], (value(a), value(b)))
         if node is not None and node["code"] == ca.OP_NOT:
-            return f"!({condition(node['args'][0])})"
+            return Op("!", (condition(node["args"][0]),))
         if x in booleans:
             return x
-        return f"{x} != {zero}"
+        return Op("!=", (x, zero))
 
     for k in range(fn.n_instructions()):
         code = fn.instruction_id(k)
         if code == ca.OP_CONST:
             (w,) = fn.instruction_output(k)
-            work[w] = literal(fn.instruction_constant(k), precision)
-            if names and k in names:
-                work[w] = marks.add(work[w], names[k])
+            named = _literal_name(names[k]) if names and k in names else None
+            work[w] = lit(fn.instruction_constant(k), precision, named)
             continue
         if code == ca.OP_INPUT:
             (w,) = fn.instruction_output(k)
             i, nz = fn.instruction_input(k)
             used_inputs.add(i)
             a = inputs[i]
-            work[w] = a.expr if a.expr is not None else (a.name if a.scalar else f"{a.name}[{nz}]")
+            work[w] = Ctx(a.name, a.expr) if a.expr is not None else Elem(a.name, None if a.scalar else nz)
             if a.flag:
                 booleans.add(work[w])
             continue
@@ -230,22 +295,23 @@ def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc
             (w,) = fn.instruction_input(k)
             o, nz = fn.instruction_output(k)
             a = outputs[o]
-            target = f"*{a.name}" if a.scalar else f"{a.name}[{nz}]"
+            target = Elem(a.name, None if a.scalar else nz)
+            x = work[w]
             if a.flag:
-                x = ref(w)
-                writes.append(f"{target} = {truth(x) if boolish(x) else f'{x} != {zero}'};")
+                writes.append(Store(target, truth(x) if boolish(x) else Op("!=", (x, zero))))
             else:
-                writes.append(f"{target} = {value(ref(w))};")
+                writes.append(Store(target, value(x)))
             continue
         if code == ca.OP_ASSIGN:
             (w_in,) = fn.instruction_input(k)[:1]
             (w,) = fn.instruction_output(k)
-            work[w] = ref(w_in)
+            work[w] = work[w_in]
             continue
         ins = fn.instruction_input(k)
         (w,) = fn.instruction_output(k)
         sel = None
-        args = [ref(ins[0])] + ([ref(ins[1])] if code in _BINARY or code == ca.OP_CONSTPOW else [])
+        extra: tuple = ()
+        args = [work[ins[0]]] + ([work[ins[1]]] if code in _BINARY or code == ca.OP_CONSTPOW else [])
         select = _as_select(code, args, nodes)
         args_v = [value(a) for a in args]    # operands read as numbers
         is_bool = select is None and code in _LOGIC
@@ -258,60 +324,57 @@ def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc
                 is_bool = True
             else:
                 a, b = value(a), value(b)
-            cat, expr = "cmp", f"({condition(cond)}) ? {a} : {b}"
             sel = (condition(cond), a, b)
+            cat, expr = "cmp", Select(*sel)
         elif code == ca.OP_CONSTPOW:
             a, b = args_v
-            expo = _literal_value(marks.plain(b))
+            expo = b.value if isinstance(b, Lit) else None
             if expo == 2.0:
-                cat, expr = "mul", f"{a} * {a}"
+                cat, expr = "mul", Op("*", (a, a))
             elif expo == 3.0:
-                cat, expr = "mul", f"{a} * {a} * {a}"
+                cat, expr, extra = "mul", Op("*", (Op("*", (a, a)), a)), ("mul",)
             elif expo == 0.5:
-                cat, expr = "sqrt", f"sqrt{F}({a})"
+                cat, expr = "sqrt", Call(f"sqrt{F}", (a,))
             elif expo == -1.0:
-                cat, expr = "div", f"{one} / {a}"
+                cat, expr = "div", Op("/", (one, a))
             else:
-                cat, expr = "trig", f"pow{F}({a}, {b})"
+                cat, expr = "trig", Call(f"pow{F}", (a, b))
         elif code == ca.OP_IF_ELSE_ZERO:
             c = condition(args[0])
-            if c.startswith("!(") and c.endswith(")"):      # if_else(c, 0, x): same block as c's selects
-                cat, expr = "cmp", f"({c[2:-1]}) ? {zero} : {args_v[1]}"
-                sel = (c[2:-1], zero, args_v[1])
+            if isinstance(c, Op) and c.op == "!":      # if_else(c, 0, x): same block as c's selects
+                sel = (c.args[0], zero, args_v[1])
             else:
-                cat, expr = "cmp", f"({c}) ? {args_v[1]} : {zero}"
                 sel = (c, args_v[1], zero)
+            cat, expr = "cmp", Select(*sel)
         elif fast and code in fastmath.OPS:
             h = fastmath.OPS[code]
             helpers.add(h)
-            cat, expr = "trig", f"{fastmath.HELPERS[h].name}({', '.join(args_v)})"
+            cat, expr = "trig", Call(fastmath.HELPERS[h].name, tuple(args_v))
         elif code in _BINARY:
-            cat, fmt = _BINARY[code]
-            expr = fmt.format(a=args_v[0], b=args_v[1], F=F, one=one, zero=zero)
+            cat, build = _BINARY[code]
+            expr = build(args_v[0], args_v[1], F, one, zero)
         elif code in _UNARY:
-            cat, fmt = _UNARY[code]
-            expr = fmt.format(a=args_v[0], F=F, one=one, zero=zero)
+            cat, build = _UNARY[code]
+            expr = build(args_v[0], F, one, zero)
         else:
             raise EmitError(
                 f"kernel {name}: CasADi operation {op_name(code)} is not supported by the emitter "
                 f"(supported: {', '.join(SUPPORTED)})")
-        tmp = f"t{len(order)}"
+        tmp = Temp("bool" if is_bool else precision)
         nodes[tmp] = {"code": code, "cat": cat, "expr": expr, "args": args, "sel": sel,
-                      "vargs": args_v, "ctype": "bool" if is_bool else precision}
+                      "vargs": args_v, "ctype": tmp.ctype, "extra_ops": extra}
         if is_bool:
             booleans.add(tmp)
         order.append(tmp)
         work[w] = tmp
 
     # Dead-code elimination: select folding leaves some temporaries unread.
-    live = set()
-    for line in writes:
-        live.update(_TMP_RE.findall(line))
+    live = set(ir.reads(writes))
     for tmp in reversed(order):
         if tmp in live:
-            live.update(_TMP_RE.findall(nodes[tmp]["expr"]))
+            live.update(ir.temps(nodes[tmp]["expr"]))
     kept = [t for t in order if t in live]
-    kept = _exact_reciprocals(kept, nodes, precision, marks)
+    kept = _exact_reciprocals(kept, nodes, precision)
     kept = _shared_reciprocals(kept, nodes, one)
     if fma:
         kept = _fuse_multiply_add(kept, nodes, writes, "fmaf" if precision == "float" else "fma")
@@ -320,94 +383,81 @@ def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc
         ops[nodes[t]["cat"]] += 1
         for c in nodes[t].get("extra_ops", ()):
             ops[c] += 1
-    body, emitted, branches, tops = _layout(kept, nodes, writes, precision, branch_min_cost, marks.plain)
+    body, emitted, branches = _layout(kept, nodes, writes, precision, branch_min_cost)
     if fast:
-        body, tops = _pair_sincos(body, tops)
+        body = _pair_sincos(body)
     if early_writes:
-        body, tops, writes = _place_writes_early(body, tops, writes)
-    # Renumber in emission order so the temporaries count up without gaps.
-    rename = {t: f"tmp{i}" for i, t in enumerate(emitted)}
-    sub = lambda s: _TMP_RE.sub(lambda m: rename[m.group(0)], s)  # noqa: E731
-    parts: list[str] = []
+        body, writes = _place_writes_early(body, writes)
+    # Named in emission order so the temporaries count up without gaps.
+    for i, t in enumerate(emitted):
+        t.name = f"tmp{i}"
+    parts: list[ir.Function] = []
     reads_context = any(a.expr is not None for i, a in enumerate(inputs) if i in used_inputs)
     ctx_decl = context[0] if context and reads_context else None
     if split_temps and len(emitted) > split_temps:
-        body, parts = _split(name, precision, inputs, body, writes, tops, split_temps, ctx_decl,
+        body, parts = _split(name, precision, inputs, body, writes, split_temps,
+                             context_param(ctx_decl) if ctx_decl else None,
                              frozenset(t for t in kept if nodes[t]["ctype"] == "bool"), outputs)
-        body, parts = [sub(line) for line in body], [sub(p) for p in parts]
     else:
-        body = [sub(line) for line in body] + [sub(line) for line in writes]
-    body, parts = [marks.write(line) for line in body], [marks.write(p) for p in parts]
+        body = body + writes
     for br in branches:
-        br["condition"] = sub(br["condition"])
+        br["condition"] = ir.print_expr(br["condition"], names=False)
     unused = [a.name for i, a in enumerate(inputs) if i not in used_inputs and a.expr is None]
-    text = "\n".join(body + parts)
-    used = {h for h in helpers | {"sincos"} if fastmath.HELPERS[h].name + "(" in text}
+    called = {s.fn for f in [body] + [p.body for p in parts] for s in ir.all_statements(f) if isinstance(s, SinCos)}
+    called |= {x.fn for f in [body] + [p.body for p in parts] for s in ir.all_statements(f)
+               for e in ir.exprs(s) for x in ir.walk(e) if isinstance(x, Call)}
+    used = {h for h in helpers | {"sincos"} if fastmath.HELPERS[h].name in called}
     return Kernel(name, precision, inputs, outputs, body, ops, doc, len(kept), unused, helpers=sorted(used),
-                  branches=branches, parts=parts, context=ctx_decl, restrict=early_writes)
+                  branches=branches, parts=parts, context=ctx_decl, restrict=early_writes, source_fn=fn)
 
 
-_SIN_OR_COS = re.compile(r"^(\s*)const float (t\d+) = fast_(sin|cos)f\((.+)\);$")
+_SINCOS = {"fast_sinf": "sin", "fast_cosf": "cos"}
 
 
-def _pair_sincos(body, tops):
-    """A sin and a cos of the same argument in one scope become one fast_sincosf call at the
-    first of them: one range reduction, the same floats. A pair is two lines
-    `const float tN = fast_sinf(a);` and `fast_cosf(a)` with the same indentation and argument
-    text and no line between them less indented (which would close their scope, e.g.
-    `} else {`). The argument is an SSA temporary or input, defined before the first, so
-    computing the second value there changes nothing; if the two lie in different top-level
-    statements, the second's temporary is now defined by the first's (for _split). Returns
-    (body, tops) with the lines renumbered."""
-    lines: list[str | None] = list(body)
-    top_of = {k: n for n, (a, b, _) in enumerate(tops) for k in range(a, b)}
-    defs = [list(d) for _, _, d in tops]
-    for i, line in enumerate(lines):
-        m = _SIN_OR_COS.match(line) if line is not None else None
-        if not m:
+def _trig_of(s):
+    """("sin" or "cos", argument) of a statement `const float t = fast_sinf(a);`, else None."""
+    if isinstance(s, Let) and isinstance(s.expr, Call) and s.expr.fn in _SINCOS and len(s.expr.args) == 1:
+        return _SINCOS[s.expr.fn], s.expr.args[0]
+    return None
+
+
+def _pair_sincos(stmts: list) -> list:
+    """A sin and a cos of the same argument in one statement list (one scope) become one
+    fast_sincosf call at the first of them: one range reduction, the same floats. The argument
+    is an SSA temporary or input, defined before the first, so computing the second value there
+    changes nothing (a split kernel's parts read where each temporary is defined: now at the
+    first)."""
+    out: list = [If(s.cond, _pair_sincos(s.then), _pair_sincos(s.orelse), s.declare) if isinstance(s, If) else s
+                 for s in stmts]
+    for i, s in enumerate(out):
+        first = _trig_of(s) if s is not None else None
+        if first is None:
             continue
-        ind, tmp, fn, arg = m.groups()
-        for j in range(i + 1, len(lines)):
-            other = lines[j]
-            if other is None:
-                continue
-            if other.strip() and len(other) - len(other.lstrip()) < len(ind):
+        for j in range(i + 1, len(out)):
+            second = _trig_of(out[j]) if out[j] is not None else None
+            if second is not None and second[1] == first[1] and second[0] != first[0]:
+                sin, cos = (s.temp, out[j].temp) if first[0] == "sin" else (out[j].temp, s.temp)
+                out[i] = SinCos(first[1], sin, cos)
+                out[j] = None
                 break
-            m2 = _SIN_OR_COS.match(other)
-            if m2 and m2.group(1) == ind and m2.group(4) == arg and m2.group(3) != fn:
-                second = m2.group(2)
-                s, c = (tmp, second) if fn == "sin" else (second, tmp)
-                lines[i] = (f"{ind}float {s};\n{ind}float {c};\n"
-                            f"{ind}fast_sincosf({arg}, &{s}, &{c});   /* sin and cos, one reduction */")
-                lines[j] = None
-                if top_of[i] != top_of[j]:
-                    defs[top_of[j]].remove(second)
-                    defs[top_of[i]].append(second)
-                break
-    new_body, new_tops = [], []
-    for n, (a, b, _) in enumerate(tops):
-        start = len(new_body)
-        new_body += [ln for text in lines[a:b] if text is not None for ln in text.split("\n")]
-        new_tops.append((start, len(new_body), defs[n]))
-    return new_body, new_tops
+    return [s for s in out if s is not None]
 
 
-def _place_writes_early(body, tops, writes):
+def _place_writes_early(body: list, writes: list):
     """Each output write moved to just after the top-level statement that defines the last
     temporary it reads (a write reading only inputs or literals: after the first statement).
-    Returns (body, tops, the writes left for the end: none unless the body is empty)."""
-    def_top = {t: k for k, (_, _, d) in enumerate(tops) for t in d}
-    if not tops:
-        return body, tops, writes
-    at: dict[int, list[str]] = {}
+    Returns (body, the writes left for the end: none unless the body is empty)."""
+    if not body:
+        return body, writes
+    def_top = {t: k for k, s in enumerate(body) for t in ir.defined(s)}
+    at: dict[int, list] = {}
     for w in writes:
-        at.setdefault(max([def_top[t] for t in _TMP_RE.findall(w)] + [0]), []).append(w)
-    new_body, new_tops = [], []
-    for k, (a, b, d) in enumerate(tops):
-        start = len(new_body)
-        new_body += body[a:b] + at.get(k, [])
-        new_tops.append((start, len(new_body), d))
-    return new_body, new_tops, []
+        at.setdefault(max([def_top[t] for t in ir.temps(w.expr)] + [0]), []).append(w)
+    out = []
+    for k, s in enumerate(body):
+        out.append(s)
+        out += at.get(k, [])
+    return out, []
 
 
 def _as_select(code, args, nodes):

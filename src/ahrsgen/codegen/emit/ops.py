@@ -2,10 +2,10 @@
 from __future__ import annotations
 
 from ahrsgen.errors import EmitError  # noqa: F401  (raised here; callers import it from here too)
-import re
-
 import casadi as ca
 import numpy as np
+
+from ahrsgen.codegen.emit.ir import Call, Lit, Op, Select
 
 
 PRECISIONS = ("float", "double")
@@ -24,59 +24,58 @@ def op_name(code: int) -> str:
     return _OP_NAMES.get(code, f"OP_{code}")
 
 
-# code -> (category, format) where format uses {a}, {b} for operands and {F} for the
-# precision's function suffix; {one}/{zero} are typed literals.
+# code -> (category, builder): the builder makes the expression from the operands a, b and
+# F (the precision's function suffix), one and zero (typed literals, ir.Lit).
+def _sel(c, a, b):
+    return Select(c, a, b)
+
+
 _BINARY = {
-    ca.OP_ADD: ("add", "{a} + {b}"),
-    ca.OP_SUB: ("add", "{a} - {b}"),
-    ca.OP_MUL: ("mul", "{a} * {b}"),
-    ca.OP_DIV: ("div", "{a} / {b}"),
-    ca.OP_POW: ("trig", "pow{F}({a}, {b})"),
-    ca.OP_ATAN2: ("trig", "atan2{F}({a}, {b})"),
-    ca.OP_FMOD: ("trig", "fmod{F}({a}, {b})"),
-    ca.OP_COPYSIGN: ("cmp", "copysign{F}({a}, {b})"),
-    ca.OP_HYPOT: ("sqrt", "hypot{F}({a}, {b})"),
-    ca.OP_FMIN: ("cmp", "({a} < {b}) ? {a} : {b}"),
-    ca.OP_FMAX: ("cmp", "({a} > {b}) ? {a} : {b}"),
-    ca.OP_LT: ("cmp", "({a} < {b}) ? {one} : {zero}"),
-    ca.OP_LE: ("cmp", "({a} <= {b}) ? {one} : {zero}"),
-    ca.OP_EQ: ("cmp", "({a} == {b}) ? {one} : {zero}"),
-    ca.OP_NE: ("cmp", "({a} != {b}) ? {one} : {zero}"),
-    ca.OP_AND: ("cmp", "({a} != {zero} && {b} != {zero}) ? {one} : {zero}"),
-    ca.OP_OR: ("cmp", "({a} != {zero} || {b} != {zero}) ? {one} : {zero}"),
-    ca.OP_IF_ELSE_ZERO: ("cmp", "({a} != {zero}) ? {b} : {zero}"),
+    ca.OP_ADD: ("add", lambda a, b, F, one, zero: Op("+", (a, b))),
+    ca.OP_SUB: ("add", lambda a, b, F, one, zero: Op("-", (a, b))),
+    ca.OP_MUL: ("mul", lambda a, b, F, one, zero: Op("*", (a, b))),
+    ca.OP_DIV: ("div", lambda a, b, F, one, zero: Op("/", (a, b))),
+    ca.OP_POW: ("trig", lambda a, b, F, one, zero: Call(f"pow{F}", (a, b))),
+    ca.OP_ATAN2: ("trig", lambda a, b, F, one, zero: Call(f"atan2{F}", (a, b))),
+    ca.OP_FMOD: ("trig", lambda a, b, F, one, zero: Call(f"fmod{F}", (a, b))),
+    ca.OP_COPYSIGN: ("cmp", lambda a, b, F, one, zero: Call(f"copysign{F}", (a, b))),
+    ca.OP_HYPOT: ("sqrt", lambda a, b, F, one, zero: Call(f"hypot{F}", (a, b))),
+    ca.OP_FMIN: ("cmp", lambda a, b, F, one, zero: _sel(Op("<", (a, b)), a, b)),
+    ca.OP_FMAX: ("cmp", lambda a, b, F, one, zero: _sel(Op(">", (a, b)), a, b)),
+    ca.OP_LT: ("cmp", lambda a, b, F, one, zero: _sel(Op("<", (a, b)), one, zero)),
+    ca.OP_LE: ("cmp", lambda a, b, F, one, zero: _sel(Op("<=", (a, b)), one, zero)),
+    ca.OP_EQ: ("cmp", lambda a, b, F, one, zero: _sel(Op("==", (a, b)), one, zero)),
+    ca.OP_NE: ("cmp", lambda a, b, F, one, zero: _sel(Op("!=", (a, b)), one, zero)),
+    ca.OP_AND: ("cmp", lambda a, b, F, one, zero: _sel(Op("&&", (Op("!=", (a, zero)), Op("!=", (b, zero)))), one, zero)),
+    ca.OP_OR: ("cmp", lambda a, b, F, one, zero: _sel(Op("||", (Op("!=", (a, zero)), Op("!=", (b, zero)))), one, zero)),
+    ca.OP_IF_ELSE_ZERO: ("cmp", lambda a, b, F, one, zero: _sel(Op("!=", (a, zero)), b, zero)),
 }
 
+
+def _call(fn):
+    return lambda a, F, one, zero: Call(fn + F, (a,))
+
+
 _UNARY = {
-    ca.OP_NEG: ("add", "-{a}"),
-    ca.OP_SQ: ("mul", "{a} * {a}"),
-    ca.OP_TWICE: ("add", "{a} + {a}"),
-    ca.OP_INV: ("div", "{one} / {a}"),
-    ca.OP_SQRT: ("sqrt", "sqrt{F}({a})"),
-    ca.OP_FABS: ("cmp", "fabs{F}({a})"),
-    ca.OP_FLOOR: ("cmp", "floor{F}({a})"),
-    ca.OP_CEIL: ("cmp", "ceil{F}({a})"),
-    ca.OP_SIGN: ("cmp", "({a} > {zero}) ? {one} : (({a} < {zero}) ? -{one} : {zero})"),
-    ca.OP_NOT: ("cmp", "({a} == {zero}) ? {one} : {zero}"),
-    ca.OP_SIN: ("trig", "sin{F}({a})"),
-    ca.OP_COS: ("trig", "cos{F}({a})"),
-    ca.OP_TAN: ("trig", "tan{F}({a})"),
-    ca.OP_ASIN: ("trig", "asin{F}({a})"),
-    ca.OP_ACOS: ("trig", "acos{F}({a})"),
-    ca.OP_ATAN: ("trig", "atan{F}({a})"),
-    ca.OP_EXP: ("trig", "exp{F}({a})"),
-    ca.OP_LOG: ("trig", "log{F}({a})"),
-    ca.OP_SINH: ("trig", "sinh{F}({a})"),
-    ca.OP_COSH: ("trig", "cosh{F}({a})"),
-    ca.OP_TANH: ("trig", "tanh{F}({a})"),
-    ca.OP_ASINH: ("trig", "asinh{F}({a})"),
-    ca.OP_ACOSH: ("trig", "acosh{F}({a})"),
-    ca.OP_ATANH: ("trig", "atanh{F}({a})"),
-    ca.OP_ERF: ("trig", "erf{F}({a})"),
+    ca.OP_NEG: ("add", lambda a, F, one, zero: Op("neg", (a,))),
+    ca.OP_SQ: ("mul", lambda a, F, one, zero: Op("*", (a, a))),
+    ca.OP_TWICE: ("add", lambda a, F, one, zero: Op("+", (a, a))),
+    ca.OP_INV: ("div", lambda a, F, one, zero: Op("/", (one, a))),
+    ca.OP_SQRT: ("sqrt", _call("sqrt")),
+    ca.OP_FABS: ("cmp", _call("fabs")),
+    ca.OP_FLOOR: ("cmp", _call("floor")),
+    ca.OP_CEIL: ("cmp", _call("ceil")),
+    ca.OP_SIGN: ("cmp", lambda a, F, one, zero: _sel(Op(">", (a, zero)), one,
+                                                       _sel(Op("<", (a, zero)), Op("neg", (one,)), zero))),
+    ca.OP_NOT: ("cmp", lambda a, F, one, zero: _sel(Op("==", (a, zero)), one, zero)),
 }
-for _name, _fmt in (("OP_LOG1P", "log1p{F}({a})"), ("OP_EXPM1", "expm1{F}({a})")):
-    if hasattr(ca, _name):
-        _UNARY[getattr(ca, _name)] = ("trig", _fmt)
+for _code, _fn in (("OP_SIN", "sin"), ("OP_COS", "cos"), ("OP_TAN", "tan"), ("OP_ASIN", "asin"),
+                   ("OP_ACOS", "acos"), ("OP_ATAN", "atan"), ("OP_EXP", "exp"), ("OP_LOG", "log"),
+                   ("OP_SINH", "sinh"), ("OP_COSH", "cosh"), ("OP_TANH", "tanh"), ("OP_ASINH", "asinh"),
+                   ("OP_ACOSH", "acosh"), ("OP_ATANH", "atanh"), ("OP_ERF", "erf"), ("OP_LOG1P", "log1p"),
+                   ("OP_EXPM1", "expm1")):
+    if hasattr(ca, _code):
+        _UNARY[getattr(ca, _code)] = ("trig", _call(_fn))
 
 # Operations the emitter accepts (for tests and error messages).
 SUPPORTED = sorted(op_name(c) for c in list(_BINARY) + list(_UNARY) + [ca.OP_CONSTPOW, ca.OP_ASSIGN])
@@ -103,18 +102,15 @@ def literal(value: float, precision: str) -> str:
     return f"({text})" if text.startswith("-") else text
 
 
-_TMP_RE = re.compile(r"\bt\d+\b")
 _COMPARISONS = {ca.OP_LT: "<", ca.OP_LE: "<=", ca.OP_EQ: "==", ca.OP_NE: "!="}
 # Operations with a true/false result, emitted as bool: comparisons of numbers, and the
 # connectives, which read their operands as conditions.
-_CONNECTIVES = {ca.OP_AND: lambda a, b: f"({a}) && ({b})", ca.OP_OR: lambda a, b: f"({a}) || ({b})",
-                ca.OP_NOT: lambda a: f"!({a})"}
-_LOGIC = {**{c: (lambda op: lambda a, b: f"{a} {op} {b}")(op) for c, op in _COMPARISONS.items()}, **_CONNECTIVES}
+_CONNECTIVES = {ca.OP_AND: lambda a, b: Op("&&", (a, b)), ca.OP_OR: lambda a, b: Op("||", (a, b)),
+                ca.OP_NOT: lambda a: Op("!", (a,))}
+_LOGIC = {**{c: (lambda op: lambda a, b: Op(op, (a, b)))(op) for c, op in _COMPARISONS.items()}, **_CONNECTIVES}
 
 
-def _literal_value(text: str):
-    t = text.strip("()").rstrip("f")
-    try:
-        return float(t)
-    except ValueError:
-        return None
+def lit(value: float, precision: str, name: str | None = None) -> Lit:
+    """A literal of the precision as an expression (ir.Lit)."""
+    v = float(value)
+    return Lit(literal(v, precision), v if np.isfinite(v) else None, name)

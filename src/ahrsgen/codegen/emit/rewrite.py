@@ -6,22 +6,23 @@ import math
 import casadi as ca
 import numpy as np
 
+from ahrsgen.codegen.emit.ir import Call, Lit, Op, Temp, temps
 from ahrsgen.codegen.emit.names import _reciprocal_name
-from ahrsgen.codegen.emit.ops import _TMP_RE, _literal_value, literal
+from ahrsgen.codegen.emit.ops import lit
 
 
-def _exact_reciprocals(kept, nodes, precision, marks):
+def _exact_reciprocals(kept, nodes, precision):
     """x / c with c a power of two -> x * (1 / c): the same value to the last bit (1 / c is
     exact), a multiplication instead of a division (14 cycles on the M4F, GCC keeps the
     division without -freciprocal-math). A named c gives a named 1 / c."""
     for t in kept:
         n = nodes[t]
-        c = _literal_value(marks.plain(n["args"][1])) if n["code"] == ca.OP_DIV and n["sel"] is None else None
+        d = n["args"][1] if n["code"] == ca.OP_DIV and n["sel"] is None else None
+        c = d.value if isinstance(d, Lit) else None
         if _power_of_two(c, precision):
-            r = literal(1.0 / c, precision)
-            if marks.name(n["args"][1]):
-                r = marks.add(r, _reciprocal_name(marks.name(n["args"][1])))
-            n.update(code=ca.OP_MUL, cat="mul", expr=f"{n['args'][0]} * {r}", args=[n["args"][0], r])
+            r = lit(1.0 / c, precision, _reciprocal_name(d.name) if d.name else None)
+            x = n["vargs"][0]
+            n.update(code=ca.OP_MUL, cat="mul", expr=Op("*", (x, r)), args=[n["args"][0], r], vargs=[x, r])
     return kept
 
 
@@ -35,7 +36,7 @@ def _shared_reciprocals(kept, nodes, one):
     by_den: dict[str, list[str]] = {}
     for t in kept:
         n = nodes[t]
-        if n["code"] == ca.OP_DIV and n["sel"] is None and _literal_value(n["args"][1]) is None:
+        if n["code"] == ca.OP_DIV and n["sel"] is None and not isinstance(n["args"][1], Lit):
             by_den.setdefault(n["args"][1], []).append(t)
     first = {ts[0]: d for d, ts in by_den.items() if len(ts) >= 2}
     if not first:
@@ -44,14 +45,14 @@ def _shared_reciprocals(kept, nodes, one):
     for t in kept:
         d = first.get(t)
         if d is not None:
-            r = f"t{len(nodes)}"
+            r = Temp(nodes[t]["ctype"])
             den = nodes[t]["vargs"][1]
-            nodes[r] = {"code": ca.OP_DIV, "cat": "div", "expr": f"{one} / {den}", "args": [one, d],
+            nodes[r] = {"code": ca.OP_DIV, "cat": "div", "expr": Op("/", (one, den)), "args": [one, d],
                         "sel": None, "vargs": [one, den], "ctype": nodes[t]["ctype"]}
             out.append(r)
             for q in by_den[d]:
                 x = nodes[q]["args"][0]
-                nodes[q].update(code=ca.OP_MUL, cat="mul", expr=f"{nodes[q]['vargs'][0]} * {r}", args=[x, r],
+                nodes[q].update(code=ca.OP_MUL, cat="mul", expr=Op("*", (nodes[q]["vargs"][0], r)), args=[x, r],
                                 vargs=[nodes[q]["vargs"][0], r])
         out.append(t)
     return out
@@ -73,10 +74,10 @@ def _fuse_multiply_add(kept, nodes, writes, fname):
     no other use is left. Counted as one mul and one add."""
     uses: dict[str, int] = {t: 0 for t in kept}
     for t in kept:
-        for r in _TMP_RE.findall(nodes[t]["expr"]):
+        for r in temps(nodes[t]["expr"]):
             uses[r] += 1
-    for line in writes:
-        for r in _TMP_RE.findall(line):
+    for w in writes:
+        for r in temps(w.expr):
             uses[r] += 1
     fused: dict[str, int] = {}
     for t in kept:
@@ -91,14 +92,14 @@ def _fuse_multiply_add(kept, nodes, writes, fname):
             a, b = mn["vargs"]
             other = y if pos == 0 else x
             if node["code"] == ca.OP_ADD:
-                expr = f"{fname}({a}, {b}, {other})"
+                expr = Call(fname, (a, b, other))
             elif pos == 0:                       # a * b - c
-                expr = f"{fname}({a}, {b}, -{other})"
+                expr = Call(fname, (a, b, Op("neg", (other,))))
             else:                                # c - a * b
-                expr = f"{fname}(-{a}, {b}, {other})"
+                expr = Call(fname, (Op("neg", (a,)), b, other))
             node["expr"] = expr
             node["cat"] = "mul"
-            node["extra_ops"] = ["add"]
+            node["extra_ops"] = ("add",)
             fused[m] = fused.get(m, 0) + 1
             break
     return [t for t in kept if not (t in fused and fused[t] == uses[t])]

@@ -1,14 +1,11 @@
 """A long kernel cut into part functions called in turn (bounded -O0 frames)."""
 from __future__ import annotations
 
-import re
-
-from ahrsgen.codegen.emit.ops import _TMP_RE
-
-_WORD = re.compile(r"\b[A-Za-z_]\w*\b")
+from ahrsgen.codegen.emit import ir
+from ahrsgen.codegen.emit.ir import Comment, Ctx, Elem, Local, Param, PartCall, Slot, Store
 
 
-def _split(name, precision, inputs, body, writes, tops, size, ctx_decl=None, bools=frozenset(), outputs=()):
+def _split(name, precision, inputs, body, writes, size, ctx=None, bools=frozenset(), outputs=()):
     """Cut the top-level statements into parts of about `size` temporaries; each part is a
     static function that reads the kernel inputs it uses and the values earlier parts
     exported, and exports what later parts and the outputs read. The exported values live in
@@ -16,21 +13,22 @@ def _split(name, precision, inputs, body, writes, tops, size, ctx_decl=None, boo
     last reader is an earlier part, or the part writing the new value: a part writes its
     exports after all its reads), so the frame holds the values live at once, not every value
     ever handed over. A part whose statements store outputs (emit's early_writes) takes those
-    outputs as parameters. Returns the kernel's body and the parts' sources (temporaries as t<N>).
-    A bool temporary travels in a second array, `flags` (bool), with slots reused the same way."""
+    outputs as parameters. ctx: the context pointer's Param, if the kernel reads one. Returns
+    the kernel's body and its parts (ir.Function). A bool temporary travels in a second array,
+    `flags` (bool), with slots reused the same way."""
     chunks, cur, count = [], [], 0
-    for item in tops:
-        if cur and count + len(item[2]) > size:
+    for s in body:
+        n = len(ir.defined(s))
+        if cur and count + n > size:
             chunks.append(cur)
             cur, count = [], 0
-        cur.append(item)
-        count += len(item[2])
+        cur.append(s)
+        count += n
     if cur:
         chunks.append(cur)
-    texts = [[ln for a, b, _ in ch for ln in body[a:b]] for ch in chunks]
-    defs = [[t for _, _, d in ch for t in d] for ch in chunks]
-    used = [set(_TMP_RE.findall("\n".join(tx))) for tx in texts]
-    used_out = set(_TMP_RE.findall("\n".join(writes)))
+    defs = [[t for s in ch for t in ir.defined(s)] for ch in chunks]
+    used = [set(ir.reads(ch)) for ch in chunks]
+    used_out = set(ir.reads(writes))
     exports = []
     for k, d in enumerate(defs):
         later = set().union(*used[k + 1:]) | used_out
@@ -38,6 +36,7 @@ def _split(name, precision, inputs, body, writes, tops, size, ctx_decl=None, boo
     # slots: the last part reading each exported value (len(chunks): an output reads it)
     last = {t: max([j for j in range(k + 1, len(chunks)) if t in used[j]] + [len(chunks) if t in used_out else -1])
             for k, ex in enumerate(exports) for t in ex}
+
     def array_of(t):            # the array a handed value travels in
         return "flags" if t in bools else "carry"
     slot, pool = {}, {}
@@ -58,39 +57,34 @@ def _split(name, precision, inputs, body, writes, tops, size, ctx_decl=None, boo
                     s, pool[kind] = pool[kind], pool[kind] + 1
                 slot[t], holder[s] = s, t
     producer = {t: k for k, ex in enumerate(exports) for t in ex}
-    real = precision
-    array_type = {"carry": real, "flags": "bool"}
+    array_type = {"carry": precision, "flags": "bool"}
 
     def carried(t):
-        return f"{array_of(t)}[{slot[t]}]"
+        return Slot(array_of(t), slot[t])
     parts = []
     held = [a for a in ("carry", "flags") if pool[a]]
-    call_lines = [f"/* {len(chunks)} parts called in turn (inlined when optimising): bounded -O0 frames; "
-                  f"{' and '.join(held)} {'hold' if len(held) > 1 else 'holds'} the values handed between "
-                  f"them (a slot reused once its value is dead) */"]
-    call_lines += [f"{array_type[a]} {a}[{pool[a]}];" for a in held]
-    for k, tx in enumerate(texts):
-        text = "\n".join(tx)
-        words = set(_WORD.findall(text))
-        ins = [a for a in inputs if a.expr is None and a.name in words]
-        ctx = ctx_decl is not None and any(a.expr is not None and a.expr in text for a in inputs)
+    calls = [Comment(f"{len(chunks)} parts called in turn (inlined when optimising): bounded -O0 frames; "
+                     f"{' and '.join(held)} {'hold' if len(held) > 1 else 'holds'} the values handed between "
+                     f"them (a slot reused once its value is dead)")]
+    calls += [Local(array_type[a], a, pool[a]) for a in held]
+    for k, ch in enumerate(chunks):
+        read = {x for s in ir.all_statements(ch) for e in ir.exprs(s) for x in ir.walk(e) if isinstance(x, (Elem, Ctx))}
+        read_args = {x.arg for x in read}
+        stored = {s.target.arg for s in ir.all_statements(ch) if isinstance(s, Store) and isinstance(s.target, Elem)}
+        ins = [a for a in inputs if a.expr is None and a.name in read_args]
+        uses_ctx = ctx is not None and any(isinstance(x, Ctx) for x in read)
         imported = {t: carried(t) for t in used[k] if t in producer and producer[t] < k}
-        outs = [a for a in outputs if re.search(rf"^\*?{a.name}\b", text, re.M)]
-        params = ([ctx_decl] if ctx else []) + [a.param(real) for a in ins] + [
-            (f"{'bool' if a.flag else real} *{a.name}" if a.scalar else f"{'bool' if a.flag else real} {a.name}[{a.size}]")
-            for a in outs]
-        arrays = []
+        stmts = ir.map_exprs(ch, lambda e: ir.substitute(e, imported))
+        stmts += [Store(carried(t), t) for t in exports[k]]
+        params = ([ctx] if uses_ctx else []) + [a.as_param(precision) for a in ins] + [
+            a.as_param(precision, output=True) for a in outputs if a.name in stored]
         for a in ("carry", "flags"):
             writes_a = any(array_of(t) == a for t in exports[k])
             reads_a = any(array_of(t) == a for t in imported)
             if writes_a or reads_a:
-                params.append(f"{'' if writes_a else 'const '}{array_type[a]} {a}[{pool[a]}]")
-                arrays.append(a)
-        lines = [_TMP_RE.sub(lambda m: imported.get(m.group(0), m.group(0)), ln) for ln in tx]
-        lines += [f"{carried(t)} = {t};" for t in exports[k]]
+                params.append(Param(a, array_type[a], pool[a], const=not writes_a))
         pname = f"{name}_part{k}"
-        parts.append(f"static void {pname}({', '.join(params)})\n{{\n" + "\n".join("    " + ln for ln in lines) + "\n}")
-        args = ([_WORD.findall(ctx_decl)[-1]] if ctx else []) + [a.name for a in ins] + [a.name for a in outs] + arrays
-        call_lines.append(f"{pname}({', '.join(args)});")
-    out = [_TMP_RE.sub(lambda m: carried(m.group(0)), w) for w in writes]
-    return call_lines + out, parts
+        parts.append(ir.Function(pname, params, stmts))
+        calls.append(PartCall(pname, [p.name for p in params]))
+    out = ir.map_exprs(writes, lambda e: ir.substitute(e, {t: carried(t) for t in used_out}))
+    return calls + out, parts
