@@ -454,7 +454,7 @@ def test_double_build_runs_on_soft_float_and_costs_what_it_should(tmp_path):
 
 
 # --- the footprint figures the docs state ---------------------------------------------
-# README.md's table and docs/target.md's two tables are written by docs/target_tables.py from
+# README.md's table and docs/target.md's two tables are written by studies/target_tables.py from
 # one `ahrsgen target all --peers --json` run. Every figure is re-measured here from a fresh
 # build of the committed C on the same log (seed 0) and compared with what the doc writes.
 INSTR_TOL = 0.01      # instruction counts are deterministic (same code, same log): 1 %; the same for

@@ -1,21 +1,21 @@
 """Writes the footprint tables of docs/target.md and README.md from one `ahrsgen target` run.
 
     PYTHONPATH=src .venv/bin/python -m ahrsgen target all --peers --json build/target/target.json
-    PYTHONPATH=src .venv/bin/python docs/target_tables.py build/target/target.json
+    PYTHONPATH=src .venv/bin/python -m studies.target_tables build/target/target.json
 
 Each table stands between a line `<!-- target_tables.py: NAME -->` and a line
-`<!-- end target_tables.py -->`; what is between them is replaced. tests/test_target.py
-re-measures every figure of these tables (tests/docs_tables.py reads them back).
+`<!-- end target_tables.py -->` (studies/doc_blocks.py). tests/test_target.py re-measures every
+figure of these tables (tests/docs_tables.py reads them back).
 """
 from __future__ import annotations
 
 import json
-import re
 import sys
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-END = "<!-- end target_tables.py -->"
+from studies.doc_blocks import ROOT, replace_block
+
+WRITER = "target_tables.py"
 
 # docs/target.md's columns; the checker in tests/test_target.py names the same headers
 FULL_HEADER = ("| filter | build | scenario (steps) | flash B | state B | stack B static / measured / -O0 "
@@ -57,15 +57,6 @@ def readme_table(results: list[dict]) -> list[str]:
     return lines
 
 
-def replace_block(path: Path, name: str, lines: list[str]) -> None:
-    begin = f"<!-- target_tables.py: {name} -->"
-    text = path.read_text()
-    pattern = re.compile(re.escape(begin) + r"\n.*?" + re.escape(END), re.S)
-    if not pattern.search(text):
-        sys.exit(f"{path}: no block {begin} ... {END}")
-    path.write_text(pattern.sub(lambda _m: "\n".join([begin, *lines, END]), text, count=1))
-
-
 def main(argv: list[str]) -> int:
     if len(argv) != 1:
         sys.exit(__doc__)
@@ -78,9 +69,9 @@ def main(argv: list[str]) -> int:
     # the peers run on fixedwing_gps (`ahrsgen target --peers`), every step counted by QEMU
     peers = [{"scenario": "fixedwing_gps", "steps": fp["instructions_steps"], "footprint": fp}
              for fp in report["peers"]]
-    replace_block(ROOT / "docs" / "target.md", "filters", full_table(results))
-    replace_block(ROOT / "docs" / "target.md", "peers", full_table(peers))
-    replace_block(ROOT / "README.md", "filters", readme_table(results))
+    replace_block(ROOT / "docs" / "target.md", WRITER, "filters", full_table(results))
+    replace_block(ROOT / "docs" / "target.md", WRITER, "peers", full_table(peers))
+    replace_block(ROOT / "README.md", WRITER, "filters", readme_table(results))
     return 0
 
 
