@@ -1,9 +1,12 @@
-"""Figures for docs/cpf.md: the paper's Table 1 on the `turntable` scenario, and cost versus N.
+"""Figures for docs/cpf.md: the paper's Table 1 on the `turntable` scenario, every scenario at
+the defaults, and state and operations versus N.
 
-    .venv/bin/python -m studies.cpf_report            # Markdown on stdout
+    PYTHONPATH=src .venv/bin/python -m studies.cpf_report            # Markdown on stdout
+    PYTHONPATH=src .venv/bin/python -m studies.cpf_report --write    # into docs/cpf.md's blocks
 
-Runs the generated C in double precision (it equals the NumPy reference to ~1e-14 rad on
-these runs; tests/test_cpf.py checks it), mean over scenario seeds 0-9.
+Table 1 runs the generated C in double precision (it equals the NumPy reference within 1e-9 rad;
+tests/test_cpf.py checks it), mean over scenario seeds 0-9. tests/test_cpf_doc.py re-measures
+every figure the blocks hold.
 """
 from __future__ import annotations
 
@@ -17,6 +20,7 @@ import numpy as np
 from ahrsgen.sim import host, scenarios
 from ahrsgen.sim.metrics import euler_stats
 from ahrsgen.generate import config
+from studies.doc_blocks import ROOT, replace_block
 
 PAPER = {"complementary": (4.26, 3.74, 2.84), "particle": (3.68, 3.28, 3.19), "combined": (0.93, 0.41, 0.36)}
 MODES = ("complementary", "particle", "combined")
@@ -53,11 +57,40 @@ def rms_hpr(params: dict, seeds, noisy: bool) -> np.ndarray:
     out = []
     for seed in seeds:
         log = turntable(seed, noisy)
-        p = {"declination": math.radians(float(log.meta["declination_deg"])), **params}
+        p = {"declination": declination(log), **params}
         q = hf("double", **p).run(log).q
         s = euler_stats(q, log.q_true, log.t, log.settle_time)
         out.append([s["yaw"]["rms"], s["pitch"]["rms"], s["roll"]["rms"]])
     return np.mean(out, axis=0)
+
+
+def declination(log) -> float:
+    return math.radians(float(log.meta.get("declination_deg", 0.0)))
+
+
+def rms_rpy(precision: str, log) -> tuple[np.ndarray, bool]:
+    """RMS roll, pitch, yaw (degrees) of the default filter on `log` after its settle time, and
+    whether every step returned status 0."""
+    r = hf(precision, declination=declination(log)).run(log)
+    s = euler_stats(r.q, log.q_true, log.t, log.settle_time)
+    return np.array([s[a]["rms"] for a in ("roll", "pitch", "yaw")]), bool(np.all(r.status == 0))
+
+
+SCENARIOS = ("turntable", "fixedwing_gps", "multirotor", "static_accel_disturbance", "static_mag_disturbance")
+
+
+def every_scenario() -> str:
+    lines = ["| scenario | steps | double | float |", "|---|---|---|---|"]
+    for name in SCENARIOS:
+        log = scenarios.make(name, seed=0)
+        (d, _), (f, _) = rms_rpy("double", log), rms_rpy("float", log)
+        lines.append(f"| {name} | {_n(len(log))} | {_fmt(d)} | {_fmt(f)} |")
+    return "\n".join(lines)
+
+
+def _n(x: int) -> str:
+    """A whole number with a space between thousands: 7500 -> "7 500"."""
+    return f"{x:,}".replace(",", " ")
 
 
 def _fmt(v):
@@ -95,20 +128,14 @@ def reproduction(seeds=range(10)) -> str:
 # cumulative adds and compares, at most N copies of 4 values).
 
 
-def cost(ns=(50, 100, 200), time_it: bool = True) -> str:
-    lines = ["| N | state B (float) | state B (double) | kernel ops, step with accel+mag | "
-             "+ template per particle (ziggurat) | host ns/step double | host ns/step float |",
-             "|---|---|---|---|---|---|---|"]
-    log = turntable(0, False)
+def cost(ns=(50, 100, 200)) -> str:
+    lines = ["| N | state B float | state B double | kernel ops, step with accel+mag |", "|---|---|---|---|"]
     for n in ns:
         f, d = hf("float", n_particles=n), hf("double", n_particles=n)
         path = f.manifest["step_paths"]["accel+mag (kernels)"]
-        ops = ", ".join(f"{k} {v}" for k, v in path["ops"].items() if v)
-        t_d = d.time_ns_per_step(log) if time_it else float("nan")
-        t_f = f.time_ns_per_step(log) if time_it else float("nan")
-        lines.append(f"| {n} | {f.manifest['structs']['state']['size']} | {d.manifest['structs']['state']['size']} | "
-                     f"{path['total']} ({ops}) | {n} × (3 normals, 1 exp) | "
-                     f"{t_d:.0f} | {t_f:.0f} |")
+        ops = ", ".join(f"{k} {_n(v)}" for k, v in path["ops"].items() if v)
+        lines.append(f"| {n} | {_n(f.manifest['structs']['state']['size'])} | "
+                     f"{_n(d.manifest['structs']['state']['size'])} | {_n(path['total'])} ({ops}) |")
     return "\n".join(lines)
 
 
@@ -122,12 +149,18 @@ def per_particle_ops() -> str:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--seeds", type=int, default=10)
-    ap.add_argument("--no-timing", action="store_true")
+    ap.add_argument("--write", action="store_true", help="write the tables into docs/cpf.md's blocks")
     a = ap.parse_args(argv)
+    tables = {"table1": reproduction(range(a.seeds)), "scenarios": every_scenario(), "cost": cost()}
+    if a.write:
+        for block, text in tables.items():
+            replace_block(ROOT / "docs" / "cpf.md", "cpf_report.py", block, text.splitlines())
     print("RMS heading / pitch / roll, degrees (mean over seeds 0-%d)\n" % (a.seeds - 1))
-    print(reproduction(range(a.seeds)))
+    print(tables["table1"])
+    print("\nRMS roll / pitch / yaw, degrees, seed 0\n")
+    print(tables["scenarios"])
     print()
-    print(cost(time_it=not a.no_timing))
+    print(tables["cost"])
     print()
     print(per_particle_ops())
     return 0

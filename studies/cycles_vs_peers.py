@@ -204,7 +204,6 @@ def measure(b: B.FilterBinding, kind: str, log, rec: np.ndarray, opt: str, wd: P
     t0 = time.perf_counter()
     r = check_filter(b, rec, wd, opt=opt, count_steps=count_steps, o0_stack=False)
     fp = r.footprint
-    counted = len(r.counts.instructions)
     code, reach = step_code_bytes(b, r.build)
     q = quaternions(b, r.run)
     st = metrics.euler_stats(q, log.q_true, log.t, log.settle_time)
@@ -216,7 +215,7 @@ def measure(b: B.FilterBinding, kind: str, log, rec: np.ndarray, opt: str, wd: P
            "cycles_est_mean": fp.cycles_est_mean, "cycles_est_min": fp.cycles_est_min,
            "cycles_est_max": fp.cycles_est_max, "cycles_est_steps": fp.cycles_est_steps,
            "cycles_est_unmodelled": fp.cycles_est_unmodelled,
-           "vdiv_vsqrt_per_step": r.cycles.executions({"vdiv", "vsqrt"}) / counted if counted else float("nan"),
+           "vdiv_vsqrt_per_step": fp.vdiv_vsqrt_per_step,
            "step_code_bytes": code, "step_functions": reach,
            "flash_bytes": fp.flash_bytes, "own_code_bytes": fp.own_code_bytes, "state_bytes": fp.state_bytes,
            "stack_bytes": fp.stack_bytes, "double_helpers": fp.double_helpers, "library_calls": fp.library_calls,

@@ -1,23 +1,51 @@
 """Reading a figure table of the docs back, so a test can re-measure every row of it.
 
-A table is found by the sentence that introduces it; its rows are `| label | number | number |`.
+A table is found by the sentence that introduces it (the first table after that text). Cells
+hold numbers with a space as thousands separator ("18 356"), several in one cell separated by
+" / ". A stated figure is compared with its measurement within a relative tolerance plus half a
+unit of the last digit the doc writes (the doc rounds; tolerance 0 means equal as written).
 """
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
-DOCS = Path(__file__).resolve().parents[1] / "docs"
+ROOT = Path(__file__).resolve().parents[1]
+DOCS = ROOT / "docs"
+
+
+def table(doc: str, intro: str) -> list[dict[str, str]]:
+    """The table after the text `intro` in `doc` (a path from the repository's root, e.g.
+    "README.md" or "docs/target.md"): one dict a row, header cell -> cell."""
+    text = (ROOT / doc).read_text()
+    lines = text[text.index(intro):].splitlines()
+    start = next(i for i, ln in enumerate(lines) if ln.startswith("|"))
+    rows = []
+    for ln in lines[start:]:
+        if not ln.startswith("|"):
+            break
+        rows.append([c.strip() for c in ln.strip().strip("|").split("|")])
+    header, body = rows[0], rows[2:]          # rows[1] is the |---| line
+    return [dict(zip(header, r)) for r in body]
+
+
+def numbers(cell: str) -> list[str]:
+    """The figures of a cell as written: "5 872 / 5 170" -> ["5872", "5170"]."""
+    return [re.sub(r"[\s\u202f]", "", part) for part in cell.split(" / ")]
+
+
+def outside(stated: str, measured: float, tolerance: float) -> bool:
+    """Is `measured` further from the written figure `stated` than `tolerance` (relative) plus
+    half a unit of its last written digit?"""
+    decimals = len(stated.partition(".")[2])
+    value = float(stated)
+    return abs(measured - value) > tolerance * abs(value) + 0.5 * 10.0 ** -decimals
 
 
 def min_max_rows(doc: str, intro: str) -> dict[str, tuple[float, float]]:
-    """docs/<doc>'s table after the text `intro`: label -> (min, max)."""
-    text = (DOCS / doc).read_text()
-    text = text[text.index(intro):]
-    rows = {}
-    for ln in text.splitlines():
-        cells = [c.strip() for c in ln.strip().strip("|").split("|")]
-        if len(cells) == 3 and cells[1].replace(".", "").isdigit():
-            rows[cells[0]] = (float(cells[1]), float(cells[2]))
-        elif rows and not ln.startswith("|"):
-            break
-    return rows
+    """docs/<doc>'s table of `| label | min | max |` after the text `intro`: label -> (min, max)."""
+    out = {}
+    for row in table(f"docs/{doc}", intro):
+        label, lo, hi = row.values()
+        out[label] = (float(lo), float(hi))
+    return out

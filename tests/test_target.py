@@ -7,13 +7,15 @@ pyelftools (CI installs them); skipped with the list of what is missing otherwis
 from __future__ import annotations
 
 import ctypes
+import functools
 from pathlib import Path
 import subprocess
 
 import numpy as np
 import pytest
 
-from conftest import needs
+from conftest import needs, scenario
+from docs_tables import numbers, outside, table
 from ahrsgen import target as T
 from ahrsgen import filters
 
@@ -243,6 +245,10 @@ def test_generated_filter_on_target_agrees_with_host(name, tmp_path):
         c = r["host_comparison"]
         assert c["steps"] == len(log)
         assert c["status_common_equal"], r
+        if r["math"] == "fast":
+            # the default build calls no float libm: the same code on both sides, the same bits
+            # in every step (docs/target.md), whether or not the filter is stochastic
+            assert c["identical_steps"] == c["steps"] and c["status_equal"], c
         if filters.load(name).stochastic:
             # resampling turns 1-ulp libm differences into different particles: equal accuracy
             assert c["identical_steps"] == c["steps"] or c["max_rms_difference_deg"] <= T.ACCURACY_TOLERANCE_DEG, c
@@ -447,48 +453,107 @@ def test_double_build_runs_on_soft_float_and_costs_what_it_should(tmp_path):
     assert d["footprint"]["instructions_mean"] > 10 * f["footprint"]["instructions_mean"]
 
 
-# --- the footprint figures the README states ------------------------------------------
-README = Path(__file__).resolve().parents[1] / "README.md"
-README_INSTR_TOL = 0.01      # instruction counts are deterministic (same code, same log): 1 %
-README_FLASH_TOL = 0.02      # flash: the same toolchain gives the same bytes; 2 % for a newlib update
+# --- the footprint figures the docs state ---------------------------------------------
+# README.md's table and docs/target.md's two tables are written by studies/target_tables.py from
+# one `ahrsgen target all --peers --json` run. Every figure is re-measured here from a fresh
+# build of the committed C on the same log (seed 0) and compared with what the doc writes.
+INSTR_TOL = 0.01      # instruction counts are deterministic (same code, same log): 1 %; the same for
+                      # what is counted over those instructions (est. cycles, vdiv+vsqrt)
+FLASH_TOL = 0.02      # flash: the same toolchain gives the same bytes; 2 % for a newlib update
+EXACT = 0.0           # sizeof(state) and the stack (GCC's frames, the painted stack) of the same code
+COUNT_STEPS = 50      # `ahrsgen target`'s default --count-steps: the steps est. cycles cover
+
+# A doc column -> the (build, Footprint field) of each figure in its cells ("a / b"), and the
+# tolerance; build None is the row's own.
+TARGET_MD_COLUMNS = {
+    "flash B": (((None, "flash_bytes"),), FLASH_TOL),
+    "state B": (((None, "state_bytes"),), EXACT),
+    "stack B static / measured / -O0": (((None, "stack_bytes"), (None, "stack_measured_bytes"),
+                                         (None, "stack_o0_bytes")), EXACT),
+    "instructions/step": (((None, "instructions_mean"),), INSTR_TOL),
+    "est. cycles/step": (((None, "cycles_est_mean"),), INSTR_TOL),
+    "vdiv+vsqrt/step": (((None, "vdiv_vsqrt_per_step"),), INSTR_TOL),
+}
+README_COLUMNS = {
+    "flash B (-O2 / -Os)": ((("-O2", "flash_bytes"), ("-Os", "flash_bytes")), FLASH_TOL),
+    "state B": ((("-O2", "state_bytes"),), EXACT),
+    "stack B (worst / measured)": ((("-O2", "stack_bytes"), ("-O2", "stack_measured_bytes")), EXACT),
+    "instructions per step (-O2 / -Os)": ((("-O2", "instructions_mean"), ("-Os", "instructions_mean")), INSTR_TOL),
+}
+README_INTRO = "Footprint on a Cortex-M4F"
+FILTERS_INTRO = "<!-- target_tables.py: filters -->"
+PEERS_INTRO = "<!-- target_tables.py: peers -->"
 
 
-def readme_footprint() -> dict[str, dict]:
-    """The README's footprint table: {filter: flash -O2, state, instructions -O2} as stated."""
-    import re
-    num = r"(\d[\d ]*)"
-    row = re.compile(rf"^\| (\w+)(?: \(N = \d+\))? \| {num} / {num} \| {num} \| {num} / {num} \| {num} / {num} \|\s*$")
-    out = {}
-    for line in README.read_text().splitlines():
-        m = row.match(line)
-        if m:
-            v = [int(x.replace(" ", "")) for x in m.groups()[1:]]
-            out[m.group(1)] = {"flash": v[0], "state": v[2], "instructions": v[5]}
+@pytest.fixture(scope="module")
+def measure(tmp_path_factory):
+    """(name, opt) -> the Footprint of a fresh build: a product filter's committed C on its own
+    scenario, or a calibration peer on fixedwing_gps (as `ahrsgen target --peers` runs them)."""
+    @functools.cache
+    def fp(name: str, opt: str):
+        if name in T.PEER_NAMES + T.CHECKED_PEER_NAMES:
+            b, scen = T.peer_binding(name), "fixedwing_gps"
+        else:
+            b = T.binding_from_generated(Path(__file__).resolve().parents[1] / "generated" / name)
+            scen = filters.load(name).scenario
+        log = scenario(scen)
+        r = T.check_filter(b, T.records_from_log(log), tmp_path_factory.mktemp(f"{name}{opt}"), opt=opt,
+                           count_steps=COUNT_STEPS)
+        assert r.footprint.instructions_crosscheck_exact is True        # QEMU == unicorn: whole-run counts
+        assert r.footprint.cycles_est_unmodelled == []                   # every mnemonic has a TRM timing
+        return scen, len(log), r.footprint
+    return fp
+
+
+def figures_off(measure, name: str, row: dict[str, str], columns: dict, opt: str | None = None) -> list[str]:
+    """The figures of one doc row that are further from a fresh measurement than their tolerance."""
+    out = []
+    for col, (fields, tol) in columns.items():
+        stated = numbers(row[col])
+        assert len(stated) == len(fields), (name, col, row[col])
+        for s, (o, attr) in zip(stated, fields):
+            got = getattr(measure(name, o or opt)[2], attr)
+            if outside(s, got, tol):
+                out.append(f"{name} {o or opt} {col}: measured {got:.1f}, the doc says {s}")
     return out
 
 
+def _readme_rows() -> dict[str, dict]:
+    return {row["filter"].split()[0]: row for row in table("README.md", README_INTRO)}
+
+
 def test_readme_footprint_table_lists_every_filter():
-    from ahrsgen import filters
-    assert sorted(readme_footprint()) == sorted(filters.names())
+    assert sorted(_readme_rows()) == sorted(filters.names())
 
 
 @pytest.mark.parametrize("name", filters.names())
-def test_readme_footprint_figures_hold(name, tmp_path):
-    """The committed default build on its README scenario (seed 0, -O2): mean instructions per
-    step within 1 % of the README's figure, state bytes equal, flash within 2 %."""
-    from ahrsgen.sim import scenarios
-    stated = readme_footprint()[name]
-    gen_dir = Path(__file__).resolve().parents[1] / "generated" / name
-    log = scenarios.make(filters.load(name).scenario, seed=0)
-    r = T.check_filter(T.binding_from_generated(gen_dir), T.records_from_log(log), tmp_path, opt="-O2",
-                       count_steps=20)
-    fp = r.footprint
-    assert fp.instructions_crosscheck_exact is True
-    assert abs(fp.instructions_mean - stated["instructions"]) <= README_INSTR_TOL * stated["instructions"], (
-        f"{name}: {fp.instructions_mean:.0f} instructions per step, README says {stated['instructions']}")
-    assert fp.state_bytes == stated["state"]
-    assert abs(fp.flash_bytes - stated["flash"]) <= README_FLASH_TOL * stated["flash"], (
-        f"{name}: flash {fp.flash_bytes} B, README says {stated['flash']}")
+def test_readme_footprint_figures_hold(name, measure):
+    """The README's row of each filter (default build, its scenario, seed 0): instructions per step
+    within 1 %, flash within 2 %, state and stack bytes equal."""
+    assert figures_off(measure, name, _readme_rows()[name], README_COLUMNS) == []
+
+
+def _target_md_rows(intro: str) -> list[dict[str, str]]:
+    return table("docs/target.md", intro)
+
+
+def test_target_md_tables_list_every_filter_and_peer_at_both_levels():
+    builds = {(r["filter"], r["build"]) for r in _target_md_rows(FILTERS_INTRO)}
+    assert builds == {(n, o) for n in filters.names() for o in T.OPT_LEVELS}
+    peers = {(r["filter"], r["build"]) for r in _target_md_rows(PEERS_INTRO)}
+    assert peers == {(n, o) for n in T.PEER_NAMES + T.CHECKED_PEER_NAMES for o in T.OPT_LEVELS}
+
+
+@pytest.mark.parametrize("intro", [FILTERS_INTRO, PEERS_INTRO], ids=["filters", "peers"])
+def test_target_md_figures_hold(intro, measure):
+    """docs/target.md's tables: every build's flash (2 %), state and stack (equal), instructions,
+    estimated cycles and vdiv+vsqrt per step (1 %), re-measured on the scenario the row names."""
+    wrong = []
+    for row in _target_md_rows(intro):
+        scen, steps, _ = measure(row["filter"], row["build"])
+        assert row["scenario (steps)"] == f"{scen} ({steps:,})".replace(",", " "), row
+        wrong += figures_off(measure, row["filter"], row, TARGET_MD_COLUMNS, opt=row["build"])
+    assert wrong == []
 
 
 def test_adukf_step_stack_within_the_issue_goal(tmp_path):

@@ -54,7 +54,10 @@ def check_filter(b: FilterBinding, records: np.ndarray, workdir: Path | None = N
     cycles = CycleCounter(emu, bld.elf)      # estimated Cortex-M4 cycles of the same steps
     counts = emu.count_steps(b.step_fn, sub, run.state_bytes)
     o0 = debug_stack(b, workdir / f"{b.name}-O0", cpu, cflags) if o0_stack else None
-    fp = footprint(b, bld, counts, run, o0, cycles.estimate(counts.instructions))
+    est = cycles.estimate(counts.instructions)
+    if est["cycles_est_steps"] > 0:
+        est["vdiv_vsqrt_per_step"] = cycles.executions({"vdiv", "vsqrt"}) / est["cycles_est_steps"]
+    fp = footprint(b, bld, counts, run, o0, est)
     return TargetResult(bld, run, counts, fp, cycles)
 
 

@@ -233,6 +233,8 @@ class Footprint:
     cycles_est_steps: int = 0
     cycles_est_unmodelled: list[str] = field(default_factory=list)   # mnemonics costed 1 by default
     cycles_est_model: str = ""
+    vdiv_vsqrt_per_step: float = float("nan")   # vdiv.f32 + vsqrt.f32 run per step (14 cycles each),
+                                                # over the same unicorn-counted steps
 
 
 def step_instructions(counts: StepCounts | None, run: TargetRun | None) -> dict:
