@@ -25,7 +25,8 @@
 #include <stdint.h>
 #include <string.h>
 
-/* math = "fast": trigonometry without libm (src/ahrsgen/codegen/fastmath.py; errors measured there) */
+/* math = "fast": trigonometry without libm (src/ahrsgen/codegen/fastmath.py;
+ * errors measured there) */
 /* The helpers' names carry this filter's prefix (a unity build may include several
  * generated filters); the code below writes them short. */
 #define fast_sincosf qcf_fast_sincosf
@@ -33,7 +34,9 @@
 #define fast_sin_cos_of qcf_fast_sin_cos_of
 #define fast_atan2f qcf_fast_atan2f
 
-/* sin(x) and cos(x) with one reduction, |x| <= 8192 (NaN beyond): fast_sin_cos_of returns both, fast_sincosf stores them through pointers, fast_sinf and fast_cosf below return one; max abs error 1.5e-07 (tests/test_fastmath.py) */
+/* sin(x) and cos(x) with one reduction, |x| <= 8192 (NaN beyond): fast_sin_cos_of returns both,
+ * fast_sincosf stores them through pointers, fast_sinf and fast_cosf below return one; max abs
+ * error 1.5e-07 (tests/test_fastmath.py) */
 typedef struct {
     float s;
     float c;
@@ -51,10 +54,13 @@ static fast_sin_cos fast_sin_cos_of(float x)
     const int32_t k = (int32_t)((t >= 0.0f) ? t + 0.5f : t - 0.5f);
     const float kf = (float)k;
     /* Cody-Waite: pi/2 in three parts, the first two with trailing zero bits */
-    const float r = ((x - kf * 1.5703125f) - kf * 4.837512969970703125e-4f) - kf * 7.54978995489188216e-8f;
+    const float r = ((x - kf * 1.5703125f) - kf * 4.837512969970703125e-4f)
+                    - kf * 7.54978995489188216e-8f;
     const float r2 = r * r;
-    const float sin_r = r + r * r2 * ((-1.6666654611e-1f) + r2 * (8.3321608736e-3f + r2 * (-1.9515295891e-4f)));
-    const float cos_r = 1.0f - 0.5f * r2 + r2 * r2 * (4.166664568298827e-2f + r2 * ((-1.388731625493765e-3f) + r2 * 2.443315711809948e-5f));
+    const float sin_r = r + r * r2 * ((-1.6666654611e-1f)
+        + r2 * (8.3321608736e-3f + r2 * (-1.9515295891e-4f)));
+    const float cos_r = 1.0f - 0.5f * r2 + r2 * r2 * (4.166664568298827e-2f
+        + r2 * ((-1.388731625493765e-3f) + r2 * 2.443315711809948e-5f));
     const uint32_t quadrant = (uint32_t)k & 3u;
     const float vs = ((quadrant & 1u) != 0u) ? cos_r : sin_r;
     const float vc = ((quadrant & 1u) != 0u) ? sin_r : cos_r;
@@ -70,7 +76,8 @@ static inline void fast_sincosf(float x, float *s, float *c)
     *c = v.c;
 }
 
-/* atan2(y, x), every float pair; quadrants, signed zeros and infinities as C99; max abs error 3.5e-07 (tests/test_fastmath.py) */
+/* atan2(y, x), every float pair; quadrants, signed zeros and infinities as C99; max abs error
+ * 3.5e-07 (tests/test_fastmath.py) */
 static float fast_atan2f(float y, float x)
 {
     if (isnan(x) || isnan(y)) {
@@ -89,7 +96,8 @@ static float fast_atan2f(float y, float x)
         t = (t - 1.0f) / (t + 1.0f);
     }
     const float z = t * t;
-    a += (((8.05374449538e-2f * z - 1.38776856032e-1f) * z + 1.99777106478e-1f) * z - 3.33329491539e-1f) * z * t + t;
+    a += (((8.05374449538e-2f * z - 1.38776856032e-1f) * z + 1.99777106478e-1f) * z
+          - 3.33329491539e-1f) * z * t + t;
     if (steep) {
         a = 1.57079633f - a;
     }
@@ -1446,15 +1454,23 @@ qcf_status qcf_step(qcf_state *restrict s, const qcf_input *restrict in, float d
         return (isfinite(dt) && dt > QCF_DT_MAX) ? QCF_DT_TOO_LARGE : QCF_DT_INVALID;
     }
     const uint32_t every_step = QCF_VALID_GYRO | QCF_VALID_ACCEL | QCF_VALID_MAG;
-    const float accel_n2 = in->accel[0] * in->accel[0] + in->accel[1] * in->accel[1] + in->accel[2] * in->accel[2];   /* read even without its valid bit: a kernel reuses it */
+    /* read even without its valid bit: a kernel reuses it */
+    const float accel_n2 = in->accel[0] * in->accel[0] + in->accel[1] * in->accel[1] +
+        in->accel[2] * in->accel[2];
     bool use_accel = true;
-    const float mag_n2 = in->mag[0] * in->mag[0] + in->mag[1] * in->mag[1] + in->mag[2] * in->mag[2];   /* read even without its valid bit: a kernel reuses it */
+    /* read even without its valid bit: a kernel reuses it */
+    const float mag_n2 = in->mag[0] * in->mag[0] + in->mag[1] * in->mag[1] +
+        in->mag[2] * in->mag[2];
     bool use_mag = true;
     if (!((in->valid & every_step) == every_step
-          && in->gyro[0] * in->gyro[0] + in->gyro[1] * in->gyro[1] + in->gyro[2] * in->gyro[2] < QCF_GYRO_MAX * QCF_GYRO_MAX
-          && qcf_in_range(accel_n2, QCF_ACCEL_MIN_NORM * QCF_ACCEL_MIN_NORM, QCF_ACCEL_MAX * QCF_ACCEL_MAX)
-          && qcf_in_range(mag_n2, QCF_MAG_MIN_NORM * QCF_MAG_MIN_NORM, QCF_MAG_MAX * QCF_MAG_MAX))) {
-        /* Refusals leave the state exactly as it was; a bad aiding sample skips only its own correction. */
+          && in->gyro[0] * in->gyro[0] + in->gyro[1] * in->gyro[1] +
+             in->gyro[2] * in->gyro[2] < QCF_GYRO_MAX * QCF_GYRO_MAX
+          && qcf_in_range(accel_n2, QCF_ACCEL_MIN_NORM * QCF_ACCEL_MIN_NORM,
+                                   QCF_ACCEL_MAX * QCF_ACCEL_MAX)
+          && qcf_in_range(mag_n2, QCF_MAG_MIN_NORM * QCF_MAG_MIN_NORM,
+                                   QCF_MAG_MAX * QCF_MAG_MAX))) {
+        /* Refusals leave the state exactly as it was; a bad aiding sample skips only its own
+         * correction. */
         status = qcf_check_inputs(in, accel_n2, &use_accel, mag_n2, &use_mag);
         if ((status & QCF_REFUSED_MASK) != 0u) {
             return status;

@@ -49,12 +49,15 @@ _SINCOS_BODY = """
     const int32_t k = (int32_t)((t >= 0.0f) ? t + 0.5f : t - 0.5f);
     const float kf = (float)k;
     /* Cody-Waite: pi/2 in three parts, the first two with trailing zero bits */
-    const float r = ((x - kf * 1.5703125f) - kf * 4.837512969970703125e-4f) - kf * 7.54978995489188216e-8f;
+    const float r = ((x - kf * 1.5703125f) - kf * 4.837512969970703125e-4f)
+                    - kf * 7.54978995489188216e-8f;
     const float r2 = r * r;
 """
 
-_SIN_POLY = "r + r * r2 * ((-1.6666654611e-1f) + r2 * (8.3321608736e-3f + r2 * (-1.9515295891e-4f)))"
-_COS_POLY = ("1.0f - 0.5f * r2 + r2 * r2 * (4.166664568298827e-2f + r2 * ((-1.388731625493765e-3f) "
+_SIN_POLY = ("r + r * r2 * ((-1.6666654611e-1f)\n"
+             "        + r2 * (8.3321608736e-3f + r2 * (-1.9515295891e-4f)))")
+_COS_POLY = ("1.0f - 0.5f * r2 + r2 * r2 * (4.166664568298827e-2f\n"
+             "        + r2 * ((-1.388731625493765e-3f) "
              "+ r2 * 2.443315711809948e-5f))")
 
 
@@ -115,7 +118,8 @@ HELPERS = {
         t = (t - 1.0f) / (t + 1.0f);
     }
     const float z = t * t;
-    a += (((8.05374449538e-2f * z - 1.38776856032e-1f) * z + 1.99777106478e-1f) * z - 3.33329491539e-1f) * z * t + t;
+    a += (((8.05374449538e-2f * z - 1.38776856032e-1f) * z + 1.99777106478e-1f) * z
+          - 3.33329491539e-1f) * z * t + t;
     if (steep) {
         a = 1.57079633f - a;
     }
@@ -305,6 +309,15 @@ def file_scope_names(names) -> list[str]:
     return out
 
 
+def comment(text: str, width: int = 100) -> str:
+    """A C block comment of `text`, wrapped to `width` columns (` * ` continuation lines)."""
+    import textwrap
+    lines = textwrap.wrap(text, width - 3, initial_indent="/* ", subsequent_indent=" * ")
+    if len(lines[-1]) + 3 <= width:
+        return "\n".join(lines[:-1] + [lines[-1] + " */"])
+    return "\n".join(lines + [" */"])
+
+
 def c_source(names, prefix: str | None = None) -> str:
     """C of the helpers `names` need (static functions; <math.h>, <float.h>, <stdbool.h>,
     <stdint.h> included by the caller). With a prefix, each file-scope name is first defined as
@@ -320,7 +333,7 @@ def c_source(names, prefix: str | None = None) -> str:
         h = HELPERS[n]
         err = (f"max relative error {h.max_rel_error:.1e}" if h.max_rel_error else
                f"max abs error {h.max_abs_error:.1e}")
-        out.append(f"/* {h.doc}; {err} (tests/test_fastmath.py) */\n{h.code}")
+        out.append(comment(f"{h.doc}; {err} (tests/test_fastmath.py)") + "\n" + h.code)
     return "\n".join(out)
 
 
