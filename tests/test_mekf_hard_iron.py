@@ -59,7 +59,8 @@ def test_docs_table_of_attached_magnet_holds():
     0.01 deg): heading RMS from settle_time."""
     from ahrsgen.sim import peers
     runs = {"mekf": build().run, "mekf, mag_bias = false": build(sets=["mag_bias=false"]).run,
-            "qcf": host.build(config.resolve("qcf")).run, "adukf": host.build(config.resolve("adukf")).run}
+            **{f"{n}{k}": host.build(config.resolve(n, sets=s)).run for n in ("qcf", "adukf")
+               for k, s in (("", []), (", mag_bias = false", ["mag_bias=false"]))}}
     stated = min_max_rows("scenarios.md", "Heading RMS from `settle_time` to the end")
     assert set(stated) == set(runs) | {"vqf", "fusion"}
     rms = {k: [] for k in stated}

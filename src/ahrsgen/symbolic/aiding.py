@@ -35,7 +35,7 @@ import math
 
 import casadi as ca
 
-from . import kalman, quat
+from . import kalman, linalg, quat
 
 # tilt_correction: (|d| + d_z)/|d| below this (d_n within ~0.1 deg of straight up) takes the half-turn
 TILT_FLIP_EPS = 1e-6
@@ -229,16 +229,13 @@ HARD_IRON_PIVOT_MIN = 1e-12  # a row whose variance is not above this is not app
 
 
 def _sym_lower(v, n):
-    M = ca.SX.zeros(n, n)
-    for j in range(n):
-        for i in range(j, n):
-            M[i, j] = v[i + n * j]
-            M[j, i] = v[i + n * j]
-    return M
+    """n x n symmetric matrix from a flat column-major vector, reading only its lower triangle."""
+    return linalg.lower_symmetric(ca.reshape(v, n, n))
 
 
-def _flat_mirrored(M, n):
-    return ca.vertcat(*[M[max(i, j), min(i, j)] for j in range(n) for i in range(n)])
+def _flat_mirrored(M):
+    """Flat column-major vector of M's lower triangle mirrored (exactly symmetric)."""
+    return ca.vec(linalg.lower_symmetric(M))
 
 
 def hard_iron_residuals(u, x, Rq):
@@ -310,11 +307,11 @@ def hard_iron_step(q, mag, b, ref, cx, cP, fresh, reopen, rlp, rmean, e, turn_ti
     n = x1[3]
     s_new = ca.fmin(ca.fmax(x1[4] / n, -1.0), 1.0)
     ref_sw = ca.vertcat(n * B, ca.asin(s_new) if dip_angle else s_new)
-    cP1 = _flat_mirrored(P1, NC)
+    cP1 = _flat_mirrored(P1)
     return {"b_out": ca.if_else(switched, B * x1[0:3], b),
             "ref_out": ca.if_else(switched, ref_sw, ref),
             "cx_out": ca.if_else(switched, ca.vertcat(x1[0:3] / n, 1.0, x1[4] / n), x1),
-            "cP_out": ca.if_else(switched, _flat_mirrored(P1 / (n * n), NC), cP1),
+            "cP_out": ca.if_else(switched, _flat_mirrored(P1 / (n * n)), cP1),
             "rlp_out": rlp1,
             "rmean_out": ca.if_else(switched, ca.SX.zeros(2), rmean1),
             "e_out": ca.if_else(switched, ca.vertcat(e1[1], e1[1], e1[1]), e1),
