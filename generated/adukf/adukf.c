@@ -3443,6 +3443,9 @@ static void adukf_k_hard_iron_part11(bool flags[2])
     flags[0] = tmp458;
 }
 
+#if defined(__GNUC__)
+__attribute__((noinline))
+#endif
 static void adukf_k_hard_iron(const float q[4], const float mag[3], const float b[3], const float ref[2], const float cx[5], const float cP[25], bool fresh, bool reopen, const float rlp[4], const float rmean[2], const float e[3], float turn_time, float dt, float b_out[3], float ref_out[2], float cx_out[5], float cP_out[25], float rlp_out[4], float rmean_out[2], float e_out[3], float *turn_time_out, bool *suspect, bool *switched)
 {
     /* 12 parts called in turn (inlined when optimising): bounded -O0 frames; carry and flags hold the values handed between them (a slot reused once its value is dead) */

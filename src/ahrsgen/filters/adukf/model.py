@@ -652,7 +652,7 @@ class Model(FilterModel):
                            "reference field from the mean sin(inclination) and the declination"),
             ]
             if self.hard_iron():
-                specs.append(self.hard_iron_kernel(refine=p["mag_norm_tol"], dip_angle=False))
+                specs.append(self.hard_iron_kernel(refine=p["mag_norm_tol"], dip_angle=False, noinline=True))
         return specs
 
     def step_paths(self):
