@@ -212,8 +212,10 @@ def test_mini_bench_writes_tables(tmp_path, monkeypatch):
     # velocity 3, GPS age, count, initialised) and 20 floats of
     # conditioning state (NED low-pass 3, sample ages 2, rest detector 4: low-passed gyro and
     # steady time, field reference 2 + 2 timers, the gyro over-range recovery timer and its
-    # plateau detector 6: the previous gyro sample and the repeat counts)
-    assert c["qcf_hand"]["state_bytes"] == 136 and c["qcf"]["state_bytes"] == (13 + 20) * 4
+    # plateau detector 6: the previous gyro sample and the repeat counts), and 45 of the hard
+    # iron (issue 25: the hard iron 3, the candidate 5 and its 5x5 covariance 25, its start flag,
+    # residuals 4, their mean 2, mean squares 3, turning time, suspect flag)
+    assert c["qcf_hand"]["state_bytes"] == 136 and c["qcf"]["state_bytes"] == (13 + 20 + 45) * 4
     assert 0.2 < c["qcf_eq29"]["ratio_to_hand_qcf"] < 20
     assert c["qcf"]["ops_total"] > c["qcf"]["paths"].get("gyro only", 0) > 0
     md = (tmp_path / "bench.md").read_text()

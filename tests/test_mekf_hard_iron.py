@@ -14,7 +14,7 @@ from ahrsgen.sim.readers import read_log
 from ahrsgen.sim.scenarios import make
 from ahrsgen.generate import config
 from ahrsgen.filters.mekf import reference as R
-from ahrsgen.filters.mekf import model as M
+from ahrsgen.symbolic import aiding
 from ahrsgen.npquat import q_from_euler, rotmat
 from pathlib import Path
 
@@ -59,7 +59,8 @@ def test_docs_table_of_attached_magnet_holds():
     0.01 deg): heading RMS from settle_time."""
     from ahrsgen.sim import peers
     runs = {"mekf": build().run, "mekf, mag_bias = false": build(sets=["mag_bias=false"]).run,
-            "qcf": host.build(config.resolve("qcf")).run, "adukf": host.build(config.resolve("adukf")).run}
+            **{f"{n}{k}": host.build(config.resolve(n, sets=s)).run for n in ("qcf", "adukf")
+               for k, s in (("", []), (", mag_bias = false", ["mag_bias=false"]))}}
     stated = min_max_rows("scenarios.md", "Heading RMS from `settle_time` to the end")
     assert set(stated) == set(runs) | {"vqf", "fusion"}
     rms = {k: [] for k in stated}
@@ -151,10 +152,17 @@ def test_hard_iron_rows_jacobian_matches_finite_differences():
     u = rng.normal(size=3)
     x = np.concatenate([rng.normal(size=3) * 0.2, [1.05, 0.9]])
     xs = ca.SX.sym("x", 5)
-    res = M.hard_iron_residuals(ca.DM(u), xs, ca.DM(Rq))
+    res = aiding.hard_iron_residuals(ca.DM(u), xs, ca.DM(Rq))
     fun = ca.Function("f", [xs], [res, ca.jacobian(res, xs)])
     J = np.array(fun(x)[1])
     h = 1e-6
     num = np.column_stack([(np.array(fun(x + h * e)[0]) - np.array(fun(x - h * e)[0])).ravel() / (2 * h)
                            for e in np.eye(5)])
     assert np.max(np.abs(J - num)) < 1e-8
+
+
+def test_the_reference_states_the_hard_iron_constants_as_the_model_does():
+    from ahrsgen import reference_aiding
+    names = ("RES_TAU", "P0", "RATIO", "NORM_MIN", "N_MIN", "TIME_CAP")
+    assert [getattr(reference_aiding, "HARD_IRON_" + n) for n in names] == [getattr(aiding, "HARD_IRON_" + n)
+                                                                           for n in names]

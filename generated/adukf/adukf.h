@@ -23,7 +23,7 @@
  * its GNU modes, -std=c99 turns it off) and -fno-math-errno; -ffast-math breaks the input
  * checks (isfinite). Any C99 compiler builds it; see the ahrsgen docs (target.md).
  *     adukf_euler(&st, rpy);
- * No heap, no recursion; RAM is the state struct (756 bytes with the usual ABI).
+ * No heap, no recursion; RAM is the state struct (948 bytes with the usual ABI).
  * Needs <math.h> (float functions only in a float build); compilers may also emit calls to
  * memcpy/memset/memmove for struct and array copies.
  *
@@ -137,6 +137,48 @@ extern "C" {
 #define ADUKF_REST_GYRO_MAX 0.05f        /* mag_ref = learn: a sample is at rest when |gyro| is
                                             below this and ... [rad/s] */
 #define ADUKF_REST_ACCEL_TOL 0.5f        /* ... | |accel| - 9.80665 | is below this [m/s^2] */
+#define ADUKF_MAG_BIAS 1                 /* estimate the magnetometer's hard iron while the sensor
+                                            turns (with mag_ref = learn and the error state): the
+                                            candidate field model of mekf
+                                            (symbolic/aiding.hard_iron_step) is fitted beside the
+                                            filter and replaces the hard iron and the learned field
+                                            (norm, dip) when it explains the field clearly better (a
+                                            magnet attached mid-run); false: the hard iron stays as
+                                            calibrated */
+#define ADUKF_MAG_BIAS_RW 0.003f         /* random walk of the candidate hard iron and field, as a
+                                            fraction of the field norm, while turning; 0.003 chosen
+                                            by studies/hard_iron_qcf_adukf_cv.py (in-sample, as
+                                            mekf's) [1/sqrt(s)] */
+#define ADUKF_MAG_BIAS_NOISE 0.05f       /* per-sample standard deviation of the candidate's norm
+                                            and vertical-component rows, as a fraction of the field
+                                            norm (sensor noise, soft iron, field gradients) */
+#define ADUKF_MAG_BIAS_MIN_RATE 0.3f     /* the candidate is fitted only while the sensor turns at
+                                            least this fast (the hard iron is observable only then;
+                                            held otherwise) [rad/s] */
+#define ADUKF_MAG_BIAS_SETTLE 5.0f       /* residuals are averaged over this much turning, and the
+                                            candidate must have been fitted this long, before it may
+                                            replace the hard iron [s] */
+#define ADUKF_MAG_BIAS_TH 0.015f         /* the candidate may replace the hard iron when its
+                                            residuals (low-passed over 0.2 s, RMS) are below this
+                                            fraction of the field norm, four times (in mean square)
+                                            below the present model's with its reference re-fitted,
+                                            and its hard iron is known to this (square root of the
+                                            trace of its covariance) */
+#define ADUKF_MAG_BIAS_JUMP 0.3f         /* 0.3 chosen by studies/hard_iron_qcf_adukf_cv.py
+                                            (in-sample; mekf and qcf: 0.2). The candidate may
+                                            replace the hard iron only when it differs from it by at
+                                            least this fraction of the field norm (by mag_norm_tol
+                                            once the present hard iron is itself this large: a
+                                            magnet found is refined): smaller changes are left to
+                                            the adaptive R (soft iron, field gradients and a phone's
+                                            own field on real data look like small hard irons) */
+#define ADUKF_MAG_BIAS_MAX 2.0f          /* bound of the hard-iron estimate, as a multiple of the
+                                            field norm */
+#define ADUKF_MAG_NORM_TOL 0.1f          /* mag_bias: the hard iron's norm residual (low-passed) off
+                                            by more than this fraction of the field after being
+                                            within it is a new disturbance (the candidate's
+                                            covariance reopens); and once a hard iron is found, the
+                                            smallest change that refines it [1] */
 #define ADUKF_GYRO_BIAS_STATE 1          /* product default: the state is [q; gyro bias] (its
                                             covariance: attitude_state; the bias is subtracted from
                                             the gyro in the time update, F = d x-/d x from the
@@ -200,47 +242,53 @@ extern "C" {
 
 /* Status bits returned by adukf_step; 0 means every available correction ran. */
 typedef uint32_t adukf_status;
-#define ADUKF_OK              0u /* step completed with every available correction */
-#define ADUKF_DT_INVALID      (1u << 0) /* refused: dt is not finite or not positive; state
-                                           unchanged */
-#define ADUKF_DT_TOO_LARGE    (1u << 1) /* refused: dt above the configured maximum; state unchanged
-                                           */
-#define ADUKF_GYRO_MISSING    (1u << 2) /* refused: gyro valid bit clear; state unchanged */
-#define ADUKF_GYRO_NONFINITE  (1u << 3) /* refused: gyro sample not finite; state unchanged */
-#define ADUKF_ACCEL_NONFINITE (1u << 4) /* accelerometer sample not finite; its correction skipped
-                                           */
-#define ADUKF_ACCEL_ZERO      (1u << 5) /* accelerometer norm below minimum; its correction skipped
-                                           */
-#define ADUKF_MAG_NONFINITE   (1u << 6) /* magnetometer sample not finite; its correction skipped */
-#define ADUKF_MAG_ZERO        (1u << 7) /* magnetometer norm below minimum; its correction skipped
-                                           */
-#define ADUKF_GPS_NONFINITE   (1u << 8) /* GPS velocity not finite; its correction skipped */
-#define ADUKF_GYRO_RANGE      (1u << 9) /* refused: a gyro component beyond gyro_max; state
-                                           unchanged */
-#define ADUKF_ACCEL_RANGE     (1u << 10) /* an accelerometer component beyond accel_max; its
-                                            correction skipped */
-#define ADUKF_MAG_RANGE       (1u << 11) /* a magnetometer component beyond mag_max; its correction
-                                            skipped */
-#define ADUKF_GPS_RANGE       (1u << 12) /* a GPS velocity component beyond gps_vel_max; the sample
-                                            is ignored */
-#define ADUKF_COV_RESET       (1u << 16) /* P- was not positive definite: P reset to P0, measurement
-                                            update skipped */
-#define ADUKF_UPDATE_SKIPPED  (1u << 17) /* P_zz was not positive definite: measurement update
-                                            skipped */
-#define ADUKF_NUMERIC_FAULT   (1u << 18) /* non-finite result: state left as it was before the step
-                                            */
-#define ADUKF_MAG_LEARNING    (1u << 19) /* reference field still being learned: magnetometer
-                                            correction not applied */
-#define ADUKF_GYRO_RECOVERY   (1u << 20) /* a gyro component at gyro_full_scale (clipped), or within
-                                            clip_recovery_time after one: the attitude covariance
-                                            widened, R not adapted, the accelerometer not low-passed
-                                            (error state only) */
+#define ADUKF_OK                 0u /* step completed with every available correction */
+#define ADUKF_DT_INVALID         (1u << 0) /* refused: dt is not finite or not positive; state
+                                              unchanged */
+#define ADUKF_DT_TOO_LARGE       (1u << 1) /* refused: dt above the configured maximum; state
+                                              unchanged */
+#define ADUKF_GYRO_MISSING       (1u << 2) /* refused: gyro valid bit clear; state unchanged */
+#define ADUKF_GYRO_NONFINITE     (1u << 3) /* refused: gyro sample not finite; state unchanged */
+#define ADUKF_ACCEL_NONFINITE    (1u << 4) /* accelerometer sample not finite; its correction
+                                              skipped */
+#define ADUKF_ACCEL_ZERO         (1u << 5) /* accelerometer norm below minimum; its correction
+                                              skipped */
+#define ADUKF_MAG_NONFINITE      (1u << 6) /* magnetometer sample not finite; its correction skipped
+                                              */
+#define ADUKF_MAG_ZERO           (1u << 7) /* magnetometer norm below minimum; its correction
+                                              skipped */
+#define ADUKF_GPS_NONFINITE      (1u << 8) /* GPS velocity not finite; its correction skipped */
+#define ADUKF_GYRO_RANGE         (1u << 9) /* refused: a gyro component beyond gyro_max; state
+                                              unchanged */
+#define ADUKF_ACCEL_RANGE        (1u << 10) /* an accelerometer component beyond accel_max; its
+                                               correction skipped */
+#define ADUKF_MAG_RANGE          (1u << 11) /* a magnetometer component beyond mag_max; its
+                                               correction skipped */
+#define ADUKF_GPS_RANGE          (1u << 12) /* a GPS velocity component beyond gps_vel_max; the
+                                               sample is ignored */
+#define ADUKF_COV_RESET          (1u << 16) /* P- was not positive definite: P reset to P0,
+                                               measurement update skipped */
+#define ADUKF_UPDATE_SKIPPED     (1u << 17) /* P_zz was not positive definite: measurement update
+                                               skipped */
+#define ADUKF_NUMERIC_FAULT      (1u << 18) /* non-finite result: state left as it was before the
+                                               step */
+#define ADUKF_MAG_LEARNING       (1u << 19) /* reference field still being learned: magnetometer
+                                               correction not applied */
+#define ADUKF_GYRO_RECOVERY      (1u << 20) /* a gyro component at gyro_full_scale (clipped), or
+                                               within clip_recovery_time after one: the attitude
+                                               covariance widened, R not adapted, the accelerometer
+                                               not low-passed (error state only) */
+#define ADUKF_MAG_DISTURBED      (1u << 21) /* magnetometer not used: the hard-iron candidate
+                                               explains the field much better than the present hard
+                                               iron (mag_bias) */
+#define ADUKF_HARD_IRON_SWITCHED (1u << 22) /* the hard iron and the learned field (norm, dip) were
+                                               replaced by the candidate field model (mag_bias) */
 #define ADUKF_REFUSED_MASK (ADUKF_DT_INVALID | ADUKF_DT_TOO_LARGE | ADUKF_GYRO_MISSING | \
     ADUKF_GYRO_NONFINITE | ADUKF_GYRO_RANGE)
 /*
  * Bits that mean trouble (a refused step, a bad sample, a numeric fault); the others are
- * information (what the filter noticed: MAG_LEARNING, GYRO_RECOVERY). Test (status &
- * ADUKF_STATUS_FAULT_MASK) != 0u for a fault, not status != 0.
+ * information (what the filter noticed: MAG_LEARNING, GYRO_RECOVERY, MAG_DISTURBED,
+ * HARD_IRON_SWITCHED). Test (status & ADUKF_STATUS_FAULT_MASK) != 0u for a fault, not status != 0.
  */
 #define ADUKF_STATUS_FAULT_MASK (ADUKF_DT_INVALID | ADUKF_DT_TOO_LARGE | ADUKF_GYRO_MISSING | \
     ADUKF_GYRO_NONFINITE | ADUKF_ACCEL_NONFINITE | ADUKF_ACCEL_ZERO | ADUKF_MAG_NONFINITE | \
@@ -268,6 +316,27 @@ typedef struct {
     float learn_sum;       /* mag_ref = learn: sum of sin(inclination) over rest samples */
     uint32_t learn_count;  /* mag_ref = learn: rest samples summed so far */
     uint32_t initialised;  /* 1 once the attitude has been initialised */
+    float mag_field[2];    /* the hard iron's reference field: [norm (the field's units),
+                              sin(inclination)], learned at rest as m_ref is, with either mag_ref
+                              (the norm summed there first) */
+    uint32_t mag_off;      /* 1 while the hard-iron residual of the field norm is off by more than
+                              mag_norm_tol (its onset reopens the candidate) */
+    float mag_bias[3];     /* magnetometer hard iron, body axes, the field's units (m - mag_bias is
+                              used) */
+    float mag_cx[5];       /* candidate field model [hard iron / B (3), norm / B, down component /
+                              B], B the reference norm */
+    float mag_cP[25];      /* its covariance (5x5, symmetric) */
+    uint32_t mag_c_ok;     /* 0: the candidate starts from the present model at the next fit; 1:
+                              fitted; 2: its covariance reopens at the next fit (a new disturbance)
+                              */
+    float mag_rlp[4];      /* hard-iron residuals [present (2), candidate (2)] low-passed over 0.2 s
+                              */
+    float mag_rmean[2];    /* the present residuals' mean over mag_bias_settle */
+    float mag_e[3];        /* mean squares: present, candidate, present less its mean */
+    float mag_turn_time;   /* time turning since the candidate started or switched, s (stops at 1e3)
+                              */
+    uint32_t mag_suspect;  /* 1 while the candidate explains the field and the present model does
+                              not */
 } adukf_state;
 
 typedef struct {

@@ -2853,486 +2853,750 @@ static void mekf_k_init_attitude(const float accel[3], const float mag[3], const
     a_lp_out[2] = carry[5];
 }
 
-static void mekf_k_hard_iron_fit_part0(const float mag[3], const float b[3], const float ref[2],
-    const float cx[5], const float cP[25], float dt, bool init, float carry[45])
+static void mekf_k_hard_iron_part0(const float mag[3], const float b[3], const float ref[2],
+    const float cx[5], const float cP[25], bool fresh, bool reopen, float turn_time, float dt,
+    float carry[51], bool flags[2])
 {
-    const float tmp0 = 1.0f / ref[0];
-    const float tmp1 = b[0] * tmp0;
-    const float tmp2 = (init) ? tmp1 : cx[0];
-    const float tmp3 = (init) ? 0.09f : cP[0];
-    const float tmp4 = 9e-06f /* mag_bias_rw^2 */ * dt;
-    const float tmp5 = tmp3 + tmp4;
-    const float tmp6 = mag[0] * tmp0;
-    const float tmp7 = tmp6 - tmp2;
-    const float tmp8 = tmp7 * tmp7;
-    const float tmp9 = mag[1] * tmp0;
-    const float tmp10 = b[1] * tmp0;
-    const float tmp11 = (init) ? tmp10 : cx[1];
-    const float tmp12 = tmp9 - tmp11;
-    const float tmp13 = tmp12 * tmp12;
-    const float tmp14 = tmp8 + tmp13;
-    const float tmp15 = mag[2] * tmp0;
-    const float tmp16 = b[2] * tmp0;
-    const float tmp17 = (init) ? tmp16 : cx[2];
-    const float tmp18 = tmp15 - tmp17;
-    const float tmp19 = tmp18 * tmp18;
-    const float tmp20 = tmp14 + tmp19;
-    const float tmp21 = sqrtf(tmp20);
-    const bool tmp22 = 1e-06f <= tmp21;
-    const bool tmp23 = tmp21 <= 1e-06f;
-    const float tmp24 = (float)tmp22 + (float)tmp23;
-    const float tmp25 = (float)tmp22 / tmp24;
-    const float tmp26 = 1.0f / tmp21;
-    const float tmp27 = tmp12 * tmp26;
-    const float tmp28 = tmp25 * tmp27;
-    const float tmp29 = cP[1] * tmp28;
-    const float tmp30 = -tmp29;
-    const float tmp31 = (init) ? 0.0f : tmp30;
-    const float tmp32 = tmp7 * tmp26;
-    const float tmp33 = tmp25 * tmp32;
-    const float tmp34 = tmp5 * tmp33;
-    const float tmp35 = tmp31 - tmp34;
-    const float tmp36 = tmp18 * tmp26;
-    const float tmp37 = tmp25 * tmp36;
-    const float tmp38 = cP[2] * tmp37;
-    const float tmp39 = -tmp38;
+    const float tmp0 = turn_time + dt;
+    const float tmp1 = (tmp0 < 1000.0f) ? tmp0 : 1000.0f;
+    const float tmp2 = 5.0f + dt;
+    const float tmp3 = dt / tmp2;
+    const float tmp4 = 0.2f + dt;
+    const float tmp5 = dt / tmp4;
+    const float tmp6 = 1.0f / ref[0];
+    const float tmp7 = mag[0] * tmp6;
+    const float tmp8 = b[0] * tmp6;
+    const float tmp9 = (fresh) ? tmp8 : cx[0];
+    const bool tmp10 = fresh || reopen;
+    const float tmp11 = (tmp10) ? 0.09f : cP[0];
+    const float tmp12 = 9e-06f * dt;
+    const float tmp13 = tmp11 + tmp12;
+    const float tmp14 = tmp7 - tmp9;
+    const float tmp15 = tmp14 * tmp14;
+    const float tmp16 = mag[1] * tmp6;
+    const float tmp17 = b[1] * tmp6;
+    const float tmp18 = (fresh) ? tmp17 : cx[1];
+    const float tmp19 = tmp16 - tmp18;
+    const float tmp20 = tmp19 * tmp19;
+    const float tmp21 = tmp15 + tmp20;
+    const float tmp22 = mag[2] * tmp6;
+    const float tmp23 = b[2] * tmp6;
+    const float tmp24 = (fresh) ? tmp23 : cx[2];
+    const float tmp25 = tmp22 - tmp24;
+    const float tmp26 = tmp25 * tmp25;
+    const float tmp27 = tmp21 + tmp26;
+    const float tmp28 = sqrtf(tmp27);
+    const bool tmp29 = 1e-06f <= tmp28;
+    const bool tmp30 = tmp28 <= 1e-06f;
+    const float tmp31 = (float)tmp29 + (float)tmp30;
+    const float tmp32 = (float)tmp29 / tmp31;
+    const float tmp33 = 1.0f / tmp28;
+    const float tmp34 = tmp19 * tmp33;
+    const float tmp35 = tmp32 * tmp34;
+    const float tmp36 = cP[1] * tmp35;
+    const float tmp37 = -tmp36;
+    const float tmp38 = (tmp10) ? 0.0f : tmp37;
+    const float tmp39 = tmp14 * tmp33;
     carry[0] = tmp1;
-    carry[1] = tmp2;
-    carry[2] = tmp4;
-    carry[3] = tmp5;
-    carry[4] = tmp6;
-    carry[5] = tmp7;
-    carry[6] = tmp9;
-    carry[7] = tmp10;
-    carry[8] = tmp11;
-    carry[9] = tmp12;
-    carry[10] = tmp15;
-    carry[11] = tmp16;
-    carry[12] = tmp17;
-    carry[13] = tmp18;
-    carry[14] = tmp21;
-    carry[15] = tmp28;
-    carry[16] = tmp33;
-    carry[17] = tmp35;
-    carry[18] = tmp37;
-    carry[19] = tmp39;
+    carry[1] = tmp3;
+    carry[2] = tmp5;
+    carry[3] = tmp7;
+    carry[4] = tmp8;
+    carry[5] = tmp9;
+    flags[0] = tmp10;
+    carry[6] = tmp12;
+    carry[7] = tmp13;
+    carry[8] = tmp14;
+    carry[9] = tmp16;
+    carry[10] = tmp17;
+    carry[11] = tmp18;
+    carry[12] = tmp19;
+    carry[13] = tmp22;
+    carry[14] = tmp23;
+    carry[15] = tmp24;
+    carry[16] = tmp25;
+    carry[17] = tmp28;
+    carry[18] = tmp32;
+    carry[19] = tmp33;
+    carry[20] = tmp35;
+    carry[21] = tmp38;
+    carry[22] = tmp39;
 }
 
-static void mekf_k_hard_iron_fit_part1(const float cP[25], bool init, float carry[45])
+static void mekf_k_hard_iron_part1(const float cP[25], float carry[51], const bool flags[2])
 {
-    const float tmp40 = (init) ? 0.0f : carry[19];
-    const float tmp41 = carry[17] + tmp40;
-    const float tmp42 = -cP[3];
-    const float tmp43 = (init) ? 0.0f : tmp42;
-    const float tmp44 = tmp41 + tmp43;
-    const float tmp45 = carry[16] * tmp44;
-    const float tmp46 = cP[1] * carry[16];
-    const float tmp47 = -tmp46;
-    const float tmp48 = (init) ? 0.0f : tmp47;
-    const float tmp49 = (init) ? 0.09f : cP[6];
-    const float tmp50 = tmp49 + carry[2];
-    const float tmp51 = tmp50 * carry[15];
-    const float tmp52 = tmp48 - tmp51;
-    const float tmp53 = cP[7] * carry[18];
+    const float tmp40 = carry[18] * carry[22];
+    const float tmp41 = carry[7] * tmp40;
+    const float tmp42 = carry[21] - tmp41;
+    const float tmp43 = carry[16] * carry[19];
+    const float tmp44 = carry[18] * tmp43;
+    const float tmp45 = cP[2] * tmp44;
+    const float tmp46 = -tmp45;
+    const float tmp47 = (flags[0]) ? 0.0f : tmp46;
+    const float tmp48 = tmp42 + tmp47;
+    const float tmp49 = -cP[3];
+    const float tmp50 = (flags[0]) ? 0.0f : tmp49;
+    const float tmp51 = tmp48 + tmp50;
+    const float tmp52 = tmp40 * tmp51;
+    const float tmp53 = cP[1] * tmp40;
     const float tmp54 = -tmp53;
-    const float tmp55 = (init) ? 0.0f : tmp54;
-    const float tmp56 = tmp52 + tmp55;
-    const float tmp57 = -cP[8];
-    const float tmp58 = (init) ? 0.0f : tmp57;
-    const float tmp59 = tmp56 + tmp58;
-    const float tmp60 = carry[15] * tmp59;
-    const float tmp61 = tmp45 + tmp60;
-    const float tmp62 = cP[2] * carry[16];
-    const float tmp63 = cP[7] * carry[15];
-    const float tmp64 = tmp62 + tmp63;
-    const float tmp65 = -tmp64;
-    const float tmp66 = (init) ? 0.0f : tmp65;
-    const float tmp67 = (init) ? 0.09f : cP[12];
-    const float tmp68 = tmp67 + carry[2];
-    const float tmp69 = tmp68 * carry[18];
-    const float tmp70 = tmp66 - tmp69;
-    const float tmp71 = -cP[13];
-    const float tmp72 = (init) ? 0.0f : tmp71;
-    const float tmp73 = tmp70 + tmp72;
-    const float tmp74 = carry[18] * tmp73;
-    const float tmp75 = tmp61 + tmp74;
-    const float tmp76 = cP[3] * carry[16];
-    const float tmp77 = cP[8] * carry[15];
-    const float tmp78 = tmp76 + tmp77;
-    const float tmp79 = cP[13] * carry[18];
-    carry[17] = tmp44;
-    carry[19] = tmp50;
-    carry[20] = tmp59;
-    carry[21] = tmp68;
-    carry[22] = tmp73;
-    carry[23] = tmp75;
-    carry[24] = tmp78;
-    carry[25] = tmp79;
+    const float tmp55 = (flags[0]) ? 0.0f : tmp54;
+    const float tmp56 = (flags[0]) ? 0.09f : cP[6];
+    const float tmp57 = tmp56 + carry[6];
+    const float tmp58 = tmp57 * carry[20];
+    const float tmp59 = tmp55 - tmp58;
+    const float tmp60 = cP[7] * tmp44;
+    const float tmp61 = -tmp60;
+    const float tmp62 = (flags[0]) ? 0.0f : tmp61;
+    const float tmp63 = tmp59 + tmp62;
+    const float tmp64 = -cP[8];
+    const float tmp65 = (flags[0]) ? 0.0f : tmp64;
+    const float tmp66 = tmp63 + tmp65;
+    const float tmp67 = carry[20] * tmp66;
+    const float tmp68 = tmp52 + tmp67;
+    const float tmp69 = cP[2] * tmp40;
+    const float tmp70 = cP[7] * carry[20];
+    const float tmp71 = tmp69 + tmp70;
+    const float tmp72 = -tmp71;
+    const float tmp73 = (flags[0]) ? 0.0f : tmp72;
+    const float tmp74 = (flags[0]) ? 0.09f : cP[12];
+    const float tmp75 = tmp74 + carry[6];
+    const float tmp76 = tmp75 * tmp44;
+    const float tmp77 = tmp73 - tmp76;
+    const float tmp78 = -cP[13];
+    const float tmp79 = (flags[0]) ? 0.0f : tmp78;
+    carry[18] = tmp40;
+    carry[19] = tmp44;
+    carry[21] = tmp51;
+    carry[22] = tmp57;
+    carry[23] = tmp66;
+    carry[24] = tmp68;
+    carry[25] = tmp75;
+    carry[26] = tmp77;
+    carry[27] = tmp79;
 }
 
-static void mekf_k_hard_iron_fit_part2(const float q[4], const float cP[25], bool init,
-    float carry[45])
+static void mekf_k_hard_iron_part2(const float q[4], const float cP[25], float carry[51],
+    const bool flags[2])
 {
-    const float tmp80 = carry[24] + carry[25];
-    const float tmp81 = -tmp80;
-    const float tmp82 = (init) ? 0.0f : tmp81;
-    const float tmp83 = (init) ? 0.09f : cP[18];
-    const float tmp84 = tmp83 + carry[2];
-    const float tmp85 = tmp82 - tmp84;
-    const float tmp86 = carry[23] + tmp85;
-    const float tmp87 = 0.0025f /* mag_bias_noise^2 */ - tmp86;
-    const float tmp88 = 1.0f / tmp87;
-    const float tmp89 = (1e-12f < tmp87) ? tmp88 : 1.0f;
-    const float tmp90 = carry[17] * tmp89;
-    const float tmp91 = tmp90 * carry[17];
-    const float tmp92 = carry[3] - tmp91;
-    const float tmp93 = q[1] * q[3];
-    const float tmp94 = q[0] * q[2];
-    const float tmp95 = tmp93 - tmp94;
-    const float tmp96 = tmp95 + tmp95;
-    const float tmp97 = tmp92 * tmp96;
-    const float tmp98 = (init) ? 0.0f : cP[1];
-    const float tmp99 = carry[20] * tmp89;
-    const float tmp100 = tmp99 * carry[17];
-    const float tmp101 = tmp98 - tmp100;
-    const float tmp102 = q[2] * q[3];
-    const float tmp103 = q[0] * q[1];
-    const float tmp104 = tmp102 + tmp103;
-    const float tmp105 = tmp104 + tmp104;
-    const float tmp106 = tmp101 * tmp105;
-    const float tmp107 = tmp97 + tmp106;
-    const float tmp108 = (init) ? 0.0f : cP[2];
-    const float tmp109 = carry[22] * tmp89;
-    const float tmp110 = tmp109 * carry[17];
-    const float tmp111 = tmp108 - tmp110;
-    const float tmp112 = q[1] * q[1];
-    const float tmp113 = q[2] * q[2];
-    const float tmp114 = tmp112 + tmp113;
-    const float tmp115 = tmp114 + tmp114;
-    const float tmp116 = 1.0f - tmp115;
-    const float tmp117 = tmp111 * tmp116;
-    const float tmp118 = tmp107 + tmp117;
-    const float tmp119 = (init) ? 0.0f : cP[4];
-    carry[3] = tmp84;
-    carry[23] = tmp85;
-    carry[24] = tmp89;
-    carry[25] = tmp90;
+    const float tmp80 = carry[26] + carry[27];
+    const float tmp81 = carry[19] * tmp80;
+    const float tmp82 = carry[24] + tmp81;
+    const float tmp83 = cP[3] * carry[18];
+    const float tmp84 = cP[8] * carry[20];
+    const float tmp85 = tmp83 + tmp84;
+    const float tmp86 = cP[13] * carry[19];
+    const float tmp87 = tmp85 + tmp86;
+    const float tmp88 = -tmp87;
+    const float tmp89 = (flags[0]) ? 0.0f : tmp88;
+    const float tmp90 = (flags[0]) ? 0.09f : cP[18];
+    const float tmp91 = tmp90 + carry[6];
+    const float tmp92 = tmp89 - tmp91;
+    const float tmp93 = tmp82 + tmp92;
+    const float tmp94 = 0.0025f - tmp93;
+    const float tmp95 = 1.0f / tmp94;
+    const float tmp96 = (1e-12f < tmp94) ? tmp95 : 1.0f;
+    const float tmp97 = carry[21] * tmp96;
+    const float tmp98 = tmp97 * carry[21];
+    const float tmp99 = carry[7] - tmp98;
+    const float tmp100 = q[1] * q[3];
+    const float tmp101 = q[0] * q[2];
+    const float tmp102 = tmp100 - tmp101;
+    const float tmp103 = tmp102 + tmp102;
+    const float tmp104 = tmp99 * tmp103;
+    const float tmp105 = (flags[0]) ? 0.0f : cP[1];
+    const float tmp106 = carry[23] * tmp96;
+    const float tmp107 = tmp106 * carry[21];
+    const float tmp108 = tmp105 - tmp107;
+    const float tmp109 = q[2] * q[3];
+    const float tmp110 = q[0] * q[1];
+    const float tmp111 = tmp109 + tmp110;
+    const float tmp112 = tmp111 + tmp111;
+    const float tmp113 = tmp108 * tmp112;
+    const float tmp114 = tmp104 + tmp113;
+    const float tmp115 = (flags[0]) ? 0.0f : cP[2];
+    const float tmp116 = tmp80 * tmp96;
+    const float tmp117 = tmp116 * carry[21];
+    const float tmp118 = tmp115 - tmp117;
+    const float tmp119 = q[1] * q[1];
+    carry[7] = tmp80;
+    carry[24] = tmp91;
     carry[26] = tmp92;
     carry[27] = tmp96;
-    carry[28] = tmp99;
-    carry[29] = tmp101;
-    carry[30] = tmp105;
-    carry[31] = tmp109;
-    carry[32] = tmp111;
-    carry[33] = tmp116;
-    carry[34] = tmp118;
-    carry[35] = tmp119;
+    carry[28] = tmp97;
+    carry[29] = tmp99;
+    carry[30] = tmp103;
+    carry[31] = tmp106;
+    carry[32] = tmp108;
+    carry[33] = tmp112;
+    carry[34] = tmp114;
+    carry[35] = tmp116;
+    carry[36] = tmp118;
+    carry[37] = tmp119;
 }
 
-static void mekf_k_hard_iron_fit_part3(const float cP[25], bool init, float carry[45])
+static void mekf_k_hard_iron_part3(const float q[4], const float cP[25], float carry[51],
+    const bool flags[2])
 {
-    const float tmp120 = cP[4] * carry[16];
-    const float tmp121 = cP[9] * carry[15];
-    const float tmp122 = tmp120 + tmp121;
-    const float tmp123 = cP[14] * carry[18];
-    const float tmp124 = tmp122 + tmp123;
-    const float tmp125 = tmp124 + cP[19];
-    const float tmp126 = tmp125 * carry[24];
-    const float tmp127 = tmp126 * carry[17];
-    const float tmp128 = -tmp127;
-    const float tmp129 = (init) ? 0.0f : tmp128;
-    const float tmp130 = carry[35] - tmp129;
-    const float tmp131 = carry[34] + tmp130;
-    const float tmp132 = carry[27] * tmp131;
-    const float tmp133 = carry[29] * carry[27];
-    const float tmp134 = carry[28] * carry[20];
-    const float tmp135 = carry[19] - tmp134;
-    const float tmp136 = tmp135 * carry[30];
-    const float tmp137 = tmp133 + tmp136;
-    const float tmp138 = (init) ? 0.0f : cP[7];
-    const float tmp139 = carry[31] * carry[20];
-    const float tmp140 = tmp138 - tmp139;
-    const float tmp141 = tmp140 * carry[33];
-    const float tmp142 = tmp137 + tmp141;
-    const float tmp143 = (init) ? 0.0f : cP[9];
-    const float tmp144 = tmp126 * carry[20];
-    const float tmp145 = -tmp144;
-    const float tmp146 = (init) ? 0.0f : tmp145;
-    const float tmp147 = tmp143 - tmp146;
-    const float tmp148 = tmp142 + tmp147;
-    const float tmp149 = carry[30] * tmp148;
-    const float tmp150 = tmp132 + tmp149;
-    const float tmp151 = carry[32] * carry[27];
-    const float tmp152 = tmp140 * carry[30];
-    const float tmp153 = tmp151 + tmp152;
-    const float tmp154 = carry[31] * carry[22];
-    const float tmp155 = carry[21] - tmp154;
-    const float tmp156 = tmp155 * carry[33];
-    const float tmp157 = tmp153 + tmp156;
-    const float tmp158 = (init) ? 0.0f : cP[14];
-    const float tmp159 = tmp126 * carry[22];
-    carry[15] = tmp125;
-    carry[16] = tmp126;
-    carry[18] = tmp130;
-    carry[19] = tmp131;
-    carry[21] = tmp135;
-    carry[34] = tmp140;
-    carry[35] = tmp147;
-    carry[36] = tmp148;
-    carry[37] = tmp150;
-    carry[38] = tmp155;
-    carry[39] = tmp157;
-    carry[40] = tmp158;
-    carry[41] = tmp159;
+    const float tmp120 = q[2] * q[2];
+    const float tmp121 = carry[37] + tmp120;
+    const float tmp122 = tmp121 + tmp121;
+    const float tmp123 = 1.0f - tmp122;
+    const float tmp124 = carry[36] * tmp123;
+    const float tmp125 = carry[34] + tmp124;
+    const float tmp126 = (flags[0]) ? 0.0f : cP[4];
+    const float tmp127 = cP[4] * carry[18];
+    const float tmp128 = cP[9] * carry[20];
+    const float tmp129 = tmp127 + tmp128;
+    const float tmp130 = cP[14] * carry[19];
+    const float tmp131 = tmp129 + tmp130;
+    const float tmp132 = tmp131 + cP[19];
+    const float tmp133 = tmp132 * carry[27];
+    const float tmp134 = tmp133 * carry[21];
+    const float tmp135 = -tmp134;
+    const float tmp136 = (flags[0]) ? 0.0f : tmp135;
+    const float tmp137 = tmp126 - tmp136;
+    const float tmp138 = tmp125 + tmp137;
+    const float tmp139 = carry[30] * tmp138;
+    const float tmp140 = carry[32] * carry[30];
+    const float tmp141 = carry[31] * carry[23];
+    const float tmp142 = carry[22] - tmp141;
+    const float tmp143 = tmp142 * carry[33];
+    const float tmp144 = tmp140 + tmp143;
+    const float tmp145 = (flags[0]) ? 0.0f : cP[7];
+    const float tmp146 = carry[35] * carry[23];
+    const float tmp147 = tmp145 - tmp146;
+    const float tmp148 = tmp147 * tmp123;
+    const float tmp149 = tmp144 + tmp148;
+    const float tmp150 = (flags[0]) ? 0.0f : cP[9];
+    const float tmp151 = tmp133 * carry[23];
+    const float tmp152 = -tmp151;
+    const float tmp153 = (flags[0]) ? 0.0f : tmp152;
+    const float tmp154 = tmp150 - tmp153;
+    const float tmp155 = tmp149 + tmp154;
+    const float tmp156 = carry[33] * tmp155;
+    const float tmp157 = tmp139 + tmp156;
+    const float tmp158 = carry[36] * carry[30];
+    const float tmp159 = tmp147 * carry[33];
+    carry[18] = tmp123;
+    carry[19] = tmp132;
+    carry[20] = tmp133;
+    carry[22] = tmp137;
+    carry[34] = tmp138;
+    carry[37] = tmp142;
+    carry[38] = tmp147;
+    carry[39] = tmp154;
+    carry[40] = tmp155;
+    carry[41] = tmp157;
+    carry[42] = tmp158;
+    carry[43] = tmp159;
 }
 
-static void mekf_k_hard_iron_fit_part4(const float ref[2], const float cx[5], const float cP[25],
-    bool init, float carry[45])
+static void mekf_k_hard_iron_part4(const float ref[2], const float cx[5], const float cP[25],
+    bool fresh, float carry[51], const bool flags[2])
 {
-    const float tmp160 = -carry[41];
-    const float tmp161 = (init) ? 0.0f : tmp160;
-    const float tmp162 = carry[40] - tmp161;
-    const float tmp163 = carry[39] + tmp162;
-    const float tmp164 = carry[33] * tmp163;
-    const float tmp165 = carry[37] + tmp164;
-    const float tmp166 = carry[18] * carry[27];
-    const float tmp167 = carry[35] * carry[30];
-    const float tmp168 = tmp166 + tmp167;
-    const float tmp169 = tmp162 * carry[33];
-    const float tmp170 = tmp168 + tmp169;
-    const float tmp171 = (init) ? 0.09f : cP[24];
-    const float tmp172 = tmp171 + carry[2];
-    const float tmp173 = carry[16] * carry[15];
-    const float tmp174 = (init) ? 0.0f : tmp173;
-    const float tmp175 = (init) ? 0.0f : tmp174;
-    const float tmp176 = tmp172 - tmp175;
-    const float tmp177 = tmp170 + tmp176;
-    const float tmp178 = tmp165 + tmp177;
-    const float tmp179 = tmp178 + 0.0025f /* mag_bias_noise^2 */;
-    const float tmp180 = 1.0f / tmp179;
-    const float tmp181 = (1e-12f < tmp179) ? tmp180 : 1.0f;
-    const float tmp182 = carry[19] * tmp181;
-    const float tmp183 = carry[27] * carry[5];
-    const float tmp184 = carry[30] * carry[9];
-    const float tmp185 = tmp183 + tmp184;
-    const float tmp186 = carry[33] * carry[13];
-    const float tmp187 = tmp185 + tmp186;
-    const float tmp188 = fast_sinf(ref[1]);
-    const float tmp189 = (init) ? tmp188 : cx[4];
-    const float tmp190 = tmp187 - tmp189;
-    const float tmp191 = (carry[14] > 1e-06f) ? carry[14] : 1e-06f;
-    const float tmp192 = (init) ? 1.0f : cx[3];
-    const float tmp193 = tmp191 - tmp192;
-    const float tmp194 = carry[25] * tmp193;
-    const float tmp195 = carry[27] * tmp194;
-    const float tmp196 = carry[28] * tmp193;
-    const float tmp197 = carry[30] * tmp196;
-    const float tmp198 = tmp195 + tmp197;
-    const float tmp199 = carry[31] * tmp193;
-    carry[2] = tmp162;
-    carry[5] = tmp163;
-    carry[9] = tmp176;
-    carry[13] = tmp177;
-    carry[14] = tmp181;
-    carry[15] = tmp182;
-    carry[25] = tmp188;
-    carry[28] = tmp189;
-    carry[31] = tmp190;
-    carry[37] = tmp192;
-    carry[39] = tmp193;
-    carry[40] = tmp194;
-    carry[41] = tmp196;
-    carry[42] = tmp198;
-    carry[43] = tmp199;
+    const float tmp160 = carry[42] + carry[43];
+    const float tmp161 = carry[35] * carry[7];
+    const float tmp162 = carry[25] - tmp161;
+    const float tmp163 = tmp162 * carry[18];
+    const float tmp164 = tmp160 + tmp163;
+    const float tmp165 = (flags[0]) ? 0.0f : cP[14];
+    const float tmp166 = carry[20] * carry[7];
+    const float tmp167 = -tmp166;
+    const float tmp168 = (flags[0]) ? 0.0f : tmp167;
+    const float tmp169 = tmp165 - tmp168;
+    const float tmp170 = tmp164 + tmp169;
+    const float tmp171 = carry[18] * tmp170;
+    const float tmp172 = carry[41] + tmp171;
+    const float tmp173 = carry[22] * carry[30];
+    const float tmp174 = carry[39] * carry[33];
+    const float tmp175 = tmp173 + tmp174;
+    const float tmp176 = tmp169 * carry[18];
+    const float tmp177 = tmp175 + tmp176;
+    const float tmp178 = (flags[0]) ? 0.09f : cP[24];
+    const float tmp179 = tmp178 + carry[6];
+    const float tmp180 = carry[20] * carry[19];
+    const float tmp181 = (flags[0]) ? 0.0f : tmp180;
+    const float tmp182 = (flags[0]) ? 0.0f : tmp181;
+    const float tmp183 = tmp179 - tmp182;
+    const float tmp184 = tmp177 + tmp183;
+    const float tmp185 = tmp172 + tmp184;
+    const float tmp186 = tmp185 + 0.0025f;
+    const float tmp187 = 1.0f / tmp186;
+    const float tmp188 = (1e-12f < tmp186) ? tmp187 : 1.0f;
+    const float tmp189 = carry[34] * tmp188;
+    const float tmp190 = carry[30] * carry[8];
+    const float tmp191 = carry[33] * carry[12];
+    const float tmp192 = tmp190 + tmp191;
+    const float tmp193 = carry[18] * carry[16];
+    const float tmp194 = tmp192 + tmp193;
+    const float tmp195 = fast_sinf(ref[1]);
+    const float tmp196 = (fresh) ? tmp195 : cx[4];
+    const float tmp197 = tmp194 - tmp196;
+    const float tmp198 = (carry[17] > 1e-06f) ? carry[17] : 1e-06f;
+    const float tmp199 = (fresh) ? 1.0f : cx[3];
+    carry[6] = tmp162;
+    carry[8] = tmp169;
+    carry[12] = tmp170;
+    carry[16] = tmp183;
+    carry[17] = tmp184;
+    carry[19] = tmp188;
+    carry[25] = tmp189;
+    carry[41] = tmp195;
+    carry[42] = tmp196;
+    carry[43] = tmp197;
+    carry[44] = tmp198;
+    carry[45] = tmp199;
 }
 
-static void mekf_k_hard_iron_fit_part5(const float cP[25], bool init, float carry[45])
+static void mekf_k_hard_iron_part5(float carry[51], const bool flags[2])
 {
-    const float tmp200 = carry[33] * carry[43];
-    const float tmp201 = carry[42] + tmp200;
-    const float tmp202 = carry[16] * carry[39];
-    const float tmp203 = -tmp202;
-    const float tmp204 = (init) ? 0.0f : tmp203;
-    const float tmp205 = tmp201 + tmp204;
-    const float tmp206 = carry[31] + tmp205;
-    const float tmp207 = carry[15] * tmp206;
-    const float tmp208 = tmp207 - carry[40];
-    const float tmp209 = carry[1] + tmp208;
-    const float tmp210 = tmp209 * tmp209;
-    const float tmp211 = carry[36] * carry[14];
-    const float tmp212 = tmp211 * tmp206;
-    const float tmp213 = tmp212 - carry[41];
-    const float tmp214 = carry[8] + tmp213;
-    const float tmp215 = tmp214 * tmp214;
-    const float tmp216 = tmp210 + tmp215;
-    const float tmp217 = carry[5] * carry[14];
-    const float tmp218 = tmp217 * tmp206;
-    const float tmp219 = tmp218 - carry[43];
-    const float tmp220 = carry[12] + tmp219;
-    const float tmp221 = tmp220 * tmp220;
-    const float tmp222 = tmp216 + tmp221;
-    const float tmp223 = sqrtf(tmp222);
-    const float tmp224 = 2.0f /* mag_bias_max */ / tmp223;
-    const float tmp225 = (2.0f /* mag_bias_max */ < tmp223) ? tmp224 : 1.0f;
-    const float tmp226 = tmp209 * tmp225;
-    const float tmp227 = tmp214 * tmp225;
-    const float tmp228 = tmp220 * tmp225;
-    const float tmp229 = (init) ? 0.0f : cP[3];
-    const float tmp230 = carry[23] * carry[24];
-    const float tmp231 = tmp230 * carry[17];
-    const float tmp232 = tmp229 - tmp231;
-    const float tmp233 = tmp232 * carry[27];
-    const float tmp234 = (init) ? 0.0f : cP[8];
-    const float tmp235 = tmp230 * carry[20];
-    const float tmp236 = tmp234 - tmp235;
-    const float tmp237 = tmp236 * carry[30];
-    const float tmp238 = tmp233 + tmp237;
-    const float tmp239 = (init) ? 0.0f : cP[13];
-    carry[1] = tmp202;
-    carry[8] = tmp206;
-    carry[12] = tmp211;
-    carry[17] = tmp217;
-    carry[20] = tmp226;
-    carry[24] = tmp227;
-    carry[31] = tmp228;
-    carry[40] = tmp230;
-    carry[41] = tmp232;
-    carry[42] = tmp236;
-    carry[43] = tmp238;
-    carry[44] = tmp239;
+    const float tmp200 = carry[44] - carry[45];
+    const float tmp201 = carry[28] * tmp200;
+    const float tmp202 = carry[30] * tmp201;
+    const float tmp203 = carry[31] * tmp200;
+    const float tmp204 = carry[33] * tmp203;
+    const float tmp205 = tmp202 + tmp204;
+    const float tmp206 = carry[35] * tmp200;
+    const float tmp207 = carry[18] * tmp206;
+    const float tmp208 = tmp205 + tmp207;
+    const float tmp209 = carry[20] * tmp200;
+    const float tmp210 = -tmp209;
+    const float tmp211 = (flags[0]) ? 0.0f : tmp210;
+    const float tmp212 = tmp208 + tmp211;
+    const float tmp213 = carry[43] + tmp212;
+    const float tmp214 = carry[25] * tmp213;
+    const float tmp215 = tmp214 - tmp201;
+    const float tmp216 = carry[5] + tmp215;
+    const float tmp217 = tmp216 * tmp216;
+    const float tmp218 = carry[40] * carry[19];
+    const float tmp219 = tmp218 * tmp213;
+    const float tmp220 = tmp219 - tmp203;
+    const float tmp221 = carry[11] + tmp220;
+    const float tmp222 = tmp221 * tmp221;
+    const float tmp223 = tmp217 + tmp222;
+    const float tmp224 = carry[12] * carry[19];
+    const float tmp225 = tmp224 * tmp213;
+    const float tmp226 = tmp225 - tmp206;
+    const float tmp227 = carry[15] + tmp226;
+    const float tmp228 = tmp227 * tmp227;
+    const float tmp229 = tmp223 + tmp228;
+    const float tmp230 = sqrtf(tmp229);
+    const float tmp231 = 2.0f / tmp230;
+    const float tmp232 = (2.0f < tmp230) ? tmp231 : 1.0f;
+    const float tmp233 = tmp216 * tmp232;
+    const float tmp234 = carry[3] - tmp233;
+    const float tmp235 = tmp234 * tmp234;
+    const float tmp236 = tmp221 * tmp232;
+    const float tmp237 = carry[9] - tmp236;
+    const float tmp238 = tmp237 * tmp237;
+    const float tmp239 = tmp235 + tmp238;
+    carry[5] = tmp200;
+    carry[11] = tmp209;
+    carry[15] = tmp213;
+    carry[28] = tmp218;
+    carry[31] = tmp224;
+    carry[35] = tmp227;
+    carry[43] = tmp232;
+    carry[44] = tmp233;
+    carry[46] = tmp234;
+    carry[47] = tmp236;
+    carry[48] = tmp237;
+    carry[49] = tmp239;
 }
 
-static void mekf_k_hard_iron_fit_part6(const float cP[25], bool init, float carry[45])
+static void mekf_k_hard_iron_part6(const float cP[25], const float rlp[4], float carry[51],
+    const bool flags[2])
 {
-    const float tmp240 = carry[40] * carry[22];
-    const float tmp241 = carry[44] - tmp240;
-    const float tmp242 = tmp241 * carry[33];
-    const float tmp243 = carry[43] + tmp242;
-    const float tmp244 = (init) ? 0.0f : cP[19];
-    const float tmp245 = carry[16] * carry[23];
-    const float tmp246 = -tmp245;
-    const float tmp247 = (init) ? 0.0f : tmp246;
-    const float tmp248 = tmp244 - tmp247;
-    const float tmp249 = tmp243 + tmp248;
-    const float tmp250 = tmp249 * carry[14];
-    const float tmp251 = tmp250 * carry[8];
-    const float tmp252 = carry[40] * carry[39];
+    const float tmp240 = carry[35] * carry[43];
+    const float tmp241 = carry[13] - tmp240;
+    const float tmp242 = tmp241 * tmp241;
+    const float tmp243 = carry[49] + tmp242;
+    const float tmp244 = sqrtf(tmp243);
+    const float tmp245 = (tmp244 > 1e-06f) ? tmp244 : 1e-06f;
+    const float tmp246 = (flags[0]) ? 0.0f : cP[3];
+    const float tmp247 = carry[26] * carry[27];
+    const float tmp248 = tmp247 * carry[21];
+    const float tmp249 = tmp246 - tmp248;
+    const float tmp250 = tmp249 * carry[30];
+    const float tmp251 = (flags[0]) ? 0.0f : cP[8];
+    const float tmp252 = tmp247 * carry[23];
     const float tmp253 = tmp251 - tmp252;
-    const float tmp254 = carry[37] + tmp253;
-    const float tmp255 = (init) ? 0.0f : carry[1];
-    const float tmp256 = carry[13] * carry[14];
-    const float tmp257 = tmp256 * carry[8];
-    const float tmp258 = tmp255 + tmp257;
-    const float tmp259 = carry[28] + tmp258;
-    const float tmp260 = carry[15] * carry[19];
-    const float tmp261 = carry[26] - tmp260;
-    const float tmp262 = carry[12] * carry[19];
-    const float tmp263 = carry[29] - tmp262;
-    const float tmp264 = carry[17] * carry[19];
-    const float tmp265 = carry[32] - tmp264;
-    const float tmp266 = tmp250 * carry[19];
-    const float tmp267 = carry[41] - tmp266;
-    const float tmp268 = tmp256 * carry[19];
-    const float tmp269 = carry[18] - tmp268;
-    const float tmp270 = carry[12] * carry[36];
-    const float tmp271 = carry[21] - tmp270;
-    const float tmp272 = carry[17] * carry[36];
-    const float tmp273 = carry[34] - tmp272;
-    const float tmp274 = tmp250 * carry[36];
-    const float tmp275 = carry[42] - tmp274;
-    const float tmp276 = tmp256 * carry[36];
-    const float tmp277 = carry[35] - tmp276;
-    const float tmp278 = carry[17] * carry[5];
-    const float tmp279 = carry[38] - tmp278;
-    carry[1] = tmp241;
-    carry[8] = tmp248;
-    carry[12] = tmp249;
-    carry[14] = tmp250;
-    carry[15] = tmp254;
-    carry[16] = tmp256;
-    carry[17] = tmp259;
-    carry[18] = tmp261;
-    carry[19] = tmp263;
-    carry[21] = tmp265;
-    carry[22] = tmp267;
-    carry[26] = tmp269;
-    carry[28] = tmp271;
-    carry[29] = tmp273;
-    carry[32] = tmp275;
-    carry[34] = tmp277;
-    carry[35] = tmp279;
+    const float tmp254 = tmp253 * carry[33];
+    const float tmp255 = tmp250 + tmp254;
+    const float tmp256 = (flags[0]) ? 0.0f : cP[13];
+    const float tmp257 = tmp247 * carry[7];
+    const float tmp258 = tmp256 - tmp257;
+    const float tmp259 = tmp258 * carry[18];
+    const float tmp260 = tmp255 + tmp259;
+    const float tmp261 = (flags[0]) ? 0.0f : cP[19];
+    const float tmp262 = carry[20] * carry[26];
+    const float tmp263 = -tmp262;
+    const float tmp264 = (flags[0]) ? 0.0f : tmp263;
+    const float tmp265 = tmp261 - tmp264;
+    const float tmp266 = tmp260 + tmp265;
+    const float tmp267 = tmp266 * carry[19];
+    const float tmp268 = tmp267 * carry[15];
+    const float tmp269 = tmp247 * carry[5];
+    const float tmp270 = tmp268 - tmp269;
+    const float tmp271 = carry[45] + tmp270;
+    const float tmp272 = tmp245 - tmp271;
+    const float tmp273 = tmp272 - rlp[2];
+    const float tmp274 = carry[2] * tmp273;
+    const float tmp275 = rlp[2] + tmp274;
+    const float tmp276 = tmp275 * tmp275;
+    const float tmp277 = carry[30] * carry[46];
+    const float tmp278 = carry[33] * carry[48];
+    const float tmp279 = tmp277 + tmp278;
+    carry[5] = tmp240;
+    carry[7] = tmp241;
+    carry[20] = tmp247;
+    carry[21] = tmp249;
+    carry[23] = tmp253;
+    carry[27] = tmp258;
+    carry[35] = tmp265;
+    carry[43] = tmp266;
+    carry[45] = tmp267;
+    carry[46] = tmp271;
+    carry[48] = tmp275;
+    carry[49] = tmp276;
+    carry[50] = tmp279;
 }
 
-static void mekf_k_hard_iron_fit_part7(float carry[45])
+static void mekf_k_hard_iron_part7(const float rlp[4], const float rmean[2], const float e[3],
+    float carry[51], const bool flags[2])
 {
-    const float tmp280 = carry[14] * carry[5];
-    const float tmp281 = carry[1] - tmp280;
-    const float tmp282 = carry[16] * carry[5];
-    const float tmp283 = carry[2] - tmp282;
-    const float tmp284 = carry[40] * carry[23];
-    const float tmp285 = carry[3] - tmp284;
-    const float tmp286 = carry[14] * carry[12];
-    const float tmp287 = tmp285 - tmp286;
-    const float tmp288 = carry[16] * carry[12];
-    const float tmp289 = carry[8] - tmp288;
-    const float tmp290 = carry[16] * carry[13];
-    const float tmp291 = carry[9] - tmp290;
-    const float tmp292 = carry[4] - carry[0];
-    const float tmp293 = tmp292 * tmp292;
-    const float tmp294 = carry[6] - carry[7];
-    const float tmp295 = tmp294 * tmp294;
-    const float tmp296 = tmp293 + tmp295;
-    const float tmp297 = carry[10] - carry[11];
+    const float tmp280 = carry[18] * carry[7];
+    const float tmp281 = carry[50] + tmp280;
+    const float tmp282 = (flags[0]) ? 0.0f : carry[11];
+    const float tmp283 = carry[17] * carry[19];
+    const float tmp284 = tmp283 * carry[15];
+    const float tmp285 = tmp282 + tmp284;
+    const float tmp286 = carry[42] + tmp285;
+    const float tmp287 = tmp281 - tmp286;
+    const float tmp288 = tmp287 - rlp[3];
+    const float tmp289 = carry[2] * tmp288;
+    const float tmp290 = rlp[3] + tmp289;
+    const float tmp291 = tmp290 * tmp290;
+    const float tmp292 = carry[49] + tmp291;
+    const float tmp293 = tmp292 - e[1];
+    const float tmp294 = carry[1] * tmp293;
+    const float tmp295 = e[1] + tmp294;
+    const float tmp296 = 4.0f * tmp295;
+    const float tmp297 = carry[3] - carry[4];
     const float tmp298 = tmp297 * tmp297;
-    const float tmp299 = tmp296 + tmp298;
-    const float tmp300 = sqrtf(tmp299);
-    const float tmp301 = tmp300 - 1.0f;
-    const float tmp302 = carry[27] * tmp292;
-    const float tmp303 = carry[30] * tmp294;
-    const float tmp304 = tmp302 + tmp303;
-    const float tmp305 = carry[33] * tmp297;
-    const float tmp306 = tmp304 + tmp305;
-    const float tmp307 = tmp306 - carry[25];
-    const float tmp308 = carry[4] - carry[20];
-    const float tmp309 = tmp308 * tmp308;
-    const float tmp310 = carry[6] - carry[24];
-    const float tmp311 = tmp310 * tmp310;
-    const float tmp312 = tmp309 + tmp311;
-    const float tmp313 = carry[10] - carry[31];
+    const float tmp299 = carry[9] - carry[10];
+    const float tmp300 = tmp299 * tmp299;
+    const float tmp301 = tmp298 + tmp300;
+    const float tmp302 = carry[13] - carry[14];
+    const float tmp303 = tmp302 * tmp302;
+    const float tmp304 = tmp301 + tmp303;
+    const float tmp305 = sqrtf(tmp304);
+    const float tmp306 = tmp305 - 1.0f;
+    const float tmp307 = tmp306 - rlp[0];
+    const float tmp308 = carry[2] * tmp307;
+    const float tmp309 = rlp[0] + tmp308;
+    const float tmp310 = tmp309 - rmean[0];
+    const float tmp311 = carry[1] * tmp310;
+    const float tmp312 = rmean[0] + tmp311;
+    const float tmp313 = tmp309 - tmp312;
     const float tmp314 = tmp313 * tmp313;
-    const float tmp315 = tmp312 + tmp314;
-    const float tmp316 = sqrtf(tmp315);
-    const float tmp317 = (tmp316 > 1e-06f) ? tmp316 : 1e-06f;
-    const float tmp318 = tmp317 - carry[15];
-    const float tmp319 = carry[27] * tmp308;
-    carry[0] = tmp281;
-    carry[1] = tmp283;
-    carry[2] = tmp287;
-    carry[3] = tmp289;
-    carry[4] = tmp291;
-    carry[5] = tmp301;
-    carry[6] = tmp307;
-    carry[7] = tmp310;
-    carry[8] = tmp313;
-    carry[9] = tmp318;
-    carry[10] = tmp319;
+    const float tmp315 = carry[30] * tmp297;
+    const float tmp316 = carry[33] * tmp299;
+    const float tmp317 = tmp315 + tmp316;
+    const float tmp318 = carry[18] * tmp302;
+    const float tmp319 = tmp317 + tmp318;
+    carry[3] = tmp283;
+    carry[4] = tmp286;
+    carry[7] = tmp290;
+    carry[9] = tmp295;
+    carry[10] = tmp296;
+    carry[11] = tmp309;
+    carry[13] = tmp312;
+    carry[14] = tmp314;
+    carry[15] = tmp319;
 }
 
-static void mekf_k_hard_iron_fit_part8(float carry[45])
+static void mekf_k_hard_iron_part8(const float b[3], const float ref[2], const float rlp[4],
+    const float rmean[2], const float e[3], float carry[51], bool flags[2])
 {
-    const float tmp320 = carry[30] * carry[7];
-    const float tmp321 = carry[10] + tmp320;
-    const float tmp322 = carry[33] * carry[8];
-    const float tmp323 = tmp321 + tmp322;
-    const float tmp324 = tmp323 - carry[17];
-    const float tmp325 = carry[18] + carry[28];
-    const float tmp326 = tmp325 + carry[35];
-    carry[7] = tmp324;
-    carry[8] = tmp326;
+    const float tmp320 = carry[15] - carry[41];
+    const float tmp321 = tmp320 - rlp[1];
+    const float tmp322 = carry[2] * tmp321;
+    const float tmp323 = rlp[1] + tmp322;
+    const float tmp324 = tmp323 - rmean[1];
+    const float tmp325 = carry[1] * tmp324;
+    const float tmp326 = rmean[1] + tmp325;
+    const float tmp327 = tmp323 - tmp326;
+    const float tmp328 = tmp327 * tmp327;
+    const float tmp329 = carry[14] + tmp328;
+    const float tmp330 = tmp329 - e[2];
+    const float tmp331 = carry[1] * tmp330;
+    const float tmp332 = e[2] + tmp331;
+    const bool tmp333 = (5.0f <= carry[0]) && (carry[10] < tmp332);
+    const float tmp334 = 0.04f * ref[0];
+    const float tmp335 = tmp334 * ref[0];
+    const float tmp336 = b[0] * b[0];
+    const float tmp337 = b[1] * b[1];
+    const float tmp338 = tmp336 + tmp337;
+    const float tmp339 = b[2] * b[2];
+    const float tmp340 = tmp338 + tmp339;
+    const float tmp341 = (tmp335 <= tmp340) ? 0.1f : 0.2f;
+    const float tmp342 = tmp341 * tmp341;
+    const float tmp343 = tmp342 * ref[0];
+    const float tmp344 = tmp343 * ref[0];
+    const float tmp345 = carry[44] * ref[0];
+    const float tmp346 = tmp345 - b[0];
+    const float tmp347 = tmp346 * tmp346;
+    const float tmp348 = carry[47] * ref[0];
+    const float tmp349 = tmp348 - b[1];
+    const float tmp350 = tmp349 * tmp349;
+    const float tmp351 = tmp347 + tmp350;
+    const float tmp352 = carry[5] * ref[0];
+    const float tmp353 = tmp352 - b[2];
+    const float tmp354 = tmp353 * tmp353;
+    const float tmp355 = tmp351 + tmp354;
+    const bool tmp356 = tmp333 && (tmp344 <= tmp355);
+    const bool tmp357 = tmp356 && (carry[9] < 0.000225f);
+    const float tmp358 = carry[25] * carry[34];
+    const float tmp359 = carry[29] - tmp358;
+    carry[2] = tmp323;
+    carry[10] = tmp326;
+    carry[14] = tmp332;
+    flags[0] = tmp356;
+    flags[1] = tmp357;
+    carry[15] = tmp359;
+}
+
+static void mekf_k_hard_iron_part9(float carry[51], bool flags[2])
+{
+    const float tmp360 = carry[28] * carry[40];
+    const float tmp361 = carry[37] - tmp360;
+    const float tmp362 = carry[15] + tmp361;
+    const float tmp363 = carry[31] * carry[12];
+    const float tmp364 = carry[6] - tmp363;
+    const float tmp365 = tmp362 + tmp364;
+    const bool tmp366 = (tmp365 < 0.000225f) && (0.1f < carry[46]);
+    const bool tmp367 = flags[1] && tmp366;
+    const float tmp368 = carry[28] * carry[34];
+    const float tmp369 = carry[32] - tmp368;
+    const float tmp370 = carry[31] * carry[34];
+    const float tmp371 = carry[36] - tmp370;
+    const float tmp372 = carry[45] * carry[34];
+    const float tmp373 = carry[21] - tmp372;
+    const float tmp374 = carry[3] * carry[34];
+    const float tmp375 = carry[22] - tmp374;
+    const float tmp376 = carry[31] * carry[40];
+    const float tmp377 = carry[38] - tmp376;
+    const float tmp378 = carry[45] * carry[40];
+    const float tmp379 = carry[23] - tmp378;
+    const float tmp380 = carry[3] * carry[40];
+    const float tmp381 = carry[39] - tmp380;
+    const float tmp382 = carry[45] * carry[12];
+    const float tmp383 = carry[27] - tmp382;
+    const float tmp384 = carry[3] * carry[12];
+    const float tmp385 = carry[8] - tmp384;
+    const float tmp386 = carry[20] * carry[26];
+    const float tmp387 = carry[24] - tmp386;
+    const float tmp388 = carry[45] * carry[43];
+    const float tmp389 = tmp387 - tmp388;
+    const float tmp390 = carry[3] * carry[43];
+    const float tmp391 = carry[35] - tmp390;
+    const float tmp392 = carry[3] * carry[17];
+    const float tmp393 = carry[16] - tmp392;
+    carry[3] = tmp361;
+    carry[6] = tmp364;
+    flags[1] = tmp367;
+    carry[8] = tmp369;
+    carry[12] = tmp371;
+    carry[16] = tmp373;
+    carry[17] = tmp375;
+    carry[18] = tmp377;
+    carry[19] = tmp379;
+    carry[20] = tmp381;
+    carry[21] = tmp383;
+    carry[22] = tmp385;
+    carry[23] = tmp389;
+    carry[24] = tmp391;
+    carry[25] = tmp393;
+}
+
+static void mekf_k_hard_iron_part10(const float b[3], const float ref[2], const float e[3],
+    float carry[51], const bool flags[2])
+{
+    float tmp394;
+    float tmp395;
+    float tmp396;
+    float tmp397;
+    float tmp398;
+    float tmp399;
+    float tmp400;
+    float tmp401;
+    float tmp402;
+    float tmp403;
+    float tmp404;
+    float tmp405;
+    float tmp406;
+    float tmp407;
+    float tmp408;
+    float tmp409;
+    float tmp410;
+    float tmp411;
+    float tmp412;
+    float tmp413;
+    float tmp414;
+    float tmp415;
+    float tmp416;
+    float tmp417;
+    float tmp418;
+    float tmp419;
+    float tmp420;
+    float tmp421;
+    float tmp422;
+    float tmp423;
+    float tmp424;
+    if (flags[1]) {
+        const float tmp425 = ref[0] * carry[44];
+        const float tmp426 = ref[0] * carry[47];
+        const float tmp427 = ref[0] * carry[5];
+        const float tmp428 = carry[46] * ref[0];
+        const float tmp429 = 1.0f / carry[46];
+        const float tmp430 = carry[4] * tmp429;
+        const float tmp431 = (tmp430 > (-1.0f)) ? tmp430 : (-1.0f);
+        const float tmp432 = (tmp431 < 1.0f) ? tmp431 : 1.0f;
+        const float tmp433 = fast_asinf(tmp432);
+        const float tmp434 = carry[44] * tmp429;
+        const float tmp435 = carry[47] * tmp429;
+        const float tmp436 = carry[5] * tmp429;
+        const float tmp437 = carry[46] * carry[46];
+        const float tmp438 = 1.0f / tmp437;
+        const float tmp439 = carry[15] * tmp438;
+        const float tmp440 = carry[8] * tmp438;
+        const float tmp441 = carry[12] * tmp438;
+        const float tmp442 = carry[16] * tmp438;
+        const float tmp443 = carry[17] * tmp438;
+        const float tmp444 = carry[3] * tmp438;
+        const float tmp445 = carry[18] * tmp438;
+        const float tmp446 = carry[19] * tmp438;
+        const float tmp447 = carry[20] * tmp438;
+        const float tmp448 = carry[6] * tmp438;
+        const float tmp449 = carry[21] * tmp438;
+        const float tmp450 = carry[22] * tmp438;
+        const float tmp451 = carry[23] * tmp438;
+        const float tmp452 = carry[24] * tmp438;
+        const float tmp453 = carry[25] * tmp438;
+        tmp394 = tmp425;
+        tmp395 = tmp426;
+        tmp396 = tmp427;
+        tmp397 = tmp428;
+        tmp398 = tmp433;
+        tmp399 = tmp434;
+        tmp400 = tmp435;
+        tmp401 = tmp436;
+        tmp402 = 1.0f;
+        tmp403 = tmp430;
+        tmp404 = tmp439;
+        tmp405 = tmp440;
+        tmp406 = tmp441;
+        tmp407 = tmp442;
+        tmp408 = tmp443;
+        tmp409 = tmp444;
+        tmp410 = tmp445;
+        tmp411 = tmp446;
+        tmp412 = tmp447;
+        tmp413 = tmp448;
+        tmp414 = tmp449;
+        tmp415 = tmp450;
+        tmp416 = tmp451;
+        tmp417 = tmp452;
+        tmp418 = tmp453;
+        tmp419 = 0.0f;
+        tmp420 = 0.0f;
+        tmp421 = carry[9];
+        tmp422 = carry[9];
+        tmp423 = carry[9];
+        tmp424 = 0.0f;
+    } else {
+        const float tmp454 = carry[11] * carry[11];
+        const float tmp455 = carry[2] * carry[2];
+        const float tmp456 = tmp454 + tmp455;
+        const float tmp457 = tmp456 - e[0];
+        const float tmp458 = carry[1] * tmp457;
+        const float tmp459 = e[0] + tmp458;
+        tmp394 = b[0];
+        tmp395 = b[1];
+        tmp396 = b[2];
+        tmp397 = ref[0];
+        tmp398 = ref[1];
+        tmp399 = carry[44];
+        tmp400 = carry[47];
+        tmp401 = carry[5];
+        tmp402 = carry[46];
+        tmp403 = carry[4];
+        tmp404 = carry[15];
+        tmp405 = carry[8];
+        tmp406 = carry[12];
+        tmp407 = carry[16];
+        tmp408 = carry[17];
+        tmp409 = carry[3];
+        tmp410 = carry[18];
+        tmp411 = carry[19];
+        tmp412 = carry[20];
+        tmp413 = carry[6];
+        tmp414 = carry[21];
+        tmp415 = carry[22];
+        tmp416 = carry[23];
+        tmp417 = carry[24];
+        tmp418 = carry[25];
+        tmp419 = carry[13];
+        tmp420 = carry[10];
+        tmp421 = tmp459;
+        tmp422 = carry[9];
+        tmp423 = carry[14];
+        tmp424 = carry[0];
+    }
+    carry[0] = tmp394;
+    carry[1] = tmp395;
+    carry[3] = tmp396;
+    carry[4] = tmp397;
+    carry[5] = tmp398;
+    carry[6] = tmp399;
+    carry[8] = tmp400;
+    carry[9] = tmp401;
+    carry[10] = tmp402;
+    carry[12] = tmp403;
+    carry[13] = tmp404;
+    carry[14] = tmp405;
+    carry[15] = tmp406;
+    carry[16] = tmp407;
+    carry[17] = tmp408;
+    carry[18] = tmp409;
+    carry[19] = tmp410;
+    carry[20] = tmp411;
+    carry[21] = tmp412;
+    carry[22] = tmp413;
+    carry[23] = tmp414;
+    carry[24] = tmp415;
+    carry[25] = tmp416;
+    carry[26] = tmp417;
+    carry[27] = tmp418;
+    carry[28] = tmp419;
+    carry[29] = tmp420;
+    carry[30] = tmp421;
+    carry[31] = tmp422;
+    carry[32] = tmp423;
+    carry[33] = tmp424;
+}
+
+static void mekf_k_hard_iron_part11(bool flags[2])
+{
+    const bool tmp460 = flags[0] && (!(flags[1]));
+    flags[0] = tmp460;
 }
 
 /*
- * candidate field model: one step while turning
+ * hard iron while turning: the candidate field model's fit, its residuals' bookkeeping, and the
+ * switch to it (flags suspect, switched)
  *
  * Args:
  *     q: float[4]
@@ -3341,153 +3605,99 @@ static void mekf_k_hard_iron_fit_part8(float carry[45])
  *     ref: float[2]
  *     cx: float[5]
  *     cP: float[25]
+ *     fresh: bool
+ *     reopen: bool
+ *     rlp: float[4]
+ *     rmean: float[2]
+ *     e: float[3]
+ *     turn_time: float
  *     dt: float
- *     init: bool
- * Outputs:
- *     cx_out: float[5]
- *     cP_out: float[25]
- *     res: float[4]
- *     p_beta: float
- *
- * Total ops: 327 (add 140, mul 132, div 6, sqrt 4, trig 1, cmp 44)
- */
-static void mekf_k_hard_iron_fit(const float q[4], const float mag[3], const float b[3],
-    const float ref[2], const float cx[5], const float cP[25], float dt, bool init, float cx_out[5],
-    float cP_out[25], float res[4], float *p_beta)
-{
-    /*
-     * 9 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
-     * handed between them (a slot reused once its value is dead)
-     */
-    float carry[45];
-    mekf_k_hard_iron_fit_part0(mag, b, ref, cx, cP, dt, init, carry);
-    mekf_k_hard_iron_fit_part1(cP, init, carry);
-    mekf_k_hard_iron_fit_part2(q, cP, init, carry);
-    mekf_k_hard_iron_fit_part3(cP, init, carry);
-    mekf_k_hard_iron_fit_part4(ref, cx, cP, init, carry);
-    mekf_k_hard_iron_fit_part5(cP, init, carry);
-    mekf_k_hard_iron_fit_part6(cP, init, carry);
-    mekf_k_hard_iron_fit_part7(carry);
-    mekf_k_hard_iron_fit_part8(carry);
-    cx_out[0] = carry[20];
-    cx_out[1] = carry[24];
-    cx_out[2] = carry[31];
-    cx_out[3] = carry[15];
-    cx_out[4] = carry[17];
-    cP_out[0] = carry[18];
-    cP_out[1] = carry[19];
-    cP_out[2] = carry[21];
-    cP_out[3] = carry[22];
-    cP_out[4] = carry[26];
-    cP_out[5] = carry[19];
-    cP_out[6] = carry[28];
-    cP_out[7] = carry[29];
-    cP_out[8] = carry[32];
-    cP_out[9] = carry[34];
-    cP_out[10] = carry[21];
-    cP_out[11] = carry[29];
-    cP_out[12] = carry[35];
-    cP_out[13] = carry[0];
-    cP_out[14] = carry[1];
-    cP_out[15] = carry[22];
-    cP_out[16] = carry[32];
-    cP_out[17] = carry[0];
-    cP_out[18] = carry[2];
-    cP_out[19] = carry[3];
-    cP_out[20] = carry[26];
-    cP_out[21] = carry[34];
-    cP_out[22] = carry[1];
-    cP_out[23] = carry[3];
-    cP_out[24] = carry[4];
-    res[0] = carry[5];
-    res[1] = carry[6];
-    res[2] = carry[9];
-    res[3] = carry[7];
-    *p_beta = carry[8];
-}
-
-/*
- * the candidate becomes the hard iron and reference
- *
- * Args:
- *     cx: float[5]
- *     cP: float[25]
- *     ref: float[2]
  * Outputs:
  *     b_out: float[3]
  *     ref_out: float[2]
  *     cx_out: float[5]
  *     cP_out: float[25]
+ *     rlp_out: float[4]
+ *     rmean_out: float[2]
+ *     e_out: float[3]
+ *     turn_time_out: float
+ *     suspect: bool
+ *     switched: bool
  *
- * Total ops: 29 (mul 24, div 2, trig 1, cmp 2)
+ * Total ops: 461 (add 173, mul 186, div 10, sqrt 4, trig 2, cmp 86)
+ *     of which only one side runs: if (tmp367) 29, else 6
  */
-static inline void mekf_k_hard_iron_switch(const float cx[5], const float cP[25],
-    const float ref[2], float b_out[3], float ref_out[2], float cx_out[5], float cP_out[25])
+static void mekf_k_hard_iron(const float q[4], const float mag[3], const float b[3],
+    const float ref[2], const float cx[5], const float cP[25], bool fresh, bool reopen,
+    const float rlp[4], const float rmean[2], const float e[3], float turn_time, float dt,
+    float b_out[3], float ref_out[2], float cx_out[5], float cP_out[25], float rlp_out[4],
+    float rmean_out[2], float e_out[3], float *turn_time_out, bool *suspect, bool *switched)
 {
-    const float tmp0 = ref[0] * cx[0];
-    const float tmp1 = ref[0] * cx[1];
-    const float tmp2 = ref[0] * cx[2];
-    const float tmp3 = cx[3] * ref[0];
-    const float tmp4 = 1.0f / cx[3];
-    const float tmp5 = cx[4] * tmp4;
-    const float tmp6 = (tmp5 > (-1.0f)) ? tmp5 : (-1.0f);
-    const float tmp7 = (tmp6 < 1.0f) ? tmp6 : 1.0f;
-    const float tmp8 = fast_asinf(tmp7);
-    const float tmp9 = cx[0] * tmp4;
-    const float tmp10 = cx[1] * tmp4;
-    const float tmp11 = cx[2] * tmp4;
-    const float tmp12 = cx[3] * cx[3];
-    const float tmp13 = 1.0f / tmp12;
-    const float tmp14 = cP[0] * tmp13;
-    const float tmp15 = cP[1] * tmp13;
-    const float tmp16 = cP[2] * tmp13;
-    const float tmp17 = cP[3] * tmp13;
-    const float tmp18 = cP[4] * tmp13;
-    const float tmp19 = cP[6] * tmp13;
-    const float tmp20 = cP[7] * tmp13;
-    const float tmp21 = cP[8] * tmp13;
-    const float tmp22 = cP[9] * tmp13;
-    const float tmp23 = cP[12] * tmp13;
-    const float tmp24 = cP[13] * tmp13;
-    const float tmp25 = cP[14] * tmp13;
-    const float tmp26 = cP[18] * tmp13;
-    const float tmp27 = cP[19] * tmp13;
-    const float tmp28 = cP[24] * tmp13;
-    b_out[0] = tmp0;
-    b_out[1] = tmp1;
-    b_out[2] = tmp2;
-    ref_out[0] = tmp3;
-    ref_out[1] = tmp8;
-    cx_out[0] = tmp9;
-    cx_out[1] = tmp10;
-    cx_out[2] = tmp11;
-    cx_out[3] = 1.0f;
-    cx_out[4] = tmp5;
-    cP_out[0] = tmp14;
-    cP_out[1] = tmp15;
-    cP_out[2] = tmp16;
-    cP_out[3] = tmp17;
-    cP_out[4] = tmp18;
-    cP_out[5] = tmp15;
-    cP_out[6] = tmp19;
-    cP_out[7] = tmp20;
-    cP_out[8] = tmp21;
-    cP_out[9] = tmp22;
-    cP_out[10] = tmp16;
-    cP_out[11] = tmp20;
-    cP_out[12] = tmp23;
-    cP_out[13] = tmp24;
-    cP_out[14] = tmp25;
-    cP_out[15] = tmp17;
-    cP_out[16] = tmp21;
-    cP_out[17] = tmp24;
-    cP_out[18] = tmp26;
-    cP_out[19] = tmp27;
-    cP_out[20] = tmp18;
-    cP_out[21] = tmp22;
-    cP_out[22] = tmp25;
-    cP_out[23] = tmp27;
-    cP_out[24] = tmp28;
+    /*
+     * 12 parts called in turn (inlined when optimising): bounded -O0 frames; carry and flags hold
+     * the values handed between them (a slot reused once its value is dead)
+     */
+    float carry[51];
+    bool flags[2];
+    mekf_k_hard_iron_part0(mag, b, ref, cx, cP, fresh, reopen, turn_time, dt, carry, flags);
+    mekf_k_hard_iron_part1(cP, carry, flags);
+    mekf_k_hard_iron_part2(q, cP, carry, flags);
+    mekf_k_hard_iron_part3(q, cP, carry, flags);
+    mekf_k_hard_iron_part4(ref, cx, cP, fresh, carry, flags);
+    mekf_k_hard_iron_part5(carry, flags);
+    mekf_k_hard_iron_part6(cP, rlp, carry, flags);
+    mekf_k_hard_iron_part7(rlp, rmean, e, carry, flags);
+    mekf_k_hard_iron_part8(b, ref, rlp, rmean, e, carry, flags);
+    mekf_k_hard_iron_part9(carry, flags);
+    mekf_k_hard_iron_part10(b, ref, e, carry, flags);
+    mekf_k_hard_iron_part11(flags);
+    b_out[0] = carry[0];
+    b_out[1] = carry[1];
+    b_out[2] = carry[3];
+    ref_out[0] = carry[4];
+    ref_out[1] = carry[5];
+    cx_out[0] = carry[6];
+    cx_out[1] = carry[8];
+    cx_out[2] = carry[9];
+    cx_out[3] = carry[10];
+    cx_out[4] = carry[12];
+    cP_out[0] = carry[13];
+    cP_out[1] = carry[14];
+    cP_out[2] = carry[15];
+    cP_out[3] = carry[16];
+    cP_out[4] = carry[17];
+    cP_out[5] = carry[14];
+    cP_out[6] = carry[18];
+    cP_out[7] = carry[19];
+    cP_out[8] = carry[20];
+    cP_out[9] = carry[21];
+    cP_out[10] = carry[15];
+    cP_out[11] = carry[19];
+    cP_out[12] = carry[22];
+    cP_out[13] = carry[23];
+    cP_out[14] = carry[24];
+    cP_out[15] = carry[16];
+    cP_out[16] = carry[20];
+    cP_out[17] = carry[23];
+    cP_out[18] = carry[25];
+    cP_out[19] = carry[26];
+    cP_out[20] = carry[17];
+    cP_out[21] = carry[21];
+    cP_out[22] = carry[24];
+    cP_out[23] = carry[26];
+    cP_out[24] = carry[27];
+    rlp_out[0] = carry[11];
+    rlp_out[1] = carry[2];
+    rlp_out[2] = carry[48];
+    rlp_out[3] = carry[7];
+    rmean_out[0] = carry[28];
+    rmean_out[1] = carry[29];
+    e_out[0] = carry[30];
+    e_out[1] = carry[31];
+    e_out[2] = carry[32];
+    *turn_time_out = carry[33];
+    *suspect = flags[0];
+    *switched = flags[1];
 }
 
 /*
@@ -3542,79 +3752,35 @@ static bool mekf_field_off(const float feat[2], const float ref[2], float norm_t
     return fabsf(feat[0] - ref[0]) > norm_th * ref[0] || fabsf(feat[1] - ref[1]) > dip_th;
 }
 
-/* Hard iron (docs/mekf.md, "Hard iron"): while the sensor turns, a candidate field model
- * [hard iron / B (3), norm / B, down component / B] is fitted from the field's norm and vertical
- * component (neither involves the heading). It replaces the hard iron and the reference when,
- * over mag_bias_settle of turning,
- * - it explains the field: RMS of its residuals, low-passed over 0.2 s, below mag_bias_th;
- * - it does so 4x better in mean square than the present hard iron does even
- *   with a re-fitted reference (the present residuals less their mean);
- * - it differs from the present hard iron by at least mag_bias_jump of the field, or by
- *   mag_norm_th once the present hard iron is itself that large (a magnet found: refined);
- * - its hard iron is known to mag_bias_th (square root of its covariance's trace).
- * While the first three hold ("suspect") the magnetometer is not used for heading. `onset`: the
- * field check rejected the field this step after accepting it (a new disturbance): the
- * candidate's covariance reopens to its prior. A call of its own (its frame then does not add
- * to the step's). */
+/* Hard iron (docs/mekf.md, "Hard iron"): while the sensor turns, the shared hard-iron kernel
+ * (symbolic/aiding.hard_iron_step) fits a candidate field model [hard iron / B (3), norm / B,
+ * down component / B] from the field's norm and vertical component (neither involves the
+ * heading), keeps its residuals' bookkeeping and switches the hard iron and the reference to it
+ * when it explains the field much better (`switched`). While it is the better model and differs
+ * enough ("suspect") the magnetometer is not used for heading. `onset`: the field check rejected
+ * the field this step after accepting it (a new disturbance): the candidate's covariance reopens
+ * at its next fit. A call of its own (its frame then does not add to the step's). */
 #if defined(__GNUC__)
 __attribute__((noinline))
 #endif
 static void mekf_hard_iron(mekf_state *s, const float mag[3], const float gyro[3],
     const float q[4], float dt, bool onset, bool *mag_use, mekf_status *status)
 {
-    if (onset && s->mag_suspect == 0u) {
-        for (uint32_t i = 0u; i < 25u; i++) {
-            s->mag_cP[i] = (i % 6u == 0u) ? 0.09f : 0.0f;   /* prior: 0.3^2 I */
-        }
+    if (onset && s->mag_suspect == 0u && s->mag_c_ok == 1u) {
+        s->mag_c_ok = 2u;
     }
     const float w0 = gyro[0] - s->gyro_bias[0];
     const float w1 = gyro[1] - s->gyro_bias[1];
     const float w2 = gyro[2] - s->gyro_bias[2];
     if (w0 * w0 + w1 * w1 + w2 * w2 >= MEKF_MAG_BIAS_MIN_RATE * MEKF_MAG_BIAS_MIN_RATE) {
-        float res[4];   /* residuals: present model (norm, down), candidate (norm, down) */
-        float p_beta;   /* trace of the candidate hard iron's covariance */
-        mekf_k_hard_iron_fit(q, mag, s->mag_bias, s->mag_ref, s->mag_cx, s->mag_cP, dt, s->mag_c_ok == 0u,
-            s->mag_cx, s->mag_cP, res, &p_beta);
+        bool suspect;
+        bool switched;
+        mekf_k_hard_iron(q, mag, s->mag_bias, s->mag_ref, s->mag_cx, s->mag_cP, s->mag_c_ok == 0u,
+            s->mag_c_ok == 2u, s->mag_rlp, s->mag_rmean, s->mag_e, s->mag_turn_time, dt, s->mag_bias, s->mag_ref,
+            s->mag_cx, s->mag_cP, s->mag_rlp, s->mag_rmean, s->mag_e, &s->mag_turn_time, &suspect, &switched);
         s->mag_c_ok = 1u;
-        const float a_s = dt / (0.2f + dt);
-        for (uint32_t i = 0u; i < 4u; i++) {
-            s->mag_rlp[i] += a_s * (res[i] - s->mag_rlp[i]);
-        }
-        const float a = dt / (MEKF_MAG_BIAS_SETTLE + dt);
-        s->mag_rmean[0] += a * (s->mag_rlp[0] - s->mag_rmean[0]);
-        s->mag_rmean[1] += a * (s->mag_rlp[1] - s->mag_rmean[1]);
-        const float d0 = s->mag_rlp[0] - s->mag_rmean[0];
-        const float d1 = s->mag_rlp[1] - s->mag_rmean[1];
-        s->mag_e[0] += a * (s->mag_rlp[0] * s->mag_rlp[0] + s->mag_rlp[1] * s->mag_rlp[1] - s->mag_e[0]);
-        s->mag_e[1] += a * (s->mag_rlp[2] * s->mag_rlp[2] + s->mag_rlp[3] * s->mag_rlp[3] - s->mag_e[1]);
-        s->mag_e[2] += a * (d0 * d0 + d1 * d1 - s->mag_e[2]);
-        s->mag_turn_time = s->mag_turn_time + dt < 1000.0f ? s->mag_turn_time + dt : 1000.0f;
-        const bool better = s->mag_turn_time >= MEKF_MAG_BIAS_SETTLE &&
-            s->mag_e[2] > 4.0f * s->mag_e[1];
-        /* |candidate - present hard iron| >= mag_bias_jump (mag_norm_th when the present hard
-         * iron is at least mag_bias_jump), in the field's units */
-        const float B = s->mag_ref[0];
-        float db2 = 0.0f;
-        float b2 = 0.0f;
-        for (uint32_t i = 0u; i < 3u; i++) {
-            const float d = s->mag_cx[i] * B - s->mag_bias[i];
-            db2 += d * d;
-            b2 += s->mag_bias[i] * s->mag_bias[i];
-        }
-        const float jump = b2 >= MEKF_MAG_BIAS_JUMP * MEKF_MAG_BIAS_JUMP * B * B ? MEKF_MAG_NORM_TH
-                                                                                : MEKF_MAG_BIAS_JUMP;
-        const bool suspect = better && db2 >= jump * jump * B * B;
         s->mag_suspect = suspect ? 1u : 0u;
-        const float th2 = MEKF_MAG_BIAS_TH * MEKF_MAG_BIAS_TH;
-        /* (a candidate norm below 0.1 of the reference is never taken) */
-        if (suspect && s->mag_e[1] < th2 && p_beta < th2 && s->mag_cx[3] > 0.1f) {
-            mekf_k_hard_iron_switch(s->mag_cx, s->mag_cP, s->mag_ref, s->mag_bias, s->mag_ref, s->mag_cx, s->mag_cP);
-            s->mag_e[0] = s->mag_e[1];
-            s->mag_e[2] = s->mag_e[1];
-            s->mag_rmean[0] = 0.0f;
-            s->mag_rmean[1] = 0.0f;
-            s->mag_turn_time = 0.0f;
-            s->mag_suspect = 0u;
+        if (switched) {
             s->mag_rej_time = 0.0f;
             s->mag_cand_time = 0.0f;
             *status |= MEKF_HARD_IRON_SWITCHED;

@@ -352,9 +352,11 @@ typedef struct {
     float mag_bias[3];     /* magnetometer hard iron, body axes, the field's units (m - mag_bias is
                               used) */
     float mag_cx[5];       /* candidate field model [hard iron / B (3), norm / B, down component /
-                              B], B = mag_ref[0] */
+                              B], B the reference norm */
     float mag_cP[25];      /* its covariance (5x5, symmetric) */
-    uint32_t mag_c_ok;     /* 1 once the candidate has been started from the reference */
+    uint32_t mag_c_ok;     /* 0: the candidate starts from the present model at the next fit; 1:
+                              fitted; 2: its covariance reopens at the next fit (a new disturbance)
+                              */
     float mag_rlp[4];      /* hard-iron residuals [present (2), candidate (2)] low-passed over 0.2 s
                               */
     float mag_rmean[2];    /* the present residuals' mean over mag_bias_settle */

@@ -986,7 +986,7 @@ static void qcf_k_mag_check_part0(const float accel_lp[3], float mag_norm2, cons
 }
 
 static void qcf_k_mag_check_part1(const float mag_ref[2], float mag_dist_time, float span,
-    float carry[6], bool flags[1])
+    bool hold, float carry[6], bool flags[1])
 {
     bool tmp18;
     float tmp19;
@@ -1010,43 +1010,45 @@ static void qcf_k_mag_check_part1(const float mag_ref[2], float mag_dist_time, f
         const bool tmp31 = tmp30 || (!(0.0f < mag_ref[0]));
         const float tmp32 = mag_dist_time + span;
         const float tmp33 = (tmp30) ? 0.0f : tmp32;
-        const bool tmp34 = (!(0.0f < mag_ref[0])) || (20.0f < tmp33);
-        float tmp35;
+        const bool tmp34 = (20.0f < tmp33) && (!(hold));
+        const bool tmp35 = (!(0.0f < mag_ref[0])) || tmp34;
         float tmp36;
         float tmp37;
-        if (tmp34) {
-            const float tmp38 = -carry[3];
-            tmp35 = carry[1];
-            tmp36 = tmp38;
-            tmp37 = 0.0f;
+        float tmp38;
+        if (tmp35) {
+            const float tmp39 = -carry[3];
+            tmp36 = carry[1];
+            tmp37 = tmp39;
+            tmp38 = 0.0f;
         } else {
-            const float tmp39 = 20.0f + span;
-            const float tmp40 = span / tmp39;
-            const float tmp41 = tmp40 * carry[2];
-            const float tmp42 = mag_ref[0] + tmp41;
-            const float tmp43 = (tmp30) ? tmp42 : mag_ref[0];
-            const float tmp44 = tmp40 * carry[4];
-            const float tmp45 = mag_ref[1] - tmp44;
-            const float tmp46 = (tmp30) ? tmp45 : mag_ref[1];
-            tmp35 = tmp43;
-            tmp36 = tmp46;
-            tmp37 = tmp33;
+            const float tmp40 = 20.0f + span;
+            const float tmp41 = span / tmp40;
+            const float tmp42 = tmp41 * carry[2];
+            const float tmp43 = mag_ref[0] + tmp42;
+            const float tmp44 = (tmp30) ? tmp43 : mag_ref[0];
+            const float tmp45 = tmp41 * carry[4];
+            const float tmp46 = mag_ref[1] - tmp45;
+            const float tmp47 = (tmp30) ? tmp46 : mag_ref[1];
+            tmp36 = tmp44;
+            tmp37 = tmp47;
+            tmp38 = tmp33;
         }
         tmp18 = tmp31;
-        tmp19 = tmp35;
-        tmp20 = tmp36;
-        tmp21 = tmp37;
+        tmp19 = tmp36;
+        tmp20 = tmp37;
+        tmp21 = tmp38;
     }
-    const float tmp47 = (carry[5] < 10.0f) ? carry[5] : 10.0f;
+    const float tmp48 = (carry[5] < 10.0f) ? carry[5] : 10.0f;
     flags[0] = tmp18;
     carry[0] = tmp19;
     carry[1] = tmp20;
     carry[2] = tmp21;
-    carry[3] = tmp47;
+    carry[3] = tmp48;
 }
 
 /*
- * field check: |m| and sin(dip) against the learned reference
+ * field check: |m| and sin(dip) against the learned reference (a lasting change is not taken while
+ * the hard-iron candidate is the better model)
  *
  * Args:
  *     accel_lp: float[3]
@@ -1056,19 +1058,20 @@ static void qcf_k_mag_check_part1(const float mag_ref[2], float mag_dist_time, f
  *     mag_dist_time: float
  *     mag_learn_time: float
  *     span: float
+ *     hold: bool
  * Outputs:
  *     accept: bool
  *     mag_ref_new: float[2]
  *     mag_dist_time_new: float
  *     mag_learn_time_new: float
  *
- * Total ops: 48 (add 14, mul 12, div 3, sqrt 2, cmp 17)
- *     of which only one side runs: if (tmp0 < 10.0f) 5, else 20
- *     of which only one side runs: if (tmp34) 1, else 8
+ * Total ops: 49 (add 14, mul 12, div 3, sqrt 2, cmp 18)
+ *     of which only one side runs: if (tmp0 < 10.0f) 5, else 21
+ *     of which only one side runs: if (tmp35) 1, else 8
  */
 static void qcf_k_mag_check(const float accel_lp[3], float mag_norm2, const float mag_ned[3],
-    const float mag_ref[2], float mag_dist_time, float mag_learn_time, float span, bool *accept,
-    float mag_ref_new[2], float *mag_dist_time_new, float *mag_learn_time_new)
+    const float mag_ref[2], float mag_dist_time, float mag_learn_time, float span, bool hold,
+    bool *accept, float mag_ref_new[2], float *mag_dist_time_new, float *mag_learn_time_new)
 {
     /*
      * 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry and flags hold
@@ -1077,12 +1080,854 @@ static void qcf_k_mag_check(const float accel_lp[3], float mag_norm2, const floa
     float carry[6];
     bool flags[1];
     qcf_k_mag_check_part0(accel_lp, mag_norm2, mag_ned, mag_ref, mag_learn_time, span, carry);
-    qcf_k_mag_check_part1(mag_ref, mag_dist_time, span, carry, flags);
+    qcf_k_mag_check_part1(mag_ref, mag_dist_time, span, hold, carry, flags);
     *accept = flags[0];
     mag_ref_new[0] = carry[0];
     mag_ref_new[1] = carry[1];
     *mag_dist_time_new = carry[2];
     *mag_learn_time_new = carry[3];
+}
+
+static void qcf_k_hard_iron_part0(const float mag[3], const float b[3], const float ref[2],
+    const float cx[5], const float cP[25], bool fresh, bool reopen, float turn_time, float dt,
+    float carry[50], bool flags[2])
+{
+    const float tmp0 = turn_time + dt;
+    const float tmp1 = (tmp0 < 1000.0f) ? tmp0 : 1000.0f;
+    const float tmp2 = 5.0f + dt;
+    const float tmp3 = dt / tmp2;
+    const float tmp4 = 0.2f + dt;
+    const float tmp5 = dt / tmp4;
+    const float tmp6 = 1.0f / ref[0];
+    const float tmp7 = mag[0] * tmp6;
+    const float tmp8 = b[0] * tmp6;
+    const float tmp9 = (fresh) ? tmp8 : cx[0];
+    const bool tmp10 = fresh || reopen;
+    const float tmp11 = (tmp10) ? 0.09f : cP[0];
+    const float tmp12 = 9e-06f * dt;
+    const float tmp13 = tmp11 + tmp12;
+    const float tmp14 = tmp7 - tmp9;
+    const float tmp15 = tmp14 * tmp14;
+    const float tmp16 = mag[1] * tmp6;
+    const float tmp17 = b[1] * tmp6;
+    const float tmp18 = (fresh) ? tmp17 : cx[1];
+    const float tmp19 = tmp16 - tmp18;
+    const float tmp20 = tmp19 * tmp19;
+    const float tmp21 = tmp15 + tmp20;
+    const float tmp22 = mag[2] * tmp6;
+    const float tmp23 = b[2] * tmp6;
+    const float tmp24 = (fresh) ? tmp23 : cx[2];
+    const float tmp25 = tmp22 - tmp24;
+    const float tmp26 = tmp25 * tmp25;
+    const float tmp27 = tmp21 + tmp26;
+    const float tmp28 = sqrtf(tmp27);
+    const bool tmp29 = 1e-06f <= tmp28;
+    const bool tmp30 = tmp28 <= 1e-06f;
+    const float tmp31 = (float)tmp29 + (float)tmp30;
+    const float tmp32 = (float)tmp29 / tmp31;
+    const float tmp33 = 1.0f / tmp28;
+    const float tmp34 = tmp19 * tmp33;
+    const float tmp35 = tmp32 * tmp34;
+    const float tmp36 = cP[1] * tmp35;
+    const float tmp37 = -tmp36;
+    const float tmp38 = (tmp10) ? 0.0f : tmp37;
+    const float tmp39 = tmp14 * tmp33;
+    carry[0] = tmp1;
+    carry[1] = tmp3;
+    carry[2] = tmp5;
+    carry[3] = tmp7;
+    carry[4] = tmp8;
+    carry[5] = tmp9;
+    flags[0] = tmp10;
+    carry[6] = tmp12;
+    carry[7] = tmp13;
+    carry[8] = tmp14;
+    carry[9] = tmp16;
+    carry[10] = tmp17;
+    carry[11] = tmp18;
+    carry[12] = tmp19;
+    carry[13] = tmp22;
+    carry[14] = tmp23;
+    carry[15] = tmp24;
+    carry[16] = tmp25;
+    carry[17] = tmp28;
+    carry[18] = tmp32;
+    carry[19] = tmp33;
+    carry[20] = tmp35;
+    carry[21] = tmp38;
+    carry[22] = tmp39;
+}
+
+static void qcf_k_hard_iron_part1(const float cP[25], float carry[50], const bool flags[2])
+{
+    const float tmp40 = carry[18] * carry[22];
+    const float tmp41 = carry[7] * tmp40;
+    const float tmp42 = carry[21] - tmp41;
+    const float tmp43 = carry[16] * carry[19];
+    const float tmp44 = carry[18] * tmp43;
+    const float tmp45 = cP[2] * tmp44;
+    const float tmp46 = -tmp45;
+    const float tmp47 = (flags[0]) ? 0.0f : tmp46;
+    const float tmp48 = tmp42 + tmp47;
+    const float tmp49 = -cP[3];
+    const float tmp50 = (flags[0]) ? 0.0f : tmp49;
+    const float tmp51 = tmp48 + tmp50;
+    const float tmp52 = tmp40 * tmp51;
+    const float tmp53 = cP[1] * tmp40;
+    const float tmp54 = -tmp53;
+    const float tmp55 = (flags[0]) ? 0.0f : tmp54;
+    const float tmp56 = (flags[0]) ? 0.09f : cP[6];
+    const float tmp57 = tmp56 + carry[6];
+    const float tmp58 = tmp57 * carry[20];
+    const float tmp59 = tmp55 - tmp58;
+    const float tmp60 = cP[7] * tmp44;
+    const float tmp61 = -tmp60;
+    const float tmp62 = (flags[0]) ? 0.0f : tmp61;
+    const float tmp63 = tmp59 + tmp62;
+    const float tmp64 = -cP[8];
+    const float tmp65 = (flags[0]) ? 0.0f : tmp64;
+    const float tmp66 = tmp63 + tmp65;
+    const float tmp67 = carry[20] * tmp66;
+    const float tmp68 = tmp52 + tmp67;
+    const float tmp69 = cP[2] * tmp40;
+    const float tmp70 = cP[7] * carry[20];
+    const float tmp71 = tmp69 + tmp70;
+    const float tmp72 = -tmp71;
+    const float tmp73 = (flags[0]) ? 0.0f : tmp72;
+    const float tmp74 = (flags[0]) ? 0.09f : cP[12];
+    const float tmp75 = tmp74 + carry[6];
+    const float tmp76 = tmp75 * tmp44;
+    const float tmp77 = tmp73 - tmp76;
+    const float tmp78 = -cP[13];
+    const float tmp79 = (flags[0]) ? 0.0f : tmp78;
+    carry[18] = tmp40;
+    carry[19] = tmp44;
+    carry[21] = tmp51;
+    carry[22] = tmp57;
+    carry[23] = tmp66;
+    carry[24] = tmp68;
+    carry[25] = tmp75;
+    carry[26] = tmp77;
+    carry[27] = tmp79;
+}
+
+static void qcf_k_hard_iron_part2(const float q[4], const float cP[25], float carry[50],
+    const bool flags[2])
+{
+    const float tmp80 = carry[26] + carry[27];
+    const float tmp81 = carry[19] * tmp80;
+    const float tmp82 = carry[24] + tmp81;
+    const float tmp83 = cP[3] * carry[18];
+    const float tmp84 = cP[8] * carry[20];
+    const float tmp85 = tmp83 + tmp84;
+    const float tmp86 = cP[13] * carry[19];
+    const float tmp87 = tmp85 + tmp86;
+    const float tmp88 = -tmp87;
+    const float tmp89 = (flags[0]) ? 0.0f : tmp88;
+    const float tmp90 = (flags[0]) ? 0.09f : cP[18];
+    const float tmp91 = tmp90 + carry[6];
+    const float tmp92 = tmp89 - tmp91;
+    const float tmp93 = tmp82 + tmp92;
+    const float tmp94 = 0.0025f - tmp93;
+    const float tmp95 = 1.0f / tmp94;
+    const float tmp96 = (1e-12f < tmp94) ? tmp95 : 1.0f;
+    const float tmp97 = carry[21] * tmp96;
+    const float tmp98 = tmp97 * carry[21];
+    const float tmp99 = carry[7] - tmp98;
+    const float tmp100 = q[1] * q[3];
+    const float tmp101 = q[0] * q[2];
+    const float tmp102 = tmp100 - tmp101;
+    const float tmp103 = tmp102 + tmp102;
+    const float tmp104 = tmp99 * tmp103;
+    const float tmp105 = (flags[0]) ? 0.0f : cP[1];
+    const float tmp106 = carry[23] * tmp96;
+    const float tmp107 = tmp106 * carry[21];
+    const float tmp108 = tmp105 - tmp107;
+    const float tmp109 = q[2] * q[3];
+    const float tmp110 = q[0] * q[1];
+    const float tmp111 = tmp109 + tmp110;
+    const float tmp112 = tmp111 + tmp111;
+    const float tmp113 = tmp108 * tmp112;
+    const float tmp114 = tmp104 + tmp113;
+    const float tmp115 = (flags[0]) ? 0.0f : cP[2];
+    const float tmp116 = tmp80 * tmp96;
+    const float tmp117 = tmp116 * carry[21];
+    const float tmp118 = tmp115 - tmp117;
+    const float tmp119 = q[1] * q[1];
+    carry[7] = tmp80;
+    carry[24] = tmp91;
+    carry[26] = tmp92;
+    carry[27] = tmp96;
+    carry[28] = tmp97;
+    carry[29] = tmp99;
+    carry[30] = tmp103;
+    carry[31] = tmp106;
+    carry[32] = tmp108;
+    carry[33] = tmp112;
+    carry[34] = tmp114;
+    carry[35] = tmp116;
+    carry[36] = tmp118;
+    carry[37] = tmp119;
+}
+
+static void qcf_k_hard_iron_part3(const float q[4], const float cP[25], float carry[50],
+    const bool flags[2])
+{
+    const float tmp120 = q[2] * q[2];
+    const float tmp121 = carry[37] + tmp120;
+    const float tmp122 = tmp121 + tmp121;
+    const float tmp123 = 1.0f - tmp122;
+    const float tmp124 = carry[36] * tmp123;
+    const float tmp125 = carry[34] + tmp124;
+    const float tmp126 = (flags[0]) ? 0.0f : cP[4];
+    const float tmp127 = cP[4] * carry[18];
+    const float tmp128 = cP[9] * carry[20];
+    const float tmp129 = tmp127 + tmp128;
+    const float tmp130 = cP[14] * carry[19];
+    const float tmp131 = tmp129 + tmp130;
+    const float tmp132 = tmp131 + cP[19];
+    const float tmp133 = tmp132 * carry[27];
+    const float tmp134 = tmp133 * carry[21];
+    const float tmp135 = -tmp134;
+    const float tmp136 = (flags[0]) ? 0.0f : tmp135;
+    const float tmp137 = tmp126 - tmp136;
+    const float tmp138 = tmp125 + tmp137;
+    const float tmp139 = carry[30] * tmp138;
+    const float tmp140 = carry[32] * carry[30];
+    const float tmp141 = carry[31] * carry[23];
+    const float tmp142 = carry[22] - tmp141;
+    const float tmp143 = tmp142 * carry[33];
+    const float tmp144 = tmp140 + tmp143;
+    const float tmp145 = (flags[0]) ? 0.0f : cP[7];
+    const float tmp146 = carry[35] * carry[23];
+    const float tmp147 = tmp145 - tmp146;
+    const float tmp148 = tmp147 * tmp123;
+    const float tmp149 = tmp144 + tmp148;
+    const float tmp150 = (flags[0]) ? 0.0f : cP[9];
+    const float tmp151 = tmp133 * carry[23];
+    const float tmp152 = -tmp151;
+    const float tmp153 = (flags[0]) ? 0.0f : tmp152;
+    const float tmp154 = tmp150 - tmp153;
+    const float tmp155 = tmp149 + tmp154;
+    const float tmp156 = carry[33] * tmp155;
+    const float tmp157 = tmp139 + tmp156;
+    const float tmp158 = carry[36] * carry[30];
+    const float tmp159 = tmp147 * carry[33];
+    carry[18] = tmp123;
+    carry[19] = tmp132;
+    carry[20] = tmp133;
+    carry[22] = tmp137;
+    carry[34] = tmp138;
+    carry[37] = tmp142;
+    carry[38] = tmp147;
+    carry[39] = tmp154;
+    carry[40] = tmp155;
+    carry[41] = tmp157;
+    carry[42] = tmp158;
+    carry[43] = tmp159;
+}
+
+static void qcf_k_hard_iron_part4(const float ref[2], const float cx[5], const float cP[25],
+    bool fresh, float carry[50], const bool flags[2])
+{
+    const float tmp160 = carry[42] + carry[43];
+    const float tmp161 = carry[35] * carry[7];
+    const float tmp162 = carry[25] - tmp161;
+    const float tmp163 = tmp162 * carry[18];
+    const float tmp164 = tmp160 + tmp163;
+    const float tmp165 = (flags[0]) ? 0.0f : cP[14];
+    const float tmp166 = carry[20] * carry[7];
+    const float tmp167 = -tmp166;
+    const float tmp168 = (flags[0]) ? 0.0f : tmp167;
+    const float tmp169 = tmp165 - tmp168;
+    const float tmp170 = tmp164 + tmp169;
+    const float tmp171 = carry[18] * tmp170;
+    const float tmp172 = carry[41] + tmp171;
+    const float tmp173 = carry[22] * carry[30];
+    const float tmp174 = carry[39] * carry[33];
+    const float tmp175 = tmp173 + tmp174;
+    const float tmp176 = tmp169 * carry[18];
+    const float tmp177 = tmp175 + tmp176;
+    const float tmp178 = (flags[0]) ? 0.09f : cP[24];
+    const float tmp179 = tmp178 + carry[6];
+    const float tmp180 = carry[20] * carry[19];
+    const float tmp181 = (flags[0]) ? 0.0f : tmp180;
+    const float tmp182 = (flags[0]) ? 0.0f : tmp181;
+    const float tmp183 = tmp179 - tmp182;
+    const float tmp184 = tmp177 + tmp183;
+    const float tmp185 = tmp172 + tmp184;
+    const float tmp186 = tmp185 + 0.0025f;
+    const float tmp187 = 1.0f / tmp186;
+    const float tmp188 = (1e-12f < tmp186) ? tmp187 : 1.0f;
+    const float tmp189 = carry[34] * tmp188;
+    const float tmp190 = carry[30] * carry[8];
+    const float tmp191 = carry[33] * carry[12];
+    const float tmp192 = tmp190 + tmp191;
+    const float tmp193 = carry[18] * carry[16];
+    const float tmp194 = tmp192 + tmp193;
+    const float tmp195 = (fresh) ? ref[1] : cx[4];
+    const float tmp196 = tmp194 - tmp195;
+    const float tmp197 = (carry[17] > 1e-06f) ? carry[17] : 1e-06f;
+    const float tmp198 = (fresh) ? 1.0f : cx[3];
+    const float tmp199 = tmp197 - tmp198;
+    carry[6] = tmp162;
+    carry[8] = tmp169;
+    carry[12] = tmp170;
+    carry[16] = tmp183;
+    carry[17] = tmp184;
+    carry[19] = tmp188;
+    carry[25] = tmp189;
+    carry[41] = tmp195;
+    carry[42] = tmp196;
+    carry[43] = tmp198;
+    carry[44] = tmp199;
+}
+
+static void qcf_k_hard_iron_part5(float carry[50], const bool flags[2])
+{
+    const float tmp200 = carry[28] * carry[44];
+    const float tmp201 = carry[30] * tmp200;
+    const float tmp202 = carry[31] * carry[44];
+    const float tmp203 = carry[33] * tmp202;
+    const float tmp204 = tmp201 + tmp203;
+    const float tmp205 = carry[35] * carry[44];
+    const float tmp206 = carry[18] * tmp205;
+    const float tmp207 = tmp204 + tmp206;
+    const float tmp208 = carry[20] * carry[44];
+    const float tmp209 = -tmp208;
+    const float tmp210 = (flags[0]) ? 0.0f : tmp209;
+    const float tmp211 = tmp207 + tmp210;
+    const float tmp212 = carry[42] + tmp211;
+    const float tmp213 = carry[25] * tmp212;
+    const float tmp214 = tmp213 - tmp200;
+    const float tmp215 = carry[5] + tmp214;
+    const float tmp216 = tmp215 * tmp215;
+    const float tmp217 = carry[40] * carry[19];
+    const float tmp218 = tmp217 * tmp212;
+    const float tmp219 = tmp218 - tmp202;
+    const float tmp220 = carry[11] + tmp219;
+    const float tmp221 = tmp220 * tmp220;
+    const float tmp222 = tmp216 + tmp221;
+    const float tmp223 = carry[12] * carry[19];
+    const float tmp224 = tmp223 * tmp212;
+    const float tmp225 = tmp224 - tmp205;
+    const float tmp226 = carry[15] + tmp225;
+    const float tmp227 = tmp226 * tmp226;
+    const float tmp228 = tmp222 + tmp227;
+    const float tmp229 = sqrtf(tmp228);
+    const float tmp230 = 2.0f / tmp229;
+    const float tmp231 = (2.0f < tmp229) ? tmp230 : 1.0f;
+    const float tmp232 = tmp215 * tmp231;
+    const float tmp233 = carry[3] - tmp232;
+    const float tmp234 = tmp233 * tmp233;
+    const float tmp235 = tmp220 * tmp231;
+    const float tmp236 = carry[9] - tmp235;
+    const float tmp237 = tmp236 * tmp236;
+    const float tmp238 = tmp234 + tmp237;
+    const float tmp239 = tmp226 * tmp231;
+    carry[5] = tmp208;
+    carry[11] = tmp212;
+    carry[15] = tmp217;
+    carry[28] = tmp223;
+    carry[31] = tmp232;
+    carry[35] = tmp233;
+    carry[42] = tmp235;
+    carry[45] = tmp236;
+    carry[46] = tmp238;
+    carry[47] = tmp239;
+}
+
+static void qcf_k_hard_iron_part6(const float cP[25], const float rlp[4], float carry[50],
+    const bool flags[2])
+{
+    const float tmp240 = carry[13] - carry[47];
+    const float tmp241 = tmp240 * tmp240;
+    const float tmp242 = carry[46] + tmp241;
+    const float tmp243 = sqrtf(tmp242);
+    const float tmp244 = (tmp243 > 1e-06f) ? tmp243 : 1e-06f;
+    const float tmp245 = (flags[0]) ? 0.0f : cP[3];
+    const float tmp246 = carry[26] * carry[27];
+    const float tmp247 = tmp246 * carry[21];
+    const float tmp248 = tmp245 - tmp247;
+    const float tmp249 = tmp248 * carry[30];
+    const float tmp250 = (flags[0]) ? 0.0f : cP[8];
+    const float tmp251 = tmp246 * carry[23];
+    const float tmp252 = tmp250 - tmp251;
+    const float tmp253 = tmp252 * carry[33];
+    const float tmp254 = tmp249 + tmp253;
+    const float tmp255 = (flags[0]) ? 0.0f : cP[13];
+    const float tmp256 = tmp246 * carry[7];
+    const float tmp257 = tmp255 - tmp256;
+    const float tmp258 = tmp257 * carry[18];
+    const float tmp259 = tmp254 + tmp258;
+    const float tmp260 = (flags[0]) ? 0.0f : cP[19];
+    const float tmp261 = carry[20] * carry[26];
+    const float tmp262 = -tmp261;
+    const float tmp263 = (flags[0]) ? 0.0f : tmp262;
+    const float tmp264 = tmp260 - tmp263;
+    const float tmp265 = tmp259 + tmp264;
+    const float tmp266 = tmp265 * carry[19];
+    const float tmp267 = tmp266 * carry[11];
+    const float tmp268 = tmp246 * carry[44];
+    const float tmp269 = tmp267 - tmp268;
+    const float tmp270 = carry[43] + tmp269;
+    const float tmp271 = tmp244 - tmp270;
+    const float tmp272 = tmp271 - rlp[2];
+    const float tmp273 = carry[2] * tmp272;
+    const float tmp274 = rlp[2] + tmp273;
+    const float tmp275 = tmp274 * tmp274;
+    const float tmp276 = carry[30] * carry[35];
+    const float tmp277 = carry[33] * carry[45];
+    const float tmp278 = tmp276 + tmp277;
+    const float tmp279 = carry[18] * tmp240;
+    carry[7] = tmp246;
+    carry[20] = tmp248;
+    carry[21] = tmp252;
+    carry[23] = tmp257;
+    carry[27] = tmp264;
+    carry[35] = tmp265;
+    carry[43] = tmp266;
+    carry[44] = tmp270;
+    carry[45] = tmp274;
+    carry[46] = tmp275;
+    carry[48] = tmp278;
+    carry[49] = tmp279;
+}
+
+static void qcf_k_hard_iron_part7(const float ref[2], const float rlp[4], const float rmean[2],
+    const float e[3], float carry[50], const bool flags[2])
+{
+    const float tmp280 = carry[48] + carry[49];
+    const float tmp281 = (flags[0]) ? 0.0f : carry[5];
+    const float tmp282 = carry[17] * carry[19];
+    const float tmp283 = tmp282 * carry[11];
+    const float tmp284 = tmp281 + tmp283;
+    const float tmp285 = carry[41] + tmp284;
+    const float tmp286 = tmp280 - tmp285;
+    const float tmp287 = tmp286 - rlp[3];
+    const float tmp288 = carry[2] * tmp287;
+    const float tmp289 = rlp[3] + tmp288;
+    const float tmp290 = tmp289 * tmp289;
+    const float tmp291 = carry[46] + tmp290;
+    const float tmp292 = tmp291 - e[1];
+    const float tmp293 = carry[1] * tmp292;
+    const float tmp294 = e[1] + tmp293;
+    const float tmp295 = 4.0f * tmp294;
+    const float tmp296 = carry[3] - carry[4];
+    const float tmp297 = tmp296 * tmp296;
+    const float tmp298 = carry[9] - carry[10];
+    const float tmp299 = tmp298 * tmp298;
+    const float tmp300 = tmp297 + tmp299;
+    const float tmp301 = carry[13] - carry[14];
+    const float tmp302 = tmp301 * tmp301;
+    const float tmp303 = tmp300 + tmp302;
+    const float tmp304 = sqrtf(tmp303);
+    const float tmp305 = tmp304 - 1.0f;
+    const float tmp306 = tmp305 - rlp[0];
+    const float tmp307 = carry[2] * tmp306;
+    const float tmp308 = rlp[0] + tmp307;
+    const float tmp309 = tmp308 - rmean[0];
+    const float tmp310 = carry[1] * tmp309;
+    const float tmp311 = rmean[0] + tmp310;
+    const float tmp312 = tmp308 - tmp311;
+    const float tmp313 = tmp312 * tmp312;
+    const float tmp314 = carry[30] * tmp296;
+    const float tmp315 = carry[33] * tmp298;
+    const float tmp316 = tmp314 + tmp315;
+    const float tmp317 = carry[18] * tmp301;
+    const float tmp318 = tmp316 + tmp317;
+    const float tmp319 = tmp318 - ref[1];
+    carry[3] = tmp282;
+    carry[4] = tmp285;
+    carry[5] = tmp289;
+    carry[9] = tmp294;
+    carry[10] = tmp295;
+    carry[11] = tmp308;
+    carry[13] = tmp311;
+    carry[14] = tmp313;
+    carry[18] = tmp319;
+}
+
+static void qcf_k_hard_iron_part8(const float b[3], const float ref[2], const float rlp[4],
+    const float rmean[2], const float e[3], float carry[50], bool flags[2])
+{
+    const float tmp320 = carry[18] - rlp[1];
+    const float tmp321 = carry[2] * tmp320;
+    const float tmp322 = rlp[1] + tmp321;
+    const float tmp323 = tmp322 - rmean[1];
+    const float tmp324 = carry[1] * tmp323;
+    const float tmp325 = rmean[1] + tmp324;
+    const float tmp326 = tmp322 - tmp325;
+    const float tmp327 = tmp326 * tmp326;
+    const float tmp328 = carry[14] + tmp327;
+    const float tmp329 = tmp328 - e[2];
+    const float tmp330 = carry[1] * tmp329;
+    const float tmp331 = e[2] + tmp330;
+    const bool tmp332 = (5.0f <= carry[0]) && (carry[10] < tmp331);
+    const float tmp333 = 0.04f * ref[0];
+    const float tmp334 = tmp333 * ref[0];
+    const float tmp335 = b[0] * b[0];
+    const float tmp336 = b[1] * b[1];
+    const float tmp337 = tmp335 + tmp336;
+    const float tmp338 = b[2] * b[2];
+    const float tmp339 = tmp337 + tmp338;
+    const float tmp340 = (tmp334 <= tmp339) ? 0.1f : 0.2f;
+    const float tmp341 = tmp340 * tmp340;
+    const float tmp342 = tmp341 * ref[0];
+    const float tmp343 = tmp342 * ref[0];
+    const float tmp344 = carry[31] * ref[0];
+    const float tmp345 = tmp344 - b[0];
+    const float tmp346 = tmp345 * tmp345;
+    const float tmp347 = carry[42] * ref[0];
+    const float tmp348 = tmp347 - b[1];
+    const float tmp349 = tmp348 * tmp348;
+    const float tmp350 = tmp346 + tmp349;
+    const float tmp351 = carry[47] * ref[0];
+    const float tmp352 = tmp351 - b[2];
+    const float tmp353 = tmp352 * tmp352;
+    const float tmp354 = tmp350 + tmp353;
+    const bool tmp355 = tmp332 && (tmp343 <= tmp354);
+    const bool tmp356 = tmp355 && (carry[9] < 0.000225f);
+    const float tmp357 = carry[25] * carry[34];
+    const float tmp358 = carry[29] - tmp357;
+    const float tmp359 = carry[15] * carry[40];
+    carry[2] = tmp322;
+    carry[10] = tmp325;
+    carry[14] = tmp331;
+    flags[0] = tmp355;
+    flags[1] = tmp356;
+    carry[18] = tmp358;
+    carry[19] = tmp359;
+}
+
+static void qcf_k_hard_iron_part9(float carry[50], bool flags[2])
+{
+    const float tmp360 = carry[37] - carry[19];
+    const float tmp361 = carry[18] + tmp360;
+    const float tmp362 = carry[28] * carry[12];
+    const float tmp363 = carry[6] - tmp362;
+    const float tmp364 = tmp361 + tmp363;
+    const bool tmp365 = (tmp364 < 0.000225f) && (0.1f < carry[44]);
+    const bool tmp366 = flags[1] && tmp365;
+    const float tmp367 = carry[15] * carry[34];
+    const float tmp368 = carry[32] - tmp367;
+    const float tmp369 = carry[28] * carry[34];
+    const float tmp370 = carry[36] - tmp369;
+    const float tmp371 = carry[43] * carry[34];
+    const float tmp372 = carry[20] - tmp371;
+    const float tmp373 = carry[3] * carry[34];
+    const float tmp374 = carry[22] - tmp373;
+    const float tmp375 = carry[28] * carry[40];
+    const float tmp376 = carry[38] - tmp375;
+    const float tmp377 = carry[43] * carry[40];
+    const float tmp378 = carry[21] - tmp377;
+    const float tmp379 = carry[3] * carry[40];
+    const float tmp380 = carry[39] - tmp379;
+    const float tmp381 = carry[43] * carry[12];
+    const float tmp382 = carry[23] - tmp381;
+    const float tmp383 = carry[3] * carry[12];
+    const float tmp384 = carry[8] - tmp383;
+    const float tmp385 = carry[7] * carry[26];
+    const float tmp386 = carry[24] - tmp385;
+    const float tmp387 = carry[43] * carry[35];
+    const float tmp388 = tmp386 - tmp387;
+    const float tmp389 = carry[3] * carry[35];
+    const float tmp390 = carry[27] - tmp389;
+    const float tmp391 = carry[3] * carry[17];
+    const float tmp392 = carry[16] - tmp391;
+    carry[3] = tmp360;
+    carry[6] = tmp363;
+    flags[1] = tmp366;
+    carry[7] = tmp368;
+    carry[8] = tmp370;
+    carry[12] = tmp372;
+    carry[15] = tmp374;
+    carry[16] = tmp376;
+    carry[17] = tmp378;
+    carry[19] = tmp380;
+    carry[20] = tmp382;
+    carry[21] = tmp384;
+    carry[22] = tmp388;
+    carry[23] = tmp390;
+    carry[24] = tmp392;
+}
+
+static void qcf_k_hard_iron_part10(const float b[3], const float ref[2], const float e[3],
+    float carry[50], const bool flags[2])
+{
+    float tmp393;
+    float tmp394;
+    float tmp395;
+    float tmp396;
+    float tmp397;
+    float tmp398;
+    float tmp399;
+    float tmp400;
+    float tmp401;
+    float tmp402;
+    float tmp403;
+    float tmp404;
+    float tmp405;
+    float tmp406;
+    float tmp407;
+    float tmp408;
+    float tmp409;
+    float tmp410;
+    float tmp411;
+    float tmp412;
+    float tmp413;
+    float tmp414;
+    float tmp415;
+    float tmp416;
+    float tmp417;
+    float tmp418;
+    float tmp419;
+    float tmp420;
+    float tmp421;
+    float tmp422;
+    float tmp423;
+    if (flags[1]) {
+        const float tmp424 = ref[0] * carry[31];
+        const float tmp425 = ref[0] * carry[42];
+        const float tmp426 = ref[0] * carry[47];
+        const float tmp427 = carry[44] * ref[0];
+        const float tmp428 = 1.0f / carry[44];
+        const float tmp429 = carry[4] * tmp428;
+        const float tmp430 = (tmp429 > (-1.0f)) ? tmp429 : (-1.0f);
+        const float tmp431 = (tmp430 < 1.0f) ? tmp430 : 1.0f;
+        const float tmp432 = carry[31] * tmp428;
+        const float tmp433 = carry[42] * tmp428;
+        const float tmp434 = carry[47] * tmp428;
+        const float tmp435 = carry[44] * carry[44];
+        const float tmp436 = 1.0f / tmp435;
+        const float tmp437 = carry[18] * tmp436;
+        const float tmp438 = carry[7] * tmp436;
+        const float tmp439 = carry[8] * tmp436;
+        const float tmp440 = carry[12] * tmp436;
+        const float tmp441 = carry[15] * tmp436;
+        const float tmp442 = carry[3] * tmp436;
+        const float tmp443 = carry[16] * tmp436;
+        const float tmp444 = carry[17] * tmp436;
+        const float tmp445 = carry[19] * tmp436;
+        const float tmp446 = carry[6] * tmp436;
+        const float tmp447 = carry[20] * tmp436;
+        const float tmp448 = carry[21] * tmp436;
+        const float tmp449 = carry[22] * tmp436;
+        const float tmp450 = carry[23] * tmp436;
+        const float tmp451 = carry[24] * tmp436;
+        tmp393 = tmp424;
+        tmp394 = tmp425;
+        tmp395 = tmp426;
+        tmp396 = tmp427;
+        tmp397 = tmp431;
+        tmp398 = tmp432;
+        tmp399 = tmp433;
+        tmp400 = tmp434;
+        tmp401 = 1.0f;
+        tmp402 = tmp429;
+        tmp403 = tmp437;
+        tmp404 = tmp438;
+        tmp405 = tmp439;
+        tmp406 = tmp440;
+        tmp407 = tmp441;
+        tmp408 = tmp442;
+        tmp409 = tmp443;
+        tmp410 = tmp444;
+        tmp411 = tmp445;
+        tmp412 = tmp446;
+        tmp413 = tmp447;
+        tmp414 = tmp448;
+        tmp415 = tmp449;
+        tmp416 = tmp450;
+        tmp417 = tmp451;
+        tmp418 = 0.0f;
+        tmp419 = 0.0f;
+        tmp420 = carry[9];
+        tmp421 = carry[9];
+        tmp422 = carry[9];
+        tmp423 = 0.0f;
+    } else {
+        const float tmp452 = carry[11] * carry[11];
+        const float tmp453 = carry[2] * carry[2];
+        const float tmp454 = tmp452 + tmp453;
+        const float tmp455 = tmp454 - e[0];
+        const float tmp456 = carry[1] * tmp455;
+        const float tmp457 = e[0] + tmp456;
+        tmp393 = b[0];
+        tmp394 = b[1];
+        tmp395 = b[2];
+        tmp396 = ref[0];
+        tmp397 = ref[1];
+        tmp398 = carry[31];
+        tmp399 = carry[42];
+        tmp400 = carry[47];
+        tmp401 = carry[44];
+        tmp402 = carry[4];
+        tmp403 = carry[18];
+        tmp404 = carry[7];
+        tmp405 = carry[8];
+        tmp406 = carry[12];
+        tmp407 = carry[15];
+        tmp408 = carry[3];
+        tmp409 = carry[16];
+        tmp410 = carry[17];
+        tmp411 = carry[19];
+        tmp412 = carry[6];
+        tmp413 = carry[20];
+        tmp414 = carry[21];
+        tmp415 = carry[22];
+        tmp416 = carry[23];
+        tmp417 = carry[24];
+        tmp418 = carry[13];
+        tmp419 = carry[10];
+        tmp420 = tmp457;
+        tmp421 = carry[9];
+        tmp422 = carry[14];
+        tmp423 = carry[0];
+    }
+    carry[0] = tmp393;
+    carry[1] = tmp394;
+    carry[3] = tmp395;
+    carry[4] = tmp396;
+    carry[6] = tmp397;
+    carry[7] = tmp398;
+    carry[8] = tmp399;
+    carry[9] = tmp400;
+    carry[10] = tmp401;
+    carry[12] = tmp402;
+    carry[13] = tmp403;
+    carry[14] = tmp404;
+    carry[15] = tmp405;
+    carry[16] = tmp406;
+    carry[17] = tmp407;
+    carry[18] = tmp408;
+    carry[19] = tmp409;
+    carry[20] = tmp410;
+    carry[21] = tmp411;
+    carry[22] = tmp412;
+    carry[23] = tmp413;
+    carry[24] = tmp414;
+    carry[25] = tmp415;
+    carry[26] = tmp416;
+    carry[27] = tmp417;
+    carry[28] = tmp418;
+    carry[29] = tmp419;
+    carry[30] = tmp420;
+    carry[31] = tmp421;
+    carry[32] = tmp422;
+    carry[33] = tmp423;
+}
+
+static void qcf_k_hard_iron_part11(bool flags[2])
+{
+    const bool tmp458 = flags[0] && (!(flags[1]));
+    flags[0] = tmp458;
+}
+
+/*
+ * hard iron while turning: the candidate field model's fit, its residuals' bookkeeping, and the
+ * switch to it (flags suspect, switched)
+ *
+ * Args:
+ *     q: float[4]
+ *     mag: float[3]
+ *     b: float[3]
+ *     ref: float[2]
+ *     cx: float[5]
+ *     cP: float[25]
+ *     fresh: bool
+ *     reopen: bool
+ *     rlp: float[4]
+ *     rmean: float[2]
+ *     e: float[3]
+ *     turn_time: float
+ *     dt: float
+ * Outputs:
+ *     b_out: float[3]
+ *     ref_out: float[2]
+ *     cx_out: float[5]
+ *     cP_out: float[25]
+ *     rlp_out: float[4]
+ *     rmean_out: float[2]
+ *     e_out: float[3]
+ *     turn_time_out: float
+ *     suspect: bool
+ *     switched: bool
+ *
+ * Total ops: 459 (add 173, mul 186, div 10, sqrt 4, cmp 86)
+ *     of which only one side runs: if (tmp366) 28, else 6
+ */
+static void qcf_k_hard_iron(const float q[4], const float mag[3], const float b[3],
+    const float ref[2], const float cx[5], const float cP[25], bool fresh, bool reopen,
+    const float rlp[4], const float rmean[2], const float e[3], float turn_time, float dt,
+    float b_out[3], float ref_out[2], float cx_out[5], float cP_out[25], float rlp_out[4],
+    float rmean_out[2], float e_out[3], float *turn_time_out, bool *suspect, bool *switched)
+{
+    /*
+     * 12 parts called in turn (inlined when optimising): bounded -O0 frames; carry and flags hold
+     * the values handed between them (a slot reused once its value is dead)
+     */
+    float carry[50];
+    bool flags[2];
+    qcf_k_hard_iron_part0(mag, b, ref, cx, cP, fresh, reopen, turn_time, dt, carry, flags);
+    qcf_k_hard_iron_part1(cP, carry, flags);
+    qcf_k_hard_iron_part2(q, cP, carry, flags);
+    qcf_k_hard_iron_part3(q, cP, carry, flags);
+    qcf_k_hard_iron_part4(ref, cx, cP, fresh, carry, flags);
+    qcf_k_hard_iron_part5(carry, flags);
+    qcf_k_hard_iron_part6(cP, rlp, carry, flags);
+    qcf_k_hard_iron_part7(ref, rlp, rmean, e, carry, flags);
+    qcf_k_hard_iron_part8(b, ref, rlp, rmean, e, carry, flags);
+    qcf_k_hard_iron_part9(carry, flags);
+    qcf_k_hard_iron_part10(b, ref, e, carry, flags);
+    qcf_k_hard_iron_part11(flags);
+    b_out[0] = carry[0];
+    b_out[1] = carry[1];
+    b_out[2] = carry[3];
+    ref_out[0] = carry[4];
+    ref_out[1] = carry[6];
+    cx_out[0] = carry[7];
+    cx_out[1] = carry[8];
+    cx_out[2] = carry[9];
+    cx_out[3] = carry[10];
+    cx_out[4] = carry[12];
+    cP_out[0] = carry[13];
+    cP_out[1] = carry[14];
+    cP_out[2] = carry[15];
+    cP_out[3] = carry[16];
+    cP_out[4] = carry[17];
+    cP_out[5] = carry[14];
+    cP_out[6] = carry[18];
+    cP_out[7] = carry[19];
+    cP_out[8] = carry[20];
+    cP_out[9] = carry[21];
+    cP_out[10] = carry[15];
+    cP_out[11] = carry[19];
+    cP_out[12] = carry[22];
+    cP_out[13] = carry[23];
+    cP_out[14] = carry[24];
+    cP_out[15] = carry[16];
+    cP_out[16] = carry[20];
+    cP_out[17] = carry[23];
+    cP_out[18] = carry[25];
+    cP_out[19] = carry[26];
+    cP_out[20] = carry[17];
+    cP_out[21] = carry[21];
+    cP_out[22] = carry[24];
+    cP_out[23] = carry[26];
+    cP_out[24] = carry[27];
+    rlp_out[0] = carry[11];
+    rlp_out[1] = carry[2];
+    rlp_out[2] = carry[45];
+    rlp_out[3] = carry[5];
+    rmean_out[0] = carry[28];
+    rmean_out[1] = carry[29];
+    e_out[0] = carry[30];
+    e_out[1] = carry[31];
+    e_out[2] = carry[32];
+    *turn_time_out = carry[33];
+    *suspect = flags[0];
+    *switched = flags[1];
 }
 
 /*
@@ -1440,6 +2285,49 @@ void qcf_init(qcf_state *s)
     s->gyro_repeats[0] = 0.0f;
     s->gyro_repeats[1] = 0.0f;
     s->gyro_repeats[2] = 0.0f;
+    s->mag_bias[0] = 0.0f;
+    s->mag_bias[1] = 0.0f;
+    s->mag_bias[2] = 0.0f;
+    for (uint32_t i = 0u; i < 5u; i++) {
+        s->mag_cx[i] = 0.0f;
+    }
+    s->mag_cP[0] = 0.09f;
+    s->mag_cP[1] = 0.0f;
+    s->mag_cP[2] = 0.0f;
+    s->mag_cP[3] = 0.0f;
+    s->mag_cP[4] = 0.0f;
+    s->mag_cP[5] = 0.0f;
+    s->mag_cP[6] = 0.09f;
+    s->mag_cP[7] = 0.0f;
+    s->mag_cP[8] = 0.0f;
+    s->mag_cP[9] = 0.0f;
+    s->mag_cP[10] = 0.0f;
+    s->mag_cP[11] = 0.0f;
+    s->mag_cP[12] = 0.09f;
+    s->mag_cP[13] = 0.0f;
+    s->mag_cP[14] = 0.0f;
+    s->mag_cP[15] = 0.0f;
+    s->mag_cP[16] = 0.0f;
+    s->mag_cP[17] = 0.0f;
+    s->mag_cP[18] = 0.09f;
+    s->mag_cP[19] = 0.0f;
+    s->mag_cP[20] = 0.0f;
+    s->mag_cP[21] = 0.0f;
+    s->mag_cP[22] = 0.0f;
+    s->mag_cP[23] = 0.0f;
+    s->mag_cP[24] = 0.09f;
+    s->mag_c_ok = 0u;
+    s->mag_rlp[0] = 0.0f;
+    s->mag_rlp[1] = 0.0f;
+    s->mag_rlp[2] = 0.0f;
+    s->mag_rlp[3] = 0.0f;
+    s->mag_rmean[0] = 0.0f;
+    s->mag_rmean[1] = 0.0f;
+    s->mag_e[0] = 0.0f;
+    s->mag_e[1] = 0.0f;
+    s->mag_e[2] = 0.0f;
+    s->mag_turn_time = 0.0f;
+    s->mag_suspect = 0u;
 }
 
 qcf_status qcf_step(qcf_state *restrict s, const qcf_input *restrict in, float dt)
@@ -1554,13 +2442,48 @@ qcf_status qcf_step(qcf_state *restrict s, const qcf_input *restrict in, float d
     bool heading_ok = use_mag && started;
     float mag_n[3] = { 0.0f, 0.0f, 0.0f };   /* R(q) m; zero (no heading part) without a sample */
     if (heading_ok) {
-        qcf_k_mag_ned(rot, in->mag, mag_n);
+        /* the hard iron removed (mag_bias) */
+        const float mag_c[3] = { in->mag[0] - s->mag_bias[0], in->mag[1] - s->mag_bias[1], in->mag[2] - s->mag_bias[2] };
+        const float mag_c2 = mag_c[0] * mag_c[0] + mag_c[1] * mag_c[1] + mag_c[2] * mag_c[2];
+        qcf_k_mag_ned(rot, mag_c, mag_n);
+        const bool was_accepted = !(s->mag_dist_time > 0.0f);   /* never negative: zero */
         bool accept;
-        qcf_k_mag_check(s->accel_lp, mag_n2, mag_n, s->mag_ref, s->mag_dist_time, s->mag_learn_time,
-            s->mag_age, &accept, s->mag_ref, &s->mag_dist_time, &s->mag_learn_time);
+        qcf_k_mag_check(s->accel_lp, mag_c2, mag_n, s->mag_ref, s->mag_dist_time, s->mag_learn_time,
+            s->mag_age, s->mag_suspect != 0u, &accept, s->mag_ref, &s->mag_dist_time, &s->mag_learn_time);
         if (!accept && !recovering) {   /* (recovering: the dip was judged with the wrong attitude) */
             heading_ok = false;
             status |= QCF_MAG_DISTURBED;
+        }
+        /* Hard iron (docs/qcf.md, "Hard iron"): mekf's candidate field model, once the reference is
+         * learned and while the sensor turns; the field check's rejection of a field it accepted the
+         * step before reopens the candidate's covariance. A switch replaces the hard iron and the
+         * reference; while the candidate is the better model the field does not correct heading. */
+        if (s->mag_ref[0] > 0.0f && s->mag_learn_time >= QCF_MAG_WARMUP && !recovering) {
+            if (!accept && was_accepted && s->mag_suspect == 0u && s->mag_c_ok == 1u) {
+                s->mag_c_ok = 2u;
+            }
+            const float w0 = in->gyro[0] - s->gyro_bias[0];
+            const float w1 = in->gyro[1] - s->gyro_bias[1];
+            const float w2 = in->gyro[2] - s->gyro_bias[2];
+            if (w0 * w0 + w1 * w1 + w2 * w2 >= QCF_MAG_BIAS_MIN_RATE * QCF_MAG_BIAS_MIN_RATE) {
+                bool suspect;
+                bool switched;
+                qcf_k_hard_iron(s->q, in->mag, s->mag_bias, s->mag_ref, s->mag_cx, s->mag_cP, s->mag_c_ok == 0u,
+                    s->mag_c_ok == 2u, s->mag_rlp, s->mag_rmean, s->mag_e, s->mag_turn_time, s->mag_age, s->mag_bias,
+                    s->mag_ref, s->mag_cx, s->mag_cP, s->mag_rlp, s->mag_rmean, s->mag_e, &s->mag_turn_time, &suspect,
+                    &switched);
+                s->mag_c_ok = 1u;
+                s->mag_suspect = suspect ? 1u : 0u;
+                if (switched) {
+                    s->mag_dist_time = 0.0f;
+                    status |= QCF_HARD_IRON_SWITCHED;
+                    heading_ok = false;   /* the field check was made with the old hard iron */
+                }
+            }
+            if (heading_ok && s->mag_suspect != 0u) {
+                heading_ok = false;
+                status |= QCF_MAG_DISTURBED;
+            }
         }
     }
     qcf_k_correct(s->q, rot, s->gyro_bias, s->accel_lp, mag_n,

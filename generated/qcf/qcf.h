@@ -23,7 +23,7 @@
  * its GNU modes, -std=c99 turns it off) and -fno-math-errno; -ffast-math breaks the input
  * checks (isfinite). Any C99 compiler builds it; see the ahrsgen docs (target.md).
  *     qcf_euler(&st, rpy);
- * No heap, no recursion; RAM is the state struct (132 bytes with the usual ABI).
+ * No heap, no recursion; RAM is the state struct (312 bytes with the usual ABI).
  * Needs <math.h> (float functions only in a float build); compilers may also emit calls to
  * memcpy/memset/memmove for struct and array copies.
  *
@@ -161,6 +161,44 @@ extern "C" {
                                               follows accepted samples [s] */
 #define QCF_MAG_NEW_TIME 20.0f             /* mag rejection: a field rejected this long becomes the
                                               new reference (a rejection cannot hold forever) [s] */
+#define QCF_MAG_BIAS 1                     /* estimate the magnetometer's hard iron while the sensor
+                                              turns (with mag_rejection): the candidate field model
+                                              of mekf (symbolic/aiding.hard_iron_step) is fitted
+                                              beside the filter and replaces the hard iron and the
+                                              field check's reference when it explains the field
+                                              clearly better (a magnet attached mid-run); false: the
+                                              hard iron stays as calibrated */
+#define QCF_MAG_BIAS_RW 0.003f             /* random walk of the candidate hard iron and field, as a
+                                              fraction of the field norm, while turning; 0.003
+                                              chosen by studies/hard_iron_qcf_adukf_cv.py
+                                              (in-sample, as mekf's) [1/sqrt(s)] */
+#define QCF_MAG_BIAS_NOISE 0.05f           /* per-sample standard deviation of the candidate's norm
+                                              and vertical-component rows, as a fraction of the
+                                              field norm (sensor noise, soft iron, field gradients)
+                                              */
+#define QCF_MAG_BIAS_MIN_RATE 0.3f         /* the candidate is fitted only while the sensor turns at
+                                              least this fast (the hard iron is observable only
+                                              then; held otherwise) [rad/s] */
+#define QCF_MAG_BIAS_SETTLE 5.0f           /* residuals are averaged over this much turning, and the
+                                              candidate must have been fitted this long, before it
+                                              may replace the hard iron [s] */
+#define QCF_MAG_BIAS_TH 0.015f             /* the candidate may replace the hard iron when its
+                                              residuals (low-passed over 0.2 s, RMS) are below this
+                                              fraction of the field norm, four times (in mean
+                                              square) below the present model's with its reference
+                                              re-fitted, and its hard iron is known to this (square
+                                              root of the trace of its covariance) */
+#define QCF_MAG_BIAS_JUMP 0.2f             /* 0.2 chosen by studies/hard_iron_qcf_adukf_cv.py
+                                              (in-sample, as mekf's). The candidate may replace the
+                                              hard iron only when it differs from it by at least
+                                              this fraction of the field norm (by mag_norm_tol once
+                                              the present hard iron is itself this large: a magnet
+                                              found is refined): smaller changes are left to the
+                                              field check's tolerance (soft iron, field gradients
+                                              and a phone's own field on real data look like small
+                                              hard irons) */
+#define QCF_MAG_BIAS_MAX 2.0f              /* bound of the hard-iron estimate, as a multiple of the
+                                              field norm */
 #define QCF_CENTRIPETAL_ALIGN 0.7f         /* centripetal model: the term is weighted by how well
                                               the GPS velocity lies along body x (1 aligned, 0 at
                                               this cosine or less): a velocity turns with the body
@@ -179,38 +217,44 @@ extern "C" {
 
 /* Status bits returned by qcf_step; 0 means every available correction ran. */
 typedef uint32_t qcf_status;
-#define QCF_OK              0u /* step completed with every available correction */
-#define QCF_DT_INVALID      (1u << 0) /* refused: dt is not finite or not positive; state unchanged
-                                         */
-#define QCF_DT_TOO_LARGE    (1u << 1) /* refused: dt above the configured maximum; state unchanged
-                                         */
-#define QCF_GYRO_MISSING    (1u << 2) /* refused: gyro valid bit clear; state unchanged */
-#define QCF_GYRO_NONFINITE  (1u << 3) /* refused: gyro sample not finite; state unchanged */
-#define QCF_ACCEL_NONFINITE (1u << 4) /* accelerometer sample not finite; its correction skipped */
-#define QCF_ACCEL_ZERO      (1u << 5) /* accelerometer norm below minimum; its correction skipped */
-#define QCF_MAG_NONFINITE   (1u << 6) /* magnetometer sample not finite; its correction skipped */
-#define QCF_MAG_ZERO        (1u << 7) /* magnetometer norm below minimum; its correction skipped */
-#define QCF_GPS_NONFINITE   (1u << 8) /* GPS velocity not finite; its correction skipped */
-#define QCF_GYRO_RANGE      (1u << 9) /* refused: a gyro component beyond gyro_max; state unchanged
-                                         */
-#define QCF_ACCEL_RANGE     (1u << 10) /* an accelerometer component beyond accel_max; its
-                                          correction skipped */
-#define QCF_MAG_RANGE       (1u << 11) /* a magnetometer component beyond mag_max; its correction
-                                          skipped */
-#define QCF_GPS_RANGE       (1u << 12) /* a GPS velocity component beyond gps_vel_max; the sample is
-                                          ignored */
-#define QCF_MAG_DISTURBED   (1u << 16) /* magnetometer norm or dip off its reference: heading not
-                                          corrected this step */
-#define QCF_AT_REST         (1u << 17) /* at rest: the gyro bias follows the low-passed gyro */
-#define QCF_GYRO_RECOVERY   (1u << 18) /* a gyro component at gyro_full_scale (clipped), or within
-                                          clip_recovery_time after one: kp_recovery on the sensors
-                                          as they come */
+#define QCF_OK                 0u /* step completed with every available correction */
+#define QCF_DT_INVALID         (1u << 0) /* refused: dt is not finite or not positive; state
+                                            unchanged */
+#define QCF_DT_TOO_LARGE       (1u << 1) /* refused: dt above the configured maximum; state
+                                            unchanged */
+#define QCF_GYRO_MISSING       (1u << 2) /* refused: gyro valid bit clear; state unchanged */
+#define QCF_GYRO_NONFINITE     (1u << 3) /* refused: gyro sample not finite; state unchanged */
+#define QCF_ACCEL_NONFINITE    (1u << 4) /* accelerometer sample not finite; its correction skipped
+                                            */
+#define QCF_ACCEL_ZERO         (1u << 5) /* accelerometer norm below minimum; its correction skipped
+                                            */
+#define QCF_MAG_NONFINITE      (1u << 6) /* magnetometer sample not finite; its correction skipped
+                                            */
+#define QCF_MAG_ZERO           (1u << 7) /* magnetometer norm below minimum; its correction skipped
+                                            */
+#define QCF_GPS_NONFINITE      (1u << 8) /* GPS velocity not finite; its correction skipped */
+#define QCF_GYRO_RANGE         (1u << 9) /* refused: a gyro component beyond gyro_max; state
+                                            unchanged */
+#define QCF_ACCEL_RANGE        (1u << 10) /* an accelerometer component beyond accel_max; its
+                                             correction skipped */
+#define QCF_MAG_RANGE          (1u << 11) /* a magnetometer component beyond mag_max; its correction
+                                             skipped */
+#define QCF_GPS_RANGE          (1u << 12) /* a GPS velocity component beyond gps_vel_max; the sample
+                                             is ignored */
+#define QCF_MAG_DISTURBED      (1u << 16) /* magnetometer norm or dip off its reference: heading not
+                                             corrected this step */
+#define QCF_AT_REST            (1u << 17) /* at rest: the gyro bias follows the low-passed gyro */
+#define QCF_GYRO_RECOVERY      (1u << 18) /* a gyro component at gyro_full_scale (clipped), or
+                                             within clip_recovery_time after one: kp_recovery on the
+                                             sensors as they come */
+#define QCF_HARD_IRON_SWITCHED (1u << 19) /* the hard iron and the field check's reference were
+                                             replaced by the candidate field model (mag_bias) */
 #define QCF_REFUSED_MASK (QCF_DT_INVALID | QCF_DT_TOO_LARGE | QCF_GYRO_MISSING | \
     QCF_GYRO_NONFINITE | QCF_GYRO_RANGE)
 /*
  * Bits that mean trouble (a refused step, a bad sample, a numeric fault); the others are
- * information (what the filter noticed: MAG_DISTURBED, AT_REST, GYRO_RECOVERY). Test (status &
- * QCF_STATUS_FAULT_MASK) != 0u for a fault, not status != 0.
+ * information (what the filter noticed: MAG_DISTURBED, AT_REST, GYRO_RECOVERY, HARD_IRON_SWITCHED).
+ * Test (status & QCF_STATUS_FAULT_MASK) != 0u for a fault, not status != 0.
  */
 #define QCF_STATUS_FAULT_MASK (QCF_DT_INVALID | QCF_DT_TOO_LARGE | QCF_GYRO_MISSING | \
     QCF_GYRO_NONFINITE | QCF_ACCEL_NONFINITE | QCF_ACCEL_ZERO | QCF_MAG_NONFINITE | QCF_MAG_ZERO | \
@@ -237,6 +281,22 @@ typedef struct {
     float gyro_prev[3];    /* the previous gyro sample, rad/s (over-range plateau) */
     float gyro_repeats[3]; /* times each gyro component has repeated its value at or above
                               gyro_plateau_rate (over-range plateau) */
+    float mag_bias[3];     /* magnetometer hard iron, body axes, the field's units (m - mag_bias is
+                              used) */
+    float mag_cx[5];       /* candidate field model [hard iron / B (3), norm / B, down component /
+                              B], B the reference norm */
+    float mag_cP[25];      /* its covariance (5x5, symmetric) */
+    uint32_t mag_c_ok;     /* 0: the candidate starts from the present model at the next fit; 1:
+                              fitted; 2: its covariance reopens at the next fit (a new disturbance)
+                              */
+    float mag_rlp[4];      /* hard-iron residuals [present (2), candidate (2)] low-passed over 0.2 s
+                              */
+    float mag_rmean[2];    /* the present residuals' mean over mag_bias_settle */
+    float mag_e[3];        /* mean squares: present, candidate, present less its mean */
+    float mag_turn_time;   /* time turning since the candidate started or switched, s (stops at 1e3)
+                              */
+    uint32_t mag_suspect;  /* 1 while the candidate explains the field and the present model does
+                              not */
 } qcf_state;
 
 typedef struct {

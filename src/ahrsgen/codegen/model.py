@@ -215,3 +215,55 @@ class FilterModel:
             f"holds its value for {aiding.PLATEAU_SAMPLES} samples while the others change (clipped), sets the "
             "recovery timer to clip_recovery_time; recovering while more than half a step of it is left",
             flags=("clipped", "recovering"))
+
+    def hard_iron_state(self, bias: bool = True) -> list:
+        """The state fields of the hard-iron estimate (hard_iron_kernel's; docs/mekf.md "Hard
+        iron"), the hard iron `mag_bias` itself first unless bias = False (a filter that always
+        has it declares it)."""
+        from ahrsgen.symbolic import aiding
+        nc = aiding.HARD_IRON_NC
+        return ([self.hard_iron_bias_field()] if bias else []) + [
+            StateField("mag_cx", nc, "candidate field model [hard iron / B (3), norm / B, down component / B], "
+                       "B the reference norm", 0.0),
+            StateField("mag_cP", nc * nc, "its covariance (5x5, symmetric)",
+                       [aiding.HARD_IRON_P0 ** 2 if i == j else 0.0 for j in range(nc) for i in range(nc)]),
+            StateField("mag_c_ok", 1, "0: the candidate starts from the present model at the next fit; 1: "
+                       "fitted; 2: its covariance reopens at the next fit (a new disturbance)", 0, "uint32"),
+            StateField("mag_rlp", 4, "hard-iron residuals [present (2), candidate (2)] low-passed over "
+                       f"{aiding.HARD_IRON_RES_TAU:g} s", 0.0),
+            StateField("mag_rmean", 2, "the present residuals' mean over mag_bias_settle", 0.0),
+            StateField("mag_e", 3, "mean squares: present, candidate, present less its mean", 0.0),
+            StateField("mag_turn_time", 1, "time turning since the candidate started or switched, s (stops at 1e3)", 0.0),
+            StateField("mag_suspect", 1, "1 while the candidate explains the field and the present model does not", 0, "uint32"),
+        ]
+
+    @staticmethod
+    def hard_iron_bias_field() -> StateField:
+        return StateField("mag_bias", 3, "magnetometer hard iron, body axes, the field's units (m - mag_bias is used)", 0.0)
+
+    def hard_iron_kernel(self, *, refine, dip_angle: bool, noinline: bool = False) -> KernelSpec:
+        """The hard-iron kernel (symbolic/aiding.hard_iron_step) a filter with the mag_bias_*
+        parameters calls on a step with a magnetometer sample while the sensor turns: the
+        candidate's fit, its bookkeeping and the switch, with flags `suspect` and `switched`.
+        `refine`: the smallest change of a hard iron once one is found (the filter's norm
+        tolerance); dip_angle: the filter's reference is [norm, dip angle], else [norm, sin dip];
+        noinline: a call of its own (its frame then does not add to the caller's, where the caller's
+        frame is the larger: adukf's step 512 -> 480 B worst case at -O2; mekf's already calls it from
+        a helper of its own, and qcf's step frame is the smaller: inlined, 344 B, a call 472 B)."""
+        from ahrsgen.codegen.emit import function
+        from ahrsgen.symbolic import aiding
+        nc = aiding.HARD_IRON_NC
+        p = self.params
+        ins = {"q": ca.SX.sym("q", 4), "mag": ca.SX.sym("mag", 3), "b": ca.SX.sym("b", 3), "ref": ca.SX.sym("ref", 2),
+               "cx": ca.SX.sym("cx", nc), "cP": ca.SX.sym("cP", nc * nc), "fresh": ca.SX.sym("fresh"),
+               "reopen": ca.SX.sym("reopen"), "rlp": ca.SX.sym("rlp", 4), "rmean": ca.SX.sym("rmean", 2),
+               "e": ca.SX.sym("e", 3), "turn_time": ca.SX.sym("turn_time"), "dt": ca.SX.sym("dt")}
+        outs = aiding.hard_iron_step(
+            ins["q"], ins["mag"], ins["b"], ins["ref"], ins["cx"], ins["cP"], ins["fresh"], ins["reopen"], ins["rlp"], ins["rmean"],
+            ins["e"], ins["turn_time"], ins["dt"], rw=p["mag_bias_rw"], noise=p["mag_bias_noise"],
+            bias_max=p["mag_bias_max"], settle=p["mag_bias_settle"], th=p["mag_bias_th"], jump=p["mag_bias_jump"],
+            refine=refine, dip_angle=dip_angle)
+        return KernelSpec("hard_iron", function("hard_iron", ins, outs),
+                          "hard iron while turning: the candidate field model's fit, its residuals' bookkeeping, "
+                          "and the switch to it (flags suspect, switched)",
+                          flags=("fresh", "reopen", "suspect", "switched"), noinline=noinline)

@@ -24,6 +24,10 @@ SX expressions so that a kernel can output them and the step partial can branch 
   recovery window that follows it (the filters decide what recovering means for them).
 - `gyro_plateau(...)`: a clipped sample recognised without the range: a fast component that
   holds exactly the same value for PLATEAU_SAMPLES samples while the others change.
+- `hard_iron_step(...)`: the magnetometer's hard iron learned while the sensor turns (issue 25,
+  docs/mekf.md "Hard iron"; mekf, qcf and adukf): a candidate field model fitted beside the
+  filter that replaces the hard iron and the field reference when it explains the field much
+  better.
 """
 from __future__ import annotations
 
@@ -31,7 +35,7 @@ import math
 
 import casadi as ca
 
-from . import quat
+from . import kalman, linalg, quat
 
 # tilt_correction: (|d| + d_z)/|d| below this (d_n within ~0.1 deg of straight up) takes the half-turn
 TILT_FLIP_EPS = 1e-6
@@ -119,7 +123,7 @@ def gyro_recovery(gyro, recover_time, dt, *, full_scale, recovery_time, plateau=
 
 
 def field_check(norm, sin_dip, ref_norm, ref_dip, dist_time, dt, *, norm_tol: float, dip_tol: float,
-                ref_tau: float, new_time: float, learn_time=None, warmup: float = 0.0):
+                ref_tau: float, new_time: float, learn_time=None, warmup: float = 0.0, hold=None):
     """Magnetic disturbance check. Returns (accept 0/1, ref_norm', ref_dip', dist_time'), and
     learn_time' last when learn_time is given.
 
@@ -130,18 +134,19 @@ def field_check(norm, sin_dip, ref_norm, ref_dip, dist_time, dt, *, norm_tol: fl
     ref_norm <= 0 means "not learned yet": the sample is accepted and becomes the reference.
     Accepted when |norm/ref_norm - 1| < norm_tol and |sin_dip - ref_dip| < dip_tol; the
     reference then follows the field with time constant ref_tau. Rejected samples add dt to
-    dist_time; once it exceeds new_time the current field becomes the reference.
+    dist_time; once it exceeds new_time the current field becomes the reference, unless `hold`
+    (a 0/1 expression: the hard-iron candidate explains the field better, hard_iron_step's suspect).
     """
     if learn_time is not None and warmup <= 0:
         return (*field_check(norm, sin_dip, ref_norm, ref_dip, dist_time, dt, norm_tol=norm_tol,
-                             dip_tol=dip_tol, ref_tau=ref_tau, new_time=new_time), learn_time)
+                             dip_tol=dip_tol, ref_tau=ref_tau, new_time=new_time, hold=hold), learn_time)
     if learn_time is not None:
         first = ref_norm <= 0
         t_l = ca.if_else(first, 0.0, learn_time)
         warming = t_l < warmup
         k = dt / (t_l + dt)                                    # running mean (k = 1 at the first)
         acc, n1, d1, t1 = field_check(norm, sin_dip, ref_norm, ref_dip, dist_time, dt, norm_tol=norm_tol,
-                                      dip_tol=dip_tol, ref_tau=ref_tau, new_time=new_time)
+                                      dip_tol=dip_tol, ref_tau=ref_tau, new_time=new_time, hold=hold)
         return (ca.if_else(warming, 1.0, acc),
                 ca.if_else(warming, ref_norm + k * (norm - ref_norm), n1),
                 ca.if_else(warming, ref_dip + k * (sin_dip - ref_dip), d1),
@@ -152,7 +157,8 @@ def field_check(norm, sin_dip, ref_norm, ref_dip, dist_time, dt, *, norm_tol: fl
     ok_dip = ca.fabs(sin_dip - ref_dip) < dip_tol
     ok = ca.logic_and(ok_norm, ok_dip)
     t_dist = ca.if_else(ok, 0.0, dist_time + dt)
-    renew = ca.logic_or(ca.logic_not(learned), t_dist > new_time)
+    lasting = t_dist > new_time if hold is None else ca.logic_and(t_dist > new_time, ca.logic_not(hold))
+    renew = ca.logic_or(ca.logic_not(learned), lasting)
     accept = ca.logic_or(ok, ca.logic_not(learned))
     n_new = ca.if_else(renew, norm, ca.if_else(ok, lowpass(ref_norm, norm, dt, ref_tau), ref_norm))
     d_new = ca.if_else(renew, sin_dip, ca.if_else(ok, lowpass(ref_dip, sin_dip, dt, ref_tau), ref_dip))
@@ -209,3 +215,106 @@ def heading_correction_ned(m_n, declination: float = 0.0):
     c_h = ca.if_else(front, (h + x) * inv, ca.fabs(y) * inv)
     s_h = ca.if_else(front, -y * inv, ca.if_else(y > 0, x - h, h - x) * inv)
     return quat.vec(ca.if_else(degenerate, 1.0, c_h), 0.0, 0.0, ca.if_else(degenerate, 0.0, s_h))
+
+
+# hard_iron_step's constants (reference_aiding states them too; a test checks they agree)
+HARD_IRON_NC = 5          # candidate field model [β (3), n, v]
+HARD_IRON_RES_TAU = 0.2   # s: the residuals are low-passed over this (white noise averages out)
+HARD_IRON_P0 = 0.3        # initial standard deviation of the candidate, fraction of the norm
+HARD_IRON_RATIO = 4.0     # the candidate must explain the field this much better (mean squares)
+HARD_IRON_NORM_MIN = 1e-6  # floor of the corrected field's norm in the rows (fraction)
+HARD_IRON_N_MIN = 0.1     # a candidate field norm below this fraction of the reference is never taken
+HARD_IRON_TIME_CAP = 1e3  # s: the turning time stops counting here (exact in float)
+HARD_IRON_PIVOT_MIN = 1e-12  # a row whose variance is not above this is not applied
+
+
+def _sym_lower(v, n):
+    """n x n symmetric matrix from a flat column-major vector, reading only its lower triangle."""
+    return linalg.lower_symmetric(ca.reshape(v, n, n))
+
+
+def _flat_mirrored(M):
+    """Flat column-major vector of M's lower triangle mirrored (exactly symmetric)."""
+    return ca.vec(linalg.lower_symmetric(M))
+
+
+def hard_iron_residuals(u, x, Rq):
+    """The candidate field model x = [β (3), n, v] (units of the reference norm): the corrected
+    field d = u − β has norm n and vertical (NED down) component v. Model minus measurement for
+    the two rows; neither involves the heading."""
+    d = u - x[0:3]
+    return ca.vertcat(ca.fmax(ca.sqrt(ca.sumsqr(d)), HARD_IRON_NORM_MIN) - x[3], ca.dot(Rq[2, :].T, d) - x[4])
+
+
+def hard_iron_step(q, mag, b, ref, cx, cP, fresh, reopen, rlp, rmean, e, turn_time, dt, *, rw, noise, bias_max,
+                   settle, th, jump, refine, dip_angle: bool):
+    """One step of the hard-iron estimate while the sensor turns (the caller tests the turning).
+    Returns {name: SX} of the updated state and two flags:
+
+    - the fit: a candidate x = [β (3), n, v], in units of the reference norm B = ref[0]: the
+      field u − β (u = mag / B, mag raw) has norm n and NED down component v. Started
+      (`fresh`, 0/1) from the present hard iron b and reference; `reopen` (0/1) sets its
+      covariance back to HARD_IRON_P0² I (a new disturbance); then P += rw² dt I, the norm and
+      vertical rows (H by CasADi jacobian at the prior x, variance noise²) in turn, |β| bounded
+      by bias_max;
+    - the bookkeeping: the residuals of the present model [|c| − 1, (R c)_D − sin dip]
+      (c = (mag − b)/B) and of the candidate, low-passed over HARD_IRON_RES_TAU (rlp); the
+      present ones' mean over `settle` (rmean); the mean squares over `settle` of the present,
+      the candidate and the present less its mean (e); the time turning (turn_time);
+    - suspect: over `settle` of turning the candidate explains the field HARD_IRON_RATIO times
+      better than the present model even re-referenced (e[2] > ratio e[1]) and its hard iron
+      differs from b by at least `jump` of the field (`refine` once |b| is itself that large);
+    - switched: suspect, the candidate's residuals below th (RMS), its hard iron known to th
+      (root of its covariance trace) and n > HARD_IRON_N_MIN: b = B β, the reference
+      [n B, v/n] (dip_angle: [n B, asin(v/n)]), the candidate re-expressed in the new norm, e
+      set to the candidate's, rmean and turn_time to 0, suspect to 0.
+
+    ref is [norm, sin dip], or [norm, dip angle] with dip_angle."""
+    NC = HARD_IRON_NC
+    B = ref[0]
+    sin_dip = ca.sin(ref[1]) if dip_angle else ref[1]
+    Rq = quat.rotmat(q)
+    u = mag / B
+    x0 = ca.if_else(fresh, ca.vertcat(b / B, 1.0, sin_dip), cx)
+    P0 = ca.if_else(ca.logic_or(fresh, reopen), ca.SX.eye(NC) * HARD_IRON_P0 ** 2, _sym_lower(cP, NC))
+    P0 = P0 + ca.SX.eye(NC) * (rw ** 2 * dt)
+    xs = ca.SX.sym("x", NC)
+    res = hard_iron_residuals(u, xs, Rq)
+    H = ca.substitute(ca.jacobian(res, xs), xs, x0)
+    z = -ca.substitute(res, xs, x0)
+    dx, P1, _ = kalman.scalar_updates(P0, [(H[i, :], z[i], noise ** 2) for i in range(2)], tol=HARD_IRON_PIVOT_MIN)
+    x1 = x0 + dx
+    nb = ca.sqrt(ca.sumsqr(x1[0:3]))
+    scale = ca.if_else(nb > bias_max, bias_max / nb, 1.0)
+    x1 = ca.vertcat(x1[0:3] * scale, x1[3], x1[4])
+    c = u - b / B
+    r = ca.vertcat(ca.sqrt(ca.sumsqr(c)) - 1.0, ca.dot(Rq[2, :].T, c) - sin_dip, hard_iron_residuals(u, x1, Rq))
+    rlp1 = lowpass(rlp, r, dt, HARD_IRON_RES_TAU)
+    a = dt / (settle + dt)
+    rmean1 = rmean + a * (rlp1[0:2] - rmean)
+    d0, d1 = rlp1[0] - rmean1[0], rlp1[1] - rmean1[1]
+    e_new = ca.vertcat(rlp1[0] * rlp1[0] + rlp1[1] * rlp1[1], rlp1[2] * rlp1[2] + rlp1[3] * rlp1[3], d0 * d0 + d1 * d1)
+    e1 = e + a * (e_new - e)
+    turn1 = ca.fmin(turn_time + dt, HARD_IRON_TIME_CAP)
+    better = ca.logic_and(turn1 >= settle, e1[2] > HARD_IRON_RATIO * e1[1])
+    db2 = ca.sumsqr(x1[0:3] * B - b)
+    b2 = ca.sumsqr(b)
+    jmp = ca.if_else(b2 >= jump * jump * B * B, refine, jump)
+    suspect = ca.logic_and(better, db2 >= jmp * jmp * B * B)
+    th2 = th * th
+    p_beta = P1[0, 0] + P1[1, 1] + P1[2, 2]
+    switched = ca.logic_and(ca.logic_and(suspect, e1[1] < th2), ca.logic_and(p_beta < th2, x1[3] > HARD_IRON_N_MIN))
+    n = x1[3]
+    s_new = ca.fmin(ca.fmax(x1[4] / n, -1.0), 1.0)
+    ref_sw = ca.vertcat(n * B, ca.asin(s_new) if dip_angle else s_new)
+    cP1 = _flat_mirrored(P1)
+    return {"b_out": ca.if_else(switched, B * x1[0:3], b),
+            "ref_out": ca.if_else(switched, ref_sw, ref),
+            "cx_out": ca.if_else(switched, ca.vertcat(x1[0:3] / n, 1.0, x1[4] / n), x1),
+            "cP_out": ca.if_else(switched, _flat_mirrored(P1 / (n * n)), cP1),
+            "rlp_out": rlp1,
+            "rmean_out": ca.if_else(switched, ca.SX.zeros(2), rmean1),
+            "e_out": ca.if_else(switched, ca.vertcat(e1[1], e1[1], e1[1]), e1),
+            "turn_time_out": ca.if_else(switched, 0.0, turn1),
+            "suspect": ca.logic_and(suspect, ca.logic_not(switched)),
+            "switched": switched}

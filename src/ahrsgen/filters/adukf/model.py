@@ -35,6 +35,8 @@ EXTRA_STATUS = [
     ("NUMERIC_FAULT", "non-finite result: state left as it was before the step"),
     ("MAG_LEARNING", "reference field still being learned: magnetometer correction not applied", "info"),
     ("GYRO_RECOVERY", "a gyro component at gyro_full_scale (clipped), or within clip_recovery_time after one: the attitude covariance widened, R not adapted, the accelerometer not low-passed (error state only)", "info"),
+    ("MAG_DISTURBED", "magnetometer not used: the hard-iron candidate explains the field much better than the present hard iron (mag_bias)", "info"),
+    ("HARD_IRON_SWITCHED", "the hard iron and the learned field (norm, dip) were replaced by the candidate field model (mag_bias)", "info"),
 ]
 
 
@@ -152,7 +154,16 @@ class Model(FilterModel):
             StateField("learn_sum", 1, "mag_ref = learn: sum of sin(inclination) over rest samples", 0.0),
             StateField("learn_count", 1, "mag_ref = learn: rest samples summed so far", 0, "uint32"),
             StateField("initialised", 1, "1 once the attitude has been initialised", 1 if p["faithful"] else 0, "uint32"),
-        ]
+        ] + ([StateField("mag_field", 2, "the hard iron's reference field: [norm (the field's units), sin(inclination)], "
+                         "learned at rest as m_ref is, with either mag_ref (the norm summed there first)", 0.0),
+              StateField("mag_off", 1, "1 while the hard-iron residual of the field norm is off by more than "
+                         "mag_norm_tol (its onset reopens the candidate)", 0, "uint32"),
+              *self.hard_iron_state()] if self.hard_iron() else [])
+
+    def hard_iron(self) -> bool:
+        """The hard iron is estimated (mag_bias) in the error-state design (its field norm learned at
+        rest as the dip is, with either mag_ref)."""
+        return self.err and bool(self.params["mag_bias"])
 
     def p_meaning(self) -> str:
         if self.err:
@@ -620,7 +631,7 @@ class Model(FilterModel):
             KernelSpec("init_q", function("init_q", {"accel": f, "mag": m}, {"q": q_init}),
                        "initial attitude: accelerometer tilt and tilt-compensated heading (+ declination)"),
         ]
-        if p["mag_ref"] == "learn":
+        if p["mag_ref"] == "learn" or self.hard_iron():
             g = ca.SX.sym("gyro", 3)
             fn = ca.sqrt(ca.sumsqr(f))
             rest = ca.logic_and(ca.sumsqr(g) < p["rest_gyro_max"] ** 2, ca.fabs(fn - G0) < p["rest_accel_tol"])
@@ -632,12 +643,16 @@ class Model(FilterModel):
             m_learn = ca.vertcat(c_i * math.cos(decl), c_i * math.sin(decl), s_i)
             specs += [
                 KernelSpec("learn_sample", function("learn_sample", {"gyro": g, "accel": f, "mag": m},
-                                                    {"rest": rest, "sin_dip": sin_dip}),
-                           "rest test and sin(inclination) = -f.m/(|f||m|) of one sample", flags=("rest",)),
+                                                    {"rest": rest, "sin_dip": sin_dip,
+                                                     **({"norm": ca.sqrt(ca.sumsqr(m))} if self.hard_iron() else {})}),
+                           "rest test and sin(inclination) = -f.m/(|f||m|) of one sample"
+                           + (", and |m|" if self.hard_iron() else ""), flags=("rest",)),
                 KernelSpec("learn_finish", function("learn_finish", {"learn_sum": ssum, "count": cnt},
                                                     {"m_ref": m_learn}),
                            "reference field from the mean sin(inclination) and the declination"),
             ]
+            if self.hard_iron():
+                specs.append(self.hard_iron_kernel(refine=p["mag_norm_tol"], dip_angle=False, noinline=True))
         return specs
 
     def step_paths(self):
@@ -650,5 +665,5 @@ class Model(FilterModel):
 
     def template_context(self):
         n = self.n
-        return {"recovery": self.err, "learn": self.params["mag_ref"] == "learn", "n": n, "nx": self.nx, "na": self.na, "err": self.err, "lowpass": self.lowpass(), "rated": self.own_rates(), "bias": self.nx == 7, "simplex": self.simplex(), "xs": "q" if self.nx == 4 else "x", "at": self.work_layout(),
+        return {"recovery": self.err, "learn": self.params["mag_ref"] == "learn", "hard_iron": self.hard_iron(), "n": n, "nx": self.nx, "na": self.na, "err": self.err, "lowpass": self.lowpass(), "rated": self.own_rates(), "bias": self.nx == 7, "simplex": self.simplex(), "xs": "q" if self.nx == 4 else "x", "at": self.work_layout(),
                 "packed": linalg.packed_lower_pairs(n)}

@@ -69,7 +69,7 @@ import math
 import numpy as np
 
 from ahrsgen.constants import G0
-from ahrsgen.reference_aiding import GyroClip
+from ahrsgen.reference_aiding import GyroClip, HardIron
 from ahrsgen.codegen import input_checks
 from ahrsgen import status as st
 from ahrsgen.npquat import q_from_euler, qmul, rotmat, skew
@@ -80,12 +80,16 @@ UPDATE_SKIPPED = st.FILTER_BASE << 1   # P_zz not positive definite: update skip
 NUMERIC_FAULT = st.FILTER_BASE << 2    # non-finite result: state left as before the step
 MAG_LEARNING = st.FILTER_BASE << 3     # reference field still being learned: no mag correction
 GYRO_RECOVERY = st.FILTER_BASE << 4    # a clipped gyro sample, or clip_recovery_time after one
+MAG_DISTURBED = st.FILTER_BASE << 5    # the hard-iron candidate is the better model: magnetometer not used
+HARD_IRON_SWITCHED = st.FILTER_BASE << 6  # the hard iron and the learned field were replaced by the candidate
 
 STATUS_BITS = [
     ("COV_RESET", COV_RESET, "P⁻ was not positive definite: P reset to P0, measurement update skipped"),
     ("UPDATE_SKIPPED", UPDATE_SKIPPED, "P_zz not positive definite: measurement update skipped"),
     ("NUMERIC_FAULT", NUMERIC_FAULT, "non-finite result: state left as it was before the step"),
     ("MAG_LEARNING", MAG_LEARNING, "reference field still being learned: magnetometer correction not applied"),
+    ("MAG_DISTURBED", MAG_DISTURBED, "magnetometer not used: the hard-iron candidate explains the field much better"),
+    ("HARD_IRON_SWITCHED", HARD_IRON_SWITCHED, "the hard iron and the learned field were replaced by the candidate"),
 ]
 
 N = 4
@@ -232,6 +236,21 @@ class Reference:
         self.r_diag = np.zeros(6)       # R used by the last step (0 = sensor not used)
         self.clip = GyroClip(float(self.p["gyro_full_scale"]), float(self.p["gyro_plateau_rate"]),
                              float(self.p["clip_recovery_time"]))   # gyro over-range (error state)
+        # the hard iron (docs/adukf.md, "Hard iron"): in the error-state design
+        self.hard_iron_on = self.err and bool(p["mag_bias"])
+        self.mag_bias = np.zeros(3)
+        self.field = np.zeros(2)        # [norm, sin(inclination)]: the hard iron's reference
+        self.learn_norm = 0.0           # |m| summed over the learning's rest samples
+        self.mag_off = False            # the present model's norm residual off by mag_norm_tol
+        if self.hard_iron_on:
+            self.hard_iron = HardIron(rw=p["mag_bias_rw"], noise=p["mag_bias_noise"], bias_max=p["mag_bias_max"],
+                                      settle=p["mag_bias_settle"], th=p["mag_bias_th"], jump=p["mag_bias_jump"],
+                                      refine=p["mag_norm_tol"])
+
+    def _set_m_ref(self, sin_incl):
+        s_incl = min(max(sin_incl, -1.0), 1.0)
+        c_incl = math.sqrt(1.0 - s_incl * s_incl)
+        self.m_ref = np.array([c_incl * math.cos(self.decl), c_incl * math.sin(self.decl), s_incl])
 
     def P0(self):
         if self.err:
@@ -249,21 +268,22 @@ class Reference:
         m = np.asarray(mag, dtype=float)
         mag_ok = use_m
 
-        # learning the reference field (dip angle) from samples at rest
-        if self.learn and self.learn_count < p["learn_samples"]:
+        # learning the reference field (dip angle) from samples at rest (and, for the hard iron,
+        # its norm, also when the dip is configured)
+        if (self.learn or self.hard_iron_on) and self.learn_count < p["learn_samples"]:
             if use_a and use_m:
                 fn = np.linalg.norm(f)
                 at_rest = (np.linalg.norm(w) < p["rest_gyro_max"]
                            and abs(fn - G0) < p["rest_accel_tol"])
                 if at_rest:
                     self.learn_sum += float(np.dot(-f / fn, m / np.linalg.norm(m)))
+                    self.learn_norm += float(np.linalg.norm(m))
                     self.learn_count += 1
                     if self.learn_count >= p["learn_samples"]:
-                        s_incl = min(max(self.learn_sum / self.learn_count, -1.0), 1.0)
-                        c_incl = math.sqrt(1.0 - s_incl * s_incl)
-                        self.m_ref = np.array([c_incl * math.cos(self.decl),
-                                               c_incl * math.sin(self.decl), s_incl])
-            if self.learn_count < p["learn_samples"]:
+                        if self.learn:
+                            self._set_m_ref(self.learn_sum / self.learn_count)
+                        self.field = np.array([self.learn_norm / self.learn_count, self.m_ref[2]])
+            if self.learn and self.learn_count < p["learn_samples"]:
                 if use_m:
                     status |= MAG_LEARNING
                 use_m = False
@@ -347,6 +367,31 @@ class Reference:
                 self.sample_age[0] = 0.0
             if use_m:
                 self.sample_age[1] = 0.0
+
+        # the hard iron: fitted while turning, the field used as m - b
+        if self.hard_iron_on and use_m:
+            m = m - self.mag_bias
+        if self.hard_iron_on and use_m and self.learn_count >= p["learn_samples"]:
+            w_b = np.asarray(c.gyro, dtype=float) - self.bias
+            if not recovering and w_b @ w_b >= p["mag_bias_min_rate"] ** 2:
+                new = self.hard_iron.step(rotmat(q_old), np.asarray(mag, dtype=float), self.mag_bias, self.field[0],
+                                          self.field[1], span[1] if self.rated else dt)
+                # the present model's norm residual leaving mag_norm_tol: a new disturbance, the
+                # candidate's covariance reopens (for its next fit)
+                off = abs(self.hard_iron.rlp[0]) > p["mag_norm_tol"]
+                reopen = off and not self.mag_off and not self.hard_iron.suspect
+                self.mag_off = off
+                if new is not None:          # the candidate becomes the hard iron and the learned field
+                    self.mag_bias = new[0]
+                    self.field = np.array([new[1], new[2]])
+                    self._set_m_ref(new[2])
+                    status |= HARD_IRON_SWITCHED
+                    use_m = False            # the sample was judged with the old hard iron
+                if reopen:
+                    self.hard_iron.reopen()
+            if use_m and self.hard_iron.suspect:
+                use_m = False
+                status |= MAG_DISTURBED
 
         x_new = np.concatenate([qm / math.sqrt(float(qm @ qm)), xm[4:]])
         P_new = Pm

@@ -26,7 +26,7 @@ import casadi as ca
 from ahrsgen.codegen import emit
 from ahrsgen.constants import G0
 from ahrsgen.codegen.model import FilterModel, KernelSpec, StateField
-from ahrsgen.symbolic import attitude, kalman, quat
+from ahrsgen.symbolic import aiding, attitude, kalman, quat
 
 N = 6           # error-state size
 S_PIVOT_MIN = 1e-12   # innovation covariance must have Cholesky pivots above this
@@ -37,12 +37,6 @@ DT_Q_MIN = 1e-9       # s: floor of dt in the gyro-noise variance σ_g²/dt
 
 HEAD_AGE_MAX = 1.0    # s without a heading correction before HEADING_UNAIDED
 MAG_INTERVAL_MAX = 0.1  # s: a magnetometer sample stands for at most this long (mag_heading_density)
-MAG_RES_TAU = 0.2     # s: the hard-iron residuals are low-passed over this (white noise averages out)
-MAG_BIAS_P0 = 0.3     # initial standard deviation of the candidate field model, fraction of the norm
-MAG_BIAS_RATIO = 4.0  # the candidate must explain the field this much better (mean squares)
-MAG_N_MIN = 0.1       # a candidate field norm below this fraction of the reference is never taken
-NORM_MIN = 1e-6       # floor of the corrected field's norm in the hard-iron rows (fraction)
-NC = 5                # candidate field model [β (3), n, v]
 
 EXTRA_STATUS = [
     ("COURSE_SLOW", "GPS sample present but ground speed below gps_min_speed: yaw row dropped", "info"),
@@ -449,61 +443,6 @@ def update_heading_function(p: dict, name="update_heading") -> ca.Function:
                          {"x_out": K * z, "P_out": flat_mirrored(P_new), "s": S})
 
 
-def hard_iron_residuals(u, x, Rq):
-    """The candidate field model x = [β (3), n, v] (units of the reference norm): the corrected
-    field d = u − β has norm n and vertical (NED down) component v. Model minus measurement for
-    the two rows; neither involves the heading."""
-    d = u - x[0:3]
-    return ca.vertcat(ca.fmax(ca.sqrt(ca.sumsqr(d)), NORM_MIN) - x[3], ca.dot(Rq[2, :].T, d) - x[4])
-
-
-def hard_iron_fit_function(p: dict, name="hard_iron_fit") -> ca.Function:
-    """One step of the candidate field model while the sensor turns (docs/mekf.md, "Hard iron"):
-    started (init = 1) from the present hard iron and reference, P += rw² dt I, then the norm
-    and vertical rows (H by CasADi jacobian of `hard_iron_residuals` at the prior x) in turn
-    (the batch update), |β| bounded by mag_bias_max. Also returns the residuals of the present
-    model [|c| − 1, (R c)_D − sin dip] (c = (m − b)/B) and of the updated candidate, and the
-    trace of the candidate hard iron's covariance."""
-    q, mag, b, ref, cx, cP = (ca.SX.sym(n, k) for n, k in (("q", 4), ("mag", 3), ("b", 3), ("ref", 2),
-                                                            ("cx", NC), ("cP", NC * NC)))
-    dt, init = ca.SX.sym("dt"), ca.SX.sym("init")
-    B, dip = ref[0], ref[1]
-    Rq = quat.rotmat(q)
-    u = mag / B
-    x0 = ca.if_else(init, ca.vertcat(b / B, 1.0, ca.sin(dip)), cx)
-    P0 = ca.if_else(init, ca.SX.eye(NC) * MAG_BIAS_P0 ** 2, sym_lower(cP, NC))
-    P0 = P0 + ca.SX.eye(NC) * (p["mag_bias_rw"] ** 2 * dt)
-    xs = ca.SX.sym("x", NC)
-    res = hard_iron_residuals(u, xs, Rq)
-    H = ca.substitute(ca.jacobian(res, xs), xs, x0)
-    z = -ca.substitute(res, xs, x0)
-    r = p["mag_bias_noise"] ** 2
-    dx, P1, _ = kalman.scalar_updates(P0, [(H[i, :], z[i], r) for i in range(2)], tol=S_PIVOT_MIN)
-    x1 = x0 + dx
-    nb = ca.sqrt(ca.sumsqr(x1[0:3]))
-    scale = ca.if_else(nb > p["mag_bias_max"], p["mag_bias_max"] / nb, 1.0)
-    x1 = ca.vertcat(x1[0:3] * scale, x1[3], x1[4])
-    c = u - b / B
-    r_cur = ca.vertcat(ca.sqrt(ca.sumsqr(c)) - 1.0, ca.dot(Rq[2, :].T, c) - ca.sin(dip))
-    r_cand = hard_iron_residuals(u, x1, Rq)
-    return emit.function(name, {"q": q, "mag": mag, "b": b, "ref": ref, "cx": cx, "cP": cP, "dt": dt,
-                                "init": init},
-                         {"cx_out": x1, "cP_out": flat_mirrored(P1, NC), "res": ca.vertcat(r_cur, r_cand),
-                          "p_beta": P1[0, 0] + P1[1, 1] + P1[2, 2]})
-
-
-def hard_iron_switch_function(name="hard_iron_switch") -> ca.Function:
-    """The candidate becomes the model: b = B β, reference [n B, asin(v/n)], and the candidate
-    re-expressed in units of the new norm ([β/n, 1, v/n], covariance / n²)."""
-    cx, cP, ref = ca.SX.sym("cx", NC), ca.SX.sym("cP", NC * NC), ca.SX.sym("ref", 2)
-    B, n = ref[0], cx[3]
-    sin_dip = ca.fmin(ca.fmax(cx[4] / n, -1.0), 1.0)
-    return emit.function(name, {"cx": cx, "cP": cP, "ref": ref},
-                         {"b_out": B * cx[0:3], "ref_out": ca.vertcat(n * B, ca.asin(sin_dip)),
-                          "cx_out": ca.vertcat(cx[0:3] / n, 1.0, cx[4] / n),
-                          "cP_out": flat_mirrored(sym_lower(cP, NC) / (n * n), NC)})
-
-
 def init_vectors_function(p: dict, name="init_attitude") -> ca.Function:
     """First attitude: tilt from the accelerometer, yaw from the GPS course (use[0]) or the
     magnetometer (use[1]) or 0; and the earth-frame low-pass started at R(q) f."""
@@ -575,21 +514,8 @@ class Model(FilterModel):
             StateField("head_age", 1, "time since the last heading correction, s (stops at 1e3)", AGE_MAX),
             StateField("mag_age", 1, f"time since the last usable magnetometer sample, s (stops at {MAG_INTERVAL_MAX:g})", 0.0),
             *self.gyro_recovery_state(),
-            StateField("mag_bias", 3, "magnetometer hard iron, body axes, the field's units (m - mag_bias is used)", 0.0),
-        ] + (self._hard_iron_fields() if self._hard_iron() else [])
-
-    def _hard_iron_fields(self) -> list[StateField]:
-        return [
-            StateField("mag_cx", NC, "candidate field model [hard iron / B (3), norm / B, down component / B], B = mag_ref[0]", 0.0),
-            StateField("mag_cP", NC * NC, "its covariance (5x5, symmetric)",
-                       [MAG_BIAS_P0 ** 2 if i == j else 0.0 for j in range(NC) for i in range(NC)]),
-            StateField("mag_c_ok", 1, "1 once the candidate has been started from the reference", 0, "uint32"),
-            StateField("mag_rlp", 4, "hard-iron residuals [present (2), candidate (2)] low-passed over 0.2 s", 0.0),
-            StateField("mag_rmean", 2, "the present residuals' mean over mag_bias_settle", 0.0),
-            StateField("mag_e", 3, "mean squares: present, candidate, present less its mean", 0.0),
-            StateField("mag_turn_time", 1, "time turning since the candidate started or switched, s (stops at 1e3)", 0.0),
-            StateField("mag_suspect", 1, "1 while the candidate explains the field and the present model does not", 0, "uint32"),
-        ]
+            self.hard_iron_bias_field(),
+        ] + (self.hard_iron_state(bias=False) if self._hard_iron() else [])
 
     def kernels(self) -> list[KernelSpec]:
         p = self.params
@@ -611,10 +537,7 @@ class Model(FilterModel):
                            flags=("use_course",)),
                 KernelSpec("init_attitude", init_vectors_function(p), "first attitude and low-pass state",
                            flags=("use",)),
-            ] + ([KernelSpec("hard_iron_fit", hard_iron_fit_function(p), "candidate field model: one step while turning",
-                             flags=("init",)),
-                  KernelSpec("hard_iron_switch", hard_iron_switch_function(), "the candidate becomes the hard iron and reference")]
-                 if self._hard_iron() else [])
+            ] + ([self.hard_iron_kernel(refine=p["mag_norm_th"], dip_angle=True)] if self._hard_iron() else [])
         return [
             KernelSpec("predict", predict_function(p), "time update (patent steps 1-2)"),
             KernelSpec("update", update_function(p), "measurement update with row mask (steps 3-8)", flags=("mask",)),
@@ -638,8 +561,7 @@ class Model(FilterModel):
         return {"n": N, "heading_source": p["heading_source"], "motion_comp": p["motion_comp"],
                 "s_pivot_min": S_PIVOT_MIN, "age_max": AGE_MAX, "mag_interval_max": MAG_INTERVAL_MAX, "g0": G0, "gps_dt_min": GPS_DT_MIN,
                 "vectors": self.vectors, "head_age_max": HEAD_AGE_MAX, "hard_iron": self._hard_iron(),
-                "mag_res_tau": MAG_RES_TAU, "mag_bias_ratio": MAG_BIAS_RATIO, "mag_n_min": MAG_N_MIN, "nc": NC,
-                "mag_bias_p0": MAG_BIAS_P0,
+                "mag_bias_p0": aiding.HARD_IRON_P0, "nc": aiding.HARD_IRON_NC,
                 "tan2_sideslip": math.tan(p["course_max_sideslip"]) ** 2,
                 # the norm gate's test is written only when it can be on (a runtime value, or > 0):
                 # no unreachable code in a default build. dict.get: not a use of a runtime value.

@@ -38,7 +38,7 @@ import numpy as np
 from ahrsgen.constants import G0
 from ahrsgen.codegen import input_checks
 from ahrsgen import status as st
-from ahrsgen.reference_aiding import GyroClip
+from ahrsgen.reference_aiding import GyroClip, HardIron
 from ahrsgen.npquat import euler_from_q, q_from_euler, qexp, qmul, rotmat, skew, wrap
 
 # Filter-specific status bits (informational; the step ran).
@@ -51,11 +51,6 @@ MAG_DISTURBED = st.FILTER_BASE << 4    # magnetometer rejected: field norm or di
 AT_REST = st.FILTER_BASE << 5          # rest detected: the gyro bias is measured directly
 HARD_IRON_SWITCHED = st.FILTER_BASE << 6  # the hard iron and reference were replaced by the candidate
 GYRO_RECOVERY = st.FILTER_BASE << 7    # a gyro sample at its range, or clip_recovery_time after one
-MAG_RES_TAU = 0.2       # s: the hard-iron residuals are low-passed over this (white noise averages out)
-MAG_BIAS_P0 = 0.3       # initial standard deviation of the candidate field model, fraction of the norm
-MAG_BIAS_RATIO = 4.0    # the candidate must explain the field this much better (mean squares)
-NORM_MIN = 1e-6         # floor of the corrected field's norm in the hard-iron rows (fraction)
-MAG_N_MIN = 0.1         # a candidate field norm below this fraction of the reference is never taken
 HEAD_AGE_MAX = 1.0      # s without a heading correction before HEADING_UNAIDED
 
 COS2_PITCH_MIN = 1e-4   # no correction while cos²(pitch) <= this (pitch within 0.57° of ±90°)
@@ -195,14 +190,13 @@ class Reference:
                       "mag_bias_max", "mag_bias_jump"):
                 setattr(self, k, float(p[k]))
             self.mag_bias = np.zeros(3)
-            self.mag_cx = np.zeros(5)
-            self.mag_cP = np.eye(5) * MAG_BIAS_P0 ** 2
-            self.mag_c_ok = False         # the candidate has been started from the reference
-            self.mag_rlp = np.zeros(4)    # residuals [present (2), candidate (2)] over 0.2 s
-            self.mag_rmean = np.zeros(2)  # the present residuals' mean over mag_bias_settle
-            self.mag_e = np.zeros(3)      # mean squares: present, candidate, present re-referenced
-            self.mag_turn_time = 0.0      # time turning since the candidate started or switched, s
-            self.mag_suspect = False      # the candidate explains the field, the present model not
+            self.hard_iron = HardIron(rw=self.mag_bias_rw, noise=self.mag_bias_noise, bias_max=self.mag_bias_max,
+                                      settle=self.mag_bias_settle, th=self.mag_bias_th, jump=self.mag_bias_jump,
+                                      refine=self.mag_norm_th)
+
+    @property
+    def mag_suspect(self) -> bool:
+        return self.mag_bias_on and self.hard_iron.suspect
 
     # ------------------------------------------------------------------------------
     def step(self, gyro, accel, mag, gps_vel, valid: int, dt: float) -> int:
@@ -540,10 +534,17 @@ class Reference:
                     and not recovering):
                 w = gyro - self.gyro_bias
                 if onset and not self.mag_suspect:
-                    self.mag_cP = np.eye(5) * MAG_BIAS_P0 ** 2    # a new disturbance: the candidate starts afresh
-                if w @ w >= self.mag_bias_min_rate ** 2 and self._hard_iron(Rq, np.asarray(mag, dtype=float), dt):
-                    status |= HARD_IRON_SWITCHED
-                    mag_use = False          # the field check was made with the old hard iron
+                    self.hard_iron.reopen()      # a new disturbance: the candidate starts afresh
+                if w @ w >= self.mag_bias_min_rate ** 2:
+                    new = self.hard_iron.step(Rq, np.asarray(mag, dtype=float), self.mag_bias, self.mag_ref[0],
+                                              np.sin(self.mag_ref[1]), dt)
+                    if new is not None:          # the candidate becomes the hard iron and the reference
+                        self.mag_bias = new[0]
+                        self.mag_ref = np.array([new[1], np.arcsin(new[2])])
+                        self.mag_rej_time = 0.0
+                        self.mag_cand_time = 0.0
+                        status |= HARD_IRON_SWITCHED
+                        mag_use = False          # the field check was made with the old hard iron
                 if mag_use and self.mag_suspect:
                     mag_use = False
                     status |= MAG_DISTURBED
@@ -594,74 +595,6 @@ class Reference:
             status |= HEADING_UNAIDED
         self.q, self.P = q, P
         return status
-
-    def _hard_iron(self, Rq, m_raw, dt) -> bool:
-        """One step of the hard-iron estimate while turning (docs/mekf.md, "Hard iron").
-
-        A candidate field model x = [β (3), n, v], in units of the reference norm B: the field
-        u − β (u = m / B) has norm n and vertical (NED down) component v. Two rows, the norm and
-        the vertical component (neither involves the heading), linearised once at the prior x
-        and applied in turn (the batch update); H by hand: [−dᵀ/|d|, −1, 0] and [−e_Dᵀ R, 0, −1],
-        d = u − β. The candidate replaces the hard iron and the reference (b = B β,
-        [n B, asin(v/n)]) when, over mag_bias_settle of turning, it explains the field (mean
-        square of the residuals low-passed over 0.2 s below mag_bias_th²) four times better than
-        the present hard iron does even with its reference re-fitted (the present residuals
-        less their mean), and its hard iron is known to mag_bias_th (root of its covariance trace).
-        Returns True on a switch."""
-        B, dip = self.mag_ref
-        u = m_raw / B
-        if not self.mag_c_ok:
-            self.mag_cx = np.concatenate([self.mag_bias / B, [1.0, np.sin(dip)]])
-            self.mag_cP = np.eye(5) * MAG_BIAS_P0 ** 2
-            self.mag_c_ok = True
-        x = self.mag_cx
-        P = self.mag_cP + np.eye(5) * self.mag_bias_rw ** 2 * dt
-        d = u - x[:3]
-        nd = max(np.sqrt(d @ d), NORM_MIN)
-        H = np.array([np.concatenate([-d / nd, [-1.0, 0.0]]), np.concatenate([-Rq[2], [0.0, -1.0]])])
-        res = np.array([nd - x[3], Rq[2] @ d - x[4]])       # model minus measurement (0)
-        R = np.eye(2) * self.mag_bias_noise ** 2
-        S = H @ P @ H.T + R
-        K = P @ H.T @ np.linalg.inv(S)
-        x = x - K @ res
-        P = P - K @ H @ P
-        P = 0.5 * (P + P.T)
-        nb = np.sqrt(x[:3] @ x[:3])
-        if nb > self.mag_bias_max:
-            x = np.concatenate([x[:3] * (self.mag_bias_max / nb), x[3:]])
-        self.mag_cx, self.mag_cP = x, P
-        c = u - self.mag_bias / B
-        d = u - x[:3]
-        r = np.array([np.sqrt(c @ c) - 1.0, Rq[2] @ c - np.sin(dip), max(np.sqrt(d @ d), NORM_MIN) - x[3],
-                      Rq[2] @ d - x[4]])
-        a_s = dt / (MAG_RES_TAU + dt)
-        self.mag_rlp = self.mag_rlp + a_s * (r - self.mag_rlp)
-        a = dt / (self.mag_bias_settle + dt)
-        self.mag_rmean = self.mag_rmean + a * (self.mag_rlp[:2] - self.mag_rmean)
-        dr = self.mag_rlp[:2] - self.mag_rmean
-        e = np.array([self.mag_rlp[:2] @ self.mag_rlp[:2], self.mag_rlp[2:] @ self.mag_rlp[2:], dr @ dr])
-        self.mag_e = self.mag_e + a * (e - self.mag_e)
-        self.mag_turn_time = min(self.mag_turn_time + dt, AGE_MAX)
-        better = self.mag_turn_time >= self.mag_bias_settle and self.mag_e[2] > MAG_BIAS_RATIO * self.mag_e[1]
-        db = x[:3] - self.mag_bias / B
-        b = self.mag_bias / B
-        jump = self.mag_norm_th if b @ b >= self.mag_bias_jump ** 2 else self.mag_bias_jump   # a magnet found: refined
-        self.mag_suspect = better and db @ db >= jump ** 2
-        if not (self.mag_suspect and self.mag_e[1] < self.mag_bias_th ** 2
-                and np.trace(P[:3, :3]) < self.mag_bias_th ** 2 and x[3] > MAG_N_MIN):
-            return False
-        n = x[3]
-        self.mag_bias = B * x[:3]
-        self.mag_ref = np.array([n * B, np.arcsin(np.clip(x[4] / n, -1.0, 1.0))])
-        self.mag_cx = np.concatenate([x[:3] / n, [1.0, x[4] / n]])
-        self.mag_cP = P / (n * n)
-        self.mag_e[:] = self.mag_e[1]
-        self.mag_rmean[:] = 0.0
-        self.mag_turn_time = 0.0
-        self.mag_suspect = False
-        self.mag_rej_time = 0.0
-        self.mag_cand_time = 0.0
-        return True
 
     def _off(self, cur, ref):
         """Field [norm, dip] off a reference by more than the thresholds."""

@@ -68,6 +68,7 @@ EXTRA_STATUS = [
     ("MAG_DISTURBED", "magnetometer norm or dip off its reference: heading not corrected this step", "info"),
     ("AT_REST", "at rest: the gyro bias follows the low-passed gyro", "info"),
     ("GYRO_RECOVERY", "a gyro component at gyro_full_scale (clipped), or within clip_recovery_time after one: kp_recovery on the sensors as they come", "info"),
+    ("HARD_IRON_SWITCHED", "the hard iron and the field check's reference were replaced by the candidate field model (mag_bias)", "info"),
 ]
 
 
@@ -103,7 +104,11 @@ class Model(FilterModel):
             StateField("mag_dist_time", 1, "field check: time the field has been rejected, s", 0.0),
             StateField("mag_learn_time", 1, "field check: time since the first magnetometer sample (capped), s", 0.0),
             *self.gyro_recovery_state(),
-        ])
+        ] + (self.hard_iron_state() if self.hard_iron() else []))
+
+    def hard_iron(self) -> bool:
+        """The hard iron is estimated (mag_bias) in the product design with the field check."""
+        return self.product and bool(self.params["mag_rejection"]) and bool(self.params["mag_bias"])
 
     def kernels(self):
         p = self.params
@@ -277,16 +282,21 @@ class Model(FilterModel):
             mn = ca.sqrt(m2)
             # sin(dip) = (R^T down) . m / |m| = down . R m / |m|, down = -a/|a|
             sin_dip = -ca.dot(a_lp, m_n) / (ca.sqrt(ca.sumsqr(a_lp)) * mn)
+            hold = ca.SX.sym("hold") if self.hard_iron() else None   # the hard-iron candidate is the better model
             acc, n2, d2, t2, l2 = aiding.field_check(
                 mn, sin_dip, m_ref[0], m_ref[1], t_dist, span, norm_tol=p["mag_norm_tol"],
                 dip_tol=p["mag_dip_tol"], ref_tau=p["mag_ref_tau"], new_time=p["mag_new_time"],
-                learn_time=t_learn, warmup=p["mag_warmup"])
+                learn_time=t_learn, warmup=p["mag_warmup"], hold=hold)
             ks.append(KernelSpec("mag_check", function("mag_check", {"accel_lp": a_lp, "mag_norm2": m2, "mag_ned": m_n, "mag_ref": m_ref,
                                                                      "mag_dist_time": t_dist, "mag_learn_time": t_learn,
-                                                                     "span": span},
+                                                                     "span": span, **({"hold": hold} if hold is not None else {})},
                                                        {"accept": acc, "mag_ref_new": ca.vertcat(n2, d2),
                                                         "mag_dist_time_new": t2, "mag_learn_time_new": l2}),
-                                 "field check: |m| and sin(dip) against the learned reference", flags=("accept",)))
+                                 "field check: |m| and sin(dip) against the learned reference"
+                                 + (" (a lasting change is not taken while the hard-iron candidate is the better model)"
+                                    if hold is not None else ""), flags=("accept",) + (("hold",) if hold is not None else ())))
+        if self.hard_iron():
+            ks.append(self.hard_iron_kernel(refine=p["mag_norm_tol"], dip_angle=False))
         return ks
 
     def stability_warnings(self):
@@ -312,7 +322,8 @@ class Model(FilterModel):
     def template_context(self):
         p = self.params
         return {"motion_model": p["motion_accel_model"], "product": self.product, "gps_taps": gps_taps(p),
-                "rest": self.product and p["rest_time"] > 0, "mag_rejection": self.product and p["mag_rejection"]}
+                "rest": self.product and p["rest_time"] > 0, "mag_rejection": self.product and p["mag_rejection"],
+                "hard_iron": self.hard_iron()}
 
     def step_paths(self):
         if self.product:

@@ -10,7 +10,7 @@ import numpy as np
 from ahrsgen import npquat as nq
 from ahrsgen.codegen import input_checks
 from ahrsgen.constants import G0
-from ahrsgen.reference_aiding import GyroClip
+from ahrsgen.reference_aiding import GyroClip, HardIron
 
 PAPER_COEFFS = np.array([0.0971, 0.1662, 0.1853])
 
@@ -113,6 +113,14 @@ class Reference:
         self.mag_learn_time = 0.0          # time since the first magnetometer sample (capped at warmup)
         self.clip = GyroClip(float(self.p["gyro_full_scale"]), float(self.p["gyro_plateau_rate"]),
                              float(self.p["clip_recovery_time"]))
+        # the hard iron (docs/qcf.md, "Hard iron"): with the field check, in the product design
+        self.hard_iron_on = self.product and bool(self.p["mag_rejection"]) and bool(self.p["mag_bias"])
+        self.mag_bias = np.zeros(3)
+        if self.hard_iron_on:
+            self.hard_iron = HardIron(rw=self.p["mag_bias_rw"], noise=self.p["mag_bias_noise"],
+                                      bias_max=self.p["mag_bias_max"], settle=self.p["mag_bias_settle"],
+                                      th=self.p["mag_bias_th"], jump=self.p["mag_bias_jump"],
+                                      refine=self.p["mag_norm_tol"])
 
     def step(self, gyro, accel, mag, gps_vel, valid, dt):
         p = self.p
@@ -230,12 +238,18 @@ class Reference:
                     status |= bit["AT_REST"]
         down = -self.accel_lp / np.linalg.norm(self.accel_lp)
         heading_ok = use_mag
+        mag_raw = mag
+        if use_mag and self.hard_iron_on:
+            mag = np.asarray(mag, float) - self.mag_bias       # the hard iron removed
+        suspect = self.hard_iron_on and self.hard_iron.suspect
+        was_accepted = self.mag_dist_time <= 0.0
         if use_mag and p["mag_rejection"]:
             m = np.asarray(mag, float)
             norm = np.linalg.norm(m)
             sin_dip = (nq.rotmat(self.q).T @ down) @ m / norm
             ref_n, ref_d = self.mag_ref
             s = self.mag_age
+            accepted = True
             if ref_n <= 0 or (p["mag_warmup"] > 0 and self.mag_learn_time < p["mag_warmup"]):
                 # warm-up: accept, the reference is the mean of the samples so far
                 if ref_n <= 0:
@@ -249,13 +263,32 @@ class Reference:
                 self.mag_ref = self.mag_ref + k * (np.array([norm, sin_dip]) - self.mag_ref)
                 self.mag_dist_time = 0.0
             else:
+                accepted = False
                 if not recovering:           # the dip was judged with the attitude that is wrong
                     heading_ok = False
                     status |= bit["MAG_DISTURBED"]
                 self.mag_dist_time += s
-                if self.mag_dist_time > p["mag_new_time"]:   # a lasting change: new reference
+                # a lasting change: new reference (not while the hard-iron candidate is the better model)
+                if self.mag_dist_time > p["mag_new_time"] and not suspect:
                     self.mag_ref = np.array([norm, sin_dip])
                     self.mag_dist_time = 0.0
+            if (self.hard_iron_on and self.mag_ref[0] > 0 and self.mag_learn_time >= p["mag_warmup"]
+                    and not recovering):
+                if not accepted and was_accepted and not suspect:
+                    self.hard_iron.reopen()          # a new disturbance: the candidate starts afresh
+                w = gyro - self.bias
+                if w @ w >= p["mag_bias_min_rate"] ** 2:
+                    new = self.hard_iron.step(nq.rotmat(self.q), np.asarray(mag_raw, float), self.mag_bias,
+                                              self.mag_ref[0], self.mag_ref[1], self.mag_age)
+                    if new is not None:              # the candidate becomes the hard iron and the reference
+                        self.mag_bias = new[0]
+                        self.mag_ref = np.array([new[1], new[2]])
+                        self.mag_dist_time = 0.0
+                        status |= bit["HARD_IRON_SWITCHED"]
+                        heading_ok = False           # the field check was made with the old hard iron
+                if heading_ok and self.hard_iron.suspect:
+                    heading_ok = False
+                    status |= bit["MAG_DISTURBED"]
         if use_accel or heading_ok:
             T = tilt_correction(down)
             e_n = (self.accel_age if use_accel else 0.0) * T[1:]
