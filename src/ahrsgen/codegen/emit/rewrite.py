@@ -63,9 +63,8 @@ def _power_of_two(c, precision) -> bool:
     if c is None or c == 0.0 or not np.isfinite(c) or math.frexp(abs(c))[0] != 0.5:
         return False
     r = abs(1.0 / c)
-    tiny, big = (np.finfo(np.float32).tiny, np.finfo(np.float32).max) if precision == "float" else \
-        (np.finfo(np.float64).tiny, np.finfo(np.float64).max)
-    return tiny <= r <= big
+    fi = np.finfo(np.float32 if precision == "float" else np.float64)
+    return float(fi.tiny) <= r <= float(fi.max)     # as Python floats: no float32 cast of r to overflow
 
 
 def _fuse_multiply_add(kept, nodes, writes, fname):
