@@ -160,8 +160,10 @@ def test_reproduce_line_of_a_folder_filter_resolves(tmp_path):
     out = tmp_path / "a"
     subprocess.run([sys.executable, "-m", "ahrsgen.cli", "generate", str(folder), "--set", "kp=0.7", "-o", str(out)],
                    check=True, capture_output=True)
-    line = next(l for l in (out / "mahony.c").read_text().splitlines() if "Reproduce with:" in l)
-    argv = shlex.split(line.split("Reproduce with:", 1)[1].replace("-o DIR", f"-o {tmp_path / 'b'}"))
+    text = (out / "mahony.c").read_text()
+    text = text[text.index("Reproduce with:") + len("Reproduce with:"):]
+    line = text.split("\n *\n", 1)[0].replace("\n * ", " ")      # a shell line continued by ' \'
+    argv = shlex.split(line.replace("-o DIR", f"-o {tmp_path / 'b'}"))
     assert argv[:2] == ["ahrsgen", "generate"] and argv[2] == str(folder)
     subprocess.run([sys.executable, "-m", "ahrsgen.cli", *argv[1:]], check=True, capture_output=True, cwd="/")
     for f in out.iterdir():

@@ -4069,8 +4069,8 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
         }
     }
 
-    /* A-DUKF step (the paper's equations; docs/adukf.md). Order as in reference.py: learn the reference field,
-     * initialise, then time update and unscented measurement update. */
+    /* A-DUKF step (the paper's equations; docs/adukf.md). Order as in reference.py: learn the
+     * reference field, initialise, then time update and unscented measurement update. */
     const bool mag_ok = use_mag;
     if (s->learn_count < ADUKF_LEARN_SAMPLES) {
         if (use_accel && use_mag) {
@@ -4100,8 +4100,8 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
     if (s->initialised == 0u && use_accel && mag_ok) {
         /* First accelerometer + magnetometer sample: attitude from tilt and heading. */
         adukf_k_init_q(in->accel, in->mag, s->q);
-        /* attitude error variance 4 p0 per axis (an angle is twice the quaternion component p0 is
-         * stated for), gyro bias p0_bias */
+        /* attitude error variance 4 p0 per axis (an angle is twice the quaternion
+         * component p0 is stated for), gyro bias p0_bias */
         for (uint32_t i = 0u; i < 36u; i++) {
             s->P[i] = (i % 7u != 0u) ? 0.0f : ((i < 21u) ? 4.0f * ADUKF_P0 : ADUKF_P0_BIAS);
         }
@@ -4142,9 +4142,12 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
     }
 
     /* time each sample stands for (since its sensor's previous sample, at most SPAN_MAX) */
-    s->sample_age[0] = (s->sample_age[0] + dt < ADUKF_SPAN_MAX) ? s->sample_age[0] + dt : ADUKF_SPAN_MAX;
-    s->sample_age[1] = (s->sample_age[1] + dt < ADUKF_SPAN_MAX) ? s->sample_age[1] + dt : ADUKF_SPAN_MAX;
-    const float span[2] = { s->sample_age[0] > dt ? s->sample_age[0] : dt, s->sample_age[1] > dt ? s->sample_age[1] : dt };
+    s->sample_age[0] = (s->sample_age[0] + dt < ADUKF_SPAN_MAX) ? s->sample_age[0] + dt
+                                                               : ADUKF_SPAN_MAX;
+    s->sample_age[1] = (s->sample_age[1] + dt < ADUKF_SPAN_MAX) ? s->sample_age[1] + dt
+                                                               : ADUKF_SPAN_MAX;
+    const float span[2] = { s->sample_age[0] > dt ? s->sample_age[0] : dt,
+                                 s->sample_age[1] > dt ? s->sample_age[1] : dt };
     if (use_accel) {
         s->sample_age[0] = 0.0f;
     }
@@ -4166,13 +4169,14 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
         const float w0 = in->gyro[0] - s->gyro_bias[0];
         const float w1 = in->gyro[1] - s->gyro_bias[1];
         const float w2 = in->gyro[2] - s->gyro_bias[2];
-        if (!recovering && w0 * w0 + w1 * w1 + w2 * w2 >= ADUKF_MAG_BIAS_MIN_RATE * ADUKF_MAG_BIAS_MIN_RATE) {
+        if (!recovering
+            && w0 * w0 + w1 * w1 + w2 * w2 >= ADUKF_MAG_BIAS_MIN_RATE * ADUKF_MAG_BIAS_MIN_RATE) {
             bool suspect;
             bool switched;
-            adukf_k_hard_iron(s->q, in->mag, s->mag_bias, s->mag_field, s->mag_cx, s->mag_cP, s->mag_c_ok == 0u,
-                s->mag_c_ok == 2u, s->mag_rlp, s->mag_rmean, s->mag_e, s->mag_turn_time, span[1],
-                s->mag_bias, s->mag_field, s->mag_cx, s->mag_cP, s->mag_rlp, s->mag_rmean, s->mag_e, &s->mag_turn_time,
-                &suspect, &switched);
+            adukf_k_hard_iron(s->q, in->mag, s->mag_bias, s->mag_field, s->mag_cx, s->mag_cP,
+                s->mag_c_ok == 0u, s->mag_c_ok == 2u, s->mag_rlp, s->mag_rmean, s->mag_e,
+                s->mag_turn_time, span[1], s->mag_bias, s->mag_field, s->mag_cx, s->mag_cP,
+                s->mag_rlp, s->mag_rmean, s->mag_e, &s->mag_turn_time, &suspect, &switched);
             const bool off = fabsf(s->mag_rlp[0]) > ADUKF_MAG_NORM_TOL;
             s->mag_c_ok = (off && s->mag_off == 0u && !suspect) ? 2u : 1u;
             s->mag_off = off ? 1u : 0u;
@@ -4194,7 +4198,8 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
         /* the accelerometer enters low-passed in NED (the low-pass starts at the first sample) */
         float accel_in[3] = { 0.0f, 0.0f, -1.0f };
         if (use_accel) {
-            /* all three exactly 0 (+0 or -0: every bit but the sign clear; false for NaN, as x == 0) */
+            /* all three exactly 0 (+0 or -0: every bit but the sign clear; false for NaN,
+             * as x == 0) */
             const bool restart = ((adukf_bits(s->accel_lp[0]) | adukf_bits(s->accel_lp[1])
                                    | adukf_bits(s->accel_lp[2])) << 1) == 0u;
             adukf_k_accel_lowpass(x_new, in->accel, s->accel_lp, restart, dt,
@@ -4253,8 +4258,8 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
             for (uint32_t i = 21u; i < 108u; i++) {
                 s->work[i] = 0.0f;   /* the update's scratch may hold non-finite values */
             }
-            /* attitude error variance 4 p0 per axis (an angle is twice the quaternion component p0 is
-             * stated for), gyro bias p0_bias */
+            /* attitude error variance 4 p0 per axis (an angle is twice the quaternion
+             * component p0 is stated for), gyro bias p0_bias */
             for (uint32_t i = 0u; i < 21u; i++) {
                 P_pred[i] = 0.0f;
             }
@@ -4285,9 +4290,12 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
      * so one sum tells (in any order). P_out holds the lower triangle of the new covariance
      * (packed column by column: every kernel computes one triangle), so it tells for all of P.
      * Written out, one column a line: a loop costs more than the sum. */
-    float nonfinite = x_new[0] * 0.0f + x_new[1] * 0.0f + x_new[2] * 0.0f + x_new[3] * 0.0f + x_new[4] * 0.0f + x_new[5] * 0.0f + x_new[6] * 0.0f;
-    nonfinite += P_out[0] * 0.0f + P_out[1] * 0.0f + P_out[2] * 0.0f + P_out[3] * 0.0f + P_out[4] * 0.0f + P_out[5] * 0.0f;
-    nonfinite += P_out[6] * 0.0f + P_out[7] * 0.0f + P_out[8] * 0.0f + P_out[9] * 0.0f + P_out[10] * 0.0f;
+    float nonfinite = x_new[0] * 0.0f + x_new[1] * 0.0f + x_new[2] * 0.0f + x_new[3] * 0.0f +
+        x_new[4] * 0.0f + x_new[5] * 0.0f + x_new[6] * 0.0f;
+    nonfinite += P_out[0] * 0.0f + P_out[1] * 0.0f + P_out[2] * 0.0f + P_out[3] * 0.0f +
+        P_out[4] * 0.0f + P_out[5] * 0.0f;
+    nonfinite += P_out[6] * 0.0f + P_out[7] * 0.0f + P_out[8] * 0.0f + P_out[9] * 0.0f +
+        P_out[10] * 0.0f;
     nonfinite += P_out[11] * 0.0f + P_out[12] * 0.0f + P_out[13] * 0.0f + P_out[14] * 0.0f;
     nonfinite += P_out[15] * 0.0f + P_out[16] * 0.0f + P_out[17] * 0.0f;
     nonfinite += P_out[18] * 0.0f + P_out[19] * 0.0f;

@@ -3776,8 +3776,9 @@ static void mekf_hard_iron(mekf_state *s, const float mag[3], const float gyro[3
         bool suspect;
         bool switched;
         mekf_k_hard_iron(q, mag, s->mag_bias, s->mag_ref, s->mag_cx, s->mag_cP, s->mag_c_ok == 0u,
-            s->mag_c_ok == 2u, s->mag_rlp, s->mag_rmean, s->mag_e, s->mag_turn_time, dt, s->mag_bias, s->mag_ref,
-            s->mag_cx, s->mag_cP, s->mag_rlp, s->mag_rmean, s->mag_e, &s->mag_turn_time, &suspect, &switched);
+            s->mag_c_ok == 2u, s->mag_rlp, s->mag_rmean, s->mag_e, s->mag_turn_time, dt,
+            s->mag_bias, s->mag_ref, s->mag_cx, s->mag_cP, s->mag_rlp, s->mag_rmean, s->mag_e,
+            &s->mag_turn_time, &suspect, &switched);
         s->mag_c_ok = 1u;
         s->mag_suspect = suspect ? 1u : 0u;
         if (switched) {
@@ -4067,7 +4068,8 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
     /* Last valid GPS velocity (for the compensation and the course); its age saturates. */
     if (use_gps) {
         /* A GPS course sample: a GPS velocity arrived this step, fast enough over ground. */
-        const float speed2 = in->gps_vel_ned[0] * in->gps_vel_ned[0] + in->gps_vel_ned[1] * in->gps_vel_ned[1];
+        const float speed2 = in->gps_vel_ned[0] * in->gps_vel_ned[0]
+                                + in->gps_vel_ned[1] * in->gps_vel_ned[1];
         if (speed2 >= MEKF_GPS_MIN_SPEED * MEKF_GPS_MIN_SPEED && speed2 > 0.0f) {
             course_sample = true;
         } else {
@@ -4155,7 +4157,8 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
      * course_max_sideslip of the body x axis) or while nothing else corrects the heading;
      * the magnetometer otherwise. */
     const bool nose_first = feat[2] > 0.0f &&
-        feat[3] * feat[3] <= 0.29844642f /* tan(course_max_sideslip)^2 */ * feat[2] * feat[2];
+        feat[3] * feat[3]
+            <= 0.29844642f /* tan(course_max_sideslip)^2 */ * feat[2] * feat[2];
     const bool course_mode = moving && (nose_first || s->head_age > 1.0f);
     const bool mag_ok = use_mag && !course_mode;
 
@@ -4210,8 +4213,8 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
             s->vlp_ok = 1u;
         }
         const bool lp_mask[3] = { m_comp, use_gps, recovering };
-        mekf_k_accel_lowpass(q, s->gyro_bias, in->gyro, in->accel, s->v_gps, s->a_gps, lp_mask, s->a_lp, s->v_lp,
-            s->v_ins, dt, s->a_lp, s->v_lp, s->v_ins, up);   /* in place */
+        mekf_k_accel_lowpass(q, s->gyro_bias, in->gyro, in->accel, s->v_gps, s->a_gps, lp_mask,
+            s->a_lp, s->v_lp, s->v_ins, dt, s->a_lp, s->v_lp, s->v_ins, up);   /* in place */
         if (mekf_norm2(up) <= MEKF_ACCEL_MIN_NORM * MEKF_ACCEL_MIN_NORM) {
             use_tilt = false;
         }

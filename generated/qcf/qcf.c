@@ -2402,7 +2402,8 @@ qcf_status qcf_step(qcf_state *restrict s, const qcf_input *restrict in, float d
      * sample) the correction's weights are zero and it is the gyro prediction alone. */
     qcf_k_predict(s->q, s->gyro_bias, in->gyro, dt, s->q);
     qcf_start(s, in, use_accel, use_mag);   /* the first samples set the attitude */
-    const bool started = s->initialised != 0u;   /* false only before the first accelerometer sample */
+    /* false only before the first accelerometer sample */
+    const bool started = s->initialised != 0u;
     /* Gyro over-range: a component at gyro_full_scale (or holding its value at or above
      * gyro_plateau_rate for 4 samples) is a clipped sample, integrated as it is; for
      * clip_recovery_time after the last one the correction takes the sensors as they come with
@@ -2425,7 +2426,8 @@ qcf_status qcf_step(qcf_state *restrict s, const qcf_input *restrict in, float d
     if (use_accel) {
         /* centripetal acceleration of the latest GPS velocity turning with the body */
         if (QCF_GPS_COMPENSATION && s->gps_count >= 1u && s->gps_age <= QCF_GPS_TIMEOUT) {
-            qcf_k_gravity_part(in->accel, accel_n2, rot, in->gyro, s->gyro_bias, s->gps_vel_hist, accel_g);
+            qcf_k_gravity_part(in->accel, accel_n2, rot, in->gyro, s->gyro_bias, s->gps_vel_hist,
+                accel_g);
         }
     }
     s->accel_age = (s->accel_age + dt < QCF_SPAN_MAX) ? s->accel_age + dt : QCF_SPAN_MAX;
@@ -2440,24 +2442,29 @@ qcf_status qcf_step(qcf_state *restrict s, const qcf_input *restrict in, float d
         }
     }
     bool heading_ok = use_mag && started;
-    float mag_n[3] = { 0.0f, 0.0f, 0.0f };   /* R(q) m; zero (no heading part) without a sample */
+    /* R(q) m; zero (no heading part) without a sample */
+    float mag_n[3] = { 0.0f, 0.0f, 0.0f };
     if (heading_ok) {
         /* the hard iron removed (mag_bias) */
-        const float mag_c[3] = { in->mag[0] - s->mag_bias[0], in->mag[1] - s->mag_bias[1], in->mag[2] - s->mag_bias[2] };
+        const float mag_c[3] = { in->mag[0] - s->mag_bias[0], in->mag[1] - s->mag_bias[1],
+                                      in->mag[2] - s->mag_bias[2] };
         const float mag_c2 = mag_c[0] * mag_c[0] + mag_c[1] * mag_c[1] + mag_c[2] * mag_c[2];
         qcf_k_mag_ned(rot, mag_c, mag_n);
         const bool was_accepted = !(s->mag_dist_time > 0.0f);   /* never negative: zero */
         bool accept;
         qcf_k_mag_check(s->accel_lp, mag_c2, mag_n, s->mag_ref, s->mag_dist_time, s->mag_learn_time,
-            s->mag_age, s->mag_suspect != 0u, &accept, s->mag_ref, &s->mag_dist_time, &s->mag_learn_time);
-        if (!accept && !recovering) {   /* (recovering: the dip was judged with the wrong attitude) */
+            s->mag_age, s->mag_suspect != 0u, &accept, s->mag_ref, &s->mag_dist_time,
+            &s->mag_learn_time);
+        /* (recovering: the dip was judged with the wrong attitude) */
+        if (!accept && !recovering) {
             heading_ok = false;
             status |= QCF_MAG_DISTURBED;
         }
-        /* Hard iron (docs/qcf.md, "Hard iron"): mekf's candidate field model, once the reference is
-         * learned and while the sensor turns; the field check's rejection of a field it accepted the
-         * step before reopens the candidate's covariance. A switch replaces the hard iron and the
-         * reference; while the candidate is the better model the field does not correct heading. */
+        /* Hard iron (docs/qcf.md, "Hard iron"): mekf's candidate field model, once the
+         * reference is learned and while the sensor turns; the field check's rejection of a
+         * field it accepted the step before reopens the candidate's covariance. A switch
+         * replaces the hard iron and the reference; while the candidate is the better model
+         * the field does not correct heading. */
         if (s->mag_ref[0] > 0.0f && s->mag_learn_time >= QCF_MAG_WARMUP && !recovering) {
             if (!accept && was_accepted && s->mag_suspect == 0u && s->mag_c_ok == 1u) {
                 s->mag_c_ok = 2u;
@@ -2468,10 +2475,10 @@ qcf_status qcf_step(qcf_state *restrict s, const qcf_input *restrict in, float d
             if (w0 * w0 + w1 * w1 + w2 * w2 >= QCF_MAG_BIAS_MIN_RATE * QCF_MAG_BIAS_MIN_RATE) {
                 bool suspect;
                 bool switched;
-                qcf_k_hard_iron(s->q, in->mag, s->mag_bias, s->mag_ref, s->mag_cx, s->mag_cP, s->mag_c_ok == 0u,
-                    s->mag_c_ok == 2u, s->mag_rlp, s->mag_rmean, s->mag_e, s->mag_turn_time, s->mag_age, s->mag_bias,
-                    s->mag_ref, s->mag_cx, s->mag_cP, s->mag_rlp, s->mag_rmean, s->mag_e, &s->mag_turn_time, &suspect,
-                    &switched);
+                qcf_k_hard_iron(s->q, in->mag, s->mag_bias, s->mag_ref, s->mag_cx, s->mag_cP,
+                    s->mag_c_ok == 0u, s->mag_c_ok == 2u, s->mag_rlp, s->mag_rmean, s->mag_e,
+                    s->mag_turn_time, s->mag_age, s->mag_bias, s->mag_ref, s->mag_cx, s->mag_cP,
+                    s->mag_rlp, s->mag_rmean, s->mag_e, &s->mag_turn_time, &suspect, &switched);
                 s->mag_c_ok = 1u;
                 s->mag_suspect = suspect ? 1u : 0u;
                 if (switched) {

@@ -264,8 +264,8 @@ def exp_nonpos_source(name: str, name2: str) -> str:
     }
 """
             + f"""    union {{ float f; uint32_t u; }} rn;
-    rn.f = t + 12582912.0f;                                /* 1.5 2^23 + round(t): round(t) in the low bits */
-    const float fr = t - (rn.f - 12582912.0f);             /* t - round(t), |fr| <= 1/2: r = fr ln2/64 */
+    rn.f = t + 12582912.0f;              /* 1.5 2^23 + round(t): round(t) in the low bits */
+    const float fr = t - (rn.f - 12582912.0f);   /* t - round(t), |fr| <= 1/2: r = fr ln2/64 */
     const float e = (5.864905e-05f * fr + 0.010830425f) * fr + 1.0f;   /* e^r = 1 + r + r^2/2 */
     const uint32_t m = rn.u - 0x4B3FE080u;                 /* round(t) + 126 * 64 >= 3 */
     union {{ uint32_t u; float f; }} scale;
