@@ -35,18 +35,10 @@ def candidates():
 
 
 def main(argv=None):
-    a, broad = logo_cv.setup(__doc__, argv)
-    if broad is None:
-        return 2
-    scen = logo_cv.scenarios(SCENARIOS, SEEDS)
-    results = logo_cv.run(candidates(), *broad, scen, filter_name="adukf")
-    before = next(r for r in results if r[0] == {"sigma_acc": 0.07, "sigma_acc_density": 0.0})
     static = ("static_accel_disturbance", "static_mag_disturbance")
-    cv = logo_cv.cross_validate(results, list(scen), admissible=lambda e: all(
-        e[k] <= WORSE_MAX * before[1][k] for k in static))
-    logo_cv.report("adukf sigma_acc x sigma_acc_density, leave one BROAD group out", cv,
-                   ("0.07, 0 (before)", before[1]), scen, results, a.json)
-    return 0
+    return logo_cv.study(__doc__, argv, SCENARIOS, SEEDS, candidates(), {"sigma_acc": 0.07, "sigma_acc_density": 0.0},
+                         "adukf sigma_acc x sigma_acc_density, leave one BROAD group out", "0.07, 0 (before)",
+                         "adukf", admissible=lambda e, b: all(e[k] <= WORSE_MAX * b[k] for k in static))
 
 
 if __name__ == "__main__":

@@ -37,18 +37,11 @@ def candidates():
 
 
 def main(argv=None):
-    a, broad = logo_cv.setup(__doc__, argv)
-    if broad is None:
-        return 2
-    scen = logo_cv.scenarios(SCENARIOS, SEEDS)
-    results = logo_cv.run(candidates(), *broad, scen, filter_name="adukf")
-    before = next(r for r in results if r[0] == {"sigma_mag": 0.07, "sigma_mag_density": 0.0})
-    kept = [r for r in results if (r[0]["sigma_mag"], r[0]["sigma_mag_density"]) not in CLAIM_FAILS]
-    cv = logo_cv.cross_validate(kept, list(scen), admissible=lambda e: e["multirotor"] <= MULTIROTOR_MAX
-                                and e["static_mag_disturbance"] <= WORSE_MAX * before[1]["static_mag_disturbance"])
-    logo_cv.report("adukf sigma_mag x sigma_mag_density, leave one BROAD group out", cv,
-                   ("0.07, 0 (before)", before[1]), scen, results, a.json)
-    return 0
+    return logo_cv.study(__doc__, argv, SCENARIOS, SEEDS, candidates(), {"sigma_mag": 0.07, "sigma_mag_density": 0.0},
+                         "adukf sigma_mag x sigma_mag_density, leave one BROAD group out", "0.07, 0 (before)",
+                         "adukf", keep=lambda c: (c["sigma_mag"], c["sigma_mag_density"]) not in CLAIM_FAILS,
+                         admissible=lambda e, b: e["multirotor"] <= MULTIROTOR_MAX
+                         and e["static_mag_disturbance"] <= WORSE_MAX * b["static_mag_disturbance"])
 
 
 if __name__ == "__main__":

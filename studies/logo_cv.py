@@ -153,3 +153,22 @@ def defaults_entry(results) -> tuple[dict, dict]:
         except (TypeError, ValueError):
             return str(a).lower() == str(b).lower()
     return next(r for r in results if all(same(p[k], v) for k, v in r[0].items()))
+
+
+def study(doc: str, argv, scenario_spec: dict, seeds, candidates, before: dict, title: str, label: str,
+          filter_name: str, admissible=None, keep=None) -> int:
+    """A defaults study's whole run: the command line, the BROAD logs and the scenario entries,
+    every candidate, the one whose values are `before` (the baseline column), leave-one-group-out
+    over the candidates `keep` accepts (all by default) that `admissible(entries, before's
+    entries)` accepts, and the report. 2 when the BROAD files are absent."""
+    a, broad = setup(doc, argv)
+    if broad is None:
+        return 2
+    scen = scenarios(scenario_spec, seeds)
+    results = run(candidates, *broad, scen, filter_name=filter_name)
+    base = next(r for r in results if r[0] == before)
+    kept = [r for r in results if keep is None or keep(r[0])]
+    cv = cross_validate(kept, list(scen), admissible=None if admissible is None else
+                        (lambda e: admissible(e, base[1])))
+    report(title, cv, (label, base[1]), scen, results, a.json)
+    return 0

@@ -38,17 +38,9 @@ def candidates():
 
 
 def main(argv=None):
-    a, broad = logo_cv.setup(__doc__, argv)
-    if broad is None:
-        return 2
-    scen = logo_cv.scenarios(SCENARIOS, SEEDS)
-    results = logo_cv.run(candidates(), *broad, scen, filter_name="qcf")
-    before = next(r for r in results if r[0] == BEFORE)
-    cv = logo_cv.cross_validate(results, list(scen), admissible=lambda e: all(
-        e[k] <= WORSE_MAX * before[1][k] for k in KEPT))
-    logo_cv.report("qcf kp x ki x accel_tau, leave one BROAD group out", cv,
-                   ("0.3, 0.002, 1 (before)", before[1]), scen, results, a.json)
-    return 0
+    return logo_cv.study(__doc__, argv, SCENARIOS, SEEDS, candidates(), BEFORE,
+                         "qcf kp x ki x accel_tau, leave one BROAD group out", "0.3, 0.002, 1 (before)", "qcf",
+                         admissible=lambda e, b: all(e[k] <= WORSE_MAX * b[k] for k in KEPT))
 
 
 if __name__ == "__main__":
