@@ -4,13 +4,11 @@ The per-rate tune column is the study's (`ahrsgen tune`, not re-run here). Needs
 files; skips, saying so, without them."""
 from __future__ import annotations
 
-import re
-
 import numpy as np
 import pytest
 
 from conftest import host_build, scenario
-from docs_tables import DOCS
+from docs_tables import table
 from ahrsgen.bench.scoring import filter_estimator, score
 from ahrsgen.sim import readers
 from ahrsgen.sim.peers import broad_score
@@ -22,16 +20,8 @@ MULTIROTOR = {"`multirotor` 250 Hz": {}, "`multirotor` 400 Hz (magnetometer 100 
 
 
 def _defaults_column() -> dict[str, float]:
-    text = (DOCS / "qcf.md").read_text()
-    text = text[text.index("Against a per-rate tune of the same filter"):]
-    out = {}
-    for ln in text.splitlines()[1:]:
-        if ln.startswith("| ") and "°" in ln:
-            cells = [c.strip() for c in ln.strip().strip("|").split("|")]
-            out[cells[0]] = float(re.sub("[^0-9.]", "", cells[1]))
-        elif out and not ln.startswith("|"):
-            break
-    return out
+    rows = table("docs/qcf.md", "Against a per-rate tune of the same filter")
+    return {r["data"]: float(r["defaults"].rstrip("°")) for r in rows}
 
 
 def test_the_per_rate_table_lists_what_this_file_measures():

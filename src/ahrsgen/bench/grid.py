@@ -58,6 +58,13 @@ def scenario_configs(quick: bool) -> list[tuple[str, str, dict]]:
 CALIBRATION_SEED = 1000
 
 
+def row_config(label: str, opts: dict, config_dir: Path) -> Path | None:
+    """The config file a grid row writes (see row_estimators), or None."""
+    if opts.get("iron") or opts.get("board_rotation", "NONE") != "NONE":
+        return config_dir / f"{label}.toml"
+    return None
+
+
 def row_estimators(label: str, scen: str, opts: dict, filter_names, config_dir: Path) -> tuple[list, bool]:
     """Estimators a grid row adds, and whether the default estimators run on it too.
 
@@ -66,23 +73,23 @@ def row_estimators(label: str, scen: str, opts: dict, filter_names, config_dir: 
     (the scenario with calibration=True), as `<filter>_calibrated`. A rotated board (option
     board_rotation): every filter built with that [mounting] sensor_rotation, as
     `<filter>_mounted`, alone (an estimator told nothing of the mounting scores nothing useful).
-    The configs are written to config_dir, where a user would keep them."""
+    The configs are written to config_dir (row_config), where a user would keep them."""
     from ahrsgen import calibrate
-    from ahrsgen.fileio import write_text_atomic
+    from ahrsgen.fileio import MARK, write_text_atomic
     from ahrsgen.sim import scenarios
-    config_dir.mkdir(parents=True, exist_ok=True)
-    path = config_dir / f"{label}.toml"
+    path = row_config(label, opts, config_dir)
+    if path is None:
+        return [], True
+    path.parent.mkdir(parents=True, exist_ok=True)
     if opts.get("iron"):
         cal_log = scenarios.make(scen, seed=CALIBRATION_SEED, **opts, calibration=True)
         write_text_atomic(path, calibrate.toml_text(calibrate.calibrate([cal_log]),
                                                     [f"{scen} calibration log, seed {CALIBRATION_SEED}"]))
-        named = [(f, filter_estimator(f, config_file=str(path), label=f"{f}_calibrated")) for f in filter_names]
-        return [e for f, e in named if e.heading == "mag"], True
-    rot = opts.get("board_rotation", "NONE")
-    if rot != "NONE":
-        write_text_atomic(path, f'[mounting]\nsensor_rotation = "{rot}"\n')
-        return [filter_estimator(f, config_file=str(path), label=f"{f}_mounted") for f in filter_names], False
-    return [], True
+        ests = [filter_estimator(f, config_file=str(path), label=f"{f}_calibrated") for f in filter_names]
+        return [e for e in ests if e.heading == "mag"], True
+    rot = opts["board_rotation"]
+    write_text_atomic(path, f'# {MARK} bench: the {label} row\n[mounting]\nsensor_rotation = "{rot}"\n')
+    return [filter_estimator(f, config_file=str(path), label=f"{f}_mounted") for f in filter_names], False
 
 
 def _estimators(filter_names, peer_names, with_baseline=True):

@@ -99,7 +99,7 @@ def _cmd_bench(args) -> int:
     from ahrsgen.fileio import check_output_dir, check_outputs
     from ahrsgen.cli import filter_inputs
     from ahrsgen.errors import ConfigError
-    from ahrsgen.bench.grid import scenario_configs
+    from ahrsgen.bench.grid import row_config, scenario_configs
     if args.scenarios:
         known = sorted({label for quick in (True, False) for label, _, _ in scenario_configs(quick)})
         grid = {label for label, _, _ in scenario_configs(args.quick)}
@@ -114,8 +114,12 @@ def _cmd_bench(args) -> int:
     out = check_output_dir(args.output, "-o")
     data = None if args.scenarios_only else readers.shared_data_dir(args.data)
     olds = sorted((out / "img").glob("err_*.png")) if (out / "img").is_dir() else []
+    rows = [] if args.real_only else [row_config(label, opts, out / "configs")
+                                      for label, _, opts in scenario_configs(args.quick)
+                                      if not args.scenarios or label in args.scenarios]
     if out.is_dir():                 # else it is created: nothing there to replace
-        check_outputs([("-o", out / "bench.json"), ("-o", out / "bench.md"), *(("-o", p) for p in olds)],
+        check_outputs([("-o", out / "bench.json"), ("-o", out / "bench.md"), *(("-o", p) for p in olds),
+                       *(("-o", p) for p in rows if p is not None)],
                       [data, *(x for f in (args.filters or []) for x in filter_inputs(f))], args.force)
     cmd = "ahrsgen bench " + " ".join(sys.argv[2:]) if len(sys.argv) > 1 and sys.argv[1] == "bench" else "ahrsgen bench"
     rep = bench(quick=args.quick, seeds=args.seeds, filters=args.filters or None,

@@ -33,7 +33,6 @@ DESCRIPTION = ("hand-held rotation at 286 Hz, 150 s, no GPS; a magnet attached t
                "scored from 30 s after its arrival")
 
 FIELD_UT = handheld.FIELD_UT
-REST = handheld.REST
 SCORE_AFTER = 30.0
 
 
