@@ -13,7 +13,7 @@ disturbances and the turntable. A candidate is admissible only if the static mag
 disturbance (where the ADUKF is the product's best, 0.36 degrees) stays within 10 % of before,
 the multirotor at 250 Hz at 1.0 degree or less, and it keeps issue 10's acceptance, the adaptive
 filter at least 10 times better than the plain DUKF on every angle of both static scenarios
-(tests/test_adukf.py::test_adaptive_beats_plain_on_every_angle, run with each candidate as the
+(tests/filters/adukf/test_adukf.py::test_adaptive_beats_plain_on_every_angle, run with each candidate as the
 defaults on 2026-12-04: CLAIM_FAILS lists the candidates where it failed, all on the yaw of the
 accelerometer disturbance; the best of them by the objective, 0.1 and 0.012, was 9.8 times).
 Needs the full BROAD files; says so and stops when they are absent.

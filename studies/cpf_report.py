@@ -5,7 +5,7 @@ the defaults, and state and operations versus N.
     PYTHONPATH=src .venv/bin/python -m studies.cpf_report --write    # into docs/cpf.md's blocks
 
 Table 1 runs the generated C in double precision (it equals the NumPy reference within 1e-9 rad;
-tests/test_cpf.py checks it), mean over scenario seeds 0-9. tests/test_cpf_doc.py re-measures
+tests/filters/cpf/test_cpf.py checks it), mean over scenario seeds 0-9. tests/filters/cpf/test_cpf_doc.py re-measures
 every figure the blocks hold.
 """
 from __future__ import annotations

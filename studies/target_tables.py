@@ -4,7 +4,7 @@
     PYTHONPATH=src .venv/bin/python -m studies.target_tables build/target/target.json
 
 Each table stands between a line `<!-- target_tables.py: NAME -->` and a line
-`<!-- end target_tables.py -->` (studies/doc_blocks.py). tests/test_target.py re-measures every
+`<!-- end target_tables.py -->` (studies/doc_blocks.py). tests/target/test_target.py re-measures every
 figure of these tables (tests/docs_tables.py reads them back).
 """
 from __future__ import annotations
@@ -17,7 +17,7 @@ from studies.doc_blocks import ROOT, replace_block
 
 WRITER = "target_tables.py"
 
-# docs/target.md's columns; the checker in tests/test_target.py names the same headers
+# docs/target.md's columns; the checker in tests/target/test_target.py names the same headers
 FULL_HEADER = ("| filter | build | scenario (steps) | flash B | state B | stack B static / measured / -O0 "
                "| instructions/step | est. cycles/step | vdiv+vsqrt/step |")
 

@@ -12,8 +12,13 @@ import functools
 import importlib.util
 import os
 import shutil
+from pathlib import Path
 
 import pytest
+
+# The repository and this folder, for tests in any sub-folder.
+REPO = Path(__file__).resolve().parents[1]
+TESTS = REPO / "tests"
 
 CI = os.environ.get("CI", "").strip().lower() in ("1", "true", "yes")
 MISSING_TOOL = "missing tool that .ci/setup installs"
@@ -131,7 +136,7 @@ def no_build(monkeypatch):
 
 
 # Runtime builds that the tests of generated kernels cover besides the default ones (the
-# parameters of tests/test_runtime_params.py's cases).
+# parameters of tests/generate/test_runtime_params.py's cases).
 RUNTIME_BUILDS = {"qcf": "kp,ki", "mekf": "gyro_noise,accel_angle_noise,gps_min_speed"}
 
 

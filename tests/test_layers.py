@@ -113,3 +113,19 @@ def test_the_check_sees_an_import_up(tmp_path, monkeypatch, line, words):
     monkeypatch.setattr(Path, "read_text", lambda self, *a, **k: line if self == fake else Path.read_bytes(self).decode())
     found = violations([fake])
     assert found and words in found[0], found
+
+
+def test_the_tests_mirror_the_package():
+    """tests/README.md: a test of src/ahrsgen/X/ lives in tests/X/, one of a top-level module
+    src/ahrsgen/x.py is tests/test_x.py (or a house test). So every folder of tests/ that holds
+    tests names a package folder of src/ahrsgen, and every top-level test file names a top-level
+    module or is one of the house's."""
+    tests = Path(__file__).resolve().parent
+    house = {"test_layers.py", "test_ci_honesty.py", "test_wheel.py"}
+    for f in tests.rglob("test_*.py"):
+        rel = f.relative_to(tests)
+        if len(rel.parts) == 1:
+            assert rel.name in house or (PKG / rel.name.removeprefix("test_")).is_file(), \
+                f"tests/{rel}: no src/ahrsgen/{rel.name.removeprefix('test_')}; put it beside what it tests"
+        else:
+            assert (PKG / rel.parent).is_dir(), f"tests/{rel}: no folder src/ahrsgen/{rel.parent}"

@@ -37,7 +37,7 @@
 
 /* sin(x) and cos(x) with one reduction, |x| <= 8192 (NaN beyond): fast_sin_cos_of returns both,
  * fast_sincosf stores them through pointers, fast_sinf and fast_cosf below return one; max abs
- * error 1.5e-07 (tests/test_fastmath.py) */
+ * error 1.5e-07 (tests/codegen/test_fastmath.py) */
 typedef struct {
     float s;
     float c;
@@ -78,7 +78,7 @@ static inline void fast_sincosf(float x, float *s, float *c)
 }
 
 /* atan2(y, x), every float pair; quadrants, signed zeros and infinities as C99; max abs error
- * 3.5e-07 (tests/test_fastmath.py) */
+ * 3.5e-07 (tests/codegen/test_fastmath.py) */
 static float fast_atan2f(float y, float x)
 {
     if (isnan(x) || isnan(y)) {
@@ -109,7 +109,7 @@ static float fast_atan2f(float y, float x)
 }
 
 /* log(x), every float: -inf at +-0, NaN below 0 and for NaN, +inf at +inf, subnormals included;
- * max relative error 1.0e-07 (tests/test_fastmath.py) */
+ * max relative error 1.0e-07 (tests/codegen/test_fastmath.py) */
 static float fast_logf(float x)
 {
     if (!(x > 0.0f)) {
@@ -721,7 +721,7 @@ static inline void cpf_k_euler(const float q[4], float rpy[3])
  * folds 64/ln2 into its constant), and the ziggurat's wedge exp(-x^2/2). A table of 64
  * powers of two and a quadratic (src/ahrsgen/codegen/fastmath.py, exp_nonpos_source):
  * relative error <= 2.5e-7 + 8e-8 |x| (2 ulp near 0, 7.2e-6 at -87.3; 0 at and below -87.3;
- * NaN kept), tested in tests/test_cpf.py; about 20 instructions. */
+ * NaN kept), tested in tests/filters/cpf/test_cpf.py; about 20 instructions. */
 /* 2^(i/64) as float bits, less 126 in the exponent field */
 static const uint32_t cpf_exp_nonpos_table[64] = {
     0x00800000u, 0x008164D2u, 0x0082CD87u, 0x00843A29u,

@@ -37,7 +37,7 @@
 
 /* sin(x) and cos(x) with one reduction, |x| <= 8192 (NaN beyond): fast_sin_cos_of returns both,
  * fast_sincosf stores them through pointers, fast_sinf and fast_cosf below return one; max abs
- * error 1.5e-07 (tests/test_fastmath.py) */
+ * error 1.5e-07 (tests/codegen/test_fastmath.py) */
 typedef struct {
     float s;
     float c;
@@ -78,7 +78,7 @@ static inline void fast_sincosf(float x, float *s, float *c)
 }
 
 /* atan2(y, x), every float pair; quadrants, signed zeros and infinities as C99; max abs error
- * 3.5e-07 (tests/test_fastmath.py) */
+ * 3.5e-07 (tests/codegen/test_fastmath.py) */
 static float fast_atan2f(float y, float x)
 {
     if (isnan(x) || isnan(y)) {
@@ -108,14 +108,15 @@ static float fast_atan2f(float y, float x)
     return signbit(y) ? -a : a;
 }
 
-/* sin(x), |x| <= 8192 (NaN beyond; sin(-0) = +0); max abs error 1.5e-07 (tests/test_fastmath.py) */
+/* sin(x), |x| <= 8192 (NaN beyond; sin(-0) = +0); max abs error 1.5e-07
+ * (tests/codegen/test_fastmath.py) */
 static inline float fast_sinf(float x)
 {
     return fast_sin_cos_of(x).s;
 }
 
 /* asin(x), |x| <= 1 (NaN beyond), as atan2(x, sqrt((1 - x)(1 + x))); max abs error 5.0e-07
- * (tests/test_fastmath.py) */
+ * (tests/codegen/test_fastmath.py) */
 static float fast_asinf(float x)
 {
     return fast_atan2f(x, sqrtf((1.0f - x) * (1.0f + x)));

@@ -36,7 +36,7 @@
 
 /* sin(x) and cos(x) with one reduction, |x| <= 8192 (NaN beyond): fast_sin_cos_of returns both,
  * fast_sincosf stores them through pointers, fast_sinf and fast_cosf below return one; max abs
- * error 1.5e-07 (tests/test_fastmath.py) */
+ * error 1.5e-07 (tests/codegen/test_fastmath.py) */
 typedef struct {
     float s;
     float c;
@@ -77,7 +77,7 @@ static inline void fast_sincosf(float x, float *s, float *c)
 }
 
 /* atan2(y, x), every float pair; quadrants, signed zeros and infinities as C99; max abs error
- * 3.5e-07 (tests/test_fastmath.py) */
+ * 3.5e-07 (tests/codegen/test_fastmath.py) */
 static float fast_atan2f(float y, float x)
 {
     if (isnan(x) || isnan(y)) {

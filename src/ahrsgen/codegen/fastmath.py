@@ -11,7 +11,7 @@ glibc's last bits).
 
 The methods are the classical ones (Cody and Waite's range reduction, the minimax
 polynomials of Cephes' single-precision sinf/cosf/atanf). The maximum errors below are
-MEASURED against the host's double libm over the whole domain by tests/test_fastmath.py
+MEASURED against the host's double libm over the whole domain by tests/codegen/test_fastmath.py
 (which fails if a helper exceeds its stated bound): every float of the small-argument
 ranges, a dense sweep of the rest, and the special values.
 
@@ -222,7 +222,7 @@ HELPERS["log"] = Helper(
 # EXP_NONPOS_REL_ERROR + EXP_NONPOS_REL_ERROR_PER_UNIT * |x| above -87.3. The second term is
 # t = x * 64/ln2 in one float product (not split as in fast_expf): its rounding, 2^-24 |t|, and
 # the float constant's 1.3e-8 relative error give 7.3e-8 |x| in the result; the first is the
-# truncation of e^r (2.6e-8) and four roundings. Measured by tests/test_cpf.py (max 1.97e-7
+# truncation of e^r (2.6e-8) and four roundings. Measured by tests/filters/cpf/test_cpf.py (max 1.97e-7
 # near 0, 7.0e-8 |x| beyond).
 EXP_NONPOS_TABLE = 64
 EXP_NONPOS_REL_ERROR = 2.5e-7
@@ -333,7 +333,7 @@ def c_source(names, prefix: str | None = None) -> str:
         h = HELPERS[n]
         err = (f"max relative error {h.max_rel_error:.1e}" if h.max_rel_error else
                f"max abs error {h.max_abs_error:.1e}")
-        out.append(comment(f"{h.doc}; {err} (tests/test_fastmath.py)") + "\n" + h.code)
+        out.append(comment(f"{h.doc}; {err} (tests/codegen/test_fastmath.py)") + "\n" + h.code)
     return "\n".join(out)
 
 

@@ -2,7 +2,7 @@
 the references: same order, same thresholds, same status bits.
 
 The references share this plumbing with each other, not with the C: it is written from the
-contract in src/ahrsgen/status.py, and tests/test_input_contract.py drives both sides.
+contract in src/ahrsgen/status.py, and tests/filters/test_input_contract.py drives both sides.
 """
 from __future__ import annotations
 

@@ -197,7 +197,7 @@ def _folded_names(spec, params: dict, runtime: tuple, specs) -> dict[str, dict[i
 
 def render(cfg: BuildConfig, names: bool = True) -> Generated:
     """The files of a build. names=False: folded parameters without their names beside
-    them (the same C otherwise; tests/test_folded.py compares the two)."""
+    them (the same C otherwise; tests/codegen/test_folded.py compares the two)."""
     spec = cfg.spec
     runtime = tuple(getattr(cfg, "runtime", ()) or ())
     model, model_specs, fields, tctx = _runtime_model(spec, cfg.params, runtime)

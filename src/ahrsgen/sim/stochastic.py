@@ -21,7 +21,7 @@ What is sound instead (`float_vs_double`):
    evaluated in the wrong precision) shifts mean(d) and fails. A mean difference below 0.001 deg
    (float rounding of the attitude itself, ~1e-5 rad) passes whatever its t: when the runs never
    part ways, sd(d) is rounding noise and t would be meaningless.
-Power, measured (tests/test_cpf.py): a float build whose process noise is 2x the double's fails on
+Power, measured (tests/filters/cpf/test_cpf.py): a float build whose process noise is 2x the double's fails on
 the turntable (t 5.9 to 14) and 1.2x fails on fixedwing_gps (t up to 25); a 10 % change of tau
 passes (|t| < 2): differences smaller than the particle noise between streams are not seen.
 
@@ -30,7 +30,7 @@ more than rounding, declared by its author (`[filter] rounding_sensitive`, e.g. 
 size steps along the normalised gradient, which chatter about the equilibrium, so that rounding
 picks another direction): there the K pairs are K seeds of the scenario instead of K noise
 streams (`float_vs_double_seeds`); each pair runs float and double on the same log. Power,
-measured (tests/test_examples.py): a float Madgwick whose beta is 1.05x the double's fails
+measured (tests/filters/test_examples.py): a float Madgwick whose beta is 1.05x the double's fails
 (|t| 26 on roll over 120 s of fixedwing_gps; the true float build: |t| <= 0.9).
 """
 from __future__ import annotations

@@ -30,7 +30,7 @@ come from newlib on the target and glibc on the host and differ by 1 ulp for som
 arguments (``libm_survey``).  So the comparison runs twice: with the real libm against a
 stated bound, and with ``target/libm_pinned.h`` (float functions through double, on both
 sides), where every filter must be bit-identical in every step.  docs/target.md has the
-figures, re-measured by tests/test_target.py.
+figures, re-measured by tests/target/test_target.py.
 
 The package: ``build`` (toolchain, flags, harness binding, cross build), ``emulate`` (QEMU
 and unicorn runs, libm survey), ``footprint`` (sizes, stack, instruction counts), ``cycles`` (estimated

@@ -15,13 +15,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import needs
+from conftest import needs, REPO
 from ahrsgen.sim import host, metrics, readers
 from ahrsgen.sim.log import VALID_ACCEL, VALID_MAG
 from ahrsgen.generate import config
 from ahrsgen.sim.readers import EXCERPTS
 
-REPO = Path(__file__).resolve().parents[1]
 EXAMPLES = [str(REPO / "examples" / n) for n in ("madgwick", "mahony")]
 BROAD = EXCERPTS / "broad_01_excerpt.csv.gz"
 FLOAT_BOUND_RAD = 5e-5

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import needs
+from conftest import needs, REPO
 from ahrsgen.sim import host, scenarios
 from ahrsgen.sim.log import G0, VALID_ACCEL, VALID_GYRO, VALID_MAG, SensorLog
 from ahrsgen.sim.metrics import euler_stats, max_angle_diff_rad
@@ -28,7 +28,6 @@ from ahrsgen.filters.cpf import prng
 from ahrsgen.filters.cpf.prng import Xoroshiro64ss, seed_state
 from ahrsgen.npquat import euler_from_q, q_from_euler, rotmat
 
-REPO = Path(__file__).resolve().parents[1]
 VALID_IMU = VALID_GYRO | VALID_ACCEL | VALID_MAG
 
 

@@ -303,7 +303,7 @@ def test_soak_flags_a_broken_filter(tmp_path):
 @needs_cc
 def test_soak_motion_is_consistent():
     """The soak's synthetic sensors agree with its truth: the MEKF, which tracks gentle motion well
-    (see tests/test_mekf_c.py), stays within a degree on the gentle profile."""
+    (see tests/filters/mekf/test_mekf_c.py), stays within a degree on the gentle profile."""
     r = harden.run_soak(harden.GENERATED / "mekf", steps=30_000, seed=3, glitch_rate=0.0, varied=False) \
         if (harden.GENERATED / "mekf" / "manifest.json").exists() else None
     if r is None:

@@ -248,7 +248,7 @@ def test_singular_innovation_covariance_skips_update(precision):
     np.testing.assert_allclose(q, q_before, atol=1e-6)
 
 
-# Refusals and skipped corrections of the common input checks: tests/test_input_contract.py.
+# Refusals and skipped corrections of the common input checks: tests/filters/test_input_contract.py.
 
 
 @pytest.mark.parametrize("missing", [2, 4, 6])

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import host_build
+from conftest import host_build, REPO
 from ahrsgen import filters
 from ahrsgen import status as st
 
@@ -22,7 +22,7 @@ ALL = 0xF
 DT = 0.02
 SENSOR_BIT = {"accel": 2, "mag": 4, "gps": 8}
 # the built-in filters and the example user filters (folders outside the package)
-EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+EXAMPLES = REPO / "examples"
 NAMES = filters.names() + [str(p) for p in sorted(EXAMPLES.iterdir()) if filters.is_filter_folder(p)]
 
 

@@ -12,6 +12,7 @@ import pytest
 
 from ahrsgen.sim.host import STRICT, cc
 from ahrsgen.codegen import emit
+from conftest import REPO
 
 x = ca.SX.sym("x")
 y = ca.SX.sym("y")
@@ -231,7 +232,7 @@ def test_split_kernel_hands_bools_over_as_bools(tmp_path):
     """A flag output made in a part travels to the kernel in a bool array `flags`, not as
     1.0/0.0 in the float carry read back with > 0.5 (a bool read by a later part goes the same
     way: generated/qcf's qcf_k_gravity_part_part1 takes `const bool flags[1]`, and
-    tests/test_generated.py keeps that file current)."""
+    tests/generate/test_generated.py keeps that file current)."""
     A, b = ca.SX.sym("A", 4, 4), ca.SX.sym("b", 4)
     c = ca.sumsqr(b) < A[0, 0] * A[1, 1] + 1
     M = A
@@ -373,7 +374,7 @@ def test_small_kernels_are_inline_and_large_ones_are_not():
     import json
     from pathlib import Path
     seen = {True: 0, False: 0}
-    for man_path in sorted((Path(__file__).resolve().parents[1] / "generated").glob("*/manifest.json")):
+    for man_path in sorted((REPO / "generated").glob("*/manifest.json")):
         man = json.loads(man_path.read_text())
         src = (man_path.parent / man["files"]["source"]).read_text()
         for name, k in man["kernels"].items():

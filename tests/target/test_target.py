@@ -14,7 +14,7 @@ import subprocess
 import numpy as np
 import pytest
 
-from conftest import needs, scenario
+from conftest import needs, scenario, REPO
 from docs_tables import numbers, outside, table
 from ahrsgen import target as T
 from ahrsgen import filters
@@ -421,7 +421,7 @@ def test_cli_profile_accounts_for_every_instruction_of_the_step(tmp_path, capsys
     assert abs(prof["instructions_per_step"] - fp["instructions_mean"]) < 1e-9        # exact counts
     assert abs(sum(row["per_step"] for row in prof["rows"]) - prof["instructions_per_step"]) < 1e-9
     rows = {row["name"]: row for row in prof["rows"]}
-    man = json.loads((Path(__file__).resolve().parents[1] / "generated/qcf/manifest.json").read_text())
+    man = json.loads((REPO / "generated/qcf/manifest.json").read_text())
     for k in ("correct", "rotation", "accel_lowpass", "mag_ned"):     # run on every step of this flight
         assert rows[f"kernel {k}"]["per_step"] > 0 and rows[f"kernel {k}"]["ops"] == man["kernels"][k]["total"]
     assert rows["step (control, input checks, copies)"]["per_step"] > 0
@@ -494,7 +494,7 @@ def measure(tmp_path_factory):
         if name in T.PEER_NAMES + T.CHECKED_PEER_NAMES:
             b, scen = T.peer_binding(name), "fixedwing_gps"
         else:
-            b = T.binding_from_generated(Path(__file__).resolve().parents[1] / "generated" / name)
+            b = T.binding_from_generated(REPO / "generated" / name)
             scen = filters.load(name).scenario
         log = scenario(scen)
         r = T.check_filter(b, T.records_from_log(log), tmp_path_factory.mktemp(f"{name}{opt}"), opt=opt,
@@ -560,7 +560,7 @@ def test_adukf_step_stack_within_the_issue_goal(tmp_path):
     """Issue 14: the committed adukf build's worst-case stack of step (the call-graph bound over
     GCC's frames) at most 512 B at -O2 and 2 048 B at -O0. It rests on the step's matrices being
     in state.work and its large kernels not being inlined into the step (docs/adukf.md, "Cost")."""
-    b = T.binding_from_generated(Path(__file__).resolve().parents[1] / "generated" / "adukf")
+    b = T.binding_from_generated(REPO / "generated" / "adukf")
     bld = T.build(b, tmp_path / "o2", "-O2")
     ws = T.worst_stack(b.step_fn, T.disassemble_functions(bld.elf), T.parse_stack_usage(bld.stack_usage_files))
     assert ws["bytes"] <= 512, (ws["bytes"], ws["path"])

@@ -16,9 +16,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import needs, require
+from conftest import needs, require, REPO, TESTS
 
-LOOPS = Path(__file__).resolve().parent / "c" / "cycle_loops.S"
+LOOPS = TESTS / "c" / "cycle_loops.S"
 P = 2           # the refill the hand counts assume (cycles.BRANCH_REFILL states the same)
 TOL = 0.05      # the bound: the estimate within 5 % of the hand count
 
@@ -165,7 +165,7 @@ def test_filter_build_has_no_unmodelled_instructions(tmp_path):
     from ahrsgen.sim import scenarios
     if "qcf" not in filters.names():
         pytest.skip("qcf not available")
-    b = T.binding_from_generated(Path(__file__).resolve().parents[1] / "generated" / "qcf")
+    b = T.binding_from_generated(REPO / "generated" / "qcf")
     log = scenarios.make("fixedwing_gps", seed=0, duration=4.0)
     r = T.check_filter(b, T.records_from_log(log), tmp_path, opt="-O2", count_steps=20, o0_stack=False)
     fp = r.footprint

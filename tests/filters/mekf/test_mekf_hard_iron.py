@@ -19,8 +19,9 @@ from ahrsgen.npquat import q_from_euler, rotmat
 from pathlib import Path
 
 from docs_tables import min_max_rows
+from conftest import REPO
 
-EXCERPT = Path(__file__).resolve().parents[1] / "src/ahrsgen/sim/data/broad_01_excerpt.csv.gz"
+EXCERPT = REPO / "src/ahrsgen/sim/data/broad_01_excerpt.csv.gz"
 
 
 def build(precision="float", sets=()):

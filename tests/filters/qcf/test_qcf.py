@@ -110,7 +110,7 @@ def test_gyro_bias_estimate_moves_toward_truth():
 
 
 # Bad inputs (refusals, skipped corrections, status bits in C and reference) are checked for
-# every filter by tests/test_input_contract.py.
+# every filter by tests/filters/test_input_contract.py.
 
 
 def test_missing_magnetometer_keeps_tilt_corrected():

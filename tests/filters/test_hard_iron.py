@@ -16,8 +16,9 @@ from ahrsgen.sim import host
 from ahrsgen.sim.metrics import broad_errors_deg, max_angle_diff_rad
 from ahrsgen.sim.readers import read_log
 from ahrsgen.sim.scenarios import make
+from conftest import REPO
 
-EXCERPT = Path(__file__).resolve().parents[1] / "src/ahrsgen/sim/data/broad_01_excerpt.csv.gz"
+EXCERPT = REPO / "src/ahrsgen/sim/data/broad_01_excerpt.csv.gz"
 FILTERS = ("qcf", "adukf")
 
 

@@ -12,8 +12,8 @@ import pytest
 from ahrsgen import cli, filters
 from ahrsgen.generate import config
 from ahrsgen.codegen.model import ConfigError
+from conftest import REPO
 
-REPO = Path(__file__).resolve().parents[1]
 EXAMPLES = REPO / "examples"
 
 

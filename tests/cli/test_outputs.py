@@ -16,14 +16,14 @@ from pathlib import Path
 
 import pytest
 
-from conftest import cli_run as _run
+from conftest import cli_run as _run, REPO
 
 from ahrsgen.sim.readers import EXCERPTS
 from ahrsgen import cli
 from ahrsgen.fileio import written_by_ahrsgen
 
 BROAD = EXCERPTS / "broad_01_excerpt.csv.gz"
-MADGWICK = Path(__file__).resolve().parents[1] / "examples" / "madgwick"
+MADGWICK = REPO / "examples" / "madgwick"
 
 
 def _copy_log(t, name="in.csv.gz"):

@@ -7,14 +7,14 @@ import os
 import subprocess
 import sys
 from pathlib import Path
+from conftest import REPO
 
-ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_tampered_sdist_is_refused_in_one_line(tmp_path):
     (tmp_path / "imufusion-1.3.3.tar.gz").write_bytes(b"not the sdist")
-    env = dict(os.environ, PYTHONPATH=str(ROOT / "src"))
-    p = subprocess.run([sys.executable, str(ROOT / "studies" / "cycles_vs_peers.py"), "--sources", str(tmp_path),
+    env = dict(os.environ, PYTHONPATH=str(REPO / "src"))
+    p = subprocess.run([sys.executable, str(REPO / "studies" / "cycles_vs_peers.py"), "--sources", str(tmp_path),
                         "-o", str(tmp_path / "out.json")], capture_output=True, text=True, env=env, timeout=120)
     assert p.returncode == 2, p.stderr
     lines = p.stderr.strip().splitlines()

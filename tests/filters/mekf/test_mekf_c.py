@@ -19,6 +19,7 @@ from ahrsgen.generate import config
 from ahrsgen import status as st
 from ahrsgen.filters.mekf import reference as R
 from ahrsgen.npquat import qconj, qmul
+from conftest import TESTS
 
 DEG = np.pi / 180
 FLOAT_BOUND_RAD = 1e-5
@@ -459,7 +460,7 @@ def test_fuzz_input_P_not_pd_keeps_covariance_spd(c_float, c_double, precision):
     from pathlib import Path
 
     from ahrsgen.check import harden
-    data = (Path(__file__).parent / "data" / "mekf-P-not-pd.bin").read_bytes()
+    data = (TESTS / "data" / "mekf-P-not-pd.bin").read_bytes()
     c = c_float if precision == "float" else c_double
     flags, records = harden.decode_input(data, dict(c.manifest, precision="float"))   # float records
     assert flags == 0 and len(records) == 8

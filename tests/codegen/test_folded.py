@@ -17,8 +17,8 @@ import pytest
 from ahrsgen import cli
 from ahrsgen.generate import config, render
 from ahrsgen.codegen.folded import Traced, traced_params
+from conftest import REPO
 
-REPO = Path(__file__).resolve().parents[1]
 # a literal of the emitter (float or double) followed by its name
 NAMED = re.compile(r"(\(-?[0-9.e+-]+f?\)|[0-9][0-9.e+-]*f?) /\* ([^*]+(?:\*[^/][^*]*)*) \*/")
 COMMENT = re.compile(r" ?/\*.*?\*/", re.S)

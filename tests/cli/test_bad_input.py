@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from conftest import cli_run as _run
+from conftest import cli_run as _run, REPO
 
 from ahrsgen.sim import readers
 from ahrsgen import cli
@@ -286,7 +286,7 @@ def test_an_error_in_a_users_model_is_its_file_and_line(tmp_path, capsys):
     """An exception raised in a user's model.py: one line naming that file and line, exit 2,
     no traceback (issue 27)."""
     folder = tmp_path / "boomfilt"
-    shutil.copytree(Path(__file__).resolve().parents[1] / "examples" / "madgwick", folder,
+    shutil.copytree(REPO / "examples" / "madgwick", folder,
                     ignore=shutil.ignore_patterns("__pycache__"))
     model = folder / "model.py"
     lines = model.read_text().splitlines()
@@ -304,7 +304,7 @@ def test_a_config_names_a_folder_relative_to_itself_and_says_it_runs_code(tmp_pa
     """filter = "../filters/cfgfilt" in proj/cfg/att.toml resolves from proj/cfg/, wherever the
     command runs, and one stderr line says the folder's Python will run (issue 27)."""
     proj = tmp_path / "proj"
-    shutil.copytree(Path(__file__).resolve().parents[1] / "examples" / "madgwick", proj / "filters" / "cfgfilt",
+    shutil.copytree(REPO / "examples" / "madgwick", proj / "filters" / "cfgfilt",
                     ignore=shutil.ignore_patterns("__pycache__"))
     (proj / "cfg").mkdir()
     cfg = proj / "cfg" / "att.toml"

@@ -10,8 +10,8 @@ import pytest
 
 from ahrsgen.sim.host import STRICT, cc
 from ahrsgen.generate import config, render
+from conftest import REPO
 
-REPO = Path(__file__).resolve().parents[1]
 GENERATED = sorted(p for p in (REPO / "generated").iterdir() if (p / "manifest.json").exists())
 DOUBLE_LIBM = {"sin", "cos", "tan", "asin", "acos", "atan", "atan2", "sqrt", "exp", "log", "pow",
                "floor", "ceil", "fabs", "fmod", "hypot", "sinh", "cosh", "tanh", "erf", "sincos",
@@ -152,7 +152,7 @@ def test_every_filter_builds_in_one_translation_unit(tmp_path):
 def test_fault_mask_in_the_header_is_the_manifest_mask(tmp_path):
     """<PREFIX>_STATUS_FAULT_MASK as the C preprocessor computes it from the header equals the
     manifest's figure, holds every refusal bit, and leaves out the bits the filter calls
-    information (tests/test_input_contract.py checks what the bits do)."""
+    information (tests/filters/test_input_contract.py checks what the bits do)."""
     from ahrsgen import status as st
     for d in GENERATED:
         man = json.loads((d / "manifest.json").read_text())

@@ -17,10 +17,8 @@ from ahrsgen.sim.metrics import max_angle_diff_rad
 from ahrsgen import cli
 from ahrsgen.generate import config, render
 
-from conftest import scenario
+from conftest import scenario, TESTS
 from ahrsgen.sim.readers import EXCERPTS
-
-HERE = Path(__file__).resolve().parent
 
 # float: constants folded at generation time (in double) vs products computed in float at run
 # time round differently; measured 4.1e-7 rad (MEKF) and 1e-17 (QCF) over 120 s
@@ -70,7 +68,7 @@ def test_set_params_refusals_in_c(tmp_path):
     render.write(gen, tmp_path)
     exe = tmp_path / "rt_test"
     cmd = [host.cc(), *host.STRICT, "-O1", f"-I{tmp_path}", str(tmp_path / "att.c"),
-           str(HERE / "c" / "runtime_params_test.c"), "-o", str(exe), "-lm"]
+           str(TESTS / "c" / "runtime_params_test.c"), "-o", str(exe), "-lm"]
     r = subprocess.run(cmd, capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
     r = subprocess.run([str(exe)], capture_output=True, text=True)
