@@ -1,8 +1,9 @@
-"""Writes the figure tables of docs/mekf.md and docs/adukf.md, each between a line
+"""Writes the figure tables of docs/mekf.md, docs/adukf.md and docs/qcf.md, each between a line
 `<!-- filter_doc.py: NAME -->` and `<!-- end filter_doc.py -->` (studies/doc_blocks.py):
 
     PYTHONPATH=src .venv/bin/python -m studies.filter_doc mekf      # every block of docs/mekf.md
     PYTHONPATH=src .venv/bin/python -m studies.filter_doc adukf     # every block of docs/adukf.md
+    PYTHONPATH=src .venv/bin/python -m studies.filter_doc qcf       # every block of docs/qcf.md
 
 - `params`: the defaults the doc discusses, from the filter's defaults.toml;
 - `scenarios`: total RMS (deg, mean over seeds 0-2, float C, scored as `ahrsgen bench` scores:
@@ -59,6 +60,16 @@ SCENARIO_ROWS = {
         ("gyro_clip", ""), ("gyro_clip", "gyro_full_scale=0"),
         ("attached_magnet", ""), ("attached_magnet", "mag_bias=false"), ("handheld", ""),
     ],
+    "qcf": [
+        ("fixedwing_gps", ""), ("fixedwing_gps", "preset faithful"), ("fixedwing_gps", "rest_time=0"),
+        ("fixedwing_gps_100hz", ""), ("multirotor", ""), ("multirotor", "conditioning=false"),
+        ("multirotor_400hz", ""), ("multirotor_400hz_repeated", ""), ("multirotor_1khz", ""),
+        ("multirotor_jitter_dropouts", ""), ("static_accel_disturbance", ""),
+        ("static_mag_disturbance", ""), ("static_mag_disturbance", "mag_rejection=false"),
+        ("turntable", ""), ("turntable", "rest_time=0"),
+        ("gyro_clip", ""), ("gyro_clip", "gyro_full_scale=0"),
+        ("attached_magnet", ""), ("attached_magnet", "mag_bias=false"), ("handheld", ""),
+    ],
 }
 
 # rows of the `params` block
@@ -77,6 +88,12 @@ PARAMS = {
               "adapt_max", "accel_tau", "span_max", "mag_ref", "learn_samples", "mag_bias",
               "mag_bias_jump", "mag_bias_rw", "mag_norm_tol", "gyro_full_scale",
               "gyro_plateau_rate", "clip_recovery_time", "p0", "p0_bias"],
+    "qcf": ["kp", "ki", "gps_compensation", "motion_accel_model", "conditioning", "accel_tau",
+            "bias_accel_gate", "rest_time", "rest_tau", "rest_gyro_tol", "rest_accel_tol",
+            "rest_bias_tau", "mag_rejection", "mag_norm_tol", "mag_dip_tol", "mag_warmup",
+            "mag_ref_tau", "mag_new_time", "mag_bias", "mag_bias_jump", "mag_bias_rw",
+            "centripetal_align", "span_max", "gyro_full_scale", "gyro_plateau_rate",
+            "clip_recovery_time", "kp_recovery"],
 }
 
 

@@ -1,5 +1,5 @@
-"""docs/mekf.md's and docs/adukf.md's figures, re-measured. Every table of figures in those
-docs stands in a block written by `python -m studies.filter_doc <filter>`; this file reads each
+"""docs/mekf.md's, docs/adukf.md's and docs/qcf.md's figures, re-measured. Every table of
+figures in those docs stands in a block written by `python -m studies.filter_doc <filter>`; this file reads each
 table back (tests/docs_tables.py) and measures every figure again with the same scoring: float C
 host builds on the simulated scenarios (always available), BROAD's trials (skipped, saying so,
 without the BROAD files), the manifest's operation counts, and the defaults from defaults.toml.
@@ -17,7 +17,7 @@ from docs_tables import ROOT, numbers, outside, table
 sys.path.insert(0, str(ROOT))
 from studies import filter_doc as fd       # noqa: E402
 
-FILTERS = ("mekf", "adukf")
+FILTERS = ("mekf", "adukf", "qcf")
 EXACT = 0.0
 BLOCK = "<!-- filter_doc.py: {} -->"
 
