@@ -146,7 +146,7 @@ static float fast_asinf(float x)
  *     mag_dt: float
  *     mag_age_out: float
  *
- * Total ops: 27 (add 7, mul 4, cmp 16)
+ * Total ops: 25 (add 7, mul 4, cmp 14)
  */
 static inline void mekf_k_aiding_samples(const float vel[3], bool use_gps, const float v_gps[3],
     float v_age, const float mag[3], const float mag_bias[3], bool use_mag, float mag_age, float dt,
@@ -162,37 +162,35 @@ static inline void mekf_k_aiding_samples(const float vel[3], bool use_gps, const
     const float tmp6 = vel[0] * vel[0];
     const float tmp7 = vel[1] * vel[1];
     const float tmp8 = tmp6 + tmp7;
-    const bool tmp9 = (9.0f /* gps_min_speed*gps_min_speed */ <= tmp8) && (0.0f < tmp8);
-    const bool tmp10 = use_gps && tmp9;
-    const bool tmp11 = use_gps && (!(tmp9));
-    const bool tmp12 = tmp5 <= 1.0f;
-    const float tmp13 = tmp0 * tmp0;
-    const float tmp14 = tmp1 * tmp1;
-    const float tmp15 = tmp13 + tmp14;
-    const bool tmp16 = (tmp5 <= 1.0f) && (9.0f /* gps_min_speed*gps_min_speed */ <= tmp15);
-    const bool tmp17 = tmp16 && (0.0f < tmp15);
-    const float tmp18 = mag[0] - mag_bias[0];
+    const bool tmp9 = use_gps && (9.0f /* gps_min_speed*gps_min_speed */ <= tmp8);
+    const bool tmp10 = use_gps && (!(9.0f /* gps_min_speed*gps_min_speed */ <= tmp8));
+    const bool tmp11 = tmp5 <= 1.0f;
+    const float tmp12 = tmp0 * tmp0;
+    const float tmp13 = tmp1 * tmp1;
+    const float tmp14 = tmp12 + tmp13;
+    const bool tmp15 = (tmp5 <= 1.0f) && (9.0f /* gps_min_speed*gps_min_speed */ <= tmp14);
+    const float tmp16 = mag[0] - mag_bias[0];
+    const float tmp17 = (use_mag) ? tmp16 : 0.0f;
+    const float tmp18 = mag[1] - mag_bias[1];
     const float tmp19 = (use_mag) ? tmp18 : 0.0f;
-    const float tmp20 = mag[1] - mag_bias[1];
+    const float tmp20 = mag[2] - mag_bias[2];
     const float tmp21 = (use_mag) ? tmp20 : 0.0f;
-    const float tmp22 = mag[2] - mag_bias[2];
-    const float tmp23 = (use_mag) ? tmp22 : 0.0f;
-    const float tmp24 = mag_age + dt;
-    const float tmp25 = (tmp24 < 0.1f) ? tmp24 : 0.1f;
-    const float tmp26 = (use_mag) ? 0.0f : tmp25;
+    const float tmp22 = mag_age + dt;
+    const float tmp23 = (tmp22 < 0.1f) ? tmp22 : 0.1f;
+    const float tmp24 = (use_mag) ? 0.0f : tmp23;
     v_gps_out[0] = tmp0;
     v_gps_out[1] = tmp1;
     v_gps_out[2] = tmp2;
     *v_age_out = tmp5;
-    *course_sample = tmp10;
-    *course_slow = tmp11;
-    *fresh = tmp12;
-    *moving = tmp17;
-    mag_c[0] = tmp19;
-    mag_c[1] = tmp21;
-    mag_c[2] = tmp23;
-    *mag_dt = tmp25;
-    *mag_age_out = tmp26;
+    *course_sample = tmp9;
+    *course_slow = tmp10;
+    *fresh = tmp11;
+    *moving = tmp15;
+    mag_c[0] = tmp17;
+    mag_c[1] = tmp19;
+    mag_c[2] = tmp21;
+    *mag_dt = tmp23;
+    *mag_age_out = tmp24;
 }
 
 static void mekf_k_rest_part0(const float gyro[3], const float accel[3], bool use_accel,

@@ -497,16 +497,18 @@ def aiding_samples_function(p: dict, *, gps: bool, gps_accel: bool, course: bool
             outs |= {"a_gps_out": ca.if_else(new, (vel - v_gps) / tau, a_gps),
                      "a_ok_out": ca.logic_or(ca.logic_and(ca.logic_not(use_gps), a_ok), ca.logic_and(
                          use_gps, ca.logic_and(ca.logic_not(late), ca.logic_or(tau >= GPS_DT_MIN, a_ok))))}
+        def fast_enough(v2):       # v2 >= gps_min_speed² and > 0 (the latter implied when min² > 0)
+            return v2 >= min2 if isinstance(min2, (int, float)) and min2 > 0 else ca.logic_and(v2 >= min2, v2 > 0)
+
         if course:
-            speed2 = vel[0] * vel[0] + vel[1] * vel[1]
-            fast = ca.logic_and(speed2 >= min2, speed2 > 0)
+            fast = fast_enough(vel[0] * vel[0] + vel[1] * vel[1])
             outs |= {"course_sample": ca.logic_and(use_gps, fast),
                      "course_slow": ca.logic_and(use_gps, ca.logic_not(fast))}
         fresh = age_new <= p["gps_vel_timeout"]
         outs["fresh"] = fresh
         if moving:
             vh2 = v_new[0] * v_new[0] + v_new[1] * v_new[1]
-            outs["moving"] = ca.logic_and(ca.logic_and(fresh, vh2 >= min2), vh2 > 0)
+            outs["moving"] = ca.logic_and(fresh, fast_enough(vh2))
     if mag:
         m, bias, use_mag, mag_age = ca.SX.sym("mag", 3), ca.SX.sym("mag_bias", 3), ca.SX.sym("use_mag"), ca.SX.sym("mag_age")
         ins |= {"mag": m, "mag_bias": bias, "use_mag": use_mag, "mag_age": mag_age}
