@@ -123,6 +123,442 @@ static float fast_asinf(float x)
 }
 
 /*
+ * aiding samples: GPS velocity, its age and acceleration, course sample, moving; the magnetometer's
+ * sample less the hard iron and its interval
+ *
+ * Args:
+ *     vel: float[3]
+ *     use_gps: bool
+ *     v_gps: float[3]
+ *     v_age: float
+ *     mag: float[3]
+ *     mag_bias: float[3]
+ *     use_mag: bool
+ *     mag_age: float
+ *     dt: float
+ * Outputs:
+ *     v_gps_out: float[3]
+ *     v_age_out: float
+ *     course_sample: bool
+ *     course_slow: bool
+ *     fresh: bool
+ *     moving: bool
+ *     mag_c: float[3]
+ *     mag_dt: float
+ *     mag_age_out: float
+ *
+ * Total ops: 25 (add 7, mul 4, cmp 14)
+ */
+static inline void mekf_k_aiding_samples(const float vel[3], bool use_gps, const float v_gps[3],
+    float v_age, const float mag[3], const float mag_bias[3], bool use_mag, float mag_age, float dt,
+    float v_gps_out[3], float *v_age_out, bool *course_sample, bool *course_slow, bool *fresh,
+    bool *moving, float mag_c[3], float *mag_dt, float *mag_age_out)
+{
+    const float tmp0 = (use_gps) ? vel[0] : v_gps[0];
+    const float tmp1 = (use_gps) ? vel[1] : v_gps[1];
+    const float tmp2 = (use_gps) ? vel[2] : v_gps[2];
+    const float tmp3 = v_age + dt;
+    const float tmp4 = (v_age < 1000.0f) ? tmp3 : v_age;
+    const float tmp5 = (use_gps) ? 0.0f : tmp4;
+    const float tmp6 = vel[0] * vel[0];
+    const float tmp7 = vel[1] * vel[1];
+    const float tmp8 = tmp6 + tmp7;
+    const bool tmp9 = use_gps && (9.0f /* gps_min_speed*gps_min_speed */ <= tmp8);
+    const bool tmp10 = use_gps && (!(9.0f /* gps_min_speed*gps_min_speed */ <= tmp8));
+    const bool tmp11 = tmp5 <= 1.0f;
+    const float tmp12 = tmp0 * tmp0;
+    const float tmp13 = tmp1 * tmp1;
+    const float tmp14 = tmp12 + tmp13;
+    const bool tmp15 = (tmp5 <= 1.0f) && (9.0f /* gps_min_speed*gps_min_speed */ <= tmp14);
+    const float tmp16 = mag[0] - mag_bias[0];
+    const float tmp17 = (use_mag) ? tmp16 : 0.0f;
+    const float tmp18 = mag[1] - mag_bias[1];
+    const float tmp19 = (use_mag) ? tmp18 : 0.0f;
+    const float tmp20 = mag[2] - mag_bias[2];
+    const float tmp21 = (use_mag) ? tmp20 : 0.0f;
+    const float tmp22 = mag_age + dt;
+    const float tmp23 = (tmp22 < 0.1f) ? tmp22 : 0.1f;
+    const float tmp24 = (use_mag) ? 0.0f : tmp23;
+    v_gps_out[0] = tmp0;
+    v_gps_out[1] = tmp1;
+    v_gps_out[2] = tmp2;
+    *v_age_out = tmp5;
+    *course_sample = tmp9;
+    *course_slow = tmp10;
+    *fresh = tmp11;
+    *moving = tmp15;
+    mag_c[0] = tmp17;
+    mag_c[1] = tmp19;
+    mag_c[2] = tmp21;
+    *mag_dt = tmp23;
+    *mag_age_out = tmp24;
+}
+
+static void mekf_k_rest_part0(const float gyro[3], const float accel[3], bool use_accel,
+    bool moving, const float gyro_lp[3], const float acc_lp[3], float dt, float carry[7],
+    bool flags[1])
+{
+    const float tmp0 = 0.5f + dt;
+    const float tmp1 = dt / tmp0;
+    const float tmp2 = gyro[0] - gyro_lp[0];
+    const float tmp3 = tmp1 * tmp2;
+    const float tmp4 = gyro_lp[0] + tmp3;
+    const float tmp5 = gyro[1] - gyro_lp[1];
+    const float tmp6 = tmp1 * tmp5;
+    const float tmp7 = gyro_lp[1] + tmp6;
+    const float tmp8 = gyro[2] - gyro_lp[2];
+    const float tmp9 = tmp1 * tmp8;
+    const float tmp10 = gyro_lp[2] + tmp9;
+    const float tmp11 = accel[0] - acc_lp[0];
+    const float tmp12 = tmp1 * tmp11;
+    const float tmp13 = acc_lp[0] + tmp12;
+    const float tmp14 = (use_accel) ? tmp13 : acc_lp[0];
+    const float tmp15 = accel[1] - acc_lp[1];
+    const float tmp16 = tmp1 * tmp15;
+    const float tmp17 = acc_lp[1] + tmp16;
+    const float tmp18 = (use_accel) ? tmp17 : acc_lp[1];
+    const float tmp19 = accel[2] - acc_lp[2];
+    const float tmp20 = tmp1 * tmp19;
+    const float tmp21 = acc_lp[2] + tmp20;
+    const float tmp22 = (use_accel) ? tmp21 : acc_lp[2];
+    const float tmp23 = gyro[0] - tmp4;
+    const float tmp24 = tmp23 * tmp23;
+    const float tmp25 = gyro[1] - tmp7;
+    const float tmp26 = tmp25 * tmp25;
+    const float tmp27 = tmp24 + tmp26;
+    const float tmp28 = gyro[2] - tmp10;
+    const float tmp29 = tmp28 * tmp28;
+    const float tmp30 = tmp27 + tmp29;
+    const float tmp31 = tmp4 * tmp4;
+    const float tmp32 = tmp7 * tmp7;
+    const float tmp33 = tmp31 + tmp32;
+    const float tmp34 = tmp10 * tmp10;
+    const float tmp35 = tmp33 + tmp34;
+    const bool tmp36 = (tmp30 < 0.001225f) && (tmp35 < 0.001225f);
+    const bool tmp37 = tmp36 && (!(moving));
+    const float tmp38 = accel[0] - tmp14;
+    const float tmp39 = tmp38 * tmp38;
+    carry[0] = tmp4;
+    carry[1] = tmp7;
+    carry[2] = tmp10;
+    carry[3] = tmp14;
+    carry[4] = tmp18;
+    carry[5] = tmp22;
+    flags[0] = tmp37;
+    carry[6] = tmp39;
+}
+
+static void mekf_k_rest_part1(const float accel[3], bool use_accel, float rest_time, float dt,
+    float carry[7], bool flags[1])
+{
+    const float tmp40 = accel[1] - carry[4];
+    const float tmp41 = tmp40 * tmp40;
+    const float tmp42 = carry[6] + tmp41;
+    const float tmp43 = accel[2] - carry[5];
+    const float tmp44 = tmp43 * tmp43;
+    const float tmp45 = tmp42 + tmp44;
+    const bool tmp46 = (!(use_accel)) || (tmp45 < 0.25f);
+    const bool tmp47 = flags[0] && tmp46;
+    const float tmp48 = rest_time + dt;
+    const float tmp49 = (tmp48 < 1000.0f) ? tmp48 : 1000.0f;
+    const float tmp50 = (tmp47) ? tmp49 : 0.0f;
+    const float tmp51 = 0.5f * dt;
+    const float tmp52 = tmp50 + tmp51;
+    const bool tmp53 = 1.5f <= tmp52;
+    carry[6] = tmp50;
+    flags[0] = tmp53;
+}
+
+/*
+ * rest: gyro and accelerometer near their low-passes, for rest_min_time
+ *
+ * Args:
+ *     gyro: float[3]
+ *     accel: float[3]
+ *     use_accel: bool
+ *     moving: bool
+ *     gyro_lp: float[3]
+ *     acc_lp: float[3]
+ *     rest_time: float
+ *     dt: float
+ * Outputs:
+ *     gyro_lp_out: float[3]
+ *     acc_lp_out: float[3]
+ *     rest_time_out: float
+ *     at_rest: bool
+ *
+ * Total ops: 54 (add 27, mul 16, div 1, cmp 10)
+ */
+static void mekf_k_rest(const float gyro[3], const float accel[3], bool use_accel, bool moving,
+    const float gyro_lp[3], const float acc_lp[3], float rest_time, float dt, float gyro_lp_out[3],
+    float acc_lp_out[3], float *rest_time_out, bool *at_rest)
+{
+    /*
+     * 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry and flags hold
+     * the values handed between them (a slot reused once its value is dead)
+     */
+    float carry[7];
+    bool flags[1];
+    mekf_k_rest_part0(gyro, accel, use_accel, moving, gyro_lp, acc_lp, dt, carry, flags);
+    mekf_k_rest_part1(accel, use_accel, rest_time, dt, carry, flags);
+    gyro_lp_out[0] = carry[0];
+    gyro_lp_out[1] = carry[1];
+    gyro_lp_out[2] = carry[2];
+    acc_lp_out[0] = carry[3];
+    acc_lp_out[1] = carry[4];
+    acc_lp_out[2] = carry[5];
+    *rest_time_out = carry[6];
+    *at_rest = flags[0];
+}
+
+/*
+ * time since the last heading correction
+ *
+ * Args:
+ *     headed: bool
+ *     head_age: float
+ *     dt: float
+ * Outputs:
+ *     head_age_out: float
+ *     unaided: bool
+ *
+ * Total ops: 5 (add 1, cmp 4)
+ */
+static inline void mekf_k_head_timer(bool headed, float head_age, float dt, float *head_age_out,
+    bool *unaided)
+{
+    const float tmp0 = head_age + dt;
+    const float tmp1 = (tmp0 < 1000.0f) ? tmp0 : 1000.0f;
+    const float tmp2 = (head_age < 1000.0f) ? tmp1 : head_age;
+    const float tmp3 = (headed) ? 0.0f : tmp2;
+    const bool tmp4 = 1.0f < tmp3;
+    *head_age_out = tmp3;
+    *unaided = tmp4;
+}
+
+/*
+ * heading source: GPS course or magnetometer
+ *
+ * Args:
+ *     feat: float[4]
+ *     moving: bool
+ *     head_age: float
+ * Outputs:
+ *     course_mode: bool
+ *
+ * Total ops: 6 (mul 3, cmp 3)
+ */
+static inline void mekf_k_course_mode(const float feat[4], bool moving, float head_age,
+    bool *course_mode)
+{
+    const float tmp0 = feat[3] * feat[3];
+    const float tmp1 = 0.29844642f * feat[2];
+    const float tmp2 = tmp1 * feat[2];
+    const bool tmp3 = (0.0f < feat[2]) && (tmp0 <= tmp2);
+    const bool tmp4 = tmp3 || (1.0f < head_age);
+    const bool tmp5 = moving && tmp4;
+    *course_mode = tmp5;
+}
+
+static void mekf_k_mag_check_part0(const float feat[2], const float mag_ref[2], float mag_ref_time,
+    float mag_rej_time, const float mag_cand[2], float mag_cand_time, bool recovering, bool hold,
+    float dt, float carry[9], bool flags[5])
+{
+    const bool tmp0 = recovering && (2.0f <= mag_ref_time);
+    const float tmp1 = mag_ref_time + dt;
+    const float tmp2 = feat[0] - mag_ref[0];
+    const float tmp3 = 0.1f * mag_ref[0];
+    const float tmp4 = fabsf(tmp2);
+    const float tmp5 = feat[1] - mag_ref[1];
+    const float tmp6 = fabsf(tmp5);
+    const bool tmp7 = (tmp3 < tmp4) || (0.175f < tmp6);
+    const float tmp8 = 0.1f * mag_cand[0];
+    const float tmp9 = feat[0] - mag_cand[0];
+    const float tmp10 = fabsf(tmp9);
+    const float tmp11 = feat[1] - mag_cand[1];
+    const float tmp12 = fabsf(tmp11);
+    const bool tmp13 = (tmp8 < tmp10) || (0.175f < tmp12);
+    float tmp14;
+    float tmp15;
+    float tmp16;
+    if (tmp13) {
+        tmp14 = 0.0f;
+        tmp15 = feat[0];
+        tmp16 = feat[1];
+    } else {
+        const float tmp17 = mag_cand_time + dt;
+        const float tmp18 = dt / tmp17;
+        const float tmp19 = tmp18 * tmp9;
+        const float tmp20 = mag_cand[0] + tmp19;
+        const float tmp21 = tmp18 * tmp11;
+        const float tmp22 = mag_cand[1] + tmp21;
+        tmp14 = tmp17;
+        tmp15 = tmp20;
+        tmp16 = tmp22;
+    }
+    const float tmp23 = mag_rej_time + dt;
+    const bool tmp24 = (20.0f <= tmp14) || (60.0f < tmp23);
+    const bool tmp25 = tmp24 && (!(hold));
+    flags[0] = tmp0;
+    carry[0] = tmp1;
+    carry[1] = tmp2;
+    carry[2] = tmp5;
+    flags[1] = tmp7;
+    carry[3] = tmp14;
+    carry[4] = tmp15;
+    carry[5] = tmp16;
+    carry[6] = tmp23;
+    flags[2] = tmp25;
+}
+
+static void mekf_k_mag_check_part1(const float mag_ref[2], float mag_ref_time, float mag_rej_time,
+    const float mag_cand[2], float mag_cand_time, bool recovering, float dt, const float gyro[3],
+    const float gyro_bias[3], float carry[9], bool flags[5])
+{
+    float tmp26;
+    float tmp27;
+    if (flags[0]) {
+        tmp26 = mag_ref[0];
+        tmp27 = mag_ref[1];
+    } else {
+        float tmp28;
+        float tmp29;
+        if (mag_ref_time < 2.0f) {
+            const float tmp30 = dt / carry[0];
+            const float tmp31 = tmp30 * carry[1];
+            const float tmp32 = mag_ref[0] + tmp31;
+            const float tmp33 = tmp30 * carry[2];
+            const float tmp34 = mag_ref[1] + tmp33;
+            tmp28 = tmp32;
+            tmp29 = tmp34;
+        } else {
+            const float tmp35 = 20.0f + dt;
+            const float tmp36 = dt / tmp35;
+            const float tmp37 = tmp36 * carry[1];
+            const float tmp38 = mag_ref[0] + tmp37;
+            const float tmp39 = (flags[2]) ? carry[4] : mag_ref[0];
+            const float tmp40 = (flags[1]) ? tmp39 : tmp38;
+            const float tmp41 = tmp36 * carry[2];
+            const float tmp42 = mag_ref[1] + tmp41;
+            const float tmp43 = (flags[2]) ? carry[5] : mag_ref[1];
+            const float tmp44 = (flags[1]) ? tmp43 : tmp42;
+            tmp28 = tmp40;
+            tmp29 = tmp44;
+        }
+        tmp26 = tmp28;
+        tmp27 = tmp29;
+    }
+    const bool tmp45 = (!(flags[0])) && (mag_ref_time < 2.0f);
+    const float tmp46 = (tmp45) ? carry[0] : mag_ref_time;
+    const bool tmp47 = flags[0] || (mag_ref_time < 2.0f);
+    const float tmp48 = (flags[2]) ? 0.0f : carry[6];
+    const float tmp49 = (flags[1]) ? tmp48 : 0.0f;
+    const float tmp50 = (tmp47) ? mag_rej_time : tmp49;
+    const bool tmp51 = (mag_ref_time < 2.0f) || (!(flags[1]));
+    const bool tmp52 = flags[0] || tmp51;
+    const float tmp53 = (tmp52) ? mag_cand[0] : carry[4];
+    const float tmp54 = (tmp52) ? mag_cand[1] : carry[5];
+    const float tmp55 = (flags[2]) ? 0.0f : carry[3];
+    const float tmp56 = (tmp52) ? mag_cand_time : tmp55;
+    const bool tmp57 = tmp52 || flags[2];
+    const bool tmp58 = !(tmp57);
+    const bool tmp59 = (!(tmp52)) && (!(0.0f < mag_rej_time));
+    const bool tmp60 = (0.0f < tmp26) && (2.0f <= tmp46);
+    const bool tmp61 = tmp60 && (!(recovering));
+    const float tmp62 = gyro[0] - gyro_bias[0];
+    const float tmp63 = tmp62 * tmp62;
+    const float tmp64 = gyro[1] - gyro_bias[1];
+    const float tmp65 = tmp64 * tmp64;
+    carry[0] = tmp26;
+    carry[1] = tmp27;
+    carry[2] = tmp46;
+    carry[3] = tmp50;
+    carry[4] = tmp53;
+    carry[5] = tmp54;
+    carry[6] = tmp56;
+    flags[0] = tmp57;
+    flags[1] = tmp58;
+    flags[2] = tmp59;
+    flags[3] = tmp61;
+    carry[7] = tmp63;
+    carry[8] = tmp65;
+}
+
+static void mekf_k_mag_check_part2(const float gyro[3], const float gyro_bias[3],
+    const float carry[9], bool flags[5])
+{
+    const float tmp66 = carry[7] + carry[8];
+    const float tmp67 = gyro[2] - gyro_bias[2];
+    const float tmp68 = tmp67 * tmp67;
+    const float tmp69 = tmp66 + tmp68;
+    const bool tmp70 = 0.09f <= tmp69;
+    flags[4] = tmp70;
+}
+
+/*
+ * field check: norm and dip against the learned reference, candidate field
+ *
+ * Args:
+ *     feat: float[2]
+ *     mag_ref: float[2]
+ *     mag_ref_time: float
+ *     mag_rej_time: float
+ *     mag_cand: float[2]
+ *     mag_cand_time: float
+ *     recovering: bool
+ *     hold: bool
+ *     dt: float
+ *     gyro: float[3]
+ *     gyro_bias: float[3]
+ * Outputs:
+ *     mag_ref_out: float[2]
+ *     mag_ref_time_out: float
+ *     mag_rej_time_out: float
+ *     mag_cand_out: float[2]
+ *     mag_cand_time_out: float
+ *     use: bool
+ *     disturbed: bool
+ *     onset: bool
+ *     learned: bool
+ *     turning: bool
+ *
+ * Total ops: 71 (add 19, mul 11, div 3, cmp 38)
+ *     of which only one side runs: if (tmp13) 0, else 6
+ *     of which only one side runs: if (tmp0) 0, else 17
+ *     of which only one side runs: if (mag_ref_time < 2.0f) 5, else 10
+ */
+static void mekf_k_mag_check(const float feat[2], const float mag_ref[2], float mag_ref_time,
+    float mag_rej_time, const float mag_cand[2], float mag_cand_time, bool recovering, bool hold,
+    float dt, const float gyro[3], const float gyro_bias[3], float mag_ref_out[2],
+    float *mag_ref_time_out, float *mag_rej_time_out, float mag_cand_out[2],
+    float *mag_cand_time_out, bool *use, bool *disturbed, bool *onset, bool *learned, bool *turning)
+{
+    /*
+     * 3 parts called in turn (inlined when optimising): bounded -O0 frames; carry and flags hold
+     * the values handed between them (a slot reused once its value is dead)
+     */
+    float carry[9];
+    bool flags[5];
+    mekf_k_mag_check_part0(feat, mag_ref, mag_ref_time, mag_rej_time, mag_cand, mag_cand_time,
+            recovering, hold, dt, carry, flags);
+    mekf_k_mag_check_part1(mag_ref, mag_ref_time, mag_rej_time, mag_cand, mag_cand_time, recovering,
+            dt, gyro, gyro_bias, carry, flags);
+    mekf_k_mag_check_part2(gyro, gyro_bias, carry, flags);
+    mag_ref_out[0] = carry[0];
+    mag_ref_out[1] = carry[1];
+    *mag_ref_time_out = carry[2];
+    *mag_rej_time_out = carry[3];
+    mag_cand_out[0] = carry[4];
+    mag_cand_out[1] = carry[5];
+    *mag_cand_time_out = carry[6];
+    *use = flags[0];
+    *disturbed = flags[1];
+    *onset = flags[2];
+    *learned = flags[3];
+    *turning = flags[4];
+}
+
+/*
  * gyro over-range: a component at gyro_full_scale, or one at or above gyro_plateau_rate that holds
  * its value for 4 samples while the others change (clipped), sets the recovery timer to
  * clip_recovery_time; recovering while more than half a step of it is left
@@ -1204,7 +1640,7 @@ static void mekf_k_accel_lowpass_part1(const float accel[3], const float vel[3],
     carry[9] = tmp79;
 }
 
-static void mekf_k_accel_lowpass_part2(const bool mask[3], float carry[12])
+static void mekf_k_accel_lowpass_part2(const bool mask[3], float carry[12], bool flags[1])
 {
     const float tmp80 = carry[5] - carry[9];
     const float tmp81 = (mask[0]) ? tmp80 : carry[5];
@@ -1214,9 +1650,16 @@ static void mekf_k_accel_lowpass_part2(const bool mask[3], float carry[12])
     const float tmp85 = carry[7] - carry[8];
     const float tmp86 = carry[1] - tmp85;
     const float tmp87 = (mask[0]) ? tmp86 : carry[1];
+    const float tmp88 = tmp81 * tmp81;
+    const float tmp89 = tmp84 * tmp84;
+    const float tmp90 = tmp88 + tmp89;
+    const float tmp91 = tmp87 * tmp87;
+    const float tmp92 = tmp90 + tmp91;
+    const bool tmp93 = 0.25f /* accel_min_norm*accel_min_norm */ < tmp92;
     carry[9] = tmp81;
     carry[10] = tmp84;
     carry[11] = tmp87;
+    flags[0] = tmp93;
 }
 
 /*
@@ -1239,25 +1682,27 @@ static void mekf_k_accel_lowpass_part2(const bool mask[3], float carry[12])
  *     v_lp_out: float[3]
  *     v_ins_out: float[3]
  *     up_out: float[3]
+ *     up_ok: bool
  *
- * Total ops: 88 (add 50, mul 27, div 1, cmp 10)
+ * Total ops: 94 (add 52, mul 30, div 1, cmp 11)
  */
 static void mekf_k_accel_lowpass(const float q[4], const float b[3], const float gyro[3],
     const float accel[3], const float vel[3], const float acc_n[3], const bool mask[3],
     const float a_lp[3], const float v_lp[3], const float v_ins[3], float dt, float a_lp_out[3],
-    float v_lp_out[3], float v_ins_out[3], float up_out[3])
+    float v_lp_out[3], float v_ins_out[3], float up_out[3], bool *up_ok)
 {
     (void)b;
     (void)gyro;
     (void)acc_n;
     /*
-     * 3 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
-     * handed between them (a slot reused once its value is dead)
+     * 3 parts called in turn (inlined when optimising): bounded -O0 frames; carry and flags hold
+     * the values handed between them (a slot reused once its value is dead)
      */
     float carry[12];
+    bool flags[1];
     mekf_k_accel_lowpass_part0(q, accel, mask, a_lp, dt, carry);
     mekf_k_accel_lowpass_part1(accel, vel, mask, a_lp, v_lp, v_ins, dt, carry);
-    mekf_k_accel_lowpass_part2(mask, carry);
+    mekf_k_accel_lowpass_part2(mask, carry, flags);
     a_lp_out[0] = carry[5];
     a_lp_out[1] = carry[0];
     a_lp_out[2] = carry[1];
@@ -1270,6 +1715,7 @@ static void mekf_k_accel_lowpass(const float q[4], const float b[3], const float
     up_out[0] = carry[9];
     up_out[1] = carry[10];
     up_out[2] = carry[11];
+    *up_ok = flags[0];
 }
 
 static void mekf_k_heading_features_part0(const float q[4], const float mag[3], float carry[13])
@@ -3746,13 +4192,6 @@ static inline void mekf_k_euler(const float q[4], float rpy[3])
     rpy[2] = tmp27;
 }
 
-/* Field features [norm, dip] off a reference by more than norm_th (relative) or dip_th
- * (mag_norm_th, mag_dip_th: passed in, so that either may be a runtime parameter). */
-static bool mekf_field_off(const float feat[2], const float ref[2], float norm_th, float dip_th)
-{
-    return fabsf(feat[0] - ref[0]) > norm_th * ref[0] || fabsf(feat[1] - ref[1]) > dip_th;
-}
-
 /* Hard iron (docs/mekf.md, "Hard iron"): while the sensor turns, the shared hard-iron kernel
  * (symbolic/aiding.hard_iron_step) fits a candidate field model [hard iron / B (3), norm / B,
  * down component / B] from the field's norm and vertical component (neither involves the
@@ -3760,20 +4199,18 @@ static bool mekf_field_off(const float feat[2], const float ref[2], float norm_t
  * when it explains the field much better (`switched`). While it is the better model and differs
  * enough ("suspect") the magnetometer is not used for heading. `onset`: the field check rejected
  * the field this step after accepting it (a new disturbance): the candidate's covariance reopens
- * at its next fit. A call of its own (its frame then does not add to the step's). */
+ * at its next fit; `turning`: |gyro - bias| at least mag_bias_min_rate (mag_check). A call of
+ * its own (its frame then does not add to the step's). */
 #if defined(__GNUC__)
 __attribute__((noinline))
 #endif
-static void mekf_hard_iron(mekf_state *s, const float mag[3], const float gyro[3],
-    const float q[4], float dt, bool onset, bool *mag_use, mekf_status *status)
+static void mekf_hard_iron(mekf_state *s, const float mag[3], const float q[4],
+    float dt, bool onset, bool turning, bool *mag_use, mekf_status *status)
 {
     if (onset && s->mag_suspect == 0u && s->mag_c_ok == 1u) {
         s->mag_c_ok = 2u;
     }
-    const float w0 = gyro[0] - s->gyro_bias[0];
-    const float w1 = gyro[1] - s->gyro_bias[1];
-    const float w2 = gyro[2] - s->gyro_bias[2];
-    if (w0 * w0 + w1 * w1 + w2 * w2 >= MEKF_MAG_BIAS_MIN_RATE * MEKF_MAG_BIAS_MIN_RATE) {
+    if (turning) {
         bool suspect;
         bool switched;
         mekf_k_hard_iron(q, mag, s->mag_bias, s->mag_ref, s->mag_cx, s->mag_cP, s->mag_c_ok == 0u,
@@ -4064,48 +4501,26 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
      * specific force (any attitude), at rest the gyro bias measured directly, heading as one
      * vertical-only row (GPS course or magnetometer, gain projected so it never tilts). */
     bool use_tilt = use_accel;
-    bool course_sample = false;
-
-    /* Last valid GPS velocity (for the compensation and the course); its age saturates. */
-    if (use_gps) {
-        /* A GPS course sample: a GPS velocity arrived this step, fast enough over ground. */
-        const float speed2 = in->gps_vel_ned[0] * in->gps_vel_ned[0]
-                                + in->gps_vel_ned[1] * in->gps_vel_ned[1];
-        if (speed2 >= MEKF_GPS_MIN_SPEED * MEKF_GPS_MIN_SPEED && speed2 > 0.0f) {
-            course_sample = true;
-        } else {
-            status |= MEKF_COURSE_SLOW;
-        }
-        s->v_gps[0] = in->gps_vel_ned[0];
-        s->v_gps[1] = in->gps_vel_ned[1];
-        s->v_gps[2] = in->gps_vel_ned[2];
-        s->v_age = 0.0f;
-    } else if (s->v_age < 1000.0f) {
-        s->v_age += dt;
-    }
-
-    /* Moving over ground by GPS (fresh and fast enough): no rest; the course may be the heading. */
-    const float vh2 = s->v_gps[0] * s->v_gps[0] + s->v_gps[1] * s->v_gps[1];
-    const bool moving = s->v_age <= MEKF_GPS_VEL_TIMEOUT &&
-        vh2 >= MEKF_GPS_MIN_SPEED * MEKF_GPS_MIN_SPEED && vh2 > 0.0f;
     /* Finite copies for the kernels: a sensor that is not usable this step is passed as zeros. */
     float mag_in[3] = { 0.0f, 0.0f, 0.0f };
     float vel_in[3] = { 0.0f, 0.0f, 0.0f };
-    if (use_mag) {   /* the hard iron removed */
-        mag_in[0] = in->mag[0] - s->mag_bias[0];
-        mag_in[1] = in->mag[1] - s->mag_bias[1];
-        mag_in[2] = in->mag[2] - s->mag_bias[2];
-    }
     if (use_gps) {
         vel_in[0] = in->gps_vel_ned[0];
         vel_in[1] = in->gps_vel_ned[1];
         vel_in[2] = in->gps_vel_ned[2];
     }
-
-    /* The magnetometer's sample interval (its heading variance is a density over it): the time
-     * since the last usable sample, at most MAG_INTERVAL_MAX. */
-    const float mag_dt = s->mag_age + dt < 0.1f ? s->mag_age + dt : 0.1f;
-    s->mag_age = use_mag ? 0.0f : mag_dt;
+    bool fresh;   /* the last GPS velocity at most gps_vel_timeout old */
+    bool course_sample;   /* a GPS velocity arrived this step, fast enough over ground */
+    bool course_slow;
+    bool moving;   /* fresh and fast enough over ground: no rest; the course may be the heading */
+    float mag_dt;   /* the magnetometer's sample interval (its heading variance is a density) */
+    mekf_k_aiding_samples(vel_in, use_gps, s->v_gps, s->v_age, in->mag,
+        s->mag_bias, use_mag, s->mag_age, dt, s->v_gps,
+        &s->v_age, &course_sample, &course_slow, &fresh,
+        &moving, mag_in, &mag_dt, &s->mag_age);
+    if (course_slow) {
+        status |= MEKF_COURSE_SLOW;
+    }
 
     if (s->initialised == 0u) {
         /* First usable accelerometer sample: tilt from it, yaw from the course or the
@@ -4154,45 +4569,16 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
     float feat[4];
     mekf_k_heading_features(q, mag_in, s->v_gps, feat);
 
-    /* Heading source: the GPS course while moving nose first (velocity within
-     * course_max_sideslip of the body x axis) or while nothing else corrects the heading;
-     * the magnetometer otherwise. */
-    const bool nose_first = feat[2] > 0.0f &&
-        feat[3] * feat[3]
-            <= 0.29844642f /* tan(course_max_sideslip)^2 */ * feat[2] * feat[2];
-    const bool course_mode = moving && (nose_first || s->head_age > 1.0f);
+    /* Heading source: the GPS course while moving nose first or while nothing else corrects the
+     * heading; the magnetometer otherwise. */
+    bool course_mode;
+    mekf_k_course_mode(feat, moving, s->head_age, &course_mode);
     const bool mag_ok = use_mag && !course_mode;
 
-    /* Rest: every gyro sample near its low-pass and that low-pass small (not a turntable), the
-     * accelerometer steady too, for rest_min_time. */
-    const float a_rest = dt / (MEKF_REST_TAU + dt);
-    float dev2 = 0.0f;
-    float lp2 = 0.0f;
-    for (uint32_t i = 0u; i < 3u; i++) {
-        s->gyro_lp[i] += a_rest * (in->gyro[i] - s->gyro_lp[i]);
-        const float d = in->gyro[i] - s->gyro_lp[i];
-        dev2 += d * d;
-        lp2 += s->gyro_lp[i] * s->gyro_lp[i];
-    }
-    const float th_g2 = MEKF_REST_GYRO_TH * MEKF_REST_GYRO_TH;
-    bool still = dev2 < th_g2 && lp2 < th_g2 && !moving;
-    if (use_accel) {
-        float dev_a2 = 0.0f;
-        for (uint32_t i = 0u; i < 3u; i++) {
-            s->acc_lp[i] += a_rest * (in->accel[i] - s->acc_lp[i]);
-            const float d = in->accel[i] - s->acc_lp[i];
-            dev_a2 += d * d;
-        }
-        still = still && dev_a2 < MEKF_REST_ACCEL_TH * MEKF_REST_ACCEL_TH;
-    }
-    if (still) {
-        s->rest_time = s->rest_time + dt < 1000.0f ? s->rest_time + dt : 1000.0f;
-    } else {
-        s->rest_time = 0.0f;
-    }
-    /* (timers against a threshold: half a step of margin, so that a sum of steps landing on the
-     * threshold decides the same in float and double) */
-    const bool at_rest = s->rest_time + 0.5f * dt >= MEKF_REST_MIN_TIME;
+    /* Rest: the gyro and the accelerometer steady near their low-passes, for rest_min_time. */
+    bool at_rest;
+    mekf_k_rest(in->gyro, in->accel, use_accel, moving, s->gyro_lp, s->acc_lp, s->rest_time, dt,
+        s->gyro_lp, s->acc_lp, &s->rest_time, &at_rest);
     if (at_rest) {
         status |= MEKF_AT_REST;
     }
@@ -4200,7 +4586,6 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
     /* Earth-frame low-pass of the (motion-compensated) specific force; with gps_lowpass the
      * GPS velocity goes through the same low-pass and its low-passed derivative is removed. */
     float up[3] = { s->a_lp[0], s->a_lp[1], s->a_lp[2] };
-    const bool fresh = s->v_age <= MEKF_GPS_VEL_TIMEOUT;
     if (!fresh) {
         s->vlp_ok = 0u;
     }
@@ -4213,62 +4598,30 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
             }
             s->vlp_ok = 1u;
         }
+        bool up_ok;   /* a_lp, v_lp, v_ins in place */
         const bool lp_mask[3] = { m_comp, use_gps, recovering };
         mekf_k_accel_lowpass(q, s->gyro_bias, in->gyro, in->accel, s->v_gps, s->a_gps, lp_mask,
-            s->a_lp, s->v_lp, s->v_ins, dt, s->a_lp, s->v_lp, s->v_ins, up);   /* in place */
-        if (mekf_norm2(up) <= MEKF_ACCEL_MIN_NORM * MEKF_ACCEL_MIN_NORM) {
-            use_tilt = false;
-        }
+            s->a_lp, s->v_lp, s->v_ins, dt, s->a_lp, s->v_lp, s->v_ins, up, &up_ok);
+        use_tilt = up_ok;   /* a direction to correct the tilt with */
     }
 
     /* Magnetometer: rejected while its norm or dip is off the reference learned at start
      * (mag_learn_time), re-acquired after mag_reject_max seconds rejected in a row. */
     bool mag_use = false;
     if (mag_ok) {
-        bool onset = false;   /* rejected this step, accepted the step before */
-        if (MEKF_MAG_NORM_TH <= 0.0f || (recovering && s->mag_ref_time >= MEKF_MAG_LEARN_TIME)) {
-            mag_use = true;   /* (recovering: no field check, the sensors as they come) */
-        } else if (s->mag_ref_time < MEKF_MAG_LEARN_TIME) {
-            const float w = dt / (s->mag_ref_time + dt);
-            s->mag_ref[0] += w * (feat[0] - s->mag_ref[0]);
-            s->mag_ref[1] += w * (feat[1] - s->mag_ref[1]);
-            s->mag_ref_time += dt;
-            mag_use = true;
-        } else if (!mekf_field_off(feat, s->mag_ref, MEKF_MAG_NORM_TH, MEKF_MAG_DIP_TH)) {
-            const float w = dt / (MEKF_MAG_REF_TAU + dt);
-            s->mag_rej_time = 0.0f;
-            s->mag_ref[0] += w * (feat[0] - s->mag_ref[0]);
-            s->mag_ref[1] += w * (feat[1] - s->mag_ref[1]);
-            mag_use = true;
-        } else {
-            /* A new field steady for mag_new_time (a lasting change) becomes the reference;
-             * after mag_reject_max rejected in a row, the present one does. */
-            if (mekf_field_off(feat, s->mag_cand, MEKF_MAG_NORM_TH, MEKF_MAG_DIP_TH)) {
-                s->mag_cand[0] = feat[0];
-                s->mag_cand[1] = feat[1];
-                s->mag_cand_time = 0.0f;
-            } else {
-                s->mag_cand_time += dt;
-                const float w = dt / s->mag_cand_time;
-                s->mag_cand[0] += w * (feat[0] - s->mag_cand[0]);
-                s->mag_cand[1] += w * (feat[1] - s->mag_cand[1]);
-            }
-            onset = !(s->mag_rej_time > 0.0f);   /* never negative: zero */
-            s->mag_rej_time += dt;
-            /* (not while the hard-iron candidate explains the field: it is the better model) */
-            if ((s->mag_cand_time >= MEKF_MAG_NEW_TIME || s->mag_rej_time > MEKF_MAG_REJECT_MAX) &&
-                s->mag_suspect == 0u) {
-                s->mag_ref[0] = s->mag_cand[0];
-                s->mag_ref[1] = s->mag_cand[1];
-                s->mag_rej_time = 0.0f;
-                s->mag_cand_time = 0.0f;
-                mag_use = true;
-            } else {
-                status |= MEKF_MAG_DISTURBED;
-            }
+        bool disturbed;
+        bool onset;     /* rejected this step, accepted the step before */
+        bool learned;   /* a reference learned, not recovering */
+        bool turning;   /* |gyro - bias| at least mag_bias_min_rate */
+        mekf_k_mag_check(feat, s->mag_ref, s->mag_ref_time, s->mag_rej_time, s->mag_cand,
+            s->mag_cand_time, recovering, s->mag_suspect != 0u, dt, in->gyro, s->gyro_bias,
+            s->mag_ref, &s->mag_ref_time, &s->mag_rej_time, s->mag_cand, &s->mag_cand_time,
+            &mag_use, &disturbed, &onset, &learned, &turning);
+        if (disturbed) {
+            status |= MEKF_MAG_DISTURBED;
         }
-        if (s->mag_ref[0] > 0.0f && s->mag_ref_time >= MEKF_MAG_LEARN_TIME && !recovering) {
-            mekf_hard_iron(s, in->mag, in->gyro, q, dt, onset, &mag_use, &status);
+        if (learned) {
+            mekf_hard_iron(s, in->mag, q, dt, onset, turning, &mag_use, &status);
         }
     }
 
@@ -4332,12 +4685,9 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
             status |= MEKF_UPDATE_SKIPPED;
         }
     }
-    if (headed) {
-        s->head_age = 0.0f;
-    } else if (s->head_age < 1000.0f) {
-        s->head_age = s->head_age + dt < 1000.0f ? s->head_age + dt : 1000.0f;
-    }
-    if (s->head_age > 1.0f) {
+    bool unaided;
+    mekf_k_head_timer(headed, s->head_age, dt, &s->head_age, &unaided);
+    if (unaided) {
         status |= MEKF_HEADING_UNAIDED;
     }
 

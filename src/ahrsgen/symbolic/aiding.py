@@ -7,7 +7,8 @@ SX expressions so that a kernel can output them and the step partial can branch 
 - `lowpass(x_lp, x, dt, tau)`: first-order low-pass x_lp + dt/(tau + dt) (x - x_lp)
   (the backward-Euler discretisation of tau x_lp' = x - x_lp; tau = 0 passes x through).
 - `rest_detector(...)`: gyro steady (within a tolerance of its low-passed value), the
-  low-passed rate small and |f| near gravity, for at least `min_time` s (after VQF).
+  low-passed rate small and |f| near gravity, for at least `min_time` s (after VQF);
+  `rest_timer(...)` its timer alone (mekf tests steadiness its own way).
 - `field_check(...)`: magnetometer norm and dip (sin of the angle below the horizontal)
   against a reference learned at the first sample and tracked slowly while accepted; a field
   that stays different for `new_time` s becomes the new reference (a permanent change, e.g.
@@ -66,9 +67,16 @@ def rest_detector(gyro, accel_norm2, gyro_lp, rest_time, dt, *, tau: float, gyro
     steady = ca.logic_and(ca.logic_and(ca.sumsqr(gyro - g_lp) < gyro_tol ** 2,
                                        norm_within(accel_norm2, gravity, accel_tol)),
                           ca.sumsqr(g_lp) < gyro_max ** 2)
+    return (g_lp, *rest_timer(steady, rest_time, dt, min_time=min_time, time_cap=time_cap))
+
+
+def rest_timer(steady, rest_time, dt, *, min_time, time_cap: float = 1e3):
+    """Returns (rest_time', at_rest 0/1): the steady time, counted while `steady` (0/1) up to
+    time_cap (so it stays exact in float) and reset to 0 otherwise; at rest once it reaches
+    min_time (rest_detector's timer, and mekf's, whose steadiness test is its own)."""
     t_new = ca.if_else(steady, ca.fmin(rest_time + dt, time_cap), 0.0)
     # half a step of margin: a sum of steps landing on min_time decides alike in float and double
-    return g_lp, t_new, t_new + 0.5 * dt >= min_time
+    return t_new, t_new + 0.5 * dt >= min_time
 
 
 # gyro_plateau: this many equal samples in a row (3 repeats) of one fast component is a clip. On

@@ -283,7 +283,8 @@ def accel_lowpass_function(p: dict, name="accel_lowpass") -> ca.Function:
     the GPS velocity goes through the same low-pass, v_lp ← v_lp + α (v − v_lp), and
     (v − v_lp)/τ, with v_lp already updated, is exactly the same discrete low-pass applied to
     the velocity's differences (v_k − v_{k−1})/dt (the low-pass of a derivative is the derivative
-    of the low-pass); up = a_lp − (v − v_lp)/τ. Otherwise up = a_lp.
+    of the low-pass); up = a_lp − (v − v_lp)/τ. Otherwise up = a_lp. up_ok: |up| above
+    accel_min_norm (a direction to correct the tilt with).
     """
     q, b, gyro, accel, vel, acc_n, a_lp, v_lp, v_ins = (ca.SX.sym(n, k) for n, k in (
         ("q", 4), ("b", 3), ("gyro", 3), ("accel", 3), ("vel", 3), ("acc_n", 3), ("a_lp", 3), ("v_lp", 3),
@@ -306,7 +307,8 @@ def accel_lowpass_function(p: dict, name="accel_lowpass") -> ca.Function:
         vi_new, v_new, up = v_ins, v_lp, a_new
     return emit.function(name, {"q": q, "b": b, "gyro": gyro, "accel": accel, "vel": vel, "acc_n": acc_n,
                                 "mask": mask, "a_lp": a_lp, "v_lp": v_lp, "v_ins": v_ins, "dt": dt},
-                         {"a_lp_out": a_new, "v_lp_out": v_new, "v_ins_out": vi_new, "up_out": up})
+                         {"a_lp_out": a_new, "v_lp_out": v_new, "v_ins_out": vi_new, "up_out": up,
+                          "up_ok": ca.sumsqr(up) > _square(p["accel_min_norm"])})
 
 
 def heading_features_function(name="heading_features") -> ca.Function:
@@ -455,6 +457,189 @@ def init_vectors_function(p: dict, name="init_attitude") -> ca.Function:
                          {"q_out": q, "a_lp_out": quat.rotate(q, accel)})
 
 
+# ------------------------------------------------------------------------------------
+# the step's bookkeeping: sample times, rest, heading source, field check (kernels, so that
+# the step template is control flow and copies and the manifest's op counts cover the step)
+def _square(x):
+    """x² of a parameter (a number, or a runtime parameter's symbol)."""
+    return x * x
+
+
+def aiding_samples_function(p: dict, *, gps: bool, gps_accel: bool, course: bool, moving: bool, mag: bool,
+                            name="aiding_samples") -> ca.Function:
+    """The aiding samples' bookkeeping, run on every step (before the first attitude too).
+
+    gps: the last valid GPS velocity v_gps and its age v_age (0 at a sample, else + dt while
+    below AGE_MAX); `fresh`: v_age' <= gps_vel_timeout. gps_accel: at a sample, the NED
+    acceleration a_gps = (v − v_gps)/τ, τ = v_age + dt, when GPS_DT_MIN <= τ <= gps_vel_timeout
+    (a_ok = 1), a_ok = 0 when τ is longer, both kept when closer. course: the sample is a course
+    sample when its ground speed² >= gps_min_speed² (and > 0), else `course_slow`. moving: fresh
+    and v_gps' fast enough over ground (no rest; the course may be the heading).
+    mag: the sample with the hard iron removed (mag − mag_bias; zeros without a usable sample)
+    and its interval mag_dt = min(mag_age + dt, MAG_INTERVAL_MAX), the time since the last
+    usable sample (the heading variance is a density over it); mag_age' = 0 at a sample.
+    vel is the finite copy (zeros without a sample); mag is read only when use_mag."""
+    dt = ca.SX.sym("dt")
+    ins, outs = {}, {}
+    min2 = _square(p["gps_min_speed"])
+    if gps:
+        vel, use_gps, v_gps, v_age = ca.SX.sym("vel", 3), ca.SX.sym("use_gps"), ca.SX.sym("v_gps", 3), ca.SX.sym("v_age")
+        ins |= {"vel": vel, "use_gps": use_gps, "v_gps": v_gps, "v_age": v_age}
+        v_new = ca.if_else(use_gps, vel, v_gps)
+        age_new = ca.if_else(use_gps, 0.0, ca.if_else(v_age < AGE_MAX, v_age + dt, v_age))
+        outs |= {"v_gps_out": v_new, "v_age_out": age_new}
+        if gps_accel:
+            a_gps, a_ok = ca.SX.sym("a_gps", 3), ca.SX.sym("a_ok")
+            ins |= {"a_gps": a_gps, "a_ok": a_ok}
+            tau = v_age + dt
+            late = tau > p["gps_vel_timeout"]
+            new = ca.logic_and(use_gps, ca.logic_and(ca.logic_not(late), tau >= GPS_DT_MIN))
+            outs |= {"a_gps_out": ca.if_else(new, (vel - v_gps) / tau, a_gps),
+                     "a_ok_out": ca.logic_or(ca.logic_and(ca.logic_not(use_gps), a_ok), ca.logic_and(
+                         use_gps, ca.logic_and(ca.logic_not(late), ca.logic_or(tau >= GPS_DT_MIN, a_ok))))}
+        def fast_enough(v2):       # v2 >= gps_min_speed² and > 0 (the latter implied when min² > 0)
+            return v2 >= min2 if isinstance(min2, (int, float)) and min2 > 0 else ca.logic_and(v2 >= min2, v2 > 0)
+
+        if course:
+            fast = fast_enough(vel[0] * vel[0] + vel[1] * vel[1])
+            outs |= {"course_sample": ca.logic_and(use_gps, fast),
+                     "course_slow": ca.logic_and(use_gps, ca.logic_not(fast))}
+        fresh = age_new <= p["gps_vel_timeout"]
+        outs["fresh"] = fresh
+        if moving:
+            vh2 = v_new[0] * v_new[0] + v_new[1] * v_new[1]
+            outs["moving"] = ca.logic_and(fresh, fast_enough(vh2))
+    if mag:
+        m, bias, use_mag, mag_age = ca.SX.sym("mag", 3), ca.SX.sym("mag_bias", 3), ca.SX.sym("use_mag"), ca.SX.sym("mag_age")
+        ins |= {"mag": m, "mag_bias": bias, "use_mag": use_mag, "mag_age": mag_age}
+        mag_dt = ca.fmin(mag_age + dt, MAG_INTERVAL_MAX)
+        outs |= {"mag_c": ca.if_else(use_mag, m - bias, ca.DM.zeros(3)), "mag_dt": mag_dt,
+                 "mag_age_out": ca.if_else(use_mag, 0.0, mag_dt)}
+    ins["dt"] = dt
+    return emit.function(name, ins, outs)
+
+
+def accel_gate_function(p: dict, name="accel_gate") -> ca.Function:
+    """`gated`: accel_gate > 0 and | |accel| − g | > accel_gate (the tilt rows dropped)."""
+    accel = ca.SX.sym("accel", 3)
+    gate = p["accel_gate"]
+    gated = ca.fabs(ca.sqrt(ca.sumsqr(accel)) - G0) > gate
+    if not isinstance(gate, (int, float)):
+        gated = ca.logic_and(gate > 0, gated)
+    return emit.function(name, {"accel": accel}, {"gated": gated})
+
+
+def course_mode_function(p: dict, name="course_mode") -> ca.Function:
+    """heading_source = 'auto': the GPS course is the heading while moving nose first (the
+    velocity in body axes, feat[2:4], within course_max_sideslip of the body x axis:
+    v_y² <= tan² v_x², v_x > 0) or while nothing has corrected the heading for HEAD_AGE_MAX."""
+    feat, moving, head_age = ca.SX.sym("feat", 4), ca.SX.sym("moving"), ca.SX.sym("head_age")
+    side = p["course_max_sideslip"]
+    tan2 = math.tan(side) ** 2 if isinstance(side, (int, float)) else ca.tan(side) ** 2
+    nose_first = ca.logic_and(feat[2] > 0, feat[3] * feat[3] <= tan2 * feat[2] * feat[2])
+    return emit.function(name, {"feat": feat, "moving": moving, "head_age": head_age},
+                         {"course_mode": ca.logic_and(moving, ca.logic_or(nose_first, head_age > HEAD_AGE_MAX))})
+
+
+def rest_function(p: dict, name="rest") -> ca.Function:
+    """Rest: every gyro sample near its low-pass and that low-pass small (not a turntable),
+    both within rest_gyro_th; the accelerometer near its own low-pass (within rest_accel_th,
+    when it has a sample); not moving by GPS; for rest_min_time (aiding.rest_timer). The
+    low-passes: x_lp + dt/(rest_tau + dt) (x − x_lp), the accelerometer's only with a sample.
+    (qcf's aiding.rest_detector tests |f| against gravity instead of the accelerometer's
+    low-pass and has no GPS; the timer is the shared piece.)"""
+    gyro, accel, use_accel, moving = ca.SX.sym("gyro", 3), ca.SX.sym("accel", 3), ca.SX.sym("use_accel"), ca.SX.sym("moving")
+    g_lp, a_lp, t, dt = ca.SX.sym("gyro_lp", 3), ca.SX.sym("acc_lp", 3), ca.SX.sym("rest_time"), ca.SX.sym("dt")
+    a = dt / (p["rest_tau"] + dt)
+    g_new = g_lp + a * (gyro - g_lp)
+    th2 = _square(p["rest_gyro_th"])
+    still = ca.logic_and(ca.logic_and(ca.sumsqr(gyro - g_new) < th2, ca.sumsqr(g_new) < th2), ca.logic_not(moving))
+    a_new = ca.if_else(use_accel, a_lp + a * (accel - a_lp), a_lp)
+    steady_a = ca.sumsqr(accel - a_new) < _square(p["rest_accel_th"])
+    still = ca.logic_and(still, ca.logic_or(ca.logic_not(use_accel), steady_a))
+    t_new, at_rest = aiding.rest_timer(still, t, dt, min_time=p["rest_min_time"], time_cap=AGE_MAX)
+    return emit.function(name, {"gyro": gyro, "accel": accel, "use_accel": use_accel, "moving": moving,
+                                "gyro_lp": g_lp, "acc_lp": a_lp, "rest_time": t, "dt": dt},
+                         {"gyro_lp_out": g_new, "acc_lp_out": a_new, "rest_time_out": t_new, "at_rest": at_rest})
+
+
+def mag_check_function(p: dict, hard_iron: bool, name="mag_check") -> ca.Function:
+    """The magnetometer's field check against a reference [norm, dip] (feat[0:2], from
+    heading_features), on a step with a magnetometer sample not in course mode:
+
+    - mag_norm_th <= 0, or recovering with the reference learned: accepted, nothing changes;
+    - learning (mag_ref_time < mag_learn_time): the reference is the running mean of the
+      samples (weight dt / (mag_ref_time + dt)), accepted;
+    - within the reference (|norm − ref| <= mag_norm_th ref and |dip − ref| <= mag_dip_th):
+      accepted, the reference follows with time constant mag_ref_tau, the rejected time reset;
+    - else rejected: a candidate field, restarted at a sample off it, else averaged over the time
+      it has been steady (weight dt / mag_cand_time); after mag_new_time steady (a lasting
+      change) or mag_reject_max rejected in a row it becomes the reference and the sample is
+      accepted (not while `hold`, the hard-iron candidate explaining the field), else
+      `disturbed`.
+
+    (qcf's aiding.field_check tests the norm's ratio and has no candidate field: mekf keeps its own.)
+    hard_iron adds `onset` (rejected now, accepted the step before), `learned` (a reference
+    learned, not recovering: the hard-iron fit may run) and `turning` (|gyro − b| >=
+    mag_bias_min_rate)."""
+    feat, ref, cand = ca.SX.sym("feat", 2), ca.SX.sym("mag_ref", 2), ca.SX.sym("mag_cand", 2)
+    t_ref, t_rej, t_cand = ca.SX.sym("mag_ref_time"), ca.SX.sym("mag_rej_time"), ca.SX.sym("mag_cand_time")
+    recovering, dt = ca.SX.sym("recovering"), ca.SX.sym("dt")
+    nth, dth, learn = p["mag_norm_th"], p["mag_dip_th"], p["mag_learn_time"]
+    learned_before = ca.logic_and(recovering, t_ref >= learn)
+    if isinstance(nth, (int, float)):
+        passing = ca.SX(1) if nth <= 0 else learned_before
+    else:
+        passing = ca.logic_or(nth <= 0, learned_before)
+
+    def off(r):
+        return ca.logic_or(ca.fabs(feat[0] - r[0]) > nth * r[0], ca.fabs(feat[1] - r[1]) > dth)
+
+    learning = t_ref < learn
+    ok = ca.logic_not(off(ref))
+    ref_learn = ref + (dt / (t_ref + dt)) * (feat - ref)
+    ref_follow = ref + (dt / (p["mag_ref_tau"] + dt)) * (feat - ref)
+    # rejected: the candidate
+    new_cand = off(cand)
+    t_steady = t_cand + dt                      # > 0: the divisor of the candidate's mean
+    t_c1 = ca.if_else(new_cand, 0.0, t_steady)
+    cand1 = ca.if_else(new_cand, feat, cand + (dt / t_steady) * (feat - cand))
+    t_rej1 = t_rej + dt
+    lasting = ca.logic_or(t_c1 >= p["mag_new_time"], t_rej1 > p["mag_reject_max"])
+    ins = {"feat": feat, "mag_ref": ref, "mag_ref_time": t_ref, "mag_rej_time": t_rej, "mag_cand": cand,
+           "mag_cand_time": t_cand, "recovering": recovering}
+    if hard_iron:
+        hold = ca.SX.sym("hold")
+        ins["hold"] = hold
+        lasting = ca.logic_and(lasting, ca.logic_not(hold))
+    ins["dt"] = dt
+    kept = ca.logic_or(passing, ca.logic_or(learning, ok))      # not rejected
+    ref_new = ca.if_else(passing, ref, ca.if_else(learning, ref_learn, ca.if_else(ok, ref_follow,
+                                                                                    ca.if_else(lasting, cand1, ref))))
+    t_ref_new = ca.if_else(ca.logic_and(ca.logic_not(passing), learning), t_ref + dt, t_ref)
+    t_rej_new = ca.if_else(ca.logic_or(passing, learning), t_rej,
+                           ca.if_else(ok, 0.0, ca.if_else(lasting, 0.0, t_rej1)))
+    outs = {"mag_ref_out": ref_new, "mag_ref_time_out": t_ref_new, "mag_rej_time_out": t_rej_new,
+            "mag_cand_out": ca.if_else(kept, cand, cand1),
+            "mag_cand_time_out": ca.if_else(kept, t_cand, ca.if_else(lasting, 0.0, t_c1)),
+            "use": ca.logic_or(kept, lasting), "disturbed": ca.logic_not(ca.logic_or(kept, lasting))}
+    if hard_iron:
+        gyro, b = ca.SX.sym("gyro", 3), ca.SX.sym("gyro_bias", 3)
+        ins |= {"gyro": gyro, "gyro_bias": b}
+        outs |= {"onset": ca.logic_and(ca.logic_not(kept), ca.logic_not(t_rej > 0)),
+                 "learned": ca.logic_and(ca.logic_and(ref_new[0] > 0, t_ref_new >= learn), ca.logic_not(recovering)),
+                 "turning": ca.sumsqr(gyro - b) >= _square(p["mag_bias_min_rate"])}
+    return emit.function(name, ins, outs)
+
+
+def head_timer_function(name="head_timer") -> ca.Function:
+    """head_age: 0 after a heading correction, else + dt up to AGE_MAX; `unaided` past HEAD_AGE_MAX."""
+    headed, age, dt = ca.SX.sym("headed"), ca.SX.sym("head_age"), ca.SX.sym("dt")
+    new = ca.if_else(headed, 0.0, ca.if_else(age < AGE_MAX, ca.fmin(age + dt, AGE_MAX), age))
+    return emit.function(name, {"headed": headed, "head_age": age, "dt": dt},
+                         {"head_age_out": new, "unaided": new > HEAD_AGE_MAX})
+
+
 def initial_P(p: dict) -> list:
     d = [(0.5 * p["p0_att"]) ** 2] * 3 + [p["p0_bias"] ** 2] * 3
     return [d[i] if i == j else 0.0 for j in range(N) for i in range(N)]
@@ -517,16 +702,60 @@ class Model(FilterModel):
             self.hard_iron_bias_field(),
         ] + (self.hard_iron_state(bias=False) if self._hard_iron() else [])
 
+    def _samples(self) -> dict:
+        """What aiding_samples keeps in this configuration (its keyword arguments)."""
+        p, gps = self.params, "gps" in self.sensors
+        return {"gps": gps, "gps_accel": gps and p["motion_comp"] == "gps_accel",
+                "course": gps and p["heading_source"] != "mag" and (self.vectors or p["heading_source"] == "gps_course"),
+                "moving": gps and self.vectors, "mag": self.vectors and p["heading_source"] != "gps_course"}
+
+    def _samples_kernel(self) -> list[KernelSpec]:
+        k = self._samples()
+        if not (k["gps"] or k["mag"]):
+            return []
+        flags = (("use_gps", "fresh") if k["gps"] else ()) + (("a_ok", "a_ok_out") if k["gps_accel"] else ()) + (
+            ("course_sample", "course_slow") if k["course"] else ()) + (("moving",) if k["moving"] else ()) + (
+            ("use_mag",) if k["mag"] else ())
+        return [KernelSpec("aiding_samples", aiding_samples_function(self.params, **k),
+                           "aiding samples: GPS velocity, its age and acceleration, course sample, moving; the "
+                           "magnetometer's sample less the hard iron and its interval", flags=flags)]
+
+    def _accel_gate_on(self) -> bool:
+        """The norm gate's test is written only when it can be on (a runtime value, or > 0): no
+        unreachable code in a default build. dict.get: not a use of a runtime value."""
+        gate = self.params.get("accel_gate")
+        return not isinstance(gate, (int, float)) or gate > 0
+
+    def _gate_kernel(self) -> list[KernelSpec]:
+        return [KernelSpec("accel_gate", accel_gate_function(self.params), "accelerometer norm gate",
+                           flags=("gated",))] if self._accel_gate_on() else []
+
+    def _vector_kernels(self) -> list[KernelSpec]:
+        p = self.params
+        auto = p["heading_source"] == "auto"
+        mag = p["heading_source"] != "gps_course"
+        return self._gate_kernel() + self._samples_kernel() + [
+            KernelSpec("rest", rest_function(p), "rest: gyro and accelerometer near their low-passes, for rest_min_time",
+                       flags=("use_accel", "moving", "at_rest")),
+            KernelSpec("head_timer", head_timer_function(), "time since the last heading correction",
+                       flags=("headed", "unaided")),
+        ] + ([KernelSpec("course_mode", course_mode_function(p), "heading source: GPS course or magnetometer",
+                         flags=("moving", "course_mode"))] if auto else []) + (
+            [KernelSpec("mag_check", mag_check_function(p, self._hard_iron()),
+                        "field check: norm and dip against the learned reference, candidate field",
+                        flags=("recovering", "use", "disturbed") + (
+                            ("hold", "onset", "learned", "turning") if self._hard_iron() else ()))] if mag else [])
+
     def kernels(self) -> list[KernelSpec]:
         p = self.params
         if self.vectors:
-            return [
+            return self._vector_kernels() + [
                 self.gyro_recovery_kernel(),
                 KernelSpec("predict_attitude", predict_attitude_function(p), "time update: attitude and F's attitude rows"),
                 KernelSpec("predict_covariance", predict_covariance_function(p), "time update: covariance",
                            flags=("clip",)),
                 KernelSpec("accel_lowpass", accel_lowpass_function(p), "earth-frame low-pass of the compensated specific force",
-                           flags=("mask",)),
+                           flags=("mask", "up_ok")),
                 KernelSpec("heading_features", heading_features_function(), "field norm and dip; GPS velocity in body axes"),
                 KernelSpec("gravity_rows", gravity_rows_function(p), "gravity direction: H rows, innovations, variance",
                            flags=("recover",)),
@@ -538,7 +767,7 @@ class Model(FilterModel):
                 KernelSpec("init_attitude", init_vectors_function(p), "first attitude and low-pass state",
                            flags=("use",)),
             ] + ([self.hard_iron_kernel(refine=p["mag_norm_th"], dip_angle=True)] if self._hard_iron() else [])
-        return [
+        return self._gate_kernel() + self._samples_kernel() + [
             KernelSpec("predict", predict_function(p), "time update (patent steps 1-2)"),
             KernelSpec("update", update_function(p), "measurement update with row mask (steps 3-8)", flags=("mask",)),
             KernelSpec("init_attitude", init_function(p), "first attitude from tilt and heading", flags=("use_head",)),
@@ -548,21 +777,24 @@ class Model(FilterModel):
         return self.vectors and bool(self.params["mag_bias"]) and self.params["heading_source"] != "gps_course"
 
     def step_paths(self) -> dict[str, list[str]]:
+        """Every kernel a step of the path runs (an aiding step: accelerometer and heading)."""
+        p = self.params
+        gate = ["accel_gate"] if self._accel_gate_on() else []     # on a step with an accelerometer sample
+        pre = ["aiding_samples"] if self._samples_kernel() else []
         if self.vectors:
-            return {"gyro only": ["gyro_recovery", "predict_attitude", "predict_covariance"],
-                    "with corrections": ["gyro_recovery", "predict_attitude", "predict_covariance", "heading_features", "accel_lowpass", "gravity_rows"] + ["update_attitude_row"] * 3
-                    + ["inject", "update_heading", "inject"],
-                    "at rest": ["gyro_recovery", "predict_attitude", "predict_covariance", "heading_features", "accel_lowpass", "gravity_rows"] + ["update_attitude_row"] * 3
-                    + ["update_rest_bias", "inject", "update_heading", "inject"]}
-        return {"gyro only": ["predict"], "with corrections": ["predict", "update"]}
+            every = ["gyro_recovery", "predict_attitude", "predict_covariance", "heading_features"] + (
+                ["course_mode"] if p["heading_source"] == "auto" else []) + ["rest"]
+            aided = gate + pre + every + ["accel_lowpass"] + (
+                ["mag_check"] if p["heading_source"] != "gps_course" else []) + ["gravity_rows"] + ["update_attitude_row"] * 3
+            heading = ["inject", "update_heading", "inject", "head_timer"]
+            return {"gyro only": pre + every + ["head_timer"],
+                    "with corrections": aided + heading,
+                    "at rest": aided + ["update_rest_bias"] + heading}
+        return {"gyro only": pre + ["predict"], "with corrections": gate + pre + ["predict", "update"]}
 
     def template_context(self) -> dict:
         p = self.params
         return {"n": N, "heading_source": p["heading_source"], "motion_comp": p["motion_comp"],
-                "s_pivot_min": S_PIVOT_MIN, "age_max": AGE_MAX, "mag_interval_max": MAG_INTERVAL_MAX, "g0": G0, "gps_dt_min": GPS_DT_MIN,
-                "vectors": self.vectors, "head_age_max": HEAD_AGE_MAX, "hard_iron": self._hard_iron(),
-                "mag_bias_p0": aiding.HARD_IRON_P0, "nc": aiding.HARD_IRON_NC,
-                "tan2_sideslip": math.tan(p["course_max_sideslip"]) ** 2,
-                # the norm gate's test is written only when it can be on (a runtime value, or > 0):
-                # no unreachable code in a default build. dict.get: not a use of a runtime value.
-                "accel_gate_on": not isinstance(p.get("accel_gate"), (int, float)) or p.get("accel_gate") > 0}
+                "s_pivot_min": S_PIVOT_MIN, "vectors": self.vectors, "hard_iron": self._hard_iron(),
+                "samples_kw": self._samples(),
+                "accel_gate_on": self._accel_gate_on()}
