@@ -1119,9 +1119,10 @@ static void adukf_k_innovation_part0(const float z0[6], const float zsum[18], co
     const float tmp26 = tmp24 - tmp25;
     residual[0] = tmp26;
     const float tmp27 = dt / span[0];
-    const float tmp28 = (tmp27 > 0.1f) ? tmp27 : 0.1f;
+    const float tmp28 = (tmp27 > 0.1f /* 1.0/span_steps_max */) ? tmp27 :
+            0.1f /* 1.0/span_steps_max */;
     const float tmp29 = (span[0] > 1e-09f) ? span[0] : 1e-09f;
-    const float tmp30 = 6.4e-05f / tmp29;
+    const float tmp30 = 6.4e-05f /* sigma_acc_density^2 */ / tmp29;
     const float tmp31 = zsum[1] * zsum[0];
     const float tmp32 = zdiff[1] * zdiff[0];
     const float tmp33 = tmp31 + tmp32;
@@ -1436,9 +1437,10 @@ static void adukf_k_innovation_part6(const float z0[6], const float zsum[18], co
     const float tmp271 = tmp269 - tmp270;
     residual[3] = tmp271;
     const float tmp272 = dt / span[1];
-    const float tmp273 = (tmp272 > 0.1f) ? tmp272 : 0.1f;
+    const float tmp273 = (tmp272 > 0.1f /* 1.0/span_steps_max */) ? tmp272 :
+            0.1f /* 1.0/span_steps_max */;
     const float tmp274 = (span[1] > 1e-09f) ? span[1] : 1e-09f;
-    const float tmp275 = 0.000144f / tmp274;
+    const float tmp275 = 0.000144f /* sigma_mag_density^2 */ / tmp274;
     const float tmp276 = zsum[4] * zsum[3];
     const float tmp277 = zdiff[4] * zdiff[3];
     const float tmp278 = tmp276 + tmp277;
@@ -1562,23 +1564,23 @@ static void adukf_k_innovation_part9(bool recover, float P_zz[21], float r_diag[
         tmp357 = 0.0f;
     } else {
         const float tmp358 = carry[3] * carry[3];
-        const float tmp359 = 300.0f * tmp358;
-        const float tmp360 = (tmp359 < 10.0f) ? tmp359 : 10.0f;
+        const float tmp359 = 300.0f /* k_a */ * tmp358;
+        const float tmp360 = (tmp359 < 10.0f /* adapt_max */) ? tmp359 : 10.0f /* adapt_max */;
         const float tmp361 = carry[11] * carry[11];
-        const float tmp362 = 300.0f * tmp361;
-        const float tmp363 = (tmp362 < 10.0f) ? tmp362 : 10.0f;
+        const float tmp362 = 300.0f /* k_a */ * tmp361;
+        const float tmp363 = (tmp362 < 10.0f /* adapt_max */) ? tmp362 : 10.0f /* adapt_max */;
         const float tmp364 = carry[6] * carry[6];
-        const float tmp365 = 300.0f * tmp364;
-        const float tmp366 = (tmp365 < 10.0f) ? tmp365 : 10.0f;
+        const float tmp365 = 300.0f /* k_a */ * tmp364;
+        const float tmp366 = (tmp365 < 10.0f /* adapt_max */) ? tmp365 : 10.0f /* adapt_max */;
         const float tmp367 = carry[13] * carry[13];
-        const float tmp368 = 300.0f * tmp367;
-        const float tmp369 = (tmp368 < 10.0f) ? tmp368 : 10.0f;
+        const float tmp368 = 300.0f /* k_m */ * tmp367;
+        const float tmp369 = (tmp368 < 10.0f /* adapt_max */) ? tmp368 : 10.0f /* adapt_max */;
         const float tmp370 = carry[0] * carry[0];
-        const float tmp371 = 300.0f * tmp370;
-        const float tmp372 = (tmp371 < 10.0f) ? tmp371 : 10.0f;
+        const float tmp371 = 300.0f /* k_m */ * tmp370;
+        const float tmp372 = (tmp371 < 10.0f /* adapt_max */) ? tmp371 : 10.0f /* adapt_max */;
         const float tmp373 = carry[12] * carry[12];
-        const float tmp374 = 300.0f * tmp373;
-        const float tmp375 = (tmp374 < 10.0f) ? tmp374 : 10.0f;
+        const float tmp374 = 300.0f /* k_m */ * tmp373;
+        const float tmp375 = (tmp374 < 10.0f /* adapt_max */) ? tmp374 : 10.0f /* adapt_max */;
         tmp352 = tmp360;
         tmp353 = tmp363;
         tmp354 = tmp366;
@@ -1586,25 +1588,25 @@ static void adukf_k_innovation_part9(bool recover, float P_zz[21], float r_diag[
         tmp356 = tmp372;
         tmp357 = tmp375;
     }
-    const float tmp376 = 0.0025f + tmp352;
+    const float tmp376 = 0.0025f /* sigma_acc^2 */ + tmp352;
     const float tmp377 = tmp376 * carry[4];
     const float tmp378 = tmp377 + carry[5];
     r_diag[0] = tmp378;
     const float tmp379 = carry[1] + tmp378;
     P_zz[0] = tmp379;
-    const float tmp380 = 0.0025f + tmp353;
+    const float tmp380 = 0.0025f /* sigma_acc^2 */ + tmp353;
     const float tmp381 = tmp380 * carry[4];
     const float tmp382 = tmp381 + carry[5];
     r_diag[1] = tmp382;
     const float tmp383 = carry[10] + tmp382;
     P_zz[6] = tmp383;
-    const float tmp384 = 0.0025f + tmp354;
+    const float tmp384 = 0.0025f /* sigma_acc^2 */ + tmp354;
     const float tmp385 = tmp384 * carry[4];
     const float tmp386 = tmp385 + carry[5];
     r_diag[2] = tmp386;
     const float tmp387 = carry[2] + tmp386;
     P_zz[11] = tmp387;
-    const float tmp388 = 0.0025f + tmp355;
+    const float tmp388 = 0.0025f /* sigma_mag^2 */ + tmp355;
     const float tmp389 = tmp388 * carry[14];
     const float tmp390 = tmp389 + carry[15];
     r_diag[3] = tmp390;
@@ -1616,13 +1618,13 @@ static void adukf_k_innovation_part9(bool recover, float P_zz[21], float r_diag[
 
 static void adukf_k_innovation_part10(float P_zz[21], float r_diag[6], const float carry[18])
 {
-    const float tmp392 = 0.0025f + carry[0];
+    const float tmp392 = 0.0025f /* sigma_mag^2 */ + carry[0];
     const float tmp393 = tmp392 * carry[14];
     const float tmp394 = tmp393 + carry[15];
     r_diag[4] = tmp394;
     const float tmp395 = carry[9] + tmp394;
     P_zz[18] = tmp395;
-    const float tmp396 = 0.0025f + carry[1];
+    const float tmp396 = 0.0025f /* sigma_mag^2 */ + carry[1];
     const float tmp397 = tmp396 * carry[14];
     const float tmp398 = tmp397 + carry[15];
     r_diag[5] = tmp398;
@@ -2750,7 +2752,7 @@ static void adukf_k_gyro_recovery(const float gyro[3], const float gyro_prev[3],
     const bool tmp30 = tmp4 || tmp29;
     const float tmp31 = recover_time - dt;
     const float tmp32 = (tmp31 > 0.0f) ? tmp31 : 0.0f;
-    const float tmp33 = (tmp30) ? 2.0f /* clip_recovery_time */ : tmp32;
+    const float tmp33 = (tmp30) ? 2.0f : tmp32;
     const float tmp34 = 0.5f * dt;
     const bool tmp35 = tmp34 < tmp33;
     *clipped = tmp30;
@@ -2948,7 +2950,7 @@ static void adukf_k_hard_iron_part0(const float mag[3], const float b[3], const 
 {
     const float tmp0 = turn_time + dt;
     const float tmp1 = (tmp0 < 1000.0f) ? tmp0 : 1000.0f;
-    const float tmp2 = 5.0f + dt;
+    const float tmp2 = 5.0f /* mag_bias_settle */ + dt;
     const float tmp3 = dt / tmp2;
     const float tmp4 = 0.2f + dt;
     const float tmp5 = dt / tmp4;
@@ -2958,7 +2960,7 @@ static void adukf_k_hard_iron_part0(const float mag[3], const float b[3], const 
     const float tmp9 = (fresh) ? tmp8 : cx[0];
     const bool tmp10 = fresh || reopen;
     const float tmp11 = (tmp10) ? 0.09f : cP[0];
-    const float tmp12 = 9e-06f * dt;
+    const float tmp12 = 9e-06f /* mag_bias_rw^2 */ * dt;
     const float tmp13 = tmp11 + tmp12;
     const float tmp14 = tmp7 - tmp9;
     const float tmp15 = tmp14 * tmp14;
@@ -3082,7 +3084,7 @@ static void adukf_k_hard_iron_part2(const float q[4], const float cP[25], float 
     const float tmp91 = tmp90 + carry[6];
     const float tmp92 = tmp89 - tmp91;
     const float tmp93 = tmp82 + tmp92;
-    const float tmp94 = 0.0025f - tmp93;
+    const float tmp94 = 0.0025f /* mag_bias_noise^2 */ - tmp93;
     const float tmp95 = 1.0f / tmp94;
     const float tmp96 = (1e-12f < tmp94) ? tmp95 : 1.0f;
     const float tmp97 = carry[21] * tmp96;
@@ -3210,7 +3212,7 @@ static void adukf_k_hard_iron_part4(const float ref[2], const float cx[5], const
     const float tmp183 = tmp179 - tmp182;
     const float tmp184 = tmp177 + tmp183;
     const float tmp185 = tmp172 + tmp184;
-    const float tmp186 = tmp185 + 0.0025f;
+    const float tmp186 = tmp185 + 0.0025f /* mag_bias_noise^2 */;
     const float tmp187 = 1.0f / tmp186;
     const float tmp188 = (1e-12f < tmp186) ? tmp187 : 1.0f;
     const float tmp189 = carry[34] * tmp188;
@@ -3417,15 +3419,15 @@ static void adukf_k_hard_iron_part8(const float b[3], const float ref[2], const 
     const float tmp329 = tmp328 - e[2];
     const float tmp330 = carry[1] * tmp329;
     const float tmp331 = e[2] + tmp330;
-    const bool tmp332 = (5.0f <= carry[0]) && (carry[10] < tmp331);
-    const float tmp333 = 0.09f * ref[0];
+    const bool tmp332 = (5.0f /* mag_bias_settle */ <= carry[0]) && (carry[10] < tmp331);
+    const float tmp333 = 0.09f /* mag_bias_jump*mag_bias_jump */ * ref[0];
     const float tmp334 = tmp333 * ref[0];
     const float tmp335 = b[0] * b[0];
     const float tmp336 = b[1] * b[1];
     const float tmp337 = tmp335 + tmp336;
     const float tmp338 = b[2] * b[2];
     const float tmp339 = tmp337 + tmp338;
-    const float tmp340 = (tmp334 <= tmp339) ? 0.1f : 0.3f;
+    const float tmp340 = (tmp334 <= tmp339) ? 0.1f /* mag_norm_tol */ : 0.3f /* mag_bias_jump */;
     const float tmp341 = tmp340 * tmp340;
     const float tmp342 = tmp341 * ref[0];
     const float tmp343 = tmp342 * ref[0];
@@ -3441,7 +3443,7 @@ static void adukf_k_hard_iron_part8(const float b[3], const float ref[2], const 
     const float tmp353 = tmp352 * tmp352;
     const float tmp354 = tmp350 + tmp353;
     const bool tmp355 = tmp332 && (tmp343 <= tmp354);
-    const bool tmp356 = tmp355 && (carry[9] < 0.000225f);
+    const bool tmp356 = tmp355 && (carry[9] < 0.000225f /* mag_bias_th*mag_bias_th */);
     const float tmp357 = carry[25] * carry[34];
     const float tmp358 = carry[29] - tmp357;
     const float tmp359 = carry[15] * carry[40];
@@ -3461,7 +3463,7 @@ static void adukf_k_hard_iron_part9(float carry[50], bool flags[2])
     const float tmp362 = carry[28] * carry[12];
     const float tmp363 = carry[6] - tmp362;
     const float tmp364 = tmp361 + tmp363;
-    const bool tmp365 = (tmp364 < 0.000225f) && (0.1f < carry[44]);
+    const bool tmp365 = (tmp364 < 0.000225f /* mag_bias_th*mag_bias_th */) && (0.1f < carry[44]);
     const bool tmp366 = flags[1] && tmp365;
     const float tmp367 = carry[15] * carry[34];
     const float tmp368 = carry[32] - tmp367;

@@ -188,7 +188,7 @@ static void mekf_k_gyro_recovery(const float gyro[3], const float gyro_prev[3],
     const bool tmp30 = tmp4 || tmp29;
     const float tmp31 = recover_time - dt;
     const float tmp32 = (tmp31 > 0.0f) ? tmp31 : 0.0f;
-    const float tmp33 = (tmp30) ? 2.0f /* clip_recovery_time */ : tmp32;
+    const float tmp33 = (tmp30) ? 2.0f : tmp32;
     const float tmp34 = 0.5f * dt;
     const bool tmp35 = tmp34 < tmp33;
     *clipped = tmp30;
@@ -2859,7 +2859,7 @@ static void mekf_k_hard_iron_part0(const float mag[3], const float b[3], const f
 {
     const float tmp0 = turn_time + dt;
     const float tmp1 = (tmp0 < 1000.0f) ? tmp0 : 1000.0f;
-    const float tmp2 = 5.0f + dt;
+    const float tmp2 = 5.0f /* mag_bias_settle */ + dt;
     const float tmp3 = dt / tmp2;
     const float tmp4 = 0.2f + dt;
     const float tmp5 = dt / tmp4;
@@ -2869,7 +2869,7 @@ static void mekf_k_hard_iron_part0(const float mag[3], const float b[3], const f
     const float tmp9 = (fresh) ? tmp8 : cx[0];
     const bool tmp10 = fresh || reopen;
     const float tmp11 = (tmp10) ? 0.09f : cP[0];
-    const float tmp12 = 9e-06f * dt;
+    const float tmp12 = 9e-06f /* mag_bias_rw^2 */ * dt;
     const float tmp13 = tmp11 + tmp12;
     const float tmp14 = tmp7 - tmp9;
     const float tmp15 = tmp14 * tmp14;
@@ -2993,7 +2993,7 @@ static void mekf_k_hard_iron_part2(const float q[4], const float cP[25], float c
     const float tmp91 = tmp90 + carry[6];
     const float tmp92 = tmp89 - tmp91;
     const float tmp93 = tmp82 + tmp92;
-    const float tmp94 = 0.0025f - tmp93;
+    const float tmp94 = 0.0025f /* mag_bias_noise^2 */ - tmp93;
     const float tmp95 = 1.0f / tmp94;
     const float tmp96 = (1e-12f < tmp94) ? tmp95 : 1.0f;
     const float tmp97 = carry[21] * tmp96;
@@ -3121,7 +3121,7 @@ static void mekf_k_hard_iron_part4(const float ref[2], const float cx[5], const 
     const float tmp183 = tmp179 - tmp182;
     const float tmp184 = tmp177 + tmp183;
     const float tmp185 = tmp172 + tmp184;
-    const float tmp186 = tmp185 + 0.0025f;
+    const float tmp186 = tmp185 + 0.0025f /* mag_bias_noise^2 */;
     const float tmp187 = 1.0f / tmp186;
     const float tmp188 = (1e-12f < tmp186) ? tmp187 : 1.0f;
     const float tmp189 = carry[34] * tmp188;
@@ -3333,15 +3333,15 @@ static void mekf_k_hard_iron_part8(const float b[3], const float ref[2], const f
     const float tmp330 = tmp329 - e[2];
     const float tmp331 = carry[1] * tmp330;
     const float tmp332 = e[2] + tmp331;
-    const bool tmp333 = (5.0f <= carry[0]) && (carry[10] < tmp332);
-    const float tmp334 = 0.04f * ref[0];
+    const bool tmp333 = (5.0f /* mag_bias_settle */ <= carry[0]) && (carry[10] < tmp332);
+    const float tmp334 = 0.04f /* mag_bias_jump*mag_bias_jump */ * ref[0];
     const float tmp335 = tmp334 * ref[0];
     const float tmp336 = b[0] * b[0];
     const float tmp337 = b[1] * b[1];
     const float tmp338 = tmp336 + tmp337;
     const float tmp339 = b[2] * b[2];
     const float tmp340 = tmp338 + tmp339;
-    const float tmp341 = (tmp335 <= tmp340) ? 0.1f : 0.2f;
+    const float tmp341 = (tmp335 <= tmp340) ? 0.1f /* mag_norm_th */ : 0.2f /* mag_bias_jump */;
     const float tmp342 = tmp341 * tmp341;
     const float tmp343 = tmp342 * ref[0];
     const float tmp344 = tmp343 * ref[0];
@@ -3357,7 +3357,7 @@ static void mekf_k_hard_iron_part8(const float b[3], const float ref[2], const f
     const float tmp354 = tmp353 * tmp353;
     const float tmp355 = tmp351 + tmp354;
     const bool tmp356 = tmp333 && (tmp344 <= tmp355);
-    const bool tmp357 = tmp356 && (carry[9] < 0.000225f);
+    const bool tmp357 = tmp356 && (carry[9] < 0.000225f /* mag_bias_th*mag_bias_th */);
     const float tmp358 = carry[25] * carry[34];
     const float tmp359 = carry[29] - tmp358;
     carry[2] = tmp323;
@@ -3376,7 +3376,7 @@ static void mekf_k_hard_iron_part9(float carry[51], bool flags[2])
     const float tmp363 = carry[31] * carry[12];
     const float tmp364 = carry[6] - tmp363;
     const float tmp365 = tmp362 + tmp364;
-    const bool tmp366 = (tmp365 < 0.000225f) && (0.1f < carry[46]);
+    const bool tmp366 = (tmp365 < 0.000225f /* mag_bias_th*mag_bias_th */) && (0.1f < carry[46]);
     const bool tmp367 = flags[1] && tmp366;
     const float tmp368 = carry[28] * carry[34];
     const float tmp369 = carry[32] - tmp368;

@@ -174,7 +174,7 @@ static void qcf_k_gyro_recovery(const float gyro[3], const float gyro_prev[3],
     const bool tmp30 = tmp4 || tmp29;
     const float tmp31 = recover_time - dt;
     const float tmp32 = (tmp31 > 0.0f) ? tmp31 : 0.0f;
-    const float tmp33 = (tmp30) ? 2.0f /* clip_recovery_time */ : tmp32;
+    const float tmp33 = (tmp30) ? 2.0f : tmp32;
     const float tmp34 = 0.5f * dt;
     const bool tmp35 = tmp34 < tmp33;
     *clipped = tmp30;
@@ -600,7 +600,7 @@ static inline void qcf_k_accel_lowpass(const float rot[9], const float accel[3],
 static void qcf_k_correct_part0(const float rot[9], const float accel_lp[3], const float mag_ned[3],
     float span_accel, bool recover, float carry[11])
 {
-    const float tmp0 = (recover) ? 1.0f : 0.125f;
+    const float tmp0 = (recover) ? 1.0f : 0.125f /* 0.5*kp */;
     const float tmp1 = tmp0 * span_accel;
     const float tmp2 = accel_lp[0] * accel_lp[0];
     const float tmp3 = accel_lp[1] * accel_lp[1];
@@ -828,13 +828,13 @@ static void qcf_k_correct_part4(const float gyro_bias[3], float span_accel, bool
         const bool tmp156 = use_accel && (!(recover));
         const bool tmp157 = (77.55708f < accel_norm2) && (accel_norm2 < 116.78368f);
         const bool tmp158 = tmp156 && tmp157;
-        const float tmp159 = 0.016f * carry[0];
+        const float tmp159 = 0.016f /* ki/(0.5*kp) */ * carry[0];
         const float tmp160 = gyro_bias[0] - tmp159;
         const float tmp161 = (tmp158) ? tmp160 : gyro_bias[0];
-        const float tmp162 = 0.016f * carry[1];
+        const float tmp162 = 0.016f /* ki/(0.5*kp) */ * carry[1];
         const float tmp163 = gyro_bias[1] - tmp162;
         const float tmp164 = (tmp158) ? tmp163 : gyro_bias[1];
-        const float tmp165 = 0.016f * carry[2];
+        const float tmp165 = 0.016f /* ki/(0.5*kp) */ * carry[2];
         const float tmp166 = gyro_bias[2] - tmp165;
         const float tmp167 = (tmp158) ? tmp166 : gyro_bias[2];
         tmp142 = tmp161;
@@ -916,7 +916,7 @@ static void qcf_k_correct(const float q[4], const float rot[9], const float gyro
 static void qcf_k_rest(const float gyro[3], float accel_norm2, const float rest_gyro_lp[3],
     float rest_time, float span, float rest_gyro_lp_new[3], float *rest_time_new, bool *at_rest)
 {
-    const float tmp0 = 0.5f + span;
+    const float tmp0 = 0.5f /* rest_tau */ + span;
     const float tmp1 = span / tmp0;
     const float tmp2 = gyro[0] - rest_gyro_lp[0];
     const float tmp3 = tmp1 * tmp2;
@@ -935,20 +935,21 @@ static void qcf_k_rest(const float gyro[3], float accel_norm2, const float rest_
     const float tmp16 = gyro[2] - tmp10;
     const float tmp17 = tmp16 * tmp16;
     const float tmp18 = tmp15 + tmp17;
-    const bool tmp19 = (86.61373f < accel_norm2) && (accel_norm2 < 106.227036f);
-    const bool tmp20 = (tmp18 < 0.001225f) && tmp19;
+    const bool tmp19 = (86.61373f /* (9.80665 - rest_accel_tol)^2 */ < accel_norm2) && (accel_norm2
+            < 106.227036f /* (9.80665 + rest_accel_tol)^2 */);
+    const bool tmp20 = (tmp18 < 0.001225f /* rest_gyro_tol^2 */) && tmp19;
     const float tmp21 = tmp4 * tmp4;
     const float tmp22 = tmp7 * tmp7;
     const float tmp23 = tmp21 + tmp22;
     const float tmp24 = tmp10 * tmp10;
     const float tmp25 = tmp23 + tmp24;
-    const bool tmp26 = tmp20 && (tmp25 < 0.001225f);
+    const bool tmp26 = tmp20 && (tmp25 < 0.001225f /* rest_gyro_tol^2 */);
     const float tmp27 = rest_time + span;
     const float tmp28 = (tmp27 < 1000.0f) ? tmp27 : 1000.0f;
     const float tmp29 = (tmp26) ? tmp28 : 0.0f;
     const float tmp30 = 0.5f * span;
     const float tmp31 = tmp29 + tmp30;
-    const bool tmp32 = 1.5f <= tmp31;
+    const bool tmp32 = 1.5f /* rest_time */ <= tmp31;
     rest_gyro_lp_new[0] = tmp4;
     rest_gyro_lp_new[1] = tmp7;
     rest_gyro_lp_new[2] = tmp10;
@@ -992,7 +993,7 @@ static void qcf_k_mag_check_part1(const float mag_ref[2], float mag_dist_time, f
     float tmp19;
     float tmp20;
     float tmp21;
-    if (carry[0] < 10.0f) {
+    if (carry[0] < 10.0f /* mag_warmup */) {
         const float tmp22 = span / carry[5];
         const float tmp23 = tmp22 * carry[2];
         const float tmp24 = mag_ref[0] + tmp23;
@@ -1004,13 +1005,13 @@ static void qcf_k_mag_check_part1(const float mag_ref[2], float mag_dist_time, f
         tmp21 = 0.0f;
     } else {
         const float tmp27 = fabsf(carry[2]);
-        const float tmp28 = 0.1f * mag_ref[0];
+        const float tmp28 = 0.1f /* mag_norm_tol */ * mag_ref[0];
         const float tmp29 = fabsf(carry[4]);
-        const bool tmp30 = (tmp27 < tmp28) && (tmp29 < 0.1f);
+        const bool tmp30 = (tmp27 < tmp28) && (tmp29 < 0.1f /* mag_dip_tol */);
         const bool tmp31 = tmp30 || (!(0.0f < mag_ref[0]));
         const float tmp32 = mag_dist_time + span;
         const float tmp33 = (tmp30) ? 0.0f : tmp32;
-        const bool tmp34 = (20.0f < tmp33) && (!(hold));
+        const bool tmp34 = (20.0f /* mag_new_time */ < tmp33) && (!(hold));
         const bool tmp35 = (!(0.0f < mag_ref[0])) || tmp34;
         float tmp36;
         float tmp37;
@@ -1021,7 +1022,7 @@ static void qcf_k_mag_check_part1(const float mag_ref[2], float mag_dist_time, f
             tmp37 = tmp39;
             tmp38 = 0.0f;
         } else {
-            const float tmp40 = 20.0f + span;
+            const float tmp40 = 20.0f /* mag_ref_tau */ + span;
             const float tmp41 = span / tmp40;
             const float tmp42 = tmp41 * carry[2];
             const float tmp43 = mag_ref[0] + tmp42;
@@ -1038,7 +1039,7 @@ static void qcf_k_mag_check_part1(const float mag_ref[2], float mag_dist_time, f
         tmp20 = tmp37;
         tmp21 = tmp38;
     }
-    const float tmp48 = (carry[5] < 10.0f) ? carry[5] : 10.0f;
+    const float tmp48 = (carry[5] < 10.0f /* mag_warmup */) ? carry[5] : 10.0f /* mag_warmup */;
     flags[0] = tmp18;
     carry[0] = tmp19;
     carry[1] = tmp20;
@@ -1094,7 +1095,7 @@ static void qcf_k_hard_iron_part0(const float mag[3], const float b[3], const fl
 {
     const float tmp0 = turn_time + dt;
     const float tmp1 = (tmp0 < 1000.0f) ? tmp0 : 1000.0f;
-    const float tmp2 = 5.0f + dt;
+    const float tmp2 = 5.0f /* mag_bias_settle */ + dt;
     const float tmp3 = dt / tmp2;
     const float tmp4 = 0.2f + dt;
     const float tmp5 = dt / tmp4;
@@ -1104,7 +1105,7 @@ static void qcf_k_hard_iron_part0(const float mag[3], const float b[3], const fl
     const float tmp9 = (fresh) ? tmp8 : cx[0];
     const bool tmp10 = fresh || reopen;
     const float tmp11 = (tmp10) ? 0.09f : cP[0];
-    const float tmp12 = 9e-06f * dt;
+    const float tmp12 = 9e-06f /* mag_bias_rw^2 */ * dt;
     const float tmp13 = tmp11 + tmp12;
     const float tmp14 = tmp7 - tmp9;
     const float tmp15 = tmp14 * tmp14;
@@ -1228,7 +1229,7 @@ static void qcf_k_hard_iron_part2(const float q[4], const float cP[25], float ca
     const float tmp91 = tmp90 + carry[6];
     const float tmp92 = tmp89 - tmp91;
     const float tmp93 = tmp82 + tmp92;
-    const float tmp94 = 0.0025f - tmp93;
+    const float tmp94 = 0.0025f /* mag_bias_noise^2 */ - tmp93;
     const float tmp95 = 1.0f / tmp94;
     const float tmp96 = (1e-12f < tmp94) ? tmp95 : 1.0f;
     const float tmp97 = carry[21] * tmp96;
@@ -1356,7 +1357,7 @@ static void qcf_k_hard_iron_part4(const float ref[2], const float cx[5], const f
     const float tmp183 = tmp179 - tmp182;
     const float tmp184 = tmp177 + tmp183;
     const float tmp185 = tmp172 + tmp184;
-    const float tmp186 = tmp185 + 0.0025f;
+    const float tmp186 = tmp185 + 0.0025f /* mag_bias_noise^2 */;
     const float tmp187 = 1.0f / tmp186;
     const float tmp188 = (1e-12f < tmp186) ? tmp187 : 1.0f;
     const float tmp189 = carry[34] * tmp188;
@@ -1563,15 +1564,15 @@ static void qcf_k_hard_iron_part8(const float b[3], const float ref[2], const fl
     const float tmp329 = tmp328 - e[2];
     const float tmp330 = carry[1] * tmp329;
     const float tmp331 = e[2] + tmp330;
-    const bool tmp332 = (5.0f <= carry[0]) && (carry[10] < tmp331);
-    const float tmp333 = 0.04f * ref[0];
+    const bool tmp332 = (5.0f /* mag_bias_settle */ <= carry[0]) && (carry[10] < tmp331);
+    const float tmp333 = 0.04f /* mag_bias_jump*mag_bias_jump */ * ref[0];
     const float tmp334 = tmp333 * ref[0];
     const float tmp335 = b[0] * b[0];
     const float tmp336 = b[1] * b[1];
     const float tmp337 = tmp335 + tmp336;
     const float tmp338 = b[2] * b[2];
     const float tmp339 = tmp337 + tmp338;
-    const float tmp340 = (tmp334 <= tmp339) ? 0.1f : 0.2f;
+    const float tmp340 = (tmp334 <= tmp339) ? 0.1f /* mag_norm_tol */ : 0.2f /* mag_bias_jump */;
     const float tmp341 = tmp340 * tmp340;
     const float tmp342 = tmp341 * ref[0];
     const float tmp343 = tmp342 * ref[0];
@@ -1587,7 +1588,7 @@ static void qcf_k_hard_iron_part8(const float b[3], const float ref[2], const fl
     const float tmp353 = tmp352 * tmp352;
     const float tmp354 = tmp350 + tmp353;
     const bool tmp355 = tmp332 && (tmp343 <= tmp354);
-    const bool tmp356 = tmp355 && (carry[9] < 0.000225f);
+    const bool tmp356 = tmp355 && (carry[9] < 0.000225f /* mag_bias_th*mag_bias_th */);
     const float tmp357 = carry[25] * carry[34];
     const float tmp358 = carry[29] - tmp357;
     const float tmp359 = carry[15] * carry[40];
@@ -1607,7 +1608,7 @@ static void qcf_k_hard_iron_part9(float carry[50], bool flags[2])
     const float tmp362 = carry[28] * carry[12];
     const float tmp363 = carry[6] - tmp362;
     const float tmp364 = tmp361 + tmp363;
-    const bool tmp365 = (tmp364 < 0.000225f) && (0.1f < carry[44]);
+    const bool tmp365 = (tmp364 < 0.000225f /* mag_bias_th*mag_bias_th */) && (0.1f < carry[44]);
     const bool tmp366 = flags[1] && tmp365;
     const float tmp367 = carry[15] * carry[34];
     const float tmp368 = carry[32] - tmp367;

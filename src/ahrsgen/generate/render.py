@@ -178,17 +178,17 @@ def _environment(folder: str) -> jinja2.Environment:
         keep_trailing_newline=True)
 
 
-def _folded_names(spec, params: dict, runtime: tuple, specs) -> dict[str, dict[int, str]]:
-    """{kernel: {instruction: parameter expression}} for the literals of the baked kernels that
-    are folded parameters (src/ahrsgen/codegen/folded.py: the kernels built again on traced values)."""
+def _folded_names(spec, params: dict, runtime: tuple, specs) -> dict[str, dict[tuple[int, int], str]]:
+    """{kernel: {(instruction, operand): name}} for the literals of the baked kernels that are
+    folded parameters or named constants (src/ahrsgen/codegen/folded.py: the kernels built
+    again on traced values; ahrsgen.symbolic.named)."""
     floats = [n for n, p in spec.params.items() if p.type == "float" and n not in runtime]
     values, record = folded.traced_params(params, floats)
-    if not record:
-        return {}
     for n in runtime:
         values[n] = emit.runtime_symbol(n)
     try:
-        traced = {ks.name: ks.function for ks in spec.model(values).kernels()}
+        with folded.tracing(record):
+            traced = {ks.name: ks.function for ks in spec.model(values).kernels()}
     except Exception:      # a model that needs plain numbers: its literals stay unnamed
         return {}
     out = {ks.name: folded.constant_names(ks.function, traced[ks.name], record) for ks in specs if ks.name in traced}
@@ -209,8 +209,10 @@ def render(cfg: BuildConfig, names: bool = True) -> Generated:
 
     def lit(v, name: str | None = None) -> str:
         """A literal of the build's type; a value derived from parameters carries its
-        derivation beside it, as the kernels' folded constants do (`0.29844642f /* ... */`)."""
+        derivation beside it, as the kernels' folded constants do (`0.29844642f /* ... */`),
+        and a named constant (ahrsgen.constants.Const) its name."""
         text = emit.literal(v, real)
+        name = name or getattr(v, "name", None)
         return f"{text} /* {name} */" if name and name_derived else text
 
     # Kernels: the filter's plus the shared Euler output. Runtime parameters are read through
