@@ -135,17 +135,21 @@ def test_a_parameter_equal_to_structural_constants_is_not_named_with_them():
     assert len(bare.findall(half)) + named == len(bare.findall(default)) + n
 
 
-def test_structural_constants_of_mekf_are_not_named():
+def test_structural_constants_of_mekf_carry_their_own_names():
     """mekf's fixed constants (S_PIVOT_MIN 1e-12, DT_Q_MIN 1e-9, the 0.01 of the series
-    switch) are written bare, and no parameter of the defaults prints as one of them (none is
-    named there); every name uses only parameters."""
+    switch) are never bare and never named by a parameter: each stands beside its own name
+    only; every name uses only parameters and named constants."""
     src = (REPO / "generated" / "mekf" / "mekf.c").read_text()
-    for lit in ("1e-12f", "1e-09f", "0.01f"):
-        assert re.search(rf"(?<![0-9.e]){re.escape(lit)}(?! /\*)", src), lit
-    assert {e for lit, e in _named(src) if lit in ("1e-12f", "1e-09f", "0.01f")} == set()
+    # the code (a kernel's comment block quotes its branch conditions bare)
+    src = "\n".join(ln for ln in src.splitlines() if not ln.lstrip().startswith(("*", "/*")))
+    own = {"1e-12f": {"S_PIVOT_MIN", "HARD_IRON_PIVOT_MIN"}, "1e-09f": {"DT_Q_MIN"}, "0.01f": {"SERIES_MAX*SERIES_MAX"}}
+    for lit, names in own.items():
+        assert not re.search(rf"(?<![0-9.e]){re.escape(lit)}(?! /\*)", src), lit
+        assert {e for x, e in _named(src) if x == lit} == names, lit
     params = json.loads((REPO / "generated" / "mekf" / "manifest.json").read_text())["params"]
     for _, expr in _named(src):
-        assert set(re.findall(r"[A-Za-z_]\w*", expr)) <= set(params) | set(FUNCTIONS), expr
+        words = set(re.findall(r"[A-Za-z_]\w*", expr))
+        assert words <= set(params) | set(FUNCTIONS) | set(_named_constants()), expr
 
 
 def test_traced_text_and_values():
@@ -264,6 +268,42 @@ def _kernel_literals(k):
             for x in ir.walk(e) if isinstance(x, ir.Lit)]
 
 
+# Literals that may stand bare in a kernel: small whole numbers (|n| <= 10: the 2 of x + x, the
+# 4 of a Jacobian, the 9 of a 3-sigma gate), halves and quarters (1/2 q (x) w, dt^2/4). Every
+# other number is a folded parameter or a named constant (ahrsgen.constants) and says so.
+def _structural(v: float) -> bool:
+    return (v == int(v) and abs(v) <= 10) or abs(v) in (0.5, 0.25)
+
+
+def _builds():
+    from ahrsgen import filters
+    return [(n, p) for n in ("qcf", "mekf", "adukf", "cpf") for p in [None] + sorted(filters.load(n).presets())]
+
+
+@pytest.mark.parametrize("name,preset", _builds())
+def test_no_bare_constant_in_any_kernel(name, preset):
+    """Every literal of every kernel of the default build and of each preset is structural
+    (above) or named, and each name, evaluated from the build's parameters and the named
+    constants' declared values, is the number beside it (float32)."""
+    cfg = config.resolve(name, preset=preset)
+    gen = render.render(cfg)
+    known = {**_named_constants(), **cfg.params}
+    if name == "adukf":
+        from ahrsgen.filters.adukf.model import Model
+        known.update(_ut_weights(cfg.params, Model(cfg.params).n))
+    bare, checked = [], 0
+    for k in gen.kernels:
+        for lit in _kernel_literals(k):
+            if lit.value is None or (lit.name is None and _structural(lit.value)):
+                continue
+            if lit.name is None:
+                bare.append((k.name, lit.text))
+            elif not lit.name.startswith("from "):
+                assert np.float32(_evaluate(lit.name, known)) == np.float32(lit.value), (k.name, lit)
+                checked += 1
+    assert bare == [] and checked > 0
+
+
 def test_a_parameter_equal_to_a_structural_constant_leaves_the_kernel_named():
     """qcf's hard iron kernel with mag_bias_jump at its default 0.2, the value of the kernel's
     own residual low-pass HARD_IRON_RES_TAU (CasADi merges the two into one constant): its
@@ -280,3 +320,4 @@ def test_a_parameter_equal_to_a_structural_constant_leaves_the_kernel_named():
     assert "mag_bias_jump" in names and names == sorted(x.name for x in _kernel_literals(apart) if x.name)
     assert str(np.float32(params['mag_bias_rw'] ** 2)) + "f /* mag_bias_rw^2 */" in merged.source()
     assert "0.2f /* mag_bias_jump */" in merged.source() and "0.25f /* mag_bias_jump */" in apart.source()
+    assert merged.source().count("0.2f /* HARD_IRON_RES_TAU */") == apart.source().count("0.2f /* HARD_IRON_RES_TAU */") > 0

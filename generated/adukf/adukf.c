@@ -689,22 +689,22 @@ static void adukf_k_sigma_setup_part0(const float P_pred[21], float aL[18], floa
     const float tmp1 = 1.0f / tmp0;
     const float tmp2 = sqrtf(tmp1);
     const float tmp3 = tmp0 * tmp2;
-    const float tmp4 = 2.4494898f * tmp3;
+    const float tmp4 = 2.4494898f /* UT_A */ * tmp3;
     aL[0] = tmp4;
     const float tmp5 = P_pred[1] * tmp2;
-    const float tmp6 = 2.4494898f * tmp5;
+    const float tmp6 = 2.4494898f /* UT_A */ * tmp5;
     aL[1] = tmp6;
     const float tmp7 = P_pred[2] * tmp2;
-    const float tmp8 = 2.4494898f * tmp7;
+    const float tmp8 = 2.4494898f /* UT_A */ * tmp7;
     aL[2] = tmp8;
     const float tmp9 = P_pred[3] * tmp2;
-    const float tmp10 = 2.4494898f * tmp9;
+    const float tmp10 = 2.4494898f /* UT_A */ * tmp9;
     aL[3] = tmp10;
     const float tmp11 = P_pred[4] * tmp2;
-    const float tmp12 = 2.4494898f * tmp11;
+    const float tmp12 = 2.4494898f /* UT_A */ * tmp11;
     aL[4] = tmp12;
     const float tmp13 = P_pred[5] * tmp2;
-    const float tmp14 = 2.4494898f * tmp13;
+    const float tmp14 = 2.4494898f /* UT_A */ * tmp13;
     aL[5] = tmp14;
     const float tmp15 = tmp5 * tmp5;
     const float tmp16 = P_pred[6] - tmp15;
@@ -712,27 +712,27 @@ static void adukf_k_sigma_setup_part0(const float P_pred[21], float aL[18], floa
     const float tmp18 = 1.0f / tmp17;
     const float tmp19 = sqrtf(tmp18);
     const float tmp20 = tmp17 * tmp19;
-    const float tmp21 = 2.4494898f * tmp20;
+    const float tmp21 = 2.4494898f /* UT_A */ * tmp20;
     aL[7] = tmp21;
     const float tmp22 = tmp7 * tmp5;
     const float tmp23 = P_pred[7] - tmp22;
     const float tmp24 = tmp23 * tmp19;
-    const float tmp25 = 2.4494898f * tmp24;
+    const float tmp25 = 2.4494898f /* UT_A */ * tmp24;
     aL[8] = tmp25;
     const float tmp26 = tmp9 * tmp5;
     const float tmp27 = P_pred[8] - tmp26;
     const float tmp28 = tmp27 * tmp19;
-    const float tmp29 = 2.4494898f * tmp28;
+    const float tmp29 = 2.4494898f /* UT_A */ * tmp28;
     aL[9] = tmp29;
     const float tmp30 = tmp11 * tmp5;
     const float tmp31 = P_pred[9] - tmp30;
     const float tmp32 = tmp31 * tmp19;
-    const float tmp33 = 2.4494898f * tmp32;
+    const float tmp33 = 2.4494898f /* UT_A */ * tmp32;
     aL[10] = tmp33;
     const float tmp34 = tmp13 * tmp5;
     const float tmp35 = P_pred[10] - tmp34;
     const float tmp36 = tmp35 * tmp19;
-    const float tmp37 = 2.4494898f * tmp36;
+    const float tmp37 = 2.4494898f /* UT_A */ * tmp36;
     aL[11] = tmp37;
     const float tmp38 = tmp7 * tmp7;
     const float tmp39 = P_pred[11] - tmp38;
@@ -757,28 +757,28 @@ static void adukf_k_sigma_setup_part1(const float q_pred_unit[4], const float P_
     const float tmp43 = 1.0f / tmp42;
     const float tmp44 = sqrtf(tmp43);
     const float tmp45 = tmp42 * tmp44;
-    const float tmp46 = 2.4494898f * tmp45;
+    const float tmp46 = 2.4494898f /* UT_A */ * tmp45;
     aL[14] = tmp46;
     const float tmp47 = carry[1] * carry[0];
     const float tmp48 = P_pred[12] - tmp47;
     const float tmp49 = carry[6] * carry[5];
     const float tmp50 = tmp48 - tmp49;
     const float tmp51 = tmp50 * tmp44;
-    const float tmp52 = 2.4494898f * tmp51;
+    const float tmp52 = 2.4494898f /* UT_A */ * tmp51;
     aL[15] = tmp52;
     const float tmp53 = carry[2] * carry[0];
     const float tmp54 = P_pred[13] - tmp53;
     const float tmp55 = carry[7] * carry[5];
     const float tmp56 = tmp54 - tmp55;
     const float tmp57 = tmp56 * tmp44;
-    const float tmp58 = 2.4494898f * tmp57;
+    const float tmp58 = 2.4494898f /* UT_A */ * tmp57;
     aL[16] = tmp58;
     const float tmp59 = carry[3] * carry[0];
     const float tmp60 = P_pred[14] - tmp59;
     const float tmp61 = carry[8] * carry[5];
     const float tmp62 = tmp60 - tmp61;
     const float tmp63 = tmp62 * tmp44;
-    const float tmp64 = 2.4494898f * tmp63;
+    const float tmp64 = 2.4494898f /* UT_A */ * tmp63;
     aL[17] = tmp64;
     const float tmp65 = q_pred_unit[1] * q_pred_unit[3];
     const float tmp66 = q_pred_unit[0] * q_pred_unit[2];
@@ -1101,10 +1101,10 @@ static void adukf_k_innovation_part0(const float z0[6], const float zsum[18], co
     const float tmp8 = zdiff[12] * zdiff[12];
     const float tmp9 = tmp7 + tmp8;
     const float tmp10 = tmp6 + tmp9;
-    const float tmp11 = 0.041666668f * tmp10;
+    const float tmp11 = 0.041666668f /* 0.5*UT_W */ * tmp10;
     const float tmp12 = zsum[0] + zsum[6];
     const float tmp13 = tmp12 + zsum[12];
-    const float tmp14 = 0.083333336f * tmp13;
+    const float tmp14 = 0.083333336f /* UT_W */ * tmp13;
     const float tmp15 = tmp14 * tmp14;
     const float tmp16 = tmp11 + tmp15;
     const float tmp17 = accel[0] * accel[0];
@@ -1121,7 +1121,7 @@ static void adukf_k_innovation_part0(const float z0[6], const float zsum[18], co
     const float tmp27 = dt / span[0];
     const float tmp28 = (tmp27 > 0.1f /* 1.0/span_steps_max */) ? tmp27 :
             0.1f /* 1.0/span_steps_max */;
-    const float tmp29 = (span[0] > 1e-09f) ? span[0] : 1e-09f;
+    const float tmp29 = (span[0] > 1e-09f /* SPAN_MIN */) ? span[0] : 1e-09f /* SPAN_MIN */;
     const float tmp30 = 6.4e-05f /* sigma_acc_density^2 */ / tmp29;
     const float tmp31 = zsum[1] * zsum[0];
     const float tmp32 = zdiff[1] * zdiff[0];
@@ -1148,10 +1148,10 @@ static void adukf_k_innovation_part1(const float zsum[18], const float zdiff[18]
 {
     const float tmp40 = carry[7] + carry[8];
     const float tmp41 = carry[6] + tmp40;
-    const float tmp42 = 0.041666668f * tmp41;
+    const float tmp42 = 0.041666668f /* 0.5*UT_W */ * tmp41;
     const float tmp43 = zsum[1] + zsum[7];
     const float tmp44 = tmp43 + zsum[13];
-    const float tmp45 = 0.083333336f * tmp44;
+    const float tmp45 = 0.083333336f /* UT_W */ * tmp44;
     const float tmp46 = tmp45 * carry[0];
     const float tmp47 = tmp42 + tmp46;
     P_zz[1] = tmp47;
@@ -1166,10 +1166,10 @@ static void adukf_k_innovation_part1(const float zsum[18], const float zdiff[18]
     const float tmp56 = zdiff[14] * zdiff[12];
     const float tmp57 = tmp55 + tmp56;
     const float tmp58 = tmp54 + tmp57;
-    const float tmp59 = 0.041666668f * tmp58;
+    const float tmp59 = 0.041666668f /* 0.5*UT_W */ * tmp58;
     const float tmp60 = zsum[2] + zsum[8];
     const float tmp61 = tmp60 + zsum[14];
-    const float tmp62 = 0.083333336f * tmp61;
+    const float tmp62 = 0.083333336f /* UT_W */ * tmp61;
     const float tmp63 = tmp62 * carry[0];
     const float tmp64 = tmp59 + tmp63;
     P_zz[2] = tmp64;
@@ -1184,10 +1184,10 @@ static void adukf_k_innovation_part1(const float zsum[18], const float zdiff[18]
     const float tmp73 = zdiff[15] * zdiff[12];
     const float tmp74 = tmp72 + tmp73;
     const float tmp75 = tmp71 + tmp74;
-    const float tmp76 = 0.041666668f * tmp75;
+    const float tmp76 = 0.041666668f /* 0.5*UT_W */ * tmp75;
     const float tmp77 = zsum[3] + zsum[9];
     const float tmp78 = tmp77 + zsum[15];
-    const float tmp79 = 0.083333336f * tmp78;
+    const float tmp79 = 0.083333336f /* UT_W */ * tmp78;
     carry[6] = tmp45;
     carry[7] = tmp62;
     carry[8] = tmp76;
@@ -1211,10 +1211,10 @@ static void adukf_k_innovation_part2(const float zsum[18], const float zdiff[18]
     const float tmp90 = zdiff[16] * zdiff[12];
     const float tmp91 = tmp89 + tmp90;
     const float tmp92 = tmp88 + tmp91;
-    const float tmp93 = 0.041666668f * tmp92;
+    const float tmp93 = 0.041666668f /* 0.5*UT_W */ * tmp92;
     const float tmp94 = zsum[4] + zsum[10];
     const float tmp95 = tmp94 + zsum[16];
-    const float tmp96 = 0.083333336f * tmp95;
+    const float tmp96 = 0.083333336f /* UT_W */ * tmp95;
     const float tmp97 = tmp96 * carry[0];
     const float tmp98 = tmp93 + tmp97;
     P_zz[4] = tmp98;
@@ -1229,10 +1229,10 @@ static void adukf_k_innovation_part2(const float zsum[18], const float zdiff[18]
     const float tmp107 = zdiff[17] * zdiff[12];
     const float tmp108 = tmp106 + tmp107;
     const float tmp109 = tmp105 + tmp108;
-    const float tmp110 = 0.041666668f * tmp109;
+    const float tmp110 = 0.041666668f /* 0.5*UT_W */ * tmp109;
     const float tmp111 = zsum[5] + zsum[11];
     const float tmp112 = tmp111 + zsum[17];
-    const float tmp113 = 0.083333336f * tmp112;
+    const float tmp113 = 0.083333336f /* UT_W */ * tmp112;
     const float tmp114 = tmp113 * carry[0];
     const float tmp115 = tmp110 + tmp114;
     P_zz[5] = tmp115;
@@ -1256,7 +1256,7 @@ static void adukf_k_innovation_part3(const float z0[6], const float zsum[18], co
     const float tmp124 = zdiff[13] * zdiff[13];
     const float tmp125 = tmp123 + tmp124;
     const float tmp126 = tmp122 + tmp125;
-    const float tmp127 = 0.041666668f * tmp126;
+    const float tmp127 = 0.041666668f /* 0.5*UT_W */ * tmp126;
     const float tmp128 = carry[6] * carry[6];
     const float tmp129 = tmp127 + tmp128;
     const float tmp130 = accel[1] * carry[2];
@@ -1274,7 +1274,7 @@ static void adukf_k_innovation_part3(const float z0[6], const float zsum[18], co
     const float tmp141 = zdiff[14] * zdiff[13];
     const float tmp142 = tmp140 + tmp141;
     const float tmp143 = tmp139 + tmp142;
-    const float tmp144 = 0.041666668f * tmp143;
+    const float tmp144 = 0.041666668f /* 0.5*UT_W */ * tmp143;
     const float tmp145 = carry[7] * carry[6];
     const float tmp146 = tmp144 + tmp145;
     P_zz[7] = tmp146;
@@ -1289,7 +1289,7 @@ static void adukf_k_innovation_part3(const float z0[6], const float zsum[18], co
     const float tmp155 = zdiff[15] * zdiff[13];
     const float tmp156 = tmp154 + tmp155;
     const float tmp157 = tmp153 + tmp156;
-    const float tmp158 = 0.041666668f * tmp157;
+    const float tmp158 = 0.041666668f /* 0.5*UT_W */ * tmp157;
     const float tmp159 = carry[9] * carry[6];
     carry[10] = tmp129;
     carry[11] = tmp132;
@@ -1313,7 +1313,7 @@ static void adukf_k_innovation_part4(const float zsum[18], const float zdiff[18]
     const float tmp169 = zdiff[16] * zdiff[13];
     const float tmp170 = tmp168 + tmp169;
     const float tmp171 = tmp167 + tmp170;
-    const float tmp172 = 0.041666668f * tmp171;
+    const float tmp172 = 0.041666668f /* 0.5*UT_W */ * tmp171;
     const float tmp173 = carry[0] * carry[6];
     const float tmp174 = tmp172 + tmp173;
     P_zz[9] = tmp174;
@@ -1328,7 +1328,7 @@ static void adukf_k_innovation_part4(const float zsum[18], const float zdiff[18]
     const float tmp183 = zdiff[17] * zdiff[13];
     const float tmp184 = tmp182 + tmp183;
     const float tmp185 = tmp181 + tmp184;
-    const float tmp186 = 0.041666668f * tmp185;
+    const float tmp186 = 0.041666668f /* 0.5*UT_W */ * tmp185;
     const float tmp187 = carry[8] * carry[6];
     const float tmp188 = tmp186 + tmp187;
     P_zz[10] = tmp188;
@@ -1349,7 +1349,7 @@ static void adukf_k_innovation_part4(const float zsum[18], const float zdiff[18]
 static void adukf_k_innovation_part5(const float z0[6], const float zsum[18], const float zdiff[18],
     const float accel[3], float P_zz[21], float residual[6], float carry[18])
 {
-    const float tmp200 = 0.041666668f * carry[6];
+    const float tmp200 = 0.041666668f /* 0.5*UT_W */ * carry[6];
     const float tmp201 = carry[7] * carry[7];
     const float tmp202 = tmp200 + tmp201;
     const float tmp203 = accel[2] * carry[2];
@@ -1367,7 +1367,7 @@ static void adukf_k_innovation_part5(const float z0[6], const float zsum[18], co
     const float tmp214 = zdiff[15] * zdiff[14];
     const float tmp215 = tmp213 + tmp214;
     const float tmp216 = tmp212 + tmp215;
-    const float tmp217 = 0.041666668f * tmp216;
+    const float tmp217 = 0.041666668f /* 0.5*UT_W */ * tmp216;
     const float tmp218 = carry[9] * carry[7];
     const float tmp219 = tmp217 + tmp218;
     P_zz[12] = tmp219;
@@ -1382,7 +1382,7 @@ static void adukf_k_innovation_part5(const float z0[6], const float zsum[18], co
     const float tmp228 = zdiff[16] * zdiff[14];
     const float tmp229 = tmp227 + tmp228;
     const float tmp230 = tmp226 + tmp229;
-    const float tmp231 = 0.041666668f * tmp230;
+    const float tmp231 = 0.041666668f /* 0.5*UT_W */ * tmp230;
     const float tmp232 = carry[0] * carry[7];
     const float tmp233 = tmp231 + tmp232;
     P_zz[13] = tmp233;
@@ -1407,7 +1407,7 @@ static void adukf_k_innovation_part6(const float z0[6], const float zsum[18], co
     const float tmp242 = zdiff[17] * zdiff[14];
     const float tmp243 = tmp241 + tmp242;
     const float tmp244 = tmp240 + tmp243;
-    const float tmp245 = 0.041666668f * tmp244;
+    const float tmp245 = 0.041666668f /* 0.5*UT_W */ * tmp244;
     const float tmp246 = carry[8] * carry[7];
     const float tmp247 = tmp245 + tmp246;
     P_zz[14] = tmp247;
@@ -1422,7 +1422,7 @@ static void adukf_k_innovation_part6(const float z0[6], const float zsum[18], co
     const float tmp256 = zdiff[15] * zdiff[15];
     const float tmp257 = tmp255 + tmp256;
     const float tmp258 = tmp254 + tmp257;
-    const float tmp259 = 0.041666668f * tmp258;
+    const float tmp259 = 0.041666668f /* 0.5*UT_W */ * tmp258;
     const float tmp260 = carry[9] * carry[9];
     const float tmp261 = tmp259 + tmp260;
     const float tmp262 = mag[0] * mag[0];
@@ -1439,7 +1439,7 @@ static void adukf_k_innovation_part6(const float z0[6], const float zsum[18], co
     const float tmp272 = dt / span[1];
     const float tmp273 = (tmp272 > 0.1f /* 1.0/span_steps_max */) ? tmp272 :
             0.1f /* 1.0/span_steps_max */;
-    const float tmp274 = (span[1] > 1e-09f) ? span[1] : 1e-09f;
+    const float tmp274 = (span[1] > 1e-09f /* SPAN_MIN */) ? span[1] : 1e-09f /* SPAN_MIN */;
     const float tmp275 = 0.000144f /* sigma_mag_density^2 */ / tmp274;
     const float tmp276 = zsum[4] * zsum[3];
     const float tmp277 = zdiff[4] * zdiff[3];
@@ -1464,7 +1464,7 @@ static void adukf_k_innovation_part7(const float z0[6], const float zsum[18], co
     const float tmp284 = zdiff[16] * zdiff[15];
     const float tmp285 = tmp283 + tmp284;
     const float tmp286 = tmp282 + tmp285;
-    const float tmp287 = 0.041666668f * tmp286;
+    const float tmp287 = 0.041666668f /* 0.5*UT_W */ * tmp286;
     const float tmp288 = carry[0] * carry[9];
     const float tmp289 = tmp287 + tmp288;
     P_zz[16] = tmp289;
@@ -1479,7 +1479,7 @@ static void adukf_k_innovation_part7(const float z0[6], const float zsum[18], co
     const float tmp298 = zdiff[17] * zdiff[15];
     const float tmp299 = tmp297 + tmp298;
     const float tmp300 = tmp296 + tmp299;
-    const float tmp301 = 0.041666668f * tmp300;
+    const float tmp301 = 0.041666668f /* 0.5*UT_W */ * tmp300;
     const float tmp302 = carry[8] * carry[9];
     const float tmp303 = tmp301 + tmp302;
     P_zz[17] = tmp303;
@@ -1494,7 +1494,7 @@ static void adukf_k_innovation_part7(const float z0[6], const float zsum[18], co
     const float tmp312 = zdiff[16] * zdiff[16];
     const float tmp313 = tmp311 + tmp312;
     const float tmp314 = tmp310 + tmp313;
-    const float tmp315 = 0.041666668f * tmp314;
+    const float tmp315 = 0.041666668f /* 0.5*UT_W */ * tmp314;
     const float tmp316 = carry[0] * carry[0];
     const float tmp317 = tmp315 + tmp316;
     const float tmp318 = mag[1] * carry[12];
@@ -1520,7 +1520,7 @@ static void adukf_k_innovation_part8(const float z0[6], const float zsum[18], co
     const float tmp329 = zdiff[17] * zdiff[16];
     const float tmp330 = tmp328 + tmp329;
     const float tmp331 = tmp327 + tmp330;
-    const float tmp332 = 0.041666668f * tmp331;
+    const float tmp332 = 0.041666668f /* 0.5*UT_W */ * tmp331;
     const float tmp333 = carry[8] * carry[0];
     const float tmp334 = tmp332 + tmp333;
     P_zz[19] = tmp334;
@@ -1535,7 +1535,7 @@ static void adukf_k_innovation_part8(const float z0[6], const float zsum[18], co
     const float tmp343 = zdiff[17] * zdiff[17];
     const float tmp344 = tmp342 + tmp343;
     const float tmp345 = tmp341 + tmp344;
-    const float tmp346 = 0.041666668f * tmp345;
+    const float tmp346 = 0.041666668f /* 0.5*UT_W */ * tmp345;
     const float tmp347 = carry[8] * carry[8];
     const float tmp348 = tmp346 + tmp347;
     const float tmp349 = mag[2] * carry[12];
@@ -1930,7 +1930,7 @@ static void adukf_k_gain_part4(const float P_zz[21], const float zdiff[18], cons
     const float tmp183 = tmp182 * tmp171;
     const float tmp184 = tmp172 * tmp183;
     const float tmp185 = carry[29] + tmp184;
-    const float tmp186 = 0.083333336f * tmp185;
+    const float tmp186 = 0.083333336f /* UT_W */ * tmp185;
     const float tmp187 = zdiff[6] * carry[0];
     const float tmp188 = tmp187 * carry[2];
     const float tmp189 = carry[3] * tmp187;
@@ -1992,7 +1992,7 @@ static void adukf_k_gain_part5(const float zdiff[18], float carry[45])
     const float tmp231 = tmp230 * carry[35];
     const float tmp232 = tmp231 * carry[37];
     const float tmp233 = tmp220 + tmp232;
-    const float tmp234 = 0.083333336f * tmp233;
+    const float tmp234 = 0.083333336f /* UT_W */ * tmp233;
     const float tmp235 = zdiff[12] * carry[0];
     const float tmp236 = tmp235 * carry[2];
     const float tmp237 = carry[3] * tmp235;
@@ -2060,7 +2060,7 @@ static void adukf_k_gain_part7(float carry[45])
 {
     const float tmp280 = carry[12] * carry[37];
     const float tmp281 = carry[10] + tmp280;
-    const float tmp282 = 0.083333336f * tmp281;
+    const float tmp282 = 0.083333336f /* UT_W */ * tmp281;
     const float tmp283 = carry[1] * carry[1];
     const float tmp284 = carry[6] * carry[6];
     const float tmp285 = tmp283 + tmp284;
@@ -2072,7 +2072,7 @@ static void adukf_k_gain_part7(float carry[45])
     const float tmp291 = tmp289 + tmp290;
     const float tmp292 = carry[36] * carry[36];
     const float tmp293 = tmp291 + tmp292;
-    const float tmp294 = 0.0069444445f * tmp293;
+    const float tmp294 = 0.0069444445f /* UT_W*UT_W */ * tmp293;
     const float tmp295 = carry[39] * carry[1];
     const float tmp296 = carry[40] * carry[6];
     const float tmp297 = tmp295 + tmp296;
@@ -2084,7 +2084,7 @@ static void adukf_k_gain_part7(float carry[45])
     const float tmp303 = tmp301 + tmp302;
     const float tmp304 = carry[3] * carry[36];
     const float tmp305 = tmp303 + tmp304;
-    const float tmp306 = 0.0069444445f * tmp305;
+    const float tmp306 = 0.0069444445f /* UT_W*UT_W */ * tmp305;
     const float tmp307 = carry[41] * carry[1];
     const float tmp308 = carry[44] * carry[6];
     const float tmp309 = tmp307 + tmp308;
@@ -2096,7 +2096,7 @@ static void adukf_k_gain_part7(float carry[45])
     const float tmp315 = tmp313 + tmp314;
     const float tmp316 = carry[12] * carry[36];
     const float tmp317 = tmp315 + tmp316;
-    const float tmp318 = 0.0069444445f * tmp317;
+    const float tmp318 = 0.0069444445f /* UT_W*UT_W */ * tmp317;
     const float tmp319 = carry[39] * carry[39];
     carry[1] = tmp282;
     carry[6] = tmp294;
@@ -2117,7 +2117,7 @@ static void adukf_k_gain_part8(const float P_zz[21], float carry[45])
     const float tmp327 = tmp325 + tmp326;
     const float tmp328 = carry[3] * carry[3];
     const float tmp329 = tmp327 + tmp328;
-    const float tmp330 = 0.0069444445f * tmp329;
+    const float tmp330 = 0.0069444445f /* UT_W*UT_W */ * tmp329;
     const float tmp331 = carry[41] * carry[39];
     const float tmp332 = carry[44] * carry[40];
     const float tmp333 = tmp331 + tmp332;
@@ -2129,7 +2129,7 @@ static void adukf_k_gain_part8(const float P_zz[21], float carry[45])
     const float tmp339 = tmp337 + tmp338;
     const float tmp340 = carry[12] * carry[3];
     const float tmp341 = tmp339 + tmp340;
-    const float tmp342 = 0.0069444445f * tmp341;
+    const float tmp342 = 0.0069444445f /* UT_W*UT_W */ * tmp341;
     const float tmp343 = carry[41] * carry[41];
     const float tmp344 = carry[44] * carry[44];
     const float tmp345 = tmp343 + tmp344;
@@ -2141,7 +2141,7 @@ static void adukf_k_gain_part8(const float P_zz[21], float carry[45])
     const float tmp351 = tmp349 + tmp350;
     const float tmp352 = carry[12] * carry[12];
     const float tmp353 = tmp351 + tmp352;
-    const float tmp354 = 0.0069444445f * tmp353;
+    const float tmp354 = 0.0069444445f /* UT_W*UT_W */ * tmp353;
     const float tmp355 = (P_zz[0] < carry[4]) ? P_zz[0] : carry[4];
     const float tmp356 = (tmp355 < carry[11]) ? tmp355 : carry[11];
     const float tmp357 = (tmp356 < carry[17]) ? tmp356 : carry[17];
@@ -2719,10 +2719,10 @@ static void adukf_k_gyro_recovery(const float gyro[3], const float gyro_prev[3],
     const float tmp6 = fabsf(tmp5);
     const float tmp7 = gyro[1] - gyro_prev[1];
     const float tmp8 = fabsf(tmp7);
-    const bool tmp9 = (tmp6 < 1e-06f) && (tmp8 < 1e-06f);
+    const bool tmp9 = (tmp6 < 1e-06f /* PLATEAU_TOL */) && (tmp8 < 1e-06f /* PLATEAU_TOL */);
     const float tmp10 = gyro[2] - gyro_prev[2];
     const float tmp11 = fabsf(tmp10);
-    const bool tmp12 = tmp9 && (tmp11 < 1e-06f);
+    const bool tmp12 = tmp9 && (tmp11 < 1e-06f /* PLATEAU_TOL */);
     float tmp13;
     float tmp14;
     float tmp15;
@@ -2731,15 +2731,18 @@ static void adukf_k_gyro_recovery(const float gyro[3], const float gyro_prev[3],
         tmp14 = gyro_repeats[1];
         tmp15 = gyro_repeats[2];
     } else {
-        const bool tmp16 = (tmp6 < 1e-06f) && (3.5f /* gyro_plateau_rate */ <= tmp0);
+        const bool tmp16 = (tmp6 < 1e-06f /* PLATEAU_TOL */) && (3.5f /* gyro_plateau_rate */ <=
+                tmp0);
         const float tmp17 = gyro_repeats[0] + 1.0f;
         const float tmp18 = (tmp17 < 3.0f) ? tmp17 : 3.0f;
         const float tmp19 = (tmp16) ? tmp18 : 0.0f;
-        const bool tmp20 = (tmp8 < 1e-06f) && (3.5f /* gyro_plateau_rate */ <= tmp1);
+        const bool tmp20 = (tmp8 < 1e-06f /* PLATEAU_TOL */) && (3.5f /* gyro_plateau_rate */ <=
+                tmp1);
         const float tmp21 = gyro_repeats[1] + 1.0f;
         const float tmp22 = (tmp21 < 3.0f) ? tmp21 : 3.0f;
         const float tmp23 = (tmp20) ? tmp22 : 0.0f;
-        const bool tmp24 = (tmp11 < 1e-06f) && (3.5f /* gyro_plateau_rate */ <= tmp3);
+        const bool tmp24 = (tmp11 < 1e-06f /* PLATEAU_TOL */) && (3.5f /* gyro_plateau_rate */ <=
+                tmp3);
         const float tmp25 = gyro_repeats[2] + 1.0f;
         const float tmp26 = (tmp25 < 3.0f) ? tmp25 : 3.0f;
         const float tmp27 = (tmp24) ? tmp26 : 0.0f;
@@ -2791,10 +2794,10 @@ static void adukf_k_init_q_part0(const float accel[3], const float mag[3], float
     const float tmp21 = tmp20 * tmp3;
     const float tmp22 = tmp19 + tmp21;
     const float tmp23 = fast_atan2f(tmp8, tmp22);
-    const float tmp24 = tmp23 - 6.2831855f;
-    const float tmp25 = tmp23 + 6.2831855f;
-    const float tmp26 = (tmp23 <= (-3.1415927f)) ? tmp25 : tmp23;
-    const float tmp27 = (3.1415927f < tmp23) ? tmp24 : tmp26;
+    const float tmp24 = tmp23 - 6.2831855f /* 2*pi */;
+    const float tmp25 = tmp23 + 6.2831855f /* 2*pi */;
+    const float tmp26 = (tmp23 <= (-3.1415927f) /* -pi */) ? tmp25 : tmp23;
+    const float tmp27 = (3.1415927f /* pi */ < tmp23) ? tmp24 : tmp26;
     const float tmp28 = tmp27 * 0.5f;
     float tmp36;
     float tmp29;
@@ -2896,7 +2899,7 @@ static inline void adukf_k_learn_sample(const float gyro[3], const float accel[3
     const float tmp8 = accel[2] * accel[2];
     const float tmp9 = tmp7 + tmp8;
     const float tmp10 = sqrtf(tmp9);
-    const float tmp11 = tmp10 - 9.80665f;
+    const float tmp11 = tmp10 - 9.80665f /* G0 */;
     const float tmp12 = fabsf(tmp11);
     const bool tmp13 = (tmp4 < 0.0025f /* rest_gyro_max^2 */) && (tmp12 <
             0.5f /* rest_accel_tol */);
@@ -2949,17 +2952,18 @@ static void adukf_k_hard_iron_part0(const float mag[3], const float b[3], const 
     float carry[50], bool flags[2])
 {
     const float tmp0 = turn_time + dt;
-    const float tmp1 = (tmp0 < 1000.0f) ? tmp0 : 1000.0f;
+    const float tmp1 = (tmp0 < 1000.0f /* HARD_IRON_TIME_CAP */) ? tmp0 :
+            1000.0f /* HARD_IRON_TIME_CAP */;
     const float tmp2 = 5.0f /* mag_bias_settle */ + dt;
     const float tmp3 = dt / tmp2;
-    const float tmp4 = 0.2f + dt;
+    const float tmp4 = 0.2f /* HARD_IRON_RES_TAU */ + dt;
     const float tmp5 = dt / tmp4;
     const float tmp6 = 1.0f / ref[0];
     const float tmp7 = mag[0] * tmp6;
     const float tmp8 = b[0] * tmp6;
     const float tmp9 = (fresh) ? tmp8 : cx[0];
     const bool tmp10 = fresh || reopen;
-    const float tmp11 = (tmp10) ? 0.09f : cP[0];
+    const float tmp11 = (tmp10) ? 0.09f /* HARD_IRON_P0^2 */ : cP[0];
     const float tmp12 = 9e-06f /* mag_bias_rw^2 */ * dt;
     const float tmp13 = tmp11 + tmp12;
     const float tmp14 = tmp7 - tmp9;
@@ -2977,8 +2981,8 @@ static void adukf_k_hard_iron_part0(const float mag[3], const float b[3], const 
     const float tmp26 = tmp25 * tmp25;
     const float tmp27 = tmp21 + tmp26;
     const float tmp28 = sqrtf(tmp27);
-    const bool tmp29 = 1e-06f <= tmp28;
-    const bool tmp30 = tmp28 <= 1e-06f;
+    const bool tmp29 = 1e-06f /* HARD_IRON_NORM_MIN */ <= tmp28;
+    const bool tmp30 = tmp28 <= 1e-06f /* HARD_IRON_NORM_MIN */;
     const float tmp31 = (float)tmp29 + (float)tmp30;
     const float tmp32 = (float)tmp29 / tmp31;
     const float tmp33 = 1.0f / tmp28;
@@ -3032,7 +3036,7 @@ static void adukf_k_hard_iron_part1(const float cP[25], float carry[50], const b
     const float tmp53 = cP[1] * tmp40;
     const float tmp54 = -tmp53;
     const float tmp55 = (flags[0]) ? 0.0f : tmp54;
-    const float tmp56 = (flags[0]) ? 0.09f : cP[6];
+    const float tmp56 = (flags[0]) ? 0.09f /* HARD_IRON_P0^2 */ : cP[6];
     const float tmp57 = tmp56 + carry[6];
     const float tmp58 = tmp57 * carry[20];
     const float tmp59 = tmp55 - tmp58;
@@ -3050,7 +3054,7 @@ static void adukf_k_hard_iron_part1(const float cP[25], float carry[50], const b
     const float tmp71 = tmp69 + tmp70;
     const float tmp72 = -tmp71;
     const float tmp73 = (flags[0]) ? 0.0f : tmp72;
-    const float tmp74 = (flags[0]) ? 0.09f : cP[12];
+    const float tmp74 = (flags[0]) ? 0.09f /* HARD_IRON_P0^2 */ : cP[12];
     const float tmp75 = tmp74 + carry[6];
     const float tmp76 = tmp75 * tmp44;
     const float tmp77 = tmp73 - tmp76;
@@ -3080,13 +3084,13 @@ static void adukf_k_hard_iron_part2(const float q[4], const float cP[25], float 
     const float tmp87 = tmp85 + tmp86;
     const float tmp88 = -tmp87;
     const float tmp89 = (flags[0]) ? 0.0f : tmp88;
-    const float tmp90 = (flags[0]) ? 0.09f : cP[18];
+    const float tmp90 = (flags[0]) ? 0.09f /* HARD_IRON_P0^2 */ : cP[18];
     const float tmp91 = tmp90 + carry[6];
     const float tmp92 = tmp89 - tmp91;
     const float tmp93 = tmp82 + tmp92;
     const float tmp94 = 0.0025f /* mag_bias_noise^2 */ - tmp93;
     const float tmp95 = 1.0f / tmp94;
-    const float tmp96 = (1e-12f < tmp94) ? tmp95 : 1.0f;
+    const float tmp96 = (1e-12f /* HARD_IRON_PIVOT_MIN */ < tmp94) ? tmp95 : 1.0f;
     const float tmp97 = carry[21] * tmp96;
     const float tmp98 = tmp97 * carry[21];
     const float tmp99 = carry[7] - tmp98;
@@ -3204,7 +3208,7 @@ static void adukf_k_hard_iron_part4(const float ref[2], const float cx[5], const
     const float tmp175 = tmp173 + tmp174;
     const float tmp176 = tmp169 * carry[18];
     const float tmp177 = tmp175 + tmp176;
-    const float tmp178 = (flags[0]) ? 0.09f : cP[24];
+    const float tmp178 = (flags[0]) ? 0.09f /* HARD_IRON_P0^2 */ : cP[24];
     const float tmp179 = tmp178 + carry[6];
     const float tmp180 = carry[20] * carry[19];
     const float tmp181 = (flags[0]) ? 0.0f : tmp180;
@@ -3214,7 +3218,7 @@ static void adukf_k_hard_iron_part4(const float ref[2], const float cx[5], const
     const float tmp185 = tmp172 + tmp184;
     const float tmp186 = tmp185 + 0.0025f /* mag_bias_noise^2 */;
     const float tmp187 = 1.0f / tmp186;
-    const float tmp188 = (1e-12f < tmp186) ? tmp187 : 1.0f;
+    const float tmp188 = (1e-12f /* HARD_IRON_PIVOT_MIN */ < tmp186) ? tmp187 : 1.0f;
     const float tmp189 = carry[34] * tmp188;
     const float tmp190 = carry[30] * carry[8];
     const float tmp191 = carry[33] * carry[12];
@@ -3223,7 +3227,8 @@ static void adukf_k_hard_iron_part4(const float ref[2], const float cx[5], const
     const float tmp194 = tmp192 + tmp193;
     const float tmp195 = (fresh) ? ref[1] : cx[4];
     const float tmp196 = tmp194 - tmp195;
-    const float tmp197 = (carry[17] > 1e-06f) ? carry[17] : 1e-06f;
+    const float tmp197 = (carry[17] > 1e-06f /* HARD_IRON_NORM_MIN */) ? carry[17] :
+            1e-06f /* HARD_IRON_NORM_MIN */;
     const float tmp198 = (fresh) ? 1.0f : cx[3];
     const float tmp199 = tmp197 - tmp198;
     carry[6] = tmp162;
@@ -3300,7 +3305,8 @@ static void adukf_k_hard_iron_part6(const float cP[25], const float rlp[4], floa
     const float tmp241 = tmp240 * tmp240;
     const float tmp242 = carry[46] + tmp241;
     const float tmp243 = sqrtf(tmp242);
-    const float tmp244 = (tmp243 > 1e-06f) ? tmp243 : 1e-06f;
+    const float tmp244 = (tmp243 > 1e-06f /* HARD_IRON_NORM_MIN */) ? tmp243 :
+            1e-06f /* HARD_IRON_NORM_MIN */;
     const float tmp245 = (flags[0]) ? 0.0f : cP[3];
     const float tmp246 = carry[26] * carry[27];
     const float tmp247 = tmp246 * carry[21];
@@ -3368,7 +3374,7 @@ static void adukf_k_hard_iron_part7(const float ref[2], const float rlp[4], cons
     const float tmp292 = tmp291 - e[1];
     const float tmp293 = carry[1] * tmp292;
     const float tmp294 = e[1] + tmp293;
-    const float tmp295 = 4.0f * tmp294;
+    const float tmp295 = 4.0f /* HARD_IRON_RATIO */ * tmp294;
     const float tmp296 = carry[3] - carry[4];
     const float tmp297 = tmp296 * tmp296;
     const float tmp298 = carry[9] - carry[10];
@@ -3463,7 +3469,8 @@ static void adukf_k_hard_iron_part9(float carry[50], bool flags[2])
     const float tmp362 = carry[28] * carry[12];
     const float tmp363 = carry[6] - tmp362;
     const float tmp364 = tmp361 + tmp363;
-    const bool tmp365 = (tmp364 < 0.000225f /* mag_bias_th*mag_bias_th */) && (0.1f < carry[44]);
+    const bool tmp365 = (tmp364 < 0.000225f /* mag_bias_th*mag_bias_th */) &&
+            (0.1f /* HARD_IRON_N_MIN */ < carry[44]);
     const bool tmp366 = flags[1] && tmp365;
     const float tmp367 = carry[15] * carry[34];
     const float tmp368 = carry[32] - tmp367;

@@ -155,10 +155,10 @@ static void mekf_k_gyro_recovery(const float gyro[3], const float gyro_prev[3],
     const float tmp6 = fabsf(tmp5);
     const float tmp7 = gyro[1] - gyro_prev[1];
     const float tmp8 = fabsf(tmp7);
-    const bool tmp9 = (tmp6 < 1e-06f) && (tmp8 < 1e-06f);
+    const bool tmp9 = (tmp6 < 1e-06f /* PLATEAU_TOL */) && (tmp8 < 1e-06f /* PLATEAU_TOL */);
     const float tmp10 = gyro[2] - gyro_prev[2];
     const float tmp11 = fabsf(tmp10);
-    const bool tmp12 = tmp9 && (tmp11 < 1e-06f);
+    const bool tmp12 = tmp9 && (tmp11 < 1e-06f /* PLATEAU_TOL */);
     float tmp13;
     float tmp14;
     float tmp15;
@@ -167,15 +167,18 @@ static void mekf_k_gyro_recovery(const float gyro[3], const float gyro_prev[3],
         tmp14 = gyro_repeats[1];
         tmp15 = gyro_repeats[2];
     } else {
-        const bool tmp16 = (tmp6 < 1e-06f) && (3.5f /* gyro_plateau_rate */ <= tmp0);
+        const bool tmp16 = (tmp6 < 1e-06f /* PLATEAU_TOL */) && (3.5f /* gyro_plateau_rate */ <=
+                tmp0);
         const float tmp17 = gyro_repeats[0] + 1.0f;
         const float tmp18 = (tmp17 < 3.0f) ? tmp17 : 3.0f;
         const float tmp19 = (tmp16) ? tmp18 : 0.0f;
-        const bool tmp20 = (tmp8 < 1e-06f) && (3.5f /* gyro_plateau_rate */ <= tmp1);
+        const bool tmp20 = (tmp8 < 1e-06f /* PLATEAU_TOL */) && (3.5f /* gyro_plateau_rate */ <=
+                tmp1);
         const float tmp21 = gyro_repeats[1] + 1.0f;
         const float tmp22 = (tmp21 < 3.0f) ? tmp21 : 3.0f;
         const float tmp23 = (tmp20) ? tmp22 : 0.0f;
-        const bool tmp24 = (tmp11 < 1e-06f) && (3.5f /* gyro_plateau_rate */ <= tmp3);
+        const bool tmp24 = (tmp11 < 1e-06f /* PLATEAU_TOL */) && (3.5f /* gyro_plateau_rate */ <=
+                tmp3);
         const float tmp25 = gyro_repeats[2] + 1.0f;
         const float tmp26 = (tmp25 < 3.0f) ? tmp25 : 3.0f;
         const float tmp27 = (tmp24) ? tmp26 : 0.0f;
@@ -230,41 +233,42 @@ static void mekf_k_predict_attitude_part1(float carry[32])
     float tmp13;
     float tmp14;
     float tmp15;
-    if (carry[7] < 0.01f) {
-        const float tmp16 = 2.4801588e-05f * carry[7];
-        const float tmp17 = (-0.0013888889f) + tmp16;
+    if (carry[7] < 0.01f /* SERIES_MAX*SERIES_MAX */) {
+        const float tmp16 = 2.4801588e-05f /* 1/40320 */ * carry[7];
+        const float tmp17 = (-0.0013888889f) /* -(1/720) */ + tmp16;
         const float tmp18 = carry[7] * tmp17;
-        const float tmp19 = 0.041666668f + tmp18;
+        const float tmp19 = 0.041666668f /* 1/24 */ + tmp18;
         const float tmp20 = carry[7] * tmp19;
-        const float tmp21 = (-0.5f) + tmp20;
+        const float tmp21 = (-0.5f) /* -(1/2) */ + tmp20;
         const float tmp22 = carry[7] * tmp21;
         const float tmp23 = 1.0f + tmp22;
-        const float tmp24 = 2.7557319e-06f * carry[7];
-        const float tmp25 = (-0.0001984127f) + tmp24;
+        const float tmp24 = 2.7557319e-06f /* 1/362880 */ * carry[7];
+        const float tmp25 = (-0.0001984127f) /* -(1/5040) */ + tmp24;
         const float tmp26 = carry[7] * tmp25;
-        const float tmp27 = 0.008333334f + tmp26;
+        const float tmp27 = 0.008333334f /* 1/120 */ + tmp26;
         const float tmp28 = carry[7] * tmp27;
-        const float tmp29 = (-0.16666667f) + tmp28;
+        const float tmp29 = (-0.16666667f) /* -(1/6) */ + tmp28;
         const float tmp30 = carry[7] * tmp29;
         const float tmp31 = 1.0f + tmp30;
-        const float tmp32 = 1.10229275e-05f * carry[7];
-        const float tmp33 = (-0.0005952381f) + tmp32;
+        const float tmp32 = 1.10229275e-05f /* 4*(1/362880) */ * carry[7];
+        const float tmp33 = (-0.0005952381f) /* 3*(-(1/5040)) */ + tmp32;
         const float tmp34 = carry[7] * tmp33;
-        const float tmp35 = 0.016666668f + tmp34;
+        const float tmp35 = 0.016666668f /* 2*(1/120) */ + tmp34;
         const float tmp36 = carry[7] * tmp35;
-        const float tmp37 = (-0.16666667f) + tmp36;
-        const float tmp38 = 9.920635e-05f * carry[7];
-        const float tmp39 = (-0.004166667f) + tmp38;
+        const float tmp37 = (-0.16666667f) /* -(1/6) */ + tmp36;
+        const float tmp38 = 9.920635e-05f /* 4*(1/40320) */ * carry[7];
+        const float tmp39 = (-0.004166667f) /* 3*(-(1/720)) */ + tmp38;
         const float tmp40 = carry[7] * tmp39;
-        const float tmp41 = 0.083333336f + tmp40;
+        const float tmp41 = 0.083333336f /* 2*(1/24) */ + tmp40;
         const float tmp42 = carry[7] * tmp41;
-        const float tmp43 = (-0.5f) + tmp42;
+        const float tmp43 = (-0.5f) /* -(1/2) */ + tmp42;
         tmp12 = tmp23;
         tmp13 = tmp31;
         tmp14 = tmp37;
         tmp15 = tmp43;
     } else {
-        const float tmp44 = (carry[7] > 0.01f) ? carry[7] : 0.01f;
+        const float tmp44 = (carry[7] > 0.01f /* SERIES_MAX*SERIES_MAX */) ? carry[7] :
+                0.01f /* SERIES_MAX*SERIES_MAX */;
         const float tmp45 = sqrtf(tmp44);
         float tmp47;
         float tmp46;
@@ -696,7 +700,7 @@ static void mekf_k_predict_covariance_part1(const float F_q[9], const float F_b[
 static void mekf_k_predict_covariance_part2(const float F_q[9], const float F_b[9],
     const float P[36], const float gyro[3], float dt, bool clip, float carry[24])
 {
-    const float tmp80 = (dt > 1e-09f) ? dt : 1e-09f;
+    const float tmp80 = (dt > 1e-09f /* DT_Q_MIN */) ? dt : 1e-09f /* DT_Q_MIN */;
     const float tmp81 = 1.0f / tmp80;
     const float tmp82 = carry[4] * tmp81;
     const float tmp83 = F_b[0] * tmp82;
@@ -1183,7 +1187,7 @@ static void mekf_k_accel_lowpass_part1(const float accel[3], const float vel[3],
     const float tmp68 = carry[0] * tmp67;
     const float tmp69 = v_lp[1] + tmp68;
     const float tmp70 = (mask[0]) ? tmp69 : v_lp[1];
-    const float tmp71 = tmp53 + 9.80665f;
+    const float tmp71 = tmp53 + 9.80665f /* G0 */;
     const float tmp72 = tmp71 * dt;
     const float tmp73 = v_ins[2] + tmp72;
     const float tmp74 = (mask[1]) ? vel[2] : tmp73;
@@ -1484,7 +1488,7 @@ static void mekf_k_gravity_rows_part1(const float up[3], float dt, float carry[1
     const float tmp67 = tmp65 + tmp66;
     const float tmp68 = tmp67 * tmp43;
     const float tmp69 = tmp68 + carry[1];
-    const float tmp70 = (dt > 1e-09f) ? dt : 1e-09f;
+    const float tmp70 = (dt > 1e-09f /* DT_Q_MIN */) ? dt : 1e-09f /* DT_Q_MIN */;
     const float tmp71 = 1.6e-05f /* accel_noise_density^2 */ / tmp70;
     const float tmp72 = 0.0049f /* accel_angle_noise^2 */ + tmp71;
     carry[0] = tmp45;
@@ -1581,7 +1585,7 @@ static void mekf_k_update_attitude_row_part0(const float P[36], const float h[3]
     const float tmp19 = tmp12 + tmp18;
     const float tmp20 = tmp19 + r;
     const float tmp21 = 1.0f / tmp20;
-    const float tmp22 = (1e-12f < tmp20) ? tmp21 : 1.0f;
+    const float tmp22 = (1e-12f /* S_PIVOT_MIN */ < tmp20) ? tmp21 : 1.0f;
     const float tmp23 = tmp4 * tmp22;
     const float tmp24 = h[0] * x[0];
     const float tmp25 = h[1] * x[1];
@@ -1793,11 +1797,11 @@ static void mekf_k_update_attitude_row(const float P[36], const float h[3], floa
 static void mekf_k_update_rest_bias_part0(const float b[3], const float P[36], const float gyro[3],
     float dt, const float x[6], float carry[36])
 {
-    const float tmp0 = (dt > 1e-09f) ? dt : 1e-09f;
+    const float tmp0 = (dt > 1e-09f /* DT_Q_MIN */) ? dt : 1e-09f /* DT_Q_MIN */;
     const float tmp1 = 7.569e-07f /* gyro_noise^2 */ / tmp0;
     const float tmp2 = P[21] + tmp1;
     const float tmp3 = 1.0f / tmp2;
-    const float tmp4 = (1e-12f < tmp2) ? tmp3 : 1.0f;
+    const float tmp4 = (1e-12f /* S_PIVOT_MIN */ < tmp2) ? tmp3 : 1.0f;
     const float tmp5 = P[3] * tmp4;
     const float tmp6 = gyro[0] - b[0];
     const float tmp7 = tmp6 - x[3];
@@ -1810,7 +1814,7 @@ static void mekf_k_update_rest_bias_part0(const float b[3], const float P[36], c
     const float tmp14 = P[28] - tmp13;
     const float tmp15 = tmp14 + tmp1;
     const float tmp16 = 1.0f / tmp15;
-    const float tmp17 = (1e-12f < tmp15) ? tmp16 : 1.0f;
+    const float tmp17 = (1e-12f /* S_PIVOT_MIN */ < tmp15) ? tmp16 : 1.0f;
     const float tmp18 = tmp12 * tmp17;
     const float tmp19 = gyro[1] - b[1];
     const float tmp20 = tmp10 * tmp7;
@@ -1832,7 +1836,7 @@ static void mekf_k_update_rest_bias_part0(const float b[3], const float P[36], c
     const float tmp36 = tmp34 - tmp35;
     const float tmp37 = tmp36 + tmp1;
     const float tmp38 = 1.0f / tmp37;
-    const float tmp39 = (1e-12f < tmp37) ? tmp38 : 1.0f;
+    const float tmp39 = (1e-12f /* S_PIVOT_MIN */ < tmp37) ? tmp38 : 1.0f;
     carry[0] = tmp2;
     carry[1] = tmp4;
     carry[2] = tmp5;
@@ -2311,14 +2315,14 @@ static void mekf_k_update_heading_part2(const float mag[3], const float vel[3], 
         const float tmp49 = fast_atan2f(vel[1], vel[0]);
         const float tmp50 = fast_atan2f(carry[20], carry[22]);
         const float tmp51 = tmp49 - tmp50;
-        const float tmp52 = tmp51 - 6.2831855f;
-        const float tmp53 = tmp51 + 6.2831855f;
-        const float tmp54 = (tmp51 <= (-3.1415927f)) ? tmp53 : tmp51;
-        const float tmp55 = (3.1415927f < tmp51) ? tmp52 : tmp54;
+        const float tmp52 = tmp51 - 6.2831855f /* 2*pi */;
+        const float tmp53 = tmp51 + 6.2831855f /* 2*pi */;
+        const float tmp54 = (tmp51 <= (-3.1415927f) /* -pi */) ? tmp53 : tmp51;
+        const float tmp55 = (3.1415927f /* pi */ < tmp51) ? tmp52 : tmp54;
         tmp47 = 0.0025f /* course_noise^2 */;
         tmp48 = tmp55;
     } else {
-        const float tmp56 = (mag_dt > 1e-09f) ? mag_dt : 1e-09f;
+        const float tmp56 = (mag_dt > 1e-09f /* DT_Q_MIN */) ? mag_dt : 1e-09f /* DT_Q_MIN */;
         const float tmp57 = 0.000576f /* mag_heading_density^2 */ / tmp56;
         const float tmp58 = carry[20] * mag[0];
         const float tmp59 = carry[8] + carry[21];
@@ -2341,17 +2345,17 @@ static void mekf_k_update_heading_part2(const float mag[3], const float vel[3], 
         const float tmp76 = tmp72 + tmp75;
         const float tmp77 = fast_atan2f(tmp67, tmp76);
         const float tmp78 = -tmp77;
-        const float tmp79 = tmp77 + 6.2831855f;
+        const float tmp79 = tmp77 + 6.2831855f /* 2*pi */;
         const float tmp80 = -tmp79;
-        const float tmp81 = 6.2831855f - tmp77;
-        const float tmp82 = (tmp78 <= (-3.1415927f)) ? tmp81 : tmp78;
-        const float tmp83 = (3.1415927f < tmp78) ? tmp80 : tmp82;
+        const float tmp81 = 6.2831855f /* 2*pi */ - tmp77;
+        const float tmp82 = (tmp78 <= (-3.1415927f) /* -pi */) ? tmp81 : tmp78;
+        const float tmp83 = (3.1415927f /* pi */ < tmp78) ? tmp80 : tmp82;
         tmp47 = tmp57;
         tmp48 = tmp83;
     }
     const float tmp84 = carry[15] + tmp47;
     const float tmp85 = 1.0f / tmp84;
-    const float tmp86 = (1e-12f < tmp84) ? tmp85 : 1.0f;
+    const float tmp86 = (1e-12f /* S_PIVOT_MIN */ < tmp84) ? tmp85 : 1.0f;
     carry[0] = tmp48;
     carry[1] = tmp84;
     carry[5] = tmp86;
@@ -2429,28 +2433,28 @@ static void mekf_k_update_heading_part4(const float P[36], float carry[29])
     const float tmp139 = P[0] - tmp138;
     const float tmp140 = tmp137 * carry[2];
     const float tmp141 = tmp139 - tmp140;
-    const float tmp142 = (1e-12f < carry[1]) ? tmp141 : P[0];
+    const float tmp142 = (1e-12f /* S_PIVOT_MIN */ < carry[1]) ? tmp141 : P[0];
     const float tmp143 = carry[6] * tmp137;
     const float tmp144 = P[1] - tmp143;
     const float tmp145 = tmp135 * carry[6];
     const float tmp146 = carry[13] - tmp145;
     const float tmp147 = tmp146 * carry[2];
     const float tmp148 = tmp144 - tmp147;
-    const float tmp149 = (1e-12f < carry[1]) ? tmp148 : P[1];
+    const float tmp149 = (1e-12f /* S_PIVOT_MIN */ < carry[1]) ? tmp148 : P[1];
     const float tmp150 = carry[9] * tmp137;
     const float tmp151 = P[2] - tmp150;
     const float tmp152 = tmp135 * carry[9];
     const float tmp153 = carry[14] - tmp152;
     const float tmp154 = tmp153 * carry[2];
     const float tmp155 = tmp151 - tmp154;
-    const float tmp156 = (1e-12f < carry[1]) ? tmp155 : P[2];
+    const float tmp156 = (1e-12f /* S_PIVOT_MIN */ < carry[1]) ? tmp155 : P[2];
     const float tmp157 = carry[16] * tmp137;
     const float tmp158 = P[3] - tmp157;
     const float tmp159 = tmp135 * carry[16];
     const float tmp160 = carry[15] - tmp159;
     const float tmp161 = tmp160 * carry[2];
     const float tmp162 = tmp158 - tmp161;
-    const float tmp163 = (1e-12f < carry[1]) ? tmp162 : P[3];
+    const float tmp163 = (1e-12f /* S_PIVOT_MIN */ < carry[1]) ? tmp162 : P[3];
     const float tmp164 = carry[19] * tmp137;
     const float tmp165 = P[4] - tmp164;
     const float tmp166 = tmp135 * carry[19];
@@ -2476,39 +2480,39 @@ static void mekf_k_update_heading_part5(const float P[36], float carry[29])
     const float tmp167 = carry[18] - carry[25];
     const float tmp168 = tmp167 * carry[2];
     const float tmp169 = carry[24] - tmp168;
-    const float tmp170 = (1e-12f < carry[1]) ? tmp169 : P[4];
+    const float tmp170 = (1e-12f /* S_PIVOT_MIN */ < carry[1]) ? tmp169 : P[4];
     const float tmp171 = carry[5] * carry[12];
     const float tmp172 = P[5] - tmp171;
     const float tmp173 = carry[11] * carry[5];
     const float tmp174 = carry[4] - tmp173;
     const float tmp175 = tmp174 * carry[2];
     const float tmp176 = tmp172 - tmp175;
-    const float tmp177 = (1e-12f < carry[1]) ? tmp176 : P[5];
+    const float tmp177 = (1e-12f /* S_PIVOT_MIN */ < carry[1]) ? tmp176 : P[5];
     const float tmp178 = carry[6] * carry[14];
     const float tmp179 = P[7] - tmp178;
     const float tmp180 = carry[14] * carry[6];
     const float tmp181 = tmp179 - tmp180;
-    const float tmp182 = (1e-12f < carry[1]) ? tmp181 : P[7];
+    const float tmp182 = (1e-12f /* S_PIVOT_MIN */ < carry[1]) ? tmp181 : P[7];
     const float tmp183 = carry[9] * carry[14];
     const float tmp184 = P[8] - tmp183;
     const float tmp185 = carry[20] * carry[6];
     const float tmp186 = tmp184 - tmp185;
-    const float tmp187 = (1e-12f < carry[1]) ? tmp186 : P[8];
+    const float tmp187 = (1e-12f /* S_PIVOT_MIN */ < carry[1]) ? tmp186 : P[8];
     const float tmp188 = carry[16] * carry[14];
     const float tmp189 = P[9] - tmp188;
     const float tmp190 = carry[22] * carry[6];
     const float tmp191 = tmp189 - tmp190;
-    const float tmp192 = (1e-12f < carry[1]) ? tmp191 : P[9];
+    const float tmp192 = (1e-12f /* S_PIVOT_MIN */ < carry[1]) ? tmp191 : P[9];
     const float tmp193 = carry[19] * carry[14];
     const float tmp194 = P[10] - tmp193;
     const float tmp195 = tmp167 * carry[6];
     const float tmp196 = tmp194 - tmp195;
-    const float tmp197 = (1e-12f < carry[1]) ? tmp196 : P[10];
+    const float tmp197 = (1e-12f /* S_PIVOT_MIN */ < carry[1]) ? tmp196 : P[10];
     const float tmp198 = carry[5] * carry[14];
     const float tmp199 = P[11] - tmp198;
     const float tmp200 = tmp174 * carry[6];
     const float tmp201 = tmp199 - tmp200;
-    const float tmp202 = (1e-12f < carry[1]) ? tmp201 : P[11];
+    const float tmp202 = (1e-12f /* S_PIVOT_MIN */ < carry[1]) ? tmp201 : P[11];
     const float tmp203 = carry[9] * carry[20];
     const float tmp204 = P[14] - tmp203;
     const float tmp205 = carry[20] * carry[9];
@@ -2527,42 +2531,42 @@ static void mekf_k_update_heading_part5(const float P[36], float carry[29])
 
 static void mekf_k_update_heading_part6(const float P[36], float carry[29])
 {
-    const float tmp207 = (1e-12f < carry[1]) ? carry[26] : P[14];
+    const float tmp207 = (1e-12f /* S_PIVOT_MIN */ < carry[1]) ? carry[26] : P[14];
     const float tmp208 = carry[16] * carry[20];
     const float tmp209 = P[15] - tmp208;
     const float tmp210 = carry[22] * carry[9];
     const float tmp211 = tmp209 - tmp210;
-    const float tmp212 = (1e-12f < carry[1]) ? tmp211 : P[15];
+    const float tmp212 = (1e-12f /* S_PIVOT_MIN */ < carry[1]) ? tmp211 : P[15];
     const float tmp213 = carry[19] * carry[20];
     const float tmp214 = P[16] - tmp213;
     const float tmp215 = carry[2] * carry[9];
     const float tmp216 = tmp214 - tmp215;
-    const float tmp217 = (1e-12f < carry[1]) ? tmp216 : P[16];
+    const float tmp217 = (1e-12f /* S_PIVOT_MIN */ < carry[1]) ? tmp216 : P[16];
     const float tmp218 = carry[5] * carry[20];
     const float tmp219 = P[17] - tmp218;
     const float tmp220 = carry[6] * carry[9];
     const float tmp221 = tmp219 - tmp220;
-    const float tmp222 = (1e-12f < carry[1]) ? tmp221 : P[17];
+    const float tmp222 = (1e-12f /* S_PIVOT_MIN */ < carry[1]) ? tmp221 : P[17];
     const float tmp223 = carry[16] * carry[22];
     const float tmp224 = P[21] - tmp223;
     const float tmp225 = carry[22] * carry[16];
     const float tmp226 = tmp224 - tmp225;
-    const float tmp227 = (1e-12f < carry[1]) ? tmp226 : P[21];
+    const float tmp227 = (1e-12f /* S_PIVOT_MIN */ < carry[1]) ? tmp226 : P[21];
     const float tmp228 = carry[19] * carry[22];
     const float tmp229 = P[22] - tmp228;
     const float tmp230 = carry[2] * carry[16];
     const float tmp231 = tmp229 - tmp230;
-    const float tmp232 = (1e-12f < carry[1]) ? tmp231 : P[22];
+    const float tmp232 = (1e-12f /* S_PIVOT_MIN */ < carry[1]) ? tmp231 : P[22];
     const float tmp233 = carry[5] * carry[22];
     const float tmp234 = P[23] - tmp233;
     const float tmp235 = carry[6] * carry[16];
     const float tmp236 = tmp234 - tmp235;
-    const float tmp237 = (1e-12f < carry[1]) ? tmp236 : P[23];
+    const float tmp237 = (1e-12f /* S_PIVOT_MIN */ < carry[1]) ? tmp236 : P[23];
     const float tmp238 = carry[19] * carry[2];
     const float tmp239 = P[28] - tmp238;
     const float tmp240 = carry[2] * carry[19];
     const float tmp241 = tmp239 - tmp240;
-    const float tmp242 = (1e-12f < carry[1]) ? tmp241 : P[28];
+    const float tmp242 = (1e-12f /* S_PIVOT_MIN */ < carry[1]) ? tmp241 : P[28];
     const float tmp243 = carry[5] * carry[2];
     const float tmp244 = P[29] - tmp243;
     const float tmp245 = carry[6] * carry[19];
@@ -2580,12 +2584,12 @@ static void mekf_k_update_heading_part6(const float P[36], float carry[29])
 
 static void mekf_k_update_heading_part7(const float P[36], float carry[29])
 {
-    const float tmp247 = (1e-12f < carry[1]) ? carry[28] : P[29];
+    const float tmp247 = (1e-12f /* S_PIVOT_MIN */ < carry[1]) ? carry[28] : P[29];
     const float tmp248 = carry[5] * carry[6];
     const float tmp249 = P[35] - tmp248;
     const float tmp250 = carry[6] * carry[5];
     const float tmp251 = tmp249 - tmp250;
-    const float tmp252 = (1e-12f < carry[1]) ? tmp251 : P[35];
+    const float tmp252 = (1e-12f /* S_PIVOT_MIN */ < carry[1]) ? tmp251 : P[35];
     carry[5] = tmp247;
     carry[6] = tmp252;
 }
@@ -2705,10 +2709,10 @@ static void mekf_k_init_attitude_part0(const float accel[3], const float mag[3],
             const float tmp24 = tmp23 * tmp11;
             const float tmp25 = tmp22 + tmp24;
             const float tmp26 = fast_atan2f(tmp16, tmp25);
-            const float tmp27 = tmp26 - 6.2831855f;
-            const float tmp28 = tmp26 + 6.2831855f;
-            const float tmp29 = (tmp26 <= (-3.1415927f)) ? tmp28 : tmp26;
-            const float tmp30 = (3.1415927f < tmp26) ? tmp27 : tmp29;
+            const float tmp27 = tmp26 - 6.2831855f /* 2*pi */;
+            const float tmp28 = tmp26 + 6.2831855f /* 2*pi */;
+            const float tmp29 = (tmp26 <= (-3.1415927f) /* -pi */) ? tmp28 : tmp26;
+            const float tmp30 = (3.1415927f /* pi */ < tmp26) ? tmp27 : tmp29;
             tmp10 = tmp30;
         } else {
             tmp10 = 0.0f;
@@ -2858,17 +2862,18 @@ static void mekf_k_hard_iron_part0(const float mag[3], const float b[3], const f
     float carry[51], bool flags[2])
 {
     const float tmp0 = turn_time + dt;
-    const float tmp1 = (tmp0 < 1000.0f) ? tmp0 : 1000.0f;
+    const float tmp1 = (tmp0 < 1000.0f /* HARD_IRON_TIME_CAP */) ? tmp0 :
+            1000.0f /* HARD_IRON_TIME_CAP */;
     const float tmp2 = 5.0f /* mag_bias_settle */ + dt;
     const float tmp3 = dt / tmp2;
-    const float tmp4 = 0.2f + dt;
+    const float tmp4 = 0.2f /* HARD_IRON_RES_TAU */ + dt;
     const float tmp5 = dt / tmp4;
     const float tmp6 = 1.0f / ref[0];
     const float tmp7 = mag[0] * tmp6;
     const float tmp8 = b[0] * tmp6;
     const float tmp9 = (fresh) ? tmp8 : cx[0];
     const bool tmp10 = fresh || reopen;
-    const float tmp11 = (tmp10) ? 0.09f : cP[0];
+    const float tmp11 = (tmp10) ? 0.09f /* HARD_IRON_P0^2 */ : cP[0];
     const float tmp12 = 9e-06f /* mag_bias_rw^2 */ * dt;
     const float tmp13 = tmp11 + tmp12;
     const float tmp14 = tmp7 - tmp9;
@@ -2886,8 +2891,8 @@ static void mekf_k_hard_iron_part0(const float mag[3], const float b[3], const f
     const float tmp26 = tmp25 * tmp25;
     const float tmp27 = tmp21 + tmp26;
     const float tmp28 = sqrtf(tmp27);
-    const bool tmp29 = 1e-06f <= tmp28;
-    const bool tmp30 = tmp28 <= 1e-06f;
+    const bool tmp29 = 1e-06f /* HARD_IRON_NORM_MIN */ <= tmp28;
+    const bool tmp30 = tmp28 <= 1e-06f /* HARD_IRON_NORM_MIN */;
     const float tmp31 = (float)tmp29 + (float)tmp30;
     const float tmp32 = (float)tmp29 / tmp31;
     const float tmp33 = 1.0f / tmp28;
@@ -2941,7 +2946,7 @@ static void mekf_k_hard_iron_part1(const float cP[25], float carry[51], const bo
     const float tmp53 = cP[1] * tmp40;
     const float tmp54 = -tmp53;
     const float tmp55 = (flags[0]) ? 0.0f : tmp54;
-    const float tmp56 = (flags[0]) ? 0.09f : cP[6];
+    const float tmp56 = (flags[0]) ? 0.09f /* HARD_IRON_P0^2 */ : cP[6];
     const float tmp57 = tmp56 + carry[6];
     const float tmp58 = tmp57 * carry[20];
     const float tmp59 = tmp55 - tmp58;
@@ -2959,7 +2964,7 @@ static void mekf_k_hard_iron_part1(const float cP[25], float carry[51], const bo
     const float tmp71 = tmp69 + tmp70;
     const float tmp72 = -tmp71;
     const float tmp73 = (flags[0]) ? 0.0f : tmp72;
-    const float tmp74 = (flags[0]) ? 0.09f : cP[12];
+    const float tmp74 = (flags[0]) ? 0.09f /* HARD_IRON_P0^2 */ : cP[12];
     const float tmp75 = tmp74 + carry[6];
     const float tmp76 = tmp75 * tmp44;
     const float tmp77 = tmp73 - tmp76;
@@ -2989,13 +2994,13 @@ static void mekf_k_hard_iron_part2(const float q[4], const float cP[25], float c
     const float tmp87 = tmp85 + tmp86;
     const float tmp88 = -tmp87;
     const float tmp89 = (flags[0]) ? 0.0f : tmp88;
-    const float tmp90 = (flags[0]) ? 0.09f : cP[18];
+    const float tmp90 = (flags[0]) ? 0.09f /* HARD_IRON_P0^2 */ : cP[18];
     const float tmp91 = tmp90 + carry[6];
     const float tmp92 = tmp89 - tmp91;
     const float tmp93 = tmp82 + tmp92;
     const float tmp94 = 0.0025f /* mag_bias_noise^2 */ - tmp93;
     const float tmp95 = 1.0f / tmp94;
-    const float tmp96 = (1e-12f < tmp94) ? tmp95 : 1.0f;
+    const float tmp96 = (1e-12f /* HARD_IRON_PIVOT_MIN */ < tmp94) ? tmp95 : 1.0f;
     const float tmp97 = carry[21] * tmp96;
     const float tmp98 = tmp97 * carry[21];
     const float tmp99 = carry[7] - tmp98;
@@ -3113,7 +3118,7 @@ static void mekf_k_hard_iron_part4(const float ref[2], const float cx[5], const 
     const float tmp175 = tmp173 + tmp174;
     const float tmp176 = tmp169 * carry[18];
     const float tmp177 = tmp175 + tmp176;
-    const float tmp178 = (flags[0]) ? 0.09f : cP[24];
+    const float tmp178 = (flags[0]) ? 0.09f /* HARD_IRON_P0^2 */ : cP[24];
     const float tmp179 = tmp178 + carry[6];
     const float tmp180 = carry[20] * carry[19];
     const float tmp181 = (flags[0]) ? 0.0f : tmp180;
@@ -3123,7 +3128,7 @@ static void mekf_k_hard_iron_part4(const float ref[2], const float cx[5], const 
     const float tmp185 = tmp172 + tmp184;
     const float tmp186 = tmp185 + 0.0025f /* mag_bias_noise^2 */;
     const float tmp187 = 1.0f / tmp186;
-    const float tmp188 = (1e-12f < tmp186) ? tmp187 : 1.0f;
+    const float tmp188 = (1e-12f /* HARD_IRON_PIVOT_MIN */ < tmp186) ? tmp187 : 1.0f;
     const float tmp189 = carry[34] * tmp188;
     const float tmp190 = carry[30] * carry[8];
     const float tmp191 = carry[33] * carry[12];
@@ -3133,7 +3138,8 @@ static void mekf_k_hard_iron_part4(const float ref[2], const float cx[5], const 
     const float tmp195 = fast_sinf(ref[1]);
     const float tmp196 = (fresh) ? tmp195 : cx[4];
     const float tmp197 = tmp194 - tmp196;
-    const float tmp198 = (carry[17] > 1e-06f) ? carry[17] : 1e-06f;
+    const float tmp198 = (carry[17] > 1e-06f /* HARD_IRON_NORM_MIN */) ? carry[17] :
+            1e-06f /* HARD_IRON_NORM_MIN */;
     const float tmp199 = (fresh) ? 1.0f : cx[3];
     carry[6] = tmp162;
     carry[8] = tmp169;
@@ -3213,7 +3219,8 @@ static void mekf_k_hard_iron_part6(const float cP[25], const float rlp[4], float
     const float tmp242 = tmp241 * tmp241;
     const float tmp243 = carry[49] + tmp242;
     const float tmp244 = sqrtf(tmp243);
-    const float tmp245 = (tmp244 > 1e-06f) ? tmp244 : 1e-06f;
+    const float tmp245 = (tmp244 > 1e-06f /* HARD_IRON_NORM_MIN */) ? tmp244 :
+            1e-06f /* HARD_IRON_NORM_MIN */;
     const float tmp246 = (flags[0]) ? 0.0f : cP[3];
     const float tmp247 = carry[26] * carry[27];
     const float tmp248 = tmp247 * carry[21];
@@ -3282,7 +3289,7 @@ static void mekf_k_hard_iron_part7(const float rlp[4], const float rmean[2], con
     const float tmp293 = tmp292 - e[1];
     const float tmp294 = carry[1] * tmp293;
     const float tmp295 = e[1] + tmp294;
-    const float tmp296 = 4.0f * tmp295;
+    const float tmp296 = 4.0f /* HARD_IRON_RATIO */ * tmp295;
     const float tmp297 = carry[3] - carry[4];
     const float tmp298 = tmp297 * tmp297;
     const float tmp299 = carry[9] - carry[10];
@@ -3376,7 +3383,8 @@ static void mekf_k_hard_iron_part9(float carry[51], bool flags[2])
     const float tmp363 = carry[31] * carry[12];
     const float tmp364 = carry[6] - tmp363;
     const float tmp365 = tmp362 + tmp364;
-    const bool tmp366 = (tmp365 < 0.000225f /* mag_bias_th*mag_bias_th */) && (0.1f < carry[46]);
+    const bool tmp366 = (tmp365 < 0.000225f /* mag_bias_th*mag_bias_th */) &&
+            (0.1f /* HARD_IRON_N_MIN */ < carry[46]);
     const bool tmp367 = flags[1] && tmp366;
     const float tmp368 = carry[28] * carry[34];
     const float tmp369 = carry[32] - tmp368;
@@ -3927,7 +3935,7 @@ void mekf_init(mekf_state *s)
     s->v_gps[0] = 0.0f;
     s->v_gps[1] = 0.0f;
     s->v_gps[2] = 0.0f;
-    s->v_age = 1000.0f;
+    s->v_age = 1000.0f /* AGE_MAX */;
     s->a_gps[0] = 0.0f;
     s->a_gps[1] = 0.0f;
     s->a_gps[2] = 0.0f;
@@ -3957,7 +3965,7 @@ void mekf_init(mekf_state *s)
     s->mag_cand[0] = 0.0f;
     s->mag_cand[1] = 0.0f;
     s->mag_cand_time = 0.0f;
-    s->head_age = 1000.0f;
+    s->head_age = 1000.0f /* AGE_MAX */;
     s->mag_age = 0.0f;
     s->recover_time = 0.0f;
     s->gyro_prev[0] = 0.0f;
@@ -4079,7 +4087,7 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
         s->v_gps[1] = in->gps_vel_ned[1];
         s->v_gps[2] = in->gps_vel_ned[2];
         s->v_age = 0.0f;
-    } else if (s->v_age < 1000.0f) {
+    } else if (s->v_age < 1000.0f /* AGE_MAX */) {
         s->v_age += dt;
     }
 
@@ -4103,7 +4111,8 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
 
     /* The magnetometer's sample interval (its heading variance is a density over it): the time
      * since the last usable sample, at most MAG_INTERVAL_MAX. */
-    const float mag_dt = s->mag_age + dt < 0.1f ? s->mag_age + dt : 0.1f;
+    const float mag_dt = s->mag_age + dt < 0.1f /* MAG_INTERVAL_MAX */
+            ? s->mag_age + dt : 0.1f /* MAG_INTERVAL_MAX */;
     s->mag_age = use_mag ? 0.0f : mag_dt;
 
     if (s->initialised == 0u) {
@@ -4159,7 +4168,7 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
     const bool nose_first = feat[2] > 0.0f &&
         feat[3] * feat[3]
             <= 0.29844642f /* tan(course_max_sideslip)^2 */ * feat[2] * feat[2];
-    const bool course_mode = moving && (nose_first || s->head_age > 1.0f);
+    const bool course_mode = moving && (nose_first || s->head_age > 1.0f /* HEAD_AGE_MAX */);
     const bool mag_ok = use_mag && !course_mode;
 
     /* Rest: every gyro sample near its low-pass and that low-pass small (not a turntable), the
@@ -4185,7 +4194,8 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
         still = still && dev_a2 < MEKF_REST_ACCEL_TH * MEKF_REST_ACCEL_TH;
     }
     if (still) {
-        s->rest_time = s->rest_time + dt < 1000.0f ? s->rest_time + dt : 1000.0f;
+        s->rest_time = s->rest_time + dt < 1000.0f /* AGE_MAX */
+                ? s->rest_time + dt : 1000.0f /* AGE_MAX */;
     } else {
         s->rest_time = 0.0f;
     }
@@ -4294,12 +4304,12 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
             mekf_k_gravity_rows(q, up, recovering, dt, h, z, &r);
             for (uint32_t i = 0u; i < 3u && usable; i++) {
                 mekf_k_update_attitude_row(P, &h[3u * i], z[i], r, x, x, P, &min_pivot);
-                usable = min_pivot > 1e-12f;
+                usable = min_pivot > 1e-12f /* S_PIVOT_MIN */;
             }
         }
         if (at_rest && usable) {
             mekf_k_update_rest_bias(s->gyro_bias, P, in->gyro, dt, x, x, P, &min_pivot);
-            usable = min_pivot > 1e-12f;
+            usable = min_pivot > 1e-12f /* S_PIVOT_MIN */;
         }
         if (usable) {
             mekf_k_inject(q, s->gyro_bias, x, q, s->gyro_bias);
@@ -4324,7 +4334,7 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
         /* P in place: the kernel leaves it as it was when s_head is not usable */
         mekf_k_update_heading(q, P, mag_in, vel_in, course_sample && course_mode, mag_dt,
             x, P, &s_head);
-        if (s_head > 1e-12f) {
+        if (s_head > 1e-12f /* S_PIVOT_MIN */) {
             mekf_k_inject(q, s->gyro_bias, x, q, s->gyro_bias);
             headed = true;
         } else {
@@ -4333,10 +4343,11 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
     }
     if (headed) {
         s->head_age = 0.0f;
-    } else if (s->head_age < 1000.0f) {
-        s->head_age = s->head_age + dt < 1000.0f ? s->head_age + dt : 1000.0f;
+    } else if (s->head_age < 1000.0f /* AGE_MAX */) {
+        s->head_age = s->head_age + dt < 1000.0f /* AGE_MAX */
+                ? s->head_age + dt : 1000.0f /* AGE_MAX */;
     }
-    if (s->head_age > 1.0f) {
+    if (s->head_age > 1.0f /* HEAD_AGE_MAX */) {
         status |= MEKF_HEADING_UNAIDED;
     }
 

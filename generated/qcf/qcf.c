@@ -141,10 +141,10 @@ static void qcf_k_gyro_recovery(const float gyro[3], const float gyro_prev[3],
     const float tmp6 = fabsf(tmp5);
     const float tmp7 = gyro[1] - gyro_prev[1];
     const float tmp8 = fabsf(tmp7);
-    const bool tmp9 = (tmp6 < 1e-06f) && (tmp8 < 1e-06f);
+    const bool tmp9 = (tmp6 < 1e-06f /* PLATEAU_TOL */) && (tmp8 < 1e-06f /* PLATEAU_TOL */);
     const float tmp10 = gyro[2] - gyro_prev[2];
     const float tmp11 = fabsf(tmp10);
-    const bool tmp12 = tmp9 && (tmp11 < 1e-06f);
+    const bool tmp12 = tmp9 && (tmp11 < 1e-06f /* PLATEAU_TOL */);
     float tmp13;
     float tmp14;
     float tmp15;
@@ -153,15 +153,18 @@ static void qcf_k_gyro_recovery(const float gyro[3], const float gyro_prev[3],
         tmp14 = gyro_repeats[1];
         tmp15 = gyro_repeats[2];
     } else {
-        const bool tmp16 = (tmp6 < 1e-06f) && (3.5f /* gyro_plateau_rate */ <= tmp0);
+        const bool tmp16 = (tmp6 < 1e-06f /* PLATEAU_TOL */) && (3.5f /* gyro_plateau_rate */ <=
+                tmp0);
         const float tmp17 = gyro_repeats[0] + 1.0f;
         const float tmp18 = (tmp17 < 3.0f) ? tmp17 : 3.0f;
         const float tmp19 = (tmp16) ? tmp18 : 0.0f;
-        const bool tmp20 = (tmp8 < 1e-06f) && (3.5f /* gyro_plateau_rate */ <= tmp1);
+        const bool tmp20 = (tmp8 < 1e-06f /* PLATEAU_TOL */) && (3.5f /* gyro_plateau_rate */ <=
+                tmp1);
         const float tmp21 = gyro_repeats[1] + 1.0f;
         const float tmp22 = (tmp21 < 3.0f) ? tmp21 : 3.0f;
         const float tmp23 = (tmp20) ? tmp22 : 0.0f;
-        const bool tmp24 = (tmp11 < 1e-06f) && (3.5f /* gyro_plateau_rate */ <= tmp3);
+        const bool tmp24 = (tmp11 < 1e-06f /* PLATEAU_TOL */) && (3.5f /* gyro_plateau_rate */ <=
+                tmp3);
         const float tmp25 = gyro_repeats[2] + 1.0f;
         const float tmp26 = (tmp25 < 3.0f) ? tmp25 : 3.0f;
         const float tmp27 = (tmp24) ? tmp26 : 0.0f;
@@ -204,15 +207,15 @@ static void qcf_k_predict_part0(const float q[4], const float gyro_bias[3], cons
     float tmp13;
     float tmp14;
     float tmp15;
-    if (tmp11 < 0.01f) {
-        const float tmp16 = (-2.1377798e-05f) * tmp11;
-        const float tmp17 = (-0.00021164022f) + tmp16;
+    if (tmp11 < 0.01f /* SERIES_MAX*SERIES_MAX */) {
+        const float tmp16 = (-2.1377798e-05f) /* -(2/93555) */ * tmp11;
+        const float tmp17 = (-0.00021164022f) /* -(1/4725) */ + tmp16;
         const float tmp18 = tmp11 * tmp17;
-        const float tmp19 = (-0.0021164021f) + tmp18;
+        const float tmp19 = (-0.0021164021f) /* -(2/945) */ + tmp18;
         const float tmp20 = tmp11 * tmp19;
-        const float tmp21 = (-0.022222223f) + tmp20;
+        const float tmp21 = (-0.022222223f) /* -(1/45) */ + tmp20;
         const float tmp22 = tmp11 * tmp21;
-        const float tmp23 = (-0.33333334f) + tmp22;
+        const float tmp23 = (-0.33333334f) /* -(1/3) */ + tmp22;
         const float tmp24 = tmp11 * tmp23;
         const float tmp25 = 1.0f + tmp24;
         tmp12 = tmp25;
@@ -220,7 +223,8 @@ static void qcf_k_predict_part0(const float q[4], const float gyro_bias[3], cons
         tmp14 = tmp5;
         tmp15 = tmp9;
     } else {
-        const float tmp26 = (tmp11 > 0.01f) ? tmp11 : 0.01f;
+        const float tmp26 = (tmp11 > 0.01f /* SERIES_MAX*SERIES_MAX */) ? tmp11 :
+                0.01f /* SERIES_MAX*SERIES_MAX */;
         const float tmp27 = sqrtf(tmp26);
         float tmp29;
         float tmp28;
@@ -377,7 +381,7 @@ static inline void qcf_k_init_attitude(const float accel[3], float q[4], float a
     const float tmp4 = tmp2 + tmp3;
     const float tmp5 = sqrtf(tmp4);
     const float tmp6 = tmp5 - accel[2];
-    const float tmp7 = 1e-06f * tmp5;
+    const float tmp7 = 1e-06f /* TILT_FLIP_EPS */ * tmp5;
     float tmp8;
     float tmp9;
     float tmp10;
@@ -459,7 +463,7 @@ static void qcf_k_heading_init_part1(const float q[4], float carry[4])
     float tmp39;
     float tmp40;
     float tmp41;
-    if (carry[2] < 1e-15f) {
+    if (carry[2] < 1e-15f /* HEADING_H_MIN */) {
         tmp37 = 1.0f;
         tmp38 = 0.0f;
         tmp39 = 0.0f;
@@ -609,7 +613,7 @@ static void qcf_k_correct_part0(const float rot[9], const float accel_lp[3], con
     const float tmp6 = tmp4 + tmp5;
     const float tmp7 = sqrtf(tmp6);
     const float tmp8 = tmp7 - accel_lp[2];
-    const float tmp9 = 1e-06f * tmp7;
+    const float tmp9 = 1e-06f /* TILT_FLIP_EPS */ * tmp7;
     const float tmp10 = tmp7 + tmp7;
     const float tmp11 = tmp10 * tmp8;
     const float tmp12 = sqrtf(tmp11);
@@ -659,7 +663,7 @@ static void qcf_k_correct_part1(const float rot[9], float span_mag, float carry[
     float tmp42;
     float tmp43;
     float tmp44;
-    if (tmp41 < 1e-15f) {
+    if (tmp41 < 1e-15f /* HEADING_H_MIN */) {
         tmp42 = 0.0f;
         tmp43 = 0.0f;
         tmp44 = 0.0f;
@@ -714,15 +718,15 @@ static void qcf_k_correct_part2(const float q[4], float carry[11])
     float tmp80;
     float tmp81;
     float tmp82;
-    if (carry[3] < 0.01f) {
-        const float tmp83 = (-2.1377798e-05f) * carry[3];
-        const float tmp84 = (-0.00021164022f) + tmp83;
+    if (carry[3] < 0.01f /* SERIES_MAX*SERIES_MAX */) {
+        const float tmp83 = (-2.1377798e-05f) /* -(2/93555) */ * carry[3];
+        const float tmp84 = (-0.00021164022f) /* -(1/4725) */ + tmp83;
         const float tmp85 = carry[3] * tmp84;
-        const float tmp86 = (-0.0021164021f) + tmp85;
+        const float tmp86 = (-0.0021164021f) /* -(2/945) */ + tmp85;
         const float tmp87 = carry[3] * tmp86;
-        const float tmp88 = (-0.022222223f) + tmp87;
+        const float tmp88 = (-0.022222223f) /* -(1/45) */ + tmp87;
         const float tmp89 = carry[3] * tmp88;
-        const float tmp90 = (-0.33333334f) + tmp89;
+        const float tmp90 = (-0.33333334f) /* -(1/3) */ + tmp89;
         const float tmp91 = carry[3] * tmp90;
         const float tmp92 = 1.0f + tmp91;
         tmp79 = tmp92;
@@ -730,7 +734,8 @@ static void qcf_k_correct_part2(const float q[4], float carry[11])
         tmp81 = carry[1];
         tmp82 = carry[2];
     } else {
-        const float tmp93 = (carry[3] > 0.01f) ? carry[3] : 0.01f;
+        const float tmp93 = (carry[3] > 0.01f /* SERIES_MAX*SERIES_MAX */) ? carry[3] :
+                0.01f /* SERIES_MAX*SERIES_MAX */;
         const float tmp94 = sqrtf(tmp93);
         float tmp96;
         float tmp95;
@@ -826,7 +831,8 @@ static void qcf_k_correct_part4(const float gyro_bias[3], float span_accel, bool
         tmp144 = tmp155;
     } else {
         const bool tmp156 = use_accel && (!(recover));
-        const bool tmp157 = (77.55708f < accel_norm2) && (accel_norm2 < 116.78368f);
+        const bool tmp157 = (77.55708f /* (G0 - 1.0)^2 */ < accel_norm2) && (accel_norm2 <
+                116.78368f /* (G0 + 1.0)^2 */);
         const bool tmp158 = tmp156 && tmp157;
         const float tmp159 = 0.016f /* ki/(0.5*kp) */ * carry[0];
         const float tmp160 = gyro_bias[0] - tmp159;
@@ -935,8 +941,8 @@ static void qcf_k_rest(const float gyro[3], float accel_norm2, const float rest_
     const float tmp16 = gyro[2] - tmp10;
     const float tmp17 = tmp16 * tmp16;
     const float tmp18 = tmp15 + tmp17;
-    const bool tmp19 = (86.61373f /* (9.80665 - rest_accel_tol)^2 */ < accel_norm2) && (accel_norm2
-            < 106.227036f /* (9.80665 + rest_accel_tol)^2 */);
+    const bool tmp19 = (86.61373f /* (G0 - rest_accel_tol)^2 */ < accel_norm2) && (accel_norm2 <
+            106.227036f /* (G0 + rest_accel_tol)^2 */);
     const bool tmp20 = (tmp18 < 0.001225f /* rest_gyro_tol^2 */) && tmp19;
     const float tmp21 = tmp4 * tmp4;
     const float tmp22 = tmp7 * tmp7;
@@ -945,7 +951,7 @@ static void qcf_k_rest(const float gyro[3], float accel_norm2, const float rest_
     const float tmp25 = tmp23 + tmp24;
     const bool tmp26 = tmp20 && (tmp25 < 0.001225f /* rest_gyro_tol^2 */);
     const float tmp27 = rest_time + span;
-    const float tmp28 = (tmp27 < 1000.0f) ? tmp27 : 1000.0f;
+    const float tmp28 = (tmp27 < 1000.0f /* REST_TIME_CAP */) ? tmp27 : 1000.0f /* REST_TIME_CAP */;
     const float tmp29 = (tmp26) ? tmp28 : 0.0f;
     const float tmp30 = 0.5f * span;
     const float tmp31 = tmp29 + tmp30;
@@ -1094,17 +1100,18 @@ static void qcf_k_hard_iron_part0(const float mag[3], const float b[3], const fl
     float carry[50], bool flags[2])
 {
     const float tmp0 = turn_time + dt;
-    const float tmp1 = (tmp0 < 1000.0f) ? tmp0 : 1000.0f;
+    const float tmp1 = (tmp0 < 1000.0f /* HARD_IRON_TIME_CAP */) ? tmp0 :
+            1000.0f /* HARD_IRON_TIME_CAP */;
     const float tmp2 = 5.0f /* mag_bias_settle */ + dt;
     const float tmp3 = dt / tmp2;
-    const float tmp4 = 0.2f + dt;
+    const float tmp4 = 0.2f /* HARD_IRON_RES_TAU */ + dt;
     const float tmp5 = dt / tmp4;
     const float tmp6 = 1.0f / ref[0];
     const float tmp7 = mag[0] * tmp6;
     const float tmp8 = b[0] * tmp6;
     const float tmp9 = (fresh) ? tmp8 : cx[0];
     const bool tmp10 = fresh || reopen;
-    const float tmp11 = (tmp10) ? 0.09f : cP[0];
+    const float tmp11 = (tmp10) ? 0.09f /* HARD_IRON_P0^2 */ : cP[0];
     const float tmp12 = 9e-06f /* mag_bias_rw^2 */ * dt;
     const float tmp13 = tmp11 + tmp12;
     const float tmp14 = tmp7 - tmp9;
@@ -1122,8 +1129,8 @@ static void qcf_k_hard_iron_part0(const float mag[3], const float b[3], const fl
     const float tmp26 = tmp25 * tmp25;
     const float tmp27 = tmp21 + tmp26;
     const float tmp28 = sqrtf(tmp27);
-    const bool tmp29 = 1e-06f <= tmp28;
-    const bool tmp30 = tmp28 <= 1e-06f;
+    const bool tmp29 = 1e-06f /* HARD_IRON_NORM_MIN */ <= tmp28;
+    const bool tmp30 = tmp28 <= 1e-06f /* HARD_IRON_NORM_MIN */;
     const float tmp31 = (float)tmp29 + (float)tmp30;
     const float tmp32 = (float)tmp29 / tmp31;
     const float tmp33 = 1.0f / tmp28;
@@ -1177,7 +1184,7 @@ static void qcf_k_hard_iron_part1(const float cP[25], float carry[50], const boo
     const float tmp53 = cP[1] * tmp40;
     const float tmp54 = -tmp53;
     const float tmp55 = (flags[0]) ? 0.0f : tmp54;
-    const float tmp56 = (flags[0]) ? 0.09f : cP[6];
+    const float tmp56 = (flags[0]) ? 0.09f /* HARD_IRON_P0^2 */ : cP[6];
     const float tmp57 = tmp56 + carry[6];
     const float tmp58 = tmp57 * carry[20];
     const float tmp59 = tmp55 - tmp58;
@@ -1195,7 +1202,7 @@ static void qcf_k_hard_iron_part1(const float cP[25], float carry[50], const boo
     const float tmp71 = tmp69 + tmp70;
     const float tmp72 = -tmp71;
     const float tmp73 = (flags[0]) ? 0.0f : tmp72;
-    const float tmp74 = (flags[0]) ? 0.09f : cP[12];
+    const float tmp74 = (flags[0]) ? 0.09f /* HARD_IRON_P0^2 */ : cP[12];
     const float tmp75 = tmp74 + carry[6];
     const float tmp76 = tmp75 * tmp44;
     const float tmp77 = tmp73 - tmp76;
@@ -1225,13 +1232,13 @@ static void qcf_k_hard_iron_part2(const float q[4], const float cP[25], float ca
     const float tmp87 = tmp85 + tmp86;
     const float tmp88 = -tmp87;
     const float tmp89 = (flags[0]) ? 0.0f : tmp88;
-    const float tmp90 = (flags[0]) ? 0.09f : cP[18];
+    const float tmp90 = (flags[0]) ? 0.09f /* HARD_IRON_P0^2 */ : cP[18];
     const float tmp91 = tmp90 + carry[6];
     const float tmp92 = tmp89 - tmp91;
     const float tmp93 = tmp82 + tmp92;
     const float tmp94 = 0.0025f /* mag_bias_noise^2 */ - tmp93;
     const float tmp95 = 1.0f / tmp94;
-    const float tmp96 = (1e-12f < tmp94) ? tmp95 : 1.0f;
+    const float tmp96 = (1e-12f /* HARD_IRON_PIVOT_MIN */ < tmp94) ? tmp95 : 1.0f;
     const float tmp97 = carry[21] * tmp96;
     const float tmp98 = tmp97 * carry[21];
     const float tmp99 = carry[7] - tmp98;
@@ -1349,7 +1356,7 @@ static void qcf_k_hard_iron_part4(const float ref[2], const float cx[5], const f
     const float tmp175 = tmp173 + tmp174;
     const float tmp176 = tmp169 * carry[18];
     const float tmp177 = tmp175 + tmp176;
-    const float tmp178 = (flags[0]) ? 0.09f : cP[24];
+    const float tmp178 = (flags[0]) ? 0.09f /* HARD_IRON_P0^2 */ : cP[24];
     const float tmp179 = tmp178 + carry[6];
     const float tmp180 = carry[20] * carry[19];
     const float tmp181 = (flags[0]) ? 0.0f : tmp180;
@@ -1359,7 +1366,7 @@ static void qcf_k_hard_iron_part4(const float ref[2], const float cx[5], const f
     const float tmp185 = tmp172 + tmp184;
     const float tmp186 = tmp185 + 0.0025f /* mag_bias_noise^2 */;
     const float tmp187 = 1.0f / tmp186;
-    const float tmp188 = (1e-12f < tmp186) ? tmp187 : 1.0f;
+    const float tmp188 = (1e-12f /* HARD_IRON_PIVOT_MIN */ < tmp186) ? tmp187 : 1.0f;
     const float tmp189 = carry[34] * tmp188;
     const float tmp190 = carry[30] * carry[8];
     const float tmp191 = carry[33] * carry[12];
@@ -1368,7 +1375,8 @@ static void qcf_k_hard_iron_part4(const float ref[2], const float cx[5], const f
     const float tmp194 = tmp192 + tmp193;
     const float tmp195 = (fresh) ? ref[1] : cx[4];
     const float tmp196 = tmp194 - tmp195;
-    const float tmp197 = (carry[17] > 1e-06f) ? carry[17] : 1e-06f;
+    const float tmp197 = (carry[17] > 1e-06f /* HARD_IRON_NORM_MIN */) ? carry[17] :
+            1e-06f /* HARD_IRON_NORM_MIN */;
     const float tmp198 = (fresh) ? 1.0f : cx[3];
     const float tmp199 = tmp197 - tmp198;
     carry[6] = tmp162;
@@ -1445,7 +1453,8 @@ static void qcf_k_hard_iron_part6(const float cP[25], const float rlp[4], float 
     const float tmp241 = tmp240 * tmp240;
     const float tmp242 = carry[46] + tmp241;
     const float tmp243 = sqrtf(tmp242);
-    const float tmp244 = (tmp243 > 1e-06f) ? tmp243 : 1e-06f;
+    const float tmp244 = (tmp243 > 1e-06f /* HARD_IRON_NORM_MIN */) ? tmp243 :
+            1e-06f /* HARD_IRON_NORM_MIN */;
     const float tmp245 = (flags[0]) ? 0.0f : cP[3];
     const float tmp246 = carry[26] * carry[27];
     const float tmp247 = tmp246 * carry[21];
@@ -1513,7 +1522,7 @@ static void qcf_k_hard_iron_part7(const float ref[2], const float rlp[4], const 
     const float tmp292 = tmp291 - e[1];
     const float tmp293 = carry[1] * tmp292;
     const float tmp294 = e[1] + tmp293;
-    const float tmp295 = 4.0f * tmp294;
+    const float tmp295 = 4.0f /* HARD_IRON_RATIO */ * tmp294;
     const float tmp296 = carry[3] - carry[4];
     const float tmp297 = tmp296 * tmp296;
     const float tmp298 = carry[9] - carry[10];
@@ -1608,7 +1617,8 @@ static void qcf_k_hard_iron_part9(float carry[50], bool flags[2])
     const float tmp362 = carry[28] * carry[12];
     const float tmp363 = carry[6] - tmp362;
     const float tmp364 = tmp361 + tmp363;
-    const bool tmp365 = (tmp364 < 0.000225f /* mag_bias_th*mag_bias_th */) && (0.1f < carry[44]);
+    const bool tmp365 = (tmp364 < 0.000225f /* mag_bias_th*mag_bias_th */) &&
+            (0.1f /* HARD_IRON_N_MIN */ < carry[44]);
     const bool tmp366 = flags[1] && tmp365;
     const float tmp367 = carry[15] * carry[34];
     const float tmp368 = carry[32] - tmp367;
@@ -1986,8 +1996,8 @@ static inline void qcf_k_rotation(const float q[4], float rot[9])
 
 static void qcf_k_gravity_part_part0(float accel_norm2, bool flags[1])
 {
-    const bool tmp0 = (90.376396f /* (9.80665 - motion_accel_threshold)^2 */ < accel_norm2) &&
-            (accel_norm2 < 102.14437f /* (9.80665 + motion_accel_threshold)^2 */);
+    const bool tmp0 = (90.376396f /* (G0 - motion_accel_threshold)^2 */ < accel_norm2) &&
+            (accel_norm2 < 102.14437f /* (G0 + motion_accel_threshold)^2 */);
     flags[0] = tmp0;
 }
 
@@ -2012,7 +2022,7 @@ static void qcf_k_gravity_part_part1(const float accel[3], const float rot[9], c
         const float tmp11 = tmp9 + tmp10;
         const float tmp12 = gps_vel_hist[2] * gps_vel_hist[2];
         const float tmp13 = tmp11 + tmp12;
-        const float tmp14 = (tmp13 > 1e-06f) ? tmp13 : 1e-06f;
+        const float tmp14 = (tmp13 > 1e-06f /* ALONG_V2_MIN */) ? tmp13 : 1e-06f /* ALONG_V2_MIN */;
         const float tmp15 = 1.0f / tmp14;
         const float tmp16 = sqrtf(tmp15);
         const float tmp17 = tmp8 * tmp16;
@@ -2263,7 +2273,7 @@ void qcf_init(qcf_state *s)
     s->gps_vel_hist[0] = 0.0f;
     s->gps_vel_hist[1] = 0.0f;
     s->gps_vel_hist[2] = 0.0f;
-    s->gps_age = 1000.0f;
+    s->gps_age = 1000.0f /* GPS_AGE_MAX */;
     s->gps_count = 0u;
     s->initialised = 0u;
     s->accel_lp[0] = 0.0f;
@@ -2391,7 +2401,7 @@ qcf_status qcf_step(qcf_state *restrict s, const qcf_input *restrict in, float d
             s->gps_count++;
         }
         s->gps_age = 0.0f;
-    } else if (s->gps_age < 1000.0f) {
+    } else if (s->gps_age < 1000.0f /* GPS_AGE_MAX */) {
         s->gps_age += dt;
     }
 

@@ -48,4 +48,4 @@ def named(name: str, x):
     return x if _tracer is None else _tracer(name, x)
 
 
-G0 = 9.80665  # standard gravity, m/s^2
+G0 = Const("G0", 9.80665)  # standard gravity, m/s^2
