@@ -301,8 +301,8 @@ static void cpf_k_predict_part0(const float q[4], const float gyro[3], float dt,
 
 static void cpf_k_predict_part1(float carry[5])
 {
-    const float tmp40 = carry[0] * carry[2];
-    const float tmp41 = carry[1] * carry[2];
+    const float tmp40 = carry[0] /* tmp24 */ * carry[2] /* tmp37 */;
+    const float tmp41 = carry[1] /* tmp33 */ * carry[2] /* tmp37 */;
     carry[0] = tmp40;
     carry[1] = tmp41;
 }
@@ -328,10 +328,10 @@ static void cpf_k_predict(const float q[4], const float gyro[3], float dt, float
     float carry[5];
     cpf_k_predict_part0(q, gyro, dt, carry);
     cpf_k_predict_part1(carry);
-    q_new[0] = carry[3];
-    q_new[1] = carry[4];
-    q_new[2] = carry[0];
-    q_new[3] = carry[1];
+    q_new[0] = carry[3] /* tmp38 */;
+    q_new[1] = carry[4] /* tmp39 */;
+    q_new[2] = carry[0] /* tmp40 */;
+    q_new[3] = carry[1] /* tmp41 */;
 }
 
 static void cpf_k_cf_mix_part0(const float rpy[3], const float am[3], float dt, float use_accel,
@@ -389,24 +389,25 @@ static void cpf_k_cf_mix_part0(const float rpy[3], const float am[3], float dt, 
 
 static void cpf_k_cf_mix_part1(float carry[6])
 {
-    const float tmp38 = carry[5] - 6.2831855f /* 2*pi */;
-    const float tmp39 = carry[5] + 6.2831855f /* 2*pi */;
-    const float tmp40 = (carry[5] <= (-3.1415927f) /* -pi */) ? tmp39 : carry[5];
-    const float tmp41 = (3.1415927f /* pi */ < carry[5]) ? tmp38 : tmp40;
+    const float tmp38 = carry[5] /* tmp37 */ - 6.2831855f /* 2*pi */;
+    const float tmp39 = carry[5] /* tmp37 */ + 6.2831855f /* 2*pi */;
+    const float tmp40 = (carry[5] /* tmp37 */ <= (-3.1415927f) /* -pi */) ? tmp39 :
+            carry[5] /* tmp37 */;
+    const float tmp41 = (3.1415927f /* pi */ < carry[5] /* tmp37 */) ? tmp38 : tmp40;
     const float tmp42 = tmp41 * 0.5f;
     float tmp48;
     float tmp43;
     fast_sincosf(tmp42, &tmp48, &tmp43);   /* sin and cos, one reduction */
-    const float tmp44 = carry[4] * tmp43;
-    const float tmp47 = carry[0] * carry[2];
+    const float tmp44 = carry[4] /* tmp30 */ * tmp43;
+    const float tmp47 = carry[0] /* tmp45 */ * carry[2] /* tmp46 */;
     const float tmp49 = tmp47 * tmp48;
     const float tmp50 = tmp44 + tmp49;
-    const float tmp51 = carry[4] * tmp48;
+    const float tmp51 = carry[4] /* tmp30 */ * tmp48;
     const float tmp52 = tmp47 * tmp43;
     const float tmp53 = tmp51 - tmp52;
-    const float tmp54 = carry[1] * carry[2];
+    const float tmp54 = carry[1] /* tmp15 */ * carry[2] /* tmp46 */;
     const float tmp55 = tmp54 * tmp43;
-    const float tmp56 = carry[0] * carry[3];
+    const float tmp56 = carry[0] /* tmp45 */ * carry[3] /* tmp29 */;
     const float tmp57 = tmp56 * tmp48;
     const float tmp58 = tmp55 + tmp57;
     const float tmp59 = tmp56 * tmp43;
@@ -442,10 +443,10 @@ static void cpf_k_cf_mix(const float rpy[3], const float am[3], float dt, float 
     float carry[6];
     cpf_k_cf_mix_part0(rpy, am, dt, use_accel, use_mag, carry);
     cpf_k_cf_mix_part1(carry);
-    q_cf[0] = carry[0];
-    q_cf[1] = carry[1];
-    q_cf[2] = carry[2];
-    q_cf[3] = carry[3];
+    q_cf[0] = carry[0] /* tmp50 */;
+    q_cf[1] = carry[1] /* tmp53 */;
+    q_cf[2] = carry[2] /* tmp58 */;
+    q_cf[3] = carry[3] /* tmp61 */;
 }
 
 /*
