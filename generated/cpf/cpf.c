@@ -1045,7 +1045,7 @@ static void cpf_rng_gauss4(uint32_t rng[2], float n[4])
 static void cpf_resample(cpf_state *s)
 {
     const float u = cpf_rng_uniform(s->rng);
-    const float step = s->weight_sum / 100.0f;
+    const float step = s->weight_sum / 100.0f /* n_particles */;
     float c = 0.0f;
     float jr = 0.0f;                /* j as a real (exact) */
     float pos = u * step;                 /* (j + u) weight_sum/N */
@@ -1063,7 +1063,7 @@ static void cpf_resample(cpf_state *s)
     }
     s->weights[99u] = 0.01f /* 1 / n_particles */;
     s->weight_sum = 1.0f;
-    s->scratch[99u] = 100.0f - jr;
+    s->scratch[99u] = 100.0f /* n_particles */ - jr;
     /* The counts are whole numbers >= 0 that sum to exactly N (j <= N), so there are exactly
      * as many unselected slots (count 0) as extra copies (count - 1 of each selected one): for
      * every extra copy an unfilled slot lies at or after d, and the scan below stops at it
@@ -1081,7 +1081,7 @@ static void cpf_resample(cpf_state *s)
             s->scratch[d] = 1.0f;
         }
     }
-    s->ess = 100.0f;
+    s->ess = 100.0f /* n_particles */;
     s->resample_count++;
 }
 
@@ -1184,10 +1184,10 @@ void cpf_init(cpf_state *s)
         s->particles[i] = 0.0f;
     }
     for (uint32_t i = 0u; i < 100u; i++) {
-        s->weights[i] = 0.01f;
+        s->weights[i] = 0.01f /* 1 / n_particles */;
     }
     s->weight_sum = 1.0f;
-    s->ess = 100.0f;
+    s->ess = 100.0f /* n_particles */;
     s->rng[0] = 2527132011u;
     s->rng[1] = 314344336u;
     for (uint32_t i = 0u; i < 100u; i++) {
@@ -1255,7 +1255,7 @@ cpf_status cpf_step(cpf_state *restrict s, const cpf_input *restrict in, float d
             s->weights[i] = 0.01f /* 1 / n_particles */;
         }
         s->weight_sum = 1.0f;
-        s->ess = 100.0f;
+        s->ess = 100.0f /* n_particles */;
         s->initialised = 1u;
         return status;
     }

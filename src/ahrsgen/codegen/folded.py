@@ -243,6 +243,15 @@ def _operations(fn: ca.Function) -> tuple[list, list]:
     return ops, where
 
 
+def value_names(baked: list, traced: list) -> list:
+    """The name of each number of `baked` (a state field's initial values) that its twin in
+    `traced` (the same field of the traced build) provably is, by the rule for a kernel's
+    constants: a Traced number whose value moved and whose real value is the baked number;
+    None elsewhere."""
+    return [label(t) if isinstance(t, Traced) and float(t) != float(v) and t.shadow == float(v) else None
+            for v, t in zip(baked, traced)]
+
+
 def constant_names(baked: ca.Function, traced: ca.Function, record: list) -> dict[tuple[int, int], str] | None:
     """{(instruction, operand): name} for the constants the operations of `baked` read that are
     provably a recorded expression (module doc); None when the two kernels compute different

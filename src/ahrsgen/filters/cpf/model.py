@@ -24,7 +24,7 @@ from ahrsgen.codegen.emit import function
 from ahrsgen.filters.cpf.prng import ZIG_F, ZIG_K, ZIG_R, ZIG_W, seed_state
 from ahrsgen.filters.cpf.reference import WEIGHT_SUM_MIN
 from ahrsgen.codegen.model import FilterModel, KernelSpec, StateField
-from ahrsgen.constants import Const
+from ahrsgen.constants import Const, named
 from ahrsgen.symbolic import attitude, quat
 
 # the step keeps its previous estimate when the weighted mean's squared norm is below this
@@ -81,11 +81,11 @@ class Model(FilterModel):
                 StateField("particles", 4 * n, f"{n} particles, quaternions [w x y z] one after another "
                            "(drawn at initialisation)", 0.0),
                 StateField("weights", n, "particle weights, normalised by weight_sum (eq. 14 deferred to their "
-                           "next use)", 1.0 / n),
+                           "next use)", named("1 / n_particles", 1.0 / n)),
                 StateField("weight_sum", 1, "the weights' sum (their divisor): 1 after initialisation and "
                            "resampling", 1.0),
                 StateField("ess", 1, "effective sample size weight_sum^2/sum(w^2) after the last update",
-                           float(n)),
+                           named("n_particles", float(n))),
                 StateField("rng", 2, f"xoroshiro64** state (seeded from {self.params['seed']})",
                            seed_state(int(self.params["seed"])), "uint32"),
                 StateField("scratch", n, "per-particle scratch: <x_i, Y> during a step, then the number of "

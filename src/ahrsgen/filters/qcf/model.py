@@ -100,7 +100,7 @@ class Model(FilterModel):
                 " (tilt only), 2 with heading" if self.product else ""), 1 if p["faithful"] else 0, "uint32"),
         ] + ([] if not self.product else [
             StateField("accel_lp", 3, "low-passed specific force in NED, m/s^2 (level at rest until the "
-                       "first accelerometer sample: the correction before it has zero weights)", [0.0, 0.0, -G0]),
+                       "first accelerometer sample: the correction before it has zero weights)", [0.0, 0.0, -use(G0)]),
             StateField("accel_age", 1, "time since the last accelerometer sample, s", 0.0),
             StateField("mag_age", 1, "time since the last magnetometer sample, s", 0.0),
             StateField("rest_gyro_lp", 3, "rest detection: low-passed gyro, rad/s", 0.0),
