@@ -197,10 +197,10 @@ static inline void cpf_k_heading(const float mag[3], float roll, float pitch, fl
     const float tmp13 = tmp12 * tmp0;
     const float tmp14 = tmp11 + tmp13;
     const float tmp15 = fast_atan2f(tmp5, tmp14);
-    const float tmp16 = tmp15 - 6.2831855f;
-    const float tmp17 = tmp15 + 6.2831855f;
-    const float tmp18 = (tmp15 <= (-3.1415927f)) ? tmp17 : tmp15;
-    const float tmp19 = (3.1415927f < tmp15) ? tmp16 : tmp18;
+    const float tmp16 = tmp15 - 6.2831855f /* 2*pi */;
+    const float tmp17 = tmp15 + 6.2831855f /* 2*pi */;
+    const float tmp18 = (tmp15 <= (-3.1415927f) /* -pi */) ? tmp17 : tmp15;
+    const float tmp19 = (3.1415927f /* pi */ < tmp15) ? tmp16 : tmp18;
     *yaw = tmp19;
 }
 
@@ -301,8 +301,8 @@ static void cpf_k_predict_part0(const float q[4], const float gyro[3], float dt,
 
 static void cpf_k_predict_part1(float carry[5])
 {
-    const float tmp40 = carry[0] * carry[2];
-    const float tmp41 = carry[1] * carry[2];
+    const float tmp40 = carry[0] /* tmp24 */ * carry[2] /* tmp37 */;
+    const float tmp41 = carry[1] /* tmp33 */ * carry[2] /* tmp37 */;
     carry[0] = tmp40;
     carry[1] = tmp41;
 }
@@ -328,10 +328,10 @@ static void cpf_k_predict(const float q[4], const float gyro[3], float dt, float
     float carry[5];
     cpf_k_predict_part0(q, gyro, dt, carry);
     cpf_k_predict_part1(carry);
-    q_new[0] = carry[3];
-    q_new[1] = carry[4];
-    q_new[2] = carry[0];
-    q_new[3] = carry[1];
+    q_new[0] = carry[3] /* tmp38 */;
+    q_new[1] = carry[4] /* tmp39 */;
+    q_new[2] = carry[0] /* tmp40 */;
+    q_new[3] = carry[1] /* tmp41 */;
 }
 
 static void cpf_k_cf_mix_part0(const float rpy[3], const float am[3], float dt, float use_accel,
@@ -341,42 +341,42 @@ static void cpf_k_cf_mix_part0(const float rpy[3], const float am[3], float dt, 
     const float tmp1 = dt / tmp0;
     const float tmp2 = use_mag * tmp1;
     const float tmp3 = am[2] - rpy[2];
-    const float tmp4 = tmp3 - 6.2831855f;
-    const float tmp5 = tmp3 + 6.2831855f;
-    const float tmp6 = (tmp3 <= (-3.1415927f)) ? tmp5 : tmp3;
-    const float tmp7 = (3.1415927f < tmp3) ? tmp4 : tmp6;
+    const float tmp4 = tmp3 - 6.2831855f /* 2*pi */;
+    const float tmp5 = tmp3 + 6.2831855f /* 2*pi */;
+    const float tmp6 = (tmp3 <= (-3.1415927f) /* -pi */) ? tmp5 : tmp3;
+    const float tmp7 = (3.1415927f /* pi */ < tmp3) ? tmp4 : tmp6;
     const float tmp8 = tmp2 * tmp7;
     const float tmp9 = rpy[2] + tmp8;
-    const float tmp10 = tmp9 - 6.2831855f;
-    const float tmp11 = tmp9 + 6.2831855f;
-    const float tmp12 = (tmp9 <= (-3.1415927f)) ? tmp11 : tmp9;
-    const float tmp13 = (3.1415927f < tmp9) ? tmp10 : tmp12;
+    const float tmp10 = tmp9 - 6.2831855f /* 2*pi */;
+    const float tmp11 = tmp9 + 6.2831855f /* 2*pi */;
+    const float tmp12 = (tmp9 <= (-3.1415927f) /* -pi */) ? tmp11 : tmp9;
+    const float tmp13 = (3.1415927f /* pi */ < tmp9) ? tmp10 : tmp12;
     const float tmp14 = tmp13 * 0.5f;
     float tmp45;
     float tmp15;
     fast_sincosf(tmp14, &tmp45, &tmp15);   /* sin and cos, one reduction */
     const float tmp16 = use_accel * tmp1;
     const float tmp17 = am[1] - rpy[1];
-    const float tmp18 = tmp17 - 6.2831855f;
-    const float tmp19 = tmp17 + 6.2831855f;
-    const float tmp20 = (tmp17 <= (-3.1415927f)) ? tmp19 : tmp17;
-    const float tmp21 = (3.1415927f < tmp17) ? tmp18 : tmp20;
+    const float tmp18 = tmp17 - 6.2831855f /* 2*pi */;
+    const float tmp19 = tmp17 + 6.2831855f /* 2*pi */;
+    const float tmp20 = (tmp17 <= (-3.1415927f) /* -pi */) ? tmp19 : tmp17;
+    const float tmp21 = (3.1415927f /* pi */ < tmp17) ? tmp18 : tmp20;
     const float tmp22 = tmp16 * tmp21;
     const float tmp23 = rpy[1] + tmp22;
-    const float tmp24 = tmp23 - 6.2831855f;
-    const float tmp25 = tmp23 + 6.2831855f;
-    const float tmp26 = (tmp23 <= (-3.1415927f)) ? tmp25 : tmp23;
-    const float tmp27 = (3.1415927f < tmp23) ? tmp24 : tmp26;
+    const float tmp24 = tmp23 - 6.2831855f /* 2*pi */;
+    const float tmp25 = tmp23 + 6.2831855f /* 2*pi */;
+    const float tmp26 = (tmp23 <= (-3.1415927f) /* -pi */) ? tmp25 : tmp23;
+    const float tmp27 = (3.1415927f /* pi */ < tmp23) ? tmp24 : tmp26;
     const float tmp28 = tmp27 * 0.5f;
     float tmp46;
     float tmp29;
     fast_sincosf(tmp28, &tmp46, &tmp29);   /* sin and cos, one reduction */
     const float tmp30 = tmp15 * tmp29;
     const float tmp31 = am[0] - rpy[0];
-    const float tmp32 = tmp31 - 6.2831855f;
-    const float tmp33 = tmp31 + 6.2831855f;
-    const float tmp34 = (tmp31 <= (-3.1415927f)) ? tmp33 : tmp31;
-    const float tmp35 = (3.1415927f < tmp31) ? tmp32 : tmp34;
+    const float tmp32 = tmp31 - 6.2831855f /* 2*pi */;
+    const float tmp33 = tmp31 + 6.2831855f /* 2*pi */;
+    const float tmp34 = (tmp31 <= (-3.1415927f) /* -pi */) ? tmp33 : tmp31;
+    const float tmp35 = (3.1415927f /* pi */ < tmp31) ? tmp32 : tmp34;
     const float tmp36 = tmp16 * tmp35;
     const float tmp37 = rpy[0] + tmp36;
     carry[0] = tmp45;
@@ -389,24 +389,25 @@ static void cpf_k_cf_mix_part0(const float rpy[3], const float am[3], float dt, 
 
 static void cpf_k_cf_mix_part1(float carry[6])
 {
-    const float tmp38 = carry[5] - 6.2831855f;
-    const float tmp39 = carry[5] + 6.2831855f;
-    const float tmp40 = (carry[5] <= (-3.1415927f)) ? tmp39 : carry[5];
-    const float tmp41 = (3.1415927f < carry[5]) ? tmp38 : tmp40;
+    const float tmp38 = carry[5] /* tmp37 */ - 6.2831855f /* 2*pi */;
+    const float tmp39 = carry[5] /* tmp37 */ + 6.2831855f /* 2*pi */;
+    const float tmp40 = (carry[5] /* tmp37 */ <= (-3.1415927f) /* -pi */) ? tmp39 :
+            carry[5] /* tmp37 */;
+    const float tmp41 = (3.1415927f /* pi */ < carry[5] /* tmp37 */) ? tmp38 : tmp40;
     const float tmp42 = tmp41 * 0.5f;
     float tmp48;
     float tmp43;
     fast_sincosf(tmp42, &tmp48, &tmp43);   /* sin and cos, one reduction */
-    const float tmp44 = carry[4] * tmp43;
-    const float tmp47 = carry[0] * carry[2];
+    const float tmp44 = carry[4] /* tmp30 */ * tmp43;
+    const float tmp47 = carry[0] /* tmp45 */ * carry[2] /* tmp46 */;
     const float tmp49 = tmp47 * tmp48;
     const float tmp50 = tmp44 + tmp49;
-    const float tmp51 = carry[4] * tmp48;
+    const float tmp51 = carry[4] /* tmp30 */ * tmp48;
     const float tmp52 = tmp47 * tmp43;
     const float tmp53 = tmp51 - tmp52;
-    const float tmp54 = carry[1] * carry[2];
+    const float tmp54 = carry[1] /* tmp15 */ * carry[2] /* tmp46 */;
     const float tmp55 = tmp54 * tmp43;
-    const float tmp56 = carry[0] * carry[3];
+    const float tmp56 = carry[0] /* tmp45 */ * carry[3] /* tmp29 */;
     const float tmp57 = tmp56 * tmp48;
     const float tmp58 = tmp55 + tmp57;
     const float tmp59 = tmp56 * tmp43;
@@ -442,10 +443,10 @@ static void cpf_k_cf_mix(const float rpy[3], const float am[3], float dt, float 
     float carry[6];
     cpf_k_cf_mix_part0(rpy, am, dt, use_accel, use_mag, carry);
     cpf_k_cf_mix_part1(carry);
-    q_cf[0] = carry[0];
-    q_cf[1] = carry[1];
-    q_cf[2] = carry[2];
-    q_cf[3] = carry[3];
+    q_cf[0] = carry[0] /* tmp50 */;
+    q_cf[1] = carry[1] /* tmp53 */;
+    q_cf[2] = carry[2] /* tmp58 */;
+    q_cf[3] = carry[3] /* tmp61 */;
 }
 
 /*
@@ -796,7 +797,7 @@ static inline CPF_ALWAYS_INLINE uint32_t cpf_rng_next(uint32_t r[2])
  * never 0, so log() below is finite). */
 static float cpf_rng_uniform(uint32_t r[2])
 {
-    return (float)((cpf_rng_next(r) >> 8) + 1u) * 5.9604645e-08f;
+    return (float)((cpf_rng_next(r) >> 8) + 1u) * 5.9604645e-08f /* 2^-24 */;
 }
 
 /* Ziggurat tables (Marsaglia & Tsang 2000, 128 layers; src/ahrsgen/filters/cpf/prng.py), indexed
@@ -989,10 +990,10 @@ static CPF_NOT_INLINED float cpf_rng_gauss_slow(uint32_t r[2], uint32_t u)
             float xt;
             float y;
             do {
-                xt = -fast_logf(cpf_rng_uniform(r)) / 3.4426198f;
+                xt = -fast_logf(cpf_rng_uniform(r)) / 3.4426198f /* ZIG_R */;
                 y = -fast_logf(cpf_rng_uniform(r));
             } while (!(y + y >= xt * xt));
-            const float tail = 3.4426198f + xt;
+            const float tail = 3.4426198f /* ZIG_R */ + xt;
             return ((u & 128u) != 0u) ? -tail : tail;
         }
         const float level = cpf_zig_f[i] + cpf_rng_uniform(r) * (cpf_zig_f[i - 1u] - cpf_zig_f[i]);
@@ -1044,7 +1045,7 @@ static void cpf_rng_gauss4(uint32_t rng[2], float n[4])
 static void cpf_resample(cpf_state *s)
 {
     const float u = cpf_rng_uniform(s->rng);
-    const float step = s->weight_sum / 100.0f;
+    const float step = s->weight_sum / 100.0f /* n_particles */;
     float c = 0.0f;
     float jr = 0.0f;                /* j as a real (exact) */
     float pos = u * step;                 /* (j + u) weight_sum/N */
@@ -1062,7 +1063,7 @@ static void cpf_resample(cpf_state *s)
     }
     s->weights[99u] = 0.01f /* 1 / n_particles */;
     s->weight_sum = 1.0f;
-    s->scratch[99u] = 100.0f - jr;
+    s->scratch[99u] = 100.0f /* n_particles */ - jr;
     /* The counts are whole numbers >= 0 that sum to exactly N (j <= N), so there are exactly
      * as many unselected slots (count 0) as extra copies (count - 1 of each selected one): for
      * every extra copy an unfilled slot lies at or after d, and the scan below stops at it
@@ -1080,7 +1081,7 @@ static void cpf_resample(cpf_state *s)
             s->scratch[d] = 1.0f;
         }
     }
-    s->ess = 100.0f;
+    s->ess = 100.0f /* n_particles */;
     s->resample_count++;
 }
 
@@ -1183,10 +1184,10 @@ void cpf_init(cpf_state *s)
         s->particles[i] = 0.0f;
     }
     for (uint32_t i = 0u; i < 100u; i++) {
-        s->weights[i] = 0.01f;
+        s->weights[i] = 0.01f /* 1 / n_particles */;
     }
     s->weight_sum = 1.0f;
-    s->ess = 100.0f;
+    s->ess = 100.0f /* n_particles */;
     s->rng[0] = 2527132011u;
     s->rng[1] = 314344336u;
     for (uint32_t i = 0u; i < 100u; i++) {
@@ -1254,7 +1255,7 @@ cpf_status cpf_step(cpf_state *restrict s, const cpf_input *restrict in, float d
             s->weights[i] = 0.01f /* 1 / n_particles */;
         }
         s->weight_sum = 1.0f;
-        s->ess = 100.0f;
+        s->ess = 100.0f /* n_particles */;
         s->initialised = 1u;
         return status;
     }
@@ -1368,7 +1369,8 @@ cpf_status cpf_step(cpf_state *restrict s, const cpf_input *restrict in, float d
             w2 += w * w;
             cpf_k_accumulate(acc, w, &s->particles[4u * i], acc);
         }
-        if (!(sum >= 9.536743e-07f)) {     /* below 2^-20, zero or NaN: rare */
+        /* the sum below 2^-20, zero or NaN: rare */
+        if (!(sum >= 9.536743e-07f /* WEIGHT_SUM_MIN */)) {
             if (sum > 0.0f) {
                 for (uint32_t i = 0u; i < 100u; i++) {
                     s->weights[i] = s->weights[i] / sum;
@@ -1399,14 +1401,14 @@ cpf_status cpf_step(cpf_state *restrict s, const cpf_input *restrict in, float d
     /* Estimate (eq. 15): the weighted mean of the aligned particles, normalised (kept if it
      * degenerates). */
     if (acc[0] * acc[0] + acc[1] * acc[1] + acc[2] * acc[2] + acc[3] * acc[3]
-        > 1e-30f * sum * sum) {
+        > 1e-30f /* MEAN_NORM2_MIN */ * sum * sum) {
         cpf_k_normalize(acc, s->q);
     }
     s->weight_sum = sum;
     s->ess = sum * sum / w2;
 
     /* Systematic resampling: when the effective sample size is below 0.5 N. */
-    if (have_obs && s->ess < 50.0f) {
+    if (have_obs && s->ess < 50.0f /* ess_threshold*n_particles */) {
         cpf_resample(s);
     }
 

@@ -141,10 +141,10 @@ static void qcf_k_gyro_recovery(const float gyro[3], const float gyro_prev[3],
     const float tmp6 = fabsf(tmp5);
     const float tmp7 = gyro[1] - gyro_prev[1];
     const float tmp8 = fabsf(tmp7);
-    const bool tmp9 = (tmp6 < 1e-06f) && (tmp8 < 1e-06f);
+    const bool tmp9 = (tmp6 < 1e-06f /* PLATEAU_TOL */) && (tmp8 < 1e-06f /* PLATEAU_TOL */);
     const float tmp10 = gyro[2] - gyro_prev[2];
     const float tmp11 = fabsf(tmp10);
-    const bool tmp12 = tmp9 && (tmp11 < 1e-06f);
+    const bool tmp12 = tmp9 && (tmp11 < 1e-06f /* PLATEAU_TOL */);
     float tmp13;
     float tmp14;
     float tmp15;
@@ -153,15 +153,18 @@ static void qcf_k_gyro_recovery(const float gyro[3], const float gyro_prev[3],
         tmp14 = gyro_repeats[1];
         tmp15 = gyro_repeats[2];
     } else {
-        const bool tmp16 = (tmp6 < 1e-06f) && (3.5f /* gyro_plateau_rate */ <= tmp0);
+        const bool tmp16 = (tmp6 < 1e-06f /* PLATEAU_TOL */) && (3.5f /* gyro_plateau_rate */ <=
+                tmp0);
         const float tmp17 = gyro_repeats[0] + 1.0f;
         const float tmp18 = (tmp17 < 3.0f) ? tmp17 : 3.0f;
         const float tmp19 = (tmp16) ? tmp18 : 0.0f;
-        const bool tmp20 = (tmp8 < 1e-06f) && (3.5f /* gyro_plateau_rate */ <= tmp1);
+        const bool tmp20 = (tmp8 < 1e-06f /* PLATEAU_TOL */) && (3.5f /* gyro_plateau_rate */ <=
+                tmp1);
         const float tmp21 = gyro_repeats[1] + 1.0f;
         const float tmp22 = (tmp21 < 3.0f) ? tmp21 : 3.0f;
         const float tmp23 = (tmp20) ? tmp22 : 0.0f;
-        const bool tmp24 = (tmp11 < 1e-06f) && (3.5f /* gyro_plateau_rate */ <= tmp3);
+        const bool tmp24 = (tmp11 < 1e-06f /* PLATEAU_TOL */) && (3.5f /* gyro_plateau_rate */ <=
+                tmp3);
         const float tmp25 = gyro_repeats[2] + 1.0f;
         const float tmp26 = (tmp25 < 3.0f) ? tmp25 : 3.0f;
         const float tmp27 = (tmp24) ? tmp26 : 0.0f;
@@ -174,7 +177,7 @@ static void qcf_k_gyro_recovery(const float gyro[3], const float gyro_prev[3],
     const bool tmp30 = tmp4 || tmp29;
     const float tmp31 = recover_time - dt;
     const float tmp32 = (tmp31 > 0.0f) ? tmp31 : 0.0f;
-    const float tmp33 = (tmp30) ? 2.0f /* clip_recovery_time */ : tmp32;
+    const float tmp33 = (tmp30) ? 2.0f : tmp32;
     const float tmp34 = 0.5f * dt;
     const bool tmp35 = tmp34 < tmp33;
     *clipped = tmp30;
@@ -204,15 +207,15 @@ static void qcf_k_predict_part0(const float q[4], const float gyro_bias[3], cons
     float tmp13;
     float tmp14;
     float tmp15;
-    if (tmp11 < 0.01f) {
-        const float tmp16 = (-2.1377798e-05f) * tmp11;
-        const float tmp17 = (-0.00021164022f) + tmp16;
+    if (tmp11 < 0.01f /* SERIES_MAX*SERIES_MAX */) {
+        const float tmp16 = (-2.1377798e-05f) /* -(2/93555) */ * tmp11;
+        const float tmp17 = (-0.00021164022f) /* -(1/4725) */ + tmp16;
         const float tmp18 = tmp11 * tmp17;
-        const float tmp19 = (-0.0021164021f) + tmp18;
+        const float tmp19 = (-0.0021164021f) /* -(2/945) */ + tmp18;
         const float tmp20 = tmp11 * tmp19;
-        const float tmp21 = (-0.022222223f) + tmp20;
+        const float tmp21 = (-0.022222223f) /* -(1/45) */ + tmp20;
         const float tmp22 = tmp11 * tmp21;
-        const float tmp23 = (-0.33333334f) + tmp22;
+        const float tmp23 = (-0.33333334f) /* -(1/3) */ + tmp22;
         const float tmp24 = tmp11 * tmp23;
         const float tmp25 = 1.0f + tmp24;
         tmp12 = tmp25;
@@ -220,7 +223,8 @@ static void qcf_k_predict_part0(const float q[4], const float gyro_bias[3], cons
         tmp14 = tmp5;
         tmp15 = tmp9;
     } else {
-        const float tmp26 = (tmp11 > 0.01f) ? tmp11 : 0.01f;
+        const float tmp26 = (tmp11 > 0.01f /* SERIES_MAX*SERIES_MAX */) ? tmp11 :
+                0.01f /* SERIES_MAX*SERIES_MAX */;
         const float tmp27 = sqrtf(tmp26);
         float tmp29;
         float tmp28;
@@ -250,32 +254,32 @@ static void qcf_k_predict_part0(const float q[4], const float gyro_bias[3], cons
 
 static void qcf_k_predict_part1(const float q[4], float carry[6])
 {
-    const float tmp40 = carry[4] - carry[5];
+    const float tmp40 = carry[4] /* tmp38 */ - carry[5] /* tmp39 */;
     const float tmp41 = tmp40 * tmp40;
-    const float tmp42 = q[0] * carry[1];
-    const float tmp43 = q[1] * carry[0];
+    const float tmp42 = q[0] * carry[1] /* tmp13 */;
+    const float tmp43 = q[1] * carry[0] /* tmp12 */;
     const float tmp44 = tmp42 + tmp43;
-    const float tmp45 = q[2] * carry[3];
+    const float tmp45 = q[2] * carry[3] /* tmp15 */;
     const float tmp46 = tmp44 + tmp45;
-    const float tmp47 = q[3] * carry[2];
+    const float tmp47 = q[3] * carry[2] /* tmp14 */;
     const float tmp48 = tmp46 - tmp47;
     const float tmp49 = tmp48 * tmp48;
     const float tmp50 = tmp41 + tmp49;
-    const float tmp51 = q[0] * carry[2];
-    const float tmp52 = q[1] * carry[3];
+    const float tmp51 = q[0] * carry[2] /* tmp14 */;
+    const float tmp52 = q[1] * carry[3] /* tmp15 */;
     const float tmp53 = tmp51 - tmp52;
-    const float tmp54 = q[2] * carry[0];
+    const float tmp54 = q[2] * carry[0] /* tmp12 */;
     const float tmp55 = tmp53 + tmp54;
-    const float tmp56 = q[3] * carry[1];
+    const float tmp56 = q[3] * carry[1] /* tmp13 */;
     const float tmp57 = tmp55 + tmp56;
     const float tmp58 = tmp57 * tmp57;
     const float tmp59 = tmp50 + tmp58;
-    const float tmp60 = q[0] * carry[3];
-    const float tmp61 = q[1] * carry[2];
+    const float tmp60 = q[0] * carry[3] /* tmp15 */;
+    const float tmp61 = q[1] * carry[2] /* tmp14 */;
     const float tmp62 = tmp60 + tmp61;
-    const float tmp63 = q[2] * carry[1];
+    const float tmp63 = q[2] * carry[1] /* tmp13 */;
     const float tmp64 = tmp62 - tmp63;
-    const float tmp65 = q[3] * carry[0];
+    const float tmp65 = q[3] * carry[0] /* tmp12 */;
     const float tmp66 = tmp64 + tmp65;
     const float tmp67 = tmp66 * tmp66;
     const float tmp68 = tmp59 + tmp67;
@@ -316,10 +320,10 @@ static void qcf_k_predict(const float q[4], const float gyro_bias[3], const floa
     float carry[6];
     qcf_k_predict_part0(q, gyro_bias, gyro, dt, carry);
     qcf_k_predict_part1(q, carry);
-    q_new[0] = carry[0];
-    q_new[1] = carry[1];
-    q_new[2] = carry[2];
-    q_new[3] = carry[3];
+    q_new[0] = carry[0] /* tmp71 */;
+    q_new[1] = carry[1] /* tmp72 */;
+    q_new[2] = carry[2] /* tmp73 */;
+    q_new[3] = carry[3] /* tmp74 */;
 }
 
 /*
@@ -377,7 +381,7 @@ static inline void qcf_k_init_attitude(const float accel[3], float q[4], float a
     const float tmp4 = tmp2 + tmp3;
     const float tmp5 = sqrtf(tmp4);
     const float tmp6 = tmp5 - accel[2];
-    const float tmp7 = 1e-06f * tmp5;
+    const float tmp7 = 1e-06f /* TILT_FLIP_EPS */ * tmp5;
     float tmp8;
     float tmp9;
     float tmp10;
@@ -459,31 +463,31 @@ static void qcf_k_heading_init_part1(const float q[4], float carry[4])
     float tmp39;
     float tmp40;
     float tmp41;
-    if (carry[2] < 1e-15f) {
+    if (carry[2] /* tmp36 */ < 1e-15f /* HEADING_H_MIN */) {
         tmp37 = 1.0f;
         tmp38 = 0.0f;
         tmp39 = 0.0f;
         tmp40 = 0.0f;
         tmp41 = 0.0f;
     } else {
-        const float tmp42 = carry[2] + carry[0];
-        const float tmp43 = carry[2] + carry[2];
-        const float tmp44 = fabsf(carry[0]);
-        const float tmp45 = carry[2] + tmp44;
+        const float tmp42 = carry[2] /* tmp36 */ + carry[0] /* tmp17 */;
+        const float tmp43 = carry[2] /* tmp36 */ + carry[2] /* tmp36 */;
+        const float tmp44 = fabsf(carry[0] /* tmp17 */);
+        const float tmp45 = carry[2] /* tmp36 */ + tmp44;
         const float tmp46 = tmp43 * tmp45;
         const float tmp47 = sqrtf(tmp46);
         const float tmp48 = 1.0f / tmp47;
         const float tmp49 = tmp42 * tmp48;
-        const float tmp50 = fabsf(carry[1]);
+        const float tmp50 = fabsf(carry[1] /* tmp33 */);
         const float tmp51 = tmp50 * tmp48;
-        const float tmp52 = (0.0f <= carry[0]) ? tmp49 : tmp51;
-        const float tmp53 = carry[1] * tmp48;
+        const float tmp52 = (0.0f <= carry[0] /* tmp17 */) ? tmp49 : tmp51;
+        const float tmp53 = carry[1] /* tmp33 */ * tmp48;
         const float tmp54 = -tmp53;
-        const float tmp55 = carry[0] - carry[2];
-        const float tmp56 = carry[2] - carry[0];
-        const float tmp57 = (0.0f < carry[1]) ? tmp55 : tmp56;
+        const float tmp55 = carry[0] /* tmp17 */ - carry[2] /* tmp36 */;
+        const float tmp56 = carry[2] /* tmp36 */ - carry[0] /* tmp17 */;
+        const float tmp57 = (0.0f < carry[1] /* tmp33 */) ? tmp55 : tmp56;
         const float tmp58 = tmp57 * tmp48;
-        const float tmp59 = (0.0f <= carry[0]) ? tmp54 : tmp58;
+        const float tmp59 = (0.0f <= carry[0] /* tmp17 */) ? tmp54 : tmp58;
         const float tmp60 = tmp59 * q[3];
         const float tmp61 = tmp59 * q[2];
         const float tmp62 = tmp59 * q[1];
@@ -529,10 +533,10 @@ static void qcf_k_heading_init(const float q[4], const float mag[3], float q_new
     float carry[4];
     qcf_k_heading_init_part0(q, mag, carry);
     qcf_k_heading_init_part1(q, carry);
-    q_new[0] = carry[0];
-    q_new[1] = carry[1];
-    q_new[2] = carry[2];
-    q_new[3] = carry[3];
+    q_new[0] = carry[0] /* tmp65 */;
+    q_new[1] = carry[1] /* tmp67 */;
+    q_new[2] = carry[2] /* tmp69 */;
+    q_new[3] = carry[3] /* tmp71 */;
 }
 
 /*
@@ -600,7 +604,7 @@ static inline void qcf_k_accel_lowpass(const float rot[9], const float accel[3],
 static void qcf_k_correct_part0(const float rot[9], const float accel_lp[3], const float mag_ned[3],
     float span_accel, bool recover, float carry[11])
 {
-    const float tmp0 = (recover) ? 1.0f : 0.125f;
+    const float tmp0 = (recover) ? 1.0f : 0.125f /* 0.5*kp */;
     const float tmp1 = tmp0 * span_accel;
     const float tmp2 = accel_lp[0] * accel_lp[0];
     const float tmp3 = accel_lp[1] * accel_lp[1];
@@ -609,7 +613,7 @@ static void qcf_k_correct_part0(const float rot[9], const float accel_lp[3], con
     const float tmp6 = tmp4 + tmp5;
     const float tmp7 = sqrtf(tmp6);
     const float tmp8 = tmp7 - accel_lp[2];
-    const float tmp9 = 1e-06f * tmp7;
+    const float tmp9 = 1e-06f /* TILT_FLIP_EPS */ * tmp7;
     const float tmp10 = tmp7 + tmp7;
     const float tmp11 = tmp10 * tmp8;
     const float tmp12 = sqrtf(tmp11);
@@ -654,30 +658,30 @@ static void qcf_k_correct_part0(const float rot[9], const float accel_lp[3], con
 
 static void qcf_k_correct_part1(const float rot[9], float span_mag, float carry[11])
 {
-    const float tmp40 = carry[7] + carry[9];
+    const float tmp40 = carry[7] /* tmp36 */ + carry[9] /* tmp39 */;
     const float tmp41 = sqrtf(tmp40);
     float tmp42;
     float tmp43;
     float tmp44;
-    if (tmp41 < 1e-15f) {
+    if (tmp41 < 1e-15f /* HEADING_H_MIN */) {
         tmp42 = 0.0f;
         tmp43 = 0.0f;
         tmp44 = 0.0f;
     } else {
-        const float tmp45 = carry[0] * span_mag;
+        const float tmp45 = carry[0] /* tmp0 */ * span_mag;
         const float tmp46 = tmp41 + tmp41;
-        const float tmp47 = fabsf(carry[6]);
+        const float tmp47 = fabsf(carry[6] /* tmp35 */);
         const float tmp48 = tmp41 + tmp47;
         const float tmp49 = tmp46 * tmp48;
         const float tmp50 = sqrtf(tmp49);
         const float tmp51 = 1.0f / tmp50;
-        const float tmp52 = carry[8] * tmp51;
+        const float tmp52 = carry[8] /* tmp38 */ * tmp51;
         const float tmp53 = -tmp52;
-        const float tmp54 = carry[6] - tmp41;
-        const float tmp55 = tmp41 - carry[6];
-        const float tmp56 = (0.0f < carry[8]) ? tmp54 : tmp55;
+        const float tmp54 = carry[6] /* tmp35 */ - tmp41;
+        const float tmp55 = tmp41 - carry[6] /* tmp35 */;
+        const float tmp56 = (0.0f < carry[8] /* tmp38 */) ? tmp54 : tmp55;
         const float tmp57 = tmp56 * tmp51;
-        const float tmp58 = (0.0f <= carry[6]) ? tmp53 : tmp57;
+        const float tmp58 = (0.0f <= carry[6] /* tmp35 */) ? tmp53 : tmp57;
         const float tmp59 = tmp45 * tmp58;
         const float tmp60 = rot[2] * tmp59;
         const float tmp61 = rot[5] * tmp59;
@@ -686,18 +690,18 @@ static void qcf_k_correct_part1(const float rot[9], float span_mag, float carry[
         tmp43 = tmp61;
         tmp44 = tmp62;
     }
-    const float tmp63 = carry[5] + tmp42;
+    const float tmp63 = carry[5] /* tmp23 */ + tmp42;
     const float tmp64 = tmp63 * tmp63;
-    const float tmp65 = rot[3] * carry[3];
-    const float tmp66 = rot[4] * carry[4];
-    const float tmp67 = (carry[1] < carry[2]) ? 0.0f : tmp66;
+    const float tmp65 = rot[3] * carry[3] /* tmp17 */;
+    const float tmp66 = rot[4] * carry[4] /* tmp20 */;
+    const float tmp67 = (carry[1] /* tmp8 */ < carry[2] /* tmp9 */) ? 0.0f : tmp66;
     const float tmp68 = tmp65 + tmp67;
     const float tmp69 = tmp68 + tmp43;
     const float tmp70 = tmp69 * tmp69;
     const float tmp71 = tmp64 + tmp70;
-    const float tmp72 = rot[6] * carry[3];
-    const float tmp73 = rot[7] * carry[4];
-    const float tmp74 = (carry[1] < carry[2]) ? 0.0f : tmp73;
+    const float tmp72 = rot[6] * carry[3] /* tmp17 */;
+    const float tmp73 = rot[7] * carry[4] /* tmp20 */;
+    const float tmp74 = (carry[1] /* tmp8 */ < carry[2] /* tmp9 */) ? 0.0f : tmp73;
     const float tmp75 = tmp72 + tmp74;
     const float tmp76 = tmp75 + tmp44;
     const float tmp77 = tmp76 * tmp76;
@@ -714,31 +718,32 @@ static void qcf_k_correct_part2(const float q[4], float carry[11])
     float tmp80;
     float tmp81;
     float tmp82;
-    if (carry[3] < 0.01f) {
-        const float tmp83 = (-2.1377798e-05f) * carry[3];
-        const float tmp84 = (-0.00021164022f) + tmp83;
-        const float tmp85 = carry[3] * tmp84;
-        const float tmp86 = (-0.0021164021f) + tmp85;
-        const float tmp87 = carry[3] * tmp86;
-        const float tmp88 = (-0.022222223f) + tmp87;
-        const float tmp89 = carry[3] * tmp88;
-        const float tmp90 = (-0.33333334f) + tmp89;
-        const float tmp91 = carry[3] * tmp90;
+    if (carry[3] /* tmp78 */ < 0.01f /* SERIES_MAX*SERIES_MAX */) {
+        const float tmp83 = (-2.1377798e-05f) /* -(2/93555) */ * carry[3] /* tmp78 */;
+        const float tmp84 = (-0.00021164022f) /* -(1/4725) */ + tmp83;
+        const float tmp85 = carry[3] /* tmp78 */ * tmp84;
+        const float tmp86 = (-0.0021164021f) /* -(2/945) */ + tmp85;
+        const float tmp87 = carry[3] /* tmp78 */ * tmp86;
+        const float tmp88 = (-0.022222223f) /* -(1/45) */ + tmp87;
+        const float tmp89 = carry[3] /* tmp78 */ * tmp88;
+        const float tmp90 = (-0.33333334f) /* -(1/3) */ + tmp89;
+        const float tmp91 = carry[3] /* tmp78 */ * tmp90;
         const float tmp92 = 1.0f + tmp91;
         tmp79 = tmp92;
-        tmp80 = carry[0];
-        tmp81 = carry[1];
-        tmp82 = carry[2];
+        tmp80 = carry[0] /* tmp63 */;
+        tmp81 = carry[1] /* tmp69 */;
+        tmp82 = carry[2] /* tmp76 */;
     } else {
-        const float tmp93 = (carry[3] > 0.01f) ? carry[3] : 0.01f;
+        const float tmp93 = (carry[3] /* tmp78 */ > 0.01f /* SERIES_MAX*SERIES_MAX */) ?
+                carry[3] /* tmp78 */ : 0.01f /* SERIES_MAX*SERIES_MAX */;
         const float tmp94 = sqrtf(tmp93);
         float tmp96;
         float tmp95;
         fast_sincosf(tmp94, &tmp96, &tmp95);   /* sin and cos, one reduction */
         const float tmp97 = tmp96 / tmp94;
-        const float tmp98 = tmp97 * carry[0];
-        const float tmp99 = tmp97 * carry[1];
-        const float tmp100 = tmp97 * carry[2];
+        const float tmp98 = tmp97 * carry[0] /* tmp63 */;
+        const float tmp99 = tmp97 * carry[1] /* tmp69 */;
+        const float tmp100 = tmp97 * carry[2] /* tmp76 */;
         tmp79 = tmp95;
         tmp80 = tmp98;
         tmp81 = tmp99;
@@ -774,27 +779,27 @@ static void qcf_k_correct_part2(const float q[4], float carry[11])
 
 static void qcf_k_correct_part3(const float q[4], float carry[11])
 {
-    const float tmp119 = q[1] * carry[6];
-    const float tmp120 = carry[10] - tmp119;
-    const float tmp121 = q[2] * carry[3];
+    const float tmp119 = q[1] * carry[6] /* tmp82 */;
+    const float tmp120 = carry[10] /* tmp118 */ - tmp119;
+    const float tmp121 = q[2] * carry[3] /* tmp79 */;
     const float tmp122 = tmp120 + tmp121;
-    const float tmp123 = q[3] * carry[4];
+    const float tmp123 = q[3] * carry[4] /* tmp80 */;
     const float tmp124 = tmp122 + tmp123;
     const float tmp125 = tmp124 * tmp124;
-    const float tmp126 = carry[9] + tmp125;
-    const float tmp127 = q[0] * carry[6];
-    const float tmp128 = q[1] * carry[5];
+    const float tmp126 = carry[9] /* tmp117 */ + tmp125;
+    const float tmp127 = q[0] * carry[6] /* tmp82 */;
+    const float tmp128 = q[1] * carry[5] /* tmp81 */;
     const float tmp129 = tmp127 + tmp128;
-    const float tmp130 = q[2] * carry[4];
+    const float tmp130 = q[2] * carry[4] /* tmp80 */;
     const float tmp131 = tmp129 - tmp130;
-    const float tmp132 = q[3] * carry[3];
+    const float tmp132 = q[3] * carry[3] /* tmp79 */;
     const float tmp133 = tmp131 + tmp132;
     const float tmp134 = tmp133 * tmp133;
     const float tmp135 = tmp126 + tmp134;
     const float tmp136 = sqrtf(tmp135);
     const float tmp137 = 1.0f / tmp136;
-    const float tmp138 = carry[7] * tmp137;
-    const float tmp139 = carry[8] * tmp137;
+    const float tmp138 = carry[7] /* tmp107 */ * tmp137;
+    const float tmp139 = carry[8] /* tmp115 */ * tmp137;
     const float tmp140 = tmp124 * tmp137;
     const float tmp141 = tmp133 * tmp137;
     carry[3] = tmp138;
@@ -826,15 +831,16 @@ static void qcf_k_correct_part4(const float gyro_bias[3], float span_accel, bool
         tmp144 = tmp155;
     } else {
         const bool tmp156 = use_accel && (!(recover));
-        const bool tmp157 = (77.55708f < accel_norm2) && (accel_norm2 < 116.78368f);
+        const bool tmp157 = (77.55708f /* (G0 - 1.0)^2 */ < accel_norm2) && (accel_norm2 <
+                116.78368f /* (G0 + 1.0)^2 */);
         const bool tmp158 = tmp156 && tmp157;
-        const float tmp159 = 0.016f * carry[0];
+        const float tmp159 = 0.016f /* ki/(0.5*kp) */ * carry[0] /* tmp63 */;
         const float tmp160 = gyro_bias[0] - tmp159;
         const float tmp161 = (tmp158) ? tmp160 : gyro_bias[0];
-        const float tmp162 = 0.016f * carry[1];
+        const float tmp162 = 0.016f /* ki/(0.5*kp) */ * carry[1] /* tmp69 */;
         const float tmp163 = gyro_bias[1] - tmp162;
         const float tmp164 = (tmp158) ? tmp163 : gyro_bias[1];
-        const float tmp165 = 0.016f * carry[2];
+        const float tmp165 = 0.016f /* ki/(0.5*kp) */ * carry[2] /* tmp76 */;
         const float tmp166 = gyro_bias[2] - tmp165;
         const float tmp167 = (tmp158) ? tmp166 : gyro_bias[2];
         tmp142 = tmp161;
@@ -888,13 +894,13 @@ static void qcf_k_correct(const float q[4], const float rot[9], const float gyro
     qcf_k_correct_part3(q, carry);
     qcf_k_correct_part4(gyro_bias, span_accel, use_accel, accel_norm2, recover, at_rest,
             rest_gyro_lp, carry);
-    q_new[0] = carry[3];
-    q_new[1] = carry[4];
-    q_new[2] = carry[5];
-    q_new[3] = carry[6];
-    gyro_bias_new[0] = carry[0];
-    gyro_bias_new[1] = carry[1];
-    gyro_bias_new[2] = carry[2];
+    q_new[0] = carry[3] /* tmp138 */;
+    q_new[1] = carry[4] /* tmp139 */;
+    q_new[2] = carry[5] /* tmp140 */;
+    q_new[3] = carry[6] /* tmp141 */;
+    gyro_bias_new[0] = carry[0] /* tmp142 */;
+    gyro_bias_new[1] = carry[1] /* tmp143 */;
+    gyro_bias_new[2] = carry[2] /* tmp144 */;
 }
 
 /*
@@ -916,7 +922,7 @@ static void qcf_k_correct(const float q[4], const float rot[9], const float gyro
 static void qcf_k_rest(const float gyro[3], float accel_norm2, const float rest_gyro_lp[3],
     float rest_time, float span, float rest_gyro_lp_new[3], float *rest_time_new, bool *at_rest)
 {
-    const float tmp0 = 0.5f + span;
+    const float tmp0 = 0.5f /* rest_tau */ + span;
     const float tmp1 = span / tmp0;
     const float tmp2 = gyro[0] - rest_gyro_lp[0];
     const float tmp3 = tmp1 * tmp2;
@@ -935,20 +941,21 @@ static void qcf_k_rest(const float gyro[3], float accel_norm2, const float rest_
     const float tmp16 = gyro[2] - tmp10;
     const float tmp17 = tmp16 * tmp16;
     const float tmp18 = tmp15 + tmp17;
-    const bool tmp19 = (86.61373f < accel_norm2) && (accel_norm2 < 106.227036f);
-    const bool tmp20 = (tmp18 < 0.001225f) && tmp19;
+    const bool tmp19 = (86.61373f /* (G0 - rest_accel_tol)^2 */ < accel_norm2) && (accel_norm2 <
+            106.227036f /* (G0 + rest_accel_tol)^2 */);
+    const bool tmp20 = (tmp18 < 0.001225f /* rest_gyro_tol^2 */) && tmp19;
     const float tmp21 = tmp4 * tmp4;
     const float tmp22 = tmp7 * tmp7;
     const float tmp23 = tmp21 + tmp22;
     const float tmp24 = tmp10 * tmp10;
     const float tmp25 = tmp23 + tmp24;
-    const bool tmp26 = tmp20 && (tmp25 < 0.001225f);
+    const bool tmp26 = tmp20 && (tmp25 < 0.001225f /* rest_gyro_tol^2 */);
     const float tmp27 = rest_time + span;
-    const float tmp28 = (tmp27 < 1000.0f) ? tmp27 : 1000.0f;
+    const float tmp28 = (tmp27 < 1000.0f /* REST_TIME_CAP */) ? tmp27 : 1000.0f /* REST_TIME_CAP */;
     const float tmp29 = (tmp26) ? tmp28 : 0.0f;
     const float tmp30 = 0.5f * span;
     const float tmp31 = tmp29 + tmp30;
-    const bool tmp32 = 1.5f <= tmp31;
+    const bool tmp32 = 1.5f /* rest_time */ <= tmp31;
     rest_gyro_lp_new[0] = tmp4;
     rest_gyro_lp_new[1] = tmp7;
     rest_gyro_lp_new[2] = tmp10;
@@ -992,41 +999,41 @@ static void qcf_k_mag_check_part1(const float mag_ref[2], float mag_dist_time, f
     float tmp19;
     float tmp20;
     float tmp21;
-    if (carry[0] < 10.0f) {
-        const float tmp22 = span / carry[5];
-        const float tmp23 = tmp22 * carry[2];
+    if (carry[0] /* tmp0 */ < 10.0f /* mag_warmup */) {
+        const float tmp22 = span / carry[5] /* tmp17 */;
+        const float tmp23 = tmp22 * carry[2] /* tmp2 */;
         const float tmp24 = mag_ref[0] + tmp23;
-        const float tmp25 = tmp22 * carry[4];
+        const float tmp25 = tmp22 * carry[4] /* tmp16 */;
         const float tmp26 = mag_ref[1] - tmp25;
         tmp18 = true;
         tmp19 = tmp24;
         tmp20 = tmp26;
         tmp21 = 0.0f;
     } else {
-        const float tmp27 = fabsf(carry[2]);
-        const float tmp28 = 0.1f * mag_ref[0];
-        const float tmp29 = fabsf(carry[4]);
-        const bool tmp30 = (tmp27 < tmp28) && (tmp29 < 0.1f);
+        const float tmp27 = fabsf(carry[2] /* tmp2 */);
+        const float tmp28 = 0.1f /* mag_norm_tol */ * mag_ref[0];
+        const float tmp29 = fabsf(carry[4] /* tmp16 */);
+        const bool tmp30 = (tmp27 < tmp28) && (tmp29 < 0.1f /* mag_dip_tol */);
         const bool tmp31 = tmp30 || (!(0.0f < mag_ref[0]));
         const float tmp32 = mag_dist_time + span;
         const float tmp33 = (tmp30) ? 0.0f : tmp32;
-        const bool tmp34 = (20.0f < tmp33) && (!(hold));
+        const bool tmp34 = (20.0f /* mag_new_time */ < tmp33) && (!(hold));
         const bool tmp35 = (!(0.0f < mag_ref[0])) || tmp34;
         float tmp36;
         float tmp37;
         float tmp38;
         if (tmp35) {
-            const float tmp39 = -carry[3];
-            tmp36 = carry[1];
+            const float tmp39 = -carry[3] /* tmp15 */;
+            tmp36 = carry[1] /* tmp1 */;
             tmp37 = tmp39;
             tmp38 = 0.0f;
         } else {
-            const float tmp40 = 20.0f + span;
+            const float tmp40 = 20.0f /* mag_ref_tau */ + span;
             const float tmp41 = span / tmp40;
-            const float tmp42 = tmp41 * carry[2];
+            const float tmp42 = tmp41 * carry[2] /* tmp2 */;
             const float tmp43 = mag_ref[0] + tmp42;
             const float tmp44 = (tmp30) ? tmp43 : mag_ref[0];
-            const float tmp45 = tmp41 * carry[4];
+            const float tmp45 = tmp41 * carry[4] /* tmp16 */;
             const float tmp46 = mag_ref[1] - tmp45;
             const float tmp47 = (tmp30) ? tmp46 : mag_ref[1];
             tmp36 = tmp44;
@@ -1038,7 +1045,8 @@ static void qcf_k_mag_check_part1(const float mag_ref[2], float mag_dist_time, f
         tmp20 = tmp37;
         tmp21 = tmp38;
     }
-    const float tmp48 = (carry[5] < 10.0f) ? carry[5] : 10.0f;
+    const float tmp48 = (carry[5] /* tmp17 */ < 10.0f /* mag_warmup */) ? carry[5] /* tmp17 */ :
+            10.0f /* mag_warmup */;
     flags[0] = tmp18;
     carry[0] = tmp19;
     carry[1] = tmp20;
@@ -1081,11 +1089,11 @@ static void qcf_k_mag_check(const float accel_lp[3], float mag_norm2, const floa
     bool flags[1];
     qcf_k_mag_check_part0(accel_lp, mag_norm2, mag_ned, mag_ref, mag_learn_time, span, carry);
     qcf_k_mag_check_part1(mag_ref, mag_dist_time, span, hold, carry, flags);
-    *accept = flags[0];
-    mag_ref_new[0] = carry[0];
-    mag_ref_new[1] = carry[1];
-    *mag_dist_time_new = carry[2];
-    *mag_learn_time_new = carry[3];
+    *accept = flags[0] /* tmp18 */;
+    mag_ref_new[0] = carry[0] /* tmp19 */;
+    mag_ref_new[1] = carry[1] /* tmp20 */;
+    *mag_dist_time_new = carry[2] /* tmp21 */;
+    *mag_learn_time_new = carry[3] /* tmp48 */;
 }
 
 static void qcf_k_hard_iron_part0(const float mag[3], const float b[3], const float ref[2],
@@ -1093,18 +1101,19 @@ static void qcf_k_hard_iron_part0(const float mag[3], const float b[3], const fl
     float carry[50], bool flags[2])
 {
     const float tmp0 = turn_time + dt;
-    const float tmp1 = (tmp0 < 1000.0f) ? tmp0 : 1000.0f;
-    const float tmp2 = 5.0f + dt;
+    const float tmp1 = (tmp0 < 1000.0f /* HARD_IRON_TIME_CAP */) ? tmp0 :
+            1000.0f /* HARD_IRON_TIME_CAP */;
+    const float tmp2 = 5.0f /* mag_bias_settle */ + dt;
     const float tmp3 = dt / tmp2;
-    const float tmp4 = 0.2f + dt;
+    const float tmp4 = 0.2f /* HARD_IRON_RES_TAU */ + dt;
     const float tmp5 = dt / tmp4;
     const float tmp6 = 1.0f / ref[0];
     const float tmp7 = mag[0] * tmp6;
     const float tmp8 = b[0] * tmp6;
     const float tmp9 = (fresh) ? tmp8 : cx[0];
     const bool tmp10 = fresh || reopen;
-    const float tmp11 = (tmp10) ? 0.09f : cP[0];
-    const float tmp12 = 9e-06f * dt;
+    const float tmp11 = (tmp10) ? 0.09f /* HARD_IRON_P0^2 */ : cP[0];
+    const float tmp12 = 9e-06f /* mag_bias_rw^2 */ * dt;
     const float tmp13 = tmp11 + tmp12;
     const float tmp14 = tmp7 - tmp9;
     const float tmp15 = tmp14 * tmp14;
@@ -1121,8 +1130,8 @@ static void qcf_k_hard_iron_part0(const float mag[3], const float b[3], const fl
     const float tmp26 = tmp25 * tmp25;
     const float tmp27 = tmp21 + tmp26;
     const float tmp28 = sqrtf(tmp27);
-    const bool tmp29 = 1e-06f <= tmp28;
-    const bool tmp30 = tmp28 <= 1e-06f;
+    const bool tmp29 = 1e-06f /* HARD_IRON_NORM_MIN */ <= tmp28;
+    const bool tmp30 = tmp28 <= 1e-06f /* HARD_IRON_NORM_MIN */;
     const float tmp31 = (float)tmp29 + (float)tmp30;
     const float tmp32 = (float)tmp29 / tmp31;
     const float tmp33 = 1.0f / tmp28;
@@ -1160,46 +1169,46 @@ static void qcf_k_hard_iron_part0(const float mag[3], const float b[3], const fl
 
 static void qcf_k_hard_iron_part1(const float cP[25], float carry[50], const bool flags[2])
 {
-    const float tmp40 = carry[18] * carry[22];
-    const float tmp41 = carry[7] * tmp40;
-    const float tmp42 = carry[21] - tmp41;
-    const float tmp43 = carry[16] * carry[19];
-    const float tmp44 = carry[18] * tmp43;
+    const float tmp40 = carry[18] /* tmp32 */ * carry[22] /* tmp39 */;
+    const float tmp41 = carry[7] /* tmp13 */ * tmp40;
+    const float tmp42 = carry[21] /* tmp38 */ - tmp41;
+    const float tmp43 = carry[16] /* tmp25 */ * carry[19] /* tmp33 */;
+    const float tmp44 = carry[18] /* tmp32 */ * tmp43;
     const float tmp45 = cP[2] * tmp44;
     const float tmp46 = -tmp45;
-    const float tmp47 = (flags[0]) ? 0.0f : tmp46;
+    const float tmp47 = (flags[0] /* tmp10 */) ? 0.0f : tmp46;
     const float tmp48 = tmp42 + tmp47;
     const float tmp49 = -cP[3];
-    const float tmp50 = (flags[0]) ? 0.0f : tmp49;
+    const float tmp50 = (flags[0] /* tmp10 */) ? 0.0f : tmp49;
     const float tmp51 = tmp48 + tmp50;
     const float tmp52 = tmp40 * tmp51;
     const float tmp53 = cP[1] * tmp40;
     const float tmp54 = -tmp53;
-    const float tmp55 = (flags[0]) ? 0.0f : tmp54;
-    const float tmp56 = (flags[0]) ? 0.09f : cP[6];
-    const float tmp57 = tmp56 + carry[6];
-    const float tmp58 = tmp57 * carry[20];
+    const float tmp55 = (flags[0] /* tmp10 */) ? 0.0f : tmp54;
+    const float tmp56 = (flags[0] /* tmp10 */) ? 0.09f /* HARD_IRON_P0^2 */ : cP[6];
+    const float tmp57 = tmp56 + carry[6] /* tmp12 */;
+    const float tmp58 = tmp57 * carry[20] /* tmp35 */;
     const float tmp59 = tmp55 - tmp58;
     const float tmp60 = cP[7] * tmp44;
     const float tmp61 = -tmp60;
-    const float tmp62 = (flags[0]) ? 0.0f : tmp61;
+    const float tmp62 = (flags[0] /* tmp10 */) ? 0.0f : tmp61;
     const float tmp63 = tmp59 + tmp62;
     const float tmp64 = -cP[8];
-    const float tmp65 = (flags[0]) ? 0.0f : tmp64;
+    const float tmp65 = (flags[0] /* tmp10 */) ? 0.0f : tmp64;
     const float tmp66 = tmp63 + tmp65;
-    const float tmp67 = carry[20] * tmp66;
+    const float tmp67 = carry[20] /* tmp35 */ * tmp66;
     const float tmp68 = tmp52 + tmp67;
     const float tmp69 = cP[2] * tmp40;
-    const float tmp70 = cP[7] * carry[20];
+    const float tmp70 = cP[7] * carry[20] /* tmp35 */;
     const float tmp71 = tmp69 + tmp70;
     const float tmp72 = -tmp71;
-    const float tmp73 = (flags[0]) ? 0.0f : tmp72;
-    const float tmp74 = (flags[0]) ? 0.09f : cP[12];
-    const float tmp75 = tmp74 + carry[6];
+    const float tmp73 = (flags[0] /* tmp10 */) ? 0.0f : tmp72;
+    const float tmp74 = (flags[0] /* tmp10 */) ? 0.09f /* HARD_IRON_P0^2 */ : cP[12];
+    const float tmp75 = tmp74 + carry[6] /* tmp12 */;
     const float tmp76 = tmp75 * tmp44;
     const float tmp77 = tmp73 - tmp76;
     const float tmp78 = -cP[13];
-    const float tmp79 = (flags[0]) ? 0.0f : tmp78;
+    const float tmp79 = (flags[0] /* tmp10 */) ? 0.0f : tmp78;
     carry[18] = tmp40;
     carry[19] = tmp44;
     carry[21] = tmp51;
@@ -1214,34 +1223,34 @@ static void qcf_k_hard_iron_part1(const float cP[25], float carry[50], const boo
 static void qcf_k_hard_iron_part2(const float q[4], const float cP[25], float carry[50],
     const bool flags[2])
 {
-    const float tmp80 = carry[26] + carry[27];
-    const float tmp81 = carry[19] * tmp80;
-    const float tmp82 = carry[24] + tmp81;
-    const float tmp83 = cP[3] * carry[18];
-    const float tmp84 = cP[8] * carry[20];
+    const float tmp80 = carry[26] /* tmp77 */ + carry[27] /* tmp79 */;
+    const float tmp81 = carry[19] /* tmp44 */ * tmp80;
+    const float tmp82 = carry[24] /* tmp68 */ + tmp81;
+    const float tmp83 = cP[3] * carry[18] /* tmp40 */;
+    const float tmp84 = cP[8] * carry[20] /* tmp35 */;
     const float tmp85 = tmp83 + tmp84;
-    const float tmp86 = cP[13] * carry[19];
+    const float tmp86 = cP[13] * carry[19] /* tmp44 */;
     const float tmp87 = tmp85 + tmp86;
     const float tmp88 = -tmp87;
-    const float tmp89 = (flags[0]) ? 0.0f : tmp88;
-    const float tmp90 = (flags[0]) ? 0.09f : cP[18];
-    const float tmp91 = tmp90 + carry[6];
+    const float tmp89 = (flags[0] /* tmp10 */) ? 0.0f : tmp88;
+    const float tmp90 = (flags[0] /* tmp10 */) ? 0.09f /* HARD_IRON_P0^2 */ : cP[18];
+    const float tmp91 = tmp90 + carry[6] /* tmp12 */;
     const float tmp92 = tmp89 - tmp91;
     const float tmp93 = tmp82 + tmp92;
-    const float tmp94 = 0.0025f - tmp93;
+    const float tmp94 = 0.0025f /* mag_bias_noise^2 */ - tmp93;
     const float tmp95 = 1.0f / tmp94;
-    const float tmp96 = (1e-12f < tmp94) ? tmp95 : 1.0f;
-    const float tmp97 = carry[21] * tmp96;
-    const float tmp98 = tmp97 * carry[21];
-    const float tmp99 = carry[7] - tmp98;
+    const float tmp96 = (1e-12f /* HARD_IRON_PIVOT_MIN */ < tmp94) ? tmp95 : 1.0f;
+    const float tmp97 = carry[21] /* tmp51 */ * tmp96;
+    const float tmp98 = tmp97 * carry[21] /* tmp51 */;
+    const float tmp99 = carry[7] /* tmp13 */ - tmp98;
     const float tmp100 = q[1] * q[3];
     const float tmp101 = q[0] * q[2];
     const float tmp102 = tmp100 - tmp101;
     const float tmp103 = tmp102 + tmp102;
     const float tmp104 = tmp99 * tmp103;
-    const float tmp105 = (flags[0]) ? 0.0f : cP[1];
-    const float tmp106 = carry[23] * tmp96;
-    const float tmp107 = tmp106 * carry[21];
+    const float tmp105 = (flags[0] /* tmp10 */) ? 0.0f : cP[1];
+    const float tmp106 = carry[23] /* tmp66 */ * tmp96;
+    const float tmp107 = tmp106 * carry[21] /* tmp51 */;
     const float tmp108 = tmp105 - tmp107;
     const float tmp109 = q[2] * q[3];
     const float tmp110 = q[0] * q[1];
@@ -1249,9 +1258,9 @@ static void qcf_k_hard_iron_part2(const float q[4], const float cP[25], float ca
     const float tmp112 = tmp111 + tmp111;
     const float tmp113 = tmp108 * tmp112;
     const float tmp114 = tmp104 + tmp113;
-    const float tmp115 = (flags[0]) ? 0.0f : cP[2];
+    const float tmp115 = (flags[0] /* tmp10 */) ? 0.0f : cP[2];
     const float tmp116 = tmp80 * tmp96;
-    const float tmp117 = tmp116 * carry[21];
+    const float tmp117 = tmp116 * carry[21] /* tmp51 */;
     const float tmp118 = tmp115 - tmp117;
     const float tmp119 = q[1] * q[1];
     carry[7] = tmp80;
@@ -1274,45 +1283,45 @@ static void qcf_k_hard_iron_part3(const float q[4], const float cP[25], float ca
     const bool flags[2])
 {
     const float tmp120 = q[2] * q[2];
-    const float tmp121 = carry[37] + tmp120;
+    const float tmp121 = carry[37] /* tmp119 */ + tmp120;
     const float tmp122 = tmp121 + tmp121;
     const float tmp123 = 1.0f - tmp122;
-    const float tmp124 = carry[36] * tmp123;
-    const float tmp125 = carry[34] + tmp124;
-    const float tmp126 = (flags[0]) ? 0.0f : cP[4];
-    const float tmp127 = cP[4] * carry[18];
-    const float tmp128 = cP[9] * carry[20];
+    const float tmp124 = carry[36] /* tmp118 */ * tmp123;
+    const float tmp125 = carry[34] /* tmp114 */ + tmp124;
+    const float tmp126 = (flags[0] /* tmp10 */) ? 0.0f : cP[4];
+    const float tmp127 = cP[4] * carry[18] /* tmp40 */;
+    const float tmp128 = cP[9] * carry[20] /* tmp35 */;
     const float tmp129 = tmp127 + tmp128;
-    const float tmp130 = cP[14] * carry[19];
+    const float tmp130 = cP[14] * carry[19] /* tmp44 */;
     const float tmp131 = tmp129 + tmp130;
     const float tmp132 = tmp131 + cP[19];
-    const float tmp133 = tmp132 * carry[27];
-    const float tmp134 = tmp133 * carry[21];
+    const float tmp133 = tmp132 * carry[27] /* tmp96 */;
+    const float tmp134 = tmp133 * carry[21] /* tmp51 */;
     const float tmp135 = -tmp134;
-    const float tmp136 = (flags[0]) ? 0.0f : tmp135;
+    const float tmp136 = (flags[0] /* tmp10 */) ? 0.0f : tmp135;
     const float tmp137 = tmp126 - tmp136;
     const float tmp138 = tmp125 + tmp137;
-    const float tmp139 = carry[30] * tmp138;
-    const float tmp140 = carry[32] * carry[30];
-    const float tmp141 = carry[31] * carry[23];
-    const float tmp142 = carry[22] - tmp141;
-    const float tmp143 = tmp142 * carry[33];
+    const float tmp139 = carry[30] /* tmp103 */ * tmp138;
+    const float tmp140 = carry[32] /* tmp108 */ * carry[30] /* tmp103 */;
+    const float tmp141 = carry[31] /* tmp106 */ * carry[23] /* tmp66 */;
+    const float tmp142 = carry[22] /* tmp57 */ - tmp141;
+    const float tmp143 = tmp142 * carry[33] /* tmp112 */;
     const float tmp144 = tmp140 + tmp143;
-    const float tmp145 = (flags[0]) ? 0.0f : cP[7];
-    const float tmp146 = carry[35] * carry[23];
+    const float tmp145 = (flags[0] /* tmp10 */) ? 0.0f : cP[7];
+    const float tmp146 = carry[35] /* tmp116 */ * carry[23] /* tmp66 */;
     const float tmp147 = tmp145 - tmp146;
     const float tmp148 = tmp147 * tmp123;
     const float tmp149 = tmp144 + tmp148;
-    const float tmp150 = (flags[0]) ? 0.0f : cP[9];
-    const float tmp151 = tmp133 * carry[23];
+    const float tmp150 = (flags[0] /* tmp10 */) ? 0.0f : cP[9];
+    const float tmp151 = tmp133 * carry[23] /* tmp66 */;
     const float tmp152 = -tmp151;
-    const float tmp153 = (flags[0]) ? 0.0f : tmp152;
+    const float tmp153 = (flags[0] /* tmp10 */) ? 0.0f : tmp152;
     const float tmp154 = tmp150 - tmp153;
     const float tmp155 = tmp149 + tmp154;
-    const float tmp156 = carry[33] * tmp155;
+    const float tmp156 = carry[33] /* tmp112 */ * tmp155;
     const float tmp157 = tmp139 + tmp156;
-    const float tmp158 = carry[36] * carry[30];
-    const float tmp159 = tmp147 * carry[33];
+    const float tmp158 = carry[36] /* tmp118 */ * carry[30] /* tmp103 */;
+    const float tmp159 = tmp147 * carry[33] /* tmp112 */;
     carry[18] = tmp123;
     carry[19] = tmp132;
     carry[20] = tmp133;
@@ -1330,44 +1339,45 @@ static void qcf_k_hard_iron_part3(const float q[4], const float cP[25], float ca
 static void qcf_k_hard_iron_part4(const float ref[2], const float cx[5], const float cP[25],
     bool fresh, float carry[50], const bool flags[2])
 {
-    const float tmp160 = carry[42] + carry[43];
-    const float tmp161 = carry[35] * carry[7];
-    const float tmp162 = carry[25] - tmp161;
-    const float tmp163 = tmp162 * carry[18];
+    const float tmp160 = carry[42] /* tmp158 */ + carry[43] /* tmp159 */;
+    const float tmp161 = carry[35] /* tmp116 */ * carry[7] /* tmp80 */;
+    const float tmp162 = carry[25] /* tmp75 */ - tmp161;
+    const float tmp163 = tmp162 * carry[18] /* tmp123 */;
     const float tmp164 = tmp160 + tmp163;
-    const float tmp165 = (flags[0]) ? 0.0f : cP[14];
-    const float tmp166 = carry[20] * carry[7];
+    const float tmp165 = (flags[0] /* tmp10 */) ? 0.0f : cP[14];
+    const float tmp166 = carry[20] /* tmp133 */ * carry[7] /* tmp80 */;
     const float tmp167 = -tmp166;
-    const float tmp168 = (flags[0]) ? 0.0f : tmp167;
+    const float tmp168 = (flags[0] /* tmp10 */) ? 0.0f : tmp167;
     const float tmp169 = tmp165 - tmp168;
     const float tmp170 = tmp164 + tmp169;
-    const float tmp171 = carry[18] * tmp170;
-    const float tmp172 = carry[41] + tmp171;
-    const float tmp173 = carry[22] * carry[30];
-    const float tmp174 = carry[39] * carry[33];
+    const float tmp171 = carry[18] /* tmp123 */ * tmp170;
+    const float tmp172 = carry[41] /* tmp157 */ + tmp171;
+    const float tmp173 = carry[22] /* tmp137 */ * carry[30] /* tmp103 */;
+    const float tmp174 = carry[39] /* tmp154 */ * carry[33] /* tmp112 */;
     const float tmp175 = tmp173 + tmp174;
-    const float tmp176 = tmp169 * carry[18];
+    const float tmp176 = tmp169 * carry[18] /* tmp123 */;
     const float tmp177 = tmp175 + tmp176;
-    const float tmp178 = (flags[0]) ? 0.09f : cP[24];
-    const float tmp179 = tmp178 + carry[6];
-    const float tmp180 = carry[20] * carry[19];
-    const float tmp181 = (flags[0]) ? 0.0f : tmp180;
-    const float tmp182 = (flags[0]) ? 0.0f : tmp181;
+    const float tmp178 = (flags[0] /* tmp10 */) ? 0.09f /* HARD_IRON_P0^2 */ : cP[24];
+    const float tmp179 = tmp178 + carry[6] /* tmp12 */;
+    const float tmp180 = carry[20] /* tmp133 */ * carry[19] /* tmp132 */;
+    const float tmp181 = (flags[0] /* tmp10 */) ? 0.0f : tmp180;
+    const float tmp182 = (flags[0] /* tmp10 */) ? 0.0f : tmp181;
     const float tmp183 = tmp179 - tmp182;
     const float tmp184 = tmp177 + tmp183;
     const float tmp185 = tmp172 + tmp184;
-    const float tmp186 = tmp185 + 0.0025f;
+    const float tmp186 = tmp185 + 0.0025f /* mag_bias_noise^2 */;
     const float tmp187 = 1.0f / tmp186;
-    const float tmp188 = (1e-12f < tmp186) ? tmp187 : 1.0f;
-    const float tmp189 = carry[34] * tmp188;
-    const float tmp190 = carry[30] * carry[8];
-    const float tmp191 = carry[33] * carry[12];
+    const float tmp188 = (1e-12f /* HARD_IRON_PIVOT_MIN */ < tmp186) ? tmp187 : 1.0f;
+    const float tmp189 = carry[34] /* tmp138 */ * tmp188;
+    const float tmp190 = carry[30] /* tmp103 */ * carry[8] /* tmp14 */;
+    const float tmp191 = carry[33] /* tmp112 */ * carry[12] /* tmp19 */;
     const float tmp192 = tmp190 + tmp191;
-    const float tmp193 = carry[18] * carry[16];
+    const float tmp193 = carry[18] /* tmp123 */ * carry[16] /* tmp25 */;
     const float tmp194 = tmp192 + tmp193;
     const float tmp195 = (fresh) ? ref[1] : cx[4];
     const float tmp196 = tmp194 - tmp195;
-    const float tmp197 = (carry[17] > 1e-06f) ? carry[17] : 1e-06f;
+    const float tmp197 = (carry[17] /* tmp28 */ > 1e-06f /* HARD_IRON_NORM_MIN */) ?
+            carry[17] /* tmp28 */ : 1e-06f /* HARD_IRON_NORM_MIN */;
     const float tmp198 = (fresh) ? 1.0f : cx[3];
     const float tmp199 = tmp197 - tmp198;
     carry[6] = tmp162;
@@ -1385,43 +1395,43 @@ static void qcf_k_hard_iron_part4(const float ref[2], const float cx[5], const f
 
 static void qcf_k_hard_iron_part5(float carry[50], const bool flags[2])
 {
-    const float tmp200 = carry[28] * carry[44];
-    const float tmp201 = carry[30] * tmp200;
-    const float tmp202 = carry[31] * carry[44];
-    const float tmp203 = carry[33] * tmp202;
+    const float tmp200 = carry[28] /* tmp97 */ * carry[44] /* tmp199 */;
+    const float tmp201 = carry[30] /* tmp103 */ * tmp200;
+    const float tmp202 = carry[31] /* tmp106 */ * carry[44] /* tmp199 */;
+    const float tmp203 = carry[33] /* tmp112 */ * tmp202;
     const float tmp204 = tmp201 + tmp203;
-    const float tmp205 = carry[35] * carry[44];
-    const float tmp206 = carry[18] * tmp205;
+    const float tmp205 = carry[35] /* tmp116 */ * carry[44] /* tmp199 */;
+    const float tmp206 = carry[18] /* tmp123 */ * tmp205;
     const float tmp207 = tmp204 + tmp206;
-    const float tmp208 = carry[20] * carry[44];
+    const float tmp208 = carry[20] /* tmp133 */ * carry[44] /* tmp199 */;
     const float tmp209 = -tmp208;
-    const float tmp210 = (flags[0]) ? 0.0f : tmp209;
+    const float tmp210 = (flags[0] /* tmp10 */) ? 0.0f : tmp209;
     const float tmp211 = tmp207 + tmp210;
-    const float tmp212 = carry[42] + tmp211;
-    const float tmp213 = carry[25] * tmp212;
+    const float tmp212 = carry[42] /* tmp196 */ + tmp211;
+    const float tmp213 = carry[25] /* tmp189 */ * tmp212;
     const float tmp214 = tmp213 - tmp200;
-    const float tmp215 = carry[5] + tmp214;
+    const float tmp215 = carry[5] /* tmp9 */ + tmp214;
     const float tmp216 = tmp215 * tmp215;
-    const float tmp217 = carry[40] * carry[19];
+    const float tmp217 = carry[40] /* tmp155 */ * carry[19] /* tmp188 */;
     const float tmp218 = tmp217 * tmp212;
     const float tmp219 = tmp218 - tmp202;
-    const float tmp220 = carry[11] + tmp219;
+    const float tmp220 = carry[11] /* tmp18 */ + tmp219;
     const float tmp221 = tmp220 * tmp220;
     const float tmp222 = tmp216 + tmp221;
-    const float tmp223 = carry[12] * carry[19];
+    const float tmp223 = carry[12] /* tmp170 */ * carry[19] /* tmp188 */;
     const float tmp224 = tmp223 * tmp212;
     const float tmp225 = tmp224 - tmp205;
-    const float tmp226 = carry[15] + tmp225;
+    const float tmp226 = carry[15] /* tmp24 */ + tmp225;
     const float tmp227 = tmp226 * tmp226;
     const float tmp228 = tmp222 + tmp227;
     const float tmp229 = sqrtf(tmp228);
     const float tmp230 = 2.0f / tmp229;
     const float tmp231 = (2.0f < tmp229) ? tmp230 : 1.0f;
     const float tmp232 = tmp215 * tmp231;
-    const float tmp233 = carry[3] - tmp232;
+    const float tmp233 = carry[3] /* tmp7 */ - tmp232;
     const float tmp234 = tmp233 * tmp233;
     const float tmp235 = tmp220 * tmp231;
-    const float tmp236 = carry[9] - tmp235;
+    const float tmp236 = carry[9] /* tmp16 */ - tmp235;
     const float tmp237 = tmp236 * tmp236;
     const float tmp238 = tmp234 + tmp237;
     const float tmp239 = tmp226 * tmp231;
@@ -1440,46 +1450,47 @@ static void qcf_k_hard_iron_part5(float carry[50], const bool flags[2])
 static void qcf_k_hard_iron_part6(const float cP[25], const float rlp[4], float carry[50],
     const bool flags[2])
 {
-    const float tmp240 = carry[13] - carry[47];
+    const float tmp240 = carry[13] /* tmp22 */ - carry[47] /* tmp239 */;
     const float tmp241 = tmp240 * tmp240;
-    const float tmp242 = carry[46] + tmp241;
+    const float tmp242 = carry[46] /* tmp238 */ + tmp241;
     const float tmp243 = sqrtf(tmp242);
-    const float tmp244 = (tmp243 > 1e-06f) ? tmp243 : 1e-06f;
-    const float tmp245 = (flags[0]) ? 0.0f : cP[3];
-    const float tmp246 = carry[26] * carry[27];
-    const float tmp247 = tmp246 * carry[21];
+    const float tmp244 = (tmp243 > 1e-06f /* HARD_IRON_NORM_MIN */) ? tmp243 :
+            1e-06f /* HARD_IRON_NORM_MIN */;
+    const float tmp245 = (flags[0] /* tmp10 */) ? 0.0f : cP[3];
+    const float tmp246 = carry[26] /* tmp92 */ * carry[27] /* tmp96 */;
+    const float tmp247 = tmp246 * carry[21] /* tmp51 */;
     const float tmp248 = tmp245 - tmp247;
-    const float tmp249 = tmp248 * carry[30];
-    const float tmp250 = (flags[0]) ? 0.0f : cP[8];
-    const float tmp251 = tmp246 * carry[23];
+    const float tmp249 = tmp248 * carry[30] /* tmp103 */;
+    const float tmp250 = (flags[0] /* tmp10 */) ? 0.0f : cP[8];
+    const float tmp251 = tmp246 * carry[23] /* tmp66 */;
     const float tmp252 = tmp250 - tmp251;
-    const float tmp253 = tmp252 * carry[33];
+    const float tmp253 = tmp252 * carry[33] /* tmp112 */;
     const float tmp254 = tmp249 + tmp253;
-    const float tmp255 = (flags[0]) ? 0.0f : cP[13];
-    const float tmp256 = tmp246 * carry[7];
+    const float tmp255 = (flags[0] /* tmp10 */) ? 0.0f : cP[13];
+    const float tmp256 = tmp246 * carry[7] /* tmp80 */;
     const float tmp257 = tmp255 - tmp256;
-    const float tmp258 = tmp257 * carry[18];
+    const float tmp258 = tmp257 * carry[18] /* tmp123 */;
     const float tmp259 = tmp254 + tmp258;
-    const float tmp260 = (flags[0]) ? 0.0f : cP[19];
-    const float tmp261 = carry[20] * carry[26];
+    const float tmp260 = (flags[0] /* tmp10 */) ? 0.0f : cP[19];
+    const float tmp261 = carry[20] /* tmp133 */ * carry[26] /* tmp92 */;
     const float tmp262 = -tmp261;
-    const float tmp263 = (flags[0]) ? 0.0f : tmp262;
+    const float tmp263 = (flags[0] /* tmp10 */) ? 0.0f : tmp262;
     const float tmp264 = tmp260 - tmp263;
     const float tmp265 = tmp259 + tmp264;
-    const float tmp266 = tmp265 * carry[19];
-    const float tmp267 = tmp266 * carry[11];
-    const float tmp268 = tmp246 * carry[44];
+    const float tmp266 = tmp265 * carry[19] /* tmp188 */;
+    const float tmp267 = tmp266 * carry[11] /* tmp212 */;
+    const float tmp268 = tmp246 * carry[44] /* tmp199 */;
     const float tmp269 = tmp267 - tmp268;
-    const float tmp270 = carry[43] + tmp269;
+    const float tmp270 = carry[43] /* tmp198 */ + tmp269;
     const float tmp271 = tmp244 - tmp270;
     const float tmp272 = tmp271 - rlp[2];
-    const float tmp273 = carry[2] * tmp272;
+    const float tmp273 = carry[2] /* tmp5 */ * tmp272;
     const float tmp274 = rlp[2] + tmp273;
     const float tmp275 = tmp274 * tmp274;
-    const float tmp276 = carry[30] * carry[35];
-    const float tmp277 = carry[33] * carry[45];
+    const float tmp276 = carry[30] /* tmp103 */ * carry[35] /* tmp233 */;
+    const float tmp277 = carry[33] /* tmp112 */ * carry[45] /* tmp236 */;
     const float tmp278 = tmp276 + tmp277;
-    const float tmp279 = carry[18] * tmp240;
+    const float tmp279 = carry[18] /* tmp123 */ * tmp240;
     carry[7] = tmp246;
     carry[20] = tmp248;
     carry[21] = tmp252;
@@ -1497,44 +1508,44 @@ static void qcf_k_hard_iron_part6(const float cP[25], const float rlp[4], float 
 static void qcf_k_hard_iron_part7(const float ref[2], const float rlp[4], const float rmean[2],
     const float e[3], float carry[50], const bool flags[2])
 {
-    const float tmp280 = carry[48] + carry[49];
-    const float tmp281 = (flags[0]) ? 0.0f : carry[5];
-    const float tmp282 = carry[17] * carry[19];
-    const float tmp283 = tmp282 * carry[11];
+    const float tmp280 = carry[48] /* tmp278 */ + carry[49] /* tmp279 */;
+    const float tmp281 = (flags[0] /* tmp10 */) ? 0.0f : carry[5] /* tmp208 */;
+    const float tmp282 = carry[17] /* tmp184 */ * carry[19] /* tmp188 */;
+    const float tmp283 = tmp282 * carry[11] /* tmp212 */;
     const float tmp284 = tmp281 + tmp283;
-    const float tmp285 = carry[41] + tmp284;
+    const float tmp285 = carry[41] /* tmp195 */ + tmp284;
     const float tmp286 = tmp280 - tmp285;
     const float tmp287 = tmp286 - rlp[3];
-    const float tmp288 = carry[2] * tmp287;
+    const float tmp288 = carry[2] /* tmp5 */ * tmp287;
     const float tmp289 = rlp[3] + tmp288;
     const float tmp290 = tmp289 * tmp289;
-    const float tmp291 = carry[46] + tmp290;
+    const float tmp291 = carry[46] /* tmp275 */ + tmp290;
     const float tmp292 = tmp291 - e[1];
-    const float tmp293 = carry[1] * tmp292;
+    const float tmp293 = carry[1] /* tmp3 */ * tmp292;
     const float tmp294 = e[1] + tmp293;
-    const float tmp295 = 4.0f * tmp294;
-    const float tmp296 = carry[3] - carry[4];
+    const float tmp295 = 4.0f /* HARD_IRON_RATIO */ * tmp294;
+    const float tmp296 = carry[3] /* tmp7 */ - carry[4] /* tmp8 */;
     const float tmp297 = tmp296 * tmp296;
-    const float tmp298 = carry[9] - carry[10];
+    const float tmp298 = carry[9] /* tmp16 */ - carry[10] /* tmp17 */;
     const float tmp299 = tmp298 * tmp298;
     const float tmp300 = tmp297 + tmp299;
-    const float tmp301 = carry[13] - carry[14];
+    const float tmp301 = carry[13] /* tmp22 */ - carry[14] /* tmp23 */;
     const float tmp302 = tmp301 * tmp301;
     const float tmp303 = tmp300 + tmp302;
     const float tmp304 = sqrtf(tmp303);
     const float tmp305 = tmp304 - 1.0f;
     const float tmp306 = tmp305 - rlp[0];
-    const float tmp307 = carry[2] * tmp306;
+    const float tmp307 = carry[2] /* tmp5 */ * tmp306;
     const float tmp308 = rlp[0] + tmp307;
     const float tmp309 = tmp308 - rmean[0];
-    const float tmp310 = carry[1] * tmp309;
+    const float tmp310 = carry[1] /* tmp3 */ * tmp309;
     const float tmp311 = rmean[0] + tmp310;
     const float tmp312 = tmp308 - tmp311;
     const float tmp313 = tmp312 * tmp312;
-    const float tmp314 = carry[30] * tmp296;
-    const float tmp315 = carry[33] * tmp298;
+    const float tmp314 = carry[30] /* tmp103 */ * tmp296;
+    const float tmp315 = carry[33] /* tmp112 */ * tmp298;
     const float tmp316 = tmp314 + tmp315;
-    const float tmp317 = carry[18] * tmp301;
+    const float tmp317 = carry[18] /* tmp123 */ * tmp301;
     const float tmp318 = tmp316 + tmp317;
     const float tmp319 = tmp318 - ref[1];
     carry[3] = tmp282;
@@ -1551,46 +1562,47 @@ static void qcf_k_hard_iron_part7(const float ref[2], const float rlp[4], const 
 static void qcf_k_hard_iron_part8(const float b[3], const float ref[2], const float rlp[4],
     const float rmean[2], const float e[3], float carry[50], bool flags[2])
 {
-    const float tmp320 = carry[18] - rlp[1];
-    const float tmp321 = carry[2] * tmp320;
+    const float tmp320 = carry[18] /* tmp319 */ - rlp[1];
+    const float tmp321 = carry[2] /* tmp5 */ * tmp320;
     const float tmp322 = rlp[1] + tmp321;
     const float tmp323 = tmp322 - rmean[1];
-    const float tmp324 = carry[1] * tmp323;
+    const float tmp324 = carry[1] /* tmp3 */ * tmp323;
     const float tmp325 = rmean[1] + tmp324;
     const float tmp326 = tmp322 - tmp325;
     const float tmp327 = tmp326 * tmp326;
-    const float tmp328 = carry[14] + tmp327;
+    const float tmp328 = carry[14] /* tmp313 */ + tmp327;
     const float tmp329 = tmp328 - e[2];
-    const float tmp330 = carry[1] * tmp329;
+    const float tmp330 = carry[1] /* tmp3 */ * tmp329;
     const float tmp331 = e[2] + tmp330;
-    const bool tmp332 = (5.0f <= carry[0]) && (carry[10] < tmp331);
-    const float tmp333 = 0.04f * ref[0];
+    const bool tmp332 = (5.0f /* mag_bias_settle */ <= carry[0] /* tmp1 */) &&
+            (carry[10] /* tmp295 */ < tmp331);
+    const float tmp333 = 0.04f /* mag_bias_jump*mag_bias_jump */ * ref[0];
     const float tmp334 = tmp333 * ref[0];
     const float tmp335 = b[0] * b[0];
     const float tmp336 = b[1] * b[1];
     const float tmp337 = tmp335 + tmp336;
     const float tmp338 = b[2] * b[2];
     const float tmp339 = tmp337 + tmp338;
-    const float tmp340 = (tmp334 <= tmp339) ? 0.1f : 0.2f;
+    const float tmp340 = (tmp334 <= tmp339) ? 0.1f /* mag_norm_tol */ : 0.2f /* mag_bias_jump */;
     const float tmp341 = tmp340 * tmp340;
     const float tmp342 = tmp341 * ref[0];
     const float tmp343 = tmp342 * ref[0];
-    const float tmp344 = carry[31] * ref[0];
+    const float tmp344 = carry[31] /* tmp232 */ * ref[0];
     const float tmp345 = tmp344 - b[0];
     const float tmp346 = tmp345 * tmp345;
-    const float tmp347 = carry[42] * ref[0];
+    const float tmp347 = carry[42] /* tmp235 */ * ref[0];
     const float tmp348 = tmp347 - b[1];
     const float tmp349 = tmp348 * tmp348;
     const float tmp350 = tmp346 + tmp349;
-    const float tmp351 = carry[47] * ref[0];
+    const float tmp351 = carry[47] /* tmp239 */ * ref[0];
     const float tmp352 = tmp351 - b[2];
     const float tmp353 = tmp352 * tmp352;
     const float tmp354 = tmp350 + tmp353;
     const bool tmp355 = tmp332 && (tmp343 <= tmp354);
-    const bool tmp356 = tmp355 && (carry[9] < 0.000225f);
-    const float tmp357 = carry[25] * carry[34];
-    const float tmp358 = carry[29] - tmp357;
-    const float tmp359 = carry[15] * carry[40];
+    const bool tmp356 = tmp355 && (carry[9] /* tmp294 */ < 0.000225f /* mag_bias_th*mag_bias_th */);
+    const float tmp357 = carry[25] /* tmp189 */ * carry[34] /* tmp138 */;
+    const float tmp358 = carry[29] /* tmp99 */ - tmp357;
+    const float tmp359 = carry[15] /* tmp217 */ * carry[40] /* tmp155 */;
     carry[2] = tmp322;
     carry[10] = tmp325;
     carry[14] = tmp331;
@@ -1602,39 +1614,40 @@ static void qcf_k_hard_iron_part8(const float b[3], const float ref[2], const fl
 
 static void qcf_k_hard_iron_part9(float carry[50], bool flags[2])
 {
-    const float tmp360 = carry[37] - carry[19];
-    const float tmp361 = carry[18] + tmp360;
-    const float tmp362 = carry[28] * carry[12];
-    const float tmp363 = carry[6] - tmp362;
+    const float tmp360 = carry[37] /* tmp142 */ - carry[19] /* tmp359 */;
+    const float tmp361 = carry[18] /* tmp358 */ + tmp360;
+    const float tmp362 = carry[28] /* tmp223 */ * carry[12] /* tmp170 */;
+    const float tmp363 = carry[6] /* tmp162 */ - tmp362;
     const float tmp364 = tmp361 + tmp363;
-    const bool tmp365 = (tmp364 < 0.000225f) && (0.1f < carry[44]);
-    const bool tmp366 = flags[1] && tmp365;
-    const float tmp367 = carry[15] * carry[34];
-    const float tmp368 = carry[32] - tmp367;
-    const float tmp369 = carry[28] * carry[34];
-    const float tmp370 = carry[36] - tmp369;
-    const float tmp371 = carry[43] * carry[34];
-    const float tmp372 = carry[20] - tmp371;
-    const float tmp373 = carry[3] * carry[34];
-    const float tmp374 = carry[22] - tmp373;
-    const float tmp375 = carry[28] * carry[40];
-    const float tmp376 = carry[38] - tmp375;
-    const float tmp377 = carry[43] * carry[40];
-    const float tmp378 = carry[21] - tmp377;
-    const float tmp379 = carry[3] * carry[40];
-    const float tmp380 = carry[39] - tmp379;
-    const float tmp381 = carry[43] * carry[12];
-    const float tmp382 = carry[23] - tmp381;
-    const float tmp383 = carry[3] * carry[12];
-    const float tmp384 = carry[8] - tmp383;
-    const float tmp385 = carry[7] * carry[26];
-    const float tmp386 = carry[24] - tmp385;
-    const float tmp387 = carry[43] * carry[35];
+    const bool tmp365 = (tmp364 < 0.000225f /* mag_bias_th*mag_bias_th */) &&
+            (0.1f /* HARD_IRON_N_MIN */ < carry[44] /* tmp270 */);
+    const bool tmp366 = flags[1] /* tmp356 */ && tmp365;
+    const float tmp367 = carry[15] /* tmp217 */ * carry[34] /* tmp138 */;
+    const float tmp368 = carry[32] /* tmp108 */ - tmp367;
+    const float tmp369 = carry[28] /* tmp223 */ * carry[34] /* tmp138 */;
+    const float tmp370 = carry[36] /* tmp118 */ - tmp369;
+    const float tmp371 = carry[43] /* tmp266 */ * carry[34] /* tmp138 */;
+    const float tmp372 = carry[20] /* tmp248 */ - tmp371;
+    const float tmp373 = carry[3] /* tmp282 */ * carry[34] /* tmp138 */;
+    const float tmp374 = carry[22] /* tmp137 */ - tmp373;
+    const float tmp375 = carry[28] /* tmp223 */ * carry[40] /* tmp155 */;
+    const float tmp376 = carry[38] /* tmp147 */ - tmp375;
+    const float tmp377 = carry[43] /* tmp266 */ * carry[40] /* tmp155 */;
+    const float tmp378 = carry[21] /* tmp252 */ - tmp377;
+    const float tmp379 = carry[3] /* tmp282 */ * carry[40] /* tmp155 */;
+    const float tmp380 = carry[39] /* tmp154 */ - tmp379;
+    const float tmp381 = carry[43] /* tmp266 */ * carry[12] /* tmp170 */;
+    const float tmp382 = carry[23] /* tmp257 */ - tmp381;
+    const float tmp383 = carry[3] /* tmp282 */ * carry[12] /* tmp170 */;
+    const float tmp384 = carry[8] /* tmp169 */ - tmp383;
+    const float tmp385 = carry[7] /* tmp246 */ * carry[26] /* tmp92 */;
+    const float tmp386 = carry[24] /* tmp91 */ - tmp385;
+    const float tmp387 = carry[43] /* tmp266 */ * carry[35] /* tmp265 */;
     const float tmp388 = tmp386 - tmp387;
-    const float tmp389 = carry[3] * carry[35];
-    const float tmp390 = carry[27] - tmp389;
-    const float tmp391 = carry[3] * carry[17];
-    const float tmp392 = carry[16] - tmp391;
+    const float tmp389 = carry[3] /* tmp282 */ * carry[35] /* tmp265 */;
+    const float tmp390 = carry[27] /* tmp264 */ - tmp389;
+    const float tmp391 = carry[3] /* tmp282 */ * carry[17] /* tmp184 */;
+    const float tmp392 = carry[16] /* tmp183 */ - tmp391;
     carry[3] = tmp360;
     carry[6] = tmp363;
     flags[1] = tmp366;
@@ -1686,35 +1699,35 @@ static void qcf_k_hard_iron_part10(const float b[3], const float ref[2], const f
     float tmp421;
     float tmp422;
     float tmp423;
-    if (flags[1]) {
-        const float tmp424 = ref[0] * carry[31];
-        const float tmp425 = ref[0] * carry[42];
-        const float tmp426 = ref[0] * carry[47];
-        const float tmp427 = carry[44] * ref[0];
-        const float tmp428 = 1.0f / carry[44];
-        const float tmp429 = carry[4] * tmp428;
+    if (flags[1] /* tmp366 */) {
+        const float tmp424 = ref[0] * carry[31] /* tmp232 */;
+        const float tmp425 = ref[0] * carry[42] /* tmp235 */;
+        const float tmp426 = ref[0] * carry[47] /* tmp239 */;
+        const float tmp427 = carry[44] /* tmp270 */ * ref[0];
+        const float tmp428 = 1.0f / carry[44] /* tmp270 */;
+        const float tmp429 = carry[4] /* tmp285 */ * tmp428;
         const float tmp430 = (tmp429 > (-1.0f)) ? tmp429 : (-1.0f);
         const float tmp431 = (tmp430 < 1.0f) ? tmp430 : 1.0f;
-        const float tmp432 = carry[31] * tmp428;
-        const float tmp433 = carry[42] * tmp428;
-        const float tmp434 = carry[47] * tmp428;
-        const float tmp435 = carry[44] * carry[44];
+        const float tmp432 = carry[31] /* tmp232 */ * tmp428;
+        const float tmp433 = carry[42] /* tmp235 */ * tmp428;
+        const float tmp434 = carry[47] /* tmp239 */ * tmp428;
+        const float tmp435 = carry[44] /* tmp270 */ * carry[44] /* tmp270 */;
         const float tmp436 = 1.0f / tmp435;
-        const float tmp437 = carry[18] * tmp436;
-        const float tmp438 = carry[7] * tmp436;
-        const float tmp439 = carry[8] * tmp436;
-        const float tmp440 = carry[12] * tmp436;
-        const float tmp441 = carry[15] * tmp436;
-        const float tmp442 = carry[3] * tmp436;
-        const float tmp443 = carry[16] * tmp436;
-        const float tmp444 = carry[17] * tmp436;
-        const float tmp445 = carry[19] * tmp436;
-        const float tmp446 = carry[6] * tmp436;
-        const float tmp447 = carry[20] * tmp436;
-        const float tmp448 = carry[21] * tmp436;
-        const float tmp449 = carry[22] * tmp436;
-        const float tmp450 = carry[23] * tmp436;
-        const float tmp451 = carry[24] * tmp436;
+        const float tmp437 = carry[18] /* tmp358 */ * tmp436;
+        const float tmp438 = carry[7] /* tmp368 */ * tmp436;
+        const float tmp439 = carry[8] /* tmp370 */ * tmp436;
+        const float tmp440 = carry[12] /* tmp372 */ * tmp436;
+        const float tmp441 = carry[15] /* tmp374 */ * tmp436;
+        const float tmp442 = carry[3] /* tmp360 */ * tmp436;
+        const float tmp443 = carry[16] /* tmp376 */ * tmp436;
+        const float tmp444 = carry[17] /* tmp378 */ * tmp436;
+        const float tmp445 = carry[19] /* tmp380 */ * tmp436;
+        const float tmp446 = carry[6] /* tmp363 */ * tmp436;
+        const float tmp447 = carry[20] /* tmp382 */ * tmp436;
+        const float tmp448 = carry[21] /* tmp384 */ * tmp436;
+        const float tmp449 = carry[22] /* tmp388 */ * tmp436;
+        const float tmp450 = carry[23] /* tmp390 */ * tmp436;
+        const float tmp451 = carry[24] /* tmp392 */ * tmp436;
         tmp393 = tmp424;
         tmp394 = tmp425;
         tmp395 = tmp426;
@@ -1742,48 +1755,48 @@ static void qcf_k_hard_iron_part10(const float b[3], const float ref[2], const f
         tmp417 = tmp451;
         tmp418 = 0.0f;
         tmp419 = 0.0f;
-        tmp420 = carry[9];
-        tmp421 = carry[9];
-        tmp422 = carry[9];
+        tmp420 = carry[9] /* tmp294 */;
+        tmp421 = carry[9] /* tmp294 */;
+        tmp422 = carry[9] /* tmp294 */;
         tmp423 = 0.0f;
     } else {
-        const float tmp452 = carry[11] * carry[11];
-        const float tmp453 = carry[2] * carry[2];
+        const float tmp452 = carry[11] /* tmp308 */ * carry[11] /* tmp308 */;
+        const float tmp453 = carry[2] /* tmp322 */ * carry[2] /* tmp322 */;
         const float tmp454 = tmp452 + tmp453;
         const float tmp455 = tmp454 - e[0];
-        const float tmp456 = carry[1] * tmp455;
+        const float tmp456 = carry[1] /* tmp3 */ * tmp455;
         const float tmp457 = e[0] + tmp456;
         tmp393 = b[0];
         tmp394 = b[1];
         tmp395 = b[2];
         tmp396 = ref[0];
         tmp397 = ref[1];
-        tmp398 = carry[31];
-        tmp399 = carry[42];
-        tmp400 = carry[47];
-        tmp401 = carry[44];
-        tmp402 = carry[4];
-        tmp403 = carry[18];
-        tmp404 = carry[7];
-        tmp405 = carry[8];
-        tmp406 = carry[12];
-        tmp407 = carry[15];
-        tmp408 = carry[3];
-        tmp409 = carry[16];
-        tmp410 = carry[17];
-        tmp411 = carry[19];
-        tmp412 = carry[6];
-        tmp413 = carry[20];
-        tmp414 = carry[21];
-        tmp415 = carry[22];
-        tmp416 = carry[23];
-        tmp417 = carry[24];
-        tmp418 = carry[13];
-        tmp419 = carry[10];
+        tmp398 = carry[31] /* tmp232 */;
+        tmp399 = carry[42] /* tmp235 */;
+        tmp400 = carry[47] /* tmp239 */;
+        tmp401 = carry[44] /* tmp270 */;
+        tmp402 = carry[4] /* tmp285 */;
+        tmp403 = carry[18] /* tmp358 */;
+        tmp404 = carry[7] /* tmp368 */;
+        tmp405 = carry[8] /* tmp370 */;
+        tmp406 = carry[12] /* tmp372 */;
+        tmp407 = carry[15] /* tmp374 */;
+        tmp408 = carry[3] /* tmp360 */;
+        tmp409 = carry[16] /* tmp376 */;
+        tmp410 = carry[17] /* tmp378 */;
+        tmp411 = carry[19] /* tmp380 */;
+        tmp412 = carry[6] /* tmp363 */;
+        tmp413 = carry[20] /* tmp382 */;
+        tmp414 = carry[21] /* tmp384 */;
+        tmp415 = carry[22] /* tmp388 */;
+        tmp416 = carry[23] /* tmp390 */;
+        tmp417 = carry[24] /* tmp392 */;
+        tmp418 = carry[13] /* tmp311 */;
+        tmp419 = carry[10] /* tmp325 */;
         tmp420 = tmp457;
-        tmp421 = carry[9];
-        tmp422 = carry[14];
-        tmp423 = carry[0];
+        tmp421 = carry[9] /* tmp294 */;
+        tmp422 = carry[14] /* tmp331 */;
+        tmp423 = carry[0] /* tmp1 */;
     }
     carry[0] = tmp393;
     carry[1] = tmp394;
@@ -1820,7 +1833,7 @@ static void qcf_k_hard_iron_part10(const float b[3], const float ref[2], const f
 
 static void qcf_k_hard_iron_part11(bool flags[2])
 {
-    const bool tmp458 = flags[0] && (!(flags[1]));
+    const bool tmp458 = flags[0] /* tmp355 */ && (!(flags[1] /* tmp366 */));
     flags[0] = tmp458;
 }
 
@@ -1881,53 +1894,53 @@ static void qcf_k_hard_iron(const float q[4], const float mag[3], const float b[
     qcf_k_hard_iron_part9(carry, flags);
     qcf_k_hard_iron_part10(b, ref, e, carry, flags);
     qcf_k_hard_iron_part11(flags);
-    b_out[0] = carry[0];
-    b_out[1] = carry[1];
-    b_out[2] = carry[3];
-    ref_out[0] = carry[4];
-    ref_out[1] = carry[6];
-    cx_out[0] = carry[7];
-    cx_out[1] = carry[8];
-    cx_out[2] = carry[9];
-    cx_out[3] = carry[10];
-    cx_out[4] = carry[12];
-    cP_out[0] = carry[13];
-    cP_out[1] = carry[14];
-    cP_out[2] = carry[15];
-    cP_out[3] = carry[16];
-    cP_out[4] = carry[17];
-    cP_out[5] = carry[14];
-    cP_out[6] = carry[18];
-    cP_out[7] = carry[19];
-    cP_out[8] = carry[20];
-    cP_out[9] = carry[21];
-    cP_out[10] = carry[15];
-    cP_out[11] = carry[19];
-    cP_out[12] = carry[22];
-    cP_out[13] = carry[23];
-    cP_out[14] = carry[24];
-    cP_out[15] = carry[16];
-    cP_out[16] = carry[20];
-    cP_out[17] = carry[23];
-    cP_out[18] = carry[25];
-    cP_out[19] = carry[26];
-    cP_out[20] = carry[17];
-    cP_out[21] = carry[21];
-    cP_out[22] = carry[24];
-    cP_out[23] = carry[26];
-    cP_out[24] = carry[27];
-    rlp_out[0] = carry[11];
-    rlp_out[1] = carry[2];
-    rlp_out[2] = carry[45];
-    rlp_out[3] = carry[5];
-    rmean_out[0] = carry[28];
-    rmean_out[1] = carry[29];
-    e_out[0] = carry[30];
-    e_out[1] = carry[31];
-    e_out[2] = carry[32];
-    *turn_time_out = carry[33];
-    *suspect = flags[0];
-    *switched = flags[1];
+    b_out[0] = carry[0] /* tmp393 */;
+    b_out[1] = carry[1] /* tmp394 */;
+    b_out[2] = carry[3] /* tmp395 */;
+    ref_out[0] = carry[4] /* tmp396 */;
+    ref_out[1] = carry[6] /* tmp397 */;
+    cx_out[0] = carry[7] /* tmp398 */;
+    cx_out[1] = carry[8] /* tmp399 */;
+    cx_out[2] = carry[9] /* tmp400 */;
+    cx_out[3] = carry[10] /* tmp401 */;
+    cx_out[4] = carry[12] /* tmp402 */;
+    cP_out[0] = carry[13] /* tmp403 */;
+    cP_out[1] = carry[14] /* tmp404 */;
+    cP_out[2] = carry[15] /* tmp405 */;
+    cP_out[3] = carry[16] /* tmp406 */;
+    cP_out[4] = carry[17] /* tmp407 */;
+    cP_out[5] = carry[14] /* tmp404 */;
+    cP_out[6] = carry[18] /* tmp408 */;
+    cP_out[7] = carry[19] /* tmp409 */;
+    cP_out[8] = carry[20] /* tmp410 */;
+    cP_out[9] = carry[21] /* tmp411 */;
+    cP_out[10] = carry[15] /* tmp405 */;
+    cP_out[11] = carry[19] /* tmp409 */;
+    cP_out[12] = carry[22] /* tmp412 */;
+    cP_out[13] = carry[23] /* tmp413 */;
+    cP_out[14] = carry[24] /* tmp414 */;
+    cP_out[15] = carry[16] /* tmp406 */;
+    cP_out[16] = carry[20] /* tmp410 */;
+    cP_out[17] = carry[23] /* tmp413 */;
+    cP_out[18] = carry[25] /* tmp415 */;
+    cP_out[19] = carry[26] /* tmp416 */;
+    cP_out[20] = carry[17] /* tmp407 */;
+    cP_out[21] = carry[21] /* tmp411 */;
+    cP_out[22] = carry[24] /* tmp414 */;
+    cP_out[23] = carry[26] /* tmp416 */;
+    cP_out[24] = carry[27] /* tmp417 */;
+    rlp_out[0] = carry[11] /* tmp308 */;
+    rlp_out[1] = carry[2] /* tmp322 */;
+    rlp_out[2] = carry[45] /* tmp274 */;
+    rlp_out[3] = carry[5] /* tmp289 */;
+    rmean_out[0] = carry[28] /* tmp418 */;
+    rmean_out[1] = carry[29] /* tmp419 */;
+    e_out[0] = carry[30] /* tmp420 */;
+    e_out[1] = carry[31] /* tmp421 */;
+    e_out[2] = carry[32] /* tmp422 */;
+    *turn_time_out = carry[33] /* tmp423 */;
+    *suspect = flags[0] /* tmp458 */;
+    *switched = flags[1] /* tmp366 */;
 }
 
 /*
@@ -1985,8 +1998,8 @@ static inline void qcf_k_rotation(const float q[4], float rot[9])
 
 static void qcf_k_gravity_part_part0(float accel_norm2, bool flags[1])
 {
-    const bool tmp0 = (90.376396f /* (9.80665 - motion_accel_threshold)^2 */ < accel_norm2) &&
-            (accel_norm2 < 102.14437f /* (9.80665 + motion_accel_threshold)^2 */);
+    const bool tmp0 = (90.376396f /* (G0 - motion_accel_threshold)^2 */ < accel_norm2) &&
+            (accel_norm2 < 102.14437f /* (G0 + motion_accel_threshold)^2 */);
     flags[0] = tmp0;
 }
 
@@ -1996,7 +2009,7 @@ static void qcf_k_gravity_part_part1(const float accel[3], const float rot[9], c
     float tmp1;
     float tmp2;
     float tmp3;
-    if (flags[0]) {
+    if (flags[0] /* tmp0 */) {
         tmp1 = accel[0];
         tmp2 = accel[1];
         tmp3 = accel[2];
@@ -2011,7 +2024,7 @@ static void qcf_k_gravity_part_part1(const float accel[3], const float rot[9], c
         const float tmp11 = tmp9 + tmp10;
         const float tmp12 = gps_vel_hist[2] * gps_vel_hist[2];
         const float tmp13 = tmp11 + tmp12;
-        const float tmp14 = (tmp13 > 1e-06f) ? tmp13 : 1e-06f;
+        const float tmp14 = (tmp13 > 1e-06f /* ALONG_V2_MIN */) ? tmp13 : 1e-06f /* ALONG_V2_MIN */;
         const float tmp15 = 1.0f / tmp14;
         const float tmp16 = sqrtf(tmp15);
         const float tmp17 = tmp8 * tmp16;
@@ -2085,9 +2098,9 @@ static void qcf_k_gravity_part(const float accel[3], float accel_norm2, const fl
     bool flags[1];
     qcf_k_gravity_part_part0(accel_norm2, flags);
     qcf_k_gravity_part_part1(accel, rot, gyro, gyro_bias, gps_vel_hist, carry, flags);
-    accel_gravity[0] = carry[0];
-    accel_gravity[1] = carry[1];
-    accel_gravity[2] = carry[2];
+    accel_gravity[0] = carry[0] /* tmp1 */;
+    accel_gravity[1] = carry[1] /* tmp2 */;
+    accel_gravity[2] = carry[2] /* tmp3 */;
 }
 
 /*
@@ -2262,12 +2275,12 @@ void qcf_init(qcf_state *s)
     s->gps_vel_hist[0] = 0.0f;
     s->gps_vel_hist[1] = 0.0f;
     s->gps_vel_hist[2] = 0.0f;
-    s->gps_age = 1000.0f;
+    s->gps_age = 1000.0f /* GPS_AGE_MAX */;
     s->gps_count = 0u;
     s->initialised = 0u;
     s->accel_lp[0] = 0.0f;
     s->accel_lp[1] = 0.0f;
-    s->accel_lp[2] = (-9.80665f);
+    s->accel_lp[2] = (-9.80665f) /* -G0 */;
     s->accel_age = 0.0f;
     s->mag_age = 0.0f;
     s->rest_gyro_lp[0] = 0.0f;
@@ -2291,31 +2304,31 @@ void qcf_init(qcf_state *s)
     for (uint32_t i = 0u; i < 5u; i++) {
         s->mag_cx[i] = 0.0f;
     }
-    s->mag_cP[0] = 0.09f;
+    s->mag_cP[0] = 0.09f /* HARD_IRON_P0^2 */;
     s->mag_cP[1] = 0.0f;
     s->mag_cP[2] = 0.0f;
     s->mag_cP[3] = 0.0f;
     s->mag_cP[4] = 0.0f;
     s->mag_cP[5] = 0.0f;
-    s->mag_cP[6] = 0.09f;
+    s->mag_cP[6] = 0.09f /* HARD_IRON_P0^2 */;
     s->mag_cP[7] = 0.0f;
     s->mag_cP[8] = 0.0f;
     s->mag_cP[9] = 0.0f;
     s->mag_cP[10] = 0.0f;
     s->mag_cP[11] = 0.0f;
-    s->mag_cP[12] = 0.09f;
+    s->mag_cP[12] = 0.09f /* HARD_IRON_P0^2 */;
     s->mag_cP[13] = 0.0f;
     s->mag_cP[14] = 0.0f;
     s->mag_cP[15] = 0.0f;
     s->mag_cP[16] = 0.0f;
     s->mag_cP[17] = 0.0f;
-    s->mag_cP[18] = 0.09f;
+    s->mag_cP[18] = 0.09f /* HARD_IRON_P0^2 */;
     s->mag_cP[19] = 0.0f;
     s->mag_cP[20] = 0.0f;
     s->mag_cP[21] = 0.0f;
     s->mag_cP[22] = 0.0f;
     s->mag_cP[23] = 0.0f;
-    s->mag_cP[24] = 0.09f;
+    s->mag_cP[24] = 0.09f /* HARD_IRON_P0^2 */;
     s->mag_c_ok = 0u;
     s->mag_rlp[0] = 0.0f;
     s->mag_rlp[1] = 0.0f;
@@ -2390,7 +2403,7 @@ qcf_status qcf_step(qcf_state *restrict s, const qcf_input *restrict in, float d
             s->gps_count++;
         }
         s->gps_age = 0.0f;
-    } else if (s->gps_age < 1000.0f) {
+    } else if (s->gps_age < 1000.0f /* GPS_AGE_MAX */) {
         s->gps_age += dt;
     }
 

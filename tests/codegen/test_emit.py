@@ -246,7 +246,7 @@ def test_split_kernel_hands_bools_over_as_bools(tmp_path):
     src = "\n".join(split.lines() + split.part_sources())
     assert "bool flags[1];" in src, src
     assert "> 0.5" not in src and "? 1.0 : 0.0" not in src, src
-    assert re.search(r"^\s*\*ok = flags\[\d+\];$", src, re.M), src
+    assert re.search(r"^\s*\*ok = flags\[\d+\] /\* tmp\d+ \*/;$", src, re.M), src
     lib = _build([whole, split], "double", tmp_path)
     rng = np.random.default_rng(4)
     for fun in ("fl_whole", "fl_split"):
@@ -410,3 +410,33 @@ def test_shared_denominator_becomes_one_reciprocal(precision, tmp_path):
         eps = np.finfo(nt).eps
         assert np.all(np.abs(np.array(u[:], dtype=np.float64) - plain) <= 2 * eps * np.abs(plain) + 1e-300)
 
+
+
+@pytest.mark.parametrize("name", ["mekf", "adukf"])
+def test_split_kernel_slot_reads_name_the_temporary_they_hold(name):
+    """Every read of a carry or flags slot in a split kernel names the temporary the slot holds
+    there: the one the last part before it stored in that slot (`carry[7] = tmp11;`), read
+    from the stores in call order; and the comments are the only difference from the
+    print without names."""
+    from ahrsgen.codegen.emit import ir
+    from ahrsgen.generate import config, render
+    gen = render.render(config.resolve(name))
+    split = [k for k in gen.kernels if k.parts]
+    assert split
+    reads = 0
+    for k in split:
+        held = {}
+        for f in k.functions():            # the parts in call order, then the kernel's own body
+            for s in ir.all_statements(f.body):
+                for e in ir.exprs(s):
+                    for x in ir.walk(e):
+                        if isinstance(x, ir.Slot):
+                            assert x.name == held[(x.array, x.index)], (k.name, f.name, x)
+                            reads += 1
+            for s in ir.all_statements(f.body):        # a part's exports come after its reads
+                if isinstance(s, ir.Store) and isinstance(s.target, ir.Slot):
+                    held[(s.target.array, s.target.index)] = s.expr.name
+            on, off = "\n".join(f.lines()), "\n".join(f.lines(names=False))
+            bare = lambda c: re.sub(r" ?/\*.*?\*/", "", c, flags=re.S).split()   # noqa: E731
+            assert bare(on) == bare(off) and "/* tmp" not in off
+    assert reads > 100

@@ -25,7 +25,30 @@ COMMENT = re.compile(r" ?/\*.*?\*/", re.S)
 
 
 # functions a template's derived constant may name (e.g. `tan(course_max_sideslip)^2`)
-FUNCTIONS = {"tan": math.tan, "sin": math.sin, "cos": math.cos, "sqrt": math.sqrt}
+FUNCTIONS = {"tan": math.tan, "sin": math.sin, "cos": math.cos, "sqrt": math.sqrt, "ln": math.log}
+
+
+def _named_constants() -> dict[str, float]:
+    """Every named constant (ahrsgen.constants.Const) the package's modules declare, by name:
+    the value a name stands for is the one its declaration states."""
+    import importlib
+    from ahrsgen.constants import Const
+    modules = ["ahrsgen.constants"] + [f"ahrsgen.symbolic.{m}" for m in ("aiding", "attitude", "kalman", "linalg", "quat")]
+    modules += [f"ahrsgen.filters.{f}.{m}" for f in ("qcf", "mekf", "adukf", "cpf") for m in ("model", "reference")]
+    out: dict[str, float] = {}
+    for m in modules + ["ahrsgen.filters.cpf.prng"]:
+        for v in vars(importlib.import_module(m)).values():
+            for c in (v if isinstance(v, tuple) else (v,)):
+                if isinstance(c, Const):
+                    assert out.setdefault(c.name, float(c)) == float(c), c.name
+    return out
+
+
+def _ut_weights(params: dict, n: int) -> dict[str, float]:
+    """adukf's UT_A and UT_W from the scaled unscented transform's equations (Wan and van der
+    Merwe): lambda = alpha^2 (n + kappa) - n, spread sqrt(n + lambda), W_i = 1 / (2 (n + lambda))."""
+    lam = params["ut_alpha"] ** 2 * (n + params["ut_kappa"]) - n
+    return {"UT_A": math.sqrt(n + lam), "UT_W": 1 / (2 * (n + lam))}
 
 
 def _named(text: str) -> list[tuple[str, str]]:
@@ -50,11 +73,13 @@ def test_every_committed_name_evaluates_to_the_number_beside_it(name):
     src = (REPO / "generated" / name / man["files"]["source"]).read_text()
     pairs = _named(src)
     assert pairs, f"no named literal in generated/{name}"
+    # the named constants' declared values; adukf's weights of its error-state filter (n = 6)
+    known = {**_named_constants(), **man["params"], **(_ut_weights(man["params"], 6) if name == "adukf" else {})}
     for lit, expr in pairs:
         if expr.startswith("from "):        # a long expression: only its parameters are named
-            assert all(p in man["params"] for p in expr[5:].split(", ")), expr
+            assert all(p in known for p in expr[5:].split(", ")), expr
             continue
-        v = _evaluate(expr, man["params"])
+        v = _evaluate(expr, known)
         if lit.rstrip(")").endswith("f"):
             assert np.float32(_value(lit)) == np.float32(v), (lit, expr, v)
         else:
@@ -110,31 +135,38 @@ def test_a_parameter_equal_to_structural_constants_is_not_named_with_them():
     assert len(bare.findall(half)) + named == len(bare.findall(default)) + n
 
 
-def test_structural_constants_of_mekf_are_not_named():
+def test_structural_constants_of_mekf_carry_their_own_names():
     """mekf's fixed constants (S_PIVOT_MIN 1e-12, DT_Q_MIN 1e-9, the 0.01 of the series
-    switch) are written bare, and no parameter of the defaults prints as one of them (none is
-    named there); every name uses only parameters."""
+    switch) are never bare and never named by a parameter: each stands beside its own name
+    only; every name uses only parameters and named constants."""
     src = (REPO / "generated" / "mekf" / "mekf.c").read_text()
-    for lit in ("1e-12f", "1e-09f", "0.01f"):
-        assert re.search(rf"(?<![0-9.e]){re.escape(lit)}(?! /\*)", src), lit
-    assert {e for lit, e in _named(src) if lit in ("1e-12f", "1e-09f", "0.01f")} == set()
+    # the code (a kernel's comment block quotes its branch conditions bare)
+    src = "\n".join(ln for ln in src.splitlines() if not ln.lstrip().startswith(("*", "/*")))
+    own = {"1e-12f": {"S_PIVOT_MIN", "HARD_IRON_PIVOT_MIN"}, "1e-09f": {"DT_Q_MIN"}, "0.01f": {"SERIES_MAX*SERIES_MAX"}}
+    for lit, names in own.items():
+        assert not re.search(rf"(?<![0-9.e]){re.escape(lit)}(?! /\*)", src), lit
+        assert {e for x, e in _named(src) if x == lit} == names, lit
     params = json.loads((REPO / "generated" / "mekf" / "manifest.json").read_text())["params"]
     for _, expr in _named(src):
-        assert set(re.findall(r"[A-Za-z_]\w*", expr)) <= set(params) | set(FUNCTIONS), expr
+        words = set(re.findall(r"[A-Za-z_]\w*", expr))
+        assert words <= set(params) | set(FUNCTIONS) | set(_named_constants()), expr
 
 
 def test_traced_text_and_values():
     """Expression text with the parentheses it needs; value (perturbed) and shadow (real)
     computed by the same operations."""
-    p, record = traced_params({"a": 2.0, "b": 3.0, "n": 4}, ["a", "b"])
+    p, record = traced_params({"a": 1.25, "b": 3.0, "n": 4, "two": 2.0}, ["a", "b", "two"])
     a, b = p["a"], p["b"]
-    assert isinstance(a, Traced) and p["n"] == 4 and float(a) != 2.0 and a.shadow == 2.0
+    assert isinstance(a, Traced) and p["n"] == 4 and float(a) != 1.25 and a.shadow == 1.25
+    # 2 (as 0, 1 and -1) is not perturbed, nor is what is 1 in the real build: CasADi simplifies x * 2
+    assert p["two"] == 2.0 and not isinstance(p["two"], Traced)
+    assert type(a / a) is float and a / a == 1.0 and type(a - a) is float
     cases = {"(a + b)*a": (a + b) * a, "a - (b - a)": a - (b - a), "a/(a*b)": a / (a * b),
              "-a^2": -a ** 2, "9*a^2": 9 * a ** 2, "1 - a": 1 - a, "a*(-0.5)": a * -0.5,
              "(a^2)^b": (a ** 2) ** b, "a + b": 0.0 + a + b * 1 - 0.0}
     for text, t in cases.items():
         assert t.text == text
-        assert t.shadow == eval(text.replace("^", "**"), {"a": 2.0, "b": 3.0})   # noqa: S307
+        assert t.shadow == eval(text.replace("^", "**"), {"a": 1.25, "b": 3.0})   # noqa: S307
         assert float(t) == eval(text.replace("^", "**"), {"a": float(a), "b": float(b)})   # noqa: S307
     assert len(record) >= len(cases)
 
@@ -160,7 +192,7 @@ def test_constant_names_rule():
     consts = {k: baked.instruction_constant(k) for k in range(baked.n_instructions())
               if baked.instruction_id(k) == ca.OP_CONST}
     assert sorted(names.values()) == ["a", "a^2"]
-    assert {consts[k] for k, v in names.items() if v == "a^2"} == {0.25}   # not b, which is 0.25 too
+    assert {_operand_value(baked, k, j) for (k, j), v in names.items() if v == "a^2"} == {0.25}   # not b (0.25 too)
     assert sorted(consts.values()) == [0.25, 0.5, 2.0]       # 2.0: structural, unnamed
     # the real value must match as well: a record entry with the traced value but another shadow
     a2.shadow = 0.3
@@ -170,8 +202,37 @@ def test_constant_names_rule():
     twice = a2 * 2.0 / 2.0
     assert twice.text == "a^2*2.0/2.0" and (float(twice), twice.shadow) == (float(a2), a2.shadow)
     assert sorted(constant_names(baked, traced, record).values()) == ["a"]
-    # b = 0.25 as well: CasADi merges the two equal constants of the baked build, not the traced ones
-    assert constant_names(_fn([x, y], x * 0.25 + y * 0.25), _fn([x, y], x * a2 + y * b), record) is None
+    # b = 0.25 as well: CasADi merges the two equal constants of the baked build, not the traced
+    # ones; each use is still named for what it is there
+    p, record = traced_params({"a": 0.5, "b": 0.25}, ["a", "b"])
+    a2, b = p["a"] ** 2, p["b"]
+    merged = _fn([x, y], x * 0.25 + y * 0.25)
+    assert sum(merged.instruction_id(k) == ca.OP_CONST for k in range(merged.n_instructions())) == 1
+    names = constant_names(merged, _fn([x, y], x * a2 + y * b), record)
+    assert sorted(names.values()) == ["a^2", "b"]
+    assert {_operand_name(merged, k): v for (k, j), v in names.items()} == {"i0": "a^2", "i1": "b"}
+    # other operations (here y * 0.25 and x * 0.25 become one product when x and y are one
+    # input): nothing is named
+    assert constant_names(_fn([x], x * 0.25 + x * 0.25), _fn([x], x * a2 + x * b), record) is None
+
+
+def _operand_value(fn, k, j):
+    """The constant operand j of instruction k."""
+    import casadi as ca
+    w = fn.instruction_input(k)[j]
+    for i in range(k):
+        if fn.instruction_output(i)[0] == w and fn.instruction_id(i) == ca.OP_CONST:
+            src = i
+    return fn.instruction_constant(src)
+
+
+def _operand_name(fn, k):
+    """The input (by name) the other operand of a binary instruction k reads, directly."""
+    import casadi as ca
+    ins = fn.instruction_input(k)
+    for i in range(k):
+        if fn.instruction_id(i) == ca.OP_INPUT and fn.instruction_output(i)[0] in ins:
+            return fn.name_in(fn.instruction_input(i)[0])
 
 
 @pytest.mark.parametrize("name", ["qcf", "mekf"])
@@ -188,10 +249,97 @@ def test_naming_every_constant_changes_no_arithmetic(name):
         ca.constpow(x, 3.0), ca.constpow(y, 2.5), x / 4.0, ca.if_else(x > 0.5, 1.0, 0.0) * y)}), "")
     for ks in filters.load(name).model().kernels() + [own]:
         fn = ks.function
-        names = {k: f"c{k}" for k in range(fn.n_instructions()) if fn.instruction_id(k) == ca.OP_CONST}
+        consts = {fn.instruction_output(k)[0] for k in range(fn.n_instructions()) if fn.instruction_id(k) == ca.OP_CONST}
+        names = {(k, j): f"c{k}_{j}" for k in range(fn.n_instructions())
+                 if fn.instruction_id(k) not in (ca.OP_CONST, ca.OP_INPUT)
+                 for j, w in enumerate(fn.instruction_input(k)) if w in consts}
         for fma in (False, True):
             on = emit.emit(fn, "float", fma=fma, flags=ks.flags, names=names)
             off = emit.emit(fn, "float", fma=fma, flags=ks.flags)
             assert _words(on.source()) == _words(off.source()), ks.name
             assert on.branches == off.branches and on.ops == off.ops
             assert not names or "/* c" in on.source(), ks.name
+
+
+def _kernel_literals(k):
+    """Every literal (ir.Lit) the kernel's code reads, its parts' included."""
+    from ahrsgen.codegen.emit import ir
+    return [x for f in k.functions() for s in ir.all_statements(f.body) for e in ir.exprs(s)
+            for x in ir.walk(e) if isinstance(x, ir.Lit)]
+
+
+# Literals that may stand bare in a kernel: small whole numbers (|n| <= 10: the 2 of x + x, the
+# 4 of a Jacobian, the 9 of a 3-sigma gate), halves and quarters (1/2 q (x) w, dt^2/4). Every
+# other number is a folded parameter or a named constant (ahrsgen.constants) and says so.
+def _structural(v: float) -> bool:
+    return (v == int(v) and abs(v) <= 10) or abs(v) in (0.5, 0.25)
+
+
+def _builds():
+    from ahrsgen import filters
+    return [(n, p) for n in ("qcf", "mekf", "adukf", "cpf") for p in [None] + sorted(filters.load(n).presets())]
+
+
+@pytest.mark.parametrize("name,preset", _builds())
+def test_no_bare_constant_in_any_kernel(name, preset):
+    """Every literal of every kernel of the default build and of each preset is structural
+    (above) or named, and each name, evaluated from the build's parameters and the named
+    constants' declared values, is the number beside it (float32)."""
+    cfg = config.resolve(name, preset=preset)
+    gen = render.render(cfg)
+    known = {**_named_constants(), **cfg.params}
+    if name == "adukf":
+        from ahrsgen.filters.adukf.model import Model
+        known.update(_ut_weights(cfg.params, Model(cfg.params).n))
+    bare, checked = [], 0
+    for k in gen.kernels:
+        for lit in _kernel_literals(k):
+            if lit.value is None or (lit.name is None and _structural(lit.value)):
+                continue
+            if lit.name is None:
+                bare.append((k.name, lit.text))
+            elif not lit.name.startswith("from "):
+                assert np.float32(_evaluate(lit.name, known)) == np.float32(lit.value), (k.name, lit)
+                checked += 1
+    assert bare == [] and checked > 0
+
+
+def test_a_parameter_equal_to_a_structural_constant_leaves_the_kernel_named():
+    """qcf's hard iron kernel with mag_bias_jump at its default 0.2, the value of the kernel's
+    own residual low-pass HARD_IRON_RES_TAU (CasADi merges the two into one constant): its
+    literals carry the same names as with mag_bias_jump = 0.25 (apart from it), mag_bias_rw^2
+    among them at the value computed here, and 0.2 stands for each where it is each.
+    (On 37ffcd0 every number of this kernel was bare: naming was all or nothing per kernel.)"""
+    def hard_iron(**sets):
+        gen = render.render(config.resolve("qcf", sets=[f"{k}={v}" for k, v in sets.items()]))
+        return next(k for k in gen.kernels if k.name.endswith("_hard_iron")), gen.manifest["params"]
+    merged, params = hard_iron()
+    apart, _ = hard_iron(mag_bias_jump=0.25)
+    assert params["mag_bias_jump"] == 0.2
+    names = sorted(x.name for x in _kernel_literals(merged) if x.name)
+    assert "mag_bias_jump" in names and names == sorted(x.name for x in _kernel_literals(apart) if x.name)
+    assert str(np.float32(params['mag_bias_rw'] ** 2)) + "f /* mag_bias_rw^2 */" in merged.source()
+    assert "0.2f /* mag_bias_jump */" in merged.source() and "0.25f /* mag_bias_jump */" in apart.source()
+    assert merged.source().count("0.2f /* HARD_IRON_RES_TAU */") == apart.source().count("0.2f /* HARD_IRON_RES_TAU */") > 0
+
+
+@pytest.mark.parametrize("name,preset", _builds())
+def test_initial_state_values_are_named(name, preset):
+    """Each initial value <prefix>_init writes (s->P[0] = 0.0625f /* (0.5*p0_att)^2 */;) is
+    structural or named, the name evaluating to it (float32) from the build's parameters and
+    the named constants; adukf's configured field reference (cos and sin of the inclination,
+    made by math.*, which the traced build does not follow) excepted."""
+    cfg = config.resolve(name, preset=preset)
+    gen = render.render(cfg)
+    src = gen.files[f"{gen.manifest['prefix']}.c"]
+    body = src[src.index(f"void {gen.manifest['prefix']}_init("):]
+    body = body[:body.index("\n}\n")]
+    known = {**_named_constants(), **cfg.params}
+    bare = []
+    for target, lit, expr in re.findall(r"(s->\w+(?:\[\w+\])?) = (\(?-?[0-9][0-9.e+-]*f?\)?)(?: /\* (.+?) \*/)?;", body):
+        v = _value(lit)
+        if expr:
+            assert np.float32(_evaluate(expr, known)) == np.float32(v), (target, lit, expr)
+        elif not _structural(v) and not target.startswith("s->m_ref"):
+            bare.append((target, lit))
+    assert bare == []

@@ -12,6 +12,7 @@ bounds) are declared once here; a filter's defaults.toml may override their defa
 """
 from __future__ import annotations
 
+from ahrsgen.constants import use
 from ahrsgen.errors import ConfigError  # noqa: F401  (raised here; callers import it from here too)
 import math
 from dataclasses import dataclass, field
@@ -226,7 +227,7 @@ class FilterModel:
             StateField("mag_cx", nc, "candidate field model [hard iron / B (3), norm / B, down component / B], "
                        "B the reference norm", 0.0),
             StateField("mag_cP", nc * nc, "its covariance (5x5, symmetric)",
-                       [aiding.HARD_IRON_P0 ** 2 if i == j else 0.0 for j in range(nc) for i in range(nc)]),
+                       [use(aiding.HARD_IRON_P0) ** 2 if i == j else 0.0 for j in range(nc) for i in range(nc)]),
             StateField("mag_c_ok", 1, "0: the candidate starts from the present model at the next fit; 1: "
                        "fitted; 2: its covariance reopens at the next fit (a new disturbance)", 0, "uint32"),
             StateField("mag_rlp", 4, "hard-iron residuals [present (2), candidate (2)] low-passed over "

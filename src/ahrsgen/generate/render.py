@@ -178,21 +178,26 @@ def _environment(folder: str) -> jinja2.Environment:
         keep_trailing_newline=True)
 
 
-def _folded_names(spec, params: dict, runtime: tuple, specs) -> dict[str, dict[int, str]]:
-    """{kernel: {instruction: parameter expression}} for the literals of the baked kernels that
-    are folded parameters (src/ahrsgen/codegen/folded.py: the kernels built again on traced values)."""
+def _folded_names(spec, params: dict, runtime: tuple, specs, fields) -> tuple[dict, dict]:
+    """{kernel: {(instruction, operand): name}} for the literals of the baked kernels that are
+    folded parameters or named constants (src/ahrsgen/codegen/folded.py: the kernels built
+    again on traced values; ahrsgen.constants), and {state field: [name or None]} for the
+    initial values of the state the same way."""
     floats = [n for n, p in spec.params.items() if p.type == "float" and n not in runtime]
     values, record = folded.traced_params(params, floats)
-    if not record:
-        return {}
     for n in runtime:
         values[n] = emit.runtime_symbol(n)
     try:
-        traced = {ks.name: ks.function for ks in spec.model(values).kernels()}
+        with folded.tracing(record):
+            model = spec.model(values)
+            traced = {ks.name: ks.function for ks in model.kernels()}
+            traced_fields = {f.name: f.init_values() for f in model.state_fields()}
     except Exception:      # a model that needs plain numbers: its literals stay unnamed
-        return {}
+        return {}, {}
     out = {ks.name: folded.constant_names(ks.function, traced[ks.name], record) for ks in specs if ks.name in traced}
-    return {k: v for k, v in out.items() if v}
+    init = {f.name: folded.value_names(f.init_values(), traced_fields[f.name]) for f in fields
+            if f.ctype == "real" and len(traced_fields.get(f.name, ())) == f.size}
+    return {k: v for k, v in out.items() if v}, init
 
 
 def render(cfg: BuildConfig, names: bool = True) -> Generated:
@@ -201,7 +206,7 @@ def render(cfg: BuildConfig, names: bool = True) -> Generated:
     spec = cfg.spec
     runtime = tuple(getattr(cfg, "runtime", ()) or ())
     model, model_specs, fields, tctx = _runtime_model(spec, cfg.params, runtime)
-    kernel_names = _folded_names(spec, cfg.params, runtime, model_specs) if names else {}
+    kernel_names, init_names = _folded_names(spec, cfg.params, runtime, model_specs, fields) if names else ({}, {})
     real = cfg.precision
     prefix = cfg.prefix
     P = prefix.upper()
@@ -209,8 +214,10 @@ def render(cfg: BuildConfig, names: bool = True) -> Generated:
 
     def lit(v, name: str | None = None) -> str:
         """A literal of the build's type; a value derived from parameters carries its
-        derivation beside it, as the kernels' folded constants do (`0.29844642f /* ... */`)."""
+        derivation beside it, as the kernels' folded constants do (`0.29844642f /* ... */`),
+        and a named constant (ahrsgen.constants.Const) its name."""
         text = emit.literal(v, real)
+        name = name or getattr(v, "name", None)
         return f"{text} /* {name} */" if name and name_derived else text
 
     # Kernels: the filter's plus the shared Euler output. Runtime parameters are read through
@@ -275,12 +282,13 @@ def render(cfg: BuildConfig, names: bool = True) -> Generated:
     dw = max(len(d) for d in decls)
     for f, d in zip(fields, decls):
         vals = f.init_values()
-        fmt = (lambda x: lit(x)) if f.ctype == "real" else (lambda x: f"{int(x)}u")
+        known = init_names.get(f.name) or [None] * len(vals)     # the names of the initial values
+        fmt = (lambda x, n=None: lit(x, n)) if f.ctype == "real" else (lambda x, n=None: f"{int(x)}u")
         fill = None
         if f.size > 4 and len(set(vals)) == 1:
-            fill = fmt(vals[0])
+            fill = fmt(vals[0], known[0] if len(set(known)) == 1 else None)
         state_ctx.append({"name": f.name, "size": f.size, "decl": d, "doc": f.doc, "pad": dw - len(d),
-                          "init": [fmt(x) for x in vals], "fill": fill, "scalar": f.size == 1})
+                          "init": [fmt(x, n) for x, n in zip(vals, known)], "fill": fill, "scalar": f.size == 1})
     in_decls = [_decl(n, s, k, real, scalar=(s == 1)) for n, s, k, _ in INPUT_FIELDS]
     iw = max(len(d) for d in in_decls)
     input_ctx = [{"decl": d, "doc": doc, "pad": iw - len(d)} for d, (_, _, _, doc) in zip(in_decls, INPUT_FIELDS)]

@@ -36,22 +36,28 @@ import math
 
 import casadi as ca
 
+from ahrsgen.constants import Const, use
+
 from . import kalman, linalg, quat
 
 # tilt_correction: (|d| + d_z)/|d| below this (d_n within ~0.1 deg of straight up) takes the half-turn
-TILT_FLIP_EPS = 1e-6
+TILT_FLIP_EPS = Const("TILT_FLIP_EPS", 1e-6)
 
 
 def lowpass(x_lp, x, dt, tau: float):
     """One step of the first-order low-pass of time constant tau (s): x_lp + k (x - x_lp)."""
     if tau <= 0:
         return x
-    k = dt / (tau + dt)
+    k = dt / (use(tau) + dt)
     return x_lp + k * (x - x_lp)
 
 
+# rest_detector: the steady time stops counting here, s (a whole number: exact in float)
+REST_TIME_CAP = Const("REST_TIME_CAP", 1e3)
+
+
 def rest_detector(gyro, accel_norm2, gyro_lp, rest_time, dt, *, tau: float, gyro_tol: float,
-                  accel_tol: float, gravity: float, gyro_max: float, min_time: float, time_cap: float = 1e3):
+                  accel_tol: float, gravity: float, gyro_max: float, min_time: float, time_cap: float = REST_TIME_CAP):
     """Returns (gyro_lp', rest_time', at_rest 0/1).
 
     Steady: |gyro - gyro_lp'| < gyro_tol and |gyro_lp'| < gyro_max (a steady turn is not
@@ -74,7 +80,7 @@ def rest_timer(steady, rest_time, dt, *, min_time, time_cap: float = 1e3):
     """Returns (rest_time', at_rest 0/1): the steady time, counted while `steady` (0/1) up to
     time_cap (so it stays exact in float) and reset to 0 otherwise; at rest once it reaches
     min_time (rest_detector's timer, and mekf's, whose steadiness test is its own)."""
-    t_new = ca.if_else(steady, ca.fmin(rest_time + dt, time_cap), 0.0)
+    t_new = ca.if_else(steady, ca.fmin(rest_time + dt, use(time_cap)), 0.0)
     # half a step of margin: a sum of steps landing on min_time decides alike in float and double
     return t_new, t_new + 0.5 * dt >= min_time
 
@@ -85,7 +91,7 @@ def rest_timer(steady, rest_time, dt, *, min_time, time_cap: float = 1e3):
 PLATEAU_SAMPLES = 4
 # ... "equal" meaning within this (rad/s): far below any gyro's resolution (a 16-bit +-2000 deg/s
 # gyro's step is 1e-3 rad/s), so a clipped sensor's repeated value passes and a moving one's fails
-PLATEAU_TOL = 1e-6
+PLATEAU_TOL = Const("PLATEAU_TOL", 1e-6)
 
 
 def gyro_plateau(gyro, gyro_prev, runs, *, min_rate):
@@ -100,7 +106,7 @@ def gyro_plateau(gyro, gyro_prev, runs, *, min_rate):
     min_rate may be a runtime parameter's symbol."""
     if isinstance(min_rate, (int, float)) and min_rate <= 0:
         return ca.SX(0), ca.SX.zeros(3)
-    same = [ca.fabs(gyro[i] - gyro_prev[i]) < PLATEAU_TOL for i in range(3)]
+    same = [ca.fabs(gyro[i] - gyro_prev[i]) < use(PLATEAU_TOL) for i in range(3)]
     dup = ca.logic_and(ca.logic_and(same[0], same[1]), same[2])
     need = PLATEAU_SAMPLES - 1
     new = [ca.if_else(dup, runs[i], ca.if_else(ca.logic_and(same[i], ca.fabs(gyro[i]) >= min_rate),
@@ -184,7 +190,7 @@ def tilt_correction(d_n):
     """
     n = ca.sqrt(ca.sumsqr(d_n))
     w = n + d_n[2]
-    flip = w < TILT_FLIP_EPS * n
+    flip = w < use(TILT_FLIP_EPS) * n
     inv = 1 / ca.sqrt(2 * n * w)
     return quat.vec(ca.if_else(flip, 0.0, w * inv), ca.if_else(flip, 1.0, d_n[1] * inv),
                     ca.if_else(flip, 0.0, -d_n[0] * inv), 0.0)
@@ -193,8 +199,13 @@ def tilt_correction(d_n):
 def norm_within(n2, center: float, tol: float):
     """||v| - center| < tol from n2 = |v|², without a square root: (center - tol)² < n2 <
     (center + tol)², the lower bound only when center > tol."""
+    center = use(center)
     inside = n2 < (center + tol) ** 2
     return ca.logic_and(n2 > (center - tol) ** 2, inside) if center > tol else inside
+
+
+# heading_correction_ned: a horizontal field part below this (any unit) has no heading: identity
+HEADING_H_MIN = Const("HEADING_H_MIN", 1e-15)
 
 
 def heading_correction(q, m, declination: float = 0.0):
@@ -217,7 +228,7 @@ def heading_correction_ned(m_n, declination: float = 0.0):
         cd, sd = math.cos(declination), math.sin(declination)
         x, y = x * cd + y * sd, y * cd - x * sd
     h = ca.sqrt(x * x + y * y)
-    degenerate = h < 1e-15
+    degenerate = h < use(HEADING_H_MIN)
     front = x >= 0
     inv = 1 / ca.sqrt((h + h) * (h + ca.fabs(x)))
     c_h = ca.if_else(front, (h + x) * inv, ca.fabs(y) * inv)
@@ -227,13 +238,13 @@ def heading_correction_ned(m_n, declination: float = 0.0):
 
 # hard_iron_step's constants (reference_aiding states them too; a test checks they agree)
 HARD_IRON_NC = 5          # candidate field model [β (3), n, v]
-HARD_IRON_RES_TAU = 0.2   # s: the residuals are low-passed over this (white noise averages out)
-HARD_IRON_P0 = 0.3        # initial standard deviation of the candidate, fraction of the norm
-HARD_IRON_RATIO = 4.0     # the candidate must explain the field this much better (mean squares)
-HARD_IRON_NORM_MIN = 1e-6  # floor of the corrected field's norm in the rows (fraction)
-HARD_IRON_N_MIN = 0.1     # a candidate field norm below this fraction of the reference is never taken
-HARD_IRON_TIME_CAP = 1e3  # s: the turning time stops counting here (exact in float)
-HARD_IRON_PIVOT_MIN = 1e-12  # a row whose variance is not above this is not applied
+HARD_IRON_RES_TAU = Const("HARD_IRON_RES_TAU", 0.2)   # s: the residuals are low-passed over this (white noise averages out)
+HARD_IRON_P0 = Const("HARD_IRON_P0", 0.3)        # initial standard deviation of the candidate, fraction of the norm
+HARD_IRON_RATIO = Const("HARD_IRON_RATIO", 4.0)     # the candidate must explain the field this much better (mean squares)
+HARD_IRON_NORM_MIN = Const("HARD_IRON_NORM_MIN", 1e-6)  # floor of the corrected field's norm in the rows (fraction)
+HARD_IRON_N_MIN = Const("HARD_IRON_N_MIN", 0.1)     # a candidate field norm below this fraction of the reference is never taken
+HARD_IRON_TIME_CAP = Const("HARD_IRON_TIME_CAP", 1e3)  # s: the turning time stops counting here (exact in float)
+HARD_IRON_PIVOT_MIN = Const("HARD_IRON_PIVOT_MIN", 1e-12)  # a row whose variance is not above this is not applied
 
 
 def _sym_lower(v, n):
@@ -251,7 +262,7 @@ def hard_iron_residuals(u, x, Rq):
     field d = u − β has norm n and vertical (NED down) component v. Model minus measurement for
     the two rows; neither involves the heading."""
     d = u - x[0:3]
-    return ca.vertcat(ca.fmax(ca.sqrt(ca.sumsqr(d)), HARD_IRON_NORM_MIN) - x[3], ca.dot(Rq[2, :].T, d) - x[4])
+    return ca.vertcat(ca.fmax(ca.sqrt(ca.sumsqr(d)), use(HARD_IRON_NORM_MIN)) - x[3], ca.dot(Rq[2, :].T, d) - x[4])
 
 
 def hard_iron_step(q, mag, b, ref, cx, cP, fresh, reopen, rlp, rmean, e, turn_time, dt, *, rw, noise, bias_max,
@@ -284,13 +295,13 @@ def hard_iron_step(q, mag, b, ref, cx, cP, fresh, reopen, rlp, rmean, e, turn_ti
     Rq = quat.rotmat(q)
     u = mag / B
     x0 = ca.if_else(fresh, ca.vertcat(b / B, 1.0, sin_dip), cx)
-    P0 = ca.if_else(ca.logic_or(fresh, reopen), ca.SX.eye(NC) * HARD_IRON_P0 ** 2, _sym_lower(cP, NC))
+    P0 = ca.if_else(ca.logic_or(fresh, reopen), ca.SX.eye(NC) * use(HARD_IRON_P0) ** 2, _sym_lower(cP, NC))
     P0 = P0 + ca.SX.eye(NC) * (rw ** 2 * dt)
     xs = ca.SX.sym("x", NC)
     res = hard_iron_residuals(u, xs, Rq)
     H = ca.substitute(ca.jacobian(res, xs), xs, x0)
     z = -ca.substitute(res, xs, x0)
-    dx, P1, _ = kalman.scalar_updates(P0, [(H[i, :], z[i], noise ** 2) for i in range(2)], tol=HARD_IRON_PIVOT_MIN)
+    dx, P1, _ = kalman.scalar_updates(P0, [(H[i, :], z[i], noise ** 2) for i in range(2)], tol=use(HARD_IRON_PIVOT_MIN))
     x1 = x0 + dx
     nb = ca.sqrt(ca.sumsqr(x1[0:3]))
     scale = ca.if_else(nb > bias_max, bias_max / nb, 1.0)
@@ -303,15 +314,15 @@ def hard_iron_step(q, mag, b, ref, cx, cP, fresh, reopen, rlp, rmean, e, turn_ti
     d0, d1 = rlp1[0] - rmean1[0], rlp1[1] - rmean1[1]
     e_new = ca.vertcat(rlp1[0] * rlp1[0] + rlp1[1] * rlp1[1], rlp1[2] * rlp1[2] + rlp1[3] * rlp1[3], d0 * d0 + d1 * d1)
     e1 = e + a * (e_new - e)
-    turn1 = ca.fmin(turn_time + dt, HARD_IRON_TIME_CAP)
-    better = ca.logic_and(turn1 >= settle, e1[2] > HARD_IRON_RATIO * e1[1])
+    turn1 = ca.fmin(turn_time + dt, use(HARD_IRON_TIME_CAP))
+    better = ca.logic_and(turn1 >= settle, e1[2] > use(HARD_IRON_RATIO) * e1[1])
     db2 = ca.sumsqr(x1[0:3] * B - b)
     b2 = ca.sumsqr(b)
     jmp = ca.if_else(b2 >= jump * jump * B * B, refine, jump)
     suspect = ca.logic_and(better, db2 >= jmp * jmp * B * B)
     th2 = th * th
     p_beta = P1[0, 0] + P1[1, 1] + P1[2, 2]
-    switched = ca.logic_and(ca.logic_and(suspect, e1[1] < th2), ca.logic_and(p_beta < th2, x1[3] > HARD_IRON_N_MIN))
+    switched = ca.logic_and(ca.logic_and(suspect, e1[1] < th2), ca.logic_and(p_beta < th2, x1[3] > use(HARD_IRON_N_MIN)))
     n = x1[3]
     s_new = ca.fmin(ca.fmax(x1[4] / n, -1.0), 1.0)
     ref_sw = ca.vertcat(n * B, ca.asin(s_new) if dip_angle else s_new)

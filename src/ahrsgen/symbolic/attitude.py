@@ -11,10 +11,14 @@ from __future__ import annotations
 
 import casadi as ca
 
+from ahrsgen.constants import Const, use
+
 from . import quat
 
 # FQA divides by cos(pitch); below this the roll is taken as zero (pitch at +-90 deg).
-FQA_COS_PITCH_MIN = 1e-6
+FQA_COS_PITCH_MIN = Const("FQA_COS_PITCH_MIN", 1e-6)
+# FQA divides by the horizontal field norm; it is floored here (a field straight down: any heading).
+FQA_FIELD_H_MIN = Const("FQA_FIELD_H_MIN", 1e-30)
 
 
 def tilt_angles(f):
@@ -43,8 +47,8 @@ def fqa_tilt(f):
     s_theta = ca.fmin(ca.fmax(a[0], -1), 1)           # sin(pitch) = f_x/|f|
     c_theta = ca.sqrt(1 - s_theta * s_theta)
     c_th2, s_th2 = quat.half_angle(c_theta, s_theta)
-    c_safe = ca.fmax(c_theta, FQA_COS_PITCH_MIN)
-    singular = c_theta < FQA_COS_PITCH_MIN
+    c_safe = ca.fmax(c_theta, use(FQA_COS_PITCH_MIN))
+    singular = c_theta < use(FQA_COS_PITCH_MIN)
     s_phi = ca.if_else(singular, 0, -a[1] / c_safe)
     c_phi = ca.if_else(singular, 1, -a[2] / c_safe)
     c_ph2, s_ph2 = quat.half_angle(c_phi, s_phi)
@@ -60,7 +64,7 @@ def fqa(f, m, declination=0.0):
     q_tilt = quat.qmul(q_pitch, q_roll)               # body -> level frame
     m_level = quat.rotate(q_tilt, m)                  # field in the level frame
     nxy = ca.sqrt(m_level[0] * m_level[0] + m_level[1] * m_level[1])
-    nxy = ca.fmax(nxy, 1e-30)
+    nxy = ca.fmax(nxy, use(FQA_FIELD_H_MIN))
     c_psi = m_level[0] / nxy                          # m_level = Rz(-psi) [m_N, 0, m_D]
     s_psi = -m_level[1] / nxy
     c_ps2, s_ps2 = quat.half_angle(c_psi, s_psi)

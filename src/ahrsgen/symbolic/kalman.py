@@ -19,6 +19,8 @@ from __future__ import annotations
 
 import casadi as ca
 
+from ahrsgen.constants import use
+
 from . import linalg
 
 
@@ -140,6 +142,7 @@ def scalar_updates(P, rows, x=None, tol: float = 0.0):
     form. One division per row; a pivot at or below tol takes 1 for 1/s (a finite result,
     to be discarded).
     """
+    tol = use(tol)      # a named constant (ahrsgen.constants) or a number
     n = P.shape[0]
     Pl = [[P[max(i, j), min(i, j)] for j in range(n)] for i in range(n)]
     x = [ca.SX(0)] * n if x is None else [x[i] for i in range(n)]

@@ -25,6 +25,8 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
+from ahrsgen.constants import use
+
 
 def _as_casadi(A):
     """Return (matrix, constructor) keeping SX/MX/DM as they are, NumPy/lists -> DM."""
@@ -45,6 +47,7 @@ def cholesky(A, tol: float = 0.0):
     numerically positive definite (to `tol`) iff min_pivot > tol. Where a pivot is
     <= tol, L_jj = 1 is used instead of sqrt(d_j) so that the result stays finite.
     """
+    tol = use(tol)      # a named constant (ahrsgen.constants) or a number
     A, kind = _as_casadi(A)
     n = A.shape[0]
     if A.shape[1] != n:
@@ -77,6 +80,7 @@ def cholesky_with_inverse(A, tol: float = 0.0):
     inv_diag[j] = 1/L_jj = sqrt(1/d_j) (1 where the pivot is refused), computed once so that
     L's off-diagonal entries and later triangular solves multiply instead of divide.
     """
+    tol = use(tol)      # a named constant (ahrsgen.constants) or a number
     A, kind = _as_casadi(A)
     n = A.shape[0]
     if A.shape[1] != n:

@@ -7,8 +7,11 @@ All functions take and return casadi.SX column vectors.
 from __future__ import annotations
 
 import math
+from fractions import Fraction
 
 import casadi as ca
+
+from ahrsgen.constants import Const, use
 
 
 def vec(*items) -> ca.SX:
@@ -66,8 +69,25 @@ def rotate_inv(q, v) -> ca.SX:
 # |v| = 0.1, below double round-off (1.1e-16). 0.1 rad per half step covers rates up to
 # 20 rad/s at 100 Hz; beyond it the exact sin/cos form runs (an if/else in the C: only
 # the taken side is computed).
-SERIES_MAX = 0.1
+SERIES_MAX = Const("SERIES_MAX", 0.1)
 SERIES_TERMS = 5
+
+
+def _coefficients(fractions) -> list:
+    """Series coefficients as the model's arithmetic reads them (ahrsgen.constants.use): each a
+    constant named by its fraction (1/45; a negative one is the negation of its magnitude's,
+    the same number), 1 as itself."""
+    out = []
+    for f in fractions:
+        c = use(Const(str(abs(f)), float(abs(f)))) if abs(f) != 1 else 1.0
+        out.append(-c if f < 0 else c)
+    return out
+
+
+def _cos_sinc_coefficients():
+    """cos x and sin x / x in x^2: (-1)^k / (2k)! and (-1)^k / (2k + 1)!, k < SERIES_TERMS."""
+    return (_coefficients(Fraction((-1) ** k, math.factorial(2 * k)) for k in range(SERIES_TERMS)),
+            _coefficients(Fraction((-1) ** k, math.factorial(2 * k + 1)) for k in range(SERIES_TERMS)))
 
 
 def _series(x2, coeffs):
@@ -83,10 +103,9 @@ def qexp(v, n2=None) -> ca.SX:
 
     n2 stands for |v|² (default: computed from v); qexp_jacobian passes a symbol."""
     n2 = ca.sumsqr(v) if n2 is None else n2
-    small = n2 < SERIES_MAX * SERIES_MAX
-    n = ca.sqrt(ca.fmax(n2, SERIES_MAX * SERIES_MAX))
-    cos_c = [(-1) ** k / math.factorial(2 * k) for k in range(SERIES_TERMS)]
-    sinc_c = [(-1) ** k / math.factorial(2 * k + 1) for k in range(SERIES_TERMS)]
+    small = n2 < use(SERIES_MAX) * use(SERIES_MAX)
+    n = ca.sqrt(ca.fmax(n2, use(SERIES_MAX) * use(SERIES_MAX)))
+    cos_c, sinc_c = _cos_sinc_coefficients()
     sinc = ca.if_else(small, _series(n2, sinc_c), ca.sin(n) / n)
     cos_n = ca.if_else(small, _series(n2, cos_c), ca.cos(n))
     return vec(cos_n, sinc * v[0], sinc * v[1], sinc * v[2])
@@ -99,12 +118,11 @@ def qexp_jacobian(v) -> ca.SX:
     C' = −sin n / (2n), S' = (cos n − sin n / n) / (2n²), n = √m, built on the same n, sin n
     and cos n as qexp, so the emitted step computes them once."""
     m = ca.sumsqr(v)
-    small = m < SERIES_MAX * SERIES_MAX
-    n2 = ca.fmax(m, SERIES_MAX * SERIES_MAX)
+    small = m < use(SERIES_MAX) * use(SERIES_MAX)
+    n2 = ca.fmax(m, use(SERIES_MAX) * use(SERIES_MAX))
     n = ca.sqrt(n2)
     sin_n, cos_n = ca.sin(n), ca.cos(n)
-    cos_c = [(-1) ** k / math.factorial(2 * k) for k in range(SERIES_TERMS)]
-    sinc_c = [(-1) ** k / math.factorial(2 * k + 1) for k in range(SERIES_TERMS)]
+    cos_c, sinc_c = _cos_sinc_coefficients()
 
     def d(coeffs):            # the series' derivative in m: sum_k k c_k m^(k-1)
         return [k * c for k, c in enumerate(coeffs)][1:]
@@ -121,7 +139,7 @@ def integrate(q, omega, dt) -> ca.SX:
 
 # |v| cot|v| = sum_k (-1)^k 2^2k |B_2k| |v|^2k / (2k)! (B: Bernoulli numbers), Horner in |v|^2. The
 # first neglected term, 1382 |v|^12 / 638512875, is 2.2e-18 at |v| = SERIES_MAX: below double round-off.
-COT_SERIES = (1.0, -1 / 3, -1 / 45, -2 / 945, -1 / 4725, -2 / 93555)
+COT_SERIES = tuple(Fraction(n, d) for n, d in ((1, 1), (-1, 3), (-1, 45), (-2, 945), (-1, 4725), (-2, 93555)))
 
 
 def qexp_scaled(v) -> ca.SX:
@@ -130,10 +148,10 @@ def qexp_scaled(v) -> ca.SX:
     Below SERIES_MAX it is exp([0, v]) divided by sin|v|/|v| (> 0): [|v| cot|v|, v], one series
     and v itself (no sin, cos, sqrt or division); above it exp itself, as qexp."""
     n2 = ca.sumsqr(v)
-    small = n2 < SERIES_MAX * SERIES_MAX
-    n = ca.sqrt(ca.fmax(n2, SERIES_MAX * SERIES_MAX))
+    small = n2 < use(SERIES_MAX) * use(SERIES_MAX)
+    n = ca.sqrt(ca.fmax(n2, use(SERIES_MAX) * use(SERIES_MAX)))
     sinc = ca.sin(n) / n
-    return vec(ca.if_else(small, _series(n2, COT_SERIES), ca.cos(n)),
+    return vec(ca.if_else(small, _series(n2, _coefficients(COT_SERIES)), ca.cos(n)),
                *(ca.if_else(small, v[i], sinc * v[i]) for i in range(3)))
 
 
@@ -152,14 +170,18 @@ def rotate_xy_tilt(t, v) -> ca.SX:
     return vec(v[0] - y * u, v[1] + x * u)
 
 
+PI = Const("pi", math.pi)
+
+
 def wrap(a) -> ca.SX:
     """Wrap an angle in (-3 pi, 3 pi] to (-pi, pi] by two comparisons (no floor).
 
     Every angle a filter wraps is a sum or difference of two angles in (-pi, pi] (or such
     an angle plus a declination in [-pi, pi]), so one 2 pi step is enough; there it
     equals a + 2 pi floor((pi - a) / 2 pi)."""
-    two_pi = 2 * math.pi
-    return ca.if_else(a > math.pi, a - two_pi, ca.if_else(a <= -math.pi, a + two_pi, a))
+    pi = use(PI)
+    two_pi = 2 * pi
+    return ca.if_else(a > pi, a - two_pi, ca.if_else(a <= -pi, a + two_pi, a))
 
 
 def euler(q) -> ca.SX:

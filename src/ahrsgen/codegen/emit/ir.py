@@ -49,9 +49,11 @@ class Lit:
 
 @dataclass(frozen=True)
 class Slot:
-    """Element `index` of a split kernel's local array `array` (carry or flags)."""
+    """Element `index` of a split kernel's local array `array` (carry or flags); `name`: the
+    temporary it hands over, written beside a read of it, `carry[7] /* tmp11 */`."""
     array: str
     index: int
+    name: str | None = field(default=None, compare=False)
 
 
 @dataclass(frozen=True)
@@ -309,7 +311,8 @@ CONTINUATION = "        "
 
 
 def print_expr(e, names: bool = True) -> str:
-    """C text of an expression; names=False leaves folded parameters' names out."""
+    """C text of an expression; names=False leaves the names out (folded parameters', named
+    constants' and the temporaries a split kernel's slots hand over)."""
     return " ".join(_words(e, names))
 
 
@@ -325,7 +328,7 @@ def _words(e, names) -> list[str]:
     if isinstance(e, Lit):
         return [f"{e.text} /* {e.name} */" if names and e.name else e.text]
     if isinstance(e, Slot):
-        return [f"{e.array}[{e.index}]"]
+        return [f"{e.array}[{e.index}] /* {e.name} */" if names and e.name else f"{e.array}[{e.index}]"]
     if isinstance(e, Call):
         out = []
         for n, a in enumerate(e.args):

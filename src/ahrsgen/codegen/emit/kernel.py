@@ -203,9 +203,11 @@ def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc
     kernel with many outputs then does not hold them all until its end, where GCC spills what
     its registers cannot hold, and the compiler may order loads and stores freely.
 
-    names: {instruction index: text} for OP_CONST instructions that are a folded parameter
-    expression (src/ahrsgen/codegen/folded.py); the literal (ir.Lit) carries the text, printed
-    in a comment beside it, `0.0049f /* accel_angle_noise^2 */`. Nothing else changes: every
+    names: {(instruction index, operand): text} for the constants operations read that are a
+    folded parameter expression or a named constant (src/ahrsgen/codegen/folded.py), named per
+    use (one constant of the graph may stand for a parameter at one use and for an equal
+    structural constant at another); the literal (ir.Lit) carries the text, printed in a
+    comment beside it, `0.0049f /* accel_angle_noise^2 */`. Nothing else changes: every
     decision reads a named literal as the literal.
     """
     if precision not in PRECISIONS:
@@ -275,12 +277,19 @@ def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc
             return x
         return Op("!=", (x, zero))
 
+    def operand(k, j, w):
+        """Operand j of instruction k (work element w): a literal with the name this use of it
+        has (names), if any."""
+        x = work[w]
+        if names and (k, j) in names and isinstance(x, Lit):
+            return Lit(x.text, x.value, _literal_name(names[(k, j)]))
+        return x
+
     for k in range(fn.n_instructions()):
         code = fn.instruction_id(k)
         if code == ca.OP_CONST:
             (w,) = fn.instruction_output(k)
-            named = _literal_name(names[k]) if names and k in names else None
-            work[w] = lit(fn.instruction_constant(k), precision, named)
+            work[w] = lit(fn.instruction_constant(k), precision)
             continue
         if code == ca.OP_INPUT:
             (w,) = fn.instruction_output(k)
@@ -296,7 +305,7 @@ def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc
             o, nz = fn.instruction_output(k)
             a = outputs[o]
             target = Elem(a.name, None if a.scalar else nz)
-            x = work[w]
+            x = operand(k, 0, w)
             if a.flag:
                 writes.append(Store(target, truth(x) if boolish(x) else Op("!=", (x, zero))))
             else:
@@ -305,13 +314,13 @@ def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc
         if code == ca.OP_ASSIGN:
             (w_in,) = fn.instruction_input(k)[:1]
             (w,) = fn.instruction_output(k)
-            work[w] = work[w_in]
+            work[w] = operand(k, 0, w_in)
             continue
         ins = fn.instruction_input(k)
         (w,) = fn.instruction_output(k)
         sel = None
         extra: tuple = ()
-        args = [work[ins[0]]] + ([work[ins[1]]] if code in _BINARY or code == ca.OP_CONSTPOW else [])
+        args = [operand(k, 0, ins[0])] + ([operand(k, 1, ins[1])] if code in _BINARY or code == ca.OP_CONSTPOW else [])
         select = _as_select(code, args, nodes)
         args_v = [value(a) for a in args]    # operands read as numbers
         is_bool = select is None and code in _LOGIC

@@ -15,7 +15,9 @@ def _split(name, precision, inputs, body, writes, size, ctx=None, bools=frozense
     ever handed over. A part whose statements store outputs (emit's early_writes) takes those
     outputs as parameters. ctx: the context pointer's Param, if the kernel reads one. Returns
     the kernel's body and its parts (ir.Function). A bool temporary travels in a second array,
-    `flags` (bool), with slots reused the same way."""
+    `flags` (bool), with slots reused the same way. A slot read names the temporary it hands
+    over, `carry[7] /* tmp11 */`, so the code reads as the kernel's comment (its branch
+    conditions) and the unsplit kernel do."""
     chunks, cur, count = [], [], 0
     for s in body:
         n = len(ir.defined(s))
@@ -59,8 +61,8 @@ def _split(name, precision, inputs, body, writes, size, ctx=None, bools=frozense
     producer = {t: k for k, ex in enumerate(exports) for t in ex}
     array_type = {"carry": precision, "flags": "bool"}
 
-    def carried(t):
-        return Slot(array_of(t), slot[t])
+    def carried(t):             # a read of it names the temporary (the store reads `slot = tmp`)
+        return Slot(array_of(t), slot[t], t.name)
     parts = []
     held = [a for a in ("carry", "flags") if pool[a]]
     calls = [Comment(f"{len(chunks)} parts called in turn (inlined when optimising): bounded -O0 frames; "

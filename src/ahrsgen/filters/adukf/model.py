@@ -23,7 +23,7 @@ import math
 
 import casadi as ca
 
-from ahrsgen.constants import G0
+from ahrsgen.constants import G0, Const, named, use
 from ahrsgen.codegen.emit import function
 from ahrsgen.codegen.model import FilterModel, KernelSpec, StateField
 from ahrsgen.symbolic import aiding, attitude, linalg, quat
@@ -45,7 +45,7 @@ _LOWER6 = [(r, c) for r in range(6) for c in range(r + 1)]
 
 
 # s: floor of the sample interval in the density term (a denormal dt must not overflow R to inf)
-SPAN_MIN = 1e-9
+SPAN_MIN = Const("SPAN_MIN", 1e-9)
 
 
 def omega_matrix(w):
@@ -126,7 +126,8 @@ class Model(FilterModel):
         n = self.n
         a, _, wc0, wi = ut_parameters(p["ut_alpha"], p["ut_beta"], p["ut_kappa"], n)
         w = 2 * N * wi / (N + 1) if self.simplex() else wi
-        return a, wc0, w, wc0 + 2 * n * wi - 2
+        # named in the C (ahrsgen.constants.named): the spread and the weight of a point
+        return named("UT_A", a), wc0, named("UT_W", w), wc0 + 2 * n * wi - 2
 
     def m_ref_configured(self):
         p = self.params
@@ -386,10 +387,10 @@ class Model(FilterModel):
             R = [R[i] * scale[0] for i in range(3)] + [R[i] * scale[1] for i in range(3, 6)]
         d = p["sigma_acc_density"]
         if span is not None and not (isinstance(d, (int, float)) and d == 0):
-            R = [R[i] + d ** 2 / ca.fmax(span[0], SPAN_MIN) for i in range(3)] + R[3:]
+            R = [R[i] + d ** 2 / ca.fmax(span[0], use(SPAN_MIN)) for i in range(3)] + R[3:]
         dm = p["sigma_mag_density"]
         if span is not None and not (isinstance(dm, (int, float)) and dm == 0):
-            R = R[:3] + [R[i] + dm ** 2 / ca.fmax(span[1], SPAN_MIN) for i in range(3, 6)]
+            R = R[:3] + [R[i] + dm ** 2 / ca.fmax(span[1], use(SPAN_MIN)) for i in range(3, 6)]
         return eps, R
 
     def innovation_simplex_expr(self, z0, zdev, f, m, scale=None, span=None):
@@ -634,7 +635,7 @@ class Model(FilterModel):
         if p["mag_ref"] == "learn" or self.hard_iron():
             g = ca.SX.sym("gyro", 3)
             fn = ca.sqrt(ca.sumsqr(f))
-            rest = ca.logic_and(ca.sumsqr(g) < p["rest_gyro_max"] ** 2, ca.fabs(fn - G0) < p["rest_accel_tol"])
+            rest = ca.logic_and(ca.sumsqr(g) < p["rest_gyro_max"] ** 2, ca.fabs(fn - use(G0)) < p["rest_accel_tol"])
             sin_dip = -ca.dot(f, m) / (fn * ca.sqrt(ca.sumsqr(m)))
             ssum = ca.SX.sym("learn_sum")
             cnt = ca.SX.sym("count")

@@ -24,7 +24,12 @@ from ahrsgen.codegen.emit import function
 from ahrsgen.filters.cpf.prng import ZIG_F, ZIG_K, ZIG_R, ZIG_W, seed_state
 from ahrsgen.filters.cpf.reference import WEIGHT_SUM_MIN
 from ahrsgen.codegen.model import FilterModel, KernelSpec, StateField
+from ahrsgen.constants import Const, named
 from ahrsgen.symbolic import attitude, quat
+
+# the step keeps its previous estimate when the weighted mean's squared norm is below this
+# fraction of the squared weight sum (the aligned particles cancel)
+MEAN_NORM2_MIN = Const("MEAN_NORM2_MIN", 1e-30)
 
 FILTER_STATUS = [
     ("WEIGHTS_RESET", "particle weights summed to zero (underflow or corrupted state): reset to 1/N"),
@@ -76,11 +81,11 @@ class Model(FilterModel):
                 StateField("particles", 4 * n, f"{n} particles, quaternions [w x y z] one after another "
                            "(drawn at initialisation)", 0.0),
                 StateField("weights", n, "particle weights, normalised by weight_sum (eq. 14 deferred to their "
-                           "next use)", 1.0 / n),
+                           "next use)", named("1 / n_particles", 1.0 / n)),
                 StateField("weight_sum", 1, "the weights' sum (their divisor): 1 after initialisation and "
                            "resampling", 1.0),
                 StateField("ess", 1, "effective sample size weight_sum^2/sum(w^2) after the last update",
-                           float(n)),
+                           named("n_particles", float(n))),
                 StateField("rng", 2, f"xoroshiro64** state (seeded from {self.params['seed']})",
                            seed_state(int(self.params["seed"])), "uint32"),
                 StateField("scratch", n, "per-particle scratch: <x_i, Y> during a step, then the number of "
@@ -190,6 +195,7 @@ class Model(FilterModel):
                 "noise_dim": self.noise_dim,
                 "ess_threshold": float(self.params["ess_threshold"]),
                 "wsum_min": WEIGHT_SUM_MIN, "wsum_min_doc": "2^-20",
+                "mean_norm2_min": MEAN_NORM2_MIN,
                 "zig_kw": [(256 * k, w / 256.0) for k, w in zip(ZIG_K, ZIG_W)], "zig_f": ZIG_F, "zig_r": ZIG_R,
                 "exp_nonpos_source": fastmath.exp_nonpos_source, "math_ln2": math.log(2.0)}
 

@@ -55,11 +55,13 @@ from __future__ import annotations
 
 import math
 
+from ahrsgen.constants import Const
+
 M32 = 0xFFFFFFFF
 U24 = 1.0 / 16777216.0          # 2^-24
 
 ZIG_LAYERS = 128
-ZIG_R = 3.442619855899          # start of the tail (Marsaglia & Tsang, 128 layers)
+ZIG_R = Const("ZIG_R", 3.442619855899)          # start of the tail (Marsaglia & Tsang, 128 layers)
 ZIG_V = 9.91256303526217e-3     # area of each layer
 
 

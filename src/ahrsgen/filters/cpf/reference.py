@@ -70,6 +70,7 @@ import numpy as np
 
 from ahrsgen.codegen import input_checks
 from ahrsgen import status as st
+from ahrsgen.constants import Const
 from ahrsgen.filters.cpf.prng import Xoroshiro64ss
 
 # Filter status bits (from FILTER_BASE upward; the C header defines the same values)
@@ -86,7 +87,7 @@ FILTER_STATUS = [
 MODES = ("combined", "complementary", "particle")
 # The weights are kept unnormalised with their sum (eq. 14 deferred to their next use); an
 # update whose weights sum to less than this normalises them in place.
-WEIGHT_SUM_MIN = 2.0 ** -20
+WEIGHT_SUM_MIN = Const("WEIGHT_SUM_MIN", 2.0 ** -20)
 TWO_PI = 2.0 * math.pi
 
 

@@ -24,19 +24,19 @@ import math
 import casadi as ca
 
 from ahrsgen.codegen import emit
-from ahrsgen.constants import G0
+from ahrsgen.constants import G0, Const, computed, use
 from ahrsgen.codegen.model import FilterModel, KernelSpec, StateField
 from ahrsgen.symbolic import aiding, attitude, kalman, quat
 
 N = 6           # error-state size
-S_PIVOT_MIN = 1e-12   # innovation covariance must have Cholesky pivots above this
-COS2_PITCH_MIN = 1e-4  # no correction while cos²(pitch) <= this (pitch within 0.57° of ±90°)
-AGE_MAX = 1e3         # the GPS-velocity age stops counting here (s)
-GPS_DT_MIN = 1e-3     # two GPS samples closer than this (s) give no new acceleration
-DT_Q_MIN = 1e-9       # s: floor of dt in the gyro-noise variance σ_g²/dt
+S_PIVOT_MIN = Const("S_PIVOT_MIN", 1e-12)   # innovation covariance must have Cholesky pivots above this
+COS2_PITCH_MIN = Const("COS2_PITCH_MIN", 1e-4)  # no correction while cos²(pitch) <= this (pitch within 0.57° of ±90°)
+AGE_MAX = Const("AGE_MAX", 1e3)         # the GPS-velocity age stops counting here (s)
+GPS_DT_MIN = Const("GPS_DT_MIN", 1e-3)     # two GPS samples closer than this (s) give no new acceleration
+DT_Q_MIN = Const("DT_Q_MIN", 1e-9)       # s: floor of dt in the gyro-noise variance σ_g²/dt
 
-HEAD_AGE_MAX = 1.0    # s without a heading correction before HEADING_UNAIDED
-MAG_INTERVAL_MAX = 0.1  # s: a magnetometer sample stands for at most this long (mag_heading_density)
+HEAD_AGE_MAX = Const("HEAD_AGE_MAX", 1.0)    # s without a heading correction before HEADING_UNAIDED
+MAG_INTERVAL_MAX = Const("MAG_INTERVAL_MAX", 0.1)  # s: a magnetometer sample stands for at most this long (mag_heading_density)
 
 EXTRA_STATUS = [
     ("COURSE_SLOW", "GPS sample present but ground speed below gps_min_speed: yaw row dropped", "info"),
@@ -141,7 +141,7 @@ def _process_noise(p: dict, dt, gyro=None):
     # gyro given (the product design): each axis's density grows by gyro_rate_noise |ω_i|
     # (scale-factor and cross-axis errors grow with the rate), added in quadrature; the raw
     # rate, the bias being small beside the rates where this term matters.
-    inv = 1 / ca.fmax(dt, DT_Q_MIN)
+    inv = 1 / ca.fmax(dt, use(DT_Q_MIN))
     if gyro is None:
         q_g = [p["gyro_noise"] ** 2 * inv] * 3
     else:
@@ -241,7 +241,7 @@ def update_function(p: dict, name="update") -> ca.Function:
     # Euler angles are singular at pitch ±90°: there H has 1/cos(pitch) and the asin's
     # derivative is infinite. Report a negative pivot so the step skips the correction.
     sin_pitch = 2 * (q[0] * q[2] - q[1] * q[3])
-    usable = ca.if_else(1 - sin_pitch * sin_pitch > COS2_PITCH_MIN, min_pivot, -1.0)
+    usable = ca.if_else(1 - sin_pitch * sin_pitch > use(COS2_PITCH_MIN), min_pivot, -1.0)
     return emit.function(name, {"q": q, "b": b, "P": Pv, "gyro": gyro, "accel": accel, "mag": mag,
                                 "vel": vel, "acc_n": acc_n, "mask": mask},
                          {"q_out": q_new, "b_out": b_new, "P_out": flat_mirrored(P_new),
@@ -299,7 +299,7 @@ def accel_lowpass_function(p: dict, name="accel_lowpass") -> ca.Function:
     if p["motion_comp"] == "gps_lowpass":
         # velocity: the GPS sample when one arrived, else carried by a = R f + g from the last
         # one (no GPS-rate staircase in the low-passed derivative)
-        vi_new = ca.if_else(mask[1], vel, v_ins + (f_n + ca.DM([0.0, 0.0, G0])) * dt)
+        vi_new = ca.if_else(mask[1], vel, v_ins + (f_n + ca.DM([0.0, 0.0, use(G0)])) * dt)
         # without compensation (m_comp = 0) the velocity low-pass holds and up is a_new
         v_new = ca.if_else(m_comp, v_lp + alpha * (vi_new - v_lp), v_lp)
         up = ca.if_else(m_comp, a_new - (vi_new - v_new) / p["accel_lpf_tau"], a_new)
@@ -365,7 +365,7 @@ def gravity_rows_function(p: dict, name="gravity_rows") -> ca.Function:
     # the motion the low-pass leaves (per sample) and the sensor's white noise (a density over dt)
     sig2 = p["accel_angle_noise"] ** 2
     if not (isinstance(p["accel_noise_density"], (int, float)) and p["accel_noise_density"] == 0):
-        sig2 = sig2 + p["accel_noise_density"] ** 2 / ca.fmax(dt, DT_Q_MIN)
+        sig2 = sig2 + p["accel_noise_density"] ** 2 / ca.fmax(dt, use(DT_Q_MIN))
     # recovering after a gyro clip (recover = 1): no weakening, the covariance sets the gain
     r_g = ca.if_else(recover, sig2, sig2 * ca.fmin(1 + ca.sumsqr(z_g) / (9 * sig2), p["accel_adapt_cap"]))
     Hq = jacobian_gravity(q)[:, :3]
@@ -389,7 +389,7 @@ def update_rest_bias_function(p: dict, name="update_rest_bias") -> ca.Function:
     sample's noise), 3 scalar rows after the gravity rows (x: their correction, 0 without)."""
     b, Pv, gyro, x = (ca.SX.sym(n, k) for n, k in (("b", 3), ("P", N * N), ("gyro", 3), ("x", N)))
     dt = ca.SX.sym("dt")
-    r_b = p["gyro_noise"] ** 2 / ca.fmax(dt, DT_Q_MIN)
+    r_b = p["gyro_noise"] ** 2 / ca.fmax(dt, use(DT_Q_MIN))
     H = ca.horzcat(ca.SX.zeros(3, 3), ca.SX.eye(3))
     z = gyro - b
     x_new, P_new, min_pivot = kalman.scalar_updates(sym_lower(Pv), [(H[i, :], z[i], r_b) for i in range(3)],
@@ -429,17 +429,17 @@ def update_heading_function(p: dict, name="update_heading") -> ca.Function:
     z_course = quat.wrap(ca.atan2(vel[1], vel[0]) - ca.atan2(Rq[1, 0], Rq[0, 0]))
     z_mag = quat.wrap(p["declination"] - ca.atan2(mn[1], mn[0]))
     z = ca.if_else(use_course, z_course, z_mag)
-    r = ca.if_else(use_course, p["course_noise"] ** 2, p["mag_heading_density"] ** 2 / ca.fmax(mag_dt, DT_Q_MIN))
+    r = ca.if_else(use_course, p["course_noise"] ** 2, p["mag_heading_density"] ** 2 / ca.fmax(mag_dt, use(DT_Q_MIN)))
     H = jacobian_heading(q)
     P = sym_lower(Pv)
     PHt = ca.mtimes(P, H.T)
     S = ca.mtimes(H, PHt) + r                                # 1 x 1
-    K = PHt * ca.if_else(S > S_PIVOT_MIN, 1.0 / S, 1.0)        # one division (a select: stays a product)
+    K = PHt * ca.if_else(S > use(S_PIVOT_MIN), 1.0 / S, 1.0)        # one division (a select: stays a product)
     up = Rq[2, :].T
     K[0:3] = ca.mtimes(ca.mtimes(up, up.T), K[0:3])          # attitude gain about the vertical only
     # Joseph form for this gain; P unchanged (selected, so the step may pass P as P_out) when
     # S is not usable - the step then skips the correction
-    P_new = ca.if_else(S > S_PIVOT_MIN, kalman.joseph_row(P, K, PHt, S), P)
+    P_new = ca.if_else(S > use(S_PIVOT_MIN), kalman.joseph_row(P, K, PHt, S), P)
     return emit.function(name, {"q": q, "P": Pv, "mag": mag, "vel": vel, "use_course": use_course,
                                 "mag_dt": mag_dt},
                          {"x_out": K * z, "P_out": flat_mirrored(P_new), "s": S})
@@ -486,17 +486,17 @@ def aiding_samples_function(p: dict, *, gps: bool, gps_accel: bool, course: bool
         vel, use_gps, v_gps, v_age = ca.SX.sym("vel", 3), ca.SX.sym("use_gps"), ca.SX.sym("v_gps", 3), ca.SX.sym("v_age")
         ins |= {"vel": vel, "use_gps": use_gps, "v_gps": v_gps, "v_age": v_age}
         v_new = ca.if_else(use_gps, vel, v_gps)
-        age_new = ca.if_else(use_gps, 0.0, ca.if_else(v_age < AGE_MAX, v_age + dt, v_age))
+        age_new = ca.if_else(use_gps, 0.0, ca.if_else(v_age < use(AGE_MAX), v_age + dt, v_age))
         outs |= {"v_gps_out": v_new, "v_age_out": age_new}
         if gps_accel:
             a_gps, a_ok = ca.SX.sym("a_gps", 3), ca.SX.sym("a_ok")
             ins |= {"a_gps": a_gps, "a_ok": a_ok}
             tau = v_age + dt
             late = tau > p["gps_vel_timeout"]
-            new = ca.logic_and(use_gps, ca.logic_and(ca.logic_not(late), tau >= GPS_DT_MIN))
+            new = ca.logic_and(use_gps, ca.logic_and(ca.logic_not(late), tau >= use(GPS_DT_MIN)))
             outs |= {"a_gps_out": ca.if_else(new, (vel - v_gps) / tau, a_gps),
                      "a_ok_out": ca.logic_or(ca.logic_and(ca.logic_not(use_gps), a_ok), ca.logic_and(
-                         use_gps, ca.logic_and(ca.logic_not(late), ca.logic_or(tau >= GPS_DT_MIN, a_ok))))}
+                         use_gps, ca.logic_and(ca.logic_not(late), ca.logic_or(tau >= use(GPS_DT_MIN), a_ok))))}
         def fast_enough(v2):       # v2 >= gps_min_speed² and > 0 (the latter implied when min² > 0)
             return v2 >= min2 if isinstance(min2, (int, float)) and min2 > 0 else ca.logic_and(v2 >= min2, v2 > 0)
 
@@ -512,7 +512,7 @@ def aiding_samples_function(p: dict, *, gps: bool, gps_accel: bool, course: bool
     if mag:
         m, bias, use_mag, mag_age = ca.SX.sym("mag", 3), ca.SX.sym("mag_bias", 3), ca.SX.sym("use_mag"), ca.SX.sym("mag_age")
         ins |= {"mag": m, "mag_bias": bias, "use_mag": use_mag, "mag_age": mag_age}
-        mag_dt = ca.fmin(mag_age + dt, MAG_INTERVAL_MAX)
+        mag_dt = ca.fmin(mag_age + dt, use(MAG_INTERVAL_MAX))
         outs |= {"mag_c": ca.if_else(use_mag, m - bias, ca.DM.zeros(3)), "mag_dt": mag_dt,
                  "mag_age_out": ca.if_else(use_mag, 0.0, mag_dt)}
     ins["dt"] = dt
@@ -535,10 +535,10 @@ def course_mode_function(p: dict, name="course_mode") -> ca.Function:
     v_y² <= tan² v_x², v_x > 0) or while nothing has corrected the heading for HEAD_AGE_MAX."""
     feat, moving, head_age = ca.SX.sym("feat", 4), ca.SX.sym("moving"), ca.SX.sym("head_age")
     side = p["course_max_sideslip"]
-    tan2 = math.tan(side) ** 2 if isinstance(side, (int, float)) else ca.tan(side) ** 2
+    tan2 = computed("tan(course_max_sideslip)^2", lambda x: math.tan(x) ** 2, side) if isinstance(side, (int, float)) else ca.tan(side) ** 2
     nose_first = ca.logic_and(feat[2] > 0, feat[3] * feat[3] <= tan2 * feat[2] * feat[2])
     return emit.function(name, {"feat": feat, "moving": moving, "head_age": head_age},
-                         {"course_mode": ca.logic_and(moving, ca.logic_or(nose_first, head_age > HEAD_AGE_MAX))})
+                         {"course_mode": ca.logic_and(moving, ca.logic_or(nose_first, head_age > use(HEAD_AGE_MAX)))})
 
 
 def rest_function(p: dict, name="rest") -> ca.Function:
@@ -635,9 +635,9 @@ def mag_check_function(p: dict, hard_iron: bool, name="mag_check") -> ca.Functio
 def head_timer_function(name="head_timer") -> ca.Function:
     """head_age: 0 after a heading correction, else + dt up to AGE_MAX; `unaided` past HEAD_AGE_MAX."""
     headed, age, dt = ca.SX.sym("headed"), ca.SX.sym("head_age"), ca.SX.sym("dt")
-    new = ca.if_else(headed, 0.0, ca.if_else(age < AGE_MAX, ca.fmin(age + dt, AGE_MAX), age))
+    new = ca.if_else(headed, 0.0, ca.if_else(age < use(AGE_MAX), ca.fmin(age + dt, use(AGE_MAX)), age))
     return emit.function(name, {"headed": headed, "head_age": age, "dt": dt},
-                         {"head_age_out": new, "unaided": new > HEAD_AGE_MAX})
+                         {"head_age_out": new, "unaided": new > use(HEAD_AGE_MAX)})
 
 
 def initial_P(p: dict) -> list:

@@ -43,12 +43,16 @@ from __future__ import annotations
 import casadi as ca
 
 from ahrsgen.codegen.emit import function
-from ahrsgen.constants import G0
+from ahrsgen.constants import G0, Const, use
 from ahrsgen.codegen.model import FilterModel, KernelSpec, StateField
 from ahrsgen.symbolic import aiding, attitude, quat
 
 # Eq. 29 as printed; its gain on a velocity ramp is c1 + 2 c2 + 3 c3 = 0.9854.
-PAPER_COEFFS = (0.0971, 0.1662, 0.1853)
+PAPER_COEFFS = (Const("EQ29_C1", 0.0971), Const("EQ29_C2", 0.1662), Const("EQ29_C3", 0.1853))
+# the centripetal weight's cos(angle) divides by |v|, floored by its square here, (m/s)^2
+ALONG_V2_MIN = Const("ALONG_V2_MIN", 1e-6)
+# the time since the last GPS sample stops counting here, s (a whole number: exact in float)
+GPS_AGE_MAX = Const("GPS_AGE_MAX", 1e3)
 GPS_TAPS = 7          # V_{k-6} .. V_k (the differentiator; the centripetal term reads only V_k)
 
 
@@ -58,10 +62,11 @@ def gps_taps(params) -> int:
 
 
 def differentiator_coeffs(faithful: bool):
+    coeffs = [use(c) for c in PAPER_COEFFS]
     if faithful:
-        return PAPER_COEFFS
-    gain = sum((i + 1) * c for i, c in enumerate(PAPER_COEFFS))
-    return tuple(c / gain for c in PAPER_COEFFS)
+        return tuple(coeffs)
+    gain = sum((i + 1) * c for i, c in enumerate(coeffs))
+    return tuple(c / gain for c in coeffs)
 
 
 EXTRA_STATUS = [
@@ -89,13 +94,13 @@ class Model(FilterModel):
         ] + ([
             StateField("motion_accel", 3, "latest GPS-derived motion acceleration a_{k-3}, NED, m/s^2", 0.0),
         ] if p["motion_accel_model"] == "differentiator" else []) + [
-            StateField("gps_age", 1, "time since the last GPS sample, s", 1e3),
+            StateField("gps_age", 1, "time since the last GPS sample, s", GPS_AGE_MAX),
             StateField("gps_count", 1, "GPS samples since the last gap (counting stops at 7)", 0, "uint32"),
             StateField("initialised", 1, "1 once the attitude has been initialised" + (
                 " (tilt only), 2 with heading" if self.product else ""), 1 if p["faithful"] else 0, "uint32"),
         ] + ([] if not self.product else [
             StateField("accel_lp", 3, "low-passed specific force in NED, m/s^2 (level at rest until the "
-                       "first accelerometer sample: the correction before it has zero weights)", [0.0, 0.0, -G0]),
+                       "first accelerometer sample: the correction before it has zero weights)", [0.0, 0.0, -use(G0)]),
             StateField("accel_age", 1, "time since the last accelerometer sample, s", 0.0),
             StateField("mag_age", 1, "time since the last magnetometer sample, s", 0.0),
             StateField("rest_gyro_lp", 3, "rest detection: low-passed gyro, rad/s", 0.0),
@@ -154,7 +159,7 @@ class Model(FilterModel):
                 # the velocity turns with the body only if the body flies along it (fixed-wing):
                 # weight 1 when v is along body x, ramping to 0 at cos(angle) = centripetal_align
                 c0 = p["centripetal_align"]
-                along = v_b[0] * ca.sqrt(1 / ca.fmax(ca.sumsqr(v), 1e-6))
+                along = v_b[0] * ca.sqrt(1 / ca.fmax(ca.sumsqr(v), use(ALONG_V2_MIN)))
                 a_c = ca.fmin(ca.fmax((along - c0) / (1 - c0), 0.0), 1.0) * a_c
             gravity_in = {"accel": f, "accel_norm2": f2, "rot": rot, "gyro": gyro, "gyro_bias": bias,
                           "gps_vel_hist": hist}
@@ -323,7 +328,7 @@ class Model(FilterModel):
         p = self.params
         return {"motion_model": p["motion_accel_model"], "product": self.product, "gps_taps": gps_taps(p),
                 "rest": self.product and p["rest_time"] > 0, "mag_rejection": self.product and p["mag_rejection"],
-                "hard_iron": self.hard_iron()}
+                "hard_iron": self.hard_iron(), "gps_age_max": GPS_AGE_MAX}
 
     def step_paths(self):
         if self.product:
