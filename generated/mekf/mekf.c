@@ -2600,6 +2600,9 @@ static void mekf_k_update_heading_part7(const float P[36], float carry[29])
  *     vel: float[3]
  *     use_course: bool
  *     mag_dt: float
+ *     feat: float[4] (unused)
+ *     mag_ref: float[2] (unused)
+ *     recover: bool (unused)
  * Outputs:
  *     x_out: float[6]
  *     P_out: float[36]
@@ -2609,8 +2612,12 @@ static void mekf_k_update_heading_part7(const float P[36], float carry[29])
  *     of which only one side runs: if (use_course) 7, else 28
  */
 static void mekf_k_update_heading(const float q[4], const float P[36], const float mag[3],
-    const float vel[3], bool use_course, float mag_dt, float x_out[6], float P_out[36], float *s)
+    const float vel[3], bool use_course, float mag_dt, const float feat[4], const float mag_ref[2],
+    bool recover, float x_out[6], float P_out[36], float *s)
 {
+    (void)feat;
+    (void)mag_ref;
+    (void)recover;
     /*
      * 8 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
      * handed between them (a slot reused once its value is dead)
@@ -4323,7 +4330,7 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
         float s_head;
         /* P in place: the kernel leaves it as it was when s_head is not usable */
         mekf_k_update_heading(q, P, mag_in, vel_in, course_sample && course_mode, mag_dt,
-            x, P, &s_head);
+            feat, s->mag_ref, recovering, x, P, &s_head);
         if (s_head > 1e-12f) {
             mekf_k_inject(q, s->gyro_bias, x, q, s->gyro_bias);
             headed = true;

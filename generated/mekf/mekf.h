@@ -195,6 +195,14 @@ extern "C" {
                                            mag_heading_density by leave-one-BROAD-group-out with the
                                            scenarios (studies/mekf_gyro_rate_noise_cv.py,
                                            docs/mekf.md) [sqrt(s)] */
+#define MEKF_GYRO_STEP_NOISE 0.0f       /* measurement = 'vectors': the rate sampled at dt is
+                                           integrated as a rotation about a constant axis; the
+                                           rotation within the step (coning, the mean rate an
+                                           averaging IMU reports) leaves an attitude error of about
+                                           gyro_step_noise * (|w| dt)^2 rad per step and axis, added
+                                           to the process noise: second order in the step, so it
+                                           matters at low rates and fast rotation (48 Hz), not at
+                                           286 Hz. 0 = off */
 #define MEKF_GYRO_BIAS_RW 1e-05f        /* gyro bias random walk (rate of the bias noise density)
                                            [rad/s^2/sqrt(Hz)] */
 #define MEKF_ACCEL_ANGLE_NOISE 0.07f    /* per-sample standard deviation of the measured gravity
@@ -206,6 +214,13 @@ extern "C" {
                                            accel_noise_density's white noise. 0.07 chosen with
                                            accel_noise_density (studies/mekf_accel_density_cv.py,
                                            docs/mekf.md) [rad] */
+#define MEKF_ACCEL_MOTION_TAU 0.0f      /* measurement = 'vectors': correlation time of the motion
+                                           residual the low-pass leaves; the per-sample term becomes
+                                           accel_angle_noise^2 * max(1, accel_motion_tau / dt), so
+                                           that samples closer than this share one sample's worth of
+                                           it (the information per second from a correlated
+                                           disturbance does not grow with the rate). 0 = per sample
+                                           at any rate [s] */
 #define MEKF_ACCEL_NOISE_DENSITY 0.004f /* measurement = 'vectors': the gravity direction's variance
                                            is accel_angle_noise^2 + accel_noise_density^2 / dt:
                                            accel_angle_noise is the motion the low-pass leaves (the
@@ -232,6 +247,14 @@ extern "C" {
                                            gyro_rate_noise by leave-one-BROAD-group-out with the
                                            scenarios (studies/mekf_gyro_rate_noise_cv.py)
                                            [rad/sqrt(Hz)] */
+#define MEKF_MAG_DEV_GAIN 0.0f          /* measurement = 'vectors': graded magnetometer trust: the
+                                           heading's variance is multiplied by 1 + mag_dev_gain *
+                                           (e_norm^2 + e_dip^2), e_norm the sample's field norm off
+                                           the reference norm (fraction), e_dip its dip off the
+                                           reference dip (rad, from the predicted attitude): a clean
+                                           field is trusted as mag_heading_density says, a field
+                                           that disagrees less (not at all while recovering from a
+                                           gyro clip). 0 = off */
 #define MEKF_ACCEL_GATE 0.0f            /* if > 0, the roll/pitch rows are dropped while | |accel| -
                                            g | exceeds this (ACCEL_GATED); 0 = off, as the patent
                                            [m/s^2] */
