@@ -214,13 +214,6 @@ extern "C" {
                                            accel_noise_density's white noise. 0.07 chosen with
                                            accel_noise_density (studies/mekf_accel_density_cv.py,
                                            docs/mekf.md) [rad] */
-#define MEKF_ACCEL_MOTION_TAU 0.0f      /* measurement = 'vectors': correlation time of the motion
-                                           residual the low-pass leaves; the per-sample term becomes
-                                           accel_angle_noise^2 * max(1, accel_motion_tau / dt), so
-                                           that samples closer than this share one sample's worth of
-                                           it (the information per second from a correlated
-                                           disturbance does not grow with the rate). 0 = per sample
-                                           at any rate [s] */
 #define MEKF_ACCEL_NOISE_DENSITY 0.004f /* measurement = 'vectors': the gravity direction's variance
                                            is accel_angle_noise^2 + accel_noise_density^2 / dt:
                                            accel_angle_noise is the motion the low-pass leaves (the

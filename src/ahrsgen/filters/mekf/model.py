@@ -358,8 +358,7 @@ def gravity_rows_function(p: dict, name="gravity_rows") -> ca.Function:
     """The gravity-direction measurement: rows of H (h, H's rows one after the other; the
     bias columns are 0), innovations z and their variance r.
 
-    z_g = up/|up| in body axes − R(q̂)ᵀ [0, 0, −1] (up: accel_lowpass's earth-frame vector); R_g = σ² min(1 + |z_g|²/(3σ)², cap),
-    σ² = accel_angle_noise² max(1, accel_motion_tau/dt) + accel_noise_density²/dt
+    z_g = up/|up| in body axes − R(q̂)ᵀ [0, 0, −1] (up: accel_lowpass's earth-frame vector); R_g = σ² min(1 + |z_g|²/(3σ)², cap), σ² = accel_angle_noise² + accel_noise_density²/dt
     (bounded residual adaptation: the correction can be weakened, never locked out).
     The step runs the three rows in turn through `update_attitude_row` (one kernel, called
     three times: kalman.scalar_updates, the batch update of the rows stacked).
@@ -369,10 +368,6 @@ def gravity_rows_function(p: dict, name="gravity_rows") -> ca.Function:
     z_g = d - gravity_direction(q, ca.DM.zeros(3))
     # the motion the low-pass leaves (per sample) and the sensor's white noise (a density over dt)
     sig2 = p["accel_angle_noise"] ** 2
-    if not (isinstance(p["accel_motion_tau"], (int, float)) and p["accel_motion_tau"] == 0):
-        # the motion residual is correlated over accel_motion_tau: samples closer than that
-        # carry one sample's worth of it between them (information per second bounded)
-        sig2 = sig2 * ca.fmax(1, p["accel_motion_tau"] / ca.fmax(dt, DT_Q_MIN))
     if not (isinstance(p["accel_noise_density"], (int, float)) and p["accel_noise_density"] == 0):
         sig2 = sig2 + p["accel_noise_density"] ** 2 / ca.fmax(dt, DT_Q_MIN)
     # recovering after a gyro clip (recover = 1): no weakening, the covariance sets the gain

@@ -167,7 +167,7 @@ class Reference:
                       "rest_tau", "mag_norm_th", "mag_dip_th", "mag_learn_time", "mag_reject_max",
                       "mag_ref_tau", "mag_new_time", "course_max_sideslip", "gyro_full_scale",
                       "clip_recovery_time", "gyro_rate_noise", "mag_heading_density", "accel_noise_density",
-                      "accel_motion_tau", "mag_dev_gain", "gyro_step_noise"):
+                      "mag_dev_gain", "gyro_step_noise"):
                 setattr(self, k, float(p[k]))
             self.clip = GyroClip(self.gyro_full_scale, float(p["gyro_plateau_rate"]), self.clip_recovery_time)
             self.a_lp = np.zeros(3)       # earth-frame (NED) low-passed specific force
@@ -560,9 +560,7 @@ class Reference:
             d = Rq.T @ up / np.sqrt(up @ up)
             g_hat = Rq.T @ np.array([0.0, 0.0, -1.0])
             z_g = d - g_hat
-            # motion residual correlated over accel_motion_tau: one sample's worth per tau
-            sig2 = (self.accel_angle_noise ** 2 * max(1.0, self.accel_motion_tau / max(dt, DT_Q_MIN))
-                    + self.accel_noise_density ** 2 / max(dt, DT_Q_MIN))
+            sig2 = self.accel_angle_noise ** 2 + self.accel_noise_density ** 2 / max(dt, DT_Q_MIN)
             r_g = sig2 if recovering else sig2 * min(1.0 + (z_g @ z_g) / (9.0 * sig2), self.accel_adapt_cap)
             z = np.concatenate([z_g, gyro - self.gyro_bias])
             H = np.zeros((6, 6))
