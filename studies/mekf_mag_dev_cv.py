@@ -17,6 +17,10 @@ attached mid-run, the hand-held sensor and the gyro clip. A candidate is admissi
 keeps what the product wins: the multirotor at 1.0 degree or less, and the attached magnet,
 hand-held and gyro-clip entries no more than 10 % (or 0.05 degree) worse than the present
 defaults'. Needs the full BROAD files.
+
+Result (2026-12-04): in-sample choice mag_heading_density 0.012, mag_dev_gain 3000 (BROAD
+2.015/2.092/2.241/2.825 deg at 286/143/95/48 Hz, cross-validated 2.113/2.203/2.363/2.935); not
+made the default, because the fixed-wing's yaw in a GPS outage suffers (docs/mekf.md).
 """
 from __future__ import annotations
 
