@@ -1038,7 +1038,7 @@ static void mekf_k_predict_attitude(const float q[4], const float b[3], const fl
 }
 
 static void mekf_k_predict_covariance_part0(const float F_q[9], const float F_b[9],
-    const float P[36], float carry[24])
+    const float P[36], float carry[26])
 {
     const float tmp0 = F_q[0] * P[0];
     const float tmp1 = F_q[3] * P[1];
@@ -1086,7 +1086,7 @@ static void mekf_k_predict_covariance_part0(const float F_q[9], const float F_b[
 }
 
 static void mekf_k_predict_covariance_part1(const float F_q[9], const float F_b[9],
-    const float P[36], const float gyro[3], float carry[24])
+    const float P[36], const float gyro[3], float carry[26])
 {
     const float tmp40 = carry[1] /* tmp38 */ + carry[2] /* tmp39 */;
     const float tmp41 = F_q[6] * P[15];
@@ -1136,333 +1136,344 @@ static void mekf_k_predict_covariance_part1(const float F_q[9], const float F_b[
 }
 
 static void mekf_k_predict_covariance_part2(const float F_q[9], const float F_b[9],
-    const float P[36], const float gyro[3], float dt, bool clip, float carry[24])
+    const float P[36], const float gyro[3], float dt, bool clip, float carry[26])
 {
     const float tmp80 = (dt > 1e-09f /* DT_Q_MIN */) ? dt : 1e-09f /* DT_Q_MIN */;
     const float tmp81 = 1.0f / tmp80;
     const float tmp82 = carry[4] /* tmp79 */ * tmp81;
-    const float tmp83 = F_b[0] * tmp82;
-    const float tmp84 = tmp83 * F_b[0];
-    const float tmp85 = 0.001f /* gyro_rate_noise */ * gyro[1];
-    const float tmp86 = tmp85 * tmp85;
-    const float tmp87 = 7.569e-07f /* gyro_noise^2 */ + tmp86;
-    const float tmp88 = tmp87 * tmp81;
-    const float tmp89 = F_b[3] * tmp88;
-    const float tmp90 = tmp89 * F_b[3];
-    const float tmp91 = tmp84 + tmp90;
-    const float tmp92 = 0.001f /* gyro_rate_noise */ * gyro[2];
-    const float tmp93 = tmp92 * tmp92;
-    const float tmp94 = 7.569e-07f /* gyro_noise^2 */ + tmp93;
-    const float tmp95 = tmp94 * tmp81;
-    const float tmp96 = F_b[6] * tmp95;
-    const float tmp97 = tmp96 * F_b[6];
-    const float tmp98 = tmp91 + tmp97;
-    const float tmp99 = carry[3] /* tmp76 */ + tmp98;
-    const float tmp100 = 17.453293f /* 0.5*gyro_full_scale */ * dt;
-    const float tmp101 = tmp100 * tmp100;
-    const float tmp102 = (clip) ? tmp101 : 0.0f;
-    const float tmp103 = tmp99 + tmp102;
-    const float tmp104 = F_q[1] * P[0];
-    const float tmp105 = F_q[4] * P[1];
-    const float tmp106 = tmp104 + tmp105;
-    const float tmp107 = F_q[7] * P[2];
-    const float tmp108 = tmp106 + tmp107;
-    const float tmp109 = F_b[1] * P[3];
-    const float tmp110 = tmp108 + tmp109;
-    const float tmp111 = F_b[4] * P[4];
-    const float tmp112 = tmp110 + tmp111;
-    const float tmp113 = F_b[7] * P[5];
-    const float tmp114 = tmp112 + tmp113;
-    const float tmp115 = tmp114 * F_q[0];
-    const float tmp116 = F_q[1] * P[1];
-    const float tmp117 = F_q[4] * P[7];
-    const float tmp118 = tmp116 + tmp117;
-    const float tmp119 = F_q[7] * P[8];
-    carry[3] = tmp82;
-    carry[4] = tmp88;
-    carry[5] = tmp95;
-    carry[6] = tmp102;
-    carry[7] = tmp103;
-    carry[8] = tmp114;
-    carry[9] = tmp115;
-    carry[10] = tmp118;
-    carry[11] = tmp119;
+    const float tmp83 = gyro[0] * gyro[0];
+    const float tmp84 = gyro[1] * gyro[1];
+    const float tmp85 = tmp83 + tmp84;
+    const float tmp86 = gyro[2] * gyro[2];
+    const float tmp87 = tmp85 + tmp86;
+    const float tmp88 = 0.1f /* gyro_step_noise */ * tmp87;
+    const float tmp89 = tmp88 * dt;
+    const float tmp90 = tmp89 * tmp89;
+    const float tmp91 = tmp82 + tmp90;
+    const float tmp92 = F_b[0] * tmp91;
+    const float tmp93 = tmp92 * F_b[0];
+    const float tmp94 = 0.001f /* gyro_rate_noise */ * gyro[1];
+    const float tmp95 = tmp94 * tmp94;
+    const float tmp96 = 7.569e-07f /* gyro_noise^2 */ + tmp95;
+    const float tmp97 = tmp96 * tmp81;
+    const float tmp98 = tmp97 + tmp90;
+    const float tmp99 = F_b[3] * tmp98;
+    const float tmp100 = tmp99 * F_b[3];
+    const float tmp101 = tmp93 + tmp100;
+    const float tmp102 = 0.001f /* gyro_rate_noise */ * gyro[2];
+    const float tmp103 = tmp102 * tmp102;
+    const float tmp104 = 7.569e-07f /* gyro_noise^2 */ + tmp103;
+    const float tmp105 = tmp104 * tmp81;
+    const float tmp106 = tmp105 + tmp90;
+    const float tmp107 = F_b[6] * tmp106;
+    const float tmp108 = tmp107 * F_b[6];
+    const float tmp109 = tmp101 + tmp108;
+    const float tmp110 = carry[3] /* tmp76 */ + tmp109;
+    const float tmp111 = 17.453293f /* 0.5*gyro_full_scale */ * dt;
+    const float tmp112 = tmp111 * tmp111;
+    const float tmp113 = (clip) ? tmp112 : 0.0f;
+    const float tmp114 = tmp110 + tmp113;
+    const float tmp115 = F_q[1] * P[0];
+    const float tmp116 = F_q[4] * P[1];
+    const float tmp117 = tmp115 + tmp116;
+    const float tmp118 = F_q[7] * P[2];
+    const float tmp119 = tmp117 + tmp118;
+    carry[3] = tmp91;
+    carry[4] = tmp98;
+    carry[5] = tmp106;
+    carry[6] = tmp113;
+    carry[7] = tmp114;
+    carry[8] = tmp119;
 }
 
 static void mekf_k_predict_covariance_part3(const float F_q[9], const float F_b[9],
-    const float P[36], float carry[24])
+    const float P[36], float carry[26])
 {
-    const float tmp120 = carry[10] /* tmp118 */ + carry[11] /* tmp119 */;
-    const float tmp121 = F_b[1] * P[9];
-    const float tmp122 = tmp120 + tmp121;
-    const float tmp123 = F_b[4] * P[10];
-    const float tmp124 = tmp122 + tmp123;
-    const float tmp125 = F_b[7] * P[11];
-    const float tmp126 = tmp124 + tmp125;
-    const float tmp127 = tmp126 * F_q[3];
-    const float tmp128 = carry[9] /* tmp115 */ + tmp127;
-    const float tmp129 = F_q[1] * P[2];
-    const float tmp130 = F_q[4] * P[8];
+    const float tmp120 = F_b[1] * P[3];
+    const float tmp121 = carry[8] /* tmp119 */ + tmp120;
+    const float tmp122 = F_b[4] * P[4];
+    const float tmp123 = tmp121 + tmp122;
+    const float tmp124 = F_b[7] * P[5];
+    const float tmp125 = tmp123 + tmp124;
+    const float tmp126 = tmp125 * F_q[0];
+    const float tmp127 = F_q[1] * P[1];
+    const float tmp128 = F_q[4] * P[7];
+    const float tmp129 = tmp127 + tmp128;
+    const float tmp130 = F_q[7] * P[8];
     const float tmp131 = tmp129 + tmp130;
-    const float tmp132 = F_q[7] * P[14];
+    const float tmp132 = F_b[1] * P[9];
     const float tmp133 = tmp131 + tmp132;
-    const float tmp134 = F_b[1] * P[15];
+    const float tmp134 = F_b[4] * P[10];
     const float tmp135 = tmp133 + tmp134;
-    const float tmp136 = F_b[4] * P[16];
+    const float tmp136 = F_b[7] * P[11];
     const float tmp137 = tmp135 + tmp136;
-    const float tmp138 = F_b[7] * P[17];
-    const float tmp139 = tmp137 + tmp138;
-    const float tmp140 = tmp139 * F_q[6];
-    const float tmp141 = tmp128 + tmp140;
-    const float tmp142 = F_q[1] * P[3];
-    const float tmp143 = F_q[4] * P[9];
+    const float tmp138 = tmp137 * F_q[3];
+    const float tmp139 = tmp126 + tmp138;
+    const float tmp140 = F_q[1] * P[2];
+    const float tmp141 = F_q[4] * P[8];
+    const float tmp142 = tmp140 + tmp141;
+    const float tmp143 = F_q[7] * P[14];
     const float tmp144 = tmp142 + tmp143;
-    const float tmp145 = F_q[7] * P[15];
+    const float tmp145 = F_b[1] * P[15];
     const float tmp146 = tmp144 + tmp145;
-    const float tmp147 = F_b[1] * P[21];
+    const float tmp147 = F_b[4] * P[16];
     const float tmp148 = tmp146 + tmp147;
-    const float tmp149 = F_b[4] * P[22];
+    const float tmp149 = F_b[7] * P[17];
     const float tmp150 = tmp148 + tmp149;
-    const float tmp151 = F_b[7] * P[23];
-    const float tmp152 = tmp150 + tmp151;
-    const float tmp153 = tmp152 * F_b[0];
-    const float tmp154 = tmp141 + tmp153;
-    const float tmp155 = F_q[1] * P[4];
-    const float tmp156 = F_q[4] * P[10];
+    const float tmp151 = tmp150 * F_q[6];
+    const float tmp152 = tmp139 + tmp151;
+    const float tmp153 = F_q[1] * P[3];
+    const float tmp154 = F_q[4] * P[9];
+    const float tmp155 = tmp153 + tmp154;
+    const float tmp156 = F_q[7] * P[15];
     const float tmp157 = tmp155 + tmp156;
-    const float tmp158 = F_q[7] * P[16];
+    const float tmp158 = F_b[1] * P[21];
     const float tmp159 = tmp157 + tmp158;
-    carry[9] = tmp126;
-    carry[10] = tmp139;
+    carry[8] = tmp125;
+    carry[9] = tmp137;
+    carry[10] = tmp150;
     carry[11] = tmp152;
-    carry[12] = tmp154;
-    carry[13] = tmp159;
+    carry[12] = tmp159;
 }
 
 static void mekf_k_predict_covariance_part4(const float F_q[9], const float F_b[9],
-    const float P[36], float carry[24])
+    const float P[36], float carry[26])
 {
-    const float tmp160 = F_b[1] * P[22];
-    const float tmp161 = carry[13] /* tmp159 */ + tmp160;
-    const float tmp162 = F_b[4] * P[28];
+    const float tmp160 = F_b[4] * P[22];
+    const float tmp161 = carry[12] /* tmp159 */ + tmp160;
+    const float tmp162 = F_b[7] * P[23];
     const float tmp163 = tmp161 + tmp162;
-    const float tmp164 = F_b[7] * P[29];
-    const float tmp165 = tmp163 + tmp164;
-    const float tmp166 = tmp165 * F_b[3];
-    const float tmp167 = carry[12] /* tmp154 */ + tmp166;
-    const float tmp168 = F_q[1] * P[5];
-    const float tmp169 = F_q[4] * P[11];
+    const float tmp164 = tmp163 * F_b[0];
+    const float tmp165 = carry[11] /* tmp152 */ + tmp164;
+    const float tmp166 = F_q[1] * P[4];
+    const float tmp167 = F_q[4] * P[10];
+    const float tmp168 = tmp166 + tmp167;
+    const float tmp169 = F_q[7] * P[16];
     const float tmp170 = tmp168 + tmp169;
-    const float tmp171 = F_q[7] * P[17];
+    const float tmp171 = F_b[1] * P[22];
     const float tmp172 = tmp170 + tmp171;
-    const float tmp173 = F_b[1] * P[23];
+    const float tmp173 = F_b[4] * P[28];
     const float tmp174 = tmp172 + tmp173;
-    const float tmp175 = F_b[4] * P[29];
+    const float tmp175 = F_b[7] * P[29];
     const float tmp176 = tmp174 + tmp175;
-    const float tmp177 = F_b[7] * P[35];
-    const float tmp178 = tmp176 + tmp177;
-    const float tmp179 = tmp178 * F_b[6];
-    const float tmp180 = tmp167 + tmp179;
-    const float tmp181 = F_b[1] * carry[3] /* tmp82 */;
-    const float tmp182 = tmp181 * F_b[0];
-    const float tmp183 = F_b[4] * carry[4] /* tmp88 */;
-    const float tmp184 = tmp183 * F_b[3];
-    const float tmp185 = tmp182 + tmp184;
-    const float tmp186 = F_b[7] * carry[5] /* tmp95 */;
-    const float tmp187 = tmp186 * F_b[6];
-    const float tmp188 = tmp185 + tmp187;
-    const float tmp189 = tmp180 + tmp188;
-    const float tmp190 = F_q[2] * P[0];
-    const float tmp191 = F_q[5] * P[1];
-    const float tmp192 = tmp190 + tmp191;
-    const float tmp193 = F_q[8] * P[2];
-    const float tmp194 = tmp192 + tmp193;
-    const float tmp195 = F_b[2] * P[3];
-    const float tmp196 = tmp194 + tmp195;
-    const float tmp197 = F_b[5] * P[4];
-    const float tmp198 = tmp196 + tmp197;
-    const float tmp199 = F_b[8] * P[5];
-    carry[12] = tmp165;
-    carry[13] = tmp178;
-    carry[14] = tmp181;
-    carry[15] = tmp183;
-    carry[16] = tmp186;
-    carry[17] = tmp189;
-    carry[18] = tmp198;
-    carry[19] = tmp199;
+    const float tmp177 = tmp176 * F_b[3];
+    const float tmp178 = tmp165 + tmp177;
+    const float tmp179 = F_q[1] * P[5];
+    const float tmp180 = F_q[4] * P[11];
+    const float tmp181 = tmp179 + tmp180;
+    const float tmp182 = F_q[7] * P[17];
+    const float tmp183 = tmp181 + tmp182;
+    const float tmp184 = F_b[1] * P[23];
+    const float tmp185 = tmp183 + tmp184;
+    const float tmp186 = F_b[4] * P[29];
+    const float tmp187 = tmp185 + tmp186;
+    const float tmp188 = F_b[7] * P[35];
+    const float tmp189 = tmp187 + tmp188;
+    const float tmp190 = tmp189 * F_b[6];
+    const float tmp191 = tmp178 + tmp190;
+    const float tmp192 = F_b[1] * carry[3] /* tmp91 */;
+    const float tmp193 = tmp192 * F_b[0];
+    const float tmp194 = F_b[4] * carry[4] /* tmp98 */;
+    const float tmp195 = tmp194 * F_b[3];
+    const float tmp196 = tmp193 + tmp195;
+    const float tmp197 = F_b[7] * carry[5] /* tmp106 */;
+    const float tmp198 = tmp197 * F_b[6];
+    const float tmp199 = tmp196 + tmp198;
+    carry[11] = tmp163;
+    carry[12] = tmp176;
+    carry[13] = tmp189;
+    carry[14] = tmp191;
+    carry[15] = tmp192;
+    carry[16] = tmp194;
+    carry[17] = tmp197;
+    carry[18] = tmp199;
 }
 
 static void mekf_k_predict_covariance_part5(const float F_q[9], const float F_b[9],
-    const float P[36], float carry[24])
+    const float P[36], float carry[26])
 {
-    const float tmp200 = carry[18] /* tmp198 */ + carry[19] /* tmp199 */;
-    const float tmp201 = tmp200 * F_q[0];
-    const float tmp202 = F_q[2] * P[1];
-    const float tmp203 = F_q[5] * P[7];
-    const float tmp204 = tmp202 + tmp203;
-    const float tmp205 = F_q[8] * P[8];
-    const float tmp206 = tmp204 + tmp205;
-    const float tmp207 = F_b[2] * P[9];
-    const float tmp208 = tmp206 + tmp207;
-    const float tmp209 = F_b[5] * P[10];
-    const float tmp210 = tmp208 + tmp209;
-    const float tmp211 = F_b[8] * P[11];
-    const float tmp212 = tmp210 + tmp211;
-    const float tmp213 = tmp212 * F_q[3];
-    const float tmp214 = tmp201 + tmp213;
-    const float tmp215 = F_q[2] * P[2];
-    const float tmp216 = F_q[5] * P[8];
+    const float tmp200 = carry[14] /* tmp191 */ + carry[18] /* tmp199 */;
+    const float tmp201 = F_q[2] * P[0];
+    const float tmp202 = F_q[5] * P[1];
+    const float tmp203 = tmp201 + tmp202;
+    const float tmp204 = F_q[8] * P[2];
+    const float tmp205 = tmp203 + tmp204;
+    const float tmp206 = F_b[2] * P[3];
+    const float tmp207 = tmp205 + tmp206;
+    const float tmp208 = F_b[5] * P[4];
+    const float tmp209 = tmp207 + tmp208;
+    const float tmp210 = F_b[8] * P[5];
+    const float tmp211 = tmp209 + tmp210;
+    const float tmp212 = tmp211 * F_q[0];
+    const float tmp213 = F_q[2] * P[1];
+    const float tmp214 = F_q[5] * P[7];
+    const float tmp215 = tmp213 + tmp214;
+    const float tmp216 = F_q[8] * P[8];
     const float tmp217 = tmp215 + tmp216;
-    const float tmp218 = F_q[8] * P[14];
+    const float tmp218 = F_b[2] * P[9];
     const float tmp219 = tmp217 + tmp218;
-    const float tmp220 = F_b[2] * P[15];
+    const float tmp220 = F_b[5] * P[10];
     const float tmp221 = tmp219 + tmp220;
-    const float tmp222 = F_b[5] * P[16];
+    const float tmp222 = F_b[8] * P[11];
     const float tmp223 = tmp221 + tmp222;
-    const float tmp224 = F_b[8] * P[17];
-    const float tmp225 = tmp223 + tmp224;
-    const float tmp226 = tmp225 * F_q[6];
-    const float tmp227 = tmp214 + tmp226;
-    const float tmp228 = F_q[2] * P[3];
-    const float tmp229 = F_q[5] * P[9];
+    const float tmp224 = tmp223 * F_q[3];
+    const float tmp225 = tmp212 + tmp224;
+    const float tmp226 = F_q[2] * P[2];
+    const float tmp227 = F_q[5] * P[8];
+    const float tmp228 = tmp226 + tmp227;
+    const float tmp229 = F_q[8] * P[14];
     const float tmp230 = tmp228 + tmp229;
-    const float tmp231 = F_q[8] * P[15];
+    const float tmp231 = F_b[2] * P[15];
     const float tmp232 = tmp230 + tmp231;
-    const float tmp233 = F_b[2] * P[21];
+    const float tmp233 = F_b[5] * P[16];
     const float tmp234 = tmp232 + tmp233;
-    const float tmp235 = F_b[5] * P[22];
+    const float tmp235 = F_b[8] * P[17];
     const float tmp236 = tmp234 + tmp235;
-    const float tmp237 = F_b[8] * P[23];
-    const float tmp238 = tmp236 + tmp237;
-    const float tmp239 = tmp238 * F_b[0];
-    carry[18] = tmp200;
-    carry[19] = tmp212;
-    carry[20] = tmp225;
-    carry[21] = tmp227;
-    carry[22] = tmp238;
-    carry[23] = tmp239;
+    const float tmp237 = tmp236 * F_q[6];
+    const float tmp238 = tmp225 + tmp237;
+    const float tmp239 = F_q[2] * P[3];
+    carry[14] = tmp200;
+    carry[18] = tmp211;
+    carry[19] = tmp223;
+    carry[20] = tmp236;
+    carry[21] = tmp238;
+    carry[22] = tmp239;
 }
 
 static void mekf_k_predict_covariance_part6(const float F_q[9], const float F_b[9],
-    const float P[36], float carry[24])
+    const float P[36], float carry[26])
 {
-    const float tmp240 = carry[21] /* tmp227 */ + carry[23] /* tmp239 */;
-    const float tmp241 = F_q[2] * P[4];
-    const float tmp242 = F_q[5] * P[10];
+    const float tmp240 = F_q[5] * P[9];
+    const float tmp241 = carry[22] /* tmp239 */ + tmp240;
+    const float tmp242 = F_q[8] * P[15];
     const float tmp243 = tmp241 + tmp242;
-    const float tmp244 = F_q[8] * P[16];
+    const float tmp244 = F_b[2] * P[21];
     const float tmp245 = tmp243 + tmp244;
-    const float tmp246 = F_b[2] * P[22];
+    const float tmp246 = F_b[5] * P[22];
     const float tmp247 = tmp245 + tmp246;
-    const float tmp248 = F_b[5] * P[28];
+    const float tmp248 = F_b[8] * P[23];
     const float tmp249 = tmp247 + tmp248;
-    const float tmp250 = F_b[8] * P[29];
-    const float tmp251 = tmp249 + tmp250;
-    const float tmp252 = tmp251 * F_b[3];
-    const float tmp253 = tmp240 + tmp252;
-    const float tmp254 = F_q[2] * P[5];
-    const float tmp255 = F_q[5] * P[11];
+    const float tmp250 = tmp249 * F_b[0];
+    const float tmp251 = carry[21] /* tmp238 */ + tmp250;
+    const float tmp252 = F_q[2] * P[4];
+    const float tmp253 = F_q[5] * P[10];
+    const float tmp254 = tmp252 + tmp253;
+    const float tmp255 = F_q[8] * P[16];
     const float tmp256 = tmp254 + tmp255;
-    const float tmp257 = F_q[8] * P[17];
+    const float tmp257 = F_b[2] * P[22];
     const float tmp258 = tmp256 + tmp257;
-    const float tmp259 = F_b[2] * P[23];
+    const float tmp259 = F_b[5] * P[28];
     const float tmp260 = tmp258 + tmp259;
-    const float tmp261 = F_b[5] * P[29];
+    const float tmp261 = F_b[8] * P[29];
     const float tmp262 = tmp260 + tmp261;
-    const float tmp263 = F_b[8] * P[35];
-    const float tmp264 = tmp262 + tmp263;
-    const float tmp265 = tmp264 * F_b[6];
-    const float tmp266 = tmp253 + tmp265;
-    const float tmp267 = F_b[2] * carry[3] /* tmp82 */;
-    const float tmp268 = tmp267 * F_b[0];
-    const float tmp269 = F_b[5] * carry[4] /* tmp88 */;
-    const float tmp270 = tmp269 * F_b[3];
-    const float tmp271 = tmp268 + tmp270;
-    const float tmp272 = F_b[8] * carry[5] /* tmp95 */;
-    const float tmp273 = tmp272 * F_b[6];
-    const float tmp274 = tmp271 + tmp273;
-    const float tmp275 = tmp266 + tmp274;
-    const float tmp276 = carry[8] /* tmp114 */ * F_q[1];
-    const float tmp277 = carry[9] /* tmp126 */ * F_q[4];
-    const float tmp278 = tmp276 + tmp277;
-    const float tmp279 = carry[10] /* tmp139 */ * F_q[7];
-    carry[3] = tmp251;
-    carry[4] = tmp264;
-    carry[5] = tmp267;
-    carry[8] = tmp269;
-    carry[9] = tmp272;
-    carry[10] = tmp275;
-    carry[21] = tmp278;
-    carry[23] = tmp279;
+    const float tmp263 = tmp262 * F_b[3];
+    const float tmp264 = tmp251 + tmp263;
+    const float tmp265 = F_q[2] * P[5];
+    const float tmp266 = F_q[5] * P[11];
+    const float tmp267 = tmp265 + tmp266;
+    const float tmp268 = F_q[8] * P[17];
+    const float tmp269 = tmp267 + tmp268;
+    const float tmp270 = F_b[2] * P[23];
+    const float tmp271 = tmp269 + tmp270;
+    const float tmp272 = F_b[5] * P[29];
+    const float tmp273 = tmp271 + tmp272;
+    const float tmp274 = F_b[8] * P[35];
+    const float tmp275 = tmp273 + tmp274;
+    const float tmp276 = tmp275 * F_b[6];
+    const float tmp277 = tmp264 + tmp276;
+    const float tmp278 = F_b[2] * carry[3] /* tmp91 */;
+    const float tmp279 = tmp278 * F_b[0];
+    carry[3] = tmp249;
+    carry[21] = tmp262;
+    carry[22] = tmp275;
+    carry[23] = tmp277;
+    carry[24] = tmp278;
+    carry[25] = tmp279;
 }
 
-static void mekf_k_predict_covariance_part7(const float F_q[9], const float F_b[9], float carry[24])
+static void mekf_k_predict_covariance_part7(const float F_q[9], const float F_b[9], float carry[26])
 {
-    const float tmp280 = carry[21] /* tmp278 */ + carry[23] /* tmp279 */;
-    const float tmp281 = carry[11] /* tmp152 */ * F_b[1];
-    const float tmp282 = tmp280 + tmp281;
-    const float tmp283 = carry[12] /* tmp165 */ * F_b[4];
-    const float tmp284 = tmp282 + tmp283;
-    const float tmp285 = carry[13] /* tmp178 */ * F_b[7];
-    const float tmp286 = tmp284 + tmp285;
-    const float tmp287 = carry[14] /* tmp181 */ * F_b[1];
-    const float tmp288 = carry[15] /* tmp183 */ * F_b[4];
+    const float tmp280 = F_b[5] * carry[4] /* tmp98 */;
+    const float tmp281 = tmp280 * F_b[3];
+    const float tmp282 = carry[25] /* tmp279 */ + tmp281;
+    const float tmp283 = F_b[8] * carry[5] /* tmp106 */;
+    const float tmp284 = tmp283 * F_b[6];
+    const float tmp285 = tmp282 + tmp284;
+    const float tmp286 = carry[23] /* tmp277 */ + tmp285;
+    const float tmp287 = carry[8] /* tmp125 */ * F_q[1];
+    const float tmp288 = carry[9] /* tmp137 */ * F_q[4];
     const float tmp289 = tmp287 + tmp288;
-    const float tmp290 = carry[16] /* tmp186 */ * F_b[7];
+    const float tmp290 = carry[10] /* tmp150 */ * F_q[7];
     const float tmp291 = tmp289 + tmp290;
-    const float tmp292 = tmp286 + tmp291;
-    const float tmp293 = tmp292 + carry[6] /* tmp102 */;
-    const float tmp294 = carry[18] /* tmp200 */ * F_q[1];
-    const float tmp295 = carry[19] /* tmp212 */ * F_q[4];
-    const float tmp296 = tmp294 + tmp295;
-    const float tmp297 = carry[20] /* tmp225 */ * F_q[7];
-    const float tmp298 = tmp296 + tmp297;
-    const float tmp299 = carry[22] /* tmp238 */ * F_b[1];
+    const float tmp292 = carry[11] /* tmp163 */ * F_b[1];
+    const float tmp293 = tmp291 + tmp292;
+    const float tmp294 = carry[12] /* tmp176 */ * F_b[4];
+    const float tmp295 = tmp293 + tmp294;
+    const float tmp296 = carry[13] /* tmp189 */ * F_b[7];
+    const float tmp297 = tmp295 + tmp296;
+    const float tmp298 = carry[15] /* tmp192 */ * F_b[1];
+    const float tmp299 = carry[16] /* tmp194 */ * F_b[4];
     const float tmp300 = tmp298 + tmp299;
-    const float tmp301 = carry[3] /* tmp251 */ * F_b[4];
+    const float tmp301 = carry[17] /* tmp197 */ * F_b[7];
     const float tmp302 = tmp300 + tmp301;
-    const float tmp303 = carry[4] /* tmp264 */ * F_b[7];
-    const float tmp304 = tmp302 + tmp303;
-    const float tmp305 = carry[5] /* tmp267 */ * F_b[1];
-    const float tmp306 = carry[8] /* tmp269 */ * F_b[4];
+    const float tmp303 = tmp297 + tmp302;
+    const float tmp304 = tmp303 + carry[6] /* tmp113 */;
+    const float tmp305 = carry[18] /* tmp211 */ * F_q[1];
+    const float tmp306 = carry[19] /* tmp223 */ * F_q[4];
     const float tmp307 = tmp305 + tmp306;
-    const float tmp308 = carry[9] /* tmp272 */ * F_b[7];
+    const float tmp308 = carry[20] /* tmp236 */ * F_q[7];
     const float tmp309 = tmp307 + tmp308;
-    const float tmp310 = tmp304 + tmp309;
-    const float tmp311 = carry[18] /* tmp200 */ * F_q[2];
-    const float tmp312 = carry[19] /* tmp212 */ * F_q[5];
+    const float tmp310 = carry[3] /* tmp249 */ * F_b[1];
+    const float tmp311 = tmp309 + tmp310;
+    const float tmp312 = carry[21] /* tmp262 */ * F_b[4];
     const float tmp313 = tmp311 + tmp312;
-    const float tmp314 = carry[20] /* tmp225 */ * F_q[8];
+    const float tmp314 = carry[22] /* tmp275 */ * F_b[7];
     const float tmp315 = tmp313 + tmp314;
-    const float tmp316 = carry[22] /* tmp238 */ * F_b[2];
-    const float tmp317 = tmp315 + tmp316;
-    const float tmp318 = carry[3] /* tmp251 */ * F_b[5];
-    const float tmp319 = tmp317 + tmp318;
-    carry[14] = tmp293;
-    carry[15] = tmp310;
+    const float tmp316 = carry[24] /* tmp278 */ * F_b[1];
+    const float tmp317 = tmp280 * F_b[4];
+    const float tmp318 = tmp316 + tmp317;
+    const float tmp319 = tmp283 * F_b[7];
+    carry[4] = tmp280;
+    carry[5] = tmp283;
+    carry[8] = tmp286;
+    carry[9] = tmp304;
+    carry[10] = tmp315;
+    carry[15] = tmp318;
     carry[16] = tmp319;
 }
 
-static void mekf_k_predict_covariance_part8(const float F_b[9], const float P[36], float dt,
-    float carry[24])
+static void mekf_k_predict_covariance_part8(const float F_q[9], const float F_b[9],
+    const float P[36], float dt, float carry[26])
 {
-    const float tmp320 = carry[4] /* tmp264 */ * F_b[8];
-    const float tmp321 = carry[16] /* tmp319 */ + tmp320;
-    const float tmp322 = carry[5] /* tmp267 */ * F_b[2];
-    const float tmp323 = carry[8] /* tmp269 */ * F_b[5];
+    const float tmp320 = carry[15] /* tmp318 */ + carry[16] /* tmp319 */;
+    const float tmp321 = carry[10] /* tmp315 */ + tmp320;
+    const float tmp322 = carry[18] /* tmp211 */ * F_q[2];
+    const float tmp323 = carry[19] /* tmp223 */ * F_q[5];
     const float tmp324 = tmp322 + tmp323;
-    const float tmp325 = carry[9] /* tmp272 */ * F_b[8];
+    const float tmp325 = carry[20] /* tmp236 */ * F_q[8];
     const float tmp326 = tmp324 + tmp325;
-    const float tmp327 = tmp321 + tmp326;
-    const float tmp328 = tmp327 + carry[6] /* tmp102 */;
-    const float tmp329 = 1e-10f /* gyro_bias_rw^2 */ * dt;
-    const float tmp330 = P[21] + tmp329;
-    const float tmp331 = P[28] + tmp329;
-    const float tmp332 = P[35] + tmp329;
-    carry[5] = tmp328;
-    carry[6] = tmp330;
-    carry[8] = tmp331;
-    carry[9] = tmp332;
+    const float tmp327 = carry[3] /* tmp249 */ * F_b[2];
+    const float tmp328 = tmp326 + tmp327;
+    const float tmp329 = carry[21] /* tmp262 */ * F_b[5];
+    const float tmp330 = tmp328 + tmp329;
+    const float tmp331 = carry[22] /* tmp275 */ * F_b[8];
+    const float tmp332 = tmp330 + tmp331;
+    const float tmp333 = carry[24] /* tmp278 */ * F_b[2];
+    const float tmp334 = carry[4] /* tmp280 */ * F_b[5];
+    const float tmp335 = tmp333 + tmp334;
+    const float tmp336 = carry[5] /* tmp283 */ * F_b[8];
+    const float tmp337 = tmp335 + tmp336;
+    const float tmp338 = tmp332 + tmp337;
+    const float tmp339 = tmp338 + carry[6] /* tmp113 */;
+    const float tmp340 = 1e-10f /* gyro_bias_rw^2 */ * dt;
+    const float tmp341 = P[21] + tmp340;
+    const float tmp342 = P[28] + tmp340;
+    const float tmp343 = P[35] + tmp340;
+    carry[4] = tmp321;
+    carry[5] = tmp339;
+    carry[6] = tmp341;
+    carry[10] = tmp342;
+    carry[15] = tmp343;
 }
 
 /*
@@ -1478,7 +1489,7 @@ static void mekf_k_predict_covariance_part8(const float F_b[9], const float P[36
  * Outputs:
  *     P_out: float[36]
  *
- * Total ops: 333 (add 147, mul 183, div 1, cmp 2)
+ * Total ops: 344 (add 152, mul 189, div 1, cmp 2)
  */
 static void mekf_k_predict_covariance(const float F_q[9], const float F_b[9], const float P[36],
     const float gyro[3], float dt, bool clip, float P_out[36])
@@ -1487,7 +1498,7 @@ static void mekf_k_predict_covariance(const float F_q[9], const float F_b[9], co
      * 9 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
      * handed between them (a slot reused once its value is dead)
      */
-    float carry[24];
+    float carry[26];
     mekf_k_predict_covariance_part0(F_q, F_b, P, carry);
     mekf_k_predict_covariance_part1(F_q, F_b, P, gyro, carry);
     mekf_k_predict_covariance_part2(F_q, F_b, P, gyro, dt, clip, carry);
@@ -1496,43 +1507,43 @@ static void mekf_k_predict_covariance(const float F_q[9], const float F_b[9], co
     mekf_k_predict_covariance_part5(F_q, F_b, P, carry);
     mekf_k_predict_covariance_part6(F_q, F_b, P, carry);
     mekf_k_predict_covariance_part7(F_q, F_b, carry);
-    mekf_k_predict_covariance_part8(F_b, P, dt, carry);
-    P_out[0] = carry[7] /* tmp103 */;
-    P_out[1] = carry[17] /* tmp189 */;
-    P_out[2] = carry[10] /* tmp275 */;
+    mekf_k_predict_covariance_part8(F_q, F_b, P, dt, carry);
+    P_out[0] = carry[7] /* tmp114 */;
+    P_out[1] = carry[14] /* tmp200 */;
+    P_out[2] = carry[8] /* tmp286 */;
     P_out[3] = carry[0] /* tmp48 */;
     P_out[4] = carry[1] /* tmp61 */;
     P_out[5] = carry[2] /* tmp74 */;
-    P_out[6] = carry[17] /* tmp189 */;
-    P_out[7] = carry[14] /* tmp293 */;
-    P_out[8] = carry[15] /* tmp310 */;
-    P_out[9] = carry[11] /* tmp152 */;
-    P_out[10] = carry[12] /* tmp165 */;
-    P_out[11] = carry[13] /* tmp178 */;
-    P_out[12] = carry[10] /* tmp275 */;
-    P_out[13] = carry[15] /* tmp310 */;
-    P_out[14] = carry[5] /* tmp328 */;
-    P_out[15] = carry[22] /* tmp238 */;
-    P_out[16] = carry[3] /* tmp251 */;
-    P_out[17] = carry[4] /* tmp264 */;
+    P_out[6] = carry[14] /* tmp200 */;
+    P_out[7] = carry[9] /* tmp304 */;
+    P_out[8] = carry[4] /* tmp321 */;
+    P_out[9] = carry[11] /* tmp163 */;
+    P_out[10] = carry[12] /* tmp176 */;
+    P_out[11] = carry[13] /* tmp189 */;
+    P_out[12] = carry[8] /* tmp286 */;
+    P_out[13] = carry[4] /* tmp321 */;
+    P_out[14] = carry[5] /* tmp339 */;
+    P_out[15] = carry[3] /* tmp249 */;
+    P_out[16] = carry[21] /* tmp262 */;
+    P_out[17] = carry[22] /* tmp275 */;
     P_out[18] = carry[0] /* tmp48 */;
-    P_out[19] = carry[11] /* tmp152 */;
-    P_out[20] = carry[22] /* tmp238 */;
-    P_out[21] = carry[6] /* tmp330 */;
+    P_out[19] = carry[11] /* tmp163 */;
+    P_out[20] = carry[3] /* tmp249 */;
+    P_out[21] = carry[6] /* tmp341 */;
     P_out[22] = P[22];
     P_out[23] = P[23];
     P_out[24] = carry[1] /* tmp61 */;
-    P_out[25] = carry[12] /* tmp165 */;
-    P_out[26] = carry[3] /* tmp251 */;
+    P_out[25] = carry[12] /* tmp176 */;
+    P_out[26] = carry[21] /* tmp262 */;
     P_out[27] = P[22];
-    P_out[28] = carry[8] /* tmp331 */;
+    P_out[28] = carry[10] /* tmp342 */;
     P_out[29] = P[29];
     P_out[30] = carry[2] /* tmp74 */;
-    P_out[31] = carry[13] /* tmp178 */;
-    P_out[32] = carry[4] /* tmp264 */;
+    P_out[31] = carry[13] /* tmp189 */;
+    P_out[32] = carry[22] /* tmp275 */;
     P_out[33] = P[23];
     P_out[34] = P[29];
-    P_out[35] = carry[9] /* tmp332 */;
+    P_out[35] = carry[15] /* tmp343 */;
 }
 
 static void mekf_k_accel_lowpass_part0(const float q[4], const float accel[3], const bool mask[3],
@@ -3055,6 +3066,9 @@ static void mekf_k_update_heading_part7(const float P[36], float carry[29])
  *     vel: float[3]
  *     use_course: bool
  *     mag_dt: float
+ *     feat: float[4] (unused)
+ *     mag_ref: float[2] (unused)
+ *     recover: bool (unused)
  * Outputs:
  *     x_out: float[6]
  *     P_out: float[36]
@@ -3064,8 +3078,12 @@ static void mekf_k_update_heading_part7(const float P[36], float carry[29])
  *     of which only one side runs: if (use_course) 7, else 28
  */
 static void mekf_k_update_heading(const float q[4], const float P[36], const float mag[3],
-    const float vel[3], bool use_course, float mag_dt, float x_out[6], float P_out[36], float *s)
+    const float vel[3], bool use_course, float mag_dt, const float feat[4], const float mag_ref[2],
+    bool recover, float x_out[6], float P_out[36], float *s)
 {
+    (void)feat;
+    (void)mag_ref;
+    (void)recover;
     /*
      * 8 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
      * handed between them (a slot reused once its value is dead)
@@ -4690,7 +4708,7 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
         float s_head;
         /* P in place: the kernel leaves it as it was when s_head is not usable */
         mekf_k_update_heading(q, P, mag_in, vel_in, course_sample && course_mode, mag_dt,
-            x, P, &s_head);
+            feat, s->mag_ref, recovering, x, P, &s_head);
         if (s_head > 1e-12f /* S_PIVOT_MIN */) {
             mekf_k_inject(q, s->gyro_bias, x, q, s->gyro_bias);
             headed = true;

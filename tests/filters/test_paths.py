@@ -214,6 +214,8 @@ VARIANTS = [
     ("qcf", ("motion_accel_model=differentiator",), "fixedwing_dropouts_250Hz"),
     ("mekf", ("heading_source=mag",), "fixedwing_dropouts_250Hz"),
     ("mekf", ("motion_comp=gps_accel",), "fixedwing_dropouts_250Hz"),
+    ("mekf", ("gyro_step_noise=0.1", "mag_dev_gain=300"), "broad_286Hz"),
+    ("mekf", ("heading_source=mag", "gyro_step_noise=0.3", "mag_dev_gain=3000"), "fixedwing_dropouts_250Hz"),
     ("adukf", ("mag_ref=learn",), "broad_286Hz"),
     ("cpf", ("mode=particle",), "px4_bench_204Hz"),
     ("cpf", ("mode=complementary",), "fixedwing_dropouts_250Hz"),

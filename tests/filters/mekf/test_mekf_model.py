@@ -211,7 +211,8 @@ def test_heading_update_never_tilts_and_keeps_P_spd(use_course):
     P = A @ A.T + 1e-4 * np.eye(6)
     mag = rotmat(q_from_euler(0.4, -0.3, 1.0)).T @ np.array([20.0, 0.0, 40.0])   # field seen 0.8 rad off
     vel = np.array([10 * np.cos(1.0), 10 * np.sin(1.0), 0.0])
-    x, P_new, s = fu(q, P.ravel(order="F"), mag, vel, use_course, 0.01)   # mag at 100 Hz
+    feat, ref = [np.linalg.norm(mag), 0.9, 0.0, 0.0], [np.linalg.norm(mag), 0.9]   # a clean field
+    x, P_new, s = fu(q, P.ravel(order="F"), mag, vel, use_course, 0.01, feat, ref, 0)   # mag at 100 Hz
     q_new = np.array(fi(q, np.zeros(3), x)[0]).ravel()
     P_new = np.array(P_new).reshape(6, 6)
     assert float(s) > M.S_PIVOT_MIN

@@ -146,6 +146,12 @@ def _process_noise(p: dict, dt, gyro=None):
         q_g = [p["gyro_noise"] ** 2 * inv] * 3
     else:
         q_g = [(p["gyro_noise"] ** 2 + (p["gyro_rate_noise"] * gyro[i]) ** 2) * inv for i in range(3)]
+        if not (isinstance(p["gyro_step_noise"], (int, float)) and p["gyro_step_noise"] == 0):
+            # a rate sampled at dt integrated as a constant-axis rotation: the rotation within
+            # the step leaves an error of gyro_step_noise (|ω| dt)² rad per step (second order:
+            # coning, an averaging IMU's mean rate); as a density over the step, (c |ω|² dt)²
+            e = p["gyro_step_noise"] * ca.sumsqr(gyro) * dt
+            q_g = [v + e * e for v in q_g]
     return ca.diag(ca.vertcat(*(q_g + [p["gyro_bias_rw"] ** 2 * dt] * 3)))
 
 
@@ -414,7 +420,9 @@ def update_heading_function(p: dict, name="update_heading") -> ca.Function:
     mag_heading_density² / mag_dt with mag_dt the magnetometer's own sample interval (the step
     keeps it, at most MAG_INTERVAL_MAX): the trust per second does not depend on the
     magnetometer's rate (its heading errors, calibration residuals and nearby iron, are
-    correlated over far longer than a sample).
+    correlated over far longer than a sample). Times 1 + mag_dev_gain e², e² the squared
+    relative norm and dip (rad) deviations of the sample (feat) from the reference field
+    (mag_ref), except while recovering from a gyro clip: a clean field is trusted more.
 
     course: z = wrap(atan2(v_E, v_N) − ψ̂), ψ̂ = atan2(R₁₀, R₀₀) (heading of the body x axis);
     mag:    z = wrap(declination − atan2(m_E, m_N)), m_n = R(q̂) m (the field's heading as
@@ -424,12 +432,21 @@ def update_heading_function(p: dict, name="update_heading") -> ca.Function:
     """
     q, Pv, mag, vel = (ca.SX.sym(n, k) for n, k in (("q", 4), ("P", N * N), ("mag", 3), ("vel", 3)))
     use_course, mag_dt = ca.SX.sym("use_course"), ca.SX.sym("mag_dt")
+    feat, ref, recover = ca.SX.sym("feat", 4), ca.SX.sym("mag_ref", 2), ca.SX.sym("recover")
     Rq = quat.rotmat(q)
     mn = ca.mtimes(Rq, mag)
     z_course = quat.wrap(ca.atan2(vel[1], vel[0]) - ca.atan2(Rq[1, 0], Rq[0, 0]))
     z_mag = quat.wrap(p["declination"] - ca.atan2(mn[1], mn[0]))
     z = ca.if_else(use_course, z_course, z_mag)
-    r = ca.if_else(use_course, p["course_noise"] ** 2, p["mag_heading_density"] ** 2 / ca.fmax(mag_dt, use(DT_Q_MIN)))
+    r_mag = p["mag_heading_density"] ** 2 / ca.fmax(mag_dt, use(DT_Q_MIN))
+    if not (isinstance(p["mag_dev_gain"], (int, float)) and p["mag_dev_gain"] == 0):
+        # graded trust: the field's disagreement with the reference (norm relative, dip in rad;
+        # feat = heading_features' [|m|, dip]) widens the variance; not while recovering from a
+        # gyro clip (the dip is seen through the attitude, which is what is wrong then)
+        e_n = ca.if_else(ref[0] > 0, (feat[0] - ref[0]) / ca.fmax(ref[0], use(DT_Q_MIN)), 0)
+        e_d = feat[1] - ref[1]
+        r_mag = r_mag * ca.if_else(recover, 1, 1 + p["mag_dev_gain"] * (e_n * e_n + e_d * e_d))
+    r = ca.if_else(use_course, p["course_noise"] ** 2, r_mag)
     H = jacobian_heading(q)
     P = sym_lower(Pv)
     PHt = ca.mtimes(P, H.T)
@@ -441,7 +458,7 @@ def update_heading_function(p: dict, name="update_heading") -> ca.Function:
     # S is not usable - the step then skips the correction
     P_new = ca.if_else(S > use(S_PIVOT_MIN), kalman.joseph_row(P, K, PHt, S), P)
     return emit.function(name, {"q": q, "P": Pv, "mag": mag, "vel": vel, "use_course": use_course,
-                                "mag_dt": mag_dt},
+                                "mag_dt": mag_dt, "feat": feat, "mag_ref": ref, "recover": recover},
                          {"x_out": K * z, "P_out": flat_mirrored(P_new), "s": S})
 
 
@@ -763,7 +780,7 @@ class Model(FilterModel):
                 KernelSpec("update_rest_bias", update_rest_bias_function(p), "at rest, the gyro bias: three scalar rows"),
                 KernelSpec("inject", inject_function(), "error injection into q and the gyro bias"),
                 KernelSpec("update_heading", update_heading_function(p), "one heading row, gain projected on the vertical",
-                           flags=("use_course",)),
+                           flags=("use_course", "recover")),
                 KernelSpec("init_attitude", init_vectors_function(p), "first attitude and low-pass state",
                            flags=("use",)),
             ] + ([self.hard_iron_kernel(refine=p["mag_norm_th"], dip_angle=True)] if self._hard_iron() else [])

@@ -166,7 +166,8 @@ class Reference:
             for k in ("accel_lpf_tau", "accel_adapt_cap", "rest_gyro_th", "rest_accel_th", "rest_min_time",
                       "rest_tau", "mag_norm_th", "mag_dip_th", "mag_learn_time", "mag_reject_max",
                       "mag_ref_tau", "mag_new_time", "course_max_sideslip", "gyro_full_scale",
-                      "clip_recovery_time", "gyro_rate_noise", "mag_heading_density", "accel_noise_density"):
+                      "clip_recovery_time", "gyro_rate_noise", "mag_heading_density", "accel_noise_density",
+                      "mag_dev_gain", "gyro_step_noise"):
                 setattr(self, k, float(p[k]))
             self.clip = GyroClip(self.gyro_full_scale, float(p["gyro_plateau_rate"]), self.clip_recovery_time)
             self.a_lp = np.zeros(3)       # earth-frame (NED) low-passed specific force
@@ -338,6 +339,10 @@ class Reference:
         # the product design: each axis's density grows with its (raw) rate, gyro_rate_noise
         k = self.gyro_rate_noise if self.vectors else 0.0
         q_g = (self.gyro_noise ** 2 + (k * np.asarray(gyro, dtype=float)) ** 2) / max(dt, DT_Q_MIN)
+        if self.vectors:
+            # a step's full-angle error c (|ω| dt)², half-angle state: ¼ dt² q = ¼ c² |ω|⁴ dt⁴
+            w = np.asarray(gyro, dtype=float)
+            q_g = q_g + (self.gyro_step_noise * (w @ w) * dt) ** 2
         Q = np.diag(list(q_g) + [self.gyro_bias_rw ** 2 * dt] * 3)
         P = F @ self.P @ F.T + G @ Q @ G.T
         P = 0.5 * (P + P.T)
@@ -578,6 +583,11 @@ class Reference:
             mn = Rq @ m
             z_h = wrap(self.declination - np.arctan2(mn[1], mn[0]))
             r_h = self.mag_heading_density ** 2 / max(mag_dt, DT_Q_MIN)
+            if not recovering:
+                # graded trust: the sample's field (norm, dip seen from the predicted attitude)
+                # against the reference at this point
+                e_n = (cur[0] - self.mag_ref[0]) / self.mag_ref[0] if self.mag_ref[0] > 0.0 else 0.0
+                r_h *= 1.0 + self.mag_dev_gain * (e_n ** 2 + (cur[1] - self.mag_ref[1]) ** 2)
             head = True
         if head:
             up = Rq[2, :]                          # Rᵀ e3: the vertical in body axes
