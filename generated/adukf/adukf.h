@@ -69,6 +69,11 @@ extern "C" {
                                             dt/4 (I4 - q q^T) + q_floor dt I4 [rad/s/sqrt(Hz)] */
 #define ADUKF_Q_FLOOR 1e-09f             /* isotropic process noise per second added to Q (keeps P
                                             positive definite) [1/s] */
+#define ADUKF_GYRO_RATE_NOISE 0.0f       /* error state only: each axis's gyro noise density grows
+                                            by this times that axis's rate, in quadrature (a MEMS
+                                            gyro's scale-factor and cross-axis errors grow with the
+                                            rate): Q_i = (gyro_noise^2 + (gyro_rate_noise w_i)^2)
+                                            dt; 0 = a constant density [1/sqrt(Hz)] */
 #define ADUKF_SIGMA_ACC 0.05f            /* base std of the normalised accelerometer measurement
                                             (sigma_a in R); 0.05 with sigma_acc_density 0.008 since
                                             issue 26 (studies/adukf_accel_density_cv.py; 0.07 from
@@ -221,6 +226,14 @@ extern "C" {
                                             of R(q-)^T of it (motion acceleration averages out,
                                             gravity does not; VQF's idea); 0 = the raw accelerometer
                                             (as the paper; faithful ignores it) [s] */
+#define ADUKF_ACCEL_LP_FOLLOW 0          /* with accel_tau > 0: after each update that used the
+                                            accelerometer the NED low-pass is turned with the
+                                            attitude's correction, R(q+) R(q-)^T (error and
+                                            quaternion states; since issue 26). Without it the
+                                            low-pass holds the old attitude's error for accel_tau
+                                            and pulls each correction back: with accel_tau 2 s the
+                                            multirotor scored 10 deg instead of 2.5 (seed 0,
+                                            reference). false: as before */
 #define ADUKF_SPAN_MAX 0.1f              /* sensors at their own rates: each sensor's R is
                                             multiplied by dt / (time since its previous sample, at
                                             most span_max), so a 100 Hz magnetometer carries the
