@@ -110,7 +110,7 @@ static float fast_atan2f(float y, float x)
 }
 
 static void adukf_k_predict_part0(const float q[4], const float gyro_bias[3], const float P[36],
-    const float gyro[3], float dt, float x_pred[7], float P_pred[21], float carry[32])
+    const float gyro[3], float dt, float x_pred[7], float P_pred[21], float carry[33])
 {
     const float tmp0 = 0.25f * dt;
     x_pred[4] = gyro_bias[0];
@@ -180,7 +180,7 @@ static void adukf_k_predict_part0(const float q[4], const float gyro_bias[3], co
 }
 
 static void adukf_k_predict_part1(const float q[4], const float P[36], float dt, float x_pred[7],
-    float q_pred_unit[4], float carry[32])
+    float q_pred_unit[4], float carry[33])
 {
     const float tmp40 = carry[12] /* tmp22 */ * q[0];
     const float tmp41 = carry[11] /* tmp19 */ * q[1];
@@ -227,35 +227,35 @@ static void adukf_k_predict_part1(const float q[4], const float P[36], float dt,
     const float tmp77 = tmp75 - tmp76;
     const float tmp78 = carry[7] /* tmp13 */ * tmp77;
     const float tmp79 = tmp78 * P[2];
-    carry[1] = tmp61;
-    carry[6] = tmp62;
-    carry[8] = tmp65;
-    carry[9] = tmp69;
-    carry[10] = tmp71;
-    carry[11] = tmp73;
-    carry[12] = tmp76;
-    carry[13] = tmp78;
-    carry[14] = tmp79;
+    carry[6] = tmp61;
+    carry[8] = tmp62;
+    carry[9] = tmp65;
+    carry[10] = tmp69;
+    carry[11] = tmp71;
+    carry[12] = tmp73;
+    carry[13] = tmp76;
+    carry[14] = tmp78;
+    carry[15] = tmp79;
 }
 
-static void adukf_k_predict_part2(const float P[36], float dt, float carry[32])
+static void adukf_k_predict_part2(const float P[36], float dt, float carry[33])
 {
-    const float tmp80 = carry[11] /* tmp73 */ + carry[14] /* tmp79 */;
+    const float tmp80 = carry[12] /* tmp73 */ + carry[15] /* tmp79 */;
     const float tmp81 = dt * carry[7] /* tmp13 */;
     const float tmp82 = tmp81 * P[3];
     const float tmp83 = tmp80 - tmp82;
-    const float tmp84 = carry[6] /* tmp62 */ * carry[7] /* tmp13 */;
+    const float tmp84 = carry[8] /* tmp62 */ * carry[7] /* tmp13 */;
     const float tmp85 = tmp84 * carry[4] /* tmp7 */;
     const float tmp86 = tmp85 * P[4];
     const float tmp87 = tmp83 - tmp86;
     const float tmp88 = tmp84 * carry[2] /* tmp4 */;
     const float tmp89 = tmp88 * P[5];
     const float tmp90 = tmp87 + tmp89;
-    const float tmp91 = tmp90 * carry[8] /* tmp65 */;
-    const float tmp92 = carry[8] /* tmp65 */ * P[1];
-    const float tmp93 = carry[10] /* tmp71 */ * P[7];
+    const float tmp91 = tmp90 * carry[9] /* tmp65 */;
+    const float tmp92 = carry[9] /* tmp65 */ * P[1];
+    const float tmp93 = carry[11] /* tmp71 */ * P[7];
     const float tmp94 = tmp92 + tmp93;
-    const float tmp95 = carry[13] /* tmp78 */ * P[8];
+    const float tmp95 = carry[14] /* tmp78 */ * P[8];
     const float tmp96 = tmp94 + tmp95;
     const float tmp97 = tmp81 * P[9];
     const float tmp98 = tmp96 - tmp97;
@@ -263,12 +263,12 @@ static void adukf_k_predict_part2(const float P[36], float dt, float carry[32])
     const float tmp100 = tmp98 - tmp99;
     const float tmp101 = tmp88 * P[11];
     const float tmp102 = tmp100 + tmp101;
-    const float tmp103 = tmp102 * carry[10] /* tmp71 */;
+    const float tmp103 = tmp102 * carry[11] /* tmp71 */;
     const float tmp104 = tmp91 + tmp103;
-    const float tmp105 = carry[8] /* tmp65 */ * P[2];
-    const float tmp106 = carry[10] /* tmp71 */ * P[8];
+    const float tmp105 = carry[9] /* tmp65 */ * P[2];
+    const float tmp106 = carry[11] /* tmp71 */ * P[8];
     const float tmp107 = tmp105 + tmp106;
-    const float tmp108 = carry[13] /* tmp78 */ * P[14];
+    const float tmp108 = carry[14] /* tmp78 */ * P[14];
     const float tmp109 = tmp107 + tmp108;
     const float tmp110 = tmp81 * P[15];
     const float tmp111 = tmp109 - tmp110;
@@ -276,365 +276,370 @@ static void adukf_k_predict_part2(const float P[36], float dt, float carry[32])
     const float tmp113 = tmp111 - tmp112;
     const float tmp114 = tmp88 * P[17];
     const float tmp115 = tmp113 + tmp114;
-    const float tmp116 = tmp115 * carry[13] /* tmp78 */;
+    const float tmp116 = tmp115 * carry[14] /* tmp78 */;
     const float tmp117 = tmp104 + tmp116;
-    const float tmp118 = carry[8] /* tmp65 */ * P[3];
-    const float tmp119 = carry[10] /* tmp71 */ * P[9];
-    carry[11] = tmp81;
-    carry[14] = tmp84;
-    carry[15] = tmp85;
-    carry[16] = tmp88;
-    carry[17] = tmp117;
-    carry[18] = tmp118;
-    carry[19] = tmp119;
+    const float tmp118 = carry[9] /* tmp65 */ * P[3];
+    const float tmp119 = carry[11] /* tmp71 */ * P[9];
+    carry[12] = tmp81;
+    carry[15] = tmp84;
+    carry[16] = tmp85;
+    carry[17] = tmp88;
+    carry[18] = tmp117;
+    carry[19] = tmp118;
+    carry[20] = tmp119;
 }
 
-static void adukf_k_predict_part3(const float P[36], float dt, float P_pred[21], float carry[32])
+static void adukf_k_predict_part3(const float P[36], float dt, float P_pred[21], float carry[33])
 {
-    const float tmp120 = carry[18] /* tmp118 */ + carry[19] /* tmp119 */;
-    const float tmp121 = carry[13] /* tmp78 */ * P[15];
+    const float tmp120 = carry[19] /* tmp118 */ + carry[20] /* tmp119 */;
+    const float tmp121 = carry[14] /* tmp78 */ * P[15];
     const float tmp122 = tmp120 + tmp121;
-    const float tmp123 = carry[11] /* tmp81 */ * P[21];
+    const float tmp123 = carry[12] /* tmp81 */ * P[21];
     const float tmp124 = tmp122 - tmp123;
-    const float tmp125 = carry[15] /* tmp85 */ * P[22];
+    const float tmp125 = carry[16] /* tmp85 */ * P[22];
     const float tmp126 = tmp124 - tmp125;
-    const float tmp127 = carry[16] /* tmp88 */ * P[23];
+    const float tmp127 = carry[17] /* tmp88 */ * P[23];
     const float tmp128 = tmp126 + tmp127;
     P_pred[3] = tmp128;
-    const float tmp129 = tmp128 * carry[11] /* tmp81 */;
-    const float tmp130 = carry[17] /* tmp117 */ - tmp129;
-    const float tmp131 = carry[8] /* tmp65 */ * P[4];
-    const float tmp132 = carry[10] /* tmp71 */ * P[10];
+    const float tmp129 = tmp128 * carry[12] /* tmp81 */;
+    const float tmp130 = carry[18] /* tmp117 */ - tmp129;
+    const float tmp131 = carry[9] /* tmp65 */ * P[4];
+    const float tmp132 = carry[11] /* tmp71 */ * P[10];
     const float tmp133 = tmp131 + tmp132;
-    const float tmp134 = carry[13] /* tmp78 */ * P[16];
+    const float tmp134 = carry[14] /* tmp78 */ * P[16];
     const float tmp135 = tmp133 + tmp134;
-    const float tmp136 = carry[11] /* tmp81 */ * P[22];
+    const float tmp136 = carry[12] /* tmp81 */ * P[22];
     const float tmp137 = tmp135 - tmp136;
-    const float tmp138 = carry[15] /* tmp85 */ * P[28];
+    const float tmp138 = carry[16] /* tmp85 */ * P[28];
     const float tmp139 = tmp137 - tmp138;
-    const float tmp140 = carry[16] /* tmp88 */ * P[29];
+    const float tmp140 = carry[17] /* tmp88 */ * P[29];
     const float tmp141 = tmp139 + tmp140;
     P_pred[4] = tmp141;
-    const float tmp142 = tmp141 * carry[15] /* tmp85 */;
+    const float tmp142 = tmp141 * carry[16] /* tmp85 */;
     const float tmp143 = tmp130 - tmp142;
-    const float tmp144 = carry[8] /* tmp65 */ * P[5];
-    const float tmp145 = carry[10] /* tmp71 */ * P[11];
+    const float tmp144 = carry[9] /* tmp65 */ * P[5];
+    const float tmp145 = carry[11] /* tmp71 */ * P[11];
     const float tmp146 = tmp144 + tmp145;
-    const float tmp147 = carry[13] /* tmp78 */ * P[17];
+    const float tmp147 = carry[14] /* tmp78 */ * P[17];
     const float tmp148 = tmp146 + tmp147;
-    const float tmp149 = carry[11] /* tmp81 */ * P[23];
+    const float tmp149 = carry[12] /* tmp81 */ * P[23];
     const float tmp150 = tmp148 - tmp149;
-    const float tmp151 = carry[15] /* tmp85 */ * P[29];
+    const float tmp151 = carry[16] /* tmp85 */ * P[29];
     const float tmp152 = tmp150 - tmp151;
-    const float tmp153 = carry[16] /* tmp88 */ * P[35];
+    const float tmp153 = carry[17] /* tmp88 */ * P[35];
     const float tmp154 = tmp152 + tmp153;
     P_pred[5] = tmp154;
-    const float tmp155 = tmp154 * carry[16] /* tmp88 */;
+    const float tmp155 = tmp154 * carry[17] /* tmp88 */;
     const float tmp156 = tmp143 + tmp155;
-    const float tmp157 = 0.000100004f /* gyro_noise^2 + 4.0*q_floor */ * dt;
-    const float tmp158 = tmp156 + tmp157;
-    const float tmp159 = 34.906586f /* gyro_full_scale */ * dt;
-    carry[17] = tmp125;
+    const float tmp157 = 9.004e-06f /* gyro_noise^2 + 4.0*q_floor */ * dt;
+    const float tmp158 = 1e-04f /* gyro_rate_noise*gyro_rate_noise */ * dt;
+    const float tmp159 = tmp158 * carry[1] /* tmp3 */;
+    carry[1] = tmp125;
     carry[18] = tmp127;
     carry[19] = tmp136;
     carry[20] = tmp149;
-    carry[21] = tmp157;
-    carry[22] = tmp158;
-    carry[23] = tmp159;
+    carry[21] = tmp156;
+    carry[22] = tmp157;
+    carry[23] = tmp158;
+    carry[24] = tmp159;
 }
 
 static void adukf_k_predict_part4(const float P[36], float dt, bool clip, float P_pred[21],
-    float carry[32])
+    float carry[33])
 {
-    const float tmp160 = carry[23] /* tmp159 */ * carry[23] /* tmp159 */;
-    const float tmp161 = (clip) ? tmp160 : 0.0f;
-    const float tmp162 = carry[22] /* tmp158 */ + tmp161;
-    P_pred[0] = tmp162;
-    const float tmp163 = carry[2] /* tmp4 */ * carry[0] /* tmp2 */;
-    const float tmp164 = carry[6] /* tmp62 */ * tmp163;
-    const float tmp165 = tmp164 - carry[9] /* tmp69 */;
-    const float tmp166 = carry[7] /* tmp13 */ * tmp165;
-    const float tmp167 = tmp166 * P[0];
-    const float tmp168 = carry[6] /* tmp62 */ * carry[3] /* tmp5 */;
+    const float tmp160 = carry[22] /* tmp157 */ + carry[24] /* tmp159 */;
+    const float tmp161 = carry[21] /* tmp156 */ + tmp160;
+    const float tmp162 = 34.906586f /* gyro_full_scale */ * dt;
+    const float tmp163 = tmp162 * tmp162;
+    const float tmp164 = (clip) ? tmp163 : 0.0f;
+    const float tmp165 = tmp161 + tmp164;
+    P_pred[0] = tmp165;
+    const float tmp166 = carry[2] /* tmp4 */ * carry[0] /* tmp2 */;
+    const float tmp167 = carry[8] /* tmp62 */ * tmp166;
+    const float tmp168 = tmp167 - carry[10] /* tmp69 */;
     const float tmp169 = carry[7] /* tmp13 */ * tmp168;
-    const float tmp170 = carry[1] /* tmp61 */ + tmp169;
-    const float tmp171 = tmp170 * P[1];
-    const float tmp172 = tmp167 + tmp171;
-    const float tmp173 = carry[2] /* tmp4 */ * carry[4] /* tmp7 */;
-    const float tmp174 = carry[6] /* tmp62 */ * tmp173;
-    const float tmp175 = dt * carry[0] /* tmp2 */;
-    const float tmp176 = tmp174 + tmp175;
-    const float tmp177 = carry[7] /* tmp13 */ * tmp176;
-    const float tmp178 = tmp177 * P[2];
-    const float tmp179 = tmp172 + tmp178;
-    const float tmp180 = carry[15] /* tmp85 */ * P[3];
-    const float tmp181 = tmp179 + tmp180;
-    const float tmp182 = carry[11] /* tmp81 */ * P[4];
-    const float tmp183 = tmp181 - tmp182;
-    const float tmp184 = carry[14] /* tmp84 */ * carry[0] /* tmp2 */;
-    const float tmp185 = tmp184 * P[5];
-    const float tmp186 = tmp183 - tmp185;
-    const float tmp187 = tmp186 * carry[8] /* tmp65 */;
-    const float tmp188 = tmp166 * P[1];
-    const float tmp189 = tmp170 * P[7];
-    const float tmp190 = tmp188 + tmp189;
-    const float tmp191 = tmp177 * P[8];
-    const float tmp192 = tmp190 + tmp191;
-    const float tmp193 = carry[15] /* tmp85 */ * P[9];
-    const float tmp194 = tmp192 + tmp193;
-    const float tmp195 = carry[11] /* tmp81 */ * P[10];
-    const float tmp196 = tmp194 - tmp195;
-    const float tmp197 = tmp184 * P[11];
-    const float tmp198 = tmp196 - tmp197;
-    const float tmp199 = tmp198 * carry[10] /* tmp71 */;
-    carry[3] = tmp161;
-    carry[9] = tmp166;
-    carry[14] = tmp170;
-    carry[22] = tmp175;
-    carry[23] = tmp177;
-    carry[24] = tmp184;
-    carry[25] = tmp186;
+    const float tmp170 = tmp169 * P[0];
+    const float tmp171 = carry[8] /* tmp62 */ * carry[3] /* tmp5 */;
+    const float tmp172 = carry[7] /* tmp13 */ * tmp171;
+    const float tmp173 = carry[6] /* tmp61 */ + tmp172;
+    const float tmp174 = tmp173 * P[1];
+    const float tmp175 = tmp170 + tmp174;
+    const float tmp176 = carry[2] /* tmp4 */ * carry[4] /* tmp7 */;
+    const float tmp177 = carry[8] /* tmp62 */ * tmp176;
+    const float tmp178 = dt * carry[0] /* tmp2 */;
+    const float tmp179 = tmp177 + tmp178;
+    const float tmp180 = carry[7] /* tmp13 */ * tmp179;
+    const float tmp181 = tmp180 * P[2];
+    const float tmp182 = tmp175 + tmp181;
+    const float tmp183 = carry[16] /* tmp85 */ * P[3];
+    const float tmp184 = tmp182 + tmp183;
+    const float tmp185 = carry[12] /* tmp81 */ * P[4];
+    const float tmp186 = tmp184 - tmp185;
+    const float tmp187 = carry[15] /* tmp84 */ * carry[0] /* tmp2 */;
+    const float tmp188 = tmp187 * P[5];
+    const float tmp189 = tmp186 - tmp188;
+    const float tmp190 = tmp189 * carry[9] /* tmp65 */;
+    const float tmp191 = tmp169 * P[1];
+    const float tmp192 = tmp173 * P[7];
+    const float tmp193 = tmp191 + tmp192;
+    const float tmp194 = tmp180 * P[8];
+    const float tmp195 = tmp193 + tmp194;
+    const float tmp196 = carry[16] /* tmp85 */ * P[9];
+    const float tmp197 = tmp195 + tmp196;
+    const float tmp198 = carry[12] /* tmp81 */ * P[10];
+    const float tmp199 = tmp197 - tmp198;
+    carry[10] = tmp164;
+    carry[15] = tmp169;
+    carry[21] = tmp173;
+    carry[24] = tmp178;
+    carry[25] = tmp180;
     carry[26] = tmp187;
-    carry[27] = tmp198;
-    carry[28] = tmp199;
+    carry[27] = tmp189;
+    carry[28] = tmp190;
+    carry[29] = tmp199;
 }
 
-static void adukf_k_predict_part5(const float P[36], float P_pred[21], float carry[32])
+static void adukf_k_predict_part5(const float P[36], float P_pred[21], float carry[33])
 {
-    const float tmp200 = carry[26] /* tmp187 */ + carry[28] /* tmp199 */;
-    const float tmp201 = carry[9] /* tmp166 */ * P[2];
-    const float tmp202 = carry[14] /* tmp170 */ * P[8];
-    const float tmp203 = tmp201 + tmp202;
-    const float tmp204 = carry[23] /* tmp177 */ * P[14];
-    const float tmp205 = tmp203 + tmp204;
-    const float tmp206 = carry[15] /* tmp85 */ * P[15];
-    const float tmp207 = tmp205 + tmp206;
-    const float tmp208 = carry[11] /* tmp81 */ * P[16];
-    const float tmp209 = tmp207 - tmp208;
-    const float tmp210 = carry[24] /* tmp184 */ * P[17];
-    const float tmp211 = tmp209 - tmp210;
-    const float tmp212 = tmp211 * carry[13] /* tmp78 */;
-    const float tmp213 = tmp200 + tmp212;
-    const float tmp214 = carry[9] /* tmp166 */ * P[3];
-    const float tmp215 = carry[14] /* tmp170 */ * P[9];
-    const float tmp216 = tmp214 + tmp215;
-    const float tmp217 = carry[23] /* tmp177 */ * P[15];
-    const float tmp218 = tmp216 + tmp217;
-    const float tmp219 = carry[15] /* tmp85 */ * P[21];
-    const float tmp220 = tmp218 + tmp219;
-    const float tmp221 = tmp220 - carry[19] /* tmp136 */;
-    const float tmp222 = carry[24] /* tmp184 */ * P[23];
-    const float tmp223 = tmp221 - tmp222;
-    P_pred[8] = tmp223;
-    const float tmp224 = tmp223 * carry[11] /* tmp81 */;
-    const float tmp225 = tmp213 - tmp224;
-    const float tmp226 = carry[9] /* tmp166 */ * P[4];
-    const float tmp227 = carry[14] /* tmp170 */ * P[10];
-    const float tmp228 = tmp226 + tmp227;
-    const float tmp229 = carry[23] /* tmp177 */ * P[16];
-    const float tmp230 = tmp228 + tmp229;
-    const float tmp231 = tmp230 + carry[17] /* tmp125 */;
-    const float tmp232 = carry[11] /* tmp81 */ * P[28];
-    const float tmp233 = tmp231 - tmp232;
-    const float tmp234 = carry[24] /* tmp184 */ * P[29];
-    const float tmp235 = tmp233 - tmp234;
-    P_pred[9] = tmp235;
-    const float tmp236 = tmp235 * carry[15] /* tmp85 */;
-    const float tmp237 = tmp225 - tmp236;
-    const float tmp238 = carry[9] /* tmp166 */ * P[5];
-    const float tmp239 = carry[14] /* tmp170 */ * P[11];
-    carry[17] = tmp211;
-    carry[19] = tmp223;
-    carry[26] = tmp234;
-    carry[28] = tmp235;
-    carry[29] = tmp237;
-    carry[30] = tmp238;
-    carry[31] = tmp239;
+    const float tmp200 = carry[26] /* tmp187 */ * P[11];
+    const float tmp201 = carry[29] /* tmp199 */ - tmp200;
+    const float tmp202 = tmp201 * carry[11] /* tmp71 */;
+    const float tmp203 = carry[28] /* tmp190 */ + tmp202;
+    const float tmp204 = carry[15] /* tmp169 */ * P[2];
+    const float tmp205 = carry[21] /* tmp173 */ * P[8];
+    const float tmp206 = tmp204 + tmp205;
+    const float tmp207 = carry[25] /* tmp180 */ * P[14];
+    const float tmp208 = tmp206 + tmp207;
+    const float tmp209 = carry[16] /* tmp85 */ * P[15];
+    const float tmp210 = tmp208 + tmp209;
+    const float tmp211 = carry[12] /* tmp81 */ * P[16];
+    const float tmp212 = tmp210 - tmp211;
+    const float tmp213 = carry[26] /* tmp187 */ * P[17];
+    const float tmp214 = tmp212 - tmp213;
+    const float tmp215 = tmp214 * carry[14] /* tmp78 */;
+    const float tmp216 = tmp203 + tmp215;
+    const float tmp217 = carry[15] /* tmp169 */ * P[3];
+    const float tmp218 = carry[21] /* tmp173 */ * P[9];
+    const float tmp219 = tmp217 + tmp218;
+    const float tmp220 = carry[25] /* tmp180 */ * P[15];
+    const float tmp221 = tmp219 + tmp220;
+    const float tmp222 = carry[16] /* tmp85 */ * P[21];
+    const float tmp223 = tmp221 + tmp222;
+    const float tmp224 = tmp223 - carry[19] /* tmp136 */;
+    const float tmp225 = carry[26] /* tmp187 */ * P[23];
+    const float tmp226 = tmp224 - tmp225;
+    P_pred[8] = tmp226;
+    const float tmp227 = tmp226 * carry[12] /* tmp81 */;
+    const float tmp228 = tmp216 - tmp227;
+    const float tmp229 = carry[15] /* tmp169 */ * P[4];
+    const float tmp230 = carry[21] /* tmp173 */ * P[10];
+    const float tmp231 = tmp229 + tmp230;
+    const float tmp232 = carry[25] /* tmp180 */ * P[16];
+    const float tmp233 = tmp231 + tmp232;
+    const float tmp234 = tmp233 + carry[1] /* tmp125 */;
+    const float tmp235 = carry[12] /* tmp81 */ * P[28];
+    const float tmp236 = tmp234 - tmp235;
+    const float tmp237 = carry[26] /* tmp187 */ * P[29];
+    const float tmp238 = tmp236 - tmp237;
+    P_pred[9] = tmp238;
+    const float tmp239 = tmp238 * carry[16] /* tmp85 */;
+    carry[1] = tmp201;
+    carry[19] = tmp214;
+    carry[28] = tmp226;
+    carry[29] = tmp228;
+    carry[30] = tmp237;
+    carry[31] = tmp238;
+    carry[32] = tmp239;
 }
 
-static void adukf_k_predict_part6(const float P[36], float P_pred[21], float carry[32])
+static void adukf_k_predict_part6(const float P[36], float P_pred[21], float carry[33])
 {
-    const float tmp240 = carry[30] /* tmp238 */ + carry[31] /* tmp239 */;
-    const float tmp241 = carry[23] /* tmp177 */ * P[17];
-    const float tmp242 = tmp240 + tmp241;
-    const float tmp243 = carry[15] /* tmp85 */ * P[23];
-    const float tmp244 = tmp242 + tmp243;
-    const float tmp245 = carry[11] /* tmp81 */ * P[29];
-    const float tmp246 = tmp244 - tmp245;
-    const float tmp247 = carry[24] /* tmp184 */ * P[35];
-    const float tmp248 = tmp246 - tmp247;
-    P_pred[10] = tmp248;
-    const float tmp249 = tmp248 * carry[16] /* tmp88 */;
-    const float tmp250 = carry[29] /* tmp237 */ + tmp249;
-    P_pred[1] = tmp250;
-    const float tmp251 = carry[4] /* tmp7 */ * carry[0] /* tmp2 */;
-    const float tmp252 = carry[6] /* tmp62 */ * tmp251;
-    const float tmp253 = tmp252 + carry[12] /* tmp76 */;
-    const float tmp254 = carry[7] /* tmp13 */ * tmp253;
-    const float tmp255 = tmp254 * P[0];
-    const float tmp256 = carry[4] /* tmp7 */ * carry[2] /* tmp4 */;
-    const float tmp257 = carry[6] /* tmp62 */ * tmp256;
-    const float tmp258 = tmp257 - carry[22] /* tmp175 */;
-    const float tmp259 = carry[7] /* tmp13 */ * tmp258;
-    const float tmp260 = tmp259 * P[1];
-    const float tmp261 = tmp255 + tmp260;
-    const float tmp262 = carry[6] /* tmp62 */ * carry[5] /* tmp8 */;
-    const float tmp263 = carry[7] /* tmp13 */ * tmp262;
-    const float tmp264 = carry[1] /* tmp61 */ + tmp263;
-    const float tmp265 = tmp264 * P[2];
-    const float tmp266 = tmp261 + tmp265;
-    const float tmp267 = carry[16] /* tmp88 */ * P[3];
-    const float tmp268 = tmp266 - tmp267;
-    const float tmp269 = carry[24] /* tmp184 */ * P[4];
-    const float tmp270 = tmp268 + tmp269;
-    const float tmp271 = carry[11] /* tmp81 */ * P[5];
-    const float tmp272 = tmp270 - tmp271;
-    const float tmp273 = tmp272 * carry[8] /* tmp65 */;
-    const float tmp274 = tmp254 * P[1];
-    const float tmp275 = tmp259 * P[7];
-    const float tmp276 = tmp274 + tmp275;
-    const float tmp277 = tmp264 * P[8];
-    const float tmp278 = tmp276 + tmp277;
-    const float tmp279 = carry[16] /* tmp88 */ * P[9];
-    carry[0] = tmp245;
-    carry[1] = tmp248;
-    carry[2] = tmp254;
-    carry[4] = tmp259;
-    carry[5] = tmp264;
-    carry[6] = tmp272;
-    carry[7] = tmp273;
-    carry[8] = tmp278;
-    carry[12] = tmp279;
+    const float tmp240 = carry[29] /* tmp228 */ - carry[32] /* tmp239 */;
+    const float tmp241 = carry[15] /* tmp169 */ * P[5];
+    const float tmp242 = carry[21] /* tmp173 */ * P[11];
+    const float tmp243 = tmp241 + tmp242;
+    const float tmp244 = carry[25] /* tmp180 */ * P[17];
+    const float tmp245 = tmp243 + tmp244;
+    const float tmp246 = carry[16] /* tmp85 */ * P[23];
+    const float tmp247 = tmp245 + tmp246;
+    const float tmp248 = carry[12] /* tmp81 */ * P[29];
+    const float tmp249 = tmp247 - tmp248;
+    const float tmp250 = carry[26] /* tmp187 */ * P[35];
+    const float tmp251 = tmp249 - tmp250;
+    P_pred[10] = tmp251;
+    const float tmp252 = tmp251 * carry[17] /* tmp88 */;
+    const float tmp253 = tmp240 + tmp252;
+    P_pred[1] = tmp253;
+    const float tmp254 = carry[4] /* tmp7 */ * carry[0] /* tmp2 */;
+    const float tmp255 = carry[8] /* tmp62 */ * tmp254;
+    const float tmp256 = tmp255 + carry[13] /* tmp76 */;
+    const float tmp257 = carry[7] /* tmp13 */ * tmp256;
+    const float tmp258 = tmp257 * P[0];
+    const float tmp259 = carry[4] /* tmp7 */ * carry[2] /* tmp4 */;
+    const float tmp260 = carry[8] /* tmp62 */ * tmp259;
+    const float tmp261 = tmp260 - carry[24] /* tmp178 */;
+    const float tmp262 = carry[7] /* tmp13 */ * tmp261;
+    const float tmp263 = tmp262 * P[1];
+    const float tmp264 = tmp258 + tmp263;
+    const float tmp265 = carry[8] /* tmp62 */ * carry[5] /* tmp8 */;
+    const float tmp266 = carry[7] /* tmp13 */ * tmp265;
+    const float tmp267 = carry[6] /* tmp61 */ + tmp266;
+    const float tmp268 = tmp267 * P[2];
+    const float tmp269 = tmp264 + tmp268;
+    const float tmp270 = carry[17] /* tmp88 */ * P[3];
+    const float tmp271 = tmp269 - tmp270;
+    const float tmp272 = carry[26] /* tmp187 */ * P[4];
+    const float tmp273 = tmp271 + tmp272;
+    const float tmp274 = carry[12] /* tmp81 */ * P[5];
+    const float tmp275 = tmp273 - tmp274;
+    const float tmp276 = tmp275 * carry[9] /* tmp65 */;
+    const float tmp277 = tmp257 * P[1];
+    const float tmp278 = tmp262 * P[7];
+    const float tmp279 = tmp277 + tmp278;
+    carry[0] = tmp248;
+    carry[2] = tmp251;
+    carry[4] = tmp257;
+    carry[6] = tmp262;
+    carry[7] = tmp267;
+    carry[8] = tmp275;
+    carry[9] = tmp276;
+    carry[13] = tmp279;
 }
 
-static void adukf_k_predict_part7(const float P[36], float P_pred[21], float carry[32])
+static void adukf_k_predict_part7(const float P[36], float P_pred[21], float carry[33])
 {
-    const float tmp280 = carry[8] /* tmp278 */ - carry[12] /* tmp279 */;
-    const float tmp281 = carry[24] /* tmp184 */ * P[10];
-    const float tmp282 = tmp280 + tmp281;
-    const float tmp283 = carry[11] /* tmp81 */ * P[11];
-    const float tmp284 = tmp282 - tmp283;
-    const float tmp285 = tmp284 * carry[10] /* tmp71 */;
-    const float tmp286 = carry[7] /* tmp273 */ + tmp285;
-    const float tmp287 = carry[2] /* tmp254 */ * P[2];
-    const float tmp288 = carry[4] /* tmp259 */ * P[8];
-    const float tmp289 = tmp287 + tmp288;
-    const float tmp290 = carry[5] /* tmp264 */ * P[14];
-    const float tmp291 = tmp289 + tmp290;
-    const float tmp292 = carry[16] /* tmp88 */ * P[15];
-    const float tmp293 = tmp291 - tmp292;
-    const float tmp294 = carry[24] /* tmp184 */ * P[16];
-    const float tmp295 = tmp293 + tmp294;
-    const float tmp296 = carry[11] /* tmp81 */ * P[17];
-    const float tmp297 = tmp295 - tmp296;
-    const float tmp298 = tmp297 * carry[13] /* tmp78 */;
-    const float tmp299 = tmp286 + tmp298;
-    const float tmp300 = carry[2] /* tmp254 */ * P[3];
-    const float tmp301 = carry[4] /* tmp259 */ * P[9];
-    const float tmp302 = tmp300 + tmp301;
-    const float tmp303 = carry[5] /* tmp264 */ * P[15];
-    const float tmp304 = tmp302 + tmp303;
-    const float tmp305 = carry[16] /* tmp88 */ * P[21];
-    const float tmp306 = tmp304 - tmp305;
-    const float tmp307 = carry[24] /* tmp184 */ * P[22];
-    const float tmp308 = tmp306 + tmp307;
-    const float tmp309 = tmp308 - carry[20] /* tmp149 */;
-    P_pred[12] = tmp309;
-    const float tmp310 = tmp309 * carry[11] /* tmp81 */;
-    const float tmp311 = tmp299 - tmp310;
-    const float tmp312 = carry[2] /* tmp254 */ * P[4];
-    const float tmp313 = carry[4] /* tmp259 */ * P[10];
-    const float tmp314 = tmp312 + tmp313;
-    const float tmp315 = carry[5] /* tmp264 */ * P[16];
-    const float tmp316 = tmp314 + tmp315;
-    const float tmp317 = carry[16] /* tmp88 */ * P[22];
-    const float tmp318 = tmp316 - tmp317;
-    const float tmp319 = carry[24] /* tmp184 */ * P[28];
-    carry[7] = tmp284;
-    carry[8] = tmp297;
-    carry[10] = tmp309;
-    carry[12] = tmp311;
-    carry[13] = tmp318;
+    const float tmp280 = carry[7] /* tmp267 */ * P[8];
+    const float tmp281 = carry[13] /* tmp279 */ + tmp280;
+    const float tmp282 = carry[17] /* tmp88 */ * P[9];
+    const float tmp283 = tmp281 - tmp282;
+    const float tmp284 = carry[26] /* tmp187 */ * P[10];
+    const float tmp285 = tmp283 + tmp284;
+    const float tmp286 = carry[12] /* tmp81 */ * P[11];
+    const float tmp287 = tmp285 - tmp286;
+    const float tmp288 = tmp287 * carry[11] /* tmp71 */;
+    const float tmp289 = carry[9] /* tmp276 */ + tmp288;
+    const float tmp290 = carry[4] /* tmp257 */ * P[2];
+    const float tmp291 = carry[6] /* tmp262 */ * P[8];
+    const float tmp292 = tmp290 + tmp291;
+    const float tmp293 = carry[7] /* tmp267 */ * P[14];
+    const float tmp294 = tmp292 + tmp293;
+    const float tmp295 = carry[17] /* tmp88 */ * P[15];
+    const float tmp296 = tmp294 - tmp295;
+    const float tmp297 = carry[26] /* tmp187 */ * P[16];
+    const float tmp298 = tmp296 + tmp297;
+    const float tmp299 = carry[12] /* tmp81 */ * P[17];
+    const float tmp300 = tmp298 - tmp299;
+    const float tmp301 = tmp300 * carry[14] /* tmp78 */;
+    const float tmp302 = tmp289 + tmp301;
+    const float tmp303 = carry[4] /* tmp257 */ * P[3];
+    const float tmp304 = carry[6] /* tmp262 */ * P[9];
+    const float tmp305 = tmp303 + tmp304;
+    const float tmp306 = carry[7] /* tmp267 */ * P[15];
+    const float tmp307 = tmp305 + tmp306;
+    const float tmp308 = carry[17] /* tmp88 */ * P[21];
+    const float tmp309 = tmp307 - tmp308;
+    const float tmp310 = carry[26] /* tmp187 */ * P[22];
+    const float tmp311 = tmp309 + tmp310;
+    const float tmp312 = tmp311 - carry[20] /* tmp149 */;
+    P_pred[12] = tmp312;
+    const float tmp313 = tmp312 * carry[12] /* tmp81 */;
+    const float tmp314 = tmp302 - tmp313;
+    const float tmp315 = carry[4] /* tmp257 */ * P[4];
+    const float tmp316 = carry[6] /* tmp262 */ * P[10];
+    const float tmp317 = tmp315 + tmp316;
+    const float tmp318 = carry[7] /* tmp267 */ * P[16];
+    const float tmp319 = tmp317 + tmp318;
+    carry[9] = tmp287;
+    carry[11] = tmp300;
+    carry[13] = tmp312;
+    carry[14] = tmp314;
     carry[20] = tmp319;
 }
 
-static void adukf_k_predict_part8(const float P[36], float P_pred[21], float carry[32])
+static void adukf_k_predict_part8(const float P[36], float P_pred[21], float carry[33])
 {
-    const float tmp320 = carry[13] /* tmp318 */ + carry[20] /* tmp319 */;
-    const float tmp321 = tmp320 - carry[0] /* tmp245 */;
-    P_pred[13] = tmp321;
-    const float tmp322 = tmp321 * carry[15] /* tmp85 */;
-    const float tmp323 = carry[12] /* tmp311 */ - tmp322;
-    const float tmp324 = carry[2] /* tmp254 */ * P[5];
-    const float tmp325 = carry[4] /* tmp259 */ * P[11];
-    const float tmp326 = tmp324 + tmp325;
-    const float tmp327 = carry[5] /* tmp264 */ * P[17];
-    const float tmp328 = tmp326 + tmp327;
-    const float tmp329 = tmp328 - carry[18] /* tmp127 */;
-    const float tmp330 = tmp329 + carry[26] /* tmp234 */;
-    const float tmp331 = carry[11] /* tmp81 */ * P[35];
-    const float tmp332 = tmp330 - tmp331;
-    P_pred[14] = tmp332;
-    const float tmp333 = tmp332 * carry[16] /* tmp88 */;
-    const float tmp334 = tmp323 + tmp333;
-    P_pred[2] = tmp334;
-    const float tmp335 = carry[25] /* tmp186 */ * carry[9] /* tmp166 */;
-    const float tmp336 = carry[27] /* tmp198 */ * carry[14] /* tmp170 */;
-    const float tmp337 = tmp335 + tmp336;
-    const float tmp338 = carry[17] /* tmp211 */ * carry[23] /* tmp177 */;
-    const float tmp339 = tmp337 + tmp338;
-    const float tmp340 = carry[19] /* tmp223 */ * carry[15] /* tmp85 */;
-    const float tmp341 = tmp339 + tmp340;
-    const float tmp342 = carry[28] /* tmp235 */ * carry[11] /* tmp81 */;
-    const float tmp343 = tmp341 - tmp342;
-    const float tmp344 = carry[1] /* tmp248 */ * carry[24] /* tmp184 */;
-    const float tmp345 = tmp343 - tmp344;
-    const float tmp346 = tmp345 + carry[21] /* tmp157 */;
-    const float tmp347 = tmp346 + carry[3] /* tmp161 */;
-    P_pred[6] = tmp347;
-    const float tmp348 = carry[6] /* tmp272 */ * carry[9] /* tmp166 */;
-    const float tmp349 = carry[7] /* tmp284 */ * carry[14] /* tmp170 */;
-    const float tmp350 = tmp348 + tmp349;
-    const float tmp351 = carry[8] /* tmp297 */ * carry[23] /* tmp177 */;
-    const float tmp352 = tmp350 + tmp351;
-    const float tmp353 = carry[10] /* tmp309 */ * carry[15] /* tmp85 */;
-    const float tmp354 = tmp352 + tmp353;
-    const float tmp355 = tmp321 * carry[11] /* tmp81 */;
-    const float tmp356 = tmp354 - tmp355;
-    const float tmp357 = tmp332 * carry[24] /* tmp184 */;
-    const float tmp358 = tmp356 - tmp357;
-    P_pred[7] = tmp358;
-    const float tmp359 = carry[6] /* tmp272 */ * carry[2] /* tmp254 */;
-    carry[0] = tmp321;
-    carry[1] = tmp332;
+    const float tmp320 = carry[17] /* tmp88 */ * P[22];
+    const float tmp321 = carry[20] /* tmp319 */ - tmp320;
+    const float tmp322 = carry[26] /* tmp187 */ * P[28];
+    const float tmp323 = tmp321 + tmp322;
+    const float tmp324 = tmp323 - carry[0] /* tmp248 */;
+    P_pred[13] = tmp324;
+    const float tmp325 = tmp324 * carry[16] /* tmp85 */;
+    const float tmp326 = carry[14] /* tmp314 */ - tmp325;
+    const float tmp327 = carry[4] /* tmp257 */ * P[5];
+    const float tmp328 = carry[6] /* tmp262 */ * P[11];
+    const float tmp329 = tmp327 + tmp328;
+    const float tmp330 = carry[7] /* tmp267 */ * P[17];
+    const float tmp331 = tmp329 + tmp330;
+    const float tmp332 = tmp331 - carry[18] /* tmp127 */;
+    const float tmp333 = tmp332 + carry[30] /* tmp237 */;
+    const float tmp334 = carry[12] /* tmp81 */ * P[35];
+    const float tmp335 = tmp333 - tmp334;
+    P_pred[14] = tmp335;
+    const float tmp336 = tmp335 * carry[17] /* tmp88 */;
+    const float tmp337 = tmp326 + tmp336;
+    P_pred[2] = tmp337;
+    const float tmp338 = carry[27] /* tmp189 */ * carry[15] /* tmp169 */;
+    const float tmp339 = carry[1] /* tmp201 */ * carry[21] /* tmp173 */;
+    const float tmp340 = tmp338 + tmp339;
+    const float tmp341 = carry[19] /* tmp214 */ * carry[25] /* tmp180 */;
+    const float tmp342 = tmp340 + tmp341;
+    const float tmp343 = carry[28] /* tmp226 */ * carry[16] /* tmp85 */;
+    const float tmp344 = tmp342 + tmp343;
+    const float tmp345 = carry[31] /* tmp238 */ * carry[12] /* tmp81 */;
+    const float tmp346 = tmp344 - tmp345;
+    const float tmp347 = carry[2] /* tmp251 */ * carry[26] /* tmp187 */;
+    const float tmp348 = tmp346 - tmp347;
+    const float tmp349 = carry[23] /* tmp158 */ * carry[3] /* tmp5 */;
+    const float tmp350 = carry[22] /* tmp157 */ + tmp349;
+    const float tmp351 = tmp348 + tmp350;
+    const float tmp352 = tmp351 + carry[10] /* tmp164 */;
+    P_pred[6] = tmp352;
+    const float tmp353 = carry[8] /* tmp275 */ * carry[15] /* tmp169 */;
+    const float tmp354 = carry[9] /* tmp287 */ * carry[21] /* tmp173 */;
+    const float tmp355 = tmp353 + tmp354;
+    const float tmp356 = carry[11] /* tmp300 */ * carry[25] /* tmp180 */;
+    const float tmp357 = tmp355 + tmp356;
+    const float tmp358 = carry[13] /* tmp312 */ * carry[16] /* tmp85 */;
+    const float tmp359 = tmp357 + tmp358;
+    carry[0] = tmp324;
+    carry[1] = tmp335;
     carry[2] = tmp359;
 }
 
 static void adukf_k_predict_part9(const float P[36], float dt, float P_pred[21],
-    const float carry[32])
+    const float carry[33])
 {
-    const float tmp360 = carry[7] /* tmp284 */ * carry[4] /* tmp259 */;
-    const float tmp361 = carry[2] /* tmp359 */ + tmp360;
-    const float tmp362 = carry[8] /* tmp297 */ * carry[5] /* tmp264 */;
-    const float tmp363 = tmp361 + tmp362;
-    const float tmp364 = carry[10] /* tmp309 */ * carry[16] /* tmp88 */;
-    const float tmp365 = tmp363 - tmp364;
-    const float tmp366 = carry[0] /* tmp321 */ * carry[24] /* tmp184 */;
-    const float tmp367 = tmp365 + tmp366;
-    const float tmp368 = carry[1] /* tmp332 */ * carry[11] /* tmp81 */;
-    const float tmp369 = tmp367 - tmp368;
-    const float tmp370 = tmp369 + carry[21] /* tmp157 */;
-    const float tmp371 = tmp370 + carry[3] /* tmp161 */;
-    P_pred[11] = tmp371;
-    const float tmp372 = 1e-08f /* bias_rw^2 */ * dt;
-    const float tmp373 = 1e-09f /* q_floor */ * dt;
-    const float tmp374 = tmp372 + tmp373;
-    const float tmp375 = P[21] + tmp374;
-    P_pred[15] = tmp375;
-    const float tmp376 = P[28] + tmp374;
-    P_pred[18] = tmp376;
-    const float tmp377 = P[35] + tmp374;
-    P_pred[20] = tmp377;
+    const float tmp360 = carry[0] /* tmp324 */ * carry[12] /* tmp81 */;
+    const float tmp361 = carry[2] /* tmp359 */ - tmp360;
+    const float tmp362 = carry[1] /* tmp335 */ * carry[26] /* tmp187 */;
+    const float tmp363 = tmp361 - tmp362;
+    P_pred[7] = tmp363;
+    const float tmp364 = carry[8] /* tmp275 */ * carry[4] /* tmp257 */;
+    const float tmp365 = carry[9] /* tmp287 */ * carry[6] /* tmp262 */;
+    const float tmp366 = tmp364 + tmp365;
+    const float tmp367 = carry[11] /* tmp300 */ * carry[7] /* tmp267 */;
+    const float tmp368 = tmp366 + tmp367;
+    const float tmp369 = carry[13] /* tmp312 */ * carry[17] /* tmp88 */;
+    const float tmp370 = tmp368 - tmp369;
+    const float tmp371 = carry[0] /* tmp324 */ * carry[26] /* tmp187 */;
+    const float tmp372 = tmp370 + tmp371;
+    const float tmp373 = carry[1] /* tmp335 */ * carry[12] /* tmp81 */;
+    const float tmp374 = tmp372 - tmp373;
+    const float tmp375 = carry[23] /* tmp158 */ * carry[5] /* tmp8 */;
+    const float tmp376 = carry[22] /* tmp157 */ + tmp375;
+    const float tmp377 = tmp374 + tmp376;
+    const float tmp378 = tmp377 + carry[10] /* tmp164 */;
+    P_pred[11] = tmp378;
+    const float tmp379 = 1e-08f /* bias_rw^2 */ * dt;
+    const float tmp380 = 1e-09f /* q_floor */ * dt;
+    const float tmp381 = tmp379 + tmp380;
+    const float tmp382 = P[21] + tmp381;
+    P_pred[15] = tmp382;
+    const float tmp383 = P[28] + tmp381;
+    P_pred[18] = tmp383;
+    const float tmp384 = P[35] + tmp381;
+    P_pred[20] = tmp384;
 }
 
 /*
@@ -654,7 +659,7 @@ static void adukf_k_predict_part9(const float P[36], float dt, float P_pred[21],
  *     q_pred_unit: float[4]
  *     P_pred: float[21]
  *
- * Total ops: 378 (add 162, mul 211, div 2, sqrt 2, cmp 1)
+ * Total ops: 385 (add 165, mul 215, div 2, sqrt 2, cmp 1)
  */
 #if defined(__GNUC__)
 __attribute__((noinline))
@@ -667,7 +672,7 @@ static void adukf_k_predict(const float q[restrict 4], const float gyro_bias[res
      * 10 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
      * handed between them (a slot reused once its value is dead)
      */
-    float carry[32];
+    float carry[33];
     adukf_k_predict_part0(q, gyro_bias, P, gyro, dt, x_pred, P_pred, carry);
     adukf_k_predict_part1(q, P, dt, x_pred, q_pred_unit, carry);
     adukf_k_predict_part2(P, dt, carry);
@@ -1123,7 +1128,7 @@ static void adukf_k_innovation_part0(const float z0[6], const float zsum[18], co
     const float tmp28 = (tmp27 > 0.1f /* 1.0/span_steps_max */) ? tmp27 :
             0.1f /* 1.0/span_steps_max */;
     const float tmp29 = (span[0] > 1e-09f /* SPAN_MIN */) ? span[0] : 1e-09f /* SPAN_MIN */;
-    const float tmp30 = 6.4e-05f /* sigma_acc_density^2 */ / tmp29;
+    const float tmp30 = 0.000256f /* sigma_acc_density^2 */ / tmp29;
     const float tmp31 = zsum[1] * zsum[0];
     const float tmp32 = zdiff[1] * zdiff[0];
     const float tmp33 = tmp31 + tmp32;
@@ -2684,6 +2689,178 @@ static void adukf_k_accel_lowpass(const float q_pred_unit[4], const float accel[
     accel_body[0] = carry[2] /* tmp64 */;
     accel_body[1] = carry[3] /* tmp69 */;
     accel_body[2] = carry[4] /* tmp74 */;
+}
+
+static void adukf_k_accel_lp_follow_part0(const float q_pred[4], const float q_new[4],
+    const float accel_lp[3], float carry[17])
+{
+    const float tmp0 = q_new[2] * q_new[2];
+    const float tmp1 = q_new[3] * q_new[3];
+    const float tmp2 = tmp0 + tmp1;
+    const float tmp3 = tmp2 + tmp2;
+    const float tmp4 = 1.0f - tmp3;
+    const float tmp5 = q_pred[0] * q_pred[0];
+    const float tmp6 = q_pred[1] * q_pred[1];
+    const float tmp7 = tmp5 + tmp6;
+    const float tmp8 = q_pred[2] * q_pred[2];
+    const float tmp9 = tmp7 + tmp8;
+    const float tmp10 = q_pred[3] * q_pred[3];
+    const float tmp11 = tmp9 + tmp10;
+    const float tmp12 = 1.0f / tmp11;
+    const float tmp13 = sqrtf(tmp12);
+    const float tmp14 = q_pred[2] * tmp13;
+    const float tmp15 = tmp14 * tmp14;
+    const float tmp16 = q_pred[3] * tmp13;
+    const float tmp17 = tmp16 * tmp16;
+    const float tmp18 = tmp15 + tmp17;
+    const float tmp19 = tmp18 + tmp18;
+    const float tmp20 = 1.0f - tmp19;
+    const float tmp21 = tmp20 * accel_lp[0];
+    const float tmp22 = q_pred[1] * tmp13;
+    const float tmp23 = tmp22 * tmp14;
+    const float tmp24 = q_pred[0] * tmp13;
+    const float tmp25 = tmp24 * tmp16;
+    const float tmp26 = tmp23 + tmp25;
+    const float tmp27 = tmp26 + tmp26;
+    const float tmp28 = tmp27 * accel_lp[1];
+    const float tmp29 = tmp21 + tmp28;
+    const float tmp30 = tmp22 * tmp16;
+    const float tmp31 = tmp24 * tmp14;
+    const float tmp32 = tmp30 - tmp31;
+    const float tmp33 = tmp32 + tmp32;
+    const float tmp34 = tmp33 * accel_lp[2];
+    const float tmp35 = tmp29 + tmp34;
+    const float tmp36 = tmp4 * tmp35;
+    const float tmp37 = q_new[1] * q_new[2];
+    const float tmp38 = q_new[0] * q_new[3];
+    const float tmp39 = tmp37 - tmp38;
+    carry[0] = tmp0;
+    carry[1] = tmp1;
+    carry[2] = tmp14;
+    carry[3] = tmp15;
+    carry[4] = tmp16;
+    carry[5] = tmp17;
+    carry[6] = tmp22;
+    carry[7] = tmp23;
+    carry[8] = tmp24;
+    carry[9] = tmp25;
+    carry[10] = tmp30;
+    carry[11] = tmp31;
+    carry[12] = tmp35;
+    carry[13] = tmp36;
+    carry[14] = tmp37;
+    carry[15] = tmp38;
+    carry[16] = tmp39;
+}
+
+static void adukf_k_accel_lp_follow_part1(const float q_new[4], const float accel_lp[3],
+    float carry[17])
+{
+    const float tmp40 = carry[16] /* tmp39 */ + carry[16] /* tmp39 */;
+    const float tmp41 = carry[7] /* tmp23 */ - carry[9] /* tmp25 */;
+    const float tmp42 = tmp41 + tmp41;
+    const float tmp43 = tmp42 * accel_lp[0];
+    const float tmp44 = carry[6] /* tmp22 */ * carry[6] /* tmp22 */;
+    const float tmp45 = tmp44 + carry[5] /* tmp17 */;
+    const float tmp46 = tmp45 + tmp45;
+    const float tmp47 = 1.0f - tmp46;
+    const float tmp48 = tmp47 * accel_lp[1];
+    const float tmp49 = tmp43 + tmp48;
+    const float tmp50 = carry[2] /* tmp14 */ * carry[4] /* tmp16 */;
+    const float tmp51 = carry[8] /* tmp24 */ * carry[6] /* tmp22 */;
+    const float tmp52 = tmp50 + tmp51;
+    const float tmp53 = tmp52 + tmp52;
+    const float tmp54 = tmp53 * accel_lp[2];
+    const float tmp55 = tmp49 + tmp54;
+    const float tmp56 = tmp40 * tmp55;
+    const float tmp57 = carry[13] /* tmp36 */ + tmp56;
+    const float tmp58 = q_new[1] * q_new[3];
+    const float tmp59 = q_new[0] * q_new[2];
+    const float tmp60 = tmp58 + tmp59;
+    const float tmp61 = tmp60 + tmp60;
+    const float tmp62 = carry[10] /* tmp30 */ + carry[11] /* tmp31 */;
+    const float tmp63 = tmp62 + tmp62;
+    const float tmp64 = tmp63 * accel_lp[0];
+    const float tmp65 = tmp50 - tmp51;
+    const float tmp66 = tmp65 + tmp65;
+    const float tmp67 = tmp66 * accel_lp[1];
+    const float tmp68 = tmp64 + tmp67;
+    const float tmp69 = tmp44 + carry[3] /* tmp15 */;
+    const float tmp70 = tmp69 + tmp69;
+    const float tmp71 = 1.0f - tmp70;
+    const float tmp72 = tmp71 * accel_lp[2];
+    const float tmp73 = tmp68 + tmp72;
+    const float tmp74 = tmp61 * tmp73;
+    const float tmp75 = tmp57 + tmp74;
+    const float tmp76 = carry[14] /* tmp37 */ + carry[15] /* tmp38 */;
+    const float tmp77 = tmp76 + tmp76;
+    const float tmp78 = tmp77 * carry[12] /* tmp35 */;
+    const float tmp79 = q_new[1] * q_new[1];
+    carry[2] = tmp55;
+    carry[3] = tmp58;
+    carry[4] = tmp59;
+    carry[5] = tmp73;
+    carry[6] = tmp75;
+    carry[7] = tmp78;
+    carry[8] = tmp79;
+}
+
+static void adukf_k_accel_lp_follow_part2(const float q_new[4], float carry[17])
+{
+    const float tmp80 = carry[8] /* tmp79 */ + carry[1] /* tmp1 */;
+    const float tmp81 = tmp80 + tmp80;
+    const float tmp82 = 1.0f - tmp81;
+    const float tmp83 = tmp82 * carry[2] /* tmp55 */;
+    const float tmp84 = carry[7] /* tmp78 */ + tmp83;
+    const float tmp85 = q_new[2] * q_new[3];
+    const float tmp86 = q_new[0] * q_new[1];
+    const float tmp87 = tmp85 - tmp86;
+    const float tmp88 = tmp87 + tmp87;
+    const float tmp89 = tmp88 * carry[5] /* tmp73 */;
+    const float tmp90 = tmp84 + tmp89;
+    const float tmp91 = carry[3] /* tmp58 */ - carry[4] /* tmp59 */;
+    const float tmp92 = tmp91 + tmp91;
+    const float tmp93 = tmp92 * carry[12] /* tmp35 */;
+    const float tmp94 = tmp85 + tmp86;
+    const float tmp95 = tmp94 + tmp94;
+    const float tmp96 = tmp95 * carry[2] /* tmp55 */;
+    const float tmp97 = tmp93 + tmp96;
+    const float tmp98 = carry[8] /* tmp79 */ + carry[0] /* tmp0 */;
+    const float tmp99 = tmp98 + tmp98;
+    const float tmp100 = 1.0f - tmp99;
+    const float tmp101 = tmp100 * carry[5] /* tmp73 */;
+    const float tmp102 = tmp97 + tmp101;
+    carry[0] = tmp90;
+    carry[1] = tmp102;
+}
+
+/*
+ * the NED low-pass turned with the update's correction: R(q+) R(q-)^T accel_lp (q- normalised
+ * here), so the correction is not undone by what the low-pass holds
+ *
+ * Args:
+ *     q_pred: float[4]
+ *     q_new: float[4]
+ *     accel_lp: float[3]
+ * Outputs:
+ *     accel_lp_new: float[3]
+ *
+ * Total ops: 103 (add 57, mul 44, div 1, sqrt 1)
+ */
+static void adukf_k_accel_lp_follow(const float q_pred[4], const float q_new[4],
+    const float accel_lp[3], float accel_lp_new[3])
+{
+    /*
+     * 3 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
+     * handed between them (a slot reused once its value is dead)
+     */
+    float carry[17];
+    adukf_k_accel_lp_follow_part0(q_pred, q_new, accel_lp, carry);
+    adukf_k_accel_lp_follow_part1(q_new, accel_lp, carry);
+    adukf_k_accel_lp_follow_part2(q_new, carry);
+    accel_lp_new[0] = carry[6] /* tmp75 */;
+    accel_lp_new[1] = carry[0] /* tmp90 */;
+    accel_lp_new[2] = carry[1] /* tmp102 */;
 }
 
 /*
@@ -4293,6 +4470,10 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
                 adukf_k_correct(x_pred, P_pred, aL, g, G, x_new, P_new);
                 P_out = P_new;
                 updated = true;
+                if (use_accel) {
+                    /* the low-pass turns with the correction (keeps no old error) */
+                    adukf_k_accel_lp_follow(x_pred, x_new, s->accel_lp, s->accel_lp);
+                }
             }
         }
     }

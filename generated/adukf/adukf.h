@@ -65,24 +65,40 @@ extern "C" {
                                             (MAG_ZERO) [field unit] */
 #define ADUKF_MAG_MAX 1e+06f             /* magnetometer component above this skips its correction
                                             (MAG_RANGE) [field unit] */
-#define ADUKF_GYRO_NOISE 0.01f           /* process noise: gyro angle random walk; Q = gyro_noise^2
-                                            dt/4 (I4 - q q^T) + q_floor dt I4 [rad/s/sqrt(Hz)] */
+#define ADUKF_GYRO_NOISE 0.003f          /* process noise: gyro angle random walk; Q = gyro_noise^2
+                                            dt/4 (I4 - q q^T) + q_floor dt I4 (error state:
+                                            gyro_noise^2 dt per axis, plus gyro_rate_noise). 0.003
+                                            with gyro_rate_noise 0.01 since issue 26, chosen by
+                                            leave-one-BROAD-group-out with the scenarios
+                                            (studies/adukf_motion_cv.py, docs/adukf.md; 0.01 before,
+                                            which the faithful preset keeps) [rad/s/sqrt(Hz)] */
 #define ADUKF_Q_FLOOR 1e-09f             /* isotropic process noise per second added to Q (keeps P
                                             positive definite) [1/s] */
+#define ADUKF_GYRO_RATE_NOISE 0.01f      /* error state only: each axis's gyro noise density grows
+                                            by this times that axis's rate, in quadrature (a MEMS
+                                            gyro's scale-factor and cross-axis errors grow with the
+                                            rate): Q_i = (gyro_noise^2 + (gyro_rate_noise w_i)^2)
+                                            dt, w = gyro - bias; 0 = a constant density (before
+                                            issue 26). 0.01 chosen with gyro_noise 0.003 and
+                                            sigma_acc_density 0.016 by leave-one-BROAD-group-out
+                                            with the scenarios (studies/adukf_motion_cv.py,
+                                            docs/adukf.md) [1/sqrt(Hz)] */
 #define ADUKF_SIGMA_ACC 0.05f            /* base std of the normalised accelerometer measurement
-                                            (sigma_a in R); 0.05 with sigma_acc_density 0.008 since
-                                            issue 26 (studies/adukf_accel_density_cv.py; 0.07 from
-                                            issue 14 before; the paper's scenarios were tuned at
-                                            0.05, which the faithful preset keeps) [1 (unit vector)]
-                                            */
-#define ADUKF_SIGMA_ACC_DENSITY 0.008f   /* product (sensors at their own rates): the accelerometer
+                                            (sigma_a in R); 0.05 since issue 26 (with
+                                            sigma_acc_density 0.008, then 0.016)
+                                            (studies/adukf_accel_density_cv.py; 0.07 from issue 14
+                                            before; the paper's scenarios were tuned at 0.05, which
+                                            the faithful preset keeps) [1 (unit vector)] */
+#define ADUKF_SIGMA_ACC_DENSITY 0.016f   /* product (sensors at their own rates): the accelerometer
                                             rows of R add sigma_acc_density^2 / s_a (s_a: the time
                                             its sample stands for), its white noise as a density: a
                                             1 kHz IMU's samples each weigh less than a 100 Hz one's.
-                                            0 = sigma_acc per sample only. 0.008 chosen with
-                                            sigma_acc 0.05 by leave-one-BROAD-group-out with the
-                                            scenarios (studies/adukf_accel_density_cv.py,
-                                            docs/adukf.md) [1*sqrt(s)] */
+                                            0 = sigma_acc per sample only. 0.016 since issue 26's
+                                            studies/adukf_motion_cv.py (with the smaller gyro
+                                            density it keeps the multirotor at 1 kHz within 10 % of
+                                            before: 1.40 deg, 0.008 gives 1.69; docs/adukf.md);
+                                            0.008 chosen before with sigma_acc 0.05
+                                            (studies/adukf_accel_density_cv.py) [1*sqrt(s)] */
 #define ADUKF_SIGMA_MAG 0.05f            /* base std of the normalised magnetometer measurement
                                             (sigma_m in R); 0.05 with sigma_mag_density 0.012 since
                                             issue 26 (studies/adukf_mag_density_cv.py; 0.07 from
@@ -221,6 +237,15 @@ extern "C" {
                                             of R(q-)^T of it (motion acceleration averages out,
                                             gravity does not; VQF's idea); 0 = the raw accelerometer
                                             (as the paper; faithful ignores it) [s] */
+#define ADUKF_ACCEL_LP_FOLLOW 1          /* with accel_tau > 0: after each update that used the
+                                            accelerometer the NED low-pass is turned with the
+                                            attitude's correction, R(q+) R(q-)^T (error and
+                                            quaternion states; since issue 26). Without it the
+                                            low-pass holds the old attitude's error for accel_tau
+                                            and pulls each correction back: with accel_tau 2 s the
+                                            multirotor scored 10 deg instead of 2.5 (seed 0,
+                                            reference); at the default 1 s it takes the multirotor
+                                            from 0.89 to 0.64 deg (3 seeds). false: as before */
 #define ADUKF_SPAN_MAX 0.1f              /* sensors at their own rates: each sensor's R is
                                             multiplied by dt / (time since its previous sample, at
                                             most span_max), so a 100 Hz magnetometer carries the

@@ -44,7 +44,8 @@ def heading_rms(q, log):
 def test_attached_magnet_heading_within_3_deg_and_the_hard_iron_found(name):
     """Issue 25's bound (mekf's), for qcf and adukf: heading RMS <= 3 deg from 30 s after the
     magnet arrives, one switch after its arrival with the magnet's offset to 3 mag_bias_th of the
-    field, and more than 5 deg without the hard iron (the figure the hard iron is for)."""
+    field, and without the hard iron more than the 3 deg bound (the figure the hard iron is for;
+    5 deg before issue 26's adukf defaults, whose smaller gyro density leaves 4.5 deg on seed 0)."""
     for seed in (0, 1, 2):
         log = make("attached_magnet", seed)
         f = build(name, log)
@@ -58,7 +59,7 @@ def test_attached_magnet_heading_within_3_deg_and_the_hard_iron_found(name):
         th = config.resolve(name).params["mag_bias_th"]
         assert np.linalg.norm(b - mg["offset_body"]) <= 3 * th * 50.0, (name, seed, b, mg["offset_body"])
         off = build(name, log, ["mag_bias=false"]).run(log)
-        assert heading_rms(off.q, log) > 5.0, (name, seed)
+        assert heading_rms(off.q, log) > 3.0, (name, seed)
 
 
 @pytest.mark.parametrize("name", FILTERS)

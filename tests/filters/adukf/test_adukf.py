@@ -398,7 +398,9 @@ def test_error_state_jacobian_matches_finite_differences():
     P = M @ M.T                     # not the identity: F P F^T then tells Φ from Φ^T
     r.P = P.copy()
     r.step(w, (0.0, 0.0, -9.8), (0.3, 0.0, 0.4), (0, 0, 0), 1, dt)     # gyro only: P = F P F^T + Q
-    Qx = np.diag([(p["gyro_noise"] ** 2 + 4 * p["q_floor"]) * dt] * 3 + [(p["bias_rw"] ** 2 + p["q_floor"]) * dt] * 3)
+    # Q: the gyro's density, grown on each axis by gyro_rate_noise times that axis's rate (issue 26)
+    Qx = np.diag([(p["gyro_noise"] ** 2 + (p["gyro_rate_noise"] * (w[i] - b[i])) ** 2 + 4 * p["q_floor"]) * dt
+                  for i in range(3)] + [(p["bias_rw"] ** 2 + p["q_floor"]) * dt] * 3)
     np.testing.assert_allclose(r.P, num @ P @ num.T + Qx, atol=1e-7)
     np.testing.assert_allclose(r.q, q_est, atol=1e-12)
 

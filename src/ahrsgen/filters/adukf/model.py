@@ -48,6 +48,11 @@ _LOWER6 = [(r, c) for r in range(6) for c in range(r + 1)]
 SPAN_MIN = Const("SPAN_MIN", 1e-9)
 
 
+def _on(v) -> bool:
+    """A parameter's term is written unless it is the number 0 (a runtime value is always written)."""
+    return not (isinstance(v, (int, float)) and v == 0)
+
+
 def omega_matrix(w):
     wx, wy, wz = w[0], w[1], w[2]
     return ca.vertcat(
@@ -219,6 +224,10 @@ class Model(FilterModel):
     def lowpass(self) -> bool:
         return self.params["accel_tau"] > 0 and not self.params["faithful"]
 
+    def follow(self) -> bool:
+        """The NED low-pass is turned with each correction of the attitude (accel_lp_follow)."""
+        return self.lowpass() and bool(self.params["accel_lp_follow"])
+
     def p0_diag(self):
         """P0's diagonal. Error state: 4 p0 per attitude-error axis, the same spread of attitude as
         p0 I4 on q (a small rotation d moves a unit q by dq = Ξ(q) d / 2, and Ξᵀ Ξ = I3)."""
@@ -270,10 +279,14 @@ class Model(FilterModel):
             F1 = ca.horzcat(Phi, B)
             M1 = ca.mtimes(F1, Ps)
             Qa = (p["gyro_noise"] ** 2 + 4.0 * p["q_floor"]) * dt
+            # a MEMS gyro's scale-factor and cross-axis errors grow with the rate: each axis's
+            # density grows by gyro_rate_noise |ω_i| in quadrature (a density: rate-independent)
+            g_r = p["gyro_rate_noise"]
+            Qs = [Qa + (g_r * g_r * dt) * (w[i] * w[i]) for i in range(3)] if _on(g_r) else [Qa] * 3
             for r in range(n):
                 for c in range(r + 1):
                     if r < 3:
-                        Pm[r, c] = ca.mtimes(M1[r, :], F1[c, :].T) + (Qa if r == c else 0.0)
+                        Pm[r, c] = ca.mtimes(M1[r, :], F1[c, :].T) + (Qs[r] if r == c else 0.0)
                     elif c < 3:
                         Pm[r, c] = M1[c, r]
                     else:
@@ -531,6 +544,7 @@ class Model(FilterModel):
         setup_out = self.sigma_setup_expr(qn, Pm, m_ref, qm)
         aL_e, z0_e, piv_p = setup_out[:3]
         q4 = ca.SX.sym("q_pred", 4)
+        qf = ca.SX.sym("q_new", 4)
         col = ca.SX.sym("col", na)
         zsum = ca.SX.sym("zsum", 6 * na)
         zdiff = ca.SX.sym("zdiff", 6 * na)
@@ -628,6 +642,12 @@ class Model(FilterModel):
                 "measures R(q-)^T of it (recovering from a clipped gyro sample: the sample itself)",
                 flags=("restart", "recover") if self.err else ("restart",))]
               if self.lowpass() else []),
+            *([KernelSpec("accel_lp_follow", function(
+                "accel_lp_follow", {"q_pred": q4, "q_new": qf, "accel_lp": a_lp},
+                {"accel_lp_new": quat.rotate(qf, quat.rotate_inv(normalize(q4), a_lp))}),
+                "the NED low-pass turned with the update's correction: R(q+) R(q-)^T accel_lp (q- "
+                "normalised here), so the correction is not undone by what the low-pass holds")]
+              if self.follow() else []),
             *([self.gyro_recovery_kernel()] if self.err else []),
             KernelSpec("init_q", function("init_q", {"accel": f, "mag": m}, {"q": q_init}),
                        "initial attitude: accelerometer tilt and tilt-compensated heading (+ declination)"),
@@ -666,5 +686,5 @@ class Model(FilterModel):
 
     def template_context(self):
         n = self.n
-        return {"recovery": self.err, "learn": self.params["mag_ref"] == "learn", "hard_iron": self.hard_iron(), "n": n, "nx": self.nx, "na": self.na, "err": self.err, "lowpass": self.lowpass(), "rated": self.own_rates(), "bias": self.nx == 7, "simplex": self.simplex(), "xs": "q" if self.nx == 4 else "x", "at": self.work_layout(),
+        return {"recovery": self.err, "learn": self.params["mag_ref"] == "learn", "hard_iron": self.hard_iron(), "n": n, "nx": self.nx, "na": self.na, "err": self.err, "lowpass": self.lowpass(), "follow": self.follow(), "rated": self.own_rates(), "bias": self.nx == 7, "simplex": self.simplex(), "xs": "q" if self.nx == 4 else "x", "at": self.work_layout(),
                 "packed": linalg.packed_lower_pairs(n)}

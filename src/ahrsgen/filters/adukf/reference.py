@@ -48,13 +48,17 @@ Product defaults (issue 10; faithful ignores them):
     d⁻ = R(r)ᵀ d - dt J δb,   J = ∂ε/∂Δv at Δv = 0 with r(v + Δv) = r(v) ⊗ δq(ε):
   r(v)* ⊗ r(v + Δv) ∝ [1 + v·(v + Δv)/4, Δv/2 - v × Δv/4], so ε = 2 vec / scal and
   J = (I3 - [v]x/2) / (1 + |v|²/4). So F = [[R(r)ᵀ, -dt J], [0, I3]] and
-  Q = diag((gyro_noise² + 4 q_floor) dt I3, (bias_rw² + q_floor) dt I3). P0 = diag(4 p0 I3,
+  Q = diag((gyro_noise² + (gyro_rate_noise w_i)² + 4 q_floor) dt (i = 1..3), (bias_rw² +
+  q_floor) dt I3), w = ω - b̂ (the gyro's density grows with the rate: issue 26). P0 = diag(4 p0 I3,
   p0_bias I3) (the spread of p0 I4 on q: dq = Ξ(q) d / 2). Update: sigma points
   χ_i = L S[:, i] in the error state, attitude q⁻ ⊗ δq(χ_i[0:3]) through h; P_xz from χ_i;
   [d; δb] = K ε, q⁺ = normalise(q⁻ ⊗ [1, d/2]), b⁺ = b⁻ + δb, P⁺ = P⁻ - K P_zz Kᵀ.
   sigma_set is ignored (symmetric).
 - accel_tau > 0: a ← a + dt/(τ + dt) (R(q⁻/|q⁻|) f - a) (started at R f), and the update
   measures R(q⁻/|q⁻|)ᵀ a instead of f.
+- accel_lp_follow (with accel_tau > 0, issue 26): after an applied update that used the
+  accelerometer, a ← R(q⁺) R(q⁻/|q⁻|)ᵀ a: the low-passed vector turns with the correction, so
+  what it holds from before does not pull the attitude back to its old error.
 - span_max > 0: each sensor's R is multiplied by max(dt / s, 1 / span_steps_max), s = the
   time since its previous sample (at least dt, at most span_max).
 
@@ -330,8 +334,9 @@ class Reference:
             F = np.eye(6)
             F[:3, :3] = rotmat(r).T
             F[:3, 3:] = -dt * J
-            Qx = np.diag([(p["gyro_noise"] ** 2 + 4.0 * p["q_floor"]) * dt] * 3
-                         + [(p["bias_rw"] ** 2 + p["q_floor"]) * dt] * 3)
+            # the gyro's density grows with the rate on each axis: gyro_rate_noise |ω_i|, in quadrature
+            Qx = np.diag([(p["gyro_noise"] ** 2 + (p["gyro_rate_noise"] * w_v[i]) ** 2 + 4.0 * p["q_floor"]) * dt
+                          for i in range(3)] + [(p["bias_rw"] ** 2 + p["q_floor"]) * dt] * 3)
             xm = np.concatenate([qm, self.bias])
             Pm = F @ self.P @ F.T + Qx
             if clipped:
@@ -453,6 +458,9 @@ class Reference:
                     P_new = Pm - K @ Pzz @ K.T
                     P_new = 0.5 * (P_new + P_new.T)
                     r_diag = np.where(mask, R, 0.0)
+                    if self.lowpass and use_a and p["accel_lp_follow"]:
+                        # the low-pass turned with the correction: R(q⁺) R(q⁻)ᵀ a
+                        self.accel_lp = rotmat(x_new[:4]) @ (rotmat(qn).T @ self.accel_lp)
 
         if not (np.isfinite(x_new).all() and np.isfinite(P_new).all()):
             self.q, self.P, self.bias = q_old, P_old, b_old
