@@ -28,7 +28,8 @@ from ahrsgen.sim.readers import broad_trials, read_log, shared_data_dir
 GROUPS = {"rotation": ("01", "04", "06", "08"), "translation": ("10", "15"),
           "tapping, vibration": ("24", "26"), "magnet": ("28", "32")}
 TRIALS = [t for g in GROUPS.values() for t in g]
-RATES = ("", "@95")          # entry suffixes: as recorded, averaged to 95 Hz
+RATES = ("", "@95")          # entry suffixes: as recorded, averaged to 95 Hz (a study may set more)
+AVERAGING = {"@143": 2, "@95": 3, "@48": 6}   # suffix: rows averaged into one from 286 Hz
 
 
 def setup(doc: str, argv=None):
@@ -66,14 +67,23 @@ def load_broad(data_dir=None):
     return logs, {n: log.averaged(3) for n, log in logs.items()}
 
 
-def evaluate(sets: dict, logs, slow, scenarios: dict, measure: str = "total", filter_name: str = "mekf") -> dict:
-    """{entry: figure}: BROAD totals per trial and rate, and per scenario the mean of `measure`
-    ('total' or 'heading' RMS) over its logs, run and scored as `ahrsgen bench` does (the log's
-    site parameters set, magnetic heading turned by the scenario's declination)."""
+def at_rates(logs, rates) -> dict:
+    """{suffix: {trial: log averaged}} for the rates besides 286 and 95 Hz (`slow`) in `rates`."""
+    return {sfx: {n: log.averaged(AVERAGING[sfx]) for n, log in logs.items()}
+            for sfx in rates if sfx not in ("", "@95")}
+
+
+def evaluate(sets: dict, logs, slow, scenarios: dict, measure: str = "total", filter_name: str = "mekf",
+             more=None) -> dict:
+    """{entry: figure}: BROAD totals per trial and rate (`more`: at_rates' further rates), and per
+    scenario the mean of `measure` ('total' or 'heading' RMS) over its logs, run and scored as
+    `ahrsgen bench` does (the log's site parameters set, magnetic heading turned by the
+    scenario's declination)."""
     sets_kv = [f"{k}={v}" for k, v in sets.items()]
     f = host.build(config.resolve(filter_name, sets=sets_kv))
     out = {n: broad_score(f.run(log).q, log)["total"] for n, log in logs.items()}
-    out |= {n + "@95": broad_score(f.run(log).q, log)["total"] for n, log in slow.items()}
+    for sfx, lg in {"@95": slow, **(more or {})}.items():
+        out |= {n + sfx: broad_score(f.run(log).q, log)["total"] for n, log in lg.items()}
     est = filter_estimator(filter_name, sets_kv)
     for name, scen_logs in scenarios.items():
         runs = [(est.run(log), log) for log in scen_logs]        # (q, heading frame, extra)
@@ -86,16 +96,18 @@ def objective(res: dict, trials, extra) -> float:
     return (sum(sum(res[t + s] for s in RATES) / len(RATES) for t in trials) + sum(res[e] for e in extra)) / (len(trials) + len(extra))
 
 
-def run(candidates, logs, slow, scenarios: dict, measure="total", progress=sys.stderr, filter_name="mekf") -> list:
+def run(candidates, logs, slow, scenarios: dict, measure="total", progress=sys.stderr, filter_name="mekf",
+        more=None) -> list:
     """[(sets, entries)] of every candidate, a line of progress each."""
     results = []
+    rates = ("", "@95", *(more or {}))
     for i, sets in enumerate(candidates):
-        res = evaluate(sets, logs, slow, scenarios, measure, filter_name)
+        res = evaluate(sets, logs, slow, scenarios, measure, filter_name, more)
         results.append((sets, res))
         extra = ", ".join(f"{k} {res[k]:.2f}" for k in scenarios)
-        print(f"[{i + 1}] {json.dumps(sets)}: BROAD {np.mean([res[t] for t in logs]):.3f}, at 95 Hz "
-              f"{np.mean([res[t + '@95'] for t in logs]):.3f}" + (f"; {extra}" if extra else ""),
-              file=progress, flush=True)
+        print(f"[{i + 1}] {json.dumps(sets)}: BROAD " + " / ".join(
+              f"{sfx or '286'} {np.mean([res[t + sfx] for t in logs]):.3f}" for sfx in rates)
+              + (f"; {extra}" if extra else ""), file=progress, flush=True)
     return results
 
 
@@ -161,16 +173,21 @@ def defaults_entry(results) -> tuple[dict, dict]:
 
 
 def study(doc: str, argv, scenario_spec: dict, seeds, candidates, before: dict, title: str, label: str,
-          filter_name: str, admissible=None, keep=None) -> int:
-    """A defaults study's whole run: the command line, the BROAD logs and the scenario entries,
-    every candidate, the one whose values are `before` (the baseline column), leave-one-group-out
-    over the candidates `keep` accepts (all by default) that `admissible(entries, before's
-    entries)` accepts, and the report. 2 when the BROAD files are absent."""
+          filter_name: str, admissible=None, keep=None, rates=None, extra_logs=None) -> int:
+    """A defaults study's whole run: the command line, the BROAD logs (at `rates`, default
+    RATES: each trial's objective the mean over them) and the scenario entries (and
+    `extra_logs(seeds)`: {label: [log per seed]} of logs the scenarios cannot name), every
+    candidate, the one whose values are `before` (the baseline column), leave-one-group-out over
+    the candidates `keep` accepts (all by default) that `admissible(entries, before's entries)`
+    accepts, and the report. 2 when the BROAD files are absent."""
+    global RATES
     a, broad = setup(doc, argv)
     if broad is None:
         return 2
-    scen = scenarios(scenario_spec, seeds)
-    results = run(candidates, *broad, scen, filter_name=filter_name)
+    if rates is not None:
+        RATES = tuple(rates)
+    scen = scenarios(scenario_spec, seeds) | (extra_logs(seeds) if extra_logs else {})
+    results = run(candidates, *broad, scen, filter_name=filter_name, more=at_rates(broad[0], RATES))
     base = next(r for r in results if r[0] == before)
     kept = [r for r in results if keep is None or keep(r[0])]
     cv = cross_validate(kept, list(scen), admissible=None if admissible is None else

@@ -29,11 +29,9 @@ from __future__ import annotations
 import itertools
 import sys
 
-import numpy as np
-
 import logo_cv
 from mekf_accel_density_cv import FIXEDWING_MAX, gps_outage
-from mekf_mag_dev_cv import MORE, MULTIROTOR_MAX, SCENARIOS as MAG_SCENARIOS, evaluate_all
+from mekf_mag_dev_cv import MULTIROTOR_MAX, RATES, SCENARIOS as MAG_SCENARIOS
 from ahrsgen.sim.scenarios import make
 
 SEEDS = range(3)
@@ -48,27 +46,14 @@ def candidates():
 
 
 def main(argv=None):
-    a, broad = logo_cv.setup(__doc__, argv)
-    if broad is None:
-        return 2
-    logs, slow = broad
-    more = {sfx: {n: log.averaged(k) for n, log in logs.items()} for sfx, k in MORE.items()}
-    logo_cv.RATES = ("", "@143", "@95", "@48")
-    scen = logo_cv.scenarios(SCENARIOS, SEEDS)
-    scen["fixedwing_gps_outage"] = [gps_outage(make("fixedwing_gps", s)) for s in SEEDS]
-    results = []
-    for i, sets in enumerate(candidates()):
-        res = evaluate_all(sets, logs, slow, more, scen)
-        results.append((sets, res))
-        print(f"[{i + 1}] {sets}: BROAD " + " / ".join(f"{np.mean([res[t + s] for t in logs]):.3f}" for s in logo_cv.RATES)
-              + "; " + ", ".join(f"{k} {res[k]:.2f}" for k in scen), file=sys.stderr, flush=True)
-    base = next(r for r in results if r[0] == BEFORE)[1]
-    cv = logo_cv.cross_validate(results, list(scen), admissible=lambda e: e["multirotor"] <= MULTIROTOR_MAX
-                                and e["fixedwing_gps"] <= FIXEDWING_MAX
-                                and all(e[k] <= max(1.1 * base[k], base[k] + 0.05) for k in KEEP))
-    logo_cv.report("mekf gyro_step_noise with the graded magnetometer trust, leave one BROAD group out",
-                   cv, ("before", base), scen, results, a.json)
-    return 0
+    return logo_cv.study(__doc__, argv, SCENARIOS, SEEDS, candidates(), BEFORE,
+                         "mekf gyro_step_noise with the graded magnetometer trust, leave one BROAD group out",
+                         "before", "mekf", rates=RATES,
+                         extra_logs=lambda seeds: {"fixedwing_gps_outage": [gps_outage(make("fixedwing_gps", s))
+                                                                            for s in seeds]},
+                         admissible=lambda e, base: e["multirotor"] <= MULTIROTOR_MAX
+                         and e["fixedwing_gps"] <= FIXEDWING_MAX
+                         and all(e[k] <= max(1.1 * base[k], base[k] + 0.05) for k in KEEP))
 
 
 if __name__ == "__main__":

@@ -27,15 +27,10 @@ from __future__ import annotations
 import itertools
 import sys
 
-import numpy as np
-
 import logo_cv
-from ahrsgen.generate import config
-from ahrsgen.sim import host
-from ahrsgen.sim.peers import broad_score
 
 SEEDS = range(3)
-MORE = {"@143": 2, "@48": 6}     # extra BROAD rates: averaging factor from 286 Hz
+RATES = ("", "@143", "@95", "@48")   # BROAD as recorded and averaged (logo_cv.AVERAGING)
 MULTIROTOR_MAX = 1.0             # degrees, issue 25's 'nothing lost where the product wins'
 KEEP = ("attached_magnet", "handheld", "gyro_clip")
 SCENARIOS = {"multirotor": ("multirotor", {}),
@@ -56,35 +51,12 @@ def candidates():
             yield {"mag_heading_density": d, "mag_dev_gain": k}
 
 
-def evaluate_all(sets, logs, slow, more, scen):
-    """logo_cv.evaluate's entries, and BROAD at the extra rates."""
-    res = logo_cv.evaluate(sets, logs, slow, scen)
-    f = host.build(config.resolve("mekf", sets=[f"{k}={v}" for k, v in sets.items()]))
-    for sfx, lg in more.items():
-        res |= {n + sfx: broad_score(f.run(log).q, log)["total"] for n, log in lg.items()}
-    return res
-
-
 def main(argv=None):
-    a, broad = logo_cv.setup(__doc__, argv)
-    if broad is None:
-        return 2
-    logs, slow = broad
-    more = {sfx: {n: log.averaged(k) for n, log in logs.items()} for sfx, k in MORE.items()}
-    logo_cv.RATES = ("", "@143", "@95", "@48")
-    scen = logo_cv.scenarios(SCENARIOS, SEEDS)
-    results = []
-    for i, sets in enumerate(candidates()):
-        res = evaluate_all(sets, logs, slow, more, scen)
-        results.append((sets, res))
-        print(f"[{i + 1}] {sets}: BROAD " + " / ".join(f"{np.mean([res[t + s] for t in logs]):.3f}" for s in logo_cv.RATES)
-              + "; " + ", ".join(f"{k} {res[k]:.2f}" for k in scen), file=sys.stderr, flush=True)
-    base = results[0][1]
-    cv = logo_cv.cross_validate(results, list(scen), admissible=lambda e: e["multirotor"] <= MULTIROTOR_MAX and all(
-        e[k] <= max(1.1 * base[k], base[k] + 0.05) for k in KEEP))
-    logo_cv.report("mekf mag_heading_density x mag_dev_gain (graded magnetometer trust), leave one BROAD group out",
-                   cv, ("defaults", base), scen, results, a.json)
-    return 0
+    return logo_cv.study(__doc__, argv, SCENARIOS, SEEDS, candidates(), DEFAULTS,
+                         "mekf mag_heading_density x mag_dev_gain (graded magnetometer trust), leave one BROAD group out",
+                         "defaults", "mekf", rates=RATES,
+                         admissible=lambda e, base: e["multirotor"] <= MULTIROTOR_MAX and all(
+                             e[k] <= max(1.1 * base[k], base[k] + 0.05) for k in KEEP))
 
 
 if __name__ == "__main__":

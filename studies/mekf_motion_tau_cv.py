@@ -24,17 +24,11 @@ from __future__ import annotations
 
 import sys
 
-import numpy as np
-
 import logo_cv
 from mekf_accel_density_cv import FIXEDWING_MAX, MULTIROTOR_MAX, OUTAGE_WORSE_MAX, SCENARIOS, gps_outage
-from ahrsgen.generate import config
-from ahrsgen.sim import host
-from ahrsgen.sim.peers import broad_score
 from ahrsgen.sim.scenarios import make
 
 SEEDS = range(3)
-MORE = {"@143": 2, "@48": 6}     # extra BROAD rates: averaging factor from 286 Hz
 DEFAULTS = {"accel_angle_noise": 0.07, "accel_noise_density": 0.004, "accel_motion_tau": 0.0}
 
 
@@ -48,30 +42,14 @@ def candidates():
 
 
 def main(argv=None):
-    a, broad = logo_cv.setup(__doc__, argv)
-    if broad is None:
-        return 2
-    logs, slow = broad
-    more = {sfx: {n: log.averaged(k) for n, log in logs.items()} for sfx, k in MORE.items()}
-    logo_cv.RATES = ("", "@143", "@95", "@48")
-    scen = logo_cv.scenarios(SCENARIOS, SEEDS)
-    scen["fixedwing_gps_outage"] = [gps_outage(make("fixedwing_gps", s)) for s in SEEDS]
-    results = []
-    for i, sets in enumerate(candidates()):
-        res = logo_cv.evaluate(sets, logs, slow, scen)
-        f = host.build(config.resolve("mekf", sets=[f"{k}={v}" for k, v in sets.items()]))
-        for sfx, lg in more.items():
-            res |= {n + sfx: broad_score(f.run(log).q, log)["total"] for n, log in lg.items()}
-        results.append((sets, res))
-        print(f"[{i + 1}] {sets}: BROAD " + " / ".join(f"{np.mean([res[t + s] for t in logs]):.3f}" for s in logo_cv.RATES)
-              + "; " + ", ".join(f"{k} {res[k]:.2f}" for k in scen), file=sys.stderr, flush=True)
-    before = results[0]
-    cv = logo_cv.cross_validate(results, list(scen), admissible=lambda e: e["multirotor"] <= MULTIROTOR_MAX
-                                and e["fixedwing_gps"] <= FIXEDWING_MAX
-                                and e["fixedwing_gps_outage"] <= OUTAGE_WORSE_MAX * before[1]["fixedwing_gps_outage"])
-    logo_cv.report("mekf accel_motion_tau (correlated motion residual), leave one BROAD group out", cv,
-                   ("defaults", before[1]), scen, results, a.json)
-    return 0
+    return logo_cv.study(__doc__, argv, SCENARIOS, SEEDS, candidates(), DEFAULTS,
+                         "mekf accel_motion_tau (correlated motion residual), leave one BROAD group out",
+                         "defaults", "mekf", rates=("", "@143", "@95", "@48"),
+                         extra_logs=lambda seeds: {"fixedwing_gps_outage": [gps_outage(make("fixedwing_gps", s))
+                                                                            for s in seeds]},
+                         admissible=lambda e, base: e["multirotor"] <= MULTIROTOR_MAX
+                         and e["fixedwing_gps"] <= FIXEDWING_MAX
+                         and e["fixedwing_gps_outage"] <= OUTAGE_WORSE_MAX * base["fixedwing_gps_outage"])
 
 
 if __name__ == "__main__":
