@@ -12,7 +12,7 @@ import pytest
 from ahrsgen import cli
 from ahrsgen.bench.run import run_on_log
 from conftest import REPO
-from docs_tables import ROOT, outside
+from docs_tables import ROOT, outside, table
 from ahrsgen.sim.readers import EXCERPTS
 
 DOC = " ".join((ROOT / "docs" / "your_own_filter.md").read_text().split())
@@ -54,3 +54,20 @@ def test_examples_on_the_broad_excerpt(name, capsys):
                        out=io.StringIO())["score"]
     for figure, key in zip(stated.groups(), ("total", "heading", "inclination")):
         assert _as_written(figure, score[f"{key}_rms"]), (name, key, figure, score[f"{key}_rms"])
+
+
+@pytest.mark.parametrize("name", ["madgwick", "mahony"])
+def test_examples_against_ahrs_on_the_broad_excerpt(name):
+    """The table of the largest attitude difference to `ahrs` (the examples' references run it)."""
+    pytest.importorskip("ahrs")
+    from ahrsgen.generate import config
+    from ahrsgen.sim import host, metrics, readers
+    [row] = [r for r in table("docs/your_own_filter.md", "maximum attitude difference to `ahrs`")
+             if r[""] == name]
+    log = readers.read_log(EXCERPTS / "broad_01_excerpt.csv.gz")
+    folder = str(REPO / "examples" / name)
+    ref = host.run_reference(config.resolve(folder).spec.reference(config.resolve(folder).params), log)
+    for column, precision in (("double C", "double"), ("float C (bound 5e-5 rad)", "float")):
+        got = metrics.max_angle_diff_rad(host.build(config.resolve(folder, precision=precision)).run(log).q, ref.q)
+        stated = row[column].removesuffix(" rad")
+        assert _as_written(stated, got), (name, precision, stated, got)
