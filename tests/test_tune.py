@@ -43,9 +43,9 @@ def test_tune_two_logs_budget_8_then_generate(tmp_path, capsys):
 
 
 def test_tune_that_loses_out_of_sample_recommends_nothing(tmp_path, capsys):
-    """Issue 27: with 2-fold cross-validation on these two logs the tuned kp (0.136) scores worse
-    on the held-out log than the default (3.02 vs 1.73 deg with the default kp 0.25). The tune says so on stderr, exits 1,
-    writes no config (only its report, recommended = false)."""
+    """Issue 27: with 2-fold cross-validation on these two logs the tuned kp scores worse on the
+    held-out log than the default (the test checks the tune's own report says so). The tune says
+    so on stderr, exits 1, writes no config (only its report, recommended = false)."""
     out = tmp_path / "t.toml"
     rc = cli.main(["tune", "qcf", *LOGS, "--params", "kp", "--budget", "8", "-o", str(out)])
     text, err = capsys.readouterr()
