@@ -16,7 +16,8 @@ DOCS = ROOT / "docs"
 
 def table(doc: str, intro: str) -> list[dict[str, str]]:
     """The table after the text `intro` in `doc` (a path from the repository's root, e.g.
-    "README.md" or "docs/target.md"): one dict a row, header cell -> cell."""
+    "README.md" or "docs/target.md"): one dict a row, header cell -> cell. Cells split at the
+    unescaped bars, as Markdown does ("mean\\|e\\|" is one cell)."""
     text = (ROOT / doc).read_text()
     lines = text[text.index(intro):].splitlines()
     start = next(i for i, ln in enumerate(lines) if ln.startswith("|"))
@@ -24,7 +25,7 @@ def table(doc: str, intro: str) -> list[dict[str, str]]:
     for ln in lines[start:]:
         if not ln.startswith("|"):
             break
-        rows.append([c.strip() for c in ln.strip().strip("|").split("|")])
+        rows.append([c.strip() for c in re.split(r"(?<!\\)\|", ln.strip()[1:-1])])
     header, body = rows[0], rows[2:]          # rows[1] is the |---| line
     return [dict(zip(header, r)) for r in body]
 

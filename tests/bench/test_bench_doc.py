@@ -31,24 +31,11 @@ def test_the_results_block_is_the_committed_runs_bench_md():
     assert REP["command"].startswith("ahrsgen bench") and not REP["quick"] and not REP["run_errors"]
 
 
-def _rows(intro: str) -> list[dict[str, str]]:
-    """The table after `intro`, its cells split at the unescaped bars ("mean\\|e\\|" is one)."""
-    text = DOC.read_text()
-    lines = text[text.index(intro):].splitlines()
-    start = next(i for i, ln in enumerate(lines) if ln.startswith("|"))
-    rows = []
-    for ln in lines[start:]:
-        if not ln.startswith("|"):
-            break
-        rows.append([c.strip() for c in re.split(r"(?<!\\)\|", ln.strip()[1:-1])])
-    return [dict(zip(rows[0], r)) for r in rows[2:]]
-
-
 def test_the_tables_hold_the_json_figures():
     """Independent of the markdown writer: the tables read back from the doc against the JSON."""
     checked = 0
     for scen, ests in REP["scenarios"].items():
-        for row in _rows(f"#### {scen} ("):
+        for row in table("docs/bench.md", f"#### {scen} ("):
             m = ests[row["estimator"]]
             for col, key in (("total RMS", "total_rms"), ("heading RMS", "heading_rms"), ("roll RMS", "roll_rms")):
                 mean, sd = row[col].split(" ± ")
