@@ -37,10 +37,13 @@ def numbers(cell: str) -> list[str]:
 
 def outside(stated: str, measured: float, tolerance: float) -> bool:
     """Is `measured` further from the written figure `stated` than `tolerance` (relative) plus
-    half a unit of its last written digit?"""
-    decimals = len(stated.partition(".")[2])
+    half a unit of its last written digit? In exponent notation the unit is the mantissa's last
+    digit times the power of ten ("2.2e-6": half of 1e-7)."""
+    mantissa, _, exponent = stated.lower().partition("e")
+    decimals = len(mantissa.partition(".")[2])
     value = float(stated)
-    return abs(measured - value) > tolerance * abs(value) + 0.5 * 10.0 ** -decimals
+    unit = 10.0 ** (int(exponent or 0) - decimals)
+    return abs(measured - value) > tolerance * abs(value) + 0.5 * unit
 
 
 def min_max_rows(doc: str, intro: str) -> dict[str, tuple[float, float]]:
