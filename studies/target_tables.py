@@ -44,7 +44,8 @@ def readme_table(results: list[dict]) -> list[str]:
     """The README's short table: -O2 and -Os side by side, one row a filter."""
     by = {(r["filter"], r["opt"]): r["footprint"] for r in results}
     lines = ["| filter | flash B (-O2 / -Os) | state B | stack B (worst / measured) "
-             "| instructions per step (-O2 / -Os) |", "|---|---|---|---|---|"]
+             "| instructions per step (-O2 / -Os) | est. cycles per step (-O2 / -Os) |",
+             "|---|---|---|---|---|---|"]
     for name in dict.fromkeys(r["filter"] for r in results):
         o2, os_ = by[(name, "-O2")], by[(name, "-Os")]
         label = name
@@ -53,7 +54,8 @@ def readme_table(results: list[dict]) -> list[str]:
             label += f" (N = {params['n_particles']})"
         lines.append(f"| {label} | {n(o2['flash_bytes'])} / {n(os_['flash_bytes'])} | {n(o2['state_bytes'])} "
                      f"| {n(o2['stack_bytes'])} / {n(o2['stack_measured_bytes'])} "
-                     f"| {n(o2['instructions_mean'])} / {n(os_['instructions_mean'])} |")
+                     f"| {n(o2['instructions_mean'])} / {n(os_['instructions_mean'])} "
+                     f"| {n(o2['cycles_est_mean'])} / {n(os_['cycles_est_mean'])} |")
     return lines
 
 
