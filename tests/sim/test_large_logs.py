@@ -180,6 +180,24 @@ def test_plot_rows_decimate_with_status_kept():
     assert np.count_nonzero(st) == 1        # the one flagged step stays visible
 
 
+def test_plot_marks_faults_apart_from_information():
+    """The plot's marks: a step with any fault bit is a fault (whatever else it sets), a step with
+    only information bits (AT_REST) is information, a zero status is unmarked; and the run's
+    tally counts the same fault steps a chunk at a time as over the whole run."""
+    from ahrsgen import status as st
+    # a filter's own bits: AT_REST information, a second one a fault
+    fault = st.fault_mask([("AT_REST", "at rest", st.INFO), ("NUMERIC", "numeric trouble")])
+    at_rest, numeric = st.FILTER_BASE, st.FILTER_BASE << 1
+    s = np.array([0, at_rest, numeric, at_rest | st.ACCEL_NONFINITE, st.DT_INVALID, 0, at_rest], np.uint32)
+    assert fault & st.ACCEL_NONFINITE and fault & numeric and not fault & at_rest
+    bad, info = run_mod.status_marks(s, fault)
+    assert bad.tolist() == [2, 3, 4] and info.tolist() == [1, 6]
+    tally = run_mod.StatusTally(fault_mask=fault)
+    tally.add(s[:3])
+    tally.add(s[3:])
+    assert tally.count(fault) == len(bad) and tally.count(0) - tally.count(fault) == len(info)
+
+
 def test_cli_run_reads_a_large_log_in_chunks(tmp_path, monkeypatch, capsys):
     """`ahrsgen run` streams a CSV larger than one block: same score lines as the whole read."""
     from ahrsgen.cli import main

@@ -67,7 +67,8 @@ def run_on_log(filter_name: str, log_path: str, config_file=None, sets=(), preci
         heading = "true"
     if extra:
         print(f"site parameters from the log (override with --set): {', '.join(extra)}", file=out)
-    tally, summary, timing = StatusTally(), "", [0.0]
+    fault_mask = int(hf.manifest.get("status_fault_mask", 0))
+    tally, summary, timing = StatusTally(fault_mask=fault_mask), "", [0.0]
     if whole:
         t0 = time.perf_counter()
         if exe:
@@ -156,10 +157,11 @@ def run_on_log(filter_name: str, log_path: str, config_file=None, sets=(), preci
         print(f"  wrote {csv}", file=out)
     if plot:
         if whole:
-            _plot_run(plot, log, res.q, heading, filter_name, res.status)
+            _plot_run(plot, log, res.q, heading, filter_name, res.status, fault_mask=fault_mask)
         else:
             plog, q_cmp, st = plot_rows.log(log.name, log.meta)
-            _plot_run(plot, plog, q_cmp, heading, filter_name, st, q_cmp=q_cmp, nonzero=tally.count(0))
+            _plot_run(plot, plog, q_cmp, heading, filter_name, st, q_cmp=q_cmp, fault_mask=fault_mask,
+                      counts=(tally.count(fault_mask), tally.count(0) - tally.count(fault_mask)))
         print(f"  wrote {plot}", file=out)
     return result
 
@@ -378,11 +380,20 @@ def continuous_yaw_deg(yaw_est_deg, yaw_ref_deg=None):
     return out, ref_u
 
 
-def _plot_run(path, log, q_est, heading, label, status=None, q_cmp=None, nonzero=None):
+def status_marks(status, fault_mask: int) -> tuple[np.ndarray, np.ndarray]:
+    """(steps with a fault bit, steps with information bits only): the indices the plot marks."""
+    status = np.asarray(status, dtype=np.uint32)
+    fault = (status & np.uint32(fault_mask)) != 0
+    return np.flatnonzero(fault), np.flatnonzero((status != 0) & ~fault)
+
+
+def _plot_run(path, log, q_est, heading, label, status=None, q_cmp=None, fault_mask=0, counts=None):
     """Roll, pitch, continuous yaw beside the reference; below, the error over time (BROAD's
-    total, heading, inclination) with the steps of non-zero status marked. Written whole (atomic).
-    q_cmp: the estimate already in the reference's heading frame; nonzero: the number of steps
-    with a non-zero status when `status` is of every k-th row (a long log's plot)."""
+    total, heading, inclination) with the steps of the run's status marked along the bottom:
+    faults (any bit of `fault_mask`, the build's STATUS_FAULT_MASK) in red, steps with only
+    information bits (AT_REST, ...) in grey. Written whole (atomic).
+    q_cmp: the estimate already in the reference's heading frame; counts: (fault steps, steps with
+    information only) of the whole run when `status` is of every k-th row (a long log's plot)."""
     import io
     import matplotlib
     matplotlib.use("Agg")
@@ -420,14 +431,17 @@ def _plot_run(path, log, q_est, heading, label, status=None, q_cmp=None, nonzero
     else:
         ax.set_ylabel("(no reference)")
     if status is not None:
-        nz = np.flatnonzero(np.asarray(status) != 0)
-        if len(nz) and ref is not None:      # room below zero error for the marks
+        bad, info = status_marks(status, fault_mask)
+        n_bad, n_info = (len(bad), len(info)) if counts is None else counts
+        if (len(bad) or len(info)) and ref is not None:      # room below zero error for the marks
             top = float(np.nanmax(tot)) if np.isfinite(tot).any() else 1.0
-            ax.set_ylim(-0.12 * top, 1.05 * top)
-        if len(nz):
-            # along the bottom edge of the panel (x in data, y in axes coordinates)
-            ax.plot(t[nz], np.full(len(nz), 0.03), "|", color="red", ms=8, transform=ax.get_xaxis_transform(),
-                    label=f"non-zero status ({len(nz) if nonzero is None else nonzero} steps)")
+            ax.set_ylim(-0.16 * top, 1.05 * top)
+        # along the bottom edge of the panel (x in data, y in axes coordinates)
+        for idx, y, colour, text in ((info, 0.03, "0.6", f"information only ({n_info} steps)"),
+                                     (bad, 0.08, "red", f"fault status ({n_bad} steps)")):
+            if len(idx):
+                ax.plot(t[idx], np.full(len(idx), y), "|", color=colour, ms=6,
+                        transform=ax.get_xaxis_transform(), label=text)
     ax.grid(alpha=0.3)
     ax.legend(loc="upper right", fontsize=8)
     axs[0].legend(loc="upper right", fontsize=8)

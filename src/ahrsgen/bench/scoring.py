@@ -67,8 +67,9 @@ class StatusTally:
     """How many steps set each status bit (and any refusal bit, any bit): what the run's report
     and refusal_hint need of a log's statuses, summed a chunk at a time."""
 
-    def __init__(self, status=None):
-        self.n = self.nonzero = self.refused = 0
+    def __init__(self, status=None, fault_mask: int = 0):
+        self.n = self.nonzero = self.refused = self.faults = 0
+        self.fault_mask = int(fault_mask)
         self.bits = [0] * 32
         if status is not None:
             self.add(status)
@@ -79,16 +80,20 @@ class StatusTally:
         self.n += len(status)
         self.nonzero += int(np.count_nonzero(status))
         self.refused += int(np.count_nonzero(status & np.uint32(st.REFUSED_MASK)))
+        self.faults += int(np.count_nonzero(status & np.uint32(self.fault_mask)))
         seen = int(np.bitwise_or.reduce(status)) if len(status) else 0
         for b in range(32):
             if seen >> b & 1:
                 self.bits[b] += int(np.count_nonzero(status & np.uint32(1 << b)))
 
     def count(self, mask: int) -> int:
-        """Steps with any bit of `mask` set (one bit, REFUSED_MASK, or 0 for any bit)."""
+        """Steps with any bit of `mask` set (one bit, REFUSED_MASK, the tally's fault_mask, or 0
+        for any bit)."""
         from ahrsgen import status as st
         if mask == 0:
             return self.nonzero
+        if mask == self.fault_mask:
+            return self.faults
         if mask == st.REFUSED_MASK:
             return self.refused
         if mask & (mask - 1):

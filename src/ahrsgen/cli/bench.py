@@ -165,8 +165,10 @@ def register_cli(sub) -> None:
     p.add_argument("--precision", choices=["float", "double"], help="C floating-point type (default float)")
     p.add_argument("--runtime", metavar="NAME,NAME", help="build these parameters as runtime parameters "
                                                           "(same figures; see 'generate --runtime')")
-    p.add_argument("--plot", metavar="OUT.png", help="plot roll/pitch/yaw beside the log's reference and the "
-                                                     "error over time, steps with a non-zero status marked")
+    p.add_argument("--plot", metavar="OUT.png",
+                   help="plot roll/pitch/yaw beside the log's reference and the error over time; steps "
+                        "with a fault bit (STATUS_FAULT_MASK) marked in red, with information bits "
+                        "only (AT_REST, ...) in grey")
     p.add_argument("--csv", metavar="OUT.csv", help="write t, q, Euler angles (deg), status (and the reference)")
     p.add_argument("--exe", action="store_true",
                    help="run through the standalone executable (src/ahrsgen/sim/c/main_log.c) instead of ctypes")
