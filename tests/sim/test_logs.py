@@ -102,6 +102,25 @@ def test_continuous_yaw_shows_a_small_error_across_the_wrap():
     assert np.all(np.abs(np.diff(r)) < 2.0)           # no 360 deg jump in the drawn reference
 
 
+def test_continuous_yaw_continues_where_the_reference_stops():
+    """BROAD's reference has gaps (occlusions) and ends (NaN) before the log. Across a gap in which
+    the yaw turns 300 deg the reference's unwrapping takes the short way (-60 deg), the estimate's
+    own does not; the rows without a reference go on from the row drawn before them, so the line
+    does not jump by a turn where the reference stops."""
+    t = np.arange(400)
+    ref_u = 3.0 * t - 100.0                              # 1 100 deg of yaw: several turns
+    wrap = lambda a: (a + 180.0) % 360.0 - 180.0         # noqa: E731
+    est = wrap(ref_u + 2.0)
+    ref = wrap(ref_u)
+    ref[:20] = np.nan                                    # no reference at the start,
+    ref[100:200] = np.nan                                # for 300 deg of yaw in the middle,
+    ref[300:] = np.nan                                   # nor at the end
+    e, r = bench.continuous_yaw_deg(est, ref)
+    assert np.all(np.abs(np.diff(e[:100])) < 10.0) and np.all(np.abs(np.diff(e[200:])) < 10.0)
+    has_ref = np.isfinite(ref)
+    np.testing.assert_allclose(e[has_ref] - r[has_ref], 2.0, atol=1e-9)
+
+
 def test_run_plot_and_csv_are_written(flight_csv, tmp_path):
     from ahrsgen import cli
     png, csv = tmp_path / "p.png", tmp_path / "r.csv"

@@ -377,6 +377,18 @@ def continuous_yaw_deg(yaw_est_deg, yaw_ref_deg=None):
     ref_u[rf] = np.degrees(np.unwrap(np.radians(ref[rf])))
     both = rf & fin
     out[both] = ref_u[both] + (est[both] - ref[both] + 180.0) % 360.0 - 180.0
+    # rows without a reference: the estimate unwrapped from the drawn row before (or, at the
+    # start, the one after), so the line does not jump by turns where the reference stops
+    idx = np.flatnonzero(fin)
+    alone = ~rf[idx]
+    if alone.any() and both.any():
+        step = (np.diff(est[idx]) + 180.0) % 360.0 - 180.0      # wrapped change row to row
+        path = np.concatenate([[0.0], np.cumsum(step)])          # the estimate, unwrapped
+        anchor = np.flatnonzero(~alone)                          # positions in idx with a reference
+        nearest = anchor[np.clip(np.searchsorted(anchor, np.arange(len(idx))) - 1, 0, None)]
+        nearest = np.where(np.arange(len(idx)) < anchor[0], anchor[0], nearest)
+        k = np.flatnonzero(alone)
+        out[idx[k]] = out[idx[nearest[k]]] + path[k] - path[nearest[k]]
     return out, ref_u
 
 
