@@ -1951,30 +1951,54 @@ static void mekf_k_gravity_rows_part1(const float up[3], float dt, float carry[1
     const float tmp71 = 1.6e-05f /* accel_noise_density^2 */ / tmp70;
     const float tmp72 = 0.0049f /* accel_angle_noise^2 */ + tmp71;
     carry[0] = tmp45;
-    carry[1] = tmp58;
-    carry[3] = tmp69;
-    carry[4] = tmp72;
+    carry[3] = tmp54;
+    carry[4] = tmp58;
+    carry[5] = tmp69;
+    carry[8] = tmp72;
 }
 
-static void mekf_k_gravity_rows_part2(bool recover, float carry[19])
+static void mekf_k_gravity_rows_part2(bool recover, const float gyro[3], const float b[3],
+    const float vel[3], bool unobserved, float carry[19])
 {
     float tmp73;
-    if (recover) {
-        tmp73 = carry[4] /* tmp72 */;
+    if (unobserved) {
+        const float tmp74 = gyro[0] - b[0];
+        const float tmp75 = tmp74 * carry[16] /* tmp34 */;
+        const float tmp76 = gyro[1] - b[1];
+        const float tmp77 = tmp76 * carry[3] /* tmp54 */;
+        const float tmp78 = tmp75 + tmp77;
+        const float tmp79 = gyro[2] - b[2];
+        const float tmp80 = tmp79 * carry[1] /* tmp4 */;
+        const float tmp81 = tmp78 + tmp80;
+        const float tmp82 = vel[0] * vel[0];
+        const float tmp83 = vel[1] * vel[1];
+        const float tmp84 = tmp82 + tmp83;
+        const float tmp85 = sqrtf(tmp84);
+        const float tmp86 = tmp81 * tmp85;
+        const float tmp87 = tmp86 / 9.80665f /* G0 */;
+        const float tmp88 = tmp87 * tmp87;
+        tmp73 = tmp88;
     } else {
-        const float tmp74 = carry[0] /* tmp45 */ * carry[0] /* tmp45 */;
-        const float tmp75 = carry[1] /* tmp58 */ * carry[1] /* tmp58 */;
-        const float tmp76 = tmp74 + tmp75;
-        const float tmp77 = carry[3] /* tmp69 */ * carry[3] /* tmp69 */;
-        const float tmp78 = tmp76 + tmp77;
-        const float tmp79 = 9.0f * carry[4] /* tmp72 */;
-        const float tmp80 = tmp78 / tmp79;
-        const float tmp81 = 1.0f + tmp80;
-        const float tmp82 = (tmp81 < 1.0f) ? tmp81 : 1.0f;
-        const float tmp83 = carry[4] /* tmp72 */ * tmp82;
-        tmp73 = tmp83;
+        tmp73 = 0.0f;
     }
-    carry[4] = tmp73;
+    const float tmp89 = carry[8] /* tmp72 */ + tmp73;
+    float tmp90;
+    if (recover) {
+        tmp90 = tmp89;
+    } else {
+        const float tmp91 = carry[0] /* tmp45 */ * carry[0] /* tmp45 */;
+        const float tmp92 = carry[4] /* tmp58 */ * carry[4] /* tmp58 */;
+        const float tmp93 = tmp91 + tmp92;
+        const float tmp94 = carry[5] /* tmp69 */ * carry[5] /* tmp69 */;
+        const float tmp95 = tmp93 + tmp94;
+        const float tmp96 = 9.0f * tmp89;
+        const float tmp97 = tmp95 / tmp96;
+        const float tmp98 = 1.0f + tmp97;
+        const float tmp99 = (tmp98 < 1.0f) ? tmp98 : 1.0f;
+        const float tmp100 = tmp89 * tmp99;
+        tmp90 = tmp100;
+    }
+    carry[1] = tmp90;
 }
 
 /*
@@ -1985,16 +2009,22 @@ static void mekf_k_gravity_rows_part2(bool recover, float carry[19])
  *     up: float[3]
  *     recover: bool
  *     dt: float
+ *     gyro: float[3]
+ *     b: float[3]
+ *     vel: float[3]
+ *     unobserved: bool
  * Outputs:
  *     h: float[9]
  *     z: float[3]
  *     r: float
  *
- * Total ops: 84 (add 43, mul 34, div 3, sqrt 1, cmp 3)
+ * Total ops: 101 (add 50, mul 41, div 4, sqrt 2, cmp 4)
+ *     of which only one side runs: if (unobserved) 15, else 0
  *     of which only one side runs: if (recover) 0, else 10
  */
 static void mekf_k_gravity_rows(const float q[4], const float up[3], bool recover, float dt,
-    float h[9], float z[3], float *r)
+    const float gyro[3], const float b[3], const float vel[3], bool unobserved, float h[9],
+    float z[3], float *r)
 {
     /*
      * 3 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
@@ -2003,7 +2033,7 @@ static void mekf_k_gravity_rows(const float q[4], const float up[3], bool recove
     float carry[19];
     mekf_k_gravity_rows_part0(q, up, carry);
     mekf_k_gravity_rows_part1(up, dt, carry);
-    mekf_k_gravity_rows_part2(recover, carry);
+    mekf_k_gravity_rows_part2(recover, gyro, b, vel, unobserved, carry);
     h[0] = 0.0f;
     h[1] = carry[2] /* tmp6 */;
     h[2] = carry[6] /* tmp11 */;
@@ -2014,9 +2044,9 @@ static void mekf_k_gravity_rows(const float q[4], const float up[3], bool recove
     h[7] = carry[12] /* tmp22 */;
     h[8] = 0.0f;
     z[0] = carry[0] /* tmp45 */;
-    z[1] = carry[1] /* tmp58 */;
-    z[2] = carry[3] /* tmp69 */;
-    *r = carry[4] /* tmp73 */;
+    z[1] = carry[4] /* tmp58 */;
+    z[2] = carry[5] /* tmp69 */;
+    *r = carry[1] /* tmp90 */;
 }
 
 static void mekf_k_update_attitude_row_part0(const float P[36], const float h[3], float z, float r,
@@ -4676,7 +4706,8 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
             float h[9];   /* the rows of H, one after the other */
             float z[3];
             float r;
-            mekf_k_gravity_rows(q, up, recovering, dt, h, z, &r);
+            mekf_k_gravity_rows(q, up, recovering, dt, in->gyro, s->gyro_bias, s->v_gps, !fresh, h, z,
+                &r);
             for (uint32_t i = 0u; i < 3u && usable; i++) {
                 mekf_k_update_attitude_row(P, &h[3u * i], z[i], r, x, x, P, &min_pivot);
                 usable = min_pivot > 1e-12f /* S_PIVOT_MIN */;

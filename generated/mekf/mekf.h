@@ -252,13 +252,12 @@ extern "C" {
                                            that disagrees less (not graded while recovering from a
                                            gyro clip). 0 = off (default). Measured
                                            (studies/mekf_mag_dev_cv.py, docs/mekf.md): 3000 with
-                                           mag_heading_density 0.012 gains on BROAD
-                                           (leave-one-group-out at 286/143/95/48 Hz), the multirotor
-                                           (0.93 -> 0.80 deg) and a static magnetic disturbance (4.2
-                                           -> 0.9 deg), but the fixed-wing's largest yaw error in a
-                                           60 s GPS outage grows from 2.8 to 4.0 deg
-                                           (tests/filters/mekf/test_mekf_c.py bounds it at 3): off
-                                           until that is understood */
+                                           mag_heading_density 0.016 gains in sample on BROAD at
+                                           286/143/95/48 Hz, the multirotor (0.93 -> 0.76 deg) and a
+                                           static magnetic disturbance (4.2 -> 0.7 deg), and keeps
+                                           the fixed-wing and its GPS outage; off because
+                                           left-one-BROAD-group-out it loses the rotation trials at
+                                           286 Hz */
 #define MEKF_ACCEL_GATE 0.0f            /* if > 0, the roll/pitch rows are dropped while | |accel| -
                                            g | exceeds this (ACCEL_GATED); 0 = off, as the patent
                                            [m/s^2] */

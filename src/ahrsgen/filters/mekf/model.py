@@ -356,12 +356,17 @@ def _inject(q, b, X):
     return quat.qnormalize(quat.qmul(q, quat.vec(1, X[0], X[1], X[2]))), b + X[3:6]
 
 
-def gravity_rows_function(p: dict, name="gravity_rows") -> ca.Function:
+def gravity_rows_function(p: dict, gps: bool = False, name="gravity_rows") -> ca.Function:
     """The gravity-direction measurement: rows of H (h, H's rows one after the other; the
     bias columns are 0), innovations z and their variance r.
 
     z_g = up/|up| in body axes − R(q̂)ᵀ [0, 0, −1] (up: accel_lowpass's earth-frame vector); R_g = σ² min(1 + |z_g|²/(3σ)², cap), σ² = accel_angle_noise² + accel_noise_density²/dt
     (bounded residual adaptation: the correction can be weakened, never locked out).
+    With GPS (`gps`): while the last GPS velocity is stale (unobserved = 1: no motion
+    compensation) σ² gains (ω_v |v_h| / g)², the angle by which a turn at the last GPS ground
+    speed |v_h| tilts the specific force (ω_v = (gyro − b̂) · R(q̂)ᵀ e₃, the turn rate): a
+    coordinated turn without GPS bends the measured gravity by the bank angle, and the tilt,
+    and the magnetic heading through the dip, would follow it.
     The step runs the three rows in turn through `update_attitude_row` (one kernel, called
     three times: kalman.scalar_updates, the batch update of the rows stacked).
     """
@@ -372,11 +377,17 @@ def gravity_rows_function(p: dict, name="gravity_rows") -> ca.Function:
     sig2 = p["accel_angle_noise"] ** 2
     if not (isinstance(p["accel_noise_density"], (int, float)) and p["accel_noise_density"] == 0):
         sig2 = sig2 + p["accel_noise_density"] ** 2 / ca.fmax(dt, use(DT_Q_MIN))
+    ins = {"q": q, "up": up, "recover": recover, "dt": dt}
+    if gps:
+        # unobserved motion: a turn at the last GPS ground speed, as an angle (centripetal / g)
+        gyro, b, vel, unobserved = (ca.SX.sym(n, k) for n, k in (("gyro", 3), ("b", 3), ("vel", 3), ("unobserved", 1)))
+        a_turn = ca.dot(gyro - b, quat.rotmat(q)[2, :].T) * ca.sqrt(vel[0] * vel[0] + vel[1] * vel[1]) / use(G0)
+        sig2 = sig2 + ca.if_else(unobserved, a_turn * a_turn, 0)
+        ins |= {"gyro": gyro, "b": b, "vel": vel, "unobserved": unobserved}
     # recovering after a gyro clip (recover = 1): no weakening, the covariance sets the gain
     r_g = ca.if_else(recover, sig2, sig2 * ca.fmin(1 + ca.sumsqr(z_g) / (9 * sig2), p["accel_adapt_cap"]))
     Hq = jacobian_gravity(q)[:, :3]
-    return emit.function(name, {"q": q, "up": up, "recover": recover, "dt": dt},
-                         {"h": ca.reshape(Hq.T, 9, 1), "z": z_g, "r": r_g})
+    return emit.function(name, ins, {"h": ca.reshape(Hq.T, 9, 1), "z": z_g, "r": r_g})
 
 
 def update_attitude_row_function(name="update_attitude_row") -> ca.Function:
@@ -774,8 +785,9 @@ class Model(FilterModel):
                 KernelSpec("accel_lowpass", accel_lowpass_function(p), "earth-frame low-pass of the compensated specific force",
                            flags=("mask", "up_ok")),
                 KernelSpec("heading_features", heading_features_function(), "field norm and dip; GPS velocity in body axes"),
-                KernelSpec("gravity_rows", gravity_rows_function(p), "gravity direction: H rows, innovations, variance",
-                           flags=("recover",)),
+                KernelSpec("gravity_rows", gravity_rows_function(p, "gps" in self.sensors),
+                           "gravity direction: H rows, innovations, variance",
+                           flags=("recover",) + (("unobserved",) if "gps" in self.sensors else ())),
                 KernelSpec("update_attitude_row", update_attitude_row_function(), "one scalar row on the attitude error"),
                 KernelSpec("update_rest_bias", update_rest_bias_function(p), "at rest, the gyro bias: three scalar rows"),
                 KernelSpec("inject", inject_function(), "error injection into q and the gyro bias"),

@@ -561,6 +561,11 @@ class Reference:
             g_hat = Rq.T @ np.array([0.0, 0.0, -1.0])
             z_g = d - g_hat
             sig2 = self.accel_angle_noise ** 2 + self.accel_noise_density ** 2 / max(dt, DT_Q_MIN)
+            if self.uses_gps and not fresh:
+                # no motion compensation: a turn at the last GPS ground speed bends the specific
+                # force by ω_v |v_h| / g (ω_v the turn rate about the vertical)
+                a_turn = (Rq[2, :] @ (gyro - self.gyro_bias)) * np.hypot(self.v_gps[0], self.v_gps[1]) / G0
+                sig2 += a_turn ** 2
             r_g = sig2 if recovering else sig2 * min(1.0 + (z_g @ z_g) / (9.0 * sig2), self.accel_adapt_cap)
             z = np.concatenate([z_g, gyro - self.gyro_bias])
             H = np.zeros((6, 6))
