@@ -1,0 +1,94 @@
+"""How each filter's defaults take a gyro bias larger than the data they were chosen on.
+
+BROAD's sensor and the simulated scenarios have gyro biases of 0.1-0.5 deg/s; an uncalibrated
+MEMS gyro, or one whose offset drifted with temperature since the boot calibration, has 1 deg/s
+and more. This adds a constant bias of B deg/s (along one fixed direction with all three axes:
+(0.6, -0.8, 0.5) normalised) to the gyro of the 10 BROAD trials and scores the float defaults of
+mekf, qcf and adukf, and VQF with its defaults, by BROAD's total RMS (mean over the trials).
+Float C through the host build, as `ahrsgen run`; nothing is tuned.
+
+    PYTHONPATH=src .venv/bin/python studies/gyro_bias_robustness.py [DATA_DIR] [--rate 95|286]
+        [--bias 0,1,3] [--filters mekf,qcf,adukf,peer:vqf] [--json out.json]
+
+Needs the full BROAD files (exit 2 with one line without them). A study, not a test: nothing
+here asserts.
+
+Result (2026-12-04, main at 7e206f7, --rate 95 --bias 0,1,2,3), mean total RMS in degrees:
+mekf 2.23 / 2.23 / 2.24 / 2.36; qcf 2.61 / 2.60 / 5.40 / 12.07 (its rest detector takes a
+low-passed rate above rest_gyro_tol, 2 deg/s, for a turn, so it never learns such a bias at
+rest); adukf 3.22 / 3.49 / 3.86 / 39.08 (its bias state starts at p0_bias = 1e-4 (rad/s)^2, a
+0.6 deg/s standard deviation); VQF 3.07 / 3.08 / 3.08 / 12.06 (its bias estimate is clipped at
+biasClip = 2 deg/s).
+"""
+from __future__ import annotations
+
+import argparse
+import copy
+import json
+import sys
+import time
+
+import numpy as np
+
+import logo_cv
+from ahrsgen.generate import config
+from ahrsgen.sim import host, peers
+from ahrsgen.sim.peers import broad_score
+
+DIRECTION = np.array([0.6, -0.8, 0.5]) / np.linalg.norm([0.6, -0.8, 0.5])
+AVERAGE = {"286": 1, "143": 2, "95": 3, "48": 6}
+
+
+def runner(name: str):
+    """q over a log for a product filter's float defaults or a peer ('peer:vqf')."""
+    if name.startswith("peer:"):
+        return lambda log: peers.run(name.removeprefix("peer:"), log)
+    built = host.build(config.resolve(name))
+    return lambda log: built.run(log).q
+
+
+def with_bias(log, bias_deg_s: float):
+    out = copy.deepcopy(log)
+    out.gyro = np.asarray(log.gyro) + np.radians(bias_deg_s) * DIRECTION
+    return out
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("data", nargs="?", default=None)
+    ap.add_argument("--rate", choices=sorted(AVERAGE), default="95")
+    ap.add_argument("--bias", default="0,0.5,1,2,3", help="deg/s, comma-separated")
+    ap.add_argument("--filters", default="mekf,qcf,adukf,peer:vqf")
+    ap.add_argument("--json", default=None)
+    a = ap.parse_args(argv)
+    biases = [float(b) for b in a.bias.split(",")]
+    names = a.filters.split(",")
+    broad = logo_cv.load_broad(a.data)
+    if broad is None:
+        print("the 10 BROAD trials are not here (shared data folder); nothing measured")
+        return 2
+    logs = {n: (log.averaged(AVERAGE[a.rate]) if AVERAGE[a.rate] > 1 else log)
+            for n, log in broad[0].items()}
+    table = {}
+    for name in names:
+        run = runner(name)
+        t0 = time.perf_counter()
+        table[name] = {}
+        for b in biases:
+            per = {n: broad_score(run(with_bias(log, b)), log)["total"] for n, log in sorted(logs.items())}
+            table[name][b] = {"mean": float(np.mean(list(per.values()))), "trials": per}
+        print(f"  {name}: {time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)
+    print(f"BROAD, 10 trials at {a.rate} Hz, mean total RMS (deg), constant gyro bias added:")
+    print("| filter | " + " | ".join(f"{b:g} deg/s" for b in biases) + " |")
+    print("|---|" + "---|" * len(biases))
+    for name in names:
+        print(f"| {name} | " + " | ".join(f"{table[name][b]['mean']:.2f}" for b in biases) + " |")
+    if a.json:
+        with open(a.json, "w") as fh:
+            json.dump({"rate_hz": a.rate, "direction": DIRECTION.tolist(),
+                       "results": {n: {str(b): v for b, v in r.items()} for n, r in table.items()}}, fh, indent=1)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
