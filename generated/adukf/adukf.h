@@ -251,6 +251,16 @@ extern "C" {
                                             most span_max), so a 100 Hz magnetometer carries the
                                             information of the IMU steps it stands for; 0 = off (as
                                             the paper; faithful ignores it) [s] */
+#define ADUKF_R_TIME 0.0f                /* sensors at their own rates (span_max > 0): the
+                                            per-sample terms of R (sigma_acc^2, sigma_mag^2, the
+                                            adaptation k eps_i^2 and its bound adapt_max) are those
+                                            of a sample standing for r_time seconds: each is
+                                            multiplied by r_time / dt as well (R = (sigma^2 + min(k
+                                            eps^2, adapt_max)) r_time / s + density^2 / s for a
+                                            sample standing for s), so the information a sensor
+                                            gives per second, and how long an adaptive lock-out
+                                            lasts in seconds, do not depend on the sample rate. 0 =
+                                            per IMU sample (before issue 26) [s] */
 #define ADUKF_SPAN_STEPS_MAX 10.0f       /* sensors at their own rates: a sample counts for at most
                                             this many IMU steps (the R factor is at least 1/this),
                                             so a tiny dt after a normal one cannot make a
