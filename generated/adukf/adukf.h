@@ -251,6 +251,25 @@ extern "C" {
                                             most span_max), so a 100 Hz magnetometer carries the
                                             information of the IMU steps it stands for; 0 = off (as
                                             the paper; faithful ignores it) [s] */
+#define ADUKF_R_TIME 0.0035f             /* sensors at their own rates (span_max > 0): the
+                                            per-sample terms of R (sigma_acc^2, sigma_mag^2, the
+                                            adaptation k eps_i^2 and its bound adapt_max) are those
+                                            of a sample standing for r_time seconds: each is
+                                            multiplied by r_time / dt as well (R = (sigma^2 + min(k
+                                            eps^2, adapt_max)) r_time / s + density^2 / s for a
+                                            sample standing for s), so the information a sensor
+                                            gives per second, and how long an adaptive lock-out
+                                            lasts in seconds, do not depend on the sample rate. 0 =
+                                            per IMU sample (before issue 26). 0.0035 s (about
+                                            BROAD's 286 Hz interval: unchanged there) since issue
+                                            26, chosen by leave-one-BROAD-group-out at 286, 143, 95
+                                            and 48 Hz with the scenarios (studies/adukf_rate_cv.py):
+                                            BROAD 4.51 -> 3.73 deg at 48 Hz, 3.22 -> 3.03 at 95 Hz
+                                            in-sample, 4.51 -> 3.81 and 3.22 -> 3.08 left out,
+                                            turntable 0.49 -> 0.19; at 100 Hz the static
+                                            disturbances' adaptation is 0.35 of before per sample:
+                                            static_accel_disturbance 0.27 -> 0.54 deg, issue 10's
+                                            ratio 20.6x -> 10.6x [s] */
 #define ADUKF_SPAN_STEPS_MAX 10.0f       /* sensors at their own rates: a sample counts for at most
                                             this many IMU steps (the R factor is at least 1/this),
                                             so a tiny dt after a normal one cannot make a

@@ -215,8 +215,15 @@ class Model(FilterModel):
 
     def r_scale(self, dt, span):
         """dt / span, at least 1 / span_steps_max (a sample never counts for more steps than that:
-        a tiny dt after a normal one must not make the measurement look exact)."""
-        return ca.fmax(dt / span, 1.0 / self.params["span_steps_max"])
+        a tiny dt after a normal one must not make the measurement look exact). With r_time > 0
+        (issue 26) also times r_time / dt: the per-sample terms of R (sigma², the adaptation k ε²
+        and its bound) are those of a sample standing for r_time seconds, so what a sensor tells
+        per second, and how long an adaptive lock-out lasts, do not depend on the sample rate."""
+        scale = ca.fmax(dt / span, 1.0 / self.params["span_steps_max"])
+        t = self.params["r_time"]
+        if isinstance(t, (int, float)) and t == 0:
+            return scale
+        return scale * t / ca.fmax(dt, use(SPAN_MIN))
 
     def own_rates(self) -> bool:
         return not self.params["faithful"] and self.params["span_max"] > 0

@@ -60,7 +60,8 @@ Product defaults (issue 10; faithful ignores them):
   accelerometer, a ← R(q⁺) R(q⁻/|q⁻|)ᵀ a: the low-passed vector turns with the correction, so
   what it holds from before does not pull the attitude back to its old error.
 - span_max > 0: each sensor's R is multiplied by max(dt / s, 1 / span_steps_max), s = the
-  time since its previous sample (at least dt, at most span_max).
+  time since its previous sample (at least dt, at most span_max); with r_time > 0 (issue 26)
+  also by r_time / dt: sigma², k eps² and adapt_max are per r_time seconds, not per IMU sample.
 
 Initialisation: faithful: q = [1,0,0,0] (the paper). Otherwise the first step with usable
 accelerometer and magnetometer sets q from tilt and tilt-compensated heading (SPEC.md
@@ -366,6 +367,8 @@ class Reference:
             self.sample_age = np.minimum(self.sample_age + dt, p["span_max"])
             span = np.maximum(self.sample_age, dt)
             scale = np.repeat(np.maximum(dt / span, 1.0 / p["span_steps_max"]), 3)
+            if p["r_time"] > 0:      # per-sample terms of a sample standing for r_time seconds
+                scale = scale * p["r_time"] / max(dt, 1e-9)                 # model.SPAN_MIN
             noise[:3] = p["sigma_acc_density"] ** 2 / max(span[0], 1e-9)     # model.SPAN_MIN
             noise[3:] = p["sigma_mag_density"] ** 2 / max(span[1], 1e-9)
             if use_a:
