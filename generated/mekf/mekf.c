@@ -1852,7 +1852,8 @@ static void mekf_k_heading_features(const float q[4], const float mag[3], const 
     feat[3] = carry[3] /* tmp65 */;
 }
 
-static void mekf_k_gravity_rows_part0(const float q[4], const float up[3], float carry[19])
+static void mekf_k_update_gravity_part0(const float q[4], const float up[3], float dt,
+    const float P[36], float carry[57])
 {
     const float tmp0 = q[1] * q[1];
     const float tmp1 = q[2] * q[2];
@@ -1860,397 +1861,641 @@ static void mekf_k_gravity_rows_part0(const float q[4], const float up[3], float
     const float tmp3 = tmp2 + tmp2;
     const float tmp4 = 1.0f - tmp3;
     const float tmp5 = (-2.0f) * tmp4;
-    const float tmp6 = -tmp5;
+    const float tmp6 = P[1] * tmp5;
     const float tmp7 = q[2] * q[3];
     const float tmp8 = q[0] * q[1];
     const float tmp9 = tmp7 + tmp8;
     const float tmp10 = 4.0f * tmp9;
-    const float tmp11 = -tmp10;
-    const float tmp12 = tmp4 + tmp4;
-    const float tmp13 = -tmp12;
-    const float tmp14 = q[1] * q[3];
-    const float tmp15 = q[0] * q[2];
-    const float tmp16 = tmp14 - tmp15;
-    const float tmp17 = (-4.0f) * tmp16;
-    const float tmp18 = -tmp17;
-    const float tmp19 = (-4.0f) * tmp9;
-    const float tmp20 = -tmp19;
-    const float tmp21 = 4.0f * tmp16;
-    const float tmp22 = -tmp21;
-    const float tmp23 = q[3] * q[3];
-    const float tmp24 = tmp1 + tmp23;
-    const float tmp25 = tmp24 + tmp24;
-    const float tmp26 = 1.0f - tmp25;
-    const float tmp27 = tmp26 * up[0];
-    const float tmp28 = q[1] * q[2];
-    const float tmp29 = q[0] * q[3];
-    const float tmp30 = tmp28 + tmp29;
-    const float tmp31 = tmp30 + tmp30;
-    const float tmp32 = tmp31 * up[1];
-    const float tmp33 = tmp27 + tmp32;
-    const float tmp34 = tmp16 + tmp16;
-    const float tmp35 = tmp34 * up[2];
-    const float tmp36 = tmp33 + tmp35;
-    const float tmp37 = up[0] * up[0];
-    const float tmp38 = up[1] * up[1];
-    const float tmp39 = tmp37 + tmp38;
+    const float tmp11 = P[2] * tmp10;
+    const float tmp12 = tmp6 + tmp11;
+    const float tmp13 = P[7] * tmp5;
+    const float tmp14 = P[8] * tmp10;
+    const float tmp15 = tmp13 + tmp14;
+    const float tmp16 = tmp5 * tmp15;
+    const float tmp17 = P[8] * tmp5;
+    const float tmp18 = P[14] * tmp10;
+    const float tmp19 = tmp17 + tmp18;
+    const float tmp20 = tmp10 * tmp19;
+    const float tmp21 = tmp16 + tmp20;
+    const float tmp22 = (dt > 1e-09f /* DT_Q_MIN */) ? dt : 1e-09f /* DT_Q_MIN */;
+    const float tmp23 = 1.6e-05f /* accel_noise_density^2 */ / tmp22;
+    const float tmp24 = 0.0049f /* accel_angle_noise^2 */ + tmp23;
+    const float tmp25 = q[3] * q[3];
+    const float tmp26 = tmp1 + tmp25;
+    const float tmp27 = tmp26 + tmp26;
+    const float tmp28 = 1.0f - tmp27;
+    const float tmp29 = tmp28 * up[0];
+    const float tmp30 = q[1] * q[2];
+    const float tmp31 = q[0] * q[3];
+    const float tmp32 = tmp30 + tmp31;
+    const float tmp33 = tmp32 + tmp32;
+    const float tmp34 = tmp33 * up[1];
+    const float tmp35 = tmp29 + tmp34;
+    const float tmp36 = q[1] * q[3];
+    const float tmp37 = q[0] * q[2];
+    const float tmp38 = tmp36 - tmp37;
+    const float tmp39 = tmp38 + tmp38;
     carry[0] = tmp0;
     carry[1] = tmp4;
-    carry[2] = tmp6;
+    carry[2] = tmp5;
     carry[3] = tmp7;
     carry[4] = tmp8;
     carry[5] = tmp9;
-    carry[6] = tmp11;
-    carry[7] = tmp13;
-    carry[8] = tmp14;
-    carry[9] = tmp15;
-    carry[10] = tmp18;
-    carry[11] = tmp20;
-    carry[12] = tmp22;
-    carry[13] = tmp23;
-    carry[14] = tmp28;
-    carry[15] = tmp29;
-    carry[16] = tmp34;
-    carry[17] = tmp36;
-    carry[18] = tmp39;
+    carry[6] = tmp10;
+    carry[7] = tmp12;
+    carry[8] = tmp15;
+    carry[9] = tmp19;
+    carry[10] = tmp21;
+    carry[11] = tmp24;
+    carry[12] = tmp25;
+    carry[13] = tmp30;
+    carry[14] = tmp31;
+    carry[15] = tmp35;
+    carry[16] = tmp36;
+    carry[17] = tmp37;
+    carry[18] = tmp38;
+    carry[19] = tmp39;
 }
 
-static void mekf_k_gravity_rows_part1(const float up[3], float dt, float carry[19])
+static void mekf_k_update_gravity_part1(const float up[3], float carry[57])
 {
-    const float tmp40 = up[2] * up[2];
-    const float tmp41 = carry[18] /* tmp39 */ + tmp40;
-    const float tmp42 = sqrtf(tmp41);
-    const float tmp43 = 1.0f / tmp42;
-    const float tmp44 = carry[17] /* tmp36 */ * tmp43;
-    const float tmp45 = tmp44 + carry[16] /* tmp34 */;
-    const float tmp46 = carry[14] /* tmp28 */ - carry[15] /* tmp29 */;
-    const float tmp47 = tmp46 + tmp46;
-    const float tmp48 = tmp47 * up[0];
-    const float tmp49 = carry[0] /* tmp0 */ + carry[13] /* tmp23 */;
-    const float tmp50 = tmp49 + tmp49;
-    const float tmp51 = 1.0f - tmp50;
-    const float tmp52 = tmp51 * up[1];
-    const float tmp53 = tmp48 + tmp52;
-    const float tmp54 = carry[5] /* tmp9 */ + carry[5] /* tmp9 */;
-    const float tmp55 = tmp54 * up[2];
-    const float tmp56 = tmp53 + tmp55;
-    const float tmp57 = tmp56 * tmp43;
-    const float tmp58 = tmp57 + tmp54;
-    const float tmp59 = carry[8] /* tmp14 */ + carry[9] /* tmp15 */;
-    const float tmp60 = tmp59 + tmp59;
-    const float tmp61 = tmp60 * up[0];
-    const float tmp62 = carry[3] /* tmp7 */ - carry[4] /* tmp8 */;
-    const float tmp63 = tmp62 + tmp62;
-    const float tmp64 = tmp63 * up[1];
-    const float tmp65 = tmp61 + tmp64;
-    const float tmp66 = carry[1] /* tmp4 */ * up[2];
-    const float tmp67 = tmp65 + tmp66;
-    const float tmp68 = tmp67 * tmp43;
-    const float tmp69 = tmp68 + carry[1] /* tmp4 */;
-    const float tmp70 = (dt > 1e-09f /* DT_Q_MIN */) ? dt : 1e-09f /* DT_Q_MIN */;
-    const float tmp71 = 1.6e-05f /* accel_noise_density^2 */ / tmp70;
-    const float tmp72 = 0.0049f /* accel_angle_noise^2 */ + tmp71;
-    carry[0] = tmp45;
-    carry[1] = tmp58;
-    carry[3] = tmp69;
-    carry[4] = tmp72;
+    const float tmp40 = carry[19] /* tmp39 */ * up[2];
+    const float tmp41 = carry[15] /* tmp35 */ + tmp40;
+    const float tmp42 = up[0] * up[0];
+    const float tmp43 = up[1] * up[1];
+    const float tmp44 = tmp42 + tmp43;
+    const float tmp45 = up[2] * up[2];
+    const float tmp46 = tmp44 + tmp45;
+    const float tmp47 = sqrtf(tmp46);
+    const float tmp48 = 1.0f / tmp47;
+    const float tmp49 = tmp41 * tmp48;
+    const float tmp50 = tmp49 + carry[19] /* tmp39 */;
+    const float tmp51 = carry[13] /* tmp30 */ - carry[14] /* tmp31 */;
+    const float tmp52 = tmp51 + tmp51;
+    const float tmp53 = tmp52 * up[0];
+    const float tmp54 = carry[0] /* tmp0 */ + carry[12] /* tmp25 */;
+    const float tmp55 = tmp54 + tmp54;
+    const float tmp56 = 1.0f - tmp55;
+    const float tmp57 = tmp56 * up[1];
+    const float tmp58 = tmp53 + tmp57;
+    const float tmp59 = carry[5] /* tmp9 */ + carry[5] /* tmp9 */;
+    const float tmp60 = tmp59 * up[2];
+    const float tmp61 = tmp58 + tmp60;
+    const float tmp62 = tmp61 * tmp48;
+    const float tmp63 = tmp62 + tmp59;
+    const float tmp64 = carry[16] /* tmp36 */ + carry[17] /* tmp37 */;
+    const float tmp65 = tmp64 + tmp64;
+    const float tmp66 = tmp65 * up[0];
+    const float tmp67 = carry[3] /* tmp7 */ - carry[4] /* tmp8 */;
+    const float tmp68 = tmp67 + tmp67;
+    const float tmp69 = tmp68 * up[1];
+    const float tmp70 = tmp66 + tmp69;
+    const float tmp71 = carry[1] /* tmp4 */ * up[2];
+    const float tmp72 = tmp70 + tmp71;
+    const float tmp73 = tmp72 * tmp48;
+    const float tmp74 = tmp73 + carry[1] /* tmp4 */;
+    carry[0] = tmp50;
+    carry[3] = tmp63;
+    carry[4] = tmp74;
 }
 
-static void mekf_k_gravity_rows_part2(bool recover, float carry[19])
+static void mekf_k_update_gravity_part2(bool recover, const float P[36], float carry[57])
 {
-    float tmp73;
+    float tmp75;
     if (recover) {
-        tmp73 = carry[4] /* tmp72 */;
+        tmp75 = carry[11] /* tmp24 */;
     } else {
-        const float tmp74 = carry[0] /* tmp45 */ * carry[0] /* tmp45 */;
-        const float tmp75 = carry[1] /* tmp58 */ * carry[1] /* tmp58 */;
-        const float tmp76 = tmp74 + tmp75;
-        const float tmp77 = carry[3] /* tmp69 */ * carry[3] /* tmp69 */;
+        const float tmp76 = carry[0] /* tmp50 */ * carry[0] /* tmp50 */;
+        const float tmp77 = carry[3] /* tmp63 */ * carry[3] /* tmp63 */;
         const float tmp78 = tmp76 + tmp77;
-        const float tmp79 = 9.0f * carry[4] /* tmp72 */;
-        const float tmp80 = tmp78 / tmp79;
-        const float tmp81 = 1.0f + tmp80;
-        const float tmp82 = (tmp81 < 1.0f) ? tmp81 : 1.0f;
-        const float tmp83 = carry[4] /* tmp72 */ * tmp82;
-        tmp73 = tmp83;
+        const float tmp79 = carry[4] /* tmp74 */ * carry[4] /* tmp74 */;
+        const float tmp80 = tmp78 + tmp79;
+        const float tmp81 = 9.0f * carry[11] /* tmp24 */;
+        const float tmp82 = tmp80 / tmp81;
+        const float tmp83 = 1.0f + tmp82;
+        const float tmp84 = (tmp83 < 1.0f) ? tmp83 : 1.0f;
+        const float tmp85 = carry[11] /* tmp24 */ * tmp84;
+        tmp75 = tmp85;
     }
-    carry[4] = tmp73;
+    const float tmp86 = carry[10] /* tmp21 */ + tmp75;
+    const float tmp87 = 1.0f / tmp86;
+    const float tmp88 = (1e-12f /* S_PIVOT_MIN */ < tmp86) ? tmp87 : 1.0f;
+    const float tmp89 = carry[7] /* tmp12 */ * tmp88;
+    const float tmp90 = tmp89 * carry[0] /* tmp50 */;
+    const float tmp91 = tmp89 * carry[7] /* tmp12 */;
+    const float tmp92 = P[0] - tmp91;
+    const float tmp93 = carry[1] /* tmp4 */ + carry[1] /* tmp4 */;
+    const float tmp94 = tmp92 * tmp93;
+    const float tmp95 = carry[9] /* tmp19 */ * tmp88;
+    const float tmp96 = tmp95 * carry[7] /* tmp12 */;
+    const float tmp97 = P[2] - tmp96;
+    const float tmp98 = (-4.0f) * carry[18] /* tmp38 */;
+    const float tmp99 = tmp97 * tmp98;
+    const float tmp100 = tmp94 + tmp99;
+    const float tmp101 = tmp93 * tmp100;
+    const float tmp102 = tmp97 * tmp93;
+    const float tmp103 = tmp95 * carry[9] /* tmp19 */;
+    const float tmp104 = P[14] - tmp103;
+    const float tmp105 = tmp104 * tmp98;
+    const float tmp106 = tmp102 + tmp105;
+    const float tmp107 = tmp98 * tmp106;
+    const float tmp108 = tmp101 + tmp107;
+    const float tmp109 = tmp108 + tmp75;
+    const float tmp110 = 1.0f / tmp109;
+    const float tmp111 = (1e-12f /* S_PIVOT_MIN */ < tmp109) ? tmp110 : 1.0f;
+    const float tmp112 = tmp100 * tmp111;
+    const float tmp113 = tmp93 * tmp90;
+    const float tmp114 = tmp95 * carry[0] /* tmp50 */;
+    carry[1] = tmp75;
+    carry[10] = tmp86;
+    carry[11] = tmp88;
+    carry[12] = tmp90;
+    carry[13] = tmp92;
+    carry[14] = tmp93;
+    carry[15] = tmp95;
+    carry[16] = tmp97;
+    carry[17] = tmp98;
+    carry[19] = tmp100;
+    carry[20] = tmp104;
+    carry[21] = tmp106;
+    carry[22] = tmp109;
+    carry[23] = tmp111;
+    carry[24] = tmp112;
+    carry[25] = tmp113;
+    carry[26] = tmp114;
+}
+
+static void mekf_k_update_gravity_part3(const float P[36], float carry[57])
+{
+    const float tmp115 = carry[17] /* tmp98 */ * carry[26] /* tmp114 */;
+    const float tmp116 = carry[25] /* tmp113 */ + tmp115;
+    const float tmp117 = carry[3] /* tmp63 */ - tmp116;
+    const float tmp118 = carry[24] /* tmp112 */ * tmp117;
+    const float tmp119 = carry[12] /* tmp90 */ + tmp118;
+    const float tmp120 = carry[24] /* tmp112 */ * carry[19] /* tmp100 */;
+    const float tmp121 = carry[13] /* tmp92 */ - tmp120;
+    const float tmp122 = (-4.0f) * carry[5] /* tmp9 */;
+    const float tmp123 = tmp121 * tmp122;
+    const float tmp124 = carry[8] /* tmp15 */ * carry[11] /* tmp88 */;
+    const float tmp125 = tmp124 * carry[7] /* tmp12 */;
+    const float tmp126 = P[1] - tmp125;
+    const float tmp127 = tmp126 * carry[14] /* tmp93 */;
+    const float tmp128 = carry[15] /* tmp95 */ * carry[8] /* tmp15 */;
+    const float tmp129 = P[8] - tmp128;
+    const float tmp130 = tmp129 * carry[17] /* tmp98 */;
+    const float tmp131 = tmp127 + tmp130;
+    const float tmp132 = tmp131 * carry[23] /* tmp111 */;
+    const float tmp133 = tmp132 * carry[19] /* tmp100 */;
+    const float tmp134 = tmp126 - tmp133;
+    const float tmp135 = 4.0f * carry[18] /* tmp38 */;
+    const float tmp136 = tmp134 * tmp135;
+    const float tmp137 = tmp123 + tmp136;
+    const float tmp138 = tmp122 * tmp137;
+    const float tmp139 = tmp134 * tmp122;
+    const float tmp140 = tmp124 * carry[8] /* tmp15 */;
+    const float tmp141 = P[7] - tmp140;
+    const float tmp142 = tmp132 * tmp131;
+    const float tmp143 = tmp141 - tmp142;
+    const float tmp144 = tmp143 * tmp135;
+    const float tmp145 = tmp139 + tmp144;
+    const float tmp146 = tmp135 * tmp145;
+    const float tmp147 = tmp138 + tmp146;
+    const float tmp148 = tmp147 + carry[1] /* tmp75 */;
+    const float tmp149 = 1.0f / tmp148;
+    const float tmp150 = (1e-12f /* S_PIVOT_MIN */ < tmp148) ? tmp149 : 1.0f;
+    const float tmp151 = tmp137 * tmp150;
+    const float tmp152 = tmp122 * tmp119;
+    const float tmp153 = tmp124 * carry[0] /* tmp50 */;
+    const float tmp154 = tmp132 * tmp117;
+    carry[1] = tmp117;
+    carry[3] = tmp119;
+    carry[5] = tmp121;
+    carry[12] = tmp122;
+    carry[13] = tmp129;
+    carry[15] = tmp131;
+    carry[18] = tmp134;
+    carry[24] = tmp135;
+    carry[25] = tmp137;
+    carry[27] = tmp143;
+    carry[28] = tmp145;
+    carry[29] = tmp148;
+    carry[30] = tmp150;
+    carry[31] = tmp151;
+    carry[32] = tmp152;
+    carry[33] = tmp153;
+    carry[34] = tmp154;
+}
+
+static void mekf_k_update_gravity_part4(const float P[36], float carry[57])
+{
+    const float tmp155 = carry[33] /* tmp153 */ + carry[34] /* tmp154 */;
+    const float tmp156 = carry[24] /* tmp135 */ * tmp155;
+    const float tmp157 = carry[32] /* tmp152 */ + tmp156;
+    const float tmp158 = carry[4] /* tmp74 */ - tmp157;
+    const float tmp159 = carry[31] /* tmp151 */ * tmp158;
+    const float tmp160 = carry[3] /* tmp119 */ + tmp159;
+    const float tmp161 = -tmp160;
+    const float tmp162 = carry[28] /* tmp145 */ * carry[30] /* tmp150 */;
+    const float tmp163 = tmp162 * tmp158;
+    const float tmp164 = tmp155 + tmp163;
+    const float tmp165 = -tmp164;
+    const float tmp166 = carry[21] /* tmp106 */ * carry[23] /* tmp111 */;
+    const float tmp167 = tmp166 * carry[1] /* tmp117 */;
+    const float tmp168 = carry[26] /* tmp114 */ + tmp167;
+    const float tmp169 = tmp166 * carry[19] /* tmp100 */;
+    const float tmp170 = carry[16] /* tmp97 */ - tmp169;
+    const float tmp171 = tmp170 * carry[12] /* tmp122 */;
+    const float tmp172 = tmp166 * carry[15] /* tmp131 */;
+    const float tmp173 = carry[13] /* tmp129 */ - tmp172;
+    const float tmp174 = tmp173 * carry[24] /* tmp135 */;
+    const float tmp175 = tmp171 + tmp174;
+    const float tmp176 = tmp175 * carry[30] /* tmp150 */;
+    const float tmp177 = tmp176 * tmp158;
+    const float tmp178 = tmp168 + tmp177;
+    const float tmp179 = -tmp178;
+    const float tmp180 = P[9] * carry[2] /* tmp5 */;
+    const float tmp181 = P[15] * carry[6] /* tmp10 */;
+    const float tmp182 = tmp180 + tmp181;
+    const float tmp183 = tmp182 * carry[11] /* tmp88 */;
+    const float tmp184 = tmp183 * carry[0] /* tmp50 */;
+    const float tmp185 = tmp183 * carry[7] /* tmp12 */;
+    const float tmp186 = P[3] - tmp185;
+    const float tmp187 = tmp186 * carry[14] /* tmp93 */;
+    const float tmp188 = tmp183 * carry[9] /* tmp19 */;
+    const float tmp189 = P[15] - tmp188;
+    const float tmp190 = tmp189 * carry[17] /* tmp98 */;
+    const float tmp191 = tmp187 + tmp190;
+    const float tmp192 = tmp191 * carry[23] /* tmp111 */;
+    const float tmp193 = tmp192 * carry[1] /* tmp117 */;
+    const float tmp194 = tmp184 + tmp193;
+    carry[3] = tmp158;
+    carry[4] = tmp161;
+    carry[13] = tmp162;
+    carry[16] = tmp165;
+    carry[26] = tmp166;
+    carry[32] = tmp170;
+    carry[33] = tmp173;
+    carry[34] = tmp175;
+    carry[35] = tmp176;
+    carry[36] = tmp179;
+    carry[37] = tmp182;
+    carry[38] = tmp183;
+    carry[39] = tmp186;
+    carry[40] = tmp189;
+    carry[41] = tmp191;
+    carry[42] = tmp192;
+    carry[43] = tmp194;
+}
+
+static void mekf_k_update_gravity_part5(const float P[36], float carry[57])
+{
+    const float tmp195 = carry[42] /* tmp192 */ * carry[19] /* tmp100 */;
+    const float tmp196 = carry[39] /* tmp186 */ - tmp195;
+    const float tmp197 = tmp196 * carry[12] /* tmp122 */;
+    const float tmp198 = carry[38] /* tmp183 */ * carry[8] /* tmp15 */;
+    const float tmp199 = P[9] - tmp198;
+    const float tmp200 = carry[42] /* tmp192 */ * carry[15] /* tmp131 */;
+    const float tmp201 = tmp199 - tmp200;
+    const float tmp202 = tmp201 * carry[24] /* tmp135 */;
+    const float tmp203 = tmp197 + tmp202;
+    const float tmp204 = tmp203 * carry[30] /* tmp150 */;
+    const float tmp205 = tmp204 * carry[3] /* tmp158 */;
+    const float tmp206 = carry[43] /* tmp194 */ + tmp205;
+    const float tmp207 = -tmp206;
+    const float tmp208 = P[10] * carry[2] /* tmp5 */;
+    const float tmp209 = P[16] * carry[6] /* tmp10 */;
+    const float tmp210 = tmp208 + tmp209;
+    const float tmp211 = tmp210 * carry[11] /* tmp88 */;
+    const float tmp212 = tmp211 * carry[0] /* tmp50 */;
+    const float tmp213 = tmp211 * carry[7] /* tmp12 */;
+    const float tmp214 = P[4] - tmp213;
+    const float tmp215 = tmp214 * carry[14] /* tmp93 */;
+    const float tmp216 = tmp211 * carry[9] /* tmp19 */;
+    const float tmp217 = P[16] - tmp216;
+    const float tmp218 = tmp217 * carry[17] /* tmp98 */;
+    const float tmp219 = tmp215 + tmp218;
+    const float tmp220 = tmp219 * carry[23] /* tmp111 */;
+    const float tmp221 = tmp220 * carry[1] /* tmp117 */;
+    const float tmp222 = tmp212 + tmp221;
+    const float tmp223 = tmp220 * carry[19] /* tmp100 */;
+    const float tmp224 = tmp214 - tmp223;
+    const float tmp225 = tmp224 * carry[12] /* tmp122 */;
+    const float tmp226 = tmp211 * carry[8] /* tmp15 */;
+    const float tmp227 = P[10] - tmp226;
+    const float tmp228 = tmp220 * carry[15] /* tmp131 */;
+    const float tmp229 = tmp227 - tmp228;
+    const float tmp230 = tmp229 * carry[24] /* tmp135 */;
+    const float tmp231 = tmp225 + tmp230;
+    const float tmp232 = tmp231 * carry[30] /* tmp150 */;
+    const float tmp233 = tmp232 * carry[3] /* tmp158 */;
+    const float tmp234 = tmp222 + tmp233;
+    carry[39] = tmp196;
+    carry[43] = tmp201;
+    carry[44] = tmp203;
+    carry[45] = tmp204;
+    carry[46] = tmp207;
+    carry[47] = tmp210;
+    carry[48] = tmp211;
+    carry[49] = tmp217;
+    carry[50] = tmp219;
+    carry[51] = tmp220;
+    carry[52] = tmp224;
+    carry[53] = tmp229;
+    carry[54] = tmp231;
+    carry[55] = tmp232;
+    carry[56] = tmp234;
+}
+
+static void mekf_k_update_gravity_part6(const float P[36], float carry[57])
+{
+    const float tmp235 = -carry[56] /* tmp234 */;
+    const float tmp236 = P[11] * carry[2] /* tmp5 */;
+    const float tmp237 = P[17] * carry[6] /* tmp10 */;
+    const float tmp238 = tmp236 + tmp237;
+    const float tmp239 = tmp238 * carry[11] /* tmp88 */;
+    const float tmp240 = tmp239 * carry[0] /* tmp50 */;
+    const float tmp241 = tmp239 * carry[7] /* tmp12 */;
+    const float tmp242 = P[5] - tmp241;
+    const float tmp243 = tmp242 * carry[14] /* tmp93 */;
+    const float tmp244 = tmp239 * carry[9] /* tmp19 */;
+    const float tmp245 = P[17] - tmp244;
+    const float tmp246 = tmp245 * carry[17] /* tmp98 */;
+    const float tmp247 = tmp243 + tmp246;
+    const float tmp248 = tmp247 * carry[23] /* tmp111 */;
+    const float tmp249 = tmp248 * carry[1] /* tmp117 */;
+    const float tmp250 = tmp240 + tmp249;
+    const float tmp251 = tmp248 * carry[19] /* tmp100 */;
+    const float tmp252 = tmp242 - tmp251;
+    const float tmp253 = tmp252 * carry[12] /* tmp122 */;
+    const float tmp254 = tmp239 * carry[8] /* tmp15 */;
+    const float tmp255 = P[11] - tmp254;
+    const float tmp256 = tmp248 * carry[15] /* tmp131 */;
+    const float tmp257 = tmp255 - tmp256;
+    const float tmp258 = tmp257 * carry[24] /* tmp135 */;
+    const float tmp259 = tmp253 + tmp258;
+    const float tmp260 = tmp259 * carry[30] /* tmp150 */;
+    const float tmp261 = tmp260 * carry[3] /* tmp158 */;
+    const float tmp262 = tmp250 + tmp261;
+    const float tmp263 = -tmp262;
+    const float tmp264 = (carry[10] /* tmp86 */ < carry[22] /* tmp109 */) ? carry[10] /* tmp86 */ :
+            carry[22] /* tmp109 */;
+    const float tmp265 = (tmp264 < carry[29] /* tmp148 */) ? tmp264 : carry[29] /* tmp148 */;
+    carry[0] = tmp235;
+    carry[1] = tmp238;
+    carry[2] = tmp239;
+    carry[3] = tmp245;
+    carry[6] = tmp247;
+    carry[7] = tmp248;
+    carry[8] = tmp252;
+    carry[9] = tmp257;
+    carry[10] = tmp259;
+    carry[11] = tmp260;
+    carry[12] = tmp263;
+    carry[14] = tmp265;
+}
+
+static void mekf_k_update_gravity_part7(const float P[36], float carry[57])
+{
+    float tmp266;
+    float tmp267;
+    float tmp268;
+    float tmp269;
+    float tmp270;
+    float tmp271;
+    float tmp272;
+    float tmp273;
+    float tmp274;
+    float tmp275;
+    float tmp276;
+    float tmp277;
+    float tmp278;
+    float tmp279;
+    float tmp280;
+    float tmp281;
+    float tmp282;
+    float tmp283;
+    float tmp284;
+    float tmp285;
+    float tmp286;
+    if (1e-12f /* S_PIVOT_MIN */ < carry[14] /* tmp265 */) {
+        const float tmp287 = carry[31] /* tmp151 */ * carry[25] /* tmp137 */;
+        const float tmp288 = carry[5] /* tmp121 */ - tmp287;
+        const float tmp289 = carry[13] /* tmp162 */ * carry[25] /* tmp137 */;
+        const float tmp290 = carry[18] /* tmp134 */ - tmp289;
+        const float tmp291 = carry[35] /* tmp176 */ * carry[25] /* tmp137 */;
+        const float tmp292 = carry[32] /* tmp170 */ - tmp291;
+        const float tmp293 = carry[45] /* tmp204 */ * carry[25] /* tmp137 */;
+        const float tmp294 = carry[39] /* tmp196 */ - tmp293;
+        const float tmp295 = carry[55] /* tmp232 */ * carry[25] /* tmp137 */;
+        const float tmp296 = carry[52] /* tmp224 */ - tmp295;
+        const float tmp297 = carry[11] /* tmp260 */ * carry[25] /* tmp137 */;
+        const float tmp298 = carry[8] /* tmp252 */ - tmp297;
+        const float tmp299 = carry[13] /* tmp162 */ * carry[28] /* tmp145 */;
+        const float tmp300 = carry[27] /* tmp143 */ - tmp299;
+        const float tmp301 = carry[35] /* tmp176 */ * carry[28] /* tmp145 */;
+        const float tmp302 = carry[33] /* tmp173 */ - tmp301;
+        const float tmp303 = carry[45] /* tmp204 */ * carry[28] /* tmp145 */;
+        const float tmp304 = carry[43] /* tmp201 */ - tmp303;
+        const float tmp305 = carry[55] /* tmp232 */ * carry[28] /* tmp145 */;
+        const float tmp306 = carry[53] /* tmp229 */ - tmp305;
+        const float tmp307 = carry[11] /* tmp260 */ * carry[28] /* tmp145 */;
+        const float tmp308 = carry[9] /* tmp257 */ - tmp307;
+        const float tmp309 = carry[26] /* tmp166 */ * carry[21] /* tmp106 */;
+        const float tmp310 = carry[20] /* tmp104 */ - tmp309;
+        const float tmp311 = carry[35] /* tmp176 */ * carry[34] /* tmp175 */;
+        const float tmp312 = tmp310 - tmp311;
+        const float tmp313 = carry[42] /* tmp192 */ * carry[21] /* tmp106 */;
+        const float tmp314 = carry[40] /* tmp189 */ - tmp313;
+        const float tmp315 = carry[45] /* tmp204 */ * carry[34] /* tmp175 */;
+        const float tmp316 = tmp314 - tmp315;
+        const float tmp317 = carry[51] /* tmp220 */ * carry[21] /* tmp106 */;
+        const float tmp318 = carry[49] /* tmp217 */ - tmp317;
+        const float tmp319 = carry[55] /* tmp232 */ * carry[34] /* tmp175 */;
+        const float tmp320 = tmp318 - tmp319;
+        const float tmp321 = carry[7] /* tmp248 */ * carry[21] /* tmp106 */;
+        const float tmp322 = carry[3] /* tmp245 */ - tmp321;
+        const float tmp323 = carry[11] /* tmp260 */ * carry[34] /* tmp175 */;
+        const float tmp324 = tmp322 - tmp323;
+        const float tmp325 = carry[38] /* tmp183 */ * carry[37] /* tmp182 */;
+        const float tmp326 = P[21] - tmp325;
+        const float tmp327 = carry[42] /* tmp192 */ * carry[41] /* tmp191 */;
+        const float tmp328 = tmp326 - tmp327;
+        const float tmp329 = carry[45] /* tmp204 */ * carry[44] /* tmp203 */;
+        const float tmp330 = tmp328 - tmp329;
+        const float tmp331 = carry[48] /* tmp211 */ * carry[37] /* tmp182 */;
+        const float tmp332 = P[22] - tmp331;
+        const float tmp333 = carry[51] /* tmp220 */ * carry[41] /* tmp191 */;
+        const float tmp334 = tmp332 - tmp333;
+        const float tmp335 = carry[55] /* tmp232 */ * carry[44] /* tmp203 */;
+        const float tmp336 = tmp334 - tmp335;
+        const float tmp337 = carry[2] /* tmp239 */ * carry[37] /* tmp182 */;
+        const float tmp338 = P[23] - tmp337;
+        const float tmp339 = carry[7] /* tmp248 */ * carry[41] /* tmp191 */;
+        const float tmp340 = tmp338 - tmp339;
+        const float tmp341 = carry[11] /* tmp260 */ * carry[44] /* tmp203 */;
+        const float tmp342 = tmp340 - tmp341;
+        const float tmp343 = carry[48] /* tmp211 */ * carry[47] /* tmp210 */;
+        const float tmp344 = P[28] - tmp343;
+        const float tmp345 = carry[51] /* tmp220 */ * carry[50] /* tmp219 */;
+        const float tmp346 = tmp344 - tmp345;
+        const float tmp347 = carry[55] /* tmp232 */ * carry[54] /* tmp231 */;
+        const float tmp348 = tmp346 - tmp347;
+        const float tmp349 = carry[2] /* tmp239 */ * carry[47] /* tmp210 */;
+        const float tmp350 = P[29] - tmp349;
+        const float tmp351 = carry[7] /* tmp248 */ * carry[50] /* tmp219 */;
+        const float tmp352 = tmp350 - tmp351;
+        const float tmp353 = carry[11] /* tmp260 */ * carry[54] /* tmp231 */;
+        const float tmp354 = tmp352 - tmp353;
+        const float tmp355 = carry[2] /* tmp239 */ * carry[1] /* tmp238 */;
+        const float tmp356 = P[35] - tmp355;
+        const float tmp357 = carry[7] /* tmp248 */ * carry[6] /* tmp247 */;
+        const float tmp358 = tmp356 - tmp357;
+        const float tmp359 = carry[11] /* tmp260 */ * carry[10] /* tmp259 */;
+        const float tmp360 = tmp358 - tmp359;
+        tmp266 = tmp288;
+        tmp267 = tmp290;
+        tmp268 = tmp292;
+        tmp269 = tmp294;
+        tmp270 = tmp296;
+        tmp271 = tmp298;
+        tmp272 = tmp300;
+        tmp273 = tmp302;
+        tmp274 = tmp304;
+        tmp275 = tmp306;
+        tmp276 = tmp308;
+        tmp277 = tmp312;
+        tmp278 = tmp316;
+        tmp279 = tmp320;
+        tmp280 = tmp324;
+        tmp281 = tmp330;
+        tmp282 = tmp336;
+        tmp283 = tmp342;
+        tmp284 = tmp348;
+        tmp285 = tmp354;
+        tmp286 = tmp360;
+    } else {
+        tmp266 = P[0];
+        tmp267 = P[1];
+        tmp268 = P[2];
+        tmp269 = P[3];
+        tmp270 = P[4];
+        tmp271 = P[5];
+        tmp272 = P[7];
+        tmp273 = P[8];
+        tmp274 = P[9];
+        tmp275 = P[10];
+        tmp276 = P[11];
+        tmp277 = P[14];
+        tmp278 = P[15];
+        tmp279 = P[16];
+        tmp280 = P[17];
+        tmp281 = P[21];
+        tmp282 = P[22];
+        tmp283 = P[23];
+        tmp284 = P[28];
+        tmp285 = P[29];
+        tmp286 = P[35];
+    }
+    carry[1] = tmp266;
+    carry[2] = tmp267;
+    carry[3] = tmp268;
+    carry[5] = tmp269;
+    carry[6] = tmp270;
+    carry[7] = tmp271;
+    carry[8] = tmp272;
+    carry[9] = tmp273;
+    carry[10] = tmp274;
+    carry[11] = tmp275;
+    carry[13] = tmp276;
+    carry[15] = tmp277;
+    carry[17] = tmp278;
+    carry[18] = tmp279;
+    carry[19] = tmp280;
+    carry[20] = tmp281;
+    carry[21] = tmp282;
+    carry[22] = tmp283;
+    carry[23] = tmp284;
+    carry[24] = tmp285;
+    carry[25] = tmp286;
 }
 
 /*
- * gravity direction: H rows, innovations, variance
+ * gravity direction: three scalar rows on the attitude error
  *
  * Args:
  *     q: float[4]
  *     up: float[3]
  *     recover: bool
  *     dt: float
- * Outputs:
- *     h: float[9]
- *     z: float[3]
- *     r: float
- *
- * Total ops: 84 (add 43, mul 34, div 3, sqrt 1, cmp 3)
- *     of which only one side runs: if (recover) 0, else 10
- */
-static void mekf_k_gravity_rows(const float q[4], const float up[3], bool recover, float dt,
-    float h[9], float z[3], float *r)
-{
-    /*
-     * 3 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
-     * handed between them (a slot reused once its value is dead)
-     */
-    float carry[19];
-    mekf_k_gravity_rows_part0(q, up, carry);
-    mekf_k_gravity_rows_part1(up, dt, carry);
-    mekf_k_gravity_rows_part2(recover, carry);
-    h[0] = 0.0f;
-    h[1] = carry[2] /* tmp6 */;
-    h[2] = carry[6] /* tmp11 */;
-    h[3] = carry[7] /* tmp13 */;
-    h[4] = 0.0f;
-    h[5] = carry[10] /* tmp18 */;
-    h[6] = carry[11] /* tmp20 */;
-    h[7] = carry[12] /* tmp22 */;
-    h[8] = 0.0f;
-    z[0] = carry[0] /* tmp45 */;
-    z[1] = carry[1] /* tmp58 */;
-    z[2] = carry[3] /* tmp69 */;
-    *r = carry[4] /* tmp73 */;
-}
-
-static void mekf_k_update_attitude_row_part0(const float P[36], const float h[3], float z, float r,
-    const float x[6], float carry[28])
-{
-    const float tmp0 = P[0] * h[0];
-    const float tmp1 = P[1] * h[1];
-    const float tmp2 = tmp0 + tmp1;
-    const float tmp3 = P[2] * h[2];
-    const float tmp4 = tmp2 + tmp3;
-    const float tmp5 = h[0] * tmp4;
-    const float tmp6 = P[1] * h[0];
-    const float tmp7 = P[7] * h[1];
-    const float tmp8 = tmp6 + tmp7;
-    const float tmp9 = P[8] * h[2];
-    const float tmp10 = tmp8 + tmp9;
-    const float tmp11 = h[1] * tmp10;
-    const float tmp12 = tmp5 + tmp11;
-    const float tmp13 = P[2] * h[0];
-    const float tmp14 = P[8] * h[1];
-    const float tmp15 = tmp13 + tmp14;
-    const float tmp16 = P[14] * h[2];
-    const float tmp17 = tmp15 + tmp16;
-    const float tmp18 = h[2] * tmp17;
-    const float tmp19 = tmp12 + tmp18;
-    const float tmp20 = tmp19 + r;
-    const float tmp21 = 1.0f / tmp20;
-    const float tmp22 = (1e-12f /* S_PIVOT_MIN */ < tmp20) ? tmp21 : 1.0f;
-    const float tmp23 = tmp4 * tmp22;
-    const float tmp24 = h[0] * x[0];
-    const float tmp25 = h[1] * x[1];
-    const float tmp26 = tmp24 + tmp25;
-    const float tmp27 = h[2] * x[2];
-    const float tmp28 = tmp26 + tmp27;
-    const float tmp29 = z - tmp28;
-    const float tmp30 = tmp23 * tmp29;
-    const float tmp31 = x[0] + tmp30;
-    const float tmp32 = tmp10 * tmp22;
-    const float tmp33 = tmp32 * tmp29;
-    const float tmp34 = x[1] + tmp33;
-    const float tmp35 = tmp17 * tmp22;
-    const float tmp36 = tmp35 * tmp29;
-    const float tmp37 = x[2] + tmp36;
-    const float tmp38 = P[3] * h[0];
-    const float tmp39 = P[9] * h[1];
-    carry[0] = tmp4;
-    carry[1] = tmp10;
-    carry[2] = tmp17;
-    carry[3] = tmp20;
-    carry[4] = tmp22;
-    carry[5] = tmp23;
-    carry[6] = tmp29;
-    carry[7] = tmp31;
-    carry[8] = tmp32;
-    carry[9] = tmp34;
-    carry[10] = tmp35;
-    carry[11] = tmp37;
-    carry[12] = tmp38;
-    carry[13] = tmp39;
-}
-
-static void mekf_k_update_attitude_row_part1(const float P[36], const float h[3], const float x[6],
-    float carry[28])
-{
-    const float tmp40 = carry[12] /* tmp38 */ + carry[13] /* tmp39 */;
-    const float tmp41 = P[15] * h[2];
-    const float tmp42 = tmp40 + tmp41;
-    const float tmp43 = tmp42 * carry[4] /* tmp22 */;
-    const float tmp44 = tmp43 * carry[6] /* tmp29 */;
-    const float tmp45 = x[3] + tmp44;
-    const float tmp46 = P[4] * h[0];
-    const float tmp47 = P[10] * h[1];
-    const float tmp48 = tmp46 + tmp47;
-    const float tmp49 = P[16] * h[2];
-    const float tmp50 = tmp48 + tmp49;
-    const float tmp51 = tmp50 * carry[4] /* tmp22 */;
-    const float tmp52 = tmp51 * carry[6] /* tmp29 */;
-    const float tmp53 = x[4] + tmp52;
-    const float tmp54 = P[5] * h[0];
-    const float tmp55 = P[11] * h[1];
-    const float tmp56 = tmp54 + tmp55;
-    const float tmp57 = P[17] * h[2];
-    const float tmp58 = tmp56 + tmp57;
-    const float tmp59 = tmp58 * carry[4] /* tmp22 */;
-    const float tmp60 = tmp59 * carry[6] /* tmp29 */;
-    const float tmp61 = x[5] + tmp60;
-    const float tmp62 = carry[5] /* tmp23 */ * carry[0] /* tmp4 */;
-    const float tmp63 = P[0] - tmp62;
-    const float tmp64 = carry[8] /* tmp32 */ * carry[0] /* tmp4 */;
-    const float tmp65 = P[1] - tmp64;
-    const float tmp66 = carry[10] /* tmp35 */ * carry[0] /* tmp4 */;
-    const float tmp67 = P[2] - tmp66;
-    const float tmp68 = tmp43 * carry[0] /* tmp4 */;
-    const float tmp69 = P[3] - tmp68;
-    const float tmp70 = tmp51 * carry[0] /* tmp4 */;
-    const float tmp71 = P[4] - tmp70;
-    const float tmp72 = tmp59 * carry[0] /* tmp4 */;
-    const float tmp73 = P[5] - tmp72;
-    const float tmp74 = carry[8] /* tmp32 */ * carry[1] /* tmp10 */;
-    const float tmp75 = P[7] - tmp74;
-    const float tmp76 = carry[10] /* tmp35 */ * carry[1] /* tmp10 */;
-    const float tmp77 = P[8] - tmp76;
-    const float tmp78 = tmp43 * carry[1] /* tmp10 */;
-    const float tmp79 = P[9] - tmp78;
-    carry[0] = tmp42;
-    carry[4] = tmp43;
-    carry[5] = tmp45;
-    carry[6] = tmp50;
-    carry[8] = tmp51;
-    carry[12] = tmp53;
-    carry[13] = tmp58;
-    carry[14] = tmp59;
-    carry[15] = tmp61;
-    carry[16] = tmp63;
-    carry[17] = tmp65;
-    carry[18] = tmp67;
-    carry[19] = tmp69;
-    carry[20] = tmp71;
-    carry[21] = tmp73;
-    carry[22] = tmp75;
-    carry[23] = tmp77;
-    carry[24] = tmp79;
-}
-
-static void mekf_k_update_attitude_row_part2(const float P[36], float carry[28])
-{
-    const float tmp80 = carry[8] /* tmp51 */ * carry[1] /* tmp10 */;
-    const float tmp81 = P[10] - tmp80;
-    const float tmp82 = carry[14] /* tmp59 */ * carry[1] /* tmp10 */;
-    const float tmp83 = P[11] - tmp82;
-    const float tmp84 = carry[10] /* tmp35 */ * carry[2] /* tmp17 */;
-    const float tmp85 = P[14] - tmp84;
-    const float tmp86 = carry[4] /* tmp43 */ * carry[2] /* tmp17 */;
-    const float tmp87 = P[15] - tmp86;
-    const float tmp88 = carry[8] /* tmp51 */ * carry[2] /* tmp17 */;
-    const float tmp89 = P[16] - tmp88;
-    const float tmp90 = carry[14] /* tmp59 */ * carry[2] /* tmp17 */;
-    const float tmp91 = P[17] - tmp90;
-    const float tmp92 = carry[4] /* tmp43 */ * carry[0] /* tmp42 */;
-    const float tmp93 = P[21] - tmp92;
-    const float tmp94 = carry[8] /* tmp51 */ * carry[0] /* tmp42 */;
-    const float tmp95 = P[22] - tmp94;
-    const float tmp96 = carry[14] /* tmp59 */ * carry[0] /* tmp42 */;
-    const float tmp97 = P[23] - tmp96;
-    const float tmp98 = carry[8] /* tmp51 */ * carry[6] /* tmp50 */;
-    const float tmp99 = P[28] - tmp98;
-    const float tmp100 = carry[14] /* tmp59 */ * carry[6] /* tmp50 */;
-    const float tmp101 = P[29] - tmp100;
-    const float tmp102 = carry[14] /* tmp59 */ * carry[13] /* tmp58 */;
-    const float tmp103 = P[35] - tmp102;
-    carry[0] = tmp81;
-    carry[1] = tmp83;
-    carry[2] = tmp85;
-    carry[4] = tmp87;
-    carry[6] = tmp89;
-    carry[8] = tmp91;
-    carry[10] = tmp93;
-    carry[13] = tmp95;
-    carry[14] = tmp97;
-    carry[25] = tmp99;
-    carry[26] = tmp101;
-    carry[27] = tmp103;
-}
-
-/*
- * one scalar row on the attitude error
- *
- * Args:
  *     P: float[36]
- *     h: float[3]
- *     z: float
- *     r: float
- *     x: float[6]
  * Outputs:
  *     x_out: float[6]
  *     P_out: float[36]
- *     s: float
+ *     min_pivot: float
  *
- * Total ops: 104 (add 45, mul 57, div 1, cmp 1)
+ * Total ops: 361 (add 146, mul 179, div 6, sqrt 1, cmp 29)
+ *     of which only one side runs: if (recover) 0, else 10
+ *     of which only one side runs: if (1e-12f < tmp265) 74, else 0
  */
-static void mekf_k_update_attitude_row(const float P[36], const float h[3], float z, float r,
-    const float x[6], float x_out[6], float P_out[36], float *s)
+static void mekf_k_update_gravity(const float q[4], const float up[3], bool recover, float dt,
+    const float P[36], float x_out[6], float P_out[36], float *min_pivot)
 {
     /*
-     * 3 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
+     * 8 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
      * handed between them (a slot reused once its value is dead)
      */
-    float carry[28];
-    mekf_k_update_attitude_row_part0(P, h, z, r, x, carry);
-    mekf_k_update_attitude_row_part1(P, h, x, carry);
-    mekf_k_update_attitude_row_part2(P, carry);
-    x_out[0] = carry[7] /* tmp31 */;
-    x_out[1] = carry[9] /* tmp34 */;
-    x_out[2] = carry[11] /* tmp37 */;
-    x_out[3] = carry[5] /* tmp45 */;
-    x_out[4] = carry[12] /* tmp53 */;
-    x_out[5] = carry[15] /* tmp61 */;
-    P_out[0] = carry[16] /* tmp63 */;
-    P_out[1] = carry[17] /* tmp65 */;
-    P_out[2] = carry[18] /* tmp67 */;
-    P_out[3] = carry[19] /* tmp69 */;
-    P_out[4] = carry[20] /* tmp71 */;
-    P_out[5] = carry[21] /* tmp73 */;
-    P_out[6] = carry[17] /* tmp65 */;
-    P_out[7] = carry[22] /* tmp75 */;
-    P_out[8] = carry[23] /* tmp77 */;
-    P_out[9] = carry[24] /* tmp79 */;
-    P_out[10] = carry[0] /* tmp81 */;
-    P_out[11] = carry[1] /* tmp83 */;
-    P_out[12] = carry[18] /* tmp67 */;
-    P_out[13] = carry[23] /* tmp77 */;
-    P_out[14] = carry[2] /* tmp85 */;
-    P_out[15] = carry[4] /* tmp87 */;
-    P_out[16] = carry[6] /* tmp89 */;
-    P_out[17] = carry[8] /* tmp91 */;
-    P_out[18] = carry[19] /* tmp69 */;
-    P_out[19] = carry[24] /* tmp79 */;
-    P_out[20] = carry[4] /* tmp87 */;
-    P_out[21] = carry[10] /* tmp93 */;
-    P_out[22] = carry[13] /* tmp95 */;
-    P_out[23] = carry[14] /* tmp97 */;
-    P_out[24] = carry[20] /* tmp71 */;
-    P_out[25] = carry[0] /* tmp81 */;
-    P_out[26] = carry[6] /* tmp89 */;
-    P_out[27] = carry[13] /* tmp95 */;
-    P_out[28] = carry[25] /* tmp99 */;
-    P_out[29] = carry[26] /* tmp101 */;
-    P_out[30] = carry[21] /* tmp73 */;
-    P_out[31] = carry[1] /* tmp83 */;
-    P_out[32] = carry[8] /* tmp91 */;
-    P_out[33] = carry[14] /* tmp97 */;
-    P_out[34] = carry[26] /* tmp101 */;
-    P_out[35] = carry[27] /* tmp103 */;
-    *s = carry[3] /* tmp20 */;
+    float carry[57];
+    mekf_k_update_gravity_part0(q, up, dt, P, carry);
+    mekf_k_update_gravity_part1(up, carry);
+    mekf_k_update_gravity_part2(recover, P, carry);
+    mekf_k_update_gravity_part3(P, carry);
+    mekf_k_update_gravity_part4(P, carry);
+    mekf_k_update_gravity_part5(P, carry);
+    mekf_k_update_gravity_part6(P, carry);
+    mekf_k_update_gravity_part7(P, carry);
+    x_out[0] = carry[4] /* tmp161 */;
+    x_out[1] = carry[16] /* tmp165 */;
+    x_out[2] = carry[36] /* tmp179 */;
+    x_out[3] = carry[46] /* tmp207 */;
+    x_out[4] = carry[0] /* tmp235 */;
+    x_out[5] = carry[12] /* tmp263 */;
+    P_out[0] = carry[1] /* tmp266 */;
+    P_out[1] = carry[2] /* tmp267 */;
+    P_out[2] = carry[3] /* tmp268 */;
+    P_out[3] = carry[5] /* tmp269 */;
+    P_out[4] = carry[6] /* tmp270 */;
+    P_out[5] = carry[7] /* tmp271 */;
+    P_out[6] = carry[2] /* tmp267 */;
+    P_out[7] = carry[8] /* tmp272 */;
+    P_out[8] = carry[9] /* tmp273 */;
+    P_out[9] = carry[10] /* tmp274 */;
+    P_out[10] = carry[11] /* tmp275 */;
+    P_out[11] = carry[13] /* tmp276 */;
+    P_out[12] = carry[3] /* tmp268 */;
+    P_out[13] = carry[9] /* tmp273 */;
+    P_out[14] = carry[15] /* tmp277 */;
+    P_out[15] = carry[17] /* tmp278 */;
+    P_out[16] = carry[18] /* tmp279 */;
+    P_out[17] = carry[19] /* tmp280 */;
+    P_out[18] = carry[5] /* tmp269 */;
+    P_out[19] = carry[10] /* tmp274 */;
+    P_out[20] = carry[17] /* tmp278 */;
+    P_out[21] = carry[20] /* tmp281 */;
+    P_out[22] = carry[21] /* tmp282 */;
+    P_out[23] = carry[22] /* tmp283 */;
+    P_out[24] = carry[6] /* tmp270 */;
+    P_out[25] = carry[11] /* tmp275 */;
+    P_out[26] = carry[18] /* tmp279 */;
+    P_out[27] = carry[21] /* tmp282 */;
+    P_out[28] = carry[23] /* tmp284 */;
+    P_out[29] = carry[24] /* tmp285 */;
+    P_out[30] = carry[7] /* tmp271 */;
+    P_out[31] = carry[13] /* tmp276 */;
+    P_out[32] = carry[19] /* tmp280 */;
+    P_out[33] = carry[22] /* tmp283 */;
+    P_out[34] = carry[24] /* tmp285 */;
+    P_out[35] = carry[25] /* tmp286 */;
+    *min_pivot = carry[14] /* tmp265 */;
 }
 
 static void mekf_k_update_rest_bias_part0(const float b[3], const float P[36], const float gyro[3],
@@ -4658,45 +4903,45 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
 
     /* Gravity direction (3 rows) and, at rest, the gyro bias (3 rows): scalar rows in turn on P
      * (the batch update with the rows stacked), applied only when every row's variance - the
-     * batch innovation covariance's Cholesky pivots - is usable; else P is restored from its
-     * lower triangle saved here. */
+     * batch innovation covariance's Cholesky pivots - is usable. The gravity rows are one kernel
+     * that leaves P as it was when they are refused; at rest P's lower triangle is saved first and
+     * written back when the bias rows are refused after them. */
     if (use_tilt || at_rest) {
         float x[6] = { 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f };
-        const float P_saved[21] = {
-            P[0], P[1], P[2], P[3], P[4], P[5],
-            P[7], P[8], P[9], P[10], P[11],
-            P[14], P[15], P[16], P[17],
-            P[21], P[22], P[23],
-            P[28], P[29],
-            P[35]
-        };
+        float P_saved[21];   /* at rest only */
         float min_pivot;
         bool usable = true;
-        if (use_tilt) {
-            float h[9];   /* the rows of H, one after the other */
-            float z[3];
-            float r;
-            mekf_k_gravity_rows(q, up, recovering, dt, h, z, &r);
-            for (uint32_t i = 0u; i < 3u && usable; i++) {
-                mekf_k_update_attitude_row(P, &h[3u * i], z[i], r, x, x, P, &min_pivot);
-                usable = min_pivot > 1e-12f /* S_PIVOT_MIN */;
+        if (at_rest) {   /* P's lower triangle, column by column */
+            uint32_t k = 0u;
+            for (uint32_t j = 0u; j < 6u; j++) {
+                for (uint32_t i = 6u; i > j; i--) {   /* bottom up: GCC makes no memcpy call of it */
+                    P_saved[k + i - 1u - j] = P[i - 1u + 6u * j];
+                }
+                k += 6u - j;
             }
+        }
+        if (use_tilt) {
+            /* P in place: the kernel leaves it as it was when a row is refused */
+            mekf_k_update_gravity(q, up, recovering, dt, P, x, P, &min_pivot);
+            usable = min_pivot > 1e-12f /* S_PIVOT_MIN */;
         }
         if (at_rest && usable) {
             mekf_k_update_rest_bias(s->gyro_bias, P, in->gyro, dt, x, x, P, &min_pivot);
             usable = min_pivot > 1e-12f /* S_PIVOT_MIN */;
+            if (!usable) {
+                uint32_t k = 0u;
+                for (uint32_t j = 0u; j < 6u; j++) {
+                    for (uint32_t i = j; i < 6u; i++) {
+                        P[i + 6u * j] = P_saved[k];
+                        P[j + 6u * i] = P_saved[k];
+                        k++;
+                    }
+                }
+            }
         }
         if (usable) {
             mekf_k_inject(q, s->gyro_bias, x, q, s->gyro_bias);
         } else {
-            uint32_t k = 0u;
-            for (uint32_t j = 0u; j < 6u; j++) {
-                for (uint32_t i = j; i < 6u; i++) {
-                    P[i + 6u * j] = P_saved[k];
-                    P[j + 6u * i] = P_saved[k];
-                    k++;
-                }
-            }
             status |= MEKF_UPDATE_SKIPPED;
         }
     }

@@ -356,16 +356,13 @@ def _inject(q, b, X):
     return quat.qnormalize(quat.qmul(q, quat.vec(1, X[0], X[1], X[2]))), b + X[3:6]
 
 
-def gravity_rows_function(p: dict, name="gravity_rows") -> ca.Function:
-    """The gravity-direction measurement: rows of H (h, H's rows one after the other; the
-    bias columns are 0), innovations z and their variance r.
+def gravity_rows(p: dict, q, up, recover, dt):
+    """The gravity-direction measurement: H's attitude columns Hq (3 x 3; the bias columns are
+    0), innovations z and their variance r.
 
     z_g = up/|up| in body axes − R(q̂)ᵀ [0, 0, −1] (up: accel_lowpass's earth-frame vector); R_g = σ² min(1 + |z_g|²/(3σ)², cap), σ² = accel_angle_noise² + accel_noise_density²/dt
     (bounded residual adaptation: the correction can be weakened, never locked out).
-    The step runs the three rows in turn through `update_attitude_row` (one kernel, called
-    three times: kalman.scalar_updates, the batch update of the rows stacked).
     """
-    q, up, recover, dt = ca.SX.sym("q", 4), ca.SX.sym("up", 3), ca.SX.sym("recover"), ca.SX.sym("dt")
     d = quat.rotate_inv(q, up) / ca.sqrt(ca.sumsqr(up))
     z_g = d - gravity_direction(q, ca.DM.zeros(3))
     # the motion the low-pass leaves (per sample) and the sensor's white noise (a density over dt)
@@ -374,20 +371,23 @@ def gravity_rows_function(p: dict, name="gravity_rows") -> ca.Function:
         sig2 = sig2 + p["accel_noise_density"] ** 2 / ca.fmax(dt, use(DT_Q_MIN))
     # recovering after a gyro clip (recover = 1): no weakening, the covariance sets the gain
     r_g = ca.if_else(recover, sig2, sig2 * ca.fmin(1 + ca.sumsqr(z_g) / (9 * sig2), p["accel_adapt_cap"]))
-    Hq = jacobian_gravity(q)[:, :3]
-    return emit.function(name, {"q": q, "up": up, "recover": recover, "dt": dt},
-                         {"h": ca.reshape(Hq.T, 9, 1), "z": z_g, "r": r_g})
+    return jacobian_gravity(q)[:, :3], z_g, r_g
 
 
-def update_attitude_row_function(name="update_attitude_row") -> ca.Function:
-    """One scalar row h = [h_δq, 0] (kalman.scalar_updates): x and P after it, and its
-    variance s = h P hᵀ + r (a pivot of the batch S)."""
-    Pv, h, x = ca.SX.sym("P", N * N), ca.SX.sym("h", 3), ca.SX.sym("x", N)
-    z, r = ca.SX.sym("z"), ca.SX.sym("r")
-    row = ca.horzcat(h.T, ca.SX.zeros(1, 3))
-    x_new, P_new, s = kalman.scalar_updates(sym_lower(Pv), [(row, z, r)], x=x, tol=S_PIVOT_MIN)
-    return emit.function(name, {"P": Pv, "h": h, "z": z, "r": r, "x": x},
-                         {"x_out": x_new, "P_out": flat_mirrored(P_new), "s": s})
+def update_gravity_function(p: dict, name="update_gravity") -> ca.Function:
+    """The three gravity rows (gravity_rows) as scalar rows in turn (kalman.scalar_updates, the
+    batch update of the rows stacked), from x = 0: the correction x, P after them and the
+    smallest row variance (a pivot of the batch S). One kernel for the three rows, P in
+    registers between them; P_out is P itself (selected) when a variance is at or below
+    S_PIVOT_MIN, so the step passes P in place and needs no copy to restore it."""
+    q, up, recover, dt, Pv = (ca.SX.sym(n, k) for n, k in (("q", 4), ("up", 3), ("recover", 1), ("dt", 1),
+                                                            ("P", N * N)))
+    Hq, z, r = gravity_rows(p, q, up, recover, dt)
+    rows = [(ca.horzcat(Hq[i, :], ca.SX.zeros(1, 3)), z[i], r) for i in range(3)]
+    x_new, P_new, min_pivot = kalman.scalar_updates(sym_lower(Pv), rows, tol=S_PIVOT_MIN)
+    P_kept = ca.if_else(min_pivot > use(S_PIVOT_MIN), flat_mirrored(P_new), flat_mirrored(sym_lower(Pv)))
+    return emit.function(name, {"q": q, "up": up, "recover": recover, "dt": dt, "P": Pv},
+                         {"x_out": x_new, "P_out": P_kept, "min_pivot": min_pivot})
 
 
 def update_rest_bias_function(p: dict, name="update_rest_bias") -> ca.Function:
@@ -774,9 +774,8 @@ class Model(FilterModel):
                 KernelSpec("accel_lowpass", accel_lowpass_function(p), "earth-frame low-pass of the compensated specific force",
                            flags=("mask", "up_ok")),
                 KernelSpec("heading_features", heading_features_function(), "field norm and dip; GPS velocity in body axes"),
-                KernelSpec("gravity_rows", gravity_rows_function(p), "gravity direction: H rows, innovations, variance",
-                           flags=("recover",)),
-                KernelSpec("update_attitude_row", update_attitude_row_function(), "one scalar row on the attitude error"),
+                KernelSpec("update_gravity", update_gravity_function(p),
+                           "gravity direction: three scalar rows on the attitude error", flags=("recover",)),
                 KernelSpec("update_rest_bias", update_rest_bias_function(p), "at rest, the gyro bias: three scalar rows"),
                 KernelSpec("inject", inject_function(), "error injection into q and the gyro bias"),
                 KernelSpec("update_heading", update_heading_function(p), "one heading row, gain projected on the vertical",
@@ -802,7 +801,7 @@ class Model(FilterModel):
             every = ["gyro_recovery", "predict_attitude", "predict_covariance", "heading_features"] + (
                 ["course_mode"] if p["heading_source"] == "auto" else []) + ["rest"]
             aided = gate + pre + every + ["accel_lowpass"] + (
-                ["mag_check"] if p["heading_source"] != "gps_course" else []) + ["gravity_rows"] + ["update_attitude_row"] * 3
+                ["mag_check"] if p["heading_source"] != "gps_course" else []) + ["update_gravity"]
             heading = ["inject", "update_heading", "inject", "head_timer"]
             return {"gyro only": pre + every + ["head_timer"],
                     "with corrections": aided + heading,
