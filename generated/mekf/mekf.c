@@ -15,6 +15,9 @@
  * Aliasing: every mekf_k_* function reads all its inputs before it writes any
  * output, so an output may be the same array as an input (the step updates the state in
  * place, without copies); two outputs must not overlap.
+ * Exception: mekf_k_update_gravity stores each output as soon as it is computed, after the
+ * last read of the input element it may overwrite: P_out may be P itself; no other argument
+ * may overlap an output.
  */
 #include "mekf.h"
 
@@ -1853,7 +1856,7 @@ static void mekf_k_heading_features(const float q[4], const float mag[3], const 
 }
 
 static void mekf_k_update_gravity_part0(const float q[4], const float up[3], float dt,
-    const float P[36], float carry[57])
+    const float P[36], float carry[53])
 {
     const float tmp0 = q[1] * q[1];
     const float tmp1 = q[2] * q[2];
@@ -1917,7 +1920,7 @@ static void mekf_k_update_gravity_part0(const float q[4], const float up[3], flo
     carry[19] = tmp39;
 }
 
-static void mekf_k_update_gravity_part1(const float up[3], float carry[57])
+static void mekf_k_update_gravity_part1(const float up[3], float carry[53])
 {
     const float tmp40 = carry[19] /* tmp39 */ * up[2];
     const float tmp41 = carry[15] /* tmp35 */ + tmp40;
@@ -1959,7 +1962,7 @@ static void mekf_k_update_gravity_part1(const float up[3], float carry[57])
     carry[4] = tmp74;
 }
 
-static void mekf_k_update_gravity_part2(bool recover, const float P[36], float carry[57])
+static void mekf_k_update_gravity_part2(bool recover, const float P[36], float carry[53])
 {
     float tmp75;
     if (recover) {
@@ -2025,7 +2028,7 @@ static void mekf_k_update_gravity_part2(bool recover, const float P[36], float c
     carry[26] = tmp114;
 }
 
-static void mekf_k_update_gravity_part3(const float P[36], float carry[57])
+static void mekf_k_update_gravity_part3(const float P[36], float carry[53])
 {
     const float tmp115 = carry[17] /* tmp98 */ * carry[26] /* tmp114 */;
     const float tmp116 = carry[25] /* tmp113 */ + tmp115;
@@ -2086,7 +2089,7 @@ static void mekf_k_update_gravity_part3(const float P[36], float carry[57])
     carry[34] = tmp154;
 }
 
-static void mekf_k_update_gravity_part4(const float P[36], float carry[57])
+static void mekf_k_update_gravity_part4(const float P[36], float x_out[6], float carry[53])
 {
     const float tmp155 = carry[33] /* tmp153 */ + carry[34] /* tmp154 */;
     const float tmp156 = carry[24] /* tmp135 */ * tmp155;
@@ -2095,10 +2098,12 @@ static void mekf_k_update_gravity_part4(const float P[36], float carry[57])
     const float tmp159 = carry[31] /* tmp151 */ * tmp158;
     const float tmp160 = carry[3] /* tmp119 */ + tmp159;
     const float tmp161 = -tmp160;
+    x_out[0] = tmp161;
     const float tmp162 = carry[28] /* tmp145 */ * carry[30] /* tmp150 */;
     const float tmp163 = tmp162 * tmp158;
     const float tmp164 = tmp155 + tmp163;
     const float tmp165 = -tmp164;
+    x_out[1] = tmp165;
     const float tmp166 = carry[21] /* tmp106 */ * carry[23] /* tmp111 */;
     const float tmp167 = tmp166 * carry[1] /* tmp117 */;
     const float tmp168 = carry[26] /* tmp114 */ + tmp167;
@@ -2113,6 +2118,7 @@ static void mekf_k_update_gravity_part4(const float P[36], float carry[57])
     const float tmp177 = tmp176 * tmp158;
     const float tmp178 = tmp168 + tmp177;
     const float tmp179 = -tmp178;
+    x_out[2] = tmp179;
     const float tmp180 = P[9] * carry[2] /* tmp5 */;
     const float tmp181 = P[15] * carry[6] /* tmp10 */;
     const float tmp182 = tmp180 + tmp181;
@@ -2129,39 +2135,37 @@ static void mekf_k_update_gravity_part4(const float P[36], float carry[57])
     const float tmp193 = tmp192 * carry[1] /* tmp117 */;
     const float tmp194 = tmp184 + tmp193;
     carry[3] = tmp158;
-    carry[4] = tmp161;
-    carry[13] = tmp162;
-    carry[16] = tmp165;
-    carry[26] = tmp166;
-    carry[32] = tmp170;
-    carry[33] = tmp173;
-    carry[34] = tmp175;
-    carry[35] = tmp176;
-    carry[36] = tmp179;
-    carry[37] = tmp182;
-    carry[38] = tmp183;
-    carry[39] = tmp186;
-    carry[40] = tmp189;
-    carry[41] = tmp191;
-    carry[42] = tmp192;
-    carry[43] = tmp194;
+    carry[4] = tmp162;
+    carry[13] = tmp166;
+    carry[16] = tmp170;
+    carry[26] = tmp173;
+    carry[32] = tmp175;
+    carry[33] = tmp176;
+    carry[34] = tmp182;
+    carry[35] = tmp183;
+    carry[36] = tmp186;
+    carry[37] = tmp189;
+    carry[38] = tmp191;
+    carry[39] = tmp192;
+    carry[40] = tmp194;
 }
 
-static void mekf_k_update_gravity_part5(const float P[36], float carry[57])
+static void mekf_k_update_gravity_part5(const float P[36], float x_out[6], float carry[53])
 {
-    const float tmp195 = carry[42] /* tmp192 */ * carry[19] /* tmp100 */;
-    const float tmp196 = carry[39] /* tmp186 */ - tmp195;
+    const float tmp195 = carry[39] /* tmp192 */ * carry[19] /* tmp100 */;
+    const float tmp196 = carry[36] /* tmp186 */ - tmp195;
     const float tmp197 = tmp196 * carry[12] /* tmp122 */;
-    const float tmp198 = carry[38] /* tmp183 */ * carry[8] /* tmp15 */;
+    const float tmp198 = carry[35] /* tmp183 */ * carry[8] /* tmp15 */;
     const float tmp199 = P[9] - tmp198;
-    const float tmp200 = carry[42] /* tmp192 */ * carry[15] /* tmp131 */;
+    const float tmp200 = carry[39] /* tmp192 */ * carry[15] /* tmp131 */;
     const float tmp201 = tmp199 - tmp200;
     const float tmp202 = tmp201 * carry[24] /* tmp135 */;
     const float tmp203 = tmp197 + tmp202;
     const float tmp204 = tmp203 * carry[30] /* tmp150 */;
     const float tmp205 = tmp204 * carry[3] /* tmp158 */;
-    const float tmp206 = carry[43] /* tmp194 */ + tmp205;
+    const float tmp206 = carry[40] /* tmp194 */ + tmp205;
     const float tmp207 = -tmp206;
+    x_out[3] = tmp207;
     const float tmp208 = P[10] * carry[2] /* tmp5 */;
     const float tmp209 = P[16] * carry[6] /* tmp10 */;
     const float tmp210 = tmp208 + tmp209;
@@ -2189,26 +2193,27 @@ static void mekf_k_update_gravity_part5(const float P[36], float carry[57])
     const float tmp232 = tmp231 * carry[30] /* tmp150 */;
     const float tmp233 = tmp232 * carry[3] /* tmp158 */;
     const float tmp234 = tmp222 + tmp233;
-    carry[39] = tmp196;
-    carry[43] = tmp201;
-    carry[44] = tmp203;
-    carry[45] = tmp204;
-    carry[46] = tmp207;
-    carry[47] = tmp210;
-    carry[48] = tmp211;
-    carry[49] = tmp217;
-    carry[50] = tmp219;
-    carry[51] = tmp220;
-    carry[52] = tmp224;
-    carry[53] = tmp229;
-    carry[54] = tmp231;
-    carry[55] = tmp232;
-    carry[56] = tmp234;
+    carry[36] = tmp196;
+    carry[40] = tmp201;
+    carry[41] = tmp203;
+    carry[42] = tmp204;
+    carry[43] = tmp210;
+    carry[44] = tmp211;
+    carry[45] = tmp217;
+    carry[46] = tmp219;
+    carry[47] = tmp220;
+    carry[48] = tmp224;
+    carry[49] = tmp229;
+    carry[50] = tmp231;
+    carry[51] = tmp232;
+    carry[52] = tmp234;
 }
 
-static void mekf_k_update_gravity_part6(const float P[36], float carry[57])
+static void mekf_k_update_gravity_part6(const float P[36], float x_out[6], float P_out[36],
+    float carry[53])
 {
-    const float tmp235 = -carry[56] /* tmp234 */;
+    const float tmp235 = -carry[52] /* tmp234 */;
+    x_out[4] = tmp235;
     const float tmp236 = P[11] * carry[2] /* tmp5 */;
     const float tmp237 = P[17] * carry[6] /* tmp10 */;
     const float tmp238 = tmp236 + tmp237;
@@ -2237,190 +2242,147 @@ static void mekf_k_update_gravity_part6(const float P[36], float carry[57])
     const float tmp261 = tmp260 * carry[3] /* tmp158 */;
     const float tmp262 = tmp250 + tmp261;
     const float tmp263 = -tmp262;
-    const float tmp264 = (carry[10] /* tmp86 */ < carry[22] /* tmp109 */) ? carry[10] /* tmp86 */ :
-            carry[22] /* tmp109 */;
-    const float tmp265 = (tmp264 < carry[29] /* tmp148 */) ? tmp264 : carry[29] /* tmp148 */;
-    carry[0] = tmp235;
-    carry[1] = tmp238;
-    carry[2] = tmp239;
-    carry[3] = tmp245;
-    carry[6] = tmp247;
-    carry[7] = tmp248;
-    carry[8] = tmp252;
-    carry[9] = tmp257;
-    carry[10] = tmp259;
-    carry[11] = tmp260;
-    carry[12] = tmp263;
-    carry[14] = tmp265;
+    x_out[5] = tmp263;
+    const float tmp264 = carry[31] /* tmp151 */ * carry[25] /* tmp137 */;
+    const float tmp265 = carry[5] /* tmp121 */ - tmp264;
+    P_out[0] = tmp265;
+    const float tmp266 = carry[4] /* tmp162 */ * carry[25] /* tmp137 */;
+    const float tmp267 = carry[18] /* tmp134 */ - tmp266;
+    P_out[1] = tmp267;
+    P_out[6] = tmp267;
+    const float tmp268 = carry[33] /* tmp176 */ * carry[25] /* tmp137 */;
+    const float tmp269 = carry[16] /* tmp170 */ - tmp268;
+    P_out[2] = tmp269;
+    P_out[12] = tmp269;
+    const float tmp270 = carry[42] /* tmp204 */ * carry[25] /* tmp137 */;
+    const float tmp271 = carry[36] /* tmp196 */ - tmp270;
+    P_out[3] = tmp271;
+    P_out[18] = tmp271;
+    const float tmp272 = carry[51] /* tmp232 */ * carry[25] /* tmp137 */;
+    const float tmp273 = carry[48] /* tmp224 */ - tmp272;
+    P_out[4] = tmp273;
+    P_out[24] = tmp273;
+    const float tmp274 = tmp260 * carry[25] /* tmp137 */;
+    carry[0] = tmp238;
+    carry[1] = tmp239;
+    carry[2] = tmp245;
+    carry[3] = tmp247;
+    carry[5] = tmp248;
+    carry[6] = tmp252;
+    carry[7] = tmp257;
+    carry[8] = tmp259;
+    carry[9] = tmp260;
+    carry[11] = tmp274;
 }
 
-static void mekf_k_update_gravity_part7(const float P[36], float carry[57])
+static void mekf_k_update_gravity_part7(const float P[36], float P_out[36], float carry[53])
 {
-    float tmp266;
-    float tmp267;
-    float tmp268;
-    float tmp269;
-    float tmp270;
-    float tmp271;
-    float tmp272;
-    float tmp273;
-    float tmp274;
-    float tmp275;
-    float tmp276;
-    float tmp277;
-    float tmp278;
-    float tmp279;
-    float tmp280;
-    float tmp281;
-    float tmp282;
-    float tmp283;
-    float tmp284;
-    float tmp285;
-    float tmp286;
-    if (1e-12f /* S_PIVOT_MIN */ < carry[14] /* tmp265 */) {
-        const float tmp287 = carry[31] /* tmp151 */ * carry[25] /* tmp137 */;
-        const float tmp288 = carry[5] /* tmp121 */ - tmp287;
-        const float tmp289 = carry[13] /* tmp162 */ * carry[25] /* tmp137 */;
-        const float tmp290 = carry[18] /* tmp134 */ - tmp289;
-        const float tmp291 = carry[35] /* tmp176 */ * carry[25] /* tmp137 */;
-        const float tmp292 = carry[32] /* tmp170 */ - tmp291;
-        const float tmp293 = carry[45] /* tmp204 */ * carry[25] /* tmp137 */;
-        const float tmp294 = carry[39] /* tmp196 */ - tmp293;
-        const float tmp295 = carry[55] /* tmp232 */ * carry[25] /* tmp137 */;
-        const float tmp296 = carry[52] /* tmp224 */ - tmp295;
-        const float tmp297 = carry[11] /* tmp260 */ * carry[25] /* tmp137 */;
-        const float tmp298 = carry[8] /* tmp252 */ - tmp297;
-        const float tmp299 = carry[13] /* tmp162 */ * carry[28] /* tmp145 */;
-        const float tmp300 = carry[27] /* tmp143 */ - tmp299;
-        const float tmp301 = carry[35] /* tmp176 */ * carry[28] /* tmp145 */;
-        const float tmp302 = carry[33] /* tmp173 */ - tmp301;
-        const float tmp303 = carry[45] /* tmp204 */ * carry[28] /* tmp145 */;
-        const float tmp304 = carry[43] /* tmp201 */ - tmp303;
-        const float tmp305 = carry[55] /* tmp232 */ * carry[28] /* tmp145 */;
-        const float tmp306 = carry[53] /* tmp229 */ - tmp305;
-        const float tmp307 = carry[11] /* tmp260 */ * carry[28] /* tmp145 */;
-        const float tmp308 = carry[9] /* tmp257 */ - tmp307;
-        const float tmp309 = carry[26] /* tmp166 */ * carry[21] /* tmp106 */;
-        const float tmp310 = carry[20] /* tmp104 */ - tmp309;
-        const float tmp311 = carry[35] /* tmp176 */ * carry[34] /* tmp175 */;
-        const float tmp312 = tmp310 - tmp311;
-        const float tmp313 = carry[42] /* tmp192 */ * carry[21] /* tmp106 */;
-        const float tmp314 = carry[40] /* tmp189 */ - tmp313;
-        const float tmp315 = carry[45] /* tmp204 */ * carry[34] /* tmp175 */;
-        const float tmp316 = tmp314 - tmp315;
-        const float tmp317 = carry[51] /* tmp220 */ * carry[21] /* tmp106 */;
-        const float tmp318 = carry[49] /* tmp217 */ - tmp317;
-        const float tmp319 = carry[55] /* tmp232 */ * carry[34] /* tmp175 */;
-        const float tmp320 = tmp318 - tmp319;
-        const float tmp321 = carry[7] /* tmp248 */ * carry[21] /* tmp106 */;
-        const float tmp322 = carry[3] /* tmp245 */ - tmp321;
-        const float tmp323 = carry[11] /* tmp260 */ * carry[34] /* tmp175 */;
-        const float tmp324 = tmp322 - tmp323;
-        const float tmp325 = carry[38] /* tmp183 */ * carry[37] /* tmp182 */;
-        const float tmp326 = P[21] - tmp325;
-        const float tmp327 = carry[42] /* tmp192 */ * carry[41] /* tmp191 */;
-        const float tmp328 = tmp326 - tmp327;
-        const float tmp329 = carry[45] /* tmp204 */ * carry[44] /* tmp203 */;
-        const float tmp330 = tmp328 - tmp329;
-        const float tmp331 = carry[48] /* tmp211 */ * carry[37] /* tmp182 */;
-        const float tmp332 = P[22] - tmp331;
-        const float tmp333 = carry[51] /* tmp220 */ * carry[41] /* tmp191 */;
-        const float tmp334 = tmp332 - tmp333;
-        const float tmp335 = carry[55] /* tmp232 */ * carry[44] /* tmp203 */;
-        const float tmp336 = tmp334 - tmp335;
-        const float tmp337 = carry[2] /* tmp239 */ * carry[37] /* tmp182 */;
-        const float tmp338 = P[23] - tmp337;
-        const float tmp339 = carry[7] /* tmp248 */ * carry[41] /* tmp191 */;
-        const float tmp340 = tmp338 - tmp339;
-        const float tmp341 = carry[11] /* tmp260 */ * carry[44] /* tmp203 */;
-        const float tmp342 = tmp340 - tmp341;
-        const float tmp343 = carry[48] /* tmp211 */ * carry[47] /* tmp210 */;
-        const float tmp344 = P[28] - tmp343;
-        const float tmp345 = carry[51] /* tmp220 */ * carry[50] /* tmp219 */;
-        const float tmp346 = tmp344 - tmp345;
-        const float tmp347 = carry[55] /* tmp232 */ * carry[54] /* tmp231 */;
-        const float tmp348 = tmp346 - tmp347;
-        const float tmp349 = carry[2] /* tmp239 */ * carry[47] /* tmp210 */;
-        const float tmp350 = P[29] - tmp349;
-        const float tmp351 = carry[7] /* tmp248 */ * carry[50] /* tmp219 */;
-        const float tmp352 = tmp350 - tmp351;
-        const float tmp353 = carry[11] /* tmp260 */ * carry[54] /* tmp231 */;
-        const float tmp354 = tmp352 - tmp353;
-        const float tmp355 = carry[2] /* tmp239 */ * carry[1] /* tmp238 */;
-        const float tmp356 = P[35] - tmp355;
-        const float tmp357 = carry[7] /* tmp248 */ * carry[6] /* tmp247 */;
-        const float tmp358 = tmp356 - tmp357;
-        const float tmp359 = carry[11] /* tmp260 */ * carry[10] /* tmp259 */;
-        const float tmp360 = tmp358 - tmp359;
-        tmp266 = tmp288;
-        tmp267 = tmp290;
-        tmp268 = tmp292;
-        tmp269 = tmp294;
-        tmp270 = tmp296;
-        tmp271 = tmp298;
-        tmp272 = tmp300;
-        tmp273 = tmp302;
-        tmp274 = tmp304;
-        tmp275 = tmp306;
-        tmp276 = tmp308;
-        tmp277 = tmp312;
-        tmp278 = tmp316;
-        tmp279 = tmp320;
-        tmp280 = tmp324;
-        tmp281 = tmp330;
-        tmp282 = tmp336;
-        tmp283 = tmp342;
-        tmp284 = tmp348;
-        tmp285 = tmp354;
-        tmp286 = tmp360;
-    } else {
-        tmp266 = P[0];
-        tmp267 = P[1];
-        tmp268 = P[2];
-        tmp269 = P[3];
-        tmp270 = P[4];
-        tmp271 = P[5];
-        tmp272 = P[7];
-        tmp273 = P[8];
-        tmp274 = P[9];
-        tmp275 = P[10];
-        tmp276 = P[11];
-        tmp277 = P[14];
-        tmp278 = P[15];
-        tmp279 = P[16];
-        tmp280 = P[17];
-        tmp281 = P[21];
-        tmp282 = P[22];
-        tmp283 = P[23];
-        tmp284 = P[28];
-        tmp285 = P[29];
-        tmp286 = P[35];
-    }
-    carry[1] = tmp266;
-    carry[2] = tmp267;
-    carry[3] = tmp268;
-    carry[5] = tmp269;
-    carry[6] = tmp270;
-    carry[7] = tmp271;
-    carry[8] = tmp272;
-    carry[9] = tmp273;
-    carry[10] = tmp274;
-    carry[11] = tmp275;
-    carry[13] = tmp276;
-    carry[15] = tmp277;
-    carry[17] = tmp278;
-    carry[18] = tmp279;
-    carry[19] = tmp280;
-    carry[20] = tmp281;
-    carry[21] = tmp282;
-    carry[22] = tmp283;
-    carry[23] = tmp284;
-    carry[24] = tmp285;
-    carry[25] = tmp286;
+    const float tmp275 = carry[6] /* tmp252 */ - carry[11] /* tmp274 */;
+    P_out[5] = tmp275;
+    P_out[30] = tmp275;
+    const float tmp276 = carry[4] /* tmp162 */ * carry[28] /* tmp145 */;
+    const float tmp277 = carry[27] /* tmp143 */ - tmp276;
+    P_out[7] = tmp277;
+    const float tmp278 = carry[33] /* tmp176 */ * carry[28] /* tmp145 */;
+    const float tmp279 = carry[26] /* tmp173 */ - tmp278;
+    P_out[8] = tmp279;
+    P_out[13] = tmp279;
+    const float tmp280 = carry[42] /* tmp204 */ * carry[28] /* tmp145 */;
+    const float tmp281 = carry[40] /* tmp201 */ - tmp280;
+    P_out[9] = tmp281;
+    P_out[19] = tmp281;
+    const float tmp282 = carry[51] /* tmp232 */ * carry[28] /* tmp145 */;
+    const float tmp283 = carry[49] /* tmp229 */ - tmp282;
+    P_out[10] = tmp283;
+    P_out[25] = tmp283;
+    const float tmp284 = carry[9] /* tmp260 */ * carry[28] /* tmp145 */;
+    const float tmp285 = carry[7] /* tmp257 */ - tmp284;
+    P_out[11] = tmp285;
+    P_out[31] = tmp285;
+    const float tmp286 = carry[13] /* tmp166 */ * carry[21] /* tmp106 */;
+    const float tmp287 = carry[20] /* tmp104 */ - tmp286;
+    const float tmp288 = carry[33] /* tmp176 */ * carry[32] /* tmp175 */;
+    const float tmp289 = tmp287 - tmp288;
+    P_out[14] = tmp289;
+    const float tmp290 = carry[39] /* tmp192 */ * carry[21] /* tmp106 */;
+    const float tmp291 = carry[37] /* tmp189 */ - tmp290;
+    const float tmp292 = carry[42] /* tmp204 */ * carry[32] /* tmp175 */;
+    const float tmp293 = tmp291 - tmp292;
+    P_out[15] = tmp293;
+    P_out[20] = tmp293;
+    const float tmp294 = carry[47] /* tmp220 */ * carry[21] /* tmp106 */;
+    const float tmp295 = carry[45] /* tmp217 */ - tmp294;
+    const float tmp296 = carry[51] /* tmp232 */ * carry[32] /* tmp175 */;
+    const float tmp297 = tmp295 - tmp296;
+    P_out[16] = tmp297;
+    P_out[26] = tmp297;
+    const float tmp298 = carry[5] /* tmp248 */ * carry[21] /* tmp106 */;
+    const float tmp299 = carry[2] /* tmp245 */ - tmp298;
+    const float tmp300 = carry[9] /* tmp260 */ * carry[32] /* tmp175 */;
+    const float tmp301 = tmp299 - tmp300;
+    P_out[17] = tmp301;
+    P_out[32] = tmp301;
+    const float tmp302 = carry[35] /* tmp183 */ * carry[34] /* tmp182 */;
+    const float tmp303 = P[21] - tmp302;
+    const float tmp304 = carry[39] /* tmp192 */ * carry[38] /* tmp191 */;
+    const float tmp305 = tmp303 - tmp304;
+    const float tmp306 = carry[42] /* tmp204 */ * carry[41] /* tmp203 */;
+    const float tmp307 = tmp305 - tmp306;
+    P_out[21] = tmp307;
+    const float tmp308 = carry[44] /* tmp211 */ * carry[34] /* tmp182 */;
+    const float tmp309 = P[22] - tmp308;
+    const float tmp310 = carry[47] /* tmp220 */ * carry[38] /* tmp191 */;
+    const float tmp311 = tmp309 - tmp310;
+    const float tmp312 = carry[51] /* tmp232 */ * carry[41] /* tmp203 */;
+    const float tmp313 = tmp311 - tmp312;
+    P_out[22] = tmp313;
+    P_out[27] = tmp313;
+    const float tmp314 = carry[1] /* tmp239 */ * carry[34] /* tmp182 */;
+    carry[2] = tmp314;
+}
+
+static void mekf_k_update_gravity_part8(const float P[36], float P_out[36], float *min_pivot,
+    const float carry[53])
+{
+    const float tmp315 = P[23] - carry[2] /* tmp314 */;
+    const float tmp316 = carry[5] /* tmp248 */ * carry[38] /* tmp191 */;
+    const float tmp317 = tmp315 - tmp316;
+    const float tmp318 = carry[9] /* tmp260 */ * carry[41] /* tmp203 */;
+    const float tmp319 = tmp317 - tmp318;
+    P_out[23] = tmp319;
+    P_out[33] = tmp319;
+    const float tmp320 = carry[44] /* tmp211 */ * carry[43] /* tmp210 */;
+    const float tmp321 = P[28] - tmp320;
+    const float tmp322 = carry[47] /* tmp220 */ * carry[46] /* tmp219 */;
+    const float tmp323 = tmp321 - tmp322;
+    const float tmp324 = carry[51] /* tmp232 */ * carry[50] /* tmp231 */;
+    const float tmp325 = tmp323 - tmp324;
+    P_out[28] = tmp325;
+    const float tmp326 = carry[1] /* tmp239 */ * carry[43] /* tmp210 */;
+    const float tmp327 = P[29] - tmp326;
+    const float tmp328 = carry[5] /* tmp248 */ * carry[46] /* tmp219 */;
+    const float tmp329 = tmp327 - tmp328;
+    const float tmp330 = carry[9] /* tmp260 */ * carry[50] /* tmp231 */;
+    const float tmp331 = tmp329 - tmp330;
+    P_out[29] = tmp331;
+    P_out[34] = tmp331;
+    const float tmp332 = carry[1] /* tmp239 */ * carry[0] /* tmp238 */;
+    const float tmp333 = P[35] - tmp332;
+    const float tmp334 = carry[5] /* tmp248 */ * carry[3] /* tmp247 */;
+    const float tmp335 = tmp333 - tmp334;
+    const float tmp336 = carry[9] /* tmp260 */ * carry[8] /* tmp259 */;
+    const float tmp337 = tmp335 - tmp336;
+    P_out[35] = tmp337;
+    const float tmp338 = (carry[10] /* tmp86 */ < carry[22] /* tmp109 */) ? carry[10] /* tmp86 */ :
+            carry[22] /* tmp109 */;
+    const float tmp339 = (tmp338 < carry[29] /* tmp148 */) ? tmp338 : carry[29] /* tmp148 */;
+    *min_pivot = tmp339;
 }
 
 /*
- * gravity direction: three scalar rows on the attitude error
+ * gravity direction: three scalar rows on the attitude error; outputs are stored as soon as
+ * computed, each after the last read of what it overwrites: P_out may be P itself, no other
+ * argument may overlap an output
  *
  * Args:
  *     q: float[4]
@@ -2433,69 +2395,26 @@ static void mekf_k_update_gravity_part7(const float P[36], float carry[57])
  *     P_out: float[36]
  *     min_pivot: float
  *
- * Total ops: 361 (add 146, mul 179, div 6, sqrt 1, cmp 29)
+ * Total ops: 340 (add 146, mul 179, div 6, sqrt 1, cmp 8)
  *     of which only one side runs: if (recover) 0, else 10
- *     of which only one side runs: if (1e-12f < tmp265) 74, else 0
  */
 static void mekf_k_update_gravity(const float q[4], const float up[3], bool recover, float dt,
     const float P[36], float x_out[6], float P_out[36], float *min_pivot)
 {
     /*
-     * 8 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
+     * 9 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
      * handed between them (a slot reused once its value is dead)
      */
-    float carry[57];
+    float carry[53];
     mekf_k_update_gravity_part0(q, up, dt, P, carry);
     mekf_k_update_gravity_part1(up, carry);
     mekf_k_update_gravity_part2(recover, P, carry);
     mekf_k_update_gravity_part3(P, carry);
-    mekf_k_update_gravity_part4(P, carry);
-    mekf_k_update_gravity_part5(P, carry);
-    mekf_k_update_gravity_part6(P, carry);
-    mekf_k_update_gravity_part7(P, carry);
-    x_out[0] = carry[4] /* tmp161 */;
-    x_out[1] = carry[16] /* tmp165 */;
-    x_out[2] = carry[36] /* tmp179 */;
-    x_out[3] = carry[46] /* tmp207 */;
-    x_out[4] = carry[0] /* tmp235 */;
-    x_out[5] = carry[12] /* tmp263 */;
-    P_out[0] = carry[1] /* tmp266 */;
-    P_out[1] = carry[2] /* tmp267 */;
-    P_out[2] = carry[3] /* tmp268 */;
-    P_out[3] = carry[5] /* tmp269 */;
-    P_out[4] = carry[6] /* tmp270 */;
-    P_out[5] = carry[7] /* tmp271 */;
-    P_out[6] = carry[2] /* tmp267 */;
-    P_out[7] = carry[8] /* tmp272 */;
-    P_out[8] = carry[9] /* tmp273 */;
-    P_out[9] = carry[10] /* tmp274 */;
-    P_out[10] = carry[11] /* tmp275 */;
-    P_out[11] = carry[13] /* tmp276 */;
-    P_out[12] = carry[3] /* tmp268 */;
-    P_out[13] = carry[9] /* tmp273 */;
-    P_out[14] = carry[15] /* tmp277 */;
-    P_out[15] = carry[17] /* tmp278 */;
-    P_out[16] = carry[18] /* tmp279 */;
-    P_out[17] = carry[19] /* tmp280 */;
-    P_out[18] = carry[5] /* tmp269 */;
-    P_out[19] = carry[10] /* tmp274 */;
-    P_out[20] = carry[17] /* tmp278 */;
-    P_out[21] = carry[20] /* tmp281 */;
-    P_out[22] = carry[21] /* tmp282 */;
-    P_out[23] = carry[22] /* tmp283 */;
-    P_out[24] = carry[6] /* tmp270 */;
-    P_out[25] = carry[11] /* tmp275 */;
-    P_out[26] = carry[18] /* tmp279 */;
-    P_out[27] = carry[21] /* tmp282 */;
-    P_out[28] = carry[23] /* tmp284 */;
-    P_out[29] = carry[24] /* tmp285 */;
-    P_out[30] = carry[7] /* tmp271 */;
-    P_out[31] = carry[13] /* tmp276 */;
-    P_out[32] = carry[19] /* tmp280 */;
-    P_out[33] = carry[22] /* tmp283 */;
-    P_out[34] = carry[24] /* tmp285 */;
-    P_out[35] = carry[25] /* tmp286 */;
-    *min_pivot = carry[14] /* tmp265 */;
+    mekf_k_update_gravity_part4(P, x_out, carry);
+    mekf_k_update_gravity_part5(P, x_out, carry);
+    mekf_k_update_gravity_part6(P, x_out, P_out, carry);
+    mekf_k_update_gravity_part7(P, P_out, carry);
+    mekf_k_update_gravity_part8(P, P_out, min_pivot, carry);
 }
 
 static void mekf_k_update_rest_bias_part0(const float b[3], const float P[36], const float gyro[3],
@@ -4903,45 +4822,40 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
 
     /* Gravity direction (3 rows) and, at rest, the gyro bias (3 rows): scalar rows in turn on P
      * (the batch update with the rows stacked), applied only when every row's variance - the
-     * batch innovation covariance's Cholesky pivots - is usable. The gravity rows are one kernel
-     * that leaves P as it was when they are refused; at rest P's lower triangle is saved first and
-     * written back when the bias rows are refused after them. */
+     * batch innovation covariance's Cholesky pivots - is usable; else P is restored from its
+     * lower triangle saved here. The three gravity rows are one kernel. */
     if (use_tilt || at_rest) {
         float x[6] = { 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f };
-        float P_saved[21];   /* at rest only */
+        float P_saved[21];
+        uint32_t k = 0u;
+        for (uint32_t j = 0u; j < 6u; j++) {
+            for (uint32_t i = 6u; i > j; i--) {   /* bottom up: GCC makes no memcpy call of it */
+                P_saved[k + i - 1u - j] = P[i - 1u + 6u * j];
+            }
+            k += 6u - j;
+        }
         float min_pivot;
         bool usable = true;
-        if (at_rest) {   /* P's lower triangle, column by column */
-            uint32_t k = 0u;
-            for (uint32_t j = 0u; j < 6u; j++) {
-                for (uint32_t i = 6u; i > j; i--) {   /* bottom up: GCC makes no memcpy call of it */
-                    P_saved[k + i - 1u - j] = P[i - 1u + 6u * j];
-                }
-                k += 6u - j;
-            }
-        }
         if (use_tilt) {
-            /* P in place: the kernel leaves it as it was when a row is refused */
+            /* P in place (the kernel writes each element after its last read of it) */
             mekf_k_update_gravity(q, up, recovering, dt, P, x, P, &min_pivot);
             usable = min_pivot > 1e-12f /* S_PIVOT_MIN */;
         }
         if (at_rest && usable) {
             mekf_k_update_rest_bias(s->gyro_bias, P, in->gyro, dt, x, x, P, &min_pivot);
             usable = min_pivot > 1e-12f /* S_PIVOT_MIN */;
-            if (!usable) {
-                uint32_t k = 0u;
-                for (uint32_t j = 0u; j < 6u; j++) {
-                    for (uint32_t i = j; i < 6u; i++) {
-                        P[i + 6u * j] = P_saved[k];
-                        P[j + 6u * i] = P_saved[k];
-                        k++;
-                    }
-                }
-            }
         }
         if (usable) {
             mekf_k_inject(q, s->gyro_bias, x, q, s->gyro_bias);
         } else {
+            k = 0u;
+            for (uint32_t j = 0u; j < 6u; j++) {
+                for (uint32_t i = j; i < 6u; i++) {
+                    P[i + 6u * j] = P_saved[k];
+                    P[j + 6u * i] = P_saved[k];
+                    k++;
+                }
+            }
             status |= MEKF_UPDATE_SKIPPED;
         }
     }

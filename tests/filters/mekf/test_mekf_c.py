@@ -438,9 +438,9 @@ def test_refused_bias_rows_undo_the_gravity_rows(c_double):
 def test_refused_gravity_rows_leave_the_state_as_it_was(c_double):
     """In motion (no rest) the gravity rows are the only ones before the heading: with an
     attitude block of P negative the first row's variance is below 1e-12, the batch update (the
-    reference) is refused, and the C must leave P, q and the bias exactly as they were (its
-    gravity kernel selects P itself then; the step keeps no copy). Same status as the reference
-    from the same state."""
+    reference) is refused, and the C must leave P, q and the bias as they were after the
+    prediction (its gravity kernel writes P in place: the step restores P from the lower triangle
+    it saved). Same status as the reference from the same state."""
     ref, c = reference(), c_double
     s = c.new_state()
     turning = ((0.3, -0.2, 0.1), (0.0, 0.0, -9.80665), (0, 0, 0), (0, 0, 0), VALID_GYRO | VALID_ACCEL, 0.01)

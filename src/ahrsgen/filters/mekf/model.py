@@ -378,16 +378,15 @@ def update_gravity_function(p: dict, name="update_gravity") -> ca.Function:
     """The three gravity rows (gravity_rows) as scalar rows in turn (kalman.scalar_updates, the
     batch update of the rows stacked), from x = 0: the correction x, P after them and the
     smallest row variance (a pivot of the batch S). One kernel for the three rows, P in
-    registers between them; P_out is P itself (selected) when a variance is at or below
-    S_PIVOT_MIN, so the step passes P in place and needs no copy to restore it."""
+    registers between them, each element of P_out stored as soon as it is final (in place: after
+    the last read of that element of P), so the kernel does not hold all of P to its end."""
     q, up, recover, dt, Pv = (ca.SX.sym(n, k) for n, k in (("q", 4), ("up", 3), ("recover", 1), ("dt", 1),
                                                             ("P", N * N)))
     Hq, z, r = gravity_rows(p, q, up, recover, dt)
     rows = [(ca.horzcat(Hq[i, :], ca.SX.zeros(1, 3)), z[i], r) for i in range(3)]
     x_new, P_new, min_pivot = kalman.scalar_updates(sym_lower(Pv), rows, tol=S_PIVOT_MIN)
-    P_kept = ca.if_else(min_pivot > use(S_PIVOT_MIN), flat_mirrored(P_new), flat_mirrored(sym_lower(Pv)))
     return emit.function(name, {"q": q, "up": up, "recover": recover, "dt": dt, "P": Pv},
-                         {"x_out": x_new, "P_out": P_kept, "min_pivot": min_pivot})
+                         {"x_out": x_new, "P_out": flat_mirrored(P_new), "min_pivot": min_pivot})
 
 
 def update_rest_bias_function(p: dict, name="update_rest_bias") -> ca.Function:
@@ -775,7 +774,8 @@ class Model(FilterModel):
                            flags=("mask", "up_ok")),
                 KernelSpec("heading_features", heading_features_function(), "field norm and dip; GPS velocity in body axes"),
                 KernelSpec("update_gravity", update_gravity_function(p),
-                           "gravity direction: three scalar rows on the attitude error", flags=("recover",)),
+                           "gravity direction: three scalar rows on the attitude error", flags=("recover",),
+                           early_writes=True, in_place=(("P_out", "P"),)),
                 KernelSpec("update_rest_bias", update_rest_bias_function(p), "at rest, the gyro bias: three scalar rows"),
                 KernelSpec("inject", inject_function(), "error injection into q and the gyro bias"),
                 KernelSpec("update_heading", update_heading_function(p), "one heading row, gain projected on the vertical",
