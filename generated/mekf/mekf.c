@@ -15,9 +15,14 @@
  * Aliasing: every mekf_k_* function reads all its inputs before it writes any
  * output, so an output may be the same array as an input (the step updates the state in
  * place, without copies); two outputs must not overlap.
- * Exception: mekf_k_update_gravity stores each output as soon as it is computed, after the
- * last read of the input element it may overwrite: P_out may be P itself; no other argument
- * may overlap an output.
+ * Exception: mekf_k_predict_attitude stores each output as soon as it is computed, after the
+ * last read of the input element it may overwrite: q_out may be q itself; no other argument
+ * may overlap an output. Also: mekf_k_accel_lowpass stores each output as soon as it is
+ * computed, after the last read of the input element it may overwrite: a_lp_out may be a_lp
+ * itself, v_lp_out may be v_lp itself, v_ins_out may be v_ins itself; no other argument may
+ * overlap an output. Also: mekf_k_update_gravity stores each output as soon as it is computed,
+ * after the last read of the input element it may overwrite: P_out may be P itself; no other
+ * argument may overlap an output.
  */
 #include "mekf.h"
 
@@ -644,7 +649,7 @@ static void mekf_k_gyro_recovery(const float gyro[3], const float gyro_prev[3],
 }
 
 static void mekf_k_predict_attitude_part0(const float b[3], const float gyro[3], float dt,
-    float carry[32])
+    float carry[20])
 {
     const float tmp0 = 0.5f * dt;
     const float tmp1 = gyro[0] - b[0];
@@ -668,7 +673,7 @@ static void mekf_k_predict_attitude_part0(const float b[3], const float gyro[3],
     carry[7] = tmp11;
 }
 
-static void mekf_k_predict_attitude_part1(float carry[32])
+static void mekf_k_predict_attitude_part1(float carry[20])
 {
     float tmp12;
     float tmp13;
@@ -732,7 +737,7 @@ static void mekf_k_predict_attitude_part1(float carry[32])
     carry[10] = tmp15;
 }
 
-static void mekf_k_predict_attitude_part2(const float q[4], float carry[32])
+static void mekf_k_predict_attitude_part2(const float q[4], float carry[20])
 {
     const float tmp55 = q[0] * carry[7] /* tmp12 */;
     const float tmp56 = carry[8] /* tmp13 */ * carry[1] /* tmp2 */;
@@ -784,12 +789,16 @@ static void mekf_k_predict_attitude_part2(const float q[4], float carry[32])
     carry[18] = tmp94;
 }
 
-static void mekf_k_predict_attitude_part3(float carry[32])
+static void mekf_k_predict_attitude_part3(float q_out[4], float F_q[9], float carry[20])
 {
     const float tmp95 = carry[14] /* tmp64 */ * carry[18] /* tmp94 */;
+    q_out[0] = tmp95;
     const float tmp96 = carry[15] /* tmp72 */ * carry[18] /* tmp94 */;
+    q_out[1] = tmp96;
     const float tmp97 = carry[16] /* tmp81 */ * carry[18] /* tmp94 */;
+    q_out[2] = tmp97;
     const float tmp98 = carry[17] /* tmp90 */ * carry[18] /* tmp94 */;
+    q_out[3] = tmp98;
     const float tmp99 = carry[11] /* tmp56 */ * carry[11] /* tmp56 */;
     const float tmp100 = carry[7] /* tmp12 */ * carry[7] /* tmp12 */;
     const float tmp101 = tmp99 + tmp100;
@@ -797,6 +806,7 @@ static void mekf_k_predict_attitude_part3(float carry[32])
     const float tmp103 = tmp101 - tmp102;
     const float tmp104 = carry[12] /* tmp59 */ * carry[12] /* tmp59 */;
     const float tmp105 = tmp103 - tmp104;
+    F_q[0] = tmp105;
     const float tmp106 = carry[12] /* tmp59 */ * carry[11] /* tmp56 */;
     const float tmp107 = carry[13] /* tmp62 */ * carry[7] /* tmp12 */;
     const float tmp108 = tmp106 - tmp107;
@@ -804,6 +814,7 @@ static void mekf_k_predict_attitude_part3(float carry[32])
     const float tmp110 = tmp108 - tmp109;
     const float tmp111 = carry[11] /* tmp56 */ * carry[12] /* tmp59 */;
     const float tmp112 = tmp110 + tmp111;
+    F_q[1] = tmp112;
     const float tmp113 = carry[13] /* tmp62 */ * carry[11] /* tmp56 */;
     const float tmp114 = carry[12] /* tmp59 */ * carry[7] /* tmp12 */;
     const float tmp115 = tmp113 + tmp114;
@@ -811,49 +822,45 @@ static void mekf_k_predict_attitude_part3(float carry[32])
     const float tmp117 = tmp115 + tmp116;
     const float tmp118 = carry[7] /* tmp12 */ * carry[12] /* tmp59 */;
     const float tmp119 = tmp117 + tmp118;
+    F_q[2] = tmp119;
     const float tmp120 = tmp111 + tmp109;
     const float tmp121 = tmp120 + tmp107;
     const float tmp122 = tmp121 + tmp106;
+    F_q[3] = tmp122;
     const float tmp123 = tmp104 - tmp102;
     const float tmp124 = tmp123 + tmp100;
     const float tmp125 = tmp124 - tmp99;
+    F_q[4] = tmp125;
     const float tmp126 = carry[13] /* tmp62 */ * carry[12] /* tmp59 */;
     const float tmp127 = tmp126 + tmp126;
     const float tmp128 = carry[11] /* tmp56 */ * carry[7] /* tmp12 */;
     const float tmp129 = tmp127 - tmp128;
     const float tmp130 = carry[7] /* tmp12 */ * carry[11] /* tmp56 */;
     const float tmp131 = tmp129 - tmp130;
+    F_q[5] = tmp131;
     const float tmp132 = tmp116 - tmp118;
     const float tmp133 = tmp132 + tmp113;
     const float tmp134 = tmp133 - tmp114;
-    carry[14] = tmp95;
-    carry[15] = tmp96;
-    carry[16] = tmp97;
-    carry[17] = tmp98;
-    carry[18] = tmp99;
-    carry[19] = tmp100;
-    carry[20] = tmp102;
-    carry[21] = tmp104;
-    carry[22] = tmp105;
-    carry[23] = tmp112;
-    carry[24] = tmp119;
-    carry[25] = tmp122;
-    carry[26] = tmp125;
-    carry[27] = tmp128;
-    carry[28] = tmp130;
-    carry[29] = tmp131;
-    carry[30] = tmp134;
+    F_q[6] = tmp134;
+    carry[14] = tmp99;
+    carry[15] = tmp100;
+    carry[16] = tmp102;
+    carry[17] = tmp104;
+    carry[18] = tmp128;
+    carry[19] = tmp130;
 }
 
-static void mekf_k_predict_attitude_part4(float carry[32])
+static void mekf_k_predict_attitude_part4(float F_q[9], float F_b[9], float carry[20])
 {
     const float tmp135 = carry[12] /* tmp59 */ * carry[13] /* tmp62 */;
     const float tmp136 = tmp135 + tmp135;
-    const float tmp137 = tmp136 + carry[28] /* tmp130 */;
-    const float tmp138 = tmp137 + carry[27] /* tmp128 */;
-    const float tmp139 = carry[20] /* tmp102 */ - carry[21] /* tmp104 */;
-    const float tmp140 = tmp139 - carry[18] /* tmp99 */;
-    const float tmp141 = tmp140 + carry[19] /* tmp100 */;
+    const float tmp137 = tmp136 + carry[19] /* tmp130 */;
+    const float tmp138 = tmp137 + carry[18] /* tmp128 */;
+    F_q[7] = tmp138;
+    const float tmp139 = carry[16] /* tmp102 */ - carry[17] /* tmp104 */;
+    const float tmp140 = tmp139 - carry[14] /* tmp99 */;
+    const float tmp141 = tmp140 + carry[15] /* tmp100 */;
+    F_q[8] = tmp141;
     const float tmp142 = carry[9] /* tmp14 */ + carry[9] /* tmp14 */;
     const float tmp143 = tmp142 * carry[2] /* tmp3 */;
     const float tmp144 = carry[8] /* tmp13 */ + tmp143;
@@ -872,6 +879,7 @@ static void mekf_k_predict_attitude_part4(float carry[32])
     const float tmp157 = tmp153 - tmp156;
     const float tmp158 = tmp157 * carry[0] /* tmp0 */;
     const float tmp159 = -tmp158;
+    F_b[0] = tmp159;
     const float tmp160 = carry[7] /* tmp12 */ * tmp151;
     const float tmp161 = carry[12] /* tmp59 */ * tmp147;
     const float tmp162 = carry[13] /* tmp62 */ * tmp144;
@@ -881,43 +889,42 @@ static void mekf_k_predict_attitude_part4(float carry[32])
     const float tmp166 = tmp164 + tmp165;
     const float tmp167 = tmp166 * carry[0] /* tmp0 */;
     const float tmp168 = -tmp167;
+    F_b[1] = tmp168;
     const float tmp169 = carry[12] /* tmp59 */ * tmp144;
     const float tmp170 = carry[13] /* tmp62 */ * tmp147;
     const float tmp171 = tmp169 - tmp170;
     const float tmp172 = carry[11] /* tmp56 */ * tmp151;
     const float tmp173 = tmp171 - tmp172;
     const float tmp174 = carry[7] /* tmp12 */ * tmp155;
-    carry[2] = tmp138;
-    carry[9] = tmp141;
-    carry[10] = tmp142;
-    carry[18] = tmp146;
-    carry[19] = tmp159;
-    carry[20] = tmp168;
-    carry[21] = tmp173;
-    carry[27] = tmp174;
+    carry[2] = tmp142;
+    carry[9] = tmp146;
+    carry[10] = tmp173;
+    carry[14] = tmp174;
 }
 
-static void mekf_k_predict_attitude_part5(float carry[32])
+static void mekf_k_predict_attitude_part5(float F_b[9], float carry[20])
 {
-    const float tmp175 = carry[21] /* tmp173 */ + carry[27] /* tmp174 */;
+    const float tmp175 = carry[10] /* tmp173 */ + carry[14] /* tmp174 */;
     const float tmp176 = tmp175 * carry[0] /* tmp0 */;
     const float tmp177 = -tmp176;
+    F_b[2] = tmp177;
     const float tmp178 = carry[1] /* tmp2 */ * carry[3] /* tmp5 */;
-    const float tmp179 = carry[10] /* tmp142 */ * tmp178;
+    const float tmp179 = carry[2] /* tmp142 */ * tmp178;
     const float tmp180 = carry[7] /* tmp12 */ * tmp179;
-    const float tmp181 = carry[18] /* tmp146 */ * carry[3] /* tmp5 */;
+    const float tmp181 = carry[9] /* tmp146 */ * carry[3] /* tmp5 */;
     const float tmp182 = carry[11] /* tmp56 */ * tmp181;
     const float tmp183 = tmp180 - tmp182;
-    const float tmp184 = carry[10] /* tmp142 */ * carry[4] /* tmp6 */;
+    const float tmp184 = carry[2] /* tmp142 */ * carry[4] /* tmp6 */;
     const float tmp185 = carry[8] /* tmp13 */ + tmp184;
     const float tmp186 = carry[13] /* tmp62 */ * tmp185;
     const float tmp187 = tmp183 + tmp186;
     const float tmp188 = carry[5] /* tmp9 */ * carry[3] /* tmp5 */;
-    const float tmp189 = carry[10] /* tmp142 */ * tmp188;
+    const float tmp189 = carry[2] /* tmp142 */ * tmp188;
     const float tmp190 = carry[12] /* tmp59 */ * tmp189;
     const float tmp191 = tmp187 - tmp190;
     const float tmp192 = tmp191 * carry[0] /* tmp0 */;
     const float tmp193 = -tmp192;
+    F_b[3] = tmp193;
     const float tmp194 = carry[7] /* tmp12 */ * tmp185;
     const float tmp195 = carry[12] /* tmp59 */ * tmp181;
     const float tmp196 = carry[13] /* tmp62 */ * tmp179;
@@ -927,6 +934,7 @@ static void mekf_k_predict_attitude_part5(float carry[32])
     const float tmp200 = tmp198 + tmp199;
     const float tmp201 = tmp200 * carry[0] /* tmp0 */;
     const float tmp202 = -tmp201;
+    F_b[4] = tmp202;
     const float tmp203 = carry[12] /* tmp59 */ * tmp179;
     const float tmp204 = carry[13] /* tmp62 */ * tmp181;
     const float tmp205 = tmp203 - tmp204;
@@ -936,42 +944,41 @@ static void mekf_k_predict_attitude_part5(float carry[32])
     const float tmp209 = tmp207 + tmp208;
     const float tmp210 = tmp209 * carry[0] /* tmp0 */;
     const float tmp211 = -tmp210;
+    F_b[5] = tmp211;
     const float tmp212 = carry[1] /* tmp2 */ * carry[5] /* tmp9 */;
-    const float tmp213 = carry[10] /* tmp142 */ * tmp212;
+    const float tmp213 = carry[2] /* tmp142 */ * tmp212;
     const float tmp214 = carry[7] /* tmp12 */ * tmp213;
-    carry[1] = tmp177;
-    carry[4] = tmp193;
-    carry[21] = tmp202;
-    carry[27] = tmp211;
-    carry[28] = tmp213;
-    carry[31] = tmp214;
+    carry[1] = tmp213;
+    carry[4] = tmp214;
 }
 
-static void mekf_k_predict_attitude_part6(float carry[32])
+static void mekf_k_predict_attitude_part6(float F_b[9], const float carry[20])
 {
-    const float tmp215 = carry[18] /* tmp146 */ * carry[5] /* tmp9 */;
+    const float tmp215 = carry[9] /* tmp146 */ * carry[5] /* tmp9 */;
     const float tmp216 = carry[11] /* tmp56 */ * tmp215;
-    const float tmp217 = carry[31] /* tmp214 */ - tmp216;
+    const float tmp217 = carry[4] /* tmp214 */ - tmp216;
     const float tmp218 = carry[3] /* tmp5 */ * carry[5] /* tmp9 */;
-    const float tmp219 = carry[10] /* tmp142 */ * tmp218;
+    const float tmp219 = carry[2] /* tmp142 */ * tmp218;
     const float tmp220 = carry[13] /* tmp62 */ * tmp219;
     const float tmp221 = tmp217 + tmp220;
-    const float tmp222 = carry[10] /* tmp142 */ * carry[6] /* tmp10 */;
+    const float tmp222 = carry[2] /* tmp142 */ * carry[6] /* tmp10 */;
     const float tmp223 = carry[8] /* tmp13 */ + tmp222;
     const float tmp224 = carry[12] /* tmp59 */ * tmp223;
     const float tmp225 = tmp221 - tmp224;
     const float tmp226 = tmp225 * carry[0] /* tmp0 */;
     const float tmp227 = -tmp226;
+    F_b[6] = tmp227;
     const float tmp228 = carry[7] /* tmp12 */ * tmp219;
     const float tmp229 = carry[12] /* tmp59 */ * tmp215;
-    const float tmp230 = carry[13] /* tmp62 */ * carry[28] /* tmp213 */;
+    const float tmp230 = carry[13] /* tmp62 */ * carry[1] /* tmp213 */;
     const float tmp231 = tmp229 + tmp230;
     const float tmp232 = tmp228 - tmp231;
     const float tmp233 = carry[11] /* tmp56 */ * tmp223;
     const float tmp234 = tmp232 + tmp233;
     const float tmp235 = tmp234 * carry[0] /* tmp0 */;
     const float tmp236 = -tmp235;
-    const float tmp237 = carry[12] /* tmp59 */ * carry[28] /* tmp213 */;
+    F_b[7] = tmp236;
+    const float tmp237 = carry[12] /* tmp59 */ * carry[1] /* tmp213 */;
     const float tmp238 = carry[13] /* tmp62 */ * tmp215;
     const float tmp239 = tmp237 - tmp238;
     const float tmp240 = carry[11] /* tmp56 */ * tmp219;
@@ -980,13 +987,13 @@ static void mekf_k_predict_attitude_part6(float carry[32])
     const float tmp243 = tmp241 + tmp242;
     const float tmp244 = tmp243 * carry[0] /* tmp0 */;
     const float tmp245 = -tmp244;
-    carry[0] = tmp227;
-    carry[3] = tmp236;
-    carry[5] = tmp245;
+    F_b[8] = tmp245;
 }
 
 /*
- * time update: attitude and F's attitude rows
+ * time update: attitude and F's attitude rows; outputs are stored as soon as computed, each after
+ * the last read of what it overwrites: q_out may be q itself, no other argument may overlap an
+ * output
  *
  * Args:
  *     q: float[4]
@@ -1001,43 +1008,22 @@ static void mekf_k_predict_attitude_part6(float carry[32])
  * Total ops: 246 (add 106, mul 127, div 4, sqrt 2, trig 2, cmp 5)
  *     of which only one side runs: if (tmp11 < 0.01f) 28, else 11
  */
-static void mekf_k_predict_attitude(const float q[4], const float b[3], const float gyro[3],
-    float dt, float q_out[4], float F_q[9], float F_b[9])
+static void mekf_k_predict_attitude(const float q[4], const float b[restrict 3],
+    const float gyro[restrict 3], float dt, float q_out[4], float F_q[restrict 9],
+    float F_b[restrict 9])
 {
     /*
      * 7 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
      * handed between them (a slot reused once its value is dead)
      */
-    float carry[32];
+    float carry[20];
     mekf_k_predict_attitude_part0(b, gyro, dt, carry);
     mekf_k_predict_attitude_part1(carry);
     mekf_k_predict_attitude_part2(q, carry);
-    mekf_k_predict_attitude_part3(carry);
-    mekf_k_predict_attitude_part4(carry);
-    mekf_k_predict_attitude_part5(carry);
-    mekf_k_predict_attitude_part6(carry);
-    q_out[0] = carry[14] /* tmp95 */;
-    q_out[1] = carry[15] /* tmp96 */;
-    q_out[2] = carry[16] /* tmp97 */;
-    q_out[3] = carry[17] /* tmp98 */;
-    F_q[0] = carry[22] /* tmp105 */;
-    F_q[1] = carry[23] /* tmp112 */;
-    F_q[2] = carry[24] /* tmp119 */;
-    F_q[3] = carry[25] /* tmp122 */;
-    F_q[4] = carry[26] /* tmp125 */;
-    F_q[5] = carry[29] /* tmp131 */;
-    F_q[6] = carry[30] /* tmp134 */;
-    F_q[7] = carry[2] /* tmp138 */;
-    F_q[8] = carry[9] /* tmp141 */;
-    F_b[0] = carry[19] /* tmp159 */;
-    F_b[1] = carry[20] /* tmp168 */;
-    F_b[2] = carry[1] /* tmp177 */;
-    F_b[3] = carry[4] /* tmp193 */;
-    F_b[4] = carry[21] /* tmp202 */;
-    F_b[5] = carry[27] /* tmp211 */;
-    F_b[6] = carry[0] /* tmp227 */;
-    F_b[7] = carry[3] /* tmp236 */;
-    F_b[8] = carry[5] /* tmp245 */;
+    mekf_k_predict_attitude_part3(q_out, F_q, carry);
+    mekf_k_predict_attitude_part4(F_q, F_b, carry);
+    mekf_k_predict_attitude_part5(F_b, carry);
+    mekf_k_predict_attitude_part6(F_b, carry);
 }
 
 static void mekf_k_predict_covariance_part0(const float F_q[9], const float F_b[9],
@@ -1550,7 +1536,7 @@ static void mekf_k_predict_covariance(const float F_q[9], const float F_b[9], co
 }
 
 static void mekf_k_accel_lowpass_part0(const float q[4], const float accel[3], const bool mask[3],
-    const float a_lp[3], float dt, float carry[12])
+    const float a_lp[3], float dt, float a_lp_out[3], float carry[11])
 {
     const float tmp0 = 1.0f + dt;
     const float tmp1 = dt / tmp0;
@@ -1576,6 +1562,7 @@ static void mekf_k_accel_lowpass_part0(const float q[4], const float accel[3], c
     const float tmp21 = tmp20 - a_lp[0];
     const float tmp22 = tmp2 * tmp21;
     const float tmp23 = a_lp[0] + tmp22;
+    a_lp_out[0] = tmp23;
     const float tmp24 = tmp9 + tmp10;
     const float tmp25 = tmp24 + tmp24;
     const float tmp26 = tmp25 * accel[0];
@@ -1606,10 +1593,12 @@ static void mekf_k_accel_lowpass_part0(const float q[4], const float accel[3], c
 }
 
 static void mekf_k_accel_lowpass_part1(const float accel[3], const float vel[3], const bool mask[3],
-    const float a_lp[3], const float v_lp[3], const float v_ins[3], float dt, float carry[12])
+    const float a_lp[3], const float v_lp[3], const float v_ins[3], float dt, float a_lp_out[3],
+    float v_lp_out[3], float v_ins_out[3], float carry[11])
 {
     const float tmp40 = carry[0] /* tmp2 */ * carry[10] /* tmp39 */;
     const float tmp41 = a_lp[1] + tmp40;
+    a_lp_out[1] = tmp41;
     const float tmp42 = carry[2] /* tmp15 */ - carry[3] /* tmp16 */;
     const float tmp43 = tmp42 + tmp42;
     const float tmp44 = tmp43 * accel[0];
@@ -1625,64 +1614,72 @@ static void mekf_k_accel_lowpass_part1(const float accel[3], const float vel[3],
     const float tmp54 = tmp53 - a_lp[2];
     const float tmp55 = carry[0] /* tmp2 */ * tmp54;
     const float tmp56 = a_lp[2] + tmp55;
+    a_lp_out[2] = tmp56;
     const float tmp57 = carry[4] /* tmp20 */ * dt;
     const float tmp58 = v_ins[0] + tmp57;
     const float tmp59 = (mask[1]) ? vel[0] : tmp58;
+    v_ins_out[0] = tmp59;
     const float tmp60 = tmp59 - v_lp[0];
     const float tmp61 = carry[0] /* tmp2 */ * tmp60;
     const float tmp62 = v_lp[0] + tmp61;
     const float tmp63 = (mask[0]) ? tmp62 : v_lp[0];
+    v_lp_out[0] = tmp63;
     const float tmp64 = carry[9] /* tmp38 */ * dt;
     const float tmp65 = v_ins[1] + tmp64;
     const float tmp66 = (mask[1]) ? vel[1] : tmp65;
+    v_ins_out[1] = tmp66;
     const float tmp67 = tmp66 - v_lp[1];
     const float tmp68 = carry[0] /* tmp2 */ * tmp67;
     const float tmp69 = v_lp[1] + tmp68;
     const float tmp70 = (mask[0]) ? tmp69 : v_lp[1];
+    v_lp_out[1] = tmp70;
     const float tmp71 = tmp53 + 9.80665f /* G0 */;
     const float tmp72 = tmp71 * dt;
     const float tmp73 = v_ins[2] + tmp72;
     const float tmp74 = (mask[1]) ? vel[2] : tmp73;
+    v_ins_out[2] = tmp74;
     const float tmp75 = tmp74 - v_lp[2];
     const float tmp76 = carry[0] /* tmp2 */ * tmp75;
     const float tmp77 = v_lp[2] + tmp76;
     const float tmp78 = (mask[0]) ? tmp77 : v_lp[2];
+    v_lp_out[2] = tmp78;
     const float tmp79 = tmp59 - tmp63;
     carry[0] = tmp41;
     carry[1] = tmp56;
-    carry[2] = tmp59;
-    carry[3] = tmp63;
-    carry[4] = tmp66;
-    carry[6] = tmp70;
-    carry[7] = tmp74;
-    carry[8] = tmp78;
-    carry[9] = tmp79;
+    carry[2] = tmp66;
+    carry[3] = tmp70;
+    carry[4] = tmp74;
+    carry[6] = tmp78;
+    carry[7] = tmp79;
 }
 
-static void mekf_k_accel_lowpass_part2(const bool mask[3], float carry[12], bool flags[1])
+static void mekf_k_accel_lowpass_part2(const bool mask[3], float up_out[3], bool *up_ok,
+    const float carry[11])
 {
-    const float tmp80 = carry[5] /* tmp23 */ - carry[9] /* tmp79 */;
+    const float tmp80 = carry[5] /* tmp23 */ - carry[7] /* tmp79 */;
     const float tmp81 = (mask[0]) ? tmp80 : carry[5] /* tmp23 */;
-    const float tmp82 = carry[4] /* tmp66 */ - carry[6] /* tmp70 */;
+    up_out[0] = tmp81;
+    const float tmp82 = carry[2] /* tmp66 */ - carry[3] /* tmp70 */;
     const float tmp83 = carry[0] /* tmp41 */ - tmp82;
     const float tmp84 = (mask[0]) ? tmp83 : carry[0] /* tmp41 */;
-    const float tmp85 = carry[7] /* tmp74 */ - carry[8] /* tmp78 */;
+    up_out[1] = tmp84;
+    const float tmp85 = carry[4] /* tmp74 */ - carry[6] /* tmp78 */;
     const float tmp86 = carry[1] /* tmp56 */ - tmp85;
     const float tmp87 = (mask[0]) ? tmp86 : carry[1] /* tmp56 */;
+    up_out[2] = tmp87;
     const float tmp88 = tmp81 * tmp81;
     const float tmp89 = tmp84 * tmp84;
     const float tmp90 = tmp88 + tmp89;
     const float tmp91 = tmp87 * tmp87;
     const float tmp92 = tmp90 + tmp91;
     const bool tmp93 = 0.25f /* accel_min_norm*accel_min_norm */ < tmp92;
-    carry[9] = tmp81;
-    carry[10] = tmp84;
-    carry[11] = tmp87;
-    flags[0] = tmp93;
+    *up_ok = tmp93;
 }
 
 /*
- * earth-frame low-pass of the compensated specific force
+ * earth-frame low-pass of the compensated specific force; outputs are stored as soon as computed,
+ * each after the last read of what it overwrites: a_lp_out may be a_lp itself, v_lp_out may be v_lp
+ * itself, v_ins_out may be v_ins itself, no other argument may overlap an output
  *
  * Args:
  *     q: float[4]
@@ -1705,36 +1702,24 @@ static void mekf_k_accel_lowpass_part2(const bool mask[3], float carry[12], bool
  *
  * Total ops: 94 (add 52, mul 30, div 1, cmp 11)
  */
-static void mekf_k_accel_lowpass(const float q[4], const float b[3], const float gyro[3],
-    const float accel[3], const float vel[3], const float acc_n[3], const bool mask[3],
-    const float a_lp[3], const float v_lp[3], const float v_ins[3], float dt, float a_lp_out[3],
-    float v_lp_out[3], float v_ins_out[3], float up_out[3], bool *up_ok)
+static void mekf_k_accel_lowpass(const float q[restrict 4], const float b[restrict 3],
+    const float gyro[restrict 3], const float accel[restrict 3], const float vel[restrict 3],
+    const float acc_n[restrict 3], const bool mask[restrict 3], const float a_lp[3],
+    const float v_lp[3], const float v_ins[3], float dt, float a_lp_out[3], float v_lp_out[3],
+    float v_ins_out[3], float up_out[restrict 3], bool *restrict up_ok)
 {
     (void)b;
     (void)gyro;
     (void)acc_n;
     /*
-     * 3 parts called in turn (inlined when optimising): bounded -O0 frames; carry and flags hold
-     * the values handed between them (a slot reused once its value is dead)
+     * 3 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
+     * handed between them (a slot reused once its value is dead)
      */
-    float carry[12];
-    bool flags[1];
-    mekf_k_accel_lowpass_part0(q, accel, mask, a_lp, dt, carry);
-    mekf_k_accel_lowpass_part1(accel, vel, mask, a_lp, v_lp, v_ins, dt, carry);
-    mekf_k_accel_lowpass_part2(mask, carry, flags);
-    a_lp_out[0] = carry[5] /* tmp23 */;
-    a_lp_out[1] = carry[0] /* tmp41 */;
-    a_lp_out[2] = carry[1] /* tmp56 */;
-    v_lp_out[0] = carry[3] /* tmp63 */;
-    v_lp_out[1] = carry[6] /* tmp70 */;
-    v_lp_out[2] = carry[8] /* tmp78 */;
-    v_ins_out[0] = carry[2] /* tmp59 */;
-    v_ins_out[1] = carry[4] /* tmp66 */;
-    v_ins_out[2] = carry[7] /* tmp74 */;
-    up_out[0] = carry[9] /* tmp81 */;
-    up_out[1] = carry[10] /* tmp84 */;
-    up_out[2] = carry[11] /* tmp87 */;
-    *up_ok = flags[0] /* tmp93 */;
+    float carry[11];
+    mekf_k_accel_lowpass_part0(q, accel, mask, a_lp, dt, a_lp_out, carry);
+    mekf_k_accel_lowpass_part1(accel, vel, mask, a_lp, v_lp, v_ins, dt, a_lp_out, v_lp_out,
+            v_ins_out, carry);
+    mekf_k_accel_lowpass_part2(mask, up_out, up_ok, carry);
 }
 
 static void mekf_k_heading_features_part0(const float q[4], const float mag[3], float carry[13])
@@ -2398,8 +2383,9 @@ static void mekf_k_update_gravity_part8(const float P[36], float P_out[36], floa
  * Total ops: 340 (add 146, mul 179, div 6, sqrt 1, cmp 8)
  *     of which only one side runs: if (recover) 0, else 10
  */
-static void mekf_k_update_gravity(const float q[4], const float up[3], bool recover, float dt,
-    const float P[36], float x_out[6], float P_out[36], float *min_pivot)
+static void mekf_k_update_gravity(const float q[restrict 4], const float up[restrict 3],
+    bool recover, float dt, const float P[36], float x_out[restrict 6], float P_out[36],
+    float *restrict min_pivot)
 {
     /*
      * 9 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values

@@ -85,7 +85,8 @@ class Kernel:
     branches: list[dict] = field(default_factory=list)  # if/else blocks: condition, ops of each side
     parts: list[ir.Function] = field(default_factory=list)   # the part functions of a split kernel
     context: str | None = None    # leading parameter declaration, e.g. "const att_params *par"
-    restrict: bool = False        # arrays declared restrict (emit's early_writes)
+    restrict: bool = False        # arrays declared restrict (emit's early_writes) ...
+    shared: frozenset = frozenset()   # ... except these (emit's in_place: an output and its input)
     source_fn: ca.Function | None = field(default=None, repr=False, compare=False)  # what was emitted
     storage: str = "static "      # what precedes `void` in its definition (the renderer decides)
 
@@ -95,8 +96,10 @@ class Kernel:
 
     def params(self) -> list[Param]:
         out = [context_param(self.context)] if self.context else []
-        out += [a.as_param(self.precision, restrict=self.restrict) for a in self.inputs if a.expr is None]
-        out += [a.as_param(self.precision, output=True, restrict=self.restrict) for a in self.outputs]
+        out += [a.as_param(self.precision, restrict=self.restrict and a.name not in self.shared)
+                for a in self.inputs if a.expr is None]
+        out += [a.as_param(self.precision, output=True, restrict=self.restrict and a.name not in self.shared)
+                for a in self.outputs]
         return out
 
     def function(self) -> ir.Function:
@@ -205,8 +208,8 @@ def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc
 
     in_place: {output name: input name} (with early_writes): that output may be that input itself
     (the same array, the state updated in place): each of its element writes is placed after
-    the last statement reading the input's element of the same index too, and no array is
-    declared restrict (no other overlap is allowed).
+    the last statement reading the input's element of the same index too, and those two arrays
+    are not declared restrict (the others are: no other overlap is allowed).
 
     names: {(instruction index, operand): text} for the constants operations read that are a
     folded parameter expression or a named constant (src/ahrsgen/codegen/folded.py), named per
@@ -429,8 +432,8 @@ def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc
                for e in ir.exprs(s) for x in ir.walk(e) if isinstance(x, Call)}
     used = {h for h in helpers | {"sincos"} if fastmath.HELPERS[h].name in called}
     return Kernel(name, precision, inputs, outputs, body, ops, doc, len(kept), unused, helpers=sorted(used),
-                  branches=branches, parts=parts, context=ctx_decl, restrict=early_writes and not in_place,
-                  source_fn=fn)
+                  branches=branches, parts=parts, context=ctx_decl, restrict=early_writes,
+                  shared=frozenset(in_place or {}) | frozenset((in_place or {}).values()), source_fn=fn)
 
 
 _SINCOS = {"fast_sinf": "sin", "fast_cosf": "cos"}

@@ -767,11 +767,13 @@ class Model(FilterModel):
         if self.vectors:
             return self._vector_kernels() + [
                 self.gyro_recovery_kernel(),
-                KernelSpec("predict_attitude", predict_attitude_function(p), "time update: attitude and F's attitude rows"),
+                KernelSpec("predict_attitude", predict_attitude_function(p), "time update: attitude and F's attitude rows",
+                           early_writes=True, in_place=(("q_out", "q"),)),
                 KernelSpec("predict_covariance", predict_covariance_function(p), "time update: covariance",
                            flags=("clip",)),
                 KernelSpec("accel_lowpass", accel_lowpass_function(p), "earth-frame low-pass of the compensated specific force",
-                           flags=("mask", "up_ok")),
+                           flags=("mask", "up_ok"), early_writes=True,
+                           in_place=(("a_lp_out", "a_lp"), ("v_lp_out", "v_lp"), ("v_ins_out", "v_ins"))),
                 KernelSpec("heading_features", heading_features_function(), "field norm and dip; GPS velocity in body axes"),
                 KernelSpec("update_gravity", update_gravity_function(p),
                            "gravity direction: three scalar rows on the attitude error", flags=("recover",),
