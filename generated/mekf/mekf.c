@@ -15,6 +15,14 @@
  * Aliasing: every mekf_k_* function reads all its inputs before it writes any
  * output, so an output may be the same array as an input (the step updates the state in
  * place, without copies); two outputs must not overlap.
+ * Exception: mekf_k_predict_attitude stores each output as soon as it is computed, after the
+ * last read of the input element it may overwrite: q_out may be q itself; no other argument
+ * may overlap an output. Also: mekf_k_accel_lowpass stores each output as soon as it is
+ * computed, after the last read of the input element it may overwrite: a_lp_out may be a_lp
+ * itself, v_lp_out may be v_lp itself, v_ins_out may be v_ins itself; no other argument may
+ * overlap an output. Also: mekf_k_update_gravity stores each output as soon as it is computed,
+ * after the last read of the input element it may overwrite: P_out may be P itself; no other
+ * argument may overlap an output.
  */
 #include "mekf.h"
 
@@ -641,7 +649,7 @@ static void mekf_k_gyro_recovery(const float gyro[3], const float gyro_prev[3],
 }
 
 static void mekf_k_predict_attitude_part0(const float b[3], const float gyro[3], float dt,
-    float carry[32])
+    float carry[20])
 {
     const float tmp0 = 0.5f * dt;
     const float tmp1 = gyro[0] - b[0];
@@ -665,7 +673,7 @@ static void mekf_k_predict_attitude_part0(const float b[3], const float gyro[3],
     carry[7] = tmp11;
 }
 
-static void mekf_k_predict_attitude_part1(float carry[32])
+static void mekf_k_predict_attitude_part1(float carry[20])
 {
     float tmp12;
     float tmp13;
@@ -729,7 +737,7 @@ static void mekf_k_predict_attitude_part1(float carry[32])
     carry[10] = tmp15;
 }
 
-static void mekf_k_predict_attitude_part2(const float q[4], float carry[32])
+static void mekf_k_predict_attitude_part2(const float q[4], float carry[20])
 {
     const float tmp55 = q[0] * carry[7] /* tmp12 */;
     const float tmp56 = carry[8] /* tmp13 */ * carry[1] /* tmp2 */;
@@ -781,12 +789,16 @@ static void mekf_k_predict_attitude_part2(const float q[4], float carry[32])
     carry[18] = tmp94;
 }
 
-static void mekf_k_predict_attitude_part3(float carry[32])
+static void mekf_k_predict_attitude_part3(float q_out[4], float F_q[9], float carry[20])
 {
     const float tmp95 = carry[14] /* tmp64 */ * carry[18] /* tmp94 */;
+    q_out[0] = tmp95;
     const float tmp96 = carry[15] /* tmp72 */ * carry[18] /* tmp94 */;
+    q_out[1] = tmp96;
     const float tmp97 = carry[16] /* tmp81 */ * carry[18] /* tmp94 */;
+    q_out[2] = tmp97;
     const float tmp98 = carry[17] /* tmp90 */ * carry[18] /* tmp94 */;
+    q_out[3] = tmp98;
     const float tmp99 = carry[11] /* tmp56 */ * carry[11] /* tmp56 */;
     const float tmp100 = carry[7] /* tmp12 */ * carry[7] /* tmp12 */;
     const float tmp101 = tmp99 + tmp100;
@@ -794,6 +806,7 @@ static void mekf_k_predict_attitude_part3(float carry[32])
     const float tmp103 = tmp101 - tmp102;
     const float tmp104 = carry[12] /* tmp59 */ * carry[12] /* tmp59 */;
     const float tmp105 = tmp103 - tmp104;
+    F_q[0] = tmp105;
     const float tmp106 = carry[12] /* tmp59 */ * carry[11] /* tmp56 */;
     const float tmp107 = carry[13] /* tmp62 */ * carry[7] /* tmp12 */;
     const float tmp108 = tmp106 - tmp107;
@@ -801,6 +814,7 @@ static void mekf_k_predict_attitude_part3(float carry[32])
     const float tmp110 = tmp108 - tmp109;
     const float tmp111 = carry[11] /* tmp56 */ * carry[12] /* tmp59 */;
     const float tmp112 = tmp110 + tmp111;
+    F_q[1] = tmp112;
     const float tmp113 = carry[13] /* tmp62 */ * carry[11] /* tmp56 */;
     const float tmp114 = carry[12] /* tmp59 */ * carry[7] /* tmp12 */;
     const float tmp115 = tmp113 + tmp114;
@@ -808,49 +822,45 @@ static void mekf_k_predict_attitude_part3(float carry[32])
     const float tmp117 = tmp115 + tmp116;
     const float tmp118 = carry[7] /* tmp12 */ * carry[12] /* tmp59 */;
     const float tmp119 = tmp117 + tmp118;
+    F_q[2] = tmp119;
     const float tmp120 = tmp111 + tmp109;
     const float tmp121 = tmp120 + tmp107;
     const float tmp122 = tmp121 + tmp106;
+    F_q[3] = tmp122;
     const float tmp123 = tmp104 - tmp102;
     const float tmp124 = tmp123 + tmp100;
     const float tmp125 = tmp124 - tmp99;
+    F_q[4] = tmp125;
     const float tmp126 = carry[13] /* tmp62 */ * carry[12] /* tmp59 */;
     const float tmp127 = tmp126 + tmp126;
     const float tmp128 = carry[11] /* tmp56 */ * carry[7] /* tmp12 */;
     const float tmp129 = tmp127 - tmp128;
     const float tmp130 = carry[7] /* tmp12 */ * carry[11] /* tmp56 */;
     const float tmp131 = tmp129 - tmp130;
+    F_q[5] = tmp131;
     const float tmp132 = tmp116 - tmp118;
     const float tmp133 = tmp132 + tmp113;
     const float tmp134 = tmp133 - tmp114;
-    carry[14] = tmp95;
-    carry[15] = tmp96;
-    carry[16] = tmp97;
-    carry[17] = tmp98;
-    carry[18] = tmp99;
-    carry[19] = tmp100;
-    carry[20] = tmp102;
-    carry[21] = tmp104;
-    carry[22] = tmp105;
-    carry[23] = tmp112;
-    carry[24] = tmp119;
-    carry[25] = tmp122;
-    carry[26] = tmp125;
-    carry[27] = tmp128;
-    carry[28] = tmp130;
-    carry[29] = tmp131;
-    carry[30] = tmp134;
+    F_q[6] = tmp134;
+    carry[14] = tmp99;
+    carry[15] = tmp100;
+    carry[16] = tmp102;
+    carry[17] = tmp104;
+    carry[18] = tmp128;
+    carry[19] = tmp130;
 }
 
-static void mekf_k_predict_attitude_part4(float carry[32])
+static void mekf_k_predict_attitude_part4(float F_q[9], float F_b[9], float carry[20])
 {
     const float tmp135 = carry[12] /* tmp59 */ * carry[13] /* tmp62 */;
     const float tmp136 = tmp135 + tmp135;
-    const float tmp137 = tmp136 + carry[28] /* tmp130 */;
-    const float tmp138 = tmp137 + carry[27] /* tmp128 */;
-    const float tmp139 = carry[20] /* tmp102 */ - carry[21] /* tmp104 */;
-    const float tmp140 = tmp139 - carry[18] /* tmp99 */;
-    const float tmp141 = tmp140 + carry[19] /* tmp100 */;
+    const float tmp137 = tmp136 + carry[19] /* tmp130 */;
+    const float tmp138 = tmp137 + carry[18] /* tmp128 */;
+    F_q[7] = tmp138;
+    const float tmp139 = carry[16] /* tmp102 */ - carry[17] /* tmp104 */;
+    const float tmp140 = tmp139 - carry[14] /* tmp99 */;
+    const float tmp141 = tmp140 + carry[15] /* tmp100 */;
+    F_q[8] = tmp141;
     const float tmp142 = carry[9] /* tmp14 */ + carry[9] /* tmp14 */;
     const float tmp143 = tmp142 * carry[2] /* tmp3 */;
     const float tmp144 = carry[8] /* tmp13 */ + tmp143;
@@ -869,6 +879,7 @@ static void mekf_k_predict_attitude_part4(float carry[32])
     const float tmp157 = tmp153 - tmp156;
     const float tmp158 = tmp157 * carry[0] /* tmp0 */;
     const float tmp159 = -tmp158;
+    F_b[0] = tmp159;
     const float tmp160 = carry[7] /* tmp12 */ * tmp151;
     const float tmp161 = carry[12] /* tmp59 */ * tmp147;
     const float tmp162 = carry[13] /* tmp62 */ * tmp144;
@@ -878,43 +889,42 @@ static void mekf_k_predict_attitude_part4(float carry[32])
     const float tmp166 = tmp164 + tmp165;
     const float tmp167 = tmp166 * carry[0] /* tmp0 */;
     const float tmp168 = -tmp167;
+    F_b[1] = tmp168;
     const float tmp169 = carry[12] /* tmp59 */ * tmp144;
     const float tmp170 = carry[13] /* tmp62 */ * tmp147;
     const float tmp171 = tmp169 - tmp170;
     const float tmp172 = carry[11] /* tmp56 */ * tmp151;
     const float tmp173 = tmp171 - tmp172;
     const float tmp174 = carry[7] /* tmp12 */ * tmp155;
-    carry[2] = tmp138;
-    carry[9] = tmp141;
-    carry[10] = tmp142;
-    carry[18] = tmp146;
-    carry[19] = tmp159;
-    carry[20] = tmp168;
-    carry[21] = tmp173;
-    carry[27] = tmp174;
+    carry[2] = tmp142;
+    carry[9] = tmp146;
+    carry[10] = tmp173;
+    carry[14] = tmp174;
 }
 
-static void mekf_k_predict_attitude_part5(float carry[32])
+static void mekf_k_predict_attitude_part5(float F_b[9], float carry[20])
 {
-    const float tmp175 = carry[21] /* tmp173 */ + carry[27] /* tmp174 */;
+    const float tmp175 = carry[10] /* tmp173 */ + carry[14] /* tmp174 */;
     const float tmp176 = tmp175 * carry[0] /* tmp0 */;
     const float tmp177 = -tmp176;
+    F_b[2] = tmp177;
     const float tmp178 = carry[1] /* tmp2 */ * carry[3] /* tmp5 */;
-    const float tmp179 = carry[10] /* tmp142 */ * tmp178;
+    const float tmp179 = carry[2] /* tmp142 */ * tmp178;
     const float tmp180 = carry[7] /* tmp12 */ * tmp179;
-    const float tmp181 = carry[18] /* tmp146 */ * carry[3] /* tmp5 */;
+    const float tmp181 = carry[9] /* tmp146 */ * carry[3] /* tmp5 */;
     const float tmp182 = carry[11] /* tmp56 */ * tmp181;
     const float tmp183 = tmp180 - tmp182;
-    const float tmp184 = carry[10] /* tmp142 */ * carry[4] /* tmp6 */;
+    const float tmp184 = carry[2] /* tmp142 */ * carry[4] /* tmp6 */;
     const float tmp185 = carry[8] /* tmp13 */ + tmp184;
     const float tmp186 = carry[13] /* tmp62 */ * tmp185;
     const float tmp187 = tmp183 + tmp186;
     const float tmp188 = carry[5] /* tmp9 */ * carry[3] /* tmp5 */;
-    const float tmp189 = carry[10] /* tmp142 */ * tmp188;
+    const float tmp189 = carry[2] /* tmp142 */ * tmp188;
     const float tmp190 = carry[12] /* tmp59 */ * tmp189;
     const float tmp191 = tmp187 - tmp190;
     const float tmp192 = tmp191 * carry[0] /* tmp0 */;
     const float tmp193 = -tmp192;
+    F_b[3] = tmp193;
     const float tmp194 = carry[7] /* tmp12 */ * tmp185;
     const float tmp195 = carry[12] /* tmp59 */ * tmp181;
     const float tmp196 = carry[13] /* tmp62 */ * tmp179;
@@ -924,6 +934,7 @@ static void mekf_k_predict_attitude_part5(float carry[32])
     const float tmp200 = tmp198 + tmp199;
     const float tmp201 = tmp200 * carry[0] /* tmp0 */;
     const float tmp202 = -tmp201;
+    F_b[4] = tmp202;
     const float tmp203 = carry[12] /* tmp59 */ * tmp179;
     const float tmp204 = carry[13] /* tmp62 */ * tmp181;
     const float tmp205 = tmp203 - tmp204;
@@ -933,42 +944,41 @@ static void mekf_k_predict_attitude_part5(float carry[32])
     const float tmp209 = tmp207 + tmp208;
     const float tmp210 = tmp209 * carry[0] /* tmp0 */;
     const float tmp211 = -tmp210;
+    F_b[5] = tmp211;
     const float tmp212 = carry[1] /* tmp2 */ * carry[5] /* tmp9 */;
-    const float tmp213 = carry[10] /* tmp142 */ * tmp212;
+    const float tmp213 = carry[2] /* tmp142 */ * tmp212;
     const float tmp214 = carry[7] /* tmp12 */ * tmp213;
-    carry[1] = tmp177;
-    carry[4] = tmp193;
-    carry[21] = tmp202;
-    carry[27] = tmp211;
-    carry[28] = tmp213;
-    carry[31] = tmp214;
+    carry[1] = tmp213;
+    carry[4] = tmp214;
 }
 
-static void mekf_k_predict_attitude_part6(float carry[32])
+static void mekf_k_predict_attitude_part6(float F_b[9], const float carry[20])
 {
-    const float tmp215 = carry[18] /* tmp146 */ * carry[5] /* tmp9 */;
+    const float tmp215 = carry[9] /* tmp146 */ * carry[5] /* tmp9 */;
     const float tmp216 = carry[11] /* tmp56 */ * tmp215;
-    const float tmp217 = carry[31] /* tmp214 */ - tmp216;
+    const float tmp217 = carry[4] /* tmp214 */ - tmp216;
     const float tmp218 = carry[3] /* tmp5 */ * carry[5] /* tmp9 */;
-    const float tmp219 = carry[10] /* tmp142 */ * tmp218;
+    const float tmp219 = carry[2] /* tmp142 */ * tmp218;
     const float tmp220 = carry[13] /* tmp62 */ * tmp219;
     const float tmp221 = tmp217 + tmp220;
-    const float tmp222 = carry[10] /* tmp142 */ * carry[6] /* tmp10 */;
+    const float tmp222 = carry[2] /* tmp142 */ * carry[6] /* tmp10 */;
     const float tmp223 = carry[8] /* tmp13 */ + tmp222;
     const float tmp224 = carry[12] /* tmp59 */ * tmp223;
     const float tmp225 = tmp221 - tmp224;
     const float tmp226 = tmp225 * carry[0] /* tmp0 */;
     const float tmp227 = -tmp226;
+    F_b[6] = tmp227;
     const float tmp228 = carry[7] /* tmp12 */ * tmp219;
     const float tmp229 = carry[12] /* tmp59 */ * tmp215;
-    const float tmp230 = carry[13] /* tmp62 */ * carry[28] /* tmp213 */;
+    const float tmp230 = carry[13] /* tmp62 */ * carry[1] /* tmp213 */;
     const float tmp231 = tmp229 + tmp230;
     const float tmp232 = tmp228 - tmp231;
     const float tmp233 = carry[11] /* tmp56 */ * tmp223;
     const float tmp234 = tmp232 + tmp233;
     const float tmp235 = tmp234 * carry[0] /* tmp0 */;
     const float tmp236 = -tmp235;
-    const float tmp237 = carry[12] /* tmp59 */ * carry[28] /* tmp213 */;
+    F_b[7] = tmp236;
+    const float tmp237 = carry[12] /* tmp59 */ * carry[1] /* tmp213 */;
     const float tmp238 = carry[13] /* tmp62 */ * tmp215;
     const float tmp239 = tmp237 - tmp238;
     const float tmp240 = carry[11] /* tmp56 */ * tmp219;
@@ -977,13 +987,13 @@ static void mekf_k_predict_attitude_part6(float carry[32])
     const float tmp243 = tmp241 + tmp242;
     const float tmp244 = tmp243 * carry[0] /* tmp0 */;
     const float tmp245 = -tmp244;
-    carry[0] = tmp227;
-    carry[3] = tmp236;
-    carry[5] = tmp245;
+    F_b[8] = tmp245;
 }
 
 /*
- * time update: attitude and F's attitude rows
+ * time update: attitude and F's attitude rows; outputs are stored as soon as computed, each after
+ * the last read of what it overwrites: q_out may be q itself, no other argument may overlap an
+ * output
  *
  * Args:
  *     q: float[4]
@@ -998,43 +1008,22 @@ static void mekf_k_predict_attitude_part6(float carry[32])
  * Total ops: 246 (add 106, mul 127, div 4, sqrt 2, trig 2, cmp 5)
  *     of which only one side runs: if (tmp11 < 0.01f) 28, else 11
  */
-static void mekf_k_predict_attitude(const float q[4], const float b[3], const float gyro[3],
-    float dt, float q_out[4], float F_q[9], float F_b[9])
+static void mekf_k_predict_attitude(const float q[4], const float b[restrict 3],
+    const float gyro[restrict 3], float dt, float q_out[4], float F_q[restrict 9],
+    float F_b[restrict 9])
 {
     /*
      * 7 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
      * handed between them (a slot reused once its value is dead)
      */
-    float carry[32];
+    float carry[20];
     mekf_k_predict_attitude_part0(b, gyro, dt, carry);
     mekf_k_predict_attitude_part1(carry);
     mekf_k_predict_attitude_part2(q, carry);
-    mekf_k_predict_attitude_part3(carry);
-    mekf_k_predict_attitude_part4(carry);
-    mekf_k_predict_attitude_part5(carry);
-    mekf_k_predict_attitude_part6(carry);
-    q_out[0] = carry[14] /* tmp95 */;
-    q_out[1] = carry[15] /* tmp96 */;
-    q_out[2] = carry[16] /* tmp97 */;
-    q_out[3] = carry[17] /* tmp98 */;
-    F_q[0] = carry[22] /* tmp105 */;
-    F_q[1] = carry[23] /* tmp112 */;
-    F_q[2] = carry[24] /* tmp119 */;
-    F_q[3] = carry[25] /* tmp122 */;
-    F_q[4] = carry[26] /* tmp125 */;
-    F_q[5] = carry[29] /* tmp131 */;
-    F_q[6] = carry[30] /* tmp134 */;
-    F_q[7] = carry[2] /* tmp138 */;
-    F_q[8] = carry[9] /* tmp141 */;
-    F_b[0] = carry[19] /* tmp159 */;
-    F_b[1] = carry[20] /* tmp168 */;
-    F_b[2] = carry[1] /* tmp177 */;
-    F_b[3] = carry[4] /* tmp193 */;
-    F_b[4] = carry[21] /* tmp202 */;
-    F_b[5] = carry[27] /* tmp211 */;
-    F_b[6] = carry[0] /* tmp227 */;
-    F_b[7] = carry[3] /* tmp236 */;
-    F_b[8] = carry[5] /* tmp245 */;
+    mekf_k_predict_attitude_part3(q_out, F_q, carry);
+    mekf_k_predict_attitude_part4(F_q, F_b, carry);
+    mekf_k_predict_attitude_part5(F_b, carry);
+    mekf_k_predict_attitude_part6(F_b, carry);
 }
 
 static void mekf_k_predict_covariance_part0(const float F_q[9], const float F_b[9],
@@ -1547,7 +1536,7 @@ static void mekf_k_predict_covariance(const float F_q[9], const float F_b[9], co
 }
 
 static void mekf_k_accel_lowpass_part0(const float q[4], const float accel[3], const bool mask[3],
-    const float a_lp[3], float dt, float carry[12])
+    const float a_lp[3], float dt, float a_lp_out[3], float carry[11])
 {
     const float tmp0 = 1.0f + dt;
     const float tmp1 = dt / tmp0;
@@ -1573,6 +1562,7 @@ static void mekf_k_accel_lowpass_part0(const float q[4], const float accel[3], c
     const float tmp21 = tmp20 - a_lp[0];
     const float tmp22 = tmp2 * tmp21;
     const float tmp23 = a_lp[0] + tmp22;
+    a_lp_out[0] = tmp23;
     const float tmp24 = tmp9 + tmp10;
     const float tmp25 = tmp24 + tmp24;
     const float tmp26 = tmp25 * accel[0];
@@ -1603,10 +1593,12 @@ static void mekf_k_accel_lowpass_part0(const float q[4], const float accel[3], c
 }
 
 static void mekf_k_accel_lowpass_part1(const float accel[3], const float vel[3], const bool mask[3],
-    const float a_lp[3], const float v_lp[3], const float v_ins[3], float dt, float carry[12])
+    const float a_lp[3], const float v_lp[3], const float v_ins[3], float dt, float a_lp_out[3],
+    float v_lp_out[3], float v_ins_out[3], float carry[11])
 {
     const float tmp40 = carry[0] /* tmp2 */ * carry[10] /* tmp39 */;
     const float tmp41 = a_lp[1] + tmp40;
+    a_lp_out[1] = tmp41;
     const float tmp42 = carry[2] /* tmp15 */ - carry[3] /* tmp16 */;
     const float tmp43 = tmp42 + tmp42;
     const float tmp44 = tmp43 * accel[0];
@@ -1622,64 +1614,72 @@ static void mekf_k_accel_lowpass_part1(const float accel[3], const float vel[3],
     const float tmp54 = tmp53 - a_lp[2];
     const float tmp55 = carry[0] /* tmp2 */ * tmp54;
     const float tmp56 = a_lp[2] + tmp55;
+    a_lp_out[2] = tmp56;
     const float tmp57 = carry[4] /* tmp20 */ * dt;
     const float tmp58 = v_ins[0] + tmp57;
     const float tmp59 = (mask[1]) ? vel[0] : tmp58;
+    v_ins_out[0] = tmp59;
     const float tmp60 = tmp59 - v_lp[0];
     const float tmp61 = carry[0] /* tmp2 */ * tmp60;
     const float tmp62 = v_lp[0] + tmp61;
     const float tmp63 = (mask[0]) ? tmp62 : v_lp[0];
+    v_lp_out[0] = tmp63;
     const float tmp64 = carry[9] /* tmp38 */ * dt;
     const float tmp65 = v_ins[1] + tmp64;
     const float tmp66 = (mask[1]) ? vel[1] : tmp65;
+    v_ins_out[1] = tmp66;
     const float tmp67 = tmp66 - v_lp[1];
     const float tmp68 = carry[0] /* tmp2 */ * tmp67;
     const float tmp69 = v_lp[1] + tmp68;
     const float tmp70 = (mask[0]) ? tmp69 : v_lp[1];
+    v_lp_out[1] = tmp70;
     const float tmp71 = tmp53 + 9.80665f /* G0 */;
     const float tmp72 = tmp71 * dt;
     const float tmp73 = v_ins[2] + tmp72;
     const float tmp74 = (mask[1]) ? vel[2] : tmp73;
+    v_ins_out[2] = tmp74;
     const float tmp75 = tmp74 - v_lp[2];
     const float tmp76 = carry[0] /* tmp2 */ * tmp75;
     const float tmp77 = v_lp[2] + tmp76;
     const float tmp78 = (mask[0]) ? tmp77 : v_lp[2];
+    v_lp_out[2] = tmp78;
     const float tmp79 = tmp59 - tmp63;
     carry[0] = tmp41;
     carry[1] = tmp56;
-    carry[2] = tmp59;
-    carry[3] = tmp63;
-    carry[4] = tmp66;
-    carry[6] = tmp70;
-    carry[7] = tmp74;
-    carry[8] = tmp78;
-    carry[9] = tmp79;
+    carry[2] = tmp66;
+    carry[3] = tmp70;
+    carry[4] = tmp74;
+    carry[6] = tmp78;
+    carry[7] = tmp79;
 }
 
-static void mekf_k_accel_lowpass_part2(const bool mask[3], float carry[12], bool flags[1])
+static void mekf_k_accel_lowpass_part2(const bool mask[3], float up_out[3], bool *up_ok,
+    const float carry[11])
 {
-    const float tmp80 = carry[5] /* tmp23 */ - carry[9] /* tmp79 */;
+    const float tmp80 = carry[5] /* tmp23 */ - carry[7] /* tmp79 */;
     const float tmp81 = (mask[0]) ? tmp80 : carry[5] /* tmp23 */;
-    const float tmp82 = carry[4] /* tmp66 */ - carry[6] /* tmp70 */;
+    up_out[0] = tmp81;
+    const float tmp82 = carry[2] /* tmp66 */ - carry[3] /* tmp70 */;
     const float tmp83 = carry[0] /* tmp41 */ - tmp82;
     const float tmp84 = (mask[0]) ? tmp83 : carry[0] /* tmp41 */;
-    const float tmp85 = carry[7] /* tmp74 */ - carry[8] /* tmp78 */;
+    up_out[1] = tmp84;
+    const float tmp85 = carry[4] /* tmp74 */ - carry[6] /* tmp78 */;
     const float tmp86 = carry[1] /* tmp56 */ - tmp85;
     const float tmp87 = (mask[0]) ? tmp86 : carry[1] /* tmp56 */;
+    up_out[2] = tmp87;
     const float tmp88 = tmp81 * tmp81;
     const float tmp89 = tmp84 * tmp84;
     const float tmp90 = tmp88 + tmp89;
     const float tmp91 = tmp87 * tmp87;
     const float tmp92 = tmp90 + tmp91;
     const bool tmp93 = 0.25f /* accel_min_norm*accel_min_norm */ < tmp92;
-    carry[9] = tmp81;
-    carry[10] = tmp84;
-    carry[11] = tmp87;
-    flags[0] = tmp93;
+    *up_ok = tmp93;
 }
 
 /*
- * earth-frame low-pass of the compensated specific force
+ * earth-frame low-pass of the compensated specific force; outputs are stored as soon as computed,
+ * each after the last read of what it overwrites: a_lp_out may be a_lp itself, v_lp_out may be v_lp
+ * itself, v_ins_out may be v_ins itself, no other argument may overlap an output
  *
  * Args:
  *     q: float[4]
@@ -1702,36 +1702,24 @@ static void mekf_k_accel_lowpass_part2(const bool mask[3], float carry[12], bool
  *
  * Total ops: 94 (add 52, mul 30, div 1, cmp 11)
  */
-static void mekf_k_accel_lowpass(const float q[4], const float b[3], const float gyro[3],
-    const float accel[3], const float vel[3], const float acc_n[3], const bool mask[3],
-    const float a_lp[3], const float v_lp[3], const float v_ins[3], float dt, float a_lp_out[3],
-    float v_lp_out[3], float v_ins_out[3], float up_out[3], bool *up_ok)
+static void mekf_k_accel_lowpass(const float q[restrict 4], const float b[restrict 3],
+    const float gyro[restrict 3], const float accel[restrict 3], const float vel[restrict 3],
+    const float acc_n[restrict 3], const bool mask[restrict 3], const float a_lp[3],
+    const float v_lp[3], const float v_ins[3], float dt, float a_lp_out[3], float v_lp_out[3],
+    float v_ins_out[3], float up_out[restrict 3], bool *restrict up_ok)
 {
     (void)b;
     (void)gyro;
     (void)acc_n;
     /*
-     * 3 parts called in turn (inlined when optimising): bounded -O0 frames; carry and flags hold
-     * the values handed between them (a slot reused once its value is dead)
+     * 3 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
+     * handed between them (a slot reused once its value is dead)
      */
-    float carry[12];
-    bool flags[1];
-    mekf_k_accel_lowpass_part0(q, accel, mask, a_lp, dt, carry);
-    mekf_k_accel_lowpass_part1(accel, vel, mask, a_lp, v_lp, v_ins, dt, carry);
-    mekf_k_accel_lowpass_part2(mask, carry, flags);
-    a_lp_out[0] = carry[5] /* tmp23 */;
-    a_lp_out[1] = carry[0] /* tmp41 */;
-    a_lp_out[2] = carry[1] /* tmp56 */;
-    v_lp_out[0] = carry[3] /* tmp63 */;
-    v_lp_out[1] = carry[6] /* tmp70 */;
-    v_lp_out[2] = carry[8] /* tmp78 */;
-    v_ins_out[0] = carry[2] /* tmp59 */;
-    v_ins_out[1] = carry[4] /* tmp66 */;
-    v_ins_out[2] = carry[7] /* tmp74 */;
-    up_out[0] = carry[9] /* tmp81 */;
-    up_out[1] = carry[10] /* tmp84 */;
-    up_out[2] = carry[11] /* tmp87 */;
-    *up_ok = flags[0] /* tmp93 */;
+    float carry[11];
+    mekf_k_accel_lowpass_part0(q, accel, mask, a_lp, dt, a_lp_out, carry);
+    mekf_k_accel_lowpass_part1(accel, vel, mask, a_lp, v_lp, v_ins, dt, a_lp_out, v_lp_out,
+            v_ins_out, carry);
+    mekf_k_accel_lowpass_part2(mask, up_out, up_ok, carry);
 }
 
 static void mekf_k_heading_features_part0(const float q[4], const float mag[3], float carry[13])
@@ -1852,7 +1840,8 @@ static void mekf_k_heading_features(const float q[4], const float mag[3], const 
     feat[3] = carry[3] /* tmp65 */;
 }
 
-static void mekf_k_gravity_rows_part0(const float q[4], const float up[3], float carry[19])
+static void mekf_k_update_gravity_part0(const float q[4], float dt, const float P[36],
+    float carry[48])
 {
     const float tmp0 = q[1] * q[1];
     const float tmp1 = q[2] * q[2];
@@ -1860,149 +1849,555 @@ static void mekf_k_gravity_rows_part0(const float q[4], const float up[3], float
     const float tmp3 = tmp2 + tmp2;
     const float tmp4 = 1.0f - tmp3;
     const float tmp5 = (-2.0f) * tmp4;
-    const float tmp6 = -tmp5;
+    const float tmp6 = P[1] * tmp5;
     const float tmp7 = q[2] * q[3];
     const float tmp8 = q[0] * q[1];
     const float tmp9 = tmp7 + tmp8;
     const float tmp10 = 4.0f * tmp9;
-    const float tmp11 = -tmp10;
-    const float tmp12 = tmp4 + tmp4;
-    const float tmp13 = -tmp12;
-    const float tmp14 = q[1] * q[3];
-    const float tmp15 = q[0] * q[2];
-    const float tmp16 = tmp14 - tmp15;
-    const float tmp17 = (-4.0f) * tmp16;
-    const float tmp18 = -tmp17;
-    const float tmp19 = (-4.0f) * tmp9;
-    const float tmp20 = -tmp19;
-    const float tmp21 = 4.0f * tmp16;
-    const float tmp22 = -tmp21;
-    const float tmp23 = q[3] * q[3];
-    const float tmp24 = tmp1 + tmp23;
-    const float tmp25 = tmp24 + tmp24;
-    const float tmp26 = 1.0f - tmp25;
-    const float tmp27 = tmp26 * up[0];
-    const float tmp28 = q[1] * q[2];
-    const float tmp29 = q[0] * q[3];
-    const float tmp30 = tmp28 + tmp29;
-    const float tmp31 = tmp30 + tmp30;
-    const float tmp32 = tmp31 * up[1];
-    const float tmp33 = tmp27 + tmp32;
-    const float tmp34 = tmp16 + tmp16;
-    const float tmp35 = tmp34 * up[2];
-    const float tmp36 = tmp33 + tmp35;
-    const float tmp37 = up[0] * up[0];
-    const float tmp38 = up[1] * up[1];
-    const float tmp39 = tmp37 + tmp38;
+    const float tmp11 = P[2] * tmp10;
+    const float tmp12 = tmp6 + tmp11;
+    const float tmp13 = P[7] * tmp5;
+    const float tmp14 = P[8] * tmp10;
+    const float tmp15 = tmp13 + tmp14;
+    const float tmp16 = tmp5 * tmp15;
+    const float tmp17 = P[8] * tmp5;
+    const float tmp18 = P[14] * tmp10;
+    const float tmp19 = tmp17 + tmp18;
+    const float tmp20 = tmp10 * tmp19;
+    const float tmp21 = tmp16 + tmp20;
+    const float tmp22 = (dt > 1e-09f /* DT_Q_MIN */) ? dt : 1e-09f /* DT_Q_MIN */;
+    const float tmp23 = 1.6e-05f /* accel_noise_density^2 */ / tmp22;
+    const float tmp24 = 0.0049f /* accel_angle_noise^2 */ + tmp23;
+    const float tmp25 = q[1] * q[3];
+    const float tmp26 = q[0] * q[2];
+    const float tmp27 = tmp25 - tmp26;
+    const float tmp28 = tmp27 + tmp27;
+    const float tmp29 = tmp9 + tmp9;
     carry[0] = tmp0;
-    carry[1] = tmp4;
-    carry[2] = tmp6;
-    carry[3] = tmp7;
-    carry[4] = tmp8;
-    carry[5] = tmp9;
-    carry[6] = tmp11;
-    carry[7] = tmp13;
-    carry[8] = tmp14;
+    carry[1] = tmp1;
+    carry[2] = tmp4;
+    carry[3] = tmp5;
+    carry[4] = tmp7;
+    carry[5] = tmp8;
+    carry[6] = tmp9;
+    carry[7] = tmp10;
+    carry[8] = tmp12;
     carry[9] = tmp15;
-    carry[10] = tmp18;
-    carry[11] = tmp20;
-    carry[12] = tmp22;
-    carry[13] = tmp23;
-    carry[14] = tmp28;
-    carry[15] = tmp29;
-    carry[16] = tmp34;
-    carry[17] = tmp36;
-    carry[18] = tmp39;
+    carry[10] = tmp19;
+    carry[11] = tmp21;
+    carry[12] = tmp24;
+    carry[13] = tmp25;
+    carry[14] = tmp26;
+    carry[15] = tmp27;
+    carry[16] = tmp28;
+    carry[17] = tmp29;
 }
 
-static void mekf_k_gravity_rows_part1(const float up[3], float dt, float carry[19])
+static void mekf_k_update_gravity_part1(const float q[4], const float up[3], const float gyro[3],
+    const float b[3], const float vel[3], bool unobserved, float carry[48])
 {
-    const float tmp40 = up[2] * up[2];
-    const float tmp41 = carry[18] /* tmp39 */ + tmp40;
-    const float tmp42 = sqrtf(tmp41);
-    const float tmp43 = 1.0f / tmp42;
-    const float tmp44 = carry[17] /* tmp36 */ * tmp43;
-    const float tmp45 = tmp44 + carry[16] /* tmp34 */;
-    const float tmp46 = carry[14] /* tmp28 */ - carry[15] /* tmp29 */;
-    const float tmp47 = tmp46 + tmp46;
-    const float tmp48 = tmp47 * up[0];
-    const float tmp49 = carry[0] /* tmp0 */ + carry[13] /* tmp23 */;
-    const float tmp50 = tmp49 + tmp49;
-    const float tmp51 = 1.0f - tmp50;
-    const float tmp52 = tmp51 * up[1];
-    const float tmp53 = tmp48 + tmp52;
-    const float tmp54 = carry[5] /* tmp9 */ + carry[5] /* tmp9 */;
-    const float tmp55 = tmp54 * up[2];
-    const float tmp56 = tmp53 + tmp55;
-    const float tmp57 = tmp56 * tmp43;
-    const float tmp58 = tmp57 + tmp54;
-    const float tmp59 = carry[8] /* tmp14 */ + carry[9] /* tmp15 */;
-    const float tmp60 = tmp59 + tmp59;
-    const float tmp61 = tmp60 * up[0];
-    const float tmp62 = carry[3] /* tmp7 */ - carry[4] /* tmp8 */;
-    const float tmp63 = tmp62 + tmp62;
-    const float tmp64 = tmp63 * up[1];
-    const float tmp65 = tmp61 + tmp64;
-    const float tmp66 = carry[1] /* tmp4 */ * up[2];
-    const float tmp67 = tmp65 + tmp66;
-    const float tmp68 = tmp67 * tmp43;
-    const float tmp69 = tmp68 + carry[1] /* tmp4 */;
-    const float tmp70 = (dt > 1e-09f /* DT_Q_MIN */) ? dt : 1e-09f /* DT_Q_MIN */;
-    const float tmp71 = 1.6e-05f /* accel_noise_density^2 */ / tmp70;
-    const float tmp72 = 0.0049f /* accel_angle_noise^2 */ + tmp71;
-    carry[0] = tmp45;
-    carry[3] = tmp54;
-    carry[4] = tmp58;
-    carry[5] = tmp69;
-    carry[8] = tmp72;
-}
-
-static void mekf_k_gravity_rows_part2(bool recover, const float gyro[3], const float b[3],
-    const float vel[3], bool unobserved, float carry[19])
-{
-    float tmp73;
+    float tmp30;
     if (unobserved) {
-        const float tmp74 = gyro[0] - b[0];
-        const float tmp75 = tmp74 * carry[16] /* tmp34 */;
-        const float tmp76 = gyro[1] - b[1];
-        const float tmp77 = tmp76 * carry[3] /* tmp54 */;
-        const float tmp78 = tmp75 + tmp77;
-        const float tmp79 = gyro[2] - b[2];
-        const float tmp80 = tmp79 * carry[1] /* tmp4 */;
-        const float tmp81 = tmp78 + tmp80;
-        const float tmp82 = vel[0] * vel[0];
-        const float tmp83 = vel[1] * vel[1];
-        const float tmp84 = tmp82 + tmp83;
-        const float tmp85 = sqrtf(tmp84);
-        const float tmp86 = tmp81 * tmp85;
-        const float tmp87 = tmp86 / 9.80665f /* G0 */;
-        const float tmp88 = tmp87 * tmp87;
-        tmp73 = tmp88;
+        const float tmp31 = gyro[0] - b[0];
+        const float tmp32 = tmp31 * carry[16] /* tmp28 */;
+        const float tmp33 = gyro[1] - b[1];
+        const float tmp34 = tmp33 * carry[17] /* tmp29 */;
+        const float tmp35 = tmp32 + tmp34;
+        const float tmp36 = gyro[2] - b[2];
+        const float tmp37 = tmp36 * carry[2] /* tmp4 */;
+        const float tmp38 = tmp35 + tmp37;
+        const float tmp39 = vel[0] * vel[0];
+        const float tmp40 = vel[1] * vel[1];
+        const float tmp41 = tmp39 + tmp40;
+        const float tmp42 = sqrtf(tmp41);
+        const float tmp43 = tmp38 * tmp42;
+        const float tmp44 = tmp43 / 9.80665f /* G0 */;
+        const float tmp45 = tmp44 * tmp44;
+        tmp30 = tmp45;
     } else {
-        tmp73 = 0.0f;
+        tmp30 = 0.0f;
     }
-    const float tmp89 = carry[8] /* tmp72 */ + tmp73;
-    float tmp90;
+    const float tmp46 = carry[12] /* tmp24 */ + tmp30;
+    const float tmp47 = q[3] * q[3];
+    const float tmp48 = carry[1] /* tmp1 */ + tmp47;
+    const float tmp49 = tmp48 + tmp48;
+    const float tmp50 = 1.0f - tmp49;
+    const float tmp51 = tmp50 * up[0];
+    const float tmp52 = q[1] * q[2];
+    const float tmp53 = q[0] * q[3];
+    const float tmp54 = tmp52 + tmp53;
+    const float tmp55 = tmp54 + tmp54;
+    const float tmp56 = tmp55 * up[1];
+    const float tmp57 = tmp51 + tmp56;
+    const float tmp58 = carry[16] /* tmp28 */ * up[2];
+    const float tmp59 = tmp57 + tmp58;
+    const float tmp60 = up[0] * up[0];
+    const float tmp61 = up[1] * up[1];
+    const float tmp62 = tmp60 + tmp61;
+    const float tmp63 = up[2] * up[2];
+    const float tmp64 = tmp62 + tmp63;
+    const float tmp65 = sqrtf(tmp64);
+    const float tmp66 = 1.0f / tmp65;
+    const float tmp67 = tmp59 * tmp66;
+    const float tmp68 = tmp67 + carry[16] /* tmp28 */;
+    const float tmp69 = tmp52 - tmp53;
+    carry[1] = tmp46;
+    carry[12] = tmp47;
+    carry[16] = tmp66;
+    carry[18] = tmp68;
+    carry[19] = tmp69;
+}
+
+static void mekf_k_update_gravity_part2(const float up[3], bool recover, const float P[36],
+    float carry[48])
+{
+    const float tmp70 = carry[19] /* tmp69 */ + carry[19] /* tmp69 */;
+    const float tmp71 = tmp70 * up[0];
+    const float tmp72 = carry[0] /* tmp0 */ + carry[12] /* tmp47 */;
+    const float tmp73 = tmp72 + tmp72;
+    const float tmp74 = 1.0f - tmp73;
+    const float tmp75 = tmp74 * up[1];
+    const float tmp76 = tmp71 + tmp75;
+    const float tmp77 = carry[17] /* tmp29 */ * up[2];
+    const float tmp78 = tmp76 + tmp77;
+    const float tmp79 = tmp78 * carry[16] /* tmp66 */;
+    const float tmp80 = tmp79 + carry[17] /* tmp29 */;
+    const float tmp81 = carry[13] /* tmp25 */ + carry[14] /* tmp26 */;
+    const float tmp82 = tmp81 + tmp81;
+    const float tmp83 = tmp82 * up[0];
+    const float tmp84 = carry[4] /* tmp7 */ - carry[5] /* tmp8 */;
+    const float tmp85 = tmp84 + tmp84;
+    const float tmp86 = tmp85 * up[1];
+    const float tmp87 = tmp83 + tmp86;
+    const float tmp88 = carry[2] /* tmp4 */ * up[2];
+    const float tmp89 = tmp87 + tmp88;
+    const float tmp90 = tmp89 * carry[16] /* tmp66 */;
+    const float tmp91 = tmp90 + carry[2] /* tmp4 */;
+    float tmp92;
     if (recover) {
-        tmp90 = tmp89;
+        tmp92 = carry[1] /* tmp46 */;
     } else {
-        const float tmp91 = carry[0] /* tmp45 */ * carry[0] /* tmp45 */;
-        const float tmp92 = carry[4] /* tmp58 */ * carry[4] /* tmp58 */;
-        const float tmp93 = tmp91 + tmp92;
-        const float tmp94 = carry[5] /* tmp69 */ * carry[5] /* tmp69 */;
+        const float tmp93 = carry[18] /* tmp68 */ * carry[18] /* tmp68 */;
+        const float tmp94 = tmp80 * tmp80;
         const float tmp95 = tmp93 + tmp94;
-        const float tmp96 = 9.0f * tmp89;
-        const float tmp97 = tmp95 / tmp96;
-        const float tmp98 = 1.0f + tmp97;
-        const float tmp99 = (tmp98 < 1.0f) ? tmp98 : 1.0f;
-        const float tmp100 = tmp89 * tmp99;
-        tmp90 = tmp100;
+        const float tmp96 = tmp91 * tmp91;
+        const float tmp97 = tmp95 + tmp96;
+        const float tmp98 = 9.0f * carry[1] /* tmp46 */;
+        const float tmp99 = tmp97 / tmp98;
+        const float tmp100 = 1.0f + tmp99;
+        const float tmp101 = (tmp100 < 1.0f) ? tmp100 : 1.0f;
+        const float tmp102 = carry[1] /* tmp46 */ * tmp101;
+        tmp92 = tmp102;
     }
-    carry[1] = tmp90;
+    const float tmp103 = carry[11] /* tmp21 */ + tmp92;
+    const float tmp104 = 1.0f / tmp103;
+    const float tmp105 = (1e-12f /* S_PIVOT_MIN */ < tmp103) ? tmp104 : 1.0f;
+    const float tmp106 = carry[8] /* tmp12 */ * tmp105;
+    const float tmp107 = tmp106 * carry[18] /* tmp68 */;
+    const float tmp108 = tmp106 * carry[8] /* tmp12 */;
+    const float tmp109 = P[0] - tmp108;
+    carry[0] = tmp80;
+    carry[1] = tmp91;
+    carry[4] = tmp92;
+    carry[5] = tmp103;
+    carry[11] = tmp105;
+    carry[12] = tmp107;
+    carry[13] = tmp109;
+}
+
+static void mekf_k_update_gravity_part3(const float P[36], float carry[48])
+{
+    const float tmp110 = carry[2] /* tmp4 */ + carry[2] /* tmp4 */;
+    const float tmp111 = carry[13] /* tmp109 */ * tmp110;
+    const float tmp112 = carry[10] /* tmp19 */ * carry[11] /* tmp105 */;
+    const float tmp113 = tmp112 * carry[8] /* tmp12 */;
+    const float tmp114 = P[2] - tmp113;
+    const float tmp115 = (-4.0f) * carry[15] /* tmp27 */;
+    const float tmp116 = tmp114 * tmp115;
+    const float tmp117 = tmp111 + tmp116;
+    const float tmp118 = tmp110 * tmp117;
+    const float tmp119 = tmp114 * tmp110;
+    const float tmp120 = tmp112 * carry[10] /* tmp19 */;
+    const float tmp121 = P[14] - tmp120;
+    const float tmp122 = tmp121 * tmp115;
+    const float tmp123 = tmp119 + tmp122;
+    const float tmp124 = tmp115 * tmp123;
+    const float tmp125 = tmp118 + tmp124;
+    const float tmp126 = tmp125 + carry[4] /* tmp92 */;
+    const float tmp127 = 1.0f / tmp126;
+    const float tmp128 = (1e-12f /* S_PIVOT_MIN */ < tmp126) ? tmp127 : 1.0f;
+    const float tmp129 = tmp117 * tmp128;
+    const float tmp130 = tmp110 * carry[12] /* tmp107 */;
+    const float tmp131 = tmp112 * carry[18] /* tmp68 */;
+    const float tmp132 = tmp115 * tmp131;
+    const float tmp133 = tmp130 + tmp132;
+    const float tmp134 = carry[0] /* tmp80 */ - tmp133;
+    const float tmp135 = tmp129 * tmp134;
+    const float tmp136 = carry[12] /* tmp107 */ + tmp135;
+    const float tmp137 = tmp129 * tmp117;
+    const float tmp138 = carry[13] /* tmp109 */ - tmp137;
+    const float tmp139 = (-4.0f) * carry[6] /* tmp9 */;
+    const float tmp140 = tmp138 * tmp139;
+    const float tmp141 = carry[9] /* tmp15 */ * carry[11] /* tmp105 */;
+    const float tmp142 = tmp141 * carry[8] /* tmp12 */;
+    const float tmp143 = P[1] - tmp142;
+    const float tmp144 = tmp143 * tmp110;
+    const float tmp145 = tmp112 * carry[9] /* tmp15 */;
+    const float tmp146 = P[8] - tmp145;
+    const float tmp147 = tmp146 * tmp115;
+    const float tmp148 = tmp144 + tmp147;
+    const float tmp149 = tmp148 * tmp128;
+    carry[0] = tmp110;
+    carry[2] = tmp114;
+    carry[6] = tmp115;
+    carry[12] = tmp117;
+    carry[13] = tmp121;
+    carry[14] = tmp123;
+    carry[16] = tmp126;
+    carry[17] = tmp128;
+    carry[19] = tmp131;
+    carry[20] = tmp134;
+    carry[21] = tmp136;
+    carry[22] = tmp138;
+    carry[23] = tmp139;
+    carry[24] = tmp140;
+    carry[25] = tmp141;
+    carry[26] = tmp143;
+    carry[27] = tmp146;
+    carry[28] = tmp148;
+    carry[29] = tmp149;
+}
+
+static void mekf_k_update_gravity_part4(const float P[36], float x_out[6], float carry[48])
+{
+    const float tmp150 = carry[29] /* tmp149 */ * carry[12] /* tmp117 */;
+    const float tmp151 = carry[26] /* tmp143 */ - tmp150;
+    const float tmp152 = 4.0f * carry[15] /* tmp27 */;
+    const float tmp153 = tmp151 * tmp152;
+    const float tmp154 = carry[24] /* tmp140 */ + tmp153;
+    const float tmp155 = carry[23] /* tmp139 */ * tmp154;
+    const float tmp156 = tmp151 * carry[23] /* tmp139 */;
+    const float tmp157 = carry[25] /* tmp141 */ * carry[9] /* tmp15 */;
+    const float tmp158 = P[7] - tmp157;
+    const float tmp159 = carry[29] /* tmp149 */ * carry[28] /* tmp148 */;
+    const float tmp160 = tmp158 - tmp159;
+    const float tmp161 = tmp160 * tmp152;
+    const float tmp162 = tmp156 + tmp161;
+    const float tmp163 = tmp152 * tmp162;
+    const float tmp164 = tmp155 + tmp163;
+    const float tmp165 = tmp164 + carry[4] /* tmp92 */;
+    const float tmp166 = 1.0f / tmp165;
+    const float tmp167 = (1e-12f /* S_PIVOT_MIN */ < tmp165) ? tmp166 : 1.0f;
+    const float tmp168 = tmp154 * tmp167;
+    const float tmp169 = carry[23] /* tmp139 */ * carry[21] /* tmp136 */;
+    const float tmp170 = carry[25] /* tmp141 */ * carry[18] /* tmp68 */;
+    const float tmp171 = carry[29] /* tmp149 */ * carry[20] /* tmp134 */;
+    const float tmp172 = tmp170 + tmp171;
+    const float tmp173 = tmp152 * tmp172;
+    const float tmp174 = tmp169 + tmp173;
+    const float tmp175 = carry[1] /* tmp91 */ - tmp174;
+    const float tmp176 = tmp168 * tmp175;
+    const float tmp177 = carry[21] /* tmp136 */ + tmp176;
+    const float tmp178 = -tmp177;
+    x_out[0] = tmp178;
+    const float tmp179 = tmp162 * tmp167;
+    const float tmp180 = tmp179 * tmp175;
+    const float tmp181 = tmp172 + tmp180;
+    const float tmp182 = -tmp181;
+    x_out[1] = tmp182;
+    const float tmp183 = carry[14] /* tmp123 */ * carry[17] /* tmp128 */;
+    const float tmp184 = tmp183 * carry[20] /* tmp134 */;
+    const float tmp185 = carry[19] /* tmp131 */ + tmp184;
+    const float tmp186 = tmp183 * carry[12] /* tmp117 */;
+    const float tmp187 = carry[2] /* tmp114 */ - tmp186;
+    const float tmp188 = tmp187 * carry[23] /* tmp139 */;
+    const float tmp189 = tmp183 * carry[28] /* tmp148 */;
+    carry[1] = tmp151;
+    carry[2] = tmp152;
+    carry[4] = tmp154;
+    carry[15] = tmp160;
+    carry[19] = tmp162;
+    carry[21] = tmp165;
+    carry[24] = tmp167;
+    carry[25] = tmp168;
+    carry[26] = tmp175;
+    carry[29] = tmp179;
+    carry[30] = tmp183;
+    carry[31] = tmp185;
+    carry[32] = tmp187;
+    carry[33] = tmp188;
+    carry[34] = tmp189;
+}
+
+static void mekf_k_update_gravity_part5(const float P[36], float x_out[6], float carry[48])
+{
+    const float tmp190 = carry[27] /* tmp146 */ - carry[34] /* tmp189 */;
+    const float tmp191 = tmp190 * carry[2] /* tmp152 */;
+    const float tmp192 = carry[33] /* tmp188 */ + tmp191;
+    const float tmp193 = tmp192 * carry[24] /* tmp167 */;
+    const float tmp194 = tmp193 * carry[26] /* tmp175 */;
+    const float tmp195 = carry[31] /* tmp185 */ + tmp194;
+    const float tmp196 = -tmp195;
+    x_out[2] = tmp196;
+    const float tmp197 = P[9] * carry[3] /* tmp5 */;
+    const float tmp198 = P[15] * carry[7] /* tmp10 */;
+    const float tmp199 = tmp197 + tmp198;
+    const float tmp200 = tmp199 * carry[11] /* tmp105 */;
+    const float tmp201 = tmp200 * carry[18] /* tmp68 */;
+    const float tmp202 = tmp200 * carry[8] /* tmp12 */;
+    const float tmp203 = P[3] - tmp202;
+    const float tmp204 = tmp203 * carry[0] /* tmp110 */;
+    const float tmp205 = tmp200 * carry[10] /* tmp19 */;
+    const float tmp206 = P[15] - tmp205;
+    const float tmp207 = tmp206 * carry[6] /* tmp115 */;
+    const float tmp208 = tmp204 + tmp207;
+    const float tmp209 = tmp208 * carry[17] /* tmp128 */;
+    const float tmp210 = tmp209 * carry[20] /* tmp134 */;
+    const float tmp211 = tmp201 + tmp210;
+    const float tmp212 = tmp209 * carry[12] /* tmp117 */;
+    const float tmp213 = tmp203 - tmp212;
+    const float tmp214 = tmp213 * carry[23] /* tmp139 */;
+    const float tmp215 = tmp200 * carry[9] /* tmp15 */;
+    const float tmp216 = P[9] - tmp215;
+    const float tmp217 = tmp209 * carry[28] /* tmp148 */;
+    const float tmp218 = tmp216 - tmp217;
+    const float tmp219 = tmp218 * carry[2] /* tmp152 */;
+    const float tmp220 = tmp214 + tmp219;
+    const float tmp221 = tmp220 * carry[24] /* tmp167 */;
+    const float tmp222 = tmp221 * carry[26] /* tmp175 */;
+    const float tmp223 = tmp211 + tmp222;
+    const float tmp224 = -tmp223;
+    x_out[3] = tmp224;
+    const float tmp225 = P[10] * carry[3] /* tmp5 */;
+    const float tmp226 = P[16] * carry[7] /* tmp10 */;
+    const float tmp227 = tmp225 + tmp226;
+    const float tmp228 = tmp227 * carry[11] /* tmp105 */;
+    const float tmp229 = tmp228 * carry[18] /* tmp68 */;
+    carry[27] = tmp190;
+    carry[31] = tmp192;
+    carry[33] = tmp193;
+    carry[34] = tmp199;
+    carry[35] = tmp200;
+    carry[36] = tmp206;
+    carry[37] = tmp208;
+    carry[38] = tmp209;
+    carry[39] = tmp213;
+    carry[40] = tmp218;
+    carry[41] = tmp220;
+    carry[42] = tmp221;
+    carry[43] = tmp227;
+    carry[44] = tmp228;
+    carry[45] = tmp229;
+}
+
+static void mekf_k_update_gravity_part6(const float P[36], float x_out[6], float carry[48])
+{
+    const float tmp230 = carry[44] /* tmp228 */ * carry[8] /* tmp12 */;
+    const float tmp231 = P[4] - tmp230;
+    const float tmp232 = tmp231 * carry[0] /* tmp110 */;
+    const float tmp233 = carry[44] /* tmp228 */ * carry[10] /* tmp19 */;
+    const float tmp234 = P[16] - tmp233;
+    const float tmp235 = tmp234 * carry[6] /* tmp115 */;
+    const float tmp236 = tmp232 + tmp235;
+    const float tmp237 = tmp236 * carry[17] /* tmp128 */;
+    const float tmp238 = tmp237 * carry[20] /* tmp134 */;
+    const float tmp239 = carry[45] /* tmp229 */ + tmp238;
+    const float tmp240 = tmp237 * carry[12] /* tmp117 */;
+    const float tmp241 = tmp231 - tmp240;
+    const float tmp242 = tmp241 * carry[23] /* tmp139 */;
+    const float tmp243 = carry[44] /* tmp228 */ * carry[9] /* tmp15 */;
+    const float tmp244 = P[10] - tmp243;
+    const float tmp245 = tmp237 * carry[28] /* tmp148 */;
+    const float tmp246 = tmp244 - tmp245;
+    const float tmp247 = tmp246 * carry[2] /* tmp152 */;
+    const float tmp248 = tmp242 + tmp247;
+    const float tmp249 = tmp248 * carry[24] /* tmp167 */;
+    const float tmp250 = tmp249 * carry[26] /* tmp175 */;
+    const float tmp251 = tmp239 + tmp250;
+    const float tmp252 = -tmp251;
+    x_out[4] = tmp252;
+    const float tmp253 = P[11] * carry[3] /* tmp5 */;
+    const float tmp254 = P[17] * carry[7] /* tmp10 */;
+    const float tmp255 = tmp253 + tmp254;
+    const float tmp256 = tmp255 * carry[11] /* tmp105 */;
+    const float tmp257 = tmp256 * carry[18] /* tmp68 */;
+    const float tmp258 = tmp256 * carry[8] /* tmp12 */;
+    const float tmp259 = P[5] - tmp258;
+    const float tmp260 = tmp259 * carry[0] /* tmp110 */;
+    const float tmp261 = tmp256 * carry[10] /* tmp19 */;
+    const float tmp262 = P[17] - tmp261;
+    const float tmp263 = tmp262 * carry[6] /* tmp115 */;
+    const float tmp264 = tmp260 + tmp263;
+    const float tmp265 = tmp264 * carry[17] /* tmp128 */;
+    const float tmp266 = tmp265 * carry[20] /* tmp134 */;
+    const float tmp267 = tmp257 + tmp266;
+    const float tmp268 = tmp265 * carry[12] /* tmp117 */;
+    const float tmp269 = tmp259 - tmp268;
+    carry[0] = tmp234;
+    carry[3] = tmp236;
+    carry[6] = tmp237;
+    carry[7] = tmp241;
+    carry[8] = tmp246;
+    carry[10] = tmp248;
+    carry[11] = tmp249;
+    carry[12] = tmp255;
+    carry[17] = tmp256;
+    carry[18] = tmp262;
+    carry[20] = tmp264;
+    carry[45] = tmp265;
+    carry[46] = tmp267;
+    carry[47] = tmp269;
+}
+
+static void mekf_k_update_gravity_part7(const float P[36], float x_out[6], float P_out[36],
+    float carry[48])
+{
+    const float tmp270 = carry[47] /* tmp269 */ * carry[23] /* tmp139 */;
+    const float tmp271 = carry[17] /* tmp256 */ * carry[9] /* tmp15 */;
+    const float tmp272 = P[11] - tmp271;
+    const float tmp273 = carry[45] /* tmp265 */ * carry[28] /* tmp148 */;
+    const float tmp274 = tmp272 - tmp273;
+    const float tmp275 = tmp274 * carry[2] /* tmp152 */;
+    const float tmp276 = tmp270 + tmp275;
+    const float tmp277 = tmp276 * carry[24] /* tmp167 */;
+    const float tmp278 = tmp277 * carry[26] /* tmp175 */;
+    const float tmp279 = carry[46] /* tmp267 */ + tmp278;
+    const float tmp280 = -tmp279;
+    x_out[5] = tmp280;
+    const float tmp281 = carry[25] /* tmp168 */ * carry[4] /* tmp154 */;
+    const float tmp282 = carry[22] /* tmp138 */ - tmp281;
+    P_out[0] = tmp282;
+    const float tmp283 = carry[29] /* tmp179 */ * carry[4] /* tmp154 */;
+    const float tmp284 = carry[1] /* tmp151 */ - tmp283;
+    P_out[1] = tmp284;
+    P_out[6] = tmp284;
+    const float tmp285 = carry[33] /* tmp193 */ * carry[4] /* tmp154 */;
+    const float tmp286 = carry[32] /* tmp187 */ - tmp285;
+    P_out[2] = tmp286;
+    P_out[12] = tmp286;
+    const float tmp287 = carry[42] /* tmp221 */ * carry[4] /* tmp154 */;
+    const float tmp288 = carry[39] /* tmp213 */ - tmp287;
+    P_out[3] = tmp288;
+    P_out[18] = tmp288;
+    const float tmp289 = carry[11] /* tmp249 */ * carry[4] /* tmp154 */;
+    const float tmp290 = carry[7] /* tmp241 */ - tmp289;
+    P_out[4] = tmp290;
+    P_out[24] = tmp290;
+    const float tmp291 = tmp277 * carry[4] /* tmp154 */;
+    const float tmp292 = carry[47] /* tmp269 */ - tmp291;
+    P_out[5] = tmp292;
+    P_out[30] = tmp292;
+    const float tmp293 = carry[29] /* tmp179 */ * carry[19] /* tmp162 */;
+    const float tmp294 = carry[15] /* tmp160 */ - tmp293;
+    P_out[7] = tmp294;
+    const float tmp295 = carry[33] /* tmp193 */ * carry[19] /* tmp162 */;
+    const float tmp296 = carry[27] /* tmp190 */ - tmp295;
+    P_out[8] = tmp296;
+    P_out[13] = tmp296;
+    const float tmp297 = carry[42] /* tmp221 */ * carry[19] /* tmp162 */;
+    const float tmp298 = carry[40] /* tmp218 */ - tmp297;
+    P_out[9] = tmp298;
+    P_out[19] = tmp298;
+    const float tmp299 = carry[11] /* tmp249 */ * carry[19] /* tmp162 */;
+    const float tmp300 = carry[8] /* tmp246 */ - tmp299;
+    P_out[10] = tmp300;
+    P_out[25] = tmp300;
+    const float tmp301 = tmp277 * carry[19] /* tmp162 */;
+    const float tmp302 = tmp274 - tmp301;
+    P_out[11] = tmp302;
+    P_out[31] = tmp302;
+    const float tmp303 = carry[30] /* tmp183 */ * carry[14] /* tmp123 */;
+    const float tmp304 = carry[13] /* tmp121 */ - tmp303;
+    const float tmp305 = carry[33] /* tmp193 */ * carry[31] /* tmp192 */;
+    const float tmp306 = tmp304 - tmp305;
+    P_out[14] = tmp306;
+    const float tmp307 = carry[38] /* tmp209 */ * carry[14] /* tmp123 */;
+    const float tmp308 = carry[36] /* tmp206 */ - tmp307;
+    const float tmp309 = carry[42] /* tmp221 */ * carry[31] /* tmp192 */;
+    carry[1] = tmp276;
+    carry[2] = tmp277;
+    carry[4] = tmp308;
+    carry[7] = tmp309;
+}
+
+static void mekf_k_update_gravity_part8(const float P[36], float P_out[36], float carry[48])
+{
+    const float tmp310 = carry[4] /* tmp308 */ - carry[7] /* tmp309 */;
+    P_out[15] = tmp310;
+    P_out[20] = tmp310;
+    const float tmp311 = carry[6] /* tmp237 */ * carry[14] /* tmp123 */;
+    const float tmp312 = carry[0] /* tmp234 */ - tmp311;
+    const float tmp313 = carry[11] /* tmp249 */ * carry[31] /* tmp192 */;
+    const float tmp314 = tmp312 - tmp313;
+    P_out[16] = tmp314;
+    P_out[26] = tmp314;
+    const float tmp315 = carry[45] /* tmp265 */ * carry[14] /* tmp123 */;
+    const float tmp316 = carry[18] /* tmp262 */ - tmp315;
+    const float tmp317 = carry[2] /* tmp277 */ * carry[31] /* tmp192 */;
+    const float tmp318 = tmp316 - tmp317;
+    P_out[17] = tmp318;
+    P_out[32] = tmp318;
+    const float tmp319 = carry[35] /* tmp200 */ * carry[34] /* tmp199 */;
+    const float tmp320 = P[21] - tmp319;
+    const float tmp321 = carry[38] /* tmp209 */ * carry[37] /* tmp208 */;
+    const float tmp322 = tmp320 - tmp321;
+    const float tmp323 = carry[42] /* tmp221 */ * carry[41] /* tmp220 */;
+    const float tmp324 = tmp322 - tmp323;
+    P_out[21] = tmp324;
+    const float tmp325 = carry[44] /* tmp228 */ * carry[34] /* tmp199 */;
+    const float tmp326 = P[22] - tmp325;
+    const float tmp327 = carry[6] /* tmp237 */ * carry[37] /* tmp208 */;
+    const float tmp328 = tmp326 - tmp327;
+    const float tmp329 = carry[11] /* tmp249 */ * carry[41] /* tmp220 */;
+    const float tmp330 = tmp328 - tmp329;
+    P_out[22] = tmp330;
+    P_out[27] = tmp330;
+    const float tmp331 = carry[17] /* tmp256 */ * carry[34] /* tmp199 */;
+    const float tmp332 = P[23] - tmp331;
+    const float tmp333 = carry[45] /* tmp265 */ * carry[37] /* tmp208 */;
+    const float tmp334 = tmp332 - tmp333;
+    const float tmp335 = carry[2] /* tmp277 */ * carry[41] /* tmp220 */;
+    const float tmp336 = tmp334 - tmp335;
+    P_out[23] = tmp336;
+    P_out[33] = tmp336;
+    const float tmp337 = carry[44] /* tmp228 */ * carry[43] /* tmp227 */;
+    const float tmp338 = P[28] - tmp337;
+    const float tmp339 = carry[6] /* tmp237 */ * carry[3] /* tmp236 */;
+    const float tmp340 = tmp338 - tmp339;
+    const float tmp341 = carry[11] /* tmp249 */ * carry[10] /* tmp248 */;
+    const float tmp342 = tmp340 - tmp341;
+    P_out[28] = tmp342;
+    const float tmp343 = carry[17] /* tmp256 */ * carry[43] /* tmp227 */;
+    const float tmp344 = P[29] - tmp343;
+    const float tmp345 = carry[45] /* tmp265 */ * carry[3] /* tmp236 */;
+    const float tmp346 = tmp344 - tmp345;
+    const float tmp347 = carry[2] /* tmp277 */ * carry[10] /* tmp248 */;
+    const float tmp348 = tmp346 - tmp347;
+    P_out[29] = tmp348;
+    P_out[34] = tmp348;
+    const float tmp349 = carry[17] /* tmp256 */ * carry[12] /* tmp255 */;
+    carry[0] = tmp349;
+}
+
+static void mekf_k_update_gravity_part9(const float P[36], float P_out[36], float *min_pivot,
+    const float carry[48])
+{
+    const float tmp350 = P[35] - carry[0] /* tmp349 */;
+    const float tmp351 = carry[45] /* tmp265 */ * carry[20] /* tmp264 */;
+    const float tmp352 = tmp350 - tmp351;
+    const float tmp353 = carry[2] /* tmp277 */ * carry[1] /* tmp276 */;
+    const float tmp354 = tmp352 - tmp353;
+    P_out[35] = tmp354;
+    const float tmp355 = (carry[5] /* tmp103 */ < carry[16] /* tmp126 */) ? carry[5] /* tmp103 */ :
+            carry[16] /* tmp126 */;
+    const float tmp356 = (tmp355 < carry[21] /* tmp165 */) ? tmp355 : carry[21] /* tmp165 */;
+    *min_pivot = tmp356;
 }
 
 /*
- * gravity direction: H rows, innovations, variance
+ * gravity direction: three scalar rows on the attitude error; outputs are stored as soon as
+ * computed, each after the last read of what it overwrites: P_out may be P itself, no other
+ * argument may overlap an output
  *
  * Args:
  *     q: float[4]
@@ -2013,274 +2408,36 @@ static void mekf_k_gravity_rows_part2(bool recover, const float gyro[3], const f
  *     b: float[3]
  *     vel: float[3]
  *     unobserved: bool
- * Outputs:
- *     h: float[9]
- *     z: float[3]
- *     r: float
- *
- * Total ops: 101 (add 50, mul 41, div 4, sqrt 2, cmp 4)
- *     of which only one side runs: if (unobserved) 15, else 0
- *     of which only one side runs: if (recover) 0, else 10
- */
-static void mekf_k_gravity_rows(const float q[4], const float up[3], bool recover, float dt,
-    const float gyro[3], const float b[3], const float vel[3], bool unobserved, float h[9],
-    float z[3], float *r)
-{
-    /*
-     * 3 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
-     * handed between them (a slot reused once its value is dead)
-     */
-    float carry[19];
-    mekf_k_gravity_rows_part0(q, up, carry);
-    mekf_k_gravity_rows_part1(up, dt, carry);
-    mekf_k_gravity_rows_part2(recover, gyro, b, vel, unobserved, carry);
-    h[0] = 0.0f;
-    h[1] = carry[2] /* tmp6 */;
-    h[2] = carry[6] /* tmp11 */;
-    h[3] = carry[7] /* tmp13 */;
-    h[4] = 0.0f;
-    h[5] = carry[10] /* tmp18 */;
-    h[6] = carry[11] /* tmp20 */;
-    h[7] = carry[12] /* tmp22 */;
-    h[8] = 0.0f;
-    z[0] = carry[0] /* tmp45 */;
-    z[1] = carry[4] /* tmp58 */;
-    z[2] = carry[5] /* tmp69 */;
-    *r = carry[1] /* tmp90 */;
-}
-
-static void mekf_k_update_attitude_row_part0(const float P[36], const float h[3], float z, float r,
-    const float x[6], float carry[28])
-{
-    const float tmp0 = P[0] * h[0];
-    const float tmp1 = P[1] * h[1];
-    const float tmp2 = tmp0 + tmp1;
-    const float tmp3 = P[2] * h[2];
-    const float tmp4 = tmp2 + tmp3;
-    const float tmp5 = h[0] * tmp4;
-    const float tmp6 = P[1] * h[0];
-    const float tmp7 = P[7] * h[1];
-    const float tmp8 = tmp6 + tmp7;
-    const float tmp9 = P[8] * h[2];
-    const float tmp10 = tmp8 + tmp9;
-    const float tmp11 = h[1] * tmp10;
-    const float tmp12 = tmp5 + tmp11;
-    const float tmp13 = P[2] * h[0];
-    const float tmp14 = P[8] * h[1];
-    const float tmp15 = tmp13 + tmp14;
-    const float tmp16 = P[14] * h[2];
-    const float tmp17 = tmp15 + tmp16;
-    const float tmp18 = h[2] * tmp17;
-    const float tmp19 = tmp12 + tmp18;
-    const float tmp20 = tmp19 + r;
-    const float tmp21 = 1.0f / tmp20;
-    const float tmp22 = (1e-12f /* S_PIVOT_MIN */ < tmp20) ? tmp21 : 1.0f;
-    const float tmp23 = tmp4 * tmp22;
-    const float tmp24 = h[0] * x[0];
-    const float tmp25 = h[1] * x[1];
-    const float tmp26 = tmp24 + tmp25;
-    const float tmp27 = h[2] * x[2];
-    const float tmp28 = tmp26 + tmp27;
-    const float tmp29 = z - tmp28;
-    const float tmp30 = tmp23 * tmp29;
-    const float tmp31 = x[0] + tmp30;
-    const float tmp32 = tmp10 * tmp22;
-    const float tmp33 = tmp32 * tmp29;
-    const float tmp34 = x[1] + tmp33;
-    const float tmp35 = tmp17 * tmp22;
-    const float tmp36 = tmp35 * tmp29;
-    const float tmp37 = x[2] + tmp36;
-    const float tmp38 = P[3] * h[0];
-    const float tmp39 = P[9] * h[1];
-    carry[0] = tmp4;
-    carry[1] = tmp10;
-    carry[2] = tmp17;
-    carry[3] = tmp20;
-    carry[4] = tmp22;
-    carry[5] = tmp23;
-    carry[6] = tmp29;
-    carry[7] = tmp31;
-    carry[8] = tmp32;
-    carry[9] = tmp34;
-    carry[10] = tmp35;
-    carry[11] = tmp37;
-    carry[12] = tmp38;
-    carry[13] = tmp39;
-}
-
-static void mekf_k_update_attitude_row_part1(const float P[36], const float h[3], const float x[6],
-    float carry[28])
-{
-    const float tmp40 = carry[12] /* tmp38 */ + carry[13] /* tmp39 */;
-    const float tmp41 = P[15] * h[2];
-    const float tmp42 = tmp40 + tmp41;
-    const float tmp43 = tmp42 * carry[4] /* tmp22 */;
-    const float tmp44 = tmp43 * carry[6] /* tmp29 */;
-    const float tmp45 = x[3] + tmp44;
-    const float tmp46 = P[4] * h[0];
-    const float tmp47 = P[10] * h[1];
-    const float tmp48 = tmp46 + tmp47;
-    const float tmp49 = P[16] * h[2];
-    const float tmp50 = tmp48 + tmp49;
-    const float tmp51 = tmp50 * carry[4] /* tmp22 */;
-    const float tmp52 = tmp51 * carry[6] /* tmp29 */;
-    const float tmp53 = x[4] + tmp52;
-    const float tmp54 = P[5] * h[0];
-    const float tmp55 = P[11] * h[1];
-    const float tmp56 = tmp54 + tmp55;
-    const float tmp57 = P[17] * h[2];
-    const float tmp58 = tmp56 + tmp57;
-    const float tmp59 = tmp58 * carry[4] /* tmp22 */;
-    const float tmp60 = tmp59 * carry[6] /* tmp29 */;
-    const float tmp61 = x[5] + tmp60;
-    const float tmp62 = carry[5] /* tmp23 */ * carry[0] /* tmp4 */;
-    const float tmp63 = P[0] - tmp62;
-    const float tmp64 = carry[8] /* tmp32 */ * carry[0] /* tmp4 */;
-    const float tmp65 = P[1] - tmp64;
-    const float tmp66 = carry[10] /* tmp35 */ * carry[0] /* tmp4 */;
-    const float tmp67 = P[2] - tmp66;
-    const float tmp68 = tmp43 * carry[0] /* tmp4 */;
-    const float tmp69 = P[3] - tmp68;
-    const float tmp70 = tmp51 * carry[0] /* tmp4 */;
-    const float tmp71 = P[4] - tmp70;
-    const float tmp72 = tmp59 * carry[0] /* tmp4 */;
-    const float tmp73 = P[5] - tmp72;
-    const float tmp74 = carry[8] /* tmp32 */ * carry[1] /* tmp10 */;
-    const float tmp75 = P[7] - tmp74;
-    const float tmp76 = carry[10] /* tmp35 */ * carry[1] /* tmp10 */;
-    const float tmp77 = P[8] - tmp76;
-    const float tmp78 = tmp43 * carry[1] /* tmp10 */;
-    const float tmp79 = P[9] - tmp78;
-    carry[0] = tmp42;
-    carry[4] = tmp43;
-    carry[5] = tmp45;
-    carry[6] = tmp50;
-    carry[8] = tmp51;
-    carry[12] = tmp53;
-    carry[13] = tmp58;
-    carry[14] = tmp59;
-    carry[15] = tmp61;
-    carry[16] = tmp63;
-    carry[17] = tmp65;
-    carry[18] = tmp67;
-    carry[19] = tmp69;
-    carry[20] = tmp71;
-    carry[21] = tmp73;
-    carry[22] = tmp75;
-    carry[23] = tmp77;
-    carry[24] = tmp79;
-}
-
-static void mekf_k_update_attitude_row_part2(const float P[36], float carry[28])
-{
-    const float tmp80 = carry[8] /* tmp51 */ * carry[1] /* tmp10 */;
-    const float tmp81 = P[10] - tmp80;
-    const float tmp82 = carry[14] /* tmp59 */ * carry[1] /* tmp10 */;
-    const float tmp83 = P[11] - tmp82;
-    const float tmp84 = carry[10] /* tmp35 */ * carry[2] /* tmp17 */;
-    const float tmp85 = P[14] - tmp84;
-    const float tmp86 = carry[4] /* tmp43 */ * carry[2] /* tmp17 */;
-    const float tmp87 = P[15] - tmp86;
-    const float tmp88 = carry[8] /* tmp51 */ * carry[2] /* tmp17 */;
-    const float tmp89 = P[16] - tmp88;
-    const float tmp90 = carry[14] /* tmp59 */ * carry[2] /* tmp17 */;
-    const float tmp91 = P[17] - tmp90;
-    const float tmp92 = carry[4] /* tmp43 */ * carry[0] /* tmp42 */;
-    const float tmp93 = P[21] - tmp92;
-    const float tmp94 = carry[8] /* tmp51 */ * carry[0] /* tmp42 */;
-    const float tmp95 = P[22] - tmp94;
-    const float tmp96 = carry[14] /* tmp59 */ * carry[0] /* tmp42 */;
-    const float tmp97 = P[23] - tmp96;
-    const float tmp98 = carry[8] /* tmp51 */ * carry[6] /* tmp50 */;
-    const float tmp99 = P[28] - tmp98;
-    const float tmp100 = carry[14] /* tmp59 */ * carry[6] /* tmp50 */;
-    const float tmp101 = P[29] - tmp100;
-    const float tmp102 = carry[14] /* tmp59 */ * carry[13] /* tmp58 */;
-    const float tmp103 = P[35] - tmp102;
-    carry[0] = tmp81;
-    carry[1] = tmp83;
-    carry[2] = tmp85;
-    carry[4] = tmp87;
-    carry[6] = tmp89;
-    carry[8] = tmp91;
-    carry[10] = tmp93;
-    carry[13] = tmp95;
-    carry[14] = tmp97;
-    carry[25] = tmp99;
-    carry[26] = tmp101;
-    carry[27] = tmp103;
-}
-
-/*
- * one scalar row on the attitude error
- *
- * Args:
  *     P: float[36]
- *     h: float[3]
- *     z: float
- *     r: float
- *     x: float[6]
  * Outputs:
  *     x_out: float[6]
  *     P_out: float[36]
- *     s: float
+ *     min_pivot: float
  *
- * Total ops: 104 (add 45, mul 57, div 1, cmp 1)
+ * Total ops: 357 (add 153, mul 186, div 7, sqrt 2, cmp 9)
+ *     of which only one side runs: if (unobserved) 15, else 0
+ *     of which only one side runs: if (recover) 0, else 10
  */
-static void mekf_k_update_attitude_row(const float P[36], const float h[3], float z, float r,
-    const float x[6], float x_out[6], float P_out[36], float *s)
+static void mekf_k_update_gravity(const float q[restrict 4], const float up[restrict 3],
+    bool recover, float dt, const float gyro[restrict 3], const float b[restrict 3],
+    const float vel[restrict 3], bool unobserved, const float P[36], float x_out[restrict 6],
+    float P_out[36], float *restrict min_pivot)
 {
     /*
-     * 3 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
+     * 10 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
      * handed between them (a slot reused once its value is dead)
      */
-    float carry[28];
-    mekf_k_update_attitude_row_part0(P, h, z, r, x, carry);
-    mekf_k_update_attitude_row_part1(P, h, x, carry);
-    mekf_k_update_attitude_row_part2(P, carry);
-    x_out[0] = carry[7] /* tmp31 */;
-    x_out[1] = carry[9] /* tmp34 */;
-    x_out[2] = carry[11] /* tmp37 */;
-    x_out[3] = carry[5] /* tmp45 */;
-    x_out[4] = carry[12] /* tmp53 */;
-    x_out[5] = carry[15] /* tmp61 */;
-    P_out[0] = carry[16] /* tmp63 */;
-    P_out[1] = carry[17] /* tmp65 */;
-    P_out[2] = carry[18] /* tmp67 */;
-    P_out[3] = carry[19] /* tmp69 */;
-    P_out[4] = carry[20] /* tmp71 */;
-    P_out[5] = carry[21] /* tmp73 */;
-    P_out[6] = carry[17] /* tmp65 */;
-    P_out[7] = carry[22] /* tmp75 */;
-    P_out[8] = carry[23] /* tmp77 */;
-    P_out[9] = carry[24] /* tmp79 */;
-    P_out[10] = carry[0] /* tmp81 */;
-    P_out[11] = carry[1] /* tmp83 */;
-    P_out[12] = carry[18] /* tmp67 */;
-    P_out[13] = carry[23] /* tmp77 */;
-    P_out[14] = carry[2] /* tmp85 */;
-    P_out[15] = carry[4] /* tmp87 */;
-    P_out[16] = carry[6] /* tmp89 */;
-    P_out[17] = carry[8] /* tmp91 */;
-    P_out[18] = carry[19] /* tmp69 */;
-    P_out[19] = carry[24] /* tmp79 */;
-    P_out[20] = carry[4] /* tmp87 */;
-    P_out[21] = carry[10] /* tmp93 */;
-    P_out[22] = carry[13] /* tmp95 */;
-    P_out[23] = carry[14] /* tmp97 */;
-    P_out[24] = carry[20] /* tmp71 */;
-    P_out[25] = carry[0] /* tmp81 */;
-    P_out[26] = carry[6] /* tmp89 */;
-    P_out[27] = carry[13] /* tmp95 */;
-    P_out[28] = carry[25] /* tmp99 */;
-    P_out[29] = carry[26] /* tmp101 */;
-    P_out[30] = carry[21] /* tmp73 */;
-    P_out[31] = carry[1] /* tmp83 */;
-    P_out[32] = carry[8] /* tmp91 */;
-    P_out[33] = carry[14] /* tmp97 */;
-    P_out[34] = carry[26] /* tmp101 */;
-    P_out[35] = carry[27] /* tmp103 */;
-    *s = carry[3] /* tmp20 */;
+    float carry[48];
+    mekf_k_update_gravity_part0(q, dt, P, carry);
+    mekf_k_update_gravity_part1(q, up, gyro, b, vel, unobserved, carry);
+    mekf_k_update_gravity_part2(up, recover, P, carry);
+    mekf_k_update_gravity_part3(P, carry);
+    mekf_k_update_gravity_part4(P, x_out, carry);
+    mekf_k_update_gravity_part5(P, x_out, carry);
+    mekf_k_update_gravity_part6(P, x_out, carry);
+    mekf_k_update_gravity_part7(P, x_out, P_out, carry);
+    mekf_k_update_gravity_part8(P, P_out, carry);
+    mekf_k_update_gravity_part9(P, P_out, min_pivot, carry);
 }
 
 static void mekf_k_update_rest_bias_part0(const float b[3], const float P[36], const float gyro[3],
@@ -4689,29 +4846,24 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
     /* Gravity direction (3 rows) and, at rest, the gyro bias (3 rows): scalar rows in turn on P
      * (the batch update with the rows stacked), applied only when every row's variance - the
      * batch innovation covariance's Cholesky pivots - is usable; else P is restored from its
-     * lower triangle saved here. */
+     * lower triangle saved here. The three gravity rows are one kernel. */
     if (use_tilt || at_rest) {
         float x[6] = { 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f };
-        const float P_saved[21] = {
-            P[0], P[1], P[2], P[3], P[4], P[5],
-            P[7], P[8], P[9], P[10], P[11],
-            P[14], P[15], P[16], P[17],
-            P[21], P[22], P[23],
-            P[28], P[29],
-            P[35]
-        };
+        float P_saved[21];
+        uint32_t k = 0u;
+        for (uint32_t j = 0u; j < 6u; j++) {
+            for (uint32_t i = 6u; i > j; i--) {   /* bottom up: GCC makes no memcpy call of it */
+                P_saved[k + i - 1u - j] = P[i - 1u + 6u * j];
+            }
+            k += 6u - j;
+        }
         float min_pivot;
         bool usable = true;
         if (use_tilt) {
-            float h[9];   /* the rows of H, one after the other */
-            float z[3];
-            float r;
-            mekf_k_gravity_rows(q, up, recovering, dt, in->gyro, s->gyro_bias, s->v_gps, !fresh, h, z,
-                &r);
-            for (uint32_t i = 0u; i < 3u && usable; i++) {
-                mekf_k_update_attitude_row(P, &h[3u * i], z[i], r, x, x, P, &min_pivot);
-                usable = min_pivot > 1e-12f /* S_PIVOT_MIN */;
-            }
+            /* P in place (the kernel writes each element after its last read of it) */
+            mekf_k_update_gravity(q, up, recovering, dt, in->gyro, s->gyro_bias,
+                s->v_gps, !fresh, P, x, P, &min_pivot);
+            usable = min_pivot > 1e-12f /* S_PIVOT_MIN */;
         }
         if (at_rest && usable) {
             mekf_k_update_rest_bias(s->gyro_bias, P, in->gyro, dt, x, x, P, &min_pivot);
@@ -4720,7 +4872,7 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
         if (usable) {
             mekf_k_inject(q, s->gyro_bias, x, q, s->gyro_bias);
         } else {
-            uint32_t k = 0u;
+            k = 0u;
             for (uint32_t j = 0u; j < 6u; j++) {
                 for (uint32_t i = j; i < 6u; i++) {
                     P[i + 6u * j] = P_saved[k];

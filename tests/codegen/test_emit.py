@@ -291,6 +291,50 @@ def test_early_writes_store_outputs_where_computed_bit_for_bit(tmp_path):
         assert _run1(lib, "early_split", 2, [16, 4], [a, bb]) == ref
 
 
+def test_in_place_early_writes_wait_for_the_last_read_of_what_they_overwrite(tmp_path):
+    """early_writes with in_place {"P_out": "P"}: called with P_out the same array as P (the
+    state updated in place, as mekf's update_gravity), each element is stored after every read of
+    the element it overwrites, unsplit and split into parts, and P, P_out are not declared restrict
+    (w, read only, is):
+    the same results as the kernel that stores at its end (its first outputs are ready before
+    the inputs they overwrite are read for the last time)."""
+    P, w = ca.SX.sym("P", 6), ca.SX.sym("w", 2)
+    y = [P[1] + w[0], P[2] * P[3]]                  # early values; P[0], P[1] read again below
+    z = [ca.sin(P[0] * y[1]) + P[1] * P[4] * w[1]]
+    for i in range(6):
+        z.append(z[-1] * z[-1] / (1 + z[-1] * z[-1]) + P[(i + 2) % 6] * P[0])
+    out = ca.vertcat(y[0], y[1], z[6], z[3] + P[1], z[5] * P[5], z[4] - P[0])
+    fn = emit.function("ip", {"P": P, "w": w}, {"P_out": out})
+    late = emit.emit(fn, "double", name="ip_late", split_temps=None)
+    plain = emit.emit(fn, "double", name="ip_plain", split_temps=None, early_writes=True)   # restrict
+    inplace = emit.emit(fn, "double", name="ip_early", split_temps=None, early_writes=True,
+                        in_place={"P_out": "P"})
+    split = emit.emit(fn, "double", name="ip_split", split_temps=6, early_writes=True, in_place={"P_out": "P"})
+    assert "P[restrict 6]" in plain.prototype()
+    proto = inplace.prototype()
+    assert "P[6]" in proto and "P_out[6]" in proto and "w[restrict 2]" in proto
+    first_write = next(i for i, ln in enumerate(inplace.lines()) if ln.startswith("P_out["))
+    last_def = max(i for i, ln in enumerate(inplace.lines()) if ln.startswith("const double"))
+    assert first_write < last_def                   # still early
+    lib = _build([late, inplace, split], "double", tmp_path)
+    rng = np.random.default_rng(5)
+
+    def same_array(name, v):
+        arr, ww = (ctypes.c_double * 6)(*v), (ctypes.c_double * 2)(0.5, -1.5)
+        getattr(lib, name).restype = None
+        getattr(lib, name)(arr, ww, arr)
+        return list(arr)
+
+    for _ in range(20):
+        v = rng.normal(size=6).tolist()
+        ref = _run1(lib, "ip_late", 2, [6], [v, [0.5, -1.5]])[0]
+        assert same_array("ip_late", v) == ref
+        assert same_array("ip_early", v) == ref
+        assert same_array("ip_split", v) == ref
+    with pytest.raises(emit.EmitError, match="in_place"):
+        emit.emit(fn, "double", name="bad", in_place={"P_out": "P"})
+
+
 def test_fma_option_fuses_products_into_sums_and_rounds_once(tmp_path):
     a, b, c = ca.SX.sym("a"), ca.SX.sym("b"), ca.SX.sym("c")
     fn = emit.function("fm", {"a": a, "b": b, "c": c}, {"o": ca.vertcat(a * b + c, c - a * b, a * b - c)})

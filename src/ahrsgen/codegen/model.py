@@ -152,6 +152,8 @@ class KernelSpec:
     #                         to the caller's (a step calling several large kernels once each)
     early_writes: bool = False  # outputs stored as soon as computed, arrays declared restrict
     #                             (emit's early_writes): no output may overlap an input or output
+    in_place: tuple = ()  # with early_writes: ((output, input), ...) pairs that may be one array (the
+    #                       state updated in place; emit's in_place): no restrict, writes after reads
 
 
 @dataclass

@@ -230,9 +230,10 @@ def render(cfg: BuildConfig, names: bool = True) -> Generated:
     kernels, kctx = [], []
     for ks in specs:
         k = emit.emit(ks.function, real, name=f"{prefix}_k_{ks.name}",
-                      doc=ks.doc + (_EARLY_WRITES_NOTE if ks.early_writes else ""), context=context,
+                      doc=ks.doc + (_in_place_note(ks.in_place) if ks.in_place else
+                                    _EARLY_WRITES_NOTE if ks.early_writes else ""), context=context,
                       math=cfg.math, fma=cfg.fma, flags=ks.flags, names=kernel_names.get(ks.name),
-                      early_writes=ks.early_writes)
+                      early_writes=ks.early_writes, in_place=dict(ks.in_place))
         extra = [a.name for a in k.inputs if a.name.startswith(emit.RUNTIME_PREFIX) and a.expr is None]
         if extra:
             raise ConfigError(f"kernel {ks.name}: free symbol(s) {', '.join(extra)} are not runtime parameters")
@@ -337,7 +338,9 @@ def render(cfg: BuildConfig, names: bool = True) -> Generated:
                               for n in (a["max"].lower(), a["min"].lower())) or "gyro_max" in runtime,
         params=params, valid_bits=VALID_BITS, status=status_ctx, state=state_ctx, input=input_ctx,
         kernels=kctx, sensors=model.sensors, state_bytes=state_bytes, runtime=runtime_ctx,
-        aliasing_exceptions=_aliasing_exceptions([k.name for ks, k in zip(specs, kernels) if ks.early_writes], prefix),
+        aliasing_exceptions=_aliasing_exceptions([k.name for ks, k in zip(specs, kernels) if ks.early_writes
+                                                  and not ks.in_place], prefix,
+                                                 [(k.name, ks.in_place) for ks, k in zip(specs, kernels) if ks.in_place]),
         math=cfg.math if real == "float" else "libm", fastmath_code=fastmath.c_source(fast_helpers, prefix),
         fastmath_end=fastmath.c_source_end(fast_helpers),
         config_record=config_record,
@@ -445,14 +448,27 @@ NOINLINE = "#if defined(__GNUC__)\n__attribute__((noinline))\n#endif\n"
 _EARLY_WRITES_NOTE = "; outputs are stored as soon as computed (arrays restrict): no argument may overlap an output"
 
 
-def _aliasing_exceptions(names: list[str], prefix: str) -> str:
+def _in_place_note(pairs) -> str:
+    """The doc note of a kernel storing its outputs early with in-place pairs (KernelSpec.in_place)."""
+    same = ", ".join(f"{o} may be {i} itself" for o, i in pairs)
+    return f"; outputs are stored as soon as computed, each after the last read of what it overwrites: {same}, " \
+           "no other argument may overlap an output"
+
+
+def _aliasing_exceptions(names: list[str], prefix: str, in_place=()) -> str:
     """The header's paragraph naming the kernels the aliasing rule does not cover
-    (KernelSpec.early_writes); empty when there are none."""
-    if not names:
-        return ""
-    listed = names[0] if len(names) == 1 else ", ".join(names[:-1]) + " and " + names[-1]
-    return _wrap_doc(f"Exceptions: {listed} store each output as soon as it is computed and declare "
-                     f"their arrays restrict: no argument of theirs may overlap one of their outputs.", prefix)
+    (KernelSpec.early_writes, KernelSpec.in_place); empty when there are none."""
+    text = []
+    if names:
+        listed = names[0] if len(names) == 1 else ", ".join(names[:-1]) + " and " + names[-1]
+        text.append(f"Exceptions: {listed} store each output as soon as it is computed and declare "
+                    f"their arrays restrict: no argument of theirs may overlap one of their outputs.")
+    for name, pairs in in_place:
+        same = ", ".join(f"{o} may be {i} itself" for o, i in pairs)
+        text.append(f"{'Also' if text else 'Exception'}: {name} stores each output as soon as it is computed, "
+                    f"after the last read of the input element it may overwrite: {same}; no other "
+                    "argument may overlap an output.")
+    return _wrap_doc(" ".join(text), prefix) if text else ""
 
 
 def _storage(ks, k) -> str:

@@ -455,6 +455,31 @@ def test_refused_bias_rows_undo_the_gravity_rows(c_double):
     assert angle_diff_series(np.array([after["q"]]), np.array([ref.q]))[0] <= 1e-12
 
 
+def test_refused_gravity_rows_leave_the_state_as_it_was(c_double):
+    """In motion (no rest) the gravity rows are the only ones before the heading: with an
+    attitude block of P negative the first row's variance is below 1e-12, the batch update (the
+    reference) is refused, and the C must leave P, q and the bias as they were after the
+    prediction (its gravity kernel writes P in place: the step restores P from the lower triangle
+    it saved). Same status as the reference from the same state."""
+    ref, c = reference(), c_double
+    s = c.new_state()
+    turning = ((0.3, -0.2, 0.1), (0.0, 0.0, -9.80665), (0, 0, 0), (0, 0, 0), VALID_GYRO | VALID_ACCEL, 0.01)
+    for _ in range(20):
+        assert c.step(s, *turning) == ref.step(*turning)
+    P = np.diag([-1.0] * 3 + [1e-4] * 3)
+    P[0, 1] = P[1, 0] = 2e-4
+    for k in range(36):
+        s.P[k] = P.ravel()[k]
+    ref.P = P.copy()
+    before = c.state_dict(s)
+    st_c, st_r = c.step(s, *turning), ref.step(*turning)
+    assert st_c == st_r and st_c & R.UPDATE_SKIPPED and not st_c & R.AT_REST
+    after = c.state_dict(s)
+    assert np.allclose(after["P"].reshape(6, 6), ref.P, rtol=1e-12, atol=1e-15)   # predicted only
+    assert np.array_equal(after["gyro_bias"], before["gyro_bias"])
+    assert angle_diff_series(np.array([after["q"]]), np.array([ref.q]))[0] <= 1e-12
+
+
 # --- fuzz finding: P not positive definite near pitch 90 deg (tests/data/mekf-P-not-pd.bin) ---
 def _load_reference_state(ref, sd):
     """Put the C state (state_dict) into the reference, so that one step of each can be compared."""

@@ -85,7 +85,8 @@ class Kernel:
     branches: list[dict] = field(default_factory=list)  # if/else blocks: condition, ops of each side
     parts: list[ir.Function] = field(default_factory=list)   # the part functions of a split kernel
     context: str | None = None    # leading parameter declaration, e.g. "const att_params *par"
-    restrict: bool = False        # arrays declared restrict (emit's early_writes)
+    restrict: bool = False        # arrays declared restrict (emit's early_writes) ...
+    shared: frozenset = frozenset()   # ... except these (emit's in_place: an output and its input)
     source_fn: ca.Function | None = field(default=None, repr=False, compare=False)  # what was emitted
     storage: str = "static "      # what precedes `void` in its definition (the renderer decides)
 
@@ -95,8 +96,10 @@ class Kernel:
 
     def params(self) -> list[Param]:
         out = [context_param(self.context)] if self.context else []
-        out += [a.as_param(self.precision, restrict=self.restrict) for a in self.inputs if a.expr is None]
-        out += [a.as_param(self.precision, output=True, restrict=self.restrict) for a in self.outputs]
+        out += [a.as_param(self.precision, restrict=self.restrict and a.name not in self.shared)
+                for a in self.inputs if a.expr is None]
+        out += [a.as_param(self.precision, output=True, restrict=self.restrict and a.name not in self.shared)
+                for a in self.outputs]
         return out
 
     def function(self) -> ir.Function:
@@ -179,7 +182,7 @@ def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc
          math: str = "libm", branch_min_cost: int | None = BRANCH_MIN_COST, fma: bool = False,
          split_temps: int | None = SPLIT_TEMPS, context: tuple[str, dict] | None = None,
          flags: tuple[str, ...] | list[str] = (), names: dict[int, str] | None = None,
-         early_writes: bool = False) -> Kernel:
+         early_writes: bool = False, in_place: dict[str, str] | None = None) -> Kernel:
     """Emit an SX Function as a kernel (statements as data, ir) for the given precision.
 
     ``math="fast"`` (float only; double always uses libm) writes fastmath helpers for the
@@ -202,6 +205,11 @@ def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc
     an output may overlay an input: every input is read before any output is written). A
     kernel with many outputs then does not hold them all until its end, where GCC spills what
     its registers cannot hold, and the compiler may order loads and stores freely.
+
+    in_place: {output name: input name} (with early_writes): that output may be that input itself
+    (the same array, the state updated in place): each of its element writes is placed after
+    the last statement reading the input's element of the same index too, and those two arrays
+    are not declared restrict (the others are: no other overlap is allowed).
 
     names: {(instruction index, operand): text} for the constants operations read that are a
     folded parameter expression or a named constant (src/ahrsgen/codegen/folded.py), named per
@@ -395,8 +403,15 @@ def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc
     body, emitted, branches = _layout(kept, nodes, writes, precision, branch_min_cost)
     if fast:
         body = _pair_sincos(body)
+    if in_place and not early_writes:
+        raise EmitError(f"kernel {name}: in_place needs early_writes")
+    for o, i in (in_place or {}).items():
+        out_a = next((a for a in outputs if a.name == o), None)
+        in_a = next((a for a in inputs if a.name == i), None)
+        if out_a is None or in_a is None or out_a.size != in_a.size:
+            raise EmitError(f"kernel {name}: in_place {o!r} <- {i!r}: an output and an input of one size")
     if early_writes:
-        body, writes = _place_writes_early(body, writes)
+        body, writes = _place_writes_early(body, writes, in_place or {})
     # Named in emission order so the temporaries count up without gaps.
     for i, t in enumerate(emitted):
         t.name = f"tmp{i}"
@@ -417,7 +432,8 @@ def emit(fn: ca.Function, precision: str = "float", name: str | None = None, doc
                for e in ir.exprs(s) for x in ir.walk(e) if isinstance(x, Call)}
     used = {h for h in helpers | {"sincos"} if fastmath.HELPERS[h].name in called}
     return Kernel(name, precision, inputs, outputs, body, ops, doc, len(kept), unused, helpers=sorted(used),
-                  branches=branches, parts=parts, context=ctx_decl, restrict=early_writes, source_fn=fn)
+                  branches=branches, parts=parts, context=ctx_decl, restrict=early_writes,
+                  shared=frozenset(in_place or {}) | frozenset((in_place or {}).values()), source_fn=fn)
 
 
 _SINCOS = {"fast_sinf": "sin", "fast_cosf": "cos"}
@@ -452,16 +468,29 @@ def _pair_sincos(stmts: list) -> list:
     return [s for s in out if s is not None]
 
 
-def _place_writes_early(body: list, writes: list):
+def _place_writes_early(body: list, writes: list, in_place: dict | None = None):
     """Each output write moved to just after the top-level statement that defines the last
-    temporary it reads (a write reading only inputs or literals: after the first statement).
+    temporary it reads (a write reading only inputs or literals: after the first statement);
+    a write to an output of `in_place` ({output: input}, the same array) not before the last
+    top-level statement reading the input's element it overwrites.
     Returns (body, the writes left for the end: none unless the body is empty)."""
     if not body:
         return body, writes
+    in_place = in_place or {}
     def_top = {t: k for k, s in enumerate(body) for t in ir.defined(s)}
+    last_read: dict = {}            # input element -> last top-level statement reading it
+    for k, s in enumerate(body):
+        for s2 in ir.all_statements([s]):
+            for e in ir.exprs(s2):
+                for x in ir.walk(e):
+                    if isinstance(x, Elem) and x.arg in in_place.values():
+                        last_read[x] = k
     at: dict[int, list] = {}
     for w in writes:
-        at.setdefault(max([def_top[t] for t in ir.temps(w.expr)] + [0]), []).append(w)
+        after = [def_top[t] for t in ir.temps(w.expr)] + [0]
+        if w.target.arg in in_place:
+            after.append(last_read.get(Elem(in_place[w.target.arg], w.target.index), 0))
+        at.setdefault(max(after), []).append(w)
     out = []
     for k, s in enumerate(body):
         out.append(s)

@@ -356,49 +356,52 @@ def _inject(q, b, X):
     return quat.qnormalize(quat.qmul(q, quat.vec(1, X[0], X[1], X[2]))), b + X[3:6]
 
 
-def gravity_rows_function(p: dict, gps: bool = False, name="gravity_rows") -> ca.Function:
-    """The gravity-direction measurement: rows of H (h, H's rows one after the other; the
-    bias columns are 0), innovations z and their variance r.
+def gravity_rows(p: dict, q, up, recover, dt, turn=None):
+    """The gravity-direction measurement: H's attitude columns Hq (3 x 3; the bias columns are
+    0), innovations z and their variance r.
 
     z_g = up/|up| in body axes − R(q̂)ᵀ [0, 0, −1] (up: accel_lowpass's earth-frame vector); R_g = σ² min(1 + |z_g|²/(3σ)², cap), σ² = accel_angle_noise² + accel_noise_density²/dt
     (bounded residual adaptation: the correction can be weakened, never locked out).
-    With GPS (`gps`): while the last GPS velocity is stale (unobserved = 1: no motion
-    compensation) σ² gains (ω_v |v_h| / g)², the angle by which a turn at the last GPS ground
-    speed |v_h| tilts the specific force (ω_v = (gyro − b̂) · R(q̂)ᵀ e₃, the turn rate): a
-    coordinated turn without GPS bends the measured gravity by the bank angle, and the tilt,
-    and the magnetic heading through the dip, would follow it.
-    The step runs the three rows in turn through `update_attitude_row` (one kernel, called
-    three times: kalman.scalar_updates, the batch update of the rows stacked).
+    With GPS (`turn` = (gyro, b̂, v, unobserved)): while the last GPS velocity is stale
+    (unobserved = 1: no motion compensation) σ² gains (ω_v |v_h| / g)², the angle by which a turn
+    at the last GPS ground speed |v_h| tilts the specific force (ω_v = (gyro − b̂) · R(q̂)ᵀ e₃, the
+    turn rate): a coordinated turn without GPS bends the measured gravity by the bank angle, and
+    the tilt, and the magnetic heading through the dip, would follow it.
     """
-    q, up, recover, dt = ca.SX.sym("q", 4), ca.SX.sym("up", 3), ca.SX.sym("recover"), ca.SX.sym("dt")
     d = quat.rotate_inv(q, up) / ca.sqrt(ca.sumsqr(up))
     z_g = d - gravity_direction(q, ca.DM.zeros(3))
     # the motion the low-pass leaves (per sample) and the sensor's white noise (a density over dt)
     sig2 = p["accel_angle_noise"] ** 2
     if not (isinstance(p["accel_noise_density"], (int, float)) and p["accel_noise_density"] == 0):
         sig2 = sig2 + p["accel_noise_density"] ** 2 / ca.fmax(dt, use(DT_Q_MIN))
-    ins = {"q": q, "up": up, "recover": recover, "dt": dt}
-    if gps:
+    if turn is not None:
         # unobserved motion: a turn at the last GPS ground speed, as an angle (centripetal / g)
-        gyro, b, vel, unobserved = (ca.SX.sym(n, k) for n, k in (("gyro", 3), ("b", 3), ("vel", 3), ("unobserved", 1)))
+        gyro, b, vel, unobserved = turn
         a_turn = ca.dot(gyro - b, quat.rotmat(q)[2, :].T) * ca.sqrt(vel[0] * vel[0] + vel[1] * vel[1]) / use(G0)
         sig2 = sig2 + ca.if_else(unobserved, a_turn * a_turn, 0)
-        ins |= {"gyro": gyro, "b": b, "vel": vel, "unobserved": unobserved}
     # recovering after a gyro clip (recover = 1): no weakening, the covariance sets the gain
     r_g = ca.if_else(recover, sig2, sig2 * ca.fmin(1 + ca.sumsqr(z_g) / (9 * sig2), p["accel_adapt_cap"]))
-    Hq = jacobian_gravity(q)[:, :3]
-    return emit.function(name, ins, {"h": ca.reshape(Hq.T, 9, 1), "z": z_g, "r": r_g})
+    return jacobian_gravity(q)[:, :3], z_g, r_g
 
 
-def update_attitude_row_function(name="update_attitude_row") -> ca.Function:
-    """One scalar row h = [h_δq, 0] (kalman.scalar_updates): x and P after it, and its
-    variance s = h P hᵀ + r (a pivot of the batch S)."""
-    Pv, h, x = ca.SX.sym("P", N * N), ca.SX.sym("h", 3), ca.SX.sym("x", N)
-    z, r = ca.SX.sym("z"), ca.SX.sym("r")
-    row = ca.horzcat(h.T, ca.SX.zeros(1, 3))
-    x_new, P_new, s = kalman.scalar_updates(sym_lower(Pv), [(row, z, r)], x=x, tol=S_PIVOT_MIN)
-    return emit.function(name, {"P": Pv, "h": h, "z": z, "r": r, "x": x},
-                         {"x_out": x_new, "P_out": flat_mirrored(P_new), "s": s})
+def update_gravity_function(p: dict, gps: bool = False, name="update_gravity") -> ca.Function:
+    """The three gravity rows (gravity_rows) as scalar rows in turn (kalman.scalar_updates, the
+    batch update of the rows stacked), from x = 0: the correction x, P after them and the
+    smallest row variance (a pivot of the batch S). One kernel for the three rows, P in
+    registers between them, each element of P_out stored as soon as it is final (in place: after
+    the last read of that element of P), so the kernel does not hold all of P to its end."""
+    q, up, recover, dt, Pv = (ca.SX.sym(n, k) for n, k in (("q", 4), ("up", 3), ("recover", 1), ("dt", 1),
+                                                            ("P", N * N)))
+    ins = {"q": q, "up": up, "recover": recover, "dt": dt}
+    turn = None
+    if gps:
+        turn = tuple(ca.SX.sym(n, k) for n, k in (("gyro", 3), ("b", 3), ("vel", 3), ("unobserved", 1)))
+        ins |= dict(zip(("gyro", "b", "vel", "unobserved"), turn))
+    Hq, z, r = gravity_rows(p, q, up, recover, dt, turn)
+    rows = [(ca.horzcat(Hq[i, :], ca.SX.zeros(1, 3)), z[i], r) for i in range(3)]
+    x_new, P_new, min_pivot = kalman.scalar_updates(sym_lower(Pv), rows, tol=S_PIVOT_MIN)
+    return emit.function(name, ins | {"P": Pv},
+                         {"x_out": x_new, "P_out": flat_mirrored(P_new), "min_pivot": min_pivot})
 
 
 def update_rest_bias_function(p: dict, name="update_rest_bias") -> ca.Function:
@@ -779,16 +782,18 @@ class Model(FilterModel):
         if self.vectors:
             return self._vector_kernels() + [
                 self.gyro_recovery_kernel(),
-                KernelSpec("predict_attitude", predict_attitude_function(p), "time update: attitude and F's attitude rows"),
+                KernelSpec("predict_attitude", predict_attitude_function(p), "time update: attitude and F's attitude rows",
+                           early_writes=True, in_place=(("q_out", "q"),)),
                 KernelSpec("predict_covariance", predict_covariance_function(p), "time update: covariance",
                            flags=("clip",)),
                 KernelSpec("accel_lowpass", accel_lowpass_function(p), "earth-frame low-pass of the compensated specific force",
-                           flags=("mask", "up_ok")),
+                           flags=("mask", "up_ok"), early_writes=True,
+                           in_place=(("a_lp_out", "a_lp"), ("v_lp_out", "v_lp"), ("v_ins_out", "v_ins"))),
                 KernelSpec("heading_features", heading_features_function(), "field norm and dip; GPS velocity in body axes"),
-                KernelSpec("gravity_rows", gravity_rows_function(p, "gps" in self.sensors),
-                           "gravity direction: H rows, innovations, variance",
-                           flags=("recover",) + (("unobserved",) if "gps" in self.sensors else ())),
-                KernelSpec("update_attitude_row", update_attitude_row_function(), "one scalar row on the attitude error"),
+                KernelSpec("update_gravity", update_gravity_function(p, "gps" in self.sensors),
+                           "gravity direction: three scalar rows on the attitude error",
+                           flags=("recover",) + (("unobserved",) if "gps" in self.sensors else ()),
+                           early_writes=True, in_place=(("P_out", "P"),)),
                 KernelSpec("update_rest_bias", update_rest_bias_function(p), "at rest, the gyro bias: three scalar rows"),
                 KernelSpec("inject", inject_function(), "error injection into q and the gyro bias"),
                 KernelSpec("update_heading", update_heading_function(p), "one heading row, gain projected on the vertical",
@@ -814,7 +819,7 @@ class Model(FilterModel):
             every = ["gyro_recovery", "predict_attitude", "predict_covariance", "heading_features"] + (
                 ["course_mode"] if p["heading_source"] == "auto" else []) + ["rest"]
             aided = gate + pre + every + ["accel_lowpass"] + (
-                ["mag_check"] if p["heading_source"] != "gps_course" else []) + ["gravity_rows"] + ["update_attitude_row"] * 3
+                ["mag_check"] if p["heading_source"] != "gps_course" else []) + ["update_gravity"]
             heading = ["inject", "update_heading", "inject", "head_timer"]
             return {"gyro only": pre + every + ["head_timer"],
                     "with corrections": aided + heading,
