@@ -250,13 +250,17 @@ class Model(FilterModel):
         # carried as ½ kp e dt: the gain and the exponential's ½ multiply the two weights once
         # (recovering from a clipped gyro sample the gain is kp_recovery and the bias integral holds,
         # so the bias below only ever sees the nominal gain)
-        kh = ca.if_else(recover, 0.5 * p["kp_recovery"], 0.5 * p["kp"])
+        gps_on = ca.SX.sym("gps_comp") if gps_lowpass(p) else None   # the GPS linear acceleration removed
+        kp_now = 0.5 * p["kp"] if gps_on is None else ca.if_else(gps_on, 0.5 * p["kp_gps"], 0.5 * p["kp"])
+        kh = ca.if_else(recover, 0.5 * p["kp_recovery"], kp_now)
         e_half = ca.mtimes(rot.T, ca.vertcat((kh * span_a) * T[1], (kh * span_a) * T[2], (kh * span_m) * H[3]))
         # the gyro's ½ (ω - b) dt was applied by the prediction (predict kernel), before R(q) was formed
         half_rotation = e_half                                  # ½ kp e dt
         trusted = ca.logic_and(ca.logic_and(use_a, ca.logic_not(recover)),
                                aiding.norm_within(f2, G0, p["bias_accel_gate"]))
-        bias_pi = ca.if_else(trusted, bias - (p["ki"] / (0.5 * p["kp"])) * e_half, bias)   # b - ki e dt
+        ki_kh = (p["ki"] / (0.5 * p["kp"]) if gps_on is None
+                 else ca.if_else(gps_on, p["ki"] / (0.5 * p["kp_gps"]), p["ki"] / (0.5 * p["kp"])))
+        bias_pi = ca.if_else(trusted, bias - ki_kh * e_half, bias)   # b - ki e dt
         if p["rest_time"] > 0:
             bias_new = ca.if_else(at_rest, aiding.lowpass(bias, g_lp, span_a, p["rest_bias_tau"]), bias_pi)
         else:
@@ -281,13 +285,15 @@ class Model(FilterModel):
                                                        "accel_lp": a_lp, "mag_ned": m_n, "span_accel": span_a,
                                                        "span_mag": span_m, "use_accel": use_a, "accel_norm2": f2,
                                                        "recover": recover,
+                                                       **({"gps_comp": gps_on} if gps_on is not None else {}),
                                                        **({"at_rest": at_rest, "rest_gyro_lp": g_lp}
                                                           if p["rest_time"] > 0 else {})},
                                            {"q_new": quat.qnormalize(quat.qmul(q, quat.qexp_scaled(half_rotation))),
                                             "gyro_bias_new": bias_new}),
                        "tilt (low-passed accelerometer) and heading (magnetometer) corrections as PI feedback "
                        "on the predicted attitude, bias integral gated, bias at rest from the low-passed gyro",
-                       flags=("use_accel", "recover") + (("at_rest",) if p["rest_time"] > 0 else ())),
+                       flags=("use_accel", "recover") + (("gps_comp",) if gps_on is not None else ())
+                       + (("at_rest",) if p["rest_time"] > 0 else ())),
         ]
         if p["rest_time"] > 0:
             g2, t2, r2 = aiding.rest_detector(gyro, f2, g_lp, t_rest, span, tau=p["rest_tau"],
@@ -366,6 +372,12 @@ class Model(FilterModel):
         if p["kp"] * p["span_max"] >= 3.0:
             out.append(f"kp x span_max = {p['kp'] * p['span_max']:.3g} >= 3: a correction at samples span_max "
                        f"apart overshoots the error (diverges from 4); lower kp or span_max")
+        if gps_lowpass(p) and p["kp_gps"] * p["span_max"] >= 3.0:
+            out.append(f"kp_gps x span_max = {p['kp_gps'] * p['span_max']:.3g} >= 3: a correction at samples span_max "
+                       f"apart overshoots the error (diverges from 4); lower kp_gps or span_max")
+        if gps_lowpass(p) and p["ki"] >= p["kp_gps"] / p["accel_tau"]:
+            out.append(f"ki = {p['ki']:g} >= kp_gps / accel_tau = {p['kp_gps'] / p['accel_tau']:.3g}: the bias loop "
+                       f"through the accelerometer low-pass is unstable with the GPS gain")
         if p["accel_tau"] > 0 and p["ki"] >= p["kp"] / p["accel_tau"]:
             out.append(f"ki = {p['ki']:g} >= kp / accel_tau = {p['kp'] / p['accel_tau']:.3g}: the bias loop through "
                        f"the accelerometer low-pass is unstable (tau s^3 + s^2 + kp s + ki needs ki < kp / tau)")

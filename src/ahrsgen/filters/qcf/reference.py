@@ -318,7 +318,7 @@ class Reference:
                 H = heading_correction(nq.qmul(T, self.q), mag, p["declination"])
                 e_n = e_n + self.mag_age * H[1:]
             e_dt = nq.rotmat(self.q).T @ e_n                 # error integrated over the step
-            kp = p["kp_recovery"] if recovering else p["kp"]
+            kp = p["kp_recovery"] if recovering else (p["kp_gps"] if m_comp else p["kp"])
             theta = kp * e_dt                                  # the correction (the gyro's part was predicted)
             if at_rest:
                 s = self.accel_age
