@@ -92,7 +92,7 @@ PARAMS = {
               "mag_bias_jump", "mag_bias_rw", "mag_norm_tol", "gyro_full_scale",
               "gyro_plateau_rate", "clip_recovery_time", "p0", "p0_bias"],
     "qcf": ["kp", "ki", "kp_gps", "gps_compensation", "motion_accel_model", "conditioning", "accel_tau",
-            "bias_accel_gate", "rest_time", "rest_tau", "rest_gyro_tol", "rest_accel_tol",
+            "bias_accel_gate", "rest_time", "rest_tau", "rest_gyro_tol", "rest_turn", "rest_accel_tol",
             "rest_bias_tau", "mag_rejection", "mag_norm_tol", "mag_dip_tol", "mag_warmup",
             "mag_ref_tau", "mag_new_time", "mag_bias", "mag_bias_jump", "mag_bias_rw",
             "centripetal_align", "span_max", "gyro_full_scale", "gyro_plateau_rate",

@@ -980,24 +980,8 @@ static void qcf_k_correct(const float q[4], const float rot[9], const float gyro
     gyro_bias_new[2] = carry[2] /* tmp145 */;
 }
 
-/*
- * rest detection: gyro steady and |f| near g for rest_time
- *
- * Args:
- *     gyro: float[3]
- *     accel_norm2: float
- *     rest_gyro_lp: float[3]
- *     rest_time: float
- *     span: float
- * Outputs:
- *     rest_gyro_lp_new: float[3]
- *     rest_time_new: float
- *     at_rest: bool
- *
- * Total ops: 33 (add 16, mul 10, div 1, cmp 6)
- */
-static void qcf_k_rest(const float gyro[3], float accel_norm2, const float rest_gyro_lp[3],
-    float rest_time, float span, float rest_gyro_lp_new[3], float *rest_time_new, bool *at_rest)
+static void qcf_k_rest_part0(const float gyro[3], const float rest_gyro_lp[3], float span,
+    const float q[4], const float rest_q[4], const float rest_rate_lp[3], float carry[9])
 {
     const float tmp0 = 0.5f /* rest_tau */ + span;
     const float tmp1 = span / tmp0;
@@ -1010,34 +994,156 @@ static void qcf_k_rest(const float gyro[3], float accel_norm2, const float rest_
     const float tmp8 = gyro[2] - rest_gyro_lp[2];
     const float tmp9 = tmp1 * tmp8;
     const float tmp10 = rest_gyro_lp[2] + tmp9;
-    const float tmp11 = gyro[0] - tmp4;
-    const float tmp12 = tmp11 * tmp11;
-    const float tmp13 = gyro[1] - tmp7;
-    const float tmp14 = tmp13 * tmp13;
-    const float tmp15 = tmp12 + tmp14;
-    const float tmp16 = gyro[2] - tmp10;
-    const float tmp17 = tmp16 * tmp16;
-    const float tmp18 = tmp15 + tmp17;
-    const bool tmp19 = (86.61373f /* (G0 - rest_accel_tol)^2 */ < accel_norm2) && (accel_norm2 <
+    const float tmp11 = rest_q[0] * q[0];
+    const float tmp12 = rest_q[1] * q[1];
+    const float tmp13 = tmp11 + tmp12;
+    const float tmp14 = rest_q[2] * q[2];
+    const float tmp15 = tmp13 + tmp14;
+    const float tmp16 = rest_q[3] * q[3];
+    const float tmp17 = tmp15 + tmp16;
+    const float tmp18 = rest_q[0] * q[1];
+    const float tmp19 = rest_q[1] * q[0];
+    const float tmp20 = tmp18 - tmp19;
+    const float tmp21 = rest_q[2] * q[3];
+    const float tmp22 = tmp20 - tmp21;
+    const float tmp23 = rest_q[3] * q[2];
+    const float tmp24 = tmp22 + tmp23;
+    const float tmp25 = -tmp24;
+    const float tmp26 = (tmp17 < 0.0f) ? tmp25 : tmp24;
+    const float tmp27 = tmp26 + tmp26;
+    const float tmp28 = 1.0f / span;
+    const float tmp29 = tmp27 * tmp28;
+    const float tmp30 = tmp29 - rest_rate_lp[0];
+    const float tmp31 = tmp1 * tmp30;
+    const float tmp32 = rest_rate_lp[0] + tmp31;
+    const float tmp33 = rest_q[0] * q[2];
+    const float tmp34 = rest_q[1] * q[3];
+    const float tmp35 = tmp33 + tmp34;
+    const float tmp36 = rest_q[2] * q[0];
+    const float tmp37 = tmp35 - tmp36;
+    const float tmp38 = rest_q[3] * q[1];
+    const float tmp39 = tmp37 - tmp38;
+    carry[0] = tmp1;
+    carry[1] = tmp4;
+    carry[2] = tmp7;
+    carry[3] = tmp10;
+    carry[4] = tmp17;
+    carry[5] = tmp28;
+    carry[6] = tmp32;
+    carry[7] = tmp39;
+}
+
+static void qcf_k_rest_part1(const float gyro[3], float accel_norm2, const float q[4],
+    const float rest_q[4], const float rest_rate_lp[3], float carry[9], bool flags[1])
+{
+    const float tmp40 = -carry[7] /* tmp39 */;
+    const float tmp41 = (carry[4] /* tmp17 */ < 0.0f) ? tmp40 : carry[7] /* tmp39 */;
+    const float tmp42 = tmp41 + tmp41;
+    const float tmp43 = tmp42 * carry[5] /* tmp28 */;
+    const float tmp44 = tmp43 - rest_rate_lp[1];
+    const float tmp45 = carry[0] /* tmp1 */ * tmp44;
+    const float tmp46 = rest_rate_lp[1] + tmp45;
+    const float tmp47 = rest_q[0] * q[3];
+    const float tmp48 = rest_q[1] * q[2];
+    const float tmp49 = tmp47 - tmp48;
+    const float tmp50 = rest_q[2] * q[1];
+    const float tmp51 = tmp49 + tmp50;
+    const float tmp52 = rest_q[3] * q[0];
+    const float tmp53 = tmp51 - tmp52;
+    const float tmp54 = -tmp53;
+    const float tmp55 = (carry[4] /* tmp17 */ < 0.0f) ? tmp54 : tmp53;
+    const float tmp56 = tmp55 + tmp55;
+    const float tmp57 = tmp56 * carry[5] /* tmp28 */;
+    const float tmp58 = tmp57 - rest_rate_lp[2];
+    const float tmp59 = carry[0] /* tmp1 */ * tmp58;
+    const float tmp60 = rest_rate_lp[2] + tmp59;
+    const float tmp61 = gyro[0] - carry[1] /* tmp4 */;
+    const float tmp62 = tmp61 * tmp61;
+    const float tmp63 = gyro[1] - carry[2] /* tmp7 */;
+    const float tmp64 = tmp63 * tmp63;
+    const float tmp65 = tmp62 + tmp64;
+    const float tmp66 = gyro[2] - carry[3] /* tmp10 */;
+    const float tmp67 = tmp66 * tmp66;
+    const float tmp68 = tmp65 + tmp67;
+    const bool tmp69 = (86.61373f /* (G0 - rest_accel_tol)^2 */ < accel_norm2) && (accel_norm2 <
             106.227036f /* (G0 + rest_accel_tol)^2 */);
-    const bool tmp20 = (tmp18 < 0.001225f /* rest_gyro_tol^2 */) && tmp19;
-    const float tmp21 = tmp4 * tmp4;
-    const float tmp22 = tmp7 * tmp7;
-    const float tmp23 = tmp21 + tmp22;
-    const float tmp24 = tmp10 * tmp10;
-    const float tmp25 = tmp23 + tmp24;
-    const bool tmp26 = tmp20 && (tmp25 < 0.001225f /* rest_gyro_tol^2 */);
-    const float tmp27 = rest_time + span;
-    const float tmp28 = (tmp27 < 1000.0f /* REST_TIME_CAP */) ? tmp27 : 1000.0f /* REST_TIME_CAP */;
-    const float tmp29 = (tmp26) ? tmp28 : 0.0f;
-    const float tmp30 = 0.5f * span;
-    const float tmp31 = tmp29 + tmp30;
-    const bool tmp32 = 1.5f /* rest_time */ <= tmp31;
-    rest_gyro_lp_new[0] = tmp4;
-    rest_gyro_lp_new[1] = tmp7;
-    rest_gyro_lp_new[2] = tmp10;
-    *rest_time_new = tmp29;
-    *at_rest = tmp32;
+    const bool tmp70 = (tmp68 < 0.001225f /* rest_gyro_tol^2 */) && tmp69;
+    const float tmp71 = carry[1] /* tmp4 */ * carry[1] /* tmp4 */;
+    const float tmp72 = carry[2] /* tmp7 */ * carry[2] /* tmp7 */;
+    const float tmp73 = tmp71 + tmp72;
+    const float tmp74 = carry[3] /* tmp10 */ * carry[3] /* tmp10 */;
+    const float tmp75 = tmp73 + tmp74;
+    const float tmp76 = carry[6] /* tmp32 */ * carry[6] /* tmp32 */;
+    const float tmp77 = tmp46 * tmp46;
+    const float tmp78 = tmp76 + tmp77;
+    const float tmp79 = tmp60 * tmp60;
+    carry[0] = tmp46;
+    carry[4] = tmp60;
+    flags[0] = tmp70;
+    carry[5] = tmp75;
+    carry[7] = tmp78;
+    carry[8] = tmp79;
+}
+
+static void qcf_k_rest_part2(float rest_time, float span, float carry[9], bool flags[1])
+{
+    const float tmp80 = carry[7] /* tmp78 */ + carry[8] /* tmp79 */;
+    const bool tmp81 = (carry[5] /* tmp75 */ < 0.001225f /* rest_gyro_tol^2 */) || (tmp80 <
+            0.001225f /* rest_gyro_tol^2 */);
+    const bool tmp82 = flags[0] /* tmp70 */ && tmp81;
+    const float tmp83 = rest_time + span;
+    const float tmp84 = (tmp83 < 1000.0f /* REST_TIME_CAP */) ? tmp83 : 1000.0f /* REST_TIME_CAP */;
+    const float tmp85 = (tmp82) ? tmp84 : 0.0f;
+    const float tmp86 = 0.5f * span;
+    const float tmp87 = tmp85 + tmp86;
+    const bool tmp88 = 1.5f /* rest_time */ <= tmp87;
+    carry[5] = tmp85;
+    flags[0] = tmp88;
+}
+
+/*
+ * rest detection: gyro steady, the low-passed gyro or the estimate not turning, |f| near g, for
+ * rest_time
+ *
+ * Args:
+ *     gyro: float[3]
+ *     accel_norm2: float
+ *     rest_gyro_lp: float[3]
+ *     rest_time: float
+ *     span: float
+ *     q: float[4]
+ *     rest_q: float[4]
+ *     rest_rate_lp: float[3]
+ * Outputs:
+ *     rest_gyro_lp_new: float[3]
+ *     rest_rate_lp_new: float[3]
+ *     rest_time_new: float
+ *     at_rest: bool
+ *
+ * Total ops: 89 (add 42, mul 35, div 2, cmp 10)
+ */
+static void qcf_k_rest(const float gyro[3], float accel_norm2, const float rest_gyro_lp[3],
+    float rest_time, float span, const float q[4], const float rest_q[4],
+    const float rest_rate_lp[3], float rest_gyro_lp_new[3], float rest_rate_lp_new[3],
+    float *rest_time_new, bool *at_rest)
+{
+    /*
+     * 3 parts called in turn (inlined when optimising): bounded -O0 frames; carry and flags hold
+     * the values handed between them (a slot reused once its value is dead)
+     */
+    float carry[9];
+    bool flags[1];
+    qcf_k_rest_part0(gyro, rest_gyro_lp, span, q, rest_q, rest_rate_lp, carry);
+    qcf_k_rest_part1(gyro, accel_norm2, q, rest_q, rest_rate_lp, carry, flags);
+    qcf_k_rest_part2(rest_time, span, carry, flags);
+    rest_gyro_lp_new[0] = carry[1] /* tmp4 */;
+    rest_gyro_lp_new[1] = carry[2] /* tmp7 */;
+    rest_gyro_lp_new[2] = carry[3] /* tmp10 */;
+    rest_rate_lp_new[0] = carry[6] /* tmp32 */;
+    rest_rate_lp_new[1] = carry[0] /* tmp46 */;
+    rest_rate_lp_new[2] = carry[4] /* tmp60 */;
+    *rest_time_new = carry[5] /* tmp85 */;
+    *at_rest = flags[0] /* tmp88 */;
 }
 
 static void qcf_k_mag_check_part0(const float accel_lp[3], float mag_norm2, const float mag_ned[3],
@@ -2140,11 +2246,17 @@ static void qcf_start(qcf_state *s, const qcf_input *in, bool use_accel, bool us
             for (uint32_t i = 0u; i < 3u; i++) {
                 s->rest_gyro_lp[i] = in->gyro[i];
             }
+            for (uint32_t i = 0u; i < 4u; i++) {
+                s->rest_q[i] = s->q[i];
+            }
         }
     } else if (s->initialised == 1u && use_mag) {
         qcf_k_heading_init(s->q, in->mag, s->q);
         s->initialised = 2u;
         s->mag_age = 0.0f;
+        for (uint32_t i = 0u; i < 4u; i++) {
+            s->rest_q[i] = s->q[i];   /* the heading set is no turn */
+        }
     }
 }
 
@@ -2257,6 +2369,13 @@ void qcf_init(qcf_state *s)
     s->rest_gyro_lp[1] = 0.0f;
     s->rest_gyro_lp[2] = 0.0f;
     s->rest_time = 0.0f;
+    s->rest_q[0] = 1.0f;
+    s->rest_q[1] = 0.0f;
+    s->rest_q[2] = 0.0f;
+    s->rest_q[3] = 0.0f;
+    s->rest_rate_lp[0] = 0.0f;
+    s->rest_rate_lp[1] = 0.0f;
+    s->rest_rate_lp[2] = 0.0f;
     s->mag_ref[0] = 0.0f;
     s->mag_ref[1] = 0.0f;
     s->mag_dist_time = 0.0f;
@@ -2435,8 +2554,11 @@ qcf_status qcf_step(qcf_state *restrict s, const qcf_input *restrict in, float d
         }
         qcf_k_accel_lowpass(rot, accel_g, s->accel_lp, s->accel_age, recovering, s->gps_vel_hist,
             use_gps, m_comp, s->v_lp, s->v_ins, s->accel_lp, s->v_lp, s->v_ins, up);
-        qcf_k_rest(in->gyro, accel_n2, s->rest_gyro_lp, s->rest_time, s->accel_age,
-            s->rest_gyro_lp, &s->rest_time, &at_rest);
+        qcf_k_rest(in->gyro, accel_n2, s->rest_gyro_lp, s->rest_time, s->accel_age, s->q, s->rest_q,
+            s->rest_rate_lp, s->rest_gyro_lp, s->rest_rate_lp, &s->rest_time, &at_rest);
+        for (int i = 0; i < 4; i++) {
+            s->rest_q[i] = s->q[i];   /* predicted: the next step's rate includes this correction */
+        }
         if (at_rest) {
             status |= QCF_AT_REST;
         }

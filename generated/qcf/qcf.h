@@ -23,7 +23,7 @@
  * its GNU modes, -std=c99 turns it off) and -fno-math-errno; -ffast-math breaks the input
  * checks (isfinite). Any C99 compiler builds it; see the ahrsgen docs (target.md).
  *     qcf_euler(&st, rpy);
- * No heap, no recursion; RAM is the state struct (340 bytes with the usual ABI).
+ * No heap, no recursion; RAM is the state struct (368 bytes with the usual ABI).
  * Needs <math.h> (float functions only in a float build); compilers may also emit calls to
  * memcpy/memset/memmove for struct and array copies.
  *
@@ -151,6 +151,13 @@ extern "C" {
 #define QCF_REST_GYRO_TOL 0.035f           /* rest detection: largest |gyro - low-passed gyro|, and
                                               largest |low-passed gyro| (a steady turn is not rest)
                                               [rad/s] */
+/*
+ * QCF_REST_TURN = estimate rest detection's 'a steady turn is not rest' test (bound rest_gyro_tol):
+ * 'gyro' = the low-passed gyro below it (a gyro bias above the bound is never learned at rest);
+ * 'estimate' = that, or the estimate's low-passed rotation rate below it (the gyro less the bias,
+ * plus the corrections: a bias the accelerometer and magnetometer hold the attitude against is not
+ * a turn)
+ */
 #define QCF_REST_ACCEL_TOL 0.5f            /* rest detection: largest ||accel| - g| [m/s^2] */
 #define QCF_REST_BIAS_TAU 1.0f             /* at rest the bias follows the low-passed gyro with this
                                               time constant [s] */
@@ -282,6 +289,9 @@ typedef struct {
     float mag_age;         /* time since the last magnetometer sample, s */
     float rest_gyro_lp[3]; /* rest detection: low-passed gyro, rad/s */
     float rest_time;       /* rest detection: steady time so far, s */
+    float rest_q[4];       /* rest detection: the predicted attitude at the last accelerometer step
+                              */
+    float rest_rate_lp[3]; /* rest detection: the estimate's low-passed rotation rate, rad/s */
     float mag_ref[2];      /* field check reference: |m| and sin(dip) (|m| = 0: not learned) */
     float mag_dist_time;   /* field check: time the field has been rejected, s */
     float mag_learn_time;  /* field check: time since the first magnetometer sample (capped), s */

@@ -77,11 +77,13 @@ REST_TIME_CAP = Const("REST_TIME_CAP", 1e3)
 
 
 def rest_detector(gyro, accel_norm2, gyro_lp, rest_time, dt, *, tau: float, gyro_tol: float,
-                  accel_tol: float, gravity: float, gyro_max: float, min_time: float, time_cap: float = REST_TIME_CAP):
+                  accel_tol: float, gravity: float, gyro_max: float, min_time: float, time_cap: float = REST_TIME_CAP,
+                  turn_rate=None):
     """Returns (gyro_lp', rest_time', at_rest 0/1).
 
     Steady: |gyro - gyro_lp'| < gyro_tol and |gyro_lp'| < gyro_max (a steady turn is not
-    rest), and the accelerometer's magnitude within accel_tol of gravity (from |f|^2, no root).
+    rest; `turn_rate`, when given, is a second chance: a rotation rate the caller knows
+    better, e.g. its estimate's, below gyro_max is no turn either), and the accelerometer's magnitude within accel_tol of gravity (from |f|^2, no root).
     rest_time counts the steady time (capped at time_cap so it stays exact in float) and is
     reset to 0 otherwise. What rest is for here is the gyro bias (the low-passed gyro while
     nothing rotates), so the rotation tests are the ones that matter: VQF's test of the
@@ -90,9 +92,11 @@ def rest_detector(gyro, accel_norm2, gyro_lp, rest_time, dt, *, tau: float, gyro
     "at rest" from being declared under a strong acceleration at a constant attitude.
     """
     g_lp = lowpass(gyro_lp, gyro, dt, tau)
+    no_turn = ca.sumsqr(g_lp) < gyro_max ** 2
+    if turn_rate is not None:
+        no_turn = ca.logic_or(no_turn, ca.sumsqr(turn_rate) < gyro_max ** 2)
     steady = ca.logic_and(ca.logic_and(ca.sumsqr(gyro - g_lp) < gyro_tol ** 2,
-                                       norm_within(accel_norm2, gravity, accel_tol)),
-                          ca.sumsqr(g_lp) < gyro_max ** 2)
+                                       norm_within(accel_norm2, gravity, accel_tol)), no_turn)
     return (g_lp, *rest_timer(steady, rest_time, dt, min_time=min_time, time_cap=time_cap))
 
 

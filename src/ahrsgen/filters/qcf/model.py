@@ -118,6 +118,10 @@ class Model(FilterModel):
             StateField("mag_age", 1, "time since the last magnetometer sample, s", 0.0),
             StateField("rest_gyro_lp", 3, "rest detection: low-passed gyro, rad/s", 0.0),
             StateField("rest_time", 1, "rest detection: steady time so far, s", 0.0),
+            *([StateField("rest_q", 4, "rest detection: the predicted attitude at the last accelerometer step",
+                          [1.0, 0.0, 0.0, 0.0]),
+               StateField("rest_rate_lp", 3, "rest detection: the estimate's low-passed rotation rate, rad/s", 0.0)]
+              if p["rest_turn"] == "estimate" else []),
             StateField("mag_ref", 2, "field check reference: |m| and sin(dip) (|m| = 0: not learned)", 0.0),
             StateField("mag_dist_time", 1, "field check: time the field has been rejected, s", 0.0),
             StateField("mag_learn_time", 1, "field check: time since the first magnetometer sample (capped), s", 0.0),
@@ -295,7 +299,28 @@ class Model(FilterModel):
                        flags=("use_accel", "recover") + (("gps_comp",) if gps_on is not None else ())
                        + (("at_rest",) if p["rest_time"] > 0 else ())),
         ]
-        if p["rest_time"] > 0:
+        if p["rest_time"] > 0 and p["rest_turn"] == "estimate":
+            # the turn test on the estimate's rotation rate since the last accelerometer step
+            # (predicted to predicted: the corrections in between included), low-passed: a gyro
+            # bias the aiding sensors hold the attitude against is not a turn, a steady turn is
+            q_prev = ca.SX.sym("rest_q", 4)
+            w_lp = ca.SX.sym("rest_rate_lp", 3)
+            d = quat.qmul(quat.qconj(q_prev), q)
+            d = ca.if_else(d[0] < 0, -d, d)
+            w2 = aiding.lowpass(w_lp, 2 * d[1:] / span, span, p["rest_tau"])
+            g2, t2, r2 = aiding.rest_detector(gyro, f2, g_lp, t_rest, span, tau=p["rest_tau"],
+                                              gyro_tol=p["rest_gyro_tol"], accel_tol=p["rest_accel_tol"],
+                                              gravity=G0, gyro_max=p["rest_gyro_tol"], min_time=p["rest_time"],
+                                              turn_rate=w2)
+            ks.append(KernelSpec("rest", function("rest", {"gyro": gyro, "accel_norm2": f2, "rest_gyro_lp": g_lp,
+                                                           "rest_time": t_rest, "span": span, "q": q,
+                                                           "rest_q": q_prev, "rest_rate_lp": w_lp},
+                                                  {"rest_gyro_lp_new": g2, "rest_rate_lp_new": w2,
+                                                   "rest_time_new": t2, "at_rest": r2}),
+                                 "rest detection: gyro steady, the low-passed gyro or the estimate not turning, "
+                                 "|f| near g, for rest_time",
+                                 flags=("at_rest",)))
+        elif p["rest_time"] > 0:
             g2, t2, r2 = aiding.rest_detector(gyro, f2, g_lp, t_rest, span, tau=p["rest_tau"],
                                               gyro_tol=p["rest_gyro_tol"], accel_tol=p["rest_accel_tol"],
                                               gravity=G0, gyro_max=p["rest_gyro_tol"], min_time=p["rest_time"])
@@ -386,7 +411,8 @@ class Model(FilterModel):
     def template_context(self):
         p = self.params
         return {"motion_model": p["motion_accel_model"], "product": self.product, "gps_taps": gps_taps(p),
-                "rest": self.product and p["rest_time"] > 0, "mag_rejection": self.product and p["mag_rejection"],
+                "rest": self.product and p["rest_time"] > 0,
+                "rest_turn_estimate": self.product and p["rest_time"] > 0 and p["rest_turn"] == "estimate", "mag_rejection": self.product and p["mag_rejection"],
                 "hard_iron": self.hard_iron(), "gps_age_max": GPS_AGE_MAX, "gps_lowpass": gps_lowpass(p)}
 
     def step_paths(self):

@@ -113,6 +113,8 @@ class Reference:
         self.vlp_ok = False
         self.rest_gyro_lp = np.zeros(3)
         self.rest_time = 0.0
+        self.rest_q = np.array([1.0, 0.0, 0.0, 0.0])   # rest_turn = estimate: predicted q, last accel step
+        self.rest_rate_lp = np.zeros(3)
         self.mag_ref = np.zeros(2)         # |m|, sin(dip); |m| = 0: not learned
         self.mag_dist_time = 0.0
         self.mag_learn_time = 0.0          # time since the first magnetometer sample (capped at warmup)
@@ -203,8 +205,10 @@ class Reference:
             self.initialised = 2 if use_mag else 1
             self.accel_age = self.mag_age = 0.0
             self.rest_gyro_lp = gyro.copy()
+            self.rest_q = self.q.copy()
         elif self.initialised == 1 and use_mag:
             self.q = nq.qmul(heading_correction(self.q, mag, p["declination"]), self.q)
+            self.rest_q = self.q.copy()              # setting the heading is no turn
             self.initialised = 2
             self.mag_age = 0.0
 
@@ -251,9 +255,19 @@ class Reference:
                 k = s / (p["rest_tau"] + s)
                 self.rest_gyro_lp = self.rest_gyro_lp + k * (gyro - self.rest_gyro_lp)
                 tol = p["rest_gyro_tol"]
+                no_turn = np.linalg.norm(self.rest_gyro_lp) < tol
+                if p["rest_turn"] == "estimate":
+                    # the estimate's rotation since the last accelerometer step (predicted to
+                    # predicted: the corrections between included) as a rate, low-passed
+                    d = nq.qmul(nq.qconj(self.rest_q), self.q)
+                    d = -d if d[0] < 0 else d
+                    self.rest_rate_lp = self.rest_rate_lp + k * (2 * d[1:] / s - self.rest_rate_lp)
+                    self.rest_q = self.q.copy()
+                    # a gyro bias the sensors hold the attitude against is no turn either
+                    no_turn = no_turn or np.linalg.norm(self.rest_rate_lp) < tol
                 steady = (np.linalg.norm(gyro - self.rest_gyro_lp) < tol
                           and abs(np.linalg.norm(f_raw) - G0) < p["rest_accel_tol"]
-                          and np.linalg.norm(self.rest_gyro_lp) < tol)
+                          and no_turn)
                 self.rest_time = min(self.rest_time + s, 1e3) if steady else 0.0
                 at_rest = self.rest_time + 0.5 * s >= p["rest_time"]    # (half a step of margin)
                 if at_rest:
