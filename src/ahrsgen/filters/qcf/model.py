@@ -41,7 +41,11 @@ Product conditioning (faithful = false; issue 10; building blocks in src/ahrsgen
                  (the paper's order, kept when faithful or conditioning = false, leads the truth
                  by ω dt: 0.02 rad at 2 rad/s and 100 Hz); everything below reads q̂⁻
   PI feedback    q̂ <- normalise(q̂⁻ ⊗ exp(½ kp e dt)) ; b̂ <- b̂ - ki e dt only while ||f| - g| < bias_accel_gate;
-                 at rest (aiding.rest_detector) b̂ follows the low-passed gyro instead
+                 at rest (aiding.rest_detector) b̂ follows the low-passed gyro instead; with
+                 rest_turn = 'estimate' the estimate's low-passed rotation rate
+                 2 vec(q̂⁻_prev⁻¹ q̂⁻)/s (one accelerometer step to the next, the corrections
+                 between included) below rest_gyro_tol is no turn either: a gyro bias the
+                 accelerometer and magnetometer hold the attitude against does not turn it
   integration    as eq. 9, the gyro part in the prediction
 """
 from __future__ import annotations
