@@ -539,9 +539,94 @@ static void qcf_k_heading_init(const float q[4], const float mag[3], float q_new
     q_new[3] = carry[3] /* tmp71 */;
 }
 
+static void qcf_k_accel_lowpass_part0(const float rot[9], const float accel[3],
+    const float accel_lp[3], float span, bool recover, const float gps_vel[3], bool new_gps,
+    bool m_comp, const float v_lp[3], const float v_ins[3], float carry[12])
+{
+    const float tmp0 = 1.0f + span;
+    const float tmp1 = span / tmp0;
+    const float tmp2 = (recover) ? 1.0f : tmp1;
+    const float tmp3 = rot[0] * accel[0];
+    const float tmp4 = rot[3] * accel[1];
+    const float tmp5 = tmp3 + tmp4;
+    const float tmp6 = rot[6] * accel[2];
+    const float tmp7 = tmp5 + tmp6;
+    const float tmp8 = tmp7 - accel_lp[0];
+    const float tmp9 = tmp2 * tmp8;
+    const float tmp10 = accel_lp[0] + tmp9;
+    const float tmp11 = rot[1] * accel[0];
+    const float tmp12 = rot[4] * accel[1];
+    const float tmp13 = tmp11 + tmp12;
+    const float tmp14 = rot[7] * accel[2];
+    const float tmp15 = tmp13 + tmp14;
+    const float tmp16 = tmp15 - accel_lp[1];
+    const float tmp17 = tmp2 * tmp16;
+    const float tmp18 = accel_lp[1] + tmp17;
+    const float tmp19 = rot[2] * accel[0];
+    const float tmp20 = rot[5] * accel[1];
+    const float tmp21 = tmp19 + tmp20;
+    const float tmp22 = rot[8] * accel[2];
+    const float tmp23 = tmp21 + tmp22;
+    const float tmp24 = tmp23 - accel_lp[2];
+    const float tmp25 = tmp2 * tmp24;
+    const float tmp26 = accel_lp[2] + tmp25;
+    const float tmp27 = tmp7 * span;
+    const float tmp28 = v_ins[0] + tmp27;
+    const float tmp29 = (new_gps) ? gps_vel[0] : tmp28;
+    const float tmp30 = tmp29 - v_lp[0];
+    const float tmp31 = tmp2 * tmp30;
+    const float tmp32 = v_lp[0] + tmp31;
+    const float tmp33 = (m_comp) ? tmp32 : v_lp[0];
+    const float tmp34 = tmp15 * span;
+    const float tmp35 = v_ins[1] + tmp34;
+    const float tmp36 = (new_gps) ? gps_vel[1] : tmp35;
+    const float tmp37 = tmp36 - v_lp[1];
+    const float tmp38 = tmp2 * tmp37;
+    const float tmp39 = v_lp[1] + tmp38;
+    carry[0] = tmp2;
+    carry[1] = tmp10;
+    carry[2] = tmp18;
+    carry[3] = tmp23;
+    carry[4] = tmp26;
+    carry[5] = tmp29;
+    carry[6] = tmp33;
+    carry[7] = tmp36;
+    carry[8] = tmp39;
+}
+
+static void qcf_k_accel_lowpass_part1(float span, const float gps_vel[3], bool new_gps, bool m_comp,
+    const float v_lp[3], const float v_ins[3], float carry[12])
+{
+    const float tmp40 = (m_comp) ? carry[8] /* tmp39 */ : v_lp[1];
+    const float tmp41 = carry[3] /* tmp23 */ + 9.80665f /* G0 */;
+    const float tmp42 = tmp41 * span;
+    const float tmp43 = v_ins[2] + tmp42;
+    const float tmp44 = (new_gps) ? gps_vel[2] : tmp43;
+    const float tmp45 = tmp44 - v_lp[2];
+    const float tmp46 = carry[0] /* tmp2 */ * tmp45;
+    const float tmp47 = v_lp[2] + tmp46;
+    const float tmp48 = (m_comp) ? tmp47 : v_lp[2];
+    const float tmp49 = carry[5] /* tmp29 */ - carry[6] /* tmp33 */;
+    const float tmp50 = carry[1] /* tmp10 */ - tmp49;
+    const float tmp51 = (m_comp) ? tmp50 : carry[1] /* tmp10 */;
+    const float tmp52 = carry[7] /* tmp36 */ - tmp40;
+    const float tmp53 = carry[2] /* tmp18 */ - tmp52;
+    const float tmp54 = (m_comp) ? tmp53 : carry[2] /* tmp18 */;
+    const float tmp55 = tmp44 - tmp48;
+    const float tmp56 = carry[4] /* tmp26 */ - tmp55;
+    const float tmp57 = (m_comp) ? tmp56 : carry[4] /* tmp26 */;
+    carry[0] = tmp40;
+    carry[3] = tmp44;
+    carry[8] = tmp48;
+    carry[9] = tmp51;
+    carry[10] = tmp54;
+    carry[11] = tmp57;
+}
+
 /*
  * low-pass of the specific force in NED, R(q) f (time constant accel_tau; recovering from a clipped
- * gyro sample: the sample itself)
+ * gyro sample: the sample itself); the GPS velocity through the same low-pass, its low-passed
+ * derivative removed (up)
  *
  * Args:
  *     rot: float[9], 3x3 matrix, column-major: row i, column j at [i + 3 * j]
@@ -549,307 +634,298 @@ static void qcf_k_heading_init(const float q[4], const float mag[3], float q_new
  *     accel_lp: float[3]
  *     span: float
  *     recover: bool
+ *     gps_vel: float[3]
+ *     new_gps: bool
+ *     m_comp: bool
+ *     v_lp: float[3]
+ *     v_ins: float[3]
  * Outputs:
  *     accel_lp_new: float[3]
+ *     v_lp_new: float[3]
+ *     v_ins_new: float[3]
+ *     up: float[3]
  *
- * Total ops: 29 (add 13, mul 12, div 1, cmp 3)
- *     of which only one side runs: if (recover) 0, else 11
+ * Total ops: 58 (add 29, mul 18, div 1, cmp 10)
  */
-static inline void qcf_k_accel_lowpass(const float rot[9], const float accel[3],
-    const float accel_lp[3], float span, bool recover, float accel_lp_new[3])
+static void qcf_k_accel_lowpass(const float rot[9], const float accel[3], const float accel_lp[3],
+    float span, bool recover, const float gps_vel[3], bool new_gps, bool m_comp,
+    const float v_lp[3], const float v_ins[3], float accel_lp_new[3], float v_lp_new[3],
+    float v_ins_new[3], float up[3])
 {
-    const float tmp0 = rot[0] * accel[0];
-    const float tmp1 = rot[3] * accel[1];
-    const float tmp2 = tmp0 + tmp1;
-    const float tmp3 = rot[6] * accel[2];
-    const float tmp4 = tmp2 + tmp3;
-    const float tmp5 = rot[1] * accel[0];
-    const float tmp6 = rot[4] * accel[1];
-    const float tmp7 = tmp5 + tmp6;
-    const float tmp8 = rot[7] * accel[2];
-    const float tmp9 = tmp7 + tmp8;
-    const float tmp10 = rot[2] * accel[0];
-    const float tmp11 = rot[5] * accel[1];
-    const float tmp12 = tmp10 + tmp11;
-    const float tmp13 = rot[8] * accel[2];
-    const float tmp14 = tmp12 + tmp13;
-    float tmp15;
-    float tmp16;
-    float tmp17;
-    if (recover) {
-        tmp15 = tmp4;
-        tmp16 = tmp9;
-        tmp17 = tmp14;
-    } else {
-        const float tmp18 = 1.0f + span;
-        const float tmp19 = span / tmp18;
-        const float tmp20 = tmp4 - accel_lp[0];
-        const float tmp21 = tmp19 * tmp20;
-        const float tmp22 = accel_lp[0] + tmp21;
-        const float tmp23 = tmp9 - accel_lp[1];
-        const float tmp24 = tmp19 * tmp23;
-        const float tmp25 = accel_lp[1] + tmp24;
-        const float tmp26 = tmp14 - accel_lp[2];
-        const float tmp27 = tmp19 * tmp26;
-        const float tmp28 = accel_lp[2] + tmp27;
-        tmp15 = tmp22;
-        tmp16 = tmp25;
-        tmp17 = tmp28;
-    }
-    accel_lp_new[0] = tmp15;
-    accel_lp_new[1] = tmp16;
-    accel_lp_new[2] = tmp17;
+    /*
+     * 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
+     * handed between them (a slot reused once its value is dead)
+     */
+    float carry[12];
+    qcf_k_accel_lowpass_part0(rot, accel, accel_lp, span, recover, gps_vel, new_gps, m_comp, v_lp,
+            v_ins, carry);
+    qcf_k_accel_lowpass_part1(span, gps_vel, new_gps, m_comp, v_lp, v_ins, carry);
+    accel_lp_new[0] = carry[1] /* tmp10 */;
+    accel_lp_new[1] = carry[2] /* tmp18 */;
+    accel_lp_new[2] = carry[4] /* tmp26 */;
+    v_lp_new[0] = carry[6] /* tmp33 */;
+    v_lp_new[1] = carry[0] /* tmp40 */;
+    v_lp_new[2] = carry[8] /* tmp48 */;
+    v_ins_new[0] = carry[5] /* tmp29 */;
+    v_ins_new[1] = carry[7] /* tmp36 */;
+    v_ins_new[2] = carry[3] /* tmp44 */;
+    up[0] = carry[9] /* tmp51 */;
+    up[1] = carry[10] /* tmp54 */;
+    up[2] = carry[11] /* tmp57 */;
 }
 
 static void qcf_k_correct_part0(const float rot[9], const float accel_lp[3], const float mag_ned[3],
-    float span_accel, bool recover, float carry[11])
+    float span_accel, bool recover, bool gps_comp, float carry[11])
 {
-    const float tmp0 = (recover) ? 1.0f : 0.125f /* 0.5*kp */;
-    const float tmp1 = tmp0 * span_accel;
-    const float tmp2 = accel_lp[0] * accel_lp[0];
-    const float tmp3 = accel_lp[1] * accel_lp[1];
-    const float tmp4 = tmp2 + tmp3;
-    const float tmp5 = accel_lp[2] * accel_lp[2];
-    const float tmp6 = tmp4 + tmp5;
-    const float tmp7 = sqrtf(tmp6);
-    const float tmp8 = tmp7 - accel_lp[2];
-    const float tmp9 = 1e-06f /* TILT_FLIP_EPS */ * tmp7;
-    const float tmp10 = tmp7 + tmp7;
-    const float tmp11 = tmp10 * tmp8;
-    const float tmp12 = sqrtf(tmp11);
-    const float tmp13 = 1.0f / tmp12;
-    const float tmp14 = accel_lp[1] * tmp13;
-    const float tmp15 = -tmp14;
-    const float tmp16 = (tmp8 < tmp9) ? 1.0f : tmp15;
-    const float tmp17 = tmp1 * tmp16;
-    const float tmp18 = rot[0] * tmp17;
-    const float tmp19 = accel_lp[0] * tmp13;
-    const float tmp20 = tmp1 * tmp19;
-    const float tmp21 = rot[1] * tmp20;
-    const float tmp22 = (tmp8 < tmp9) ? 0.0f : tmp21;
-    const float tmp23 = tmp18 + tmp22;
-    const float tmp24 = tmp19 * mag_ned[0];
-    const float tmp25 = (tmp8 < tmp9) ? 0.0f : tmp24;
-    const float tmp26 = tmp16 * mag_ned[1];
-    const float tmp27 = tmp25 - tmp26;
-    const float tmp28 = tmp8 * tmp13;
-    const float tmp29 = tmp28 * mag_ned[2];
-    const float tmp30 = (tmp8 < tmp9) ? 0.0f : tmp29;
-    const float tmp31 = tmp27 - tmp30;
-    const float tmp32 = tmp31 + tmp31;
-    const float tmp33 = tmp19 * tmp32;
-    const float tmp34 = (tmp8 < tmp9) ? 0.0f : tmp33;
-    const float tmp35 = mag_ned[0] - tmp34;
-    const float tmp36 = tmp35 * tmp35;
-    const float tmp37 = tmp16 * tmp32;
-    const float tmp38 = mag_ned[1] + tmp37;
-    const float tmp39 = tmp38 * tmp38;
-    carry[0] = tmp0;
-    carry[1] = tmp8;
-    carry[2] = tmp9;
-    carry[3] = tmp17;
-    carry[4] = tmp20;
-    carry[5] = tmp23;
-    carry[6] = tmp35;
-    carry[7] = tmp36;
-    carry[8] = tmp38;
-    carry[9] = tmp39;
+    const float tmp0 = (gps_comp) ? 0.7f /* 0.5*kp_gps */ : 0.125f /* 0.5*kp */;
+    const float tmp1 = (recover) ? 1.0f : tmp0;
+    const float tmp2 = tmp1 * span_accel;
+    const float tmp3 = accel_lp[0] * accel_lp[0];
+    const float tmp4 = accel_lp[1] * accel_lp[1];
+    const float tmp5 = tmp3 + tmp4;
+    const float tmp6 = accel_lp[2] * accel_lp[2];
+    const float tmp7 = tmp5 + tmp6;
+    const float tmp8 = sqrtf(tmp7);
+    const float tmp9 = tmp8 - accel_lp[2];
+    const float tmp10 = 1e-06f /* TILT_FLIP_EPS */ * tmp8;
+    const float tmp11 = tmp8 + tmp8;
+    const float tmp12 = tmp11 * tmp9;
+    const float tmp13 = sqrtf(tmp12);
+    const float tmp14 = 1.0f / tmp13;
+    const float tmp15 = accel_lp[1] * tmp14;
+    const float tmp16 = -tmp15;
+    const float tmp17 = (tmp9 < tmp10) ? 1.0f : tmp16;
+    const float tmp18 = tmp2 * tmp17;
+    const float tmp19 = rot[0] * tmp18;
+    const float tmp20 = accel_lp[0] * tmp14;
+    const float tmp21 = tmp2 * tmp20;
+    const float tmp22 = rot[1] * tmp21;
+    const float tmp23 = (tmp9 < tmp10) ? 0.0f : tmp22;
+    const float tmp24 = tmp19 + tmp23;
+    const float tmp25 = tmp20 * mag_ned[0];
+    const float tmp26 = (tmp9 < tmp10) ? 0.0f : tmp25;
+    const float tmp27 = tmp17 * mag_ned[1];
+    const float tmp28 = tmp26 - tmp27;
+    const float tmp29 = tmp9 * tmp14;
+    const float tmp30 = tmp29 * mag_ned[2];
+    const float tmp31 = (tmp9 < tmp10) ? 0.0f : tmp30;
+    const float tmp32 = tmp28 - tmp31;
+    const float tmp33 = tmp32 + tmp32;
+    const float tmp34 = tmp20 * tmp33;
+    const float tmp35 = (tmp9 < tmp10) ? 0.0f : tmp34;
+    const float tmp36 = mag_ned[0] - tmp35;
+    const float tmp37 = tmp36 * tmp36;
+    const float tmp38 = tmp17 * tmp33;
+    const float tmp39 = mag_ned[1] + tmp38;
+    carry[0] = tmp1;
+    carry[1] = tmp9;
+    carry[2] = tmp10;
+    carry[3] = tmp18;
+    carry[4] = tmp21;
+    carry[5] = tmp24;
+    carry[6] = tmp36;
+    carry[7] = tmp37;
+    carry[8] = tmp39;
 }
 
 static void qcf_k_correct_part1(const float rot[9], float span_mag, float carry[11])
 {
-    const float tmp40 = carry[7] /* tmp36 */ + carry[9] /* tmp39 */;
-    const float tmp41 = sqrtf(tmp40);
-    float tmp42;
+    const float tmp40 = carry[8] /* tmp39 */ * carry[8] /* tmp39 */;
+    const float tmp41 = carry[7] /* tmp37 */ + tmp40;
+    const float tmp42 = sqrtf(tmp41);
     float tmp43;
     float tmp44;
-    if (tmp41 < 1e-15f /* HEADING_H_MIN */) {
-        tmp42 = 0.0f;
+    float tmp45;
+    if (tmp42 < 1e-15f /* HEADING_H_MIN */) {
         tmp43 = 0.0f;
         tmp44 = 0.0f;
+        tmp45 = 0.0f;
     } else {
-        const float tmp45 = carry[0] /* tmp0 */ * span_mag;
-        const float tmp46 = tmp41 + tmp41;
-        const float tmp47 = fabsf(carry[6] /* tmp35 */);
-        const float tmp48 = tmp41 + tmp47;
-        const float tmp49 = tmp46 * tmp48;
-        const float tmp50 = sqrtf(tmp49);
-        const float tmp51 = 1.0f / tmp50;
-        const float tmp52 = carry[8] /* tmp38 */ * tmp51;
-        const float tmp53 = -tmp52;
-        const float tmp54 = carry[6] /* tmp35 */ - tmp41;
-        const float tmp55 = tmp41 - carry[6] /* tmp35 */;
-        const float tmp56 = (0.0f < carry[8] /* tmp38 */) ? tmp54 : tmp55;
-        const float tmp57 = tmp56 * tmp51;
-        const float tmp58 = (0.0f <= carry[6] /* tmp35 */) ? tmp53 : tmp57;
-        const float tmp59 = tmp45 * tmp58;
-        const float tmp60 = rot[2] * tmp59;
-        const float tmp61 = rot[5] * tmp59;
-        const float tmp62 = rot[8] * tmp59;
-        tmp42 = tmp60;
+        const float tmp46 = carry[0] /* tmp1 */ * span_mag;
+        const float tmp47 = tmp42 + tmp42;
+        const float tmp48 = fabsf(carry[6] /* tmp36 */);
+        const float tmp49 = tmp42 + tmp48;
+        const float tmp50 = tmp47 * tmp49;
+        const float tmp51 = sqrtf(tmp50);
+        const float tmp52 = 1.0f / tmp51;
+        const float tmp53 = carry[8] /* tmp39 */ * tmp52;
+        const float tmp54 = -tmp53;
+        const float tmp55 = carry[6] /* tmp36 */ - tmp42;
+        const float tmp56 = tmp42 - carry[6] /* tmp36 */;
+        const float tmp57 = (0.0f < carry[8] /* tmp39 */) ? tmp55 : tmp56;
+        const float tmp58 = tmp57 * tmp52;
+        const float tmp59 = (0.0f <= carry[6] /* tmp36 */) ? tmp54 : tmp58;
+        const float tmp60 = tmp46 * tmp59;
+        const float tmp61 = rot[2] * tmp60;
+        const float tmp62 = rot[5] * tmp60;
+        const float tmp63 = rot[8] * tmp60;
         tmp43 = tmp61;
         tmp44 = tmp62;
+        tmp45 = tmp63;
     }
-    const float tmp63 = carry[5] /* tmp23 */ + tmp42;
-    const float tmp64 = tmp63 * tmp63;
-    const float tmp65 = rot[3] * carry[3] /* tmp17 */;
-    const float tmp66 = rot[4] * carry[4] /* tmp20 */;
-    const float tmp67 = (carry[1] /* tmp8 */ < carry[2] /* tmp9 */) ? 0.0f : tmp66;
-    const float tmp68 = tmp65 + tmp67;
-    const float tmp69 = tmp68 + tmp43;
-    const float tmp70 = tmp69 * tmp69;
-    const float tmp71 = tmp64 + tmp70;
-    const float tmp72 = rot[6] * carry[3] /* tmp17 */;
-    const float tmp73 = rot[7] * carry[4] /* tmp20 */;
-    const float tmp74 = (carry[1] /* tmp8 */ < carry[2] /* tmp9 */) ? 0.0f : tmp73;
-    const float tmp75 = tmp72 + tmp74;
-    const float tmp76 = tmp75 + tmp44;
-    const float tmp77 = tmp76 * tmp76;
-    const float tmp78 = tmp71 + tmp77;
-    carry[0] = tmp63;
-    carry[1] = tmp69;
-    carry[2] = tmp76;
-    carry[3] = tmp78;
+    const float tmp64 = carry[5] /* tmp24 */ + tmp43;
+    const float tmp65 = tmp64 * tmp64;
+    const float tmp66 = rot[3] * carry[3] /* tmp18 */;
+    const float tmp67 = rot[4] * carry[4] /* tmp21 */;
+    const float tmp68 = (carry[1] /* tmp9 */ < carry[2] /* tmp10 */) ? 0.0f : tmp67;
+    const float tmp69 = tmp66 + tmp68;
+    const float tmp70 = tmp69 + tmp44;
+    const float tmp71 = tmp70 * tmp70;
+    const float tmp72 = tmp65 + tmp71;
+    const float tmp73 = rot[6] * carry[3] /* tmp18 */;
+    const float tmp74 = rot[7] * carry[4] /* tmp21 */;
+    const float tmp75 = (carry[1] /* tmp9 */ < carry[2] /* tmp10 */) ? 0.0f : tmp74;
+    const float tmp76 = tmp73 + tmp75;
+    const float tmp77 = tmp76 + tmp45;
+    const float tmp78 = tmp77 * tmp77;
+    const float tmp79 = tmp72 + tmp78;
+    carry[0] = tmp64;
+    carry[1] = tmp70;
+    carry[2] = tmp77;
+    carry[3] = tmp79;
 }
 
 static void qcf_k_correct_part2(const float q[4], float carry[11])
 {
-    float tmp79;
     float tmp80;
     float tmp81;
     float tmp82;
-    if (carry[3] /* tmp78 */ < 0.01f /* SERIES_MAX*SERIES_MAX */) {
-        const float tmp83 = (-2.1377798e-05f) /* -(2/93555) */ * carry[3] /* tmp78 */;
-        const float tmp84 = (-0.00021164022f) /* -(1/4725) */ + tmp83;
-        const float tmp85 = carry[3] /* tmp78 */ * tmp84;
-        const float tmp86 = (-0.0021164021f) /* -(2/945) */ + tmp85;
-        const float tmp87 = carry[3] /* tmp78 */ * tmp86;
-        const float tmp88 = (-0.022222223f) /* -(1/45) */ + tmp87;
-        const float tmp89 = carry[3] /* tmp78 */ * tmp88;
-        const float tmp90 = (-0.33333334f) /* -(1/3) */ + tmp89;
-        const float tmp91 = carry[3] /* tmp78 */ * tmp90;
-        const float tmp92 = 1.0f + tmp91;
-        tmp79 = tmp92;
-        tmp80 = carry[0] /* tmp63 */;
-        tmp81 = carry[1] /* tmp69 */;
-        tmp82 = carry[2] /* tmp76 */;
+    float tmp83;
+    if (carry[3] /* tmp79 */ < 0.01f /* SERIES_MAX*SERIES_MAX */) {
+        const float tmp84 = (-2.1377798e-05f) /* -(2/93555) */ * carry[3] /* tmp79 */;
+        const float tmp85 = (-0.00021164022f) /* -(1/4725) */ + tmp84;
+        const float tmp86 = carry[3] /* tmp79 */ * tmp85;
+        const float tmp87 = (-0.0021164021f) /* -(2/945) */ + tmp86;
+        const float tmp88 = carry[3] /* tmp79 */ * tmp87;
+        const float tmp89 = (-0.022222223f) /* -(1/45) */ + tmp88;
+        const float tmp90 = carry[3] /* tmp79 */ * tmp89;
+        const float tmp91 = (-0.33333334f) /* -(1/3) */ + tmp90;
+        const float tmp92 = carry[3] /* tmp79 */ * tmp91;
+        const float tmp93 = 1.0f + tmp92;
+        tmp80 = tmp93;
+        tmp81 = carry[0] /* tmp64 */;
+        tmp82 = carry[1] /* tmp70 */;
+        tmp83 = carry[2] /* tmp77 */;
     } else {
-        const float tmp93 = (carry[3] /* tmp78 */ > 0.01f /* SERIES_MAX*SERIES_MAX */) ?
-                carry[3] /* tmp78 */ : 0.01f /* SERIES_MAX*SERIES_MAX */;
-        const float tmp94 = sqrtf(tmp93);
+        const float tmp94 = (carry[3] /* tmp79 */ > 0.01f /* SERIES_MAX*SERIES_MAX */) ?
+                carry[3] /* tmp79 */ : 0.01f /* SERIES_MAX*SERIES_MAX */;
+        const float tmp95 = sqrtf(tmp94);
+        float tmp97;
         float tmp96;
-        float tmp95;
-        fast_sincosf(tmp94, &tmp96, &tmp95);   /* sin and cos, one reduction */
-        const float tmp97 = tmp96 / tmp94;
-        const float tmp98 = tmp97 * carry[0] /* tmp63 */;
-        const float tmp99 = tmp97 * carry[1] /* tmp69 */;
-        const float tmp100 = tmp97 * carry[2] /* tmp76 */;
-        tmp79 = tmp95;
-        tmp80 = tmp98;
+        fast_sincosf(tmp95, &tmp97, &tmp96);   /* sin and cos, one reduction */
+        const float tmp98 = tmp97 / tmp95;
+        const float tmp99 = tmp98 * carry[0] /* tmp64 */;
+        const float tmp100 = tmp98 * carry[1] /* tmp70 */;
+        const float tmp101 = tmp98 * carry[2] /* tmp77 */;
+        tmp80 = tmp96;
         tmp81 = tmp99;
         tmp82 = tmp100;
+        tmp83 = tmp101;
     }
-    const float tmp101 = q[0] * tmp79;
-    const float tmp102 = q[1] * tmp80;
-    const float tmp103 = tmp101 - tmp102;
-    const float tmp104 = q[2] * tmp81;
-    const float tmp105 = tmp103 - tmp104;
-    const float tmp106 = q[3] * tmp82;
-    const float tmp107 = tmp105 - tmp106;
-    const float tmp108 = tmp107 * tmp107;
-    const float tmp109 = q[0] * tmp80;
-    const float tmp110 = q[1] * tmp79;
-    const float tmp111 = tmp109 + tmp110;
-    const float tmp112 = q[2] * tmp82;
-    const float tmp113 = tmp111 + tmp112;
-    const float tmp114 = q[3] * tmp81;
-    const float tmp115 = tmp113 - tmp114;
-    const float tmp116 = tmp115 * tmp115;
-    const float tmp117 = tmp108 + tmp116;
-    const float tmp118 = q[0] * tmp81;
-    carry[3] = tmp79;
-    carry[4] = tmp80;
-    carry[5] = tmp81;
-    carry[6] = tmp82;
-    carry[7] = tmp107;
-    carry[8] = tmp115;
-    carry[9] = tmp117;
-    carry[10] = tmp118;
+    const float tmp102 = q[0] * tmp80;
+    const float tmp103 = q[1] * tmp81;
+    const float tmp104 = tmp102 - tmp103;
+    const float tmp105 = q[2] * tmp82;
+    const float tmp106 = tmp104 - tmp105;
+    const float tmp107 = q[3] * tmp83;
+    const float tmp108 = tmp106 - tmp107;
+    const float tmp109 = tmp108 * tmp108;
+    const float tmp110 = q[0] * tmp81;
+    const float tmp111 = q[1] * tmp80;
+    const float tmp112 = tmp110 + tmp111;
+    const float tmp113 = q[2] * tmp83;
+    const float tmp114 = tmp112 + tmp113;
+    const float tmp115 = q[3] * tmp82;
+    const float tmp116 = tmp114 - tmp115;
+    const float tmp117 = tmp116 * tmp116;
+    const float tmp118 = tmp109 + tmp117;
+    const float tmp119 = q[0] * tmp82;
+    carry[3] = tmp80;
+    carry[4] = tmp81;
+    carry[5] = tmp82;
+    carry[6] = tmp83;
+    carry[7] = tmp108;
+    carry[8] = tmp116;
+    carry[9] = tmp118;
+    carry[10] = tmp119;
 }
 
 static void qcf_k_correct_part3(const float q[4], float carry[11])
 {
-    const float tmp119 = q[1] * carry[6] /* tmp82 */;
-    const float tmp120 = carry[10] /* tmp118 */ - tmp119;
-    const float tmp121 = q[2] * carry[3] /* tmp79 */;
-    const float tmp122 = tmp120 + tmp121;
-    const float tmp123 = q[3] * carry[4] /* tmp80 */;
-    const float tmp124 = tmp122 + tmp123;
-    const float tmp125 = tmp124 * tmp124;
-    const float tmp126 = carry[9] /* tmp117 */ + tmp125;
-    const float tmp127 = q[0] * carry[6] /* tmp82 */;
-    const float tmp128 = q[1] * carry[5] /* tmp81 */;
-    const float tmp129 = tmp127 + tmp128;
-    const float tmp130 = q[2] * carry[4] /* tmp80 */;
-    const float tmp131 = tmp129 - tmp130;
-    const float tmp132 = q[3] * carry[3] /* tmp79 */;
-    const float tmp133 = tmp131 + tmp132;
-    const float tmp134 = tmp133 * tmp133;
-    const float tmp135 = tmp126 + tmp134;
-    const float tmp136 = sqrtf(tmp135);
-    const float tmp137 = 1.0f / tmp136;
-    const float tmp138 = carry[7] /* tmp107 */ * tmp137;
-    const float tmp139 = carry[8] /* tmp115 */ * tmp137;
-    const float tmp140 = tmp124 * tmp137;
-    const float tmp141 = tmp133 * tmp137;
-    carry[3] = tmp138;
-    carry[4] = tmp139;
-    carry[5] = tmp140;
-    carry[6] = tmp141;
+    const float tmp120 = q[1] * carry[6] /* tmp83 */;
+    const float tmp121 = carry[10] /* tmp119 */ - tmp120;
+    const float tmp122 = q[2] * carry[3] /* tmp80 */;
+    const float tmp123 = tmp121 + tmp122;
+    const float tmp124 = q[3] * carry[4] /* tmp81 */;
+    const float tmp125 = tmp123 + tmp124;
+    const float tmp126 = tmp125 * tmp125;
+    const float tmp127 = carry[9] /* tmp118 */ + tmp126;
+    const float tmp128 = q[0] * carry[6] /* tmp83 */;
+    const float tmp129 = q[1] * carry[5] /* tmp82 */;
+    const float tmp130 = tmp128 + tmp129;
+    const float tmp131 = q[2] * carry[4] /* tmp81 */;
+    const float tmp132 = tmp130 - tmp131;
+    const float tmp133 = q[3] * carry[3] /* tmp80 */;
+    const float tmp134 = tmp132 + tmp133;
+    const float tmp135 = tmp134 * tmp134;
+    const float tmp136 = tmp127 + tmp135;
+    const float tmp137 = sqrtf(tmp136);
+    const float tmp138 = 1.0f / tmp137;
+    const float tmp139 = carry[7] /* tmp108 */ * tmp138;
+    const float tmp140 = carry[8] /* tmp116 */ * tmp138;
+    const float tmp141 = tmp125 * tmp138;
+    const float tmp142 = tmp134 * tmp138;
+    carry[3] = tmp139;
+    carry[4] = tmp140;
+    carry[5] = tmp141;
+    carry[6] = tmp142;
 }
 
 static void qcf_k_correct_part4(const float gyro_bias[3], float span_accel, bool use_accel,
-    float accel_norm2, bool recover, bool at_rest, const float rest_gyro_lp[3], float carry[11])
+    float accel_norm2, bool recover, bool gps_comp, bool at_rest, const float rest_gyro_lp[3],
+    float carry[11])
 {
-    float tmp142;
     float tmp143;
     float tmp144;
+    float tmp145;
     if (at_rest) {
-        const float tmp145 = 1.0f + span_accel;
-        const float tmp146 = span_accel / tmp145;
-        const float tmp147 = rest_gyro_lp[0] - gyro_bias[0];
-        const float tmp148 = tmp146 * tmp147;
-        const float tmp149 = gyro_bias[0] + tmp148;
-        const float tmp150 = rest_gyro_lp[1] - gyro_bias[1];
-        const float tmp151 = tmp146 * tmp150;
-        const float tmp152 = gyro_bias[1] + tmp151;
-        const float tmp153 = rest_gyro_lp[2] - gyro_bias[2];
-        const float tmp154 = tmp146 * tmp153;
-        const float tmp155 = gyro_bias[2] + tmp154;
-        tmp142 = tmp149;
-        tmp143 = tmp152;
-        tmp144 = tmp155;
+        const float tmp146 = 1.0f + span_accel;
+        const float tmp147 = span_accel / tmp146;
+        const float tmp148 = rest_gyro_lp[0] - gyro_bias[0];
+        const float tmp149 = tmp147 * tmp148;
+        const float tmp150 = gyro_bias[0] + tmp149;
+        const float tmp151 = rest_gyro_lp[1] - gyro_bias[1];
+        const float tmp152 = tmp147 * tmp151;
+        const float tmp153 = gyro_bias[1] + tmp152;
+        const float tmp154 = rest_gyro_lp[2] - gyro_bias[2];
+        const float tmp155 = tmp147 * tmp154;
+        const float tmp156 = gyro_bias[2] + tmp155;
+        tmp143 = tmp150;
+        tmp144 = tmp153;
+        tmp145 = tmp156;
     } else {
-        const bool tmp156 = use_accel && (!(recover));
-        const bool tmp157 = (77.55708f /* (G0 - 1.0)^2 */ < accel_norm2) && (accel_norm2 <
+        const bool tmp157 = use_accel && (!(recover));
+        const bool tmp158 = (77.55708f /* (G0 - 1.0)^2 */ < accel_norm2) && (accel_norm2 <
                 116.78368f /* (G0 + 1.0)^2 */);
-        const bool tmp158 = tmp156 && tmp157;
-        const float tmp159 = 0.016f /* ki/(0.5*kp) */ * carry[0] /* tmp63 */;
-        const float tmp160 = gyro_bias[0] - tmp159;
-        const float tmp161 = (tmp158) ? tmp160 : gyro_bias[0];
-        const float tmp162 = 0.016f /* ki/(0.5*kp) */ * carry[1] /* tmp69 */;
-        const float tmp163 = gyro_bias[1] - tmp162;
-        const float tmp164 = (tmp158) ? tmp163 : gyro_bias[1];
-        const float tmp165 = 0.016f /* ki/(0.5*kp) */ * carry[2] /* tmp76 */;
-        const float tmp166 = gyro_bias[2] - tmp165;
-        const float tmp167 = (tmp158) ? tmp166 : gyro_bias[2];
-        tmp142 = tmp161;
-        tmp143 = tmp164;
-        tmp144 = tmp167;
+        const bool tmp159 = tmp157 && tmp158;
+        const float tmp160 = (gps_comp) ? 0.0028571428f /* ki/(0.5*kp_gps) */ :
+                0.016f /* ki/(0.5*kp) */;
+        const float tmp161 = tmp160 * carry[0] /* tmp64 */;
+        const float tmp162 = gyro_bias[0] - tmp161;
+        const float tmp163 = (tmp159) ? tmp162 : gyro_bias[0];
+        const float tmp164 = tmp160 * carry[1] /* tmp70 */;
+        const float tmp165 = gyro_bias[1] - tmp164;
+        const float tmp166 = (tmp159) ? tmp165 : gyro_bias[1];
+        const float tmp167 = tmp160 * carry[2] /* tmp77 */;
+        const float tmp168 = gyro_bias[2] - tmp167;
+        const float tmp169 = (tmp159) ? tmp168 : gyro_bias[2];
+        tmp143 = tmp163;
+        tmp144 = tmp166;
+        tmp145 = tmp169;
     }
-    carry[0] = tmp142;
-    carry[1] = tmp143;
-    carry[2] = tmp144;
+    carry[0] = tmp143;
+    carry[1] = tmp144;
+    carry[2] = tmp145;
 }
 
 /*
@@ -867,60 +943,45 @@ static void qcf_k_correct_part4(const float gyro_bias[3], float span_accel, bool
  *     use_accel: bool
  *     accel_norm2: float
  *     recover: bool
+ *     gps_comp: bool
  *     at_rest: bool
  *     rest_gyro_lp: float[3]
  * Outputs:
  *     q_new: float[4]
  *     gyro_bias_new: float[3]
  *
- * Total ops: 168 (add 54, mul 73, div 5, sqrt 6, trig 2, cmp 28)
- *     of which only one side runs: if (tmp41 < 1e-15f) 0, else 18
- *     of which only one side runs: if (tmp78 < 0.01f) 10, else 8
- *     of which only one side runs: if (at_rest) 11, else 12
+ * Total ops: 170 (add 54, mul 73, div 5, sqrt 6, trig 2, cmp 30)
+ *     of which only one side runs: if (tmp42 < 1e-15f) 0, else 18
+ *     of which only one side runs: if (tmp79 < 0.01f) 10, else 8
+ *     of which only one side runs: if (at_rest) 11, else 13
  */
 static void qcf_k_correct(const float q[4], const float rot[9], const float gyro_bias[3],
     const float accel_lp[3], const float mag_ned[3], float span_accel, float span_mag,
-    bool use_accel, float accel_norm2, bool recover, bool at_rest, const float rest_gyro_lp[3],
-    float q_new[4], float gyro_bias_new[3])
+    bool use_accel, float accel_norm2, bool recover, bool gps_comp, bool at_rest,
+    const float rest_gyro_lp[3], float q_new[4], float gyro_bias_new[3])
 {
     /*
      * 5 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
      * handed between them (a slot reused once its value is dead)
      */
     float carry[11];
-    qcf_k_correct_part0(rot, accel_lp, mag_ned, span_accel, recover, carry);
+    qcf_k_correct_part0(rot, accel_lp, mag_ned, span_accel, recover, gps_comp, carry);
     qcf_k_correct_part1(rot, span_mag, carry);
     qcf_k_correct_part2(q, carry);
     qcf_k_correct_part3(q, carry);
-    qcf_k_correct_part4(gyro_bias, span_accel, use_accel, accel_norm2, recover, at_rest,
+    qcf_k_correct_part4(gyro_bias, span_accel, use_accel, accel_norm2, recover, gps_comp, at_rest,
             rest_gyro_lp, carry);
-    q_new[0] = carry[3] /* tmp138 */;
-    q_new[1] = carry[4] /* tmp139 */;
-    q_new[2] = carry[5] /* tmp140 */;
-    q_new[3] = carry[6] /* tmp141 */;
-    gyro_bias_new[0] = carry[0] /* tmp142 */;
-    gyro_bias_new[1] = carry[1] /* tmp143 */;
-    gyro_bias_new[2] = carry[2] /* tmp144 */;
+    q_new[0] = carry[3] /* tmp139 */;
+    q_new[1] = carry[4] /* tmp140 */;
+    q_new[2] = carry[5] /* tmp141 */;
+    q_new[3] = carry[6] /* tmp142 */;
+    gyro_bias_new[0] = carry[0] /* tmp143 */;
+    gyro_bias_new[1] = carry[1] /* tmp144 */;
+    gyro_bias_new[2] = carry[2] /* tmp145 */;
 }
 
-/*
- * rest detection: gyro steady and |f| near g for rest_time
- *
- * Args:
- *     gyro: float[3]
- *     accel_norm2: float
- *     rest_gyro_lp: float[3]
- *     rest_time: float
- *     span: float
- * Outputs:
- *     rest_gyro_lp_new: float[3]
- *     rest_time_new: float
- *     at_rest: bool
- *
- * Total ops: 33 (add 16, mul 10, div 1, cmp 6)
- */
-static void qcf_k_rest(const float gyro[3], float accel_norm2, const float rest_gyro_lp[3],
-    float rest_time, float span, float rest_gyro_lp_new[3], float *rest_time_new, bool *at_rest)
+static void qcf_k_rest_part0(const float gyro[3], const float rest_gyro_lp[3], float span,
+    const float q[4], const float rest_q[4], const float rest_rate_lp[3], float carry[9])
 {
     const float tmp0 = 0.5f /* rest_tau */ + span;
     const float tmp1 = span / tmp0;
@@ -933,34 +994,156 @@ static void qcf_k_rest(const float gyro[3], float accel_norm2, const float rest_
     const float tmp8 = gyro[2] - rest_gyro_lp[2];
     const float tmp9 = tmp1 * tmp8;
     const float tmp10 = rest_gyro_lp[2] + tmp9;
-    const float tmp11 = gyro[0] - tmp4;
-    const float tmp12 = tmp11 * tmp11;
-    const float tmp13 = gyro[1] - tmp7;
-    const float tmp14 = tmp13 * tmp13;
-    const float tmp15 = tmp12 + tmp14;
-    const float tmp16 = gyro[2] - tmp10;
-    const float tmp17 = tmp16 * tmp16;
-    const float tmp18 = tmp15 + tmp17;
-    const bool tmp19 = (86.61373f /* (G0 - rest_accel_tol)^2 */ < accel_norm2) && (accel_norm2 <
+    const float tmp11 = rest_q[0] * q[0];
+    const float tmp12 = rest_q[1] * q[1];
+    const float tmp13 = tmp11 + tmp12;
+    const float tmp14 = rest_q[2] * q[2];
+    const float tmp15 = tmp13 + tmp14;
+    const float tmp16 = rest_q[3] * q[3];
+    const float tmp17 = tmp15 + tmp16;
+    const float tmp18 = rest_q[0] * q[1];
+    const float tmp19 = rest_q[1] * q[0];
+    const float tmp20 = tmp18 - tmp19;
+    const float tmp21 = rest_q[2] * q[3];
+    const float tmp22 = tmp20 - tmp21;
+    const float tmp23 = rest_q[3] * q[2];
+    const float tmp24 = tmp22 + tmp23;
+    const float tmp25 = -tmp24;
+    const float tmp26 = (tmp17 < 0.0f) ? tmp25 : tmp24;
+    const float tmp27 = tmp26 + tmp26;
+    const float tmp28 = 1.0f / span;
+    const float tmp29 = tmp27 * tmp28;
+    const float tmp30 = tmp29 - rest_rate_lp[0];
+    const float tmp31 = tmp1 * tmp30;
+    const float tmp32 = rest_rate_lp[0] + tmp31;
+    const float tmp33 = rest_q[0] * q[2];
+    const float tmp34 = rest_q[1] * q[3];
+    const float tmp35 = tmp33 + tmp34;
+    const float tmp36 = rest_q[2] * q[0];
+    const float tmp37 = tmp35 - tmp36;
+    const float tmp38 = rest_q[3] * q[1];
+    const float tmp39 = tmp37 - tmp38;
+    carry[0] = tmp1;
+    carry[1] = tmp4;
+    carry[2] = tmp7;
+    carry[3] = tmp10;
+    carry[4] = tmp17;
+    carry[5] = tmp28;
+    carry[6] = tmp32;
+    carry[7] = tmp39;
+}
+
+static void qcf_k_rest_part1(const float gyro[3], float accel_norm2, const float q[4],
+    const float rest_q[4], const float rest_rate_lp[3], float carry[9], bool flags[1])
+{
+    const float tmp40 = -carry[7] /* tmp39 */;
+    const float tmp41 = (carry[4] /* tmp17 */ < 0.0f) ? tmp40 : carry[7] /* tmp39 */;
+    const float tmp42 = tmp41 + tmp41;
+    const float tmp43 = tmp42 * carry[5] /* tmp28 */;
+    const float tmp44 = tmp43 - rest_rate_lp[1];
+    const float tmp45 = carry[0] /* tmp1 */ * tmp44;
+    const float tmp46 = rest_rate_lp[1] + tmp45;
+    const float tmp47 = rest_q[0] * q[3];
+    const float tmp48 = rest_q[1] * q[2];
+    const float tmp49 = tmp47 - tmp48;
+    const float tmp50 = rest_q[2] * q[1];
+    const float tmp51 = tmp49 + tmp50;
+    const float tmp52 = rest_q[3] * q[0];
+    const float tmp53 = tmp51 - tmp52;
+    const float tmp54 = -tmp53;
+    const float tmp55 = (carry[4] /* tmp17 */ < 0.0f) ? tmp54 : tmp53;
+    const float tmp56 = tmp55 + tmp55;
+    const float tmp57 = tmp56 * carry[5] /* tmp28 */;
+    const float tmp58 = tmp57 - rest_rate_lp[2];
+    const float tmp59 = carry[0] /* tmp1 */ * tmp58;
+    const float tmp60 = rest_rate_lp[2] + tmp59;
+    const float tmp61 = gyro[0] - carry[1] /* tmp4 */;
+    const float tmp62 = tmp61 * tmp61;
+    const float tmp63 = gyro[1] - carry[2] /* tmp7 */;
+    const float tmp64 = tmp63 * tmp63;
+    const float tmp65 = tmp62 + tmp64;
+    const float tmp66 = gyro[2] - carry[3] /* tmp10 */;
+    const float tmp67 = tmp66 * tmp66;
+    const float tmp68 = tmp65 + tmp67;
+    const bool tmp69 = (86.61373f /* (G0 - rest_accel_tol)^2 */ < accel_norm2) && (accel_norm2 <
             106.227036f /* (G0 + rest_accel_tol)^2 */);
-    const bool tmp20 = (tmp18 < 0.001225f /* rest_gyro_tol^2 */) && tmp19;
-    const float tmp21 = tmp4 * tmp4;
-    const float tmp22 = tmp7 * tmp7;
-    const float tmp23 = tmp21 + tmp22;
-    const float tmp24 = tmp10 * tmp10;
-    const float tmp25 = tmp23 + tmp24;
-    const bool tmp26 = tmp20 && (tmp25 < 0.001225f /* rest_gyro_tol^2 */);
-    const float tmp27 = rest_time + span;
-    const float tmp28 = (tmp27 < 1000.0f /* REST_TIME_CAP */) ? tmp27 : 1000.0f /* REST_TIME_CAP */;
-    const float tmp29 = (tmp26) ? tmp28 : 0.0f;
-    const float tmp30 = 0.5f * span;
-    const float tmp31 = tmp29 + tmp30;
-    const bool tmp32 = 1.5f /* rest_time */ <= tmp31;
-    rest_gyro_lp_new[0] = tmp4;
-    rest_gyro_lp_new[1] = tmp7;
-    rest_gyro_lp_new[2] = tmp10;
-    *rest_time_new = tmp29;
-    *at_rest = tmp32;
+    const bool tmp70 = (tmp68 < 0.001225f /* rest_gyro_tol^2 */) && tmp69;
+    const float tmp71 = carry[1] /* tmp4 */ * carry[1] /* tmp4 */;
+    const float tmp72 = carry[2] /* tmp7 */ * carry[2] /* tmp7 */;
+    const float tmp73 = tmp71 + tmp72;
+    const float tmp74 = carry[3] /* tmp10 */ * carry[3] /* tmp10 */;
+    const float tmp75 = tmp73 + tmp74;
+    const float tmp76 = carry[6] /* tmp32 */ * carry[6] /* tmp32 */;
+    const float tmp77 = tmp46 * tmp46;
+    const float tmp78 = tmp76 + tmp77;
+    const float tmp79 = tmp60 * tmp60;
+    carry[0] = tmp46;
+    carry[4] = tmp60;
+    flags[0] = tmp70;
+    carry[5] = tmp75;
+    carry[7] = tmp78;
+    carry[8] = tmp79;
+}
+
+static void qcf_k_rest_part2(float rest_time, float span, float carry[9], bool flags[1])
+{
+    const float tmp80 = carry[7] /* tmp78 */ + carry[8] /* tmp79 */;
+    const bool tmp81 = (carry[5] /* tmp75 */ < 0.001225f /* rest_gyro_tol^2 */) || (tmp80 <
+            0.001225f /* rest_gyro_tol^2 */);
+    const bool tmp82 = flags[0] /* tmp70 */ && tmp81;
+    const float tmp83 = rest_time + span;
+    const float tmp84 = (tmp83 < 1000.0f /* REST_TIME_CAP */) ? tmp83 : 1000.0f /* REST_TIME_CAP */;
+    const float tmp85 = (tmp82) ? tmp84 : 0.0f;
+    const float tmp86 = 0.5f * span;
+    const float tmp87 = tmp85 + tmp86;
+    const bool tmp88 = 1.5f /* rest_time */ <= tmp87;
+    carry[5] = tmp85;
+    flags[0] = tmp88;
+}
+
+/*
+ * rest detection: gyro steady, the low-passed gyro or the estimate not turning, |f| near g, for
+ * rest_time
+ *
+ * Args:
+ *     gyro: float[3]
+ *     accel_norm2: float
+ *     rest_gyro_lp: float[3]
+ *     rest_time: float
+ *     span: float
+ *     q: float[4]
+ *     rest_q: float[4]
+ *     rest_rate_lp: float[3]
+ * Outputs:
+ *     rest_gyro_lp_new: float[3]
+ *     rest_rate_lp_new: float[3]
+ *     rest_time_new: float
+ *     at_rest: bool
+ *
+ * Total ops: 89 (add 42, mul 35, div 2, cmp 10)
+ */
+static void qcf_k_rest(const float gyro[3], float accel_norm2, const float rest_gyro_lp[3],
+    float rest_time, float span, const float q[4], const float rest_q[4],
+    const float rest_rate_lp[3], float rest_gyro_lp_new[3], float rest_rate_lp_new[3],
+    float *rest_time_new, bool *at_rest)
+{
+    /*
+     * 3 parts called in turn (inlined when optimising): bounded -O0 frames; carry and flags hold
+     * the values handed between them (a slot reused once its value is dead)
+     */
+    float carry[9];
+    bool flags[1];
+    qcf_k_rest_part0(gyro, rest_gyro_lp, span, q, rest_q, rest_rate_lp, carry);
+    qcf_k_rest_part1(gyro, accel_norm2, q, rest_q, rest_rate_lp, carry, flags);
+    qcf_k_rest_part2(rest_time, span, carry, flags);
+    rest_gyro_lp_new[0] = carry[1] /* tmp4 */;
+    rest_gyro_lp_new[1] = carry[2] /* tmp7 */;
+    rest_gyro_lp_new[2] = carry[3] /* tmp10 */;
+    rest_rate_lp_new[0] = carry[6] /* tmp32 */;
+    rest_rate_lp_new[1] = carry[0] /* tmp46 */;
+    rest_rate_lp_new[2] = carry[4] /* tmp60 */;
+    *rest_time_new = carry[5] /* tmp85 */;
+    *at_rest = flags[0] /* tmp88 */;
 }
 
 static void qcf_k_mag_check_part0(const float accel_lp[3], float mag_norm2, const float mag_ned[3],
@@ -1996,113 +2179,6 @@ static inline void qcf_k_rotation(const float q[4], float rot[9])
     rot[8] = tmp29;
 }
 
-static void qcf_k_gravity_part_part0(float accel_norm2, bool flags[1])
-{
-    const bool tmp0 = (90.376396f /* (G0 - motion_accel_threshold)^2 */ < accel_norm2) &&
-            (accel_norm2 < 102.14437f /* (G0 + motion_accel_threshold)^2 */);
-    flags[0] = tmp0;
-}
-
-static void qcf_k_gravity_part_part1(const float accel[3], const float rot[9], const float gyro[3],
-    const float gyro_bias[3], const float gps_vel_hist[3], float carry[3], const bool flags[1])
-{
-    float tmp1;
-    float tmp2;
-    float tmp3;
-    if (flags[0] /* tmp0 */) {
-        tmp1 = accel[0];
-        tmp2 = accel[1];
-        tmp3 = accel[2];
-    } else {
-        const float tmp4 = rot[0] * gps_vel_hist[0];
-        const float tmp5 = rot[1] * gps_vel_hist[1];
-        const float tmp6 = tmp4 + tmp5;
-        const float tmp7 = rot[2] * gps_vel_hist[2];
-        const float tmp8 = tmp6 + tmp7;
-        const float tmp9 = gps_vel_hist[0] * gps_vel_hist[0];
-        const float tmp10 = gps_vel_hist[1] * gps_vel_hist[1];
-        const float tmp11 = tmp9 + tmp10;
-        const float tmp12 = gps_vel_hist[2] * gps_vel_hist[2];
-        const float tmp13 = tmp11 + tmp12;
-        const float tmp14 = (tmp13 > 1e-06f /* ALONG_V2_MIN */) ? tmp13 : 1e-06f /* ALONG_V2_MIN */;
-        const float tmp15 = 1.0f / tmp14;
-        const float tmp16 = sqrtf(tmp15);
-        const float tmp17 = tmp8 * tmp16;
-        const float tmp18 = tmp17 - 0.7f /* centripetal_align */;
-        const float tmp19 = tmp18 / 0.3f /* 1 - centripetal_align */;
-        const float tmp20 = (tmp19 > 0.0f) ? tmp19 : 0.0f;
-        const float tmp21 = (tmp20 < 1.0f) ? tmp20 : 1.0f;
-        const float tmp22 = gyro[1] - gyro_bias[1];
-        const float tmp23 = rot[6] * gps_vel_hist[0];
-        const float tmp24 = rot[7] * gps_vel_hist[1];
-        const float tmp25 = tmp23 + tmp24;
-        const float tmp26 = rot[8] * gps_vel_hist[2];
-        const float tmp27 = tmp25 + tmp26;
-        const float tmp28 = tmp22 * tmp27;
-        const float tmp29 = gyro[2] - gyro_bias[2];
-        const float tmp30 = rot[3] * gps_vel_hist[0];
-        const float tmp31 = rot[4] * gps_vel_hist[1];
-        const float tmp32 = tmp30 + tmp31;
-        const float tmp33 = rot[5] * gps_vel_hist[2];
-        const float tmp34 = tmp32 + tmp33;
-        const float tmp35 = tmp29 * tmp34;
-        const float tmp36 = tmp28 - tmp35;
-        const float tmp37 = tmp21 * tmp36;
-        const float tmp38 = accel[0] - tmp37;
-        const float tmp39 = tmp29 * tmp8;
-        const float tmp40 = gyro[0] - gyro_bias[0];
-        const float tmp41 = tmp40 * tmp27;
-        const float tmp42 = tmp39 - tmp41;
-        const float tmp43 = tmp21 * tmp42;
-        const float tmp44 = accel[1] - tmp43;
-        const float tmp45 = tmp40 * tmp34;
-        const float tmp46 = tmp22 * tmp8;
-        const float tmp47 = tmp45 - tmp46;
-        const float tmp48 = tmp21 * tmp47;
-        const float tmp49 = accel[2] - tmp48;
-        tmp1 = tmp38;
-        tmp2 = tmp44;
-        tmp3 = tmp49;
-    }
-    carry[0] = tmp1;
-    carry[1] = tmp2;
-    carry[2] = tmp3;
-}
-
-/*
- * accelerometer minus the GPS motion acceleration when ||f| - g| exceeds the threshold
- * (centripetal: (w - b) x R(q)^T v_gps in body axes, computed only then)
- *
- * Args:
- *     accel: float[3]
- *     accel_norm2: float
- *     rot: float[9], 3x3 matrix, column-major: row i, column j at [i + 3 * j]
- *     gyro: float[3]
- *     gyro_bias: float[3]
- *     gps_vel_hist: float[3]
- * Outputs:
- *     accel_gravity: float[3]
- *
- * Total ops: 50 (add 18, mul 22, div 2, sqrt 1, cmp 7)
- *     of which only one side runs: if (tmp0) 0, else 46
- */
-static void qcf_k_gravity_part(const float accel[3], float accel_norm2, const float rot[9],
-    const float gyro[3], const float gyro_bias[3], const float gps_vel_hist[3],
-    float accel_gravity[3])
-{
-    /*
-     * 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry and flags hold
-     * the values handed between them (a slot reused once its value is dead)
-     */
-    float carry[3];
-    bool flags[1];
-    qcf_k_gravity_part_part0(accel_norm2, flags);
-    qcf_k_gravity_part_part1(accel, rot, gyro, gyro_bias, gps_vel_hist, carry, flags);
-    accel_gravity[0] = carry[0] /* tmp1 */;
-    accel_gravity[1] = carry[1] /* tmp2 */;
-    accel_gravity[2] = carry[2] /* tmp3 */;
-}
-
 /*
  * Z-Y-X Euler angles [roll, pitch, yaw] of a unit body->NED quaternion
  *
@@ -2170,11 +2246,17 @@ static void qcf_start(qcf_state *s, const qcf_input *in, bool use_accel, bool us
             for (uint32_t i = 0u; i < 3u; i++) {
                 s->rest_gyro_lp[i] = in->gyro[i];
             }
+            for (uint32_t i = 0u; i < 4u; i++) {
+                s->rest_q[i] = s->q[i];
+            }
         }
     } else if (s->initialised == 1u && use_mag) {
         qcf_k_heading_init(s->q, in->mag, s->q);
         s->initialised = 2u;
         s->mag_age = 0.0f;
+        for (uint32_t i = 0u; i < 4u; i++) {
+            s->rest_q[i] = s->q[i];   /* the heading set is no turn */
+        }
     }
 }
 
@@ -2287,6 +2369,13 @@ void qcf_init(qcf_state *s)
     s->rest_gyro_lp[1] = 0.0f;
     s->rest_gyro_lp[2] = 0.0f;
     s->rest_time = 0.0f;
+    s->rest_q[0] = 1.0f;
+    s->rest_q[1] = 0.0f;
+    s->rest_q[2] = 0.0f;
+    s->rest_q[3] = 0.0f;
+    s->rest_rate_lp[0] = 0.0f;
+    s->rest_rate_lp[1] = 0.0f;
+    s->rest_rate_lp[2] = 0.0f;
     s->mag_ref[0] = 0.0f;
     s->mag_ref[1] = 0.0f;
     s->mag_dist_time = 0.0f;
@@ -2298,6 +2387,13 @@ void qcf_init(qcf_state *s)
     s->gyro_repeats[0] = 0.0f;
     s->gyro_repeats[1] = 0.0f;
     s->gyro_repeats[2] = 0.0f;
+    s->v_lp[0] = 0.0f;
+    s->v_lp[1] = 0.0f;
+    s->v_lp[2] = 0.0f;
+    s->v_ins[0] = 0.0f;
+    s->v_ins[1] = 0.0f;
+    s->v_ins[2] = 0.0f;
+    s->vlp_ok = 0u;
     s->mag_bias[0] = 0.0f;
     s->mag_bias[1] = 0.0f;
     s->mag_bias[2] = 0.0f;
@@ -2437,19 +2533,32 @@ qcf_status qcf_step(qcf_state *restrict s, const qcf_input *restrict in, float d
     qcf_k_rotation(s->q, rot);
     float accel_g[3] = { in->accel[0], in->accel[1], in->accel[2] };
     if (use_accel) {
-        /* centripetal acceleration of the latest GPS velocity turning with the body */
-        if (QCF_GPS_COMPENSATION && s->gps_count >= 1u && s->gps_age <= QCF_GPS_TIMEOUT) {
-            qcf_k_gravity_part(in->accel, accel_n2, rot, in->gyro, s->gyro_bias, s->gps_vel_hist,
-                accel_g);
-        }
     }
     s->accel_age = (s->accel_age + dt < QCF_SPAN_MAX) ? s->accel_age + dt : QCF_SPAN_MAX;
     s->mag_age = (s->mag_age + dt < QCF_SPAN_MAX) ? s->mag_age + dt : QCF_SPAN_MAX;
     bool at_rest = false;
+    /* GPS linear acceleration (gps_lowpass): the velocity through the same low-pass, its
+     * low-passed derivative removed from the tilt reference up; restarted after a gap */
+    const bool m_comp = QCF_GPS_COMPENSATION && s->gps_count >= 1u && s->gps_age <= QCF_GPS_TIMEOUT;
+    if (!m_comp) {
+        s->vlp_ok = 0u;
+    }
+    float up[3] = { s->accel_lp[0], s->accel_lp[1], s->accel_lp[2] };
     if (use_accel) {
-        qcf_k_accel_lowpass(rot, accel_g, s->accel_lp, s->accel_age, recovering, s->accel_lp);
-        qcf_k_rest(in->gyro, accel_n2, s->rest_gyro_lp, s->rest_time, s->accel_age,
-            s->rest_gyro_lp, &s->rest_time, &at_rest);
+        if (m_comp && s->vlp_ok == 0u) {
+            for (int i = 0; i < 3; i++) {
+                s->v_lp[i] = s->gps_vel_hist[i];
+                s->v_ins[i] = s->gps_vel_hist[i];
+            }
+            s->vlp_ok = 1u;
+        }
+        qcf_k_accel_lowpass(rot, accel_g, s->accel_lp, s->accel_age, recovering, s->gps_vel_hist,
+            use_gps, m_comp, s->v_lp, s->v_ins, s->accel_lp, s->v_lp, s->v_ins, up);
+        qcf_k_rest(in->gyro, accel_n2, s->rest_gyro_lp, s->rest_time, s->accel_age, s->q, s->rest_q,
+            s->rest_rate_lp, s->rest_gyro_lp, s->rest_rate_lp, &s->rest_time, &at_rest);
+        for (int i = 0; i < 4; i++) {
+            s->rest_q[i] = s->q[i];   /* predicted: the next step's rate includes this correction */
+        }
         if (at_rest) {
             status |= QCF_AT_REST;
         }
@@ -2465,7 +2574,7 @@ qcf_status qcf_step(qcf_state *restrict s, const qcf_input *restrict in, float d
         qcf_k_mag_ned(rot, mag_c, mag_n);
         const bool was_accepted = !(s->mag_dist_time > 0.0f);   /* never negative: zero */
         bool accept;
-        qcf_k_mag_check(s->accel_lp, mag_c2, mag_n, s->mag_ref, s->mag_dist_time, s->mag_learn_time,
+        qcf_k_mag_check(up, mag_c2, mag_n, s->mag_ref, s->mag_dist_time, s->mag_learn_time,
             s->mag_age, s->mag_suspect != 0u, &accept, s->mag_ref, &s->mag_dist_time,
             &s->mag_learn_time);
         /* (recovering: the dip was judged with the wrong attitude) */
@@ -2506,9 +2615,9 @@ qcf_status qcf_step(qcf_state *restrict s, const qcf_input *restrict in, float d
             }
         }
     }
-    qcf_k_correct(s->q, rot, s->gyro_bias, s->accel_lp, mag_n,
+    qcf_k_correct(s->q, rot, s->gyro_bias, up, mag_n,
         use_accel ? s->accel_age : 0.0f, heading_ok ? s->mag_age : 0.0f,
-        use_accel, accel_n2, recovering, at_rest, s->rest_gyro_lp,
+        use_accel, accel_n2, recovering, m_comp, at_rest, s->rest_gyro_lp,
         s->q, s->gyro_bias);
     if (use_accel) {
         s->accel_age = 0.0f;

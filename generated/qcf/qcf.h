@@ -23,7 +23,7 @@
  * its GNU modes, -std=c99 turns it off) and -fno-math-errno; -ffast-math breaks the input
  * checks (isfinite). Any C99 compiler builds it; see the ahrsgen docs (target.md).
  *     qcf_euler(&st, rpy);
- * No heap, no recursion; RAM is the state struct (312 bytes with the usual ABI).
+ * No heap, no recursion; RAM is the state struct (368 bytes with the usual ABI).
  * Needs <math.h> (float functions only in a float build); compilers may also emit calls to
  * memcpy/memset/memmove for struct and array copies.
  *
@@ -86,9 +86,12 @@ extern "C" {
 #define QCF_MOTION_ACCEL_THRESHOLD 0.3f    /* compensate only when ||f| - g| exceeds this (section
                                               3.2) [m/s^2] */
 /*
- * QCF_MOTION_ACCEL_MODEL = centripetal motion acceleration removed from the accelerometer:
+ * QCF_MOTION_ACCEL_MODEL = gps_lowpass motion acceleration removed from the accelerometer:
  * 'differentiator' = the paper's eq. 29 (lags 3 GPS samples, 0.6 s at 5 Hz); 'centripetal' = R(q)(w
- * - b) x v_gps, known at once from the gyro and the latest GPS velocity
+ * - b) x v_gps, known at once from the gyro and the latest GPS velocity; 'gps_lowpass' = the GPS
+ * velocity through the NED accelerometer low-pass and its low-passed derivative (linear and
+ * centripetal) removed from the tilt reference, no threshold (mekf's construction; product
+ * conditioning with accel_tau > 0 only, else nothing is removed)
  */
 #define QCF_DECLINATION 0.0f               /* magnetic declination added to the FQA heading (true
                                               north = magnetic north + declination) [rad] */
@@ -135,6 +138,11 @@ extern "C" {
                                               sample (Fusion's start-up gain idea): the error falls
                                               as exp(-kp_recovery t), 19 deg to 0.05 deg in 3 s
                                               [rad/s] */
+#define QCF_KP_GPS 1.4f                    /* proportional gain while the GPS linear acceleration is
+                                              removed (motion_accel_model = gps_lowpass with a GPS
+                                              velocity within gps_timeout): the tilt reference then
+                                              holds gravity alone and can be trusted more than kp
+                                              (no GPS, e.g. BROAD) [rad/s] */
 #define QCF_REST_TIME 1.5f                 /* rest detection: gyro steady and |f| near g this long
                                               -> the gyro bias is learned from the low-passed gyro
                                               (0 = off) [s] */
@@ -143,6 +151,13 @@ extern "C" {
 #define QCF_REST_GYRO_TOL 0.035f           /* rest detection: largest |gyro - low-passed gyro|, and
                                               largest |low-passed gyro| (a steady turn is not rest)
                                               [rad/s] */
+/*
+ * QCF_REST_TURN = estimate rest detection's 'a steady turn is not rest' test (bound rest_gyro_tol):
+ * 'gyro' = the low-passed gyro below it (a gyro bias above the bound is never learned at rest);
+ * 'estimate' = that, or the estimate's low-passed rotation rate below it (the gyro less the bias,
+ * plus the corrections: a bias the accelerometer and magnetometer hold the attitude against is not
+ * a turn)
+ */
 #define QCF_REST_ACCEL_TOL 0.5f            /* rest detection: largest ||accel| - g| [m/s^2] */
 #define QCF_REST_BIAS_TAU 1.0f             /* at rest the bias follows the low-passed gyro with this
                                               time constant [s] */
@@ -274,6 +289,9 @@ typedef struct {
     float mag_age;         /* time since the last magnetometer sample, s */
     float rest_gyro_lp[3]; /* rest detection: low-passed gyro, rad/s */
     float rest_time;       /* rest detection: steady time so far, s */
+    float rest_q[4];       /* rest detection: the predicted attitude at the last accelerometer step
+                              */
+    float rest_rate_lp[3]; /* rest detection: the estimate's low-passed rotation rate, rad/s */
     float mag_ref[2];      /* field check reference: |m| and sin(dip) (|m| = 0: not learned) */
     float mag_dist_time;   /* field check: time the field has been rejected, s */
     float mag_learn_time;  /* field check: time since the first magnetometer sample (capped), s */
@@ -281,6 +299,10 @@ typedef struct {
     float gyro_prev[3];    /* the previous gyro sample, rad/s (over-range plateau) */
     float gyro_repeats[3]; /* times each gyro component has repeated its value at or above
                               gyro_plateau_rate (over-range plateau) */
+    float v_lp[3];         /* GPS velocity through the accelerometer's NED low-pass (gps_lowpass),
+                              m/s */
+    float v_ins[3];        /* GPS velocity, carried between samples by R f + g (gps_lowpass), m/s */
+    uint32_t vlp_ok;       /* 1 while v_lp follows a fresh GPS velocity (gps_lowpass) */
     float mag_bias[3];     /* magnetometer hard iron, body axes, the field's units (m - mag_bias is
                               used) */
     float mag_cx[5];       /* candidate field model [hard iron / B (3), norm / B, down component /

@@ -208,10 +208,13 @@ def test_double_c_equals_reference_at_every_step(name, run):
 
 
 # Options that switch a filter to other step paths or kernels, each on the run that reaches them:
-# eq. 29 GPS history (reset after the gap), magnetic heading, GPS-differenced acceleration,
-# learning the field's dip at rest (BROAD starts at rest), the two halves of the CPF alone.
+# eq. 29 GPS history (reset after the gap), qcf's GPS velocity low-pass (restarted after it),
+# magnetic heading, GPS-differenced acceleration, learning the field's dip at rest and qcf's
+# turn test on its estimate (BROAD starts at rest), the two halves of the CPF alone.
 VARIANTS = [
     ("qcf", ("motion_accel_model=differentiator",), "fixedwing_dropouts_250Hz"),
+    ("qcf", ("motion_accel_model=gps_lowpass",), "fixedwing_dropouts_250Hz"),
+    ("qcf", ("rest_turn=estimate",), "broad_286Hz"),
     ("mekf", ("heading_source=mag",), "fixedwing_dropouts_250Hz"),
     ("mekf", ("motion_comp=gps_accel",), "fixedwing_dropouts_250Hz"),
     ("mekf", ("gyro_step_noise=0.1", "mag_dev_gain=300"), "broad_286Hz"),

@@ -20,6 +20,9 @@ SX expressions so that a kernel can output them and the step partial can branch 
 - `heading_correction(q, m, declination)`: the rotation about NED z that brings the horizontal
   part of R(q) m to magnetic north + declination; it only changes heading (never tilts).
   `heading_correction_ned(m_n, declination)` the same from the NED vector m_n.
+- `gps_lowpass(...)`: the GPS velocity through the same earth-frame low-pass as the specific
+  force, and the low-passed kinematic acceleration (v - v_lp)/tau removed from it (mekf's
+  motion_comp = 'gps_lowpass', qcf's motion_accel_model = 'gps_lowpass').
 - `norm_within(n2, center, tol)`: ||v| - center| < tol from |v|², without a square root.
 - `gyro_recovery(...)`: a gyro component at the sensor's full scale (a clipped sample) and the
   recovery window that follows it (the filters decide what recovering means for them).
@@ -44,6 +47,23 @@ from . import kalman, linalg, quat
 TILT_FLIP_EPS = Const("TILT_FLIP_EPS", 1e-6)
 
 
+def gps_lowpass(a_new, f_n, vel, v_lp, v_ins, alpha, dt, tau, new_gps, m_comp, gravity):
+    """Returns (v_ins', v_lp', up): the low-passed specific force a_new (NED, already updated
+    with the gain alpha) with the low-passed kinematic acceleration removed.
+
+    The velocity is the GPS sample when one arrived (new_gps), else carried from the last one by
+    a = R f + g (f_n = R f, no GPS-rate staircase in the derivative): v_ins'. It goes through the
+    same low-pass, v_lp' = v_lp + alpha (v_ins' - v_lp), and (v_ins' - v_lp')/tau, with v_lp'
+    already updated, is exactly the same discrete low-pass applied to the velocity's
+    differences (v_k - v_{k-1})/dt (the low-pass of a derivative is the derivative of the
+    low-pass; no differencing noise): up = a_new - (v_ins' - v_lp')/tau. Without compensation
+    (m_comp = 0) the velocity low-pass holds and up = a_new."""
+    vi_new = ca.if_else(new_gps, vel, v_ins + (f_n + ca.DM([0.0, 0.0, use(gravity)])) * dt)
+    v_new = ca.if_else(m_comp, v_lp + alpha * (vi_new - v_lp), v_lp)
+    up = ca.if_else(m_comp, a_new - (vi_new - v_new) / tau, a_new)
+    return vi_new, v_new, up
+
+
 def lowpass(x_lp, x, dt, tau: float):
     """One step of the first-order low-pass of time constant tau (s): x_lp + k (x - x_lp)."""
     if tau <= 0:
@@ -57,11 +77,13 @@ REST_TIME_CAP = Const("REST_TIME_CAP", 1e3)
 
 
 def rest_detector(gyro, accel_norm2, gyro_lp, rest_time, dt, *, tau: float, gyro_tol: float,
-                  accel_tol: float, gravity: float, gyro_max: float, min_time: float, time_cap: float = REST_TIME_CAP):
+                  accel_tol: float, gravity: float, gyro_max: float, min_time: float, time_cap: float = REST_TIME_CAP,
+                  turn_rate=None):
     """Returns (gyro_lp', rest_time', at_rest 0/1).
 
     Steady: |gyro - gyro_lp'| < gyro_tol and |gyro_lp'| < gyro_max (a steady turn is not
-    rest), and the accelerometer's magnitude within accel_tol of gravity (from |f|^2, no root).
+    rest; `turn_rate`, when given, is a second chance: a rotation rate the caller knows
+    better, e.g. its estimate's, below gyro_max is no turn either), and the accelerometer's magnitude within accel_tol of gravity (from |f|^2, no root).
     rest_time counts the steady time (capped at time_cap so it stays exact in float) and is
     reset to 0 otherwise. What rest is for here is the gyro bias (the low-passed gyro while
     nothing rotates), so the rotation tests are the ones that matter: VQF's test of the
@@ -70,9 +92,11 @@ def rest_detector(gyro, accel_norm2, gyro_lp, rest_time, dt, *, tau: float, gyro
     "at rest" from being declared under a strong acceleration at a constant attitude.
     """
     g_lp = lowpass(gyro_lp, gyro, dt, tau)
+    no_turn = ca.sumsqr(g_lp) < gyro_max ** 2
+    if turn_rate is not None:
+        no_turn = ca.logic_or(no_turn, ca.sumsqr(turn_rate) < gyro_max ** 2)
     steady = ca.logic_and(ca.logic_and(ca.sumsqr(gyro - g_lp) < gyro_tol ** 2,
-                                       norm_within(accel_norm2, gravity, accel_tol)),
-                          ca.sumsqr(g_lp) < gyro_max ** 2)
+                                       norm_within(accel_norm2, gravity, accel_tol)), no_turn)
     return (g_lp, *rest_timer(steady, rest_time, dt, min_time=min_time, time_cap=time_cap))
 
 

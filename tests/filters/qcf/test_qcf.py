@@ -83,7 +83,7 @@ def test_centripetal_model_beats_the_lagged_differentiator(fixedwing):
     # Instantaneous centripetal term vs the paper's eq. 29 (0.6 s lag), on the paper's filter
     # (faithful: no accelerometer low-pass, which hides part of the lag in the product).
     dec = f"declination={float(np.radians(fixedwing.meta['declination_deg']))!r}"
-    new = host_build("qcf", "float", (dec, "faithful=true")).run(fixedwing)
+    new = host_build("qcf", "float", (dec, "faithful=true", "motion_accel_model=centripetal")).run(fixedwing)
     old = host_build("qcf", "float", (dec, "faithful=true", "motion_accel_model=differentiator")).run(fixedwing)
     s_new = metrics.euler_stats(new.q, fixedwing.q_true, fixedwing.t, fixedwing.settle_time)
     s_old = metrics.euler_stats(old.q, fixedwing.q_true, fixedwing.t, fixedwing.settle_time)

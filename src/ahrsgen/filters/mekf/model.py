@@ -305,10 +305,9 @@ def accel_lowpass_function(p: dict, name="accel_lowpass") -> ca.Function:
     if p["motion_comp"] == "gps_lowpass":
         # velocity: the GPS sample when one arrived, else carried by a = R f + g from the last
         # one (no GPS-rate staircase in the low-passed derivative)
-        vi_new = ca.if_else(mask[1], vel, v_ins + (f_n + ca.DM([0.0, 0.0, use(G0)])) * dt)
-        # without compensation (m_comp = 0) the velocity low-pass holds and up is a_new
-        v_new = ca.if_else(m_comp, v_lp + alpha * (vi_new - v_lp), v_lp)
-        up = ca.if_else(m_comp, a_new - (vi_new - v_new) / p["accel_lpf_tau"], a_new)
+        # (aiding.gps_lowpass; without compensation, m_comp = 0, the velocity low-pass holds)
+        vi_new, v_new, up = aiding.gps_lowpass(a_new, f_n, vel, v_lp, v_ins, alpha, dt, p["accel_lpf_tau"],
+                                               mask[1], m_comp, G0)
     else:
         vi_new, v_new, up = v_ins, v_lp, a_new
     return emit.function(name, {"q": q, "b": b, "gyro": gyro, "accel": accel, "vel": vel, "acc_n": acc_n,

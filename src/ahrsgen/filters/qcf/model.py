@@ -16,6 +16,12 @@ centripetal acceleration of a velocity vector turning with the body, a_c = ω_n 
 ω_n = R(q̂)(ω − b̂), is known at once from the gyro and the latest GPS velocity. (Adding
 eq. 29's along-track part was tried and made things worse: the stale centripetal part of
 the lagged estimate leaks into the projection while the velocity turns.)
+'gps_lowpass' (issue 26, product conditioning only; mekf's construction, aiding.gps_lowpass):
+the GPS velocity (carried between samples by R f + g) goes through the NED low-pass with the
+same gain as the specific force, v_lp <- v_lp + k (v - v_lp), and the tilt reads
+up = a - (v - v_lp)/accel_tau: the low-passed total kinematic acceleration removed (linear and
+centripetal, no differencing noise, no |f| threshold). Without a GPS sample within gps_timeout
+nothing is removed and the velocity low-pass restarts on the next sample.
 
 Product conditioning (faithful = false; issue 10; building blocks in src/ahrsgen/symbolic/aiding.py):
   init           the first accelerometer sample sets q: the shortest rotation taking its (raw) down
@@ -35,7 +41,11 @@ Product conditioning (faithful = false; issue 10; building blocks in src/ahrsgen
                  (the paper's order, kept when faithful or conditioning = false, leads the truth
                  by ω dt: 0.02 rad at 2 rad/s and 100 Hz); everything below reads q̂⁻
   PI feedback    q̂ <- normalise(q̂⁻ ⊗ exp(½ kp e dt)) ; b̂ <- b̂ - ki e dt only while ||f| - g| < bias_accel_gate;
-                 at rest (aiding.rest_detector) b̂ follows the low-passed gyro instead
+                 at rest (aiding.rest_detector) b̂ follows the low-passed gyro instead; with
+                 rest_turn = 'estimate' the estimate's low-passed rotation rate
+                 2 vec(q̂⁻_prev⁻¹ q̂⁻)/s (one accelerometer step to the next, the corrections
+                 between included) below rest_gyro_tol is no turn either: a gyro bias the
+                 accelerometer and magnetometer hold the attitude against does not turn it
   integration    as eq. 9, the gyro part in the prediction
 """
 from __future__ import annotations
@@ -59,6 +69,13 @@ GPS_TAPS = 7          # V_{k-6} .. V_k (the differentiator; the centripetal term
 def gps_taps(params) -> int:
     """GPS velocities the state keeps: eq. 29 reads 7, the centripetal term the latest only."""
     return GPS_TAPS if params["motion_accel_model"] == "differentiator" else 1
+
+
+def gps_lowpass(params) -> bool:
+    """The GPS velocity's low-passed derivative is removed in the NED low-pass (product only;
+    accel_tau = 0 has no low-pass to share: nothing is removed)."""
+    return (params["motion_accel_model"] == "gps_lowpass" and not params["faithful"]
+            and bool(params["conditioning"]) and params["accel_tau"] > 0)
 
 
 def differentiator_coeffs(faithful: bool):
@@ -105,11 +122,19 @@ class Model(FilterModel):
             StateField("mag_age", 1, "time since the last magnetometer sample, s", 0.0),
             StateField("rest_gyro_lp", 3, "rest detection: low-passed gyro, rad/s", 0.0),
             StateField("rest_time", 1, "rest detection: steady time so far, s", 0.0),
+            *([StateField("rest_q", 4, "rest detection: the predicted attitude at the last accelerometer step",
+                          [1.0, 0.0, 0.0, 0.0]),
+               StateField("rest_rate_lp", 3, "rest detection: the estimate's low-passed rotation rate, rad/s", 0.0)]
+              if p["rest_turn"] == "estimate" else []),
             StateField("mag_ref", 2, "field check reference: |m| and sin(dip) (|m| = 0: not learned)", 0.0),
             StateField("mag_dist_time", 1, "field check: time the field has been rejected, s", 0.0),
             StateField("mag_learn_time", 1, "field check: time since the first magnetometer sample (capped), s", 0.0),
             *self.gyro_recovery_state(),
-        ] + (self.hard_iron_state() if self.hard_iron() else []))
+        ] + ([
+            StateField("v_lp", 3, "GPS velocity through the accelerometer's NED low-pass (gps_lowpass), m/s", 0.0),
+            StateField("v_ins", 3, "GPS velocity, carried between samples by R f + g (gps_lowpass), m/s", 0.0),
+            StateField("vlp_ok", 1, "1 while v_lp follows a fresh GPS velocity (gps_lowpass)", 0, "uint32"),
+        ] if gps_lowpass(p) else []) + (self.hard_iron_state() if self.hard_iron() else []))
 
     def hard_iron(self) -> bool:
         """The hard iron is estimated (mag_bias) in the product design with the field check."""
@@ -148,6 +173,8 @@ class Model(FilterModel):
         if p["motion_accel_model"] == "differentiator":
             gravity_in = {"accel": f, "accel_norm2": f2, "rot": rot, "motion_accel": a_n}
             f_g = ca.if_else(excess, f - ca.mtimes(rot.T, a_n), f)
+        elif p["motion_accel_model"] == "gps_lowpass":
+            gravity_in = None     # removed in the NED low-pass (product), or not at all
         else:
             # The centripetal acceleration a_c = R(q)(w - b) x v_n of the latest GPS velocity,
             # computed inside the excess branch only (skipped while |f| is close to g), in body
@@ -178,11 +205,12 @@ class Model(FilterModel):
         return kernels + [
             KernelSpec("rotation", function("rotation", {"q": q}, {"rot": quat.rotmat(q)}),
                        "R(q), read by the kernels of a step that rotate with the estimate (computed once)"),
+        ] + ([] if gravity_in is None else [
             KernelSpec("gravity_part", function("gravity_part", gravity_in, {"accel_gravity": f_g}),
                        "accelerometer minus the GPS motion acceleration when ||f| - g| exceeds the threshold" + (
                            "" if p["motion_accel_model"] == "differentiator" else
                            " (centripetal: (w - b) x R(q)^T v_gps in body axes, computed only then)")),
-        ] + paper + ([] if self.product else [
+        ]) + paper + ([] if self.product else [
             KernelSpec("propagate", function("propagate", {"q": q, "gyro_bias": bias, "gyro": gyro, "dt": dt},
                                              {"q_new": quat.integrate_scaled(q, gyro - bias, dt)}),
                        "gyro-only integration with the bias removed (no aiding this step)"),
@@ -230,13 +258,17 @@ class Model(FilterModel):
         # carried as ½ kp e dt: the gain and the exponential's ½ multiply the two weights once
         # (recovering from a clipped gyro sample the gain is kp_recovery and the bias integral holds,
         # so the bias below only ever sees the nominal gain)
-        kh = ca.if_else(recover, 0.5 * p["kp_recovery"], 0.5 * p["kp"])
+        gps_on = ca.SX.sym("gps_comp") if gps_lowpass(p) else None   # the GPS linear acceleration removed
+        kp_now = 0.5 * p["kp"] if gps_on is None else ca.if_else(gps_on, 0.5 * p["kp_gps"], 0.5 * p["kp"])
+        kh = ca.if_else(recover, 0.5 * p["kp_recovery"], kp_now)
         e_half = ca.mtimes(rot.T, ca.vertcat((kh * span_a) * T[1], (kh * span_a) * T[2], (kh * span_m) * H[3]))
         # the gyro's ½ (ω - b) dt was applied by the prediction (predict kernel), before R(q) was formed
         half_rotation = e_half                                  # ½ kp e dt
         trusted = ca.logic_and(ca.logic_and(use_a, ca.logic_not(recover)),
                                aiding.norm_within(f2, G0, p["bias_accel_gate"]))
-        bias_pi = ca.if_else(trusted, bias - (p["ki"] / (0.5 * p["kp"])) * e_half, bias)   # b - ki e dt
+        ki_kh = (p["ki"] / (0.5 * p["kp"]) if gps_on is None
+                 else ca.if_else(gps_on, p["ki"] / (0.5 * p["kp_gps"]), p["ki"] / (0.5 * p["kp"])))
+        bias_pi = ca.if_else(trusted, bias - ki_kh * e_half, bias)   # b - ki e dt
         if p["rest_time"] > 0:
             bias_new = ca.if_else(at_rest, aiding.lowpass(bias, g_lp, span_a, p["rest_bias_tau"]), bias_pi)
         else:
@@ -256,26 +288,43 @@ class Model(FilterModel):
             KernelSpec("heading_init", function("heading_init", {"q": q, "mag": m},
                                                 {"q_new": quat.qmul(aiding.heading_correction(q, m, decl), q)}),
                        "first magnetometer sample (with the first attitude or after it): heading set, tilt kept"),
-            KernelSpec("accel_lowpass", function("accel_lowpass", {"rot": rot, "accel": f, "accel_lp": a_lp, "span": span,
-                                                                   "recover": recover},
-                                                 {"accel_lp_new": ca.if_else(recover, ca.mtimes(rot, f),
-                                                                             aiding.lowpass(a_lp, ca.mtimes(rot, f), span,
-                                                                                            p["accel_tau"]))}),
-                       "low-pass of the specific force in NED, R(q) f (time constant accel_tau; recovering from "
-                       "a clipped gyro sample: the sample itself)", flags=("recover",)),
+            self.accel_lowpass_kernel(),
             KernelSpec("correct", function("correct", {"q": q, "rot": rot, "gyro_bias": bias,
                                                        "accel_lp": a_lp, "mag_ned": m_n, "span_accel": span_a,
                                                        "span_mag": span_m, "use_accel": use_a, "accel_norm2": f2,
                                                        "recover": recover,
+                                                       **({"gps_comp": gps_on} if gps_on is not None else {}),
                                                        **({"at_rest": at_rest, "rest_gyro_lp": g_lp}
                                                           if p["rest_time"] > 0 else {})},
                                            {"q_new": quat.qnormalize(quat.qmul(q, quat.qexp_scaled(half_rotation))),
                                             "gyro_bias_new": bias_new}),
                        "tilt (low-passed accelerometer) and heading (magnetometer) corrections as PI feedback "
                        "on the predicted attitude, bias integral gated, bias at rest from the low-passed gyro",
-                       flags=("use_accel", "recover") + (("at_rest",) if p["rest_time"] > 0 else ())),
+                       flags=("use_accel", "recover") + (("gps_comp",) if gps_on is not None else ())
+                       + (("at_rest",) if p["rest_time"] > 0 else ())),
         ]
-        if p["rest_time"] > 0:
+        if p["rest_time"] > 0 and p["rest_turn"] == "estimate":
+            # the turn test on the estimate's rotation rate since the last accelerometer step
+            # (predicted to predicted: the corrections in between included), low-passed: a gyro
+            # bias the aiding sensors hold the attitude against is not a turn, a steady turn is
+            q_prev = ca.SX.sym("rest_q", 4)
+            w_lp = ca.SX.sym("rest_rate_lp", 3)
+            d = quat.qmul(quat.qconj(q_prev), q)
+            d = ca.if_else(d[0] < 0, -d, d)
+            w2 = aiding.lowpass(w_lp, 2 * d[1:] / span, span, p["rest_tau"])
+            g2, t2, r2 = aiding.rest_detector(gyro, f2, g_lp, t_rest, span, tau=p["rest_tau"],
+                                              gyro_tol=p["rest_gyro_tol"], accel_tol=p["rest_accel_tol"],
+                                              gravity=G0, gyro_max=p["rest_gyro_tol"], min_time=p["rest_time"],
+                                              turn_rate=w2)
+            ks.append(KernelSpec("rest", function("rest", {"gyro": gyro, "accel_norm2": f2, "rest_gyro_lp": g_lp,
+                                                           "rest_time": t_rest, "span": span, "q": q,
+                                                           "rest_q": q_prev, "rest_rate_lp": w_lp},
+                                                  {"rest_gyro_lp_new": g2, "rest_rate_lp_new": w2,
+                                                   "rest_time_new": t2, "at_rest": r2}),
+                                 "rest detection: gyro steady, the low-passed gyro or the estimate not turning, "
+                                 "|f| near g, for rest_time",
+                                 flags=("at_rest",)))
+        elif p["rest_time"] > 0:
             g2, t2, r2 = aiding.rest_detector(gyro, f2, g_lp, t_rest, span, tau=p["rest_tau"],
                                               gyro_tol=p["rest_gyro_tol"], accel_tol=p["rest_accel_tol"],
                                               gravity=G0, gyro_max=p["rest_gyro_tol"], min_time=p["rest_time"])
@@ -304,6 +353,39 @@ class Model(FilterModel):
             ks.append(self.hard_iron_kernel(refine=p["mag_norm_tol"], dip_angle=False))
         return ks
 
+    def accel_lowpass_kernel(self):
+        p = self.params
+        rot = ca.SX.sym("rot", 3, 3)
+        f = ca.SX.sym("accel", 3)
+        a_lp = ca.SX.sym("accel_lp", 3)
+        span = ca.SX.sym("span")
+        recover = ca.SX.sym("recover")
+        f_n = ca.mtimes(rot, f)
+        doc = ("low-pass of the specific force in NED, R(q) f (time constant accel_tau; recovering from "
+               "a clipped gyro sample: the sample itself)")
+        if not gps_lowpass(p):
+            return KernelSpec("accel_lowpass", function("accel_lowpass", {"rot": rot, "accel": f, "accel_lp": a_lp, "span": span,
+                                                                         "recover": recover},
+                                                       {"accel_lp_new": ca.if_else(recover, f_n,
+                                                                                   aiding.lowpass(a_lp, f_n, span,
+                                                                                                  p["accel_tau"]))}),
+                              doc, flags=("recover",))
+        vel = ca.SX.sym("gps_vel", 3)
+        v_lp = ca.SX.sym("v_lp", 3)
+        v_ins = ca.SX.sym("v_ins", 3)
+        new_gps = ca.SX.sym("new_gps")
+        m_comp = ca.SX.sym("m_comp")
+        alpha = ca.if_else(recover, 1, span / (use(p["accel_tau"]) + span))
+        a_new = a_lp + alpha * (f_n - a_lp)
+        vi_new, v_new, up = aiding.gps_lowpass(a_new, f_n, vel, v_lp, v_ins, alpha, span, p["accel_tau"],
+                                               new_gps, m_comp, G0)
+        return KernelSpec("accel_lowpass", function(
+            "accel_lowpass", {"rot": rot, "accel": f, "accel_lp": a_lp, "span": span, "recover": recover,
+                              "gps_vel": vel, "new_gps": new_gps, "m_comp": m_comp, "v_lp": v_lp, "v_ins": v_ins},
+            {"accel_lp_new": a_new, "v_lp_new": v_new, "v_ins_new": vi_new, "up": up}),
+            doc + "; the GPS velocity through the same low-pass, its low-passed derivative removed (up)",
+            flags=("recover", "new_gps", "m_comp"))
+
     def stability_warnings(self):
         """The product loop's two limits (docs/qcf.md, 'Stable gains'), each inside the declared
         ranges. (1) A correction turns the estimate by kp s / 2 of the error per sample (s: the
@@ -319,6 +401,12 @@ class Model(FilterModel):
         if p["kp"] * p["span_max"] >= 3.0:
             out.append(f"kp x span_max = {p['kp'] * p['span_max']:.3g} >= 3: a correction at samples span_max "
                        f"apart overshoots the error (diverges from 4); lower kp or span_max")
+        if gps_lowpass(p) and p["kp_gps"] * p["span_max"] >= 3.0:
+            out.append(f"kp_gps x span_max = {p['kp_gps'] * p['span_max']:.3g} >= 3: a correction at samples span_max "
+                       f"apart overshoots the error (diverges from 4); lower kp_gps or span_max")
+        if gps_lowpass(p) and p["ki"] >= p["kp_gps"] / p["accel_tau"]:
+            out.append(f"ki = {p['ki']:g} >= kp_gps / accel_tau = {p['kp_gps'] / p['accel_tau']:.3g}: the bias loop "
+                       f"through the accelerometer low-pass is unstable with the GPS gain")
         if p["accel_tau"] > 0 and p["ki"] >= p["kp"] / p["accel_tau"]:
             out.append(f"ki = {p['ki']:g} >= kp / accel_tau = {p['kp'] / p['accel_tau']:.3g}: the bias loop through "
                        f"the accelerometer low-pass is unstable (tau s^3 + s^2 + kp s + ki needs ki < kp / tau)")
@@ -327,12 +415,13 @@ class Model(FilterModel):
     def template_context(self):
         p = self.params
         return {"motion_model": p["motion_accel_model"], "product": self.product, "gps_taps": gps_taps(p),
-                "rest": self.product and p["rest_time"] > 0, "mag_rejection": self.product and p["mag_rejection"],
-                "hard_iron": self.hard_iron(), "gps_age_max": GPS_AGE_MAX}
+                "rest": self.product and p["rest_time"] > 0,
+                "rest_turn_estimate": self.product and p["rest_time"] > 0 and p["rest_turn"] == "estimate", "mag_rejection": self.product and p["mag_rejection"],
+                "hard_iron": self.hard_iron(), "gps_age_max": GPS_AGE_MAX, "gps_lowpass": gps_lowpass(p)}
 
     def step_paths(self):
         if self.product:
-            comp = ["rotation", "gravity_part"]
+            comp = ["rotation"] + ([] if self.params["motion_accel_model"] == "gps_lowpass" else ["gravity_part"])
             extra = (["rest"] if self.params["rest_time"] > 0 else []) + (["mag_check"] if self.params["mag_rejection"] else [])
             return {
                 "full (accel+mag+GPS comp.)": ["predict", "gyro_recovery"] + comp + ["accel_lowpass", "mag_ned"]
@@ -341,7 +430,7 @@ class Model(FilterModel):
                 "gyro only": ["predict", "gyro_recovery", "rotation", "correct"],
                 **({"GPS sample (extra)": ["gps_accel"]} if self.params["motion_accel_model"] == "differentiator" else {}),
             }
-        comp = ["rotation", "gravity_part"]
+        comp = [] if self.params["motion_accel_model"] == "gps_lowpass" else ["rotation", "gravity_part"]
         return {
             "full (accel+mag+GPS comp.)": comp + ["reference", "update"],
             "accel+mag": ["reference", "update"],

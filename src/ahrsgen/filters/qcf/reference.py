@@ -106,8 +106,15 @@ class Reference:
         self.product = not self.p["faithful"] and self.p["conditioning"]
         self.accel_lp = np.array([0.0, 0.0, -G0])   # read by nothing before the first accelerometer sample
         self.accel_age = self.mag_age = 0.0
+        # gps_lowpass: the GPS velocity through the accelerometer's low-pass
+        self.gps_lp = (self.product and self.p["motion_accel_model"] == "gps_lowpass" and self.p["accel_tau"] > 0)
+        self.v_lp = np.zeros(3)
+        self.v_ins = np.zeros(3)
+        self.vlp_ok = False
         self.rest_gyro_lp = np.zeros(3)
         self.rest_time = 0.0
+        self.rest_q = np.array([1.0, 0.0, 0.0, 0.0])   # rest_turn = estimate: predicted q, last accel step
+        self.rest_rate_lp = np.zeros(3)
         self.mag_ref = np.zeros(2)         # |m|, sin(dip); |m| = 0: not learned
         self.mag_dist_time = 0.0
         self.mag_learn_time = 0.0          # time since the first magnetometer sample (capped at warmup)
@@ -151,7 +158,7 @@ class Reference:
         if use_accel:
             model = p["motion_accel_model"]
             need = 7 if model == "differentiator" else 1
-            if p["gps_compensation"] and len(self.hist) >= need and self.gps_age <= p["gps_timeout"]:
+            if model != "gps_lowpass" and p["gps_compensation"] and len(self.hist) >= need and self.gps_age <= p["gps_timeout"]:
                 a_n = self.motion_accel
                 if model != "differentiator":
                     # centripetal acceleration of the GPS velocity turning with the body
@@ -165,7 +172,7 @@ class Reference:
                 if abs(np.linalg.norm(f) - G0) > p["motion_accel_threshold"]:
                     f = f - nq.rotmat(self.q).T @ a_n
         if self.product:
-            return self._product_step(status, gyro, np.asarray(accel, float), f, mag, use_accel, use_mag, dt)
+            return self._product_step(status, gyro, np.asarray(accel, float), f, mag, use_accel, use_mag, use_gps, dt)
         if use_accel:
             if use_mag:
                 q_ref = fqa(f, mag, p["declination"])
@@ -198,12 +205,14 @@ class Reference:
             self.initialised = 2 if use_mag else 1
             self.accel_age = self.mag_age = 0.0
             self.rest_gyro_lp = gyro.copy()
+            self.rest_q = self.q.copy()
         elif self.initialised == 1 and use_mag:
             self.q = nq.qmul(heading_correction(self.q, mag, p["declination"]), self.q)
+            self.rest_q = self.q.copy()              # setting the heading is no turn
             self.initialised = 2
             self.mag_age = 0.0
 
-    def _product_step(self, status, gyro, f_raw, f, mag, use_accel, use_mag, dt):
+    def _product_step(self, status, gyro, f_raw, f, mag, use_accel, use_mag, use_gps, dt):
         """See model.py's docstring: NED low-pass, tilt/heading corrections, gate, rest, field check."""
         p = self.p
         from ahrsgen.filters.qcf.model import EXTRA_STATUS
@@ -219,24 +228,51 @@ class Reference:
         self.accel_age = min(self.accel_age + dt, p["span_max"])
         self.mag_age = min(self.mag_age + dt, p["span_max"])
         at_rest = False
+        # gps_lowpass: compensate while the last GPS velocity is at most gps_timeout old
+        m_comp = self.gps_lp and p["gps_compensation"] and len(self.hist) >= 1 and self.gps_age <= p["gps_timeout"]
+        if not m_comp:
+            self.vlp_ok = False
+        up = self.accel_lp        # the tilt reference (without an accelerometer sample: the last low-pass)
         if use_accel:
             s = self.accel_age
-            if p["accel_tau"] > 0 and not recovering:
-                self.accel_lp = self.accel_lp + s / (p["accel_tau"] + s) * (nq.rotmat(self.q) @ f - self.accel_lp)
-            else:
-                self.accel_lp = nq.rotmat(self.q) @ f
+            f_n = nq.rotmat(self.q) @ f
+            k = s / (p["accel_tau"] + s) if p["accel_tau"] > 0 and not recovering else 1.0
+            self.accel_lp = self.accel_lp + k * (f_n - self.accel_lp)
+            up = self.accel_lp
+            if self.gps_lp:
+                # velocity: the GPS sample of this step, else carried by the kinematic acceleration
+                # a = R f + g; low-passed with the same gain k; its low-passed derivative
+                # (the low-pass of (v_k - v_{k-1})/s) is (v - v_lp)/tau, removed from the tilt reference
+                if m_comp and not self.vlp_ok:
+                    self.v_lp = self.hist[-1].copy()
+                    self.v_ins = self.hist[-1].copy()
+                    self.vlp_ok = True
+                self.v_ins = self.hist[-1].copy() if use_gps else self.v_ins + (f_n + np.array([0.0, 0.0, G0])) * s
+                if m_comp:
+                    self.v_lp = self.v_lp + k * (self.v_ins - self.v_lp)
+                    up = self.accel_lp - (self.v_ins - self.v_lp) / p["accel_tau"]
             if p["rest_time"] > 0:
                 k = s / (p["rest_tau"] + s)
                 self.rest_gyro_lp = self.rest_gyro_lp + k * (gyro - self.rest_gyro_lp)
                 tol = p["rest_gyro_tol"]
+                no_turn = np.linalg.norm(self.rest_gyro_lp) < tol
+                if p["rest_turn"] == "estimate":
+                    # the estimate's rotation since the last accelerometer step (predicted to
+                    # predicted: the corrections between included) as a rate, low-passed
+                    d = nq.qmul(nq.qconj(self.rest_q), self.q)
+                    d = -d if d[0] < 0 else d
+                    self.rest_rate_lp = self.rest_rate_lp + k * (2 * d[1:] / s - self.rest_rate_lp)
+                    self.rest_q = self.q.copy()
+                    # a gyro bias the sensors hold the attitude against is no turn either
+                    no_turn = no_turn or np.linalg.norm(self.rest_rate_lp) < tol
                 steady = (np.linalg.norm(gyro - self.rest_gyro_lp) < tol
                           and abs(np.linalg.norm(f_raw) - G0) < p["rest_accel_tol"]
-                          and np.linalg.norm(self.rest_gyro_lp) < tol)
+                          and no_turn)
                 self.rest_time = min(self.rest_time + s, 1e3) if steady else 0.0
                 at_rest = self.rest_time + 0.5 * s >= p["rest_time"]    # (half a step of margin)
                 if at_rest:
                     status |= bit["AT_REST"]
-        down = -self.accel_lp / np.linalg.norm(self.accel_lp)
+        down = -up / np.linalg.norm(up)
         heading_ok = use_mag
         mag_raw = mag
         if use_mag and self.hard_iron_on:
@@ -296,7 +332,7 @@ class Reference:
                 H = heading_correction(nq.qmul(T, self.q), mag, p["declination"])
                 e_n = e_n + self.mag_age * H[1:]
             e_dt = nq.rotmat(self.q).T @ e_n                 # error integrated over the step
-            kp = p["kp_recovery"] if recovering else p["kp"]
+            kp = p["kp_recovery"] if recovering else (p["kp_gps"] if m_comp else p["kp"])
             theta = kp * e_dt                                  # the correction (the gyro's part was predicted)
             if at_rest:
                 s = self.accel_age
