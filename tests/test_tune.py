@@ -67,7 +67,7 @@ def test_search_space_follows_declarations():
                                                     "declination"])
     assert (kp.kind, kp.low, kp.high, kp.log) == ("float", pytest.approx(0.01), pytest.approx(100.0), True)
     assert ki.log and ki.low == pytest.approx(2e-4) and ki.high == pytest.approx(10.0)
-    assert comp.choices == [False, True] and model.choices == ["differentiator", "centripetal"]
+    assert comp.choices == [False, True] and model.choices == ["differentiator", "centripetal", "gps_lowpass"]
     assert not decl.log and decl.low == pytest.approx(-3.14159265) and decl.high == pytest.approx(3.14159265)
     (narrow,) = search_space(spec, ["kp=0.1:1"])
     assert (narrow.low, narrow.high, narrow.log) == (0.1, 1.0, False)

@@ -984,37 +984,37 @@ static void qcf_k_rest_part0(const float gyro[3], const float rest_gyro_lp[3], f
     const float q[4], const float rest_q[4], const float rest_rate_lp[3], float carry[9])
 {
     const float tmp0 = 0.5f /* rest_tau */ + span;
-    const float tmp1 = span / tmp0;
-    const float tmp2 = gyro[0] - rest_gyro_lp[0];
-    const float tmp3 = tmp1 * tmp2;
-    const float tmp4 = rest_gyro_lp[0] + tmp3;
-    const float tmp5 = gyro[1] - rest_gyro_lp[1];
-    const float tmp6 = tmp1 * tmp5;
-    const float tmp7 = rest_gyro_lp[1] + tmp6;
-    const float tmp8 = gyro[2] - rest_gyro_lp[2];
-    const float tmp9 = tmp1 * tmp8;
-    const float tmp10 = rest_gyro_lp[2] + tmp9;
-    const float tmp11 = rest_q[0] * q[0];
-    const float tmp12 = rest_q[1] * q[1];
-    const float tmp13 = tmp11 + tmp12;
-    const float tmp14 = rest_q[2] * q[2];
-    const float tmp15 = tmp13 + tmp14;
-    const float tmp16 = rest_q[3] * q[3];
-    const float tmp17 = tmp15 + tmp16;
-    const float tmp18 = rest_q[0] * q[1];
-    const float tmp19 = rest_q[1] * q[0];
-    const float tmp20 = tmp18 - tmp19;
-    const float tmp21 = rest_q[2] * q[3];
-    const float tmp22 = tmp20 - tmp21;
-    const float tmp23 = rest_q[3] * q[2];
-    const float tmp24 = tmp22 + tmp23;
-    const float tmp25 = -tmp24;
-    const float tmp26 = (tmp17 < 0.0f) ? tmp25 : tmp24;
-    const float tmp27 = tmp26 + tmp26;
-    const float tmp28 = 1.0f / span;
-    const float tmp29 = tmp27 * tmp28;
-    const float tmp30 = tmp29 - rest_rate_lp[0];
-    const float tmp31 = tmp1 * tmp30;
+    const float tmp1 = 1.0f / tmp0;
+    const float tmp2 = span * tmp1;
+    const float tmp3 = gyro[0] - rest_gyro_lp[0];
+    const float tmp4 = tmp2 * tmp3;
+    const float tmp5 = rest_gyro_lp[0] + tmp4;
+    const float tmp6 = gyro[1] - rest_gyro_lp[1];
+    const float tmp7 = tmp2 * tmp6;
+    const float tmp8 = rest_gyro_lp[1] + tmp7;
+    const float tmp9 = gyro[2] - rest_gyro_lp[2];
+    const float tmp10 = tmp2 * tmp9;
+    const float tmp11 = rest_gyro_lp[2] + tmp10;
+    const float tmp12 = rest_q[0] * q[0];
+    const float tmp13 = rest_q[1] * q[1];
+    const float tmp14 = tmp12 + tmp13;
+    const float tmp15 = rest_q[2] * q[2];
+    const float tmp16 = tmp14 + tmp15;
+    const float tmp17 = rest_q[3] * q[3];
+    const float tmp18 = tmp16 + tmp17;
+    const float tmp19 = rest_q[0] * q[1];
+    const float tmp20 = rest_q[1] * q[0];
+    const float tmp21 = tmp19 - tmp20;
+    const float tmp22 = rest_q[2] * q[3];
+    const float tmp23 = tmp21 - tmp22;
+    const float tmp24 = rest_q[3] * q[2];
+    const float tmp25 = tmp23 + tmp24;
+    const float tmp26 = -tmp25;
+    const float tmp27 = (tmp18 < 0.0f) ? tmp26 : tmp25;
+    const float tmp28 = tmp27 + tmp27;
+    const float tmp29 = span * rest_rate_lp[0];
+    const float tmp30 = tmp28 - tmp29;
+    const float tmp31 = tmp30 * tmp1;
     const float tmp32 = rest_rate_lp[0] + tmp31;
     const float tmp33 = rest_q[0] * q[2];
     const float tmp34 = rest_q[1] * q[3];
@@ -1024,24 +1024,23 @@ static void qcf_k_rest_part0(const float gyro[3], const float rest_gyro_lp[3], f
     const float tmp38 = rest_q[3] * q[1];
     const float tmp39 = tmp37 - tmp38;
     carry[0] = tmp1;
-    carry[1] = tmp4;
-    carry[2] = tmp7;
-    carry[3] = tmp10;
-    carry[4] = tmp17;
-    carry[5] = tmp28;
-    carry[6] = tmp32;
-    carry[7] = tmp39;
+    carry[1] = tmp5;
+    carry[2] = tmp8;
+    carry[3] = tmp11;
+    carry[4] = tmp18;
+    carry[5] = tmp32;
+    carry[6] = tmp39;
 }
 
-static void qcf_k_rest_part1(const float gyro[3], float accel_norm2, const float q[4],
+static void qcf_k_rest_part1(const float gyro[3], float accel_norm2, float span, const float q[4],
     const float rest_q[4], const float rest_rate_lp[3], float carry[9], bool flags[1])
 {
-    const float tmp40 = -carry[7] /* tmp39 */;
-    const float tmp41 = (carry[4] /* tmp17 */ < 0.0f) ? tmp40 : carry[7] /* tmp39 */;
+    const float tmp40 = -carry[6] /* tmp39 */;
+    const float tmp41 = (carry[4] /* tmp18 */ < 0.0f) ? tmp40 : carry[6] /* tmp39 */;
     const float tmp42 = tmp41 + tmp41;
-    const float tmp43 = tmp42 * carry[5] /* tmp28 */;
-    const float tmp44 = tmp43 - rest_rate_lp[1];
-    const float tmp45 = carry[0] /* tmp1 */ * tmp44;
+    const float tmp43 = span * rest_rate_lp[1];
+    const float tmp44 = tmp42 - tmp43;
+    const float tmp45 = tmp44 * carry[0] /* tmp1 */;
     const float tmp46 = rest_rate_lp[1] + tmp45;
     const float tmp47 = rest_q[0] * q[3];
     const float tmp48 = rest_q[1] * q[2];
@@ -1051,36 +1050,36 @@ static void qcf_k_rest_part1(const float gyro[3], float accel_norm2, const float
     const float tmp52 = rest_q[3] * q[0];
     const float tmp53 = tmp51 - tmp52;
     const float tmp54 = -tmp53;
-    const float tmp55 = (carry[4] /* tmp17 */ < 0.0f) ? tmp54 : tmp53;
+    const float tmp55 = (carry[4] /* tmp18 */ < 0.0f) ? tmp54 : tmp53;
     const float tmp56 = tmp55 + tmp55;
-    const float tmp57 = tmp56 * carry[5] /* tmp28 */;
-    const float tmp58 = tmp57 - rest_rate_lp[2];
-    const float tmp59 = carry[0] /* tmp1 */ * tmp58;
+    const float tmp57 = span * rest_rate_lp[2];
+    const float tmp58 = tmp56 - tmp57;
+    const float tmp59 = tmp58 * carry[0] /* tmp1 */;
     const float tmp60 = rest_rate_lp[2] + tmp59;
-    const float tmp61 = gyro[0] - carry[1] /* tmp4 */;
+    const float tmp61 = gyro[0] - carry[1] /* tmp5 */;
     const float tmp62 = tmp61 * tmp61;
-    const float tmp63 = gyro[1] - carry[2] /* tmp7 */;
+    const float tmp63 = gyro[1] - carry[2] /* tmp8 */;
     const float tmp64 = tmp63 * tmp63;
     const float tmp65 = tmp62 + tmp64;
-    const float tmp66 = gyro[2] - carry[3] /* tmp10 */;
+    const float tmp66 = gyro[2] - carry[3] /* tmp11 */;
     const float tmp67 = tmp66 * tmp66;
     const float tmp68 = tmp65 + tmp67;
     const bool tmp69 = (86.61373f /* (G0 - rest_accel_tol)^2 */ < accel_norm2) && (accel_norm2 <
             106.227036f /* (G0 + rest_accel_tol)^2 */);
     const bool tmp70 = (tmp68 < 0.001225f /* rest_gyro_tol^2 */) && tmp69;
-    const float tmp71 = carry[1] /* tmp4 */ * carry[1] /* tmp4 */;
-    const float tmp72 = carry[2] /* tmp7 */ * carry[2] /* tmp7 */;
+    const float tmp71 = carry[1] /* tmp5 */ * carry[1] /* tmp5 */;
+    const float tmp72 = carry[2] /* tmp8 */ * carry[2] /* tmp8 */;
     const float tmp73 = tmp71 + tmp72;
-    const float tmp74 = carry[3] /* tmp10 */ * carry[3] /* tmp10 */;
+    const float tmp74 = carry[3] /* tmp11 */ * carry[3] /* tmp11 */;
     const float tmp75 = tmp73 + tmp74;
-    const float tmp76 = carry[6] /* tmp32 */ * carry[6] /* tmp32 */;
+    const float tmp76 = carry[5] /* tmp32 */ * carry[5] /* tmp32 */;
     const float tmp77 = tmp46 * tmp46;
     const float tmp78 = tmp76 + tmp77;
     const float tmp79 = tmp60 * tmp60;
     carry[0] = tmp46;
     carry[4] = tmp60;
     flags[0] = tmp70;
-    carry[5] = tmp75;
+    carry[6] = tmp75;
     carry[7] = tmp78;
     carry[8] = tmp79;
 }
@@ -1088,7 +1087,7 @@ static void qcf_k_rest_part1(const float gyro[3], float accel_norm2, const float
 static void qcf_k_rest_part2(float rest_time, float span, float carry[9], bool flags[1])
 {
     const float tmp80 = carry[7] /* tmp78 */ + carry[8] /* tmp79 */;
-    const bool tmp81 = (carry[5] /* tmp75 */ < 0.001225f /* rest_gyro_tol^2 */) || (tmp80 <
+    const bool tmp81 = (carry[6] /* tmp75 */ < 0.001225f /* rest_gyro_tol^2 */) || (tmp80 <
             0.001225f /* rest_gyro_tol^2 */);
     const bool tmp82 = flags[0] /* tmp70 */ && tmp81;
     const float tmp83 = rest_time + span;
@@ -1097,7 +1096,7 @@ static void qcf_k_rest_part2(float rest_time, float span, float carry[9], bool f
     const float tmp86 = 0.5f * span;
     const float tmp87 = tmp85 + tmp86;
     const bool tmp88 = 1.5f /* rest_time */ <= tmp87;
-    carry[5] = tmp85;
+    carry[6] = tmp85;
     flags[0] = tmp88;
 }
 
@@ -1120,7 +1119,7 @@ static void qcf_k_rest_part2(float rest_time, float span, float carry[9], bool f
  *     rest_time_new: float
  *     at_rest: bool
  *
- * Total ops: 89 (add 42, mul 35, div 2, cmp 10)
+ * Total ops: 89 (add 42, mul 36, div 1, cmp 10)
  */
 static void qcf_k_rest(const float gyro[3], float accel_norm2, const float rest_gyro_lp[3],
     float rest_time, float span, const float q[4], const float rest_q[4],
@@ -1134,15 +1133,15 @@ static void qcf_k_rest(const float gyro[3], float accel_norm2, const float rest_
     float carry[9];
     bool flags[1];
     qcf_k_rest_part0(gyro, rest_gyro_lp, span, q, rest_q, rest_rate_lp, carry);
-    qcf_k_rest_part1(gyro, accel_norm2, q, rest_q, rest_rate_lp, carry, flags);
+    qcf_k_rest_part1(gyro, accel_norm2, span, q, rest_q, rest_rate_lp, carry, flags);
     qcf_k_rest_part2(rest_time, span, carry, flags);
-    rest_gyro_lp_new[0] = carry[1] /* tmp4 */;
-    rest_gyro_lp_new[1] = carry[2] /* tmp7 */;
-    rest_gyro_lp_new[2] = carry[3] /* tmp10 */;
-    rest_rate_lp_new[0] = carry[6] /* tmp32 */;
+    rest_gyro_lp_new[0] = carry[1] /* tmp5 */;
+    rest_gyro_lp_new[1] = carry[2] /* tmp8 */;
+    rest_gyro_lp_new[2] = carry[3] /* tmp11 */;
+    rest_rate_lp_new[0] = carry[5] /* tmp32 */;
     rest_rate_lp_new[1] = carry[0] /* tmp46 */;
     rest_rate_lp_new[2] = carry[4] /* tmp60 */;
-    *rest_time_new = carry[5] /* tmp85 */;
+    *rest_time_new = carry[6] /* tmp85 */;
     *at_rest = flags[0] /* tmp88 */;
 }
 
@@ -2531,9 +2530,6 @@ qcf_status qcf_step(qcf_state *restrict s, const qcf_input *restrict in, float d
     }
     float rot[9];      /* R(q), column-major: shared by the kernels below */
     qcf_k_rotation(s->q, rot);
-    float accel_g[3] = { in->accel[0], in->accel[1], in->accel[2] };
-    if (use_accel) {
-    }
     s->accel_age = (s->accel_age + dt < QCF_SPAN_MAX) ? s->accel_age + dt : QCF_SPAN_MAX;
     s->mag_age = (s->mag_age + dt < QCF_SPAN_MAX) ? s->mag_age + dt : QCF_SPAN_MAX;
     bool at_rest = false;
@@ -2552,7 +2548,7 @@ qcf_status qcf_step(qcf_state *restrict s, const qcf_input *restrict in, float d
             }
             s->vlp_ok = 1u;
         }
-        qcf_k_accel_lowpass(rot, accel_g, s->accel_lp, s->accel_age, recovering, s->gps_vel_hist,
+        qcf_k_accel_lowpass(rot, in->accel, s->accel_lp, s->accel_age, recovering, s->gps_vel_hist,
             use_gps, m_comp, s->v_lp, s->v_ins, s->accel_lp, s->v_lp, s->v_ins, up);
         qcf_k_rest(in->gyro, accel_n2, s->rest_gyro_lp, s->rest_time, s->accel_age, s->q, s->rest_q,
             s->rest_rate_lp, s->rest_gyro_lp, s->rest_rate_lp, &s->rest_time, &at_rest);

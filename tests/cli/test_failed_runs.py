@@ -96,7 +96,9 @@ SHORT = ["--scenario-opt", "duration=120"]
 
 @pytest.mark.parametrize("sets,words,opts", [
     (["kp=100", "ki=10"], "kp x span_max = 10 >= 3", SHORT),   # issue 27's example
-    (["kp=0.3", "ki=0.6"], "ki = 0.6 >= kp / accel_tau = 0.3", []),      # the bias loop (Routh-Hurwitz): 600 s
+    # the bias loop (Routh-Hurwitz), 600 s, as measured (model.stability_warnings) with the
+    # centripetal model, whose loop gain is kp (gps_lowpass's is kp_gps)
+    (["kp=0.3", "ki=0.6", "motion_accel_model=centripetal"], "ki = 0.6 >= kp / accel_tau = 0.3", []),
 ])
 @pytest.mark.slow
 def test_validate_tells_an_unstable_configuration(sets, words, opts, capsys):
@@ -109,14 +111,15 @@ def test_validate_tells_an_unstable_configuration(sets, words, opts, capsys):
 
 
 def test_validate_still_reports_a_code_generation_error(monkeypatch, capsys):
-    """The other side: C built from different equations than the reference's (here: another kp
-    slipped into the build) while the reference follows the truth is a code-generation error."""
+    """The other side: C built from different equations than the reference's (here: another
+    gain slipped into the build: kp_gps, the fixed-wing's gain while the GPS compensates) while
+    the reference follows the truth is a code-generation error."""
     import dataclasses
     from ahrsgen.sim import host
     real_build = host.build
 
     def wrong_build(cfg, *a, **k):
-        return real_build(dataclasses.replace(cfg, params={**cfg.params, "kp": 2.0}), *a, **k)
+        return real_build(dataclasses.replace(cfg, params={**cfg.params, "kp_gps": 0.3}), *a, **k)
     monkeypatch.setattr(host, "build", wrong_build)
     rc = cli.main(["validate", "qcf", *SHORT])
     out, _ = capsys.readouterr()

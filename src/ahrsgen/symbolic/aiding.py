@@ -72,6 +72,13 @@ def lowpass(x_lp, x, dt, tau: float):
     return x_lp + k * (x - x_lp)
 
 
+def lowpass_of_rate(x_lp, delta, dt, tau: float):
+    """lowpass(x_lp, delta / dt, dt, tau), the low-pass of a rate measured as a change `delta`
+    over dt, written without the quotient: x_lp + (delta - dt x_lp) / (tau + dt), finite for any
+    dt > 0 (a denormal dt makes delta / dt infinite). tau > 0."""
+    return x_lp + (delta - dt * x_lp) / (use(tau) + dt)
+
+
 # rest_detector: the steady time stops counting here, s (a whole number: exact in float)
 REST_TIME_CAP = Const("REST_TIME_CAP", 1e3)
 

@@ -429,6 +429,21 @@ def test_exactly_zero_rate_keeps_covariance_finite(c_float, c_double):
     assert np.allclose(c_double.state_dict(s)["P"].reshape(6, 6), ref.P, rtol=1e-12, atol=1e-18)
 
 
+def _step_with_P(c, s, ref, P, inputs):
+    """One step of the C (state s) and the reference from the same covariance P (with a small
+    off-diagonal term 2e-4 between the first two axes): (status, C state before, after); the
+    statuses must agree."""
+    P = P.copy()
+    P[0, 1] = P[1, 0] = 2e-4
+    for k in range(36):
+        s.P[k] = P.ravel()[k]
+    ref.P = P.copy()
+    before = c.state_dict(s)
+    st_c, st_r = c.step(s, *inputs), ref.step(*inputs)
+    assert st_c == st_r
+    return st_c, before, c.state_dict(s)
+
+
 def test_refused_bias_rows_undo_the_gravity_rows(c_double):
     """At rest the gravity rows run first, then the bias rows. With a P whose bias block is
     negative the first bias row's variance is below 1e-12: the batch update (the reference)
@@ -441,15 +456,8 @@ def test_refused_bias_rows_undo_the_gravity_rows(c_double):
     for _ in range(200):                            # 2 s at rest: rest_min_time 1.5 s passed
         assert c.step(s, *still) == ref.step(*still)
     assert ref.step(*still) & R.AT_REST and c.step(s, *still) & R.AT_REST
-    P = np.diag([1e-3] * 3 + [-1.0] * 3)
-    P[0, 1] = P[1, 0] = 2e-4
-    for k in range(36):
-        s.P[k] = P.ravel()[k]
-    ref.P = P.copy()
-    before = c.state_dict(s)
-    st_c, st_r = c.step(s, *still), ref.step(*still)
-    assert st_c == st_r and st_c & R.UPDATE_SKIPPED and st_c & R.AT_REST
-    after = c.state_dict(s)
+    st_c, before, after = _step_with_P(c, s, ref, np.diag([1e-3] * 3 + [-1.0] * 3), still)
+    assert st_c & R.UPDATE_SKIPPED and st_c & R.AT_REST
     assert np.array_equal(after["gyro_bias"], before["gyro_bias"])
     assert np.allclose(after["P"].reshape(6, 6), ref.P, rtol=1e-12, atol=1e-15)
     assert angle_diff_series(np.array([after["q"]]), np.array([ref.q]))[0] <= 1e-12
@@ -466,15 +474,8 @@ def test_refused_gravity_rows_leave_the_state_as_it_was(c_double):
     turning = ((0.3, -0.2, 0.1), (0.0, 0.0, -9.80665), (0, 0, 0), (0, 0, 0), VALID_GYRO | VALID_ACCEL, 0.01)
     for _ in range(20):
         assert c.step(s, *turning) == ref.step(*turning)
-    P = np.diag([-1.0] * 3 + [1e-4] * 3)
-    P[0, 1] = P[1, 0] = 2e-4
-    for k in range(36):
-        s.P[k] = P.ravel()[k]
-    ref.P = P.copy()
-    before = c.state_dict(s)
-    st_c, st_r = c.step(s, *turning), ref.step(*turning)
-    assert st_c == st_r and st_c & R.UPDATE_SKIPPED and not st_c & R.AT_REST
-    after = c.state_dict(s)
+    st_c, before, after = _step_with_P(c, s, ref, np.diag([-1.0] * 3 + [1e-4] * 3), turning)
+    assert st_c & R.UPDATE_SKIPPED and not st_c & R.AT_REST
     assert np.allclose(after["P"].reshape(6, 6), ref.P, rtol=1e-12, atol=1e-15)   # predicted only
     assert np.array_equal(after["gyro_bias"], before["gyro_bias"])
     assert angle_diff_series(np.array([after["q"]]), np.array([ref.q]))[0] <= 1e-12

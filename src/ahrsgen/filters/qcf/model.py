@@ -311,7 +311,7 @@ class Model(FilterModel):
             w_lp = ca.SX.sym("rest_rate_lp", 3)
             d = quat.qmul(quat.qconj(q_prev), q)
             d = ca.if_else(d[0] < 0, -d, d)
-            w2 = aiding.lowpass(w_lp, 2 * d[1:] / span, span, p["rest_tau"])
+            w2 = aiding.lowpass_of_rate(w_lp, 2 * d[1:], span, p["rest_tau"])
             g2, t2, r2 = aiding.rest_detector(gyro, f2, g_lp, t_rest, span, tau=p["rest_tau"],
                                               gyro_tol=p["rest_gyro_tol"], accel_tol=p["rest_accel_tol"],
                                               gravity=G0, gyro_max=p["rest_gyro_tol"], min_time=p["rest_time"],

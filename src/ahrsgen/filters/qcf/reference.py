@@ -261,7 +261,9 @@ class Reference:
                     # predicted: the corrections between included) as a rate, low-passed
                     d = nq.qmul(nq.qconj(self.rest_q), self.q)
                     d = -d if d[0] < 0 else d
-                    self.rest_rate_lp = self.rest_rate_lp + k * (2 * d[1:] / s - self.rest_rate_lp)
+                    # the low-pass of the rate 2 d / s, k (2 d / s - lp), written without the
+                    # quotient by s (a denormal span would make it infinite)
+                    self.rest_rate_lp = self.rest_rate_lp + (2 * d[1:] - s * self.rest_rate_lp) / (p["rest_tau"] + s)
                     self.rest_q = self.q.copy()
                     # a gyro bias the sensors hold the attitude against is no turn either
                     no_turn = no_turn or np.linalg.norm(self.rest_rate_lp) < tol
