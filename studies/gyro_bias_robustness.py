@@ -31,7 +31,13 @@ used; trials 24/26/28/32 never left MAG_LEARNING), bias 0/1/2/3/4/5 deg/s:
 286 Hz 2.77 / 2.77 / 2.84 / 2.88 / 2.96 / 5.04 (before: 2.77 / 2.77 / 2.84 / 27.34 / 84.36 / -).
 The simulated scenarios (--scenarios) still degrade with the offset, because the bias state
 learns it slowly (p0_bias 1e-4 (rad/s)^2, and the adaptive R takes the attitude error it causes
-for a disturbance): see docs/adukf.md, "Gyro offset".
+for a disturbance): see docs/adukf.md, "Gyro offset". `--scenarios handheld,turntable,
+static_mag_disturbance,multirotor --filters mekf,qcf,adukf --bias 0,1,2,3` (same day, after it):
+adukf handheld 0.06 / 0.13 / 0.20 / 0.39, turntable 0.19 / 0.47 / 1.27 / 2.54,
+static_mag_disturbance 0.33 / 0.51 / 1.06 / 2.48, multirotor 0.68 / 0.76 / 1.03 / 1.81;
+mekf 0.25 / 0.25 / 0.10 / 0.12, 0.52 / 0.54 / 0.53 / 2.04, 4.19 / 4.19 / 5.50 / 6.41,
+0.93 / 0.94 / 0.95 / 0.96; qcf 0.33 / 0.33 / 0.34 / 0.67, 1.18 / 2.01 / 3.99 / 13.96,
+4.94 / 4.96 / 5.07 / 6.18, 0.59 / 1.41 / 2.77 / 4.17.
 """
 from __future__ import annotations
 
@@ -103,7 +109,8 @@ def main(argv=None) -> int:
     biases = [float(b) for b in a.bias.split(",")]
     names = a.filters.split(",")
     if a.scenarios:
-        return scenarios_table(a.scenarios.split(","), [n for n in names if not n.startswith("peer:")], biases)
+        products = [n for n in names if not n.startswith("peer:")]
+        return scenarios_table(a.scenarios.split(","), products, biases)
     broad = logo_cv.load_broad(a.data)
     if broad is None:
         print("the 10 BROAD trials are not here (shared data folder); nothing measured")
