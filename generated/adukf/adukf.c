@@ -3083,8 +3083,7 @@ static inline void adukf_k_learn_sample(const float gyro[3], const float accel[3
     const float tmp10 = sqrtf(tmp9);
     const float tmp11 = tmp10 - 9.80665f /* G0 */;
     const float tmp12 = fabsf(tmp11);
-    const bool tmp13 = (tmp4 < 0.0025f /* rest_gyro_max^2 */) && (tmp12 <
-            0.5f /* rest_accel_tol */);
+    const bool tmp13 = (tmp4 < 0.01f /* rest_gyro_max^2 */) && (tmp12 < 0.5f /* rest_accel_tol */);
     const float tmp14 = accel[0] * mag[0];
     const float tmp15 = accel[1] * mag[1];
     const float tmp16 = tmp14 + tmp15;
