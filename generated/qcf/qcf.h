@@ -94,7 +94,9 @@ extern "C" {
  * conditioning with accel_tau > 0 only, else nothing is removed)
  */
 #define QCF_DECLINATION 0.0f               /* magnetic declination added to the FQA heading (true
-                                              north = magnetic north + declination) [rad] */
+                                              north = magnetic north + declination); with the GPS
+                                              compensation a wrong one also tilts the estimate in
+                                              turns (docs/qcf.md) [rad] */
 #define QCF_FAITHFUL 0                     /* paper exactly: start at q = [1,0,0,0], FQA reference,
                                               eq. 29's coefficients as printed (ramp gain 0.985),
                                               none of the conditioning below; off (product): start
