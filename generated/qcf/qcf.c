@@ -1101,7 +1101,7 @@ static void qcf_k_rest_part2(float rest_time, float span, float carry[9], bool f
 }
 
 /*
- * rest detection: gyro steady, the low-passed gyro or the estimate not turning, |f| near g, for
+ * rest detection: gyro steady, the low-passed gyro or the estimate not turning, |f| near g for
  * rest_time
  *
  * Args:

@@ -448,11 +448,15 @@ NOINLINE = "#if defined(__GNUC__)\n__attribute__((noinline))\n#endif\n"
 _EARLY_WRITES_NOTE = "; outputs are stored as soon as computed (arrays restrict): no argument may overlap an output"
 
 
+def _may_be(pairs) -> str:
+    """'P_out may be P itself, ...': the in-place pairs of a kernel (KernelSpec.in_place) in words."""
+    return ", ".join(f"{o} may be {i} itself" for o, i in pairs)
+
+
 def _in_place_note(pairs) -> str:
     """The doc note of a kernel storing its outputs early with in-place pairs (KernelSpec.in_place)."""
-    same = ", ".join(f"{o} may be {i} itself" for o, i in pairs)
-    return f"; outputs are stored as soon as computed, each after the last read of what it overwrites: {same}, " \
-           "no other argument may overlap an output"
+    return f"; outputs are stored as soon as computed, each after the last read of what it overwrites: " \
+           f"{_may_be(pairs)}, no other argument may overlap an output"
 
 
 def _aliasing_exceptions(names: list[str], prefix: str, in_place=()) -> str:
@@ -464,9 +468,8 @@ def _aliasing_exceptions(names: list[str], prefix: str, in_place=()) -> str:
         text.append(f"Exceptions: {listed} store each output as soon as it is computed and declare "
                     f"their arrays restrict: no argument of theirs may overlap one of their outputs.")
     for name, pairs in in_place:
-        same = ", ".join(f"{o} may be {i} itself" for o, i in pairs)
         text.append(f"{'Also' if text else 'Exception'}: {name} stores each output as soon as it is computed, "
-                    f"after the last read of the input element it may overwrite: {same}; no other "
+                    f"after the last read of the input element it may overwrite: {_may_be(pairs)}; no other "
                     "argument may overlap an output.")
     return _wrap_doc(" ".join(text), prefix) if text else ""
 

@@ -89,8 +89,9 @@ def rest_detector(gyro, accel_norm2, gyro_lp, rest_time, dt, *, tau: float, gyro
     """Returns (gyro_lp', rest_time', at_rest 0/1).
 
     Steady: |gyro - gyro_lp'| < gyro_tol and |gyro_lp'| < gyro_max (a steady turn is not
-    rest; `turn_rate`, when given, is a second chance: a rotation rate the caller knows
-    better, e.g. its estimate's, below gyro_max is no turn either), and the accelerometer's magnitude within accel_tol of gravity (from |f|^2, no root).
+    rest; `turn_rate`, when given, is a second chance: a rotation rate the caller knows better,
+    e.g. its estimate's, below gyro_max is no turn either), and the accelerometer's magnitude
+    within accel_tol of gravity (from |f|^2, no root).
     rest_time counts the steady time (capped at time_cap so it stays exact in float) and is
     reset to 0 otherwise. What rest is for here is the gyro bias (the low-passed gyro while
     nothing rotates), so the rotation tests are the ones that matter: VQF's test of the

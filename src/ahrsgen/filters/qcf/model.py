@@ -303,35 +303,29 @@ class Model(FilterModel):
                        flags=("use_accel", "recover") + (("gps_comp",) if gps_on is not None else ())
                        + (("at_rest",) if p["rest_time"] > 0 else ())),
         ]
-        if p["rest_time"] > 0 and p["rest_turn"] == "estimate":
-            # the turn test on the estimate's rotation rate since the last accelerometer step
-            # (predicted to predicted: the corrections in between included), low-passed: a gyro
-            # bias the aiding sensors hold the attitude against is not a turn, a steady turn is
-            q_prev = ca.SX.sym("rest_q", 4)
-            w_lp = ca.SX.sym("rest_rate_lp", 3)
-            d = quat.qmul(quat.qconj(q_prev), q)
-            d = ca.if_else(d[0] < 0, -d, d)
-            w2 = aiding.lowpass_of_rate(w_lp, 2 * d[1:], span, p["rest_tau"])
+        if p["rest_time"] > 0:
+            ins = {"gyro": gyro, "accel_norm2": f2, "rest_gyro_lp": g_lp, "rest_time": t_rest, "span": span}
+            rate_out, w2 = {}, None
+            if p["rest_turn"] == "estimate":
+                # the turn test on the estimate's rotation rate since the last accelerometer step
+                # (predicted to predicted: the corrections in between included), low-passed: a gyro
+                # bias the aiding sensors hold the attitude against is not a turn, a steady turn is
+                q_prev = ca.SX.sym("rest_q", 4)
+                w_lp = ca.SX.sym("rest_rate_lp", 3)
+                d = quat.qmul(quat.qconj(q_prev), q)
+                d = ca.if_else(d[0] < 0, -d, d)
+                w2 = aiding.lowpass_of_rate(w_lp, 2 * d[1:], span, p["rest_tau"])
+                ins |= {"q": q, "rest_q": q_prev, "rest_rate_lp": w_lp}
+                rate_out = {"rest_rate_lp_new": w2}
             g2, t2, r2 = aiding.rest_detector(gyro, f2, g_lp, t_rest, span, tau=p["rest_tau"],
                                               gyro_tol=p["rest_gyro_tol"], accel_tol=p["rest_accel_tol"],
                                               gravity=G0, gyro_max=p["rest_gyro_tol"], min_time=p["rest_time"],
                                               turn_rate=w2)
-            ks.append(KernelSpec("rest", function("rest", {"gyro": gyro, "accel_norm2": f2, "rest_gyro_lp": g_lp,
-                                                           "rest_time": t_rest, "span": span, "q": q,
-                                                           "rest_q": q_prev, "rest_rate_lp": w_lp},
-                                                  {"rest_gyro_lp_new": g2, "rest_rate_lp_new": w2,
-                                                   "rest_time_new": t2, "at_rest": r2}),
-                                 "rest detection: gyro steady, the low-passed gyro or the estimate not turning, "
-                                 "|f| near g, for rest_time",
-                                 flags=("at_rest",)))
-        elif p["rest_time"] > 0:
-            g2, t2, r2 = aiding.rest_detector(gyro, f2, g_lp, t_rest, span, tau=p["rest_tau"],
-                                              gyro_tol=p["rest_gyro_tol"], accel_tol=p["rest_accel_tol"],
-                                              gravity=G0, gyro_max=p["rest_gyro_tol"], min_time=p["rest_time"])
-            ks.append(KernelSpec("rest", function("rest", {"gyro": gyro, "accel_norm2": f2, "rest_gyro_lp": g_lp,
-                                                           "rest_time": t_rest, "span": span},
-                                                  {"rest_gyro_lp_new": g2, "rest_time_new": t2, "at_rest": r2}),
-                                 "rest detection: gyro steady and |f| near g for rest_time", flags=("at_rest",)))
+            ks.append(KernelSpec("rest", function("rest", ins, {"rest_gyro_lp_new": g2, **rate_out,
+                                                                "rest_time_new": t2, "at_rest": r2}),
+                                 "rest detection: gyro steady" + (", the low-passed gyro or the estimate not turning,"
+                                                                  if w2 is not None else " and") +
+                                 " |f| near g for rest_time", flags=("at_rest",)))
         if p["mag_rejection"]:
             mn = ca.sqrt(m2)
             # sin(dip) = (R^T down) . m / |m| = down . R m / |m|, down = -a/|a|
@@ -416,7 +410,8 @@ class Model(FilterModel):
         p = self.params
         return {"motion_model": p["motion_accel_model"], "product": self.product, "gps_taps": gps_taps(p),
                 "rest": self.product and p["rest_time"] > 0,
-                "rest_turn_estimate": self.product and p["rest_time"] > 0 and p["rest_turn"] == "estimate", "mag_rejection": self.product and p["mag_rejection"],
+                "rest_turn_estimate": self.product and p["rest_time"] > 0 and p["rest_turn"] == "estimate",
+                "mag_rejection": self.product and p["mag_rejection"],
                 "hard_iron": self.hard_iron(), "gps_age_max": GPS_AGE_MAX, "gps_lowpass": gps_lowpass(p)}
 
     def step_paths(self):
