@@ -2523,17 +2523,18 @@ qcf_status qcf_step(qcf_state *restrict s, const qcf_input *restrict in, float d
      * kp_recovery (timer: half a step of margin, so that float and double decide alike). */
     bool recovering = false;
     if (started) {
-        /* Run only when it can change something. Its outputs are its inputs and recovering is false
-         * when no component can be clipped (|gyro|^2 below gyro_plateau_rate^2:
-         * every |gyro_i| below it, float rounding being monotone), no plateau run is counting and
-         * no recovery time is left (each +0: they are never negative or -0). */
+        bool clipped = false;
+        /* Run only when it can change something. Its outputs are its inputs, and clipped and
+         * recovering are false, when no component can be clipped (|gyro|^2 below
+         * gyro_plateau_rate^2: every |gyro_i| below it, float rounding being
+         * monotone), no plateau run is counting and no recovery time is left (each +0: never
+         * negative or -0). */
         const float gyro_n2 = qcf_norm2(in->gyro);
         if (!(gyro_n2 < QCF_GYRO_PLATEAU_RATE * QCF_GYRO_PLATEAU_RATE
               && (qcf_bits(s->recover_time) | qcf_bits(s->gyro_repeats[0])
                   | qcf_bits(s->gyro_repeats[1]) | qcf_bits(s->gyro_repeats[2])) == 0u)) {
-            bool clipped;
-            qcf_k_gyro_recovery(in->gyro, s->gyro_prev, s->gyro_repeats, s->recover_time, dt,
-                &clipped, &s->recover_time, &recovering, s->gyro_repeats);
+            qcf_k_gyro_recovery(in->gyro, s->gyro_prev, s->gyro_repeats,
+                s->recover_time, dt, &clipped, &s->recover_time, &recovering, s->gyro_repeats);
         }
         for (int i = 0; i < 3; i++) {
             s->gyro_prev[i] = in->gyro[i];

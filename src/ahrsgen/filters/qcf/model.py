@@ -78,19 +78,6 @@ def gps_lowpass(params) -> bool:
             and bool(params["conditioning"]) and params["accel_tau"] > 0)
 
 
-def gyro_quiet(params) -> list[str]:
-    """The parameters whose squares bound |gyro|^2 on a step where gyro_recovery can change
-    nothing (the step then skips it): gyro_full_scale and gyro_plateau_rate, each unless 0 (off),
-    the smaller alone when both are numbers; a runtime one (a symbol) is always listed, its 0
-    then failing the bound. Empty (both off): the kernel runs every step."""
-    names = [n for n in ("gyro_full_scale", "gyro_plateau_rate")
-             if not isinstance(params[n], (int, float)) or params[n] > 0]
-    numbers = [n for n in names if isinstance(params[n], (int, float))]
-    if len(numbers) == 2:
-        return [min(numbers, key=lambda n: params[n])]
-    return names
-
-
 def differentiator_coeffs(faithful: bool):
     coeffs = [use(c) for c in PAPER_COEFFS]
     if faithful:
@@ -426,7 +413,7 @@ class Model(FilterModel):
                 "rest_turn_estimate": self.product and p["rest_time"] > 0 and p["rest_turn"] == "estimate",
                 "mag_rejection": self.product and p["mag_rejection"],
                 "hard_iron": self.hard_iron(), "gps_age_max": GPS_AGE_MAX, "gps_lowpass": gps_lowpass(p),
-                "gyro_quiet": gyro_quiet(p)}
+                "gyro_quiet": self.gyro_recovery_quiet()}
 
     def step_paths(self):
         if self.product:
