@@ -4308,10 +4308,20 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
      * rotation it missed widens the attitude covariance (predict), and for clip_recovery_time after
      * the last one R is not adapted and the accelerometer is not low-passed (timer: half a step of
      * margin, so that float and double decide alike). */
-    bool clipped;
-    bool recovering;
-    adukf_k_gyro_recovery(in->gyro, s->gyro_prev, s->gyro_repeats, s->recover_time, dt, &clipped,
-                                 &s->recover_time, &recovering, s->gyro_repeats);
+    bool clipped = false;
+    bool recovering = false;
+    /* Run only when it can change something. Its outputs are its inputs, and clipped and
+     * recovering are false, when no component can be clipped (|gyro|^2 below
+     * gyro_plateau_rate^2: every |gyro_i| below it, float rounding being
+     * monotone), no plateau run is counting and no recovery time is left (each +0: never
+     * negative or -0). */
+    const float gyro_n2 = adukf_norm2(in->gyro);
+    if (!(gyro_n2 < ADUKF_GYRO_PLATEAU_RATE * ADUKF_GYRO_PLATEAU_RATE
+          && (adukf_bits(s->recover_time) | adukf_bits(s->gyro_repeats[0])
+              | adukf_bits(s->gyro_repeats[1]) | adukf_bits(s->gyro_repeats[2])) == 0u)) {
+        adukf_k_gyro_recovery(in->gyro, s->gyro_prev, s->gyro_repeats,
+            s->recover_time, dt, &clipped, &s->recover_time, &recovering, s->gyro_repeats);
+    }
     for (int i = 0; i < 3; i++) {
         s->gyro_prev[i] = in->gyro[i];
     }

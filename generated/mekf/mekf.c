@@ -4762,10 +4762,20 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
      * gyro_plateau_rate for 4 samples) is a clipped sample, integrated as it is; the
      * rotation it missed widens the attitude covariance (predict_covariance), and for
      * clip_recovery_time after the last one the corrections take the sensors as they come. */
-    bool clipped;
-    bool recovering;
-    mekf_k_gyro_recovery(in->gyro, s->gyro_prev, s->gyro_repeats, s->recover_time, dt, &clipped,
-                                 &s->recover_time, &recovering, s->gyro_repeats);
+    bool clipped = false;
+    bool recovering = false;
+    /* Run only when it can change something. Its outputs are its inputs, and clipped and
+     * recovering are false, when no component can be clipped (|gyro|^2 below
+     * gyro_plateau_rate^2: every |gyro_i| below it, float rounding being
+     * monotone), no plateau run is counting and no recovery time is left (each +0: never
+     * negative or -0). */
+    const float gyro_n2 = mekf_norm2(in->gyro);
+    if (!(gyro_n2 < MEKF_GYRO_PLATEAU_RATE * MEKF_GYRO_PLATEAU_RATE
+          && (mekf_bits(s->recover_time) | mekf_bits(s->gyro_repeats[0])
+              | mekf_bits(s->gyro_repeats[1]) | mekf_bits(s->gyro_repeats[2])) == 0u)) {
+        mekf_k_gyro_recovery(in->gyro, s->gyro_prev, s->gyro_repeats,
+            s->recover_time, dt, &clipped, &s->recover_time, &recovering, s->gyro_repeats);
+    }
     for (int i = 0; i < 3; i++) {
         s->gyro_prev[i] = in->gyro[i];
     }

@@ -219,6 +219,20 @@ class FilterModel:
             "recovery timer to clip_recovery_time; recovering while more than half a step of it is left",
             flags=("clipped", "recovering"))
 
+    def gyro_recovery_quiet(self) -> list[str]:
+        """The parameters whose squares bound |gyro|^2 on a step where gyro_recovery_kernel can
+        change nothing (codegen/templates/gyro_recovery.c.j2 then skips it; template context
+        `gyro_quiet`): gyro_full_scale and gyro_plateau_rate, each unless 0 (off), the smaller
+        alone when both are numbers; a runtime one (a symbol) is always listed, its 0 then failing
+        the bound. Empty (both off): the kernel runs every step."""
+        p = self.params
+        names = [n for n in ("gyro_full_scale", "gyro_plateau_rate")
+                 if not isinstance(p[n], (int, float)) or p[n] > 0]
+        numbers = [n for n in names if isinstance(p[n], (int, float))]
+        if len(numbers) == 2:
+            return [min(numbers, key=lambda n: p[n])]
+        return names
+
     def hard_iron_state(self, bias: bool = True) -> list:
         """The state fields of the hard-iron estimate (hard_iron_kernel's; docs/mekf.md "Hard
         iron"), the hard iron `mag_bias` itself first unless bias = False (a filter that always

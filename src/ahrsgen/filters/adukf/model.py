@@ -694,4 +694,5 @@ class Model(FilterModel):
     def template_context(self):
         n = self.n
         return {"recovery": self.err, "learn": self.params["mag_ref"] == "learn", "hard_iron": self.hard_iron(), "n": n, "nx": self.nx, "na": self.na, "err": self.err, "lowpass": self.lowpass(), "follow": self.follow(), "rated": self.own_rates(), "bias": self.nx == 7, "simplex": self.simplex(), "xs": "q" if self.nx == 4 else "x", "at": self.work_layout(),
-                "packed": linalg.packed_lower_pairs(n)}
+                "packed": linalg.packed_lower_pairs(n),
+                "gyro_quiet": self.gyro_recovery_quiet() if self.err else []}

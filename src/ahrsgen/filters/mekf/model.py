@@ -830,4 +830,4 @@ class Model(FilterModel):
         return {"n": N, "heading_source": p["heading_source"], "motion_comp": p["motion_comp"],
                 "s_pivot_min": S_PIVOT_MIN, "vectors": self.vectors, "hard_iron": self._hard_iron(),
                 "samples_kw": self._samples(),
-                "accel_gate_on": self._accel_gate_on()}
+                "accel_gate_on": self._accel_gate_on(), "gyro_quiet": self.gyro_recovery_quiet()}

@@ -412,7 +412,8 @@ class Model(FilterModel):
                 "rest": self.product and p["rest_time"] > 0,
                 "rest_turn_estimate": self.product and p["rest_time"] > 0 and p["rest_turn"] == "estimate",
                 "mag_rejection": self.product and p["mag_rejection"],
-                "hard_iron": self.hard_iron(), "gps_age_max": GPS_AGE_MAX, "gps_lowpass": gps_lowpass(p)}
+                "hard_iron": self.hard_iron(), "gps_age_max": GPS_AGE_MAX, "gps_lowpass": gps_lowpass(p),
+                "gyro_quiet": self.gyro_recovery_quiet()}
 
     def step_paths(self):
         if self.product:
