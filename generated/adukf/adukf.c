@@ -331,7 +331,7 @@ static void adukf_k_predict_part3(const float P[36], float dt, float P_pred[21],
     P_pred[5] = tmp154;
     const float tmp155 = tmp154 * carry[17] /* tmp88 */;
     const float tmp156 = tmp143 + tmp155;
-    const float tmp157 = 9.004e-06f /* gyro_noise^2 + 4.0*q_floor */ * dt;
+    const float tmp157 = 4.004e-06f /* gyro_noise^2 + 4.0*q_floor */ * dt;
     const float tmp158 = 1e-04f /* gyro_rate_noise*gyro_rate_noise */ * dt;
     const float tmp159 = tmp158 * carry[1] /* tmp3 */;
     carry[1] = tmp125;
@@ -1598,19 +1598,19 @@ static void adukf_k_innovation_part9(bool recover, float P_zz[21], float r_diag[
         tmp362 = tmp378;
         tmp363 = tmp381;
     }
-    const float tmp382 = 0.0025f /* sigma_acc^2 */ + tmp358;
+    const float tmp382 = 0.0144f /* sigma_acc^2 */ + tmp358;
     const float tmp383 = tmp382 * carry[5] /* tmp32 */;
     const float tmp384 = tmp383 + carry[6] /* tmp34 */;
     r_diag[0] = tmp384;
     const float tmp385 = carry[1] /* tmp16 */ + tmp384;
     P_zz[0] = tmp385;
-    const float tmp386 = 0.0025f /* sigma_acc^2 */ + tmp359;
+    const float tmp386 = 0.0144f /* sigma_acc^2 */ + tmp359;
     const float tmp387 = tmp386 * carry[5] /* tmp32 */;
     const float tmp388 = tmp387 + carry[6] /* tmp34 */;
     r_diag[1] = tmp388;
     const float tmp389 = carry[11] /* tmp133 */ + tmp388;
     P_zz[6] = tmp389;
-    const float tmp390 = 0.0025f /* sigma_acc^2 */ + tmp360;
+    const float tmp390 = 0.0144f /* sigma_acc^2 */ + tmp360;
     const float tmp391 = tmp390 * carry[5] /* tmp32 */;
     const float tmp392 = tmp391 + carry[6] /* tmp34 */;
     r_diag[2] = tmp392;
@@ -4358,8 +4358,9 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
     /* A-DUKF step (the paper's equations; docs/adukf.md). Order as in reference.py: learn the
      * reference field, initialise, then time update and unscented measurement update. */
     const bool mag_ok = use_mag;
-    /* GPS velocity (motion_accel_model = gps_lowpass): the latest sample and its age; while it is at
-     * most gps_timeout old its low-passed derivative is removed from the low-passed accelerometer */
+    /* GPS velocity (motion_accel_model = gps_lowpass): the latest sample and its age;
+     * while it is at most gps_timeout old its low-passed derivative is removed from the
+     * low-passed accelerometer */
     if (use_gps) {
         for (int i = 0; i < 3; i++) {
             s->gps_vel[i] = in->gps_vel_ned[i];
