@@ -331,7 +331,7 @@ static void adukf_k_predict_part3(const float P[36], float dt, float P_pred[21],
     P_pred[5] = tmp154;
     const float tmp155 = tmp154 * carry[17] /* tmp88 */;
     const float tmp156 = tmp143 + tmp155;
-    const float tmp157 = 9.004e-06f /* gyro_noise^2 + 4.0*q_floor */ * dt;
+    const float tmp157 = 4.004e-06f /* gyro_noise^2 + 4.0*q_floor */ * dt;
     const float tmp158 = 1e-04f /* gyro_rate_noise*gyro_rate_noise */ * dt;
     const float tmp159 = tmp158 * carry[1] /* tmp3 */;
     carry[1] = tmp125;
@@ -1598,19 +1598,19 @@ static void adukf_k_innovation_part9(bool recover, float P_zz[21], float r_diag[
         tmp362 = tmp378;
         tmp363 = tmp381;
     }
-    const float tmp382 = 0.0025f /* sigma_acc^2 */ + tmp358;
+    const float tmp382 = 0.0144f /* sigma_acc^2 */ + tmp358;
     const float tmp383 = tmp382 * carry[5] /* tmp32 */;
     const float tmp384 = tmp383 + carry[6] /* tmp34 */;
     r_diag[0] = tmp384;
     const float tmp385 = carry[1] /* tmp16 */ + tmp384;
     P_zz[0] = tmp385;
-    const float tmp386 = 0.0025f /* sigma_acc^2 */ + tmp359;
+    const float tmp386 = 0.0144f /* sigma_acc^2 */ + tmp359;
     const float tmp387 = tmp386 * carry[5] /* tmp32 */;
     const float tmp388 = tmp387 + carry[6] /* tmp34 */;
     r_diag[1] = tmp388;
     const float tmp389 = carry[11] /* tmp133 */ + tmp388;
     P_zz[6] = tmp389;
-    const float tmp390 = 0.0025f /* sigma_acc^2 */ + tmp360;
+    const float tmp390 = 0.0144f /* sigma_acc^2 */ + tmp360;
     const float tmp391 = tmp390 * carry[5] /* tmp32 */;
     const float tmp392 = tmp391 + carry[6] /* tmp34 */;
     r_diag[2] = tmp392;
@@ -2553,7 +2553,7 @@ static void adukf_k_correct(const float x_pred[restrict 7], const float P_pred[r
 }
 
 static void adukf_k_accel_lowpass_part0(const float q_pred_unit[4], const float accel[3],
-    const float accel_lp[3], bool restart, float dt, bool recover, float carry[15], bool flags[1])
+    const float accel_lp[3], bool restart, float dt, bool recover, float carry[20], bool flags[1])
 {
     const bool tmp0 = restart || recover;
     const float tmp1 = q_pred_unit[2] * q_pred_unit[2];
@@ -2602,65 +2602,120 @@ static void adukf_k_accel_lowpass_part0(const float q_pred_unit[4], const float 
     carry[3] = tmp13;
     carry[4] = tmp14;
     carry[5] = tmp16;
-    carry[6] = tmp21;
-    carry[7] = tmp24;
-    carry[8] = tmp26;
-    carry[9] = tmp28;
-    carry[10] = tmp31;
-    carry[11] = tmp34;
-    carry[12] = tmp35;
-    carry[13] = tmp37;
-    carry[14] = tmp39;
+    carry[6] = tmp18;
+    carry[7] = tmp21;
+    carry[8] = tmp24;
+    carry[9] = tmp26;
+    carry[10] = tmp28;
+    carry[11] = tmp31;
+    carry[12] = tmp34;
+    carry[13] = tmp35;
+    carry[14] = tmp37;
+    carry[15] = tmp39;
 }
 
-static void adukf_k_accel_lowpass_part1(const float accel[3], const float accel_lp[3],
-    float carry[15], const bool flags[1])
+static void adukf_k_accel_lowpass_part1(const float accel[3], const float accel_lp[3], float dt,
+    const float gps_vel[3], bool new_gps, bool m_comp, const float v_lp[3], const float v_ins[3],
+    float carry[20], const bool flags[1])
 {
-    const float tmp40 = (flags[0] /* tmp0 */) ? carry[14] /* tmp39 */ : accel_lp[1];
-    const float tmp41 = carry[14] /* tmp39 */ - tmp40;
-    const float tmp42 = carry[6] /* tmp21 */ * tmp41;
+    const float tmp40 = (flags[0] /* tmp0 */) ? carry[15] /* tmp39 */ : accel_lp[1];
+    const float tmp41 = carry[15] /* tmp39 */ - tmp40;
+    const float tmp42 = carry[7] /* tmp21 */ * tmp41;
     const float tmp43 = tmp40 + tmp42;
     const float tmp44 = carry[3] /* tmp13 */ - carry[4] /* tmp14 */;
     const float tmp45 = tmp44 + tmp44;
     const float tmp46 = tmp45 * accel[0];
-    const float tmp47 = carry[11] /* tmp34 */ + carry[12] /* tmp35 */;
+    const float tmp47 = carry[12] /* tmp34 */ + carry[13] /* tmp35 */;
     const float tmp48 = tmp47 + tmp47;
     const float tmp49 = tmp48 * accel[1];
     const float tmp50 = tmp46 + tmp49;
-    const float tmp51 = carry[9] /* tmp28 */ + carry[0] /* tmp1 */;
+    const float tmp51 = carry[10] /* tmp28 */ + carry[0] /* tmp1 */;
     const float tmp52 = tmp51 + tmp51;
     const float tmp53 = 1.0f - tmp52;
     const float tmp54 = tmp53 * accel[2];
     const float tmp55 = tmp50 + tmp54;
     const float tmp56 = (flags[0] /* tmp0 */) ? tmp55 : accel_lp[2];
     const float tmp57 = tmp55 - tmp56;
-    const float tmp58 = carry[6] /* tmp21 */ * tmp57;
+    const float tmp58 = carry[7] /* tmp21 */ * tmp57;
     const float tmp59 = tmp56 + tmp58;
-    const float tmp60 = carry[1] /* tmp5 */ * carry[7] /* tmp24 */;
-    const float tmp61 = carry[8] /* tmp26 */ * tmp43;
-    const float tmp62 = tmp60 + tmp61;
-    const float tmp63 = tmp45 * tmp59;
-    const float tmp64 = tmp62 + tmp63;
-    const float tmp65 = carry[2] /* tmp10 */ * carry[7] /* tmp24 */;
-    const float tmp66 = carry[10] /* tmp31 */ * tmp43;
-    const float tmp67 = tmp65 + tmp66;
-    const float tmp68 = tmp48 * tmp59;
-    const float tmp69 = tmp67 + tmp68;
-    const float tmp70 = carry[5] /* tmp16 */ * carry[7] /* tmp24 */;
-    const float tmp71 = carry[13] /* tmp37 */ * tmp43;
-    const float tmp72 = tmp70 + tmp71;
-    const float tmp73 = tmp53 * tmp59;
-    const float tmp74 = tmp72 + tmp73;
+    const float tmp60 = carry[6] /* tmp18 */ * dt;
+    const float tmp61 = v_ins[0] + tmp60;
+    const float tmp62 = (new_gps) ? gps_vel[0] : tmp61;
+    const float tmp63 = (flags[0] /* tmp0 */) ? 1.0f : carry[7] /* tmp21 */;
+    const float tmp64 = tmp62 - v_lp[0];
+    const float tmp65 = tmp63 * tmp64;
+    const float tmp66 = v_lp[0] + tmp65;
+    const float tmp67 = (m_comp) ? tmp66 : v_lp[0];
+    const float tmp68 = tmp62 - tmp67;
+    const float tmp69 = carry[8] /* tmp24 */ - tmp68;
+    const float tmp70 = (m_comp) ? tmp69 : carry[8] /* tmp24 */;
+    const float tmp71 = carry[1] /* tmp5 */ * tmp70;
+    const float tmp72 = carry[15] /* tmp39 */ * dt;
+    const float tmp73 = v_ins[1] + tmp72;
+    const float tmp74 = (new_gps) ? gps_vel[1] : tmp73;
+    const float tmp75 = tmp74 - v_lp[1];
+    const float tmp76 = tmp63 * tmp75;
+    const float tmp77 = v_lp[1] + tmp76;
+    const float tmp78 = (m_comp) ? tmp77 : v_lp[1];
+    const float tmp79 = tmp74 - tmp78;
     carry[0] = tmp43;
-    carry[1] = tmp59;
-    carry[2] = tmp64;
-    carry[3] = tmp69;
-    carry[4] = tmp74;
+    carry[1] = tmp45;
+    carry[3] = tmp48;
+    carry[4] = tmp53;
+    carry[6] = tmp55;
+    carry[7] = tmp59;
+    carry[10] = tmp62;
+    carry[12] = tmp63;
+    carry[13] = tmp67;
+    carry[15] = tmp70;
+    carry[16] = tmp71;
+    carry[17] = tmp74;
+    carry[18] = tmp78;
+    carry[19] = tmp79;
+}
+
+static void adukf_k_accel_lowpass_part2(float dt, const float gps_vel[3], bool new_gps, bool m_comp,
+    const float v_lp[3], const float v_ins[3], float carry[20])
+{
+    const float tmp80 = carry[0] /* tmp43 */ - carry[19] /* tmp79 */;
+    const float tmp81 = (m_comp) ? tmp80 : carry[0] /* tmp43 */;
+    const float tmp82 = carry[9] /* tmp26 */ * tmp81;
+    const float tmp83 = carry[16] /* tmp71 */ + tmp82;
+    const float tmp84 = carry[6] /* tmp55 */ + 9.80665f /* G0 */;
+    const float tmp85 = tmp84 * dt;
+    const float tmp86 = v_ins[2] + tmp85;
+    const float tmp87 = (new_gps) ? gps_vel[2] : tmp86;
+    const float tmp88 = tmp87 - v_lp[2];
+    const float tmp89 = carry[12] /* tmp63 */ * tmp88;
+    const float tmp90 = v_lp[2] + tmp89;
+    const float tmp91 = (m_comp) ? tmp90 : v_lp[2];
+    const float tmp92 = tmp87 - tmp91;
+    const float tmp93 = carry[7] /* tmp59 */ - tmp92;
+    const float tmp94 = (m_comp) ? tmp93 : carry[7] /* tmp59 */;
+    const float tmp95 = carry[1] /* tmp45 */ * tmp94;
+    const float tmp96 = tmp83 + tmp95;
+    const float tmp97 = carry[2] /* tmp10 */ * carry[15] /* tmp70 */;
+    const float tmp98 = carry[11] /* tmp31 */ * tmp81;
+    const float tmp99 = tmp97 + tmp98;
+    const float tmp100 = carry[3] /* tmp48 */ * tmp94;
+    const float tmp101 = tmp99 + tmp100;
+    const float tmp102 = carry[5] /* tmp16 */ * carry[15] /* tmp70 */;
+    const float tmp103 = carry[14] /* tmp37 */ * tmp81;
+    const float tmp104 = tmp102 + tmp103;
+    const float tmp105 = carry[4] /* tmp53 */ * tmp94;
+    const float tmp106 = tmp104 + tmp105;
+    carry[1] = tmp87;
+    carry[2] = tmp91;
+    carry[3] = tmp96;
+    carry[4] = tmp101;
+    carry[5] = tmp106;
 }
 
 /*
  * NED low-pass of the specific force R(q-) f (restart: start at R(q-) f); the update measures
- * R(q-)^T of it (recovering from a clipped gyro sample: the sample itself)
+ * R(q-)^T of it less the GPS velocity's low-passed derivative (v_ins - v_lp)/accel_tau (m_comp; v
+ * through the same low-pass, carried by R f + g between GPS samples) (recovering from a clipped
+ * gyro sample: the sample itself)
  *
  * Args:
  *     q_pred_unit: float[4]
@@ -2669,30 +2724,46 @@ static void adukf_k_accel_lowpass_part1(const float accel[3], const float accel_
  *     restart: bool
  *     dt: float
  *     recover: bool
+ *     gps_vel: float[3]
+ *     new_gps: bool
+ *     m_comp: bool
+ *     v_lp: float[3]
+ *     v_ins: float[3]
  * Outputs:
  *     accel_lp_new: float[3]
  *     accel_body: float[3]
+ *     v_lp_new: float[3]
+ *     v_ins_new: float[3]
  *
- * Total ops: 75 (add 40, mul 30, div 1, cmp 4)
+ * Total ops: 107 (add 56, mul 36, div 1, cmp 14)
  */
 static void adukf_k_accel_lowpass(const float q_pred_unit[4], const float accel[3],
-    const float accel_lp[3], bool restart, float dt, bool recover, float accel_lp_new[3],
-    float accel_body[3])
+    const float accel_lp[3], bool restart, float dt, bool recover, const float gps_vel[3],
+    bool new_gps, bool m_comp, const float v_lp[3], const float v_ins[3], float accel_lp_new[3],
+    float accel_body[3], float v_lp_new[3], float v_ins_new[3])
 {
     /*
-     * 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry and flags hold
+     * 3 parts called in turn (inlined when optimising): bounded -O0 frames; carry and flags hold
      * the values handed between them (a slot reused once its value is dead)
      */
-    float carry[15];
+    float carry[20];
     bool flags[1];
     adukf_k_accel_lowpass_part0(q_pred_unit, accel, accel_lp, restart, dt, recover, carry, flags);
-    adukf_k_accel_lowpass_part1(accel, accel_lp, carry, flags);
-    accel_lp_new[0] = carry[7] /* tmp24 */;
+    adukf_k_accel_lowpass_part1(accel, accel_lp, dt, gps_vel, new_gps, m_comp, v_lp, v_ins, carry,
+            flags);
+    adukf_k_accel_lowpass_part2(dt, gps_vel, new_gps, m_comp, v_lp, v_ins, carry);
+    accel_lp_new[0] = carry[8] /* tmp24 */;
     accel_lp_new[1] = carry[0] /* tmp43 */;
-    accel_lp_new[2] = carry[1] /* tmp59 */;
-    accel_body[0] = carry[2] /* tmp64 */;
-    accel_body[1] = carry[3] /* tmp69 */;
-    accel_body[2] = carry[4] /* tmp74 */;
+    accel_lp_new[2] = carry[7] /* tmp59 */;
+    accel_body[0] = carry[3] /* tmp96 */;
+    accel_body[1] = carry[4] /* tmp101 */;
+    accel_body[2] = carry[5] /* tmp106 */;
+    v_lp_new[0] = carry[13] /* tmp67 */;
+    v_lp_new[1] = carry[18] /* tmp78 */;
+    v_lp_new[2] = carry[2] /* tmp91 */;
+    v_ins_new[0] = carry[10] /* tmp62 */;
+    v_ins_new[1] = carry[17] /* tmp74 */;
+    v_ins_new[2] = carry[1] /* tmp87 */;
 }
 
 static void adukf_k_accel_lp_follow_part0(const float q_pred[4], const float q_new[4],
@@ -4164,6 +4235,17 @@ void adukf_init(adukf_state *s)
     s->accel_lp[0] = 0.0f;
     s->accel_lp[1] = 0.0f;
     s->accel_lp[2] = 0.0f;
+    s->gps_vel[0] = 0.0f;
+    s->gps_vel[1] = 0.0f;
+    s->gps_vel[2] = 0.0f;
+    s->gps_age = 1000.0f /* GPS_AGE_MAX */;
+    s->v_lp[0] = 0.0f;
+    s->v_lp[1] = 0.0f;
+    s->v_lp[2] = 0.0f;
+    s->v_ins[0] = 0.0f;
+    s->v_ins[1] = 0.0f;
+    s->v_ins[2] = 0.0f;
+    s->vlp_ok = 0u;
     s->recover_time = 0.0f;
     s->gyro_prev[0] = 0.0f;
     s->gyro_prev[1] = 0.0f;
@@ -4259,10 +4341,38 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
             return status;
         }
     }
+    bool use_gps = false;
+    if ((in->valid & ADUKF_VALID_GPS) != 0u) {
+        const float gps_n2 = adukf_norm2(in->gps_vel_ned);
+        if (gps_n2 < ADUKF_GPS_VEL_MAX * ADUKF_GPS_VEL_MAX) {
+            use_gps = true;
+        } else {
+            const adukf_status skip = adukf_aiding_skip(in->gps_vel_ned, gps_n2, ADUKF_GPS_VEL_MAX,
+                0.0f, ADUKF_GPS_NONFINITE, ADUKF_GPS_RANGE,
+                ADUKF_OK);
+            use_gps = skip == ADUKF_OK;
+            status |= skip;
+        }
+    }
 
     /* A-DUKF step (the paper's equations; docs/adukf.md). Order as in reference.py: learn the
      * reference field, initialise, then time update and unscented measurement update. */
     const bool mag_ok = use_mag;
+    /* GPS velocity (motion_accel_model = gps_lowpass): the latest sample and its age;
+     * while it is at most gps_timeout old its low-passed derivative is removed from the
+     * low-passed accelerometer */
+    if (use_gps) {
+        for (int i = 0; i < 3; i++) {
+            s->gps_vel[i] = in->gps_vel_ned[i];
+        }
+        s->gps_age = 0.0f;
+    } else if (s->gps_age < 1000.0f /* GPS_AGE_MAX */) {
+        s->gps_age += dt;
+    }
+    const bool m_comp = s->gps_age <= ADUKF_GPS_TIMEOUT;
+    if (!m_comp) {
+        s->vlp_ok = 0u;   /* the velocity low-pass restarts at the next sample */
+    }
     if (s->learn_count < ADUKF_LEARN_SAMPLES) {
         if (use_accel && use_mag) {
             bool rest;
@@ -4403,8 +4513,16 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
              * as x == 0) */
             const bool restart = ((adukf_bits(s->accel_lp[0]) | adukf_bits(s->accel_lp[1])
                                    | adukf_bits(s->accel_lp[2])) << 1) == 0u;
+            if (m_comp && s->vlp_ok == 0u) {
+                for (int i = 0; i < 3; i++) {
+                    s->v_lp[i] = s->gps_vel[i];
+                    s->v_ins[i] = s->gps_vel[i];
+                }
+                s->vlp_ok = 1u;
+            }
             adukf_k_accel_lowpass(x_new, in->accel, s->accel_lp, restart, dt,
-                recovering, s->accel_lp, accel_in);
+                recovering, s->gps_vel, use_gps, m_comp, s->v_lp, s->v_ins,
+                s->accel_lp, accel_in, s->v_lp, s->v_ins);
         }
         const float mag_in[3] = { use_mag ? mag_c[0] : 1.0f, use_mag ? mag_c[1] : 0.0f,
             use_mag ? mag_c[2] : 0.0f };

@@ -71,11 +71,14 @@ def test_lowpass_turns_with_the_correction():
 def test_following_lowpass_keeps_a_slow_lowpass_stable_on_the_multirotor():
     """Without the turn the low-pass holds the old attitude's error for accel_tau and pulls each
     correction back: with accel_tau = 2 s the multirotor (seed 0, float C, total RMS against the
-    truth) is several times worse without it (reference, 2026-12-04: 10.1 against 2.5 deg)."""
+    truth) is several times worse without it (reference, 2026-12-04: 10.1 against 2.5 deg).
+    Without the GPS compensation (motion_accel_model = none): the low-pass then holds the
+    vehicle's acceleration, as on a vehicle without GPS."""
     from ahrsgen.bench.scoring import score
     log = make("multirotor", 0)
     tot = {}
     for follow in ("true", "false"):
-        hf = host.build(config.resolve("adukf", sets=["accel_tau=2", f"accel_lp_follow={follow}"]))
+        hf = host.build(config.resolve("adukf", sets=["accel_tau=2", "motion_accel_model=none",
+                                                                f"accel_lp_follow={follow}"]))
         tot[follow] = score(hf.run(log).q, log, "true")["total_rms"]
     assert tot["false"] > 2.5 * tot["true"], tot

@@ -14,6 +14,12 @@ Product default (issue 14, attitude_state = "error", with the gyro-bias state): 
 covariance of the error state [d; δb], q = q̂ ⊗ [1, d/2]/|.|, b = b̂ + δb (6 states, 13 sigma
 points; predict_expr, sigma_pair_error_expr, correct_expr).
 
+GPS motion (issue 26, motion_accel_model = "gps_lowpass", with the low-pass): the GPS velocity,
+carried between samples by R f + g, goes through the accelerometer's NED low-pass with the same
+gain, and the update measures R(q⁻)ᵀ (a - (v - v_lp)/accel_tau): the low-passed kinematic
+acceleration removed (aiding.gps_lowpass, mekf's and qcf's construction), while the last GPS
+velocity is at most gps_timeout old.
+
 The two smallest Cholesky pivots (of P⁻ and of P_zz) are outputs; the step partial uses
 them to reset P or skip the update with a status bit, so the state never becomes NaN.
 """
@@ -46,6 +52,8 @@ _LOWER6 = [(r, c) for r in range(6) for c in range(r + 1)]
 
 # s: floor of the sample interval in the density term (a denormal dt must not overflow R to inf)
 SPAN_MIN = Const("SPAN_MIN", 1e-9)
+# the time since the last GPS sample stops counting here, s (a whole number: exact in float)
+GPS_AGE_MAX = Const("GPS_AGE_MAX", 1e3)
 
 
 def _on(v) -> bool:
@@ -107,6 +115,12 @@ def has_error_state(p) -> bool:
     return has_bias_state(p) and p["attitude_state"] == "error"
 
 
+def gps_lowpass(p) -> bool:
+    """The GPS velocity's low-passed derivative is removed in the NED low-pass (product with
+    accel_tau > 0 only: without the low-pass there is nothing to share)."""
+    return p["motion_accel_model"] == "gps_lowpass" and p["accel_tau"] > 0 and not p["faithful"]
+
+
 def skew(v):
     """[v]x with [v]x u = v x u."""
     return ca.vertcat(ca.horzcat(0, -v[2], v[1]), ca.horzcat(v[2], 0, -v[0]), ca.horzcat(-v[1], v[0], 0))
@@ -114,7 +128,9 @@ def skew(v):
 
 class Model(FilterModel):
     def __init__(self, params: dict):
-        super().__init__(params, sensors=("accel", "mag"), extra_status=list(EXTRA_STATUS))
+        super().__init__(params, sensors=("accel", "mag", "gps") if gps_lowpass(params) else ("accel", "mag"),
+                         extra_status=list(EXTRA_STATUS))
+        self.gps = gps_lowpass(params)
         self.err = has_error_state(params)
         self.nx = 7 if has_bias_state(params) else N      # the state x: q, or [q; gyro bias]
         self.n = 6 if self.err else self.nx              # P's size: [δθ; b] (error state), or x's
@@ -152,7 +168,13 @@ class Model(FilterModel):
             StateField("r_diag", 6, "diagonal of the adaptive R used by the last update (0: sensor not used)", 0.0),
         ] + ([StateField("sample_age", 2, "time since the last accelerometer / magnetometer sample, s", 0.0)]
              if self.own_rates() else []) + ([StateField("accel_lp", 3, "low-passed specific force in NED, m/s^2 (accel_tau > 0)", 0.0)]
-             if self.lowpass() else []) + (self.gyro_recovery_state() if self.err else []) + [
+             if self.lowpass() else []) + ([
+                StateField("gps_vel", 3, "latest GPS velocity (NED, m/s; gps_lowpass)", 0.0),
+                StateField("gps_age", 1, "time since the last GPS sample, s (gps_lowpass)", GPS_AGE_MAX),
+                StateField("v_lp", 3, "GPS velocity through the accelerometer's NED low-pass (gps_lowpass), m/s", 0.0),
+                StateField("v_ins", 3, "GPS velocity, carried between samples by R f + g (gps_lowpass), m/s", 0.0),
+                StateField("vlp_ok", 1, "1 while v_lp follows a fresh GPS velocity (gps_lowpass)", 0, "uint32"),
+             ] if self.gps else []) + (self.gyro_recovery_state() if self.err else []) + [
             StateField("work", self.work_layout()["size"], "scratch of the step (P-, the update's matrices and sigma-point sums"
                        + (", x- and x+) " if self.nx == 7 else ") ") +
                        "kept here instead of on the stack: no meaning between steps, zeroed when an update or its "
@@ -540,6 +562,27 @@ class Model(FilterModel):
         recover = ca.SX.sym("recover")        # recovering from a clipped gyro sample (error state)
         start = ca.logic_or(restart, recover) if self.err else restart     # (recovering: the sample itself)
         a_lp_new = aiding.lowpass(ca.if_else(start, f_n, a_lp), f_n, dt, p["accel_tau"])
+        lp_in = {"q_pred_unit": qn, "accel": f, "accel_lp": a_lp, "restart": restart, "dt": dt,
+                 **({"recover": recover} if self.err else {})}
+        lp_out = {"accel_lp_new": a_lp_new, "accel_body": quat.rotate_inv(qn, a_lp_new)}
+        lp_doc = ("NED low-pass of the specific force R(q-) f (restart: start at R(q-) f); the update "
+                  "measures R(q-)^T of it (recovering from a clipped gyro sample: the sample itself)")
+        if self.gps:
+            vel = ca.SX.sym("gps_vel", 3)
+            v_lp = ca.SX.sym("v_lp", 3)
+            v_ins = ca.SX.sym("v_ins", 3)
+            new_gps = ca.SX.sym("new_gps")
+            m_comp = ca.SX.sym("m_comp")
+            # the velocity's low-pass gain: that of the specific force (1 when it restarts at R f)
+            alpha = ca.if_else(start, 1, dt / (use(p["accel_tau"]) + dt))
+            vi_new, v_new, up = aiding.gps_lowpass(a_lp_new, f_n, vel, v_lp, v_ins, alpha, dt, p["accel_tau"],
+                                                   new_gps, m_comp, G0)
+            lp_in.update({"gps_vel": vel, "new_gps": new_gps, "m_comp": m_comp, "v_lp": v_lp, "v_ins": v_ins})
+            lp_out = {"accel_lp_new": a_lp_new, "accel_body": quat.rotate_inv(qn, up), "v_lp_new": v_new,
+                      "v_ins_new": vi_new}
+            lp_doc = lp_doc.replace("measures R(q-)^T of it", "measures R(q-)^T of it less the GPS velocity's "
+                                    "low-passed derivative (v_ins - v_lp)/accel_tau (m_comp; v through the same "
+                                    "low-pass, carried by R f + g between GPS samples)")
         Pzz_packed = ca.SX.sym("P_zz", 21)        # lower triangle, packed (linalg)
         Pzz = linalg.unpack_symmetric(Pzz_packed, 6)
         eps = ca.SX.sym("residual", 6)
@@ -641,13 +684,9 @@ class Model(FilterModel):
                         if self.err else "x+ = x- + aL g = x- + K eps (q normalised), ")
                        + "P+ = P- - aL G aL^T = P- - K P_zz K^T",
                        noinline=True, early_writes=True),
-            *([KernelSpec("accel_lowpass", function(
-                "accel_lowpass", {"q_pred_unit": qn, "accel": f, "accel_lp": a_lp, "restart": restart, "dt": dt,
-                                  **({"recover": recover} if self.err else {})},
-                {"accel_lp_new": a_lp_new, "accel_body": quat.rotate_inv(qn, a_lp_new)}),
-                "NED low-pass of the specific force R(q-) f (restart: start at R(q-) f); the update "
-                "measures R(q-)^T of it (recovering from a clipped gyro sample: the sample itself)",
-                flags=("restart", "recover") if self.err else ("restart",))]
+            *([KernelSpec("accel_lowpass", function("accel_lowpass", lp_in, lp_out), lp_doc,
+                          flags=(("restart", "recover") if self.err else ("restart",))
+                          + (("new_gps", "m_comp") if self.gps else ()))]
               if self.lowpass() else []),
             *([KernelSpec("accel_lp_follow", function(
                 "accel_lp_follow", {"q_pred": q4, "q_new": qf, "accel_lp": a_lp},
@@ -693,6 +732,6 @@ class Model(FilterModel):
 
     def template_context(self):
         n = self.n
-        return {"recovery": self.err, "learn": self.params["mag_ref"] == "learn", "hard_iron": self.hard_iron(), "n": n, "nx": self.nx, "na": self.na, "err": self.err, "lowpass": self.lowpass(), "follow": self.follow(), "rated": self.own_rates(), "bias": self.nx == 7, "simplex": self.simplex(), "xs": "q" if self.nx == 4 else "x", "at": self.work_layout(),
+        return {"recovery": self.err, "learn": self.params["mag_ref"] == "learn", "hard_iron": self.hard_iron(), "n": n, "nx": self.nx, "na": self.na, "err": self.err, "lowpass": self.lowpass(), "follow": self.follow(), "gps": self.gps, "gps_age_max": GPS_AGE_MAX, "rated": self.own_rates(), "bias": self.nx == 7, "simplex": self.simplex(), "xs": "q" if self.nx == 4 else "x", "at": self.work_layout(),
                 "packed": linalg.packed_lower_pairs(n),
                 "gyro_quiet": self.gyro_recovery_quiet() if self.err else []}

@@ -56,6 +56,13 @@ Product defaults (issue 10; faithful ignores them):
   sigma_set is ignored (symmetric).
 - accel_tau > 0: a ← a + dt/(τ + dt) (R(q⁻/|q⁻|) f - a) (started at R f), and the update
   measures R(q⁻/|q⁻|)ᵀ a instead of f.
+- motion_accel_model = "gps_lowpass" (with accel_tau > 0, issue 26): the GPS velocity v (the
+  sample of this step, else carried from the last one by v ← v + (R(q⁻/|q⁻|) f + g) dt) goes
+  through the same low-pass, v_lp ← v_lp + k (v - v_lp) with the gain k = dt/(τ + dt) of a (1
+  when a restarts at R f), and the update measures R(q⁻/|q⁻|)ᵀ (a - (v - v_lp)/τ): (v - v_lp)/τ
+  is the same low-pass applied to the velocity's differences (v_k - v_{k-1})/dt, the vehicle's
+  low-passed acceleration. Only while the last GPS sample is at most gps_timeout old (the age
+  counted every step from the step's start); v_lp and v start at that sample after a gap.
 - accel_lp_follow (with accel_tau > 0, issue 26): after an applied update that used the
   accelerometer, a ← R(q⁺) R(q⁻/|q⁻|)ᵀ a: the low-passed vector turns with the correction, so
   what it holds from before does not pull the attitude back to its old error.
@@ -225,6 +232,12 @@ class Reference:
         self.lowpass = p["accel_tau"] > 0 and not p["faithful"]
         self.rated = p["span_max"] > 0 and not p["faithful"]
         self.accel_lp = np.zeros(3)
+        self.gps_lp = p["motion_accel_model"] == "gps_lowpass" and self.lowpass
+        self.gps_vel = np.zeros(3)      # the latest GPS velocity (NED) and its age
+        self.gps_age = 1e3              # model.GPS_AGE_MAX: no sample yet
+        self.v_lp = np.zeros(3)         # the velocity through the accelerometer's low-pass
+        self.v_ins = np.zeros(3)        # the velocity, carried between GPS samples by R f + g
+        self.vlp_ok = False
         self.sample_age = np.zeros(2)
         self.bias = np.zeros(3)
         kind = "symmetric" if p["faithful"] or self.err else p["sigma_set"]       # faithful: the paper's points
@@ -264,10 +277,23 @@ class Reference:
 
     def step(self, gyro, accel, mag, gps_vel, valid: int, dt: float) -> int:
         p = self.p
-        c = input_checks.check(p, ("accel", "mag"), gyro, accel, mag, gps_vel, valid, dt)
+        c = input_checks.check(p, ("accel", "mag", "gps") if self.gps_lp else ("accel", "mag"),
+                               gyro, accel, mag, gps_vel, valid, dt)
         if c.refused:
             return c.refused
         status, use_a, use_m, w = c.status, c.use_accel, c.use_mag, c.gyro
+        use_g = self.gps_lp and c.use_gps
+        m_comp = False
+        if self.gps_lp:
+            # the latest GPS velocity and its age; compensate while it is at most gps_timeout old
+            if use_g:
+                self.gps_vel = np.asarray(gps_vel, dtype=float).copy()
+                self.gps_age = 0.0
+            elif self.gps_age < 1e3:
+                self.gps_age += dt
+            m_comp = self.gps_age <= p["gps_timeout"]
+            if not m_comp:
+                self.vlp_ok = False
         wl = [float(x) for x in w]
         f = np.asarray(accel, dtype=float)
         m = np.asarray(mag, dtype=float)
@@ -408,10 +434,23 @@ class Reference:
             if self.lowpass and use_a:
                 qn = x_new[:4]
                 f_n = rotmat(qn) @ f
-                if not np.any(self.accel_lp) or recovering:
+                start = not np.any(self.accel_lp) or recovering
+                if start:
                     self.accel_lp = f_n                          # start at the first sample (and recovering)
-                self.accel_lp = self.accel_lp + dt / (p["accel_tau"] + dt) * (f_n - self.accel_lp)
-                f_meas = rotmat(qn).T @ self.accel_lp
+                k_lp = dt / (p["accel_tau"] + dt)
+                self.accel_lp = self.accel_lp + k_lp * (f_n - self.accel_lp)
+                up = self.accel_lp
+                if self.gps_lp:
+                    if m_comp and not self.vlp_ok:
+                        self.v_lp = self.gps_vel.copy()
+                        self.v_ins = self.gps_vel.copy()
+                        self.vlp_ok = True
+                    # the velocity: this step's GPS sample, else carried by a = R f + g
+                    self.v_ins = self.gps_vel.copy() if use_g else self.v_ins + (f_n + np.array([0.0, 0.0, G0])) * dt
+                    if m_comp:
+                        self.v_lp = self.v_lp + (1.0 if start else k_lp) * (self.v_ins - self.v_lp)
+                        up = self.accel_lp - (self.v_ins - self.v_lp) / p["accel_tau"]
+                f_meas = rotmat(qn).T @ up
             L, piv = _chol(Pm)
             if not piv > p["pivot_min"]:
                 status |= COV_RESET
