@@ -189,3 +189,20 @@ def test_docs_table_of_gyro_clip_holds():
             worst[k].append(error_deg(q, log.q_true)[after].max())
     for k, (lo, hi) in stated.items():
         assert (round(min(worst[k]), 2), round(max(worst[k]), 2)) == (lo, hi), k
+
+
+@pytest.mark.parametrize("name", FILTERS)
+def test_gyro_plateau_rate_0_set_at_run_time_turns_the_plateau_off(name):
+    """gyro_plateau_rate = 0 means "only gyro_full_scale" (its doc) whether it is baked in or set
+    at run time (<prefix>_set_params): a fast component held for 6 samples, the others changing,
+    sets GYRO_RECOVERY with the default rate and never with 0, in both builds, as in the
+    reference (which treats 0 as off)."""
+    log = make("gyro_clip", seed=0, clip_s=0.0, range_stated=False).slice(0, 1000)
+    log.gyro = log.gyro.copy()
+    log.gyro[300:306, 0] = 5.0                       # rad/s, above the default 3.5, below full scale
+    rt = host.build(config.resolve(name, precision="double", runtime="gyro_plateau_rate"))
+    bit = np.uint32(rt.manifest["status"]["GYRO_RECOVERY"])
+    baked_off = build(name, precision="double", sets=["gyro_plateau_rate=0"])
+    assert (rt.run(log).status & bit).any()                             # the default rate: a clip
+    assert not (rt.run(log, params={"gyro_plateau_rate": 0.0}).status & bit).any()
+    assert not (baked_off.run(log).status & bit).any()

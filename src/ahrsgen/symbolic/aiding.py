@@ -134,14 +134,18 @@ def gyro_plateau(gyro, gyro_prev, runs, *, min_rate):
     sample, while a moving one never does for long. runs[i] counts the repeats of component i
     (|gyro[i]| >= min_rate and |gyro[i] - gyro_prev[i]| < PLATEAU_TOL); a sample equal to the previous one in
     all three components is a duplicate (a logger repeating a sample), which neither counts
-    nor resets. plateau: a count reached PLATEAU_SAMPLES - 1. min_rate <= 0 (a number): never.
-    min_rate may be a runtime parameter's symbol."""
+    nor resets. plateau: a count reached PLATEAU_SAMPLES - 1. min_rate <= 0: never (a number:
+    no expression; a runtime parameter's symbol: its 0 counts no run, as gyro_recovery's
+    full_scale)."""
     if isinstance(min_rate, (int, float)) and min_rate <= 0:
         return ca.SX(0), ca.SX.zeros(3)
     same = [ca.fabs(gyro[i] - gyro_prev[i]) < use(PLATEAU_TOL) for i in range(3)]
     dup = ca.logic_and(ca.logic_and(same[0], same[1]), same[2])
     need = PLATEAU_SAMPLES - 1
-    new = [ca.if_else(dup, runs[i], ca.if_else(ca.logic_and(same[i], ca.fabs(gyro[i]) >= min_rate),
+    fast = [ca.fabs(gyro[i]) >= min_rate for i in range(3)]
+    if not isinstance(min_rate, (int, float)):      # a runtime parameter: 0 turns it off there too
+        fast = [ca.logic_and(min_rate > 0, f) for f in fast]
+    new = [ca.if_else(dup, runs[i], ca.if_else(ca.logic_and(same[i], fast[i]),
                                                    ca.fmin(runs[i] + 1.0, need), 0.0)) for i in range(3)]
     plateau = ca.logic_or(ca.logic_or(new[0] >= need, new[1] >= need), new[2] >= need)
     return plateau, ca.vertcat(*new)
