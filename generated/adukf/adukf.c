@@ -2553,7 +2553,8 @@ static void adukf_k_correct(const float x_pred[restrict 7], const float P_pred[r
 }
 
 static void adukf_k_accel_lowpass_part0(const float q_pred_unit[4], const float accel[3],
-    const float accel_lp[3], bool restart, float dt, bool recover, float carry[20], bool flags[1])
+    const float accel_lp[3], float lp_time, bool restart, float dt, bool recover, float carry[19],
+    bool flags[1])
 {
     const bool tmp0 = restart || recover;
     const float tmp1 = q_pred_unit[2] * q_pred_unit[2];
@@ -2575,26 +2576,26 @@ static void adukf_k_accel_lowpass_part0(const float q_pred_unit[4], const float 
     const float tmp17 = tmp16 * accel[2];
     const float tmp18 = tmp12 + tmp17;
     const float tmp19 = (tmp0) ? tmp18 : accel_lp[0];
-    const float tmp20 = 1.0f + dt;
-    const float tmp21 = dt / tmp20;
-    const float tmp22 = tmp18 - tmp19;
-    const float tmp23 = tmp21 * tmp22;
-    const float tmp24 = tmp19 + tmp23;
-    const float tmp25 = tmp7 + tmp8;
-    const float tmp26 = tmp25 + tmp25;
-    const float tmp27 = tmp26 * accel[0];
-    const float tmp28 = q_pred_unit[1] * q_pred_unit[1];
-    const float tmp29 = tmp28 + tmp2;
-    const float tmp30 = tmp29 + tmp29;
-    const float tmp31 = 1.0f - tmp30;
-    const float tmp32 = tmp31 * accel[1];
-    const float tmp33 = tmp27 + tmp32;
-    const float tmp34 = q_pred_unit[2] * q_pred_unit[3];
-    const float tmp35 = q_pred_unit[0] * q_pred_unit[1];
-    const float tmp36 = tmp34 - tmp35;
-    const float tmp37 = tmp36 + tmp36;
-    const float tmp38 = tmp37 * accel[2];
-    const float tmp39 = tmp33 + tmp38;
+    const float tmp20 = (restart) ? 0.0f : lp_time;
+    const float tmp21 = (tmp20 < 1.0f) ? tmp20 : 1.0f;
+    const float tmp22 = tmp21 + dt;
+    const float tmp23 = dt / tmp22;
+    const float tmp24 = tmp18 - tmp19;
+    const float tmp25 = tmp23 * tmp24;
+    const float tmp26 = tmp19 + tmp25;
+    const float tmp27 = tmp7 + tmp8;
+    const float tmp28 = tmp27 + tmp27;
+    const float tmp29 = tmp28 * accel[0];
+    const float tmp30 = q_pred_unit[1] * q_pred_unit[1];
+    const float tmp31 = tmp30 + tmp2;
+    const float tmp32 = tmp31 + tmp31;
+    const float tmp33 = 1.0f - tmp32;
+    const float tmp34 = tmp33 * accel[1];
+    const float tmp35 = tmp29 + tmp34;
+    const float tmp36 = q_pred_unit[2] * q_pred_unit[3];
+    const float tmp37 = q_pred_unit[0] * q_pred_unit[1];
+    const float tmp38 = tmp36 - tmp37;
+    const float tmp39 = tmp38 + tmp38;
     flags[0] = tmp0;
     carry[0] = tmp1;
     carry[1] = tmp5;
@@ -2603,124 +2604,136 @@ static void adukf_k_accel_lowpass_part0(const float q_pred_unit[4], const float 
     carry[4] = tmp14;
     carry[5] = tmp16;
     carry[6] = tmp18;
-    carry[7] = tmp21;
-    carry[8] = tmp24;
+    carry[7] = tmp20;
+    carry[8] = tmp23;
     carry[9] = tmp26;
     carry[10] = tmp28;
-    carry[11] = tmp31;
-    carry[12] = tmp34;
+    carry[11] = tmp30;
+    carry[12] = tmp33;
     carry[13] = tmp35;
-    carry[14] = tmp37;
-    carry[15] = tmp39;
+    carry[14] = tmp36;
+    carry[15] = tmp37;
+    carry[16] = tmp39;
 }
 
-static void adukf_k_accel_lowpass_part1(const float accel[3], const float accel_lp[3], float dt,
-    const float gps_vel[3], bool new_gps, bool m_comp, const float v_lp[3], const float v_ins[3],
-    float carry[20], const bool flags[1])
+static void adukf_k_accel_lowpass_part1(const float accel[3], const float accel_lp[3],
+    float lp_time, bool restart, float dt, const float gps_vel[3], bool new_gps, bool m_comp,
+    const float v_lp[3], const float v_ins[3], float carry[19], const bool flags[1])
 {
-    const float tmp40 = (flags[0] /* tmp0 */) ? carry[15] /* tmp39 */ : accel_lp[1];
-    const float tmp41 = carry[15] /* tmp39 */ - tmp40;
-    const float tmp42 = carry[7] /* tmp21 */ * tmp41;
-    const float tmp43 = tmp40 + tmp42;
-    const float tmp44 = carry[3] /* tmp13 */ - carry[4] /* tmp14 */;
-    const float tmp45 = tmp44 + tmp44;
-    const float tmp46 = tmp45 * accel[0];
-    const float tmp47 = carry[12] /* tmp34 */ + carry[13] /* tmp35 */;
-    const float tmp48 = tmp47 + tmp47;
-    const float tmp49 = tmp48 * accel[1];
-    const float tmp50 = tmp46 + tmp49;
-    const float tmp51 = carry[10] /* tmp28 */ + carry[0] /* tmp1 */;
-    const float tmp52 = tmp51 + tmp51;
-    const float tmp53 = 1.0f - tmp52;
-    const float tmp54 = tmp53 * accel[2];
-    const float tmp55 = tmp50 + tmp54;
-    const float tmp56 = (flags[0] /* tmp0 */) ? tmp55 : accel_lp[2];
-    const float tmp57 = tmp55 - tmp56;
-    const float tmp58 = carry[7] /* tmp21 */ * tmp57;
-    const float tmp59 = tmp56 + tmp58;
-    const float tmp60 = carry[6] /* tmp18 */ * dt;
-    const float tmp61 = v_ins[0] + tmp60;
-    const float tmp62 = (new_gps) ? gps_vel[0] : tmp61;
-    const float tmp63 = (flags[0] /* tmp0 */) ? 1.0f : carry[7] /* tmp21 */;
-    const float tmp64 = tmp62 - v_lp[0];
-    const float tmp65 = tmp63 * tmp64;
-    const float tmp66 = v_lp[0] + tmp65;
-    const float tmp67 = (m_comp) ? tmp66 : v_lp[0];
-    const float tmp68 = tmp62 - tmp67;
-    const float tmp69 = carry[8] /* tmp24 */ - tmp68;
-    const float tmp70 = (m_comp) ? tmp69 : carry[8] /* tmp24 */;
-    const float tmp71 = carry[1] /* tmp5 */ * tmp70;
-    const float tmp72 = carry[15] /* tmp39 */ * dt;
-    const float tmp73 = v_ins[1] + tmp72;
-    const float tmp74 = (new_gps) ? gps_vel[1] : tmp73;
-    const float tmp75 = tmp74 - v_lp[1];
-    const float tmp76 = tmp63 * tmp75;
-    const float tmp77 = v_lp[1] + tmp76;
-    const float tmp78 = (m_comp) ? tmp77 : v_lp[1];
-    const float tmp79 = tmp74 - tmp78;
-    carry[0] = tmp43;
+    const float tmp40 = carry[16] /* tmp39 */ * accel[2];
+    const float tmp41 = carry[13] /* tmp35 */ + tmp40;
+    const float tmp42 = (flags[0] /* tmp0 */) ? tmp41 : accel_lp[1];
+    const float tmp43 = tmp41 - tmp42;
+    const float tmp44 = carry[8] /* tmp23 */ * tmp43;
+    const float tmp45 = tmp42 + tmp44;
+    const float tmp46 = carry[3] /* tmp13 */ - carry[4] /* tmp14 */;
+    const float tmp47 = tmp46 + tmp46;
+    const float tmp48 = tmp47 * accel[0];
+    const float tmp49 = carry[14] /* tmp36 */ + carry[15] /* tmp37 */;
+    const float tmp50 = tmp49 + tmp49;
+    const float tmp51 = tmp50 * accel[1];
+    const float tmp52 = tmp48 + tmp51;
+    const float tmp53 = carry[11] /* tmp30 */ + carry[0] /* tmp1 */;
+    const float tmp54 = tmp53 + tmp53;
+    const float tmp55 = 1.0f - tmp54;
+    const float tmp56 = tmp55 * accel[2];
+    const float tmp57 = tmp52 + tmp56;
+    const float tmp58 = (flags[0] /* tmp0 */) ? tmp57 : accel_lp[2];
+    const float tmp59 = tmp57 - tmp58;
+    const float tmp60 = carry[8] /* tmp23 */ * tmp59;
+    const float tmp61 = tmp58 + tmp60;
+    const bool tmp62 = flags[0] /* tmp0 */ && (!(restart));
+    const float tmp63 = carry[7] /* tmp20 */ + dt;
+    const float tmp64 = (tmp63 < 1.0f) ? tmp63 : 1.0f;
+    const float tmp65 = (tmp62) ? lp_time : tmp64;
+    const float tmp66 = carry[6] /* tmp18 */ * dt;
+    const float tmp67 = v_ins[0] + tmp66;
+    const float tmp68 = (new_gps) ? gps_vel[0] : tmp67;
+    const float tmp69 = 1.0f + dt;
+    const float tmp70 = dt / tmp69;
+    const float tmp71 = (flags[0] /* tmp0 */) ? 1.0f : tmp70;
+    const float tmp72 = tmp68 - v_lp[0];
+    const float tmp73 = tmp71 * tmp72;
+    const float tmp74 = v_lp[0] + tmp73;
+    const float tmp75 = (m_comp) ? tmp74 : v_lp[0];
+    const float tmp76 = tmp68 - tmp75;
+    const float tmp77 = carry[9] /* tmp26 */ - tmp76;
+    const float tmp78 = (m_comp) ? tmp77 : carry[9] /* tmp26 */;
+    const float tmp79 = carry[1] /* tmp5 */ * tmp78;
+    carry[0] = tmp41;
     carry[1] = tmp45;
-    carry[3] = tmp48;
-    carry[4] = tmp53;
+    carry[3] = tmp47;
+    carry[4] = tmp50;
     carry[6] = tmp55;
-    carry[7] = tmp59;
-    carry[10] = tmp62;
-    carry[12] = tmp63;
-    carry[13] = tmp67;
-    carry[15] = tmp70;
-    carry[16] = tmp71;
-    carry[17] = tmp74;
-    carry[18] = tmp78;
-    carry[19] = tmp79;
+    carry[7] = tmp57;
+    carry[8] = tmp61;
+    carry[11] = tmp65;
+    carry[13] = tmp68;
+    carry[14] = tmp71;
+    carry[15] = tmp75;
+    carry[17] = tmp78;
+    carry[18] = tmp79;
 }
 
 static void adukf_k_accel_lowpass_part2(float dt, const float gps_vel[3], bool new_gps, bool m_comp,
-    const float v_lp[3], const float v_ins[3], float carry[20])
+    const float v_lp[3], const float v_ins[3], float carry[19])
 {
-    const float tmp80 = carry[0] /* tmp43 */ - carry[19] /* tmp79 */;
-    const float tmp81 = (m_comp) ? tmp80 : carry[0] /* tmp43 */;
-    const float tmp82 = carry[9] /* tmp26 */ * tmp81;
-    const float tmp83 = carry[16] /* tmp71 */ + tmp82;
-    const float tmp84 = carry[6] /* tmp55 */ + 9.80665f /* G0 */;
-    const float tmp85 = tmp84 * dt;
-    const float tmp86 = v_ins[2] + tmp85;
-    const float tmp87 = (new_gps) ? gps_vel[2] : tmp86;
-    const float tmp88 = tmp87 - v_lp[2];
-    const float tmp89 = carry[12] /* tmp63 */ * tmp88;
-    const float tmp90 = v_lp[2] + tmp89;
-    const float tmp91 = (m_comp) ? tmp90 : v_lp[2];
-    const float tmp92 = tmp87 - tmp91;
-    const float tmp93 = carry[7] /* tmp59 */ - tmp92;
-    const float tmp94 = (m_comp) ? tmp93 : carry[7] /* tmp59 */;
-    const float tmp95 = carry[1] /* tmp45 */ * tmp94;
-    const float tmp96 = tmp83 + tmp95;
-    const float tmp97 = carry[2] /* tmp10 */ * carry[15] /* tmp70 */;
-    const float tmp98 = carry[11] /* tmp31 */ * tmp81;
-    const float tmp99 = tmp97 + tmp98;
-    const float tmp100 = carry[3] /* tmp48 */ * tmp94;
-    const float tmp101 = tmp99 + tmp100;
-    const float tmp102 = carry[5] /* tmp16 */ * carry[15] /* tmp70 */;
-    const float tmp103 = carry[14] /* tmp37 */ * tmp81;
-    const float tmp104 = tmp102 + tmp103;
-    const float tmp105 = carry[4] /* tmp53 */ * tmp94;
-    const float tmp106 = tmp104 + tmp105;
-    carry[1] = tmp87;
-    carry[2] = tmp91;
-    carry[3] = tmp96;
-    carry[4] = tmp101;
-    carry[5] = tmp106;
+    const float tmp80 = carry[0] /* tmp41 */ * dt;
+    const float tmp81 = v_ins[1] + tmp80;
+    const float tmp82 = (new_gps) ? gps_vel[1] : tmp81;
+    const float tmp83 = tmp82 - v_lp[1];
+    const float tmp84 = carry[14] /* tmp71 */ * tmp83;
+    const float tmp85 = v_lp[1] + tmp84;
+    const float tmp86 = (m_comp) ? tmp85 : v_lp[1];
+    const float tmp87 = tmp82 - tmp86;
+    const float tmp88 = carry[1] /* tmp45 */ - tmp87;
+    const float tmp89 = (m_comp) ? tmp88 : carry[1] /* tmp45 */;
+    const float tmp90 = carry[10] /* tmp28 */ * tmp89;
+    const float tmp91 = carry[18] /* tmp79 */ + tmp90;
+    const float tmp92 = carry[7] /* tmp57 */ + 9.80665f /* G0 */;
+    const float tmp93 = tmp92 * dt;
+    const float tmp94 = v_ins[2] + tmp93;
+    const float tmp95 = (new_gps) ? gps_vel[2] : tmp94;
+    const float tmp96 = tmp95 - v_lp[2];
+    const float tmp97 = carry[14] /* tmp71 */ * tmp96;
+    const float tmp98 = v_lp[2] + tmp97;
+    const float tmp99 = (m_comp) ? tmp98 : v_lp[2];
+    const float tmp100 = tmp95 - tmp99;
+    const float tmp101 = carry[8] /* tmp61 */ - tmp100;
+    const float tmp102 = (m_comp) ? tmp101 : carry[8] /* tmp61 */;
+    const float tmp103 = carry[3] /* tmp47 */ * tmp102;
+    const float tmp104 = tmp91 + tmp103;
+    const float tmp105 = carry[2] /* tmp10 */ * carry[17] /* tmp78 */;
+    const float tmp106 = carry[12] /* tmp33 */ * tmp89;
+    const float tmp107 = tmp105 + tmp106;
+    const float tmp108 = carry[4] /* tmp50 */ * tmp102;
+    const float tmp109 = tmp107 + tmp108;
+    const float tmp110 = carry[5] /* tmp16 */ * carry[17] /* tmp78 */;
+    const float tmp111 = carry[16] /* tmp39 */ * tmp89;
+    const float tmp112 = tmp110 + tmp111;
+    const float tmp113 = carry[6] /* tmp55 */ * tmp102;
+    const float tmp114 = tmp112 + tmp113;
+    carry[0] = tmp82;
+    carry[2] = tmp86;
+    carry[3] = tmp95;
+    carry[4] = tmp99;
+    carry[5] = tmp104;
+    carry[6] = tmp109;
+    carry[7] = tmp114;
 }
 
 /*
- * NED low-pass of the specific force R(q-) f (restart: start at R(q-) f); the update measures
- * R(q-)^T of it less the GPS velocity's low-passed derivative (v_ins - v_lp)/accel_tau (m_comp; v
- * through the same low-pass, carried by R f + g between GPS samples) (recovering from a clipped
- * gyro sample: the sample itself)
+ * NED low-pass of the specific force R(q-) f (restart: start at R(q-) f; accel_lp_warm: the running
+ * mean of its samples until it has averaged accel_tau); the update measures R(q-)^T of it less the
+ * GPS velocity's low-passed derivative (v_ins - v_lp)/accel_tau (m_comp; v through the same
+ * low-pass, carried by R f + g between GPS samples) (recovering from a clipped gyro sample: the
+ * sample itself)
  *
  * Args:
  *     q_pred_unit: float[4]
  *     accel: float[3]
  *     accel_lp: float[3]
+ *     lp_time: float
  *     restart: bool
  *     dt: float
  *     recover: bool
@@ -2731,39 +2744,43 @@ static void adukf_k_accel_lowpass_part2(float dt, const float gps_vel[3], bool n
  *     v_ins: float[3]
  * Outputs:
  *     accel_lp_new: float[3]
+ *     lp_time_new: float
  *     accel_body: float[3]
  *     v_lp_new: float[3]
  *     v_ins_new: float[3]
  *
- * Total ops: 107 (add 56, mul 36, div 1, cmp 14)
+ * Total ops: 115 (add 58, mul 36, div 2, cmp 19)
  */
 static void adukf_k_accel_lowpass(const float q_pred_unit[4], const float accel[3],
-    const float accel_lp[3], bool restart, float dt, bool recover, const float gps_vel[3],
-    bool new_gps, bool m_comp, const float v_lp[3], const float v_ins[3], float accel_lp_new[3],
-    float accel_body[3], float v_lp_new[3], float v_ins_new[3])
+    const float accel_lp[3], float lp_time, bool restart, float dt, bool recover,
+    const float gps_vel[3], bool new_gps, bool m_comp, const float v_lp[3], const float v_ins[3],
+    float accel_lp_new[3], float *lp_time_new, float accel_body[3], float v_lp_new[3],
+    float v_ins_new[3])
 {
     /*
      * 3 parts called in turn (inlined when optimising): bounded -O0 frames; carry and flags hold
      * the values handed between them (a slot reused once its value is dead)
      */
-    float carry[20];
+    float carry[19];
     bool flags[1];
-    adukf_k_accel_lowpass_part0(q_pred_unit, accel, accel_lp, restart, dt, recover, carry, flags);
-    adukf_k_accel_lowpass_part1(accel, accel_lp, dt, gps_vel, new_gps, m_comp, v_lp, v_ins, carry,
+    adukf_k_accel_lowpass_part0(q_pred_unit, accel, accel_lp, lp_time, restart, dt, recover, carry,
             flags);
+    adukf_k_accel_lowpass_part1(accel, accel_lp, lp_time, restart, dt, gps_vel, new_gps, m_comp,
+            v_lp, v_ins, carry, flags);
     adukf_k_accel_lowpass_part2(dt, gps_vel, new_gps, m_comp, v_lp, v_ins, carry);
-    accel_lp_new[0] = carry[8] /* tmp24 */;
-    accel_lp_new[1] = carry[0] /* tmp43 */;
-    accel_lp_new[2] = carry[7] /* tmp59 */;
-    accel_body[0] = carry[3] /* tmp96 */;
-    accel_body[1] = carry[4] /* tmp101 */;
-    accel_body[2] = carry[5] /* tmp106 */;
-    v_lp_new[0] = carry[13] /* tmp67 */;
-    v_lp_new[1] = carry[18] /* tmp78 */;
-    v_lp_new[2] = carry[2] /* tmp91 */;
-    v_ins_new[0] = carry[10] /* tmp62 */;
-    v_ins_new[1] = carry[17] /* tmp74 */;
-    v_ins_new[2] = carry[1] /* tmp87 */;
+    accel_lp_new[0] = carry[9] /* tmp26 */;
+    accel_lp_new[1] = carry[1] /* tmp45 */;
+    accel_lp_new[2] = carry[8] /* tmp61 */;
+    *lp_time_new = carry[11] /* tmp65 */;
+    accel_body[0] = carry[5] /* tmp104 */;
+    accel_body[1] = carry[6] /* tmp109 */;
+    accel_body[2] = carry[7] /* tmp114 */;
+    v_lp_new[0] = carry[15] /* tmp75 */;
+    v_lp_new[1] = carry[2] /* tmp86 */;
+    v_lp_new[2] = carry[4] /* tmp99 */;
+    v_ins_new[0] = carry[13] /* tmp68 */;
+    v_ins_new[1] = carry[0] /* tmp82 */;
+    v_ins_new[2] = carry[3] /* tmp95 */;
 }
 
 static void adukf_k_accel_lp_follow_part0(const float q_pred[4], const float q_new[4],
@@ -4235,6 +4252,7 @@ void adukf_init(adukf_state *s)
     s->accel_lp[0] = 0.0f;
     s->accel_lp[1] = 0.0f;
     s->accel_lp[2] = 0.0f;
+    s->lp_time = 0.0f;
     s->gps_vel[0] = 0.0f;
     s->gps_vel[1] = 0.0f;
     s->gps_vel[2] = 0.0f;
@@ -4506,7 +4524,8 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
     if (use_accel || use_mag) {
         /* Unscented measurement update; an unusable sensor gets finite dummy values and is
          * masked out after the innovation. */
-        /* the accelerometer enters low-passed in NED (the low-pass starts at the first sample) */
+        /* the accelerometer enters low-passed in NED (the low-pass starts at the first sample;
+         * accel_lp_warm: their running mean until it has averaged accel_tau) */
         float accel_in[3] = { 0.0f, 0.0f, -1.0f };
         if (use_accel) {
             /* all three exactly 0 (+0 or -0: every bit but the sign clear; false for NaN,
@@ -4520,9 +4539,9 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
                 }
                 s->vlp_ok = 1u;
             }
-            adukf_k_accel_lowpass(x_new, in->accel, s->accel_lp, restart, dt,
-                recovering, s->gps_vel, use_gps, m_comp, s->v_lp, s->v_ins,
-                s->accel_lp, accel_in, s->v_lp, s->v_ins);
+            adukf_k_accel_lowpass(x_new, in->accel, s->accel_lp, s->lp_time, restart,
+                dt, recovering, s->gps_vel, use_gps, m_comp, s->v_lp, s->v_ins,
+                s->accel_lp, &s->lp_time, accel_in, s->v_lp, s->v_ins);
         }
         const float mag_in[3] = { use_mag ? mag_c[0] : 1.0f, use_mag ? mag_c[1] : 0.0f,
             use_mag ? mag_c[2] : 0.0f };

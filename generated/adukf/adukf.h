@@ -23,7 +23,7 @@
  * its GNU modes, -std=c99 turns it off) and -fno-math-errno; -ffast-math breaks the input
  * checks (isfinite). Any C99 compiler builds it; see the ahrsgen docs (target.md).
  *     adukf_euler(&st, rpy);
- * No heap, no recursion; RAM is the state struct (992 bytes with the usual ABI).
+ * No heap, no recursion; RAM is the state struct (996 bytes with the usual ABI).
  * Needs <math.h> (float functions only in a float build); compilers may also emit calls to
  * memcpy/memset/memmove for struct and array copies.
  *
@@ -273,6 +273,18 @@ extern "C" {
                                                 averages out, gravity does not; VQF's idea); 0 = the
                                                 raw accelerometer (as the paper; faithful ignores
                                                 it) [s] */
+#define ADUKF_ACCEL_LP_WARM 1                /* with accel_tau > 0: warm start of the NED low-pass
+                                                (VQF's, as mekf's accel_lpf_warm; issue 26): until
+                                                it has averaged accel_tau of samples it is their
+                                                running mean, alpha = dt/(min(t, accel_tau) + dt),
+                                                so its first sample (a multirotor's motor vibration
+                                                tilts one sample by up to 15 deg) weighs 1/n instead
+                                                of lingering as e^(-t/accel_tau) while P is wide and
+                                                pulling the gyro bias and the heading. The GPS
+                                                velocity's low-pass keeps dt/(accel_tau + dt); not
+                                                begun again after a gyro clip. false: the low-pass
+                                                starts from its first sample with its time constant
+                                                (before) */
 #define ADUKF_ACCEL_LP_FOLLOW 1              /* with accel_tau > 0: after each update that used the
                                                 accelerometer the NED low-pass is turned with the
                                                 attitude's correction, R(q+) R(q-)^T (error and
@@ -401,6 +413,7 @@ typedef struct {
                               used) */
     float sample_age[2];   /* time since the last accelerometer / magnetometer sample, s */
     float accel_lp[3];     /* low-passed specific force in NED, m/s^2 (accel_tau > 0) */
+    float lp_time;         /* time accel_lp has averaged, s (its warm start; stops at accel_tau) */
     float gps_vel[3];      /* latest GPS velocity (NED, m/s; gps_lowpass) */
     float gps_age;         /* time since the last GPS sample, s (gps_lowpass) */
     float v_lp[3];         /* GPS velocity through the accelerometer's NED low-pass (gps_lowpass),

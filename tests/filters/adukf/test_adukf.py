@@ -450,8 +450,11 @@ def test_magnetometer_at_its_own_rate_as_good_as_repeated_samples():
 def test_the_accelerometer_density_keeps_a_1khz_imu_near_a_250hz_one():
     """The accelerometer rows of R add sigma_acc_density^2 / s_a (product), so a 1 kHz IMU's
     samples weigh less each: the multirotor scenario (seeds 0-2, magnetometer 100 Hz, float C,
-    scored as the bench scores) at 1 kHz is more than 1 deg better than with the per-sample R
-    alone (measured 1.26 against 2.99 deg; 0.86 at 250 Hz)."""
+    scored as the bench scores) at 1 kHz within issue 26's bound (0.683 deg, its per-rate tune
+    0.533 plus 0.15) and below two thirds of the per-sample R alone's error (2026-12-04: 0.226
+    against 0.453 deg; 0.313 at 250 Hz). Before the low-pass's warm start (accel_lp_warm) the
+    start-up transient amplified the difference (1.26 against 2.99 deg, then asserted as 1 deg
+    apart)."""
     from ahrsgen.bench.scoring import filter_estimator, score
 
     def mean_total(sets):
@@ -463,5 +466,5 @@ def test_the_accelerometer_density_keeps_a_1khz_imu_near_a_250hz_one():
             out.append(score(q, log, frame)["total_rms"])
         return float(np.mean(out))
     with_density = mean_total([])
-    assert with_density < 1.5
-    assert mean_total(["sigma_acc_density=0"]) > with_density + 1.0
+    assert with_density < 0.683
+    assert mean_total(["sigma_acc_density=0"]) > 1.5 * with_density

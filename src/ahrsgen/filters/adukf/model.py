@@ -167,7 +167,8 @@ class Model(FilterModel):
             StateField("m_ref", 3, "reference field direction, NED unit vector", [0.0] * 3 if learn else self.m_ref_configured()),
             StateField("r_diag", 6, "diagonal of the adaptive R used by the last update (0: sensor not used)", 0.0),
         ] + ([StateField("sample_age", 2, "time since the last accelerometer / magnetometer sample, s", 0.0)]
-             if self.own_rates() else []) + ([StateField("accel_lp", 3, "low-passed specific force in NED, m/s^2 (accel_tau > 0)", 0.0)]
+             if self.own_rates() else []) + ([StateField("accel_lp", 3, "low-passed specific force in NED, m/s^2 (accel_tau > 0)", 0.0),
+                  StateField("lp_time", 1, "time accel_lp has averaged, s (its warm start; stops at accel_tau)", 0.0)]
              if self.lowpass() else []) + ([
                 StateField("gps_vel", 3, "latest GPS velocity (NED, m/s; gps_lowpass)", 0.0),
                 StateField("gps_age", 1, "time since the last GPS sample, s (gps_lowpass)", GPS_AGE_MAX),
@@ -252,6 +253,26 @@ class Model(FilterModel):
 
     def lowpass(self) -> bool:
         return self.params["accel_tau"] > 0 and not self.params["faithful"]
+
+    def accel_lowpass_expr(self, a_lp, f_n, lp_time, dt, restart, start):
+        """The NED low-pass of the specific force f_n = R(q-) f: a ← a + α (f_n − a), started at
+        f_n (restart, or recovering from a clipped gyro sample: start). α = dt / (τ + dt), or with
+        accel_lp_warm (VQF's warm start, issue 26) α = dt / (min(lp_time, τ) + dt), lp_time the
+        time it has averaged (0 at a restart, then + dt per sample, capped at τ): the running mean
+        of its samples until it has seen τ of them, so its first sample (a multirotor's motor
+        vibration tilts one sample by up to 15°) weighs 1/n instead of lingering as e^(−t/τ).
+        Recovering holds lp_time (the warm start is not begun again after a gyro clip, as mekf).
+        Returns the new low-pass and lp_time."""
+        tau = self.params["accel_tau"]
+        base = ca.if_else(restart, 0, lp_time)
+        if self.params["accel_lp_warm"]:
+            alpha = dt / (ca.fmin(base, use(tau)) + dt)
+        else:
+            alpha = dt / (use(tau) + dt)
+        start_lp = ca.if_else(start, f_n, a_lp)
+        a_new = start_lp + alpha * (f_n - start_lp)
+        lp_new = ca.if_else(ca.logic_and(start, ca.logic_not(restart)), lp_time, ca.fmin(base + dt, use(tau)))
+        return a_new, lp_new
 
     def follow(self) -> bool:
         """The NED low-pass is turned with each correction of the attitude (accel_lp_follow)."""
@@ -561,12 +582,14 @@ class Model(FilterModel):
         f_n = quat.rotate(qn, f)
         recover = ca.SX.sym("recover")        # recovering from a clipped gyro sample (error state)
         start = ca.logic_or(restart, recover) if self.err else restart     # (recovering: the sample itself)
-        a_lp_new = aiding.lowpass(ca.if_else(start, f_n, a_lp), f_n, dt, p["accel_tau"])
-        lp_in = {"q_pred_unit": qn, "accel": f, "accel_lp": a_lp, "restart": restart, "dt": dt,
+        lp_time = ca.SX.sym("lp_time")
+        a_lp_new, lp_time_new = self.accel_lowpass_expr(a_lp, f_n, lp_time, dt, restart, start)
+        lp_in = {"q_pred_unit": qn, "accel": f, "accel_lp": a_lp, "lp_time": lp_time, "restart": restart, "dt": dt,
                  **({"recover": recover} if self.err else {})}
-        lp_out = {"accel_lp_new": a_lp_new, "accel_body": quat.rotate_inv(qn, a_lp_new)}
-        lp_doc = ("NED low-pass of the specific force R(q-) f (restart: start at R(q-) f); the update "
-                  "measures R(q-)^T of it (recovering from a clipped gyro sample: the sample itself)")
+        lp_out = {"accel_lp_new": a_lp_new, "lp_time_new": lp_time_new, "accel_body": quat.rotate_inv(qn, a_lp_new)}
+        lp_doc = ("NED low-pass of the specific force R(q-) f (restart: start at R(q-) f; accel_lp_warm: the "
+                  "running mean of its samples until it has averaged accel_tau); the update measures R(q-)^T "
+                  "of it (recovering from a clipped gyro sample: the sample itself)")
         if self.gps:
             vel = ca.SX.sym("gps_vel", 3)
             v_lp = ca.SX.sym("v_lp", 3)
@@ -578,7 +601,8 @@ class Model(FilterModel):
             vi_new, v_new, up = aiding.gps_lowpass(a_lp_new, f_n, vel, v_lp, v_ins, alpha, dt, p["accel_tau"],
                                                    new_gps, m_comp, G0)
             lp_in.update({"gps_vel": vel, "new_gps": new_gps, "m_comp": m_comp, "v_lp": v_lp, "v_ins": v_ins})
-            lp_out = {"accel_lp_new": a_lp_new, "accel_body": quat.rotate_inv(qn, up), "v_lp_new": v_new,
+            lp_out = {"accel_lp_new": a_lp_new, "lp_time_new": lp_time_new, "accel_body": quat.rotate_inv(qn, up),
+                      "v_lp_new": v_new,
                       "v_ins_new": vi_new}
             lp_doc = lp_doc.replace("measures R(q-)^T of it", "measures R(q-)^T of it less the GPS velocity's "
                                     "low-passed derivative (v_ins - v_lp)/accel_tau (m_comp; v through the same "

@@ -55,7 +55,10 @@ Product defaults (issue 10; faithful ignores them):
   [d; δb] = K ε, q⁺ = normalise(q⁻ ⊗ [1, d/2]), b⁺ = b⁻ + δb, P⁺ = P⁻ - K P_zz Kᵀ.
   sigma_set is ignored (symmetric).
 - accel_tau > 0: a ← a + dt/(τ + dt) (R(q⁻/|q⁻|) f - a) (started at R f), and the update
-  measures R(q⁻/|q⁻|)ᵀ a instead of f.
+  measures R(q⁻/|q⁻|)ᵀ a instead of f. accel_lp_warm (issue 26, VQF's warm start): the gain is
+  dt/(min(t, τ) + dt), t the time a has averaged (dt after the sample it starts at, + dt per
+  sample, at most τ): the running mean of its samples until it has seen τ of them. Recovering
+  from a clipped gyro sample (a = that sample) holds t.
 - motion_accel_model = "gps_lowpass" (with accel_tau > 0, issue 26): the GPS velocity v (the
   sample of this step, else carried from the last one by v ← v + (R(q⁻/|q⁻|) f + g) dt) goes
   through the same low-pass, v_lp ← v_lp + k (v - v_lp) with the gain k = dt/(τ + dt) of a (1
@@ -232,6 +235,7 @@ class Reference:
         self.lowpass = p["accel_tau"] > 0 and not p["faithful"]
         self.rated = p["span_max"] > 0 and not p["faithful"]
         self.accel_lp = np.zeros(3)
+        self.lp_time = 0.0              # time accel_lp has averaged (its warm start), s, at most accel_tau
         self.gps_lp = p["motion_accel_model"] == "gps_lowpass" and self.lowpass
         self.gps_vel = np.zeros(3)      # the latest GPS velocity (NED) and its age
         self.gps_age = 1e3              # model.GPS_AGE_MAX: no sample yet
@@ -434,11 +438,18 @@ class Reference:
             if self.lowpass and use_a:
                 qn = x_new[:4]
                 f_n = rotmat(qn) @ f
-                start = not np.any(self.accel_lp) or recovering
+                restart = not np.any(self.accel_lp)
+                start = restart or recovering
                 if start:
                     self.accel_lp = f_n                          # start at the first sample (and recovering)
                 k_lp = dt / (p["accel_tau"] + dt)
-                self.accel_lp = self.accel_lp + k_lp * (f_n - self.accel_lp)
+                # warm start (VQF's): the running mean of the samples until it has averaged
+                # accel_tau of them; recovering holds the time (not begun again after a clip)
+                t_lp = 0.0 if restart else self.lp_time
+                span = min(t_lp, p["accel_tau"]) if p["accel_lp_warm"] else p["accel_tau"]
+                self.accel_lp = self.accel_lp + dt / (span + dt) * (f_n - self.accel_lp)
+                if restart or not recovering:
+                    self.lp_time = min(t_lp + dt, p["accel_tau"])
                 up = self.accel_lp
                 if self.gps_lp:
                     if m_comp and not self.vlp_ok:
