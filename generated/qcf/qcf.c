@@ -540,93 +540,103 @@ static void qcf_k_heading_init(const float q[4], const float mag[3], float q_new
 }
 
 static void qcf_k_accel_lowpass_part0(const float rot[9], const float accel[3],
-    const float accel_lp[3], float span, bool recover, const float gps_vel[3], bool new_gps,
-    bool m_comp, const float v_lp[3], const float v_ins[3], float carry[12])
+    const float accel_lp[3], float span, bool recover, float lp_time, const float gps_vel[3],
+    bool new_gps, const float v_lp[3], const float v_ins[3], float carry[13])
 {
-    const float tmp0 = 1.0f + span;
-    const float tmp1 = span / tmp0;
-    const float tmp2 = (recover) ? 1.0f : tmp1;
-    const float tmp3 = rot[0] * accel[0];
-    const float tmp4 = rot[3] * accel[1];
-    const float tmp5 = tmp3 + tmp4;
-    const float tmp6 = rot[6] * accel[2];
-    const float tmp7 = tmp5 + tmp6;
-    const float tmp8 = tmp7 - accel_lp[0];
-    const float tmp9 = tmp2 * tmp8;
-    const float tmp10 = accel_lp[0] + tmp9;
-    const float tmp11 = rot[1] * accel[0];
-    const float tmp12 = rot[4] * accel[1];
-    const float tmp13 = tmp11 + tmp12;
-    const float tmp14 = rot[7] * accel[2];
-    const float tmp15 = tmp13 + tmp14;
-    const float tmp16 = tmp15 - accel_lp[1];
-    const float tmp17 = tmp2 * tmp16;
-    const float tmp18 = accel_lp[1] + tmp17;
-    const float tmp19 = rot[2] * accel[0];
-    const float tmp20 = rot[5] * accel[1];
-    const float tmp21 = tmp19 + tmp20;
-    const float tmp22 = rot[8] * accel[2];
-    const float tmp23 = tmp21 + tmp22;
-    const float tmp24 = tmp23 - accel_lp[2];
-    const float tmp25 = tmp2 * tmp24;
-    const float tmp26 = accel_lp[2] + tmp25;
-    const float tmp27 = tmp7 * span;
-    const float tmp28 = v_ins[0] + tmp27;
-    const float tmp29 = (new_gps) ? gps_vel[0] : tmp28;
-    const float tmp30 = tmp29 - v_lp[0];
-    const float tmp31 = tmp2 * tmp30;
-    const float tmp32 = v_lp[0] + tmp31;
-    const float tmp33 = (m_comp) ? tmp32 : v_lp[0];
-    const float tmp34 = tmp15 * span;
-    const float tmp35 = v_ins[1] + tmp34;
-    const float tmp36 = (new_gps) ? gps_vel[1] : tmp35;
-    const float tmp37 = tmp36 - v_lp[1];
-    const float tmp38 = tmp2 * tmp37;
-    const float tmp39 = v_lp[1] + tmp38;
-    carry[0] = tmp2;
-    carry[1] = tmp10;
-    carry[2] = tmp18;
-    carry[3] = tmp23;
-    carry[4] = tmp26;
-    carry[5] = tmp29;
+    const float tmp0 = (lp_time < 1.0f) ? lp_time : 1.0f;
+    const float tmp1 = tmp0 + span;
+    const float tmp2 = span / tmp1;
+    const float tmp3 = (recover) ? 1.0f : tmp2;
+    const float tmp4 = rot[0] * accel[0];
+    const float tmp5 = rot[3] * accel[1];
+    const float tmp6 = tmp4 + tmp5;
+    const float tmp7 = rot[6] * accel[2];
+    const float tmp8 = tmp6 + tmp7;
+    const float tmp9 = tmp8 - accel_lp[0];
+    const float tmp10 = tmp3 * tmp9;
+    const float tmp11 = accel_lp[0] + tmp10;
+    const float tmp12 = rot[1] * accel[0];
+    const float tmp13 = rot[4] * accel[1];
+    const float tmp14 = tmp12 + tmp13;
+    const float tmp15 = rot[7] * accel[2];
+    const float tmp16 = tmp14 + tmp15;
+    const float tmp17 = tmp16 - accel_lp[1];
+    const float tmp18 = tmp3 * tmp17;
+    const float tmp19 = accel_lp[1] + tmp18;
+    const float tmp20 = rot[2] * accel[0];
+    const float tmp21 = rot[5] * accel[1];
+    const float tmp22 = tmp20 + tmp21;
+    const float tmp23 = rot[8] * accel[2];
+    const float tmp24 = tmp22 + tmp23;
+    const float tmp25 = tmp24 - accel_lp[2];
+    const float tmp26 = tmp3 * tmp25;
+    const float tmp27 = accel_lp[2] + tmp26;
+    const float tmp28 = lp_time + span;
+    const float tmp29 = (tmp28 < 1.0f) ? tmp28 : 1.0f;
+    const float tmp30 = (recover) ? lp_time : tmp29;
+    const float tmp31 = 1.0f + span;
+    const float tmp32 = span / tmp31;
+    const float tmp33 = (recover) ? 1.0f : tmp32;
+    const float tmp34 = tmp8 * span;
+    const float tmp35 = v_ins[0] + tmp34;
+    const float tmp36 = (new_gps) ? gps_vel[0] : tmp35;
+    const float tmp37 = tmp36 - v_lp[0];
+    const float tmp38 = tmp33 * tmp37;
+    const float tmp39 = v_lp[0] + tmp38;
+    carry[0] = tmp11;
+    carry[1] = tmp16;
+    carry[2] = tmp19;
+    carry[3] = tmp24;
+    carry[4] = tmp27;
+    carry[5] = tmp30;
     carry[6] = tmp33;
     carry[7] = tmp36;
     carry[8] = tmp39;
 }
 
 static void qcf_k_accel_lowpass_part1(float span, const float gps_vel[3], bool new_gps, bool m_comp,
-    const float v_lp[3], const float v_ins[3], float carry[12])
+    const float v_lp[3], const float v_ins[3], float carry[13])
 {
-    const float tmp40 = (m_comp) ? carry[8] /* tmp39 */ : v_lp[1];
-    const float tmp41 = carry[3] /* tmp23 */ + 9.80665f /* G0 */;
-    const float tmp42 = tmp41 * span;
-    const float tmp43 = v_ins[2] + tmp42;
-    const float tmp44 = (new_gps) ? gps_vel[2] : tmp43;
-    const float tmp45 = tmp44 - v_lp[2];
-    const float tmp46 = carry[0] /* tmp2 */ * tmp45;
-    const float tmp47 = v_lp[2] + tmp46;
-    const float tmp48 = (m_comp) ? tmp47 : v_lp[2];
-    const float tmp49 = carry[5] /* tmp29 */ - carry[6] /* tmp33 */;
-    const float tmp50 = carry[1] /* tmp10 */ - tmp49;
-    const float tmp51 = (m_comp) ? tmp50 : carry[1] /* tmp10 */;
-    const float tmp52 = carry[7] /* tmp36 */ - tmp40;
-    const float tmp53 = carry[2] /* tmp18 */ - tmp52;
-    const float tmp54 = (m_comp) ? tmp53 : carry[2] /* tmp18 */;
-    const float tmp55 = tmp44 - tmp48;
-    const float tmp56 = carry[4] /* tmp26 */ - tmp55;
-    const float tmp57 = (m_comp) ? tmp56 : carry[4] /* tmp26 */;
-    carry[0] = tmp40;
-    carry[3] = tmp44;
-    carry[8] = tmp48;
-    carry[9] = tmp51;
-    carry[10] = tmp54;
-    carry[11] = tmp57;
+    const float tmp40 = (m_comp) ? carry[8] /* tmp39 */ : v_lp[0];
+    const float tmp41 = carry[1] /* tmp16 */ * span;
+    const float tmp42 = v_ins[1] + tmp41;
+    const float tmp43 = (new_gps) ? gps_vel[1] : tmp42;
+    const float tmp44 = tmp43 - v_lp[1];
+    const float tmp45 = carry[6] /* tmp33 */ * tmp44;
+    const float tmp46 = v_lp[1] + tmp45;
+    const float tmp47 = (m_comp) ? tmp46 : v_lp[1];
+    const float tmp48 = carry[3] /* tmp24 */ + 9.80665f /* G0 */;
+    const float tmp49 = tmp48 * span;
+    const float tmp50 = v_ins[2] + tmp49;
+    const float tmp51 = (new_gps) ? gps_vel[2] : tmp50;
+    const float tmp52 = tmp51 - v_lp[2];
+    const float tmp53 = carry[6] /* tmp33 */ * tmp52;
+    const float tmp54 = v_lp[2] + tmp53;
+    const float tmp55 = (m_comp) ? tmp54 : v_lp[2];
+    const float tmp56 = carry[7] /* tmp36 */ - tmp40;
+    const float tmp57 = carry[0] /* tmp11 */ - tmp56;
+    const float tmp58 = (m_comp) ? tmp57 : carry[0] /* tmp11 */;
+    const float tmp59 = tmp43 - tmp47;
+    const float tmp60 = carry[2] /* tmp19 */ - tmp59;
+    const float tmp61 = (m_comp) ? tmp60 : carry[2] /* tmp19 */;
+    const float tmp62 = tmp51 - tmp55;
+    const float tmp63 = carry[4] /* tmp27 */ - tmp62;
+    const float tmp64 = (m_comp) ? tmp63 : carry[4] /* tmp27 */;
+    carry[1] = tmp40;
+    carry[3] = tmp43;
+    carry[6] = tmp47;
+    carry[8] = tmp51;
+    carry[9] = tmp55;
+    carry[10] = tmp58;
+    carry[11] = tmp61;
+    carry[12] = tmp64;
 }
 
 /*
  * low-pass of the specific force in NED, R(q) f (time constant accel_tau; recovering from a clipped
- * gyro sample: the sample itself); the GPS velocity through the same low-pass, its low-passed
- * derivative removed (up)
+ * gyro sample: the sample itself); accel_lp_warm: the running mean of its samples until it has
+ * averaged accel_tau; the GPS velocity through the same low-pass (gain span/(accel_tau + span)),
+ * its low-passed derivative removed (up)
  *
  * Args:
  *     rot: float[9], 3x3 matrix, column-major: row i, column j at [i + 3 * j]
@@ -634,6 +644,7 @@ static void qcf_k_accel_lowpass_part1(float span, const float gps_vel[3], bool n
  *     accel_lp: float[3]
  *     span: float
  *     recover: bool
+ *     lp_time: float
  *     gps_vel: float[3]
  *     new_gps: bool
  *     m_comp: bool
@@ -641,37 +652,39 @@ static void qcf_k_accel_lowpass_part1(float span, const float gps_vel[3], bool n
  *     v_ins: float[3]
  * Outputs:
  *     accel_lp_new: float[3]
+ *     lp_time_new: float
  *     v_lp_new: float[3]
  *     v_ins_new: float[3]
  *     up: float[3]
  *
- * Total ops: 58 (add 29, mul 18, div 1, cmp 10)
+ * Total ops: 65 (add 31, mul 18, div 2, cmp 14)
  */
 static void qcf_k_accel_lowpass(const float rot[9], const float accel[3], const float accel_lp[3],
-    float span, bool recover, const float gps_vel[3], bool new_gps, bool m_comp,
-    const float v_lp[3], const float v_ins[3], float accel_lp_new[3], float v_lp_new[3],
-    float v_ins_new[3], float up[3])
+    float span, bool recover, float lp_time, const float gps_vel[3], bool new_gps, bool m_comp,
+    const float v_lp[3], const float v_ins[3], float accel_lp_new[3], float *lp_time_new,
+    float v_lp_new[3], float v_ins_new[3], float up[3])
 {
     /*
      * 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
      * handed between them (a slot reused once its value is dead)
      */
-    float carry[12];
-    qcf_k_accel_lowpass_part0(rot, accel, accel_lp, span, recover, gps_vel, new_gps, m_comp, v_lp,
+    float carry[13];
+    qcf_k_accel_lowpass_part0(rot, accel, accel_lp, span, recover, lp_time, gps_vel, new_gps, v_lp,
             v_ins, carry);
     qcf_k_accel_lowpass_part1(span, gps_vel, new_gps, m_comp, v_lp, v_ins, carry);
-    accel_lp_new[0] = carry[1] /* tmp10 */;
-    accel_lp_new[1] = carry[2] /* tmp18 */;
-    accel_lp_new[2] = carry[4] /* tmp26 */;
-    v_lp_new[0] = carry[6] /* tmp33 */;
-    v_lp_new[1] = carry[0] /* tmp40 */;
-    v_lp_new[2] = carry[8] /* tmp48 */;
-    v_ins_new[0] = carry[5] /* tmp29 */;
-    v_ins_new[1] = carry[7] /* tmp36 */;
-    v_ins_new[2] = carry[3] /* tmp44 */;
-    up[0] = carry[9] /* tmp51 */;
-    up[1] = carry[10] /* tmp54 */;
-    up[2] = carry[11] /* tmp57 */;
+    accel_lp_new[0] = carry[0] /* tmp11 */;
+    accel_lp_new[1] = carry[2] /* tmp19 */;
+    accel_lp_new[2] = carry[4] /* tmp27 */;
+    *lp_time_new = carry[5] /* tmp30 */;
+    v_lp_new[0] = carry[1] /* tmp40 */;
+    v_lp_new[1] = carry[6] /* tmp47 */;
+    v_lp_new[2] = carry[9] /* tmp55 */;
+    v_ins_new[0] = carry[7] /* tmp36 */;
+    v_ins_new[1] = carry[3] /* tmp43 */;
+    v_ins_new[2] = carry[8] /* tmp51 */;
+    up[0] = carry[10] /* tmp58 */;
+    up[1] = carry[11] /* tmp61 */;
+    up[2] = carry[12] /* tmp64 */;
 }
 
 static void qcf_k_correct_part0(const float rot[9], const float accel_lp[3], const float mag_ned[3],
@@ -2242,6 +2255,7 @@ static void qcf_start(qcf_state *s, const qcf_input *in, bool use_accel, bool us
             }
             s->accel_age = 0.0f;
             s->mag_age = 0.0f;
+            s->lp_time = 0.0f;   /* the low-pass's warm start begins at this sample */
             for (uint32_t i = 0u; i < 3u; i++) {
                 s->rest_gyro_lp[i] = in->gyro[i];
             }
@@ -2362,6 +2376,7 @@ void qcf_init(qcf_state *s)
     s->accel_lp[0] = 0.0f;
     s->accel_lp[1] = 0.0f;
     s->accel_lp[2] = (-9.80665f) /* -G0 */;
+    s->lp_time = 0.0f;
     s->accel_age = 0.0f;
     s->mag_age = 0.0f;
     s->rest_gyro_lp[0] = 0.0f;
@@ -2563,8 +2578,9 @@ qcf_status qcf_step(qcf_state *restrict s, const qcf_input *restrict in, float d
             }
             s->vlp_ok = 1u;
         }
-        qcf_k_accel_lowpass(rot, in->accel, s->accel_lp, s->accel_age, recovering, s->gps_vel_hist,
-            use_gps, m_comp, s->v_lp, s->v_ins, s->accel_lp, s->v_lp, s->v_ins, up);
+        qcf_k_accel_lowpass(rot, in->accel, s->accel_lp, s->accel_age, recovering, s->lp_time,
+            s->gps_vel_hist, use_gps, m_comp, s->v_lp, s->v_ins, s->accel_lp, &s->lp_time, s->v_lp, s->v_ins,
+            up);
         qcf_k_rest(in->gyro, accel_n2, s->rest_gyro_lp, s->rest_time, s->accel_age, s->q, s->rest_q,
             s->rest_rate_lp, s->rest_gyro_lp, s->rest_rate_lp, &s->rest_time, &at_rest);
         for (int i = 0; i < 4; i++) {

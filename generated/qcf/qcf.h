@@ -23,7 +23,7 @@
  * its GNU modes, -std=c99 turns it off) and -fno-math-errno; -ffast-math breaks the input
  * checks (isfinite). Any C99 compiler builds it; see the ahrsgen docs (target.md).
  *     qcf_euler(&st, rpy);
- * No heap, no recursion; RAM is the state struct (368 bytes with the usual ABI).
+ * No heap, no recursion; RAM is the state struct (372 bytes with the usual ABI).
  * Needs <math.h> (float functions only in a float build); compilers may also emit calls to
  * memcpy/memset/memmove for struct and array copies.
  *
@@ -112,6 +112,18 @@ extern "C" {
                                               accelerometer (R(q) f) that the tilt reference is
                                               built from (VQF's idea: motion acceleration averages
                                               out, gravity does not); 0 = off [s] */
+#define QCF_ACCEL_LP_WARM 1                /* with accel_tau > 0: warm start of the NED low-pass
+                                              (VQF's, as adukf's accel_lp_warm; issue 26): until it
+                                              has averaged accel_tau of samples it is their running
+                                              mean, gain s/(min(t, accel_tau) + s)
+                                              (aiding.warm_lowpass_gain), so the first sample, which
+                                              sets the attitude and which a multirotor's motor
+                                              vibration tilts by up to 15 deg, weighs 1/n instead of
+                                              lingering as e^(-t/accel_tau). The GPS velocity's
+                                              low-pass keeps s/(accel_tau + s); held while
+                                              recovering from a gyro clip. false: the low-pass
+                                              starts from its first sample with its time constant
+                                              (before) */
 #define QCF_BIAS_ACCEL_GATE 1.0f           /* the bias integral runs only in steps with ||f| - g|
                                               below this (frozen while the accelerometer is
                                               distrusted: no wind-up under sustained acceleration)
@@ -287,6 +299,8 @@ typedef struct {
                               */
     float accel_lp[3];     /* low-passed specific force in NED, m/s^2 (level at rest until the first
                               accelerometer sample: the correction before it has zero weights) */
+    float lp_time;         /* time accel_lp has averaged, s (its warm start; 0 at the first sample,
+                              stops at accel_tau) */
     float accel_age;       /* time since the last accelerometer sample, s */
     float mag_age;         /* time since the last magnetometer sample, s */
     float rest_gyro_lp[3]; /* rest detection: low-passed gyro, rad/s */

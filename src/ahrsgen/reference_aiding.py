@@ -11,6 +11,13 @@ PLATEAU_SAMPLES = 4
 PLATEAU_TOL = 1e-6
 
 
+def warm_lowpass_gain(lp_time: float, tau: float, dt: float) -> tuple[float, float]:
+    """A first-order low-pass of time constant tau with a warm start: until it has averaged tau
+    of samples it is their running mean. t is the time it has averaged (0 before its first
+    sample); the gain is dt / (min(t, tau) + dt) and t becomes min(t + dt, tau). Returns both."""
+    return dt / (min(lp_time, tau) + dt), min(lp_time + dt, tau)
+
+
 class GyroClip:
     """A gyro sample is clipped when a component is at or beyond full_scale, or when one at or
     above plateau_rate has held its value (within PLATEAU_TOL) for PLATEAU_SAMPLES samples while

@@ -26,6 +26,31 @@ def test_lowpass_is_backward_euler_step():
     assert aiding.lowpass(x_lp, x, dt, 0.0) is x
 
 
+@pytest.mark.parametrize("mirror", [False, True])
+def test_warm_lowpass_gain_is_the_running_mean_then_the_lowpass(mirror):
+    """From t = 0 the warm gain averages: after n samples (n dt <= tau) the low-pass is their
+    mean (np.mean); once t reaches tau it is the low-pass of gain dt/(tau + dt), the same as
+    lowpass(). Both the CasADi function and reference_aiding's NumPy twin (mirror)."""
+    from ahrsgen import reference_aiding
+    tau, dt = 0.05, 1e-3
+    if mirror:
+        gain = lambda t: reference_aiding.warm_lowpass_gain(t, tau, dt)
+    else:
+        t_s = ca.SX.sym("t")
+        g = _fn([t_s], list(aiding.warm_lowpass_gain(t_s, tau, dt)))
+        gain = lambda t: tuple(float(v[0]) for v in g(t))
+    xs = np.random.default_rng(0).normal(size=(120, 3))
+    y, t = np.zeros(3), 0.0
+    for n, x in enumerate(xs, 1):
+        alpha, t = gain(t)
+        y = y + alpha * (x - y)
+        if n <= 50:
+            assert y == pytest.approx(np.mean(xs[:n], axis=0), abs=1e-12)
+        else:
+            assert alpha == pytest.approx(dt / (tau + dt), rel=1e-12)
+    assert t == pytest.approx(tau, rel=1e-12)
+
+
 def test_rest_detector_counts_steady_time_and_resets():
     g, glp = (ca.SX.sym(n, 3) for n in ("g", "glp"))
     a2, t, dt = ca.SX.sym("a2"), ca.SX.sym("t"), ca.SX.sym("dt")

@@ -72,6 +72,16 @@ def lowpass(x_lp, x, dt, tau: float):
     return x_lp + k * (x - x_lp)
 
 
+def warm_lowpass_gain(lp_time, tau: float, dt):
+    """The gain of a first-order low-pass of time constant tau (s) with a warm start (VQF's; issue
+    26): alpha = dt / (min(t, tau) + dt), t the time it has averaged (0 at its first sample), so it
+    is the running mean of its samples until it has seen tau of them and then the low-pass
+    x_lp + dt/(tau + dt) (x - x_lp); its first sample weighs 1/n instead of lingering as
+    e^(-t/tau). Returns (alpha, t'), t' = min(t + dt, tau). tau > 0."""
+    alpha = dt / (ca.fmin(lp_time, use(tau)) + dt)
+    return alpha, ca.fmin(lp_time + dt, use(tau))
+
+
 def lowpass_of_rate(x_lp, delta, dt, tau: float):
     """lowpass(x_lp, delta / dt, dt, tau), the low-pass of a rate measured as a change `delta`
     over dt, written without the quotient: x_lp + (delta - dt x_lp) / (tau + dt), finite for any

@@ -302,3 +302,32 @@ def test_ki_zero_turns_the_bias_integration_off():
     for k in range(len(log)):
         ref.step(log.gyro[k], log.accel[k], log.mag[k], log.gps_vel[k], int(log.valid[k]), float(log.dt[k]))
     assert list(ref.bias) == [0.0, 0.0, 0.0]
+
+
+def test_low_pass_warm_start_forgets_a_bad_first_sample():
+    """A motionless IMU (100 Hz, no noise, magnetometer on, defaults) whose first accelerometer
+    sample carries 3 m/s^2 of vibration: that sample sets the attitude (17 deg off) and starts the
+    NED low-pass at R(q) f, level in the wrong frame, so the low-pass hides the error from the
+    tilt correction. A low-pass started from it hides e^(-t/tau) of it, atan(3 e^(-t/tau) / g)
+    (tau 1 s), 4.6 deg RMS over 0.1-6 s; accel_lp_warm's running mean of n samples 1/n of it.
+    Measured here: the angle between the low-pass and what a low-pass of the exact samples would
+    hold, R(q) R(q_true)^T [0, 0, -g] (q the estimate of that step), RMS over 0.1-6 s, float C:
+    below half the former (2026-12-04: 1.42 deg with the warm start, 4.51 without)."""
+    from ahrsgen.npquat import rotmat
+    from ahrsgen.generate import config
+    from ahrsgen.sim.scenarios._static import make_static
+    tau = config.resolve("qcf").params["accel_tau"]
+    log = make_static("rest", "spike", 0, duration=6.0, attitude_deg=(10.0, -5.0, 30.0), noise=False)
+    log.accel = log.accel.copy()
+    log.accel[0] += [3.0, 0.0, 0.0]
+    hf = host_build("qcf")
+    s = hf.new_state()
+    hidden = []
+    for k in range(len(log)):
+        hf.step(s, log.gyro[k], log.accel[k], log.mag[k], log.gps_vel[k], int(log.valid[k]), float(log.dt[k]))
+        a = np.array(s.accel_lp[:])
+        exact = rotmat(np.array(s.q[:])) @ rotmat(log.q_true[k]).T @ np.array([0.0, 0.0, -9.80665])
+        hidden.append(np.degrees(np.arccos(np.clip(a @ exact / np.linalg.norm(a) / np.linalg.norm(exact), -1, 1))))
+    m = log.t >= 0.1
+    kept = np.degrees(np.arctan(3.0 * np.exp(-log.t[m] / tau) / 9.80665))
+    assert np.sqrt(np.mean(np.array(hidden)[m] ** 2)) < 0.5 * np.sqrt(np.mean(kept ** 2))

@@ -265,13 +265,12 @@ class Model(FilterModel):
         Returns the new low-pass and lp_time."""
         tau = self.params["accel_tau"]
         base = ca.if_else(restart, 0, lp_time)
-        if self.params["accel_lp_warm"]:
-            alpha = dt / (ca.fmin(base, use(tau)) + dt)
-        else:
+        alpha, lp_next = aiding.warm_lowpass_gain(base, tau, dt)
+        if not self.params["accel_lp_warm"]:
             alpha = dt / (use(tau) + dt)
         start_lp = ca.if_else(start, f_n, a_lp)
         a_new = start_lp + alpha * (f_n - start_lp)
-        lp_new = ca.if_else(ca.logic_and(start, ca.logic_not(restart)), lp_time, ca.fmin(base + dt, use(tau)))
+        lp_new = ca.if_else(ca.logic_and(start, ca.logic_not(restart)), lp_time, lp_next)
         return a_new, lp_new
 
     def follow(self) -> bool:

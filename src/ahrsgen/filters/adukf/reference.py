@@ -84,7 +84,7 @@ import math
 import numpy as np
 
 from ahrsgen.constants import G0
-from ahrsgen.reference_aiding import GyroClip, HardIron
+from ahrsgen.reference_aiding import GyroClip, HardIron, warm_lowpass_gain
 from ahrsgen.codegen import input_checks
 from ahrsgen import status as st
 from ahrsgen.npquat import q_from_euler, qmul, rotmat, skew
@@ -446,10 +446,10 @@ class Reference:
                 # warm start (VQF's): the running mean of the samples until it has averaged
                 # accel_tau of them; recovering holds the time (not begun again after a clip)
                 t_lp = 0.0 if restart else self.lp_time
-                span = min(t_lp, p["accel_tau"]) if p["accel_lp_warm"] else p["accel_tau"]
-                self.accel_lp = self.accel_lp + dt / (span + dt) * (f_n - self.accel_lp)
+                k_warm, t_next = warm_lowpass_gain(t_lp, p["accel_tau"], dt)
+                self.accel_lp = self.accel_lp + (k_warm if p["accel_lp_warm"] else k_lp) * (f_n - self.accel_lp)
                 if restart or not recovering:
-                    self.lp_time = min(t_lp + dt, p["accel_tau"])
+                    self.lp_time = t_next
                 up = self.accel_lp
                 if self.gps_lp:
                     if m_comp and not self.vlp_ok:

@@ -29,7 +29,11 @@ Product conditioning (faithful = false; issue 10; building blocks in src/ahrsgen
                  sample (in that step or later) by the heading correction below; with both in
                  the first step this is FQA's attitude
   low-pass       a <- a + k (R(q̂) f_g - a), k = s_a/(accel_tau + s_a): the specific force in
-                 NED, low-passed (motion acceleration averages out, gravity does not)
+                 NED, low-passed (motion acceleration averages out, gravity does not);
+                 accel_lp_warm (issue 26, VQF's warm start): k = s_a/(min(t, accel_tau) + s_a),
+                 t the time it has averaged (0 at the first sample, + s_a per sample, at most
+                 accel_tau; held and k = 1 while recovering from a gyro clip): the running mean
+                 until it has seen accel_tau, the first sample weighing 1/n
   tilt           T = shortest NED rotation taking d = -a/|a| to [0,0,1] (no z part, any attitude)
   heading        H = rotation about NED z taking the horizontal part of R(T q̂) m to north +
                  declination, only for a magnetometer sample whose norm and dip (against
@@ -69,6 +73,12 @@ GPS_TAPS = 7          # V_{k-6} .. V_k (the differentiator; the centripetal term
 def gps_taps(params) -> int:
     """GPS velocities the state keeps: eq. 29 reads 7, the centripetal term the latest only."""
     return GPS_TAPS if params["motion_accel_model"] == "differentiator" else 1
+
+
+def warm(params) -> bool:
+    """The NED low-pass starts warm (accel_lp_warm, issue 26): product conditioning, accel_tau > 0."""
+    return (bool(params["accel_lp_warm"]) and not params["faithful"] and bool(params["conditioning"])
+            and params["accel_tau"] > 0)
 
 
 def gps_lowpass(params) -> bool:
@@ -118,6 +128,8 @@ class Model(FilterModel):
         ] + ([] if not self.product else [
             StateField("accel_lp", 3, "low-passed specific force in NED, m/s^2 (level at rest until the "
                        "first accelerometer sample: the correction before it has zero weights)", [0.0, 0.0, -use(G0)]),
+            *([StateField("lp_time", 1, "time accel_lp has averaged, s (its warm start; 0 at the first "
+                          "sample, stops at accel_tau)", 0.0)] if warm(p) else []),
             StateField("accel_age", 1, "time since the last accelerometer sample, s", 0.0),
             StateField("mag_age", 1, "time since the last magnetometer sample, s", 0.0),
             StateField("rest_gyro_lp", 3, "rest detection: low-passed gyro, rad/s", 0.0),
@@ -357,12 +369,23 @@ class Model(FilterModel):
         f_n = ca.mtimes(rot, f)
         doc = ("low-pass of the specific force in NED, R(q) f (time constant accel_tau; recovering from "
                "a clipped gyro sample: the sample itself)")
+        ins = {"rot": rot, "accel": f, "accel_lp": a_lp, "span": span, "recover": recover}
+        outs = {}
+        if warm(p):
+            # VQF's warm start: the running mean of the samples until it has averaged accel_tau
+            # (lp_time 0 at the first sample), held while recovering from a gyro clip
+            lp_time = ca.SX.sym("lp_time")
+            k_warm, lp_next = aiding.warm_lowpass_gain(lp_time, p["accel_tau"], span)
+            alpha_a = ca.if_else(recover, 1, k_warm)
+            ins["lp_time"] = lp_time
+            outs["lp_time_new"] = ca.if_else(recover, lp_time, lp_next)
+            doc += "; accel_lp_warm: the running mean of its samples until it has averaged accel_tau"
         if not gps_lowpass(p):
-            return KernelSpec("accel_lowpass", function("accel_lowpass", {"rot": rot, "accel": f, "accel_lp": a_lp, "span": span,
-                                                                         "recover": recover},
-                                                       {"accel_lp_new": ca.if_else(recover, f_n,
-                                                                                   aiding.lowpass(a_lp, f_n, span,
-                                                                                                  p["accel_tau"]))}),
+            if warm(p):
+                a_new = a_lp + alpha_a * (f_n - a_lp)
+            else:
+                a_new = ca.if_else(recover, f_n, aiding.lowpass(a_lp, f_n, span, p["accel_tau"]))
+            return KernelSpec("accel_lowpass", function("accel_lowpass", ins, {"accel_lp_new": a_new, **outs}),
                               doc, flags=("recover",))
         vel = ca.SX.sym("gps_vel", 3)
         v_lp = ca.SX.sym("v_lp", 3)
@@ -370,14 +393,15 @@ class Model(FilterModel):
         new_gps = ca.SX.sym("new_gps")
         m_comp = ca.SX.sym("m_comp")
         alpha = ca.if_else(recover, 1, span / (use(p["accel_tau"]) + span))
-        a_new = a_lp + alpha * (f_n - a_lp)
+        a_new = a_lp + (alpha_a if warm(p) else alpha) * (f_n - a_lp)
         vi_new, v_new, up = aiding.gps_lowpass(a_new, f_n, vel, v_lp, v_ins, alpha, span, p["accel_tau"],
                                                new_gps, m_comp, G0)
         return KernelSpec("accel_lowpass", function(
-            "accel_lowpass", {"rot": rot, "accel": f, "accel_lp": a_lp, "span": span, "recover": recover,
-                              "gps_vel": vel, "new_gps": new_gps, "m_comp": m_comp, "v_lp": v_lp, "v_ins": v_ins},
-            {"accel_lp_new": a_new, "v_lp_new": v_new, "v_ins_new": vi_new, "up": up}),
-            doc + "; the GPS velocity through the same low-pass, its low-passed derivative removed (up)",
+            "accel_lowpass", {**ins, "gps_vel": vel, "new_gps": new_gps, "m_comp": m_comp, "v_lp": v_lp,
+                              "v_ins": v_ins},
+            {"accel_lp_new": a_new, **outs, "v_lp_new": v_new, "v_ins_new": vi_new, "up": up}),
+            doc + "; the GPS velocity through the same low-pass (gain span/(accel_tau + span)), its "
+            "low-passed derivative removed (up)",
             flags=("recover", "new_gps", "m_comp"))
 
     def stability_warnings(self):
@@ -413,6 +437,7 @@ class Model(FilterModel):
                 "rest_turn_estimate": self.product and p["rest_time"] > 0 and p["rest_turn"] == "estimate",
                 "mag_rejection": self.product and p["mag_rejection"],
                 "hard_iron": self.hard_iron(), "gps_age_max": GPS_AGE_MAX, "gps_lowpass": gps_lowpass(p),
+                "warm": self.product and warm(p),
                 "gyro_quiet": self.gyro_recovery_quiet()}
 
     def step_paths(self):

@@ -10,7 +10,7 @@ import numpy as np
 from ahrsgen import npquat as nq
 from ahrsgen.codegen import input_checks
 from ahrsgen.constants import G0
-from ahrsgen.reference_aiding import GyroClip, HardIron
+from ahrsgen.reference_aiding import GyroClip, HardIron, warm_lowpass_gain
 
 PAPER_COEFFS = np.array([0.0971, 0.1662, 0.1853])
 
@@ -106,6 +106,7 @@ class Reference:
         self.product = not self.p["faithful"] and self.p["conditioning"]
         self.accel_lp = np.array([0.0, 0.0, -G0])   # read by nothing before the first accelerometer sample
         self.accel_age = self.mag_age = 0.0
+        self.lp_time = 0.0            # time accel_lp has averaged (accel_lp_warm), s, at most accel_tau
         # gps_lowpass: the GPS velocity through the accelerometer's low-pass
         self.gps_lp = (self.product and self.p["motion_accel_model"] == "gps_lowpass" and self.p["accel_tau"] > 0)
         self.v_lp = np.zeros(3)
@@ -204,6 +205,7 @@ class Reference:
             self.accel_lp = nq.rotmat(self.q) @ f
             self.initialised = 2 if use_mag else 1
             self.accel_age = self.mag_age = 0.0
+            self.lp_time = 0.0
             self.rest_gyro_lp = gyro.copy()
             self.rest_q = self.q.copy()
         elif self.initialised == 1 and use_mag:
@@ -237,7 +239,12 @@ class Reference:
             s = self.accel_age
             f_n = nq.rotmat(self.q) @ f
             k = s / (p["accel_tau"] + s) if p["accel_tau"] > 0 and not recovering else 1.0
-            self.accel_lp = self.accel_lp + k * (f_n - self.accel_lp)
+            k_a = k                   # the gain of accel_lp (k: the GPS velocity's)
+            if p["accel_lp_warm"] and p["accel_tau"] > 0 and not recovering:
+                # warm start (VQF's): the running mean until it has averaged accel_tau;
+                # recovering from a gyro clip takes the sample and holds the time
+                k_a, self.lp_time = warm_lowpass_gain(self.lp_time, p["accel_tau"], s)
+            self.accel_lp = self.accel_lp + k_a * (f_n - self.accel_lp)
             up = self.accel_lp
             if self.gps_lp:
                 # velocity: the GPS sample of this step, else carried by the kinematic acceleration
