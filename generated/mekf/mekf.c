@@ -19,10 +19,10 @@
  * last read of the input element it may overwrite: q_out may be q itself; no other argument
  * may overlap an output. Also: mekf_k_accel_lowpass stores each output as soon as it is
  * computed, after the last read of the input element it may overwrite: a_lp_out may be a_lp
- * itself, v_lp_out may be v_lp itself, v_ins_out may be v_ins itself; no other argument may
- * overlap an output. Also: mekf_k_update_gravity stores each output as soon as it is computed,
- * after the last read of the input element it may overwrite: P_out may be P itself; no other
- * argument may overlap an output.
+ * itself, v_lp_out may be v_lp itself, v_ins_out may be v_ins itself, lp_time_out may be
+ * lp_time itself; no other argument may overlap an output. Also: mekf_k_update_gravity stores
+ * each output as soon as it is computed, after the last read of the input element it may
+ * overwrite: P_out may be P itself; no other argument may overlap an output.
  */
 #include "mekf.h"
 
@@ -1536,150 +1536,161 @@ static void mekf_k_predict_covariance(const float F_q[9], const float F_b[9], co
 }
 
 static void mekf_k_accel_lowpass_part0(const float q[4], const float accel[3], const bool mask[3],
-    const float a_lp[3], float dt, float a_lp_out[3], float carry[11])
+    const float a_lp[3], float lp_time, float dt, float a_lp_out[3], float carry[10])
 {
-    const float tmp0 = 1.0f + dt;
-    const float tmp1 = dt / tmp0;
-    const float tmp2 = (mask[2]) ? 1.0f : tmp1;
-    const float tmp3 = q[2] * q[2];
-    const float tmp4 = q[3] * q[3];
-    const float tmp5 = tmp3 + tmp4;
-    const float tmp6 = tmp5 + tmp5;
-    const float tmp7 = 1.0f - tmp6;
-    const float tmp8 = tmp7 * accel[0];
-    const float tmp9 = q[1] * q[2];
-    const float tmp10 = q[0] * q[3];
-    const float tmp11 = tmp9 - tmp10;
-    const float tmp12 = tmp11 + tmp11;
-    const float tmp13 = tmp12 * accel[1];
-    const float tmp14 = tmp8 + tmp13;
-    const float tmp15 = q[1] * q[3];
-    const float tmp16 = q[0] * q[2];
-    const float tmp17 = tmp15 + tmp16;
-    const float tmp18 = tmp17 + tmp17;
-    const float tmp19 = tmp18 * accel[2];
-    const float tmp20 = tmp14 + tmp19;
-    const float tmp21 = tmp20 - a_lp[0];
-    const float tmp22 = tmp2 * tmp21;
-    const float tmp23 = a_lp[0] + tmp22;
-    a_lp_out[0] = tmp23;
-    const float tmp24 = tmp9 + tmp10;
-    const float tmp25 = tmp24 + tmp24;
-    const float tmp26 = tmp25 * accel[0];
-    const float tmp27 = q[1] * q[1];
-    const float tmp28 = tmp27 + tmp4;
-    const float tmp29 = tmp28 + tmp28;
-    const float tmp30 = 1.0f - tmp29;
-    const float tmp31 = tmp30 * accel[1];
-    const float tmp32 = tmp26 + tmp31;
-    const float tmp33 = q[2] * q[3];
-    const float tmp34 = q[0] * q[1];
-    const float tmp35 = tmp33 - tmp34;
-    const float tmp36 = tmp35 + tmp35;
-    const float tmp37 = tmp36 * accel[2];
-    const float tmp38 = tmp32 + tmp37;
-    const float tmp39 = tmp38 - a_lp[1];
-    carry[0] = tmp2;
-    carry[1] = tmp3;
-    carry[2] = tmp15;
-    carry[3] = tmp16;
-    carry[4] = tmp20;
-    carry[5] = tmp23;
-    carry[6] = tmp27;
-    carry[7] = tmp33;
-    carry[8] = tmp34;
-    carry[9] = tmp38;
-    carry[10] = tmp39;
+    const float tmp0 = (lp_time < 1.0f) ? lp_time : 1.0f;
+    const float tmp1 = tmp0 + dt;
+    const float tmp2 = dt / tmp1;
+    const float tmp3 = (mask[2]) ? 1.0f : tmp2;
+    const float tmp4 = q[2] * q[2];
+    const float tmp5 = q[3] * q[3];
+    const float tmp6 = tmp4 + tmp5;
+    const float tmp7 = tmp6 + tmp6;
+    const float tmp8 = 1.0f - tmp7;
+    const float tmp9 = tmp8 * accel[0];
+    const float tmp10 = q[1] * q[2];
+    const float tmp11 = q[0] * q[3];
+    const float tmp12 = tmp10 - tmp11;
+    const float tmp13 = tmp12 + tmp12;
+    const float tmp14 = tmp13 * accel[1];
+    const float tmp15 = tmp9 + tmp14;
+    const float tmp16 = q[1] * q[3];
+    const float tmp17 = q[0] * q[2];
+    const float tmp18 = tmp16 + tmp17;
+    const float tmp19 = tmp18 + tmp18;
+    const float tmp20 = tmp19 * accel[2];
+    const float tmp21 = tmp15 + tmp20;
+    const float tmp22 = tmp21 - a_lp[0];
+    const float tmp23 = tmp3 * tmp22;
+    const float tmp24 = a_lp[0] + tmp23;
+    a_lp_out[0] = tmp24;
+    const float tmp25 = tmp10 + tmp11;
+    const float tmp26 = tmp25 + tmp25;
+    const float tmp27 = tmp26 * accel[0];
+    const float tmp28 = q[1] * q[1];
+    const float tmp29 = tmp28 + tmp5;
+    const float tmp30 = tmp29 + tmp29;
+    const float tmp31 = 1.0f - tmp30;
+    const float tmp32 = tmp31 * accel[1];
+    const float tmp33 = tmp27 + tmp32;
+    const float tmp34 = q[2] * q[3];
+    const float tmp35 = q[0] * q[1];
+    const float tmp36 = tmp34 - tmp35;
+    const float tmp37 = tmp36 + tmp36;
+    const float tmp38 = tmp37 * accel[2];
+    const float tmp39 = tmp33 + tmp38;
+    carry[0] = tmp3;
+    carry[1] = tmp4;
+    carry[2] = tmp16;
+    carry[3] = tmp17;
+    carry[4] = tmp21;
+    carry[5] = tmp24;
+    carry[6] = tmp28;
+    carry[7] = tmp34;
+    carry[8] = tmp35;
+    carry[9] = tmp39;
 }
 
 static void mekf_k_accel_lowpass_part1(const float accel[3], const float vel[3], const bool mask[3],
     const float a_lp[3], const float v_lp[3], const float v_ins[3], float dt, float a_lp_out[3],
-    float v_lp_out[3], float v_ins_out[3], float carry[11])
+    float v_lp_out[3], float v_ins_out[3], float carry[10])
 {
-    const float tmp40 = carry[0] /* tmp2 */ * carry[10] /* tmp39 */;
-    const float tmp41 = a_lp[1] + tmp40;
-    a_lp_out[1] = tmp41;
-    const float tmp42 = carry[2] /* tmp15 */ - carry[3] /* tmp16 */;
-    const float tmp43 = tmp42 + tmp42;
-    const float tmp44 = tmp43 * accel[0];
-    const float tmp45 = carry[7] /* tmp33 */ + carry[8] /* tmp34 */;
-    const float tmp46 = tmp45 + tmp45;
-    const float tmp47 = tmp46 * accel[1];
-    const float tmp48 = tmp44 + tmp47;
-    const float tmp49 = carry[6] /* tmp27 */ + carry[1] /* tmp3 */;
-    const float tmp50 = tmp49 + tmp49;
-    const float tmp51 = 1.0f - tmp50;
-    const float tmp52 = tmp51 * accel[2];
-    const float tmp53 = tmp48 + tmp52;
-    const float tmp54 = tmp53 - a_lp[2];
-    const float tmp55 = carry[0] /* tmp2 */ * tmp54;
-    const float tmp56 = a_lp[2] + tmp55;
-    a_lp_out[2] = tmp56;
-    const float tmp57 = carry[4] /* tmp20 */ * dt;
-    const float tmp58 = v_ins[0] + tmp57;
-    const float tmp59 = (mask[1]) ? vel[0] : tmp58;
-    v_ins_out[0] = tmp59;
-    const float tmp60 = tmp59 - v_lp[0];
-    const float tmp61 = carry[0] /* tmp2 */ * tmp60;
-    const float tmp62 = v_lp[0] + tmp61;
-    const float tmp63 = (mask[0]) ? tmp62 : v_lp[0];
-    v_lp_out[0] = tmp63;
-    const float tmp64 = carry[9] /* tmp38 */ * dt;
-    const float tmp65 = v_ins[1] + tmp64;
-    const float tmp66 = (mask[1]) ? vel[1] : tmp65;
-    v_ins_out[1] = tmp66;
-    const float tmp67 = tmp66 - v_lp[1];
-    const float tmp68 = carry[0] /* tmp2 */ * tmp67;
-    const float tmp69 = v_lp[1] + tmp68;
-    const float tmp70 = (mask[0]) ? tmp69 : v_lp[1];
-    v_lp_out[1] = tmp70;
-    const float tmp71 = tmp53 + 9.80665f /* G0 */;
-    const float tmp72 = tmp71 * dt;
-    const float tmp73 = v_ins[2] + tmp72;
-    const float tmp74 = (mask[1]) ? vel[2] : tmp73;
-    v_ins_out[2] = tmp74;
-    const float tmp75 = tmp74 - v_lp[2];
-    const float tmp76 = carry[0] /* tmp2 */ * tmp75;
-    const float tmp77 = v_lp[2] + tmp76;
-    const float tmp78 = (mask[0]) ? tmp77 : v_lp[2];
-    v_lp_out[2] = tmp78;
-    const float tmp79 = tmp59 - tmp63;
-    carry[0] = tmp41;
-    carry[1] = tmp56;
-    carry[2] = tmp66;
-    carry[3] = tmp70;
-    carry[4] = tmp74;
-    carry[6] = tmp78;
-    carry[7] = tmp79;
+    const float tmp40 = carry[9] /* tmp39 */ - a_lp[1];
+    const float tmp41 = carry[0] /* tmp3 */ * tmp40;
+    const float tmp42 = a_lp[1] + tmp41;
+    a_lp_out[1] = tmp42;
+    const float tmp43 = carry[2] /* tmp16 */ - carry[3] /* tmp17 */;
+    const float tmp44 = tmp43 + tmp43;
+    const float tmp45 = tmp44 * accel[0];
+    const float tmp46 = carry[7] /* tmp34 */ + carry[8] /* tmp35 */;
+    const float tmp47 = tmp46 + tmp46;
+    const float tmp48 = tmp47 * accel[1];
+    const float tmp49 = tmp45 + tmp48;
+    const float tmp50 = carry[6] /* tmp28 */ + carry[1] /* tmp4 */;
+    const float tmp51 = tmp50 + tmp50;
+    const float tmp52 = 1.0f - tmp51;
+    const float tmp53 = tmp52 * accel[2];
+    const float tmp54 = tmp49 + tmp53;
+    const float tmp55 = tmp54 - a_lp[2];
+    const float tmp56 = carry[0] /* tmp3 */ * tmp55;
+    const float tmp57 = a_lp[2] + tmp56;
+    a_lp_out[2] = tmp57;
+    const float tmp58 = 1.0f + dt;
+    const float tmp59 = dt / tmp58;
+    const float tmp60 = (mask[2]) ? 1.0f : tmp59;
+    const float tmp61 = carry[4] /* tmp21 */ * dt;
+    const float tmp62 = v_ins[0] + tmp61;
+    const float tmp63 = (mask[1]) ? vel[0] : tmp62;
+    v_ins_out[0] = tmp63;
+    const float tmp64 = tmp63 - v_lp[0];
+    const float tmp65 = tmp60 * tmp64;
+    const float tmp66 = v_lp[0] + tmp65;
+    const float tmp67 = (mask[0]) ? tmp66 : v_lp[0];
+    v_lp_out[0] = tmp67;
+    const float tmp68 = carry[9] /* tmp39 */ * dt;
+    const float tmp69 = v_ins[1] + tmp68;
+    const float tmp70 = (mask[1]) ? vel[1] : tmp69;
+    v_ins_out[1] = tmp70;
+    const float tmp71 = tmp70 - v_lp[1];
+    const float tmp72 = tmp60 * tmp71;
+    const float tmp73 = v_lp[1] + tmp72;
+    const float tmp74 = (mask[0]) ? tmp73 : v_lp[1];
+    v_lp_out[1] = tmp74;
+    const float tmp75 = tmp54 + 9.80665f /* G0 */;
+    const float tmp76 = tmp75 * dt;
+    const float tmp77 = v_ins[2] + tmp76;
+    const float tmp78 = (mask[1]) ? vel[2] : tmp77;
+    v_ins_out[2] = tmp78;
+    const float tmp79 = tmp78 - v_lp[2];
+    carry[0] = tmp42;
+    carry[1] = tmp57;
+    carry[2] = tmp60;
+    carry[3] = tmp63;
+    carry[4] = tmp67;
+    carry[6] = tmp70;
+    carry[7] = tmp74;
+    carry[8] = tmp78;
+    carry[9] = tmp79;
 }
 
-static void mekf_k_accel_lowpass_part2(const bool mask[3], float up_out[3], bool *up_ok,
-    const float carry[11])
+static void mekf_k_accel_lowpass_part2(const bool mask[3], const float v_lp[3], float lp_time,
+    float dt, float v_lp_out[3], float *lp_time_out, float up_out[3], bool *up_ok,
+    const float carry[10])
 {
-    const float tmp80 = carry[5] /* tmp23 */ - carry[7] /* tmp79 */;
-    const float tmp81 = (mask[0]) ? tmp80 : carry[5] /* tmp23 */;
-    up_out[0] = tmp81;
-    const float tmp82 = carry[2] /* tmp66 */ - carry[3] /* tmp70 */;
-    const float tmp83 = carry[0] /* tmp41 */ - tmp82;
-    const float tmp84 = (mask[0]) ? tmp83 : carry[0] /* tmp41 */;
-    up_out[1] = tmp84;
-    const float tmp85 = carry[4] /* tmp74 */ - carry[6] /* tmp78 */;
-    const float tmp86 = carry[1] /* tmp56 */ - tmp85;
-    const float tmp87 = (mask[0]) ? tmp86 : carry[1] /* tmp56 */;
-    up_out[2] = tmp87;
-    const float tmp88 = tmp81 * tmp81;
-    const float tmp89 = tmp84 * tmp84;
-    const float tmp90 = tmp88 + tmp89;
-    const float tmp91 = tmp87 * tmp87;
-    const float tmp92 = tmp90 + tmp91;
-    const bool tmp93 = 0.25f /* accel_min_norm*accel_min_norm */ < tmp92;
-    *up_ok = tmp93;
+    const float tmp80 = carry[2] /* tmp60 */ * carry[9] /* tmp79 */;
+    const float tmp81 = v_lp[2] + tmp80;
+    const float tmp82 = (mask[0]) ? tmp81 : v_lp[2];
+    v_lp_out[2] = tmp82;
+    const float tmp83 = lp_time + dt;
+    const float tmp84 = (tmp83 < 1.0f) ? tmp83 : 1.0f;
+    const float tmp85 = (mask[2]) ? lp_time : tmp84;
+    *lp_time_out = tmp85;
+    const float tmp86 = carry[3] /* tmp63 */ - carry[4] /* tmp67 */;
+    const float tmp87 = carry[5] /* tmp24 */ - tmp86;
+    const float tmp88 = (mask[0]) ? tmp87 : carry[5] /* tmp24 */;
+    up_out[0] = tmp88;
+    const float tmp89 = carry[6] /* tmp70 */ - carry[7] /* tmp74 */;
+    const float tmp90 = carry[0] /* tmp42 */ - tmp89;
+    const float tmp91 = (mask[0]) ? tmp90 : carry[0] /* tmp42 */;
+    up_out[1] = tmp91;
+    const float tmp92 = carry[8] /* tmp78 */ - tmp82;
+    const float tmp93 = carry[1] /* tmp57 */ - tmp92;
+    const float tmp94 = (mask[0]) ? tmp93 : carry[1] /* tmp57 */;
+    up_out[2] = tmp94;
+    const float tmp95 = tmp88 * tmp88;
+    const float tmp96 = tmp91 * tmp91;
+    const float tmp97 = tmp95 + tmp96;
+    const float tmp98 = tmp94 * tmp94;
+    const float tmp99 = tmp97 + tmp98;
+    const bool tmp100 = 0.25f /* accel_min_norm*accel_min_norm */ < tmp99;
+    *up_ok = tmp100;
 }
 
 /*
  * earth-frame low-pass of the compensated specific force; outputs are stored as soon as computed,
  * each after the last read of what it overwrites: a_lp_out may be a_lp itself, v_lp_out may be v_lp
- * itself, v_ins_out may be v_ins itself, no other argument may overlap an output
+ * itself, v_ins_out may be v_ins itself, lp_time_out may be lp_time itself, no other argument may
+ * overlap an output
  *
  * Args:
  *     q: float[4]
@@ -1692,21 +1703,24 @@ static void mekf_k_accel_lowpass_part2(const bool mask[3], float up_out[3], bool
  *     a_lp: float[3]
  *     v_lp: float[3]
  *     v_ins: float[3]
+ *     lp_time: float
  *     dt: float
  * Outputs:
  *     a_lp_out: float[3]
  *     v_lp_out: float[3]
  *     v_ins_out: float[3]
+ *     lp_time_out: float
  *     up_out: float[3]
  *     up_ok: bool
  *
- * Total ops: 94 (add 52, mul 30, div 1, cmp 11)
+ * Total ops: 101 (add 54, mul 30, div 2, cmp 15)
  */
 static void mekf_k_accel_lowpass(const float q[restrict 4], const float b[restrict 3],
     const float gyro[restrict 3], const float accel[restrict 3], const float vel[restrict 3],
     const float acc_n[restrict 3], const bool mask[restrict 3], const float a_lp[3],
-    const float v_lp[3], const float v_ins[3], float dt, float a_lp_out[3], float v_lp_out[3],
-    float v_ins_out[3], float up_out[restrict 3], bool *restrict up_ok)
+    const float v_lp[3], const float v_ins[3], float lp_time, float dt, float a_lp_out[3],
+    float v_lp_out[3], float v_ins_out[3], float *lp_time_out, float up_out[restrict 3],
+    bool *restrict up_ok)
 {
     (void)b;
     (void)gyro;
@@ -1715,11 +1729,12 @@ static void mekf_k_accel_lowpass(const float q[restrict 4], const float b[restri
      * 3 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
      * handed between them (a slot reused once its value is dead)
      */
-    float carry[11];
-    mekf_k_accel_lowpass_part0(q, accel, mask, a_lp, dt, a_lp_out, carry);
+    float carry[10];
+    mekf_k_accel_lowpass_part0(q, accel, mask, a_lp, lp_time, dt, a_lp_out, carry);
     mekf_k_accel_lowpass_part1(accel, vel, mask, a_lp, v_lp, v_ins, dt, a_lp_out, v_lp_out,
             v_ins_out, carry);
-    mekf_k_accel_lowpass_part2(mask, up_out, up_ok, carry);
+    mekf_k_accel_lowpass_part2(mask, v_lp, lp_time, dt, v_lp_out, lp_time_out, up_out, up_ok,
+            carry);
 }
 
 static void mekf_k_heading_features_part0(const float q[4], const float mag[3], float carry[13])
@@ -4592,6 +4607,7 @@ void mekf_init(mekf_state *s)
     s->a_lp[0] = 0.0f;
     s->a_lp[1] = 0.0f;
     s->a_lp[2] = 0.0f;
+    s->lp_time = 0.0f;
     s->v_lp[0] = 0.0f;
     s->v_lp[1] = 0.0f;
     s->v_lp[2] = 0.0f;
@@ -4746,6 +4762,7 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
         if (use_tilt) {
             const bool use_head[2] = { course_sample, !course_sample && use_mag };
             mekf_k_init_attitude(in->accel, mag_in, vel_in, use_head, s->q, s->a_lp);
+            s->lp_time = dt;   /* a_lp is this sample: the warm start averages on from it */
             if (course_sample || use_mag) {
                 s->head_age = 0.0f;
             }
@@ -4816,10 +4833,11 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
             }
             s->vlp_ok = 1u;
         }
-        bool up_ok;   /* a_lp, v_lp, v_ins in place */
+        bool up_ok;   /* a_lp, v_lp, v_ins, lp_time in place */
         const bool lp_mask[3] = { m_comp, use_gps, recovering };
         mekf_k_accel_lowpass(q, s->gyro_bias, in->gyro, in->accel, s->v_gps, s->a_gps, lp_mask,
-            s->a_lp, s->v_lp, s->v_ins, dt, s->a_lp, s->v_lp, s->v_ins, up, &up_ok);
+            s->a_lp, s->v_lp, s->v_ins, s->lp_time, dt, s->a_lp, s->v_lp, s->v_ins, &s->lp_time,
+            up, &up_ok);
         use_tilt = up_ok;   /* a direction to correct the tilt with */
     }
 

@@ -257,11 +257,12 @@ def test_lowpass_removes_a_steady_motion_acceleration_exactly(dt):
     a = np.array([3.0, -1.5, 0.8])                   # m/s^2, NED
     g = np.array([0.0, 0.0, M.G0])
     q = np.array([1.0, 0.0, 0.0, 0.0])               # body = NED: f in body axes = f in NED
-    a_lp, v_lp, v_ins = np.zeros(3), np.zeros(3), np.zeros(3)
+    a_lp, v_lp, v_ins, lp_time = np.zeros(3), np.zeros(3), np.zeros(3), 0.0
     for k in range(int(round(15 * p["accel_lpf_tau"] / dt))):
         mask = [1.0, 1.0 if k == 0 else 0.0, 0.0]    # one GPS sample at the start, then none
         out = fn(q=q, b=np.zeros(3), gyro=np.zeros(3), accel=a - g, vel=np.zeros(3), acc_n=np.zeros(3),
-                 mask=mask, a_lp=a_lp, v_lp=v_lp, v_ins=v_ins, dt=dt)
+                 mask=mask, a_lp=a_lp, v_lp=v_lp, v_ins=v_ins, lp_time=lp_time, dt=dt)
         a_lp, v_lp, v_ins = (np.asarray(out[n]).ravel() for n in ("a_lp_out", "v_lp_out", "v_ins_out"))
+        lp_time = float(out["lp_time_out"])
         up = np.asarray(out["up_out"]).ravel()
     assert np.linalg.norm(up - (-g)) < 1e-4 * M.G0, up
