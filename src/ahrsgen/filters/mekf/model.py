@@ -294,7 +294,8 @@ def accel_lowpass_function(p: dict, name="accel_lowpass") -> ca.Function:
 
     Returns the new a_lp, the new v_lp and `up`, the low-passed specific force with the
     low-passed kinematic acceleration removed: for motion_comp = 'gps_lowpass' (m_comp = 1)
-    the GPS velocity goes through the low-pass once warm, v_lp ← v_lp + α_v (v − v_lp), and
+    the GPS velocity goes through a low-pass of the same τ without the warm start,
+    v_lp ← v_lp + α_v (v − v_lp), and
     (v − v_lp)/τ, with v_lp already updated, is exactly the same discrete low-pass applied to
     the velocity's differences (v_k − v_{k−1})/dt (the low-pass of a derivative is the derivative
     of the low-pass); up = a_lp − (v − v_lp)/τ. Otherwise up = a_lp. up_ok: |up| above
