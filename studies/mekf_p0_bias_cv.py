@@ -11,7 +11,7 @@ there by a 7x larger accel_noise_density; the accelerometer noise the filter cou
 not explain that (studies/mekf_accel_noise_estimate.py). The other candidate is the prior: with
 p0_bias 0.01 rad/s (0.57 deg/s) the early tilt errors the vibration leaves go into the gyro bias;
 the multirotor's bias is 0.05-0.3 deg/s. Measured (seeds 0-2, 240 s, 5-15 s / 15-120 s / 120-240 s
-at 1 kHz): 0.01: 0.88 / 0.26 / 0.20; 0.003: 0.57 / 0.29 / 0.20; 0.03: 1.49 / 0.24 / 0.20.
+at 1 kHz, mekf_multirotor_windows.windows with these settings): 0.01: 0.88 / 0.26 / 0.20; 0.003: 0.57 / 0.29 / 0.20; 0.03: 1.49 / 0.24 / 0.20.
 
 Scenario entries and admissibility as studies/mekf_warm_start_cv.py (multirotor at 1.0 degree or
 less, fixed-wing at 0.40 or less (FIXEDWING_MAX), the outage, attached magnet, hand-held and gyro-clip entries no
