@@ -38,12 +38,12 @@ from mekf_mag_dev_cv import MULTIROTOR_MAX, RATES
 from ahrsgen.sim.scenarios import make
 
 SEEDS = range(3)
-BEFORE = {"p0_bias": 0.01}
+BEFORE = {"p0_bias": 0.01, "accel_bias_gain": 0.0}     # measured before accel_bias_gain
 
 
 def candidates():
     for v in (0.02, 0.01, 0.007, 0.005, 0.003):
-        yield {"p0_bias": v}
+        yield {"p0_bias": v, "accel_bias_gain": 0.0}
 
 
 def main(argv=None):

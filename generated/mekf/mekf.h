@@ -237,6 +237,18 @@ extern "C" {
                                            0.07 by leave-one-BROAD-group-out with the scenarios at
                                            12.5 Hz to 1 kHz (studies/mekf_accel_density_cv.py,
                                            docs/mekf.md) [rad*sqrt(s)] */
+#define MEKF_ACCEL_BIAS_GAIN 100.0f     /* measurement = 'vectors': accel_noise_density's term of
+                                           the gravity variance is multiplied by 1 + accel_bias_gain
+                                           * p_bb / p0_bias^2, p_bb the mean of the gyro bias's
+                                           variances: the accelerometer is trusted less while the
+                                           bias is still being learned (at the start p_bb =
+                                           p0_bias^2), since what the tilt takes then (manoeuvres,
+                                           the vibration the low-pass leaves) goes into the bias. 0
+                                           = off. 100 chosen by leave-one-BROAD-group-out at
+                                           286/143/95/48 Hz with the scenarios
+                                           (studies/mekf_bias_gain_cv.py, docs/mekf.md): BROAD
+                                           unchanged, multirotor 250 / 400 / 1k 0.49 / 0.41 / 0.38
+                                           -> 0.38 / 0.33 / 0.26 deg, fixed-wing 0.38 -> 0.35 */
 #define MEKF_COURSE_NOISE 0.05f         /* standard deviation of the GPS course as a heading (covers
                                            sideslip and wind crab) [rad] */
 #define MEKF_MAG_HEADING_NOISE 0.1f     /* measurement = 'euler_angles' (the patent's design):

@@ -371,12 +371,13 @@ def _inject(q, b, X):
     return quat.qnormalize(quat.qmul(q, quat.vec(1, X[0], X[1], X[2]))), b + X[3:6]
 
 
-def gravity_rows(p: dict, q, up, recover, dt, turn=None):
+def gravity_rows(p: dict, q, up, recover, dt, turn=None, p_bb=None):
     """The gravity-direction measurement: H's attitude columns Hq (3 x 3; the bias columns are
     0), innovations z and their variance r.
 
     z_g = up/|up| in body axes − R(q̂)ᵀ [0, 0, −1] (up: accel_lowpass's earth-frame vector); R_g = σ² min(1 + |z_g|²/(3σ)², cap), σ² = accel_angle_noise² + accel_noise_density²/dt
-    (bounded residual adaptation: the correction can be weakened, never locked out).
+    (bounded residual adaptation: the correction can be weakened, never locked out); p_bb given
+    (the sum of P's gyro-bias diagonal), the density term times 1 + accel_bias_gain p_bb / (3 p0_bias²).
     With GPS (`turn` = (gyro, b̂, v, unobserved)): while the last GPS velocity is stale
     (unobserved = 1: no motion compensation) σ² gains (ω_v |v_h| / g)², the angle by which a turn
     at the last GPS ground speed |v_h| tilts the specific force (ω_v = (gyro − b̂) · R(q̂)ᵀ e₃, the
@@ -388,7 +389,12 @@ def gravity_rows(p: dict, q, up, recover, dt, turn=None):
     # the motion the low-pass leaves (per sample) and the sensor's white noise (a density over dt)
     sig2 = p["accel_angle_noise"] ** 2
     if not (isinstance(p["accel_noise_density"], (int, float)) and p["accel_noise_density"] == 0):
-        sig2 = sig2 + p["accel_noise_density"] ** 2 / ca.fmax(dt, use(DT_Q_MIN))
+        white = p["accel_noise_density"] ** 2 / ca.fmax(dt, use(DT_Q_MIN))
+        if p_bb is not None and not (isinstance(p["accel_bias_gain"], (int, float)) and p["accel_bias_gain"] == 0):
+            # trusted less while the gyro bias is still uncertain (its variance, the mean of P's
+            # bias diagonal, against its start p0_bias²): what the tilt then takes goes into the bias
+            white = white * (1 + p_bb * (p["accel_bias_gain"] / (3 * p["p0_bias"] * p["p0_bias"])))
+        sig2 = sig2 + white
     if turn is not None:
         # unobserved motion: a turn at the last GPS ground speed, as an angle (centripetal / g)
         gyro, b, vel, unobserved = turn
@@ -412,7 +418,8 @@ def update_gravity_function(p: dict, gps: bool = False, name="update_gravity") -
     if gps:
         turn = tuple(ca.SX.sym(n, k) for n, k in (("gyro", 3), ("b", 3), ("vel", 3), ("unobserved", 1)))
         ins |= dict(zip(("gyro", "b", "vel", "unobserved"), turn))
-    Hq, z, r = gravity_rows(p, q, up, recover, dt, turn)
+    p_bb = Pv[3 + N * 3] + Pv[4 + N * 4] + Pv[5 + N * 5]     # the gyro bias's variances (3 times their mean)
+    Hq, z, r = gravity_rows(p, q, up, recover, dt, turn, p_bb)
     rows = [(ca.horzcat(Hq[i, :], ca.SX.zeros(1, 3)), z[i], r) for i in range(3)]
     x_new, P_new, min_pivot = kalman.scalar_updates(sym_lower(Pv), rows, tol=S_PIVOT_MIN)
     return emit.function(name, ins | {"P": Pv},

@@ -167,7 +167,7 @@ class Reference:
                       "rest_tau", "mag_norm_th", "mag_dip_th", "mag_learn_time", "mag_reject_max",
                       "mag_ref_tau", "mag_new_time", "course_max_sideslip", "gyro_full_scale",
                       "clip_recovery_time", "gyro_rate_noise", "mag_heading_density", "accel_noise_density",
-                      "mag_dev_gain", "gyro_step_noise"):
+                      "mag_dev_gain", "gyro_step_noise", "accel_bias_gain"):
                 setattr(self, k, float(p[k]))
             self.accel_lpf_warm = bool(p["accel_lpf_warm"])
             self.clip = GyroClip(self.gyro_full_scale, float(p["gyro_plateau_rate"]), self.clip_recovery_time)
@@ -571,7 +571,11 @@ class Reference:
             d = Rq.T @ up / np.sqrt(up @ up)
             g_hat = Rq.T @ np.array([0.0, 0.0, -1.0])
             z_g = d - g_hat
-            sig2 = self.accel_angle_noise ** 2 + self.accel_noise_density ** 2 / max(dt, DT_Q_MIN)
+            # the white-noise term grows while the gyro bias is uncertain: its mean variance
+            # against p0_bias²
+            bias_var = (P[3, 3] + P[4, 4] + P[5, 5]) / 3.0
+            sig2 = self.accel_angle_noise ** 2 + self.accel_noise_density ** 2 / max(dt, DT_Q_MIN) * (
+                1.0 + self.accel_bias_gain * bias_var / self.p0_bias ** 2)
             if self.uses_gps and not fresh:
                 # no motion compensation: a turn at the last GPS ground speed bends the specific
                 # force by ω_v |v_h| / g (ω_v the turn rate about the vertical)
