@@ -13,7 +13,8 @@ warm start), and single changes towards the per-rate tunes (`ahrsgen tune mekf -
 multirotor --seeds 3 --scenario-opt rate_hz=... --scenario-opt mag_rate=100`, six noise
 parameters, budget 120, in-sample) and the 1 kHz tune itself. No BROAD files needed.
 
-Result (2026-12-04, after the warm start): the second period is 0.22 / 0.20 deg at the defaults
+Result (2026-12-04, after the warm start, before accel_bias_gain: add accel_bias_gain=0 to a row
+to reproduce it): the second period is 0.22 / 0.20 deg at the defaults
 and no better with the 1 kHz tune (0.20 / 0.21); what the tune gains is the start (5-15 s 1.04 /
 0.88 -> 0.52 / 0.39 deg: accel_noise_density 0.027, trusting the vibrating accelerometer less,
 does that alone, and loses the second period, 0.27 / 0.28) and the heading of 15-120 s (a clean
