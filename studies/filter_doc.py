@@ -42,8 +42,10 @@ SCENARIO_ROWS = {
         ("fixedwing_gps", ""), ("fixedwing_gps", "motion_comp=centripetal"),
         ("fixedwing_gps", "preset faithful"), ("fixedwing_gps_100hz", ""),
         ("multirotor", ""), ("multirotor", "heading_source=gps_course"),
-        ("multirotor_400hz", ""), ("multirotor_400hz_repeated", ""),
-        ("multirotor_1khz", ""), ("multirotor_1khz", "accel_noise_density=0"),
+        ("multirotor_400hz", ""), ("multirotor_400hz", "accel_lpf_warm=false"),
+        ("multirotor_400hz_repeated", ""),
+        ("multirotor_1khz", ""), ("multirotor_1khz", "accel_lpf_warm=false"),
+        ("multirotor_1khz", "accel_noise_density=0"), ("multirotor_1khz", "accel_bias_gain=0"),
         ("multirotor_jitter_dropouts", ""), ("static_accel_disturbance", ""),
         ("static_mag_disturbance", ""), ("turntable", ""),
         ("gyro_clip", ""), ("gyro_clip", "gyro_full_scale=0"),
@@ -82,8 +84,8 @@ SCENARIO_ROWS = {
 # rows of the `params` block
 PARAMS = {
     "mekf": ["measurement", "heading_source", "motion_comp", "gyro_noise", "gyro_rate_noise",
-             "gyro_bias_rw", "accel_angle_noise", "accel_noise_density", "accel_lpf_tau",
-             "accel_adapt_cap", "course_noise", "course_max_sideslip", "gps_min_speed",
+             "gyro_bias_rw", "accel_angle_noise", "accel_noise_density", "accel_bias_gain", "accel_lpf_tau",
+             "accel_lpf_warm", "accel_adapt_cap", "course_noise", "course_max_sideslip", "gps_min_speed",
              "gps_vel_timeout", "mag_heading_noise", "mag_heading_density", "mag_norm_th",
              "mag_dip_th", "mag_learn_time", "mag_ref_tau", "mag_new_time", "mag_reject_max",
              "mag_bias", "mag_bias_rw", "mag_bias_noise", "mag_bias_min_rate", "mag_bias_settle",

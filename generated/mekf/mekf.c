@@ -19,10 +19,10 @@
  * last read of the input element it may overwrite: q_out may be q itself; no other argument
  * may overlap an output. Also: mekf_k_accel_lowpass stores each output as soon as it is
  * computed, after the last read of the input element it may overwrite: a_lp_out may be a_lp
- * itself, v_lp_out may be v_lp itself, v_ins_out may be v_ins itself; no other argument may
- * overlap an output. Also: mekf_k_update_gravity stores each output as soon as it is computed,
- * after the last read of the input element it may overwrite: P_out may be P itself; no other
- * argument may overlap an output.
+ * itself, v_lp_out may be v_lp itself, v_ins_out may be v_ins itself, lp_time_out may be
+ * lp_time itself; no other argument may overlap an output. Also: mekf_k_update_gravity stores
+ * each output as soon as it is computed, after the last read of the input element it may
+ * overwrite: P_out may be P itself; no other argument may overlap an output.
  */
 #include "mekf.h"
 
@@ -1536,150 +1536,161 @@ static void mekf_k_predict_covariance(const float F_q[9], const float F_b[9], co
 }
 
 static void mekf_k_accel_lowpass_part0(const float q[4], const float accel[3], const bool mask[3],
-    const float a_lp[3], float dt, float a_lp_out[3], float carry[11])
+    const float a_lp[3], float lp_time, float dt, float a_lp_out[3], float carry[10])
 {
-    const float tmp0 = 1.0f + dt;
-    const float tmp1 = dt / tmp0;
-    const float tmp2 = (mask[2]) ? 1.0f : tmp1;
-    const float tmp3 = q[2] * q[2];
-    const float tmp4 = q[3] * q[3];
-    const float tmp5 = tmp3 + tmp4;
-    const float tmp6 = tmp5 + tmp5;
-    const float tmp7 = 1.0f - tmp6;
-    const float tmp8 = tmp7 * accel[0];
-    const float tmp9 = q[1] * q[2];
-    const float tmp10 = q[0] * q[3];
-    const float tmp11 = tmp9 - tmp10;
-    const float tmp12 = tmp11 + tmp11;
-    const float tmp13 = tmp12 * accel[1];
-    const float tmp14 = tmp8 + tmp13;
-    const float tmp15 = q[1] * q[3];
-    const float tmp16 = q[0] * q[2];
-    const float tmp17 = tmp15 + tmp16;
-    const float tmp18 = tmp17 + tmp17;
-    const float tmp19 = tmp18 * accel[2];
-    const float tmp20 = tmp14 + tmp19;
-    const float tmp21 = tmp20 - a_lp[0];
-    const float tmp22 = tmp2 * tmp21;
-    const float tmp23 = a_lp[0] + tmp22;
-    a_lp_out[0] = tmp23;
-    const float tmp24 = tmp9 + tmp10;
-    const float tmp25 = tmp24 + tmp24;
-    const float tmp26 = tmp25 * accel[0];
-    const float tmp27 = q[1] * q[1];
-    const float tmp28 = tmp27 + tmp4;
-    const float tmp29 = tmp28 + tmp28;
-    const float tmp30 = 1.0f - tmp29;
-    const float tmp31 = tmp30 * accel[1];
-    const float tmp32 = tmp26 + tmp31;
-    const float tmp33 = q[2] * q[3];
-    const float tmp34 = q[0] * q[1];
-    const float tmp35 = tmp33 - tmp34;
-    const float tmp36 = tmp35 + tmp35;
-    const float tmp37 = tmp36 * accel[2];
-    const float tmp38 = tmp32 + tmp37;
-    const float tmp39 = tmp38 - a_lp[1];
-    carry[0] = tmp2;
-    carry[1] = tmp3;
-    carry[2] = tmp15;
-    carry[3] = tmp16;
-    carry[4] = tmp20;
-    carry[5] = tmp23;
-    carry[6] = tmp27;
-    carry[7] = tmp33;
-    carry[8] = tmp34;
-    carry[9] = tmp38;
-    carry[10] = tmp39;
+    const float tmp0 = (lp_time < 1.0f) ? lp_time : 1.0f;
+    const float tmp1 = tmp0 + dt;
+    const float tmp2 = dt / tmp1;
+    const float tmp3 = (mask[2]) ? 1.0f : tmp2;
+    const float tmp4 = q[2] * q[2];
+    const float tmp5 = q[3] * q[3];
+    const float tmp6 = tmp4 + tmp5;
+    const float tmp7 = tmp6 + tmp6;
+    const float tmp8 = 1.0f - tmp7;
+    const float tmp9 = tmp8 * accel[0];
+    const float tmp10 = q[1] * q[2];
+    const float tmp11 = q[0] * q[3];
+    const float tmp12 = tmp10 - tmp11;
+    const float tmp13 = tmp12 + tmp12;
+    const float tmp14 = tmp13 * accel[1];
+    const float tmp15 = tmp9 + tmp14;
+    const float tmp16 = q[1] * q[3];
+    const float tmp17 = q[0] * q[2];
+    const float tmp18 = tmp16 + tmp17;
+    const float tmp19 = tmp18 + tmp18;
+    const float tmp20 = tmp19 * accel[2];
+    const float tmp21 = tmp15 + tmp20;
+    const float tmp22 = tmp21 - a_lp[0];
+    const float tmp23 = tmp3 * tmp22;
+    const float tmp24 = a_lp[0] + tmp23;
+    a_lp_out[0] = tmp24;
+    const float tmp25 = tmp10 + tmp11;
+    const float tmp26 = tmp25 + tmp25;
+    const float tmp27 = tmp26 * accel[0];
+    const float tmp28 = q[1] * q[1];
+    const float tmp29 = tmp28 + tmp5;
+    const float tmp30 = tmp29 + tmp29;
+    const float tmp31 = 1.0f - tmp30;
+    const float tmp32 = tmp31 * accel[1];
+    const float tmp33 = tmp27 + tmp32;
+    const float tmp34 = q[2] * q[3];
+    const float tmp35 = q[0] * q[1];
+    const float tmp36 = tmp34 - tmp35;
+    const float tmp37 = tmp36 + tmp36;
+    const float tmp38 = tmp37 * accel[2];
+    const float tmp39 = tmp33 + tmp38;
+    carry[0] = tmp3;
+    carry[1] = tmp4;
+    carry[2] = tmp16;
+    carry[3] = tmp17;
+    carry[4] = tmp21;
+    carry[5] = tmp24;
+    carry[6] = tmp28;
+    carry[7] = tmp34;
+    carry[8] = tmp35;
+    carry[9] = tmp39;
 }
 
 static void mekf_k_accel_lowpass_part1(const float accel[3], const float vel[3], const bool mask[3],
     const float a_lp[3], const float v_lp[3], const float v_ins[3], float dt, float a_lp_out[3],
-    float v_lp_out[3], float v_ins_out[3], float carry[11])
+    float v_lp_out[3], float v_ins_out[3], float carry[10])
 {
-    const float tmp40 = carry[0] /* tmp2 */ * carry[10] /* tmp39 */;
-    const float tmp41 = a_lp[1] + tmp40;
-    a_lp_out[1] = tmp41;
-    const float tmp42 = carry[2] /* tmp15 */ - carry[3] /* tmp16 */;
-    const float tmp43 = tmp42 + tmp42;
-    const float tmp44 = tmp43 * accel[0];
-    const float tmp45 = carry[7] /* tmp33 */ + carry[8] /* tmp34 */;
-    const float tmp46 = tmp45 + tmp45;
-    const float tmp47 = tmp46 * accel[1];
-    const float tmp48 = tmp44 + tmp47;
-    const float tmp49 = carry[6] /* tmp27 */ + carry[1] /* tmp3 */;
-    const float tmp50 = tmp49 + tmp49;
-    const float tmp51 = 1.0f - tmp50;
-    const float tmp52 = tmp51 * accel[2];
-    const float tmp53 = tmp48 + tmp52;
-    const float tmp54 = tmp53 - a_lp[2];
-    const float tmp55 = carry[0] /* tmp2 */ * tmp54;
-    const float tmp56 = a_lp[2] + tmp55;
-    a_lp_out[2] = tmp56;
-    const float tmp57 = carry[4] /* tmp20 */ * dt;
-    const float tmp58 = v_ins[0] + tmp57;
-    const float tmp59 = (mask[1]) ? vel[0] : tmp58;
-    v_ins_out[0] = tmp59;
-    const float tmp60 = tmp59 - v_lp[0];
-    const float tmp61 = carry[0] /* tmp2 */ * tmp60;
-    const float tmp62 = v_lp[0] + tmp61;
-    const float tmp63 = (mask[0]) ? tmp62 : v_lp[0];
-    v_lp_out[0] = tmp63;
-    const float tmp64 = carry[9] /* tmp38 */ * dt;
-    const float tmp65 = v_ins[1] + tmp64;
-    const float tmp66 = (mask[1]) ? vel[1] : tmp65;
-    v_ins_out[1] = tmp66;
-    const float tmp67 = tmp66 - v_lp[1];
-    const float tmp68 = carry[0] /* tmp2 */ * tmp67;
-    const float tmp69 = v_lp[1] + tmp68;
-    const float tmp70 = (mask[0]) ? tmp69 : v_lp[1];
-    v_lp_out[1] = tmp70;
-    const float tmp71 = tmp53 + 9.80665f /* G0 */;
-    const float tmp72 = tmp71 * dt;
-    const float tmp73 = v_ins[2] + tmp72;
-    const float tmp74 = (mask[1]) ? vel[2] : tmp73;
-    v_ins_out[2] = tmp74;
-    const float tmp75 = tmp74 - v_lp[2];
-    const float tmp76 = carry[0] /* tmp2 */ * tmp75;
-    const float tmp77 = v_lp[2] + tmp76;
-    const float tmp78 = (mask[0]) ? tmp77 : v_lp[2];
-    v_lp_out[2] = tmp78;
-    const float tmp79 = tmp59 - tmp63;
-    carry[0] = tmp41;
-    carry[1] = tmp56;
-    carry[2] = tmp66;
-    carry[3] = tmp70;
-    carry[4] = tmp74;
-    carry[6] = tmp78;
-    carry[7] = tmp79;
+    const float tmp40 = carry[9] /* tmp39 */ - a_lp[1];
+    const float tmp41 = carry[0] /* tmp3 */ * tmp40;
+    const float tmp42 = a_lp[1] + tmp41;
+    a_lp_out[1] = tmp42;
+    const float tmp43 = carry[2] /* tmp16 */ - carry[3] /* tmp17 */;
+    const float tmp44 = tmp43 + tmp43;
+    const float tmp45 = tmp44 * accel[0];
+    const float tmp46 = carry[7] /* tmp34 */ + carry[8] /* tmp35 */;
+    const float tmp47 = tmp46 + tmp46;
+    const float tmp48 = tmp47 * accel[1];
+    const float tmp49 = tmp45 + tmp48;
+    const float tmp50 = carry[6] /* tmp28 */ + carry[1] /* tmp4 */;
+    const float tmp51 = tmp50 + tmp50;
+    const float tmp52 = 1.0f - tmp51;
+    const float tmp53 = tmp52 * accel[2];
+    const float tmp54 = tmp49 + tmp53;
+    const float tmp55 = tmp54 - a_lp[2];
+    const float tmp56 = carry[0] /* tmp3 */ * tmp55;
+    const float tmp57 = a_lp[2] + tmp56;
+    a_lp_out[2] = tmp57;
+    const float tmp58 = 1.0f + dt;
+    const float tmp59 = dt / tmp58;
+    const float tmp60 = (mask[2]) ? 1.0f : tmp59;
+    const float tmp61 = carry[4] /* tmp21 */ * dt;
+    const float tmp62 = v_ins[0] + tmp61;
+    const float tmp63 = (mask[1]) ? vel[0] : tmp62;
+    v_ins_out[0] = tmp63;
+    const float tmp64 = tmp63 - v_lp[0];
+    const float tmp65 = tmp60 * tmp64;
+    const float tmp66 = v_lp[0] + tmp65;
+    const float tmp67 = (mask[0]) ? tmp66 : v_lp[0];
+    v_lp_out[0] = tmp67;
+    const float tmp68 = carry[9] /* tmp39 */ * dt;
+    const float tmp69 = v_ins[1] + tmp68;
+    const float tmp70 = (mask[1]) ? vel[1] : tmp69;
+    v_ins_out[1] = tmp70;
+    const float tmp71 = tmp70 - v_lp[1];
+    const float tmp72 = tmp60 * tmp71;
+    const float tmp73 = v_lp[1] + tmp72;
+    const float tmp74 = (mask[0]) ? tmp73 : v_lp[1];
+    v_lp_out[1] = tmp74;
+    const float tmp75 = tmp54 + 9.80665f /* G0 */;
+    const float tmp76 = tmp75 * dt;
+    const float tmp77 = v_ins[2] + tmp76;
+    const float tmp78 = (mask[1]) ? vel[2] : tmp77;
+    v_ins_out[2] = tmp78;
+    const float tmp79 = tmp78 - v_lp[2];
+    carry[0] = tmp42;
+    carry[1] = tmp57;
+    carry[2] = tmp60;
+    carry[3] = tmp63;
+    carry[4] = tmp67;
+    carry[6] = tmp70;
+    carry[7] = tmp74;
+    carry[8] = tmp78;
+    carry[9] = tmp79;
 }
 
-static void mekf_k_accel_lowpass_part2(const bool mask[3], float up_out[3], bool *up_ok,
-    const float carry[11])
+static void mekf_k_accel_lowpass_part2(const bool mask[3], const float v_lp[3], float lp_time,
+    float dt, float v_lp_out[3], float *lp_time_out, float up_out[3], bool *up_ok,
+    const float carry[10])
 {
-    const float tmp80 = carry[5] /* tmp23 */ - carry[7] /* tmp79 */;
-    const float tmp81 = (mask[0]) ? tmp80 : carry[5] /* tmp23 */;
-    up_out[0] = tmp81;
-    const float tmp82 = carry[2] /* tmp66 */ - carry[3] /* tmp70 */;
-    const float tmp83 = carry[0] /* tmp41 */ - tmp82;
-    const float tmp84 = (mask[0]) ? tmp83 : carry[0] /* tmp41 */;
-    up_out[1] = tmp84;
-    const float tmp85 = carry[4] /* tmp74 */ - carry[6] /* tmp78 */;
-    const float tmp86 = carry[1] /* tmp56 */ - tmp85;
-    const float tmp87 = (mask[0]) ? tmp86 : carry[1] /* tmp56 */;
-    up_out[2] = tmp87;
-    const float tmp88 = tmp81 * tmp81;
-    const float tmp89 = tmp84 * tmp84;
-    const float tmp90 = tmp88 + tmp89;
-    const float tmp91 = tmp87 * tmp87;
-    const float tmp92 = tmp90 + tmp91;
-    const bool tmp93 = 0.25f /* accel_min_norm*accel_min_norm */ < tmp92;
-    *up_ok = tmp93;
+    const float tmp80 = carry[2] /* tmp60 */ * carry[9] /* tmp79 */;
+    const float tmp81 = v_lp[2] + tmp80;
+    const float tmp82 = (mask[0]) ? tmp81 : v_lp[2];
+    v_lp_out[2] = tmp82;
+    const float tmp83 = lp_time + dt;
+    const float tmp84 = (tmp83 < 1.0f) ? tmp83 : 1.0f;
+    const float tmp85 = (mask[2]) ? lp_time : tmp84;
+    *lp_time_out = tmp85;
+    const float tmp86 = carry[3] /* tmp63 */ - carry[4] /* tmp67 */;
+    const float tmp87 = carry[5] /* tmp24 */ - tmp86;
+    const float tmp88 = (mask[0]) ? tmp87 : carry[5] /* tmp24 */;
+    up_out[0] = tmp88;
+    const float tmp89 = carry[6] /* tmp70 */ - carry[7] /* tmp74 */;
+    const float tmp90 = carry[0] /* tmp42 */ - tmp89;
+    const float tmp91 = (mask[0]) ? tmp90 : carry[0] /* tmp42 */;
+    up_out[1] = tmp91;
+    const float tmp92 = carry[8] /* tmp78 */ - tmp82;
+    const float tmp93 = carry[1] /* tmp57 */ - tmp92;
+    const float tmp94 = (mask[0]) ? tmp93 : carry[1] /* tmp57 */;
+    up_out[2] = tmp94;
+    const float tmp95 = tmp88 * tmp88;
+    const float tmp96 = tmp91 * tmp91;
+    const float tmp97 = tmp95 + tmp96;
+    const float tmp98 = tmp94 * tmp94;
+    const float tmp99 = tmp97 + tmp98;
+    const bool tmp100 = 0.25f /* accel_min_norm*accel_min_norm */ < tmp99;
+    *up_ok = tmp100;
 }
 
 /*
  * earth-frame low-pass of the compensated specific force; outputs are stored as soon as computed,
  * each after the last read of what it overwrites: a_lp_out may be a_lp itself, v_lp_out may be v_lp
- * itself, v_ins_out may be v_ins itself, no other argument may overlap an output
+ * itself, v_ins_out may be v_ins itself, lp_time_out may be lp_time itself, no other argument may
+ * overlap an output
  *
  * Args:
  *     q: float[4]
@@ -1692,21 +1703,24 @@ static void mekf_k_accel_lowpass_part2(const bool mask[3], float up_out[3], bool
  *     a_lp: float[3]
  *     v_lp: float[3]
  *     v_ins: float[3]
+ *     lp_time: float
  *     dt: float
  * Outputs:
  *     a_lp_out: float[3]
  *     v_lp_out: float[3]
  *     v_ins_out: float[3]
+ *     lp_time_out: float
  *     up_out: float[3]
  *     up_ok: bool
  *
- * Total ops: 94 (add 52, mul 30, div 1, cmp 11)
+ * Total ops: 101 (add 54, mul 30, div 2, cmp 15)
  */
 static void mekf_k_accel_lowpass(const float q[restrict 4], const float b[restrict 3],
     const float gyro[restrict 3], const float accel[restrict 3], const float vel[restrict 3],
     const float acc_n[restrict 3], const bool mask[restrict 3], const float a_lp[3],
-    const float v_lp[3], const float v_ins[3], float dt, float a_lp_out[3], float v_lp_out[3],
-    float v_ins_out[3], float up_out[restrict 3], bool *restrict up_ok)
+    const float v_lp[3], const float v_ins[3], float lp_time, float dt, float a_lp_out[3],
+    float v_lp_out[3], float v_ins_out[3], float *lp_time_out, float up_out[restrict 3],
+    bool *restrict up_ok)
 {
     (void)b;
     (void)gyro;
@@ -1715,11 +1729,12 @@ static void mekf_k_accel_lowpass(const float q[restrict 4], const float b[restri
      * 3 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
      * handed between them (a slot reused once its value is dead)
      */
-    float carry[11];
-    mekf_k_accel_lowpass_part0(q, accel, mask, a_lp, dt, a_lp_out, carry);
+    float carry[10];
+    mekf_k_accel_lowpass_part0(q, accel, mask, a_lp, lp_time, dt, a_lp_out, carry);
     mekf_k_accel_lowpass_part1(accel, vel, mask, a_lp, v_lp, v_ins, dt, a_lp_out, v_lp_out,
             v_ins_out, carry);
-    mekf_k_accel_lowpass_part2(mask, up_out, up_ok, carry);
+    mekf_k_accel_lowpass_part2(mask, v_lp, lp_time, dt, v_lp_out, lp_time_out, up_out, up_ok,
+            carry);
 }
 
 static void mekf_k_heading_features_part0(const float q[4], const float mag[3], float carry[13])
@@ -1867,12 +1882,17 @@ static void mekf_k_update_gravity_part0(const float q[4], float dt, const float 
     const float tmp21 = tmp16 + tmp20;
     const float tmp22 = (dt > 1e-09f /* DT_Q_MIN */) ? dt : 1e-09f /* DT_Q_MIN */;
     const float tmp23 = 1.6e-05f /* accel_noise_density^2 */ / tmp22;
-    const float tmp24 = 0.0049f /* accel_angle_noise^2 */ + tmp23;
-    const float tmp25 = q[1] * q[3];
-    const float tmp26 = q[0] * q[2];
-    const float tmp27 = tmp25 - tmp26;
-    const float tmp28 = tmp27 + tmp27;
-    const float tmp29 = tmp9 + tmp9;
+    const float tmp24 = P[21] + P[28];
+    const float tmp25 = tmp24 + P[35];
+    const float tmp26 = 333333.34f /* accel_bias_gain/(3*p0_bias*p0_bias) */ * tmp25;
+    const float tmp27 = 1.0f + tmp26;
+    const float tmp28 = tmp23 * tmp27;
+    const float tmp29 = 0.0049f /* accel_angle_noise^2 */ + tmp28;
+    const float tmp30 = q[1] * q[3];
+    const float tmp31 = q[0] * q[2];
+    const float tmp32 = tmp30 - tmp31;
+    const float tmp33 = tmp32 + tmp32;
+    const float tmp34 = tmp9 + tmp9;
     carry[0] = tmp0;
     carry[1] = tmp1;
     carry[2] = tmp4;
@@ -1885,513 +1905,513 @@ static void mekf_k_update_gravity_part0(const float q[4], float dt, const float 
     carry[9] = tmp15;
     carry[10] = tmp19;
     carry[11] = tmp21;
-    carry[12] = tmp24;
-    carry[13] = tmp25;
-    carry[14] = tmp26;
-    carry[15] = tmp27;
-    carry[16] = tmp28;
-    carry[17] = tmp29;
+    carry[12] = tmp29;
+    carry[13] = tmp30;
+    carry[14] = tmp31;
+    carry[15] = tmp32;
+    carry[16] = tmp33;
+    carry[17] = tmp34;
 }
 
 static void mekf_k_update_gravity_part1(const float q[4], const float up[3], const float gyro[3],
     const float b[3], const float vel[3], bool unobserved, float carry[48])
 {
-    float tmp30;
+    float tmp35;
     if (unobserved) {
-        const float tmp31 = gyro[0] - b[0];
-        const float tmp32 = tmp31 * carry[16] /* tmp28 */;
-        const float tmp33 = gyro[1] - b[1];
-        const float tmp34 = tmp33 * carry[17] /* tmp29 */;
-        const float tmp35 = tmp32 + tmp34;
-        const float tmp36 = gyro[2] - b[2];
-        const float tmp37 = tmp36 * carry[2] /* tmp4 */;
-        const float tmp38 = tmp35 + tmp37;
-        const float tmp39 = vel[0] * vel[0];
-        const float tmp40 = vel[1] * vel[1];
-        const float tmp41 = tmp39 + tmp40;
-        const float tmp42 = sqrtf(tmp41);
-        const float tmp43 = tmp38 * tmp42;
-        const float tmp44 = tmp43 / 9.80665f /* G0 */;
-        const float tmp45 = tmp44 * tmp44;
-        tmp30 = tmp45;
+        const float tmp36 = gyro[0] - b[0];
+        const float tmp37 = tmp36 * carry[16] /* tmp33 */;
+        const float tmp38 = gyro[1] - b[1];
+        const float tmp39 = tmp38 * carry[17] /* tmp34 */;
+        const float tmp40 = tmp37 + tmp39;
+        const float tmp41 = gyro[2] - b[2];
+        const float tmp42 = tmp41 * carry[2] /* tmp4 */;
+        const float tmp43 = tmp40 + tmp42;
+        const float tmp44 = vel[0] * vel[0];
+        const float tmp45 = vel[1] * vel[1];
+        const float tmp46 = tmp44 + tmp45;
+        const float tmp47 = sqrtf(tmp46);
+        const float tmp48 = tmp43 * tmp47;
+        const float tmp49 = tmp48 / 9.80665f /* G0 */;
+        const float tmp50 = tmp49 * tmp49;
+        tmp35 = tmp50;
     } else {
-        tmp30 = 0.0f;
+        tmp35 = 0.0f;
     }
-    const float tmp46 = carry[12] /* tmp24 */ + tmp30;
-    const float tmp47 = q[3] * q[3];
-    const float tmp48 = carry[1] /* tmp1 */ + tmp47;
-    const float tmp49 = tmp48 + tmp48;
-    const float tmp50 = 1.0f - tmp49;
-    const float tmp51 = tmp50 * up[0];
-    const float tmp52 = q[1] * q[2];
-    const float tmp53 = q[0] * q[3];
-    const float tmp54 = tmp52 + tmp53;
-    const float tmp55 = tmp54 + tmp54;
-    const float tmp56 = tmp55 * up[1];
-    const float tmp57 = tmp51 + tmp56;
-    const float tmp58 = carry[16] /* tmp28 */ * up[2];
+    const float tmp51 = carry[12] /* tmp29 */ + tmp35;
+    const float tmp52 = q[3] * q[3];
+    const float tmp53 = carry[1] /* tmp1 */ + tmp52;
+    const float tmp54 = tmp53 + tmp53;
+    const float tmp55 = 1.0f - tmp54;
+    const float tmp56 = tmp55 * up[0];
+    const float tmp57 = q[1] * q[2];
+    const float tmp58 = q[0] * q[3];
     const float tmp59 = tmp57 + tmp58;
-    const float tmp60 = up[0] * up[0];
-    const float tmp61 = up[1] * up[1];
-    const float tmp62 = tmp60 + tmp61;
-    const float tmp63 = up[2] * up[2];
+    const float tmp60 = tmp59 + tmp59;
+    const float tmp61 = tmp60 * up[1];
+    const float tmp62 = tmp56 + tmp61;
+    const float tmp63 = carry[16] /* tmp33 */ * up[2];
     const float tmp64 = tmp62 + tmp63;
-    const float tmp65 = sqrtf(tmp64);
-    const float tmp66 = 1.0f / tmp65;
-    const float tmp67 = tmp59 * tmp66;
-    const float tmp68 = tmp67 + carry[16] /* tmp28 */;
-    const float tmp69 = tmp52 - tmp53;
-    carry[1] = tmp46;
-    carry[12] = tmp47;
-    carry[16] = tmp66;
-    carry[18] = tmp68;
-    carry[19] = tmp69;
+    const float tmp65 = up[0] * up[0];
+    const float tmp66 = up[1] * up[1];
+    const float tmp67 = tmp65 + tmp66;
+    const float tmp68 = up[2] * up[2];
+    const float tmp69 = tmp67 + tmp68;
+    const float tmp70 = sqrtf(tmp69);
+    const float tmp71 = 1.0f / tmp70;
+    const float tmp72 = tmp64 * tmp71;
+    const float tmp73 = tmp72 + carry[16] /* tmp33 */;
+    const float tmp74 = tmp57 - tmp58;
+    carry[1] = tmp51;
+    carry[12] = tmp52;
+    carry[16] = tmp71;
+    carry[18] = tmp73;
+    carry[19] = tmp74;
 }
 
 static void mekf_k_update_gravity_part2(const float up[3], bool recover, const float P[36],
     float carry[48])
 {
-    const float tmp70 = carry[19] /* tmp69 */ + carry[19] /* tmp69 */;
-    const float tmp71 = tmp70 * up[0];
-    const float tmp72 = carry[0] /* tmp0 */ + carry[12] /* tmp47 */;
-    const float tmp73 = tmp72 + tmp72;
-    const float tmp74 = 1.0f - tmp73;
-    const float tmp75 = tmp74 * up[1];
-    const float tmp76 = tmp71 + tmp75;
-    const float tmp77 = carry[17] /* tmp29 */ * up[2];
-    const float tmp78 = tmp76 + tmp77;
-    const float tmp79 = tmp78 * carry[16] /* tmp66 */;
-    const float tmp80 = tmp79 + carry[17] /* tmp29 */;
-    const float tmp81 = carry[13] /* tmp25 */ + carry[14] /* tmp26 */;
-    const float tmp82 = tmp81 + tmp81;
-    const float tmp83 = tmp82 * up[0];
-    const float tmp84 = carry[4] /* tmp7 */ - carry[5] /* tmp8 */;
-    const float tmp85 = tmp84 + tmp84;
-    const float tmp86 = tmp85 * up[1];
-    const float tmp87 = tmp83 + tmp86;
-    const float tmp88 = carry[2] /* tmp4 */ * up[2];
-    const float tmp89 = tmp87 + tmp88;
-    const float tmp90 = tmp89 * carry[16] /* tmp66 */;
-    const float tmp91 = tmp90 + carry[2] /* tmp4 */;
-    float tmp92;
+    const float tmp75 = carry[19] /* tmp74 */ + carry[19] /* tmp74 */;
+    const float tmp76 = tmp75 * up[0];
+    const float tmp77 = carry[0] /* tmp0 */ + carry[12] /* tmp52 */;
+    const float tmp78 = tmp77 + tmp77;
+    const float tmp79 = 1.0f - tmp78;
+    const float tmp80 = tmp79 * up[1];
+    const float tmp81 = tmp76 + tmp80;
+    const float tmp82 = carry[17] /* tmp34 */ * up[2];
+    const float tmp83 = tmp81 + tmp82;
+    const float tmp84 = tmp83 * carry[16] /* tmp71 */;
+    const float tmp85 = tmp84 + carry[17] /* tmp34 */;
+    const float tmp86 = carry[13] /* tmp30 */ + carry[14] /* tmp31 */;
+    const float tmp87 = tmp86 + tmp86;
+    const float tmp88 = tmp87 * up[0];
+    const float tmp89 = carry[4] /* tmp7 */ - carry[5] /* tmp8 */;
+    const float tmp90 = tmp89 + tmp89;
+    const float tmp91 = tmp90 * up[1];
+    const float tmp92 = tmp88 + tmp91;
+    const float tmp93 = carry[2] /* tmp4 */ * up[2];
+    const float tmp94 = tmp92 + tmp93;
+    const float tmp95 = tmp94 * carry[16] /* tmp71 */;
+    const float tmp96 = tmp95 + carry[2] /* tmp4 */;
+    float tmp97;
     if (recover) {
-        tmp92 = carry[1] /* tmp46 */;
+        tmp97 = carry[1] /* tmp51 */;
     } else {
-        const float tmp93 = carry[18] /* tmp68 */ * carry[18] /* tmp68 */;
-        const float tmp94 = tmp80 * tmp80;
-        const float tmp95 = tmp93 + tmp94;
-        const float tmp96 = tmp91 * tmp91;
-        const float tmp97 = tmp95 + tmp96;
-        const float tmp98 = 9.0f * carry[1] /* tmp46 */;
-        const float tmp99 = tmp97 / tmp98;
-        const float tmp100 = 1.0f + tmp99;
-        const float tmp101 = (tmp100 < 1.0f) ? tmp100 : 1.0f;
-        const float tmp102 = carry[1] /* tmp46 */ * tmp101;
-        tmp92 = tmp102;
+        const float tmp98 = carry[18] /* tmp73 */ * carry[18] /* tmp73 */;
+        const float tmp99 = tmp85 * tmp85;
+        const float tmp100 = tmp98 + tmp99;
+        const float tmp101 = tmp96 * tmp96;
+        const float tmp102 = tmp100 + tmp101;
+        const float tmp103 = 9.0f * carry[1] /* tmp51 */;
+        const float tmp104 = tmp102 / tmp103;
+        const float tmp105 = 1.0f + tmp104;
+        const float tmp106 = (tmp105 < 1.0f) ? tmp105 : 1.0f;
+        const float tmp107 = carry[1] /* tmp51 */ * tmp106;
+        tmp97 = tmp107;
     }
-    const float tmp103 = carry[11] /* tmp21 */ + tmp92;
-    const float tmp104 = 1.0f / tmp103;
-    const float tmp105 = (1e-12f /* S_PIVOT_MIN */ < tmp103) ? tmp104 : 1.0f;
-    const float tmp106 = carry[8] /* tmp12 */ * tmp105;
-    const float tmp107 = tmp106 * carry[18] /* tmp68 */;
-    const float tmp108 = tmp106 * carry[8] /* tmp12 */;
-    const float tmp109 = P[0] - tmp108;
-    carry[0] = tmp80;
-    carry[1] = tmp91;
-    carry[4] = tmp92;
-    carry[5] = tmp103;
-    carry[11] = tmp105;
-    carry[12] = tmp107;
-    carry[13] = tmp109;
+    const float tmp108 = carry[11] /* tmp21 */ + tmp97;
+    const float tmp109 = 1.0f / tmp108;
+    const float tmp110 = (1e-12f /* S_PIVOT_MIN */ < tmp108) ? tmp109 : 1.0f;
+    const float tmp111 = carry[8] /* tmp12 */ * tmp110;
+    const float tmp112 = tmp111 * carry[18] /* tmp73 */;
+    const float tmp113 = tmp111 * carry[8] /* tmp12 */;
+    const float tmp114 = P[0] - tmp113;
+    carry[0] = tmp85;
+    carry[1] = tmp96;
+    carry[4] = tmp97;
+    carry[5] = tmp108;
+    carry[11] = tmp110;
+    carry[12] = tmp112;
+    carry[13] = tmp114;
 }
 
 static void mekf_k_update_gravity_part3(const float P[36], float carry[48])
 {
-    const float tmp110 = carry[2] /* tmp4 */ + carry[2] /* tmp4 */;
-    const float tmp111 = carry[13] /* tmp109 */ * tmp110;
-    const float tmp112 = carry[10] /* tmp19 */ * carry[11] /* tmp105 */;
-    const float tmp113 = tmp112 * carry[8] /* tmp12 */;
-    const float tmp114 = P[2] - tmp113;
-    const float tmp115 = (-4.0f) * carry[15] /* tmp27 */;
-    const float tmp116 = tmp114 * tmp115;
-    const float tmp117 = tmp111 + tmp116;
-    const float tmp118 = tmp110 * tmp117;
-    const float tmp119 = tmp114 * tmp110;
-    const float tmp120 = tmp112 * carry[10] /* tmp19 */;
-    const float tmp121 = P[14] - tmp120;
-    const float tmp122 = tmp121 * tmp115;
-    const float tmp123 = tmp119 + tmp122;
-    const float tmp124 = tmp115 * tmp123;
-    const float tmp125 = tmp118 + tmp124;
-    const float tmp126 = tmp125 + carry[4] /* tmp92 */;
-    const float tmp127 = 1.0f / tmp126;
-    const float tmp128 = (1e-12f /* S_PIVOT_MIN */ < tmp126) ? tmp127 : 1.0f;
-    const float tmp129 = tmp117 * tmp128;
-    const float tmp130 = tmp110 * carry[12] /* tmp107 */;
-    const float tmp131 = tmp112 * carry[18] /* tmp68 */;
-    const float tmp132 = tmp115 * tmp131;
-    const float tmp133 = tmp130 + tmp132;
-    const float tmp134 = carry[0] /* tmp80 */ - tmp133;
-    const float tmp135 = tmp129 * tmp134;
-    const float tmp136 = carry[12] /* tmp107 */ + tmp135;
-    const float tmp137 = tmp129 * tmp117;
-    const float tmp138 = carry[13] /* tmp109 */ - tmp137;
-    const float tmp139 = (-4.0f) * carry[6] /* tmp9 */;
-    const float tmp140 = tmp138 * tmp139;
-    const float tmp141 = carry[9] /* tmp15 */ * carry[11] /* tmp105 */;
-    const float tmp142 = tmp141 * carry[8] /* tmp12 */;
-    const float tmp143 = P[1] - tmp142;
-    const float tmp144 = tmp143 * tmp110;
-    const float tmp145 = tmp112 * carry[9] /* tmp15 */;
-    const float tmp146 = P[8] - tmp145;
-    const float tmp147 = tmp146 * tmp115;
-    const float tmp148 = tmp144 + tmp147;
-    const float tmp149 = tmp148 * tmp128;
-    carry[0] = tmp110;
-    carry[2] = tmp114;
-    carry[6] = tmp115;
-    carry[12] = tmp117;
-    carry[13] = tmp121;
-    carry[14] = tmp123;
-    carry[16] = tmp126;
-    carry[17] = tmp128;
-    carry[19] = tmp131;
-    carry[20] = tmp134;
-    carry[21] = tmp136;
-    carry[22] = tmp138;
-    carry[23] = tmp139;
-    carry[24] = tmp140;
-    carry[25] = tmp141;
-    carry[26] = tmp143;
-    carry[27] = tmp146;
-    carry[28] = tmp148;
-    carry[29] = tmp149;
+    const float tmp115 = carry[2] /* tmp4 */ + carry[2] /* tmp4 */;
+    const float tmp116 = carry[13] /* tmp114 */ * tmp115;
+    const float tmp117 = carry[10] /* tmp19 */ * carry[11] /* tmp110 */;
+    const float tmp118 = tmp117 * carry[8] /* tmp12 */;
+    const float tmp119 = P[2] - tmp118;
+    const float tmp120 = (-4.0f) * carry[15] /* tmp32 */;
+    const float tmp121 = tmp119 * tmp120;
+    const float tmp122 = tmp116 + tmp121;
+    const float tmp123 = tmp115 * tmp122;
+    const float tmp124 = tmp119 * tmp115;
+    const float tmp125 = tmp117 * carry[10] /* tmp19 */;
+    const float tmp126 = P[14] - tmp125;
+    const float tmp127 = tmp126 * tmp120;
+    const float tmp128 = tmp124 + tmp127;
+    const float tmp129 = tmp120 * tmp128;
+    const float tmp130 = tmp123 + tmp129;
+    const float tmp131 = tmp130 + carry[4] /* tmp97 */;
+    const float tmp132 = 1.0f / tmp131;
+    const float tmp133 = (1e-12f /* S_PIVOT_MIN */ < tmp131) ? tmp132 : 1.0f;
+    const float tmp134 = tmp122 * tmp133;
+    const float tmp135 = tmp115 * carry[12] /* tmp112 */;
+    const float tmp136 = tmp117 * carry[18] /* tmp73 */;
+    const float tmp137 = tmp120 * tmp136;
+    const float tmp138 = tmp135 + tmp137;
+    const float tmp139 = carry[0] /* tmp85 */ - tmp138;
+    const float tmp140 = tmp134 * tmp139;
+    const float tmp141 = carry[12] /* tmp112 */ + tmp140;
+    const float tmp142 = tmp134 * tmp122;
+    const float tmp143 = carry[13] /* tmp114 */ - tmp142;
+    const float tmp144 = (-4.0f) * carry[6] /* tmp9 */;
+    const float tmp145 = tmp143 * tmp144;
+    const float tmp146 = carry[9] /* tmp15 */ * carry[11] /* tmp110 */;
+    const float tmp147 = tmp146 * carry[8] /* tmp12 */;
+    const float tmp148 = P[1] - tmp147;
+    const float tmp149 = tmp148 * tmp115;
+    const float tmp150 = tmp117 * carry[9] /* tmp15 */;
+    const float tmp151 = P[8] - tmp150;
+    const float tmp152 = tmp151 * tmp120;
+    const float tmp153 = tmp149 + tmp152;
+    const float tmp154 = tmp153 * tmp133;
+    carry[0] = tmp115;
+    carry[2] = tmp119;
+    carry[6] = tmp120;
+    carry[12] = tmp122;
+    carry[13] = tmp126;
+    carry[14] = tmp128;
+    carry[16] = tmp131;
+    carry[17] = tmp133;
+    carry[19] = tmp136;
+    carry[20] = tmp139;
+    carry[21] = tmp141;
+    carry[22] = tmp143;
+    carry[23] = tmp144;
+    carry[24] = tmp145;
+    carry[25] = tmp146;
+    carry[26] = tmp148;
+    carry[27] = tmp151;
+    carry[28] = tmp153;
+    carry[29] = tmp154;
 }
 
 static void mekf_k_update_gravity_part4(const float P[36], float x_out[6], float carry[48])
 {
-    const float tmp150 = carry[29] /* tmp149 */ * carry[12] /* tmp117 */;
-    const float tmp151 = carry[26] /* tmp143 */ - tmp150;
-    const float tmp152 = 4.0f * carry[15] /* tmp27 */;
-    const float tmp153 = tmp151 * tmp152;
-    const float tmp154 = carry[24] /* tmp140 */ + tmp153;
-    const float tmp155 = carry[23] /* tmp139 */ * tmp154;
-    const float tmp156 = tmp151 * carry[23] /* tmp139 */;
-    const float tmp157 = carry[25] /* tmp141 */ * carry[9] /* tmp15 */;
-    const float tmp158 = P[7] - tmp157;
-    const float tmp159 = carry[29] /* tmp149 */ * carry[28] /* tmp148 */;
-    const float tmp160 = tmp158 - tmp159;
-    const float tmp161 = tmp160 * tmp152;
-    const float tmp162 = tmp156 + tmp161;
-    const float tmp163 = tmp152 * tmp162;
-    const float tmp164 = tmp155 + tmp163;
-    const float tmp165 = tmp164 + carry[4] /* tmp92 */;
-    const float tmp166 = 1.0f / tmp165;
-    const float tmp167 = (1e-12f /* S_PIVOT_MIN */ < tmp165) ? tmp166 : 1.0f;
-    const float tmp168 = tmp154 * tmp167;
-    const float tmp169 = carry[23] /* tmp139 */ * carry[21] /* tmp136 */;
-    const float tmp170 = carry[25] /* tmp141 */ * carry[18] /* tmp68 */;
-    const float tmp171 = carry[29] /* tmp149 */ * carry[20] /* tmp134 */;
-    const float tmp172 = tmp170 + tmp171;
-    const float tmp173 = tmp152 * tmp172;
-    const float tmp174 = tmp169 + tmp173;
-    const float tmp175 = carry[1] /* tmp91 */ - tmp174;
-    const float tmp176 = tmp168 * tmp175;
-    const float tmp177 = carry[21] /* tmp136 */ + tmp176;
-    const float tmp178 = -tmp177;
-    x_out[0] = tmp178;
-    const float tmp179 = tmp162 * tmp167;
-    const float tmp180 = tmp179 * tmp175;
-    const float tmp181 = tmp172 + tmp180;
-    const float tmp182 = -tmp181;
-    x_out[1] = tmp182;
-    const float tmp183 = carry[14] /* tmp123 */ * carry[17] /* tmp128 */;
-    const float tmp184 = tmp183 * carry[20] /* tmp134 */;
-    const float tmp185 = carry[19] /* tmp131 */ + tmp184;
-    const float tmp186 = tmp183 * carry[12] /* tmp117 */;
-    const float tmp187 = carry[2] /* tmp114 */ - tmp186;
-    const float tmp188 = tmp187 * carry[23] /* tmp139 */;
-    const float tmp189 = tmp183 * carry[28] /* tmp148 */;
-    carry[1] = tmp151;
-    carry[2] = tmp152;
-    carry[4] = tmp154;
-    carry[15] = tmp160;
-    carry[19] = tmp162;
-    carry[21] = tmp165;
-    carry[24] = tmp167;
-    carry[25] = tmp168;
-    carry[26] = tmp175;
-    carry[29] = tmp179;
-    carry[30] = tmp183;
-    carry[31] = tmp185;
-    carry[32] = tmp187;
-    carry[33] = tmp188;
-    carry[34] = tmp189;
+    const float tmp155 = carry[29] /* tmp154 */ * carry[12] /* tmp122 */;
+    const float tmp156 = carry[26] /* tmp148 */ - tmp155;
+    const float tmp157 = 4.0f * carry[15] /* tmp32 */;
+    const float tmp158 = tmp156 * tmp157;
+    const float tmp159 = carry[24] /* tmp145 */ + tmp158;
+    const float tmp160 = carry[23] /* tmp144 */ * tmp159;
+    const float tmp161 = tmp156 * carry[23] /* tmp144 */;
+    const float tmp162 = carry[25] /* tmp146 */ * carry[9] /* tmp15 */;
+    const float tmp163 = P[7] - tmp162;
+    const float tmp164 = carry[29] /* tmp154 */ * carry[28] /* tmp153 */;
+    const float tmp165 = tmp163 - tmp164;
+    const float tmp166 = tmp165 * tmp157;
+    const float tmp167 = tmp161 + tmp166;
+    const float tmp168 = tmp157 * tmp167;
+    const float tmp169 = tmp160 + tmp168;
+    const float tmp170 = tmp169 + carry[4] /* tmp97 */;
+    const float tmp171 = 1.0f / tmp170;
+    const float tmp172 = (1e-12f /* S_PIVOT_MIN */ < tmp170) ? tmp171 : 1.0f;
+    const float tmp173 = tmp159 * tmp172;
+    const float tmp174 = carry[23] /* tmp144 */ * carry[21] /* tmp141 */;
+    const float tmp175 = carry[25] /* tmp146 */ * carry[18] /* tmp73 */;
+    const float tmp176 = carry[29] /* tmp154 */ * carry[20] /* tmp139 */;
+    const float tmp177 = tmp175 + tmp176;
+    const float tmp178 = tmp157 * tmp177;
+    const float tmp179 = tmp174 + tmp178;
+    const float tmp180 = carry[1] /* tmp96 */ - tmp179;
+    const float tmp181 = tmp173 * tmp180;
+    const float tmp182 = carry[21] /* tmp141 */ + tmp181;
+    const float tmp183 = -tmp182;
+    x_out[0] = tmp183;
+    const float tmp184 = tmp167 * tmp172;
+    const float tmp185 = tmp184 * tmp180;
+    const float tmp186 = tmp177 + tmp185;
+    const float tmp187 = -tmp186;
+    x_out[1] = tmp187;
+    const float tmp188 = carry[14] /* tmp128 */ * carry[17] /* tmp133 */;
+    const float tmp189 = tmp188 * carry[20] /* tmp139 */;
+    const float tmp190 = carry[19] /* tmp136 */ + tmp189;
+    const float tmp191 = tmp188 * carry[12] /* tmp122 */;
+    const float tmp192 = carry[2] /* tmp119 */ - tmp191;
+    const float tmp193 = tmp192 * carry[23] /* tmp144 */;
+    const float tmp194 = tmp188 * carry[28] /* tmp153 */;
+    carry[1] = tmp156;
+    carry[2] = tmp157;
+    carry[4] = tmp159;
+    carry[15] = tmp165;
+    carry[19] = tmp167;
+    carry[21] = tmp170;
+    carry[24] = tmp172;
+    carry[25] = tmp173;
+    carry[26] = tmp180;
+    carry[29] = tmp184;
+    carry[30] = tmp188;
+    carry[31] = tmp190;
+    carry[32] = tmp192;
+    carry[33] = tmp193;
+    carry[34] = tmp194;
 }
 
 static void mekf_k_update_gravity_part5(const float P[36], float x_out[6], float carry[48])
 {
-    const float tmp190 = carry[27] /* tmp146 */ - carry[34] /* tmp189 */;
-    const float tmp191 = tmp190 * carry[2] /* tmp152 */;
-    const float tmp192 = carry[33] /* tmp188 */ + tmp191;
-    const float tmp193 = tmp192 * carry[24] /* tmp167 */;
-    const float tmp194 = tmp193 * carry[26] /* tmp175 */;
-    const float tmp195 = carry[31] /* tmp185 */ + tmp194;
-    const float tmp196 = -tmp195;
-    x_out[2] = tmp196;
-    const float tmp197 = P[9] * carry[3] /* tmp5 */;
-    const float tmp198 = P[15] * carry[7] /* tmp10 */;
-    const float tmp199 = tmp197 + tmp198;
-    const float tmp200 = tmp199 * carry[11] /* tmp105 */;
-    const float tmp201 = tmp200 * carry[18] /* tmp68 */;
-    const float tmp202 = tmp200 * carry[8] /* tmp12 */;
-    const float tmp203 = P[3] - tmp202;
-    const float tmp204 = tmp203 * carry[0] /* tmp110 */;
-    const float tmp205 = tmp200 * carry[10] /* tmp19 */;
-    const float tmp206 = P[15] - tmp205;
-    const float tmp207 = tmp206 * carry[6] /* tmp115 */;
-    const float tmp208 = tmp204 + tmp207;
-    const float tmp209 = tmp208 * carry[17] /* tmp128 */;
-    const float tmp210 = tmp209 * carry[20] /* tmp134 */;
-    const float tmp211 = tmp201 + tmp210;
-    const float tmp212 = tmp209 * carry[12] /* tmp117 */;
-    const float tmp213 = tmp203 - tmp212;
-    const float tmp214 = tmp213 * carry[23] /* tmp139 */;
-    const float tmp215 = tmp200 * carry[9] /* tmp15 */;
-    const float tmp216 = P[9] - tmp215;
-    const float tmp217 = tmp209 * carry[28] /* tmp148 */;
-    const float tmp218 = tmp216 - tmp217;
-    const float tmp219 = tmp218 * carry[2] /* tmp152 */;
-    const float tmp220 = tmp214 + tmp219;
-    const float tmp221 = tmp220 * carry[24] /* tmp167 */;
-    const float tmp222 = tmp221 * carry[26] /* tmp175 */;
-    const float tmp223 = tmp211 + tmp222;
-    const float tmp224 = -tmp223;
-    x_out[3] = tmp224;
-    const float tmp225 = P[10] * carry[3] /* tmp5 */;
-    const float tmp226 = P[16] * carry[7] /* tmp10 */;
-    const float tmp227 = tmp225 + tmp226;
-    const float tmp228 = tmp227 * carry[11] /* tmp105 */;
-    const float tmp229 = tmp228 * carry[18] /* tmp68 */;
-    carry[27] = tmp190;
-    carry[31] = tmp192;
-    carry[33] = tmp193;
-    carry[34] = tmp199;
-    carry[35] = tmp200;
-    carry[36] = tmp206;
-    carry[37] = tmp208;
-    carry[38] = tmp209;
-    carry[39] = tmp213;
-    carry[40] = tmp218;
-    carry[41] = tmp220;
-    carry[42] = tmp221;
-    carry[43] = tmp227;
-    carry[44] = tmp228;
-    carry[45] = tmp229;
+    const float tmp195 = carry[27] /* tmp151 */ - carry[34] /* tmp194 */;
+    const float tmp196 = tmp195 * carry[2] /* tmp157 */;
+    const float tmp197 = carry[33] /* tmp193 */ + tmp196;
+    const float tmp198 = tmp197 * carry[24] /* tmp172 */;
+    const float tmp199 = tmp198 * carry[26] /* tmp180 */;
+    const float tmp200 = carry[31] /* tmp190 */ + tmp199;
+    const float tmp201 = -tmp200;
+    x_out[2] = tmp201;
+    const float tmp202 = P[9] * carry[3] /* tmp5 */;
+    const float tmp203 = P[15] * carry[7] /* tmp10 */;
+    const float tmp204 = tmp202 + tmp203;
+    const float tmp205 = tmp204 * carry[11] /* tmp110 */;
+    const float tmp206 = tmp205 * carry[18] /* tmp73 */;
+    const float tmp207 = tmp205 * carry[8] /* tmp12 */;
+    const float tmp208 = P[3] - tmp207;
+    const float tmp209 = tmp208 * carry[0] /* tmp115 */;
+    const float tmp210 = tmp205 * carry[10] /* tmp19 */;
+    const float tmp211 = P[15] - tmp210;
+    const float tmp212 = tmp211 * carry[6] /* tmp120 */;
+    const float tmp213 = tmp209 + tmp212;
+    const float tmp214 = tmp213 * carry[17] /* tmp133 */;
+    const float tmp215 = tmp214 * carry[20] /* tmp139 */;
+    const float tmp216 = tmp206 + tmp215;
+    const float tmp217 = tmp214 * carry[12] /* tmp122 */;
+    const float tmp218 = tmp208 - tmp217;
+    const float tmp219 = tmp218 * carry[23] /* tmp144 */;
+    const float tmp220 = tmp205 * carry[9] /* tmp15 */;
+    const float tmp221 = P[9] - tmp220;
+    const float tmp222 = tmp214 * carry[28] /* tmp153 */;
+    const float tmp223 = tmp221 - tmp222;
+    const float tmp224 = tmp223 * carry[2] /* tmp157 */;
+    const float tmp225 = tmp219 + tmp224;
+    const float tmp226 = tmp225 * carry[24] /* tmp172 */;
+    const float tmp227 = tmp226 * carry[26] /* tmp180 */;
+    const float tmp228 = tmp216 + tmp227;
+    const float tmp229 = -tmp228;
+    x_out[3] = tmp229;
+    const float tmp230 = P[10] * carry[3] /* tmp5 */;
+    const float tmp231 = P[16] * carry[7] /* tmp10 */;
+    const float tmp232 = tmp230 + tmp231;
+    const float tmp233 = tmp232 * carry[11] /* tmp110 */;
+    const float tmp234 = tmp233 * carry[18] /* tmp73 */;
+    carry[27] = tmp195;
+    carry[31] = tmp197;
+    carry[33] = tmp198;
+    carry[34] = tmp204;
+    carry[35] = tmp205;
+    carry[36] = tmp211;
+    carry[37] = tmp213;
+    carry[38] = tmp214;
+    carry[39] = tmp218;
+    carry[40] = tmp223;
+    carry[41] = tmp225;
+    carry[42] = tmp226;
+    carry[43] = tmp232;
+    carry[44] = tmp233;
+    carry[45] = tmp234;
 }
 
 static void mekf_k_update_gravity_part6(const float P[36], float x_out[6], float carry[48])
 {
-    const float tmp230 = carry[44] /* tmp228 */ * carry[8] /* tmp12 */;
-    const float tmp231 = P[4] - tmp230;
-    const float tmp232 = tmp231 * carry[0] /* tmp110 */;
-    const float tmp233 = carry[44] /* tmp228 */ * carry[10] /* tmp19 */;
-    const float tmp234 = P[16] - tmp233;
-    const float tmp235 = tmp234 * carry[6] /* tmp115 */;
-    const float tmp236 = tmp232 + tmp235;
-    const float tmp237 = tmp236 * carry[17] /* tmp128 */;
-    const float tmp238 = tmp237 * carry[20] /* tmp134 */;
-    const float tmp239 = carry[45] /* tmp229 */ + tmp238;
-    const float tmp240 = tmp237 * carry[12] /* tmp117 */;
-    const float tmp241 = tmp231 - tmp240;
-    const float tmp242 = tmp241 * carry[23] /* tmp139 */;
-    const float tmp243 = carry[44] /* tmp228 */ * carry[9] /* tmp15 */;
-    const float tmp244 = P[10] - tmp243;
-    const float tmp245 = tmp237 * carry[28] /* tmp148 */;
-    const float tmp246 = tmp244 - tmp245;
-    const float tmp247 = tmp246 * carry[2] /* tmp152 */;
-    const float tmp248 = tmp242 + tmp247;
-    const float tmp249 = tmp248 * carry[24] /* tmp167 */;
-    const float tmp250 = tmp249 * carry[26] /* tmp175 */;
-    const float tmp251 = tmp239 + tmp250;
-    const float tmp252 = -tmp251;
-    x_out[4] = tmp252;
-    const float tmp253 = P[11] * carry[3] /* tmp5 */;
-    const float tmp254 = P[17] * carry[7] /* tmp10 */;
-    const float tmp255 = tmp253 + tmp254;
-    const float tmp256 = tmp255 * carry[11] /* tmp105 */;
-    const float tmp257 = tmp256 * carry[18] /* tmp68 */;
-    const float tmp258 = tmp256 * carry[8] /* tmp12 */;
-    const float tmp259 = P[5] - tmp258;
-    const float tmp260 = tmp259 * carry[0] /* tmp110 */;
-    const float tmp261 = tmp256 * carry[10] /* tmp19 */;
-    const float tmp262 = P[17] - tmp261;
-    const float tmp263 = tmp262 * carry[6] /* tmp115 */;
-    const float tmp264 = tmp260 + tmp263;
-    const float tmp265 = tmp264 * carry[17] /* tmp128 */;
-    const float tmp266 = tmp265 * carry[20] /* tmp134 */;
-    const float tmp267 = tmp257 + tmp266;
-    const float tmp268 = tmp265 * carry[12] /* tmp117 */;
-    const float tmp269 = tmp259 - tmp268;
-    carry[0] = tmp234;
-    carry[3] = tmp236;
-    carry[6] = tmp237;
-    carry[7] = tmp241;
-    carry[8] = tmp246;
-    carry[10] = tmp248;
-    carry[11] = tmp249;
-    carry[12] = tmp255;
-    carry[17] = tmp256;
-    carry[18] = tmp262;
-    carry[20] = tmp264;
-    carry[45] = tmp265;
-    carry[46] = tmp267;
-    carry[47] = tmp269;
+    const float tmp235 = carry[44] /* tmp233 */ * carry[8] /* tmp12 */;
+    const float tmp236 = P[4] - tmp235;
+    const float tmp237 = tmp236 * carry[0] /* tmp115 */;
+    const float tmp238 = carry[44] /* tmp233 */ * carry[10] /* tmp19 */;
+    const float tmp239 = P[16] - tmp238;
+    const float tmp240 = tmp239 * carry[6] /* tmp120 */;
+    const float tmp241 = tmp237 + tmp240;
+    const float tmp242 = tmp241 * carry[17] /* tmp133 */;
+    const float tmp243 = tmp242 * carry[20] /* tmp139 */;
+    const float tmp244 = carry[45] /* tmp234 */ + tmp243;
+    const float tmp245 = tmp242 * carry[12] /* tmp122 */;
+    const float tmp246 = tmp236 - tmp245;
+    const float tmp247 = tmp246 * carry[23] /* tmp144 */;
+    const float tmp248 = carry[44] /* tmp233 */ * carry[9] /* tmp15 */;
+    const float tmp249 = P[10] - tmp248;
+    const float tmp250 = tmp242 * carry[28] /* tmp153 */;
+    const float tmp251 = tmp249 - tmp250;
+    const float tmp252 = tmp251 * carry[2] /* tmp157 */;
+    const float tmp253 = tmp247 + tmp252;
+    const float tmp254 = tmp253 * carry[24] /* tmp172 */;
+    const float tmp255 = tmp254 * carry[26] /* tmp180 */;
+    const float tmp256 = tmp244 + tmp255;
+    const float tmp257 = -tmp256;
+    x_out[4] = tmp257;
+    const float tmp258 = P[11] * carry[3] /* tmp5 */;
+    const float tmp259 = P[17] * carry[7] /* tmp10 */;
+    const float tmp260 = tmp258 + tmp259;
+    const float tmp261 = tmp260 * carry[11] /* tmp110 */;
+    const float tmp262 = tmp261 * carry[18] /* tmp73 */;
+    const float tmp263 = tmp261 * carry[8] /* tmp12 */;
+    const float tmp264 = P[5] - tmp263;
+    const float tmp265 = tmp264 * carry[0] /* tmp115 */;
+    const float tmp266 = tmp261 * carry[10] /* tmp19 */;
+    const float tmp267 = P[17] - tmp266;
+    const float tmp268 = tmp267 * carry[6] /* tmp120 */;
+    const float tmp269 = tmp265 + tmp268;
+    const float tmp270 = tmp269 * carry[17] /* tmp133 */;
+    const float tmp271 = tmp270 * carry[20] /* tmp139 */;
+    const float tmp272 = tmp262 + tmp271;
+    const float tmp273 = tmp270 * carry[12] /* tmp122 */;
+    const float tmp274 = tmp264 - tmp273;
+    carry[0] = tmp239;
+    carry[3] = tmp241;
+    carry[6] = tmp242;
+    carry[7] = tmp246;
+    carry[8] = tmp251;
+    carry[10] = tmp253;
+    carry[11] = tmp254;
+    carry[12] = tmp260;
+    carry[17] = tmp261;
+    carry[18] = tmp267;
+    carry[20] = tmp269;
+    carry[45] = tmp270;
+    carry[46] = tmp272;
+    carry[47] = tmp274;
 }
 
 static void mekf_k_update_gravity_part7(const float P[36], float x_out[6], float P_out[36],
     float carry[48])
 {
-    const float tmp270 = carry[47] /* tmp269 */ * carry[23] /* tmp139 */;
-    const float tmp271 = carry[17] /* tmp256 */ * carry[9] /* tmp15 */;
-    const float tmp272 = P[11] - tmp271;
-    const float tmp273 = carry[45] /* tmp265 */ * carry[28] /* tmp148 */;
-    const float tmp274 = tmp272 - tmp273;
-    const float tmp275 = tmp274 * carry[2] /* tmp152 */;
-    const float tmp276 = tmp270 + tmp275;
-    const float tmp277 = tmp276 * carry[24] /* tmp167 */;
-    const float tmp278 = tmp277 * carry[26] /* tmp175 */;
-    const float tmp279 = carry[46] /* tmp267 */ + tmp278;
-    const float tmp280 = -tmp279;
-    x_out[5] = tmp280;
-    const float tmp281 = carry[25] /* tmp168 */ * carry[4] /* tmp154 */;
-    const float tmp282 = carry[22] /* tmp138 */ - tmp281;
-    P_out[0] = tmp282;
-    const float tmp283 = carry[29] /* tmp179 */ * carry[4] /* tmp154 */;
-    const float tmp284 = carry[1] /* tmp151 */ - tmp283;
-    P_out[1] = tmp284;
-    P_out[6] = tmp284;
-    const float tmp285 = carry[33] /* tmp193 */ * carry[4] /* tmp154 */;
-    const float tmp286 = carry[32] /* tmp187 */ - tmp285;
-    P_out[2] = tmp286;
-    P_out[12] = tmp286;
-    const float tmp287 = carry[42] /* tmp221 */ * carry[4] /* tmp154 */;
-    const float tmp288 = carry[39] /* tmp213 */ - tmp287;
-    P_out[3] = tmp288;
-    P_out[18] = tmp288;
-    const float tmp289 = carry[11] /* tmp249 */ * carry[4] /* tmp154 */;
-    const float tmp290 = carry[7] /* tmp241 */ - tmp289;
-    P_out[4] = tmp290;
-    P_out[24] = tmp290;
-    const float tmp291 = tmp277 * carry[4] /* tmp154 */;
-    const float tmp292 = carry[47] /* tmp269 */ - tmp291;
-    P_out[5] = tmp292;
-    P_out[30] = tmp292;
-    const float tmp293 = carry[29] /* tmp179 */ * carry[19] /* tmp162 */;
-    const float tmp294 = carry[15] /* tmp160 */ - tmp293;
-    P_out[7] = tmp294;
-    const float tmp295 = carry[33] /* tmp193 */ * carry[19] /* tmp162 */;
-    const float tmp296 = carry[27] /* tmp190 */ - tmp295;
-    P_out[8] = tmp296;
-    P_out[13] = tmp296;
-    const float tmp297 = carry[42] /* tmp221 */ * carry[19] /* tmp162 */;
-    const float tmp298 = carry[40] /* tmp218 */ - tmp297;
-    P_out[9] = tmp298;
-    P_out[19] = tmp298;
-    const float tmp299 = carry[11] /* tmp249 */ * carry[19] /* tmp162 */;
-    const float tmp300 = carry[8] /* tmp246 */ - tmp299;
-    P_out[10] = tmp300;
-    P_out[25] = tmp300;
-    const float tmp301 = tmp277 * carry[19] /* tmp162 */;
-    const float tmp302 = tmp274 - tmp301;
-    P_out[11] = tmp302;
-    P_out[31] = tmp302;
-    const float tmp303 = carry[30] /* tmp183 */ * carry[14] /* tmp123 */;
-    const float tmp304 = carry[13] /* tmp121 */ - tmp303;
-    const float tmp305 = carry[33] /* tmp193 */ * carry[31] /* tmp192 */;
-    const float tmp306 = tmp304 - tmp305;
-    P_out[14] = tmp306;
-    const float tmp307 = carry[38] /* tmp209 */ * carry[14] /* tmp123 */;
-    const float tmp308 = carry[36] /* tmp206 */ - tmp307;
-    const float tmp309 = carry[42] /* tmp221 */ * carry[31] /* tmp192 */;
-    carry[1] = tmp276;
-    carry[2] = tmp277;
-    carry[4] = tmp308;
-    carry[7] = tmp309;
+    const float tmp275 = carry[47] /* tmp274 */ * carry[23] /* tmp144 */;
+    const float tmp276 = carry[17] /* tmp261 */ * carry[9] /* tmp15 */;
+    const float tmp277 = P[11] - tmp276;
+    const float tmp278 = carry[45] /* tmp270 */ * carry[28] /* tmp153 */;
+    const float tmp279 = tmp277 - tmp278;
+    const float tmp280 = tmp279 * carry[2] /* tmp157 */;
+    const float tmp281 = tmp275 + tmp280;
+    const float tmp282 = tmp281 * carry[24] /* tmp172 */;
+    const float tmp283 = tmp282 * carry[26] /* tmp180 */;
+    const float tmp284 = carry[46] /* tmp272 */ + tmp283;
+    const float tmp285 = -tmp284;
+    x_out[5] = tmp285;
+    const float tmp286 = carry[25] /* tmp173 */ * carry[4] /* tmp159 */;
+    const float tmp287 = carry[22] /* tmp143 */ - tmp286;
+    P_out[0] = tmp287;
+    const float tmp288 = carry[29] /* tmp184 */ * carry[4] /* tmp159 */;
+    const float tmp289 = carry[1] /* tmp156 */ - tmp288;
+    P_out[1] = tmp289;
+    P_out[6] = tmp289;
+    const float tmp290 = carry[33] /* tmp198 */ * carry[4] /* tmp159 */;
+    const float tmp291 = carry[32] /* tmp192 */ - tmp290;
+    P_out[2] = tmp291;
+    P_out[12] = tmp291;
+    const float tmp292 = carry[42] /* tmp226 */ * carry[4] /* tmp159 */;
+    const float tmp293 = carry[39] /* tmp218 */ - tmp292;
+    P_out[3] = tmp293;
+    P_out[18] = tmp293;
+    const float tmp294 = carry[11] /* tmp254 */ * carry[4] /* tmp159 */;
+    const float tmp295 = carry[7] /* tmp246 */ - tmp294;
+    P_out[4] = tmp295;
+    P_out[24] = tmp295;
+    const float tmp296 = tmp282 * carry[4] /* tmp159 */;
+    const float tmp297 = carry[47] /* tmp274 */ - tmp296;
+    P_out[5] = tmp297;
+    P_out[30] = tmp297;
+    const float tmp298 = carry[29] /* tmp184 */ * carry[19] /* tmp167 */;
+    const float tmp299 = carry[15] /* tmp165 */ - tmp298;
+    P_out[7] = tmp299;
+    const float tmp300 = carry[33] /* tmp198 */ * carry[19] /* tmp167 */;
+    const float tmp301 = carry[27] /* tmp195 */ - tmp300;
+    P_out[8] = tmp301;
+    P_out[13] = tmp301;
+    const float tmp302 = carry[42] /* tmp226 */ * carry[19] /* tmp167 */;
+    const float tmp303 = carry[40] /* tmp223 */ - tmp302;
+    P_out[9] = tmp303;
+    P_out[19] = tmp303;
+    const float tmp304 = carry[11] /* tmp254 */ * carry[19] /* tmp167 */;
+    const float tmp305 = carry[8] /* tmp251 */ - tmp304;
+    P_out[10] = tmp305;
+    P_out[25] = tmp305;
+    const float tmp306 = tmp282 * carry[19] /* tmp167 */;
+    const float tmp307 = tmp279 - tmp306;
+    P_out[11] = tmp307;
+    P_out[31] = tmp307;
+    const float tmp308 = carry[30] /* tmp188 */ * carry[14] /* tmp128 */;
+    const float tmp309 = carry[13] /* tmp126 */ - tmp308;
+    const float tmp310 = carry[33] /* tmp198 */ * carry[31] /* tmp197 */;
+    const float tmp311 = tmp309 - tmp310;
+    P_out[14] = tmp311;
+    const float tmp312 = carry[38] /* tmp214 */ * carry[14] /* tmp128 */;
+    const float tmp313 = carry[36] /* tmp211 */ - tmp312;
+    const float tmp314 = carry[42] /* tmp226 */ * carry[31] /* tmp197 */;
+    carry[1] = tmp281;
+    carry[2] = tmp282;
+    carry[4] = tmp313;
+    carry[7] = tmp314;
 }
 
 static void mekf_k_update_gravity_part8(const float P[36], float P_out[36], float carry[48])
 {
-    const float tmp310 = carry[4] /* tmp308 */ - carry[7] /* tmp309 */;
-    P_out[15] = tmp310;
-    P_out[20] = tmp310;
-    const float tmp311 = carry[6] /* tmp237 */ * carry[14] /* tmp123 */;
-    const float tmp312 = carry[0] /* tmp234 */ - tmp311;
-    const float tmp313 = carry[11] /* tmp249 */ * carry[31] /* tmp192 */;
-    const float tmp314 = tmp312 - tmp313;
-    P_out[16] = tmp314;
-    P_out[26] = tmp314;
-    const float tmp315 = carry[45] /* tmp265 */ * carry[14] /* tmp123 */;
-    const float tmp316 = carry[18] /* tmp262 */ - tmp315;
-    const float tmp317 = carry[2] /* tmp277 */ * carry[31] /* tmp192 */;
-    const float tmp318 = tmp316 - tmp317;
-    P_out[17] = tmp318;
-    P_out[32] = tmp318;
-    const float tmp319 = carry[35] /* tmp200 */ * carry[34] /* tmp199 */;
-    const float tmp320 = P[21] - tmp319;
-    const float tmp321 = carry[38] /* tmp209 */ * carry[37] /* tmp208 */;
-    const float tmp322 = tmp320 - tmp321;
-    const float tmp323 = carry[42] /* tmp221 */ * carry[41] /* tmp220 */;
-    const float tmp324 = tmp322 - tmp323;
-    P_out[21] = tmp324;
-    const float tmp325 = carry[44] /* tmp228 */ * carry[34] /* tmp199 */;
-    const float tmp326 = P[22] - tmp325;
-    const float tmp327 = carry[6] /* tmp237 */ * carry[37] /* tmp208 */;
-    const float tmp328 = tmp326 - tmp327;
-    const float tmp329 = carry[11] /* tmp249 */ * carry[41] /* tmp220 */;
-    const float tmp330 = tmp328 - tmp329;
-    P_out[22] = tmp330;
-    P_out[27] = tmp330;
-    const float tmp331 = carry[17] /* tmp256 */ * carry[34] /* tmp199 */;
-    const float tmp332 = P[23] - tmp331;
-    const float tmp333 = carry[45] /* tmp265 */ * carry[37] /* tmp208 */;
-    const float tmp334 = tmp332 - tmp333;
-    const float tmp335 = carry[2] /* tmp277 */ * carry[41] /* tmp220 */;
-    const float tmp336 = tmp334 - tmp335;
-    P_out[23] = tmp336;
-    P_out[33] = tmp336;
-    const float tmp337 = carry[44] /* tmp228 */ * carry[43] /* tmp227 */;
-    const float tmp338 = P[28] - tmp337;
-    const float tmp339 = carry[6] /* tmp237 */ * carry[3] /* tmp236 */;
-    const float tmp340 = tmp338 - tmp339;
-    const float tmp341 = carry[11] /* tmp249 */ * carry[10] /* tmp248 */;
-    const float tmp342 = tmp340 - tmp341;
-    P_out[28] = tmp342;
-    const float tmp343 = carry[17] /* tmp256 */ * carry[43] /* tmp227 */;
-    const float tmp344 = P[29] - tmp343;
-    const float tmp345 = carry[45] /* tmp265 */ * carry[3] /* tmp236 */;
-    const float tmp346 = tmp344 - tmp345;
-    const float tmp347 = carry[2] /* tmp277 */ * carry[10] /* tmp248 */;
-    const float tmp348 = tmp346 - tmp347;
-    P_out[29] = tmp348;
-    P_out[34] = tmp348;
-    const float tmp349 = carry[17] /* tmp256 */ * carry[12] /* tmp255 */;
-    carry[0] = tmp349;
+    const float tmp315 = carry[4] /* tmp313 */ - carry[7] /* tmp314 */;
+    P_out[15] = tmp315;
+    P_out[20] = tmp315;
+    const float tmp316 = carry[6] /* tmp242 */ * carry[14] /* tmp128 */;
+    const float tmp317 = carry[0] /* tmp239 */ - tmp316;
+    const float tmp318 = carry[11] /* tmp254 */ * carry[31] /* tmp197 */;
+    const float tmp319 = tmp317 - tmp318;
+    P_out[16] = tmp319;
+    P_out[26] = tmp319;
+    const float tmp320 = carry[45] /* tmp270 */ * carry[14] /* tmp128 */;
+    const float tmp321 = carry[18] /* tmp267 */ - tmp320;
+    const float tmp322 = carry[2] /* tmp282 */ * carry[31] /* tmp197 */;
+    const float tmp323 = tmp321 - tmp322;
+    P_out[17] = tmp323;
+    P_out[32] = tmp323;
+    const float tmp324 = carry[35] /* tmp205 */ * carry[34] /* tmp204 */;
+    const float tmp325 = P[21] - tmp324;
+    const float tmp326 = carry[38] /* tmp214 */ * carry[37] /* tmp213 */;
+    const float tmp327 = tmp325 - tmp326;
+    const float tmp328 = carry[42] /* tmp226 */ * carry[41] /* tmp225 */;
+    const float tmp329 = tmp327 - tmp328;
+    P_out[21] = tmp329;
+    const float tmp330 = carry[44] /* tmp233 */ * carry[34] /* tmp204 */;
+    const float tmp331 = P[22] - tmp330;
+    const float tmp332 = carry[6] /* tmp242 */ * carry[37] /* tmp213 */;
+    const float tmp333 = tmp331 - tmp332;
+    const float tmp334 = carry[11] /* tmp254 */ * carry[41] /* tmp225 */;
+    const float tmp335 = tmp333 - tmp334;
+    P_out[22] = tmp335;
+    P_out[27] = tmp335;
+    const float tmp336 = carry[17] /* tmp261 */ * carry[34] /* tmp204 */;
+    const float tmp337 = P[23] - tmp336;
+    const float tmp338 = carry[45] /* tmp270 */ * carry[37] /* tmp213 */;
+    const float tmp339 = tmp337 - tmp338;
+    const float tmp340 = carry[2] /* tmp282 */ * carry[41] /* tmp225 */;
+    const float tmp341 = tmp339 - tmp340;
+    P_out[23] = tmp341;
+    P_out[33] = tmp341;
+    const float tmp342 = carry[44] /* tmp233 */ * carry[43] /* tmp232 */;
+    const float tmp343 = P[28] - tmp342;
+    const float tmp344 = carry[6] /* tmp242 */ * carry[3] /* tmp241 */;
+    const float tmp345 = tmp343 - tmp344;
+    const float tmp346 = carry[11] /* tmp254 */ * carry[10] /* tmp253 */;
+    const float tmp347 = tmp345 - tmp346;
+    P_out[28] = tmp347;
+    const float tmp348 = carry[17] /* tmp261 */ * carry[43] /* tmp232 */;
+    const float tmp349 = P[29] - tmp348;
+    const float tmp350 = carry[45] /* tmp270 */ * carry[3] /* tmp241 */;
+    const float tmp351 = tmp349 - tmp350;
+    const float tmp352 = carry[2] /* tmp282 */ * carry[10] /* tmp253 */;
+    const float tmp353 = tmp351 - tmp352;
+    P_out[29] = tmp353;
+    P_out[34] = tmp353;
+    const float tmp354 = carry[17] /* tmp261 */ * carry[12] /* tmp260 */;
+    carry[0] = tmp354;
 }
 
 static void mekf_k_update_gravity_part9(const float P[36], float P_out[36], float *min_pivot,
     const float carry[48])
 {
-    const float tmp350 = P[35] - carry[0] /* tmp349 */;
-    const float tmp351 = carry[45] /* tmp265 */ * carry[20] /* tmp264 */;
-    const float tmp352 = tmp350 - tmp351;
-    const float tmp353 = carry[2] /* tmp277 */ * carry[1] /* tmp276 */;
-    const float tmp354 = tmp352 - tmp353;
-    P_out[35] = tmp354;
-    const float tmp355 = (carry[5] /* tmp103 */ < carry[16] /* tmp126 */) ? carry[5] /* tmp103 */ :
-            carry[16] /* tmp126 */;
-    const float tmp356 = (tmp355 < carry[21] /* tmp165 */) ? tmp355 : carry[21] /* tmp165 */;
-    *min_pivot = tmp356;
+    const float tmp355 = P[35] - carry[0] /* tmp354 */;
+    const float tmp356 = carry[45] /* tmp270 */ * carry[20] /* tmp269 */;
+    const float tmp357 = tmp355 - tmp356;
+    const float tmp358 = carry[2] /* tmp282 */ * carry[1] /* tmp281 */;
+    const float tmp359 = tmp357 - tmp358;
+    P_out[35] = tmp359;
+    const float tmp360 = (carry[5] /* tmp108 */ < carry[16] /* tmp131 */) ? carry[5] /* tmp108 */ :
+            carry[16] /* tmp131 */;
+    const float tmp361 = (tmp360 < carry[21] /* tmp170 */) ? tmp360 : carry[21] /* tmp170 */;
+    *min_pivot = tmp361;
 }
 
 /*
@@ -2414,7 +2434,7 @@ static void mekf_k_update_gravity_part9(const float P[36], float P_out[36], floa
  *     P_out: float[36]
  *     min_pivot: float
  *
- * Total ops: 357 (add 153, mul 186, div 7, sqrt 2, cmp 9)
+ * Total ops: 362 (add 156, mul 188, div 7, sqrt 2, cmp 9)
  *     of which only one side runs: if (unobserved) 15, else 0
  *     of which only one side runs: if (recover) 0, else 10
  */
@@ -4592,6 +4612,7 @@ void mekf_init(mekf_state *s)
     s->a_lp[0] = 0.0f;
     s->a_lp[1] = 0.0f;
     s->a_lp[2] = 0.0f;
+    s->lp_time = 0.0f;
     s->v_lp[0] = 0.0f;
     s->v_lp[1] = 0.0f;
     s->v_lp[2] = 0.0f;
@@ -4746,6 +4767,7 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
         if (use_tilt) {
             const bool use_head[2] = { course_sample, !course_sample && use_mag };
             mekf_k_init_attitude(in->accel, mag_in, vel_in, use_head, s->q, s->a_lp);
+            s->lp_time = dt;   /* a_lp is this sample: the warm start averages on from it */
             if (course_sample || use_mag) {
                 s->head_age = 0.0f;
             }
@@ -4826,10 +4848,11 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
             }
             s->vlp_ok = 1u;
         }
-        bool up_ok;   /* a_lp, v_lp, v_ins in place */
+        bool up_ok;   /* a_lp, v_lp, v_ins, lp_time in place */
         const bool lp_mask[3] = { m_comp, use_gps, recovering };
         mekf_k_accel_lowpass(q, s->gyro_bias, in->gyro, in->accel, s->v_gps, s->a_gps, lp_mask,
-            s->a_lp, s->v_lp, s->v_ins, dt, s->a_lp, s->v_lp, s->v_ins, up, &up_ok);
+            s->a_lp, s->v_lp, s->v_ins, s->lp_time, dt, s->a_lp, s->v_lp, s->v_ins, &s->lp_time,
+            up, &up_ok);
         use_tilt = up_ok;   /* a direction to correct the tilt with */
     }
 

@@ -23,7 +23,7 @@
  * its GNU modes, -std=c99 turns it off) and -fno-math-errno; -ffast-math breaks the input
  * checks (isfinite). Any C99 compiler builds it; see the ahrsgen docs (target.md).
  *     mekf_euler(&st, rpy);
- * No heap, no recursion; RAM is the state struct (520 bytes with the usual ABI).
+ * No heap, no recursion; RAM is the state struct (524 bytes with the usual ABI).
  * Needs <math.h> (float functions only in a float build); compilers may also emit calls to
  * memcpy/memset/memmove for struct and array copies.
  *
@@ -96,6 +96,16 @@ extern "C" {
                                            force in the earth frame before its direction corrects
                                            the tilt (VQF's idea): motion acceleration averages out,
                                            gravity stays; 0 = raw accelerometer [s] */
+#define MEKF_ACCEL_LPF_WARM 1           /* warm start of that low-pass (VQF's): until it has
+                                           averaged accel_lpf_tau of samples it is their running
+                                           mean, so its first sample (a multirotor's motor
+                                           vibration: up to 15 deg of tilt in one sample) weighs 1/n
+                                           instead of lingering as e^(-t/accel_lpf_tau) and pulling
+                                           the gyro bias. false: the low-pass starts from its first
+                                           sample with its time constant (before issue 26).
+                                           Multirotor 400 Hz / 1 kHz 0.91 / 0.96 -> 0.41 / 0.38 deg,
+                                           BROAD unchanged (studies/mekf_warm_start_cv.py,
+                                           docs/mekf.md) */
 #define MEKF_ACCEL_ADAPT_CAP 1.0f       /* residual-adaptive gravity noise, bounded: R =
                                            accel_angle_noise^2 * min(1 + |z|^2 / (3
                                            accel_angle_noise)^2, accel_adapt_cap); 1 = off. Bounded
@@ -227,6 +237,18 @@ extern "C" {
                                            0.07 by leave-one-BROAD-group-out with the scenarios at
                                            12.5 Hz to 1 kHz (studies/mekf_accel_density_cv.py,
                                            docs/mekf.md) [rad*sqrt(s)] */
+#define MEKF_ACCEL_BIAS_GAIN 100.0f     /* measurement = 'vectors': accel_noise_density's term of
+                                           the gravity variance is multiplied by 1 + accel_bias_gain
+                                           * p_bb / p0_bias^2, p_bb the mean of the gyro bias's
+                                           variances: the accelerometer is trusted less while the
+                                           bias is still being learned (at the start p_bb =
+                                           p0_bias^2), since what the tilt takes then (manoeuvres,
+                                           the vibration the low-pass leaves) goes into the bias. 0
+                                           = off. 100 chosen by leave-one-BROAD-group-out at
+                                           286/143/95/48 Hz with the scenarios
+                                           (studies/mekf_bias_gain_cv.py, docs/mekf.md): BROAD
+                                           unchanged, multirotor 250 / 400 / 1k 0.49 / 0.41 / 0.38
+                                           -> 0.38 / 0.33 / 0.26 deg, fixed-wing 0.38 -> 0.35 */
 #define MEKF_COURSE_NOISE 0.05f         /* standard deviation of the GPS course as a heading (covers
                                            sideslip and wind crab) [rad] */
 #define MEKF_MAG_HEADING_NOISE 0.1f     /* measurement = 'euler_angles' (the patent's design):
@@ -356,6 +378,7 @@ typedef struct {
     uint32_t a_ok;         /* 1 when a_gps comes from two samples at most gps_vel_timeout apart */
     uint32_t initialised;  /* 1 once the attitude has been initialised */
     float a_lp[3];         /* specific force low-passed in the earth frame (NED), m/s^2 */
+    float lp_time;         /* time a_lp has averaged, s (its warm start; stops at accel_lpf_tau) */
     float v_lp[3];         /* GPS velocity through the same low-pass (motion_comp = gps_lowpass),
                               m/s */
     uint32_t vlp_ok;       /* 1 while v_lp follows a fresh GPS velocity */

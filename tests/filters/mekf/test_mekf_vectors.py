@@ -219,9 +219,13 @@ def test_a_1khz_imu_is_as_accurate_as_a_250hz_one():
     """The gravity direction's variance has a density term (accel_noise_density²/dt), so a
     1 kHz IMU's samples each weigh less and its trust per second stays that of a 250 Hz one:
     the multirotor scenario (seeds 0-2, magnetometer 100 Hz, float C, scored as the bench
-    scores) at 1 kHz within 0.1 deg of 250 Hz (measured 0.956 and 0.932 deg), where the
-    per-sample term alone (accel_noise_density = 0) gives 2.29 deg at 1 kHz: the vibration the
-    accelerometer sees, trusted four times as much per second, leaks into the heading."""
+    scores) at 1 kHz within 0.1 deg of 250 Hz (measured 0.257 and 0.379 deg; before
+    accel_bias_gain 0.375 and 0.491), where the
+    per-sample term alone (accel_noise_density = 0) gives 0.636 deg at 1 kHz: the vibration the
+    accelerometer sees, trusted four times as much per second, leaks into the heading (15-120 s:
+    0.60 against 0.26 deg). Before the low-pass's warm start (accel_lpf_warm) the start-up
+    transient amplified the difference (2.29 against 0.956 deg, then asserted as 0.5 deg apart);
+    now asserted as at least 1.5 times the error."""
     from ahrsgen.bench.scoring import filter_estimator, score
 
     def mean_total(sets, **opts):
@@ -234,7 +238,28 @@ def test_a_1khz_imu_is_as_accurate_as_a_250hz_one():
         return float(np.mean(out))
     at_250, at_1k = mean_total([]), mean_total([], rate_hz=1000.0, mag_rate=100.0)
     assert at_1k <= at_250 + 0.1, (at_1k, at_250)
-    assert mean_total(["accel_noise_density=0"], rate_hz=1000.0, mag_rate=100.0) > at_1k + 0.5
+    assert mean_total(["accel_noise_density=0"], rate_hz=1000.0, mag_rate=100.0) > 1.5 * at_1k
+
+
+def test_the_1khz_multirotor_meets_issue_26s_rate_budget():
+    """Issue 26's rate acceptance: at 1 kHz (magnetometer 100 Hz) the defaults within 0.15 deg of
+    a per-rate `ahrsgen tune` (budget 120, six noise parameters: 0.181 deg), seeds 0-2, float C,
+    scored as the bench scores. The gap was the start, while the gyro bias is learned: with the
+    accelerometer trusted less then (accel_bias_gain, default 100) measured 0.257 deg, without it
+    (accel_bias_gain = 0) 0.375."""
+    from ahrsgen.bench.scoring import filter_estimator, score
+    budget = 0.181 + 0.15
+
+    def mean_total(sets):
+        est = filter_estimator("mekf", sets)
+        out = []
+        for seed in range(3):
+            log = make("multirotor", seed, rate_hz=1000.0, mag_rate=100.0)
+            q, frame, _ = est.run(log)
+            out.append(score(q, log, frame)["total_rms"])
+        return float(np.mean(out))
+    assert mean_total([]) <= budget
+    assert mean_total(["accel_bias_gain=0"]) > budget
 
 
 def test_graded_magnetometer_trust_pulls_the_heading_less_in_a_field_that_disagrees():
@@ -274,3 +299,22 @@ def test_step_noise_covers_the_integration_error_of_a_low_rate_gyro():
         return float(np.sqrt(np.mean(broad_errors_deg(q[m], log.q_true[m])[0] ** 2)))
     with_term, without = total_rms([]), total_rms(["gyro_step_noise=0"])
     assert with_term < 0.8 * without, (with_term, without)
+
+
+def test_low_pass_warm_start_forgets_a_bad_first_sample():
+    """A motionless IMU (100 Hz, no noise, rest detection off as on a vibrating vehicle, no
+    magnetometer) whose first accelerometer sample carries 3 m/s² of vibration: the filter starts
+    from that sample (17° of tilt). A low-pass started from it keeps e^(-t/tau) of the spike,
+    atan(3 e^(-t) / g) of tilt (tau 1 s), 4.6° RMS over 0.1-6 s; the warm start's running mean of
+    n samples keeps 3/(n g), 0.22° RMS. The estimate's tilt error over 0.1-6 s, RMS: below half
+    the former (measured 1.41° with the warm start, 6.59° without: the filter followed the
+    low-pass and put the spike into the gyro bias)."""
+    log = make_static("rest", "spike", 0, duration=6.0, attitude_deg=(10.0, -5.0, 30.0), noise=False)
+    log.accel = log.accel.copy()
+    log.accel[0] += [3.0, 0.0, 0.0]
+    log.valid = np.full(len(log), VALID_GYRO | VALID_ACCEL, dtype=np.uint32)
+    r = build(sets=["rest_gyro_th=0"]).run(log)
+    inc = broad_errors_deg(r.q, log.q_true)[2]
+    m = log.t >= 0.1
+    kept = np.degrees(np.arctan(3.0 * np.exp(-log.t[m] / 1.0) / 9.80665))
+    assert np.sqrt(np.mean(inc[m] ** 2)) < 0.5 * np.sqrt(np.mean(kept ** 2))

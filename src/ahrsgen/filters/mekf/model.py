@@ -281,12 +281,21 @@ def motion_compensated(p, q, b, gyro, accel, vel, acc_n, m_comp):
 
 
 def accel_lowpass_function(p: dict, name="accel_lowpass") -> ca.Function:
-    """a_lp ← a_lp + α (R(q) f_c − a_lp), α = dt / (accel_lpf_tau + dt): the specific force
-    low-passed in the earth frame (motion acceleration averages out, gravity does not).
+    """a_lp ← a_lp + α (R(q) f_c − a_lp), α = dt / (min(lp_time, accel_lpf_tau) + dt): the
+    specific force low-passed in the earth frame (motion acceleration averages out, gravity does
+    not), with VQF's warm start: lp_time, the time the low-pass has averaged (dt at the first
+    sample, capped at accel_lpf_tau; lp_time_out), makes it the running mean of its samples
+    until it has seen accel_lpf_tau of them, so the first sample (a multirotor's 1-3 m/s² of
+    motor vibration tilts one sample by up to 15°) weighs 1/n instead of lingering as
+    e^(-t/τ). The velocity's low-pass below keeps α_v = dt / (τ + dt) from its start (the
+    low-passed acceleration ramps in from zero, as before: a running mean of the velocity's
+    differences too was measured worse, studies/mekf_warm_start_cv.py). accel_lpf_warm = false:
+    α = dt / (τ + dt) from the start (before issue 26).
 
     Returns the new a_lp, the new v_lp and `up`, the low-passed specific force with the
     low-passed kinematic acceleration removed: for motion_comp = 'gps_lowpass' (m_comp = 1)
-    the GPS velocity goes through the same low-pass, v_lp ← v_lp + α (v − v_lp), and
+    the GPS velocity goes through a low-pass of the same τ without the warm start,
+    v_lp ← v_lp + α_v (v − v_lp), and
     (v − v_lp)/τ, with v_lp already updated, is exactly the same discrete low-pass applied to
     the velocity's differences (v_k − v_{k−1})/dt (the low-pass of a derivative is the derivative
     of the low-pass); up = a_lp − (v − v_lp)/τ. Otherwise up = a_lp. up_ok: |up| above
@@ -295,24 +304,31 @@ def accel_lowpass_function(p: dict, name="accel_lowpass") -> ca.Function:
     q, b, gyro, accel, vel, acc_n, a_lp, v_lp, v_ins = (ca.SX.sym(n, k) for n, k in (
         ("q", 4), ("b", 3), ("gyro", 3), ("accel", 3), ("vel", 3), ("acc_n", 3), ("a_lp", 3), ("v_lp", 3),
         ("v_ins", 3)))
-    dt = ca.SX.sym("dt")
+    dt, lp_time = ca.SX.sym("dt"), ca.SX.sym("lp_time")
     mask = ca.SX.sym("mask", 3)        # [motion compensation, GPS sample this step, gyro recovery]
     m_comp = mask[0]
     f = motion_compensated(p, q, b, gyro, accel, vel, acc_n, m_comp)
-    alpha = ca.if_else(mask[2], 1, dt / (p["accel_lpf_tau"] + dt))   # recovering: the sample itself
+    tau = p["accel_lpf_tau"]
+    # recovering: the sample itself (lp_time held: a warm start begun again after a gyro clip
+    # was measured worse on gyro_clip, 0.31 against 0.26 deg)
+    alpha_v = ca.if_else(mask[2], 1, dt / (tau + dt))
+    alpha = ca.if_else(mask[2], 1, dt / ((ca.fmin(lp_time, tau) if p["accel_lpf_warm"] else tau) + dt))
+    lp_new = ca.if_else(mask[2], lp_time, ca.fmin(lp_time + dt, tau))
     f_n = quat.rotate(q, f)
     a_new = a_lp + alpha * (f_n - a_lp)
     if p["motion_comp"] == "gps_lowpass":
         # velocity: the GPS sample when one arrived, else carried by a = R f + g from the last
         # one (no GPS-rate staircase in the low-passed derivative)
         # (aiding.gps_lowpass; without compensation, m_comp = 0, the velocity low-pass holds)
-        vi_new, v_new, up = aiding.gps_lowpass(a_new, f_n, vel, v_lp, v_ins, alpha, dt, p["accel_lpf_tau"],
+        vi_new, v_new, up = aiding.gps_lowpass(a_new, f_n, vel, v_lp, v_ins, alpha_v, dt, tau,
                                                mask[1], m_comp, G0)
     else:
         vi_new, v_new, up = v_ins, v_lp, a_new
     return emit.function(name, {"q": q, "b": b, "gyro": gyro, "accel": accel, "vel": vel, "acc_n": acc_n,
-                                "mask": mask, "a_lp": a_lp, "v_lp": v_lp, "v_ins": v_ins, "dt": dt},
-                         {"a_lp_out": a_new, "v_lp_out": v_new, "v_ins_out": vi_new, "up_out": up,
+                                "mask": mask, "a_lp": a_lp, "v_lp": v_lp, "v_ins": v_ins, "lp_time": lp_time,
+                                "dt": dt},
+                         {"a_lp_out": a_new, "v_lp_out": v_new, "v_ins_out": vi_new, "lp_time_out": lp_new,
+                          "up_out": up,
                           "up_ok": ca.sumsqr(up) > _square(p["accel_min_norm"])})
 
 
@@ -355,12 +371,13 @@ def _inject(q, b, X):
     return quat.qnormalize(quat.qmul(q, quat.vec(1, X[0], X[1], X[2]))), b + X[3:6]
 
 
-def gravity_rows(p: dict, q, up, recover, dt, turn=None):
+def gravity_rows(p: dict, q, up, recover, dt, turn=None, p_bb=None):
     """The gravity-direction measurement: H's attitude columns Hq (3 x 3; the bias columns are
     0), innovations z and their variance r.
 
     z_g = up/|up| in body axes − R(q̂)ᵀ [0, 0, −1] (up: accel_lowpass's earth-frame vector); R_g = σ² min(1 + |z_g|²/(3σ)², cap), σ² = accel_angle_noise² + accel_noise_density²/dt
-    (bounded residual adaptation: the correction can be weakened, never locked out).
+    (bounded residual adaptation: the correction can be weakened, never locked out); p_bb given
+    (the sum of P's gyro-bias diagonal), the density term times 1 + accel_bias_gain p_bb / (3 p0_bias²).
     With GPS (`turn` = (gyro, b̂, v, unobserved)): while the last GPS velocity is stale
     (unobserved = 1: no motion compensation) σ² gains (ω_v |v_h| / g)², the angle by which a turn
     at the last GPS ground speed |v_h| tilts the specific force (ω_v = (gyro − b̂) · R(q̂)ᵀ e₃, the
@@ -372,7 +389,12 @@ def gravity_rows(p: dict, q, up, recover, dt, turn=None):
     # the motion the low-pass leaves (per sample) and the sensor's white noise (a density over dt)
     sig2 = p["accel_angle_noise"] ** 2
     if not (isinstance(p["accel_noise_density"], (int, float)) and p["accel_noise_density"] == 0):
-        sig2 = sig2 + p["accel_noise_density"] ** 2 / ca.fmax(dt, use(DT_Q_MIN))
+        white = p["accel_noise_density"] ** 2 / ca.fmax(dt, use(DT_Q_MIN))
+        if p_bb is not None and not (isinstance(p["accel_bias_gain"], (int, float)) and p["accel_bias_gain"] == 0):
+            # trusted less while the gyro bias is still uncertain (its variance, the mean of P's
+            # bias diagonal, against its start p0_bias²): what the tilt then takes goes into the bias
+            white = white * (1 + p_bb * (p["accel_bias_gain"] / (3 * p["p0_bias"] * p["p0_bias"])))
+        sig2 = sig2 + white
     if turn is not None:
         # unobserved motion: a turn at the last GPS ground speed, as an angle (centripetal / g)
         gyro, b, vel, unobserved = turn
@@ -396,7 +418,8 @@ def update_gravity_function(p: dict, gps: bool = False, name="update_gravity") -
     if gps:
         turn = tuple(ca.SX.sym(n, k) for n, k in (("gyro", 3), ("b", 3), ("vel", 3), ("unobserved", 1)))
         ins |= dict(zip(("gyro", "b", "vel", "unobserved"), turn))
-    Hq, z, r = gravity_rows(p, q, up, recover, dt, turn)
+    p_bb = Pv[3 + N * 3] + Pv[4 + N * 4] + Pv[5 + N * 5]     # the gyro bias's variances (3 times their mean)
+    Hq, z, r = gravity_rows(p, q, up, recover, dt, turn, p_bb)
     rows = [(ca.horzcat(Hq[i, :], ca.SX.zeros(1, 3)), z[i], r) for i in range(3)]
     x_new, P_new, min_pivot = kalman.scalar_updates(sym_lower(Pv), rows, tol=S_PIVOT_MIN)
     return emit.function(name, ins | {"P": Pv},
@@ -715,6 +738,7 @@ class Model(FilterModel):
     def _vector_fields(self) -> list[StateField]:
         return [
             StateField("a_lp", 3, "specific force low-passed in the earth frame (NED), m/s^2", 0.0),
+            StateField("lp_time", 1, "time a_lp has averaged, s (its warm start; stops at accel_lpf_tau)", 0.0),
             StateField("v_lp", 3, "GPS velocity through the same low-pass (motion_comp = gps_lowpass), m/s", 0.0),
             StateField("vlp_ok", 1, "1 while v_lp follows a fresh GPS velocity", 0, "uint32"),
             StateField("v_ins", 3, "GPS velocity carried between GPS samples by the accelerometer, m/s", 0.0),
@@ -787,7 +811,8 @@ class Model(FilterModel):
                            flags=("clip",)),
                 KernelSpec("accel_lowpass", accel_lowpass_function(p), "earth-frame low-pass of the compensated specific force",
                            flags=("mask", "up_ok"), early_writes=True,
-                           in_place=(("a_lp_out", "a_lp"), ("v_lp_out", "v_lp"), ("v_ins_out", "v_ins"))),
+                           in_place=(("a_lp_out", "a_lp"), ("v_lp_out", "v_lp"), ("v_ins_out", "v_ins"),
+                                     ("lp_time_out", "lp_time"))),
                 KernelSpec("heading_features", heading_features_function(), "field norm and dip; GPS velocity in body axes"),
                 KernelSpec("update_gravity", update_gravity_function(p, "gps" in self.sensors),
                            "gravity direction: three scalar rows on the attitude error",
