@@ -312,8 +312,9 @@ def accel_lowpass_function(p: dict, name="accel_lowpass") -> ca.Function:
     # recovering: the sample itself (lp_time held: a warm start begun again after a gyro clip
     # was measured worse on gyro_clip, 0.31 against 0.26 deg)
     alpha_v = ca.if_else(mask[2], 1, dt / (tau + dt))
-    alpha = ca.if_else(mask[2], 1, dt / ((ca.fmin(lp_time, tau) if p["accel_lpf_warm"] else tau) + dt))
-    lp_new = ca.if_else(mask[2], lp_time, ca.fmin(lp_time + dt, tau))
+    warm, lp_next = aiding.warm_lowpass_gain(lp_time, tau, dt)
+    alpha = ca.if_else(mask[2], 1, warm if p["accel_lpf_warm"] else dt / (tau + dt))
+    lp_new = ca.if_else(mask[2], lp_time, lp_next)
     f_n = quat.rotate(q, f)
     a_new = a_lp + alpha * (f_n - a_lp)
     if p["motion_comp"] == "gps_lowpass":

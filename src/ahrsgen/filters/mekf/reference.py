@@ -38,7 +38,7 @@ import numpy as np
 from ahrsgen.constants import G0
 from ahrsgen.codegen import input_checks
 from ahrsgen import status as st
-from ahrsgen.reference_aiding import GyroClip, HardIron
+from ahrsgen.reference_aiding import GyroClip, HardIron, warm_lowpass_gain
 from ahrsgen.npquat import euler_from_q, q_from_euler, qexp, qmul, rotmat, skew, wrap
 
 # Filter-specific status bits (informational; the step ran).
@@ -489,9 +489,9 @@ class Reference:
             # worse on gyro_clip, 0.31 against 0.26 deg). The velocity's low-pass keeps its gain
             # from the start
             aa = 1.0 if recovering else dt / (self.accel_lpf_tau + dt)
-            span = min(self.lp_time, self.accel_lpf_tau) if self.accel_lpf_warm else self.accel_lpf_tau
-            a_gain = 1.0 if recovering else dt / (span + dt)
-            self.lp_time = self.lp_time if recovering else min(self.lp_time + dt, self.accel_lpf_tau)
+            warm, lp_next = warm_lowpass_gain(self.lp_time, self.accel_lpf_tau, dt)
+            a_gain = 1.0 if recovering else (warm if self.accel_lpf_warm else aa)
+            self.lp_time = self.lp_time if recovering else lp_next
             self.a_lp = self.a_lp + a_gain * (Rq @ fc - self.a_lp)
             up = self.a_lp
             if self.motion_comp == "gps_lowpass":
