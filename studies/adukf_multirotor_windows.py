@@ -25,44 +25,14 @@ from __future__ import annotations
 
 import sys
 
-import numpy as np
+from multirotor_windows import report
 
-from ahrsgen.bench.scoring import compare_frame, filter_estimator, score_mask
-from ahrsgen.sim.metrics import broad_errors_deg
-from ahrsgen.sim.scenarios import make
-
-RATES = (400.0, 1000.0)
-SEEDS = range(3)
-WINDOWS = ((5.0, 15.0), (15.0, 120.0), (120.0, 241.0))
 ROWS = ("", "accel_lp_warm=false")
-
-
-def windows(sets: list[str], logs, filter_name: str = "adukf") -> list[float]:
-    """Mean over the logs of the total RMS (deg) in each window."""
-    est = filter_estimator(filter_name, sets)
-    out = []
-    for log in logs:
-        q, frame, _ = est.run(log)
-        m = score_mask(log)
-        tot = np.asarray(broad_errors_deg(compare_frame(q, log, frame, m), log.q_true)[0])
-        t = log.t - log.t[0]
-        out.append([float(np.sqrt(np.mean(tot[m & (t >= a) & (t < b)] ** 2))) for a, b in WINDOWS])
-    return list(np.mean(out, axis=0))
 
 
 def main(argv=None) -> int:
     argv = sys.argv[1:] if argv is None else argv
-    filter_name = argv[0] if argv else "adukf"
-    logs = {r: [make("multirotor", s, rate_hz=r, mag_rate=100.0, duration=240.0) for s in SEEDS] for r in RATES}
-    print(f"{filter_name}, multirotor (magnetometer 100 Hz), total RMS in degrees, mean of seeds 0-2, windows "
-          + ", ".join(f"{a:g}-{min(b, 240):g} s" for a, b in WINDOWS))
-    print(f"{'setting':40s} " + " | ".join(f"{int(r)} Hz".center(20) for r in RATES))
-    for row in ROWS:
-        sets = row.split()
-        label = row or "defaults"
-        cells = [" / ".join(f"{x:.2f}" for x in windows(sets, logs[r], filter_name)) for r in RATES]
-        print(f"{label:40s} " + " | ".join(c.center(20) for c in cells), flush=True)
-    return 0
+    return report(argv[0] if argv else "adukf", ROWS)
 
 
 if __name__ == "__main__":

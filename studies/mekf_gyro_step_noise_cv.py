@@ -45,15 +45,22 @@ def candidates():
         yield {"mag_heading_density": d, "mag_dev_gain": k, "gyro_step_noise": c}
 
 
-def main(argv=None):
-    return logo_cv.study(__doc__, argv, SCENARIOS, SEEDS, candidates(), BEFORE,
-                         "mekf gyro_step_noise with the graded magnetometer trust, leave one BROAD group out",
-                         "before", "mekf", rates=RATES,
+def mekf_study(doc, argv, candidates, before, title, label="before"):
+    """logo_cv.study with mekf's scenarios, seeds, rates and GPS-outage entry, and its
+    admissibility (multirotor and fixedwing_gps bounds, the other entries within 10 % or 0.05
+    deg of the baseline): one place for this study and those that follow it."""
+    return logo_cv.study(doc, argv, SCENARIOS, SEEDS, candidates, before, title, label, "mekf", rates=RATES,
                          extra_logs=lambda seeds: {"fixedwing_gps_outage": [gps_outage(make("fixedwing_gps", s))
                                                                             for s in seeds]},
                          admissible=lambda e, base: e["multirotor"] <= MULTIROTOR_MAX
                          and e["fixedwing_gps"] <= FIXEDWING_MAX
                          and all(e[k] <= max(1.1 * base[k], base[k] + 0.05) for k in KEEP))
+
+
+def main(argv=None):
+    return mekf_study(__doc__, argv, candidates(), BEFORE,
+                      "mekf gyro_step_noise with the graded magnetometer trust, leave one BROAD group out",
+                      "before")
 
 
 if __name__ == "__main__":

@@ -29,45 +29,16 @@ from __future__ import annotations
 
 import sys
 
-import numpy as np
+from multirotor_windows import report
 
-from ahrsgen.bench.scoring import compare_frame, filter_estimator, score_mask
-from ahrsgen.sim.metrics import broad_errors_deg
-from ahrsgen.sim.scenarios import make
-
-RATES = (400.0, 1000.0)
-SEEDS = range(3)
-WINDOWS = ((5.0, 15.0), (15.0, 120.0), (120.0, 241.0))
 TUNE_1K = ("accel_angle_noise=0.00174 accel_noise_density=0.02701 mag_heading_density=0.005184 "
            "gyro_rate_noise=0.00105 mag_dev_gain=22800 gyro_step_noise=14.14")
 ROWS = ("", "accel_lpf_warm=false", "gyro_step_noise=0.5", "gyro_step_noise=14", "accel_noise_density=0.027",
         "mag_heading_density=0.0052", "mag_dev_gain=22800", TUNE_1K)
 
 
-def windows(sets: list[str], logs) -> list[float]:
-    """Mean over the logs of the total RMS (deg) in each window."""
-    est = filter_estimator("mekf", sets)
-    out = []
-    for log in logs:
-        q, frame, _ = est.run(log)
-        m = score_mask(log)
-        tot = np.asarray(broad_errors_deg(compare_frame(q, log, frame, m), log.q_true)[0])
-        t = log.t - log.t[0]
-        out.append([float(np.sqrt(np.mean(tot[m & (t >= a) & (t < b)] ** 2))) for a, b in WINDOWS])
-    return list(np.mean(out, axis=0))
-
-
 def main() -> int:
-    logs = {r: [make("multirotor", s, rate_hz=r, mag_rate=100.0, duration=240.0) for s in SEEDS] for r in RATES}
-    print("mekf, multirotor (magnetometer 100 Hz), total RMS in degrees, mean of seeds 0-2, windows "
-          + ", ".join(f"{a:g}-{min(b, 240):g} s" for a, b in WINDOWS))
-    print(f"{'setting':40s} " + " | ".join(f"{int(r)} Hz".center(20) for r in RATES))
-    for row in ROWS:
-        sets = row.split()
-        label = "1 kHz tune" if row == TUNE_1K else (row or "defaults")
-        cells = [" / ".join(f"{x:.2f}" for x in windows(sets, logs[r])) for r in RATES]
-        print(f"{label:40s} " + " | ".join(c.center(20) for c in cells), flush=True)
-    return 0
+    return report("mekf", ROWS, {TUNE_1K: "1 kHz tune"})
 
 
 if __name__ == "__main__":

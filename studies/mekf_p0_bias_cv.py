@@ -31,13 +31,8 @@ from __future__ import annotations
 
 import sys
 
-import logo_cv
-from mekf_accel_density_cv import FIXEDWING_MAX, gps_outage
-from mekf_gyro_step_noise_cv import KEEP, SCENARIOS
-from mekf_mag_dev_cv import MULTIROTOR_MAX, RATES
-from ahrsgen.sim.scenarios import make
+from mekf_gyro_step_noise_cv import mekf_study
 
-SEEDS = range(3)
 BEFORE = {"p0_bias": 0.01, "accel_bias_gain": 0.0}     # measured before accel_bias_gain
 
 
@@ -47,14 +42,9 @@ def candidates():
 
 
 def main(argv=None):
-    return logo_cv.study(__doc__, argv, SCENARIOS, SEEDS, candidates(), BEFORE,
-                         "mekf initial gyro-bias standard deviation, leave one BROAD group out",
-                         "defaults", "mekf", rates=RATES,
-                         extra_logs=lambda seeds: {"fixedwing_gps_outage": [gps_outage(make("fixedwing_gps", s))
-                                                                            for s in seeds]},
-                         admissible=lambda e, base: e["multirotor"] <= MULTIROTOR_MAX
-                         and e["fixedwing_gps"] <= FIXEDWING_MAX
-                         and all(e[k] <= max(1.1 * base[k], base[k] + 0.05) for k in KEEP))
+    return mekf_study(__doc__, argv, candidates(), BEFORE,
+                      "mekf initial gyro-bias standard deviation, leave one BROAD group out",
+                      "defaults")
 
 
 if __name__ == "__main__":

@@ -38,13 +38,8 @@ from __future__ import annotations
 import itertools
 import sys
 
-import logo_cv
-from mekf_accel_density_cv import FIXEDWING_MAX, gps_outage
-from mekf_gyro_step_noise_cv import KEEP, SCENARIOS
-from mekf_mag_dev_cv import MULTIROTOR_MAX, RATES
-from ahrsgen.sim.scenarios import make
+from mekf_gyro_step_noise_cv import mekf_study
 
-SEEDS = range(3)
 BEFORE = {"accel_lpf_warm": "false", "mag_heading_density": 0.024}
 
 
@@ -54,14 +49,9 @@ def candidates():
 
 
 def main(argv=None):
-    return logo_cv.study(__doc__, argv, SCENARIOS, SEEDS, candidates(), BEFORE,
-                         "mekf accelerometer low-pass warm start, leave one BROAD group out",
-                         "before", "mekf", rates=RATES,
-                         extra_logs=lambda seeds: {"fixedwing_gps_outage": [gps_outage(make("fixedwing_gps", s))
-                                                                            for s in seeds]},
-                         admissible=lambda e, base: e["multirotor"] <= MULTIROTOR_MAX
-                         and e["fixedwing_gps"] <= FIXEDWING_MAX
-                         and all(e[k] <= max(1.1 * base[k], base[k] + 0.05) for k in KEEP))
+    return mekf_study(__doc__, argv, candidates(), BEFORE,
+                      "mekf accelerometer low-pass warm start, leave one BROAD group out",
+                      "before")
 
 
 if __name__ == "__main__":
