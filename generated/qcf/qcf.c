@@ -2579,8 +2579,8 @@ qcf_status qcf_step(qcf_state *restrict s, const qcf_input *restrict in, float d
             s->vlp_ok = 1u;
         }
         qcf_k_accel_lowpass(rot, in->accel, s->accel_lp, s->accel_age, recovering, s->lp_time,
-            s->gps_vel_hist, use_gps, m_comp, s->v_lp, s->v_ins, s->accel_lp, &s->lp_time, s->v_lp, s->v_ins,
-            up);
+            s->gps_vel_hist, use_gps, m_comp, s->v_lp, s->v_ins, s->accel_lp, &s->lp_time, s->v_lp,
+            s->v_ins, up);
         qcf_k_rest(in->gyro, accel_n2, s->rest_gyro_lp, s->rest_time, s->accel_age, s->q, s->rest_q,
             s->rest_rate_lp, s->rest_gyro_lp, s->rest_rate_lp, &s->rest_time, &at_rest);
         for (int i = 0; i < 4; i++) {

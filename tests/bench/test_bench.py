@@ -209,15 +209,15 @@ def test_mini_bench_writes_tables(tmp_path, monkeypatch):
     c = rep["cost"]
     # the hand-written QCF: 34 floats (a 7-sample GPS velocity history); the default product
     # build: 13 words of the paper's filter with only the latest GPS velocity (q 4, bias 3,
-    # velocity 3, GPS age, count, initialised) and 20 floats of
-    # conditioning state (NED low-pass 3, sample ages 2, rest detector 4: low-passed gyro and
+    # velocity 3, GPS age, count, initialised) and 21 floats of
+    # conditioning state (NED low-pass 3 and its warm-start time 1, sample ages 2, rest detector 4: low-passed gyro and
     # steady time, field reference 2 + 2 timers, the gyro over-range recovery timer and its
     # plateau detector 6: the previous gyro sample and the repeat counts), and 45 of the hard
     # iron (issue 25: the hard iron 3, the candidate 5 and its 5x5 covariance 25, its start flag,
     # residuals 4, their mean 2, mean squares 3, turning time, suspect flag); 7 of the rest
     # detector's turn test on the estimate (rest_turn: the last predicted q 4, its low-passed rate
     # 3) and 7 of the GPS linear-acceleration model (gps_lowpass: v_lp 3, v_ins 3, its flag)
-    assert c["qcf_hand"]["state_bytes"] == 136 and c["qcf"]["state_bytes"] == (13 + 20 + 45 + 7 + 7) * 4
+    assert c["qcf_hand"]["state_bytes"] == 136 and c["qcf"]["state_bytes"] == (13 + 21 + 45 + 7 + 7) * 4
     assert 0.2 < c["qcf_eq29"]["ratio_to_hand_qcf"] < 20
     assert c["qcf"]["ops_total"] > c["qcf"]["paths"].get("gyro only", 0) > 0
     md = (tmp_path / "bench.md").read_text()
