@@ -4532,7 +4532,7 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
              * as x == 0) */
             const bool restart = ((adukf_bits(s->accel_lp[0]) | adukf_bits(s->accel_lp[1])
                                    | adukf_bits(s->accel_lp[2])) << 1) == 0u;
-            if (m_comp && s->vlp_ok == 0u) {
+            if (m_comp && s->vlp_ok == 0u) {   /* (re)start on the present velocity */
                 for (int i = 0; i < 3; i++) {
                     s->v_lp[i] = s->gps_vel[i];
                     s->v_ins[i] = s->gps_vel[i];

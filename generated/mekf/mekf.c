@@ -4842,7 +4842,7 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
     if (use_tilt) {
         const bool m_comp = fresh;
         if (fresh && s->vlp_ok == 0u) {   /* (re)start on the present velocity */
-            for (uint32_t i = 0u; i < 3u; i++) {
+            for (int i = 0; i < 3; i++) {
                 s->v_lp[i] = s->v_gps[i];
                 s->v_ins[i] = s->v_gps[i];
             }

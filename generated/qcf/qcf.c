@@ -2571,7 +2571,7 @@ qcf_status qcf_step(qcf_state *restrict s, const qcf_input *restrict in, float d
     }
     float up[3] = { s->accel_lp[0], s->accel_lp[1], s->accel_lp[2] };
     if (use_accel) {
-        if (m_comp && s->vlp_ok == 0u) {
+        if (m_comp && s->vlp_ok == 0u) {   /* (re)start on the present velocity */
             for (int i = 0; i < 3; i++) {
                 s->v_lp[i] = s->gps_vel_hist[i];
                 s->v_ins[i] = s->gps_vel_hist[i];
