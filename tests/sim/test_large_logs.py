@@ -202,11 +202,11 @@ def test_cli_run_reads_a_large_log_in_chunks(tmp_path, monkeypatch, capsys):
     """`ahrsgen run` streams a CSV larger than one block: same score lines as the whole read."""
     from ahrsgen.cli import main
     p = _variant(tmp_path)
-    monkeypatch.setattr(readers, "BLOCK_BYTES", 20000)
+    monkeypatch.setattr(readers.chunks, "BLOCK_BYTES", 20000)
     assert main(["run", "qcf", "--log", str(p), "--plot", str(tmp_path / "p.png")]) == 0
     chunked = capsys.readouterr().out
     assert "read in chunks" in chunked and (tmp_path / "p.png").stat().st_size > 1000
-    monkeypatch.setattr(readers, "BLOCK_BYTES", 1 << 30)
+    monkeypatch.setattr(readers.chunks, "BLOCK_BYTES", 1 << 30)
     assert main(["run", "qcf", "--log", str(p)]) == 0
     whole = capsys.readouterr().out
     tail = lambda s: s[s.index("error vs"):s.index("wrote") if "wrote" in s else None]  # noqa: E731
@@ -217,7 +217,7 @@ def test_without_pyarrow_same_arrays(tmp_path, monkeypatch):
     """A plain install (no pyarrow): every block goes through read_csv's numpy parser."""
     p = _variant(tmp_path, movement=False)
     with_arrow = _concat(list(readers.CsvChunks(p, block_bytes=5000)))
-    monkeypatch.setattr(readers, "_arrow_csv", lambda: (None, None))
+    monkeypatch.setattr(readers.chunks, "_arrow_csv", lambda: (None, None))
     without = _concat(list(readers.CsvChunks(p, block_bytes=5000)))
     for f in FIELDS:
         assert np.array_equal(with_arrow[f], without[f], equal_nan=True), f
@@ -236,7 +236,7 @@ def test_cli_a_bad_line_in_a_later_chunk_is_one_line(tmp_path, monkeypatch, caps
     p.write_text("\n".join(lines) + "\n")
     with pytest.raises(readers.LogError) as whole:
         readers.read_csv(p)
-    monkeypatch.setattr(readers, "BLOCK_BYTES", 2000)
+    monkeypatch.setattr(readers.chunks, "BLOCK_BYTES", 2000)
     out = tmp_path / "o.csv"
     assert main(["run", "qcf", "--log", str(p), "--csv", str(out)]) == 2
     err = capsys.readouterr().err.strip().splitlines()

@@ -36,7 +36,7 @@ def _cmd_run(args) -> int:
     # whole log is needed at once (--exe, --export-log)
     lower = str(args.log).lower()
     chunked = (lower.endswith((".csv", ".csv.gz")) and not (args.exe or args.export_log)
-               and Path(args.log).is_file() and Path(args.log).stat().st_size > readers.BLOCK_BYTES)
+               and Path(args.log).is_file() and Path(args.log).stat().st_size > readers.chunks.BLOCK_BYTES)
     try:
         log = readers.CsvChunks(args.log) if chunked else readers.read_log(args.log)
     except FileNotFoundError:
