@@ -36,8 +36,8 @@ def _have(name: str) -> bool:
         from ahrsgen.check import harden
         return harden.clang_fuzzer_works()
     if name == "cppcheck":
-        from ahrsgen.check import harden
-        return harden.have_tool(harden.CPPCHECK)
+        from ahrsgen.check import static, tools
+        return tools.have_tool(static.CPPCHECK)
     if name == "target":                # arm-none-eabi-gcc + newlib, qemu-system-arm, unicorn, pyelftools
         from ahrsgen import target
         return not target.missing_tools()

@@ -13,7 +13,7 @@ import shutil
 import pytest
 
 from conftest import needs
-from ahrsgen.check import harden
+from ahrsgen.check import harden, static, tools
 
 pytestmark = pytest.mark.slow       # tests/README.md: left out of the quick run
 
@@ -335,11 +335,11 @@ def test_cli_unknown_filter(capsys):
 def test_cli_refuses_a_check_it_cannot_run(monkeypatch, capsys):
     """Fuzzing asked for but the fuzzer cannot link: one line, exit 2, not a table of '-'."""
     from ahrsgen import cli
-    monkeypatch.setattr(harden, "CLANG", "no-such-clang-ahrsgen")
+    monkeypatch.setattr(tools, "CLANG", "no-such-clang-ahrsgen")
     rc = cli.main(["harden", "qcf", "--fuzz-seconds", "20", "--soak-steps", "1e5", "--no-cppcheck"])
     err = capsys.readouterr().err
     assert rc == 2 and err.count("\n") == 1 and "fuzzing" in err and "libclang-rt" in err, err
-    monkeypatch.setattr(harden, "CPPCHECK", "no-such-cppcheck-ahrsgen")
+    monkeypatch.setattr(static, "CPPCHECK", "no-such-cppcheck-ahrsgen")
     assert cli.main(["harden", "qcf", "--fuzz-seconds", "0", "--soak-steps", "0"]) == 2
     assert "cppcheck" in capsys.readouterr().err
 
