@@ -175,6 +175,20 @@ class FilterModel:
         """Named paths through one step -> kernels they run, for the op-count report."""
         return {}
 
+    def op_paths(self) -> dict[str, list[str]]:
+        """step_paths as the op-count report (manifest "step_paths") counts them. Where the step
+        runs the gyro over-range kernel only when it can change something (template context
+        `gyro_quiet`, codegen/templates/gyro_recovery.c.j2: a gyro component near its range, a
+        plateau run counting or a recovery under way), that kernel is counted on a path of its
+        own rather than on every path."""
+        paths = self.step_paths()
+        if not self.template_context().get("gyro_quiet") or \
+                not any("gyro_recovery" in ks for ks in paths.values()):
+            return paths
+        out = {n: [k for k in ks if k != "gyro_recovery"] for n, ks in paths.items()}
+        out["gyro near its range (extra)"] = ["gyro_recovery"]
+        return out
+
     def template_context(self) -> dict:
         """Extra values for the step partial (sizes, flags)."""
         return {}

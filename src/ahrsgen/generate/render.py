@@ -360,7 +360,7 @@ def render(cfg: BuildConfig, names: bool = True) -> Generated:
     source = env.get_template("filter.c.j2").render(ctx)
 
     paths = {}
-    for pname, knames in model.step_paths().items():
+    for pname, knames in model.op_paths().items():
         total = {c: 0 for c in emit.CATEGORIES}
         for kn in knames:
             for c, n in by_name[kn].ops.items():
