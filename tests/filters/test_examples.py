@@ -113,7 +113,7 @@ def test_target_sets_the_example_beside_the_hand_written_peer(tmp_path, capsys):
 
 def test_every_command_takes_the_example_folder(tmp_path, capsys):
     """list, generate, validate, run, bench and harden on examples/mahony, exactly as on a
-    built-in (target: the test above; tune: tests/test_tune.py)."""
+    built-in (target: the test above; tune: tests/tune/test_tune.py)."""
     from ahrsgen import cli
     folder = EXAMPLES[1]
     runs = [

@@ -118,7 +118,7 @@ def test_tune_user_filter_folder(tmp_path):
     # in a separate process: a filter loaded by path stays registered by name in the process
     import subprocess
     import sys
-    folder = Path(__file__).resolve().parents[1] / "examples" / "madgwick"
+    folder = Path(__file__).resolve().parents[2] / "examples" / "madgwick"
     out = tmp_path / "m.toml"
     ahrsgen = [sys.executable, "-m", "ahrsgen.cli"]
     r = subprocess.run([*ahrsgen, "tune", str(folder), *LOGS, "--params", "beta", "--budget", "8", "--folds", "0",
@@ -204,7 +204,7 @@ def test_a_fold_never_evaluates_its_held_out_logs(monkeypatch):
             return real_optimise(self, cases, budget, what)
         finally:
             training["labels"] = None
-    monkeypatch.setattr(tune, "evaluate", fake_evaluate)
+    monkeypatch.setattr(tune.study, "evaluate", fake_evaluate)
     monkeypatch.setattr(tune.Tuner, "optimise", optimise)
     try:
         rep = tune.tune("qcf", ["kp"], cases, budget=4, folds=5, workers=1, progress=False, out=io.StringIO())
