@@ -90,6 +90,24 @@ def test_scaled_exponential_is_a_positive_multiple_of_the_exact_one():
     assert abs(got[0] - n / np.tan(n)) <= 1382 * n ** 12 / 638512875 + 2e-16
 
 
+def test_near_unit_normalisation_is_within_its_stated_error():
+    """qnormalize_near_unit against q/|q| (NumPy): within NEAR_UNIT_MAX of |q|^2 = 1 the Newton
+    step's relative error is 3/8 eps^2 (+ O(eps^3)), below half a float ulp (2^-25) at the
+    threshold; beyond it the exact quotient."""
+    f = ca.Function("nu", [q4], [quat.qnormalize_near_unit(q4)])
+    bound = float(quat.NEAR_UNIT_MAX)
+    assert 3 / 8 * bound ** 2 < 2.0 ** -25
+    for eps in (1e-7, -3e-6, 1e-4, -0.9 * bound, 0.99 * bound, 2 * bound, -0.3, 5.0):
+        u = random_q()
+        q = u * np.sqrt(1 + eps)
+        got = np.array(f(q)).ravel()
+        err = np.linalg.norm(got - u)
+        if abs(eps) < bound:
+            assert err <= 3 / 8 * eps ** 2 * (1 + 2 * abs(eps)) + 1e-15, eps
+        else:
+            assert err < 1e-15, eps
+
+
 def test_wrap_by_comparison_equals_floor_wrap_on_its_domain():
     a = ca.SX.sym("a")
     w = ca.Function("w", [a], [quat.wrap(a)])
