@@ -552,93 +552,104 @@ static void qcf_k_accel_lowpass_part0(const float rot[9], const float accel[3],
     const float accel_lp[3], float span, bool recover, float lp_time, const float gps_vel[3],
     bool new_gps, const float v_lp[3], const float v_ins[3], float carry[13])
 {
-    const float tmp0 = (lp_time < 1.0f) ? lp_time : 1.0f;
-    const float tmp1 = tmp0 + span;
-    const float tmp2 = span / tmp1;
-    const float tmp3 = (recover) ? 1.0f : tmp2;
-    const float tmp4 = rot[0] * accel[0];
-    const float tmp5 = rot[3] * accel[1];
-    const float tmp6 = tmp4 + tmp5;
-    const float tmp7 = rot[6] * accel[2];
-    const float tmp8 = tmp6 + tmp7;
-    const float tmp9 = tmp8 - accel_lp[0];
-    const float tmp10 = tmp3 * tmp9;
-    const float tmp11 = accel_lp[0] + tmp10;
-    const float tmp12 = rot[1] * accel[0];
-    const float tmp13 = rot[4] * accel[1];
+    float tmp0;
+    float tmp1;
+    float tmp2;
+    if (recover) {
+        tmp0 = 1.0f;
+        tmp1 = lp_time;
+        tmp2 = 1.0f;
+    } else {
+        const float tmp3 = 1.0f + span;
+        const float tmp4 = (lp_time < 1.0f) ? lp_time : 1.0f;
+        const float tmp5 = tmp4 + span;
+        const float tmp6 = tmp5 * tmp3;
+        const float tmp7 = span / tmp6;
+        const float tmp8 = tmp3 * tmp7;
+        const float tmp9 = lp_time + span;
+        const float tmp10 = (tmp9 < 1.0f) ? tmp9 : 1.0f;
+        const float tmp11 = tmp5 * tmp7;
+        tmp0 = tmp8;
+        tmp1 = tmp10;
+        tmp2 = tmp11;
+    }
+    const float tmp12 = rot[0] * accel[0];
+    const float tmp13 = rot[3] * accel[1];
     const float tmp14 = tmp12 + tmp13;
-    const float tmp15 = rot[7] * accel[2];
+    const float tmp15 = rot[6] * accel[2];
     const float tmp16 = tmp14 + tmp15;
-    const float tmp17 = tmp16 - accel_lp[1];
-    const float tmp18 = tmp3 * tmp17;
-    const float tmp19 = accel_lp[1] + tmp18;
-    const float tmp20 = rot[2] * accel[0];
-    const float tmp21 = rot[5] * accel[1];
+    const float tmp17 = tmp16 - accel_lp[0];
+    const float tmp18 = tmp0 * tmp17;
+    const float tmp19 = accel_lp[0] + tmp18;
+    const float tmp20 = rot[1] * accel[0];
+    const float tmp21 = rot[4] * accel[1];
     const float tmp22 = tmp20 + tmp21;
-    const float tmp23 = rot[8] * accel[2];
+    const float tmp23 = rot[7] * accel[2];
     const float tmp24 = tmp22 + tmp23;
-    const float tmp25 = tmp24 - accel_lp[2];
-    const float tmp26 = tmp3 * tmp25;
-    const float tmp27 = accel_lp[2] + tmp26;
-    const float tmp28 = lp_time + span;
-    const float tmp29 = (tmp28 < 1.0f) ? tmp28 : 1.0f;
-    const float tmp30 = (recover) ? lp_time : tmp29;
-    const float tmp31 = 1.0f + span;
-    const float tmp32 = span / tmp31;
-    const float tmp33 = (recover) ? 1.0f : tmp32;
-    const float tmp34 = tmp8 * span;
-    const float tmp35 = v_ins[0] + tmp34;
-    const float tmp36 = (new_gps) ? gps_vel[0] : tmp35;
-    const float tmp37 = tmp36 - v_lp[0];
-    const float tmp38 = tmp33 * tmp37;
-    const float tmp39 = v_lp[0] + tmp38;
-    carry[0] = tmp11;
-    carry[1] = tmp16;
+    const float tmp25 = tmp24 - accel_lp[1];
+    const float tmp26 = tmp0 * tmp25;
+    const float tmp27 = accel_lp[1] + tmp26;
+    const float tmp28 = rot[2] * accel[0];
+    const float tmp29 = rot[5] * accel[1];
+    const float tmp30 = tmp28 + tmp29;
+    const float tmp31 = rot[8] * accel[2];
+    const float tmp32 = tmp30 + tmp31;
+    const float tmp33 = tmp32 - accel_lp[2];
+    const float tmp34 = tmp0 * tmp33;
+    const float tmp35 = accel_lp[2] + tmp34;
+    const float tmp36 = tmp16 * span;
+    const float tmp37 = v_ins[0] + tmp36;
+    const float tmp38 = (new_gps) ? gps_vel[0] : tmp37;
+    const float tmp39 = tmp38 - v_lp[0];
+    carry[0] = tmp1;
+    carry[1] = tmp2;
     carry[2] = tmp19;
     carry[3] = tmp24;
     carry[4] = tmp27;
-    carry[5] = tmp30;
-    carry[6] = tmp33;
-    carry[7] = tmp36;
+    carry[5] = tmp32;
+    carry[6] = tmp35;
+    carry[7] = tmp38;
     carry[8] = tmp39;
 }
 
 static void qcf_k_accel_lowpass_part1(float span, const float gps_vel[3], bool new_gps, bool m_comp,
     const float v_lp[3], const float v_ins[3], float carry[13])
 {
-    const float tmp40 = (m_comp) ? carry[8] /* tmp39 */ : v_lp[0];
-    const float tmp41 = carry[1] /* tmp16 */ * span;
-    const float tmp42 = v_ins[1] + tmp41;
-    const float tmp43 = (new_gps) ? gps_vel[1] : tmp42;
-    const float tmp44 = tmp43 - v_lp[1];
-    const float tmp45 = carry[6] /* tmp33 */ * tmp44;
-    const float tmp46 = v_lp[1] + tmp45;
-    const float tmp47 = (m_comp) ? tmp46 : v_lp[1];
-    const float tmp48 = carry[3] /* tmp24 */ + 9.80665f /* G0 */;
-    const float tmp49 = tmp48 * span;
-    const float tmp50 = v_ins[2] + tmp49;
-    const float tmp51 = (new_gps) ? gps_vel[2] : tmp50;
-    const float tmp52 = tmp51 - v_lp[2];
-    const float tmp53 = carry[6] /* tmp33 */ * tmp52;
-    const float tmp54 = v_lp[2] + tmp53;
-    const float tmp55 = (m_comp) ? tmp54 : v_lp[2];
-    const float tmp56 = carry[7] /* tmp36 */ - tmp40;
-    const float tmp57 = carry[0] /* tmp11 */ - tmp56;
-    const float tmp58 = (m_comp) ? tmp57 : carry[0] /* tmp11 */;
-    const float tmp59 = tmp43 - tmp47;
-    const float tmp60 = carry[2] /* tmp19 */ - tmp59;
-    const float tmp61 = (m_comp) ? tmp60 : carry[2] /* tmp19 */;
-    const float tmp62 = tmp51 - tmp55;
-    const float tmp63 = carry[4] /* tmp27 */ - tmp62;
-    const float tmp64 = (m_comp) ? tmp63 : carry[4] /* tmp27 */;
-    carry[1] = tmp40;
-    carry[3] = tmp43;
-    carry[6] = tmp47;
-    carry[8] = tmp51;
-    carry[9] = tmp55;
-    carry[10] = tmp58;
-    carry[11] = tmp61;
-    carry[12] = tmp64;
+    const float tmp40 = carry[1] /* tmp2 */ * carry[8] /* tmp39 */;
+    const float tmp41 = v_lp[0] + tmp40;
+    const float tmp42 = (m_comp) ? tmp41 : v_lp[0];
+    const float tmp43 = carry[3] /* tmp24 */ * span;
+    const float tmp44 = v_ins[1] + tmp43;
+    const float tmp45 = (new_gps) ? gps_vel[1] : tmp44;
+    const float tmp46 = tmp45 - v_lp[1];
+    const float tmp47 = carry[1] /* tmp2 */ * tmp46;
+    const float tmp48 = v_lp[1] + tmp47;
+    const float tmp49 = (m_comp) ? tmp48 : v_lp[1];
+    const float tmp50 = carry[5] /* tmp32 */ + 9.80665f /* G0 */;
+    const float tmp51 = tmp50 * span;
+    const float tmp52 = v_ins[2] + tmp51;
+    const float tmp53 = (new_gps) ? gps_vel[2] : tmp52;
+    const float tmp54 = tmp53 - v_lp[2];
+    const float tmp55 = carry[1] /* tmp2 */ * tmp54;
+    const float tmp56 = v_lp[2] + tmp55;
+    const float tmp57 = (m_comp) ? tmp56 : v_lp[2];
+    const float tmp58 = carry[7] /* tmp38 */ - tmp42;
+    const float tmp59 = carry[2] /* tmp19 */ - tmp58;
+    const float tmp60 = (m_comp) ? tmp59 : carry[2] /* tmp19 */;
+    const float tmp61 = tmp45 - tmp49;
+    const float tmp62 = carry[4] /* tmp27 */ - tmp61;
+    const float tmp63 = (m_comp) ? tmp62 : carry[4] /* tmp27 */;
+    const float tmp64 = tmp53 - tmp57;
+    const float tmp65 = carry[6] /* tmp35 */ - tmp64;
+    const float tmp66 = (m_comp) ? tmp65 : carry[6] /* tmp35 */;
+    carry[1] = tmp42;
+    carry[3] = tmp45;
+    carry[5] = tmp49;
+    carry[8] = tmp53;
+    carry[9] = tmp57;
+    carry[10] = tmp60;
+    carry[11] = tmp63;
+    carry[12] = tmp66;
 }
 
 /*
@@ -666,7 +677,8 @@ static void qcf_k_accel_lowpass_part1(float span, const float gps_vel[3], bool n
  *     v_ins_new: float[3]
  *     up: float[3]
  *
- * Total ops: 65 (add 31, mul 18, div 2, cmp 14)
+ * Total ops: 67 (add 31, mul 21, div 1, cmp 14)
+ *     of which only one side runs: if (recover) 0, else 9
  */
 static void qcf_k_accel_lowpass(const float rot[9], const float accel[3], const float accel_lp[3],
     float span, bool recover, float lp_time, const float gps_vel[3], bool new_gps, bool m_comp,
@@ -681,19 +693,19 @@ static void qcf_k_accel_lowpass(const float rot[9], const float accel[3], const 
     qcf_k_accel_lowpass_part0(rot, accel, accel_lp, span, recover, lp_time, gps_vel, new_gps, v_lp,
             v_ins, carry);
     qcf_k_accel_lowpass_part1(span, gps_vel, new_gps, m_comp, v_lp, v_ins, carry);
-    accel_lp_new[0] = carry[0] /* tmp11 */;
-    accel_lp_new[1] = carry[2] /* tmp19 */;
-    accel_lp_new[2] = carry[4] /* tmp27 */;
-    *lp_time_new = carry[5] /* tmp30 */;
-    v_lp_new[0] = carry[1] /* tmp40 */;
-    v_lp_new[1] = carry[6] /* tmp47 */;
-    v_lp_new[2] = carry[9] /* tmp55 */;
-    v_ins_new[0] = carry[7] /* tmp36 */;
-    v_ins_new[1] = carry[3] /* tmp43 */;
-    v_ins_new[2] = carry[8] /* tmp51 */;
-    up[0] = carry[10] /* tmp58 */;
-    up[1] = carry[11] /* tmp61 */;
-    up[2] = carry[12] /* tmp64 */;
+    accel_lp_new[0] = carry[2] /* tmp19 */;
+    accel_lp_new[1] = carry[4] /* tmp27 */;
+    accel_lp_new[2] = carry[6] /* tmp35 */;
+    *lp_time_new = carry[0] /* tmp1 */;
+    v_lp_new[0] = carry[1] /* tmp42 */;
+    v_lp_new[1] = carry[5] /* tmp49 */;
+    v_lp_new[2] = carry[9] /* tmp57 */;
+    v_ins_new[0] = carry[7] /* tmp38 */;
+    v_ins_new[1] = carry[3] /* tmp45 */;
+    v_ins_new[2] = carry[8] /* tmp53 */;
+    up[0] = carry[10] /* tmp60 */;
+    up[1] = carry[11] /* tmp63 */;
+    up[2] = carry[12] /* tmp66 */;
 }
 
 static void qcf_k_correct_part0(const float rot[9], const float accel_lp[3], float accel_lp_norm,

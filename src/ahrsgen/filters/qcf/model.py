@@ -385,6 +385,12 @@ class Model(FilterModel):
             # (lp_time 0 at the first sample), held while recovering from a gyro clip
             lp_time = ca.SX.sym("lp_time")
             k_warm, lp_next = aiding.warm_lowpass_gain(lp_time, p["accel_tau"], span)
+            if gps_lowpass(p):
+                # its gain and the GPS velocity's, s/(min(t, tau) + s) and s/(tau + s), from one
+                # division: r = s/(d_w d_g), k = d_g r and d_w r (the same float once warm)
+                d_w, d_g = ca.fmin(lp_time, use(p["accel_tau"])) + span, use(p["accel_tau"]) + span
+                r = span / (d_w * d_g)
+                k_warm, k_gps = d_g * r, d_w * r
             alpha_a = ca.if_else(recover, 1, k_warm)
             ins["lp_time"] = lp_time
             outs["lp_time_new"] = ca.if_else(recover, lp_time, lp_next)
@@ -401,7 +407,7 @@ class Model(FilterModel):
         v_ins = ca.SX.sym("v_ins", 3)
         new_gps = ca.SX.sym("new_gps")
         m_comp = ca.SX.sym("m_comp")
-        alpha = ca.if_else(recover, 1, span / (use(p["accel_tau"]) + span))
+        alpha = ca.if_else(recover, 1, k_gps if warm(p) else span / (use(p["accel_tau"]) + span))
         a_new = a_lp + (alpha_a if warm(p) else alpha) * (f_n - a_lp)
         vi_new, v_new, up = aiding.gps_lowpass(a_new, f_n, vel, v_lp, v_ins, alpha, span, p["accel_tau"],
                                                new_gps, m_comp, G0)
