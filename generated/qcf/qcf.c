@@ -821,166 +821,162 @@ static void qcf_k_correct_part2(const float q[4], float carry[11])
 {
     float tmp77;
     float tmp78;
-    if (carry[3] /* tmp76 */ < 0.01f /* SERIES_MAX*SERIES_MAX */) {
-        const float tmp79 = 2.4801588e-05f /* 1/40320 */ * carry[3] /* tmp76 */;
-        const float tmp80 = (-0.0013888889f) /* -(1/720) */ + tmp79;
+    if (carry[3] /* tmp76 */ < 0.0009f /* SMALL_SERIES_MAX*SMALL_SERIES_MAX */) {
+        const float tmp79 = (-0.0013888889f) /* -(1/720) */ * carry[3] /* tmp76 */;
+        const float tmp80 = 0.041666668f /* 1/24 */ + tmp79;
         const float tmp81 = carry[3] /* tmp76 */ * tmp80;
-        const float tmp82 = 0.041666668f /* 1/24 */ + tmp81;
+        const float tmp82 = (-0.5f) /* -(1/2) */ + tmp81;
         const float tmp83 = carry[3] /* tmp76 */ * tmp82;
-        const float tmp84 = (-0.5f) /* -(1/2) */ + tmp83;
-        const float tmp85 = carry[3] /* tmp76 */ * tmp84;
-        const float tmp86 = 1.0f + tmp85;
-        const float tmp87 = 2.7557319e-06f /* 1/362880 */ * carry[3] /* tmp76 */;
-        const float tmp88 = (-0.0001984127f) /* -(1/5040) */ + tmp87;
+        const float tmp84 = 1.0f + tmp83;
+        const float tmp85 = (-0.0001984127f) /* -(1/5040) */ * carry[3] /* tmp76 */;
+        const float tmp86 = 0.008333334f /* 1/120 */ + tmp85;
+        const float tmp87 = carry[3] /* tmp76 */ * tmp86;
+        const float tmp88 = (-0.16666667f) /* -(1/6) */ + tmp87;
         const float tmp89 = carry[3] /* tmp76 */ * tmp88;
-        const float tmp90 = 0.008333334f /* 1/120 */ + tmp89;
-        const float tmp91 = carry[3] /* tmp76 */ * tmp90;
-        const float tmp92 = (-0.16666667f) /* -(1/6) */ + tmp91;
-        const float tmp93 = carry[3] /* tmp76 */ * tmp92;
-        const float tmp94 = 1.0f + tmp93;
-        tmp77 = tmp86;
-        tmp78 = tmp94;
+        const float tmp90 = 1.0f + tmp89;
+        tmp77 = tmp84;
+        tmp78 = tmp90;
     } else {
-        const float tmp95 = (carry[3] /* tmp76 */ > 0.01f /* SERIES_MAX*SERIES_MAX */) ?
-                carry[3] /* tmp76 */ : 0.01f /* SERIES_MAX*SERIES_MAX */;
-        const float tmp96 = sqrtf(tmp95);
-        float tmp98;
-        float tmp97;
-        fast_sincosf(tmp96, &tmp98, &tmp97);   /* sin and cos, one reduction */
-        const float tmp99 = tmp98 / tmp96;
-        tmp77 = tmp97;
-        tmp78 = tmp99;
+        const float tmp91 = (carry[3] /* tmp76 */ > 0.0009f /* SMALL_SERIES_MAX*SMALL_SERIES_MAX */)
+                ? carry[3] /* tmp76 */ : 0.0009f /* SMALL_SERIES_MAX*SMALL_SERIES_MAX */;
+        const float tmp92 = sqrtf(tmp91);
+        float tmp94;
+        float tmp93;
+        fast_sincosf(tmp92, &tmp94, &tmp93);   /* sin and cos, one reduction */
+        const float tmp95 = tmp94 / tmp92;
+        tmp77 = tmp93;
+        tmp78 = tmp95;
     }
-    const float tmp100 = q[0] * tmp77;
-    const float tmp101 = tmp78 * carry[0] /* tmp61 */;
-    const float tmp102 = q[1] * tmp101;
-    const float tmp103 = tmp100 - tmp102;
-    const float tmp104 = tmp78 * carry[1] /* tmp67 */;
-    const float tmp105 = q[2] * tmp104;
-    const float tmp106 = tmp103 - tmp105;
-    const float tmp107 = tmp78 * carry[2] /* tmp74 */;
-    const float tmp108 = q[3] * tmp107;
-    const float tmp109 = tmp106 - tmp108;
-    const float tmp110 = tmp109 * tmp109;
-    const float tmp111 = q[0] * tmp101;
-    const float tmp112 = q[1] * tmp77;
-    const float tmp113 = tmp111 + tmp112;
-    const float tmp114 = q[2] * tmp107;
-    const float tmp115 = tmp113 + tmp114;
-    const float tmp116 = q[3] * tmp104;
+    const float tmp96 = q[0] * tmp77;
+    const float tmp97 = tmp78 * carry[0] /* tmp61 */;
+    const float tmp98 = q[1] * tmp97;
+    const float tmp99 = tmp96 - tmp98;
+    const float tmp100 = tmp78 * carry[1] /* tmp67 */;
+    const float tmp101 = q[2] * tmp100;
+    const float tmp102 = tmp99 - tmp101;
+    const float tmp103 = tmp78 * carry[2] /* tmp74 */;
+    const float tmp104 = q[3] * tmp103;
+    const float tmp105 = tmp102 - tmp104;
+    const float tmp106 = tmp105 * tmp105;
+    const float tmp107 = q[0] * tmp97;
+    const float tmp108 = q[1] * tmp77;
+    const float tmp109 = tmp107 + tmp108;
+    const float tmp110 = q[2] * tmp103;
+    const float tmp111 = tmp109 + tmp110;
+    const float tmp112 = q[3] * tmp100;
+    const float tmp113 = tmp111 - tmp112;
+    const float tmp114 = tmp113 * tmp113;
+    const float tmp115 = tmp106 + tmp114;
+    const float tmp116 = q[0] * tmp100;
     carry[3] = tmp77;
-    carry[4] = tmp101;
-    carry[5] = tmp104;
-    carry[6] = tmp107;
-    carry[7] = tmp109;
-    carry[8] = tmp110;
+    carry[4] = tmp97;
+    carry[5] = tmp100;
+    carry[6] = tmp103;
+    carry[7] = tmp105;
+    carry[8] = tmp113;
     carry[9] = tmp115;
     carry[10] = tmp116;
 }
 
 static void qcf_k_correct_part3(const float q[4], float carry[11])
 {
-    const float tmp117 = carry[9] /* tmp115 */ - carry[10] /* tmp116 */;
-    const float tmp118 = tmp117 * tmp117;
-    const float tmp119 = carry[8] /* tmp110 */ + tmp118;
-    const float tmp120 = q[0] * carry[5] /* tmp104 */;
-    const float tmp121 = q[1] * carry[6] /* tmp107 */;
-    const float tmp122 = tmp120 - tmp121;
-    const float tmp123 = q[2] * carry[3] /* tmp77 */;
-    const float tmp124 = tmp122 + tmp123;
-    const float tmp125 = q[3] * carry[4] /* tmp101 */;
-    const float tmp126 = tmp124 + tmp125;
-    const float tmp127 = tmp126 * tmp126;
-    const float tmp128 = tmp119 + tmp127;
-    const float tmp129 = q[0] * carry[6] /* tmp107 */;
-    const float tmp130 = q[1] * carry[5] /* tmp104 */;
+    const float tmp117 = q[1] * carry[6] /* tmp103 */;
+    const float tmp118 = carry[10] /* tmp116 */ - tmp117;
+    const float tmp119 = q[2] * carry[3] /* tmp77 */;
+    const float tmp120 = tmp118 + tmp119;
+    const float tmp121 = q[3] * carry[4] /* tmp97 */;
+    const float tmp122 = tmp120 + tmp121;
+    const float tmp123 = tmp122 * tmp122;
+    const float tmp124 = carry[9] /* tmp115 */ + tmp123;
+    const float tmp125 = q[0] * carry[6] /* tmp103 */;
+    const float tmp126 = q[1] * carry[5] /* tmp100 */;
+    const float tmp127 = tmp125 + tmp126;
+    const float tmp128 = q[2] * carry[4] /* tmp97 */;
+    const float tmp129 = tmp127 - tmp128;
+    const float tmp130 = q[3] * carry[3] /* tmp77 */;
     const float tmp131 = tmp129 + tmp130;
-    const float tmp132 = q[2] * carry[4] /* tmp101 */;
-    const float tmp133 = tmp131 - tmp132;
-    const float tmp134 = q[3] * carry[3] /* tmp77 */;
-    const float tmp135 = tmp133 + tmp134;
-    const float tmp136 = tmp135 * tmp135;
-    const float tmp137 = tmp128 + tmp136;
-    const float tmp138 = tmp137 - 1.0f;
-    const float tmp139 = fabsf(tmp138);
-    float tmp140;
-    float tmp141;
-    float tmp142;
-    float tmp143;
-    if (tmp139 < 0.00024414062f /* NEAR_UNIT_MAX */) {
-        const float tmp144 = 0.5f * tmp138;
-        const float tmp145 = 1.0f - tmp144;
-        const float tmp146 = carry[7] /* tmp109 */ * tmp145;
-        const float tmp147 = tmp117 * tmp145;
-        const float tmp148 = tmp126 * tmp145;
-        const float tmp149 = tmp135 * tmp145;
-        tmp140 = tmp146;
-        tmp141 = tmp147;
-        tmp142 = tmp148;
-        tmp143 = tmp149;
+    const float tmp132 = tmp131 * tmp131;
+    const float tmp133 = tmp124 + tmp132;
+    const float tmp134 = tmp133 - 1.0f;
+    const float tmp135 = fabsf(tmp134);
+    float tmp136;
+    float tmp137;
+    float tmp138;
+    float tmp139;
+    if (tmp135 < 0.00024414062f /* NEAR_UNIT_MAX */) {
+        const float tmp140 = 0.5f * tmp134;
+        const float tmp141 = 1.0f - tmp140;
+        const float tmp142 = carry[7] /* tmp105 */ * tmp141;
+        const float tmp143 = carry[8] /* tmp113 */ * tmp141;
+        const float tmp144 = tmp122 * tmp141;
+        const float tmp145 = tmp131 * tmp141;
+        tmp136 = tmp142;
+        tmp137 = tmp143;
+        tmp138 = tmp144;
+        tmp139 = tmp145;
     } else {
-        const float tmp150 = sqrtf(tmp137);
-        const float tmp151 = 1.0f / tmp150;
-        const float tmp152 = carry[7] /* tmp109 */ * tmp151;
-        const float tmp153 = tmp117 * tmp151;
-        const float tmp154 = tmp126 * tmp151;
-        const float tmp155 = tmp135 * tmp151;
-        tmp140 = tmp152;
-        tmp141 = tmp153;
-        tmp142 = tmp154;
-        tmp143 = tmp155;
+        const float tmp146 = sqrtf(tmp133);
+        const float tmp147 = 1.0f / tmp146;
+        const float tmp148 = carry[7] /* tmp105 */ * tmp147;
+        const float tmp149 = carry[8] /* tmp113 */ * tmp147;
+        const float tmp150 = tmp122 * tmp147;
+        const float tmp151 = tmp131 * tmp147;
+        tmp136 = tmp148;
+        tmp137 = tmp149;
+        tmp138 = tmp150;
+        tmp139 = tmp151;
     }
-    carry[3] = tmp140;
-    carry[4] = tmp141;
-    carry[5] = tmp142;
-    carry[6] = tmp143;
+    carry[3] = tmp136;
+    carry[4] = tmp137;
+    carry[5] = tmp138;
+    carry[6] = tmp139;
 }
 
 static void qcf_k_correct_part4(const float gyro_bias[3], float span_accel, bool use_accel,
     float accel_norm2, bool recover, bool gps_comp, bool at_rest, const float rest_gyro_lp[3],
     float carry[11])
 {
-    float tmp156;
-    float tmp157;
-    float tmp158;
+    float tmp152;
+    float tmp153;
+    float tmp154;
     if (at_rest) {
-        const float tmp159 = 1.0f + span_accel;
-        const float tmp160 = span_accel / tmp159;
-        const float tmp161 = rest_gyro_lp[0] - gyro_bias[0];
-        const float tmp162 = tmp160 * tmp161;
-        const float tmp163 = gyro_bias[0] + tmp162;
-        const float tmp164 = rest_gyro_lp[1] - gyro_bias[1];
-        const float tmp165 = tmp160 * tmp164;
-        const float tmp166 = gyro_bias[1] + tmp165;
-        const float tmp167 = rest_gyro_lp[2] - gyro_bias[2];
-        const float tmp168 = tmp160 * tmp167;
-        const float tmp169 = gyro_bias[2] + tmp168;
-        tmp156 = tmp163;
-        tmp157 = tmp166;
-        tmp158 = tmp169;
+        const float tmp155 = 1.0f + span_accel;
+        const float tmp156 = span_accel / tmp155;
+        const float tmp157 = rest_gyro_lp[0] - gyro_bias[0];
+        const float tmp158 = tmp156 * tmp157;
+        const float tmp159 = gyro_bias[0] + tmp158;
+        const float tmp160 = rest_gyro_lp[1] - gyro_bias[1];
+        const float tmp161 = tmp156 * tmp160;
+        const float tmp162 = gyro_bias[1] + tmp161;
+        const float tmp163 = rest_gyro_lp[2] - gyro_bias[2];
+        const float tmp164 = tmp156 * tmp163;
+        const float tmp165 = gyro_bias[2] + tmp164;
+        tmp152 = tmp159;
+        tmp153 = tmp162;
+        tmp154 = tmp165;
     } else {
-        const bool tmp170 = use_accel && (!(recover));
-        const bool tmp171 = (77.55708f /* (G0 - 1.0)^2 */ < accel_norm2) && (accel_norm2 <
+        const bool tmp166 = use_accel && (!(recover));
+        const bool tmp167 = (77.55708f /* (G0 - 1.0)^2 */ < accel_norm2) && (accel_norm2 <
                 116.78368f /* (G0 + 1.0)^2 */);
-        const bool tmp172 = tmp170 && tmp171;
-        const float tmp173 = (gps_comp) ? 0.0028571428f /* ki/(0.5*kp_gps) */ :
+        const bool tmp168 = tmp166 && tmp167;
+        const float tmp169 = (gps_comp) ? 0.0028571428f /* ki/(0.5*kp_gps) */ :
                 0.016f /* ki/(0.5*kp) */;
-        const float tmp174 = tmp173 * carry[0] /* tmp61 */;
-        const float tmp175 = gyro_bias[0] - tmp174;
-        const float tmp176 = (tmp172) ? tmp175 : gyro_bias[0];
-        const float tmp177 = tmp173 * carry[1] /* tmp67 */;
-        const float tmp178 = gyro_bias[1] - tmp177;
-        const float tmp179 = (tmp172) ? tmp178 : gyro_bias[1];
-        const float tmp180 = tmp173 * carry[2] /* tmp74 */;
-        const float tmp181 = gyro_bias[2] - tmp180;
-        const float tmp182 = (tmp172) ? tmp181 : gyro_bias[2];
-        tmp156 = tmp176;
-        tmp157 = tmp179;
-        tmp158 = tmp182;
+        const float tmp170 = tmp169 * carry[0] /* tmp61 */;
+        const float tmp171 = gyro_bias[0] - tmp170;
+        const float tmp172 = (tmp168) ? tmp171 : gyro_bias[0];
+        const float tmp173 = tmp169 * carry[1] /* tmp67 */;
+        const float tmp174 = gyro_bias[1] - tmp173;
+        const float tmp175 = (tmp168) ? tmp174 : gyro_bias[1];
+        const float tmp176 = tmp169 * carry[2] /* tmp74 */;
+        const float tmp177 = gyro_bias[2] - tmp176;
+        const float tmp178 = (tmp168) ? tmp177 : gyro_bias[2];
+        tmp152 = tmp172;
+        tmp153 = tmp175;
+        tmp154 = tmp178;
     }
-    carry[0] = tmp156;
-    carry[1] = tmp157;
-    carry[2] = tmp158;
+    carry[0] = tmp152;
+    carry[1] = tmp153;
+    carry[2] = tmp154;
 }
 
 /*
@@ -1006,10 +1002,10 @@ static void qcf_k_correct_part4(const float gyro_bias[3], float span_accel, bool
  *     q_new: float[4]
  *     gyro_bias_new: float[3]
  *
- * Total ops: 183 (add 57, mul 80, div 5, sqrt 5, trig 2, cmp 34)
+ * Total ops: 179 (add 55, mul 78, div 5, sqrt 5, trig 2, cmp 34)
  *     of which only one side runs: if (tmp38 < tmp39) 0, else 18
- *     of which only one side runs: if (tmp76 < 0.01f) 16, else 5
- *     of which only one side runs: if (tmp139 < 0.00024414062f) 6, else 6
+ *     of which only one side runs: if (tmp76 < 0.0009f) 12, else 5
+ *     of which only one side runs: if (tmp135 < 0.00024414062f) 6, else 6
  *     of which only one side runs: if (at_rest) 11, else 13
  */
 static void qcf_k_correct(const float q[4], const float rot[9], const float gyro_bias[3],
@@ -1029,13 +1025,13 @@ static void qcf_k_correct(const float q[4], const float rot[9], const float gyro
     qcf_k_correct_part3(q, carry);
     qcf_k_correct_part4(gyro_bias, span_accel, use_accel, accel_norm2, recover, gps_comp, at_rest,
             rest_gyro_lp, carry);
-    q_new[0] = carry[3] /* tmp140 */;
-    q_new[1] = carry[4] /* tmp141 */;
-    q_new[2] = carry[5] /* tmp142 */;
-    q_new[3] = carry[6] /* tmp143 */;
-    gyro_bias_new[0] = carry[0] /* tmp156 */;
-    gyro_bias_new[1] = carry[1] /* tmp157 */;
-    gyro_bias_new[2] = carry[2] /* tmp158 */;
+    q_new[0] = carry[3] /* tmp136 */;
+    q_new[1] = carry[4] /* tmp137 */;
+    q_new[2] = carry[5] /* tmp138 */;
+    q_new[3] = carry[6] /* tmp139 */;
+    gyro_bias_new[0] = carry[0] /* tmp152 */;
+    gyro_bias_new[1] = carry[1] /* tmp153 */;
+    gyro_bias_new[2] = carry[2] /* tmp154 */;
 }
 
 static void qcf_k_rest_part0(const float gyro[3], const float rest_gyro_lp[3], float span,

@@ -71,6 +71,11 @@ def rotate_inv(q, v) -> ca.SX:
 # the taken side is computed).
 SERIES_MAX = Const("SERIES_MAX", 0.1)
 SERIES_TERMS = 5
+# The same for an exponential whose argument is nearly always small (a filter's correction, a
+# fraction of its error per sample): 4 terms below |v| = 0.03, the first neglected
+# |v|^8/8! <= 1.7e-17 and |v|^8/9! <= 1.9e-18, below double round-off too.
+SMALL_SERIES_MAX = Const("SMALL_SERIES_MAX", 0.03)
+SMALL_SERIES_TERMS = 4
 
 
 def _coefficients(fractions) -> list:
@@ -84,10 +89,10 @@ def _coefficients(fractions) -> list:
     return out
 
 
-def _cos_sinc_coefficients():
-    """cos x and sin x / x in x^2: (-1)^k / (2k)! and (-1)^k / (2k + 1)!, k < SERIES_TERMS."""
-    return (_coefficients(Fraction((-1) ** k, math.factorial(2 * k)) for k in range(SERIES_TERMS)),
-            _coefficients(Fraction((-1) ** k, math.factorial(2 * k + 1)) for k in range(SERIES_TERMS)))
+def _cos_sinc_coefficients(terms: int = SERIES_TERMS):
+    """cos x and sin x / x in x^2: (-1)^k / (2k)! and (-1)^k / (2k + 1)!, k < terms."""
+    return (_coefficients(Fraction((-1) ** k, math.factorial(2 * k)) for k in range(terms)),
+            _coefficients(Fraction((-1) ** k, math.factorial(2 * k + 1)) for k in range(terms)))
 
 
 def _series(x2, coeffs):
@@ -98,14 +103,16 @@ def _series(x2, coeffs):
     return acc
 
 
-def qexp(v, n2=None) -> ca.SX:
-    """exp([0, v]) = [cos|v|, sin|v| v/|v|]: the series above below SERIES_MAX (exact at 0).
+def qexp(v, n2=None, small_arg: bool = False) -> ca.SX:
+    """exp([0, v]) = [cos|v|, sin|v| v/|v|]: the series above below SERIES_MAX (exact at 0);
+    small_arg: the shorter series below SMALL_SERIES_MAX.
 
     n2 stands for |v|² (default: computed from v); qexp_jacobian passes a symbol."""
     n2 = ca.sumsqr(v) if n2 is None else n2
-    small = n2 < use(SERIES_MAX) * use(SERIES_MAX)
-    n = ca.sqrt(ca.fmax(n2, use(SERIES_MAX) * use(SERIES_MAX)))
-    cos_c, sinc_c = _cos_sinc_coefficients()
+    top = use(SMALL_SERIES_MAX) if small_arg else use(SERIES_MAX)
+    small = n2 < top * top
+    n = ca.sqrt(ca.fmax(n2, top * top))
+    cos_c, sinc_c = _cos_sinc_coefficients(SMALL_SERIES_TERMS if small_arg else SERIES_TERMS)
     sinc = ca.if_else(small, _series(n2, sinc_c), ca.sin(n) / n)
     cos_n = ca.if_else(small, _series(n2, cos_c), ca.cos(n))
     return vec(cos_n, sinc * v[0], sinc * v[1], sinc * v[2])

@@ -317,7 +317,7 @@ class Model(FilterModel):
                                                        **({"gps_comp": gps_on} if gps_on is not None else {}),
                                                        **({"at_rest": at_rest, "rest_gyro_lp": g_lp}
                                                           if p["rest_time"] > 0 else {})},
-                                           {"q_new": quat.qnormalize_near_unit(quat.qmul(q, quat.qexp(half_rotation))),
+                                           {"q_new": quat.qnormalize_near_unit(quat.qmul(q, quat.qexp(half_rotation, small_arg=True))),
                                             "gyro_bias_new": bias_new}),
                        "tilt (low-passed accelerometer) and heading (magnetometer) corrections as PI feedback "
                        "on the predicted attitude, bias integral gated, bias at rest from the low-passed gyro",
