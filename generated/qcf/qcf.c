@@ -188,6 +188,27 @@ static void qcf_k_gyro_recovery(const float gyro[3], const float gyro_prev[3],
     gyro_repeats_new[2] = tmp15;
 }
 
+/*
+ * |a| of the tilt reference, read by the field check and the tilt correction
+ *
+ * Args:
+ *     accel_lp: float[3]
+ * Outputs:
+ *     accel_lp_norm: float
+ *
+ * Total ops: 6 (add 2, mul 3, sqrt 1)
+ */
+static inline void qcf_k_tilt_norm(const float accel_lp[3], float *accel_lp_norm)
+{
+    const float tmp0 = accel_lp[0] * accel_lp[0];
+    const float tmp1 = accel_lp[1] * accel_lp[1];
+    const float tmp2 = tmp0 + tmp1;
+    const float tmp3 = accel_lp[2] * accel_lp[2];
+    const float tmp4 = tmp2 + tmp3;
+    const float tmp5 = sqrtf(tmp4);
+    *accel_lp_norm = tmp5;
+}
+
 static void qcf_k_predict_part0(const float q[4], const float gyro_bias[3], const float gyro[3],
     float dt, float carry[6])
 {
@@ -205,99 +226,87 @@ static void qcf_k_predict_part0(const float q[4], const float gyro_bias[3], cons
     const float tmp11 = tmp7 + tmp10;
     float tmp12;
     float tmp13;
-    float tmp14;
-    float tmp15;
     if (tmp11 < 0.01f /* SERIES_MAX*SERIES_MAX */) {
-        const float tmp16 = (-2.1377798e-05f) /* -(2/93555) */ * tmp11;
-        const float tmp17 = (-0.00021164022f) /* -(1/4725) */ + tmp16;
+        const float tmp14 = 2.4801588e-05f /* 1/40320 */ * tmp11;
+        const float tmp15 = (-0.0013888889f) /* -(1/720) */ + tmp14;
+        const float tmp16 = tmp11 * tmp15;
+        const float tmp17 = 0.041666668f /* 1/24 */ + tmp16;
         const float tmp18 = tmp11 * tmp17;
-        const float tmp19 = (-0.0021164021f) /* -(2/945) */ + tmp18;
+        const float tmp19 = (-0.5f) /* -(1/2) */ + tmp18;
         const float tmp20 = tmp11 * tmp19;
-        const float tmp21 = (-0.022222223f) /* -(1/45) */ + tmp20;
-        const float tmp22 = tmp11 * tmp21;
-        const float tmp23 = (-0.33333334f) /* -(1/3) */ + tmp22;
+        const float tmp21 = 1.0f + tmp20;
+        const float tmp22 = 2.7557319e-06f /* 1/362880 */ * tmp11;
+        const float tmp23 = (-0.0001984127f) /* -(1/5040) */ + tmp22;
         const float tmp24 = tmp11 * tmp23;
-        const float tmp25 = 1.0f + tmp24;
-        tmp12 = tmp25;
-        tmp13 = tmp2;
-        tmp14 = tmp5;
-        tmp15 = tmp9;
+        const float tmp25 = 0.008333334f /* 1/120 */ + tmp24;
+        const float tmp26 = tmp11 * tmp25;
+        const float tmp27 = (-0.16666667f) /* -(1/6) */ + tmp26;
+        const float tmp28 = tmp11 * tmp27;
+        const float tmp29 = 1.0f + tmp28;
+        tmp12 = tmp21;
+        tmp13 = tmp29;
     } else {
-        const float tmp26 = (tmp11 > 0.01f /* SERIES_MAX*SERIES_MAX */) ? tmp11 :
+        const float tmp30 = (tmp11 > 0.01f /* SERIES_MAX*SERIES_MAX */) ? tmp11 :
                 0.01f /* SERIES_MAX*SERIES_MAX */;
-        const float tmp27 = sqrtf(tmp26);
-        float tmp29;
-        float tmp28;
-        fast_sincosf(tmp27, &tmp29, &tmp28);   /* sin and cos, one reduction */
-        const float tmp30 = tmp29 / tmp27;
-        const float tmp31 = tmp30 * tmp2;
-        const float tmp32 = tmp30 * tmp5;
-        const float tmp33 = tmp30 * tmp9;
-        tmp12 = tmp28;
-        tmp13 = tmp31;
-        tmp14 = tmp32;
-        tmp15 = tmp33;
+        const float tmp31 = sqrtf(tmp30);
+        float tmp33;
+        float tmp32;
+        fast_sincosf(tmp31, &tmp33, &tmp32);   /* sin and cos, one reduction */
+        const float tmp34 = tmp33 / tmp31;
+        tmp12 = tmp32;
+        tmp13 = tmp34;
     }
-    const float tmp34 = q[0] * tmp12;
-    const float tmp35 = q[1] * tmp13;
-    const float tmp36 = tmp34 - tmp35;
-    const float tmp37 = q[2] * tmp14;
-    const float tmp38 = tmp36 - tmp37;
-    const float tmp39 = q[3] * tmp15;
-    carry[0] = tmp12;
-    carry[1] = tmp13;
-    carry[2] = tmp14;
-    carry[3] = tmp15;
+    const float tmp35 = q[0] * tmp12;
+    const float tmp36 = tmp13 * tmp2;
+    const float tmp37 = q[1] * tmp36;
+    const float tmp38 = tmp35 - tmp37;
+    const float tmp39 = tmp13 * tmp5;
+    carry[0] = tmp9;
+    carry[1] = tmp12;
+    carry[2] = tmp13;
+    carry[3] = tmp36;
     carry[4] = tmp38;
     carry[5] = tmp39;
 }
 
 static void qcf_k_predict_part1(const float q[4], float carry[6])
 {
-    const float tmp40 = carry[4] /* tmp38 */ - carry[5] /* tmp39 */;
-    const float tmp41 = tmp40 * tmp40;
-    const float tmp42 = q[0] * carry[1] /* tmp13 */;
-    const float tmp43 = q[1] * carry[0] /* tmp12 */;
-    const float tmp44 = tmp42 + tmp43;
-    const float tmp45 = q[2] * carry[3] /* tmp15 */;
-    const float tmp46 = tmp44 + tmp45;
-    const float tmp47 = q[3] * carry[2] /* tmp14 */;
-    const float tmp48 = tmp46 - tmp47;
-    const float tmp49 = tmp48 * tmp48;
-    const float tmp50 = tmp41 + tmp49;
-    const float tmp51 = q[0] * carry[2] /* tmp14 */;
-    const float tmp52 = q[1] * carry[3] /* tmp15 */;
-    const float tmp53 = tmp51 - tmp52;
-    const float tmp54 = q[2] * carry[0] /* tmp12 */;
-    const float tmp55 = tmp53 + tmp54;
-    const float tmp56 = q[3] * carry[1] /* tmp13 */;
-    const float tmp57 = tmp55 + tmp56;
-    const float tmp58 = tmp57 * tmp57;
-    const float tmp59 = tmp50 + tmp58;
-    const float tmp60 = q[0] * carry[3] /* tmp15 */;
-    const float tmp61 = q[1] * carry[2] /* tmp14 */;
-    const float tmp62 = tmp60 + tmp61;
-    const float tmp63 = q[2] * carry[1] /* tmp13 */;
-    const float tmp64 = tmp62 - tmp63;
-    const float tmp65 = q[3] * carry[0] /* tmp12 */;
-    const float tmp66 = tmp64 + tmp65;
-    const float tmp67 = tmp66 * tmp66;
-    const float tmp68 = tmp59 + tmp67;
-    const float tmp69 = sqrtf(tmp68);
-    const float tmp70 = 1.0f / tmp69;
-    const float tmp71 = tmp40 * tmp70;
-    const float tmp72 = tmp48 * tmp70;
-    const float tmp73 = tmp57 * tmp70;
-    const float tmp74 = tmp66 * tmp70;
-    carry[0] = tmp71;
-    carry[1] = tmp72;
-    carry[2] = tmp73;
-    carry[3] = tmp74;
+    const float tmp40 = q[2] * carry[5] /* tmp39 */;
+    const float tmp41 = carry[4] /* tmp38 */ - tmp40;
+    const float tmp42 = carry[2] /* tmp13 */ * carry[0] /* tmp9 */;
+    const float tmp43 = q[3] * tmp42;
+    const float tmp44 = tmp41 - tmp43;
+    const float tmp45 = q[0] * carry[3] /* tmp36 */;
+    const float tmp46 = q[1] * carry[1] /* tmp12 */;
+    const float tmp47 = tmp45 + tmp46;
+    const float tmp48 = q[2] * tmp42;
+    const float tmp49 = tmp47 + tmp48;
+    const float tmp50 = q[3] * carry[5] /* tmp39 */;
+    const float tmp51 = tmp49 - tmp50;
+    const float tmp52 = q[0] * carry[5] /* tmp39 */;
+    const float tmp53 = q[1] * tmp42;
+    const float tmp54 = tmp52 - tmp53;
+    const float tmp55 = q[2] * carry[1] /* tmp12 */;
+    const float tmp56 = tmp54 + tmp55;
+    const float tmp57 = q[3] * carry[3] /* tmp36 */;
+    const float tmp58 = tmp56 + tmp57;
+    const float tmp59 = q[0] * tmp42;
+    const float tmp60 = q[1] * carry[5] /* tmp39 */;
+    const float tmp61 = tmp59 + tmp60;
+    const float tmp62 = q[2] * carry[3] /* tmp36 */;
+    const float tmp63 = tmp61 - tmp62;
+    const float tmp64 = q[3] * carry[1] /* tmp12 */;
+    const float tmp65 = tmp63 + tmp64;
+    carry[0] = tmp44;
+    carry[1] = tmp51;
+    carry[2] = tmp58;
+    carry[3] = tmp65;
 }
 
 /*
  * prediction: the gyro integrated with the bias removed, before the step's sensors are compared
- * with the attitude (so they meet the attitude of their own step)
+ * with the attitude (so they meet the attitude of their own step); unit to rounding, normalised by
+ * the correction
  *
  * Args:
  *     q: float[4]
@@ -307,8 +316,8 @@ static void qcf_k_predict_part1(const float q[4], float carry[6])
  * Outputs:
  *     q_new: float[4]
  *
- * Total ops: 75 (add 25, mul 39, div 2, sqrt 2, trig 2, cmp 5)
- *     of which only one side runs: if (tmp11 < 0.01f) 10, else 8
+ * Total ops: 66 (add 25, mul 34, div 1, sqrt 1, trig 2, cmp 3)
+ *     of which only one side runs: if (tmp11 < 0.01f) 16, else 5
  */
 static void qcf_k_predict(const float q[4], const float gyro_bias[3], const float gyro[3], float dt,
     float q_new[4])
@@ -320,10 +329,10 @@ static void qcf_k_predict(const float q[4], const float gyro_bias[3], const floa
     float carry[6];
     qcf_k_predict_part0(q, gyro_bias, gyro, dt, carry);
     qcf_k_predict_part1(q, carry);
-    q_new[0] = carry[0] /* tmp71 */;
-    q_new[1] = carry[1] /* tmp72 */;
-    q_new[2] = carry[2] /* tmp73 */;
-    q_new[3] = carry[3] /* tmp74 */;
+    q_new[0] = carry[0] /* tmp44 */;
+    q_new[1] = carry[1] /* tmp51 */;
+    q_new[2] = carry[2] /* tmp58 */;
+    q_new[3] = carry[3] /* tmp65 */;
 }
 
 /*
@@ -543,93 +552,104 @@ static void qcf_k_accel_lowpass_part0(const float rot[9], const float accel[3],
     const float accel_lp[3], float span, bool recover, float lp_time, const float gps_vel[3],
     bool new_gps, const float v_lp[3], const float v_ins[3], float carry[13])
 {
-    const float tmp0 = (lp_time < 1.0f) ? lp_time : 1.0f;
-    const float tmp1 = tmp0 + span;
-    const float tmp2 = span / tmp1;
-    const float tmp3 = (recover) ? 1.0f : tmp2;
-    const float tmp4 = rot[0] * accel[0];
-    const float tmp5 = rot[3] * accel[1];
-    const float tmp6 = tmp4 + tmp5;
-    const float tmp7 = rot[6] * accel[2];
-    const float tmp8 = tmp6 + tmp7;
-    const float tmp9 = tmp8 - accel_lp[0];
-    const float tmp10 = tmp3 * tmp9;
-    const float tmp11 = accel_lp[0] + tmp10;
-    const float tmp12 = rot[1] * accel[0];
-    const float tmp13 = rot[4] * accel[1];
+    float tmp0;
+    float tmp1;
+    float tmp2;
+    if (recover) {
+        tmp0 = 1.0f;
+        tmp1 = lp_time;
+        tmp2 = 1.0f;
+    } else {
+        const float tmp3 = 1.0f + span;
+        const float tmp4 = (lp_time < 1.0f) ? lp_time : 1.0f;
+        const float tmp5 = tmp4 + span;
+        const float tmp6 = tmp5 * tmp3;
+        const float tmp7 = span / tmp6;
+        const float tmp8 = tmp3 * tmp7;
+        const float tmp9 = lp_time + span;
+        const float tmp10 = (tmp9 < 1.0f) ? tmp9 : 1.0f;
+        const float tmp11 = tmp5 * tmp7;
+        tmp0 = tmp8;
+        tmp1 = tmp10;
+        tmp2 = tmp11;
+    }
+    const float tmp12 = rot[0] * accel[0];
+    const float tmp13 = rot[3] * accel[1];
     const float tmp14 = tmp12 + tmp13;
-    const float tmp15 = rot[7] * accel[2];
+    const float tmp15 = rot[6] * accel[2];
     const float tmp16 = tmp14 + tmp15;
-    const float tmp17 = tmp16 - accel_lp[1];
-    const float tmp18 = tmp3 * tmp17;
-    const float tmp19 = accel_lp[1] + tmp18;
-    const float tmp20 = rot[2] * accel[0];
-    const float tmp21 = rot[5] * accel[1];
+    const float tmp17 = tmp16 - accel_lp[0];
+    const float tmp18 = tmp0 * tmp17;
+    const float tmp19 = accel_lp[0] + tmp18;
+    const float tmp20 = rot[1] * accel[0];
+    const float tmp21 = rot[4] * accel[1];
     const float tmp22 = tmp20 + tmp21;
-    const float tmp23 = rot[8] * accel[2];
+    const float tmp23 = rot[7] * accel[2];
     const float tmp24 = tmp22 + tmp23;
-    const float tmp25 = tmp24 - accel_lp[2];
-    const float tmp26 = tmp3 * tmp25;
-    const float tmp27 = accel_lp[2] + tmp26;
-    const float tmp28 = lp_time + span;
-    const float tmp29 = (tmp28 < 1.0f) ? tmp28 : 1.0f;
-    const float tmp30 = (recover) ? lp_time : tmp29;
-    const float tmp31 = 1.0f + span;
-    const float tmp32 = span / tmp31;
-    const float tmp33 = (recover) ? 1.0f : tmp32;
-    const float tmp34 = tmp8 * span;
-    const float tmp35 = v_ins[0] + tmp34;
-    const float tmp36 = (new_gps) ? gps_vel[0] : tmp35;
-    const float tmp37 = tmp36 - v_lp[0];
-    const float tmp38 = tmp33 * tmp37;
-    const float tmp39 = v_lp[0] + tmp38;
-    carry[0] = tmp11;
-    carry[1] = tmp16;
+    const float tmp25 = tmp24 - accel_lp[1];
+    const float tmp26 = tmp0 * tmp25;
+    const float tmp27 = accel_lp[1] + tmp26;
+    const float tmp28 = rot[2] * accel[0];
+    const float tmp29 = rot[5] * accel[1];
+    const float tmp30 = tmp28 + tmp29;
+    const float tmp31 = rot[8] * accel[2];
+    const float tmp32 = tmp30 + tmp31;
+    const float tmp33 = tmp32 - accel_lp[2];
+    const float tmp34 = tmp0 * tmp33;
+    const float tmp35 = accel_lp[2] + tmp34;
+    const float tmp36 = tmp16 * span;
+    const float tmp37 = v_ins[0] + tmp36;
+    const float tmp38 = (new_gps) ? gps_vel[0] : tmp37;
+    const float tmp39 = tmp38 - v_lp[0];
+    carry[0] = tmp1;
+    carry[1] = tmp2;
     carry[2] = tmp19;
     carry[3] = tmp24;
     carry[4] = tmp27;
-    carry[5] = tmp30;
-    carry[6] = tmp33;
-    carry[7] = tmp36;
+    carry[5] = tmp32;
+    carry[6] = tmp35;
+    carry[7] = tmp38;
     carry[8] = tmp39;
 }
 
 static void qcf_k_accel_lowpass_part1(float span, const float gps_vel[3], bool new_gps, bool m_comp,
     const float v_lp[3], const float v_ins[3], float carry[13])
 {
-    const float tmp40 = (m_comp) ? carry[8] /* tmp39 */ : v_lp[0];
-    const float tmp41 = carry[1] /* tmp16 */ * span;
-    const float tmp42 = v_ins[1] + tmp41;
-    const float tmp43 = (new_gps) ? gps_vel[1] : tmp42;
-    const float tmp44 = tmp43 - v_lp[1];
-    const float tmp45 = carry[6] /* tmp33 */ * tmp44;
-    const float tmp46 = v_lp[1] + tmp45;
-    const float tmp47 = (m_comp) ? tmp46 : v_lp[1];
-    const float tmp48 = carry[3] /* tmp24 */ + 9.80665f /* G0 */;
-    const float tmp49 = tmp48 * span;
-    const float tmp50 = v_ins[2] + tmp49;
-    const float tmp51 = (new_gps) ? gps_vel[2] : tmp50;
-    const float tmp52 = tmp51 - v_lp[2];
-    const float tmp53 = carry[6] /* tmp33 */ * tmp52;
-    const float tmp54 = v_lp[2] + tmp53;
-    const float tmp55 = (m_comp) ? tmp54 : v_lp[2];
-    const float tmp56 = carry[7] /* tmp36 */ - tmp40;
-    const float tmp57 = carry[0] /* tmp11 */ - tmp56;
-    const float tmp58 = (m_comp) ? tmp57 : carry[0] /* tmp11 */;
-    const float tmp59 = tmp43 - tmp47;
-    const float tmp60 = carry[2] /* tmp19 */ - tmp59;
-    const float tmp61 = (m_comp) ? tmp60 : carry[2] /* tmp19 */;
-    const float tmp62 = tmp51 - tmp55;
-    const float tmp63 = carry[4] /* tmp27 */ - tmp62;
-    const float tmp64 = (m_comp) ? tmp63 : carry[4] /* tmp27 */;
-    carry[1] = tmp40;
-    carry[3] = tmp43;
-    carry[6] = tmp47;
-    carry[8] = tmp51;
-    carry[9] = tmp55;
-    carry[10] = tmp58;
-    carry[11] = tmp61;
-    carry[12] = tmp64;
+    const float tmp40 = carry[1] /* tmp2 */ * carry[8] /* tmp39 */;
+    const float tmp41 = v_lp[0] + tmp40;
+    const float tmp42 = (m_comp) ? tmp41 : v_lp[0];
+    const float tmp43 = carry[3] /* tmp24 */ * span;
+    const float tmp44 = v_ins[1] + tmp43;
+    const float tmp45 = (new_gps) ? gps_vel[1] : tmp44;
+    const float tmp46 = tmp45 - v_lp[1];
+    const float tmp47 = carry[1] /* tmp2 */ * tmp46;
+    const float tmp48 = v_lp[1] + tmp47;
+    const float tmp49 = (m_comp) ? tmp48 : v_lp[1];
+    const float tmp50 = carry[5] /* tmp32 */ + 9.80665f /* G0 */;
+    const float tmp51 = tmp50 * span;
+    const float tmp52 = v_ins[2] + tmp51;
+    const float tmp53 = (new_gps) ? gps_vel[2] : tmp52;
+    const float tmp54 = tmp53 - v_lp[2];
+    const float tmp55 = carry[1] /* tmp2 */ * tmp54;
+    const float tmp56 = v_lp[2] + tmp55;
+    const float tmp57 = (m_comp) ? tmp56 : v_lp[2];
+    const float tmp58 = carry[7] /* tmp38 */ - tmp42;
+    const float tmp59 = carry[2] /* tmp19 */ - tmp58;
+    const float tmp60 = (m_comp) ? tmp59 : carry[2] /* tmp19 */;
+    const float tmp61 = tmp45 - tmp49;
+    const float tmp62 = carry[4] /* tmp27 */ - tmp61;
+    const float tmp63 = (m_comp) ? tmp62 : carry[4] /* tmp27 */;
+    const float tmp64 = tmp53 - tmp57;
+    const float tmp65 = carry[6] /* tmp35 */ - tmp64;
+    const float tmp66 = (m_comp) ? tmp65 : carry[6] /* tmp35 */;
+    carry[1] = tmp42;
+    carry[3] = tmp45;
+    carry[5] = tmp49;
+    carry[8] = tmp53;
+    carry[9] = tmp57;
+    carry[10] = tmp60;
+    carry[11] = tmp63;
+    carry[12] = tmp66;
 }
 
 /*
@@ -657,7 +677,8 @@ static void qcf_k_accel_lowpass_part1(float span, const float gps_vel[3], bool n
  *     v_ins_new: float[3]
  *     up: float[3]
  *
- * Total ops: 65 (add 31, mul 18, div 2, cmp 14)
+ * Total ops: 67 (add 31, mul 21, div 1, cmp 14)
+ *     of which only one side runs: if (recover) 0, else 9
  */
 static void qcf_k_accel_lowpass(const float rot[9], const float accel[3], const float accel_lp[3],
     float span, bool recover, float lp_time, const float gps_vel[3], bool new_gps, bool m_comp,
@@ -672,273 +693,290 @@ static void qcf_k_accel_lowpass(const float rot[9], const float accel[3], const 
     qcf_k_accel_lowpass_part0(rot, accel, accel_lp, span, recover, lp_time, gps_vel, new_gps, v_lp,
             v_ins, carry);
     qcf_k_accel_lowpass_part1(span, gps_vel, new_gps, m_comp, v_lp, v_ins, carry);
-    accel_lp_new[0] = carry[0] /* tmp11 */;
-    accel_lp_new[1] = carry[2] /* tmp19 */;
-    accel_lp_new[2] = carry[4] /* tmp27 */;
-    *lp_time_new = carry[5] /* tmp30 */;
-    v_lp_new[0] = carry[1] /* tmp40 */;
-    v_lp_new[1] = carry[6] /* tmp47 */;
-    v_lp_new[2] = carry[9] /* tmp55 */;
-    v_ins_new[0] = carry[7] /* tmp36 */;
-    v_ins_new[1] = carry[3] /* tmp43 */;
-    v_ins_new[2] = carry[8] /* tmp51 */;
-    up[0] = carry[10] /* tmp58 */;
-    up[1] = carry[11] /* tmp61 */;
-    up[2] = carry[12] /* tmp64 */;
+    accel_lp_new[0] = carry[2] /* tmp19 */;
+    accel_lp_new[1] = carry[4] /* tmp27 */;
+    accel_lp_new[2] = carry[6] /* tmp35 */;
+    *lp_time_new = carry[0] /* tmp1 */;
+    v_lp_new[0] = carry[1] /* tmp42 */;
+    v_lp_new[1] = carry[5] /* tmp49 */;
+    v_lp_new[2] = carry[9] /* tmp57 */;
+    v_ins_new[0] = carry[7] /* tmp38 */;
+    v_ins_new[1] = carry[3] /* tmp45 */;
+    v_ins_new[2] = carry[8] /* tmp53 */;
+    up[0] = carry[10] /* tmp60 */;
+    up[1] = carry[11] /* tmp63 */;
+    up[2] = carry[12] /* tmp66 */;
 }
 
-static void qcf_k_correct_part0(const float rot[9], const float accel_lp[3], const float mag_ned[3],
-    float span_accel, bool recover, bool gps_comp, float carry[11])
+static void qcf_k_correct_part0(const float rot[9], const float accel_lp[3], float accel_lp_norm,
+    const float mag_ned[3], float span_accel, bool recover, bool gps_comp, float carry[11])
 {
     const float tmp0 = (gps_comp) ? 0.7f /* 0.5*kp_gps */ : 0.125f /* 0.5*kp */;
     const float tmp1 = (recover) ? 1.0f : tmp0;
     const float tmp2 = tmp1 * span_accel;
-    const float tmp3 = accel_lp[0] * accel_lp[0];
-    const float tmp4 = accel_lp[1] * accel_lp[1];
-    const float tmp5 = tmp3 + tmp4;
-    const float tmp6 = accel_lp[2] * accel_lp[2];
-    const float tmp7 = tmp5 + tmp6;
-    const float tmp8 = sqrtf(tmp7);
-    const float tmp9 = tmp8 - accel_lp[2];
-    const float tmp10 = 1e-06f /* TILT_FLIP_EPS */ * tmp8;
-    const float tmp11 = tmp8 + tmp8;
-    const float tmp12 = tmp11 * tmp9;
-    const float tmp13 = sqrtf(tmp12);
-    const float tmp14 = 1.0f / tmp13;
-    const float tmp15 = accel_lp[1] * tmp14;
-    const float tmp16 = -tmp15;
-    const float tmp17 = (tmp9 < tmp10) ? 1.0f : tmp16;
-    const float tmp18 = tmp2 * tmp17;
-    const float tmp19 = rot[0] * tmp18;
-    const float tmp20 = accel_lp[0] * tmp14;
-    const float tmp21 = tmp2 * tmp20;
-    const float tmp22 = rot[1] * tmp21;
-    const float tmp23 = (tmp9 < tmp10) ? 0.0f : tmp22;
-    const float tmp24 = tmp19 + tmp23;
-    const float tmp25 = tmp20 * mag_ned[0];
-    const float tmp26 = (tmp9 < tmp10) ? 0.0f : tmp25;
-    const float tmp27 = tmp17 * mag_ned[1];
-    const float tmp28 = tmp26 - tmp27;
-    const float tmp29 = tmp9 * tmp14;
-    const float tmp30 = tmp29 * mag_ned[2];
-    const float tmp31 = (tmp9 < tmp10) ? 0.0f : tmp30;
-    const float tmp32 = tmp28 - tmp31;
-    const float tmp33 = tmp32 + tmp32;
-    const float tmp34 = tmp20 * tmp33;
-    const float tmp35 = (tmp9 < tmp10) ? 0.0f : tmp34;
-    const float tmp36 = mag_ned[0] - tmp35;
-    const float tmp37 = tmp36 * tmp36;
-    const float tmp38 = tmp17 * tmp33;
-    const float tmp39 = mag_ned[1] + tmp38;
+    const float tmp3 = accel_lp_norm - accel_lp[2];
+    const float tmp4 = 1e-06f /* TILT_FLIP_EPS */ * accel_lp_norm;
+    const float tmp5 = -accel_lp[1];
+    const float tmp6 = (tmp3 < tmp4) ? 1.0f : tmp5;
+    const float tmp7 = accel_lp_norm + accel_lp_norm;
+    const float tmp8 = tmp7 * tmp3;
+    const float tmp9 = (tmp3 < tmp4) ? 1.0f : tmp8;
+    const float tmp10 = sqrtf(tmp9);
+    const float tmp11 = 1.0f / tmp10;
+    const float tmp12 = tmp6 * tmp11;
+    const float tmp13 = tmp2 * tmp12;
+    const float tmp14 = rot[0] * tmp13;
+    const float tmp15 = accel_lp[0] * tmp11;
+    const float tmp16 = tmp2 * tmp15;
+    const float tmp17 = rot[1] * tmp16;
+    const float tmp18 = (tmp3 < tmp4) ? 0.0f : tmp17;
+    const float tmp19 = tmp14 + tmp18;
+    const float tmp20 = tmp9 * mag_ned[0];
+    const float tmp21 = accel_lp[0] * mag_ned[0];
+    const float tmp22 = (tmp3 < tmp4) ? 0.0f : tmp21;
+    const float tmp23 = tmp6 * mag_ned[1];
+    const float tmp24 = tmp22 - tmp23;
+    const float tmp25 = tmp3 * mag_ned[2];
+    const float tmp26 = (tmp3 < tmp4) ? 0.0f : tmp25;
+    const float tmp27 = tmp24 - tmp26;
+    const float tmp28 = tmp27 + tmp27;
+    const float tmp29 = accel_lp[0] * tmp28;
+    const float tmp30 = (tmp3 < tmp4) ? 0.0f : tmp29;
+    const float tmp31 = tmp20 - tmp30;
+    const float tmp32 = tmp31 * tmp31;
+    const float tmp33 = tmp9 * mag_ned[1];
+    const float tmp34 = tmp6 * tmp28;
+    const float tmp35 = tmp33 + tmp34;
+    const float tmp36 = tmp35 * tmp35;
+    const float tmp37 = tmp32 + tmp36;
+    const float tmp38 = sqrtf(tmp37);
+    const float tmp39 = 1e-15f /* HEADING_H_MIN */ * tmp9;
     carry[0] = tmp1;
-    carry[1] = tmp9;
-    carry[2] = tmp10;
-    carry[3] = tmp18;
-    carry[4] = tmp21;
-    carry[5] = tmp24;
-    carry[6] = tmp36;
-    carry[7] = tmp37;
-    carry[8] = tmp39;
+    carry[1] = tmp3;
+    carry[2] = tmp4;
+    carry[3] = tmp13;
+    carry[4] = tmp16;
+    carry[5] = tmp19;
+    carry[6] = tmp31;
+    carry[7] = tmp35;
+    carry[8] = tmp38;
+    carry[9] = tmp39;
 }
 
 static void qcf_k_correct_part1(const float rot[9], float span_mag, float carry[11])
 {
-    const float tmp40 = carry[8] /* tmp39 */ * carry[8] /* tmp39 */;
-    const float tmp41 = carry[7] /* tmp37 */ + tmp40;
-    const float tmp42 = sqrtf(tmp41);
-    float tmp43;
-    float tmp44;
-    float tmp45;
-    if (tmp42 < 1e-15f /* HEADING_H_MIN */) {
-        tmp43 = 0.0f;
-        tmp44 = 0.0f;
-        tmp45 = 0.0f;
+    float tmp40;
+    float tmp41;
+    float tmp42;
+    if (carry[8] /* tmp38 */ < carry[9] /* tmp39 */) {
+        tmp40 = 0.0f;
+        tmp41 = 0.0f;
+        tmp42 = 0.0f;
     } else {
-        const float tmp46 = carry[0] /* tmp1 */ * span_mag;
-        const float tmp47 = tmp42 + tmp42;
-        const float tmp48 = fabsf(carry[6] /* tmp36 */);
-        const float tmp49 = tmp42 + tmp48;
-        const float tmp50 = tmp47 * tmp49;
-        const float tmp51 = sqrtf(tmp50);
-        const float tmp52 = 1.0f / tmp51;
-        const float tmp53 = carry[8] /* tmp39 */ * tmp52;
-        const float tmp54 = -tmp53;
-        const float tmp55 = carry[6] /* tmp36 */ - tmp42;
-        const float tmp56 = tmp42 - carry[6] /* tmp36 */;
-        const float tmp57 = (0.0f < carry[8] /* tmp39 */) ? tmp55 : tmp56;
-        const float tmp58 = tmp57 * tmp52;
-        const float tmp59 = (0.0f <= carry[6] /* tmp36 */) ? tmp54 : tmp58;
-        const float tmp60 = tmp46 * tmp59;
-        const float tmp61 = rot[2] * tmp60;
-        const float tmp62 = rot[5] * tmp60;
-        const float tmp63 = rot[8] * tmp60;
-        tmp43 = tmp61;
-        tmp44 = tmp62;
-        tmp45 = tmp63;
+        const float tmp43 = carry[0] /* tmp1 */ * span_mag;
+        const float tmp44 = carry[8] /* tmp38 */ + carry[8] /* tmp38 */;
+        const float tmp45 = fabsf(carry[6] /* tmp31 */);
+        const float tmp46 = carry[8] /* tmp38 */ + tmp45;
+        const float tmp47 = tmp44 * tmp46;
+        const float tmp48 = sqrtf(tmp47);
+        const float tmp49 = 1.0f / tmp48;
+        const float tmp50 = carry[7] /* tmp35 */ * tmp49;
+        const float tmp51 = -tmp50;
+        const float tmp52 = carry[6] /* tmp31 */ - carry[8] /* tmp38 */;
+        const float tmp53 = carry[8] /* tmp38 */ - carry[6] /* tmp31 */;
+        const float tmp54 = (0.0f < carry[7] /* tmp35 */) ? tmp52 : tmp53;
+        const float tmp55 = tmp54 * tmp49;
+        const float tmp56 = (0.0f <= carry[6] /* tmp31 */) ? tmp51 : tmp55;
+        const float tmp57 = tmp43 * tmp56;
+        const float tmp58 = rot[2] * tmp57;
+        const float tmp59 = rot[5] * tmp57;
+        const float tmp60 = rot[8] * tmp57;
+        tmp40 = tmp58;
+        tmp41 = tmp59;
+        tmp42 = tmp60;
     }
-    const float tmp64 = carry[5] /* tmp24 */ + tmp43;
-    const float tmp65 = tmp64 * tmp64;
-    const float tmp66 = rot[3] * carry[3] /* tmp18 */;
-    const float tmp67 = rot[4] * carry[4] /* tmp21 */;
-    const float tmp68 = (carry[1] /* tmp9 */ < carry[2] /* tmp10 */) ? 0.0f : tmp67;
-    const float tmp69 = tmp66 + tmp68;
-    const float tmp70 = tmp69 + tmp44;
-    const float tmp71 = tmp70 * tmp70;
-    const float tmp72 = tmp65 + tmp71;
-    const float tmp73 = rot[6] * carry[3] /* tmp18 */;
-    const float tmp74 = rot[7] * carry[4] /* tmp21 */;
-    const float tmp75 = (carry[1] /* tmp9 */ < carry[2] /* tmp10 */) ? 0.0f : tmp74;
-    const float tmp76 = tmp73 + tmp75;
-    const float tmp77 = tmp76 + tmp45;
-    const float tmp78 = tmp77 * tmp77;
-    const float tmp79 = tmp72 + tmp78;
-    carry[0] = tmp64;
-    carry[1] = tmp70;
-    carry[2] = tmp77;
-    carry[3] = tmp79;
+    const float tmp61 = carry[5] /* tmp19 */ + tmp40;
+    const float tmp62 = tmp61 * tmp61;
+    const float tmp63 = rot[3] * carry[3] /* tmp13 */;
+    const float tmp64 = rot[4] * carry[4] /* tmp16 */;
+    const float tmp65 = (carry[1] /* tmp3 */ < carry[2] /* tmp4 */) ? 0.0f : tmp64;
+    const float tmp66 = tmp63 + tmp65;
+    const float tmp67 = tmp66 + tmp41;
+    const float tmp68 = tmp67 * tmp67;
+    const float tmp69 = tmp62 + tmp68;
+    const float tmp70 = rot[6] * carry[3] /* tmp13 */;
+    const float tmp71 = rot[7] * carry[4] /* tmp16 */;
+    const float tmp72 = (carry[1] /* tmp3 */ < carry[2] /* tmp4 */) ? 0.0f : tmp71;
+    const float tmp73 = tmp70 + tmp72;
+    const float tmp74 = tmp73 + tmp42;
+    const float tmp75 = tmp74 * tmp74;
+    const float tmp76 = tmp69 + tmp75;
+    carry[0] = tmp61;
+    carry[1] = tmp67;
+    carry[2] = tmp74;
+    carry[3] = tmp76;
 }
 
 static void qcf_k_correct_part2(const float q[4], float carry[11])
 {
-    float tmp80;
-    float tmp81;
-    float tmp82;
-    float tmp83;
-    if (carry[3] /* tmp79 */ < 0.01f /* SERIES_MAX*SERIES_MAX */) {
-        const float tmp84 = (-2.1377798e-05f) /* -(2/93555) */ * carry[3] /* tmp79 */;
-        const float tmp85 = (-0.00021164022f) /* -(1/4725) */ + tmp84;
-        const float tmp86 = carry[3] /* tmp79 */ * tmp85;
-        const float tmp87 = (-0.0021164021f) /* -(2/945) */ + tmp86;
-        const float tmp88 = carry[3] /* tmp79 */ * tmp87;
-        const float tmp89 = (-0.022222223f) /* -(1/45) */ + tmp88;
-        const float tmp90 = carry[3] /* tmp79 */ * tmp89;
-        const float tmp91 = (-0.33333334f) /* -(1/3) */ + tmp90;
-        const float tmp92 = carry[3] /* tmp79 */ * tmp91;
-        const float tmp93 = 1.0f + tmp92;
-        tmp80 = tmp93;
-        tmp81 = carry[0] /* tmp64 */;
-        tmp82 = carry[1] /* tmp70 */;
-        tmp83 = carry[2] /* tmp77 */;
+    float tmp77;
+    float tmp78;
+    if (carry[3] /* tmp76 */ < 0.0009f /* SMALL_SERIES_MAX*SMALL_SERIES_MAX */) {
+        const float tmp79 = (-0.0013888889f) /* -(1/720) */ * carry[3] /* tmp76 */;
+        const float tmp80 = 0.041666668f /* 1/24 */ + tmp79;
+        const float tmp81 = carry[3] /* tmp76 */ * tmp80;
+        const float tmp82 = (-0.5f) /* -(1/2) */ + tmp81;
+        const float tmp83 = carry[3] /* tmp76 */ * tmp82;
+        const float tmp84 = 1.0f + tmp83;
+        const float tmp85 = (-0.0001984127f) /* -(1/5040) */ * carry[3] /* tmp76 */;
+        const float tmp86 = 0.008333334f /* 1/120 */ + tmp85;
+        const float tmp87 = carry[3] /* tmp76 */ * tmp86;
+        const float tmp88 = (-0.16666667f) /* -(1/6) */ + tmp87;
+        const float tmp89 = carry[3] /* tmp76 */ * tmp88;
+        const float tmp90 = 1.0f + tmp89;
+        tmp77 = tmp84;
+        tmp78 = tmp90;
     } else {
-        const float tmp94 = (carry[3] /* tmp79 */ > 0.01f /* SERIES_MAX*SERIES_MAX */) ?
-                carry[3] /* tmp79 */ : 0.01f /* SERIES_MAX*SERIES_MAX */;
-        const float tmp95 = sqrtf(tmp94);
-        float tmp97;
-        float tmp96;
-        fast_sincosf(tmp95, &tmp97, &tmp96);   /* sin and cos, one reduction */
-        const float tmp98 = tmp97 / tmp95;
-        const float tmp99 = tmp98 * carry[0] /* tmp64 */;
-        const float tmp100 = tmp98 * carry[1] /* tmp70 */;
-        const float tmp101 = tmp98 * carry[2] /* tmp77 */;
-        tmp80 = tmp96;
-        tmp81 = tmp99;
-        tmp82 = tmp100;
-        tmp83 = tmp101;
+        const float tmp91 = (carry[3] /* tmp76 */ > 0.0009f /* SMALL_SERIES_MAX*SMALL_SERIES_MAX */)
+                ? carry[3] /* tmp76 */ : 0.0009f /* SMALL_SERIES_MAX*SMALL_SERIES_MAX */;
+        const float tmp92 = sqrtf(tmp91);
+        float tmp94;
+        float tmp93;
+        fast_sincosf(tmp92, &tmp94, &tmp93);   /* sin and cos, one reduction */
+        const float tmp95 = tmp94 / tmp92;
+        tmp77 = tmp93;
+        tmp78 = tmp95;
     }
-    const float tmp102 = q[0] * tmp80;
-    const float tmp103 = q[1] * tmp81;
-    const float tmp104 = tmp102 - tmp103;
-    const float tmp105 = q[2] * tmp82;
-    const float tmp106 = tmp104 - tmp105;
-    const float tmp107 = q[3] * tmp83;
-    const float tmp108 = tmp106 - tmp107;
-    const float tmp109 = tmp108 * tmp108;
-    const float tmp110 = q[0] * tmp81;
-    const float tmp111 = q[1] * tmp80;
-    const float tmp112 = tmp110 + tmp111;
-    const float tmp113 = q[2] * tmp83;
-    const float tmp114 = tmp112 + tmp113;
-    const float tmp115 = q[3] * tmp82;
-    const float tmp116 = tmp114 - tmp115;
-    const float tmp117 = tmp116 * tmp116;
-    const float tmp118 = tmp109 + tmp117;
-    const float tmp119 = q[0] * tmp82;
-    carry[3] = tmp80;
-    carry[4] = tmp81;
-    carry[5] = tmp82;
-    carry[6] = tmp83;
-    carry[7] = tmp108;
-    carry[8] = tmp116;
-    carry[9] = tmp118;
-    carry[10] = tmp119;
+    const float tmp96 = q[0] * tmp77;
+    const float tmp97 = tmp78 * carry[0] /* tmp61 */;
+    const float tmp98 = q[1] * tmp97;
+    const float tmp99 = tmp96 - tmp98;
+    const float tmp100 = tmp78 * carry[1] /* tmp67 */;
+    const float tmp101 = q[2] * tmp100;
+    const float tmp102 = tmp99 - tmp101;
+    const float tmp103 = tmp78 * carry[2] /* tmp74 */;
+    const float tmp104 = q[3] * tmp103;
+    const float tmp105 = tmp102 - tmp104;
+    const float tmp106 = tmp105 * tmp105;
+    const float tmp107 = q[0] * tmp97;
+    const float tmp108 = q[1] * tmp77;
+    const float tmp109 = tmp107 + tmp108;
+    const float tmp110 = q[2] * tmp103;
+    const float tmp111 = tmp109 + tmp110;
+    const float tmp112 = q[3] * tmp100;
+    const float tmp113 = tmp111 - tmp112;
+    const float tmp114 = tmp113 * tmp113;
+    const float tmp115 = tmp106 + tmp114;
+    const float tmp116 = q[0] * tmp100;
+    carry[3] = tmp77;
+    carry[4] = tmp97;
+    carry[5] = tmp100;
+    carry[6] = tmp103;
+    carry[7] = tmp105;
+    carry[8] = tmp113;
+    carry[9] = tmp115;
+    carry[10] = tmp116;
 }
 
 static void qcf_k_correct_part3(const float q[4], float carry[11])
 {
-    const float tmp120 = q[1] * carry[6] /* tmp83 */;
-    const float tmp121 = carry[10] /* tmp119 */ - tmp120;
-    const float tmp122 = q[2] * carry[3] /* tmp80 */;
-    const float tmp123 = tmp121 + tmp122;
-    const float tmp124 = q[3] * carry[4] /* tmp81 */;
-    const float tmp125 = tmp123 + tmp124;
-    const float tmp126 = tmp125 * tmp125;
-    const float tmp127 = carry[9] /* tmp118 */ + tmp126;
-    const float tmp128 = q[0] * carry[6] /* tmp83 */;
-    const float tmp129 = q[1] * carry[5] /* tmp82 */;
-    const float tmp130 = tmp128 + tmp129;
-    const float tmp131 = q[2] * carry[4] /* tmp81 */;
-    const float tmp132 = tmp130 - tmp131;
-    const float tmp133 = q[3] * carry[3] /* tmp80 */;
-    const float tmp134 = tmp132 + tmp133;
-    const float tmp135 = tmp134 * tmp134;
-    const float tmp136 = tmp127 + tmp135;
-    const float tmp137 = sqrtf(tmp136);
-    const float tmp138 = 1.0f / tmp137;
-    const float tmp139 = carry[7] /* tmp108 */ * tmp138;
-    const float tmp140 = carry[8] /* tmp116 */ * tmp138;
-    const float tmp141 = tmp125 * tmp138;
-    const float tmp142 = tmp134 * tmp138;
-    carry[3] = tmp139;
-    carry[4] = tmp140;
-    carry[5] = tmp141;
-    carry[6] = tmp142;
+    const float tmp117 = q[1] * carry[6] /* tmp103 */;
+    const float tmp118 = carry[10] /* tmp116 */ - tmp117;
+    const float tmp119 = q[2] * carry[3] /* tmp77 */;
+    const float tmp120 = tmp118 + tmp119;
+    const float tmp121 = q[3] * carry[4] /* tmp97 */;
+    const float tmp122 = tmp120 + tmp121;
+    const float tmp123 = tmp122 * tmp122;
+    const float tmp124 = carry[9] /* tmp115 */ + tmp123;
+    const float tmp125 = q[0] * carry[6] /* tmp103 */;
+    const float tmp126 = q[1] * carry[5] /* tmp100 */;
+    const float tmp127 = tmp125 + tmp126;
+    const float tmp128 = q[2] * carry[4] /* tmp97 */;
+    const float tmp129 = tmp127 - tmp128;
+    const float tmp130 = q[3] * carry[3] /* tmp77 */;
+    const float tmp131 = tmp129 + tmp130;
+    const float tmp132 = tmp131 * tmp131;
+    const float tmp133 = tmp124 + tmp132;
+    const float tmp134 = tmp133 - 1.0f;
+    const float tmp135 = fabsf(tmp134);
+    float tmp136;
+    float tmp137;
+    float tmp138;
+    float tmp139;
+    if (tmp135 < 0.00024414062f /* NEAR_UNIT_MAX */) {
+        const float tmp140 = 0.5f * tmp134;
+        const float tmp141 = 1.0f - tmp140;
+        const float tmp142 = carry[7] /* tmp105 */ * tmp141;
+        const float tmp143 = carry[8] /* tmp113 */ * tmp141;
+        const float tmp144 = tmp122 * tmp141;
+        const float tmp145 = tmp131 * tmp141;
+        tmp136 = tmp142;
+        tmp137 = tmp143;
+        tmp138 = tmp144;
+        tmp139 = tmp145;
+    } else {
+        const float tmp146 = sqrtf(tmp133);
+        const float tmp147 = 1.0f / tmp146;
+        const float tmp148 = carry[7] /* tmp105 */ * tmp147;
+        const float tmp149 = carry[8] /* tmp113 */ * tmp147;
+        const float tmp150 = tmp122 * tmp147;
+        const float tmp151 = tmp131 * tmp147;
+        tmp136 = tmp148;
+        tmp137 = tmp149;
+        tmp138 = tmp150;
+        tmp139 = tmp151;
+    }
+    carry[3] = tmp136;
+    carry[4] = tmp137;
+    carry[5] = tmp138;
+    carry[6] = tmp139;
 }
 
 static void qcf_k_correct_part4(const float gyro_bias[3], float span_accel, bool use_accel,
     float accel_norm2, bool recover, bool gps_comp, bool at_rest, const float rest_gyro_lp[3],
     float carry[11])
 {
-    float tmp143;
-    float tmp144;
-    float tmp145;
+    float tmp152;
+    float tmp153;
+    float tmp154;
     if (at_rest) {
-        const float tmp146 = 1.0f + span_accel;
-        const float tmp147 = span_accel / tmp146;
-        const float tmp148 = rest_gyro_lp[0] - gyro_bias[0];
-        const float tmp149 = tmp147 * tmp148;
-        const float tmp150 = gyro_bias[0] + tmp149;
-        const float tmp151 = rest_gyro_lp[1] - gyro_bias[1];
-        const float tmp152 = tmp147 * tmp151;
-        const float tmp153 = gyro_bias[1] + tmp152;
-        const float tmp154 = rest_gyro_lp[2] - gyro_bias[2];
-        const float tmp155 = tmp147 * tmp154;
-        const float tmp156 = gyro_bias[2] + tmp155;
-        tmp143 = tmp150;
-        tmp144 = tmp153;
-        tmp145 = tmp156;
+        const float tmp155 = 1.0f + span_accel;
+        const float tmp156 = span_accel / tmp155;
+        const float tmp157 = rest_gyro_lp[0] - gyro_bias[0];
+        const float tmp158 = tmp156 * tmp157;
+        const float tmp159 = gyro_bias[0] + tmp158;
+        const float tmp160 = rest_gyro_lp[1] - gyro_bias[1];
+        const float tmp161 = tmp156 * tmp160;
+        const float tmp162 = gyro_bias[1] + tmp161;
+        const float tmp163 = rest_gyro_lp[2] - gyro_bias[2];
+        const float tmp164 = tmp156 * tmp163;
+        const float tmp165 = gyro_bias[2] + tmp164;
+        tmp152 = tmp159;
+        tmp153 = tmp162;
+        tmp154 = tmp165;
     } else {
-        const bool tmp157 = use_accel && (!(recover));
-        const bool tmp158 = (77.55708f /* (G0 - 1.0)^2 */ < accel_norm2) && (accel_norm2 <
+        const bool tmp166 = use_accel && (!(recover));
+        const bool tmp167 = (77.55708f /* (G0 - 1.0)^2 */ < accel_norm2) && (accel_norm2 <
                 116.78368f /* (G0 + 1.0)^2 */);
-        const bool tmp159 = tmp157 && tmp158;
-        const float tmp160 = (gps_comp) ? 0.0028571428f /* ki/(0.5*kp_gps) */ :
+        const bool tmp168 = tmp166 && tmp167;
+        const float tmp169 = (gps_comp) ? 0.0028571428f /* ki/(0.5*kp_gps) */ :
                 0.016f /* ki/(0.5*kp) */;
-        const float tmp161 = tmp160 * carry[0] /* tmp64 */;
-        const float tmp162 = gyro_bias[0] - tmp161;
-        const float tmp163 = (tmp159) ? tmp162 : gyro_bias[0];
-        const float tmp164 = tmp160 * carry[1] /* tmp70 */;
-        const float tmp165 = gyro_bias[1] - tmp164;
-        const float tmp166 = (tmp159) ? tmp165 : gyro_bias[1];
-        const float tmp167 = tmp160 * carry[2] /* tmp77 */;
-        const float tmp168 = gyro_bias[2] - tmp167;
-        const float tmp169 = (tmp159) ? tmp168 : gyro_bias[2];
-        tmp143 = tmp163;
-        tmp144 = tmp166;
-        tmp145 = tmp169;
+        const float tmp170 = tmp169 * carry[0] /* tmp61 */;
+        const float tmp171 = gyro_bias[0] - tmp170;
+        const float tmp172 = (tmp168) ? tmp171 : gyro_bias[0];
+        const float tmp173 = tmp169 * carry[1] /* tmp67 */;
+        const float tmp174 = gyro_bias[1] - tmp173;
+        const float tmp175 = (tmp168) ? tmp174 : gyro_bias[1];
+        const float tmp176 = tmp169 * carry[2] /* tmp74 */;
+        const float tmp177 = gyro_bias[2] - tmp176;
+        const float tmp178 = (tmp168) ? tmp177 : gyro_bias[2];
+        tmp152 = tmp172;
+        tmp153 = tmp175;
+        tmp154 = tmp178;
     }
-    carry[0] = tmp143;
-    carry[1] = tmp144;
-    carry[2] = tmp145;
+    carry[0] = tmp152;
+    carry[1] = tmp153;
+    carry[2] = tmp154;
 }
 
 /*
@@ -950,6 +988,7 @@ static void qcf_k_correct_part4(const float gyro_bias[3], float span_accel, bool
  *     rot: float[9], 3x3 matrix, column-major: row i, column j at [i + 3 * j]
  *     gyro_bias: float[3]
  *     accel_lp: float[3]
+ *     accel_lp_norm: float
  *     mag_ned: float[3]
  *     span_accel: float
  *     span_mag: float
@@ -963,14 +1002,15 @@ static void qcf_k_correct_part4(const float gyro_bias[3], float span_accel, bool
  *     q_new: float[4]
  *     gyro_bias_new: float[3]
  *
- * Total ops: 170 (add 54, mul 73, div 5, sqrt 6, trig 2, cmp 30)
- *     of which only one side runs: if (tmp42 < 1e-15f) 0, else 18
- *     of which only one side runs: if (tmp79 < 0.01f) 10, else 8
+ * Total ops: 179 (add 55, mul 78, div 5, sqrt 5, trig 2, cmp 34)
+ *     of which only one side runs: if (tmp38 < tmp39) 0, else 18
+ *     of which only one side runs: if (tmp76 < 0.0009f) 12, else 5
+ *     of which only one side runs: if (tmp135 < 0.00024414062f) 6, else 6
  *     of which only one side runs: if (at_rest) 11, else 13
  */
 static void qcf_k_correct(const float q[4], const float rot[9], const float gyro_bias[3],
-    const float accel_lp[3], const float mag_ned[3], float span_accel, float span_mag,
-    bool use_accel, float accel_norm2, bool recover, bool gps_comp, bool at_rest,
+    const float accel_lp[3], float accel_lp_norm, const float mag_ned[3], float span_accel,
+    float span_mag, bool use_accel, float accel_norm2, bool recover, bool gps_comp, bool at_rest,
     const float rest_gyro_lp[3], float q_new[4], float gyro_bias_new[3])
 {
     /*
@@ -978,19 +1018,20 @@ static void qcf_k_correct(const float q[4], const float rot[9], const float gyro
      * handed between them (a slot reused once its value is dead)
      */
     float carry[11];
-    qcf_k_correct_part0(rot, accel_lp, mag_ned, span_accel, recover, gps_comp, carry);
+    qcf_k_correct_part0(rot, accel_lp, accel_lp_norm, mag_ned, span_accel, recover, gps_comp,
+            carry);
     qcf_k_correct_part1(rot, span_mag, carry);
     qcf_k_correct_part2(q, carry);
     qcf_k_correct_part3(q, carry);
     qcf_k_correct_part4(gyro_bias, span_accel, use_accel, accel_norm2, recover, gps_comp, at_rest,
             rest_gyro_lp, carry);
-    q_new[0] = carry[3] /* tmp139 */;
-    q_new[1] = carry[4] /* tmp140 */;
-    q_new[2] = carry[5] /* tmp141 */;
-    q_new[3] = carry[6] /* tmp142 */;
-    gyro_bias_new[0] = carry[0] /* tmp143 */;
-    gyro_bias_new[1] = carry[1] /* tmp144 */;
-    gyro_bias_new[2] = carry[2] /* tmp145 */;
+    q_new[0] = carry[3] /* tmp136 */;
+    q_new[1] = carry[4] /* tmp137 */;
+    q_new[2] = carry[5] /* tmp138 */;
+    q_new[3] = carry[6] /* tmp139 */;
+    gyro_bias_new[0] = carry[0] /* tmp152 */;
+    gyro_bias_new[1] = carry[1] /* tmp153 */;
+    gyro_bias_new[2] = carry[2] /* tmp154 */;
 }
 
 static void qcf_k_rest_part0(const float gyro[3], const float rest_gyro_lp[3], float span,
@@ -1158,8 +1199,9 @@ static void qcf_k_rest(const float gyro[3], float accel_norm2, const float rest_
     *at_rest = flags[0] /* tmp88 */;
 }
 
-static void qcf_k_mag_check_part0(const float accel_lp[3], float mag_norm2, const float mag_ned[3],
-    const float mag_ref[2], float mag_learn_time, float span, float carry[6])
+static void qcf_k_mag_check_part0(const float accel_lp[3], float accel_lp_norm, float mag_norm2,
+    const float mag_ned[3], const float mag_ref[2], float mag_learn_time, float span,
+    float carry[6])
 {
     const float tmp0 = (mag_ref[0] <= 0.0f) ? 0.0f : mag_learn_time;
     const float tmp1 = sqrtf(mag_norm2);
@@ -1169,84 +1211,78 @@ static void qcf_k_mag_check_part0(const float accel_lp[3], float mag_norm2, cons
     const float tmp5 = tmp3 + tmp4;
     const float tmp6 = accel_lp[2] * mag_ned[2];
     const float tmp7 = tmp5 + tmp6;
-    const float tmp8 = accel_lp[0] * accel_lp[0];
-    const float tmp9 = accel_lp[1] * accel_lp[1];
-    const float tmp10 = tmp8 + tmp9;
-    const float tmp11 = accel_lp[2] * accel_lp[2];
-    const float tmp12 = tmp10 + tmp11;
-    const float tmp13 = sqrtf(tmp12);
-    const float tmp14 = tmp13 * tmp1;
-    const float tmp15 = tmp7 / tmp14;
-    const float tmp16 = tmp15 + mag_ref[1];
-    const float tmp17 = tmp0 + span;
+    const float tmp8 = accel_lp_norm * tmp1;
+    const float tmp9 = tmp7 / tmp8;
+    const float tmp10 = tmp9 + mag_ref[1];
+    const float tmp11 = tmp0 + span;
     carry[0] = tmp0;
     carry[1] = tmp1;
     carry[2] = tmp2;
-    carry[3] = tmp15;
-    carry[4] = tmp16;
-    carry[5] = tmp17;
+    carry[3] = tmp9;
+    carry[4] = tmp10;
+    carry[5] = tmp11;
 }
 
 static void qcf_k_mag_check_part1(const float mag_ref[2], float mag_dist_time, float span,
     bool hold, float carry[6], bool flags[1])
 {
-    bool tmp18;
-    float tmp19;
-    float tmp20;
-    float tmp21;
+    bool tmp12;
+    float tmp13;
+    float tmp14;
+    float tmp15;
     if (carry[0] /* tmp0 */ < 10.0f /* mag_warmup */) {
-        const float tmp22 = span / carry[5] /* tmp17 */;
-        const float tmp23 = tmp22 * carry[2] /* tmp2 */;
-        const float tmp24 = mag_ref[0] + tmp23;
-        const float tmp25 = tmp22 * carry[4] /* tmp16 */;
-        const float tmp26 = mag_ref[1] - tmp25;
-        tmp18 = true;
-        tmp19 = tmp24;
-        tmp20 = tmp26;
-        tmp21 = 0.0f;
+        const float tmp16 = span / carry[5] /* tmp11 */;
+        const float tmp17 = tmp16 * carry[2] /* tmp2 */;
+        const float tmp18 = mag_ref[0] + tmp17;
+        const float tmp19 = tmp16 * carry[4] /* tmp10 */;
+        const float tmp20 = mag_ref[1] - tmp19;
+        tmp12 = true;
+        tmp13 = tmp18;
+        tmp14 = tmp20;
+        tmp15 = 0.0f;
     } else {
-        const float tmp27 = fabsf(carry[2] /* tmp2 */);
-        const float tmp28 = 0.1f /* mag_norm_tol */ * mag_ref[0];
-        const float tmp29 = fabsf(carry[4] /* tmp16 */);
-        const bool tmp30 = (tmp27 < tmp28) && (tmp29 < 0.1f /* mag_dip_tol */);
-        const bool tmp31 = tmp30 || (!(0.0f < mag_ref[0]));
-        const float tmp32 = mag_dist_time + span;
-        const float tmp33 = (tmp30) ? 0.0f : tmp32;
-        const bool tmp34 = (20.0f /* mag_new_time */ < tmp33) && (!(hold));
-        const bool tmp35 = (!(0.0f < mag_ref[0])) || tmp34;
-        float tmp36;
-        float tmp37;
-        float tmp38;
-        if (tmp35) {
-            const float tmp39 = -carry[3] /* tmp15 */;
-            tmp36 = carry[1] /* tmp1 */;
-            tmp37 = tmp39;
-            tmp38 = 0.0f;
+        const float tmp21 = fabsf(carry[2] /* tmp2 */);
+        const float tmp22 = 0.1f /* mag_norm_tol */ * mag_ref[0];
+        const float tmp23 = fabsf(carry[4] /* tmp10 */);
+        const bool tmp24 = (tmp21 < tmp22) && (tmp23 < 0.1f /* mag_dip_tol */);
+        const bool tmp25 = tmp24 || (!(0.0f < mag_ref[0]));
+        const float tmp26 = mag_dist_time + span;
+        const float tmp27 = (tmp24) ? 0.0f : tmp26;
+        const bool tmp28 = (20.0f /* mag_new_time */ < tmp27) && (!(hold));
+        const bool tmp29 = (!(0.0f < mag_ref[0])) || tmp28;
+        float tmp30;
+        float tmp31;
+        float tmp32;
+        if (tmp29) {
+            const float tmp33 = -carry[3] /* tmp9 */;
+            tmp30 = carry[1] /* tmp1 */;
+            tmp31 = tmp33;
+            tmp32 = 0.0f;
         } else {
-            const float tmp40 = 20.0f /* mag_ref_tau */ + span;
-            const float tmp41 = span / tmp40;
-            const float tmp42 = tmp41 * carry[2] /* tmp2 */;
-            const float tmp43 = mag_ref[0] + tmp42;
-            const float tmp44 = (tmp30) ? tmp43 : mag_ref[0];
-            const float tmp45 = tmp41 * carry[4] /* tmp16 */;
-            const float tmp46 = mag_ref[1] - tmp45;
-            const float tmp47 = (tmp30) ? tmp46 : mag_ref[1];
-            tmp36 = tmp44;
-            tmp37 = tmp47;
-            tmp38 = tmp33;
+            const float tmp34 = 20.0f /* mag_ref_tau */ + span;
+            const float tmp35 = span / tmp34;
+            const float tmp36 = tmp35 * carry[2] /* tmp2 */;
+            const float tmp37 = mag_ref[0] + tmp36;
+            const float tmp38 = (tmp24) ? tmp37 : mag_ref[0];
+            const float tmp39 = tmp35 * carry[4] /* tmp10 */;
+            const float tmp40 = mag_ref[1] - tmp39;
+            const float tmp41 = (tmp24) ? tmp40 : mag_ref[1];
+            tmp30 = tmp38;
+            tmp31 = tmp41;
+            tmp32 = tmp27;
         }
-        tmp18 = tmp31;
-        tmp19 = tmp36;
-        tmp20 = tmp37;
-        tmp21 = tmp38;
+        tmp12 = tmp25;
+        tmp13 = tmp30;
+        tmp14 = tmp31;
+        tmp15 = tmp32;
     }
-    const float tmp48 = (carry[5] /* tmp17 */ < 10.0f /* mag_warmup */) ? carry[5] /* tmp17 */ :
+    const float tmp42 = (carry[5] /* tmp11 */ < 10.0f /* mag_warmup */) ? carry[5] /* tmp11 */ :
             10.0f /* mag_warmup */;
-    flags[0] = tmp18;
-    carry[0] = tmp19;
-    carry[1] = tmp20;
-    carry[2] = tmp21;
-    carry[3] = tmp48;
+    flags[0] = tmp12;
+    carry[0] = tmp13;
+    carry[1] = tmp14;
+    carry[2] = tmp15;
+    carry[3] = tmp42;
 }
 
 /*
@@ -1255,6 +1291,7 @@ static void qcf_k_mag_check_part1(const float mag_ref[2], float mag_dist_time, f
  *
  * Args:
  *     accel_lp: float[3]
+ *     accel_lp_norm: float
  *     mag_norm2: float
  *     mag_ned: float[3]
  *     mag_ref: float[2]
@@ -1268,13 +1305,14 @@ static void qcf_k_mag_check_part1(const float mag_ref[2], float mag_dist_time, f
  *     mag_dist_time_new: float
  *     mag_learn_time_new: float
  *
- * Total ops: 49 (add 14, mul 12, div 3, sqrt 2, cmp 18)
+ * Total ops: 43 (add 12, mul 9, div 3, sqrt 1, cmp 18)
  *     of which only one side runs: if (tmp0 < 10.0f) 5, else 21
- *     of which only one side runs: if (tmp35) 1, else 8
+ *     of which only one side runs: if (tmp29) 1, else 8
  */
-static void qcf_k_mag_check(const float accel_lp[3], float mag_norm2, const float mag_ned[3],
-    const float mag_ref[2], float mag_dist_time, float mag_learn_time, float span, bool hold,
-    bool *accept, float mag_ref_new[2], float *mag_dist_time_new, float *mag_learn_time_new)
+static void qcf_k_mag_check(const float accel_lp[3], float accel_lp_norm, float mag_norm2,
+    const float mag_ned[3], const float mag_ref[2], float mag_dist_time, float mag_learn_time,
+    float span, bool hold, bool *accept, float mag_ref_new[2], float *mag_dist_time_new,
+    float *mag_learn_time_new)
 {
     /*
      * 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry and flags hold
@@ -1282,13 +1320,14 @@ static void qcf_k_mag_check(const float accel_lp[3], float mag_norm2, const floa
      */
     float carry[6];
     bool flags[1];
-    qcf_k_mag_check_part0(accel_lp, mag_norm2, mag_ned, mag_ref, mag_learn_time, span, carry);
+    qcf_k_mag_check_part0(accel_lp, accel_lp_norm, mag_norm2, mag_ned, mag_ref, mag_learn_time,
+            span, carry);
     qcf_k_mag_check_part1(mag_ref, mag_dist_time, span, hold, carry, flags);
-    *accept = flags[0] /* tmp18 */;
-    mag_ref_new[0] = carry[0] /* tmp19 */;
-    mag_ref_new[1] = carry[1] /* tmp20 */;
-    *mag_dist_time_new = carry[2] /* tmp21 */;
-    *mag_learn_time_new = carry[3] /* tmp48 */;
+    *accept = flags[0] /* tmp12 */;
+    mag_ref_new[0] = carry[0] /* tmp13 */;
+    mag_ref_new[1] = carry[1] /* tmp14 */;
+    *mag_dist_time_new = carry[2] /* tmp15 */;
+    *mag_learn_time_new = carry[3] /* tmp42 */;
 }
 
 static void qcf_k_hard_iron_part0(const float mag[3], const float b[3], const float ref[2],
@@ -2590,6 +2629,8 @@ qcf_status qcf_step(qcf_state *restrict s, const qcf_input *restrict in, float d
             status |= QCF_AT_REST;
         }
     }
+    float up_n;   /* |a| of the tilt reference, read by the field check and the tilt correction */
+    qcf_k_tilt_norm(up, &up_n);
     bool heading_ok = use_mag && started;
     /* R(q) m; zero (no heading part) without a sample */
     float mag_n[3] = { 0.0f, 0.0f, 0.0f };
@@ -2601,7 +2642,7 @@ qcf_status qcf_step(qcf_state *restrict s, const qcf_input *restrict in, float d
         qcf_k_mag_ned(rot, mag_c, mag_n);
         const bool was_accepted = !(s->mag_dist_time > 0.0f);   /* never negative: zero */
         bool accept;
-        qcf_k_mag_check(up, mag_c2, mag_n, s->mag_ref, s->mag_dist_time, s->mag_learn_time,
+        qcf_k_mag_check(up, up_n, mag_c2, mag_n, s->mag_ref, s->mag_dist_time, s->mag_learn_time,
             s->mag_age, s->mag_suspect != 0u, &accept, s->mag_ref, &s->mag_dist_time,
             &s->mag_learn_time);
         /* (recovering: the dip was judged with the wrong attitude) */
@@ -2642,7 +2683,7 @@ qcf_status qcf_step(qcf_state *restrict s, const qcf_input *restrict in, float d
             }
         }
     }
-    qcf_k_correct(s->q, rot, s->gyro_bias, up, mag_n,
+    qcf_k_correct(s->q, rot, s->gyro_bias, up, up_n, mag_n,
         use_accel ? s->accel_age : 0.0f, heading_ok ? s->mag_age : 0.0f,
         use_accel, accel_n2, recovering, m_comp, at_rest, s->rest_gyro_lp,
         s->q, s->gyro_bias);

@@ -28,6 +28,8 @@ def _inputs(fn, rng, flags=()):
             v = np.array([rng.uniform(0.002, 0.1)])
         elif name == "cmax":                      # cpf: the largest |<x, y>| of unit quaternions
             v = np.array([1.0])
+        elif name.endswith("_norm") or name.endswith("_norm2"):    # a norm or its square: positive
+            v = rng.uniform(0.5, 2.0, n)
         elif name.startswith("use_") or name == "mask" or name in flags:
             v = rng.integers(0, 2, n).astype(float)
         elif r == c and r > 1:                    # covariance-like: symmetric positive definite

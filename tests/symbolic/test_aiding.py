@@ -109,6 +109,30 @@ def test_tilt_correction_aligns_down_and_keeps_heading(seed):
 
 
 @pytest.mark.parametrize("decl", [0.0, 0.3])
+def test_tilt_heading_vec_is_the_tilt_then_the_heading_correction(decl):
+    """The vector parts of tilt_correction(d) and heading_correction_ned(R(T) m) (each checked
+    against physics above and below), from |d| given and the heading read off the unnormalised
+    tilt: upright, tilted, upside down (the flip) and a field straight along the tilted down."""
+    d, m, n = ca.SX.sym("d", 3), ca.SX.sym("m", 3), ca.SX.sym("n")
+    ours = _fn([d, n, m], [ca.vertcat(*aiding.tilt_heading_vec(d, n, m, decl))])
+    T = aiding.tilt_correction(d)
+    H = aiding.heading_correction_ned(quat.rotate_xy_tilt(T, m), decl)
+    theirs = _fn([d, m], [ca.vertcat(T[1], T[2], H[3])])
+    rng = np.random.default_rng(4)
+    cases = [(9.8 * np.array([0.1, -0.05, 1.0]), np.array([20.0, -3.0, 40.0]))]
+    for _ in range(20):
+        cases.append((rng.normal(size=3) * rng.uniform(0.5, 20), rng.normal(size=3) * rng.uniform(0.2, 60)))
+    cases.append((np.array([1e-9, 0.0, -9.8]), np.array([20.0, 5.0, 40.0])))        # flipped
+    v = rng.normal(size=3)
+    cases.append((v, -3.0 * v / np.linalg.norm(v)))               # no horizontal part once tilted
+    for dv, mv in cases:
+        got, want = ours(dv, np.linalg.norm(dv), mv)[0], theirs(dv, mv)[0]
+        np.testing.assert_allclose(got, want, atol=1e-12)
+    assert ours(*cases[-2][:1], 9.8, cases[-2][1])[0][:2] == pytest.approx([1.0, 0.0])
+    assert ours(cases[-1][0], np.linalg.norm(cases[-1][0]), cases[-1][1])[0][2] == 0.0
+
+
+@pytest.mark.parametrize("decl", [0.0, 0.3])
 def test_heading_correction_turns_field_north_without_tilting(decl):
     q, m = ca.SX.sym("q", 4), ca.SX.sym("m", 3)
     f = _fn([q, m], [aiding.heading_correction(q, m, decl)])

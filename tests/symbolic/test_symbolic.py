@@ -61,16 +61,24 @@ def test_exponential_is_exact_rotation_and_smooth_at_zero():
         np.testing.assert_allclose(got, exact, atol=1e-15, rtol=1e-14)
 
 
-def test_exponential_series_truncation_is_below_its_stated_bound():
+@pytest.mark.parametrize("small_arg", [False, True])
+def test_exponential_series_truncation_is_below_its_stated_bound(small_arg):
     """At the series' edge the truncated sum differs from the exact cos and sinc by no more
-    than the first neglected term (|v|^10/10!, |v|^10/11!) plus double round-off."""
+    than the first neglected term (|v|^2K/(2K)!, |v|^2K/(2K+1)!) plus double round-off, and that
+    term is below double round-off; just beyond the edge the exact form (small_arg: the shorter
+    series below SMALL_SERIES_MAX)."""
     import math
-    ex = ca.Function("ex", [v3], [quat.qexp(v3)])
-    n = quat.SERIES_MAX * (1 - 1e-12)
+    ex = ca.Function("ex", [v3], [quat.qexp(v3, small_arg=small_arg)])
+    top, K = ((quat.SMALL_SERIES_MAX, quat.SMALL_SERIES_TERMS) if small_arg
+              else (quat.SERIES_MAX, quat.SERIES_TERMS))
+    n = float(top) * (1 - 1e-12)
     got = np.array(ex(np.r_[n, 0.0, 0.0])).ravel()
-    K = quat.SERIES_TERMS
+    assert n ** (2 * K) / math.factorial(2 * K) < 1.1e-16
     assert abs(got[0] - math.cos(n)) <= n ** (2 * K) / math.factorial(2 * K) + 2e-16
     assert abs(got[1] / n - math.sin(n) / n) <= n ** (2 * K) / math.factorial(2 * K + 1) + 2e-16
+    for m in (float(top) * (1 + 1e-9), 0.3 * float(top)):
+        got = np.array(ex(np.r_[0.0, m, 0.0])).ravel()
+        np.testing.assert_allclose(got, [math.cos(m), 0.0, math.sin(m), 0.0], atol=2e-16)
 
 
 def test_scaled_exponential_is_a_positive_multiple_of_the_exact_one():
@@ -88,6 +96,24 @@ def test_scaled_exponential_is_a_positive_multiple_of_the_exact_one():
     n = quat.SERIES_MAX * (1 - 1e-12)
     got = np.array(ex(np.r_[n, 0.0, 0.0])).ravel()
     assert abs(got[0] - n / np.tan(n)) <= 1382 * n ** 12 / 638512875 + 2e-16
+
+
+def test_near_unit_normalisation_is_within_its_stated_error():
+    """qnormalize_near_unit against q/|q| (NumPy): within NEAR_UNIT_MAX of |q|^2 = 1 the Newton
+    step's relative error is 3/8 eps^2 (+ O(eps^3)), below half a float ulp (2^-25) at the
+    threshold; beyond it the exact quotient."""
+    f = ca.Function("nu", [q4], [quat.qnormalize_near_unit(q4)])
+    bound = float(quat.NEAR_UNIT_MAX)
+    assert 3 / 8 * bound ** 2 < 2.0 ** -25
+    for eps in (1e-7, -3e-6, 1e-4, -0.9 * bound, 0.99 * bound, 2 * bound, -0.3, 5.0):
+        u = random_q()
+        q = u * np.sqrt(1 + eps)
+        got = np.array(f(q)).ravel()
+        err = np.linalg.norm(got - u)
+        if abs(eps) < bound:
+            assert err <= 3 / 8 * eps ** 2 * (1 + 2 * abs(eps)) + 1e-15, eps
+        else:
+            assert err < 1e-15, eps
 
 
 def test_wrap_by_comparison_equals_floor_wrap_on_its_domain():

@@ -282,6 +282,35 @@ def heading_correction_ned(m_n, declination: float = 0.0):
     return quat.vec(ca.if_else(degenerate, 1.0, c_h), 0.0, 0.0, ca.if_else(degenerate, 0.0, s_h))
 
 
+def tilt_heading_vec(d_n, n, m_n, declination: float = 0.0):
+    """(T_x, T_y, H_z): the vector parts tilt_correction(d_n)[1:3] and
+    heading_correction_ned(rotate_xy_tilt(T, m_n), declination)[3], with n = |d_n| given (a
+    caller that needs it elsewhere computes it once).
+
+    The tilt's half-way quaternion T' = [w, d_y, -d_x, 0], w = n + d_z (the half-turn
+    [0, 1, 0, 0] when flipped, as tilt_correction), is normalised only for the tilt's own
+    components: R(T) m_n's horizontal part times X = |T'|² (2 n w; 1 flipped) is X v minus terms
+    homogeneous in T', and the heading depends only on the direction of (x, y), so it reads
+    that (x, y) X as it is (a horizontal part below HEADING_H_MIN is h X < HEADING_H_MIN X)."""
+    w = n + d_n[2]
+    flip = w < use(TILT_FLIP_EPS) * n
+    tw = ca.if_else(flip, 0.0, w)
+    tx = ca.if_else(flip, 1.0, d_n[1])
+    ty = ca.if_else(flip, 0.0, -d_n[0])
+    big_x = ca.if_else(flip, 1.0, 2 * n * w)
+    c = ty * m_n[0] - tx * m_n[1] - tw * m_n[2]
+    u = c + c
+    x, y = big_x * m_n[0] - ty * u, big_x * m_n[1] + tx * u
+    if declination != 0.0:
+        cd, sd = math.cos(declination), math.sin(declination)
+        x, y = x * cd + y * sd, y * cd - x * sd
+    h = ca.sqrt(x * x + y * y)
+    inv_x = 1 / ca.sqrt(big_x)
+    inv_y = 1 / ca.sqrt((h + h) * (h + ca.fabs(x)))
+    s_h = ca.if_else(x >= 0, -y * inv_y, ca.if_else(y > 0, x - h, h - x) * inv_y)
+    return tx * inv_x, ty * inv_x, ca.if_else(h < use(HEADING_H_MIN) * big_x, 0.0, s_h)
+
+
 # hard_iron_step's constants (reference_aiding states them too; a test checks they agree)
 HARD_IRON_NC = 5          # candidate field model [β (3), n, v]
 HARD_IRON_RES_TAU = Const("HARD_IRON_RES_TAU", 0.2)   # s: the residuals are low-passed over this (white noise averages out)

@@ -71,6 +71,11 @@ def rotate_inv(q, v) -> ca.SX:
 # the taken side is computed).
 SERIES_MAX = Const("SERIES_MAX", 0.1)
 SERIES_TERMS = 5
+# The same for an exponential whose argument is nearly always small (a filter's correction, a
+# fraction of its error per sample): 4 terms below |v| = 0.03, the first neglected
+# |v|^8/8! <= 1.7e-17 and |v|^8/9! <= 1.9e-18, below double round-off too.
+SMALL_SERIES_MAX = Const("SMALL_SERIES_MAX", 0.03)
+SMALL_SERIES_TERMS = 4
 
 
 def _coefficients(fractions) -> list:
@@ -84,10 +89,10 @@ def _coefficients(fractions) -> list:
     return out
 
 
-def _cos_sinc_coefficients():
-    """cos x and sin x / x in x^2: (-1)^k / (2k)! and (-1)^k / (2k + 1)!, k < SERIES_TERMS."""
-    return (_coefficients(Fraction((-1) ** k, math.factorial(2 * k)) for k in range(SERIES_TERMS)),
-            _coefficients(Fraction((-1) ** k, math.factorial(2 * k + 1)) for k in range(SERIES_TERMS)))
+def _cos_sinc_coefficients(terms: int = SERIES_TERMS):
+    """cos x and sin x / x in x^2: (-1)^k / (2k)! and (-1)^k / (2k + 1)!, k < terms."""
+    return (_coefficients(Fraction((-1) ** k, math.factorial(2 * k)) for k in range(terms)),
+            _coefficients(Fraction((-1) ** k, math.factorial(2 * k + 1)) for k in range(terms)))
 
 
 def _series(x2, coeffs):
@@ -98,14 +103,16 @@ def _series(x2, coeffs):
     return acc
 
 
-def qexp(v, n2=None) -> ca.SX:
-    """exp([0, v]) = [cos|v|, sin|v| v/|v|]: the series above below SERIES_MAX (exact at 0).
+def qexp(v, n2=None, small_arg: bool = False) -> ca.SX:
+    """exp([0, v]) = [cos|v|, sin|v| v/|v|]: the series above below SERIES_MAX (exact at 0);
+    small_arg: the shorter series below SMALL_SERIES_MAX.
 
     n2 stands for |v|² (default: computed from v); qexp_jacobian passes a symbol."""
     n2 = ca.sumsqr(v) if n2 is None else n2
-    small = n2 < use(SERIES_MAX) * use(SERIES_MAX)
-    n = ca.sqrt(ca.fmax(n2, use(SERIES_MAX) * use(SERIES_MAX)))
-    cos_c, sinc_c = _cos_sinc_coefficients()
+    top = use(SMALL_SERIES_MAX) if small_arg else use(SERIES_MAX)
+    small = n2 < top * top
+    n = ca.sqrt(ca.fmax(n2, top * top))
+    cos_c, sinc_c = _cos_sinc_coefficients(SMALL_SERIES_TERMS if small_arg else SERIES_TERMS)
     sinc = ca.if_else(small, _series(n2, sinc_c), ca.sin(n) / n)
     cos_n = ca.if_else(small, _series(n2, cos_c), ca.cos(n))
     return vec(cos_n, sinc * v[0], sinc * v[1], sinc * v[2])
@@ -153,6 +160,21 @@ def qexp_scaled(v) -> ca.SX:
     sinc = ca.sin(n) / n
     return vec(ca.if_else(small, _series(n2, _coefficients(COT_SERIES)), ca.cos(n)),
                *(ca.if_else(small, v[i], sinc * v[i]) for i in range(3)))
+
+
+# qnormalize_near_unit: one Newton step for 1/sqrt(|q|^2) from 1 while |q|^2 - 1 is below this
+# (2^-12, exact in float): q (3 - |q|^2)/2 = q/|q| (1 - 3/8 eps^2 + O(eps^3)), eps = |q|^2 - 1,
+# a relative error below 2.3e-8 there, under half a float ulp; beyond it the exact quotient
+NEAR_UNIT_MAX = Const("NEAR_UNIT_MAX", 2.0 ** -12)
+
+
+def qnormalize_near_unit(q) -> ca.SX:
+    """qnormalize for a q whose norm is 1 to rounding (a product of unit quaternions): a square
+    root and a division only when |q|^2 is off 1 by more than NEAR_UNIT_MAX."""
+    n2 = ca.sumsqr(q)
+    eps = n2 - 1
+    near = ca.fabs(eps) < use(NEAR_UNIT_MAX)
+    return ca.if_else(near, q * (1 - 0.5 * eps), q / ca.sqrt(n2))
 
 
 def integrate_scaled(q, omega, dt) -> ca.SX:

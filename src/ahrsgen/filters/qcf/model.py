@@ -264,8 +264,10 @@ class Model(FilterModel):
         q0 = aiding.tilt_correction(-f)
         # the tilt correction from the NED low-pass (measured down -a, any length), then the
         # heading of the field R(T) R(q) m = R(T) m_n (only its horizontal part)
-        T = aiding.tilt_correction(-a_lp)
-        H = aiding.heading_correction_ned(quat.rotate_xy_tilt(T, m_n), decl)
+        # (their vector parts from aiding.tilt_heading_vec, |a| from the tilt_norm kernel, shared
+        # with the field check; the heading from R(T') m_n with T' unnormalised)
+        a_n = ca.SX.sym("accel_lp_norm")  # |a|, from the tilt_norm kernel once per step
+        t_x, t_y, h_z = aiding.tilt_heading_vec(-a_lp, a_n, m_n, decl)
         # e dt, the error integrated over the step (no division by dt: a tiny dt must not blow up),
         # carried as ½ kp e dt: the gain and the exponential's ½ multiply the two weights once
         # (recovering from a clipped gyro sample the gain is kp_recovery and the bias integral holds,
@@ -273,7 +275,7 @@ class Model(FilterModel):
         gps_on = ca.SX.sym("gps_comp") if gps_lowpass(p) else None   # the GPS linear acceleration removed
         kp_now = 0.5 * p["kp"] if gps_on is None else ca.if_else(gps_on, 0.5 * p["kp_gps"], 0.5 * p["kp"])
         kh = ca.if_else(recover, 0.5 * p["kp_recovery"], kp_now)
-        e_half = ca.mtimes(rot.T, ca.vertcat((kh * span_a) * T[1], (kh * span_a) * T[2], (kh * span_m) * H[3]))
+        e_half = ca.mtimes(rot.T, ca.vertcat((kh * span_a) * t_x, (kh * span_a) * t_y, (kh * span_m) * h_z))
         # the gyro's ½ (ω - b) dt was applied by the prediction (predict kernel), before R(q) was formed
         half_rotation = e_half                                  # ½ kp e dt
         trusted = ca.logic_and(ca.logic_and(use_a, ca.logic_not(recover)),
@@ -287,10 +289,16 @@ class Model(FilterModel):
             bias_new = bias_pi
         ks = [
             self.gyro_recovery_kernel(),
+            KernelSpec("tilt_norm", function("tilt_norm", {"accel_lp": a_lp}, {"accel_lp_norm": ca.sqrt(ca.sumsqr(a_lp))}),
+                       "|a| of the tilt reference, read by the field check and the tilt correction"),
+            # q (x) exp(1/2 (w - b) dt) with the exponential's own series (cos and sin/x): a unit
+            # quaternion times a unit one, not normalised here (a square root and a division): the
+            # correction normalises its product at the end of every step
             KernelSpec("predict", function("predict", {"q": q, "gyro_bias": bias, "gyro": gyro, "dt": dt},
-                                           {"q_new": quat.integrate_scaled(q, gyro - bias, dt)}),
+                                           {"q_new": quat.qmul(q, quat.qexp(0.5 * dt * (gyro - bias)))}),
                        "prediction: the gyro integrated with the bias removed, before the step's sensors are "
-                       "compared with the attitude (so they meet the attitude of their own step)"),
+                       "compared with the attitude (so they meet the attitude of their own step); unit to "
+                       "rounding, normalised by the correction"),
             KernelSpec("mag_ned", function("mag_ned", {"rot": rot, "mag": m}, {"mag_ned": ca.mtimes(rot, m)}),
                        "the magnetometer sample in NED, R(q) m, read by the field check and the heading correction"),
             KernelSpec("init_attitude", function("init_attitude", {"accel": f},
@@ -302,13 +310,14 @@ class Model(FilterModel):
                        "first magnetometer sample (with the first attitude or after it): heading set, tilt kept"),
             self.accel_lowpass_kernel(),
             KernelSpec("correct", function("correct", {"q": q, "rot": rot, "gyro_bias": bias,
-                                                       "accel_lp": a_lp, "mag_ned": m_n, "span_accel": span_a,
+                                                       "accel_lp": a_lp, "accel_lp_norm": a_n, "mag_ned": m_n,
+                                                       "span_accel": span_a,
                                                        "span_mag": span_m, "use_accel": use_a, "accel_norm2": f2,
                                                        "recover": recover,
                                                        **({"gps_comp": gps_on} if gps_on is not None else {}),
                                                        **({"at_rest": at_rest, "rest_gyro_lp": g_lp}
                                                           if p["rest_time"] > 0 else {})},
-                                           {"q_new": quat.qnormalize(quat.qmul(q, quat.qexp_scaled(half_rotation))),
+                                           {"q_new": quat.qnormalize_near_unit(quat.qmul(q, quat.qexp(half_rotation, small_arg=True))),
                                             "gyro_bias_new": bias_new}),
                        "tilt (low-passed accelerometer) and heading (magnetometer) corrections as PI feedback "
                        "on the predicted attitude, bias integral gated, bias at rest from the low-passed gyro",
@@ -341,13 +350,13 @@ class Model(FilterModel):
         if p["mag_rejection"]:
             mn = ca.sqrt(m2)
             # sin(dip) = (R^T down) . m / |m| = down . R m / |m|, down = -a/|a|
-            sin_dip = -ca.dot(a_lp, m_n) / (ca.sqrt(ca.sumsqr(a_lp)) * mn)
+            sin_dip = -ca.dot(a_lp, m_n) / (a_n * mn)
             hold = ca.SX.sym("hold") if self.hard_iron() else None   # the hard-iron candidate is the better model
             acc, n2, d2, t2, l2 = aiding.field_check(
                 mn, sin_dip, m_ref[0], m_ref[1], t_dist, span, norm_tol=p["mag_norm_tol"],
                 dip_tol=p["mag_dip_tol"], ref_tau=p["mag_ref_tau"], new_time=p["mag_new_time"],
                 learn_time=t_learn, warmup=p["mag_warmup"], hold=hold)
-            ks.append(KernelSpec("mag_check", function("mag_check", {"accel_lp": a_lp, "mag_norm2": m2, "mag_ned": m_n, "mag_ref": m_ref,
+            ks.append(KernelSpec("mag_check", function("mag_check", {"accel_lp": a_lp, "accel_lp_norm": a_n, "mag_norm2": m2, "mag_ned": m_n, "mag_ref": m_ref,
                                                                      "mag_dist_time": t_dist, "mag_learn_time": t_learn,
                                                                      "span": span, **({"hold": hold} if hold is not None else {})},
                                                        {"accept": acc, "mag_ref_new": ca.vertcat(n2, d2),
@@ -376,6 +385,12 @@ class Model(FilterModel):
             # (lp_time 0 at the first sample), held while recovering from a gyro clip
             lp_time = ca.SX.sym("lp_time")
             k_warm, lp_next = aiding.warm_lowpass_gain(lp_time, p["accel_tau"], span)
+            if gps_lowpass(p):
+                # its gain and the GPS velocity's, s/(min(t, tau) + s) and s/(tau + s), from one
+                # division: r = s/(d_w d_g), k = d_g r and d_w r (the same float once warm)
+                d_w, d_g = ca.fmin(lp_time, use(p["accel_tau"])) + span, use(p["accel_tau"]) + span
+                r = span / (d_w * d_g)
+                k_warm, k_gps = d_g * r, d_w * r
             alpha_a = ca.if_else(recover, 1, k_warm)
             ins["lp_time"] = lp_time
             outs["lp_time_new"] = ca.if_else(recover, lp_time, lp_next)
@@ -392,7 +407,7 @@ class Model(FilterModel):
         v_ins = ca.SX.sym("v_ins", 3)
         new_gps = ca.SX.sym("new_gps")
         m_comp = ca.SX.sym("m_comp")
-        alpha = ca.if_else(recover, 1, span / (use(p["accel_tau"]) + span))
+        alpha = ca.if_else(recover, 1, k_gps if warm(p) else span / (use(p["accel_tau"]) + span))
         a_new = a_lp + (alpha_a if warm(p) else alpha) * (f_n - a_lp)
         vi_new, v_new, up = aiding.gps_lowpass(a_new, f_n, vel, v_lp, v_ins, alpha, span, p["accel_tau"],
                                                new_gps, m_comp, G0)
@@ -445,10 +460,11 @@ class Model(FilterModel):
             comp = ["rotation"] + ([] if self.params["motion_accel_model"] == "gps_lowpass" else ["gravity_part"])
             extra = (["rest"] if self.params["rest_time"] > 0 else []) + (["mag_check"] if self.params["mag_rejection"] else [])
             return {
-                "full (accel+mag+GPS comp.)": ["predict", "gyro_recovery"] + comp + ["accel_lowpass", "mag_ned"]
-                + extra + ["correct"],
-                "accel+mag": ["predict", "gyro_recovery", "rotation", "accel_lowpass", "mag_ned"] + extra + ["correct"],
-                "gyro only": ["predict", "gyro_recovery", "rotation", "correct"],
+                "full (accel+mag+GPS comp.)": ["predict", "gyro_recovery"] + comp + ["accel_lowpass", "tilt_norm",
+                                                                                      "mag_ned"] + extra + ["correct"],
+                "accel+mag": ["predict", "gyro_recovery", "rotation", "accel_lowpass", "tilt_norm", "mag_ned"] + extra
+                + ["correct"],
+                "gyro only": ["predict", "gyro_recovery", "rotation", "tilt_norm", "correct"],
                 **({"GPS sample (extra)": ["gps_accel"]} if self.params["motion_accel_model"] == "differentiator" else {}),
             }
         comp = [] if self.params["motion_accel_model"] == "gps_lowpass" else ["rotation", "gravity_part"]
