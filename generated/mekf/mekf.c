@@ -649,7 +649,7 @@ static void mekf_k_gyro_recovery(const float gyro[3], const float gyro_prev[3],
 }
 
 static void mekf_k_predict_attitude_part0(const float b[3], const float gyro[3], float dt,
-    float carry[20])
+    float carry[13])
 {
     const float tmp0 = 0.5f * dt;
     const float tmp1 = gyro[0] - b[0];
@@ -673,321 +673,200 @@ static void mekf_k_predict_attitude_part0(const float b[3], const float gyro[3],
     carry[7] = tmp11;
 }
 
-static void mekf_k_predict_attitude_part1(float carry[20])
+static void mekf_k_predict_attitude_part1(const float q[4], float carry[13])
 {
     float tmp12;
     float tmp13;
     float tmp14;
-    float tmp15;
     if (carry[7] /* tmp11 */ < 0.01f /* SERIES_MAX*SERIES_MAX */) {
-        const float tmp16 = 2.4801588e-05f /* 1/40320 */ * carry[7] /* tmp11 */;
-        const float tmp17 = (-0.0013888889f) /* -(1/720) */ + tmp16;
-        const float tmp18 = carry[7] /* tmp11 */ * tmp17;
-        const float tmp19 = 0.041666668f /* 1/24 */ + tmp18;
-        const float tmp20 = carry[7] /* tmp11 */ * tmp19;
-        const float tmp21 = (-0.5f) /* -(1/2) */ + tmp20;
-        const float tmp22 = carry[7] /* tmp11 */ * tmp21;
-        const float tmp23 = 1.0f + tmp22;
-        const float tmp24 = 2.7557319e-06f /* 1/362880 */ * carry[7] /* tmp11 */;
-        const float tmp25 = (-0.0001984127f) /* -(1/5040) */ + tmp24;
-        const float tmp26 = carry[7] /* tmp11 */ * tmp25;
-        const float tmp27 = 0.008333334f /* 1/120 */ + tmp26;
-        const float tmp28 = carry[7] /* tmp11 */ * tmp27;
-        const float tmp29 = (-0.16666667f) /* -(1/6) */ + tmp28;
-        const float tmp30 = carry[7] /* tmp11 */ * tmp29;
-        const float tmp31 = 1.0f + tmp30;
-        const float tmp32 = 1.10229275e-05f /* 4*(1/362880) */ * carry[7] /* tmp11 */;
-        const float tmp33 = (-0.0005952381f) /* 3*(-(1/5040)) */ + tmp32;
-        const float tmp34 = carry[7] /* tmp11 */ * tmp33;
-        const float tmp35 = 0.016666668f /* 2*(1/120) */ + tmp34;
-        const float tmp36 = carry[7] /* tmp11 */ * tmp35;
-        const float tmp37 = (-0.16666667f) /* -(1/6) */ + tmp36;
-        const float tmp38 = 9.920635e-05f /* 4*(1/40320) */ * carry[7] /* tmp11 */;
-        const float tmp39 = (-0.004166667f) /* 3*(-(1/720)) */ + tmp38;
-        const float tmp40 = carry[7] /* tmp11 */ * tmp39;
-        const float tmp41 = 0.083333336f /* 2*(1/24) */ + tmp40;
-        const float tmp42 = carry[7] /* tmp11 */ * tmp41;
-        const float tmp43 = (-0.5f) /* -(1/2) */ + tmp42;
-        tmp12 = tmp23;
-        tmp13 = tmp31;
-        tmp14 = tmp37;
-        tmp15 = tmp43;
+        const float tmp15 = 2.4801588e-05f /* 1/40320 */ * carry[7] /* tmp11 */;
+        const float tmp16 = (-0.0013888889f) /* -(1/720) */ + tmp15;
+        const float tmp17 = carry[7] /* tmp11 */ * tmp16;
+        const float tmp18 = 0.041666668f /* 1/24 */ + tmp17;
+        const float tmp19 = carry[7] /* tmp11 */ * tmp18;
+        const float tmp20 = (-0.5f) /* -(1/2) */ + tmp19;
+        const float tmp21 = carry[7] /* tmp11 */ * tmp20;
+        const float tmp22 = 1.0f + tmp21;
+        const float tmp23 = 2.7557319e-06f /* 1/362880 */ * carry[7] /* tmp11 */;
+        const float tmp24 = (-0.0001984127f) /* -(1/5040) */ + tmp23;
+        const float tmp25 = carry[7] /* tmp11 */ * tmp24;
+        const float tmp26 = 0.008333334f /* 1/120 */ + tmp25;
+        const float tmp27 = carry[7] /* tmp11 */ * tmp26;
+        const float tmp28 = (-0.16666667f) /* -(1/6) */ + tmp27;
+        const float tmp29 = carry[7] /* tmp11 */ * tmp28;
+        const float tmp30 = 1.0f + tmp29;
+        const float tmp31 = 2.5653359e-05f /* 4/155925 */ * carry[7] /* tmp11 */;
+        const float tmp32 = (-0.00070546736f) /* -(2/2835) */ + tmp31;
+        const float tmp33 = carry[7] /* tmp11 */ * tmp32;
+        const float tmp34 = 0.012698413f /* 4/315 */ + tmp33;
+        const float tmp35 = carry[7] /* tmp11 */ * tmp34;
+        const float tmp36 = (-0.13333334f) /* -(2/15) */ + tmp35;
+        const float tmp37 = carry[7] /* tmp11 */ * tmp36;
+        const float tmp38 = 0.6666667f /* 2/3 */ + tmp37;
+        tmp12 = tmp22;
+        tmp13 = tmp30;
+        tmp14 = tmp38;
     } else {
-        const float tmp44 = (carry[7] /* tmp11 */ > 0.01f /* SERIES_MAX*SERIES_MAX */) ?
+        const float tmp39 = (carry[7] /* tmp11 */ > 0.01f /* SERIES_MAX*SERIES_MAX */) ?
                 carry[7] /* tmp11 */ : 0.01f /* SERIES_MAX*SERIES_MAX */;
-        const float tmp45 = sqrtf(tmp44);
-        float tmp47;
-        float tmp46;
-        fast_sincosf(tmp45, &tmp47, &tmp46);   /* sin and cos, one reduction */
-        const float tmp48 = tmp47 / tmp45;
-        const float tmp49 = tmp46 - tmp48;
-        const float tmp50 = tmp44 + tmp44;
-        const float tmp51 = tmp49 / tmp50;
-        const float tmp52 = tmp45 + tmp45;
-        const float tmp53 = tmp47 / tmp52;
-        const float tmp54 = -tmp53;
-        tmp12 = tmp46;
-        tmp13 = tmp48;
-        tmp14 = tmp51;
-        tmp15 = tmp54;
+        const float tmp40 = sqrtf(tmp39);
+        float tmp42;
+        float tmp41;
+        fast_sincosf(tmp40, &tmp42, &tmp41);   /* sin and cos, one reduction */
+        const float tmp43 = tmp42 / tmp40;
+        const float tmp44 = tmp42 * tmp41;
+        const float tmp45 = tmp40 - tmp44;
+        const float tmp46 = carry[7] /* tmp11 */ * tmp40;
+        const float tmp47 = tmp45 / tmp46;
+        tmp12 = tmp41;
+        tmp13 = tmp43;
+        tmp14 = tmp47;
     }
-    carry[7] = tmp12;
-    carry[8] = tmp13;
-    carry[9] = tmp14;
-    carry[10] = tmp15;
+    const float tmp48 = q[0] * tmp12;
+    const float tmp49 = tmp13 * carry[1] /* tmp2 */;
+    const float tmp50 = q[1] * tmp49;
+    const float tmp51 = tmp48 - tmp50;
+    carry[8] = tmp12;
+    carry[9] = tmp13;
+    carry[10] = tmp14;
+    carry[11] = tmp49;
+    carry[12] = tmp51;
 }
 
-static void mekf_k_predict_attitude_part2(const float q[4], float carry[20])
+static void mekf_k_predict_attitude_part2(const float q[4], float q_out[4], const float carry[13])
 {
-    const float tmp55 = q[0] * carry[7] /* tmp12 */;
-    const float tmp56 = carry[8] /* tmp13 */ * carry[1] /* tmp2 */;
-    const float tmp57 = q[1] * tmp56;
-    const float tmp58 = tmp55 - tmp57;
-    const float tmp59 = carry[8] /* tmp13 */ * carry[3] /* tmp5 */;
-    const float tmp60 = q[2] * tmp59;
-    const float tmp61 = tmp58 - tmp60;
-    const float tmp62 = carry[8] /* tmp13 */ * carry[5] /* tmp9 */;
-    const float tmp63 = q[3] * tmp62;
-    const float tmp64 = tmp61 - tmp63;
-    const float tmp65 = tmp64 * tmp64;
-    const float tmp66 = q[0] * tmp56;
-    const float tmp67 = q[1] * carry[7] /* tmp12 */;
-    const float tmp68 = tmp66 + tmp67;
-    const float tmp69 = q[2] * tmp62;
-    const float tmp70 = tmp68 + tmp69;
-    const float tmp71 = q[3] * tmp59;
-    const float tmp72 = tmp70 - tmp71;
-    const float tmp73 = tmp72 * tmp72;
-    const float tmp74 = tmp65 + tmp73;
-    const float tmp75 = q[0] * tmp59;
-    const float tmp76 = q[1] * tmp62;
-    const float tmp77 = tmp75 - tmp76;
-    const float tmp78 = q[2] * carry[7] /* tmp12 */;
+    const float tmp52 = carry[9] /* tmp13 */ * carry[3] /* tmp5 */;
+    const float tmp53 = q[2] * tmp52;
+    const float tmp54 = carry[12] /* tmp51 */ - tmp53;
+    const float tmp55 = carry[9] /* tmp13 */ * carry[5] /* tmp9 */;
+    const float tmp56 = q[3] * tmp55;
+    const float tmp57 = tmp54 - tmp56;
+    const float tmp58 = tmp57 * tmp57;
+    const float tmp59 = q[0] * carry[11] /* tmp49 */;
+    const float tmp60 = q[1] * carry[8] /* tmp12 */;
+    const float tmp61 = tmp59 + tmp60;
+    const float tmp62 = q[2] * tmp55;
+    const float tmp63 = tmp61 + tmp62;
+    const float tmp64 = q[3] * tmp52;
+    const float tmp65 = tmp63 - tmp64;
+    const float tmp66 = tmp65 * tmp65;
+    const float tmp67 = tmp58 + tmp66;
+    const float tmp68 = q[0] * tmp52;
+    const float tmp69 = q[1] * tmp55;
+    const float tmp70 = tmp68 - tmp69;
+    const float tmp71 = q[2] * carry[8] /* tmp12 */;
+    const float tmp72 = tmp70 + tmp71;
+    const float tmp73 = q[3] * carry[11] /* tmp49 */;
+    const float tmp74 = tmp72 + tmp73;
+    const float tmp75 = tmp74 * tmp74;
+    const float tmp76 = tmp67 + tmp75;
+    const float tmp77 = q[0] * tmp55;
+    const float tmp78 = q[1] * tmp52;
     const float tmp79 = tmp77 + tmp78;
-    const float tmp80 = q[3] * tmp56;
-    const float tmp81 = tmp79 + tmp80;
-    const float tmp82 = tmp81 * tmp81;
-    const float tmp83 = tmp74 + tmp82;
-    const float tmp84 = q[0] * tmp62;
-    const float tmp85 = q[1] * tmp59;
-    const float tmp86 = tmp84 + tmp85;
-    const float tmp87 = q[2] * tmp56;
-    const float tmp88 = tmp86 - tmp87;
-    const float tmp89 = q[3] * carry[7] /* tmp12 */;
-    const float tmp90 = tmp88 + tmp89;
-    const float tmp91 = tmp90 * tmp90;
-    const float tmp92 = tmp83 + tmp91;
-    const float tmp93 = sqrtf(tmp92);
-    const float tmp94 = 1.0f / tmp93;
-    carry[11] = tmp56;
-    carry[12] = tmp59;
-    carry[13] = tmp62;
-    carry[14] = tmp64;
-    carry[15] = tmp72;
-    carry[16] = tmp81;
-    carry[17] = tmp90;
-    carry[18] = tmp94;
+    const float tmp80 = q[2] * carry[11] /* tmp49 */;
+    const float tmp81 = tmp79 - tmp80;
+    const float tmp82 = q[3] * carry[8] /* tmp12 */;
+    const float tmp83 = tmp81 + tmp82;
+    const float tmp84 = tmp83 * tmp83;
+    const float tmp85 = tmp76 + tmp84;
+    const float tmp86 = sqrtf(tmp85);
+    const float tmp87 = 1.0f / tmp86;
+    const float tmp88 = tmp57 * tmp87;
+    q_out[0] = tmp88;
+    const float tmp89 = tmp65 * tmp87;
+    q_out[1] = tmp89;
+    const float tmp90 = tmp74 * tmp87;
+    q_out[2] = tmp90;
+    const float tmp91 = tmp83 * tmp87;
+    q_out[3] = tmp91;
 }
 
-static void mekf_k_predict_attitude_part3(float q_out[4], float F_q[9], float carry[20])
+static void mekf_k_predict_attitude_part3(float F_q[9], float F_b[9], float carry[13])
 {
-    const float tmp95 = carry[14] /* tmp64 */ * carry[18] /* tmp94 */;
-    q_out[0] = tmp95;
-    const float tmp96 = carry[15] /* tmp72 */ * carry[18] /* tmp94 */;
-    q_out[1] = tmp96;
-    const float tmp97 = carry[16] /* tmp81 */ * carry[18] /* tmp94 */;
-    q_out[2] = tmp97;
-    const float tmp98 = carry[17] /* tmp90 */ * carry[18] /* tmp94 */;
-    q_out[3] = tmp98;
-    const float tmp99 = carry[11] /* tmp56 */ * carry[11] /* tmp56 */;
-    const float tmp100 = carry[7] /* tmp12 */ * carry[7] /* tmp12 */;
-    const float tmp101 = tmp99 + tmp100;
-    const float tmp102 = carry[13] /* tmp62 */ * carry[13] /* tmp62 */;
-    const float tmp103 = tmp101 - tmp102;
-    const float tmp104 = carry[12] /* tmp59 */ * carry[12] /* tmp59 */;
-    const float tmp105 = tmp103 - tmp104;
-    F_q[0] = tmp105;
-    const float tmp106 = carry[12] /* tmp59 */ * carry[11] /* tmp56 */;
-    const float tmp107 = carry[13] /* tmp62 */ * carry[7] /* tmp12 */;
-    const float tmp108 = tmp106 - tmp107;
-    const float tmp109 = carry[7] /* tmp12 */ * carry[13] /* tmp62 */;
-    const float tmp110 = tmp108 - tmp109;
-    const float tmp111 = carry[11] /* tmp56 */ * carry[12] /* tmp59 */;
-    const float tmp112 = tmp110 + tmp111;
-    F_q[1] = tmp112;
-    const float tmp113 = carry[13] /* tmp62 */ * carry[11] /* tmp56 */;
-    const float tmp114 = carry[12] /* tmp59 */ * carry[7] /* tmp12 */;
-    const float tmp115 = tmp113 + tmp114;
-    const float tmp116 = carry[11] /* tmp56 */ * carry[13] /* tmp62 */;
-    const float tmp117 = tmp115 + tmp116;
-    const float tmp118 = carry[7] /* tmp12 */ * carry[12] /* tmp59 */;
-    const float tmp119 = tmp117 + tmp118;
-    F_q[2] = tmp119;
-    const float tmp120 = tmp111 + tmp109;
-    const float tmp121 = tmp120 + tmp107;
-    const float tmp122 = tmp121 + tmp106;
-    F_q[3] = tmp122;
-    const float tmp123 = tmp104 - tmp102;
-    const float tmp124 = tmp123 + tmp100;
-    const float tmp125 = tmp124 - tmp99;
-    F_q[4] = tmp125;
-    const float tmp126 = carry[13] /* tmp62 */ * carry[12] /* tmp59 */;
-    const float tmp127 = tmp126 + tmp126;
-    const float tmp128 = carry[11] /* tmp56 */ * carry[7] /* tmp12 */;
+    const float tmp92 = carry[8] /* tmp12 */ * carry[8] /* tmp12 */;
+    const float tmp93 = carry[9] /* tmp13 */ * carry[9] /* tmp13 */;
+    const float tmp94 = tmp93 * carry[7] /* tmp11 */;
+    const float tmp95 = tmp92 - tmp94;
+    const float tmp96 = tmp93 + tmp93;
+    const float tmp97 = tmp96 * carry[2] /* tmp3 */;
+    const float tmp98 = tmp95 + tmp97;
+    F_q[0] = tmp98;
+    const float tmp99 = carry[1] /* tmp2 */ * carry[3] /* tmp5 */;
+    const float tmp100 = tmp96 * tmp99;
+    const float tmp101 = carry[8] /* tmp12 */ * carry[9] /* tmp13 */;
+    const float tmp102 = tmp101 + tmp101;
+    const float tmp103 = tmp102 * carry[5] /* tmp9 */;
+    const float tmp104 = tmp100 - tmp103;
+    F_q[1] = tmp104;
+    const float tmp105 = carry[1] /* tmp2 */ * carry[5] /* tmp9 */;
+    const float tmp106 = tmp96 * tmp105;
+    const float tmp107 = tmp102 * carry[3] /* tmp5 */;
+    const float tmp108 = tmp106 + tmp107;
+    F_q[2] = tmp108;
+    const float tmp109 = tmp100 + tmp103;
+    F_q[3] = tmp109;
+    const float tmp110 = tmp96 * carry[4] /* tmp6 */;
+    const float tmp111 = tmp95 + tmp110;
+    F_q[4] = tmp111;
+    const float tmp112 = carry[3] /* tmp5 */ * carry[5] /* tmp9 */;
+    const float tmp113 = tmp96 * tmp112;
+    const float tmp114 = tmp102 * carry[1] /* tmp2 */;
+    const float tmp115 = tmp113 - tmp114;
+    F_q[5] = tmp115;
+    const float tmp116 = tmp106 - tmp107;
+    F_q[6] = tmp116;
+    const float tmp117 = tmp113 + tmp114;
+    F_q[7] = tmp117;
+    const float tmp118 = tmp96 * carry[6] /* tmp10 */;
+    const float tmp119 = tmp95 + tmp118;
+    F_q[8] = tmp119;
+    const float tmp120 = carry[10] /* tmp14 */ * carry[7] /* tmp11 */;
+    const float tmp121 = tmp120 - 1.0f;
+    const float tmp122 = carry[0] /* tmp0 */ * tmp121;
+    const float tmp123 = carry[0] /* tmp0 */ * carry[10] /* tmp14 */;
+    const float tmp124 = tmp123 * carry[2] /* tmp3 */;
+    const float tmp125 = tmp122 - tmp124;
+    F_b[0] = tmp125;
+    const float tmp126 = carry[0] /* tmp0 */ * tmp93;
+    const float tmp127 = tmp126 * carry[5] /* tmp9 */;
+    const float tmp128 = tmp123 * tmp99;
     const float tmp129 = tmp127 - tmp128;
-    const float tmp130 = carry[7] /* tmp12 */ * carry[11] /* tmp56 */;
-    const float tmp131 = tmp129 - tmp130;
-    F_q[5] = tmp131;
-    const float tmp132 = tmp116 - tmp118;
-    const float tmp133 = tmp132 + tmp113;
-    const float tmp134 = tmp133 - tmp114;
-    F_q[6] = tmp134;
-    carry[14] = tmp99;
-    carry[15] = tmp100;
-    carry[16] = tmp102;
-    carry[17] = tmp104;
-    carry[18] = tmp128;
-    carry[19] = tmp130;
+    F_b[1] = tmp129;
+    const float tmp130 = tmp123 * tmp105;
+    const float tmp131 = tmp126 * carry[3] /* tmp5 */;
+    carry[0] = tmp112;
+    carry[2] = tmp122;
+    carry[3] = tmp123;
+    carry[5] = tmp126;
+    carry[7] = tmp127;
+    carry[8] = tmp128;
+    carry[9] = tmp130;
+    carry[10] = tmp131;
 }
 
-static void mekf_k_predict_attitude_part4(float F_q[9], float F_b[9], float carry[20])
+static void mekf_k_predict_attitude_part4(float F_b[9], const float carry[13])
 {
-    const float tmp135 = carry[12] /* tmp59 */ * carry[13] /* tmp62 */;
-    const float tmp136 = tmp135 + tmp135;
-    const float tmp137 = tmp136 + carry[19] /* tmp130 */;
-    const float tmp138 = tmp137 + carry[18] /* tmp128 */;
-    F_q[7] = tmp138;
-    const float tmp139 = carry[16] /* tmp102 */ - carry[17] /* tmp104 */;
-    const float tmp140 = tmp139 - carry[14] /* tmp99 */;
-    const float tmp141 = tmp140 + carry[15] /* tmp100 */;
-    F_q[8] = tmp141;
-    const float tmp142 = carry[9] /* tmp14 */ + carry[9] /* tmp14 */;
-    const float tmp143 = tmp142 * carry[2] /* tmp3 */;
-    const float tmp144 = carry[8] /* tmp13 */ + tmp143;
-    const float tmp145 = carry[7] /* tmp12 */ * tmp144;
-    const float tmp146 = carry[10] /* tmp15 */ + carry[10] /* tmp15 */;
-    const float tmp147 = tmp146 * carry[1] /* tmp2 */;
-    const float tmp148 = carry[11] /* tmp56 */ * tmp147;
-    const float tmp149 = tmp145 - tmp148;
-    const float tmp150 = carry[3] /* tmp5 */ * carry[1] /* tmp2 */;
-    const float tmp151 = tmp142 * tmp150;
-    const float tmp152 = carry[13] /* tmp62 */ * tmp151;
-    const float tmp153 = tmp149 + tmp152;
-    const float tmp154 = carry[5] /* tmp9 */ * carry[1] /* tmp2 */;
-    const float tmp155 = tmp142 * tmp154;
-    const float tmp156 = carry[12] /* tmp59 */ * tmp155;
-    const float tmp157 = tmp153 - tmp156;
-    const float tmp158 = tmp157 * carry[0] /* tmp0 */;
-    const float tmp159 = -tmp158;
-    F_b[0] = tmp159;
-    const float tmp160 = carry[7] /* tmp12 */ * tmp151;
-    const float tmp161 = carry[12] /* tmp59 */ * tmp147;
-    const float tmp162 = carry[13] /* tmp62 */ * tmp144;
-    const float tmp163 = tmp161 + tmp162;
-    const float tmp164 = tmp160 - tmp163;
-    const float tmp165 = carry[11] /* tmp56 */ * tmp155;
-    const float tmp166 = tmp164 + tmp165;
-    const float tmp167 = tmp166 * carry[0] /* tmp0 */;
-    const float tmp168 = -tmp167;
-    F_b[1] = tmp168;
-    const float tmp169 = carry[12] /* tmp59 */ * tmp144;
-    const float tmp170 = carry[13] /* tmp62 */ * tmp147;
-    const float tmp171 = tmp169 - tmp170;
-    const float tmp172 = carry[11] /* tmp56 */ * tmp151;
-    const float tmp173 = tmp171 - tmp172;
-    const float tmp174 = carry[7] /* tmp12 */ * tmp155;
-    carry[2] = tmp142;
-    carry[9] = tmp146;
-    carry[10] = tmp173;
-    carry[14] = tmp174;
-}
-
-static void mekf_k_predict_attitude_part5(float F_b[9], float carry[20])
-{
-    const float tmp175 = carry[10] /* tmp173 */ + carry[14] /* tmp174 */;
-    const float tmp176 = tmp175 * carry[0] /* tmp0 */;
-    const float tmp177 = -tmp176;
-    F_b[2] = tmp177;
-    const float tmp178 = carry[1] /* tmp2 */ * carry[3] /* tmp5 */;
-    const float tmp179 = carry[2] /* tmp142 */ * tmp178;
-    const float tmp180 = carry[7] /* tmp12 */ * tmp179;
-    const float tmp181 = carry[9] /* tmp146 */ * carry[3] /* tmp5 */;
-    const float tmp182 = carry[11] /* tmp56 */ * tmp181;
-    const float tmp183 = tmp180 - tmp182;
-    const float tmp184 = carry[2] /* tmp142 */ * carry[4] /* tmp6 */;
-    const float tmp185 = carry[8] /* tmp13 */ + tmp184;
-    const float tmp186 = carry[13] /* tmp62 */ * tmp185;
-    const float tmp187 = tmp183 + tmp186;
-    const float tmp188 = carry[5] /* tmp9 */ * carry[3] /* tmp5 */;
-    const float tmp189 = carry[2] /* tmp142 */ * tmp188;
-    const float tmp190 = carry[12] /* tmp59 */ * tmp189;
-    const float tmp191 = tmp187 - tmp190;
-    const float tmp192 = tmp191 * carry[0] /* tmp0 */;
-    const float tmp193 = -tmp192;
-    F_b[3] = tmp193;
-    const float tmp194 = carry[7] /* tmp12 */ * tmp185;
-    const float tmp195 = carry[12] /* tmp59 */ * tmp181;
-    const float tmp196 = carry[13] /* tmp62 */ * tmp179;
-    const float tmp197 = tmp195 + tmp196;
-    const float tmp198 = tmp194 - tmp197;
-    const float tmp199 = carry[11] /* tmp56 */ * tmp189;
-    const float tmp200 = tmp198 + tmp199;
-    const float tmp201 = tmp200 * carry[0] /* tmp0 */;
-    const float tmp202 = -tmp201;
-    F_b[4] = tmp202;
-    const float tmp203 = carry[12] /* tmp59 */ * tmp179;
-    const float tmp204 = carry[13] /* tmp62 */ * tmp181;
-    const float tmp205 = tmp203 - tmp204;
-    const float tmp206 = carry[11] /* tmp56 */ * tmp185;
-    const float tmp207 = tmp205 - tmp206;
-    const float tmp208 = carry[7] /* tmp12 */ * tmp189;
-    const float tmp209 = tmp207 + tmp208;
-    const float tmp210 = tmp209 * carry[0] /* tmp0 */;
-    const float tmp211 = -tmp210;
-    F_b[5] = tmp211;
-    const float tmp212 = carry[1] /* tmp2 */ * carry[5] /* tmp9 */;
-    const float tmp213 = carry[2] /* tmp142 */ * tmp212;
-    const float tmp214 = carry[7] /* tmp12 */ * tmp213;
-    carry[1] = tmp213;
-    carry[4] = tmp214;
-}
-
-static void mekf_k_predict_attitude_part6(float F_b[9], const float carry[20])
-{
-    const float tmp215 = carry[9] /* tmp146 */ * carry[5] /* tmp9 */;
-    const float tmp216 = carry[11] /* tmp56 */ * tmp215;
-    const float tmp217 = carry[4] /* tmp214 */ - tmp216;
-    const float tmp218 = carry[3] /* tmp5 */ * carry[5] /* tmp9 */;
-    const float tmp219 = carry[2] /* tmp142 */ * tmp218;
-    const float tmp220 = carry[13] /* tmp62 */ * tmp219;
-    const float tmp221 = tmp217 + tmp220;
-    const float tmp222 = carry[2] /* tmp142 */ * carry[6] /* tmp10 */;
-    const float tmp223 = carry[8] /* tmp13 */ + tmp222;
-    const float tmp224 = carry[12] /* tmp59 */ * tmp223;
-    const float tmp225 = tmp221 - tmp224;
-    const float tmp226 = tmp225 * carry[0] /* tmp0 */;
-    const float tmp227 = -tmp226;
-    F_b[6] = tmp227;
-    const float tmp228 = carry[7] /* tmp12 */ * tmp219;
-    const float tmp229 = carry[12] /* tmp59 */ * tmp215;
-    const float tmp230 = carry[13] /* tmp62 */ * carry[1] /* tmp213 */;
-    const float tmp231 = tmp229 + tmp230;
-    const float tmp232 = tmp228 - tmp231;
-    const float tmp233 = carry[11] /* tmp56 */ * tmp223;
-    const float tmp234 = tmp232 + tmp233;
-    const float tmp235 = tmp234 * carry[0] /* tmp0 */;
-    const float tmp236 = -tmp235;
-    F_b[7] = tmp236;
-    const float tmp237 = carry[12] /* tmp59 */ * carry[1] /* tmp213 */;
-    const float tmp238 = carry[13] /* tmp62 */ * tmp215;
-    const float tmp239 = tmp237 - tmp238;
-    const float tmp240 = carry[11] /* tmp56 */ * tmp219;
-    const float tmp241 = tmp239 - tmp240;
-    const float tmp242 = carry[7] /* tmp12 */ * tmp223;
-    const float tmp243 = tmp241 + tmp242;
-    const float tmp244 = tmp243 * carry[0] /* tmp0 */;
-    const float tmp245 = -tmp244;
-    F_b[8] = tmp245;
+    const float tmp132 = carry[9] /* tmp130 */ + carry[10] /* tmp131 */;
+    const float tmp133 = -tmp132;
+    F_b[2] = tmp133;
+    const float tmp134 = carry[8] /* tmp128 */ + carry[7] /* tmp127 */;
+    const float tmp135 = -tmp134;
+    F_b[3] = tmp135;
+    const float tmp136 = carry[3] /* tmp123 */ * carry[4] /* tmp6 */;
+    const float tmp137 = carry[2] /* tmp122 */ - tmp136;
+    F_b[4] = tmp137;
+    const float tmp138 = carry[5] /* tmp126 */ * carry[1] /* tmp2 */;
+    const float tmp139 = carry[3] /* tmp123 */ * carry[0] /* tmp112 */;
+    const float tmp140 = tmp138 - tmp139;
+    F_b[5] = tmp140;
+    const float tmp141 = carry[10] /* tmp131 */ - carry[9] /* tmp130 */;
+    F_b[6] = tmp141;
+    const float tmp142 = tmp139 + tmp138;
+    const float tmp143 = -tmp142;
+    F_b[7] = tmp143;
+    const float tmp144 = carry[3] /* tmp123 */ * carry[6] /* tmp10 */;
+    const float tmp145 = carry[2] /* tmp122 */ - tmp144;
+    F_b[8] = tmp145;
 }
 
 /*
@@ -1005,25 +884,23 @@ static void mekf_k_predict_attitude_part6(float F_b[9], const float carry[20])
  *     F_q: float[9]
  *     F_b: float[9]
  *
- * Total ops: 246 (add 106, mul 127, div 4, sqrt 2, trig 2, cmp 5)
- *     of which only one side runs: if (tmp11 < 0.01f) 28, else 11
+ * Total ops: 146 (add 58, mul 77, div 3, sqrt 2, trig 2, cmp 4)
+ *     of which only one side runs: if (tmp11 < 0.01f) 24, else 9
  */
 static void mekf_k_predict_attitude(const float q[4], const float b[restrict 3],
     const float gyro[restrict 3], float dt, float q_out[4], float F_q[restrict 9],
     float F_b[restrict 9])
 {
     /*
-     * 7 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
+     * 5 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
      * handed between them (a slot reused once its value is dead)
      */
-    float carry[20];
+    float carry[13];
     mekf_k_predict_attitude_part0(b, gyro, dt, carry);
-    mekf_k_predict_attitude_part1(carry);
-    mekf_k_predict_attitude_part2(q, carry);
-    mekf_k_predict_attitude_part3(q_out, F_q, carry);
-    mekf_k_predict_attitude_part4(F_q, F_b, carry);
-    mekf_k_predict_attitude_part5(F_b, carry);
-    mekf_k_predict_attitude_part6(F_b, carry);
+    mekf_k_predict_attitude_part1(q, carry);
+    mekf_k_predict_attitude_part2(q, q_out, carry);
+    mekf_k_predict_attitude_part3(F_q, F_b, carry);
+    mekf_k_predict_attitude_part4(F_b, carry);
 }
 
 static void mekf_k_predict_covariance_part0(const float F_q[9], const float F_b[9],
@@ -1856,573 +1733,428 @@ static void mekf_k_heading_features(const float q[4], const float mag[3], const 
 }
 
 static void mekf_k_update_gravity_part0(const float q[4], float dt, const float P[36],
-    float carry[48])
+    float carry[38])
 {
-    const float tmp0 = q[1] * q[1];
-    const float tmp1 = q[2] * q[2];
+    const float tmp0 = q[1] * q[2];
+    const float tmp1 = q[0] * q[3];
     const float tmp2 = tmp0 + tmp1;
-    const float tmp3 = tmp2 + tmp2;
-    const float tmp4 = 1.0f - tmp3;
-    const float tmp5 = (-2.0f) * tmp4;
-    const float tmp6 = P[1] * tmp5;
-    const float tmp7 = q[2] * q[3];
-    const float tmp8 = q[0] * q[1];
-    const float tmp9 = tmp7 + tmp8;
-    const float tmp10 = 4.0f * tmp9;
-    const float tmp11 = P[2] * tmp10;
-    const float tmp12 = tmp6 + tmp11;
-    const float tmp13 = P[7] * tmp5;
-    const float tmp14 = P[8] * tmp10;
-    const float tmp15 = tmp13 + tmp14;
-    const float tmp16 = tmp5 * tmp15;
-    const float tmp17 = P[8] * tmp5;
-    const float tmp18 = P[14] * tmp10;
-    const float tmp19 = tmp17 + tmp18;
-    const float tmp20 = tmp10 * tmp19;
-    const float tmp21 = tmp16 + tmp20;
-    const float tmp22 = (dt > 1e-09f /* DT_Q_MIN */) ? dt : 1e-09f /* DT_Q_MIN */;
-    const float tmp23 = 1.6e-05f /* accel_noise_density^2 */ / tmp22;
-    const float tmp24 = P[21] + P[28];
-    const float tmp25 = tmp24 + P[35];
-    const float tmp26 = 333333.34f /* accel_bias_gain/(3*p0_bias*p0_bias) */ * tmp25;
-    const float tmp27 = 1.0f + tmp26;
-    const float tmp28 = tmp23 * tmp27;
-    const float tmp29 = 0.0049f /* accel_angle_noise^2 */ + tmp28;
-    const float tmp30 = q[1] * q[3];
-    const float tmp31 = q[0] * q[2];
-    const float tmp32 = tmp30 - tmp31;
-    const float tmp33 = tmp32 + tmp32;
-    const float tmp34 = tmp9 + tmp9;
+    const float tmp3 = 4.0f * tmp2;
+    const float tmp4 = P[0] * tmp3;
+    const float tmp5 = q[1] * q[1];
+    const float tmp6 = q[3] * q[3];
+    const float tmp7 = tmp5 + tmp6;
+    const float tmp8 = 4.0f * tmp7;
+    const float tmp9 = 2.0f - tmp8;
+    const float tmp10 = P[1] * tmp9;
+    const float tmp11 = tmp4 + tmp10;
+    const float tmp12 = q[2] * q[3];
+    const float tmp13 = q[0] * q[1];
+    const float tmp14 = tmp12 - tmp13;
+    const float tmp15 = 4.0f * tmp14;
+    const float tmp16 = P[2] * tmp15;
+    const float tmp17 = tmp11 + tmp16;
+    const float tmp18 = tmp3 * tmp17;
+    const float tmp19 = P[1] * tmp3;
+    const float tmp20 = P[7] * tmp9;
+    const float tmp21 = tmp19 + tmp20;
+    const float tmp22 = P[8] * tmp15;
+    const float tmp23 = tmp21 + tmp22;
+    const float tmp24 = tmp9 * tmp23;
+    const float tmp25 = tmp18 + tmp24;
+    const float tmp26 = P[2] * tmp3;
+    const float tmp27 = P[8] * tmp9;
+    const float tmp28 = tmp26 + tmp27;
+    const float tmp29 = P[14] * tmp15;
+    const float tmp30 = tmp28 + tmp29;
+    const float tmp31 = tmp15 * tmp30;
+    const float tmp32 = tmp25 + tmp31;
+    const float tmp33 = (dt > 1e-09f /* DT_Q_MIN */) ? dt : 1e-09f /* DT_Q_MIN */;
+    const float tmp34 = 1.6e-05f /* accel_noise_density^2 */ / tmp33;
+    const float tmp35 = P[21] + P[28];
+    const float tmp36 = tmp35 + P[35];
+    const float tmp37 = 333333.34f /* accel_bias_gain/(3*p0_bias*p0_bias) */ * tmp36;
+    const float tmp38 = 1.0f + tmp37;
+    const float tmp39 = tmp34 * tmp38;
     carry[0] = tmp0;
     carry[1] = tmp1;
-    carry[2] = tmp4;
+    carry[2] = tmp3;
     carry[3] = tmp5;
-    carry[4] = tmp7;
-    carry[5] = tmp8;
-    carry[6] = tmp9;
-    carry[7] = tmp10;
-    carry[8] = tmp12;
-    carry[9] = tmp15;
-    carry[10] = tmp19;
-    carry[11] = tmp21;
-    carry[12] = tmp29;
-    carry[13] = tmp30;
-    carry[14] = tmp31;
-    carry[15] = tmp32;
-    carry[16] = tmp33;
-    carry[17] = tmp34;
+    carry[4] = tmp6;
+    carry[5] = tmp9;
+    carry[6] = tmp12;
+    carry[7] = tmp13;
+    carry[8] = tmp15;
+    carry[9] = tmp17;
+    carry[10] = tmp23;
+    carry[11] = tmp30;
+    carry[12] = tmp32;
+    carry[13] = tmp39;
 }
 
 static void mekf_k_update_gravity_part1(const float q[4], const float up[3], const float gyro[3],
-    const float b[3], const float vel[3], bool unobserved, float carry[48])
+    const float b[3], const float vel[3], bool unobserved, float carry[38])
 {
-    float tmp35;
+    const float tmp40 = 0.0049f /* accel_angle_noise^2 */ + carry[13] /* tmp39 */;
+    const float tmp41 = q[1] * q[3];
+    const float tmp42 = q[0] * q[2];
+    const float tmp43 = q[2] * q[2];
+    float tmp44;
     if (unobserved) {
-        const float tmp36 = gyro[0] - b[0];
-        const float tmp37 = tmp36 * carry[16] /* tmp33 */;
-        const float tmp38 = gyro[1] - b[1];
-        const float tmp39 = tmp38 * carry[17] /* tmp34 */;
-        const float tmp40 = tmp37 + tmp39;
-        const float tmp41 = gyro[2] - b[2];
-        const float tmp42 = tmp41 * carry[2] /* tmp4 */;
-        const float tmp43 = tmp40 + tmp42;
-        const float tmp44 = vel[0] * vel[0];
-        const float tmp45 = vel[1] * vel[1];
-        const float tmp46 = tmp44 + tmp45;
-        const float tmp47 = sqrtf(tmp46);
-        const float tmp48 = tmp43 * tmp47;
-        const float tmp49 = tmp48 / 9.80665f /* G0 */;
-        const float tmp50 = tmp49 * tmp49;
-        tmp35 = tmp50;
+        const float tmp45 = gyro[0] - b[0];
+        const float tmp46 = tmp41 - tmp42;
+        const float tmp47 = tmp46 + tmp46;
+        const float tmp48 = tmp45 * tmp47;
+        const float tmp49 = gyro[1] - b[1];
+        const float tmp50 = carry[6] /* tmp12 */ + carry[7] /* tmp13 */;
+        const float tmp51 = tmp50 + tmp50;
+        const float tmp52 = tmp49 * tmp51;
+        const float tmp53 = tmp48 + tmp52;
+        const float tmp54 = gyro[2] - b[2];
+        const float tmp55 = carry[3] /* tmp5 */ + tmp43;
+        const float tmp56 = tmp55 + tmp55;
+        const float tmp57 = 1.0f - tmp56;
+        const float tmp58 = tmp54 * tmp57;
+        const float tmp59 = tmp53 + tmp58;
+        const float tmp60 = vel[0] * vel[0];
+        const float tmp61 = vel[1] * vel[1];
+        const float tmp62 = tmp60 + tmp61;
+        const float tmp63 = sqrtf(tmp62);
+        const float tmp64 = tmp59 * tmp63;
+        const float tmp65 = tmp64 / 9.80665f /* G0 */;
+        const float tmp66 = tmp65 * tmp65;
+        tmp44 = tmp66;
     } else {
-        tmp35 = 0.0f;
+        tmp44 = 0.0f;
     }
-    const float tmp51 = carry[12] /* tmp29 */ + tmp35;
-    const float tmp52 = q[3] * q[3];
-    const float tmp53 = carry[1] /* tmp1 */ + tmp52;
-    const float tmp54 = tmp53 + tmp53;
-    const float tmp55 = 1.0f - tmp54;
-    const float tmp56 = tmp55 * up[0];
-    const float tmp57 = q[1] * q[2];
-    const float tmp58 = q[0] * q[3];
-    const float tmp59 = tmp57 + tmp58;
-    const float tmp60 = tmp59 + tmp59;
-    const float tmp61 = tmp60 * up[1];
-    const float tmp62 = tmp56 + tmp61;
-    const float tmp63 = carry[16] /* tmp33 */ * up[2];
-    const float tmp64 = tmp62 + tmp63;
-    const float tmp65 = up[0] * up[0];
-    const float tmp66 = up[1] * up[1];
-    const float tmp67 = tmp65 + tmp66;
-    const float tmp68 = up[2] * up[2];
-    const float tmp69 = tmp67 + tmp68;
-    const float tmp70 = sqrtf(tmp69);
-    const float tmp71 = 1.0f / tmp70;
-    const float tmp72 = tmp64 * tmp71;
-    const float tmp73 = tmp72 + carry[16] /* tmp33 */;
-    const float tmp74 = tmp57 - tmp58;
-    carry[1] = tmp51;
-    carry[12] = tmp52;
-    carry[16] = tmp71;
-    carry[18] = tmp73;
-    carry[19] = tmp74;
+    const float tmp67 = tmp40 + tmp44;
+    const float tmp68 = carry[12] /* tmp32 */ + tmp67;
+    const float tmp69 = 1.0f / tmp68;
+    const float tmp70 = (1e-12f /* S_PIVOT_MIN */ < tmp68) ? tmp69 : 1.0f;
+    const float tmp71 = carry[9] /* tmp17 */ * tmp70;
+    const float tmp72 = up[0] * up[0];
+    const float tmp73 = up[1] * up[1];
+    const float tmp74 = tmp72 + tmp73;
+    const float tmp75 = up[2] * up[2];
+    const float tmp76 = tmp74 + tmp75;
+    const float tmp77 = sqrtf(tmp76);
+    const float tmp78 = 1.0f / tmp77;
+    const float tmp79 = up[0] * tmp78;
+    carry[3] = tmp41;
+    carry[6] = tmp42;
+    carry[7] = tmp43;
+    carry[12] = tmp67;
+    carry[13] = tmp68;
+    carry[14] = tmp70;
+    carry[15] = tmp71;
+    carry[16] = tmp78;
+    carry[17] = tmp79;
 }
 
-static void mekf_k_update_gravity_part2(const float up[3], bool recover, const float P[36],
-    float carry[48])
+static void mekf_k_update_gravity_part2(const float P[36], float carry[38])
 {
-    const float tmp75 = carry[19] /* tmp74 */ + carry[19] /* tmp74 */;
-    const float tmp76 = tmp75 * up[0];
-    const float tmp77 = carry[0] /* tmp0 */ + carry[12] /* tmp52 */;
-    const float tmp78 = tmp77 + tmp77;
-    const float tmp79 = 1.0f - tmp78;
-    const float tmp80 = tmp79 * up[1];
-    const float tmp81 = tmp76 + tmp80;
-    const float tmp82 = carry[17] /* tmp34 */ * up[2];
-    const float tmp83 = tmp81 + tmp82;
-    const float tmp84 = tmp83 * carry[16] /* tmp71 */;
-    const float tmp85 = tmp84 + carry[17] /* tmp34 */;
-    const float tmp86 = carry[13] /* tmp30 */ + carry[14] /* tmp31 */;
-    const float tmp87 = tmp86 + tmp86;
-    const float tmp88 = tmp87 * up[0];
-    const float tmp89 = carry[4] /* tmp7 */ - carry[5] /* tmp8 */;
-    const float tmp90 = tmp89 + tmp89;
-    const float tmp91 = tmp90 * up[1];
-    const float tmp92 = tmp88 + tmp91;
-    const float tmp93 = carry[2] /* tmp4 */ * up[2];
-    const float tmp94 = tmp92 + tmp93;
-    const float tmp95 = tmp94 * carry[16] /* tmp71 */;
-    const float tmp96 = tmp95 + carry[2] /* tmp4 */;
-    float tmp97;
-    if (recover) {
-        tmp97 = carry[1] /* tmp51 */;
-    } else {
-        const float tmp98 = carry[18] /* tmp73 */ * carry[18] /* tmp73 */;
-        const float tmp99 = tmp85 * tmp85;
-        const float tmp100 = tmp98 + tmp99;
-        const float tmp101 = tmp96 * tmp96;
-        const float tmp102 = tmp100 + tmp101;
-        const float tmp103 = 9.0f * carry[1] /* tmp51 */;
-        const float tmp104 = tmp102 / tmp103;
-        const float tmp105 = 1.0f + tmp104;
-        const float tmp106 = (tmp105 < 1.0f) ? tmp105 : 1.0f;
-        const float tmp107 = carry[1] /* tmp51 */ * tmp106;
-        tmp97 = tmp107;
-    }
-    const float tmp108 = carry[11] /* tmp21 */ + tmp97;
-    const float tmp109 = 1.0f / tmp108;
-    const float tmp110 = (1e-12f /* S_PIVOT_MIN */ < tmp108) ? tmp109 : 1.0f;
-    const float tmp111 = carry[8] /* tmp12 */ * tmp110;
-    const float tmp112 = tmp111 * carry[18] /* tmp73 */;
-    const float tmp113 = tmp111 * carry[8] /* tmp12 */;
-    const float tmp114 = P[0] - tmp113;
-    carry[0] = tmp85;
-    carry[1] = tmp96;
-    carry[4] = tmp97;
-    carry[5] = tmp108;
-    carry[11] = tmp110;
-    carry[12] = tmp112;
-    carry[13] = tmp114;
+    const float tmp80 = carry[15] /* tmp71 */ * carry[17] /* tmp79 */;
+    const float tmp81 = carry[15] /* tmp71 */ * carry[9] /* tmp17 */;
+    const float tmp82 = P[0] - tmp81;
+    const float tmp83 = carry[7] /* tmp43 */ + carry[4] /* tmp6 */;
+    const float tmp84 = 4.0f * tmp83;
+    const float tmp85 = tmp84 - 2.0f;
+    const float tmp86 = tmp82 * tmp85;
+    const float tmp87 = carry[10] /* tmp23 */ * carry[14] /* tmp70 */;
+    const float tmp88 = tmp87 * carry[9] /* tmp17 */;
+    const float tmp89 = P[1] - tmp88;
+    const float tmp90 = carry[1] /* tmp1 */ - carry[0] /* tmp0 */;
+    const float tmp91 = 4.0f * tmp90;
+    const float tmp92 = tmp89 * tmp91;
+    const float tmp93 = tmp86 + tmp92;
+    const float tmp94 = carry[11] /* tmp30 */ * carry[14] /* tmp70 */;
+    const float tmp95 = tmp94 * carry[9] /* tmp17 */;
+    const float tmp96 = P[2] - tmp95;
+    const float tmp97 = carry[3] /* tmp41 */ + carry[6] /* tmp42 */;
+    const float tmp98 = (-4.0f) * tmp97;
+    const float tmp99 = tmp96 * tmp98;
+    const float tmp100 = tmp93 + tmp99;
+    const float tmp101 = tmp85 * tmp100;
+    const float tmp102 = tmp89 * tmp85;
+    const float tmp103 = tmp87 * carry[10] /* tmp23 */;
+    const float tmp104 = P[7] - tmp103;
+    const float tmp105 = tmp104 * tmp91;
+    const float tmp106 = tmp102 + tmp105;
+    const float tmp107 = tmp94 * carry[10] /* tmp23 */;
+    const float tmp108 = P[8] - tmp107;
+    const float tmp109 = tmp108 * tmp98;
+    const float tmp110 = tmp106 + tmp109;
+    const float tmp111 = tmp91 * tmp110;
+    const float tmp112 = tmp101 + tmp111;
+    const float tmp113 = tmp96 * tmp85;
+    const float tmp114 = tmp108 * tmp91;
+    const float tmp115 = tmp113 + tmp114;
+    const float tmp116 = tmp94 * carry[11] /* tmp30 */;
+    const float tmp117 = P[14] - tmp116;
+    const float tmp118 = tmp117 * tmp98;
+    const float tmp119 = tmp115 + tmp118;
+    carry[0] = tmp80;
+    carry[1] = tmp82;
+    carry[3] = tmp85;
+    carry[4] = tmp87;
+    carry[6] = tmp89;
+    carry[7] = tmp91;
+    carry[15] = tmp94;
+    carry[18] = tmp96;
+    carry[19] = tmp98;
+    carry[20] = tmp100;
+    carry[21] = tmp104;
+    carry[22] = tmp108;
+    carry[23] = tmp110;
+    carry[24] = tmp112;
+    carry[25] = tmp117;
+    carry[26] = tmp119;
 }
 
-static void mekf_k_update_gravity_part3(const float P[36], float carry[48])
+static void mekf_k_update_gravity_part3(const float up[3], const float P[36], float x_out[6],
+    float carry[38])
 {
-    const float tmp115 = carry[2] /* tmp4 */ + carry[2] /* tmp4 */;
-    const float tmp116 = carry[13] /* tmp114 */ * tmp115;
-    const float tmp117 = carry[10] /* tmp19 */ * carry[11] /* tmp110 */;
-    const float tmp118 = tmp117 * carry[8] /* tmp12 */;
-    const float tmp119 = P[2] - tmp118;
-    const float tmp120 = (-4.0f) * carry[15] /* tmp32 */;
-    const float tmp121 = tmp119 * tmp120;
-    const float tmp122 = tmp116 + tmp121;
-    const float tmp123 = tmp115 * tmp122;
-    const float tmp124 = tmp119 * tmp115;
-    const float tmp125 = tmp117 * carry[10] /* tmp19 */;
-    const float tmp126 = P[14] - tmp125;
-    const float tmp127 = tmp126 * tmp120;
-    const float tmp128 = tmp124 + tmp127;
-    const float tmp129 = tmp120 * tmp128;
-    const float tmp130 = tmp123 + tmp129;
-    const float tmp131 = tmp130 + carry[4] /* tmp97 */;
-    const float tmp132 = 1.0f / tmp131;
-    const float tmp133 = (1e-12f /* S_PIVOT_MIN */ < tmp131) ? tmp132 : 1.0f;
-    const float tmp134 = tmp122 * tmp133;
-    const float tmp135 = tmp115 * carry[12] /* tmp112 */;
-    const float tmp136 = tmp117 * carry[18] /* tmp73 */;
-    const float tmp137 = tmp120 * tmp136;
-    const float tmp138 = tmp135 + tmp137;
-    const float tmp139 = carry[0] /* tmp85 */ - tmp138;
-    const float tmp140 = tmp134 * tmp139;
-    const float tmp141 = carry[12] /* tmp112 */ + tmp140;
-    const float tmp142 = tmp134 * tmp122;
-    const float tmp143 = carry[13] /* tmp114 */ - tmp142;
-    const float tmp144 = (-4.0f) * carry[6] /* tmp9 */;
-    const float tmp145 = tmp143 * tmp144;
-    const float tmp146 = carry[9] /* tmp15 */ * carry[11] /* tmp110 */;
-    const float tmp147 = tmp146 * carry[8] /* tmp12 */;
-    const float tmp148 = P[1] - tmp147;
-    const float tmp149 = tmp148 * tmp115;
-    const float tmp150 = tmp117 * carry[9] /* tmp15 */;
-    const float tmp151 = P[8] - tmp150;
-    const float tmp152 = tmp151 * tmp120;
-    const float tmp153 = tmp149 + tmp152;
-    const float tmp154 = tmp153 * tmp133;
-    carry[0] = tmp115;
-    carry[2] = tmp119;
-    carry[6] = tmp120;
-    carry[12] = tmp122;
-    carry[13] = tmp126;
-    carry[14] = tmp128;
-    carry[16] = tmp131;
-    carry[17] = tmp133;
-    carry[19] = tmp136;
-    carry[20] = tmp139;
-    carry[21] = tmp141;
-    carry[22] = tmp143;
-    carry[23] = tmp144;
-    carry[24] = tmp145;
-    carry[25] = tmp146;
-    carry[26] = tmp148;
-    carry[27] = tmp151;
-    carry[28] = tmp153;
-    carry[29] = tmp154;
+    const float tmp120 = carry[19] /* tmp98 */ * carry[26] /* tmp119 */;
+    const float tmp121 = carry[24] /* tmp112 */ + tmp120;
+    const float tmp122 = tmp121 + carry[12] /* tmp67 */;
+    const float tmp123 = 1.0f / tmp122;
+    const float tmp124 = (1e-12f /* S_PIVOT_MIN */ < tmp122) ? tmp123 : 1.0f;
+    const float tmp125 = carry[20] /* tmp100 */ * tmp124;
+    const float tmp126 = up[1] * carry[16] /* tmp78 */;
+    const float tmp127 = carry[3] /* tmp85 */ * carry[0] /* tmp80 */;
+    const float tmp128 = carry[4] /* tmp87 */ * carry[17] /* tmp79 */;
+    const float tmp129 = carry[7] /* tmp91 */ * tmp128;
+    const float tmp130 = tmp127 + tmp129;
+    const float tmp131 = carry[15] /* tmp94 */ * carry[17] /* tmp79 */;
+    const float tmp132 = carry[19] /* tmp98 */ * tmp131;
+    const float tmp133 = tmp130 + tmp132;
+    const float tmp134 = tmp126 - tmp133;
+    const float tmp135 = tmp125 * tmp134;
+    const float tmp136 = carry[0] /* tmp80 */ + tmp135;
+    x_out[0] = tmp136;
+    const float tmp137 = carry[23] /* tmp110 */ * tmp124;
+    const float tmp138 = tmp137 * tmp134;
+    const float tmp139 = tmp128 + tmp138;
+    x_out[1] = tmp139;
+    const float tmp140 = carry[26] /* tmp119 */ * tmp124;
+    const float tmp141 = tmp140 * tmp134;
+    const float tmp142 = tmp131 + tmp141;
+    x_out[2] = tmp142;
+    const float tmp143 = P[3] * carry[2] /* tmp3 */;
+    const float tmp144 = P[9] * carry[5] /* tmp9 */;
+    const float tmp145 = tmp143 + tmp144;
+    const float tmp146 = P[15] * carry[8] /* tmp15 */;
+    const float tmp147 = tmp145 + tmp146;
+    const float tmp148 = tmp147 * carry[14] /* tmp70 */;
+    const float tmp149 = tmp148 * carry[17] /* tmp79 */;
+    const float tmp150 = tmp148 * carry[9] /* tmp17 */;
+    const float tmp151 = P[3] - tmp150;
+    const float tmp152 = tmp151 * carry[3] /* tmp85 */;
+    const float tmp153 = tmp148 * carry[10] /* tmp23 */;
+    const float tmp154 = P[9] - tmp153;
+    const float tmp155 = tmp154 * carry[7] /* tmp91 */;
+    const float tmp156 = tmp152 + tmp155;
+    const float tmp157 = tmp148 * carry[11] /* tmp30 */;
+    const float tmp158 = P[15] - tmp157;
+    const float tmp159 = tmp158 * carry[19] /* tmp98 */;
+    carry[0] = tmp122;
+    carry[4] = tmp124;
+    carry[12] = tmp125;
+    carry[15] = tmp134;
+    carry[16] = tmp137;
+    carry[24] = tmp140;
+    carry[27] = tmp147;
+    carry[28] = tmp148;
+    carry[29] = tmp149;
+    carry[30] = tmp151;
+    carry[31] = tmp154;
+    carry[32] = tmp156;
+    carry[33] = tmp158;
+    carry[34] = tmp159;
 }
 
-static void mekf_k_update_gravity_part4(const float P[36], float x_out[6], float carry[48])
+static void mekf_k_update_gravity_part4(const float P[36], float x_out[6], float carry[38])
 {
-    const float tmp155 = carry[29] /* tmp154 */ * carry[12] /* tmp122 */;
-    const float tmp156 = carry[26] /* tmp148 */ - tmp155;
-    const float tmp157 = 4.0f * carry[15] /* tmp32 */;
-    const float tmp158 = tmp156 * tmp157;
-    const float tmp159 = carry[24] /* tmp145 */ + tmp158;
-    const float tmp160 = carry[23] /* tmp144 */ * tmp159;
-    const float tmp161 = tmp156 * carry[23] /* tmp144 */;
-    const float tmp162 = carry[25] /* tmp146 */ * carry[9] /* tmp15 */;
-    const float tmp163 = P[7] - tmp162;
-    const float tmp164 = carry[29] /* tmp154 */ * carry[28] /* tmp153 */;
-    const float tmp165 = tmp163 - tmp164;
-    const float tmp166 = tmp165 * tmp157;
-    const float tmp167 = tmp161 + tmp166;
-    const float tmp168 = tmp157 * tmp167;
-    const float tmp169 = tmp160 + tmp168;
-    const float tmp170 = tmp169 + carry[4] /* tmp97 */;
-    const float tmp171 = 1.0f / tmp170;
-    const float tmp172 = (1e-12f /* S_PIVOT_MIN */ < tmp170) ? tmp171 : 1.0f;
-    const float tmp173 = tmp159 * tmp172;
-    const float tmp174 = carry[23] /* tmp144 */ * carry[21] /* tmp141 */;
-    const float tmp175 = carry[25] /* tmp146 */ * carry[18] /* tmp73 */;
-    const float tmp176 = carry[29] /* tmp154 */ * carry[20] /* tmp139 */;
-    const float tmp177 = tmp175 + tmp176;
-    const float tmp178 = tmp157 * tmp177;
-    const float tmp179 = tmp174 + tmp178;
-    const float tmp180 = carry[1] /* tmp96 */ - tmp179;
-    const float tmp181 = tmp173 * tmp180;
-    const float tmp182 = carry[21] /* tmp141 */ + tmp181;
-    const float tmp183 = -tmp182;
-    x_out[0] = tmp183;
-    const float tmp184 = tmp167 * tmp172;
-    const float tmp185 = tmp184 * tmp180;
-    const float tmp186 = tmp177 + tmp185;
-    const float tmp187 = -tmp186;
-    x_out[1] = tmp187;
-    const float tmp188 = carry[14] /* tmp128 */ * carry[17] /* tmp133 */;
-    const float tmp189 = tmp188 * carry[20] /* tmp139 */;
-    const float tmp190 = carry[19] /* tmp136 */ + tmp189;
-    const float tmp191 = tmp188 * carry[12] /* tmp122 */;
-    const float tmp192 = carry[2] /* tmp119 */ - tmp191;
-    const float tmp193 = tmp192 * carry[23] /* tmp144 */;
-    const float tmp194 = tmp188 * carry[28] /* tmp153 */;
-    carry[1] = tmp156;
-    carry[2] = tmp157;
-    carry[4] = tmp159;
-    carry[15] = tmp165;
-    carry[19] = tmp167;
-    carry[21] = tmp170;
-    carry[24] = tmp172;
-    carry[25] = tmp173;
-    carry[26] = tmp180;
-    carry[29] = tmp184;
-    carry[30] = tmp188;
-    carry[31] = tmp190;
-    carry[32] = tmp192;
-    carry[33] = tmp193;
-    carry[34] = tmp194;
+    const float tmp160 = carry[32] /* tmp156 */ + carry[34] /* tmp159 */;
+    const float tmp161 = tmp160 * carry[4] /* tmp124 */;
+    const float tmp162 = tmp161 * carry[15] /* tmp134 */;
+    const float tmp163 = carry[29] /* tmp149 */ + tmp162;
+    x_out[3] = tmp163;
+    const float tmp164 = P[4] * carry[2] /* tmp3 */;
+    const float tmp165 = P[10] * carry[5] /* tmp9 */;
+    const float tmp166 = tmp164 + tmp165;
+    const float tmp167 = P[16] * carry[8] /* tmp15 */;
+    const float tmp168 = tmp166 + tmp167;
+    const float tmp169 = tmp168 * carry[14] /* tmp70 */;
+    const float tmp170 = tmp169 * carry[17] /* tmp79 */;
+    const float tmp171 = tmp169 * carry[9] /* tmp17 */;
+    const float tmp172 = P[4] - tmp171;
+    const float tmp173 = tmp172 * carry[3] /* tmp85 */;
+    const float tmp174 = tmp169 * carry[10] /* tmp23 */;
+    const float tmp175 = P[10] - tmp174;
+    const float tmp176 = tmp175 * carry[7] /* tmp91 */;
+    const float tmp177 = tmp173 + tmp176;
+    const float tmp178 = tmp169 * carry[11] /* tmp30 */;
+    const float tmp179 = P[16] - tmp178;
+    const float tmp180 = tmp179 * carry[19] /* tmp98 */;
+    const float tmp181 = tmp177 + tmp180;
+    const float tmp182 = tmp181 * carry[4] /* tmp124 */;
+    const float tmp183 = tmp182 * carry[15] /* tmp134 */;
+    const float tmp184 = tmp170 + tmp183;
+    x_out[4] = tmp184;
+    const float tmp185 = P[5] * carry[2] /* tmp3 */;
+    const float tmp186 = P[11] * carry[5] /* tmp9 */;
+    const float tmp187 = tmp185 + tmp186;
+    const float tmp188 = P[17] * carry[8] /* tmp15 */;
+    const float tmp189 = tmp187 + tmp188;
+    const float tmp190 = tmp189 * carry[14] /* tmp70 */;
+    const float tmp191 = tmp190 * carry[17] /* tmp79 */;
+    const float tmp192 = tmp190 * carry[9] /* tmp17 */;
+    const float tmp193 = P[5] - tmp192;
+    const float tmp194 = tmp193 * carry[3] /* tmp85 */;
+    const float tmp195 = tmp190 * carry[10] /* tmp23 */;
+    const float tmp196 = P[11] - tmp195;
+    const float tmp197 = tmp196 * carry[7] /* tmp91 */;
+    const float tmp198 = tmp194 + tmp197;
+    const float tmp199 = tmp190 * carry[11] /* tmp30 */;
+    carry[2] = tmp160;
+    carry[3] = tmp161;
+    carry[5] = tmp168;
+    carry[7] = tmp169;
+    carry[8] = tmp172;
+    carry[9] = tmp175;
+    carry[10] = tmp179;
+    carry[11] = tmp181;
+    carry[14] = tmp182;
+    carry[17] = tmp189;
+    carry[29] = tmp190;
+    carry[32] = tmp191;
+    carry[34] = tmp193;
+    carry[35] = tmp196;
+    carry[36] = tmp198;
+    carry[37] = tmp199;
 }
 
-static void mekf_k_update_gravity_part5(const float P[36], float x_out[6], float carry[48])
+static void mekf_k_update_gravity_part5(const float P[36], float x_out[6], float P_out[36],
+    float carry[38])
 {
-    const float tmp195 = carry[27] /* tmp151 */ - carry[34] /* tmp194 */;
-    const float tmp196 = tmp195 * carry[2] /* tmp157 */;
-    const float tmp197 = carry[33] /* tmp193 */ + tmp196;
-    const float tmp198 = tmp197 * carry[24] /* tmp172 */;
-    const float tmp199 = tmp198 * carry[26] /* tmp180 */;
-    const float tmp200 = carry[31] /* tmp190 */ + tmp199;
-    const float tmp201 = -tmp200;
-    x_out[2] = tmp201;
-    const float tmp202 = P[9] * carry[3] /* tmp5 */;
-    const float tmp203 = P[15] * carry[7] /* tmp10 */;
-    const float tmp204 = tmp202 + tmp203;
-    const float tmp205 = tmp204 * carry[11] /* tmp110 */;
-    const float tmp206 = tmp205 * carry[18] /* tmp73 */;
-    const float tmp207 = tmp205 * carry[8] /* tmp12 */;
-    const float tmp208 = P[3] - tmp207;
-    const float tmp209 = tmp208 * carry[0] /* tmp115 */;
-    const float tmp210 = tmp205 * carry[10] /* tmp19 */;
-    const float tmp211 = P[15] - tmp210;
-    const float tmp212 = tmp211 * carry[6] /* tmp120 */;
-    const float tmp213 = tmp209 + tmp212;
-    const float tmp214 = tmp213 * carry[17] /* tmp133 */;
-    const float tmp215 = tmp214 * carry[20] /* tmp139 */;
-    const float tmp216 = tmp206 + tmp215;
-    const float tmp217 = tmp214 * carry[12] /* tmp122 */;
-    const float tmp218 = tmp208 - tmp217;
-    const float tmp219 = tmp218 * carry[23] /* tmp144 */;
-    const float tmp220 = tmp205 * carry[9] /* tmp15 */;
-    const float tmp221 = P[9] - tmp220;
-    const float tmp222 = tmp214 * carry[28] /* tmp153 */;
-    const float tmp223 = tmp221 - tmp222;
-    const float tmp224 = tmp223 * carry[2] /* tmp157 */;
-    const float tmp225 = tmp219 + tmp224;
-    const float tmp226 = tmp225 * carry[24] /* tmp172 */;
-    const float tmp227 = tmp226 * carry[26] /* tmp180 */;
-    const float tmp228 = tmp216 + tmp227;
-    const float tmp229 = -tmp228;
-    x_out[3] = tmp229;
-    const float tmp230 = P[10] * carry[3] /* tmp5 */;
-    const float tmp231 = P[16] * carry[7] /* tmp10 */;
-    const float tmp232 = tmp230 + tmp231;
-    const float tmp233 = tmp232 * carry[11] /* tmp110 */;
-    const float tmp234 = tmp233 * carry[18] /* tmp73 */;
-    carry[27] = tmp195;
-    carry[31] = tmp197;
-    carry[33] = tmp198;
-    carry[34] = tmp204;
-    carry[35] = tmp205;
-    carry[36] = tmp211;
-    carry[37] = tmp213;
-    carry[38] = tmp214;
-    carry[39] = tmp218;
-    carry[40] = tmp223;
-    carry[41] = tmp225;
-    carry[42] = tmp226;
-    carry[43] = tmp232;
-    carry[44] = tmp233;
-    carry[45] = tmp234;
+    const float tmp200 = P[17] - carry[37] /* tmp199 */;
+    const float tmp201 = tmp200 * carry[19] /* tmp98 */;
+    const float tmp202 = carry[36] /* tmp198 */ + tmp201;
+    const float tmp203 = tmp202 * carry[4] /* tmp124 */;
+    const float tmp204 = tmp203 * carry[15] /* tmp134 */;
+    const float tmp205 = carry[32] /* tmp191 */ + tmp204;
+    x_out[5] = tmp205;
+    const float tmp206 = carry[12] /* tmp125 */ * carry[20] /* tmp100 */;
+    const float tmp207 = carry[1] /* tmp82 */ - tmp206;
+    P_out[0] = tmp207;
+    const float tmp208 = carry[16] /* tmp137 */ * carry[20] /* tmp100 */;
+    const float tmp209 = carry[6] /* tmp89 */ - tmp208;
+    P_out[1] = tmp209;
+    P_out[6] = tmp209;
+    const float tmp210 = carry[24] /* tmp140 */ * carry[20] /* tmp100 */;
+    const float tmp211 = carry[18] /* tmp96 */ - tmp210;
+    P_out[2] = tmp211;
+    P_out[12] = tmp211;
+    const float tmp212 = carry[3] /* tmp161 */ * carry[20] /* tmp100 */;
+    const float tmp213 = carry[30] /* tmp151 */ - tmp212;
+    P_out[3] = tmp213;
+    P_out[18] = tmp213;
+    const float tmp214 = carry[14] /* tmp182 */ * carry[20] /* tmp100 */;
+    const float tmp215 = carry[8] /* tmp172 */ - tmp214;
+    P_out[4] = tmp215;
+    P_out[24] = tmp215;
+    const float tmp216 = tmp203 * carry[20] /* tmp100 */;
+    const float tmp217 = carry[34] /* tmp193 */ - tmp216;
+    P_out[5] = tmp217;
+    P_out[30] = tmp217;
+    const float tmp218 = carry[16] /* tmp137 */ * carry[23] /* tmp110 */;
+    const float tmp219 = carry[21] /* tmp104 */ - tmp218;
+    P_out[7] = tmp219;
+    const float tmp220 = carry[24] /* tmp140 */ * carry[23] /* tmp110 */;
+    const float tmp221 = carry[22] /* tmp108 */ - tmp220;
+    P_out[8] = tmp221;
+    P_out[13] = tmp221;
+    const float tmp222 = carry[3] /* tmp161 */ * carry[23] /* tmp110 */;
+    const float tmp223 = carry[31] /* tmp154 */ - tmp222;
+    P_out[9] = tmp223;
+    P_out[19] = tmp223;
+    const float tmp224 = carry[14] /* tmp182 */ * carry[23] /* tmp110 */;
+    const float tmp225 = carry[9] /* tmp175 */ - tmp224;
+    P_out[10] = tmp225;
+    P_out[25] = tmp225;
+    const float tmp226 = tmp203 * carry[23] /* tmp110 */;
+    const float tmp227 = carry[35] /* tmp196 */ - tmp226;
+    P_out[11] = tmp227;
+    P_out[31] = tmp227;
+    const float tmp228 = carry[24] /* tmp140 */ * carry[26] /* tmp119 */;
+    const float tmp229 = carry[25] /* tmp117 */ - tmp228;
+    P_out[14] = tmp229;
+    const float tmp230 = carry[3] /* tmp161 */ * carry[26] /* tmp119 */;
+    const float tmp231 = carry[33] /* tmp158 */ - tmp230;
+    P_out[15] = tmp231;
+    P_out[20] = tmp231;
+    const float tmp232 = carry[14] /* tmp182 */ * carry[26] /* tmp119 */;
+    const float tmp233 = carry[10] /* tmp179 */ - tmp232;
+    P_out[16] = tmp233;
+    P_out[26] = tmp233;
+    const float tmp234 = tmp203 * carry[26] /* tmp119 */;
+    const float tmp235 = tmp200 - tmp234;
+    P_out[17] = tmp235;
+    P_out[32] = tmp235;
+    const float tmp236 = carry[28] /* tmp148 */ * carry[27] /* tmp147 */;
+    const float tmp237 = P[21] - tmp236;
+    const float tmp238 = carry[3] /* tmp161 */ * carry[2] /* tmp160 */;
+    const float tmp239 = tmp237 - tmp238;
+    P_out[21] = tmp239;
+    carry[1] = tmp202;
+    carry[3] = tmp203;
 }
 
-static void mekf_k_update_gravity_part6(const float P[36], float x_out[6], float carry[48])
+static void mekf_k_update_gravity_part6(const float P[36], float P_out[36], float *min_pivot,
+    const float carry[38])
 {
-    const float tmp235 = carry[44] /* tmp233 */ * carry[8] /* tmp12 */;
-    const float tmp236 = P[4] - tmp235;
-    const float tmp237 = tmp236 * carry[0] /* tmp115 */;
-    const float tmp238 = carry[44] /* tmp233 */ * carry[10] /* tmp19 */;
-    const float tmp239 = P[16] - tmp238;
-    const float tmp240 = tmp239 * carry[6] /* tmp120 */;
-    const float tmp241 = tmp237 + tmp240;
-    const float tmp242 = tmp241 * carry[17] /* tmp133 */;
-    const float tmp243 = tmp242 * carry[20] /* tmp139 */;
-    const float tmp244 = carry[45] /* tmp234 */ + tmp243;
-    const float tmp245 = tmp242 * carry[12] /* tmp122 */;
-    const float tmp246 = tmp236 - tmp245;
-    const float tmp247 = tmp246 * carry[23] /* tmp144 */;
-    const float tmp248 = carry[44] /* tmp233 */ * carry[9] /* tmp15 */;
-    const float tmp249 = P[10] - tmp248;
-    const float tmp250 = tmp242 * carry[28] /* tmp153 */;
+    const float tmp240 = carry[7] /* tmp169 */ * carry[27] /* tmp147 */;
+    const float tmp241 = P[22] - tmp240;
+    const float tmp242 = carry[14] /* tmp182 */ * carry[2] /* tmp160 */;
+    const float tmp243 = tmp241 - tmp242;
+    P_out[22] = tmp243;
+    P_out[27] = tmp243;
+    const float tmp244 = carry[29] /* tmp190 */ * carry[27] /* tmp147 */;
+    const float tmp245 = P[23] - tmp244;
+    const float tmp246 = carry[3] /* tmp203 */ * carry[2] /* tmp160 */;
+    const float tmp247 = tmp245 - tmp246;
+    P_out[23] = tmp247;
+    P_out[33] = tmp247;
+    const float tmp248 = carry[7] /* tmp169 */ * carry[5] /* tmp168 */;
+    const float tmp249 = P[28] - tmp248;
+    const float tmp250 = carry[14] /* tmp182 */ * carry[11] /* tmp181 */;
     const float tmp251 = tmp249 - tmp250;
-    const float tmp252 = tmp251 * carry[2] /* tmp157 */;
-    const float tmp253 = tmp247 + tmp252;
-    const float tmp254 = tmp253 * carry[24] /* tmp172 */;
-    const float tmp255 = tmp254 * carry[26] /* tmp180 */;
-    const float tmp256 = tmp244 + tmp255;
-    const float tmp257 = -tmp256;
-    x_out[4] = tmp257;
-    const float tmp258 = P[11] * carry[3] /* tmp5 */;
-    const float tmp259 = P[17] * carry[7] /* tmp10 */;
-    const float tmp260 = tmp258 + tmp259;
-    const float tmp261 = tmp260 * carry[11] /* tmp110 */;
-    const float tmp262 = tmp261 * carry[18] /* tmp73 */;
-    const float tmp263 = tmp261 * carry[8] /* tmp12 */;
-    const float tmp264 = P[5] - tmp263;
-    const float tmp265 = tmp264 * carry[0] /* tmp115 */;
-    const float tmp266 = tmp261 * carry[10] /* tmp19 */;
-    const float tmp267 = P[17] - tmp266;
-    const float tmp268 = tmp267 * carry[6] /* tmp120 */;
-    const float tmp269 = tmp265 + tmp268;
-    const float tmp270 = tmp269 * carry[17] /* tmp133 */;
-    const float tmp271 = tmp270 * carry[20] /* tmp139 */;
-    const float tmp272 = tmp262 + tmp271;
-    const float tmp273 = tmp270 * carry[12] /* tmp122 */;
-    const float tmp274 = tmp264 - tmp273;
-    carry[0] = tmp239;
-    carry[3] = tmp241;
-    carry[6] = tmp242;
-    carry[7] = tmp246;
-    carry[8] = tmp251;
-    carry[10] = tmp253;
-    carry[11] = tmp254;
-    carry[12] = tmp260;
-    carry[17] = tmp261;
-    carry[18] = tmp267;
-    carry[20] = tmp269;
-    carry[45] = tmp270;
-    carry[46] = tmp272;
-    carry[47] = tmp274;
-}
-
-static void mekf_k_update_gravity_part7(const float P[36], float x_out[6], float P_out[36],
-    float carry[48])
-{
-    const float tmp275 = carry[47] /* tmp274 */ * carry[23] /* tmp144 */;
-    const float tmp276 = carry[17] /* tmp261 */ * carry[9] /* tmp15 */;
-    const float tmp277 = P[11] - tmp276;
-    const float tmp278 = carry[45] /* tmp270 */ * carry[28] /* tmp153 */;
-    const float tmp279 = tmp277 - tmp278;
-    const float tmp280 = tmp279 * carry[2] /* tmp157 */;
-    const float tmp281 = tmp275 + tmp280;
-    const float tmp282 = tmp281 * carry[24] /* tmp172 */;
-    const float tmp283 = tmp282 * carry[26] /* tmp180 */;
-    const float tmp284 = carry[46] /* tmp272 */ + tmp283;
-    const float tmp285 = -tmp284;
-    x_out[5] = tmp285;
-    const float tmp286 = carry[25] /* tmp173 */ * carry[4] /* tmp159 */;
-    const float tmp287 = carry[22] /* tmp143 */ - tmp286;
-    P_out[0] = tmp287;
-    const float tmp288 = carry[29] /* tmp184 */ * carry[4] /* tmp159 */;
-    const float tmp289 = carry[1] /* tmp156 */ - tmp288;
-    P_out[1] = tmp289;
-    P_out[6] = tmp289;
-    const float tmp290 = carry[33] /* tmp198 */ * carry[4] /* tmp159 */;
-    const float tmp291 = carry[32] /* tmp192 */ - tmp290;
-    P_out[2] = tmp291;
-    P_out[12] = tmp291;
-    const float tmp292 = carry[42] /* tmp226 */ * carry[4] /* tmp159 */;
-    const float tmp293 = carry[39] /* tmp218 */ - tmp292;
-    P_out[3] = tmp293;
-    P_out[18] = tmp293;
-    const float tmp294 = carry[11] /* tmp254 */ * carry[4] /* tmp159 */;
-    const float tmp295 = carry[7] /* tmp246 */ - tmp294;
-    P_out[4] = tmp295;
-    P_out[24] = tmp295;
-    const float tmp296 = tmp282 * carry[4] /* tmp159 */;
-    const float tmp297 = carry[47] /* tmp274 */ - tmp296;
-    P_out[5] = tmp297;
-    P_out[30] = tmp297;
-    const float tmp298 = carry[29] /* tmp184 */ * carry[19] /* tmp167 */;
-    const float tmp299 = carry[15] /* tmp165 */ - tmp298;
-    P_out[7] = tmp299;
-    const float tmp300 = carry[33] /* tmp198 */ * carry[19] /* tmp167 */;
-    const float tmp301 = carry[27] /* tmp195 */ - tmp300;
-    P_out[8] = tmp301;
-    P_out[13] = tmp301;
-    const float tmp302 = carry[42] /* tmp226 */ * carry[19] /* tmp167 */;
-    const float tmp303 = carry[40] /* tmp223 */ - tmp302;
-    P_out[9] = tmp303;
-    P_out[19] = tmp303;
-    const float tmp304 = carry[11] /* tmp254 */ * carry[19] /* tmp167 */;
-    const float tmp305 = carry[8] /* tmp251 */ - tmp304;
-    P_out[10] = tmp305;
-    P_out[25] = tmp305;
-    const float tmp306 = tmp282 * carry[19] /* tmp167 */;
-    const float tmp307 = tmp279 - tmp306;
-    P_out[11] = tmp307;
-    P_out[31] = tmp307;
-    const float tmp308 = carry[30] /* tmp188 */ * carry[14] /* tmp128 */;
-    const float tmp309 = carry[13] /* tmp126 */ - tmp308;
-    const float tmp310 = carry[33] /* tmp198 */ * carry[31] /* tmp197 */;
-    const float tmp311 = tmp309 - tmp310;
-    P_out[14] = tmp311;
-    const float tmp312 = carry[38] /* tmp214 */ * carry[14] /* tmp128 */;
-    const float tmp313 = carry[36] /* tmp211 */ - tmp312;
-    const float tmp314 = carry[42] /* tmp226 */ * carry[31] /* tmp197 */;
-    carry[1] = tmp281;
-    carry[2] = tmp282;
-    carry[4] = tmp313;
-    carry[7] = tmp314;
-}
-
-static void mekf_k_update_gravity_part8(const float P[36], float P_out[36], float carry[48])
-{
-    const float tmp315 = carry[4] /* tmp313 */ - carry[7] /* tmp314 */;
-    P_out[15] = tmp315;
-    P_out[20] = tmp315;
-    const float tmp316 = carry[6] /* tmp242 */ * carry[14] /* tmp128 */;
-    const float tmp317 = carry[0] /* tmp239 */ - tmp316;
-    const float tmp318 = carry[11] /* tmp254 */ * carry[31] /* tmp197 */;
-    const float tmp319 = tmp317 - tmp318;
-    P_out[16] = tmp319;
-    P_out[26] = tmp319;
-    const float tmp320 = carry[45] /* tmp270 */ * carry[14] /* tmp128 */;
-    const float tmp321 = carry[18] /* tmp267 */ - tmp320;
-    const float tmp322 = carry[2] /* tmp282 */ * carry[31] /* tmp197 */;
-    const float tmp323 = tmp321 - tmp322;
-    P_out[17] = tmp323;
-    P_out[32] = tmp323;
-    const float tmp324 = carry[35] /* tmp205 */ * carry[34] /* tmp204 */;
-    const float tmp325 = P[21] - tmp324;
-    const float tmp326 = carry[38] /* tmp214 */ * carry[37] /* tmp213 */;
-    const float tmp327 = tmp325 - tmp326;
-    const float tmp328 = carry[42] /* tmp226 */ * carry[41] /* tmp225 */;
-    const float tmp329 = tmp327 - tmp328;
-    P_out[21] = tmp329;
-    const float tmp330 = carry[44] /* tmp233 */ * carry[34] /* tmp204 */;
-    const float tmp331 = P[22] - tmp330;
-    const float tmp332 = carry[6] /* tmp242 */ * carry[37] /* tmp213 */;
-    const float tmp333 = tmp331 - tmp332;
-    const float tmp334 = carry[11] /* tmp254 */ * carry[41] /* tmp225 */;
-    const float tmp335 = tmp333 - tmp334;
-    P_out[22] = tmp335;
-    P_out[27] = tmp335;
-    const float tmp336 = carry[17] /* tmp261 */ * carry[34] /* tmp204 */;
-    const float tmp337 = P[23] - tmp336;
-    const float tmp338 = carry[45] /* tmp270 */ * carry[37] /* tmp213 */;
-    const float tmp339 = tmp337 - tmp338;
-    const float tmp340 = carry[2] /* tmp282 */ * carry[41] /* tmp225 */;
-    const float tmp341 = tmp339 - tmp340;
-    P_out[23] = tmp341;
-    P_out[33] = tmp341;
-    const float tmp342 = carry[44] /* tmp233 */ * carry[43] /* tmp232 */;
-    const float tmp343 = P[28] - tmp342;
-    const float tmp344 = carry[6] /* tmp242 */ * carry[3] /* tmp241 */;
-    const float tmp345 = tmp343 - tmp344;
-    const float tmp346 = carry[11] /* tmp254 */ * carry[10] /* tmp253 */;
-    const float tmp347 = tmp345 - tmp346;
-    P_out[28] = tmp347;
-    const float tmp348 = carry[17] /* tmp261 */ * carry[43] /* tmp232 */;
-    const float tmp349 = P[29] - tmp348;
-    const float tmp350 = carry[45] /* tmp270 */ * carry[3] /* tmp241 */;
-    const float tmp351 = tmp349 - tmp350;
-    const float tmp352 = carry[2] /* tmp282 */ * carry[10] /* tmp253 */;
-    const float tmp353 = tmp351 - tmp352;
-    P_out[29] = tmp353;
-    P_out[34] = tmp353;
-    const float tmp354 = carry[17] /* tmp261 */ * carry[12] /* tmp260 */;
-    carry[0] = tmp354;
-}
-
-static void mekf_k_update_gravity_part9(const float P[36], float P_out[36], float *min_pivot,
-    const float carry[48])
-{
-    const float tmp355 = P[35] - carry[0] /* tmp354 */;
-    const float tmp356 = carry[45] /* tmp270 */ * carry[20] /* tmp269 */;
-    const float tmp357 = tmp355 - tmp356;
-    const float tmp358 = carry[2] /* tmp282 */ * carry[1] /* tmp281 */;
-    const float tmp359 = tmp357 - tmp358;
-    P_out[35] = tmp359;
-    const float tmp360 = (carry[5] /* tmp108 */ < carry[16] /* tmp131 */) ? carry[5] /* tmp108 */ :
-            carry[16] /* tmp131 */;
-    const float tmp361 = (tmp360 < carry[21] /* tmp170 */) ? tmp360 : carry[21] /* tmp170 */;
-    *min_pivot = tmp361;
+    P_out[28] = tmp251;
+    const float tmp252 = carry[29] /* tmp190 */ * carry[5] /* tmp168 */;
+    const float tmp253 = P[29] - tmp252;
+    const float tmp254 = carry[3] /* tmp203 */ * carry[11] /* tmp181 */;
+    const float tmp255 = tmp253 - tmp254;
+    P_out[29] = tmp255;
+    P_out[34] = tmp255;
+    const float tmp256 = carry[29] /* tmp190 */ * carry[17] /* tmp189 */;
+    const float tmp257 = P[35] - tmp256;
+    const float tmp258 = carry[3] /* tmp203 */ * carry[1] /* tmp202 */;
+    const float tmp259 = tmp257 - tmp258;
+    P_out[35] = tmp259;
+    const float tmp260 = (carry[13] /* tmp68 */ < carry[0] /* tmp122 */) ? carry[13] /* tmp68 */ :
+            carry[0] /* tmp122 */;
+    *min_pivot = tmp260;
 }
 
 /*
- * gravity direction: three scalar rows on the attitude error; outputs are stored as soon as
- * computed, each after the last read of what it overwrites: P_out may be P itself, no other
+ * gravity direction: two scalar rows on the attitude error (earth frame); outputs are stored as
+ * soon as computed, each after the last read of what it overwrites: P_out may be P itself, no other
  * argument may overlap an output
  *
  * Args:
  *     q: float[4]
  *     up: float[3]
- *     recover: bool
+ *     recover: bool (unused)
  *     dt: float
  *     gyro: float[3]
  *     b: float[3]
@@ -2434,30 +2166,27 @@ static void mekf_k_update_gravity_part9(const float P[36], float P_out[36], floa
  *     P_out: float[36]
  *     min_pivot: float
  *
- * Total ops: 362 (add 156, mul 188, div 7, sqrt 2, cmp 9)
- *     of which only one side runs: if (unobserved) 15, else 0
- *     of which only one side runs: if (recover) 0, else 10
+ * Total ops: 261 (add 109, mul 140, div 5, sqrt 2, cmp 5)
+ *     of which only one side runs: if (unobserved) 22, else 0
  */
 static void mekf_k_update_gravity(const float q[restrict 4], const float up[restrict 3],
     bool recover, float dt, const float gyro[restrict 3], const float b[restrict 3],
     const float vel[restrict 3], bool unobserved, const float P[36], float x_out[restrict 6],
     float P_out[36], float *restrict min_pivot)
 {
+    (void)recover;
     /*
-     * 10 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
+     * 7 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
      * handed between them (a slot reused once its value is dead)
      */
-    float carry[48];
+    float carry[38];
     mekf_k_update_gravity_part0(q, dt, P, carry);
     mekf_k_update_gravity_part1(q, up, gyro, b, vel, unobserved, carry);
-    mekf_k_update_gravity_part2(up, recover, P, carry);
-    mekf_k_update_gravity_part3(P, carry);
+    mekf_k_update_gravity_part2(P, carry);
+    mekf_k_update_gravity_part3(up, P, x_out, carry);
     mekf_k_update_gravity_part4(P, x_out, carry);
-    mekf_k_update_gravity_part5(P, x_out, carry);
-    mekf_k_update_gravity_part6(P, x_out, carry);
-    mekf_k_update_gravity_part7(P, x_out, P_out, carry);
-    mekf_k_update_gravity_part8(P, P_out, carry);
-    mekf_k_update_gravity_part9(P, P_out, min_pivot, carry);
+    mekf_k_update_gravity_part5(P, x_out, P_out, carry);
+    mekf_k_update_gravity_part6(P, P_out, min_pivot, carry);
 }
 
 static void mekf_k_update_rest_bias_part0(const float b[3], const float P[36], const float gyro[3],
@@ -4876,10 +4605,10 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
         }
     }
 
-    /* Gravity direction (3 rows) and, at rest, the gyro bias (3 rows): scalar rows in turn on P
-     * (the batch update with the rows stacked), applied only when every row's variance - the
-     * batch innovation covariance's Cholesky pivots - is usable; else P is restored from its
-     * lower triangle saved here. The three gravity rows are one kernel. */
+    /* Gravity direction (2 rows, earth frame) and, at rest, the gyro bias (3 rows): scalar rows
+     * in turn on P (the batch update with the rows stacked), applied only when every row's
+     * variance - the batch innovation covariance's Cholesky pivots - is usable; else P is
+     * restored from its lower triangle saved here. The two gravity rows are one kernel. */
     if (use_tilt || at_rest) {
         float x[6] = { 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f };
         float P_saved[21];

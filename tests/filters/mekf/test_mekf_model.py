@@ -76,6 +76,24 @@ def test_F_G_match_finite_differences(omega_hat, dt):
     assert np.max(np.abs(G_ref - Gs)) < 1e-12
 
 
+@pytest.mark.parametrize("omega_hat,dt", CASES + [(np.array([20.0, -15.0, 8.0]), 0.01),   # |v| > SERIES_MAX
+                                               (np.array([1.0, 2.0, 2.0]), 0.0666)])      # |v| at it
+def test_closed_form_attitude_rows_match_finite_differences(omega_hat, dt):
+    """attitude_rows' closed form (F_q = R(a)ᵀ, F_b = −½ dt J_r; the predict_attitude kernel's)
+    against finite differences of the NumPy propagation, on both sides of SERIES_MAX, and q'
+    against q ⊗ exp(½ ω̂ dt) normalised."""
+    from ahrsgen.npquat import qexp
+    qs, w, h = ca.SX.sym("q", 4), ca.SX.sym("w", 3), ca.SX.sym("h")
+    f = ca.Function("rows", [qs, w, h], list(M.attitude_rows(qs, w, h)))
+    q = q_from_euler(0.3, -0.4, 2.0)
+    q_new, Fq, Fb = (np.array(m) for m in f(q, omega_hat, dt))
+    F_fd = central_diff(lambda d: np_propagate(d, np.zeros(6), omega_hat, dt), 6)
+    assert np.max(np.abs(Fq - F_fd[:3, :3])) < 1e-8
+    assert np.max(np.abs(Fb - F_fd[:3, 3:])) < 1e-8
+    q_ref = qmul(q, qexp(0.5 * dt * omega_hat))
+    assert np.max(np.abs(q_new.ravel() - q_ref / np.linalg.norm(q_ref))) < 1e-14
+
+
 @pytest.mark.parametrize("euler", [(0.1, -0.05, 0.8), (-0.49, -0.056, 0.78), (2.5, 1.2, -3.0),
                                    (0.0, 0.0, np.pi)])
 def test_H_matches_finite_differences(euler):
@@ -157,24 +175,62 @@ def np_gravity_direction(q, dq):
     return rotmat(e / np.linalg.norm(e)).T @ np.array([0.0, 0.0, -1.0])
 
 
+def np_gravity_direction_earth(q, dq):
+    """The same direction rotated to the earth frame by the estimate q: R(q) R(q ⊗ [1, δq])ᵀ u."""
+    from ahrsgen.npquat import rotmat
+    return rotmat(q) @ np_gravity_direction(q, dq)
+
+
 ATTITUDES = [(0.1, -0.05, 0.8), (2.5, 1.2, -3.0), (0.3, np.pi / 2, 1.0), (-0.2, -np.pi / 2, 0.0),
              (np.pi, 0.0, 0.4)]
 
 
 @pytest.mark.parametrize("euler", ATTITUDES)
 def test_gravity_H_matches_finite_differences_at_any_attitude(euler):
-    """The gravity rows stay well conditioned at pitch ±90 deg and upside down: the Jacobian
-    matches finite differences and has rank 2 (the two tilt directions) everywhere."""
+    """The gravity rows (earth frame x and y) stay well conditioned at pitch ±90 deg and upside
+    down: the Jacobian matches finite differences of R(q) R(q ⊗ δ)ᵀ u, has rank 2 (the two tilt
+    directions) everywhere, and the third (vertical) row it leaves out is 0; the written-out
+    form the kernel uses (gravity_rows_H) is the same matrix."""
     q = q_from_euler(*euler)
     qs = ca.SX.sym("q", 4)
     Hs = np.array(ca.Function("H", [qs], [M.jacobian_gravity(qs)])(q))
-    H_fd = central_diff(lambda d: np_gravity_direction(q, d[:3]), 6)
-    assert Hs.shape == (3, 6)
-    assert np.max(np.abs(Hs - H_fd)) < 1e-8
+    H_fd = central_diff(lambda d: np_gravity_direction_earth(q, d[:3]), 6)
+    assert Hs.shape == (2, 6)
+    assert np.max(np.abs(Hs - H_fd[:2])) < 1e-8
+    assert np.max(np.abs(H_fd[2])) < 1e-8
     assert np.linalg.matrix_rank(Hs[:, :3], tol=1e-6) == 2
-    H_ref = np.zeros((3, 6))
-    H_ref[:, :3] = 2.0 * R.skew(np_gravity_direction(q, np.zeros(3)))
-    assert np.max(np.abs(Hs - H_ref)) < 1e-12
+    Hw = np.array(ca.Function("Hw", [qs], [M.gravity_rows_H(qs)])(q))
+    assert np.max(np.abs(Hw - Hs[:, :3])) < 1e-12
+
+
+@pytest.mark.parametrize("euler", ATTITUDES[:3])
+def test_gravity_update_equals_the_body_axis_batch_update(euler):
+    """The two earth-frame rows are the body-axis measurement (up/|up| in body axes against
+    R(q)ᵀ u, three rows, H = 2 [g_b×], R_g isotropic) rotated by R(q), its vertical row dropped
+    (H's row 0): the batch update of the three body rows, in NumPy, gives the same correction
+    and P."""
+    from ahrsgen.npquat import rotmat
+    p = _vec_params(accel_adapt_cap=1.0)
+    fu = M.update_gravity_function(p)
+    q = q_from_euler(*euler)
+    rng = np.random.default_rng(3)
+    A = rng.normal(size=(6, 6)) * 0.1
+    P = A @ A.T + 1e-3 * np.eye(6)
+    up = rotmat(q) @ (rotmat(q_from_euler(euler[0] + 0.05, euler[1] - 0.03, euler[2])).T @ np.array([0.0, 0.0, -9.0]))
+    dt = 0.01
+    x, P_new, piv = fu(q, up, 0, dt, P.ravel(order="F"))
+    Rq = rotmat(q)
+    g_b = Rq.T @ np.array([0.0, 0.0, -1.0])
+    z = Rq.T @ up / np.linalg.norm(up) - g_b
+    H = np.zeros((3, 6))
+    H[:, :3] = 2.0 * R.skew(g_b)
+    sig2 = p["accel_angle_noise"] ** 2 + p["accel_noise_density"] ** 2 / dt * (
+        1 + p["accel_bias_gain"] * (P[3, 3] + P[4, 4] + P[5, 5]) / (3 * p["p0_bias"] ** 2))
+    S = H @ P @ H.T + sig2 * np.eye(3)
+    K = P @ H.T @ np.linalg.inv(S)
+    assert np.max(np.abs(np.array(x).ravel() - K @ z)) < 1e-12
+    assert np.max(np.abs(np.array(P_new).reshape(6, 6) - (P - K @ H @ P))) < 1e-12
+    assert float(piv) > sig2
 
 
 @pytest.mark.parametrize("euler", ATTITUDES)

@@ -24,7 +24,7 @@ import math
 import casadi as ca
 
 from ahrsgen.codegen import emit
-from ahrsgen.constants import G0, Const, computed, use
+from ahrsgen.constants import G0, Const, computed, traced, use
 from ahrsgen.codegen.model import FilterModel, KernelSpec, StateField
 from ahrsgen.symbolic import aiding, attitude, kalman, quat
 
@@ -169,18 +169,58 @@ def _blocks(Fq, Fb):
     return ca.blockcat([[Fq, Fb], [Z, I]]), ca.blockcat([[Fb, Z], [Z, I]])
 
 
+def attitude_rows(q, omega_hat, dt):
+    """q̂' = normalise(q̂ ⊗ a), a = exp(v), v = ½ ω̂ dt, and F's attitude rows in closed form
+    from a's factors (quat.qexp_factors: C = cos|v|, S = sin|v|/|v|, k), sharing v vᵀ:
+
+      F_q = R(a)ᵀ = (C² − S² |v|²) I + 2 S² v vᵀ − 2 C S [v×]
+      F_b = −½ dt J_r(2v) = −½ dt ((1 − k |v|²) I − S² [v×] + k v vᵀ)
+
+    (J_r by [v×]² = v vᵀ − |v|² I). The same matrices as CasADi's jacobians of
+    error_propagation (jacobians_FG), checked when the model is built, in about a third of the
+    operations."""
+    v = 0.5 * dt * omega_hat
+    vv = [[v[i] * v[j] for j in range(3)] for i in range(3)]
+    for i in range(3):
+        for j in range(i):
+            vv[i][j] = vv[j][i]
+    m = vv[0][0] + vv[1][1] + vv[2][2]
+    C, S, k = quat.qexp_factors(v, m)
+    q_new = quat.qnormalize(quat.qmul(q, quat.vec(C, S * v[0], S * v[1], S * v[2])))
+    S2 = S * S
+    cq, sq2, cs2 = C * C - S2 * m, S2 + S2, 2 * (C * S)       # F_q = cq I + sq2 v vᵀ − cs2 [v×]
+    h = 0.5 * dt
+    cb, sb, kb = h * (k * m - 1), h * S2, -(h * k)            # F_b = cb I + sb [v×] + kb v vᵀ
+    cross = [[None, -v[2], v[1]], [v[2], None, -v[0]], [-v[1], v[0], None]]      # [v×] off the diagonal
+    Fq, Fb = ca.SX.zeros(3, 3), ca.SX.zeros(3, 3)
+    for i in range(3):
+        for j in range(3):
+            if i == j:
+                Fq[i, i] = cq + sq2 * vv[i][i]
+                Fb[i, i] = cb + kb * vv[i][i]
+            else:
+                Fq[i, j] = sq2 * vv[i][j] - cs2 * cross[i][j]
+                Fb[i, j] = kb * vv[i][j] + sb * cross[i][j]
+    return q_new, Fq, Fb
+
+
 def predict_attitude_function(p: dict, name="predict_attitude") -> ca.Function:
     """The time update in two kernels (smaller frames): the attitude and F's attitude rows
-    F_q = ∂δq'/∂δq, F_b = ∂δq'/∂δb here; `predict_covariance` takes them. F's other rows are
-    [0, I] and G = [[F_b, 0], [0, I]] (∂/∂n_g is ∂/∂δb): checked here when the model is built."""
+    F_q = ∂δq'/∂δq, F_b = ∂δq'/∂δb here (attitude_rows' closed form); `predict_covariance` takes
+    them. Checked here when the model is built: the closed form equals CasADi's jacobians
+    (jacobians_FG) on both sides of SERIES_MAX, F's other rows are [0, I] and
+    G = [[F_b, 0], [0, I]] (∂/∂n_g is ∂/∂δb)."""
     q, b, gyro, dt = (ca.SX.sym(n, k) for n, k in (("q", 4), ("b", 3), ("gyro", 3), ("dt", 1)))
-    q_new, F, G, _ = _time_update(p, q, b, gyro, dt)
-    Fq, Fb = F[:3, :3], F[:3, 3:]
+    q_new, Fq, Fb = attitude_rows(q, gyro - b, dt)
+    q_ref, F, G, _ = _time_update(p, q, b, gyro, dt)
     F2, G2 = _blocks(Fq, Fb)
-    check = ca.Function("check", [b, gyro, dt], [F - F2, G - G2])
-    for args in (([0.01, -0.02, 0.03], [0.5, -1.0, 2.0], 0.01), ([0.0] * 3, [3.0, 0.1, -0.2], 0.004)):
-        if any(float(ca.mmax(ca.fabs(m))) > 1e-12 for m in check(*args)):
-            raise AssertionError("mekf: F or G is not [[F_q, F_b], [0, I]], [[F_b, 0], [0, I]]")
+    check = ca.Function("check", [q, b, gyro, dt], [F - F2, G - G2, q_new - q_ref])
+    q0 = [0.9, 0.1, -0.3, 0.2]
+    for args in ((q0, [0.01, -0.02, 0.03], [0.5, -1.0, 2.0], 0.01), (q0, [0.0] * 3, [3.0, 0.1, -0.2], 0.004),
+                 (q0, [0.1, 0.0, -0.1], [20.0, -15.0, 8.0], 0.01)):     # the last: |v| = 0.13 > SERIES_MAX
+        if not traced() and any(float(ca.mmax(ca.fabs(m))) > 1e-12 for m in check(*args)):
+            raise AssertionError("mekf: F, G or q' of attitude_rows is not CasADi's (jacobians_FG): "
+                                 "F = [[F_q, F_b], [0, I]], G = [[F_b, 0], [0, I]]")
     return emit.function(name, {"q": q, "b": b, "gyro": gyro, "dt": dt},
                          {"q_out": q_new, "F_q": ca.reshape(Fq, 9, 1), "F_b": ca.reshape(Fb, 9, 1)})
 
@@ -345,10 +385,12 @@ def heading_features_function(name="heading_features") -> ca.Function:
 
 
 def gravity_direction(q, dq):
-    """Body-axis direction of the specific force at rest seen from normalise(q̂ ⊗ [1, δq]):
-    R(q̂ ⊗ δ)ᵀ u = R(δ)ᵀ (R(q̂)ᵀ u), written in that order so that its Jacobian in δq
-    (taken at δq = 0) works on the 3-vector R(q̂)ᵀ u, not through q̂'s normalisation."""
-    return quat.rotate_inv(quat.qnormalize(quat.vec(1, dq[0], dq[1], dq[2])), quat.rotate_inv(q, ca.DM(UP_NED)))
+    """Earth-frame direction of the specific force at rest seen from normalise(q̂ ⊗ [1, δq]),
+    rotated back to the earth frame by q̂: R(q̂) R(q̂ ⊗ δ)ᵀ u = R(e)ᵀ u with the earth-frame
+    error rotation e = q̂ ⊗ [1, δq] ⊗ q̂* = [1, R(q̂) δq] (q̂ unit), written through e so that
+    its Jacobian in δq (taken at δq = 0) is 2 [u×] R(q̂): two rows of R(q̂), its third row 0
+    (a rotation about the vertical leaves the vertical)."""
+    return quat.rotate_inv(quat.qnormalize(quat.pure(quat.rotate(q, dq)) + quat.vec(1, 0, 0, 0)), ca.DM(UP_NED))
 
 
 def heading_of_error(q, dq):
@@ -359,8 +401,28 @@ def heading_of_error(q, dq):
 
 
 def jacobian_gravity(q):
+    """The gravity rows' H (2 x 6): the earth-frame x and y rows of gravity_direction's
+    Jacobian (its z row is 0; the bias columns are 0), by CasADi's jacobian."""
     dq = ca.SX.sym("dq", 3)
-    return ca.horzcat(kalman.jacobian_at(gravity_direction(q, dq), dq, [dq]), ca.SX.zeros(3, 3))
+    return ca.horzcat(kalman.jacobian_at(gravity_direction(q, dq)[:2], dq, [dq]), ca.SX.zeros(2, 3))
+
+
+def gravity_rows_H(q):
+    """jacobian_gravity's attitude columns written out: 2 [u×] R(q̂) for u = [0, 0, −1] is
+    [2 R₁; −2 R₀] (R's rows), with rotmat's factors of 2 folded into 4: fewer operations than
+    the jacobian's expression. Checked against jacobian_gravity when the model is built."""
+    w, x, y, z = q[0], q[1], q[2], q[3]
+    return ca.vertcat(ca.horzcat(4 * (x * y + w * z), 2 - 4 * (x * x + z * z), 4 * (y * z - w * x)),
+                      ca.horzcat(4 * (y * y + z * z) - 2, 4 * (w * z - x * y), -4 * (x * z + w * y)))
+
+
+def _check_gravity_rows_H():
+    qs = ca.SX.sym("q", 4)
+    f = ca.Function("dH", [qs], [gravity_rows_H(qs) - jacobian_gravity(qs)[:, :3]])
+    for q in ([0.9, 0.1, -0.3, 0.2], [0.1, 0.7, 0.5, -0.5], [0.0, 0.0, 0.0, 1.0]):
+        n = math.sqrt(sum(c * c for c in q))
+        if float(ca.mmax(ca.fabs(f([c / n for c in q])))) > 1e-12:
+            raise AssertionError("mekf: gravity_rows_H is not jacobian_gravity")
 
 
 def jacobian_heading(q):
@@ -373,10 +435,14 @@ def _inject(q, b, X):
 
 
 def gravity_rows(p: dict, q, up, recover, dt, turn=None, p_bb=None):
-    """The gravity-direction measurement: H's attitude columns Hq (3 x 3; the bias columns are
-    0), innovations z and their variance r.
+    """The gravity-direction measurement: H's attitude columns Hq (2 x 3; the bias columns are
+    0), innovations z (2) and their variance r.
 
-    z_g = up/|up| in body axes − R(q̂)ᵀ [0, 0, −1] (up: accel_lowpass's earth-frame vector); R_g = σ² min(1 + |z_g|²/(3σ)², cap), σ² = accel_angle_noise² + accel_noise_density²/dt
+    z_g = up/|up| − [0, 0, −1] in the earth frame (up: accel_lowpass's earth-frame vector), its
+    x and y rows (H = jacobian_gravity: the z row is 0, its update would change nothing). With
+    R_g isotropic this is the body-axis measurement up/|up| in body axes − R(q̂)ᵀ [0, 0, −1]
+    rotated by R(q̂), the same update in exact arithmetic (q̂ unit), in two rows instead of
+    three and without rotating up into the body; R_g = σ² min(1 + |z_g|²/(3σ)², cap), σ² = accel_angle_noise² + accel_noise_density²/dt
     (bounded residual adaptation: the correction can be weakened, never locked out); p_bb given
     (the sum of P's gyro-bias diagonal), the density term times 1 + accel_bias_gain p_bb / (3 p0_bias²).
     With GPS (`turn` = (gyro, b̂, v, unobserved)): while the last GPS velocity is stale
@@ -385,8 +451,7 @@ def gravity_rows(p: dict, q, up, recover, dt, turn=None, p_bb=None):
     turn rate): a coordinated turn without GPS bends the measured gravity by the bank angle, and
     the tilt, and the magnetic heading through the dip, would follow it.
     """
-    d = quat.rotate_inv(q, up) / ca.sqrt(ca.sumsqr(up))
-    z_g = d - gravity_direction(q, ca.DM.zeros(3))
+    z_g = up / ca.sqrt(ca.sumsqr(up)) - ca.DM(UP_NED)
     # the motion the low-pass leaves (per sample) and the sensor's white noise (a density over dt)
     sig2 = p["accel_angle_noise"] ** 2
     if not (isinstance(p["accel_noise_density"], (int, float)) and p["accel_noise_density"] == 0):
@@ -401,15 +466,21 @@ def gravity_rows(p: dict, q, up, recover, dt, turn=None, p_bb=None):
         gyro, b, vel, unobserved = turn
         a_turn = ca.dot(gyro - b, quat.rotmat(q)[2, :].T) * ca.sqrt(vel[0] * vel[0] + vel[1] * vel[1]) / use(G0)
         sig2 = sig2 + ca.if_else(unobserved, a_turn * a_turn, 0)
-    # recovering after a gyro clip (recover = 1): no weakening, the covariance sets the gain
-    r_g = ca.if_else(recover, sig2, sig2 * ca.fmin(1 + ca.sumsqr(z_g) / (9 * sig2), p["accel_adapt_cap"]))
-    return jacobian_gravity(q)[:, :3], z_g, r_g
+    # recovering after a gyro clip (recover = 1): no weakening, the covariance sets the gain.
+    # accel_adapt_cap = 1 (its minimum; the default): off, min(1 + |z|²/(9σ²), 1) is 1 exactly
+    # (1 + x >= 1 for x >= 0 in floating point too), so no division is written for it
+    cap = p["accel_adapt_cap"]
+    if isinstance(cap, (int, float)) and cap <= 1:
+        r_g = sig2
+    else:
+        r_g = ca.if_else(recover, sig2, sig2 * ca.fmin(1 + ca.sumsqr(z_g) / (9 * sig2), cap))
+    return gravity_rows_H(q), z_g[:2], r_g
 
 
 def update_gravity_function(p: dict, gps: bool = False, name="update_gravity") -> ca.Function:
-    """The three gravity rows (gravity_rows) as scalar rows in turn (kalman.scalar_updates, the
+    """The two gravity rows (gravity_rows) as scalar rows in turn (kalman.scalar_updates, the
     batch update of the rows stacked), from x = 0: the correction x, P after them and the
-    smallest row variance (a pivot of the batch S). One kernel for the three rows, P in
+    smallest row variance (a pivot of the batch S). One kernel for the two rows, P in
     registers between them, each element of P_out stored as soon as it is final (in place: after
     the last read of that element of P), so the kernel does not hold all of P to its end."""
     q, up, recover, dt, Pv = (ca.SX.sym(n, k) for n, k in (("q", 4), ("up", 3), ("recover", 1), ("dt", 1),
@@ -419,9 +490,11 @@ def update_gravity_function(p: dict, gps: bool = False, name="update_gravity") -
     if gps:
         turn = tuple(ca.SX.sym(n, k) for n, k in (("gyro", 3), ("b", 3), ("vel", 3), ("unobserved", 1)))
         ins |= dict(zip(("gyro", "b", "vel", "unobserved"), turn))
+    if not traced():
+        _check_gravity_rows_H()
     p_bb = Pv[3 + N * 3] + Pv[4 + N * 4] + Pv[5 + N * 5]     # the gyro bias's variances (3 times their mean)
     Hq, z, r = gravity_rows(p, q, up, recover, dt, turn, p_bb)
-    rows = [(ca.horzcat(Hq[i, :], ca.SX.zeros(1, 3)), z[i], r) for i in range(3)]
+    rows = [(ca.horzcat(Hq[i, :], ca.SX.zeros(1, 3)), z[i], r) for i in range(2)]
     x_new, P_new, min_pivot = kalman.scalar_updates(sym_lower(Pv), rows, tol=S_PIVOT_MIN)
     return emit.function(name, ins | {"P": Pv},
                          {"x_out": x_new, "P_out": flat_mirrored(P_new), "min_pivot": min_pivot})
@@ -816,7 +889,7 @@ class Model(FilterModel):
                                      ("lp_time_out", "lp_time"))),
                 KernelSpec("heading_features", heading_features_function(), "field norm and dip; GPS velocity in body axes"),
                 KernelSpec("update_gravity", update_gravity_function(p, "gps" in self.sensors),
-                           "gravity direction: three scalar rows on the attitude error",
+                           "gravity direction: two scalar rows on the attitude error (earth frame)",
                            flags=("recover",) + (("unobserved",) if "gps" in self.sensors else ()),
                            early_writes=True, in_place=(("P_out", "P"),)),
                 KernelSpec("update_rest_bias", update_rest_bias_function(p), "at rest, the gyro bias: three scalar rows"),

@@ -565,12 +565,15 @@ class Reference:
                     mag_use = False
                     status |= MAG_DISTURBED
 
-        # --- gravity direction (3 rows) and, at rest, the gyro bias (3 rows) -----------
-        rows = ([0, 1, 2] if use_tilt else []) + ([3, 4, 5] if at_rest else [])
+        # --- gravity direction (2 rows, earth frame) and, at rest, the gyro bias (3 rows) ---
+        # The measured direction up/|up| against the estimate's u = [0, 0, -1], both in the earth
+        # frame: the truth's R(q Exp θ)ᵀ u rotated by R(q) is Exp(R(q) θ)ᵀ u ≈ u + skew(u) R(q) θ,
+        # whose third row is 0 (u does not move when turned about itself): rows 0 and 1 only.
+        # With r_g isotropic, the body-axis rows rotated by R(q) (the same update).
+        rows = ([0, 1] if use_tilt else []) + ([3, 4, 5] if at_rest else [])
         if rows:
-            d = Rq.T @ up / np.sqrt(up @ up)
-            g_hat = Rq.T @ np.array([0.0, 0.0, -1.0])
-            z_g = d - g_hat
+            u_n = np.array([0.0, 0.0, -1.0])
+            z_g = up / np.sqrt(up @ up) - u_n
             # the white-noise term grows while the gyro bias is uncertain: its mean variance
             # against p0_bias²
             bias_var = (P[3, 3] + P[4, 4] + P[5, 5]) / 3.0
@@ -584,7 +587,7 @@ class Reference:
             r_g = sig2 if recovering else sig2 * min(1.0 + (z_g @ z_g) / (9.0 * sig2), self.accel_adapt_cap)
             z = np.concatenate([z_g, gyro - self.gyro_bias])
             H = np.zeros((6, 6))
-            H[:3, :3] = 2.0 * skew(g_hat)          # d/dθ of Rᵀ(q Exp θ) e = skew(Rᵀe) θ, θ = 2 δq
+            H[:3, :3] = 2.0 * skew(u_n) @ Rq       # d/dθ of R(q) Rᵀ(q Exp θ) u = skew(u) R(q) θ, θ = 2 δq
             H[3:, 3:] = np.eye(3)
             r = np.array([r_g] * 3 + [self.gyro_noise ** 2 / max(dt, DT_Q_MIN)] * 3)
             q, P, ok = self._correct(q, P, H[rows], z[rows], r[rows], None)
