@@ -6,6 +6,11 @@ propagation) and H (Euler angles of q̂ ⊗ [1, δq] at δq = 0) are taken by Ca
 `jacobian` of the functions written out below - nothing is typed by hand here (the NumPy
 reference derives them by hand, independently).
 
+measurement = "vectors" (the product design) keeps the attitude error in the earth frame,
+true attitude normalise([1, δ] ⊗ q̂), δ = R(q̂) δq: F = [[I, B], [0, I]] and constant gravity
+and heading rows (predict_attitude_function). Its F's body rows F_q, F_b are written in a
+closed form (attitude_rows), checked equal to CasADi's jacobians when the model is built.
+
 Kernels:
   <p>_predict  patent steps 1-2: q̂ ← normalise(q̂ ⊗ exp(½ (ω − b̂) dt)), P ← F P Fᵀ + G Q Gᵀ
   <p>_update   steps 3-8 with a row mask: measured angles (accelerometer tilt after the
@@ -205,11 +210,17 @@ def attitude_rows(q, omega_hat, dt):
 
 
 def predict_attitude_function(p: dict, name="predict_attitude") -> ca.Function:
-    """The time update in two kernels (smaller frames): the attitude and F's attitude rows
-    F_q = ∂δq'/∂δq, F_b = ∂δq'/∂δb here (attitude_rows' closed form); `predict_covariance` takes
-    them. Checked here when the model is built: the closed form equals CasADi's jacobians
-    (jacobians_FG) on both sides of SERIES_MAX, F's other rows are [0, I] and
-    G = [[F_b, 0], [0, I]] (∂/∂n_g is ∂/∂δb)."""
+    """The time update in two kernels (smaller frames): the attitude and F's attitude rows by
+    the bias error here; `predict_covariance` takes them.
+
+    measurement = "vectors" keeps the attitude error in the earth frame: q = [1, δ] ⊗ q̂,
+    δ = R(q̂) δq (the body-frame error δq of the patent's design, rotated). Its propagation is
+    the body-frame one rotated: δ' = R(q̂') δq' = R(q̂') (F_q δq + F_b δb) = δ + R(q̂') F_b δb,
+    as R(q̂') F_q = R(q̂) R(a) R(a)ᵀ = R(q̂): F = [[I, B], [0, I]], G = [[B, 0], [0, I]] with
+    B = R(q̂') F_b, the body rows F_q, F_b in attitude_rows' closed form. The measurement
+    rows become constants (gravity_rows, update_heading). Checked here when the model is
+    built: F_q, F_b and q' equal CasADi's jacobians (jacobians_FG) and integrate on both sides
+    of SERIES_MAX, F's other rows are [0, I] and G = [[F_b, 0], [0, I]] (∂/∂n_g is ∂/∂δb)."""
     q, b, gyro, dt = (ca.SX.sym(n, k) for n, k in (("q", 4), ("b", 3), ("gyro", 3), ("dt", 1)))
     q_new, Fq, Fb = attitude_rows(q, gyro - b, dt)
     q_ref, F, G, _ = _time_update(p, q, b, gyro, dt)
@@ -221,23 +232,25 @@ def predict_attitude_function(p: dict, name="predict_attitude") -> ca.Function:
         if not traced() and any(float(ca.mmax(ca.fabs(m))) > 1e-12 for m in check(*args)):
             raise AssertionError("mekf: F, G or q' of attitude_rows is not CasADi's (jacobians_FG): "
                                  "F = [[F_q, F_b], [0, I]], G = [[F_b, 0], [0, I]]")
+    B = ca.mtimes(quat.rotmat(q_new), Fb)
     return emit.function(name, {"q": q, "b": b, "gyro": gyro, "dt": dt},
-                         {"q_out": q_new, "F_q": ca.reshape(Fq, 9, 1), "F_b": ca.reshape(Fb, 9, 1)})
+                         {"q_out": q_new, "B": ca.reshape(B, 9, 1)})
 
 
 def predict_covariance_function(p: dict, name="predict_covariance") -> ca.Function:
-    """P⁻ = F P Fᵀ + G Q Gᵀ from F's attitude rows (see predict_attitude).
+    """P⁻ = F P Fᵀ + G Q Gᵀ, F = [[I, B], [0, I]], G = [[B, 0], [0, I]] (the earth-frame
+    attitude error: see predict_attitude), B by the kernel before.
 
     clip = 1 (a gyro component at gyro_full_scale): the rotation the sample missed is unknown, up
     to one range's worth over the step, so the attitude block gains (gyro_full_scale dt / 2)² per
-    axis (the error state is the half angle)."""
-    Fq, Fb, Pv, gyro, dt, clip = (ca.SX.sym(n, k) for n, k in (("F_q", 9), ("F_b", 9), ("P", N * N), ("gyro", 3),
-                                                               ("dt", 1), ("clip", 1)))
-    F, G = _blocks(ca.reshape(Fq, 3, 3), ca.reshape(Fb, 3, 3))
+    axis (the error state is the half angle; isotropic, the same in any frame)."""
+    Bv, Pv, gyro, dt, clip = (ca.SX.sym(n, k) for n, k in (("B", 9), ("P", N * N), ("gyro", 3), ("dt", 1),
+                                                           ("clip", 1)))
+    F, G = _blocks(ca.SX.eye(3), ca.reshape(Bv, 3, 3))
     P_new = kalman.predict_covariance(sym_lower(Pv), F, G, _process_noise(p, dt, gyro), symmetrize=False)
     w = 0.5 * p["gyro_full_scale"] * dt
     P_new = P_new + ca.if_else(clip, w * w, 0) * ca.diag(ca.DM([1, 1, 1, 0, 0, 0]))
-    return emit.function(name, {"F_q": Fq, "F_b": Fb, "P": Pv, "gyro": gyro, "dt": dt, "clip": clip},
+    return emit.function(name, {"B": Bv, "P": Pv, "gyro": gyro, "dt": dt, "clip": clip},
                          {"P_out": flat_mirrored(P_new)})
 
 
@@ -384,63 +397,67 @@ def heading_features_function(name="heading_features") -> ca.Function:
                          {"feat": ca.vertcat(ca.sqrt(ca.sumsqr(m)), dip, vb[0], vb[1])})
 
 
-def gravity_direction(q, dq):
-    """Earth-frame direction of the specific force at rest seen from normalise(q̂ ⊗ [1, δq]),
-    rotated back to the earth frame by q̂: R(q̂) R(q̂ ⊗ δ)ᵀ u = R(e)ᵀ u with the earth-frame
-    error rotation e = q̂ ⊗ [1, δq] ⊗ q̂* = [1, R(q̂) δq] (q̂ unit), written through e so that
-    its Jacobian in δq (taken at δq = 0) is 2 [u×] R(q̂): two rows of R(q̂), its third row 0
-    (a rotation about the vertical leaves the vertical)."""
-    return quat.rotate_inv(quat.qnormalize(quat.pure(quat.rotate(q, dq)) + quat.vec(1, 0, 0, 0)), ca.DM(UP_NED))
+def gravity_direction(dq):
+    """Earth-frame direction of the specific force at rest seen from the truth [1, δ] ⊗ q̂
+    (earth-frame error δ), rotated back to the earth frame by q̂: R(q̂) R([1, δ] ⊗ q̂)ᵀ u
+    = R([1, δ])ᵀ u, whatever q̂. Its Jacobian at δ = 0 is the constant 2 [u×]: the rows
+    [0, 2, 0] and [−2, 0, 0], its third row 0 (a rotation about the vertical leaves it)."""
+    return quat.rotate_inv(quat.qnormalize(quat.vec(1, dq[0], dq[1], dq[2])), ca.DM(UP_NED))
 
 
-def heading_of_error(q, dq):
+def heading_of_error(dq):
     """Heading part of the error: twist angle about the vertical (NED z) of the earth-frame
-    error rotation e = q̂ ⊗ [1, δq] ⊗ q̂* = [1, R(q̂) δq] (q̂ unit), 2 atan2(e_z, e_w). Its
-    Jacobian at δq = 0 has only the vertical component, so a heading row never asks for a tilt."""
-    return 2 * ca.atan2(quat.rotate(q, dq)[2], 1)
+    error rotation e = [1, δ], 2 atan2(e_z, e_w). Its Jacobian at δ = 0 is [0, 0, 2]: only the
+    vertical component, so a heading row never asks for a tilt."""
+    return 2 * ca.atan2(dq[2], 1)
 
 
-def jacobian_gravity(q):
+def jacobian_gravity():
     """The gravity rows' H (2 x 6): the earth-frame x and y rows of gravity_direction's
-    Jacobian (its z row is 0; the bias columns are 0), by CasADi's jacobian."""
+    Jacobian (its z row is 0; the bias columns are 0), by CasADi's jacobian: numbers."""
     dq = ca.SX.sym("dq", 3)
-    return ca.horzcat(kalman.jacobian_at(gravity_direction(q, dq)[:2], dq, [dq]), ca.SX.zeros(2, 3))
+    Hq = ca.evalf(kalman.jacobian_at(gravity_direction(dq)[:2], dq, [dq]))
+    return ca.horzcat(Hq, ca.DM.zeros(2, 3))
 
 
-def gravity_rows_H(q):
-    """jacobian_gravity's attitude columns written out: 2 [u×] R(q̂) for u = [0, 0, −1] is
-    [2 R₁; −2 R₀] (R's rows), with rotmat's factors of 2 folded into 4: fewer operations than
-    the jacobian's expression. Checked against jacobian_gravity when the model is built."""
-    w, x, y, z = q[0], q[1], q[2], q[3]
-    return ca.vertcat(ca.horzcat(4 * (x * y + w * z), 2 - 4 * (x * x + z * z), 4 * (y * z - w * x)),
-                      ca.horzcat(4 * (y * y + z * z) - 2, 4 * (w * z - x * y), -4 * (x * z + w * y)))
-
-
-def _check_gravity_rows_H():
-    qs = ca.SX.sym("q", 4)
-    f = ca.Function("dH", [qs], [gravity_rows_H(qs) - jacobian_gravity(qs)[:, :3]])
-    for q in ([0.9, 0.1, -0.3, 0.2], [0.1, 0.7, 0.5, -0.5], [0.0, 0.0, 0.0, 1.0]):
-        n = math.sqrt(sum(c * c for c in q))
-        if float(ca.mmax(ca.fabs(f([c / n for c in q])))) > 1e-12:
-            raise AssertionError("mekf: gravity_rows_H is not jacobian_gravity")
-
-
-def jacobian_heading(q):
+def jacobian_heading():
+    """The heading row's H (1 x 6), by CasADi's jacobian of heading_of_error: numbers."""
     dq = ca.SX.sym("dq", 3)
-    return ca.horzcat(kalman.jacobian_at(heading_of_error(q, dq), dq, [dq]), ca.SX.zeros(1, 3))
+    return ca.horzcat(ca.evalf(kalman.jacobian_at(heading_of_error(dq), dq, [dq])), ca.DM.zeros(1, 3))
+
+
+def unit_rows(H, z, r):
+    """([(h, z, r)], c²): each row of H with one nonzero entry c divided by it, z by c and r by
+    c² (the same scalar measurement): h has a structural 1, the row's u = P hᵀ a column of P;
+    c² the same for every row (the row variances times it are the unscaled ones)."""
+    rows, c2 = [], set()
+    for i in range(H.shape[0]):
+        nz = [j for j in range(H.shape[1]) if float(H[i, j]) != 0.0]
+        if len(nz) != 1:
+            raise AssertionError(f"mekf: H row {i} has {len(nz)} nonzero entries, not one")
+        c = float(H[i, nz[0]])
+        h = ca.SX.zeros(1, H.shape[1])
+        h[nz[0]] = 1
+        rows.append((h, z[i] * (1 / c), r * (1 / (c * c))))
+        c2.add(c * c)
+    if len(c2) != 1:
+        raise AssertionError("mekf: the rows' entries differ in magnitude")
+    return rows, c2.pop()
 
 
 def _inject(q, b, X):
-    return quat.qnormalize(quat.qmul(q, quat.vec(1, X[0], X[1], X[2]))), b + X[3:6]
+    """The earth-frame attitude error: q ← normalise([1, x_δ] ⊗ q)."""
+    return quat.qnormalize(quat.qmul(quat.vec(1, X[0], X[1], X[2]), q)), b + X[3:6]
 
 
 def gravity_rows(p: dict, q, up, recover, dt, turn=None, p_bb=None):
-    """The gravity-direction measurement: H's attitude columns Hq (2 x 3; the bias columns are
-    0), innovations z (2) and their variance r.
+    """The gravity-direction measurement: H (2 x 6, numbers), innovations z (2) and their
+    variance r.
 
     z_g = up/|up| − [0, 0, −1] in the earth frame (up: accel_lowpass's earth-frame vector), its
-    x and y rows (H = jacobian_gravity: the z row is 0, its update would change nothing). With
-    R_g isotropic this is the body-axis measurement up/|up| in body axes − R(q̂)ᵀ [0, 0, −1]
+    x and y rows (H = jacobian_gravity, the earth-frame error's constant 2 [u×]: the z row is 0,
+    its update would change nothing). With R_g isotropic this is the body-axis measurement
+    up/|up| in body axes − R(q̂)ᵀ [0, 0, −1] (H = 2 [R(q̂)ᵀ u ×] on the body-frame error)
     rotated by R(q̂), the same update in exact arithmetic (q̂ unit), in two rows instead of
     three and without rotating up into the body; R_g = σ² min(1 + |z_g|²/(3σ)², cap), σ² = accel_angle_noise² + accel_noise_density²/dt
     (bounded residual adaptation: the correction can be weakened, never locked out); p_bb given
@@ -474,7 +491,7 @@ def gravity_rows(p: dict, q, up, recover, dt, turn=None, p_bb=None):
         r_g = sig2
     else:
         r_g = ca.if_else(recover, sig2, sig2 * ca.fmin(1 + ca.sumsqr(z_g) / (9 * sig2), cap))
-    return gravity_rows_H(q), z_g[:2], r_g
+    return jacobian_gravity(), z_g[:2], r_g
 
 
 def update_gravity_function(p: dict, gps: bool = False, name="update_gravity") -> ca.Function:
@@ -490,14 +507,14 @@ def update_gravity_function(p: dict, gps: bool = False, name="update_gravity") -
     if gps:
         turn = tuple(ca.SX.sym(n, k) for n, k in (("gyro", 3), ("b", 3), ("vel", 3), ("unobserved", 1)))
         ins |= dict(zip(("gyro", "b", "vel", "unobserved"), turn))
-    if not traced():
-        _check_gravity_rows_H()
     p_bb = Pv[3 + N * 3] + Pv[4 + N * 4] + Pv[5 + N * 5]     # the gyro bias's variances (3 times their mean)
-    Hq, z, r = gravity_rows(p, q, up, recover, dt, turn, p_bb)
-    rows = [(ca.horzcat(Hq[i, :], ca.SX.zeros(1, 3)), z[i], r) for i in range(2)]
-    x_new, P_new, min_pivot = kalman.scalar_updates(sym_lower(Pv), rows, tol=S_PIVOT_MIN)
+    H, z, r = gravity_rows(p, q, up, recover, dt, turn, p_bb)
+    # each row divided by its one entry ±2 (unit_rows: the same measurement, u = a column of P);
+    # the row variances, the scaled batch S's pivots, times 4 are the unscaled S's
+    rows, c2 = unit_rows(H, z, r)
+    x_new, P_new, min_pivot = kalman.scalar_updates(sym_lower(Pv), rows, tol=use(S_PIVOT_MIN) / c2)
     return emit.function(name, ins | {"P": Pv},
-                         {"x_out": x_new, "P_out": flat_mirrored(P_new), "min_pivot": min_pivot})
+                         {"x_out": x_new, "P_out": flat_mirrored(P_new), "min_pivot": c2 * min_pivot})
 
 
 def update_rest_bias_function(p: dict, name="update_rest_bias") -> ca.Function:
@@ -537,8 +554,10 @@ def update_heading_function(p: dict, name="update_heading") -> ca.Function:
     course: z = wrap(atan2(v_E, v_N) − ψ̂), ψ̂ = atan2(R₁₀, R₀₀) (heading of the body x axis);
     mag:    z = wrap(declination − atan2(m_E, m_N)), m_n = R(q̂) m (the field's heading as
             the estimate sees it, from north it points at the declination).
-    The attitude part of the gain is projected on the vertical (in body axes, r = R(q̂)ᵀ e₃),
-    so the correction is a pure heading rotation; Joseph's form stays exact for this gain.
+    H = [0, 0, 2, 0, 0, 0] on the earth-frame attitude error (jacobian_heading). The attitude
+    part of the gain is projected on the vertical (its x and y entries 0; on the body-frame
+    error, the projection on R(q̂)ᵀ e₃), so the correction is a pure heading rotation;
+    Joseph's form stays exact for this gain.
     """
     q, Pv, mag, vel = (ca.SX.sym(n, k) for n, k in (("q", 4), ("P", N * N), ("mag", 3), ("vel", 3)))
     use_course, mag_dt = ca.SX.sym("use_course"), ca.SX.sym("mag_dt")
@@ -557,16 +576,20 @@ def update_heading_function(p: dict, name="update_heading") -> ca.Function:
         e_d = feat[1] - ref[1]
         r_mag = r_mag * ca.if_else(recover, 1, 1 + p["mag_dev_gain"] * (e_n * e_n + e_d * e_d))
     r = ca.if_else(use_course, p["course_noise"] ** 2, r_mag)
-    H = jacobian_heading(q)
+    H = jacobian_heading()
     P = sym_lower(Pv)
     PHt = ca.mtimes(P, H.T)
     S = ca.mtimes(H, PHt) + r                                # 1 x 1
     K = PHt * ca.if_else(S > use(S_PIVOT_MIN), 1.0 / S, 1.0)        # one division (a select: stays a product)
-    up = Rq[2, :].T
-    K[0:3] = ca.mtimes(ca.mtimes(up, up.T), K[0:3])          # attitude gain about the vertical only
+    K[0], K[1] = 0, 0           # attitude gain about the (earth-frame) vertical only
     # Joseph form for this gain; P unchanged (selected, so the step may pass P as P_out) when
-    # S is not usable - the step then skips the correction
-    P_new = ca.if_else(S > use(S_PIVOT_MIN), kalman.joseph_row(P, K, PHt, S), P)
+    # S is not usable - the step then skips the correction. The tilt block, which the gain
+    # leaves (its x and y entries 0), is P itself: no select written for it.
+    J, ok = kalman.joseph_row(P, K, PHt, S), S > use(S_PIVOT_MIN)
+    P_new = ca.SX.zeros(N, N)
+    for i in range(N):
+        for j in range(N):
+            P_new[i, j] = P[i, j] if ca.is_equal(J[i, j], P[i, j], 2) else ca.if_else(ok, J[i, j], P[i, j])
     return emit.function(name, {"q": q, "P": Pv, "mag": mag, "vel": vel, "use_course": use_course,
                                 "mag_dt": mag_dt, "feat": feat, "mag_ref": ref, "recover": recover},
                          {"x_out": K * z, "P_out": flat_mirrored(P_new), "s": S})
@@ -801,7 +824,8 @@ class Model(FilterModel):
         return [
             StateField("q", 4, "attitude quaternion body->NED [w x y z]", [1.0, 0.0, 0.0, 0.0]),
             StateField("gyro_bias", 3, "gyro bias estimate, rad/s", 0.0),
-            StateField("P", N * N, "error-state covariance [dq, db] (6x6, symmetric)", initial_P(self.params)),
+            StateField("P", N * N, "error-state covariance [d, db] (6x6, symmetric; d the attitude error, "
+                       + ("earth frame)" if self.vectors else "body frame)"), initial_P(self.params)),
             StateField("v_gps", 3, "last valid GPS velocity NED, m/s", 0.0),
             StateField("v_age", 1, "age of v_gps, s (stops counting at 1e3)", AGE_MAX),
             StateField("a_gps", 3, "NED acceleration from the last two GPS velocities, m/s^2 (motion_comp = gps_accel)", 0.0),
