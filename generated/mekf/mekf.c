@@ -649,7 +649,7 @@ static void mekf_k_gyro_recovery(const float gyro[3], const float gyro_prev[3],
 }
 
 static void mekf_k_predict_attitude_part0(const float b[3], const float gyro[3], float dt,
-    float carry[20])
+    float carry[29])
 {
     const float tmp0 = 0.5f * dt;
     const float tmp1 = gyro[0] - b[0];
@@ -673,321 +673,269 @@ static void mekf_k_predict_attitude_part0(const float b[3], const float gyro[3],
     carry[7] = tmp11;
 }
 
-static void mekf_k_predict_attitude_part1(float carry[20])
+static void mekf_k_predict_attitude_part1(const float q[4], float carry[29])
 {
     float tmp12;
     float tmp13;
     float tmp14;
-    float tmp15;
     if (carry[7] /* tmp11 */ < 0.01f /* SERIES_MAX*SERIES_MAX */) {
-        const float tmp16 = 2.4801588e-05f /* 1/40320 */ * carry[7] /* tmp11 */;
-        const float tmp17 = (-0.0013888889f) /* -(1/720) */ + tmp16;
-        const float tmp18 = carry[7] /* tmp11 */ * tmp17;
-        const float tmp19 = 0.041666668f /* 1/24 */ + tmp18;
-        const float tmp20 = carry[7] /* tmp11 */ * tmp19;
-        const float tmp21 = (-0.5f) /* -(1/2) */ + tmp20;
-        const float tmp22 = carry[7] /* tmp11 */ * tmp21;
-        const float tmp23 = 1.0f + tmp22;
-        const float tmp24 = 2.7557319e-06f /* 1/362880 */ * carry[7] /* tmp11 */;
-        const float tmp25 = (-0.0001984127f) /* -(1/5040) */ + tmp24;
-        const float tmp26 = carry[7] /* tmp11 */ * tmp25;
-        const float tmp27 = 0.008333334f /* 1/120 */ + tmp26;
-        const float tmp28 = carry[7] /* tmp11 */ * tmp27;
-        const float tmp29 = (-0.16666667f) /* -(1/6) */ + tmp28;
-        const float tmp30 = carry[7] /* tmp11 */ * tmp29;
-        const float tmp31 = 1.0f + tmp30;
-        const float tmp32 = 1.10229275e-05f /* 4*(1/362880) */ * carry[7] /* tmp11 */;
-        const float tmp33 = (-0.0005952381f) /* 3*(-(1/5040)) */ + tmp32;
-        const float tmp34 = carry[7] /* tmp11 */ * tmp33;
-        const float tmp35 = 0.016666668f /* 2*(1/120) */ + tmp34;
-        const float tmp36 = carry[7] /* tmp11 */ * tmp35;
-        const float tmp37 = (-0.16666667f) /* -(1/6) */ + tmp36;
-        const float tmp38 = 9.920635e-05f /* 4*(1/40320) */ * carry[7] /* tmp11 */;
-        const float tmp39 = (-0.004166667f) /* 3*(-(1/720)) */ + tmp38;
-        const float tmp40 = carry[7] /* tmp11 */ * tmp39;
-        const float tmp41 = 0.083333336f /* 2*(1/24) */ + tmp40;
-        const float tmp42 = carry[7] /* tmp11 */ * tmp41;
-        const float tmp43 = (-0.5f) /* -(1/2) */ + tmp42;
-        tmp12 = tmp23;
-        tmp13 = tmp31;
-        tmp14 = tmp37;
-        tmp15 = tmp43;
+        const float tmp15 = 2.4801588e-05f /* 1/40320 */ * carry[7] /* tmp11 */;
+        const float tmp16 = (-0.0013888889f) /* -(1/720) */ + tmp15;
+        const float tmp17 = carry[7] /* tmp11 */ * tmp16;
+        const float tmp18 = 0.041666668f /* 1/24 */ + tmp17;
+        const float tmp19 = carry[7] /* tmp11 */ * tmp18;
+        const float tmp20 = (-0.5f) /* -(1/2) */ + tmp19;
+        const float tmp21 = carry[7] /* tmp11 */ * tmp20;
+        const float tmp22 = 1.0f + tmp21;
+        const float tmp23 = 2.7557319e-06f /* 1/362880 */ * carry[7] /* tmp11 */;
+        const float tmp24 = (-0.0001984127f) /* -(1/5040) */ + tmp23;
+        const float tmp25 = carry[7] /* tmp11 */ * tmp24;
+        const float tmp26 = 0.008333334f /* 1/120 */ + tmp25;
+        const float tmp27 = carry[7] /* tmp11 */ * tmp26;
+        const float tmp28 = (-0.16666667f) /* -(1/6) */ + tmp27;
+        const float tmp29 = carry[7] /* tmp11 */ * tmp28;
+        const float tmp30 = 1.0f + tmp29;
+        const float tmp31 = 2.5653359e-05f /* 4/155925 */ * carry[7] /* tmp11 */;
+        const float tmp32 = (-0.00070546736f) /* -(2/2835) */ + tmp31;
+        const float tmp33 = carry[7] /* tmp11 */ * tmp32;
+        const float tmp34 = 0.012698413f /* 4/315 */ + tmp33;
+        const float tmp35 = carry[7] /* tmp11 */ * tmp34;
+        const float tmp36 = (-0.13333334f) /* -(2/15) */ + tmp35;
+        const float tmp37 = carry[7] /* tmp11 */ * tmp36;
+        const float tmp38 = 0.6666667f /* 2/3 */ + tmp37;
+        tmp12 = tmp22;
+        tmp13 = tmp30;
+        tmp14 = tmp38;
     } else {
-        const float tmp44 = (carry[7] /* tmp11 */ > 0.01f /* SERIES_MAX*SERIES_MAX */) ?
+        const float tmp39 = (carry[7] /* tmp11 */ > 0.01f /* SERIES_MAX*SERIES_MAX */) ?
                 carry[7] /* tmp11 */ : 0.01f /* SERIES_MAX*SERIES_MAX */;
-        const float tmp45 = sqrtf(tmp44);
-        float tmp47;
-        float tmp46;
-        fast_sincosf(tmp45, &tmp47, &tmp46);   /* sin and cos, one reduction */
-        const float tmp48 = tmp47 / tmp45;
-        const float tmp49 = tmp46 - tmp48;
-        const float tmp50 = tmp44 + tmp44;
-        const float tmp51 = tmp49 / tmp50;
-        const float tmp52 = tmp45 + tmp45;
-        const float tmp53 = tmp47 / tmp52;
-        const float tmp54 = -tmp53;
-        tmp12 = tmp46;
-        tmp13 = tmp48;
-        tmp14 = tmp51;
-        tmp15 = tmp54;
+        const float tmp40 = sqrtf(tmp39);
+        float tmp42;
+        float tmp41;
+        fast_sincosf(tmp40, &tmp42, &tmp41);   /* sin and cos, one reduction */
+        const float tmp43 = tmp42 / tmp40;
+        const float tmp44 = tmp42 * tmp41;
+        const float tmp45 = tmp40 - tmp44;
+        const float tmp46 = carry[7] /* tmp11 */ * tmp40;
+        const float tmp47 = tmp45 / tmp46;
+        tmp12 = tmp41;
+        tmp13 = tmp43;
+        tmp14 = tmp47;
     }
-    carry[7] = tmp12;
-    carry[8] = tmp13;
-    carry[9] = tmp14;
-    carry[10] = tmp15;
+    const float tmp48 = q[0] * tmp12;
+    const float tmp49 = tmp13 * carry[1] /* tmp2 */;
+    const float tmp50 = q[1] * tmp49;
+    const float tmp51 = tmp48 - tmp50;
+    carry[8] = tmp12;
+    carry[9] = tmp13;
+    carry[10] = tmp14;
+    carry[11] = tmp49;
+    carry[12] = tmp51;
 }
 
-static void mekf_k_predict_attitude_part2(const float q[4], float carry[20])
+static void mekf_k_predict_attitude_part2(const float q[4], float q_out[4], float carry[29])
 {
-    const float tmp55 = q[0] * carry[7] /* tmp12 */;
-    const float tmp56 = carry[8] /* tmp13 */ * carry[1] /* tmp2 */;
-    const float tmp57 = q[1] * tmp56;
-    const float tmp58 = tmp55 - tmp57;
-    const float tmp59 = carry[8] /* tmp13 */ * carry[3] /* tmp5 */;
-    const float tmp60 = q[2] * tmp59;
-    const float tmp61 = tmp58 - tmp60;
-    const float tmp62 = carry[8] /* tmp13 */ * carry[5] /* tmp9 */;
-    const float tmp63 = q[3] * tmp62;
-    const float tmp64 = tmp61 - tmp63;
-    const float tmp65 = tmp64 * tmp64;
-    const float tmp66 = q[0] * tmp56;
-    const float tmp67 = q[1] * carry[7] /* tmp12 */;
-    const float tmp68 = tmp66 + tmp67;
-    const float tmp69 = q[2] * tmp62;
-    const float tmp70 = tmp68 + tmp69;
-    const float tmp71 = q[3] * tmp59;
-    const float tmp72 = tmp70 - tmp71;
-    const float tmp73 = tmp72 * tmp72;
-    const float tmp74 = tmp65 + tmp73;
-    const float tmp75 = q[0] * tmp59;
-    const float tmp76 = q[1] * tmp62;
-    const float tmp77 = tmp75 - tmp76;
-    const float tmp78 = q[2] * carry[7] /* tmp12 */;
+    const float tmp52 = carry[9] /* tmp13 */ * carry[3] /* tmp5 */;
+    const float tmp53 = q[2] * tmp52;
+    const float tmp54 = carry[12] /* tmp51 */ - tmp53;
+    const float tmp55 = carry[9] /* tmp13 */ * carry[5] /* tmp9 */;
+    const float tmp56 = q[3] * tmp55;
+    const float tmp57 = tmp54 - tmp56;
+    const float tmp58 = tmp57 * tmp57;
+    const float tmp59 = q[0] * carry[11] /* tmp49 */;
+    const float tmp60 = q[1] * carry[8] /* tmp12 */;
+    const float tmp61 = tmp59 + tmp60;
+    const float tmp62 = q[2] * tmp55;
+    const float tmp63 = tmp61 + tmp62;
+    const float tmp64 = q[3] * tmp52;
+    const float tmp65 = tmp63 - tmp64;
+    const float tmp66 = tmp65 * tmp65;
+    const float tmp67 = tmp58 + tmp66;
+    const float tmp68 = q[0] * tmp52;
+    const float tmp69 = q[1] * tmp55;
+    const float tmp70 = tmp68 - tmp69;
+    const float tmp71 = q[2] * carry[8] /* tmp12 */;
+    const float tmp72 = tmp70 + tmp71;
+    const float tmp73 = q[3] * carry[11] /* tmp49 */;
+    const float tmp74 = tmp72 + tmp73;
+    const float tmp75 = tmp74 * tmp74;
+    const float tmp76 = tmp67 + tmp75;
+    const float tmp77 = q[0] * tmp55;
+    const float tmp78 = q[1] * tmp52;
     const float tmp79 = tmp77 + tmp78;
-    const float tmp80 = q[3] * tmp56;
-    const float tmp81 = tmp79 + tmp80;
-    const float tmp82 = tmp81 * tmp81;
-    const float tmp83 = tmp74 + tmp82;
-    const float tmp84 = q[0] * tmp62;
-    const float tmp85 = q[1] * tmp59;
-    const float tmp86 = tmp84 + tmp85;
-    const float tmp87 = q[2] * tmp56;
-    const float tmp88 = tmp86 - tmp87;
-    const float tmp89 = q[3] * carry[7] /* tmp12 */;
-    const float tmp90 = tmp88 + tmp89;
-    const float tmp91 = tmp90 * tmp90;
-    const float tmp92 = tmp83 + tmp91;
-    const float tmp93 = sqrtf(tmp92);
-    const float tmp94 = 1.0f / tmp93;
-    carry[11] = tmp56;
-    carry[12] = tmp59;
-    carry[13] = tmp62;
-    carry[14] = tmp64;
-    carry[15] = tmp72;
-    carry[16] = tmp81;
-    carry[17] = tmp90;
-    carry[18] = tmp94;
+    const float tmp80 = q[2] * carry[11] /* tmp49 */;
+    const float tmp81 = tmp79 - tmp80;
+    const float tmp82 = q[3] * carry[8] /* tmp12 */;
+    const float tmp83 = tmp81 + tmp82;
+    const float tmp84 = tmp83 * tmp83;
+    const float tmp85 = tmp76 + tmp84;
+    const float tmp86 = sqrtf(tmp85);
+    const float tmp87 = 1.0f / tmp86;
+    const float tmp88 = tmp57 * tmp87;
+    q_out[0] = tmp88;
+    const float tmp89 = tmp65 * tmp87;
+    q_out[1] = tmp89;
+    const float tmp90 = tmp74 * tmp87;
+    q_out[2] = tmp90;
+    const float tmp91 = tmp83 * tmp87;
+    q_out[3] = tmp91;
+    carry[8] = tmp88;
+    carry[11] = tmp89;
+    carry[12] = tmp90;
+    carry[13] = tmp91;
 }
 
-static void mekf_k_predict_attitude_part3(float q_out[4], float F_q[9], float carry[20])
+static void mekf_k_predict_attitude_part3(float B[9], float carry[29])
 {
-    const float tmp95 = carry[14] /* tmp64 */ * carry[18] /* tmp94 */;
-    q_out[0] = tmp95;
-    const float tmp96 = carry[15] /* tmp72 */ * carry[18] /* tmp94 */;
-    q_out[1] = tmp96;
-    const float tmp97 = carry[16] /* tmp81 */ * carry[18] /* tmp94 */;
-    q_out[2] = tmp97;
-    const float tmp98 = carry[17] /* tmp90 */ * carry[18] /* tmp94 */;
-    q_out[3] = tmp98;
-    const float tmp99 = carry[11] /* tmp56 */ * carry[11] /* tmp56 */;
-    const float tmp100 = carry[7] /* tmp12 */ * carry[7] /* tmp12 */;
-    const float tmp101 = tmp99 + tmp100;
-    const float tmp102 = carry[13] /* tmp62 */ * carry[13] /* tmp62 */;
-    const float tmp103 = tmp101 - tmp102;
-    const float tmp104 = carry[12] /* tmp59 */ * carry[12] /* tmp59 */;
-    const float tmp105 = tmp103 - tmp104;
-    F_q[0] = tmp105;
-    const float tmp106 = carry[12] /* tmp59 */ * carry[11] /* tmp56 */;
-    const float tmp107 = carry[13] /* tmp62 */ * carry[7] /* tmp12 */;
-    const float tmp108 = tmp106 - tmp107;
-    const float tmp109 = carry[7] /* tmp12 */ * carry[13] /* tmp62 */;
-    const float tmp110 = tmp108 - tmp109;
-    const float tmp111 = carry[11] /* tmp56 */ * carry[12] /* tmp59 */;
-    const float tmp112 = tmp110 + tmp111;
-    F_q[1] = tmp112;
-    const float tmp113 = carry[13] /* tmp62 */ * carry[11] /* tmp56 */;
-    const float tmp114 = carry[12] /* tmp59 */ * carry[7] /* tmp12 */;
-    const float tmp115 = tmp113 + tmp114;
-    const float tmp116 = carry[11] /* tmp56 */ * carry[13] /* tmp62 */;
-    const float tmp117 = tmp115 + tmp116;
-    const float tmp118 = carry[7] /* tmp12 */ * carry[12] /* tmp59 */;
-    const float tmp119 = tmp117 + tmp118;
-    F_q[2] = tmp119;
-    const float tmp120 = tmp111 + tmp109;
-    const float tmp121 = tmp120 + tmp107;
-    const float tmp122 = tmp121 + tmp106;
-    F_q[3] = tmp122;
-    const float tmp123 = tmp104 - tmp102;
-    const float tmp124 = tmp123 + tmp100;
-    const float tmp125 = tmp124 - tmp99;
-    F_q[4] = tmp125;
-    const float tmp126 = carry[13] /* tmp62 */ * carry[12] /* tmp59 */;
+    const float tmp92 = carry[12] /* tmp90 */ * carry[12] /* tmp90 */;
+    const float tmp93 = carry[13] /* tmp91 */ * carry[13] /* tmp91 */;
+    const float tmp94 = tmp92 + tmp93;
+    const float tmp95 = tmp94 + tmp94;
+    const float tmp96 = 1.0f - tmp95;
+    const float tmp97 = carry[10] /* tmp14 */ * carry[7] /* tmp11 */;
+    const float tmp98 = tmp97 - 1.0f;
+    const float tmp99 = carry[0] /* tmp0 */ * tmp98;
+    const float tmp100 = carry[0] /* tmp0 */ * carry[10] /* tmp14 */;
+    const float tmp101 = tmp100 * carry[2] /* tmp3 */;
+    const float tmp102 = tmp99 - tmp101;
+    const float tmp103 = tmp96 * tmp102;
+    const float tmp104 = carry[11] /* tmp89 */ * carry[12] /* tmp90 */;
+    const float tmp105 = carry[8] /* tmp88 */ * carry[13] /* tmp91 */;
+    const float tmp106 = tmp104 - tmp105;
+    const float tmp107 = tmp106 + tmp106;
+    const float tmp108 = carry[9] /* tmp13 */ * carry[9] /* tmp13 */;
+    const float tmp109 = carry[0] /* tmp0 */ * tmp108;
+    const float tmp110 = tmp109 * carry[5] /* tmp9 */;
+    const float tmp111 = carry[1] /* tmp2 */ * carry[3] /* tmp5 */;
+    const float tmp112 = tmp100 * tmp111;
+    const float tmp113 = tmp110 - tmp112;
+    const float tmp114 = tmp107 * tmp113;
+    const float tmp115 = tmp103 + tmp114;
+    const float tmp116 = carry[11] /* tmp89 */ * carry[13] /* tmp91 */;
+    const float tmp117 = carry[8] /* tmp88 */ * carry[12] /* tmp90 */;
+    const float tmp118 = tmp116 + tmp117;
+    const float tmp119 = tmp118 + tmp118;
+    const float tmp120 = carry[1] /* tmp2 */ * carry[5] /* tmp9 */;
+    const float tmp121 = tmp100 * tmp120;
+    const float tmp122 = tmp109 * carry[3] /* tmp5 */;
+    const float tmp123 = tmp121 + tmp122;
+    const float tmp124 = tmp119 * tmp123;
+    const float tmp125 = tmp115 - tmp124;
+    B[0] = tmp125;
+    const float tmp126 = tmp104 + tmp105;
     const float tmp127 = tmp126 + tmp126;
-    const float tmp128 = carry[11] /* tmp56 */ * carry[7] /* tmp12 */;
-    const float tmp129 = tmp127 - tmp128;
-    const float tmp130 = carry[7] /* tmp12 */ * carry[11] /* tmp56 */;
-    const float tmp131 = tmp129 - tmp130;
-    F_q[5] = tmp131;
-    const float tmp132 = tmp116 - tmp118;
-    const float tmp133 = tmp132 + tmp113;
-    const float tmp134 = tmp133 - tmp114;
-    F_q[6] = tmp134;
-    carry[14] = tmp99;
-    carry[15] = tmp100;
-    carry[16] = tmp102;
-    carry[17] = tmp104;
-    carry[18] = tmp128;
-    carry[19] = tmp130;
+    const float tmp128 = tmp127 * tmp102;
+    const float tmp129 = carry[11] /* tmp89 */ * carry[11] /* tmp89 */;
+    const float tmp130 = tmp129 + tmp93;
+    const float tmp131 = tmp130 + tmp130;
+    carry[0] = tmp92;
+    carry[2] = tmp96;
+    carry[7] = tmp99;
+    carry[9] = tmp100;
+    carry[10] = tmp102;
+    carry[14] = tmp107;
+    carry[15] = tmp109;
+    carry[16] = tmp110;
+    carry[17] = tmp112;
+    carry[18] = tmp113;
+    carry[19] = tmp116;
+    carry[20] = tmp117;
+    carry[21] = tmp119;
+    carry[22] = tmp121;
+    carry[23] = tmp122;
+    carry[24] = tmp123;
+    carry[25] = tmp127;
+    carry[26] = tmp128;
+    carry[27] = tmp129;
+    carry[28] = tmp131;
 }
 
-static void mekf_k_predict_attitude_part4(float F_q[9], float F_b[9], float carry[20])
+static void mekf_k_predict_attitude_part4(float B[9], float carry[29])
 {
-    const float tmp135 = carry[12] /* tmp59 */ * carry[13] /* tmp62 */;
-    const float tmp136 = tmp135 + tmp135;
-    const float tmp137 = tmp136 + carry[19] /* tmp130 */;
-    const float tmp138 = tmp137 + carry[18] /* tmp128 */;
-    F_q[7] = tmp138;
-    const float tmp139 = carry[16] /* tmp102 */ - carry[17] /* tmp104 */;
-    const float tmp140 = tmp139 - carry[14] /* tmp99 */;
-    const float tmp141 = tmp140 + carry[15] /* tmp100 */;
-    F_q[8] = tmp141;
-    const float tmp142 = carry[9] /* tmp14 */ + carry[9] /* tmp14 */;
-    const float tmp143 = tmp142 * carry[2] /* tmp3 */;
-    const float tmp144 = carry[8] /* tmp13 */ + tmp143;
-    const float tmp145 = carry[7] /* tmp12 */ * tmp144;
-    const float tmp146 = carry[10] /* tmp15 */ + carry[10] /* tmp15 */;
-    const float tmp147 = tmp146 * carry[1] /* tmp2 */;
-    const float tmp148 = carry[11] /* tmp56 */ * tmp147;
-    const float tmp149 = tmp145 - tmp148;
-    const float tmp150 = carry[3] /* tmp5 */ * carry[1] /* tmp2 */;
-    const float tmp151 = tmp142 * tmp150;
-    const float tmp152 = carry[13] /* tmp62 */ * tmp151;
-    const float tmp153 = tmp149 + tmp152;
-    const float tmp154 = carry[5] /* tmp9 */ * carry[1] /* tmp2 */;
-    const float tmp155 = tmp142 * tmp154;
-    const float tmp156 = carry[12] /* tmp59 */ * tmp155;
-    const float tmp157 = tmp153 - tmp156;
-    const float tmp158 = tmp157 * carry[0] /* tmp0 */;
-    const float tmp159 = -tmp158;
-    F_b[0] = tmp159;
-    const float tmp160 = carry[7] /* tmp12 */ * tmp151;
-    const float tmp161 = carry[12] /* tmp59 */ * tmp147;
-    const float tmp162 = carry[13] /* tmp62 */ * tmp144;
-    const float tmp163 = tmp161 + tmp162;
-    const float tmp164 = tmp160 - tmp163;
-    const float tmp165 = carry[11] /* tmp56 */ * tmp155;
-    const float tmp166 = tmp164 + tmp165;
-    const float tmp167 = tmp166 * carry[0] /* tmp0 */;
-    const float tmp168 = -tmp167;
-    F_b[1] = tmp168;
-    const float tmp169 = carry[12] /* tmp59 */ * tmp144;
-    const float tmp170 = carry[13] /* tmp62 */ * tmp147;
-    const float tmp171 = tmp169 - tmp170;
-    const float tmp172 = carry[11] /* tmp56 */ * tmp151;
-    const float tmp173 = tmp171 - tmp172;
-    const float tmp174 = carry[7] /* tmp12 */ * tmp155;
-    carry[2] = tmp142;
-    carry[9] = tmp146;
-    carry[10] = tmp173;
-    carry[14] = tmp174;
+    const float tmp132 = 1.0f - carry[28] /* tmp131 */;
+    const float tmp133 = tmp132 * carry[18] /* tmp113 */;
+    const float tmp134 = carry[26] /* tmp128 */ + tmp133;
+    const float tmp135 = carry[12] /* tmp90 */ * carry[13] /* tmp91 */;
+    const float tmp136 = carry[8] /* tmp88 */ * carry[11] /* tmp89 */;
+    const float tmp137 = tmp135 - tmp136;
+    const float tmp138 = tmp137 + tmp137;
+    const float tmp139 = tmp138 * carry[24] /* tmp123 */;
+    const float tmp140 = tmp134 - tmp139;
+    B[1] = tmp140;
+    const float tmp141 = carry[19] /* tmp116 */ - carry[20] /* tmp117 */;
+    const float tmp142 = tmp141 + tmp141;
+    const float tmp143 = tmp142 * carry[10] /* tmp102 */;
+    const float tmp144 = tmp135 + tmp136;
+    const float tmp145 = tmp144 + tmp144;
+    const float tmp146 = tmp145 * carry[18] /* tmp113 */;
+    const float tmp147 = tmp143 + tmp146;
+    const float tmp148 = carry[27] /* tmp129 */ + carry[0] /* tmp92 */;
+    const float tmp149 = tmp148 + tmp148;
+    const float tmp150 = 1.0f - tmp149;
+    const float tmp151 = tmp150 * carry[24] /* tmp123 */;
+    const float tmp152 = tmp147 - tmp151;
+    B[2] = tmp152;
+    const float tmp153 = carry[9] /* tmp100 */ * carry[4] /* tmp6 */;
+    const float tmp154 = carry[7] /* tmp99 */ - tmp153;
+    const float tmp155 = carry[14] /* tmp107 */ * tmp154;
+    const float tmp156 = carry[17] /* tmp112 */ + carry[16] /* tmp110 */;
+    const float tmp157 = carry[2] /* tmp96 */ * tmp156;
+    const float tmp158 = tmp155 - tmp157;
+    const float tmp159 = carry[15] /* tmp109 */ * carry[1] /* tmp2 */;
+    const float tmp160 = carry[3] /* tmp5 */ * carry[5] /* tmp9 */;
+    const float tmp161 = carry[9] /* tmp100 */ * tmp160;
+    const float tmp162 = tmp159 - tmp161;
+    const float tmp163 = carry[21] /* tmp119 */ * tmp162;
+    const float tmp164 = tmp158 + tmp163;
+    B[3] = tmp164;
+    const float tmp165 = tmp132 * tmp154;
+    const float tmp166 = carry[25] /* tmp127 */ * tmp156;
+    const float tmp167 = tmp165 - tmp166;
+    const float tmp168 = tmp138 * tmp162;
+    const float tmp169 = tmp167 + tmp168;
+    B[4] = tmp169;
+    const float tmp170 = tmp145 * tmp154;
+    const float tmp171 = tmp142 * tmp156;
+    carry[0] = tmp132;
+    carry[1] = tmp138;
+    carry[3] = tmp142;
+    carry[4] = tmp145;
+    carry[5] = tmp150;
+    carry[8] = tmp159;
+    carry[10] = tmp161;
+    carry[11] = tmp162;
+    carry[12] = tmp170;
+    carry[13] = tmp171;
 }
 
-static void mekf_k_predict_attitude_part5(float F_b[9], float carry[20])
+static void mekf_k_predict_attitude_part5(float B[9], const float carry[29])
 {
-    const float tmp175 = carry[10] /* tmp173 */ + carry[14] /* tmp174 */;
-    const float tmp176 = tmp175 * carry[0] /* tmp0 */;
-    const float tmp177 = -tmp176;
-    F_b[2] = tmp177;
-    const float tmp178 = carry[1] /* tmp2 */ * carry[3] /* tmp5 */;
-    const float tmp179 = carry[2] /* tmp142 */ * tmp178;
-    const float tmp180 = carry[7] /* tmp12 */ * tmp179;
-    const float tmp181 = carry[9] /* tmp146 */ * carry[3] /* tmp5 */;
-    const float tmp182 = carry[11] /* tmp56 */ * tmp181;
-    const float tmp183 = tmp180 - tmp182;
-    const float tmp184 = carry[2] /* tmp142 */ * carry[4] /* tmp6 */;
-    const float tmp185 = carry[8] /* tmp13 */ + tmp184;
-    const float tmp186 = carry[13] /* tmp62 */ * tmp185;
-    const float tmp187 = tmp183 + tmp186;
-    const float tmp188 = carry[5] /* tmp9 */ * carry[3] /* tmp5 */;
-    const float tmp189 = carry[2] /* tmp142 */ * tmp188;
-    const float tmp190 = carry[12] /* tmp59 */ * tmp189;
-    const float tmp191 = tmp187 - tmp190;
-    const float tmp192 = tmp191 * carry[0] /* tmp0 */;
-    const float tmp193 = -tmp192;
-    F_b[3] = tmp193;
-    const float tmp194 = carry[7] /* tmp12 */ * tmp185;
-    const float tmp195 = carry[12] /* tmp59 */ * tmp181;
-    const float tmp196 = carry[13] /* tmp62 */ * tmp179;
-    const float tmp197 = tmp195 + tmp196;
-    const float tmp198 = tmp194 - tmp197;
-    const float tmp199 = carry[11] /* tmp56 */ * tmp189;
-    const float tmp200 = tmp198 + tmp199;
-    const float tmp201 = tmp200 * carry[0] /* tmp0 */;
-    const float tmp202 = -tmp201;
-    F_b[4] = tmp202;
-    const float tmp203 = carry[12] /* tmp59 */ * tmp179;
-    const float tmp204 = carry[13] /* tmp62 */ * tmp181;
-    const float tmp205 = tmp203 - tmp204;
-    const float tmp206 = carry[11] /* tmp56 */ * tmp185;
-    const float tmp207 = tmp205 - tmp206;
-    const float tmp208 = carry[7] /* tmp12 */ * tmp189;
-    const float tmp209 = tmp207 + tmp208;
-    const float tmp210 = tmp209 * carry[0] /* tmp0 */;
-    const float tmp211 = -tmp210;
-    F_b[5] = tmp211;
-    const float tmp212 = carry[1] /* tmp2 */ * carry[5] /* tmp9 */;
-    const float tmp213 = carry[2] /* tmp142 */ * tmp212;
-    const float tmp214 = carry[7] /* tmp12 */ * tmp213;
-    carry[1] = tmp213;
-    carry[4] = tmp214;
-}
-
-static void mekf_k_predict_attitude_part6(float F_b[9], const float carry[20])
-{
-    const float tmp215 = carry[9] /* tmp146 */ * carry[5] /* tmp9 */;
-    const float tmp216 = carry[11] /* tmp56 */ * tmp215;
-    const float tmp217 = carry[4] /* tmp214 */ - tmp216;
-    const float tmp218 = carry[3] /* tmp5 */ * carry[5] /* tmp9 */;
-    const float tmp219 = carry[2] /* tmp142 */ * tmp218;
-    const float tmp220 = carry[13] /* tmp62 */ * tmp219;
-    const float tmp221 = tmp217 + tmp220;
-    const float tmp222 = carry[2] /* tmp142 */ * carry[6] /* tmp10 */;
-    const float tmp223 = carry[8] /* tmp13 */ + tmp222;
-    const float tmp224 = carry[12] /* tmp59 */ * tmp223;
-    const float tmp225 = tmp221 - tmp224;
-    const float tmp226 = tmp225 * carry[0] /* tmp0 */;
-    const float tmp227 = -tmp226;
-    F_b[6] = tmp227;
-    const float tmp228 = carry[7] /* tmp12 */ * tmp219;
-    const float tmp229 = carry[12] /* tmp59 */ * tmp215;
-    const float tmp230 = carry[13] /* tmp62 */ * carry[1] /* tmp213 */;
-    const float tmp231 = tmp229 + tmp230;
-    const float tmp232 = tmp228 - tmp231;
-    const float tmp233 = carry[11] /* tmp56 */ * tmp223;
-    const float tmp234 = tmp232 + tmp233;
-    const float tmp235 = tmp234 * carry[0] /* tmp0 */;
-    const float tmp236 = -tmp235;
-    F_b[7] = tmp236;
-    const float tmp237 = carry[12] /* tmp59 */ * carry[1] /* tmp213 */;
-    const float tmp238 = carry[13] /* tmp62 */ * tmp215;
-    const float tmp239 = tmp237 - tmp238;
-    const float tmp240 = carry[11] /* tmp56 */ * tmp219;
-    const float tmp241 = tmp239 - tmp240;
-    const float tmp242 = carry[7] /* tmp12 */ * tmp223;
-    const float tmp243 = tmp241 + tmp242;
-    const float tmp244 = tmp243 * carry[0] /* tmp0 */;
-    const float tmp245 = -tmp244;
-    F_b[8] = tmp245;
+    const float tmp172 = carry[12] /* tmp170 */ - carry[13] /* tmp171 */;
+    const float tmp173 = carry[5] /* tmp150 */ * carry[11] /* tmp162 */;
+    const float tmp174 = tmp172 + tmp173;
+    B[5] = tmp174;
+    const float tmp175 = carry[23] /* tmp122 */ - carry[22] /* tmp121 */;
+    const float tmp176 = carry[2] /* tmp96 */ * tmp175;
+    const float tmp177 = carry[10] /* tmp161 */ + carry[8] /* tmp159 */;
+    const float tmp178 = carry[14] /* tmp107 */ * tmp177;
+    const float tmp179 = tmp176 - tmp178;
+    const float tmp180 = carry[9] /* tmp100 */ * carry[6] /* tmp10 */;
+    const float tmp181 = carry[7] /* tmp99 */ - tmp180;
+    const float tmp182 = carry[21] /* tmp119 */ * tmp181;
+    const float tmp183 = tmp179 + tmp182;
+    B[6] = tmp183;
+    const float tmp184 = carry[25] /* tmp127 */ * tmp175;
+    const float tmp185 = carry[0] /* tmp132 */ * tmp177;
+    const float tmp186 = tmp184 - tmp185;
+    const float tmp187 = carry[1] /* tmp138 */ * tmp181;
+    const float tmp188 = tmp186 + tmp187;
+    B[7] = tmp188;
+    const float tmp189 = carry[3] /* tmp142 */ * tmp175;
+    const float tmp190 = carry[4] /* tmp145 */ * tmp177;
+    const float tmp191 = tmp189 - tmp190;
+    const float tmp192 = carry[5] /* tmp150 */ * tmp181;
+    const float tmp193 = tmp191 + tmp192;
+    B[8] = tmp193;
 }
 
 /*
@@ -1002,475 +950,305 @@ static void mekf_k_predict_attitude_part6(float F_b[9], const float carry[20])
  *     dt: float
  * Outputs:
  *     q_out: float[4]
- *     F_q: float[9]
- *     F_b: float[9]
+ *     B: float[9]
  *
- * Total ops: 246 (add 106, mul 127, div 4, sqrt 2, trig 2, cmp 5)
- *     of which only one side runs: if (tmp11 < 0.01f) 28, else 11
+ * Total ops: 194 (add 82, mul 101, div 3, sqrt 2, trig 2, cmp 4)
+ *     of which only one side runs: if (tmp11 < 0.01f) 24, else 9
  */
 static void mekf_k_predict_attitude(const float q[4], const float b[restrict 3],
-    const float gyro[restrict 3], float dt, float q_out[4], float F_q[restrict 9],
-    float F_b[restrict 9])
+    const float gyro[restrict 3], float dt, float q_out[4], float B[restrict 9])
 {
     /*
-     * 7 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
+     * 6 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
      * handed between them (a slot reused once its value is dead)
      */
-    float carry[20];
+    float carry[29];
     mekf_k_predict_attitude_part0(b, gyro, dt, carry);
-    mekf_k_predict_attitude_part1(carry);
-    mekf_k_predict_attitude_part2(q, carry);
-    mekf_k_predict_attitude_part3(q_out, F_q, carry);
-    mekf_k_predict_attitude_part4(F_q, F_b, carry);
-    mekf_k_predict_attitude_part5(F_b, carry);
-    mekf_k_predict_attitude_part6(F_b, carry);
+    mekf_k_predict_attitude_part1(q, carry);
+    mekf_k_predict_attitude_part2(q, q_out, carry);
+    mekf_k_predict_attitude_part3(B, carry);
+    mekf_k_predict_attitude_part4(B, carry);
+    mekf_k_predict_attitude_part5(B, carry);
 }
 
-static void mekf_k_predict_covariance_part0(const float F_q[9], const float F_b[9],
-    const float P[36], float carry[26])
+static void mekf_k_predict_covariance_part0(const float B[9], const float P[36],
+    const float gyro[3], float dt, float carry[20])
 {
-    const float tmp0 = F_q[0] * P[0];
-    const float tmp1 = F_q[3] * P[1];
-    const float tmp2 = tmp0 + tmp1;
-    const float tmp3 = F_q[6] * P[2];
-    const float tmp4 = tmp2 + tmp3;
-    const float tmp5 = F_b[0] * P[3];
-    const float tmp6 = tmp4 + tmp5;
-    const float tmp7 = F_b[3] * P[4];
-    const float tmp8 = tmp6 + tmp7;
-    const float tmp9 = F_b[6] * P[5];
-    const float tmp10 = tmp8 + tmp9;
-    const float tmp11 = tmp10 * F_q[0];
-    const float tmp12 = F_q[0] * P[1];
-    const float tmp13 = F_q[3] * P[7];
-    const float tmp14 = tmp12 + tmp13;
-    const float tmp15 = F_q[6] * P[8];
-    const float tmp16 = tmp14 + tmp15;
-    const float tmp17 = F_b[0] * P[9];
-    const float tmp18 = tmp16 + tmp17;
-    const float tmp19 = F_b[3] * P[10];
-    const float tmp20 = tmp18 + tmp19;
-    const float tmp21 = F_b[6] * P[11];
-    const float tmp22 = tmp20 + tmp21;
-    const float tmp23 = tmp22 * F_q[3];
-    const float tmp24 = tmp11 + tmp23;
-    const float tmp25 = F_q[0] * P[2];
-    const float tmp26 = F_q[3] * P[8];
+    const float tmp0 = B[0] * P[3];
+    const float tmp1 = P[0] + tmp0;
+    const float tmp2 = B[3] * P[4];
+    const float tmp3 = tmp1 + tmp2;
+    const float tmp4 = B[6] * P[5];
+    const float tmp5 = tmp3 + tmp4;
+    const float tmp6 = B[0] * P[21];
+    const float tmp7 = P[3] + tmp6;
+    const float tmp8 = B[3] * P[22];
+    const float tmp9 = tmp7 + tmp8;
+    const float tmp10 = B[6] * P[23];
+    const float tmp11 = tmp9 + tmp10;
+    const float tmp12 = tmp11 * B[0];
+    const float tmp13 = tmp5 + tmp12;
+    const float tmp14 = B[0] * P[22];
+    const float tmp15 = P[4] + tmp14;
+    const float tmp16 = B[3] * P[28];
+    const float tmp17 = tmp15 + tmp16;
+    const float tmp18 = B[6] * P[29];
+    const float tmp19 = tmp17 + tmp18;
+    const float tmp20 = tmp19 * B[3];
+    const float tmp21 = tmp13 + tmp20;
+    const float tmp22 = B[0] * P[23];
+    const float tmp23 = P[5] + tmp22;
+    const float tmp24 = B[3] * P[29];
+    const float tmp25 = tmp23 + tmp24;
+    const float tmp26 = B[6] * P[35];
     const float tmp27 = tmp25 + tmp26;
-    const float tmp28 = F_q[6] * P[14];
-    const float tmp29 = tmp27 + tmp28;
-    const float tmp30 = F_b[0] * P[15];
-    const float tmp31 = tmp29 + tmp30;
-    const float tmp32 = F_b[3] * P[16];
-    const float tmp33 = tmp31 + tmp32;
-    const float tmp34 = F_b[6] * P[17];
-    const float tmp35 = tmp33 + tmp34;
-    const float tmp36 = tmp35 * F_q[6];
-    const float tmp37 = tmp24 + tmp36;
-    const float tmp38 = F_q[0] * P[3];
-    const float tmp39 = F_q[3] * P[9];
-    carry[0] = tmp37;
-    carry[1] = tmp38;
-    carry[2] = tmp39;
+    const float tmp28 = tmp27 * B[6];
+    const float tmp29 = tmp21 + tmp28;
+    const float tmp30 = 0.001f /* gyro_rate_noise */ * gyro[0];
+    const float tmp31 = tmp30 * tmp30;
+    const float tmp32 = 7.569e-07f /* gyro_noise^2 */ + tmp31;
+    const float tmp33 = (dt > 1e-09f /* DT_Q_MIN */) ? dt : 1e-09f /* DT_Q_MIN */;
+    const float tmp34 = 1.0f / tmp33;
+    const float tmp35 = tmp32 * tmp34;
+    const float tmp36 = gyro[0] * gyro[0];
+    const float tmp37 = gyro[1] * gyro[1];
+    const float tmp38 = tmp36 + tmp37;
+    const float tmp39 = gyro[2] * gyro[2];
+    carry[0] = tmp11;
+    carry[1] = tmp19;
+    carry[2] = tmp27;
+    carry[3] = tmp29;
+    carry[4] = tmp34;
+    carry[5] = tmp35;
+    carry[6] = tmp38;
+    carry[7] = tmp39;
 }
 
-static void mekf_k_predict_covariance_part1(const float F_q[9], const float F_b[9],
-    const float P[36], const float gyro[3], float carry[26])
+static void mekf_k_predict_covariance_part1(const float B[9], const float P[36],
+    const float gyro[3], float dt, bool clip, float carry[20])
 {
-    const float tmp40 = carry[1] /* tmp38 */ + carry[2] /* tmp39 */;
-    const float tmp41 = F_q[6] * P[15];
-    const float tmp42 = tmp40 + tmp41;
-    const float tmp43 = F_b[0] * P[21];
-    const float tmp44 = tmp42 + tmp43;
-    const float tmp45 = F_b[3] * P[22];
-    const float tmp46 = tmp44 + tmp45;
-    const float tmp47 = F_b[6] * P[23];
-    const float tmp48 = tmp46 + tmp47;
-    const float tmp49 = tmp48 * F_b[0];
-    const float tmp50 = carry[0] /* tmp37 */ + tmp49;
-    const float tmp51 = F_q[0] * P[4];
-    const float tmp52 = F_q[3] * P[10];
-    const float tmp53 = tmp51 + tmp52;
-    const float tmp54 = F_q[6] * P[16];
-    const float tmp55 = tmp53 + tmp54;
-    const float tmp56 = F_b[0] * P[22];
-    const float tmp57 = tmp55 + tmp56;
-    const float tmp58 = F_b[3] * P[28];
-    const float tmp59 = tmp57 + tmp58;
-    const float tmp60 = F_b[6] * P[29];
-    const float tmp61 = tmp59 + tmp60;
-    const float tmp62 = tmp61 * F_b[3];
-    const float tmp63 = tmp50 + tmp62;
-    const float tmp64 = F_q[0] * P[5];
-    const float tmp65 = F_q[3] * P[11];
-    const float tmp66 = tmp64 + tmp65;
-    const float tmp67 = F_q[6] * P[17];
-    const float tmp68 = tmp66 + tmp67;
-    const float tmp69 = F_b[0] * P[23];
-    const float tmp70 = tmp68 + tmp69;
-    const float tmp71 = F_b[3] * P[29];
-    const float tmp72 = tmp70 + tmp71;
-    const float tmp73 = F_b[6] * P[35];
-    const float tmp74 = tmp72 + tmp73;
-    const float tmp75 = tmp74 * F_b[6];
-    const float tmp76 = tmp63 + tmp75;
-    const float tmp77 = 0.001f /* gyro_rate_noise */ * gyro[0];
-    const float tmp78 = tmp77 * tmp77;
-    const float tmp79 = 7.569e-07f /* gyro_noise^2 */ + tmp78;
-    carry[0] = tmp48;
-    carry[1] = tmp61;
-    carry[2] = tmp74;
-    carry[3] = tmp76;
-    carry[4] = tmp79;
+    const float tmp40 = carry[6] /* tmp38 */ + carry[7] /* tmp39 */;
+    const float tmp41 = 0.1f /* gyro_step_noise */ * tmp40;
+    const float tmp42 = tmp41 * dt;
+    const float tmp43 = tmp42 * tmp42;
+    const float tmp44 = carry[5] /* tmp35 */ + tmp43;
+    const float tmp45 = B[0] * tmp44;
+    const float tmp46 = tmp45 * B[0];
+    const float tmp47 = 0.001f /* gyro_rate_noise */ * gyro[1];
+    const float tmp48 = tmp47 * tmp47;
+    const float tmp49 = 7.569e-07f /* gyro_noise^2 */ + tmp48;
+    const float tmp50 = tmp49 * carry[4] /* tmp34 */;
+    const float tmp51 = tmp50 + tmp43;
+    const float tmp52 = B[3] * tmp51;
+    const float tmp53 = tmp52 * B[3];
+    const float tmp54 = tmp46 + tmp53;
+    const float tmp55 = 0.001f /* gyro_rate_noise */ * gyro[2];
+    const float tmp56 = tmp55 * tmp55;
+    const float tmp57 = 7.569e-07f /* gyro_noise^2 */ + tmp56;
+    const float tmp58 = tmp57 * carry[4] /* tmp34 */;
+    const float tmp59 = tmp58 + tmp43;
+    const float tmp60 = B[6] * tmp59;
+    const float tmp61 = tmp60 * B[6];
+    const float tmp62 = tmp54 + tmp61;
+    const float tmp63 = carry[3] /* tmp29 */ + tmp62;
+    const float tmp64 = 17.453293f /* 0.5*gyro_full_scale */ * dt;
+    const float tmp65 = tmp64 * tmp64;
+    const float tmp66 = (clip) ? tmp65 : 0.0f;
+    const float tmp67 = tmp63 + tmp66;
+    const float tmp68 = B[1] * P[3];
+    const float tmp69 = P[1] + tmp68;
+    const float tmp70 = B[4] * P[4];
+    const float tmp71 = tmp69 + tmp70;
+    const float tmp72 = B[7] * P[5];
+    const float tmp73 = tmp71 + tmp72;
+    const float tmp74 = B[1] * P[21];
+    const float tmp75 = P[9] + tmp74;
+    const float tmp76 = B[4] * P[22];
+    const float tmp77 = tmp75 + tmp76;
+    const float tmp78 = B[7] * P[23];
+    const float tmp79 = tmp77 + tmp78;
+    carry[3] = tmp44;
+    carry[4] = tmp51;
+    carry[5] = tmp59;
+    carry[6] = tmp66;
+    carry[7] = tmp67;
+    carry[8] = tmp73;
+    carry[9] = tmp79;
 }
 
-static void mekf_k_predict_covariance_part2(const float F_q[9], const float F_b[9],
-    const float P[36], const float gyro[3], float dt, bool clip, float carry[26])
+static void mekf_k_predict_covariance_part2(const float B[9], const float P[36], float carry[20])
 {
-    const float tmp80 = (dt > 1e-09f /* DT_Q_MIN */) ? dt : 1e-09f /* DT_Q_MIN */;
-    const float tmp81 = 1.0f / tmp80;
-    const float tmp82 = carry[4] /* tmp79 */ * tmp81;
-    const float tmp83 = gyro[0] * gyro[0];
-    const float tmp84 = gyro[1] * gyro[1];
+    const float tmp80 = carry[9] /* tmp79 */ * B[0];
+    const float tmp81 = carry[8] /* tmp73 */ + tmp80;
+    const float tmp82 = B[1] * P[22];
+    const float tmp83 = P[10] + tmp82;
+    const float tmp84 = B[4] * P[28];
     const float tmp85 = tmp83 + tmp84;
-    const float tmp86 = gyro[2] * gyro[2];
+    const float tmp86 = B[7] * P[29];
     const float tmp87 = tmp85 + tmp86;
-    const float tmp88 = 0.1f /* gyro_step_noise */ * tmp87;
-    const float tmp89 = tmp88 * dt;
-    const float tmp90 = tmp89 * tmp89;
-    const float tmp91 = tmp82 + tmp90;
-    const float tmp92 = F_b[0] * tmp91;
-    const float tmp93 = tmp92 * F_b[0];
-    const float tmp94 = 0.001f /* gyro_rate_noise */ * gyro[1];
-    const float tmp95 = tmp94 * tmp94;
-    const float tmp96 = 7.569e-07f /* gyro_noise^2 */ + tmp95;
-    const float tmp97 = tmp96 * tmp81;
-    const float tmp98 = tmp97 + tmp90;
-    const float tmp99 = F_b[3] * tmp98;
-    const float tmp100 = tmp99 * F_b[3];
-    const float tmp101 = tmp93 + tmp100;
-    const float tmp102 = 0.001f /* gyro_rate_noise */ * gyro[2];
-    const float tmp103 = tmp102 * tmp102;
-    const float tmp104 = 7.569e-07f /* gyro_noise^2 */ + tmp103;
-    const float tmp105 = tmp104 * tmp81;
-    const float tmp106 = tmp105 + tmp90;
-    const float tmp107 = F_b[6] * tmp106;
-    const float tmp108 = tmp107 * F_b[6];
-    const float tmp109 = tmp101 + tmp108;
-    const float tmp110 = carry[3] /* tmp76 */ + tmp109;
-    const float tmp111 = 17.453293f /* 0.5*gyro_full_scale */ * dt;
-    const float tmp112 = tmp111 * tmp111;
-    const float tmp113 = (clip) ? tmp112 : 0.0f;
-    const float tmp114 = tmp110 + tmp113;
-    const float tmp115 = F_q[1] * P[0];
-    const float tmp116 = F_q[4] * P[1];
-    const float tmp117 = tmp115 + tmp116;
-    const float tmp118 = F_q[7] * P[2];
-    const float tmp119 = tmp117 + tmp118;
-    carry[3] = tmp91;
-    carry[4] = tmp98;
-    carry[5] = tmp106;
-    carry[6] = tmp113;
-    carry[7] = tmp114;
-    carry[8] = tmp119;
+    const float tmp88 = tmp87 * B[3];
+    const float tmp89 = tmp81 + tmp88;
+    const float tmp90 = B[1] * P[23];
+    const float tmp91 = P[11] + tmp90;
+    const float tmp92 = B[4] * P[29];
+    const float tmp93 = tmp91 + tmp92;
+    const float tmp94 = B[7] * P[35];
+    const float tmp95 = tmp93 + tmp94;
+    const float tmp96 = tmp95 * B[6];
+    const float tmp97 = tmp89 + tmp96;
+    const float tmp98 = B[1] * carry[3] /* tmp44 */;
+    const float tmp99 = tmp98 * B[0];
+    const float tmp100 = B[4] * carry[4] /* tmp51 */;
+    const float tmp101 = tmp100 * B[3];
+    const float tmp102 = tmp99 + tmp101;
+    const float tmp103 = B[7] * carry[5] /* tmp59 */;
+    const float tmp104 = tmp103 * B[6];
+    const float tmp105 = tmp102 + tmp104;
+    const float tmp106 = tmp97 + tmp105;
+    const float tmp107 = B[2] * P[3];
+    const float tmp108 = P[2] + tmp107;
+    const float tmp109 = B[5] * P[4];
+    const float tmp110 = tmp108 + tmp109;
+    const float tmp111 = B[8] * P[5];
+    const float tmp112 = tmp110 + tmp111;
+    const float tmp113 = B[2] * P[21];
+    const float tmp114 = P[15] + tmp113;
+    const float tmp115 = B[5] * P[22];
+    const float tmp116 = tmp114 + tmp115;
+    const float tmp117 = B[8] * P[23];
+    const float tmp118 = tmp116 + tmp117;
+    const float tmp119 = tmp118 * B[0];
+    carry[8] = tmp87;
+    carry[10] = tmp95;
+    carry[11] = tmp98;
+    carry[12] = tmp100;
+    carry[13] = tmp103;
+    carry[14] = tmp106;
+    carry[15] = tmp112;
+    carry[16] = tmp118;
+    carry[17] = tmp119;
 }
 
-static void mekf_k_predict_covariance_part3(const float F_q[9], const float F_b[9],
-    const float P[36], float carry[26])
+static void mekf_k_predict_covariance_part3(const float B[9], const float P[36], float carry[20])
 {
-    const float tmp120 = F_b[1] * P[3];
-    const float tmp121 = carry[8] /* tmp119 */ + tmp120;
-    const float tmp122 = F_b[4] * P[4];
-    const float tmp123 = tmp121 + tmp122;
-    const float tmp124 = F_b[7] * P[5];
-    const float tmp125 = tmp123 + tmp124;
-    const float tmp126 = tmp125 * F_q[0];
-    const float tmp127 = F_q[1] * P[1];
-    const float tmp128 = F_q[4] * P[7];
-    const float tmp129 = tmp127 + tmp128;
-    const float tmp130 = F_q[7] * P[8];
-    const float tmp131 = tmp129 + tmp130;
-    const float tmp132 = F_b[1] * P[9];
-    const float tmp133 = tmp131 + tmp132;
-    const float tmp134 = F_b[4] * P[10];
-    const float tmp135 = tmp133 + tmp134;
-    const float tmp136 = F_b[7] * P[11];
-    const float tmp137 = tmp135 + tmp136;
-    const float tmp138 = tmp137 * F_q[3];
-    const float tmp139 = tmp126 + tmp138;
-    const float tmp140 = F_q[1] * P[2];
-    const float tmp141 = F_q[4] * P[8];
-    const float tmp142 = tmp140 + tmp141;
-    const float tmp143 = F_q[7] * P[14];
-    const float tmp144 = tmp142 + tmp143;
-    const float tmp145 = F_b[1] * P[15];
-    const float tmp146 = tmp144 + tmp145;
-    const float tmp147 = F_b[4] * P[16];
-    const float tmp148 = tmp146 + tmp147;
-    const float tmp149 = F_b[7] * P[17];
-    const float tmp150 = tmp148 + tmp149;
-    const float tmp151 = tmp150 * F_q[6];
-    const float tmp152 = tmp139 + tmp151;
-    const float tmp153 = F_q[1] * P[3];
-    const float tmp154 = F_q[4] * P[9];
+    const float tmp120 = carry[15] /* tmp112 */ + carry[17] /* tmp119 */;
+    const float tmp121 = B[2] * P[22];
+    const float tmp122 = P[16] + tmp121;
+    const float tmp123 = B[5] * P[28];
+    const float tmp124 = tmp122 + tmp123;
+    const float tmp125 = B[8] * P[29];
+    const float tmp126 = tmp124 + tmp125;
+    const float tmp127 = tmp126 * B[3];
+    const float tmp128 = tmp120 + tmp127;
+    const float tmp129 = B[2] * P[23];
+    const float tmp130 = P[17] + tmp129;
+    const float tmp131 = B[5] * P[29];
+    const float tmp132 = tmp130 + tmp131;
+    const float tmp133 = B[8] * P[35];
+    const float tmp134 = tmp132 + tmp133;
+    const float tmp135 = tmp134 * B[6];
+    const float tmp136 = tmp128 + tmp135;
+    const float tmp137 = B[2] * carry[3] /* tmp44 */;
+    const float tmp138 = tmp137 * B[0];
+    const float tmp139 = B[5] * carry[4] /* tmp51 */;
+    const float tmp140 = tmp139 * B[3];
+    const float tmp141 = tmp138 + tmp140;
+    const float tmp142 = B[8] * carry[5] /* tmp59 */;
+    const float tmp143 = tmp142 * B[6];
+    const float tmp144 = tmp141 + tmp143;
+    const float tmp145 = tmp136 + tmp144;
+    const float tmp146 = B[1] * P[9];
+    const float tmp147 = P[7] + tmp146;
+    const float tmp148 = B[4] * P[10];
+    const float tmp149 = tmp147 + tmp148;
+    const float tmp150 = B[7] * P[11];
+    const float tmp151 = tmp149 + tmp150;
+    const float tmp152 = carry[9] /* tmp79 */ * B[1];
+    const float tmp153 = tmp151 + tmp152;
+    const float tmp154 = carry[8] /* tmp87 */ * B[4];
     const float tmp155 = tmp153 + tmp154;
-    const float tmp156 = F_q[7] * P[15];
+    const float tmp156 = carry[10] /* tmp95 */ * B[7];
     const float tmp157 = tmp155 + tmp156;
-    const float tmp158 = F_b[1] * P[21];
-    const float tmp159 = tmp157 + tmp158;
-    carry[8] = tmp125;
-    carry[9] = tmp137;
-    carry[10] = tmp150;
-    carry[11] = tmp152;
-    carry[12] = tmp159;
+    const float tmp158 = carry[11] /* tmp98 */ * B[1];
+    const float tmp159 = carry[12] /* tmp100 */ * B[4];
+    carry[3] = tmp126;
+    carry[4] = tmp134;
+    carry[5] = tmp137;
+    carry[11] = tmp139;
+    carry[12] = tmp142;
+    carry[15] = tmp145;
+    carry[17] = tmp157;
+    carry[18] = tmp158;
+    carry[19] = tmp159;
 }
 
-static void mekf_k_predict_covariance_part4(const float F_q[9], const float F_b[9],
-    const float P[36], float carry[26])
+static void mekf_k_predict_covariance_part4(const float B[9], const float P[36], float carry[20])
 {
-    const float tmp160 = F_b[4] * P[22];
-    const float tmp161 = carry[12] /* tmp159 */ + tmp160;
-    const float tmp162 = F_b[7] * P[23];
-    const float tmp163 = tmp161 + tmp162;
-    const float tmp164 = tmp163 * F_b[0];
-    const float tmp165 = carry[11] /* tmp152 */ + tmp164;
-    const float tmp166 = F_q[1] * P[4];
-    const float tmp167 = F_q[4] * P[10];
+    const float tmp160 = carry[18] /* tmp158 */ + carry[19] /* tmp159 */;
+    const float tmp161 = carry[13] /* tmp103 */ * B[7];
+    const float tmp162 = tmp160 + tmp161;
+    const float tmp163 = carry[17] /* tmp157 */ + tmp162;
+    const float tmp164 = tmp163 + carry[6] /* tmp66 */;
+    const float tmp165 = B[2] * P[9];
+    const float tmp166 = P[8] + tmp165;
+    const float tmp167 = B[5] * P[10];
     const float tmp168 = tmp166 + tmp167;
-    const float tmp169 = F_q[7] * P[16];
+    const float tmp169 = B[8] * P[11];
     const float tmp170 = tmp168 + tmp169;
-    const float tmp171 = F_b[1] * P[22];
+    const float tmp171 = carry[16] /* tmp118 */ * B[1];
     const float tmp172 = tmp170 + tmp171;
-    const float tmp173 = F_b[4] * P[28];
+    const float tmp173 = carry[3] /* tmp126 */ * B[4];
     const float tmp174 = tmp172 + tmp173;
-    const float tmp175 = F_b[7] * P[29];
+    const float tmp175 = carry[4] /* tmp134 */ * B[7];
     const float tmp176 = tmp174 + tmp175;
-    const float tmp177 = tmp176 * F_b[3];
-    const float tmp178 = tmp165 + tmp177;
-    const float tmp179 = F_q[1] * P[5];
-    const float tmp180 = F_q[4] * P[11];
+    const float tmp177 = carry[5] /* tmp137 */ * B[1];
+    const float tmp178 = carry[11] /* tmp139 */ * B[4];
+    const float tmp179 = tmp177 + tmp178;
+    const float tmp180 = carry[12] /* tmp142 */ * B[7];
     const float tmp181 = tmp179 + tmp180;
-    const float tmp182 = F_q[7] * P[17];
-    const float tmp183 = tmp181 + tmp182;
-    const float tmp184 = F_b[1] * P[23];
-    const float tmp185 = tmp183 + tmp184;
-    const float tmp186 = F_b[4] * P[29];
-    const float tmp187 = tmp185 + tmp186;
-    const float tmp188 = F_b[7] * P[35];
-    const float tmp189 = tmp187 + tmp188;
-    const float tmp190 = tmp189 * F_b[6];
-    const float tmp191 = tmp178 + tmp190;
-    const float tmp192 = F_b[1] * carry[3] /* tmp91 */;
-    const float tmp193 = tmp192 * F_b[0];
-    const float tmp194 = F_b[4] * carry[4] /* tmp98 */;
-    const float tmp195 = tmp194 * F_b[3];
-    const float tmp196 = tmp193 + tmp195;
-    const float tmp197 = F_b[7] * carry[5] /* tmp106 */;
-    const float tmp198 = tmp197 * F_b[6];
-    const float tmp199 = tmp196 + tmp198;
-    carry[11] = tmp163;
-    carry[12] = tmp176;
-    carry[13] = tmp189;
-    carry[14] = tmp191;
-    carry[15] = tmp192;
-    carry[16] = tmp194;
-    carry[17] = tmp197;
-    carry[18] = tmp199;
+    const float tmp182 = tmp176 + tmp181;
+    const float tmp183 = B[2] * P[15];
+    const float tmp184 = P[14] + tmp183;
+    const float tmp185 = B[5] * P[16];
+    const float tmp186 = tmp184 + tmp185;
+    const float tmp187 = B[8] * P[17];
+    const float tmp188 = tmp186 + tmp187;
+    const float tmp189 = carry[16] /* tmp118 */ * B[2];
+    const float tmp190 = tmp188 + tmp189;
+    const float tmp191 = carry[3] /* tmp126 */ * B[5];
+    const float tmp192 = tmp190 + tmp191;
+    const float tmp193 = carry[4] /* tmp134 */ * B[8];
+    const float tmp194 = tmp192 + tmp193;
+    const float tmp195 = carry[5] /* tmp137 */ * B[2];
+    const float tmp196 = carry[11] /* tmp139 */ * B[5];
+    const float tmp197 = tmp195 + tmp196;
+    const float tmp198 = carry[12] /* tmp142 */ * B[8];
+    const float tmp199 = tmp197 + tmp198;
+    carry[5] = tmp164;
+    carry[11] = tmp182;
+    carry[12] = tmp194;
+    carry[13] = tmp199;
 }
 
-static void mekf_k_predict_covariance_part5(const float F_q[9], const float F_b[9],
-    const float P[36], float carry[26])
+static void mekf_k_predict_covariance_part5(const float P[36], float dt, float carry[20])
 {
-    const float tmp200 = carry[14] /* tmp191 */ + carry[18] /* tmp199 */;
-    const float tmp201 = F_q[2] * P[0];
-    const float tmp202 = F_q[5] * P[1];
-    const float tmp203 = tmp201 + tmp202;
-    const float tmp204 = F_q[8] * P[2];
-    const float tmp205 = tmp203 + tmp204;
-    const float tmp206 = F_b[2] * P[3];
-    const float tmp207 = tmp205 + tmp206;
-    const float tmp208 = F_b[5] * P[4];
-    const float tmp209 = tmp207 + tmp208;
-    const float tmp210 = F_b[8] * P[5];
-    const float tmp211 = tmp209 + tmp210;
-    const float tmp212 = tmp211 * F_q[0];
-    const float tmp213 = F_q[2] * P[1];
-    const float tmp214 = F_q[5] * P[7];
-    const float tmp215 = tmp213 + tmp214;
-    const float tmp216 = F_q[8] * P[8];
-    const float tmp217 = tmp215 + tmp216;
-    const float tmp218 = F_b[2] * P[9];
-    const float tmp219 = tmp217 + tmp218;
-    const float tmp220 = F_b[5] * P[10];
-    const float tmp221 = tmp219 + tmp220;
-    const float tmp222 = F_b[8] * P[11];
-    const float tmp223 = tmp221 + tmp222;
-    const float tmp224 = tmp223 * F_q[3];
-    const float tmp225 = tmp212 + tmp224;
-    const float tmp226 = F_q[2] * P[2];
-    const float tmp227 = F_q[5] * P[8];
-    const float tmp228 = tmp226 + tmp227;
-    const float tmp229 = F_q[8] * P[14];
-    const float tmp230 = tmp228 + tmp229;
-    const float tmp231 = F_b[2] * P[15];
-    const float tmp232 = tmp230 + tmp231;
-    const float tmp233 = F_b[5] * P[16];
-    const float tmp234 = tmp232 + tmp233;
-    const float tmp235 = F_b[8] * P[17];
-    const float tmp236 = tmp234 + tmp235;
-    const float tmp237 = tmp236 * F_q[6];
-    const float tmp238 = tmp225 + tmp237;
-    const float tmp239 = F_q[2] * P[3];
-    carry[14] = tmp200;
-    carry[18] = tmp211;
-    carry[19] = tmp223;
-    carry[20] = tmp236;
-    carry[21] = tmp238;
-    carry[22] = tmp239;
-}
-
-static void mekf_k_predict_covariance_part6(const float F_q[9], const float F_b[9],
-    const float P[36], float carry[26])
-{
-    const float tmp240 = F_q[5] * P[9];
-    const float tmp241 = carry[22] /* tmp239 */ + tmp240;
-    const float tmp242 = F_q[8] * P[15];
-    const float tmp243 = tmp241 + tmp242;
-    const float tmp244 = F_b[2] * P[21];
-    const float tmp245 = tmp243 + tmp244;
-    const float tmp246 = F_b[5] * P[22];
-    const float tmp247 = tmp245 + tmp246;
-    const float tmp248 = F_b[8] * P[23];
-    const float tmp249 = tmp247 + tmp248;
-    const float tmp250 = tmp249 * F_b[0];
-    const float tmp251 = carry[21] /* tmp238 */ + tmp250;
-    const float tmp252 = F_q[2] * P[4];
-    const float tmp253 = F_q[5] * P[10];
-    const float tmp254 = tmp252 + tmp253;
-    const float tmp255 = F_q[8] * P[16];
-    const float tmp256 = tmp254 + tmp255;
-    const float tmp257 = F_b[2] * P[22];
-    const float tmp258 = tmp256 + tmp257;
-    const float tmp259 = F_b[5] * P[28];
-    const float tmp260 = tmp258 + tmp259;
-    const float tmp261 = F_b[8] * P[29];
-    const float tmp262 = tmp260 + tmp261;
-    const float tmp263 = tmp262 * F_b[3];
-    const float tmp264 = tmp251 + tmp263;
-    const float tmp265 = F_q[2] * P[5];
-    const float tmp266 = F_q[5] * P[11];
-    const float tmp267 = tmp265 + tmp266;
-    const float tmp268 = F_q[8] * P[17];
-    const float tmp269 = tmp267 + tmp268;
-    const float tmp270 = F_b[2] * P[23];
-    const float tmp271 = tmp269 + tmp270;
-    const float tmp272 = F_b[5] * P[29];
-    const float tmp273 = tmp271 + tmp272;
-    const float tmp274 = F_b[8] * P[35];
-    const float tmp275 = tmp273 + tmp274;
-    const float tmp276 = tmp275 * F_b[6];
-    const float tmp277 = tmp264 + tmp276;
-    const float tmp278 = F_b[2] * carry[3] /* tmp91 */;
-    const float tmp279 = tmp278 * F_b[0];
-    carry[3] = tmp249;
-    carry[21] = tmp262;
-    carry[22] = tmp275;
-    carry[23] = tmp277;
-    carry[24] = tmp278;
-    carry[25] = tmp279;
-}
-
-static void mekf_k_predict_covariance_part7(const float F_q[9], const float F_b[9], float carry[26])
-{
-    const float tmp280 = F_b[5] * carry[4] /* tmp98 */;
-    const float tmp281 = tmp280 * F_b[3];
-    const float tmp282 = carry[25] /* tmp279 */ + tmp281;
-    const float tmp283 = F_b[8] * carry[5] /* tmp106 */;
-    const float tmp284 = tmp283 * F_b[6];
-    const float tmp285 = tmp282 + tmp284;
-    const float tmp286 = carry[23] /* tmp277 */ + tmp285;
-    const float tmp287 = carry[8] /* tmp125 */ * F_q[1];
-    const float tmp288 = carry[9] /* tmp137 */ * F_q[4];
-    const float tmp289 = tmp287 + tmp288;
-    const float tmp290 = carry[10] /* tmp150 */ * F_q[7];
-    const float tmp291 = tmp289 + tmp290;
-    const float tmp292 = carry[11] /* tmp163 */ * F_b[1];
-    const float tmp293 = tmp291 + tmp292;
-    const float tmp294 = carry[12] /* tmp176 */ * F_b[4];
-    const float tmp295 = tmp293 + tmp294;
-    const float tmp296 = carry[13] /* tmp189 */ * F_b[7];
-    const float tmp297 = tmp295 + tmp296;
-    const float tmp298 = carry[15] /* tmp192 */ * F_b[1];
-    const float tmp299 = carry[16] /* tmp194 */ * F_b[4];
-    const float tmp300 = tmp298 + tmp299;
-    const float tmp301 = carry[17] /* tmp197 */ * F_b[7];
-    const float tmp302 = tmp300 + tmp301;
-    const float tmp303 = tmp297 + tmp302;
-    const float tmp304 = tmp303 + carry[6] /* tmp113 */;
-    const float tmp305 = carry[18] /* tmp211 */ * F_q[1];
-    const float tmp306 = carry[19] /* tmp223 */ * F_q[4];
-    const float tmp307 = tmp305 + tmp306;
-    const float tmp308 = carry[20] /* tmp236 */ * F_q[7];
-    const float tmp309 = tmp307 + tmp308;
-    const float tmp310 = carry[3] /* tmp249 */ * F_b[1];
-    const float tmp311 = tmp309 + tmp310;
-    const float tmp312 = carry[21] /* tmp262 */ * F_b[4];
-    const float tmp313 = tmp311 + tmp312;
-    const float tmp314 = carry[22] /* tmp275 */ * F_b[7];
-    const float tmp315 = tmp313 + tmp314;
-    const float tmp316 = carry[24] /* tmp278 */ * F_b[1];
-    const float tmp317 = tmp280 * F_b[4];
-    const float tmp318 = tmp316 + tmp317;
-    const float tmp319 = tmp283 * F_b[7];
-    carry[4] = tmp280;
-    carry[5] = tmp283;
-    carry[8] = tmp286;
-    carry[9] = tmp304;
-    carry[10] = tmp315;
-    carry[15] = tmp318;
-    carry[16] = tmp319;
-}
-
-static void mekf_k_predict_covariance_part8(const float F_q[9], const float F_b[9],
-    const float P[36], float dt, float carry[26])
-{
-    const float tmp320 = carry[15] /* tmp318 */ + carry[16] /* tmp319 */;
-    const float tmp321 = carry[10] /* tmp315 */ + tmp320;
-    const float tmp322 = carry[18] /* tmp211 */ * F_q[2];
-    const float tmp323 = carry[19] /* tmp223 */ * F_q[5];
-    const float tmp324 = tmp322 + tmp323;
-    const float tmp325 = carry[20] /* tmp236 */ * F_q[8];
-    const float tmp326 = tmp324 + tmp325;
-    const float tmp327 = carry[3] /* tmp249 */ * F_b[2];
-    const float tmp328 = tmp326 + tmp327;
-    const float tmp329 = carry[21] /* tmp262 */ * F_b[5];
-    const float tmp330 = tmp328 + tmp329;
-    const float tmp331 = carry[22] /* tmp275 */ * F_b[8];
-    const float tmp332 = tmp330 + tmp331;
-    const float tmp333 = carry[24] /* tmp278 */ * F_b[2];
-    const float tmp334 = carry[4] /* tmp280 */ * F_b[5];
-    const float tmp335 = tmp333 + tmp334;
-    const float tmp336 = carry[5] /* tmp283 */ * F_b[8];
-    const float tmp337 = tmp335 + tmp336;
-    const float tmp338 = tmp332 + tmp337;
-    const float tmp339 = tmp338 + carry[6] /* tmp113 */;
-    const float tmp340 = 1e-10f /* gyro_bias_rw^2 */ * dt;
-    const float tmp341 = P[21] + tmp340;
-    const float tmp342 = P[28] + tmp340;
-    const float tmp343 = P[35] + tmp340;
-    carry[4] = tmp321;
-    carry[5] = tmp339;
-    carry[6] = tmp341;
-    carry[10] = tmp342;
-    carry[15] = tmp343;
+    const float tmp200 = carry[12] /* tmp194 */ + carry[13] /* tmp199 */;
+    const float tmp201 = tmp200 + carry[6] /* tmp66 */;
+    const float tmp202 = 1e-10f /* gyro_bias_rw^2 */ * dt;
+    const float tmp203 = P[21] + tmp202;
+    const float tmp204 = P[28] + tmp202;
+    const float tmp205 = P[35] + tmp202;
+    carry[6] = tmp201;
+    carry[12] = tmp203;
+    carry[13] = tmp204;
+    carry[17] = tmp205;
 }
 
 /*
  * time update: covariance
  *
  * Args:
- *     F_q: float[9]
- *     F_b: float[9]
+ *     B: float[9]
  *     P: float[36]
  *     gyro: float[3]
  *     dt: float
@@ -1478,61 +1256,58 @@ static void mekf_k_predict_covariance_part8(const float F_q[9], const float F_b[
  * Outputs:
  *     P_out: float[36]
  *
- * Total ops: 344 (add 152, mul 189, div 1, cmp 2)
+ * Total ops: 206 (add 95, mul 108, div 1, cmp 2)
  */
-static void mekf_k_predict_covariance(const float F_q[9], const float F_b[9], const float P[36],
-    const float gyro[3], float dt, bool clip, float P_out[36])
+static void mekf_k_predict_covariance(const float B[9], const float P[36], const float gyro[3],
+    float dt, bool clip, float P_out[36])
 {
     /*
-     * 9 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
+     * 6 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
      * handed between them (a slot reused once its value is dead)
      */
-    float carry[26];
-    mekf_k_predict_covariance_part0(F_q, F_b, P, carry);
-    mekf_k_predict_covariance_part1(F_q, F_b, P, gyro, carry);
-    mekf_k_predict_covariance_part2(F_q, F_b, P, gyro, dt, clip, carry);
-    mekf_k_predict_covariance_part3(F_q, F_b, P, carry);
-    mekf_k_predict_covariance_part4(F_q, F_b, P, carry);
-    mekf_k_predict_covariance_part5(F_q, F_b, P, carry);
-    mekf_k_predict_covariance_part6(F_q, F_b, P, carry);
-    mekf_k_predict_covariance_part7(F_q, F_b, carry);
-    mekf_k_predict_covariance_part8(F_q, F_b, P, dt, carry);
-    P_out[0] = carry[7] /* tmp114 */;
-    P_out[1] = carry[14] /* tmp200 */;
-    P_out[2] = carry[8] /* tmp286 */;
-    P_out[3] = carry[0] /* tmp48 */;
-    P_out[4] = carry[1] /* tmp61 */;
-    P_out[5] = carry[2] /* tmp74 */;
-    P_out[6] = carry[14] /* tmp200 */;
-    P_out[7] = carry[9] /* tmp304 */;
-    P_out[8] = carry[4] /* tmp321 */;
-    P_out[9] = carry[11] /* tmp163 */;
-    P_out[10] = carry[12] /* tmp176 */;
-    P_out[11] = carry[13] /* tmp189 */;
-    P_out[12] = carry[8] /* tmp286 */;
-    P_out[13] = carry[4] /* tmp321 */;
-    P_out[14] = carry[5] /* tmp339 */;
-    P_out[15] = carry[3] /* tmp249 */;
-    P_out[16] = carry[21] /* tmp262 */;
-    P_out[17] = carry[22] /* tmp275 */;
-    P_out[18] = carry[0] /* tmp48 */;
-    P_out[19] = carry[11] /* tmp163 */;
-    P_out[20] = carry[3] /* tmp249 */;
-    P_out[21] = carry[6] /* tmp341 */;
+    float carry[20];
+    mekf_k_predict_covariance_part0(B, P, gyro, dt, carry);
+    mekf_k_predict_covariance_part1(B, P, gyro, dt, clip, carry);
+    mekf_k_predict_covariance_part2(B, P, carry);
+    mekf_k_predict_covariance_part3(B, P, carry);
+    mekf_k_predict_covariance_part4(B, P, carry);
+    mekf_k_predict_covariance_part5(P, dt, carry);
+    P_out[0] = carry[7] /* tmp67 */;
+    P_out[1] = carry[14] /* tmp106 */;
+    P_out[2] = carry[15] /* tmp145 */;
+    P_out[3] = carry[0] /* tmp11 */;
+    P_out[4] = carry[1] /* tmp19 */;
+    P_out[5] = carry[2] /* tmp27 */;
+    P_out[6] = carry[14] /* tmp106 */;
+    P_out[7] = carry[5] /* tmp164 */;
+    P_out[8] = carry[11] /* tmp182 */;
+    P_out[9] = carry[9] /* tmp79 */;
+    P_out[10] = carry[8] /* tmp87 */;
+    P_out[11] = carry[10] /* tmp95 */;
+    P_out[12] = carry[15] /* tmp145 */;
+    P_out[13] = carry[11] /* tmp182 */;
+    P_out[14] = carry[6] /* tmp201 */;
+    P_out[15] = carry[16] /* tmp118 */;
+    P_out[16] = carry[3] /* tmp126 */;
+    P_out[17] = carry[4] /* tmp134 */;
+    P_out[18] = carry[0] /* tmp11 */;
+    P_out[19] = carry[9] /* tmp79 */;
+    P_out[20] = carry[16] /* tmp118 */;
+    P_out[21] = carry[12] /* tmp203 */;
     P_out[22] = P[22];
     P_out[23] = P[23];
-    P_out[24] = carry[1] /* tmp61 */;
-    P_out[25] = carry[12] /* tmp176 */;
-    P_out[26] = carry[21] /* tmp262 */;
+    P_out[24] = carry[1] /* tmp19 */;
+    P_out[25] = carry[8] /* tmp87 */;
+    P_out[26] = carry[3] /* tmp126 */;
     P_out[27] = P[22];
-    P_out[28] = carry[10] /* tmp342 */;
+    P_out[28] = carry[13] /* tmp204 */;
     P_out[29] = P[29];
-    P_out[30] = carry[2] /* tmp74 */;
-    P_out[31] = carry[13] /* tmp189 */;
-    P_out[32] = carry[22] /* tmp275 */;
+    P_out[30] = carry[2] /* tmp27 */;
+    P_out[31] = carry[10] /* tmp95 */;
+    P_out[32] = carry[4] /* tmp134 */;
     P_out[33] = P[23];
     P_out[34] = P[29];
-    P_out[35] = carry[15] /* tmp343 */;
+    P_out[35] = carry[17] /* tmp205 */;
 }
 
 static void mekf_k_accel_lowpass_part0(const float q[4], const float accel[3], const bool mask[3],
@@ -1855,574 +1630,292 @@ static void mekf_k_heading_features(const float q[4], const float mag[3], const 
     feat[3] = carry[3] /* tmp65 */;
 }
 
-static void mekf_k_update_gravity_part0(const float q[4], float dt, const float P[36],
-    float carry[48])
+static void mekf_k_update_gravity_part0(const float q[4], float dt, const float gyro[3],
+    const float b[3], const float vel[3], bool unobserved, const float P[36], float carry[18])
 {
-    const float tmp0 = q[1] * q[1];
-    const float tmp1 = q[2] * q[2];
-    const float tmp2 = tmp0 + tmp1;
-    const float tmp3 = tmp2 + tmp2;
-    const float tmp4 = 1.0f - tmp3;
-    const float tmp5 = (-2.0f) * tmp4;
-    const float tmp6 = P[1] * tmp5;
-    const float tmp7 = q[2] * q[3];
-    const float tmp8 = q[0] * q[1];
-    const float tmp9 = tmp7 + tmp8;
-    const float tmp10 = 4.0f * tmp9;
-    const float tmp11 = P[2] * tmp10;
-    const float tmp12 = tmp6 + tmp11;
-    const float tmp13 = P[7] * tmp5;
-    const float tmp14 = P[8] * tmp10;
-    const float tmp15 = tmp13 + tmp14;
-    const float tmp16 = tmp5 * tmp15;
-    const float tmp17 = P[8] * tmp5;
-    const float tmp18 = P[14] * tmp10;
-    const float tmp19 = tmp17 + tmp18;
-    const float tmp20 = tmp10 * tmp19;
-    const float tmp21 = tmp16 + tmp20;
-    const float tmp22 = (dt > 1e-09f /* DT_Q_MIN */) ? dt : 1e-09f /* DT_Q_MIN */;
-    const float tmp23 = 1.6e-05f /* accel_noise_density^2 */ / tmp22;
-    const float tmp24 = P[21] + P[28];
-    const float tmp25 = tmp24 + P[35];
-    const float tmp26 = 333333.34f /* accel_bias_gain/(3*p0_bias*p0_bias) */ * tmp25;
-    const float tmp27 = 1.0f + tmp26;
-    const float tmp28 = tmp23 * tmp27;
-    const float tmp29 = 0.0049f /* accel_angle_noise^2 */ + tmp28;
-    const float tmp30 = q[1] * q[3];
-    const float tmp31 = q[0] * q[2];
-    const float tmp32 = tmp30 - tmp31;
-    const float tmp33 = tmp32 + tmp32;
-    const float tmp34 = tmp9 + tmp9;
-    carry[0] = tmp0;
-    carry[1] = tmp1;
-    carry[2] = tmp4;
-    carry[3] = tmp5;
-    carry[4] = tmp7;
-    carry[5] = tmp8;
-    carry[6] = tmp9;
-    carry[7] = tmp10;
-    carry[8] = tmp12;
-    carry[9] = tmp15;
-    carry[10] = tmp19;
-    carry[11] = tmp21;
-    carry[12] = tmp29;
-    carry[13] = tmp30;
-    carry[14] = tmp31;
-    carry[15] = tmp32;
-    carry[16] = tmp33;
-    carry[17] = tmp34;
-}
-
-static void mekf_k_update_gravity_part1(const float q[4], const float up[3], const float gyro[3],
-    const float b[3], const float vel[3], bool unobserved, float carry[48])
-{
-    float tmp35;
+    const float tmp0 = (dt > 1e-09f /* DT_Q_MIN */) ? dt : 1e-09f /* DT_Q_MIN */;
+    const float tmp1 = 1.6e-05f /* accel_noise_density^2 */ / tmp0;
+    const float tmp2 = P[21] + P[28];
+    const float tmp3 = tmp2 + P[35];
+    const float tmp4 = 333333.34f /* accel_bias_gain/(3*p0_bias*p0_bias) */ * tmp3;
+    const float tmp5 = 1.0f + tmp4;
+    const float tmp6 = tmp1 * tmp5;
+    const float tmp7 = 0.0049f /* accel_angle_noise^2 */ + tmp6;
+    float tmp8;
     if (unobserved) {
-        const float tmp36 = gyro[0] - b[0];
-        const float tmp37 = tmp36 * carry[16] /* tmp33 */;
-        const float tmp38 = gyro[1] - b[1];
-        const float tmp39 = tmp38 * carry[17] /* tmp34 */;
-        const float tmp40 = tmp37 + tmp39;
-        const float tmp41 = gyro[2] - b[2];
-        const float tmp42 = tmp41 * carry[2] /* tmp4 */;
-        const float tmp43 = tmp40 + tmp42;
-        const float tmp44 = vel[0] * vel[0];
-        const float tmp45 = vel[1] * vel[1];
-        const float tmp46 = tmp44 + tmp45;
-        const float tmp47 = sqrtf(tmp46);
-        const float tmp48 = tmp43 * tmp47;
-        const float tmp49 = tmp48 / 9.80665f /* G0 */;
-        const float tmp50 = tmp49 * tmp49;
-        tmp35 = tmp50;
+        const float tmp9 = gyro[0] - b[0];
+        const float tmp10 = q[1] * q[3];
+        const float tmp11 = q[0] * q[2];
+        const float tmp12 = tmp10 - tmp11;
+        const float tmp13 = tmp12 + tmp12;
+        const float tmp14 = tmp9 * tmp13;
+        const float tmp15 = gyro[1] - b[1];
+        const float tmp16 = q[2] * q[3];
+        const float tmp17 = q[0] * q[1];
+        const float tmp18 = tmp16 + tmp17;
+        const float tmp19 = tmp18 + tmp18;
+        const float tmp20 = tmp15 * tmp19;
+        const float tmp21 = tmp14 + tmp20;
+        const float tmp22 = gyro[2] - b[2];
+        const float tmp23 = q[1] * q[1];
+        const float tmp24 = q[2] * q[2];
+        const float tmp25 = tmp23 + tmp24;
+        const float tmp26 = tmp25 + tmp25;
+        const float tmp27 = 1.0f - tmp26;
+        const float tmp28 = tmp22 * tmp27;
+        const float tmp29 = tmp21 + tmp28;
+        const float tmp30 = vel[0] * vel[0];
+        const float tmp31 = vel[1] * vel[1];
+        const float tmp32 = tmp30 + tmp31;
+        const float tmp33 = sqrtf(tmp32);
+        const float tmp34 = tmp29 * tmp33;
+        const float tmp35 = tmp34 / 9.80665f /* G0 */;
+        const float tmp36 = tmp35 * tmp35;
+        tmp8 = tmp36;
     } else {
-        tmp35 = 0.0f;
+        tmp8 = 0.0f;
     }
-    const float tmp51 = carry[12] /* tmp29 */ + tmp35;
-    const float tmp52 = q[3] * q[3];
-    const float tmp53 = carry[1] /* tmp1 */ + tmp52;
-    const float tmp54 = tmp53 + tmp53;
-    const float tmp55 = 1.0f - tmp54;
-    const float tmp56 = tmp55 * up[0];
-    const float tmp57 = q[1] * q[2];
-    const float tmp58 = q[0] * q[3];
-    const float tmp59 = tmp57 + tmp58;
-    const float tmp60 = tmp59 + tmp59;
-    const float tmp61 = tmp60 * up[1];
-    const float tmp62 = tmp56 + tmp61;
-    const float tmp63 = carry[16] /* tmp33 */ * up[2];
-    const float tmp64 = tmp62 + tmp63;
-    const float tmp65 = up[0] * up[0];
-    const float tmp66 = up[1] * up[1];
-    const float tmp67 = tmp65 + tmp66;
-    const float tmp68 = up[2] * up[2];
-    const float tmp69 = tmp67 + tmp68;
-    const float tmp70 = sqrtf(tmp69);
-    const float tmp71 = 1.0f / tmp70;
-    const float tmp72 = tmp64 * tmp71;
-    const float tmp73 = tmp72 + carry[16] /* tmp33 */;
-    const float tmp74 = tmp57 - tmp58;
-    carry[1] = tmp51;
-    carry[12] = tmp52;
-    carry[16] = tmp71;
-    carry[18] = tmp73;
-    carry[19] = tmp74;
+    const float tmp37 = tmp7 + tmp8;
+    const float tmp38 = 0.25f * tmp37;
+    const float tmp39 = P[7] + tmp38;
+    carry[0] = tmp38;
+    carry[1] = tmp39;
 }
 
-static void mekf_k_update_gravity_part2(const float up[3], bool recover, const float P[36],
-    float carry[48])
+static void mekf_k_update_gravity_part1(const float up[3], const float P[36], float x_out[6],
+    float carry[18])
 {
-    const float tmp75 = carry[19] /* tmp74 */ + carry[19] /* tmp74 */;
-    const float tmp76 = tmp75 * up[0];
-    const float tmp77 = carry[0] /* tmp0 */ + carry[12] /* tmp52 */;
-    const float tmp78 = tmp77 + tmp77;
-    const float tmp79 = 1.0f - tmp78;
-    const float tmp80 = tmp79 * up[1];
-    const float tmp81 = tmp76 + tmp80;
-    const float tmp82 = carry[17] /* tmp34 */ * up[2];
-    const float tmp83 = tmp81 + tmp82;
-    const float tmp84 = tmp83 * carry[16] /* tmp71 */;
-    const float tmp85 = tmp84 + carry[17] /* tmp34 */;
-    const float tmp86 = carry[13] /* tmp30 */ + carry[14] /* tmp31 */;
-    const float tmp87 = tmp86 + tmp86;
-    const float tmp88 = tmp87 * up[0];
-    const float tmp89 = carry[4] /* tmp7 */ - carry[5] /* tmp8 */;
-    const float tmp90 = tmp89 + tmp89;
-    const float tmp91 = tmp90 * up[1];
-    const float tmp92 = tmp88 + tmp91;
-    const float tmp93 = carry[2] /* tmp4 */ * up[2];
-    const float tmp94 = tmp92 + tmp93;
-    const float tmp95 = tmp94 * carry[16] /* tmp71 */;
-    const float tmp96 = tmp95 + carry[2] /* tmp4 */;
-    float tmp97;
-    if (recover) {
-        tmp97 = carry[1] /* tmp51 */;
-    } else {
-        const float tmp98 = carry[18] /* tmp73 */ * carry[18] /* tmp73 */;
-        const float tmp99 = tmp85 * tmp85;
-        const float tmp100 = tmp98 + tmp99;
-        const float tmp101 = tmp96 * tmp96;
-        const float tmp102 = tmp100 + tmp101;
-        const float tmp103 = 9.0f * carry[1] /* tmp51 */;
-        const float tmp104 = tmp102 / tmp103;
-        const float tmp105 = 1.0f + tmp104;
-        const float tmp106 = (tmp105 < 1.0f) ? tmp105 : 1.0f;
-        const float tmp107 = carry[1] /* tmp51 */ * tmp106;
-        tmp97 = tmp107;
-    }
-    const float tmp108 = carry[11] /* tmp21 */ + tmp97;
-    const float tmp109 = 1.0f / tmp108;
-    const float tmp110 = (1e-12f /* S_PIVOT_MIN */ < tmp108) ? tmp109 : 1.0f;
-    const float tmp111 = carry[8] /* tmp12 */ * tmp110;
-    const float tmp112 = tmp111 * carry[18] /* tmp73 */;
-    const float tmp113 = tmp111 * carry[8] /* tmp12 */;
-    const float tmp114 = P[0] - tmp113;
-    carry[0] = tmp85;
-    carry[1] = tmp96;
-    carry[4] = tmp97;
-    carry[5] = tmp108;
-    carry[11] = tmp110;
-    carry[12] = tmp112;
-    carry[13] = tmp114;
+    const float tmp40 = 1.0f / carry[1] /* tmp39 */;
+    const float tmp41 = (2.5e-13f /* S_PIVOT_MIN/4.0 */ < carry[1] /* tmp39 */) ? tmp40 : 1.0f;
+    const float tmp42 = P[1] * tmp41;
+    const float tmp43 = up[0] * up[0];
+    const float tmp44 = up[1] * up[1];
+    const float tmp45 = tmp43 + tmp44;
+    const float tmp46 = up[2] * up[2];
+    const float tmp47 = tmp45 + tmp46;
+    const float tmp48 = sqrtf(tmp47);
+    const float tmp49 = 1.0f / tmp48;
+    const float tmp50 = up[0] * tmp49;
+    const float tmp51 = 0.5f * tmp50;
+    const float tmp52 = tmp42 * tmp51;
+    const float tmp53 = tmp42 * P[1];
+    const float tmp54 = P[0] - tmp53;
+    const float tmp55 = tmp54 + carry[0] /* tmp38 */;
+    const float tmp56 = 1.0f / tmp55;
+    const float tmp57 = (2.5e-13f /* S_PIVOT_MIN/4.0 */ < tmp55) ? tmp56 : 1.0f;
+    const float tmp58 = tmp54 * tmp57;
+    const float tmp59 = up[1] * tmp49;
+    const float tmp60 = (-0.5f) * tmp59;
+    const float tmp61 = tmp60 - tmp52;
+    const float tmp62 = tmp58 * tmp61;
+    const float tmp63 = tmp52 + tmp62;
+    x_out[0] = tmp63;
+    const float tmp64 = P[7] * tmp41;
+    const float tmp65 = tmp64 * tmp51;
+    const float tmp66 = tmp64 * P[1];
+    const float tmp67 = P[1] - tmp66;
+    const float tmp68 = tmp67 * tmp57;
+    const float tmp69 = tmp68 * tmp61;
+    const float tmp70 = tmp65 + tmp69;
+    x_out[1] = tmp70;
+    const float tmp71 = P[8] * tmp41;
+    const float tmp72 = tmp71 * tmp51;
+    const float tmp73 = tmp71 * P[1];
+    const float tmp74 = P[2] - tmp73;
+    const float tmp75 = tmp74 * tmp57;
+    const float tmp76 = tmp75 * tmp61;
+    const float tmp77 = tmp72 + tmp76;
+    x_out[2] = tmp77;
+    const float tmp78 = P[9] * tmp41;
+    const float tmp79 = tmp78 * tmp51;
+    carry[0] = tmp41;
+    carry[2] = tmp51;
+    carry[3] = tmp54;
+    carry[4] = tmp55;
+    carry[5] = tmp57;
+    carry[6] = tmp58;
+    carry[7] = tmp61;
+    carry[8] = tmp64;
+    carry[9] = tmp67;
+    carry[10] = tmp68;
+    carry[11] = tmp71;
+    carry[12] = tmp74;
+    carry[13] = tmp75;
+    carry[14] = tmp78;
+    carry[15] = tmp79;
 }
 
-static void mekf_k_update_gravity_part3(const float P[36], float carry[48])
+static void mekf_k_update_gravity_part2(const float P[36], float x_out[6], float P_out[36],
+    float carry[18])
 {
-    const float tmp115 = carry[2] /* tmp4 */ + carry[2] /* tmp4 */;
-    const float tmp116 = carry[13] /* tmp114 */ * tmp115;
-    const float tmp117 = carry[10] /* tmp19 */ * carry[11] /* tmp110 */;
-    const float tmp118 = tmp117 * carry[8] /* tmp12 */;
-    const float tmp119 = P[2] - tmp118;
-    const float tmp120 = (-4.0f) * carry[15] /* tmp32 */;
-    const float tmp121 = tmp119 * tmp120;
-    const float tmp122 = tmp116 + tmp121;
-    const float tmp123 = tmp115 * tmp122;
-    const float tmp124 = tmp119 * tmp115;
-    const float tmp125 = tmp117 * carry[10] /* tmp19 */;
-    const float tmp126 = P[14] - tmp125;
-    const float tmp127 = tmp126 * tmp120;
-    const float tmp128 = tmp124 + tmp127;
-    const float tmp129 = tmp120 * tmp128;
-    const float tmp130 = tmp123 + tmp129;
-    const float tmp131 = tmp130 + carry[4] /* tmp97 */;
-    const float tmp132 = 1.0f / tmp131;
-    const float tmp133 = (1e-12f /* S_PIVOT_MIN */ < tmp131) ? tmp132 : 1.0f;
-    const float tmp134 = tmp122 * tmp133;
-    const float tmp135 = tmp115 * carry[12] /* tmp112 */;
-    const float tmp136 = tmp117 * carry[18] /* tmp73 */;
-    const float tmp137 = tmp120 * tmp136;
-    const float tmp138 = tmp135 + tmp137;
-    const float tmp139 = carry[0] /* tmp85 */ - tmp138;
-    const float tmp140 = tmp134 * tmp139;
-    const float tmp141 = carry[12] /* tmp112 */ + tmp140;
-    const float tmp142 = tmp134 * tmp122;
-    const float tmp143 = carry[13] /* tmp114 */ - tmp142;
-    const float tmp144 = (-4.0f) * carry[6] /* tmp9 */;
-    const float tmp145 = tmp143 * tmp144;
-    const float tmp146 = carry[9] /* tmp15 */ * carry[11] /* tmp110 */;
-    const float tmp147 = tmp146 * carry[8] /* tmp12 */;
-    const float tmp148 = P[1] - tmp147;
-    const float tmp149 = tmp148 * tmp115;
-    const float tmp150 = tmp117 * carry[9] /* tmp15 */;
-    const float tmp151 = P[8] - tmp150;
-    const float tmp152 = tmp151 * tmp120;
-    const float tmp153 = tmp149 + tmp152;
-    const float tmp154 = tmp153 * tmp133;
-    carry[0] = tmp115;
-    carry[2] = tmp119;
-    carry[6] = tmp120;
-    carry[12] = tmp122;
-    carry[13] = tmp126;
-    carry[14] = tmp128;
-    carry[16] = tmp131;
-    carry[17] = tmp133;
-    carry[19] = tmp136;
-    carry[20] = tmp139;
-    carry[21] = tmp141;
-    carry[22] = tmp143;
-    carry[23] = tmp144;
-    carry[24] = tmp145;
-    carry[25] = tmp146;
-    carry[26] = tmp148;
-    carry[27] = tmp151;
-    carry[28] = tmp153;
-    carry[29] = tmp154;
+    const float tmp80 = carry[14] /* tmp78 */ * P[1];
+    const float tmp81 = P[3] - tmp80;
+    const float tmp82 = tmp81 * carry[5] /* tmp57 */;
+    const float tmp83 = tmp82 * carry[7] /* tmp61 */;
+    const float tmp84 = carry[15] /* tmp79 */ + tmp83;
+    x_out[3] = tmp84;
+    const float tmp85 = P[10] * carry[0] /* tmp41 */;
+    const float tmp86 = tmp85 * carry[2] /* tmp51 */;
+    const float tmp87 = tmp85 * P[1];
+    const float tmp88 = P[4] - tmp87;
+    const float tmp89 = tmp88 * carry[5] /* tmp57 */;
+    const float tmp90 = tmp89 * carry[7] /* tmp61 */;
+    const float tmp91 = tmp86 + tmp90;
+    x_out[4] = tmp91;
+    const float tmp92 = P[11] * carry[0] /* tmp41 */;
+    const float tmp93 = tmp92 * carry[2] /* tmp51 */;
+    const float tmp94 = tmp92 * P[1];
+    const float tmp95 = P[5] - tmp94;
+    const float tmp96 = tmp95 * carry[5] /* tmp57 */;
+    const float tmp97 = tmp96 * carry[7] /* tmp61 */;
+    const float tmp98 = tmp93 + tmp97;
+    x_out[5] = tmp98;
+    const float tmp99 = carry[6] /* tmp58 */ * carry[3] /* tmp54 */;
+    const float tmp100 = carry[3] /* tmp54 */ - tmp99;
+    P_out[0] = tmp100;
+    const float tmp101 = carry[10] /* tmp68 */ * carry[3] /* tmp54 */;
+    const float tmp102 = carry[9] /* tmp67 */ - tmp101;
+    P_out[1] = tmp102;
+    P_out[6] = tmp102;
+    const float tmp103 = carry[13] /* tmp75 */ * carry[3] /* tmp54 */;
+    const float tmp104 = carry[12] /* tmp74 */ - tmp103;
+    P_out[2] = tmp104;
+    P_out[12] = tmp104;
+    const float tmp105 = tmp82 * carry[3] /* tmp54 */;
+    const float tmp106 = tmp81 - tmp105;
+    P_out[3] = tmp106;
+    P_out[18] = tmp106;
+    const float tmp107 = tmp89 * carry[3] /* tmp54 */;
+    const float tmp108 = tmp88 - tmp107;
+    P_out[4] = tmp108;
+    P_out[24] = tmp108;
+    const float tmp109 = tmp96 * carry[3] /* tmp54 */;
+    const float tmp110 = tmp95 - tmp109;
+    P_out[5] = tmp110;
+    P_out[30] = tmp110;
+    const float tmp111 = carry[8] /* tmp64 */ * P[7];
+    const float tmp112 = P[7] - tmp111;
+    const float tmp113 = carry[10] /* tmp68 */ * carry[9] /* tmp67 */;
+    const float tmp114 = tmp112 - tmp113;
+    const float tmp115 = carry[11] /* tmp71 */ * P[7];
+    const float tmp116 = P[8] - tmp115;
+    const float tmp117 = carry[13] /* tmp75 */ * carry[9] /* tmp67 */;
+    const float tmp118 = tmp116 - tmp117;
+    P_out[13] = tmp118;
+    const float tmp119 = carry[14] /* tmp78 */ * P[7];
+    carry[0] = tmp81;
+    carry[2] = tmp82;
+    carry[3] = tmp85;
+    carry[5] = tmp88;
+    carry[6] = tmp89;
+    carry[7] = tmp92;
+    carry[8] = tmp95;
+    carry[10] = tmp96;
+    carry[15] = tmp114;
+    carry[16] = tmp118;
+    carry[17] = tmp119;
 }
 
-static void mekf_k_update_gravity_part4(const float P[36], float x_out[6], float carry[48])
+static void mekf_k_update_gravity_part3(const float P[36], float P_out[36], float carry[18])
 {
-    const float tmp155 = carry[29] /* tmp154 */ * carry[12] /* tmp122 */;
-    const float tmp156 = carry[26] /* tmp148 */ - tmp155;
-    const float tmp157 = 4.0f * carry[15] /* tmp32 */;
-    const float tmp158 = tmp156 * tmp157;
-    const float tmp159 = carry[24] /* tmp145 */ + tmp158;
-    const float tmp160 = carry[23] /* tmp144 */ * tmp159;
-    const float tmp161 = tmp156 * carry[23] /* tmp144 */;
-    const float tmp162 = carry[25] /* tmp146 */ * carry[9] /* tmp15 */;
-    const float tmp163 = P[7] - tmp162;
-    const float tmp164 = carry[29] /* tmp154 */ * carry[28] /* tmp153 */;
-    const float tmp165 = tmp163 - tmp164;
-    const float tmp166 = tmp165 * tmp157;
-    const float tmp167 = tmp161 + tmp166;
-    const float tmp168 = tmp157 * tmp167;
-    const float tmp169 = tmp160 + tmp168;
-    const float tmp170 = tmp169 + carry[4] /* tmp97 */;
-    const float tmp171 = 1.0f / tmp170;
-    const float tmp172 = (1e-12f /* S_PIVOT_MIN */ < tmp170) ? tmp171 : 1.0f;
-    const float tmp173 = tmp159 * tmp172;
-    const float tmp174 = carry[23] /* tmp144 */ * carry[21] /* tmp141 */;
-    const float tmp175 = carry[25] /* tmp146 */ * carry[18] /* tmp73 */;
-    const float tmp176 = carry[29] /* tmp154 */ * carry[20] /* tmp139 */;
-    const float tmp177 = tmp175 + tmp176;
-    const float tmp178 = tmp157 * tmp177;
-    const float tmp179 = tmp174 + tmp178;
-    const float tmp180 = carry[1] /* tmp96 */ - tmp179;
-    const float tmp181 = tmp173 * tmp180;
-    const float tmp182 = carry[21] /* tmp141 */ + tmp181;
-    const float tmp183 = -tmp182;
-    x_out[0] = tmp183;
-    const float tmp184 = tmp167 * tmp172;
-    const float tmp185 = tmp184 * tmp180;
-    const float tmp186 = tmp177 + tmp185;
-    const float tmp187 = -tmp186;
-    x_out[1] = tmp187;
-    const float tmp188 = carry[14] /* tmp128 */ * carry[17] /* tmp133 */;
-    const float tmp189 = tmp188 * carry[20] /* tmp139 */;
-    const float tmp190 = carry[19] /* tmp136 */ + tmp189;
-    const float tmp191 = tmp188 * carry[12] /* tmp122 */;
-    const float tmp192 = carry[2] /* tmp119 */ - tmp191;
-    const float tmp193 = tmp192 * carry[23] /* tmp144 */;
-    const float tmp194 = tmp188 * carry[28] /* tmp153 */;
-    carry[1] = tmp156;
-    carry[2] = tmp157;
-    carry[4] = tmp159;
-    carry[15] = tmp165;
-    carry[19] = tmp167;
-    carry[21] = tmp170;
-    carry[24] = tmp172;
-    carry[25] = tmp173;
-    carry[26] = tmp180;
-    carry[29] = tmp184;
-    carry[30] = tmp188;
-    carry[31] = tmp190;
-    carry[32] = tmp192;
-    carry[33] = tmp193;
-    carry[34] = tmp194;
+    const float tmp120 = P[9] - carry[17] /* tmp119 */;
+    const float tmp121 = carry[2] /* tmp82 */ * carry[9] /* tmp67 */;
+    const float tmp122 = tmp120 - tmp121;
+    P_out[19] = tmp122;
+    const float tmp123 = carry[3] /* tmp85 */ * P[7];
+    const float tmp124 = P[10] - tmp123;
+    const float tmp125 = carry[6] /* tmp89 */ * carry[9] /* tmp67 */;
+    const float tmp126 = tmp124 - tmp125;
+    P_out[25] = tmp126;
+    const float tmp127 = carry[7] /* tmp92 */ * P[7];
+    P_out[7] = carry[15] /* tmp114 */;
+    const float tmp128 = P[11] - tmp127;
+    const float tmp129 = carry[10] /* tmp96 */ * carry[9] /* tmp67 */;
+    const float tmp130 = tmp128 - tmp129;
+    P_out[31] = tmp130;
+    const float tmp131 = carry[11] /* tmp71 */ * P[8];
+    const float tmp132 = P[14] - tmp131;
+    const float tmp133 = carry[13] /* tmp75 */ * carry[12] /* tmp74 */;
+    const float tmp134 = tmp132 - tmp133;
+    P_out[14] = tmp134;
+    const float tmp135 = carry[14] /* tmp78 */ * P[8];
+    const float tmp136 = P[15] - tmp135;
+    const float tmp137 = carry[2] /* tmp82 */ * carry[12] /* tmp74 */;
+    const float tmp138 = tmp136 - tmp137;
+    P_out[15] = tmp138;
+    P_out[20] = tmp138;
+    const float tmp139 = carry[3] /* tmp85 */ * P[8];
+    const float tmp140 = P[16] - tmp139;
+    const float tmp141 = carry[6] /* tmp89 */ * carry[12] /* tmp74 */;
+    const float tmp142 = tmp140 - tmp141;
+    P_out[16] = tmp142;
+    P_out[26] = tmp142;
+    const float tmp143 = carry[7] /* tmp92 */ * P[8];
+    P_out[8] = carry[16] /* tmp118 */;
+    const float tmp144 = P[17] - tmp143;
+    const float tmp145 = carry[10] /* tmp96 */ * carry[12] /* tmp74 */;
+    const float tmp146 = tmp144 - tmp145;
+    P_out[17] = tmp146;
+    P_out[32] = tmp146;
+    const float tmp147 = carry[14] /* tmp78 */ * P[9];
+    const float tmp148 = P[21] - tmp147;
+    const float tmp149 = carry[2] /* tmp82 */ * carry[0] /* tmp81 */;
+    const float tmp150 = tmp148 - tmp149;
+    P_out[21] = tmp150;
+    const float tmp151 = carry[3] /* tmp85 */ * P[9];
+    const float tmp152 = P[22] - tmp151;
+    const float tmp153 = carry[6] /* tmp89 */ * carry[0] /* tmp81 */;
+    const float tmp154 = tmp152 - tmp153;
+    P_out[22] = tmp154;
+    P_out[27] = tmp154;
+    const float tmp155 = carry[7] /* tmp92 */ * P[9];
+    P_out[9] = tmp122;
+    const float tmp156 = P[23] - tmp155;
+    const float tmp157 = carry[10] /* tmp96 */ * carry[0] /* tmp81 */;
+    const float tmp158 = tmp156 - tmp157;
+    P_out[23] = tmp158;
+    P_out[33] = tmp158;
+    const float tmp159 = carry[3] /* tmp85 */ * P[10];
+    carry[0] = tmp126;
+    carry[2] = tmp130;
+    carry[3] = tmp159;
 }
 
-static void mekf_k_update_gravity_part5(const float P[36], float x_out[6], float carry[48])
+static void mekf_k_update_gravity_part4(const float P[36], float P_out[36], float *min_pivot,
+    const float carry[18])
 {
-    const float tmp195 = carry[27] /* tmp151 */ - carry[34] /* tmp194 */;
-    const float tmp196 = tmp195 * carry[2] /* tmp157 */;
-    const float tmp197 = carry[33] /* tmp193 */ + tmp196;
-    const float tmp198 = tmp197 * carry[24] /* tmp172 */;
-    const float tmp199 = tmp198 * carry[26] /* tmp180 */;
-    const float tmp200 = carry[31] /* tmp190 */ + tmp199;
-    const float tmp201 = -tmp200;
-    x_out[2] = tmp201;
-    const float tmp202 = P[9] * carry[3] /* tmp5 */;
-    const float tmp203 = P[15] * carry[7] /* tmp10 */;
-    const float tmp204 = tmp202 + tmp203;
-    const float tmp205 = tmp204 * carry[11] /* tmp110 */;
-    const float tmp206 = tmp205 * carry[18] /* tmp73 */;
-    const float tmp207 = tmp205 * carry[8] /* tmp12 */;
-    const float tmp208 = P[3] - tmp207;
-    const float tmp209 = tmp208 * carry[0] /* tmp115 */;
-    const float tmp210 = tmp205 * carry[10] /* tmp19 */;
-    const float tmp211 = P[15] - tmp210;
-    const float tmp212 = tmp211 * carry[6] /* tmp120 */;
-    const float tmp213 = tmp209 + tmp212;
-    const float tmp214 = tmp213 * carry[17] /* tmp133 */;
-    const float tmp215 = tmp214 * carry[20] /* tmp139 */;
-    const float tmp216 = tmp206 + tmp215;
-    const float tmp217 = tmp214 * carry[12] /* tmp122 */;
-    const float tmp218 = tmp208 - tmp217;
-    const float tmp219 = tmp218 * carry[23] /* tmp144 */;
-    const float tmp220 = tmp205 * carry[9] /* tmp15 */;
-    const float tmp221 = P[9] - tmp220;
-    const float tmp222 = tmp214 * carry[28] /* tmp153 */;
-    const float tmp223 = tmp221 - tmp222;
-    const float tmp224 = tmp223 * carry[2] /* tmp157 */;
-    const float tmp225 = tmp219 + tmp224;
-    const float tmp226 = tmp225 * carry[24] /* tmp172 */;
-    const float tmp227 = tmp226 * carry[26] /* tmp180 */;
-    const float tmp228 = tmp216 + tmp227;
-    const float tmp229 = -tmp228;
-    x_out[3] = tmp229;
-    const float tmp230 = P[10] * carry[3] /* tmp5 */;
-    const float tmp231 = P[16] * carry[7] /* tmp10 */;
-    const float tmp232 = tmp230 + tmp231;
-    const float tmp233 = tmp232 * carry[11] /* tmp110 */;
-    const float tmp234 = tmp233 * carry[18] /* tmp73 */;
-    carry[27] = tmp195;
-    carry[31] = tmp197;
-    carry[33] = tmp198;
-    carry[34] = tmp204;
-    carry[35] = tmp205;
-    carry[36] = tmp211;
-    carry[37] = tmp213;
-    carry[38] = tmp214;
-    carry[39] = tmp218;
-    carry[40] = tmp223;
-    carry[41] = tmp225;
-    carry[42] = tmp226;
-    carry[43] = tmp232;
-    carry[44] = tmp233;
-    carry[45] = tmp234;
-}
-
-static void mekf_k_update_gravity_part6(const float P[36], float x_out[6], float carry[48])
-{
-    const float tmp235 = carry[44] /* tmp233 */ * carry[8] /* tmp12 */;
-    const float tmp236 = P[4] - tmp235;
-    const float tmp237 = tmp236 * carry[0] /* tmp115 */;
-    const float tmp238 = carry[44] /* tmp233 */ * carry[10] /* tmp19 */;
-    const float tmp239 = P[16] - tmp238;
-    const float tmp240 = tmp239 * carry[6] /* tmp120 */;
-    const float tmp241 = tmp237 + tmp240;
-    const float tmp242 = tmp241 * carry[17] /* tmp133 */;
-    const float tmp243 = tmp242 * carry[20] /* tmp139 */;
-    const float tmp244 = carry[45] /* tmp234 */ + tmp243;
-    const float tmp245 = tmp242 * carry[12] /* tmp122 */;
-    const float tmp246 = tmp236 - tmp245;
-    const float tmp247 = tmp246 * carry[23] /* tmp144 */;
-    const float tmp248 = carry[44] /* tmp233 */ * carry[9] /* tmp15 */;
-    const float tmp249 = P[10] - tmp248;
-    const float tmp250 = tmp242 * carry[28] /* tmp153 */;
-    const float tmp251 = tmp249 - tmp250;
-    const float tmp252 = tmp251 * carry[2] /* tmp157 */;
-    const float tmp253 = tmp247 + tmp252;
-    const float tmp254 = tmp253 * carry[24] /* tmp172 */;
-    const float tmp255 = tmp254 * carry[26] /* tmp180 */;
-    const float tmp256 = tmp244 + tmp255;
-    const float tmp257 = -tmp256;
-    x_out[4] = tmp257;
-    const float tmp258 = P[11] * carry[3] /* tmp5 */;
-    const float tmp259 = P[17] * carry[7] /* tmp10 */;
-    const float tmp260 = tmp258 + tmp259;
-    const float tmp261 = tmp260 * carry[11] /* tmp110 */;
-    const float tmp262 = tmp261 * carry[18] /* tmp73 */;
-    const float tmp263 = tmp261 * carry[8] /* tmp12 */;
-    const float tmp264 = P[5] - tmp263;
-    const float tmp265 = tmp264 * carry[0] /* tmp115 */;
-    const float tmp266 = tmp261 * carry[10] /* tmp19 */;
-    const float tmp267 = P[17] - tmp266;
-    const float tmp268 = tmp267 * carry[6] /* tmp120 */;
-    const float tmp269 = tmp265 + tmp268;
-    const float tmp270 = tmp269 * carry[17] /* tmp133 */;
-    const float tmp271 = tmp270 * carry[20] /* tmp139 */;
-    const float tmp272 = tmp262 + tmp271;
-    const float tmp273 = tmp270 * carry[12] /* tmp122 */;
-    const float tmp274 = tmp264 - tmp273;
-    carry[0] = tmp239;
-    carry[3] = tmp241;
-    carry[6] = tmp242;
-    carry[7] = tmp246;
-    carry[8] = tmp251;
-    carry[10] = tmp253;
-    carry[11] = tmp254;
-    carry[12] = tmp260;
-    carry[17] = tmp261;
-    carry[18] = tmp267;
-    carry[20] = tmp269;
-    carry[45] = tmp270;
-    carry[46] = tmp272;
-    carry[47] = tmp274;
-}
-
-static void mekf_k_update_gravity_part7(const float P[36], float x_out[6], float P_out[36],
-    float carry[48])
-{
-    const float tmp275 = carry[47] /* tmp274 */ * carry[23] /* tmp144 */;
-    const float tmp276 = carry[17] /* tmp261 */ * carry[9] /* tmp15 */;
-    const float tmp277 = P[11] - tmp276;
-    const float tmp278 = carry[45] /* tmp270 */ * carry[28] /* tmp153 */;
-    const float tmp279 = tmp277 - tmp278;
-    const float tmp280 = tmp279 * carry[2] /* tmp157 */;
-    const float tmp281 = tmp275 + tmp280;
-    const float tmp282 = tmp281 * carry[24] /* tmp172 */;
-    const float tmp283 = tmp282 * carry[26] /* tmp180 */;
-    const float tmp284 = carry[46] /* tmp272 */ + tmp283;
-    const float tmp285 = -tmp284;
-    x_out[5] = tmp285;
-    const float tmp286 = carry[25] /* tmp173 */ * carry[4] /* tmp159 */;
-    const float tmp287 = carry[22] /* tmp143 */ - tmp286;
-    P_out[0] = tmp287;
-    const float tmp288 = carry[29] /* tmp184 */ * carry[4] /* tmp159 */;
-    const float tmp289 = carry[1] /* tmp156 */ - tmp288;
-    P_out[1] = tmp289;
-    P_out[6] = tmp289;
-    const float tmp290 = carry[33] /* tmp198 */ * carry[4] /* tmp159 */;
-    const float tmp291 = carry[32] /* tmp192 */ - tmp290;
-    P_out[2] = tmp291;
-    P_out[12] = tmp291;
-    const float tmp292 = carry[42] /* tmp226 */ * carry[4] /* tmp159 */;
-    const float tmp293 = carry[39] /* tmp218 */ - tmp292;
-    P_out[3] = tmp293;
-    P_out[18] = tmp293;
-    const float tmp294 = carry[11] /* tmp254 */ * carry[4] /* tmp159 */;
-    const float tmp295 = carry[7] /* tmp246 */ - tmp294;
-    P_out[4] = tmp295;
-    P_out[24] = tmp295;
-    const float tmp296 = tmp282 * carry[4] /* tmp159 */;
-    const float tmp297 = carry[47] /* tmp274 */ - tmp296;
-    P_out[5] = tmp297;
-    P_out[30] = tmp297;
-    const float tmp298 = carry[29] /* tmp184 */ * carry[19] /* tmp167 */;
-    const float tmp299 = carry[15] /* tmp165 */ - tmp298;
-    P_out[7] = tmp299;
-    const float tmp300 = carry[33] /* tmp198 */ * carry[19] /* tmp167 */;
-    const float tmp301 = carry[27] /* tmp195 */ - tmp300;
-    P_out[8] = tmp301;
-    P_out[13] = tmp301;
-    const float tmp302 = carry[42] /* tmp226 */ * carry[19] /* tmp167 */;
-    const float tmp303 = carry[40] /* tmp223 */ - tmp302;
-    P_out[9] = tmp303;
-    P_out[19] = tmp303;
-    const float tmp304 = carry[11] /* tmp254 */ * carry[19] /* tmp167 */;
-    const float tmp305 = carry[8] /* tmp251 */ - tmp304;
-    P_out[10] = tmp305;
-    P_out[25] = tmp305;
-    const float tmp306 = tmp282 * carry[19] /* tmp167 */;
-    const float tmp307 = tmp279 - tmp306;
-    P_out[11] = tmp307;
-    P_out[31] = tmp307;
-    const float tmp308 = carry[30] /* tmp188 */ * carry[14] /* tmp128 */;
-    const float tmp309 = carry[13] /* tmp126 */ - tmp308;
-    const float tmp310 = carry[33] /* tmp198 */ * carry[31] /* tmp197 */;
-    const float tmp311 = tmp309 - tmp310;
-    P_out[14] = tmp311;
-    const float tmp312 = carry[38] /* tmp214 */ * carry[14] /* tmp128 */;
-    const float tmp313 = carry[36] /* tmp211 */ - tmp312;
-    const float tmp314 = carry[42] /* tmp226 */ * carry[31] /* tmp197 */;
-    carry[1] = tmp281;
-    carry[2] = tmp282;
-    carry[4] = tmp313;
-    carry[7] = tmp314;
-}
-
-static void mekf_k_update_gravity_part8(const float P[36], float P_out[36], float carry[48])
-{
-    const float tmp315 = carry[4] /* tmp313 */ - carry[7] /* tmp314 */;
-    P_out[15] = tmp315;
-    P_out[20] = tmp315;
-    const float tmp316 = carry[6] /* tmp242 */ * carry[14] /* tmp128 */;
-    const float tmp317 = carry[0] /* tmp239 */ - tmp316;
-    const float tmp318 = carry[11] /* tmp254 */ * carry[31] /* tmp197 */;
-    const float tmp319 = tmp317 - tmp318;
-    P_out[16] = tmp319;
-    P_out[26] = tmp319;
-    const float tmp320 = carry[45] /* tmp270 */ * carry[14] /* tmp128 */;
-    const float tmp321 = carry[18] /* tmp267 */ - tmp320;
-    const float tmp322 = carry[2] /* tmp282 */ * carry[31] /* tmp197 */;
-    const float tmp323 = tmp321 - tmp322;
-    P_out[17] = tmp323;
-    P_out[32] = tmp323;
-    const float tmp324 = carry[35] /* tmp205 */ * carry[34] /* tmp204 */;
-    const float tmp325 = P[21] - tmp324;
-    const float tmp326 = carry[38] /* tmp214 */ * carry[37] /* tmp213 */;
-    const float tmp327 = tmp325 - tmp326;
-    const float tmp328 = carry[42] /* tmp226 */ * carry[41] /* tmp225 */;
-    const float tmp329 = tmp327 - tmp328;
-    P_out[21] = tmp329;
-    const float tmp330 = carry[44] /* tmp233 */ * carry[34] /* tmp204 */;
-    const float tmp331 = P[22] - tmp330;
-    const float tmp332 = carry[6] /* tmp242 */ * carry[37] /* tmp213 */;
-    const float tmp333 = tmp331 - tmp332;
-    const float tmp334 = carry[11] /* tmp254 */ * carry[41] /* tmp225 */;
-    const float tmp335 = tmp333 - tmp334;
-    P_out[22] = tmp335;
-    P_out[27] = tmp335;
-    const float tmp336 = carry[17] /* tmp261 */ * carry[34] /* tmp204 */;
-    const float tmp337 = P[23] - tmp336;
-    const float tmp338 = carry[45] /* tmp270 */ * carry[37] /* tmp213 */;
-    const float tmp339 = tmp337 - tmp338;
-    const float tmp340 = carry[2] /* tmp282 */ * carry[41] /* tmp225 */;
-    const float tmp341 = tmp339 - tmp340;
-    P_out[23] = tmp341;
-    P_out[33] = tmp341;
-    const float tmp342 = carry[44] /* tmp233 */ * carry[43] /* tmp232 */;
-    const float tmp343 = P[28] - tmp342;
-    const float tmp344 = carry[6] /* tmp242 */ * carry[3] /* tmp241 */;
-    const float tmp345 = tmp343 - tmp344;
-    const float tmp346 = carry[11] /* tmp254 */ * carry[10] /* tmp253 */;
-    const float tmp347 = tmp345 - tmp346;
-    P_out[28] = tmp347;
-    const float tmp348 = carry[17] /* tmp261 */ * carry[43] /* tmp232 */;
-    const float tmp349 = P[29] - tmp348;
-    const float tmp350 = carry[45] /* tmp270 */ * carry[3] /* tmp241 */;
-    const float tmp351 = tmp349 - tmp350;
-    const float tmp352 = carry[2] /* tmp282 */ * carry[10] /* tmp253 */;
-    const float tmp353 = tmp351 - tmp352;
-    P_out[29] = tmp353;
-    P_out[34] = tmp353;
-    const float tmp354 = carry[17] /* tmp261 */ * carry[12] /* tmp260 */;
-    carry[0] = tmp354;
-}
-
-static void mekf_k_update_gravity_part9(const float P[36], float P_out[36], float *min_pivot,
-    const float carry[48])
-{
-    const float tmp355 = P[35] - carry[0] /* tmp354 */;
-    const float tmp356 = carry[45] /* tmp270 */ * carry[20] /* tmp269 */;
-    const float tmp357 = tmp355 - tmp356;
-    const float tmp358 = carry[2] /* tmp282 */ * carry[1] /* tmp281 */;
-    const float tmp359 = tmp357 - tmp358;
-    P_out[35] = tmp359;
-    const float tmp360 = (carry[5] /* tmp108 */ < carry[16] /* tmp131 */) ? carry[5] /* tmp108 */ :
-            carry[16] /* tmp131 */;
-    const float tmp361 = (tmp360 < carry[21] /* tmp170 */) ? tmp360 : carry[21] /* tmp170 */;
-    *min_pivot = tmp361;
+    const float tmp160 = P[28] - carry[3] /* tmp159 */;
+    const float tmp161 = carry[6] /* tmp89 */ * carry[5] /* tmp88 */;
+    const float tmp162 = tmp160 - tmp161;
+    P_out[28] = tmp162;
+    const float tmp163 = carry[7] /* tmp92 */ * P[10];
+    P_out[10] = carry[0] /* tmp126 */;
+    const float tmp164 = P[29] - tmp163;
+    const float tmp165 = carry[10] /* tmp96 */ * carry[5] /* tmp88 */;
+    const float tmp166 = tmp164 - tmp165;
+    P_out[29] = tmp166;
+    P_out[34] = tmp166;
+    const float tmp167 = carry[7] /* tmp92 */ * P[11];
+    P_out[11] = carry[2] /* tmp130 */;
+    const float tmp168 = P[35] - tmp167;
+    const float tmp169 = carry[10] /* tmp96 */ * carry[8] /* tmp95 */;
+    const float tmp170 = tmp168 - tmp169;
+    P_out[35] = tmp170;
+    const float tmp171 = (carry[1] /* tmp39 */ < carry[4] /* tmp55 */) ? carry[1] /* tmp39 */ :
+            carry[4] /* tmp55 */;
+    const float tmp172 = 4.0f * tmp171;
+    *min_pivot = tmp172;
 }
 
 /*
- * gravity direction: three scalar rows on the attitude error; outputs are stored as soon as
- * computed, each after the last read of what it overwrites: P_out may be P itself, no other
+ * gravity direction: two scalar rows on the attitude error (earth frame); outputs are stored as
+ * soon as computed, each after the last read of what it overwrites: P_out may be P itself, no other
  * argument may overlap an output
  *
  * Args:
  *     q: float[4]
  *     up: float[3]
- *     recover: bool
+ *     recover: bool (unused)
  *     dt: float
  *     gyro: float[3]
  *     b: float[3]
@@ -2434,30 +1927,25 @@ static void mekf_k_update_gravity_part9(const float P[36], float P_out[36], floa
  *     P_out: float[36]
  *     min_pivot: float
  *
- * Total ops: 362 (add 156, mul 188, div 7, sqrt 2, cmp 9)
- *     of which only one side runs: if (unobserved) 15, else 0
- *     of which only one side runs: if (recover) 0, else 10
+ * Total ops: 173 (add 71, mul 90, div 5, sqrt 2, cmp 5)
+ *     of which only one side runs: if (unobserved) 28, else 0
  */
 static void mekf_k_update_gravity(const float q[restrict 4], const float up[restrict 3],
     bool recover, float dt, const float gyro[restrict 3], const float b[restrict 3],
     const float vel[restrict 3], bool unobserved, const float P[36], float x_out[restrict 6],
     float P_out[36], float *restrict min_pivot)
 {
+    (void)recover;
     /*
-     * 10 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
+     * 5 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
      * handed between them (a slot reused once its value is dead)
      */
-    float carry[48];
-    mekf_k_update_gravity_part0(q, dt, P, carry);
-    mekf_k_update_gravity_part1(q, up, gyro, b, vel, unobserved, carry);
-    mekf_k_update_gravity_part2(up, recover, P, carry);
-    mekf_k_update_gravity_part3(P, carry);
-    mekf_k_update_gravity_part4(P, x_out, carry);
-    mekf_k_update_gravity_part5(P, x_out, carry);
-    mekf_k_update_gravity_part6(P, x_out, carry);
-    mekf_k_update_gravity_part7(P, x_out, P_out, carry);
-    mekf_k_update_gravity_part8(P, P_out, carry);
-    mekf_k_update_gravity_part9(P, P_out, min_pivot, carry);
+    float carry[18];
+    mekf_k_update_gravity_part0(q, dt, gyro, b, vel, unobserved, P, carry);
+    mekf_k_update_gravity_part1(up, P, x_out, carry);
+    mekf_k_update_gravity_part2(P, x_out, P_out, carry);
+    mekf_k_update_gravity_part3(P, P_out, carry);
+    mekf_k_update_gravity_part4(P, P_out, min_pivot, carry);
 }
 
 static void mekf_k_update_rest_bias_part0(const float b[3], const float P[36], const float gyro[3],
@@ -2845,35 +2333,35 @@ static void mekf_k_update_rest_bias(const float b[3], const float P[36], const f
 static void mekf_k_inject(const float q[4], const float b[3], const float x[6], float q_out[4],
     float b_out[3])
 {
-    const float tmp0 = q[1] * x[0];
+    const float tmp0 = x[0] * q[1];
     const float tmp1 = q[0] - tmp0;
-    const float tmp2 = q[2] * x[1];
+    const float tmp2 = x[1] * q[2];
     const float tmp3 = tmp1 - tmp2;
-    const float tmp4 = q[3] * x[2];
+    const float tmp4 = x[2] * q[3];
     const float tmp5 = tmp3 - tmp4;
     const float tmp6 = tmp5 * tmp5;
-    const float tmp7 = q[0] * x[0];
-    const float tmp8 = tmp7 + q[1];
-    const float tmp9 = q[2] * x[2];
+    const float tmp7 = x[0] * q[0];
+    const float tmp8 = q[1] + tmp7;
+    const float tmp9 = x[1] * q[3];
     const float tmp10 = tmp8 + tmp9;
-    const float tmp11 = q[3] * x[1];
+    const float tmp11 = x[2] * q[2];
     const float tmp12 = tmp10 - tmp11;
     const float tmp13 = tmp12 * tmp12;
     const float tmp14 = tmp6 + tmp13;
-    const float tmp15 = q[0] * x[1];
-    const float tmp16 = q[1] * x[2];
-    const float tmp17 = tmp15 - tmp16;
-    const float tmp18 = tmp17 + q[2];
-    const float tmp19 = q[3] * x[0];
+    const float tmp15 = x[0] * q[3];
+    const float tmp16 = q[2] - tmp15;
+    const float tmp17 = x[1] * q[0];
+    const float tmp18 = tmp16 + tmp17;
+    const float tmp19 = x[2] * q[1];
     const float tmp20 = tmp18 + tmp19;
     const float tmp21 = tmp20 * tmp20;
     const float tmp22 = tmp14 + tmp21;
-    const float tmp23 = q[0] * x[2];
-    const float tmp24 = q[1] * x[1];
-    const float tmp25 = tmp23 + tmp24;
-    const float tmp26 = q[2] * x[0];
-    const float tmp27 = tmp25 - tmp26;
-    const float tmp28 = tmp27 + q[3];
+    const float tmp23 = x[0] * q[2];
+    const float tmp24 = q[3] + tmp23;
+    const float tmp25 = x[1] * q[1];
+    const float tmp26 = tmp24 - tmp25;
+    const float tmp27 = x[2] * q[0];
+    const float tmp28 = tmp26 + tmp27;
     const float tmp29 = tmp28 * tmp28;
     const float tmp30 = tmp22 + tmp29;
     const float tmp31 = sqrtf(tmp30);
@@ -2894,373 +2382,226 @@ static void mekf_k_inject(const float q[4], const float b[3], const float x[6], 
     b_out[2] = tmp39;
 }
 
-static void mekf_k_update_heading_part0(const float q[4], const float P[36], float carry[29])
+static void mekf_k_update_heading_part0(const float q[4], const float P[36], float carry[25])
 {
-    const float tmp0 = q[1] * q[3];
-    const float tmp1 = q[0] * q[2];
-    const float tmp2 = tmp0 - tmp1;
-    const float tmp3 = tmp2 + tmp2;
-    const float tmp4 = tmp3 * tmp3;
-    const float tmp5 = 4.0f * tmp2;
-    const float tmp6 = P[0] * tmp5;
-    const float tmp7 = q[2] * q[3];
-    const float tmp8 = q[0] * q[1];
-    const float tmp9 = tmp7 + tmp8;
-    const float tmp10 = 4.0f * tmp9;
-    const float tmp11 = P[1] * tmp10;
-    const float tmp12 = tmp6 + tmp11;
-    const float tmp13 = q[1] * q[1];
-    const float tmp14 = q[2] * q[2];
-    const float tmp15 = tmp13 + tmp14;
-    const float tmp16 = tmp15 + tmp15;
-    const float tmp17 = 1.0f - tmp16;
-    const float tmp18 = tmp17 + tmp17;
-    const float tmp19 = P[2] * tmp18;
-    const float tmp20 = tmp12 + tmp19;
-    const float tmp21 = tmp5 * tmp20;
-    const float tmp22 = P[1] * tmp5;
-    const float tmp23 = P[7] * tmp10;
-    const float tmp24 = tmp22 + tmp23;
-    const float tmp25 = P[8] * tmp18;
-    const float tmp26 = tmp24 + tmp25;
-    const float tmp27 = tmp10 * tmp26;
-    const float tmp28 = tmp21 + tmp27;
-    const float tmp29 = P[2] * tmp5;
-    const float tmp30 = P[8] * tmp10;
-    const float tmp31 = tmp29 + tmp30;
-    const float tmp32 = P[14] * tmp18;
-    const float tmp33 = tmp31 + tmp32;
-    const float tmp34 = tmp18 * tmp33;
-    const float tmp35 = tmp28 + tmp34;
-    const float tmp36 = tmp9 + tmp9;
-    const float tmp37 = tmp3 * tmp36;
-    const float tmp38 = tmp3 * tmp17;
-    const float tmp39 = q[1] * q[2];
+    const float tmp0 = P[14] + P[14];
+    const float tmp1 = 4.0f * P[14];
+    const float tmp2 = q[1] * q[2];
+    const float tmp3 = q[0] * q[3];
+    const float tmp4 = tmp2 + tmp3;
+    const float tmp5 = tmp4 + tmp4;
+    const float tmp6 = q[2] * q[2];
+    const float tmp7 = q[3] * q[3];
+    const float tmp8 = tmp6 + tmp7;
+    const float tmp9 = tmp8 + tmp8;
+    const float tmp10 = 1.0f - tmp9;
     carry[0] = tmp0;
     carry[1] = tmp1;
-    carry[2] = tmp3;
-    carry[3] = tmp4;
+    carry[2] = tmp2;
+    carry[3] = tmp3;
     carry[4] = tmp5;
     carry[5] = tmp7;
-    carry[6] = tmp8;
-    carry[7] = tmp10;
-    carry[8] = tmp13;
-    carry[9] = tmp14;
-    carry[10] = tmp17;
-    carry[11] = tmp18;
-    carry[12] = tmp20;
-    carry[13] = tmp26;
-    carry[14] = tmp33;
-    carry[15] = tmp35;
-    carry[16] = tmp36;
-    carry[17] = tmp37;
-    carry[18] = tmp38;
-    carry[19] = tmp39;
+    carry[6] = tmp10;
 }
 
-static void mekf_k_update_heading_part1(const float q[4], float carry[29])
+static void mekf_k_update_heading_part1(const float q[4], const float mag[3], const float vel[3],
+    bool use_course, float mag_dt, float carry[25])
 {
-    const float tmp40 = q[0] * q[3];
-    const float tmp41 = carry[19] /* tmp39 */ + tmp40;
-    const float tmp42 = tmp41 + tmp41;
-    const float tmp43 = q[3] * q[3];
-    const float tmp44 = carry[9] /* tmp14 */ + tmp43;
-    const float tmp45 = tmp44 + tmp44;
-    const float tmp46 = 1.0f - tmp45;
-    carry[9] = tmp40;
-    carry[20] = tmp42;
-    carry[21] = tmp43;
-    carry[22] = tmp46;
-}
-
-static void mekf_k_update_heading_part2(const float mag[3], const float vel[3], bool use_course,
-    float mag_dt, float carry[29])
-{
-    float tmp47;
-    float tmp48;
+    float tmp11;
+    float tmp12;
     if (use_course) {
-        const float tmp49 = fast_atan2f(vel[1], vel[0]);
-        const float tmp50 = fast_atan2f(carry[20] /* tmp42 */, carry[22] /* tmp46 */);
-        const float tmp51 = tmp49 - tmp50;
-        const float tmp52 = tmp51 - 6.2831855f /* 2*pi */;
-        const float tmp53 = tmp51 + 6.2831855f /* 2*pi */;
-        const float tmp54 = (tmp51 <= (-3.1415927f) /* -pi */) ? tmp53 : tmp51;
-        const float tmp55 = (3.1415927f /* pi */ < tmp51) ? tmp52 : tmp54;
-        tmp47 = 0.0025f /* course_noise^2 */;
-        tmp48 = tmp55;
+        const float tmp13 = fast_atan2f(vel[1], vel[0]);
+        const float tmp14 = fast_atan2f(carry[4] /* tmp5 */, carry[6] /* tmp10 */);
+        const float tmp15 = tmp13 - tmp14;
+        const float tmp16 = tmp15 - 6.2831855f /* 2*pi */;
+        const float tmp17 = tmp15 + 6.2831855f /* 2*pi */;
+        const float tmp18 = (tmp15 <= (-3.1415927f) /* -pi */) ? tmp17 : tmp15;
+        const float tmp19 = (3.1415927f /* pi */ < tmp15) ? tmp16 : tmp18;
+        tmp11 = 0.0025f /* course_noise^2 */;
+        tmp12 = tmp19;
     } else {
-        const float tmp56 = (mag_dt > 1e-09f /* DT_Q_MIN */) ? mag_dt : 1e-09f /* DT_Q_MIN */;
-        const float tmp57 = 0.000576f /* mag_heading_density^2 */ / tmp56;
-        const float tmp58 = carry[20] /* tmp42 */ * mag[0];
-        const float tmp59 = carry[8] /* tmp13 */ + carry[21] /* tmp43 */;
-        const float tmp60 = tmp59 + tmp59;
-        const float tmp61 = 1.0f - tmp60;
-        const float tmp62 = tmp61 * mag[1];
-        const float tmp63 = tmp58 + tmp62;
-        const float tmp64 = carry[5] /* tmp7 */ - carry[6] /* tmp8 */;
-        const float tmp65 = tmp64 + tmp64;
-        const float tmp66 = tmp65 * mag[2];
-        const float tmp67 = tmp63 + tmp66;
-        const float tmp68 = carry[22] /* tmp46 */ * mag[0];
-        const float tmp69 = carry[19] /* tmp39 */ - carry[9] /* tmp40 */;
-        const float tmp70 = tmp69 + tmp69;
-        const float tmp71 = tmp70 * mag[1];
-        const float tmp72 = tmp68 + tmp71;
-        const float tmp73 = carry[0] /* tmp0 */ + carry[1] /* tmp1 */;
-        const float tmp74 = tmp73 + tmp73;
-        const float tmp75 = tmp74 * mag[2];
-        const float tmp76 = tmp72 + tmp75;
-        const float tmp77 = fast_atan2f(tmp67, tmp76);
-        const float tmp78 = -tmp77;
-        const float tmp79 = tmp77 + 6.2831855f /* 2*pi */;
-        const float tmp80 = -tmp79;
-        const float tmp81 = 6.2831855f /* 2*pi */ - tmp77;
-        const float tmp82 = (tmp78 <= (-3.1415927f) /* -pi */) ? tmp81 : tmp78;
-        const float tmp83 = (3.1415927f /* pi */ < tmp78) ? tmp80 : tmp82;
-        tmp47 = tmp57;
-        tmp48 = tmp83;
+        const float tmp20 = (mag_dt > 1e-09f /* DT_Q_MIN */) ? mag_dt : 1e-09f /* DT_Q_MIN */;
+        const float tmp21 = 0.000576f /* mag_heading_density^2 */ / tmp20;
+        const float tmp22 = carry[4] /* tmp5 */ * mag[0];
+        const float tmp23 = q[1] * q[1];
+        const float tmp24 = tmp23 + carry[5] /* tmp7 */;
+        const float tmp25 = tmp24 + tmp24;
+        const float tmp26 = 1.0f - tmp25;
+        const float tmp27 = tmp26 * mag[1];
+        const float tmp28 = tmp22 + tmp27;
+        const float tmp29 = q[2] * q[3];
+        const float tmp30 = q[0] * q[1];
+        const float tmp31 = tmp29 - tmp30;
+        const float tmp32 = tmp31 + tmp31;
+        const float tmp33 = tmp32 * mag[2];
+        const float tmp34 = tmp28 + tmp33;
+        const float tmp35 = carry[6] /* tmp10 */ * mag[0];
+        const float tmp36 = carry[2] /* tmp2 */ - carry[3] /* tmp3 */;
+        const float tmp37 = tmp36 + tmp36;
+        const float tmp38 = tmp37 * mag[1];
+        const float tmp39 = tmp35 + tmp38;
+        const float tmp40 = q[1] * q[3];
+        const float tmp41 = q[0] * q[2];
+        const float tmp42 = tmp40 + tmp41;
+        const float tmp43 = tmp42 + tmp42;
+        const float tmp44 = tmp43 * mag[2];
+        const float tmp45 = tmp39 + tmp44;
+        const float tmp46 = fast_atan2f(tmp34, tmp45);
+        const float tmp47 = -tmp46;
+        const float tmp48 = tmp46 + 6.2831855f /* 2*pi */;
+        const float tmp49 = -tmp48;
+        const float tmp50 = 6.2831855f /* 2*pi */ - tmp46;
+        const float tmp51 = (tmp47 <= (-3.1415927f) /* -pi */) ? tmp50 : tmp47;
+        const float tmp52 = (3.1415927f /* pi */ < tmp47) ? tmp49 : tmp51;
+        tmp11 = tmp21;
+        tmp12 = tmp52;
     }
-    const float tmp84 = carry[15] /* tmp35 */ + tmp47;
-    const float tmp85 = 1.0f / tmp84;
-    const float tmp86 = (1e-12f /* S_PIVOT_MIN */ < tmp84) ? tmp85 : 1.0f;
-    carry[0] = tmp48;
-    carry[1] = tmp84;
-    carry[5] = tmp86;
+    carry[2] = tmp11;
+    carry[3] = tmp12;
 }
 
-static void mekf_k_update_heading_part3(const float P[36], float carry[29])
+static void mekf_k_update_heading_part2(const float P[36], float carry[25])
 {
-    const float tmp87 = carry[12] /* tmp20 */ * carry[5] /* tmp86 */;
-    const float tmp88 = carry[3] /* tmp4 */ * tmp87;
-    const float tmp89 = carry[13] /* tmp26 */ * carry[5] /* tmp86 */;
-    const float tmp90 = carry[17] /* tmp37 */ * tmp89;
-    const float tmp91 = tmp88 + tmp90;
-    const float tmp92 = carry[14] /* tmp33 */ * carry[5] /* tmp86 */;
-    const float tmp93 = carry[18] /* tmp38 */ * tmp92;
-    const float tmp94 = tmp91 + tmp93;
-    const float tmp95 = tmp94 * carry[0] /* tmp48 */;
-    const float tmp96 = carry[16] /* tmp36 */ * carry[2] /* tmp3 */;
-    const float tmp97 = tmp96 * tmp87;
-    const float tmp98 = carry[16] /* tmp36 */ * carry[16] /* tmp36 */;
-    const float tmp99 = tmp98 * tmp89;
-    const float tmp100 = tmp97 + tmp99;
-    const float tmp101 = carry[16] /* tmp36 */ * carry[10] /* tmp17 */;
-    const float tmp102 = tmp101 * tmp92;
-    const float tmp103 = tmp100 + tmp102;
-    const float tmp104 = tmp103 * carry[0] /* tmp48 */;
-    const float tmp105 = carry[10] /* tmp17 */ * carry[2] /* tmp3 */;
-    const float tmp106 = tmp105 * tmp87;
-    const float tmp107 = carry[10] /* tmp17 */ * carry[16] /* tmp36 */;
-    const float tmp108 = tmp107 * tmp89;
-    const float tmp109 = tmp106 + tmp108;
-    const float tmp110 = carry[10] /* tmp17 */ * carry[10] /* tmp17 */;
-    const float tmp111 = tmp110 * tmp92;
-    const float tmp112 = tmp109 + tmp111;
-    const float tmp113 = tmp112 * carry[0] /* tmp48 */;
-    const float tmp114 = P[3] * carry[4] /* tmp5 */;
-    const float tmp115 = P[9] * carry[7] /* tmp10 */;
-    const float tmp116 = tmp114 + tmp115;
-    const float tmp117 = P[15] * carry[11] /* tmp18 */;
-    const float tmp118 = tmp116 + tmp117;
-    const float tmp119 = tmp118 * carry[5] /* tmp86 */;
-    const float tmp120 = tmp119 * carry[0] /* tmp48 */;
-    const float tmp121 = P[4] * carry[4] /* tmp5 */;
-    const float tmp122 = P[10] * carry[7] /* tmp10 */;
-    const float tmp123 = tmp121 + tmp122;
-    const float tmp124 = P[16] * carry[11] /* tmp18 */;
-    const float tmp125 = tmp123 + tmp124;
-    const float tmp126 = tmp125 * carry[5] /* tmp86 */;
-    carry[2] = tmp94;
-    carry[3] = tmp95;
-    carry[6] = tmp103;
-    carry[8] = tmp104;
-    carry[9] = tmp112;
-    carry[10] = tmp113;
-    carry[15] = tmp118;
-    carry[16] = tmp119;
-    carry[17] = tmp120;
-    carry[18] = tmp125;
-    carry[19] = tmp126;
+    const float tmp53 = carry[1] /* tmp1 */ + carry[2] /* tmp11 */;
+    const float tmp54 = 1.0f / tmp53;
+    const float tmp55 = (1e-12f /* S_PIVOT_MIN */ < tmp53) ? tmp54 : 1.0f;
+    const float tmp56 = carry[0] /* tmp0 */ * tmp55;
+    const float tmp57 = tmp56 * carry[3] /* tmp12 */;
+    const float tmp58 = P[15] + P[15];
+    const float tmp59 = tmp58 * tmp55;
+    const float tmp60 = tmp59 * carry[3] /* tmp12 */;
+    const float tmp61 = P[16] + P[16];
+    const float tmp62 = tmp61 * tmp55;
+    const float tmp63 = tmp62 * carry[3] /* tmp12 */;
+    const float tmp64 = P[17] + P[17];
+    const float tmp65 = tmp64 * tmp55;
+    const float tmp66 = tmp65 * carry[3] /* tmp12 */;
+    const float tmp67 = P[2] + P[2];
+    const float tmp68 = tmp56 * tmp67;
+    const float tmp69 = P[2] - tmp68;
+    const float tmp70 = (1e-12f /* S_PIVOT_MIN */ < tmp53) ? tmp69 : P[2];
+    const float tmp71 = tmp59 * tmp67;
+    const float tmp72 = P[3] - tmp71;
+    const float tmp73 = (1e-12f /* S_PIVOT_MIN */ < tmp53) ? tmp72 : P[3];
+    const float tmp74 = tmp62 * tmp67;
+    const float tmp75 = P[4] - tmp74;
+    const float tmp76 = (1e-12f /* S_PIVOT_MIN */ < tmp53) ? tmp75 : P[4];
+    const float tmp77 = tmp65 * tmp67;
+    const float tmp78 = P[5] - tmp77;
+    const float tmp79 = (1e-12f /* S_PIVOT_MIN */ < tmp53) ? tmp78 : P[5];
+    const float tmp80 = P[8] + P[8];
+    const float tmp81 = tmp56 * tmp80;
+    const float tmp82 = P[8] - tmp81;
+    const float tmp83 = (1e-12f /* S_PIVOT_MIN */ < tmp53) ? tmp82 : P[8];
+    const float tmp84 = tmp59 * tmp80;
+    const float tmp85 = P[9] - tmp84;
+    const float tmp86 = (1e-12f /* S_PIVOT_MIN */ < tmp53) ? tmp85 : P[9];
+    const float tmp87 = tmp62 * tmp80;
+    const float tmp88 = P[10] - tmp87;
+    const float tmp89 = (1e-12f /* S_PIVOT_MIN */ < tmp53) ? tmp88 : P[10];
+    const float tmp90 = tmp65 * tmp80;
+    const float tmp91 = P[11] - tmp90;
+    const float tmp92 = (1e-12f /* S_PIVOT_MIN */ < tmp53) ? tmp91 : P[11];
+    carry[1] = tmp53;
+    carry[2] = tmp56;
+    carry[3] = tmp57;
+    carry[4] = tmp58;
+    carry[5] = tmp59;
+    carry[6] = tmp60;
+    carry[7] = tmp61;
+    carry[8] = tmp62;
+    carry[9] = tmp63;
+    carry[10] = tmp64;
+    carry[11] = tmp65;
+    carry[12] = tmp66;
+    carry[13] = tmp70;
+    carry[14] = tmp73;
+    carry[15] = tmp76;
+    carry[16] = tmp79;
+    carry[17] = tmp83;
+    carry[18] = tmp86;
+    carry[19] = tmp89;
+    carry[20] = tmp92;
 }
 
-static void mekf_k_update_heading_part4(const float P[36], float carry[29])
+static void mekf_k_update_heading_part3(const float P[36], float carry[25])
 {
-    const float tmp127 = carry[19] /* tmp126 */ * carry[0] /* tmp48 */;
-    const float tmp128 = P[5] * carry[4] /* tmp5 */;
-    const float tmp129 = P[11] * carry[7] /* tmp10 */;
-    const float tmp130 = tmp128 + tmp129;
-    const float tmp131 = P[17] * carry[11] /* tmp18 */;
-    const float tmp132 = tmp130 + tmp131;
-    const float tmp133 = tmp132 * carry[5] /* tmp86 */;
-    const float tmp134 = tmp133 * carry[0] /* tmp48 */;
-    const float tmp135 = 0.5f * carry[1] /* tmp84 */;
-    const float tmp136 = tmp135 * carry[2] /* tmp94 */;
-    const float tmp137 = carry[12] /* tmp20 */ - tmp136;
-    const float tmp138 = carry[2] /* tmp94 */ * tmp137;
-    const float tmp139 = P[0] - tmp138;
-    const float tmp140 = tmp137 * carry[2] /* tmp94 */;
-    const float tmp141 = tmp139 - tmp140;
-    const float tmp142 = (1e-12f /* S_PIVOT_MIN */ < carry[1] /* tmp84 */) ? tmp141 : P[0];
-    const float tmp143 = carry[6] /* tmp103 */ * tmp137;
-    const float tmp144 = P[1] - tmp143;
-    const float tmp145 = tmp135 * carry[6] /* tmp103 */;
-    const float tmp146 = carry[13] /* tmp26 */ - tmp145;
-    const float tmp147 = tmp146 * carry[2] /* tmp94 */;
-    const float tmp148 = tmp144 - tmp147;
-    const float tmp149 = (1e-12f /* S_PIVOT_MIN */ < carry[1] /* tmp84 */) ? tmp148 : P[1];
-    const float tmp150 = carry[9] /* tmp112 */ * tmp137;
-    const float tmp151 = P[2] - tmp150;
-    const float tmp152 = tmp135 * carry[9] /* tmp112 */;
-    const float tmp153 = carry[14] /* tmp33 */ - tmp152;
-    const float tmp154 = tmp153 * carry[2] /* tmp94 */;
-    const float tmp155 = tmp151 - tmp154;
-    const float tmp156 = (1e-12f /* S_PIVOT_MIN */ < carry[1] /* tmp84 */) ? tmp155 : P[2];
-    const float tmp157 = carry[16] /* tmp119 */ * tmp137;
-    const float tmp158 = P[3] - tmp157;
-    const float tmp159 = tmp135 * carry[16] /* tmp119 */;
-    const float tmp160 = carry[15] /* tmp118 */ - tmp159;
-    const float tmp161 = tmp160 * carry[2] /* tmp94 */;
-    const float tmp162 = tmp158 - tmp161;
-    const float tmp163 = (1e-12f /* S_PIVOT_MIN */ < carry[1] /* tmp84 */) ? tmp162 : P[3];
-    const float tmp164 = carry[19] /* tmp126 */ * tmp137;
-    const float tmp165 = P[4] - tmp164;
-    const float tmp166 = tmp135 * carry[19] /* tmp126 */;
-    carry[0] = tmp127;
-    carry[4] = tmp132;
-    carry[5] = tmp133;
-    carry[7] = tmp134;
-    carry[11] = tmp135;
-    carry[12] = tmp137;
-    carry[13] = tmp142;
-    carry[14] = tmp146;
-    carry[15] = tmp149;
-    carry[20] = tmp153;
-    carry[21] = tmp156;
-    carry[22] = tmp160;
-    carry[23] = tmp163;
-    carry[24] = tmp165;
-    carry[25] = tmp166;
+    const float tmp93 = 0.5f * carry[1] /* tmp53 */;
+    const float tmp94 = tmp93 * carry[2] /* tmp56 */;
+    const float tmp95 = carry[0] /* tmp0 */ - tmp94;
+    const float tmp96 = carry[2] /* tmp56 */ * tmp95;
+    const float tmp97 = P[14] - tmp96;
+    const float tmp98 = tmp95 * carry[2] /* tmp56 */;
+    const float tmp99 = tmp97 - tmp98;
+    const float tmp100 = (1e-12f /* S_PIVOT_MIN */ < carry[1] /* tmp53 */) ? tmp99 : P[14];
+    const float tmp101 = carry[5] /* tmp59 */ * tmp95;
+    const float tmp102 = P[15] - tmp101;
+    const float tmp103 = tmp93 * carry[5] /* tmp59 */;
+    const float tmp104 = carry[4] /* tmp58 */ - tmp103;
+    const float tmp105 = tmp104 * carry[2] /* tmp56 */;
+    const float tmp106 = tmp102 - tmp105;
+    const float tmp107 = (1e-12f /* S_PIVOT_MIN */ < carry[1] /* tmp53 */) ? tmp106 : P[15];
+    const float tmp108 = carry[8] /* tmp62 */ * tmp95;
+    const float tmp109 = P[16] - tmp108;
+    const float tmp110 = tmp93 * carry[8] /* tmp62 */;
+    const float tmp111 = carry[7] /* tmp61 */ - tmp110;
+    const float tmp112 = tmp111 * carry[2] /* tmp56 */;
+    const float tmp113 = tmp109 - tmp112;
+    const float tmp114 = (1e-12f /* S_PIVOT_MIN */ < carry[1] /* tmp53 */) ? tmp113 : P[16];
+    const float tmp115 = carry[11] /* tmp65 */ * tmp95;
+    const float tmp116 = P[17] - tmp115;
+    const float tmp117 = tmp93 * carry[11] /* tmp65 */;
+    const float tmp118 = carry[10] /* tmp64 */ - tmp117;
+    const float tmp119 = tmp118 * carry[2] /* tmp56 */;
+    const float tmp120 = tmp116 - tmp119;
+    const float tmp121 = (1e-12f /* S_PIVOT_MIN */ < carry[1] /* tmp53 */) ? tmp120 : P[17];
+    const float tmp122 = carry[5] /* tmp59 */ * tmp104;
+    const float tmp123 = P[21] - tmp122;
+    const float tmp124 = tmp104 * carry[5] /* tmp59 */;
+    const float tmp125 = tmp123 - tmp124;
+    const float tmp126 = (1e-12f /* S_PIVOT_MIN */ < carry[1] /* tmp53 */) ? tmp125 : P[21];
+    const float tmp127 = carry[8] /* tmp62 */ * tmp104;
+    const float tmp128 = P[22] - tmp127;
+    const float tmp129 = tmp111 * carry[5] /* tmp59 */;
+    const float tmp130 = tmp128 - tmp129;
+    const float tmp131 = (1e-12f /* S_PIVOT_MIN */ < carry[1] /* tmp53 */) ? tmp130 : P[22];
+    const float tmp132 = carry[11] /* tmp65 */ * tmp104;
+    carry[0] = tmp100;
+    carry[2] = tmp107;
+    carry[4] = tmp111;
+    carry[7] = tmp114;
+    carry[10] = tmp118;
+    carry[21] = tmp121;
+    carry[22] = tmp126;
+    carry[23] = tmp131;
+    carry[24] = tmp132;
 }
 
-static void mekf_k_update_heading_part5(const float P[36], float carry[29])
+static void mekf_k_update_heading_part4(const float P[36], float carry[25])
 {
-    const float tmp167 = carry[18] /* tmp125 */ - carry[25] /* tmp166 */;
-    const float tmp168 = tmp167 * carry[2] /* tmp94 */;
-    const float tmp169 = carry[24] /* tmp165 */ - tmp168;
-    const float tmp170 = (1e-12f /* S_PIVOT_MIN */ < carry[1] /* tmp84 */) ? tmp169 : P[4];
-    const float tmp171 = carry[5] /* tmp133 */ * carry[12] /* tmp137 */;
-    const float tmp172 = P[5] - tmp171;
-    const float tmp173 = carry[11] /* tmp135 */ * carry[5] /* tmp133 */;
-    const float tmp174 = carry[4] /* tmp132 */ - tmp173;
-    const float tmp175 = tmp174 * carry[2] /* tmp94 */;
-    const float tmp176 = tmp172 - tmp175;
-    const float tmp177 = (1e-12f /* S_PIVOT_MIN */ < carry[1] /* tmp84 */) ? tmp176 : P[5];
-    const float tmp178 = carry[6] /* tmp103 */ * carry[14] /* tmp146 */;
-    const float tmp179 = P[7] - tmp178;
-    const float tmp180 = carry[14] /* tmp146 */ * carry[6] /* tmp103 */;
-    const float tmp181 = tmp179 - tmp180;
-    const float tmp182 = (1e-12f /* S_PIVOT_MIN */ < carry[1] /* tmp84 */) ? tmp181 : P[7];
-    const float tmp183 = carry[9] /* tmp112 */ * carry[14] /* tmp146 */;
-    const float tmp184 = P[8] - tmp183;
-    const float tmp185 = carry[20] /* tmp153 */ * carry[6] /* tmp103 */;
-    const float tmp186 = tmp184 - tmp185;
-    const float tmp187 = (1e-12f /* S_PIVOT_MIN */ < carry[1] /* tmp84 */) ? tmp186 : P[8];
-    const float tmp188 = carry[16] /* tmp119 */ * carry[14] /* tmp146 */;
-    const float tmp189 = P[9] - tmp188;
-    const float tmp190 = carry[22] /* tmp160 */ * carry[6] /* tmp103 */;
-    const float tmp191 = tmp189 - tmp190;
-    const float tmp192 = (1e-12f /* S_PIVOT_MIN */ < carry[1] /* tmp84 */) ? tmp191 : P[9];
-    const float tmp193 = carry[19] /* tmp126 */ * carry[14] /* tmp146 */;
-    const float tmp194 = P[10] - tmp193;
-    const float tmp195 = tmp167 * carry[6] /* tmp103 */;
-    const float tmp196 = tmp194 - tmp195;
-    const float tmp197 = (1e-12f /* S_PIVOT_MIN */ < carry[1] /* tmp84 */) ? tmp196 : P[10];
-    const float tmp198 = carry[5] /* tmp133 */ * carry[14] /* tmp146 */;
-    const float tmp199 = P[11] - tmp198;
-    const float tmp200 = tmp174 * carry[6] /* tmp103 */;
-    const float tmp201 = tmp199 - tmp200;
-    const float tmp202 = (1e-12f /* S_PIVOT_MIN */ < carry[1] /* tmp84 */) ? tmp201 : P[11];
-    const float tmp203 = carry[9] /* tmp112 */ * carry[20] /* tmp153 */;
-    const float tmp204 = P[14] - tmp203;
-    const float tmp205 = carry[20] /* tmp153 */ * carry[9] /* tmp112 */;
-    const float tmp206 = tmp204 - tmp205;
-    carry[2] = tmp167;
-    carry[4] = tmp170;
-    carry[6] = tmp174;
-    carry[11] = tmp177;
-    carry[12] = tmp182;
-    carry[14] = tmp187;
-    carry[18] = tmp192;
-    carry[24] = tmp197;
-    carry[25] = tmp202;
-    carry[26] = tmp206;
-}
-
-static void mekf_k_update_heading_part6(const float P[36], float carry[29])
-{
-    const float tmp207 = (1e-12f /* S_PIVOT_MIN */ < carry[1] /* tmp84 */) ? carry[26] /* tmp206 */
-            : P[14];
-    const float tmp208 = carry[16] /* tmp119 */ * carry[20] /* tmp153 */;
-    const float tmp209 = P[15] - tmp208;
-    const float tmp210 = carry[22] /* tmp160 */ * carry[9] /* tmp112 */;
-    const float tmp211 = tmp209 - tmp210;
-    const float tmp212 = (1e-12f /* S_PIVOT_MIN */ < carry[1] /* tmp84 */) ? tmp211 : P[15];
-    const float tmp213 = carry[19] /* tmp126 */ * carry[20] /* tmp153 */;
-    const float tmp214 = P[16] - tmp213;
-    const float tmp215 = carry[2] /* tmp167 */ * carry[9] /* tmp112 */;
-    const float tmp216 = tmp214 - tmp215;
-    const float tmp217 = (1e-12f /* S_PIVOT_MIN */ < carry[1] /* tmp84 */) ? tmp216 : P[16];
-    const float tmp218 = carry[5] /* tmp133 */ * carry[20] /* tmp153 */;
-    const float tmp219 = P[17] - tmp218;
-    const float tmp220 = carry[6] /* tmp174 */ * carry[9] /* tmp112 */;
-    const float tmp221 = tmp219 - tmp220;
-    const float tmp222 = (1e-12f /* S_PIVOT_MIN */ < carry[1] /* tmp84 */) ? tmp221 : P[17];
-    const float tmp223 = carry[16] /* tmp119 */ * carry[22] /* tmp160 */;
-    const float tmp224 = P[21] - tmp223;
-    const float tmp225 = carry[22] /* tmp160 */ * carry[16] /* tmp119 */;
-    const float tmp226 = tmp224 - tmp225;
-    const float tmp227 = (1e-12f /* S_PIVOT_MIN */ < carry[1] /* tmp84 */) ? tmp226 : P[21];
-    const float tmp228 = carry[19] /* tmp126 */ * carry[22] /* tmp160 */;
-    const float tmp229 = P[22] - tmp228;
-    const float tmp230 = carry[2] /* tmp167 */ * carry[16] /* tmp119 */;
-    const float tmp231 = tmp229 - tmp230;
-    const float tmp232 = (1e-12f /* S_PIVOT_MIN */ < carry[1] /* tmp84 */) ? tmp231 : P[22];
-    const float tmp233 = carry[5] /* tmp133 */ * carry[22] /* tmp160 */;
-    const float tmp234 = P[23] - tmp233;
-    const float tmp235 = carry[6] /* tmp174 */ * carry[16] /* tmp119 */;
-    const float tmp236 = tmp234 - tmp235;
-    const float tmp237 = (1e-12f /* S_PIVOT_MIN */ < carry[1] /* tmp84 */) ? tmp236 : P[23];
-    const float tmp238 = carry[19] /* tmp126 */ * carry[2] /* tmp167 */;
-    const float tmp239 = P[28] - tmp238;
-    const float tmp240 = carry[2] /* tmp167 */ * carry[19] /* tmp126 */;
-    const float tmp241 = tmp239 - tmp240;
-    const float tmp242 = (1e-12f /* S_PIVOT_MIN */ < carry[1] /* tmp84 */) ? tmp241 : P[28];
-    const float tmp243 = carry[5] /* tmp133 */ * carry[2] /* tmp167 */;
-    const float tmp244 = P[29] - tmp243;
-    const float tmp245 = carry[6] /* tmp174 */ * carry[19] /* tmp126 */;
-    const float tmp246 = tmp244 - tmp245;
-    carry[2] = tmp207;
-    carry[9] = tmp212;
-    carry[16] = tmp217;
-    carry[19] = tmp222;
-    carry[20] = tmp227;
-    carry[22] = tmp232;
-    carry[26] = tmp237;
-    carry[27] = tmp242;
-    carry[28] = tmp246;
-}
-
-static void mekf_k_update_heading_part7(const float P[36], float carry[29])
-{
-    const float tmp247 = (1e-12f /* S_PIVOT_MIN */ < carry[1] /* tmp84 */) ? carry[28] /* tmp246 */
-            : P[29];
-    const float tmp248 = carry[5] /* tmp133 */ * carry[6] /* tmp174 */;
-    const float tmp249 = P[35] - tmp248;
-    const float tmp250 = carry[6] /* tmp174 */ * carry[5] /* tmp133 */;
-    const float tmp251 = tmp249 - tmp250;
-    const float tmp252 = (1e-12f /* S_PIVOT_MIN */ < carry[1] /* tmp84 */) ? tmp251 : P[35];
-    carry[5] = tmp247;
-    carry[6] = tmp252;
+    const float tmp133 = P[23] - carry[24] /* tmp132 */;
+    const float tmp134 = carry[10] /* tmp118 */ * carry[5] /* tmp59 */;
+    const float tmp135 = tmp133 - tmp134;
+    const float tmp136 = (1e-12f /* S_PIVOT_MIN */ < carry[1] /* tmp53 */) ? tmp135 : P[23];
+    const float tmp137 = carry[8] /* tmp62 */ * carry[4] /* tmp111 */;
+    const float tmp138 = P[28] - tmp137;
+    const float tmp139 = carry[4] /* tmp111 */ * carry[8] /* tmp62 */;
+    const float tmp140 = tmp138 - tmp139;
+    const float tmp141 = (1e-12f /* S_PIVOT_MIN */ < carry[1] /* tmp53 */) ? tmp140 : P[28];
+    const float tmp142 = carry[11] /* tmp65 */ * carry[4] /* tmp111 */;
+    const float tmp143 = P[29] - tmp142;
+    const float tmp144 = carry[10] /* tmp118 */ * carry[8] /* tmp62 */;
+    const float tmp145 = tmp143 - tmp144;
+    const float tmp146 = (1e-12f /* S_PIVOT_MIN */ < carry[1] /* tmp53 */) ? tmp145 : P[29];
+    const float tmp147 = carry[11] /* tmp65 */ * carry[10] /* tmp118 */;
+    const float tmp148 = P[35] - tmp147;
+    const float tmp149 = carry[10] /* tmp118 */ * carry[11] /* tmp65 */;
+    const float tmp150 = tmp148 - tmp149;
+    const float tmp151 = (1e-12f /* S_PIVOT_MIN */ < carry[1] /* tmp53 */) ? tmp150 : P[35];
+    carry[4] = tmp136;
+    carry[5] = tmp141;
+    carry[8] = tmp146;
+    carry[10] = tmp151;
 }
 
 /*
@@ -3281,8 +2622,8 @@ static void mekf_k_update_heading_part7(const float P[36], float carry[29])
  *     P_out: float[36]
  *     s: float
  *
- * Total ops: 253 (add 102, mul 117, div 2, trig 3, cmp 29)
- *     of which only one side runs: if (use_course) 7, else 28
+ * Total ops: 152 (add 64, mul 57, div 2, trig 3, cmp 26)
+ *     of which only one side runs: if (use_course) 7, else 33
  */
 static void mekf_k_update_heading(const float q[4], const float P[36], const float mag[3],
     const float vel[3], bool use_course, float mag_dt, const float feat[4], const float mag_ref[2],
@@ -3292,61 +2633,58 @@ static void mekf_k_update_heading(const float q[4], const float P[36], const flo
     (void)mag_ref;
     (void)recover;
     /*
-     * 8 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
+     * 5 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
      * handed between them (a slot reused once its value is dead)
      */
-    float carry[29];
+    float carry[25];
     mekf_k_update_heading_part0(q, P, carry);
-    mekf_k_update_heading_part1(q, carry);
-    mekf_k_update_heading_part2(mag, vel, use_course, mag_dt, carry);
+    mekf_k_update_heading_part1(q, mag, vel, use_course, mag_dt, carry);
+    mekf_k_update_heading_part2(P, carry);
     mekf_k_update_heading_part3(P, carry);
     mekf_k_update_heading_part4(P, carry);
-    mekf_k_update_heading_part5(P, carry);
-    mekf_k_update_heading_part6(P, carry);
-    mekf_k_update_heading_part7(P, carry);
-    x_out[0] = carry[3] /* tmp95 */;
-    x_out[1] = carry[8] /* tmp104 */;
-    x_out[2] = carry[10] /* tmp113 */;
-    x_out[3] = carry[17] /* tmp120 */;
-    x_out[4] = carry[0] /* tmp127 */;
-    x_out[5] = carry[7] /* tmp134 */;
-    P_out[0] = carry[13] /* tmp142 */;
-    P_out[1] = carry[15] /* tmp149 */;
-    P_out[2] = carry[21] /* tmp156 */;
-    P_out[3] = carry[23] /* tmp163 */;
-    P_out[4] = carry[4] /* tmp170 */;
-    P_out[5] = carry[11] /* tmp177 */;
-    P_out[6] = carry[15] /* tmp149 */;
-    P_out[7] = carry[12] /* tmp182 */;
-    P_out[8] = carry[14] /* tmp187 */;
-    P_out[9] = carry[18] /* tmp192 */;
-    P_out[10] = carry[24] /* tmp197 */;
-    P_out[11] = carry[25] /* tmp202 */;
-    P_out[12] = carry[21] /* tmp156 */;
-    P_out[13] = carry[14] /* tmp187 */;
-    P_out[14] = carry[2] /* tmp207 */;
-    P_out[15] = carry[9] /* tmp212 */;
-    P_out[16] = carry[16] /* tmp217 */;
-    P_out[17] = carry[19] /* tmp222 */;
-    P_out[18] = carry[23] /* tmp163 */;
-    P_out[19] = carry[18] /* tmp192 */;
-    P_out[20] = carry[9] /* tmp212 */;
-    P_out[21] = carry[20] /* tmp227 */;
-    P_out[22] = carry[22] /* tmp232 */;
-    P_out[23] = carry[26] /* tmp237 */;
-    P_out[24] = carry[4] /* tmp170 */;
-    P_out[25] = carry[24] /* tmp197 */;
-    P_out[26] = carry[16] /* tmp217 */;
-    P_out[27] = carry[22] /* tmp232 */;
-    P_out[28] = carry[27] /* tmp242 */;
-    P_out[29] = carry[5] /* tmp247 */;
-    P_out[30] = carry[11] /* tmp177 */;
-    P_out[31] = carry[25] /* tmp202 */;
-    P_out[32] = carry[19] /* tmp222 */;
-    P_out[33] = carry[26] /* tmp237 */;
-    P_out[34] = carry[5] /* tmp247 */;
-    P_out[35] = carry[6] /* tmp252 */;
-    *s = carry[1] /* tmp84 */;
+    x_out[0] = 0.0f;
+    x_out[1] = 0.0f;
+    x_out[2] = carry[3] /* tmp57 */;
+    x_out[3] = carry[6] /* tmp60 */;
+    x_out[4] = carry[9] /* tmp63 */;
+    x_out[5] = carry[12] /* tmp66 */;
+    P_out[0] = P[0];
+    P_out[1] = P[1];
+    P_out[2] = carry[13] /* tmp70 */;
+    P_out[3] = carry[14] /* tmp73 */;
+    P_out[4] = carry[15] /* tmp76 */;
+    P_out[5] = carry[16] /* tmp79 */;
+    P_out[6] = P[1];
+    P_out[7] = P[7];
+    P_out[8] = carry[17] /* tmp83 */;
+    P_out[9] = carry[18] /* tmp86 */;
+    P_out[10] = carry[19] /* tmp89 */;
+    P_out[11] = carry[20] /* tmp92 */;
+    P_out[12] = carry[13] /* tmp70 */;
+    P_out[13] = carry[17] /* tmp83 */;
+    P_out[14] = carry[0] /* tmp100 */;
+    P_out[15] = carry[2] /* tmp107 */;
+    P_out[16] = carry[7] /* tmp114 */;
+    P_out[17] = carry[21] /* tmp121 */;
+    P_out[18] = carry[14] /* tmp73 */;
+    P_out[19] = carry[18] /* tmp86 */;
+    P_out[20] = carry[2] /* tmp107 */;
+    P_out[21] = carry[22] /* tmp126 */;
+    P_out[22] = carry[23] /* tmp131 */;
+    P_out[23] = carry[4] /* tmp136 */;
+    P_out[24] = carry[15] /* tmp76 */;
+    P_out[25] = carry[19] /* tmp89 */;
+    P_out[26] = carry[7] /* tmp114 */;
+    P_out[27] = carry[23] /* tmp131 */;
+    P_out[28] = carry[5] /* tmp141 */;
+    P_out[29] = carry[8] /* tmp146 */;
+    P_out[30] = carry[16] /* tmp79 */;
+    P_out[31] = carry[20] /* tmp92 */;
+    P_out[32] = carry[21] /* tmp121 */;
+    P_out[33] = carry[4] /* tmp136 */;
+    P_out[34] = carry[8] /* tmp146 */;
+    P_out[35] = carry[10] /* tmp151 */;
+    *s = carry[1] /* tmp53 */;
 }
 
 static void mekf_k_init_attitude_part0(const float accel[3], const float mag[3], const float vel[3],
@@ -4806,10 +4144,9 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
     float *const q = s->q;
     float *const P = s->P;
     {
-        float F_q[9];   /* F's attitude rows: by the attitude error and by the bias error */
-        float F_b[9];
-        mekf_k_predict_attitude(q, s->gyro_bias, in->gyro, dt, q, F_q, F_b);
-        mekf_k_predict_covariance(F_q, F_b, P, in->gyro, dt, clipped, P);
+        float B[9];   /* F's attitude rows by the bias error (earth-frame attitude error) */
+        mekf_k_predict_attitude(q, s->gyro_bias, in->gyro, dt, q, B);
+        mekf_k_predict_covariance(B, P, in->gyro, dt, clipped, P);
     }
     if (recovering) {
         status |= MEKF_GYRO_RECOVERY;
@@ -4876,10 +4213,10 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
         }
     }
 
-    /* Gravity direction (3 rows) and, at rest, the gyro bias (3 rows): scalar rows in turn on P
-     * (the batch update with the rows stacked), applied only when every row's variance - the
-     * batch innovation covariance's Cholesky pivots - is usable; else P is restored from its
-     * lower triangle saved here. The three gravity rows are one kernel. */
+    /* Gravity direction (2 rows, earth frame) and, at rest, the gyro bias (3 rows): scalar rows
+     * in turn on P (the batch update with the rows stacked), applied only when every row's
+     * variance - the batch innovation covariance's Cholesky pivots - is usable; else P is
+     * restored from its lower triangle saved here. The two gravity rows are one kernel. */
     if (use_tilt || at_rest) {
         float x[6] = { 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f };
         float P_saved[21];

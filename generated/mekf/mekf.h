@@ -370,7 +370,8 @@ typedef uint32_t mekf_status;
 typedef struct {
     float q[4];            /* attitude quaternion body->NED [w x y z] */
     float gyro_bias[3];    /* gyro bias estimate, rad/s */
-    float P[36];           /* error-state covariance [dq, db] (6x6, symmetric) */
+    float P[36];           /* error-state covariance [d, db] (6x6, symmetric; d the attitude error,
+                              earth frame) */
     float v_gps[3];        /* last valid GPS velocity NED, m/s */
     float v_age;           /* age of v_gps, s (stops counting at 1e3) */
     float a_gps[3];        /* NED acceleration from the last two GPS velocities, m/s^2 (motion_comp

@@ -139,6 +139,30 @@ def qexp_jacobian(v) -> ca.SX:
     return ca.vertcat(2 * dC * v.T, S * ca.SX.eye(3) + 2 * dS * ca.mtimes(v, v.T))
 
 
+# (|v| − sin|v| cos|v|) / |v|³ = (2x − sin 2x) / (2x³) at x = |v|: sum_k (-1)^k 2^(2k+2) |v|^2k / (2k+3)!,
+# Horner in |v|^2 (SERIES_TERMS terms; the first neglected, 2^12 |v|^10 / 13!, is 6.6e-17 at
+# |v| = SERIES_MAX: below double round-off beside the leading 2/3).
+RJ_SERIES = tuple(Fraction((-1) ** k * 2 ** (2 * k + 2), math.factorial(2 * k + 3)) for k in range(SERIES_TERMS))
+
+
+def qexp_factors(v, n2=None):
+    """(cos|v|, sin|v|/|v|, k) with k = (|v| − sin|v| cos|v|)/|v|³, on one branch: the series
+    below SERIES_MAX (no sin, cos, sqrt or division), else the exact forms (as qexp).
+
+    exp([0, v]) = [cos|v|, (sin|v|/|v|) v]; with the rotation vector φ = 2v of that
+    quaternion, SO(3)'s right Jacobian is J_r(φ) = I − (sin|v|/|v|)² [v×] + k [v×]²
+    ((1 − cos θ)/θ² [φ×] and (θ − sin θ)/θ³ [φ×]² at θ = 2|v|). n2 stands for |v|² (default:
+    computed from v)."""
+    n2 = ca.sumsqr(v) if n2 is None else n2
+    small = n2 < use(SERIES_MAX) * use(SERIES_MAX)
+    n = ca.sqrt(ca.fmax(n2, use(SERIES_MAX) * use(SERIES_MAX)))
+    cos_c, sinc_c = _cos_sinc_coefficients()
+    sin_n, cos_n = ca.sin(n), ca.cos(n)
+    return (ca.if_else(small, _series(n2, cos_c), cos_n),
+            ca.if_else(small, _series(n2, sinc_c), sin_n / n),
+            ca.if_else(small, _series(n2, _coefficients(RJ_SERIES)), (n - sin_n * cos_n) / (n2 * n)))
+
+
 def integrate(q, omega, dt) -> ca.SX:
     """q ⊗ exp(½ ω dt), normalised: exact for a constant body rate over dt."""
     return qnormalize(qmul(q, qexp(0.5 * dt * omega)))

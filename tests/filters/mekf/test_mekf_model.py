@@ -76,6 +76,24 @@ def test_F_G_match_finite_differences(omega_hat, dt):
     assert np.max(np.abs(G_ref - Gs)) < 1e-12
 
 
+@pytest.mark.parametrize("omega_hat,dt", CASES + [(np.array([20.0, -15.0, 8.0]), 0.01),   # |v| > SERIES_MAX
+                                               (np.array([1.0, 2.0, 2.0]), 0.0666)])      # |v| at it
+def test_closed_form_attitude_rows_match_finite_differences(omega_hat, dt):
+    """attitude_rows' closed form (F_q = R(a)ᵀ, F_b = −½ dt J_r; the predict_attitude kernel's)
+    against finite differences of the NumPy propagation, on both sides of SERIES_MAX, and q'
+    against q ⊗ exp(½ ω̂ dt) normalised."""
+    from ahrsgen.npquat import qexp
+    qs, w, h = ca.SX.sym("q", 4), ca.SX.sym("w", 3), ca.SX.sym("h")
+    f = ca.Function("rows", [qs, w, h], list(M.attitude_rows(qs, w, h)))
+    q = q_from_euler(0.3, -0.4, 2.0)
+    q_new, Fq, Fb = (np.array(m) for m in f(q, omega_hat, dt))
+    F_fd = central_diff(lambda d: np_propagate(d, np.zeros(6), omega_hat, dt), 6)
+    assert np.max(np.abs(Fq - F_fd[:3, :3])) < 1e-8
+    assert np.max(np.abs(Fb - F_fd[:3, 3:])) < 1e-8
+    q_ref = qmul(q, qexp(0.5 * dt * omega_hat))
+    assert np.max(np.abs(q_new.ravel() - q_ref / np.linalg.norm(q_ref))) < 1e-14
+
+
 @pytest.mark.parametrize("euler", [(0.1, -0.05, 0.8), (-0.49, -0.056, 0.78), (2.5, 1.2, -3.0),
                                    (0.0, 0.0, np.pi)])
 def test_H_matches_finite_differences(euler):
@@ -150,11 +168,12 @@ def test_update_refuses_at_vertical_pitch():
 
 
 # --- measurement = "vectors": gravity direction and vertical-only heading ------------------
-def np_gravity_direction(q, dq):
-    """Body-axis direction of the specific force at rest, R(q ⊗ [1, δq])ᵀ [0, 0, -1]."""
+def np_gravity_direction_earth(q, dq):
+    """The direction of the specific force at rest seen from the truth [1, δ] ⊗ q (earth-frame
+    error δ), rotated to the earth frame by the estimate q: R(q) R([1, δ] ⊗ q)ᵀ [0, 0, -1]."""
     from ahrsgen.npquat import rotmat
-    e = qmul(q, np.concatenate([[1.0], dq]))
-    return rotmat(e / np.linalg.norm(e)).T @ np.array([0.0, 0.0, -1.0])
+    e = qmul(np.concatenate([[1.0], dq]), q)
+    return rotmat(q) @ rotmat(e / np.linalg.norm(e)).T @ np.array([0.0, 0.0, -1.0])
 
 
 ATTITUDES = [(0.1, -0.05, 0.8), (2.5, 1.2, -3.0), (0.3, np.pi / 2, 1.0), (-0.2, -np.pi / 2, 0.0),
@@ -163,34 +182,97 @@ ATTITUDES = [(0.1, -0.05, 0.8), (2.5, 1.2, -3.0), (0.3, np.pi / 2, 1.0), (-0.2, 
 
 @pytest.mark.parametrize("euler", ATTITUDES)
 def test_gravity_H_matches_finite_differences_at_any_attitude(euler):
-    """The gravity rows stay well conditioned at pitch ±90 deg and upside down: the Jacobian
-    matches finite differences and has rank 2 (the two tilt directions) everywhere."""
+    """The gravity rows (earth frame x and y) on the earth-frame attitude error stay well
+    conditioned at pitch ±90 deg and upside down: the Jacobian (numbers: it does not depend on
+    the attitude) matches finite differences of R(q) R([1, δ] ⊗ q)ᵀ u at each attitude, has
+    rank 2 (the two tilt directions), and the third (vertical) row it leaves out is 0."""
     q = q_from_euler(*euler)
-    qs = ca.SX.sym("q", 4)
-    Hs = np.array(ca.Function("H", [qs], [M.jacobian_gravity(qs)])(q))
-    H_fd = central_diff(lambda d: np_gravity_direction(q, d[:3]), 6)
-    assert Hs.shape == (3, 6)
-    assert np.max(np.abs(Hs - H_fd)) < 1e-8
-    assert np.linalg.matrix_rank(Hs[:, :3], tol=1e-6) == 2
-    H_ref = np.zeros((3, 6))
-    H_ref[:, :3] = 2.0 * R.skew(np_gravity_direction(q, np.zeros(3)))
-    assert np.max(np.abs(Hs - H_ref)) < 1e-12
+    H = np.array(M.jacobian_gravity())
+    H_fd = central_diff(lambda d: np_gravity_direction_earth(q, d[:3]), 6)
+    assert H.shape == (2, 6)
+    assert np.max(np.abs(H - H_fd[:2])) < 1e-8
+    assert np.max(np.abs(H_fd[2])) < 1e-8
+    assert np.linalg.matrix_rank(H[:, :3], tol=1e-6) == 2
+
+
+def _body_to_earth(q):
+    """T = blkdiag(R(q), I): the earth-frame error state [δ, δb] = T [δq, δb]."""
+    from ahrsgen.npquat import rotmat
+    T = np.eye(6)
+    T[:3, :3] = rotmat(q)
+    return T
+
+
+@pytest.mark.parametrize("euler", ATTITUDES[:3])
+def test_gravity_update_equals_the_body_axis_batch_update(euler):
+    """The two earth-frame rows on the earth-frame error are the body-axis measurement
+    (up/|up| in body axes against R(q)ᵀ u, three rows, H = 2 [g_b×] on the body-frame error
+    δq, R_g isotropic) in other coordinates: the batch update of the three body rows, in NumPy,
+    on P_b = Tᵀ P T, mapped back by T, gives the kernel's correction and P."""
+    from ahrsgen.npquat import rotmat
+    p = _vec_params(accel_adapt_cap=1.0)
+    fu = M.update_gravity_function(p)
+    q = q_from_euler(*euler)
+    rng = np.random.default_rng(3)
+    A = rng.normal(size=(6, 6)) * 0.1
+    P = A @ A.T + 1e-3 * np.eye(6)
+    up = rotmat(q) @ (rotmat(q_from_euler(euler[0] + 0.05, euler[1] - 0.03, euler[2])).T @ np.array([0.0, 0.0, -9.0]))
+    dt = 0.01
+    x, P_new, piv = fu(q, up, 0, dt, P.ravel(order="F"))
+    Rq, T = rotmat(q), _body_to_earth(q)
+    P_b = T.T @ P @ T
+    g_b = Rq.T @ np.array([0.0, 0.0, -1.0])
+    z = Rq.T @ up / np.linalg.norm(up) - g_b
+    H = np.zeros((3, 6))
+    H[:, :3] = 2.0 * R.skew(g_b)
+    sig2 = p["accel_angle_noise"] ** 2 + p["accel_noise_density"] ** 2 / dt * (
+        1 + p["accel_bias_gain"] * (P[3, 3] + P[4, 4] + P[5, 5]) / (3 * p["p0_bias"] ** 2))
+    S = H @ P_b @ H.T + sig2 * np.eye(3)
+    K = P_b @ H.T @ np.linalg.inv(S)
+    assert np.max(np.abs(np.array(x).ravel() - T @ K @ z)) < 1e-12
+    assert np.max(np.abs(np.array(P_new).reshape(6, 6) - T @ (P_b - K @ H @ P_b) @ T.T)) < 1e-12
+    assert float(piv) > sig2
+
+
+@pytest.mark.parametrize("omega_hat,dt", CASES + [(np.array([20.0, -15.0, 8.0]), 0.01)])
+def test_earth_frame_bias_rows_match_finite_differences(omega_hat, dt):
+    """predict_attitude's B (F's attitude rows by the bias error, earth-frame attitude error)
+    against finite differences of the NumPy propagation of the truth [1, δ] ⊗ q with the rate
+    less δb: δ' = vec([1, δ'] ∝ q_t' ⊗ q̂'*), the attitude rows by δ the identity."""
+    from ahrsgen.npquat import rotmat
+    q = q_from_euler(0.3, -0.4, 2.0)
+    b = np.array([0.01, -0.02, 0.005])
+    gyro = omega_hat + b
+    a = qexp(0.5 * dt * omega_hat)
+    q_hat = qmul(q, a)
+    q_hat = q_hat / np.linalg.norm(q_hat)
+
+    def propagate(x):
+        qt = qmul(qmul(np.concatenate([[1.0], x[:3]]), q), qexp(0.5 * dt * (omega_hat - x[3:])))
+        e = qmul(qt, qconj(q_hat))
+        return e[1:] / e[0]
+    J = central_diff(propagate, 6)
+    fp = M.predict_attitude_function(_vec_params())
+    q_out, B = (np.array(m).ravel() for m in fp(q, b, gyro, dt))
+    assert np.max(np.abs(J[:, :3] - np.eye(3))) < 1e-8
+    assert np.max(np.abs(B.reshape(3, 3, order="F") - J[:, 3:])) < 1e-8
+    assert np.max(np.abs(q_out - q_hat)) < 1e-14
+    assert np.max(np.abs(B.reshape(3, 3, order="F") - rotmat(q_hat) @ R.propagation_jacobians(omega_hat * dt, dt)[0][:3, 3:])) < 1e-12
 
 
 @pytest.mark.parametrize("euler", ATTITUDES)
 def test_heading_H_is_vertical_and_matches_finite_differences(euler):
     """The heading row's Jacobian: finite differences of the twist about the NED vertical of
-    the error rotation, and only the vertical (body axes R(q)ᵀ e3) component."""
-    from ahrsgen.npquat import rotmat
+    the earth-frame error rotation [1, δ] ⊗ q ⊗ q* (at each attitude), [0, 0, 2]: only the
+    vertical component."""
 
     def twist(d):
-        e = qmul(qmul(q, np.concatenate([[1.0], d[:3]])), qconj(q))
+        e = qmul(qmul(np.concatenate([[1.0], d[:3]]), q), qconj(q))
         return np.array([2 * np.arctan2(e[3], e[0])])
     q = q_from_euler(*euler)
-    qs = ca.SX.sym("q", 4)
-    Hs = np.array(ca.Function("H", [qs], [M.jacobian_heading(qs)])(q))
-    assert np.max(np.abs(Hs - central_diff(twist, 6))) < 1e-8
-    assert np.max(np.abs(Hs[0, :3] - 2.0 * rotmat(q)[2])) < 1e-12
+    H = np.array(M.jacobian_heading())
+    assert np.max(np.abs(H - central_diff(twist, 6))) < 1e-8
+    assert np.max(np.abs(H[0] - [0, 0, 2, 0, 0, 0])) < 1e-12
 
 
 def _vec_params(**kw):

@@ -221,11 +221,13 @@ def test_a_1khz_imu_is_as_accurate_as_a_250hz_one():
     the multirotor scenario (seeds 0-2, magnetometer 100 Hz, float C, scored as the bench
     scores) at 1 kHz within 0.1 deg of 250 Hz (measured 0.257 and 0.379 deg; before
     accel_bias_gain 0.375 and 0.491), where the
-    per-sample term alone (accel_noise_density = 0) gives 0.636 deg at 1 kHz: the vibration the
-    accelerometer sees, trusted four times as much per second, leaks into the heading (15-120 s:
-    0.60 against 0.26 deg). Before the low-pass's warm start (accel_lpf_warm) the start-up
-    transient amplified the difference (2.29 against 0.956 deg, then asserted as 0.5 deg apart);
-    now asserted as at least 1.5 times the error."""
+    per-sample term alone (accel_noise_density = 0) gives 0.366 deg at 1 kHz: the vibration the
+    accelerometer sees, trusted four times as much per second, moves the tilt. Before the
+    low-pass's warm start (accel_lpf_warm) the start-up transient amplified the difference
+    (2.29 against 0.956 deg, then asserted as 0.5 deg apart); with the body-frame attitude error
+    (before issue 29) the per-sample term alone gave 0.636 deg (15-120 s: 0.60 against 0.26 deg,
+    mostly heading), asserted as at least 1.5 times the error. With the earth-frame error it
+    costs less, 0.366 against 0.258 deg: asserted as at least 1.3 times."""
     from ahrsgen.bench.scoring import filter_estimator, score
 
     def mean_total(sets, **opts):
@@ -238,7 +240,7 @@ def test_a_1khz_imu_is_as_accurate_as_a_250hz_one():
         return float(np.mean(out))
     at_250, at_1k = mean_total([]), mean_total([], rate_hz=1000.0, mag_rate=100.0)
     assert at_1k <= at_250 + 0.1, (at_1k, at_250)
-    assert mean_total(["accel_noise_density=0"], rate_hz=1000.0, mag_rate=100.0) > 1.5 * at_1k
+    assert mean_total(["accel_noise_density=0"], rate_hz=1000.0, mag_rate=100.0) > 1.3 * at_1k
 
 
 def test_the_1khz_multirotor_meets_issue_26s_rate_budget():

@@ -6,6 +6,11 @@ propagation) and H (Euler angles of q̂ ⊗ [1, δq] at δq = 0) are taken by Ca
 `jacobian` of the functions written out below - nothing is typed by hand here (the NumPy
 reference derives them by hand, independently).
 
+measurement = "vectors" (the product design) keeps the attitude error in the earth frame,
+true attitude normalise([1, δ] ⊗ q̂), δ = R(q̂) δq: F = [[I, B], [0, I]] and constant gravity
+and heading rows (predict_attitude_function). Its F's body rows F_q, F_b are written in a
+closed form (attitude_rows), checked equal to CasADi's jacobians when the model is built.
+
 Kernels:
   <p>_predict  patent steps 1-2: q̂ ← normalise(q̂ ⊗ exp(½ (ω − b̂) dt)), P ← F P Fᵀ + G Q Gᵀ
   <p>_update   steps 3-8 with a row mask: measured angles (accelerometer tilt after the
@@ -24,7 +29,7 @@ import math
 import casadi as ca
 
 from ahrsgen.codegen import emit
-from ahrsgen.constants import G0, Const, computed, use
+from ahrsgen.constants import G0, Const, computed, traced, use
 from ahrsgen.codegen.model import FilterModel, KernelSpec, StateField
 from ahrsgen.symbolic import aiding, attitude, kalman, quat
 
@@ -169,35 +174,83 @@ def _blocks(Fq, Fb):
     return ca.blockcat([[Fq, Fb], [Z, I]]), ca.blockcat([[Fb, Z], [Z, I]])
 
 
+def attitude_rows(q, omega_hat, dt):
+    """q̂' = normalise(q̂ ⊗ a), a = exp(v), v = ½ ω̂ dt, and F's attitude rows in closed form
+    from a's factors (quat.qexp_factors: C = cos|v|, S = sin|v|/|v|, k), sharing v vᵀ:
+
+      F_q = R(a)ᵀ = (C² − S² |v|²) I + 2 S² v vᵀ − 2 C S [v×]
+      F_b = −½ dt J_r(2v) = −½ dt ((1 − k |v|²) I − S² [v×] + k v vᵀ)
+
+    (J_r by [v×]² = v vᵀ − |v|² I). The same matrices as CasADi's jacobians of
+    error_propagation (jacobians_FG), checked when the model is built, in about a third of the
+    operations."""
+    v = 0.5 * dt * omega_hat
+    vv = [[v[i] * v[j] for j in range(3)] for i in range(3)]
+    for i in range(3):
+        for j in range(i):
+            vv[i][j] = vv[j][i]
+    m = vv[0][0] + vv[1][1] + vv[2][2]
+    C, S, k = quat.qexp_factors(v, m)
+    q_new = quat.qnormalize(quat.qmul(q, quat.vec(C, S * v[0], S * v[1], S * v[2])))
+    S2 = S * S
+    cq, sq2, cs2 = C * C - S2 * m, S2 + S2, 2 * (C * S)       # F_q = cq I + sq2 v vᵀ − cs2 [v×]
+    h = 0.5 * dt
+    cb, sb, kb = h * (k * m - 1), h * S2, -(h * k)            # F_b = cb I + sb [v×] + kb v vᵀ
+    cross = [[None, -v[2], v[1]], [v[2], None, -v[0]], [-v[1], v[0], None]]      # [v×] off the diagonal
+    Fq, Fb = ca.SX.zeros(3, 3), ca.SX.zeros(3, 3)
+    for i in range(3):
+        for j in range(3):
+            if i == j:
+                Fq[i, i] = cq + sq2 * vv[i][i]
+                Fb[i, i] = cb + kb * vv[i][i]
+            else:
+                Fq[i, j] = sq2 * vv[i][j] - cs2 * cross[i][j]
+                Fb[i, j] = kb * vv[i][j] + sb * cross[i][j]
+    return q_new, Fq, Fb
+
+
 def predict_attitude_function(p: dict, name="predict_attitude") -> ca.Function:
-    """The time update in two kernels (smaller frames): the attitude and F's attitude rows
-    F_q = ∂δq'/∂δq, F_b = ∂δq'/∂δb here; `predict_covariance` takes them. F's other rows are
-    [0, I] and G = [[F_b, 0], [0, I]] (∂/∂n_g is ∂/∂δb): checked here when the model is built."""
+    """The time update in two kernels (smaller frames): the attitude and F's attitude rows by
+    the bias error here; `predict_covariance` takes them.
+
+    measurement = "vectors" keeps the attitude error in the earth frame: q = [1, δ] ⊗ q̂,
+    δ = R(q̂) δq (the body-frame error δq of the patent's design, rotated). Its propagation is
+    the body-frame one rotated: δ' = R(q̂') δq' = R(q̂') (F_q δq + F_b δb) = δ + R(q̂') F_b δb,
+    as R(q̂') F_q = R(q̂) R(a) R(a)ᵀ = R(q̂): F = [[I, B], [0, I]], G = [[B, 0], [0, I]] with
+    B = R(q̂') F_b, the body rows F_q, F_b in attitude_rows' closed form. The measurement
+    rows become constants (gravity_rows, update_heading). Checked here when the model is
+    built: F_q, F_b and q' equal CasADi's jacobians (jacobians_FG) and integrate on both sides
+    of SERIES_MAX, F's other rows are [0, I] and G = [[F_b, 0], [0, I]] (∂/∂n_g is ∂/∂δb)."""
     q, b, gyro, dt = (ca.SX.sym(n, k) for n, k in (("q", 4), ("b", 3), ("gyro", 3), ("dt", 1)))
-    q_new, F, G, _ = _time_update(p, q, b, gyro, dt)
-    Fq, Fb = F[:3, :3], F[:3, 3:]
+    q_new, Fq, Fb = attitude_rows(q, gyro - b, dt)
+    q_ref, F, G, _ = _time_update(p, q, b, gyro, dt)
     F2, G2 = _blocks(Fq, Fb)
-    check = ca.Function("check", [b, gyro, dt], [F - F2, G - G2])
-    for args in (([0.01, -0.02, 0.03], [0.5, -1.0, 2.0], 0.01), ([0.0] * 3, [3.0, 0.1, -0.2], 0.004)):
-        if any(float(ca.mmax(ca.fabs(m))) > 1e-12 for m in check(*args)):
-            raise AssertionError("mekf: F or G is not [[F_q, F_b], [0, I]], [[F_b, 0], [0, I]]")
+    check = ca.Function("check", [q, b, gyro, dt], [F - F2, G - G2, q_new - q_ref])
+    q0 = [0.9, 0.1, -0.3, 0.2]
+    for args in ((q0, [0.01, -0.02, 0.03], [0.5, -1.0, 2.0], 0.01), (q0, [0.0] * 3, [3.0, 0.1, -0.2], 0.004),
+                 (q0, [0.1, 0.0, -0.1], [20.0, -15.0, 8.0], 0.01)):     # the last: |v| = 0.13 > SERIES_MAX
+        if not traced() and any(float(ca.mmax(ca.fabs(m))) > 1e-12 for m in check(*args)):
+            raise AssertionError("mekf: F, G or q' of attitude_rows is not CasADi's (jacobians_FG): "
+                                 "F = [[F_q, F_b], [0, I]], G = [[F_b, 0], [0, I]]")
+    B = ca.mtimes(quat.rotmat(q_new), Fb)
     return emit.function(name, {"q": q, "b": b, "gyro": gyro, "dt": dt},
-                         {"q_out": q_new, "F_q": ca.reshape(Fq, 9, 1), "F_b": ca.reshape(Fb, 9, 1)})
+                         {"q_out": q_new, "B": ca.reshape(B, 9, 1)})
 
 
 def predict_covariance_function(p: dict, name="predict_covariance") -> ca.Function:
-    """P⁻ = F P Fᵀ + G Q Gᵀ from F's attitude rows (see predict_attitude).
+    """P⁻ = F P Fᵀ + G Q Gᵀ, F = [[I, B], [0, I]], G = [[B, 0], [0, I]] (the earth-frame
+    attitude error: see predict_attitude), B by the kernel before.
 
     clip = 1 (a gyro component at gyro_full_scale): the rotation the sample missed is unknown, up
     to one range's worth over the step, so the attitude block gains (gyro_full_scale dt / 2)² per
-    axis (the error state is the half angle)."""
-    Fq, Fb, Pv, gyro, dt, clip = (ca.SX.sym(n, k) for n, k in (("F_q", 9), ("F_b", 9), ("P", N * N), ("gyro", 3),
-                                                               ("dt", 1), ("clip", 1)))
-    F, G = _blocks(ca.reshape(Fq, 3, 3), ca.reshape(Fb, 3, 3))
+    axis (the error state is the half angle; isotropic, the same in any frame)."""
+    Bv, Pv, gyro, dt, clip = (ca.SX.sym(n, k) for n, k in (("B", 9), ("P", N * N), ("gyro", 3), ("dt", 1),
+                                                           ("clip", 1)))
+    F, G = _blocks(ca.SX.eye(3), ca.reshape(Bv, 3, 3))
     P_new = kalman.predict_covariance(sym_lower(Pv), F, G, _process_noise(p, dt, gyro), symmetrize=False)
     w = 0.5 * p["gyro_full_scale"] * dt
     P_new = P_new + ca.if_else(clip, w * w, 0) * ca.diag(ca.DM([1, 1, 1, 0, 0, 0]))
-    return emit.function(name, {"F_q": Fq, "F_b": Fb, "P": Pv, "gyro": gyro, "dt": dt, "clip": clip},
+    return emit.function(name, {"B": Bv, "P": Pv, "gyro": gyro, "dt": dt, "clip": clip},
                          {"P_out": flat_mirrored(P_new)})
 
 
@@ -344,39 +397,69 @@ def heading_features_function(name="heading_features") -> ca.Function:
                          {"feat": ca.vertcat(ca.sqrt(ca.sumsqr(m)), dip, vb[0], vb[1])})
 
 
-def gravity_direction(q, dq):
-    """Body-axis direction of the specific force at rest seen from normalise(q̂ ⊗ [1, δq]):
-    R(q̂ ⊗ δ)ᵀ u = R(δ)ᵀ (R(q̂)ᵀ u), written in that order so that its Jacobian in δq
-    (taken at δq = 0) works on the 3-vector R(q̂)ᵀ u, not through q̂'s normalisation."""
-    return quat.rotate_inv(quat.qnormalize(quat.vec(1, dq[0], dq[1], dq[2])), quat.rotate_inv(q, ca.DM(UP_NED)))
+def gravity_direction(dq):
+    """Earth-frame direction of the specific force at rest seen from the truth [1, δ] ⊗ q̂
+    (earth-frame error δ), rotated back to the earth frame by q̂: R(q̂) R([1, δ] ⊗ q̂)ᵀ u
+    = R([1, δ])ᵀ u, whatever q̂. Its Jacobian at δ = 0 is the constant 2 [u×]: the rows
+    [0, 2, 0] and [−2, 0, 0], its third row 0 (a rotation about the vertical leaves it)."""
+    return quat.rotate_inv(quat.qnormalize(quat.vec(1, dq[0], dq[1], dq[2])), ca.DM(UP_NED))
 
 
-def heading_of_error(q, dq):
+def heading_of_error(dq):
     """Heading part of the error: twist angle about the vertical (NED z) of the earth-frame
-    error rotation e = q̂ ⊗ [1, δq] ⊗ q̂* = [1, R(q̂) δq] (q̂ unit), 2 atan2(e_z, e_w). Its
-    Jacobian at δq = 0 has only the vertical component, so a heading row never asks for a tilt."""
-    return 2 * ca.atan2(quat.rotate(q, dq)[2], 1)
+    error rotation e = [1, δ], 2 atan2(e_z, e_w). Its Jacobian at δ = 0 is [0, 0, 2]: only the
+    vertical component, so a heading row never asks for a tilt."""
+    return 2 * ca.atan2(dq[2], 1)
 
 
-def jacobian_gravity(q):
+def jacobian_gravity():
+    """The gravity rows' H (2 x 6): the earth-frame x and y rows of gravity_direction's
+    Jacobian (its z row is 0; the bias columns are 0), by CasADi's jacobian: numbers."""
     dq = ca.SX.sym("dq", 3)
-    return ca.horzcat(kalman.jacobian_at(gravity_direction(q, dq), dq, [dq]), ca.SX.zeros(3, 3))
+    Hq = ca.evalf(kalman.jacobian_at(gravity_direction(dq)[:2], dq, [dq]))
+    return ca.horzcat(Hq, ca.DM.zeros(2, 3))
 
 
-def jacobian_heading(q):
+def jacobian_heading():
+    """The heading row's H (1 x 6), by CasADi's jacobian of heading_of_error: numbers."""
     dq = ca.SX.sym("dq", 3)
-    return ca.horzcat(kalman.jacobian_at(heading_of_error(q, dq), dq, [dq]), ca.SX.zeros(1, 3))
+    return ca.horzcat(ca.evalf(kalman.jacobian_at(heading_of_error(dq), dq, [dq])), ca.DM.zeros(1, 3))
+
+
+def unit_rows(H, z, r):
+    """([(h, z, r)], c²): each row of H with one nonzero entry c divided by it, z by c and r by
+    c² (the same scalar measurement): h has a structural 1, the row's u = P hᵀ a column of P;
+    c² the same for every row (the row variances times it are the unscaled ones)."""
+    rows, c2 = [], set()
+    for i in range(H.shape[0]):
+        nz = [j for j in range(H.shape[1]) if float(H[i, j]) != 0.0]
+        if len(nz) != 1:
+            raise AssertionError(f"mekf: H row {i} has {len(nz)} nonzero entries, not one")
+        c = float(H[i, nz[0]])
+        h = ca.SX.zeros(1, H.shape[1])
+        h[nz[0]] = 1
+        rows.append((h, z[i] * (1 / c), r * (1 / (c * c))))
+        c2.add(c * c)
+    if len(c2) != 1:
+        raise AssertionError("mekf: the rows' entries differ in magnitude")
+    return rows, c2.pop()
 
 
 def _inject(q, b, X):
-    return quat.qnormalize(quat.qmul(q, quat.vec(1, X[0], X[1], X[2]))), b + X[3:6]
+    """The earth-frame attitude error: q ← normalise([1, x_δ] ⊗ q)."""
+    return quat.qnormalize(quat.qmul(quat.vec(1, X[0], X[1], X[2]), q)), b + X[3:6]
 
 
 def gravity_rows(p: dict, q, up, recover, dt, turn=None, p_bb=None):
-    """The gravity-direction measurement: H's attitude columns Hq (3 x 3; the bias columns are
-    0), innovations z and their variance r.
+    """The gravity-direction measurement: H (2 x 6, numbers), innovations z (2) and their
+    variance r.
 
-    z_g = up/|up| in body axes − R(q̂)ᵀ [0, 0, −1] (up: accel_lowpass's earth-frame vector); R_g = σ² min(1 + |z_g|²/(3σ)², cap), σ² = accel_angle_noise² + accel_noise_density²/dt
+    z_g = up/|up| − [0, 0, −1] in the earth frame (up: accel_lowpass's earth-frame vector), its
+    x and y rows (H = jacobian_gravity, the earth-frame error's constant 2 [u×]: the z row is 0,
+    its update would change nothing). With R_g isotropic this is the body-axis measurement
+    up/|up| in body axes − R(q̂)ᵀ [0, 0, −1] (H = 2 [R(q̂)ᵀ u ×] on the body-frame error)
+    rotated by R(q̂), the same update in exact arithmetic (q̂ unit), in two rows instead of
+    three and without rotating up into the body; R_g = σ² min(1 + |z_g|²/(3σ)², cap), σ² = accel_angle_noise² + accel_noise_density²/dt
     (bounded residual adaptation: the correction can be weakened, never locked out); p_bb given
     (the sum of P's gyro-bias diagonal), the density term times 1 + accel_bias_gain p_bb / (3 p0_bias²).
     With GPS (`turn` = (gyro, b̂, v, unobserved)): while the last GPS velocity is stale
@@ -385,8 +468,7 @@ def gravity_rows(p: dict, q, up, recover, dt, turn=None, p_bb=None):
     turn rate): a coordinated turn without GPS bends the measured gravity by the bank angle, and
     the tilt, and the magnetic heading through the dip, would follow it.
     """
-    d = quat.rotate_inv(q, up) / ca.sqrt(ca.sumsqr(up))
-    z_g = d - gravity_direction(q, ca.DM.zeros(3))
+    z_g = up / ca.sqrt(ca.sumsqr(up)) - ca.DM(UP_NED)
     # the motion the low-pass leaves (per sample) and the sensor's white noise (a density over dt)
     sig2 = p["accel_angle_noise"] ** 2
     if not (isinstance(p["accel_noise_density"], (int, float)) and p["accel_noise_density"] == 0):
@@ -401,15 +483,21 @@ def gravity_rows(p: dict, q, up, recover, dt, turn=None, p_bb=None):
         gyro, b, vel, unobserved = turn
         a_turn = ca.dot(gyro - b, quat.rotmat(q)[2, :].T) * ca.sqrt(vel[0] * vel[0] + vel[1] * vel[1]) / use(G0)
         sig2 = sig2 + ca.if_else(unobserved, a_turn * a_turn, 0)
-    # recovering after a gyro clip (recover = 1): no weakening, the covariance sets the gain
-    r_g = ca.if_else(recover, sig2, sig2 * ca.fmin(1 + ca.sumsqr(z_g) / (9 * sig2), p["accel_adapt_cap"]))
-    return jacobian_gravity(q)[:, :3], z_g, r_g
+    # recovering after a gyro clip (recover = 1): no weakening, the covariance sets the gain.
+    # accel_adapt_cap = 1 (its minimum; the default): off, min(1 + |z|²/(9σ²), 1) is 1 exactly
+    # (1 + x >= 1 for x >= 0 in floating point too), so no division is written for it
+    cap = p["accel_adapt_cap"]
+    if isinstance(cap, (int, float)) and cap <= 1:
+        r_g = sig2
+    else:
+        r_g = ca.if_else(recover, sig2, sig2 * ca.fmin(1 + ca.sumsqr(z_g) / (9 * sig2), cap))
+    return jacobian_gravity(), z_g[:2], r_g
 
 
 def update_gravity_function(p: dict, gps: bool = False, name="update_gravity") -> ca.Function:
-    """The three gravity rows (gravity_rows) as scalar rows in turn (kalman.scalar_updates, the
+    """The two gravity rows (gravity_rows) as scalar rows in turn (kalman.scalar_updates, the
     batch update of the rows stacked), from x = 0: the correction x, P after them and the
-    smallest row variance (a pivot of the batch S). One kernel for the three rows, P in
+    smallest row variance (a pivot of the batch S). One kernel for the two rows, P in
     registers between them, each element of P_out stored as soon as it is final (in place: after
     the last read of that element of P), so the kernel does not hold all of P to its end."""
     q, up, recover, dt, Pv = (ca.SX.sym(n, k) for n, k in (("q", 4), ("up", 3), ("recover", 1), ("dt", 1),
@@ -420,11 +508,13 @@ def update_gravity_function(p: dict, gps: bool = False, name="update_gravity") -
         turn = tuple(ca.SX.sym(n, k) for n, k in (("gyro", 3), ("b", 3), ("vel", 3), ("unobserved", 1)))
         ins |= dict(zip(("gyro", "b", "vel", "unobserved"), turn))
     p_bb = Pv[3 + N * 3] + Pv[4 + N * 4] + Pv[5 + N * 5]     # the gyro bias's variances (3 times their mean)
-    Hq, z, r = gravity_rows(p, q, up, recover, dt, turn, p_bb)
-    rows = [(ca.horzcat(Hq[i, :], ca.SX.zeros(1, 3)), z[i], r) for i in range(3)]
-    x_new, P_new, min_pivot = kalman.scalar_updates(sym_lower(Pv), rows, tol=S_PIVOT_MIN)
+    H, z, r = gravity_rows(p, q, up, recover, dt, turn, p_bb)
+    # each row divided by its one entry ±2 (unit_rows: the same measurement, u = a column of P);
+    # the row variances, the scaled batch S's pivots, times 4 are the unscaled S's
+    rows, c2 = unit_rows(H, z, r)
+    x_new, P_new, min_pivot = kalman.scalar_updates(sym_lower(Pv), rows, tol=use(S_PIVOT_MIN) / c2)
     return emit.function(name, ins | {"P": Pv},
-                         {"x_out": x_new, "P_out": flat_mirrored(P_new), "min_pivot": min_pivot})
+                         {"x_out": x_new, "P_out": flat_mirrored(P_new), "min_pivot": c2 * min_pivot})
 
 
 def update_rest_bias_function(p: dict, name="update_rest_bias") -> ca.Function:
@@ -464,8 +554,10 @@ def update_heading_function(p: dict, name="update_heading") -> ca.Function:
     course: z = wrap(atan2(v_E, v_N) − ψ̂), ψ̂ = atan2(R₁₀, R₀₀) (heading of the body x axis);
     mag:    z = wrap(declination − atan2(m_E, m_N)), m_n = R(q̂) m (the field's heading as
             the estimate sees it, from north it points at the declination).
-    The attitude part of the gain is projected on the vertical (in body axes, r = R(q̂)ᵀ e₃),
-    so the correction is a pure heading rotation; Joseph's form stays exact for this gain.
+    H = [0, 0, 2, 0, 0, 0] on the earth-frame attitude error (jacobian_heading). The attitude
+    part of the gain is projected on the vertical (its x and y entries 0; on the body-frame
+    error, the projection on R(q̂)ᵀ e₃), so the correction is a pure heading rotation;
+    Joseph's form stays exact for this gain.
     """
     q, Pv, mag, vel = (ca.SX.sym(n, k) for n, k in (("q", 4), ("P", N * N), ("mag", 3), ("vel", 3)))
     use_course, mag_dt = ca.SX.sym("use_course"), ca.SX.sym("mag_dt")
@@ -484,16 +576,20 @@ def update_heading_function(p: dict, name="update_heading") -> ca.Function:
         e_d = feat[1] - ref[1]
         r_mag = r_mag * ca.if_else(recover, 1, 1 + p["mag_dev_gain"] * (e_n * e_n + e_d * e_d))
     r = ca.if_else(use_course, p["course_noise"] ** 2, r_mag)
-    H = jacobian_heading(q)
+    H = jacobian_heading()
     P = sym_lower(Pv)
     PHt = ca.mtimes(P, H.T)
     S = ca.mtimes(H, PHt) + r                                # 1 x 1
     K = PHt * ca.if_else(S > use(S_PIVOT_MIN), 1.0 / S, 1.0)        # one division (a select: stays a product)
-    up = Rq[2, :].T
-    K[0:3] = ca.mtimes(ca.mtimes(up, up.T), K[0:3])          # attitude gain about the vertical only
+    K[0], K[1] = 0, 0           # attitude gain about the (earth-frame) vertical only
     # Joseph form for this gain; P unchanged (selected, so the step may pass P as P_out) when
-    # S is not usable - the step then skips the correction
-    P_new = ca.if_else(S > use(S_PIVOT_MIN), kalman.joseph_row(P, K, PHt, S), P)
+    # S is not usable - the step then skips the correction. The tilt block, which the gain
+    # leaves (its x and y entries 0), is P itself: no select written for it.
+    J, ok = kalman.joseph_row(P, K, PHt, S), S > use(S_PIVOT_MIN)
+    P_new = ca.SX.zeros(N, N)
+    for i in range(N):
+        for j in range(N):
+            P_new[i, j] = P[i, j] if ca.is_equal(J[i, j], P[i, j], 2) else ca.if_else(ok, J[i, j], P[i, j])
     return emit.function(name, {"q": q, "P": Pv, "mag": mag, "vel": vel, "use_course": use_course,
                                 "mag_dt": mag_dt, "feat": feat, "mag_ref": ref, "recover": recover},
                          {"x_out": K * z, "P_out": flat_mirrored(P_new), "s": S})
@@ -728,7 +824,8 @@ class Model(FilterModel):
         return [
             StateField("q", 4, "attitude quaternion body->NED [w x y z]", [1.0, 0.0, 0.0, 0.0]),
             StateField("gyro_bias", 3, "gyro bias estimate, rad/s", 0.0),
-            StateField("P", N * N, "error-state covariance [dq, db] (6x6, symmetric)", initial_P(self.params)),
+            StateField("P", N * N, "error-state covariance [d, db] (6x6, symmetric; d the attitude error, "
+                       + ("earth frame)" if self.vectors else "body frame)"), initial_P(self.params)),
             StateField("v_gps", 3, "last valid GPS velocity NED, m/s", 0.0),
             StateField("v_age", 1, "age of v_gps, s (stops counting at 1e3)", AGE_MAX),
             StateField("a_gps", 3, "NED acceleration from the last two GPS velocities, m/s^2 (motion_comp = gps_accel)", 0.0),
@@ -816,7 +913,7 @@ class Model(FilterModel):
                                      ("lp_time_out", "lp_time"))),
                 KernelSpec("heading_features", heading_features_function(), "field norm and dip; GPS velocity in body axes"),
                 KernelSpec("update_gravity", update_gravity_function(p, "gps" in self.sensors),
-                           "gravity direction: three scalar rows on the attitude error",
+                           "gravity direction: two scalar rows on the attitude error (earth frame)",
                            flags=("recover",) + (("unobserved",) if "gps" in self.sensors else ()),
                            early_writes=True, in_place=(("P_out", "P"),)),
                 KernelSpec("update_rest_bias", update_rest_bias_function(p), "at rest, the gyro bias: three scalar rows"),

@@ -338,6 +338,11 @@ class Reference:
         q = qmul(self.q, qexp(0.5 * u))
         q = q / np.linalg.norm(q)
         F, G = propagation_jacobians(u, dt)
+        if self.vectors:
+            # the product design's attitude error is in the earth frame, δ = R(q̂) δq (q = [1, δ] ⊗ q̂):
+            # δ' = R(q̂') δq' = R(q̂') (R(a)ᵀ δq + F_b δb) = δ + R(q̂') F_b δb
+            B = rotmat(q) @ F[:3, 3:]
+            F[:3, :3], F[:3, 3:], G[:3, :3] = np.eye(3), B, B
         # the product design: each axis's density grows with its (raw) rate, gyro_rate_noise
         k = self.gyro_rate_noise if self.vectors else 0.0
         q_g = (self.gyro_noise ** 2 + (k * np.asarray(gyro, dtype=float)) ** 2) / max(dt, DT_Q_MIN)
@@ -565,12 +570,16 @@ class Reference:
                     mag_use = False
                     status |= MAG_DISTURBED
 
-        # --- gravity direction (3 rows) and, at rest, the gyro bias (3 rows) -----------
-        rows = ([0, 1, 2] if use_tilt else []) + ([3, 4, 5] if at_rest else [])
+        # --- gravity direction (2 rows, earth frame) and, at rest, the gyro bias (3 rows) ---
+        # The measured direction up/|up| against the estimate's u = [0, 0, -1], both in the earth
+        # frame: the truth's R(Exp θ q)ᵀ u rotated by R(q) is Exp(θ)ᵀ u ≈ u + skew(u) θ (θ = 2 δ,
+        # the earth-frame error), whose third row is 0 (u does not move when turned about
+        # itself): rows 0 and 1 only. With r_g isotropic, the body-axis rows rotated by R(q)
+        # (the same update).
+        rows = ([0, 1] if use_tilt else []) + ([3, 4, 5] if at_rest else [])
         if rows:
-            d = Rq.T @ up / np.sqrt(up @ up)
-            g_hat = Rq.T @ np.array([0.0, 0.0, -1.0])
-            z_g = d - g_hat
+            u_n = np.array([0.0, 0.0, -1.0])
+            z_g = up / np.sqrt(up @ up) - u_n      # earth frame
             # the white-noise term grows while the gyro bias is uncertain: its mean variance
             # against p0_bias²
             bias_var = (P[3, 3] + P[4, 4] + P[5, 5]) / 3.0
@@ -584,7 +593,7 @@ class Reference:
             r_g = sig2 if recovering else sig2 * min(1.0 + (z_g @ z_g) / (9.0 * sig2), self.accel_adapt_cap)
             z = np.concatenate([z_g, gyro - self.gyro_bias])
             H = np.zeros((6, 6))
-            H[:3, :3] = 2.0 * skew(g_hat)          # d/dθ of Rᵀ(q Exp θ) e = skew(Rᵀe) θ, θ = 2 δq
+            H[:3, :3] = 2.0 * skew(u_n)            # d/dθ of Rᵀ(Exp θ) u = skew(u) θ, θ = 2 δ (earth frame)
             H[3:, 3:] = np.eye(3)
             r = np.array([r_g] * 3 + [self.gyro_noise ** 2 / max(dt, DT_Q_MIN)] * 3)
             q, P, ok = self._correct(q, P, H[rows], z[rows], r[rows], None)
@@ -610,10 +619,10 @@ class Reference:
                 r_h *= 1.0 + self.mag_dev_gain * (e_n ** 2 + (cur[1] - self.mag_ref[1]) ** 2)
             head = True
         if head:
-            up = Rq[2, :]                          # Rᵀ e3: the vertical in body axes
+            e3 = np.array([0.0, 0.0, 1.0])         # the vertical, earth frame
             H = np.zeros((1, 6))
-            H[0, :3] = 2.0 * up                    # heading of q Exp θ: e3ᵀ R θ, θ = 2 δq
-            q, P, ok = self._correct(q, P, H, np.array([float(z_h)]), np.array([r_h]), up)
+            H[0, :3] = 2.0 * e3                    # heading of Exp θ q: e3ᵀ θ, θ = 2 δ (earth frame)
+            q, P, ok = self._correct(q, P, H, np.array([float(z_h)]), np.array([r_h]), e3)
             if ok:
                 self.head_age = 0.0
             else:
@@ -631,9 +640,9 @@ class Reference:
         return abs(cur[0] - ref[0]) > self.mag_norm_th * ref[0] or abs(cur[1] - ref[1]) > self.mag_dip_th
 
     def _correct(self, q, P, H, z, r, project_on):
-        """Kalman correction with Joseph form; `project_on` (a body-axis unit vector) keeps
-        only the attitude correction about that axis (the gain is projected; Joseph's form
-        holds for any gain). Returns (q, P, ok)."""
+        """Kalman correction with Joseph form on the earth-frame attitude error; `project_on`
+        (an earth-frame unit vector) keeps only the attitude correction about that axis (the
+        gain is projected; Joseph's form holds for any gain). Returns (q, P, ok)."""
         R = np.diag(r)
         S = H @ P @ H.T + R
         S = 0.5 * (S + S.T)
@@ -653,7 +662,7 @@ class Reference:
         P = P - KHP - KHP.T + K @ S @ K.T
         P = 0.5 * (P + P.T)
         X = K @ z
-        q = qmul(q, np.concatenate([[1.0], X[:3]]))
+        q = qmul(np.concatenate([[1.0], X[:3]]), q)     # q = [1, δ] ⊗ q̂
         q = q / np.linalg.norm(q)
         self.gyro_bias = self.gyro_bias + X[3:]
         return q, P, True
