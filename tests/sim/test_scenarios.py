@@ -201,6 +201,7 @@ def test_noise_std_matches_density():
     ("fixedwing_gps", dict(duration=60.0), 5.0, 12.5),
     ("fixedwing_gps", dict(duration=20.0, rate_hz=100.0), 5.0, 100.0),
     ("multirotor", dict(duration=20.0), 5.0, 50.0),
+    ("multirotor", dict(duration=20.0, gps_rate=0.0), None, 50.0),     # no receiver (indoors)
     ("turntable", dict(duration=20.0), None, 10.0),
 ])
 def test_valid_bit_rates(name, opts, gps_hz, mag_hz):
@@ -221,6 +222,14 @@ def test_valid_bit_rates(name, opts, gps_hz, mag_hz):
         assert np.all(lag > -1e-9) and np.all(lag < 1 / log.meta["rate_hz"])
     assert n_mag == pytest.approx(dur * mag_hz, abs=1)
     assert np.all((log.valid & VALID_ACCEL) > 0)
+
+
+def test_gps_rate_zero_is_an_option_a_negative_one_is_not():
+    """--scenario-opt gps_rate=0 is a vehicle without a GPS receiver; a negative rate is refused."""
+    from ahrsgen.errors import ConfigError
+    assert scenarios.parse_options("multirotor", ["gps_rate=0"]) == {"gps_rate": 0.0}
+    with pytest.raises(ConfigError, match="gps_rate"):
+        scenarios.parse_options("multirotor", ["gps_rate=-1"])
 
 
 def test_fixedwing_initial_attitude_and_flight_envelope():

@@ -31,8 +31,9 @@ def make(name: str, seed: int = 0, **options) -> SensorLog:
     return module(name).make(seed=seed, **options)
 
 
-# Options that are rates or lengths of time: a number > 0. Every other number is >= 0.
-_POSITIVE = ("rate_hz", "duration", "gps_rate", "mag_rate")
+# Options that are rates or lengths of time: a number > 0. Every other number is >= 0 (gps_rate
+# 0: no GPS receiver).
+_POSITIVE = ("rate_hz", "duration", "mag_rate")
 # A simulated flight is held in memory, about 100 bytes per IMU step (truth and sensors): 10
 # million steps (a 1 kHz IMU for 2.8 hours) is about 1 GB. An IMU below 5 Hz is not one an
 # attitude filter runs on (and leaves the truth too coarse to score).

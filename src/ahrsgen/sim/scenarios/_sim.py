@@ -300,7 +300,7 @@ def simulate(name: str, truth: Truth, *, rate_hz: float, duration: float, seed: 
     """Sample `truth` into a SensorLog at `rate_hz` for `duration` s (N = round(duration*rate)
     steps, t[k] = k / rate_hz plus jitter).
 
-    accel_rate / mag_rate: None = every IMU step; gps_rate: None = no GPS (bit never set).
+    accel_rate / mag_rate: None = every IMU step; gps_rate: None or 0 = no GPS (bit never set).
     dropout: {"gyro"|"accel"|"mag"|"gps": probability of losing each sample}.
     repeat_slow: the accelerometer and magnetometer valid bits are set on every step from their
     first sample on, the rows repeating the last sample (firmware that feeds the latest value
@@ -381,7 +381,8 @@ def simulate(name: str, truth: Truth, *, rate_hz: float, duration: float, seed: 
     if keep_dist(mag_disturbance):
         mag_v += mag_disturbance(tj_m, rng(seed, _S_SCENARIO + 3))
 
-    # GPS
+    # GPS (none: the vehicle has no receiver, or flies indoors)
+    gps_rate = gps_rate or None
     if gps_rate is not None:
         tj_g, k_g = _schedule(t, gps_rate, rate_hz, duration)
         vg = truth.at(tj_g)[1]

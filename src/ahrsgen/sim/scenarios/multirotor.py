@@ -16,8 +16,8 @@ commanded vertical acceleration and damping the vertical speed
 accelerometer therefore also sees the drag in x/y, as on a real multirotor.
 
 Rates: IMU (gyro, accelerometer) 250 Hz (`rate_hz` for more), magnetometer 50 Hz (`mag_rate`),
-GPS velocity 5 Hz, each sensor's valid bit set only when its sample arrived; `repeat_slow=True`
-instead repeats the last magnetometer sample with its bit set on every IMU step (the bench's
+GPS velocity 5 Hz (`gps_rate`; 0 = no receiver, as indoors), each sensor's valid bit set only
+when its sample arrived; `repeat_slow=True` instead repeats the last magnetometer sample with its bit set on every IMU step (the bench's
 `multirotor_400hz` / `multirotor_400hz_repeated` pair: IMU 400 Hz, magnetometer 100 Hz).
 Noise (Pixhawk class, MPU-6000 / HMC5883L figures): gyro 0.005 °/s/√Hz, constant bias
 0.05-0.3 °/s per axis (random sign, from the seed) plus a bias random walk 0.001 °/s/√s;
