@@ -1705,7 +1705,7 @@ static void mekf_k_update_gravity_part1(const float up[3], bool recover, const f
         const float tmp52 = tmp51 - (-1.0f);
         const float tmp53 = tmp52 * tmp52;
         const float tmp54 = tmp50 + tmp53;
-        const float tmp55 = 1.44f /* accel_adapt_sigmas*accel_adapt_sigmas */ *
+        const float tmp55 = 2.25f /* accel_adapt_sigmas*accel_adapt_sigmas */ *
                 carry[0] /* tmp37 */;
         const float tmp56 = tmp54 / tmp55;
         const float tmp57 = 1.0f + tmp56;
