@@ -106,10 +106,27 @@ extern "C" {
                                            Multirotor 400 Hz / 1 kHz 0.91 / 0.96 -> 0.41 / 0.38 deg,
                                            BROAD unchanged (studies/mekf_warm_start_cv.py,
                                            docs/mekf.md) */
-#define MEKF_ACCEL_ADAPT_CAP 1.0f       /* residual-adaptive gravity noise, bounded: R =
-                                           accel_angle_noise^2 * min(1 + |z|^2 / (3
-                                           accel_angle_noise)^2, accel_adapt_cap); 1 = off. Bounded
-                                           so it cannot lock the correction out */
+#define MEKF_ACCEL_ADAPT_CAP 3.0f       /* residual-adaptive gravity noise, bounded: R = sigma^2 *
+                                           min(1 + |z|^2 / (accel_adapt_sigmas sigma)^2,
+                                           accel_adapt_cap), sigma^2 the gravity direction's
+                                           variance (accel_angle_noise^2 + accel_noise_density^2 /
+                                           dt); 1 = off. Bounded so it cannot lock the correction
+                                           out. 3 chosen with accel_adapt_sigmas 1.5 by
+                                           leave-one-BROAD-group-out at 286/143/95/48 Hz with the
+                                           scenarios and the multirotor without GPS
+                                           (studies/mekf_nogps_cv.py, docs/mekf.md), among the
+                                           candidates that keep issue 26's rate bound: multirotor
+                                           without GPS 250 Hz / 1 kHz 4.61 / 5.40 -> 2.65 / 3.22
+                                           deg, BROAD 2.084 -> 2.097 at 286 Hz (at most +1.3 %, 95
+                                           Hz), fixed-wing 0.35 -> 0.36, its GPS outage 0.60 -> 0.48
+                                           */
+#define MEKF_ACCEL_ADAPT_SIGMAS 1.5f    /* the residual at which the adaptation doubles R, in
+                                           gravity direction standard deviations (sigma): R =
+                                           sigma^2 + (|z| / accel_adapt_sigmas)^2 up to
+                                           accel_adapt_cap sigma^2 (adukf's R = sigma^2 + k eps^2
+                                           with k = 1 / accel_adapt_sigmas^2). Not used at
+                                           accel_adapt_cap = 1. 1.5 chosen with accel_adapt_cap 3
+                                           (studies/mekf_nogps_cv.py); 3 before [1] */
 #define MEKF_REST_GYRO_TH 0.035f        /* rest detection: every gyro sample within this of its
                                            low-pass (rest_tau), and the low-pass itself below it (a
                                            turntable is not rest); 0 = no rest detection [rad/s] */

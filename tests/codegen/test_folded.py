@@ -109,18 +109,18 @@ def _words(c: str) -> list[str]:
 def test_a_set_parameter_moves_its_named_number(tmp_path, capsys):
     """ahrsgen generate mekf --set accel_angle_noise=0.05 (accel_noise_density = 0 and no GPS -
     magnetometer heading, no motion compensation - so that the gravity variance is the
-    parameter's alone, without the unobserved-turn term of a stale GPS velocity; accel_adapt_cap
-    above 1, so that the residual adaptation, off and not written at the default 1, divides by
-    nine times it): its square and nine times it, as float32 literals computed here, stand
-    beside their names; the default's are gone."""
+    parameter's alone, without the unobserved-turn term of a stale GPS velocity; the residual
+    adaptation, not written at accel_adapt_cap 1, divides by accel_adapt_sigmas² times it, set
+    to 1.5 here): its square and (1.5 times it)², as float32 literals computed here, stand beside
+    their names; the default's are gone."""
     assert cli.main(["generate", "mekf", "--set", "accel_angle_noise=0.05", "--set", "accel_noise_density=0",
                      "--set", "heading_source=mag", "--set", "motion_comp=none", "--set", "accel_adapt_cap=3",
-                     "-o", str(tmp_path)]) == 0
+                     "--set", "accel_adapt_sigmas=1.5", "-o", str(tmp_path)]) == 0
     capsys.readouterr()
     src = (tmp_path / "mekf.c").read_text()
-    sq, nine = str(np.float32(0.05 ** 2)), str(np.float32(9 * 0.05 ** 2))
+    sq, prod = str(np.float32(0.05 ** 2)), str(np.float32((1.5 * 0.05) ** 2))
     assert f"{sq}f /* accel_angle_noise^2 */" in src
-    assert f"{nine}f /* 9*accel_angle_noise^2 */" in src
+    assert f"{prod}f /* from accel_adapt_sigmas, accel_angle_noise */" in src
     assert "0.0049f" not in src and "/* accel_noise_density" not in src     # no density term left
 
 

@@ -220,6 +220,7 @@ VARIANTS = [
     ("mekf", ("gyro_step_noise=0.1", "mag_dev_gain=300"), "broad_286Hz"),
     ("mekf", ("heading_source=mag", "gyro_step_noise=0.3", "mag_dev_gain=3000"), "fixedwing_dropouts_250Hz"),
     ("mekf", ("accel_bias_gain=0",), "fixedwing_dropouts_250Hz"),
+    ("mekf", ("accel_adapt_cap=1",), "broad_286Hz"),
     ("adukf", ("mag_ref=learn",), "broad_286Hz"),
     ("cpf", ("mode=particle",), "px4_bench_204Hz"),
     ("cpf", ("mode=complementary",), "fixedwing_dropouts_250Hz"),

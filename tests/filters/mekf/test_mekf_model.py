@@ -234,6 +234,27 @@ def test_gravity_update_equals_the_body_axis_batch_update(euler):
     assert float(piv) > sig2
 
 
+@pytest.mark.parametrize("n,cap", [(1.2, 3.0), (3.0, 10.0), (0.5, 2.0)])
+def test_gravity_variance_doubles_at_accel_adapt_sigmas(n, cap):
+    """R_g = σ² min(1 + |z|²/(nσ)², cap), σ² = accel_angle_noise² + accel_noise_density²/dt
+    (n = accel_adapt_sigmas), from the equations: a low-passed specific force leaning so that
+    the residual |z| = |u - [0, 0, -1]| = 2 sin(θ/2) is n σ doubles σ²; one leaning far more
+    gets cap σ²; while recovering from a gyro clip R is σ²."""
+    p = _vec_params(accel_adapt_cap=cap, accel_adapt_sigmas=n)
+    dt = 0.004
+    sig2 = p["accel_angle_noise"] ** 2 + p["accel_noise_density"] ** 2 / dt
+    q = [1.0, 0.0, 0.0, 0.0]
+
+    def r_g(theta, recover=0):
+        up = 9.8 * np.array([np.sin(theta), 0.0, -np.cos(theta)])
+        return float(M.gravity_rows(p, ca.DM(q), ca.DM(up), recover, dt)[2])
+    theta = 2 * np.arcsin(n * np.sqrt(sig2) / 2)
+    assert abs(r_g(theta) / sig2 - 2.0) < 1e-9
+    assert abs(r_g(0.0) / sig2 - 1.0) < 1e-12
+    assert abs(r_g(1.5) / sig2 - cap) < 1e-12
+    assert abs(r_g(1.5, recover=1) / sig2 - 1.0) < 1e-12
+
+
 @pytest.mark.parametrize("omega_hat,dt", CASES + [(np.array([20.0, -15.0, 8.0]), 0.01)])
 def test_earth_frame_bias_rows_match_finite_differences(omega_hat, dt):
     """predict_attitude's B (F's attitude rows by the bias error, earth-frame attitude error)

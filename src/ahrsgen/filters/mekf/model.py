@@ -459,7 +459,7 @@ def gravity_rows(p: dict, q, up, recover, dt, turn=None, p_bb=None):
     its update would change nothing). With R_g isotropic this is the body-axis measurement
     up/|up| in body axes − R(q̂)ᵀ [0, 0, −1] (H = 2 [R(q̂)ᵀ u ×] on the body-frame error)
     rotated by R(q̂), the same update in exact arithmetic (q̂ unit), in two rows instead of
-    three and without rotating up into the body; R_g = σ² min(1 + |z_g|²/(3σ)², cap), σ² = accel_angle_noise² + accel_noise_density²/dt
+    three and without rotating up into the body; R_g = σ² min(1 + |z_g|²/(nσ)², cap) (n = accel_adapt_sigmas), σ² = accel_angle_noise² + accel_noise_density²/dt
     (bounded residual adaptation: the correction can be weakened, never locked out); p_bb given
     (the sum of P's gyro-bias diagonal), the density term times 1 + accel_bias_gain p_bb / (3 p0_bias²).
     With GPS (`turn` = (gyro, b̂, v, unobserved)): while the last GPS velocity is stale
@@ -484,13 +484,14 @@ def gravity_rows(p: dict, q, up, recover, dt, turn=None, p_bb=None):
         a_turn = ca.dot(gyro - b, quat.rotmat(q)[2, :].T) * ca.sqrt(vel[0] * vel[0] + vel[1] * vel[1]) / use(G0)
         sig2 = sig2 + ca.if_else(unobserved, a_turn * a_turn, 0)
     # recovering after a gyro clip (recover = 1): no weakening, the covariance sets the gain.
-    # accel_adapt_cap = 1 (its minimum; the default): off, min(1 + |z|²/(9σ²), 1) is 1 exactly
+    # accel_adapt_cap = 1 (its minimum): off, min(1 + |z|²/(n²σ²), 1) is 1 exactly
     # (1 + x >= 1 for x >= 0 in floating point too), so no division is written for it
     cap = p["accel_adapt_cap"]
     if isinstance(cap, (int, float)) and cap <= 1:
         r_g = sig2
     else:
-        r_g = ca.if_else(recover, sig2, sig2 * ca.fmin(1 + ca.sumsqr(z_g) / (9 * sig2), cap))
+        n = p["accel_adapt_sigmas"]
+        r_g = ca.if_else(recover, sig2, sig2 * ca.fmin(1 + ca.sumsqr(z_g) / ((n * n) * sig2), cap))
     return jacobian_gravity(), z_g[:2], r_g
 
 

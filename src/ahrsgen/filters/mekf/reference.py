@@ -167,7 +167,7 @@ class Reference:
                       "rest_tau", "mag_norm_th", "mag_dip_th", "mag_learn_time", "mag_reject_max",
                       "mag_ref_tau", "mag_new_time", "course_max_sideslip", "gyro_full_scale",
                       "clip_recovery_time", "gyro_rate_noise", "mag_heading_density", "accel_noise_density",
-                      "mag_dev_gain", "gyro_step_noise", "accel_bias_gain"):
+                      "mag_dev_gain", "gyro_step_noise", "accel_bias_gain", "accel_adapt_sigmas"):
                 setattr(self, k, float(p[k]))
             self.accel_lpf_warm = bool(p["accel_lpf_warm"])
             self.clip = GyroClip(self.gyro_full_scale, float(p["gyro_plateau_rate"]), self.clip_recovery_time)
@@ -590,7 +590,8 @@ class Reference:
                 # force by ω_v |v_h| / g (ω_v the turn rate about the vertical)
                 a_turn = (Rq[2, :] @ (gyro - self.gyro_bias)) * np.hypot(self.v_gps[0], self.v_gps[1]) / G0
                 sig2 += a_turn ** 2
-            r_g = sig2 if recovering else sig2 * min(1.0 + (z_g @ z_g) / (9.0 * sig2), self.accel_adapt_cap)
+            r_g = sig2 if recovering else sig2 * min(1.0 + (z_g @ z_g) / (self.accel_adapt_sigmas ** 2 * sig2),
+                                                     self.accel_adapt_cap)
             z = np.concatenate([z_g, gyro - self.gyro_bias])
             H = np.zeros((6, 6))
             H[:3, :3] = 2.0 * skew(u_n)            # d/dθ of Rᵀ(Exp θ) u = skew(u) θ, θ = 2 δ (earth frame)
