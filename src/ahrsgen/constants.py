@@ -41,12 +41,6 @@ def use(c):
     return c
 
 
-def traced() -> bool:
-    """True while the traced build runs (its numbers perturbed: a model's build-time check of
-    one form against another, which holds for the real numbers only, is skipped then)."""
-    return _tracer is not None
-
-
 def named(name: str, x):
     """A number the model computes at build time (a weight of the unscented transform from
     its parameters) read under a name, as use(Const(name, x)): x itself, or during a traced

@@ -94,6 +94,22 @@ def test_closed_form_attitude_rows_match_finite_differences(omega_hat, dt):
     assert np.max(np.abs(q_new.ravel() - q_ref / np.linalg.norm(q_ref))) < 1e-14
 
 
+@pytest.mark.parametrize("b,gyro,dt", [([0.01, -0.02, 0.03], [0.5, -1.0, 2.0], 0.01),
+                                       ([0.0] * 3, [3.0, 0.1, -0.2], 0.004),
+                                       ([0.1, 0.0, -0.1], [20.0, -15.0, 8.0], 0.01)])   # |v| = 0.13 > SERIES_MAX
+def test_closed_form_attitude_rows_are_casadis_jacobians(b, gyro, dt):
+    """attitude_rows in the error-state blocks F = [[F_q, F_b], [0, I]], G = [[F_b, 0], [0, I]]
+    (model._blocks) and its q' equal CasADi's jacobians of the propagation (jacobians_FG, the
+    patent design's) and quat.integrate."""
+    q, bs, g, h = ca.SX.sym("q", 4), ca.SX.sym("b", 3), ca.SX.sym("gyro", 3), ca.SX.sym("dt")
+    q_new, Fq, Fb = M.attitude_rows(q, g - bs, h)
+    q_ref, F, G, _ = M._time_update(filters.load("mekf").defaults(), q, bs, g, h)
+    F2, G2 = M._blocks(Fq, Fb)
+    check = ca.Function("check", [q, bs, g, h], [F - F2, G - G2, q_new - q_ref])
+    for m in check([0.9, 0.1, -0.3, 0.2], b, gyro, dt):
+        assert float(ca.mmax(ca.fabs(m))) <= 1e-12
+
+
 @pytest.mark.parametrize("euler", [(0.1, -0.05, 0.8), (-0.49, -0.056, 0.78), (2.5, 1.2, -3.0),
                                    (0.0, 0.0, np.pi)])
 def test_H_matches_finite_differences(euler):
