@@ -4239,7 +4239,9 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
      * variance - the batch innovation covariance's Cholesky pivots - is usable; else P is
      * restored from its lower triangle saved here. The two gravity rows are one kernel. */
     if (use_tilt || at_rest) {
-        float x[6] = { 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f };
+        /* written by the gravity rows, zeroed element by element without them (at -Os GCC makes
+         * an initialiser of the whole array a call to memset, 60 cycles a step) */
+        float x[6];
         float P_saved[21];
         uint32_t k = 0u;
         for (uint32_t j = 0u; j < 6u; j++) {
@@ -4255,6 +4257,13 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
             mekf_k_update_gravity(q, up, recovering, dt, in->gyro, s->gyro_bias,
                 s->v_gps, !fresh, P, x, P, &min_pivot);
             usable = min_pivot > 1e-12f /* S_PIVOT_MIN */;
+        } else {
+            x[0] = 0.0f;
+            x[1] = 0.0f;
+            x[2] = 0.0f;
+            x[3] = 0.0f;
+            x[4] = 0.0f;
+            x[5] = 0.0f;
         }
         if (at_rest && usable) {
             mekf_k_update_rest_bias(s->gyro_bias, P, in->gyro, dt, x, x, P, &min_pivot);
