@@ -2104,6 +2104,9 @@ static void qcf_k_hard_iron_part11(bool flags[2])
  * Total ops: 459 (add 173, mul 186, div 10, sqrt 4, cmp 86)
  *     of which only one side runs: if (tmp366) 28, else 6
  */
+#if defined(__GNUC__)
+__attribute__((noinline))
+#endif
 static void qcf_k_hard_iron(const float q[4], const float mag[3], const float b[3],
     const float ref[2], const float cx[5], const float cP[25], bool fresh, bool reopen,
     const float rlp[4], const float rmean[2], const float e[3], float turn_time, float dt,
