@@ -4059,6 +4059,9 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
         return (isfinite(dt) && dt > MEKF_DT_MAX) ? MEKF_DT_TOO_LARGE : MEKF_DT_INVALID;
     }
     const uint32_t every_step = MEKF_VALID_GYRO | MEKF_VALID_ACCEL | MEKF_VALID_MAG;
+    /* read even without its valid bit: the gyro over-range guard reuses it */
+    const float gyro_n2 = in->gyro[0] * in->gyro[0] + in->gyro[1] * in->gyro[1] +
+        in->gyro[2] * in->gyro[2];
     /* read even without its valid bit: a kernel reuses it */
     const float accel_n2 = in->accel[0] * in->accel[0] + in->accel[1] * in->accel[1] +
         in->accel[2] * in->accel[2];
@@ -4068,8 +4071,7 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
         in->mag[2] * in->mag[2];
     bool use_mag = true;
     if (!((in->valid & every_step) == every_step
-          && in->gyro[0] * in->gyro[0] + in->gyro[1] * in->gyro[1] +
-             in->gyro[2] * in->gyro[2] < MEKF_GYRO_MAX * MEKF_GYRO_MAX
+          && gyro_n2 < MEKF_GYRO_MAX * MEKF_GYRO_MAX
           && mekf_in_range(accel_n2, MEKF_ACCEL_MIN_NORM * MEKF_ACCEL_MIN_NORM,
                                    MEKF_ACCEL_MAX * MEKF_ACCEL_MAX)
           && mekf_in_range(mag_n2, MEKF_MAG_MIN_NORM * MEKF_MAG_MIN_NORM,
@@ -4149,8 +4151,7 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
      * recovering are false, when no component can be clipped (|gyro|^2 below
      * gyro_plateau_rate^2: every |gyro_i| below it, float rounding being
      * monotone), no plateau run is counting and no recovery time is left (each +0: never
-     * negative or -0). */
-    const float gyro_n2 = mekf_norm2(in->gyro);
+     * negative or -0). gyro_n2: |gyro|^2 from the step's input checks. */
     if (!(gyro_n2 < MEKF_GYRO_PLATEAU_RATE * MEKF_GYRO_PLATEAU_RATE
           && (mekf_bits(s->recover_time) | mekf_bits(s->gyro_repeats[0])
               | mekf_bits(s->gyro_repeats[1]) | mekf_bits(s->gyro_repeats[2])) == 0u)) {

@@ -2507,6 +2507,9 @@ qcf_status qcf_step(qcf_state *restrict s, const qcf_input *restrict in, float d
         return (isfinite(dt) && dt > QCF_DT_MAX) ? QCF_DT_TOO_LARGE : QCF_DT_INVALID;
     }
     const uint32_t every_step = QCF_VALID_GYRO | QCF_VALID_ACCEL | QCF_VALID_MAG;
+    /* read even without its valid bit: the gyro over-range guard reuses it */
+    const float gyro_n2 = in->gyro[0] * in->gyro[0] + in->gyro[1] * in->gyro[1] +
+        in->gyro[2] * in->gyro[2];
     /* read even without its valid bit: a kernel reuses it */
     const float accel_n2 = in->accel[0] * in->accel[0] + in->accel[1] * in->accel[1] +
         in->accel[2] * in->accel[2];
@@ -2516,8 +2519,7 @@ qcf_status qcf_step(qcf_state *restrict s, const qcf_input *restrict in, float d
         in->mag[2] * in->mag[2];
     bool use_mag = true;
     if (!((in->valid & every_step) == every_step
-          && in->gyro[0] * in->gyro[0] + in->gyro[1] * in->gyro[1] +
-             in->gyro[2] * in->gyro[2] < QCF_GYRO_MAX * QCF_GYRO_MAX
+          && gyro_n2 < QCF_GYRO_MAX * QCF_GYRO_MAX
           && qcf_in_range(accel_n2, QCF_ACCEL_MIN_NORM * QCF_ACCEL_MIN_NORM,
                                    QCF_ACCEL_MAX * QCF_ACCEL_MAX)
           && qcf_in_range(mag_n2, QCF_MAG_MIN_NORM * QCF_MAG_MIN_NORM,
@@ -2585,8 +2587,7 @@ qcf_status qcf_step(qcf_state *restrict s, const qcf_input *restrict in, float d
          * recovering are false, when no component can be clipped (|gyro|^2 below
          * gyro_plateau_rate^2: every |gyro_i| below it, float rounding being
          * monotone), no plateau run is counting and no recovery time is left (each +0: never
-         * negative or -0). */
-        const float gyro_n2 = qcf_norm2(in->gyro);
+         * negative or -0). gyro_n2: |gyro|^2 from the step's input checks. */
         if (!(gyro_n2 < QCF_GYRO_PLATEAU_RATE * QCF_GYRO_PLATEAU_RATE
               && (qcf_bits(s->recover_time) | qcf_bits(s->gyro_repeats[0])
                   | qcf_bits(s->gyro_repeats[1]) | qcf_bits(s->gyro_repeats[2])) == 0u)) {
