@@ -4337,6 +4337,9 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
         return (isfinite(dt) && dt > ADUKF_DT_MAX) ? ADUKF_DT_TOO_LARGE : ADUKF_DT_INVALID;
     }
     const uint32_t every_step = ADUKF_VALID_GYRO | ADUKF_VALID_ACCEL | ADUKF_VALID_MAG;
+    /* read even without its valid bit: the gyro over-range guard reuses it */
+    const float gyro_n2 = in->gyro[0] * in->gyro[0] + in->gyro[1] * in->gyro[1] +
+        in->gyro[2] * in->gyro[2];
     /* read even without its valid bit: a kernel reuses it */
     const float accel_n2 = in->accel[0] * in->accel[0] + in->accel[1] * in->accel[1] +
         in->accel[2] * in->accel[2];
@@ -4346,8 +4349,7 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
         in->mag[2] * in->mag[2];
     bool use_mag = true;
     if (!((in->valid & every_step) == every_step
-          && in->gyro[0] * in->gyro[0] + in->gyro[1] * in->gyro[1] +
-             in->gyro[2] * in->gyro[2] < ADUKF_GYRO_MAX * ADUKF_GYRO_MAX
+          && gyro_n2 < ADUKF_GYRO_MAX * ADUKF_GYRO_MAX
           && adukf_in_range(accel_n2, ADUKF_ACCEL_MIN_NORM * ADUKF_ACCEL_MIN_NORM,
                                    ADUKF_ACCEL_MAX * ADUKF_ACCEL_MAX)
           && adukf_in_range(mag_n2, ADUKF_MAG_MIN_NORM * ADUKF_MAG_MIN_NORM,
@@ -4442,8 +4444,7 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
      * recovering are false, when no component can be clipped (|gyro|^2 below
      * gyro_plateau_rate^2: every |gyro_i| below it, float rounding being
      * monotone), no plateau run is counting and no recovery time is left (each +0: never
-     * negative or -0). */
-    const float gyro_n2 = adukf_norm2(in->gyro);
+     * negative or -0). gyro_n2: |gyro|^2 from the step's input checks. */
     if (!(gyro_n2 < ADUKF_GYRO_PLATEAU_RATE * ADUKF_GYRO_PLATEAU_RATE
           && (adukf_bits(s->recover_time) | adukf_bits(s->gyro_repeats[0])
               | adukf_bits(s->gyro_repeats[1]) | adukf_bits(s->gyro_repeats[2])) == 0u)) {

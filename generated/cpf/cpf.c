@@ -1209,6 +1209,9 @@ cpf_status cpf_step(cpf_state *restrict s, const cpf_input *restrict in, float d
         return (isfinite(dt) && dt > CPF_DT_MAX) ? CPF_DT_TOO_LARGE : CPF_DT_INVALID;
     }
     const uint32_t every_step = CPF_VALID_GYRO | CPF_VALID_ACCEL | CPF_VALID_MAG;
+    /* read even without its valid bit */
+    const float gyro_n2 = in->gyro[0] * in->gyro[0] + in->gyro[1] * in->gyro[1] +
+        in->gyro[2] * in->gyro[2];
     /* read even without its valid bit: a kernel reuses it */
     const float accel_n2 = in->accel[0] * in->accel[0] + in->accel[1] * in->accel[1] +
         in->accel[2] * in->accel[2];
@@ -1218,8 +1221,7 @@ cpf_status cpf_step(cpf_state *restrict s, const cpf_input *restrict in, float d
         in->mag[2] * in->mag[2];
     bool use_mag = true;
     if (!((in->valid & every_step) == every_step
-          && in->gyro[0] * in->gyro[0] + in->gyro[1] * in->gyro[1] +
-             in->gyro[2] * in->gyro[2] < CPF_GYRO_MAX * CPF_GYRO_MAX
+          && gyro_n2 < CPF_GYRO_MAX * CPF_GYRO_MAX
           && cpf_in_range(accel_n2, CPF_ACCEL_MIN_NORM * CPF_ACCEL_MIN_NORM,
                                    CPF_ACCEL_MAX * CPF_ACCEL_MAX)
           && cpf_in_range(mag_n2, CPF_MAG_MIN_NORM * CPF_MAG_MIN_NORM,

@@ -648,8 +648,8 @@ static void mekf_k_gyro_recovery(const float gyro[3], const float gyro_prev[3],
     gyro_repeats_new[2] = tmp15;
 }
 
-static void mekf_k_predict_attitude_part0(const float b[3], const float gyro[3], float dt,
-    float carry[29])
+static void mekf_k_predict_attitude_part0(const float q[4], const float b[3], const float gyro[3],
+    float dt, float carry[29])
 {
     const float tmp0 = 0.5f * dt;
     const float tmp1 = gyro[0] - b[0];
@@ -663,6 +663,45 @@ static void mekf_k_predict_attitude_part0(const float b[3], const float gyro[3],
     const float tmp9 = tmp0 * tmp8;
     const float tmp10 = tmp9 * tmp9;
     const float tmp11 = tmp7 + tmp10;
+    float tmp12;
+    float tmp13;
+    float tmp14;
+    if (tmp11 < 0.01f /* SERIES_MAX*SERIES_MAX */) {
+        const float tmp15 = 0.041666668f /* 1/24 */ * tmp11;
+        const float tmp16 = (-0.5f) /* -(1/2) */ + tmp15;
+        const float tmp17 = tmp11 * tmp16;
+        const float tmp18 = 1.0f + tmp17;
+        const float tmp19 = 0.008333334f /* 1/120 */ * tmp11;
+        const float tmp20 = (-0.16666667f) /* -(1/6) */ + tmp19;
+        const float tmp21 = tmp11 * tmp20;
+        const float tmp22 = 1.0f + tmp21;
+        const float tmp23 = 0.012698413f /* 4/315 */ * tmp11;
+        const float tmp24 = (-0.13333334f) /* -(2/15) */ + tmp23;
+        const float tmp25 = tmp11 * tmp24;
+        const float tmp26 = 0.6666667f /* 2/3 */ + tmp25;
+        tmp12 = tmp18;
+        tmp13 = tmp22;
+        tmp14 = tmp26;
+    } else {
+        const float tmp27 = (tmp11 > 0.01f /* SERIES_MAX*SERIES_MAX */) ? tmp11 :
+                0.01f /* SERIES_MAX*SERIES_MAX */;
+        const float tmp28 = sqrtf(tmp27);
+        float tmp30;
+        float tmp29;
+        fast_sincosf(tmp28, &tmp30, &tmp29);   /* sin and cos, one reduction */
+        const float tmp31 = tmp30 / tmp28;
+        const float tmp32 = tmp30 * tmp29;
+        const float tmp33 = tmp28 - tmp32;
+        const float tmp34 = tmp11 * tmp28;
+        const float tmp35 = tmp33 / tmp34;
+        tmp12 = tmp29;
+        tmp13 = tmp31;
+        tmp14 = tmp35;
+    }
+    const float tmp36 = q[0] * tmp12;
+    const float tmp37 = tmp13 * tmp2;
+    const float tmp38 = q[1] * tmp37;
+    const float tmp39 = tmp36 - tmp38;
     carry[0] = tmp0;
     carry[1] = tmp2;
     carry[2] = tmp3;
@@ -671,271 +710,216 @@ static void mekf_k_predict_attitude_part0(const float b[3], const float gyro[3],
     carry[5] = tmp9;
     carry[6] = tmp10;
     carry[7] = tmp11;
-}
-
-static void mekf_k_predict_attitude_part1(const float q[4], float carry[29])
-{
-    float tmp12;
-    float tmp13;
-    float tmp14;
-    if (carry[7] /* tmp11 */ < 0.01f /* SERIES_MAX*SERIES_MAX */) {
-        const float tmp15 = 2.4801588e-05f /* 1/40320 */ * carry[7] /* tmp11 */;
-        const float tmp16 = (-0.0013888889f) /* -(1/720) */ + tmp15;
-        const float tmp17 = carry[7] /* tmp11 */ * tmp16;
-        const float tmp18 = 0.041666668f /* 1/24 */ + tmp17;
-        const float tmp19 = carry[7] /* tmp11 */ * tmp18;
-        const float tmp20 = (-0.5f) /* -(1/2) */ + tmp19;
-        const float tmp21 = carry[7] /* tmp11 */ * tmp20;
-        const float tmp22 = 1.0f + tmp21;
-        const float tmp23 = 2.7557319e-06f /* 1/362880 */ * carry[7] /* tmp11 */;
-        const float tmp24 = (-0.0001984127f) /* -(1/5040) */ + tmp23;
-        const float tmp25 = carry[7] /* tmp11 */ * tmp24;
-        const float tmp26 = 0.008333334f /* 1/120 */ + tmp25;
-        const float tmp27 = carry[7] /* tmp11 */ * tmp26;
-        const float tmp28 = (-0.16666667f) /* -(1/6) */ + tmp27;
-        const float tmp29 = carry[7] /* tmp11 */ * tmp28;
-        const float tmp30 = 1.0f + tmp29;
-        const float tmp31 = 2.5653359e-05f /* 4/155925 */ * carry[7] /* tmp11 */;
-        const float tmp32 = (-0.00070546736f) /* -(2/2835) */ + tmp31;
-        const float tmp33 = carry[7] /* tmp11 */ * tmp32;
-        const float tmp34 = 0.012698413f /* 4/315 */ + tmp33;
-        const float tmp35 = carry[7] /* tmp11 */ * tmp34;
-        const float tmp36 = (-0.13333334f) /* -(2/15) */ + tmp35;
-        const float tmp37 = carry[7] /* tmp11 */ * tmp36;
-        const float tmp38 = 0.6666667f /* 2/3 */ + tmp37;
-        tmp12 = tmp22;
-        tmp13 = tmp30;
-        tmp14 = tmp38;
-    } else {
-        const float tmp39 = (carry[7] /* tmp11 */ > 0.01f /* SERIES_MAX*SERIES_MAX */) ?
-                carry[7] /* tmp11 */ : 0.01f /* SERIES_MAX*SERIES_MAX */;
-        const float tmp40 = sqrtf(tmp39);
-        float tmp42;
-        float tmp41;
-        fast_sincosf(tmp40, &tmp42, &tmp41);   /* sin and cos, one reduction */
-        const float tmp43 = tmp42 / tmp40;
-        const float tmp44 = tmp42 * tmp41;
-        const float tmp45 = tmp40 - tmp44;
-        const float tmp46 = carry[7] /* tmp11 */ * tmp40;
-        const float tmp47 = tmp45 / tmp46;
-        tmp12 = tmp41;
-        tmp13 = tmp43;
-        tmp14 = tmp47;
-    }
-    const float tmp48 = q[0] * tmp12;
-    const float tmp49 = tmp13 * carry[1] /* tmp2 */;
-    const float tmp50 = q[1] * tmp49;
-    const float tmp51 = tmp48 - tmp50;
     carry[8] = tmp12;
     carry[9] = tmp13;
     carry[10] = tmp14;
-    carry[11] = tmp49;
-    carry[12] = tmp51;
+    carry[11] = tmp37;
+    carry[12] = tmp39;
 }
 
-static void mekf_k_predict_attitude_part2(const float q[4], float q_out[4], float carry[29])
+static void mekf_k_predict_attitude_part1(const float q[4], float q_out[4], float carry[29])
 {
-    const float tmp52 = carry[9] /* tmp13 */ * carry[3] /* tmp5 */;
-    const float tmp53 = q[2] * tmp52;
-    const float tmp54 = carry[12] /* tmp51 */ - tmp53;
-    const float tmp55 = carry[9] /* tmp13 */ * carry[5] /* tmp9 */;
-    const float tmp56 = q[3] * tmp55;
-    const float tmp57 = tmp54 - tmp56;
-    const float tmp58 = tmp57 * tmp57;
-    const float tmp59 = q[0] * carry[11] /* tmp49 */;
-    const float tmp60 = q[1] * carry[8] /* tmp12 */;
-    const float tmp61 = tmp59 + tmp60;
-    const float tmp62 = q[2] * tmp55;
-    const float tmp63 = tmp61 + tmp62;
-    const float tmp64 = q[3] * tmp52;
-    const float tmp65 = tmp63 - tmp64;
-    const float tmp66 = tmp65 * tmp65;
-    const float tmp67 = tmp58 + tmp66;
-    const float tmp68 = q[0] * tmp52;
-    const float tmp69 = q[1] * tmp55;
-    const float tmp70 = tmp68 - tmp69;
-    const float tmp71 = q[2] * carry[8] /* tmp12 */;
-    const float tmp72 = tmp70 + tmp71;
-    const float tmp73 = q[3] * carry[11] /* tmp49 */;
-    const float tmp74 = tmp72 + tmp73;
-    const float tmp75 = tmp74 * tmp74;
-    const float tmp76 = tmp67 + tmp75;
-    const float tmp77 = q[0] * tmp55;
-    const float tmp78 = q[1] * tmp52;
-    const float tmp79 = tmp77 + tmp78;
-    const float tmp80 = q[2] * carry[11] /* tmp49 */;
-    const float tmp81 = tmp79 - tmp80;
-    const float tmp82 = q[3] * carry[8] /* tmp12 */;
-    const float tmp83 = tmp81 + tmp82;
-    const float tmp84 = tmp83 * tmp83;
-    const float tmp85 = tmp76 + tmp84;
-    const float tmp86 = sqrtf(tmp85);
-    const float tmp87 = 1.0f / tmp86;
-    const float tmp88 = tmp57 * tmp87;
-    q_out[0] = tmp88;
-    const float tmp89 = tmp65 * tmp87;
-    q_out[1] = tmp89;
-    const float tmp90 = tmp74 * tmp87;
-    q_out[2] = tmp90;
-    const float tmp91 = tmp83 * tmp87;
-    q_out[3] = tmp91;
-    carry[8] = tmp88;
-    carry[11] = tmp89;
-    carry[12] = tmp90;
-    carry[13] = tmp91;
+    const float tmp40 = carry[9] /* tmp13 */ * carry[3] /* tmp5 */;
+    const float tmp41 = q[2] * tmp40;
+    const float tmp42 = carry[12] /* tmp39 */ - tmp41;
+    const float tmp43 = carry[9] /* tmp13 */ * carry[5] /* tmp9 */;
+    const float tmp44 = q[3] * tmp43;
+    const float tmp45 = tmp42 - tmp44;
+    const float tmp46 = tmp45 * tmp45;
+    const float tmp47 = q[0] * carry[11] /* tmp37 */;
+    const float tmp48 = q[1] * carry[8] /* tmp12 */;
+    const float tmp49 = tmp47 + tmp48;
+    const float tmp50 = q[2] * tmp43;
+    const float tmp51 = tmp49 + tmp50;
+    const float tmp52 = q[3] * tmp40;
+    const float tmp53 = tmp51 - tmp52;
+    const float tmp54 = tmp53 * tmp53;
+    const float tmp55 = tmp46 + tmp54;
+    const float tmp56 = q[0] * tmp40;
+    const float tmp57 = q[1] * tmp43;
+    const float tmp58 = tmp56 - tmp57;
+    const float tmp59 = q[2] * carry[8] /* tmp12 */;
+    const float tmp60 = tmp58 + tmp59;
+    const float tmp61 = q[3] * carry[11] /* tmp37 */;
+    const float tmp62 = tmp60 + tmp61;
+    const float tmp63 = tmp62 * tmp62;
+    const float tmp64 = tmp55 + tmp63;
+    const float tmp65 = q[0] * tmp43;
+    const float tmp66 = q[1] * tmp40;
+    const float tmp67 = tmp65 + tmp66;
+    const float tmp68 = q[2] * carry[11] /* tmp37 */;
+    const float tmp69 = tmp67 - tmp68;
+    const float tmp70 = q[3] * carry[8] /* tmp12 */;
+    const float tmp71 = tmp69 + tmp70;
+    const float tmp72 = tmp71 * tmp71;
+    const float tmp73 = tmp64 + tmp72;
+    const float tmp74 = sqrtf(tmp73);
+    const float tmp75 = 1.0f / tmp74;
+    const float tmp76 = tmp45 * tmp75;
+    q_out[0] = tmp76;
+    const float tmp77 = tmp53 * tmp75;
+    q_out[1] = tmp77;
+    const float tmp78 = tmp62 * tmp75;
+    q_out[2] = tmp78;
+    const float tmp79 = tmp71 * tmp75;
+    q_out[3] = tmp79;
+    carry[8] = tmp76;
+    carry[11] = tmp77;
+    carry[12] = tmp78;
+    carry[13] = tmp79;
+}
+
+static void mekf_k_predict_attitude_part2(float B[9], float carry[29])
+{
+    const float tmp80 = carry[12] /* tmp78 */ * carry[12] /* tmp78 */;
+    const float tmp81 = carry[13] /* tmp79 */ * carry[13] /* tmp79 */;
+    const float tmp82 = tmp80 + tmp81;
+    const float tmp83 = tmp82 + tmp82;
+    const float tmp84 = 1.0f - tmp83;
+    const float tmp85 = carry[10] /* tmp14 */ * carry[7] /* tmp11 */;
+    const float tmp86 = tmp85 - 1.0f;
+    const float tmp87 = carry[0] /* tmp0 */ * tmp86;
+    const float tmp88 = carry[0] /* tmp0 */ * carry[10] /* tmp14 */;
+    const float tmp89 = tmp88 * carry[2] /* tmp3 */;
+    const float tmp90 = tmp87 - tmp89;
+    const float tmp91 = tmp84 * tmp90;
+    const float tmp92 = carry[11] /* tmp77 */ * carry[12] /* tmp78 */;
+    const float tmp93 = carry[8] /* tmp76 */ * carry[13] /* tmp79 */;
+    const float tmp94 = tmp92 - tmp93;
+    const float tmp95 = tmp94 + tmp94;
+    const float tmp96 = carry[9] /* tmp13 */ * carry[9] /* tmp13 */;
+    const float tmp97 = carry[0] /* tmp0 */ * tmp96;
+    const float tmp98 = tmp97 * carry[5] /* tmp9 */;
+    const float tmp99 = carry[1] /* tmp2 */ * carry[3] /* tmp5 */;
+    const float tmp100 = tmp88 * tmp99;
+    const float tmp101 = tmp98 - tmp100;
+    const float tmp102 = tmp95 * tmp101;
+    const float tmp103 = tmp91 + tmp102;
+    const float tmp104 = carry[11] /* tmp77 */ * carry[13] /* tmp79 */;
+    const float tmp105 = carry[8] /* tmp76 */ * carry[12] /* tmp78 */;
+    const float tmp106 = tmp104 + tmp105;
+    const float tmp107 = tmp106 + tmp106;
+    const float tmp108 = carry[1] /* tmp2 */ * carry[5] /* tmp9 */;
+    const float tmp109 = tmp88 * tmp108;
+    const float tmp110 = tmp97 * carry[3] /* tmp5 */;
+    const float tmp111 = tmp109 + tmp110;
+    const float tmp112 = tmp107 * tmp111;
+    const float tmp113 = tmp103 - tmp112;
+    B[0] = tmp113;
+    const float tmp114 = tmp92 + tmp93;
+    const float tmp115 = tmp114 + tmp114;
+    const float tmp116 = tmp115 * tmp90;
+    const float tmp117 = carry[11] /* tmp77 */ * carry[11] /* tmp77 */;
+    const float tmp118 = tmp117 + tmp81;
+    const float tmp119 = tmp118 + tmp118;
+    carry[0] = tmp80;
+    carry[2] = tmp84;
+    carry[7] = tmp87;
+    carry[9] = tmp88;
+    carry[10] = tmp90;
+    carry[14] = tmp95;
+    carry[15] = tmp97;
+    carry[16] = tmp98;
+    carry[17] = tmp100;
+    carry[18] = tmp101;
+    carry[19] = tmp104;
+    carry[20] = tmp105;
+    carry[21] = tmp107;
+    carry[22] = tmp109;
+    carry[23] = tmp110;
+    carry[24] = tmp111;
+    carry[25] = tmp115;
+    carry[26] = tmp116;
+    carry[27] = tmp117;
+    carry[28] = tmp119;
 }
 
 static void mekf_k_predict_attitude_part3(float B[9], float carry[29])
 {
-    const float tmp92 = carry[12] /* tmp90 */ * carry[12] /* tmp90 */;
-    const float tmp93 = carry[13] /* tmp91 */ * carry[13] /* tmp91 */;
-    const float tmp94 = tmp92 + tmp93;
-    const float tmp95 = tmp94 + tmp94;
-    const float tmp96 = 1.0f - tmp95;
-    const float tmp97 = carry[10] /* tmp14 */ * carry[7] /* tmp11 */;
-    const float tmp98 = tmp97 - 1.0f;
-    const float tmp99 = carry[0] /* tmp0 */ * tmp98;
-    const float tmp100 = carry[0] /* tmp0 */ * carry[10] /* tmp14 */;
-    const float tmp101 = tmp100 * carry[2] /* tmp3 */;
-    const float tmp102 = tmp99 - tmp101;
-    const float tmp103 = tmp96 * tmp102;
-    const float tmp104 = carry[11] /* tmp89 */ * carry[12] /* tmp90 */;
-    const float tmp105 = carry[8] /* tmp88 */ * carry[13] /* tmp91 */;
-    const float tmp106 = tmp104 - tmp105;
-    const float tmp107 = tmp106 + tmp106;
-    const float tmp108 = carry[9] /* tmp13 */ * carry[9] /* tmp13 */;
-    const float tmp109 = carry[0] /* tmp0 */ * tmp108;
-    const float tmp110 = tmp109 * carry[5] /* tmp9 */;
-    const float tmp111 = carry[1] /* tmp2 */ * carry[3] /* tmp5 */;
-    const float tmp112 = tmp100 * tmp111;
-    const float tmp113 = tmp110 - tmp112;
-    const float tmp114 = tmp107 * tmp113;
-    const float tmp115 = tmp103 + tmp114;
-    const float tmp116 = carry[11] /* tmp89 */ * carry[13] /* tmp91 */;
-    const float tmp117 = carry[8] /* tmp88 */ * carry[12] /* tmp90 */;
-    const float tmp118 = tmp116 + tmp117;
-    const float tmp119 = tmp118 + tmp118;
-    const float tmp120 = carry[1] /* tmp2 */ * carry[5] /* tmp9 */;
-    const float tmp121 = tmp100 * tmp120;
-    const float tmp122 = tmp109 * carry[3] /* tmp5 */;
-    const float tmp123 = tmp121 + tmp122;
-    const float tmp124 = tmp119 * tmp123;
-    const float tmp125 = tmp115 - tmp124;
-    B[0] = tmp125;
-    const float tmp126 = tmp104 + tmp105;
-    const float tmp127 = tmp126 + tmp126;
-    const float tmp128 = tmp127 * tmp102;
-    const float tmp129 = carry[11] /* tmp89 */ * carry[11] /* tmp89 */;
-    const float tmp130 = tmp129 + tmp93;
-    const float tmp131 = tmp130 + tmp130;
-    carry[0] = tmp92;
-    carry[2] = tmp96;
-    carry[7] = tmp99;
-    carry[9] = tmp100;
-    carry[10] = tmp102;
-    carry[14] = tmp107;
-    carry[15] = tmp109;
-    carry[16] = tmp110;
-    carry[17] = tmp112;
-    carry[18] = tmp113;
-    carry[19] = tmp116;
-    carry[20] = tmp117;
-    carry[21] = tmp119;
-    carry[22] = tmp121;
-    carry[23] = tmp122;
-    carry[24] = tmp123;
-    carry[25] = tmp127;
-    carry[26] = tmp128;
-    carry[27] = tmp129;
-    carry[28] = tmp131;
+    const float tmp120 = 1.0f - carry[28] /* tmp119 */;
+    const float tmp121 = tmp120 * carry[18] /* tmp101 */;
+    const float tmp122 = carry[26] /* tmp116 */ + tmp121;
+    const float tmp123 = carry[12] /* tmp78 */ * carry[13] /* tmp79 */;
+    const float tmp124 = carry[8] /* tmp76 */ * carry[11] /* tmp77 */;
+    const float tmp125 = tmp123 - tmp124;
+    const float tmp126 = tmp125 + tmp125;
+    const float tmp127 = tmp126 * carry[24] /* tmp111 */;
+    const float tmp128 = tmp122 - tmp127;
+    B[1] = tmp128;
+    const float tmp129 = carry[19] /* tmp104 */ - carry[20] /* tmp105 */;
+    const float tmp130 = tmp129 + tmp129;
+    const float tmp131 = tmp130 * carry[10] /* tmp90 */;
+    const float tmp132 = tmp123 + tmp124;
+    const float tmp133 = tmp132 + tmp132;
+    const float tmp134 = tmp133 * carry[18] /* tmp101 */;
+    const float tmp135 = tmp131 + tmp134;
+    const float tmp136 = carry[27] /* tmp117 */ + carry[0] /* tmp80 */;
+    const float tmp137 = tmp136 + tmp136;
+    const float tmp138 = 1.0f - tmp137;
+    const float tmp139 = tmp138 * carry[24] /* tmp111 */;
+    const float tmp140 = tmp135 - tmp139;
+    B[2] = tmp140;
+    const float tmp141 = carry[9] /* tmp88 */ * carry[4] /* tmp6 */;
+    const float tmp142 = carry[7] /* tmp87 */ - tmp141;
+    const float tmp143 = carry[14] /* tmp95 */ * tmp142;
+    const float tmp144 = carry[17] /* tmp100 */ + carry[16] /* tmp98 */;
+    const float tmp145 = carry[2] /* tmp84 */ * tmp144;
+    const float tmp146 = tmp143 - tmp145;
+    const float tmp147 = carry[15] /* tmp97 */ * carry[1] /* tmp2 */;
+    const float tmp148 = carry[3] /* tmp5 */ * carry[5] /* tmp9 */;
+    const float tmp149 = carry[9] /* tmp88 */ * tmp148;
+    const float tmp150 = tmp147 - tmp149;
+    const float tmp151 = carry[21] /* tmp107 */ * tmp150;
+    const float tmp152 = tmp146 + tmp151;
+    B[3] = tmp152;
+    const float tmp153 = tmp120 * tmp142;
+    const float tmp154 = carry[25] /* tmp115 */ * tmp144;
+    const float tmp155 = tmp153 - tmp154;
+    const float tmp156 = tmp126 * tmp150;
+    const float tmp157 = tmp155 + tmp156;
+    B[4] = tmp157;
+    const float tmp158 = tmp133 * tmp142;
+    const float tmp159 = tmp130 * tmp144;
+    carry[0] = tmp120;
+    carry[1] = tmp126;
+    carry[3] = tmp130;
+    carry[4] = tmp133;
+    carry[5] = tmp138;
+    carry[8] = tmp147;
+    carry[10] = tmp149;
+    carry[11] = tmp150;
+    carry[12] = tmp158;
+    carry[13] = tmp159;
 }
 
-static void mekf_k_predict_attitude_part4(float B[9], float carry[29])
+static void mekf_k_predict_attitude_part4(float B[9], const float carry[29])
 {
-    const float tmp132 = 1.0f - carry[28] /* tmp131 */;
-    const float tmp133 = tmp132 * carry[18] /* tmp113 */;
-    const float tmp134 = carry[26] /* tmp128 */ + tmp133;
-    const float tmp135 = carry[12] /* tmp90 */ * carry[13] /* tmp91 */;
-    const float tmp136 = carry[8] /* tmp88 */ * carry[11] /* tmp89 */;
-    const float tmp137 = tmp135 - tmp136;
-    const float tmp138 = tmp137 + tmp137;
-    const float tmp139 = tmp138 * carry[24] /* tmp123 */;
-    const float tmp140 = tmp134 - tmp139;
-    B[1] = tmp140;
-    const float tmp141 = carry[19] /* tmp116 */ - carry[20] /* tmp117 */;
-    const float tmp142 = tmp141 + tmp141;
-    const float tmp143 = tmp142 * carry[10] /* tmp102 */;
-    const float tmp144 = tmp135 + tmp136;
-    const float tmp145 = tmp144 + tmp144;
-    const float tmp146 = tmp145 * carry[18] /* tmp113 */;
-    const float tmp147 = tmp143 + tmp146;
-    const float tmp148 = carry[27] /* tmp129 */ + carry[0] /* tmp92 */;
-    const float tmp149 = tmp148 + tmp148;
-    const float tmp150 = 1.0f - tmp149;
-    const float tmp151 = tmp150 * carry[24] /* tmp123 */;
-    const float tmp152 = tmp147 - tmp151;
-    B[2] = tmp152;
-    const float tmp153 = carry[9] /* tmp100 */ * carry[4] /* tmp6 */;
-    const float tmp154 = carry[7] /* tmp99 */ - tmp153;
-    const float tmp155 = carry[14] /* tmp107 */ * tmp154;
-    const float tmp156 = carry[17] /* tmp112 */ + carry[16] /* tmp110 */;
-    const float tmp157 = carry[2] /* tmp96 */ * tmp156;
-    const float tmp158 = tmp155 - tmp157;
-    const float tmp159 = carry[15] /* tmp109 */ * carry[1] /* tmp2 */;
-    const float tmp160 = carry[3] /* tmp5 */ * carry[5] /* tmp9 */;
-    const float tmp161 = carry[9] /* tmp100 */ * tmp160;
-    const float tmp162 = tmp159 - tmp161;
-    const float tmp163 = carry[21] /* tmp119 */ * tmp162;
-    const float tmp164 = tmp158 + tmp163;
-    B[3] = tmp164;
-    const float tmp165 = tmp132 * tmp154;
-    const float tmp166 = carry[25] /* tmp127 */ * tmp156;
-    const float tmp167 = tmp165 - tmp166;
-    const float tmp168 = tmp138 * tmp162;
-    const float tmp169 = tmp167 + tmp168;
-    B[4] = tmp169;
-    const float tmp170 = tmp145 * tmp154;
-    const float tmp171 = tmp142 * tmp156;
-    carry[0] = tmp132;
-    carry[1] = tmp138;
-    carry[3] = tmp142;
-    carry[4] = tmp145;
-    carry[5] = tmp150;
-    carry[8] = tmp159;
-    carry[10] = tmp161;
-    carry[11] = tmp162;
-    carry[12] = tmp170;
-    carry[13] = tmp171;
-}
-
-static void mekf_k_predict_attitude_part5(float B[9], const float carry[29])
-{
-    const float tmp172 = carry[12] /* tmp170 */ - carry[13] /* tmp171 */;
-    const float tmp173 = carry[5] /* tmp150 */ * carry[11] /* tmp162 */;
-    const float tmp174 = tmp172 + tmp173;
-    B[5] = tmp174;
-    const float tmp175 = carry[23] /* tmp122 */ - carry[22] /* tmp121 */;
-    const float tmp176 = carry[2] /* tmp96 */ * tmp175;
-    const float tmp177 = carry[10] /* tmp161 */ + carry[8] /* tmp159 */;
-    const float tmp178 = carry[14] /* tmp107 */ * tmp177;
-    const float tmp179 = tmp176 - tmp178;
-    const float tmp180 = carry[9] /* tmp100 */ * carry[6] /* tmp10 */;
-    const float tmp181 = carry[7] /* tmp99 */ - tmp180;
-    const float tmp182 = carry[21] /* tmp119 */ * tmp181;
-    const float tmp183 = tmp179 + tmp182;
-    B[6] = tmp183;
-    const float tmp184 = carry[25] /* tmp127 */ * tmp175;
-    const float tmp185 = carry[0] /* tmp132 */ * tmp177;
-    const float tmp186 = tmp184 - tmp185;
-    const float tmp187 = carry[1] /* tmp138 */ * tmp181;
-    const float tmp188 = tmp186 + tmp187;
-    B[7] = tmp188;
-    const float tmp189 = carry[3] /* tmp142 */ * tmp175;
-    const float tmp190 = carry[4] /* tmp145 */ * tmp177;
-    const float tmp191 = tmp189 - tmp190;
-    const float tmp192 = carry[5] /* tmp150 */ * tmp181;
-    const float tmp193 = tmp191 + tmp192;
-    B[8] = tmp193;
+    const float tmp160 = carry[12] /* tmp158 */ - carry[13] /* tmp159 */;
+    const float tmp161 = carry[5] /* tmp138 */ * carry[11] /* tmp150 */;
+    const float tmp162 = tmp160 + tmp161;
+    B[5] = tmp162;
+    const float tmp163 = carry[23] /* tmp110 */ - carry[22] /* tmp109 */;
+    const float tmp164 = carry[2] /* tmp84 */ * tmp163;
+    const float tmp165 = carry[10] /* tmp149 */ + carry[8] /* tmp147 */;
+    const float tmp166 = carry[14] /* tmp95 */ * tmp165;
+    const float tmp167 = tmp164 - tmp166;
+    const float tmp168 = carry[9] /* tmp88 */ * carry[6] /* tmp10 */;
+    const float tmp169 = carry[7] /* tmp87 */ - tmp168;
+    const float tmp170 = carry[21] /* tmp107 */ * tmp169;
+    const float tmp171 = tmp167 + tmp170;
+    B[6] = tmp171;
+    const float tmp172 = carry[25] /* tmp115 */ * tmp163;
+    const float tmp173 = carry[0] /* tmp120 */ * tmp165;
+    const float tmp174 = tmp172 - tmp173;
+    const float tmp175 = carry[1] /* tmp126 */ * tmp169;
+    const float tmp176 = tmp174 + tmp175;
+    B[7] = tmp176;
+    const float tmp177 = carry[3] /* tmp130 */ * tmp163;
+    const float tmp178 = carry[4] /* tmp133 */ * tmp165;
+    const float tmp179 = tmp177 - tmp178;
+    const float tmp180 = carry[5] /* tmp138 */ * tmp169;
+    const float tmp181 = tmp179 + tmp180;
+    B[8] = tmp181;
 }
 
 /*
@@ -952,23 +936,22 @@ static void mekf_k_predict_attitude_part5(float B[9], const float carry[29])
  *     q_out: float[4]
  *     B: float[9]
  *
- * Total ops: 194 (add 82, mul 101, div 3, sqrt 2, trig 2, cmp 4)
- *     of which only one side runs: if (tmp11 < 0.01f) 24, else 9
+ * Total ops: 182 (add 76, mul 95, div 3, sqrt 2, trig 2, cmp 4)
+ *     of which only one side runs: if (tmp11 < 0.01f) 12, else 9
  */
 static void mekf_k_predict_attitude(const float q[4], const float b[restrict 3],
     const float gyro[restrict 3], float dt, float q_out[4], float B[restrict 9])
 {
     /*
-     * 6 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
+     * 5 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
      * handed between them (a slot reused once its value is dead)
      */
     float carry[29];
-    mekf_k_predict_attitude_part0(b, gyro, dt, carry);
-    mekf_k_predict_attitude_part1(q, carry);
-    mekf_k_predict_attitude_part2(q, q_out, carry);
+    mekf_k_predict_attitude_part0(q, b, gyro, dt, carry);
+    mekf_k_predict_attitude_part1(q, q_out, carry);
+    mekf_k_predict_attitude_part2(B, carry);
     mekf_k_predict_attitude_part3(B, carry);
     mekf_k_predict_attitude_part4(B, carry);
-    mekf_k_predict_attitude_part5(B, carry);
 }
 
 static void mekf_k_predict_covariance_part0(const float B[9], const float P[36],
@@ -4059,6 +4042,9 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
         return (isfinite(dt) && dt > MEKF_DT_MAX) ? MEKF_DT_TOO_LARGE : MEKF_DT_INVALID;
     }
     const uint32_t every_step = MEKF_VALID_GYRO | MEKF_VALID_ACCEL | MEKF_VALID_MAG;
+    /* read even without its valid bit: the gyro over-range guard reuses it */
+    const float gyro_n2 = in->gyro[0] * in->gyro[0] + in->gyro[1] * in->gyro[1] +
+        in->gyro[2] * in->gyro[2];
     /* read even without its valid bit: a kernel reuses it */
     const float accel_n2 = in->accel[0] * in->accel[0] + in->accel[1] * in->accel[1] +
         in->accel[2] * in->accel[2];
@@ -4068,8 +4054,7 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
         in->mag[2] * in->mag[2];
     bool use_mag = true;
     if (!((in->valid & every_step) == every_step
-          && in->gyro[0] * in->gyro[0] + in->gyro[1] * in->gyro[1] +
-             in->gyro[2] * in->gyro[2] < MEKF_GYRO_MAX * MEKF_GYRO_MAX
+          && gyro_n2 < MEKF_GYRO_MAX * MEKF_GYRO_MAX
           && mekf_in_range(accel_n2, MEKF_ACCEL_MIN_NORM * MEKF_ACCEL_MIN_NORM,
                                    MEKF_ACCEL_MAX * MEKF_ACCEL_MAX)
           && mekf_in_range(mag_n2, MEKF_MAG_MIN_NORM * MEKF_MAG_MIN_NORM,
@@ -4149,8 +4134,7 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
      * recovering are false, when no component can be clipped (|gyro|^2 below
      * gyro_plateau_rate^2: every |gyro_i| below it, float rounding being
      * monotone), no plateau run is counting and no recovery time is left (each +0: never
-     * negative or -0). */
-    const float gyro_n2 = mekf_norm2(in->gyro);
+     * negative or -0). gyro_n2: |gyro|^2 from the step's input checks. */
     if (!(gyro_n2 < MEKF_GYRO_PLATEAU_RATE * MEKF_GYRO_PLATEAU_RATE
           && (mekf_bits(s->recover_time) | mekf_bits(s->gyro_repeats[0])
               | mekf_bits(s->gyro_repeats[1]) | mekf_bits(s->gyro_repeats[2])) == 0u)) {
@@ -4239,7 +4223,9 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
      * variance - the batch innovation covariance's Cholesky pivots - is usable; else P is
      * restored from its lower triangle saved here. The two gravity rows are one kernel. */
     if (use_tilt || at_rest) {
-        float x[6] = { 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f };
+        /* written by the gravity rows, zeroed element by element without them (at -Os GCC makes
+         * an initialiser of the whole array a call to memset, 60 cycles a step) */
+        float x[6];
         float P_saved[21];
         uint32_t k = 0u;
         for (uint32_t j = 0u; j < 6u; j++) {
@@ -4255,6 +4241,13 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
             mekf_k_update_gravity(q, up, recovering, dt, in->gyro, s->gyro_bias,
                 s->v_gps, !fresh, P, x, P, &min_pivot);
             usable = min_pivot > 1e-12f /* S_PIVOT_MIN */;
+        } else {
+            x[0] = 0.0f;
+            x[1] = 0.0f;
+            x[2] = 0.0f;
+            x[3] = 0.0f;
+            x[4] = 0.0f;
+            x[5] = 0.0f;
         }
         if (at_rest && usable) {
             mekf_k_update_rest_bias(s->gyro_bias, P, in->gyro, dt, x, x, P, &min_pivot);

@@ -227,80 +227,71 @@ static void qcf_k_predict_part0(const float q[4], const float gyro_bias[3], cons
     float tmp12;
     float tmp13;
     if (tmp11 < 0.01f /* SERIES_MAX*SERIES_MAX */) {
-        const float tmp14 = 2.4801588e-05f /* 1/40320 */ * tmp11;
-        const float tmp15 = (-0.0013888889f) /* -(1/720) */ + tmp14;
+        const float tmp14 = 0.041666668f /* 1/24 */ * tmp11;
+        const float tmp15 = (-0.5f) /* -(1/2) */ + tmp14;
         const float tmp16 = tmp11 * tmp15;
-        const float tmp17 = 0.041666668f /* 1/24 */ + tmp16;
-        const float tmp18 = tmp11 * tmp17;
-        const float tmp19 = (-0.5f) /* -(1/2) */ + tmp18;
+        const float tmp17 = 1.0f + tmp16;
+        const float tmp18 = 0.008333334f /* 1/120 */ * tmp11;
+        const float tmp19 = (-0.16666667f) /* -(1/6) */ + tmp18;
         const float tmp20 = tmp11 * tmp19;
         const float tmp21 = 1.0f + tmp20;
-        const float tmp22 = 2.7557319e-06f /* 1/362880 */ * tmp11;
-        const float tmp23 = (-0.0001984127f) /* -(1/5040) */ + tmp22;
-        const float tmp24 = tmp11 * tmp23;
-        const float tmp25 = 0.008333334f /* 1/120 */ + tmp24;
-        const float tmp26 = tmp11 * tmp25;
-        const float tmp27 = (-0.16666667f) /* -(1/6) */ + tmp26;
-        const float tmp28 = tmp11 * tmp27;
-        const float tmp29 = 1.0f + tmp28;
-        tmp12 = tmp21;
-        tmp13 = tmp29;
+        tmp12 = tmp17;
+        tmp13 = tmp21;
     } else {
-        const float tmp30 = (tmp11 > 0.01f /* SERIES_MAX*SERIES_MAX */) ? tmp11 :
+        const float tmp22 = (tmp11 > 0.01f /* SERIES_MAX*SERIES_MAX */) ? tmp11 :
                 0.01f /* SERIES_MAX*SERIES_MAX */;
-        const float tmp31 = sqrtf(tmp30);
-        float tmp33;
-        float tmp32;
-        fast_sincosf(tmp31, &tmp33, &tmp32);   /* sin and cos, one reduction */
-        const float tmp34 = tmp33 / tmp31;
-        tmp12 = tmp32;
-        tmp13 = tmp34;
+        const float tmp23 = sqrtf(tmp22);
+        float tmp25;
+        float tmp24;
+        fast_sincosf(tmp23, &tmp25, &tmp24);   /* sin and cos, one reduction */
+        const float tmp26 = tmp25 / tmp23;
+        tmp12 = tmp24;
+        tmp13 = tmp26;
     }
-    const float tmp35 = q[0] * tmp12;
-    const float tmp36 = tmp13 * tmp2;
-    const float tmp37 = q[1] * tmp36;
-    const float tmp38 = tmp35 - tmp37;
-    const float tmp39 = tmp13 * tmp5;
-    carry[0] = tmp9;
-    carry[1] = tmp12;
-    carry[2] = tmp13;
-    carry[3] = tmp36;
-    carry[4] = tmp38;
+    const float tmp27 = q[0] * tmp12;
+    const float tmp28 = tmp13 * tmp2;
+    const float tmp29 = q[1] * tmp28;
+    const float tmp30 = tmp27 - tmp29;
+    const float tmp31 = tmp13 * tmp5;
+    const float tmp32 = q[2] * tmp31;
+    const float tmp33 = tmp30 - tmp32;
+    const float tmp34 = tmp13 * tmp9;
+    const float tmp35 = q[3] * tmp34;
+    const float tmp36 = tmp33 - tmp35;
+    const float tmp37 = q[0] * tmp28;
+    const float tmp38 = q[1] * tmp12;
+    const float tmp39 = tmp37 + tmp38;
+    carry[0] = tmp12;
+    carry[1] = tmp28;
+    carry[2] = tmp31;
+    carry[3] = tmp34;
+    carry[4] = tmp36;
     carry[5] = tmp39;
 }
 
 static void qcf_k_predict_part1(const float q[4], float carry[6])
 {
-    const float tmp40 = q[2] * carry[5] /* tmp39 */;
-    const float tmp41 = carry[4] /* tmp38 */ - tmp40;
-    const float tmp42 = carry[2] /* tmp13 */ * carry[0] /* tmp9 */;
-    const float tmp43 = q[3] * tmp42;
-    const float tmp44 = tmp41 - tmp43;
-    const float tmp45 = q[0] * carry[3] /* tmp36 */;
-    const float tmp46 = q[1] * carry[1] /* tmp12 */;
-    const float tmp47 = tmp45 + tmp46;
-    const float tmp48 = q[2] * tmp42;
-    const float tmp49 = tmp47 + tmp48;
-    const float tmp50 = q[3] * carry[5] /* tmp39 */;
-    const float tmp51 = tmp49 - tmp50;
-    const float tmp52 = q[0] * carry[5] /* tmp39 */;
-    const float tmp53 = q[1] * tmp42;
-    const float tmp54 = tmp52 - tmp53;
-    const float tmp55 = q[2] * carry[1] /* tmp12 */;
-    const float tmp56 = tmp54 + tmp55;
-    const float tmp57 = q[3] * carry[3] /* tmp36 */;
-    const float tmp58 = tmp56 + tmp57;
-    const float tmp59 = q[0] * tmp42;
-    const float tmp60 = q[1] * carry[5] /* tmp39 */;
-    const float tmp61 = tmp59 + tmp60;
-    const float tmp62 = q[2] * carry[3] /* tmp36 */;
-    const float tmp63 = tmp61 - tmp62;
-    const float tmp64 = q[3] * carry[1] /* tmp12 */;
-    const float tmp65 = tmp63 + tmp64;
-    carry[0] = tmp44;
-    carry[1] = tmp51;
-    carry[2] = tmp58;
-    carry[3] = tmp65;
+    const float tmp40 = q[2] * carry[3] /* tmp34 */;
+    const float tmp41 = carry[5] /* tmp39 */ + tmp40;
+    const float tmp42 = q[3] * carry[2] /* tmp31 */;
+    const float tmp43 = tmp41 - tmp42;
+    const float tmp44 = q[0] * carry[2] /* tmp31 */;
+    const float tmp45 = q[1] * carry[3] /* tmp34 */;
+    const float tmp46 = tmp44 - tmp45;
+    const float tmp47 = q[2] * carry[0] /* tmp12 */;
+    const float tmp48 = tmp46 + tmp47;
+    const float tmp49 = q[3] * carry[1] /* tmp28 */;
+    const float tmp50 = tmp48 + tmp49;
+    const float tmp51 = q[0] * carry[3] /* tmp34 */;
+    const float tmp52 = q[1] * carry[2] /* tmp31 */;
+    const float tmp53 = tmp51 + tmp52;
+    const float tmp54 = q[2] * carry[1] /* tmp28 */;
+    const float tmp55 = tmp53 - tmp54;
+    const float tmp56 = q[3] * carry[0] /* tmp12 */;
+    const float tmp57 = tmp55 + tmp56;
+    carry[0] = tmp43;
+    carry[1] = tmp50;
+    carry[2] = tmp57;
 }
 
 /*
@@ -316,8 +307,8 @@ static void qcf_k_predict_part1(const float q[4], float carry[6])
  * Outputs:
  *     q_new: float[4]
  *
- * Total ops: 66 (add 25, mul 34, div 1, sqrt 1, trig 2, cmp 3)
- *     of which only one side runs: if (tmp11 < 0.01f) 16, else 5
+ * Total ops: 58 (add 21, mul 30, div 1, sqrt 1, trig 2, cmp 3)
+ *     of which only one side runs: if (tmp11 < 0.01f) 8, else 5
  */
 static void qcf_k_predict(const float q[4], const float gyro_bias[3], const float gyro[3], float dt,
     float q_new[4])
@@ -329,10 +320,10 @@ static void qcf_k_predict(const float q[4], const float gyro_bias[3], const floa
     float carry[6];
     qcf_k_predict_part0(q, gyro_bias, gyro, dt, carry);
     qcf_k_predict_part1(q, carry);
-    q_new[0] = carry[0] /* tmp44 */;
-    q_new[1] = carry[1] /* tmp51 */;
-    q_new[2] = carry[2] /* tmp58 */;
-    q_new[3] = carry[3] /* tmp65 */;
+    q_new[0] = carry[4] /* tmp36 */;
+    q_new[1] = carry[0] /* tmp43 */;
+    q_new[2] = carry[1] /* tmp50 */;
+    q_new[3] = carry[2] /* tmp57 */;
 }
 
 /*
@@ -822,161 +813,155 @@ static void qcf_k_correct_part2(const float q[4], float carry[11])
     float tmp77;
     float tmp78;
     if (carry[3] /* tmp76 */ < 0.0009f /* SMALL_SERIES_MAX*SMALL_SERIES_MAX */) {
-        const float tmp79 = (-0.0013888889f) /* -(1/720) */ * carry[3] /* tmp76 */;
-        const float tmp80 = 0.041666668f /* 1/24 */ + tmp79;
+        const float tmp79 = 0.041666668f /* 1/24 */ * carry[3] /* tmp76 */;
+        const float tmp80 = (-0.5f) /* -(1/2) */ + tmp79;
         const float tmp81 = carry[3] /* tmp76 */ * tmp80;
-        const float tmp82 = (-0.5f) /* -(1/2) */ + tmp81;
-        const float tmp83 = carry[3] /* tmp76 */ * tmp82;
+        const float tmp82 = 1.0f + tmp81;
+        const float tmp83 = (-0.16666667f) /* -(1/6) */ * carry[3] /* tmp76 */;
         const float tmp84 = 1.0f + tmp83;
-        const float tmp85 = (-0.0001984127f) /* -(1/5040) */ * carry[3] /* tmp76 */;
-        const float tmp86 = 0.008333334f /* 1/120 */ + tmp85;
-        const float tmp87 = carry[3] /* tmp76 */ * tmp86;
-        const float tmp88 = (-0.16666667f) /* -(1/6) */ + tmp87;
-        const float tmp89 = carry[3] /* tmp76 */ * tmp88;
-        const float tmp90 = 1.0f + tmp89;
-        tmp77 = tmp84;
-        tmp78 = tmp90;
+        tmp77 = tmp82;
+        tmp78 = tmp84;
     } else {
-        const float tmp91 = (carry[3] /* tmp76 */ > 0.0009f /* SMALL_SERIES_MAX*SMALL_SERIES_MAX */)
+        const float tmp85 = (carry[3] /* tmp76 */ > 0.0009f /* SMALL_SERIES_MAX*SMALL_SERIES_MAX */)
                 ? carry[3] /* tmp76 */ : 0.0009f /* SMALL_SERIES_MAX*SMALL_SERIES_MAX */;
-        const float tmp92 = sqrtf(tmp91);
-        float tmp94;
-        float tmp93;
-        fast_sincosf(tmp92, &tmp94, &tmp93);   /* sin and cos, one reduction */
-        const float tmp95 = tmp94 / tmp92;
-        tmp77 = tmp93;
-        tmp78 = tmp95;
+        const float tmp86 = sqrtf(tmp85);
+        float tmp88;
+        float tmp87;
+        fast_sincosf(tmp86, &tmp88, &tmp87);   /* sin and cos, one reduction */
+        const float tmp89 = tmp88 / tmp86;
+        tmp77 = tmp87;
+        tmp78 = tmp89;
     }
-    const float tmp96 = q[0] * tmp77;
-    const float tmp97 = tmp78 * carry[0] /* tmp61 */;
-    const float tmp98 = q[1] * tmp97;
+    const float tmp90 = q[0] * tmp77;
+    const float tmp91 = tmp78 * carry[0] /* tmp61 */;
+    const float tmp92 = q[1] * tmp91;
+    const float tmp93 = tmp90 - tmp92;
+    const float tmp94 = tmp78 * carry[1] /* tmp67 */;
+    const float tmp95 = q[2] * tmp94;
+    const float tmp96 = tmp93 - tmp95;
+    const float tmp97 = tmp78 * carry[2] /* tmp74 */;
+    const float tmp98 = q[3] * tmp97;
     const float tmp99 = tmp96 - tmp98;
-    const float tmp100 = tmp78 * carry[1] /* tmp67 */;
-    const float tmp101 = q[2] * tmp100;
-    const float tmp102 = tmp99 - tmp101;
-    const float tmp103 = tmp78 * carry[2] /* tmp74 */;
-    const float tmp104 = q[3] * tmp103;
-    const float tmp105 = tmp102 - tmp104;
-    const float tmp106 = tmp105 * tmp105;
-    const float tmp107 = q[0] * tmp97;
-    const float tmp108 = q[1] * tmp77;
-    const float tmp109 = tmp107 + tmp108;
-    const float tmp110 = q[2] * tmp103;
-    const float tmp111 = tmp109 + tmp110;
-    const float tmp112 = q[3] * tmp100;
-    const float tmp113 = tmp111 - tmp112;
-    const float tmp114 = tmp113 * tmp113;
-    const float tmp115 = tmp106 + tmp114;
-    const float tmp116 = q[0] * tmp100;
+    const float tmp100 = tmp99 * tmp99;
+    const float tmp101 = q[0] * tmp91;
+    const float tmp102 = q[1] * tmp77;
+    const float tmp103 = tmp101 + tmp102;
+    const float tmp104 = q[2] * tmp97;
+    const float tmp105 = tmp103 + tmp104;
+    const float tmp106 = q[3] * tmp94;
+    const float tmp107 = tmp105 - tmp106;
+    const float tmp108 = tmp107 * tmp107;
+    const float tmp109 = tmp100 + tmp108;
+    const float tmp110 = q[0] * tmp94;
+    const float tmp111 = q[1] * tmp97;
+    const float tmp112 = tmp110 - tmp111;
+    const float tmp113 = q[2] * tmp77;
+    const float tmp114 = tmp112 + tmp113;
+    const float tmp115 = q[3] * tmp91;
+    const float tmp116 = tmp114 + tmp115;
     carry[3] = tmp77;
-    carry[4] = tmp97;
-    carry[5] = tmp100;
-    carry[6] = tmp103;
-    carry[7] = tmp105;
-    carry[8] = tmp113;
-    carry[9] = tmp115;
+    carry[4] = tmp91;
+    carry[5] = tmp94;
+    carry[6] = tmp97;
+    carry[7] = tmp99;
+    carry[8] = tmp107;
+    carry[9] = tmp109;
     carry[10] = tmp116;
 }
 
 static void qcf_k_correct_part3(const float q[4], float carry[11])
 {
-    const float tmp117 = q[1] * carry[6] /* tmp103 */;
-    const float tmp118 = carry[10] /* tmp116 */ - tmp117;
-    const float tmp119 = q[2] * carry[3] /* tmp77 */;
-    const float tmp120 = tmp118 + tmp119;
-    const float tmp121 = q[3] * carry[4] /* tmp97 */;
-    const float tmp122 = tmp120 + tmp121;
-    const float tmp123 = tmp122 * tmp122;
-    const float tmp124 = carry[9] /* tmp115 */ + tmp123;
-    const float tmp125 = q[0] * carry[6] /* tmp103 */;
-    const float tmp126 = q[1] * carry[5] /* tmp100 */;
-    const float tmp127 = tmp125 + tmp126;
-    const float tmp128 = q[2] * carry[4] /* tmp97 */;
-    const float tmp129 = tmp127 - tmp128;
-    const float tmp130 = q[3] * carry[3] /* tmp77 */;
-    const float tmp131 = tmp129 + tmp130;
-    const float tmp132 = tmp131 * tmp131;
-    const float tmp133 = tmp124 + tmp132;
-    const float tmp134 = tmp133 - 1.0f;
-    const float tmp135 = fabsf(tmp134);
-    float tmp136;
-    float tmp137;
-    float tmp138;
-    float tmp139;
-    if (tmp135 < 0.00024414062f /* NEAR_UNIT_MAX */) {
-        const float tmp140 = 0.5f * tmp134;
-        const float tmp141 = 1.0f - tmp140;
-        const float tmp142 = carry[7] /* tmp105 */ * tmp141;
-        const float tmp143 = carry[8] /* tmp113 */ * tmp141;
-        const float tmp144 = tmp122 * tmp141;
-        const float tmp145 = tmp131 * tmp141;
-        tmp136 = tmp142;
-        tmp137 = tmp143;
-        tmp138 = tmp144;
-        tmp139 = tmp145;
+    const float tmp117 = carry[10] /* tmp116 */ * carry[10] /* tmp116 */;
+    const float tmp118 = carry[9] /* tmp109 */ + tmp117;
+    const float tmp119 = q[0] * carry[6] /* tmp97 */;
+    const float tmp120 = q[1] * carry[5] /* tmp94 */;
+    const float tmp121 = tmp119 + tmp120;
+    const float tmp122 = q[2] * carry[4] /* tmp91 */;
+    const float tmp123 = tmp121 - tmp122;
+    const float tmp124 = q[3] * carry[3] /* tmp77 */;
+    const float tmp125 = tmp123 + tmp124;
+    const float tmp126 = tmp125 * tmp125;
+    const float tmp127 = tmp118 + tmp126;
+    const float tmp128 = tmp127 - 1.0f;
+    const float tmp129 = fabsf(tmp128);
+    float tmp130;
+    float tmp131;
+    float tmp132;
+    float tmp133;
+    if (tmp129 < 0.00024414062f /* NEAR_UNIT_MAX */) {
+        const float tmp134 = 0.5f * tmp128;
+        const float tmp135 = 1.0f - tmp134;
+        const float tmp136 = carry[7] /* tmp99 */ * tmp135;
+        const float tmp137 = carry[8] /* tmp107 */ * tmp135;
+        const float tmp138 = carry[10] /* tmp116 */ * tmp135;
+        const float tmp139 = tmp125 * tmp135;
+        tmp130 = tmp136;
+        tmp131 = tmp137;
+        tmp132 = tmp138;
+        tmp133 = tmp139;
     } else {
-        const float tmp146 = sqrtf(tmp133);
-        const float tmp147 = 1.0f / tmp146;
-        const float tmp148 = carry[7] /* tmp105 */ * tmp147;
-        const float tmp149 = carry[8] /* tmp113 */ * tmp147;
-        const float tmp150 = tmp122 * tmp147;
-        const float tmp151 = tmp131 * tmp147;
-        tmp136 = tmp148;
-        tmp137 = tmp149;
-        tmp138 = tmp150;
-        tmp139 = tmp151;
+        const float tmp140 = sqrtf(tmp127);
+        const float tmp141 = 1.0f / tmp140;
+        const float tmp142 = carry[7] /* tmp99 */ * tmp141;
+        const float tmp143 = carry[8] /* tmp107 */ * tmp141;
+        const float tmp144 = carry[10] /* tmp116 */ * tmp141;
+        const float tmp145 = tmp125 * tmp141;
+        tmp130 = tmp142;
+        tmp131 = tmp143;
+        tmp132 = tmp144;
+        tmp133 = tmp145;
     }
-    carry[3] = tmp136;
-    carry[4] = tmp137;
-    carry[5] = tmp138;
-    carry[6] = tmp139;
+    carry[3] = tmp130;
+    carry[4] = tmp131;
+    carry[5] = tmp132;
+    carry[6] = tmp133;
 }
 
 static void qcf_k_correct_part4(const float gyro_bias[3], float span_accel, bool use_accel,
     float accel_norm2, bool recover, bool gps_comp, bool at_rest, const float rest_gyro_lp[3],
     float carry[11])
 {
-    float tmp152;
-    float tmp153;
-    float tmp154;
+    float tmp146;
+    float tmp147;
+    float tmp148;
     if (at_rest) {
-        const float tmp155 = 1.0f + span_accel;
-        const float tmp156 = span_accel / tmp155;
-        const float tmp157 = rest_gyro_lp[0] - gyro_bias[0];
-        const float tmp158 = tmp156 * tmp157;
-        const float tmp159 = gyro_bias[0] + tmp158;
-        const float tmp160 = rest_gyro_lp[1] - gyro_bias[1];
-        const float tmp161 = tmp156 * tmp160;
-        const float tmp162 = gyro_bias[1] + tmp161;
-        const float tmp163 = rest_gyro_lp[2] - gyro_bias[2];
-        const float tmp164 = tmp156 * tmp163;
-        const float tmp165 = gyro_bias[2] + tmp164;
-        tmp152 = tmp159;
-        tmp153 = tmp162;
-        tmp154 = tmp165;
+        const float tmp149 = 1.0f + span_accel;
+        const float tmp150 = span_accel / tmp149;
+        const float tmp151 = rest_gyro_lp[0] - gyro_bias[0];
+        const float tmp152 = tmp150 * tmp151;
+        const float tmp153 = gyro_bias[0] + tmp152;
+        const float tmp154 = rest_gyro_lp[1] - gyro_bias[1];
+        const float tmp155 = tmp150 * tmp154;
+        const float tmp156 = gyro_bias[1] + tmp155;
+        const float tmp157 = rest_gyro_lp[2] - gyro_bias[2];
+        const float tmp158 = tmp150 * tmp157;
+        const float tmp159 = gyro_bias[2] + tmp158;
+        tmp146 = tmp153;
+        tmp147 = tmp156;
+        tmp148 = tmp159;
     } else {
-        const bool tmp166 = use_accel && (!(recover));
-        const bool tmp167 = (77.55708f /* (G0 - 1.0)^2 */ < accel_norm2) && (accel_norm2 <
+        const bool tmp160 = use_accel && (!(recover));
+        const bool tmp161 = (77.55708f /* (G0 - 1.0)^2 */ < accel_norm2) && (accel_norm2 <
                 116.78368f /* (G0 + 1.0)^2 */);
-        const bool tmp168 = tmp166 && tmp167;
-        const float tmp169 = (gps_comp) ? 0.0028571428f /* ki/(0.5*kp_gps) */ :
+        const bool tmp162 = tmp160 && tmp161;
+        const float tmp163 = (gps_comp) ? 0.0028571428f /* ki/(0.5*kp_gps) */ :
                 0.016f /* ki/(0.5*kp) */;
-        const float tmp170 = tmp169 * carry[0] /* tmp61 */;
-        const float tmp171 = gyro_bias[0] - tmp170;
-        const float tmp172 = (tmp168) ? tmp171 : gyro_bias[0];
-        const float tmp173 = tmp169 * carry[1] /* tmp67 */;
-        const float tmp174 = gyro_bias[1] - tmp173;
-        const float tmp175 = (tmp168) ? tmp174 : gyro_bias[1];
-        const float tmp176 = tmp169 * carry[2] /* tmp74 */;
-        const float tmp177 = gyro_bias[2] - tmp176;
-        const float tmp178 = (tmp168) ? tmp177 : gyro_bias[2];
-        tmp152 = tmp172;
-        tmp153 = tmp175;
-        tmp154 = tmp178;
+        const float tmp164 = tmp163 * carry[0] /* tmp61 */;
+        const float tmp165 = gyro_bias[0] - tmp164;
+        const float tmp166 = (tmp162) ? tmp165 : gyro_bias[0];
+        const float tmp167 = tmp163 * carry[1] /* tmp67 */;
+        const float tmp168 = gyro_bias[1] - tmp167;
+        const float tmp169 = (tmp162) ? tmp168 : gyro_bias[1];
+        const float tmp170 = tmp163 * carry[2] /* tmp74 */;
+        const float tmp171 = gyro_bias[2] - tmp170;
+        const float tmp172 = (tmp162) ? tmp171 : gyro_bias[2];
+        tmp146 = tmp166;
+        tmp147 = tmp169;
+        tmp148 = tmp172;
     }
-    carry[0] = tmp152;
-    carry[1] = tmp153;
-    carry[2] = tmp154;
+    carry[0] = tmp146;
+    carry[1] = tmp147;
+    carry[2] = tmp148;
 }
 
 /*
@@ -1002,10 +987,10 @@ static void qcf_k_correct_part4(const float gyro_bias[3], float span_accel, bool
  *     q_new: float[4]
  *     gyro_bias_new: float[3]
  *
- * Total ops: 179 (add 55, mul 78, div 5, sqrt 5, trig 2, cmp 34)
+ * Total ops: 173 (add 52, mul 75, div 5, sqrt 5, trig 2, cmp 34)
  *     of which only one side runs: if (tmp38 < tmp39) 0, else 18
- *     of which only one side runs: if (tmp76 < 0.0009f) 12, else 5
- *     of which only one side runs: if (tmp135 < 0.00024414062f) 6, else 6
+ *     of which only one side runs: if (tmp76 < 0.0009f) 6, else 5
+ *     of which only one side runs: if (tmp129 < 0.00024414062f) 6, else 6
  *     of which only one side runs: if (at_rest) 11, else 13
  */
 static void qcf_k_correct(const float q[4], const float rot[9], const float gyro_bias[3],
@@ -1025,13 +1010,13 @@ static void qcf_k_correct(const float q[4], const float rot[9], const float gyro
     qcf_k_correct_part3(q, carry);
     qcf_k_correct_part4(gyro_bias, span_accel, use_accel, accel_norm2, recover, gps_comp, at_rest,
             rest_gyro_lp, carry);
-    q_new[0] = carry[3] /* tmp136 */;
-    q_new[1] = carry[4] /* tmp137 */;
-    q_new[2] = carry[5] /* tmp138 */;
-    q_new[3] = carry[6] /* tmp139 */;
-    gyro_bias_new[0] = carry[0] /* tmp152 */;
-    gyro_bias_new[1] = carry[1] /* tmp153 */;
-    gyro_bias_new[2] = carry[2] /* tmp154 */;
+    q_new[0] = carry[3] /* tmp130 */;
+    q_new[1] = carry[4] /* tmp131 */;
+    q_new[2] = carry[5] /* tmp132 */;
+    q_new[3] = carry[6] /* tmp133 */;
+    gyro_bias_new[0] = carry[0] /* tmp146 */;
+    gyro_bias_new[1] = carry[1] /* tmp147 */;
+    gyro_bias_new[2] = carry[2] /* tmp148 */;
 }
 
 static void qcf_k_rest_part0(const float gyro[3], const float rest_gyro_lp[3], float span,
@@ -2104,6 +2089,9 @@ static void qcf_k_hard_iron_part11(bool flags[2])
  * Total ops: 459 (add 173, mul 186, div 10, sqrt 4, cmp 86)
  *     of which only one side runs: if (tmp366) 28, else 6
  */
+#if defined(__GNUC__)
+__attribute__((noinline))
+#endif
 static void qcf_k_hard_iron(const float q[4], const float mag[3], const float b[3],
     const float ref[2], const float cx[5], const float cP[25], bool fresh, bool reopen,
     const float rlp[4], const float rmean[2], const float e[3], float turn_time, float dt,
@@ -2504,6 +2492,9 @@ qcf_status qcf_step(qcf_state *restrict s, const qcf_input *restrict in, float d
         return (isfinite(dt) && dt > QCF_DT_MAX) ? QCF_DT_TOO_LARGE : QCF_DT_INVALID;
     }
     const uint32_t every_step = QCF_VALID_GYRO | QCF_VALID_ACCEL | QCF_VALID_MAG;
+    /* read even without its valid bit: the gyro over-range guard reuses it */
+    const float gyro_n2 = in->gyro[0] * in->gyro[0] + in->gyro[1] * in->gyro[1] +
+        in->gyro[2] * in->gyro[2];
     /* read even without its valid bit: a kernel reuses it */
     const float accel_n2 = in->accel[0] * in->accel[0] + in->accel[1] * in->accel[1] +
         in->accel[2] * in->accel[2];
@@ -2513,8 +2504,7 @@ qcf_status qcf_step(qcf_state *restrict s, const qcf_input *restrict in, float d
         in->mag[2] * in->mag[2];
     bool use_mag = true;
     if (!((in->valid & every_step) == every_step
-          && in->gyro[0] * in->gyro[0] + in->gyro[1] * in->gyro[1] +
-             in->gyro[2] * in->gyro[2] < QCF_GYRO_MAX * QCF_GYRO_MAX
+          && gyro_n2 < QCF_GYRO_MAX * QCF_GYRO_MAX
           && qcf_in_range(accel_n2, QCF_ACCEL_MIN_NORM * QCF_ACCEL_MIN_NORM,
                                    QCF_ACCEL_MAX * QCF_ACCEL_MAX)
           && qcf_in_range(mag_n2, QCF_MAG_MIN_NORM * QCF_MAG_MIN_NORM,
@@ -2582,8 +2572,7 @@ qcf_status qcf_step(qcf_state *restrict s, const qcf_input *restrict in, float d
          * recovering are false, when no component can be clipped (|gyro|^2 below
          * gyro_plateau_rate^2: every |gyro_i| below it, float rounding being
          * monotone), no plateau run is counting and no recovery time is left (each +0: never
-         * negative or -0). */
-        const float gyro_n2 = qcf_norm2(in->gyro);
+         * negative or -0). gyro_n2: |gyro|^2 from the step's input checks. */
         if (!(gyro_n2 < QCF_GYRO_PLATEAU_RATE * QCF_GYRO_PLATEAU_RATE
               && (qcf_bits(s->recover_time) | qcf_bits(s->gyro_repeats[0])
                   | qcf_bits(s->gyro_repeats[1]) | qcf_bits(s->gyro_repeats[2])) == 0u)) {

@@ -81,6 +81,32 @@ def test_exponential_series_truncation_is_below_its_stated_bound(small_arg):
         np.testing.assert_allclose(got, [math.cos(m), 0.0, math.sin(m), 0.0], atol=2e-16)
 
 
+@pytest.mark.parametrize("small_arg", [False, True])
+def test_float_cut_of_the_exponential_series_stays_below_a_sixteenth_ulp(small_arg):
+    """Under series_precision("float") qexp and qexp_factors drop the series' tail: evaluated in
+    double over the series' range, cos, sin/x and k = (x - sin x cos x)/x^3 (qexp_factors) stay
+    within 2^-27 (1/16 of float's ulp at 1) of the exact values, and the cut really shortens the
+    series (fewer terms than double's, whose expressions are unchanged by the block)."""
+    import math
+    top = float(quat.SMALL_SERIES_MAX if small_arg else quat.SERIES_MAX)
+    with quat.series_precision("float"):
+        ex = ca.Function("ex", [v3], [quat.qexp(v3, small_arg=small_arg)])
+        cf, sf, kf = quat.qexp_factors(v3)
+        fa = ca.Function("fa", [v3], [cf, sf, kf])
+    full = ca.Function("full", [v3], [quat.qexp(v3, small_arg=small_arg)])
+    assert ex.n_instructions() < full.n_instructions()
+    for n in np.linspace(0.0, top * (1 - 1e-12), 41):
+        got = np.array(ex(np.r_[n, 0.0, 0.0])).ravel()
+        sinc = math.sin(n) / n if n > 0 else 1.0
+        assert abs(got[0] - math.cos(n)) <= 2.0 ** -27
+        assert abs((got[1] / n if n > 0 else 1.0) - sinc) <= 2.0 ** -27 or n == 0.0
+        if not small_arg:
+            c, s_, k = (float(x) for x in fa(np.r_[n, 0.0, 0.0]))
+            k_exact = (n - math.sin(n) * math.cos(n)) / n ** 3 if n > 1e-3 else 2 / 3 - 2 * n * n / 15
+            assert abs(c - math.cos(n)) <= 2.0 ** -27 and abs(s_ - sinc) <= 2.0 ** -27
+            assert abs(k - k_exact) <= 2.0 ** -27 * 2 / 3 + 1e-12
+
+
 def test_scaled_exponential_is_a_positive_multiple_of_the_exact_one():
     """qexp_scaled normalised equals exp([0, v]) on both sides of SERIES_MAX (the cot series
     and the exact form), and at the edge its series is within the stated neglected term."""

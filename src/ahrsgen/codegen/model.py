@@ -280,7 +280,8 @@ class FilterModel:
         tolerance); dip_angle: the filter's reference is [norm, dip angle], else [norm, sin dip];
         noinline: a call of its own (its frame then does not add to the caller's, where the caller's
         frame is the larger: adukf's step 512 -> 480 B worst case at -O2; mekf's already calls it from
-        a helper of its own, and qcf's step frame is the smaller: inlined, 344 B, a call 472 B)."""
+        a helper of its own; qcf's step frame is the smaller, 360 B inlined and 480 B a call, but
+        inlined it costs the every-step path 127 est. cycles at -Os, so qcf calls it too)."""
         from ahrsgen.codegen.emit import function
         from ahrsgen.symbolic import aiding
         nc = aiding.HARD_IRON_NC

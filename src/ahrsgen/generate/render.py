@@ -130,14 +130,16 @@ class _RuntimeGuard(dict):
         return super().__getitem__(key)
 
 
-def _model_parts(spec, params: dict, runtime: tuple):
+def _model_parts(spec, params: dict, runtime: tuple, precision: str = "double"):
     """The model's kernels, state fields and template context, with the runtime parameters as
-    symbols (ahrsgen.codegen.emit.runtime_symbol) instead of numbers."""
+    symbols (ahrsgen.codegen.emit.runtime_symbol) instead of numbers; the kernels' series cut
+    for the build's precision (quat.series_precision)."""
     values = dict(params)
     for n in runtime:
         values[n] = emit.runtime_symbol(n)
-    model = spec.model(values)
-    specs = list(model.kernels())
+    with quat.series_precision(precision):
+        model = spec.model(values)
+        specs = list(model.kernels())
     fields = model.state_fields()
     for f in fields:
         for v in f.init_values():
@@ -149,12 +151,12 @@ def _model_parts(spec, params: dict, runtime: tuple):
     return model, specs, fields, tctx
 
 
-def _runtime_model(spec, params, runtime):
+def _runtime_model(spec, params, runtime, precision: str = "double"):
     """_model_parts, turning a model that needs a runtime parameter's value into one clear line."""
     if not runtime:
-        return _model_parts(spec, params, runtime)
+        return _model_parts(spec, params, runtime, precision)
     try:
-        return _model_parts(spec, params, runtime)
+        return _model_parts(spec, params, runtime, precision)
     except Exception as first:
         culprits = []
         for n in runtime:            # name the parameter(s) the model cannot take as symbols
@@ -178,7 +180,8 @@ def _environment(folder: str) -> jinja2.Environment:
         keep_trailing_newline=True)
 
 
-def _folded_names(spec, params: dict, runtime: tuple, specs, fields) -> tuple[dict, dict]:
+def _folded_names(spec, params: dict, runtime: tuple, specs, fields,
+                  precision: str = "double") -> tuple[dict, dict]:
     """{kernel: {(instruction, operand): name}} for the literals of the baked kernels that are
     folded parameters or named constants (src/ahrsgen/codegen/folded.py: the kernels built
     again on traced values; ahrsgen.constants), and {state field: [name or None]} for the
@@ -188,7 +191,7 @@ def _folded_names(spec, params: dict, runtime: tuple, specs, fields) -> tuple[di
     for n in runtime:
         values[n] = emit.runtime_symbol(n)
     try:
-        with folded.tracing(record):
+        with folded.tracing(record), quat.series_precision(precision):
             model = spec.model(values)
             traced = {ks.name: ks.function for ks in model.kernels()}
             traced_fields = {f.name: f.init_values() for f in model.state_fields()}
@@ -205,8 +208,9 @@ def render(cfg: BuildConfig, names: bool = True) -> Generated:
     them (the same C otherwise; tests/codegen/test_folded.py compares the two)."""
     spec = cfg.spec
     runtime = tuple(getattr(cfg, "runtime", ()) or ())
-    model, model_specs, fields, tctx = _runtime_model(spec, cfg.params, runtime)
-    kernel_names, init_names = _folded_names(spec, cfg.params, runtime, model_specs, fields) if names else ({}, {})
+    model, model_specs, fields, tctx = _runtime_model(spec, cfg.params, runtime, cfg.precision)
+    kernel_names, init_names = (_folded_names(spec, cfg.params, runtime, model_specs, fields, cfg.precision)
+                                if names else ({}, {}))
     real = cfg.precision
     prefix = cfg.prefix
     P = prefix.upper()

@@ -6,6 +6,8 @@ All functions take and return casadi.SX column vectors.
 """
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import math
 from fractions import Fraction
 
@@ -78,6 +80,43 @@ SMALL_SERIES_MAX = Const("SMALL_SERIES_MAX", 0.03)
 SMALL_SERIES_TERMS = 4
 
 
+# The series above are written for double arithmetic. A float build has no use for their tail:
+# while series_precision("float") is in force, qexp and qexp_factors keep only the terms of at
+# least 1/8 of float's unit roundoff 2^-24 (relative to the series' leading term) at the top of
+# their range, so what they drop (alternating series with decreasing terms: at most the first
+# term dropped) stays below 1/16 of an ulp of the result: below SERIES_MAX cos and sin/x keep 3
+# terms of 5 (qexp_factors' k 3 of 5), below SMALL_SERIES_MAX cos 3 and sin/x 2 of 4. Double keeps
+# every term.
+_ROUNDOFF: contextvars.ContextVar[float | None] = contextvars.ContextVar("series_roundoff", default=None)
+FLOAT_ROUNDOFF = 2.0 ** -24
+
+
+@contextlib.contextmanager
+def series_precision(precision: str):
+    """While the block runs, the series are cut for `precision`'s arithmetic ("float" or
+    "double"; see _ROUNDOFF above). The generator builds a float build's kernels in it."""
+    token = _ROUNDOFF.set(FLOAT_ROUNDOFF if precision == "float" else None)
+    try:
+        yield
+    finally:
+        _ROUNDOFF.reset(token)
+
+
+def _cut(fractions, top: float) -> list:
+    """The terms of sum_k fractions[k] x^k (x in [0, top^2]) the arithmetic in force can see:
+    every term in double; in float the trailing terms below FLOAT_ROUNDOFF / 8 of the leading
+    one at x = top^2 dropped. Decided on the plain numbers (a traced build cuts alike)."""
+    fr = list(fractions)
+    u = _ROUNDOFF.get()
+    if u is None:
+        return fr
+    x = float(top) ** 2
+    n = len(fr)
+    while n > 1 and abs(float(fr[n - 1])) * x ** (n - 1) < u / 8 * abs(float(fr[0])):
+        n -= 1
+    return fr[:n]
+
+
 def _coefficients(fractions) -> list:
     """Series coefficients as the model's arithmetic reads them (ahrsgen.constants.use): each a
     constant named by its fraction (1/45; a negative one is the negation of its magnitude's,
@@ -89,10 +128,14 @@ def _coefficients(fractions) -> list:
     return out
 
 
-def _cos_sinc_coefficients(terms: int = SERIES_TERMS):
-    """cos x and sin x / x in x^2: (-1)^k / (2k)! and (-1)^k / (2k + 1)!, k < terms."""
-    return (_coefficients(Fraction((-1) ** k, math.factorial(2 * k)) for k in range(terms)),
-            _coefficients(Fraction((-1) ** k, math.factorial(2 * k + 1)) for k in range(terms)))
+def _cos_sinc_coefficients(terms: int = SERIES_TERMS, top: float | None = None):
+    """cos x and sin x / x in x^2: (-1)^k / (2k)! and (-1)^k / (2k + 1)!, k < terms; with `top`
+    (the largest x), cut for the arithmetic in force (_cut)."""
+    cos_f = [Fraction((-1) ** k, math.factorial(2 * k)) for k in range(terms)]
+    sinc_f = [Fraction((-1) ** k, math.factorial(2 * k + 1)) for k in range(terms)]
+    if top is not None:
+        cos_f, sinc_f = _cut(cos_f, top), _cut(sinc_f, top)
+    return _coefficients(cos_f), _coefficients(sinc_f)
 
 
 def _series(x2, coeffs):
@@ -112,7 +155,8 @@ def qexp(v, n2=None, small_arg: bool = False) -> ca.SX:
     top = use(SMALL_SERIES_MAX) if small_arg else use(SERIES_MAX)
     small = n2 < top * top
     n = ca.sqrt(ca.fmax(n2, top * top))
-    cos_c, sinc_c = _cos_sinc_coefficients(SMALL_SERIES_TERMS if small_arg else SERIES_TERMS)
+    cos_c, sinc_c = _cos_sinc_coefficients(SMALL_SERIES_TERMS if small_arg else SERIES_TERMS,
+                                           float(SMALL_SERIES_MAX if small_arg else SERIES_MAX))
     sinc = ca.if_else(small, _series(n2, sinc_c), ca.sin(n) / n)
     cos_n = ca.if_else(small, _series(n2, cos_c), ca.cos(n))
     return vec(cos_n, sinc * v[0], sinc * v[1], sinc * v[2])
@@ -156,11 +200,12 @@ def qexp_factors(v, n2=None):
     n2 = ca.sumsqr(v) if n2 is None else n2
     small = n2 < use(SERIES_MAX) * use(SERIES_MAX)
     n = ca.sqrt(ca.fmax(n2, use(SERIES_MAX) * use(SERIES_MAX)))
-    cos_c, sinc_c = _cos_sinc_coefficients()
+    cos_c, sinc_c = _cos_sinc_coefficients(SERIES_TERMS, float(SERIES_MAX))
     sin_n, cos_n = ca.sin(n), ca.cos(n)
     return (ca.if_else(small, _series(n2, cos_c), cos_n),
             ca.if_else(small, _series(n2, sinc_c), sin_n / n),
-            ca.if_else(small, _series(n2, _coefficients(RJ_SERIES)), (n - sin_n * cos_n) / (n2 * n)))
+            ca.if_else(small, _series(n2, _coefficients(_cut(RJ_SERIES, float(SERIES_MAX)))),
+                       (n - sin_n * cos_n) / (n2 * n)))
 
 
 def integrate(q, omega, dt) -> ca.SX:

@@ -13,9 +13,9 @@ function that is not a kernel. Allowed (the list is short on purpose):
 - PIVOT_TESTS: a kernel's innovation variance (pivot) compared with S_PIVOT_MIN to decide
   whether its correction is applied (one comparison per correction, not in the op counts);
 - GATE: the gyro over-range kernel's skip test (codegen/templates/gyro_recovery.c.j2), once:
-  |gyro|^2 against parameter bounds and the bit patterns of the kernel's state decide whether
-  the kernel runs. Its 5 operations and a comparison are fewer than the 36 of the kernel it
-  skips, which the path op counts count: they still cover the step.
+  |gyro|^2 (gyro_n2, from the input checks) against parameter bounds and the bit patterns of the
+  kernel's state decide whether the kernel runs. Its comparisons are fewer than the 36
+  operations of the kernel it skips, which the path op counts count: they still cover the step.
 
 It also checks that every kernel the step calls is on one of the manifest's step paths, except
 the first-step initialisation and the hard-iron fit (a step while turning), which no path names.
@@ -41,9 +41,8 @@ CONFIGS = [
 RUNTIME = "gps_min_speed,mag_norm_th,accel_gate,rest_tau,rest_gyro_th,mag_bias_min_rate,gps_vel_timeout"
 PIVOT_TESTS = {"min_pivot", "s_head"}      # kernel outputs compared with S_PIVOT_MIN
 START = "MEKF step"                        # mekf's own step begins at this comment
-GATE = re.compile(r"const (?:float|double) gyro_n2 = (\w+)_norm2\(in->gyro\);\s*"
-                  r"if \(!\((?:gyro_n2 < (\w+) \* \2\s*&&\s*)+"
-                  r"\(\1_bits\(s->recover_time\)(?:\s*\|\s*\1_bits\(s->gyro_repeats\[[012]\]\)){3}\)"
+GATE = re.compile(r"if \(!\((?:gyro_n2 < (\w+) \* \1\s*&&\s*)+"
+                  r"\((\w+)_bits\(s->recover_time\)(?:\s*\|\s*\2_bits\(s->gyro_repeats\[[012]\]\)){3}\)"
                   r" == 0u\)\) \{")
 
 _TOKEN = re.compile(r"->|\+\+|--|\+=|-=|\*=|/=|<=|>=|==|!=|&&|\|\||\|=|<<|>>|[A-Za-z_]\w*"
