@@ -56,9 +56,11 @@ def candidates():
             c = {"accel_tau_unaided": tau, **g}
             if c != BEFORE:
                 yield c
-    # the gate on the low-pass's gain (the sample weighed before it enters the low-pass)
-    for k, r in ((10.0, 1.0), (100.0, 1.0), (1000.0, 0.3)):
-        yield {"accel_tau_unaided": 0.0, "accel_gate": k, "accel_gate_rate": r, "accel_gate_apply": "gain"}
+    # without GPS the accelerometer's density term on its own (the GPS regime keeps 0.016)
+    for tau in (2.0, 2.5):
+        for d in (0.004, 0.008, 0.012):
+            for g in (GATES[0], GATES[2], GATES[3]):
+                yield {"accel_tau_unaided": tau, "sigma_acc_density_unaided": d, **g}
 
 
 def claim_ratio(sets: dict, plain_gate: bool) -> float:

@@ -23,7 +23,7 @@
  * its GNU modes, -std=c99 turns it off) and -fno-math-errno; -ffast-math breaks the input
  * checks (isfinite). Any C99 compiler builds it; see the ahrsgen docs (target.md).
  *     adukf_euler(&st, rpy);
- * No heap, no recursion; RAM is the state struct (996 bytes with the usual ABI).
+ * No heap, no recursion; RAM is the state struct (1008 bytes with the usual ABI).
  * Needs <math.h> (float functions only in a float build); compilers may also emit calls to
  * memcpy/memset/memmove for struct and array copies.
  *
@@ -273,6 +273,28 @@ extern "C" {
                                                 averages out, gravity does not; VQF's idea); 0 = the
                                                 raw accelerometer (as the paper; faithful ignores
                                                 it) [s] */
+#define ADUKF_ACCEL_TAU_UNAIDED 2.0f         /* with accel_tau > 0: the NED low-pass's time constant
+                                                while no GPS compensation runs (no GPS velocity for
+                                                gps_timeout, or motion_accel_model = none): without
+                                                a measurement of the vehicle's motion the low-pass
+                                                must average it out by itself (a hand's, a
+                                                pendulum's or a hovering multirotor's velocity stays
+                                                bounded, so its acceleration averages to 0 over
+                                                seconds); with the GPS the motion is removed and
+                                                accel_tau serves. 0 = accel_tau. 2.0 s with
+                                                accel_gate 1000 (issue 26, studies/adukf_gate_cv.py,
+                                                leave one BROAD group out at 286 / 143 / 95 / 48 Hz
+                                                with the scenarios, the multirotor without GPS
+                                                included; every fold chose it): BROAD 2.769 / 2.899
+                                                / 3.017 / 3.707 -> 2.549 / 2.651 / 2.744 / 3.440
+                                                deg, left out the same (issue 26's rate line: within
+                                                10 % of the per-rate tunes 2.321 / 2.427 / 2.565 /
+                                                3.443); multirotor without GPS 0.84 -> 0.63 deg (1
+                                                kHz 0.80 -> 0.57); turntable 0.20 -> 0.24, gyro_clip
+                                                0.07 -> 0.10, static_accel_disturbance 0.49 -> 0.51;
+                                                with the GPS nothing changes. Alone (accel_gate 0)
+                                                2.540 / 2.642 / 2.735 / 3.404 but issue 10's ratio
+                                                6.9x [s] */
 #define ADUKF_ACCEL_LP_WARM 1                /* with accel_tau > 0: warm start of the NED low-pass
                                                 (VQF's, as mekf's accel_lpf_warm; issue 26): until
                                                 it has averaged accel_tau of samples it is their
@@ -285,6 +307,40 @@ extern "C" {
                                                 begun again after a gyro clip. false: the low-pass
                                                 starts from its first sample with its time constant
                                                 (before) */
+#define ADUKF_ACCEL_GATE 1000.0f             /* accelerometer gate (error state, with accel_tau > 0;
+                                                issue 26): while the gyro is slow (accel_gate_rate)
+                                                and no GPS compensation runs, the accelerometer rows
+                                                of R are divided by w = max(1 / (1 + accel_gate
+                                                e^2), accel_gate_floor), e^2 the sine^2 of the tilt
+                                                of the specific force's short NED mean
+                                                (accel_gate_tau) from the estimate's down: a motion
+                                                acceleration or an offset (not zero-mean over tens
+                                                of ms) is rejected at once, motor vibration
+                                                (zero-mean) is not judged sample by sample; the
+                                                low-pass stays linear. With accel_tau_unaided 2.0 it
+                                                keeps issue 10's ratio (11.0x against the plain
+                                                DUKF, k_a = k_m = accel_gate = 0; 6.9x without the
+                                                gate). 1000 with accel_gate_rate 0.3 chosen by
+                                                studies/adukf_gate_cv.py (leave one BROAD group out
+                                                at 286 / 143 / 95 / 48 Hz with the scenarios and the
+                                                multirotor without GPS; every fold chose it). 0 =
+                                                off [1] */
+#define ADUKF_ACCEL_GATE_TAU 0.03f           /* accel_gate: time constant of the short NED mean of
+                                                the specific force the gate judges (tens of ms: a
+                                                multirotor's motor vibration at 130-250 Hz averages
+                                                out, a hand's or a vehicle's acceleration does not)
+                                                [s] */
+#define ADUKF_ACCEL_GATE_RATE 0.3f           /* accel_gate: the gate acts only while |gyro - bias|
+                                                is below this (after fast rotation the tilt of the
+                                                specific force is the estimate's own error, which
+                                                the update must correct). 0.3 chosen by
+                                                studies/adukf_gate_cv.py (1.0: BROAD 2.601 / 2.698 /
+                                                2.800 / 3.494 deg at 286 / 143 / 95 / 48 Hz against
+                                                2.549 / 2.651 / 2.744 / 3.440) [rad/s] */
+#define ADUKF_ACCEL_GATE_FLOOR 0.1f          /* accel_gate: the smallest weight of a sample (the
+                                                low-pass always advances: a sustained tilt of the
+                                                specific force, the estimate's own error, still gets
+                                                through within accel_tau / accel_gate_floor) [1] */
 #define ADUKF_ACCEL_LP_FOLLOW 1              /* with accel_tau > 0: after each update that used the
                                                 accelerometer the NED low-pass is turned with the
                                                 attitude's correction, R(q+) R(q-)^T (error and
@@ -414,6 +470,8 @@ typedef struct {
     float sample_age[2];   /* time since the last accelerometer / magnetometer sample, s */
     float accel_lp[3];     /* low-passed specific force in NED, m/s^2 (accel_tau > 0) */
     float lp_time;         /* time accel_lp has averaged, s (its warm start; stops at accel_tau) */
+    float accel_short[3];  /* the accelerometer gate's short NED mean of the specific force
+                              (accel_gate_tau), m/s^2 */
     float gps_vel[3];      /* latest GPS velocity (NED, m/s; gps_lowpass) */
     float gps_age;         /* time since the last GPS sample, s (gps_lowpass) */
     float v_lp[3];         /* GPS velocity through the accelerometer's NED low-pass (gps_lowpass),

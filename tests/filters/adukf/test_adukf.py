@@ -12,7 +12,9 @@ from ahrsgen import status as st
 from ahrsgen.filters.adukf import reference as ref_mod
 
 SCENARIOS = ["static_accel_disturbance", "static_mag_disturbance"]
-PLAIN = ("k_a=0", "k_m=0")
+# The plain DUKF: R fixed, no adaptation: k_a = k_m = 0 and no accelerometer gate (the gate divides
+# the accelerometer rows of R by a weight from the measured specific force, an adaptive R too)
+PLAIN = ("k_a=0", "k_m=0", "accel_gate=0")
 
 # Float C vs the double reference over each 120 s static scenario.
 # Measured: 6.3e-8 rad (accel) and 6.0e-8 rad (mag), seed 0. Bound asserted: 1e-6 rad.

@@ -259,20 +259,33 @@ class Model(FilterModel):
     def lowpass(self) -> bool:
         return self.params["accel_tau"] > 0 and not self.params["faithful"]
 
+    def unaided(self) -> bool:
+        """The low-pass has its own time constant while no GPS compensation runs (accel_tau_unaided)."""
+        p = self.params
+        return self.lowpass() and p["accel_tau_unaided"] > 0 and p["accel_tau_unaided"] != p["accel_tau"]
+
+    def density_split(self) -> bool:
+        """The accelerometer's density term has its own value while no GPS compensation runs
+        (sigma_acc_density_unaided; error state, sensors at their own rates)."""
+        p = self.params
+        return (self.err and self.own_rates() and self.lowpass() and p["sigma_acc_density_unaided"] > 0
+                and p["sigma_acc_density_unaided"] != p["sigma_acc_density"])
+
     def gate(self) -> bool:
-        """The accelerometer gate (accel_gate > 0, error state with the low-pass): a sample
-        enters the NED low-pass with a weight that falls with the tilt of its short-window mean."""
+        """The accelerometer gate (accel_gate > 0, error state with the low-pass): the
+        accelerometer rows of R grow as the specific force's short-window mean tilts."""
         return self.lowpass() and self.err and self.params["accel_gate"] > 0
 
-    def gate_weight_expr(self, a_short, a_lp, f_n, dt, gyro, bias, off):
+    def gate_weight_expr(self, a_short, f_n, dt, gyro, bias, off):
         """The accelerometer gate (issue 26). A short NED low-pass of the specific force,
         s <- s + dt/(accel_gate_tau + dt)(f_n - s) (tens of ms: motor vibration, zero-mean at
-        high frequency, averages out of it; a motion acceleration does not), and the sine² of its
-        tilt from the estimate's down, e² = (s_x² + s_y²)/|s|². While the gyro is slow
-        (|ω - b| < accel_gate_rate: after fast rotation the tilt is the estimate's own error) and
-        `off` is false, the sample enters the long low-pass with its gain times
-        w = max(1/(1 + accel_gate e²), accel_gate_floor): the long low-pass always advances.
-        Returns (w, s')."""
+        high frequency, averages out of it; a motion acceleration or an offset does not), and the
+        sine² of its tilt from the estimate's down, e² = (s_x² + s_y²)/|s|². While the gyro is
+        slow (|ω - b| < accel_gate_rate: after fast rotation the tilt is the estimate's own error)
+        and `off` is false, the weight w = max(1/(1 + accel_gate e²), accel_gate_floor), else 1;
+        the accelerometer rows of R are divided by it (residual_and_r): the rejection acts on the
+        correction, and the long low-pass stays linear (weighing the samples that enter it biases
+        a zero-mean motion's average: studies/adukf_gate_cv.py). Returns (w, s')."""
         p = self.params
         s_new = a_short + (dt / (use(p["accel_gate_tau"]) + dt)) * (f_n - a_short)
         e2 = (s_new[0] * s_new[0] + s_new[1] * s_new[1]) / ca.fmax(ca.sumsqr(s_new), use(GATE_NORM2_MIN))
@@ -281,7 +294,7 @@ class Model(FilterModel):
         slow = ca.sumsqr(wb) < p["accel_gate_rate"] ** 2
         return ca.if_else(ca.logic_and(slow, ca.logic_not(off)), w, 1.0), s_new
 
-    def accel_lowpass_expr(self, a_lp, f_n, lp_time, dt, restart, start, weight=None, m_comp=None):
+    def accel_lowpass_expr(self, a_lp, f_n, lp_time, dt, restart, start, m_comp=None):
         """The NED low-pass of the specific force f_n = R(q-) f: a ← a + α (f_n − a), started at
         f_n (restart, or recovering from a clipped gyro sample: start). α = dt / (τ + dt), or with
         accel_lp_warm (VQF's warm start, issue 26) α = dt / (min(lp_time, τ) + dt), lp_time the
@@ -292,7 +305,7 @@ class Model(FilterModel):
         Returns the new low-pass and lp_time."""
         tau = self.params["accel_tau"]
         tau_u = self.params["accel_tau_unaided"]
-        if tau_u > 0 and tau_u != tau:
+        if self.unaided():
             # no motion measurement (no GPS compensation running, or none built): the low-pass
             # must average the vehicle's motion out by itself, over accel_tau_unaided
             tau = tau_u if m_comp is None else ca.if_else(m_comp, use(tau), use(tau_u))
@@ -300,8 +313,6 @@ class Model(FilterModel):
         alpha, lp_next = aiding.warm_lowpass_gain(base, tau, dt)
         if not self.params["accel_lp_warm"]:
             alpha = dt / (use(tau) + dt)
-        if weight is not None and self.params["accel_gate_apply"] in ("gain", "both"):
-            alpha = weight * alpha
         start_lp = ca.if_else(start, f_n, a_lp)
         a_new = start_lp + alpha * (f_n - start_lp)
         lp_new = ca.if_else(ca.logic_and(start, ca.logic_not(restart)), lp_time, lp_next)
@@ -464,11 +475,12 @@ class Model(FilterModel):
         through h, as its deviation from the centre h(χ) - z₀."""
         return measurement(normalize(point), m_ref) - z0
 
-    def residual_and_r(self, zhat, f, m, scale, recover=None, span=None, gate_w=None):
+    def residual_and_r(self, zhat, f, m, scale, recover=None, span=None, gate_w=None, aided=None):
         """ε = z - ẑ and the adaptive per-axis R (both sigma sets); recovering from a clipped gyro
         sample (recover = 1) R is not adapted: the large residual is the attitude's error. With
         span (product, sensors at their own rates) the accelerometer's rows add its white noise
-        as a density, sigma_acc_density² / s_a (s_a: the time its sample stands for)."""
+        as a density, sigma_acc_density² / s_a (s_a: the time its sample stands for). gate_w (the
+        accelerometer gate's weight, gate_weight_expr): the accelerometer rows over it."""
         p = self.params
         z = ca.vertcat(normalize(f), normalize(m))
         eps = z - zhat
@@ -482,12 +494,17 @@ class Model(FilterModel):
         if scale is not None:
             R = [R[i] * scale[0] for i in range(3)] + [R[i] * scale[1] for i in range(3, 6)]
         d = p["sigma_acc_density"]
-        if span is not None and not (isinstance(d, (int, float)) and d == 0):
+        if span is not None and self.density_split():
+            # no GPS compensation (aided false, or no GPS input): sigma_acc_density_unaided
+            du = p["sigma_acc_density_unaided"]
+            d2 = du ** 2 if aided is None else ca.if_else(aided, d ** 2, du ** 2)
+            R = [R[i] + d2 / ca.fmax(span[0], use(SPAN_MIN)) for i in range(3)] + R[3:]
+        elif span is not None and not (isinstance(d, (int, float)) and d == 0):
             R = [R[i] + d ** 2 / ca.fmax(span[0], use(SPAN_MIN)) for i in range(3)] + R[3:]
         dm = p["sigma_mag_density"]
         if span is not None and not (isinstance(dm, (int, float)) and dm == 0):
             R = R[:3] + [R[i] + dm ** 2 / ca.fmax(span[1], use(SPAN_MIN)) for i in range(3, 6)]
-        if gate_w is not None and self.params["accel_gate_apply"] in ("r", "both"):
+        if gate_w is not None:        # the accelerometer gate: its rows of R over the gate's weight
             R = [R[i] / gate_w for i in range(3)] + R[3:]
         return eps, R
 
@@ -513,7 +530,7 @@ class Model(FilterModel):
             Pzz[c, r] = Pzz[r, c]
         return Pzz, eps, ca.vertcat(*R), ca.vertcat(*D)
 
-    def innovation_expr(self, z0, zsum, zdiff, f, m, scale=None, recover=None, span=None, gate_w=None):
+    def innovation_expr(self, z0, zsum, zdiff, f, m, scale=None, recover=None, span=None, gate_w=None, aided=None):
         """ẑ, residual, adaptive R and P_zz from the sigma pairs' deviations (sigma_pair_expr:
         s_j = e_j+ + e_j-, d_j = e_j+ - e_j- for the 4 columns of aL; e_i = z_i - z₀, zero for
         the centre and for the 2(n-4) points of the bias columns). Exact rewrites of the sums of
@@ -534,7 +551,7 @@ class Model(FilterModel):
         S = [zsum[6 * j:6 * j + 6] for j in range(na)]
         D = [zdiff[6 * j:6 * j + 6] for j in range(na)]
         delta = wi * sum(S[1:], S[0])
-        eps, R = self.residual_and_r(z0 + delta, f, m, scale, recover, span, gate_w)
+        eps, R = self.residual_and_r(z0 + delta, f, m, scale, recover, span, gate_w, aided)
         Pzz = ca.SX.zeros(6, 6)
         for r, c in _LOWER6:     # symmetric: lower triangle once, mirrored
             zz = sum([S[j][r] * S[j][c] + D[j][r] * D[j][c] for j in range(1, na)], S[0][r] * S[0][c] + D[0][r] * D[0][c])
@@ -624,17 +641,18 @@ class Model(FilterModel):
             gyro_in, bias_in, a_short = ca.SX.sym("gyro", 3), ca.SX.sym("gyro_bias", 3), ca.SX.sym("accel_short", 3)
             # no gate where the low-pass starts at the sample, nor while the GPS removes the motion
             off = ca.logic_or(start, m_comp) if self.gps else start
-            weight, s_new = self.gate_weight_expr(ca.if_else(start, f_n, a_short), a_lp, f_n, dt, gyro_in, bias_in, off)
+            weight, s_new = self.gate_weight_expr(ca.if_else(start, f_n, a_short), f_n, dt, gyro_in, bias_in, off)
             gate_in = {"gyro": gyro_in, "gyro_bias": bias_in, "accel_short": a_short}
             gate_out = {"accel_short_new": s_new, "gate_w": weight}
-        a_lp_new, lp_time_new = self.accel_lowpass_expr(a_lp, f_n, lp_time, dt, restart, start, weight,
+        a_lp_new, lp_time_new = self.accel_lowpass_expr(a_lp, f_n, lp_time, dt, restart, start,
                                                         m_comp if self.gps else None)
         lp_in = {"q_pred_unit": qn, "accel": f, "accel_lp": a_lp, "lp_time": lp_time, "restart": restart, "dt": dt,
                  **({"recover": recover} if self.err else {})}
         lp_out = {"accel_lp_new": a_lp_new, "lp_time_new": lp_time_new, "accel_body": quat.rotate_inv(qn, a_lp_new)}
         lp_doc = ("NED low-pass of the specific force R(q-) f (restart: start at R(q-) f; accel_lp_warm: the "
-                  "running mean of its samples until it has averaged accel_tau); the update measures R(q-)^T "
-                  "of it (recovering from a clipped gyro sample: the sample itself)")
+                  "running mean of its samples until it has averaged accel_tau"
+                  + (", accel_tau_unaided while no GPS compensation runs" if self.unaided() else "")
+                  + "); the update measures R(q-)^T of it (recovering from a clipped gyro sample: the sample itself)")
         if self.gps:
             vel = ca.SX.sym("gps_vel", 3)
             v_lp = ca.SX.sym("v_lp", 3)
@@ -654,8 +672,9 @@ class Model(FilterModel):
         if self.gate():
             lp_in.update(gate_in)
             lp_out.update(gate_out)
-            lp_doc += ("; accel_gate: the sample's gain times the gate's weight, from the tilt of its short "
-                       "NED mean accel_short (while the gyro is slow and no GPS compensation runs)")
+            lp_doc += ("; accel_gate: the short NED mean accel_short and the gate's weight gate_w from its tilt "
+                       "(1 unless the gyro is slow and no GPS compensation runs; the update divides R's "
+                       "accelerometer rows by it)")
         Pzz_packed = ca.SX.sym("P_zz", 21)        # lower triangle, packed (linalg)
         Pzz = linalg.unpack_symmetric(Pzz_packed, 6)
         eps = ca.SX.sym("residual", 6)
@@ -680,7 +699,8 @@ class Model(FilterModel):
         elif self.err:
             zs_e, zd_e = self.sigma_pair_error_expr(col, z0)
             gate_w = ca.SX.sym("gate_w") if self.gate() else None
-            Pzz_e, eps_e, r_e = self.innovation_expr(z0, zsum, zdiff, f, m, scale, recover, sp, gate_w)
+            aided = m_comp if self.gps and self.density_split() else None
+            Pzz_e, eps_e, r_e = self.innovation_expr(z0, zsum, zdiff, f, m, scale, recover, sp, gate_w, aided)
         else:
             zs_e, zd_e = self.sigma_pair_expr(q4, col, m_ref, z0)
             Pzz_e, eps_e, r_e = self.innovation_expr(z0, zsum, zdiff, f, m, scale, span=sp)
@@ -742,7 +762,9 @@ class Model(FilterModel):
             KernelSpec("innovation", function("innovation", {**innov_in, "accel": f, "mag": m,
                                                              **({"dt": dt, "span": span} if rated else {}),
                                                              **({"recover": recover} if self.err else {}),
-                                                             **({"gate_w": gate_w} if self.gate() else {})},
+                                                             **({"gate_w": gate_w} if self.gate() else {}),
+                                                             **({"m_comp": m_comp} if self.gps and self.density_split()
+                                                                else {})},
                                               {"P_zz": linalg.pack_lower(Pzz_e), "residual": eps_e, "r_diag": r_e,
                                                **innov_out}),
                        innov_doc, noinline=True, early_writes=True, flags=("recover",) if self.err else ()),
@@ -809,4 +831,4 @@ class Model(FilterModel):
         n = self.n
         return {"recovery": self.err, "learn": self.params["mag_ref"] == "learn", "hard_iron": self.hard_iron(), "n": n, "nx": self.nx, "na": self.na, "err": self.err, "lowpass": self.lowpass(), "follow": self.follow(), "gps": self.gps, "gps_age_max": GPS_AGE_MAX, "rated": self.own_rates(), "bias": self.nx == 7, "simplex": self.simplex(), "xs": "q" if self.nx == 4 else "x", "at": self.work_layout(),
                 "packed": linalg.packed_lower_pairs(n),
-                "gyro_quiet": self.gyro_recovery_quiet() if self.err else [], "gate": self.gate()}
+                "gyro_quiet": self.gyro_recovery_quiet() if self.err else [], "gate": self.gate(), "split": self.gps and self.density_split()}

@@ -401,7 +401,10 @@ class Reference:
             scale = np.repeat(np.maximum(dt / span, 1.0 / p["span_steps_max"]), 3)
             if p["r_time"] > 0:      # per-sample terms of a sample standing for r_time seconds
                 scale = scale * p["r_time"] / max(dt, 1e-9)                 # model.SPAN_MIN
-            noise[:3] = p["sigma_acc_density"] ** 2 / max(span[0], 1e-9)     # model.SPAN_MIN
+            d_a = p["sigma_acc_density"]
+            if (self.err and self.lowpass and p["sigma_acc_density_unaided"] > 0 and not m_comp):
+                d_a = p["sigma_acc_density_unaided"]      # no GPS compensation runs
+            noise[:3] = d_a ** 2 / max(span[0], 1e-9)     # model.SPAN_MIN
             noise[3:] = p["sigma_mag_density"] ** 2 / max(span[1], 1e-9)
             if use_a:
                 self.sample_age[0] = 0.0
@@ -467,8 +470,6 @@ class Reference:
                     if not start and not m_comp and float(w_b @ w_b) < p["accel_gate_rate"] ** 2:
                         e2 = (s_g[0] ** 2 + s_g[1] ** 2) / max(float(s_g @ s_g), 1e-6)    # model.GATE_NORM2_MIN
                         w_g = max(1.0 / (1.0 + p["accel_gate"] * e2), p["accel_gate_floor"])
-                        if p["accel_gate_apply"] in ("gain", "both"):
-                            k_a = k_a * w_g
                 self.accel_lp = self.accel_lp + k_a * (f_n - self.accel_lp)
                 if restart or not recovering:
                     self.lp_time = t_next
@@ -508,8 +509,7 @@ class Reference:
                 if recovering:
                     adapt = np.zeros(6)
                 R = (np.concatenate([np.full(3, p["sigma_acc"] ** 2), np.full(3, p["sigma_mag"] ** 2)]) + adapt) * scale + noise
-                if p["accel_gate_apply"] in ("r", "both"):
-                    R[:3] = R[:3] / w_g     # the gate: the accelerometer's rows over its weight
+                R[:3] = R[:3] / w_g     # the gate: the accelerometer's rows over its weight
                 dZ = Z - zhat
                 dX = chis - xc
                 Pzz = (self.wc[:, None] * dZ).T @ dZ + np.diag(R)
