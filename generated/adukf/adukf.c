@@ -1094,8 +1094,8 @@ static void adukf_k_sigma_pair(const float col[3], const float z0[6], float zsum
 }
 
 static void adukf_k_innovation_part0(const float z0[6], const float zsum[18], const float zdiff[18],
-    const float accel[3], float dt, const float span[2], float gate_w, float residual[6],
-    float carry[19])
+    const float accel[3], float dt, const float span[2], float gate_w, float m_comp,
+    float residual[6], float carry[18])
 {
     const float tmp0 = zsum[0] * zsum[0];
     const float tmp1 = zdiff[0] * zdiff[0];
@@ -1132,524 +1132,523 @@ static void adukf_k_innovation_part0(const float z0[6], const float zsum[18], co
     const float tmp30 = (dt > 1e-09f /* SPAN_MIN */) ? dt : 1e-09f /* SPAN_MIN */;
     const float tmp31 = 1.0f / tmp30;
     const float tmp32 = tmp29 * tmp31;
-    const float tmp33 = (span[0] > 1e-09f /* SPAN_MIN */) ? span[0] : 1e-09f /* SPAN_MIN */;
-    const float tmp34 = 0.000256f /* sigma_acc_density^2 */ / tmp33;
-    const float tmp35 = 1.0f / gate_w;
-    const float tmp36 = zsum[1] * zsum[0];
-    const float tmp37 = zdiff[1] * zdiff[0];
-    const float tmp38 = tmp36 + tmp37;
-    const float tmp39 = zsum[7] * zsum[6];
+    const float tmp33 = (m_comp != 0.0f) ? 0.000256f /* sigma_acc_density^2 */ :
+            1.6e-05f /* sigma_acc_density_unaided^2 */;
+    const float tmp34 = (span[0] > 1e-09f /* SPAN_MIN */) ? span[0] : 1e-09f /* SPAN_MIN */;
+    const float tmp35 = tmp33 / tmp34;
+    const float tmp36 = 1.0f / gate_w;
+    const float tmp37 = zsum[1] * zsum[0];
+    const float tmp38 = zdiff[1] * zdiff[0];
+    const float tmp39 = tmp37 + tmp38;
     carry[0] = tmp14;
     carry[1] = tmp16;
     carry[2] = tmp23;
     carry[3] = tmp26;
     carry[4] = tmp31;
     carry[5] = tmp32;
-    carry[6] = tmp34;
-    carry[7] = tmp35;
-    carry[8] = tmp38;
-    carry[9] = tmp39;
+    carry[6] = tmp35;
+    carry[7] = tmp36;
+    carry[8] = tmp39;
 }
 
 static void adukf_k_innovation_part1(const float zsum[18], const float zdiff[18], float P_zz[21],
-    float carry[19])
+    float carry[18])
 {
-    const float tmp40 = zdiff[7] * zdiff[6];
-    const float tmp41 = carry[9] /* tmp39 */ + tmp40;
-    const float tmp42 = carry[8] /* tmp38 */ + tmp41;
-    const float tmp43 = zsum[13] * zsum[12];
-    const float tmp44 = zdiff[13] * zdiff[12];
-    const float tmp45 = tmp43 + tmp44;
-    const float tmp46 = tmp42 + tmp45;
-    const float tmp47 = 0.041666668f /* 0.5*UT_W */ * tmp46;
-    const float tmp48 = zsum[1] + zsum[7];
-    const float tmp49 = tmp48 + zsum[13];
-    const float tmp50 = 0.083333336f /* UT_W */ * tmp49;
-    const float tmp51 = tmp50 * carry[0] /* tmp14 */;
-    const float tmp52 = tmp47 + tmp51;
-    P_zz[1] = tmp52;
-    const float tmp53 = zsum[2] * zsum[0];
-    const float tmp54 = zdiff[2] * zdiff[0];
-    const float tmp55 = tmp53 + tmp54;
-    const float tmp56 = zsum[8] * zsum[6];
-    const float tmp57 = zdiff[8] * zdiff[6];
-    const float tmp58 = tmp56 + tmp57;
-    const float tmp59 = tmp55 + tmp58;
-    const float tmp60 = zsum[14] * zsum[12];
-    const float tmp61 = zdiff[14] * zdiff[12];
-    const float tmp62 = tmp60 + tmp61;
-    const float tmp63 = tmp59 + tmp62;
-    const float tmp64 = 0.041666668f /* 0.5*UT_W */ * tmp63;
-    const float tmp65 = zsum[2] + zsum[8];
-    const float tmp66 = tmp65 + zsum[14];
-    const float tmp67 = 0.083333336f /* UT_W */ * tmp66;
-    const float tmp68 = tmp67 * carry[0] /* tmp14 */;
-    const float tmp69 = tmp64 + tmp68;
-    P_zz[2] = tmp69;
-    const float tmp70 = zsum[3] * zsum[0];
-    const float tmp71 = zdiff[3] * zdiff[0];
-    const float tmp72 = tmp70 + tmp71;
-    const float tmp73 = zsum[9] * zsum[6];
-    const float tmp74 = zdiff[9] * zdiff[6];
-    const float tmp75 = tmp73 + tmp74;
-    const float tmp76 = tmp72 + tmp75;
-    const float tmp77 = zsum[15] * zsum[12];
-    const float tmp78 = zdiff[15] * zdiff[12];
-    const float tmp79 = tmp77 + tmp78;
-    carry[8] = tmp50;
-    carry[9] = tmp67;
-    carry[10] = tmp76;
-    carry[11] = tmp79;
+    const float tmp40 = zsum[7] * zsum[6];
+    const float tmp41 = zdiff[7] * zdiff[6];
+    const float tmp42 = tmp40 + tmp41;
+    const float tmp43 = carry[8] /* tmp39 */ + tmp42;
+    const float tmp44 = zsum[13] * zsum[12];
+    const float tmp45 = zdiff[13] * zdiff[12];
+    const float tmp46 = tmp44 + tmp45;
+    const float tmp47 = tmp43 + tmp46;
+    const float tmp48 = 0.041666668f /* 0.5*UT_W */ * tmp47;
+    const float tmp49 = zsum[1] + zsum[7];
+    const float tmp50 = tmp49 + zsum[13];
+    const float tmp51 = 0.083333336f /* UT_W */ * tmp50;
+    const float tmp52 = tmp51 * carry[0] /* tmp14 */;
+    const float tmp53 = tmp48 + tmp52;
+    P_zz[1] = tmp53;
+    const float tmp54 = zsum[2] * zsum[0];
+    const float tmp55 = zdiff[2] * zdiff[0];
+    const float tmp56 = tmp54 + tmp55;
+    const float tmp57 = zsum[8] * zsum[6];
+    const float tmp58 = zdiff[8] * zdiff[6];
+    const float tmp59 = tmp57 + tmp58;
+    const float tmp60 = tmp56 + tmp59;
+    const float tmp61 = zsum[14] * zsum[12];
+    const float tmp62 = zdiff[14] * zdiff[12];
+    const float tmp63 = tmp61 + tmp62;
+    const float tmp64 = tmp60 + tmp63;
+    const float tmp65 = 0.041666668f /* 0.5*UT_W */ * tmp64;
+    const float tmp66 = zsum[2] + zsum[8];
+    const float tmp67 = tmp66 + zsum[14];
+    const float tmp68 = 0.083333336f /* UT_W */ * tmp67;
+    const float tmp69 = tmp68 * carry[0] /* tmp14 */;
+    const float tmp70 = tmp65 + tmp69;
+    P_zz[2] = tmp70;
+    const float tmp71 = zsum[3] * zsum[0];
+    const float tmp72 = zdiff[3] * zdiff[0];
+    const float tmp73 = tmp71 + tmp72;
+    const float tmp74 = zsum[9] * zsum[6];
+    const float tmp75 = zdiff[9] * zdiff[6];
+    const float tmp76 = tmp74 + tmp75;
+    const float tmp77 = tmp73 + tmp76;
+    const float tmp78 = zsum[15] * zsum[12];
+    const float tmp79 = zdiff[15] * zdiff[12];
+    carry[8] = tmp51;
+    carry[9] = tmp68;
+    carry[10] = tmp77;
+    carry[11] = tmp78;
+    carry[12] = tmp79;
 }
 
 static void adukf_k_innovation_part2(const float zsum[18], const float zdiff[18], float P_zz[21],
-    float carry[19])
+    float carry[18])
 {
-    const float tmp80 = carry[10] /* tmp76 */ + carry[11] /* tmp79 */;
-    const float tmp81 = 0.041666668f /* 0.5*UT_W */ * tmp80;
-    const float tmp82 = zsum[3] + zsum[9];
-    const float tmp83 = tmp82 + zsum[15];
-    const float tmp84 = 0.083333336f /* UT_W */ * tmp83;
-    const float tmp85 = tmp84 * carry[0] /* tmp14 */;
-    const float tmp86 = tmp81 + tmp85;
-    P_zz[3] = tmp86;
-    const float tmp87 = zsum[4] * zsum[0];
-    const float tmp88 = zdiff[4] * zdiff[0];
-    const float tmp89 = tmp87 + tmp88;
-    const float tmp90 = zsum[10] * zsum[6];
-    const float tmp91 = zdiff[10] * zdiff[6];
-    const float tmp92 = tmp90 + tmp91;
-    const float tmp93 = tmp89 + tmp92;
-    const float tmp94 = zsum[16] * zsum[12];
-    const float tmp95 = zdiff[16] * zdiff[12];
-    const float tmp96 = tmp94 + tmp95;
-    const float tmp97 = tmp93 + tmp96;
-    const float tmp98 = 0.041666668f /* 0.5*UT_W */ * tmp97;
-    const float tmp99 = zsum[4] + zsum[10];
-    const float tmp100 = tmp99 + zsum[16];
-    const float tmp101 = 0.083333336f /* UT_W */ * tmp100;
-    const float tmp102 = tmp101 * carry[0] /* tmp14 */;
-    const float tmp103 = tmp98 + tmp102;
-    P_zz[4] = tmp103;
-    const float tmp104 = zsum[5] * zsum[0];
-    const float tmp105 = zdiff[5] * zdiff[0];
-    const float tmp106 = tmp104 + tmp105;
-    const float tmp107 = zsum[11] * zsum[6];
-    const float tmp108 = zdiff[11] * zdiff[6];
-    const float tmp109 = tmp107 + tmp108;
-    const float tmp110 = tmp106 + tmp109;
-    const float tmp111 = zsum[17] * zsum[12];
-    const float tmp112 = zdiff[17] * zdiff[12];
-    const float tmp113 = tmp111 + tmp112;
-    const float tmp114 = tmp110 + tmp113;
-    const float tmp115 = 0.041666668f /* 0.5*UT_W */ * tmp114;
-    const float tmp116 = zsum[5] + zsum[11];
-    const float tmp117 = tmp116 + zsum[17];
-    const float tmp118 = 0.083333336f /* UT_W */ * tmp117;
-    const float tmp119 = tmp118 * carry[0] /* tmp14 */;
-    carry[0] = tmp84;
-    carry[10] = tmp101;
-    carry[11] = tmp115;
-    carry[12] = tmp118;
+    const float tmp80 = carry[11] /* tmp78 */ + carry[12] /* tmp79 */;
+    const float tmp81 = carry[10] /* tmp77 */ + tmp80;
+    const float tmp82 = 0.041666668f /* 0.5*UT_W */ * tmp81;
+    const float tmp83 = zsum[3] + zsum[9];
+    const float tmp84 = tmp83 + zsum[15];
+    const float tmp85 = 0.083333336f /* UT_W */ * tmp84;
+    const float tmp86 = tmp85 * carry[0] /* tmp14 */;
+    const float tmp87 = tmp82 + tmp86;
+    P_zz[3] = tmp87;
+    const float tmp88 = zsum[4] * zsum[0];
+    const float tmp89 = zdiff[4] * zdiff[0];
+    const float tmp90 = tmp88 + tmp89;
+    const float tmp91 = zsum[10] * zsum[6];
+    const float tmp92 = zdiff[10] * zdiff[6];
+    const float tmp93 = tmp91 + tmp92;
+    const float tmp94 = tmp90 + tmp93;
+    const float tmp95 = zsum[16] * zsum[12];
+    const float tmp96 = zdiff[16] * zdiff[12];
+    const float tmp97 = tmp95 + tmp96;
+    const float tmp98 = tmp94 + tmp97;
+    const float tmp99 = 0.041666668f /* 0.5*UT_W */ * tmp98;
+    const float tmp100 = zsum[4] + zsum[10];
+    const float tmp101 = tmp100 + zsum[16];
+    const float tmp102 = 0.083333336f /* UT_W */ * tmp101;
+    const float tmp103 = tmp102 * carry[0] /* tmp14 */;
+    const float tmp104 = tmp99 + tmp103;
+    P_zz[4] = tmp104;
+    const float tmp105 = zsum[5] * zsum[0];
+    const float tmp106 = zdiff[5] * zdiff[0];
+    const float tmp107 = tmp105 + tmp106;
+    const float tmp108 = zsum[11] * zsum[6];
+    const float tmp109 = zdiff[11] * zdiff[6];
+    const float tmp110 = tmp108 + tmp109;
+    const float tmp111 = tmp107 + tmp110;
+    const float tmp112 = zsum[17] * zsum[12];
+    const float tmp113 = zdiff[17] * zdiff[12];
+    const float tmp114 = tmp112 + tmp113;
+    const float tmp115 = tmp111 + tmp114;
+    const float tmp116 = 0.041666668f /* 0.5*UT_W */ * tmp115;
+    const float tmp117 = zsum[5] + zsum[11];
+    const float tmp118 = tmp117 + zsum[17];
+    const float tmp119 = 0.083333336f /* UT_W */ * tmp118;
+    carry[10] = tmp85;
+    carry[11] = tmp102;
+    carry[12] = tmp116;
     carry[13] = tmp119;
 }
 
 static void adukf_k_innovation_part3(const float z0[6], const float zsum[18], const float zdiff[18],
-    const float accel[3], float P_zz[21], float residual[6], float carry[19])
+    const float accel[3], float P_zz[21], float residual[6], float carry[18])
 {
-    const float tmp120 = carry[11] /* tmp115 */ + carry[13] /* tmp119 */;
-    P_zz[5] = tmp120;
-    const float tmp121 = zsum[1] * zsum[1];
-    const float tmp122 = zdiff[1] * zdiff[1];
-    const float tmp123 = tmp121 + tmp122;
-    const float tmp124 = zsum[7] * zsum[7];
-    const float tmp125 = zdiff[7] * zdiff[7];
-    const float tmp126 = tmp124 + tmp125;
-    const float tmp127 = tmp123 + tmp126;
-    const float tmp128 = zsum[13] * zsum[13];
-    const float tmp129 = zdiff[13] * zdiff[13];
-    const float tmp130 = tmp128 + tmp129;
-    const float tmp131 = tmp127 + tmp130;
-    const float tmp132 = 0.041666668f /* 0.5*UT_W */ * tmp131;
-    const float tmp133 = carry[8] /* tmp50 */ * carry[8] /* tmp50 */;
-    const float tmp134 = tmp132 + tmp133;
-    const float tmp135 = accel[1] * carry[2] /* tmp23 */;
-    const float tmp136 = z0[1] + carry[8] /* tmp50 */;
-    const float tmp137 = tmp135 - tmp136;
-    residual[1] = tmp137;
-    const float tmp138 = zsum[2] * zsum[1];
-    const float tmp139 = zdiff[2] * zdiff[1];
-    const float tmp140 = tmp138 + tmp139;
-    const float tmp141 = zsum[8] * zsum[7];
-    const float tmp142 = zdiff[8] * zdiff[7];
-    const float tmp143 = tmp141 + tmp142;
-    const float tmp144 = tmp140 + tmp143;
-    const float tmp145 = zsum[14] * zsum[13];
-    const float tmp146 = zdiff[14] * zdiff[13];
-    const float tmp147 = tmp145 + tmp146;
-    const float tmp148 = tmp144 + tmp147;
-    const float tmp149 = 0.041666668f /* 0.5*UT_W */ * tmp148;
-    const float tmp150 = carry[9] /* tmp67 */ * carry[8] /* tmp50 */;
-    const float tmp151 = tmp149 + tmp150;
-    P_zz[7] = tmp151;
-    const float tmp152 = zsum[3] * zsum[1];
-    const float tmp153 = zdiff[3] * zdiff[1];
-    const float tmp154 = tmp152 + tmp153;
-    const float tmp155 = zsum[9] * zsum[7];
-    const float tmp156 = zdiff[9] * zdiff[7];
-    const float tmp157 = tmp155 + tmp156;
-    const float tmp158 = tmp154 + tmp157;
-    const float tmp159 = zsum[15] * zsum[13];
-    carry[11] = tmp134;
-    carry[13] = tmp137;
-    carry[14] = tmp158;
-    carry[15] = tmp159;
+    const float tmp120 = carry[13] /* tmp119 */ * carry[0] /* tmp14 */;
+    const float tmp121 = carry[12] /* tmp116 */ + tmp120;
+    P_zz[5] = tmp121;
+    const float tmp122 = zsum[1] * zsum[1];
+    const float tmp123 = zdiff[1] * zdiff[1];
+    const float tmp124 = tmp122 + tmp123;
+    const float tmp125 = zsum[7] * zsum[7];
+    const float tmp126 = zdiff[7] * zdiff[7];
+    const float tmp127 = tmp125 + tmp126;
+    const float tmp128 = tmp124 + tmp127;
+    const float tmp129 = zsum[13] * zsum[13];
+    const float tmp130 = zdiff[13] * zdiff[13];
+    const float tmp131 = tmp129 + tmp130;
+    const float tmp132 = tmp128 + tmp131;
+    const float tmp133 = 0.041666668f /* 0.5*UT_W */ * tmp132;
+    const float tmp134 = carry[8] /* tmp51 */ * carry[8] /* tmp51 */;
+    const float tmp135 = tmp133 + tmp134;
+    const float tmp136 = accel[1] * carry[2] /* tmp23 */;
+    const float tmp137 = z0[1] + carry[8] /* tmp51 */;
+    const float tmp138 = tmp136 - tmp137;
+    residual[1] = tmp138;
+    const float tmp139 = zsum[2] * zsum[1];
+    const float tmp140 = zdiff[2] * zdiff[1];
+    const float tmp141 = tmp139 + tmp140;
+    const float tmp142 = zsum[8] * zsum[7];
+    const float tmp143 = zdiff[8] * zdiff[7];
+    const float tmp144 = tmp142 + tmp143;
+    const float tmp145 = tmp141 + tmp144;
+    const float tmp146 = zsum[14] * zsum[13];
+    const float tmp147 = zdiff[14] * zdiff[13];
+    const float tmp148 = tmp146 + tmp147;
+    const float tmp149 = tmp145 + tmp148;
+    const float tmp150 = 0.041666668f /* 0.5*UT_W */ * tmp149;
+    const float tmp151 = carry[9] /* tmp68 */ * carry[8] /* tmp51 */;
+    const float tmp152 = tmp150 + tmp151;
+    P_zz[7] = tmp152;
+    const float tmp153 = zsum[3] * zsum[1];
+    const float tmp154 = zdiff[3] * zdiff[1];
+    const float tmp155 = tmp153 + tmp154;
+    const float tmp156 = zsum[9] * zsum[7];
+    const float tmp157 = zdiff[9] * zdiff[7];
+    const float tmp158 = tmp156 + tmp157;
+    const float tmp159 = tmp155 + tmp158;
+    carry[0] = tmp135;
+    carry[12] = tmp138;
+    carry[14] = tmp159;
 }
 
 static void adukf_k_innovation_part4(const float zsum[18], const float zdiff[18], float P_zz[21],
-    float carry[19])
+    float carry[18])
 {
-    const float tmp160 = zdiff[15] * zdiff[13];
-    const float tmp161 = carry[15] /* tmp159 */ + tmp160;
-    const float tmp162 = carry[14] /* tmp158 */ + tmp161;
-    const float tmp163 = 0.041666668f /* 0.5*UT_W */ * tmp162;
-    const float tmp164 = carry[0] /* tmp84 */ * carry[8] /* tmp50 */;
-    const float tmp165 = tmp163 + tmp164;
-    P_zz[8] = tmp165;
-    const float tmp166 = zsum[4] * zsum[1];
-    const float tmp167 = zdiff[4] * zdiff[1];
-    const float tmp168 = tmp166 + tmp167;
-    const float tmp169 = zsum[10] * zsum[7];
-    const float tmp170 = zdiff[10] * zdiff[7];
-    const float tmp171 = tmp169 + tmp170;
-    const float tmp172 = tmp168 + tmp171;
-    const float tmp173 = zsum[16] * zsum[13];
-    const float tmp174 = zdiff[16] * zdiff[13];
-    const float tmp175 = tmp173 + tmp174;
-    const float tmp176 = tmp172 + tmp175;
-    const float tmp177 = 0.041666668f /* 0.5*UT_W */ * tmp176;
-    const float tmp178 = carry[10] /* tmp101 */ * carry[8] /* tmp50 */;
-    const float tmp179 = tmp177 + tmp178;
-    P_zz[9] = tmp179;
-    const float tmp180 = zsum[5] * zsum[1];
-    const float tmp181 = zdiff[5] * zdiff[1];
-    const float tmp182 = tmp180 + tmp181;
-    const float tmp183 = zsum[11] * zsum[7];
-    const float tmp184 = zdiff[11] * zdiff[7];
-    const float tmp185 = tmp183 + tmp184;
-    const float tmp186 = tmp182 + tmp185;
-    const float tmp187 = zsum[17] * zsum[13];
-    const float tmp188 = zdiff[17] * zdiff[13];
-    const float tmp189 = tmp187 + tmp188;
-    const float tmp190 = tmp186 + tmp189;
-    const float tmp191 = 0.041666668f /* 0.5*UT_W */ * tmp190;
-    const float tmp192 = carry[12] /* tmp118 */ * carry[8] /* tmp50 */;
-    const float tmp193 = tmp191 + tmp192;
-    P_zz[10] = tmp193;
-    const float tmp194 = zsum[2] * zsum[2];
-    const float tmp195 = zdiff[2] * zdiff[2];
-    const float tmp196 = tmp194 + tmp195;
-    const float tmp197 = zsum[8] * zsum[8];
-    const float tmp198 = zdiff[8] * zdiff[8];
-    const float tmp199 = tmp197 + tmp198;
-    carry[8] = tmp196;
-    carry[14] = tmp199;
+    const float tmp160 = zsum[15] * zsum[13];
+    const float tmp161 = zdiff[15] * zdiff[13];
+    const float tmp162 = tmp160 + tmp161;
+    const float tmp163 = carry[14] /* tmp159 */ + tmp162;
+    const float tmp164 = 0.041666668f /* 0.5*UT_W */ * tmp163;
+    const float tmp165 = carry[10] /* tmp85 */ * carry[8] /* tmp51 */;
+    const float tmp166 = tmp164 + tmp165;
+    P_zz[8] = tmp166;
+    const float tmp167 = zsum[4] * zsum[1];
+    const float tmp168 = zdiff[4] * zdiff[1];
+    const float tmp169 = tmp167 + tmp168;
+    const float tmp170 = zsum[10] * zsum[7];
+    const float tmp171 = zdiff[10] * zdiff[7];
+    const float tmp172 = tmp170 + tmp171;
+    const float tmp173 = tmp169 + tmp172;
+    const float tmp174 = zsum[16] * zsum[13];
+    const float tmp175 = zdiff[16] * zdiff[13];
+    const float tmp176 = tmp174 + tmp175;
+    const float tmp177 = tmp173 + tmp176;
+    const float tmp178 = 0.041666668f /* 0.5*UT_W */ * tmp177;
+    const float tmp179 = carry[11] /* tmp102 */ * carry[8] /* tmp51 */;
+    const float tmp180 = tmp178 + tmp179;
+    P_zz[9] = tmp180;
+    const float tmp181 = zsum[5] * zsum[1];
+    const float tmp182 = zdiff[5] * zdiff[1];
+    const float tmp183 = tmp181 + tmp182;
+    const float tmp184 = zsum[11] * zsum[7];
+    const float tmp185 = zdiff[11] * zdiff[7];
+    const float tmp186 = tmp184 + tmp185;
+    const float tmp187 = tmp183 + tmp186;
+    const float tmp188 = zsum[17] * zsum[13];
+    const float tmp189 = zdiff[17] * zdiff[13];
+    const float tmp190 = tmp188 + tmp189;
+    const float tmp191 = tmp187 + tmp190;
+    const float tmp192 = 0.041666668f /* 0.5*UT_W */ * tmp191;
+    const float tmp193 = carry[13] /* tmp119 */ * carry[8] /* tmp51 */;
+    const float tmp194 = tmp192 + tmp193;
+    P_zz[10] = tmp194;
+    const float tmp195 = zsum[2] * zsum[2];
+    const float tmp196 = zdiff[2] * zdiff[2];
+    const float tmp197 = tmp195 + tmp196;
+    const float tmp198 = zsum[8] * zsum[8];
+    const float tmp199 = zdiff[8] * zdiff[8];
+    carry[8] = tmp197;
+    carry[14] = tmp198;
+    carry[15] = tmp199;
 }
 
 static void adukf_k_innovation_part5(const float z0[6], const float zsum[18], const float zdiff[18],
-    const float accel[3], float P_zz[21], float residual[6], float carry[19])
+    const float accel[3], float P_zz[21], float residual[6], float carry[18])
 {
-    const float tmp200 = carry[8] /* tmp196 */ + carry[14] /* tmp199 */;
-    const float tmp201 = zsum[14] * zsum[14];
-    const float tmp202 = zdiff[14] * zdiff[14];
-    const float tmp203 = tmp201 + tmp202;
-    const float tmp204 = tmp200 + tmp203;
-    const float tmp205 = 0.041666668f /* 0.5*UT_W */ * tmp204;
-    const float tmp206 = carry[9] /* tmp67 */ * carry[9] /* tmp67 */;
-    const float tmp207 = tmp205 + tmp206;
-    const float tmp208 = accel[2] * carry[2] /* tmp23 */;
-    const float tmp209 = z0[2] + carry[9] /* tmp67 */;
-    const float tmp210 = tmp208 - tmp209;
-    residual[2] = tmp210;
-    const float tmp211 = zsum[3] * zsum[2];
-    const float tmp212 = zdiff[3] * zdiff[2];
-    const float tmp213 = tmp211 + tmp212;
-    const float tmp214 = zsum[9] * zsum[8];
-    const float tmp215 = zdiff[9] * zdiff[8];
-    const float tmp216 = tmp214 + tmp215;
-    const float tmp217 = tmp213 + tmp216;
-    const float tmp218 = zsum[15] * zsum[14];
-    const float tmp219 = zdiff[15] * zdiff[14];
-    const float tmp220 = tmp218 + tmp219;
-    const float tmp221 = tmp217 + tmp220;
-    const float tmp222 = 0.041666668f /* 0.5*UT_W */ * tmp221;
-    const float tmp223 = carry[0] /* tmp84 */ * carry[9] /* tmp67 */;
-    const float tmp224 = tmp222 + tmp223;
-    P_zz[12] = tmp224;
-    const float tmp225 = zsum[4] * zsum[2];
-    const float tmp226 = zdiff[4] * zdiff[2];
-    const float tmp227 = tmp225 + tmp226;
-    const float tmp228 = zsum[10] * zsum[8];
-    const float tmp229 = zdiff[10] * zdiff[8];
-    const float tmp230 = tmp228 + tmp229;
-    const float tmp231 = tmp227 + tmp230;
-    const float tmp232 = zsum[16] * zsum[14];
-    const float tmp233 = zdiff[16] * zdiff[14];
-    const float tmp234 = tmp232 + tmp233;
-    const float tmp235 = tmp231 + tmp234;
-    const float tmp236 = 0.041666668f /* 0.5*UT_W */ * tmp235;
-    const float tmp237 = carry[10] /* tmp101 */ * carry[9] /* tmp67 */;
-    const float tmp238 = tmp236 + tmp237;
-    P_zz[13] = tmp238;
-    const float tmp239 = zsum[5] * zsum[2];
-    carry[2] = tmp207;
-    carry[8] = tmp210;
-    carry[14] = tmp239;
+    const float tmp200 = carry[14] /* tmp198 */ + carry[15] /* tmp199 */;
+    const float tmp201 = carry[8] /* tmp197 */ + tmp200;
+    const float tmp202 = zsum[14] * zsum[14];
+    const float tmp203 = zdiff[14] * zdiff[14];
+    const float tmp204 = tmp202 + tmp203;
+    const float tmp205 = tmp201 + tmp204;
+    const float tmp206 = 0.041666668f /* 0.5*UT_W */ * tmp205;
+    const float tmp207 = carry[9] /* tmp68 */ * carry[9] /* tmp68 */;
+    const float tmp208 = tmp206 + tmp207;
+    const float tmp209 = accel[2] * carry[2] /* tmp23 */;
+    const float tmp210 = z0[2] + carry[9] /* tmp68 */;
+    const float tmp211 = tmp209 - tmp210;
+    residual[2] = tmp211;
+    const float tmp212 = zsum[3] * zsum[2];
+    const float tmp213 = zdiff[3] * zdiff[2];
+    const float tmp214 = tmp212 + tmp213;
+    const float tmp215 = zsum[9] * zsum[8];
+    const float tmp216 = zdiff[9] * zdiff[8];
+    const float tmp217 = tmp215 + tmp216;
+    const float tmp218 = tmp214 + tmp217;
+    const float tmp219 = zsum[15] * zsum[14];
+    const float tmp220 = zdiff[15] * zdiff[14];
+    const float tmp221 = tmp219 + tmp220;
+    const float tmp222 = tmp218 + tmp221;
+    const float tmp223 = 0.041666668f /* 0.5*UT_W */ * tmp222;
+    const float tmp224 = carry[10] /* tmp85 */ * carry[9] /* tmp68 */;
+    const float tmp225 = tmp223 + tmp224;
+    P_zz[12] = tmp225;
+    const float tmp226 = zsum[4] * zsum[2];
+    const float tmp227 = zdiff[4] * zdiff[2];
+    const float tmp228 = tmp226 + tmp227;
+    const float tmp229 = zsum[10] * zsum[8];
+    const float tmp230 = zdiff[10] * zdiff[8];
+    const float tmp231 = tmp229 + tmp230;
+    const float tmp232 = tmp228 + tmp231;
+    const float tmp233 = zsum[16] * zsum[14];
+    const float tmp234 = zdiff[16] * zdiff[14];
+    const float tmp235 = tmp233 + tmp234;
+    const float tmp236 = tmp232 + tmp235;
+    const float tmp237 = 0.041666668f /* 0.5*UT_W */ * tmp236;
+    const float tmp238 = carry[11] /* tmp102 */ * carry[9] /* tmp68 */;
+    const float tmp239 = tmp237 + tmp238;
+    P_zz[13] = tmp239;
+    carry[2] = tmp208;
+    carry[8] = tmp211;
 }
 
 static void adukf_k_innovation_part6(const float z0[6], const float zsum[18], const float zdiff[18],
     const float mag[3], float dt, const float span[2], float P_zz[21], float residual[6],
-    float carry[19])
+    float carry[18])
 {
-    const float tmp240 = zdiff[5] * zdiff[2];
-    const float tmp241 = carry[14] /* tmp239 */ + tmp240;
-    const float tmp242 = zsum[11] * zsum[8];
-    const float tmp243 = zdiff[11] * zdiff[8];
-    const float tmp244 = tmp242 + tmp243;
-    const float tmp245 = tmp241 + tmp244;
-    const float tmp246 = zsum[17] * zsum[14];
-    const float tmp247 = zdiff[17] * zdiff[14];
-    const float tmp248 = tmp246 + tmp247;
-    const float tmp249 = tmp245 + tmp248;
-    const float tmp250 = 0.041666668f /* 0.5*UT_W */ * tmp249;
-    const float tmp251 = carry[12] /* tmp118 */ * carry[9] /* tmp67 */;
-    const float tmp252 = tmp250 + tmp251;
-    P_zz[14] = tmp252;
-    const float tmp253 = zsum[3] * zsum[3];
-    const float tmp254 = zdiff[3] * zdiff[3];
-    const float tmp255 = tmp253 + tmp254;
-    const float tmp256 = zsum[9] * zsum[9];
-    const float tmp257 = zdiff[9] * zdiff[9];
-    const float tmp258 = tmp256 + tmp257;
-    const float tmp259 = tmp255 + tmp258;
-    const float tmp260 = zsum[15] * zsum[15];
-    const float tmp261 = zdiff[15] * zdiff[15];
-    const float tmp262 = tmp260 + tmp261;
-    const float tmp263 = tmp259 + tmp262;
-    const float tmp264 = 0.041666668f /* 0.5*UT_W */ * tmp263;
-    const float tmp265 = carry[0] /* tmp84 */ * carry[0] /* tmp84 */;
-    const float tmp266 = tmp264 + tmp265;
-    const float tmp267 = mag[0] * mag[0];
-    const float tmp268 = mag[1] * mag[1];
-    const float tmp269 = tmp267 + tmp268;
-    const float tmp270 = mag[2] * mag[2];
-    const float tmp271 = tmp269 + tmp270;
-    const float tmp272 = 1.0f / tmp271;
-    const float tmp273 = sqrtf(tmp272);
-    const float tmp274 = mag[0] * tmp273;
-    const float tmp275 = z0[3] + carry[0] /* tmp84 */;
-    const float tmp276 = tmp274 - tmp275;
-    residual[3] = tmp276;
-    const float tmp277 = dt / span[1];
-    const float tmp278 = (tmp277 > 0.1f /* 1.0/span_steps_max */) ? tmp277 :
+    const float tmp240 = zsum[5] * zsum[2];
+    const float tmp241 = zdiff[5] * zdiff[2];
+    const float tmp242 = tmp240 + tmp241;
+    const float tmp243 = zsum[11] * zsum[8];
+    const float tmp244 = zdiff[11] * zdiff[8];
+    const float tmp245 = tmp243 + tmp244;
+    const float tmp246 = tmp242 + tmp245;
+    const float tmp247 = zsum[17] * zsum[14];
+    const float tmp248 = zdiff[17] * zdiff[14];
+    const float tmp249 = tmp247 + tmp248;
+    const float tmp250 = tmp246 + tmp249;
+    const float tmp251 = 0.041666668f /* 0.5*UT_W */ * tmp250;
+    const float tmp252 = carry[13] /* tmp119 */ * carry[9] /* tmp68 */;
+    const float tmp253 = tmp251 + tmp252;
+    P_zz[14] = tmp253;
+    const float tmp254 = zsum[3] * zsum[3];
+    const float tmp255 = zdiff[3] * zdiff[3];
+    const float tmp256 = tmp254 + tmp255;
+    const float tmp257 = zsum[9] * zsum[9];
+    const float tmp258 = zdiff[9] * zdiff[9];
+    const float tmp259 = tmp257 + tmp258;
+    const float tmp260 = tmp256 + tmp259;
+    const float tmp261 = zsum[15] * zsum[15];
+    const float tmp262 = zdiff[15] * zdiff[15];
+    const float tmp263 = tmp261 + tmp262;
+    const float tmp264 = tmp260 + tmp263;
+    const float tmp265 = 0.041666668f /* 0.5*UT_W */ * tmp264;
+    const float tmp266 = carry[10] /* tmp85 */ * carry[10] /* tmp85 */;
+    const float tmp267 = tmp265 + tmp266;
+    const float tmp268 = mag[0] * mag[0];
+    const float tmp269 = mag[1] * mag[1];
+    const float tmp270 = tmp268 + tmp269;
+    const float tmp271 = mag[2] * mag[2];
+    const float tmp272 = tmp270 + tmp271;
+    const float tmp273 = 1.0f / tmp272;
+    const float tmp274 = sqrtf(tmp273);
+    const float tmp275 = mag[0] * tmp274;
+    const float tmp276 = z0[3] + carry[10] /* tmp85 */;
+    const float tmp277 = tmp275 - tmp276;
+    residual[3] = tmp277;
+    const float tmp278 = dt / span[1];
+    const float tmp279 = (tmp278 > 0.1f /* 1.0/span_steps_max */) ? tmp278 :
             0.1f /* 1.0/span_steps_max */;
-    const float tmp279 = 0.0035f /* r_time */ * tmp278;
-    carry[9] = tmp266;
-    carry[14] = tmp273;
-    carry[15] = tmp276;
+    carry[9] = tmp267;
+    carry[14] = tmp274;
+    carry[15] = tmp277;
     carry[16] = tmp279;
 }
 
 static void adukf_k_innovation_part7(const float zsum[18], const float zdiff[18],
-    const float span[2], float P_zz[21], float carry[19])
+    const float span[2], float P_zz[21], float carry[18])
 {
-    const float tmp280 = carry[16] /* tmp279 */ * carry[4] /* tmp31 */;
-    const float tmp281 = (span[1] > 1e-09f /* SPAN_MIN */) ? span[1] : 1e-09f /* SPAN_MIN */;
-    const float tmp282 = 0.000144f /* sigma_mag_density^2 */ / tmp281;
-    const float tmp283 = zsum[4] * zsum[3];
-    const float tmp284 = zdiff[4] * zdiff[3];
-    const float tmp285 = tmp283 + tmp284;
-    const float tmp286 = zsum[10] * zsum[9];
-    const float tmp287 = zdiff[10] * zdiff[9];
-    const float tmp288 = tmp286 + tmp287;
-    const float tmp289 = tmp285 + tmp288;
-    const float tmp290 = zsum[16] * zsum[15];
-    const float tmp291 = zdiff[16] * zdiff[15];
-    const float tmp292 = tmp290 + tmp291;
-    const float tmp293 = tmp289 + tmp292;
-    const float tmp294 = 0.041666668f /* 0.5*UT_W */ * tmp293;
-    const float tmp295 = carry[10] /* tmp101 */ * carry[0] /* tmp84 */;
-    const float tmp296 = tmp294 + tmp295;
-    P_zz[16] = tmp296;
-    const float tmp297 = zsum[5] * zsum[3];
-    const float tmp298 = zdiff[5] * zdiff[3];
-    const float tmp299 = tmp297 + tmp298;
-    const float tmp300 = zsum[11] * zsum[9];
-    const float tmp301 = zdiff[11] * zdiff[9];
-    const float tmp302 = tmp300 + tmp301;
-    const float tmp303 = tmp299 + tmp302;
-    const float tmp304 = zsum[17] * zsum[15];
-    const float tmp305 = zdiff[17] * zdiff[15];
-    const float tmp306 = tmp304 + tmp305;
-    const float tmp307 = tmp303 + tmp306;
-    const float tmp308 = 0.041666668f /* 0.5*UT_W */ * tmp307;
-    const float tmp309 = carry[12] /* tmp118 */ * carry[0] /* tmp84 */;
-    const float tmp310 = tmp308 + tmp309;
-    P_zz[17] = tmp310;
-    const float tmp311 = zsum[4] * zsum[4];
-    const float tmp312 = zdiff[4] * zdiff[4];
-    const float tmp313 = tmp311 + tmp312;
-    const float tmp314 = zsum[10] * zsum[10];
-    const float tmp315 = zdiff[10] * zdiff[10];
-    const float tmp316 = tmp314 + tmp315;
-    const float tmp317 = tmp313 + tmp316;
-    const float tmp318 = zsum[16] * zsum[16];
-    const float tmp319 = zdiff[16] * zdiff[16];
-    carry[0] = tmp280;
-    carry[4] = tmp282;
-    carry[16] = tmp317;
-    carry[17] = tmp318;
-    carry[18] = tmp319;
+    const float tmp280 = 0.0035f /* r_time */ * carry[16] /* tmp279 */;
+    const float tmp281 = tmp280 * carry[4] /* tmp31 */;
+    const float tmp282 = (span[1] > 1e-09f /* SPAN_MIN */) ? span[1] : 1e-09f /* SPAN_MIN */;
+    const float tmp283 = 0.000144f /* sigma_mag_density^2 */ / tmp282;
+    const float tmp284 = zsum[4] * zsum[3];
+    const float tmp285 = zdiff[4] * zdiff[3];
+    const float tmp286 = tmp284 + tmp285;
+    const float tmp287 = zsum[10] * zsum[9];
+    const float tmp288 = zdiff[10] * zdiff[9];
+    const float tmp289 = tmp287 + tmp288;
+    const float tmp290 = tmp286 + tmp289;
+    const float tmp291 = zsum[16] * zsum[15];
+    const float tmp292 = zdiff[16] * zdiff[15];
+    const float tmp293 = tmp291 + tmp292;
+    const float tmp294 = tmp290 + tmp293;
+    const float tmp295 = 0.041666668f /* 0.5*UT_W */ * tmp294;
+    const float tmp296 = carry[11] /* tmp102 */ * carry[10] /* tmp85 */;
+    const float tmp297 = tmp295 + tmp296;
+    P_zz[16] = tmp297;
+    const float tmp298 = zsum[5] * zsum[3];
+    const float tmp299 = zdiff[5] * zdiff[3];
+    const float tmp300 = tmp298 + tmp299;
+    const float tmp301 = zsum[11] * zsum[9];
+    const float tmp302 = zdiff[11] * zdiff[9];
+    const float tmp303 = tmp301 + tmp302;
+    const float tmp304 = tmp300 + tmp303;
+    const float tmp305 = zsum[17] * zsum[15];
+    const float tmp306 = zdiff[17] * zdiff[15];
+    const float tmp307 = tmp305 + tmp306;
+    const float tmp308 = tmp304 + tmp307;
+    const float tmp309 = 0.041666668f /* 0.5*UT_W */ * tmp308;
+    const float tmp310 = carry[13] /* tmp119 */ * carry[10] /* tmp85 */;
+    const float tmp311 = tmp309 + tmp310;
+    P_zz[17] = tmp311;
+    const float tmp312 = zsum[4] * zsum[4];
+    const float tmp313 = zdiff[4] * zdiff[4];
+    const float tmp314 = tmp312 + tmp313;
+    const float tmp315 = zsum[10] * zsum[10];
+    const float tmp316 = zdiff[10] * zdiff[10];
+    const float tmp317 = tmp315 + tmp316;
+    const float tmp318 = tmp314 + tmp317;
+    const float tmp319 = zsum[16] * zsum[16];
+    carry[4] = tmp281;
+    carry[10] = tmp283;
+    carry[16] = tmp318;
+    carry[17] = tmp319;
 }
 
 static void adukf_k_innovation_part8(const float z0[6], const float zsum[18], const float zdiff[18],
-    const float mag[3], float P_zz[21], float residual[6], float carry[19])
+    const float mag[3], float P_zz[21], float residual[6], float carry[18])
 {
-    const float tmp320 = carry[17] /* tmp318 */ + carry[18] /* tmp319 */;
-    const float tmp321 = carry[16] /* tmp317 */ + tmp320;
-    const float tmp322 = 0.041666668f /* 0.5*UT_W */ * tmp321;
-    const float tmp323 = carry[10] /* tmp101 */ * carry[10] /* tmp101 */;
-    const float tmp324 = tmp322 + tmp323;
-    const float tmp325 = mag[1] * carry[14] /* tmp273 */;
-    const float tmp326 = z0[4] + carry[10] /* tmp101 */;
-    const float tmp327 = tmp325 - tmp326;
-    residual[4] = tmp327;
-    const float tmp328 = zsum[5] * zsum[4];
-    const float tmp329 = zdiff[5] * zdiff[4];
-    const float tmp330 = tmp328 + tmp329;
-    const float tmp331 = zsum[11] * zsum[10];
-    const float tmp332 = zdiff[11] * zdiff[10];
-    const float tmp333 = tmp331 + tmp332;
-    const float tmp334 = tmp330 + tmp333;
-    const float tmp335 = zsum[17] * zsum[16];
-    const float tmp336 = zdiff[17] * zdiff[16];
-    const float tmp337 = tmp335 + tmp336;
-    const float tmp338 = tmp334 + tmp337;
-    const float tmp339 = 0.041666668f /* 0.5*UT_W */ * tmp338;
-    const float tmp340 = carry[12] /* tmp118 */ * carry[10] /* tmp101 */;
-    const float tmp341 = tmp339 + tmp340;
-    P_zz[19] = tmp341;
-    const float tmp342 = zsum[5] * zsum[5];
-    const float tmp343 = zdiff[5] * zdiff[5];
-    const float tmp344 = tmp342 + tmp343;
-    const float tmp345 = zsum[11] * zsum[11];
-    const float tmp346 = zdiff[11] * zdiff[11];
-    const float tmp347 = tmp345 + tmp346;
-    const float tmp348 = tmp344 + tmp347;
-    const float tmp349 = zsum[17] * zsum[17];
-    const float tmp350 = zdiff[17] * zdiff[17];
-    const float tmp351 = tmp349 + tmp350;
-    const float tmp352 = tmp348 + tmp351;
-    const float tmp353 = 0.041666668f /* 0.5*UT_W */ * tmp352;
-    const float tmp354 = carry[12] /* tmp118 */ * carry[12] /* tmp118 */;
-    const float tmp355 = tmp353 + tmp354;
-    const float tmp356 = mag[2] * carry[14] /* tmp273 */;
-    const float tmp357 = z0[5] + carry[12] /* tmp118 */;
-    const float tmp358 = tmp356 - tmp357;
-    residual[5] = tmp358;
-    carry[10] = tmp324;
-    carry[12] = tmp327;
-    carry[14] = tmp355;
-    carry[16] = tmp358;
+    const float tmp320 = zdiff[16] * zdiff[16];
+    const float tmp321 = carry[17] /* tmp319 */ + tmp320;
+    const float tmp322 = carry[16] /* tmp318 */ + tmp321;
+    const float tmp323 = 0.041666668f /* 0.5*UT_W */ * tmp322;
+    const float tmp324 = carry[11] /* tmp102 */ * carry[11] /* tmp102 */;
+    const float tmp325 = tmp323 + tmp324;
+    const float tmp326 = mag[1] * carry[14] /* tmp274 */;
+    const float tmp327 = z0[4] + carry[11] /* tmp102 */;
+    const float tmp328 = tmp326 - tmp327;
+    residual[4] = tmp328;
+    const float tmp329 = zsum[5] * zsum[4];
+    const float tmp330 = zdiff[5] * zdiff[4];
+    const float tmp331 = tmp329 + tmp330;
+    const float tmp332 = zsum[11] * zsum[10];
+    const float tmp333 = zdiff[11] * zdiff[10];
+    const float tmp334 = tmp332 + tmp333;
+    const float tmp335 = tmp331 + tmp334;
+    const float tmp336 = zsum[17] * zsum[16];
+    const float tmp337 = zdiff[17] * zdiff[16];
+    const float tmp338 = tmp336 + tmp337;
+    const float tmp339 = tmp335 + tmp338;
+    const float tmp340 = 0.041666668f /* 0.5*UT_W */ * tmp339;
+    const float tmp341 = carry[13] /* tmp119 */ * carry[11] /* tmp102 */;
+    const float tmp342 = tmp340 + tmp341;
+    P_zz[19] = tmp342;
+    const float tmp343 = zsum[5] * zsum[5];
+    const float tmp344 = zdiff[5] * zdiff[5];
+    const float tmp345 = tmp343 + tmp344;
+    const float tmp346 = zsum[11] * zsum[11];
+    const float tmp347 = zdiff[11] * zdiff[11];
+    const float tmp348 = tmp346 + tmp347;
+    const float tmp349 = tmp345 + tmp348;
+    const float tmp350 = zsum[17] * zsum[17];
+    const float tmp351 = zdiff[17] * zdiff[17];
+    const float tmp352 = tmp350 + tmp351;
+    const float tmp353 = tmp349 + tmp352;
+    const float tmp354 = 0.041666668f /* 0.5*UT_W */ * tmp353;
+    const float tmp355 = carry[13] /* tmp119 */ * carry[13] /* tmp119 */;
+    const float tmp356 = tmp354 + tmp355;
+    const float tmp357 = mag[2] * carry[14] /* tmp274 */;
+    const float tmp358 = z0[5] + carry[13] /* tmp119 */;
+    const float tmp359 = tmp357 - tmp358;
+    residual[5] = tmp359;
+    carry[11] = tmp325;
+    carry[13] = tmp328;
+    carry[14] = tmp356;
+    carry[16] = tmp359;
 }
 
-static void adukf_k_innovation_part9(bool recover, float P_zz[21], float r_diag[6], float carry[19])
+static void adukf_k_innovation_part9(bool recover, float P_zz[21], float r_diag[6], float carry[18])
 {
-    float tmp359;
     float tmp360;
     float tmp361;
     float tmp362;
     float tmp363;
     float tmp364;
+    float tmp365;
     if (recover) {
-        tmp359 = 0.0f;
         tmp360 = 0.0f;
         tmp361 = 0.0f;
         tmp362 = 0.0f;
         tmp363 = 0.0f;
         tmp364 = 0.0f;
+        tmp365 = 0.0f;
     } else {
-        const float tmp365 = carry[3] /* tmp26 */ * carry[3] /* tmp26 */;
-        const float tmp366 = 300.0f /* k_a */ * tmp365;
-        const float tmp367 = (tmp366 < 10.0f /* adapt_max */) ? tmp366 : 10.0f /* adapt_max */;
-        const float tmp368 = carry[13] /* tmp137 */ * carry[13] /* tmp137 */;
-        const float tmp369 = 300.0f /* k_a */ * tmp368;
-        const float tmp370 = (tmp369 < 10.0f /* adapt_max */) ? tmp369 : 10.0f /* adapt_max */;
-        const float tmp371 = carry[8] /* tmp210 */ * carry[8] /* tmp210 */;
-        const float tmp372 = 300.0f /* k_a */ * tmp371;
-        const float tmp373 = (tmp372 < 10.0f /* adapt_max */) ? tmp372 : 10.0f /* adapt_max */;
-        const float tmp374 = carry[15] /* tmp276 */ * carry[15] /* tmp276 */;
-        const float tmp375 = 300.0f /* k_m */ * tmp374;
-        const float tmp376 = (tmp375 < 10.0f /* adapt_max */) ? tmp375 : 10.0f /* adapt_max */;
-        const float tmp377 = carry[12] /* tmp327 */ * carry[12] /* tmp327 */;
-        const float tmp378 = 300.0f /* k_m */ * tmp377;
-        const float tmp379 = (tmp378 < 10.0f /* adapt_max */) ? tmp378 : 10.0f /* adapt_max */;
-        const float tmp380 = carry[16] /* tmp358 */ * carry[16] /* tmp358 */;
-        const float tmp381 = 300.0f /* k_m */ * tmp380;
-        const float tmp382 = (tmp381 < 10.0f /* adapt_max */) ? tmp381 : 10.0f /* adapt_max */;
-        tmp359 = tmp367;
-        tmp360 = tmp370;
-        tmp361 = tmp373;
-        tmp362 = tmp376;
-        tmp363 = tmp379;
-        tmp364 = tmp382;
+        const float tmp366 = carry[3] /* tmp26 */ * carry[3] /* tmp26 */;
+        const float tmp367 = 300.0f /* k_a */ * tmp366;
+        const float tmp368 = (tmp367 < 10.0f /* adapt_max */) ? tmp367 : 10.0f /* adapt_max */;
+        const float tmp369 = carry[12] /* tmp138 */ * carry[12] /* tmp138 */;
+        const float tmp370 = 300.0f /* k_a */ * tmp369;
+        const float tmp371 = (tmp370 < 10.0f /* adapt_max */) ? tmp370 : 10.0f /* adapt_max */;
+        const float tmp372 = carry[8] /* tmp211 */ * carry[8] /* tmp211 */;
+        const float tmp373 = 300.0f /* k_a */ * tmp372;
+        const float tmp374 = (tmp373 < 10.0f /* adapt_max */) ? tmp373 : 10.0f /* adapt_max */;
+        const float tmp375 = carry[15] /* tmp277 */ * carry[15] /* tmp277 */;
+        const float tmp376 = 300.0f /* k_m */ * tmp375;
+        const float tmp377 = (tmp376 < 10.0f /* adapt_max */) ? tmp376 : 10.0f /* adapt_max */;
+        const float tmp378 = carry[13] /* tmp328 */ * carry[13] /* tmp328 */;
+        const float tmp379 = 300.0f /* k_m */ * tmp378;
+        const float tmp380 = (tmp379 < 10.0f /* adapt_max */) ? tmp379 : 10.0f /* adapt_max */;
+        const float tmp381 = carry[16] /* tmp359 */ * carry[16] /* tmp359 */;
+        const float tmp382 = 300.0f /* k_m */ * tmp381;
+        const float tmp383 = (tmp382 < 10.0f /* adapt_max */) ? tmp382 : 10.0f /* adapt_max */;
+        tmp360 = tmp368;
+        tmp361 = tmp371;
+        tmp362 = tmp374;
+        tmp363 = tmp377;
+        tmp364 = tmp380;
+        tmp365 = tmp383;
     }
-    const float tmp383 = 0.0144f /* sigma_acc^2 */ + tmp359;
-    const float tmp384 = tmp383 * carry[5] /* tmp32 */;
-    const float tmp385 = tmp384 + carry[6] /* tmp34 */;
-    const float tmp386 = tmp385 * carry[7] /* tmp35 */;
-    r_diag[0] = tmp386;
-    const float tmp387 = carry[1] /* tmp16 */ + tmp386;
-    P_zz[0] = tmp387;
-    const float tmp388 = 0.0144f /* sigma_acc^2 */ + tmp360;
-    const float tmp389 = tmp388 * carry[5] /* tmp32 */;
-    const float tmp390 = tmp389 + carry[6] /* tmp34 */;
-    const float tmp391 = tmp390 * carry[7] /* tmp35 */;
-    r_diag[1] = tmp391;
-    const float tmp392 = carry[11] /* tmp134 */ + tmp391;
-    P_zz[6] = tmp392;
-    const float tmp393 = 0.0144f /* sigma_acc^2 */ + tmp361;
-    const float tmp394 = tmp393 * carry[5] /* tmp32 */;
-    const float tmp395 = tmp394 + carry[6] /* tmp34 */;
-    const float tmp396 = tmp395 * carry[7] /* tmp35 */;
-    r_diag[2] = tmp396;
-    const float tmp397 = carry[2] /* tmp207 */ + tmp396;
-    P_zz[11] = tmp397;
-    const float tmp398 = 0.0025f /* sigma_mag^2 */ + tmp362;
-    carry[1] = tmp363;
-    carry[2] = tmp364;
-    carry[3] = tmp398;
+    const float tmp384 = 0.0144f /* sigma_acc^2 */ + tmp360;
+    const float tmp385 = tmp384 * carry[5] /* tmp32 */;
+    const float tmp386 = tmp385 + carry[6] /* tmp35 */;
+    const float tmp387 = tmp386 * carry[7] /* tmp36 */;
+    r_diag[0] = tmp387;
+    const float tmp388 = carry[1] /* tmp16 */ + tmp387;
+    P_zz[0] = tmp388;
+    const float tmp389 = 0.0144f /* sigma_acc^2 */ + tmp361;
+    const float tmp390 = tmp389 * carry[5] /* tmp32 */;
+    const float tmp391 = tmp390 + carry[6] /* tmp35 */;
+    const float tmp392 = tmp391 * carry[7] /* tmp36 */;
+    r_diag[1] = tmp392;
+    const float tmp393 = carry[0] /* tmp135 */ + tmp392;
+    P_zz[6] = tmp393;
+    const float tmp394 = 0.0144f /* sigma_acc^2 */ + tmp362;
+    const float tmp395 = tmp394 * carry[5] /* tmp32 */;
+    const float tmp396 = tmp395 + carry[6] /* tmp35 */;
+    const float tmp397 = tmp396 * carry[7] /* tmp36 */;
+    r_diag[2] = tmp397;
+    const float tmp398 = carry[2] /* tmp208 */ + tmp397;
+    P_zz[11] = tmp398;
+    const float tmp399 = 0.0025f /* sigma_mag^2 */ + tmp363;
+    carry[0] = tmp364;
+    carry[1] = tmp365;
+    carry[2] = tmp399;
 }
 
-static void adukf_k_innovation_part10(float P_zz[21], float r_diag[6], const float carry[19])
+static void adukf_k_innovation_part10(float P_zz[21], float r_diag[6], const float carry[18])
 {
-    const float tmp399 = carry[3] /* tmp398 */ * carry[0] /* tmp280 */;
-    const float tmp400 = tmp399 + carry[4] /* tmp282 */;
-    r_diag[3] = tmp400;
-    const float tmp401 = carry[9] /* tmp266 */ + tmp400;
-    P_zz[15] = tmp401;
-    const float tmp402 = 0.0025f /* sigma_mag^2 */ + carry[1] /* tmp363 */;
-    const float tmp403 = tmp402 * carry[0] /* tmp280 */;
-    const float tmp404 = tmp403 + carry[4] /* tmp282 */;
-    r_diag[4] = tmp404;
-    const float tmp405 = carry[10] /* tmp324 */ + tmp404;
-    P_zz[18] = tmp405;
-    const float tmp406 = 0.0025f /* sigma_mag^2 */ + carry[2] /* tmp364 */;
-    const float tmp407 = tmp406 * carry[0] /* tmp280 */;
-    const float tmp408 = tmp407 + carry[4] /* tmp282 */;
-    r_diag[5] = tmp408;
-    const float tmp409 = carry[14] /* tmp355 */ + tmp408;
-    P_zz[20] = tmp409;
+    const float tmp400 = carry[2] /* tmp399 */ * carry[4] /* tmp281 */;
+    const float tmp401 = tmp400 + carry[10] /* tmp283 */;
+    r_diag[3] = tmp401;
+    const float tmp402 = carry[9] /* tmp267 */ + tmp401;
+    P_zz[15] = tmp402;
+    const float tmp403 = 0.0025f /* sigma_mag^2 */ + carry[0] /* tmp364 */;
+    const float tmp404 = tmp403 * carry[4] /* tmp281 */;
+    const float tmp405 = tmp404 + carry[10] /* tmp283 */;
+    r_diag[4] = tmp405;
+    const float tmp406 = carry[11] /* tmp325 */ + tmp405;
+    P_zz[18] = tmp406;
+    const float tmp407 = 0.0025f /* sigma_mag^2 */ + carry[1] /* tmp365 */;
+    const float tmp408 = tmp407 * carry[4] /* tmp281 */;
+    const float tmp409 = tmp408 + carry[10] /* tmp283 */;
+    r_diag[5] = tmp409;
+    const float tmp410 = carry[14] /* tmp356 */ + tmp409;
+    P_zz[20] = tmp410;
 }
 
 /*
@@ -1667,12 +1666,13 @@ static void adukf_k_innovation_part10(float P_zz[21], float r_diag[6], const flo
  *     span: float[2]
  *     recover: bool
  *     gate_w: float
+ *     m_comp: float
  * Outputs:
  *     P_zz: float[21]
  *     residual: float[6]
  *     r_diag: float[6]
  *
- * Total ops: 410 (add 172, mul 211, div 8, sqrt 2, cmp 17)
+ * Total ops: 411 (add 172, mul 211, div 8, sqrt 2, cmp 18)
  *     of which only one side runs: if (recover) 0, else 18
  */
 #if defined(__GNUC__)
@@ -1680,15 +1680,15 @@ __attribute__((noinline))
 #endif
 static void adukf_k_innovation(const float z0[restrict 6], const float zsum[restrict 18],
     const float zdiff[restrict 18], const float accel[restrict 3], const float mag[restrict 3],
-    float dt, const float span[restrict 2], bool recover, float gate_w, float P_zz[restrict 21],
-    float residual[restrict 6], float r_diag[restrict 6])
+    float dt, const float span[restrict 2], bool recover, float gate_w, float m_comp,
+    float P_zz[restrict 21], float residual[restrict 6], float r_diag[restrict 6])
 {
     /*
      * 11 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
      * handed between them (a slot reused once its value is dead)
      */
-    float carry[19];
-    adukf_k_innovation_part0(z0, zsum, zdiff, accel, dt, span, gate_w, residual, carry);
+    float carry[18];
+    adukf_k_innovation_part0(z0, zsum, zdiff, accel, dt, span, gate_w, m_comp, residual, carry);
     adukf_k_innovation_part1(zsum, zdiff, P_zz, carry);
     adukf_k_innovation_part2(zsum, zdiff, P_zz, carry);
     adukf_k_innovation_part3(z0, zsum, zdiff, accel, P_zz, residual, carry);
@@ -2588,7 +2588,7 @@ static void adukf_k_accel_lowpass_part0(const float q_pred_unit[4], const float 
     const float tmp18 = tmp12 + tmp17;
     const float tmp19 = (tmp0) ? tmp18 : accel_lp[0];
     const float tmp20 = (restart) ? 0.0f : lp_time;
-    const float tmp21 = (m_comp) ? 1.0f : 2.0f;
+    const float tmp21 = (m_comp) ? 1.0f : 2.5f /* accel_tau_unaided */;
     const float tmp22 = (tmp20 < tmp21) ? tmp20 : tmp21;
     const float tmp23 = tmp22 + dt;
     const float tmp24 = dt / tmp23;
@@ -2744,7 +2744,7 @@ static void adukf_k_accel_lowpass_part2(float dt, const float gps_vel[3], bool n
 }
 
 static void adukf_k_accel_lowpass_part3(bool m_comp, const float gyro[3], const float gyro_bias[3],
-    const float accel_short[3], float carry[20], const bool flags[1])
+    const float accel_short[3], float carry[20], bool flags[1])
 {
     const float tmp120 = carry[11] /* tmp118 */ * carry[13] /* tmp119 */;
     const float tmp121 = carry[9] /* tmp116 */ + tmp120;
@@ -2766,28 +2766,47 @@ static void adukf_k_accel_lowpass_part3(bool m_comp, const float gyro[3], const 
     const float tmp137 = tmp134 + tmp136;
     const bool tmp138 = flags[0] /* tmp0 */ || m_comp;
     const bool tmp139 = (tmp137 < 0.09f /* accel_gate_rate^2 */) && (!(tmp138));
-    float tmp140;
-    if (tmp139) {
-        const float tmp141 = tmp121 * tmp121;
-        const float tmp142 = tmp125 * tmp125;
-        const float tmp143 = tmp141 + tmp142;
-        const float tmp144 = tmp129 * tmp129;
-        const float tmp145 = tmp143 + tmp144;
-        const float tmp146 = (tmp145 > 1e-06f /* GATE_NORM2_MIN */) ? tmp145 :
-                1e-06f /* GATE_NORM2_MIN */;
-        const float tmp147 = tmp143 / tmp146;
-        const float tmp148 = 1000.0f /* accel_gate */ * tmp147;
-        const float tmp149 = 1.0f + tmp148;
-        const float tmp150 = 1.0f / tmp149;
-        const float tmp151 = (tmp150 > 0.1f /* accel_gate_floor */) ? tmp150 :
-                0.1f /* accel_gate_floor */;
-        tmp140 = tmp151;
-    } else {
-        tmp140 = 1.0f;
-    }
     carry[3] = tmp121;
     carry[9] = tmp125;
     carry[11] = tmp129;
+    flags[0] = tmp139;
+}
+
+static void adukf_k_accel_lowpass_part4(const float accel_lp[3], float carry[20],
+    const bool flags[1])
+{
+    float tmp140;
+    if (flags[0] /* tmp139 */) {
+        const float tmp141 = carry[3] /* tmp121 */ * carry[3] /* tmp121 */;
+        const float tmp142 = carry[9] /* tmp125 */ * carry[9] /* tmp125 */;
+        const float tmp143 = tmp141 + tmp142;
+        const float tmp144 = carry[11] /* tmp129 */ * carry[11] /* tmp129 */;
+        const float tmp145 = tmp143 + tmp144;
+        const float tmp146 = accel_lp[0] * accel_lp[0];
+        const float tmp147 = accel_lp[1] * accel_lp[1];
+        const float tmp148 = tmp146 + tmp147;
+        const float tmp149 = accel_lp[2] * accel_lp[2];
+        const float tmp150 = tmp148 + tmp149;
+        const float tmp151 = tmp145 * tmp150;
+        const float tmp152 = carry[3] /* tmp121 */ * accel_lp[0];
+        const float tmp153 = carry[9] /* tmp125 */ * accel_lp[1];
+        const float tmp154 = tmp152 + tmp153;
+        const float tmp155 = carry[11] /* tmp129 */ * accel_lp[2];
+        const float tmp156 = tmp154 + tmp155;
+        const float tmp157 = tmp156 * tmp156;
+        const float tmp158 = tmp151 - tmp157;
+        const float tmp159 = (tmp151 > 1e-06f /* GATE_NORM2_MIN */) ? tmp151 :
+                1e-06f /* GATE_NORM2_MIN */;
+        const float tmp160 = tmp158 / tmp159;
+        const float tmp161 = 1000.0f /* accel_gate */ * tmp160;
+        const float tmp162 = 1.0f + tmp161;
+        const float tmp163 = 1.0f / tmp162;
+        const float tmp164 = (tmp163 > 0.1f /* accel_gate_floor */) ? tmp163 :
+                0.1f /* accel_gate_floor */;
+        tmp140 = tmp164;
+    } else {
+        tmp140 = 1.0f;
+    }
     carry[12] = tmp140;
 }
 
@@ -2825,8 +2844,8 @@ static void adukf_k_accel_lowpass_part3(bool m_comp, const float gyro[3], const 
  *     accel_short_new: float[3]
  *     gate_w: float
  *
- * Total ops: 152 (add 73, mul 46, div 5, cmp 28)
- *     of which only one side runs: if (tmp139) 11, else 0
+ * Total ops: 165 (add 78, mul 54, div 5, cmp 28)
+ *     of which only one side runs: if (tmp139) 24, else 0
  */
 static void adukf_k_accel_lowpass(const float q_pred_unit[4], const float accel[3],
     const float accel_lp[3], float lp_time, bool restart, float dt, bool recover,
@@ -2836,7 +2855,7 @@ static void adukf_k_accel_lowpass(const float q_pred_unit[4], const float accel[
     float v_ins_new[3], float accel_short_new[3], float *gate_w)
 {
     /*
-     * 4 parts called in turn (inlined when optimising): bounded -O0 frames; carry and flags hold
+     * 5 parts called in turn (inlined when optimising): bounded -O0 frames; carry and flags hold
      * the values handed between them (a slot reused once its value is dead)
      */
     float carry[20];
@@ -2848,6 +2867,7 @@ static void adukf_k_accel_lowpass(const float q_pred_unit[4], const float accel[
     adukf_k_accel_lowpass_part2(dt, gps_vel, new_gps, m_comp, v_lp, v_ins, accel_short, carry,
             flags);
     adukf_k_accel_lowpass_part3(m_comp, gyro, gyro_bias, accel_short, carry, flags);
+    adukf_k_accel_lowpass_part4(accel_lp, carry, flags);
     accel_lp_new[0] = carry[10] /* tmp27 */;
     accel_lp_new[1] = carry[4] /* tmp46 */;
     accel_lp_new[2] = carry[14] /* tmp62 */;
@@ -4651,7 +4671,7 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
             /* the sigma points q- * dq(+-d), d = a L[0:3, j] (an attitude error) */
             adukf_k_sigma_pair(aL + 6u * j, z0, zsum + 6u * j, zdiff + 6u * j);
         }
-        adukf_k_innovation(z0, zsum, zdiff, accel_in, mag_in, dt, span, recovering, gate_w, P_zz,
+        adukf_k_innovation(z0, zsum, zdiff, accel_in, mag_in, dt, span, recovering, gate_w, m_comp, P_zz,
             residual, s->r_diag);   /* zeroed below unless the update is applied */
         if (!use_accel || !use_mag) {
             /* An unusable sensor is masked out exactly: identity block in P_zz, zero rows of the

@@ -276,19 +276,25 @@ class Model(FilterModel):
         accelerometer rows of R grow as the specific force's short-window mean tilts."""
         return self.lowpass() and self.err and self.params["accel_gate"] > 0
 
-    def gate_weight_expr(self, a_short, f_n, dt, gyro, bias, off):
+    def gate_weight_expr(self, a_short, a_lp, f_n, dt, gyro, bias, off):
         """The accelerometer gate (issue 26). A short NED low-pass of the specific force,
         s <- s + dt/(accel_gate_tau + dt)(f_n - s) (tens of ms: motor vibration, zero-mean at
         high frequency, averages out of it; a motion acceleration or an offset does not), and the
-        sine² of its tilt from the estimate's down, e² = (s_x² + s_y²)/|s|². While the gyro is
-        slow (|ω - b| < accel_gate_rate: after fast rotation the tilt is the estimate's own error)
-        and `off` is false, the weight w = max(1/(1 + accel_gate e²), accel_gate_floor), else 1;
-        the accelerometer rows of R are divided by it (residual_and_r): the rejection acts on the
-        correction, and the long low-pass stays linear (weighing the samples that enter it biases
-        a zero-mean motion's average: studies/adukf_gate_cv.py). Returns (w, s')."""
+        sine² of the angle between it and the long low-pass a_lp (as it stood before this sample),
+        e² = 1 - (s·a)²/(|s|²|a|²): motion is the short mean departing from the long one. An error
+        of the estimate's attitude turns both alike (both are in the estimate's NED), so it does
+        not close the gate, and a sustained acceleration does not keep it closed: once the long
+        low-pass has taken it in, e² is small again. While the gyro is slow (|ω - b| <
+        accel_gate_rate) and `off` is false, the weight w = max(1/(1 + accel_gate e²),
+        accel_gate_floor), else 1; the accelerometer rows of R are divided by it
+        (residual_and_r): the rejection acts on the correction, and the long low-pass stays linear
+        (weighing the samples that enter it biases a zero-mean motion's average:
+        studies/adukf_gate_cv.py). Returns (w, s')."""
         p = self.params
         s_new = a_short + (dt / (use(p["accel_gate_tau"]) + dt)) * (f_n - a_short)
-        e2 = (s_new[0] * s_new[0] + s_new[1] * s_new[1]) / ca.fmax(ca.sumsqr(s_new), use(GATE_NORM2_MIN))
+        sa = ca.dot(s_new, a_lp)
+        n2 = ca.sumsqr(s_new) * ca.sumsqr(a_lp)
+        e2 = (n2 - sa * sa) / ca.fmax(n2, use(GATE_NORM2_MIN))
         w = ca.fmax(1.0 / (1.0 + p["accel_gate"] * e2), p["accel_gate_floor"])
         wb = gyro - bias
         slow = ca.sumsqr(wb) < p["accel_gate_rate"] ** 2
@@ -641,7 +647,7 @@ class Model(FilterModel):
             gyro_in, bias_in, a_short = ca.SX.sym("gyro", 3), ca.SX.sym("gyro_bias", 3), ca.SX.sym("accel_short", 3)
             # no gate where the low-pass starts at the sample, nor while the GPS removes the motion
             off = ca.logic_or(start, m_comp) if self.gps else start
-            weight, s_new = self.gate_weight_expr(ca.if_else(start, f_n, a_short), f_n, dt, gyro_in, bias_in, off)
+            weight, s_new = self.gate_weight_expr(ca.if_else(start, f_n, a_short), a_lp, f_n, dt, gyro_in, bias_in, off)
             gate_in = {"gyro": gyro_in, "gyro_bias": bias_in, "accel_short": a_short}
             gate_out = {"accel_short_new": s_new, "gate_w": weight}
         a_lp_new, lp_time_new = self.accel_lowpass_expr(a_lp, f_n, lp_time, dt, restart, start,

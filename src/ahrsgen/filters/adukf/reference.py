@@ -459,16 +459,18 @@ class Reference:
                 k_a = k_warm if p["accel_lp_warm"] else dt / (tau_a + dt)
                 if self.gate:
                     # the gate: the short NED mean s (started at the sample with the low-pass), the
-                    # sine² of its tilt from down, e² = (s_x² + s_y²)/|s|², and the weight
-                    # max(1/(1 + accel_gate e²), floor) on the low-pass's gain while the gyro is slow
-                    # (|ω - b| < accel_gate_rate) and neither a start nor the GPS compensation
+                    # sine² of its angle to the low-pass as it stood, e² = 1 - (s·a)²/(|s|²|a|²), and
+                    # the weight w = max(1/(1 + accel_gate e²), floor) that divides the accelerometer
+                    # rows of R, while the gyro is slow (|ω - b| < accel_gate_rate) and neither a
+                    # start nor the GPS compensation
                     if start:
                         self.accel_short = f_n.copy()
                     s_g = self.accel_short + dt / (p["accel_gate_tau"] + dt) * (f_n - self.accel_short)
                     self.accel_short = s_g
                     w_b = np.asarray(c.gyro, dtype=float) - self.bias
                     if not start and not m_comp and float(w_b @ w_b) < p["accel_gate_rate"] ** 2:
-                        e2 = (s_g[0] ** 2 + s_g[1] ** 2) / max(float(s_g @ s_g), 1e-6)    # model.GATE_NORM2_MIN
+                        n2 = float(s_g @ s_g) * float(self.accel_lp @ self.accel_lp)
+                        e2 = (n2 - float(s_g @ self.accel_lp) ** 2) / max(n2, 1e-6)    # model.GATE_NORM2_MIN
                         w_g = max(1.0 / (1.0 + p["accel_gate"] * e2), p["accel_gate_floor"])
                 self.accel_lp = self.accel_lp + k_a * (f_n - self.accel_lp)
                 if restart or not recovering:
