@@ -1133,7 +1133,7 @@ static void adukf_k_innovation_part0(const float z0[6], const float zsum[18], co
     const float tmp31 = 1.0f / tmp30;
     const float tmp32 = tmp29 * tmp31;
     const float tmp33 = (m_comp != 0.0f) ? 0.000256f /* sigma_acc_density^2 */ :
-            1.6e-05f /* sigma_acc_density_unaided^2 */;
+            6.4e-05f /* sigma_acc_density_unaided^2 */;
     const float tmp34 = (span[0] > 1e-09f /* SPAN_MIN */) ? span[0] : 1e-09f /* SPAN_MIN */;
     const float tmp35 = tmp33 / tmp34;
     const float tmp36 = 1.0f / gate_w;
@@ -2588,7 +2588,7 @@ static void adukf_k_accel_lowpass_part0(const float q_pred_unit[4], const float 
     const float tmp18 = tmp12 + tmp17;
     const float tmp19 = (tmp0) ? tmp18 : accel_lp[0];
     const float tmp20 = (restart) ? 0.0f : lp_time;
-    const float tmp21 = (m_comp) ? 1.0f : 2.5f /* accel_tau_unaided */;
+    const float tmp21 = (m_comp) ? 1.0f : 2.0f;
     const float tmp22 = (tmp20 < tmp21) ? tmp20 : tmp21;
     const float tmp23 = tmp22 + dt;
     const float tmp24 = dt / tmp23;
@@ -2798,7 +2798,7 @@ static void adukf_k_accel_lowpass_part4(const float accel_lp[3], float carry[20]
         const float tmp159 = (tmp151 > 1e-06f /* GATE_NORM2_MIN */) ? tmp151 :
                 1e-06f /* GATE_NORM2_MIN */;
         const float tmp160 = tmp158 / tmp159;
-        const float tmp161 = 1000.0f /* accel_gate */ * tmp160;
+        const float tmp161 = 3000.0f /* accel_gate */ * tmp160;
         const float tmp162 = 1.0f + tmp161;
         const float tmp163 = 1.0f / tmp162;
         const float tmp164 = (tmp163 > 0.1f /* accel_gate_floor */) ? tmp163 :

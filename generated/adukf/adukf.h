@@ -117,7 +117,7 @@ extern "C" {
                                                   docs/adukf.md); 0.008 chosen before with sigma_acc
                                                   0.05 (studies/adukf_accel_density_cv.py)
                                                   [1*sqrt(s)] */
-#define ADUKF_SIGMA_ACC_DENSITY_UNAIDED 0.004f /* error state with the low-pass: sigma_acc_density
+#define ADUKF_SIGMA_ACC_DENSITY_UNAIDED 0.008f /* error state with the low-pass: sigma_acc_density
                                                   while no GPS compensation runs (no GPS velocity
                                                   for gps_timeout, or motion_accel_model = none).
                                                   With the GPS the measured vector carries the GPS
@@ -127,16 +127,16 @@ extern "C" {
                                                   studies/adukf_gps_cv.py); without it only the
                                                   specific force's own, which the longer low-pass
                                                   (accel_tau_unaided) and the gate (accel_gate)
-                                                  leave smaller. 0 = sigma_acc_density. 0.004 since
+                                                  leave smaller. 0 = sigma_acc_density. 0.008 since
                                                   issue 26 (studies/adukf_gate_cv.py: leave one
                                                   BROAD group out at 286 / 143 / 95 / 48 Hz with the
-                                                  scenarios, the multirotor without GPS among them;
-                                                  0.008: BROAD 2.411 / 2.534 / 2.651 / 3.426, 0.016:
-                                                  2.524 / 2.627 / 2.722 / 3.424 with the other two
-                                                  chosen; 0.002-0.003 outside the study within 0.01
-                                                  deg of 0.004). A fixed-wing that never has a GPS
-                                                  loses (docs/adukf.md, Motion without GPS)
-                                                  [1*sqrt(s)] */
+                                                  scenarios, the multirotor without GPS among them,
+                                                  and the gyro bias still learned within 2 % in 120
+                                                  s; 0.004: BROAD 2.411 / 2.540 / 2.665 / 3.449 but
+                                                  the gyro bias 2.2 % off after 120 s; 0.016: 2.550
+                                                  / 2.651 / 2.745 / 3.417). A fixed-wing that never
+                                                  has a GPS loses (docs/adukf.md, Motion without
+                                                  GPS) [1*sqrt(s)] */
 #define ADUKF_SIGMA_MAG 0.05f                  /* base std of the normalised magnetometer
                                                   measurement (sigma_m in R); 0.05 with
                                                   sigma_mag_density 0.012 since issue 26
@@ -298,7 +298,7 @@ extern "C" {
                                                   averages out, gravity does not; VQF's idea); 0 =
                                                   the raw accelerometer (as the paper; faithful
                                                   ignores it) [s] */
-#define ADUKF_ACCEL_TAU_UNAIDED 2.5f           /* with accel_tau > 0: the NED low-pass's time
+#define ADUKF_ACCEL_TAU_UNAIDED 2.0f           /* with accel_tau > 0: the NED low-pass's time
                                                   constant while no GPS compensation runs (no GPS
                                                   velocity for gps_timeout, or motion_accel_model =
                                                   none): without a measurement of the vehicle's
@@ -307,17 +307,20 @@ extern "C" {
                                                   velocity stays bounded, so its acceleration
                                                   averages to 0 over seconds); with the GPS the
                                                   motion is removed and accel_tau serves. 0 =
-                                                  accel_tau. 2.5 s with sigma_acc_density_unaided
-                                                  0.004 and accel_gate 1000 since issue 26
+                                                  accel_tau. 2.0 s with sigma_acc_density_unaided
+                                                  0.008 and accel_gate 3000 since issue 26
                                                   (studies/adukf_gate_cv.py: leave one BROAD group
                                                   out at 286 / 143 / 95 / 48 Hz with the scenarios,
-                                                  the multirotor without GPS among them): BROAD
-                                                  2.769 / 2.899 / 3.017 / 3.707 -> 2.366 / 2.493 /
-                                                  2.619 / 3.445 deg in-sample, 2.418 / 2.542 / 2.670
-                                                  / 3.494 left out; multirotor without GPS 0.84 ->
-                                                  0.55 deg; every row with a GPS unchanged. Without
-                                                  the gate a long low-pass costs issue 10's ratio
-                                                  (2.5 s alone: 5.7x) [s] */
+                                                  the multirotor without GPS among them, and the
+                                                  gyro bias still learned within 2 % in 120 s; every
+                                                  fold chose them): BROAD 2.769 / 2.899 / 3.017 /
+                                                  3.707 -> 2.449 / 2.574 / 2.689 / 3.429 deg, left
+                                                  out the same; multirotor without GPS 0.84 -> 0.63
+                                                  deg; every row with a GPS unchanged. 2.5 s reached
+                                                  2.366 / 2.493 / 2.619 / 3.445 but learns a gyro
+                                                  bias more slowly (3.4 % off after 120 s with
+                                                  0.004). Without the gate a long low-pass costs
+                                                  issue 10's ratio (2.0 s alone: 6.9x) [s] */
 #define ADUKF_ACCEL_LP_WARM 1                  /* with accel_tau > 0: warm start of the NED low-pass
                                                   (VQF's, as mekf's accel_lpf_warm; issue 26): until
                                                   it has averaged accel_tau of samples it is their
@@ -330,7 +333,7 @@ extern "C" {
                                                   dt/(accel_tau + dt); not begun again after a gyro
                                                   clip. false: the low-pass starts from its first
                                                   sample with its time constant (before) */
-#define ADUKF_ACCEL_GATE 1000.0f               /* accelerometer gate (error state, with accel_tau >
+#define ADUKF_ACCEL_GATE 3000.0f               /* accelerometer gate (error state, with accel_tau >
                                                   0; issue 26): while the gyro is slow
                                                   (accel_gate_rate) and no GPS compensation runs,
                                                   the accelerometer rows of R are divided by w =
@@ -342,32 +345,34 @@ extern "C" {
                                                   its first samples, motor vibration (zero-mean) is
                                                   not judged sample by sample, an attitude error
                                                   turns both means alike and does not close it; the
-                                                  low-pass stays linear. 1000 since issue 26
+                                                  low-pass stays linear. 3000 since issue 26
                                                   (studies/adukf_gate_cv.py: leave one BROAD group
                                                   out at 286 / 143 / 95 / 48 Hz with the scenarios,
-                                                  the multirotor without GPS among them; 3000 was
-                                                  chosen by two folds): with accel_tau_unaided 2.5
-                                                  issue 10's ratio 5.7x -> 12.4x (12.6x with the
-                                                  gate left in the plain DUKF),
-                                                  static_accel_disturbance 0.49 -> 0.48 deg. 0 = off
-                                                  [1] */
+                                                  the multirotor without GPS among them, and the
+                                                  gyro bias still learned within 2 % in 120 s; 1000:
+                                                  BROAD +0.001 deg, issue 10's ratio 14.1x): with
+                                                  accel_tau_unaided 2.0 and
+                                                  sigma_acc_density_unaided 0.008 issue 10's ratio
+                                                  9.0x -> 17.0x (the same with the gate left in the
+                                                  plain DUKF), static_accel_disturbance 0.65 -> 0.34
+                                                  deg (0.49 before issue 26's pieces). 0 = off [1]
+                                                  */
 #define ADUKF_ACCEL_GATE_TAU 0.03f             /* accel_gate: time constant of the short NED mean of
                                                   the specific force the gate judges (tens of ms: a
                                                   multirotor's motor vibration at 130-250 Hz
                                                   averages out, a hand's or a vehicle's acceleration
-                                                  does not; judged on each sample, 0.3 ms at 250 Hz,
-                                                  the multirotor without GPS scores 0.83 deg instead
-                                                  of 0.59, seed 0). Fixed, not chosen by a study [s]
-                                                  */
+                                                  does not). Fixed, not chosen by a study [s] */
 #define ADUKF_ACCEL_GATE_RATE 0.3f             /* accel_gate: the gate acts only while |gyro - bias|
                                                   is below this (in fast rotation the specific
                                                   force's NED means move with the gyro's own
                                                   errors). 0.3 since issue 26
                                                   (studies/adukf_gate_cv.py: leave one BROAD group
                                                   out at 286 / 143 / 95 / 48 Hz with the scenarios,
-                                                  the multirotor without GPS among them; 1.0: BROAD
-                                                  2.473 / 2.591 / 2.721 / 3.539 deg against 2.366 /
-                                                  2.493 / 2.619 / 3.445) [rad/s] */
+                                                  the multirotor without GPS among them, and the
+                                                  gyro bias still learned within 2 % in 120 s; 1.0:
+                                                  BROAD 2.519 / 2.635 / 2.755 / 3.489 deg against
+                                                  2.448 / 2.572 / 2.687 / 3.426 at accel_gate 1000)
+                                                  [rad/s] */
 #define ADUKF_ACCEL_GATE_FLOOR 0.1f            /* accel_gate: the smallest weight (R's accelerometer
                                                   rows at most 1 / accel_gate_floor times): the
                                                   accelerometer always corrects a little. Fixed, not

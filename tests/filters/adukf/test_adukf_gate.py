@@ -124,9 +124,9 @@ def test_vibration_does_not_shut_the_accelerometer_without_gps():
     """The multirotor without GPS (seed 0, float C, total RMS after the bench's settling time):
     motor vibration tilts single samples by up to 15 deg but averages out of the 0.03 s mean, so
     the gate leaves the accelerometer in at hover and the flight stays within the issue's 1 deg
-    for a multirotor (2026-12-05: 0.53 deg, 0.55 over seeds 0-2; 0.84 before the gate and the
+    for a multirotor (2026-12-05: 0.59 deg, 0.63 over seeds 0-2; 0.84 before the gate and the
     unaided low-pass). Judged on each sample (a mean 100 times shorter, 0.3 ms at 250 Hz) the
-    gate takes the vibration for motion and the error grows (0.68 deg); bounded by its floor and
+    gate takes the vibration for motion and the error grows (0.87 deg); bounded by its floor and
     acting on R, not on what enters the low-pass, it cannot shut the low-pass (a gate on the
     low-pass's input judged per sample left 12-13 deg here)."""
     from ahrsgen.bench.scoring import filter_estimator, score
