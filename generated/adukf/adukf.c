@@ -1094,7 +1094,7 @@ static void adukf_k_sigma_pair(const float col[3], const float z0[6], float zsum
 }
 
 static void adukf_k_innovation_part0(const float z0[6], const float zsum[18], const float zdiff[18],
-    const float accel[3], float dt, const float span[2], float gate_w, float m_comp,
+    const float accel[3], float dt, const float span[2], float gate_w, bool m_comp,
     float residual[6], float carry[18])
 {
     const float tmp0 = zsum[0] * zsum[0];
@@ -1132,7 +1132,7 @@ static void adukf_k_innovation_part0(const float z0[6], const float zsum[18], co
     const float tmp30 = (dt > 1e-09f /* SPAN_MIN */) ? dt : 1e-09f /* SPAN_MIN */;
     const float tmp31 = 1.0f / tmp30;
     const float tmp32 = tmp29 * tmp31;
-    const float tmp33 = (m_comp != 0.0f) ? 0.000256f /* sigma_acc_density^2 */ :
+    const float tmp33 = (m_comp) ? 0.000256f /* sigma_acc_density^2 */ :
             6.4e-05f /* sigma_acc_density_unaided^2 */;
     const float tmp34 = (span[0] > 1e-09f /* SPAN_MIN */) ? span[0] : 1e-09f /* SPAN_MIN */;
     const float tmp35 = tmp33 / tmp34;
@@ -1666,7 +1666,7 @@ static void adukf_k_innovation_part10(float P_zz[21], float r_diag[6], const flo
  *     span: float[2]
  *     recover: bool
  *     gate_w: float
- *     m_comp: float
+ *     m_comp: bool
  * Outputs:
  *     P_zz: float[21]
  *     residual: float[6]
@@ -1680,7 +1680,7 @@ __attribute__((noinline))
 #endif
 static void adukf_k_innovation(const float z0[restrict 6], const float zsum[restrict 18],
     const float zdiff[restrict 18], const float accel[restrict 3], const float mag[restrict 3],
-    float dt, const float span[restrict 2], bool recover, float gate_w, float m_comp,
+    float dt, const float span[restrict 2], bool recover, float gate_w, bool m_comp,
     float P_zz[restrict 21], float residual[restrict 6], float r_diag[restrict 6])
 {
     /*
@@ -4671,8 +4671,8 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
             /* the sigma points q- * dq(+-d), d = a L[0:3, j] (an attitude error) */
             adukf_k_sigma_pair(aL + 6u * j, z0, zsum + 6u * j, zdiff + 6u * j);
         }
-        adukf_k_innovation(z0, zsum, zdiff, accel_in, mag_in, dt, span, recovering, gate_w, m_comp, P_zz,
-            residual, s->r_diag);   /* zeroed below unless the update is applied */
+        adukf_k_innovation(z0, zsum, zdiff, accel_in, mag_in, dt, span, recovering, gate_w,
+            m_comp, P_zz, residual, s->r_diag);   /* zeroed below unless the update is applied */
         if (!use_accel || !use_mag) {
             /* An unusable sensor is masked out exactly: identity block in P_zz, zero rows of the
              * pairs' differences (so zero cross-covariance), residual and R, so its columns of the

@@ -773,7 +773,8 @@ class Model(FilterModel):
                                                                 else {})},
                                               {"P_zz": linalg.pack_lower(Pzz_e), "residual": eps_e, "r_diag": r_e,
                                                **innov_out}),
-                       innov_doc, noinline=True, early_writes=True, flags=("recover",) if self.err else ()),
+                       innov_doc, noinline=True, early_writes=True,
+                       flags=(("recover",) if self.err else ()) + (("m_comp",) if self.gps and self.density_split() else ())),
             KernelSpec("gain", function("gain", {"P_zz": Pzz_packed, "zdiff": zdiff, "residual": eps},
                                         {"g": g_e, "G": G_e, "pivot_zz": piv_zz}),
                        "with L = chol(P_zz), W = L^-1 D (D the pairs' differences) and v = L^-1 eps: "
