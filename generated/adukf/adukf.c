@@ -1094,7 +1094,8 @@ static void adukf_k_sigma_pair(const float col[3], const float z0[6], float zsum
 }
 
 static void adukf_k_innovation_part0(const float z0[6], const float zsum[18], const float zdiff[18],
-    const float accel[3], float dt, const float span[2], float residual[6], float carry[17])
+    const float accel[3], float dt, const float span[2], float gate_w, bool m_comp,
+    float residual[6], float carry[18])
 {
     const float tmp0 = zsum[0] * zsum[0];
     const float tmp1 = zdiff[0] * zdiff[0];
@@ -1131,515 +1132,523 @@ static void adukf_k_innovation_part0(const float z0[6], const float zsum[18], co
     const float tmp30 = (dt > 1e-09f /* SPAN_MIN */) ? dt : 1e-09f /* SPAN_MIN */;
     const float tmp31 = 1.0f / tmp30;
     const float tmp32 = tmp29 * tmp31;
-    const float tmp33 = (span[0] > 1e-09f /* SPAN_MIN */) ? span[0] : 1e-09f /* SPAN_MIN */;
-    const float tmp34 = 0.000256f /* sigma_acc_density^2 */ / tmp33;
-    const float tmp35 = zsum[1] * zsum[0];
-    const float tmp36 = zdiff[1] * zdiff[0];
-    const float tmp37 = tmp35 + tmp36;
-    const float tmp38 = zsum[7] * zsum[6];
-    const float tmp39 = zdiff[7] * zdiff[6];
+    const float tmp33 = (m_comp) ? 0.000256f /* sigma_acc_density^2 */ :
+            6.4e-05f /* sigma_acc_density_unaided^2 */;
+    const float tmp34 = (span[0] > 1e-09f /* SPAN_MIN */) ? span[0] : 1e-09f /* SPAN_MIN */;
+    const float tmp35 = tmp33 / tmp34;
+    const float tmp36 = 1.0f / gate_w;
+    const float tmp37 = zsum[1] * zsum[0];
+    const float tmp38 = zdiff[1] * zdiff[0];
+    const float tmp39 = tmp37 + tmp38;
     carry[0] = tmp14;
     carry[1] = tmp16;
     carry[2] = tmp23;
     carry[3] = tmp26;
     carry[4] = tmp31;
     carry[5] = tmp32;
-    carry[6] = tmp34;
-    carry[7] = tmp37;
-    carry[8] = tmp38;
-    carry[9] = tmp39;
+    carry[6] = tmp35;
+    carry[7] = tmp36;
+    carry[8] = tmp39;
 }
 
 static void adukf_k_innovation_part1(const float zsum[18], const float zdiff[18], float P_zz[21],
-    float carry[17])
+    float carry[18])
 {
-    const float tmp40 = carry[8] /* tmp38 */ + carry[9] /* tmp39 */;
-    const float tmp41 = carry[7] /* tmp37 */ + tmp40;
-    const float tmp42 = zsum[13] * zsum[12];
-    const float tmp43 = zdiff[13] * zdiff[12];
-    const float tmp44 = tmp42 + tmp43;
-    const float tmp45 = tmp41 + tmp44;
-    const float tmp46 = 0.041666668f /* 0.5*UT_W */ * tmp45;
-    const float tmp47 = zsum[1] + zsum[7];
-    const float tmp48 = tmp47 + zsum[13];
-    const float tmp49 = 0.083333336f /* UT_W */ * tmp48;
-    const float tmp50 = tmp49 * carry[0] /* tmp14 */;
-    const float tmp51 = tmp46 + tmp50;
-    P_zz[1] = tmp51;
-    const float tmp52 = zsum[2] * zsum[0];
-    const float tmp53 = zdiff[2] * zdiff[0];
-    const float tmp54 = tmp52 + tmp53;
-    const float tmp55 = zsum[8] * zsum[6];
-    const float tmp56 = zdiff[8] * zdiff[6];
-    const float tmp57 = tmp55 + tmp56;
-    const float tmp58 = tmp54 + tmp57;
-    const float tmp59 = zsum[14] * zsum[12];
-    const float tmp60 = zdiff[14] * zdiff[12];
-    const float tmp61 = tmp59 + tmp60;
-    const float tmp62 = tmp58 + tmp61;
-    const float tmp63 = 0.041666668f /* 0.5*UT_W */ * tmp62;
-    const float tmp64 = zsum[2] + zsum[8];
-    const float tmp65 = tmp64 + zsum[14];
-    const float tmp66 = 0.083333336f /* UT_W */ * tmp65;
-    const float tmp67 = tmp66 * carry[0] /* tmp14 */;
-    const float tmp68 = tmp63 + tmp67;
-    P_zz[2] = tmp68;
-    const float tmp69 = zsum[3] * zsum[0];
-    const float tmp70 = zdiff[3] * zdiff[0];
-    const float tmp71 = tmp69 + tmp70;
-    const float tmp72 = zsum[9] * zsum[6];
-    const float tmp73 = zdiff[9] * zdiff[6];
-    const float tmp74 = tmp72 + tmp73;
-    const float tmp75 = tmp71 + tmp74;
-    const float tmp76 = zsum[15] * zsum[12];
-    const float tmp77 = zdiff[15] * zdiff[12];
-    const float tmp78 = tmp76 + tmp77;
-    const float tmp79 = tmp75 + tmp78;
-    carry[7] = tmp49;
-    carry[8] = tmp66;
-    carry[9] = tmp79;
+    const float tmp40 = zsum[7] * zsum[6];
+    const float tmp41 = zdiff[7] * zdiff[6];
+    const float tmp42 = tmp40 + tmp41;
+    const float tmp43 = carry[8] /* tmp39 */ + tmp42;
+    const float tmp44 = zsum[13] * zsum[12];
+    const float tmp45 = zdiff[13] * zdiff[12];
+    const float tmp46 = tmp44 + tmp45;
+    const float tmp47 = tmp43 + tmp46;
+    const float tmp48 = 0.041666668f /* 0.5*UT_W */ * tmp47;
+    const float tmp49 = zsum[1] + zsum[7];
+    const float tmp50 = tmp49 + zsum[13];
+    const float tmp51 = 0.083333336f /* UT_W */ * tmp50;
+    const float tmp52 = tmp51 * carry[0] /* tmp14 */;
+    const float tmp53 = tmp48 + tmp52;
+    P_zz[1] = tmp53;
+    const float tmp54 = zsum[2] * zsum[0];
+    const float tmp55 = zdiff[2] * zdiff[0];
+    const float tmp56 = tmp54 + tmp55;
+    const float tmp57 = zsum[8] * zsum[6];
+    const float tmp58 = zdiff[8] * zdiff[6];
+    const float tmp59 = tmp57 + tmp58;
+    const float tmp60 = tmp56 + tmp59;
+    const float tmp61 = zsum[14] * zsum[12];
+    const float tmp62 = zdiff[14] * zdiff[12];
+    const float tmp63 = tmp61 + tmp62;
+    const float tmp64 = tmp60 + tmp63;
+    const float tmp65 = 0.041666668f /* 0.5*UT_W */ * tmp64;
+    const float tmp66 = zsum[2] + zsum[8];
+    const float tmp67 = tmp66 + zsum[14];
+    const float tmp68 = 0.083333336f /* UT_W */ * tmp67;
+    const float tmp69 = tmp68 * carry[0] /* tmp14 */;
+    const float tmp70 = tmp65 + tmp69;
+    P_zz[2] = tmp70;
+    const float tmp71 = zsum[3] * zsum[0];
+    const float tmp72 = zdiff[3] * zdiff[0];
+    const float tmp73 = tmp71 + tmp72;
+    const float tmp74 = zsum[9] * zsum[6];
+    const float tmp75 = zdiff[9] * zdiff[6];
+    const float tmp76 = tmp74 + tmp75;
+    const float tmp77 = tmp73 + tmp76;
+    const float tmp78 = zsum[15] * zsum[12];
+    const float tmp79 = zdiff[15] * zdiff[12];
+    carry[8] = tmp51;
+    carry[9] = tmp68;
+    carry[10] = tmp77;
+    carry[11] = tmp78;
+    carry[12] = tmp79;
 }
 
 static void adukf_k_innovation_part2(const float zsum[18], const float zdiff[18], float P_zz[21],
-    float carry[17])
+    float carry[18])
 {
-    const float tmp80 = 0.041666668f /* 0.5*UT_W */ * carry[9] /* tmp79 */;
-    const float tmp81 = zsum[3] + zsum[9];
-    const float tmp82 = tmp81 + zsum[15];
-    const float tmp83 = 0.083333336f /* UT_W */ * tmp82;
-    const float tmp84 = tmp83 * carry[0] /* tmp14 */;
-    const float tmp85 = tmp80 + tmp84;
-    P_zz[3] = tmp85;
-    const float tmp86 = zsum[4] * zsum[0];
-    const float tmp87 = zdiff[4] * zdiff[0];
-    const float tmp88 = tmp86 + tmp87;
-    const float tmp89 = zsum[10] * zsum[6];
-    const float tmp90 = zdiff[10] * zdiff[6];
-    const float tmp91 = tmp89 + tmp90;
-    const float tmp92 = tmp88 + tmp91;
-    const float tmp93 = zsum[16] * zsum[12];
-    const float tmp94 = zdiff[16] * zdiff[12];
-    const float tmp95 = tmp93 + tmp94;
-    const float tmp96 = tmp92 + tmp95;
-    const float tmp97 = 0.041666668f /* 0.5*UT_W */ * tmp96;
-    const float tmp98 = zsum[4] + zsum[10];
-    const float tmp99 = tmp98 + zsum[16];
-    const float tmp100 = 0.083333336f /* UT_W */ * tmp99;
-    const float tmp101 = tmp100 * carry[0] /* tmp14 */;
-    const float tmp102 = tmp97 + tmp101;
-    P_zz[4] = tmp102;
-    const float tmp103 = zsum[5] * zsum[0];
-    const float tmp104 = zdiff[5] * zdiff[0];
-    const float tmp105 = tmp103 + tmp104;
-    const float tmp106 = zsum[11] * zsum[6];
-    const float tmp107 = zdiff[11] * zdiff[6];
-    const float tmp108 = tmp106 + tmp107;
-    const float tmp109 = tmp105 + tmp108;
-    const float tmp110 = zsum[17] * zsum[12];
-    const float tmp111 = zdiff[17] * zdiff[12];
-    const float tmp112 = tmp110 + tmp111;
-    const float tmp113 = tmp109 + tmp112;
-    const float tmp114 = 0.041666668f /* 0.5*UT_W */ * tmp113;
-    const float tmp115 = zsum[5] + zsum[11];
-    const float tmp116 = tmp115 + zsum[17];
-    const float tmp117 = 0.083333336f /* UT_W */ * tmp116;
-    const float tmp118 = tmp117 * carry[0] /* tmp14 */;
-    const float tmp119 = tmp114 + tmp118;
-    P_zz[5] = tmp119;
-    carry[0] = tmp83;
-    carry[9] = tmp100;
-    carry[10] = tmp117;
+    const float tmp80 = carry[11] /* tmp78 */ + carry[12] /* tmp79 */;
+    const float tmp81 = carry[10] /* tmp77 */ + tmp80;
+    const float tmp82 = 0.041666668f /* 0.5*UT_W */ * tmp81;
+    const float tmp83 = zsum[3] + zsum[9];
+    const float tmp84 = tmp83 + zsum[15];
+    const float tmp85 = 0.083333336f /* UT_W */ * tmp84;
+    const float tmp86 = tmp85 * carry[0] /* tmp14 */;
+    const float tmp87 = tmp82 + tmp86;
+    P_zz[3] = tmp87;
+    const float tmp88 = zsum[4] * zsum[0];
+    const float tmp89 = zdiff[4] * zdiff[0];
+    const float tmp90 = tmp88 + tmp89;
+    const float tmp91 = zsum[10] * zsum[6];
+    const float tmp92 = zdiff[10] * zdiff[6];
+    const float tmp93 = tmp91 + tmp92;
+    const float tmp94 = tmp90 + tmp93;
+    const float tmp95 = zsum[16] * zsum[12];
+    const float tmp96 = zdiff[16] * zdiff[12];
+    const float tmp97 = tmp95 + tmp96;
+    const float tmp98 = tmp94 + tmp97;
+    const float tmp99 = 0.041666668f /* 0.5*UT_W */ * tmp98;
+    const float tmp100 = zsum[4] + zsum[10];
+    const float tmp101 = tmp100 + zsum[16];
+    const float tmp102 = 0.083333336f /* UT_W */ * tmp101;
+    const float tmp103 = tmp102 * carry[0] /* tmp14 */;
+    const float tmp104 = tmp99 + tmp103;
+    P_zz[4] = tmp104;
+    const float tmp105 = zsum[5] * zsum[0];
+    const float tmp106 = zdiff[5] * zdiff[0];
+    const float tmp107 = tmp105 + tmp106;
+    const float tmp108 = zsum[11] * zsum[6];
+    const float tmp109 = zdiff[11] * zdiff[6];
+    const float tmp110 = tmp108 + tmp109;
+    const float tmp111 = tmp107 + tmp110;
+    const float tmp112 = zsum[17] * zsum[12];
+    const float tmp113 = zdiff[17] * zdiff[12];
+    const float tmp114 = tmp112 + tmp113;
+    const float tmp115 = tmp111 + tmp114;
+    const float tmp116 = 0.041666668f /* 0.5*UT_W */ * tmp115;
+    const float tmp117 = zsum[5] + zsum[11];
+    const float tmp118 = tmp117 + zsum[17];
+    const float tmp119 = 0.083333336f /* UT_W */ * tmp118;
+    carry[10] = tmp85;
+    carry[11] = tmp102;
+    carry[12] = tmp116;
+    carry[13] = tmp119;
 }
 
 static void adukf_k_innovation_part3(const float z0[6], const float zsum[18], const float zdiff[18],
-    const float accel[3], float P_zz[21], float residual[6], float carry[17])
+    const float accel[3], float P_zz[21], float residual[6], float carry[18])
 {
-    const float tmp120 = zsum[1] * zsum[1];
-    const float tmp121 = zdiff[1] * zdiff[1];
-    const float tmp122 = tmp120 + tmp121;
-    const float tmp123 = zsum[7] * zsum[7];
-    const float tmp124 = zdiff[7] * zdiff[7];
-    const float tmp125 = tmp123 + tmp124;
-    const float tmp126 = tmp122 + tmp125;
-    const float tmp127 = zsum[13] * zsum[13];
-    const float tmp128 = zdiff[13] * zdiff[13];
-    const float tmp129 = tmp127 + tmp128;
-    const float tmp130 = tmp126 + tmp129;
-    const float tmp131 = 0.041666668f /* 0.5*UT_W */ * tmp130;
-    const float tmp132 = carry[7] /* tmp49 */ * carry[7] /* tmp49 */;
-    const float tmp133 = tmp131 + tmp132;
-    const float tmp134 = accel[1] * carry[2] /* tmp23 */;
-    const float tmp135 = z0[1] + carry[7] /* tmp49 */;
-    const float tmp136 = tmp134 - tmp135;
-    residual[1] = tmp136;
-    const float tmp137 = zsum[2] * zsum[1];
-    const float tmp138 = zdiff[2] * zdiff[1];
-    const float tmp139 = tmp137 + tmp138;
-    const float tmp140 = zsum[8] * zsum[7];
-    const float tmp141 = zdiff[8] * zdiff[7];
-    const float tmp142 = tmp140 + tmp141;
-    const float tmp143 = tmp139 + tmp142;
-    const float tmp144 = zsum[14] * zsum[13];
-    const float tmp145 = zdiff[14] * zdiff[13];
-    const float tmp146 = tmp144 + tmp145;
-    const float tmp147 = tmp143 + tmp146;
-    const float tmp148 = 0.041666668f /* 0.5*UT_W */ * tmp147;
-    const float tmp149 = carry[8] /* tmp66 */ * carry[7] /* tmp49 */;
-    const float tmp150 = tmp148 + tmp149;
-    P_zz[7] = tmp150;
-    const float tmp151 = zsum[3] * zsum[1];
-    const float tmp152 = zdiff[3] * zdiff[1];
-    const float tmp153 = tmp151 + tmp152;
-    const float tmp154 = zsum[9] * zsum[7];
-    const float tmp155 = zdiff[9] * zdiff[7];
-    const float tmp156 = tmp154 + tmp155;
-    const float tmp157 = tmp153 + tmp156;
-    const float tmp158 = zsum[15] * zsum[13];
-    const float tmp159 = zdiff[15] * zdiff[13];
-    carry[11] = tmp133;
-    carry[12] = tmp136;
-    carry[13] = tmp157;
-    carry[14] = tmp158;
-    carry[15] = tmp159;
+    const float tmp120 = carry[13] /* tmp119 */ * carry[0] /* tmp14 */;
+    const float tmp121 = carry[12] /* tmp116 */ + tmp120;
+    P_zz[5] = tmp121;
+    const float tmp122 = zsum[1] * zsum[1];
+    const float tmp123 = zdiff[1] * zdiff[1];
+    const float tmp124 = tmp122 + tmp123;
+    const float tmp125 = zsum[7] * zsum[7];
+    const float tmp126 = zdiff[7] * zdiff[7];
+    const float tmp127 = tmp125 + tmp126;
+    const float tmp128 = tmp124 + tmp127;
+    const float tmp129 = zsum[13] * zsum[13];
+    const float tmp130 = zdiff[13] * zdiff[13];
+    const float tmp131 = tmp129 + tmp130;
+    const float tmp132 = tmp128 + tmp131;
+    const float tmp133 = 0.041666668f /* 0.5*UT_W */ * tmp132;
+    const float tmp134 = carry[8] /* tmp51 */ * carry[8] /* tmp51 */;
+    const float tmp135 = tmp133 + tmp134;
+    const float tmp136 = accel[1] * carry[2] /* tmp23 */;
+    const float tmp137 = z0[1] + carry[8] /* tmp51 */;
+    const float tmp138 = tmp136 - tmp137;
+    residual[1] = tmp138;
+    const float tmp139 = zsum[2] * zsum[1];
+    const float tmp140 = zdiff[2] * zdiff[1];
+    const float tmp141 = tmp139 + tmp140;
+    const float tmp142 = zsum[8] * zsum[7];
+    const float tmp143 = zdiff[8] * zdiff[7];
+    const float tmp144 = tmp142 + tmp143;
+    const float tmp145 = tmp141 + tmp144;
+    const float tmp146 = zsum[14] * zsum[13];
+    const float tmp147 = zdiff[14] * zdiff[13];
+    const float tmp148 = tmp146 + tmp147;
+    const float tmp149 = tmp145 + tmp148;
+    const float tmp150 = 0.041666668f /* 0.5*UT_W */ * tmp149;
+    const float tmp151 = carry[9] /* tmp68 */ * carry[8] /* tmp51 */;
+    const float tmp152 = tmp150 + tmp151;
+    P_zz[7] = tmp152;
+    const float tmp153 = zsum[3] * zsum[1];
+    const float tmp154 = zdiff[3] * zdiff[1];
+    const float tmp155 = tmp153 + tmp154;
+    const float tmp156 = zsum[9] * zsum[7];
+    const float tmp157 = zdiff[9] * zdiff[7];
+    const float tmp158 = tmp156 + tmp157;
+    const float tmp159 = tmp155 + tmp158;
+    carry[0] = tmp135;
+    carry[12] = tmp138;
+    carry[14] = tmp159;
 }
 
 static void adukf_k_innovation_part4(const float zsum[18], const float zdiff[18], float P_zz[21],
-    float carry[17])
+    float carry[18])
 {
-    const float tmp160 = carry[14] /* tmp158 */ + carry[15] /* tmp159 */;
-    const float tmp161 = carry[13] /* tmp157 */ + tmp160;
-    const float tmp162 = 0.041666668f /* 0.5*UT_W */ * tmp161;
-    const float tmp163 = carry[0] /* tmp83 */ * carry[7] /* tmp49 */;
-    const float tmp164 = tmp162 + tmp163;
-    P_zz[8] = tmp164;
-    const float tmp165 = zsum[4] * zsum[1];
-    const float tmp166 = zdiff[4] * zdiff[1];
-    const float tmp167 = tmp165 + tmp166;
-    const float tmp168 = zsum[10] * zsum[7];
-    const float tmp169 = zdiff[10] * zdiff[7];
-    const float tmp170 = tmp168 + tmp169;
-    const float tmp171 = tmp167 + tmp170;
-    const float tmp172 = zsum[16] * zsum[13];
-    const float tmp173 = zdiff[16] * zdiff[13];
-    const float tmp174 = tmp172 + tmp173;
-    const float tmp175 = tmp171 + tmp174;
-    const float tmp176 = 0.041666668f /* 0.5*UT_W */ * tmp175;
-    const float tmp177 = carry[9] /* tmp100 */ * carry[7] /* tmp49 */;
-    const float tmp178 = tmp176 + tmp177;
-    P_zz[9] = tmp178;
-    const float tmp179 = zsum[5] * zsum[1];
-    const float tmp180 = zdiff[5] * zdiff[1];
-    const float tmp181 = tmp179 + tmp180;
-    const float tmp182 = zsum[11] * zsum[7];
-    const float tmp183 = zdiff[11] * zdiff[7];
-    const float tmp184 = tmp182 + tmp183;
-    const float tmp185 = tmp181 + tmp184;
-    const float tmp186 = zsum[17] * zsum[13];
-    const float tmp187 = zdiff[17] * zdiff[13];
-    const float tmp188 = tmp186 + tmp187;
-    const float tmp189 = tmp185 + tmp188;
-    const float tmp190 = 0.041666668f /* 0.5*UT_W */ * tmp189;
-    const float tmp191 = carry[10] /* tmp117 */ * carry[7] /* tmp49 */;
-    const float tmp192 = tmp190 + tmp191;
-    P_zz[10] = tmp192;
-    const float tmp193 = zsum[2] * zsum[2];
-    const float tmp194 = zdiff[2] * zdiff[2];
-    const float tmp195 = tmp193 + tmp194;
-    const float tmp196 = zsum[8] * zsum[8];
-    const float tmp197 = zdiff[8] * zdiff[8];
-    const float tmp198 = tmp196 + tmp197;
-    const float tmp199 = tmp195 + tmp198;
-    carry[7] = tmp199;
+    const float tmp160 = zsum[15] * zsum[13];
+    const float tmp161 = zdiff[15] * zdiff[13];
+    const float tmp162 = tmp160 + tmp161;
+    const float tmp163 = carry[14] /* tmp159 */ + tmp162;
+    const float tmp164 = 0.041666668f /* 0.5*UT_W */ * tmp163;
+    const float tmp165 = carry[10] /* tmp85 */ * carry[8] /* tmp51 */;
+    const float tmp166 = tmp164 + tmp165;
+    P_zz[8] = tmp166;
+    const float tmp167 = zsum[4] * zsum[1];
+    const float tmp168 = zdiff[4] * zdiff[1];
+    const float tmp169 = tmp167 + tmp168;
+    const float tmp170 = zsum[10] * zsum[7];
+    const float tmp171 = zdiff[10] * zdiff[7];
+    const float tmp172 = tmp170 + tmp171;
+    const float tmp173 = tmp169 + tmp172;
+    const float tmp174 = zsum[16] * zsum[13];
+    const float tmp175 = zdiff[16] * zdiff[13];
+    const float tmp176 = tmp174 + tmp175;
+    const float tmp177 = tmp173 + tmp176;
+    const float tmp178 = 0.041666668f /* 0.5*UT_W */ * tmp177;
+    const float tmp179 = carry[11] /* tmp102 */ * carry[8] /* tmp51 */;
+    const float tmp180 = tmp178 + tmp179;
+    P_zz[9] = tmp180;
+    const float tmp181 = zsum[5] * zsum[1];
+    const float tmp182 = zdiff[5] * zdiff[1];
+    const float tmp183 = tmp181 + tmp182;
+    const float tmp184 = zsum[11] * zsum[7];
+    const float tmp185 = zdiff[11] * zdiff[7];
+    const float tmp186 = tmp184 + tmp185;
+    const float tmp187 = tmp183 + tmp186;
+    const float tmp188 = zsum[17] * zsum[13];
+    const float tmp189 = zdiff[17] * zdiff[13];
+    const float tmp190 = tmp188 + tmp189;
+    const float tmp191 = tmp187 + tmp190;
+    const float tmp192 = 0.041666668f /* 0.5*UT_W */ * tmp191;
+    const float tmp193 = carry[13] /* tmp119 */ * carry[8] /* tmp51 */;
+    const float tmp194 = tmp192 + tmp193;
+    P_zz[10] = tmp194;
+    const float tmp195 = zsum[2] * zsum[2];
+    const float tmp196 = zdiff[2] * zdiff[2];
+    const float tmp197 = tmp195 + tmp196;
+    const float tmp198 = zsum[8] * zsum[8];
+    const float tmp199 = zdiff[8] * zdiff[8];
+    carry[8] = tmp197;
+    carry[14] = tmp198;
+    carry[15] = tmp199;
 }
 
 static void adukf_k_innovation_part5(const float z0[6], const float zsum[18], const float zdiff[18],
-    const float accel[3], float P_zz[21], float residual[6], float carry[17])
+    const float accel[3], float P_zz[21], float residual[6], float carry[18])
 {
-    const float tmp200 = zsum[14] * zsum[14];
-    const float tmp201 = zdiff[14] * zdiff[14];
-    const float tmp202 = tmp200 + tmp201;
-    const float tmp203 = carry[7] /* tmp199 */ + tmp202;
-    const float tmp204 = 0.041666668f /* 0.5*UT_W */ * tmp203;
-    const float tmp205 = carry[8] /* tmp66 */ * carry[8] /* tmp66 */;
-    const float tmp206 = tmp204 + tmp205;
-    const float tmp207 = accel[2] * carry[2] /* tmp23 */;
-    const float tmp208 = z0[2] + carry[8] /* tmp66 */;
-    const float tmp209 = tmp207 - tmp208;
-    residual[2] = tmp209;
-    const float tmp210 = zsum[3] * zsum[2];
-    const float tmp211 = zdiff[3] * zdiff[2];
-    const float tmp212 = tmp210 + tmp211;
-    const float tmp213 = zsum[9] * zsum[8];
-    const float tmp214 = zdiff[9] * zdiff[8];
-    const float tmp215 = tmp213 + tmp214;
-    const float tmp216 = tmp212 + tmp215;
-    const float tmp217 = zsum[15] * zsum[14];
-    const float tmp218 = zdiff[15] * zdiff[14];
-    const float tmp219 = tmp217 + tmp218;
-    const float tmp220 = tmp216 + tmp219;
-    const float tmp221 = 0.041666668f /* 0.5*UT_W */ * tmp220;
-    const float tmp222 = carry[0] /* tmp83 */ * carry[8] /* tmp66 */;
-    const float tmp223 = tmp221 + tmp222;
-    P_zz[12] = tmp223;
-    const float tmp224 = zsum[4] * zsum[2];
-    const float tmp225 = zdiff[4] * zdiff[2];
-    const float tmp226 = tmp224 + tmp225;
-    const float tmp227 = zsum[10] * zsum[8];
-    const float tmp228 = zdiff[10] * zdiff[8];
-    const float tmp229 = tmp227 + tmp228;
-    const float tmp230 = tmp226 + tmp229;
-    const float tmp231 = zsum[16] * zsum[14];
-    const float tmp232 = zdiff[16] * zdiff[14];
-    const float tmp233 = tmp231 + tmp232;
-    const float tmp234 = tmp230 + tmp233;
-    const float tmp235 = 0.041666668f /* 0.5*UT_W */ * tmp234;
-    const float tmp236 = carry[9] /* tmp100 */ * carry[8] /* tmp66 */;
-    const float tmp237 = tmp235 + tmp236;
-    P_zz[13] = tmp237;
-    const float tmp238 = zsum[5] * zsum[2];
-    const float tmp239 = zdiff[5] * zdiff[2];
-    carry[2] = tmp206;
-    carry[7] = tmp209;
-    carry[13] = tmp238;
-    carry[14] = tmp239;
+    const float tmp200 = carry[14] /* tmp198 */ + carry[15] /* tmp199 */;
+    const float tmp201 = carry[8] /* tmp197 */ + tmp200;
+    const float tmp202 = zsum[14] * zsum[14];
+    const float tmp203 = zdiff[14] * zdiff[14];
+    const float tmp204 = tmp202 + tmp203;
+    const float tmp205 = tmp201 + tmp204;
+    const float tmp206 = 0.041666668f /* 0.5*UT_W */ * tmp205;
+    const float tmp207 = carry[9] /* tmp68 */ * carry[9] /* tmp68 */;
+    const float tmp208 = tmp206 + tmp207;
+    const float tmp209 = accel[2] * carry[2] /* tmp23 */;
+    const float tmp210 = z0[2] + carry[9] /* tmp68 */;
+    const float tmp211 = tmp209 - tmp210;
+    residual[2] = tmp211;
+    const float tmp212 = zsum[3] * zsum[2];
+    const float tmp213 = zdiff[3] * zdiff[2];
+    const float tmp214 = tmp212 + tmp213;
+    const float tmp215 = zsum[9] * zsum[8];
+    const float tmp216 = zdiff[9] * zdiff[8];
+    const float tmp217 = tmp215 + tmp216;
+    const float tmp218 = tmp214 + tmp217;
+    const float tmp219 = zsum[15] * zsum[14];
+    const float tmp220 = zdiff[15] * zdiff[14];
+    const float tmp221 = tmp219 + tmp220;
+    const float tmp222 = tmp218 + tmp221;
+    const float tmp223 = 0.041666668f /* 0.5*UT_W */ * tmp222;
+    const float tmp224 = carry[10] /* tmp85 */ * carry[9] /* tmp68 */;
+    const float tmp225 = tmp223 + tmp224;
+    P_zz[12] = tmp225;
+    const float tmp226 = zsum[4] * zsum[2];
+    const float tmp227 = zdiff[4] * zdiff[2];
+    const float tmp228 = tmp226 + tmp227;
+    const float tmp229 = zsum[10] * zsum[8];
+    const float tmp230 = zdiff[10] * zdiff[8];
+    const float tmp231 = tmp229 + tmp230;
+    const float tmp232 = tmp228 + tmp231;
+    const float tmp233 = zsum[16] * zsum[14];
+    const float tmp234 = zdiff[16] * zdiff[14];
+    const float tmp235 = tmp233 + tmp234;
+    const float tmp236 = tmp232 + tmp235;
+    const float tmp237 = 0.041666668f /* 0.5*UT_W */ * tmp236;
+    const float tmp238 = carry[11] /* tmp102 */ * carry[9] /* tmp68 */;
+    const float tmp239 = tmp237 + tmp238;
+    P_zz[13] = tmp239;
+    carry[2] = tmp208;
+    carry[8] = tmp211;
 }
 
 static void adukf_k_innovation_part6(const float z0[6], const float zsum[18], const float zdiff[18],
     const float mag[3], float dt, const float span[2], float P_zz[21], float residual[6],
-    float carry[17])
+    float carry[18])
 {
-    const float tmp240 = carry[13] /* tmp238 */ + carry[14] /* tmp239 */;
-    const float tmp241 = zsum[11] * zsum[8];
-    const float tmp242 = zdiff[11] * zdiff[8];
-    const float tmp243 = tmp241 + tmp242;
-    const float tmp244 = tmp240 + tmp243;
-    const float tmp245 = zsum[17] * zsum[14];
-    const float tmp246 = zdiff[17] * zdiff[14];
-    const float tmp247 = tmp245 + tmp246;
-    const float tmp248 = tmp244 + tmp247;
-    const float tmp249 = 0.041666668f /* 0.5*UT_W */ * tmp248;
-    const float tmp250 = carry[10] /* tmp117 */ * carry[8] /* tmp66 */;
-    const float tmp251 = tmp249 + tmp250;
-    P_zz[14] = tmp251;
-    const float tmp252 = zsum[3] * zsum[3];
-    const float tmp253 = zdiff[3] * zdiff[3];
-    const float tmp254 = tmp252 + tmp253;
-    const float tmp255 = zsum[9] * zsum[9];
-    const float tmp256 = zdiff[9] * zdiff[9];
-    const float tmp257 = tmp255 + tmp256;
-    const float tmp258 = tmp254 + tmp257;
-    const float tmp259 = zsum[15] * zsum[15];
-    const float tmp260 = zdiff[15] * zdiff[15];
-    const float tmp261 = tmp259 + tmp260;
-    const float tmp262 = tmp258 + tmp261;
-    const float tmp263 = 0.041666668f /* 0.5*UT_W */ * tmp262;
-    const float tmp264 = carry[0] /* tmp83 */ * carry[0] /* tmp83 */;
-    const float tmp265 = tmp263 + tmp264;
-    const float tmp266 = mag[0] * mag[0];
-    const float tmp267 = mag[1] * mag[1];
-    const float tmp268 = tmp266 + tmp267;
-    const float tmp269 = mag[2] * mag[2];
+    const float tmp240 = zsum[5] * zsum[2];
+    const float tmp241 = zdiff[5] * zdiff[2];
+    const float tmp242 = tmp240 + tmp241;
+    const float tmp243 = zsum[11] * zsum[8];
+    const float tmp244 = zdiff[11] * zdiff[8];
+    const float tmp245 = tmp243 + tmp244;
+    const float tmp246 = tmp242 + tmp245;
+    const float tmp247 = zsum[17] * zsum[14];
+    const float tmp248 = zdiff[17] * zdiff[14];
+    const float tmp249 = tmp247 + tmp248;
+    const float tmp250 = tmp246 + tmp249;
+    const float tmp251 = 0.041666668f /* 0.5*UT_W */ * tmp250;
+    const float tmp252 = carry[13] /* tmp119 */ * carry[9] /* tmp68 */;
+    const float tmp253 = tmp251 + tmp252;
+    P_zz[14] = tmp253;
+    const float tmp254 = zsum[3] * zsum[3];
+    const float tmp255 = zdiff[3] * zdiff[3];
+    const float tmp256 = tmp254 + tmp255;
+    const float tmp257 = zsum[9] * zsum[9];
+    const float tmp258 = zdiff[9] * zdiff[9];
+    const float tmp259 = tmp257 + tmp258;
+    const float tmp260 = tmp256 + tmp259;
+    const float tmp261 = zsum[15] * zsum[15];
+    const float tmp262 = zdiff[15] * zdiff[15];
+    const float tmp263 = tmp261 + tmp262;
+    const float tmp264 = tmp260 + tmp263;
+    const float tmp265 = 0.041666668f /* 0.5*UT_W */ * tmp264;
+    const float tmp266 = carry[10] /* tmp85 */ * carry[10] /* tmp85 */;
+    const float tmp267 = tmp265 + tmp266;
+    const float tmp268 = mag[0] * mag[0];
+    const float tmp269 = mag[1] * mag[1];
     const float tmp270 = tmp268 + tmp269;
-    const float tmp271 = 1.0f / tmp270;
-    const float tmp272 = sqrtf(tmp271);
-    const float tmp273 = mag[0] * tmp272;
-    const float tmp274 = z0[3] + carry[0] /* tmp83 */;
-    const float tmp275 = tmp273 - tmp274;
-    residual[3] = tmp275;
-    const float tmp276 = dt / span[1];
-    const float tmp277 = (tmp276 > 0.1f /* 1.0/span_steps_max */) ? tmp276 :
+    const float tmp271 = mag[2] * mag[2];
+    const float tmp272 = tmp270 + tmp271;
+    const float tmp273 = 1.0f / tmp272;
+    const float tmp274 = sqrtf(tmp273);
+    const float tmp275 = mag[0] * tmp274;
+    const float tmp276 = z0[3] + carry[10] /* tmp85 */;
+    const float tmp277 = tmp275 - tmp276;
+    residual[3] = tmp277;
+    const float tmp278 = dt / span[1];
+    const float tmp279 = (tmp278 > 0.1f /* 1.0/span_steps_max */) ? tmp278 :
             0.1f /* 1.0/span_steps_max */;
-    const float tmp278 = 0.0035f /* r_time */ * tmp277;
-    const float tmp279 = tmp278 * carry[4] /* tmp31 */;
-    carry[4] = tmp265;
-    carry[8] = tmp272;
-    carry[13] = tmp275;
-    carry[14] = tmp279;
+    carry[9] = tmp267;
+    carry[14] = tmp274;
+    carry[15] = tmp277;
+    carry[16] = tmp279;
 }
 
 static void adukf_k_innovation_part7(const float zsum[18], const float zdiff[18],
-    const float span[2], float P_zz[21], float carry[17])
+    const float span[2], float P_zz[21], float carry[18])
 {
-    const float tmp280 = (span[1] > 1e-09f /* SPAN_MIN */) ? span[1] : 1e-09f /* SPAN_MIN */;
-    const float tmp281 = 0.000144f /* sigma_mag_density^2 */ / tmp280;
-    const float tmp282 = zsum[4] * zsum[3];
-    const float tmp283 = zdiff[4] * zdiff[3];
-    const float tmp284 = tmp282 + tmp283;
-    const float tmp285 = zsum[10] * zsum[9];
-    const float tmp286 = zdiff[10] * zdiff[9];
-    const float tmp287 = tmp285 + tmp286;
-    const float tmp288 = tmp284 + tmp287;
-    const float tmp289 = zsum[16] * zsum[15];
-    const float tmp290 = zdiff[16] * zdiff[15];
-    const float tmp291 = tmp289 + tmp290;
-    const float tmp292 = tmp288 + tmp291;
-    const float tmp293 = 0.041666668f /* 0.5*UT_W */ * tmp292;
-    const float tmp294 = carry[9] /* tmp100 */ * carry[0] /* tmp83 */;
-    const float tmp295 = tmp293 + tmp294;
-    P_zz[16] = tmp295;
-    const float tmp296 = zsum[5] * zsum[3];
-    const float tmp297 = zdiff[5] * zdiff[3];
-    const float tmp298 = tmp296 + tmp297;
-    const float tmp299 = zsum[11] * zsum[9];
-    const float tmp300 = zdiff[11] * zdiff[9];
-    const float tmp301 = tmp299 + tmp300;
-    const float tmp302 = tmp298 + tmp301;
-    const float tmp303 = zsum[17] * zsum[15];
-    const float tmp304 = zdiff[17] * zdiff[15];
-    const float tmp305 = tmp303 + tmp304;
-    const float tmp306 = tmp302 + tmp305;
-    const float tmp307 = 0.041666668f /* 0.5*UT_W */ * tmp306;
-    const float tmp308 = carry[10] /* tmp117 */ * carry[0] /* tmp83 */;
-    const float tmp309 = tmp307 + tmp308;
-    P_zz[17] = tmp309;
-    const float tmp310 = zsum[4] * zsum[4];
-    const float tmp311 = zdiff[4] * zdiff[4];
-    const float tmp312 = tmp310 + tmp311;
-    const float tmp313 = zsum[10] * zsum[10];
-    const float tmp314 = zdiff[10] * zdiff[10];
-    const float tmp315 = tmp313 + tmp314;
-    const float tmp316 = tmp312 + tmp315;
-    const float tmp317 = zsum[16] * zsum[16];
-    const float tmp318 = zdiff[16] * zdiff[16];
-    const float tmp319 = tmp317 + tmp318;
-    carry[0] = tmp281;
-    carry[15] = tmp316;
-    carry[16] = tmp319;
+    const float tmp280 = 0.0035f /* r_time */ * carry[16] /* tmp279 */;
+    const float tmp281 = tmp280 * carry[4] /* tmp31 */;
+    const float tmp282 = (span[1] > 1e-09f /* SPAN_MIN */) ? span[1] : 1e-09f /* SPAN_MIN */;
+    const float tmp283 = 0.000144f /* sigma_mag_density^2 */ / tmp282;
+    const float tmp284 = zsum[4] * zsum[3];
+    const float tmp285 = zdiff[4] * zdiff[3];
+    const float tmp286 = tmp284 + tmp285;
+    const float tmp287 = zsum[10] * zsum[9];
+    const float tmp288 = zdiff[10] * zdiff[9];
+    const float tmp289 = tmp287 + tmp288;
+    const float tmp290 = tmp286 + tmp289;
+    const float tmp291 = zsum[16] * zsum[15];
+    const float tmp292 = zdiff[16] * zdiff[15];
+    const float tmp293 = tmp291 + tmp292;
+    const float tmp294 = tmp290 + tmp293;
+    const float tmp295 = 0.041666668f /* 0.5*UT_W */ * tmp294;
+    const float tmp296 = carry[11] /* tmp102 */ * carry[10] /* tmp85 */;
+    const float tmp297 = tmp295 + tmp296;
+    P_zz[16] = tmp297;
+    const float tmp298 = zsum[5] * zsum[3];
+    const float tmp299 = zdiff[5] * zdiff[3];
+    const float tmp300 = tmp298 + tmp299;
+    const float tmp301 = zsum[11] * zsum[9];
+    const float tmp302 = zdiff[11] * zdiff[9];
+    const float tmp303 = tmp301 + tmp302;
+    const float tmp304 = tmp300 + tmp303;
+    const float tmp305 = zsum[17] * zsum[15];
+    const float tmp306 = zdiff[17] * zdiff[15];
+    const float tmp307 = tmp305 + tmp306;
+    const float tmp308 = tmp304 + tmp307;
+    const float tmp309 = 0.041666668f /* 0.5*UT_W */ * tmp308;
+    const float tmp310 = carry[13] /* tmp119 */ * carry[10] /* tmp85 */;
+    const float tmp311 = tmp309 + tmp310;
+    P_zz[17] = tmp311;
+    const float tmp312 = zsum[4] * zsum[4];
+    const float tmp313 = zdiff[4] * zdiff[4];
+    const float tmp314 = tmp312 + tmp313;
+    const float tmp315 = zsum[10] * zsum[10];
+    const float tmp316 = zdiff[10] * zdiff[10];
+    const float tmp317 = tmp315 + tmp316;
+    const float tmp318 = tmp314 + tmp317;
+    const float tmp319 = zsum[16] * zsum[16];
+    carry[4] = tmp281;
+    carry[10] = tmp283;
+    carry[16] = tmp318;
+    carry[17] = tmp319;
 }
 
 static void adukf_k_innovation_part8(const float z0[6], const float zsum[18], const float zdiff[18],
-    const float mag[3], float P_zz[21], float residual[6], float carry[17])
+    const float mag[3], float P_zz[21], float residual[6], float carry[18])
 {
-    const float tmp320 = carry[15] /* tmp316 */ + carry[16] /* tmp319 */;
-    const float tmp321 = 0.041666668f /* 0.5*UT_W */ * tmp320;
-    const float tmp322 = carry[9] /* tmp100 */ * carry[9] /* tmp100 */;
-    const float tmp323 = tmp321 + tmp322;
-    const float tmp324 = mag[1] * carry[8] /* tmp272 */;
-    const float tmp325 = z0[4] + carry[9] /* tmp100 */;
-    const float tmp326 = tmp324 - tmp325;
-    residual[4] = tmp326;
-    const float tmp327 = zsum[5] * zsum[4];
-    const float tmp328 = zdiff[5] * zdiff[4];
-    const float tmp329 = tmp327 + tmp328;
-    const float tmp330 = zsum[11] * zsum[10];
-    const float tmp331 = zdiff[11] * zdiff[10];
-    const float tmp332 = tmp330 + tmp331;
-    const float tmp333 = tmp329 + tmp332;
-    const float tmp334 = zsum[17] * zsum[16];
-    const float tmp335 = zdiff[17] * zdiff[16];
-    const float tmp336 = tmp334 + tmp335;
-    const float tmp337 = tmp333 + tmp336;
-    const float tmp338 = 0.041666668f /* 0.5*UT_W */ * tmp337;
-    const float tmp339 = carry[10] /* tmp117 */ * carry[9] /* tmp100 */;
-    const float tmp340 = tmp338 + tmp339;
-    P_zz[19] = tmp340;
-    const float tmp341 = zsum[5] * zsum[5];
-    const float tmp342 = zdiff[5] * zdiff[5];
-    const float tmp343 = tmp341 + tmp342;
-    const float tmp344 = zsum[11] * zsum[11];
-    const float tmp345 = zdiff[11] * zdiff[11];
-    const float tmp346 = tmp344 + tmp345;
-    const float tmp347 = tmp343 + tmp346;
-    const float tmp348 = zsum[17] * zsum[17];
-    const float tmp349 = zdiff[17] * zdiff[17];
-    const float tmp350 = tmp348 + tmp349;
-    const float tmp351 = tmp347 + tmp350;
-    const float tmp352 = 0.041666668f /* 0.5*UT_W */ * tmp351;
-    const float tmp353 = carry[10] /* tmp117 */ * carry[10] /* tmp117 */;
-    const float tmp354 = tmp352 + tmp353;
-    const float tmp355 = mag[2] * carry[8] /* tmp272 */;
-    const float tmp356 = z0[5] + carry[10] /* tmp117 */;
-    const float tmp357 = tmp355 - tmp356;
-    residual[5] = tmp357;
-    carry[8] = tmp323;
-    carry[9] = tmp326;
-    carry[10] = tmp354;
-    carry[15] = tmp357;
+    const float tmp320 = zdiff[16] * zdiff[16];
+    const float tmp321 = carry[17] /* tmp319 */ + tmp320;
+    const float tmp322 = carry[16] /* tmp318 */ + tmp321;
+    const float tmp323 = 0.041666668f /* 0.5*UT_W */ * tmp322;
+    const float tmp324 = carry[11] /* tmp102 */ * carry[11] /* tmp102 */;
+    const float tmp325 = tmp323 + tmp324;
+    const float tmp326 = mag[1] * carry[14] /* tmp274 */;
+    const float tmp327 = z0[4] + carry[11] /* tmp102 */;
+    const float tmp328 = tmp326 - tmp327;
+    residual[4] = tmp328;
+    const float tmp329 = zsum[5] * zsum[4];
+    const float tmp330 = zdiff[5] * zdiff[4];
+    const float tmp331 = tmp329 + tmp330;
+    const float tmp332 = zsum[11] * zsum[10];
+    const float tmp333 = zdiff[11] * zdiff[10];
+    const float tmp334 = tmp332 + tmp333;
+    const float tmp335 = tmp331 + tmp334;
+    const float tmp336 = zsum[17] * zsum[16];
+    const float tmp337 = zdiff[17] * zdiff[16];
+    const float tmp338 = tmp336 + tmp337;
+    const float tmp339 = tmp335 + tmp338;
+    const float tmp340 = 0.041666668f /* 0.5*UT_W */ * tmp339;
+    const float tmp341 = carry[13] /* tmp119 */ * carry[11] /* tmp102 */;
+    const float tmp342 = tmp340 + tmp341;
+    P_zz[19] = tmp342;
+    const float tmp343 = zsum[5] * zsum[5];
+    const float tmp344 = zdiff[5] * zdiff[5];
+    const float tmp345 = tmp343 + tmp344;
+    const float tmp346 = zsum[11] * zsum[11];
+    const float tmp347 = zdiff[11] * zdiff[11];
+    const float tmp348 = tmp346 + tmp347;
+    const float tmp349 = tmp345 + tmp348;
+    const float tmp350 = zsum[17] * zsum[17];
+    const float tmp351 = zdiff[17] * zdiff[17];
+    const float tmp352 = tmp350 + tmp351;
+    const float tmp353 = tmp349 + tmp352;
+    const float tmp354 = 0.041666668f /* 0.5*UT_W */ * tmp353;
+    const float tmp355 = carry[13] /* tmp119 */ * carry[13] /* tmp119 */;
+    const float tmp356 = tmp354 + tmp355;
+    const float tmp357 = mag[2] * carry[14] /* tmp274 */;
+    const float tmp358 = z0[5] + carry[13] /* tmp119 */;
+    const float tmp359 = tmp357 - tmp358;
+    residual[5] = tmp359;
+    carry[11] = tmp325;
+    carry[13] = tmp328;
+    carry[14] = tmp356;
+    carry[16] = tmp359;
 }
 
-static void adukf_k_innovation_part9(bool recover, float P_zz[21], float r_diag[6], float carry[17])
+static void adukf_k_innovation_part9(bool recover, float P_zz[21], float r_diag[6], float carry[18])
 {
-    float tmp358;
-    float tmp359;
     float tmp360;
     float tmp361;
     float tmp362;
     float tmp363;
+    float tmp364;
+    float tmp365;
     if (recover) {
-        tmp358 = 0.0f;
-        tmp359 = 0.0f;
         tmp360 = 0.0f;
         tmp361 = 0.0f;
         tmp362 = 0.0f;
         tmp363 = 0.0f;
+        tmp364 = 0.0f;
+        tmp365 = 0.0f;
     } else {
-        const float tmp364 = carry[3] /* tmp26 */ * carry[3] /* tmp26 */;
-        const float tmp365 = 300.0f /* k_a */ * tmp364;
-        const float tmp366 = (tmp365 < 10.0f /* adapt_max */) ? tmp365 : 10.0f /* adapt_max */;
-        const float tmp367 = carry[12] /* tmp136 */ * carry[12] /* tmp136 */;
-        const float tmp368 = 300.0f /* k_a */ * tmp367;
-        const float tmp369 = (tmp368 < 10.0f /* adapt_max */) ? tmp368 : 10.0f /* adapt_max */;
-        const float tmp370 = carry[7] /* tmp209 */ * carry[7] /* tmp209 */;
-        const float tmp371 = 300.0f /* k_a */ * tmp370;
-        const float tmp372 = (tmp371 < 10.0f /* adapt_max */) ? tmp371 : 10.0f /* adapt_max */;
-        const float tmp373 = carry[13] /* tmp275 */ * carry[13] /* tmp275 */;
-        const float tmp374 = 300.0f /* k_m */ * tmp373;
-        const float tmp375 = (tmp374 < 10.0f /* adapt_max */) ? tmp374 : 10.0f /* adapt_max */;
-        const float tmp376 = carry[9] /* tmp326 */ * carry[9] /* tmp326 */;
-        const float tmp377 = 300.0f /* k_m */ * tmp376;
-        const float tmp378 = (tmp377 < 10.0f /* adapt_max */) ? tmp377 : 10.0f /* adapt_max */;
-        const float tmp379 = carry[15] /* tmp357 */ * carry[15] /* tmp357 */;
-        const float tmp380 = 300.0f /* k_m */ * tmp379;
-        const float tmp381 = (tmp380 < 10.0f /* adapt_max */) ? tmp380 : 10.0f /* adapt_max */;
-        tmp358 = tmp366;
-        tmp359 = tmp369;
-        tmp360 = tmp372;
-        tmp361 = tmp375;
-        tmp362 = tmp378;
-        tmp363 = tmp381;
+        const float tmp366 = carry[3] /* tmp26 */ * carry[3] /* tmp26 */;
+        const float tmp367 = 300.0f /* k_a */ * tmp366;
+        const float tmp368 = (tmp367 < 10.0f /* adapt_max */) ? tmp367 : 10.0f /* adapt_max */;
+        const float tmp369 = carry[12] /* tmp138 */ * carry[12] /* tmp138 */;
+        const float tmp370 = 300.0f /* k_a */ * tmp369;
+        const float tmp371 = (tmp370 < 10.0f /* adapt_max */) ? tmp370 : 10.0f /* adapt_max */;
+        const float tmp372 = carry[8] /* tmp211 */ * carry[8] /* tmp211 */;
+        const float tmp373 = 300.0f /* k_a */ * tmp372;
+        const float tmp374 = (tmp373 < 10.0f /* adapt_max */) ? tmp373 : 10.0f /* adapt_max */;
+        const float tmp375 = carry[15] /* tmp277 */ * carry[15] /* tmp277 */;
+        const float tmp376 = 300.0f /* k_m */ * tmp375;
+        const float tmp377 = (tmp376 < 10.0f /* adapt_max */) ? tmp376 : 10.0f /* adapt_max */;
+        const float tmp378 = carry[13] /* tmp328 */ * carry[13] /* tmp328 */;
+        const float tmp379 = 300.0f /* k_m */ * tmp378;
+        const float tmp380 = (tmp379 < 10.0f /* adapt_max */) ? tmp379 : 10.0f /* adapt_max */;
+        const float tmp381 = carry[16] /* tmp359 */ * carry[16] /* tmp359 */;
+        const float tmp382 = 300.0f /* k_m */ * tmp381;
+        const float tmp383 = (tmp382 < 10.0f /* adapt_max */) ? tmp382 : 10.0f /* adapt_max */;
+        tmp360 = tmp368;
+        tmp361 = tmp371;
+        tmp362 = tmp374;
+        tmp363 = tmp377;
+        tmp364 = tmp380;
+        tmp365 = tmp383;
     }
-    const float tmp382 = 0.0144f /* sigma_acc^2 */ + tmp358;
-    const float tmp383 = tmp382 * carry[5] /* tmp32 */;
-    const float tmp384 = tmp383 + carry[6] /* tmp34 */;
-    r_diag[0] = tmp384;
-    const float tmp385 = carry[1] /* tmp16 */ + tmp384;
-    P_zz[0] = tmp385;
-    const float tmp386 = 0.0144f /* sigma_acc^2 */ + tmp359;
-    const float tmp387 = tmp386 * carry[5] /* tmp32 */;
-    const float tmp388 = tmp387 + carry[6] /* tmp34 */;
-    r_diag[1] = tmp388;
-    const float tmp389 = carry[11] /* tmp133 */ + tmp388;
-    P_zz[6] = tmp389;
-    const float tmp390 = 0.0144f /* sigma_acc^2 */ + tmp360;
-    const float tmp391 = tmp390 * carry[5] /* tmp32 */;
-    const float tmp392 = tmp391 + carry[6] /* tmp34 */;
-    r_diag[2] = tmp392;
-    const float tmp393 = carry[2] /* tmp206 */ + tmp392;
-    P_zz[11] = tmp393;
-    const float tmp394 = 0.0025f /* sigma_mag^2 */ + tmp361;
-    const float tmp395 = tmp394 * carry[14] /* tmp279 */;
-    const float tmp396 = tmp395 + carry[0] /* tmp281 */;
-    r_diag[3] = tmp396;
-    const float tmp397 = carry[4] /* tmp265 */ + tmp396;
-    P_zz[15] = tmp397;
-    carry[1] = tmp362;
-    carry[2] = tmp363;
+    const float tmp384 = 0.0144f /* sigma_acc^2 */ + tmp360;
+    const float tmp385 = tmp384 * carry[5] /* tmp32 */;
+    const float tmp386 = tmp385 + carry[6] /* tmp35 */;
+    const float tmp387 = tmp386 * carry[7] /* tmp36 */;
+    r_diag[0] = tmp387;
+    const float tmp388 = carry[1] /* tmp16 */ + tmp387;
+    P_zz[0] = tmp388;
+    const float tmp389 = 0.0144f /* sigma_acc^2 */ + tmp361;
+    const float tmp390 = tmp389 * carry[5] /* tmp32 */;
+    const float tmp391 = tmp390 + carry[6] /* tmp35 */;
+    const float tmp392 = tmp391 * carry[7] /* tmp36 */;
+    r_diag[1] = tmp392;
+    const float tmp393 = carry[0] /* tmp135 */ + tmp392;
+    P_zz[6] = tmp393;
+    const float tmp394 = 0.0144f /* sigma_acc^2 */ + tmp362;
+    const float tmp395 = tmp394 * carry[5] /* tmp32 */;
+    const float tmp396 = tmp395 + carry[6] /* tmp35 */;
+    const float tmp397 = tmp396 * carry[7] /* tmp36 */;
+    r_diag[2] = tmp397;
+    const float tmp398 = carry[2] /* tmp208 */ + tmp397;
+    P_zz[11] = tmp398;
+    const float tmp399 = 0.0025f /* sigma_mag^2 */ + tmp363;
+    carry[0] = tmp364;
+    carry[1] = tmp365;
+    carry[2] = tmp399;
 }
 
-static void adukf_k_innovation_part10(float P_zz[21], float r_diag[6], const float carry[17])
+static void adukf_k_innovation_part10(float P_zz[21], float r_diag[6], const float carry[18])
 {
-    const float tmp398 = 0.0025f /* sigma_mag^2 */ + carry[1] /* tmp362 */;
-    const float tmp399 = tmp398 * carry[14] /* tmp279 */;
-    const float tmp400 = tmp399 + carry[0] /* tmp281 */;
-    r_diag[4] = tmp400;
-    const float tmp401 = carry[8] /* tmp323 */ + tmp400;
-    P_zz[18] = tmp401;
-    const float tmp402 = 0.0025f /* sigma_mag^2 */ + carry[2] /* tmp363 */;
-    const float tmp403 = tmp402 * carry[14] /* tmp279 */;
-    const float tmp404 = tmp403 + carry[0] /* tmp281 */;
-    r_diag[5] = tmp404;
-    const float tmp405 = carry[10] /* tmp354 */ + tmp404;
-    P_zz[20] = tmp405;
+    const float tmp400 = carry[2] /* tmp399 */ * carry[4] /* tmp281 */;
+    const float tmp401 = tmp400 + carry[10] /* tmp283 */;
+    r_diag[3] = tmp401;
+    const float tmp402 = carry[9] /* tmp267 */ + tmp401;
+    P_zz[15] = tmp402;
+    const float tmp403 = 0.0025f /* sigma_mag^2 */ + carry[0] /* tmp364 */;
+    const float tmp404 = tmp403 * carry[4] /* tmp281 */;
+    const float tmp405 = tmp404 + carry[10] /* tmp283 */;
+    r_diag[4] = tmp405;
+    const float tmp406 = carry[11] /* tmp325 */ + tmp405;
+    P_zz[18] = tmp406;
+    const float tmp407 = 0.0025f /* sigma_mag^2 */ + carry[1] /* tmp365 */;
+    const float tmp408 = tmp407 * carry[4] /* tmp281 */;
+    const float tmp409 = tmp408 + carry[10] /* tmp283 */;
+    r_diag[5] = tmp409;
+    const float tmp410 = carry[14] /* tmp356 */ + tmp409;
+    P_zz[20] = tmp410;
 }
 
 /*
@@ -1656,12 +1665,14 @@ static void adukf_k_innovation_part10(float P_zz[21], float r_diag[6], const flo
  *     dt: float
  *     span: float[2]
  *     recover: bool
+ *     gate_w: float
+ *     m_comp: bool
  * Outputs:
  *     P_zz: float[21]
  *     residual: float[6]
  *     r_diag: float[6]
  *
- * Total ops: 406 (add 172, mul 208, div 7, sqrt 2, cmp 17)
+ * Total ops: 411 (add 172, mul 211, div 8, sqrt 2, cmp 18)
  *     of which only one side runs: if (recover) 0, else 18
  */
 #if defined(__GNUC__)
@@ -1669,15 +1680,15 @@ __attribute__((noinline))
 #endif
 static void adukf_k_innovation(const float z0[restrict 6], const float zsum[restrict 18],
     const float zdiff[restrict 18], const float accel[restrict 3], const float mag[restrict 3],
-    float dt, const float span[restrict 2], bool recover, float P_zz[restrict 21],
-    float residual[restrict 6], float r_diag[restrict 6])
+    float dt, const float span[restrict 2], bool recover, float gate_w, bool m_comp,
+    float P_zz[restrict 21], float residual[restrict 6], float r_diag[restrict 6])
 {
     /*
      * 11 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
      * handed between them (a slot reused once its value is dead)
      */
-    float carry[17];
-    adukf_k_innovation_part0(z0, zsum, zdiff, accel, dt, span, residual, carry);
+    float carry[18];
+    adukf_k_innovation_part0(z0, zsum, zdiff, accel, dt, span, gate_w, m_comp, residual, carry);
     adukf_k_innovation_part1(zsum, zdiff, P_zz, carry);
     adukf_k_innovation_part2(zsum, zdiff, P_zz, carry);
     adukf_k_innovation_part3(z0, zsum, zdiff, accel, P_zz, residual, carry);
@@ -2553,8 +2564,8 @@ static void adukf_k_correct(const float x_pred[restrict 7], const float P_pred[r
 }
 
 static void adukf_k_accel_lowpass_part0(const float q_pred_unit[4], const float accel[3],
-    const float accel_lp[3], float lp_time, bool restart, float dt, bool recover, float carry[19],
-    bool flags[1])
+    const float accel_lp[3], float lp_time, bool restart, float dt, bool recover, bool m_comp,
+    float carry[20], bool flags[1])
 {
     const bool tmp0 = restart || recover;
     const float tmp1 = q_pred_unit[2] * q_pred_unit[2];
@@ -2577,25 +2588,25 @@ static void adukf_k_accel_lowpass_part0(const float q_pred_unit[4], const float 
     const float tmp18 = tmp12 + tmp17;
     const float tmp19 = (tmp0) ? tmp18 : accel_lp[0];
     const float tmp20 = (restart) ? 0.0f : lp_time;
-    const float tmp21 = (tmp20 < 1.0f) ? tmp20 : 1.0f;
-    const float tmp22 = tmp21 + dt;
-    const float tmp23 = dt / tmp22;
-    const float tmp24 = tmp18 - tmp19;
-    const float tmp25 = tmp23 * tmp24;
-    const float tmp26 = tmp19 + tmp25;
-    const float tmp27 = tmp7 + tmp8;
-    const float tmp28 = tmp27 + tmp27;
-    const float tmp29 = tmp28 * accel[0];
-    const float tmp30 = q_pred_unit[1] * q_pred_unit[1];
-    const float tmp31 = tmp30 + tmp2;
-    const float tmp32 = tmp31 + tmp31;
-    const float tmp33 = 1.0f - tmp32;
-    const float tmp34 = tmp33 * accel[1];
-    const float tmp35 = tmp29 + tmp34;
-    const float tmp36 = q_pred_unit[2] * q_pred_unit[3];
-    const float tmp37 = q_pred_unit[0] * q_pred_unit[1];
-    const float tmp38 = tmp36 - tmp37;
-    const float tmp39 = tmp38 + tmp38;
+    const float tmp21 = (m_comp) ? 1.0f : 2.0f;
+    const float tmp22 = (tmp20 < tmp21) ? tmp20 : tmp21;
+    const float tmp23 = tmp22 + dt;
+    const float tmp24 = dt / tmp23;
+    const float tmp25 = tmp18 - tmp19;
+    const float tmp26 = tmp24 * tmp25;
+    const float tmp27 = tmp19 + tmp26;
+    const float tmp28 = tmp7 + tmp8;
+    const float tmp29 = tmp28 + tmp28;
+    const float tmp30 = tmp29 * accel[0];
+    const float tmp31 = q_pred_unit[1] * q_pred_unit[1];
+    const float tmp32 = tmp31 + tmp2;
+    const float tmp33 = tmp32 + tmp32;
+    const float tmp34 = 1.0f - tmp33;
+    const float tmp35 = tmp34 * accel[1];
+    const float tmp36 = tmp30 + tmp35;
+    const float tmp37 = q_pred_unit[2] * q_pred_unit[3];
+    const float tmp38 = q_pred_unit[0] * q_pred_unit[1];
+    const float tmp39 = tmp37 - tmp38;
     flags[0] = tmp0;
     carry[0] = tmp1;
     carry[1] = tmp5;
@@ -2605,129 +2616,208 @@ static void adukf_k_accel_lowpass_part0(const float q_pred_unit[4], const float 
     carry[5] = tmp16;
     carry[6] = tmp18;
     carry[7] = tmp20;
-    carry[8] = tmp23;
-    carry[9] = tmp26;
-    carry[10] = tmp28;
-    carry[11] = tmp30;
-    carry[12] = tmp33;
-    carry[13] = tmp35;
+    carry[8] = tmp21;
+    carry[9] = tmp24;
+    carry[10] = tmp27;
+    carry[11] = tmp29;
+    carry[12] = tmp31;
+    carry[13] = tmp34;
     carry[14] = tmp36;
     carry[15] = tmp37;
-    carry[16] = tmp39;
+    carry[16] = tmp38;
+    carry[17] = tmp39;
 }
 
 static void adukf_k_accel_lowpass_part1(const float accel[3], const float accel_lp[3],
     float lp_time, bool restart, float dt, const float gps_vel[3], bool new_gps, bool m_comp,
-    const float v_lp[3], const float v_ins[3], float carry[19], const bool flags[1])
+    const float v_lp[3], const float v_ins[3], float carry[20], const bool flags[1])
 {
-    const float tmp40 = carry[16] /* tmp39 */ * accel[2];
-    const float tmp41 = carry[13] /* tmp35 */ + tmp40;
-    const float tmp42 = (flags[0] /* tmp0 */) ? tmp41 : accel_lp[1];
-    const float tmp43 = tmp41 - tmp42;
-    const float tmp44 = carry[8] /* tmp23 */ * tmp43;
-    const float tmp45 = tmp42 + tmp44;
-    const float tmp46 = carry[3] /* tmp13 */ - carry[4] /* tmp14 */;
-    const float tmp47 = tmp46 + tmp46;
-    const float tmp48 = tmp47 * accel[0];
-    const float tmp49 = carry[14] /* tmp36 */ + carry[15] /* tmp37 */;
-    const float tmp50 = tmp49 + tmp49;
-    const float tmp51 = tmp50 * accel[1];
-    const float tmp52 = tmp48 + tmp51;
-    const float tmp53 = carry[11] /* tmp30 */ + carry[0] /* tmp1 */;
-    const float tmp54 = tmp53 + tmp53;
-    const float tmp55 = 1.0f - tmp54;
-    const float tmp56 = tmp55 * accel[2];
-    const float tmp57 = tmp52 + tmp56;
-    const float tmp58 = (flags[0] /* tmp0 */) ? tmp57 : accel_lp[2];
-    const float tmp59 = tmp57 - tmp58;
-    const float tmp60 = carry[8] /* tmp23 */ * tmp59;
-    const float tmp61 = tmp58 + tmp60;
-    const bool tmp62 = flags[0] /* tmp0 */ && (!(restart));
-    const float tmp63 = carry[7] /* tmp20 */ + dt;
-    const float tmp64 = (tmp63 < 1.0f) ? tmp63 : 1.0f;
-    const float tmp65 = (tmp62) ? lp_time : tmp64;
-    const float tmp66 = carry[6] /* tmp18 */ * dt;
-    const float tmp67 = v_ins[0] + tmp66;
-    const float tmp68 = (new_gps) ? gps_vel[0] : tmp67;
-    const float tmp69 = 1.0f + dt;
-    const float tmp70 = dt / tmp69;
-    const float tmp71 = (flags[0] /* tmp0 */) ? 1.0f : tmp70;
-    const float tmp72 = tmp68 - v_lp[0];
-    const float tmp73 = tmp71 * tmp72;
-    const float tmp74 = v_lp[0] + tmp73;
-    const float tmp75 = (m_comp) ? tmp74 : v_lp[0];
-    const float tmp76 = tmp68 - tmp75;
-    const float tmp77 = carry[9] /* tmp26 */ - tmp76;
-    const float tmp78 = (m_comp) ? tmp77 : carry[9] /* tmp26 */;
-    const float tmp79 = carry[1] /* tmp5 */ * tmp78;
-    carry[0] = tmp41;
-    carry[1] = tmp45;
-    carry[3] = tmp47;
-    carry[4] = tmp50;
-    carry[6] = tmp55;
-    carry[7] = tmp57;
-    carry[8] = tmp61;
-    carry[11] = tmp65;
-    carry[13] = tmp68;
-    carry[14] = tmp71;
-    carry[15] = tmp75;
-    carry[17] = tmp78;
-    carry[18] = tmp79;
+    const float tmp40 = carry[17] /* tmp39 */ + carry[17] /* tmp39 */;
+    const float tmp41 = tmp40 * accel[2];
+    const float tmp42 = carry[14] /* tmp36 */ + tmp41;
+    const float tmp43 = (flags[0] /* tmp0 */) ? tmp42 : accel_lp[1];
+    const float tmp44 = tmp42 - tmp43;
+    const float tmp45 = carry[9] /* tmp24 */ * tmp44;
+    const float tmp46 = tmp43 + tmp45;
+    const float tmp47 = carry[3] /* tmp13 */ - carry[4] /* tmp14 */;
+    const float tmp48 = tmp47 + tmp47;
+    const float tmp49 = tmp48 * accel[0];
+    const float tmp50 = carry[15] /* tmp37 */ + carry[16] /* tmp38 */;
+    const float tmp51 = tmp50 + tmp50;
+    const float tmp52 = tmp51 * accel[1];
+    const float tmp53 = tmp49 + tmp52;
+    const float tmp54 = carry[12] /* tmp31 */ + carry[0] /* tmp1 */;
+    const float tmp55 = tmp54 + tmp54;
+    const float tmp56 = 1.0f - tmp55;
+    const float tmp57 = tmp56 * accel[2];
+    const float tmp58 = tmp53 + tmp57;
+    const float tmp59 = (flags[0] /* tmp0 */) ? tmp58 : accel_lp[2];
+    const float tmp60 = tmp58 - tmp59;
+    const float tmp61 = carry[9] /* tmp24 */ * tmp60;
+    const float tmp62 = tmp59 + tmp61;
+    const bool tmp63 = flags[0] /* tmp0 */ && (!(restart));
+    const float tmp64 = carry[7] /* tmp20 */ + dt;
+    const float tmp65 = (tmp64 < carry[8] /* tmp21 */) ? tmp64 : carry[8] /* tmp21 */;
+    const float tmp66 = (tmp63) ? lp_time : tmp65;
+    const float tmp67 = carry[6] /* tmp18 */ * dt;
+    const float tmp68 = v_ins[0] + tmp67;
+    const float tmp69 = (new_gps) ? gps_vel[0] : tmp68;
+    const float tmp70 = 1.0f + dt;
+    const float tmp71 = dt / tmp70;
+    const float tmp72 = (flags[0] /* tmp0 */) ? 1.0f : tmp71;
+    const float tmp73 = tmp69 - v_lp[0];
+    const float tmp74 = tmp72 * tmp73;
+    const float tmp75 = v_lp[0] + tmp74;
+    const float tmp76 = (m_comp) ? tmp75 : v_lp[0];
+    const float tmp77 = tmp69 - tmp76;
+    const float tmp78 = carry[10] /* tmp27 */ - tmp77;
+    const float tmp79 = (m_comp) ? tmp78 : carry[10] /* tmp27 */;
+    carry[0] = tmp40;
+    carry[3] = tmp42;
+    carry[4] = tmp46;
+    carry[7] = tmp48;
+    carry[8] = tmp51;
+    carry[9] = tmp56;
+    carry[12] = tmp58;
+    carry[14] = tmp62;
+    carry[15] = tmp66;
+    carry[16] = tmp69;
+    carry[17] = tmp72;
+    carry[18] = tmp76;
+    carry[19] = tmp79;
 }
 
 static void adukf_k_accel_lowpass_part2(float dt, const float gps_vel[3], bool new_gps, bool m_comp,
-    const float v_lp[3], const float v_ins[3], float carry[19])
+    const float v_lp[3], const float v_ins[3], const float accel_short[3], float carry[20],
+    const bool flags[1])
 {
-    const float tmp80 = carry[0] /* tmp41 */ * dt;
-    const float tmp81 = v_ins[1] + tmp80;
-    const float tmp82 = (new_gps) ? gps_vel[1] : tmp81;
-    const float tmp83 = tmp82 - v_lp[1];
-    const float tmp84 = carry[14] /* tmp71 */ * tmp83;
-    const float tmp85 = v_lp[1] + tmp84;
-    const float tmp86 = (m_comp) ? tmp85 : v_lp[1];
-    const float tmp87 = tmp82 - tmp86;
-    const float tmp88 = carry[1] /* tmp45 */ - tmp87;
-    const float tmp89 = (m_comp) ? tmp88 : carry[1] /* tmp45 */;
-    const float tmp90 = carry[10] /* tmp28 */ * tmp89;
-    const float tmp91 = carry[18] /* tmp79 */ + tmp90;
-    const float tmp92 = carry[7] /* tmp57 */ + 9.80665f /* G0 */;
-    const float tmp93 = tmp92 * dt;
-    const float tmp94 = v_ins[2] + tmp93;
-    const float tmp95 = (new_gps) ? gps_vel[2] : tmp94;
-    const float tmp96 = tmp95 - v_lp[2];
-    const float tmp97 = carry[14] /* tmp71 */ * tmp96;
-    const float tmp98 = v_lp[2] + tmp97;
-    const float tmp99 = (m_comp) ? tmp98 : v_lp[2];
-    const float tmp100 = tmp95 - tmp99;
-    const float tmp101 = carry[8] /* tmp61 */ - tmp100;
-    const float tmp102 = (m_comp) ? tmp101 : carry[8] /* tmp61 */;
-    const float tmp103 = carry[3] /* tmp47 */ * tmp102;
-    const float tmp104 = tmp91 + tmp103;
-    const float tmp105 = carry[2] /* tmp10 */ * carry[17] /* tmp78 */;
-    const float tmp106 = carry[12] /* tmp33 */ * tmp89;
-    const float tmp107 = tmp105 + tmp106;
-    const float tmp108 = carry[4] /* tmp50 */ * tmp102;
-    const float tmp109 = tmp107 + tmp108;
-    const float tmp110 = carry[5] /* tmp16 */ * carry[17] /* tmp78 */;
-    const float tmp111 = carry[16] /* tmp39 */ * tmp89;
-    const float tmp112 = tmp110 + tmp111;
-    const float tmp113 = carry[6] /* tmp55 */ * tmp102;
-    const float tmp114 = tmp112 + tmp113;
-    carry[0] = tmp82;
-    carry[2] = tmp86;
-    carry[3] = tmp95;
-    carry[4] = tmp99;
-    carry[5] = tmp104;
-    carry[6] = tmp109;
-    carry[7] = tmp114;
+    const float tmp80 = carry[1] /* tmp5 */ * carry[19] /* tmp79 */;
+    const float tmp81 = carry[3] /* tmp42 */ * dt;
+    const float tmp82 = v_ins[1] + tmp81;
+    const float tmp83 = (new_gps) ? gps_vel[1] : tmp82;
+    const float tmp84 = tmp83 - v_lp[1];
+    const float tmp85 = carry[17] /* tmp72 */ * tmp84;
+    const float tmp86 = v_lp[1] + tmp85;
+    const float tmp87 = (m_comp) ? tmp86 : v_lp[1];
+    const float tmp88 = tmp83 - tmp87;
+    const float tmp89 = carry[4] /* tmp46 */ - tmp88;
+    const float tmp90 = (m_comp) ? tmp89 : carry[4] /* tmp46 */;
+    const float tmp91 = carry[11] /* tmp29 */ * tmp90;
+    const float tmp92 = tmp80 + tmp91;
+    const float tmp93 = carry[12] /* tmp58 */ + 9.80665f /* G0 */;
+    const float tmp94 = tmp93 * dt;
+    const float tmp95 = v_ins[2] + tmp94;
+    const float tmp96 = (new_gps) ? gps_vel[2] : tmp95;
+    const float tmp97 = tmp96 - v_lp[2];
+    const float tmp98 = carry[17] /* tmp72 */ * tmp97;
+    const float tmp99 = v_lp[2] + tmp98;
+    const float tmp100 = (m_comp) ? tmp99 : v_lp[2];
+    const float tmp101 = tmp96 - tmp100;
+    const float tmp102 = carry[14] /* tmp62 */ - tmp101;
+    const float tmp103 = (m_comp) ? tmp102 : carry[14] /* tmp62 */;
+    const float tmp104 = carry[7] /* tmp48 */ * tmp103;
+    const float tmp105 = tmp92 + tmp104;
+    const float tmp106 = carry[2] /* tmp10 */ * carry[19] /* tmp79 */;
+    const float tmp107 = carry[13] /* tmp34 */ * tmp90;
+    const float tmp108 = tmp106 + tmp107;
+    const float tmp109 = carry[8] /* tmp51 */ * tmp103;
+    const float tmp110 = tmp108 + tmp109;
+    const float tmp111 = carry[5] /* tmp16 */ * carry[19] /* tmp79 */;
+    const float tmp112 = carry[0] /* tmp40 */ * tmp90;
+    const float tmp113 = tmp111 + tmp112;
+    const float tmp114 = carry[9] /* tmp56 */ * tmp103;
+    const float tmp115 = tmp113 + tmp114;
+    const float tmp116 = (flags[0] /* tmp0 */) ? carry[6] /* tmp18 */ : accel_short[0];
+    const float tmp117 = 0.03f /* accel_gate_tau */ + dt;
+    const float tmp118 = dt / tmp117;
+    const float tmp119 = carry[6] /* tmp18 */ - tmp116;
+    carry[0] = tmp83;
+    carry[1] = tmp87;
+    carry[2] = tmp96;
+    carry[5] = tmp100;
+    carry[6] = tmp105;
+    carry[7] = tmp110;
+    carry[8] = tmp115;
+    carry[9] = tmp116;
+    carry[11] = tmp118;
+    carry[13] = tmp119;
+}
+
+static void adukf_k_accel_lowpass_part3(bool m_comp, const float gyro[3], const float gyro_bias[3],
+    const float accel_short[3], float carry[20], bool flags[1])
+{
+    const float tmp120 = carry[11] /* tmp118 */ * carry[13] /* tmp119 */;
+    const float tmp121 = carry[9] /* tmp116 */ + tmp120;
+    const float tmp122 = (flags[0] /* tmp0 */) ? carry[3] /* tmp42 */ : accel_short[1];
+    const float tmp123 = carry[3] /* tmp42 */ - tmp122;
+    const float tmp124 = carry[11] /* tmp118 */ * tmp123;
+    const float tmp125 = tmp122 + tmp124;
+    const float tmp126 = (flags[0] /* tmp0 */) ? carry[12] /* tmp58 */ : accel_short[2];
+    const float tmp127 = carry[12] /* tmp58 */ - tmp126;
+    const float tmp128 = carry[11] /* tmp118 */ * tmp127;
+    const float tmp129 = tmp126 + tmp128;
+    const float tmp130 = gyro[0] - gyro_bias[0];
+    const float tmp131 = tmp130 * tmp130;
+    const float tmp132 = gyro[1] - gyro_bias[1];
+    const float tmp133 = tmp132 * tmp132;
+    const float tmp134 = tmp131 + tmp133;
+    const float tmp135 = gyro[2] - gyro_bias[2];
+    const float tmp136 = tmp135 * tmp135;
+    const float tmp137 = tmp134 + tmp136;
+    const bool tmp138 = flags[0] /* tmp0 */ || m_comp;
+    const bool tmp139 = (tmp137 < 0.09f /* accel_gate_rate^2 */) && (!(tmp138));
+    carry[3] = tmp121;
+    carry[9] = tmp125;
+    carry[11] = tmp129;
+    flags[0] = tmp139;
+}
+
+static void adukf_k_accel_lowpass_part4(const float accel_lp[3], float carry[20],
+    const bool flags[1])
+{
+    float tmp140;
+    if (flags[0] /* tmp139 */) {
+        const float tmp141 = carry[3] /* tmp121 */ * carry[3] /* tmp121 */;
+        const float tmp142 = carry[9] /* tmp125 */ * carry[9] /* tmp125 */;
+        const float tmp143 = tmp141 + tmp142;
+        const float tmp144 = carry[11] /* tmp129 */ * carry[11] /* tmp129 */;
+        const float tmp145 = tmp143 + tmp144;
+        const float tmp146 = accel_lp[0] * accel_lp[0];
+        const float tmp147 = accel_lp[1] * accel_lp[1];
+        const float tmp148 = tmp146 + tmp147;
+        const float tmp149 = accel_lp[2] * accel_lp[2];
+        const float tmp150 = tmp148 + tmp149;
+        const float tmp151 = tmp145 * tmp150;
+        const float tmp152 = carry[3] /* tmp121 */ * accel_lp[0];
+        const float tmp153 = carry[9] /* tmp125 */ * accel_lp[1];
+        const float tmp154 = tmp152 + tmp153;
+        const float tmp155 = carry[11] /* tmp129 */ * accel_lp[2];
+        const float tmp156 = tmp154 + tmp155;
+        const float tmp157 = tmp156 * tmp156;
+        const float tmp158 = tmp151 - tmp157;
+        const float tmp159 = (tmp151 > 1e-06f /* GATE_NORM2_MIN */) ? tmp151 :
+                1e-06f /* GATE_NORM2_MIN */;
+        const float tmp160 = tmp158 / tmp159;
+        const float tmp161 = 3000.0f /* accel_gate */ * tmp160;
+        const float tmp162 = 1.0f + tmp161;
+        const float tmp163 = 1.0f / tmp162;
+        const float tmp164 = (tmp163 > 0.1f /* accel_gate_floor */) ? tmp163 :
+                0.1f /* accel_gate_floor */;
+        tmp140 = tmp164;
+    } else {
+        tmp140 = 1.0f;
+    }
+    carry[12] = tmp140;
 }
 
 /*
  * NED low-pass of the specific force R(q-) f (restart: start at R(q-) f; accel_lp_warm: the running
- * mean of its samples until it has averaged accel_tau); the update measures R(q-)^T of it less the
- * GPS velocity's low-passed derivative (v_ins - v_lp)/accel_tau (m_comp; v through the same
- * low-pass, carried by R f + g between GPS samples) (recovering from a clipped gyro sample: the
- * sample itself)
+ * mean of its samples until it has averaged accel_tau, accel_tau_unaided while no GPS compensation
+ * runs); the update measures R(q-)^T of it less the GPS velocity's low-passed derivative (v_ins -
+ * v_lp)/accel_tau (m_comp; v through the same low-pass, carried by R f + g between GPS samples)
+ * (recovering from a clipped gyro sample: the sample itself); accel_gate: the short NED mean
+ * accel_short and the gate's weight gate_w from its tilt (1 unless the gyro is slow and no GPS
+ * compensation runs; the update divides R's accelerometer rows by it)
  *
  * Args:
  *     q_pred_unit: float[4]
@@ -2742,45 +2832,59 @@ static void adukf_k_accel_lowpass_part2(float dt, const float gps_vel[3], bool n
  *     m_comp: bool
  *     v_lp: float[3]
  *     v_ins: float[3]
+ *     gyro: float[3]
+ *     gyro_bias: float[3]
+ *     accel_short: float[3]
  * Outputs:
  *     accel_lp_new: float[3]
  *     lp_time_new: float
  *     accel_body: float[3]
  *     v_lp_new: float[3]
  *     v_ins_new: float[3]
+ *     accel_short_new: float[3]
+ *     gate_w: float
  *
- * Total ops: 115 (add 58, mul 36, div 2, cmp 19)
+ * Total ops: 165 (add 78, mul 54, div 5, cmp 28)
+ *     of which only one side runs: if (tmp139) 24, else 0
  */
 static void adukf_k_accel_lowpass(const float q_pred_unit[4], const float accel[3],
     const float accel_lp[3], float lp_time, bool restart, float dt, bool recover,
     const float gps_vel[3], bool new_gps, bool m_comp, const float v_lp[3], const float v_ins[3],
+    const float gyro[3], const float gyro_bias[3], const float accel_short[3],
     float accel_lp_new[3], float *lp_time_new, float accel_body[3], float v_lp_new[3],
-    float v_ins_new[3])
+    float v_ins_new[3], float accel_short_new[3], float *gate_w)
 {
     /*
-     * 3 parts called in turn (inlined when optimising): bounded -O0 frames; carry and flags hold
+     * 5 parts called in turn (inlined when optimising): bounded -O0 frames; carry and flags hold
      * the values handed between them (a slot reused once its value is dead)
      */
-    float carry[19];
+    float carry[20];
     bool flags[1];
-    adukf_k_accel_lowpass_part0(q_pred_unit, accel, accel_lp, lp_time, restart, dt, recover, carry,
-            flags);
+    adukf_k_accel_lowpass_part0(q_pred_unit, accel, accel_lp, lp_time, restart, dt, recover, m_comp,
+            carry, flags);
     adukf_k_accel_lowpass_part1(accel, accel_lp, lp_time, restart, dt, gps_vel, new_gps, m_comp,
             v_lp, v_ins, carry, flags);
-    adukf_k_accel_lowpass_part2(dt, gps_vel, new_gps, m_comp, v_lp, v_ins, carry);
-    accel_lp_new[0] = carry[9] /* tmp26 */;
-    accel_lp_new[1] = carry[1] /* tmp45 */;
-    accel_lp_new[2] = carry[8] /* tmp61 */;
-    *lp_time_new = carry[11] /* tmp65 */;
-    accel_body[0] = carry[5] /* tmp104 */;
-    accel_body[1] = carry[6] /* tmp109 */;
-    accel_body[2] = carry[7] /* tmp114 */;
-    v_lp_new[0] = carry[15] /* tmp75 */;
-    v_lp_new[1] = carry[2] /* tmp86 */;
-    v_lp_new[2] = carry[4] /* tmp99 */;
-    v_ins_new[0] = carry[13] /* tmp68 */;
-    v_ins_new[1] = carry[0] /* tmp82 */;
-    v_ins_new[2] = carry[3] /* tmp95 */;
+    adukf_k_accel_lowpass_part2(dt, gps_vel, new_gps, m_comp, v_lp, v_ins, accel_short, carry,
+            flags);
+    adukf_k_accel_lowpass_part3(m_comp, gyro, gyro_bias, accel_short, carry, flags);
+    adukf_k_accel_lowpass_part4(accel_lp, carry, flags);
+    accel_lp_new[0] = carry[10] /* tmp27 */;
+    accel_lp_new[1] = carry[4] /* tmp46 */;
+    accel_lp_new[2] = carry[14] /* tmp62 */;
+    *lp_time_new = carry[15] /* tmp66 */;
+    accel_body[0] = carry[6] /* tmp105 */;
+    accel_body[1] = carry[7] /* tmp110 */;
+    accel_body[2] = carry[8] /* tmp115 */;
+    v_lp_new[0] = carry[18] /* tmp76 */;
+    v_lp_new[1] = carry[1] /* tmp87 */;
+    v_lp_new[2] = carry[5] /* tmp100 */;
+    v_ins_new[0] = carry[16] /* tmp69 */;
+    v_ins_new[1] = carry[0] /* tmp83 */;
+    v_ins_new[2] = carry[2] /* tmp96 */;
+    accel_short_new[0] = carry[3] /* tmp121 */;
+    accel_short_new[1] = carry[9] /* tmp125 */;
+    accel_short_new[2] = carry[11] /* tmp129 */;
+    *gate_w = carry[12] /* tmp140 */;
 }
 
 static void adukf_k_accel_lp_follow_part0(const float q_pred[4], const float q_new[4],
@@ -4253,6 +4357,9 @@ void adukf_init(adukf_state *s)
     s->accel_lp[1] = 0.0f;
     s->accel_lp[2] = 0.0f;
     s->lp_time = 0.0f;
+    s->accel_short[0] = 0.0f;
+    s->accel_short[1] = 0.0f;
+    s->accel_short[2] = 0.0f;
     s->gps_vel[0] = 0.0f;
     s->gps_vel[1] = 0.0f;
     s->gps_vel[2] = 0.0f;
@@ -4528,6 +4635,7 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
         /* the accelerometer enters low-passed in NED (the low-pass starts at the first sample;
          * accel_lp_warm: their running mean until it has averaged accel_tau) */
         float accel_in[3] = { 0.0f, 0.0f, -1.0f };
+        float gate_w = 1.0f;   /* the accelerometer gate's weight: R's accelerometer rows over it */
         if (use_accel) {
             /* all three exactly 0 (+0 or -0: every bit but the sign clear; false for NaN,
              * as x == 0) */
@@ -4542,7 +4650,8 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
             }
             adukf_k_accel_lowpass(x_new, in->accel, s->accel_lp, s->lp_time, restart,
                 dt, recovering, s->gps_vel, use_gps, m_comp, s->v_lp, s->v_ins,
-                s->accel_lp, &s->lp_time, accel_in, s->v_lp, s->v_ins);
+                in->gyro, x_new + 4, s->accel_short,
+                s->accel_lp, &s->lp_time, accel_in, s->v_lp, s->v_ins, s->accel_short, &gate_w);
         }
         const float mag_in[3] = { use_mag ? mag_c[0] : 1.0f, use_mag ? mag_c[1] : 0.0f,
             use_mag ? mag_c[2] : 0.0f };
@@ -4563,8 +4672,8 @@ adukf_status adukf_step(adukf_state *restrict s, const adukf_input *restrict in,
             /* the sigma points q- * dq(+-d), d = a L[0:3, j] (an attitude error) */
             adukf_k_sigma_pair(aL + 6u * j, z0, zsum + 6u * j, zdiff + 6u * j);
         }
-        adukf_k_innovation(z0, zsum, zdiff, accel_in, mag_in, dt, span, recovering, P_zz,
-            residual, s->r_diag);   /* zeroed below unless the update is applied */
+        adukf_k_innovation(z0, zsum, zdiff, accel_in, mag_in, dt, span, recovering, gate_w,
+            m_comp, P_zz, residual, s->r_diag);   /* zeroed below unless the update is applied */
         if (!use_accel || !use_mag) {
             /* An unusable sensor is masked out exactly: identity block in P_zz, zero rows of the
              * pairs' differences (so zero cross-covariance), residual and R, so its columns of the

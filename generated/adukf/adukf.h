@@ -23,7 +23,7 @@
  * its GNU modes, -std=c99 turns it off) and -fno-math-errno; -ffast-math breaks the input
  * checks (isfinite). Any C99 compiler builds it; see the ahrsgen docs (target.md).
  *     adukf_euler(&st, rpy);
- * No heap, no recursion; RAM is the state struct (996 bytes with the usual ABI).
+ * No heap, no recursion; RAM is the state struct (1008 bytes with the usual ABI).
  * Needs <math.h> (float functions only in a float build); compilers may also emit calls to
  * memcpy/memset/memmove for struct and array copies.
  *
@@ -53,95 +53,117 @@ extern "C" {
 #endif
 
 /* Parameters baked into this build (already folded into the code; listed for reference). */
-#define ADUKF_DT_MAX 0.5f                    /* largest dt a step accepts; larger is refused
-                                                (DT_TOO_LARGE) [s] */
-#define ADUKF_GYRO_MAX 70.0f                 /* largest gyro component accepted; larger is refused
-                                                (GYRO_RANGE) [rad/s] */
-#define ADUKF_ACCEL_MIN_NORM 0.5f            /* accelerometer norm below this skips its correction
-                                                (ACCEL_ZERO) [m/s^2] */
-#define ADUKF_ACCEL_MAX 2000.0f              /* accelerometer component above this skips its
-                                                correction (ACCEL_RANGE) [m/s^2] */
-#define ADUKF_MAG_MIN_NORM 1e-06f            /* magnetometer norm below this skips its correction
-                                                (MAG_ZERO) [field unit] */
-#define ADUKF_MAG_MAX 1e+06f                 /* magnetometer component above this skips its
-                                                correction (MAG_RANGE) [field unit] */
-#define ADUKF_GPS_VEL_MAX 500.0f             /* GPS velocity component above this: the sample is
-                                                ignored (GPS_RANGE) [m/s] */
-#define ADUKF_GYRO_NOISE 0.002f              /* process noise: gyro angle random walk; Q =
-                                                gyro_noise^2 dt/4 (I4 - q q^T) + q_floor dt I4
-                                                (error state: gyro_noise^2 dt per axis, plus
-                                                gyro_rate_noise). 0.002 with sigma_acc 0.12 since
-                                                adukf has the GPS motion compensation (issue 26;
-                                                studies/adukf_gps_cv.py, leave one BROAD group out
-                                                at 286, 143, 95 and 48 Hz with the scenarios: BROAD
-                                                2.773 / 2.905 / 3.025 / 3.727 -> 2.767 / 2.898 /
-                                                3.015 / 3.710 deg left out, the same as in-sample:
-                                                every fold chose it; issue 10's ratio 10.6x ->
-                                                11.3x). 0.003 with gyro_rate_noise 0.01 before,
-                                                chosen by leave-one-BROAD-group-out with the
-                                                scenarios (studies/adukf_motion_cv.py,
-                                                docs/adukf.md; 0.01 before, which the faithful
-                                                preset keeps) [rad/s/sqrt(Hz)] */
-#define ADUKF_Q_FLOOR 1e-09f                 /* isotropic process noise per second added to Q (keeps
-                                                P positive definite) [1/s] */
-#define ADUKF_GYRO_RATE_NOISE 0.01f          /* error state only: each axis's gyro noise density
-                                                grows by this times that axis's rate, in quadrature
-                                                (a MEMS gyro's scale-factor and cross-axis errors
-                                                grow with the rate): Q_i = (gyro_noise^2 +
-                                                (gyro_rate_noise w_i)^2) dt, w = gyro - bias; 0 = a
-                                                constant density (before issue 26). 0.01 chosen with
-                                                gyro_noise 0.003 and sigma_acc_density 0.016 by
-                                                leave-one-BROAD-group-out with the scenarios
-                                                (studies/adukf_motion_cv.py, docs/adukf.md)
-                                                [1/sqrt(Hz)] */
-#define ADUKF_SIGMA_ACC 0.12f                /* base std of the normalised accelerometer measurement
-                                                (sigma_a in R); 0.12 with gyro_noise 0.002 since
-                                                adukf has the GPS motion compensation (issue 26,
-                                                studies/adukf_gps_cv.py; see gyro_noise); 0.05
-                                                before, since issue 26 (with sigma_acc_density
-                                                0.008, then 0.016)
-                                                (studies/adukf_accel_density_cv.py; 0.07 from issue
-                                                14 before; the paper's scenarios were tuned at 0.05,
-                                                which the faithful preset keeps) [1 (unit vector)]
-                                                */
-#define ADUKF_SIGMA_ACC_DENSITY 0.016f       /* product (sensors at their own rates): the
-                                                accelerometer rows of R add sigma_acc_density^2 /
-                                                s_a (s_a: the time its sample stands for), its white
-                                                noise as a density: a 1 kHz IMU's samples each weigh
-                                                less than a 100 Hz one's. 0 = sigma_acc per sample
-                                                only. 0.016 since issue 26's
-                                                studies/adukf_motion_cv.py (with the smaller gyro
-                                                density it keeps the multirotor at 1 kHz within 10 %
-                                                of before: 1.40 deg, 0.008 gives 1.69;
-                                                docs/adukf.md); 0.008 chosen before with sigma_acc
-                                                0.05 (studies/adukf_accel_density_cv.py) [1*sqrt(s)]
-                                                */
-#define ADUKF_SIGMA_MAG 0.05f                /* base std of the normalised magnetometer measurement
-                                                (sigma_m in R); 0.05 with sigma_mag_density 0.012
-                                                since issue 26 (studies/adukf_mag_density_cv.py;
-                                                0.07 from issue 14 before) [1 (unit vector)] */
-#define ADUKF_SIGMA_MAG_DENSITY 0.012f       /* product (sensors at their own rates): the
-                                                magnetometer rows of R add sigma_mag_density^2 / s_m
-                                                (s_m: the time its sample stands for), as
-                                                sigma_acc_density for the accelerometer. 0 =
-                                                sigma_mag per sample only. 0.012 chosen with
-                                                sigma_mag 0.05 by leave-one-BROAD-group-out with the
-                                                scenarios (studies/adukf_mag_density_cv.py,
-                                                docs/adukf.md) [1*sqrt(s)] */
-#define ADUKF_K_A 300.0f                     /* adaptive weight of the accelerometer residual: R_i =
-                                                sigma_acc^2 + k_a eps_i^2 (0: plain DUKF) [1] */
-#define ADUKF_K_M 300.0f                     /* adaptive weight of the magnetometer residual: R_i =
-                                                sigma_mag^2 + k_m eps_i^2 (0: plain DUKF) [1] */
-#define ADUKF_ADAPT_MAX 10.0f                /* upper bound of each adaptive term k eps_i^2 in R (0:
-                                                unbounded, as the paper); a bound keeps some trust
-                                                in the sensors so a large attitude error can still
-                                                be corrected (the adaptation cannot lock the
-                                                correction out) [1] */
-#define ADUKF_UT_ALPHA 1.0f                  /* unscented transform spread: lambda = alpha^2 (n +
-                                                kappa) - n, a = sqrt(n + lambda) [1] */
-#define ADUKF_UT_BETA 2.0f                   /* unscented transform beta (2 for a Gaussian prior)
-                                                [1] */
-#define ADUKF_UT_KAPPA 0.0f                  /* unscented transform kappa [1] */
+#define ADUKF_DT_MAX 0.5f                      /* largest dt a step accepts; larger is refused
+                                                  (DT_TOO_LARGE) [s] */
+#define ADUKF_GYRO_MAX 70.0f                   /* largest gyro component accepted; larger is refused
+                                                  (GYRO_RANGE) [rad/s] */
+#define ADUKF_ACCEL_MIN_NORM 0.5f              /* accelerometer norm below this skips its correction
+                                                  (ACCEL_ZERO) [m/s^2] */
+#define ADUKF_ACCEL_MAX 2000.0f                /* accelerometer component above this skips its
+                                                  correction (ACCEL_RANGE) [m/s^2] */
+#define ADUKF_MAG_MIN_NORM 1e-06f              /* magnetometer norm below this skips its correction
+                                                  (MAG_ZERO) [field unit] */
+#define ADUKF_MAG_MAX 1e+06f                   /* magnetometer component above this skips its
+                                                  correction (MAG_RANGE) [field unit] */
+#define ADUKF_GPS_VEL_MAX 500.0f               /* GPS velocity component above this: the sample is
+                                                  ignored (GPS_RANGE) [m/s] */
+#define ADUKF_GYRO_NOISE 0.002f                /* process noise: gyro angle random walk; Q =
+                                                  gyro_noise^2 dt/4 (I4 - q q^T) + q_floor dt I4
+                                                  (error state: gyro_noise^2 dt per axis, plus
+                                                  gyro_rate_noise). 0.002 with sigma_acc 0.12 since
+                                                  adukf has the GPS motion compensation (issue 26;
+                                                  studies/adukf_gps_cv.py, leave one BROAD group out
+                                                  at 286, 143, 95 and 48 Hz with the scenarios:
+                                                  BROAD 2.773 / 2.905 / 3.025 / 3.727 -> 2.767 /
+                                                  2.898 / 3.015 / 3.710 deg left out, the same as
+                                                  in-sample: every fold chose it; issue 10's ratio
+                                                  10.6x -> 11.3x). 0.003 with gyro_rate_noise 0.01
+                                                  before, chosen by leave-one-BROAD-group-out with
+                                                  the scenarios (studies/adukf_motion_cv.py,
+                                                  docs/adukf.md; 0.01 before, which the faithful
+                                                  preset keeps) [rad/s/sqrt(Hz)] */
+#define ADUKF_Q_FLOOR 1e-09f                   /* isotropic process noise per second added to Q
+                                                  (keeps P positive definite) [1/s] */
+#define ADUKF_GYRO_RATE_NOISE 0.01f            /* error state only: each axis's gyro noise density
+                                                  grows by this times that axis's rate, in
+                                                  quadrature (a MEMS gyro's scale-factor and
+                                                  cross-axis errors grow with the rate): Q_i =
+                                                  (gyro_noise^2 + (gyro_rate_noise w_i)^2) dt, w =
+                                                  gyro - bias; 0 = a constant density (before issue
+                                                  26). 0.01 chosen with gyro_noise 0.003 and
+                                                  sigma_acc_density 0.016 by
+                                                  leave-one-BROAD-group-out with the scenarios
+                                                  (studies/adukf_motion_cv.py, docs/adukf.md)
+                                                  [1/sqrt(Hz)] */
+#define ADUKF_SIGMA_ACC 0.12f                  /* base std of the normalised accelerometer
+                                                  measurement (sigma_a in R); 0.12 with gyro_noise
+                                                  0.002 since adukf has the GPS motion compensation
+                                                  (issue 26, studies/adukf_gps_cv.py; see
+                                                  gyro_noise); 0.05 before, since issue 26 (with
+                                                  sigma_acc_density 0.008, then 0.016)
+                                                  (studies/adukf_accel_density_cv.py; 0.07 from
+                                                  issue 14 before; the paper's scenarios were tuned
+                                                  at 0.05, which the faithful preset keeps) [1 (unit
+                                                  vector)] */
+#define ADUKF_SIGMA_ACC_DENSITY 0.016f         /* product (sensors at their own rates): the
+                                                  accelerometer rows of R add sigma_acc_density^2 /
+                                                  s_a (s_a: the time its sample stands for), its
+                                                  white noise as a density: a 1 kHz IMU's samples
+                                                  each weigh less than a 100 Hz one's. 0 = sigma_acc
+                                                  per sample only. 0.016 since issue 26's
+                                                  studies/adukf_motion_cv.py (with the smaller gyro
+                                                  density it keeps the multirotor at 1 kHz within 10
+                                                  % of before: 1.40 deg, 0.008 gives 1.69;
+                                                  docs/adukf.md); 0.008 chosen before with sigma_acc
+                                                  0.05 (studies/adukf_accel_density_cv.py)
+                                                  [1*sqrt(s)] */
+#define ADUKF_SIGMA_ACC_DENSITY_UNAIDED 0.008f /* error state with the low-pass: sigma_acc_density
+                                                  while no GPS compensation runs (no GPS velocity
+                                                  for gps_timeout, or motion_accel_model = none).
+                                                  With the GPS the measured vector carries the GPS
+                                                  velocity's low-passed derivative and its errors
+                                                  (sigma_acc_density 0.016 serves the fixed-wing and
+                                                  the multirotor at 1 kHz: 0.004 there lost both,
+                                                  studies/adukf_gps_cv.py); without it only the
+                                                  specific force's own, which the longer low-pass
+                                                  (accel_tau_unaided) and the gate (accel_gate)
+                                                  leave smaller. 0 = sigma_acc_density. 0.008 since
+                                                  issue 26 (studies/adukf_gate_cv.py: leave one
+                                                  BROAD group out at 286 / 143 / 95 / 48 Hz with the
+                                                  scenarios, the multirotor without GPS among them,
+                                                  and the gyro bias still learned within 2 % in 120
+                                                  s; 0.004: BROAD 2.411 / 2.540 / 2.665 / 3.449 but
+                                                  the gyro bias 2.2 % off after 120 s; 0.016: 2.550
+                                                  / 2.651 / 2.745 / 3.417). A fixed-wing that never
+                                                  has a GPS loses (docs/adukf.md, Motion without
+                                                  GPS) [1*sqrt(s)] */
+#define ADUKF_SIGMA_MAG 0.05f                  /* base std of the normalised magnetometer
+                                                  measurement (sigma_m in R); 0.05 with
+                                                  sigma_mag_density 0.012 since issue 26
+                                                  (studies/adukf_mag_density_cv.py; 0.07 from issue
+                                                  14 before) [1 (unit vector)] */
+#define ADUKF_SIGMA_MAG_DENSITY 0.012f         /* product (sensors at their own rates): the
+                                                  magnetometer rows of R add sigma_mag_density^2 /
+                                                  s_m (s_m: the time its sample stands for), as
+                                                  sigma_acc_density for the accelerometer. 0 =
+                                                  sigma_mag per sample only. 0.012 chosen with
+                                                  sigma_mag 0.05 by leave-one-BROAD-group-out with
+                                                  the scenarios (studies/adukf_mag_density_cv.py,
+                                                  docs/adukf.md) [1*sqrt(s)] */
+#define ADUKF_K_A 300.0f                       /* adaptive weight of the accelerometer residual: R_i
+                                                  = sigma_acc^2 + k_a eps_i^2 (0: plain DUKF) [1] */
+#define ADUKF_K_M 300.0f                       /* adaptive weight of the magnetometer residual: R_i
+                                                  = sigma_mag^2 + k_m eps_i^2 (0: plain DUKF) [1] */
+#define ADUKF_ADAPT_MAX 10.0f                  /* upper bound of each adaptive term k eps_i^2 in R
+                                                  (0: unbounded, as the paper); a bound keeps some
+                                                  trust in the sensors so a large attitude error can
+                                                  still be corrected (the adaptation cannot lock the
+                                                  correction out) [1] */
+#define ADUKF_UT_ALPHA 1.0f                    /* unscented transform spread: lambda = alpha^2 (n +
+                                                  kappa) - n, a = sqrt(n + lambda) [1] */
+#define ADUKF_UT_BETA 2.0f                     /* unscented transform beta (2 for a Gaussian prior)
+                                                  [1] */
+#define ADUKF_UT_KAPPA 0.0f                    /* unscented transform kappa [1] */
 /*
  * ADUKF_SIGMA_SET = symmetric sigma points along L's 4 attitude columns: symmetric (2 x 4, the
  * scaled UT, as the paper) or simplex (the 5 points of a spherical simplex, Julier 2003, at the
@@ -151,89 +173,91 @@ extern "C" {
  * docs/adukf.md); the centre and the bias columns' pairs are the same in both; for the quaternion
  * state only: faithful and attitude_state = error ignore it (symmetric)
  */
-#define ADUKF_P0 0.01f                       /* initial covariance P0 = p0 I4 (also what P is reset
-                                                to when it stops being positive definite) [1] */
-#define ADUKF_PIVOT_MIN 1e-15f               /* a Cholesky pivot at or below this marks P- or P_zz
-                                                as not positive definite [1] */
+#define ADUKF_P0 0.01f                         /* initial covariance P0 = p0 I4 (also what P is
+                                                  reset to when it stops being positive definite)
+                                                  [1] */
+#define ADUKF_PIVOT_MIN 1e-15f                 /* a Cholesky pivot at or below this marks P- or P_zz
+                                                  as not positive definite [1] */
 /*
  * ADUKF_MAG_REF = learn reference field direction: the dip angle learned from the first samples at
  * rest (default: no site baked in), or from inclination_deg/declination (set them for your site)
  */
-#define ADUKF_INCLINATION_DEG 53.0f          /* magnetic inclination (field pointing down positive),
-                                                read only with mag_ref = inclination; default:
-                                                Xi'an, the paper's site (the faithful preset uses
-                                                it) [deg] */
-#define ADUKF_DECLINATION 0.0f               /* magnetic declination (east positive): yaw is from
-                                                true north once set for your site; default 0: yaw
-                                                from magnetic north (the faithful preset: Xi'an,
-                                                -3.5 deg) [rad] */
-#define ADUKF_LEARN_SAMPLES 100              /* mag_ref = learn: rest samples (accelerometer and
-                                                magnetometer usable) averaged for the dip angle
-                                                [samples] */
-#define ADUKF_REST_GYRO_MAX 0.1f             /* mag_ref = learn: a sample is at rest when |gyro| is
-                                                below this and ... The raw gyro, so this must admit
-                                                the gyro's zero-rate offset: 0.1 rad/s (5.7 deg/s)
-                                                since issue 26 (a MEMS gyro's offset is 1-3 deg/s
-                                                after soldering, more uncalibrated); at 0.05 (2.9
-                                                deg/s, before) a 3 deg/s offset kept the dip from
-                                                ever being learned, so the magnetometer was never
-                                                used and yaw drifted: BROAD at 95 Hz with 3 deg/s
-                                                added 28.49 -> 3.12 deg, 4 deg/s 84.42 -> 3.14
-                                                (studies/gyro_bias_robustness.py); BROAD as recorded
-                                                and every scenario of docs/adukf.md unchanged
-                                                [rad/s] */
-#define ADUKF_REST_ACCEL_TOL 0.5f            /* ... | |accel| - 9.80665 | is below this [m/s^2] */
-#define ADUKF_MAG_BIAS 1                     /* estimate the magnetometer's hard iron while the
-                                                sensor turns (with mag_ref = learn and the error
-                                                state): the candidate field model of mekf
-                                                (symbolic/aiding.hard_iron_step) is fitted beside
-                                                the filter and replaces the hard iron and the
-                                                learned field (norm, dip) when it explains the field
-                                                clearly better (a magnet attached mid-run); false:
-                                                the hard iron stays as calibrated */
-#define ADUKF_MAG_BIAS_RW 0.003f             /* random walk of the candidate hard iron and field, as
-                                                a fraction of the field norm, while turning; 0.003
-                                                chosen by studies/hard_iron_qcf_adukf_cv.py
-                                                (in-sample, as mekf's) [1/sqrt(s)] */
-#define ADUKF_MAG_BIAS_NOISE 0.05f           /* per-sample standard deviation of the candidate's
-                                                norm and vertical-component rows, as a fraction of
-                                                the field norm (sensor noise, soft iron, field
-                                                gradients) */
-#define ADUKF_MAG_BIAS_MIN_RATE 0.3f         /* the candidate is fitted only while the sensor turns
-                                                at least this fast (the hard iron is observable only
-                                                then; held otherwise) [rad/s] */
-#define ADUKF_MAG_BIAS_SETTLE 5.0f           /* residuals are averaged over this much turning, and
-                                                the candidate must have been fitted this long,
-                                                before it may replace the hard iron [s] */
-#define ADUKF_MAG_BIAS_TH 0.015f             /* the candidate may replace the hard iron when its
-                                                residuals (low-passed over 0.2 s, RMS) are below
-                                                this fraction of the field norm, four times (in mean
-                                                square) below the present model's with its reference
-                                                re-fitted, and its hard iron is known to this
-                                                (square root of the trace of its covariance) */
-#define ADUKF_MAG_BIAS_JUMP 0.3f             /* 0.3 chosen by studies/hard_iron_qcf_adukf_cv.py
-                                                (in-sample; mekf and qcf: 0.2). The candidate may
-                                                replace the hard iron only when it differs from it
-                                                by at least this fraction of the field norm (by
-                                                mag_norm_tol once the present hard iron is itself
-                                                this large: a magnet found is refined): smaller
-                                                changes are left to the adaptive R (soft iron, field
-                                                gradients and a phone's own field on real data look
-                                                like small hard irons) */
-#define ADUKF_MAG_BIAS_MAX 2.0f              /* bound of the hard-iron estimate, as a multiple of
-                                                the field norm */
-#define ADUKF_MAG_NORM_TOL 0.1f              /* mag_bias: the hard iron's norm residual (low-passed)
-                                                off by more than this fraction of the field after
-                                                being within it is a new disturbance (the
-                                                candidate's covariance reopens); and once a hard
-                                                iron is found, the smallest change that refines it
-                                                [1] */
-#define ADUKF_GYRO_BIAS_STATE 1              /* product default: the state is [q; gyro bias] (its
-                                                covariance: attitude_state; the bias is subtracted
-                                                from the gyro in the time update, F = d x-/d x from
-                                                the model) so a biased gyro does not tilt the
-                                                estimate in motion; false (and faithful): the
-                                                paper's 4-state filter */
+#define ADUKF_INCLINATION_DEG 53.0f            /* magnetic inclination (field pointing down
+                                                  positive), read only with mag_ref = inclination;
+                                                  default: Xi'an, the paper's site (the faithful
+                                                  preset uses it) [deg] */
+#define ADUKF_DECLINATION 0.0f                 /* magnetic declination (east positive): yaw is from
+                                                  true north once set for your site; default 0: yaw
+                                                  from magnetic north (the faithful preset: Xi'an,
+                                                  -3.5 deg) [rad] */
+#define ADUKF_LEARN_SAMPLES 100                /* mag_ref = learn: rest samples (accelerometer and
+                                                  magnetometer usable) averaged for the dip angle
+                                                  [samples] */
+#define ADUKF_REST_GYRO_MAX 0.1f               /* mag_ref = learn: a sample is at rest when |gyro|
+                                                  is below this and ... The raw gyro, so this must
+                                                  admit the gyro's zero-rate offset: 0.1 rad/s (5.7
+                                                  deg/s) since issue 26 (a MEMS gyro's offset is 1-3
+                                                  deg/s after soldering, more uncalibrated); at 0.05
+                                                  (2.9 deg/s, before) a 3 deg/s offset kept the dip
+                                                  from ever being learned, so the magnetometer was
+                                                  never used and yaw drifted: BROAD at 95 Hz with 3
+                                                  deg/s added 28.49 -> 3.12 deg, 4 deg/s 84.42 ->
+                                                  3.14 (studies/gyro_bias_robustness.py); BROAD as
+                                                  recorded and every scenario of docs/adukf.md
+                                                  unchanged [rad/s] */
+#define ADUKF_REST_ACCEL_TOL 0.5f              /* ... | |accel| - 9.80665 | is below this [m/s^2] */
+#define ADUKF_MAG_BIAS 1                       /* estimate the magnetometer's hard iron while the
+                                                  sensor turns (with mag_ref = learn and the error
+                                                  state): the candidate field model of mekf
+                                                  (symbolic/aiding.hard_iron_step) is fitted beside
+                                                  the filter and replaces the hard iron and the
+                                                  learned field (norm, dip) when it explains the
+                                                  field clearly better (a magnet attached mid-run);
+                                                  false: the hard iron stays as calibrated */
+#define ADUKF_MAG_BIAS_RW 0.003f               /* random walk of the candidate hard iron and field,
+                                                  as a fraction of the field norm, while turning;
+                                                  0.003 chosen by studies/hard_iron_qcf_adukf_cv.py
+                                                  (in-sample, as mekf's) [1/sqrt(s)] */
+#define ADUKF_MAG_BIAS_NOISE 0.05f             /* per-sample standard deviation of the candidate's
+                                                  norm and vertical-component rows, as a fraction of
+                                                  the field norm (sensor noise, soft iron, field
+                                                  gradients) */
+#define ADUKF_MAG_BIAS_MIN_RATE 0.3f           /* the candidate is fitted only while the sensor
+                                                  turns at least this fast (the hard iron is
+                                                  observable only then; held otherwise) [rad/s] */
+#define ADUKF_MAG_BIAS_SETTLE 5.0f             /* residuals are averaged over this much turning, and
+                                                  the candidate must have been fitted this long,
+                                                  before it may replace the hard iron [s] */
+#define ADUKF_MAG_BIAS_TH 0.015f               /* the candidate may replace the hard iron when its
+                                                  residuals (low-passed over 0.2 s, RMS) are below
+                                                  this fraction of the field norm, four times (in
+                                                  mean square) below the present model's with its
+                                                  reference re-fitted, and its hard iron is known to
+                                                  this (square root of the trace of its covariance)
+                                                  */
+#define ADUKF_MAG_BIAS_JUMP 0.3f               /* 0.3 chosen by studies/hard_iron_qcf_adukf_cv.py
+                                                  (in-sample; mekf and qcf: 0.2). The candidate may
+                                                  replace the hard iron only when it differs from it
+                                                  by at least this fraction of the field norm (by
+                                                  mag_norm_tol once the present hard iron is itself
+                                                  this large: a magnet found is refined): smaller
+                                                  changes are left to the adaptive R (soft iron,
+                                                  field gradients and a phone's own field on real
+                                                  data look like small hard irons) */
+#define ADUKF_MAG_BIAS_MAX 2.0f                /* bound of the hard-iron estimate, as a multiple of
+                                                  the field norm */
+#define ADUKF_MAG_NORM_TOL 0.1f                /* mag_bias: the hard iron's norm residual
+                                                  (low-passed) off by more than this fraction of the
+                                                  field after being within it is a new disturbance
+                                                  (the candidate's covariance reopens); and once a
+                                                  hard iron is found, the smallest change that
+                                                  refines it [1] */
+#define ADUKF_GYRO_BIAS_STATE 1                /* product default: the state is [q; gyro bias] (its
+                                                  covariance: attitude_state; the bias is subtracted
+                                                  from the gyro in the time update, F = d x-/d x
+                                                  from the model) so a biased gyro does not tilt the
+                                                  estimate in motion; false (and faithful): the
+                                                  paper's 4-state filter */
 /*
  * ADUKF_ATTITUDE_STATE = error with the gyro-bias state: error (issue 14: the covariance is that of
  * a 3-parameter attitude error d in body axes, q = q_est * [1, d/2] normalised, and of the bias: 6
@@ -241,60 +265,128 @@ extern "C" {
  * covariance of the 4-component q and the bias: 7 states, 15 sigma points, 7x7 P, as before issue
  * 14); faithful and gyro_bias_state = false ignore it (the 4-state quaternion filter)
  */
-#define ADUKF_BIAS_RW 1e-04f                 /* gyro-bias state: random walk of the bias (process
-                                                noise bias_rw^2 dt per axis) [rad/s/sqrt(s)] */
-#define ADUKF_P0_BIAS 1e-04f                 /* gyro-bias state: initial bias variance (P0 and
-                                                COV_RESET) [(rad/s)^2] */
-#define ADUKF_GYRO_FULL_SCALE 34.906586f     /* the gyro's full scale (Fusion's gyroscopeRange),
-                                                error state only: a component at or beyond it is a
-                                                clipped sample, integrated as it is, that widens the
-                                                attitude covariance by the rotation it may have
-                                                missed and starts clip_recovery_time of recovery
-                                                (status GYRO_RECOVERY). Default 2000 deg/s, the
-                                                commonest flight-controller setting; set your
-                                                sensor's (a +-500 deg/s gyro: 8.7266). 0: no
-                                                over-range handling [rad/s] */
-#define ADUKF_GYRO_PLATEAU_RATE 3.5f         /* a gyro that clips below gyro_full_scale (the range
-                                                left at its default) is still recognised: a
-                                                component at or above this rate that holds exactly
-                                                the same value for 4 samples in a row, while the
-                                                other components change, is a clipped sample. A
-                                                whole sample repeated (a logger's duplicate) is not.
-                                                Default 200 deg/s: no component of the 10 BROAD
-                                                trials (286 Hz) does this. 0: only gyro_full_scale
-                                                [rad/s] */
-#define ADUKF_CLIP_RECOVERY_TIME 2.0f        /* after the last clipped gyro sample, for this long R
-                                                is not adapted (the large residual is the attitude's
-                                                error, not a disturbance) and the accelerometer is
-                                                not low-passed (error state only) [s] */
-#define ADUKF_ACCEL_TAU 1.0f                 /* time constant of the NED-frame low-pass of the
-                                                accelerometer R(q-) f; the update measures the
-                                                direction of R(q-)^T of it (motion acceleration
-                                                averages out, gravity does not; VQF's idea); 0 = the
-                                                raw accelerometer (as the paper; faithful ignores
-                                                it) [s] */
-#define ADUKF_ACCEL_LP_WARM 1                /* with accel_tau > 0: warm start of the NED low-pass
-                                                (VQF's, as mekf's accel_lpf_warm; issue 26): until
-                                                it has averaged accel_tau of samples it is their
-                                                running mean, alpha = dt/(min(t, accel_tau) + dt),
-                                                so its first sample (a multirotor's motor vibration
-                                                tilts one sample by up to 15 deg) weighs 1/n instead
-                                                of lingering as e^(-t/accel_tau) while P is wide and
-                                                pulling the gyro bias and the heading. The GPS
-                                                velocity's low-pass keeps dt/(accel_tau + dt); not
-                                                begun again after a gyro clip. false: the low-pass
-                                                starts from its first sample with its time constant
-                                                (before) */
-#define ADUKF_ACCEL_LP_FOLLOW 1              /* with accel_tau > 0: after each update that used the
-                                                accelerometer the NED low-pass is turned with the
-                                                attitude's correction, R(q+) R(q-)^T (error and
-                                                quaternion states; since issue 26). Without it the
-                                                low-pass holds the old attitude's error for
-                                                accel_tau and pulls each correction back: with
-                                                accel_tau 2 s the multirotor scored 10 deg instead
-                                                of 2.5 (seed 0, reference); at the default 1 s it
-                                                takes the multirotor from 0.89 to 0.64 deg (3
-                                                seeds). false: as before */
+#define ADUKF_BIAS_RW 1e-04f                   /* gyro-bias state: random walk of the bias (process
+                                                  noise bias_rw^2 dt per axis) [rad/s/sqrt(s)] */
+#define ADUKF_P0_BIAS 1e-04f                   /* gyro-bias state: initial bias variance (P0 and
+                                                  COV_RESET) [(rad/s)^2] */
+#define ADUKF_GYRO_FULL_SCALE 34.906586f       /* the gyro's full scale (Fusion's gyroscopeRange),
+                                                  error state only: a component at or beyond it is a
+                                                  clipped sample, integrated as it is, that widens
+                                                  the attitude covariance by the rotation it may
+                                                  have missed and starts clip_recovery_time of
+                                                  recovery (status GYRO_RECOVERY). Default 2000
+                                                  deg/s, the commonest flight-controller setting;
+                                                  set your sensor's (a +-500 deg/s gyro: 8.7266). 0:
+                                                  no over-range handling [rad/s] */
+#define ADUKF_GYRO_PLATEAU_RATE 3.5f           /* a gyro that clips below gyro_full_scale (the range
+                                                  left at its default) is still recognised: a
+                                                  component at or above this rate that holds exactly
+                                                  the same value for 4 samples in a row, while the
+                                                  other components change, is a clipped sample. A
+                                                  whole sample repeated (a logger's duplicate) is
+                                                  not. Default 200 deg/s: no component of the 10
+                                                  BROAD trials (286 Hz) does this. 0: only
+                                                  gyro_full_scale [rad/s] */
+#define ADUKF_CLIP_RECOVERY_TIME 2.0f          /* after the last clipped gyro sample, for this long
+                                                  R is not adapted (the large residual is the
+                                                  attitude's error, not a disturbance) and the
+                                                  accelerometer is not low-passed (error state only)
+                                                  [s] */
+#define ADUKF_ACCEL_TAU 1.0f                   /* time constant of the NED-frame low-pass of the
+                                                  accelerometer R(q-) f; the update measures the
+                                                  direction of R(q-)^T of it (motion acceleration
+                                                  averages out, gravity does not; VQF's idea); 0 =
+                                                  the raw accelerometer (as the paper; faithful
+                                                  ignores it) [s] */
+#define ADUKF_ACCEL_TAU_UNAIDED 2.0f           /* with accel_tau > 0: the NED low-pass's time
+                                                  constant while no GPS compensation runs (no GPS
+                                                  velocity for gps_timeout, or motion_accel_model =
+                                                  none): without a measurement of the vehicle's
+                                                  motion the low-pass must average it out by itself
+                                                  (a hand's, a pendulum's or a hovering multirotor's
+                                                  velocity stays bounded, so its acceleration
+                                                  averages to 0 over seconds); with the GPS the
+                                                  motion is removed and accel_tau serves. 0 =
+                                                  accel_tau. 2.0 s with sigma_acc_density_unaided
+                                                  0.008 and accel_gate 3000 since issue 26
+                                                  (studies/adukf_gate_cv.py: leave one BROAD group
+                                                  out at 286 / 143 / 95 / 48 Hz with the scenarios,
+                                                  the multirotor without GPS among them, and the
+                                                  gyro bias still learned within 2 % in 120 s; every
+                                                  fold chose them): BROAD 2.769 / 2.899 / 3.017 /
+                                                  3.707 -> 2.449 / 2.574 / 2.689 / 3.429 deg, left
+                                                  out the same; multirotor without GPS 0.84 -> 0.63
+                                                  deg; every row with a GPS unchanged. 2.5 s reached
+                                                  2.366 / 2.493 / 2.619 / 3.445 but learns a gyro
+                                                  bias more slowly (3.4 % off after 120 s with
+                                                  0.004). Without the gate a long low-pass costs
+                                                  issue 10's ratio (2.0 s alone: 6.9x) [s] */
+#define ADUKF_ACCEL_LP_WARM 1                  /* with accel_tau > 0: warm start of the NED low-pass
+                                                  (VQF's, as mekf's accel_lpf_warm; issue 26): until
+                                                  it has averaged accel_tau of samples it is their
+                                                  running mean, alpha = dt/(min(t, accel_tau) + dt),
+                                                  so its first sample (a multirotor's motor
+                                                  vibration tilts one sample by up to 15 deg) weighs
+                                                  1/n instead of lingering as e^(-t/accel_tau) while
+                                                  P is wide and pulling the gyro bias and the
+                                                  heading. The GPS velocity's low-pass keeps
+                                                  dt/(accel_tau + dt); not begun again after a gyro
+                                                  clip. false: the low-pass starts from its first
+                                                  sample with its time constant (before) */
+#define ADUKF_ACCEL_GATE 3000.0f               /* accelerometer gate (error state, with accel_tau >
+                                                  0; issue 26): while the gyro is slow
+                                                  (accel_gate_rate) and no GPS compensation runs,
+                                                  the accelerometer rows of R are divided by w =
+                                                  max(1 / (1 + accel_gate e^2), accel_gate_floor),
+                                                  e^2 the sine^2 of the angle between the specific
+                                                  force's short NED mean (accel_gate_tau) and the
+                                                  NED low-pass: a motion acceleration or an offset
+                                                  (not zero-mean over tens of ms) is rejected from
+                                                  its first samples, motor vibration (zero-mean) is
+                                                  not judged sample by sample, an attitude error
+                                                  turns both means alike and does not close it; the
+                                                  low-pass stays linear. 3000 since issue 26
+                                                  (studies/adukf_gate_cv.py: leave one BROAD group
+                                                  out at 286 / 143 / 95 / 48 Hz with the scenarios,
+                                                  the multirotor without GPS among them, and the
+                                                  gyro bias still learned within 2 % in 120 s; 1000:
+                                                  BROAD +0.001 deg, issue 10's ratio 14.1x): with
+                                                  accel_tau_unaided 2.0 and
+                                                  sigma_acc_density_unaided 0.008 issue 10's ratio
+                                                  9.0x -> 17.0x (the same with the gate left in the
+                                                  plain DUKF), static_accel_disturbance 0.65 -> 0.34
+                                                  deg (0.49 before issue 26's pieces). 0 = off [1]
+                                                  */
+#define ADUKF_ACCEL_GATE_TAU 0.03f             /* accel_gate: time constant of the short NED mean of
+                                                  the specific force the gate judges (tens of ms: a
+                                                  multirotor's motor vibration at 130-250 Hz
+                                                  averages out, a hand's or a vehicle's acceleration
+                                                  does not). Fixed, not chosen by a study [s] */
+#define ADUKF_ACCEL_GATE_RATE 0.3f             /* accel_gate: the gate acts only while |gyro - bias|
+                                                  is below this (in fast rotation the specific
+                                                  force's NED means move with the gyro's own
+                                                  errors). 0.3 since issue 26
+                                                  (studies/adukf_gate_cv.py: leave one BROAD group
+                                                  out at 286 / 143 / 95 / 48 Hz with the scenarios,
+                                                  the multirotor without GPS among them, and the
+                                                  gyro bias still learned within 2 % in 120 s; 1.0:
+                                                  BROAD 2.519 / 2.635 / 2.755 / 3.489 deg against
+                                                  2.448 / 2.572 / 2.687 / 3.426 at accel_gate 1000)
+                                                  [rad/s] */
+#define ADUKF_ACCEL_GATE_FLOOR 0.1f            /* accel_gate: the smallest weight (R's accelerometer
+                                                  rows at most 1 / accel_gate_floor times): the
+                                                  accelerometer always corrects a little. Fixed, not
+                                                  chosen by a study [1] */
+#define ADUKF_ACCEL_LP_FOLLOW 1                /* with accel_tau > 0: after each update that used
+                                                  the accelerometer the NED low-pass is turned with
+                                                  the attitude's correction, R(q+) R(q-)^T (error
+                                                  and quaternion states; since issue 26). Without it
+                                                  the low-pass holds the old attitude's error for
+                                                  accel_tau and pulls each correction back: with
+                                                  accel_tau 2 s the multirotor scored 10 deg instead
+                                                  of 2.5 (seed 0, reference); at the default 1 s it
+                                                  takes the multirotor from 0.89 to 0.64 deg (3
+                                                  seeds). false: as before */
 /*
  * ADUKF_MOTION_ACCEL_MODEL = gps_lowpass motion acceleration removed from the low-passed
  * accelerometer (issue 26; with accel_tau > 0, not faithful): 'gps_lowpass' = the GPS velocity
@@ -305,41 +397,45 @@ extern "C" {
  * accelerometer low-pass alone (before; the generated step then has no GPS input). The GPS velocity
  * is in true NED: set declination where it is not small (docs/adukf.md)
  */
-#define ADUKF_GPS_TIMEOUT 1.0f               /* motion_accel_model = gps_lowpass: no GPS sample for
-                                                longer than this stops the compensation; the
-                                                velocity low-pass restarts at the next sample [s] */
-#define ADUKF_SPAN_MAX 0.1f                  /* sensors at their own rates: each sensor's R is
-                                                multiplied by dt / (time since its previous sample,
-                                                at most span_max), so a 100 Hz magnetometer carries
-                                                the information of the IMU steps it stands for; 0 =
-                                                off (as the paper; faithful ignores it) [s] */
-#define ADUKF_R_TIME 0.0035f                 /* sensors at their own rates (span_max > 0): the
-                                                per-sample terms of R (sigma_acc^2, sigma_mag^2, the
-                                                adaptation k eps_i^2 and its bound adapt_max) are
-                                                those of a sample standing for r_time seconds: each
-                                                is multiplied by r_time / dt as well (R = (sigma^2 +
-                                                min(k eps^2, adapt_max)) r_time / s + density^2 / s
-                                                for a sample standing for s), so the information a
-                                                sensor gives per second, and how long an adaptive
-                                                lock-out lasts in seconds, do not depend on the
-                                                sample rate. 0 = per IMU sample (before issue 26).
-                                                0.0035 s (about BROAD's 286 Hz interval: unchanged
-                                                there) since issue 26, chosen by
-                                                leave-one-BROAD-group-out at 286, 143, 95 and 48 Hz
-                                                with the scenarios (studies/adukf_rate_cv.py): BROAD
-                                                4.51 -> 3.73 deg at 48 Hz, 3.22 -> 3.03 at 95 Hz
-                                                in-sample, 4.51 -> 3.81 and 3.22 -> 3.08 left out,
-                                                turntable 0.49 -> 0.19; at 100 Hz the static
-                                                disturbances' adaptation is 0.35 of before per
-                                                sample: static_accel_disturbance 0.27 -> 0.54 deg,
-                                                issue 10's ratio 20.6x -> 10.6x [s] */
-#define ADUKF_SPAN_STEPS_MAX 10.0f           /* sensors at their own rates: a sample counts for at
-                                                most this many IMU steps (the R factor is at least
-                                                1/this), so a tiny dt after a normal one cannot make
-                                                a measurement look exact [steps] */
-#define ADUKF_FAITHFUL 0                     /* the paper's initialisation q0 = [1,0,0,0] and
-                                                first-order transition A (else q0 from the first
-                                                accelerometer+magnetometer sample, A normalised) */
+#define ADUKF_GPS_TIMEOUT 1.0f                 /* motion_accel_model = gps_lowpass: no GPS sample
+                                                  for longer than this stops the compensation; the
+                                                  velocity low-pass restarts at the next sample [s]
+                                                  */
+#define ADUKF_SPAN_MAX 0.1f                    /* sensors at their own rates: each sensor's R is
+                                                  multiplied by dt / (time since its previous
+                                                  sample, at most span_max), so a 100 Hz
+                                                  magnetometer carries the information of the IMU
+                                                  steps it stands for; 0 = off (as the paper;
+                                                  faithful ignores it) [s] */
+#define ADUKF_R_TIME 0.0035f                   /* sensors at their own rates (span_max > 0): the
+                                                  per-sample terms of R (sigma_acc^2, sigma_mag^2,
+                                                  the adaptation k eps_i^2 and its bound adapt_max)
+                                                  are those of a sample standing for r_time seconds:
+                                                  each is multiplied by r_time / dt as well (R =
+                                                  (sigma^2 + min(k eps^2, adapt_max)) r_time / s +
+                                                  density^2 / s for a sample standing for s), so the
+                                                  information a sensor gives per second, and how
+                                                  long an adaptive lock-out lasts in seconds, do not
+                                                  depend on the sample rate. 0 = per IMU sample
+                                                  (before issue 26). 0.0035 s (about BROAD's 286 Hz
+                                                  interval: unchanged there) since issue 26, chosen
+                                                  by leave-one-BROAD-group-out at 286, 143, 95 and
+                                                  48 Hz with the scenarios
+                                                  (studies/adukf_rate_cv.py): BROAD 4.51 -> 3.73 deg
+                                                  at 48 Hz, 3.22 -> 3.03 at 95 Hz in-sample, 4.51 ->
+                                                  3.81 and 3.22 -> 3.08 left out, turntable 0.49 ->
+                                                  0.19; at 100 Hz the static disturbances'
+                                                  adaptation is 0.35 of before per sample:
+                                                  static_accel_disturbance 0.27 -> 0.54 deg, issue
+                                                  10's ratio 20.6x -> 10.6x [s] */
+#define ADUKF_SPAN_STEPS_MAX 10.0f             /* sensors at their own rates: a sample counts for at
+                                                  most this many IMU steps (the R factor is at least
+                                                  1/this), so a tiny dt after a normal one cannot
+                                                  make a measurement look exact [steps] */
+#define ADUKF_FAITHFUL 0                       /* the paper's initialisation q0 = [1,0,0,0] and
+                                                  first-order transition A (else q0 from the first
+                                                  accelerometer+magnetometer sample, A normalised)
+                                                  */
 
 /* Input validity bits: set a bit only when that sensor delivered a new sample this step. */
 #define ADUKF_VALID_GYRO (1u << 0)
@@ -414,6 +510,8 @@ typedef struct {
     float sample_age[2];   /* time since the last accelerometer / magnetometer sample, s */
     float accel_lp[3];     /* low-passed specific force in NED, m/s^2 (accel_tau > 0) */
     float lp_time;         /* time accel_lp has averaged, s (its warm start; stops at accel_tau) */
+    float accel_short[3];  /* the accelerometer gate's short NED mean of the specific force
+                              (accel_gate_tau), m/s^2 */
     float gps_vel[3];      /* latest GPS velocity (NED, m/s; gps_lowpass) */
     float gps_age;         /* time since the last GPS sample, s (gps_lowpass) */
     float v_lp[3];         /* GPS velocity through the accelerometer's NED low-pass (gps_lowpass),

@@ -76,11 +76,13 @@ def test_compensation_stops_after_gps_timeout():
 def test_multirotor_at_400hz_within_its_bound():
     """The multirotor at 400 Hz (seed 0, float C, total RMS against the truth, run and scored as
     `ahrsgen bench` does: the log's site set): within 0.5 deg with the GPS compensation (0.38
-    on 2026-12-04); the filter without it (the state before, 0.61) is above."""
+    on 2026-12-04, 0.21 on 2026-12-05); the filter without it is worse by more than half again
+    (0.61 before issue 26's unaided low-pass and accelerometer gate, 0.38 with them: they act only
+    without the compensation, docs/adukf.md "Motion without GPS")."""
     log = make("multirotor", 0, rate_hz=400.0, mag_rate=100.0)
     tot = {}
     for model in ("gps_lowpass", "none"):
         q, heading, _ = filter_estimator("adukf", [f"motion_accel_model={model}"]).run(log)
         tot[model] = score(q, log, heading)["total_rms"]
     assert tot["gps_lowpass"] < 0.5, tot
-    assert tot["none"] > 0.5, tot
+    assert tot["none"] > 1.5 * tot["gps_lowpass"], tot

@@ -54,6 +54,9 @@ _LOWER6 = [(r, c) for r in range(6) for c in range(r + 1)]
 SPAN_MIN = Const("SPAN_MIN", 1e-9)
 # the time since the last GPS sample stops counting here, s (a whole number: exact in float)
 GPS_AGE_MAX = Const("GPS_AGE_MAX", 1e3)
+# (m/s²)²: the accelerometer gate's short mean counts as level below this squared norm (a zero
+# sample must not divide by 0)
+GATE_NORM2_MIN = Const("GATE_NORM2_MIN", 1e-6)
 
 
 def _on(v) -> bool:
@@ -169,7 +172,9 @@ class Model(FilterModel):
         ] + ([StateField("sample_age", 2, "time since the last accelerometer / magnetometer sample, s", 0.0)]
              if self.own_rates() else []) + ([StateField("accel_lp", 3, "low-passed specific force in NED, m/s^2 (accel_tau > 0)", 0.0),
                   StateField("lp_time", 1, "time accel_lp has averaged, s (its warm start; stops at accel_tau)", 0.0)]
-             if self.lowpass() else []) + ([
+             if self.lowpass() else []) + ([StateField("accel_short", 3, "the accelerometer gate's short NED mean of the "
+                                                     "specific force (accel_gate_tau), m/s^2", 0.0)]
+                                          if self.gate() else []) + ([
                 StateField("gps_vel", 3, "latest GPS velocity (NED, m/s; gps_lowpass)", 0.0),
                 StateField("gps_age", 1, "time since the last GPS sample, s (gps_lowpass)", GPS_AGE_MAX),
                 StateField("v_lp", 3, "GPS velocity through the accelerometer's NED low-pass (gps_lowpass), m/s", 0.0),
@@ -254,7 +259,48 @@ class Model(FilterModel):
     def lowpass(self) -> bool:
         return self.params["accel_tau"] > 0 and not self.params["faithful"]
 
-    def accel_lowpass_expr(self, a_lp, f_n, lp_time, dt, restart, start):
+    def unaided(self) -> bool:
+        """The low-pass has its own time constant while no GPS compensation runs (accel_tau_unaided)."""
+        p = self.params
+        return self.lowpass() and p["accel_tau_unaided"] > 0 and p["accel_tau_unaided"] != p["accel_tau"]
+
+    def density_split(self) -> bool:
+        """The accelerometer's density term has its own value while no GPS compensation runs
+        (sigma_acc_density_unaided; error state, sensors at their own rates)."""
+        p = self.params
+        return (self.err and self.own_rates() and self.lowpass() and p["sigma_acc_density_unaided"] > 0
+                and p["sigma_acc_density_unaided"] != p["sigma_acc_density"])
+
+    def gate(self) -> bool:
+        """The accelerometer gate (accel_gate > 0, error state with the low-pass): the
+        accelerometer rows of R grow as the specific force's short-window mean tilts."""
+        return self.lowpass() and self.err and self.params["accel_gate"] > 0
+
+    def gate_weight_expr(self, a_short, a_lp, f_n, dt, gyro, bias, off):
+        """The accelerometer gate (issue 26). A short NED low-pass of the specific force,
+        s <- s + dt/(accel_gate_tau + dt)(f_n - s) (tens of ms: motor vibration, zero-mean at
+        high frequency, averages out of it; a motion acceleration or an offset does not), and the
+        sine² of the angle between it and the long low-pass a_lp (as it stood before this sample),
+        e² = 1 - (s·a)²/(|s|²|a|²): motion is the short mean departing from the long one. An error
+        of the estimate's attitude turns both alike (both are in the estimate's NED), so it does
+        not close the gate, and a sustained acceleration does not keep it closed: once the long
+        low-pass has taken it in, e² is small again. While the gyro is slow (|ω - b| <
+        accel_gate_rate) and `off` is false, the weight w = max(1/(1 + accel_gate e²),
+        accel_gate_floor), else 1; the accelerometer rows of R are divided by it
+        (residual_and_r): the rejection acts on the correction, and the long low-pass stays linear
+        (weighing the samples that enter it biases a zero-mean motion's average:
+        studies/adukf_gate_cv.py). Returns (w, s')."""
+        p = self.params
+        s_new = a_short + (dt / (use(p["accel_gate_tau"]) + dt)) * (f_n - a_short)
+        sa = ca.dot(s_new, a_lp)
+        n2 = ca.sumsqr(s_new) * ca.sumsqr(a_lp)
+        e2 = (n2 - sa * sa) / ca.fmax(n2, use(GATE_NORM2_MIN))
+        w = ca.fmax(1.0 / (1.0 + p["accel_gate"] * e2), p["accel_gate_floor"])
+        wb = gyro - bias
+        slow = ca.sumsqr(wb) < p["accel_gate_rate"] ** 2
+        return ca.if_else(ca.logic_and(slow, ca.logic_not(off)), w, 1.0), s_new
+
+    def accel_lowpass_expr(self, a_lp, f_n, lp_time, dt, restart, start, m_comp=None):
         """The NED low-pass of the specific force f_n = R(q-) f: a ← a + α (f_n − a), started at
         f_n (restart, or recovering from a clipped gyro sample: start). α = dt / (τ + dt), or with
         accel_lp_warm (VQF's warm start, issue 26) α = dt / (min(lp_time, τ) + dt), lp_time the
@@ -264,6 +310,11 @@ class Model(FilterModel):
         Recovering holds lp_time (the warm start is not begun again after a gyro clip, as mekf).
         Returns the new low-pass and lp_time."""
         tau = self.params["accel_tau"]
+        tau_u = self.params["accel_tau_unaided"]
+        if self.unaided():
+            # no motion measurement (no GPS compensation running, or none built): the low-pass
+            # must average the vehicle's motion out by itself, over accel_tau_unaided
+            tau = tau_u if m_comp is None else ca.if_else(m_comp, use(tau), use(tau_u))
         base = ca.if_else(restart, 0, lp_time)
         alpha, lp_next = aiding.warm_lowpass_gain(base, tau, dt)
         if not self.params["accel_lp_warm"]:
@@ -430,11 +481,12 @@ class Model(FilterModel):
         through h, as its deviation from the centre h(χ) - z₀."""
         return measurement(normalize(point), m_ref) - z0
 
-    def residual_and_r(self, zhat, f, m, scale, recover=None, span=None):
+    def residual_and_r(self, zhat, f, m, scale, recover=None, span=None, gate_w=None, aided=None):
         """ε = z - ẑ and the adaptive per-axis R (both sigma sets); recovering from a clipped gyro
         sample (recover = 1) R is not adapted: the large residual is the attitude's error. With
         span (product, sensors at their own rates) the accelerometer's rows add its white noise
-        as a density, sigma_acc_density² / s_a (s_a: the time its sample stands for)."""
+        as a density, sigma_acc_density² / s_a (s_a: the time its sample stands for). gate_w (the
+        accelerometer gate's weight, gate_weight_expr): the accelerometer rows over it."""
         p = self.params
         z = ca.vertcat(normalize(f), normalize(m))
         eps = z - zhat
@@ -448,11 +500,18 @@ class Model(FilterModel):
         if scale is not None:
             R = [R[i] * scale[0] for i in range(3)] + [R[i] * scale[1] for i in range(3, 6)]
         d = p["sigma_acc_density"]
-        if span is not None and not (isinstance(d, (int, float)) and d == 0):
+        if span is not None and self.density_split():
+            # no GPS compensation (aided false, or no GPS input): sigma_acc_density_unaided
+            du = p["sigma_acc_density_unaided"]
+            d2 = du ** 2 if aided is None else ca.if_else(aided, d ** 2, du ** 2)
+            R = [R[i] + d2 / ca.fmax(span[0], use(SPAN_MIN)) for i in range(3)] + R[3:]
+        elif span is not None and not (isinstance(d, (int, float)) and d == 0):
             R = [R[i] + d ** 2 / ca.fmax(span[0], use(SPAN_MIN)) for i in range(3)] + R[3:]
         dm = p["sigma_mag_density"]
         if span is not None and not (isinstance(dm, (int, float)) and dm == 0):
             R = R[:3] + [R[i] + dm ** 2 / ca.fmax(span[1], use(SPAN_MIN)) for i in range(3, 6)]
+        if gate_w is not None:        # the accelerometer gate: its rows of R over the gate's weight
+            R = [R[i] / gate_w for i in range(3)] + R[3:]
         return eps, R
 
     def innovation_simplex_expr(self, z0, zdev, f, m, scale=None, span=None):
@@ -477,7 +536,7 @@ class Model(FilterModel):
             Pzz[c, r] = Pzz[r, c]
         return Pzz, eps, ca.vertcat(*R), ca.vertcat(*D)
 
-    def innovation_expr(self, z0, zsum, zdiff, f, m, scale=None, recover=None, span=None):
+    def innovation_expr(self, z0, zsum, zdiff, f, m, scale=None, recover=None, span=None, gate_w=None, aided=None):
         """ẑ, residual, adaptive R and P_zz from the sigma pairs' deviations (sigma_pair_expr:
         s_j = e_j+ + e_j-, d_j = e_j+ - e_j- for the 4 columns of aL; e_i = z_i - z₀, zero for
         the centre and for the 2(n-4) points of the bias columns). Exact rewrites of the sums of
@@ -498,7 +557,7 @@ class Model(FilterModel):
         S = [zsum[6 * j:6 * j + 6] for j in range(na)]
         D = [zdiff[6 * j:6 * j + 6] for j in range(na)]
         delta = wi * sum(S[1:], S[0])
-        eps, R = self.residual_and_r(z0 + delta, f, m, scale, recover, span)
+        eps, R = self.residual_and_r(z0 + delta, f, m, scale, recover, span, gate_w, aided)
         Pzz = ca.SX.zeros(6, 6)
         for r, c in _LOWER6:     # symmetric: lower triangle once, mirrored
             zz = sum([S[j][r] * S[j][c] + D[j][r] * D[j][c] for j in range(1, na)], S[0][r] * S[0][c] + D[0][r] * D[0][c])
@@ -582,19 +641,29 @@ class Model(FilterModel):
         recover = ca.SX.sym("recover")        # recovering from a clipped gyro sample (error state)
         start = ca.logic_or(restart, recover) if self.err else restart     # (recovering: the sample itself)
         lp_time = ca.SX.sym("lp_time")
-        a_lp_new, lp_time_new = self.accel_lowpass_expr(a_lp, f_n, lp_time, dt, restart, start)
+        m_comp = ca.SX.sym("m_comp")           # the GPS motion compensation runs (gps_lowpass)
+        gate_in, gate_out, weight = {}, {}, None
+        if self.gate():
+            gyro_in, bias_in, a_short = ca.SX.sym("gyro", 3), ca.SX.sym("gyro_bias", 3), ca.SX.sym("accel_short", 3)
+            # no gate where the low-pass starts at the sample, nor while the GPS removes the motion
+            off = ca.logic_or(start, m_comp) if self.gps else start
+            weight, s_new = self.gate_weight_expr(ca.if_else(start, f_n, a_short), a_lp, f_n, dt, gyro_in, bias_in, off)
+            gate_in = {"gyro": gyro_in, "gyro_bias": bias_in, "accel_short": a_short}
+            gate_out = {"accel_short_new": s_new, "gate_w": weight}
+        a_lp_new, lp_time_new = self.accel_lowpass_expr(a_lp, f_n, lp_time, dt, restart, start,
+                                                        m_comp if self.gps else None)
         lp_in = {"q_pred_unit": qn, "accel": f, "accel_lp": a_lp, "lp_time": lp_time, "restart": restart, "dt": dt,
                  **({"recover": recover} if self.err else {})}
         lp_out = {"accel_lp_new": a_lp_new, "lp_time_new": lp_time_new, "accel_body": quat.rotate_inv(qn, a_lp_new)}
         lp_doc = ("NED low-pass of the specific force R(q-) f (restart: start at R(q-) f; accel_lp_warm: the "
-                  "running mean of its samples until it has averaged accel_tau); the update measures R(q-)^T "
-                  "of it (recovering from a clipped gyro sample: the sample itself)")
+                  "running mean of its samples until it has averaged accel_tau"
+                  + (", accel_tau_unaided while no GPS compensation runs" if self.unaided() else "")
+                  + "); the update measures R(q-)^T of it (recovering from a clipped gyro sample: the sample itself)")
         if self.gps:
             vel = ca.SX.sym("gps_vel", 3)
             v_lp = ca.SX.sym("v_lp", 3)
             v_ins = ca.SX.sym("v_ins", 3)
             new_gps = ca.SX.sym("new_gps")
-            m_comp = ca.SX.sym("m_comp")
             # the velocity's low-pass gain: that of the specific force (1 when it restarts at R f)
             alpha = ca.if_else(start, 1, dt / (use(p["accel_tau"]) + dt))
             vi_new, v_new, up = aiding.gps_lowpass(a_lp_new, f_n, vel, v_lp, v_ins, alpha, dt, p["accel_tau"],
@@ -606,6 +675,12 @@ class Model(FilterModel):
             lp_doc = lp_doc.replace("measures R(q-)^T of it", "measures R(q-)^T of it less the GPS velocity's "
                                     "low-passed derivative (v_ins - v_lp)/accel_tau (m_comp; v through the same "
                                     "low-pass, carried by R f + g between GPS samples)")
+        if self.gate():
+            lp_in.update(gate_in)
+            lp_out.update(gate_out)
+            lp_doc += ("; accel_gate: the short NED mean accel_short and the gate's weight gate_w from its tilt "
+                       "(1 unless the gyro is slow and no GPS compensation runs; the update divides R's "
+                       "accelerometer rows by it)")
         Pzz_packed = ca.SX.sym("P_zz", 21)        # lower triangle, packed (linalg)
         Pzz = linalg.unpack_symmetric(Pzz_packed, 6)
         eps = ca.SX.sym("residual", 6)
@@ -629,7 +704,9 @@ class Model(FilterModel):
             Pzz_e, eps_e, r_e, zd_e = self.innovation_simplex_expr(z0, zdev, f, m, scale, sp)
         elif self.err:
             zs_e, zd_e = self.sigma_pair_error_expr(col, z0)
-            Pzz_e, eps_e, r_e = self.innovation_expr(z0, zsum, zdiff, f, m, scale, recover, sp)
+            gate_w = ca.SX.sym("gate_w") if self.gate() else None
+            aided = m_comp if self.gps and self.density_split() else None
+            Pzz_e, eps_e, r_e = self.innovation_expr(z0, zsum, zdiff, f, m, scale, recover, sp, gate_w, aided)
         else:
             zs_e, zd_e = self.sigma_pair_expr(q4, col, m_ref, z0)
             Pzz_e, eps_e, r_e = self.innovation_expr(z0, zsum, zdiff, f, m, scale, span=sp)
@@ -690,10 +767,14 @@ class Model(FilterModel):
             *points,
             KernelSpec("innovation", function("innovation", {**innov_in, "accel": f, "mag": m,
                                                              **({"dt": dt, "span": span} if rated else {}),
-                                                             **({"recover": recover} if self.err else {})},
+                                                             **({"recover": recover} if self.err else {}),
+                                                             **({"gate_w": gate_w} if self.gate() else {}),
+                                                             **({"m_comp": m_comp} if self.gps and self.density_split()
+                                                                else {})},
                                               {"P_zz": linalg.pack_lower(Pzz_e), "residual": eps_e, "r_diag": r_e,
                                                **innov_out}),
-                       innov_doc, noinline=True, early_writes=True, flags=("recover",) if self.err else ()),
+                       innov_doc, noinline=True, early_writes=True,
+                       flags=(("recover",) if self.err else ()) + (("m_comp",) if self.gps and self.density_split() else ())),
             KernelSpec("gain", function("gain", {"P_zz": Pzz_packed, "zdiff": zdiff, "residual": eps},
                                         {"g": g_e, "G": G_e, "pivot_zz": piv_zz}),
                        "with L = chol(P_zz), W = L^-1 D (D the pairs' differences) and v = L^-1 eps: "
@@ -757,4 +838,4 @@ class Model(FilterModel):
         n = self.n
         return {"recovery": self.err, "learn": self.params["mag_ref"] == "learn", "hard_iron": self.hard_iron(), "n": n, "nx": self.nx, "na": self.na, "err": self.err, "lowpass": self.lowpass(), "follow": self.follow(), "gps": self.gps, "gps_age_max": GPS_AGE_MAX, "rated": self.own_rates(), "bias": self.nx == 7, "simplex": self.simplex(), "xs": "q" if self.nx == 4 else "x", "at": self.work_layout(),
                 "packed": linalg.packed_lower_pairs(n),
-                "gyro_quiet": self.gyro_recovery_quiet() if self.err else []}
+                "gyro_quiet": self.gyro_recovery_quiet() if self.err else [], "gate": self.gate(), "split": self.gps and self.density_split()}

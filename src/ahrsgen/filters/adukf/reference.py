@@ -236,6 +236,8 @@ class Reference:
         self.rated = p["span_max"] > 0 and not p["faithful"]
         self.accel_lp = np.zeros(3)
         self.lp_time = 0.0              # time accel_lp has averaged (its warm start), s, at most accel_tau
+        self.gate = self.lowpass and self.err and p["accel_gate"] > 0
+        self.accel_short = np.zeros(3)  # the gate's short NED mean of the specific force
         self.gps_lp = p["motion_accel_model"] == "gps_lowpass" and self.lowpass
         self.gps_vel = np.zeros(3)      # the latest GPS velocity (NED) and its age
         self.gps_age = 1e3              # model.GPS_AGE_MAX: no sample yet
@@ -399,7 +401,10 @@ class Reference:
             scale = np.repeat(np.maximum(dt / span, 1.0 / p["span_steps_max"]), 3)
             if p["r_time"] > 0:      # per-sample terms of a sample standing for r_time seconds
                 scale = scale * p["r_time"] / max(dt, 1e-9)                 # model.SPAN_MIN
-            noise[:3] = p["sigma_acc_density"] ** 2 / max(span[0], 1e-9)     # model.SPAN_MIN
+            d_a = p["sigma_acc_density"]
+            if (self.err and self.lowpass and p["sigma_acc_density_unaided"] > 0 and not m_comp):
+                d_a = p["sigma_acc_density_unaided"]      # no GPS compensation runs
+            noise[:3] = d_a ** 2 / max(span[0], 1e-9)     # model.SPAN_MIN
             noise[3:] = p["sigma_mag_density"] ** 2 / max(span[1], 1e-9)
             if use_a:
                 self.sample_age[0] = 0.0
@@ -433,6 +438,7 @@ class Reference:
 
         x_new = np.concatenate([qm / math.sqrt(float(qm @ qm)), xm[4:]])
         P_new = Pm
+        w_g = 1.0                       # the accelerometer gate's weight (accel_gate)
         if use_a or use_m:
             f_meas = f
             if self.lowpass and use_a:
@@ -443,11 +449,30 @@ class Reference:
                 if start:
                     self.accel_lp = f_n                          # start at the first sample (and recovering)
                 k_lp = dt / (p["accel_tau"] + dt)
+                # no motion measurement (no GPS compensation running): the low-pass's own time
+                # constant accel_tau_unaided (0: accel_tau)
+                tau_a = p["accel_tau_unaided"] if p["accel_tau_unaided"] > 0 and not m_comp else p["accel_tau"]
                 # warm start (VQF's): the running mean of the samples until it has averaged
-                # accel_tau of them; recovering holds the time (not begun again after a clip)
+                # tau_a of them; recovering holds the time (not begun again after a clip)
                 t_lp = 0.0 if restart else self.lp_time
-                k_warm, t_next = warm_lowpass_gain(t_lp, p["accel_tau"], dt)
-                self.accel_lp = self.accel_lp + (k_warm if p["accel_lp_warm"] else k_lp) * (f_n - self.accel_lp)
+                k_warm, t_next = warm_lowpass_gain(t_lp, tau_a, dt)
+                k_a = k_warm if p["accel_lp_warm"] else dt / (tau_a + dt)
+                if self.gate:
+                    # the gate: the short NED mean s (started at the sample with the low-pass), the
+                    # sine² of its angle to the low-pass as it stood, e² = 1 - (s·a)²/(|s|²|a|²), and
+                    # the weight w = max(1/(1 + accel_gate e²), floor) that divides the accelerometer
+                    # rows of R, while the gyro is slow (|ω - b| < accel_gate_rate) and neither a
+                    # start nor the GPS compensation
+                    if start:
+                        self.accel_short = f_n.copy()
+                    s_g = self.accel_short + dt / (p["accel_gate_tau"] + dt) * (f_n - self.accel_short)
+                    self.accel_short = s_g
+                    w_b = np.asarray(c.gyro, dtype=float) - self.bias
+                    if not start and not m_comp and float(w_b @ w_b) < p["accel_gate_rate"] ** 2:
+                        n2 = float(s_g @ s_g) * float(self.accel_lp @ self.accel_lp)
+                        e2 = (n2 - float(s_g @ self.accel_lp) ** 2) / max(n2, 1e-6)    # model.GATE_NORM2_MIN
+                        w_g = max(1.0 / (1.0 + p["accel_gate"] * e2), p["accel_gate_floor"])
+                self.accel_lp = self.accel_lp + k_a * (f_n - self.accel_lp)
                 if restart or not recovering:
                     self.lp_time = t_next
                 up = self.accel_lp
@@ -486,6 +511,7 @@ class Reference:
                 if recovering:
                     adapt = np.zeros(6)
                 R = (np.concatenate([np.full(3, p["sigma_acc"] ** 2), np.full(3, p["sigma_mag"] ** 2)]) + adapt) * scale + noise
+                R[:3] = R[:3] / w_g     # the gate: the accelerometer's rows over its weight
                 dZ = Z - zhat
                 dX = chis - xc
                 Pzz = (self.wc[:, None] * dZ).T @ dZ + np.diag(R)
