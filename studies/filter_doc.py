@@ -40,12 +40,14 @@ FILTERS = ROOT / "src" / "ahrsgen" / "filters"
 SCENARIO_ROWS = {
     "mekf": [
         ("fixedwing_gps", ""), ("fixedwing_gps", "motion_comp=centripetal"),
+        ("fixedwing_gps", "motion_comp=centripetal, accel_angle_noise=0.07"),
         ("fixedwing_gps", "preset faithful"), ("fixedwing_gps_100hz", ""),
         ("multirotor", ""), ("multirotor", "heading_source=gps_course"),
         ("multirotor_400hz", ""), ("multirotor_400hz", "accel_lpf_warm=false"),
         ("multirotor_400hz_repeated", ""),
         ("multirotor_1khz", ""), ("multirotor_1khz", "accel_lpf_warm=false"),
-        ("multirotor_1khz", "accel_noise_density=0"), ("multirotor_1khz", "accel_bias_gain=0"),
+        ("multirotor_1khz", "accel_angle_noise=0.07, accel_noise_density=0"),
+        ("multirotor_1khz", "accel_bias_gain=0"),
         ("multirotor_jitter_dropouts", ""), ("static_accel_disturbance", ""),
         ("static_mag_disturbance", ""), ("turntable", ""),
         ("gyro_clip", ""), ("gyro_clip", "gyro_full_scale=0"),
