@@ -88,7 +88,7 @@ PARAMS = {
     "mekf": ["measurement", "heading_source", "motion_comp", "gyro_noise", "gyro_rate_noise",
              "gyro_bias_rw", "accel_angle_noise", "accel_noise_density", "accel_bias_gain", "accel_lpf_tau",
              "accel_lpf_warm", "accel_adapt_cap", "accel_adapt_sigmas", "course_noise", "course_max_sideslip",
-             "gps_min_speed", "gps_vel_timeout", "mag_heading_noise", "mag_heading_density", "mag_norm_th",
+             "gps_min_speed", "gps_vel_timeout", "accel_tilt_noise", "mag_heading_noise", "mag_heading_density", "mag_norm_th",
              "mag_dip_th", "mag_learn_time", "mag_ref_tau", "mag_new_time", "mag_reject_max",
              "mag_bias", "mag_bias_rw", "mag_bias_noise", "mag_bias_min_rate", "mag_bias_settle",
              "mag_bias_th", "mag_bias_jump", "mag_bias_max", "rest_tau", "rest_min_time",

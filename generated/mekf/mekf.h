@@ -238,12 +238,10 @@ extern "C" {
                                            docs/mekf.md) */
 #define MEKF_GYRO_BIAS_RW 1e-05f        /* gyro bias random walk (rate of the bias noise density)
                                            [rad/s^2/sqrt(Hz)] */
-#define MEKF_ACCEL_ANGLE_NOISE 1e-04f   /* per-sample standard deviation of the measured gravity
-                                           direction (measurement = 'vectors': of the low-passed,
-                                           motion-compensated specific force; 'euler_angles': of the
-                                           accelerometer roll and pitch, the patent's R). With
-                                           measurement = 'vectors' a variance the same per sample at
-                                           any rate, beside accel_noise_density's density. 1e-4 (its
+#define MEKF_ACCEL_ANGLE_NOISE 1e-04f   /* measurement = 'vectors': per-sample standard deviation of
+                                           the gravity direction (the low-passed, motion-compensated
+                                           specific force), a variance the same per sample at any
+                                           rate, beside accel_noise_density's density. 1e-4 (its
                                            minimum: out of effect) chosen by
                                            leave-one-BROAD-group-out at 286/143/95/48 Hz with the
                                            scenarios (studies/mekf_motion_density_cv.py,
@@ -253,7 +251,14 @@ extern "C" {
                                            density; as 0.07 per sample (before) the tilt was trusted
                                            34 / 51 / 72 % less per second at 143 / 95 / 48 Hz than
                                            at 286 Hz, and BROAD missed issue 26's rate line at 143
-                                           and 95 Hz [rad] */
+                                           and 95 Hz. motion_comp = 'centripetal' leaves the speed
+                                           changes in the specific force: set 0.07 with it
+                                           (fixed-wing 0.92 -> 0.48 deg) [rad] */
+#define MEKF_ACCEL_TILT_NOISE 0.07f     /* measurement = 'euler_angles' (the patent's design):
+                                           per-sample standard deviation of the accelerometer roll
+                                           and pitch, the patent's R (accel_angle_noise's default
+                                           before it became the 'vectors' design's per-sample term
+                                           only; the faithful preset sets 0.1) [rad] */
 #define MEKF_ACCEL_NOISE_DENSITY 0.004f /* measurement = 'vectors': the gravity direction's variance
                                            is accel_angle_noise^2 + accel_noise_density^2 / dt. This
                                            density covers the sensor's white noise and the motion
