@@ -1615,7 +1615,7 @@ static void mekf_k_heading_features(const float q[4], const float mag[3], const 
 
 static void mekf_k_update_gravity_part0(const float q[4], const float up[3], float dt,
     const float gyro[3], const float b[3], const float vel[3], bool unobserved, const float P[36],
-    float carry[18])
+    float carry[19])
 {
     const float tmp0 = (dt > 1e-09f /* DT_Q_MIN */) ? dt : 1e-09f /* DT_Q_MIN */;
     const float tmp1 = 1.6e-05f /* accel_noise_density^2 */ / tmp0;
@@ -1624,7 +1624,7 @@ static void mekf_k_update_gravity_part0(const float q[4], const float up[3], flo
     const float tmp4 = 333333.34f /* accel_bias_gain/(3*p0_bias*p0_bias) */ * tmp3;
     const float tmp5 = 1.0f + tmp4;
     const float tmp6 = tmp1 * tmp5;
-    const float tmp7 = 0.0049f /* accel_angle_noise^2 */ + tmp6;
+    const float tmp7 = 1e-08f /* accel_angle_noise^2 */ + tmp6;
     float tmp8;
     if (unobserved) {
         const float tmp9 = gyro[0] - b[0];
@@ -1668,7 +1668,7 @@ static void mekf_k_update_gravity_part0(const float q[4], const float up[3], flo
 }
 
 static void mekf_k_update_gravity_part1(const float up[3], bool recover, const float P[36],
-    float x_out[6], float carry[18])
+    float x_out[6], float carry[19])
 {
     const float tmp40 = carry[1] /* tmp38 */ + carry[2] /* tmp39 */;
     const float tmp41 = up[2] * up[2];
@@ -1688,227 +1688,226 @@ static void mekf_k_update_gravity_part1(const float up[3], bool recover, const f
         const float tmp52 = tmp51 - (-1.0f);
         const float tmp53 = tmp52 * tmp52;
         const float tmp54 = tmp50 + tmp53;
-        const float tmp55 = 2.25f /* accel_adapt_sigmas*accel_adapt_sigmas */ *
-                carry[0] /* tmp37 */;
-        const float tmp56 = tmp54 / tmp55;
-        const float tmp57 = 1.0f + tmp56;
-        const float tmp58 = (tmp57 < 3.0f /* accel_adapt_cap */) ? tmp57 :
-                3.0f /* accel_adapt_cap */;
-        const float tmp59 = carry[0] /* tmp37 */ * tmp58;
-        tmp47 = tmp59;
+        const float tmp55 = tmp54 / carry[0] /* tmp37 */;
+        const float tmp56 = 1.0f + tmp55;
+        const float tmp57 = (tmp56 < 7.0f /* accel_adapt_cap */) ? tmp56 :
+                7.0f /* accel_adapt_cap */;
+        const float tmp58 = carry[0] /* tmp37 */ * tmp57;
+        tmp47 = tmp58;
     }
-    const float tmp60 = 0.25f * tmp47;
-    const float tmp61 = P[7] + tmp60;
-    const float tmp62 = 1.0f / tmp61;
-    const float tmp63 = (2.5e-13f /* S_PIVOT_MIN/4.0 */ < tmp61) ? tmp62 : 1.0f;
-    const float tmp64 = P[1] * tmp63;
-    const float tmp65 = 0.5f * tmp45;
-    const float tmp66 = tmp64 * tmp65;
-    const float tmp67 = tmp64 * P[1];
-    const float tmp68 = P[0] - tmp67;
-    const float tmp69 = tmp68 + tmp60;
-    const float tmp70 = 1.0f / tmp69;
-    const float tmp71 = (2.5e-13f /* S_PIVOT_MIN/4.0 */ < tmp69) ? tmp70 : 1.0f;
-    const float tmp72 = tmp68 * tmp71;
-    const float tmp73 = (-0.5f) * tmp46;
-    const float tmp74 = tmp73 - tmp66;
-    const float tmp75 = tmp72 * tmp74;
-    const float tmp76 = tmp66 + tmp75;
-    x_out[0] = tmp76;
-    const float tmp77 = P[7] * tmp63;
-    const float tmp78 = tmp77 * tmp65;
-    const float tmp79 = tmp77 * P[1];
-    carry[0] = tmp61;
-    carry[1] = tmp63;
-    carry[2] = tmp65;
-    carry[3] = tmp68;
-    carry[4] = tmp69;
-    carry[5] = tmp71;
-    carry[6] = tmp72;
-    carry[7] = tmp74;
-    carry[8] = tmp77;
-    carry[9] = tmp78;
+    const float tmp59 = 0.25f * tmp47;
+    const float tmp60 = P[7] + tmp59;
+    const float tmp61 = 1.0f / tmp60;
+    const float tmp62 = (2.5e-13f /* S_PIVOT_MIN/4.0 */ < tmp60) ? tmp61 : 1.0f;
+    const float tmp63 = P[1] * tmp62;
+    const float tmp64 = 0.5f * tmp45;
+    const float tmp65 = tmp63 * tmp64;
+    const float tmp66 = tmp63 * P[1];
+    const float tmp67 = P[0] - tmp66;
+    const float tmp68 = tmp67 + tmp59;
+    const float tmp69 = 1.0f / tmp68;
+    const float tmp70 = (2.5e-13f /* S_PIVOT_MIN/4.0 */ < tmp68) ? tmp69 : 1.0f;
+    const float tmp71 = tmp67 * tmp70;
+    const float tmp72 = (-0.5f) * tmp46;
+    const float tmp73 = tmp72 - tmp65;
+    const float tmp74 = tmp71 * tmp73;
+    const float tmp75 = tmp65 + tmp74;
+    x_out[0] = tmp75;
+    const float tmp76 = P[7] * tmp62;
+    const float tmp77 = tmp76 * tmp64;
+    const float tmp78 = tmp76 * P[1];
+    const float tmp79 = P[1] - tmp78;
+    carry[0] = tmp60;
+    carry[1] = tmp62;
+    carry[2] = tmp64;
+    carry[3] = tmp67;
+    carry[4] = tmp68;
+    carry[5] = tmp70;
+    carry[6] = tmp71;
+    carry[7] = tmp73;
+    carry[8] = tmp76;
+    carry[9] = tmp77;
     carry[10] = tmp79;
 }
 
 static void mekf_k_update_gravity_part2(const float P[36], float x_out[6], float P_out[36],
-    float carry[18])
+    float carry[19])
 {
-    const float tmp80 = P[1] - carry[10] /* tmp79 */;
-    const float tmp81 = tmp80 * carry[5] /* tmp71 */;
-    const float tmp82 = tmp81 * carry[7] /* tmp74 */;
-    const float tmp83 = carry[9] /* tmp78 */ + tmp82;
-    x_out[1] = tmp83;
-    const float tmp84 = P[8] * carry[1] /* tmp63 */;
-    const float tmp85 = tmp84 * carry[2] /* tmp65 */;
-    const float tmp86 = tmp84 * P[1];
-    const float tmp87 = P[2] - tmp86;
-    const float tmp88 = tmp87 * carry[5] /* tmp71 */;
-    const float tmp89 = tmp88 * carry[7] /* tmp74 */;
-    const float tmp90 = tmp85 + tmp89;
-    x_out[2] = tmp90;
-    const float tmp91 = P[9] * carry[1] /* tmp63 */;
-    const float tmp92 = tmp91 * carry[2] /* tmp65 */;
-    const float tmp93 = tmp91 * P[1];
-    const float tmp94 = P[3] - tmp93;
-    const float tmp95 = tmp94 * carry[5] /* tmp71 */;
-    const float tmp96 = tmp95 * carry[7] /* tmp74 */;
-    const float tmp97 = tmp92 + tmp96;
-    x_out[3] = tmp97;
-    const float tmp98 = P[10] * carry[1] /* tmp63 */;
-    const float tmp99 = tmp98 * carry[2] /* tmp65 */;
-    const float tmp100 = tmp98 * P[1];
-    const float tmp101 = P[4] - tmp100;
-    const float tmp102 = tmp101 * carry[5] /* tmp71 */;
-    const float tmp103 = tmp102 * carry[7] /* tmp74 */;
-    const float tmp104 = tmp99 + tmp103;
-    x_out[4] = tmp104;
-    const float tmp105 = P[11] * carry[1] /* tmp63 */;
-    const float tmp106 = tmp105 * carry[2] /* tmp65 */;
-    const float tmp107 = tmp105 * P[1];
-    const float tmp108 = P[5] - tmp107;
-    const float tmp109 = tmp108 * carry[5] /* tmp71 */;
-    const float tmp110 = tmp109 * carry[7] /* tmp74 */;
-    const float tmp111 = tmp106 + tmp110;
-    x_out[5] = tmp111;
-    const float tmp112 = carry[6] /* tmp72 */ * carry[3] /* tmp68 */;
-    const float tmp113 = carry[3] /* tmp68 */ - tmp112;
-    P_out[0] = tmp113;
-    const float tmp114 = tmp81 * carry[3] /* tmp68 */;
-    const float tmp115 = tmp80 - tmp114;
-    P_out[1] = tmp115;
-    P_out[6] = tmp115;
-    const float tmp116 = tmp88 * carry[3] /* tmp68 */;
-    const float tmp117 = tmp87 - tmp116;
-    P_out[2] = tmp117;
-    P_out[12] = tmp117;
-    const float tmp118 = tmp95 * carry[3] /* tmp68 */;
-    const float tmp119 = tmp94 - tmp118;
-    P_out[3] = tmp119;
-    P_out[18] = tmp119;
+    const float tmp80 = carry[10] /* tmp79 */ * carry[5] /* tmp70 */;
+    const float tmp81 = tmp80 * carry[7] /* tmp73 */;
+    const float tmp82 = carry[9] /* tmp77 */ + tmp81;
+    x_out[1] = tmp82;
+    const float tmp83 = P[8] * carry[1] /* tmp62 */;
+    const float tmp84 = tmp83 * carry[2] /* tmp64 */;
+    const float tmp85 = tmp83 * P[1];
+    const float tmp86 = P[2] - tmp85;
+    const float tmp87 = tmp86 * carry[5] /* tmp70 */;
+    const float tmp88 = tmp87 * carry[7] /* tmp73 */;
+    const float tmp89 = tmp84 + tmp88;
+    x_out[2] = tmp89;
+    const float tmp90 = P[9] * carry[1] /* tmp62 */;
+    const float tmp91 = tmp90 * carry[2] /* tmp64 */;
+    const float tmp92 = tmp90 * P[1];
+    const float tmp93 = P[3] - tmp92;
+    const float tmp94 = tmp93 * carry[5] /* tmp70 */;
+    const float tmp95 = tmp94 * carry[7] /* tmp73 */;
+    const float tmp96 = tmp91 + tmp95;
+    x_out[3] = tmp96;
+    const float tmp97 = P[10] * carry[1] /* tmp62 */;
+    const float tmp98 = tmp97 * carry[2] /* tmp64 */;
+    const float tmp99 = tmp97 * P[1];
+    const float tmp100 = P[4] - tmp99;
+    const float tmp101 = tmp100 * carry[5] /* tmp70 */;
+    const float tmp102 = tmp101 * carry[7] /* tmp73 */;
+    const float tmp103 = tmp98 + tmp102;
+    x_out[4] = tmp103;
+    const float tmp104 = P[11] * carry[1] /* tmp62 */;
+    const float tmp105 = tmp104 * carry[2] /* tmp64 */;
+    const float tmp106 = tmp104 * P[1];
+    const float tmp107 = P[5] - tmp106;
+    const float tmp108 = tmp107 * carry[5] /* tmp70 */;
+    const float tmp109 = tmp108 * carry[7] /* tmp73 */;
+    const float tmp110 = tmp105 + tmp109;
+    x_out[5] = tmp110;
+    const float tmp111 = carry[6] /* tmp71 */ * carry[3] /* tmp67 */;
+    const float tmp112 = carry[3] /* tmp67 */ - tmp111;
+    P_out[0] = tmp112;
+    const float tmp113 = tmp80 * carry[3] /* tmp67 */;
+    const float tmp114 = carry[10] /* tmp79 */ - tmp113;
+    P_out[1] = tmp114;
+    P_out[6] = tmp114;
+    const float tmp115 = tmp87 * carry[3] /* tmp67 */;
+    const float tmp116 = tmp86 - tmp115;
+    P_out[2] = tmp116;
+    P_out[12] = tmp116;
+    const float tmp117 = tmp94 * carry[3] /* tmp67 */;
+    const float tmp118 = tmp93 - tmp117;
+    P_out[3] = tmp118;
+    P_out[18] = tmp118;
+    const float tmp119 = tmp101 * carry[3] /* tmp67 */;
     carry[1] = tmp80;
-    carry[2] = tmp81;
-    carry[5] = tmp84;
+    carry[2] = tmp83;
+    carry[5] = tmp86;
     carry[6] = tmp87;
-    carry[7] = tmp88;
-    carry[9] = tmp91;
-    carry[10] = tmp94;
-    carry[11] = tmp95;
-    carry[12] = tmp98;
-    carry[13] = tmp101;
-    carry[14] = tmp102;
-    carry[15] = tmp105;
-    carry[16] = tmp108;
-    carry[17] = tmp109;
+    carry[7] = tmp90;
+    carry[9] = tmp93;
+    carry[11] = tmp94;
+    carry[12] = tmp97;
+    carry[13] = tmp100;
+    carry[14] = tmp101;
+    carry[15] = tmp104;
+    carry[16] = tmp107;
+    carry[17] = tmp108;
+    carry[18] = tmp119;
 }
 
-static void mekf_k_update_gravity_part3(const float P[36], float P_out[36], float carry[18])
+static void mekf_k_update_gravity_part3(const float P[36], float P_out[36], float carry[19])
 {
-    const float tmp120 = carry[14] /* tmp102 */ * carry[3] /* tmp68 */;
-    const float tmp121 = carry[13] /* tmp101 */ - tmp120;
-    P_out[4] = tmp121;
-    P_out[24] = tmp121;
-    const float tmp122 = carry[17] /* tmp109 */ * carry[3] /* tmp68 */;
-    const float tmp123 = carry[16] /* tmp108 */ - tmp122;
-    P_out[5] = tmp123;
-    P_out[30] = tmp123;
-    const float tmp124 = carry[8] /* tmp77 */ * P[7];
-    const float tmp125 = P[7] - tmp124;
-    const float tmp126 = carry[2] /* tmp81 */ * carry[1] /* tmp80 */;
-    const float tmp127 = tmp125 - tmp126;
-    const float tmp128 = carry[5] /* tmp84 */ * P[7];
-    const float tmp129 = P[8] - tmp128;
-    const float tmp130 = carry[7] /* tmp88 */ * carry[1] /* tmp80 */;
-    const float tmp131 = tmp129 - tmp130;
-    P_out[13] = tmp131;
-    const float tmp132 = carry[9] /* tmp91 */ * P[7];
-    const float tmp133 = P[9] - tmp132;
-    const float tmp134 = carry[11] /* tmp95 */ * carry[1] /* tmp80 */;
-    const float tmp135 = tmp133 - tmp134;
-    P_out[19] = tmp135;
-    const float tmp136 = carry[12] /* tmp98 */ * P[7];
-    const float tmp137 = P[10] - tmp136;
-    const float tmp138 = carry[14] /* tmp102 */ * carry[1] /* tmp80 */;
-    const float tmp139 = tmp137 - tmp138;
-    P_out[25] = tmp139;
-    const float tmp140 = carry[15] /* tmp105 */ * P[7];
-    P_out[7] = tmp127;
-    const float tmp141 = P[11] - tmp140;
-    const float tmp142 = carry[17] /* tmp109 */ * carry[1] /* tmp80 */;
-    const float tmp143 = tmp141 - tmp142;
-    P_out[31] = tmp143;
-    const float tmp144 = carry[5] /* tmp84 */ * P[8];
-    const float tmp145 = P[14] - tmp144;
-    const float tmp146 = carry[7] /* tmp88 */ * carry[6] /* tmp87 */;
-    const float tmp147 = tmp145 - tmp146;
-    P_out[14] = tmp147;
-    const float tmp148 = carry[9] /* tmp91 */ * P[8];
-    const float tmp149 = P[15] - tmp148;
-    const float tmp150 = carry[11] /* tmp95 */ * carry[6] /* tmp87 */;
-    const float tmp151 = tmp149 - tmp150;
-    P_out[15] = tmp151;
-    P_out[20] = tmp151;
-    const float tmp152 = carry[12] /* tmp98 */ * P[8];
-    const float tmp153 = P[16] - tmp152;
-    const float tmp154 = carry[14] /* tmp102 */ * carry[6] /* tmp87 */;
-    const float tmp155 = tmp153 - tmp154;
-    P_out[16] = tmp155;
-    P_out[26] = tmp155;
-    const float tmp156 = carry[15] /* tmp105 */ * P[8];
-    P_out[8] = tmp131;
-    const float tmp157 = P[17] - tmp156;
-    const float tmp158 = carry[17] /* tmp109 */ * carry[6] /* tmp87 */;
-    const float tmp159 = tmp157 - tmp158;
-    P_out[17] = tmp159;
-    P_out[32] = tmp159;
-    carry[1] = tmp135;
-    carry[2] = tmp139;
-    carry[3] = tmp143;
+    const float tmp120 = carry[13] /* tmp100 */ - carry[18] /* tmp119 */;
+    P_out[4] = tmp120;
+    P_out[24] = tmp120;
+    const float tmp121 = carry[17] /* tmp108 */ * carry[3] /* tmp67 */;
+    const float tmp122 = carry[16] /* tmp107 */ - tmp121;
+    P_out[5] = tmp122;
+    P_out[30] = tmp122;
+    const float tmp123 = carry[8] /* tmp76 */ * P[7];
+    const float tmp124 = P[7] - tmp123;
+    const float tmp125 = carry[1] /* tmp80 */ * carry[10] /* tmp79 */;
+    const float tmp126 = tmp124 - tmp125;
+    const float tmp127 = carry[2] /* tmp83 */ * P[7];
+    const float tmp128 = P[8] - tmp127;
+    const float tmp129 = carry[6] /* tmp87 */ * carry[10] /* tmp79 */;
+    const float tmp130 = tmp128 - tmp129;
+    P_out[13] = tmp130;
+    const float tmp131 = carry[7] /* tmp90 */ * P[7];
+    const float tmp132 = P[9] - tmp131;
+    const float tmp133 = carry[11] /* tmp94 */ * carry[10] /* tmp79 */;
+    const float tmp134 = tmp132 - tmp133;
+    P_out[19] = tmp134;
+    const float tmp135 = carry[12] /* tmp97 */ * P[7];
+    const float tmp136 = P[10] - tmp135;
+    const float tmp137 = carry[14] /* tmp101 */ * carry[10] /* tmp79 */;
+    const float tmp138 = tmp136 - tmp137;
+    P_out[25] = tmp138;
+    const float tmp139 = carry[15] /* tmp104 */ * P[7];
+    P_out[7] = tmp126;
+    const float tmp140 = P[11] - tmp139;
+    const float tmp141 = carry[17] /* tmp108 */ * carry[10] /* tmp79 */;
+    const float tmp142 = tmp140 - tmp141;
+    P_out[31] = tmp142;
+    const float tmp143 = carry[2] /* tmp83 */ * P[8];
+    const float tmp144 = P[14] - tmp143;
+    const float tmp145 = carry[6] /* tmp87 */ * carry[5] /* tmp86 */;
+    const float tmp146 = tmp144 - tmp145;
+    P_out[14] = tmp146;
+    const float tmp147 = carry[7] /* tmp90 */ * P[8];
+    const float tmp148 = P[15] - tmp147;
+    const float tmp149 = carry[11] /* tmp94 */ * carry[5] /* tmp86 */;
+    const float tmp150 = tmp148 - tmp149;
+    P_out[15] = tmp150;
+    P_out[20] = tmp150;
+    const float tmp151 = carry[12] /* tmp97 */ * P[8];
+    const float tmp152 = P[16] - tmp151;
+    const float tmp153 = carry[14] /* tmp101 */ * carry[5] /* tmp86 */;
+    const float tmp154 = tmp152 - tmp153;
+    P_out[16] = tmp154;
+    P_out[26] = tmp154;
+    const float tmp155 = carry[15] /* tmp104 */ * P[8];
+    P_out[8] = tmp130;
+    const float tmp156 = P[17] - tmp155;
+    const float tmp157 = carry[17] /* tmp108 */ * carry[5] /* tmp86 */;
+    const float tmp158 = tmp156 - tmp157;
+    P_out[17] = tmp158;
+    P_out[32] = tmp158;
+    const float tmp159 = carry[7] /* tmp90 */ * P[9];
+    carry[1] = tmp134;
+    carry[2] = tmp138;
+    carry[3] = tmp142;
+    carry[5] = tmp159;
 }
 
 static void mekf_k_update_gravity_part4(const float P[36], float P_out[36], float *min_pivot,
-    const float carry[18])
+    const float carry[19])
 {
-    const float tmp160 = carry[9] /* tmp91 */ * P[9];
-    const float tmp161 = P[21] - tmp160;
-    const float tmp162 = carry[11] /* tmp95 */ * carry[10] /* tmp94 */;
-    const float tmp163 = tmp161 - tmp162;
-    P_out[21] = tmp163;
-    const float tmp164 = carry[12] /* tmp98 */ * P[9];
-    const float tmp165 = P[22] - tmp164;
-    const float tmp166 = carry[14] /* tmp102 */ * carry[10] /* tmp94 */;
-    const float tmp167 = tmp165 - tmp166;
-    P_out[22] = tmp167;
-    P_out[27] = tmp167;
-    const float tmp168 = carry[15] /* tmp105 */ * P[9];
-    P_out[9] = carry[1] /* tmp135 */;
-    const float tmp169 = P[23] - tmp168;
-    const float tmp170 = carry[17] /* tmp109 */ * carry[10] /* tmp94 */;
-    const float tmp171 = tmp169 - tmp170;
-    P_out[23] = tmp171;
-    P_out[33] = tmp171;
-    const float tmp172 = carry[12] /* tmp98 */ * P[10];
-    const float tmp173 = P[28] - tmp172;
-    const float tmp174 = carry[14] /* tmp102 */ * carry[13] /* tmp101 */;
-    const float tmp175 = tmp173 - tmp174;
-    P_out[28] = tmp175;
-    const float tmp176 = carry[15] /* tmp105 */ * P[10];
-    P_out[10] = carry[2] /* tmp139 */;
-    const float tmp177 = P[29] - tmp176;
-    const float tmp178 = carry[17] /* tmp109 */ * carry[13] /* tmp101 */;
-    const float tmp179 = tmp177 - tmp178;
-    P_out[29] = tmp179;
-    P_out[34] = tmp179;
-    const float tmp180 = carry[15] /* tmp105 */ * P[11];
-    P_out[11] = carry[3] /* tmp143 */;
-    const float tmp181 = P[35] - tmp180;
-    const float tmp182 = carry[17] /* tmp109 */ * carry[16] /* tmp108 */;
-    const float tmp183 = tmp181 - tmp182;
-    P_out[35] = tmp183;
-    const float tmp184 = (carry[0] /* tmp61 */ < carry[4] /* tmp69 */) ? carry[0] /* tmp61 */ :
-            carry[4] /* tmp69 */;
-    const float tmp185 = 4.0f * tmp184;
-    *min_pivot = tmp185;
+    const float tmp160 = P[21] - carry[5] /* tmp159 */;
+    const float tmp161 = carry[11] /* tmp94 */ * carry[9] /* tmp93 */;
+    const float tmp162 = tmp160 - tmp161;
+    P_out[21] = tmp162;
+    const float tmp163 = carry[12] /* tmp97 */ * P[9];
+    const float tmp164 = P[22] - tmp163;
+    const float tmp165 = carry[14] /* tmp101 */ * carry[9] /* tmp93 */;
+    const float tmp166 = tmp164 - tmp165;
+    P_out[22] = tmp166;
+    P_out[27] = tmp166;
+    const float tmp167 = carry[15] /* tmp104 */ * P[9];
+    P_out[9] = carry[1] /* tmp134 */;
+    const float tmp168 = P[23] - tmp167;
+    const float tmp169 = carry[17] /* tmp108 */ * carry[9] /* tmp93 */;
+    const float tmp170 = tmp168 - tmp169;
+    P_out[23] = tmp170;
+    P_out[33] = tmp170;
+    const float tmp171 = carry[12] /* tmp97 */ * P[10];
+    const float tmp172 = P[28] - tmp171;
+    const float tmp173 = carry[14] /* tmp101 */ * carry[13] /* tmp100 */;
+    const float tmp174 = tmp172 - tmp173;
+    P_out[28] = tmp174;
+    const float tmp175 = carry[15] /* tmp104 */ * P[10];
+    P_out[10] = carry[2] /* tmp138 */;
+    const float tmp176 = P[29] - tmp175;
+    const float tmp177 = carry[17] /* tmp108 */ * carry[13] /* tmp100 */;
+    const float tmp178 = tmp176 - tmp177;
+    P_out[29] = tmp178;
+    P_out[34] = tmp178;
+    const float tmp179 = carry[15] /* tmp104 */ * P[11];
+    P_out[11] = carry[3] /* tmp142 */;
+    const float tmp180 = P[35] - tmp179;
+    const float tmp181 = carry[17] /* tmp108 */ * carry[16] /* tmp107 */;
+    const float tmp182 = tmp180 - tmp181;
+    P_out[35] = tmp182;
+    const float tmp183 = (carry[0] /* tmp60 */ < carry[4] /* tmp68 */) ? carry[0] /* tmp60 */ :
+            carry[4] /* tmp68 */;
+    const float tmp184 = 4.0f * tmp183;
+    *min_pivot = tmp184;
 }
 
 /*
@@ -1931,9 +1930,9 @@ static void mekf_k_update_gravity_part4(const float P[36], float P_out[36], floa
  *     P_out: float[36]
  *     min_pivot: float
  *
- * Total ops: 186 (add 75, mul 96, div 6, sqrt 2, cmp 7)
+ * Total ops: 185 (add 75, mul 95, div 6, sqrt 2, cmp 7)
  *     of which only one side runs: if (unobserved) 28, else 0
- *     of which only one side runs: if (recover) 0, else 12
+ *     of which only one side runs: if (recover) 0, else 11
  */
 static void mekf_k_update_gravity(const float q[restrict 4], const float up[restrict 3],
     bool recover, float dt, const float gyro[restrict 3], const float b[restrict 3],
@@ -1944,7 +1943,7 @@ static void mekf_k_update_gravity(const float q[restrict 4], const float up[rest
      * 5 parts called in turn (inlined when optimising): bounded -O0 frames; carry holds the values
      * handed between them (a slot reused once its value is dead)
      */
-    float carry[18];
+    float carry[19];
     mekf_k_update_gravity_part0(q, up, dt, gyro, b, vel, unobserved, P, carry);
     mekf_k_update_gravity_part1(up, recover, P, x_out, carry);
     mekf_k_update_gravity_part2(P, x_out, P_out, carry);

@@ -106,27 +106,30 @@ extern "C" {
                                            Multirotor 400 Hz / 1 kHz 0.91 / 0.96 -> 0.41 / 0.38 deg,
                                            BROAD unchanged (studies/mekf_warm_start_cv.py,
                                            docs/mekf.md) */
-#define MEKF_ACCEL_ADAPT_CAP 3.0f       /* residual-adaptive gravity noise, bounded: R = sigma^2 *
+#define MEKF_ACCEL_ADAPT_CAP 7.0f       /* residual-adaptive gravity noise, bounded: R = sigma^2 *
                                            min(1 + |z|^2 / (accel_adapt_sigmas sigma)^2,
                                            accel_adapt_cap), sigma^2 the gravity direction's
                                            variance (accel_angle_noise^2 + accel_noise_density^2 /
                                            dt); 1 = off. Bounded so it cannot lock the correction
-                                           out. 3 chosen with accel_adapt_sigmas 1.5 by
+                                           out. 7 chosen with accel_adapt_sigmas 1.0 and the motion
+                                           as a density (accel_angle_noise 1e-4) by
                                            leave-one-BROAD-group-out at 286/143/95/48 Hz with the
-                                           scenarios and the multirotor without GPS
-                                           (studies/mekf_nogps_cv.py, docs/mekf.md), among the
-                                           candidates that keep issue 26's rate bound: multirotor
-                                           without GPS 250 Hz / 1 kHz 4.61 / 5.40 -> 2.65 / 3.22
-                                           deg, BROAD 2.084 -> 2.097 at 286 Hz (at most +1.3 %, 95
-                                           Hz), fixed-wing 0.35 -> 0.36, its GPS outage 0.60 -> 0.48
-                                           */
-#define MEKF_ACCEL_ADAPT_SIGMAS 1.5f    /* the residual at which the adaptation doubles R, in
+                                           scenarios, the multirotor without GPS and the static
+                                           accelerometer disturbance
+                                           (studies/mekf_motion_density_cv.py, docs/mekf.md), among
+                                           the candidates within issue 26's rate line: BROAD
+                                           2.097/2.178/2.255/2.557 -> 2.077/2.132/2.175/2.485 deg
+                                           (left out = in-sample), multirotor without GPS 250 Hz / 1
+                                           kHz 2.65 / 3.22 -> 2.18 / 2.69, fixed-wing 0.36 -> 0.35,
+                                           its GPS outage 0.48 -> 0.44. 3 before
+                                           (studies/mekf_nogps_cv.py) */
+#define MEKF_ACCEL_ADAPT_SIGMAS 1.0f    /* the residual at which the adaptation doubles R, in
                                            gravity direction standard deviations (sigma): R =
                                            sigma^2 + (|z| / accel_adapt_sigmas)^2 up to
                                            accel_adapt_cap sigma^2 (adukf's R = sigma^2 + k eps^2
                                            with k = 1 / accel_adapt_sigmas^2). Not used at
-                                           accel_adapt_cap = 1. 1.5 chosen with accel_adapt_cap 3
-                                           (studies/mekf_nogps_cv.py); 3 before [1] */
+                                           accel_adapt_cap = 1. 1.0 chosen with accel_adapt_cap 7
+                                           (studies/mekf_motion_density_cv.py); 1.5 before [1] */
 #define MEKF_REST_GYRO_TH 0.035f        /* rest detection: every gyro sample within this of its
                                            low-pass (rest_tau), and the low-pass itself below it (a
                                            turntable is not rest); 0 = no rest detection [rad/s] */
@@ -235,25 +238,40 @@ extern "C" {
                                            docs/mekf.md) */
 #define MEKF_GYRO_BIAS_RW 1e-05f        /* gyro bias random walk (rate of the bias noise density)
                                            [rad/s^2/sqrt(Hz)] */
-#define MEKF_ACCEL_ANGLE_NOISE 0.07f    /* per-sample standard deviation of the measured gravity
-                                           direction (measurement = 'vectors': of the low-passed,
-                                           motion-compensated specific force; 'euler_angles': of the
-                                           accelerometer roll and pitch, the patent's R). With
-                                           measurement = 'vectors' the motion the low-pass leaves,
-                                           the same per sample at any rate, beside
-                                           accel_noise_density's white noise. 0.07 chosen with
-                                           accel_noise_density (studies/mekf_accel_density_cv.py,
-                                           docs/mekf.md) [rad] */
+#define MEKF_ACCEL_ANGLE_NOISE 1e-04f   /* measurement = 'vectors': per-sample standard deviation of
+                                           the gravity direction (the low-passed, motion-compensated
+                                           specific force), a variance the same per sample at any
+                                           rate, beside accel_noise_density's density. 1e-4 (its
+                                           minimum: out of effect) chosen by
+                                           leave-one-BROAD-group-out at 286/143/95/48 Hz with the
+                                           scenarios (studies/mekf_motion_density_cv.py,
+                                           docs/mekf.md): the motion the 1 s low-pass leaves is
+                                           correlated over about that second, so its information per
+                                           second does not grow with the rate and it belongs in the
+                                           density; as 0.07 per sample (before) the tilt was trusted
+                                           34 / 51 / 72 % less per second at 143 / 95 / 48 Hz than
+                                           at 286 Hz, and BROAD missed issue 26's rate line at 143
+                                           and 95 Hz. motion_comp = 'centripetal' leaves the speed
+                                           changes in the specific force: set 0.07 with it
+                                           (fixed-wing 0.92 -> 0.48 deg) [rad] */
+#define MEKF_ACCEL_TILT_NOISE 0.07f     /* measurement = 'euler_angles' (the patent's design):
+                                           per-sample standard deviation of the accelerometer roll
+                                           and pitch, the patent's R (accel_angle_noise's default
+                                           before it became the 'vectors' design's per-sample term
+                                           only; the faithful preset sets 0.1) [rad] */
 #define MEKF_ACCEL_NOISE_DENSITY 0.004f /* measurement = 'vectors': the gravity direction's variance
-                                           is accel_angle_noise^2 + accel_noise_density^2 / dt:
-                                           accel_angle_noise is the motion the low-pass leaves (the
-                                           same per sample at any rate), this the sensor's white
-                                           noise (its variance per sample grows with the rate, so a
-                                           1 kHz IMU's samples each weigh less than a 100 Hz one's).
-                                           0 = per sample only. 0.004 chosen with accel_angle_noise
-                                           0.07 by leave-one-BROAD-group-out with the scenarios at
-                                           12.5 Hz to 1 kHz (studies/mekf_accel_density_cv.py,
-                                           docs/mekf.md) [rad*sqrt(s)] */
+                                           is accel_angle_noise^2 + accel_noise_density^2 / dt. This
+                                           density covers the sensor's white noise and the motion
+                                           the low-pass leaves (an error correlated over the
+                                           low-pass time: N samples a second carry about the same
+                                           information whatever N), so the gravity rows' trust per
+                                           second does not depend on the rate: a 1 kHz IMU's samples
+                                           each weigh less than a 100 Hz one's. 0 = per sample only.
+                                           0.004 chosen with accel_angle_noise 0.07
+                                           (studies/mekf_accel_density_cv.py) and kept with
+                                           accel_angle_noise 1e-4
+                                           (studies/mekf_motion_density_cv.py, docs/mekf.md)
+                                           [rad*sqrt(s)] */
 #define MEKF_ACCEL_BIAS_GAIN 100.0f     /* measurement = 'vectors': accel_noise_density's term of
                                            the gravity variance is multiplied by 1 + accel_bias_gain
                                            * p_bb / p0_bias^2, p_bb the mean of the gyro bias's

@@ -282,7 +282,7 @@ def update_function(p: dict, name="update") -> ca.Function:
     z = quat.wrap(ca.vertcat(roll_a, pitch_a, yaw_m) - est)                       # step 4
     H = jacobian_H(q)
     r_head = p["mag_heading_noise"] if p["heading_source"] == "mag" else p["course_noise"]
-    r = [p["accel_angle_noise"] ** 2] * 2 + [r_head ** 2]
+    r = [p["accel_tilt_noise"] ** 2] * 2 + [r_head ** 2]
     Hm, zm, R = kalman.mask_rows(H, z, r, [mask[0], mask[0], mask[1]])
     # steps 5-7: Cholesky gain, Joseph form (mirrored below), X = K Z
     X, P_new, min_pivot = kalman.update(sym_lower(Pv), Hm, zm, R, S_PIVOT_MIN, symmetrize=False)

@@ -135,6 +135,7 @@ class Reference:
         self.gyro_noise = float(p["gyro_noise"])
         self.gyro_bias_rw = float(p["gyro_bias_rw"])
         self.accel_angle_noise = float(p["accel_angle_noise"])
+        self.accel_tilt_noise = float(p["accel_tilt_noise"])
         self.course_noise = float(p["course_noise"])
         self.mag_heading_noise = float(p["mag_heading_noise"])
         self.accel_gate = float(p["accel_gate"])
@@ -278,7 +279,7 @@ class Reference:
             if self.motion_comp == "centripetal" and v_age <= self.gps_vel_timeout:
                 # f = dv_b/dt + ω × v_b − R(q)ᵀ g_n: remove the turn term ω × v_b (v_b from the
                 # GPS velocity and the predicted attitude); dv_b/dt is left in (not observable
-                # from the rate gyro) and covered by accel_angle_noise.
+                # from the rate gyro) and covered by accel_tilt_noise.
                 f = f - np.cross(gyro - self.gyro_bias, rotmat(q).T @ v_gps)
             elif self.motion_comp == "gps_accel" and a_ok and v_age <= self.gps_vel_timeout:
                 # f = R(q)ᵀ (a_n − g_n): remove the GPS-differenced NED acceleration
@@ -286,7 +287,7 @@ class Reference:
             roll_a, pitch_a = tilt(f)
             rows += [0, 1]
             z += [wrap(roll_a - est[0]), wrap(pitch_a - est[1])]
-            r += [self.accel_angle_noise ** 2] * 2
+            r += [self.accel_tilt_noise ** 2] * 2
         if course_ok:
             rows.append(2)
             z.append(wrap(np.arctan2(v[1], v[0]) - est[2]))
