@@ -4338,9 +4338,9 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
         bool learned;   /* a reference learned, not recovering */
         bool turning;   /* |gyro - bias| at least mag_bias_min_rate */
         mekf_k_mag_check(feat, s->mag_ref, s->mag_ref_time, s->mag_rej_time, s->mag_cand,
-            s->mag_cand_time, recovering, head_off, s->mag_suspect != 0u, dt, in->gyro, s->gyro_bias,
-            s->mag_ref, &s->mag_ref_time, &s->mag_rej_time, s->mag_cand, &s->mag_cand_time,
-            &mag_use, &disturbed, &onset, &learned, &turning);
+            s->mag_cand_time, recovering, head_off, s->mag_suspect != 0u, dt, in->gyro,
+            s->gyro_bias, s->mag_ref, &s->mag_ref_time, &s->mag_rej_time, s->mag_cand,
+            &s->mag_cand_time, &mag_use, &disturbed, &onset, &learned, &turning);
         if (disturbed) {
             status |= MEKF_MAG_DISTURBED;
         }
