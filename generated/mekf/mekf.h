@@ -384,7 +384,7 @@ typedef uint32_t mekf_status;
 #define MEKF_HEADING_UNAIDED    (1u << 19) /* no heading correction (GPS course or magnetometer) for
                                               more than 1 s */
 #define MEKF_MAG_DISTURBED      (1u << 20) /* magnetometer rejected: field norm or dip angle off the
-                                              learned reference */
+                                              learned reference, or the heading gate */
 #define MEKF_AT_REST            (1u << 21) /* rest detected: the gyro reading measures the gyro bias
                                               directly */
 #define MEKF_HARD_IRON_SWITCHED (1u << 22) /* the magnetometer hard iron and reference field were

@@ -50,7 +50,7 @@ EXTRA_STATUS = [
 ]
 VECTOR_STATUS = [
     ("HEADING_UNAIDED", "no heading correction (GPS course or magnetometer) for more than 1 s", "info"),
-    ("MAG_DISTURBED", "magnetometer rejected: field norm or dip angle off the learned reference", "info"),
+    ("MAG_DISTURBED", "magnetometer rejected: field norm or dip angle off the learned reference, or the heading gate", "info"),
     ("AT_REST", "rest detected: the gyro reading measures the gyro bias directly", "info"),
     ("HARD_IRON_SWITCHED", "the magnetometer hard iron and reference field were replaced by the candidate fitted while turning", "info"),
     ("GYRO_RECOVERY", "a gyro component at gyro_full_scale (clipped), or within clip_recovery_time after one: the attitude covariance widened, the sensors taken as they come", "info"),
