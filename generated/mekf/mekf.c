@@ -370,8 +370,8 @@ static inline void mekf_k_course_mode(const float feat[4], bool moving, float he
 }
 
 static void mekf_k_mag_check_part0(const float feat[2], const float mag_ref[2], float mag_ref_time,
-    float mag_rej_time, const float mag_cand[2], float mag_cand_time, bool recovering, bool hold,
-    float dt, float carry[9], bool flags[5])
+    float mag_rej_time, const float mag_cand[2], float mag_cand_time, bool recovering,
+    bool head_off, bool hold, float dt, float carry[9], bool flags[5])
 {
     const bool tmp0 = recovering && (2.0f <= mag_ref_time);
     const float tmp1 = mag_ref_time + dt;
@@ -381,127 +381,128 @@ static void mekf_k_mag_check_part0(const float feat[2], const float mag_ref[2], 
     const float tmp5 = feat[1] - mag_ref[1];
     const float tmp6 = fabsf(tmp5);
     const bool tmp7 = (tmp3 < tmp4) || (0.175f /* mag_dip_th */ < tmp6);
-    const float tmp8 = 0.1f /* mag_norm_th */ * mag_cand[0];
-    const float tmp9 = feat[0] - mag_cand[0];
-    const float tmp10 = fabsf(tmp9);
-    const float tmp11 = feat[1] - mag_cand[1];
-    const float tmp12 = fabsf(tmp11);
-    const bool tmp13 = (tmp8 < tmp10) || (0.175f /* mag_dip_th */ < tmp12);
-    float tmp14;
+    const bool tmp8 = (!(tmp7)) && (!(head_off));
+    const float tmp9 = 0.1f /* mag_norm_th */ * mag_cand[0];
+    const float tmp10 = feat[0] - mag_cand[0];
+    const float tmp11 = fabsf(tmp10);
+    const float tmp12 = feat[1] - mag_cand[1];
+    const float tmp13 = fabsf(tmp12);
+    const bool tmp14 = (tmp9 < tmp11) || (0.175f /* mag_dip_th */ < tmp13);
     float tmp15;
     float tmp16;
-    if (tmp13) {
-        tmp14 = 0.0f;
-        tmp15 = feat[0];
-        tmp16 = feat[1];
+    float tmp17;
+    if (tmp14) {
+        tmp15 = 0.0f;
+        tmp16 = feat[0];
+        tmp17 = feat[1];
     } else {
-        const float tmp17 = mag_cand_time + dt;
-        const float tmp18 = dt / tmp17;
-        const float tmp19 = tmp18 * tmp9;
-        const float tmp20 = mag_cand[0] + tmp19;
-        const float tmp21 = tmp18 * tmp11;
-        const float tmp22 = mag_cand[1] + tmp21;
-        tmp14 = tmp17;
-        tmp15 = tmp20;
-        tmp16 = tmp22;
+        const float tmp18 = mag_cand_time + dt;
+        const float tmp19 = dt / tmp18;
+        const float tmp20 = tmp19 * tmp10;
+        const float tmp21 = mag_cand[0] + tmp20;
+        const float tmp22 = tmp19 * tmp12;
+        const float tmp23 = mag_cand[1] + tmp22;
+        tmp15 = tmp18;
+        tmp16 = tmp21;
+        tmp17 = tmp23;
     }
-    const float tmp23 = mag_rej_time + dt;
-    const bool tmp24 = (20.0f /* mag_new_time */ <= tmp14) || (60.0f /* mag_reject_max */ < tmp23);
-    const bool tmp25 = tmp24 && (!(hold));
+    const float tmp24 = mag_rej_time + dt;
+    const bool tmp25 = (20.0f /* mag_new_time */ <= tmp15) || (60.0f /* mag_reject_max */ < tmp24);
+    const bool tmp26 = tmp25 && (!(hold));
     flags[0] = tmp0;
     carry[0] = tmp1;
     carry[1] = tmp2;
     carry[2] = tmp5;
-    flags[1] = tmp7;
-    carry[3] = tmp14;
-    carry[4] = tmp15;
-    carry[5] = tmp16;
-    carry[6] = tmp23;
-    flags[2] = tmp25;
+    flags[1] = tmp8;
+    carry[3] = tmp15;
+    carry[4] = tmp16;
+    carry[5] = tmp17;
+    carry[6] = tmp24;
+    flags[2] = tmp26;
 }
 
 static void mekf_k_mag_check_part1(const float mag_ref[2], float mag_ref_time, float mag_rej_time,
     const float mag_cand[2], float mag_cand_time, bool recovering, float dt, const float gyro[3],
     const float gyro_bias[3], float carry[9], bool flags[5])
 {
-    float tmp26;
     float tmp27;
+    float tmp28;
     if (flags[0] /* tmp0 */) {
-        tmp26 = mag_ref[0];
-        tmp27 = mag_ref[1];
+        tmp27 = mag_ref[0];
+        tmp28 = mag_ref[1];
     } else {
-        float tmp28;
         float tmp29;
+        float tmp30;
         if (mag_ref_time < 2.0f) {
-            const float tmp30 = dt / carry[0] /* tmp1 */;
-            const float tmp31 = tmp30 * carry[1] /* tmp2 */;
-            const float tmp32 = mag_ref[0] + tmp31;
-            const float tmp33 = tmp30 * carry[2] /* tmp5 */;
-            const float tmp34 = mag_ref[1] + tmp33;
-            tmp28 = tmp32;
-            tmp29 = tmp34;
+            const float tmp31 = dt / carry[0] /* tmp1 */;
+            const float tmp32 = tmp31 * carry[1] /* tmp2 */;
+            const float tmp33 = mag_ref[0] + tmp32;
+            const float tmp34 = tmp31 * carry[2] /* tmp5 */;
+            const float tmp35 = mag_ref[1] + tmp34;
+            tmp29 = tmp33;
+            tmp30 = tmp35;
         } else {
-            const float tmp35 = 20.0f /* mag_ref_tau */ + dt;
-            const float tmp36 = dt / tmp35;
-            const float tmp37 = tmp36 * carry[1] /* tmp2 */;
-            const float tmp38 = mag_ref[0] + tmp37;
-            const float tmp39 = (flags[2] /* tmp25 */) ? carry[4] /* tmp15 */ : mag_ref[0];
-            const float tmp40 = (flags[1] /* tmp7 */) ? tmp39 : tmp38;
-            const float tmp41 = tmp36 * carry[2] /* tmp5 */;
-            const float tmp42 = mag_ref[1] + tmp41;
-            const float tmp43 = (flags[2] /* tmp25 */) ? carry[5] /* tmp16 */ : mag_ref[1];
-            const float tmp44 = (flags[1] /* tmp7 */) ? tmp43 : tmp42;
-            tmp28 = tmp40;
-            tmp29 = tmp44;
+            const float tmp36 = 20.0f /* mag_ref_tau */ + dt;
+            const float tmp37 = dt / tmp36;
+            const float tmp38 = tmp37 * carry[1] /* tmp2 */;
+            const float tmp39 = mag_ref[0] + tmp38;
+            const float tmp40 = (flags[2] /* tmp26 */) ? carry[4] /* tmp16 */ : mag_ref[0];
+            const float tmp41 = (flags[1] /* tmp8 */) ? tmp39 : tmp40;
+            const float tmp42 = tmp37 * carry[2] /* tmp5 */;
+            const float tmp43 = mag_ref[1] + tmp42;
+            const float tmp44 = (flags[2] /* tmp26 */) ? carry[5] /* tmp17 */ : mag_ref[1];
+            const float tmp45 = (flags[1] /* tmp8 */) ? tmp43 : tmp44;
+            tmp29 = tmp41;
+            tmp30 = tmp45;
         }
-        tmp26 = tmp28;
         tmp27 = tmp29;
+        tmp28 = tmp30;
     }
-    const bool tmp45 = (!(flags[0] /* tmp0 */)) && (mag_ref_time < 2.0f);
-    const float tmp46 = (tmp45) ? carry[0] /* tmp1 */ : mag_ref_time;
-    const bool tmp47 = flags[0] /* tmp0 */ || (mag_ref_time < 2.0f);
-    const float tmp48 = (flags[2] /* tmp25 */) ? 0.0f : carry[6] /* tmp23 */;
-    const float tmp49 = (flags[1] /* tmp7 */) ? tmp48 : 0.0f;
-    const float tmp50 = (tmp47) ? mag_rej_time : tmp49;
-    const bool tmp51 = (mag_ref_time < 2.0f) || (!(flags[1] /* tmp7 */));
-    const bool tmp52 = flags[0] /* tmp0 */ || tmp51;
-    const float tmp53 = (tmp52) ? mag_cand[0] : carry[4] /* tmp15 */;
-    const float tmp54 = (tmp52) ? mag_cand[1] : carry[5] /* tmp16 */;
-    const float tmp55 = (flags[2] /* tmp25 */) ? 0.0f : carry[3] /* tmp14 */;
-    const float tmp56 = (tmp52) ? mag_cand_time : tmp55;
-    const bool tmp57 = tmp52 || flags[2] /* tmp25 */;
-    const bool tmp58 = !(tmp57);
-    const bool tmp59 = (!(tmp52)) && (!(0.0f < mag_rej_time));
-    const bool tmp60 = (0.0f < tmp26) && (2.0f <= tmp46);
-    const bool tmp61 = tmp60 && (!(recovering));
-    const float tmp62 = gyro[0] - gyro_bias[0];
-    const float tmp63 = tmp62 * tmp62;
-    const float tmp64 = gyro[1] - gyro_bias[1];
-    const float tmp65 = tmp64 * tmp64;
-    carry[0] = tmp26;
-    carry[1] = tmp27;
-    carry[2] = tmp46;
-    carry[3] = tmp50;
-    carry[4] = tmp53;
-    carry[5] = tmp54;
-    carry[6] = tmp56;
-    flags[0] = tmp57;
-    flags[1] = tmp58;
-    flags[2] = tmp59;
-    flags[3] = tmp61;
-    carry[7] = tmp63;
-    carry[8] = tmp65;
+    const bool tmp46 = (!(flags[0] /* tmp0 */)) && (mag_ref_time < 2.0f);
+    const float tmp47 = (tmp46) ? carry[0] /* tmp1 */ : mag_ref_time;
+    const bool tmp48 = flags[0] /* tmp0 */ || (mag_ref_time < 2.0f);
+    const float tmp49 = (flags[2] /* tmp26 */) ? 0.0f : carry[6] /* tmp24 */;
+    const float tmp50 = (flags[1] /* tmp8 */) ? 0.0f : tmp49;
+    const float tmp51 = (tmp48) ? mag_rej_time : tmp50;
+    const bool tmp52 = (mag_ref_time < 2.0f) || flags[1] /* tmp8 */;
+    const bool tmp53 = flags[0] /* tmp0 */ || tmp52;
+    const float tmp54 = (tmp53) ? mag_cand[0] : carry[4] /* tmp16 */;
+    const float tmp55 = (tmp53) ? mag_cand[1] : carry[5] /* tmp17 */;
+    const float tmp56 = (flags[2] /* tmp26 */) ? 0.0f : carry[3] /* tmp15 */;
+    const float tmp57 = (tmp53) ? mag_cand_time : tmp56;
+    const bool tmp58 = tmp53 || flags[2] /* tmp26 */;
+    const bool tmp59 = !(tmp58);
+    const bool tmp60 = (!(tmp53)) && (!(0.0f < mag_rej_time));
+    const bool tmp61 = (0.0f < tmp27) && (2.0f <= tmp47);
+    const bool tmp62 = tmp61 && (!(recovering));
+    const float tmp63 = gyro[0] - gyro_bias[0];
+    const float tmp64 = tmp63 * tmp63;
+    const float tmp65 = gyro[1] - gyro_bias[1];
+    const float tmp66 = tmp65 * tmp65;
+    carry[0] = tmp27;
+    carry[1] = tmp28;
+    carry[2] = tmp47;
+    carry[3] = tmp51;
+    carry[4] = tmp54;
+    carry[5] = tmp55;
+    carry[6] = tmp57;
+    flags[0] = tmp58;
+    flags[1] = tmp59;
+    flags[2] = tmp60;
+    flags[3] = tmp62;
+    carry[7] = tmp64;
+    carry[8] = tmp66;
 }
 
 static void mekf_k_mag_check_part2(const float gyro[3], const float gyro_bias[3],
     const float carry[9], bool flags[5])
 {
-    const float tmp66 = carry[7] /* tmp63 */ + carry[8] /* tmp65 */;
-    const float tmp67 = gyro[2] - gyro_bias[2];
-    const float tmp68 = tmp67 * tmp67;
-    const float tmp69 = tmp66 + tmp68;
-    const bool tmp70 = 0.09f /* mag_bias_min_rate*mag_bias_min_rate */ <= tmp69;
-    flags[4] = tmp70;
+    const float tmp67 = carry[7] /* tmp64 */ + carry[8] /* tmp66 */;
+    const float tmp68 = gyro[2] - gyro_bias[2];
+    const float tmp69 = tmp68 * tmp68;
+    const float tmp70 = tmp67 + tmp69;
+    const bool tmp71 = 0.09f /* mag_bias_min_rate*mag_bias_min_rate */ <= tmp70;
+    flags[4] = tmp71;
 }
 
 /*
@@ -515,6 +516,7 @@ static void mekf_k_mag_check_part2(const float gyro[3], const float gyro_bias[3]
  *     mag_cand: float[2]
  *     mag_cand_time: float
  *     recovering: bool
+ *     head_off: bool
  *     hold: bool
  *     dt: float
  *     gyro: float[3]
@@ -531,15 +533,15 @@ static void mekf_k_mag_check_part2(const float gyro[3], const float gyro_bias[3]
  *     learned: bool
  *     turning: bool
  *
- * Total ops: 71 (add 19, mul 11, div 3, cmp 38)
- *     of which only one side runs: if (tmp13) 0, else 6
+ * Total ops: 72 (add 19, mul 11, div 3, cmp 39)
+ *     of which only one side runs: if (tmp14) 0, else 6
  *     of which only one side runs: if (tmp0) 0, else 17
  *     of which only one side runs: if (mag_ref_time < 2.0f) 5, else 10
  */
 static void mekf_k_mag_check(const float feat[2], const float mag_ref[2], float mag_ref_time,
-    float mag_rej_time, const float mag_cand[2], float mag_cand_time, bool recovering, bool hold,
-    float dt, const float gyro[3], const float gyro_bias[3], float mag_ref_out[2],
-    float *mag_ref_time_out, float *mag_rej_time_out, float mag_cand_out[2],
+    float mag_rej_time, const float mag_cand[2], float mag_cand_time, bool recovering,
+    bool head_off, bool hold, float dt, const float gyro[3], const float gyro_bias[3],
+    float mag_ref_out[2], float *mag_ref_time_out, float *mag_rej_time_out, float mag_cand_out[2],
     float *mag_cand_time_out, bool *use, bool *disturbed, bool *onset, bool *learned, bool *turning)
 {
     /*
@@ -549,22 +551,143 @@ static void mekf_k_mag_check(const float feat[2], const float mag_ref[2], float 
     float carry[9];
     bool flags[5];
     mekf_k_mag_check_part0(feat, mag_ref, mag_ref_time, mag_rej_time, mag_cand, mag_cand_time,
-            recovering, hold, dt, carry, flags);
+            recovering, head_off, hold, dt, carry, flags);
     mekf_k_mag_check_part1(mag_ref, mag_ref_time, mag_rej_time, mag_cand, mag_cand_time, recovering,
             dt, gyro, gyro_bias, carry, flags);
     mekf_k_mag_check_part2(gyro, gyro_bias, carry, flags);
-    mag_ref_out[0] = carry[0] /* tmp26 */;
-    mag_ref_out[1] = carry[1] /* tmp27 */;
-    *mag_ref_time_out = carry[2] /* tmp46 */;
-    *mag_rej_time_out = carry[3] /* tmp50 */;
-    mag_cand_out[0] = carry[4] /* tmp53 */;
-    mag_cand_out[1] = carry[5] /* tmp54 */;
-    *mag_cand_time_out = carry[6] /* tmp56 */;
-    *use = flags[0] /* tmp57 */;
-    *disturbed = flags[1] /* tmp58 */;
-    *onset = flags[2] /* tmp59 */;
-    *learned = flags[3] /* tmp61 */;
-    *turning = flags[4] /* tmp70 */;
+    mag_ref_out[0] = carry[0] /* tmp27 */;
+    mag_ref_out[1] = carry[1] /* tmp28 */;
+    *mag_ref_time_out = carry[2] /* tmp47 */;
+    *mag_rej_time_out = carry[3] /* tmp51 */;
+    mag_cand_out[0] = carry[4] /* tmp54 */;
+    mag_cand_out[1] = carry[5] /* tmp55 */;
+    *mag_cand_time_out = carry[6] /* tmp57 */;
+    *use = flags[0] /* tmp58 */;
+    *disturbed = flags[1] /* tmp59 */;
+    *onset = flags[2] /* tmp60 */;
+    *learned = flags[3] /* tmp62 */;
+    *turning = flags[4] /* tmp71 */;
+}
+
+static void mekf_k_heading_check_part0(const float q[4], const float mag[3], float mag_dt,
+    float carry[4])
+{
+    const float tmp0 = 0.5f /* mag_head_tau */ + mag_dt;
+    const float tmp1 = mag_dt / tmp0;
+    const float tmp2 = q[1] * q[2];
+    const float tmp3 = q[0] * q[3];
+    const float tmp4 = tmp2 + tmp3;
+    const float tmp5 = tmp4 + tmp4;
+    const float tmp6 = tmp5 * mag[0];
+    const float tmp7 = q[1] * q[1];
+    const float tmp8 = q[3] * q[3];
+    const float tmp9 = tmp7 + tmp8;
+    const float tmp10 = tmp9 + tmp9;
+    const float tmp11 = 1.0f - tmp10;
+    const float tmp12 = tmp11 * mag[1];
+    const float tmp13 = tmp6 + tmp12;
+    const float tmp14 = q[2] * q[3];
+    const float tmp15 = q[0] * q[1];
+    const float tmp16 = tmp14 - tmp15;
+    const float tmp17 = tmp16 + tmp16;
+    const float tmp18 = tmp17 * mag[2];
+    const float tmp19 = tmp13 + tmp18;
+    const float tmp20 = q[2] * q[2];
+    const float tmp21 = tmp20 + tmp8;
+    const float tmp22 = tmp21 + tmp21;
+    const float tmp23 = 1.0f - tmp22;
+    const float tmp24 = tmp23 * mag[0];
+    const float tmp25 = tmp2 - tmp3;
+    const float tmp26 = tmp25 + tmp25;
+    const float tmp27 = tmp26 * mag[1];
+    const float tmp28 = tmp24 + tmp27;
+    const float tmp29 = q[1] * q[3];
+    const float tmp30 = q[0] * q[2];
+    const float tmp31 = tmp29 + tmp30;
+    const float tmp32 = tmp31 + tmp31;
+    const float tmp33 = tmp32 * mag[2];
+    const float tmp34 = tmp28 + tmp33;
+    const float tmp35 = fast_atan2f(tmp19, tmp34);
+    const float tmp36 = -tmp35;
+    const float tmp37 = tmp35 + 6.2831855f /* 2*pi */;
+    const float tmp38 = -tmp37;
+    const float tmp39 = 6.2831855f /* 2*pi */ - tmp35;
+    carry[0] = tmp1;
+    carry[1] = tmp36;
+    carry[2] = tmp38;
+    carry[3] = tmp39;
+}
+
+static void mekf_k_heading_check_part1(const float P[36], float head_lp, bool head_free,
+    float mag_ref_time, float mag_rej_time, bool recovering, float dt, float carry[4],
+    bool flags[2])
+{
+    const float tmp40 = (carry[1] /* tmp36 */ <= (-3.1415927f) /* -pi */) ? carry[3] /* tmp39 */ :
+            carry[1] /* tmp36 */;
+    const float tmp41 = (3.1415927f /* pi */ < carry[1] /* tmp36 */) ? carry[2] /* tmp38 */ : tmp40;
+    const float tmp42 = tmp41 - head_lp;
+    const float tmp43 = tmp42 - 6.2831855f /* 2*pi */;
+    const float tmp44 = tmp42 + 6.2831855f /* 2*pi */;
+    const float tmp45 = (tmp42 <= (-3.1415927f) /* -pi */) ? tmp44 : tmp42;
+    const float tmp46 = (3.1415927f /* pi */ < tmp42) ? tmp43 : tmp45;
+    const float tmp47 = carry[0] /* tmp1 */ * tmp46;
+    const float tmp48 = head_lp + tmp47;
+    const float tmp49 = tmp48 - 6.2831855f /* 2*pi */;
+    const float tmp50 = tmp48 + 6.2831855f /* 2*pi */;
+    const float tmp51 = (tmp48 <= (-3.1415927f) /* -pi */) ? tmp50 : tmp48;
+    const float tmp52 = (3.1415927f /* pi */ < tmp48) ? tmp49 : tmp51;
+    const float tmp53 = 4.0f * P[14];
+    const float tmp54 = tmp53 + 0.000576f /* mag_heading_density^2 */;
+    const float tmp55 = 25.0f /* mag_head_sigmas*mag_head_sigmas */ * tmp54;
+    const float tmp56 = tmp52 * tmp52;
+    const float tmp57 = mag_rej_time + dt;
+    const bool tmp58 = head_free || (20.0f /* mag_new_time */ <= tmp57);
+    const bool tmp59 = (tmp55 < tmp56) && tmp58;
+    const bool tmp60 = (2.0f <= mag_ref_time) && (!(recovering));
+    const bool tmp61 = (tmp55 < tmp56) && (!(tmp59));
+    const bool tmp62 = tmp60 && tmp61;
+    carry[0] = tmp52;
+    flags[0] = tmp59;
+    flags[1] = tmp62;
+}
+
+/*
+ * heading gate: the low-passed magnetic heading innovation against the filter's heading variance
+ *
+ * Args:
+ *     q: float[4]
+ *     P: float[36]
+ *     mag: float[3]
+ *     head_lp: float
+ *     head_free: bool
+ *     mag_ref_time: float
+ *     mag_rej_time: float
+ *     recovering: bool
+ *     mag_dt: float
+ *     dt: float
+ * Outputs:
+ *     head_lp_out: float
+ *     head_free_out: bool
+ *     off: bool
+ *
+ * Total ops: 63 (add 31, mul 19, div 1, trig 1, cmp 11)
+ */
+static void mekf_k_heading_check(const float q[4], const float P[36], const float mag[3],
+    float head_lp, bool head_free, float mag_ref_time, float mag_rej_time, bool recovering,
+    float mag_dt, float dt, float *head_lp_out, bool *head_free_out, bool *off)
+{
+    /*
+     * 2 parts called in turn (inlined when optimising): bounded -O0 frames; carry and flags hold
+     * the values handed between them (a slot reused once its value is dead)
+     */
+    float carry[4];
+    bool flags[2];
+    mekf_k_heading_check_part0(q, mag, mag_dt, carry);
+    mekf_k_heading_check_part1(P, head_lp, head_free, mag_ref_time, mag_rej_time, recovering, dt,
+            carry, flags);
+    *head_lp_out = carry[0] /* tmp52 */;
+    *head_free_out = flags[0] /* tmp59 */;
+    *off = flags[1] /* tmp62 */;
 }
 
 /*
@@ -3977,6 +4100,8 @@ void mekf_init(mekf_state *s)
     s->mag_cand_time = 0.0f;
     s->head_age = 1000.0f /* AGE_MAX */;
     s->mag_age = 0.0f;
+    s->head_lp = 0.0f;
+    s->head_free = 0u;
     s->recover_time = 0.0f;
     s->gyro_prev[0] = 0.0f;
     s->gyro_prev[1] = 0.0f;
@@ -4202,13 +4327,19 @@ mekf_status mekf_step(mekf_state *restrict s, const mekf_input *restrict in, flo
     bool mag_use = false;
     if (mag_ok) {
         bool disturbed;
+        /* Heading gate: the low-passed heading innovation against the heading's own variance. */
+        bool head_off;
+        bool head_free;
+        mekf_k_heading_check(q, P, mag_in, s->head_lp, s->head_free != 0u, s->mag_ref_time,
+            s->mag_rej_time, recovering, mag_dt, dt, &s->head_lp, &head_free, &head_off);
+        s->head_free = head_free ? 1u : 0u;
         bool onset;     /* rejected this step, accepted the step before */
         bool learned;   /* a reference learned, not recovering */
         bool turning;   /* |gyro - bias| at least mag_bias_min_rate */
         mekf_k_mag_check(feat, s->mag_ref, s->mag_ref_time, s->mag_rej_time, s->mag_cand,
-            s->mag_cand_time, recovering, s->mag_suspect != 0u, dt, in->gyro, s->gyro_bias,
-            s->mag_ref, &s->mag_ref_time, &s->mag_rej_time, s->mag_cand, &s->mag_cand_time,
-            &mag_use, &disturbed, &onset, &learned, &turning);
+            s->mag_cand_time, recovering, head_off, s->mag_suspect != 0u, dt, in->gyro,
+            s->gyro_bias, s->mag_ref, &s->mag_ref_time, &s->mag_rej_time, s->mag_cand,
+            &s->mag_cand_time, &mag_use, &disturbed, &onset, &learned, &turning);
         if (disturbed) {
             status |= MEKF_MAG_DISTURBED;
         }

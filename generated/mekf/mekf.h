@@ -23,7 +23,7 @@
  * its GNU modes, -std=c99 turns it off) and -fno-math-errno; -ffast-math breaks the input
  * checks (isfinite). Any C99 compiler builds it; see the ahrsgen docs (target.md).
  *     mekf_euler(&st, rpy);
- * No heap, no recursion; RAM is the state struct (524 bytes with the usual ABI).
+ * No heap, no recursion; RAM is the state struct (532 bytes with the usual ABI).
  * Needs <math.h> (float functions only in a float build); compilers may also emit calls to
  * memcpy/memset/memmove for struct and array copies.
  *
@@ -315,6 +315,27 @@ extern "C" {
                                            the fixed-wing and its GPS outage; off because
                                            left-one-BROAD-group-out it loses the rotation trials at
                                            286 Hz */
+#define MEKF_MAG_HEAD_SIGMAS 5.0f       /* measurement = 'vectors': heading gate: the magnetometer
+                                           is rejected (MAG_DISTURBED, bounded by mag_new_time and
+                                           mag_reject_max as the field check) while its heading
+                                           innovation, low-passed over mag_head_tau, exceeds this
+                                           many standard deviations of the filter's own heading
+                                           uncertainty (H P H^T, plus what the low-pass leaves of
+                                           the white heading noise): a field turned by nearby steel
+                                           with its norm and dip barely changed; not while learning
+                                           the reference or recovering from a gyro clip. 0 = off. 5
+                                           with mag_head_tau 0.5 chosen by leave-one-BROAD-group-out
+                                           at 286/143/95/48 Hz with the scenarios
+                                           (studies/mekf_heading_gate_cv.py, docs/mekf.md):
+                                           static_mag_disturbance 4.19 -> 0.10 deg, BROAD
+                                           2.097/2.178/2.255/2.557 -> 2.109/2.172/2.249/2.554 in
+                                           sample, 2.109/2.182/2.261/2.553 left out; smaller gates
+                                           lose the rotation trials (k 3: 2.36-2.62 at 286 Hz) */
+#define MEKF_MAG_HEAD_TAU 0.5f          /* measurement = 'vectors': time constant of the heading
+                                           gate's low-pass of the magnetic heading innovation
+                                           (mag_head_sigmas); 0.5 chosen with it
+                                           (studies/mekf_heading_gate_cv.py; 1 and 2 s hold the
+                                           static disturbance less: 0.14, 0.22 deg at k 5) [s] */
 #define MEKF_ACCEL_GATE 0.0f            /* if > 0, the roll/pitch rows are dropped while | |accel| -
                                            g | exceeds this (ACCEL_GATED); 0 = off, as the patent
                                            [m/s^2] */
@@ -381,7 +402,7 @@ typedef uint32_t mekf_status;
 #define MEKF_HEADING_UNAIDED    (1u << 19) /* no heading correction (GPS course or magnetometer) for
                                               more than 1 s */
 #define MEKF_MAG_DISTURBED      (1u << 20) /* magnetometer rejected: field norm or dip angle off the
-                                              learned reference */
+                                              learned reference, or the heading gate */
 #define MEKF_AT_REST            (1u << 21) /* rest detected: the gyro reading measures the gyro bias
                                               directly */
 #define MEKF_HARD_IRON_SWITCHED (1u << 22) /* the magnetometer hard iron and reference field were
@@ -430,6 +451,9 @@ typedef struct {
     float mag_cand_time;   /* time the candidate field has been steady, s */
     float head_age;        /* time since the last heading correction, s (stops at 1e3) */
     float mag_age;         /* time since the last usable magnetometer sample, s (stops at 0.1) */
+    float head_lp;         /* magnetometer heading innovation low-passed over mag_head_tau, rad */
+    uint32_t head_free;    /* 1 while the heading gate has given up (a lasting inconsistent heading)
+                              */
     float recover_time;    /* time left of the recovery after a clipped gyro sample, s */
     float gyro_prev[3];    /* the previous gyro sample, rad/s (over-range plateau) */
     float gyro_repeats[3]; /* times each gyro component has repeated its value at or above

@@ -50,7 +50,7 @@ EXTRA_STATUS = [
 ]
 VECTOR_STATUS = [
     ("HEADING_UNAIDED", "no heading correction (GPS course or magnetometer) for more than 1 s", "info"),
-    ("MAG_DISTURBED", "magnetometer rejected: field norm or dip angle off the learned reference", "info"),
+    ("MAG_DISTURBED", "magnetometer rejected: field norm or dip angle off the learned reference, or the heading gate", "info"),
     ("AT_REST", "rest detected: the gyro reading measures the gyro bias directly", "info"),
     ("HARD_IRON_SWITCHED", "the magnetometer hard iron and reference field were replaced by the candidate fitted while turning", "info"),
     ("GYRO_RECOVERY", "a gyro component at gyro_full_scale (clipped), or within clip_recovery_time after one: the attitude covariance widened, the sensors taken as they come", "info"),
@@ -739,6 +739,9 @@ def mag_check_function(p: dict, hard_iron: bool, name="mag_check") -> ca.Functio
 
     learning = t_ref < learn
     ok = ca.logic_not(off(ref))
+    head_off = ca.SX.sym("head_off")            # heading_check: the heading inconsistent (gate on)
+    if heading_gate_on(p):
+        ok = ca.logic_and(ok, ca.logic_not(head_off))
     ref_learn = ref + (dt / (t_ref + dt)) * (feat - ref)
     ref_follow = ref + (dt / (p["mag_ref_tau"] + dt)) * (feat - ref)
     # rejected: the candidate
@@ -750,6 +753,8 @@ def mag_check_function(p: dict, hard_iron: bool, name="mag_check") -> ca.Functio
     lasting = ca.logic_or(t_c1 >= p["mag_new_time"], t_rej1 > p["mag_reject_max"])
     ins = {"feat": feat, "mag_ref": ref, "mag_ref_time": t_ref, "mag_rej_time": t_rej, "mag_cand": cand,
            "mag_cand_time": t_cand, "recovering": recovering}
+    if heading_gate_on(p):
+        ins["head_off"] = head_off
     if hard_iron:
         hold = ca.SX.sym("hold")
         ins["hold"] = hold
@@ -772,6 +777,49 @@ def mag_check_function(p: dict, hard_iron: bool, name="mag_check") -> ca.Functio
                  "learned": ca.logic_and(ca.logic_and(ref_new[0] > 0, t_ref_new >= learn), ca.logic_not(recovering)),
                  "turning": ca.sumsqr(gyro - b) >= _square(p["mag_bias_min_rate"])}
     return emit.function(name, ins, outs)
+
+
+def heading_gate_on(p: dict) -> bool:
+    """The heading-consistency gate is built only when it can be on (mag_head_sigmas > 0 or a
+    runtime value): a build without it has no unreachable code."""
+    k = p.get("mag_head_sigmas")
+    return not isinstance(k, (int, float)) or k > 0
+
+
+def heading_check_function(p: dict, name="heading_check") -> ca.Function:
+    """The magnetometer heading against the filter's own heading uncertainty, on a step with a
+    magnetometer sample not in course mode: its innovation z = wrap(declination − atan2(m_E,
+    m_N)) (update_heading's, from the predicted attitude) low-passed over its sample interval
+    with time constant mag_head_tau, head_lp' = wrap(head_lp + a wrap(z − head_lp)),
+    a = mag_dt / (mag_head_tau + mag_dt). Consistent while head_lp'² <= mag_head_sigmas² (H P Hᵀ
+    + mag_heading_density² / (2 mag_head_tau)): the heading's own variance and what the
+    low-pass leaves of the white heading noise. A confident filter whose low-passed heading
+    innovation exceeds that sees a field turned by a disturbance the norm and dip checks
+    miss (steel nearby turns the field's direction, barely its norm): `off`, rejected as the
+    field check rejects. Not while learning the reference field or recovering from a gyro clip
+    (P is large then anyway), and not once the rejection has lasted min(mag_new_time,
+    mag_reject_max) (`free`: kept while the innovation stays inconsistent, so a lasting change
+    is accepted and followed)."""
+    q, Pv, mag = ca.SX.sym("q", 4), ca.SX.sym("P", N * N), ca.SX.sym("mag", 3)
+    lp, free, t_ref, t_rej = ca.SX.sym("head_lp"), ca.SX.sym("head_free"), ca.SX.sym("mag_ref_time"), ca.SX.sym("mag_rej_time")
+    recovering, mag_dt, dt = ca.SX.sym("recovering"), ca.SX.sym("mag_dt"), ca.SX.sym("dt")
+    tau, k = p["mag_head_tau"], p["mag_head_sigmas"]
+    mn = ca.mtimes(quat.rotmat(q), mag)
+    z = quat.wrap(p["declination"] - ca.atan2(mn[1], mn[0]))
+    lp_new = quat.wrap(lp + (mag_dt / (tau + mag_dt)) * quat.wrap(z - lp))
+    H = jacobian_heading()
+    var = ca.mtimes(ca.mtimes(H, sym_lower(Pv)), H.T) + p["mag_heading_density"] ** 2 / (2 * tau)
+    inconsistent = lp_new * lp_new > (k * k) * var
+    active = ca.logic_and(t_ref >= p["mag_learn_time"], ca.logic_not(recovering))
+    given_up = t_rej + dt >= min(p["mag_new_time"], p["mag_reject_max"]) if all(
+        isinstance(p[n], (int, float)) for n in ("mag_new_time", "mag_reject_max")) else ca.logic_or(
+        t_rej + dt >= p["mag_new_time"], t_rej + dt >= p["mag_reject_max"])
+    free_new = ca.logic_and(inconsistent, ca.logic_or(free, given_up))
+    return emit.function(name, {"q": q, "P": Pv, "mag": mag, "head_lp": lp, "head_free": free,
+                                "mag_ref_time": t_ref, "mag_rej_time": t_rej, "recovering": recovering,
+                                "mag_dt": mag_dt, "dt": dt},
+                         {"head_lp_out": lp_new, "head_free_out": free_new,
+                          "off": ca.logic_and(active, ca.logic_and(inconsistent, ca.logic_not(free_new)))})
 
 
 def head_timer_function(name="head_timer") -> ca.Function:
@@ -842,6 +890,10 @@ class Model(FilterModel):
             StateField("mag_cand_time", 1, "time the candidate field has been steady, s", 0.0),
             StateField("head_age", 1, "time since the last heading correction, s (stops at 1e3)", AGE_MAX),
             StateField("mag_age", 1, f"time since the last usable magnetometer sample, s (stops at {MAG_INTERVAL_MAX:g})", 0.0),
+        ] + ([
+            StateField("head_lp", 1, "magnetometer heading innovation low-passed over mag_head_tau, rad", 0.0),
+            StateField("head_free", 1, "1 while the heading gate has given up (a lasting inconsistent heading)", 0, "uint32"),
+        ] if self._heading_gate() else []) + [
             *self.gyro_recovery_state(),
             self.hard_iron_bias_field(),
         ] + (self.hard_iron_state(bias=False) if self._hard_iron() else [])
@@ -887,8 +939,11 @@ class Model(FilterModel):
                          flags=("moving", "course_mode"))] if auto else []) + (
             [KernelSpec("mag_check", mag_check_function(p, self._hard_iron()),
                         "field check: norm and dip against the learned reference, candidate field",
-                        flags=("recovering", "use", "disturbed") + (
-                            ("hold", "onset", "learned", "turning") if self._hard_iron() else ()))] if mag else [])
+                        flags=("recovering", "use", "disturbed") + (("head_off",) if self._heading_gate() else ()) + (
+                            ("hold", "onset", "learned", "turning") if self._hard_iron() else ()))] if mag else []) + (
+            [KernelSpec("heading_check", heading_check_function(p),
+                        "heading gate: the low-passed magnetic heading innovation against the filter's heading variance",
+                        flags=("head_free", "recovering", "head_free_out", "off"))] if self._heading_gate() else [])
 
     def kernels(self) -> list[KernelSpec]:
         p = self.params
@@ -921,6 +976,9 @@ class Model(FilterModel):
             KernelSpec("init_attitude", init_function(p), "first attitude from tilt and heading", flags=("use_head",)),
         ]
 
+    def _heading_gate(self) -> bool:
+        return self.vectors and self.params["heading_source"] != "gps_course" and heading_gate_on(self.params)
+
     def _hard_iron(self) -> bool:
         return self.vectors and bool(self.params["mag_bias"]) and self.params["heading_source"] != "gps_course"
 
@@ -933,6 +991,7 @@ class Model(FilterModel):
             every = ["gyro_recovery", "predict_attitude", "predict_covariance", "heading_features"] + (
                 ["course_mode"] if p["heading_source"] == "auto" else []) + ["rest"]
             aided = gate + pre + every + ["accel_lowpass"] + (
+                ["heading_check"] if self._heading_gate() else []) + (
                 ["mag_check"] if p["heading_source"] != "gps_course" else []) + ["update_gravity"]
             heading = ["inject", "update_heading", "inject", "head_timer"]
             return {"gyro only": pre + every + ["head_timer"],
@@ -944,5 +1003,5 @@ class Model(FilterModel):
         p = self.params
         return {"n": N, "heading_source": p["heading_source"], "motion_comp": p["motion_comp"],
                 "s_pivot_min": S_PIVOT_MIN, "vectors": self.vectors, "hard_iron": self._hard_iron(),
-                "samples_kw": self._samples(),
+                "samples_kw": self._samples(), "heading_gate": self._heading_gate(),
                 "accel_gate_on": self._accel_gate_on(), "gyro_quiet": self.gyro_recovery_quiet()}

@@ -47,7 +47,7 @@ ACCEL_GATED = st.FILTER_BASE << 1     # | |f| - g | > accel_gate: roll/pitch row
 UPDATE_SKIPPED = st.FILTER_BASE << 2  # S not positive definite, or pitch at ±90°: no correction
 # measurement = "vectors" only:
 HEADING_UNAIDED = st.FILTER_BASE << 3  # no heading correction for more than HEAD_AGE_MAX s
-MAG_DISTURBED = st.FILTER_BASE << 4    # magnetometer rejected: field norm or dip off its reference
+MAG_DISTURBED = st.FILTER_BASE << 4    # magnetometer rejected: field norm or dip off its reference, or heading gate
 AT_REST = st.FILTER_BASE << 5          # rest detected: the gyro bias is measured directly
 HARD_IRON_SWITCHED = st.FILTER_BASE << 6  # the hard iron and reference were replaced by the candidate
 GYRO_RECOVERY = st.FILTER_BASE << 7    # a gyro sample at its range, or clip_recovery_time after one
@@ -168,7 +168,8 @@ class Reference:
                       "rest_tau", "mag_norm_th", "mag_dip_th", "mag_learn_time", "mag_reject_max",
                       "mag_ref_tau", "mag_new_time", "course_max_sideslip", "gyro_full_scale",
                       "clip_recovery_time", "gyro_rate_noise", "mag_heading_density", "accel_noise_density",
-                      "mag_dev_gain", "gyro_step_noise", "accel_bias_gain", "accel_adapt_sigmas"):
+                      "mag_dev_gain", "gyro_step_noise", "accel_bias_gain", "accel_adapt_sigmas",
+                      "mag_head_sigmas", "mag_head_tau"):
                 setattr(self, k, float(p[k]))
             self.accel_lpf_warm = bool(p["accel_lpf_warm"])
             self.clip = GyroClip(self.gyro_full_scale, float(p["gyro_plateau_rate"]), self.clip_recovery_time)
@@ -187,6 +188,8 @@ class Reference:
             self.mag_cand_time = 0.0      # time the candidate has been steady, s
             self.head_age = AGE_MAX       # time since the last heading correction, s
             self.mag_age = 0.0            # time since the last usable magnetometer sample, s
+            self.head_lp = 0.0            # heading gate: the magnetic heading innovation low-passed, rad
+            self.head_free = False        # ... given up: a lasting inconsistent heading is accepted
             # hard iron (body axes, the field's units) and the candidate field model fitted
             # while the sensor turns, in units of the reference norm: [β (3), n, v]
             self.mag_bias_on = bool(p["mag_bias"])
@@ -521,6 +524,20 @@ class Reference:
         if mag_ok:
             mn = Rq @ m
             cur = np.array([np.sqrt(m @ m), np.arctan2(mn[2], np.hypot(mn[0], mn[1]))])
+            head_off = False
+            if self.mag_head_sigmas > 0.0:
+                # heading gate: the low-passed heading innovation against the heading's own
+                # standard deviation (H P Hᵀ = 4 P_zz, θ = 2 δ) and what the low-pass leaves of the
+                # white heading noise (density² / (2 τ)); gives up after min(mag_new_time,
+                # mag_reject_max) rejected, until the innovation is consistent again
+                z_m = wrap(self.declination - np.arctan2(mn[1], mn[0]))
+                self.head_lp = wrap(self.head_lp + mag_dt / (self.mag_head_tau + mag_dt) * wrap(z_m - self.head_lp))
+                var = 4.0 * P[2, 2] + self.mag_heading_density ** 2 / (2.0 * self.mag_head_tau)
+                inconsistent = self.head_lp ** 2 > self.mag_head_sigmas ** 2 * var
+                self.head_free = inconsistent and (
+                    self.head_free or self.mag_rej_time + dt >= min(self.mag_new_time, self.mag_reject_max))
+                head_off = (inconsistent and not self.head_free and self.mag_ref_time >= self.mag_learn_time
+                            and not recovering)
             if self.mag_norm_th <= 0.0 or (recovering and self.mag_ref_time >= self.mag_learn_time):
                 mag_use = True
             elif self.mag_ref_time < self.mag_learn_time:
@@ -528,7 +545,7 @@ class Reference:
                 self.mag_ref_time += dt
                 mag_use = True
             else:
-                if not self._off(cur, self.mag_ref):
+                if not (self._off(cur, self.mag_ref) or head_off):
                     self.mag_rej_time = 0.0
                     self.mag_ref = self.mag_ref + dt / (self.mag_ref_tau + dt) * (cur - self.mag_ref)
                     mag_use = True
