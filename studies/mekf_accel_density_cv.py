@@ -50,6 +50,11 @@ def gps_outage(log):
     return log
 
 
+def outage_logs(seeds) -> dict:
+    """The fixed-wing with its 60 s GPS outage, one log per seed (a study's extra_logs)."""
+    return {"fixedwing_gps_outage": [gps_outage(make("fixedwing_gps", s)) for s in seeds]}
+
+
 def candidates():
     # density 0.004 rad sqrt(s): 0.068 rad per sample at 286 Hz, 0.126 at 1 kHz, 0.014 at 12.5 Hz
     for a, d in itertools.product((0.02, 0.03, 0.04, 0.05, 0.06, 0.07, 0.09), (0.0, 0.002, 0.003, 0.004, 0.005, 0.006, 0.008)):
@@ -61,7 +66,7 @@ def main(argv=None):
     if broad is None:
         return 2
     scen = logo_cv.scenarios(SCENARIOS, SEEDS)
-    scen["fixedwing_gps_outage"] = [gps_outage(make("fixedwing_gps", s)) for s in SEEDS]
+    scen.update(outage_logs(SEEDS))
     results = logo_cv.run(candidates(), *broad, scen)
     before = next(r for r in results if r[0] == {"accel_angle_noise": 0.07, "accel_noise_density": 0.0})
     cv = logo_cv.cross_validate(results, list(scen), admissible=lambda e: e["multirotor"] <= MULTIROTOR_MAX

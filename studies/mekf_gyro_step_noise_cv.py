@@ -30,9 +30,8 @@ import itertools
 import sys
 
 import logo_cv
-from mekf_accel_density_cv import FIXEDWING_MAX, gps_outage
+from mekf_accel_density_cv import FIXEDWING_MAX, outage_logs
 from mekf_mag_dev_cv import MULTIROTOR_MAX, RATES, SCENARIOS as MAG_SCENARIOS
-from ahrsgen.sim.scenarios import make
 
 SEEDS = range(3)
 KEEP = ("fixedwing_gps_outage", "attached_magnet", "handheld", "gyro_clip")
@@ -50,8 +49,7 @@ def mekf_study(doc, argv, candidates, before, title, label="before"):
     admissibility (multirotor and fixedwing_gps bounds, the other entries within 10 % or 0.05
     deg of the baseline): one place for this study and those that follow it."""
     return logo_cv.study(doc, argv, SCENARIOS, SEEDS, candidates, before, title, label, "mekf", rates=RATES,
-                         extra_logs=lambda seeds: {"fixedwing_gps_outage": [gps_outage(make("fixedwing_gps", s))
-                                                                            for s in seeds]},
+                         extra_logs=outage_logs,
                          admissible=lambda e, base: e["multirotor"] <= MULTIROTOR_MAX
                          and e["fixedwing_gps"] <= FIXEDWING_MAX
                          and all(e[k] <= max(1.1 * base[k], base[k] + 0.05) for k in KEEP))

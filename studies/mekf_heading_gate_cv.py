@@ -43,11 +43,10 @@ import itertools
 import sys
 
 import logo_cv
-from mekf_accel_density_cv import gps_outage
+from mekf_accel_density_cv import outage_logs
 from mekf_gyro_step_noise_cv import KEEP, SEEDS
 from mekf_mag_dev_cv import FIXEDWING_MAX, MULTIROTOR_MAX, RATES
 from mekf_nogps_cv import SCENARIOS, broad_mean
-from ahrsgen.sim.scenarios import make
 
 BROAD_SLACK = 1.02
 OFF = {"mag_head_sigmas": 0.0, "mag_head_tau": 1.0}
@@ -68,8 +67,7 @@ def admissible(e, base):
 def main(argv=None):
     return logo_cv.study(__doc__, argv, SCENARIOS, SEEDS, candidates(), OFF,
                          "mekf heading gate, leave one BROAD group out", "gate off", "mekf", rates=RATES,
-                         extra_logs=lambda seeds: {"fixedwing_gps_outage": [gps_outage(make("fixedwing_gps", s))
-                                                                            for s in seeds]},
+                         extra_logs=outage_logs,
                          admissible=admissible)
 
 

@@ -57,11 +57,10 @@ import itertools
 import sys
 
 import logo_cv
-from mekf_accel_density_cv import gps_outage
+from mekf_accel_density_cv import outage_logs
 from mekf_gyro_step_noise_cv import SEEDS
 from mekf_mag_dev_cv import KEEP, MULTIROTOR_MAX, RATES
 from mekf_nogps_cv import FIXEDWING_MAX, SCENARIOS as NOGPS_SCENARIOS, WITH_GPS, broad_mean
-from ahrsgen.sim.scenarios import make
 
 # the scenarios of studies/mekf_nogps_cv.py, and the static accelerometer disturbance back (as in
 # studies/mekf_accel_density_cv.py): the gravity rows' weighting is what it measures
@@ -101,8 +100,7 @@ def main(argv=None):
                          "mekf: the low-pass's motion as a density, with the residual adaptation, "
                          "leave one BROAD group out",
                          "before", "mekf", rates=RATES,
-                         extra_logs=lambda seeds: {"fixedwing_gps_outage": [gps_outage(make("fixedwing_gps", s))
-                                                                            for s in seeds]},
+                         extra_logs=outage_logs,
                          admissible=admissible)
 
 

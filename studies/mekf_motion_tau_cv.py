@@ -25,8 +25,7 @@ from __future__ import annotations
 import sys
 
 import logo_cv
-from mekf_accel_density_cv import FIXEDWING_MAX, MULTIROTOR_MAX, OUTAGE_WORSE_MAX, SCENARIOS, gps_outage
-from ahrsgen.sim.scenarios import make
+from mekf_accel_density_cv import FIXEDWING_MAX, MULTIROTOR_MAX, OUTAGE_WORSE_MAX, SCENARIOS, outage_logs
 
 SEEDS = range(3)
 DEFAULTS = {"accel_angle_noise": 0.07, "accel_noise_density": 0.004, "accel_motion_tau": 0.0}
@@ -45,8 +44,7 @@ def main(argv=None):
     return logo_cv.study(__doc__, argv, SCENARIOS, SEEDS, candidates(), DEFAULTS,
                          "mekf accel_motion_tau (correlated motion residual), leave one BROAD group out",
                          "defaults", "mekf", rates=("", "@143", "@95", "@48"),
-                         extra_logs=lambda seeds: {"fixedwing_gps_outage": [gps_outage(make("fixedwing_gps", s))
-                                                                            for s in seeds]},
+                         extra_logs=outage_logs,
                          admissible=lambda e, base: e["multirotor"] <= MULTIROTOR_MAX
                          and e["fixedwing_gps"] <= FIXEDWING_MAX
                          and e["fixedwing_gps_outage"] <= OUTAGE_WORSE_MAX * base["fixedwing_gps_outage"])

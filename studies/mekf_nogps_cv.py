@@ -46,10 +46,9 @@ from __future__ import annotations
 import sys
 
 import logo_cv
-from mekf_accel_density_cv import gps_outage
+from mekf_accel_density_cv import outage_logs
 from mekf_gyro_step_noise_cv import KEEP, SCENARIOS as GPS_SCENARIOS, SEEDS
 from mekf_mag_dev_cv import RATES
-from ahrsgen.sim.scenarios import make
 
 SCENARIOS = {**GPS_SCENARIOS,
              "multirotor_nogps": ("multirotor", {"gps_rate": 0}),
@@ -88,8 +87,7 @@ def main(argv=None):
                          "mekf residual-adaptive gravity noise with the multirotor without GPS, "
                          "leave one BROAD group out",
                          "before", "mekf", rates=RATES,
-                         extra_logs=lambda seeds: {"fixedwing_gps_outage": [gps_outage(make("fixedwing_gps", s))
-                                                                            for s in seeds]},
+                         extra_logs=outage_logs,
                          admissible=admissible)
 
 

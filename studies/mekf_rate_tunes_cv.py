@@ -24,11 +24,10 @@ from __future__ import annotations
 import sys
 
 import logo_cv
-from mekf_accel_density_cv import gps_outage
+from mekf_accel_density_cv import outage_logs
 from mekf_gyro_step_noise_cv import SEEDS
 from mekf_mag_dev_cv import RATES
 from mekf_nogps_cv import SCENARIOS
-from ahrsgen.sim.scenarios import make
 
 DEFAULTS: dict = {}
 TUNES = {
@@ -52,8 +51,7 @@ def main(argv=None):
     return logo_cv.study(__doc__, argv, SCENARIOS, SEEDS, candidates(), DEFAULTS,
                          "mekf: the defaults against the per-rate BROAD tunes, leave one BROAD group out",
                          "defaults", "mekf", rates=RATES,
-                         extra_logs=lambda seeds: {"fixedwing_gps_outage": [gps_outage(make("fixedwing_gps", s))
-                                                                            for s in seeds]})
+                         extra_logs=outage_logs)
 
 
 if __name__ == "__main__":
